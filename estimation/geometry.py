@@ -1,0 +1,60 @@
+"""Planar rigid-body helpers (REP-103: x forward, y left, θ counter-clockwise, metres, radians).
+
+A pose is ``(x, y, θ)``; arrays of poses have shape ``(..., 3)``. Every function is vectorised over
+leading axes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap_angle(theta):
+    """Angle(s) wrapped to [-π, π)."""
+    return (np.asarray(theta) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def compose(a, b):
+    """a ⊕ b: the pose b, given in frame a, expressed in a's parent frame.  a, b: (..., 3)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    return np.stack([x, y, wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
+
+
+def inverse(a):
+    """⊖a, so that compose(a, inverse(a)) is the identity.  a: (..., 3)."""
+    a = np.asarray(a, dtype=float)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -c * a[..., 0] - s * a[..., 1]
+    y = s * a[..., 0] - c * a[..., 1]
+    return np.stack([x, y, wrap_angle(-a[..., 2])], axis=-1)
+
+
+def between(a, b):
+    """The pose of b in the frame of a: ⊖a ⊕ b.  a, b: (..., 3)."""
+    return compose(inverse(a), b)
+
+
+def rot_z(theta) -> np.ndarray:
+    """3×3 rotation about z by θ (stacked for an array of angles: (..., 3, 3))."""
+    theta = np.asarray(theta, dtype=float)
+    c, s = np.cos(theta), np.sin(theta)
+    z, o = np.zeros_like(theta), np.ones_like(theta)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def pose_to_matrix(pose) -> np.ndarray:
+    """Homogeneous 4×4 transform (column-vector convention) of a planar pose lifted to 3-D."""
+    x, y, theta = np.asarray(pose, dtype=float)
+    T = np.eye(4)
+    T[:3, :3] = rot_z(theta)
+    T[0, 3], T[1, 3] = x, y
+    return T
+
+
+def transform_points(pose, points) -> np.ndarray:
+    """Points (N, 3) given in the frame of ``pose`` expressed in its parent frame (z unchanged)."""
+    points = np.asarray(points, dtype=float)
+    return points @ rot_z(pose[2]).T + np.array([pose[0], pose[1], 0.0])
