@@ -1,0 +1,1 @@
+"""Sub-commands of ``p3at``: one module per area, each with ``register(subparsers)``."""
