@@ -1,0 +1,74 @@
+"""The descriptor is a setting: U-SURF (ours), or OpenCV's SIFT or ORB at the same keypoints for comparison.
+
+Every kind returns float32 rows so that one distance routine serves all: U-SURF and SIFT as unit vectors
+compared by Euclidean distance; ORB as its 256 bits unpacked to 0/1, compared by Hamming distance (which
+equals the squared Euclidean distance between bit vectors).
+"""
+from __future__ import annotations
+
+from enum import StrEnum
+
+import cv2
+import numpy as np
+
+from estimation.frontend.errors import FrontEndError
+from estimation.frontend.usurf import usurf_descriptors
+
+
+class DescriptorKind(StrEnum):
+    USURF = "usurf"
+    SIFT = "sift"
+    ORB = "orb"
+
+    @property
+    def is_binary(self) -> bool:
+        return self is DescriptorKind.ORB
+
+
+def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | str = DescriptorKind.USURF,
+             scale: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Descriptors of keypoints (N, 2) (u, v) in a grey uint8 image (H, W).
+
+    scale: the U-SURF s; SIFT and ORB get a patch of the same 20s side.
+    Returns (descriptors (M, D) float32, described (N,) bool); keypoints too near the border are dropped.
+    """
+    kind = DescriptorKind(kind)
+    keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
+    if kind is DescriptorKind.USURF:
+        return usurf_descriptors(image, keypoints, scale)
+    if len(keypoints) == 0:
+        size = 128 if kind is DescriptorKind.SIFT else 256
+        return np.zeros((0, size), np.float32), np.zeros(0, bool)
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        raise FrontEndError(f"OpenCV {kind.value} needs an 8-bit image, got {image.dtype}")
+    # class_id carries each keypoint's index through OpenCV, which may drop some (ORB near the border)
+    cv_keypoints = [cv2.KeyPoint(float(u), float(v), 20.0 * scale, -1, 0, 0, i) for i, (u, v) in enumerate(keypoints)]
+    extractor = cv2.SIFT_create() if kind is DescriptorKind.SIFT else cv2.ORB_create(edgeThreshold=31, patchSize=31)
+    kept, descriptors = extractor.compute(image, cv_keypoints)
+    described = np.zeros(len(keypoints), bool)
+    if descriptors is None or len(kept) == 0:
+        size = 128 if kind is DescriptorKind.SIFT else 256
+        return np.zeros((0, size), np.float32), described
+    index = np.array([k.class_id for k in kept])
+    order = np.argsort(index)
+    index, descriptors = index[order], descriptors[order]
+    described[index] = True
+    if kind is DescriptorKind.ORB:
+        return np.unpackbits(descriptors, axis=1).astype(np.float32), described
+    descriptors = descriptors.astype(np.float32)
+    norms = np.linalg.norm(descriptors, axis=1, keepdims=True)
+    return descriptors / np.maximum(norms, 1e-12), described
+
+
+def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool = False) -> np.ndarray:
+    """Pairwise distances (N, M) between descriptor rows a (N, D) and b (M, D).
+
+    Euclidean for real-valued descriptors; Hamming for 0/1 bit vectors (``binary``).
+    """
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    # |a - b|² = |a|² + |b|² - 2 a·b, which for bits is the Hamming distance
+    squared = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * (a @ b.T)
+    np.maximum(squared, 0.0, out=squared)
+    return squared if binary else np.sqrt(squared)

@@ -1,0 +1,129 @@
+"""Harris corners: response, non-maximum suppression, bucketing for an even spread, sub-pixel refinement.
+
+Image coordinates: (u, v) = (column, row), the centre of pixel (r, c) at (u, v) = (c, r).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from estimation.frontend.errors import FrontEndError
+
+
+@dataclass(frozen=True)
+class HarrisConfig:
+    """Settings of the corner detector.
+
+    k:              Harris' trace weight, R = det(M) - k·trace(M)²
+    window_sigma:   σ (px) of the Gaussian window that sums the gradient products into M
+    nms_size:       side (px, odd) of the square within which a corner must be the maximum
+    quality:        a corner's response must exceed quality × the image's maximum response
+    max_corners:    at most this many corners per image
+    grid:           (columns, rows) of buckets; each keeps at most ceil(max_corners / cells) corners
+    margin:         corners closer than this (px) to the border are not reported
+    """
+
+    k: float = 0.04
+    window_sigma: float = 1.0
+    nms_size: int = 5
+    quality: float = 1e-3
+    max_corners: int = 400
+    grid: tuple[int, int] = (8, 6)
+    margin: int = 4
+
+
+def as_gray_float32(image: np.ndarray) -> np.ndarray:
+    """A 2-D float32 copy-free view when possible; colour (H, W, 3) BGR is converted to grey."""
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if image.ndim != 2 or image.shape[0] < 3 or image.shape[1] < 3:
+        raise FrontEndError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {image.shape}")
+    return image.astype(np.float32, copy=False)
+
+
+def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.0) -> np.ndarray:
+    """Harris response R = det(M) - k·trace(M)² of an image (H, W) -> (H, W) float32.
+
+    M is the Gaussian-windowed structure tensor of 3×3 Sobel gradients.
+    """
+    img = as_gray_float32(image)
+    ix = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
+    iy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+    side = 2 * int(np.ceil(2.0 * window_sigma)) + 1  # the Gaussian truncated at 2σ
+    blur = dict(ksize=(side, side), sigmaX=window_sigma, sigmaY=window_sigma, borderType=cv2.BORDER_REFLECT_101)
+    sxx = cv2.GaussianBlur(ix * ix, **blur)
+    syy = cv2.GaussianBlur(iy * iy, **blur)
+    sxy = cv2.GaussianBlur(ix * iy, **blur)
+    trace = sxx + syy
+    return sxx * syy - sxy * sxy - np.float32(k) * trace * trace
+
+
+def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, margin: int) -> np.ndarray:
+    """Integer (row, col) of local maxima above ``threshold`` at least ``margin`` px inside: (N, 2) int."""
+    if size < 1 or size % 2 == 0:
+        raise FrontEndError(f"nms_size must be odd and positive, got {size}")
+    dilated = cv2.dilate(response, np.ones((size, size), np.uint8))
+    peak = (response >= dilated) & (response > threshold)
+    m = max(int(margin), 1)  # the sub-pixel fit needs one neighbour on each side
+    peak[:m] = False
+    peak[-m:] = False
+    peak[:, :m] = False
+    peak[:, -m:] = False
+    return np.argwhere(peak)
+
+
+def bucket(rows: np.ndarray, cols: np.ndarray, scores: np.ndarray, shape: tuple[int, int],
+           grid: tuple[int, int], max_total: int) -> np.ndarray:
+    """Indices of the strongest candidates per grid cell, at most ``max_total``, strongest first.
+
+    rows, cols, scores: (N,); shape: image (H, W); grid: (columns, rows) of cells -> (M,) int indices.
+    """
+    n_cols, n_rows = grid
+    per_cell = -(-max_total // (n_cols * n_rows))
+    cell = (rows * n_rows // shape[0]) * n_cols + cols * n_cols // shape[1]
+    order = np.lexsort((-scores, cell))  # by cell, strongest first within a cell
+    sorted_cell = cell[order]
+    first_of_cell = np.searchsorted(sorted_cell, sorted_cell, side="left")
+    rank = np.arange(len(order)) - first_of_cell
+    kept = order[rank < per_cell]
+    kept = kept[np.argsort(-scores[kept], kind="stable")]
+    return kept[:max_total]
+
+
+def subpixel_offsets(response: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex of the parabola through the response at each peak and its two neighbours, per axis.
+
+    Returns (du, dv), each (N,) in [-0.5, 0.5].
+    """
+    centre = response[rows, cols]
+
+    def vertex(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+        curvature = before - 2.0 * centre + after
+        with np.errstate(divide="ignore", invalid="ignore"):
+            offset = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
+        return np.clip(offset, -0.5, 0.5)
+
+    du = vertex(response[rows, cols - 1], response[rows, cols + 1])
+    dv = vertex(response[rows - 1, cols], response[rows + 1, cols])
+    return du, dv
+
+
+def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """Harris corners of an image (H, W).
+
+    Returns (pixels (N, 2) float64 sub-pixel (u, v), responses (N,) float32), strongest first.
+    """
+    response = harris_response(image, config.k, config.window_sigma)
+    peak_max = float(response.max()) if response.size else 0.0
+    if peak_max <= 0.0:
+        return np.zeros((0, 2)), np.zeros(0, np.float32)
+    peaks = non_maximum_suppression(response, config.nms_size, config.quality * peak_max, config.margin)
+    rows, cols = peaks[:, 0], peaks[:, 1]
+    scores = response[rows, cols]
+    keep = bucket(rows, cols, scores, response.shape, config.grid, config.max_corners)
+    rows, cols, scores = rows[keep], cols[keep], scores[keep]
+    du, dv = subpixel_offsets(response, rows, cols)
+    return np.stack([cols + du, rows + dv], axis=1).astype(np.float64), scores

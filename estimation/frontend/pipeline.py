@@ -1,0 +1,170 @@
+"""One stereo frame in, one observation set out: detect, describe, match, refine, triangulate.
+
+``run_frontend`` is the pure functional core (arrays in, ``StereoMatches`` out); ``FrontEnd`` holds the
+configuration (and optional rectification maps) and turns each pair into the ``StereoObservations`` that
+FastSLAM consumes.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from estimation.frontend.descriptors import DescriptorKind, describe
+from estimation.frontend.errors import FrontEndError
+from estimation.frontend.harris import HarrisConfig, detect_corners
+from estimation.frontend.stereo import StereoMatchConfig, match_rows, refine_disparity_ssd
+from estimation.frontend.triangulation import (
+    StereoGeometry,
+    TriangulationNoise,
+    camera_to_base,
+    keep_triangulable,
+    triangulate,
+    triangulation_covariances,
+)
+from estimation.observations import StereoObservations
+
+
+@dataclass(frozen=True)
+class FrontEndConfig:
+    """Everything the front end needs; ``to_dict()`` dumps it (e.g. to JSON next to a run's output).
+
+    descriptor: "usurf" (default, 64-D), "sift" (128-D) or "orb" (256 bits as 0/1 floats, Hamming distance)
+    scale:      the fixed U-SURF scale s, px (window 20s); SIFT/ORB patches get the same side
+    """
+
+    harris: HarrisConfig = field(default_factory=HarrisConfig)
+    descriptor: DescriptorKind = DescriptorKind.USURF
+    scale: float = 2.0
+    matching: StereoMatchConfig = field(default_factory=StereoMatchConfig)
+    geometry: StereoGeometry = field(default_factory=StereoGeometry)
+    noise: TriangulationNoise = field(default_factory=TriangulationNoise)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "descriptor", DescriptorKind(self.descriptor))
+        if self.scale <= 0:
+            raise FrontEndError(f"scale must be positive, got {self.scale}")
+
+    def to_dict(self) -> dict:
+        out = dataclasses.asdict(self)
+        out["descriptor"] = self.descriptor.value
+        return out
+
+
+@dataclass(frozen=True)
+class RectificationMaps:
+    """Per-camera remap tables (H, W) float32 from rectified to raw pixel coordinates (cv2.remap's map1/map2)."""
+
+    left_x: np.ndarray
+    left_y: np.ndarray
+    right_x: np.ndarray
+    right_y: np.ndarray
+
+
+@dataclass(frozen=True)
+class StereoMatches:
+    """Every stereo match of one rectified pair that survived triangulation's limits (K matches).
+
+    left_pixels, right_pixels: (K, 2) (u, v) px;  disparities: (K,) px
+    points_camera, covariances_camera: (K, 3), (K, 3, 3) in the left optical frame (m, m²)
+    points_base, covariances_base: the same in base_link
+    descriptors: (K, D) float32 of the left corners;  descriptor_distances: (K,)
+    """
+
+    left_pixels: np.ndarray
+    right_pixels: np.ndarray
+    disparities: np.ndarray
+    points_camera: np.ndarray
+    covariances_camera: np.ndarray
+    points_base: np.ndarray
+    covariances_base: np.ndarray
+    descriptors: np.ndarray
+    descriptor_distances: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.disparities)
+
+    def to_observations(self, timestamp: float) -> StereoObservations:
+        return StereoObservations(self.points_base, self.covariances_base, self.descriptors,
+                                  self.left_pixels, float(timestamp))
+
+
+def rectify_pair(left: np.ndarray, right: np.ndarray, maps: RectificationMaps) -> tuple[np.ndarray, np.ndarray]:
+    """Remap a raw pair to the rectified geometry (bilinear)."""
+    return (cv2.remap(left, maps.left_x, maps.left_y, cv2.INTER_LINEAR),
+            cv2.remap(right, maps.right_x, maps.right_y, cv2.INTER_LINEAR))
+
+
+def _grey(image: np.ndarray, name: str) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim != 2:
+        raise FrontEndError(f"{name} image must be grey (H, W) or BGR (H, W, 3), got shape {image.shape}")
+    if image.dtype != np.uint8:
+        if not np.issubdtype(image.dtype, np.number):
+            raise FrontEndError(f"{name} image has non-numeric dtype {image.dtype}")
+        image = np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return image
+
+
+def detection_margin(config: FrontEndConfig) -> int:
+    """Border (px) inside which a corner can be described: the 20s window plus the Haar half side."""
+    return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + max(1, round(config.scale)) + 1)
+
+
+def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = FrontEndConfig()) -> StereoMatches:
+    """The front end on a rectified pair of grey (H, W) images (uint8, or numbers rounded to 0..255)."""
+    left, right = _grey(left, "left"), _grey(right, "right")
+    if left.shape != right.shape:
+        raise FrontEndError(f"left {left.shape} and right {right.shape} images differ in size")
+    # 1. corners, kept where a descriptor window fits
+    harris = dataclasses.replace(config.harris, margin=detection_margin(config))
+    left_corners, _ = detect_corners(left, harris)
+    right_corners, _ = detect_corners(right, harris)
+    # 2. descriptors
+    left_desc, left_ok = describe(left, left_corners, config.descriptor, config.scale)
+    right_desc, right_ok = describe(right, right_corners, config.descriptor, config.scale)
+    left_corners, right_corners = left_corners[left_ok], right_corners[right_ok]
+    # 3. row-constrained matching with ratio test and left-right check
+    li, ri, dist = match_rows(left_corners, left_desc, right_corners, right_desc, config.matching,
+                              binary=config.descriptor.is_binary)
+    left_px = left_corners[li]
+    disparity = left_px[:, 0] - right_corners[ri, 0]
+    # 4. sub-pixel disparity
+    if config.matching.subpixel == "ssd":
+        disparity, _ = refine_disparity_ssd(left, right, left_px, disparity, config.matching.ssd_half_window)
+    # 5. triangulation, dropping points too far away
+    keep = keep_triangulable(disparity, config.geometry, config.noise)
+    left_px, disparity, desc, dist = left_px[keep], disparity[keep], left_desc[li[keep]], dist[keep]
+    points = triangulate(left_px, disparity, config.geometry)
+    covariances = triangulation_covariances(left_px, disparity, config.geometry, config.noise)
+    points_base, covariances_base = camera_to_base(points, covariances, config.geometry)
+    right_px = np.stack([left_px[:, 0] - disparity, left_px[:, 1]], axis=1)
+    return StereoMatches(left_px, right_px, disparity, points, covariances, points_base, covariances_base,
+                         desc, dist)
+
+
+class FrontEnd:
+    """The visual front end of one stereo head.
+
+    ``FrontEnd(FrontEndConfig(geometry=StereoGeometry(fx=..., baseline=...)))``; ``process(left, right, t)``
+    takes a rectified pair (or a raw pair when built with ``rectification`` maps) and returns the frame's
+    ``StereoObservations`` in base_link. ``last_matches`` keeps the full detail of the last frame.
+    """
+
+    def __init__(self, config: FrontEndConfig = FrontEndConfig(), rectification: RectificationMaps | None = None):
+        self.config = config
+        self.rectification = rectification
+        self.last_matches: StereoMatches | None = None
+
+    def match(self, left: np.ndarray, right: np.ndarray) -> StereoMatches:
+        if self.rectification is not None:
+            left, right = rectify_pair(left, right, self.rectification)
+        self.last_matches = run_frontend(left, right, self.config)
+        return self.last_matches
+
+    def process(self, left: np.ndarray, right: np.ndarray, timestamp: float) -> StereoObservations:
+        return self.match(left, right).to_observations(timestamp)

@@ -1,0 +1,118 @@
+"""Sparse stereo correspondence on a rectified pair: corners on the same row, matched by descriptor.
+
+For each left corner the candidates are the right corners within ``row_tolerance`` px of its row and with
+a disparity u_left - u_right in [min_disparity, max_disparity]. The nearest candidate by descriptor distance
+is kept if it passes the ratio test against the second nearest and the left-right check (the left corner
+is also the nearest of that right corner's candidates). The disparity is then refined to sub-pixel by a
+parabola through a zero-mean SSD profile along the row (or taken from the corners' sub-pixel u).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimation.frontend.descriptors import distance_matrix
+from estimation.frontend.errors import FrontEndError
+
+
+@dataclass(frozen=True)
+class StereoMatchConfig:
+    """Settings of the matcher.
+
+    row_tolerance:     |v_left - v_right| allowed, px (rectified pairs: ~1)
+    min_disparity, max_disparity: search range of u_left - u_right, px
+    ratio:             keep the best match only if best < ratio × second best distance
+    max_distance:      and best ≤ this descriptor distance (None: no limit)
+    subpixel:          "ssd": parabola through a zero-mean SSD profile along the row; "corner": u_l - u_r
+    ssd_half_window:   the SSD patch is (2·h + 1)² px
+    """
+
+    row_tolerance: float = 1.0
+    min_disparity: float = 0.0
+    max_disparity: float = 96.0
+    ratio: float = 0.8
+    max_distance: float | None = None
+    subpixel: str = "ssd"
+    ssd_half_window: int = 3
+
+    def __post_init__(self) -> None:
+        if self.subpixel not in ("ssd", "corner"):
+            raise FrontEndError(f"subpixel must be 'ssd' or 'corner', got {self.subpixel!r}")
+        if not 0.0 < self.ratio <= 1.0:
+            raise FrontEndError(f"ratio must be in (0, 1], got {self.ratio}")
+        if self.max_disparity <= self.min_disparity:
+            raise FrontEndError(f"empty disparity range [{self.min_disparity}, {self.max_disparity}]")
+
+
+def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixels: np.ndarray,
+               right_descriptors: np.ndarray, config: StereoMatchConfig = StereoMatchConfig(),
+               binary: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Descriptor matches between left corners (N, 2) and right corners (M, 2) of a rectified pair.
+
+    Returns (left_index (K,), right_index (K,), distance (K,)).
+    """
+    n, m = len(left_pixels), len(right_pixels)
+    if n == 0 or m == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    disparity = left_pixels[:, 0:1] - right_pixels[None, :, 0]
+    admissible = ((np.abs(left_pixels[:, 1:2] - right_pixels[None, :, 1]) <= config.row_tolerance)
+                  & (disparity >= config.min_disparity) & (disparity <= config.max_disparity))
+    distance = distance_matrix(left_descriptors, right_descriptors, binary)
+    distance[~admissible] = np.inf
+    rows = np.arange(n)
+    best_right = np.argmin(distance, axis=1)
+    best = distance[rows, best_right]
+    second = np.partition(distance, 1, axis=1)[:, 1] if m > 1 else np.full(n, np.inf)
+    best_left_of_right = np.argmin(distance, axis=0)
+    keep = np.isfinite(best) & (best < config.ratio * second) & (best_left_of_right[best_right] == rows)
+    if config.max_distance is not None:
+        keep &= best <= config.max_distance
+    return rows[keep], best_right[keep], best[keep]
+
+
+def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.ndarray, disparities: np.ndarray,
+                         half_window: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel disparities at the integer left pixels nearest ``left_pixels`` (K, 2).
+
+    Evaluates the zero-mean SSD between (2h+1)² patches for the integer disparities round(d) - 2 .. round(d) + 2,
+    takes the minimum among the middle three and the vertex of the parabola through it and its neighbours.
+    Returns (disparity (K,) float64, refined (K,) bool); where the patch leaves the image or the profile has
+    no interior minimum the input disparity is returned with refined = False.
+    """
+    left = np.asarray(left, dtype=np.float32)
+    right = np.asarray(right, dtype=np.float32)
+    k = len(left_pixels)
+    result = np.asarray(disparities, dtype=np.float64).copy()
+    refined = np.zeros(k, bool)
+    if k == 0:
+        return result, refined
+    h = half_window
+    x0 = np.rint(left_pixels[:, 0]).astype(np.int64)
+    y0 = np.rint(left_pixels[:, 1]).astype(np.int64)
+    d0 = np.rint(result).astype(np.int64)
+    steps = np.arange(-2, 3)
+    width = left.shape[1]
+    inside = ((y0 - h >= 0) & (y0 + h < left.shape[0]) & (x0 - h >= 0) & (x0 + h < width)
+              & (x0 - d0 - 2 - h >= 0) & (x0 - d0 + 2 + h < width))
+    idx = np.flatnonzero(inside)
+    if len(idx) == 0:
+        return result, refined
+    window = np.arange(-h, h + 1)
+    rows = (y0[idx, None] + window)[:, :, None]  # (K, W, 1)
+    left_patch = left[rows, (x0[idx, None] + window)[:, None, :]]  # (K, W, W)
+    right_cols = (x0[idx] - d0[idx])[:, None, None] - steps[None, :, None] + window[None, None, :]  # (K, 5, W)
+    right_patch = right[rows[:, None, :, :], right_cols[:, :, None, :]]  # (K, 5, W, W)
+    left_patch = left_patch - left_patch.mean(axis=(1, 2), keepdims=True)
+    right_patch = right_patch - right_patch.mean(axis=(2, 3), keepdims=True)
+    cost = ((right_patch - left_patch[:, None]) ** 2).sum(axis=(2, 3))  # (K, 5) over steps -2..2
+    b = 1 + np.argmin(cost[:, 1:4], axis=1)
+    j = np.arange(len(idx))
+    before, centre, after = cost[j, b - 1], cost[j, b], cost[j, b + 1]
+    curvature = before - 2.0 * centre + after
+    good = curvature > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vertex = np.where(good, 0.5 * (before - after) / curvature, 0.0)
+    result[idx[good]] = d0[idx[good]] + steps[b[good]] + np.clip(vertex[good], -0.5, 0.5)
+    refined[idx[good]] = True
+    return result, refined

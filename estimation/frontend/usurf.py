@@ -1,0 +1,138 @@
+"""U-SURF (upright SURF) descriptors at given keypoints, vectorised over keypoints on an integral image.
+
+As in Bay et al. (ECCV 2006 / CVIU 2008) and ``../shared/reference/usurf.md``:
+- a 20s × 20s axis-aligned window around the keypoint, 4 × 4 subregions of 5 × 5 samples at spacing s;
+  sample k (k = 0..19) of an axis lies at offset (k - 9.5)·s from the keypoint, so the window is centred;
+- at each sample the Haar wavelet responses dx, dy of size 2s, summed on the integral image;
+- each response weighted by a Gaussian of σ = 3.3s centred on the keypoint (evaluated at the nominal
+  sample offsets, as OpenCV's surf.cpp does with its precomputed weights);
+- each subregion gives (Σdx, Σdy, Σ|dx|, Σ|dy|); the 64 values are scaled to unit length.
+
+Discretisation (documented because the papers leave it open): the Haar wavelet has the even integer side
+h = 2·max(1, round(s)) and is centred on the pixel corner nearest the sample; dx is the sum of the right
+half minus the left half, dy the bottom half minus the top half (image rows grow downwards), so a ramp
+I = a·u + b·v gives dx = a·h³/4, dy = b·h³/4 at every sample.
+
+Border: a keypoint whose window (with the wavelets) does not fit inside the image is dropped; the
+``described`` mask says which keypoints got a descriptor. A keypoint on a perfectly flat patch (all
+responses zero, no direction to normalise) is dropped too.
+
+Descriptor layout: subregion (row i, column j) of the window, row-major, holds the 4 values at
+4·(4·i + j) .. 4·(4·i + j) + 3.
+"""
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+from estimation.frontend.errors import FrontEndError
+
+SAMPLES_PER_AXIS = 20  # 4 subregions × 5 samples
+SUBREGIONS = 4
+DESCRIPTOR_SIZE = 64
+GAUSSIAN_SIGMA_IN_SCALES = 3.3
+
+
+def haar_half_size(scale: float) -> int:
+    """Half the side of the Haar wavelet (px) at scale s: the wavelet's side 2s rounded to an even integer ≥ 2."""
+    return max(1, int(round(scale)))
+
+
+def sample_offsets(scale: float) -> np.ndarray:
+    """Offsets (20,) of the samples from the keypoint along one axis, px."""
+    return (np.arange(SAMPLES_PER_AXIS) - (SAMPLES_PER_AXIS - 1) / 2.0) * scale
+
+
+def gaussian_weights(scale: float) -> np.ndarray:
+    """Weights (20, 20) [row, column] of the samples: Gaussian of σ = 3.3s centred on the keypoint."""
+    offsets = sample_offsets(scale)
+    sigma = GAUSSIAN_SIGMA_IN_SCALES * scale
+    g = np.exp(-(offsets**2) / (2.0 * sigma**2))
+    return np.outer(g, g)
+
+
+@functools.lru_cache(maxsize=8)
+def pooling_matrix(scale: float) -> np.ndarray:
+    """(400, 16) float32: column 4·i + j holds the Gaussian weights of subregion (i, j)'s 25 samples, 0 elsewhere.
+
+    Multiplying a keypoint's (400,) sample responses by it gives the 16 weighted subregion sums at once.
+    """
+    sample = np.arange(SAMPLES_PER_AXIS)
+    subregion_of = sample // 5
+    region = (subregion_of[:, None] * SUBREGIONS + subregion_of[None, :]).reshape(-1)  # (400,)
+    pooling = np.zeros((SAMPLES_PER_AXIS**2, SUBREGIONS**2), np.float32)
+    pooling[np.arange(SAMPLES_PER_AXIS**2), region] = gaussian_weights(scale).reshape(-1)
+    pooling.setflags(write=False)
+    return pooling
+
+
+def integral_image(image: np.ndarray) -> np.ndarray:
+    """Integral image (H + 1, W + 1): entry [r, c] is the sum of image[:r, :c].
+
+    8-bit images sum exactly in int32 (up to 2^31 / 255 ≈ 8.4 Mpx); others in float64.
+    """
+    image = np.asarray(image)
+    if image.ndim != 2:
+        raise FrontEndError(f"expected a grey (H, W) image, got shape {image.shape}")
+    if image.dtype == np.uint8 and image.size < 2**31 // 255:
+        return cv2.integral(image, sdepth=cv2.CV_32S)
+    return cv2.integral(np.ascontiguousarray(image, dtype=np.float64), sdepth=cv2.CV_64F)
+
+
+def dense_haar_responses(integral: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Haar responses (dx, dy) of side 2·half at every pixel corner where the wavelet fits.
+
+    integral: (H + 1, W + 1) -> dx, dy: (H + 1 - 2·half, W + 1 - 2·half); element [i, j] is the wavelet
+    centred on the corner with integral index (i + half, j + half), i.e. at (u, v) = (j + half - ½, i + half - ½).
+    """
+    h2 = 2 * half
+    n_rows, n_cols = integral.shape[0] - h2, integral.shape[1] - h2
+    if n_rows < 1 or n_cols < 1:
+        raise FrontEndError(f"image too small for Haar wavelets of side {h2}")
+    # strips: vertical[i, c] sums rows i .. i+2h-1 left of column c; horizontal[r, j] columns j .. j+2h-1 above row r
+    vertical = integral[h2:] - integral[:n_rows]
+    horizontal = integral[:, h2:] - integral[:, :n_cols]
+    # right half - left half = V[c+2h] - 2 V[c+h] + V[c]; bottom - top likewise along rows
+    dx = vertical[:, h2:] - 2 * vertical[:, half:half + n_cols] + vertical[:, :n_cols]
+    dy = horizontal[h2:] - 2 * horizontal[half:half + n_rows] + horizontal[:n_rows]
+    return dx, dy
+
+
+def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """U-SURF descriptors of keypoints at one fixed scale.
+
+    image: (H, W) grey; keypoints: (N, 2) sub-pixel (u, v); scale: s in px.
+    Returns (descriptors (M, 64) float32 unit length, described (N,) bool) with M = described.sum().
+    """
+    if scale <= 0:
+        raise FrontEndError(f"U-SURF scale must be positive, got {scale}")
+    keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
+    half = haar_half_size(scale)
+    dx_img, dy_img = dense_haar_responses(integral_image(image), half)
+    return usurf_from_haar(dx_img, dy_img, keypoints, scale, half)
+
+
+def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarray, scale: float,
+                    half: int) -> tuple[np.ndarray, np.ndarray]:
+    """The descriptor core on precomputed dense Haar responses (see ``dense_haar_responses``)."""
+    offsets = sample_offsets(scale)
+    # integral index of the corner nearest each sample, minus half -> index into the dense response arrays
+    cols = np.floor(keypoints[:, 0:1] + offsets + 1.0).astype(np.int64) - half  # (N, 20)
+    rows = np.floor(keypoints[:, 1:2] + offsets + 1.0).astype(np.int64) - half
+    n_rows, n_cols = dx_img.shape
+    inside = (cols[:, 0] >= 0) & (cols[:, -1] < n_cols) & (rows[:, 0] >= 0) & (rows[:, -1] < n_rows)
+    cols, rows = cols[inside], rows[inside]
+    flat = (rows[:, :, None] * n_cols + cols[:, None, :]).reshape(len(cols), -1)  # (M, 400), [row, col] order
+    pooling = pooling_matrix(float(scale))
+    dx = np.take(dx_img, flat).astype(np.float32)
+    dy = np.take(dy_img, flat).astype(np.float32)
+    # the weights are positive, so Σ w·|dx| = Σ |w·dx|
+    sums = np.stack([dx @ pooling, dy @ pooling, np.abs(dx) @ pooling, np.abs(dy) @ pooling], axis=-1)
+    sums = sums.reshape(len(flat), DESCRIPTOR_SIZE)
+    norms = np.linalg.norm(sums, axis=1)
+    textured = norms > 0
+    described = inside.copy()
+    described[inside] = textured
+    return (sums[textured] / norms[textured, None]).astype(np.float32), described
