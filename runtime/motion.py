@@ -1,0 +1,188 @@
+"""Motion: who decides the velocity command. Pure controllers (pose and sonar in, (v, ω) out, no I/O).
+
+- :class:`PurePursuit` follows a route of waypoints (Coulter 1992), slowing for obstacles the sonar sees.
+- :class:`WallFollower` explores: keeps a wall at a set distance on one side, turns away from what is ahead.
+- :class:`NoMotion` commands nothing (someone else drives the robot).
+
+Poses are ``(x, y, θ)`` in the robot's odometry frame (REP-103); sonar as ``sonar_poses (S, 3)`` in
+base_link and ``ranges (S,)`` metres. The same code drives a real P3-AT and the virtual ones.
+
+Route file format (``.route``, UTF-8 text): one waypoint per line, ``x y`` or ``x, y`` in metres in the
+frame the route is given in; blank lines and ``#`` comments are ignored.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from estimation.geometry import between, wrap_angle
+
+
+class RouteFileError(ValueError):
+    """A route file is missing or malformed; the message names the file and line."""
+
+
+@dataclass(frozen=True)
+class MotionCommand:
+    v: float          # m/s forward
+    w: float          # rad/s counter-clockwise
+    done: bool = False
+
+
+class Controller(Protocol):
+    def command(self, pose: np.ndarray, sonar_poses: np.ndarray | None = None,
+                ranges: np.ndarray | None = None) -> MotionCommand: ...
+
+
+def load_route(path: str | os.PathLike) -> np.ndarray:
+    """Waypoints (K, 2) from a route file (see the module docstring)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RouteFileError(f"{path}: no such route file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RouteFileError(f"{path}: cannot read the route file ({e})") from None
+    points = []
+    for number, line in enumerate(text.splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.replace(",", " ").split()
+        try:
+            if len(fields) != 2:
+                raise ValueError(f"expected 2 numbers (x y), got {len(fields)}")
+            x, y = float(fields[0]), float(fields[1])
+            if not (np.isfinite(x) and np.isfinite(y)):
+                raise ValueError("not finite")
+        except ValueError as e:
+            raise RouteFileError(f"{path}:{number}: bad waypoint {line!r} ({e})") from None
+        points.append((x, y))
+    if not points:
+        raise RouteFileError(f"{path}: the route has no waypoints")
+    return np.array(points, float)
+
+
+def save_route(path: str | os.PathLike, waypoints: np.ndarray) -> None:
+    from estimation.fileio import atomic_write_bytes
+
+    lines = ["# p3at-fusion route: x y (metres)"] + [f"{x:.4f} {y:.4f}" for x, y in np.asarray(waypoints)]
+    atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
+
+
+def _sector_min(sonar_poses: np.ndarray | None, ranges: np.ndarray | None, lo: float, hi: float) -> float:
+    """The nearest sonar range among sonars pointing within [lo, hi] rad of the robot's heading."""
+    if sonar_poses is None or ranges is None or len(ranges) == 0:
+        return np.inf
+    angles = wrap_angle(np.asarray(sonar_poses)[:, 2])
+    mask = (angles >= lo) & (angles <= hi)
+    return float(np.min(np.asarray(ranges)[mask])) if mask.any() else np.inf
+
+
+class PurePursuit:
+    """Follow waypoints (K, 2): steer toward the point ``lookahead`` m ahead on the route.
+
+    Each waypoint is reached (within ``goal_tolerance``) before the next segment starts, so a route that
+    turns back on itself is followed; slows down and stops while an obstacle is nearer than
+    ``stop_distance`` ahead.
+    """
+
+    def __init__(self, waypoints: np.ndarray, *, speed: float = 0.35, lookahead: float = 0.7,
+                 max_turn_rate: float = 0.8, goal_tolerance: float = 0.3, stop_distance: float = 0.35,
+                 slow_distance: float = 0.8) -> None:
+        self.waypoints = np.asarray(waypoints, float).reshape(-1, 2)
+        if len(self.waypoints) == 0:
+            raise ValueError("a route needs at least one waypoint")
+        self.speed, self.lookahead, self.max_turn_rate = speed, lookahead, max_turn_rate
+        self.goal_tolerance, self.stop_distance, self.slow_distance = goal_tolerance, stop_distance, slow_distance
+        self.index = 0  # the segment the robot is on: waypoints[index] -> waypoints[index + 1]
+
+    def _target(self, xy: np.ndarray) -> np.ndarray:
+        # a waypoint counts as reached within the goal tolerance or once passed (the route may turn back on
+        # itself into a dead end, so corners are not cut by the look-ahead)
+        while self.index < len(self.waypoints) - 1:
+            a, b = self.waypoints[self.index], self.waypoints[self.index + 1]
+            d = b - a
+            passed = d @ d > 1e-12 and (xy - a) @ d / (d @ d) > 1.0 and np.linalg.norm(b - xy) < self.lookahead
+            if np.linalg.norm(b - xy) < self.goal_tolerance or passed:
+                self.index += 1
+            else:
+                break
+        if self.index == len(self.waypoints) - 1:
+            return self.waypoints[-1]
+        a, b = self.waypoints[self.index], self.waypoints[self.index + 1]
+        # the look-ahead circle's intersection with the segment a->b, furthest along it, clipped at b
+        d = b - a
+        f = a - xy
+        qa, qb, qc = d @ d, 2 * f @ d, f @ f - self.lookahead**2
+        disc = qb * qb - 4 * qa * qc
+        if qa > 1e-12 and disc >= 0:
+            s = (-qb + np.sqrt(disc)) / (2 * qa)
+            if s >= 0.0:
+                return a + min(s, 1.0) * d
+        return a if np.linalg.norm(a - xy) > self.lookahead else b
+
+    def command(self, pose: np.ndarray, sonar_poses: np.ndarray | None = None,
+                ranges: np.ndarray | None = None) -> MotionCommand:
+        pose = np.asarray(pose, float)
+        xy = pose[:2]
+        if self.index >= len(self.waypoints) - 1 and np.linalg.norm(self.waypoints[-1] - xy) < self.goal_tolerance:
+            return MotionCommand(0.0, 0.0, True)
+        target = self._target(xy)
+        local = between(pose, np.array([target[0], target[1], 0.0]))
+        distance = max(float(np.hypot(local[0], local[1])), 1e-6)
+        curvature = 2.0 * local[1] / distance**2  # pure pursuit: κ = 2 y / L²
+        heading_error = float(np.arctan2(local[1], local[0]))
+        v = self.speed * max(0.0, np.cos(heading_error))  # turn on the spot toward a target behind
+        ahead = _sector_min(sonar_poses, ranges, -0.45, 0.45)
+        if ahead < self.slow_distance:
+            v *= max(0.0, (ahead - self.stop_distance) / (self.slow_distance - self.stop_distance))
+        w = v * curvature if v > 0.05 else np.sign(heading_error) * 0.5 * self.max_turn_rate
+        w = float(np.clip(w, -self.max_turn_rate, self.max_turn_rate))
+        return MotionCommand(float(v), w, False)
+
+
+class WallFollower:
+    """Explore by following a wall on ``side`` ("right" or "left") at ``distance`` m with the sonar.
+
+    A proportional law on the side range and its trend; anything nearer than ``front_clearance`` ahead
+    makes the robot turn away on the spot. With no wall in sight it drives straight, curving gently
+    toward the side to find one.
+    """
+
+    def __init__(self, *, side: str = "right", distance: float = 0.8, speed: float = 0.3,
+                 front_clearance: float = 0.8, max_turn_rate: float = 0.7, gain: float = 1.2) -> None:
+        if side not in ("right", "left"):
+            raise ValueError(f"side must be 'right' or 'left', not {side!r}")
+        self.sign = -1.0 if side == "right" else 1.0  # the wall's side as a sign of y
+        self.distance, self.speed = distance, speed
+        self.front_clearance, self.max_turn_rate, self.gain = front_clearance, max_turn_rate, gain
+
+    def command(self, pose: np.ndarray, sonar_poses: np.ndarray | None = None,
+                ranges: np.ndarray | None = None) -> MotionCommand:
+        ahead = _sector_min(sonar_poses, ranges, -0.5, 0.5)
+        lo, hi = sorted((self.sign * 1.2, self.sign * 1.75))
+        side = _sector_min(sonar_poses, ranges, lo, hi)
+        lo, hi = sorted((self.sign * 0.5, self.sign * 1.0))
+        diagonal = _sector_min(sonar_poses, ranges, lo, hi)
+        if ahead < self.front_clearance:
+            return MotionCommand(0.0, float(-self.sign * self.max_turn_rate))
+        if not np.isfinite(side) or side > 3.0 * self.distance:
+            return MotionCommand(self.speed, float(self.sign * 0.2))
+        # nearer than wanted (side or diagonal) -> turn away from the wall (ω of sign -self.sign)
+        nearest = min(side, diagonal / np.sqrt(2.0))
+        error = nearest - self.distance
+        w = float(np.clip(self.sign * self.gain * error, -self.max_turn_rate, self.max_turn_rate))
+        return MotionCommand(self.speed * (1.0 - 0.5 * min(1.0, abs(w) / self.max_turn_rate)), w)
+
+
+class NoMotion:
+    """Leaves the robot alone (someone drives it, or it stays put)."""
+
+    def command(self, pose: np.ndarray, sonar_poses: np.ndarray | None = None,
+                ranges: np.ndarray | None = None) -> MotionCommand:
+        return MotionCommand(0.0, 0.0, False)

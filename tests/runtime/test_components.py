@@ -1,0 +1,116 @@
+"""Map exchange, motion controllers and the sensor-log format, through their public interfaces."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from estimation.geometry import compose
+from estimation.landmark_map import LandmarkMap
+from mocks.world import World
+from runtime.exchange import InProcessExchange
+from runtime.motion import PurePursuit, RouteFileError, WallFollower, load_route, save_route
+from runtime.sensorlog import SensorLog, SensorLogError, SensorLogWriter
+
+
+def _map(robot: str, n: int, rng: np.random.Generator) -> LandmarkMap:
+    return LandmarkMap(rng.normal(size=(n, 3)), np.tile(np.eye(3) * 0.01, (n, 1, 1)),
+                       rng.normal(size=(n, 64)).astype(np.float32), robot=robot)
+
+
+def test_exchange_hands_out_copies_of_the_others_latest_maps():
+    rng = np.random.default_rng(1)
+    exchange = InProcessExchange()
+    m1 = _map("robot1", 5, rng)
+    exchange.publish("robot1", m1, stamp=1.0)
+    exchange.publish("robot1", _map("robot1", 7, rng), stamp=2.0)
+    exchange.publish("robot2", _map("robot2", 3, rng), stamp=2.5)
+    received = exchange.receive(excluding="robot2")
+    assert list(received) == ["robot1"]
+    message = received["robot1"]
+    assert (message.sequence, message.stamp, len(message.landmark_map)) == (1, 2.0, 7)
+    message.landmark_map.positions[:] = 99.0  # a receiver cannot reach into the publisher's map
+    assert not np.any(exchange.receive(excluding="robot2")["robot1"].landmark_map.positions == 99.0)
+    assert set(exchange.receive()) == {"robot1", "robot2"}
+
+
+def _drive(controller, world: World, pose: np.ndarray, seconds: float, dt: float = 0.1):
+    """Unicycle kinematics in the building, sonar by ray casting; returns the poses and the minimum clearance."""
+    sonar_poses = np.array([[0.1, 0.0, a] for a in np.radians([-90, -50, -30, -10, 10, 30, 50, 90])])
+    poses, clearance = [pose], np.inf
+    for _ in range(int(seconds / dt)):
+        mounts = compose(pose, sonar_poses)
+        ranges, _ = world.raycast(mounts[:, :2], mounts[:, 2], 5.0)
+        cmd = controller.command(pose, sonar_poses, ranges)
+        if cmd.done:
+            break
+        pose = compose(pose, np.array([cmd.v * dt, 0.0, cmd.w * dt]))
+        clearance = min(clearance, float(world.distance_to_walls(pose[None, :2])[0]))
+        poses.append(pose)
+    return np.array(poses), clearance
+
+
+def test_pure_pursuit_follows_the_building_route_to_its_end_without_touching_a_wall():
+    world = World.load()
+    route = world.routes["robot1"]
+    poses, clearance = _drive(PurePursuit(route, speed=0.4), world, world.start_poses["robot1"].copy(), 200.0)
+    assert np.linalg.norm(poses[-1, :2] - route[-1]) < 0.35
+    # it visited every waypoint on the way
+    for waypoint in route:
+        assert np.min(np.linalg.norm(poses[:, :2] - waypoint, axis=1)) < 0.5
+    assert clearance > 0.25
+
+
+def test_wall_follower_explores_and_keeps_clear_of_the_walls():
+    world = World.load()
+    start = world.start_poses["robot1"].copy()
+    poses, clearance = _drive(WallFollower(side="right", distance=0.8), world, start, 60.0)
+    assert clearance > 0.25
+    assert np.max(np.linalg.norm(poses[:, :2] - start[:2], axis=1)) > 4.0  # it went somewhere
+
+
+def test_route_file_round_trip_and_errors(tmp_path):
+    route = np.array([[0.0, 0.0], [1.5, -2.25], [3.0, 4.0]])
+    save_route(tmp_path / "a.route", route)
+    np.testing.assert_allclose(load_route(tmp_path / "a.route"), route)
+    (tmp_path / "b.route").write_text("# comment\n1 2\n3, oops\n")
+    with pytest.raises(RouteFileError, match=r"b.route:3"):
+        load_route(tmp_path / "b.route")
+    with pytest.raises(RouteFileError, match="no such"):
+        load_route(tmp_path / "missing.route")
+
+
+def test_sensor_log_round_trip_with_ragged_fields_and_partial_chunks(tmp_path):
+    rng = np.random.default_rng(2)
+    odometry = [{"t": 0.1 * i, "x": float(i), "y": 0.0, "theta": 0.1, "sonar": rng.random(8)} for i in range(23)]
+    observations = [{"t": 0.2 * i, "seq": i, "points": rng.random((i % 4, 3))} for i in range(7)]
+    with SensorLogWriter(tmp_path / "log", {"robot": "robot1"}, chunk_records=10) as writer:
+        for record in odometry:
+            writer.write("odometry", record)
+        for record in observations:
+            writer.write("observations", record)
+    log = SensorLog(tmp_path / "log")
+    assert log.closed and log.metadata == {"robot": "robot1"}
+    assert log.streams() == ["observations", "odometry"] and log.count("odometry") == 23
+    back = list(log.records("odometry"))
+    assert [float(r["x"]) for r in back] == [r["x"] for r in odometry]
+    np.testing.assert_array_equal(back[5]["sonar"], odometry[5]["sonar"])
+    for got, want in zip(log.records("observations"), observations, strict=True):
+        np.testing.assert_array_equal(got["points"], want["points"])
+
+
+def test_sensor_log_errors_name_the_file(tmp_path):
+    with pytest.raises(SensorLogError, match="index.json is missing"):
+        SensorLog(tmp_path)
+    with SensorLogWriter(tmp_path / "log", chunk_records=2) as writer:
+        for i in range(4):
+            writer.write("odometry", {"t": float(i), "x": 1.0})
+    index = json.loads((tmp_path / "log" / "index.json").read_text())
+    (tmp_path / "log" / index["chunks"][0]["file"]).write_bytes(b"garbage")
+    with pytest.raises(SensorLogError, match="odometry-000000.npz"):
+        list(SensorLog(tmp_path / "log").records("odometry"))
+    index["version"] = 9
+    (tmp_path / "log" / "index.json").write_text(json.dumps(index))
+    with pytest.raises(SensorLogError, match="version 9"):
+        SensorLog(tmp_path / "log")
