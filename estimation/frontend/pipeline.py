@@ -55,12 +55,13 @@ class FrontEndConfig:
 
 @dataclass(frozen=True)
 class RectificationMaps:
-    """Per-camera remap tables (H, W) float32 from rectified to raw pixel coordinates (cv2.remap's map1/map2)."""
+    """Per-camera ``cv2.remap`` tables from rectified to raw pixels: (map1, map2) as float32 x and y (H, W), or
+    OpenCV's fixed-point pair (CV_16SC2, CV_16UC1) from ``cv2.initUndistortRectifyMap``."""
 
-    left_x: np.ndarray
-    left_y: np.ndarray
-    right_x: np.ndarray
-    right_y: np.ndarray
+    left_map1: np.ndarray
+    left_map2: np.ndarray
+    right_map1: np.ndarray
+    right_map2: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -93,8 +94,8 @@ class StereoMatches:
 
 def rectify_pair(left: np.ndarray, right: np.ndarray, maps: RectificationMaps) -> tuple[np.ndarray, np.ndarray]:
     """Remap a raw pair to the rectified geometry (bilinear)."""
-    return (cv2.remap(left, maps.left_x, maps.left_y, cv2.INTER_LINEAR),
-            cv2.remap(right, maps.right_x, maps.right_y, cv2.INTER_LINEAR))
+    return (cv2.remap(left, maps.left_map1, maps.left_map2, cv2.INTER_LINEAR),
+            cv2.remap(right, maps.right_map1, maps.right_map2, cv2.INTER_LINEAR))
 
 
 def _grey(image: np.ndarray, name: str) -> np.ndarray:

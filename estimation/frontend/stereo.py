@@ -23,7 +23,8 @@ class StereoMatchConfig:
     row_tolerance:     |v_left - v_right| allowed, px (rectified pairs: ~1)
     min_disparity, max_disparity: search range of u_left - u_right, px
     ratio:             keep the best match only if best < ratio × second best distance
-    max_distance:      and best ≤ this descriptor distance (None: no limit)
+    max_distance:      and best ≤ this share of the largest possible descriptor distance (2 for unit vectors,
+                       D for D-bit binary descriptors); None: no limit
     subpixel:          "ssd": parabola through a zero-mean SSD profile along the row; "corner": u_l - u_r
     ssd_half_window:   the SSD patch is (2·h + 1)² px
     """
@@ -32,7 +33,7 @@ class StereoMatchConfig:
     min_disparity: float = 0.0
     max_disparity: float = 96.0
     ratio: float = 0.8
-    max_distance: float | None = None
+    max_distance: float | None = 0.25
     subpixel: str = "ssd"
     ssd_half_window: int = 3
 
@@ -67,7 +68,8 @@ def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixe
     best_left_of_right = np.argmin(distance, axis=0)
     keep = np.isfinite(best) & (best < config.ratio * second) & (best_left_of_right[best_right] == rows)
     if config.max_distance is not None:
-        keep &= best <= config.max_distance
+        largest = left_descriptors.shape[1] if binary else 2.0
+        keep &= best <= config.max_distance * largest
     return rows[keep], best_right[keep], best[keep]
 
 

@@ -27,6 +27,8 @@ class StereoGeometry:
     head_pose: (x, y, z, roll, pitch, yaw) in base_link of the midpoint of the two optical centres, with the
     head's axes x forward, y left, z up (rotation Rz(yaw)·Ry(pitch)·Rx(roll)); the left camera sits at
     y = +baseline / 2 in the head frame.
+    left_camera_pose: optional 16 numbers (row-major 4×4) of the left (rectified) optical frame in base_link,
+    which then replaces the head_pose construction (a calibration's rectifying rotation included).
     """
 
     fx: float = 520.0
@@ -35,8 +37,11 @@ class StereoGeometry:
     cy: float = 239.5
     baseline: float = 0.09
     head_pose: tuple[float, float, float, float, float, float] = (0.12, 0.0, 0.50, 0.0, 0.0, 0.0)
+    left_camera_pose: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
+        if self.left_camera_pose is not None and len(self.left_camera_pose) != 16:
+            raise FrontEndError(f"left_camera_pose must hold 16 numbers (a 4×4), got {len(self.left_camera_pose)}")
         if self.fx <= 0 or self.fy <= 0 or self.baseline <= 0:
             raise FrontEndError(f"fx, fy and baseline must be positive, got {self.fx}, {self.fy}, {self.baseline}")
         if len(self.head_pose) != 6:
@@ -52,6 +57,14 @@ class StereoGeometry:
         x, y, z = head_to_base[:3, 3]
         return cls(**intrinsics, head_pose=(float(x), float(y), float(z), float(roll), float(pitch), float(yaw)))
 
+    @classmethod
+    def with_camera_matrix(cls, left_camera_to_base: np.ndarray, **intrinsics: float) -> StereoGeometry:
+        """Geometry whose left optical frame is given directly as a 4×4 camera-to-base_link transform."""
+        T = np.asarray(left_camera_to_base, dtype=float)
+        if T.shape != (4, 4):
+            raise FrontEndError(f"camera pose matrix must be 4×4, got {T.shape}")
+        return cls(**intrinsics, left_camera_pose=tuple(float(x) for x in T.reshape(-1)))
+
     def head_to_base(self) -> np.ndarray:
         """4×4 transform of the head frame (x forward, y left, z up) into base_link."""
         x, y, z, roll, pitch, yaw = self.head_pose
@@ -62,6 +75,8 @@ class StereoGeometry:
 
     def left_camera_to_base(self) -> np.ndarray:
         """4×4 transform of left-camera optical coordinates into base_link."""
+        if self.left_camera_pose is not None:
+            return np.array(self.left_camera_pose, dtype=float).reshape(4, 4)
         camera_in_head = np.eye(4)
         camera_in_head[:3, :3] = OPTICAL_TO_BODY
         camera_in_head[1, 3] = self.baseline / 2.0
