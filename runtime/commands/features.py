@@ -1,0 +1,122 @@
+"""``p3at features LEFT RIGHT``: run the visual front end on one stereo pair and write every match to CSV."""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from estimation.fileio import atomic_write_bytes
+from estimation.frontend import (
+    FrontEnd,
+    FrontEndConfig,
+    FrontEndError,
+    RectificationMaps,
+    StereoGeometry,
+    StereoMatchConfig,
+)
+
+DEFAULTS = StereoGeometry()
+CSV_COLUMNS = ("u_left", "v_left", "u_right", "v_right", "disparity", "x", "y", "z",
+               "cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz", "descriptor_distance")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "features", help="stereo features of one image pair -> CSV of matches with 3-D points",
+        description="Detect Harris corners, describe them (U-SURF, SIFT or ORB), match them along the rows of a "
+                    "rectified pair (or a raw pair with --calib), triangulate, and write every match: left and "
+                    "right pixels, disparity, 3-D point and covariance (base_link, or the left camera frame).")
+    parser.add_argument("left", type=Path, help="left image (the reference camera)")
+    parser.add_argument("right", type=Path, help="right image")
+    parser.add_argument("--calib", type=Path, help="calibration (.ini SVS or .yaml/.xml OpenCV): the pair is raw "
+                                                   "and gets rectified; its intrinsics and head pose are used")
+    parser.add_argument("--descriptor", choices=("usurf", "sift", "orb"), default="usurf")
+    parser.add_argument("--fx", type=float, default=DEFAULTS.fx, help="rectified focal length px (without --calib)")
+    parser.add_argument("--fy", type=float, help="default: fx")
+    parser.add_argument("--cx", type=float, help="default: (width - 1) / 2")
+    parser.add_argument("--cy", type=float, help="default: (height - 1) / 2")
+    parser.add_argument("--baseline", type=float, default=DEFAULTS.baseline, help="metres (without --calib)")
+    parser.add_argument("--max-disparity", type=float, default=StereoMatchConfig().max_disparity, help="px")
+    parser.add_argument("--frame", choices=("base_link", "camera"), default="base_link",
+                        help="frame of the written points and covariances")
+    parser.add_argument("--out", type=Path, required=True, help="CSV file to write (atomically)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    parser.set_defaults(handler=run_features)
+
+
+def _read_grey(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise FrontEndError(f"{path}: cannot read an image from this file")
+    return image
+
+
+def _front_end(args: argparse.Namespace, size: tuple[int, int]) -> FrontEnd:
+    matching = StereoMatchConfig(max_disparity=args.max_disparity)
+    width, height = size
+    if args.calib is None:
+        geometry = StereoGeometry(fx=args.fx, fy=args.fy if args.fy is not None else args.fx,
+                                  cx=args.cx if args.cx is not None else (width - 1) / 2.0,
+                                  cy=args.cy if args.cy is not None else (height - 1) / 2.0,
+                                  baseline=args.baseline)
+        return FrontEnd(FrontEndConfig(descriptor=args.descriptor, matching=matching, geometry=geometry))
+    from drivers.videre import calibration  # only the runtime adapts a driver's calibration
+
+    calib = calibration.load(args.calib)
+    if tuple(calib.size) != (width, height):
+        calib = calib.scaled(width, height)
+    geometry = StereoGeometry.with_camera_matrix(calib.left_camera_to_base(rectified=True), fx=calib.fx,
+                                                 fy=calib.fy, cx=calib.cx, cy=calib.cy, baseline=calib.baseline)
+    (l1, l2), (r1, r2) = calib.rectify_maps
+    return FrontEnd(FrontEndConfig(descriptor=args.descriptor, matching=matching, geometry=geometry),
+                    RectificationMaps(l1, l2, r1, r2))
+
+
+def matches_csv(matches, frame: str) -> bytes:
+    """CSV text of a ``StereoMatches``: one row per match, the columns of ``CSV_COLUMNS``."""
+    points = matches.points_base if frame == "base_link" else matches.points_camera
+    covs = matches.covariances_base if frame == "base_link" else matches.covariances_camera
+    upper = covs[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]
+    table = np.column_stack([matches.left_pixels, matches.right_pixels, matches.disparities, points, upper,
+                             matches.descriptor_distances])
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    writer.writerows([[f"{v:.6g}" for v in row] for row in table])
+    return out.getvalue().encode()
+
+
+def run_features(args: argparse.Namespace) -> int:
+    try:
+        left, right = _read_grey(args.left), _read_grey(args.right)
+        if left.shape != right.shape:
+            raise FrontEndError(f"{args.left} is {left.shape[1]}×{left.shape[0]} but {args.right} is "
+                                f"{right.shape[1]}×{right.shape[0]}")
+        front_end = _front_end(args, (left.shape[1], left.shape[0]))
+        matches = front_end.match(left, right)
+        atomic_write_bytes(args.out, matches_csv(matches, args.frame))
+    except (FrontEndError, OSError, ValueError) as exc:  # the calibration's BadFileError is a ValueError
+        print(f"p3at features: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        depth = matches.points_camera[:, 2]
+        summary = {
+            "left": str(args.left), "right": str(args.right), "out": str(args.out), "descriptor": args.descriptor,
+            "frame": args.frame, "size": [int(left.shape[1]), int(left.shape[0])], "matches": len(matches),
+            "disparity_px": _range(matches.disparities), "depth_m": _range(depth),
+            "geometry": front_end.config.to_dict()["geometry"], "rectified_here": args.calib is not None,
+        }
+        print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _range(values: np.ndarray) -> dict:
+    if len(values) == 0:
+        return {"min": None, "median": None, "max": None}
+    return {"min": float(np.min(values)), "median": float(np.median(values)), "max": float(np.max(values))}
