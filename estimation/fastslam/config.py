@@ -1,0 +1,75 @@
+"""Settings of the FastSLAM filter (a frozen dataclass that can be dumped to JSON and read back)."""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+# Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
+_HFOV = 2.0 * math.atan(320.0 / 520.0)
+_VFOV = 2.0 * math.atan(240.0 / 520.0)
+
+
+@dataclass(frozen=True)
+class FastSLAMConfig:
+    """Every tunable of :class:`~estimation.fastslam.FastSLAM`.
+
+    Motion noise is a random walk: the variance of each odometry increment grows linearly with the distance
+    travelled and the angle turned, so splitting one increment into several gives the same spread.
+    """
+
+    n_particles: int = 100
+    version: int = 1                      # 1: FastSLAM 1.0 (motion proposal); 2: FastSLAM 2.0 (observation proposal)
+    # -- motion model (odometry increments) --------------------------------------------------------------------
+    odom_xy_var_per_m: float = 0.03 ** 2          # m² of along/across-track error per metre driven
+    odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
+    odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
+    odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
+    # -- data association -----------------------------------------------------------------------------------
+    mahalanobis_gate: float = 11.345              # χ²(3 dof) at 99 %: squared Mahalanobis distance gate
+    descriptor_threshold: float = 0.5             # max Euclidean distance between unit descriptors (paper's th)
+    observation_var_floor: float = 0.02 ** 2      # m² added to each observation covariance (model error)
+    # -- sensor footprint: landmark preselection and negative evidence --------------------------------------
+    sensor_offset: tuple[float, float, float] = (0.12, 0.0, 0.50)  # head in base_link, metres
+    fov_horizontal: float = _HFOV                 # rad; ≥ 2π means all round (range-bearing sensors)
+    fov_vertical: float = _VFOV                   # rad
+    min_range: float = 0.3                        # m, depth along the optical axis
+    max_range: float = 12.0                       # m
+    # -- provisional landmarks -------------------------------------------------------------------------------
+    confirm_count: int = 3                        # a landmark seen this often is permanent
+    max_misses: int = 3                           # a provisional landmark missed this often in view is dropped
+    miss_fov_margin: float = 0.85                 # only landmarks well inside the view (this fraction) count misses
+    # -- resampling and storage ------------------------------------------------------------------------------
+    resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
+    block_size: int = 64                          # landmarks per copy-on-write block
+    descriptor_size: int = 64
+
+    def __post_init__(self) -> None:
+        if self.n_particles < 1:
+            raise ValueError(f"n_particles must be ≥ 1, not {self.n_particles}")
+        if self.version not in (1, 2):
+            raise ValueError(f"version must be 1 or 2, not {self.version}")
+        if self.block_size < 1 or self.descriptor_size < 0:
+            raise ValueError("block_size must be ≥ 1 and descriptor_size ≥ 0")
+        if not 0.0 <= self.resample_threshold <= 1.0:
+            raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
+        object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> FastSLAMConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown FastSLAM setting(s): {', '.join(unknown)}")
+        return cls(**values)
+
+
+def range_bearing_config(**overrides) -> FastSLAMConfig:
+    """A configuration for planar range-bearing sensors (all-round view, sensor at the robot's origin)."""
+    values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
+                  min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345)
+    values.update(overrides)
+    return FastSLAMConfig(**values)

@@ -1,0 +1,38 @@
+"""Odometry motion model: sampling (FastSLAM 1.0) and covariance propagation (FastSLAM 2.0)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import compose, rot_z
+from .config import FastSLAMConfig
+
+
+def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
+    """Variances (3,) of (dx, dy, dθ) for one odometry increment ``delta`` (3,) (random-walk model)."""
+    trans = float(np.hypot(delta[0], delta[1]))
+    var_xy = config.odom_xy_var_per_m * trans + config.odom_var_floor
+    var_theta = (config.odom_theta_var_per_rad * abs(float(delta[2])) + config.odom_theta_var_per_m * trans
+                 + config.odom_var_floor)
+    return np.array([var_xy, var_xy, var_theta])
+
+
+def sample_motion(poses: np.ndarray, delta: np.ndarray, variance: np.ndarray,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Poses (M, 3) each moved by its own noisy copy of ``delta`` (3,) drawn with ``variance`` (3,)."""
+    noisy = delta + rng.standard_normal(poses.shape) * np.sqrt(variance)
+    return compose(poses, noisy)
+
+
+def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
+                         variance: np.ndarray) -> np.ndarray:
+    """P ← J_a P J_aᵀ + J_b diag(variance) J_bᵀ for the composition poses ⊕ delta.
+
+    poses (M, 3) before the motion, cov (M, 3, 3) -> (M, 3, 3); J_a, J_b the Jacobians of ⊕ by its arguments.
+    """
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    ja = np.tile(np.eye(3), (len(poses), 1, 1))
+    ja[:, 0, 2] = -s * delta[0] - c * delta[1]
+    ja[:, 1, 2] = c * delta[0] - s * delta[1]
+    jb = rot_z(poses[:, 2])
+    return (np.einsum("mij,mjk,mlk->mil", ja, cov, ja)
+            + np.einsum("mij,j,mkj->mik", jb, variance, jb))
