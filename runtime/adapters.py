@@ -1,0 +1,167 @@
+"""Driver types -> the runtime's and the estimators' types. The only place where drivers meet estimation.
+
+- :class:`P3ATLink` wraps the ARCOS driver (``drivers.arcos.P3AT``) as a :class:`runtime.onboard.RobotLink`:
+  each ``RobotState`` becomes an :class:`~runtime.onboard.OdometrySample` (sonar poses and ranges, the raw
+  SIP payload for the sensor log).
+- :class:`VidereCamera` wraps ``drivers.videre.StereoHead`` as a :class:`runtime.onboard.Camera`: it
+  rectifies each pair with the head's stored calibration, and :func:`stereo_geometry` turns that
+  calibration into the front end's ``StereoGeometry``.
+- :class:`SyntheticCamera` (mocks only) gives the observations of ``mocks.synthetic_stereo`` at the robot's
+  true pose, at the camera's rate: the fast stand-in when rendering is not wanted.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from drivers.videre.calibration import StereoCalibration
+from estimation.frontend import StereoGeometry
+from runtime.onboard import CameraFrame, Clock, OdometrySample
+
+
+def stereo_geometry(calibration: StereoCalibration) -> StereoGeometry:
+    """The front end's rectified geometry from a head's calibration (left camera pose in base_link included)."""
+    return StereoGeometry.with_camera_matrix(calibration.left_camera_to_base(rectified=True),
+                                             fx=calibration.fx, fy=calibration.fy, cx=calibration.cx,
+                                             cy=calibration.cy, baseline=calibration.baseline)
+
+
+def geometry_to_dict(g: StereoGeometry) -> dict:
+    return {"fx": g.fx, "fy": g.fy, "cx": g.cx, "cy": g.cy, "baseline": g.baseline, "head_pose": list(g.head_pose),
+            "left_camera_pose": None if g.left_camera_pose is None else list(g.left_camera_pose)}
+
+
+def geometry_from_dict(d: dict) -> StereoGeometry:
+    pose = d.get("left_camera_pose")
+    return StereoGeometry(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), float(d["baseline"]),
+                          tuple(float(v) for v in d.get("head_pose", (0.12, 0.0, 0.5, 0.0, 0.0, 0.0))),
+                          None if pose is None else tuple(float(v) for v in pose))
+
+
+def left_camera_mount(g: StereoGeometry) -> tuple[float, float, float]:
+    """(x, y, z) of the left optical centre in base_link (for drawing the camera)."""
+    if g.left_camera_pose is not None:
+        T = np.asarray(g.left_camera_pose, float).reshape(4, 4)
+        return float(T[0, 3]), float(T[1, 3]), float(T[2, 3])
+    x, y, z = g.head_pose[:3]
+    return float(x), float(y + g.baseline / 2), float(z)
+
+
+# -- the P3-AT ----------------------------------------------------------------------------------------------
+def odometry_sample(state, t0: float = 0.0) -> OdometrySample:
+    """A ``drivers.arcos.state.RobotState`` as an :class:`OdometrySample` (t on the same clock as ``state.stamp``)."""
+    from drivers.arcos.codec import encode_sip
+
+    sonars = state.sonars
+    ranges = np.array([np.nan if s.range_m is None else s.range_m for s in sonars], float)
+    poses = np.array([s.pose for s in sonars], float).reshape(-1, 3)
+    try:
+        raw = encode_sip(state.sip)
+    except Exception:  # a SIP the codec cannot re-encode is still a valid state; log it without its bytes
+        raw = b""
+    return OdometrySample(float(state.stamp) - t0, np.array([state.x, state.y, state.theta], float),
+                          float(state.v), float(state.w), bool(state.stalled), ranges, poses, raw)
+
+
+class P3ATLink:
+    """The ARCOS driver as the runtime's RobotLink. ``driver``: a connected ``drivers.arcos.robot.P3AT``."""
+
+    def __init__(self, driver) -> None:
+        self.driver = driver
+        self._callbacks: list[Callable[[OdometrySample], None]] = []
+        self._subscribed = False
+
+    def subscribe(self, callback: Callable[[OdometrySample], None]) -> None:
+        self._callbacks.append(callback)
+        if not self._subscribed:
+            self._subscribed = True
+            self.driver.subscribe(self._on_state)
+
+    def _on_state(self, state) -> None:
+        sample = odometry_sample(state)
+        for callback in self._callbacks:
+            callback(sample)
+
+    def set_velocity(self, v: float, w: float) -> None:
+        self.driver.set_velocity(v, w)
+
+    def enable_motors(self, on: bool) -> None:
+        if on:
+            self.driver.motors_on()
+        else:
+            self.driver.motors_off()
+
+    def close(self) -> None:
+        self.driver.close()
+
+
+# -- the stereo head ----------------------------------------------------------------------------------------
+class VidereCamera:
+    """A streaming ``StereoHead`` as the runtime's Camera; pairs come out rectified, on the head's clock."""
+
+    def __init__(self, head, calibration: StereoCalibration | None = None, *, width: int = 640, height: int = 480,
+                 rate: float = 15.0) -> None:
+        self.head = head
+        self.mode = head.set_mode(width, height, rate)
+        calibration = calibration if calibration is not None else head.read_calibration()
+        if tuple(calibration.size) != (self.mode.width, self.mode.height):
+            calibration = calibration.scaled(self.mode.width, self.mode.height)
+        self.calibration = calibration
+        self.geometry = stereo_geometry(calibration)
+        self.dropped_by_head = 0
+        head.start()
+
+    def read(self, timeout: float) -> CameraFrame | None:
+        from drivers.errors import DriverTimeoutError
+
+        try:
+            frame = self.head.grab(timeout=timeout)
+        except DriverTimeoutError:
+            return None
+        self.dropped_by_head += frame.dropped
+        left, right = self.calibration.rectify(frame.left, frame.right)
+        return CameraFrame(float(frame.timestamp), int(frame.counter), left, right)
+
+    def close(self) -> None:
+        try:
+            self.head.stop()
+        finally:
+            self.head.close()
+
+
+class SyntheticCamera:
+    """Observations of the world's features from the robot's true pose at ``rate`` Hz (mocks only).
+
+    ``observer``: anything with ``observe(pose, timestamp) -> (StereoObservations, index)``;
+    ``true_pose``: the robot's ground-truth pose in the world. Paced by ``clock``/``sleep``.
+    """
+
+    def __init__(self, observer, true_pose: Callable[[], np.ndarray], *, rate: float = 15.0,
+                 clock: Clock = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
+        self.observer, self.true_pose = observer, true_pose
+        self.period = 1.0 / rate
+        self.clock, self.sleep = clock, sleep
+        self.seq = 0
+        self._next = clock()
+        self._lock = threading.Lock()
+        self.geometry = StereoGeometry()
+
+    def read(self, timeout: float) -> CameraFrame | None:
+        with self._lock:
+            wait = self._next - self.clock()
+            if wait > timeout:
+                self.sleep(timeout)
+                return None
+            if wait > 0:
+                self.sleep(wait)
+            t = self.clock()
+            self._next = max(self._next + self.period, t)  # never bursts to catch up
+            observations, _ = self.observer.observe(self.true_pose(), t)
+            self.seq += 1
+            return CameraFrame(t, self.seq, observations=observations)
+
+    def close(self) -> None:
+        pass

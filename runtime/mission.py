@@ -1,0 +1,391 @@
+"""The multi-robot mission: N virtual P3-ATs explore the simulated building, each maps it on board, maps fused.
+
+Each robot is a wire-level virtual P3-AT (``mocks.p3at``) driven by the real ARCOS driver, with a stereo
+head (the rendering virtual head through the real Videre driver, or the fast synthetic observer), running
+its own :class:`~runtime.onboard.Onboard`. The robots start at the world's start poses, which none of them
+knows; they share maps only through the :class:`~runtime.exchange.MapExchange`. A fusion stage (what a base
+station or any robot would run) reads the exchange every ``fusion_interval`` seconds and at the end, aligns
+every map to the first robot's, merges them, and scores each alignment against the true start poses that
+simulated maps carry in their metadata.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from estimation.fastslam import FastSLAMConfig
+from estimation.frontend import FrontEndConfig
+from estimation.geometry import between, wrap_angle
+from estimation.landmark_map import LandmarkMap
+from runtime.exchange import InProcessExchange, MapExchange
+from runtime.motion import NoMotion, PurePursuit, WallFollower
+from runtime.onboard import Clock, Onboard, OnboardConfig
+
+CAMERAS = ("mock", "synthetic")
+MOTIONS = ("route", "explore", "none")
+
+
+class MissionError(RuntimeError):
+    """The mission could not be set up (a mock would not start, a world file is bad...)."""
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    robots: int = 2
+    seconds: float = 90.0             # at most; the mission ends earlier when every route is finished
+    seed: int = 0
+    camera: str = "mock"              # "mock": rendered frames through the Videre driver; "synthetic": observer
+    camera_rate: float = 15.0         # Hz
+    particles: int = 100
+    motion: str = "route"             # the world's named routes, the sonar wall follower, or none
+    speed: float = 0.35               # m/s along routes
+    fusion_interval: float = 20.0     # s between fusions during the mission (0: only at the end)
+    preset: str = "robust"            # fusion preset: "robust" or "paper"
+    method: int = 2                   # merging method: 1 (RANSAC supports) or 2 (nearest neighbours)
+    snapshot_interval: float = 5.0
+    out: Path = Path("p3at-mission")
+    rerun: str = "file"               # "file" (OUT/mission.rrd), "spawn", "none", or a rerun+http:// URL
+    log_sensors: bool = False         # raw SIPs and frames to OUT/<robot>-log/
+    world: Path | None = None
+
+    def __post_init__(self) -> None:
+        if self.robots < 1:
+            raise ValueError(f"--robots must be at least 1, not {self.robots}")
+        if self.camera not in CAMERAS:
+            raise ValueError(f"--camera must be one of {', '.join(CAMERAS)}, not {self.camera!r}")
+        if self.motion not in MOTIONS:
+            raise ValueError(f"--motion must be one of {', '.join(MOTIONS)}, not {self.motion!r}")
+        if self.seconds <= 0 or self.camera_rate <= 0 or self.particles < 1:
+            raise ValueError("--seconds, --camera-rate and --particles must be positive")
+
+
+@dataclass
+class PairResult:
+    reference: str
+    other: str
+    aligned: bool
+    tx: float = float("nan")
+    ty: float = float("nan")
+    theta: float = float("nan")
+    supports: int = 0
+    common: int = 0
+    error_xy: float | None = None
+    error_theta: float | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class FusionReport:
+    t: float
+    pairs: list[PairResult]
+    merged: LandmarkMap | None
+    seconds: float
+
+    def as_dict(self) -> dict:
+        return {"t": round(self.t, 2), "pairs": [p.as_dict() for p in self.pairs],
+                "merged_landmarks": 0 if self.merged is None else len(self.merged),
+                "seconds": self.seconds}
+
+
+def true_relative_pose(reference: LandmarkMap, other: LandmarkMap) -> np.ndarray | None:
+    """Pose (3,) of ``other``'s frame in ``reference``'s, from the true start poses in their metadata."""
+    a, b = reference.metadata.get("true_start_pose"), other.metadata.get("true_start_pose")
+    if a is None or b is None:
+        return None
+    return between(np.asarray(a, float), np.asarray(b, float))
+
+
+def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 2, t: float = 0.0,
+              rng: np.random.Generator | None = None) -> FusionReport:
+    """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
+    from fusion import align, merge
+
+    start = time.perf_counter()
+    names = sorted(maps)
+    pairs: list[PairResult] = []
+    if len(names) < 2:
+        return FusionReport(t, pairs, maps[names[0]] if names else None, 0.0)
+    reference = names[0]
+    merged = maps[reference]
+    rng = rng if rng is not None else np.random.default_rng(0)
+    for other in names[1:]:
+        result = PairResult(reference, other, False)
+        try:
+            alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
+        except (LookupError, ValueError) as e:  # fusion's NoOverlapError is a LookupError
+            result.note = str(e)
+            pairs.append(result)
+            continue
+        result.aligned = True
+        result.tx, result.ty, result.theta = (float(v) for v in alignment.pose)
+        result.supports = int(len(alignment.supports))
+        merged_pair = merge(merged, maps[other], alignment, method=method)
+        shared = merged_pair.seen_by[:, [merged_pair.robots.index(reference), merged_pair.robots.index(other)]]
+        result.common = int(np.count_nonzero(shared.all(axis=1)))
+        merged = merged_pair
+        truth = true_relative_pose(maps[reference], maps[other])
+        if truth is not None:
+            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
+            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        pairs.append(result)
+    return FusionReport(t, pairs, merged, time.perf_counter() - start)
+
+
+@dataclass
+class RobotSetup:
+    name: str
+    onboard: Onboard
+    true_start: np.ndarray
+
+
+@dataclass
+class MissionResult:
+    summary: dict
+    maps: dict[str, LandmarkMap]
+    fused: LandmarkMap | None
+    recording: Path | None
+    fusion_history: list[FusionReport] = field(default_factory=list)
+
+
+class Mission:
+    """Set up with a config, ``run()`` until the time is up, the routes are done, or ``stop()`` is called."""
+
+    def __init__(self, config: MissionConfig, *, clock: Clock = time.monotonic,
+                 progress: Callable[[str], None] | None = None, events: Callable[[str], None] | None = None,
+                 exchange: MapExchange | None = None) -> None:
+        self.config = config
+        self.clock = clock
+        self.progress = progress or (lambda line: None)
+        self.events = events or (lambda line: None)
+        self.exchange = exchange if exchange is not None else InProcessExchange()
+        self._stop = threading.Event()
+        self.robots: list[RobotSetup] = []
+        self.fusion_history: list[FusionReport] = []
+        self.logger = None
+        self.recording_path: Path | None = None
+
+    def stop(self) -> None:
+        """Ask the mission to end (thread- and signal-safe)."""
+        self._stop.set()
+
+    # -- setup --------------------------------------------------------------------------------------------
+    def _open_logger(self, names: list[str], world) -> None:
+        from runtime.rerun_log import MissionLog, mission_blueprint, open_recording
+
+        cfg = self.config
+        sink = cfg.rerun
+        if sink == "file":
+            self.recording_path = cfg.out / "mission.rrd"
+            sink = str(self.recording_path)
+        rec = open_recording(sink, blueprint=mission_blueprint(names))
+        self.logger = MissionLog(rec, names, blueprint=sink != "none")
+        self.logger.log_building(world.walls, world.wall_heights)
+
+    def _robot(self, stack: ExitStack, world, index: int, name: str, t0: float) -> RobotSetup:
+        from drivers.arcos.robot import P3AT
+        from mocks.p3at import serve_tcp
+        from runtime.adapters import P3ATLink, left_camera_mount
+        from runtime.sensorlog import SensorLogWriter
+
+        cfg = self.config
+        pose = np.asarray(world.start_poses[name], float)
+        server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, seed=cfg.seed + 100 * index)
+        stack.callback(server.close)
+        driver = P3AT(server.url, clock=self.clock)
+        driver.connect()
+        link = P3ATLink(driver)
+        stack.callback(link.close)
+        camera, geometry = self._camera(stack, world, index, name)
+        frontend = FrontEndConfig(geometry=geometry)
+        onboard_config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=cfg.particles), frontend=frontend,
+                                       seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval)
+        sensor_log = None
+        if cfg.log_sensors:
+            from runtime.adapters import geometry_to_dict
+            sensor_log = SensorLogWriter(cfg.out / f"{name}-log", {
+                "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry_to_dict(geometry),
+                "true_start_pose": [float(v) for v in pose], "seed": onboard_config.seed,
+                "particles": cfg.particles, "t0": t0})
+        onboard = Onboard(name, link, camera, onboard_config, exchange=self.exchange,
+                          controller=self._controller(world, name, pose), logger=self.logger,
+                          sensor_log=sensor_log, clock=self.clock, t0=t0, truth=lambda: world.pose(name),
+                          true_start=pose, head_mount=left_camera_mount(geometry), on_event=self.events)
+        stack.callback(onboard.stop)  # runs before the link, camera and server close (LIFO)
+        if self.logger is not None:
+            self.logger.log_robot_frame(name, pose)
+            g = geometry
+            self.logger.log_camera_model(name, g.fx, g.fy, g.cx, g.cy, 640, 480, g.baseline)
+        return RobotSetup(name, onboard, pose)
+
+    def _camera(self, stack: ExitStack, world, index: int, name: str):
+        cfg = self.config
+        rng = np.random.default_rng(cfg.seed * 7919 + index)
+        if cfg.camera == "synthetic":
+            from mocks.synthetic_stereo import SyntheticStereo
+            from runtime.adapters import SyntheticCamera
+
+            camera = SyntheticCamera(SyntheticStereo.from_world(world, rng), lambda: world.pose(name),
+                                     rate=cfg.camera_rate, clock=self.clock)
+            return camera, camera.geometry
+        from drivers.videre.head import StereoHead
+        from mocks.stereo_head import VirtualStereoHead
+        from runtime.adapters import VidereCamera
+
+        virtual = VirtualStereoHead(world, name, rng=rng, clock=self.clock)
+        head = StereoHead.open(backend=virtual.backend, clock=self.clock)
+        camera = VidereCamera(head, rate=cfg.camera_rate)
+        stack.callback(camera.close)
+        return camera, camera.geometry
+
+    def _controller(self, world, name: str, start: np.ndarray):
+        cfg = self.config
+        if cfg.motion == "route" and name in world.routes:
+            waypoints = np.asarray(world.routes[name], float)
+            # the route is given in the world; the robot follows it in its own odometry frame
+            local = between(start, np.column_stack([waypoints, np.zeros(len(waypoints))]))[:, :2]
+            return PurePursuit(local, speed=cfg.speed)
+        if cfg.motion in ("route", "explore"):
+            return WallFollower(side="right" if len(self.robots) % 2 == 0 else "left")
+        return NoMotion()
+
+    # -- running ------------------------------------------------------------------------------------------
+    def run(self) -> MissionResult:
+        from mocks.world import World
+
+        cfg = self.config
+        world = World.load(cfg.world)
+        names = sorted(world.start_poses)[: cfg.robots]
+        if len(names) < cfg.robots:
+            raise MissionError(f"the world '{world.name}' has {len(names)} start poses, {cfg.robots} robots asked")
+        cfg.out.mkdir(parents=True, exist_ok=True)
+        if cfg.rerun != "none":
+            self._open_logger(names, world)
+        with ExitStack() as stack:
+            t0 = self.clock()
+            for index, name in enumerate(names):
+                self.robots.append(self._robot(stack, world, index, name, t0))
+            t0 = self.clock()
+            for robot in self.robots:
+                robot.onboard.t0 = t0
+                robot.onboard.start()
+            self._loop(t0)
+            # stop every robot (motors first) before the final fusion
+            for robot in self.robots:
+                robot.onboard.stop()
+        final = self._fuse(self.clock() - t0)
+        return self._finish(final, self.clock() - t0)
+
+    def _loop(self, t0: float) -> None:
+        cfg = self.config
+        next_fusion = cfg.fusion_interval if cfg.fusion_interval > 0 else np.inf
+        next_progress = 0.0
+        while not self._stop.wait(0.2):
+            t = self.clock() - t0
+            if t >= cfg.seconds:
+                self.events(f"mission time of {cfg.seconds:g} s reached")
+                break
+            if cfg.motion == "route" and all(r.onboard.route_done.is_set() for r in self.robots):
+                self.events("every robot has finished its route")
+                break
+            if t >= next_progress:
+                self.progress(self._progress_line(t))
+                next_progress = t + 1.0
+            if t >= next_fusion:
+                self._fuse(t)
+                next_fusion = t + cfg.fusion_interval
+
+    def _progress_line(self, t: float) -> str:
+        parts = [f"t={t:5.1f}s"]
+        for r in self.robots:
+            s = r.onboard.stats
+            parts.append(f"{r.name}: {s.frames_processed} frames ({s.dropped_frames} dropped), "
+                         f"{r.onboard.core.slam.particle_landmark_count().max(initial=0)} landmarks")
+        if self.fusion_history and self.fusion_history[-1].pairs:
+            p = self.fusion_history[-1].pairs[0]
+            parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
+        return " | ".join(parts)
+
+    def _fuse(self, t: float) -> FusionReport | None:
+        messages = self.exchange.receive()
+        maps = {name: message.landmark_map for name, message in messages.items()}
+        if len(maps) < 2:
+            return None
+        report = fuse_maps(maps, self.config.preset, self.config.method, t,
+                           np.random.default_rng(self.config.seed + len(self.fusion_history)))
+        self.fusion_history.append(report)
+        if self.logger is not None:
+            for pair in report.pairs:
+                self.logger.log_alignment(t, pair.reference, pair.other, {
+                    **pair.as_dict(), "merged": 0 if report.merged is None else len(report.merged)})
+            if report.merged is not None:
+                self.logger.log_map("fused", t, report.merged)
+        for pair in report.pairs:
+            if pair.aligned:
+                self.events(f"fusion at t={t:.0f}s: {pair.other} -> {pair.reference} "
+                            f"({pair.supports} supports, {pair.common} common)"
+                            + (f", error {pair.error_xy:.3f} m / {pair.error_theta:.4f} rad"
+                               if pair.error_xy is not None else ""))
+            else:
+                self.events(f"fusion at t={t:.0f}s: {pair.other} does not overlap {pair.reference} yet")
+        return report
+
+    def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:
+        cfg = self.config
+        maps = {r.name: r.onboard.core.best_map() for r in self.robots}
+        for name, m in maps.items():
+            m.save(cfg.out / f"{name}.npz")
+        fused = final.merged if final is not None else None
+        if fused is not None:
+            fused.save(cfg.out / "fused.npz")
+            fused.export_ply(cfg.out / "fused.ply")
+        robots = {}
+        for r in self.robots:
+            s, core = r.onboard.stats, r.onboard.core
+            frames = max(1, s.frames_processed)
+            final_pose = core.slam.best_pose()
+            true_final = between(r.true_start, r.onboard.truth()) if r.onboard.truth else None
+            robots[r.name] = {
+                "landmarks": len(maps[r.name]),
+                "frames_received": s.frames_received, "frames_processed": s.frames_processed,
+                "frames_dropped": s.dropped_frames, "frames_without_odometry": s.frames_without_odometry,
+                "final_position_error": None if true_final is None
+                else float(np.hypot(*(final_pose[:2] - true_final[:2]))),
+                "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
+                "map_file": str(cfg.out / f"{r.name}.npz"),
+            }
+        summary = {
+            "robots": robots, "duration": round(duration, 2), "seed": cfg.seed, "camera": cfg.camera,
+            "particles": cfg.particles, "fusion": None if final is None else final.as_dict(),
+            "fusion_ms": None if final is None else round(1000.0 * final.seconds, 2),
+            "fusions_during_mission": len(self.fusion_history) - (1 if final is not None else 0),
+            "merged_map_file": None if fused is None else str(cfg.out / "fused.npz"),
+            "recording": None if self.recording_path is None else str(self.recording_path),
+        }
+        if self.logger is not None:
+            self.logger.log_summary(summary)
+            self.logger.close()
+        return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history)
+
+
+def install_stop_signals(stop: Callable[[], None]) -> Callable[[], None]:
+    """SIGTERM (and SIGINT) ask the mission to stop cleanly; returns a function restoring the old handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    for s in previous:
+        signal.signal(s, lambda signum, frame: stop())
+
+    def restore() -> None:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return restore

@@ -1,0 +1,458 @@
+"""The onboard runtime of one robot: drivers on their own threads, odometry at each frame, front end, FastSLAM.
+
+Threads (all named, daemonic, joined on :meth:`Onboard.stop`)::
+
+    driver reader (the driver's)  -> _on_odometry: buffer + sensor log, returns at once
+    camera:<robot>                -> reads frames, logs them, offers them to a bounded queue (drops the oldest)
+    slam:<robot>                  -> waits until odometry covers the frame's time, then front end + FastSLAM,
+                                     Rerun, map snapshots published on the exchange every snapshot_interval
+    control:<robot>               -> the motion controller at control_rate, sends (v, ω) to the robot
+
+A stage that falls behind loses frames (counted as ``dropped_frames`` and logged), never blocks a driver.
+:class:`SlamCore` is the deterministic heart (no threads, no clock): the live runtime and ``p3at replay``
+both feed it, so a replay of a sensor log with the same settings rebuilds the same map.
+"""
+from __future__ import annotations
+
+import bisect
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from estimation.fastslam import FastSLAM, FastSLAMConfig
+from estimation.frontend import FrontEnd, FrontEndConfig
+from estimation.geometry import between, compose, wrap_angle
+from estimation.landmark_map import LandmarkMap
+from estimation.observations import OdometryIncrement, StereoObservations
+from runtime.exchange import MapExchange
+from runtime.motion import Controller, NoMotion
+from runtime.sensorlog import SensorLogWriter
+
+Clock = Callable[[], float]
+
+
+# -- the runtime's own view of the sensors (adapters.py converts driver types into these) ------------------
+@dataclass(frozen=True)
+class OdometrySample:
+    """One SIP as the runtime needs it. t: seconds (runtime clock); pose (3,) odometry frame (m, rad)."""
+
+    t: float
+    pose: np.ndarray
+    v: float = 0.0
+    w: float = 0.0
+    stalled: bool = False
+    sonar_ranges: np.ndarray = field(default_factory=lambda: np.zeros(0))      # (S,) m, nan = no reading
+    sonar_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (S, 3) in base_link
+    raw: bytes = b""                                                           # the SIP payload, for logs
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One stereo frame: t seconds (runtime clock), seq the camera's counter.
+
+    Either a rectified pair ``left``/``right`` ((H, W) or (H, W, 3) uint8) or, from a synthetic camera,
+    ready ``observations``.
+    """
+
+    t: float
+    seq: int
+    left: np.ndarray | None = None
+    right: np.ndarray | None = None
+    observations: StereoObservations | None = None
+
+
+class RobotLink(Protocol):
+    """What the runtime needs of a mobile base (adapters.P3ATLink wraps the ARCOS driver)."""
+
+    def subscribe(self, callback: Callable[[OdometrySample], None]) -> None: ...
+    def set_velocity(self, v: float, w: float) -> None: ...
+    def enable_motors(self, on: bool) -> None: ...
+    def close(self) -> None: ...
+
+
+class Camera(Protocol):
+    """What the runtime needs of a stereo head: blocking reads of the next frame."""
+
+    def read(self, timeout: float) -> CameraFrame | None: ...   # None: nothing within timeout
+    def close(self) -> None: ...
+
+
+class OdometryBuffer:
+    """Thread-safe, time-ordered odometry samples with interpolation at any covered time."""
+
+    def __init__(self, horizon: int = 3000) -> None:
+        self._times: deque[float] = deque(maxlen=horizon)
+        self._poses: deque[np.ndarray] = deque(maxlen=horizon)
+        self._cond = threading.Condition()
+
+    def add(self, t: float, pose: np.ndarray) -> None:
+        with self._cond:
+            if self._times and t <= self._times[-1]:
+                return  # a repeated or out-of-order stamp carries no new information
+            self._times.append(float(t))
+            self._poses.append(np.asarray(pose, float))
+            self._cond.notify_all()
+
+    @property
+    def latest_time(self) -> float:
+        with self._cond:
+            return self._times[-1] if self._times else -np.inf
+
+    def wait_until(self, t: float, timeout: float) -> bool:
+        """Block until a sample at or after ``t`` is in (True) or ``timeout`` seconds pass (False)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: bool(self._times) and self._times[-1] >= t, timeout)
+
+    def interpolate(self, t: float) -> np.ndarray | None:
+        """Pose (3,) at time t, linear between the two samples around it; None if t is not covered."""
+        with self._cond:
+            times = list(self._times)
+            if not times or t < times[0] or t > times[-1]:
+                return None
+            i = bisect.bisect_left(times, t)
+            if times[i] == t:
+                return self._poses[i].copy()
+            t0, t1 = times[i - 1], times[i]
+            p0, p1 = self._poses[i - 1], self._poses[i]
+        s = (t - t0) / (t1 - t0)
+        return np.array([p0[0] + s * (p1[0] - p0[0]), p0[1] + s * (p1[1] - p0[1]),
+                         wrap_angle(p0[2] + s * wrap_angle(p1[2] - p0[2]))])
+
+
+# -- the deterministic core ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OnboardConfig:
+    """Settings of one robot's pipeline (dumped with a sensor log so a replay can reuse or change them)."""
+
+    fastslam: FastSLAMConfig = field(default_factory=FastSLAMConfig)
+    frontend: FrontEndConfig = field(default_factory=FrontEndConfig)
+    seed: int = 0
+    snapshot_interval: float = 5.0     # s between map snapshots published on the exchange
+    frame_queue: int = 2               # frames waiting for the SLAM stage before the oldest is dropped
+    odometry_wait: float = 1.0         # s a frame waits for odometry covering its time before it is dropped
+    control_rate: float = 10.0         # Hz
+    landmarks_every: int = 5           # frames between landmark (+ellipsoid) logs to Rerun
+    sonar_every: int = 3               # SIPs between sonar-ray logs
+
+
+@dataclass
+class StepResult:
+    """What one frame did: observations count, timings (s) per stage, the filter's state after it."""
+
+    seq: int
+    t: float
+    n_observations: int
+    ess: float
+    landmarks: int
+    best_pose: np.ndarray
+    timings: dict[str, float]
+    matches: object | None = None     # the front end's StereoMatches (pixels for Rerun), if images were given
+
+
+class SlamCore:
+    """Front end + FastSLAM on a stream of (frame, odometry pose at the frame's time). No threads, no clock.
+
+    The map frame is the robot's start frame: the first frame's odometry pose is its origin.
+    """
+
+    def __init__(self, robot: str, config: OnboardConfig, front_end: FrontEnd | None = None,
+                 timer: Clock = time.perf_counter) -> None:
+        self.robot = robot
+        self.config = config
+        self.front_end = front_end if front_end is not None else FrontEnd(config.frontend)
+        self.slam = FastSLAM(config.fastslam, np.random.default_rng(config.seed))
+        self.timer = timer
+        self.previous_odometry: np.ndarray | None = None
+        self.frames = 0
+        self.totals: dict[str, float] = {"frontend": 0.0, "predict": 0.0, "update": 0.0}
+        self.metadata: dict = {}
+
+    def step(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
+        timings: dict[str, float] = {}
+        t0 = self.timer()
+        matches = None
+        if frame.observations is not None:
+            observations = frame.observations
+        else:
+            matches = self.front_end.match(frame.left, frame.right)
+            observations = matches.to_observations(frame.t)
+        t1 = self.timer()
+        timings["frontend"] = t1 - t0
+        if self.previous_odometry is not None:
+            dx, dy, dtheta = between(self.previous_odometry, odometry_pose)
+            increment_t0 = frame.t if self.frames == 0 else self._last_t
+            self.slam.predict(OdometryIncrement(float(dx), float(dy), float(dtheta), increment_t0, frame.t))
+        self.previous_odometry = np.asarray(odometry_pose, float)
+        t2 = self.timer()
+        timings["predict"] = t2 - t1
+        report = self.slam.update(observations)
+        t3 = self.timer()
+        timings["update"] = t3 - t2
+        self._last_t = frame.t
+        self.frames += 1
+        for k, v in timings.items():
+            self.totals[k] += v
+        landmarks = int(self.slam.particle_landmark_count()[self.slam.best_index])
+        return StepResult(frame.seq, frame.t, len(observations), float(report.ess), landmarks,
+                          self.slam.best_pose(), timings, matches)
+
+    def best_map(self) -> LandmarkMap:
+        return self.slam.best_map(robot=self.robot, metadata=self.metadata)
+
+
+# -- the live runtime ---------------------------------------------------------------------------------------
+@dataclass
+class OnboardStats:
+    frames_received: int = 0
+    frames_processed: int = 0
+    dropped_frames: int = 0          # the SLAM stage was behind: the oldest waiting frame was discarded
+    frames_without_odometry: int = 0
+    odometry_samples: int = 0
+    snapshots: int = 0
+    camera_errors: int = 0
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+
+
+class Onboard:
+    """One robot's runtime. ``start()``, then ``stop()`` (idempotent: motors stopped, threads joined, files
+    flushed). ``logger`` is a :class:`runtime.rerun_log.MissionLog` or None; ``truth`` returns the robot's
+    true world pose (mocks only); ``t0`` is the mission's start on the clock.
+    """
+
+    def __init__(self, robot: str, link: RobotLink, camera: Camera, config: OnboardConfig, *,
+                 exchange: MapExchange | None = None, controller: Controller | None = None,
+                 logger=None, sensor_log: SensorLogWriter | None = None, clock: Clock = time.monotonic,
+                 t0: float | None = None, truth: Callable[[], np.ndarray] | None = None,
+                 true_start: np.ndarray | None = None, head_mount: tuple[float, float, float] | None = None,
+                 on_event: Callable[[str], None] | None = None, front_end: FrontEnd | None = None) -> None:
+        self.robot, self.link, self.camera, self.config = robot, link, camera, config
+        self.exchange, self.logger, self.sensor_log = exchange, logger, sensor_log
+        self.controller = controller or NoMotion()
+        self.clock = clock
+        self.t0 = clock() if t0 is None else t0
+        self.truth, self.true_start = truth, true_start
+        self.head_mount = head_mount
+        self.on_event = on_event or (lambda text: None)
+        self.core = SlamCore(robot, config, front_end)
+        if true_start is not None:
+            self.core.metadata["true_start_pose"] = [float(v) for v in true_start]
+        self.odometry = OdometryBuffer()
+        self.stats = OnboardStats()
+        self.route_done = threading.Event()
+        self._frames: queue.Queue[CameraFrame] = queue.Queue(maxsize=max(1, config.frame_queue))
+        self._stop = threading.Event()
+        self._latest: OdometrySample | None = None
+        self._latest_lock = threading.Lock()
+        self._core_lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+        self._last_snapshot = -np.inf
+        self._stopped = False
+        self._anchor: np.ndarray | None = None            # best pose at the last frame (map frame) ...
+        self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
+        self.errors: list[str] = []
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.link.subscribe(self._on_odometry)
+        self.link.enable_motors(True)
+        for name, target in (("camera", self._camera_loop), ("slam", self._slam_loop),
+                             ("control", self._control_loop)):
+            thread = threading.Thread(target=target, name=f"{name}:{self.robot}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def stop(self) -> None:
+        """Stop the motors first, then the threads; publish a last snapshot; flush the sensor log."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._stop.set()
+        self._halt_motors()
+        for thread in self._threads:
+            thread.join(timeout=10.0)
+        self._halt_motors()
+        self.publish_snapshot(force=True)
+        if self.sensor_log is not None:
+            self.sensor_log.close()
+
+    def _halt_motors(self) -> None:
+        try:
+            self.link.set_velocity(0.0, 0.0)
+            self.link.enable_motors(False)
+        except Exception as e:  # a vanished link: nothing more can be sent; the robot's watchdog stops it
+            self.errors.append(f"stopping the motors failed: {e}")
+
+    @property
+    def mission_time(self) -> float:
+        return self.clock() - self.t0
+
+    def latest(self) -> OdometrySample | None:
+        with self._latest_lock:
+            return self._latest
+
+    # -- driver callbacks (the driver's thread: must return at once) ---------------------------------------
+    def _on_odometry(self, sample: OdometrySample) -> None:
+        with self._latest_lock:
+            self._latest = sample
+        self.odometry.add(sample.t, sample.pose)
+        self.stats.odometry_samples += 1
+        if self.sensor_log is not None:
+            self.sensor_log.write("odometry", odometry_record(sample))
+        if self.logger is not None and self.stats.odometry_samples % self.config.sonar_every == 0 \
+                and len(sample.sonar_ranges):
+            pose = self._map_pose(sample.pose)
+            if pose is not None:
+                ranges = np.nan_to_num(sample.sonar_ranges, nan=0.0)
+                self.logger.log_sonar(self.robot, sample.t - self.t0, pose, sample.sonar_poses, ranges)
+
+    def _map_pose(self, odometry_pose: np.ndarray) -> np.ndarray | None:
+        """An odometry pose in the map frame, through the filter's estimate at the last frame (for display)."""
+        with self._latest_lock:
+            anchor, anchor_odometry = self._anchor, self._anchor_odometry
+        if anchor is None:
+            return None
+        return compose(anchor, between(anchor_odometry, odometry_pose))
+
+    # -- camera thread -------------------------------------------------------------------------------------
+    def _camera_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self.camera.read(timeout=0.5)
+            except Exception as e:  # a camera error must not take the robot down; count, report, retry
+                self.stats.camera_errors += 1
+                self._event(f"camera error: {e}", "WARN")
+                self._stop.wait(0.5)
+                continue
+            if frame is None:
+                continue
+            self.stats.frames_received += 1
+            if self.sensor_log is not None:
+                self.sensor_log.write(*frame_record(frame))
+            try:
+                self._frames.put_nowait(frame)
+            except queue.Full:
+                try:
+                    old = self._frames.get_nowait()
+                    self.stats.dropped_frames += 1
+                    if self.stats.dropped_frames in (1, 10, 100) or self.stats.dropped_frames % 500 == 0:
+                        self._event(f"SLAM stage behind: dropped frame {old.seq} "
+                                    f"({self.stats.dropped_frames} so far)", "WARN")
+                except queue.Empty:
+                    pass
+                self._frames.put_nowait(frame)
+
+    # -- SLAM thread ---------------------------------------------------------------------------------------
+    def _slam_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self._frames.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if not self.odometry.wait_until(frame.t, self.config.odometry_wait) or self._stop.is_set():
+                if not self._stop.is_set():
+                    self.stats.frames_without_odometry += 1
+                    self._event(f"frame {frame.seq}: no odometry at t={frame.t:.3f}, dropped", "WARN")
+                continue
+            pose = self.odometry.interpolate(frame.t)
+            if pose is None:
+                self.stats.frames_without_odometry += 1
+                continue
+            self.process(frame, pose)
+
+    def process(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
+        """Run one frame through the core and report it (also the entry point of tests and replay)."""
+        with self._core_lock:
+            result = self.core.step(frame, odometry_pose)
+        with self._latest_lock:
+            self._anchor = result.best_pose
+            self._anchor_odometry = np.asarray(odometry_pose, float)
+        self.stats.frames_processed += 1
+        for k, v in result.timings.items():
+            self.stats.stage_seconds[k] = self.stats.stage_seconds.get(k, 0.0) + v
+        if self.sensor_log is not None:
+            self.sensor_log.write("processed", {"t": frame.t, "seq": frame.seq})
+        self._report(frame, result)
+        if frame.t - self.t0 - self._last_snapshot >= self.config.snapshot_interval:
+            self.publish_snapshot()
+        return result
+
+    def publish_snapshot(self, force: bool = False) -> LandmarkMap | None:
+        if self.core.frames == 0:
+            return None
+        t = self.mission_time
+        with self._core_lock:
+            snapshot = self.core.best_map()
+        self._last_snapshot = t
+        self.stats.snapshots += 1
+        if self.exchange is not None:
+            self.exchange.publish(self.robot, snapshot, stamp=t)
+        if self.logger is not None:
+            self.logger.log_map(self.robot, t, snapshot)
+        return snapshot
+
+    def _report(self, frame: CameraFrame, result: StepResult) -> None:
+        if self.logger is None:
+            return
+        t = frame.t - self.t0
+        true_pose = None
+        if self.truth is not None and self.true_start is not None:
+            true_pose = between(self.true_start, self.truth())
+        self.logger.log_pose(self.robot, t, frame.seq, result.best_pose, true_pose, self.head_mount)
+        self.logger.log_particles(self.robot, t, frame.seq, self.core.slam.poses)
+        self.logger.log_scalars(self.robot, t, {
+            "ess": result.ess, "landmarks": result.landmarks, "observations": result.n_observations,
+            "dropped": self.stats.dropped_frames,
+            **{f"time/{k}": 1000.0 * v for k, v in result.timings.items()}}, frame=frame.seq)
+        if result.matches is not None:
+            self.logger.log_stereo(self.robot, t, frame.seq, frame.left, frame.right,
+                                   result.matches.left_pixels, result.matches.right_pixels)
+        if self.core.frames % self.config.landmarks_every == 0:
+            with self._core_lock:
+                m = self.core.slam.particle_map(self.core.slam.best_index, 1, self.robot)
+            self.logger.log_landmarks(self.robot, t, frame.seq, m.positions, m.covariances)
+
+    # -- control thread ------------------------------------------------------------------------------------
+    def _control_loop(self) -> None:
+        period = 1.0 / self.config.control_rate
+        while not self._stop.wait(period):
+            sample = self.latest()
+            if sample is None:
+                continue
+            try:
+                command = self.controller.command(sample.pose, sample.sonar_poses, sample.sonar_ranges)
+                if command.done:
+                    self.link.set_velocity(0.0, 0.0)
+                    if not self.route_done.is_set():
+                        self._event("route finished")
+                        self.route_done.set()
+                    continue
+                self.link.set_velocity(command.v, command.w)
+            except Exception as e:
+                self._event(f"control error: {e}", "WARN")
+
+    def _event(self, text: str, level: str = "INFO") -> None:
+        message = f"{self.robot}: {text}"
+        self.on_event(message)
+        if self.logger is not None:
+            self.logger.log_event(self.mission_time, message, level)
+
+
+def odometry_record(sample: OdometrySample) -> dict:
+    return {"t": sample.t, "x": float(sample.pose[0]), "y": float(sample.pose[1]), "theta": float(sample.pose[2]),
+            "v": sample.v, "w": sample.w, "stalled": int(sample.stalled),
+            "sonar": np.asarray(sample.sonar_ranges, float), "sonar_poses": np.asarray(sample.sonar_poses, float),
+            "raw": np.frombuffer(sample.raw, np.uint8)}
+
+
+def frame_record(frame: CameraFrame) -> tuple[str, dict]:
+    if frame.observations is not None:
+        o = frame.observations
+        return "observations", {"t": frame.t, "seq": frame.seq, "points": o.points, "covariances": o.covariances,
+                                "descriptors": o.descriptors, "pixels": o.pixels}
+    return "frames", {"t": frame.t, "seq": frame.seq, "left": frame.left, "right": frame.right}
