@@ -1,0 +1,228 @@
+"""Simulated landmark maps for the fusion tests, benchmarks and evaluation (not part of the product).
+
+Two sources:
+
+* :func:`building_map` / :func:`building_pair` — the maps two robots would build driving their routes
+  through the simulated building (``mocks.world``): the features their camera sees along the route,
+  expressed in each robot's start frame, with position noise drawn from a per-landmark covariance that
+  grows with range and distance travelled, descriptor noise, and spurious landmarks.  A map can be cut at
+  any fraction of the route (the snapshots of the paper's Fig. 2); a landmark's noise draw is fixed, so a
+  growing map refines rather than reshuffles.  ``metadata["true_start_pose"]`` carries the truth.
+* :func:`random_pair` — two maps of a random point cloud sharing ``n_common`` landmarks, for property
+  tests and the speed benchmarks (any size, no building).
+
+Until FastSLAM maps are used, these stand in for them (see docs/fusion.md).
+"""
+from __future__ import annotations
+
+import functools
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from estimation.geometry import inverse, rot_z, transform_points  # noqa: E402
+from estimation.landmark_map import LandmarkMap  # noqa: E402
+
+DESCRIPTOR_SIZE = 64
+
+
+@dataclass(frozen=True)
+class MapNoise:
+    """How a simulated robot's map departs from the truth (metres, per metre of range or travel)."""
+
+    range_sigma: float = 0.02            # along the line of sight: range_sigma + range_growth · range²
+    range_growth: float = 0.004
+    cross_sigma: float = 0.01            # across it and in z: cross_sigma + cross_growth · range
+    cross_growth: float = 0.003
+    drift_per_metre: float = 0.002       # isotropic xy std added per metre travelled before first sight
+    descriptor_noise: float = 0.2        # expected descriptor distance to the true descriptor
+    spurious_fraction: float = 0.1       # extra landmarks that exist nowhere
+    camera_height: float = 0.9
+    fov: float = 1.0                     # radians, horizontal
+    vertical_fov: float = 0.9
+    max_range: float = 6.0
+
+
+@dataclass(frozen=True)
+class SimulatedMap:
+    """A map and, for each landmark, the index of the world feature it stands for (-1: spurious)."""
+
+    map: LandmarkMap
+    feature_index: np.ndarray
+
+
+@functools.lru_cache(maxsize=4)
+def load_world(path: str | None = None):
+    from mocks.world import World
+    return World.load(path)
+
+
+def route_poses(start_pose, waypoints, step: float = 0.1, turn_step: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (P, 3) along a waypoint route (turning in place at each waypoint) and distance travelled (P,)."""
+    poses, travelled = [np.asarray(start_pose, float)], [0.0]
+    x, y, heading = (float(v) for v in start_pose)
+    dist = 0.0
+    for wx, wy in np.asarray(waypoints, float):
+        length = np.hypot(wx - x, wy - y)
+        if length < 1e-9:
+            continue
+        target = np.arctan2(wy - y, wx - x)
+        turn = (target - heading + np.pi) % (2 * np.pi) - np.pi
+        for a in np.linspace(0.0, turn, max(2, int(abs(turn) / turn_step) + 1))[1:]:
+            poses.append(np.array([x, y, heading + a]))
+            travelled.append(dist)
+        heading = target
+        for s in np.arange(step, length + 1e-9, step):
+            poses.append(np.array([x + s * np.cos(heading), y + s * np.sin(heading), heading]))
+            travelled.append(dist + s)
+        x, y, dist = wx, wy, dist + length
+    return np.array(poses), np.array(travelled)
+
+
+@functools.lru_cache(maxsize=16)
+def _sightings(robot: str, noise: MapNoise) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every pose along the robot's route: (poses (P, 3), travelled (P,), visible (P, K) bool)."""
+    world = load_world()
+    poses, travelled = route_poses(world.start_poses[robot], world.routes[robot])
+    visible = np.array([world.visible_features(p, noise.camera_height, noise.fov, noise.max_range,
+                                               noise.vertical_fov) for p in poses])
+    return poses, travelled, visible
+
+
+def _covariance(view_xy: np.ndarray, rng_m: np.ndarray, travelled: np.ndarray, noise: MapNoise) -> np.ndarray:
+    """World-frame covariances (N, 3, 3) of landmarks seen along view_xy (N, 2) at range rng_m (N,)."""
+    along = noise.range_sigma + noise.range_growth * rng_m ** 2
+    across = noise.cross_sigma + noise.cross_growth * rng_m
+    drift = noise.drift_per_metre * travelled
+    bearing = np.arctan2(view_xy[:, 1], view_xy[:, 0])
+    R = rot_z(bearing)
+    D = np.zeros((len(rng_m), 3, 3))
+    D[:, 0, 0], D[:, 1, 1], D[:, 2, 2] = along ** 2, across ** 2, across ** 2
+    P = R @ D @ np.swapaxes(R, -1, -2)
+    P[:, 0, 0] += drift ** 2
+    P[:, 1, 1] += drift ** 2
+    return P
+
+
+def _noisy_descriptors(desc: np.ndarray, distance: float, rng: np.random.Generator) -> np.ndarray:
+    noisy = desc + rng.normal(scale=distance / np.sqrt(desc.shape[1]), size=desc.shape)
+    return (noisy / np.linalg.norm(noisy, axis=1, keepdims=True)).astype(np.float32)
+
+
+def building_map(robot: str, fraction: float = 1.0, seed: int = 0, noise: MapNoise = MapNoise(),
+                 exclude_features: np.ndarray | None = None) -> SimulatedMap:
+    """The map ``robot`` ("robot1", "robot2", ...) has built after ``fraction`` of its route.
+
+    Deterministic in ``seed``; the same seed gives the same noise for every fraction.  ``exclude_features``
+    (feature indices) are left out (to build maps that share nothing).
+    """
+    world = load_world()
+    poses, travelled, visible = _sightings(robot, noise)
+    rng = np.random.default_rng([seed, int.from_bytes(robot.encode()[-4:], "little")])
+    k = len(world.features)
+    # fixed per-landmark draws, so a growing map refines instead of reshuffling
+    unit_noise = rng.standard_normal((k, 3))
+    desc_all = _noisy_descriptors(world.feature_descriptors, noise.descriptor_noise, rng)
+    n_spurious_all = int(round(noise.spurious_fraction * k))
+    spurious_at = rng.uniform(0.0, 1.0, n_spurious_all)
+    spurious_desc = _noisy_descriptors(rng.standard_normal((n_spurious_all, DESCRIPTOR_SIZE)), 0.0, rng)
+    spurious_unit = rng.uniform(0.0, 1.0, (n_spurious_all, 3))
+
+    last = max(1, int(np.ceil(fraction * len(poses))))
+    seen = visible[:last]
+    observed = seen.any(axis=0)
+    if exclude_features is not None:
+        observed[np.asarray(exclude_features, np.int64)] = False
+    idx = np.flatnonzero(observed)
+    # each landmark's best view so far: the closest sighting
+    rel = world.features[None, idx, :2] - poses[:last, None, :2]
+    dist = np.where(seen[:, idx], np.linalg.norm(rel, axis=2), np.inf)
+    best = np.argmin(dist, axis=0)
+    first = np.argmax(seen[:, idx], axis=0)
+    view = rel[best, np.arange(len(idx))]
+    P_world = _covariance(view, dist[best, np.arange(len(idx))], travelled[first], noise)
+
+    start = np.asarray(world.start_poses[robot], float)
+    to_start = inverse(start)
+    true_local = transform_points(to_start, world.features[idx])
+    Rs = rot_z(to_start[2])
+    P = Rs @ P_world @ Rs.T
+    positions = true_local + np.einsum("nij,nj->ni", np.linalg.cholesky(P), unit_noise[idx])
+
+    # spurious landmarks: appear along the route, somewhere in the seen region, with typical uncertainty
+    n_sp = int(np.sum(spurious_at <= fraction)) if len(idx) else 0
+    if n_sp:
+        lo, hi = true_local.min(axis=0), true_local.max(axis=0)
+        positions = np.vstack([positions, lo + spurious_unit[:n_sp] * (hi - lo)])
+        P = np.concatenate([P, np.repeat(np.median(P, axis=0)[None], n_sp, axis=0)])
+    descriptors = np.vstack([desc_all[idx], spurious_desc[:n_sp]])
+    feature_index = np.concatenate([idx, np.full(n_sp, -1)])
+    traj = np.column_stack([np.arange(last) * 0.3, np.asarray([_local(to_start, p) for p in poses[:last]])])
+    m = LandmarkMap(positions, P, descriptors, counts=np.ones(len(positions), np.int64), robot=robot,
+                    frame=f"{robot}/start", trajectory=traj,
+                    metadata={"true_start_pose": [float(v) for v in start], "simulated": True,
+                              "route_fraction": float(fraction), "seed": int(seed)})
+    return SimulatedMap(m, feature_index)
+
+
+def _local(to_start: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    from estimation.geometry import compose
+    return compose(to_start, pose)
+
+
+def building_pair(fraction: float = 1.0, seed: int = 0, noise: MapNoise = MapNoise(),
+                  robots: tuple[str, str] = ("robot1", "robot2")) -> tuple[SimulatedMap, SimulatedMap]:
+    """Both robots' maps after ``fraction`` of their routes."""
+    return building_map(robots[0], fraction, seed, noise), building_map(robots[1], fraction, seed, noise)
+
+
+def non_overlapping_pair(fraction: float = 1.0, seed: int = 0, noise: MapNoise = MapNoise()
+                         ) -> tuple[SimulatedMap, SimulatedMap]:
+    """Two maps of the same building (same kinds of descriptors) that share no landmark at all."""
+    first = building_map("robot1", fraction, seed, noise)
+    shared = first.feature_index[first.feature_index >= 0]
+    return first, building_map("robot2", fraction, seed, noise, exclude_features=shared)
+
+
+def true_common(a: SimulatedMap, b: SimulatedMap) -> np.ndarray:
+    """Pairs (K, 2) of rows of a and b that stand for the same world feature."""
+    rows_b = {int(f): r for r, f in enumerate(b.feature_index) if f >= 0}
+    return np.array([(r, rows_b[int(f)]) for r, f in enumerate(a.feature_index) if f >= 0 and int(f) in rows_b],
+                    np.int64).reshape(-1, 2)
+
+
+def random_pair(n_common: int, n_only1: int, n_only2: int, pose, seed: int = 0, sigma: float = 0.03,
+                descriptor_noise: float = 0.2, extent: tuple[float, float] = (35.0, 10.0)
+                ) -> tuple[LandmarkMap, LandmarkMap, np.ndarray]:
+    """Two maps of a random 3-D point cloud; map 2's frame sits at ``pose`` (3,) in map 1's frame.
+
+    Returns map1, map2 and the true common pairs (n_common, 2).  Landmarks have isotropic std ``sigma``
+    (varying ±50 % per landmark) and unit descriptors perturbed by ``descriptor_noise`` per map.
+    """
+    rng = np.random.default_rng(seed)
+    n = n_common + n_only1 + n_only2
+    world = np.column_stack([rng.uniform(0, extent[0], n), rng.uniform(0, extent[1], n), rng.uniform(0, 2.5, n)])
+    desc = rng.standard_normal((n, DESCRIPTOR_SIZE))
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    in1 = np.r_[np.arange(n_common), n_common + np.arange(n_only1)]
+    in2 = np.r_[np.arange(n_common), n_common + n_only1 + np.arange(n_only2)]
+
+    def make(rows, frame_pose, robot):
+        local = transform_points(inverse(frame_pose), world[rows])
+        s = sigma * rng.uniform(0.5, 1.5, len(rows))
+        cov = np.eye(3)[None] * (s ** 2)[:, None, None]
+        perm = rng.permutation(len(rows))
+        m = LandmarkMap(local[perm] + rng.standard_normal((len(rows), 3)) * s[perm, None], cov[perm],
+                        _noisy_descriptors(desc[rows[perm]], descriptor_noise, rng), robot=robot,
+                        metadata={"true_start_pose": [float(v) for v in frame_pose]})
+        return m, perm
+
+    map1, perm1 = make(in1, np.zeros(3), "robot1")
+    map2, perm2 = make(in2, np.asarray(pose, float), "robot2")
+    row1 = np.argsort(perm1)[:n_common]   # where original row r ended up
+    row2 = np.argsort(perm2)[:n_common]
+    return map1, map2, np.column_stack([row1, row2]).astype(np.int64)

@@ -1,0 +1,202 @@
+"""Map merging: one map from two aligned maps (Section 4 of the ISR 2009 paper, formulas made right).
+
+Common landmarks are found by
+
+* Method 1 — the RANSAC supports of the alignment (close in position *and* similar in descriptor);
+* Method 2 — after alignment, mutual nearest neighbours in position within a gate (Euclidean th2 in the
+  paper preset, a 3-D Mahalanobis gate in the robust one), hence one-to-one.
+
+Each common pair is fused by the stationary Kalman update (vectorised over landmarks):
+
+    K = P1 (P1 + P2)⁻¹          (eq. 6)
+    x = x1 + K (x2 − x1)        (eq. 7 — the text has (x1 − x2), which moves the mean *away* from map 2)
+    P = (I − K) P1, symmetrised (eq. 8 — the text multiplies the coordinates C1 instead of the covariance)
+
+where x2, P2 are map 2's estimate expressed in map 1's frame: x2 = R x2' + t and P2 = R P2' Rᵀ (the text
+forgets to rotate the covariance), plus, when the alignment carries a covariance Σ (robust preset),
+J Σ Jᵀ with J = ∂(R x2' + t)/∂(tx, ty, θ), so that an uncertain alignment weighs map 2 less.  The fused
+descriptor is the mean of the two, renormalised to unit length.  Landmarks seen by one robot only are
+kept as they are (map 2's transformed into map 1's frame), and ``seen_by`` records which robots saw
+each landmark.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from estimation.geometry import rot_z
+from estimation.landmark_map import LandmarkMap
+
+from .alignment import CHI2_999, PRESETS, Alignment
+from .errors import IncompatibleMapsError
+from .pose_covariance import point_jacobians
+
+
+def kalman_fuse(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse two estimates of the same points.  x1, x2 (N, 3); P1, P2 (N, 3, 3) -> x (N, 3), P (N, 3, 3)."""
+    S = P1 + P2                                                    # innovation covariance
+    # K = P1 S⁻¹; S and P1 symmetric, so K = (S⁻¹ P1)ᵀ
+    K = np.swapaxes(np.linalg.solve(S, P1), -1, -2)
+    x = x1 + np.einsum("nij,nj->ni", K, x2 - x1)                   # eq. 7, toward map 2
+    P = P1 - K @ P1                                                # eq. 8, (I − K) P1
+    return x, 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def transform_landmarks(positions: np.ndarray, covariances: np.ndarray, pose, pose_covariance=None
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Map-2 landmarks in map 1's frame.  positions (N, 3), covariances (N, 3, 3), pose (3,).
+
+    x = R x' + t;  P = R P' Rᵀ (+ J Σ Jᵀ when the pose covariance Σ (3, 3) is given).
+    """
+    R = rot_z(pose[2])
+    x = positions @ R.T + np.array([pose[0], pose[1], 0.0])
+    P = R @ covariances @ R.T
+    if pose_covariance is not None:
+        J = point_jacobians(pose, positions)
+        P = P + J @ np.asarray(pose_covariance, float) @ np.swapaxes(J, -1, -2)
+    return x, P
+
+
+def _normalised_mean(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    mean = 0.5 * (d1.astype(np.float64) + d2.astype(np.float64))
+    norm = np.linalg.norm(mean, axis=1, keepdims=True)
+    return (mean / np.where(norm > 0, norm, 1.0)).astype(np.float32)
+
+
+def position_correspondences(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray,
+                             euclidean_gate: float | None = None, floor: float = 0.02) -> np.ndarray:
+    """Method 2: mutual nearest neighbours in position, within a gate -> pairs (K, 2) int64 (one-to-one).
+
+    x1 (N1, 3), x2 (N2, 3) in the same frame; P1, P2 their covariances.  With ``euclidean_gate`` (metres)
+    a pair is kept when its distance is below it; otherwise when its Mahalanobis distance under
+    P1 + P2 + floor² I is within the 99.9 % χ²(3) quantile.
+    """
+    if len(x1) == 0 or len(x2) == 0:
+        return np.zeros((0, 2), np.int64)
+    _, j_of_i = cKDTree(x2).query(x1, k=1)
+    _, i_of_j = cKDTree(x1).query(x2, k=1)
+    i = np.flatnonzero(i_of_j[j_of_i] == np.arange(len(x1)))
+    j = j_of_i[i]
+    r = x1[i] - x2[j]
+    if euclidean_gate is not None:
+        keep = np.einsum("ki,ki->k", r, r) < euclidean_gate ** 2
+    else:
+        S = P1[i] + P2[j] + floor ** 2 * np.eye(3)
+        keep = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0]) < CHI2_999[3]
+    return np.stack([i[keep], j[keep]], axis=1).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class MergeResult:
+    """The merged map and where every input landmark went.
+
+    rows1 (N1,): row of each map-1 landmark in ``map`` (map 1 keeps its rows: rows1 = arange(N1));
+    rows2 (N2,): row of each map-2 landmark (a map-1 row when it was fused); pairs (K, 2) the fused pairs.
+    """
+
+    map: LandmarkMap
+    rows1: np.ndarray
+    rows2: np.ndarray
+    pairs: np.ndarray
+
+
+def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covariance=None,
+                metadata: dict | None = None) -> MergeResult:
+    """Merge map 2 (aligned by ``pose`` (3,), optionally uncertain by ``pose_covariance`` (3, 3)) into map 1,
+    fusing the landmark ``pairs`` (K, 2) rows (i in map 1, j in map 2), which must be one-to-one."""
+    if len(map1) and len(map2) and map1.descriptor_size != map2.descriptor_size:
+        raise IncompatibleMapsError(f"descriptor sizes differ: {map1.descriptor_size} vs {map2.descriptor_size}")
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if len(np.unique(pairs[:, 0])) != len(pairs) or len(np.unique(pairs[:, 1])) != len(pairs):
+        raise IncompatibleMapsError("common landmarks must be one-to-one between the maps")
+    x2, P2 = transform_landmarks(map2.positions, map2.covariances, pose, pose_covariance)
+    i, j = pairs[:, 0], pairs[:, 1]
+
+    positions = map1.positions.copy()
+    covariances = map1.covariances.copy()
+    descriptors = map1.descriptors.copy() if len(map1) else np.zeros((0, map2.descriptor_size), np.float32)
+    counts = map1.counts.copy()
+    positions[i], covariances[i] = kalman_fuse(map1.positions[i], map1.covariances[i], x2[j], P2[j])
+    descriptors[i] = _normalised_mean(map1.descriptors[i], map2.descriptors[j])
+    counts[i] += map2.counts[j]
+
+    robots = list(map1.robots) + [r for r in map2.robots if r not in map1.robots]
+    col2 = np.array([robots.index(r) for r in map2.robots], np.int64)
+    seen = np.zeros((len(map1), len(robots)), bool)
+    seen[:, : len(map1.robots)] = map1.seen_by
+    seen[i[:, None], col2[None, :]] |= map2.seen_by[j]
+
+    only2 = np.ones(len(map2), bool)
+    only2[j] = False
+    seen2 = np.zeros((int(only2.sum()), len(robots)), bool)
+    seen2[:, col2] = map2.seen_by[only2]
+    next_id = int(map1.ids.max()) + 1 if len(map1) else 0
+
+    rows2 = np.empty(len(map2), np.int64)
+    rows2[j] = i
+    rows2[only2] = len(map1) + np.arange(int(only2.sum()))
+    merged = LandmarkMap(
+        positions=np.vstack([positions, x2[only2]]),
+        covariances=np.concatenate([covariances, P2[only2]]),
+        descriptors=np.vstack([descriptors, map2.descriptors[only2].astype(descriptors.dtype)]),
+        ids=np.concatenate([map1.ids, next_id + np.arange(int(only2.sum()))]),
+        counts=np.concatenate([counts, map2.counts[only2]]),
+        robot="+".join(robots), frame=map1.frame, robots=robots,
+        seen_by=np.vstack([seen, seen2]),
+        trajectory=map1.trajectory.copy(),
+        metadata={**map1.metadata, **(metadata or {})},
+    )
+    return MergeResult(merged, np.arange(len(map1)), rows2, pairs)
+
+
+def common_landmarks(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: int = 1,
+                     gate: float | None = None) -> np.ndarray:
+    """Pairs (K, 2) of landmarks both maps hold: Method 1 (RANSAC supports) or Method 2 (position).
+
+    Method 2's gate: ``gate`` metres (Euclidean) if given, else th2 for the paper preset and the Mahalanobis
+    gate otherwise.  Method 1's supports are made one-to-one (the paper's matching lets two map-1
+    landmarks share a map-2 landmark; the nearer in position keeps it).
+    """
+    alignment.require()
+    if method == 1:
+        return _one_to_one(map1, map2, alignment)
+    if method == 2:
+        x2, P2 = transform_landmarks(map2.positions, map2.covariances, alignment.pose, alignment.covariance)
+        if gate is None and alignment.preset == "paper":
+            gate = PRESETS["paper"].support_threshold
+        return position_correspondences(map1.positions, map1.covariances, x2, P2, gate)
+    raise IncompatibleMapsError(f"unknown common-landmark method {method!r} (1: RANSAC supports, 2: position)")
+
+
+def _one_to_one(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment) -> np.ndarray:
+    sup = alignment.supports
+    if len(sup) == 0:
+        return sup.reshape(0, 2)
+    x2, _ = transform_landmarks(map2.positions[sup[:, 1]], map2.covariances[sup[:, 1]], alignment.pose)
+    dist = np.linalg.norm(map1.positions[sup[:, 0]] - x2, axis=1)
+    order = np.argsort(dist, kind="stable")
+    keep = np.zeros(len(sup), bool)
+    used1, used2 = set(), set()
+    for k in order:
+        a, b = int(sup[k, 0]), int(sup[k, 1])
+        if a not in used1 and b not in used2:
+            keep[k] = True
+            used1.add(a)
+            used2.add(b)
+    return sup[keep]
+
+
+def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: int = 1,
+          gate: float | None = None, use_alignment_covariance: bool = True) -> LandmarkMap:
+    """The fused map in map 1's frame (see the module docstring).
+
+    Raises :class:`~fusion.errors.NoOverlapError` when ``alignment`` was not found.  The alignment's
+    covariance (robust preset) is added to map 2's landmarks unless ``use_alignment_covariance`` is False.
+    """
+    pairs = common_landmarks(map1, map2, alignment, method, gate)
+    pose_cov = alignment.covariance if use_alignment_covariance else None
+    info = {"fusion": {"maps": [map1.robot, map2.robot], "method": int(method), "preset": alignment.preset,
+                       "pose": [float(v) for v in alignment.pose], "common_landmarks": int(len(pairs))}}
+    return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info).map
