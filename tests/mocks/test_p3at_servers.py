@@ -1,0 +1,154 @@
+"""The virtual P3-AT's TCP and pty servers, spoken to by a raw pyserial client."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import serial
+
+from drivers.arcos.codec import PacketParser, decode_identity, decode_sip, encode_command, encode_packet
+from drivers.arcos.commands import Command
+from mocks.p3at import serve_pty, serve_tcp
+from mocks.world import World
+
+
+@pytest.fixture
+def world() -> World:
+    return World.load()
+
+
+def read_packets(port: serial.SerialBase, parser: PacketParser, want, timeout: float = 3.0) -> list[bytes]:
+    """Read until ``want(packets)`` is true or the timeout passes; returns every packet read."""
+    packets: list[bytes] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not want(packets):
+        packets += parser.feed(port.read(256))
+    return packets
+
+
+def handshake(port: serial.SerialBase, parser: PacketParser) -> str:
+    """SYNC0..2 and OPEN; returns the robot's name from SYNC2."""
+    name = None
+    for sync in (0, 1, 2):
+        port.write(encode_packet(bytes([sync])))
+        got = read_packets(port, parser, lambda p, s=sync: any(x[0] == s for x in p))
+        reply = next(x for x in got if x[0] == sync)
+        if sync == 2:
+            name = decode_identity(reply).name
+    port.write(encode_command(Command.OPEN, 1))
+    return name
+
+
+def sips(packets: list[bytes]):
+    return [decode_sip(p) for p in packets if p[0] in (0x32, 0x33)]
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_handshake_sips_and_driving(world: World, transport: str) -> None:
+    server = serve_tcp(world, "robot1", port=0) if transport == "tcp" else serve_pty(world, "robot1")
+    with server:
+        assert (server.port is None) == (transport == "pty")
+        with serial.serial_for_url(server.url, baudrate=9600, timeout=0.05) as port:
+            parser = PacketParser()
+            assert handshake(port, parser) == "robot1"
+            got = sips(read_packets(port, parser, lambda p: len(sips(p)) >= 5))
+            assert len(got) >= 5 and not got[-1].moving
+            start = world.pose("robot1")
+            port.write(encode_command(Command.ENABLE, 1) + encode_command(Command.VEL, 300))
+            got = sips(read_packets(port, parser, lambda p: any(s.lvel == 300 for s in sips(p)), timeout=4.0))
+            assert got[-1].lvel == 300 and got[-1].moving
+            assert world.pose("robot1")[0] > start[0] + 0.1
+            port.write(encode_command(Command.CLOSE, 1))
+    assert world.robot_names() == []  # close() took the robot out
+
+
+def test_tcp_reconnect_gets_a_fresh_session(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0) as server:
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            parser = PacketParser()
+            handshake(port, parser)
+            port.write(encode_command(Command.ENABLE, 1) + encode_command(Command.VEL, 200))
+            read_packets(port, parser, lambda p: len(sips(p)) >= 3)
+        time.sleep(0.2)
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            parser = PacketParser()
+            # a fresh session: silence until the handshake (no SIPs from the old one), and the motion stopped
+            assert read_packets(port, parser, lambda p: False, timeout=0.4) == []
+            assert server.model.v == 0.0 and server.connections == 2
+            assert handshake(port, parser) == "robot1"
+            assert sips(read_packets(port, parser, lambda p: len(sips(p)) >= 2))
+
+
+def test_two_robots_in_one_world(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0) as a, serve_tcp(world, "robot2", port=0) as b:
+        assert a.port != b.port and sorted(world.robot_names()) == ["robot1", "robot2"]
+        for server, name in ((a, "robot1"), (b, "robot2")):
+            with serial.serial_for_url(server.url, timeout=0.05) as port:
+                assert handshake(port, PacketParser()) == name
+
+
+def test_pty_survives_client_reopen(world: World) -> None:
+    with serve_pty(world, "robot2", np.array([8.0, 5.0, 0.0])) as server:
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            handshake(port, PacketParser())
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            parser = PacketParser()
+            # a serial line does not tell the robot the client left: it is still streaming SIPs
+            assert sips(read_packets(port, parser, lambda p: len(sips(p)) >= 2))
+            port.write(encode_command(Command.CLOSE))
+            time.sleep(0.3)
+            port.reset_input_buffer()
+            assert handshake(port, parser) == "robot2"
+
+
+def test_garbage_over_tcp_does_not_stop_the_server(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0) as server:
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            rng = np.random.default_rng(5)
+            port.write(bytes(rng.integers(0, 256, 5000, dtype=np.uint8)))
+            port.write(b"\xfa\xfb\x05\x63\x3b\x01\x00")  # truncated
+            port.write(encode_packet(bytes([99])))  # unknown command before OPEN
+            parser = PacketParser()
+            port.write(encode_packet(b"\x00"))
+            time.sleep(0.3)
+            port.reset_input_buffer()
+            assert handshake(port, parser) == "robot1"
+            assert sips(read_packets(port, parser, lambda p: len(sips(p)) >= 2))
+        assert server.error is None and server.model.parser.stats.dropped_bytes > 1000
+
+
+def test_close_is_idempotent_and_joins_its_thread(world: World) -> None:
+    before = {t.name for t in threading.enumerate()}
+    server = serve_tcp(world, "robot1", port=0, time_scale=4.0)
+    assert any(t.name.startswith("p3at-tcp-robot1") for t in threading.enumerate())
+    server.close()
+    server.close()
+    assert {t.name for t in threading.enumerate()} <= before
+    with pytest.raises(OSError), serial.serial_for_url(server.url, timeout=0.1):
+        pass
+    pty = serve_pty(world, "robot1")
+    pty.close()
+    pty.close()
+    assert {t.name for t in threading.enumerate()} <= before
+
+
+def test_time_scale_speeds_up_the_sip_stream(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0, time_scale=5.0) as server:
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            parser = PacketParser()
+            handshake(port, parser)
+            t0 = time.monotonic()
+            got = sips(read_packets(port, parser, lambda p: len(sips(p)) >= 25))
+            assert len(got) >= 25 and time.monotonic() - t0 < 2.0  # 50 SIPs/s of wall time
+
+
+def test_duplicate_name_and_bad_port_leave_nothing_behind(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0) as server:
+        with pytest.raises(ValueError, match="already"):
+            serve_tcp(world, "robot1", port=0)
+        with pytest.raises(OSError):
+            serve_tcp(world, "robot2", port=server.port)
+        assert world.robot_names() == ["robot1"]
