@@ -361,9 +361,10 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
         raise BadFileError(f"{path}: no such file")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise BadFileError(f"{path}:{_cv_error_line(exc)}: field '(syntax)': not a readable OpenCV file: "
-                           f"{_cv_error_text(exc)}") from None
+    except (cv2.error, SystemError) as exc:  # the Python binding wraps parse errors in SystemError
+        cause = exc.__cause__ or exc.__context__ or exc
+        raise BadFileError(f"{path}:{_cv_error_line(cause)}: field '(syntax)': not a readable OpenCV file: "
+                           f"{_cv_error_text(cause)}") from None
     if not fs.isOpened():
         raise BadFileError(f"{path}:1: field '(syntax)': not a readable OpenCV YAML/XML file")
     try:
@@ -428,12 +429,12 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
     return calib
 
 
-def _cv_error_text(exc: cv2.error) -> str:
+def _cv_error_text(exc: BaseException) -> str:
     return str(exc).strip().splitlines()[-1] if str(exc).strip() else "parse error"
 
 
-def _cv_error_line(exc: cv2.error) -> int | str:
-    found = re.search(r"line (\d+)", str(exc))
+def _cv_error_line(exc: BaseException) -> int | str:
+    found = re.search(r"\((\d+)\): ", str(exc)) or re.search(r"line (\d+)", str(exc))
     return int(found.group(1)) if found else "?"
 
 
