@@ -1,0 +1,143 @@
+"""The P3AT driver against a protocol-level fake peer (conftest.FakePeer) over a pty and over TCP."""
+from __future__ import annotations
+
+import threading
+import time
+import warnings
+
+import pytest
+
+from drivers.arcos.commands import Command
+from drivers.arcos.robot import P3AT, ClampWarning, LinkEvent
+from drivers.errors import DeviceNotFoundError, DriverTimeoutError, NotConnectedError
+
+
+def wait_until(predicate, timeout: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+def test_handshake_identity_config_and_state(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    with P3AT(peer.url) as robot:
+        assert robot.identity.name == "FakePeer" and robot.identity.subtype == "p3at-sh"
+        assert robot.params.subtype == "p3at-sh"
+        assert robot.config.name == "FakePeer" and robot.config.trans_vel_top == 1200
+        assert robot.config.watchdog is None  # the peer's CONFIG ends early; the reader accepts that
+        state = robot.wait_for_state()
+        assert state.battery_volts == pytest.approx(13.0)
+        assert state.sonars[7].range_m == pytest.approx(2.5) and state.sonars[7].pose[2] < 0
+    assert wait_until(lambda: peer.commands[-1:] == [(Command.CLOSE, 1)])
+    assert peer.commands[-2] == (Command.ENABLE, 0)
+    assert [c for c, _ in peer.commands[:5]] == [0, 1, 2, Command.OPEN, Command.CONFIG]
+
+
+def test_velocity_moves_the_robot_and_odometry_follows(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    with P3AT(peer.url) as robot:
+        robot.motors_on()
+        robot.set_velocity(0.5, 0.0)
+        state = robot.wait_for_state(3.0, lambda s: s.x > 0.3)
+        assert state.v == pytest.approx(0.5)
+        robot.stop()
+        time.sleep(0.3)
+        assert robot.state.x == pytest.approx(peer.x, abs=0.06)  # within one SIP of the peer's truth
+
+
+def test_old_session_still_streaming_is_closed_and_restarted(fake_peer_factory) -> None:
+    peer = fake_peer_factory(streaming_from_old_session=True)
+    time.sleep(0.3)
+    with P3AT(peer.url) as robot:
+        assert robot.identity.subtype == "p3at-sh"
+    assert (Command.CLOSE, 1) in peer.commands[: peer.commands.index((2, None))]
+
+
+def test_missing_config_is_optional(fake_peer_factory) -> None:
+    peer = fake_peer_factory(send_config=False)
+    with P3AT(peer.url, config_timeout=0.3) as robot:
+        assert robot.config is None and robot.wait_for_state() is not None
+
+
+def test_pulse_keeps_a_quiet_client_alive(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    with P3AT(peer.url):
+        time.sleep(1.3)
+    pulses = [c for c in peer.commands if c == (Command.PULSE, None)]
+    assert 2 <= len(pulses) <= 4  # every 500 ms of silence, not more
+
+
+def test_link_loss_is_reported_and_the_driver_reconnects_with_motors_off(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    events: list[LinkEvent] = []
+    restored = threading.Event()
+    with P3AT(peer.url, link_timeout=0.6) as robot:
+        robot.subscribe_link(lambda e: (events.append(e), e.kind == "restored" and restored.set()))
+        robot.motors_on()
+        peer.silent = True
+        assert wait_until(lambda: not robot.connected, 3.0)
+        with pytest.raises(NotConnectedError):
+            robot.set_velocity(0.1, 0.0)
+        n_before = len(peer.commands)
+        peer.silent = False
+        assert restored.wait(8.0)
+        assert [e.kind for e in events] == ["lost", "restored"] and events[1].session == 2
+        state = robot.wait_for_state(2.0, lambda s: s.session == 2)
+        assert not state.motors_enabled
+        assert (Command.ENABLE, 0) in peer.commands[n_before:]
+
+
+def test_tcp_peer_hanging_up_is_a_lost_link_and_the_driver_reconnects(tcp_peer) -> None:
+    peer = tcp_peer
+    restored = threading.Event()
+    with P3AT(peer.url, link_timeout=1.0) as robot:
+        robot.subscribe_link(lambda e: e.kind == "restored" and restored.set())
+        peer.drop_client()
+        assert restored.wait(8.0)
+        assert robot.wait_for_state().session == 2
+
+
+def test_clamped_command_warns(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    with P3AT(peer.url) as robot:
+        robot.motors_on()
+        with pytest.warns(ClampWarning, match="clamped"):
+            robot.set_velocity(9.0, 0.0)
+        assert wait_until(lambda: (Command.VEL, 1200) in peer.commands)
+
+
+def test_close_is_idempotent_and_commands_after_close_raise(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    robot = P3AT(peer.url).connect()
+    robot.close()
+    robot.close()
+    with pytest.raises(NotConnectedError):
+        robot.stop()
+    assert not any(t.name.startswith("arcos-reader") and t.is_alive() for t in threading.enumerate())
+
+
+def test_subscriber_errors_do_not_stop_the_reader(fake_peer_factory) -> None:
+    peer = fake_peer_factory()
+    seen: list[int] = []
+    with P3AT(peer.url) as robot, warnings.catch_warnings():
+        robot.subscribe(lambda s: 1 / 0)
+        robot.subscribe(lambda s: seen.append(s.sequence))
+        assert wait_until(lambda: len(seen) >= 3)
+
+
+def test_errors_for_missing_device_and_silent_peer(tmp_path) -> None:
+    with pytest.raises(DeviceNotFoundError):
+        P3AT(str(tmp_path / "ttyNothing")).connect()
+    server = __import__("socket").socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    try:
+        robot = P3AT(f"socket://127.0.0.1:{server.getsockname()[1]}", handshake_tries=2, reply_timeout=0.2)
+        with pytest.raises(DriverTimeoutError, match="handshake"):
+            robot.connect()
+        robot.close()
+    finally:
+        server.close()
