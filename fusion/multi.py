@@ -1,0 +1,126 @@
+"""Fusion of more than two maps: every pair aligned, the strongest alignments chosen, all merged in one frame.
+
+The pairwise alignments form a graph weighted by their support counts; its maximum spanning tree holds the
+strongest alignments that connect every map that can be connected.  Each map's pose in the reference
+frame (map ``reference``'s) is the composition of the alignments along the tree path, with its covariance
+propagated to first order; the maps are merged one by one in breadth-first order from the reference,
+each with its tree parent's common landmarks (Method 1: that alignment's supports; Method 2: nearest
+neighbours in position against everything merged so far).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+
+from estimation.landmark_map import LandmarkMap
+
+from .alignment import PRESETS, Alignment, AlignmentConfig, align
+from .errors import IncompatibleMapsError, NoOverlapError
+from .merging import _one_to_one, merge_pairs, position_correspondences, transform_landmarks
+from .pose_covariance import compose_with_covariance
+
+
+@dataclass
+class MultiFusion:
+    """Result of :func:`fuse_all`.
+
+    map: the merged map in the reference map's frame (only the maps connected to the reference);
+    poses[k]: (3,) pose of map k's frame in the reference frame, None if map k is not connected;
+    covariances[k]: (3, 3) or None; alignments[(i, j)] (i < j): the pairwise alignment of map j to map i;
+    tree: (parent, child) edges used, in merge order; unconnected: indices of maps left out;
+    rows[k]: (N_k,) row in ``map`` of each landmark of map k (None if not connected).
+    """
+
+    map: LandmarkMap
+    reference: int
+    poses: list[np.ndarray | None]
+    covariances: list[np.ndarray | None]
+    alignments: dict[tuple[int, int], Alignment]
+    tree: list[tuple[int, int]]
+    unconnected: list[int] = field(default_factory=list)
+    rows: list[np.ndarray | None] = field(default_factory=list)
+
+
+def pairwise_alignments(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust",
+                        rng: np.random.Generator | None = None) -> dict[tuple[int, int], Alignment]:
+    """align(maps[j] to maps[i]) for every i < j; each pair gets its own child generator of ``rng``."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    keys = [(i, j) for i in range(len(maps)) for j in range(i + 1, len(maps))]
+    children = rng.spawn(len(keys)) if keys else []
+    return {key: align(maps[key[0]], maps[key[1]], preset, child) for key, child in zip(keys, children, strict=True)}
+
+
+def spanning_tree(n: int, alignments: dict[tuple[int, int], Alignment], reference: int = 0
+                  ) -> tuple[list[tuple[int, int]], list[int]]:
+    """Maximum spanning tree over support counts: (parent, child) edges in BFS order from ``reference``,
+    and the maps not connected to it."""
+    weights = np.zeros((n, n))
+    top = max((len(a.supports) for a in alignments.values() if a.found), default=0)
+    for (i, j), a in alignments.items():
+        if a.found:
+            weights[i, j] = top + 1 - len(a.supports)       # > 0: more supports -> lighter edge
+    tree = minimum_spanning_tree(csr_matrix(weights))
+    tree = tree + tree.T
+    order, predecessors = breadth_first_order(tree, reference, directed=False, return_predecessors=True)
+    edges = [(int(predecessors[k]), int(k)) for k in order[1:]]
+    connected = set(int(k) for k in order)
+    return edges, [k for k in range(n) if k not in connected]
+
+
+def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int) -> Alignment:
+    """The alignment of ``child`` to ``parent`` (inverting the stored one when needed)."""
+    if (parent, child) in alignments:
+        return alignments[(parent, child)]
+    return alignments[(child, parent)].inverse()
+
+
+def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", method: int = 1,
+             rng: np.random.Generator | None = None, reference: int = 0,
+             alignments: dict[tuple[int, int], Alignment] | None = None) -> MultiFusion:
+    """Fuse every map connected to ``maps[reference]`` into its frame (see the module docstring).
+
+    ``alignments`` may be given (keys (i, j), i < j) to skip the pairwise alignment.  Raises
+    :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
+    """
+    if not maps:
+        raise IncompatibleMapsError("no maps to fuse")
+    if not 0 <= reference < len(maps):
+        raise IncompatibleMapsError(f"reference {reference} is not one of the {len(maps)} maps")
+    if method not in (1, 2):
+        raise IncompatibleMapsError(f"unknown common-landmark method {method!r} (1: RANSAC supports, 2: position)")
+    n = len(maps)
+    if alignments is None:
+        alignments = pairwise_alignments(maps, preset, rng)
+    edges, unconnected = spanning_tree(n, alignments, reference)
+    if n > 1 and not edges:
+        raise NoOverlapError("none of the maps overlaps the reference map "
+                             f"{maps[reference].robot!r}: nothing to fuse")
+    poses: list[np.ndarray | None] = [None] * n
+    covs: list[np.ndarray | None] = [None] * n
+    rows: list[np.ndarray | None] = [None] * n
+    poses[reference], covs[reference] = np.zeros(3), np.zeros((3, 3))
+    rows[reference] = np.arange(len(maps[reference]))
+    fused = maps[reference]
+    for parent, child in edges:
+        a = _edge(alignments, parent, child)
+        edge_cov = a.covariance if a.covariance is not None else np.zeros((3, 3))
+        poses[child], covs[child] = compose_with_covariance(poses[parent], covs[parent], a.pose, edge_cov)
+        pose_cov = covs[child] if a.covariance is not None else None
+        if method == 1:
+            sup = _one_to_one(maps[parent], maps[child], a)
+            pairs = np.column_stack([rows[parent][sup[:, 0]], sup[:, 1]])
+            # two parent landmarks may already be one fused landmark: keep the first pair of each row
+            _, first = np.unique(pairs[:, 0], return_index=True)
+            pairs = pairs[np.sort(first)]
+        else:
+            x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, poses[child], pose_cov)
+            gate = PRESETS["paper"].support_threshold if a.preset == "paper" else None
+            pairs = position_correspondences(fused.positions, fused.covariances, x2, P2, gate)
+        info = {"fusion": {"maps": [m.robot for m in maps], "method": int(method), "reference": int(reference),
+                           "tree": [list(e) for e in edges]}}
+        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info)
+        fused, rows[child] = result.map, result.rows2
+    return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows)
