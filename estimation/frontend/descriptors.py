@@ -25,14 +25,24 @@ class DescriptorKind(StrEnum):
         return self is DescriptorKind.ORB
 
 
+def descriptor_kind(kind: DescriptorKind | str) -> DescriptorKind:
+    """The kind named by ``kind``; FrontEndError naming the choices otherwise."""
+    try:
+        return DescriptorKind(kind)
+    except ValueError:
+        raise FrontEndError(f"unknown descriptor {kind!r}; choose one of "
+                            f"{', '.join(k.value for k in DescriptorKind)}") from None
+
+
 def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | str = DescriptorKind.USURF,
              scale: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Descriptors of keypoints (N, 2) (u, v) in a grey uint8 image (H, W).
 
-    scale: the U-SURF s; SIFT and ORB get a patch of the same 20s side.
+    scale: the U-SURF s; SIFT gets a descriptor window of the same 20s side (OpenCV's SIFT window is 6 × the
+    keypoint size), ORB its fixed 31 px patch. All upright (angle 0), like U-SURF.
     Returns (descriptors (M, D) float32, described (N,) bool); keypoints too near the border are dropped.
     """
-    kind = DescriptorKind(kind)
+    kind = descriptor_kind(kind)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
     if kind is DescriptorKind.USURF:
         return usurf_descriptors(image, keypoints, scale)
@@ -43,7 +53,8 @@ def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | st
     if image.dtype != np.uint8:
         raise FrontEndError(f"OpenCV {kind.value} needs an 8-bit image, got {image.dtype}")
     # class_id carries each keypoint's index through OpenCV, which may drop some (ORB near the border)
-    cv_keypoints = [cv2.KeyPoint(float(u), float(v), 20.0 * scale, -1, 0, 0, i) for i, (u, v) in enumerate(keypoints)]
+    size = 20.0 * scale / 6.0 if kind is DescriptorKind.SIFT else 31.0
+    cv_keypoints = [cv2.KeyPoint(float(u), float(v), size, 0.0, 0, 0, i) for i, (u, v) in enumerate(keypoints)]
     extractor = cv2.SIFT_create() if kind is DescriptorKind.SIFT else cv2.ORB_create(edgeThreshold=31, patchSize=31)
     kept, descriptors = extractor.compute(image, cv_keypoints)
     described = np.zeros(len(keypoints), bool)

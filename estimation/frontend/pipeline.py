@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from estimation.frontend.descriptors import DescriptorKind, describe
+from estimation.frontend.descriptors import DescriptorKind, describe, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
 from estimation.frontend.stereo import StereoMatchConfig, match_rows, refine_disparity_ssd
@@ -43,7 +43,7 @@ class FrontEndConfig:
     noise: TriangulationNoise = field(default_factory=TriangulationNoise)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "descriptor", DescriptorKind(self.descriptor))
+        object.__setattr__(self, "descriptor", descriptor_kind(self.descriptor))
         if self.scale <= 0:
             raise FrontEndError(f"scale must be positive, got {self.scale}")
 

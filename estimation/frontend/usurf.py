@@ -124,7 +124,7 @@ def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarra
     n_rows, n_cols = dx_img.shape
     inside = (cols[:, 0] >= 0) & (cols[:, -1] < n_cols) & (rows[:, 0] >= 0) & (rows[:, -1] < n_rows)
     cols, rows = cols[inside], rows[inside]
-    flat = (rows[:, :, None] * n_cols + cols[:, None, :]).reshape(len(cols), -1)  # (M, 400), [row, col] order
+    flat = (rows[:, :, None] * n_cols + cols[:, None, :]).reshape(len(cols), SAMPLES_PER_AXIS**2)  # [row, col]
     pooling = pooling_matrix(float(scale))
     dx = np.take(dx_img, flat).astype(np.float32)
     dy = np.take(dy_img, flat).astype(np.float32)
