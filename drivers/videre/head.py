@@ -152,6 +152,7 @@ class StereoHead:
         self._transport: Transport | None = None
         self._mode: OutputMode | None = None
         self._streaming = False
+        self._resume_streaming = False
         self._sequencer = FrameSequencer(15.0)
         self.controls = Controls(self)
         self._connect()
@@ -181,7 +182,8 @@ class StereoHead:
 
     def reopen(self) -> None:
         """Close and find the head again (after an unplug), restoring its mode and streaming state."""
-        was_streaming, mode = self._streaming, self._mode
+        was_streaming, mode = self._streaming or self._resume_streaming, self._mode
+        self._resume_streaming = was_streaming  # kept if this attempt fails (head still unplugged)
         if self._transport is not None:
             self._transport.close()
             self._transport = None
@@ -192,6 +194,7 @@ class StereoHead:
             self.set_mode(mode.width, mode.height, mode.rate)
         if was_streaming:
             self.start()
+        self._resume_streaming = False
 
     def close(self) -> None:
         """Stop streaming (if the head is still there) and release it; safe to call twice."""
@@ -334,10 +337,11 @@ class StereoHead:
 
     def grab(self, timeout: float = 1.0) -> StereoFrame:
         """Wait for the next pair. DriverTimeoutError if none came, NotConnectedError if the head vanished."""
+        transport = self._live()
         if not self._streaming:
             raise DriverError("the stereo head is not streaming; call start() first")
         mode = self.mode
-        raw = self._live().read_frame(mode.video_mode.frame_bytes, timeout)
+        raw = transport.read_frame(mode.video_mode.frame_bytes, timeout)
         timestamp = float(self._clock())
         left, right = deinterleave(raw, mode.video_mode.width, mode.video_mode.height, self.byte_order)
         if self.colour:

@@ -103,7 +103,6 @@ class HeadModel:
         """Quadlet at a wire address (offset above the config ROM base)."""
         with self._lock:
             offset = address - reg.COMMAND_BASE
-            s = self.settings
             if offset == reg.V_FORMAT_INQ:
                 return reg.bit_mask(sorted({m.fmt for m in reg.VIDEO_MODES}))
             for m in reg.VIDEO_MODES:
