@@ -1,0 +1,234 @@
+"""What eICP, ICP and PL-ICP share: configuration, outlier handling, stopping rule, result and covariance.
+
+Outliers.  A correspondence is kept when its distance is at most ``max_distance`` (the gate) and it is not
+among the worst ``trim_fraction`` of the gated ones (trimmed least squares, so a fixed share of points seen by
+only one of the scans cannot drag the pose).
+
+Stopping.  Iterate until the pose update is below ``tolerance_translation`` (m) and ``tolerance_rotation``
+(rad), or ``max_iterations`` is reached.  ``converged`` means the tolerance was met with at least
+``min_correspondences`` correspondences left.
+
+Covariance.  With the final correspondences held fixed, the cost is J(ξ) = Σ_i r_i(ξ)², ξ = (x, y, θ).  Its
+Gauss-Newton Hessian is 2 AᵀA (A: stacked residual Jacobians, m×3) and the residual variance is
+σ² = Σ r_i² / (m − 3), so cov(ξ) = σ² (AᵀA)⁻¹ — the usual least-squares estimate.  It ignores the
+uncertainty of the associations themselves, so it is optimistic (Censi 2007 gives the full form); for a
+degenerate scene (a corridor) the pseudo-inverse keeps it finite and the weak direction shows as a large
+eigenvalue of σ²·(AᵀA)⁺ only as far as AᵀA is not exactly singular.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from estimation.scanmatch.errors import ScanMatchError
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Settings shared by every method (metres, radians)."""
+
+    max_iterations: int = 50
+    tolerance_translation: float = 1e-4
+    tolerance_rotation: float = 1e-4
+    max_distance: float = 1.0          # correspondence gate
+    trim_fraction: float = 0.1         # share of the gated correspondences dropped as the worst
+    min_correspondences: int = 10
+    gap: float = 0.5                   # curve break between consecutive reference points farther apart
+    mesh_shift_bound: float = 0.5      # eICP-mesh: search the arc-length shift in [-bound, bound]
+    eicp_solver: str = "gauss-newton"  # or "alternating" (projection + Procrustes)
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 1:
+            raise ScanMatchError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if not 0.0 <= self.trim_fraction < 1.0:
+            raise ScanMatchError(f"trim_fraction must be in [0, 1), got {self.trim_fraction}")
+        if self.max_distance <= 0.0 or self.gap <= 0.0:
+            raise ScanMatchError("max_distance and gap must be positive")
+        if self.eicp_solver not in ("gauss-newton", "alternating"):
+            raise ScanMatchError(f"eicp_solver must be 'gauss-newton' or 'alternating', got {self.eicp_solver!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """The pose of the current scan in the reference scan's frame, and how it was found.
+
+    pose:              (3,) x, y (m), θ (rad): current-scan points p map to R(θ) p + (x, y) in the reference
+    covariance:        (3, 3) of pose (see the module docstring)
+    iterations:        iterations run
+    residual:          RMS of the final residuals (m)
+    converged:         the stopping tolerance was met with enough correspondences
+    n_correspondences: correspondences used in the last iteration
+    """
+
+    pose: np.ndarray
+    covariance: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    n_correspondences: int
+    method: str = field(default="")
+
+    def to_dict(self) -> dict:
+        return {"pose": self.pose.tolist(), "covariance": self.covariance.tolist(), "iterations": self.iterations,
+                "residual": self.residual, "converged": self.converged,
+                "n_correspondences": self.n_correspondences, "method": self.method}
+
+
+def select_correspondences(distance: np.ndarray, config: MatchConfig) -> np.ndarray:
+    """Boolean mask (N,) of the correspondences kept: gated by distance, then the worst share trimmed."""
+    keep = distance <= config.max_distance
+    n_keep = int(np.count_nonzero(keep))
+    n_trim = int(config.trim_fraction * n_keep)
+    if n_trim > 0:
+        gated = np.flatnonzero(keep)
+        worst = gated[np.argpartition(distance[gated], n_keep - n_trim)[n_keep - n_trim:]]
+        keep[worst] = False
+    return keep
+
+
+def pose_step_small(step: np.ndarray, config: MatchConfig) -> bool:
+    """The stopping rule: the last pose update (3,) is below both tolerances."""
+    return bool(np.hypot(step[0], step[1]) < config.tolerance_translation
+                and abs(step[2]) < config.tolerance_rotation)
+
+
+def rotate(theta: float, points: np.ndarray) -> np.ndarray:
+    """R(θ) p for points (N, 2)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.column_stack([c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]])
+
+
+def apply_pose(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """R(θ) p + t for points (N, 2)."""
+    return rotate(pose[2], points) + pose[:2]
+
+
+def pose_jacobian(rotated: np.ndarray) -> np.ndarray:
+    """∂(R(θ) p + t)/∂(x, y, θ) for rotated points R(θ)p (N, 2): (N, 2, 3)."""
+    n = rotated.shape[0]
+    jac = np.zeros((n, 2, 3))
+    jac[:, 0, 0] = 1.0
+    jac[:, 1, 1] = 1.0
+    jac[:, 0, 2] = -rotated[:, 1]
+    jac[:, 1, 2] = rotated[:, 0]
+    return jac
+
+
+def least_squares_covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """σ² (AᵀA)⁺ for stacked residual Jacobians A (m, 3) and residuals (m,); NaN when m <= 3."""
+    m = residuals.shape[0]
+    if m <= 3:
+        return np.full((3, 3), np.nan)
+    sigma2 = float(residuals @ residuals) / (m - 3)
+    cov = sigma2 * np.linalg.pinv(jacobian.T @ jacobian)
+    return 0.5 * (cov + cov.T)
+
+
+def procrustes(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The pose (3,) minimising Σ |R(θ) source_i + t − target_i|², closed form.  source, target: (N, 2)."""
+    n = source.shape[0]
+    if n < 2:
+        raise ScanMatchError("Procrustes needs at least 2 point pairs")
+    ms, mt = source.sum(axis=0) / n, target.sum(axis=0) / n
+    # Cross-covariance terms of the centred sets: Σ a·b and Σ a×b give cos and sin of θ.
+    dot = float(np.einsum("ij,ij->", source, target)) - n * float(ms @ mt)
+    cross = float(np.einsum("i,i->", source[:, 0], target[:, 1]) - np.einsum("i,i->", source[:, 1], target[:, 0]))
+    cross -= n * float(ms[0] * mt[1] - ms[1] * mt[0])
+    theta = float(np.arctan2(cross, dot))
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([mt[0] - (c * ms[0] - s * ms[1]), mt[1] - (s * ms[0] + c * ms[1]), theta])
+
+
+def _inverse_2x2(a: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric 2×2, the pseudo-inverse when it is (near) singular."""
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    if abs(det) <= 1e-12 * max(1.0, float(np.abs(a).max()) ** 2):
+        return np.linalg.pinv(a)
+    return np.array([[a[1, 1], -a[0, 1]], [-a[1, 0], a[0, 0]]]) / det
+
+
+def point_to_line_pose(source: np.ndarray, anchor: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The pose (3,) minimising Σ (n_iᵀ (R(θ) p_i + t − q_i))², in closed form (Censi, ICRA 2008).
+
+    source p: (N, 2); anchor q: (N, 2) a point of each line; normal n: (N, 2) unit.
+
+    With x = (t_x, t_y, cos θ, sin θ) the cost is a quadratic xᵀMx + gᵀx + k under the constraint
+    cos² + sin² = 1.  Eliminating t (linear) leaves uᵀSu + hᵀu on the unit circle u = (cos θ, sin θ); the
+    Lagrange condition (S + λI)u = −h/2 with |u| = 1 is a quartic in λ whose largest real root gives the
+    global minimum.  Degenerate translation (all normals parallel) is handled with a pseudo-inverse.
+    """
+    if source.shape[0] < 3:
+        raise ScanMatchError("point-to-line alignment needs at least 3 correspondences")
+    # Rows of M_i: R p + t = M_i x with M_i = [[1, 0, px, -py], [0, 1, py, px]]; residual n_iᵀ M_i x − n_iᵀ q_i.
+    nx, ny, px, py = normal[:, 0], normal[:, 1], source[:, 0], source[:, 1]
+    row = np.column_stack([nx, ny, nx * px + ny * py, ny * px - nx * py])   # (N, 4)
+    rhs = nx * anchor[:, 0] + ny * anchor[:, 1]                              # (N,)
+    M = row.T @ row
+    g = -2.0 * (row.T @ rhs)
+    A, B, D = M[:2, :2], M[:2, 2:], M[2:, 2:]
+    A_inv = _inverse_2x2(A)
+    S = D - B.T @ A_inv @ B
+    h = g[2:] - B.T @ (A_inv @ g[:2])
+    # Eigen-decomposition of the symmetric 2×2 S, in closed form.
+    mean, half_diff = 0.5 * (S[0, 0] + S[1, 1]), 0.5 * (S[0, 0] - S[1, 1])
+    radius = float(np.hypot(half_diff, S[0, 1]))
+    eigval = np.array([mean - radius, mean + radius])
+    phi = 0.5 * np.arctan2(2.0 * S[0, 1], S[0, 0] - S[1, 1])          # angle of the larger eigenvector
+    eigvec = np.array([[-np.sin(phi), np.cos(phi)], [np.cos(phi), np.sin(phi)]])  # columns: small, large
+    hp = eigvec.T @ h / 2.0
+    e1, e2 = eigval
+    # (e1+λ)²(e2+λ)² − hp1²(e2+λ)² − hp2²(e1+λ)² = 0
+    p1 = np.array([1.0, 2.0 * e1, e1 * e1])
+    p2 = np.array([1.0, 2.0 * e2, e2 * e2])
+    poly = np.convolve(p1, p2)
+    poly[2:] -= hp[0] ** 2 * p2 + hp[1] ** 2 * p1
+    roots = np.roots(poly)
+    real = roots[np.abs(roots.imag) <= 1e-7 * max(1.0, float(np.max(np.abs(roots))))].real
+    lam = float(np.max(real)) if real.size else -e1
+    lam = max(lam, -e1)   # the global minimum has S + λI positive semi-definite
+    denom = eigval + lam
+    weak = int(np.argmin(np.abs(denom)))
+    if abs(denom[weak]) < 1e-12:   # the trust-region "hard case": h has no component on the weak eigenvector
+        strong = 1 - weak
+        comp = np.zeros(2)
+        comp[strong] = -hp[strong] / denom[strong]
+        comp[weak] = np.sqrt(max(0.0, 1.0 - comp[strong] ** 2))
+        u = eigvec @ comp
+    else:
+        u = eigvec @ (-hp / denom)
+    u = u / np.hypot(u[0], u[1])
+    t = -A_inv @ (B @ u + g[:2] / 2.0)
+    return np.array([t[0], t[1], np.arctan2(u[1], u[0])])
+
+
+def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarray, int, bool]:
+    """Run ``update(pose) -> new pose | None`` until the stopping rule holds.
+
+    Returns (pose (3,), iterations, tolerance_met).  ``None`` from ``update`` (too few correspondences)
+    stops at once without convergence.
+    """
+    pose = np.asarray(initial, dtype=float).copy()
+    for iteration in range(1, config.max_iterations + 1):
+        new = update(pose)
+        if new is None:
+            return pose, iteration, False
+        step = new - pose
+        step[2] = (step[2] + np.pi) % (2.0 * np.pi) - np.pi
+        pose = new
+        if pose_step_small(step, config):
+            return pose, iteration, True
+    return pose, config.max_iterations, False
+
+
+def finish(method: str, pose: np.ndarray, iterations: int, tolerance_met: bool, jacobian: np.ndarray,
+           residuals: np.ndarray, n_correspondences: int, config: MatchConfig) -> MatchResult:
+    """The MatchResult of a run, from the residual rows (m,) and their Jacobian (m, 3) at the final pose."""
+    rms = float(np.sqrt(np.mean(residuals ** 2))) if residuals.size else float("nan")
+    pose = np.array([pose[0], pose[1], (pose[2] + np.pi) % (2.0 * np.pi) - np.pi])
+    return MatchResult(pose=pose, covariance=least_squares_covariance(jacobian, residuals), iterations=iterations,
+                       residual=rms, converged=bool(tolerance_met and n_correspondences >= config.min_correspondences),
+                       n_correspondences=int(n_correspondences), method=method)

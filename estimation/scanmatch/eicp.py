@@ -1,0 +1,176 @@
+"""The extended ICP (eICP) of Armesto, Domenech & Tornero (ISR 2009), and its rigid-mesh variant.
+
+The problem.  The reference scan defines a continuous curve C(λ): the polyline through its consecutive
+points, broken at gaps and dropouts (:mod:`estimation.scanmatch.polyline`), with λ the arc length.  Each
+point p_i of the current scan gets its own free curve parameter λ_i, and pose ξ = (x, y, θ) and λ are solved
+together::
+
+    J(ξ, λ) = Σ_i | R(θ) p_i + t − C(λ_i) |²            (over the kept correspondences)
+
+Choices the paper's introduction leaves open, and what we chose:
+
+* **The curve** is piecewise linear (the "continuous elements" of an indoor scene are mostly walls; a spline
+  would overshoot at corners) and is parametrised by arc length, so that moving λ by δ moves the associated
+  point by |δ| and the λ-block of the Hessian is the identity on every segment.
+* **The solver** for the free-λ problem is Gauss-Newton on the joint (ξ, λ) with λ eliminated, i.e. variable
+  projection.  For a fixed pose each λ_i has a closed-form optimum: the projection of the moved point on the
+  curve (on each segment the cost is a convex quadratic in λ_i; the curve optimum is the best segment's).
+  In the joint Gauss-Newton system the λ-block is diagonal (one λ per point, unit speed), so its Schur
+  complement costs O(N) and leaves a 3×3 system in ξ whose rows are the Jacobians projected on the curve
+  normal: n_iᵀ ∂(R p_i + t)/∂ξ.  At a curve end or a convex vertex (λ_i at a bound) the bound is active and
+  the row uses the unit direction from the curve point to the moved point instead.  After each ξ step λ is
+  reset to its exact optimum (the projection), and the step is halved while it does not lower the
+  truncated cost Σ min(d_i², gate²) of the step's correspondences.  We chose this over the alternating
+  scheme (projection, then Procrustes on the projected points — also provided,
+  ``eicp_solver="alternating"``) because alternating is linearly convergent and crawls along walls, where
+  the curve lets points slide freely; Gauss-Newton on the eliminated problem converges quadratically near
+  the solution and costs one projection per iteration.
+* **Outliers and stopping** are the ones shared with ICP and PL-ICP (:mod:`estimation.scanmatch.common`):
+  gated by the distance to the curve and trimmed.
+
+Frame invariance.  J depends on the scans only through distances between moved points and curve points, so
+applying one rigid motion G to both scans leaves J unchanged at the correspondingly conjugated pose
+G ξ G⁻¹; and, unlike point-to-point ICP, J is zero at the true pose whatever the two scans' sampling of the
+same walls, which is what removes the "closest point" bias.
+
+The rigid-mesh variant ("eicp-mesh").  The paper's constrained solution keeps the distances between
+consecutive associated points, like a rigid mesh.  We read it as: the associated points keep their mutual
+arc-length spacing, λ_i = λ_i⁰ + s for one scalar shift s shared by all points (each clamped to its own
+curve piece, since a point cannot jump over a gap).  λ⁰ is the projection at the current pose; for each s
+the pose is the closed-form Procrustes solution onto the shifted curve points, so the inner problem is
+one-dimensional and is solved by bounded Brent (golden section with parabolic steps) on
+[−mesh_shift_bound, mesh_shift_bound]; then λ⁰ is re-projected and the loop repeats until the pose stops
+changing.  Its fixed points are those of the alternating eICP (s = 0 there); the shift accelerates the
+sliding direction that makes plain alternation slow.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from estimation.scanmatch.common import (
+    MatchConfig,
+    MatchResult,
+    apply_pose,
+    finish,
+    iterate,
+    pose_step_small,
+    procrustes,
+    rotate,
+    select_correspondences,
+)
+from estimation.scanmatch.polyline import Polyline, Projection
+from estimation.scanmatch.scan import Scan2D
+
+_MAX_HALVINGS = 6
+
+
+def eicp_cost(reference: Scan2D, current: Scan2D, pose, config: MatchConfig | None = None) -> float:
+    """J(ξ, λ*(ξ)): the eICP cost at pose (3,) with every λ at its optimum, over the kept correspondences."""
+    config = config or MatchConfig()
+    projection = Polyline(reference, config.gap).project(apply_pose(np.asarray(pose, float), current.points))
+    keep = select_correspondences(projection.distance, config)
+    return float(np.sum(projection.distance[keep] ** 2))
+
+
+def _curve_rows(pose: np.ndarray, source: np.ndarray, projection: Projection, keep: np.ndarray):
+    """Residuals (n,) and their pose Jacobian (n, 3) with λ eliminated (the Schur complement rows).
+
+    Row i is u_iᵀ ∂(R p_i + t)/∂ξ with u_i the unit direction from the curve to the moved point (the curve
+    normal inside a segment, the radial direction where λ_i sits at a bound).
+    """
+    rotated = rotate(pose[2], source[keep])
+    u = projection.normal[keep]
+    residuals = projection.distance[keep]   # = u_iᵀ (R p_i + t − C(λ_i)), since u_i points from C(λ_i) to it
+    jacobian = np.column_stack([u[:, 0], u[:, 1], u[:, 1] * rotated[:, 0] - u[:, 0] * rotated[:, 1]])
+    return residuals, jacobian
+
+
+def _truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
+    return float(np.sum(np.minimum(distance, config.max_distance) ** 2))
+
+
+def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
+    """eICP with free curve parameters: the pose (3,) of ``current`` in ``reference``'s frame."""
+    curve = Polyline(reference, config.gap)
+    source = current.points
+    minimum = max(config.min_correspondences, 3)
+
+    # The projection at an accepted trial pose is the next iteration's starting projection: keep it.
+    last = {"pose": None, "projection": None}
+
+    def project(pose):
+        if last["pose"] is not None and np.array_equal(last["pose"], pose):
+            return last["projection"]
+        projection = curve.project(apply_pose(pose, source))
+        last["pose"], last["projection"] = pose, projection
+        return projection
+
+    def gauss_newton(pose):
+        projection = project(pose)
+        keep = select_correspondences(projection.distance, config)
+        if np.count_nonzero(keep) < minimum:
+            return None
+        residuals, jacobian = _curve_rows(pose, source, projection, keep)
+        step = -np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
+        if pose_step_small(step, config):
+            return pose + step   # below the tolerance: the stopping rule ends here, no line search needed
+        # Accept the step when it lowers the cost of the correspondences it was computed for.
+        cost = _truncated_cost(projection.distance[keep], config)
+        for _ in range(_MAX_HALVINGS):
+            trial = pose + step
+            if _truncated_cost(project(trial).distance[keep], config) <= cost:
+                return trial
+            step = step / 2.0
+        return pose   # no descent along the Gauss-Newton direction: a minimum of the truncated cost
+
+    def alternating(pose):
+        projection = project(pose)
+        keep = select_correspondences(projection.distance, config)
+        if np.count_nonzero(keep) < minimum:
+            return None
+        return procrustes(source[keep], projection.point[keep])
+
+    update = gauss_newton if config.eicp_solver == "gauss-newton" else alternating
+    pose, iterations, tolerance_met = iterate(update, initial, config)
+    return _finish_on_curve("eicp", project(pose), source, pose, iterations, tolerance_met, config)
+
+
+def match_eicp_mesh(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
+    """eICP constrained to a rigid mesh (one arc-length shift for all points): pose (3,) of ``current``."""
+    curve = Polyline(reference, config.gap)
+    source = current.points
+    minimum = max(config.min_correspondences, 3)
+    bound = config.mesh_shift_bound
+
+    def update(pose):
+        projection = curve.project(apply_pose(pose, source))
+        keep = select_correspondences(projection.distance, config)
+        if np.count_nonzero(keep) < minimum:
+            return None
+        points = source[keep]
+        arc0 = projection.arc[keep]
+        piece = curve.piece_at(arc0)
+
+        def targets(shift):
+            return curve.evaluate(curve.clamp_to_piece(arc0 + shift, piece))
+
+        def residual_of_shift(shift):
+            target = targets(shift)
+            fitted = procrustes(points, target)
+            return float(np.sum((apply_pose(fitted, points) - target) ** 2))
+
+        found = minimize_scalar(residual_of_shift, bounds=(-bound, bound), method="bounded",
+                                options={"xatol": 0.1 * config.tolerance_translation + 1e-9})
+        shift = found.x if found.fun < residual_of_shift(0.0) else 0.0
+        return procrustes(points, targets(shift))
+
+    pose, iterations, tolerance_met = iterate(update, initial, config)
+    projection = curve.project(apply_pose(pose, source))
+    return _finish_on_curve("eicp-mesh", projection, source, pose, iterations, tolerance_met, config)
+
+
+def _finish_on_curve(method, projection, source, pose, iterations, tolerance_met, config) -> MatchResult:
+    keep = select_correspondences(projection.distance, config)
+    residuals, jacobian = _curve_rows(pose, source, projection, keep)
+    return finish(method, pose, iterations, tolerance_met, jacobian, residuals, int(np.count_nonzero(keep)), config)

@@ -1,0 +1,129 @@
+"""The continuous curve through a reference scan: a piecewise-linear polyline with breaks.
+
+Consecutive points of the scan are joined by a segment unless they are farther apart than ``gap`` metres or
+a reading between them is missing (a range dropout); each unbroken run is a *piece*.  A point on the curve
+is addressed by its arc length λ (metres).  Arc length runs along each piece and jumps by ``_PIECE_SPACING``
+between pieces, so λ is strictly increasing over the whole curve and never ambiguous at a break.
+
+Projection (the closed-form optimum of λ for a given point) uses the ``k`` nearest vertices and the
+segments adjacent to them.  That is exact whenever the closest segment has one of those vertices as an
+end; with segments no longer than ``gap`` this holds for every point within the matcher's gate in practice.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from estimation.scanmatch.errors import ScanMatchError
+from estimation.scanmatch.scan import Scan2D
+
+_PIECE_SPACING = 1.0  # metres of arc length left empty between pieces (any positive value works)
+_NEAREST_VERTICES = 3
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Closest curve points of N query points.
+
+    point:    (N, 2) closest point on the curve
+    arc:      (N,) its arc length λ
+    distance: (N,) Euclidean distance from the query to it
+    normal:   (N, 2) unit vector from the curve point to the query (± the segment normal when the foot is inside
+              a segment, the radial direction at a curve end or convex vertex; the segment normal at distance 0)
+    vertex:   (N,) int, index of the curve vertex nearest to the query (what point-to-point ICP pairs with)
+    """
+
+    point: np.ndarray
+    arc: np.ndarray
+    distance: np.ndarray
+    normal: np.ndarray
+    vertex: np.ndarray
+
+
+class Polyline:
+    """The curve through a scan's points.  Built once per reference scan; queries are vectorised.
+
+    Internally every vertex v has a "segment slot" v+1 (slot 0 and slot M are padding): the segment from v to
+    v+1 when it exists, otherwise a zero-length segment sitting on v.  A zero-length segment is still a point
+    of the curve (the vertex), so projection needs no validity masks.
+    """
+
+    def __init__(self, scan: Scan2D, gap: float) -> None:
+        if len(scan) < 2:
+            raise ScanMatchError(f"a reference scan needs at least 2 points, got {len(scan)}")
+        self.vertices = scan.points                                   # (M, 2)
+        m = self.vertices.shape[0]
+        step = np.diff(self.vertices, axis=0)                          # (M-1, 2)
+        length = np.hypot(step[:, 0], step[:, 1])                      # (M-1,)
+        # Segment k joins vertex k to k+1; it exists unless the pair is a gap or straddles a dropout.
+        self.segment_valid = (length <= gap) & (np.diff(scan.beam_index) == 1) & (length > 0.0)
+        direction = step / np.where(length > 0.0, length, 1.0)[:, None]
+        arc_step = np.where(self.segment_valid, length, _PIECE_SPACING)
+        self.arc = np.concatenate([[0.0], np.cumsum(arc_step)])        # (M,) λ of every vertex
+        piece = np.concatenate([[0], np.cumsum(~self.segment_valid)])  # (M,) piece id of every vertex
+        first = np.flatnonzero(np.r_[True, np.diff(piece) != 0])
+        last = np.r_[first[1:] - 1, m - 1]
+        self.piece_of_vertex = piece
+        self.piece_start = self.arc[first]                              # (P,) λ range of each piece
+        self.piece_end = self.arc[last]
+        # Segment slots (M+1): slot v+1 starts at vertex v (slot 0 is padding on vertex 0).
+        slot_start = np.concatenate([self.vertices[:1], self.vertices])
+        valid = np.concatenate([[False], self.segment_valid, [False]])
+        slot_direction = np.zeros((m + 1, 2))
+        slot_direction[1:m] = direction
+        self._slot_start = slot_start                                   # (M+1, 2)
+        self._slot_length = np.where(valid, np.r_[0.0, length, 0.0], 0.0)
+        self._slot_direction = np.where(valid[:, None], slot_direction, 0.0)
+        self._slot_normal = np.column_stack([-slot_direction[:, 1], slot_direction[:, 0]])
+        self._slot_arc = np.concatenate([self.arc[:1], self.arc])
+        self._tree = cKDTree(self.vertices)
+
+    @property
+    def n_segments(self) -> int:
+        return int(np.count_nonzero(self.segment_valid))
+
+    def project(self, queries: np.ndarray) -> Projection:
+        """Closest curve point of each query.  queries: (N, 2)."""
+        queries = np.asarray(queries, dtype=float)
+        k = min(_NEAREST_VERTICES, self.vertices.shape[0])
+        _, nearest = self._tree.query(queries, k=k)
+        nearest = nearest.reshape(queries.shape[0], k)                     # (N, k)
+        # Candidate slots: the segment ending at (slot v) and the one starting at (slot v+1) each near vertex.
+        slot = np.concatenate([nearest, nearest + 1], axis=1)              # (N, 2k)
+        direction = self._slot_direction[slot]                              # (N, 2k, 2)
+        offset = queries[:, None, :] - self._slot_start[slot]
+        along = np.clip(offset[..., 0] * direction[..., 0] + offset[..., 1] * direction[..., 1],
+                        0.0, self._slot_length[slot])
+        offset -= along[..., None] * direction                              # query minus candidate foot
+        dist2 = offset[..., 0] ** 2 + offset[..., 1] ** 2
+        best = np.argmin(dist2, axis=1)
+        rows = np.arange(queries.shape[0])
+        best_slot = slot[rows, best]
+        best_along = along[rows, best]
+        residual = offset[rows, best]
+        distance = np.sqrt(dist2[rows, best])
+        # Unit direction from the curve to the query; on the curve itself, the segment normal.
+        normal = np.where((distance > 1e-12)[:, None], residual / np.maximum(distance, 1e-300)[:, None],
+                          self._slot_normal[best_slot])
+        return Projection(queries - residual, self._slot_arc[best_slot] + best_along, distance, normal,
+                          nearest[:, 0])
+
+    def clamp_to_piece(self, arc: np.ndarray, piece: np.ndarray) -> np.ndarray:
+        """Arc lengths (N,) clamped to the λ range of the given pieces (N,) int."""
+        return np.clip(arc, self.piece_start[piece], self.piece_end[piece])
+
+    def piece_at(self, arc: np.ndarray) -> np.ndarray:
+        """Piece id (N,) of curve points given by arc length (N,) (each λ must lie on the curve)."""
+        vertex = np.clip(np.searchsorted(self.arc, arc, side="right") - 1, 0, len(self.arc) - 1)
+        return self.piece_of_vertex[vertex]
+
+    def evaluate(self, arc: np.ndarray) -> np.ndarray:
+        """Curve points (N, 2) at arc lengths (N,) that lie on the curve (clamp first if unsure)."""
+        arc = np.asarray(arc, dtype=float)
+        vertex = np.clip(np.searchsorted(self.arc, arc, side="right") - 1, 0, len(self.arc) - 1)
+        slot = vertex + 1
+        along = np.clip(arc - self.arc[vertex], 0.0, self._slot_length[slot])
+        # λ at the end of a piece lands on its last vertex, whose slot is zero-length: that is the end point.
+        return self._slot_start[slot] + along[:, None] * self._slot_direction[slot]
