@@ -54,6 +54,8 @@ class VirtualStereoHead(usb.backend.IBackend):
     calibration: what the head's store holds (default: the packaged file; None: an empty store). It also sets
     the optics the renderer uses, unless ``optics`` is given (to simulate a stale stored calibration).
     rng: noise generator. clock/sleep: time source for ``realtime`` pacing.
+    renderer: an existing ``StereoRenderer`` of the same world and optics to share (its texture atlas takes
+    about half a second to bake), e.g. for several heads in one building.
     """
 
     def __init__(self, world=None, robot: str | None = None, *, rng: np.random.Generator | None = None,
@@ -62,7 +64,7 @@ class VirtualStereoHead(usb.backend.IBackend):
                  firmware: int = 0x0203, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID,
                  serial: str = "VIRTUAL-0001", realtime: bool = False, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep, texture_resolution: float = 100.0, bus: int = 1,
-                 address: int = 7):
+                 address: int = 7, renderer=None):
         super().__init__()
         if calibration is _DEFAULT:
             text: str | None = default_calibration_text()
@@ -78,7 +80,7 @@ class VirtualStereoHead(usb.backend.IBackend):
                 raise ValueError("a virtual head in a world needs the name of the robot it is mounted on")
             from mocks.stereo_head.renderer import StereoRenderer
 
-            self.renderer = StereoRenderer(world, self.optics, texture_resolution)
+            self.renderer = renderer or StereoRenderer(world, self.optics, texture_resolution)
             source = self._render
         else:
             source = pattern_source

@@ -1,0 +1,92 @@
+"""The building renderer: ground truth consistency, and rectified rendered pairs obeying epipolar geometry."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.videre import StereoHead
+from mocks.stereo_head import VirtualStereoHead, default_calibration
+from mocks.stereo_head.renderer import StereoRenderer
+
+
+@pytest.fixture(scope="module")
+def renderer(world) -> StereoRenderer:
+    return StereoRenderer(world, default_calibration())
+
+
+def _project(renderer, pose, points, camera, rectified=True):
+    """World points (N, 3) -> pixels (N, 2) of the rectified camera, and depth (N,)."""
+    calib = renderer.calibration
+    cam_to_world = renderer.camera_pose_world(pose, "left", rectified=True)
+    world_to_left = np.linalg.inv(cam_to_world)
+    p = (world_to_left[:3, :3] @ points.T).T + world_to_left[:3, 3]
+    P = calib.P1 if camera == "left" else calib.P2
+    h = (P @ np.column_stack([p, np.ones(len(p))]).T).T
+    return h[:, :2] / h[:, 2:3], p[:, 2]
+
+
+def test_true_points_reproject_to_their_pixels(renderer, world):
+    pose = np.array([6.0, 4.6, 0.4])
+    pixels = np.array([[10.0, 10.0], [320.0, 240.0], [600.0, 400.0], [100.0, 450.0], [500.3, 77.7]])
+    points = renderer.true_points(pose, pixels, "left", rectified=True)
+    assert np.all(np.isfinite(points))
+    back, depth = _project(renderer, pose, points, "left")
+    assert np.abs(back - pixels).max() < 1e-6 and np.all(depth > 0)
+    # every true point lies on a wall face, the floor or the ceiling
+    on_floor = np.isclose(points[:, 2], 0.0) | np.isclose(points[:, 2], renderer.ceiling_height)
+    walls = np.asarray(world.walls)
+    a, b = walls[:, :2], walls[:, 2:]
+    t = np.clip(np.einsum("kij,ij->ki", points[:, None, :2] - a, b - a) / np.sum((b - a) ** 2, axis=1), 0, 1)
+    dist = np.linalg.norm(points[:, None, :2] - (a + t[..., None] * (b - a)), axis=2).min(axis=1)
+    assert np.all(on_floor | (dist < 1e-6))
+
+
+def test_raw_pixels_see_the_same_points_as_their_rectified_images(renderer):
+    pose = np.array([6.0, 4.6, 0.4])
+    calib = renderer.calibration
+    raw = np.array([[50.0, 60.0], [320.0, 240.0], [610.0, 420.0]])
+    rect = cv2.undistortPoints(raw.reshape(-1, 1, 2), calib.K1, calib.D1, R=calib.R1, P=calib.P1).reshape(-1, 2)
+    assert np.allclose(renderer.true_points(pose, raw, "left"),
+                       renderer.true_points(pose, rect, "left", rectified=True), atol=1e-6)
+
+
+def test_rendering_is_deterministic_and_distorted(renderer):
+    pose = np.array([12.0, 5.2, -0.3])
+    left_a, right_a = renderer.render(pose, (640, 480))
+    left_b, _ = renderer.render(pose, (640, 480))
+    assert np.array_equal(left_a, left_b)
+    assert left_a.dtype == np.float32 and left_a.shape == (480, 640)
+    assert not np.array_equal(left_a, right_a)
+    assert 0.1 < left_a.mean() < 0.9 and left_a.std() > 0.05  # textured, not blank
+
+
+@pytest.mark.parametrize("pose", [np.array([3.0, 5.0, 0.0]), np.array([9.0, 4.8, 2.6]), np.array([17.0, 5.3, 0.7])])
+def test_rectified_rendered_pairs_put_corners_on_the_same_row(world, renderer, pose):
+    """Corners found in the rectified left image, located again in the rectified right image where the true
+    3-D point says they must be: same row within 0.5 px (the epipolar error), disparity as the geometry says."""
+    world.set_pose("robot1", pose)
+    virtual = VirtualStereoHead(world, "robot1", rng=np.random.default_rng(7), renderer=renderer)
+    with StereoHead.open(backend=virtual) as head:
+        calib = head.read_calibration()
+        head.start()
+        frame = head.grab()
+    left, right = calib.rectify(frame.left, frame.right)
+    corners = cv2.goodFeaturesToTrack(left, 300, 0.05, 8, blockSize=5).reshape(-1, 2)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 0.01)
+    corners = cv2.cornerSubPix(left, corners.reshape(-1, 1, 2).astype(np.float32), (4, 4), (-1, -1),
+                               criteria).reshape(-1, 2)
+    points = renderer.true_points(pose, corners, "left", rectified=True)
+    predicted, depth = _project(renderer, pose, points, "right")
+    keep = (np.isfinite(depth) & (depth < 8.0) & (predicted[:, 0] > 8) & (predicted[:, 0] < 632)
+            & (predicted[:, 1] > 8) & (predicted[:, 1] < 472))
+    found = cv2.cornerSubPix(right, predicted[keep].reshape(-1, 1, 2).astype(np.float32), (4, 4), (-1, -1),
+                             criteria).reshape(-1, 2)
+    moved = np.linalg.norm(found - predicted[keep], axis=1)
+    stable = moved < 1.5  # the refined corner is the one predicted (not a neighbour across an edge)
+    assert stable.sum() >= 15, f"only {stable.sum()} corners to compare"
+    row_error = np.abs(found[stable, 1] - corners[keep][stable, 1])
+    assert np.median(row_error) < 0.2
+    assert np.percentile(row_error, 90) < 0.5
+    disparity_error = np.abs(found[stable, 0] - predicted[keep][stable, 0])
+    assert np.median(disparity_error) < 0.3
