@@ -564,7 +564,12 @@ class VirtualP3AT:
         angles = (th + sp[:, 2])[:, None] + offsets[None, :]  # (n, 3)
         origins = np.repeat(np.stack([ox, oy], axis=1), 3, axis=0)
         max_range = self.params.sonar_max_range_m
-        ranges, _ = self.world.raycast(origins, angles.reshape(-1), max_range)
+        flat_angles = angles.reshape(-1)
+        ranges, _ = self.world.raycast(origins, flat_angles, max_range)
+        others = [p[:2] for n, p in self.world.robot_poses().items() if n != self.name]
+        if others:  # the other robots echo too: discs of the collision radius
+            ranges = np.minimum(ranges, _ray_disc(origins, flat_angles, np.array(others),
+                                                  self.firmware.collision_radius_m, max_range))
         true = ranges.reshape(-1, 3).min(axis=1)
         sigma = self.sensors.sonar_noise_m + self.sensors.sonar_noise_fraction * true
         noisy = true + self.rng.normal(0.0, 1.0, size=true.shape) * sigma
@@ -665,3 +670,18 @@ _BAD = object()  # marker: malformed argument
 
 def _s16(value: int) -> int:
     return max(-32768, min(32767, value))
+
+
+def _ray_disc(origins: np.ndarray, angles: np.ndarray, centres: np.ndarray, radius: float, max_range: float):
+    """Distance (N,) along each ray (origins (N, 2), angles (N,)) to the nearest of the discs (M, 2), else max_range.
+
+    Rays starting inside a disc ignore that disc (a sonar cannot see the robot it is mounted on, nor through one).
+    """
+    d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (N, 2)
+    oc = centres[None, :, :] - origins[:, None, :]  # (N, M, 2)
+    along = np.einsum("nmi,ni->nm", oc, d)
+    perp2 = np.einsum("nmi,nmi->nm", oc, oc) - along**2
+    half = np.sqrt(np.maximum(radius**2 - perp2, 0.0))
+    t = along - half
+    hit = (perp2 <= radius**2) & (t >= 0.0)
+    return np.minimum(np.where(hit, t, np.inf).min(axis=1), max_range)

@@ -21,7 +21,7 @@ from drivers.arcos.codec import (
     pack_vel2,
 )
 from drivers.arcos.commands import Command
-from mocks.p3at import FirmwareDefaults, Link, OdometryErrors, SensorOptions, VirtualP3AT
+from mocks.p3at import Link, OdometryErrors, SensorOptions, VirtualP3AT
 from mocks.world import World
 
 QUIET = SensorOptions(sonar_noise_m=0.0, sonar_noise_fraction=0.0, sonar_beam_rad=0.0)
@@ -265,7 +265,7 @@ def test_enable_zero_stops_and_motors_flag() -> None:
 
 
 def test_position_wraps_at_15_bits() -> None:
-    client = Client(robot(FirmwareDefaults and open_world(60)))
+    client = Client(robot(open_world(60)))
     client.connect()
     client.cmd(Command.SETV, 1200)
     client.cmd(Command.SETA, 2000)
@@ -486,6 +486,8 @@ def test_unknown_commands_bad_arguments_and_bad_checksums_are_counted() -> None:
 def test_garbage_never_crashes(chunks, seed) -> None:
     model = VirtualP3AT(box_world(), "r1", np.array([5.0, 2.0, 0.0]), rng=np.random.default_rng(seed))
     client = Client(model)
+    for chunk in chunks[:3]:  # before the handshake too
+        client.send(chunk)
     client.connect()
     rng = np.random.default_rng(seed)
     for chunk in chunks:
@@ -516,3 +518,16 @@ def test_start_pose_from_world() -> None:
     model.close()
     with pytest.raises(ValueError, match="robot1"):
         VirtualP3AT(world, "nobody")
+
+
+def test_sonar_sees_another_robot() -> None:
+    world = open_world()
+    other = VirtualP3AT(world, "r2", np.array([2.0, 0.1, 0.0]))
+    client = Client(robot(world))
+    client.connect()
+    readings = {n: r for sip in client.sips(client.run(1.0)) for n, r in sip.sonars}
+    # sonar 3 at (0.245, 0.027) heading 10°: centre offset (1.755, 0.073), along-ray 1.741 m, miss distance
+    # 0.233 m, so the 0.33 m disc is entered sqrt(0.33² − 0.233²) = 0.234 m earlier: 1.507 m
+    assert readings[3] == pytest.approx(1507, abs=3)
+    assert readings[12] == 5000  # nothing behind
+    other.close()
