@@ -55,7 +55,8 @@ class FastSLAMConfig:
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Plain JSON-ready values (tuples as lists), e.g. for a map's metadata."""
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, values: dict) -> FastSLAMConfig:

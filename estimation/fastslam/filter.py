@@ -45,7 +45,7 @@ from ..geometry import compose, rot_z, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
-from .linalg import inv3, quadratic_form, symmetrise
+from .linalg import group_sum, inv3, matvec, quadratic_form, sandwich, symmetrise, transpose
 from .motion import increment_variance, propagate_covariance, sample_motion
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .store import LandmarkStore
@@ -138,19 +138,20 @@ class FastSLAM:
         h_x = _pose_jacobian(rot, z_hat)
         s_gate = s_mat
         if cfg.version == 2:
-            s_gate = s_mat + np.einsum("pij,pjk,plk->pil", h_x, self._motion_cov[pairs.m], h_x)
+            s_gate = s_mat + sandwich(h_x, self._motion_cov[pairs.m])
         d2 = quadratic_form(innovation, inv3(s_gate))
         gated = d2 < cfg.mahalanobis_gate
 
         # 3. mutual exclusion
         win, had_candidate = self._exclusive_matches(pairs, d2, gated, n_obs)
         matched = pairs.take(win)
-        log_lik = np.full(n_particles, -0.5 * cfg.mahalanobis_gate * n_obs)
-        np.add.at(log_lik, matched.m, -0.5 * (d2[win] - cfg.mahalanobis_gate))
+        log_lik = -0.5 * cfg.mahalanobis_gate * n_obs - 0.5 * np.bincount(
+            matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
+        s_inv = inv3(s_mat[win])
 
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
-            self.poses = self._sample_proposal(predicted, matched, h_x[win], s_mat[win], innovation[win])
+            self.poses = self._sample_proposal(predicted, matched, h_x[win], s_inv, innovation[win])
             self._motion_cov = np.zeros_like(self._motion_cov)
         poses = self.poses
 
@@ -159,7 +160,7 @@ class FastSLAM:
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
-        self._ekf_update(matched, poses, z, q)
+        self._ekf_update(matched, poses, z, q, s_inv)
         dropped = self._count_miss(missed)
 
         self.store.refresh_bbox(np.concatenate([matched.g, missed.g]) // self.store.block_size)
@@ -243,13 +244,24 @@ class FastSLAM:
         if len(cand.m) == 0 or n_obs == 0:
             return _Pairs(*(np.zeros(0, np.int64) for _ in range(4)))
         lids = self.store.flat_lid[cand.g]
-        uniq, inverse = np.unique(lids, return_inverse=True)
+        present = np.zeros(self._n_ids, bool)          # ids are dense: a lookup table beats np.unique
+        present[lids] = True
+        uniq = np.flatnonzero(present)
         if self.config.descriptor_size > 0:
             known = self._descriptors[uniq]
             d2 = (np.sum(desc * desc, 1)[:, None] + np.sum(known * known, 1)[None, :] - 2.0 * desc @ known.T)
             obs_j, uid = np.nonzero(d2 < self.config.descriptor_threshold ** 2)
         else:
             obs_j, uid = np.divmod(np.arange(n_obs * len(uniq)), len(uniq))
+        # keep only candidates whose landmark matched some observation's descriptor, then group them by id
+        rank = np.full(self._n_ids, -1, np.int64)
+        rank[uniq] = np.arange(len(uniq))
+        wanted = np.zeros(len(uniq), bool)
+        wanted[uid] = True
+        inverse = rank[lids]
+        keep = np.flatnonzero(wanted[inverse])
+        cand = cand.take(keep)
+        inverse = inverse[keep]
         order = np.argsort(inverse, kind="stable")
         counts = np.bincount(inverse, minlength=len(uniq))
         starts = np.cumsum(counts) - counts
@@ -264,8 +276,8 @@ class FastSLAM:
         store = self.store
         t = np.zeros((len(pairs.m), 3))
         t[:, :2] = poses[pairs.m, :2]
-        z_hat = np.einsum("pji,pj->pi", rot, store.flat_mean[pairs.g] - t)
-        s_mat = np.einsum("pji,pjk,pkl->pil", rot, store.flat_cov[pairs.g], rot) + q[pairs.j]
+        z_hat = matvec(transpose(rot), store.flat_mean[pairs.g] - t)
+        s_mat = sandwich(transpose(rot), store.flat_cov[pairs.g]) + q[pairs.j]
         return z_hat, s_mat
 
     @staticmethod
@@ -283,21 +295,20 @@ class FastSLAM:
         win = best[np.r_[True, key_lm[1:] != key_lm[:-1]]] if len(best) else best
         return np.sort(win), np.unique(key_obs)
 
-    def _sample_proposal(self, predicted, matched: _Pairs, h_x, s_mat, innovation) -> np.ndarray:
+    def _sample_proposal(self, predicted, matched: _Pairs, h_x, s_inv, innovation) -> np.ndarray:
         """FastSLAM 2.0: x ~ N(μ, Σ), Σ = (P⁻¹ + Σ H_xᵀ S⁻¹ H_x)⁻¹, μ = x̂ + Σ Σ H_xᵀ S⁻¹ (z − ẑ).
 
-        predicted (M, 3); h_x, s_mat (P, 3, 3) and innovation (P, 3) of the matched pairs -> poses (M, 3).
+        predicted (M, 3); h_x, s_inv (P, 3, 3) and innovation (P, 3) of the matched pairs -> poses (M, 3).
         """
+        n = len(predicted)
         p_motion = self._motion_cov + 1e-12 * _EYE3
-        info = inv3(p_motion)
-        ht_sinv = np.einsum("pji,pjk->pik", h_x, inv3(s_mat))
-        np.add.at(info, matched.m, np.einsum("pij,pjk->pik", ht_sinv, h_x))
-        vec = np.zeros_like(predicted)
-        np.add.at(vec, matched.m, np.einsum("pij,pj->pi", ht_sinv, innovation))
+        ht_sinv = transpose(h_x) @ s_inv
+        info = inv3(p_motion) + group_sum(matched.m, ht_sinv @ h_x, n)
+        vec = group_sum(matched.m, matvec(ht_sinv, innovation), n)
         cov = symmetrise(inv3(info))
-        mean = predicted + np.einsum("mij,mj->mi", cov, vec)
+        mean = predicted + matvec(cov, vec)
         chol = np.linalg.cholesky(cov + 1e-15 * _EYE3)
-        sample = mean + np.einsum("mij,mj->mi", chol, self.rng.standard_normal(predicted.shape))
+        sample = mean + matvec(chol, self.rng.standard_normal(predicted.shape))
         sample[:, 2] = wrap_angle(sample[:, 2])
         return sample
 
@@ -306,19 +317,26 @@ class FastSLAM:
         b = self.store.block_size
         return self.store.table[pairs.m, pairs.k] * b + pairs.g % b
 
-    def _ekf_update(self, matched: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> None:
-        """Per matched pair: K = Σ H ᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ."""
+    def _ekf_update(self, matched: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray,
+                    s_inv: np.ndarray) -> None:
+        """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
+
+        ``s_inv`` (P, 3, 3) is S⁻¹ from the gate, linearised at the predicted pose; under FastSLAM 2.0 the
+        sampled pose differs slightly, which makes K slightly sub-optimal but the Joseph form keeps Σ the
+        correct covariance for that K (and saves recomputing S and its inverse).
+        """
         if len(matched.m) == 0:
             return
         store = self.store
         rot = rot_z(poses[matched.m, 2])
-        z_hat, s_mat = self._predict_observation(matched, poses, rot, q)
+        t = np.zeros((len(matched.m), 3))
+        t[:, :2] = poses[matched.m, :2]
+        z_hat = matvec(transpose(rot), store.flat_mean[matched.g] - t)
         sigma = store.flat_cov[matched.g]
-        gain = np.einsum("pij,pjk,pkl->pil", sigma, rot, inv3(s_mat))             # K = Σ R S⁻¹
-        store.flat_mean[matched.g] += np.einsum("pij,pj->pi", gain, z[matched.j] - z_hat)
-        i_kh = _EYE3 - np.einsum("pij,pkj->pik", gain, rot)                        # I − K Rᵀ
-        joseph = (np.einsum("pij,pjk,plk->pil", i_kh, sigma, i_kh)
-                  + np.einsum("pij,pjk,plk->pil", gain, q[matched.j], gain))
+        gain = sigma @ rot @ s_inv                                                 # K = Σ R S⁻¹
+        store.flat_mean[matched.g] += matvec(gain, z[matched.j] - z_hat)
+        i_kh = _EYE3 - gain @ transpose(rot)                                        # I − K Rᵀ
+        joseph = sandwich(i_kh, sigma) + sandwich(gain, q[matched.j])
         store.flat_cov[matched.g] = symmetrise(joseph)
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
@@ -337,7 +355,7 @@ class FastSLAM:
         rot = rot_z(poses[sel.m, 2])
         t = np.zeros((len(sel.m), 3))
         t[:, :2] = poses[sel.m, :2]
-        z_hat = np.einsum("pji,pj->pi", rot, store.flat_mean[sel.g] - t)
+        z_hat = matvec(transpose(rot), store.flat_mean[sel.g] - t)
         return sel.take(np.flatnonzero(self._well_in_view(z_hat)))
 
     def _well_in_view(self, z_hat: np.ndarray) -> np.ndarray:
@@ -384,8 +402,8 @@ class FastSLAM:
         rot = rot_z(poses[m, 2])
         t = np.zeros((len(m), 3))
         t[:, :2] = poses[m, :2]
-        store.flat_mean[g] = np.einsum("pij,pj->pi", rot, z[j]) + t
-        store.flat_cov[g] = symmetrise(np.einsum("pij,pjk,plk->pil", rot, q[j], rot))
+        store.flat_mean[g] = matvec(rot, z[j]) + t
+        store.flat_cov[g] = symmetrise(sandwich(rot, q[j]))
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0

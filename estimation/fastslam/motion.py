@@ -34,5 +34,4 @@ def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
     ja[:, 0, 2] = -s * delta[0] - c * delta[1]
     ja[:, 1, 2] = c * delta[0] - s * delta[1]
     jb = rot_z(poses[:, 2])
-    return (np.einsum("mij,mjk,mlk->mil", ja, cov, ja)
-            + np.einsum("mij,j,mkj->mik", jb, variance, jb))
+    return ja @ cov @ np.swapaxes(ja, 1, 2) + (jb * variance) @ np.swapaxes(jb, 1, 2)
