@@ -137,6 +137,9 @@ class VirtualP3AT:
         # Effective track of the skid-steer base, consistent with DiffConvFactor: ω = (R − L) / 2 · DiffConvFactor.
         self.track_m = 2.0 / self.params.diff_conv_factor / 1000.0
         self._sonar_poses = np.asarray(self.params.sonar_poses, dtype=float).reshape(-1, 3)
+        # Simulated seconds of client silence before the watchdog stops the motors. A server running simulated
+        # time k× faster scales this by k: the client's silence is measured on its own (wall) clock.
+        self.watchdog_s = self.firmware.watchdog_ms / 1000.0
         world.add_robot(name, pose)
         self._closed = False
         self._time = float(start_time)
@@ -423,7 +426,7 @@ class VirtualP3AT:
         return v, w
 
     def _step(self, dt: float) -> None:
-        if self.is_open and self._time - self._last_rx >= self.firmware.watchdog_ms / 1000.0:
+        if self.is_open and self._time - self._last_rx >= self.watchdog_s:
             if not self._watchdog_tripped:
                 self._watchdog_tripped = True
                 moving = self.v != 0.0 or self.w != 0.0 or self._trans_target != 0.0 or self._rot_mode == "head"

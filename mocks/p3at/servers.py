@@ -3,7 +3,8 @@
 Each server owns one named daemon thread that moves bytes between the link and the pure model and wakes for
 the model's next SIP. ``close()`` is idempotent, joins the thread and takes the robot out of the world.
 Simulated time = (clock() − start) × time_scale, so ``time_scale=5`` runs the robot five times faster than
-the wall clock (SIPs every 20 ms of wall time) for quick demos.
+the wall clock (SIPs every 20 ms of wall time) for quick demos; the watchdog still waits 2 s of wall time,
+since a client's PULSEs keep wall time.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ class _Server:
         if not time_scale > 0:
             raise ValueError(f"time_scale must be > 0, got {time_scale!r}")
         self.model = model
+        model.watchdog_s *= time_scale  # the client's silence counts in wall time
         self.world = model.world
         self.name = model.name
         self.time_scale = float(time_scale)

@@ -152,3 +152,15 @@ def test_duplicate_name_and_bad_port_leave_nothing_behind(world: World) -> None:
         with pytest.raises(OSError):
             serve_tcp(world, "robot2", port=server.port)
         assert world.robot_names() == ["robot1"]
+
+
+def test_time_scale_keeps_the_watchdog_in_wall_time(world: World) -> None:
+    with serve_tcp(world, "robot1", port=0, time_scale=5.0) as server:
+        with serial.serial_for_url(server.url, timeout=0.05) as port:
+            parser = PacketParser()
+            handshake(port, parser)
+            port.write(encode_command(Command.ENABLE, 1) + encode_command(Command.RVEL, 10))
+            for _ in range(3):  # ARIA's keep-alive: a PULSE every 0.5 s of wall time (2.5 s simulated)
+                time.sleep(0.5)
+                port.write(encode_command(Command.PULSE))
+            assert server.model.w > 0 and server.model.stats.watchdog_stops == 0
