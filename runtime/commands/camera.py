@@ -1,0 +1,160 @@
+"""``p3at camera info|grab``: talk to a Videre STH-MDCS2 on USB, or to the virtual one with ``--mock``."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from drivers.errors import DriverError
+from drivers.fileio import atomic_write_bytes
+from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
+from drivers.videre.head import NoCalibrationError
+
+
+def _hex(text: str) -> int:
+    return int(text, 16)
+
+
+def _add_device_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mock", action="store_true",
+                        help="use the virtual head (renders the simulated building) instead of USB hardware")
+    parser.add_argument("--vendor-id", type=_hex, default=DEFAULT_VENDOR_ID,
+                        help=f"USB vendor id, hex (default {DEFAULT_VENDOR_ID:04x})")
+    parser.add_argument("--product-id", type=_hex, default=DEFAULT_PRODUCT_ID,
+                        help=f"USB product id, hex (default {DEFAULT_PRODUCT_ID:04x})")
+    parser.add_argument("--byte-order", choices=(RIGHT_FIRST, LEFT_FIRST), default=RIGHT_FIRST,
+                        help="which imager is byte 0 of each interleaved pixel (default: right)")
+    parser.add_argument("--colour", action="store_true", help="a colour (Bayer) head")
+    parser.add_argument("--world", type=Path, help="--mock: building file (default: the packaged one)")
+    parser.add_argument("--robot", default="robot1", help="--mock: named start pose the head's robot stands at")
+    parser.add_argument("--seed", type=int, default=0, help="--mock: sensor noise seed")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    camera = subparsers.add_parser("camera", help="the STH-MDCS2 stereo head: identification, grabbing",
+                                   description="Identify the stereo head or grab a left/right pair.")
+    sub = camera.add_subparsers(dest="camera_command", metavar="ACTION", required=True)
+    info = sub.add_parser("info", help="identification, modes, controls, calibration summary",
+                          description="Print the head's identification, video modes, feature controls with their "
+                                      "ranges, and a summary of the calibration stored on it.")
+    _add_device_options(info)
+    info.add_argument("--json", action="store_true", help="print JSON")
+    info.set_defaults(handler=run_info)
+    grab = sub.add_parser("grab", help="save one left/right pair as PNG",
+                          description="Grab one stereo pair and save left.png and right.png in DIR.")
+    _add_device_options(grab)
+    grab.add_argument("--out", type=Path, required=True, help="directory for left.png and right.png")
+    grab.add_argument("--rectify", action="store_true", help="rectify with the calibration stored on the head")
+    grab.add_argument("--mode", default="640x480", help="WIDTHxHEIGHT (default %(default)s)")
+    grab.add_argument("--rate", type=float, default=15.0, help="frame rate, Hz (default %(default)s)")
+    grab.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for a frame")
+    grab.set_defaults(handler=run_grab)
+
+
+@contextmanager
+def _open_head(args: argparse.Namespace):
+    backend = None
+    if args.mock:
+        from mocks.stereo_head import VirtualStereoHead
+        from mocks.world import World
+
+        world = World.load(args.world)
+        if args.robot not in world.start_poses:
+            raise ValueError(f"--robot {args.robot!r}: the building has start poses {sorted(world.start_poses)}")
+        world.add_robot(args.robot, world.start_poses[args.robot])
+        backend = VirtualStereoHead(world, args.robot, rng=np.random.default_rng(args.seed),
+                                    byte_order=args.byte_order, colour=args.colour,
+                                    vendor_id=args.vendor_id, product_id=args.product_id)
+    head = StereoHead.open(args.vendor_id, args.product_id, backend=backend, byte_order=args.byte_order,
+                           colour=args.colour)
+    try:
+        yield head
+    finally:
+        head.close()
+
+
+def _describe(head: StereoHead) -> dict:
+    identity = head.identify()
+    try:
+        calib = head.read_calibration()
+        calibration = {"size": list(calib.size), "fx": calib.fx, "fy": calib.fy, "cx": calib.cx, "cy": calib.cy,
+                       "baseline_m": calib.baseline, "head_pose": [float(v) for v in calib.head_pose]}
+    except NoCalibrationError:
+        calibration = None
+    return {
+        "vendor": identity.vendor, "model": identity.model, "firmware": identity.firmware_text,
+        "stereo": identity.stereo, "transport": identity.transport, "byte_order": head.byte_order,
+        "current_mode": str(head.mode),
+        "modes": [{"width": m.width, "height": m.height, "rate_hz": m.rate, "binning": m.binning,
+                   "iidc_format": m.video_mode.fmt, "iidc_mode": m.video_mode.mode} for m in head.modes()],
+        "controls": [{"name": c.name, "value": c.value, "value2": c.value2, "auto": c.auto, "min": c.minimum,
+                      "max": c.maximum} for c in head.controls.all()],
+        "calibration": calibration,
+    }
+
+
+def run_info(args: argparse.Namespace) -> int:
+    try:
+        with _open_head(args) as head:
+            info = _describe(head)
+    except (DriverError, ValueError) as exc:
+        print(f"p3at camera info: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"{info['vendor']} {info['model']}  firmware {info['firmware']}  stereo: {info['stereo']}")
+    print(f"transport: {info['transport']}  byte order: {info['byte_order']}")
+    print(f"current mode: {info['current_mode']}")
+    sizes: dict[tuple[int, int], list[float]] = {}
+    for m in info["modes"]:
+        sizes.setdefault((m["width"], m["height"]), []).append(m["rate_hz"])
+    print("modes: " + "; ".join(f"{w}x{h} @ {'/'.join(f'{r:g}' for r in rates)} Hz"
+                                for (w, h), rates in sizes.items()))
+    for c in info["controls"]:
+        value = f"{c['value']}/{c['value2']}" if c["value2"] is not None else str(c["value"])
+        print(f"  {c['name']:<14} {value:>7}  {'auto' if c['auto'] else 'manual':<6}  range {c['min']}..{c['max']}")
+    cal = info["calibration"]
+    if cal is None:
+        print("calibration: none stored on the head")
+    else:
+        print(f"calibration: {cal['size'][0]}x{cal['size'][1]}  fx {cal['fx']:.2f} fy {cal['fy']:.2f}  "
+              f"cx {cal['cx']:.2f} cy {cal['cy']:.2f}  baseline {cal['baseline_m'] * 1000:.1f} mm  "
+              f"head at ({', '.join(f'{v:.3f}' for v in cal['head_pose'][:3])}) m")
+    return 0
+
+
+def run_grab(args: argparse.Namespace) -> int:
+    try:
+        width, height = (int(v) for v in args.mode.lower().split("x"))
+    except ValueError:
+        print(f"p3at camera grab: --mode {args.mode!r} is not WIDTHxHEIGHT", file=sys.stderr)
+        return 2
+    try:
+        with _open_head(args) as head:
+            head.set_mode(width, height, args.rate)
+            calib = head.read_calibration().scaled(width, height) if args.rectify else None
+            head.start()
+            frame = head.grab(args.timeout)
+        left, right = frame.left, frame.right
+        if calib is not None:
+            left, right = calib.rectify(left, right)
+        paths = []
+        for name, image in (("left", left), ("right", right)):
+            ok, png = cv2.imencode(".png", image)
+            if not ok:
+                raise DriverError(f"could not encode the {name} image as PNG")
+            path = args.out / f"{name}.png"
+            atomic_write_bytes(path, png.tobytes())
+            paths.append(path)
+    except (DriverError, ValueError, OSError) as exc:
+        print(f"p3at camera grab: {exc}", file=sys.stderr)
+        return 1
+    print(f"frame {frame.counter} at t={frame.timestamp:.3f} s ({width}x{height}"
+          f"{', rectified' if args.rectify else ''}): {paths[0]} {paths[1]}")
+    return 0
