@@ -75,8 +75,10 @@ def match_plicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config:
         direction = second - vertices[first]
         direction /= np.maximum(np.hypot(direction[:, 0], direction[:, 1]), 1e-12)[:, None]
         normal = np.column_stack([-direction[:, 1], direction[:, 0]])
-        keep = select_correspondences(distance, config) & (before_ok | after_ok)
-        return moved, vertices[first], normal, keep
+        anchor = vertices[first]
+        line_residual = np.where(before_ok | after_ok, np.sum(normal * (moved - anchor), axis=1), np.inf)
+        keep = select_correspondences(distance, config, line_residual) & (before_ok | after_ok)
+        return moved, anchor, normal, keep
 
     def update(pose):
         moved, anchor, normal, keep = correspond(pose)

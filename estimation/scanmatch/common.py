@@ -1,8 +1,9 @@
 """What eICP, ICP and PL-ICP share: configuration, outlier handling, stopping rule, result and covariance.
 
-Outliers.  A correspondence is kept when its distance is at most ``max_distance`` (the gate) and it is not
-among the worst ``trim_fraction`` of the gated ones (trimmed least squares, so a fixed share of points seen by
-only one of the scans cannot drag the pose).
+Outliers.  A correspondence is kept when the distance between the point and its partner is at most
+``max_distance`` (the gate) and its residual is not among the worst ``trim_fraction`` of the gated ones
+(trimmed least squares, so a fixed share of points seen by only one of the scans cannot drag the pose).
+For ICP and eICP the residual is that distance; for PL-ICP it is the distance to the line.
 
 Stopping.  Iterate until the pose update is below ``tolerance_translation`` (m) and ``tolerance_rotation``
 (rad), or ``max_iterations`` is reached.  ``converged`` means the tolerance was met with at least
@@ -78,14 +79,21 @@ class MatchResult:
                 "n_correspondences": self.n_correspondences, "method": self.method}
 
 
-def select_correspondences(distance: np.ndarray, config: MatchConfig) -> np.ndarray:
-    """Boolean mask (N,) of the correspondences kept: gated by distance, then the worst share trimmed."""
+def select_correspondences(distance: np.ndarray, config: MatchConfig, residual: np.ndarray | None = None
+                           ) -> np.ndarray:
+    """Boolean mask (N,) of the correspondences kept.
+
+    Gated by the distance (N,) between the point and what it is paired with, then the worst ``trim_fraction``
+    of the gated ones trimmed by the residual the method minimises (N,) (default: the same distance; PL-ICP
+    passes its point-to-line residual).
+    """
     keep = distance <= config.max_distance
     n_keep = int(np.count_nonzero(keep))
     n_trim = int(config.trim_fraction * n_keep)
     if n_trim > 0:
+        score = np.abs(distance if residual is None else residual)
         gated = np.flatnonzero(keep)
-        worst = gated[np.argpartition(distance[gated], n_keep - n_trim)[n_keep - n_trim:]]
+        worst = gated[np.argpartition(score[gated], n_keep - n_trim)[n_keep - n_trim:]]
         keep[worst] = False
     return keep
 
