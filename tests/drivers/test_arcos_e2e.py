@@ -1,0 +1,210 @@
+"""The real P3AT driver against the virtual P3-AT (mocks.p3at) over a pty and over TCP, end to end.
+
+Ground truth comes from the simulated world (``world.pose(name)``); odometry errors and sensor noise are
+configured per test. Simulated time runs ``time_scale`` times faster than the wall clock to keep the suite quick;
+the driver's keep-alive is shortened to match, so the robot's 2 s watchdog (simulated time) is honoured.
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.arcos.robot import P3AT, LinkEvent
+from mocks.p3at import OdometryErrors, SensorOptions, serve_pty, serve_tcp
+from mocks.world import World
+
+QUIET = SensorOptions(sonar_noise_m=0.0, sonar_noise_fraction=0.0, sonar_beam_rad=0.0)
+
+
+def box_world() -> World:
+    """A 10 x 4 m room."""
+    walls = [[0, 0, 10, 0], [10, 0, 10, 4], [10, 4, 0, 4], [0, 4, 0, 0]]
+    return World("box", np.array(walls, float), np.full(4, 2.5))
+
+
+def open_world(size: float = 60.0) -> World:
+    walls = [[-size, -size, size, -size], [size, -size, size, size], [size, size, -size, size],
+             [-size, size, -size, -size]]
+    return World("open", np.array(walls, float), np.full(4, 3.0))
+
+
+class VirtualRobot:
+    """One served virtual robot with a stable URL: a TCP port, or for a pty a symlink (like a udev by-id link)
+    that :meth:`restart` points at the new pty, so the driver reconnects to the same URL."""
+
+    def __init__(self, transport: str, link_dir: Path, world: World, pose: tuple[float, float, float],
+                 **options: object) -> None:
+        self.transport, self.world, self.pose, self.options = transport, world, np.array(pose, float), options
+        self.name = "vp3at"
+        self._link = link_dir / f"ttyP3AT-{id(self)}"
+        self.server = self._start(port=0)
+        self.url = self.server.url if transport == "tcp" else str(self._link)
+
+    def _start(self, port: int):
+        if self.transport == "tcp":
+            return serve_tcp(self.world, self.name, self.pose, port=port, **self.options)
+        server = serve_pty(self.world, self.name, self.pose, **self.options)
+        tmp = self._link.with_suffix(".new")
+        os.symlink(server.url, tmp)
+        os.replace(tmp, self._link)
+        return server
+
+    def truth(self) -> np.ndarray:
+        return self.world.pose(self.name)
+
+    def restart(self) -> None:
+        """Power-cycle the robot: the old server goes away, a new one (fresh firmware session) comes up."""
+        port = self.server.port
+        self.pose = self.truth()
+        self.server.close()
+        self.server = self._start(port=port or 0)
+
+    def close(self) -> None:
+        self.server.close()
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def virtual_robot(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Callable[..., VirtualRobot]]:
+    robots: list[VirtualRobot] = []
+
+    def make(world: World, pose: tuple[float, float, float], **options: object) -> VirtualRobot:
+        options.setdefault("seed", 1)
+        robot = VirtualRobot(request.param, tmp_path, world, pose, **options)
+        robots.append(robot)
+        return robot
+    yield make
+    for robot in robots:
+        robot.close()
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("arcos-reader")]
+
+
+def driver(robot: VirtualRobot, **kwargs: object) -> P3AT:
+    scale = float(robot.options.get("time_scale", 1.0))
+    kwargs.setdefault("pulse_interval", 0.5 / scale)
+    return P3AT(robot.url, **kwargs)
+
+
+def test_handshake_identity_and_config(virtual_robot) -> None:
+    robot = virtual_robot(box_world(), (5.0, 2.0, 0.0))
+    with driver(robot) as p3at:
+        assert (p3at.identity.name, p3at.identity.type, p3at.identity.subtype) == ("vp3at", "Pioneer", "p3at-sh")
+        assert p3at.params.subtype == "p3at-sh"
+        assert p3at.config.sip_cycle == 100 and p3at.config.watchdog == 2000
+        assert p3at.config.trans_vel_top == 1200
+        state = p3at.wait_for_state()
+        assert (state.x, state.y, state.theta) == (0.0, 0.0, 0.0) and not state.motors_enabled
+        assert 10.0 < state.battery_volts <= 13.0
+
+
+def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configured_error(virtual_robot) -> None:
+    scale_error = 0.98  # the wheels measure 2 % short
+    robot = virtual_robot(open_world(), (1.0, 2.0, 0.0), time_scale=5.0,
+                          odometry=OdometryErrors(distance_scale=scale_error))
+    with driver(robot) as p3at:
+        p3at.motors_on()
+        p3at.set_velocity(0.5, 0.0)
+        p3at.wait_for_state(5.0, lambda s: s.x > 1.5)
+        p3at.stop()
+        state = p3at.wait_for_state(5.0, lambda s: not s.moving and s.v == 0.0)
+        state = p3at.wait_for_state()  # one more SIP: the position is final
+        travelled = robot.truth()[0] - 1.0
+        assert travelled > 1.5
+        assert state.x == pytest.approx(scale_error * travelled, abs=0.005)
+        assert state.y == pytest.approx(0.0, abs=0.005) and state.theta == pytest.approx(0.0, abs=0.01)
+        assert abs(state.x - travelled) > 0.02  # the configured error is really there
+
+
+def test_turning_matches_truth(virtual_robot) -> None:
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=5.0)
+    with driver(robot) as p3at:
+        p3at.motors_on()
+        p3at.set_velocity(0.3, math.radians(30))
+        p3at.wait_for_state(5.0, lambda s: s.theta > 1.0)
+        p3at.stop()
+        p3at.wait_for_state(5.0, lambda s: s.v == 0.0 and s.w == 0.0)
+        state = p3at.wait_for_state()
+        x, y, th = robot.truth()
+        assert (state.x, state.y, state.theta) == pytest.approx((x, y, th), abs=0.01)
+
+
+def test_sonar_sees_the_walls_at_the_right_distance(virtual_robot) -> None:
+    robot = virtual_robot(box_world(), (5.0, 2.0, 0.0), sensors=QUIET)
+    with driver(robot) as p3at:
+        state = p3at.wait_for_state(3.0, lambda s: all(r is not None for r in s.sonar_ranges()))
+        sonars = state.sonars
+        # sonar 0 looks left from y = +0.136: the wall y = 4 is 4 - 2.136 m away; sonar 7 mirrors it.
+        assert sonars[0].range_m == pytest.approx(4.0 - 2.136, abs=0.01)
+        assert sonars[7].range_m == pytest.approx(2.0 - 0.136, abs=0.01)
+        # sonar 3 (x 0.245, y 0.027, 10 deg) hits the wall x = 10.
+        assert sonars[3].range_m == pytest.approx((10.0 - 5.245) / math.cos(math.radians(10)), abs=0.01)
+        assert sonars[3].pose == pytest.approx((0.245, 0.027, math.radians(10)), abs=1e-6)
+        assert sonars[3].stamp <= state.stamp
+
+
+def test_watchdog_stops_a_robot_whose_client_went_silent(virtual_robot) -> None:
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=5.0)
+    with driver(robot, pulse_interval=1e9, link_timeout=30.0) as p3at:  # a client that hangs after commanding
+        p3at.motors_on()
+        p3at.set_velocity(0.4, 0.0)
+        p3at.wait_for_state(3.0, lambda s: s.v > 0.3)
+        state = p3at.wait_for_state(3.0, lambda s: s.v == 0.0)
+        assert state.motors_enabled  # stopped by the watchdog, not disabled
+        assert robot.server.model.stats.watchdog_stops == 1
+        x_stopped = robot.truth()[0]
+        p3at.wait_for_state()
+        p3at.wait_for_state()
+        assert robot.truth()[0] == pytest.approx(x_stopped, abs=1e-9)
+
+
+def test_driver_reconnects_after_the_robot_restarts_with_motors_disabled(virtual_robot) -> None:
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=2.0)
+    events: list[LinkEvent] = []
+    restored = threading.Event()
+
+    def on_link(event: LinkEvent) -> None:
+        events.append(event)
+        if event.kind == "restored":
+            restored.set()
+    with driver(robot, link_timeout=0.6) as p3at:
+        p3at.subscribe_link(on_link)
+        p3at.motors_on()
+        p3at.wait_for_state(2.0, lambda s: s.motors_enabled)
+        robot.restart()
+        assert restored.wait(10.0), events
+        assert [e.kind for e in events] == ["lost", "restored"]
+        state = p3at.wait_for_state(2.0, lambda s: s.session == 2)
+        assert not state.motors_enabled
+        p3at.motors_on()  # and it is usable again
+        assert p3at.wait_for_state(2.0, lambda s: s.motors_enabled).session == 2
+
+
+def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
+    robot = virtual_robot(box_world(), (8.5, 2.0, 0.0), time_scale=5.0)
+    with driver(robot) as p3at:
+        p3at.motors_on()
+        p3at.set_velocity(0.5, 0.0)
+        state = p3at.wait_for_state(5.0, lambda s: s.stalled)
+        assert state.front_bumpers and not state.rear_bumpers and state.bumped
+        assert robot.truth()[0] == pytest.approx(10.0 - 0.33, abs=0.05)  # stopped at the wall
+
+
+@pytest.mark.slow
+def test_position_wraps_around_over_a_long_drive(virtual_robot) -> None:
+    # p3at-sh reports mm in 15 bits: the field wraps every 32.768 m. Drive 34 m straight.
+    robot = virtual_robot(open_world(60.0), (-25.0, 0.0, 0.0), time_scale=15.0)
+    with driver(robot, link_timeout=2.0) as p3at:
+        p3at.motors_on()
+        p3at.set_velocity_limits(max_v=1.2)
+        p3at.set_velocity(1.2, 0.0)
+        p3at.wait_for_state(10.0, lambda s: s.x > 34.0)
+        p3at.stop()
+        p3at.wait_for_state(5.0, lambda s: s.v == 0.0)
+        state = p3at.wait_for_state()
+        travelled = robot.truth()[0] + 25.0
+        assert travelled > 34.0 and state.x == pytest.approx(travelled, abs=0.01)
