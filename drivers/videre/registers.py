@@ -14,6 +14,16 @@ from drivers.errors import ProtocolError
 CONFIG_ROM_BASE = 0xFFFFF0000000
 COMMAND_BASE = 0xF00000  # command_regs_base of the unit directory, in bytes above CONFIG_ROM_BASE
 
+# IIDC over USB (libdc1394's USB backend): vendor control transfers carry register quadlets little-endian,
+# wValue = address & 0xFFFF, wIndex = address >> 16; frames come as bulk transfers on endpoint 0x81.
+REQUEST_TYPE_READ = 0xC0  # device-to-host | vendor | device
+REQUEST_TYPE_WRITE = 0x40  # host-to-device | vendor | device
+REQUEST_REGISTER = 0x7F
+FRAME_ENDPOINT = 0x81
+# No USB model of the head is documented; these are the pid.codes test ids. Pass your own.
+DEFAULT_VENDOR_ID = 0x1209
+DEFAULT_PRODUCT_ID = 0x0001
+
 # Standard IIDC registers (offsets from COMMAND_BASE).
 V_FORMAT_INQ = 0x100
 V_MODE_INQ_BASE = 0x180  # + 4 * format

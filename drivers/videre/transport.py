@@ -25,14 +25,15 @@ from drivers.errors import (
     NotConnectedError,
     ProtocolError,
 )
+from drivers.videre.registers import (
+    DEFAULT_PRODUCT_ID,
+    DEFAULT_VENDOR_ID,
+    FRAME_ENDPOINT,
+    REQUEST_REGISTER,
+    REQUEST_TYPE_READ,
+    REQUEST_TYPE_WRITE,
+)
 
-REQUEST_TYPE_READ = 0xC0  # device-to-host | vendor | device
-REQUEST_TYPE_WRITE = 0x40  # host-to-device | vendor | device
-REQUEST_REGISTER = 0x7F
-FRAME_ENDPOINT = 0x81
-# No USB model of the head is documented; these are the pid.codes test ids. Pass your own.
-DEFAULT_VENDOR_ID = 0x1209
-DEFAULT_PRODUCT_ID = 0x0001
 _GONE_ERRNOS = {errno.ENODEV, errno.ENXIO, errno.ESHUTDOWN, errno.EIO}
 _LIBUSB_NO_DEVICE = -4
 

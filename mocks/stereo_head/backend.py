@@ -21,7 +21,7 @@ import usb.core
 from drivers.videre import registers as reg
 from drivers.videre.calibration import StereoCalibration, format_svs, parse_svs
 from drivers.videre.frames import RIGHT_FIRST
-from drivers.videre.transport import (
+from drivers.videre.registers import (
     DEFAULT_PRODUCT_ID,
     DEFAULT_VENDOR_ID,
     FRAME_ENDPOINT,
