@@ -28,7 +28,7 @@ from runtime.exchange import InProcessExchange, MapExchange
 from runtime.motion import NoMotion, PurePursuit, WallFollower
 from runtime.onboard import Clock, Onboard, OnboardConfig
 
-CAMERAS = ("mock", "synthetic")
+CAMERAS = ("mock", "synthetic", "usb")
 MOTIONS = ("route", "explore", "none")
 
 
@@ -54,6 +54,13 @@ class MissionConfig:
     rerun: str = "file"               # "file" (OUT/mission.rrd), "spawn", "none", or a rerun+http:// URL
     log_sensors: bool = False         # raw SIPs and frames to OUT/<robot>-log/
     world: Path | None = None
+    robot_url: str = "mock"           # "mock" (virtual P3-ATs in the world), or one real robot's URL
+    route_file: Path | None = None    # a route (in the robot's odometry frame) instead of the world's routes
+    time_scale: float = 1.0           # virtual robots only: simulated seconds per wall-clock second
+
+    @property
+    def on_mocks(self) -> bool:
+        return self.robot_url == "mock"
 
     def __post_init__(self) -> None:
         if self.robots < 1:
@@ -64,6 +71,12 @@ class MissionConfig:
             raise ValueError(f"--motion must be one of {', '.join(MOTIONS)}, not {self.motion!r}")
         if self.seconds <= 0 or self.camera_rate <= 0 or self.particles < 1:
             raise ValueError("--seconds, --camera-rate and --particles must be positive")
+        if not self.on_mocks and self.robots != 1:
+            raise ValueError("a real robot URL runs exactly one robot (--robots 1)")
+        if not self.on_mocks and self.camera != "usb":
+            raise ValueError("a real robot needs a real stereo head (--camera usb)")
+        if self.on_mocks and self.camera == "usb":
+            raise ValueError("--camera usb needs a real robot (--robot URL); the virtual robots use mock or synthetic")
 
 
 @dataclass
@@ -108,7 +121,8 @@ def true_relative_pose(reference: LandmarkMap, other: LandmarkMap) -> np.ndarray
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 2, t: float = 0.0,
               rng: np.random.Generator | None = None) -> FusionReport:
     """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
-    from fusion import align, merge
+    from fusion.alignment import align
+    from fusion.merging import merge
 
     start = time.perf_counter()
     names = sorted(maps)
@@ -120,18 +134,16 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     rng = rng if rng is not None else np.random.default_rng(0)
     for other in names[1:]:
         result = PairResult(reference, other, False)
-        try:
-            alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
-        except (LookupError, ValueError) as e:  # fusion's NoOverlapError is a LookupError
-            result.note = str(e)
+        alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
+        result.supports = int(len(alignment.supports))
+        if not alignment.found:
+            result.note = alignment.reason
             pairs.append(result)
             continue
         result.aligned = True
         result.tx, result.ty, result.theta = (float(v) for v in alignment.pose)
-        result.supports = int(len(alignment.supports))
         merged_pair = merge(merged, maps[other], alignment, method=method)
-        shared = merged_pair.seen_by[:, [merged_pair.robots.index(reference), merged_pair.robots.index(other)]]
-        result.common = int(np.count_nonzero(shared.all(axis=1)))
+        result.common = int(merged_pair.metadata.get("fusion", {}).get("common_landmarks", 0))
         merged = merged_pair
         truth = true_relative_pose(maps[reference], maps[other])
         if truth is not None:
@@ -189,7 +201,8 @@ class Mission:
             sink = str(self.recording_path)
         rec = open_recording(sink, blueprint=mission_blueprint(names))
         self.logger = MissionLog(rec, names, blueprint=sink != "none")
-        self.logger.log_building(world.walls, world.wall_heights)
+        if world is not None:
+            self.logger.log_building(world.walls, world.wall_heights)
 
     def _robot(self, stack: ExitStack, world, index: int, name: str, t0: float) -> RobotSetup:
         from drivers.arcos.robot import P3AT
@@ -198,13 +211,18 @@ class Mission:
         from runtime.sensorlog import SensorLogWriter
 
         cfg = self.config
-        pose = np.asarray(world.start_poses[name], float)
-        server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, seed=cfg.seed + 100 * index)
-        stack.callback(server.close)
-        driver = P3AT(server.url, clock=self.clock)
+        if cfg.on_mocks:
+            pose = np.asarray(world.start_poses[name], float)
+            server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, clock=self.clock,
+                               time_scale=cfg.time_scale, seed=cfg.seed + 100 * index)
+            stack.callback(server.close)
+            url = server.url
+        else:
+            pose, url = None, cfg.robot_url
+        driver = P3AT(url, clock=self.clock)
+        stack.callback(driver.close)
         driver.connect()
         link = P3ATLink(driver)
-        stack.callback(link.close)
         camera, geometry = self._camera(stack, world, index, name)
         frontend = FrontEndConfig(geometry=geometry)
         onboard_config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=cfg.particles), frontend=frontend,
@@ -214,15 +232,16 @@ class Mission:
             from runtime.adapters import geometry_to_dict
             sensor_log = SensorLogWriter(cfg.out / f"{name}-log", {
                 "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry_to_dict(geometry),
-                "true_start_pose": [float(v) for v in pose], "seed": onboard_config.seed,
-                "particles": cfg.particles, "t0": t0})
+                "true_start_pose": None if pose is None else [float(v) for v in pose], "seed": onboard_config.seed,
+                "fastslam": onboard_config.fastslam.to_dict(), "t0": t0})
         onboard = Onboard(name, link, camera, onboard_config, exchange=self.exchange,
                           controller=self._controller(world, name, pose), logger=self.logger,
-                          sensor_log=sensor_log, clock=self.clock, t0=t0, truth=lambda: world.pose(name),
-                          true_start=pose, head_mount=left_camera_mount(geometry), on_event=self.events)
+                          sensor_log=sensor_log, clock=self.clock, t0=t0,
+                          truth=(lambda: world.pose(name)) if pose is not None else None, true_start=pose,
+                          head_mount=left_camera_mount(geometry), on_event=self.events)
         stack.callback(onboard.stop)  # runs before the link, camera and server close (LIFO)
         if self.logger is not None:
-            self.logger.log_robot_frame(name, pose)
+            self.logger.log_robot_frame(name, pose if pose is not None else np.zeros(3))
             g = geometry
             self.logger.log_camera_model(name, g.fx, g.fy, g.cx, g.cy, 640, 480, g.baseline)
         return RobotSetup(name, onboard, pose)
@@ -238,8 +257,13 @@ class Mission:
                                      rate=cfg.camera_rate, clock=self.clock)
             return camera, camera.geometry
         from drivers.videre.head import StereoHead
-        from mocks.stereo_head import VirtualStereoHead
         from runtime.adapters import VidereCamera
+
+        if cfg.camera == "usb":
+            camera = VidereCamera(StereoHead.open(clock=self.clock), rate=cfg.camera_rate)
+            stack.callback(camera.close)
+            return camera, camera.geometry
+        from mocks.stereo_head import VirtualStereoHead
 
         virtual = VirtualStereoHead(world, name, rng=rng, clock=self.clock)
         head = StereoHead.open(backend=virtual.backend, clock=self.clock)
@@ -247,9 +271,13 @@ class Mission:
         stack.callback(camera.close)
         return camera, camera.geometry
 
-    def _controller(self, world, name: str, start: np.ndarray):
+    def _controller(self, world, name: str, start: np.ndarray | None):
+        from runtime.motion import load_route
+
         cfg = self.config
-        if cfg.motion == "route" and name in world.routes:
+        if cfg.motion == "route" and cfg.route_file is not None:
+            return PurePursuit(load_route(cfg.route_file), speed=cfg.speed)
+        if cfg.motion == "route" and world is not None and start is not None and name in world.routes:
             waypoints = np.asarray(world.routes[name], float)
             # the route is given in the world; the robot follows it in its own odometry frame
             local = between(start, np.column_stack([waypoints, np.zeros(len(waypoints))]))[:, :2]
@@ -263,11 +291,15 @@ class Mission:
         from mocks.world import World
 
         cfg = self.config
-        world = World.load(cfg.world)
-        names = sorted(world.start_poses)[: cfg.robots]
-        if len(names) < cfg.robots:
-            raise MissionError(f"the world '{world.name}' has {len(names)} start poses, {cfg.robots} robots asked")
         cfg.out.mkdir(parents=True, exist_ok=True)
+        if cfg.on_mocks:
+            world = World.load(cfg.world)
+            names = sorted(world.start_poses)[: cfg.robots]
+            if len(names) < cfg.robots:
+                raise MissionError(f"the world '{world.name}' has {len(names)} start poses, "
+                                   f"{cfg.robots} robots asked")
+        else:
+            world, names = None, ["robot1"]
         if cfg.rerun != "none":
             self._open_logger(names, world)
         with ExitStack() as stack:
@@ -353,7 +385,9 @@ class Mission:
             s, core = r.onboard.stats, r.onboard.core
             frames = max(1, s.frames_processed)
             final_pose = core.slam.best_pose()
-            true_final = between(r.true_start, r.onboard.truth()) if r.onboard.truth else None
+            true_final = None
+            if r.onboard.final_true_pose is not None and r.true_start is not None:
+                true_final = between(r.true_start, r.onboard.final_true_pose)
             robots[r.name] = {
                 "landmarks": len(maps[r.name]),
                 "frames_received": s.frames_received, "frames_processed": s.frames_processed,

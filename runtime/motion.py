@@ -87,18 +87,20 @@ class PurePursuit:
     """Follow waypoints (K, 2): steer toward the point ``lookahead`` m ahead on the route.
 
     Each waypoint is reached (within ``goal_tolerance``) before the next segment starts, so a route that
-    turns back on itself is followed; slows down and stops while an obstacle is nearer than
-    ``stop_distance`` ahead.
+    turns back on itself is followed. An obstacle nearer than ``avoid_distance`` ahead (another robot in the
+    corridor) is passed on the right (on the left if the right is closed), slowing down, stopping short of
+    ``stop_distance``.
     """
 
     def __init__(self, waypoints: np.ndarray, *, speed: float = 0.35, lookahead: float = 0.7,
                  max_turn_rate: float = 0.8, goal_tolerance: float = 0.3, stop_distance: float = 0.35,
-                 slow_distance: float = 0.8) -> None:
+                 avoid_distance: float = 1.3, side_clearance: float = 0.6) -> None:
         self.waypoints = np.asarray(waypoints, float).reshape(-1, 2)
         if len(self.waypoints) == 0:
             raise ValueError("a route needs at least one waypoint")
         self.speed, self.lookahead, self.max_turn_rate = speed, lookahead, max_turn_rate
-        self.goal_tolerance, self.stop_distance, self.slow_distance = goal_tolerance, stop_distance, slow_distance
+        self.goal_tolerance, self.stop_distance = goal_tolerance, stop_distance
+        self.avoid_distance, self.side_clearance = avoid_distance, side_clearance
         self.index = 0  # the segment the robot is on: waypoints[index] -> waypoints[index + 1]
 
     def _target(self, xy: np.ndarray) -> np.ndarray:
@@ -138,10 +140,21 @@ class PurePursuit:
         curvature = 2.0 * local[1] / distance**2  # pure pursuit: κ = 2 y / L²
         heading_error = float(np.arctan2(local[1], local[0]))
         v = self.speed * max(0.0, np.cos(heading_error))  # turn on the spot toward a target behind
-        ahead = _sector_min(sonar_poses, ranges, -0.45, 0.45)
-        if ahead < self.slow_distance:
-            v *= max(0.0, (ahead - self.stop_distance) / (self.slow_distance - self.stop_distance))
         w = v * curvature if v > 0.05 else np.sign(heading_error) * 0.5 * self.max_turn_rate
+        ahead = _sector_min(sonar_poses, ranges, -0.45, 0.45)
+        waypoint = self.waypoints[min(self.index + 1, len(self.waypoints) - 1)]
+        blocked = ahead < min(self.avoid_distance, float(np.linalg.norm(waypoint - xy)))  # not the wall it heads to
+        if blocked and abs(heading_error) < 1.0:
+            # something in the way (another robot, a person): keep to the right to pass it, unless the right
+            # side is closed; slow down, and stop short of it
+            right = _sector_min(sonar_poses, ranges, -1.1, -0.45)
+            left = _sector_min(sonar_poses, ranges, 0.45, 1.1)
+            side = -1.0 if right > self.side_clearance or right >= left else 1.0
+            urgency = (self.avoid_distance - ahead) / (self.avoid_distance - self.stop_distance)
+            w = side * self.max_turn_rate * min(1.0, urgency)
+            v = min(v, self.speed * max(0.0, 1.0 - urgency))
+            if ahead > self.stop_distance:
+                v = max(v, 0.05)
         w = float(np.clip(w, -self.max_turn_rate, self.max_turn_rate))
         return MotionCommand(float(v), w, False)
 

@@ -256,6 +256,7 @@ class Onboard:
         self._anchor: np.ndarray | None = None            # best pose at the last frame (map frame) ...
         self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
         self.errors: list[str] = []
+        self.final_true_pose: np.ndarray | None = None   # the truth when stopped (mocks only)
 
     # -- lifecycle -------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -274,6 +275,11 @@ class Onboard:
         self._stopped = True
         self._stop.set()
         self._halt_motors()
+        if self.truth is not None:
+            try:
+                self.final_true_pose = np.asarray(self.truth(), float)
+            except LookupError:  # the virtual robot is already gone
+                pass
         for thread in self._threads:
             thread.join(timeout=10.0)
         self._halt_motors()

@@ -1,0 +1,24 @@
+"""``p3at run``: the onboard runtime of one robot, on real hardware or on the virtual robot."""
+from __future__ import annotations
+
+from runtime.mission_cli import add_mission_arguments, run_mission_command
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "run", help="run the onboard pipeline on a robot (real: --robot /dev/ttyUSB0 --camera usb; default mocks)",
+        description="The onboard runtime: the P3-AT driver and the stereo head on their own threads, odometry "
+                    "interpolated to each frame, the front end, FastSLAM, map snapshots, motion from a route "
+                    "file, the sonar wall follower or none. Ctrl-C or SIGTERM stops the motors, flushes every "
+                    "file and exits cleanly.")
+    parser.add_argument("--robot", default="mock", metavar="URL",
+                        help="mock (a virtual P3-AT in the simulated building, default), a serial device such as "
+                             "/dev/ttyUSB0, or socket://host:port")
+    add_mission_arguments(parser, robots=1, seconds=600.0, out="p3at-run", camera="mock", camera_rate=15.0)
+    parser.set_defaults(handler=_run)
+
+
+def _run(args) -> int:
+    if args.robot != "mock" and args.camera == "mock":
+        args.camera = "usb"  # a real robot carries a real head
+    return run_mission_command(args, robot_url=args.robot)

@@ -1,0 +1,122 @@
+"""What ``p3at demo`` and ``p3at run`` share: the mission's arguments, the progress display, the summary."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
+from runtime.report import format_summary
+
+
+def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,
+                          camera: str, camera_rate: float) -> None:
+    parser.add_argument("--robots", type=int, default=robots, help=f"number of robots (default {robots})")
+    parser.add_argument("--seconds", type=float, default=seconds,
+                        help=f"mission length at most, s (default {seconds:g}; ends earlier when the routes are done)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random generator (default 0)")
+    parser.add_argument("--out", type=Path, default=Path(out), help=f"output folder (default {out})")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--camera", choices=CAMERAS, default=camera,
+                        help=f"mock: rendered frames through the Videre driver; synthetic: simulated observations "
+                             f"(fast); usb: a real head (default {camera})")
+    parser.add_argument("--camera-rate", type=float, default=camera_rate, help=f"Hz (default {camera_rate:g})")
+    parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles (default 100)")
+    parser.add_argument("--motion", choices=MOTIONS, default="route",
+                        help="route: follow a route; explore: sonar wall following; none: someone else drives")
+    parser.add_argument("--route", type=Path, default=None,
+                        help="route file (x y per line, in the robot's odometry frame) instead of the world's routes")
+    parser.add_argument("--speed", type=float, default=0.35, help="m/s along routes (default 0.35)")
+    parser.add_argument("--fusion-interval", type=float, default=20.0,
+                        help="s between map fusions during the mission (0: at the end only; default 20)")
+    parser.add_argument("--preset", choices=("robust", "paper"), default="robust", help="alignment preset")
+    parser.add_argument("--method", type=int, choices=(1, 2), default=2, help="merging method (default 2)")
+    parser.add_argument("--rerun", default="file", metavar="SINK",
+                        help="file (OUT/mission.rrd, default), spawn (a live viewer), none, or a rerun+http:// URL")
+    parser.add_argument("--log-sensors", action="store_true", help="log raw SIPs and frames to OUT/<robot>-log/")
+    parser.add_argument("--world", type=Path, default=None, help="building file for the virtual robots")
+    parser.add_argument("--time-scale", type=float, default=1.0,
+                        help="virtual robots only: simulated seconds per wall-clock second (default 1)")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> MissionConfig:
+    return MissionConfig(
+        robots=args.robots, seconds=args.seconds, seed=args.seed, camera=args.camera, camera_rate=args.camera_rate,
+        particles=args.particles, motion=args.motion, speed=args.speed, fusion_interval=args.fusion_interval,
+        preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
+        world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale)
+
+
+class Progress:
+    """One status line, rewritten in place on a terminal, printed every few seconds otherwise (stderr)."""
+
+    def __init__(self, enabled: bool, stream=None) -> None:
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.tty = self.stream.isatty()
+        self._last = 0.0
+        self._lock = threading.Lock()
+        self._open_line = False
+
+    def line(self, text: str) -> None:
+        if not self.enabled:
+            return
+        with self._lock:
+            if self.tty:
+                self.stream.write("\r\x1b[2K" + text)
+                self._open_line = True
+            elif time.monotonic() - self._last >= 5.0:
+                self.stream.write(text + "\n")
+                self._last = time.monotonic()
+            self.stream.flush()
+
+    def event(self, text: str) -> None:
+        if not self.enabled:
+            return
+        with self._lock:
+            if self._open_line:
+                self.stream.write("\r\x1b[2K")
+                self._open_line = False
+            self.stream.write(f"  {text}\n")
+            self.stream.flush()
+
+    def done(self) -> None:
+        with self._lock:
+            if self._open_line:
+                self.stream.write("\n")
+                self._open_line = False
+
+
+def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> int:
+    try:
+        config = config_from_args(args, robot_url)
+    except ValueError as e:
+        print(f"p3at: {e}", file=sys.stderr)
+        return 2
+    progress = Progress(not args.quiet)
+    mission = Mission(config, progress=progress.line, events=progress.event)
+    restore = install_stop_signals(mission.stop)
+    try:
+        result = mission.run()
+    except (OSError, ValueError, LookupError, RuntimeError) as e:  # drivers' and files' typed errors
+        progress.done()
+        print(f"p3at: mission failed: {e}", file=sys.stderr)
+        return 1
+    finally:
+        restore()
+        progress.done()
+    if args.json:
+        print(json.dumps(result.summary, indent=2))
+    else:
+        print(format_summary(result.summary))
+        print()
+        print(f"Maps: {', '.join(r['map_file'] for r in result.summary['robots'].values())}"
+              + (f", merged {result.summary['merged_map_file']}" if result.summary["merged_map_file"] else ""))
+    if result.recording is not None:
+        print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
+              f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
+    return 0

@@ -1,0 +1,48 @@
+"""Human-readable tables of a mission's figures (the demo's and review's output). Pure string formatting."""
+from __future__ import annotations
+
+import math
+
+
+def _fmt(value, spec: str = ".3f", missing: str = "-") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return missing
+    return format(value, spec)
+
+
+def _table(rows: list[list[str]]) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths, strict=True)))
+             for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return lines
+
+
+def format_summary(summary: dict) -> str:
+    """The mission summary (as built by :class:`runtime.mission.Mission`) as aligned text tables."""
+    lines = [f"Mission: {len(summary['robots'])} robot(s), {summary['duration']:.1f} s, camera {summary['camera']}, "
+             f"{summary['particles']} particles, seed {summary['seed']}", ""]
+    stages = sorted({k for r in summary["robots"].values() for k in r["ms_per_frame"]})
+    rows = [["robot", "landmarks", "frames", "dropped", "final pose err (m)"] + [f"{s} ms" for s in stages]]
+    for name, r in summary["robots"].items():
+        rows.append([name, str(r["landmarks"]), str(r["frames_processed"]),
+                     str(r["frames_dropped"] + r["frames_without_odometry"]), _fmt(r["final_position_error"])]
+                    + [_fmt(r["ms_per_frame"].get(s), ".1f") for s in stages])
+    lines += _table(rows)
+    fusion = summary.get("fusion")
+    lines.append("")
+    if not fusion or not fusion["pairs"]:
+        lines.append("Fusion: fewer than two maps, nothing to fuse.")
+    else:
+        rows = [["alignment", "found", "tx (m)", "ty (m)", "θ (rad)", "supports", "common", "error xy (m)",
+                 "error θ (rad)"]]
+        for p in fusion["pairs"]:
+            rows.append([f"{p['other']} -> {p['reference']}", "yes" if p["aligned"] else "no",
+                         _fmt(p["tx"]), _fmt(p["ty"]), _fmt(p["theta"], ".4f"), str(p["supports"]),
+                         str(p["common"]), _fmt(p["error_xy"]), _fmt(p["error_theta"], ".4f")])
+        lines += _table(rows)
+        lines.append("")
+        lines.append(f"Merged map: {fusion['merged_landmarks']} landmarks "
+                     f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "
+                     f"{summary.get('fusions_during_mission', 0)} fusion(s) during the mission)")
+    return "\n".join(lines)
