@@ -40,7 +40,7 @@ def test_loop_closes_instead_of_doubling_the_corridor(full_run):
     assert scores["seconds"] > 60                           # the whole route, there and back
     assert scores["duplicate_landmarks"] <= 0.03 * scores["landmarks"]
     assert scores["ate_m"] < scores["dead_reckoning_ate_m"]
-    assert scores["landmark_median_error_m"] < 0.2
+    assert scores["landmark_median_error_m"] < 0.3  # stereo depth σ is 0.2 m at 6 m
 
 
 def test_human_readable_output(tmp_path, capsys):
