@@ -8,6 +8,7 @@ Top-level object::
 
     {
       "format": "p3at-fusion-world",      # optional, checked when present
+      "description": "...",                # optional free text (keys starting with "_" are comments)
       "version": 1,                        # required; only 1 is understood
       "name": "...",                       # required, non-empty string
       "default_wall_height": 2.7,          # optional (metres), used by walls without "height"
@@ -34,6 +35,7 @@ Top-level object::
 Walls with openings are split into pieces; ``World.walls`` holds the pieces and every ``Decoration.wall``
 indexes a piece, with ``s`` measured from the piece's start. A decoration must lie inside one piece and
 below its wall's height. Doorways get a "door_frame" decoration on both faces of both sides.
+Unknown keys are errors (a misspelt "heigth" must not pass silently); keys starting with "_" are comments.
 A malformed file raises :class:`WorldFileError` (a ``ValueError``) naming the file and the field.
 """
 
@@ -118,15 +120,27 @@ class _Reader:
             raise self.fail(field, f"expected a list of {n} finite numbers, got {value!r}")
         return np.asarray(value, dtype=float)
 
-    def obj(self, value: Any, field: str) -> dict:
+    def obj(self, value: Any, field: str, known: frozenset[str] | None = None) -> dict:
+        """A JSON object; with ``known``, any other key is an error (a typo must not pass silently)."""
         if not isinstance(value, dict):
             raise self.fail(field, f"expected an object, got {type(value).__name__}")
+        if known is not None:
+            for key in value:
+                if key not in known and not str(key).startswith("_"):
+                    where = key if field == "<top level>" else f"{field}.{key}"
+                    raise self.fail(where, f"unknown field (known: {', '.join(sorted(known))})")
         return value
 
     def array(self, value: Any, field: str) -> list:
         if not isinstance(value, list):
             raise self.fail(field, f"expected a list, got {type(value).__name__}")
         return value
+
+
+_TOP_KEYS = frozenset({"format", "version", "name", "description", "default_wall_height", "feature_seed",
+                       "door_frame", "walls", "start_poses", "routes"})
+_WALL_KEYS = frozenset({"id", "from", "to", "height", "openings", "baseboard", "decorations"})
+_DECORATION_KEYS = frozenset({"kind", "s0", "s1", "z0", "z1", "side", "seed"})
 
 
 def _default_seed(label: str) -> int:
@@ -136,7 +150,7 @@ def _default_seed(label: str) -> int:
 def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
     """Validate a decoded JSON document and expand it into arrays; see the module docstring."""
     r = _Reader(path)
-    doc = r.obj(doc, "<top level>")
+    doc = r.obj(doc, "<top level>", _TOP_KEYS)
     if "format" in doc and doc["format"] != FORMAT_NAME:
         raise r.fail("format", f"expected {FORMAT_NAME!r}, got {doc['format']!r}")
     if "version" not in doc:
@@ -150,7 +164,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
     feature_seed = doc.get("feature_seed", 0)
     if not isinstance(feature_seed, int) or isinstance(feature_seed, bool) or feature_seed < 0:
         raise r.fail("feature_seed", f"expected a non-negative integer, got {feature_seed!r}")
-    frame = r.obj(doc.get("door_frame", {}), "door_frame")
+    frame = r.obj(doc.get("door_frame", {}), "door_frame", frozenset({"width", "height"}))
     frame_width = r.number(frame, "width", "door_frame", default=0.1, positive=True)
     frame_height = r.number(frame, "height", "door_frame", default=2.1, positive=True)
 
@@ -163,7 +177,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
     decorations: list[Decoration] = []
     for wi, wall_doc in enumerate(walls_in):
         wf = f"walls[{wi}]"
-        wall = r.obj(wall_doc, wf)
+        wall = r.obj(wall_doc, wf, _WALL_KEYS)
         label = wall.get("id", wf)
         if not isinstance(label, str):
             raise r.fail(f"{wf}.id", f"expected a string, got {label!r}")
@@ -223,7 +237,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
                     )
 
         if "baseboard" in wall:
-            bb = r.obj(wall["baseboard"], f"{wf}.baseboard")
+            bb = r.obj(wall["baseboard"], f"{wf}.baseboard", frozenset({"height", "sides"}))
             bb_height = r.number(bb, "height", f"{wf}.baseboard", default=0.1, positive=True)
             sides = r.array(bb.get("sides", [1, -1]), f"{wf}.baseboard.sides")
             if any(s not in (1, -1) for s in sides):
@@ -236,7 +250,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
 
         for di, deco_doc in enumerate(r.array(wall.get("decorations", []), f"{wf}.decorations")):
             df = f"{wf}.decorations[{di}]"
-            deco = r.obj(deco_doc, df)
+            deco = r.obj(deco_doc, df, _DECORATION_KEYS)
             kind = deco.get("kind")
             if not isinstance(kind, str) or not kind:
                 raise r.fail(f"{df}.kind", f"expected a non-empty string, got {kind!r}")

@@ -199,6 +199,9 @@ def test_arrays_are_read_only(world: World) -> None:
         (lambda d: d["walls"][0]["decorations"][0].pop("s0"), "walls[0].decorations[0].s0"),
         (lambda d: d.update(start_poses={"robot1": [1, 2]}), "start_poses.robot1"),
         (lambda d: d.update(routes={"robot1": [[1, 2]]}), "routes.robot1"),
+        (lambda d: d.update(wals=[]), "wals"),
+        (lambda d: d["walls"][1].update(heigth=2.0), "walls[1].heigth"),
+        (lambda d: d["walls"][0]["decorations"][0].update(colour="red"), "walls[0].decorations[0].colour"),
     ],
 )
 def test_malformed_file_names_file_and_field(tmp_path, mutate, field) -> None:
@@ -211,6 +214,12 @@ def test_malformed_file_names_file_and_field(tmp_path, mutate, field) -> None:
     assert isinstance(info.value, ValueError)
     assert str(path) in str(info.value) and field in str(info.value)
     assert info.value.field.startswith(field)
+
+
+def test_underscore_keys_are_comments() -> None:
+    doc = box_doc(_comment="hand-made")
+    doc["walls"][0]["_note"] = "south"
+    assert World.from_dict(doc).name == "box"
 
 
 def test_decoration_across_a_doorway_is_rejected(tmp_path) -> None:
