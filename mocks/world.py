@@ -56,7 +56,7 @@ FORMAT_NAME = "p3at-fusion-world"
 SUPPORTED_VERSIONS = (1,)
 DESCRIPTOR_SIZE = 64
 _EPS = 1e-9
-_RAY_CHUNK = 8192  # rays per vectorised block: bounds memory at chunk × walls floats
+_RAY_CHUNK = 2048  # rays per vectorised block: keeps the (rays × walls) temporaries in cache
 
 
 class WorldFileError(ValueError):
@@ -427,14 +427,21 @@ class World:
         index = np.full(angles.shape, -1, dtype=np.int64)
         if len(self.walls) == 0:
             return ranges, index
+        ax, ay, ex, ey = self._a[:, 0], self._a[:, 1], self._e[:, 0], self._e[:, 1]
+        a_cross_e = ax * ey - ay * ex  # (W,)
+        outer = np.multiply.outer
         for start in range(0, len(angles), _RAY_CHUNK):
             sl = slice(start, start + _RAY_CHUNK)
-            d = np.stack([np.cos(angles[sl]), np.sin(angles[sl])], axis=1)  # (n, 2)
-            ao = self._a[None, :, :] - origins[sl, None, :]  # (n, W, 2)
-            den = d[:, None, 0] * self._e[None, :, 1] - d[:, None, 1] * self._e[None, :, 0]  # d × e
+            dx, dy = np.cos(angles[sl]), np.sin(angles[sl])  # (n,)
+            ox, oy = origins[sl, 0], origins[sl, 1]
+            # Ray o + t·d against segment a + u·e: den = d × e, t = (a − o) × e / den, u = (a − o) × d / den,
+            # expanded into outer products so no (n, W, 2) temporaries are built.
+            den = outer(dx, ey) - outer(dy, ex)  # (n, W)
+            t_num = a_cross_e[None, :] - (outer(ox, ey) - outer(oy, ex))
+            u_num = outer(dy, ax) - outer(dx, ay) - (ox * dy - oy * dx)[:, None]
             with np.errstate(all="ignore"):
-                t = (ao[..., 0] * self._e[None, :, 1] - ao[..., 1] * self._e[None, :, 0]) / den  # (a-o) × e / den
-                u = (ao[..., 0] * d[:, None, 1] - ao[..., 1] * d[:, None, 0]) / den  # (a-o) × d / den
+                t = t_num / den
+                u = u_num / den
             valid = (np.abs(den) > _EPS) & (t >= 0.0) & (u >= -_EPS) & (u <= 1.0 + _EPS)
             t = np.where(valid, t, np.inf)
             best = np.argmin(t, axis=1)
