@@ -370,9 +370,15 @@ class P3AT:
             self._last_tx = self.clock()
 
     # ------------------------------------------------------------------ internals: reading
-    def _read_some(self) -> None:
-        """One read (at most READ_TIMEOUT s); parsed payloads go to ``_pending``."""
-        data = self._port.read(4096)
+    def _read_some(self, prompt: bool = False) -> None:
+        """One read; parsed payloads go to ``_pending``.
+
+        The reader thread batches (one read returns after READ_TIMEOUT with everything that came: a few wake-ups
+        per second even at 9600 baud, where a SIP trickles in byte by byte); ``prompt`` returns as soon as any
+        byte is there, for the handshake's request/reply exchanges.
+        """
+        port = self._port
+        data = port.read(max(1, port.in_waiting)) if prompt else port.read(4096)
         if data:
             self._pending.extend(self.parser.feed(data))
 
@@ -381,7 +387,7 @@ class P3AT:
         while not self._pending:
             if self.clock() >= deadline or self._stop.is_set():
                 return None
-            self._read_some()
+            self._read_some(prompt=True)
         return self._pending.popleft()
 
     def _drain(self, quiet: float = 0.3, limit: float = 2.0) -> None:

@@ -1,0 +1,223 @@
+"""``p3at robot``: talk to a P3-AT (or an ARCOS simulator) and run the virtual one.
+
+- ``p3at robot info URL [--json]``: connect, print identity, CONFIG and the current state.
+- ``p3at robot drive URL --vel M_S --rvel RAD_S --seconds T``: drive and print odometry as it goes.
+- ``p3at robot serve [--tcp PORT | --pty] [--world FILE] [--pose X,Y,TH] [--name NAME]``: run a virtual P3-AT.
+
+URL is anything pyserial opens: ``/dev/ttyUSB0``, a pty path, ``socket://127.0.0.1:8101``.
+Exit status: 0 done; 1 the robot could not be reached or failed; 2 bad arguments or files.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+import time
+from typing import Any
+
+from drivers.errors import BadFileError, DriverError
+
+EXIT_DEVICE = 1
+EXIT_BAD_INPUT = 2
+
+
+def register(subparsers: Any) -> None:
+    robot = subparsers.add_parser("robot", help="P3-AT over ARCOS: info, drive, and a virtual robot to serve",
+                                  description="Talk to a Pioneer P3-AT (or an ARCOS simulator such as MobileSim "
+                                              "or AMRISim) through any pyserial URL, or serve a virtual one.")
+    sub = robot.add_subparsers(dest="robot_command", metavar="ACTION", required=True)
+
+    info = sub.add_parser("info", help="connect and print identity, CONFIG and current state",
+                          description="Connect (SYNC0/1/2, OPEN, CONFIG), print the robot's identity, its CONFIG "
+                                      "packet and its current state, then disconnect. Motors are not enabled.")
+    _url_arguments(info)
+    info.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    info.set_defaults(handler=_info)
+
+    drive = sub.add_parser("drive", help="drive at a velocity for some seconds, printing odometry",
+                           description="Enable the motors, drive at --vel m/s and --rvel rad/s for --seconds, "
+                                       "printing odometry (x, y in metres, heading in degrees) as it goes, "
+                                       "then stop, disable the motors and disconnect.")
+    _url_arguments(drive)
+    drive.add_argument("--vel", type=float, default=0.0, metavar="M_S", help="forward velocity, m/s (default 0)")
+    drive.add_argument("--rvel", type=float, default=0.0, metavar="RAD_S",
+                       help="rotational velocity, rad/s, counter-clockwise (default 0)")
+    drive.add_argument("--seconds", type=float, required=True, metavar="T", help="how long to drive")
+    drive.add_argument("--every", type=float, default=0.2, metavar="S", help="print interval (default 0.2 s)")
+    drive.add_argument("--json", action="store_true", help="print one JSON object per line")
+    drive.set_defaults(handler=_drive)
+
+    serve = sub.add_parser("serve", help="run a virtual P3-AT in the simulated building",
+                           description="Run a virtual P3-AT (the robot side of ARCOS) in the simulated building "
+                                       "and print where it listens; runs until Ctrl-C. Any ARCOS client (this "
+                                       "driver, ARIA) can connect to it.")
+    where = serve.add_mutually_exclusive_group()
+    where.add_argument("--tcp", type=int, metavar="PORT", help="listen on 127.0.0.1:PORT (default 8101; 0 = any)")
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (prints its path)")
+    serve.add_argument("--world", metavar="FILE", help="world file (default: the packaged building)")
+    serve.add_argument("--pose", metavar="X,Y,TH", help="start pose in metres and radians "
+                                                       "(default: the world's start pose for NAME)")
+    serve.add_argument("--name", default="robot1", help="robot name, also the SYNC2 name (default robot1)")
+    serve.add_argument("--subtype", default="p3at-sh", help="p3at-sh (ARCOS, default) or p3at (old P2OS units)")
+    serve.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
+    serve.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    serve.add_argument("--duration", type=float, metavar="S", help="exit after S seconds instead of at Ctrl-C")
+    serve.set_defaults(handler=_serve)
+
+
+def _url_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", metavar="URL", help="serial device, pty path or socket://HOST:PORT")
+    parser.add_argument("--params", metavar="FILE", help="robot parameter file (default: chosen by the subtype)")
+    parser.add_argument("--baud", type=int, default=9600, help="serial baud rate (default 9600)")
+
+
+def _fail(action: str, message: object, status: int) -> int:
+    print(f"p3at robot {action}: {message}", file=sys.stderr)
+    return status
+
+
+def _open(args: argparse.Namespace):
+    from drivers.arcos.robot import P3AT
+
+    return P3AT(args.url, params=args.params, baudrate=args.baud, reconnect=False).connect()
+
+
+# ---------------------------------------------------------------------------------------------------- info
+def _state_dict(state: Any) -> dict[str, Any]:
+    return {
+        "stamp": state.stamp, "x": state.x, "y": state.y, "theta": state.theta, "v": state.v, "w": state.w,
+        "battery_volts": state.battery_volts, "motors_enabled": state.motors_enabled,
+        "stop_pressed": state.stop_pressed, "left_stall": state.left_stall, "right_stall": state.right_stall,
+        "front_bumpers": state.front_bumpers, "rear_bumpers": state.rear_bumpers,
+        "sonars": [{"index": s.index, "range_m": s.range_m, "pose": list(s.pose)} for s in state.sonars],
+    }
+
+
+def _info(args: argparse.Namespace) -> int:
+    from drivers.arcos.codec import config_to_dict
+
+    try:
+        with _open(args) as robot:
+            # Give the sonars one firing round so every range is filled in (each SIP carries only new ones).
+            try:
+                state = robot.wait_for_state(1.5, lambda s: all(r is not None for r in s.sonar_ranges()))
+            except DriverError:
+                state = robot.state
+            identity, config, params = robot.identity, robot.config, robot.params
+            stats = robot.stats
+    except BadFileError as e:
+        return _fail("info", e, EXIT_BAD_INPUT)
+    except DriverError as e:
+        return _fail("info", e, EXIT_DEVICE)
+    config_fields = config_to_dict(config) if config is not None else None
+    if args.json:
+        print(json.dumps({
+            "url": args.url,
+            "identity": {"name": identity.name, "type": identity.type, "subtype": identity.subtype},
+            "params": params.source, "config": config_fields, "state": _state_dict(state),
+            "parser": {"packets": stats.packets, "dropped_bytes": stats.dropped_bytes,
+                       "bad_checksums": stats.bad_checksums},
+        }, indent=2))
+        return 0
+    print(f"robot     {identity.name}  ({identity.type} {identity.subtype}) at {args.url}")
+    print(f"params    {params.source}")
+    if config_fields is None:
+        print("config    (the robot sent no CONFIG packet)")
+    else:
+        print("config    " + "  ".join(f"{k}={v}" for k, v in config_fields.items()))
+    print(f"pose      x={state.x:.3f} m  y={state.y:.3f} m  theta={math.degrees(state.theta):.1f} deg  "
+          f"v={state.v:.3f} m/s  w={state.w:.3f} rad/s")
+    print(f"battery   {state.battery_volts:.1f} V   motors {'on' if state.motors_enabled else 'off'}"
+          f"   stall L/R {int(state.left_stall)}/{int(state.right_stall)}"
+          f"   bumpers front {state.front_bumpers:#04x} rear {state.rear_bumpers:#04x}"
+          f"   stop button {'pressed' if state.stop_pressed else 'released'}")
+    ranges = " ".join("-" if r is None else f"{r:.2f}" for r in state.sonar_ranges())
+    print(f"sonar m   {ranges}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------- drive
+def _drive(args: argparse.Namespace) -> int:
+    if not (args.seconds >= 0 and math.isfinite(args.seconds)):
+        return _fail("drive", f"--seconds must be >= 0, got {args.seconds}", EXIT_BAD_INPUT)
+    if not (args.every > 0):
+        return _fail("drive", f"--every must be > 0, got {args.every}", EXIT_BAD_INPUT)
+
+    def show(t: float, state: Any) -> None:
+        if args.json:
+            print(json.dumps({"t": round(t, 3), "x": state.x, "y": state.y, "theta": state.theta, "v": state.v,
+                              "w": state.w, "stalled": state.stalled, "bumped": state.bumped}), flush=True)
+        else:
+            flags = (" STALL" if state.stalled else "") + (" BUMP" if state.bumped else "")
+            print(f"t={t:6.2f} s  x={state.x:8.3f} m  y={state.y:8.3f} m  theta={math.degrees(state.theta):7.1f} "
+                  f"deg  v={state.v:6.3f} m/s  w={state.w:6.3f} rad/s{flags}", flush=True)
+
+    try:
+        with _open(args) as robot:
+            try:
+                robot.motors_on()
+                robot.set_velocity_limits(max_v=max(abs(args.vel), 0.1), max_w=max(abs(args.rvel), 0.1))
+                robot.set_velocity(args.vel, args.rvel)
+                start = time.monotonic()
+                while (elapsed := time.monotonic() - start) < args.seconds:
+                    time.sleep(min(args.every, args.seconds - elapsed))
+                    show(time.monotonic() - start, robot.state)
+            finally:
+                if robot.connected:
+                    robot.stop()
+            state = robot.wait_for_state(2.0, lambda s: s.v == 0.0 and s.w == 0.0)
+            show(time.monotonic() - start, state)
+    except BadFileError as e:
+        return _fail("drive", e, EXIT_BAD_INPUT)
+    except DriverError as e:
+        return _fail("drive", e, EXIT_DEVICE)
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------- serve
+def _parse_pose(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise ValueError(f"--pose wants X,Y,TH (three numbers), got {text!r}")
+    values = tuple(float(p) for p in parts)
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"--pose values must be finite, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def _serve(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from mocks.p3at import serve_pty, serve_tcp
+    from mocks.world import World, WorldFileError
+
+    try:
+        pose = np.array(_parse_pose(args.pose)) if args.pose else None
+        world = World.load(args.world)
+    except (ValueError, WorldFileError, OSError) as e:
+        return _fail("serve", e, EXIT_BAD_INPUT)
+    options = {"subtype": args.subtype, "seed": args.seed, "time_scale": args.time_scale}
+    try:
+        if args.pty:
+            server = serve_pty(world, args.name, pose, **options)
+        else:
+            server = serve_tcp(world, args.name, pose, port=8101 if args.tcp is None else args.tcp, **options)
+    except (ValueError, DriverError) as e:
+        return _fail("serve", e, EXIT_BAD_INPUT)
+    except OSError as e:
+        return _fail("serve", f"cannot listen: {e}", EXIT_DEVICE)
+    with server:
+        x, y, th = world.pose(args.name)
+        print(f"virtual P3-AT {args.name!r} ({args.subtype}) at x={x:.2f} y={y:.2f} theta={th:.2f} in "
+              f"{world.name!r}; listening on {server.url}", flush=True)
+        print("connect with: p3at robot info " + server.url + "   (Ctrl-C to stop)", flush=True)
+        done = threading.Event()
+        try:
+            done.wait(args.duration)  # None: until Ctrl-C
+        except KeyboardInterrupt:
+            pass
+        if server.error is not None:
+            return _fail("serve", f"server stopped: {server.error}", EXIT_DEVICE)
+    return 0
