@@ -163,7 +163,7 @@ class FastSLAM:
         self._ekf_update(matched, poses, z, q, s_inv)
         dropped = self._count_miss(missed)
 
-        self.store.refresh_bbox(np.concatenate([matched.g, missed.g]) // self.store.block_size)
+        self.store.include_in_bbox(matched.g)
 
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids = self._add_landmarks(had_candidate, poses, z, q, desc)
@@ -285,12 +285,14 @@ class FastSLAM:
         """Indices of winning pairs (one landmark per observation and vice versa, nearest first) and a
         (M·N,) bool over (particle, observation) telling which had any gated candidate."""
         idx = np.flatnonzero(gated)
+        # one sort each: integer key + d² scaled into [0, 1) as the fraction (exact for keys < 2³⁰)
+        tie = np.clip(d2 / gate_limit(d2), 0.0, 0.999)
         key_obs = pairs.m[idx] * max(n_obs, 1) + pairs.j[idx]
-        order = np.lexsort((d2[idx], key_obs))
+        order = np.argsort(key_obs + tie[idx])
         idx, key_obs = idx[order], key_obs[order]
         best = idx[np.r_[True, key_obs[1:] != key_obs[:-1]]] if len(idx) else idx
         key_lm = pairs.m[best] * (int(pairs.g.max(initial=0)) + 1) + pairs.g[best]
-        order = np.lexsort((d2[best], key_lm))
+        order = np.argsort(key_lm + tie[best])
         best, key_lm = best[order], key_lm[order]
         win = best[np.r_[True, key_lm[1:] != key_lm[:-1]]] if len(best) else best
         return np.sort(win), np.unique(key_obs)
@@ -407,7 +409,7 @@ class FastSLAM:
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
-        store.refresh_bbox(g // store.block_size)
+        store.include_in_bbox(g)
         self._last_new_count = len(m)
         return new_ids
 
@@ -419,6 +421,35 @@ class FastSLAM:
             self._descriptors = grown
         self._descriptors[self._n_ids:need] = desc
         self._n_ids = need
+
+    # == prior map ===========================================================================================
+    def load_prior_map(self, landmark_map: LandmarkMap, cell_size: float = 4.0) -> np.ndarray:
+        """Give every particle the same starting map (a previous session's, or a known one), stored once.
+
+        The landmarks (in this filter's start frame) are laid out in blocks cell by cell of a ``cell_size``
+        grid, so each block is spatially compact and association touches only the blocks in view. Must be
+        called before the first update. Returns the ids (N,) the filter gave the map's landmarks, in order.
+        """
+        if self._n_ids or int(self.store.n_blocks.max(initial=0)):
+            raise ValueError("load_prior_map must be called before the filter holds landmarks")
+        if landmark_map.descriptor_size != self.config.descriptor_size and len(landmark_map):
+            raise ValueError(f"the map's descriptors have {landmark_map.descriptor_size} elements; the filter "
+                             f"was configured for descriptor_size={self.config.descriptor_size}")
+        n = len(landmark_map)
+        cells = np.floor(landmark_map.positions[:, :2] / cell_size).astype(np.int64)
+        order = np.lexsort((cells[:, 1], cells[:, 0]))
+        ids = np.arange(n, dtype=np.int64)
+        self._append_descriptors(landmark_map.descriptors.astype(np.float32))
+        store = self.store
+        g = store.append_slots(np.zeros(n, np.int64))
+        store.flat_mean[g] = landmark_map.positions[order]
+        store.flat_cov[g] = landmark_map.covariances[order]
+        store.flat_lid[g] = ids[order]
+        store.flat_count[g] = landmark_map.counts[order]
+        store.flat_misses[g] = 0
+        store.refresh_bbox(g // store.block_size)
+        store.resample(np.zeros(len(self.poses), np.intp))   # every particle shares particle 0's blocks
+        return ids
 
     # == outputs =============================================================================================
     @property
@@ -489,6 +520,12 @@ class FastSLAM:
         meta = {"fastslam": self.config.to_dict()}
         meta.update(metadata or {})
         return self.particle_map(self._best, min_count, robot, frame, meta)
+
+
+def gate_limit(d2: np.ndarray) -> float:
+    """A bound above every finite d² (for scaling d² into a sort key's fraction)."""
+    finite = d2[np.isfinite(d2)]
+    return float(finite.max()) * 1.001 + 1e-12 if len(finite) else 1.0
 
 
 def _pose_jacobian(rot: np.ndarray, z_hat: np.ndarray) -> np.ndarray:

@@ -159,6 +159,21 @@ class LandmarkStore:
         near = held & (dx * dx + dy * dy <= radius * radius)
         return np.nonzero(near)
 
+    def include_in_bbox(self, slots: np.ndarray) -> None:
+        """Grow the bounding boxes of the blocks of flat ``slots`` (L,) to contain those landmarks' means.
+
+        Cheaper than :meth:`refresh_bbox` after small EKF moves; boxes never shrink here, which only makes
+        the preselection slightly conservative (a dropped landmark's room stays inside its block's box).
+        """
+        if len(slots) == 0:
+            return
+        blocks = slots // self.block_size
+        xy = self.flat_mean[slots, :2]
+        np.minimum.at(self.bbox[:, 0], blocks, xy[:, 0])
+        np.minimum.at(self.bbox[:, 1], blocks, xy[:, 1])
+        np.maximum.at(self.bbox[:, 2], blocks, xy[:, 0])
+        np.maximum.at(self.bbox[:, 3], blocks, xy[:, 1])
+
     def refresh_bbox(self, blocks: np.ndarray) -> None:
         """Recompute the bounding boxes of physical ``blocks`` after their landmarks moved or died."""
         blocks = np.unique(blocks)
