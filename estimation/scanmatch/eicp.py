@@ -161,7 +161,7 @@ def match_eicp_mesh(reference: Scan2D, current: Scan2D, initial: np.ndarray, con
             return float(np.sum((apply_pose(fitted, points) - target) ** 2))
 
         found = minimize_scalar(residual_of_shift, bounds=(-bound, bound), method="bounded",
-                                options={"xatol": 0.1 * config.tolerance_translation + 1e-9})
+                                options={"xatol": config.tolerance_translation})
         shift = found.x if found.fun < residual_of_shift(0.0) else 0.0
         return procrustes(points, targets(shift))
 

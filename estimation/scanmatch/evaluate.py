@@ -41,6 +41,13 @@ def perturbations(count: int, translation: float, rotation: float, rng: np.rando
     return np.column_stack([translation * np.cos(direction), translation * np.sin(direction), sign * rotation])
 
 
+def perturbed_guesses(poses: np.ndarray, pairs: Sequence[tuple[int, int]], translation: float, rotation: float,
+                      rng: np.random.Generator) -> np.ndarray:
+    """(P, 3) initial guesses: each pair's reference relative pose composed with a fixed-size perturbation."""
+    first, second = np.array(pairs, dtype=int).T
+    return compose(between(poses[first], poses[second]), perturbations(len(pairs), translation, rotation, rng))
+
+
 @dataclass(frozen=True)
 class PairOutcome:
     """One match of scan j against scan i, with its errors against the reference relative pose."""
