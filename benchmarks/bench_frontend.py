@@ -25,7 +25,8 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimation.frontend import FrontEndConfig, StereoGeometry, run_frontend  # noqa: E402
+from estimation.frontend import FrontEnd, FrontEndConfig, StereoGeometry, run_frontend  # noqa: E402
+from estimation.frontend.buffers import ScratchBuffers  # noqa: E402
 from estimation.frontend.descriptors import describe  # noqa: E402
 from estimation.frontend.harris import detect_corners  # noqa: E402
 from estimation.frontend.pipeline import detection_margin  # noqa: E402
@@ -78,10 +79,13 @@ def best_ms(fn, repeat: int) -> tuple[float, float]:
 def stages(left: np.ndarray, right: np.ndarray, config: FrontEndConfig, repeat: int) -> dict[str, tuple[float, float]]:
     """Time of each step of ``run_frontend`` (the same calls, split up)."""
     harris = dataclasses.replace(config.harris, margin=detection_margin(config))
+    buffers = ScratchBuffers()
     out: dict[str, tuple[float, float]] = {}
-    out["detect (both)"] = best_ms(lambda: (detect_corners(left, harris), detect_corners(right, harris)), repeat)
+    out["detect (both)"] = best_ms(lambda: (detect_corners(left, harris, buffers),
+                                            detect_corners(right, harris, buffers)), repeat)
     lc, rc = detect_corners(left, harris)[0], detect_corners(right, harris)[0]
-    out["describe U-SURF (both)"] = best_ms(lambda: (describe(left, lc), describe(right, rc)), repeat)
+    out["describe U-SURF (both)"] = best_ms(lambda: (describe(left, lc, buffers=buffers),
+                                                     describe(right, rc, buffers=buffers)), repeat)
     (ld, lok), (rd, rok) = describe(left, lc), describe(right, rc)
     lc, rc = lc[lok], rc[rok]
     out["match rows"] = best_ms(lambda: match_rows(lc, ld, rc, rd, config.matching), repeat)
@@ -103,9 +107,9 @@ def stages(left: np.ndarray, right: np.ndarray, config: FrontEndConfig, repeat: 
 def keep_freed_memory() -> bool:
     """Ask glibc to keep freed blocks instead of returning them to the kernel after every frame.
 
-    Each frame allocates a dozen 1.2 MB image-sized arrays; with glibc's defaults they are mmapped or trimmed
-    and every page faults in again on the next frame (~2,700 page faults, ~5 ms per image on this machine).
-    A process that runs the front end (the runtime) should do the same once at start-up.
+    The front end reuses its image-sized scratch arrays, but OpenCV's and numpy's own temporaries (and SIFT's)
+    are still allocated per call; with glibc's defaults freed blocks above ~128 kB go back to the kernel and
+    page-fault in again on the next frame. ``--default-malloc`` measures without this.
     """
     try:
         libc = ctypes.CDLL("libc.so.6")
@@ -140,8 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         print("| step | wall ms | CPU ms |\n|---|---|---|")
         for step, (wall, cpu) in stages(left, right, config, args.repeat).items():
             print(f"| {step} | {wall:.2f} | {cpu:.2f} |")
-        wall, cpu = best_ms(lambda left=left, right=right: run_frontend(left, right, config), args.repeat)
-        print(f"| **whole front end (run_frontend)** | **{wall:.2f}** | **{cpu:.2f}** |")
+        front_end = FrontEnd(config)
+        wall, cpu = best_ms(lambda left=left, right=right, fe=front_end: fe.process(left, right, 0.0), args.repeat)
+        print(f"| **whole front end (FrontEnd.process)** | **{wall:.2f}** | **{cpu:.2f}** |")
         n_sift = len(sift.detect(left, None))
         s_wall, s_cpu = best_ms(lambda left=left: sift.detectAndCompute(left, None), max(5, args.repeat // 5))
         print(f"| OpenCV SIFT detect+describe, left image only ({n_sift} keypoints) | {s_wall:.2f} | {s_cpu:.2f} |")

@@ -11,6 +11,7 @@ from enum import StrEnum
 import cv2
 import numpy as np
 
+from estimation.frontend.buffers import ScratchBuffers
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.usurf import usurf_descriptors
 
@@ -35,7 +36,7 @@ def descriptor_kind(kind: DescriptorKind | str) -> DescriptorKind:
 
 
 def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | str = DescriptorKind.USURF,
-             scale: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+             scale: float = 2.0, buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Descriptors of keypoints (N, 2) (u, v) in a grey uint8 image (H, W).
 
     scale: the U-SURF s; SIFT gets a descriptor window of the same 20s side (OpenCV's SIFT window is 6 × the
@@ -45,7 +46,7 @@ def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | st
     kind = descriptor_kind(kind)
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
     if kind is DescriptorKind.USURF:
-        return usurf_descriptors(image, keypoints, scale)
+        return usurf_descriptors(image, keypoints, scale, buffers)
     if len(keypoints) == 0:
         size = 128 if kind is DescriptorKind.SIFT else 256
         return np.zeros((0, size), np.float32), np.zeros(0, bool)

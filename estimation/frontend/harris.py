@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from estimation.frontend.buffers import ScratchBuffers, scratch
 from estimation.frontend.errors import FrontEndError
 
 
@@ -44,35 +45,53 @@ def as_gray_float32(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32, copy=False)
 
 
-def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.0) -> np.ndarray:
+def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.0,
+                    buffers: ScratchBuffers | None = None) -> np.ndarray:
     """Harris response R = det(M) - k·trace(M)² of an image (H, W) -> (H, W) float32.
 
-    M is the Gaussian-windowed structure tensor of 3×3 Sobel gradients.
+    M is the Gaussian-windowed structure tensor of 3×3 Sobel gradients. With ``buffers`` the result and every
+    intermediate live in reused arrays (the result is overwritten by the next call with the same buffers).
     """
     img = as_gray_float32(image)
-    ix = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
-    iy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
+    shape = img.shape
+
+    def buf(name: str) -> np.ndarray:
+        return scratch(buffers, "harris_" + name, shape, np.float32)
+
+    ix = cv2.Sobel(img, cv2.CV_32F, 1, 0, dst=buf("ix"), ksize=3)
+    iy = cv2.Sobel(img, cv2.CV_32F, 0, 1, dst=buf("iy"), ksize=3)
     side = 2 * int(np.ceil(2.0 * window_sigma)) + 1  # the Gaussian truncated at 2σ
     blur = dict(ksize=(side, side), sigmaX=window_sigma, sigmaY=window_sigma, borderType=cv2.BORDER_REFLECT_101)
-    sxx = cv2.GaussianBlur(ix * ix, **blur)
-    syy = cv2.GaussianBlur(iy * iy, **blur)
-    sxy = cv2.GaussianBlur(ix * iy, **blur)
-    trace = sxx + syy
-    return sxx * syy - sxy * sxy - np.float32(k) * trace * trace
+    product = buf("product")
+    sxx = cv2.GaussianBlur(np.multiply(ix, ix, out=product), dst=buf("sxx"), **blur)
+    syy = cv2.GaussianBlur(np.multiply(iy, iy, out=product), dst=buf("syy"), **blur)
+    sxy = cv2.GaussianBlur(np.multiply(ix, iy, out=product), dst=buf("sxy"), **blur)
+    # R = sxx·syy - sxy² - k·(sxx + syy)², in place
+    response = np.multiply(sxx, syy, out=buf("response"))
+    response -= np.multiply(sxy, sxy, out=product)
+    trace = np.add(sxx, syy, out=product)
+    trace *= trace
+    trace *= np.float32(k)
+    response -= trace
+    return response
 
 
-def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, margin: int) -> np.ndarray:
+def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, margin: int,
+                            buffers: ScratchBuffers | None = None) -> np.ndarray:
     """Integer (row, col) of local maxima above ``threshold`` at least ``margin`` px inside: (N, 2) int."""
     if size < 1 or size % 2 == 0:
         raise FrontEndError(f"nms_size must be odd and positive, got {size}")
-    dilated = cv2.dilate(response, np.ones((size, size), np.uint8))
-    peak = (response >= dilated) & (response > threshold)
     m = max(int(margin), 1)  # the sub-pixel fit needs one neighbour on each side
-    peak[:m] = False
-    peak[-m:] = False
-    peak[:, :m] = False
-    peak[:, -m:] = False
-    return np.argwhere(peak)
+    rows, cols = response.shape
+    if rows <= 2 * m or cols <= 2 * m:
+        return np.zeros((0, 2), np.int64)
+    dilated = cv2.dilate(response, np.ones((size, size), np.uint8), dst=scratch(buffers, "nms_dilated",
+                                                                                 response.shape, response.dtype))
+    inner = (slice(m, rows - m), slice(m, cols - m))
+    peak = np.greater_equal(response[inner], dilated[inner],
+                            out=scratch(buffers, "nms_peak", (rows - 2 * m, cols - 2 * m), bool))
+    peak &= response[inner] > threshold
+    return np.argwhere(peak) + m
 
 
 def bucket(rows: np.ndarray, cols: np.ndarray, scores: np.ndarray, shape: tuple[int, int],
@@ -111,16 +130,17 @@ def subpixel_offsets(response: np.ndarray, rows: np.ndarray, cols: np.ndarray) -
     return du, dv
 
 
-def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig()) -> tuple[np.ndarray, np.ndarray]:
+def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig(),
+                   buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Harris corners of an image (H, W).
 
     Returns (pixels (N, 2) float64 sub-pixel (u, v), responses (N,) float32), strongest first.
     """
-    response = harris_response(image, config.k, config.window_sigma)
+    response = harris_response(image, config.k, config.window_sigma, buffers)
     peak_max = float(response.max()) if response.size else 0.0
     if peak_max <= 0.0:
         return np.zeros((0, 2)), np.zeros(0, np.float32)
-    peaks = non_maximum_suppression(response, config.nms_size, config.quality * peak_max, config.margin)
+    peaks = non_maximum_suppression(response, config.nms_size, config.quality * peak_max, config.margin, buffers)
     rows, cols = peaks[:, 0], peaks[:, 1]
     scores = response[rows, cols]
     keep = bucket(rows, cols, scores, response.shape, config.grid, config.max_corners)

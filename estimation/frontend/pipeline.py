@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from estimation.frontend.buffers import ScratchBuffers
 from estimation.frontend.descriptors import DescriptorKind, describe, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
@@ -116,18 +117,22 @@ def detection_margin(config: FrontEndConfig) -> int:
     return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + max(1, round(config.scale)) + 1)
 
 
-def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = FrontEndConfig()) -> StereoMatches:
-    """The front end on a rectified pair of grey (H, W) images (uint8, or numbers rounded to 0..255)."""
+def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = FrontEndConfig(),
+                 buffers: ScratchBuffers | None = None) -> StereoMatches:
+    """The front end on a rectified pair of grey (H, W) images (uint8, or numbers rounded to 0..255).
+
+    buffers: scratch arrays reused from frame to frame (``FrontEnd`` keeps one); None allocates afresh.
+    """
     left, right = _grey(left, "left"), _grey(right, "right")
     if left.shape != right.shape:
         raise FrontEndError(f"left {left.shape} and right {right.shape} images differ in size")
     # 1. corners, kept where a descriptor window fits
     harris = dataclasses.replace(config.harris, margin=detection_margin(config))
-    left_corners, _ = detect_corners(left, harris)
-    right_corners, _ = detect_corners(right, harris)
+    left_corners, _ = detect_corners(left, harris, buffers)
+    right_corners, _ = detect_corners(right, harris, buffers)
     # 2. descriptors
-    left_desc, left_ok = describe(left, left_corners, config.descriptor, config.scale)
-    right_desc, right_ok = describe(right, right_corners, config.descriptor, config.scale)
+    left_desc, left_ok = describe(left, left_corners, config.descriptor, config.scale, buffers)
+    right_desc, right_ok = describe(right, right_corners, config.descriptor, config.scale, buffers)
     left_corners, right_corners = left_corners[left_ok], right_corners[right_ok]
     # 3. row-constrained matching with ratio test and left-right check
     li, ri, dist = match_rows(left_corners, left_desc, right_corners, right_desc, config.matching,
@@ -160,11 +165,12 @@ class FrontEnd:
         self.config = config
         self.rectification = rectification
         self.last_matches: StereoMatches | None = None
+        self._buffers = ScratchBuffers()  # image-sized scratch arrays reused from frame to frame
 
     def match(self, left: np.ndarray, right: np.ndarray) -> StereoMatches:
         if self.rectification is not None:
             left, right = rectify_pair(left, right, self.rectification)
-        self.last_matches = run_frontend(left, right, self.config)
+        self.last_matches = run_frontend(left, right, self.config, self._buffers)
         return self.last_matches
 
     def process(self, left: np.ndarray, right: np.ndarray, timestamp: float) -> StereoObservations:

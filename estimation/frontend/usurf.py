@@ -27,6 +27,7 @@ import functools
 import cv2
 import numpy as np
 
+from estimation.frontend.buffers import ScratchBuffers, scratch
 from estimation.frontend.errors import FrontEndError
 
 SAMPLES_PER_AXIS = 20  # 4 subregions × 5 samples
@@ -68,7 +69,7 @@ def pooling_matrix(scale: float) -> np.ndarray:
     return pooling
 
 
-def integral_image(image: np.ndarray) -> np.ndarray:
+def integral_image(image: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
     """Integral image (H + 1, W + 1): entry [r, c] is the sum of image[:r, :c].
 
     8-bit images sum exactly in int32 (up to 2^31 / 255 ≈ 8.4 Mpx); others in float64.
@@ -76,12 +77,15 @@ def integral_image(image: np.ndarray) -> np.ndarray:
     image = np.asarray(image)
     if image.ndim != 2:
         raise FrontEndError(f"expected a grey (H, W) image, got shape {image.shape}")
+    shape = (image.shape[0] + 1, image.shape[1] + 1)
     if image.dtype == np.uint8 and image.size < 2**31 // 255:
-        return cv2.integral(image, sdepth=cv2.CV_32S)
-    return cv2.integral(np.ascontiguousarray(image, dtype=np.float64), sdepth=cv2.CV_64F)
+        return cv2.integral(image, sum=scratch(buffers, "integral_i32", shape, np.int32), sdepth=cv2.CV_32S)
+    return cv2.integral(np.ascontiguousarray(image, dtype=np.float64),
+                        sum=scratch(buffers, "integral_f64", shape, np.float64), sdepth=cv2.CV_64F)
 
 
-def dense_haar_responses(integral: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+def dense_haar_responses(integral: np.ndarray, half: int,
+                         buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Haar responses (dx, dy) of side 2·half at every pixel corner where the wavelet fits.
 
     integral: (H + 1, W + 1) -> dx, dy: (H + 1 - 2·half, W + 1 - 2·half); element [i, j] is the wavelet
@@ -91,16 +95,25 @@ def dense_haar_responses(integral: np.ndarray, half: int) -> tuple[np.ndarray, n
     n_rows, n_cols = integral.shape[0] - h2, integral.shape[1] - h2
     if n_rows < 1 or n_cols < 1:
         raise FrontEndError(f"image too small for Haar wavelets of side {h2}")
+
+    def buf(name: str, shape: tuple[int, int]) -> np.ndarray:
+        return scratch(buffers, "haar_" + name, shape, integral.dtype)
+
     # strips: vertical[i, c] sums rows i .. i+2h-1 left of column c; horizontal[r, j] columns j .. j+2h-1 above row r
-    vertical = integral[h2:] - integral[:n_rows]
-    horizontal = integral[:, h2:] - integral[:, :n_cols]
+    vertical = np.subtract(integral[h2:], integral[:n_rows], out=buf("vertical", (n_rows, integral.shape[1])))
+    horizontal = np.subtract(integral[:, h2:], integral[:, :n_cols], out=buf("horizontal", (integral.shape[0], n_cols)))
     # right half - left half = V[c+2h] - 2 V[c+h] + V[c]; bottom - top likewise along rows
-    dx = vertical[:, h2:] - 2 * vertical[:, half:half + n_cols] + vertical[:, :n_cols]
-    dy = horizontal[h2:] - 2 * horizontal[half:half + n_rows] + horizontal[:n_rows]
+    dx = np.add(vertical[:, h2:], vertical[:, :n_cols], out=buf("dx", (n_rows, n_cols)))
+    dx -= vertical[:, half:half + n_cols]
+    dx -= vertical[:, half:half + n_cols]
+    dy = np.add(horizontal[h2:], horizontal[:n_rows], out=buf("dy", (n_rows, n_cols)))
+    dy -= horizontal[half:half + n_rows]
+    dy -= horizontal[half:half + n_rows]
     return dx, dy
 
 
-def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2.0,
+                      buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """U-SURF descriptors of keypoints at one fixed scale.
 
     image: (H, W) grey; keypoints: (N, 2) sub-pixel (u, v); scale: s in px.
@@ -110,12 +123,12 @@ def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2
         raise FrontEndError(f"U-SURF scale must be positive, got {scale}")
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
     half = haar_half_size(scale)
-    dx_img, dy_img = dense_haar_responses(integral_image(image), half)
-    return usurf_from_haar(dx_img, dy_img, keypoints, scale, half)
+    dx_img, dy_img = dense_haar_responses(integral_image(image, buffers), half, buffers)
+    return usurf_from_haar(dx_img, dy_img, keypoints, scale, half, buffers)
 
 
 def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarray, scale: float,
-                    half: int) -> tuple[np.ndarray, np.ndarray]:
+                    half: int, buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The descriptor core on precomputed dense Haar responses (see ``dense_haar_responses``)."""
     offsets = sample_offsets(scale)
     # integral index of the corner nearest each sample, minus half -> index into the dense response arrays
@@ -124,13 +137,22 @@ def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarra
     n_rows, n_cols = dx_img.shape
     inside = (cols[:, 0] >= 0) & (cols[:, -1] < n_cols) & (rows[:, 0] >= 0) & (rows[:, -1] < n_rows)
     cols, rows = cols[inside], rows[inside]
-    flat = (rows[:, :, None] * n_cols + cols[:, None, :]).reshape(len(cols), SAMPLES_PER_AXIS**2)  # [row, col]
+    m = len(cols)
+    samples = (m, SAMPLES_PER_AXIS**2)
+    flat = scratch(buffers, "usurf_flat", (m, SAMPLES_PER_AXIS, SAMPLES_PER_AXIS), np.intp)
+    np.add((rows * n_cols)[:, :, None], cols[:, None, :], out=flat)  # sample [row, col] -> flat response index
+    flat = flat.reshape(samples)
     pooling = pooling_matrix(float(scale))
-    dx = np.take(dx_img, flat).astype(np.float32)
-    dy = np.take(dy_img, flat).astype(np.float32)
-    # the weights are positive, so Σ w·|dx| = Σ |w·dx|
-    sums = np.stack([dx @ pooling, dy @ pooling, np.abs(dx) @ pooling, np.abs(dy) @ pooling], axis=-1)
-    sums = sums.reshape(len(flat), DESCRIPTOR_SIZE)
+    signed, absolute = [], []
+    for image, name in ((dx_img, "dx"), (dy_img, "dy")):
+        gathered = np.take(image, flat, out=scratch(buffers, "usurf_gathered", samples, image.dtype))
+        response = scratch(buffers, "usurf_" + name, samples, np.float32)
+        np.copyto(response, gathered, casting="unsafe")
+        signed.append(response @ pooling)
+        # the weights are positive, so Σ w·|dx| = Σ |w·dx|
+        absolute.append(np.abs(response, out=response) @ pooling)
+    sums = np.stack(signed + absolute, axis=-1)
+    sums = sums.reshape(m, DESCRIPTOR_SIZE)
     norms = np.linalg.norm(sums, axis=1)
     textured = norms > 0
     described = inside.copy()
