@@ -42,7 +42,7 @@ from estimation.geometry import between, inverse, pose_to_matrix, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError, NoOverlapError
-from .matching import distinctive_correspondences, nearest_correspondences
+from .matching import distinctive_correspondences, nearest_correspondences, query_subset
 from .pose_covariance import inverse_with_covariance
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
@@ -225,8 +225,9 @@ def pair_hypotheses(p1: np.ndarray, p2: np.ndarray, a: np.ndarray, b: np.ndarray
 
 def _transform_xy(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Map-2 points xy (K, 2) under poses (H, 3) -> (H, K, 2)."""
-    R = _rotations_2d(poses[:, 2])
-    return np.einsum("hij,kj->hki", R, xy) + poses[:, None, :2]
+    c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+    x, y = xy[None, :, 0], xy[None, :, 1]
+    return np.stack([c * x - s * y + poses[:, 0:1], s * x + c * y + poses[:, 1:2]], axis=-1)
 
 
 @dataclass
@@ -260,8 +261,11 @@ def _problem(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray, config: Al
 
 def _support_masks(problem: _Problem, poses: np.ndarray, config: AlignmentConfig) -> np.ndarray:
     """(H, K) bool: which correspondences support each hypothesis."""
-    r = problem.p1[None, :, :2] - _transform_xy(poses, problem.p2[:, :2])
-    r_xy_sq = np.einsum("hki,hki->hk", r, r)
+    c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+    x, y = problem.p2[None, :, 0], problem.p2[None, :, 1]
+    rx = problem.p1[None, :, 0] - (c * x - s * y + poses[:, 0:1])
+    ry = problem.p1[None, :, 1] - (s * x + c * y + poses[:, 1:2])
+    r_xy_sq = rx * rx + ry * ry
     dz_sq = (problem.p1[:, 2] - problem.p2[:, 2]) ** 2
     if config.covariance_gating:
         return (r_xy_sq < problem.gate_xy_sq) & (dz_sq < problem.gate_z_sq)[None, :]
@@ -339,7 +343,10 @@ def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, 
         q = xy2 @ R.T                                              # map-2 points rotated into map 1
         r = xy1 - (q + pose[:2])                                   # residuals (K, 2)
         S = P1[:, :2, :2] + R @ P2[:, :2, :2] @ R.T + floor ** 2 * np.eye(2)
-        W = np.linalg.inv(S)                                       # weights (K, 2, 2)
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        W = np.empty_like(S)                                       # weights S⁻¹ (K, 2, 2), closed form
+        W[:, 0, 0], W[:, 1, 1] = S[:, 1, 1] / det, S[:, 0, 0] / det
+        W[:, 0, 1], W[:, 1, 0] = -S[:, 0, 1] / det, -S[:, 1, 0] / det
         J = np.zeros((len(q), 2, 3))                               # ∂(R p2 + t)/∂(tx, ty, θ)
         J[:, 0, 0] = J[:, 1, 1] = 1.0
         J[:, 0, 2], J[:, 1, 2] = -q[:, 1], q[:, 0]
@@ -370,6 +377,40 @@ def _mahalanobis_supports(problem: _Problem, pose: np.ndarray, config: Alignment
     return (m_sq < CHI2_999[3]) & (np.einsum("ki,ki->k", r, r) < config.support_threshold ** 2)
 
 
+def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, config: AlignmentConfig,
+                    candidates: int = 4) -> np.ndarray:
+    """All supports of a known transform: pairs (K, 2) near in position *and* in descriptor, one-to-one.
+
+    Every map-1 landmark takes, among its ``candidates`` nearest transformed map-2 landmarks within th2
+    (a k-d tree on positions) that pass the Mahalanobis gate, the one nearest in descriptor (below th0);
+    a map-2 landmark claimed twice goes to the nearer descriptor.
+    """
+    R3 = np.eye(3)
+    R3[:2, :2] = _rotations_2d(pose[2])
+    x2 = map2.positions @ R3.T + np.array([pose[0], pose[1], 0.0])
+    k = min(candidates, len(map2))
+    if k == 0 or len(map1) == 0:
+        return np.zeros((0, 2), np.int64)
+    dist, j = cKDTree(x2).query(map1.positions, k=k, distance_upper_bound=config.support_threshold)
+    i, slot = np.nonzero(np.isfinite(dist.reshape(len(map1), k)))
+    j = j.reshape(len(map1), k)[i, slot]
+    r = map1.positions[i] - x2[j]
+    S = map1.covariances[i] + R3 @ map2.covariances[j] @ R3.T + config.position_floor ** 2 * np.eye(3)
+    gate = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0]) < CHI2_999[3]
+    d_desc = np.linalg.norm(map1.descriptors[i].astype(np.float32) - map2.descriptors[j], axis=1)
+    keep = gate & (d_desc < config.descriptor_threshold)
+    i, j, d_desc = i[keep], j[keep], d_desc[keep]
+    order = np.argsort(d_desc, kind="stable")
+    i, j = i[order], j[order]
+    _, first_i = np.unique(i, return_index=True)           # each map-1 landmark: its best candidate
+    i, j = i[first_i], j[first_i]
+    d_best = d_desc[order][first_i]
+    order = np.argsort(d_best, kind="stable")
+    _, first_j = np.unique(j[order], return_index=True)    # each map-2 landmark: its best claimant
+    pick = np.sort(order[first_j])
+    return np.column_stack([i[pick], j[pick]]).astype(np.int64)
+
+
 def _chance_rate(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, radius_xy: float, radius_z: float,
                  rng: np.random.Generator) -> float:
     """Fraction of all (map-1, map-2) landmark pairs that fall inside the support gate at ``pose``.
@@ -378,14 +419,14 @@ def _chance_rate(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, radius_
     maps themselves (landmarks crowd along walls, so a uniform-area model would be optimistic); the
     gate's cylinder is replaced by its circumscribed ball in z-scaled space (conservative, ≤ 1.9×).
     """
-    sample = rng.choice(len(map2), min(len(map2), 2000), replace=False)
+    sample = rng.choice(len(map2), min(len(map2), 500), replace=False)
     scale = np.array([1.0, 1.0, radius_xy / max(radius_z, 1e-9)])
     R3 = np.eye(3)
     R3[:2, :2] = _rotations_2d(pose[2])
     q = map2.positions[sample] @ R3.T + np.array([pose[0], pose[1], 0.0])
     tree = cKDTree(map1.positions * scale)
-    counts = tree.query_ball_point(q * scale, r=np.sqrt(2.0) * radius_xy, return_length=True)
-    return float(np.sum(counts)) / (len(sample) * len(map1))
+    inside = np.sum(tree.query_ball_point(q * scale, r=np.sqrt(2.0) * radius_xy, return_length=True))
+    return float(inside) / (len(sample) * len(map1))
 
 
 def _spread(xy: np.ndarray) -> float:
@@ -423,11 +464,15 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
         return Alignment(False, config.name, None, None, supports, stats, reason)
 
     # step 1: putative correspondences from descriptors
+    # (very large maps: a random subset of map 1 searches; see matching.query_subset)
+    rows = query_subset(len(map1), len(map2), rng)
+    desc1 = map1.descriptors if rows is None else map1.descriptors[rows]
     if config.ratio is None:
-        pairs, _ = nearest_correspondences(map1.descriptors, map2.descriptors, config.descriptor_threshold, rng)
+        pairs, _ = nearest_correspondences(desc1, map2.descriptors, config.descriptor_threshold)
     else:
-        pairs, _ = distinctive_correspondences(map1.descriptors, map2.descriptors, config.descriptor_threshold,
-                                               config.ratio, rng)
+        pairs, _ = distinctive_correspondences(desc1, map2.descriptors, config.descriptor_threshold, config.ratio)
+    if rows is not None:
+        pairs[:, 0] = rows[pairs[:, 0]]
     k = len(pairs)
     if k < max(2, config.min_supports):
         return not_found(f"only {k} descriptor correspondences (at least {max(2, config.min_supports)} needed)",
@@ -461,15 +506,28 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     trials = k - 2                                               # the sampled pair supports itself
     log10_p = float((binom.logsf(s - 3, trials, p_chance) + np.log(max(iterations, 1))) / np.log(10)) \
         if s >= 2 else 0.0
+    if rows is not None and config.refine and s >= 2:
+        # the subset fixed the transform; now every landmark's support, by guided matching
+        guided = guided_supports(map1, map2, pose, config)
+        if len(guided) >= s:
+            g_problem = _problem(map1, map2, guided, config)
+            pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
+                                              config.position_floor)
+            supports, problem, mask = guided, g_problem, np.ones(len(guided), bool)
+            residual = problem.p1 - np.column_stack([_transform_xy(pose[None], problem.p2[:, :2])[0],
+                                                     problem.p2[:, 2]])
+            rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
+    s_all = len(supports)
     spread = _spread(problem.p1[mask, :2])
-    stats = AlignmentStatistics(k, iterations, s, s / k, rms, 2.0 + trials * p_chance, min(log10_p, 0.0), spread)
+    stats = AlignmentStatistics(k, iterations, s_all, s / k, rms, 2.0 + trials * p_chance, min(log10_p, 0.0),
+                                spread)
 
-    if s < config.min_supports:
-        return not_found(f"only {s} supports (at least {config.min_supports} needed)", stats, supports)
+    if s_all < config.min_supports:
+        return not_found(f"only {s_all} supports (at least {config.min_supports} needed)", stats, supports)
     if config.significance is not None and log10_p > np.log10(config.significance):
         return not_found(f"{s} supports are explainable by chance (probability 10^{log10_p:.1f}, expected "
                          f"{stats.expected_chance_supports:.1f} chance supports)", stats, supports)
     if spread < config.min_spread:
-        return not_found(f"the {s} supports are bunched within {spread:.2f} m (at least {config.min_spread} m "
+        return not_found(f"the {s_all} supports are bunched within {spread:.2f} m (at least {config.min_spread} m "
                          f"spread needed to fix the angle)", stats, supports)
     return Alignment(True, config.name, pose, covariance, supports, stats, "")

@@ -196,3 +196,16 @@ def test_given_alignment_round_trips():
     back = a.inverse().inverse()
     assert back.pose == pytest.approx(a.pose) and back.covariance == pytest.approx(a.covariance)
     assert a.to_dict()["pose"] == pytest.approx([1.0, 2.0, 0.5])
+
+
+def test_large_maps_search_a_subset_then_gather_every_support(sim, monkeypatch):
+    import fusion.matching
+    monkeypatch.setattr(fusion.matching, "SEARCH_BUDGET_PAIRS", 40_000)   # 300 x 320 maps count as large
+    map1, map2, common = sim.random_pair(150, 150, 170, (7.0, -4.0, -2.5), seed=11, sigma=0.02)
+    a = align(map1, map2, "robust", np.random.default_rng(0))
+    assert a.found, a.reason
+    assert a.statistics.correspondences < len(common)           # only the subset searched descriptors...
+    assert len(a.supports) >= 0.95 * len(common)               # ...guided matching found the rest
+    assert {tuple(p) for p in a.supports.tolist()} <= {tuple(p) for p in common.tolist()}
+    err = alignment_error(a.pose, (7.0, -4.0, -2.5))
+    assert err[0] < 0.02 and err[1] < 0.02 and err[2] < 0.005
