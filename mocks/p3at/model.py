@@ -407,9 +407,9 @@ class VirtualP3AT:
     def _desired_velocities(self) -> tuple[float, float]:
         if self._trans_mode == "move":
             remaining = self._trans_target
-            if abs(remaining) < _MOVE_TOLERANCE_M:
+            if abs(remaining) < _MOVE_TOLERANCE_M:  # arrived: the position loop holds the wheels
                 self._trans_mode, self._trans_target = "vel", 0.0
-                v = 0.0
+                v = self.v = 0.0
             else:
                 reachable = math.sqrt(2.0 * self.trans_decel * abs(remaining))  # still able to stop in time
                 v = math.copysign(min(self.trans_vel_max, reachable), remaining)
@@ -440,6 +440,9 @@ class VirtualP3AT:
             v_want, w_want = 0.0, 0.0
             self.v = self.w = 0.0
         self.v = _toward(self.v, v_want, self.trans_accel * dt, self.trans_decel * dt)
+        if self._trans_mode == "move" and self.motors_enabled:
+            # The last millimetres: the position loop brakes onto the target instead of overshooting it.
+            self.v = max(-abs(self._trans_target) / dt, min(abs(self._trans_target) / dt, self.v))
         self.w = _toward(self.w, w_want, self.rot_accel * dt, self.rot_decel * dt)
 
         # Ground truth: the body moves unless the new position would push further into a wall or robot.

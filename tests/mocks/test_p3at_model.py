@@ -531,3 +531,21 @@ def test_sonar_sees_another_robot() -> None:
     assert readings[3] == pytest.approx(1507, abs=3)
     assert readings[12] == 5000  # nothing behind
     other.close()
+
+
+def test_p3at_subtype_reports_position_units() -> None:
+    client = Client(robot(subtype="p3at"))  # old P2OS units: DistConvFactor 0.465 mm per unit
+    client.connect()
+    client.cmd(Command.MOVE, 1000)  # 1000 units = 465 mm
+    client.run(6.0)
+    assert client.model.true_pose()[0] == pytest.approx(0.465, abs=0.002)
+    assert client.last_sip().xpos == pytest.approx(1000, abs=3)
+
+
+def test_encoder_and_io_packets_follow_their_sip() -> None:
+    client = Client(robot())
+    client.connect()
+    client.cmd(Command.ENCODER, 2)
+    client.cmd(Command.IOREQUEST, 2)
+    ids = [p[0] for p in client.run(0.5)]
+    assert ids and ids == [0x32, 0x90, 0xF0] * (len(ids) // 3)

@@ -271,3 +271,18 @@ def test_robot_registry_is_thread_safe(box: World) -> None:
     for t in threads:
         t.join()
     assert box.robot_names() == []
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-2, 37), min_size=4, max_size=4))
+def test_line_of_sight_is_symmetric_and_agrees_with_raycast(coords) -> None:
+    p0, p1 = np.array(coords[:2]), np.array(coords[2:])
+    forward = _WORLD.line_of_sight(p0, p1[None])[0]
+    assert forward == _WORLD.line_of_sight(p1, p0[None])[0]
+    length = np.linalg.norm(p1 - p0)
+    if length > 1e-3:
+        ranges, _ = _WORLD.raycast(p0, np.array([np.arctan2(*(p1 - p0)[::-1])]), length)
+        if ranges[0] < length - 1e-3 and ranges[0] > 1e-3:  # a wall clearly between: blocked
+            assert not forward
+        if ranges[0] >= length:  # nothing up to p1: visible
+            assert forward
