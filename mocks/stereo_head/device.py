@@ -40,13 +40,34 @@ def gain_factor(gain: int) -> float:
     return float(10.0 ** (gain * 0.5 / 20.0))
 
 
-def expose(radiance: np.ndarray, settings: SensorSettings, rng: np.random.Generator) -> np.ndarray:
+class NoisePool:
+    """Standard normal noise fields, cheaply: each field is a random window of one pool drawn once per size.
+
+    Drawing 2 x 307k normals per 640x480 pair costs more than rendering it; windows at random offsets of a
+    pool twice the field's size look independent frame to frame and stay deterministic given the Generator.
+    """
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+        self._pools: dict[int, np.ndarray] = {}
+
+    def field(self, shape: tuple[int, ...]) -> np.ndarray:
+        n = int(np.prod(shape))
+        pool = self._pools.get(n)
+        if pool is None:
+            pool = self._pools[n] = self.rng.standard_normal(2 * n + 4099, dtype=np.float32)
+        start = int(self.rng.integers(0, len(pool) - n))
+        return pool[start:start + n].reshape(shape)
+
+
+def expose(radiance: np.ndarray, settings: SensorSettings, noise: np.ndarray) -> np.ndarray:
     """Radiance (H, W) float32 0..1 -> digital numbers (H, W) uint8: scale by exposure and gain, add shot and
-    read noise (amplified by the gain), black level from brightness, optional companding/HDR knee."""
+    read noise (amplified by the gain), black level from brightness, optional companding/HDR knee.
+    noise: (H, W) float32 standard normal."""
     g = gain_factor(settings.gain)
     electrons = radiance * np.float32(220.0 * settings.exposure / 200.0)  # DN before gain
     sigma = np.sqrt(np.float32(0.6 * 0.6) * g * g + np.float32(0.05) * g * g * electrons)
-    signal = electrons * np.float32(g) + rng.standard_normal(radiance.shape, dtype=np.float32) * sigma
+    signal = electrons * np.float32(g) + noise * sigma
     if settings.companding:
         signal = np.sqrt(np.maximum(signal, 0.0) / np.float32(255.0)) * np.float32(255.0)
     if settings.hdr:
@@ -68,6 +89,7 @@ class HeadModel:
                  colour: bool = False, firmware: int = 0x0203):
         self.source = source
         self.rng = rng
+        self.noise = NoisePool(rng)
         self.byte_order = byte_order
         self.colour = colour
         self.firmware = firmware
@@ -240,7 +262,7 @@ class HeadModel:
                     tint = np.array([0.5 + settings.white_balance_ub / 30.0, 1.0,
                                      0.5 + settings.white_balance_vr / 30.0], np.float32)  # B, G, R
                     image = mosaic(image[:, :, None] * tint[None, None, :])
-                image = expose(image, settings, self.rng)
+                image = expose(image, settings, self.noise.field(image.shape))
             images.append(image)
         if settings.exposure_auto:
             self._auto_expose(float(images[0].mean()))

@@ -123,52 +123,56 @@ class StereoRenderer:
 
     def _render_camera(self, setup: _CameraSetup, pose: np.ndarray) -> np.ndarray:
         ideal = self._render_ideal(setup, pose)
-        return cv2.remap(ideal, setup.map_x, setup.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        raw = cv2.remap(ideal, setup.map_x, setup.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return raw.astype(np.float32) * np.float32(1.0 / 255.0)
 
     def _render_ideal(self, setup: _CameraSetup, pose: np.ndarray) -> np.ndarray:
+        """The level camera's image (H', W') uint8: walls from the atlas, floor and ceiling from their tiles."""
         atlas = self.atlas
         res = atlas.resolution
+        f32 = np.float32
         centre, cam_z, heading = self._camera_in_world(setup, pose)
         xl = setup.rays_x  # (W',)
-        yl = setup.rays_y.astype(np.float32)  # (H',)
+        yl = setup.rays_y.astype(f32)  # (H',), increasing downwards
         azimuth = heading - np.arctan(xl)
         cos_a, sin_a = np.cos(azimuth), np.sin(azimuth)
         ranges, walls = self.world.raycast(centre, azimuth, self.max_range)
         secant = np.sqrt(1.0 + xl * xl)
-        depth = ranges / secant  # optical-axis depth of the wall in each column
+        depth = ranges / secant  # optical-axis depth of the wall (or of the end of the ray) in each column
         hit = walls >= 0
         w = np.where(hit, walls, 0)
         hit_xy = centre[None, :] + ranges[:, None] * np.column_stack([cos_a, sin_a])
         along = np.einsum("ij,ij->i", hit_xy - self._wall_start[w], self._wall_dir[w])
         to_cam = centre[None, :] - self._wall_start[w]
-        side = (self._wall_dir[w, 0] * to_cam[:, 1] - self._wall_dir[w, 1] * to_cam[:, 0]) > 0
-        col_x = np.where(hit, atlas.face_x0[w, side.astype(int)] + along * res, atlas.far_pixel[0])
-        col_y0 = np.where(hit, atlas.face_y0[w, side.astype(int)] + atlas.ceiling_height * res, atlas.far_pixel[1])
-        col_scale = np.where(hit, depth * res, 0.0)
-        # Wall rows: atlas row = y0 + (ceiling - z) * res with z = cam_z - yl * depth.
-        map_x = np.broadcast_to(col_x.astype(np.float32), (len(yl), len(xl))).copy()
-        map_y = (col_y0 - cam_z * res).astype(np.float32)[None, :] + yl[:, None] * col_scale.astype(np.float32)[None, :]
-        height = cam_z - yl[:, None] * depth.astype(np.float32)[None, :]
-        tile = atlas.tile_pixels
-        for rows, plane_z, origin in ((yl > 0, 0.0, atlas.floor_origin),
-                                      (yl < 0, self.ceiling_height, atlas.ceiling_origin)):
-            idx = np.nonzero(rows)[0]
-            if len(idx) == 0:
-                continue
-            dist = ((cam_z - plane_z) / yl[idx]).astype(np.float32)  # optical depth where the row meets the plane
-            horizontal = dist[:, None] * secant.astype(np.float32)[None, :]
-            px = centre[0] + horizontal * cos_a.astype(np.float32)[None, :]
-            py = centre[1] + horizontal * sin_a.astype(np.float32)[None, :]
-            u = np.mod(px * (tile / FLOOR_TILE_M), tile)
-            v = np.mod(py * (tile / FLOOR_TILE_M), tile)
-            beyond = (height[idx] < 0.0) if plane_z == 0.0 else (height[idx] > self.ceiling_height)
-            beyond &= dist[:, None] < self.max_range
-            sub_x, sub_y = map_x[idx], map_y[idx]
-            sub_x[beyond] = origin[0] + u[beyond]
-            sub_y[beyond] = origin[1] + v[beyond]
-            map_x[idx], map_y[idx] = sub_x, sub_y
+        side = ((self._wall_dir[w, 0] * to_cam[:, 1] - self._wall_dir[w, 1] * to_cam[:, 0]) > 0).astype(int)
+        # Wall texel of pixel (row, col): x = x0 + s * res, y = y0 + (ceiling - z) * res, z = cam_z - yl * depth.
+        col_x = np.where(hit, atlas.face_x0[w, side] + along * res, atlas.far_pixel[0]).astype(f32)
+        col_y = np.where(hit, atlas.face_y0[w, side] + (atlas.ceiling_height - cam_z) * res,
+                         atlas.far_pixel[1]).astype(f32)
+        col_dy = np.where(hit, depth * res, 0.0).astype(f32)
+        map_x = np.empty((len(yl), len(xl)), f32)
+        map_x[:] = col_x
+        map_y = col_y[None, :] + yl[:, None] * col_dy[None, :]
         image = cv2.remap(atlas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        return image.astype(np.float32) * np.float32(1.0 / 255.0)
+        # Floor (rows below the horizon) and ceiling (above): where the row meets the plane before the wall.
+        texels_per_m = f32(atlas.tile_pixels / FLOOR_TILE_M)
+        step_x = (secant * cos_a).astype(f32)[None, :] * texels_per_m
+        step_y = (secant * sin_a).astype(f32)[None, :] * texels_per_m
+        horizon = int(np.searchsorted(yl, 0.0, side="right"))
+        depth32 = depth.astype(f32)[None, :]
+        for rows, drop, tile in ((slice(horizon, len(yl)), cam_z, atlas.floor),
+                                 (slice(0, horizon), cam_z - self.ceiling_height, atlas.ceiling)):
+            band = yl[rows]
+            band = band[band != 0]
+            if len(band) != rows.stop - rows.start or drop == 0:
+                continue
+            dist = (f32(drop) / band)[:, None]  # optical depth where each row meets the plane
+            tx = f32(centre[0] * texels_per_m) + dist * step_x
+            ty = f32(centre[1] * texels_per_m) + dist * step_y
+            plane = cv2.remap(tile, tx, ty, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            nearer = (dist < depth32) & (dist > 0)
+            image[rows] = np.where(nearer, plane, image[rows])
+        return image
 
     # ------------------------------------------------------------------ ground truth
     def camera_pose_world(self, pose: np.ndarray, camera: str = "left", size: tuple[int, int] = (640, 480),

@@ -36,6 +36,8 @@ class Atlas:
     ceiling_origin: tuple[float, float]
     far_pixel: tuple[float, float]
     tile_pixels: int
+    floor: np.ndarray  # (tile_pixels, tile_pixels) uint8, repeats every FLOOR_TILE_M metres
+    ceiling: np.ndarray
 
 
 def _rect(img: np.ndarray, r0: float, r1: float, c0: float, c1: float, value: float) -> None:
@@ -221,5 +223,7 @@ def build_atlas(walls: np.ndarray, decorations: list, ceiling_height: float, res
     far_x = cx0 + ceiling.shape[1] + 4
     atlas[tiles_y0:tiles_y0 + 8, far_x:far_x + 8] = 0.5
     image = np.clip(atlas * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    tile = lambda y0, x0: np.ascontiguousarray(image[y0 + PAD:y0 + PAD + n, x0 + PAD:x0 + PAD + n])  # noqa: E731
     return Atlas(image, resolution, ceiling_height, face_x0, face_y0, (PAD, tiles_y0 + PAD),
-                 (cx0 + PAD, tiles_y0 + PAD), (far_x + 4.0, tiles_y0 + 4.0), n)
+                 (cx0 + PAD, tiles_y0 + PAD), (far_x + 4.0, tiles_y0 + 4.0), n, tile(tiles_y0, 0),
+                 tile(tiles_y0, cx0))
