@@ -73,14 +73,17 @@ def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | st
     return descriptors / np.maximum(norms, 1e-12), described
 
 
-def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool = False) -> np.ndarray:
-    """Pairwise distances (N, M) between descriptor rows a (N, D) and b (M, D).
+def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+    """Pairwise distances (N, M) float32 between descriptor rows a (N, D) and b (M, D), into ``out`` if given.
 
     Euclidean for real-valued descriptors; Hamming for 0/1 bit vectors (``binary``).
     """
     a = np.asarray(a, dtype=np.float32)
     b = np.asarray(b, dtype=np.float32)
     # |a - b|² = |a|² + |b|² - 2 a·b, which for bits is the Hamming distance
-    squared = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * (a @ b.T)
+    squared = np.matmul(a, b.T, out=out)
+    squared *= -2.0
+    squared += (a * a).sum(axis=1)[:, None]
+    squared += (b * b).sum(axis=1)[None, :]
     np.maximum(squared, 0.0, out=squared)
-    return squared if binary else np.sqrt(squared)
+    return squared if binary else np.sqrt(squared, out=squared)

@@ -52,7 +52,12 @@ def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.
     M is the Gaussian-windowed structure tensor of 3×3 Sobel gradients. With ``buffers`` the result and every
     intermediate live in reused arrays (the result is overwritten by the next call with the same buffers).
     """
-    img = as_gray_float32(image)
+    image = np.asarray(image)
+    if image.ndim == 2 and image.dtype != np.float32 and min(image.shape) >= 3:
+        img = scratch(buffers, "harris_image", image.shape, np.float32)  # converted into a reused buffer
+        np.copyto(img, image, casting="unsafe")
+    else:
+        img = as_gray_float32(image)
     shape = img.shape
 
     def buf(name: str) -> np.ndarray:

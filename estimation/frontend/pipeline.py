@@ -136,7 +136,7 @@ def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = F
     left_corners, right_corners = left_corners[left_ok], right_corners[right_ok]
     # 3. row-constrained matching with ratio test and left-right check
     li, ri, dist = match_rows(left_corners, left_desc, right_corners, right_desc, config.matching,
-                              binary=config.descriptor.is_binary)
+                              binary=config.descriptor.is_binary, buffers=buffers)
     left_px = left_corners[li]
     disparity = left_px[:, 0] - right_corners[ri, 0]
     # 4. sub-pixel disparity

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimation.frontend.buffers import ScratchBuffers, scratch
 from estimation.frontend.descriptors import distance_matrix
 from estimation.frontend.errors import FrontEndError
 
@@ -48,24 +49,36 @@ class StereoMatchConfig:
 
 def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixels: np.ndarray,
                right_descriptors: np.ndarray, config: StereoMatchConfig = StereoMatchConfig(),
-               binary: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               binary: bool = False,
+               buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Descriptor matches between left corners (N, 2) and right corners (M, 2) of a rectified pair.
 
-    Returns (left_index (K,), right_index (K,), distance (K,)).
+    Returns (left_index (K,), right_index (K,), distance (K,)). The (N, M) work arrays come from ``buffers``.
     """
     n, m = len(left_pixels), len(right_pixels)
     if n == 0 or m == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
-    disparity = left_pixels[:, 0:1] - right_pixels[None, :, 0]
-    admissible = ((np.abs(left_pixels[:, 1:2] - right_pixels[None, :, 1]) <= config.row_tolerance)
-                  & (disparity >= config.min_disparity) & (disparity <= config.max_disparity))
-    distance = distance_matrix(left_descriptors, right_descriptors, binary)
-    distance[~admissible] = np.inf
+    left_px = np.asarray(left_pixels, np.float32)
+    right_px = np.asarray(right_pixels, np.float32)
+    work = scratch(buffers, "match_work", (n, m), np.float32)
+    admissible = scratch(buffers, "match_admissible", (n, m), bool)
+    test = scratch(buffers, "match_test", (n, m), bool)
+    # disparity u_l - u_r within range
+    np.subtract(left_px[:, 0:1], right_px[None, :, 0], out=work)
+    np.greater_equal(work, config.min_disparity, out=admissible)
+    admissible &= np.less_equal(work, config.max_disparity, out=test)
+    # same row within tolerance
+    np.subtract(left_px[:, 1:2], right_px[None, :, 1], out=work)
+    admissible &= np.less_equal(np.abs(work, out=work), config.row_tolerance, out=test)
+    distance = distance_matrix(left_descriptors, right_descriptors, binary, out=work)
+    np.logical_not(admissible, out=test)
+    distance[test] = np.inf
     rows = np.arange(n)
     best_right = np.argmin(distance, axis=1)
     best = distance[rows, best_right]
-    second = np.partition(distance, 1, axis=1)[:, 1] if m > 1 else np.full(n, np.inf)
     best_left_of_right = np.argmin(distance, axis=0)
+    distance[rows, best_right] = np.inf  # the second best is the row minimum without the best
+    second = distance.min(axis=1)
     keep = np.isfinite(best) & (best < config.ratio * second) & (best_left_of_right[best_right] == rows)
     if config.max_distance is not None:
         largest = left_descriptors.shape[1] if binary else 2.0
@@ -82,8 +95,7 @@ def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.nd
     Returns (disparity (K,) float64, refined (K,) bool); where the patch leaves the image or the profile has
     no interior minimum the input disparity is returned with refined = False.
     """
-    left = np.asarray(left, dtype=np.float32)
-    right = np.asarray(right, dtype=np.float32)
+    left, right = np.asarray(left), np.asarray(right)  # patches are gathered first, then made float
     k = len(left_pixels)
     result = np.asarray(disparities, dtype=np.float64).copy()
     refined = np.zeros(k, bool)
@@ -102,9 +114,9 @@ def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.nd
         return result, refined
     window = np.arange(-h, h + 1)
     rows = (y0[idx, None] + window)[:, :, None]  # (K, W, 1)
-    left_patch = left[rows, (x0[idx, None] + window)[:, None, :]]  # (K, W, W)
+    left_patch = left[rows, (x0[idx, None] + window)[:, None, :]].astype(np.float32)  # (K, W, W)
     right_cols = (x0[idx] - d0[idx])[:, None, None] - steps[None, :, None] + window[None, None, :]  # (K, 5, W)
-    right_patch = right[rows[:, None, :, :], right_cols[:, :, None, :]]  # (K, 5, W, W)
+    right_patch = right[rows[:, None, :, :], right_cols[:, :, None, :]].astype(np.float32)  # (K, 5, W, W)
     left_patch = left_patch - left_patch.mean(axis=(1, 2), keepdims=True)
     right_patch = right_patch - right_patch.mean(axis=(2, 3), keepdims=True)
     cost = ((right_patch - left_patch[:, None]) ** 2).sum(axis=(2, 3))  # (K, 5) over steps -2..2
