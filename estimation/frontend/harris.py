@@ -93,10 +93,11 @@ def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, m
     dilated = cv2.dilate(response, np.ones((size, size), np.uint8), dst=scratch(buffers, "nms_dilated",
                                                                                  response.shape, response.dtype))
     inner = (slice(m, rows - m), slice(m, cols - m))
-    peak = np.greater_equal(response[inner], dilated[inner],
-                            out=scratch(buffers, "nms_peak", (rows - 2 * m, cols - 2 * m), bool))
-    peak &= response[inner] > threshold
-    return np.argwhere(peak) + m
+    inner_shape = (rows - 2 * m, cols - 2 * m)
+    peak = np.greater_equal(response[inner], dilated[inner], out=scratch(buffers, "nms_peak", inner_shape, bool))
+    peak &= np.greater(response[inner], threshold, out=scratch(buffers, "nms_above", inner_shape, bool))
+    r, c = np.divmod(np.flatnonzero(peak), inner_shape[1])
+    return np.stack([r + m, c + m], axis=1)
 
 
 def bucket(rows: np.ndarray, cols: np.ndarray, scores: np.ndarray, shape: tuple[int, int],
