@@ -94,11 +94,21 @@ class _Subscribers:
                 log.exception("%s subscriber %r raised", self._what, callback)
 
 
-def _is_local_serial_device(url: str) -> bool:
+def is_local_serial_device(url: str) -> bool:
     """A real serial port, where HOSTBAUD makes sense (not a URL scheme, not a pseudo-terminal)."""
     if "://" in url:
         return False
     return not os.path.realpath(url).startswith("/dev/pts/")
+
+
+def hostbaud_code(url: str, config: Any, baudrate: int, fast_baudrate: int | None) -> int | None:
+    """The HOSTBAUD argument to switch to ``fast_baudrate``, or ``None`` to stay: only on a real serial port, only
+    when the robot's CONFIG AutoBaud byte is 2 (as ARIA decides), only to a rate the protocol has a code for."""
+    if fast_baudrate is None or fast_baudrate == baudrate or config is None or config.auto_baud != 2:
+        return None
+    if not is_local_serial_device(url):
+        return None
+    return next((code for code, rate in BAUD_CODES.items() if rate == fast_baudrate), None)
 
 
 class P3AT:
@@ -474,8 +484,9 @@ class P3AT:
                 self._dispatch(payload, self.clock())
                 if payload[0] == PacketId.CONFIG:
                     config = self.config
-        if config is not None and self._should_switch_baud(config):
-            self._switch_baud()
+        code = hostbaud_code(self.url, config, self.baudrate, self.fast_baudrate)
+        if code is not None:
+            self._switch_baud(code)
         self._link_up = True
         deadline = self.clock() + max(2.0, self.link_timeout / 2)
         while self._state is None or self._state.session != self.session:
@@ -486,13 +497,7 @@ class P3AT:
             if payload is not None:
                 self._dispatch(payload, self.clock())
 
-    def _should_switch_baud(self, config: Any) -> bool:
-        return (self.fast_baudrate is not None and self.fast_baudrate != self.baudrate
-                and config.auto_baud == 2 and _is_local_serial_device(self.url)
-                and self.fast_baudrate in BAUD_CODES.values())
-
-    def _switch_baud(self) -> None:
-        code = next(c for c, rate in BAUD_CODES.items() if rate == self.fast_baudrate)
+    def _switch_baud(self, code: int) -> None:
         self._write(encode_command(Command.HOSTBAUD, code))
         self._port.flush()
         time.sleep(0.05)

@@ -208,3 +208,27 @@ def test_position_wraps_around_over_a_long_drive(virtual_robot) -> None:
         state = p3at.wait_for_state()
         travelled = robot.truth()[0] + 25.0
         assert travelled > 34.0 and state.x == pytest.approx(travelled, abs=0.01)
+
+
+def test_position_control_odometry_reset_and_requested_packets(virtual_robot) -> None:
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=5.0)
+    packets: list[object] = []
+    with driver(robot) as p3at:
+        p3at.subscribe_packets(packets.append)
+        p3at.motors_on()
+        p3at.move(0.5)  # MOVE: the robot's own position control
+        state = p3at.wait_for_state(5.0, lambda s: s.x > 0.45 and not s.moving)
+        assert robot.truth()[0] == pytest.approx(0.5, abs=0.03) and state.x == pytest.approx(0.5, abs=0.03)
+        p3at.set_heading(math.pi / 2)  # HEAD: absolute heading in the odometry frame
+        state = p3at.wait_for_state(8.0, lambda s: abs(s.theta - math.pi / 2) < 0.03 and s.w == 0.0)
+        assert robot.truth()[2] == pytest.approx(math.pi / 2, abs=0.05)
+        p3at.reset_odometry()  # SETO
+        state = p3at.wait_for_state(3.0, lambda s: abs(s.x) < 0.01 and abs(s.theta) < 0.01)
+        assert (state.x, state.y) == pytest.approx((0.0, 0.0), abs=0.01)
+        p3at.request_encoders(True)
+        p3at.request_io(1)
+        p3at.wait_for_state(3.0, lambda s: p3at.encoders is not None and p3at.io is not None)
+        assert p3at.encoders.left > 0 and p3at.encoders.right > 0  # ticks since OPEN: it drove forward
+        config = p3at.request_config()
+        assert config is not None and config.name == "vp3at"
+        assert {type(p).__name__ for p in packets} >= {"RobotConfig", "EncoderCounts", "IoPacket"}

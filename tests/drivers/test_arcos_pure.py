@@ -192,3 +192,21 @@ def test_move_heading_and_limits() -> None:
     packets, notes = motion.acceleration_limits(SH, accel=0.3, decel=0.5, rot_accel=math.radians(100))
     assert commands(packets) == [(Command.SETA, 300), (Command.SETA, -500), (Command.SETRA, 100)]
     assert motion.acceleration_limits(SH, accel=50.0)[1]
+
+
+def test_hostbaud_only_on_real_serial_ports_when_config_allows(tmp_path: Path) -> None:
+    from drivers.arcos.codec import RobotConfig
+    from drivers.arcos.robot import hostbaud_code
+
+    allows, refuses = RobotConfig(auto_baud=2), RobotConfig(auto_baud=0)
+    assert hostbaud_code("/dev/ttyUSB0", allows, 9600, 38400) == 2
+    assert hostbaud_code("/dev/ttyUSB0", allows, 9600, 115200) == 4
+    assert hostbaud_code("/dev/ttyUSB0", refuses, 9600, 38400) is None
+    assert hostbaud_code("/dev/ttyUSB0", None, 9600, 38400) is None  # no CONFIG reply: stay
+    assert hostbaud_code("/dev/ttyUSB0", allows, 9600, None) is None
+    assert hostbaud_code("/dev/ttyUSB0", allows, 9600, 12345) is None  # no code for that rate
+    assert hostbaud_code("socket://127.0.0.1:8101", allows, 9600, 38400) is None
+    assert hostbaud_code("/dev/pts/3", allows, 9600, 38400) is None
+    link = tmp_path / "ttyRobot"
+    link.symlink_to("/dev/pts/7")
+    assert hostbaud_code(str(link), allows, 9600, 38400) is None  # a link to a pty is still a pty
