@@ -220,3 +220,11 @@ class StereoRenderer:
         out = np.column_stack([centre[0] + horizontal * np.cos(azimuth), centre[1] + horizontal * np.sin(azimuth),
                                cam_z - yl * depth])
         return out
+
+    def point_image(self, pose: np.ndarray, camera: str = "left", size: tuple[int, int] = (640, 480),
+                    rectified: bool = False) -> np.ndarray:
+        """``true_points`` of every pixel: (height, width, 3) world points (NaN where nothing is hit)."""
+        width, height = size
+        u, v = np.meshgrid(np.arange(width, dtype=float), np.arange(height, dtype=float))
+        points = self.true_points(pose, np.column_stack([u.ravel(), v.ravel()]), camera, size, rectified)
+        return points.reshape(height, width, 3)

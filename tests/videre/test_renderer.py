@@ -73,3 +73,13 @@ def test_rectified_rendered_pairs_put_points_on_the_same_row(world, renderer, po
     assert len(vertical) >= 10, f"only {len(vertical)} textured windows"
     assert np.percentile(vertical, 90) < 0.5 and np.median(vertical) < 0.2
     assert np.median(horizontal) < 0.5
+
+
+def test_point_image_depth_matches_the_wall_the_camera_faces(renderer, world):
+    pose = np.array([3.0, 5.0, np.pi / 2])  # in the corridor, looking at its north wall
+    points = renderer.point_image(pose, "left", (64, 48), rectified=True)
+    assert points.shape == (48, 64, 3)
+    cam = renderer.camera_pose_world(pose, "left", (64, 48), rectified=True)
+    centre_ray_point = points[24, 32]
+    ranges, _ = world.raycast(cam[:2, 3], np.array([np.pi / 2]), 50.0)
+    assert np.hypot(*(centre_ray_point[:2] - cam[:2, 3])) == pytest.approx(ranges[0], abs=0.05)
