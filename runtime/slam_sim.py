@@ -123,5 +123,7 @@ def _score(landmark_map: LandmarkMap, world, start, truth, estimate, dead, featu
         "distinct_features": int(len(np.unique(features[known]))),
         "duplicate_landmarks": int(known.sum() - len(np.unique(features[known]))),
         "pose_nees_mean": float(np.mean(nees)) if nees else float("nan"),
+        "pose_nees_median": float(np.median(nees)) if nees else float("nan"),
+        "pose_nees_within_chi2_95": float(np.mean(np.asarray(nees) < 7.815)) if nees else float("nan"),
         "pose_nees_frames": len(nees),
     }

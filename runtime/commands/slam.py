@@ -101,6 +101,7 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"  landmarks {m['landmarks']} (of {m['distinct_features']} distinct features, "
               f"{m['duplicate_landmarks']} duplicates): RMS error {m['landmark_rms_error_m']:.3f} m, "
               f"median {m['landmark_median_error_m']:.3f} m")
-        print(f"  pose NEES (mean over {m['pose_nees_frames']} frames, 3 is consistent) {m['pose_nees_mean']:.1f}")
+        print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
+              f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
         print(f"  map written to {m['out']}")
     return 0
