@@ -427,21 +427,9 @@ class World:
         index = np.full(angles.shape, -1, dtype=np.int64)
         if len(self.walls) == 0:
             return ranges, index
-        ax, ay, ex, ey = self._a[:, 0], self._a[:, 1], self._e[:, 0], self._e[:, 1]
-        a_cross_e = ax * ey - ay * ex  # (W,)
-        outer = np.multiply.outer
         for start in range(0, len(angles), _RAY_CHUNK):
             sl = slice(start, start + _RAY_CHUNK)
-            dx, dy = np.cos(angles[sl]), np.sin(angles[sl])  # (n,)
-            ox, oy = origins[sl, 0], origins[sl, 1]
-            # Ray o + t·d against segment a + u·e: den = d × e, t = (a − o) × e / den, u = (a − o) × d / den,
-            # expanded into outer products so no (n, W, 2) temporaries are built.
-            den = outer(dx, ey) - outer(dy, ex)  # (n, W)
-            t_num = a_cross_e[None, :] - (outer(ox, ey) - outer(oy, ex))
-            u_num = outer(dy, ax) - outer(dx, ay) - (ox * dy - oy * dx)[:, None]
-            with np.errstate(all="ignore"):
-                t = t_num / den
-                u = u_num / den
+            den, t, u = self._crossings(origins[sl], np.cos(angles[sl]), np.sin(angles[sl]))
             valid = (np.abs(den) > _EPS) & (t >= 0.0) & (u >= -_EPS) & (u <= 1.0 + _EPS)
             t = np.where(valid, t, np.inf)
             best = np.argmin(t, axis=1)
@@ -451,16 +439,41 @@ class World:
             index[sl] = np.where(hit, best, -1)
         return ranges, index
 
-    def distance_to_walls(self, points: np.ndarray) -> np.ndarray:
-        """Distance from each point (N, 2) or (2,) to the nearest wall piece -> (N,) metres (inf: no walls)."""
+    def _crossings(self, origins: np.ndarray, dx: np.ndarray, dy: np.ndarray):
+        """Where the lines o + t·d (origins (n, 2), d = (dx, dy) each (n,)) cross every wall a + u·e.
+
+        Returns den = d × e, t = (a − o) × e / den and u = (a − o) × d / den, each (n, W); den ≈ 0 means
+        parallel. Expanded into outer products so no (n, W, 2) temporaries are built.
+        """
+        ax, ay, ex, ey = self._a[:, 0], self._a[:, 1], self._e[:, 0], self._e[:, 1]
+        ox, oy = origins[:, 0], origins[:, 1]
+        outer = np.multiply.outer
+        den = outer(dx, ey) - outer(dy, ex)
+        t_num = (ax * ey - ay * ex)[None, :] - (outer(ox, ey) - outer(oy, ex))
+        u_num = outer(dy, ax) - outer(dx, ay) - (ox * dy - oy * dx)[:, None]
+        with np.errstate(all="ignore"):
+            return den, t_num / den, u_num / den
+
+    def nearest_wall_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest point on any wall piece to each point (N, 2) or (2,) -> distances (N,), points (N, 2).
+
+        With no walls the distances are inf and the points NaN.
+        """
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         if len(self.walls) == 0:
-            return np.full(len(p), np.inf)
+            return np.full(len(p), np.inf), np.full(p.shape, np.nan)
         ap = p[:, None, :] - self._a[None, :, :]  # (N, W, 2)
         ee = np.einsum("wi,wi->w", self._e, self._e)
         s = np.clip(np.einsum("nwi,wi->nw", ap, self._e) / ee, 0.0, 1.0)
-        closest = self._a[None] + s[..., None] * self._e[None]
-        return np.min(np.linalg.norm(p[:, None, :] - closest, axis=2), axis=1)
+        closest = self._a[None] + s[..., None] * self._e[None]  # (N, W, 2)
+        dist = np.linalg.norm(p[:, None, :] - closest, axis=2)
+        k = np.argmin(dist, axis=1)
+        rows = np.arange(len(p))
+        return dist[rows, k], closest[rows, k]
+
+    def distance_to_walls(self, points: np.ndarray) -> np.ndarray:
+        """Distance from each point (N, 2) or (2,) to the nearest wall piece -> (N,) metres (inf: no walls)."""
+        return self.nearest_wall_points(points)[0]
 
     def collides(self, x: float, y: float, radius: float) -> bool:
         """True when a disc of this radius at (x, y) touches or crosses any wall."""
@@ -479,11 +492,7 @@ class World:
         for start in range(0, len(p1), _RAY_CHUNK):
             sl = slice(start, start + _RAY_CHUNK)
             d = p1[sl] - p0[sl]  # (n, 2)
-            ao = self._a[None, :, :] - p0[sl, None, :]
-            den = d[:, None, 0] * self._e[None, :, 1] - d[:, None, 1] * self._e[None, :, 0]
-            with np.errstate(all="ignore"):
-                t = (ao[..., 0] * self._e[None, :, 1] - ao[..., 1] * self._e[None, :, 0]) / den
-                u = (ao[..., 0] * d[:, None, 1] - ao[..., 1] * d[:, None, 0]) / den
+            den, t, u = self._crossings(p0[sl], d[:, 0], d[:, 1])
             length = np.linalg.norm(d, axis=1)[:, None]
             tol = 1e-6 / np.maximum(length, 1e-12)  # a micrometre, as a fraction of the segment
             blocked = (np.abs(den) > _EPS) & (t > tol) & (t < 1.0 - tol) & (u >= -_EPS) & (u <= 1.0 + _EPS)

@@ -34,6 +34,7 @@ from drivers.arcos.codec import (
     PacketParser,
     RobotConfig,
     Sip,
+    decode_command,
     encode_config,
     encode_encoder,
     encode_identity,
@@ -42,8 +43,9 @@ from drivers.arcos.codec import (
     encode_sip,
     unpack_vel2,
 )
-from drivers.arcos.commands import ArgType, Command
+from drivers.arcos.commands import Command
 from drivers.arcos.params import RobotParams, builtin_params
+from drivers.errors import ProtocolError
 from mocks.p3at.options import FirmwareDefaults, OdometryErrors, SensorOptions
 from mocks.world import World
 
@@ -254,8 +256,9 @@ class VirtualP3AT:
         if number not in Command._value2member_map_:
             self.stats.unknown_commands += 1
             return b""
-        arg = self._argument(payload)
-        if arg is _BAD:
+        try:
+            arg = decode_command(payload).arg
+        except ProtocolError:
             self.stats.bad_arguments += 1
             return b""
         return self._command(Command(number), arg)
@@ -270,7 +273,7 @@ class VirtualP3AT:
         if number == 2 and bare and self.link == Link.WAIT_SYNC2:
             self.link = Link.WAIT_OPEN
             return encode_packet(encode_identity(self.identity))
-        if number == Command.OPEN and self.link == Link.WAIT_OPEN and self._argument(payload) is not _BAD:
+        if number == Command.OPEN and self.link == Link.WAIT_OPEN:
             self._open()
             return b""
         self.stats.ignored += 1
@@ -289,22 +292,6 @@ class VirtualP3AT:
         self._next_sip = self._time + self.firmware.sip_cycle_ms / 1000.0
         self._next_sonar = self._time
         self._last_rx = self._time
-
-    @staticmethod
-    def _argument(payload: bytes) -> int | bytes | None | object:
-        """None (no argument), a signed int, the string's bytes, or _BAD when malformed."""
-        if len(payload) == 1:
-            return None
-        kind = payload[1]
-        if kind in (ArgType.POSINT, ArgType.NEGINT):
-            if len(payload) < 4:
-                return _BAD
-            value = payload[2] | (payload[3] << 8)
-            return value if kind == ArgType.POSINT else -value
-        if kind == ArgType.STRING and len(payload) >= 3:
-            raw = payload[3 : 3 + payload[2]]
-            return bytes(raw) if len(raw) == payload[2] else _BAD
-        return _BAD
 
     def _command(self, cmd: Command, arg: int | bytes | None) -> bytes:  # noqa: C901 - one branch per command
         """Act on one command in the OPEN state; returns any immediate reply."""
@@ -509,14 +496,8 @@ class VirtualP3AT:
 
     def _clearance(self, x: float, y: float) -> tuple[float, float]:
         """Distance from (x, y) to the nearest wall or other robot (centre to surface), and its bearing."""
-        p = np.array([x, y])
-        walls = self.world.walls
-        a, e = walls[:, :2], walls[:, 2:] - walls[:, :2]
-        s = np.clip(np.einsum("wi,wi->w", p - a, e) / np.einsum("wi,wi->w", e, e), 0.0, 1.0)
-        closest = a + s[:, None] * e
-        dist = np.linalg.norm(closest - p, axis=1)
-        k = int(np.argmin(dist))
-        best, target = float(dist[k]), closest[k]
+        dist, closest = self.world.nearest_wall_points(np.array([x, y]))
+        best, target = float(dist[0]), closest[0]
         for other, pose in self.world.robot_poses().items():
             if other == self.name:
                 continue
@@ -669,9 +650,6 @@ class VirtualP3AT:
             pdb_port=0, gyro_rate_limit=0, high_temp_shutdown=0, power_bits=0, battery_type=0,
             soc_low=0, soc_shutdown=0, bootloader_version="sim", config_flags=0, gyro_fw_version=0,
         )
-
-
-_BAD = object()  # marker: malformed argument
 
 
 def _s16(value: int) -> int:
