@@ -265,8 +265,11 @@ class Mission:
             return camera, camera.geometry
         from mocks.stereo_head import VirtualStereoHead
 
-        virtual = VirtualStereoHead(world, name, rng=rng, clock=self.clock)
-        head = StereoHead.open(backend=virtual.backend, clock=self.clock)
+        # one renderer (its texture atlas) shared by every head in the building
+        virtual = VirtualStereoHead(world, name, rng=rng, realtime=True, clock=self.clock,
+                                    renderer=getattr(self, "_renderer", None))
+        self._renderer = virtual.renderer
+        head = StereoHead.open(backend=virtual, clock=self.clock)
         camera = VidereCamera(head, rate=cfg.camera_rate)
         stack.callback(camera.close)
         return camera, camera.geometry

@@ -1,0 +1,73 @@
+"""``p3at review FILE.rrd``: read a mission's recording back, summarise it, export the maps it holds."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from runtime.rerun_log import RecordingReadError, read_recording
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "review", help="summarise a mission's .rrd recording and export the maps it holds",
+        description="Reads a recording written by 'p3at demo' or 'p3at run' (Rerun 0.41 .rrd), prints the robots, "
+                    "the duration, the size of every map and the alignment results, and writes each map it holds "
+                    "(the last snapshot of every robot, and the fused map) as a landmark-map .npz and a .ply.")
+    parser.add_argument("recording", type=Path, metavar="FILE.rrd", help="the recording to read")
+    parser.add_argument("--export", type=Path, default=None, metavar="DIR",
+                        help="where to write the maps (default: FILE-maps/ beside the recording)")
+    parser.add_argument("--no-export", action="store_true", help="only print the summary")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.set_defaults(handler=_review)
+
+
+def review_summary(contents) -> dict:
+    """The figures ``review`` prints, from :class:`runtime.rerun_log.RecordingContents`."""
+    return {
+        "recording": str(contents.path), "robots": contents.robots, "duration": round(contents.duration, 2),
+        "maps": {name: len(m) for name, m in sorted(contents.maps.items())},
+        "alignments": contents.alignments, "mission_summary": contents.summary,
+    }
+
+
+def _review(args) -> int:
+    try:
+        contents = read_recording(args.recording)
+    except RecordingReadError as e:
+        print(f"p3at review: {e}", file=sys.stderr)
+        return 1
+    summary = review_summary(contents)
+    exported: dict[str, str] = {}
+    if not args.no_export and contents.maps:
+        folder = args.export or args.recording.with_name(args.recording.stem + "-maps")
+        try:
+            for name, m in sorted(contents.maps.items()):
+                m.save(folder / f"{name}.npz")
+                m.export_ply(folder / f"{name}.ply")
+                exported[name] = str(folder / f"{name}.npz")
+        except OSError as e:
+            print(f"p3at review: cannot write the maps to {folder}: {e}", file=sys.stderr)
+            return 1
+    summary["exported"] = exported
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    print(f"Recording {contents.path}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
+          f"{contents.duration:.1f} s, {contents.entity_count} entities")
+    for name, size in summary["maps"].items():
+        print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {exported[name]}" if name in exported else ""))
+    if not contents.alignments:
+        print("  no alignment in this recording")
+    for pair, a in sorted(contents.alignments.items()):
+        if a.get("aligned"):
+            line = (f"  alignment {a['other']} -> {a['reference']}: tx {a['tx']:.3f} m, ty {a['ty']:.3f} m, "
+                    f"θ {a['theta']:.4f} rad, {a['supports']} supports, {a['common']} common")
+            if a.get("error_xy") is not None:
+                line += f"; error vs truth {a['error_xy']:.3f} m / {a['error_theta']:.4f} rad"
+        else:
+            line = f"  alignment {pair}: none ({a.get('note') or 'maps do not overlap'})"
+        print(line)
+    if contents.summary is None:
+        print("  (the mission did not finish: no final summary in the recording)")
+    return 0
