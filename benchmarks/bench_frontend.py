@@ -57,7 +57,7 @@ def rendered_640x480() -> tuple[np.ndarray, np.ndarray, str] | None:
         return None
     pose, left, right, _, calib = next(rendered_frames(poses=((3.0, 5.0, 0.0),)))
     left, right = calib.rectify(left, right)
-    return left, right, f"rendered office corridor at pose {tuple(pose)}, rectified"
+    return left, right, f"rendered office corridor at pose {tuple(float(x) for x in pose)}, rectified"
 
 
 def best_ms(fn, repeat: int) -> tuple[float, float]:
