@@ -8,6 +8,7 @@ Typical use (the runtime builds the geometry from the head's calibration)::
 """
 from __future__ import annotations
 
+from estimation.frontend.buffers import ScratchBuffers
 from estimation.frontend.descriptors import DescriptorKind, describe, distance_matrix
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners, harris_response
@@ -31,7 +32,8 @@ from estimation.frontend.usurf import integral_image, usurf_descriptors
 
 __all__ = [
     "DescriptorKind", "FrontEnd", "FrontEndConfig", "FrontEndError", "HarrisConfig", "RectificationMaps",
-    "StereoGeometry", "StereoMatchConfig", "StereoMatches", "TriangulationNoise", "camera_to_base", "describe",
+    "ScratchBuffers", "StereoGeometry", "StereoMatchConfig", "StereoMatches", "TriangulationNoise", "camera_to_base",
+    "describe",
     "detect_corners", "distance_matrix", "harris_response", "integral_image", "match_rows", "rectify_pair",
     "refine_disparity_ssd", "run_frontend", "triangulate", "triangulation_covariances", "usurf_descriptors",
 ]

@@ -95,3 +95,17 @@ def test_blank_pair_gives_an_empty_observation_set():
     blank = np.full((120, 160), 128, np.uint8)
     observations = FrontEnd().process(blank, blank, 1.0)
     assert len(observations) == 0 and observations.descriptors.shape == (0, 64)
+
+
+def test_reused_buffers_never_leak_between_frames(plane_pair):
+    # frames of different content and size through one FrontEnd give what the fresh functional core gives
+    config = FrontEndConfig(geometry=StereoGeometry(cx=159.5, cy=119.5))
+    near = plane_pair
+    far = shifted_pair((240, 320), 9.7, seed=12)
+    small = shifted_pair((200, 260), 15.2, seed=13)
+    front_end = FrontEnd(config)
+    for left, right in (near, far, small, near):
+        expected = run_frontend(left, right, config)
+        got = front_end.process(left, right, 0.0)
+        np.testing.assert_array_equal(got.points, expected.points_base)
+        np.testing.assert_array_equal(got.descriptors, expected.descriptors)
