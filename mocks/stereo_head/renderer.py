@@ -41,6 +41,7 @@ class _CameraSetup:
     ideal_size: tuple[int, int]  # (width, height)
     map_x: np.ndarray  # (H, W) float32: ideal-image column of each raw pixel
     map_y: np.ndarray
+    fixed_maps: tuple[np.ndarray, np.ndarray]  # the same as cv2's fixed-point maps (faster remap)
     rays_x: np.ndarray  # (W',) level-frame x/z of each ideal column
     rays_y: np.ndarray  # (H',) level-frame y/z of each ideal row
 
@@ -106,8 +107,9 @@ class StereoRenderer:
         map_y = (focal * yl + cy).reshape(height, width).astype(np.float32)
         rays_x = (np.arange(ideal_w) - cx) / focal
         rays_y = (np.arange(ideal_h) - cy) / focal
+        fixed = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
         return _CameraSetup(np.asarray(K, float), np.asarray(D, float), rotation, centre, yaw, to_level, focal,
-                            cx, cy, (ideal_w, ideal_h), map_x, map_y, rays_x, rays_y)
+                            cx, cy, (ideal_w, ideal_h), map_x, map_y, fixed, rays_x, rays_y)
 
     def _camera_in_world(self, setup: _CameraSetup, pose: np.ndarray) -> tuple[np.ndarray, float, float]:
         x, y, theta = (float(p) for p in pose)
@@ -123,7 +125,7 @@ class StereoRenderer:
 
     def _render_camera(self, setup: _CameraSetup, pose: np.ndarray) -> np.ndarray:
         ideal = self._render_ideal(setup, pose)
-        raw = cv2.remap(ideal, setup.map_x, setup.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        raw = cv2.remap(ideal, *setup.fixed_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return raw.astype(np.float32) * np.float32(1.0 / 255.0)
 
     def _render_ideal(self, setup: _CameraSetup, pose: np.ndarray) -> np.ndarray:
