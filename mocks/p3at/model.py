@@ -416,8 +416,8 @@ class VirtualP3AT:
         if self.is_open and self._time - self._last_rx >= self.watchdog_s:
             if not self._watchdog_tripped:
                 self._watchdog_tripped = True
-                moving = self.v != 0.0 or self.w != 0.0 or self._trans_target != 0.0 or self._rot_mode == "head"
-                if moving or self._rot_target != 0.0:
+                commanded = self._trans_target != 0.0 or self._rot_target != 0.0 or self._rot_mode == "head"
+                if commanded or self.v != 0.0 or self.w != 0.0:
                     self.stats.watchdog_stops += 1
                 self._trans_mode, self._trans_target = "vel", 0.0
                 self._rot_mode, self._rot_target = "rvel", 0.0
@@ -457,9 +457,7 @@ class VirtualP3AT:
         elif ds != 0.0 and clearance_new > radius + 0.005:  # clear of the obstacle again
             self._in_contact = False
             self.stall_bumpers = 0
-        elif ds != 0.0:  # creeping along the obstacle
-            self.stall_bumpers &= ~0x0101
-        else:  # resting: a pressed bumper stays pressed, the wheels no longer stall
+        else:  # resting against or creeping along the obstacle: the bumper stays pressed, the wheels turn freely
             self.stall_bumpers &= ~0x0101
         self.world.set_pose(self.name, np.array([nx, ny, _wrap(th + dth)]))
 
