@@ -549,3 +549,28 @@ def test_encoder_and_io_packets_follow_their_sip() -> None:
     client.cmd(Command.IOREQUEST, 2)
     ids = [p[0] for p in client.run(0.5)]
     assert ids and ids == [0x32, 0x90, 0xF0] * (len(ids) // 3)
+
+
+def test_sip_bytes_follow_the_reference_layout() -> None:
+    """Assembled by hand from the reference's SIP table (not with the codec), so a shared bug cannot hide."""
+    client = Client(robot())
+    client.connect(motors=False)
+    client.cmd(Command.SONAR, 0)
+    client.run(0.5)
+    raw = client.model.advance(client.t + 0.1)
+    uc_time = round(client.model.time * 1e6)
+
+    payload = bytes([0x32])  # stopped
+    payload += bytes(10)  # XPOS, YPOS, THPOS, LVEL, RVEL
+    payload += bytes([130])  # BATTERY 13.0 V
+    payload += bytes(4)  # STALL_BUMPERS, CONTROL
+    payload += bytes(2)  # FLAGS: motors off, sonars off
+    payload += bytes([0, 0])  # COMPASS, SONAR_COUNT
+    payload += bytes([0, 0, 0, 0xFF, 0])  # GRIP_STATE, ANPORT, ANALOG, DIGIN, DIGOUT
+    payload += (130).to_bytes(2, "little") + bytes([0])  # BATTERYX10, CHARGESTATE
+    payload += bytes(6)  # ROTVEL, FAULTFLAGS, LATVEL
+    payload += bytes([0x81, 0])  # TEMPERATURE -127 (n/a), SOC
+    payload += uc_time.to_bytes(4, "little") + bytes(4)  # uC time, FLAGS3
+    words = sum((payload[i] << 8) | payload[i + 1] for i in range(0, len(payload) - 1, 2)) & 0xFFFF
+    checksum = words ^ payload[-1] if len(payload) % 2 else words
+    assert raw == bytes([0xFA, 0xFB, len(payload) + 2]) + payload + checksum.to_bytes(2, "big")
