@@ -244,7 +244,7 @@ def test_truncated_packet_does_not_hold_back_the_next_good_one() -> None:
     assert parser.stats.truncated == 1 and parser.buffered == 0
 
 
-@settings(max_examples=300)
+@settings(max_examples=150)
 @given(st.binary(max_size=600), st.lists(st.integers(1, 64), max_size=20))
 def test_random_streams_never_raise_and_recover_at_the_next_good_packet(noise: bytes, cuts: list[int]) -> None:
     parser = PacketParser()
@@ -261,7 +261,7 @@ def test_random_streams_never_raise_and_recover_at_the_next_good_packet(noise: b
     assert s.packet_bytes + s.dropped_bytes + parser.buffered == len(stream)
 
 
-@settings(max_examples=300)
+@settings(max_examples=150)
 @given(st.data())
 def test_mutated_packet_streams_never_raise(data: st.DataObject) -> None:
     packets = [encode_command(Command.VEL, -200), CAPTURED_SIP, CAPTURED_SYNC2, encode_command(Command.SAY, b"ab")]

@@ -68,7 +68,7 @@ def test_errors_are_one_line_and_nonzero(capsys, tmp_path) -> None:
 def test_serve_prints_where_it_listens_and_a_client_can_connect(where, capsys) -> None:
     status: list[int] = []
     thread = threading.Thread(target=lambda: status.append(
-        main(["robot", "serve", *where, "--pose", "3,5,0", "--name", "cli", "--duration", "2.0"])))
+        main(["robot", "serve", *where, "--pose", "3,5,0", "--name", "cli", "--duration", "1.5"])))
     thread.start()
     try:
         out = ""
