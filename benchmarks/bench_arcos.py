@@ -82,8 +82,8 @@ def bench_driver_cpu(seconds: float, transport: str) -> None:
             cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
             n = len(states)
         print(f"driver following a virtual P3-AT over {transport} ({url}) for {wall:.1f} s:")
-        print(f"  {n / wall:.1f} SIPs/s received, process CPU {cpu * 1000:.0f} ms = {100 * cpu / wall:.2f} % of one core"
-              f" ({cpu / max(n, 1) * 1e6:.0f} us per SIP, keep-alive and wake-ups included)")
+        print(f"  {n / wall:.1f} SIPs/s received, process CPU {cpu * 1000:.0f} ms = {100 * cpu / wall:.2f} % of one "
+              f"core ({cpu / max(n, 1) * 1e6:.0f} us per SIP, keep-alive and wake-ups included)")
     finally:
         server.terminate()
         server.wait(10)
