@@ -173,3 +173,29 @@ def test_writes_are_atomic_and_leave_no_temporaries(tmp_path: Path):
     cal.save(default_calibration(), target)
     assert cal.load(target) == default_calibration()
     assert [p.name for p in tmp_path.iterdir()] == ["head.ini"]
+
+
+_svs_lines = st.sampled_from(default_calibration_text().splitlines())
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.one_of(_svs_lines, st.text(max_size=40)), max_size=60), st.booleans())
+def test_svs_parser_never_fails_with_anything_but_bad_file(lines, with_header):
+    text = "\n".join((["# SVS Engine v 4.4d"] if with_header else []) + lines)
+    try:
+        calib = cal.parse_svs(text, "fuzz.ini")
+    except BadFileError as exc:
+        assert str(exc).startswith("fuzz.ini:")
+    else:
+        assert np.isfinite(calib.baseline)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 1400), st.text(alphabet="0123456789.-eE x[]#\n", min_size=1, max_size=8))
+def test_svs_parser_survives_corruption_of_the_default_file(position, junk):
+    text = default_calibration_text()
+    corrupted = text[:position] + junk + text[position + len(junk):]
+    try:
+        cal.parse_svs(corrupted, "corrupt.ini")
+    except BadFileError as exc:
+        assert str(exc).startswith("corrupt.ini:")
