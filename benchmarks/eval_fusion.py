@@ -22,7 +22,9 @@ import fusion_plots  # noqa: E402
 from fusion_sim import MapNoise, building_pair, load_world, non_overlapping_pair, random_pair, true_common  # noqa: E402
 
 from estimation.geometry import inverse, transform_points  # noqa: E402
+from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
+from fusion.alignment import refine_pose  # noqa: E402
 
 FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PRESETS = ("paper", "robust")
@@ -74,7 +76,8 @@ def print_growth(rows, seeds):
 
 def print_goal(rows):
     print("\n### Accuracy once the maps share ≥ 30 landmarks (all fractions and seeds)\n")
-    print("| preset | cases | found | max abs dtx (m) | max abs dty (m) | max abs dθ (rad) | within 0.05 m / 0.01 rad |")
+    print("| preset | cases | found | max abs dtx (m) | max abs dty (m) | max abs dθ (rad) "
+          "| within 0.05 m / 0.01 rad |")
     print("|---|---|---|---|---|---|---|")
     for preset in PRESETS:
         rs = [r for r in rows if r["common"] >= 30]
@@ -156,11 +159,85 @@ def merged_accuracy(seeds: int, noise: MapNoise):
                   f"{m[4]:.3f} -> {m[5]:.3f} | {m[6]:.4f} -> {m[7]:.4f} |")
 
 
+def oracle_pose(map1, map2, pairs: np.ndarray) -> np.ndarray:
+    """The best rigid fit of map 2 onto map 1 given the true common landmarks (weighted least squares):
+    what a perfect alignment algorithm would return on these (imperfect) maps."""
+    truth = true_relative_pose(map1, map2)
+    p1, p2 = map1.positions[pairs[:, 0]], map2.positions[pairs[:, 1]]
+    pose, _, _ = refine_pose(p1, map1.covariances[pairs[:, 0]], p2, map2.covariances[pairs[:, 1]], truth)
+    return pose
+
+
+def drift_table(seeds: int, noise: MapNoise, drifts=(0.002, 0.005, 0.01)):
+    print(f"\n### Maps warped by correlated heading drift (full routes, mean over {seeds} seeds; max in brackets)\n")
+    print("Error against the true start poses, and against the best rigid fit on the true common landmarks "
+          "(the part the alignment itself is responsible for).\n")
+    print("| heading drift (rad/√m) | preset | found | vs truth: abs dtx, dty (m), dθ (rad) | "
+          "vs best rigid fit: abs dtx, dty (m), dθ (rad) |")
+    print("|---|---|---|---|---|")
+    for drift in drifts:
+        nz = MapNoise(**{**noise.__dict__, "heading_drift": drift})
+        res = {p: ([], []) for p in PRESETS}
+        for seed in range(seeds):
+            s1, s2 = building_pair(1.0, seed, nz)
+            truth = true_relative_pose(s1.map, s2.map)
+            best = oracle_pose(s1.map, s2.map, true_common(s1, s2))
+            for preset in PRESETS:
+                a = align(s1.map, s2.map, preset, np.random.default_rng(seed))
+                if a.found:
+                    res[preset][0].append(alignment_error(a.pose, truth))
+                    res[preset][1].append(alignment_error(a.pose, best))
+        for preset in PRESETS:
+            t, b = np.array(res[preset][0]).reshape(-1, 3), np.array(res[preset][1]).reshape(-1, 3)
+            cell = lambda e: ", ".join(f"{e[:, k].mean():.3f} [{e[:, k].max():.3f}]" for k in range(3))  # noqa: E731
+            print(f"| {drift} | {preset} | {len(t)}/{seeds} | {cell(t)} | {cell(b)} |")
+
+
+def slam_table(folder: Path):
+    """Pairs of FastSLAM maps ``*_r1.npz`` / ``*_r2.npz`` written by ``p3at slam simulate``."""
+    world = load_world()
+    pairs = sorted(folder.glob("*_r1.npz"))
+    print(f"\n### FastSLAM maps from `p3at slam simulate` ({len(pairs)} pairs in {folder})\n")
+    print("| pair | landmarks 1 / 2 | true common | preset | supports | vs truth: abs dtx, dty (m), dθ (rad) | "
+          "vs best rigid fit: abs dtx, dty (m), dθ (rad) | Method 1 / 2 common (correct) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for f1 in pairs:
+        f2 = f1.with_name(f1.name.replace("_r1", "_r2"))
+        if not f2.exists():
+            continue
+        m1, m2 = LandmarkMap.load(f1), LandmarkMap.load(f2)
+        feats = []
+        for m in (m1, m2):           # each landmark's world feature: nearest in descriptor among those within 0.6 m
+            local = transform_points(inverse(np.asarray(m.metadata["true_start_pose"])), world.features)
+            d = np.linalg.norm(m.positions[:, None, :] - local[None, :, :], axis=2)
+            dd = np.linalg.norm(m.descriptors[:, None, :] - world.feature_descriptors[None, :, :], axis=2)
+            dd[d > 0.6] = np.inf
+            feats.append(np.where(np.isfinite(dd.min(axis=1)), dd.argmin(axis=1), -1))
+        rows2 = {int(f): r for r, f in enumerate(feats[1]) if f >= 0}
+        common = np.array([(r, rows2[int(f)]) for r, f in enumerate(feats[0]) if f >= 0 and int(f) in rows2],
+                          np.int64).reshape(-1, 2)
+        truth, best = true_relative_pose(m1, m2), oracle_pose(m1, m2, common)
+        cset = {tuple(p) for p in common.tolist()}
+        for preset in PRESETS:
+            a = align(m1, m2, preset, np.random.default_rng(0))
+            if not a.found:
+                print(f"| {f1.stem[:-3]} | {len(m1)} / {len(m2)} | {len(common)} | {preset} | not found | | | |")
+                continue
+            et, eb = alignment_error(a.pose, truth), alignment_error(a.pose, best)
+            cm = []
+            for method in (1, 2):
+                pr = common_landmarks(m1, m2, a, method)
+                cm.append(f"{len(pr)} ({sum(tuple(p) in cset for p in pr.tolist())})")
+            print(f"| {f1.stem[:-3]} | {len(m1)} / {len(m2)} | {len(common)} | {preset} | {len(a.supports)} | "
+                  f"{et[0]:.3f}, {et[1]:.3f}, {et[2]:.4f} | {eb[0]:.3f}, {eb[1]:.3f}, {eb[2]:.4f} | "
+                  f"{' / '.join(cm)} |")
+
+
 def figures(rows, out: Path, noise: MapNoise):
     x = np.array(FRACTIONS)
     series = {}
     for preset in PRESETS:
-        for k, name in enumerate(("tx", "ty", "θ")):
+        for k, name in enumerate(("tx", "ty", "theta")):
             vals = []
             for f in FRACTIONS:
                 e = [r[preset]["error"][k] for r in rows if r["fraction"] == f and r[preset]["found"]]
@@ -183,8 +260,9 @@ def figures(rows, out: Path, noise: MapNoise):
     g = merge(s1.map, s2.map, a, 1)
     world = load_world()
     to_local = inverse(np.asarray(s1.map.metadata["true_start_pose"]))
-    walls = np.column_stack([transform_points(to_local, np.column_stack([world.walls[:, :2], np.zeros(len(world.walls))]))[:, :2],
-                             transform_points(to_local, np.column_stack([world.walls[:, 2:], np.zeros(len(world.walls))]))[:, :2]])
+    zeros = np.zeros((len(world.walls), 1))
+    walls = np.column_stack([transform_points(to_local, np.hstack([world.walls[:, :2], zeros]))[:, :2],
+                             transform_points(to_local, np.hstack([world.walls[:, 2:], zeros]))[:, :2]])
     blue, orange, green = (200, 90, 30), (30, 120, 230), (60, 170, 60)
     fusion_plots.map_2d(out / "fusion_fig3a_local_maps.png",
                         [("map 1", s1.map.positions, blue), ("map 2 (own frame)", s2.map.positions, orange)],
@@ -213,6 +291,7 @@ def main() -> None:
     parser.add_argument("--descriptor-noise", type=float, default=MapNoise().descriptor_noise,
                         help=f"descriptor noise of the simulated maps ({MapNoise().descriptor_noise})")
     parser.add_argument("--figures", type=Path, help="write the PNG figures into this folder")
+    parser.add_argument("--slam-maps", type=Path, help="folder of FastSLAM map pairs NAME_r1.npz / NAME_r2.npz")
     args = parser.parse_args()
     noise = MapNoise(descriptor_noise=args.descriptor_noise)
     t0 = time.perf_counter()
@@ -223,6 +302,9 @@ def main() -> None:
     false_alignments(args.false_seeds, noise)
     print_common(rows, args.seeds)
     merged_accuracy(min(args.seeds, 10), noise)
+    drift_table(min(args.seeds, 10), noise)
+    if args.slam_maps:
+        slam_table(args.slam_maps)
     if args.figures:
         figures(rows, args.figures, noise)
     print(f"\n({time.perf_counter() - t0:.0f} s)")

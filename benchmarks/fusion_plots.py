@@ -89,7 +89,7 @@ def map_2d(path, groups: list[tuple[str, np.ndarray, tuple[int, int, int]]], tit
     img = _canvas(width, height)
     for s in segments if segments is not None else []:
         cv2.line(img, px(s[:2]), px(s[2:]), GREY, 2)
-    for label, p, colour in groups:
+    for _label, p, colour in groups:
         for q in p:
             cv2.circle(img, px(q), 3, colour, -1, cv2.LINE_AA)
     for label, pose in poses or []:

@@ -39,7 +39,8 @@ class MapNoise:
     cross_sigma: float = 0.01            # across it and in z: cross_sigma + cross_growth · range
     cross_growth: float = 0.003
     drift_per_metre: float = 0.002       # isotropic xy std added per metre travelled before first sight
-    descriptor_noise: float = 0.2        # expected descriptor distance to the true descriptor
+    heading_drift: float = 0.0           # rad/√m: correlated odometry heading random walk (warps the map)
+    descriptor_noise: float = 0.4        # expected descriptor distance to the true descriptor
     spurious_fraction: float = 0.1       # extra landmarks that exist nowhere
     camera_height: float = 0.9
     fov: float = 1.0                     # radians, horizontal
@@ -148,7 +149,11 @@ def building_map(robot: str, fraction: float = 1.0, seed: int = 0, noise: MapNoi
 
     start = np.asarray(world.start_poses[robot], float)
     to_start = inverse(start)
-    true_local = transform_points(to_start, world.features[idx])
+    true_world = world.features[idx]
+    if noise.heading_drift > 0 and len(idx):
+        true_world = _drifted(true_world, poses[:last], travelled[:last], first, noise.heading_drift,
+                              np.random.default_rng([seed, int.from_bytes(robot.encode()[-4:], "little"), 7]))
+    true_local = transform_points(to_start, true_world)
     Rs = rot_z(to_start[2])
     P = Rs @ P_world @ Rs.T
     positions = true_local + np.einsum("nij,nj->ni", np.linalg.cholesky(P), unit_noise[idx])
@@ -167,6 +172,22 @@ def building_map(robot: str, fraction: float = 1.0, seed: int = 0, noise: MapNoi
                     metadata={"true_start_pose": [float(v) for v in start], "simulated": True,
                               "route_fraction": float(fraction), "seed": int(seed)})
     return SimulatedMap(m, feature_index)
+
+
+def _drifted(points: np.ndarray, poses: np.ndarray, travelled: np.ndarray, first: np.ndarray, sigma: float,
+             rng: np.random.Generator) -> np.ndarray:
+    """Where a robot with a drifting heading estimate (random walk, ``sigma`` rad/√m) would put world points
+    (N, 3) first seen at pose index ``first`` (N,): about that pose, rotated by the heading error and
+    shifted by the position error accumulated so far (dead-reckoning-like, correlated along the route)."""
+    steps = np.diff(travelled, prepend=0.0)
+    heading_err = np.cumsum(rng.normal(0.0, 1.0, len(steps)) * sigma * np.sqrt(steps))
+    h = poses[:, 2]
+    pos_err = np.cumsum(heading_err[:, None] * steps[:, None] * np.column_stack([-np.sin(h), np.cos(h)]), axis=0)
+    e, c = heading_err[first], poses[first, :2]
+    rel = points[:, :2] - c
+    cos, sin = np.cos(e), np.sin(e)
+    moved = c + pos_err[first] + np.column_stack([cos * rel[:, 0] - sin * rel[:, 1], sin * rel[:, 0] + cos * rel[:, 1]])
+    return np.column_stack([moved, points[:, 2]])
 
 
 def _local(to_start: np.ndarray, pose: np.ndarray) -> np.ndarray:
