@@ -165,6 +165,15 @@ class StereoHead:
         return cls(lambda: UsbTransport.open(vendor_id, product_id, backend, serial), byte_order=byte_order,
                    colour=colour, clock=clock)
 
+    @classmethod
+    def open_1394(cls, guid: int | None = None, byte_order: str = RIGHT_FIRST, colour: bool = False,
+                  clock: Callable[[], float] = time.monotonic) -> StereoHead:
+        """Open an IEEE-1394 head through the system's libdc1394 (DeviceNotFoundError if it or a camera is
+        missing)."""
+        from drivers.videre.transport_1394 import Dc1394Transport
+
+        return cls(lambda: Dc1394Transport.open(guid), byte_order=byte_order, colour=colour, clock=clock)
+
     # --- lifecycle ---
     def _connect(self) -> None:
         self._transport = self._factory()

@@ -203,3 +203,11 @@ def test_unplug_mid_stream_then_reopen(pattern_head):
     head.close()
     with pytest.raises(NotConnectedError, match="closed"):
         head.grab()
+
+
+def test_ieee1394_transport_fails_clearly_without_libdc1394(monkeypatch):
+    from drivers.videre import transport_1394
+
+    monkeypatch.setattr(transport_1394, "_LIBRARY_NAMES", ("no-such-dc1394-library",))
+    with pytest.raises(DeviceNotFoundError, match="libdc1394 .* is not installed"):
+        StereoHead.open_1394()
