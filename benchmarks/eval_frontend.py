@@ -14,10 +14,7 @@ import cv2
 import numpy as np
 
 from estimation.frontend import (
-    FrontEnd,
     FrontEndConfig,
-    RectificationMaps,
-    StereoGeometry,
     StereoMatchConfig,
     TriangulationNoise,
     run_frontend,
@@ -30,6 +27,7 @@ from estimation.frontend.evaluation import (
     sgbm_disparity,
     truth_at,
 )
+from runtime.commands.features import front_end_from_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data"
@@ -102,14 +100,6 @@ def rendered_frames(poses=RENDER_POSES, seed: int = 0, noise_dn: float = 1.0):
         yield pose, images[0], images[1], renderer, calib
 
 
-def front_end_for(calib) -> FrontEnd:
-    """The front end as the runtime builds it from a head's calibration (rectifying raw frames)."""
-    geometry = StereoGeometry.with_camera_matrix(calib.left_camera_to_base(rectified=True), fx=calib.fx,
-                                                 fy=calib.fy, cx=calib.cx, cy=calib.cy, baseline=calib.baseline)
-    (l1, l2), (r1, r2) = calib.rectify_maps
-    return FrontEnd(FrontEndConfig(geometry=geometry), RectificationMaps(l1, l2, r1, r2))
-
-
 def world_to_base(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     """World points (N, 3) in the frame of a robot at planar pose (x, y, θ)."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
@@ -122,7 +112,7 @@ def evaluate_rendered(poses=RENDER_POSES, seed: int = 0) -> dict:
     errors, nees_3d, disparity_errors, depths = [], [], [], []
     front_end = None
     for pose, left, right, renderer, calib in rendered_frames(poses, seed):
-        front_end = front_end or front_end_for(calib)
+        front_end = front_end or front_end_from_calibration(calib)
         obs = front_end.process(left, right, 0.0)
         matches = front_end.last_matches
         truth = world_to_base(pose, renderer.true_points(pose, matches.left_pixels, "left", rectified=True))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import json
 import sys
@@ -57,25 +58,35 @@ def _read_grey(path: Path) -> np.ndarray:
     return image
 
 
+def front_end_from_calibration(calib, config: FrontEndConfig | None = None) -> FrontEnd:
+    """A FrontEnd for raw frames of a calibrated head (``drivers.videre.calibration.StereoCalibration``).
+
+    The geometry (rectified intrinsics, baseline, left rectified camera in base_link) replaces
+    ``config.geometry`` (default config otherwise); the calibration's rectification maps make ``process`` accept
+    raw pairs.
+    """
+    config = FrontEndConfig() if config is None else config
+    geometry = StereoGeometry.with_camera_matrix(calib.left_camera_to_base(rectified=True), fx=calib.fx,
+                                                 fy=calib.fy, cx=calib.cx, cy=calib.cy, baseline=calib.baseline)
+    (l1, l2), (r1, r2) = calib.rectify_maps
+    return FrontEnd(dataclasses.replace(config, geometry=geometry), RectificationMaps(l1, l2, r1, r2))
+
+
 def _front_end(args: argparse.Namespace, size: tuple[int, int]) -> FrontEnd:
-    matching = StereoMatchConfig(max_disparity=args.max_disparity)
+    config = FrontEndConfig(descriptor=args.descriptor, matching=StereoMatchConfig(max_disparity=args.max_disparity))
     width, height = size
     if args.calib is None:
         geometry = StereoGeometry(fx=args.fx, fy=args.fy if args.fy is not None else args.fx,
                                   cx=args.cx if args.cx is not None else (width - 1) / 2.0,
                                   cy=args.cy if args.cy is not None else (height - 1) / 2.0,
                                   baseline=args.baseline)
-        return FrontEnd(FrontEndConfig(descriptor=args.descriptor, matching=matching, geometry=geometry))
+        return FrontEnd(dataclasses.replace(config, geometry=geometry))
     from drivers.videre import calibration  # only the runtime adapts a driver's calibration
 
     calib = calibration.load(args.calib)
     if tuple(calib.size) != (width, height):
         calib = calib.scaled(width, height)
-    geometry = StereoGeometry.with_camera_matrix(calib.left_camera_to_base(rectified=True), fx=calib.fx,
-                                                 fy=calib.fy, cx=calib.cx, cy=calib.cy, baseline=calib.baseline)
-    (l1, l2), (r1, r2) = calib.rectify_maps
-    return FrontEnd(FrontEndConfig(descriptor=args.descriptor, matching=matching, geometry=geometry),
-                    RectificationMaps(l1, l2, r1, r2))
+    return front_end_from_calibration(calib, config)
 
 
 def matches_csv(matches, frame: str) -> bytes:
