@@ -30,6 +30,9 @@ def _add_device_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--byte-order", choices=(RIGHT_FIRST, LEFT_FIRST), default=RIGHT_FIRST,
                         help="which imager is byte 0 of each interleaved pixel (default: right)")
     parser.add_argument("--colour", action="store_true", help="a colour (Bayer) head")
+    parser.add_argument("--ieee1394", action="store_true",
+                        help="an IEEE-1394 head through the system's libdc1394 instead of USB")
+    parser.add_argument("--guid", type=_hex, help="--ieee1394: the camera's GUID, hex (default: the first)")
     parser.add_argument("--world", type=Path, help="--mock: building file (default: the packaged one)")
     parser.add_argument("--robot", default="robot1", help="--mock: named start pose the head's robot stands at")
     parser.add_argument("--seed", type=int, default=0, help="--mock: sensor noise seed")
@@ -70,8 +73,11 @@ def _open_head(args: argparse.Namespace):
         backend = VirtualStereoHead(world, args.robot, rng=np.random.default_rng(args.seed),
                                     byte_order=args.byte_order, colour=args.colour,
                                     vendor_id=args.vendor_id, product_id=args.product_id)
-    head = StereoHead.open(args.vendor_id, args.product_id, backend=backend, byte_order=args.byte_order,
-                           colour=args.colour)
+    if args.ieee1394 and not args.mock:
+        head = StereoHead.open_1394(args.guid, byte_order=args.byte_order, colour=args.colour)
+    else:
+        head = StereoHead.open(args.vendor_id, args.product_id, backend=backend, byte_order=args.byte_order,
+                               colour=args.colour)
     try:
         yield head
     finally:
