@@ -199,3 +199,17 @@ def test_svs_parser_survives_corruption_of_the_default_file(position, junk):
         cal.parse_svs(corrupted, "corrupt.ini")
     except BadFileError as exc:
         assert str(exc).startswith("corrupt.ini:")
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000))
+def test_head_pose_is_the_midpoint_of_the_optical_centres(seed):
+    c = _random_calibration(seed)
+    left_to_base = c.left_camera_to_base(rectified=False)
+    left_centre = left_to_base[:3, 3]
+    right_centre = (left_to_base @ np.append(-c.R.T @ c.T, 1.0))[:3]
+    assert (left_centre + right_centre) / 2 == pytest.approx(c.head_pose[:3], abs=1e-9)
+    # the rectified frame shares the left optical centre and differs only by R1
+    rectified = c.left_camera_to_base(rectified=True)
+    assert rectified[:3, 3] == pytest.approx(left_centre)
+    assert rectified[:3, :3] @ c.R1 == pytest.approx(left_to_base[:3, :3])

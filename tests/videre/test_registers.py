@@ -105,3 +105,25 @@ def test_sequencer_counts_gaps():
     assert seq.dropped_total == 2
     seq.restart(7.5)
     assert seq.next(100.0) == (5, 0)
+
+
+class _RecordingDevice:
+    """Stands in for a pyusb Device to pin the wire framing to the reference (a golden vector)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def ctrl_transfer(self, *args):
+        self.calls.append(args)
+        return bytes([0x78, 0x56, 0x34, 0x12]) if args[0] == 0xC0 else 4
+
+
+def test_usb_register_framing_golden():
+    from drivers.videre.transport import UsbTransport
+
+    device = _RecordingDevice()
+    transport = UsbTransport(device, "recording")
+    assert transport.read_register(0xFFF004) == 0x12345678  # quadlet little-endian
+    transport.write_register(0xF00614, 0x80000000)
+    assert device.calls[0] == (0xC0, 0x7F, 0xF004, 0x00FF, 4, 1000)  # wValue = addr & 0xFFFF, wIndex = addr >> 16
+    assert device.calls[1] == (0x40, 0x7F, 0x0614, 0x00F0, bytes([0, 0, 0, 0x80]), 1000)
