@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from estimation.frontend.buffers import ScratchBuffers
+from estimation.frontend.buffers import ScratchBuffers, scratch
 from estimation.frontend.descriptors import DescriptorKind, describe, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
@@ -25,6 +25,7 @@ from estimation.frontend.triangulation import (
     triangulate,
     triangulation_covariances,
 )
+from estimation.frontend.usurf import haar_half_size
 from estimation.observations import StereoObservations
 
 
@@ -93,10 +94,16 @@ class StereoMatches:
                                   self.left_pixels, float(timestamp))
 
 
-def rectify_pair(left: np.ndarray, right: np.ndarray, maps: RectificationMaps) -> tuple[np.ndarray, np.ndarray]:
-    """Remap a raw pair to the rectified geometry (bilinear)."""
-    return (cv2.remap(left, maps.left_map1, maps.left_map2, cv2.INTER_LINEAR),
-            cv2.remap(right, maps.right_map1, maps.right_map2, cv2.INTER_LINEAR))
+def rectify_pair(left: np.ndarray, right: np.ndarray, maps: RectificationMaps,
+                 buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Remap a raw pair to the rectified geometry (bilinear); the maps' (H, W) is the output size."""
+    out = []
+    for name, image, map1, map2 in (("left", left, maps.left_map1, maps.left_map2),
+                                    ("right", right, maps.right_map1, maps.right_map2)):
+        image = np.asarray(image)
+        dst = scratch(buffers, "rectified_" + name, map1.shape[:2] + image.shape[2:], image.dtype)
+        out.append(cv2.remap(image, map1, map2, cv2.INTER_LINEAR, dst=dst))
+    return out[0], out[1]
 
 
 def _grey(image: np.ndarray, name: str) -> np.ndarray:
@@ -114,7 +121,7 @@ def _grey(image: np.ndarray, name: str) -> np.ndarray:
 
 def detection_margin(config: FrontEndConfig) -> int:
     """Border (px) inside which a corner can be described: the 20s window plus the Haar half side."""
-    return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + max(1, round(config.scale)) + 1)
+    return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + haar_half_size(config.scale) + 1)
 
 
 def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = FrontEndConfig(),
@@ -169,7 +176,7 @@ class FrontEnd:
 
     def match(self, left: np.ndarray, right: np.ndarray) -> StereoMatches:
         if self.rectification is not None:
-            left, right = rectify_pair(left, right, self.rectification)
+            left, right = rectify_pair(left, right, self.rectification, self._buffers)
         self.last_matches = run_frontend(left, right, self.config, self._buffers)
         return self.last_matches
 
