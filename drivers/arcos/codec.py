@@ -76,6 +76,12 @@ class PacketParser:
 
     Resynchronises after garbage, truncated and corrupt packets by rescanning from the byte after a rejected
     header; never raises on any input. ``max_length`` bounds the accepted N (default 255, as ARIA).
+
+    Trade-off: an incomplete packet is abandoned as soon as a complete packet with a good checksum starts inside
+    it. Without that, a truncated packet would hold back everything after it until its promised length had
+    arrived (for a robot hearing a PULSE every 500 ms that is long enough for the watchdog to stop it). The cost
+    is that a genuine packet whose bytes happen to contain a complete valid packet, and that arrives split just
+    after it, is lost; that needs a checksum match by chance, so it is rare and costs one packet.
     """
 
     def __init__(self, max_length: int = MAX_N_RECEIVE) -> None:

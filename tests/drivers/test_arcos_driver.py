@@ -130,3 +130,44 @@ def test_errors_for_missing_device_and_silent_peer(tmp_path) -> None:
         robot.close()
     finally:
         server.close()
+
+
+def test_every_command_method_sends_the_reference_command(fake_peer_factory) -> None:
+    import math
+
+    from drivers.arcos.codec import pack_vel2
+
+    peer = fake_peer_factory()
+    with P3AT(peer.url) as robot:
+        start = len(peer.commands)
+        robot.motors_on()
+        robot.set_velocity(0.2, math.radians(-10))
+        robot.set_wheel_velocities(0.1, 0.2)
+        robot.move(-0.3)
+        robot.set_heading(math.radians(90))
+        robot.turn(math.radians(-30))
+        robot.stop()
+        robot.emergency_stop()
+        robot.sonar(False)
+        robot.reset_odometry()
+        robot.set_velocity_limits(0.5, math.radians(60))
+        robot.set_acceleration_limits(accel=0.4, decel=0.6, rot_accel=math.radians(50), rot_decel=math.radians(70))
+        robot.request_encoders(True)
+        robot.request_io(2)
+        robot.motors_off()
+        expected = [(Command.ENABLE, 1), (Command.VEL, 200), (Command.RVEL, -10), (Command.VEL2, pack_vel2(5, 10)),
+                    (Command.MOVE, -300), (Command.HEAD, 90), (Command.DHEAD, -30), (Command.STOP, None),
+                    (Command.E_STOP, 1), (Command.SONAR, 0), (Command.SETO, None), (Command.SETV, 500),
+                    (Command.SETRV, 60), (Command.SETA, 400), (Command.SETA, -600), (Command.SETRA, 50),
+                    (Command.SETRA, -70), (Command.ENCODER, 1), (Command.IOREQUEST, 2), (Command.ENABLE, 0)]
+        assert wait_until(lambda: [c for c in peer.commands[start:] if c[0] != Command.PULSE][:len(expected)]
+                          == expected)
+
+
+def test_user_parameter_file_is_used_even_if_the_subtype_differs(fake_peer_factory, caplog) -> None:
+    from drivers.arcos.params import BUILTIN_DIR
+
+    peer = fake_peer_factory()
+    with P3AT(peer.url, params=BUILTIN_DIR / "p3at.json") as robot:
+        assert robot.params.subtype == "p3at" and robot.identity.subtype == "p3at-sh"
+    assert "parameter set" in caplog.text
