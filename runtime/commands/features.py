@@ -65,11 +65,11 @@ def front_end_from_calibration(calib, config: FrontEndConfig | None = None) -> F
     ``config.geometry`` (default config otherwise); the calibration's rectification maps make ``process`` accept
     raw pairs.
     """
+    from runtime.adapters import stereo_geometry  # where driver calibrations become estimation geometry
+
     config = FrontEndConfig() if config is None else config
-    geometry = StereoGeometry.with_camera_matrix(calib.left_camera_to_base(rectified=True), fx=calib.fx,
-                                                 fy=calib.fy, cx=calib.cx, cy=calib.cy, baseline=calib.baseline)
     (l1, l2), (r1, r2) = calib.rectify_maps
-    return FrontEnd(dataclasses.replace(config, geometry=geometry), RectificationMaps(l1, l2, r1, r2))
+    return FrontEnd(dataclasses.replace(config, geometry=stereo_geometry(calib)), RectificationMaps(l1, l2, r1, r2))
 
 
 def _front_end(args: argparse.Namespace, size: tuple[int, int]) -> FrontEnd:
