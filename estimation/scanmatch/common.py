@@ -98,6 +98,11 @@ def select_correspondences(distance: np.ndarray, config: MatchConfig, residual: 
     return keep
 
 
+def truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
+    """Σ min(d_i, gate)² over the distances (N,) given."""
+    return float(np.sum(np.minimum(distance, config.max_distance) ** 2))
+
+
 def pose_step_small(step: np.ndarray, config: MatchConfig) -> bool:
     """The stopping rule: the last pose update (3,) is below both tolerances."""
     return bool(np.hypot(step[0], step[1]) < config.tolerance_translation
@@ -124,6 +129,17 @@ def pose_jacobian(rotated: np.ndarray) -> np.ndarray:
     jac[:, 0, 2] = -rotated[:, 1]
     jac[:, 1, 2] = rotated[:, 0]
     return jac
+
+
+def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """The least-squares x (3,) of jacobian (m, 3) · x ≈ residuals (m,); pseudo-inverse when ill-conditioned."""
+    normal = jacobian.T @ jacobian
+    rhs = jacobian.T @ residuals
+    # cond ≤ trace³ / det for a symmetric positive semi-definite 3×3: a cheap test before the plain solve.
+    trace = float(normal[0, 0] + normal[1, 1] + normal[2, 2])
+    if np.linalg.det(normal) > 1e-10 * trace ** 3:
+        return np.linalg.solve(normal, rhs)
+    return np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
 
 
 def least_squares_covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
@@ -200,15 +216,18 @@ def point_to_line_pose(source: np.ndarray, anchor: np.ndarray, normal: np.ndarra
     lam = max(lam, -e1)   # the global minimum has S + λI positive semi-definite
     denom = eigval + lam
     weak = int(np.argmin(np.abs(denom)))
-    if abs(denom[weak]) < 1e-12:   # the trust-region "hard case": h has no component on the weak eigenvector
-        strong = 1 - weak
+    u = eigvec @ (-hp / denom) if abs(denom[weak]) >= 1e-12 else np.full(2, np.nan)
+    norm = float(np.hypot(u[0], u[1]))
+    if not np.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+        # The trust-region "hard case": h has (almost) no component on the weak eigenvector, λ = −e_weak and
+        # u takes what the strong component leaves of the unit length along the weak eigenvector.
         comp = np.zeros(2)
-        comp[strong] = -hp[strong] / denom[strong]
-        comp[weak] = np.sqrt(max(0.0, 1.0 - comp[strong] ** 2))
+        comp[1] = -hp[1] / denom[1] if abs(denom[1]) >= 1e-12 else 0.0
+        comp[1] = float(np.clip(comp[1], -1.0, 1.0))
+        comp[0] = np.sqrt(max(0.0, 1.0 - comp[1] ** 2)) * (-1.0 if hp[0] > 0 else 1.0)
         u = eigvec @ comp
-    else:
-        u = eigvec @ (-hp / denom)
-    u = u / np.hypot(u[0], u[1])
+        norm = float(np.hypot(u[0], u[1]))
+    u = u / norm
     t = -A_inv @ (B @ u + g[:2] / 2.0)
     return np.array([t[0], t[1], np.arctan2(u[1], u[0])])
 
@@ -216,19 +235,29 @@ def point_to_line_pose(source: np.ndarray, anchor: np.ndarray, normal: np.ndarra
 def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarray, int, bool]:
     """Run ``update(pose) -> new pose | None`` until the stopping rule holds.
 
-    Returns (pose (3,), iterations, tolerance_met).  ``None`` from ``update`` (too few correspondences)
-    stops at once without convergence.
+    Returns (pose (3,), iterations, tolerance_met).  ``None`` from ``update`` (too few correspondences) or a
+    non-finite pose stops at once without convergence, keeping the last good pose.  So does a limit cycle:
+    when the kept correspondence set flips between a few states the poses repeat with a period of 2-4
+    iterations and never meet the tolerance, so returning to within the tolerance of a pose 2-4 iterations
+    back stops the run (not converged) instead of spinning to ``max_iterations``.
     """
     pose = np.asarray(initial, dtype=float).copy()
+    history: list[np.ndarray] = []
     for iteration in range(1, config.max_iterations + 1):
         new = update(pose)
-        if new is None:
+        if new is None or not np.all(np.isfinite(new)):   # too few correspondences, or a degenerate solve
             return pose, iteration, False
         step = new - pose
         step[2] = (step[2] + np.pi) % (2.0 * np.pi) - np.pi
         pose = new
         if pose_step_small(step, config):
             return pose, iteration, True
+        for earlier in history[-4:-1]:
+            back = pose - earlier
+            back[2] = (back[2] + np.pi) % (2.0 * np.pi) - np.pi
+            if pose_step_small(back, config):
+                return pose, iteration, False
+        history.append(pose)
     return pose, config.max_iterations, False
 
 

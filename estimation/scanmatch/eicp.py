@@ -20,8 +20,10 @@ Choices the paper's introduction leaves open, and what we chose:
   normal: n_iᵀ ∂(R p_i + t)/∂ξ.  At a curve end or a convex vertex (λ_i at a bound) the bound is active and
   the row uses the unit direction from the curve point to the moved point instead.  After each ξ step λ is
   reset to its exact optimum (the projection), and the step is halved while it does not lower the
-  truncated cost Σ min(d_i², gate²) of the step's correspondences.  We chose this over the alternating
-  scheme (projection, then Procrustes on the projected points — also provided,
+  truncated cost Σ min(d_i, gate)² of the correspondences the step was computed for (the kept set may
+  still change between iterations; :func:`common.iterate` stops on the resulting limit cycles).  We chose
+  this over the alternating scheme (projection,
+  then Procrustes on the projected points — also provided,
   ``eicp_solver="alternating"``) because alternating is linearly convergent and crawls along walls, where
   the curve lets points slide freely; Gauss-Newton on the eliminated problem converges quadratically near
   the solution and costs one projection per iteration.
@@ -58,6 +60,8 @@ from estimation.scanmatch.common import (
     procrustes,
     rotate,
     select_correspondences,
+    solve_normal_equations,
+    truncated_cost,
 )
 from estimation.scanmatch.polyline import Polyline, Projection
 from estimation.scanmatch.scan import Scan2D
@@ -86,10 +90,6 @@ def _curve_rows(pose: np.ndarray, source: np.ndarray, projection: Projection, ke
     return residuals, jacobian
 
 
-def _truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
-    return float(np.sum(np.minimum(distance, config.max_distance) ** 2))
-
-
 def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
     """eICP with free curve parameters: the pose (3,) of ``current`` in ``reference``'s frame."""
     curve = Polyline(reference, config.gap)
@@ -112,14 +112,14 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
         if np.count_nonzero(keep) < minimum:
             return None
         residuals, jacobian = _curve_rows(pose, source, projection, keep)
-        step = -np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
+        step = -solve_normal_equations(jacobian, residuals)
         if pose_step_small(step, config):
             return pose + step   # below the tolerance: the stopping rule ends here, no line search needed
-        # Accept the step when it lowers the cost of the correspondences it was computed for.
-        cost = _truncated_cost(projection.distance[keep], config)
+        # Accept the step when it lowers the truncated cost of the correspondences it was computed for.
+        cost = truncated_cost(projection.distance[keep], config)
         for _ in range(_MAX_HALVINGS):
             trial = pose + step
-            if _truncated_cost(project(trial).distance[keep], config) <= cost:
+            if truncated_cost(project(trial).distance[keep], config) <= cost:
                 return trial
             step = step / 2.0
         return pose   # no descent along the Gauss-Newton direction: a minimum of the truncated cost

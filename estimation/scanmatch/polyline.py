@@ -5,7 +5,7 @@ a reading between them is missing (a range dropout); each unbroken run is a *pie
 is addressed by its arc length λ (metres).  Arc length runs along each piece and jumps by ``_PIECE_SPACING``
 between pieces, so λ is strictly increasing over the whole curve and never ambiguous at a break.
 
-Projection (the closed-form optimum of λ for a given point) uses the ``k`` nearest vertices and the
+Projection (the closed-form optimum of λ for a given point) uses the 2 nearest vertices and the
 segments adjacent to them.  That is exact whenever the closest segment has one of those vertices as an
 end; with segments no longer than ``gap`` this holds for every point within the matcher's gate in practice.
 """
@@ -20,7 +20,7 @@ from estimation.scanmatch.errors import ScanMatchError
 from estimation.scanmatch.scan import Scan2D
 
 _PIECE_SPACING = 1.0  # metres of arc length left empty between pieces (any positive value works)
-_NEAREST_VERTICES = 3
+_NEAREST_VERTICES = 2
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,8 @@ class Polyline:
         self._slot_direction = np.where(valid[:, None], slot_direction, 0.0)
         self._slot_normal = np.column_stack([-slot_direction[:, 1], slot_direction[:, 0]])
         self._slot_arc = np.concatenate([self.arc[:1], self.arc])
+        # One packed table so that a projection gathers once: start x, y, direction x, y, length.  (M+1, 5)
+        self._slot_table = np.column_stack([self._slot_start, self._slot_direction, self._slot_length])
         self._tree = cKDTree(self.vertices)
 
     @property
@@ -87,27 +89,30 @@ class Polyline:
     def project(self, queries: np.ndarray) -> Projection:
         """Closest curve point of each query.  queries: (N, 2)."""
         queries = np.asarray(queries, dtype=float)
+        n = queries.shape[0]
         k = min(_NEAREST_VERTICES, self.vertices.shape[0])
         _, nearest = self._tree.query(queries, k=k)
-        nearest = nearest.reshape(queries.shape[0], k)                     # (N, k)
+        nearest = nearest.reshape(n, k)                                     # (N, k)
         # Candidate slots: the segment ending at (slot v) and the one starting at (slot v+1) each near vertex.
         slot = np.concatenate([nearest, nearest + 1], axis=1)              # (N, 2k)
-        direction = self._slot_direction[slot]                              # (N, 2k, 2)
-        offset = queries[:, None, :] - self._slot_start[slot]
-        along = np.clip(offset[..., 0] * direction[..., 0] + offset[..., 1] * direction[..., 1],
-                        0.0, self._slot_length[slot])
-        offset -= along[..., None] * direction                              # query minus candidate foot
-        dist2 = offset[..., 0] ** 2 + offset[..., 1] ** 2
-        best = np.argmin(dist2, axis=1)
-        rows = np.arange(queries.shape[0])
-        best_slot = slot[rows, best]
-        best_along = along[rows, best]
-        residual = offset[rows, best]
-        distance = np.sqrt(dist2[rows, best])
+        table = self._slot_table[slot]                                      # (N, 2k, 5)
+        ox = queries[:, 0:1] - table[..., 0]
+        oy = queries[:, 1:2] - table[..., 1]
+        along = ox * table[..., 2] + oy * table[..., 3]
+        np.clip(along, 0.0, table[..., 4], out=along)
+        ox -= along * table[..., 2]                                         # query minus candidate foot
+        oy -= along * table[..., 3]
+        dist2 = ox * ox + oy * oy
+        flat = np.arange(n) * slot.shape[1] + np.argmin(dist2, axis=1)
+        best_slot = slot.ravel()[flat]
+        residual = np.column_stack([ox.ravel()[flat], oy.ravel()[flat]])
+        distance = np.sqrt(dist2.ravel()[flat])
         # Unit direction from the curve to the query; on the curve itself, the segment normal.
-        normal = np.where((distance > 1e-12)[:, None], residual / np.maximum(distance, 1e-300)[:, None],
-                          self._slot_normal[best_slot])
-        return Projection(queries - residual, self._slot_arc[best_slot] + best_along, distance, normal,
+        on_curve = distance <= 1e-12
+        normal = residual / np.where(on_curve, 1.0, distance)[:, None]
+        if on_curve.any():
+            normal[on_curve] = self._slot_normal[best_slot[on_curve]]
+        return Projection(queries - residual, self._slot_arc[best_slot] + along.ravel()[flat], distance, normal,
                           nearest[:, 0])
 
     def clamp_to_piece(self, arc: np.ndarray, piece: np.ndarray) -> np.ndarray:
