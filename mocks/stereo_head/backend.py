@@ -74,13 +74,10 @@ class VirtualStereoHead(usb.backend.IBackend):
             text = calibration  # type: ignore[assignment]
         self.optics = optics or (parse_svs(text, "virtual head calibration") if text else default_calibration())
         self.world, self.robot = world, robot
-        self.renderer = None
+        self._renderer, self._texture_resolution = renderer, texture_resolution
         if world is not None:
             if robot is None:
                 raise ValueError("a virtual head in a world needs the name of the robot it is mounted on")
-            from mocks.stereo_head.renderer import StereoRenderer
-
-            self.renderer = renderer or StereoRenderer(world, self.optics, texture_resolution)
             source = self._render
         else:
             source = pattern_source
@@ -133,6 +130,15 @@ class VirtualStereoHead(usb.backend.IBackend):
     @property
     def plugged(self) -> bool:
         return self._plugged
+
+    @property
+    def renderer(self):
+        """The building renderer (built on first use: baking the textures takes about half a second)."""
+        if self._renderer is None and self.world is not None:
+            from mocks.stereo_head.renderer import StereoRenderer
+
+            self._renderer = StereoRenderer(self.world, self.optics, self._texture_resolution)
+        return self._renderer
 
     def _render(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
         pose = np.asarray(self.world.pose(self.robot), float)
