@@ -211,3 +211,19 @@ def test_ieee1394_transport_fails_clearly_without_libdc1394(monkeypatch):
     monkeypatch.setattr(transport_1394, "_LIBRARY_NAMES", ("no-such-dc1394-library",))
     with pytest.raises(DeviceNotFoundError, match="libdc1394 .* is not installed"):
         StereoHead.open_1394()
+
+
+def test_auto_exposure_brings_a_dark_image_up(world):
+    virtual = VirtualStereoHead(world, "robot1", rng=np.random.default_rng(0))
+    with StereoHead.open(backend=virtual) as head:
+        head.set_mode(320, 240, 15.0)
+        head.start()
+        head.controls.set("exposure", 25)
+        dark = head.grab().left.mean()
+        head.set_max_auto_exposure(400)
+        head.controls.set_auto("exposure")
+        for _ in range(8):
+            bright = head.grab().left.mean()
+        state = head.controls.get("exposure")
+    assert state.auto and 25 < state.value <= 400
+    assert dark < 60 and 90 < bright < 130  # steered towards the 110 DN target
