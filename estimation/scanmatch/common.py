@@ -238,8 +238,9 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
     Returns (pose (3,), iterations, tolerance_met).  ``None`` from ``update`` (too few correspondences) or a
     non-finite pose stops at once without convergence, keeping the last good pose.  So does a limit cycle:
     when the kept correspondence set flips between a few states the poses repeat with a period of 2-4
-    iterations and never meet the tolerance, so returning to within the tolerance of a pose 2-4 iterations
-    back stops the run (not converged) instead of spinning to ``max_iterations``.
+    iterations and never meet the tolerance, so returning to a pose of 2-4 iterations back (to rounding
+    error: the same kept set gives the same solve) stops the run, not converged, instead of spinning to
+    ``max_iterations``.
     """
     pose = np.asarray(initial, dtype=float).copy()
     history: list[np.ndarray] = []
@@ -252,11 +253,9 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
         pose = new
         if pose_step_small(step, config):
             return pose, iteration, True
-        for earlier in history[-4:-1]:
-            back = pose - earlier
-            back[2] = (back[2] + np.pi) % (2.0 * np.pi) - np.pi
-            if pose_step_small(back, config):
-                return pose, iteration, False
+        # The same kept set gives the same solve: a cycle returns to an earlier pose to rounding error.
+        if any(np.allclose(pose, earlier, rtol=0.0, atol=1e-9) for earlier in history[-4:]):
+            return pose, iteration, False
         history.append(pose)
     return pose, config.max_iterations, False
 
