@@ -312,10 +312,12 @@ def format_svs(calib: StereoCalibration) -> str:
     w, h = calib.size
     image = {"max_linelen": "1280", "max_lines": "960", "max_decimation": "4", "max_binning": "2",
              "max_framediv": "1", "gamma": "1.000000", "color_right": "0", "color": "0", "ix": "0", "iy": "0",
-             "vergence": "0.000000", "rectified": "0", "width": str(w), "height": str(h), "linelen": str(w),
-             "lines": str(h), "decimation": str(max(1, round(1280 / w))), "binning": "1", "framediv": "0",
-             "subwindow": "0", "have_rect": "1"}
+             "vergence": "0.000000", "rectified": "0", "binning": "1", "framediv": "0", "subwindow": "0",
+             "have_rect": "1"}
     image.update(calib.extras.get("image", {}))
+    # the size keys always follow the calibration (a scaled calibration keeps its extras)
+    image.update({"width": str(w), "height": str(h), "linelen": str(w), "lines": str(h),
+                  "decimation": str(max(1, round(1280 / w)))})
     out = [f"{SVS_HEADER}{SVS_WRITE_VERSION} Stereo Camera Parameter File", "", "", "[image]"]
     out += [f"{k} {v} " for k, v in image.items()]
     for sec, kv in calib.extras.items():

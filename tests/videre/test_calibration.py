@@ -213,3 +213,12 @@ def test_head_pose_is_the_midpoint_of_the_optical_centres(seed):
     rectified = c.left_camera_to_base(rectified=True)
     assert rectified[:3, 3] == pytest.approx(left_centre)
     assert rectified[:3, :3] @ c.R1 == pytest.approx(left_to_base[:3, :3])
+
+
+def test_svs_keeps_sections_it_does_not_interpret_and_sizes_follow_scaling():
+    text = default_calibration_text().replace("[external]", "[stereo]\ncorrxsize 11 \nndisp 48 \n\n[external]")
+    calib = cal.parse_svs(text)
+    assert calib.extras["stereo"] == {"corrxsize": "11", "ndisp": "48"}
+    again = cal.format_svs(calib.scaled(1280, 960))
+    assert "[stereo]\ncorrxsize 11 \nndisp 48 " in again
+    assert "\nwidth 1280 \n" in again and "\npwidth 1280 \n" in again and "\ndecimation 1 \n" in again
