@@ -54,6 +54,7 @@ class VirtualStereoHead(usb.backend.IBackend):
     calibration: what the head's store holds (default: the packaged file; None: an empty store). It also sets
     the optics the renderer uses, unless ``optics`` is given (to simulate a stale stored calibration).
     rng: noise generator. clock/sleep: time source for ``realtime`` pacing.
+    max_transfer: cap on the bytes one bulk read returns (frames then arrive in pieces, as on a real bus).
     renderer: an existing ``StereoRenderer`` of the same world and optics to share (its texture atlas takes
     about half a second to bake), e.g. for several heads in one building.
     """
@@ -64,7 +65,7 @@ class VirtualStereoHead(usb.backend.IBackend):
                  firmware: int = 0x0203, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID,
                  serial: str = "VIRTUAL-0001", realtime: bool = False, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep, texture_resolution: float = 100.0, bus: int = 1,
-                 address: int = 7, renderer=None):
+                 address: int = 7, renderer=None, max_transfer: int | None = None):
         super().__init__()
         if calibration is _DEFAULT:
             text: str | None = default_calibration_text()
@@ -86,6 +87,7 @@ class VirtualStereoHead(usb.backend.IBackend):
         self.vendor_id, self.product_id = vendor_id, product_id
         self.strings = {1: reg.VENDOR_NAME, 2: reg.MODEL_NAME, 3: serial}
         self.realtime, self._clock, self._sleep = realtime, clock, sleep
+        self.max_transfer = max_transfer
         self._lock = threading.RLock()
         self._plugged = True
         self._open_handles = 0
@@ -273,7 +275,7 @@ class VirtualStereoHead(usb.backend.IBackend):
             frame = self.model.frame()
             self._check()  # unplugged while the frame was being produced
             pending = memoryview(frame.data).cast("B")
-        count = min(len(buff), len(pending))
+        count = min(len(buff), len(pending), self.max_transfer or len(pending))
         np.frombuffer(buff, np.uint8, count)[:] = np.frombuffer(pending[:count], np.uint8)
         with self._lock:
             self._pending = pending[count:] if count < len(pending) else None

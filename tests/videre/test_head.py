@@ -227,3 +227,13 @@ def test_auto_exposure_brings_a_dark_image_up(world):
         state = head.controls.get("exposure")
     assert state.auto and 25 < state.value <= 400
     assert dark < 60 and 90 < bright < 130  # steered towards the 110 DN target
+
+
+def test_frames_arriving_in_pieces_are_reassembled():
+    virtual = VirtualStereoHead(max_transfer=16384)
+    with StereoHead.open(backend=virtual) as head:
+        head.start()
+        first, second = head.grab(), head.grab()
+    left, right = pattern_source(640, 480)
+    for frame in (first, second):
+        assert np.array_equal(frame.left, left) and np.array_equal(frame.right, right)
