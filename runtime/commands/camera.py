@@ -51,7 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     grab = sub.add_parser("grab", help="save one left/right pair as PNG",
                           description="Grab one stereo pair and save left.png and right.png in DIR.")
     _add_device_options(grab)
-    grab.add_argument("--out", type=Path, required=True, help="directory for left.png and right.png")
+    grab.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for left.png and right.png")
     grab.add_argument("--rectify", action="store_true", help="rectify with the calibration stored on the head")
     grab.add_argument("--mode", default="640x480", help="WIDTHxHEIGHT (default %(default)s)")
     grab.add_argument("--rate", type=float, default=15.0, help="frame rate, Hz (default %(default)s)")
