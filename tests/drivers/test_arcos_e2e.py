@@ -102,7 +102,7 @@ def test_handshake_identity_and_config(virtual_robot) -> None:
 
 def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configured_error(virtual_robot) -> None:
     scale_error = 0.98  # the wheels measure 2 % short
-    robot = virtual_robot(open_world(), (1.0, 2.0, 0.0), time_scale=5.0,
+    robot = virtual_robot(open_world(), (1.0, 2.0, 0.0), time_scale=10.0,
                           odometry=OdometryErrors(distance_scale=scale_error))
     with driver(robot) as p3at:
         p3at.motors_on()
@@ -119,7 +119,7 @@ def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configur
 
 
 def test_turning_matches_truth(virtual_robot) -> None:
-    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=5.0)
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=10.0)
     with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity(0.3, math.radians(30))
@@ -183,7 +183,7 @@ def test_driver_reconnects_after_the_robot_restarts_with_motors_disabled(virtual
 
 
 def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
-    robot = virtual_robot(box_world(), (8.5, 2.0, 0.0), time_scale=5.0)
+    robot = virtual_robot(box_world(), (8.5, 2.0, 0.0), time_scale=10.0)
     with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity(0.5, 0.0)
@@ -196,7 +196,7 @@ def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
 @pytest.mark.parametrize("virtual_robot", ["tcp"], indirect=True)  # the wrap is transport-independent
 def test_position_wraps_around_over_a_long_drive(virtual_robot) -> None:
     # p3at-sh reports mm in 15 bits: the field wraps every 32.768 m. Drive 34 m straight.
-    robot = virtual_robot(open_world(60.0), (-25.0, 0.0, 0.0), time_scale=15.0)
+    robot = virtual_robot(open_world(60.0), (-25.0, 0.0, 0.0), time_scale=25.0)
     with driver(robot, link_timeout=2.0) as p3at:
         p3at.motors_on()
         p3at.set_velocity_limits(max_v=1.2)
@@ -210,7 +210,7 @@ def test_position_wraps_around_over_a_long_drive(virtual_robot) -> None:
 
 
 def test_position_control_odometry_reset_and_requested_packets(virtual_robot) -> None:
-    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=5.0)
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=10.0)
     packets: list[object] = []
     with driver(robot) as p3at:
         p3at.subscribe_packets(packets.append)
