@@ -254,7 +254,9 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
         if pose_step_small(step, config):
             return pose, iteration, True
         # The same kept set gives the same solve: a cycle returns to an earlier pose to rounding error.
-        if any(np.allclose(pose, earlier, rtol=0.0, atol=1e-9) for earlier in history[-4:]):
+        # (A converging run also comes back near earlier poses, but with steps that have become tiny.)
+        if np.max(np.abs(step)) > 1e-6 and any(np.allclose(pose, earlier, rtol=0.0, atol=1e-9)
+                                               for earlier in history[-4:-1]):
             return pose, iteration, False
         history.append(pose)
     return pose, config.max_iterations, False
