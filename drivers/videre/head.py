@@ -125,7 +125,7 @@ class Controls:
         for v in (value,) if value2 is None else (value, value2):
             if not lo <= int(v) <= hi:
                 raise ValueError(f"{name} {v} is outside the head's range {lo}..{hi}")
-        self._head._write(spec.control, reg.encode_control(
+        self._head._write_setting(spec.control, reg.encode_control(
             reg.FeatureControl(int(value), auto=False, on=True, value2=value2), spec.two_values))
 
     def set_auto(self, name: str, auto: bool = True) -> None:
@@ -133,7 +133,7 @@ class Controls:
         if auto and not self._inquiry(name).auto_capable:
             raise ValueError(f"{name} has no automatic mode")
         current = reg.decode_control(self._head._read(spec.control), spec.two_values)
-        self._head._write(spec.control, reg.encode_control(
+        self._head._write_setting(spec.control, reg.encode_control(
             reg.FeatureControl(current.value, auto=auto, on=True, value2=current.value2), spec.two_values))
 
     def all(self) -> list[ControlState]:
@@ -153,6 +153,7 @@ class StereoHead:
         self._mode: OutputMode | None = None
         self._streaming = False
         self._resume_streaming = False
+        self._settings: dict[tuple[int, int], int] = {}  # what the user set, re-applied by reopen()
         self._sequencer = FrameSequencer(15.0)
         self.controls = Controls(self)
         self._connect()
@@ -190,7 +191,8 @@ class StereoHead:
             raise
 
     def reopen(self) -> None:
-        """Close and find the head again (after an unplug), restoring its mode and streaming state."""
+        """Close and find the head again (after an unplug), restoring the controls and vendor settings made
+        through this object, its mode and its streaming state."""
         was_streaming, mode = self._streaming or self._resume_streaming, self._mode
         self._resume_streaming = was_streaming  # kept if this attempt fails (head still unplugged)
         if self._transport is not None:
@@ -199,6 +201,8 @@ class StereoHead:
         self._streaming = False
         self._connect()
         self.controls = Controls(self)
+        for (register, _), value in self._settings.items():
+            self._write(register, value)
         if mode is not None:
             self.set_mode(mode.width, mode.height, mode.rate)
         if was_streaming:
@@ -241,6 +245,14 @@ class StereoHead:
     def _write(self, register: int, value: int) -> None:
         self._live().write_register(reg.COMMAND_BASE + register, value)
 
+    def _write_setting(self, register: int, value: int) -> None:
+        """Write a control or vendor command and remember it, so that ``reopen`` restores it after a power
+        cycle (a vendor command is remembered per command family, its upper 16 bits)."""
+        self._write(register, value)
+        key = (register, value >> 16 if register == reg.VIDERE_LOCAL else 0)
+        self._settings.pop(key, None)  # keep the order of the latest writes
+        self._settings[key] = value
+
     def read_register(self, register: int) -> int:
         """Raw quadlet at an offset from the IIDC command base (for diagnostics)."""
         return self._read(register)
@@ -259,21 +271,21 @@ class StereoHead:
 
     # --- vendor commands ---
     def set_companding(self, on: bool) -> None:
-        self._write(reg.VIDERE_LOCAL, reg.CMD_COMPANDING_ON if on else reg.CMD_COMPANDING_OFF)
+        self._write_setting(reg.VIDERE_LOCAL, reg.CMD_COMPANDING_ON if on else reg.CMD_COMPANDING_OFF)
 
     def set_hdr(self, on: bool) -> None:
-        self._write(reg.VIDERE_LOCAL, reg.CMD_HDR_ON if on else reg.CMD_HDR_OFF)
+        self._write_setting(reg.VIDERE_LOCAL, reg.CMD_HDR_ON if on else reg.CMD_HDR_OFF)
 
     def set_max_auto_exposure(self, value: int) -> None:
         if not 0 <= value <= 0xFFFF:
             raise ValueError(f"max auto exposure {value} outside 0..65535")
-        self._write(reg.VIDERE_LOCAL, reg.CMD_MAX_AUTO_EXPOSURE | value)
+        self._write_setting(reg.VIDERE_LOCAL, reg.CMD_MAX_AUTO_EXPOSURE | value)
 
     def set_max_auto_gain(self, gain: int) -> None:
         lo, hi = self.controls.range("gain")
         if not lo <= gain <= hi:
             raise ValueError(f"max auto gain {gain} outside {lo}..{hi}")
-        self._write(reg.VIDERE_LOCAL, reg.CMD_MAX_AUTO_GAIN | (gain + 16))
+        self._write_setting(reg.VIDERE_LOCAL, reg.CMD_MAX_AUTO_GAIN | (gain + 16))
 
     # --- modes ---
     def modes(self) -> list[OutputMode]:

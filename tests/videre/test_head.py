@@ -186,6 +186,9 @@ def test_dropped_frames_are_counted_with_realtime_pacing():
 def test_unplug_mid_stream_then_reopen(pattern_head):
     virtual, head = pattern_head
     head.set_mode(320, 240, 15.0)
+    head.controls.set("gain", 20)
+    head.controls.set_auto("exposure")
+    head.set_hdr(True)
     head.start()
     head.grab()
     virtual.unplug()
@@ -197,6 +200,8 @@ def test_unplug_mid_stream_then_reopen(pattern_head):
     assert not virtual.model.iso_enabled  # the head powered up fresh
     head.reopen()
     assert head.streaming and virtual.model.iso_enabled
+    assert head.controls.get("gain").value == 20 and head.controls.get("exposure").auto
+    assert virtual.model.settings.hdr
     frame = head.grab()
     assert frame.left.shape == (240, 320)
     head.close()
