@@ -105,6 +105,9 @@ class VidereCamera:
     def __init__(self, head, calibration: StereoCalibration | None = None, *, width: int = 640, height: int = 480,
                  rate: float = 15.0) -> None:
         self.head = head
+        offered = [m.rate for m in head.modes() if (m.width, m.height) == (width, height)]
+        if offered:  # the nearest frame rate the head offers at this size (IIDC rates are 3.75 · 2^k)
+            rate = min(offered, key=lambda r: (abs(np.log(r / rate)), -r))
         self.mode = head.set_mode(width, height, rate)
         calibration = calibration if calibration is not None else head.read_calibration()
         if tuple(calibration.size) != (self.mode.width, self.mode.height):

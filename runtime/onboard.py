@@ -283,9 +283,20 @@ class Onboard:
         for thread in self._threads:
             thread.join(timeout=10.0)
         self._halt_motors()
+        self._wait_until_still(timeout=3.0)
         self.publish_snapshot(force=True)
         if self.sensor_log is not None:
             self.sensor_log.close()
+
+    def _wait_until_still(self, timeout: float) -> bool:
+        """Wait (real time) until the robot reports it stands still, so the logs end with the stop."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            sample = self.latest()
+            if sample is None or (abs(sample.v) < 0.01 and abs(sample.w) < 0.01):
+                return True
+            time.sleep(0.05)
+        return False
 
     def _halt_motors(self) -> None:
         try:

@@ -68,7 +68,7 @@ def _frames(log: SensorLog):
             t = float(r["t"])
             yield CameraFrame(t, int(r["seq"]), observations=StereoObservations(
                 np.asarray(r["points"], float).reshape(-1, 3), np.asarray(r["covariances"], float).reshape(-1, 3, 3),
-                np.asarray(r["descriptors"], np.float32).reshape(len(r["points"]), -1),
+                np.asarray(r["descriptors"], np.float32),
                 np.asarray(r["pixels"], float).reshape(-1, 2), t))
     else:
         for r in log.records("frames"):
