@@ -184,7 +184,10 @@ class StereoHead:
                 raise ProtocolError(f"{identity.transport}: {identity.vendor} {identity.model!r} is not a Videre "
                                     f"stereo head (model {reg.MODEL_NAME!r} with the stereo flag)")
             if self._mode is None:
-                self._mode = self._current_mode()
+                try:
+                    self._mode = self._current_mode()
+                except (ProtocolError, IndexError):  # left in a mode this driver cannot split: use the default
+                    self._mode = self.set_mode(640, 480, 15.0)
         except BaseException:
             self._transport.close()
             self._transport = None

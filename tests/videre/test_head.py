@@ -242,3 +242,11 @@ def test_frames_arriving_in_pieces_are_reassembled():
     left, right = pattern_source(640, 480)
     for frame in (first, second):
         assert np.array_equal(frame.left, left) and np.array_equal(frame.right, right)
+
+
+def test_a_head_left_in_a_foreign_mode_opens_in_the_default_mode():
+    virtual = VirtualStereoHead()
+    virtual.model.fmt, virtual.model.mode = 0, 0  # 160x120 YUV444: not a stereo mode
+    with StereoHead.open(backend=virtual) as head:
+        assert (head.mode.width, head.mode.height, head.mode.rate) == (640, 480, 15.0)
+        assert (virtual.model.fmt, virtual.model.mode) == (0, 3)
