@@ -12,6 +12,7 @@ whole map (numpy over landmarks, Python over particles and observations).
 
     .venv/bin/python benchmarks/bench_fastslam.py            # full table (a few minutes)
     .venv/bin/python benchmarks/bench_fastslam.py --quick    # smaller sweep
+    .venv/bin/python benchmarks/bench_fastslam.py --accuracy # the simulated runs' accuracy table instead
 """
 from __future__ import annotations
 
@@ -166,7 +167,12 @@ def time_updates(cls, n_particles: int, n_landmarks: int, n_frames: int, version
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a smaller sweep")
+    parser.add_argument("--accuracy", action="store_true", help="print the simulated runs' accuracy table")
+    parser.add_argument("--seeds", type=int, default=3, help="seeds per configuration for --accuracy (3)")
     args = parser.parse_args()
+    if args.accuracy:
+        accuracy_table(args.seeds)
+        return
     particles = [10, 100, 500] if args.quick else [10, 50, 100, 200, 500]
     sizes = [1000, 10000] if args.quick else [100, 1000, 3000, 10000]
     n_frames = 10 if args.quick else 20
@@ -183,6 +189,32 @@ def main() -> None:
         fast = time_updates(FastSLAM, m, n, 5, 1)
         slow = time_updates(TextbookFastSLAM, m, n, 3, 1)
         print(f"{m:>9} {n:>9} {fast:>14.2f} {slow:>15.1f} {slow / fast:>7.0f}x", flush=True)
+
+
+def accuracy_table(n_seeds: int) -> None:
+    """Markdown table: both default routes of the building, FastSLAM 1.0 and 2.0, 100 particles, seeds 0..n-1
+    (the same runs as ``p3at slam simulate --robot R --seed S --fastslam V``), means over seeds."""
+    from mocks.world import World
+    from runtime.slam_sim import simulate
+
+    world = World.load()
+    keys = ["ate_m", "dead_reckoning_ate_m", "final_position_error_m", "dead_reckoning_final_position_error_m",
+            "landmark_median_error_m", "landmark_rms_error_m", "landmarks", "duplicate_landmarks",
+            "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95"]
+    print("| robot | FastSLAM | ATE (m) | dead-reckoning ATE (m) | final error (m) | dead-reckoning final (m) | "
+          "landmark median / RMS error (m) | landmarks | duplicates | pose NEES mean / median | NEES < χ²₃(95 %) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for robot in sorted(world.routes):
+        for version in (1, 2):
+            runs = [simulate(world, start_pose=world.start_poses[robot], route=world.routes[robot], seconds=300,
+                             seed=seed, config=FastSLAMConfig(n_particles=100, version=version), robot=robot).metrics
+                    for seed in range(n_seeds)]
+            m = {k: float(np.mean([r[k] for r in runs])) for k in keys}
+            print(f"| {robot} | {version}.0 | {m['ate_m']:.3f} | {m['dead_reckoning_ate_m']:.3f} | "
+                  f"{m['final_position_error_m']:.3f} | {m['dead_reckoning_final_position_error_m']:.3f} | "
+                  f"{m['landmark_median_error_m']:.3f} / {m['landmark_rms_error_m']:.3f} | {m['landmarks']:.0f} | "
+                  f"{m['duplicate_landmarks']:.1f} | {m['pose_nees_mean']:.0f} / {m['pose_nees_median']:.0f} | "
+                  f"{100 * m['pose_nees_within_chi2_95']:.0f} % |", flush=True)
 
 
 if __name__ == "__main__":

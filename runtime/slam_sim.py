@@ -8,9 +8,10 @@ Simulated time only (no driver, no threads): a pure-pursuit follower drives the 
 
 Scores, all in the world frame (the estimate is mapped through the true start pose, which is known here):
 ATE = RMS position error of the best particle's trajectory; the same for dead reckoning; landmark error =
-RMS distance of each map landmark to the true feature that created it; pose NEES = mean over frames of
-eᵀ P⁻¹ e for the particle cloud's mean and covariance (3 for a consistent filter); duplicates = map
-landmarks minus distinct true features they stand for (a map that doubles a corridor on a loop has many).
+RMS distance of each map landmark to the true feature that created it; pose NEES = eᵀ P⁻¹ e per frame for
+the weighted particle cloud's mean and covariance before resampling (3 on average for a consistent filter);
+duplicates = map landmarks minus distinct true features they stand for (a map that doubles a corridor on a
+loop has many).
 """
 from __future__ import annotations
 
@@ -80,7 +81,7 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
             feature_of_id[int(report.new_landmark_ids[j])] = int(feature_index[j])
         truth.append((t, *pose))
         dead.append((t, *to_world(dead_reckoning)))
-        mean, cov = slam.pose_mean_and_covariance()
+        mean, cov = report.pose_mean, report.pose_covariance  # the weighted cloud, before resampling
         error = between(to_world(mean), pose)
         error[2] = wrap_angle(error[2])
         if np.all(np.isfinite(cov)) and np.linalg.cond(cov) < 1e12:

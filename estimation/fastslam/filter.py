@@ -59,7 +59,8 @@ class UpdateReport:
 
     matched, new_landmarks, dropped: means over particles; ess: effective sample size before resampling;
     new_landmark_ids (N,): the landmark id observation j created (in any particle), -1 if none;
-    best_matches (N,): the landmark id observation j matched in the most probable particle, -1 if none.
+    best_matches (N,): the landmark id observation j matched in the most probable particle, -1 if none;
+    pose_mean (3,), pose_covariance (3, 3): the weighted particle cloud before resampling.
     """
 
     n_observations: int
@@ -70,6 +71,8 @@ class UpdateReport:
     resampled: bool
     new_landmark_ids: np.ndarray
     best_matches: np.ndarray
+    pose_mean: np.ndarray
+    pose_covariance: np.ndarray
 
 
 @dataclass
@@ -177,6 +180,7 @@ class FastSLAM:
         best = int(np.argmax(weights))
         in_best = matched.m == best
         best_matches[matched.j[in_best]] = self.store.flat_lid[matched.g[in_best]]
+        pose_mean, pose_cov = _weighted_pose_stats(self.poses, weights)
         parents = np.arange(n_particles)
         resampled = ess < cfg.resample_threshold * n_particles
         if resampled:
@@ -189,7 +193,7 @@ class FastSLAM:
         self._history.append((self._time, self.poses.copy(), parents))
         return UpdateReport(
             n_obs, len(win) / n_particles, self._last_new_count / n_particles,
-            dropped / n_particles, ess, bool(resampled), new_ids, best_matches)
+            dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov)
 
     # -- step helpers ----------------------------------------------------------------------------------------
     def _checked(self, observations: StereoObservations):
@@ -472,12 +476,7 @@ class FastSLAM:
 
     def pose_mean_and_covariance(self) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean (3,) and covariance (3, 3) of the particle poses (θ averaged on the circle)."""
-        w = self.weights
-        theta = np.arctan2(w @ np.sin(self.poses[:, 2]), w @ np.cos(self.poses[:, 2]))
-        mean = np.array([w @ self.poses[:, 0], w @ self.poses[:, 1], theta])
-        dev = self.poses - mean
-        dev[:, 2] = wrap_angle(dev[:, 2])
-        return mean, np.einsum("m,mi,mj->ij", w, dev, dev)
+        return _weighted_pose_stats(self.poses, self.weights)
 
     def trajectory(self, particle: int | None = None) -> np.ndarray:
         """(T, 4) rows (t, x, y, θ) of a particle's ancestry, one row per update (best particle by default)."""
@@ -520,6 +519,15 @@ class FastSLAM:
         meta = {"fastslam": self.config.to_dict()}
         meta.update(metadata or {})
         return self.particle_map(self._best, min_count, robot, frame, meta)
+
+
+def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean (3,) and covariance (3, 3) of poses (M, 3) with weights (M,), θ on the circle."""
+    theta = np.arctan2(w @ np.sin(poses[:, 2]), w @ np.cos(poses[:, 2]))
+    mean = np.array([w @ poses[:, 0], w @ poses[:, 1], theta])
+    dev = poses - mean
+    dev[:, 2] = wrap_angle(dev[:, 2])
+    return mean, (dev * w[:, None]).T @ dev
 
 
 def gate_limit(d2: np.ndarray) -> float:
