@@ -15,11 +15,12 @@ from runtime.cli import main
 
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory):
-    """robot1's whole route with 20 particles: (map path, exit status, scores)."""
+    """robot1's whole route with 10 particles at 3 frames/s: (map path, exit status, scores)."""
     out = tmp_path_factory.mktemp("slam") / "robot1.npz"
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):
-        status = main(["slam", "simulate", "--particles", "20", "--seed", "1", "--out", str(out), "--json"])
+        status = main(["slam", "simulate", "--particles", "10", "--frame-rate", "3", "--seed", "1", "--out", str(out),
+                       "--json"])
     return out, status, json.loads(buffer.getvalue())
 
 

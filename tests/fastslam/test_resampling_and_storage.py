@@ -16,7 +16,7 @@ from estimation.fastslam.store import LandmarkStore
 from estimation.observations import StereoObservations
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=60).filter(lambda w: sum(w) > 1e-6),
        st.integers(0, 2**32 - 1))
 def test_low_variance_copies_each_particle_floor_or_ceil_of_its_share(raw, seed):
