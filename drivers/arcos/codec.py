@@ -287,6 +287,26 @@ def _write(out: bytearray, kind: str, value: Any) -> None:
         out += _STRUCT[kind].pack(value)
 
 
+def _write_fields(out: bytearray, source: Any, table: tuple[tuple[str, str], ...]) -> None:
+    """Append ``source``'s fields named in ``table`` in order, stopping at the first ``None``."""
+    for name, kind in table:
+        value = getattr(source, name)
+        if value is None:
+            break
+        _write(out, kind, value)
+
+
+def _read_fields(reader: _Reader, table: tuple[tuple[str, str], ...]) -> dict[str, Any]:
+    """Fields of ``table`` in order until the packet ends (a field cut short counts as absent)."""
+    values: dict[str, Any] = {}
+    for name, kind in table:
+        value = reader.read(kind)
+        if value is None:
+            break
+        values[name] = value
+    return values
+
+
 # --------------------------------------------------------------------------- SYNC2 identity
 @dataclass(frozen=True)
 class Identity:
@@ -379,11 +399,7 @@ def encode_sip(sip: Sip) -> bytes:
     for number, rng in sip.sonars:
         out += _SONAR.pack(number, rng)
     out += _SIP_TAIL.pack(sip.grip_state, sip.anport, sip.analog, sip.digin, sip.digout)
-    for name, kind in SIP_OPTIONAL_FIELDS:
-        value = getattr(sip, name)
-        if value is None:
-            break
-        _write(out, kind, value)
+    _write_fields(out, sip, SIP_OPTIONAL_FIELDS)
     return bytes(out)
 
 
@@ -402,13 +418,7 @@ def decode_sip(payload: bytes) -> Sip:
     sonars = tuple(_SONAR.unpack_from(payload, pos + i * _SONAR.size) for i in range(count))
     pos += count * _SONAR.size
     grip_state, anport, analog, digin, digout = _SIP_TAIL.unpack_from(payload, pos)
-    reader = _Reader(payload, pos + _SIP_TAIL.size)
-    optional: dict[str, int | None] = {}
-    for name, kind in SIP_OPTIONAL_FIELDS:
-        value = reader.read(kind)
-        if value is None:
-            break
-        optional[name] = value
+    optional = _read_fields(_Reader(payload, pos + _SIP_TAIL.size), SIP_OPTIONAL_FIELDS)
     return Sip(moving=payload[0] == PacketId.SIP_MOVING, xpos=xpos, ypos=ypos, thpos=thpos, lvel=lvel, rvel=rvel,
                battery=battery, stall_bumpers=stall_bumpers, control=control, flags=flags, compass=compass,
                sonars=sonars, grip_state=grip_state, anport=anport, analog=analog, digin=digin, digout=digout,
@@ -453,11 +463,7 @@ RobotConfig.__module__ = __name__
 def encode_config(config: Any) -> bytes:
     """CONFIG payload (ID 0x20 first) with the fields of ``config`` up to the first ``None``."""
     out = bytearray((PacketId.CONFIG,))
-    for name, kind in CONFIG_FIELDS:
-        value = getattr(config, name)
-        if value is None:
-            break
-        _write(out, kind, value)
+    _write_fields(out, config, CONFIG_FIELDS)
     return bytes(out)
 
 
@@ -465,14 +471,7 @@ def decode_config(payload: bytes) -> Any:
     """Decode a CONFIG payload into a ``RobotConfig``; a packet may end after any field."""
     if not payload or payload[0] != PacketId.CONFIG:
         raise ProtocolError("CONFIG packet must start with ID 0x20")
-    reader = _Reader(payload, 1)
-    values: dict[str, Any] = {}
-    for name, kind in CONFIG_FIELDS:
-        value = reader.read(kind)
-        if value is None:
-            break
-        values[name] = value
-    return RobotConfig(**values)
+    return RobotConfig(**_read_fields(_Reader(payload, 1), CONFIG_FIELDS))
 
 
 def config_to_dict(config: Any) -> dict[str, Any]:
