@@ -78,14 +78,6 @@ def laser_scan(ranges, angles=None, *, min_range: float = DEFAULT_MIN_RANGE,
     return Scan2D(np.column_stack([r * np.cos(a), r * np.sin(a)]), np.flatnonzero(valid))
 
 
-def transform_points_2d(pose, points) -> np.ndarray:
-    """Points (N, 2) given in the frame of ``pose`` (3,), expressed in its parent frame."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    points = np.asarray(points, dtype=float)
-    return np.column_stack([c * points[:, 0] - s * points[:, 1] + pose[0],
-                            s * points[:, 0] + c * points[:, 1] + pose[1]])
-
-
 def sonar_scan(odometry_poses, sonar_poses, ranges, *, anchor: int = -1, min_range: float = 0.1,
                max_range: float = 4.5) -> Scan2D:
     """One point set from sonar rings read at successive odometry poses, in the frame of one of those poses.

@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {"log": str(args.log), "method": args.method, "step": args.step, "guess": args.guess,
                **odometry.summary(poses)}
     if args.json:
+        summary["config"] = config.to_dict()
         summary["trajectory"] = odometry.trajectory.tolist()
         summary["reference"] = poses[odometry.indices].tolist()
         print(json.dumps(summary, indent=2))

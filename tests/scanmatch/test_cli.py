@@ -36,6 +36,7 @@ def test_scanmatch_json_on_a_synthetic_log(tmp_path, capsys, laser, method):
     tolerance = {"eicp": 1e-6, "plicp": 5e-3, "icp": 3e-2}[method]
     assert summary["end_translation_error_m"] < tolerance
     assert len(summary["trajectory"]) == 8
+    assert summary["config"]["max_distance"] == 1.0
     np.testing.assert_allclose(summary["trajectory"][0], summary["reference"][0])
 
 
