@@ -175,8 +175,11 @@ def test_point_to_line_closed_form_is_the_global_minimum(seed):
         return np.sum(np.sum(normal * (apply_pose(pose, source) - anchor), axis=1) ** 2)
 
     best = point_to_line_pose(source, anchor, normal)
-    # Against a dense search over θ with the (linear) optimal translation for each θ.
-    for theta in np.linspace(-np.pi, np.pi, 721):
-        rotated = apply_pose(np.array([0.0, 0.0, theta]), source)
-        t = np.linalg.lstsq(normal, np.sum(normal * (anchor - rotated), axis=1), rcond=None)[0]
-        assert cost(best) <= cost(np.array([t[0], t[1], theta])) + 1e-9
+    # Against a dense search over θ with the (linear) optimal translation for each θ, all θ at once.
+    theta = np.linspace(-np.pi, np.pi, 1441)
+    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
+    rotated = np.stack([c * source[:, 0] - s * source[:, 1], s * source[:, 0] + c * source[:, 1]], axis=-1)
+    gap = np.sum(normal * (anchor - rotated), axis=-1)                     # (T, N) residual before t
+    t = np.linalg.solve(normal.T @ normal, (gap @ normal).T).T             # (T, 2) least-squares translation
+    costs = np.sum((gap - t @ normal.T) ** 2, axis=1)
+    assert cost(best) <= costs.min() + 1e-9
