@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import binom
+from scipy.special import bdtrc
 
 from estimation.geometry import between, inverse, pose_to_matrix, wrap_angle
 from estimation.landmark_map import LandmarkMap
@@ -504,8 +504,9 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     radius_z = float(np.sqrt(np.median(problem.gate_z_sq)))
     p_chance = _chance_rate(map1, map2, pose, radius_xy, radius_z, rng)
     trials = k - 2                                               # the sampled pair supports itself
-    log10_p = float((binom.logsf(s - 3, trials, p_chance) + np.log(max(iterations, 1))) / np.log(10)) \
-        if s >= 2 else 0.0
+    # P(X ≥ s − 2) for X ~ Binomial(trials, p) = bdtrc(s − 3, ...); underflow is floored at 1e-300
+    tail = float(bdtrc(s - 3, trials, min(max(p_chance, 1e-12), 1.0))) if s >= 3 else 1.0
+    log10_p = float(np.log10(max(tail, 1e-300)) + np.log10(max(iterations, 1)))
     if rows is not None and config.refine and s >= 2:
         # the subset fixed the transform; now every landmark's support, by guided matching
         guided = guided_supports(map1, map2, pose, config)

@@ -36,7 +36,7 @@ from .pose_covariance import point_jacobians
 
 def kalman_fuse(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Fuse two estimates of the same points.  x1, x2 (N, 3); P1, P2 (N, 3, 3) -> x (N, 3), P (N, 3, 3)."""
-    S = P1 + P2                                                    # innovation covariance
+    S = P1 + P2 + 1e-12 * np.eye(3)                                # innovation covariance (ε: exact maps)
     # K = P1 S⁻¹; S and P1 symmetric, so K = (S⁻¹ P1)ᵀ
     K = np.swapaxes(np.linalg.solve(S, P1), -1, -2)
     x = x1 + np.einsum("nij,nj->ni", K, x2 - x1)                   # eq. 7, toward map 2
