@@ -25,7 +25,7 @@ from estimation.frontend import FrontEndConfig
 from estimation.geometry import between, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
-from runtime.motion import NoMotion, PurePursuit, WallFollower
+from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig
 
 CAMERAS = ("mock", "synthetic", "usb")
@@ -281,7 +281,7 @@ class Mission:
         if cfg.motion == "route" and cfg.route_file is not None:
             return PurePursuit(load_route(cfg.route_file), speed=cfg.speed)
         if cfg.motion == "route" and world is not None and start is not None and name in world.routes:
-            waypoints = np.asarray(world.routes[name], float)
+            waypoints = keep_right(np.asarray(world.routes[name], float))
             # the route is given in the world; the robot follows it in its own odometry frame
             local = between(start, np.column_stack([waypoints, np.zeros(len(waypoints))]))[:, :2]
             return PurePursuit(local, speed=cfg.speed)

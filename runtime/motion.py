@@ -19,7 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
-from estimation.geometry import between, wrap_angle
+from estimation.geometry import between, compose, wrap_angle
 
 
 class RouteFileError(ValueError):
@@ -74,6 +74,26 @@ def save_route(path: str | os.PathLike, waypoints: np.ndarray) -> None:
     atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
 
 
+def keep_right(waypoints: np.ndarray, offset: float = 0.45, min_length: float = 4.0) -> np.ndarray:
+    """The route with every leg longer than ``min_length`` moved ``offset`` m to its right (K', 2).
+
+    Robots whose routes share a corridor in opposite directions then pass each other instead of meeting head
+    on; short legs (through doors, into rooms) stay on the route's line.
+    """
+    waypoints = np.asarray(waypoints, float).reshape(-1, 2)
+    out = [waypoints[0]]
+    for a, b in zip(waypoints[:-1], waypoints[1:], strict=True):
+        d = b - a
+        length = float(np.hypot(*d))
+        if length < min_length:
+            out.append(b)
+            continue
+        right = np.array([d[1], -d[0]]) / length * offset
+        # leave the line, run the leg on the right, and come back to the waypoint at its end
+        out += [a + right + d * (offset / length), b + right - d * (offset / length), b]
+    return np.array(out)
+
+
 def _sector_min(sonar_poses: np.ndarray | None, ranges: np.ndarray | None, lo: float, hi: float) -> float:
     """The nearest sonar range among sonars pointing within [lo, hi] rad of the robot's heading."""
     if sonar_poses is None or ranges is None or len(ranges) == 0:
@@ -88,19 +108,24 @@ class PurePursuit:
 
     Each waypoint is reached (within ``goal_tolerance``) before the next segment starts, so a route that
     turns back on itself is followed. An obstacle nearer than ``avoid_distance`` ahead (another robot in the
-    corridor) is passed on the right (on the left if the right is closed), slowing down, stopping short of
-    ``stop_distance``.
+    corridor) is passed by a side-step ``detour_side`` m to the right (left if the right is closed) and
+    ``detour_forward`` m ahead; the robot slows down for what is ahead and stops short of ``stop_distance``.
     """
 
     def __init__(self, waypoints: np.ndarray, *, speed: float = 0.35, lookahead: float = 0.7,
                  max_turn_rate: float = 0.8, goal_tolerance: float = 0.3, stop_distance: float = 0.35,
-                 avoid_distance: float = 1.3, side_clearance: float = 0.6) -> None:
+                 avoid_distance: float = 1.3, side_clearance: float = 0.6, detour_forward: float = 0.6,
+                 detour_side: float = 0.7) -> None:
         self.waypoints = np.asarray(waypoints, float).reshape(-1, 2)
         if len(self.waypoints) == 0:
             raise ValueError("a route needs at least one waypoint")
         self.speed, self.lookahead, self.max_turn_rate = speed, lookahead, max_turn_rate
         self.goal_tolerance, self.stop_distance = goal_tolerance, stop_distance
         self.avoid_distance, self.side_clearance = avoid_distance, side_clearance
+        self.detour_forward, self.detour_side = detour_forward, detour_side
+        self.detour: np.ndarray | None = None  # a side-step point (2,) in front of an obstacle, while passing it
+        self._detour_budget = 0
+        self._detour_cooldown = 0
         self.index = 0  # the segment the robot is on: waypoints[index] -> waypoints[index + 1]
 
     def _target(self, xy: np.ndarray) -> np.ndarray:
@@ -132,29 +157,41 @@ class PurePursuit:
                 ranges: np.ndarray | None = None) -> MotionCommand:
         pose = np.asarray(pose, float)
         xy = pose[:2]
-        if self.index >= len(self.waypoints) - 1 and np.linalg.norm(self.waypoints[-1] - xy) < self.goal_tolerance:
+        if self.detour is not None:
+            self._detour_budget -= 1
+            if np.linalg.norm(self.detour - xy) < self.goal_tolerance or self._detour_budget <= 0:
+                self.detour = None  # side-stepped (or could not): back to the route
+                self._detour_cooldown = 30
+        self._detour_cooldown = max(0, self._detour_cooldown - 1)
+        if self.detour is None and self.index >= len(self.waypoints) - 1 and \
+                np.linalg.norm(self.waypoints[-1] - xy) < self.goal_tolerance:
             return MotionCommand(0.0, 0.0, True)
-        target = self._target(xy)
+        target = self.detour if self.detour is not None else self._target(xy)
+        ahead = _sector_min(sonar_poses, ranges, -0.45, 0.45)
+        waypoint = self.waypoints[min(self.index + 1, len(self.waypoints) - 1)]
+        to_target = between(pose, np.array([target[0], target[1], 0.0]))
+        facing = abs(np.arctan2(to_target[1], to_target[0])) < 0.5
+        blocked = facing and ahead < min(self.avoid_distance, float(np.linalg.norm(waypoint - xy)) - 0.2)
+        if blocked and self.detour is None and self._detour_cooldown == 0:
+            # something in the way that is not the wall the route leads to (another robot, a person): side-step
+            # to the right (to the left if the right is closed), as people do in a corridor, then resume
+            right = _sector_min(sonar_poses, ranges, -1.75, -0.45)
+            left = _sector_min(sonar_poses, ranges, 0.45, 1.75)
+            side = -1.0 if right > self.side_clearance or right >= left else 1.0
+            step = compose(pose, np.array([self.detour_forward, side * self.detour_side, 0.0]))
+            self.detour = step[:2]
+            self._detour_budget = 60  # commands (6 s at 10 Hz) before giving the side-step up
+            target = self.detour
         local = between(pose, np.array([target[0], target[1], 0.0]))
         distance = max(float(np.hypot(local[0], local[1])), 1e-6)
         curvature = 2.0 * local[1] / distance**2  # pure pursuit: κ = 2 y / L²
         heading_error = float(np.arctan2(local[1], local[0]))
         v = self.speed * max(0.0, np.cos(heading_error))  # turn on the spot toward a target behind
         w = v * curvature if v > 0.05 else np.sign(heading_error) * 0.5 * self.max_turn_rate
-        ahead = _sector_min(sonar_poses, ranges, -0.45, 0.45)
-        waypoint = self.waypoints[min(self.index + 1, len(self.waypoints) - 1)]
-        blocked = ahead < min(self.avoid_distance, float(np.linalg.norm(waypoint - xy)))  # not the wall it heads to
-        if blocked and abs(heading_error) < 1.0:
-            # something in the way (another robot, a person): keep to the right to pass it, unless the right
-            # side is closed; slow down, and stop short of it
-            right = _sector_min(sonar_poses, ranges, -1.1, -0.45)
-            left = _sector_min(sonar_poses, ranges, 0.45, 1.1)
-            side = -1.0 if right > self.side_clearance or right >= left else 1.0
-            urgency = (self.avoid_distance - ahead) / (self.avoid_distance - self.stop_distance)
-            w = side * self.max_turn_rate * min(1.0, urgency)
-            v = min(v, self.speed * max(0.0, 1.0 - urgency))
-            if ahead > self.stop_distance:
-                v = max(v, 0.05)
+        if ahead < self.avoid_distance and abs(heading_error) < 0.45:  # slow down near what is ahead
+            v *= float(np.clip((ahead - self.stop_distance) / (self.avoid_distance - self.stop_distance), 0, 1))
+            if v < 0.05:
+                w = np.sign(heading_error or -1.0) * 0.5 * self.max_turn_rate
         w = float(np.clip(w, -self.max_turn_rate, self.max_turn_rate))
         return MotionCommand(float(v), w, False)
 

@@ -10,7 +10,7 @@ from estimation.geometry import compose
 from estimation.landmark_map import LandmarkMap
 from mocks.world import World
 from runtime.exchange import InProcessExchange
-from runtime.motion import PurePursuit, RouteFileError, WallFollower, load_route, save_route
+from runtime.motion import PurePursuit, RouteFileError, WallFollower, keep_right, load_route, save_route
 from runtime.sensorlog import SensorLog, SensorLogError, SensorLogWriter
 
 
@@ -114,3 +114,34 @@ def test_sensor_log_errors_name_the_file(tmp_path):
     (tmp_path / "log" / "index.json").write_text(json.dumps(index))
     with pytest.raises(SensorLogError, match="version 9"):
         SensorLog(tmp_path / "log")
+
+
+def test_two_robots_on_head_on_routes_pass_each_other_and_finish():
+    """The world's two routes meet head on in the corridor: kept to the right, both pass and reach their goals."""
+    world = World.load()
+    sonar_poses = np.array([[0.1, 0.0, a] for a in np.radians([-90, -50, -30, -10, 10, 30, 50, 90])])
+    robots = {name: [world.start_poses[name].copy(), PurePursuit(keep_right(world.routes[name]), speed=0.4), False]
+              for name in ("robot1", "robot2")}
+    dt, closest = 0.1, np.inf
+    for _ in range(3000):
+        for name, state in robots.items():
+            pose, controller, _ = state
+            other = next(s[0] for n, s in robots.items() if n != name)
+            mounts = compose(pose, sonar_poses)
+            ranges, _ = world.raycast(mounts[:, :2], mounts[:, 2], 5.0)
+            # the other robot as a disc of radius 0.3 m seen by the sonar rays
+            rel = other[:2] - mounts[:, :2]
+            direction = np.column_stack([np.cos(mounts[:, 2]), np.sin(mounts[:, 2])])
+            along = np.sum(rel * direction, axis=1)
+            across = np.abs(rel[:, 0] * direction[:, 1] - rel[:, 1] * direction[:, 0])
+            hit = (along > 0) & (across < 0.3)
+            ranges = np.where(hit, np.minimum(ranges, along - np.sqrt(np.maximum(0.09 - across**2, 0))), ranges)
+            cmd = controller.command(pose, sonar_poses, ranges)
+            state[2] = cmd.done
+            if not cmd.done:
+                state[0] = compose(pose, np.array([cmd.v * dt, 0.0, cmd.w * dt]))
+        closest = min(closest, float(np.linalg.norm(robots["robot1"][0][:2] - robots["robot2"][0][:2])))
+        if all(state[2] for state in robots.values()):
+            break
+    assert all(state[2] for state in robots.values()), {n: s[0] for n, s in robots.items()}
+    assert closest > 0.5  # they never touched (two 0.3 m discs... with a margin)
