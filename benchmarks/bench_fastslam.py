@@ -13,6 +13,7 @@ whole map (numpy over landmarks, Python over particles and observations).
     .venv/bin/python benchmarks/bench_fastslam.py            # full table (a few minutes)
     .venv/bin/python benchmarks/bench_fastslam.py --quick    # smaller sweep
     .venv/bin/python benchmarks/bench_fastslam.py --accuracy # the simulated runs' accuracy table instead
+    .venv/bin/python benchmarks/bench_fastslam.py --nees     # pose NEES by time window on robot1's route
 """
 from __future__ import annotations
 
@@ -169,7 +170,11 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a smaller sweep")
     parser.add_argument("--accuracy", action="store_true", help="print the simulated runs' accuracy table")
     parser.add_argument("--seeds", type=int, default=3, help="seeds per configuration for --accuracy (3)")
+    parser.add_argument("--nees", action="store_true", help="print pose NEES by time window (robot1, seed 0)")
     args = parser.parse_args()
+    if args.nees:
+        nees_windows()
+        return
     if args.accuracy:
         accuracy_table(args.seeds)
         return
@@ -215,6 +220,25 @@ def accuracy_table(n_seeds: int) -> None:
                   f"{m['landmark_median_error_m']:.3f} / {m['landmark_rms_error_m']:.3f} | {m['landmarks']:.0f} | "
                   f"{m['duplicate_landmarks']:.1f} | {m['pose_nees_mean']:.0f} / {m['pose_nees_median']:.0f} | "
                   f"{100 * m['pose_nees_within_chi2_95']:.0f} % |", flush=True)
+
+
+def nees_windows() -> None:
+    """Markdown table: median pose NEES and χ²₃(95 %) coverage by time window, robot1's route, seed 0."""
+    from mocks.world import World
+    from runtime.slam_sim import simulate
+
+    world = World.load()
+    windows = [(0, 5), (5, 10), (10, 20), (20, 40), (40, 80)]
+    print("| FastSLAM | " + " | ".join(f"{a}–{b} s" for a, b in windows) + " |")
+    print("|---|" + "---|" * len(windows))
+    for version in (1, 2):
+        nees = simulate(world, start_pose=world.start_poses["robot1"], route=world.routes["robot1"], seconds=300,
+                        seed=0, config=FastSLAMConfig(n_particles=100, version=version)).pose_nees
+        cells = []
+        for a, b in windows:
+            sel = nees[(nees[:, 0] >= a) & (nees[:, 0] < b), 1]
+            cells.append(f"{np.median(sel):.1f} ({100 * np.mean(sel < 7.815):.0f} %)" if len(sel) else "–")
+        print(f"| {version}.0 | " + " | ".join(cells) + " |", flush=True)
 
 
 if __name__ == "__main__":

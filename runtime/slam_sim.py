@@ -35,6 +35,7 @@ class SimulationResult:
     estimated_trajectory: np.ndarray
     dead_reckoning: np.ndarray
     metrics: dict = field(default_factory=dict)
+    pose_nees: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (F, 2) rows (t, NEES)
 
 
 def simulate(world, *, start_pose, route, seconds: float, seed: int, config: FastSLAMConfig,
@@ -85,7 +86,7 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
         error = between(to_world(mean), pose)
         error[2] = wrap_angle(error[2])
         if np.all(np.isfinite(cov)) and np.linalg.cond(cov) < 1e12:
-            nees.append(float(error @ np.linalg.solve(cov, error)))
+            nees.append((t, float(error @ np.linalg.solve(cov, error))))
 
     landmark_map = slam.best_map(robot=robot, metadata={
         "true_start_pose": [float(v) for v in start], "seed": int(seed), "simulated": True,
@@ -94,10 +95,11 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
     estimated_world = np.column_stack([estimated[:, 0], to_world(estimated[:, 1:])])
     true_trajectory = np.array(truth)
     dead_trajectory = np.array(dead)
+    nees_series = np.array(nees, float).reshape(-1, 2)
     metrics = _score(landmark_map, world, start, true_trajectory, estimated_world, dead_trajectory,
-                     feature_of_id, nees)
+                     feature_of_id, nees_series[:, 1])
     metrics.update(seconds=float(t), frames=len(truth) - 1, particles=config.n_particles, version=config.version)
-    return SimulationResult(landmark_map, true_trajectory, estimated_world, dead_trajectory, metrics)
+    return SimulationResult(landmark_map, true_trajectory, estimated_world, dead_trajectory, metrics, nees_series)
 
 
 def _ate(estimate: np.ndarray, truth: np.ndarray) -> float:
@@ -123,8 +125,8 @@ def _score(landmark_map: LandmarkMap, world, start, truth, estimate, dead, featu
         "landmark_median_error_m": float(np.median(errors)) if len(errors) else float("nan"),
         "distinct_features": int(len(np.unique(features[known]))),
         "duplicate_landmarks": int(known.sum() - len(np.unique(features[known]))),
-        "pose_nees_mean": float(np.mean(nees)) if nees else float("nan"),
-        "pose_nees_median": float(np.median(nees)) if nees else float("nan"),
-        "pose_nees_within_chi2_95": float(np.mean(np.asarray(nees) < 7.815)) if nees else float("nan"),
+        "pose_nees_mean": float(np.mean(nees)) if len(nees) else float("nan"),
+        "pose_nees_median": float(np.median(nees)) if len(nees) else float("nan"),
+        "pose_nees_within_chi2_95": float(np.mean(nees < 7.815)) if len(nees) else float("nan"),
         "pose_nees_frames": len(nees),
     }
