@@ -107,7 +107,8 @@ class AlignmentStatistics:
 class Alignment:
     """Result of aligning map 2 to map 1.
 
-    found: whether the maps overlap (if False, ``pose`` and ``covariance`` are None and ``reason`` says why);
+    found: whether the maps overlap (if False, ``pose`` and ``covariance`` are None, ``reason`` says why and
+    ``supports`` holds the best rejected hypothesis' supports, for diagnostics);
     pose (3,) (tx, ty, θ) of map 2's frame in map 1's frame; covariance (3, 3) or None (paper preset);
     supports (S, 2) int64 rows (landmark index in map 1, landmark index in map 2).
     """
