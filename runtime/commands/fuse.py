@@ -49,6 +49,9 @@ def _fuse(args: argparse.Namespace) -> int:
     except EstimationError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    names = [m.robot for m in maps]
+    if len(set(names)) < len(names):
+        print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
     rng = np.random.default_rng(args.seed)
     result, message = None, ""
     try:
@@ -80,6 +83,9 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_NO_OVERLAP
     for k, pose in enumerate(result.poses):
         report["maps"][k]["pose_in_reference"] = None if pose is None else [float(v) for v in pose]
+        truth = true_relative_pose(maps[result.reference], maps[k])
+        if pose is not None and truth is not None and k != result.reference:
+            report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for k, m in enumerate(maps) if result.rows[k] is not None)
                                      - len(result.map))
@@ -119,6 +125,15 @@ def _print(report: dict, as_json: bool) -> None:
         if a.get("error") is not None:
             ex, ey, et = a["error"]
             print(f"    error vs true start poses: |Δtx|={ex:.3f} m |Δty|={ey:.3f} m |Δθ|={et:.4f} rad")
+    if len(report["maps"]) > 2:
+        for k, m in enumerate(report["maps"]):
+            if m.get("pose_in_reference") is not None and k:
+                tx, ty, th = m["pose_in_reference"]
+                line = f"map {k} in map 0's frame: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad"
+                if m.get("pose_error") is not None:
+                    ex, ey, et = m["pose_error"]
+                    line += f" (error vs truth {ex:.3f} m, {ey:.3f} m, {et:.4f} rad)"
+                print(line)
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")
