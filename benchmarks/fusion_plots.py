@@ -30,6 +30,15 @@ def _write(img: np.ndarray, path: str | Path) -> None:
     Path(path).write_bytes(buf.tobytes())
 
 
+def _legend(img: np.ndarray, groups, title: str) -> None:
+    x = 20
+    for label, p, colour in groups:
+        cv2.circle(img, (x + 5, 40), 5, colour, -1)
+        _text(img, f"{label} ({len(p)})", (x + 14, 45), 0.45)
+        x += 14 + 9 * (len(label) + 6)
+    _text(img, title, (20, 22), 0.55)
+
+
 def line_plot(path, x, series: dict[str, np.ndarray], title: str, xlabel: str, ylabel: str,
               width: int = 760, height: int = 420, y_max: float | None = None, hlines: dict[str, float] | None = None):
     """series: label -> y values (len(x),), NaN = gap."""
@@ -97,12 +106,7 @@ def map_2d(path, groups: list[tuple[str, np.ndarray, tuple[int, int, int]]], tit
         b = px(pose[:2] + 0.8 * np.array([np.cos(pose[2]), np.sin(pose[2])]))
         cv2.arrowedLine(img, a, b, BLACK, 2, cv2.LINE_AA, tipLength=0.3)
         _text(img, label, (a[0] + 4, a[1] + 16), 0.45)
-    x = 20
-    for label, p, colour in groups:
-        cv2.circle(img, (x + 5, 40), 5, colour, -1)
-        _text(img, f"{label} ({len(p)})", (x + 14, 45), 0.45)
-        x += 14 + 9 * (len(label) + 6)
-    _text(img, title, (20, 22), 0.55)
+    _legend(img, groups, title)
     _write(img, path)
 
 
@@ -142,10 +146,5 @@ def map_3d(path, groups: list[tuple[str, np.ndarray, tuple[int, int, int]]], tit
         q, depth = project(allp)
         for k in np.argsort(-depth):                      # far first
             cv2.circle(img, px(q[k:k + 1])[0], 3, cols[k], -1, cv2.LINE_AA)
-    x = 20
-    for label, p, colour in groups:
-        cv2.circle(img, (x + 5, 40), 5, colour, -1)
-        _text(img, f"{label} ({len(p)})", (x + 14, 45), 0.45)
-        x += 14 + 9 * (len(label) + 6)
-    _text(img, title, (20, 22), 0.55)
+    _legend(img, groups, title)
     _write(img, path)

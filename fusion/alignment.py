@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import bdtrc
 
-from estimation.geometry import between, inverse, pose_to_matrix, wrap_angle
+from estimation.geometry import between, inverse, pose_to_matrix, rot_z, transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError, NoOverlapError
@@ -224,13 +224,6 @@ def pair_hypotheses(p1: np.ndarray, p2: np.ndarray, a: np.ndarray, b: np.ndarray
     return np.column_stack([t, theta]), valid
 
 
-def _transform_xy(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Map-2 points xy (K, 2) under poses (H, 3) -> (H, K, 2)."""
-    c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-    x, y = xy[None, :, 0], xy[None, :, 1]
-    return np.stack([c * x - s * y + poses[:, 0:1], s * x + c * y + poses[:, 1:2]], axis=-1)
-
-
 @dataclass
 class _Problem:
     """Correspondence geometry: positions (K, 3), covariances (K, 3, 3) of both sides, gates (K,)."""
@@ -369,9 +362,8 @@ def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, 
 
 def _mahalanobis_supports(problem: _Problem, pose: np.ndarray, config: AlignmentConfig) -> np.ndarray:
     """(K,) bool: 3-D Mahalanobis gate with the map-2 covariance rotated into map 1, capped by th2."""
-    R3 = np.eye(3)
-    R3[:2, :2] = _rotations_2d(pose[2])
-    q = problem.p2 @ R3.T + np.array([pose[0], pose[1], 0.0])
+    R3 = rot_z(pose[2])
+    q = transform_points(pose, problem.p2)
     r = problem.p1 - q
     S = problem.P1 + R3 @ problem.P2 @ R3.T + config.position_floor ** 2 * np.eye(3)
     m_sq = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0])
@@ -386,9 +378,8 @@ def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, conf
     (a k-d tree on positions) that pass the Mahalanobis gate, the one nearest in descriptor (below th0);
     a map-2 landmark claimed twice goes to the nearer descriptor.
     """
-    R3 = np.eye(3)
-    R3[:2, :2] = _rotations_2d(pose[2])
-    x2 = map2.positions @ R3.T + np.array([pose[0], pose[1], 0.0])
+    R3 = rot_z(pose[2])
+    x2 = transform_points(pose, map2.positions)
     k = min(candidates, len(map2))
     if k == 0 or len(map1) == 0:
         return np.zeros((0, 2), np.int64)
@@ -422,9 +413,7 @@ def _chance_rate(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, radius_
     """
     sample = rng.choice(len(map2), min(len(map2), 500), replace=False)
     scale = np.array([1.0, 1.0, radius_xy / max(radius_z, 1e-9)])
-    R3 = np.eye(3)
-    R3[:2, :2] = _rotations_2d(pose[2])
-    q = map2.positions[sample] @ R3.T + np.array([pose[0], pose[1], 0.0])
+    q = transform_points(pose, map2.positions[sample])
     tree = cKDTree(map1.positions * scale)
     inside = np.sum(tree.query_ball_point(q * scale, r=np.sqrt(2.0) * radius_xy, return_length=True))
     return float(inside) / (len(sample) * len(map1))
@@ -496,8 +485,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             mask = new_mask
     supports = pairs[mask]
     s = len(supports)
-    residual = problem.p1[mask] - np.column_stack([
-        _transform_xy(pose[None], problem.p2[mask, :2])[0], problem.p2[mask, 2]])
+    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan")
 
     # would a wrong transform gather that many supports by chance?
@@ -516,8 +504,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
                                               config.position_floor)
             supports, problem, mask = guided, g_problem, np.ones(len(guided), bool)
-            residual = problem.p1 - np.column_stack([_transform_xy(pose[None], problem.p2[:, :2])[0],
-                                                     problem.p2[:, 2]])
+            residual = problem.p1 - transform_points(pose, problem.p2)
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
     s_all = len(supports)
     spread = _spread(problem.p1[mask, :2])

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from estimation.geometry import rot_z
+from estimation.geometry import rot_z, transform_points
 from estimation.landmark_map import LandmarkMap
 
 from .alignment import CHI2_999, PRESETS, Alignment
@@ -51,7 +51,7 @@ def transform_landmarks(positions: np.ndarray, covariances: np.ndarray, pose, po
     x = R x' + t;  P = R P' Rᵀ (+ J Σ Jᵀ when the pose covariance Σ (3, 3) is given).
     """
     R = rot_z(pose[2])
-    x = positions @ R.T + np.array([pose[0], pose[1], 0.0])
+    x = transform_points(pose, positions)
     P = R @ covariances @ R.T
     if pose_covariance is not None:
         J = point_jacobians(pose, positions)
