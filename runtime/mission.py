@@ -110,19 +110,10 @@ class FusionReport:
                 "seconds": self.seconds}
 
 
-def true_relative_pose(reference: LandmarkMap, other: LandmarkMap) -> np.ndarray | None:
-    """Pose (3,) of ``other``'s frame in ``reference``'s, from the true start poses in their metadata."""
-    a, b = reference.metadata.get("true_start_pose"), other.metadata.get("true_start_pose")
-    if a is None or b is None:
-        return None
-    return between(np.asarray(a, float), np.asarray(b, float))
-
-
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 2, t: float = 0.0,
               rng: np.random.Generator | None = None) -> FusionReport:
     """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
-    from fusion.alignment import align
-    from fusion.merging import merge
+    from fusion import align, merge, true_relative_pose
 
     start = time.perf_counter()
     names = sorted(maps)
@@ -145,7 +136,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
         merged_pair = merge(merged, maps[other], alignment, method=method)
         result.common = int(merged_pair.metadata.get("fusion", {}).get("common_landmarks", 0))
         merged = merged_pair
-        truth = true_relative_pose(maps[reference], maps[other])
+        truth = true_relative_pose(maps[reference], maps[other])  # from the maps' true start poses (mocks)
         if truth is not None:
             result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
             result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
@@ -344,7 +335,7 @@ class Mission:
         for r in self.robots:
             s = r.onboard.stats
             parts.append(f"{r.name}: {s.frames_processed} frames ({s.dropped_frames} dropped), "
-                         f"{r.onboard.core.slam.particle_landmark_count().max(initial=0)} landmarks")
+                         f"map {s.map_landmarks} landmarks")
         if self.fusion_history and self.fusion_history[-1].pairs:
             p = self.fusion_history[-1].pairs[0]
             parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")

@@ -215,6 +215,7 @@ class OnboardStats:
     frames_without_odometry: int = 0
     odometry_samples: int = 0
     snapshots: int = 0
+    map_landmarks: int = 0           # in the last snapshot (confirmed landmarks of the best particle)
     camera_errors: int = 0
     stage_seconds: dict[str, float] = field(default_factory=dict)
 
@@ -407,6 +408,7 @@ class Onboard:
             snapshot = self.core.best_map()
         self._last_snapshot = t
         self.stats.snapshots += 1
+        self.stats.map_landmarks = len(snapshot)
         if self.exchange is not None:
             self.exchange.publish(self.robot, snapshot, stamp=t)
         if self.logger is not None:
