@@ -18,7 +18,7 @@ class FastSLAMConfig:
     """
 
     n_particles: int = 100
-    version: int = 1                      # 1: FastSLAM 1.0 (motion proposal); 2: FastSLAM 2.0 (observation proposal)
+    version: int = 2                      # 1: FastSLAM 1.0 (motion proposal); 2: FastSLAM 2.0 (observation proposal)
     # -- motion model (odometry increments) --------------------------------------------------------------------
     odom_xy_var_per_m: float = 0.03 ** 2          # m² of along/across-track error per metre driven
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
