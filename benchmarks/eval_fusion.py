@@ -183,6 +183,8 @@ def oracle_pose(map1, map2, pairs: np.ndarray) -> np.ndarray:
     """The best rigid fit of map 2 onto map 1 given the true common landmarks (weighted least squares):
     what a perfect alignment algorithm would return on these (imperfect) maps."""
     truth = true_relative_pose(map1, map2)
+    if len(pairs) < 2:
+        return np.full(3, np.nan)
     p1, p2 = map1.positions[pairs[:, 0]], map2.positions[pairs[:, 1]]
     pose, _, _ = refine_pose(p1, map1.covariances[pairs[:, 0]], p2, map2.covariances[pairs[:, 1]], truth)
     return pose
@@ -213,11 +215,11 @@ def drift_table(seeds: int, noise: MapNoise, drifts=(0.002, 0.005, 0.01)):
             print(f"| {drift} | {preset} | {len(t)}/{seeds} | {cell(t)} | {cell(b)} |")
 
 
-def slam_table(folder: Path):
+def slam_table(folder: Path, title: str = "FastSLAM maps from `p3at slam simulate`"):
     """Pairs of FastSLAM maps ``*_r1.npz`` / ``*_r2.npz`` written by ``p3at slam simulate``."""
     world = load_world()
     pairs = sorted(folder.glob("*_r1.npz"))
-    print(f"\n### FastSLAM maps from `p3at slam simulate` ({len(pairs)} pairs in {folder})\n")
+    print(f"\n### {title} ({len(pairs)} pairs)\n")
     print("| pair | landmarks 1 / 2 | true common | preset | supports | vs truth: abs dtx, dty (m), dθ (rad) | "
           "vs best rigid fit: abs dtx, dty (m), dθ (rad) | Method 1 / 2 common (correct) |")
     print("|---|---|---|---|---|---|---|---|")
@@ -312,6 +314,8 @@ def main() -> None:
                         help=f"descriptor noise of the simulated maps ({MapNoise().descriptor_noise})")
     parser.add_argument("--figures", type=Path, help="write the PNG figures into this folder")
     parser.add_argument("--slam-maps", type=Path, help="folder of FastSLAM map pairs NAME_r1.npz / NAME_r2.npz")
+    parser.add_argument("--slam-growth", type=Path, help="folder of FastSLAM map pairs of one run cut at several "
+                        "times (tNNNs_r1.npz / tNNNs_r2.npz)")
     args = parser.parse_args()
     noise = MapNoise(descriptor_noise=args.descriptor_noise)
     t0 = time.perf_counter()
@@ -324,6 +328,8 @@ def main() -> None:
     print_common(rows, args.seeds)
     merged_accuracy(min(args.seeds, 10), noise)
     drift_table(min(args.seeds, 10), noise)
+    if args.slam_growth:
+        slam_table(args.slam_growth, "Fig. 2 on FastSLAM maps: one run of each robot cut after t seconds")
     if args.slam_maps:
         slam_table(args.slam_maps)
     if args.figures:

@@ -477,8 +477,11 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     covariance = None
     if config.refine and mask.sum() >= 2:
         for _ in range(4):
-            pose, covariance, _ = refine_pose(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask],
-                                              pose, config.position_floor)
+            try:
+                pose, covariance, _ = refine_pose(problem.p1[mask], problem.P1[mask], problem.p2[mask],
+                                                  problem.P2[mask], pose, config.position_floor)
+            except np.linalg.LinAlgError:        # supports all in one spot: the spread check rejects them
+                break
             new_mask = _mahalanobis_supports(problem, pose, config)
             if new_mask.sum() < 2 or np.array_equal(new_mask, mask):
                 break
@@ -499,7 +502,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if rows is not None and config.refine and s >= 2:
         # the subset fixed the transform; now every landmark's support, by guided matching
         guided = guided_supports(map1, map2, pose, config)
-        if len(guided) >= s:
+        if len(guided) >= max(s, 3):
             g_problem = _problem(map1, map2, guided, config)
             pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
                                               config.position_floor)

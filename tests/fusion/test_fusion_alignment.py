@@ -231,3 +231,15 @@ def test_large_maps_search_a_subset_then_gather_every_support(sim, monkeypatch):
     assert {tuple(p) for p in a.supports.tolist()} <= {tuple(p) for p in common.tolist()}
     err = alignment_error(a.pose, (7.0, -4.0, -2.5))
     assert err[0] < 0.02 and err[1] < 0.02 and err[2] < 0.005
+
+
+def test_supports_in_one_spot_are_rejected_not_crashed():
+    # every landmark of both maps at the same place: any transform "fits", none can be fixed
+    rng = np.random.default_rng(0)
+    desc = rng.standard_normal((30, 64))
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    cov = np.repeat(np.eye(3)[None] * 1e-4, 30, 0)
+    m = LandmarkMap(np.zeros((30, 3)), cov, desc)
+    for preset in ("paper", "robust"):
+        a = align(m, m, preset, np.random.default_rng(0))
+        assert not a.found
