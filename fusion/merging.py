@@ -161,7 +161,7 @@ def common_landmarks(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment,
     """
     alignment.require()
     if method == 1:
-        return _one_to_one(map1, map2, alignment)
+        return one_to_one_supports(map1, map2, alignment)
     if method == 2:
         x2, P2 = transform_landmarks(map2.positions, map2.covariances, alignment.pose, alignment.covariance)
         if gate is None and alignment.preset == "paper":
@@ -170,7 +170,8 @@ def common_landmarks(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment,
     raise IncompatibleMapsError(f"unknown common-landmark method {method!r} (1: RANSAC supports, 2: position)")
 
 
-def _one_to_one(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment) -> np.ndarray:
+def one_to_one_supports(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment) -> np.ndarray:
+    """The alignment's supports (K, 2) with each landmark used once (greedily, nearest in position first)."""
     sup = alignment.supports
     if len(sup) == 0:
         return sup.reshape(0, 2)

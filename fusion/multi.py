@@ -19,7 +19,7 @@ from estimation.landmark_map import LandmarkMap
 
 from .alignment import PRESETS, Alignment, AlignmentConfig, align
 from .errors import IncompatibleMapsError, NoOverlapError
-from .merging import _one_to_one, merge_pairs, position_correspondences, transform_landmarks
+from .merging import merge_pairs, one_to_one_supports, position_correspondences, transform_landmarks
 from .pose_covariance import compose_with_covariance
 
 
@@ -110,7 +110,7 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
         poses[child], covs[child] = compose_with_covariance(poses[parent], covs[parent], a.pose, edge_cov)
         pose_cov = covs[child] if a.covariance is not None else None
         if method == 1:
-            sup = _one_to_one(maps[parent], maps[child], a)
+            sup = one_to_one_supports(maps[parent], maps[child], a)
             pairs = np.column_stack([rows[parent][sup[:, 0]], sup[:, 1]])
             # two parent landmarks may already be one fused landmark: keep the first pair of each row
             _, first = np.unique(pairs[:, 0], return_index=True)
