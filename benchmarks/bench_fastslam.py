@@ -30,6 +30,7 @@ import numpy as np  # noqa: E402
 
 from estimation.fastslam import FastSLAM, FastSLAMConfig, low_variance_resample, normalise_log_weights  # noqa: E402
 from estimation.fastslam.config import _HFOV  # noqa: E402
+from estimation.fastslam.motion import increment_variance, sample_motion  # noqa: E402
 from estimation.geometry import compose, rot_z  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.observations import OdometryIncrement, StereoObservations  # noqa: E402
@@ -92,7 +93,6 @@ class TextbookFastSLAM:
                                 desc=landmark_map.descriptors.copy())
 
     def predict(self, increment: OdometryIncrement) -> None:
-        from estimation.fastslam.motion import increment_variance, sample_motion
         var = increment_variance(increment.delta, self.config)
         for m in range(len(self.poses)):
             self.poses[m] = sample_motion(self.poses[m:m + 1], increment.delta, var, self.rng)[0]

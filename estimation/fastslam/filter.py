@@ -138,9 +138,9 @@ class FastSLAM:
         rot = rot_z(predicted[pairs.m, 2])                                        # (P, 3, 3)
         z_hat, s_mat = self._predict_observation(pairs, predicted, rot, q)
         innovation = z[pairs.j] - z_hat
-        h_x = _pose_jacobian(rot, z_hat)
         s_gate = s_mat
-        if cfg.version == 2:
+        if cfg.version == 2:  # the pose is not sampled yet: its uncertainty widens the gate
+            h_x = _pose_jacobian(rot, z_hat)
             s_gate = s_mat + sandwich(h_x, self._motion_cov[pairs.m])
         d2 = quadratic_form(innovation, inv3(s_gate))
         gated = d2 < cfg.mahalanobis_gate
@@ -169,7 +169,7 @@ class FastSLAM:
         self.store.include_in_bbox(matched.g)
 
         # 7. new landmarks from observations no landmark was a candidate for
-        new_ids = self._add_landmarks(had_candidate, poses, z, q, desc)
+        new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q, desc)
 
         # 8. weights and resampling
         best_matches = np.full(n_obs, -1, np.int64)
@@ -192,7 +192,7 @@ class FastSLAM:
         self._best = best
         self._history.append((self._time, self.poses.copy(), parents))
         return UpdateReport(
-            n_obs, len(win) / n_particles, self._last_new_count / n_particles,
+            n_obs, len(win) / n_particles, n_new / n_particles,
             dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov)
 
     # -- step helpers ----------------------------------------------------------------------------------------
@@ -278,9 +278,7 @@ class FastSLAM:
     def _predict_observation(self, pairs: _Pairs, poses: np.ndarray, rot: np.ndarray, q: np.ndarray):
         """ẑ = Rᵀ(μ − t) (P, 3) and S = Rᵀ Σ R + Q (P, 3, 3) for each pair."""
         store = self.store
-        t = np.zeros((len(pairs.m), 3))
-        t[:, :2] = poses[pairs.m, :2]
-        z_hat = matvec(transpose(rot), store.flat_mean[pairs.g] - t)
+        z_hat = _to_robot_frame(poses[pairs.m], rot, store.flat_mean[pairs.g])
         s_mat = sandwich(transpose(rot), store.flat_cov[pairs.g]) + q[pairs.j]
         return z_hat, s_mat
 
@@ -335,9 +333,7 @@ class FastSLAM:
             return
         store = self.store
         rot = rot_z(poses[matched.m, 2])
-        t = np.zeros((len(matched.m), 3))
-        t[:, :2] = poses[matched.m, :2]
-        z_hat = matvec(transpose(rot), store.flat_mean[matched.g] - t)
+        z_hat = _to_robot_frame(poses[matched.m], rot, store.flat_mean[matched.g])
         sigma = store.flat_cov[matched.g]
         gain = sigma @ rot @ s_inv                                                 # K = Σ R S⁻¹
         store.flat_mean[matched.g] += matvec(gain, z[matched.j] - z_hat)
@@ -358,10 +354,7 @@ class FastSLAM:
         key_all = sel.m * (int(store.flat_lid.size) + 1) + sel.g
         key_matched = matched.m * (int(store.flat_lid.size) + 1) + matched.g
         sel = sel.take(np.flatnonzero(~np.isin(key_all, key_matched)))
-        rot = rot_z(poses[sel.m, 2])
-        t = np.zeros((len(sel.m), 3))
-        t[:, :2] = poses[sel.m, :2]
-        z_hat = matvec(transpose(rot), store.flat_mean[sel.g] - t)
+        z_hat = _to_robot_frame(poses[sel.m], rot_z(poses[sel.m, 2]), store.flat_mean[sel.g])
         return sel.take(np.flatnonzero(self._well_in_view(z_hat)))
 
     def _well_in_view(self, z_hat: np.ndarray) -> np.ndarray:
@@ -388,34 +381,31 @@ class FastSLAM:
         store.flat_lid[drop] = -1
         return len(drop)
 
-    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q, desc) -> np.ndarray:
-        """Landmarks (μ = R z + t, Σ = R Q Rᵀ) for every (particle, observation) with no gated candidate."""
+    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q, desc) -> tuple[np.ndarray, int]:
+        """Landmarks (μ = R z + t, Σ = R Q Rᵀ) for every (particle, observation) with no gated candidate.
+
+        Returns the id each observation's new landmarks got (N,) (-1: none) and how many were made in all.
+        """
         n_particles, n_obs = len(poses), len(z)
-        self._last_new_count = 0
         new_ids = np.full(n_obs, -1, np.int64)
-        if n_obs == 0:
-            return new_ids
         is_new = np.ones(n_particles * n_obs, bool)
         is_new[had_candidate] = False
-        m, j = np.divmod(np.flatnonzero(is_new), n_obs)
+        m, j = np.divmod(np.flatnonzero(is_new), max(n_obs, 1))
         if len(m) == 0:
-            return new_ids
+            return new_ids, 0
         spawning = np.unique(j)
         new_ids[spawning] = self._n_ids + np.arange(len(spawning))
         self._append_descriptors(desc[spawning])
         g = self.store.append_slots(m)
         store = self.store
         rot = rot_z(poses[m, 2])
-        t = np.zeros((len(m), 3))
-        t[:, :2] = poses[m, :2]
-        store.flat_mean[g] = matvec(rot, z[j]) + t
+        store.flat_mean[g] = matvec(rot, z[j]) + _lifted_translation(poses[m])
         store.flat_cov[g] = symmetrise(sandwich(rot, q[j]))
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
         store.include_in_bbox(g)
-        self._last_new_count = len(m)
-        return new_ids
+        return new_ids, len(m)
 
     def _append_descriptors(self, desc: np.ndarray) -> None:
         need = self._n_ids + len(desc)
@@ -519,6 +509,18 @@ class FastSLAM:
         meta = {"fastslam": self.config.to_dict()}
         meta.update(metadata or {})
         return self.particle_map(self._best, min_count, robot, frame, meta)
+
+
+def _lifted_translation(poses: np.ndarray) -> np.ndarray:
+    """t = (x, y, 0) (P, 3) of planar poses (P, 3)."""
+    t = np.zeros((len(poses), 3))
+    t[:, :2] = poses[:, :2]
+    return t
+
+
+def _to_robot_frame(poses: np.ndarray, rot: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """ẑ = Rᵀ(m − t) (P, 3): world points (P, 3) in the frames of poses (P, 3) with rotations rot (P, 3, 3)."""
+    return matvec(transpose(rot), points - _lifted_translation(poses))
 
 
 def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
