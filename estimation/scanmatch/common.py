@@ -18,6 +18,7 @@ eigenvalue of σ²·(AᵀA)⁺ only as far as AᵀA is not exactly singular.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -105,8 +106,8 @@ def truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
 
 def pose_step_small(step: np.ndarray, config: MatchConfig) -> bool:
     """The stopping rule: the last pose update (3,) is below both tolerances."""
-    return bool(np.hypot(step[0], step[1]) < config.tolerance_translation
-                and abs(step[2]) < config.tolerance_rotation)
+    return (math.hypot(float(step[0]), float(step[1])) < config.tolerance_translation
+            and abs(float(step[2])) < config.tolerance_rotation)
 
 
 def rotate(theta: float, points: np.ndarray) -> np.ndarray:
@@ -243,7 +244,7 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
     ``max_iterations``.
     """
     pose = np.asarray(initial, dtype=float).copy()
-    history: list[np.ndarray] = []
+    history: list[tuple[float, float, float]] = []
     for iteration in range(1, config.max_iterations + 1):
         new = update(pose)
         if new is None or not np.all(np.isfinite(new)):   # too few correspondences, or a degenerate solve
@@ -255,10 +256,11 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
             return pose, iteration, True
         # The same kept set gives the same solve: a cycle returns to an earlier pose to rounding error.
         # (A converging run also comes back near earlier poses, but with steps that have become tiny.)
-        if np.max(np.abs(step)) > 1e-6 and any(np.allclose(pose, earlier, rtol=0.0, atol=1e-9)
-                                               for earlier in history[-4:-1]):
+        here = (float(pose[0]), float(pose[1]), float(pose[2]))
+        if max(abs(float(v)) for v in step) > 1e-6 and any(
+                max(abs(a - b) for a, b in zip(here, earlier, strict=True)) < 1e-9 for earlier in history[-4:-1]):
             return pose, iteration, False
-        history.append(pose)
+        history.append(here)
     return pose, config.max_iterations, False
 
 
