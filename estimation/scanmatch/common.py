@@ -6,15 +6,16 @@ Outliers.  A correspondence is kept when the distance between the point and its 
 For ICP and eICP the residual is that distance; for PL-ICP it is the distance to the line.
 
 Stopping.  Iterate until the pose update is below ``tolerance_translation`` (m) and ``tolerance_rotation``
-(rad), or ``max_iterations`` is reached.  ``converged`` means the tolerance was met with at least
-``min_correspondences`` correspondences left.
+(rad), or ``max_iterations`` is reached, or the kept set cycles (see :func:`iterate`).  ``converged`` means
+the tolerance was met with at least ``min_correspondences`` correspondences left.
 
 Covariance.  With the final correspondences held fixed, the cost is J(ξ) = Σ_i r_i(ξ)², ξ = (x, y, θ).  Its
 Gauss-Newton Hessian is 2 AᵀA (A: stacked residual Jacobians, m×3) and the residual variance is
 σ² = Σ r_i² / (m − 3), so cov(ξ) = σ² (AᵀA)⁻¹ — the usual least-squares estimate.  It ignores the
-uncertainty of the associations themselves, so it is optimistic (Censi 2007 gives the full form); for a
-degenerate scene (a corridor) the pseudo-inverse keeps it finite and the weak direction shows as a large
-eigenvalue of σ²·(AᵀA)⁺ only as far as AᵀA is not exactly singular.
+uncertainty of the associations themselves, so it is optimistic (Censi 2007 gives the full form).  In a
+degenerate scene (a corridor) AᵀA is (nearly) singular; its eigenvalues are floored at 1e-12 of the largest,
+so the unconstrained direction gets a huge but finite variance instead of the zero a pseudo-inverse would
+give.
 """
 from __future__ import annotations
 
@@ -144,12 +145,14 @@ def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.nd
 
 
 def least_squares_covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    """σ² (AᵀA)⁺ for stacked residual Jacobians A (m, 3) and residuals (m,); NaN when m <= 3."""
+    """σ² (AᵀA)⁻¹ for stacked residual Jacobians A (m, 3) and residuals (m,) (eigenvalues floored); NaN if m <= 3."""
     m = residuals.shape[0]
     if m <= 3:
         return np.full((3, 3), np.nan)
     sigma2 = float(residuals @ residuals) / (m - 3)
-    cov = sigma2 * np.linalg.pinv(jacobian.T @ jacobian)
+    eigval, eigvec = np.linalg.eigh(jacobian.T @ jacobian)
+    floor = max(float(eigval[-1]), 1e-300) * 1e-12
+    cov = sigma2 * (eigvec / np.maximum(eigval, floor)) @ eigvec.T
     return 0.5 * (cov + cov.T)
 
 

@@ -183,3 +183,20 @@ def test_point_to_line_closed_form_is_the_global_minimum(seed):
     t = np.linalg.solve(normal.T @ normal, (gap @ normal).T).T             # (T, 2) least-squares translation
     costs = np.sum((gap - t @ normal.T) ** 2, axis=1)
     assert cost(best) <= costs.min() + 1e-9
+
+
+@pytest.mark.parametrize("method", ["eicp", "plicp", "icp"])
+def test_corridor_leaves_the_along_axis_free_and_says_so(method):
+    # Two long parallel walls seen from the middle: nothing fixes x along the corridor.
+    rng = np.random.default_rng(2)
+    x = np.linspace(-4.0, 4.0, 90)
+    walls = np.concatenate([np.column_stack([x, np.full_like(x, 1.0)]), np.column_stack([x, np.full_like(x, -1.0)])])
+    reference = Scan2D(walls + rng.normal(0.0, 0.005, walls.shape), np.r_[np.arange(90), np.arange(100, 190)])
+    current = Scan2D(walls + rng.normal(0.0, 0.005, walls.shape), np.r_[np.arange(90), np.arange(100, 190)])
+    result = match_scans(reference, current, method, initial=[0.0, 0.05, 0.02])
+    assert abs(result.pose[1]) < 0.01 and abs(result.pose[2]) < 0.01
+    variances = np.diag(result.covariance)
+    assert np.all(np.isfinite(result.covariance))
+    if method != "icp":   # point-to-point pairs pin x to the sampling; the line-based costs do not
+        # Only noise in the normals and the wall ends constrain x: its variance dwarfs y's.
+        assert variances[0] > 30 * variances[1]
