@@ -10,6 +10,7 @@ simulated maps carry in their metadata.
 """
 from __future__ import annotations
 
+import dataclasses
 import signal
 import threading
 import time
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from estimation.fastslam import FastSLAMConfig
-from estimation.frontend import FrontEndConfig
+from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
@@ -44,6 +45,7 @@ class MissionConfig:
     camera: str = "mock"              # "mock": rendered frames through the Videre driver; "synthetic": observer
     camera_rate: float = 15.0         # Hz
     particles: int = 100
+    max_corners: int = 150            # Harris corners per image: fewer observations, faster FastSLAM updates
     motion: str = "route"             # the world's named routes, the sonar wall follower, or none
     speed: float = 0.35               # m/s along routes
     fusion_interval: float = 20.0     # s between fusions during the mission (0: only at the end)
@@ -215,7 +217,7 @@ class Mission:
         driver.connect()
         link = P3ATLink(driver)
         camera, geometry = self._camera(stack, world, index, name)
-        frontend = FrontEndConfig(geometry=geometry)
+        frontend = FrontEndConfig(geometry=geometry, harris=HarrisConfig(max_corners=cfg.max_corners))
         onboard_config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=cfg.particles), frontend=frontend,
                                        seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval)
         sensor_log = None
@@ -224,7 +226,8 @@ class Mission:
             sensor_log = SensorLogWriter(cfg.out / f"{name}-log", {
                 "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry_to_dict(geometry),
                 "true_start_pose": None if pose is None else [float(v) for v in pose], "seed": onboard_config.seed,
-                "fastslam": onboard_config.fastslam.to_dict(), "t0": t0})
+                "fastslam": onboard_config.fastslam.to_dict(), "harris": dataclasses.asdict(frontend.harris),
+                "t0": t0})
         onboard = Onboard(name, link, camera, onboard_config, exchange=self.exchange,
                           controller=self._controller(world, name, pose), logger=self.logger,
                           sensor_log=sensor_log, clock=self.clock, t0=t0,

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from estimation.fastslam import FastSLAMConfig
-from estimation.frontend import FrontEndConfig
+from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.landmark_map import LandmarkMap
 from estimation.observations import StereoObservations
 from runtime.adapters import geometry_from_dict
@@ -48,6 +48,9 @@ def onboard_config_from_log(log: SensorLog, *, particles: int | None = None, see
     try:
         fastslam = FastSLAMConfig.from_dict(dict(meta.get("fastslam") or {}))
         geometry = geometry_from_dict(meta["geometry"]) if meta.get("geometry") else None
+        harris = meta.get("harris")
+        harris = HarrisConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in harris.items()}) \
+            if harris else HarrisConfig()
     except (KeyError, TypeError, ValueError) as e:
         raise SensorLogError(f"{log.folder}/index.json: field 'metadata' holds bad settings ({e})") from None
     changes = dict(fastslam_overrides or {})
@@ -58,7 +61,7 @@ def onboard_config_from_log(log: SensorLog, *, particles: int | None = None, see
             fastslam = dataclasses.replace(fastslam, **changes)
         except TypeError as e:
             raise ValueError(f"unknown FastSLAM setting: {e}") from None
-    frontend = FrontEndConfig(geometry=geometry) if geometry is not None else FrontEndConfig()
+    frontend = FrontEndConfig(harris=harris, **({} if geometry is None else {"geometry": geometry}))
     return OnboardConfig(fastslam=fastslam, frontend=frontend, seed=int(meta.get("seed", 0) if seed is None else seed))
 
 

@@ -143,11 +143,16 @@ def test_sigterm_mid_run_stops_the_robot_and_leaves_readable_files(tmp_path):
     assert read_recording(out / "mission.rrd").maps["robot1"] is not None
 
 
-def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline(tmp_path):
+def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline_and_replays(tmp_path):
     config = MissionConfig(robots=1, seconds=6.0, camera="mock", camera_rate=7.5, particles=10, motion="none",
-                           fusion_interval=0.0, out=tmp_path, rerun="none")
+                           fusion_interval=0.0, out=tmp_path, rerun="none", log_sensors=True)
     result = Mission(config).run()
     robot = result.summary["robots"]["robot1"]
     assert robot["frames_processed"] >= 3
     assert robot["landmarks"] > 20  # corners on the rendered walls, triangulated and mapped
     assert robot["ms_per_frame"]["frontend"] > 0
+    log = SensorLog(tmp_path / "robot1-log")
+    frame = next(log.records("frames"))
+    assert frame["left"].shape == frame["right"].shape == (480, 640) and frame["left"].dtype == np.uint8
+    replayed = replay_log(tmp_path / "robot1-log")  # images through the same front end settings: same map
+    np.testing.assert_array_equal(replayed.landmark_map.positions, result.maps["robot1"].positions)
