@@ -188,7 +188,7 @@ class FastSLAM:
             self.poses = self.poses[parents]
             self.store.resample(parents)
             self.log_weights = np.zeros(n_particles)
-            best = int(np.flatnonzero(parents == best)[0])
+            best = int(np.flatnonzero(parents == best)[0])  # the heaviest (w ≥ 1/M) is always copied
         self._best = best
         self._history.append((self._time, self.poses.copy(), parents))
         return UpdateReport(
