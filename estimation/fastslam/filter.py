@@ -115,6 +115,8 @@ class FastSLAM:
     def predict(self, increment: OdometryIncrement) -> None:
         """Move every particle by the odometry increment (robot frame at its start), with motion noise."""
         delta = increment.delta
+        if not np.all(np.isfinite(delta)):
+            raise ValueError(f"odometry increment {delta.tolist()} is not finite; the filter is unchanged")
         variance = increment_variance(delta, self.config)
         if self.config.version == 1:
             self.poses = sample_motion(self.poses, delta, variance, self.rng)
@@ -208,8 +210,12 @@ class FastSLAM:
                              f"configured for descriptor_size={cfg.descriptor_size}")
         if observations.frame != "base_link":
             raise ValueError(f"observations are in frame {observations.frame!r}; FastSLAM needs 'base_link'")
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(q))):
-            raise ValueError("observations hold non-finite points or covariances")
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(q)) and np.all(np.isfinite(desc))):
+            raise ValueError("observations hold non-finite points, covariances or descriptors")
+        try:
+            np.linalg.cholesky(q)
+        except np.linalg.LinAlgError:
+            raise ValueError("an observation covariance is not positive definite") from None
         return z, q, desc
 
     def _footprint(self, poses: np.ndarray) -> tuple[np.ndarray, float]:

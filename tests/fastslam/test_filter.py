@@ -152,3 +152,20 @@ def test_range_bearing_landmarks(version, max_landmarks):
     landmark_map = slam.best_map(min_count=3)
     nearest = np.min(np.linalg.norm(landmark_map.positions[:, None, :2] - landmarks[None, :, :2], axis=2), axis=1)
     assert np.median(nearest) < 0.3 and len(landmark_map) <= max_landmarks  # 1.0 doubles a few
+
+
+def test_bad_input_is_refused_and_leaves_the_filter_unchanged():
+    rng = np.random.default_rng(0)
+    slam = FastSLAM(FastSLAMConfig(n_particles=4), np.random.default_rng(1))
+    slam.update(_obs([[4.0, 0.5, 1.0]], _unit(rng)))
+    poses, ids = slam.poses.copy(), _landmark_ids(slam)
+    with pytest.raises(ValueError, match="not finite"):
+        slam.predict(OdometryIncrement(float("nan"), 0.0, 0.0))
+    with pytest.raises(ValueError, match="non-finite"):
+        slam.update(_obs([[np.inf, 0.0, 1.0]], _unit(rng)))
+    bad = _obs([[3.0, 0.0, 1.0]], _unit(rng))
+    with pytest.raises(ValueError, match="positive definite"):
+        slam.update(StereoObservations(bad.points, -np.eye(3)[None], bad.descriptors))
+    with pytest.raises(ValueError, match="base_link"):
+        slam.update(StereoObservations(bad.points, bad.covariances, bad.descriptors, frame="left_camera"))
+    assert np.array_equal(slam.poses, poses) and _landmark_ids(slam) == ids
