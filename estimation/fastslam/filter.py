@@ -51,6 +51,7 @@ from .resampling import effective_sample_size, low_variance_resample, normalise_
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
+PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
 
 
 @dataclass(frozen=True)
@@ -108,8 +109,10 @@ class FastSLAM:
         self._motion_cov = np.zeros((m, 3, 3))   # FastSLAM 2.0: covariance of the motion not yet sampled
         self._best = 0
         self._time = 0.0
-        self._history: list[tuple[float, np.ndarray, np.ndarray]] = [
-            (0.0, self.poses.copy(), np.arange(m))]  # (t, poses (M, 3), parent of each particle)
+        # ancestry, one entry per update: (t, poses (K, 3), parents (K,)) where parents index the previous
+        # entry's rows; the newest entry holds all M particles, older ones only the live particles' ancestors
+        self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
+        self._pruned_at = 0
 
     # == 0. motion ==========================================================================================
     def predict(self, increment: OdometryIncrement) -> None:
@@ -193,6 +196,8 @@ class FastSLAM:
             best = int(np.flatnonzero(parents == best)[0])  # the heaviest (w ≥ 1/M) is always copied
         self._best = best
         self._history.append((self._time, self.poses.copy(), parents))
+        if len(self._history) - self._pruned_at >= PRUNE_HISTORY_EVERY:
+            self._prune_history()
         return UpdateReport(
             n_obs, len(win) / n_particles, n_new / n_particles,
             dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov)
@@ -482,6 +487,17 @@ class FastSLAM:
             rows.append((t, *poses[index]))
             index = parents[index]
         return np.array(rows[::-1], dtype=float).reshape(-1, 4)
+
+    def _prune_history(self) -> None:
+        """Keep only the ancestors of the live particles in the history (the lineages coalesce, so old
+        entries shrink to a pose or two): memory grows with the run's length, not with length × M."""
+        need = np.arange(len(self._history[-1][1]))
+        for i in range(len(self._history) - 1, -1, -1):
+            t, poses, parents = self._history[i]
+            previous = np.unique(parents[need])
+            self._history[i] = (t, poses[need], np.searchsorted(previous, parents[need]))
+            need = previous
+        self._pruned_at = len(self._history)
 
     def particle_landmark_count(self) -> np.ndarray:
         """(M,) number of landmarks each particle holds."""

@@ -169,3 +169,18 @@ def test_bad_input_is_refused_and_leaves_the_filter_unchanged():
     with pytest.raises(ValueError, match="base_link"):
         slam.update(StereoObservations(bad.points, bad.covariances, bad.descriptors, frame="left_camera"))
     assert np.array_equal(slam.poses, poses) and _landmark_ids(slam) == ids
+
+
+def test_history_pruning_keeps_every_live_trajectory(drive, monkeypatch):
+    import estimation.fastslam.filter as filter_module
+
+    runs = []
+    for every in (7, 10**9):  # prune often, and never
+        monkeypatch.setattr(filter_module, "PRUNE_HISTORY_EVERY", every)
+        slam = FastSLAM(FastSLAMConfig(n_particles=8, version=1), np.random.default_rng(6))
+        drive(slam, seed=3, frames=30)
+        runs.append(slam)
+    pruned, full = runs
+    assert sum(len(p) for _, p, _ in pruned._history) < sum(len(p) for _, p, _ in full._history)
+    for m in range(8):
+        assert np.array_equal(pruned.trajectory(m), full.trajectory(m))
