@@ -380,7 +380,8 @@ def read_recording(path: str | Path) -> RecordingContents:
         reader = rrchunk.RrdReader(path)
         if not reader.recordings():
             raise RecordingReadError(f"{path}: holds no recording")
-        chunks = list(reader.stream())
+        # the maps, fusion results, summary and time series; not the images and point clouds
+        chunks = list(reader.stream().filter(content=["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]))
     except RecordingReadError:
         raise
     except Exception as e:  # the bindings raise several untyped errors on corrupt files
@@ -423,8 +424,8 @@ def read_recording(path: str | Path) -> RecordingContents:
             text = _last_values(plain, "json")
             if text:
                 summary = json.loads(_scalar(text))
-    robots = sorted({e.split("/")[1] for e in entities if e.startswith("world/") and e.count("/") >= 1}
-                    - {"building", "fused"} | {k for k in maps if k != "fused"})
+    robots = sorted({e.split("/")[1] for e in entities if e.startswith("plots/") and e.count("/") >= 2}
+                    - {"fusion"} | {k for k in maps if k != "fused"})
     robots = [r for r in robots if r]
     duration = float(t_max - t_min) if np.isfinite(t_min) else 0.0
     return RecordingContents(path, robots, duration, maps, alignments, summary, len(entities))

@@ -54,7 +54,7 @@ def _review(args) -> int:
         print(json.dumps(summary, indent=2))
         return 0
     print(f"Recording {contents.path}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
-          f"{contents.duration:.1f} s, {contents.entity_count} entities")
+          f"{contents.duration:.1f} s")
     for name, size in summary["maps"].items():
         print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {exported[name]}" if name in exported else ""))
     if not contents.alignments:
