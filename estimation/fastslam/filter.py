@@ -139,7 +139,7 @@ class FastSLAM:
 
         # 1-2. candidates, descriptor join, Mahalanobis gate
         cand = self._candidates(predicted)
-        pairs = self._descriptor_join(cand, desc)
+        pairs = self._pregate(self._descriptor_join(cand, desc), predicted, z, q)
         rot = rot_z(predicted[pairs.m, 2])                                        # (P, 3, 3)
         z_hat, s_mat = self._predict_observation(pairs, predicted, rot, q)
         innovation = z[pairs.j] - z_hat
@@ -285,6 +285,28 @@ class FastSLAM:
         within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
         c = order[first + within]
         return _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], cand.g[c])
+
+    def _pregate(self, pairs: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> _Pairs:
+        """Drop pairs that cannot pass the Mahalanobis gate, using only vector norms (exact, conservative).
+
+        d² = νᵀS⁻¹ν ≥ |ν|²/λ_max(S) ≥ |ν|²/tr S, and tr S = tr Σ + tr Q (+ tr H_x P H_xᵀ ≤ (2 + r²) tr P under
+        2.0, r the landmark's planar distance), all rotation-invariant; |ν| is measured in the world. Cheap
+        where descriptors do not thin the candidates (range-bearing data has none).
+        """
+        if len(pairs.m) == 0:
+            return pairs
+        store = self.store
+        c, s = np.cos(poses[pairs.m, 2]), np.sin(poses[pairs.m, 2])
+        zj = z[pairs.j]
+        world = np.stack([poses[pairs.m, 0] + c * zj[:, 0] - s * zj[:, 1],
+                          poses[pairs.m, 1] + s * zj[:, 0] + c * zj[:, 1], zj[:, 2]], axis=1)
+        mean = store.flat_mean[pairs.g]
+        nu2 = np.sum((world - mean) ** 2, axis=1)
+        trace = np.trace(store.flat_cov[pairs.g], axis1=1, axis2=2) + np.trace(q[pairs.j], axis1=1, axis2=2)
+        if self.config.version == 2:
+            r2 = np.sum((mean[:, :2] - poses[pairs.m, :2]) ** 2, axis=1)
+            trace = trace + (2.0 + r2) * np.trace(self._motion_cov[pairs.m], axis1=1, axis2=2)
+        return pairs.take(np.flatnonzero(nu2 <= self.config.mahalanobis_gate * trace * (1 + 1e-9)))
 
     def _predict_observation(self, pairs: _Pairs, poses: np.ndarray, rot: np.ndarray, q: np.ndarray):
         """ẑ = Rᵀ(μ − t) (P, 3) and S = Rᵀ Σ R + Q (P, 3, 3) for each pair."""
