@@ -145,3 +145,50 @@ def test_two_robots_on_head_on_routes_pass_each_other_and_finish():
             break
     assert all(state[2] for state in robots.values()), {n: s[0] for n, s in robots.items()}
     assert closest > 0.5  # they never touched (two 0.3 m discs... with a margin)
+
+
+def test_covariance_ellipsoids_logged_to_rerun_rebuild_the_covariances():
+    from runtime.rerun_log import _ellipsoids
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(200, 3, 3))
+    covariances = a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(3)
+    covariances[0] = np.diag([4.0, 1.0, 0.25])[[1, 0, 2]][:, [1, 0, 2]]  # a rotation by about π among the axes
+    half_sizes, q = _ellipsoids(covariances, sigmas=2.0)
+    x, y, z, w = q.T
+    rotation = np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    rebuilt = rotation @ (np.eye(3) * (half_sizes[:, None, :] / 2.0) ** 2) @ np.swapaxes(rotation, 1, 2)
+    np.testing.assert_allclose(rebuilt, covariances, atol=1e-8)
+
+
+def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
+    from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
+
+    rng = np.random.default_rng(5)
+    rrd = tmp_path / "m.rrd"
+    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(["robot1", "robot2"])),
+                     ["robot1", "robot2"])
+    log.log_building(np.array([[0.0, 0.0, 5.0, 0.0]]), np.array([2.5]))
+    log.log_camera_model("robot1", 520, 520, 319.5, 239.5, 640, 480, 0.09)
+    for frame in range(6):
+        log.log_pose("robot1", 0.1 * frame, frame, np.array([0.1 * frame, 0, 0]), np.zeros(3), (0.12, 0.045, 0.5))
+        log.log_scalars("robot1", 0.1 * frame, {"ess": 90.0, "time/update": 12.0}, frame)
+        log.log_stereo("robot1", 0.1 * frame, frame, rng.integers(0, 255, (48, 64), np.uint8),
+                       rng.integers(0, 255, (48, 64), np.uint8), rng.uniform(0, 40, (5, 2)), rng.uniform(0, 40, (5, 2)))
+    m = _map("robot1", 10, rng)
+    log.log_map("robot1", 0.5, m)
+    log.log_map("robot2", 0.7, _map("robot2", 0, rng))  # an empty map survives too
+    log.log_scalars("robot2", 0.9, {"ess": 50.0})
+    log.log_alignment(0.5, "robot1", "robot2", {"tx": 1.0, "error_xy": 0.1})
+    log.log_summary({"robots": {}})
+    log.close()
+    contents = read_recording(rrd)
+    assert contents.robots == ["robot1", "robot2"] and contents.duration == pytest.approx(0.9)
+    np.testing.assert_array_equal(contents.maps["robot1"].covariances, m.covariances)
+    assert len(contents.maps["robot2"]) == 0
+    assert contents.alignments == {"robot1_robot2": {"tx": 1.0, "error_xy": 0.1}}
+    assert contents.summary == {"robots": {}}
