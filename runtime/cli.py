@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
 
 # Each module here defines ``register(subparsers)``; its handlers return an exit status.
@@ -21,8 +20,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
-        if importlib.util.find_spec(name) is None:  # TODO(integration): remove once every area has landed
-            continue
         importlib.import_module(name).register(sub)
     return parser
 
