@@ -106,6 +106,9 @@ class LandmarkMap:
     def load(cls, path: str | os.PathLike) -> LandmarkMap:
         """Read a map written by :meth:`save`; any defect raises :class:`MapFileError` naming the file."""
         path = Path(path)
+        if path.is_file() and not zipfile.is_zipfile(path):
+            # np.load would guess "pickle" for any non-npz bytes; say what is really wrong.
+            raise MapFileError(f"{path}: not a landmark-map file (not an npz archive)")
         try:
             with np.load(path, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
