@@ -12,5 +12,5 @@ def register(subparsers) -> None:
                     "(front end, FastSLAM) while following its route; maps are exchanged, fused at intervals and "
                     "at the end, and the alignment is scored against the truth. Prints a summary table and "
                     "writes a Rerun recording.")
-    add_mission_arguments(parser, robots=2, seconds=200.0, out="p3at-demo", camera="mock", camera_rate=3.75)
+    add_mission_arguments(parser, robots=2, seconds=200.0, out="out/demo", camera="mock", camera_rate=3.75)
     parser.set_defaults(handler=run_mission_command)

@@ -14,7 +14,7 @@ def register(subparsers) -> None:
     parser.add_argument("--robot", default="mock", metavar="URL",
                         help="mock (a virtual P3-AT in the simulated building, default), a serial device such as "
                              "/dev/ttyUSB0, or socket://host:port")
-    add_mission_arguments(parser, robots=1, seconds=600.0, out="p3at-run", camera="mock", camera_rate=15.0)
+    add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera="mock", camera_rate=15.0)
     parser.set_defaults(handler=_run)
 
 
