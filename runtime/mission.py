@@ -303,6 +303,8 @@ class Mission:
             t0 = self.clock()
             for index, name in enumerate(names):
                 self.robots.append(self._robot(stack, world, index, name, t0))
+            if self.logger is not None and self.robots[0].true_start is not None:
+                self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps are in robot 1's frame
             t0 = self.clock()
             for robot in self.robots:
                 robot.onboard.t0 = t0

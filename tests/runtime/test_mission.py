@@ -156,3 +156,46 @@ def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline_and_r
     assert frame["left"].shape == frame["right"].shape == (480, 640) and frame["left"].dtype == np.uint8
     replayed = replay_log(tmp_path / "robot1-log")  # images through the same front end settings: same map
     np.testing.assert_array_equal(replayed.landmark_map.positions, result.maps["robot1"].positions)
+
+
+def test_a_slow_slam_stage_drops_frames_and_says_so_without_blocking_the_drivers():
+    from drivers.arcos.robot import P3AT
+    from estimation.fastslam import FastSLAMConfig
+    from mocks.p3at import serve_tcp
+    from mocks.synthetic_stereo import SyntheticStereo
+    from mocks.world import World
+    from runtime.adapters import P3ATLink, SyntheticCamera
+    from runtime.onboard import Onboard, OnboardConfig
+
+    world = World.load()
+    events: list[str] = []
+    with serve_tcp(world, "robot1", port=0, seed=1) as server:
+        driver = P3AT(server.url)
+        driver.connect()
+        link = P3ATLink(driver)
+        # 60 frames per second into a 300-particle filter: the SLAM stage cannot keep up
+        camera = SyntheticCamera(SyntheticStereo.from_world(world, np.random.default_rng(2)),
+                                 lambda: world.pose("robot1"), rate=60.0)
+        onboard = Onboard("robot1", link, camera, OnboardConfig(fastslam=FastSLAMConfig(n_particles=300)),
+                          on_event=events.append)
+        onboard.start()
+        time.sleep(3.0)
+        onboard.stop()
+        stats = onboard.stats
+        link.close()
+    assert stats.dropped_frames > 0 and any("dropped frame" in e for e in events)
+    assert stats.frames_processed > 0
+    assert stats.frames_received >= stats.frames_processed + stats.dropped_frames
+    assert stats.odometry_samples >= 25  # the driver kept delivering its 10 SIPs/s throughout
+
+
+def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, capsys):
+    from mocks.p3at import serve_tcp
+    from mocks.world import World
+
+    world = World.load()
+    with serve_tcp(world, "robot1", port=0, seed=1) as server:
+        status = main(["run", "--robot", server.url, "--seconds", "2", "--out", str(tmp_path), "--quiet"])
+        motors = server.model.motors_enabled
+    assert status == 1 and not motors
+    assert "mission failed" in capsys.readouterr().err
