@@ -193,7 +193,7 @@ class Mission:
             self.recording_path = cfg.out / "mission.rrd"
             sink = str(self.recording_path)
         rec = open_recording(sink, blueprint=mission_blueprint(names))
-        self.logger = MissionLog(rec, names, blueprint=sink != "none")
+        self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it as the default
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)
 
