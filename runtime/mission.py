@@ -299,6 +299,17 @@ class Mission:
             world, names = None, ["robot1"]
         if cfg.rerun != "none":
             self._open_logger(names, world)
+        try:
+            t0 = self._run_robots(world, names)
+            final = self._fuse(self.clock() - t0)
+            return self._finish(final, self.clock() - t0)
+        except BaseException:
+            if self.logger is not None:  # keep what was recorded readable
+                self.logger.close()
+            raise
+
+    def _run_robots(self, world, names: list[str]) -> float:
+        """Set up, start, run and stop every robot (motors stopped and files flushed on any exit)."""
         with ExitStack() as stack:
             t0 = self.clock()
             for index, name in enumerate(names):
@@ -313,8 +324,7 @@ class Mission:
             # stop every robot (motors first) before the final fusion
             for robot in self.robots:
                 robot.onboard.stop()
-        final = self._fuse(self.clock() - t0)
-        return self._finish(final, self.clock() - t0)
+        return t0
 
     def _loop(self, t0: float) -> None:
         cfg = self.config

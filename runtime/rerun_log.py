@@ -171,7 +171,10 @@ class MissionLog:
         self.rec.flush()
 
     def close(self) -> None:
-        """Flush and detach every sink (the .rrd file is complete afterwards)."""
+        """Flush and detach every sink (the .rrd file is complete afterwards). Safe to call twice."""
+        if getattr(self, "_closed", False):
+            return
+        self._closed = True
         self.rec.flush()
         self.rec.disconnect()
 
