@@ -125,6 +125,8 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     reference = names[0]
     merged = maps[reference]
     rng = rng if rng is not None else np.random.default_rng(0)
+    if len(names) > 2:
+        return _fuse_many(maps, names, preset, method, t, rng, start)
     for other in names[1:]:
         result = PairResult(reference, other, False)
         alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
@@ -144,6 +146,41 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
             result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
         pairs.append(result)
     return FusionReport(t, pairs, merged, time.perf_counter() - start)
+
+
+def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float,
+               rng: np.random.Generator, start: float) -> FusionReport:
+    """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame."""
+    from fusion import NoOverlapError, fuse_all, true_relative_pose
+
+    ordered = [maps[n] for n in names]
+    try:
+        multi = fuse_all(ordered, preset=preset, method=method, rng=rng)
+    except NoOverlapError as e:
+        pairs = [PairResult(names[0], n, False, note=str(e)) for n in names[1:]]
+        return FusionReport(t, pairs, maps[names[0]], time.perf_counter() - start)
+    parent = {child: p for p, child in multi.tree}
+    column = {r: i for i, r in enumerate(multi.map.robots)}
+    pairs = []
+    for k, other in enumerate(names[1:], 1):
+        pose = multi.poses[k]
+        result = PairResult(names[0], other, pose is not None)
+        if pose is None:
+            result.note = "not connected to the reference map"
+            pairs.append(result)
+            continue
+        result.tx, result.ty, result.theta = (float(v) for v in pose)
+        edge = multi.alignments.get(tuple(sorted((parent[k], k))))
+        result.supports = 0 if edge is None else int(len(edge.supports))
+        if names[0] in column and other in column:
+            result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
+        truth = true_relative_pose(ordered[0], ordered[k])
+        if truth is not None:
+            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
+            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
+        pairs.append(result)
+    return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
 
 
 @dataclass

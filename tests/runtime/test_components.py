@@ -192,3 +192,27 @@ def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
     assert len(contents.maps["robot2"]) == 0
     assert contents.alignments == {"robot1_robot2": {"tx": 1.0, "error_xy": 0.1}}
     assert contents.summary == {"robots": {}}
+
+
+@pytest.mark.parametrize("n_robots", [2, 3])
+def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth(n_robots):
+    from estimation.geometry import inverse, transform_points
+    from runtime.mission import fuse_maps
+
+    world = World.load()
+    rng = np.random.default_rng(6)
+    starts = [np.array([3.0, 5.0, 0.0]), np.array([8.0, 5.0, np.pi]), np.array([6.0, 5.2, 1.0])][:n_robots]
+    maps = {}
+    for k, start in enumerate(starts):
+        near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
+        local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
+        maps[f"robot{k + 1}"] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
+                                            world.feature_descriptors[near], robot=f"robot{k + 1}",
+                                            metadata={"true_start_pose": start.tolist()})
+    report = fuse_maps(maps, "robust", 2, t=1.0, rng=np.random.default_rng(0))
+    assert [p.other for p in report.pairs] == [f"robot{k}" for k in range(2, n_robots + 1)]
+    for pair in report.pairs:
+        assert pair.aligned and pair.error_xy < 0.05 and pair.error_theta < 0.01, pair
+        assert pair.common > 20
+    assert len(report.merged) < sum(len(m) for m in maps.values())
+    assert sorted(report.merged.robots) == sorted(maps)
