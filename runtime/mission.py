@@ -59,6 +59,7 @@ class MissionConfig:
     robot_url: str = "mock"           # "mock" (virtual P3-ATs in the world), or one real robot's URL
     route_file: Path | None = None    # a route (in the robot's odometry frame) instead of the world's routes
     time_scale: float = 1.0           # virtual robots only: simulated seconds per wall-clock second
+    odometry: str = "exact"           # virtual robots' wheel odometry: "exact" or "realistic" (1 % scale, 3 % track)
 
     @property
     def on_mocks(self) -> bool:
@@ -77,6 +78,8 @@ class MissionConfig:
             raise ValueError("a real robot URL runs exactly one robot (--robots 1)")
         if not self.on_mocks and self.camera != "usb":
             raise ValueError("a real robot needs a real stereo head (--camera usb)")
+        if self.odometry not in ("exact", "realistic"):
+            raise ValueError(f"--odometry must be exact or realistic, not {self.odometry!r}")
         if self.on_mocks and self.camera == "usb":
             raise ValueError("--camera usb needs a real robot (--robot URL); the virtual robots use mock or synthetic")
 
@@ -243,8 +246,11 @@ class Mission:
         cfg = self.config
         if cfg.on_mocks:
             pose = np.asarray(world.start_poses[name], float)
+            from mocks.p3at import OdometryErrors
+
+            errors = OdometryErrors.realistic() if cfg.odometry == "realistic" else OdometryErrors()
             server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, clock=self.clock,
-                               time_scale=cfg.time_scale, seed=cfg.seed + 100 * index)
+                               time_scale=cfg.time_scale, seed=cfg.seed + 100 * index, odometry=errors)
             stack.callback(server.close)
             url = server.url
         else:
@@ -431,15 +437,19 @@ class Mission:
             s, core = r.onboard.stats, r.onboard.core
             frames = max(1, s.frames_processed)
             final_pose = core.slam.best_pose()
-            true_final = None
+            true_final = odometry_error = None
             if r.onboard.final_true_pose is not None and r.true_start is not None:
                 true_final = between(r.true_start, r.onboard.final_true_pose)
+                dead_reckoning = core.dead_reckoning_pose()
+                if dead_reckoning is not None:
+                    odometry_error = float(np.hypot(*(dead_reckoning[:2] - true_final[:2])))
             robots[r.name] = {
                 "landmarks": len(maps[r.name]),
                 "frames_received": s.frames_received, "frames_processed": s.frames_processed,
                 "frames_dropped": s.dropped_frames, "frames_without_odometry": s.frames_without_odometry,
                 "final_position_error": None if true_final is None
                 else float(np.hypot(*(final_pose[:2] - true_final[:2]))),
+                "odometry_position_error": odometry_error,
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
                 "map_file": str(cfg.out / f"{r.name}.npz"),
             }

@@ -42,6 +42,8 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--world", type=Path, default=None, help="building file for the virtual robots")
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="virtual robots only: simulated seconds per wall-clock second (default 1)")
+    parser.add_argument("--odometry", choices=("exact", "realistic"), default="exact",
+                        help="virtual robots' wheel odometry errors (default exact; realistic: 1 %% scale, 3 %% track)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
 
 
@@ -51,7 +53,8 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         particles=args.particles, max_corners=args.max_corners, motion=args.motion, speed=args.speed,
         fusion_interval=args.fusion_interval,
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
-        world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale)
+        world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
+        odometry=args.odometry)
 
 
 class Progress:

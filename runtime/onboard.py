@@ -169,6 +169,7 @@ class SlamCore:
         self.slam = FastSLAM(config.fastslam, np.random.default_rng(config.seed))
         self.timer = timer
         self.previous_odometry: np.ndarray | None = None
+        self.first_odometry: np.ndarray | None = None     # the odometry pose at the map frame's origin
         self.frames = 0
         self.totals: dict[str, float] = {"frontend": 0.0, "predict": 0.0, "update": 0.0}
         self.metadata: dict = {}
@@ -189,6 +190,8 @@ class SlamCore:
             increment_t0 = frame.t if self.frames == 0 else self._last_t
             self.slam.predict(OdometryIncrement(float(dx), float(dy), float(dtheta), increment_t0, frame.t))
         self.previous_odometry = np.asarray(odometry_pose, float)
+        if self.first_odometry is None:
+            self.first_odometry = self.previous_odometry
         t2 = self.timer()
         timings["predict"] = t2 - t1
         report = self.slam.update(observations)
@@ -204,6 +207,12 @@ class SlamCore:
 
     def best_map(self) -> LandmarkMap:
         return self.slam.best_map(robot=self.robot, metadata=self.metadata)
+
+    def dead_reckoning_pose(self) -> np.ndarray | None:
+        """Odometry alone at the last frame, in the map frame (3,): what FastSLAM improves on."""
+        if self.first_odometry is None:
+            return None
+        return between(self.first_odometry, self.previous_odometry)
 
 
 # -- the live runtime ---------------------------------------------------------------------------------------
