@@ -19,7 +19,8 @@ shape (e.g. a variable number of points) are stored concatenated along axis 0 wi
 
 Each chunk is written atomically, then the index is rewritten atomically, so a log cut short by a crash
 or a Ctrl-C still reads up to its last complete chunk. Writing happens on the writer's own thread: a
-driver's callback only appends to a queue.
+driver's callback only appends to a queue; records not yet on disk are bounded in bytes (records beyond the
+budget are counted in ``dropped``, never block the caller).
 """
 from __future__ import annotations
 
@@ -106,7 +107,8 @@ class SensorLogWriter:
     """
 
     def __init__(self, folder: str | os.PathLike, metadata: Mapping | None = None, *, chunk_records: int = 50,
-                 flush_interval: float = 2.0, compress: bool = True, queue_size: int = 2000) -> None:
+                 flush_interval: float = 2.0, compress: bool = True, queue_size: int = 2000,
+                 max_queued_bytes: int = 256 << 20) -> None:
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         if (self.folder / INDEX).exists():
@@ -117,6 +119,9 @@ class SensorLogWriter:
         self._pending: dict[str, list[Mapping]] = {}
         self._counters: dict[str, int] = {}
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.max_queued_bytes = max_queued_bytes
+        self._queued_bytes = 0
+        self._bytes_lock = threading.Lock()
         self.dropped = 0
         self.error: BaseException | None = None
         self._closed = False
@@ -130,15 +135,23 @@ class SensorLogWriter:
             return
         if "t" not in record:
             raise ValueError("a sensor-log record needs a time field 't'")
+        size = sum(getattr(v, "nbytes", 8) for v in record.values())
+        with self._bytes_lock:
+            if self._queued_bytes + size > self.max_queued_bytes:
+                self.dropped += 1  # images arriving faster than the disk takes them: bounded memory
+                return
+            self._queued_bytes += size
         try:
-            self._queue.put_nowait((stream, dict(record)))
+            self._queue.put_nowait((stream, dict(record), size))
         except queue.Full:
+            with self._bytes_lock:
+                self._queued_bytes -= size
             self.dropped += 1
 
     def flush(self) -> None:
         """Write every queued and pending record now (blocks until done)."""
         done = threading.Event()
-        self._queue.put(("__flush__", done))
+        self._queue.put(("__flush__", done, 0))
         done.wait()
 
     def close(self) -> None:
@@ -146,7 +159,7 @@ class SensorLogWriter:
         if self._closed:
             return
         self._closed = True
-        self._queue.put(("__close__", None))
+        self._queue.put(("__close__", None, 0))
         self._thread.join()
         if self.error is not None:
             raise SensorLogError(f"{self.folder}: writing the log failed ({self.error})")
@@ -160,7 +173,7 @@ class SensorLogWriter:
     # -- the writer thread ------------------------------------------------------------------------------
     def _run(self) -> None:
         while True:
-            stream, item = self._queue.get()
+            stream, item, size = self._queue.get()
             try:
                 if stream == "__flush__":
                     self._write_all()
@@ -171,6 +184,7 @@ class SensorLogWriter:
                     self._write_index(closed=True)
                     return
                 pending = self._pending.setdefault(stream, [])
+                item["__size"] = size
                 pending.append(item)
                 age = float(item["t"]) - float(pending[0]["t"])
                 if len(pending) >= self.chunk_records or age >= self.flush_interval:
@@ -190,6 +204,9 @@ class SensorLogWriter:
         records = self._pending.pop(stream, [])
         if not records:
             return
+        size = sum(r.pop("__size", 0) for r in records)
+        with self._bytes_lock:  # the budget covers records until they are on disk
+            self._queued_bytes -= size
         number = self._counters.get(stream, 0)
         self._counters[stream] = number + 1
         name = f"{stream}-{number:06d}.npz"

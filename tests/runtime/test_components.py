@@ -216,3 +216,12 @@ def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth
         assert pair.common > 20
     assert len(report.merged) < sum(len(m) for m in maps.values())
     assert sorted(report.merged.robots) == sorted(maps)
+
+
+def test_sensor_log_bounds_its_memory_and_counts_what_it_could_not_take(tmp_path):
+    writer = SensorLogWriter(tmp_path / "log", chunk_records=1000, flush_interval=1e9, max_queued_bytes=10_000)
+    for i in range(50):  # 50 × 8 kB "images" against a 10 kB budget, faster than any disk
+        writer.write("frames", {"t": float(i), "left": np.zeros(8000, np.uint8)})
+    writer.close()
+    log = SensorLog(tmp_path / "log")
+    assert writer.dropped > 0 and log.count("frames") + writer.dropped == 50
