@@ -262,7 +262,8 @@ class Mission:
         camera, geometry = self._camera(stack, world, index, name)
         frontend = FrontEndConfig(geometry=geometry, harris=HarrisConfig(max_corners=cfg.max_corners))
         onboard_config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=cfg.particles), frontend=frontend,
-                                       seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval)
+                                       seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval,
+                                       steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks)
         sensor_log = None
         if cfg.log_sensors:
             from runtime.adapters import geometry_to_dict

@@ -139,6 +139,8 @@ class OnboardConfig:
     control_rate: float = 10.0         # Hz
     landmarks_every: int = 5           # frames between landmark (+ellipsoid) logs to Rerun
     sonar_every: int = 3               # SIPs between sonar-ray logs
+    steer_on_estimate: bool = False    # the controller gets FastSLAM's pose (odometry corrected at the last
+                                       # frame) rather than raw odometry: for robots whose odometry drifts
 
 
 @dataclass
@@ -452,8 +454,13 @@ class Onboard:
             sample = self.latest()
             if sample is None:
                 continue
+            pose = sample.pose
+            if self.config.steer_on_estimate:
+                estimate = self._map_pose(sample.pose)
+                if estimate is not None and self.core.first_odometry is not None:
+                    pose = compose(self.core.first_odometry, estimate)  # back in the odometry frame's origin
             try:
-                command = self.controller.command(sample.pose, sample.sonar_poses, sample.sonar_ranges)
+                command = self.controller.command(pose, sample.sonar_poses, sample.sonar_ranges)
                 if command.done:
                     self.link.set_velocity(0.0, 0.0)
                     if not self.route_done.is_set():
