@@ -116,3 +116,11 @@ def test_save_is_atomic_and_leaves_no_temporary_files(tmp_path):
     _map(seed=1).save(tmp_path / "m.npz")  # overwrite in place
     assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]
     assert np.array_equal(LandmarkMap.load(tmp_path / "m.npz").positions, _map(seed=1).positions)
+
+
+def test_saved_files_get_ordinary_permissions(tmp_path):
+    import os
+    _map().save(tmp_path / "m.npz")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "m.npz").stat().st_mode & 0o777 == 0o666 & ~umask
