@@ -1,0 +1,309 @@
+"""FastSLAM on rendered frames through the real front end: offline, deterministic, no drivers or threads.
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.eval_slam_rendered [--seconds 60] [--robots robot1,robot2] [--seed 0]
+        [--frame-rate 5] [--max-corners 150] [--particles 100] [--diagnose] [--json] [--set key=value ...]
+
+Each robot drives its world route (moved to the right of travel as the mission does) with
+``runtime.slam_sim.simulate`` in simulated time and the synthetic odometry's realistic errors (2 % distance,
+3 % turning scale, random walk); its observer renders the virtual head's raw stereo pair at the true pose
+(``mocks.stereo_head.renderer.StereoRenderer``, radiance ×255 + σ = 1 DN noise), rectifies it and runs the real
+front end (``estimation.frontend.FrontEnd``, Harris + U-SURF) to get ``StereoObservations``.
+
+Ground truth for the observations: the world point behind each observation's left pixel
+(``StereoRenderer.true_points``). Each observation is tagged with the index of its nearest *surface point
+cluster* (the first true point seen within 5 cm), so the map's duplicates (landmarks minus distinct true points
+they stand for) and landmark errors are scored by ``simulate`` as for the synthetic sensor.
+
+Prints per robot: ATE and final position error of FastSLAM beside dead reckoning, map size and duplicates,
+landmark error, CPU time per update. ``--diagnose`` adds: observations per frame, the share that re-associate
+to an existing landmark in the best particle, the observations' 3-D NEES against their covariances, and the
+descriptor distance between observations of the same true point at different viewing distances.
+``--set`` overrides any FastSLAMConfig field (e.g. ``--set descriptor_threshold=0.7``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import runtime.slam_sim as slam_sim
+from estimation.fastslam import FastSLAM, FastSLAMConfig
+from estimation.frontend import FrontEndConfig, HarrisConfig
+from runtime.commands.features import front_end_from_calibration
+from runtime.motion import keep_right
+
+ROOT = Path(__file__).resolve().parents[1]
+CALIBRATION = ROOT / "mocks" / "stereo_head" / "data" / "sth_mdcs2_default.ini"
+SNAP = 0.05  # m: true points closer than this on a grid count as the same physical point
+
+
+class RenderedObserver:
+    """``observe(pose, t) -> (StereoObservations, point_index)`` from rendered frames through the front end.
+
+    point_index (N,) indexes ``self.points`` (K, 3), the distinct true world points seen so far (snapped to a
+    ``SNAP`` grid); -1 where the pixel's ray meets nothing. Records per-frame diagnostics when ``diagnose``.
+    """
+
+    def __init__(self, world, rng: np.random.Generator, max_corners: int = 150, noise_dn: float = 1.0,
+                 diagnose: bool = False) -> None:
+        from drivers.videre import calibration
+        from mocks.stereo_head.renderer import StereoRenderer
+
+        calib = calibration.load(CALIBRATION)
+        self.renderer = StereoRenderer(world, calib)
+        self.front_end = front_end_from_calibration(
+            calib, FrontEndConfig(harris=HarrisConfig(max_corners=max_corners)))
+        self.rng = rng
+        self.noise_dn = noise_dn
+        self.diagnose = diagnose
+        self._cell_index: dict[tuple[int, int, int], list[int]] = {}
+        self._points: list[np.ndarray] = []
+        self.frames: list[dict] = []          # per frame: n, nees (N,), depth (N,), index (N,), desc (N, D)
+        self.frontend_seconds = 0.0
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.array(self._points, float).reshape(-1, 3)
+
+    def _point_index(self, p: np.ndarray) -> int:
+        """Index of the known true point within SNAP of p (the nearest), or of p added as a new one."""
+        cell = np.floor(p / SNAP).astype(int)
+        best, best_d = -1, SNAP
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    for i in self._cell_index.get((cell[0] + dx, cell[1] + dy, cell[2] + dz), ()):
+                        d = float(np.linalg.norm(self._points[i] - p))
+                        if d < best_d:
+                            best, best_d = i, d
+        if best < 0:
+            best = len(self._points)
+            self._points.append(p)
+            self._cell_index.setdefault(tuple(int(c) for c in cell), []).append(best)
+        return best
+
+    def observe(self, pose, timestamp: float = 0.0):
+        pose = np.asarray(pose, float)
+        left, right = (np.clip(np.rint(im * 255.0 + self.rng.normal(0.0, self.noise_dn, im.shape)), 0, 255)
+                       .astype(np.uint8) for im in self.renderer.render(pose))
+        t0 = time.process_time()
+        obs = self.front_end.process(left, right, float(timestamp))
+        self.frontend_seconds += time.process_time() - t0
+        truth = self.renderer.true_points(pose, obs.pixels, "left", rectified=True)
+        index = np.full(len(obs), -1, np.int64)
+        for j, p in enumerate(truth):
+            if np.all(np.isfinite(p)):
+                index[j] = self._point_index(p)
+        if self.diagnose:
+            c, s = np.cos(pose[2]), np.sin(pose[2])
+            d = truth - np.array([pose[0], pose[1], 0.0])
+            truth_base = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]])
+            err = obs.points - truth_base
+            ok = np.all(np.isfinite(err), axis=1)
+            nees = np.full(len(obs), np.nan)
+            if ok.any():
+                solved = np.linalg.solve(obs.covariances[ok], err[ok][..., None])[..., 0]
+                nees[ok] = np.einsum("ni,ni->n", err[ok], solved)
+            self.frames.append({"n": len(obs), "nees": nees, "depth": obs.points[:, 0].copy(), "index": index,
+                                "desc": np.asarray(obs.descriptors, np.float32).copy(),
+                                "err": np.linalg.norm(err, axis=1)})
+        return obs, index
+
+
+class _PointWorld:
+    """The world as ``simulate`` scores it, with ``features`` = the observer's distinct true points."""
+
+    def __init__(self, world, observer: RenderedObserver) -> None:
+        self._world, self._observer = world, observer
+
+    @property
+    def features(self) -> np.ndarray:
+        return self._observer.points
+
+    def __getattr__(self, name):
+        return getattr(self._world, name)
+
+
+class _TimedFastSLAM(FastSLAM):
+    """FastSLAM that records the CPU time and the report of every update (for the diagnostics)."""
+
+    instances: list[_TimedFastSLAM] = []
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.update_seconds: list[float] = []
+        self.reports = []
+        _TimedFastSLAM.instances.append(self)
+
+    def update(self, observations):
+        t0 = time.process_time()
+        report = super().update(observations)
+        self.update_seconds.append(time.process_time() - t0)
+        self.reports.append(report)
+        return report
+
+
+def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMConfig, frame_rate: float,
+              max_corners: int, diagnose: bool) -> dict:
+    """One robot's run; returns the scores (and diagnostics)."""
+    observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose)
+    route = keep_right(np.asarray(world.routes[robot], float))
+    start = np.asarray(world.start_poses[robot], float)
+    original = slam_sim.FastSLAM
+    slam_sim.FastSLAM = _TimedFastSLAM   # simulate() builds its filter by this name; measure its updates
+    try:
+        _TimedFastSLAM.instances.clear()
+        result = slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=seconds,
+                                   seed=seed, config=config, robot=robot, frame_rate=frame_rate,
+                                   observer=observer)
+    finally:
+        slam_sim.FastSLAM = original
+    slam = _TimedFastSLAM.instances[-1]
+    m = result.metrics
+    times = np.array(slam.update_seconds) * 1e3
+    out = {"robot": robot, **{k: m[k] for k in (
+        "seconds", "frames", "ate_m", "dead_reckoning_ate_m", "final_position_error_m",
+        "dead_reckoning_final_position_error_m", "landmarks", "distinct_features", "duplicate_landmarks",
+        "landmark_median_error_m", "landmark_rms_error_m")},
+        "update_ms_median": float(np.median(times)), "update_ms_mean": float(np.mean(times)),
+        "update_ms_p90": float(np.percentile(times, 90)),
+        "frontend_ms_mean": 1e3 * observer.frontend_seconds / max(1, m["frames"]),
+        "observations_per_frame": float(np.mean([r.n_observations for r in slam.reports]))}
+    if diagnose:
+        out["diagnostics"] = _diagnostics(observer, slam)
+    return out
+
+
+def _diagnostics(observer: RenderedObserver, slam: _TimedFastSLAM) -> dict:
+    frames = observer.frames
+    reports = slam.reports
+    n = np.array([f["n"] for f in frames])
+    matched = np.array([np.mean(r.best_matches >= 0) if r.n_observations else np.nan for r in reports])
+    # an observation of a true point seen before (in an earlier frame) should re-associate
+    seen: set[int] = set()
+    reobs, reobs_matched = 0, 0
+    for f, r in zip(frames, reports, strict=True):
+        for j, idx in enumerate(f["index"]):
+            if idx < 0:
+                continue
+            if idx in seen:
+                reobs += 1
+                reobs_matched += int(r.best_matches[j] >= 0)
+        seen.update(int(i) for i in f["index"] if i >= 0)
+    nees = np.concatenate([f["nees"] for f in frames])
+    nees = nees[np.isfinite(nees)]
+    err = np.concatenate([f["err"] for f in frames])
+    depth = np.concatenate([f["depth"] for f in frames])
+    ok = np.isfinite(err)
+    # descriptor distance between the first sighting of a true point and later sightings, by depth ratio
+    first: dict[int, tuple[np.ndarray, float]] = {}
+    pairs = []
+    for f in frames:
+        for j, idx in enumerate(f["index"]):
+            if idx < 0:
+                continue
+            if idx not in first:
+                first[int(idx)] = (f["desc"][j], f["depth"][j])
+            else:
+                d0, z0 = first[int(idx)]
+                pairs.append((float(np.linalg.norm(f["desc"][j] - d0)), f["depth"][j] / z0))
+    pairs = np.array(pairs).reshape(-1, 2)
+    by_ratio = {}
+    for lo, hi in ((0.0, 0.8), (0.8, 0.95), (0.95, 1.05), (1.05, 1.25), (1.25, 1e9)):
+        sel = (pairs[:, 1] >= lo) & (pairs[:, 1] < hi)
+        if sel.any():
+            d = pairs[sel, 0]
+            by_ratio[f"{lo:.2f}-{hi:.2f}"] = {"n": int(sel.sum()), "median": float(np.median(d)),
+                                              "p90": float(np.percentile(d, 90)),
+                                              "below_0.5": float(np.mean(d < 0.5))}
+    # random (different point) descriptor distances for comparison
+    desc = np.concatenate([f["desc"] for f in frames[:: max(1, len(frames) // 20)]])
+    rng = np.random.default_rng(0)
+    a, b = rng.integers(0, len(desc), (2, 2000))
+    random_d = np.linalg.norm(desc[a] - desc[b], axis=1)
+    bins = [(0, 2), (2, 4), (4, 6), (6, 13)]
+    err_by_depth = {f"{lo}-{hi} m": {"n": int(((depth >= lo) & (depth < hi) & ok).sum()),
+                                    "median_err_m": float(np.median(err[ok & (depth >= lo) & (depth < hi)]))
+                                    if ((depth >= lo) & (depth < hi) & ok).any() else float("nan")}
+                    for lo, hi in bins}
+    return {
+        "observations_per_frame": float(n.mean()),
+        "best_particle_matched_share": float(np.nanmean(matched)),
+        "new_landmarks_per_frame_mean_over_particles": float(np.mean([r.new_landmarks for r in reports])),
+        "reobservations": reobs, "reobservations_matched_share": reobs_matched / max(1, reobs),
+        "obs_nees_median": float(np.median(nees)), "obs_nees_mean": float(np.mean(nees)),
+        "obs_nees_below_7.81": float(np.mean(nees < 7.815)), "obs_nees_p90": float(np.percentile(nees, 90)),
+        "obs_err_median_m": float(np.median(err[ok])), "obs_err_p90_m": float(np.percentile(err[ok], 90)),
+        "obs_err_by_depth": err_by_depth,
+        "descriptor_distance_same_point_by_depth_ratio": by_ratio,
+        "descriptor_distance_random_pairs": {"median": float(np.median(random_d)),
+                                             "p10": float(np.percentile(random_d, 10)),
+                                             "below_0.5": float(np.mean(random_d < 0.5))},
+        "ess_median": float(np.median([r.ess for r in reports])),
+        "resampled_share": float(np.mean([r.resampled for r in reports])),
+    }
+
+
+def _parse_set(items: list[str]) -> dict:
+    types = {f.name: f.type for f in fields(FastSLAMConfig)}
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in types:
+            raise SystemExit(f"--set {item!r}: FastSLAMConfig has no field {key!r}")
+        out[key] = int(value) if types[key] in ("int", int) else float(value)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=300.0, help="simulated time limit (the route ends first)")
+    parser.add_argument("--robots", default="robot1,robot2", help="comma-separated world route names")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frame-rate", type=float, default=5.0)
+    parser.add_argument("--max-corners", type=int, default=150, help="Harris corners per image (runtime: 150)")
+    parser.add_argument("--particles", type=int, default=100)
+    parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a FastSLAMConfig field")
+    parser.add_argument("--diagnose", action="store_true", help="association and noise diagnostics")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    cv2.setNumThreads(1)
+    from mocks.world import World
+
+    world = World.load()
+    config = replace(FastSLAMConfig(n_particles=args.particles, version=args.fastslam), **_parse_set(args.set))
+    rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
+                      frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose)
+            for robot in args.robots.split(",")]
+    if args.json:
+        print(json.dumps({"config": config.to_dict(), "rows": rows}, indent=2))
+        return 0
+    print(f"FastSLAM {args.fastslam}.0, {args.particles} particles, rendered frames at {args.frame_rate:g} Hz, "
+          f"{args.max_corners} corners, seed {args.seed}")
+    print("| robot | s | ATE (m) | DR ATE (m) | final err (m) | DR final (m) | landmarks | distinct points |"
+          " duplicates | landmark median / RMS err (m) | obs/frame | update ms median / p90 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['robot']} | {r['seconds']:.0f} | {r['ate_m']:.3f} | {r['dead_reckoning_ate_m']:.3f} | "
+              f"{r['final_position_error_m']:.3f} | {r['dead_reckoning_final_position_error_m']:.3f} | "
+              f"{r['landmarks']} | {r['distinct_features']} | {r['duplicate_landmarks']} | "
+              f"{r['landmark_median_error_m']:.3f} / {r['landmark_rms_error_m']:.3f} | "
+              f"{r['observations_per_frame']:.1f} | {r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f} |")
+    for r in rows:
+        if "diagnostics" in r:
+            print(f"\n{r['robot']} diagnostics:")
+            print(json.dumps(r["diagnostics"], indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
