@@ -115,14 +115,21 @@ class VidereCamera:
         self.calibration = calibration
         self.geometry = stereo_geometry(calibration)
         self.dropped_by_head = 0
+        self.reconnects = 0
         head.start()
 
     def read(self, timeout: float) -> CameraFrame | None:
-        from drivers.errors import DriverTimeoutError
+        """The next rectified pair, None if none came in ``timeout`` s. A head that vanished (unplugged) is
+        reopened once per call; if it is still gone the error propagates (the runtime counts it, retries)."""
+        from drivers.errors import DriverTimeoutError, NotConnectedError
 
         try:
             frame = self.head.grab(timeout=timeout)
         except DriverTimeoutError:
+            return None
+        except NotConnectedError:
+            self.reconnects += 1
+            self.head.reopen()  # restores mode, controls and streaming; raises while the head is still away
             return None
         self.dropped_by_head += frame.dropped
         left, right = self.calibration.rectify(frame.left, frame.right)

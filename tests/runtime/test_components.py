@@ -225,3 +225,25 @@ def test_sensor_log_bounds_its_memory_and_counts_what_it_could_not_take(tmp_path
     writer.close()
     log = SensorLog(tmp_path / "log")
     assert writer.dropped > 0 and log.count("frames") + writer.dropped == 50
+
+
+def test_videre_camera_comes_back_after_the_head_is_unplugged():
+    from drivers.errors import DriverError
+    from drivers.videre.head import StereoHead
+    from mocks.stereo_head import VirtualStereoHead
+    from runtime.adapters import VidereCamera
+
+    virtual = VirtualStereoHead(rng=np.random.default_rng(0))  # test pattern, no world
+    camera = VidereCamera(StereoHead.open(backend=virtual), rate=15.0)
+    try:
+        first = camera.read(timeout=1.0)
+        assert first.left.shape == (480, 640) and first.left.dtype == np.uint8
+        virtual.unplug()
+        with pytest.raises(DriverError):
+            camera.read(timeout=0.2)
+        virtual.replug()
+        frames = [camera.read(timeout=1.0) for _ in range(3)]
+        assert camera.reconnects >= 1
+        assert any(f is not None and f.left.shape == (480, 640) for f in frames)
+    finally:
+        camera.close()
