@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -19,6 +20,7 @@ import numpy as np
 
 from drivers.videre.calibration import StereoCalibration
 from estimation.frontend import StereoGeometry
+from estimation.geometry import compose, inverse
 from runtime.onboard import CameraFrame, Clock, OdometrySample
 
 
@@ -67,12 +69,22 @@ def odometry_sample(state, t0: float = 0.0) -> OdometrySample:
 
 
 class P3ATLink:
-    """The ARCOS driver as the runtime's RobotLink. ``driver``: a connected ``drivers.arcos.robot.P3AT``."""
+    """The ARCOS driver as the runtime's RobotLink. ``driver``: a connected ``drivers.arcos.robot.P3AT``.
+
+    Odometry is continuous only within one ARCOS session; when the driver reconnects after a lost link (a new
+    session, motors disabled) the link re-bases the new session's odometry on the last pose of the old one,
+    so the runtime sees one continuous odometry frame, and re-enables the motors if the runtime had them on.
+    """
 
     def __init__(self, driver) -> None:
         self.driver = driver
         self._callbacks: list[Callable[[OdometrySample], None]] = []
         self._subscribed = False
+        self._session: int | None = None
+        self._offset = np.zeros(3)          # new-session odometry -> the runtime's continuous frame
+        self._last = np.zeros(3)
+        self._motors_on = False
+        self.reconnects = 0
 
     def subscribe(self, callback: Callable[[OdometrySample], None]) -> None:
         self._callbacks.append(callback)
@@ -82,6 +94,18 @@ class P3ATLink:
 
     def _on_state(self, state) -> None:
         sample = odometry_sample(state)
+        if self._session is not None and state.session != self._session:
+            self.reconnects += 1
+            self._offset = compose(self._last, inverse(sample.pose))
+            if self._motors_on:
+                try:
+                    self.driver.motors_on()
+                except Exception:  # lost again: the next session will retry
+                    pass
+        self._session = state.session
+        pose = compose(self._offset, sample.pose)
+        self._last = pose
+        sample = dataclasses.replace(sample, pose=pose)
         for callback in self._callbacks:
             callback(sample)
 
@@ -89,6 +113,7 @@ class P3ATLink:
         self.driver.set_velocity(v, w)
 
     def enable_motors(self, on: bool) -> None:
+        self._motors_on = bool(on)
         if on:
             self.driver.motors_on()
         else:

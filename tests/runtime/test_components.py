@@ -247,3 +247,29 @@ def test_videre_camera_comes_back_after_the_head_is_unplugged():
         assert any(f is not None and f.left.shape == (480, 640) for f in frames)
     finally:
         camera.close()
+
+
+def test_p3at_link_keeps_odometry_continuous_across_a_reconnection():
+    import dataclasses
+
+    from drivers.arcos.robot import P3AT
+    from mocks.p3at import serve_tcp
+    from runtime.adapters import P3ATLink
+
+    world = World.load()
+    samples = []
+    with serve_tcp(world, "robot1", port=0, seed=1) as server:
+        driver = P3AT(server.url)
+        driver.connect()
+        link = P3ATLink(driver)
+        link.subscribe(samples.append)
+        state = driver.wait_for_state()
+        link.close()
+    # what the driver delivers: a pose in session 1, then the same place reported by a new session from zero
+    moved = dataclasses.replace(state, x=2.0, y=1.0, theta=0.5)
+    link._on_state(moved)
+    link._on_state(dataclasses.replace(state, session=state.session + 1, x=0.0, y=0.0, theta=0.0))
+    link._on_state(dataclasses.replace(state, session=state.session + 1, x=1.0, y=0.0, theta=0.0))
+    assert link.reconnects == 1
+    np.testing.assert_allclose(samples[-2].pose, [2.0, 1.0, 0.5], atol=1e-12)
+    np.testing.assert_allclose(samples[-1].pose, [2.0 + np.cos(0.5), 1.0 + np.sin(0.5), 0.5], atol=1e-12)
