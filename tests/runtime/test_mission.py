@@ -31,8 +31,9 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
     out = tmp_path_factory.mktemp("mission")
-    # the virtual robots run twice as fast as the wall clock: 60 s of mission in 30 s
-    config = MissionConfig(robots=2, seconds=30.0, seed=3, camera="synthetic", camera_rate=20.0, particles=50,
+    # the virtual robots run twice as fast as the wall clock: 60 s of mission in 30 s; 10 frames/s leaves the
+    # SLAM stages time to spare, so the result does not hang on the machine's load
+    config = MissionConfig(robots=2, seconds=30.0, seed=3, camera="synthetic", camera_rate=10.0, particles=50,
                            time_scale=2.0, fusion_interval=10.0, out=out, rerun="file", log_sensors=True)
     result = Mission(config).run()
     return config, result
@@ -52,9 +53,8 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
         np.testing.assert_array_equal(saved.positions, m.positions)
     (pair,) = summary["fusion"]["pairs"]
     assert pair["aligned"], pair["note"]
-    # the maps drift by some decimetres over the run (more on a loaded machine, which drops more frames); a
-    # false alignment is metres and radians off
-    assert pair["error_xy"] < 0.5 and pair["error_theta"] < 0.1, pair
+    # typically 0.01-0.03 m; the bound leaves room for the maps' own drift. A false alignment is metres off.
+    assert pair["error_xy"] < 0.3 and pair["error_theta"] < 0.1, pair
     assert pair["common"] >= 10
     merged = result.fused
     assert len(merged) == summary["fusion"]["merged_landmarks"]
