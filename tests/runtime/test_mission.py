@@ -144,7 +144,7 @@ def test_sigterm_mid_run_stops_the_robot_and_leaves_readable_files(tmp_path):
 
 
 def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline_and_replays(tmp_path):
-    config = MissionConfig(robots=1, seconds=6.0, camera="mock", camera_rate=7.5, particles=10, motion="none",
+    config = MissionConfig(robots=1, seconds=4.0, camera="mock", camera_rate=7.5, particles=10, motion="none",
                            fusion_interval=0.0, out=tmp_path, rerun="none", log_sensors=True)
     result = Mission(config).run()
     robot = result.summary["robots"]["robot1"]
