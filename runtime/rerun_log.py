@@ -144,11 +144,12 @@ class MissionLog:
     Times ``t`` are seconds since the mission started; ``frame`` is the robot's stereo frame number.
     """
 
-    def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_every: int = 5,
+    def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
                  blueprint: bool = True) -> None:
         self.rec = rec
         self.robots = list(robots)
-        self.image_every = max(1, int(image_every))
+        self.image_interval = float(image_interval)   # s between logged stereo pairs of one robot (file size)
+        self._last_image: dict[str, float] = {}
         self._tracks: dict[str, _Track] = {}
         self._lock = threading.Lock()
         if blueprint and self.robots:
@@ -275,12 +276,13 @@ class MissionLog:
 
     def log_stereo(self, robot: str, t: float, frame: int, left: np.ndarray | None, right: np.ndarray | None,
                    left_pixels: np.ndarray, right_pixels: np.ndarray | None = None) -> None:
-        """The current pair (every ``image_every``-th frame) with its matched corners and match lines.
+        """The current pair (at most one per ``image_interval`` s) with its matched corners and match lines.
 
         left/right: (H, W) or (H, W, 3) uint8 rectified images; left_pixels, right_pixels: (N, 2) (u, v).
         """
-        if frame % self.image_every:
+        if t - self._last_image.get(robot, -np.inf) < self.image_interval:
             return
+        self._last_image[robot] = t
         self._time(t, frame)
         left_pixels = np.asarray(left_pixels, float).reshape(-1, 2)
         colour = self.colour(robot)
