@@ -197,6 +197,18 @@ def _diagnostics(observer: RenderedObserver, slam: _TimedFastSLAM) -> dict:
                 reobs += 1
                 reobs_matched += int(r.best_matches[j] >= 0)
         seen.update(int(i) for i in f["index"] if i >= 0)
+    # association truth: the true point behind a matched observation vs behind the landmark's first sighting
+    points = observer.points
+    origin: dict[int, int] = {}
+    slide = []
+    for f, r in zip(frames, reports, strict=True):
+        for j in np.flatnonzero(r.best_matches >= 0):
+            first_point = origin.get(int(r.best_matches[j]), -1)
+            if first_point >= 0 and f["index"][j] >= 0:
+                slide.append(float(np.linalg.norm(points[f["index"][j]] - points[first_point])))
+        for j in np.flatnonzero(r.new_landmark_ids >= 0):
+            origin[int(r.new_landmark_ids[j])] = int(f["index"][j])
+    slide = np.array(slide)
     nees = np.concatenate([f["nees"] for f in frames])
     nees = nees[np.isfinite(nees)]
     err = np.concatenate([f["err"] for f in frames])
@@ -238,6 +250,9 @@ def _diagnostics(observer: RenderedObserver, slam: _TimedFastSLAM) -> dict:
         "best_particle_matched_share": float(np.nanmean(matched)),
         "new_landmarks_per_frame_mean_over_particles": float(np.mean([r.new_landmarks for r in reports])),
         "reobservations": reobs, "reobservations_matched_share": reobs_matched / max(1, reobs),
+        "matches_true_point_offset_median_m": float(np.median(slide)) if len(slide) else float("nan"),
+        "matches_true_point_offset_p90_m": float(np.percentile(slide, 90)) if len(slide) else float("nan"),
+        "matches_wrong_share_over_0.2m": float(np.mean(slide > 0.2)) if len(slide) else float("nan"),
         "obs_nees_median": float(np.median(nees)), "obs_nees_mean": float(np.mean(nees)),
         "obs_nees_below_7.81": float(np.mean(nees < 7.815)), "obs_nees_p90": float(np.percentile(nees, 90)),
         "obs_err_median_m": float(np.median(err[ok])), "obs_err_p90_m": float(np.percentile(err[ok], 90)),

@@ -37,7 +37,7 @@ copy-on-write never copies them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -130,7 +130,26 @@ class FastSLAM:
 
     # == update ==============================================================================================
     def update(self, observations: StereoObservations) -> UpdateReport:
-        """Incorporate one frame of 3-D point observations in base_link (see the module docstring)."""
+        """Incorporate one frame of 3-D point observations in base_link (see the module docstring).
+
+        With ``max_observations`` > 0, only that many observations are used: the most precise (smallest
+        covariance trace, i.e. the nearest); the report's per-observation arrays still have one entry per
+        given observation (-1 for those left out).
+        """
+        cap, n_given = self.config.max_observations, len(observations)
+        if cap <= 0 or n_given <= cap:
+            return self._update(observations)
+        trace = np.trace(np.asarray(observations.covariances, float), axis1=1, axis2=2)
+        keep = np.sort(np.argsort(trace, kind="stable")[:cap])
+        pixels = observations.pixels[keep] if len(observations.pixels) else observations.pixels
+        report = self._update(StereoObservations(
+            observations.points[keep], observations.covariances[keep], observations.descriptors[keep], pixels,
+            observations.timestamp, observations.frame))
+        new_ids, best = np.full(n_given, -1, np.int64), np.full(n_given, -1, np.int64)
+        new_ids[keep], best[keep] = report.new_landmark_ids, report.best_matches
+        return replace(report, new_landmark_ids=new_ids, best_matches=best)
+
+    def _update(self, observations: StereoObservations) -> UpdateReport:
         cfg = self.config
         n_particles, n_obs = len(self.poses), len(observations)
         z, q, desc = self._checked(observations)
@@ -139,7 +158,7 @@ class FastSLAM:
 
         # 1-2. candidates, descriptor join, Mahalanobis gate
         cand = self._candidates(predicted)
-        pairs = self._pregate(self._descriptor_join(cand, desc), predicted, z, q)
+        pairs = self._pregate(self._descriptor_join(cand, desc, predicted, z, q), predicted, z, q)
         rot = rot_z(predicted[pairs.m, 2])                                        # (P, 3, 3)
         z_hat, s_mat = self._predict_observation(pairs, predicted, rot, q)
         innovation = z[pairs.j] - z_hat
@@ -185,6 +204,9 @@ class FastSLAM:
         best = int(np.argmax(weights))
         in_best = matched.m == best
         best_matches[matched.j[in_best]] = self.store.flat_lid[matched.g[in_best]]
+        if cfg.refresh_descriptors and cfg.descriptor_size > 0:
+            # appearance drifts with distance (fixed-scale U-SURF): gate the next frame on the latest look
+            self._descriptors[best_matches[matched.j[in_best]]] = desc[matched.j[in_best]]
         pose_mean, pose_cov = _weighted_pose_stats(self.poses, weights)
         parents = np.arange(n_particles)
         resampled = ess < cfg.resample_threshold * n_particles
@@ -250,10 +272,13 @@ class FastSLAM:
         alive = store.flat_lid[g] >= 0
         return _Pairs(p[alive], np.full(int(alive.sum()), -1, np.int64), k[alive], g[alive])
 
-    def _descriptor_join(self, cand: _Pairs, desc: np.ndarray) -> _Pairs:
+    def _descriptor_join(self, cand: _Pairs, desc: np.ndarray, poses: np.ndarray | None = None,
+                         z: np.ndarray | None = None, q: np.ndarray | None = None) -> _Pairs:
         """(particle, observation, landmark) triples whose descriptors are closer than the threshold.
 
-        Distances are computed once per distinct landmark id (particles share ids), not per particle.
+        Distances are computed once per distinct landmark id (particles share ids), not per particle. Given
+        poses (M, 3), z (N, 3) and q (N, 3, 3), (observation, id) pairs that no particle's :meth:`_pregate`
+        could keep are dropped first, also once per id (:meth:`_id_pregate`).
         """
         n_obs = len(desc)
         if len(cand.m) == 0 or n_obs == 0:
@@ -268,9 +293,14 @@ class FastSLAM:
             obs_j, uid = np.nonzero(d2 < self.config.descriptor_threshold ** 2)
         else:
             obs_j, uid = np.divmod(np.arange(n_obs * len(uniq)), len(uniq))
-        # keep only candidates whose landmark matched some observation's descriptor, then group them by id
         rank = np.full(self._n_ids, -1, np.int64)
         rank[uniq] = np.arange(len(uniq))
+        if poses is not None and len(obs_j):
+            inverse = rank[lids]
+            order = np.argsort(inverse, kind="stable")
+            keep_pair = self._id_pregate(cand.g[order], inverse[order], len(uniq), obs_j, uid, poses, z, q)
+            obs_j, uid = obs_j[keep_pair], uid[keep_pair]
+        # keep only candidates whose landmark matched some observation's descriptor, then group them by id
         wanted = np.zeros(len(uniq), bool)
         wanted[uid] = True
         inverse = rank[lids]
@@ -285,6 +315,41 @@ class FastSLAM:
         within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
         c = order[first + within]
         return _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], cand.g[c])
+
+    def _id_pregate(self, g: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray, uid: np.ndarray,
+                    poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(L,) bool over (observation, id) pairs: False where :meth:`_pregate` would drop the pair in every
+        particle, decided once per id (exact bound, so the association is unchanged, only faster).
+
+        With a reference pose (mean position, θ of particle 0) and a reference mean μ̄ per id, for particle m:
+        |ν_m| ≥ |w̄(z) − μ̄| − D − Δθ|z_xy| − E, where D, Δθ bound the particles' distance from the reference
+        pose, E bounds |μ_m − μ̄| over the particles holding the id, w̄(z) = R̄z + t̄; and tr S_m ≤ T + tr Q
+        (+ (2 + r_max²)·max tr P under 2.0), T = max tr Σ of the id. The pair goes when the bound fails the gate.
+        g (C,): flat slots of the candidate landmarks sorted by their id's rank ``inverse`` (C,) in 0..n_uniq-1,
+        every rank present.
+        """
+        store = self.store
+        mean = store.flat_mean[g]
+        starts = np.flatnonzero(np.r_[True, inverse[1:] != inverse[:-1]])
+        ref_mean = mean[starts]                                            # the first particle's mean per id
+        spread = np.maximum.reduceat(np.sum((mean - ref_mean[inverse]) ** 2, axis=1), starts) ** 0.5
+        cov = store.flat_cov.reshape(-1, 9)
+        cov_trace = np.maximum.reduceat(cov[g, 0] + cov[g, 4] + cov[g, 8], starts)
+        ref_xy = poses[:, :2].mean(axis=0)
+        ref_theta = poses[0, 2]
+        d_pose = float(np.max(np.linalg.norm(poses[:, :2] - ref_xy, axis=1)))
+        d_theta = float(np.max(np.abs(wrap_angle(poses[:, 2] - ref_theta))))
+        c, s = np.cos(ref_theta), np.sin(ref_theta)
+        zj = z[obs_j]
+        world = np.stack([ref_xy[0] + c * zj[:, 0] - s * zj[:, 1], ref_xy[1] + s * zj[:, 0] + c * zj[:, 1],
+                          zj[:, 2]], axis=1)
+        lower = (np.linalg.norm(world - ref_mean[uid], axis=1) - d_pose - d_theta * np.hypot(zj[:, 0], zj[:, 1])
+                 - spread[uid])
+        trace = cov_trace[uid] + np.trace(q, axis1=1, axis2=2)[obs_j]
+        if self.config.version == 2:
+            r_max = np.linalg.norm(ref_mean[uid, :2] - ref_xy, axis=1) + spread[uid] + d_pose
+            trace = trace + (2.0 + r_max ** 2) * float(np.max(np.trace(self._motion_cov, axis1=1, axis2=2)))
+        return (lower <= 0) | (lower ** 2 <= self.config.mahalanobis_gate * trace * (1 + 1e-6))
 
     def _pregate(self, pairs: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> _Pairs:
         """Drop pairs that cannot pass the Mahalanobis gate, using only vector norms (exact, conservative).

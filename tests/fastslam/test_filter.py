@@ -184,3 +184,43 @@ def test_history_pruning_keeps_every_live_trajectory(drive, monkeypatch):
     assert sum(len(p) for _, p, _ in pruned._history) < sum(len(p) for _, p, _ in full._history)
     for m in range(8):
         assert np.array_equal(pruned.trajectory(m), full.trajectory(m))
+
+
+def _great_circle(a, b, steps):
+    """``steps`` + 1 unit descriptors from a to b (orthonormal) along the great circle (a look that drifts)."""
+    angles = np.linspace(0.0, np.pi / 2, steps + 1)[:, None]
+    return (np.cos(angles) * a + np.sin(angles) * b).astype(np.float32)
+
+
+@pytest.mark.parametrize("refresh", [True, False])
+def test_landmark_descriptor_follows_a_gradually_changing_look(refresh):
+    # the same corner approached step by step: its fixed-scale descriptor drifts a little each frame
+    rng = np.random.default_rng(3)
+    slam = FastSLAM(FastSLAMConfig(n_particles=10, refresh_descriptors=refresh), np.random.default_rng(4))
+    a = _unit(rng)[0]
+    b = _unit(rng)[0]
+    b = (b - (a @ b) * a) / np.linalg.norm(b - (a @ b) * a)
+    looks = _great_circle(a, b, 6)             # 15° (0.26) per frame, 90° (1.41) from first to last
+    for desc in looks:
+        slam.update(_obs([[4.0, 0.5, 1.0]], desc))
+    assert np.linalg.norm(looks[-1] - looks[0]) > slam.config.descriptor_threshold  # the first look no longer gates
+    ids = _landmark_ids(slam)
+    if refresh:
+        assert len(ids) == 1                                  # every frame re-associated to the one landmark
+        assert np.allclose(slam.best_map().descriptors[0], looks[-1])
+    else:
+        assert len(ids) > 1                                   # kept as first seen: the corner got doubled
+
+
+def test_observation_cap_keeps_the_most_precise():
+    rng = np.random.default_rng(5)
+    slam = FastSLAM(FastSLAMConfig(n_particles=5, max_observations=3), np.random.default_rng(6))
+    points = np.column_stack([np.arange(1.0, 9.0), np.zeros(8), np.ones(8)])
+    sigmas = np.array([0.08, 0.01, 0.05, 0.02, 0.09, 0.03, 0.07, 0.06])
+    cov = np.array([np.eye(3) * s**2 for s in sigmas])
+    report = slam.update(StereoObservations(points, cov, _unit(rng, 8)))
+    used = np.flatnonzero(report.new_landmark_ids >= 0)
+    assert report.n_observations == 3 and len(report.new_landmark_ids) == 8
+    assert used.tolist() == [1, 3, 5]                         # σ = 0.01, 0.02, 0.03
+    assert np.all(report.best_matches == -1)
+    assert len(_landmark_ids(slam)) == 3
