@@ -53,8 +53,9 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
         np.testing.assert_array_equal(saved.positions, m.positions)
     (pair,) = summary["fusion"]["pairs"]
     assert pair["aligned"], pair["note"]
-    # typically 0.01-0.03 m; the bound leaves room for the maps' own drift. A false alignment is metres off.
-    assert pair["error_xy"] < 0.3 and pair["error_theta"] < 0.1, pair
+    # typically 0.01-0.04 m, but the maps' own heading drift (thread timing differs run to run) sometimes makes
+    # it 0.4 m / 0.08 rad; a false alignment here is about 5 m / 3 rad off (the truth is (5, 0, π))
+    assert pair["error_xy"] < 0.6 and pair["error_theta"] < 0.15, pair
     assert pair["common"] >= 10
     merged = result.fused
     assert len(merged) == summary["fusion"]["merged_landmarks"]
