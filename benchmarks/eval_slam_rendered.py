@@ -36,6 +36,7 @@ import numpy as np
 import runtime.slam_sim as slam_sim
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
+from estimation.geometry import between, compose
 from runtime.commands.features import front_end_from_calibration
 from runtime.motion import keep_right
 
@@ -52,7 +53,7 @@ class RenderedObserver:
     """
 
     def __init__(self, world, rng: np.random.Generator, max_corners: int = 150, noise_dn: float = 1.0,
-                 diagnose: bool = False) -> None:
+                 diagnose: bool = False, latency: float = 0.0) -> None:
         from drivers.videre import calibration
         from mocks.stereo_head.renderer import StereoRenderer
 
@@ -67,6 +68,8 @@ class RenderedObserver:
         self._points: list[np.ndarray] = []
         self.frames: list[dict] = []          # per frame: n, nees (N,), depth (N,), index (N,), desc (N, D)
         self.frontend_seconds = 0.0
+        self.latency = latency
+        self._previous: tuple[float, np.ndarray] | None = None
 
     @property
     def points(self) -> np.ndarray:
@@ -91,6 +94,14 @@ class RenderedObserver:
 
     def observe(self, pose, timestamp: float = 0.0):
         pose = np.asarray(pose, float)
+        truth_pose = pose
+        if self.latency > 0 and self._previous is not None:
+            # the image was taken ``latency`` s before its time stamp: the pose on the way from the last frame
+            t_prev, p_prev = self._previous
+            f = max(0.0, 1.0 - self.latency / max(timestamp - t_prev, 1e-9))
+            step = between(p_prev, pose)
+            pose = compose(p_prev, step * f)
+        self._previous = (float(timestamp), truth_pose)
         left, right = (np.clip(np.rint(im * 255.0 + self.rng.normal(0.0, self.noise_dn, im.shape)), 0, 255)
                        .astype(np.uint8) for im in self.renderer.render(pose))
         t0 = time.process_time()
@@ -151,9 +162,10 @@ class _TimedFastSLAM(FastSLAM):
 
 
 def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMConfig, frame_rate: float,
-              max_corners: int, diagnose: bool) -> dict:
+              max_corners: int, diagnose: bool, latency: float = 0.0) -> dict:
     """One robot's run; returns the scores (and diagnostics)."""
-    observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose)
+    observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose,
+                                latency=latency)
     route = keep_right(np.asarray(world.routes[robot], float))
     start = np.asarray(world.start_poses[robot], float)
     original = slam_sim.FastSLAM
@@ -288,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a FastSLAMConfig field")
+    parser.add_argument("--latency", type=float, default=0.0,
+                        help="s between the image and its time stamp (the pose is interpolated; default 0)")
     parser.add_argument("--diagnose", action="store_true", help="association and noise diagnostics")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -297,7 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     world = World.load()
     config = replace(FastSLAMConfig(n_particles=args.particles, version=args.fastslam), **_parse_set(args.set))
     rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
-                      frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose)
+                      frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose,
+                      latency=args.latency)
             for robot in args.robots.split(",")]
     if args.json:
         print(json.dumps({"config": config.to_dict(), "rows": rows}, indent=2))

@@ -29,7 +29,7 @@ class FastSLAMConfig:
     descriptor_threshold: float = 0.5             # max Euclidean distance between unit descriptors (paper's th)
     observation_var_floor: float = 0.02 ** 2      # m² added to each observation covariance (model error)
     refresh_descriptors: bool = False             # a landmark's descriptor follows its latest match (best particle)
-    max_observations: int = 0                     # per frame, keep only this many (most precise first); 0: all
+    max_observations: int = 40                    # per frame, keep only this many (most precise first); 0: all
     # -- sensor footprint: landmark preselection and negative evidence --------------------------------------
     sensor_offset: tuple[float, float, float] = (0.12, 0.0, 0.50)  # head in base_link, metres
     fov_horizontal: float = _HFOV                 # rad; ≥ 2π means all round (range-bearing sensors)
