@@ -11,8 +11,10 @@ Observation model (stereo point in base_link, REP-103): with R = R_z(θ) and t =
 
 One update (:meth:`FastSLAM.update`) reads as numbered steps:
 
+0. With ``max_observations`` > 0, keep only that many observations, the most precise (smallest covariance trace).
 1. Preselect, per particle, the landmark blocks whose bounding box meets the sensor's footprint (no scan of
-   the whole map), then join observations to those landmarks by descriptor distance < ``descriptor_threshold``.
+   the whole map), then join observations to those landmarks by descriptor distance < ``descriptor_threshold``
+   and an exact spatial bound decided once per landmark id.
 2. Gate every (particle, observation, landmark) triple by the squared Mahalanobis distance of the innovation.
 3. Mutual exclusion: each observation takes its nearest gated landmark; a landmark claimed by several
    observations keeps only the nearest; the losers are ambiguous (neither matched nor new).
@@ -33,7 +35,8 @@ Descriptor threshold: the fusion paper's th₀ = 2 cannot be a Euclidean distanc
 descriptors (their distance is at most 2, so it would accept everything); it is presumably on unnormalised
 descriptors. We gate unit descriptors at 0.5 by default (``FastSLAMConfig.descriptor_threshold``).
 Descriptors are kept as first seen (the landmark's id indexes a shared, append-only descriptor table), so
-copy-on-write never copies them.
+copy-on-write never copies them; ``refresh_descriptors`` (off by default: on rendered frames it let landmarks
+slide along textures) overwrites an id's descriptor with its latest match in the most probable particle.
 """
 from __future__ import annotations
 
@@ -272,13 +275,13 @@ class FastSLAM:
         alive = store.flat_lid[g] >= 0
         return _Pairs(p[alive], np.full(int(alive.sum()), -1, np.int64), k[alive], g[alive])
 
-    def _descriptor_join(self, cand: _Pairs, desc: np.ndarray, poses: np.ndarray | None = None,
-                         z: np.ndarray | None = None, q: np.ndarray | None = None) -> _Pairs:
+    def _descriptor_join(self, cand: _Pairs, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
+                         q: np.ndarray) -> _Pairs:
         """(particle, observation, landmark) triples whose descriptors are closer than the threshold.
 
-        Distances are computed once per distinct landmark id (particles share ids), not per particle. Given
-        poses (M, 3), z (N, 3) and q (N, 3, 3), (observation, id) pairs that no particle's :meth:`_pregate`
-        could keep are dropped first, also once per id (:meth:`_id_pregate`).
+        Distances are computed once per distinct landmark id (particles share ids), not per particle; then
+        (observation, id) pairs that no particle's :meth:`_pregate` could keep are dropped, also once per id
+        (:meth:`_id_pregate`; poses (M, 3), z (N, 3), q (N, 3, 3)), before they are expanded to particles.
         """
         n_obs = len(desc)
         if len(cand.m) == 0 or n_obs == 0:
@@ -295,7 +298,7 @@ class FastSLAM:
             obs_j, uid = np.divmod(np.arange(n_obs * len(uniq)), len(uniq))
         rank = np.full(self._n_ids, -1, np.int64)
         rank[uniq] = np.arange(len(uniq))
-        if poses is not None and len(obs_j):
+        if len(obs_j):
             inverse = rank[lids]
             order = np.argsort(inverse, kind="stable")
             keep_pair = self._id_pregate(cand.g[order], inverse[order], len(uniq), obs_j, uid, poses, z, q)
