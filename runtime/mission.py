@@ -46,6 +46,7 @@ class MissionConfig:
     camera_rate: float = 15.0         # Hz
     particles: int = 100
     max_corners: int = 150            # Harris corners per image: fewer observations, faster FastSLAM updates
+    max_observations: int = 0         # FastSLAM's cap per frame (0: every observation the front end gives)
     motion: str = "route"             # the world's named routes, the sonar wall follower, or none
     speed: float = 0.35               # m/s along routes
     fusion_interval: float = 20.0     # s between fusions during the mission (0: only at the end)
@@ -261,7 +262,8 @@ class Mission:
         link = P3ATLink(driver)
         camera, geometry = self._camera(stack, world, index, name)
         frontend = FrontEndConfig(geometry=geometry, harris=HarrisConfig(max_corners=cfg.max_corners))
-        onboard_config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=cfg.particles), frontend=frontend,
+        fastslam = FastSLAMConfig(n_particles=cfg.particles, max_observations=cfg.max_observations)
+        onboard_config = OnboardConfig(fastslam=fastslam, frontend=frontend,
                                        seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval,
                                        steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks)
         sensor_log = None

@@ -27,6 +27,8 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles (default 100)")
     parser.add_argument("--max-corners", type=int, default=150,
                         help="Harris corners per image (default 150; fewer observations, faster FastSLAM)")
+    parser.add_argument("--max-observations", type=int, default=0,
+                        help="FastSLAM's cap on observations per frame, most precise first (default 0: all)")
     parser.add_argument("--motion", choices=MOTIONS, default="route",
                         help="route: follow a route; explore: sonar wall following; none: someone else drives")
     parser.add_argument("--route", type=Path, default=None,
@@ -50,7 +52,8 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
 def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> MissionConfig:
     return MissionConfig(
         robots=args.robots, seconds=args.seconds, seed=args.seed, camera=args.camera, camera_rate=args.camera_rate,
-        particles=args.particles, max_corners=args.max_corners, motion=args.motion, speed=args.speed,
+        particles=args.particles, max_corners=args.max_corners, max_observations=args.max_observations,
+        motion=args.motion, speed=args.speed,
         fusion_interval=args.fusion_interval,
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
