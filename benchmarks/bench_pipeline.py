@@ -75,7 +75,7 @@ def main() -> None:
 
     virtual = VirtualStereoHead(world, "robot1", rng=rng)
     camera = VidereCamera(StereoHead.open(backend=virtual), rate=args.rate)
-    config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=args.particles),
+    config = OnboardConfig(fastslam=FastSLAMConfig(n_particles=args.particles, max_observations=0),
                            frontend=FrontEndConfig(geometry=camera.geometry,
                                                    harris=HarrisConfig(max_corners=args.max_corners)))
     core = SlamCore("robot1", config)
