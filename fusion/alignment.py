@@ -78,9 +78,12 @@ PAPER = AlignmentConfig(
     name="paper", descriptor_threshold=2.0, ratio=None, pair_tolerance=2.0, min_pair_separation=0.0,
     support_threshold=0.2, min_supports=20, iterations=70,
 )
+# min_supports 15: on maps built from rendered frames, the building's repeated structure (door frames, symmetric
+# corridor) let a wrong transform gather 11–13 supports that the binomial chance test, which assumes independent
+# correspondences, passed; true overlaps that fix a transform well have far more.
 ROBUST = AlignmentConfig(
     name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
-    support_threshold=1.0, min_supports=8, iterations=2000, adaptive=True, confidence=0.9999,
+    support_threshold=1.0, min_supports=15, iterations=2000, adaptive=True, confidence=0.9999,
     covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3,
 )
 PRESETS: dict[str, AlignmentConfig] = {"paper": PAPER, "robust": ROBUST}
