@@ -44,8 +44,10 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--world", type=Path, default=None, help="building file for the virtual robots")
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="virtual robots only: simulated seconds per wall-clock second (default 1)")
-    parser.add_argument("--odometry", choices=("exact", "realistic"), default="exact",
-                        help="virtual robots' wheel odometry errors (default exact; realistic: 1 %% scale, 3 %% track)")
+    # realistic by default: a robot's wheel odometry drifts, and showing FastSLAM correcting it is the point
+    parser.add_argument("--odometry", choices=("exact", "realistic"), default="realistic",
+                        help="virtual robots' wheel odometry errors (default realistic: 1 %% scale, 3 %% track, "
+                             "noise; exact: no error)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
 
 
