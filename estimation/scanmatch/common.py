@@ -40,6 +40,9 @@ class MatchConfig:
     gap: float = 0.5                   # curve break between consecutive reference points farther apart
     mesh_shift_bound: float = 0.5      # eICP-mesh: search the arc-length shift in [-bound, bound]
     eicp_solver: str = "gauss-newton"  # or "alternating" (projection + Procrustes)
+    # eICP's Gauss-Newton converges quadratically: a step below 10× the tolerances leaves an error far below
+    # them, so it stops there (the linearly converging methods use the tolerances as they are).
+    gauss_newton_tolerance_scale: float = 5.0
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -48,6 +51,8 @@ class MatchConfig:
             raise ScanMatchError(f"trim_fraction must be in [0, 1), got {self.trim_fraction}")
         if self.max_distance <= 0.0 or self.gap <= 0.0:
             raise ScanMatchError("max_distance and gap must be positive")
+        if self.gauss_newton_tolerance_scale < 1.0:
+            raise ScanMatchError(f"gauss_newton_tolerance_scale must be >= 1, got {self.gauss_newton_tolerance_scale}")
         if self.eicp_solver not in ("gauss-newton", "alternating"):
             raise ScanMatchError(f"eicp_solver must be 'gauss-newton' or 'alternating', got {self.eicp_solver!r}")
 
@@ -105,10 +110,10 @@ def truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
     return float(np.sum(np.minimum(distance, config.max_distance) ** 2))
 
 
-def pose_step_small(step: np.ndarray, config: MatchConfig) -> bool:
-    """The stopping rule: the last pose update (3,) is below both tolerances."""
-    return (math.hypot(float(step[0]), float(step[1])) < config.tolerance_translation
-            and abs(float(step[2])) < config.tolerance_rotation)
+def pose_step_small(step: np.ndarray, config: MatchConfig, scale: float = 1.0) -> bool:
+    """The stopping rule: the last pose update (3,) is below both tolerances (times ``scale``)."""
+    return (math.hypot(float(step[0]), float(step[1])) < scale * config.tolerance_translation
+            and abs(float(step[2])) < scale * config.tolerance_rotation)
 
 
 def rotate(theta: float, points: np.ndarray) -> np.ndarray:
@@ -236,8 +241,9 @@ def point_to_line_pose(source: np.ndarray, anchor: np.ndarray, normal: np.ndarra
     return np.array([t[0], t[1], np.arctan2(u[1], u[0])])
 
 
-def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarray, int, bool]:
-    """Run ``update(pose) -> new pose | None`` until the stopping rule holds.
+def iterate(update, initial: np.ndarray, config: MatchConfig, tolerance_scale: float = 1.0
+            ) -> tuple[np.ndarray, int, bool]:
+    """Run ``update(pose) -> new pose | None`` until the stopping rule holds (tolerances × ``tolerance_scale``).
 
     Returns (pose (3,), iterations, tolerance_met).  ``None`` from ``update`` (too few correspondences) or a
     non-finite pose stops at once without convergence, keeping the last good pose.  So does a limit cycle:
@@ -255,7 +261,7 @@ def iterate(update, initial: np.ndarray, config: MatchConfig) -> tuple[np.ndarra
         step = new - pose
         step[2] = (step[2] + np.pi) % (2.0 * np.pi) - np.pi
         pose = new
-        if pose_step_small(step, config):
+        if pose_step_small(step, config, tolerance_scale):
             return pose, iteration, True
         # The same kept set gives the same solve: a cycle returns to an earlier pose to rounding error.
         # (A converging run also comes back near earlier poses, but with steps that have become tiny.)

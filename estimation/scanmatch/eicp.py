@@ -63,7 +63,7 @@ from estimation.scanmatch.common import (
     solve_normal_equations,
     truncated_cost,
 )
-from estimation.scanmatch.polyline import Polyline, Projection
+from estimation.scanmatch.polyline import NearestVertexCache, Polyline, Projection
 from estimation.scanmatch.scan import Scan2D
 
 _MAX_HALVINGS = 6
@@ -98,11 +98,12 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
 
     # The projection at an accepted trial pose is the next iteration's starting projection: keep it.
     last = {"pose": None, "projection": None}
+    warm_start = NearestVertexCache()   # the points move little between projections: skip most tree queries
 
     def project(pose):
         if last["pose"] is not None and np.array_equal(last["pose"], pose):
             return last["projection"]
-        projection = curve.project(apply_pose(pose, source))
+        projection = curve.project(apply_pose(pose, source), warm_start)
         last["pose"], last["projection"] = pose, projection
         return projection
 
@@ -113,7 +114,7 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
             return None
         residuals, jacobian = _curve_rows(pose, source, projection, keep)
         step = -solve_normal_equations(jacobian, residuals)
-        if pose_step_small(step, config):
+        if pose_step_small(step, config, scale):
             return pose + step   # below the tolerance: the stopping rule ends here, no line search needed
         # Accept the step when it lowers the truncated cost of the correspondences it was computed for.
         cost = truncated_cost(projection.distance[keep], config)
@@ -131,8 +132,9 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
             return None
         return procrustes(source[keep], projection.point[keep])
 
-    update = gauss_newton if config.eicp_solver == "gauss-newton" else alternating
-    pose, iterations, tolerance_met = iterate(update, initial, config)
+    newton = config.eicp_solver == "gauss-newton"
+    scale = config.gauss_newton_tolerance_scale if newton else 1.0
+    pose, iterations, tolerance_met = iterate(gauss_newton if newton else alternating, initial, config, scale)
     return _finish_on_curve("eicp", project(pose), source, pose, iterations, tolerance_met, config)
 
 

@@ -8,6 +8,14 @@ between pieces, so λ is strictly increasing over the whole curve and never ambi
 Projection (the closed-form optimum of λ for a given point) uses the 2 nearest vertices and the
 segments adjacent to them.  That is exact whenever the closest segment has one of those vertices as an
 end; with segments no longer than ``gap`` this holds for every point within the matcher's gate in practice.
+
+Warm start.  An iterative matcher projects the same points again and again while they move by millimetres, and
+the k-d tree query is half of a projection's cost.  :class:`NearestVertexCache` keeps, per point, the
+``_CACHED_VERTICES`` nearest vertices found by the last tree query at an anchor position and the distance r to
+the farthest of them (every other vertex is at least r from the anchor).  A point that has since moved by δ
+has every other vertex at least r − δ away, so if its two nearest cached vertices are closer than that they
+are exactly the two nearest vertices the tree would return; only the points failing that test are queried
+again.  The result is the same as a fresh query (up to the order of exact ties).
 """
 from __future__ import annotations
 
@@ -21,6 +29,7 @@ from estimation.scanmatch.scan import Scan2D
 
 _PIECE_SPACING = 1.0  # metres of arc length left empty between pieces (any positive value works)
 _NEAREST_VERTICES = 2
+_CACHED_VERTICES = 6  # vertices remembered per point by NearestVertexCache (>= _NEAREST_VERTICES)
 
 
 @dataclass(frozen=True)
@@ -40,6 +49,21 @@ class Projection:
     distance: np.ndarray
     normal: np.ndarray
     vertex: np.ndarray
+
+
+class NearestVertexCache:
+    """Per-point memory of the last k-d tree query, for :meth:`Polyline.project` (see the module docstring).
+
+    Valid for one fixed set of N points (the i-th query is always the i-th point of the same scan) and one
+    Polyline.  anchor: (N, 2) query position of the last tree query; candidates: (N, K) its K nearest vertices;
+    radius: (N,) distance from the anchor to the K-th of them (∞ when the curve has no more than K vertices).
+    """
+
+    def __init__(self) -> None:
+        self.anchor: np.ndarray | None = None
+        self.candidates: np.ndarray | None = None
+        self.radius: np.ndarray | None = None
+        self.tree_queries = 0   # points queried on the tree (for the benchmark)
 
 
 class Polyline:
@@ -86,13 +110,12 @@ class Polyline:
     def n_segments(self) -> int:
         return int(np.count_nonzero(self.segment_valid))
 
-    def project(self, queries: np.ndarray) -> Projection:
-        """Closest curve point of each query.  queries: (N, 2)."""
+    def project(self, queries: np.ndarray, cache: NearestVertexCache | None = None) -> Projection:
+        """Closest curve point of each query.  queries: (N, 2); cache: warm start for repeated queries of the
+        same N points (updated in place; the result is the same as without it)."""
         queries = np.asarray(queries, dtype=float)
         n = queries.shape[0]
-        k = min(_NEAREST_VERTICES, self.vertices.shape[0])
-        _, nearest = self._tree.query(queries, k=k)
-        nearest = nearest.reshape(n, k)                                     # (N, k)
+        nearest = self._nearest_vertices(queries) if cache is None else self._nearest_cached(queries, cache)
         # Candidate slots: the segment ending at (slot v) and the one starting at (slot v+1) each near vertex.
         slot = np.concatenate([nearest, nearest + 1], axis=1)              # (N, 2k)
         table = self._slot_table[slot]                                      # (N, 2k, 5)
@@ -114,6 +137,49 @@ class Polyline:
             normal[on_curve] = self._slot_normal[best_slot[on_curve]]
         return Projection(queries - residual, self._slot_arc[best_slot] + along.ravel()[flat], distance, normal,
                           nearest[:, 0])
+
+    def _nearest_vertices(self, queries: np.ndarray) -> np.ndarray:
+        """The nearest vertices (N, k) of queries (N, 2), closest first, k = min(2, M)."""
+        k = min(_NEAREST_VERTICES, self.vertices.shape[0])
+        _, nearest = self._tree.query(queries, k=k)
+        return nearest.reshape(queries.shape[0], k)
+
+    def _nearest_cached(self, queries: np.ndarray, cache: NearestVertexCache) -> np.ndarray:
+        """As :meth:`_nearest_vertices`, re-querying the tree only where the cache cannot vouch for the result."""
+        m = self.vertices.shape[0]
+        if m <= _NEAREST_VERTICES:
+            return self._nearest_vertices(queries)
+        n = queries.shape[0]
+        if cache.anchor is None or cache.anchor.shape[0] != n:
+            cache.anchor = queries.copy()
+            cache.candidates = np.empty((n, min(_CACHED_VERTICES, m)), dtype=np.intp)
+            cache.radius = np.empty(n)
+            stale = np.arange(n)
+        else:
+            candidate_points = self.vertices[cache.candidates]                     # (N, K, 2)
+            dx = candidate_points[..., 0] - queries[:, 0:1]
+            dy = candidate_points[..., 1] - queries[:, 1:2]
+            dist2 = dx * dx + dy * dy                                              # (N, K)
+            order = np.argpartition(dist2, 1, axis=1)[:, :_NEAREST_VERTICES]     # two smallest, closest first
+            rows = np.arange(n)[:, None]
+            moved = np.hypot(queries[:, 0] - cache.anchor[:, 0], queries[:, 1] - cache.anchor[:, 1])
+            bound = cache.radius - moved
+            # Strict: a vertex outside the cache at exactly the bound could tie with the second nearest.
+            fresh = (bound > 0.0) & (dist2[rows[:, 0], order[:, 1]] < bound * bound)
+            stale = np.flatnonzero(~fresh)
+            nearest = cache.candidates[rows, order]
+            if stale.size == 0:
+                return nearest
+        k = cache.candidates.shape[1]
+        distance, index = self._tree.query(queries[stale], k=k)
+        cache.anchor[stale] = queries[stale]
+        cache.candidates[stale] = index
+        cache.radius[stale] = distance[:, -1] if k < m else np.inf
+        cache.tree_queries += stale.size
+        if stale.size == n:
+            return index[:, :_NEAREST_VERTICES].copy()
+        nearest[stale] = index[:, :_NEAREST_VERTICES]
+        return nearest
 
     def clamp_to_piece(self, arc: np.ndarray, piece: np.ndarray) -> np.ndarray:
         """Arc lengths (N,) clamped to the λ range of the given pieces (N,) int."""
