@@ -107,7 +107,8 @@ def select_correspondences(distance: np.ndarray, config: MatchConfig, residual: 
 
 def truncated_cost(distance: np.ndarray, config: MatchConfig) -> float:
     """Σ min(d_i, gate)² over the distances (N,) given."""
-    return float(np.sum(np.minimum(distance, config.max_distance) ** 2))
+    clipped = np.minimum(distance, config.max_distance)
+    return float(clipped @ clipped)
 
 
 def pose_step_small(step: np.ndarray, config: MatchConfig, scale: float = 1.0) -> bool:
@@ -118,8 +119,8 @@ def pose_step_small(step: np.ndarray, config: MatchConfig, scale: float = 1.0) -
 
 def rotate(theta: float, points: np.ndarray) -> np.ndarray:
     """R(θ) p for points (N, 2)."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.column_stack([c * points[:, 0] - s * points[:, 1], s * points[:, 0] + c * points[:, 1]])
+    c, s = math.cos(theta), math.sin(theta)
+    return points @ np.array([[c, s], [-s, c]])   # one small matmul: fewer temporaries than per-column
 
 
 def apply_pose(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -143,8 +144,9 @@ def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.nd
     normal = jacobian.T @ jacobian
     rhs = jacobian.T @ residuals
     # cond ≤ trace³ / det for a symmetric positive semi-definite 3×3: a cheap test before the plain solve.
-    trace = float(normal[0, 0] + normal[1, 1] + normal[2, 2])
-    if np.linalg.det(normal) > 1e-10 * trace ** 3:
+    (a, b, c), (_, d, e), (_, _, f) = normal.tolist()   # symmetric; Python floats beat np.linalg.det on 3×3
+    trace = a + d + f
+    if a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c) > 1e-10 * trace ** 3:
         return np.linalg.solve(normal, rhs)
     return np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
 
