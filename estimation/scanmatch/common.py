@@ -146,8 +146,13 @@ def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.nd
     # cond ≤ trace³ / det for a symmetric positive semi-definite 3×3: a cheap test before the plain solve.
     (a, b, c), (_, d, e), (_, _, f) = normal.tolist()   # symmetric; Python floats beat np.linalg.det on 3×3
     trace = a + d + f
-    if a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c) > 1e-10 * trace ** 3:
-        return np.linalg.solve(normal, rhs)
+    # Cofactors of the symmetric matrix; the solve is adjugate · rhs / det (well conditioned past the test).
+    ca, cb, cc = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * ca + b * cb + c * cc
+    if det > 1e-10 * trace ** 3:
+        cd, ce, cf = a * f - c * c, b * c - a * e, a * d - b * b
+        r0, r1, r2 = rhs.tolist()
+        return np.array([ca * r0 + cb * r1 + cc * r2, cb * r0 + cd * r1 + ce * r2, cc * r0 + ce * r1 + cf * r2]) / det
     return np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
 
 
