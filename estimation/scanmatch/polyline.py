@@ -63,7 +63,6 @@ class NearestVertexCache:
         self.anchor: np.ndarray | None = None
         self.candidates: np.ndarray | None = None
         self.radius: np.ndarray | None = None
-        self.tree_queries = 0   # points queried on the tree (for the benchmark)
 
 
 class Polyline:
@@ -172,7 +171,6 @@ class Polyline:
         cache.anchor[stale] = queries[stale]
         cache.candidates[stale] = index
         cache.radius[stale] = distance[:, -1] if k < m else np.inf
-        cache.tree_queries += stale.size
         if stale.size == n:
             return index[:, :_NEAREST_VERTICES].copy()
         nearest[stale] = index[:, :_NEAREST_VERTICES]
