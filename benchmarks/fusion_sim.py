@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from estimation.geometry import inverse, rot_z, transform_points  # noqa: E402
+from estimation.geometry import inverse, rot_z, transform_points, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 
 DESCRIPTOR_SIZE = 64
@@ -72,7 +72,7 @@ def route_poses(start_pose, waypoints, step: float = 0.1, turn_step: float = 0.1
         if length < 1e-9:
             continue
         target = np.arctan2(wy - y, wx - x)
-        turn = (target - heading + np.pi) % (2 * np.pi) - np.pi
+        turn = wrap_angle(target - heading)
         for a in np.linspace(0.0, turn, max(2, int(abs(turn) / turn_step) + 1))[1:]:
             poses.append(np.array([x, y, heading + a]))
             travelled.append(dist)

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from estimation.geometry import wrap_angle
 from estimation.scanmatch.errors import ScanMatchError
 
 
@@ -266,7 +267,7 @@ def iterate(update, initial: np.ndarray, config: MatchConfig, tolerance_scale: f
         if new is None or not np.all(np.isfinite(new)):   # too few correspondences, or a degenerate solve
             return pose, iteration, False
         step = new - pose
-        step[2] = (step[2] + np.pi) % (2.0 * np.pi) - np.pi
+        step[2] = wrap_angle(step[2])
         pose = new
         if pose_step_small(step, config, tolerance_scale):
             return pose, iteration, True
@@ -284,7 +285,7 @@ def finish(method: str, pose: np.ndarray, iterations: int, tolerance_met: bool, 
            residuals: np.ndarray, n_correspondences: int, config: MatchConfig) -> MatchResult:
     """The MatchResult of a run, from the residual rows (m,) and their Jacobian (m, 3) at the final pose."""
     rms = float(np.sqrt(np.mean(residuals ** 2))) if residuals.size else float("nan")
-    pose = np.array([pose[0], pose[1], (pose[2] + np.pi) % (2.0 * np.pi) - np.pi])
+    pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
     return MatchResult(pose=pose, covariance=least_squares_covariance(jacobian, residuals), iterations=iterations,
                        residual=rms, converged=bool(tolerance_met and n_correspondences >= config.min_correspondences),
                        n_correspondences=int(n_correspondences), method=method)

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.geometry import transform_points
+from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from fusion import (
     PAPER,
@@ -54,7 +54,7 @@ def test_robust_alignment_is_the_best_rigid_fit_anywhere(sim, pose, seed):
     best, _, _ = refine_pose(map1.positions[i], map1.covariances[i], map2.positions[j], map2.covariances[j], pose)
     def mahalanobis_sq(other):
         e = a.pose - np.asarray(other)
-        e[2] = (e[2] + np.pi) % (2 * np.pi) - np.pi
+        e[2] = wrap_angle(e[2])
         return e @ np.linalg.solve(a.covariance, e)
 
     assert mahalanobis_sq(best) < 1.0                             # within 1σ of the best fit
