@@ -123,31 +123,95 @@ def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2
         raise FrontEndError(f"U-SURF scale must be positive, got {scale}")
     keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
     half = haar_half_size(scale)
-    dx_img, dy_img = dense_haar_responses(integral_image(image, buffers), half, buffers)
-    return usurf_from_haar(dx_img, dy_img, keypoints, scale, half, buffers)
+    integral = integral_image(image, buffers)
+    cols, rows, inside = sample_corners(keypoints, scale, half, integral.shape)
+    if float(scale) == half and lattice_aligned(cols, rows, half):
+        dx, dy = lattice_haar_responses(integral, cols[:, 0], rows[:, 0], half, buffers)
+    else:  # a non-integer scale: its samples are not on a lattice of the wavelet's half side
+        dx_img, dy_img = dense_haar_responses(integral, half, buffers)
+        dx, dy = gather_haar_responses(dx_img, dy_img, cols, rows, buffers)
+    return pool_descriptors(dx, dy, inside, scale, buffers)
 
 
-def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarray, scale: float,
-                    half: int, buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The descriptor core on precomputed dense Haar responses (see ``dense_haar_responses``)."""
+def sample_corners(keypoints: np.ndarray, scale: float, half: int,
+                   integral_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each keypoint's 20 × 20 wavelets sit: (cols (M, 20), rows (M, 20), inside (N,) bool).
+
+    cols[i, k] is the integral-image column of the left edge of the wavelet at sample column k of the i-th
+    keypoint whose window fits (likewise rows, top edges), i.e. the wavelet covers integral indices
+    cols .. cols + 2·half; equivalently the index into ``dense_haar_responses``' arrays.
+    """
     offsets = sample_offsets(scale)
-    # integral index of the corner nearest each sample, minus half -> index into the dense response arrays
+    # integral index of the corner nearest each sample, minus half -> left/top edge of the wavelet
     cols = np.floor(keypoints[:, 0:1] + offsets + 1.0).astype(np.int64) - half  # (N, 20)
     rows = np.floor(keypoints[:, 1:2] + offsets + 1.0).astype(np.int64) - half
-    n_rows, n_cols = dx_img.shape
+    n_rows, n_cols = integral_shape[0] - 2 * half, integral_shape[1] - 2 * half
     inside = (cols[:, 0] >= 0) & (cols[:, -1] < n_cols) & (rows[:, 0] >= 0) & (rows[:, -1] < n_rows)
-    cols, rows = cols[inside], rows[inside]
+    return cols[inside], rows[inside], inside
+
+
+def lattice_aligned(cols: np.ndarray, rows: np.ndarray, step: int) -> bool:
+    """Whether every keypoint's sample edges (M, 20) advance by exactly ``step`` px (an integer scale)."""
+    steps = step * np.arange(SAMPLES_PER_AXIS)
+    return bool(np.array_equal(cols, cols[:, :1] + steps) and np.array_equal(rows, rows[:, :1] + steps))
+
+
+def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndarray, half: int,
+                           buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Haar responses (dx, dy), each (M, 20, 20) [sample row, sample column], straight from the integral image.
+
+    With an integer scale s the samples are s px apart and the wavelets have half side s, so all the corners
+    the 400 wavelets of one keypoint need lie on one 22 × 22 lattice of integral entries s apart (starting at
+    (row0, col0), the first wavelet's top-left corner): 484 look-ups per keypoint instead of dense responses
+    over the whole image. Integer sums, so the values equal ``dense_haar_responses``' exactly.
+    """
+    n = SAMPLES_PER_AXIS + 2
+    steps = half * np.arange(n)
+    m = len(col0)
+    flat = scratch(buffers, "usurf_lattice_index", (m, n, n), np.intp)
+    np.add(((row0[:, None] + steps) * integral.shape[1])[:, :, None], (col0[:, None] + steps)[:, None, :], out=flat)
+    corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (m, n, n), integral.dtype))
+    k = SAMPLES_PER_AXIS
+    # vertical strips 2·half high (M, 20, 22), then right - 2·middle + left; horizontal strips likewise for dy
+    vertical = np.subtract(corners[:, 2:, :], corners[:, :k, :], out=scratch(buffers, "usurf_strips_v", (m, k, n),
+                                                                             integral.dtype))
+    dx = np.add(vertical[:, :, 2:], vertical[:, :, :k], out=scratch(buffers, "usurf_lattice_dx", (m, k, k),
+                                                                    integral.dtype))
+    dx -= vertical[:, :, 1:k + 1]
+    dx -= vertical[:, :, 1:k + 1]
+    horizontal = np.subtract(corners[:, :, 2:], corners[:, :, :k], out=scratch(buffers, "usurf_strips_h", (m, n, k),
+                                                                               integral.dtype))
+    dy = np.add(horizontal[:, 2:, :], horizontal[:, :k, :], out=scratch(buffers, "usurf_lattice_dy", (m, k, k),
+                                                                        integral.dtype))
+    dy -= horizontal[:, 1:k + 1, :]
+    dy -= horizontal[:, 1:k + 1, :]
+    return dx, dy
+
+
+def gather_haar_responses(dx_img: np.ndarray, dy_img: np.ndarray, cols: np.ndarray, rows: np.ndarray,
+                          buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Dense responses (see ``dense_haar_responses``) read at the samples: (dx, dy), each (M, 20, 20)."""
     m = len(cols)
+    shape = (m, SAMPLES_PER_AXIS, SAMPLES_PER_AXIS)
+    flat = scratch(buffers, "usurf_flat", shape, np.intp)
+    np.add((rows * dx_img.shape[1])[:, :, None], cols[:, None, :], out=flat)  # sample [row, col] -> flat index
+    return (np.take(dx_img, flat, out=scratch(buffers, "usurf_gathered_dx", shape, dx_img.dtype)),
+            np.take(dy_img, flat, out=scratch(buffers, "usurf_gathered_dy", shape, dy_img.dtype)))
+
+
+def pool_descriptors(dx: np.ndarray, dy: np.ndarray, inside: np.ndarray, scale: float,
+                     buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian-weighted subregion sums of the sample responses dx, dy (M, 20, 20) -> unit descriptors.
+
+    inside: (N,) which keypoints the M rows belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
+    """
+    m = len(dx)
     samples = (m, SAMPLES_PER_AXIS**2)
-    flat = scratch(buffers, "usurf_flat", (m, SAMPLES_PER_AXIS, SAMPLES_PER_AXIS), np.intp)
-    np.add((rows * n_cols)[:, :, None], cols[:, None, :], out=flat)  # sample [row, col] -> flat response index
-    flat = flat.reshape(samples)
     pooling = pooling_matrix(float(scale))
     signed, absolute = [], []
-    for image, name in ((dx_img, "dx"), (dy_img, "dy")):
-        gathered = np.take(image, flat, out=scratch(buffers, "usurf_gathered", samples, image.dtype))
+    for values, name in ((dx, "dx"), (dy, "dy")):
         response = scratch(buffers, "usurf_" + name, samples, np.float32)
-        np.copyto(response, gathered, casting="unsafe")
+        np.copyto(response, values.reshape(samples), casting="unsafe")
         signed.append(response @ pooling)
         # the weights are positive, so Σ w·|dx| = Σ |w·dx|
         absolute.append(np.abs(response, out=response) @ pooling)
@@ -158,3 +222,12 @@ def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarra
     described = inside.copy()
     described[inside] = textured
     return (sums[textured] / norms[textured, None]).astype(np.float32), described
+
+
+def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarray, scale: float,
+                    half: int, buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The descriptor core on precomputed dense Haar responses (see ``dense_haar_responses``)."""
+    integral_shape = (dx_img.shape[0] + 2 * half, dx_img.shape[1] + 2 * half)
+    cols, rows, inside = sample_corners(np.asarray(keypoints, np.float64).reshape(-1, 2), scale, half, integral_shape)
+    dx, dy = gather_haar_responses(dx_img, dy_img, cols, rows, buffers)
+    return pool_descriptors(dx, dy, inside, scale, buffers)

@@ -107,3 +107,22 @@ def test_flat_patch_and_bad_scale():
     assert len(descriptors) == 0 and not described.any()
     with pytest.raises(FrontEndError):
         usurf_descriptors(flat, np.array([[30.0, 30.0]]), 0.0)
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.0, 3.0])
+def test_lattice_gather_equals_the_dense_responses_exactly(scale):
+    # integer scales read the wavelets straight off the integral image; the dense path is the reference
+    from estimation.frontend.usurf import haar_half_size, lattice_aligned, sample_corners, usurf_from_haar
+
+    image = np.clip(texture((160, 200), seed=13), 0, 255).astype(np.uint8)
+    points = np.random.default_rng(14).uniform(0, [200, 160], size=(300, 2))
+    points[:5] = np.floor(points[:5]) + 0.5  # sub-pixel positions exactly between pixels
+    half = haar_half_size(scale)
+    cols, rows, _ = sample_corners(points, scale, half, (161, 201))
+    assert lattice_aligned(cols, rows, half)  # the lattice path is the one taken
+    dense_dx, dense_dy = dense_haar_responses(integral_image(image), half)
+    expected, expected_ok = usurf_from_haar(dense_dx, dense_dy, points, scale, half)
+    descriptors, described = usurf_descriptors(image, points, scale)
+    assert 0 < described.sum() < len(points)  # some windows leave the image
+    np.testing.assert_array_equal(described, expected_ok)
+    np.testing.assert_array_equal(descriptors, expected)
