@@ -44,6 +44,7 @@ class MissionConfig:
     seed: int = 0
     camera: str = "mock"              # "mock": rendered frames through the Videre driver; "synthetic": observer
     camera_rate: float = 15.0         # Hz
+    camera_latency: float | None = None  # s from exposure to arrival (None: the virtual head's; 0 for a real one)
     particles: int = 100
     max_corners: int = 150            # Harris corners per image: fewer observations, faster FastSLAM updates
     max_observations: int = 0         # FastSLAM's cap per frame (0: every observation the front end gives)
@@ -79,6 +80,8 @@ class MissionConfig:
             raise ValueError("a real robot URL runs exactly one robot (--robots 1)")
         if not self.on_mocks and self.camera != "usb":
             raise ValueError("a real robot needs a real stereo head (--camera usb)")
+        if self.camera_latency is not None and not 0.0 <= self.camera_latency < 1.0:
+            raise ValueError(f"--camera-latency must be in [0, 1) s, not {self.camera_latency!r}")
         if self.odometry not in ("exact", "realistic"):
             raise ValueError(f"--odometry must be exact or realistic, not {self.odometry!r}")
         if self.on_mocks and self.camera == "usb":
@@ -300,16 +303,19 @@ class Mission:
         from runtime.adapters import VidereCamera
 
         if cfg.camera == "usb":
-            camera = VidereCamera(StereoHead.open(clock=self.clock), rate=cfg.camera_rate)
+            head = StereoHead.open(clock=self.clock, latency=cfg.camera_latency or 0.0)
+            camera = VidereCamera(head, rate=cfg.camera_rate)
             stack.callback(camera.close)
             return camera, camera.geometry
         from mocks.stereo_head import VirtualStereoHead
 
         # one renderer (its texture atlas) shared by every head in the building
+        latency = {} if cfg.camera_latency is None else {"latency": cfg.camera_latency}
         virtual = VirtualStereoHead(world, name, rng=rng, realtime=True, clock=self.clock,
-                                    renderer=getattr(self, "_renderer", None))
+                                    renderer=getattr(self, "_renderer", None), **latency)
         self._renderer = virtual.renderer
-        head = StereoHead.open(backend=virtual, clock=self.clock)
+        # the driver stamps frames with their exposure time: the head's stated exposure-to-delivery delay
+        head = StereoHead.open(backend=virtual, clock=self.clock, latency=virtual.latency)
         camera = VidereCamera(head, rate=cfg.camera_rate)
         stack.callback(camera.close)
         return camera, camera.geometry

@@ -24,6 +24,9 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
                         help=f"mock: rendered frames through the Videre driver; synthetic: simulated observations "
                              f"(fast); usb: a real head (default {camera})")
     parser.add_argument("--camera-rate", type=float, default=camera_rate, help=f"Hz (default {camera_rate:g})")
+    parser.add_argument("--camera-latency", type=float, default=None, metavar="S",
+                        help="s from a stereo pair's exposure to its arrival, subtracted from frame timestamps "
+                             "(default: the virtual head's 0.06; 0 for a real head -- measure yours)")
     parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles (default 100)")
     parser.add_argument("--max-corners", type=int, default=150,
                         help="Harris corners per image (default 150; fewer observations, faster FastSLAM)")
@@ -54,6 +57,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
 def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> MissionConfig:
     return MissionConfig(
         robots=args.robots, seconds=args.seconds, seed=args.seed, camera=args.camera, camera_rate=args.camera_rate,
+        camera_latency=args.camera_latency,
         particles=args.particles, max_corners=args.max_corners, max_observations=args.max_observations,
         motion=args.motion, speed=args.speed,
         fusion_interval=args.fusion_interval,

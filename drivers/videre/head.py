@@ -2,6 +2,13 @@
 
 ``StereoHead`` talks to any ``Transport``; ``StereoHead.open`` builds the pyusb one. Time is injected
 (``clock``: a callable returning seconds), so frame timestamps and dropped-frame counts are reproducible.
+
+Frame timestamps are the exposure time, not the arrival time: a pair reaches the host a fixed pipeline
+delay after it was exposed (exposure, read-out, USB transfer; tens of milliseconds at 640×480), and a
+robot moving at 0.5 m/s and 1 rad/s has moved 2.5 cm and turned 3° in 50 ms -- enough to break data
+association in SLAM. ``latency`` (seconds) is that delay; it is subtracted from the arrival time. The
+STH-MDCS2 reports no timestamp of its own, so the delay is a setting, measured once per head and mode
+(the virtual head states its own; ROS camera1394 calls the same thing ``time_offset``).
 """
 from __future__ import annotations
 
@@ -63,8 +70,9 @@ class OutputMode:
 class StereoFrame:
     """One stereo pair. left, right: (H, W) uint8 (mono) or (H, W, 3) uint8 BGR (colour heads).
 
-    timestamp: seconds of the injected clock when the pair arrived; counter: frame number in the stream
-    (gaps when frames were dropped); dropped: frames lost just before this one.
+    timestamp: seconds of the injected clock when the pair was exposed (arrival minus the head's ``latency``);
+    counter: frame number in the stream (gaps when frames were dropped); dropped: frames lost just before
+    this one; received: seconds of the injected clock when the last byte of the pair arrived.
     """
 
     left: np.ndarray
@@ -72,6 +80,7 @@ class StereoFrame:
     timestamp: float
     counter: int
     dropped: int
+    received: float
 
 
 @dataclass(frozen=True)
@@ -144,11 +153,12 @@ class StereoHead:
     """A Videre STH-MDCS2 on some transport. Use ``StereoHead.open(...)`` or wrap a ``Transport``."""
 
     def __init__(self, transport_factory: Callable[[], Transport], *, byte_order: str = RIGHT_FIRST,
-                 colour: bool = False, clock: Callable[[], float] = time.monotonic):
+                 colour: bool = False, clock: Callable[[], float] = time.monotonic, latency: float = 0.0):
         self._factory = transport_factory
         self.byte_order = check_byte_order(byte_order)
         self.colour = colour
         self._clock = clock
+        self.latency = latency
         self._transport: Transport | None = None
         self._mode: OutputMode | None = None
         self._streaming = False
@@ -161,19 +171,20 @@ class StereoHead:
     @classmethod
     def open(cls, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID, backend: Any = None,
              byte_order: str = RIGHT_FIRST, colour: bool = False, serial: str | None = None,
-             clock: Callable[[], float] = time.monotonic) -> StereoHead:
+             clock: Callable[[], float] = time.monotonic, latency: float = 0.0) -> StereoHead:
         """Find the head on USB (``backend`` is passed to ``usb.core.find``) and check it is a stereo head."""
         return cls(lambda: UsbTransport.open(vendor_id, product_id, backend, serial), byte_order=byte_order,
-                   colour=colour, clock=clock)
+                   colour=colour, clock=clock, latency=latency)
 
     @classmethod
     def open_1394(cls, guid: int | None = None, byte_order: str = RIGHT_FIRST, colour: bool = False,
-                  clock: Callable[[], float] = time.monotonic) -> StereoHead:
+                  clock: Callable[[], float] = time.monotonic, latency: float = 0.0) -> StereoHead:
         """Open an IEEE-1394 head through the system's libdc1394 (DeviceNotFoundError if it or a camera is
         missing)."""
         from drivers.videre.transport_1394 import Dc1394Transport
 
-        return cls(lambda: Dc1394Transport.open(guid), byte_order=byte_order, colour=colour, clock=clock)
+        return cls(lambda: Dc1394Transport.open(guid), byte_order=byte_order, colour=colour, clock=clock,
+                   latency=latency)
 
     # --- lifecycle ---
     def _connect(self) -> None:
@@ -340,6 +351,18 @@ class StereoHead:
             self.start()
         return chosen
 
+    @property
+    def latency(self) -> float:
+        """Seconds from exposure to arrival, subtracted from arrival times to stamp frames (see module doc)."""
+        return self._latency
+
+    @latency.setter
+    def latency(self, seconds: float) -> None:
+        seconds = float(seconds)
+        if not 0.0 <= seconds < 1.0:
+            raise ValueError(f"camera latency must be in [0, 1) s, got {seconds!r}")
+        self._latency = seconds
+
     # --- streaming ---
     def start(self) -> None:
         self._sequencer.restart(self.mode.rate)
@@ -366,7 +389,7 @@ class StereoHead:
             raise DriverError("the stereo head is not streaming; call start() first")
         mode = self.mode
         raw = transport.read_frame(mode.video_mode.frame_bytes, timeout)
-        timestamp = float(self._clock())
+        received = float(self._clock())
         left, right = deinterleave(raw, mode.video_mode.width, mode.video_mode.height, self.byte_order)
         if self.colour:
             left, right = demosaic(left), demosaic(right)
@@ -374,8 +397,8 @@ class StereoHead:
             left, right = bin2x2(left), bin2x2(right)
         elif not self.colour:
             left, right = left.copy(), right.copy()  # contiguous and independent of the transfer buffer
-        counter, dropped = self._sequencer.next(timestamp)
-        return StereoFrame(left, right, timestamp, counter, dropped)
+        counter, dropped = self._sequencer.next(received)
+        return StereoFrame(left, right, received - self.latency, counter, dropped, received)
 
     # --- calibration stored on the head ---
     def read_calibration_text(self) -> str | None:

@@ -2,8 +2,11 @@
 
 It emulates the USB device the real driver expects (descriptors, strings, IIDC-over-USB vendor control
 transfers for registers, bulk endpoint 0x81 for frames) around a ``HeadModel``. Frames are produced when
-the host reads them; with ``realtime=True`` the head paces them at the selected frame rate on its clock.
-``unplug()`` / ``replug()`` simulate the cable.
+the host reads them; with ``realtime=True`` the head paces them at the selected frame rate on its clock,
+exposes each at its frame slot (the world's pose at that instant) and delivers it ``latency`` seconds later,
+as a real head's exposure, read-out and transfer do: the driver's ``StereoHead(latency=...)`` set to the same
+value stamps frames with their exposure time. A render slower than ``latency`` makes that frame late
+(``late_frames`` counts them). ``unplug()`` / ``replug()`` simulate the cable.
 """
 from __future__ import annotations
 
@@ -33,6 +36,8 @@ from mocks.stereo_head.device import HeadModel, RegisterStall, pattern_source
 
 DEFAULT_CALIBRATION_PATH = Path(__file__).resolve().parent / "data" / "sth_mdcs2_default.ini"
 _DEFAULT = object()
+# exposure -> delivery in realtime mode: above a 640x480 render's ~30 ms on a loaded laptop
+DEFAULT_LATENCY = 0.06
 _GET_DESCRIPTOR = 6
 _LIBUSB_TIMEOUT, _LIBUSB_PIPE, _LIBUSB_NO_DEVICE = -7, -9, -4
 
@@ -54,6 +59,7 @@ class VirtualStereoHead(usb.backend.IBackend):
     calibration: what the head's store holds (default: the packaged file; None: an empty store). It also sets
     the optics the renderer uses, unless ``optics`` is given (to simulate a stale stored calibration).
     rng: noise generator. clock/sleep: time source for ``realtime`` pacing.
+    latency: seconds from exposure to delivery in ``realtime`` mode (default ``DEFAULT_LATENCY``).
     max_transfer: cap on the bytes one bulk read returns (frames then arrive in pieces, as on a real bus).
     renderer: an existing ``StereoRenderer`` of the same world and optics to share (its texture atlas takes
     about half a second to bake), e.g. for several heads in one building.
@@ -65,7 +71,8 @@ class VirtualStereoHead(usb.backend.IBackend):
                  firmware: int = 0x0203, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID,
                  serial: str = "VIRTUAL-0001", realtime: bool = False, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep, texture_resolution: float = 100.0, bus: int = 1,
-                 address: int = 7, renderer=None, max_transfer: int | None = None):
+                 address: int = 7, renderer=None, max_transfer: int | None = None,
+                 latency: float = DEFAULT_LATENCY):
         super().__init__()
         if calibration is _DEFAULT:
             text: str | None = default_calibration_text()
@@ -87,6 +94,11 @@ class VirtualStereoHead(usb.backend.IBackend):
         self.vendor_id, self.product_id = vendor_id, product_id
         self.strings = {1: reg.VENDOR_NAME, 2: reg.MODEL_NAME, 3: serial}
         self.realtime, self._clock, self._sleep = realtime, clock, sleep
+        if not 0.0 <= latency < 1.0:
+            raise ValueError(f"latency must be in [0, 1) s, got {latency!r}")
+        self.latency = float(latency)
+        self.late_frames = 0
+        self.last_exposure_time: float | None = None
         self.max_transfer = max_transfer
         self._lock = threading.RLock()
         self._plugged = True
@@ -271,8 +283,10 @@ class VirtualStereoHead(usb.backend.IBackend):
                 if self.realtime:
                     self._sleep(timeout / 1000.0)
                 raise usb.core.USBTimeoutError("Operation timed out", _LIBUSB_TIMEOUT, errno.ETIMEDOUT)
-            self._pace()
+            exposure = self._pace()
             frame = self.model.frame()
+            if exposure is not None:
+                self._deliver_at(exposure + self.latency)
             self._check()  # unplugged while the frame was being produced
             pending = memoryview(frame.data).cast("B")
         count = min(len(buff), len(pending), self.max_transfer or len(pending))
@@ -281,10 +295,11 @@ class VirtualStereoHead(usb.backend.IBackend):
             self._pending = pending[count:] if count < len(pending) else None
         return count
 
-    def _pace(self) -> None:
-        """With ``realtime``, wait for the next frame slot of the selected rate (skipping dropped slots)."""
+    def _pace(self) -> float | None:
+        """With ``realtime``, wait for the next frame slot of the selected rate (skipping dropped slots) and
+        return the exposure time: the slot, or now if the host asked after it (the head waits for a reader)."""
         if not self.realtime:
-            return
+            return None
         period = 1.0 / self.model.rate_hz
         with self._lock:
             now = self._clock()
@@ -296,6 +311,15 @@ class VirtualStereoHead(usb.backend.IBackend):
             self._next_frame_time = max(due, now) + period
         if due > now:
             self._sleep(due - now)
+        self.last_exposure_time = max(due, now)
+        return self.last_exposure_time
+
+    def _deliver_at(self, when: float) -> None:
+        delay = when - self._clock()
+        if delay >= 0.0:
+            self._sleep(delay)
+        else:
+            self.late_frames += 1
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
         self._check()

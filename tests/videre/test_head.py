@@ -183,6 +183,46 @@ def test_dropped_frames_are_counted_with_realtime_pacing():
     assert head.dropped_frames == 2
 
 
+def test_frames_are_stamped_with_their_exposure_time():
+    """The virtual head delivers each pair ``latency`` after exposing it; a driver told that latency stamps
+    the pair with the exposure time and keeps the arrival time apart."""
+    clock = ManualClock()
+    virtual = VirtualStereoHead(realtime=True, clock=clock, sleep=clock.sleep, latency=0.05)
+    with StereoHead.open(backend=virtual, clock=clock, latency=0.05) as head:
+        head.start()
+        for _ in range(3):
+            frame = head.grab()
+            assert frame.timestamp == pytest.approx(virtual.last_exposure_time)
+            assert frame.received - frame.timestamp == pytest.approx(0.05)
+    assert virtual.late_frames == 0
+
+
+def test_a_render_slower_than_the_latency_delivers_a_late_frame():
+    clock = ManualClock()
+    virtual = VirtualStereoHead(realtime=True, clock=clock, sleep=clock.sleep, latency=0.02)
+    produce = virtual.model.frame
+
+    def slow_frame():
+        clock.sleep(0.03)  # the render takes 30 ms of the head's clock
+        return produce()
+
+    virtual.model.frame = slow_frame
+    with StereoHead.open(backend=virtual, clock=clock, latency=0.02) as head:
+        head.start()
+        frame = head.grab()
+    assert frame.received - virtual.last_exposure_time == pytest.approx(0.03)
+    assert virtual.late_frames == 1
+
+
+@pytest.mark.parametrize("latency", [-0.01, 1.5, float("nan")])
+def test_an_impossible_latency_is_refused(latency):
+    with pytest.raises(ValueError, match="latency"):
+        VirtualStereoHead(latency=latency)
+    virtual = VirtualStereoHead()
+    with StereoHead.open(backend=virtual) as head, pytest.raises(ValueError, match="latency"):
+        head.latency = latency
+
+
 def test_unplug_mid_stream_then_reopen(pattern_head):
     virtual, head = pattern_head
     head.set_mode(320, 240, 15.0)
