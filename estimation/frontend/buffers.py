@@ -7,6 +7,8 @@ Not thread-safe: one per front end, used by one thread at a time.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -20,7 +22,7 @@ class ScratchBuffers:
     def get(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
         """An uninitialised contiguous array (shape, dtype) backed by this name's block."""
         dtype = np.dtype(dtype)
-        size = int(np.prod(shape))
+        size = math.prod(shape)
         block = self._blocks.get(name)
         if block is None or block.dtype != dtype or block.size < size:
             block = np.empty(max(size, 1), dtype)

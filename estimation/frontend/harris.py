@@ -53,7 +53,9 @@ def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.
     intermediate live in reused arrays (the result is overwritten by the next call with the same buffers).
     """
     image = np.asarray(image)
-    if image.ndim == 2 and image.dtype != np.float32 and min(image.shape) >= 3:
+    if image.ndim == 2 and image.dtype == np.uint8 and min(image.shape) >= 3:
+        img = image  # Sobel reads 8 bits directly; integer gradients are exact in float32, so the same values
+    elif image.ndim == 2 and image.dtype != np.float32 and min(image.shape) >= 3:
         img = scratch(buffers, "harris_image", image.shape, np.float32)  # converted into a reused buffer
         np.copyto(img, image, casting="unsafe")
     else:
@@ -81,6 +83,12 @@ def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.
     return response
 
 
+def smallest_above(threshold: float, dtype) -> np.generic:
+    """The smallest value of the floating ``dtype`` strictly greater than ``threshold`` (a float64 number)."""
+    value = np.dtype(dtype).type(threshold)
+    return value if float(value) > threshold else np.nextafter(value, np.inf)
+
+
 def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, margin: int,
                             buffers: ScratchBuffers | None = None) -> np.ndarray:
     """Integer (row, col) of local maxima above ``threshold`` at least ``margin`` px inside: (N, 2) int."""
@@ -90,12 +98,15 @@ def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, m
     rows, cols = response.shape
     if rows <= 2 * m or cols <= 2 * m:
         return np.zeros((0, 2), np.int64)
-    dilated = cv2.dilate(response, np.ones((size, size), np.uint8), dst=scratch(buffers, "nms_dilated",
-                                                                                 response.shape, response.dtype))
+    dilated = cv2.dilate(response, np.ones((size, size), np.uint8),
+                         dst=scratch(buffers, "nms_dilated", response.shape, response.dtype))
     inner = (slice(m, rows - m), slice(m, cols - m))
     inner_shape = (rows - 2 * m, cols - 2 * m)
-    peak = np.greater_equal(response[inner], dilated[inner], out=scratch(buffers, "nms_peak", inner_shape, bool))
-    peak &= np.greater(response[inner], threshold, out=scratch(buffers, "nms_above", inner_shape, bool))
+    # a peak is the maximum of its neighbourhood and above the threshold: response >= max(dilated, floor) with
+    # floor the smallest representable value above the threshold (one comparison pass instead of two and an and)
+    floor = smallest_above(threshold, response.dtype)
+    bar = np.maximum(dilated[inner], floor, out=scratch(buffers, "nms_bar", inner_shape, response.dtype))
+    peak = np.greater_equal(response[inner], bar, out=scratch(buffers, "nms_peak", inner_shape, bool))
     r, c = np.divmod(np.flatnonzero(peak), inner_shape[1])
     return np.stack([r + m, c + m], axis=1)
 
