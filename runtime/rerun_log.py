@@ -9,7 +9,8 @@ Entity tree (one recording per mission, one subtree per robot; all 3-D entities 
     world/<robot>                         Transform3D: the robot's map frame placed in the world
                                           (its true start pose on the mocks, else the fusion alignment)
     world/<robot>/pose, true_pose         Arrows3D: estimated (best particle) and true robot pose
-    world/<robot>/trajectory, true_trajectory   LineStrips3D
+    world/<robot>/trajectory/<k>, true_trajectory/<k>   LineStrips3D, the path in segments of
+                                          TRAJECTORY_SEGMENT poses (a frame re-logs one short segment)
     world/<robot>/particles               Points3D, every particle's (x, y)
     world/<robot>/landmarks               Points3D + world/<robot>/landmarks/covariance Ellipsoids3D (2 σ)
     world/<robot>/sonar                   LineStrips3D, one segment per sonar ray
@@ -36,6 +37,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -132,10 +134,39 @@ def _ellipsoids(covariances: np.ndarray, sigmas: float = 2.0) -> tuple[np.ndarra
     return half_sizes, q
 
 
+# Poses per trajectory entity. Re-logging the whole path every frame would make each frame cost O(path) and
+# the recording O(path^2) (a 10-minute run at 15 Hz: ~1 GB); closed segments stay as they were last logged.
+TRAJECTORY_SEGMENT = 150
+
+
+@dataclass
+class _Strip:
+    points: list = field(default_factory=list)
+    segment: int = 0
+
+    def add(self, point: list[float]) -> tuple[int, np.ndarray]:
+        """Append a point; returns the open segment's number and its (n, 3) points (it starts where the last
+        one ended, so the path stays connected)."""
+        if len(self.points) >= TRAJECTORY_SEGMENT:
+            self.points = self.points[-1:]
+            self.segment += 1
+        self.points.append(point)
+        return self.segment, np.array(self.points)
+
+
 @dataclass
 class _Track:
-    estimated: list = field(default_factory=list)
-    true: list = field(default_factory=list)
+    estimated: _Strip = field(default_factory=_Strip)
+    true: _Strip = field(default_factory=_Strip)
+
+
+def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
+    """A (H, W) mono or (H, W, 3) BGR uint8 image as JPEG. OpenCV's encoder is ~4x faster than
+    ``rr.Image.compress`` here (0.4 vs 1.5 ms for 640x480 on one core) and takes BGR as the heads deliver it."""
+    ok, data = cv2.imencode(".jpg", np.ascontiguousarray(image), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError(f"could not JPEG-encode an image of shape {image.shape} and type {image.dtype}")
+    return rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
 
 class MissionLog:
@@ -218,20 +249,19 @@ class MissionLog:
         colour = self.colour(robot)
         with self._lock:
             track = self._tracks.setdefault(robot, _Track())
-            track.estimated.append([estimated[0], estimated[1], 0.02])
+            segment, estimated_strip = track.estimated.add([estimated[0], estimated[1], 0.02])
             if true is not None:
-                track.true.append([true[0], true[1], 0.01])
-            estimated_strip = np.array(track.estimated)
-            true_strip = np.array(track.true)
+                true_segment, true_strip = track.true.add([true[0], true[1], 0.01])
         origins, vectors = _arrow(np.asarray(estimated, float))
         self.rec.log(f"world/{robot}/pose", rr.Arrows3D(vectors=vectors, origins=origins, colors=colour, radii=0.03))
-        self.rec.log(f"world/{robot}/trajectory", rr.LineStrips3D([estimated_strip], colors=colour, radii=0.02))
+        self.rec.log(f"world/{robot}/trajectory/{segment:04d}",
+                     rr.LineStrips3D([estimated_strip], colors=colour, radii=0.02))
         if true is not None:
             origins, vectors = _arrow(np.asarray(true, float))
             self.rec.log(f"world/{robot}/true_pose", rr.Arrows3D(vectors=vectors, origins=origins,
                                                                  colors=(255, 255, 255), radii=0.02))
-            self.rec.log(f"world/{robot}/true_trajectory", rr.LineStrips3D([true_strip], colors=(200, 200, 200),
-                                                                           radii=0.01))
+            self.rec.log(f"world/{robot}/true_trajectory/{true_segment:04d}",
+                         rr.LineStrips3D([true_strip], colors=(200, 200, 200), radii=0.01))
         if head_mount is not None:
             hx, hy, hz = head_mount
             x, y, theta = compose(estimated, [hx, hy, 0.0])
@@ -288,15 +318,15 @@ class MissionLog:
         colour = self.colour(robot)
         base = f"world/{robot}/stereo"
         if left is not None:
-            self.rec.log(f"{base}/left", rr.Image(left).compress(jpeg_quality=75))
+            self.rec.log(f"{base}/left", _jpeg(left))
         self.rec.log(f"{base}/left/features", rr.Points2D(left_pixels, radii=2.0, colors=colour))
         if right_pixels is not None:
             right_pixels = np.asarray(right_pixels, float).reshape(-1, 2)
             self.rec.log(f"{base}/right/features", rr.Points2D(right_pixels, radii=2.0, colors=colour))
         if left is not None and right is not None:
-            self.rec.log(f"{base}/right", rr.Image(right).compress(jpeg_quality=75))
+            self.rec.log(f"{base}/right", _jpeg(right))
             width = left.shape[1]
-            self.rec.log(f"{base}/pair", rr.Image(np.hstack([left, right])).compress(jpeg_quality=75))
+            self.rec.log(f"{base}/pair", _jpeg(np.hstack([left, right])))
             if right_pixels is not None and len(right_pixels) == len(left_pixels):
                 shifted = right_pixels + [width, 0]
                 self.rec.log(f"{base}/pair/matches",

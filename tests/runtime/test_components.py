@@ -317,3 +317,32 @@ def test_frames_get_the_odometry_of_the_instant_they_were_exposed():
     # (a frame rendered slower than the head's latency -- a loaded test machine -- is late, hence the median)
     # arrival stamps would be >= 0.6 rad/s x 60 ms = 0.036 rad off
     assert np.median(errors) < 0.012, errors
+
+
+def test_a_long_trajectory_is_logged_in_segments_that_rebuild_the_path(tmp_path):
+    """Each frame re-logs only the open segment (the recording grows with the path, not its square), and the
+    last state of every segment, joined, is the whole path."""
+    import rerun.chunk as rrchunk
+
+    from runtime.rerun_log import TRAJECTORY_SEGMENT, MissionLog, open_recording
+
+    rrd = tmp_path / "t.rrd"
+    log = MissionLog(open_recording(str(rrd)), ["robot1"])
+    n = 2 * TRAJECTORY_SEGMENT + 57
+    path = np.column_stack([0.01 * np.arange(n), np.sin(np.arange(n) / 50.0), np.zeros(n)])
+    for i, pose in enumerate(path):
+        log.log_pose("robot1", 0.1 * i, i, pose, None)
+    log.close()
+    last: dict[str, list] = {}
+    logged_points = 0
+    for chunk in rrchunk.RrdReader(rrd).stream().filter(content=["+ /world/robot1/trajectory/**"]):
+        batch = chunk.to_record_batch()
+        order = np.argsort(batch.column("frame").to_numpy())
+        strips = batch.column("LineStrips3D:strips").to_pylist()
+        logged_points += sum(len(s[0]) for s in strips)
+        last[chunk.entity_path] = strips[order[-1]][0]
+    segments = [np.array(last[k]) for k in sorted(last)]
+    assert len(segments) == 3
+    joined = np.vstack([segments[0]] + [s[1:] for s in segments[1:]])  # each segment starts where the last ended
+    np.testing.assert_allclose(joined[:, :2], path[:, :2], atol=1e-6)
+    assert logged_points < n * (TRAJECTORY_SEGMENT + 1) / 2 + n
