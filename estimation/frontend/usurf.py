@@ -125,12 +125,13 @@ def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2
     half = haar_half_size(scale)
     integral = integral_image(image, buffers)
     cols, rows, inside = sample_corners(keypoints, scale, half, integral.shape)
+    responses = response_buffer(len(cols), buffers)
     if float(scale) == half and lattice_aligned(cols, rows, half):
-        dx, dy = lattice_haar_responses(integral, cols[:, 0], rows[:, 0], half, buffers)
+        lattice_haar_responses(integral, cols[:, 0], rows[:, 0], half, responses, buffers)
     else:  # a non-integer scale: its samples are not on a lattice of the wavelet's half side
         dx_img, dy_img = dense_haar_responses(integral, half, buffers)
-        dx, dy = gather_haar_responses(dx_img, dy_img, cols, rows, buffers)
-    return pool_descriptors(dx, dy, inside, scale, buffers)
+        gather_haar_responses(dx_img, dy_img, cols, rows, responses, buffers)
+    return pool_descriptors(responses, inside, scale)
 
 
 def sample_corners(keypoints: np.ndarray, scale: float, half: int,
@@ -156,67 +157,77 @@ def lattice_aligned(cols: np.ndarray, rows: np.ndarray, step: int) -> bool:
     return bool(np.array_equal(cols, cols[:, :1] + steps) and np.array_equal(rows, rows[:, :1] + steps))
 
 
+def response_buffer(m: int, buffers: ScratchBuffers | None = None) -> np.ndarray:
+    """(M, 4, 400) float32 for the samples' dx, dy, |dx|, |dy| (row-major over the 20 × 20 samples)."""
+    return scratch(buffers, "usurf_responses", (m, 4, SAMPLES_PER_AXIS**2), np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _lattice_offsets(step: int, row_stride: int) -> np.ndarray:
+    """(22, 22) flat offsets of a lattice ``step`` apart in an array of ``row_stride`` columns."""
+    steps = step * np.arange(SAMPLES_PER_AXIS + 2)
+    offsets = steps[:, None] * row_stride + steps[None, :]
+    offsets.setflags(write=False)
+    return offsets
+
+
 def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndarray, half: int,
-                           buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Haar responses (dx, dy), each (M, 20, 20) [sample row, sample column], straight from the integral image.
+                           out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
+    """Haar responses of M keypoints' samples straight from the integral image, into ``out[:, 0]`` (dx) and
+    ``out[:, 1]`` (dy) of ``response_buffer(M)`` (float32, [sample row, sample column] row-major); returns out.
 
     With an integer scale s the samples are s px apart and the wavelets have half side s, so all the corners
     the 400 wavelets of one keypoint need lie on one 22 × 22 lattice of integral entries s apart (starting at
     (row0, col0), the first wavelet's top-left corner): 484 look-ups per keypoint instead of dense responses
-    over the whole image. Integer sums, so the values equal ``dense_haar_responses``' exactly.
+    over the whole image. The sums are integers, so the values equal ``dense_haar_responses``' exactly.
     """
-    n = SAMPLES_PER_AXIS + 2
-    steps = half * np.arange(n)
-    m = len(col0)
+    n, k, m = SAMPLES_PER_AXIS + 2, SAMPLES_PER_AXIS, len(col0)
     flat = scratch(buffers, "usurf_lattice_index", (m, n, n), np.intp)
-    np.add(((row0[:, None] + steps) * integral.shape[1])[:, :, None], (col0[:, None] + steps)[:, None, :], out=flat)
-    corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (m, n, n), integral.dtype))
-    k = SAMPLES_PER_AXIS
-    # vertical strips 2·half high (M, 20, 22), then right - 2·middle + left; horizontal strips likewise for dy
-    vertical = np.subtract(corners[:, 2:, :], corners[:, :k, :], out=scratch(buffers, "usurf_strips_v", (m, k, n),
-                                                                             integral.dtype))
-    dx = np.add(vertical[:, :, 2:], vertical[:, :, :k], out=scratch(buffers, "usurf_lattice_dx", (m, k, k),
-                                                                    integral.dtype))
-    dx -= vertical[:, :, 1:k + 1]
-    dx -= vertical[:, :, 1:k + 1]
-    horizontal = np.subtract(corners[:, :, 2:], corners[:, :, :k], out=scratch(buffers, "usurf_strips_h", (m, n, k),
-                                                                               integral.dtype))
-    dy = np.add(horizontal[:, 2:, :], horizontal[:, :k, :], out=scratch(buffers, "usurf_lattice_dy", (m, k, k),
-                                                                        integral.dtype))
-    dy -= horizontal[:, 1:k + 1, :]
-    dy -= horizontal[:, 1:k + 1, :]
-    return dx, dy
+    np.add((row0 * integral.shape[1] + col0)[:, None, None], _lattice_offsets(half, integral.shape[1]), out=flat)
+    # every index is inside (sample_corners checked the windows), so skip take's bounds check
+    corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (m, n, n), integral.dtype), mode="clip")
+    responses = out.reshape(m, 4, k, k)
+
+    def work(name: str, shape: tuple[int, int, int]) -> np.ndarray:
+        return scratch(buffers, "usurf_" + name, shape, integral.dtype)
+
+    # dx: strips 2·half high (M, 20, 22), then right - 2·middle + left = the second difference along columns
+    strips = np.subtract(corners[:, 2:, :], corners[:, :k, :], out=work("strips_v", (m, k, n)))
+    steps = np.subtract(strips[:, :, 1:], strips[:, :, :-1], out=work("steps_v", (m, k, n - 1)))
+    np.subtract(steps[:, :, 1:], steps[:, :, :-1], out=responses[:, 0], casting="unsafe")
+    # dy: strips 2·half wide (M, 22, 20), bottom - 2·middle + top
+    strips = np.subtract(corners[:, :, 2:], corners[:, :, :k], out=work("strips_h", (m, n, k)))
+    steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps_h", (m, n - 1, k)))
+    np.subtract(steps[:, 1:], steps[:, :-1], out=responses[:, 1], casting="unsafe")
+    return out
 
 
 def gather_haar_responses(dx_img: np.ndarray, dy_img: np.ndarray, cols: np.ndarray, rows: np.ndarray,
-                          buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Dense responses (see ``dense_haar_responses``) read at the samples: (dx, dy), each (M, 20, 20)."""
+                          out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
+    """Dense responses (see ``dense_haar_responses``) read at the samples (cols, rows (M, 20)) into ``out[:, 0]``
+    (dx) and ``out[:, 1]`` (dy) of ``response_buffer(M)``; returns out."""
     m = len(cols)
     shape = (m, SAMPLES_PER_AXIS, SAMPLES_PER_AXIS)
     flat = scratch(buffers, "usurf_flat", shape, np.intp)
     np.add((rows * dx_img.shape[1])[:, :, None], cols[:, None, :], out=flat)  # sample [row, col] -> flat index
-    return (np.take(dx_img, flat, out=scratch(buffers, "usurf_gathered_dx", shape, dx_img.dtype)),
-            np.take(dy_img, flat, out=scratch(buffers, "usurf_gathered_dy", shape, dy_img.dtype)))
+    for channel, image in enumerate((dx_img, dy_img)):
+        gathered = np.take(image, flat.reshape(m, -1), out=scratch(buffers, "usurf_gathered", (m, flat[0].size),
+                                                                    image.dtype))
+        np.copyto(out[:, channel], gathered, casting="unsafe")
+    return out
 
 
-def pool_descriptors(dx: np.ndarray, dy: np.ndarray, inside: np.ndarray, scale: float,
-                     buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Gaussian-weighted subregion sums of the sample responses dx, dy (M, 20, 20) -> unit descriptors.
+def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian-weighted subregion sums of the samples' responses -> unit descriptors.
 
+    responses: (M, 4, 400) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
     inside: (N,) which keypoints the M rows belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
     """
-    m = len(dx)
-    samples = (m, SAMPLES_PER_AXIS**2)
-    pooling = pooling_matrix(float(scale))
-    signed, absolute = [], []
-    for values, name in ((dx, "dx"), (dy, "dy")):
-        response = scratch(buffers, "usurf_" + name, samples, np.float32)
-        np.copyto(response, values.reshape(samples), casting="unsafe")
-        signed.append(response @ pooling)
-        # the weights are positive, so Σ w·|dx| = Σ |w·dx|
-        absolute.append(np.abs(response, out=response) @ pooling)
-    sums = np.stack(signed + absolute, axis=-1)
-    sums = sums.reshape(m, DESCRIPTOR_SIZE)
+    m = len(responses)
+    np.abs(responses[:, :2], out=responses[:, 2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
+    sums = responses.reshape(4 * m, SAMPLES_PER_AXIS**2) @ pooling_matrix(float(scale))  # (4M, 16) one matmul
+    # (M, 4 values, 16 subregions) -> per subregion (Σdx, Σdy, Σ|dx|, Σ|dy|)
+    sums = sums.reshape(m, 4, SUBREGIONS**2).transpose(0, 2, 1).reshape(m, DESCRIPTOR_SIZE)
     norms = np.linalg.norm(sums, axis=1)
     textured = norms > 0
     described = inside.copy()
@@ -229,5 +240,5 @@ def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarra
     """The descriptor core on precomputed dense Haar responses (see ``dense_haar_responses``)."""
     integral_shape = (dx_img.shape[0] + 2 * half, dx_img.shape[1] + 2 * half)
     cols, rows, inside = sample_corners(np.asarray(keypoints, np.float64).reshape(-1, 2), scale, half, integral_shape)
-    dx, dy = gather_haar_responses(dx_img, dy_img, cols, rows, buffers)
-    return pool_descriptors(dx, dy, inside, scale, buffers)
+    responses = gather_haar_responses(dx_img, dy_img, cols, rows, response_buffer(len(cols), buffers), buffers)
+    return pool_descriptors(responses, inside, scale)

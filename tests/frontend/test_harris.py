@@ -85,3 +85,12 @@ def test_margin_and_flat_image():
     assert corners.min() >= 24.5 and corners.max() <= 120 - 25 + 0.5
     empty, _ = detect_corners(np.full((50, 50), 7, np.uint8))
     assert empty.shape == (0, 2)
+
+
+def test_eight_bit_images_give_exactly_the_float_response():
+    # 8-bit images take the one-pass int16 gradient route; it must not change a single value
+    from estimation.frontend import harris_response
+
+    image = np.clip(texture((90, 130), seed=4), 0, 255).astype(np.uint8)
+    image[:, :3] = 255  # saturated edge: the largest gradients
+    np.testing.assert_array_equal(harris_response(image), harris_response(image.astype(np.float32)))
