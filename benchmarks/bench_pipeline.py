@@ -30,7 +30,7 @@ from mocks.synthetic_stereo import SyntheticStereo
 from mocks.world import World
 from runtime.adapters import VidereCamera, left_camera_mount
 from runtime.motion import PurePursuit
-from runtime.onboard import CameraFrame, OnboardConfig, SlamCore, frame_record
+from runtime.onboard import CameraFrame, OnboardConfig, SlamCore, frame_record, log_step
 from runtime.rerun_log import MissionLog, open_recording
 from runtime.sensorlog import SensorLogWriter
 
@@ -101,15 +101,11 @@ def main() -> None:
             frame = CameraFrame(i * period, i, frame.left, frame.right)
             result = core.step(frame, between(start, pose))
             t3 = time.perf_counter()
-            logger.log_pose("robot1", frame.t, i, result.best_pose, between(start, pose),
-                            left_camera_mount(camera.geometry))
-            logger.log_particles("robot1", frame.t, i, core.slam.poses)
-            logger.log_scalars("robot1", frame.t, {"ess": result.ess, "landmarks": result.landmarks})
-            logger.log_stereo("robot1", frame.t, i, frame.left, frame.right, result.matches.left_pixels,
-                              result.matches.right_pixels)
-            if i % 5 == 0:
-                m = core.slam.particle_map(core.slam.best_index, 1)
-                logger.log_landmarks("robot1", frame.t, i, m.positions, m.covariances)
+            landmarks = None
+            if i % config.landmarks_every == 0:
+                landmarks = core.slam.particle_map(core.slam.best_index, 1, "robot1")
+            log_step(logger, "robot1", frame.t, frame, result, core.slam.poses, true_pose=between(start, pose),
+                     head_mount=left_camera_mount(camera.geometry), landmarks=landmarks)
             t4 = time.perf_counter()
             writer.write(*frame_record(frame))
             t5 = time.perf_counter()

@@ -125,6 +125,26 @@ class OdometryBuffer:
                          wrap_angle(p0[2] + s * wrap_angle(p1[2] - p0[2]))])
 
 
+def log_step(logger, robot: str, t: float, frame: CameraFrame, result: StepResult, particle_poses: np.ndarray, *,
+             true_pose: np.ndarray | None = None, head_mount=None, dropped: int = 0,
+             landmarks: LandmarkMap | None = None) -> None:
+    """What the runtime sends to Rerun for one processed frame (the Onboard and the pipeline benchmark share it).
+
+    logger: a ``runtime.rerun_log.MissionLog``; t: seconds since the mission started; particle_poses: (M, 3);
+    landmarks: the best particle's map when it is due (it is logged every few frames only).
+    """
+    logger.log_pose(robot, t, frame.seq, result.best_pose, true_pose, head_mount)
+    logger.log_particles(robot, t, frame.seq, particle_poses)
+    logger.log_scalars(robot, t, {
+        "ess": result.ess, "landmarks": result.landmarks, "observations": result.n_observations,
+        "dropped": dropped, **{f"time/{k}": 1000.0 * v for k, v in result.timings.items()}}, frame=frame.seq)
+    if result.matches is not None:
+        logger.log_stereo(robot, t, frame.seq, frame.left, frame.right, result.matches.left_pixels,
+                          result.matches.right_pixels)
+    if landmarks is not None:
+        logger.log_landmarks(robot, t, frame.seq, landmarks.positions, landmarks.covariances)
+
+
 # -- the deterministic core ---------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class OnboardConfig:
@@ -429,23 +449,16 @@ class Onboard:
     def _report(self, frame: CameraFrame, result: StepResult) -> None:
         if self.logger is None:
             return
-        t = frame.t - self.t0
         true_pose = None
         if self.truth is not None and self.true_start is not None:
             true_pose = between(self.true_start, self.truth())
-        self.logger.log_pose(self.robot, t, frame.seq, result.best_pose, true_pose, self.head_mount)
-        self.logger.log_particles(self.robot, t, frame.seq, self.core.slam.poses)
-        self.logger.log_scalars(self.robot, t, {
-            "ess": result.ess, "landmarks": result.landmarks, "observations": result.n_observations,
-            "dropped": self.stats.dropped_frames,
-            **{f"time/{k}": 1000.0 * v for k, v in result.timings.items()}}, frame=frame.seq)
-        if result.matches is not None:
-            self.logger.log_stereo(self.robot, t, frame.seq, frame.left, frame.right,
-                                   result.matches.left_pixels, result.matches.right_pixels)
+        landmarks = None
         if self.core.frames % self.config.landmarks_every == 0:
             with self._core_lock:
-                m = self.core.slam.particle_map(self.core.slam.best_index, 1, self.robot)
-            self.logger.log_landmarks(self.robot, t, frame.seq, m.positions, m.covariances)
+                landmarks = self.core.slam.particle_map(self.core.slam.best_index, 1, self.robot)
+        log_step(self.logger, self.robot, frame.t - self.t0, frame, result, self.core.slam.poses,
+                 true_pose=true_pose, head_mount=self.head_mount, dropped=self.stats.dropped_frames,
+                 landmarks=landmarks)
 
     # -- control thread ------------------------------------------------------------------------------------
     def _control_loop(self) -> None:
