@@ -303,18 +303,23 @@ def test_frames_get_the_odometry_of_the_instant_they_were_exposed():
             driver.set_velocity(0.0, 0.6)
             driver.wait_for_state(timeout=3.0, predicate=lambda s: abs(s.w) > 0.55)
             errors = []
-            while len(errors) < 6:
+            for _ in range(40):
+                late = virtual.late_frames
                 frame = camera.read(timeout=1.0)
                 assert frame is not None
+                if virtual.late_frames > late:
+                    continue  # rendered slower than the head's latency (a loaded machine): its stamp is off
                 exposed_at = between(start, virtual.last_frame_pose)
                 assert buffer.wait_until(frame.t, timeout=1.0)
                 odometry = buffer.interpolate(frame.t)
                 errors.append(abs(wrap_angle(odometry[2] - exposed_at[2])))
+                if len(errors) == 6:
+                    break
         finally:
             driver.stop()
             camera.close()
             link.close()
-    # (a frame rendered slower than the head's latency -- a loaded test machine -- is late, hence the median)
+    assert len(errors) >= 3, "nearly every frame was late: the machine is too loaded to render in time"
     # arrival stamps would be >= 0.6 rad/s x 60 ms = 0.036 rad off
     assert np.median(errors) < 0.012, errors
 
