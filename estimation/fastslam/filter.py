@@ -44,11 +44,23 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry import compose, rot_z, wrap_angle
+from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
-from .linalg import group_sum, inv3, matvec, quadratic_form, sandwich, symmetrise, transpose
+from .linalg import (
+    inv3,
+    sym_adjugate,
+    sym_components,
+    sym_inverse,
+    sym_matrices,
+    sym_matvec,
+    sym_product,
+    sym_quadratic,
+    sym_reduce,
+    sym_rotate_z,
+    symmetrise,
+)
 from .motion import increment_variance, propagate_covariance, sample_motion
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .store import LandmarkStore
@@ -87,9 +99,31 @@ class _Pairs:
     j: np.ndarray     # observation index
     k: np.ndarray     # table position of the landmark's block in the particle's block table
     g: np.ndarray     # flat slot of the landmark (block * block_size + slot)
+    c: np.ndarray     # index in the frame's candidate list (unique per particle and landmark)
 
     def take(self, index) -> _Pairs:
-        return _Pairs(self.m[index], self.j[index], self.k[index], self.g[index])
+        return _Pairs(self.m[index], self.j[index], self.k[index], self.g[index], self.c[index])
+
+
+def _no_pairs() -> _Pairs:
+    return _Pairs(*(np.zeros(0, np.int64) for _ in range(5)))
+
+
+@dataclass
+class _FrameGeometry:
+    """Every observation seen from every particle, indexed m·N + j: world points (3, M·N) w = R z + t and
+    world-frame observation covariances (6, M·N) R Q Rᵀ (symmetric components, see ``linalg``)."""
+
+    world: np.ndarray
+    noise: np.ndarray
+
+    @classmethod
+    def of(cls, poses: np.ndarray, z: np.ndarray, q6: np.ndarray) -> _FrameGeometry:
+        """poses (M, 3), z (N, 3), q6 (6, N)."""
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        zx, zy, zz = z[:, 0], z[:, 1], z[:, 2]
+        world = np.stack(np.broadcast_arrays(c * zx - s * zy + poses[:, :1], s * zx + c * zy + poses[:, 1:2], zz))
+        return cls(world.reshape(3, -1), sym_rotate_z(c, s, q6[:, None, :]).reshape(6, -1))
 
 
 class FastSLAM:
@@ -158,30 +192,37 @@ class FastSLAM:
         z, q, desc = self._checked(observations)
         self._time = max(self._time, float(observations.timestamp))
         predicted = self.poses
+        q6 = sym_components(q)                                                     # (6, N)
+        frame = _FrameGeometry.of(predicted, z, q6)
 
-        # 1-2. candidates, descriptor join, Mahalanobis gate
+        # 1-2. candidates, descriptor join, Mahalanobis gate (in the world frame: d² is frame-invariant, and
+        # there H_x = ∂(R z + t − μ)/∂(x, y, θ) needs no rotation; see _gate)
         cand = self._candidates(predicted)
-        pairs = self._pregate(self._descriptor_join(cand, desc, predicted, z, q), predicted, z, q)
-        rot = rot_z(predicted[pairs.m, 2])                                        # (P, 3, 3)
-        z_hat, s_mat = self._predict_observation(pairs, predicted, rot, q)
-        innovation = z[pairs.j] - z_hat
-        s_gate = s_mat
+        pairs, mean, cov = self._descriptor_join(cand, desc, predicted, z, q6)
+        if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
+            pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
+        mj = pairs.m * n_obs + pairs.j
+        innovation = frame.world[:, mj] - mean                                     # ν = R z + t − μ (3, P)
+        s_obs = cov + frame.noise[:, mj]                                           # S = Σ + R Q Rᵀ (6, P)
+        s_gate = s_obs
         if cfg.version == 2:  # the pose is not sampled yet: its uncertainty widens the gate
-            h_x = _pose_jacobian(rot, z_hat)
-            s_gate = s_mat + sandwich(h_x, self._motion_cov[pairs.m])
-        d2 = quadratic_form(innovation, inv3(s_gate))
+            s_gate = s_obs + _pose_uncertainty(sym_components(self._motion_cov)[:, pairs.m],
+                                               mean[:2] - predicted[pairs.m, :2].T)
+        adj, det = sym_adjugate(s_gate)
+        d2 = sym_quadratic(adj, innovation) / det
         gated = d2 < cfg.mahalanobis_gate
 
         # 3. mutual exclusion
-        win, had_candidate = self._exclusive_matches(pairs, d2, gated, n_obs)
+        win, had_candidate = _exclusive_matches(pairs, d2, gated, n_particles, n_obs, len(cand.m))
         matched = pairs.take(win)
         log_lik = -0.5 * cfg.mahalanobis_gate * n_obs - 0.5 * np.bincount(
             matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
-        s_inv = inv3(s_mat[win])
+        mean, cov = mean[:, win], cov[:, win]
 
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
-            self.poses = self._sample_proposal(predicted, matched, h_x[win], s_inv, innovation[win])
+            self.poses = self._sample_proposal(predicted, matched, mean, sym_inverse(s_obs[:, win]),
+                                               innovation[:, win])
             self._motion_cov = np.zeros_like(self._motion_cov)
         poses = self.poses
 
@@ -190,13 +231,13 @@ class FastSLAM:
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
-        self._ekf_update(matched, poses, z, q, s_inv)
+        self._ekf_update(matched, poses, z, q6, mean, cov)
         dropped = self._count_miss(missed)
 
         self.store.include_in_bbox(matched.g)
 
         # 7. new landmarks from observations no landmark was a candidate for
-        new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q, desc)
+        new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc)
 
         # 8. weights and resampling
         best_matches = np.full(n_obs, -1, np.int64)
@@ -270,23 +311,25 @@ class FastSLAM:
         p, k = store.blocks_near(centres, radius)
         b = store.block_size
         g = (store.table[p, k][:, None] * b + np.arange(b)).ravel()
-        p = np.repeat(p, b)
-        k = np.repeat(k, b)
-        alive = store.flat_lid[g] >= 0
-        return _Pairs(p[alive], np.full(int(alive.sum()), -1, np.int64), k[alive], g[alive])
+        alive = np.flatnonzero(store.flat_lid[g] >= 0)
+        g = g[alive]
+        alive //= b
+        return _Pairs(p[alive], np.full(len(g), -1, np.int64), k[alive], g, np.arange(len(g)))
 
     def _descriptor_join(self, cand: _Pairs, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
-                         q: np.ndarray) -> _Pairs:
-        """(particle, observation, landmark) triples whose descriptors are closer than the threshold.
+                         q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
+        """(particle, observation, landmark) triples whose descriptors are closer than the threshold, with
+        the landmarks' means (3, P) and covariances (6, P).
 
         Distances are computed once per distinct landmark id (particles share ids), not per particle; then
-        (observation, id) pairs that no particle's :meth:`_pregate` could keep are dropped, also once per id
-        (:meth:`_id_pregate`; poses (M, 3), z (N, 3), q (N, 3, 3)), before they are expanded to particles.
+        (observation, id) pairs that no particle could gate are dropped, also once per id
+        (:meth:`_id_pregate`; poses (M, 3), z (N, 3), q6 (6, N)), before they are expanded to particles.
         """
         n_obs = len(desc)
         if len(cand.m) == 0 or n_obs == 0:
-            return _Pairs(*(np.zeros(0, np.int64) for _ in range(4)))
-        lids = self.store.flat_lid[cand.g]
+            return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0))
+        store = self.store
+        lids = store.flat_lid[cand.g]
         present = np.zeros(self._n_ids, bool)          # ids are dense: a lookup table beats np.unique
         present[lids] = True
         uniq = np.flatnonzero(present)
@@ -298,46 +341,50 @@ class FastSLAM:
             obs_j, uid = np.divmod(np.arange(n_obs * len(uniq)), len(uniq))
         rank = np.full(self._n_ids, -1, np.int64)
         rank[uniq] = np.arange(len(uniq))
-        if len(obs_j):
-            inverse = rank[lids]
-            order = np.argsort(inverse, kind="stable")
-            keep_pair = self._id_pregate(cand.g[order], inverse[order], len(uniq), obs_j, uid, poses, z, q)
-            obs_j, uid = obs_j[keep_pair], uid[keep_pair]
-        # keep only candidates whose landmark matched some observation's descriptor, then group them by id
+        inverse = rank[lids]
+        # only candidates whose landmark some observation's descriptor matched are read from the store
         wanted = np.zeros(len(uniq), bool)
         wanted[uid] = True
-        inverse = rank[lids]
         keep = np.flatnonzero(wanted[inverse])
-        cand = cand.take(keep)
-        inverse = inverse[keep]
-        order = np.argsort(inverse, kind="stable")
+        g, inverse = cand.g[keep], inverse[keep]
+        mean = store.flat_mean[g]                                  # (C, 3)
+        cov = store.flat_cov.reshape(-1, 9)[g]                     # (C, 9)
+        if len(obs_j):
+            keep_pair = self._id_pregate(mean, cov, inverse, len(uniq), obs_j, uid, poses, z, q6)
+            obs_j, uid = obs_j[keep_pair], uid[keep_pair]
+        # group the candidates by id (a stable radix sort on small integers), then expand every surviving
+        # (observation, id) pair to the candidates holding that id: one triple per particle
+        order = np.argsort(inverse.astype(np.uint16 if len(uniq) <= 0xFFFF else np.int64), kind="stable")
         counts = np.bincount(inverse, minlength=len(uniq))
         starts = np.cumsum(counts) - counts
         reps = counts[uid]
         first = np.repeat(starts[uid], reps)
         within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
-        c = order[first + within]
-        return _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], cand.g[c])
+        ci = order[first + within]
+        c = keep[ci]
+        pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], cand.g[c], c)
+        return pairs, np.ascontiguousarray(mean[ci].T), sym_components(cov[ci])
 
-    def _id_pregate(self, g: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray, uid: np.ndarray,
-                    poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """(L,) bool over (observation, id) pairs: False where :meth:`_pregate` would drop the pair in every
-        particle, decided once per id (exact bound, so the association is unchanged, only faster).
+    def _id_pregate(self, mean: np.ndarray, cov: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
+                    uid: np.ndarray, poses: np.ndarray, z: np.ndarray, q6: np.ndarray) -> np.ndarray:
+        """(L,) bool over (observation, id) pairs: False where the Mahalanobis gate would fail in every
+        particle, decided once per id (an exact bound, so the association is unchanged, only faster).
 
         With a reference pose (mean position, θ of particle 0) and a reference mean μ̄ per id, for particle m:
         |ν_m| ≥ |w̄(z) − μ̄| − D − Δθ|z_xy| − E, where D, Δθ bound the particles' distance from the reference
-        pose, E bounds |μ_m − μ̄| over the particles holding the id, w̄(z) = R̄z + t̄; and tr S_m ≤ T + tr Q
-        (+ (2 + r_max²)·max tr P under 2.0), T = max tr Σ of the id. The pair goes when the bound fails the gate.
-        g (C,): flat slots of the candidate landmarks sorted by their id's rank ``inverse`` (C,) in 0..n_uniq-1,
-        every rank present.
+        pose, E bounds |μ_m − μ̄| over the particles holding the id, w̄(z) = R̄z + t̄; and d² ≥ |ν|²/tr S with
+        tr S_m ≤ T + tr Q (+ (2 + r_max²)·max tr P under 2.0), T = max tr Σ of the id.
+        mean (C, 3), cov (C, 9): the candidates' landmarks, ``inverse`` (C,) their id's rank in 0..n_uniq-1.
         """
-        store = self.store
-        mean = store.flat_mean[g]
-        starts = np.flatnonzero(np.r_[True, inverse[1:] != inverse[:-1]])
-        ref_mean = mean[starts]                                            # the first particle's mean per id
-        spread = np.maximum.reduceat(np.sum((mean - ref_mean[inverse]) ** 2, axis=1), starts) ** 0.5
-        cov = store.flat_cov.reshape(-1, 9)
-        cov_trace = np.maximum.reduceat(cov[g, 0] + cov[g, 4] + cov[g, 8], starts)
+        n = len(inverse)
+        first = np.full(n_uniq, n)
+        np.minimum.at(first, inverse, np.arange(n))
+        ref_mean = mean[np.minimum(first, n - 1)]                          # the first particle's mean per id
+        spread2 = np.zeros(n_uniq)
+        np.maximum.at(spread2, inverse, np.sum((mean - ref_mean[inverse]) ** 2, axis=1))
+        spread = np.sqrt(spread2)
+        cov_trace = np.zeros(n_uniq)
+        np.maximum.at(cov_trace, inverse, cov[:, 0] + cov[:, 4] + cov[:, 8])
         ref_xy = poses[:, :2].mean(axis=0)
         ref_theta = poses[0, 2]
         d_pose = float(np.max(np.linalg.norm(poses[:, :2] - ref_xy, axis=1)))
@@ -348,72 +395,54 @@ class FastSLAM:
                           zj[:, 2]], axis=1)
         lower = (np.linalg.norm(world - ref_mean[uid], axis=1) - d_pose - d_theta * np.hypot(zj[:, 0], zj[:, 1])
                  - spread[uid])
-        trace = cov_trace[uid] + np.trace(q, axis1=1, axis2=2)[obs_j]
+        trace = cov_trace[uid] + (q6[0] + q6[3] + q6[5])[obs_j]
         if self.config.version == 2:
             r_max = np.linalg.norm(ref_mean[uid, :2] - ref_xy, axis=1) + spread[uid] + d_pose
             trace = trace + (2.0 + r_max ** 2) * float(np.max(np.trace(self._motion_cov, axis1=1, axis2=2)))
         return (lower <= 0) | (lower ** 2 <= self.config.mahalanobis_gate * trace * (1 + 1e-6))
 
-    def _pregate(self, pairs: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray) -> _Pairs:
+    def _pregate(self, pairs: _Pairs, mean: np.ndarray, cov: np.ndarray, frame: _FrameGeometry,
+                 poses: np.ndarray, q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
         """Drop pairs that cannot pass the Mahalanobis gate, using only vector norms (exact, conservative).
 
         d² = νᵀS⁻¹ν ≥ |ν|²/λ_max(S) ≥ |ν|²/tr S, and tr S = tr Σ + tr Q (+ tr H_x P H_xᵀ ≤ (2 + r²) tr P under
-        2.0, r the landmark's planar distance), all rotation-invariant; |ν| is measured in the world. Cheap
-        where descriptors do not thin the candidates (range-bearing data has none).
+        2.0, r the landmark's planar distance), all rotation-invariant. Cheap where descriptors do not thin
+        the candidates (range-bearing data has none). mean (3, P), cov (6, P) of the pairs' landmarks.
         """
         if len(pairs.m) == 0:
-            return pairs
-        store = self.store
-        c, s = np.cos(poses[pairs.m, 2]), np.sin(poses[pairs.m, 2])
-        zj = z[pairs.j]
-        world = np.stack([poses[pairs.m, 0] + c * zj[:, 0] - s * zj[:, 1],
-                          poses[pairs.m, 1] + s * zj[:, 0] + c * zj[:, 1], zj[:, 2]], axis=1)
-        mean = store.flat_mean[pairs.g]
-        nu2 = np.sum((world - mean) ** 2, axis=1)
-        trace = np.trace(store.flat_cov[pairs.g], axis1=1, axis2=2) + np.trace(q[pairs.j], axis1=1, axis2=2)
+            return pairs, mean, cov
+        nu2 = np.sum((frame.world[:, pairs.m * q6.shape[1] + pairs.j] - mean) ** 2, axis=0)
+        trace = cov[0] + cov[3] + cov[5] + (q6[0] + q6[3] + q6[5])[pairs.j]
         if self.config.version == 2:
-            r2 = np.sum((mean[:, :2] - poses[pairs.m, :2]) ** 2, axis=1)
-            trace = trace + (2.0 + r2) * np.trace(self._motion_cov[pairs.m], axis1=1, axis2=2)
-        return pairs.take(np.flatnonzero(nu2 <= self.config.mahalanobis_gate * trace * (1 + 1e-9)))
+            r2 = np.sum((mean[:2] - poses[pairs.m, :2].T) ** 2, axis=0)
+            trace = trace + (2.0 + r2) * np.trace(self._motion_cov, axis1=1, axis2=2)[pairs.m]
+        keep = np.flatnonzero(nu2 <= self.config.mahalanobis_gate * trace * (1 + 1e-9))
+        return pairs.take(keep), mean[:, keep], cov[:, keep]
 
-    def _predict_observation(self, pairs: _Pairs, poses: np.ndarray, rot: np.ndarray, q: np.ndarray):
-        """ẑ = Rᵀ(μ − t) (P, 3) and S = Rᵀ Σ R + Q (P, 3, 3) for each pair."""
-        store = self.store
-        z_hat = _to_robot_frame(poses[pairs.m], rot, store.flat_mean[pairs.g])
-        s_mat = sandwich(transpose(rot), store.flat_cov[pairs.g]) + q[pairs.j]
-        return z_hat, s_mat
-
-    @staticmethod
-    def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_obs: int):
-        """Indices of winning pairs (one landmark per observation and vice versa, nearest first) and a
-        (M·N,) bool over (particle, observation) telling which had any gated candidate."""
-        idx = np.flatnonzero(gated)
-        # one sort each: integer key + d² scaled into [0, 1) as the fraction (exact for keys < 2³⁰)
-        tie = np.clip(d2 / gate_limit(d2), 0.0, 0.999)
-        key_obs = pairs.m[idx] * max(n_obs, 1) + pairs.j[idx]
-        order = np.argsort(key_obs + tie[idx])
-        idx, key_obs = idx[order], key_obs[order]
-        best = idx[np.r_[True, key_obs[1:] != key_obs[:-1]]] if len(idx) else idx
-        key_lm = pairs.m[best] * (int(pairs.g.max(initial=0)) + 1) + pairs.g[best]
-        order = np.argsort(key_lm + tie[best])
-        best, key_lm = best[order], key_lm[order]
-        win = best[np.r_[True, key_lm[1:] != key_lm[:-1]]] if len(best) else best
-        return np.sort(win), np.unique(key_obs)
-
-    def _sample_proposal(self, predicted, matched: _Pairs, h_x, s_inv, innovation) -> np.ndarray:
+    def _sample_proposal(self, predicted: np.ndarray, matched: _Pairs, mean: np.ndarray, s_inv: np.ndarray,
+                         innovation: np.ndarray) -> np.ndarray:
         """FastSLAM 2.0: x ~ N(μ, Σ), Σ = (P⁻¹ + Σ H_xᵀ S⁻¹ H_x)⁻¹, μ = x̂ + Σ Σ H_xᵀ S⁻¹ (z − ẑ).
 
-        predicted (M, 3); h_x, s_inv (P, 3, 3) and innovation (P, 3) of the matched pairs -> poses (M, 3).
+        In the world frame (ν = R z + t − μ_m, S = Σ_m + R Q Rᵀ, the same d² and the same sums) the pose
+        Jacobian is H = [[−1, 0, a], [0, −1, b], [0, 0, 0]] with (a, b) = (w_y, −w_x), w = μ_m − t: the height
+        says nothing about a planar pose, so only the xy block U of S⁻¹ enters. predicted (M, 3); mean (3, P),
+        s_inv (6, P) and innovation (3, P) of the matched pairs -> poses (M, 3).
         """
         n = len(predicted)
+        a = mean[1] - predicted[matched.m, 1]
+        b = predicted[matched.m, 0] - mean[0]
+        u00, u01, u11 = s_inv[0], s_inv[1], s_inv[3]
+        y0 = s_inv[0] * innovation[0] + s_inv[1] * innovation[1] + s_inv[2] * innovation[2]   # (S⁻¹ν)_x
+        y1 = s_inv[1] * innovation[0] + s_inv[3] * innovation[1] + s_inv[4] * innovation[2]   # (S⁻¹ν)_y
+        ua, ub = u00 * a + u01 * b, u01 * a + u11 * b
+        terms = (u00, u01, -ua, u11, -ub, a * ua + b * ub, -y0, -y1, a * y0 + b * y1)   # HᵀS⁻¹H (6), HᵀS⁻¹ν (3)
+        sums = np.stack([np.bincount(matched.m, t, minlength=n) for t in terms])
         p_motion = self._motion_cov + 1e-12 * _EYE3
-        ht_sinv = transpose(h_x) @ s_inv
-        info = inv3(p_motion) + group_sum(matched.m, ht_sinv @ h_x, n)
-        vec = group_sum(matched.m, matvec(ht_sinv, innovation), n)
-        cov = symmetrise(inv3(info))
-        mean = predicted + matvec(cov, vec)
-        chol = np.linalg.cholesky(cov + 1e-15 * _EYE3)
-        sample = mean + matvec(chol, self.rng.standard_normal(predicted.shape))
+        info = sym_components(inv3(p_motion)) + sums[:6]
+        cov6 = sym_inverse(info)
+        mean_pose = predicted + sym_matvec(cov6, sums[6:]).T
+        chol = np.linalg.cholesky(symmetrise(sym_matrices(cov6)) + 1e-15 * _EYE3)
+        sample = mean_pose + (chol @ self.rng.standard_normal(predicted.shape)[:, :, None])[:, :, 0]
         sample[:, 2] = wrap_angle(sample[:, 2])
         return sample
 
@@ -422,40 +451,40 @@ class FastSLAM:
         b = self.store.block_size
         return self.store.table[pairs.m, pairs.k] * b + pairs.g % b
 
-    def _ekf_update(self, matched: _Pairs, poses: np.ndarray, z: np.ndarray, q: np.ndarray,
-                    s_inv: np.ndarray) -> None:
-        """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
+    def _ekf_update(self, matched: _Pairs, poses: np.ndarray, z: np.ndarray, q6: np.ndarray, mean: np.ndarray,
+                    sigma: np.ndarray) -> None:
+        """Per matched pair, in the world frame at the particle's (sampled) pose: the observation is
+        w = R z + t = μ + v, v ~ N(0, R Q Rᵀ); K = Σ S⁻¹, S = Σ + R Q Rᵀ, μ += K (w − μ), Σ −= K Σ.
 
-        ``s_inv`` (P, 3, 3) is S⁻¹ from the gate, linearised at the predicted pose; under FastSLAM 2.0 the
-        sampled pose differs slightly, which makes K slightly sub-optimal but the Joseph form keeps Σ the
-        correct covariance for that K (and saves recomputing S and its inverse).
+        mean (3, P), sigma (6, P): the landmarks before the update. The same update as K = Σ H ᵀS⁻¹ with H = Rᵀ
+        in the robot frame; S is formed at the sampled pose (FastSLAM 2.0 moved it after the gate), so K is the
+        optimal gain and the short form Σ − KΣ (computed on the upper triangle, symmetric) is exact.
         """
         if len(matched.m) == 0:
             return
         store = self.store
-        rot = rot_z(poses[matched.m, 2])
-        z_hat = _to_robot_frame(poses[matched.m], rot, store.flat_mean[matched.g])
-        sigma = store.flat_cov[matched.g]
-        gain = sigma @ rot @ s_inv                                                 # K = Σ R S⁻¹
-        store.flat_mean[matched.g] += matvec(gain, z[matched.j] - z_hat)
-        i_kh = _EYE3 - gain @ transpose(rot)                                        # I − K Rᵀ
-        joseph = sandwich(i_kh, sigma) + sandwich(gain, q[matched.j])
-        store.flat_cov[matched.g] = symmetrise(joseph)
+        pose = poses[matched.m]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        zx, zy, zz = z[matched.j].T
+        innovation = np.stack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz]) - mean
+        gain = sym_product(sigma, sym_inverse(sigma + sym_rotate_z(c, s, q6[:, matched.j])))   # (3, 3, P)
+        store.flat_mean[matched.g] = (mean + np.einsum("ikp,kp->ip", gain, innovation)).T
+        store.flat_cov[matched.g] = sym_matrices(sym_reduce(sigma, gain))
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
 
     def _missed_provisional(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs) -> _Pairs:
         """Candidate landmarks still provisional, predicted well inside the view, and not matched."""
-        cfg = self.config
         store = self.store
-        provisional = store.flat_count[cand.g] < cfg.confirm_count
-        sel = cand.take(np.flatnonzero(provisional))
+        unmatched = np.ones(len(cand.m), bool)
+        unmatched[matched.c] = False
+        sel = cand.take(np.flatnonzero(unmatched & (store.flat_count[cand.g] < self.config.confirm_count)))
         if len(sel.m) == 0:
             return sel
-        key_all = sel.m * (int(store.flat_lid.size) + 1) + sel.g
-        key_matched = matched.m * (int(store.flat_lid.size) + 1) + matched.g
-        sel = sel.take(np.flatnonzero(~np.isin(key_all, key_matched)))
-        z_hat = _to_robot_frame(poses[sel.m], rot_z(poses[sel.m, 2]), store.flat_mean[sel.g])
+        pose = poses[sel.m]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        rel = store.flat_mean[sel.g] - np.column_stack([pose[:, :2], np.zeros(len(pose))])
+        z_hat = np.column_stack([c * rel[:, 0] + s * rel[:, 1], c * rel[:, 1] - s * rel[:, 0], rel[:, 2]])
         return sel.take(np.flatnonzero(self._well_in_view(z_hat)))
 
     def _well_in_view(self, z_hat: np.ndarray) -> np.ndarray:
@@ -464,12 +493,12 @@ class FastSLAM:
         rel = z_hat - np.asarray(cfg.sensor_offset)
         margin = cfg.miss_fov_margin
         depth = rel[:, 0]
-        ok = (depth > cfg.min_range) & (np.linalg.norm(rel, axis=1) < margin * cfg.max_range)
+        ok = (depth > cfg.min_range) & (np.einsum("ij,ij->i", rel, rel) < (margin * cfg.max_range) ** 2)
         if cfg.fov_horizontal < 2 * np.pi:
             ok &= depth > 0
-            ok &= np.abs(np.arctan2(rel[:, 1], depth)) < margin * 0.5 * cfg.fov_horizontal
+            ok &= _within_angle(rel[:, 1], depth, margin * 0.5 * cfg.fov_horizontal)
         if cfg.fov_vertical < np.pi:
-            ok &= np.abs(np.arctan2(rel[:, 2], np.maximum(depth, 1e-9))) < margin * 0.5 * cfg.fov_vertical
+            ok &= _within_angle(rel[:, 2], np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
         return ok
 
     def _count_miss(self, missed: _Pairs) -> int:
@@ -482,16 +511,15 @@ class FastSLAM:
         store.flat_lid[drop] = -1
         return len(drop)
 
-    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q, desc) -> tuple[np.ndarray, int]:
-        """Landmarks (μ = R z + t, Σ = R Q Rᵀ) for every (particle, observation) with no gated candidate.
+    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q6, desc) -> tuple[np.ndarray, int]:
+        """Landmarks (μ = R z + t, Σ = R Q Rᵀ) for every (particle, observation) with no gated candidate
+        (``had_candidate`` (M·N,) bool, indexed m·N + j).
 
         Returns the id each observation's new landmarks got (N,) (-1: none) and how many were made in all.
         """
-        n_particles, n_obs = len(poses), len(z)
+        n_obs = len(z)
         new_ids = np.full(n_obs, -1, np.int64)
-        is_new = np.ones(n_particles * n_obs, bool)
-        is_new[had_candidate] = False
-        m, j = np.divmod(np.flatnonzero(is_new), max(n_obs, 1))
+        m, j = np.divmod(np.flatnonzero(~had_candidate), max(n_obs, 1))
         if len(m) == 0:
             return new_ids, 0
         spawning = np.unique(j)
@@ -499,9 +527,11 @@ class FastSLAM:
         self._append_descriptors(desc[spawning])
         g = self.store.append_slots(m)
         store = self.store
-        rot = rot_z(poses[m, 2])
-        store.flat_mean[g] = matvec(rot, z[j]) + _lifted_translation(poses[m])
-        store.flat_cov[g] = symmetrise(sandwich(rot, q[j]))
+        pose = poses[m]
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        zx, zy, zz = z[j].T
+        store.flat_mean[g] = np.column_stack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz])
+        store.flat_cov[g] = sym_matrices(sym_rotate_z(c, s, q6[:, j]))
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
@@ -623,18 +653,6 @@ class FastSLAM:
         return self.particle_map(self._best, min_count, robot, frame, meta)
 
 
-def _lifted_translation(poses: np.ndarray) -> np.ndarray:
-    """t = (x, y, 0) (P, 3) of planar poses (P, 3)."""
-    t = np.zeros((len(poses), 3))
-    t[:, :2] = poses[:, :2]
-    return t
-
-
-def _to_robot_frame(poses: np.ndarray, rot: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """ẑ = Rᵀ(m − t) (P, 3): world points (P, 3) in the frames of poses (P, 3) with rotations rot (P, 3, 3)."""
-    return matvec(transpose(rot), points - _lifted_translation(poses))
-
-
 def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean (3,) and covariance (3, 3) of poses (M, 3) with weights (M,), θ on the circle."""
     theta = np.arctan2(w @ np.sin(poses[:, 2]), w @ np.cos(poses[:, 2]))
@@ -644,17 +662,48 @@ def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, 
     return mean, (dev * w[:, None]).T @ dev
 
 
-def gate_limit(d2: np.ndarray) -> float:
-    """A bound above every finite d² (for scaling d² into a sort key's fraction)."""
-    finite = d2[np.isfinite(d2)]
-    return float(finite.max()) * 1.001 + 1e-12 if len(finite) else 1.0
+def _within_angle(lateral: np.ndarray, depth: np.ndarray, half_angle: float) -> np.ndarray:
+    """|atan2(lateral, depth)| < half_angle for depth > 0 (a tangent comparison, no arctan per point)."""
+    if half_angle >= 0.5 * np.pi:
+        return np.abs(np.arctan2(lateral, depth)) < half_angle
+    return np.abs(lateral) < np.tan(half_angle) * depth
 
 
-def _pose_jacobian(rot: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
-    """H_x (P, 3, 3) = ∂z/∂(x, y, θ) = [−Rᵀe_x, −Rᵀe_y, (ẑ_y, −ẑ_x, 0)] for z = Rᵀ(m − t)."""
-    h = np.zeros((len(rot), 3, 3))
-    h[:, :, 0] = -rot[:, 0, :]   # −Rᵀ e_x: row 0 of R as a column
-    h[:, :, 1] = -rot[:, 1, :]
-    h[:, 0, 2] = z_hat[:, 1]
-    h[:, 1, 2] = -z_hat[:, 0]
-    return h
+def _pose_uncertainty(p6: np.ndarray, lever: np.ndarray) -> np.ndarray:
+    """H P Hᵀ (6, P) in the world frame for pose covariances P (6, P) and landmark offsets w = μ − t (2, P):
+    H = [[−1, 0, w_y], [0, −1, −w_x], [0, 0, 0]] (see :meth:`FastSLAM._sample_proposal`)."""
+    a, b = lever[1], -lever[0]
+    out = np.zeros_like(p6)
+    out[0] = p6[0] - 2.0 * a * p6[2] + a * a * p6[5]
+    out[1] = p6[1] - b * p6[2] - a * p6[4] + a * b * p6[5]
+    out[3] = p6[3] - 2.0 * b * p6[4] + b * b * p6[5]
+    return out
+
+
+def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_particles: int, n_obs: int,
+                       n_candidates: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the winning pairs, ascending (each observation takes its nearest gated landmark; a landmark
+    claimed by several observations of a particle keeps the nearest; exact ties go to the first pair), and an
+    (M·N,) bool, indexed m·N + j, telling which (particle, observation) had any gated candidate.
+
+    No sorting: per-key minima by ``np.minimum.at`` over dense keys m·N + j and the candidate index ``c``.
+    """
+    idx = np.flatnonzero(gated)
+    key = pairs.m[idx] * n_obs + pairs.j[idx]
+    had_candidate = np.zeros(n_particles * n_obs, bool)
+    had_candidate[key] = True
+    if len(idx) == 0:
+        return idx, had_candidate
+    choice = _first_minimum(key, d2[idx], n_particles * n_obs)        # positions in idx, one per (m, j)
+    claimed = pairs.c[idx[choice]]
+    keep = _first_minimum(claimed, d2[idx[choice]], n_candidates)     # positions in choice, one per landmark
+    return np.sort(idx[choice[keep]]), had_candidate
+
+
+def _first_minimum(key: np.ndarray, value: np.ndarray, n_keys: int) -> np.ndarray:
+    """Positions (K,) of the smallest ``value`` of each distinct ``key`` (L,) in [0, n_keys); ties: the first."""
+    smallest = np.full(n_keys, np.inf)
+    np.minimum.at(smallest, key, value)
+    position = np.full(n_keys, len(key))
+    np.minimum.at(position, key, np.where(value == smallest[key], np.arange(len(key)), len(key)))
+    return position[position < len(key)]
