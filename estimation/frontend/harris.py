@@ -104,23 +104,30 @@ def smallest_above(threshold: float, dtype) -> np.generic:
 def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, margin: int,
                             buffers: ScratchBuffers | None = None) -> np.ndarray:
     """Integer (row, col) of local maxima above ``threshold`` at least ``margin`` px inside: (N, 2) int."""
-    if size < 1 or size % 2 == 0:
-        raise FrontEndError(f"nms_size must be odd and positive, got {size}")
     m = max(int(margin), 1)  # the sub-pixel fit needs one neighbour on each side
     rows, cols = response.shape
-    if rows <= 2 * m or cols <= 2 * m:
+    return local_maxima(response, size, threshold, (slice(m, rows - m), slice(m, cols - m)), buffers)
+
+
+def local_maxima(response: np.ndarray, size: int, threshold: float, region: tuple[slice, slice],
+                 buffers: ScratchBuffers | None = None) -> np.ndarray:
+    """Integer (row, col) (N, 2) of the pixels in ``region`` (row and column slices with explicit non-negative
+    bounds) that are the maximum of their size × size neighbourhood and above ``threshold``, row-major order."""
+    if size < 1 or size % 2 == 0:
+        raise FrontEndError(f"nms_size must be odd and positive, got {size}")
+    top, left = region[0].start, region[1].start
+    inner_shape = (region[0].stop - top, region[1].stop - left)
+    if inner_shape[0] <= 0 or inner_shape[1] <= 0:
         return np.zeros((0, 2), np.int64)
     dilated = cv2.dilate(response, np.ones((size, size), np.uint8),
                          dst=scratch(buffers, "nms_dilated", response.shape, response.dtype))
-    inner = (slice(m, rows - m), slice(m, cols - m))
-    inner_shape = (rows - 2 * m, cols - 2 * m)
     # a peak is the maximum of its neighbourhood and above the threshold: response >= max(dilated, floor) with
     # floor the smallest representable value above the threshold (one comparison pass instead of two and an and)
     floor = smallest_above(threshold, response.dtype)
-    bar = np.maximum(dilated[inner], floor, out=scratch(buffers, "nms_bar", inner_shape, response.dtype))
-    peak = np.greater_equal(response[inner], bar, out=scratch(buffers, "nms_peak", inner_shape, bool))
+    bar = np.maximum(dilated[region], floor, out=scratch(buffers, "nms_bar", inner_shape, response.dtype))
+    peak = np.greater_equal(response[region], bar, out=scratch(buffers, "nms_peak", inner_shape, bool))
     r, c = np.divmod(np.flatnonzero(peak), inner_shape[1])
-    return np.stack([r + m, c + m], axis=1)
+    return np.stack([r + top, c + left], axis=1)
 
 
 def bucket(rows: np.ndarray, cols: np.ndarray, scores: np.ndarray, shape: tuple[int, int],
@@ -164,15 +171,30 @@ def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig(),
     """Harris corners of an image (H, W).
 
     Returns (pixels (N, 2) float64 sub-pixel (u, v), responses (N,) float32), strongest first.
+
+    The response is computed only where corners can be reported (``margin`` px inside) plus the reach of the
+    suppression window and of the gradient and window filters, so every value used equals the whole image's;
+    ``quality`` is relative to the strongest response where corners can be reported.
     """
-    response = harris_response(image, config.k, config.window_sigma, buffers)
-    peak_max = float(response.max()) if response.size else 0.0
+    image = np.asarray(image)
+    if image.ndim < 2:
+        raise FrontEndError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {image.shape}")
+    height, width = image.shape[:2]
+    m = max(int(config.margin), 1)  # the sub-pixel fit needs one neighbour on each side
+    if height <= 2 * m or width <= 2 * m:
+        return np.zeros((0, 2)), np.zeros(0, np.float32)
+    reach = config.nms_size // 2 + 1 + int(np.ceil(2.0 * config.window_sigma))  # NMS + Sobel + Gaussian window
+    r0, c0 = max(m - reach, 0), max(m - reach, 0)
+    r1, c1 = min(height - m + reach, height), min(width - m + reach, width)
+    response = harris_response(image[r0:r1, c0:c1], config.k, config.window_sigma, buffers)
+    region = (slice(m - r0, height - m - r0), slice(m - c0, width - m - c0))
+    peak_max = float(response[region].max())
     if peak_max <= 0.0:
         return np.zeros((0, 2)), np.zeros(0, np.float32)
-    peaks = non_maximum_suppression(response, config.nms_size, config.quality * peak_max, config.margin, buffers)
+    peaks = local_maxima(response, config.nms_size, config.quality * peak_max, region, buffers)
     rows, cols = peaks[:, 0], peaks[:, 1]
     scores = response[rows, cols]
-    keep = bucket(rows, cols, scores, response.shape, config.grid, config.max_corners)
+    keep = bucket(rows + r0, cols + c0, scores, (height, width), config.grid, config.max_corners)
     rows, cols, scores = rows[keep], cols[keep], scores[keep]
     du, dv = subpixel_offsets(response, rows, cols)
-    return np.stack([cols + du, rows + dv], axis=1).astype(np.float64), scores
+    return np.stack([cols + c0 + du, rows + r0 + dv], axis=1).astype(np.float64), scores

@@ -94,3 +94,24 @@ def test_eight_bit_images_give_exactly_the_float_response():
     image = np.clip(texture((90, 130), seed=4), 0, 255).astype(np.uint8)
     image[:, :3] = 255  # saturated edge: the largest gradients
     np.testing.assert_array_equal(harris_response(image), harris_response(image.astype(np.float32)))
+
+
+@pytest.mark.parametrize("margin, nms_size, sigma", [(23, 5, 1.0), (6, 3, 1.5), (2, 7, 0.8)])
+def test_response_computed_inside_the_margin_matches_the_whole_image(margin, nms_size, sigma):
+    # detect_corners computes the response only within reach of where corners can be reported; with no
+    # threshold in play (quality 0) it must find exactly what the whole-image response gives
+    from estimation.frontend import harris_response
+    from estimation.frontend.harris import subpixel_offsets
+
+    image = np.clip(texture((150, 210), seed=9), 0, 255).astype(np.uint8)
+    config = HarrisConfig(max_corners=60, grid=(4, 3), margin=margin, nms_size=nms_size, window_sigma=sigma,
+                          quality=0.0)
+    corners, scores = detect_corners(image, config)
+    response = harris_response(image, config.k, config.window_sigma)
+    peaks = non_maximum_suppression(response, nms_size, 0.0, margin)
+    keep = bucket(peaks[:, 0], peaks[:, 1], response[peaks[:, 0], peaks[:, 1]], image.shape, config.grid, 60)
+    rows, cols = peaks[keep, 0], peaks[keep, 1]
+    du, dv = subpixel_offsets(response, rows, cols)
+    assert len(corners) == 60
+    np.testing.assert_allclose(corners, np.stack([cols + du, rows + dv], axis=1), atol=1e-4)
+    np.testing.assert_allclose(scores, response[rows, cols], rtol=1e-5)
