@@ -52,7 +52,7 @@ class MissionConfig:
     speed: float = 0.35               # m/s along routes
     fusion_interval: float = 20.0     # s between fusions during the mission (0: only at the end)
     preset: str = "robust"            # fusion preset: "robust" or "paper"
-    method: int = 2                   # merging method: 1 (RANSAC supports) or 2 (nearest neighbours)
+    method: int = 1                   # common landmarks: 1 (RANSAC supports, descriptor-checked) or 2 (position)
     snapshot_interval: float = 5.0
     out: Path = Path("p3at-mission")
     rerun: str = "file"               # "file" (OUT/mission.rrd), "spawn", "none", or a rerun+http:// URL
@@ -119,7 +119,7 @@ class FusionReport:
                 "seconds": self.seconds}
 
 
-def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 2, t: float = 0.0,
+def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,
               rng: np.random.Generator | None = None) -> FusionReport:
     """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
     from fusion import align, merge, true_relative_pose

@@ -40,7 +40,8 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--fusion-interval", type=float, default=20.0,
                         help="s between map fusions during the mission (0: at the end only; default 20)")
     parser.add_argument("--preset", choices=("robust", "paper"), default="robust", help="alignment preset")
-    parser.add_argument("--method", type=int, choices=(1, 2), default=2, help="merging method (default 2)")
+    parser.add_argument("--method", type=int, choices=(1, 2), default=1,
+                        help="common landmarks for merging: 1 RANSAC supports (default), 2 nearest in position")
     parser.add_argument("--rerun", default="file", metavar="SINK",
                         help="file (OUT/mission.rrd, default), spawn (a live viewer), none, or a rerun+http:// URL")
     parser.add_argument("--log-sensors", action="store_true", help="log raw SIPs and frames to OUT/<robot>-log/")
