@@ -158,23 +158,26 @@ def lattice_aligned(cols: np.ndarray, rows: np.ndarray, step: int) -> bool:
 
 
 def response_buffer(m: int, buffers: ScratchBuffers | None = None) -> np.ndarray:
-    """(M, 4, 400) float32 for the samples' dx, dy, |dx|, |dy| (row-major over the 20 × 20 samples)."""
-    return scratch(buffers, "usurf_responses", (m, 4, SAMPLES_PER_AXIS**2), np.float32)
+    """(4, 400, M) float32 for the samples' dx, dy, |dx|, |dy| (samples row-major over the 20 × 20 grid).
+
+    Keypoints run along the last, contiguous axis, so every step below is a long contiguous vector operation.
+    """
+    return scratch(buffers, "usurf_responses", (4, SAMPLES_PER_AXIS**2, m), np.float32)
 
 
 @functools.lru_cache(maxsize=8)
 def _lattice_offsets(step: int, row_stride: int) -> np.ndarray:
-    """(22, 22) flat offsets of a lattice ``step`` apart in an array of ``row_stride`` columns."""
+    """(22, 22, 1) flat offsets of a lattice ``step`` apart in an array of ``row_stride`` columns."""
     steps = step * np.arange(SAMPLES_PER_AXIS + 2)
-    offsets = steps[:, None] * row_stride + steps[None, :]
+    offsets = (steps[:, None] * row_stride + steps[None, :])[:, :, None]
     offsets.setflags(write=False)
     return offsets
 
 
 def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndarray, half: int,
                            out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
-    """Haar responses of M keypoints' samples straight from the integral image, into ``out[:, 0]`` (dx) and
-    ``out[:, 1]`` (dy) of ``response_buffer(M)`` (float32, [sample row, sample column] row-major); returns out.
+    """Haar responses of M keypoints' samples straight from the integral image, into ``out[0]`` (dx) and
+    ``out[1]`` (dy) of ``response_buffer(M)``; returns out.
 
     With an integer scale s the samples are s px apart and the wavelets have half side s, so all the corners
     the 400 wavelets of one keypoint need lie on one 22 × 22 lattice of integral entries s apart (starting at
@@ -182,52 +185,59 @@ def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndar
     over the whole image. The sums are integers, so the values equal ``dense_haar_responses``' exactly.
     """
     n, k, m = SAMPLES_PER_AXIS + 2, SAMPLES_PER_AXIS, len(col0)
-    flat = scratch(buffers, "usurf_lattice_index", (m, n, n), np.intp)
-    np.add((row0 * integral.shape[1] + col0)[:, None, None], _lattice_offsets(half, integral.shape[1]), out=flat)
+    flat = scratch(buffers, "usurf_lattice_index", (n, n, m), np.intp)
+    np.add(_lattice_offsets(half, integral.shape[1]), row0 * integral.shape[1] + col0, out=flat)
     # every index is inside (sample_corners checked the windows), so skip take's bounds check
-    corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (m, n, n), integral.dtype), mode="clip")
-    responses = out.reshape(m, 4, k, k)
+    corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (n, n, m), integral.dtype), mode="clip")
+    responses = out.reshape(4, k, k, m)
 
     def work(name: str, shape: tuple[int, int, int]) -> np.ndarray:
         return scratch(buffers, "usurf_" + name, shape, integral.dtype)
 
-    # dx: strips 2·half high (M, 20, 22), then right - 2·middle + left = the second difference along columns
-    strips = np.subtract(corners[:, 2:, :], corners[:, :k, :], out=work("strips_v", (m, k, n)))
-    steps = np.subtract(strips[:, :, 1:], strips[:, :, :-1], out=work("steps_v", (m, k, n - 1)))
-    np.subtract(steps[:, :, 1:], steps[:, :, :-1], out=responses[:, 0], casting="unsafe")
-    # dy: strips 2·half wide (M, 22, 20), bottom - 2·middle + top
-    strips = np.subtract(corners[:, :, 2:], corners[:, :, :k], out=work("strips_h", (m, n, k)))
-    steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps_h", (m, n - 1, k)))
-    np.subtract(steps[:, 1:], steps[:, :-1], out=responses[:, 1], casting="unsafe")
+    # dx: strips 2·half high (20, 22, M), then right - 2·middle + left = the second difference along columns
+    strips = np.subtract(corners[2:], corners[:k], out=work("strips_v", (k, n, m)))
+    steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps_v", (k, n - 1, m)))
+    np.subtract(steps[:, 1:], steps[:, :-1], out=responses[0], casting="unsafe")
+    # dy: strips 2·half wide (22, 20, M), bottom - 2·middle + top
+    strips = np.subtract(corners[:, 2:], corners[:, :k], out=work("strips_h", (n, k, m)))
+    steps = np.subtract(strips[1:], strips[:-1], out=work("steps_h", (n - 1, k, m)))
+    np.subtract(steps[1:], steps[:-1], out=responses[1], casting="unsafe")
     return out
 
 
 def gather_haar_responses(dx_img: np.ndarray, dy_img: np.ndarray, cols: np.ndarray, rows: np.ndarray,
                           out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
-    """Dense responses (see ``dense_haar_responses``) read at the samples (cols, rows (M, 20)) into ``out[:, 0]``
-    (dx) and ``out[:, 1]`` (dy) of ``response_buffer(M)``; returns out."""
+    """Dense responses (see ``dense_haar_responses``) read at the samples (cols, rows (M, 20)) into ``out[0]``
+    (dx) and ``out[1]`` (dy) of ``response_buffer(M)``; returns out."""
     m = len(cols)
-    shape = (m, SAMPLES_PER_AXIS, SAMPLES_PER_AXIS)
-    flat = scratch(buffers, "usurf_flat", shape, np.intp)
-    np.add((rows * dx_img.shape[1])[:, :, None], cols[:, None, :], out=flat)  # sample [row, col] -> flat index
+    flat = scratch(buffers, "usurf_flat", (SAMPLES_PER_AXIS, SAMPLES_PER_AXIS, m), np.intp)
+    np.add((rows * dx_img.shape[1]).T[:, None, :], cols.T[None, :, :], out=flat)  # sample [row, col] -> index
     for channel, image in enumerate((dx_img, dy_img)):
-        gathered = np.take(image, flat.reshape(m, -1), out=scratch(buffers, "usurf_gathered", (m, flat[0].size),
+        gathered = np.take(image, flat.reshape(-1, m), out=scratch(buffers, "usurf_gathered", out.shape[1:],
                                                                     image.dtype))
-        np.copyto(out[:, channel], gathered, casting="unsafe")
+        np.copyto(out[channel], gathered, casting="unsafe")
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _pooling_rows(scale: float) -> np.ndarray:
+    """``pooling_matrix(scale).T``, contiguous (16, 400)."""
+    rows = np.ascontiguousarray(pooling_matrix(scale).T)
+    rows.setflags(write=False)
+    return rows
 
 
 def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian-weighted subregion sums of the samples' responses -> unit descriptors.
 
-    responses: (M, 4, 400) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
-    inside: (N,) which keypoints the M rows belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
+    responses: (4, 400, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
+    inside: (N,) which keypoints the M columns belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
     """
-    m = len(responses)
-    np.abs(responses[:, :2], out=responses[:, 2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
-    sums = responses.reshape(4 * m, SAMPLES_PER_AXIS**2) @ pooling_matrix(float(scale))  # (4M, 16) one matmul
-    # (M, 4 values, 16 subregions) -> per subregion (Σdx, Σdy, Σ|dx|, Σ|dy|)
-    sums = sums.reshape(m, 4, SUBREGIONS**2).transpose(0, 2, 1).reshape(m, DESCRIPTOR_SIZE)
+    m = responses.shape[2]
+    np.abs(responses[:2], out=responses[2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
+    sums = np.matmul(_pooling_rows(float(scale)), responses)  # (4 values, 16 subregions, M)
+    # -> per keypoint and subregion (Σdx, Σdy, Σ|dx|, Σ|dy|)
+    sums = sums.transpose(2, 1, 0).reshape(m, DESCRIPTOR_SIZE)
     norms = np.linalg.norm(sums, axis=1)
     textured = norms > 0
     described = inside.copy()
