@@ -32,7 +32,14 @@ robot's stereo frame number). ``set_time`` is per thread in Rerun, so every meth
 from __future__ import annotations
 
 import json
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
 import threading
+import time
+import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,18 +61,71 @@ class RecordingReadError(ValueError):
     """A ``.rrd`` file is missing or holds no p3at-fusion mission; the message names the file."""
 
 
+class ViewerError(RuntimeError):
+    """A Rerun viewer could not be started."""
+
+
+VIEWER_PORT = 9876  # Rerun's default, so `rerun --connect` and a viewer someone already opened find each other
+
+
+def _listening(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
+
+
+def spawn_viewer(port: int | None = None, timeout: float = 15.0) -> str:
+    """Start a Rerun viewer listening on loopback (``port``, default ``VIEWER_PORT``) and return its URL; reuse
+    one already listening there.
+
+    ``rr.spawn`` would start it listening on every interface (the viewer's default bind is 0.0.0.0); a robot
+    must not expose its data stream to the network unless asked. Raises ViewerError with the viewer's own
+    reason (no display, no executable) when it does not come up.
+    """
+    port = VIEWER_PORT if port is None else port
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    if _listening(port):
+        return url
+    executable = Path(sys.executable).with_name("rerun")
+    if not executable.exists():
+        found = shutil.which("rerun")
+        if found is None:
+            raise ViewerError("no rerun executable found (pip install rerun-sdk); use --rerun file instead")
+        executable = Path(found)
+    messages = tempfile.TemporaryFile()  # not a pipe: nobody reads it once the viewer runs
+    viewer = subprocess.Popen([str(executable), "--bind", "127.0.0.1", "--port", str(port), "--memory-limit", "75%"],
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=messages,
+                              start_new_session=True)  # the viewer outlives the mission, as with rr.spawn
+    with messages:
+        deadline = time.monotonic() + timeout
+        alive_since = None
+        while time.monotonic() < deadline:
+            if viewer.poll() is not None:
+                messages.seek(0)
+                reason = messages.read().decode(errors="replace").strip().splitlines()
+                raise ViewerError(f"the Rerun viewer exited at start ({reason[-1] if reason else 'no message'}); "
+                                  "on a machine without a display use --rerun file, or run `rerun` elsewhere and "
+                                  "pass its rerun+http:// URL")
+            if _listening(port):
+                alive_since = alive_since or time.monotonic()
+                if time.monotonic() - alive_since > 1.0:  # it listens before it opens its window, which may fail
+                    return url
+            time.sleep(0.1)
+    viewer.kill()
+    raise ViewerError(f"the Rerun viewer did not listen on 127.0.0.1:{port} within {timeout:g} s")
+
+
 def open_recording(sink: str, *, mission_id: str | None = None, blueprint: rrb.Blueprint | None = None
                    ) -> rr.RecordingStream:
     """A new RecordingStream for one mission.
 
-    ``sink``: a path ending in ``.rrd`` (saved file), ``"spawn"`` (start a viewer), ``"memory"`` (tests),
+    ``sink``: a path ending in ``.rrd`` (saved file), ``"spawn"`` (start a viewer on loopback), ``"memory"`` (tests),
     ``"none"`` (disabled), or a ``rerun+http://host:port/proxy`` URL (connect to a running viewer).
     """
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=mission_id, default_enabled=(sink != "none"))
     if sink == "memory":
         rec.memory_recording()
     elif sink == "spawn":
-        rec.spawn(default_blueprint=blueprint)
+        rec.connect_grpc(spawn_viewer(), default_blueprint=blueprint)
     elif sink.startswith(("rerun://", "rerun+http://", "rerun+https://", "http://")):
         rec.connect_grpc(sink, default_blueprint=blueprint)
     elif sink != "none":
@@ -412,7 +472,9 @@ def read_recording(path: str | Path) -> RecordingContents:
     if not path.is_file():
         raise RecordingReadError(f"{path}: no such recording")
     try:
-        reader = rrchunk.RrdReader(path)
+        with warnings.catch_warnings():  # files saved by a viewer or `rerun --save` have no footer: read by scanning
+            warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
+            reader = rrchunk.RrdReader(path)
         if not reader.recordings():
             raise RecordingReadError(f"{path}: holds no recording")
         # the maps, fusion results, summary and time series; not the images and point clouds

@@ -200,3 +200,73 @@ def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, c
         motors = server.model.motors_enabled
     assert status == 1 and not motors
     assert "mission failed" in capsys.readouterr().err
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def rerun_server(tmp_path):
+    """The rerun CLI's headless server on a free loopback port, saving what it receives: (port, file)."""
+    import socket
+
+    rerun_cli = Path(sys.executable).parent / "rerun"
+    if not rerun_cli.exists():
+        pytest.skip(f"no rerun CLI beside {sys.executable}")
+    port = _free_port()
+    saved = tmp_path / "received.rrd"
+    server = subprocess.Popen([str(rerun_cli), "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:  # wait until it listens
+            with socket.socket() as probe:
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.1)
+        else:
+            pytest.fail("the rerun server did not start listening")
+        yield port, saved
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+
+
+def test_a_mission_streams_live_to_a_running_rerun_server(rerun_server, tmp_path):
+    """``--rerun rerun+http://...``: the mission connects to a running Rerun server and everything arrives."""
+    port, saved = rerun_server
+    config = MissionConfig(robots=1, seconds=4.0, seed=1, camera="synthetic", camera_rate=10.0, particles=20,
+                           time_scale=2.0, fusion_interval=0.0, out=tmp_path / "out",
+                           rerun=f"rerun+http://127.0.0.1:{port}/proxy")
+    result = Mission(config).run()
+    time.sleep(1.0)  # let the server write what it received
+    contents = read_recording(saved)
+    assert contents.robots == ["robot1"]
+    assert contents.summary is not None
+    assert len(contents.maps["robot1"]) == len(result.maps["robot1"]) > 0
+
+
+def test_spawn_reuses_a_viewer_already_listening_on_loopback(rerun_server):
+    from runtime.rerun_log import spawn_viewer
+
+    port, _ = rerun_server
+    assert spawn_viewer(port, timeout=2.0) == f"rerun+http://127.0.0.1:{port}/proxy"
+
+
+def test_spawn_on_a_machine_without_a_display_fails_before_the_robots_start(tmp_path, capsys, monkeypatch):
+    for variable in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(variable, raising=False)
+    monkeypatch.setattr("runtime.rerun_log.VIEWER_PORT", _free_port())
+    status = main(["demo", "--rerun", "spawn", "--camera", "synthetic", "--seconds", "2", "--out", str(tmp_path),
+                   "--quiet"])
+    assert status == 1
+    assert "Rerun viewer exited at start" in capsys.readouterr().err
+    assert not (tmp_path / "robot1.npz").exists()
