@@ -113,10 +113,15 @@ def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.nd
     if len(idx) == 0:
         return result, refined
     window = np.arange(-h, h + 1)
+    side = len(window)
     rows = (y0[idx, None] + window)[:, :, None]  # (K, W, 1)
     left_patch = left[rows, (x0[idx, None] + window)[:, None, :]].astype(np.float32)  # (K, W, W)
-    right_cols = (x0[idx] - d0[idx])[:, None, None] - steps[None, :, None] + window[None, None, :]  # (K, 5, W)
-    right_patch = right[rows[:, None, :, :], right_cols[:, :, None, :]].astype(np.float32)  # (K, 5, W, W)
+    # one strip of W + 4 columns per match holds the five right patches (disparity steps -2..2): step s starts
+    # at strip column 2 - s, so the patches are the strip's sliding windows in reverse order
+    strip_cols = (x0[idx] - d0[idx] - 2 - h)[:, None] + np.arange(side + 4)  # (K, W + 4)
+    strip = right[rows, strip_cols[:, None, :]]  # (K, W, W + 4)
+    windows = np.lib.stride_tricks.sliding_window_view(strip, side, axis=2)  # (K, W, 5, W), start 0..4
+    right_patch = windows[:, :, ::-1].transpose(0, 2, 1, 3).astype(np.float32, order="C")  # (K, 5, W, W)
     left_patch = left_patch - left_patch.mean(axis=(1, 2), keepdims=True)
     right_patch = right_patch - right_patch.mean(axis=(2, 3), keepdims=True)
     cost = ((right_patch - left_patch[:, None]) ** 2).sum(axis=(2, 3))  # (K, 5) over steps -2..2
