@@ -108,6 +108,7 @@ def fingerprint(slam: FastSLAM) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=150)
+    parser.add_argument("--use", type=int, default=0, metavar="N", help="replay only the first N frames")
     parser.add_argument("--rate", type=float, default=15.0)
     parser.add_argument("--particles", type=int, default=100)
     parser.add_argument("--synthetic", action="store_true", help="bench_pipeline's synthetic observer instead")
@@ -122,6 +123,8 @@ def main() -> None:
     if not cache.exists():
         record(cache, args.frames, args.rate, args.synthetic)
     frames, odometry = load(cache)
+    if args.use:
+        frames, odometry = frames[: args.use], odometry[: args.use]
     values = {"n_particles": args.particles, "max_observations": 0}
     for item in args.set:
         key, value = item.split("=", 1)

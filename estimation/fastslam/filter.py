@@ -348,9 +348,10 @@ class FastSLAM:
         keep = np.flatnonzero(wanted[inverse])
         g, inverse = cand.g[keep], inverse[keep]
         mean = store.flat_mean[g]                                  # (C, 3)
-        cov = store.flat_cov.reshape(-1, 9)[g]                     # (C, 9)
+        cov_flat = store.cov.reshape(-1)
+        trace = cov_flat[9 * g] + cov_flat[9 * g + 4] + cov_flat[9 * g + 8]   # (C,) tr Σ, not the whole Σ
         if len(obs_j):
-            keep_pair = self._id_pregate(mean, cov, inverse, len(uniq), obs_j, uid, poses, z, q6)
+            keep_pair = self._id_pregate(mean, trace, inverse, len(uniq), obs_j, uid, poses, z, q6)
             obs_j, uid = obs_j[keep_pair], uid[keep_pair]
         # group the candidates by id (a stable radix sort on small integers), then expand every surviving
         # (observation, id) pair to the candidates holding that id: one triple per particle
@@ -362,10 +363,10 @@ class FastSLAM:
         within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
         ci = order[first + within]
         c = keep[ci]
-        pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], cand.g[c], c)
-        return pairs, np.ascontiguousarray(mean[ci].T), sym_components(cov[ci])
+        pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], g[ci], c)
+        return pairs, np.ascontiguousarray(mean[ci].T), sym_components(store.cov.reshape(-1, 9)[pairs.g])
 
-    def _id_pregate(self, mean: np.ndarray, cov: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
+    def _id_pregate(self, mean: np.ndarray, trace: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
                     uid: np.ndarray, poses: np.ndarray, z: np.ndarray, q6: np.ndarray) -> np.ndarray:
         """(L,) bool over (observation, id) pairs: False where the Mahalanobis gate would fail in every
         particle, decided once per id (an exact bound, so the association is unchanged, only faster).
@@ -374,17 +375,19 @@ class FastSLAM:
         |ν_m| ≥ |w̄(z) − μ̄| − D − Δθ|z_xy| − E, where D, Δθ bound the particles' distance from the reference
         pose, E bounds |μ_m − μ̄| over the particles holding the id, w̄(z) = R̄z + t̄; and d² ≥ |ν|²/tr S with
         tr S_m ≤ T + tr Q (+ (2 + r_max²)·max tr P under 2.0), T = max tr Σ of the id.
-        mean (C, 3), cov (C, 9): the candidates' landmarks, ``inverse`` (C,) their id's rank in 0..n_uniq-1.
+        mean (C, 3), trace (C,): the candidates' landmarks and tr Σ, ``inverse`` (C,) their id's rank in
+        0..n_uniq-1.
         """
         n = len(inverse)
         first = np.full(n_uniq, n)
         np.minimum.at(first, inverse, np.arange(n))
         ref_mean = mean[np.minimum(first, n - 1)]                          # the first particle's mean per id
+        offset = mean - ref_mean[inverse]
         spread2 = np.zeros(n_uniq)
-        np.maximum.at(spread2, inverse, np.sum((mean - ref_mean[inverse]) ** 2, axis=1))
+        np.maximum.at(spread2, inverse, np.einsum("ij,ij->i", offset, offset))
         spread = np.sqrt(spread2)
         cov_trace = np.zeros(n_uniq)
-        np.maximum.at(cov_trace, inverse, cov[:, 0] + cov[:, 4] + cov[:, 8])
+        np.maximum.at(cov_trace, inverse, trace)
         ref_xy = poses[:, :2].mean(axis=0)
         ref_theta = poses[0, 2]
         d_pose = float(np.max(np.linalg.norm(poses[:, :2] - ref_xy, axis=1)))
@@ -466,9 +469,13 @@ class FastSLAM:
         pose = poses[matched.m]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
         zx, zy, zz = z[matched.j].T
-        innovation = np.stack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz]) - mean
+        innovation = (c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2])
         gain = sym_product(sigma, sym_inverse(sigma + sym_rotate_z(c, s, q6[:, matched.j])))   # (3, 3, P)
-        store.flat_mean[matched.g] = (mean + np.einsum("ikp,kp->ip", gain, innovation)).T
+        updated = np.empty((len(pose), 3))
+        nx, ny, nz = innovation
+        for i in range(3):
+            updated[:, i] = mean[i] + gain[i, 0] * nx + gain[i, 1] * ny + gain[i, 2] * nz
+        store.flat_mean[matched.g] = updated
         store.flat_cov[matched.g] = sym_matrices(sym_reduce(sigma, gain))
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
@@ -476,29 +483,31 @@ class FastSLAM:
     def _missed_provisional(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs) -> _Pairs:
         """Candidate landmarks still provisional, predicted well inside the view, and not matched."""
         store = self.store
-        unmatched = np.ones(len(cand.m), bool)
-        unmatched[matched.c] = False
-        sel = cand.take(np.flatnonzero(unmatched & (store.flat_count[cand.g] < self.config.confirm_count)))
+        candidate = store.flat_count[cand.g] < self.config.confirm_count
+        candidate[matched.c] = False
+        sel = cand.take(np.flatnonzero(candidate))
         if len(sel.m) == 0:
             return sel
         pose = poses[sel.m]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        rel = store.flat_mean[sel.g] - np.column_stack([pose[:, :2], np.zeros(len(pose))])
-        z_hat = np.column_stack([c * rel[:, 0] + s * rel[:, 1], c * rel[:, 1] - s * rel[:, 0], rel[:, 2]])
-        return sel.take(np.flatnonzero(self._well_in_view(z_hat)))
+        mean = store.flat_mean[sel.g]
+        dx, dy = mean[:, 0] - pose[:, 0], mean[:, 1] - pose[:, 1]
+        return sel.take(np.flatnonzero(self._well_in_view(c * dx + s * dy, c * dy - s * dx, mean[:, 2])))
 
-    def _well_in_view(self, z_hat: np.ndarray) -> np.ndarray:
-        """(P,) bool: base_link points (P, 3) inside ``miss_fov_margin`` of the field of view and range."""
+    def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """(P,) bool: base_link points (x, y, z each (P,)) inside ``miss_fov_margin`` of the field of view and
+        of the range."""
         cfg = self.config
-        rel = z_hat - np.asarray(cfg.sensor_offset)
+        ox, oy, oz = cfg.sensor_offset
+        depth, lateral, height = x - ox, y - oy, z - oz
         margin = cfg.miss_fov_margin
-        depth = rel[:, 0]
-        ok = (depth > cfg.min_range) & (np.einsum("ij,ij->i", rel, rel) < (margin * cfg.max_range) ** 2)
+        ok = (depth > cfg.min_range) & (depth * depth + lateral * lateral + height * height
+                                        < (margin * cfg.max_range) ** 2)
         if cfg.fov_horizontal < 2 * np.pi:
             ok &= depth > 0
-            ok &= _within_angle(rel[:, 1], depth, margin * 0.5 * cfg.fov_horizontal)
+            ok &= _within_angle(lateral, depth, margin * 0.5 * cfg.fov_horizontal)
         if cfg.fov_vertical < np.pi:
-            ok &= _within_angle(rel[:, 2], np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
+            ok &= _within_angle(height, np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
         return ok
 
     def _count_miss(self, missed: _Pairs) -> int:

@@ -84,8 +84,10 @@ class LandmarkStore:
         """Copy-on-write: give every (particle, table position) pair (P,) a block only that particle holds."""
         if len(particles) == 0:
             return
-        key = np.unique(np.asarray(particles, np.int64) * self.table.shape[1] + np.asarray(positions, np.int64))
-        p, k = np.divmod(key, self.table.shape[1])
+        width = self.table.shape[1]
+        wanted = np.zeros(self.n_particles * width, bool)          # dense (particle, position) keys: no sort
+        wanted[np.asarray(particles, np.int64) * width + np.asarray(positions, np.int64)] = True
+        p, k = np.divmod(np.flatnonzero(wanted), width)
         phys = self.table[p, k]
         shared = self.refcount[phys] > 1
         if not np.any(shared):
@@ -169,6 +171,12 @@ class LandmarkStore:
             return
         blocks = slots // self.block_size
         xy = self.flat_mean[slots, :2]
+        box = self.bbox[blocks]
+        outside = np.flatnonzero((xy[:, 0] < box[:, 0]) | (xy[:, 1] < box[:, 1]) | (xy[:, 0] > box[:, 2])
+                                 | (xy[:, 1] > box[:, 3]))
+        if len(outside) == 0:   # the usual case after small EKF moves: no scattered min/max needed
+            return
+        blocks, xy = blocks[outside], xy[outside]
         np.minimum.at(self.bbox[:, 0], blocks, xy[:, 0])
         np.minimum.at(self.bbox[:, 1], blocks, xy[:, 1])
         np.maximum.at(self.bbox[:, 2], blocks, xy[:, 0])
