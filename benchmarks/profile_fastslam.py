@@ -30,13 +30,14 @@ from estimation.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
 from estimation.geometry import between  # noqa: E402
 from estimation.observations import OdometryIncrement, StereoObservations  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pipeline import route_poses  # noqa: E402
-
 
 def record(path: Path, n_frames: int, rate: float, synthetic: bool) -> None:
     """Render (or synthesise) bench_pipeline's frames and save observations + odometry poses to ``path``."""
     from drivers.videre.head import StereoHead
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_pipeline import route_poses  # the same frames as the pipeline benchmark
+
     from estimation.frontend import FrontEnd, FrontEndConfig, HarrisConfig
     from mocks.stereo_head import VirtualStereoHead
     from mocks.synthetic_stereo import SyntheticStereo
