@@ -219,6 +219,7 @@ class Mission:
         self.exchange = exchange if exchange is not None else InProcessExchange()
         self._stop = threading.Event()
         self.robots: list[RobotSetup] = []
+        self._virtual_heads: dict = {}  # robot -> its VirtualStereoHead (mock cameras), for the late-frame count
         self.fusion_history: list[FusionReport] = []
         self.logger = None
         self.recording_path: Path | None = None
@@ -314,6 +315,7 @@ class Mission:
         virtual = VirtualStereoHead(world, name, rng=rng, realtime=True, clock=self.clock,
                                     renderer=getattr(self, "_renderer", None), **latency)
         self._renderer = virtual.renderer
+        self._virtual_heads[name] = virtual
         # the driver stamps frames with their exposure time: the head's stated exposure-to-delivery delay
         head = StereoHead.open(backend=virtual, clock=self.clock, latency=virtual.latency)
         camera = VidereCamera(head, rate=cfg.camera_rate)
@@ -459,9 +461,17 @@ class Mission:
                 "final_position_error": None if true_final is None
                 else float(np.hypot(*(final_pose[:2] - true_final[:2]))),
                 "odometry_position_error": odometry_error,
+                # mock heads: frames rendered slower than the head's stated latency, whose stamps are late
+                "frames_late": getattr(self._virtual_heads.get(r.name), "late_frames", None),
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
                 "map_file": str(cfg.out / f"{r.name}.npz"),
             }
+        for name, figures in robots.items():
+            late, received = figures["frames_late"], max(1, figures["frames_received"])
+            if late and late > 0.05 * received:
+                self.events(f"{name}: {late} of {received} frames were rendered later than the virtual head's "
+                            f"latency, so their timestamps are late too (the machine is overloaded: fewer robots, "
+                            f"a lower --camera-rate or --camera synthetic)")
         summary = {
             "robots": robots, "duration": round(duration, 2), "seed": cfg.seed, "camera": cfg.camera,
             "particles": cfg.particles, "fusion": None if final is None else final.as_dict(),

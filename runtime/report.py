@@ -23,12 +23,14 @@ def format_summary(summary: dict) -> str:
     lines = [f"Mission: {len(summary['robots'])} robot(s), {summary['duration']:.1f} s, camera {summary['camera']}, "
              f"{summary['particles']} particles, seed {summary['seed']}", ""]
     stages = sorted({k for r in summary["robots"].values() for k in r["ms_per_frame"]})
-    rows = [["robot", "landmarks", "frames", "dropped", "final pose err (m)", "odometry err (m)"]
-            + [f"{s} ms" for s in stages]]
+    late = any(r.get("frames_late") is not None for r in summary["robots"].values())  # virtual heads only
+    rows = [["robot", "landmarks", "frames", "dropped"] + (["late"] if late else [])
+            + ["final pose err (m)", "odometry err (m)"] + [f"{s} ms" for s in stages]]
     for name, r in summary["robots"].items():
         rows.append([name, str(r["landmarks"]), str(r["frames_processed"]),
-                     str(r["frames_dropped"] + r["frames_without_odometry"]), _fmt(r["final_position_error"]),
-                     _fmt(r.get("odometry_position_error"))]
+                     str(r["frames_dropped"] + r["frames_without_odometry"])]
+                    + ([_fmt(r.get("frames_late"), "d")] if late else [])
+                    + [_fmt(r["final_position_error"]), _fmt(r.get("odometry_position_error"))]
                     + [_fmt(r["ms_per_frame"].get(s), ".1f") for s in stages])
     lines += _table(rows)
     fusion = summary.get("fusion")

@@ -152,6 +152,10 @@ def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline_and_r
     assert robot["frames_processed"] >= 3
     assert robot["landmarks"] > 20  # corners on the rendered walls, triangulated and mapped
     assert robot["ms_per_frame"]["frontend"] > 0
+    assert 0 <= robot["frames_late"] <= robot["frames_received"]  # the virtual head's count, in the summary
+    from runtime.report import format_summary
+
+    assert " late " in format_summary(result.summary).splitlines()[2]
     log = SensorLog(tmp_path / "robot1-log")
     frame = next(log.records("frames"))
     assert frame["left"].shape == frame["right"].shape == (480, 640) and frame["left"].dtype == np.uint8
