@@ -16,7 +16,7 @@ from estimation.frontend.buffers import ScratchBuffers, scratch
 from estimation.frontend.descriptors import DescriptorKind, describe, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
-from estimation.frontend.stereo import StereoMatchConfig, match_rows, refine_disparity_ssd
+from estimation.frontend.stereo import StereoMatchConfig, match_rows, refine_disparity_ssd, with_candidates
 from estimation.frontend.triangulation import (
     StereoGeometry,
     TriangulationNoise,
@@ -137,7 +137,9 @@ def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = F
     harris = dataclasses.replace(config.harris, margin=detection_margin(config))
     left_corners, _ = detect_corners(left, harris, buffers)
     right_corners, _ = detect_corners(right, harris, buffers)
-    # 2. descriptors
+    # 2. descriptors, of the corners that have a candidate on the other side (no other can be matched)
+    left_candidate, right_candidate = with_candidates(left_corners, right_corners, config.matching)
+    left_corners, right_corners = left_corners[left_candidate], right_corners[right_candidate]
     left_desc, left_ok = describe(left, left_corners, config.descriptor, config.scale, buffers)
     right_desc, right_ok = describe(right, right_corners, config.descriptor, config.scale, buffers)
     left_corners, right_corners = left_corners[left_ok], right_corners[right_ok]

@@ -47,17 +47,12 @@ class StereoMatchConfig:
             raise FrontEndError(f"empty disparity range [{self.min_disparity}, {self.max_disparity}]")
 
 
-def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixels: np.ndarray,
-               right_descriptors: np.ndarray, config: StereoMatchConfig = StereoMatchConfig(),
-               binary: bool = False,
-               buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Descriptor matches between left corners (N, 2) and right corners (M, 2) of a rectified pair.
-
-    Returns (left_index (K,), right_index (K,), distance (K,)). The (N, M) work arrays come from ``buffers``.
-    """
+def admissible_pairs(left_pixels: np.ndarray, right_pixels: np.ndarray,
+                     config: StereoMatchConfig = StereoMatchConfig(),
+                     buffers: ScratchBuffers | None = None) -> np.ndarray:
+    """(N, M) bool: right corner j is a candidate for left corner i (same row within the tolerance, disparity
+    within range); left (N, 2) and right (M, 2) pixels (u, v), compared in float32."""
     n, m = len(left_pixels), len(right_pixels)
-    if n == 0 or m == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
     left_px = np.asarray(left_pixels, np.float32)
     right_px = np.asarray(right_pixels, np.float32)
     work = scratch(buffers, "match_work", (n, m), np.float32)
@@ -70,6 +65,35 @@ def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixe
     # same row within tolerance
     np.subtract(left_px[:, 1:2], right_px[None, :, 1], out=work)
     admissible &= np.less_equal(np.abs(work, out=work), config.row_tolerance, out=test)
+    return admissible
+
+
+def with_candidates(left_pixels: np.ndarray, right_pixels: np.ndarray,
+                    config: StereoMatchConfig = StereoMatchConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (N,), (M,) of the left and right corners that have at least one candidate on the other side.
+
+    A corner without any can never be matched, and removing it changes no other corner's nearest, second
+    nearest or left-right check (its row or column of the distance matrix is all excluded), so the front end
+    describes only these: ``match_rows`` on the subsets gives the same matches.
+    """
+    admissible = admissible_pairs(left_pixels, right_pixels, config)
+    return admissible.any(axis=1), admissible.any(axis=0)
+
+
+def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixels: np.ndarray,
+               right_descriptors: np.ndarray, config: StereoMatchConfig = StereoMatchConfig(),
+               binary: bool = False,
+               buffers: ScratchBuffers | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Descriptor matches between left corners (N, 2) and right corners (M, 2) of a rectified pair.
+
+    Returns (left_index (K,), right_index (K,), distance (K,)). The (N, M) work arrays come from ``buffers``.
+    """
+    n, m = len(left_pixels), len(right_pixels)
+    if n == 0 or m == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    admissible = admissible_pairs(left_pixels, right_pixels, config, buffers)
+    work = scratch(buffers, "match_work", (n, m), np.float32)
+    test = scratch(buffers, "match_test", (n, m), bool)
     distance = distance_matrix(left_descriptors, right_descriptors, binary, out=work)
     np.logical_not(admissible, out=test)
     distance[test] = np.inf

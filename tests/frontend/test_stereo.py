@@ -73,3 +73,26 @@ def test_bad_settings_are_refused():
         StereoMatchConfig(subpixel="magic")
     with pytest.raises(FrontEndError):
         StereoMatchConfig(min_disparity=10, max_disparity=5)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_corners_without_candidates_can_be_left_out_before_matching(seed):
+    # the front end describes only corners with a candidate on the other side; matching the subsets must give
+    # exactly the matches of the full sets (ties included: descriptors drawn from a small set repeat)
+    from estimation.frontend.stereo import with_candidates
+
+    rng = np.random.default_rng(seed)
+    left = np.column_stack([rng.uniform(0, 640, 150), rng.integers(0, 480, 150) + rng.uniform(-0.3, 0.3, 150)])
+    right = np.column_stack([rng.uniform(0, 640, 140), rng.integers(0, 480, 140) + rng.uniform(-0.3, 0.3, 140)])
+    palette = unit(*rng.normal(size=(12, 8)))
+    left_desc, right_desc = palette[rng.integers(0, 12, 150)], palette[rng.integers(0, 12, 140)]
+    config = StereoMatchConfig(max_distance=None, ratio=0.95)
+    li, ri, dist = match_rows(left, left_desc, right, right_desc, config)
+    keep_left, keep_right = with_candidates(left, right, config)
+    assert 0 < keep_left.sum() < len(left) and 0 < keep_right.sum() < len(right)
+    sli, sri, sdist = match_rows(left[keep_left], left_desc[keep_left], right[keep_right], right_desc[keep_right],
+                                 config)
+    assert len(li) > 5
+    np.testing.assert_array_equal(np.flatnonzero(keep_left)[sli], li)
+    np.testing.assert_array_equal(np.flatnonzero(keep_right)[sri], ri)
+    np.testing.assert_allclose(sdist, dist, rtol=1e-6)
