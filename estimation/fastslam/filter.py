@@ -348,8 +348,8 @@ class FastSLAM:
         keep = np.flatnonzero(wanted[inverse])
         g, inverse = cand.g[keep], inverse[keep]
         mean = store.flat_mean[g]                                  # (C, 3)
-        cov_flat = store.cov.reshape(-1)
-        trace = cov_flat[9 * g] + cov_flat[9 * g + 4] + cov_flat[9 * g + 8]   # (C,) tr Σ, not the whole Σ
+        cov = store.flat_cov
+        trace = cov[g, 0] + cov[g, 3] + cov[g, 5]                  # (C,) tr Σ, not the whole Σ
         if len(obs_j):
             keep_pair = self._id_pregate(mean, trace, inverse, len(uniq), obs_j, uid, poses, z, q6)
             obs_j, uid = obs_j[keep_pair], uid[keep_pair]
@@ -364,7 +364,7 @@ class FastSLAM:
         ci = order[first + within]
         c = keep[ci]
         pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], g[ci], c)
-        return pairs, np.ascontiguousarray(mean[ci].T), sym_components(store.cov.reshape(-1, 9)[pairs.g])
+        return pairs, np.ascontiguousarray(mean[ci].T), np.ascontiguousarray(cov[pairs.g].T)
 
     def _id_pregate(self, mean: np.ndarray, trace: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
                     uid: np.ndarray, poses: np.ndarray, z: np.ndarray, q6: np.ndarray) -> np.ndarray:
@@ -467,7 +467,7 @@ class FastSLAM:
             return
         store = self.store
         pose = poses[matched.m]
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        c, s = _cos_sin(poses, matched.m)
         zx, zy, zz = z[matched.j].T
         innovation = (c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2])
         gain = sym_product(sigma, sym_inverse(sigma + sym_rotate_z(c, s, q6[:, matched.j])))   # (3, 3, P)
@@ -476,7 +476,7 @@ class FastSLAM:
         for i in range(3):
             updated[:, i] = mean[i] + gain[i, 0] * nx + gain[i, 1] * ny + gain[i, 2] * nz
         store.flat_mean[matched.g] = updated
-        store.flat_cov[matched.g] = sym_matrices(sym_reduce(sigma, gain))
+        store.flat_cov[matched.g] = sym_reduce(sigma, gain).T
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
 
@@ -489,7 +489,7 @@ class FastSLAM:
         if len(sel.m) == 0:
             return sel
         pose = poses[sel.m]
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        c, s = _cos_sin(poses, sel.m)
         mean = store.flat_mean[sel.g]
         dx, dy = mean[:, 0] - pose[:, 0], mean[:, 1] - pose[:, 1]
         return sel.take(np.flatnonzero(self._well_in_view(c * dx + s * dy, c * dy - s * dx, mean[:, 2])))
@@ -537,10 +537,10 @@ class FastSLAM:
         g = self.store.append_slots(m)
         store = self.store
         pose = poses[m]
-        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        c, s = _cos_sin(poses, m)
         zx, zy, zz = z[j].T
         store.flat_mean[g] = np.column_stack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz])
-        store.flat_cov[g] = sym_matrices(sym_rotate_z(c, s, q6[:, j]))
+        store.flat_cov[g] = sym_rotate_z(c, s, q6[:, j]).T
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
@@ -577,7 +577,7 @@ class FastSLAM:
         store = self.store
         g = store.append_slots(np.zeros(n, np.int64))
         store.flat_mean[g] = landmark_map.positions[order]
-        store.flat_cov[g] = landmark_map.covariances[order]
+        store.flat_cov[g] = sym_components(symmetrise(landmark_map.covariances[order])).T
         store.flat_lid[g] = ids[order]
         store.flat_count[g] = landmark_map.counts[order]
         store.flat_misses[g] = 0
@@ -649,7 +649,7 @@ class FastSLAM:
         order = np.argsort(lids)
         g, lids = g[order], lids[order]
         return LandmarkMap(
-            store.flat_mean[g].copy(), store.flat_cov[g].copy(), self._descriptors[lids].copy(), lids,
+            store.flat_mean[g].copy(), sym_matrices(store.flat_cov[g].T), self._descriptors[lids].copy(), lids,
             store.flat_count[g].copy(), robot=robot, frame=frame, trajectory=self.trajectory(particle),
             metadata=dict(metadata or {}))
 
@@ -669,6 +669,11 @@ def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, 
     dev = poses - mean
     dev[:, 2] = wrap_angle(dev[:, 2])
     return mean, (dev * w[:, None]).T @ dev
+
+
+def _cos_sin(poses: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cos θ, sin θ (P,) of poses[index]: computed once per particle (M) and gathered, not once per pair."""
+    return np.cos(poses[:, 2])[index], np.sin(poses[:, 2])[index]
 
 
 def _within_angle(lateral: np.ndarray, depth: np.ndarray, half_angle: float) -> np.ndarray:

@@ -5,10 +5,12 @@ group of ``block_size`` landmark slots. Resampling copies table rows (integers),
 that writes to a block another particle also references first gets its own copy of that block (copy-on-write).
 So two particles never see each other's updates, and an unchanged map region costs nothing to duplicate.
 
-Per slot: ``mean`` (3,), ``cov`` (3, 3), ``lid`` the global landmark id (-1: empty slot; also the row of its
-descriptor in the filter's descriptor table), ``count`` (times matched, creation included), ``misses`` (times
-it was in view and not matched). Per physical block: ``refcount`` and ``bbox`` (xmin, ymin, xmax, ymax of its
-landmarks' means), which lets association preselect the blocks near a particle without scanning every landmark.
+Per slot: ``mean`` (3,), ``cov`` (6,) the covariance's upper triangle (xx, xy, xz, yy, yz, zz, see
+``linalg.sym_components``: two thirds of a 3×3's memory, and what the filter's closed forms read), ``lid`` the
+global landmark id (-1: empty slot; also the row of its descriptor in the filter's descriptor table), ``count``
+(times matched, creation included), ``misses`` (times it was in view and not matched). Per physical block:
+``refcount`` and ``bbox`` (xmin, ymin, xmax, ymax of its landmarks' means), which lets association preselect
+the blocks near a particle without scanning every landmark.
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ class LandmarkStore:
     def _allocate_arrays(self, capacity: int) -> None:
         b = self.block_size
         self.mean = np.zeros((capacity, b, 3))
-        self.cov = np.zeros((capacity, b, 3, 3))
+        self.cov = np.zeros((capacity, b, 6))
         self.lid = np.full((capacity, b), -1, np.int64)
         self.count = np.zeros((capacity, b), np.int64)
         self.misses = np.zeros((capacity, b), np.int64)
@@ -200,7 +202,8 @@ class LandmarkStore:
 
     @property
     def flat_cov(self) -> np.ndarray:
-        return self.cov.reshape(-1, 3, 3)
+        """(slots, 6) covariance components (upper triangle), a view."""
+        return self.cov.reshape(-1, 6)
 
     @property
     def flat_lid(self) -> np.ndarray:
