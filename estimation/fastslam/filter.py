@@ -347,9 +347,9 @@ class FastSLAM:
         wanted[uid] = True
         keep = np.flatnonzero(wanted[inverse])
         g, inverse = cand.g[keep], inverse[keep]
-        mean = store.flat_mean[g]                                  # (C, 3)
-        cov = store.flat_cov
-        trace = cov[g, 0] + cov[g, 3] + cov[g, 5]                  # (C,) tr Σ, not the whole Σ
+        state = store.flat_state[g]                                # (C, 9): means (3), covariances (6)
+        mean = state[:, :3]
+        trace = state[:, 3] + state[:, 6] + state[:, 8]            # (C,) tr Σ
         if len(obs_j):
             keep_pair = self._id_pregate(mean, trace, inverse, len(uniq), obs_j, uid, poses, z, q6)
             obs_j, uid = obs_j[keep_pair], uid[keep_pair]
@@ -364,7 +364,8 @@ class FastSLAM:
         ci = order[first + within]
         c = keep[ci]
         pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], g[ci], c)
-        return pairs, np.ascontiguousarray(mean[ci].T), np.ascontiguousarray(cov[pairs.g].T)
+        state = state[ci].T
+        return pairs, np.ascontiguousarray(state[:3]), np.ascontiguousarray(state[3:])
 
     def _id_pregate(self, mean: np.ndarray, trace: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
                     uid: np.ndarray, poses: np.ndarray, z: np.ndarray, q6: np.ndarray) -> np.ndarray:
@@ -382,9 +383,9 @@ class FastSLAM:
         first = np.full(n_uniq, n)
         np.minimum.at(first, inverse, np.arange(n))
         ref_mean = mean[np.minimum(first, n - 1)]                          # the first particle's mean per id
-        offset = mean - ref_mean[inverse]
+        dx, dy, dz = (mean[:, i] - ref_mean[:, i][inverse] for i in range(3))   # column by column: no row gathers
         spread2 = np.zeros(n_uniq)
-        np.maximum.at(spread2, inverse, np.einsum("ij,ij->i", offset, offset))
+        np.maximum.at(spread2, inverse, dx * dx + dy * dy + dz * dz)
         spread = np.sqrt(spread2)
         cov_trace = np.zeros(n_uniq)
         np.maximum.at(cov_trace, inverse, trace)

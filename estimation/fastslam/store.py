@@ -5,7 +5,8 @@ group of ``block_size`` landmark slots. Resampling copies table rows (integers),
 that writes to a block another particle also references first gets its own copy of that block (copy-on-write).
 So two particles never see each other's updates, and an unchanged map region costs nothing to duplicate.
 
-Per slot: ``mean`` (3,), ``cov`` (6,) the covariance's upper triangle (xx, xy, xz, yy, yz, zz, see
+Per slot (``state``, 9 numbers, so that one gather reads both): ``mean`` (3,), ``cov`` (6,) the covariance's
+upper triangle (xx, xy, xz, yy, yz, zz, see
 ``linalg.sym_components``: two thirds of a 3×3's memory, and what the filter's closed forms read), ``lid`` the
 global landmark id (-1: empty slot; also the row of its descriptor in the filter's descriptor table), ``count``
 (times matched, creation included), ``misses`` (times it was in view and not matched). Per physical block:
@@ -33,8 +34,7 @@ class LandmarkStore:
     # -- raw storage ----------------------------------------------------------------------------------------
     def _allocate_arrays(self, capacity: int) -> None:
         b = self.block_size
-        self.mean = np.zeros((capacity, b, 3))
-        self.cov = np.zeros((capacity, b, 6))
+        self.state = np.zeros((capacity, b, 9))      # per slot: mean (3) then covariance components (6)
         self.lid = np.full((capacity, b), -1, np.int64)
         self.count = np.zeros((capacity, b), np.int64)
         self.misses = np.zeros((capacity, b), np.int64)
@@ -48,7 +48,7 @@ class LandmarkStore:
     def _grow(self, needed: int) -> None:
         old = self.capacity
         new = max(2 * old, old + needed)
-        arrays = {k: getattr(self, k) for k in ("mean", "cov", "lid", "count", "misses", "refcount", "bbox")}
+        arrays = {k: getattr(self, k) for k in ("state", "lid", "count", "misses", "refcount", "bbox")}
         self._allocate_arrays(new)
         for name, values in arrays.items():
             getattr(self, name)[:old] = values
@@ -96,7 +96,7 @@ class LandmarkStore:
             return
         p, k, src = p[shared], k[shared], phys[shared]
         dst = self._allocate(len(src))
-        for name in ("mean", "cov", "lid", "count", "misses", "bbox"):
+        for name in ("state", "lid", "count", "misses", "bbox"):
             arr = getattr(self, name)
             arr[dst] = arr[src]
         np.subtract.at(self.refcount, src, 1)
@@ -197,13 +197,28 @@ class LandmarkStore:
 
     # flat views (slot index = block * block_size + slot)
     @property
+    def mean(self) -> np.ndarray:
+        """(blocks, block_size, 3) landmark means, a view of ``state``."""
+        return self.state[..., :3]
+
+    @property
+    def cov(self) -> np.ndarray:
+        """(blocks, block_size, 6) covariance components, a view of ``state``."""
+        return self.state[..., 3:]
+
+    @property
+    def flat_state(self) -> np.ndarray:
+        """(slots, 9) mean and covariance components of every slot: one gather reads both."""
+        return self.state.reshape(-1, 9)
+
+    @property
     def flat_mean(self) -> np.ndarray:
-        return self.mean.reshape(-1, 3)
+        return self.state.reshape(-1, 9)[:, :3]
 
     @property
     def flat_cov(self) -> np.ndarray:
         """(slots, 6) covariance components (upper triangle), a view."""
-        return self.cov.reshape(-1, 6)
+        return self.state.reshape(-1, 9)[:, 3:]
 
     @property
     def flat_lid(self) -> np.ndarray:
