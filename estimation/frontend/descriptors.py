@@ -13,7 +13,7 @@ import numpy as np
 
 from estimation.frontend.buffers import ScratchBuffers
 from estimation.frontend.errors import FrontEndError
-from estimation.frontend.usurf import usurf_descriptors
+from estimation.frontend.usurf import usurf_descriptors, usurf_descriptors_of_images
 
 
 class DescriptorKind(StrEnum):
@@ -71,6 +71,21 @@ def describe(image: np.ndarray, keypoints: np.ndarray, kind: DescriptorKind | st
     descriptors = descriptors.astype(np.float32)
     norms = np.linalg.norm(descriptors, axis=1, keepdims=True)
     return descriptors / np.maximum(norms, 1e-12), described
+
+
+def describe_pair(left: np.ndarray, left_keypoints: np.ndarray, right: np.ndarray, right_keypoints: np.ndarray,
+                  kind: DescriptorKind | str = DescriptorKind.USURF, scale: float = 2.0,
+                  buffers: ScratchBuffers | None = None) -> tuple[tuple[np.ndarray, np.ndarray],
+                                                                  tuple[np.ndarray, np.ndarray]]:
+    """``describe`` of both images of a stereo pair: ((left descriptors, described), (right ...)).
+
+    U-SURF describes both in one batch (one gather and one pooling); the others one image at a time.
+    """
+    if descriptor_kind(kind) is DescriptorKind.USURF:
+        left_out, right_out = usurf_descriptors_of_images([left, right], [left_keypoints, right_keypoints], scale,
+                                                          buffers)
+        return left_out, right_out
+    return describe(left, left_keypoints, kind, scale, buffers), describe(right, right_keypoints, kind, scale, buffers)
 
 
 def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool = False, out: np.ndarray | None = None) -> np.ndarray:

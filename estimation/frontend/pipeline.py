@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from estimation.frontend.buffers import ScratchBuffers, scratch
-from estimation.frontend.descriptors import DescriptorKind, describe, descriptor_kind
+from estimation.frontend.descriptors import DescriptorKind, describe_pair, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
 from estimation.frontend.stereo import StereoMatchConfig, match_rows, refine_disparity_ssd, with_candidates
@@ -140,8 +140,8 @@ def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = F
     # 2. descriptors, of the corners that have a candidate on the other side (no other can be matched)
     left_candidate, right_candidate = with_candidates(left_corners, right_corners, config.matching)
     left_corners, right_corners = left_corners[left_candidate], right_corners[right_candidate]
-    left_desc, left_ok = describe(left, left_corners, config.descriptor, config.scale, buffers)
-    right_desc, right_ok = describe(right, right_corners, config.descriptor, config.scale, buffers)
+    (left_desc, left_ok), (right_desc, right_ok) = describe_pair(left, left_corners, right, right_corners,
+                                                                 config.descriptor, config.scale, buffers)
     left_corners, right_corners = left_corners[left_ok], right_corners[right_ok]
     # 3. row-constrained matching with ratio test and left-right check
     li, ri, dist = match_rows(left_corners, left_desc, right_corners, right_desc, config.matching,

@@ -69,17 +69,20 @@ def pooling_matrix(scale: float) -> np.ndarray:
     return pooling
 
 
-def integral_image(image: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
+def integral_image(image: np.ndarray, buffers: ScratchBuffers | None = None,
+                   out: np.ndarray | None = None) -> np.ndarray:
     """Integral image (H + 1, W + 1): entry [r, c] is the sum of image[:r, :c].
 
-    8-bit images sum exactly in int32 (up to 2^31 / 255 ≈ 8.4 Mpx); others in float64.
+    8-bit images sum exactly in int32 (up to 2^31 / 255 ≈ 8.4 Mpx); others in float64. ``out``: an int32
+    (H + 1, W + 1) array for an 8-bit image's sums.
     """
     image = np.asarray(image)
     if image.ndim != 2:
         raise FrontEndError(f"expected a grey (H, W) image, got shape {image.shape}")
     shape = (image.shape[0] + 1, image.shape[1] + 1)
     if image.dtype == np.uint8 and image.size < 2**31 // 255:
-        return cv2.integral(image, sum=scratch(buffers, "integral_i32", shape, np.int32), sdepth=cv2.CV_32S)
+        out = scratch(buffers, "integral_i32", shape, np.int32) if out is None else out
+        return cv2.integral(image, sum=out, sdepth=cv2.CV_32S)
     return cv2.integral(np.ascontiguousarray(image, dtype=np.float64),
                         sum=scratch(buffers, "integral_f64", shape, np.float64), sdepth=cv2.CV_64F)
 
@@ -119,19 +122,53 @@ def usurf_descriptors(image: np.ndarray, keypoints: np.ndarray, scale: float = 2
     image: (H, W) grey; keypoints: (N, 2) sub-pixel (u, v); scale: s in px.
     Returns (descriptors (M, 64) float32 unit length, described (N,) bool) with M = described.sum().
     """
+    return usurf_descriptors_of_images([image], [keypoints], scale, buffers)[0]
+
+
+def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.ndarray], scale: float = 2.0,
+                                buffers: ScratchBuffers | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``usurf_descriptors`` of several images at once (e.g. both of a stereo pair): one gather and one pooling
+    for all keypoints when the images are 8-bit of one size and the scale is an integer, else one by one.
+
+    images: (H, W) each; keypoints: (N_i, 2) each. Returns [(descriptors (M_i, 64), described (N_i,))].
+    """
     if scale <= 0:
         raise FrontEndError(f"U-SURF scale must be positive, got {scale}")
-    keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)
+    if len(images) != len(keypoints) or not images:
+        raise FrontEndError(f"need one keypoint array per image, got {len(images)} images, {len(keypoints)} arrays")
+    keypoints = [np.asarray(k, dtype=np.float64).reshape(-1, 2) for k in keypoints]
+    images = [np.asarray(image) for image in images]
     half = haar_half_size(scale)
-    integral = integral_image(image, buffers)
-    cols, rows, inside = sample_corners(keypoints, scale, half, integral.shape)
+    shape = images[0].shape
+    if len(images) > 1 and not all(im.dtype == np.uint8 and im.ndim == 2 and im.shape == shape for im in images):
+        return [usurf_descriptors_of_images([image], [points], scale, buffers)[0]
+                for image, points in zip(images, keypoints, strict=True)]
+    if len(images) == 1:
+        integrals = integral_image(images[0], buffers)[None]
+    else:  # one block, so that one flat index reaches every image's integral
+        integrals = scratch(buffers, "integral_stack", (len(images), shape[0] + 1, shape[1] + 1), np.int32)
+        for image, integral in zip(images, integrals, strict=True):
+            integral_image(image, out=integral)
+    counts = [len(k) for k in keypoints]
+    cols, rows, inside = sample_corners(np.concatenate(keypoints), scale, half, integrals.shape[1:])
+    plane = np.repeat(np.arange(len(images)), counts)[inside]  # which image each described keypoint is in
     responses = response_buffer(len(cols), buffers)
     if float(scale) == half and lattice_aligned(cols, rows, half):
-        lattice_haar_responses(integral, cols[:, 0], rows[:, 0], half, responses, buffers)
+        lattice_haar_responses(integrals, cols[:, 0], rows[:, 0], half, responses, buffers, plane)
     else:  # a non-integer scale: its samples are not on a lattice of the wavelet's half side
-        dx_img, dy_img = dense_haar_responses(integral, half, buffers)
-        gather_haar_responses(dx_img, dy_img, cols, rows, responses, buffers)
-    return pool_descriptors(responses, inside, scale)
+        for index, integral in enumerate(integrals):
+            mine = plane == index
+            if not mine.any():
+                continue
+            dx_img, dy_img = dense_haar_responses(integral, half, buffers)
+            part = gather_haar_responses(dx_img, dy_img, cols[mine], rows[mine], response_buffer(mine.sum()),
+                                         buffers)
+            responses[:, :, mine] = part
+    descriptors, described = pool_descriptors(responses, inside, scale)
+    split = np.cumsum(counts)[:-1]
+    described_per_image = np.split(described, split)
+    first_descriptor = np.cumsum([d.sum() for d in described_per_image])[:-1]
+    return list(zip(np.split(descriptors, first_descriptor), described_per_image, strict=True))
 
 
 def sample_corners(keypoints: np.ndarray, scale: float, half: int,
@@ -175,7 +212,8 @@ def _lattice_offsets(step: int, row_stride: int) -> np.ndarray:
 
 
 def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndarray, half: int,
-                           out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
+                           out: np.ndarray, buffers: ScratchBuffers | None = None,
+                           plane: np.ndarray | None = None) -> np.ndarray:
     """Haar responses of M keypoints' samples straight from the integral image, into ``out[0]`` (dx) and
     ``out[1]`` (dy) of ``response_buffer(M)``; returns out.
 
@@ -183,10 +221,16 @@ def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndar
     the 400 wavelets of one keypoint need lie on one 22 × 22 lattice of integral entries s apart (starting at
     (row0, col0), the first wavelet's top-left corner): 484 look-ups per keypoint instead of dense responses
     over the whole image. The sums are integers, so the values equal ``dense_haar_responses``' exactly.
+    integral: (H + 1, W + 1), or (P, H + 1, W + 1) integrals of P images with ``plane`` (M,) saying which one
+    each keypoint is in.
     """
     n, k, m = SAMPLES_PER_AXIS + 2, SAMPLES_PER_AXIS, len(col0)
+    row_stride = integral.shape[-1]
+    base = row0 * row_stride + col0
+    if plane is not None:
+        base += plane * (integral.shape[-2] * row_stride)
     flat = scratch(buffers, "usurf_lattice_index", (n, n, m), np.intp)
-    np.add(_lattice_offsets(half, integral.shape[1]), row0 * integral.shape[1] + col0, out=flat)
+    np.add(_lattice_offsets(half, row_stride), base, out=flat)
     # every index is inside (sample_corners checked the windows), so skip take's bounds check
     corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (n, n, m), integral.dtype), mode="clip")
     responses = out.reshape(4, k, k, m)

@@ -126,3 +126,21 @@ def test_lattice_gather_equals_the_dense_responses_exactly(scale):
     assert 0 < described.sum() < len(points)  # some windows leave the image
     np.testing.assert_array_equal(described, expected_ok)
     np.testing.assert_array_equal(descriptors, expected)
+
+
+@pytest.mark.parametrize("scale", [2.0, 1.5])
+def test_both_images_at_once_equal_one_at_a_time(scale):
+    from estimation.frontend.usurf import usurf_descriptors_of_images
+
+    rng = np.random.default_rng(21)
+    images = [np.clip(texture((120, 160), seed=s), 0, 255).astype(np.uint8) for s in (22, 23)]
+    points = [rng.uniform(0, [160, 120], size=(n, 2)) for n in (40, 0)] + [rng.uniform(0, [160, 120], size=(30, 2))]
+    images.append(images[0])
+    together = usurf_descriptors_of_images(images, points, scale)
+    assert len(together) == 3 and together[1][0].shape == (0, 64)
+    for (descriptors, described), image, keypoints in zip(together, images, points, strict=True):
+        alone, alone_ok = usurf_descriptors(image, keypoints, scale)
+        np.testing.assert_array_equal(described, alone_ok)
+        np.testing.assert_allclose(descriptors, alone, atol=1e-6)
+    with pytest.raises(FrontEndError):
+        usurf_descriptors_of_images(images, points[:2], scale)
