@@ -50,6 +50,7 @@ from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
 from .linalg import (
     inv3,
+    joseph_update,
     sym_adjugate,
     sym_components,
     sym_inverse,
@@ -57,7 +58,6 @@ from .linalg import (
     sym_matvec,
     sym_product,
     sym_quadratic,
-    sym_reduce,
     sym_rotate_z,
     symmetrise,
 )
@@ -219,10 +219,11 @@ class FastSLAM:
             matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
         mean, cov = mean[:, win], cov[:, win]
 
+        s_inv = sym_inverse(s_obs[:, win])                                        # S⁻¹ without the pose term
+
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
-            self.poses = self._sample_proposal(predicted, matched, mean, sym_inverse(s_obs[:, win]),
-                                               innovation[:, win])
+            self.poses = self._sample_proposal(predicted, matched, mean, s_inv, innovation[:, win])
             self._motion_cov = np.zeros_like(self._motion_cov)
         poses = self.poses
 
@@ -231,7 +232,7 @@ class FastSLAM:
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
-        self._ekf_update(matched, poses, z, q6, mean, cov)
+        self._ekf_update(matched, predicted, poses, z, q6, mean, cov, s_inv)
         dropped = self._count_miss(missed)
 
         self.store.include_in_bbox(matched.g)
@@ -455,29 +456,32 @@ class FastSLAM:
         b = self.store.block_size
         return self.store.table[pairs.m, pairs.k] * b + pairs.g % b
 
-    def _ekf_update(self, matched: _Pairs, poses: np.ndarray, z: np.ndarray, q6: np.ndarray, mean: np.ndarray,
-                    sigma: np.ndarray) -> None:
-        """Per matched pair, in the world frame at the particle's (sampled) pose: the observation is
-        w = R z + t = μ + v, v ~ N(0, R Q Rᵀ); K = Σ S⁻¹, S = Σ + R Q Rᵀ, μ += K (w − μ), Σ −= K Σ.
+    def _ekf_update(self, matched: _Pairs, predicted: np.ndarray, poses: np.ndarray, z: np.ndarray,
+                    q6: np.ndarray, mean: np.ndarray, sigma: np.ndarray, s_inv: np.ndarray) -> None:
+        """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
 
-        mean (3, P), sigma (6, P): the landmarks before the update. The same update as K = Σ H ᵀS⁻¹ with H = Rᵀ
-        in the robot frame; S is formed at the sampled pose (FastSLAM 2.0 moved it after the gate), so K is the
-        optimal gain and the short form Σ − KΣ (computed on the upper triangle, symmetric) is exact.
+        mean (3, P), sigma (6, P): the landmarks before the update; ``s_inv`` (6, P): S⁻¹ from the gate, in the
+        world frame at the predicted pose (S_w = Σ + R̂ Q R̂ᵀ). Under FastSLAM 2.0 the sampled pose differs
+        slightly, which makes K slightly sub-optimal, and the Joseph form keeps Σ the correct covariance for that
+        K (and saves recomputing S). Computed in the world frame, ν_w = R z + t − μ at the sampled pose: the
+        robot-frame S⁻¹ at the predicted pose seen from the sampled one is A = Δ S_w⁻¹ Δᵀ, Δ = R_z(θ − θ̂), so
+        K_w = K Rᵀ = Σ A and K Q Kᵀ = K_w (R Q Rᵀ) K_wᵀ. (Forming S afresh at the sampled pose, the textbook
+        FastSLAM 2.0 update, was measured on the rendered runs: no better, robot1 worse; see docs/fastslam.md.)
         """
         if len(matched.m) == 0:
             return
         store = self.store
         pose = poses[matched.m]
         c, s = _cos_sin(poses, matched.m)
+        turn = pose[:, 2] - predicted[matched.m, 2]
         zx, zy, zz = z[matched.j].T
-        innovation = (c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2])
-        gain = sym_product(sigma, sym_inverse(sigma + sym_rotate_z(c, s, q6[:, matched.j])))   # (3, 3, P)
-        updated = np.empty((len(pose), 3))
-        nx, ny, nz = innovation
+        nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
+        gain = sym_product(sigma, sym_rotate_z(np.cos(turn), np.sin(turn), s_inv))            # K_w (3, 3, P)
+        updated = np.empty((9, len(pose)))                          # mean (3) and covariance (6), one write
         for i in range(3):
-            updated[:, i] = mean[i] + gain[i, 0] * nx + gain[i, 1] * ny + gain[i, 2] * nz
-        store.flat_mean[matched.g] = updated
-        store.flat_cov[matched.g] = sym_reduce(sigma, gain).T
+            updated[i] = mean[i] + gain[i, 0] * nx + gain[i, 1] * ny + gain[i, 2] * nz
+        updated[3:] = joseph_update(sigma, gain, sym_rotate_z(c, s, q6[:, matched.j]))
+        store.flat_state[matched.g] = updated.T
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
 
@@ -540,8 +544,8 @@ class FastSLAM:
         pose = poses[m]
         c, s = _cos_sin(poses, m)
         zx, zy, zz = z[j].T
-        store.flat_mean[g] = np.column_stack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz])
-        store.flat_cov[g] = sym_rotate_z(c, s, q6[:, j]).T
+        store.flat_state[g] = np.vstack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz,
+                                         sym_rotate_z(c, s, q6[:, j])]).T
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0

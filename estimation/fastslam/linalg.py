@@ -121,3 +121,21 @@ def sym_rotate_z(c: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(
         cc * xx - 2.0 * cs * xy + ss * yy, cs * (xx - yy) + (cc - ss) * xy, c * xz - s * yz,
         ss * xx + 2.0 * cs * xy + cc * yy, s * xz + c * yz, zz + 0.0 * cs))
+
+
+_UPPER_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def full_sym_product(k: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """K S (3, 3, P) for full K (3, 3, P) and symmetric S (6, P)."""
+    return np.array([[k[i, 0] * s[_SYM[0][j]] + k[i, 1] * s[_SYM[1][j]] + k[i, 2] * s[_SYM[2][j]]
+                      for j in range(3)] for i in range(3)])
+
+
+def joseph_update(s: np.ndarray, k: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(I − K) S (I − K)ᵀ + K R Kᵀ (6, P) for symmetric S, R (6, P) and a gain K (3, 3, P) (any K, not only the
+    optimal one), as S − KS − (KS)ᵀ + K (S + R) Kᵀ on the upper triangle, so the result is symmetric."""
+    ks = full_sym_product(k, s)
+    kb = full_sym_product(k, s + r)
+    return np.stack([s[_SYM[i][j]] - ks[i, j] - ks[j, i] + kb[i, 0] * k[j, 0] + kb[i, 1] * k[j, 1] + kb[i, 2] * k[j, 2]
+                     for i, j in _UPPER_PAIRS])
