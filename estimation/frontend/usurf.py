@@ -163,7 +163,7 @@ def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.nda
             dx_img, dy_img = dense_haar_responses(integral, half, buffers)
             part = gather_haar_responses(dx_img, dy_img, cols[mine], rows[mine], response_buffer(mine.sum()),
                                          buffers)
-            responses[:, :, mine] = part
+            responses[..., mine] = part
     descriptors, described = pool_descriptors(responses, inside, scale)
     split = np.cumsum(counts)[:-1]
     described_per_image = np.split(described, split)
@@ -195,11 +195,12 @@ def lattice_aligned(cols: np.ndarray, rows: np.ndarray, step: int) -> bool:
 
 
 def response_buffer(m: int, buffers: ScratchBuffers | None = None) -> np.ndarray:
-    """(4, 400, M) float32 for the samples' dx, dy, |dx|, |dy| (samples row-major over the 20 × 20 grid).
+    """(20, 4, 20, M) float32: [sample row, value, sample column, keypoint] for dx, dy, |dx|, |dy|.
 
-    Keypoints run along the last, contiguous axis, so every step below is a long contiguous vector operation.
+    Keypoints run along the last, contiguous axis, so every step below is a long contiguous vector operation;
+    the sample row leads so that pooling starts with one matrix product over it.
     """
-    return scratch(buffers, "usurf_responses", (4, SAMPLES_PER_AXIS**2, m), np.float32)
+    return scratch(buffers, "usurf_responses", (SAMPLES_PER_AXIS, 4, SAMPLES_PER_AXIS, m), np.float32)
 
 
 @functools.lru_cache(maxsize=8)
@@ -214,8 +215,8 @@ def _lattice_offsets(step: int, row_stride: int) -> np.ndarray:
 def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndarray, half: int,
                            out: np.ndarray, buffers: ScratchBuffers | None = None,
                            plane: np.ndarray | None = None) -> np.ndarray:
-    """Haar responses of M keypoints' samples straight from the integral image, into ``out[0]`` (dx) and
-    ``out[1]`` (dy) of ``response_buffer(M)``; returns out.
+    """Haar responses of M keypoints' samples straight from the integral image, into ``out[:, 0]`` (dx) and
+    ``out[:, 1]`` (dy) of ``response_buffer(M)``; returns out.
 
     With an integer scale s the samples are s px apart and the wavelets have half side s, so all the corners
     the 400 wavelets of one keypoint need lie on one 22 × 22 lattice of integral entries s apart (starting at
@@ -233,55 +234,69 @@ def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndar
     np.add(_lattice_offsets(half, row_stride), base, out=flat)
     # every index is inside (sample_corners checked the windows), so skip take's bounds check
     corners = np.take(integral, flat, out=scratch(buffers, "usurf_lattice", (n, n, m), integral.dtype), mode="clip")
-    responses = out.reshape(4, k, k, m)
 
     def work(name: str, shape: tuple[int, int, int]) -> np.ndarray:
         return scratch(buffers, "usurf_" + name, shape, integral.dtype)
 
+    second = work("second_difference", (k, k, m))
+
     # dx: strips 2·half high (20, 22, M), then right - 2·middle + left = the second difference along columns
     strips = np.subtract(corners[2:], corners[:k], out=work("strips_v", (k, n, m)))
     steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps_v", (k, n - 1, m)))
-    np.subtract(steps[:, 1:], steps[:, :-1], out=responses[0], casting="unsafe")
+    np.copyto(out[:, 0], np.subtract(steps[:, 1:], steps[:, :-1], out=second), casting="unsafe")
     # dy: strips 2·half wide (22, 20, M), bottom - 2·middle + top
     strips = np.subtract(corners[:, 2:], corners[:, :k], out=work("strips_h", (n, k, m)))
     steps = np.subtract(strips[1:], strips[:-1], out=work("steps_h", (n - 1, k, m)))
-    np.subtract(steps[1:], steps[:-1], out=responses[1], casting="unsafe")
+    np.copyto(out[:, 1], np.subtract(steps[1:], steps[:-1], out=second), casting="unsafe")
     return out
 
 
 def gather_haar_responses(dx_img: np.ndarray, dy_img: np.ndarray, cols: np.ndarray, rows: np.ndarray,
                           out: np.ndarray, buffers: ScratchBuffers | None = None) -> np.ndarray:
-    """Dense responses (see ``dense_haar_responses``) read at the samples (cols, rows (M, 20)) into ``out[0]``
-    (dx) and ``out[1]`` (dy) of ``response_buffer(M)``; returns out."""
+    """Dense responses (see ``dense_haar_responses``) read at the samples (cols, rows (M, 20)) into ``out[:, 0]``
+    (dx) and ``out[:, 1]`` (dy) of ``response_buffer(M)``; returns out."""
     m = len(cols)
     flat = scratch(buffers, "usurf_flat", (SAMPLES_PER_AXIS, SAMPLES_PER_AXIS, m), np.intp)
     np.add((rows * dx_img.shape[1]).T[:, None, :], cols.T[None, :, :], out=flat)  # sample [row, col] -> index
     for channel, image in enumerate((dx_img, dy_img)):
-        gathered = np.take(image, flat.reshape(-1, m), out=scratch(buffers, "usurf_gathered", out.shape[1:],
-                                                                    image.dtype))
-        np.copyto(out[channel], gathered, casting="unsafe")
+        gathered = np.take(image, flat, out=scratch(buffers, "usurf_gathered", flat.shape, image.dtype))
+        np.copyto(out[:, channel], gathered, casting="unsafe")
     return out
 
 
 @functools.lru_cache(maxsize=8)
-def _pooling_rows(scale: float) -> np.ndarray:
-    """``pooling_matrix(scale).T``, contiguous (16, 400)."""
-    rows = np.ascontiguousarray(pooling_matrix(scale).T)
-    rows.setflags(write=False)
-    return rows
+def subregion_weights(scale: float) -> np.ndarray:
+    """(4, 20) float32: row i holds the Gaussian weights of the 5 samples of subregion i along one axis, 0 elsewhere.
+
+    The 2-D weight of sample (a, b) is g_a·g_b, so ``pooling_matrix`` is this matrix's Kronecker square.
+    """
+    offsets = sample_offsets(scale)
+    sigma = GAUSSIAN_SIGMA_IN_SCALES * scale
+    g = np.exp(-(offsets**2) / (2.0 * sigma**2))
+    weights = np.zeros((SUBREGIONS, SAMPLES_PER_AXIS), np.float32)
+    samples = SAMPLES_PER_AXIS // SUBREGIONS
+    for i in range(SUBREGIONS):
+        weights[i, i * samples:(i + 1) * samples] = g[i * samples:(i + 1) * samples]
+    weights.setflags(write=False)
+    return weights
 
 
 def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian-weighted subregion sums of the samples' responses -> unit descriptors.
 
-    responses: (4, 400, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
+    responses: (20, 4, 20, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
     inside: (N,) which keypoints the M columns belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
+    The weights are separable, so the sums are two small matrix products (over sample rows, then columns)
+    rather than one with the 400 × 16 pooling matrix, whose entries are 15/16 zero.
     """
-    m = responses.shape[2]
-    np.abs(responses[:2], out=responses[2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
-    sums = np.matmul(_pooling_rows(float(scale)), responses)  # (4 values, 16 subregions, M)
-    # -> per keypoint and subregion (Σdx, Σdy, Σ|dx|, Σ|dy|)
-    sums = sums.transpose(2, 1, 0).reshape(m, DESCRIPTOR_SIZE)
+    k, m = SAMPLES_PER_AXIS, responses.shape[3]
+    np.abs(responses[:, :2], out=responses[:, 2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
+    weights = subregion_weights(float(scale))
+    rows_pooled = weights @ responses.reshape(k, -1)  # (4 i, 4 values · 20 columns · M)
+    by_column = np.ascontiguousarray(rows_pooled.reshape(SUBREGIONS * 4, k, m).transpose(1, 0, 2)).reshape(k, -1)
+    sums = weights @ by_column  # (4 j, 4 i · 4 values · M)
+    # -> per keypoint, subregion (i, j) row-major, (Σdx, Σdy, Σ|dx|, Σ|dy|)
+    sums = sums.reshape(SUBREGIONS, SUBREGIONS, 4, m).transpose(3, 1, 0, 2).reshape(m, DESCRIPTOR_SIZE)
     norms = np.linalg.norm(sums, axis=1)
     textured = norms > 0
     described = inside.copy()

@@ -144,3 +144,12 @@ def test_both_images_at_once_equal_one_at_a_time(scale):
         np.testing.assert_allclose(descriptors, alone, atol=1e-6)
     with pytest.raises(FrontEndError):
         usurf_descriptors_of_images(images, points[:2], scale)
+
+
+def test_separable_pooling_weights_are_the_pooling_matrix():
+    # pooling runs as two products with the (4, 20) per-axis weights; their Kronecker square is the 400 × 16 matrix
+    from estimation.frontend.usurf import pooling_matrix, subregion_weights
+
+    for scale in (1.0, 2.0, 2.5):
+        weights = subregion_weights(scale)
+        np.testing.assert_allclose(np.kron(weights, weights).T, pooling_matrix(scale), rtol=1e-6)
