@@ -197,8 +197,8 @@ class FastSLAM:
 
         # 1-2. candidates, descriptor join, Mahalanobis gate (in the world frame: d² is frame-invariant, and
         # there H_x = ∂(R z + t − μ)/∂(x, y, θ) needs no rotation; see _gate)
-        cand = self._candidates(predicted)
-        pairs, mean, cov = self._descriptor_join(cand, desc, predicted, z, q6)
+        cand, cand_lids, cand_counts = self._candidates(predicted)
+        pairs, mean, cov = self._descriptor_join(cand, cand_lids, desc, predicted, z, q6)
         if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
             pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
         mj = pairs.m * n_obs + pairs.j
@@ -228,14 +228,13 @@ class FastSLAM:
         poses = self.poses
 
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
-        missed = self._missed_provisional(cand, poses, matched)
+        missed = self._missed_provisional(cand, cand_counts, poses, matched)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
-        self._ekf_update(matched, predicted, poses, z, q6, mean, cov, s_inv)
+        moved = self._ekf_update(matched, predicted, poses, z, q6, mean, cov, s_inv)
         dropped = self._count_miss(missed)
-
-        self.store.include_in_bbox(matched.g)
+        self.store.include_in_bbox(matched.g, moved)
 
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc)
@@ -305,19 +304,20 @@ class FastSLAM:
         centres = np.stack([poses[:, 0] + c * fx - s * fy, poses[:, 1] + s * fx + c * fy], axis=1)
         return centres, radius + 1.0
 
-    def _candidates(self, poses: np.ndarray) -> _Pairs:
-        """Every live landmark in a block near each particle's view: pairs with j = -1 (M·K·B at most)."""
+    def _candidates(self, poses: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
+        """Every live landmark in a block near each particle's view: pairs with j = -1 (M·K·B at most), with
+        their landmark ids and counts (C,) (read block by block: whole rows, not scattered slots)."""
         store = self.store
         centres, radius = self._footprint(poses)
         p, k = store.blocks_near(centres, radius)
-        b = store.block_size
-        g = (store.table[p, k][:, None] * b + np.arange(b)).ravel()
-        alive = np.flatnonzero(store.flat_lid[g] >= 0)
-        g = g[alive]
-        alive //= b
-        return _Pairs(p[alive], np.full(len(g), -1, np.int64), k[alive], g, np.arange(len(g)))
+        phys = store.table[p, k]
+        lid = store.lid[phys]                                                  # (pairs, B)
+        pair, slot = np.nonzero(lid >= 0)
+        g = phys[pair] * store.block_size + slot
+        cand = _Pairs(p[pair], np.full(len(g), -1, np.int64), k[pair], g, np.arange(len(g)))
+        return cand, lid[pair, slot], store.count[phys][pair, slot]
 
-    def _descriptor_join(self, cand: _Pairs, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
+    def _descriptor_join(self, cand: _Pairs, lids: np.ndarray, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
                          q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
         """(particle, observation, landmark) triples whose descriptors are closer than the threshold, with
         the landmarks' means (3, P) and covariances (6, P).
@@ -330,7 +330,6 @@ class FastSLAM:
         if len(cand.m) == 0 or n_obs == 0:
             return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0))
         store = self.store
-        lids = store.flat_lid[cand.g]
         present = np.zeros(self._n_ids, bool)          # ids are dense: a lookup table beats np.unique
         present[lids] = True
         uniq = np.flatnonzero(present)
@@ -457,7 +456,7 @@ class FastSLAM:
         return self.store.table[pairs.m, pairs.k] * b + pairs.g % b
 
     def _ekf_update(self, matched: _Pairs, predicted: np.ndarray, poses: np.ndarray, z: np.ndarray,
-                    q6: np.ndarray, mean: np.ndarray, sigma: np.ndarray, s_inv: np.ndarray) -> None:
+                    q6: np.ndarray, mean: np.ndarray, sigma: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
         """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
 
         mean (3, P), sigma (6, P): the landmarks before the update; ``s_inv`` (6, P): S⁻¹ from the gate, in the
@@ -467,28 +466,31 @@ class FastSLAM:
         robot-frame S⁻¹ at the predicted pose seen from the sampled one is A = Δ S_w⁻¹ Δᵀ, Δ = R_z(θ − θ̂), so
         K_w = K Rᵀ = Σ A and K Q Kᵀ = K_w (R Q Rᵀ) K_wᵀ. (Forming S afresh at the sampled pose, the textbook
         FastSLAM 2.0 update, was measured on the rendered runs: no better, robot1 worse; see docs/fastslam.md.)
+        Returns the landmarks' new planar positions (P, 2).
         """
         if len(matched.m) == 0:
-            return
+            return np.zeros((0, 2))
         store = self.store
         pose = poses[matched.m]
         c, s = _cos_sin(poses, matched.m)
         turn = pose[:, 2] - predicted[matched.m, 2]
         zx, zy, zz = z[matched.j].T
         nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
-        gain = sym_product(sigma, sym_rotate_z(np.cos(turn), np.sin(turn), s_inv))            # K_w (3, 3, P)
+        gain = sym_product(sigma, sym_rotate_z(np.cos(turn), np.sin(turn), s_inv))            # K_w [3][3] (P,)
         updated = np.empty((9, len(pose)))                          # mean (3) and covariance (6), one write
         for i in range(3):
-            updated[i] = mean[i] + gain[i, 0] * nx + gain[i, 1] * ny + gain[i, 2] * nz
+            updated[i] = mean[i] + gain[i][0] * nx + gain[i][1] * ny + gain[i][2] * nz
         updated[3:] = joseph_update(sigma, gain, sym_rotate_z(c, s, q6[:, matched.j]))
         store.flat_state[matched.g] = updated.T
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
+        return updated[:2].T
 
-    def _missed_provisional(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs) -> _Pairs:
-        """Candidate landmarks still provisional, predicted well inside the view, and not matched."""
+    def _missed_provisional(self, cand: _Pairs, counts: np.ndarray, poses: np.ndarray, matched: _Pairs) -> _Pairs:
+        """Candidate landmarks (their counts (C,)) still provisional, predicted well inside the view, and not
+        matched."""
         store = self.store
-        candidate = store.flat_count[cand.g] < self.config.confirm_count
+        candidate = counts < self.config.confirm_count
         candidate[matched.c] = False
         sel = cand.take(np.flatnonzero(candidate))
         if len(sel.m) == 0:

@@ -101,17 +101,11 @@ def sym_quadratic(s: np.ndarray, v: np.ndarray) -> np.ndarray:
             + 2.0 * (s[1] * x * y + s[2] * x * z + s[4] * y * z))
 
 
-def sym_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A B (3, 3, P) (a full, generally unsymmetric matrix) for symmetric A, B (6, P)."""
-    return np.array([[a[_SYM[i][0]] * b[_SYM[0][j]] + a[_SYM[i][1]] * b[_SYM[1][j]] + a[_SYM[i][2]] * b[_SYM[2][j]]
-                      for j in range(3)] for i in range(3)])
-
-
-def sym_reduce(s: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """S − K S (6, P) for symmetric S (6, P) and K (3, 3, P) such that K S is symmetric (the EKF's covariance
-    update with the optimal gain K = S (S + Q)⁻¹): only the upper triangle is computed, so it stays symmetric."""
-    return np.stack([s[_SYM[i][j]] - (k[i, 0] * s[_SYM[0][j]] + k[i, 1] * s[_SYM[1][j]] + k[i, 2] * s[_SYM[2][j]])
-                     for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))])
+def sym_product(a: np.ndarray, b: np.ndarray) -> list[list[np.ndarray]]:
+    """A B as nested lists [i][j] of (P,) rows (a full, generally unsymmetric matrix) for symmetric A, B (6, P)
+    (lists, not a stacked array: callers only index it, and stacking would copy)."""
+    return [[a[_SYM[i][0]] * b[_SYM[0][j]] + a[_SYM[i][1]] * b[_SYM[1][j]] + a[_SYM[i][2]] * b[_SYM[2][j]]
+             for j in range(3)] for i in range(3)]
 
 
 def sym_rotate_z(c: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -126,16 +120,16 @@ def sym_rotate_z(c: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
 _UPPER_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
-def full_sym_product(k: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """K S (3, 3, P) for full K (3, 3, P) and symmetric S (6, P)."""
-    return np.array([[k[i, 0] * s[_SYM[0][j]] + k[i, 1] * s[_SYM[1][j]] + k[i, 2] * s[_SYM[2][j]]
-                      for j in range(3)] for i in range(3)])
+def full_sym_product(k, s: np.ndarray) -> list[list[np.ndarray]]:
+    """K S as nested lists [i][j] of (P,) rows for a full K ([i][j] of (P,) rows) and symmetric S (6, P)."""
+    return [[k[i][0] * s[_SYM[0][j]] + k[i][1] * s[_SYM[1][j]] + k[i][2] * s[_SYM[2][j]] for j in range(3)]
+            for i in range(3)]
 
 
-def joseph_update(s: np.ndarray, k: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """(I − K) S (I − K)ᵀ + K R Kᵀ (6, P) for symmetric S, R (6, P) and a gain K (3, 3, P) (any K, not only the
-    optimal one), as S − KS − (KS)ᵀ + K (S + R) Kᵀ on the upper triangle, so the result is symmetric."""
+def joseph_update(s: np.ndarray, k, r: np.ndarray) -> np.ndarray:
+    """(I − K) S (I − K)ᵀ + K R Kᵀ (6, P) for symmetric S, R (6, P) and a gain K ([i][j] of (P,) rows; any K, not
+    only the optimal one), as S − KS − (KS)ᵀ + K (S + R) Kᵀ on the upper triangle, so the result is symmetric."""
     ks = full_sym_product(k, s)
     kb = full_sym_product(k, s + r)
-    return np.stack([s[_SYM[i][j]] - ks[i, j] - ks[j, i] + kb[i, 0] * k[j, 0] + kb[i, 1] * k[j, 1] + kb[i, 2] * k[j, 2]
-                     for i, j in _UPPER_PAIRS])
+    return np.stack([s[_SYM[i][j]] - ks[i][j] - ks[j][i] + kb[i][0] * k[j][0] + kb[i][1] * k[j][1]
+                     + kb[i][2] * k[j][2] for i, j in _UPPER_PAIRS])

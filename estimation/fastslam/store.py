@@ -163,7 +163,7 @@ class LandmarkStore:
         near = held & (dx * dx + dy * dy <= radius * radius)
         return np.nonzero(near)
 
-    def include_in_bbox(self, slots: np.ndarray) -> None:
+    def include_in_bbox(self, slots: np.ndarray, xy: np.ndarray | None = None) -> None:
         """Grow the bounding boxes of the blocks of flat ``slots`` (L,) to contain those landmarks' means.
 
         Cheaper than :meth:`refresh_bbox` after small EKF moves; boxes never shrink here, which only makes
@@ -172,7 +172,8 @@ class LandmarkStore:
         if len(slots) == 0:
             return
         blocks = slots // self.block_size
-        xy = self.flat_mean[slots, :2]
+        if xy is None:     # (L, 2) the landmarks' new positions, when the caller has them at hand
+            xy = self.flat_mean[slots, :2]
         box = self.bbox[blocks]
         outside = np.flatnonzero((xy[:, 0] < box[:, 0]) | (xy[:, 1] < box[:, 1]) | (xy[:, 0] > box[:, 2])
                                  | (xy[:, 1] > box[:, 3]))
