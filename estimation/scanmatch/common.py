@@ -99,10 +99,11 @@ def select_correspondences(distance: np.ndarray, config: MatchConfig, residual: 
     n_keep = int(np.count_nonzero(keep))
     n_trim = int(config.trim_fraction * n_keep)
     if n_trim > 0:
-        score = np.abs(distance if residual is None else residual)
-        gated = np.flatnonzero(keep)
-        worst = gated[np.argpartition(score[gated], n_keep - n_trim)[n_keep - n_trim:]]
-        keep[worst] = False
+        # The gated-out points score ∞, so the last N − n_keep + n_trim of the partition are exactly they and the
+        # n_trim worst gated ones (one partition of the whole array: fewer small-array steps than a subset's).
+        score = distance if residual is None else np.abs(residual)
+        score = np.where(keep, score, np.inf)
+        keep[np.argpartition(score, n_keep - n_trim)[n_keep - n_trim:]] = False
     return keep
 
 
@@ -140,21 +141,26 @@ def pose_jacobian(rotated: np.ndarray) -> np.ndarray:
     return jac
 
 
-def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-    """The least-squares x (3,) of jacobian (m, 3) · x ≈ residuals (m,); pseudo-inverse when ill-conditioned."""
-    normal = jacobian.T @ jacobian
-    rhs = jacobian.T @ residuals
-    # cond ≤ trace³ / det for a symmetric positive semi-definite 3×3: a cheap test before the plain solve.
-    (a, b, c), (_, d, e), (_, _, f) = normal.tolist()   # symmetric; Python floats beat np.linalg.det on 3×3
+def _solve_symmetric_3x3(normal: list, rhs: list) -> np.ndarray | None:
+    """x (3,) with normal x = rhs for a symmetric positive semi-definite 3×3 given as nested lists of floats,
+    or None when it is ill-conditioned.  Python floats: np.linalg.solve/det cost ~20 µs on a 3×3."""
+    (a, b, c), (_, d, e), (_, _, f) = normal   # symmetric
     trace = a + d + f
     # Cofactors of the symmetric matrix; the solve is adjugate · rhs / det (well conditioned past the test).
     ca, cb, cc = d * f - e * e, c * e - b * f, b * e - c * d
     det = a * ca + b * cb + c * cc
+    # cond ≤ trace³ / det for a symmetric positive semi-definite 3×3: a cheap test before the plain solve.
     if det > 1e-10 * trace ** 3:
         cd, ce, cf = a * f - c * c, b * c - a * e, a * d - b * b
-        r0, r1, r2 = rhs.tolist()
+        r0, r1, r2 = rhs
         return np.array([ca * r0 + cb * r1 + cc * r2, cb * r0 + cd * r1 + ce * r2, cc * r0 + ce * r1 + cf * r2]) / det
-    return np.linalg.lstsq(jacobian, residuals, rcond=None)[0]
+    return None
+
+
+def solve_normal_equations(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """The least-squares x (3,) of jacobian (m, 3) · x ≈ residuals (m,); pseudo-inverse when ill-conditioned."""
+    solution = _solve_symmetric_3x3((jacobian.T @ jacobian).tolist(), (jacobian.T @ residuals).tolist())
+    return np.linalg.lstsq(jacobian, residuals, rcond=None)[0] if solution is None else solution
 
 
 def least_squares_covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
@@ -261,20 +267,24 @@ def iterate(update, initial: np.ndarray, config: MatchConfig, tolerance_scale: f
     ``max_iterations``.
     """
     pose = np.asarray(initial, dtype=float).copy()
+    tolerance_translation = tolerance_scale * config.tolerance_translation
+    tolerance_rotation = tolerance_scale * config.tolerance_rotation
     history: list[tuple[float, float, float]] = []
+    here = tuple(pose.tolist())
     for iteration in range(1, config.max_iterations + 1):
         new = update(pose)
-        if new is None or not np.all(np.isfinite(new)):   # too few correspondences, or a degenerate solve
+        if new is None:   # too few correspondences
             return pose, iteration, False
-        step = new - pose
-        step[2] = wrap_angle(step[2])
-        pose = new
-        if pose_step_small(step, config, tolerance_scale):
+        x, y, theta = new.tolist()   # Python floats: a handful of scalar steps cost less than array ones
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):   # a degenerate solve
+            return pose, iteration, False
+        step = (x - here[0], y - here[1], (theta - here[2] + math.pi) % (2.0 * math.pi) - math.pi)
+        pose, here = new, (x, y, theta)
+        if math.hypot(step[0], step[1]) < tolerance_translation and abs(step[2]) < tolerance_rotation:
             return pose, iteration, True
         # The same kept set gives the same solve: a cycle returns to an earlier pose to rounding error.
         # (A converging run also comes back near earlier poses, but with steps that have become tiny.)
-        here = (float(pose[0]), float(pose[1]), float(pose[2]))
-        if max(abs(float(v)) for v in step) > 1e-6 and any(
+        if max(abs(step[0]), abs(step[1]), abs(step[2])) > 1e-6 and any(
                 max(abs(a - b) for a, b in zip(here, earlier, strict=True)) < 1e-9 for earlier in history[-4:-1]):
             return pose, iteration, False
         history.append(here)

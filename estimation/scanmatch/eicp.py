@@ -63,7 +63,7 @@ from estimation.scanmatch.common import (
     solve_normal_equations,
     truncated_cost,
 )
-from estimation.scanmatch.polyline import NearestVertexCache, Polyline, Projection
+from estimation.scanmatch.polyline import NearestVertexCache, Polyline
 from estimation.scanmatch.scan import Scan2D
 
 _MAX_HALVINGS = 6
@@ -77,17 +77,55 @@ def eicp_cost(reference: Scan2D, current: Scan2D, pose, config: MatchConfig | No
     return float(np.sum(projection.distance[keep] ** 2))
 
 
-def _curve_rows(pose: np.ndarray, source: np.ndarray, projection: Projection, keep: np.ndarray):
-    """Residuals (n,) and their pose Jacobian (n, 3) with λ eliminated (the Schur complement rows).
+class _OnCurve:
+    """The current scan's points projected on the reference curve at one pose, warm-started from the last pose.
 
-    Row i is u_iᵀ ∂(R p_i + t)/∂ξ with u_i the unit direction from the curve to the moved point (the curve
-    normal inside a segment, the radial direction where λ_i sits at a bound).
+    rotated: (N,) complex R(θ) p; distance: (N,) to the curve; offset: (N,) complex, moved point minus its curve
+    point; flat: (N,) int, the chosen candidate segments (see :meth:`Polyline.project_complex`).  Points are
+    complex x + iy throughout: fewer, bigger array operations, which is what an iteration costs.
     """
-    rotated = rotate(pose[2], source[keep])
-    u = projection.normal[keep]
-    residuals = projection.distance[keep]   # = u_iᵀ (R p_i + t − C(λ_i)), since u_i points from C(λ_i) to it
-    jacobian = np.column_stack([u[:, 0], u[:, 1], u[:, 1] * rotated[:, 0] - u[:, 0] * rotated[:, 1]])
-    return residuals, jacobian
+
+    def __init__(self, curve: Polyline, points: np.ndarray) -> None:
+        self.curve = curve
+        self.points = np.ascontiguousarray(points, dtype=float)   # (N, 2)
+        self.cache = NearestVertexCache()
+        self.pose: tuple[float, float, float] | None = None
+
+    def at(self, pose: np.ndarray) -> _OnCurve:
+        """Project at pose (3,); the same pose twice in a row costs nothing (an accepted trial is the next start)."""
+        key = tuple(pose.tolist())
+        if key != self.pose:
+            # The same arithmetic as apply_pose (a 2×2 matmul), so that results do not move by rounding.
+            self.rotated = rotate(pose[2], self.points)                                     # (N, 2)
+            self.moved = (self.rotated + pose[:2]).view(np.complex128)[:, 0]
+            self.distance, self.offset, self.flat, self.along = self.curve.project_complex(self.moved, self.cache)
+            self.pose = key
+        return self
+
+    def point(self) -> np.ndarray:
+        """(N, 2) the curve points the moved points are associated with."""
+        return (self.moved - self.offset).view(np.float64).reshape(-1, 2)
+
+    def rows(self, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pose Jacobian (n, 3) with λ eliminated and residuals (n,) of the kept correspondences.
+
+        Jacobian row i is u_iᵀ ∂(R p_i + t)/∂ξ = (u_x, u_y, u_y (R p_i)_x − u_x (R p_i)_y) with u_i the unit
+        direction from the curve to the moved point (the curve normal inside a segment, the radial direction where
+        λ_i sits at a bound); the residual is the distance, = u_iᵀ (R p_i + t − C(λ_i)).
+        """
+        distance = self.distance.compress(keep)
+        residual = self.offset.compress(keep).view(np.float64).reshape(-1, 2)
+        on_curve = distance <= 1e-12
+        # Float division (not complex by real, which multiplies by the reciprocal): results stay bit-identical.
+        unit = residual / np.where(on_curve, 1.0, distance)[:, None]
+        if on_curve.any():   # no direction to the curve: the segment normal
+            normal = self.curve.candidate_normal(self.cache, self.flat.compress(keep)[on_curve])
+            unit[on_curve] = normal.view(np.float64).reshape(-1, 2)
+        rotated = self.rotated.compress(keep, axis=0)
+        jacobian = np.empty((distance.shape[0], 3))
+        jacobian[:, :2] = unit
+        jacobian[:, 2] = unit[:, 1] * rotated[:, 0] - unit[:, 0] * rotated[:, 1]
+        return jacobian, distance
 
 
 def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
@@ -95,47 +133,36 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
     curve = Polyline(reference, config.gap)
     source = current.points
     minimum = max(config.min_correspondences, 3)
-
-    # The projection at an accepted trial pose is the next iteration's starting projection: keep it.
-    last = {"pose": None, "projection": None}
-    warm_start = NearestVertexCache()   # the points move little between projections: skip most tree queries
-
-    def project(pose):
-        if last["pose"] is not None and np.array_equal(last["pose"], pose):
-            return last["projection"]
-        projection = curve.project(apply_pose(pose, source), warm_start)
-        last["pose"], last["projection"] = pose, projection
-        return projection
+    on_curve = _OnCurve(curve, source)
 
     def gauss_newton(pose):
-        projection = project(pose)
-        keep = select_correspondences(projection.distance, config)
+        here = on_curve.at(pose)
+        keep = select_correspondences(here.distance, config)
         if np.count_nonzero(keep) < minimum:
             return None
-        residuals, jacobian = _curve_rows(pose, source, projection, keep)
-        step = -solve_normal_equations(jacobian, residuals)
+        step = -solve_normal_equations(*here.rows(keep))
         if pose_step_small(step, config, scale):
             return pose + step   # below the tolerance: the stopping rule ends here, no line search needed
         # Accept the step when it lowers the truncated cost of the correspondences it was computed for.
-        cost = truncated_cost(projection.distance[keep], config)
+        cost = truncated_cost(here.distance.compress(keep), config)
         for _ in range(_MAX_HALVINGS):
             trial = pose + step
-            if truncated_cost(project(trial).distance[keep], config) <= cost:
+            if truncated_cost(on_curve.at(trial).distance.compress(keep), config) <= cost:
                 return trial
             step = step / 2.0
         return pose   # no descent along the Gauss-Newton direction: a minimum of the truncated cost
 
     def alternating(pose):
-        projection = project(pose)
-        keep = select_correspondences(projection.distance, config)
+        here = on_curve.at(pose)
+        keep = select_correspondences(here.distance, config)
         if np.count_nonzero(keep) < minimum:
             return None
-        return procrustes(source[keep], projection.point[keep])
+        return procrustes(source[keep], here.point()[keep])
 
     newton = config.eicp_solver == "gauss-newton"
     scale = config.gauss_newton_tolerance_scale if newton else 1.0
     pose, iterations, tolerance_met = iterate(gauss_newton if newton else alternating, initial, config, scale)
-    return _finish_on_curve("eicp", project(pose), source, pose, iterations, tolerance_met, config)
+    return _finish_on_curve("eicp", on_curve, pose, iterations, tolerance_met, config)
 
 
 def match_eicp_mesh(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
@@ -168,11 +195,10 @@ def match_eicp_mesh(reference: Scan2D, current: Scan2D, initial: np.ndarray, con
         return procrustes(points, targets(shift))
 
     pose, iterations, tolerance_met = iterate(update, initial, config)
-    projection = curve.project(apply_pose(pose, source))
-    return _finish_on_curve("eicp-mesh", projection, source, pose, iterations, tolerance_met, config)
+    return _finish_on_curve("eicp-mesh", _OnCurve(curve, source), pose, iterations, tolerance_met, config)
 
 
-def _finish_on_curve(method, projection, source, pose, iterations, tolerance_met, config) -> MatchResult:
-    keep = select_correspondences(projection.distance, config)
-    residuals, jacobian = _curve_rows(pose, source, projection, keep)
+def _finish_on_curve(method, on_curve: _OnCurve, pose, iterations, tolerance_met, config) -> MatchResult:
+    keep = select_correspondences(on_curve.at(pose).distance, config)
+    jacobian, residuals = on_curve.rows(keep)
     return finish(method, pose, iterations, tolerance_met, jacobian, residuals, int(np.count_nonzero(keep)), config)

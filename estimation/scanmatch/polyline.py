@@ -9,13 +9,11 @@ Projection (the closed-form optimum of λ for a given point) uses the 2 nearest 
 segments adjacent to them.  That is exact whenever the closest segment has one of those vertices as an
 end; with segments no longer than ``gap`` this holds for every point within the matcher's gate in practice.
 
-Warm start.  An iterative matcher projects the same points again and again while they move by millimetres, and
-the k-d tree query is half of a projection's cost.  :class:`NearestVertexCache` keeps, per point, the
-``_CACHED_VERTICES`` nearest vertices found by the last tree query at an anchor position and the distance r to
-the farthest of them (every other vertex is at least r from the anchor).  A point that has since moved by δ
-has every other vertex at least r − δ away, so if its two nearest cached vertices are closer than that they
-are exactly the two nearest vertices the tree would return; only the points failing that test are queried
-again.  The result is the same as a fresh query (up to the order of exact ties).
+Warm start.  An iterative matcher projects the same points again and again while they move by millimetres.
+:class:`NearestVertexCache` keeps, per point, the 2 nearest vertices and the data of their 4 candidate segments;
+the nearest vertices are tracked by :class:`estimation.scanmatch.nearest.WarmNearest`, which re-queries the k-d
+tree only for the points whose 2 nearest vertices could have changed, and only those points' segment data are
+gathered again.  The result is exactly that of a projection without the cache.
 """
 from __future__ import annotations
 
@@ -25,11 +23,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from estimation.scanmatch.errors import ScanMatchError
+from estimation.scanmatch.nearest import WarmNearest
 from estimation.scanmatch.scan import Scan2D
 
 _PIECE_SPACING = 1.0  # metres of arc length left empty between pieces (any positive value works)
 _NEAREST_VERTICES = 2
-_CACHED_VERTICES = 6  # vertices remembered per point by NearestVertexCache (>= _NEAREST_VERTICES)
+_CANDIDATES = 2 * _NEAREST_VERTICES   # segment slots per query: before and after each nearest vertex
+_FIRST_QUERY = 6  # vertices the first tree query asks for (see WarmNearest: the order of exact ties)
 
 
 @dataclass(frozen=True)
@@ -52,17 +52,17 @@ class Projection:
 
 
 class NearestVertexCache:
-    """Per-point memory of the last k-d tree query, for :meth:`Polyline.project` (see the module docstring).
+    """Warm start for repeated :meth:`Polyline.project` calls on the same N moving points (see the module docstring).
 
     Valid for one fixed set of N points (the i-th query is always the i-th point of the same scan) and one
-    Polyline.  anchor: (N, 2) query position of the last tree query; candidates: (N, K) its K nearest vertices;
-    radius: (N,) distance from the anchor to the K-th of them (∞ when the curve has no more than K vertices).
+    Polyline.  Per point: its 2 nearest vertices (``nearest.nearest``, (N, 2)) and the data of their 4 candidate
+    segment slots (N, 4, 4) complex: slot start x + iy, unit direction, its conjugate, length + i·slot index.
     """
 
     def __init__(self) -> None:
-        self.anchor: np.ndarray | None = None
-        self.candidates: np.ndarray | None = None
-        self.radius: np.ndarray | None = None
+        self.nearest: WarmNearest | None = None
+        self.candidates: np.ndarray | None = None     # (N, 4, 4) complex
+        self.first_of_row: np.ndarray | None = None   # (N,) int, 4 i: flat index of each row's first candidate
 
 
 class Polyline:
@@ -78,103 +78,118 @@ class Polyline:
             raise ScanMatchError(f"a reference scan needs at least 2 points, got {len(scan)}")
         self.vertices = scan.points                                   # (M, 2)
         m = self.vertices.shape[0]
+        vertex_complex = np.ascontiguousarray(self.vertices).view(np.complex128)[:, 0]  # (M,) x + iy
         step = np.diff(self.vertices, axis=0)                          # (M-1, 2)
         length = np.hypot(step[:, 0], step[:, 1])                      # (M-1,)
+        # Unit direction to the next vertex, x + iy (float division: bit-identical to the earlier formulation).
+        unit = (step / np.where(length > 0.0, length, 1.0)[:, None]).view(np.complex128)[:, 0]
         # Segment k joins vertex k to k+1; it exists unless the pair is a gap or straddles a dropout.
         self.segment_valid = (length <= gap) & (np.diff(scan.beam_index) == 1) & (length > 0.0)
-        direction = step / np.where(length > 0.0, length, 1.0)[:, None]
         arc_step = np.where(self.segment_valid, length, _PIECE_SPACING)
-        self.arc = np.concatenate([[0.0], np.cumsum(arc_step)])        # (M,) λ of every vertex
-        piece = np.concatenate([[0], np.cumsum(~self.segment_valid)])  # (M,) piece id of every vertex
-        first = np.flatnonzero(np.r_[True, np.diff(piece) != 0])
+        self.arc = np.zeros(m)                                         # (M,) λ of every vertex
+        np.cumsum(arc_step, out=self.arc[1:])
+        piece = np.zeros(m, dtype=np.intp)                             # (M,) piece id of every vertex
+        np.cumsum(~self.segment_valid, out=piece[1:])
+        first = np.flatnonzero(np.r_[True, ~self.segment_valid])
         last = np.r_[first[1:] - 1, m - 1]
         self.piece_of_vertex = piece
         self.piece_start = self.arc[first]                              # (P,) λ range of each piece
         self.piece_end = self.arc[last]
-        # Segment slots (M+1): slot v+1 starts at vertex v (slot 0 is padding on vertex 0).
-        slot_start = np.concatenate([self.vertices[:1], self.vertices])
-        valid = np.concatenate([[False], self.segment_valid, [False]])
-        slot_direction = np.zeros((m + 1, 2))
-        slot_direction[1:m] = direction
-        self._slot_start = slot_start                                   # (M+1, 2)
-        self._slot_length = np.where(valid, np.r_[0.0, length, 0.0], 0.0)
-        self._slot_direction = np.where(valid[:, None], slot_direction, 0.0)
-        self._slot_normal = np.column_stack([-slot_direction[:, 1], slot_direction[:, 0]])
-        self._slot_arc = np.concatenate([self.arc[:1], self.arc])
-        self._slot_start_complex = self._slot_start[:, 0] + 1j * self._slot_start[:, 1]              # (M+1,)
-        self._slot_direction_complex = self._slot_direction[:, 0] + 1j * self._slot_direction[:, 1]  # (M+1,)
+        # Segment slots (M+1): slot v+1 starts at vertex v (slot 0 is padding on vertex 0); invalid ones have
+        # zero length and zero direction.
+        valid_length = np.where(self.segment_valid, length, 0.0)
+        self._slot_length = np.zeros(m + 1)
+        self._slot_length[1:m] = valid_length
+        self._slot_direction_complex = np.zeros(m + 1, dtype=np.complex128)
+        self._slot_direction_complex[1:m] = np.where(self.segment_valid, unit, 0.0)
+        self._slot_start_complex = np.empty(m + 1, dtype=np.complex128)
+        self._slot_start_complex[0] = vertex_complex[0]
+        self._slot_start_complex[1:] = vertex_complex
+        # The normal of a slot is kept even where the segment is not valid (the direction to the next vertex).
+        slot_unit = np.zeros(m + 1, dtype=np.complex128)
+        slot_unit[1:m] = unit
+        self._slot_normal = (1j * slot_unit).view(np.float64).reshape(m + 1, 2)  # (M+1, 2) direction turned +90°
+        self._slot_arc = np.empty(m + 1)
+        self._slot_arc[0] = 0.0
+        self._slot_arc[1:] = self.arc
         self._tree = cKDTree(self.vertices)
-        self._vertex_complex = np.ascontiguousarray(self.vertices, dtype=float).view(np.complex128)[:, 0]  # (M,)
+        self._vertex_complex = vertex_complex
+        # Per vertex v, its two candidate slots v and v+1 with what a projection needs of each: (M, 2, 4) complex
+        # start, direction, conjugate direction, length + i·slot.  One gather fetches a point's candidates.
+        slot = np.arange(m + 1)
+        table = np.column_stack([self._slot_start_complex, self._slot_direction_complex,
+                                 self._slot_direction_complex.conjugate(), self._slot_length + 1j * slot])
+        self._candidate_table = np.stack([table[:-1], table[1:]], axis=1)
+
+    @property
+    def _slot_start(self) -> np.ndarray:
+        return self._slot_start_complex.view(np.float64).reshape(-1, 2)
+
+    @property
+    def _slot_direction(self) -> np.ndarray:
+        return self._slot_direction_complex.view(np.float64).reshape(-1, 2)
 
     @property
     def n_segments(self) -> int:
         return int(np.count_nonzero(self.segment_valid))
 
+    def new_cache(self) -> NearestVertexCache:
+        """An empty warm start for this curve (the same as ``NearestVertexCache()``)."""
+        return NearestVertexCache()
+
     def project(self, queries: np.ndarray, cache: NearestVertexCache | None = None) -> Projection:
         """Closest curve point of each query.  queries: (N, 2); cache: warm start for repeated queries of the
         same N points (updated in place; the result is the same as without it)."""
-        queries = np.asarray(queries, dtype=float)
+        queries = np.ascontiguousarray(queries, dtype=float)
         n = queries.shape[0]
-        nearest = self._nearest_vertices(queries) if cache is None else self._nearest_cached(queries, cache)
-        # Candidate slots: the segment ending at (slot v) and the one starting at (slot v+1) each near vertex.
-        slot = np.concatenate([nearest, nearest + 1], axis=1)              # (N, 2k)
-        # Points as complex x + iy: fewer (and bigger) array operations, which is what a projection costs.
-        offset = np.ascontiguousarray(queries).view(np.complex128) - self._slot_start_complex[slot]  # (N, 2k)
-        direction = self._slot_direction_complex[slot]
-        along = np.clip((offset * direction.conjugate()).real, 0.0, self._slot_length[slot])
-        offset -= along * direction                                         # query minus candidate foot
-        dist = np.abs(offset)
-        flat = np.arange(n) * slot.shape[1] + np.argmin(dist, axis=1)
-        best_slot = slot.ravel()[flat]
-        residual = offset.ravel()[flat].view(float).reshape(n, 2)
-        distance = dist.ravel()[flat]
+        cache = NearestVertexCache() if cache is None else cache
+        distance, offset, flat, along = self.project_complex(queries.view(np.complex128)[:, 0], cache)
+        best_slot = cache.candidates[:, :, 3].imag.ravel()[flat].astype(np.intp)
+        residual = offset.view(np.float64).reshape(n, 2)
         # Unit direction from the curve to the query; on the curve itself, the segment normal.
         on_curve = distance <= 1e-12
         normal = residual / np.where(on_curve, 1.0, distance)[:, None]
         if on_curve.any():
             normal[on_curve] = self._slot_normal[best_slot[on_curve]]
+        pair = cache.nearest.nearest   # the 2 nearest vertices (a Polyline has at least 2)
+        to_pair = np.abs(queries.view(np.complex128) - self._vertex_complex[pair])
+        vertex = np.where(to_pair[:, 1] < to_pair[:, 0], pair[:, 1], pair[:, 0])
         return Projection(queries - residual, self._slot_arc[best_slot] + along.ravel()[flat], distance, normal,
-                          nearest[:, 0])
+                          vertex)
 
-    def _nearest_vertices(self, queries: np.ndarray) -> np.ndarray:
-        """The nearest vertices (N, k) of queries (N, 2), closest first, k = min(2, M)."""
-        k = min(_NEAREST_VERTICES, self.vertices.shape[0])
-        _, nearest = self._tree.query(queries, k=k)
-        return nearest.reshape(queries.shape[0], k)
+    def project_complex(self, queries: np.ndarray, cache: NearestVertexCache
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The lean projection an iterative matcher calls: queries (N,) complex x + iy, cache updated in place.
 
-    def _nearest_cached(self, queries: np.ndarray, cache: NearestVertexCache) -> np.ndarray:
-        """As :meth:`_nearest_vertices`, re-querying the tree only where the cache cannot vouch for the result."""
-        m = self.vertices.shape[0]
-        if m <= _NEAREST_VERTICES:
-            return self._nearest_vertices(queries)
+        Returns distance (N,), offset (N,) complex (query minus its closest curve point), flat (N,) int index of
+        the chosen candidate among the (N, 4) candidates and along (N, 4) each candidate's foot (m from its start).
+        """
         n = queries.shape[0]
-        if cache.anchor is None or cache.anchor.shape[0] != n:
-            cache.anchor = queries.copy()
-            cache.candidates = np.empty((n, min(_CACHED_VERTICES, m)), dtype=np.intp)
-            cache.radius = np.empty(n)
-            stale = np.arange(n)
-        else:
-            # Complex x + iy: one subtraction and one abs per distance instead of a handful of array ops.
-            here = np.ascontiguousarray(queries).view(np.complex128)               # (N, 1)
-            distance = np.abs(self._vertex_complex[cache.candidates] - here)      # (N, K)
-            order = np.argpartition(distance, 1, axis=1)[:, :_NEAREST_VERTICES]  # two smallest, closest first
-            rows = np.arange(n)[:, None]
-            bound = cache.radius - np.abs(here[:, 0] - cache.anchor.view(np.complex128)[:, 0])
-            # Strict: a vertex outside the cache at exactly the bound could tie with the second nearest.
-            fresh = distance[rows[:, 0], order[:, 1]] < bound
-            stale = np.flatnonzero(~fresh)
-            nearest = cache.candidates[rows, order]
-            if stale.size == 0:
-                return nearest
-        k = cache.candidates.shape[1]
-        distance, index = self._tree.query(queries[stale], k=k)
-        cache.anchor[stale] = queries[stale]
-        cache.candidates[stale] = index
-        cache.radius[stale] = distance[:, -1] if k < m else np.inf
-        if stale.size == n:
-            return index[:, :_NEAREST_VERTICES].copy()
-        nearest[stale] = index[:, :_NEAREST_VERTICES]
-        return nearest
+        if cache.nearest is None or cache.nearest.tree is not self._tree or cache.candidates.shape[0] != n:
+            cache.nearest = WarmNearest(self._tree, _NEAREST_VERTICES, first_query=_FIRST_QUERY)
+            cache.candidates = np.empty((n, _CANDIDATES, 4), dtype=np.complex128)
+            cache.first_of_row = _CANDIDATES * np.arange(n)
+        stale = cache.nearest.update(queries)
+        if stale.size:   # candidates: the segment ending at (slot v) and the one starting at (slot v+1) each vertex
+            # Ordered [v0, v1, v0+1, v1+1] (v0 the nearest): argmin breaks exact ties as a cold projection does.
+            gathered = self._candidate_table[cache.nearest.nearest[stale]]                   # (s, vertex, slot, 4)
+            cache.candidates[stale] = gathered.transpose(0, 2, 1, 3).reshape(-1, _CANDIDATES, 4)
+        candidates = cache.candidates
+        # Points as complex x + iy: fewer (and bigger) array operations, which is what a projection costs.
+        offset = queries[:, None] - candidates[:, :, 0]                         # (N, 4)
+        along = (offset * candidates[:, :, 2]).real                             # a view: clipped in place
+        np.maximum(along, 0.0, out=along)
+        np.minimum(along, candidates[:, :, 3].real, out=along)
+        offset -= along * candidates[:, :, 1]                                   # query minus candidate foot
+        dist = np.abs(offset)
+        flat = cache.first_of_row + dist.argmin(axis=1)
+        return dist.ravel()[flat], offset.ravel()[flat], flat, along
+
+    def candidate_normal(self, cache: NearestVertexCache, flat: np.ndarray) -> np.ndarray:
+        """Unit normals (n,) complex of the candidate segments at the flat indices (n,) :meth:`project_complex`
+        returned: the direction from a curve point to a query that lies on the curve itself."""
+        slot = cache.candidates[:, :, 3].imag.ravel()[flat].astype(np.intp)
+        return self._slot_normal.view(np.complex128)[slot, 0]
 
     def clamp_to_piece(self, arc: np.ndarray, piece: np.ndarray) -> np.ndarray:
         """Arc lengths (N,) clamped to the λ range of the given pieces (N,) int."""

@@ -1,0 +1,70 @@
+"""The k nearest reference points of query points that move a little between calls, with few k-d tree queries.
+
+An iterative matcher asks for the nearest reference points of the same N current-scan points at every iteration,
+while they move by millimetres.  :class:`WarmNearest` remembers, per point, the position of its last tree query
+(the anchor), the k nearest found there and the distances d_k of the k-th and d_{k+1} of the (k+1)-th: every
+other reference point was at least d_{k+1} away.  After the point has moved by δ from its anchor, the k are at
+most d_k + δ away and every other point at least d_{k+1} − δ, so while δ < (d_{k+1} − d_k) / 2 — the point's
+*margin* — they are still exactly the k nearest, as a set.  Only the points past their margin are queried again,
+so the answer is exactly a fresh tree query's as a set.  The k are kept in the order of their last tree query
+(closest first there): the order only matters to break exact ties, and a cold query breaks them the same way.
+
+Checking every point's margin is two array operations; a tree query costs a fixed ~15 µs plus ~0.5 µs a point.
+Points near a tie (the k-th and (k+1)-th nearly equidistant) have a small margin and are queried again often, but
+they are few once the pose has settled.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+_NO_ROWS = np.empty(0, dtype=np.intp)
+
+
+class WarmNearest:
+    """The k nearest of M reference points for N query points that keep their identity between calls.
+
+    tree: a k-d tree over the M reference points.  After :meth:`update`, ``nearest`` (N, k) int holds each
+    query's k nearest reference points, closest first as of their last tree query (k = min(k, M)).
+    """
+
+    def __init__(self, tree: cKDTree, k: int, first_query: int = 0) -> None:
+        self.tree = tree
+        self.k = min(k, tree.n)
+        self._query_k = min(k + 1, tree.n)   # one more than asked: its distance bounds every other point's
+        # The first query may ask for more: a k-d tree orders exactly equidistant points differently for different
+        # query sizes, and the first query (at the initial pose) is where such ties occur — identical readings of
+        # two scans seen from the identity.  Matching the earlier implementation's 6 keeps results bit-identical.
+        self._first_query_k = min(max(first_query, k + 1), tree.n)
+        self.nearest: np.ndarray | None = None   # (N, k) int
+        self._anchor: np.ndarray | None = None   # (N,) complex x + iy of each point's last tree query
+        self._margin: np.ndarray | None = None   # (N,) how far the point may move from its anchor (m)
+
+    def update(self, queries: np.ndarray) -> np.ndarray:
+        """Bring ``nearest`` up to date for the query points (N,) complex x + iy; returns the rows queried again
+        (a superset of those whose k nearest changed)."""
+        n = queries.shape[0]
+        if self._anchor is None or self._anchor.shape[0] != n:
+            self.nearest = np.empty((n, self.k), dtype=np.intp)
+            self._anchor = np.empty(n, dtype=np.complex128)
+            self._margin = np.empty(n)
+            stale = np.arange(n)
+            self._query(stale, queries, self._first_query_k)
+            return stale
+        stale = np.flatnonzero(np.abs(queries - self._anchor) >= self._margin)
+        if stale.size == 0:
+            return _NO_ROWS
+        self._query(stale, queries[stale], self._query_k)
+        return stale
+
+    def _query(self, rows: np.ndarray, queries: np.ndarray, count: int) -> None:
+        k = self.k
+        points = np.ascontiguousarray(queries).view(np.float64).reshape(-1, 2)
+        distance, index = self.tree.query(points, k=count)
+        distance, index = distance.reshape(-1, count), index.reshape(-1, count)
+        self._anchor[rows] = queries
+        if count > k:
+            self._margin[rows] = 0.5 * (distance[:, k] - distance[:, k - 1])
+        else:   # every reference point is among the k nearest: nothing can overtake them
+            self._margin[rows] = np.inf
+        self.nearest[rows] = index[:, :k]
