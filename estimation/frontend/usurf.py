@@ -34,6 +34,7 @@ SAMPLES_PER_AXIS = 20  # 4 subregions × 5 samples
 SUBREGIONS = 4
 DESCRIPTOR_SIZE = 64
 GAUSSIAN_SIGMA_IN_SCALES = 3.3
+LATTICE_BATCH = 256  # keypoints per batch of the lattice path
 
 
 def haar_half_size(scale: float) -> int:
@@ -152,10 +153,16 @@ def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.nda
     counts = [len(k) for k in keypoints]
     cols, rows, inside = sample_corners(np.concatenate(keypoints), scale, half, integrals.shape[1:])
     plane = np.repeat(np.arange(len(images)), counts)[inside]  # which image each described keypoint is in
-    responses = response_buffer(len(cols), buffers)
     if float(scale) == half and lattice_aligned(cols, rows, half):
-        lattice_haar_responses(integrals, cols[:, 0], rows[:, 0], half, responses, buffers, plane)
+        # in batches, so that the keypoint-last work arrays stay in the cache (twice the keypoints took 3× as long)
+        sums = np.zeros((len(cols), DESCRIPTOR_SIZE), np.float32)
+        for start in range(0, len(cols), LATTICE_BATCH):
+            batch = slice(start, start + LATTICE_BATCH)
+            responses = response_buffer(len(cols[batch]), buffers)
+            lattice_haar_responses(integrals, cols[batch, 0], rows[batch, 0], half, responses, buffers, plane[batch])
+            sums[batch] = pooled_sums(responses, scale)
     else:  # a non-integer scale: its samples are not on a lattice of the wavelet's half side
+        responses = response_buffer(len(cols), buffers)
         for index, integral in enumerate(integrals):
             mine = plane == index
             if not mine.any():
@@ -164,7 +171,8 @@ def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.nda
             part = gather_haar_responses(dx_img, dy_img, cols[mine], rows[mine], response_buffer(mine.sum()),
                                          buffers)
             responses[..., mine] = part
-    descriptors, described = pool_descriptors(responses, inside, scale)
+        sums = pooled_sums(responses, scale)
+    descriptors, described = normalised(sums, inside)
     split = np.cumsum(counts)[:-1]
     described_per_image = np.split(described, split)
     first_descriptor = np.cumsum([d.sum() for d in described_per_image])[:-1]
@@ -281,13 +289,13 @@ def subregion_weights(scale: float) -> np.ndarray:
     return weights
 
 
-def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Gaussian-weighted subregion sums of the samples' responses -> unit descriptors.
+def pooled_sums(responses: np.ndarray, scale: float) -> np.ndarray:
+    """Gaussian-weighted subregion sums (M, 64) float32 of the samples' responses.
 
-    responses: (20, 4, 20, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here);
-    inside: (N,) which keypoints the M columns belong to. Returns (descriptors (K, 64) float32, described (N,) bool).
-    The weights are separable, so the sums are two small matrix products (over sample rows, then columns)
-    rather than one with the 400 × 16 pooling matrix, whose entries are 15/16 zero.
+    responses: (20, 4, 20, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here).
+    Row-major subregions (i, j), each (Σdx, Σdy, Σ|dx|, Σ|dy|). The weights are separable, so the sums are two
+    small matrix products (over sample rows, then columns) rather than one with the 400 × 16 pooling matrix,
+    whose entries are 15/16 zero.
     """
     k, m = SAMPLES_PER_AXIS, responses.shape[3]
     np.abs(responses[:, :2], out=responses[:, 2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|
@@ -295,13 +303,22 @@ def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) ->
     rows_pooled = weights @ responses.reshape(k, -1)  # (4 i, 4 values · 20 columns · M)
     by_column = np.ascontiguousarray(rows_pooled.reshape(SUBREGIONS * 4, k, m).transpose(1, 0, 2)).reshape(k, -1)
     sums = weights @ by_column  # (4 j, 4 i · 4 values · M)
-    # -> per keypoint, subregion (i, j) row-major, (Σdx, Σdy, Σ|dx|, Σ|dy|)
-    sums = sums.reshape(SUBREGIONS, SUBREGIONS, 4, m).transpose(3, 1, 0, 2).reshape(m, DESCRIPTOR_SIZE)
+    return sums.reshape(SUBREGIONS, SUBREGIONS, 4, m).transpose(3, 1, 0, 2).reshape(m, DESCRIPTOR_SIZE)
+
+
+def normalised(sums: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit descriptors (K, 64) float32 of the sums (M, 64) of the keypoints ``inside`` (N,) bool marks, and
+    described (N,): inside and not perfectly flat (a zero vector has no direction)."""
     norms = np.linalg.norm(sums, axis=1)
     textured = norms > 0
     described = inside.copy()
     described[inside] = textured
     return (sums[textured] / norms[textured, None]).astype(np.float32), described
+
+
+def pool_descriptors(responses: np.ndarray, inside: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``normalised(pooled_sums(responses, scale), inside)``: (descriptors (K, 64) float32, described (N,))."""
+    return normalised(pooled_sums(responses, scale), inside)
 
 
 def usurf_from_haar(dx_img: np.ndarray, dy_img: np.ndarray, keypoints: np.ndarray, scale: float,
