@@ -29,7 +29,8 @@ class FastSLAMConfig:
     descriptor_threshold: float = 0.5             # max Euclidean distance between unit descriptors (paper's th)
     observation_var_floor: float = 0.02 ** 2      # m² added to each observation covariance (model error)
     refresh_descriptors: bool = False             # a landmark's descriptor follows its latest match (best particle)
-    max_observations: int = 40                    # per frame, keep only this many (most precise first); 0: all
+    max_observations: int = 40                    # per frame, keep only this many (see selection.py); 0: all
+    observation_selection: str = "nearest"        # which: "nearest" (most precise) or "spread" (bearing × depth)
     # -- sensor footprint: landmark preselection and negative evidence --------------------------------------
     sensor_offset: tuple[float, float, float] = (0.12, 0.0, 0.50)  # head in base_link, metres
     fov_horizontal: float = _HFOV                 # rad; ≥ 2π means all round (range-bearing sensors)
@@ -52,6 +53,8 @@ class FastSLAMConfig:
             raise ValueError(f"version must be 1 or 2, not {self.version}")
         if self.block_size < 1 or self.descriptor_size < 0:
             raise ValueError("block_size must be ≥ 1 and descriptor_size ≥ 0")
+        if self.observation_selection not in ("spread", "nearest"):
+            raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

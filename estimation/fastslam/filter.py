@@ -11,7 +11,7 @@ Observation model (stereo point in base_link, REP-103): with R = R_z(θ) and t =
 
 One update (:meth:`FastSLAM.update`) reads as numbered steps:
 
-0. With ``max_observations`` > 0, keep only that many observations, the most precise (smallest covariance trace).
+0. With ``max_observations`` > 0, keep only that many observations, spread over the image and over depth.
 1. Preselect, per particle, the landmark blocks whose bounding box meets the sensor's footprint (no scan of
    the whole map), then join observations to those landmarks by descriptor distance < ``descriptor_threshold``
    and an exact spatial bound decided once per landmark id.
@@ -63,6 +63,7 @@ from .linalg import (
 )
 from .motion import increment_variance, propagate_covariance, sample_motion
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
+from .selection import select_observations
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
@@ -169,15 +170,16 @@ class FastSLAM:
     def update(self, observations: StereoObservations) -> UpdateReport:
         """Incorporate one frame of 3-D point observations in base_link (see the module docstring).
 
-        With ``max_observations`` > 0, only that many observations are used: the most precise (smallest
-        covariance trace, i.e. the nearest); the report's per-observation arrays still have one entry per
-        given observation (-1 for those left out).
+        With ``max_observations`` > 0, only that many observations are used, chosen by
+        ``observation_selection`` (see :mod:`estimation.fastslam.selection`); the report's per-observation
+        arrays still have one entry per given observation (-1 for those left out).
         """
-        cap, n_given = self.config.max_observations, len(observations)
+        cfg = self.config
+        cap, n_given = cfg.max_observations, len(observations)
         if cap <= 0 or n_given <= cap:
             return self._update(observations)
-        trace = np.trace(np.asarray(observations.covariances, float), axis1=1, axis2=2)
-        keep = np.sort(np.argsort(trace, kind="stable")[:cap])
+        keep = select_observations(observations.points, observations.covariances, cap, cfg.observation_selection,
+                                   cfg.sensor_offset, cfg.fov_horizontal)
         pixels = observations.pixels[keep] if len(observations.pixels) else observations.pixels
         report = self._update(StereoObservations(
             observations.points[keep], observations.covariances[keep], observations.descriptors[keep], pixels,

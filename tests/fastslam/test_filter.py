@@ -224,3 +224,23 @@ def test_observation_cap_keeps_the_most_precise():
     assert used.tolist() == [1, 3, 5]                         # σ = 0.01, 0.02, 0.03
     assert np.all(report.best_matches == -1)
     assert len(_landmark_ids(slam)) == 3
+
+
+def test_spread_selection_keeps_far_and_wide_observations():
+    from estimation.fastslam.selection import select_observations
+
+    rng = np.random.default_rng(3)
+    # 60 points: 40 near (1.5–3 m) and 20 far (7–11 m), bearings across ±25°; the near ones are the most precise
+    depth = np.r_[rng.uniform(1.5, 3.0, 40), rng.uniform(7.0, 11.0, 20)]
+    bearing = rng.uniform(-0.45, 0.45, 60)
+    points = np.column_stack([depth * np.cos(bearing), depth * np.sin(bearing), np.full(60, 1.0)])
+    cov = np.array([np.eye(3) * (0.01 * d) ** 2 for d in depth])
+    nearest = select_observations(points, cov, 30, "nearest")
+    spread = select_observations(points, cov, 30, "spread", (0.12, 0.0, 0.5), 1.1)
+    assert np.all(depth[nearest] < 3.0)                     # the old rule drops every far point
+    assert np.sum(depth[spread] > 7.0) >= 8                   # a third of the cells are the far tercile
+    assert len(np.unique(spread)) == 30 and np.all(np.diff(spread) > 0)
+    for side in (bearing[spread] < -0.2, bearing[spread] > 0.2):
+        assert side.sum() >= 5                                # both edges of the image are represented
+    with pytest.raises(ValueError, match="observation_selection"):
+        FastSLAMConfig(observation_selection="random")
