@@ -8,6 +8,7 @@ parabola through a zero-mean SSD profile along the row (or taken from the corner
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,6 +111,19 @@ def match_rows(left_pixels: np.ndarray, left_descriptors: np.ndarray, right_pixe
     return rows[keep], best_right[keep], best[keep]
 
 
+@functools.lru_cache(maxsize=8)
+def _patch_offsets(width: int, half_window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat offsets in an image ``width`` px wide of a (2h+1)² patch around a pixel, (W, W), and of the five right
+    patches at disparity steps -2..2 from it, (5, W, W) (step s moves the patch s px left)."""
+    window = np.arange(-half_window, half_window + 1)
+    patch = window[:, None] * width + window[None, :]
+    steps = np.arange(-2, 3)
+    right = patch[None] - steps[:, None, None]
+    patch.setflags(write=False)
+    right.setflags(write=False)
+    return patch, right
+
+
 def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.ndarray, disparities: np.ndarray,
                          half_window: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel disparities at the integer left pixels nearest ``left_pixels`` (K, 2).
@@ -136,16 +150,11 @@ def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.nd
     idx = np.flatnonzero(inside)
     if len(idx) == 0:
         return result, refined
-    window = np.arange(-h, h + 1)
-    side = len(window)
-    rows = (y0[idx, None] + window)[:, :, None]  # (K, W, 1)
-    left_patch = left[rows, (x0[idx, None] + window)[:, None, :]].astype(np.float32)  # (K, W, W)
-    # one strip of W + 4 columns per match holds the five right patches (disparity steps -2..2): step s starts
-    # at strip column 2 - s, so the patches are the strip's sliding windows in reverse order
-    strip_cols = (x0[idx] - d0[idx] - 2 - h)[:, None] + np.arange(side + 4)  # (K, W + 4)
-    strip = right[rows, strip_cols[:, None, :]]  # (K, W, W + 4)
-    windows = np.lib.stride_tricks.sliding_window_view(strip, side, axis=2)  # (K, W, 5, W), start 0..4
-    right_patch = windows[:, :, ::-1].transpose(0, 2, 1, 3).astype(np.float32, order="C")  # (K, 5, W, W)
+    # patches as flat offsets from each match's pixel: one gather per image, (K, W, W) left, (K, 5, W, W) right
+    left_offsets, right_offsets = _patch_offsets(width, h)
+    left_patch = np.take(left.reshape(-1), (y0[idx] * width + x0[idx])[:, None, None] + left_offsets)
+    right_patch = np.take(right.reshape(-1), (y0[idx] * width + x0[idx] - d0[idx])[:, None, None, None] + right_offsets)
+    left_patch, right_patch = left_patch.astype(np.float32), right_patch.astype(np.float32)
     left_patch = left_patch - left_patch.mean(axis=(1, 2), keepdims=True)
     right_patch = right_patch - right_patch.mean(axis=(2, 3), keepdims=True)
     cost = ((right_patch - left_patch[:, None]) ** 2).sum(axis=(2, 3))  # (K, 5) over steps -2..2
