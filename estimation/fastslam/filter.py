@@ -312,12 +312,14 @@ class FastSLAM:
         store = self.store
         centres, radius = self._footprint(poses)
         p, k = store.blocks_near(centres, radius)
+        b = store.block_size
         phys = store.table[p, k]
-        lid = store.lid[phys]                                                  # (pairs, B)
-        pair, slot = np.nonzero(lid >= 0)
-        g = phys[pair] * store.block_size + slot
+        lid = store.lid[phys].ravel()                                          # (pairs·B,)
+        live = np.flatnonzero(lid >= 0)
+        pair = live // b
+        g = phys[pair] * b + live % b
         cand = _Pairs(p[pair], np.full(len(g), -1, np.int64), k[pair], g, np.arange(len(g)))
-        return cand, lid[pair, slot], store.count[phys][pair, slot]
+        return cand, lid[live], store.count[phys].ravel()[live]
 
     def _descriptor_join(self, cand: _Pairs, lids: np.ndarray, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
                          q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
@@ -479,14 +481,14 @@ class FastSLAM:
         zx, zy, zz = z[matched.j].T
         nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
         gain = sym_product(sigma, sym_rotate_z(np.cos(turn), np.sin(turn), s_inv))            # K_w [3][3] (P,)
-        updated = np.empty((9, len(pose)))                          # mean (3) and covariance (6), one write
+        updated = np.empty((len(pose), 9))                          # mean (3) and covariance (6), one write
         for i in range(3):
-            updated[i] = mean[i] + gain[i][0] * nx + gain[i][1] * ny + gain[i][2] * nz
-        updated[3:] = joseph_update(sigma, gain, sym_rotate_z(c, s, q6[:, matched.j]))
-        store.flat_state[matched.g] = updated.T
+            updated[:, i] = mean[i] + gain[i][0] * nx + gain[i][1] * ny + gain[i][2] * nz
+        updated[:, 3:] = joseph_update(sigma, gain, sym_rotate_z(c, s, q6[:, matched.j])).T
+        store.flat_state[matched.g] = updated
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
-        return updated[:2].T
+        return updated[:, :2]
 
     def _missed_provisional(self, cand: _Pairs, counts: np.ndarray, poses: np.ndarray, matched: _Pairs) -> _Pairs:
         """Candidate landmarks (their counts (C,)) still provisional, predicted well inside the view, and not
