@@ -159,16 +159,14 @@ def subpixel_offsets(response: np.ndarray, rows: np.ndarray, cols: np.ndarray) -
     Returns (du, dv), each (N,) in [-0.5, 0.5].
     """
     centre = response[rows, cols]
-
-    def vertex(before: np.ndarray, after: np.ndarray) -> np.ndarray:
-        curvature = before - 2.0 * centre + after
-        with np.errstate(divide="ignore", invalid="ignore"):
-            offset = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
-        return np.clip(offset, -0.5, 0.5)
-
-    du = vertex(response[rows, cols - 1], response[rows, cols + 1])
-    dv = vertex(response[rows - 1, cols], response[rows + 1, cols])
-    return du, dv
+    # both axes at once: [0] along u (columns), [1] along v (rows)
+    before = np.stack([response[rows, cols - 1], response[rows - 1, cols]])
+    after = np.stack([response[rows, cols + 1], response[rows + 1, cols]])
+    curvature = before - 2.0 * centre + after
+    with np.errstate(divide="ignore", invalid="ignore"):
+        offset = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
+    offset = np.clip(offset, -0.5, 0.5)
+    return offset[0], offset[1]
 
 
 def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig(),

@@ -7,6 +7,7 @@ FastSLAM consumes.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 
 import cv2
@@ -124,6 +125,19 @@ def detection_margin(config: FrontEndConfig) -> int:
     return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + haar_half_size(config.scale) + 1)
 
 
+def _detection_settings(config: FrontEndConfig) -> HarrisConfig:
+    """The Harris settings with the margin raised to where a descriptor window fits (once per configuration)."""
+    try:
+        return _cached_detection_settings(config)
+    except TypeError:  # a setting given as a list makes the configuration unhashable: no cache then
+        return dataclasses.replace(config.harris, margin=detection_margin(config))
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_detection_settings(config: FrontEndConfig) -> HarrisConfig:
+    return dataclasses.replace(config.harris, margin=detection_margin(config))
+
+
 def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = FrontEndConfig(),
                  buffers: ScratchBuffers | None = None) -> StereoMatches:
     """The front end on a rectified pair of grey (H, W) images (uint8, or numbers rounded to 0..255).
@@ -134,7 +148,7 @@ def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = F
     if left.shape != right.shape:
         raise FrontEndError(f"left {left.shape} and right {right.shape} images differ in size")
     # 1. corners, kept where a descriptor window fits
-    harris = dataclasses.replace(config.harris, margin=detection_margin(config))
+    harris = _detection_settings(config)
     left_corners, _ = detect_corners(left, harris, buffers)
     right_corners, _ = detect_corners(right, harris, buffers)
     # 2. descriptors, of the corners that have a candidate on the other side (no other can be matched)

@@ -140,9 +140,20 @@ def triangulation_covariances(pixels: np.ndarray, disparities: np.ndarray,
     return cov
 
 
-@functools.lru_cache(maxsize=16)
 def _camera_rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(R (3, 3), t (3,)) of ``geometry.left_camera_to_base()``, computed once per geometry (read-only)."""
+    try:
+        return _cached_rotation_translation(geometry)
+    except TypeError:  # a pose given as a list makes the geometry unhashable: no cache then
+        return _rotation_translation(geometry)
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
+    return _rotation_translation(geometry)
+
+
+def _rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
     T = geometry.left_camera_to_base()
     R, t = np.ascontiguousarray(T[:3, :3]), T[:3, 3].copy()
     R.setflags(write=False)

@@ -173,10 +173,13 @@ def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.nda
             responses[..., mine] = part
         sums = pooled_sums(responses, scale)
     descriptors, described = normalised(sums, inside)
-    split = np.cumsum(counts)[:-1]
-    described_per_image = np.split(described, split)
-    first_descriptor = np.cumsum([d.sum() for d in described_per_image])[:-1]
-    return list(zip(np.split(descriptors, first_descriptor), described_per_image, strict=True))
+    out, keypoint_start, descriptor_start = [], 0, 0
+    for count in counts:
+        mine = described[keypoint_start:keypoint_start + count]
+        described_here = int(np.count_nonzero(mine))
+        out.append((descriptors[descriptor_start:descriptor_start + described_here], mine))
+        keypoint_start, descriptor_start = keypoint_start + count, descriptor_start + described_here
+    return out
 
 
 def sample_corners(keypoints: np.ndarray, scale: float, half: int,

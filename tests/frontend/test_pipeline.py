@@ -109,3 +109,17 @@ def test_reused_buffers_never_leak_between_frames(plane_pair):
         got = front_end.process(left, right, 0.0)
         np.testing.assert_array_equal(got.points, expected.points_base)
         np.testing.assert_array_equal(got.descriptors, expected.descriptors)
+
+
+def test_settings_given_as_lists_work_like_tuples(plane_pair):
+    # the front end caches per-configuration values; a configuration holding lists is unhashable and must still run
+    from estimation.frontend import HarrisConfig
+
+    left, right = plane_pair
+    as_tuples = FrontEndConfig(harris=HarrisConfig(grid=(4, 3)),
+                               geometry=StereoGeometry(cx=159.5, cy=119.5, head_pose=(0.1, 0.0, 0.5, 0.0, 0.0, 0.2)))
+    as_lists = FrontEndConfig(harris=HarrisConfig(grid=[4, 3]),
+                              geometry=StereoGeometry(cx=159.5, cy=119.5, head_pose=[0.1, 0.0, 0.5, 0.0, 0.0, 0.2]))
+    expected, got = run_frontend(left, right, as_tuples), run_frontend(left, right, as_lists)
+    assert len(expected) > 20
+    np.testing.assert_array_equal(got.points_base, expected.points_base)
