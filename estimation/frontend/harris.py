@@ -20,7 +20,7 @@ class HarrisConfig:
     k:              Harris' trace weight, R = det(M) - k·trace(M)²
     window_sigma:   σ (px) of the Gaussian window that sums the gradient products into M
     nms_size:       side (px, odd) of the square within which a corner must be the maximum
-    quality:        a corner's response must exceed quality × the image's maximum response
+    quality:        a corner's response must exceed quality × the maximum response where corners can be reported
     max_corners:    at most this many corners per image
     grid:           (columns, rows) of buckets; each keeps at most ceil(max_corners / cells) corners
     margin:         corners closer than this (px) to the border are not reported
