@@ -457,7 +457,8 @@ class FastSLAM:
     def _remap(self, pairs: _Pairs) -> np.ndarray:
         """Flat slots of pairs after copy-on-write moved their blocks."""
         b = self.store.block_size
-        return self.store.table[pairs.m, pairs.k] * b + pairs.g % b
+        table = self.store.table
+        return np.take(table, pairs.m * table.shape[1] + pairs.k) * b + pairs.g % b
 
     def _ekf_update(self, matched: _Pairs, predicted: np.ndarray, poses: np.ndarray, z: np.ndarray,
                     q6: np.ndarray, mean: np.ndarray, sigma: np.ndarray, s_inv: np.ndarray) -> np.ndarray:

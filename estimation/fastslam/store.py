@@ -157,7 +157,7 @@ class LandmarkStore:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         phys = self.table[:, :k]
         held = phys >= 0
-        box = self.bbox[np.where(held, phys, 0)]                         # (M, K, 4)
+        box = np.take(self.bbox, np.where(held, phys, 0), axis=0)        # (M, K, 4)
         dx = np.maximum(np.maximum(box[..., 0] - centres[:, None, 0], centres[:, None, 0] - box[..., 2]), 0.0)
         dy = np.maximum(np.maximum(box[..., 1] - centres[:, None, 1], centres[:, None, 1] - box[..., 3]), 0.0)
         near = held & (dx * dx + dy * dy <= radius * radius)
@@ -173,8 +173,8 @@ class LandmarkStore:
             return
         blocks = slots // self.block_size
         if xy is None:     # (L, 2) the landmarks' new positions, when the caller has them at hand
-            xy = self.flat_mean[slots, :2]
-        box = self.bbox[blocks]
+            xy = np.take(self.flat_state, slots, axis=0)[:, :2]
+        box = np.take(self.bbox, blocks, axis=0)
         outside = np.flatnonzero((xy[:, 0] < box[:, 0]) | (xy[:, 1] < box[:, 1]) | (xy[:, 0] > box[:, 2])
                                  | (xy[:, 1] > box[:, 3]))
         if len(outside) == 0:   # the usual case after small EKF moves: no scattered min/max needed
