@@ -25,19 +25,41 @@ from estimation.scanmatch.common import (
     rotate,
     select_correspondences,
 )
+from estimation.scanmatch.nearest import WarmNearest
 from estimation.scanmatch.polyline import Polyline
 from estimation.scanmatch.scan import Scan2D
+
+
+class _NearestVertex:
+    """The nearest reference point (index and distance) of each current point, warm-started between iterations.
+
+    Called with the moved current points (N, 2) at every iteration; returns (distance (N,), index (N,) int), the
+    same as ``cKDTree.query(points)`` bit for bit (the distance is computed as the tree does, √(dx² + dy²)), but
+    queries the tree only for the points that may have changed nearest point (:class:`WarmNearest`).
+    """
+
+    def __init__(self, points: np.ndarray) -> None:
+        self._x, self._y = points[:, 0].copy(), points[:, 1].copy()
+        self._warm = WarmNearest(cKDTree(points), 1, first_query=1)   # first query as cKDTree.query's default
+
+    def __call__(self, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        moved = np.ascontiguousarray(moved)
+        self._warm.update(moved.view(np.complex128)[:, 0])
+        index = self._warm.nearest[:, 0]
+        dx = moved[:, 0] - self._x[index]
+        dy = moved[:, 1] - self._y[index]
+        return np.sqrt(dx * dx + dy * dy), index
 
 
 def match_icp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
     """Point-to-point ICP: the pose (3,) of ``current`` in ``reference``'s frame, starting from ``initial``."""
     target = reference.points
     source = current.points
-    tree = cKDTree(target)
+    nearest_vertex = _NearestVertex(target)
 
     def correspond(pose):
         moved = apply_pose(pose, source)
-        distance, nearest = tree.query(moved)
+        distance, nearest = nearest_vertex(moved)
         return moved, nearest, select_correspondences(distance, config)
 
     def update(pose):
@@ -59,12 +81,12 @@ def match_plicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config:
     curve = Polyline(reference, config.gap)
     vertices = curve.vertices
     source = current.points
-    tree = cKDTree(vertices)
+    nearest_vertex = _NearestVertex(vertices)
     last_segment = len(vertices) - 2
 
     def correspond(pose):
         moved = apply_pose(pose, source)
-        distance, first = tree.query(moved)
+        distance, first = nearest_vertex(moved)
         before_ok = (first >= 1) & curve.segment_valid[np.clip(first - 1, 0, last_segment)]
         after_ok = (first <= last_segment) & curve.segment_valid[np.clip(first, 0, last_segment)]
         before = vertices[np.clip(first - 1, 0, len(vertices) - 1)]

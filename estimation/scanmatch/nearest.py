@@ -28,14 +28,15 @@ class WarmNearest:
     query's k nearest reference points, closest first as of their last tree query (k = min(k, M)).
     """
 
-    def __init__(self, tree: cKDTree, k: int, first_query: int = 0) -> None:
+    def __init__(self, tree: cKDTree, k: int, first_query: int | None = None) -> None:
         self.tree = tree
         self.k = min(k, tree.n)
         self._query_k = min(k + 1, tree.n)   # one more than asked: its distance bounds every other point's
-        # The first query may ask for more: a k-d tree orders exactly equidistant points differently for different
-        # query sizes, and the first query (at the initial pose) is where such ties occur — identical readings of
-        # two scans seen from the identity.  Matching the earlier implementation's 6 keeps results bit-identical.
-        self._first_query_k = min(max(first_query, k + 1), tree.n)
+        # The first query may ask for a different count: a k-d tree orders exactly equidistant points differently for
+        # different query sizes, and the first query (at the initial pose) is where such ties occur — identical
+        # readings of two scans matched from the identity.  Asking what the earlier implementations asked (6 for
+        # the curve, 1 for ICP and PL-ICP) keeps the results bit-identical.  With only k, no margin is known yet.
+        self._first_query_k = self._query_k if first_query is None else min(max(first_query, self.k), tree.n)
         self.nearest: np.ndarray | None = None   # (N, k) int
         self._anchor: np.ndarray | None = None   # (N,) complex x + iy of each point's last tree query
         self._margin: np.ndarray | None = None   # (N,) how far the point may move from its anchor (m)
@@ -65,6 +66,8 @@ class WarmNearest:
         self._anchor[rows] = queries
         if count > k:
             self._margin[rows] = 0.5 * (distance[:, k] - distance[:, k - 1])
-        else:   # every reference point is among the k nearest: nothing can overtake them
+        elif count >= self.tree.n:   # every reference point is among the k nearest: nothing can overtake them
             self._margin[rows] = np.inf
+        else:                        # no bound known: query again next time
+            self._margin[rows] = 0.0
         self.nearest[rows] = index[:, :k]
