@@ -478,10 +478,10 @@ class FastSLAM:
         store = self.store
         pose = _rows(poses, matched.m)
         c, s = _cos_sin(poses, matched.m)
-        turn = pose[:, 2] - predicted[:, 2][matched.m]
+        turn = poses[:, 2] - predicted[:, 2]                        # per particle: the proposal's rotation
         zx, zy, zz = _rows(z, matched.j).T
         nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
-        gain = sym_product(sigma, sym_rotate_z(np.cos(turn), np.sin(turn), s_inv))            # K_w [3][3] (P,)
+        gain = sym_product(sigma, sym_rotate_z(np.cos(turn)[matched.m], np.sin(turn)[matched.m], s_inv))  # K_w
         updated = np.empty((len(pose), 9))                          # mean (3) and covariance (6), one write
         for i in range(3):
             updated[:, i] = mean[i] + gain[i][0] * nx + gain[i][1] * ny + gain[i][2] * nz
@@ -730,16 +730,29 @@ def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_parti
     had_candidate[key] = True
     if len(idx) == 0:
         return idx, had_candidate
-    choice = _first_minimum(key, d2[idx], n_particles * n_obs)        # positions in idx, one per (m, j)
+    choice = _first_minimum(key, d2[idx], n_particles * n_obs, np.arange(len(idx)))   # one per (m, j)
     claimed = pairs.c[idx[choice]]
-    keep = _first_minimum(claimed, d2[idx[choice]], n_candidates)     # positions in choice, one per landmark
+    keep = _first_minimum(claimed, d2[idx[choice]], n_candidates, key[choice])        # one per landmark
     return np.sort(idx[choice[keep]]), had_candidate
 
 
-def _first_minimum(key: np.ndarray, value: np.ndarray, n_keys: int) -> np.ndarray:
-    """Positions (K,) of the smallest ``value`` of each distinct ``key`` (L,) in [0, n_keys); ties: the first."""
+def _first_minimum(key: np.ndarray, value: np.ndarray, n_keys: int, rank: np.ndarray) -> np.ndarray:
+    """Positions (K,), in no particular order, of the smallest ``value`` of each distinct ``key`` (L,) in
+    [0, n_keys); ties go to the smallest ``rank`` (L,) (distinct, < 2⁶², e.g. the position).
+
+    Most keys occur once (one gated candidate): those are found by counting, and only the rest take the slower
+    scattered minima."""
+    count = np.bincount(key, minlength=n_keys)
+    several = count[key] > 1
+    alone = np.flatnonzero(~several)
+    if len(alone) == len(key):
+        return alone
+    sub = np.flatnonzero(several)
+    sub_key, sub_value = key[sub], value[sub]
     smallest = np.full(n_keys, np.inf)
-    np.minimum.at(smallest, key, value)
-    position = np.full(n_keys, len(key))
-    np.minimum.at(position, key, np.where(value == smallest[key], np.arange(len(key)), len(key)))
-    return position[position < len(key)]
+    np.minimum.at(smallest, sub_key, sub_value)
+    limit = np.iinfo(np.int64).max
+    best_rank = np.full(n_keys, limit)
+    np.minimum.at(best_rank, sub_key, np.where(sub_value == smallest[sub_key], rank[sub], limit))
+    winners = sub[(sub_value == smallest[sub_key]) & (rank[sub] == best_rank[sub_key])]
+    return np.concatenate([alone, winners])
