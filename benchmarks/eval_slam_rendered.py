@@ -285,7 +285,13 @@ def _parse_set(items: list[str]) -> dict:
         key, _, value = item.partition("=")
         if key not in types:
             raise SystemExit(f"--set {item!r}: FastSLAMConfig has no field {key!r}")
-        out[key] = int(value) if types[key] in ("int", int) else float(value)
+        kind = types[key] if isinstance(types[key], str) else types[key].__name__
+        if kind == "bool":
+            out[key] = value.lower() in ("1", "true", "yes")
+        elif kind == "str":
+            out[key] = value
+        else:
+            out[key] = int(value) if kind == "int" else float(value)
     return out
 
 
