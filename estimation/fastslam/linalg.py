@@ -78,7 +78,13 @@ def sym_matrices(s: np.ndarray) -> np.ndarray:
 def sym_adjugate(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Adjugate (6, P) and determinant (P,) of symmetric matrices (6, P): S⁻¹ = adj / det."""
     a, b, c, d, e, f = s
-    adj = np.stack([d * f - e * e, c * e - b * f, b * e - c * d, a * f - c * c, b * c - a * e, a * d - b * b])
+    adj = np.empty_like(s)
+    np.subtract(d * f, e * e, out=adj[0])
+    np.subtract(c * e, b * f, out=adj[1])
+    np.subtract(b * e, c * d, out=adj[2])
+    np.subtract(a * f, c * c, out=adj[3])
+    np.subtract(b * c, a * e, out=adj[4])
+    np.subtract(a * d, b * b, out=adj[5])
     det = a * adj[0] + b * adj[1] + c * adj[2]
     return adj, det
 
@@ -112,9 +118,15 @@ def sym_rotate_z(c: np.ndarray, s: np.ndarray, q: np.ndarray) -> np.ndarray:
     """R Q Rᵀ (6, ...) for R = R_z(θ) given c = cos θ, s = sin θ (broadcastable) and symmetric Q (6, ...)."""
     xx, xy, xz, yy, yz, zz = q
     cc, ss, cs = c * c, s * s, c * s
-    return np.stack(np.broadcast_arrays(
-        cc * xx - 2.0 * cs * xy + ss * yy, cs * (xx - yy) + (cc - ss) * xy, c * xz - s * yz,
-        ss * xx + 2.0 * cs * xy + cc * yy, s * xz + c * yz, zz + 0.0 * cs))
+    out = np.empty((6,) + np.broadcast_shapes(np.shape(c), np.shape(xx)))
+    cs_xy = 2.0 * cs * xy
+    out[0] = cc * xx - cs_xy + ss * yy
+    out[1] = cs * (xx - yy) + (cc - ss) * xy
+    out[2] = c * xz - s * yz
+    out[3] = ss * xx + cs_xy + cc * yy
+    out[4] = s * xz + c * yz
+    out[5] = zz
+    return out
 
 
 _UPPER_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -131,5 +143,7 @@ def joseph_update(s: np.ndarray, k, r: np.ndarray) -> np.ndarray:
     only the optimal one), as S − KS − (KS)ᵀ + K (S + R) Kᵀ on the upper triangle, so the result is symmetric."""
     ks = full_sym_product(k, s)
     kb = full_sym_product(k, s + r)
-    return np.stack([s[_SYM[i][j]] - ks[i][j] - ks[j][i] + kb[i][0] * k[j][0] + kb[i][1] * k[j][1]
-                     + kb[i][2] * k[j][2] for i, j in _UPPER_PAIRS])
+    out = np.empty_like(s)
+    for n, (i, j) in enumerate(_UPPER_PAIRS):
+        out[n] = s[_SYM[i][j]] - ks[i][j] - ks[j][i] + kb[i][0] * k[j][0] + kb[i][1] * k[j][1] + kb[i][2] * k[j][2]
+    return out
