@@ -29,32 +29,9 @@ def symmetrise(a: np.ndarray) -> np.ndarray:
     return 0.5 * (a + np.swapaxes(a, -1, -2))
 
 
-def quadratic_form(v: np.ndarray, a_inv: np.ndarray) -> np.ndarray:
-    """vᵀ A⁻¹ v for v (..., n) and A⁻¹ (..., n, n) -> (...)."""
-    return np.sum(v * matvec(a_inv, v), axis=-1)
 
 
-def matvec(a: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """A v for stacks A (..., n, n), v (..., n) -> (..., n) (matmul: faster than einsum for small blocks)."""
-    return (a @ v[..., None])[..., 0]
 
-
-def transpose(a: np.ndarray) -> np.ndarray:
-    """Aᵀ over the last two axes."""
-    return np.swapaxes(a, -1, -2)
-
-
-def sandwich(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """A B Aᵀ for stacks (..., n, n)."""
-    return a @ b @ np.swapaxes(a, -1, -2)
-
-
-def group_sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sums of ``values`` (P, ...) grouped by ``index`` (P,) in [0, n) -> (n, ...) (bincount per element,
-    much faster than ``np.add.at``)."""
-    flat = values.reshape(len(values), int(np.prod(values.shape[1:])))
-    out = np.stack([np.bincount(index, flat[:, c], minlength=n) for c in range(flat.shape[1])], axis=1)
-    return out.reshape((n,) + values.shape[1:])
 
 
 # -- symmetric 3×3 matrices as six component arrays --------------------------------------------------------
