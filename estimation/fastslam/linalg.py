@@ -29,11 +29,6 @@ def symmetrise(a: np.ndarray) -> np.ndarray:
     return 0.5 * (a + np.swapaxes(a, -1, -2))
 
 
-
-
-
-
-
 # -- symmetric 3×3 matrices as six component arrays --------------------------------------------------------
 # A stack of P symmetric matrices is a (6, P) array of its upper triangle (xx, xy, xz, yy, yz, zz): every
 # operation below is a few dozen elementwise operations on length-P rows, ~100× faster than stacked matmul
