@@ -62,7 +62,8 @@ class WarmNearest:
         k = self.k
         points = np.ascontiguousarray(queries).view(np.float64).reshape(-1, 2)
         distance, index = self.tree.query(points, k=count)
-        distance, index = distance.reshape(-1, count), index.reshape(-1, count)
+        if count == 1:   # the tree drops the neighbour axis for k = 1
+            distance, index = distance[:, None], index[:, None]
         self._anchor[rows] = queries
         if count > k:
             self._margin[rows] = 0.5 * (distance[:, k] - distance[:, k - 1])

@@ -56,12 +56,13 @@ class NearestVertexCache:
 
     Valid for one fixed set of N points (the i-th query is always the i-th point of the same scan) and one
     Polyline.  Per point: its 2 nearest vertices (``nearest.nearest``, (N, 2)) and the data of their 4 candidate
-    segment slots (N, 4, 4) complex: slot start x + iy, unit direction, its conjugate, length + i·slot index.
+    segment slots (N, 2, 2, 4) complex (slot v or v+1, vertex v0 or v1, field): slot start x + iy, unit direction,
+    its conjugate, length + i·slot index.
     """
 
     def __init__(self) -> None:
         self.nearest: WarmNearest | None = None
-        self.candidates: np.ndarray | None = None     # (N, 4, 4) complex
+        self.candidates: np.ndarray | None = None     # (N, 2, 2, 4) complex: slot v or v+1, vertex v0 or v1
         self.first_of_row: np.ndarray | None = None   # (N,) int, 4 i: flat index of each row's first candidate
 
 
@@ -90,8 +91,8 @@ class Polyline:
         np.cumsum(arc_step, out=self.arc[1:])
         piece = np.zeros(m, dtype=np.intp)                             # (M,) piece id of every vertex
         np.cumsum(~self.segment_valid, out=piece[1:])
-        first = np.flatnonzero(np.r_[True, ~self.segment_valid])
-        last = np.r_[first[1:] - 1, m - 1]
+        first = np.concatenate([[0], np.flatnonzero(~self.segment_valid) + 1])
+        last = np.concatenate([first[1:] - 1, [m - 1]])
         self.piece_of_vertex = piece
         self.piece_start = self.arc[first]                              # (P,) λ range of each piece
         self.piece_end = self.arc[last]
@@ -116,10 +117,14 @@ class Polyline:
         self._vertex_complex = vertex_complex
         # Per vertex v, its two candidate slots v and v+1 with what a projection needs of each: (M, 2, 4) complex
         # start, direction, conjugate direction, length + i·slot.  One gather fetches a point's candidates.
-        slot = np.arange(m + 1)
-        table = np.column_stack([self._slot_start_complex, self._slot_direction_complex,
-                                 self._slot_direction_complex.conjugate(), self._slot_length + 1j * slot])
-        self._candidate_table = np.stack([table[:-1], table[1:]], axis=1)
+        table = np.empty((m + 1, 4), dtype=np.complex128)
+        table[:, 0] = self._slot_start_complex
+        table[:, 1] = self._slot_direction_complex
+        np.conjugate(self._slot_direction_complex, out=table[:, 2])
+        table[:, 3] = self._slot_length + 1j * np.arange(m + 1)
+        self._candidate_table = np.empty((m, 2, 4), dtype=np.complex128)
+        self._candidate_table[:, 0] = table[:-1]
+        self._candidate_table[:, 1] = table[1:]
 
     @property
     def _slot_start(self) -> np.ndarray:
@@ -144,7 +149,7 @@ class Polyline:
         n = queries.shape[0]
         cache = NearestVertexCache() if cache is None else cache
         distance, offset, flat, along = self.project_complex(queries.view(np.complex128)[:, 0], cache)
-        best_slot = cache.candidates[:, :, 3].imag.ravel()[flat].astype(np.intp)
+        best_slot = cache.candidates[..., 3].imag.ravel()[flat].astype(np.intp)
         residual = offset.view(np.float64).reshape(n, 2)
         # Unit direction from the curve to the query; on the curve itself, the segment normal.
         on_curve = distance <= 1e-12
@@ -167,14 +172,14 @@ class Polyline:
         n = queries.shape[0]
         if cache.nearest is None or cache.nearest.tree is not self._tree or cache.candidates.shape[0] != n:
             cache.nearest = WarmNearest(self._tree, _NEAREST_VERTICES, first_query=_FIRST_QUERY)
-            cache.candidates = np.empty((n, _CANDIDATES, 4), dtype=np.complex128)
+            cache.candidates = np.empty((n, 2, _NEAREST_VERTICES, 4), dtype=np.complex128)   # slot, vertex
             cache.first_of_row = _CANDIDATES * np.arange(n)
         stale = cache.nearest.update(queries)
         if stale.size:   # candidates: the segment ending at (slot v) and the one starting at (slot v+1) each vertex
             # Ordered [v0, v1, v0+1, v1+1] (v0 the nearest): argmin breaks exact ties as a cold projection does.
             gathered = self._candidate_table[cache.nearest.nearest[stale]]                   # (s, vertex, slot, 4)
-            cache.candidates[stale] = gathered.transpose(0, 2, 1, 3).reshape(-1, _CANDIDATES, 4)
-        candidates = cache.candidates
+            cache.candidates[stale] = gathered.transpose(0, 2, 1, 3)
+        candidates = cache.candidates.reshape(n, _CANDIDATES, 4)
         # Points as complex x + iy: fewer (and bigger) array operations, which is what a projection costs.
         offset = queries[:, None] - candidates[:, :, 0]                         # (N, 4)
         along = (offset * candidates[:, :, 2]).real                             # a view: clipped in place
@@ -188,7 +193,7 @@ class Polyline:
     def candidate_normal(self, cache: NearestVertexCache, flat: np.ndarray) -> np.ndarray:
         """Unit normals (n,) complex of the candidate segments at the flat indices (n,) :meth:`project_complex`
         returned: the direction from a curve point to a query that lies on the curve itself."""
-        slot = cache.candidates[:, :, 3].imag.ravel()[flat].astype(np.intp)
+        slot = cache.candidates[..., 3].imag.ravel()[flat].astype(np.intp)
         return self._slot_normal.view(np.complex128)[slot, 0]
 
     def clamp_to_piece(self, arc: np.ndarray, piece: np.ndarray) -> np.ndarray:
