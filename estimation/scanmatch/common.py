@@ -103,7 +103,7 @@ def select_correspondences(distance: np.ndarray, config: MatchConfig, residual: 
         # n_trim worst gated ones (one partition of the whole array: fewer small-array steps than a subset's).
         score = distance if residual is None else np.abs(residual)
         score = np.where(keep, score, np.inf)
-        keep[np.argpartition(score, n_keep - n_trim)[n_keep - n_trim:]] = False
+        keep[score.argpartition(n_keep - n_trim)[n_keep - n_trim:]] = False
     return keep
 
 

@@ -52,7 +52,7 @@ class WarmNearest:
             stale = np.arange(n)
             self._query(stale, queries, self._first_query_k)
             return stale
-        stale = np.flatnonzero(np.abs(queries - self._anchor) >= self._margin)
+        stale = (np.abs(queries - self._anchor) >= self._margin).nonzero()[0]
         if stale.size == 0:
             return _NO_ROWS
         self._query(stale, queries[stale], self._query_k)
