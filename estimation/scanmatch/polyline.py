@@ -60,7 +60,8 @@ class NearestVertexCache:
     its conjugate, length + i·slot index.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, first_query: int = _FIRST_QUERY) -> None:
+        self.first_query = first_query   # vertices the first tree query asks for (the order of exact ties)
         self.nearest: WarmNearest | None = None
         self.candidates: np.ndarray | None = None     # (N, 2, 2, 4) complex: slot v or v+1, vertex v0 or v1
         self.first_of_row: np.ndarray | None = None   # (N,) int, 4 i: flat index of each row's first candidate
@@ -147,7 +148,8 @@ class Polyline:
         same N points (updated in place; the result is the same as without it)."""
         queries = np.ascontiguousarray(queries, dtype=float)
         n = queries.shape[0]
-        cache = NearestVertexCache() if cache is None else cache
+        # A one-off projection asks the tree for 2 vertices, as it always did: exact ties keep their order.
+        cache = NearestVertexCache(first_query=_NEAREST_VERTICES) if cache is None else cache
         distance, offset, flat, along = self.project_complex(queries.view(np.complex128)[:, 0], cache)
         best_slot = cache.candidates[..., 3].imag.ravel()[flat].astype(np.intp)
         residual = offset.view(np.float64).reshape(n, 2)
@@ -171,7 +173,7 @@ class Polyline:
         """
         n = queries.shape[0]
         if cache.nearest is None or cache.nearest.tree is not self._tree or cache.candidates.shape[0] != n:
-            cache.nearest = WarmNearest(self._tree, _NEAREST_VERTICES, first_query=_FIRST_QUERY)
+            cache.nearest = WarmNearest(self._tree, _NEAREST_VERTICES, first_query=cache.first_query)
             cache.candidates = np.empty((n, 2, _NEAREST_VERTICES, 4), dtype=np.complex128)   # slot, vertex
             cache.first_of_row = _CANDIDATES * np.arange(n)
         stale = cache.nearest.update(queries)
