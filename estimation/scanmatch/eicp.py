@@ -143,11 +143,13 @@ def match_eicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: 
         keep = select_correspondences(here.distance, config)
         if np.count_nonzero(keep) < minimum:
             return None
-        step = -solve_normal_equations(*here.rows(keep))
+        jacobian, residuals = here.rows(keep)
+        step = -solve_normal_equations(jacobian, residuals)
         if pose_step_small(step, config, scale):
             return pose + step   # below the tolerance: the stopping rule ends here, no line search needed
-        # Accept the step when it lowers the truncated cost of the correspondences it was computed for.
-        cost = truncated_cost(here.distance.compress(keep), config)
+        # Accept the step when it lowers the truncated cost of the correspondences it was computed for.  The kept
+        # distances are within the gate, so their truncated cost is their plain sum of squares.
+        cost = float(residuals @ residuals)
         for _ in range(_MAX_HALVINGS):
             trial = pose + step
             if truncated_cost(on_curve.at(trial).distance.compress(keep), config) <= cost:
