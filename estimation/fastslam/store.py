@@ -98,7 +98,7 @@ class LandmarkStore:
         dst = self._allocate(len(src))
         for name in ("state", "lid", "count", "misses", "bbox"):
             arr = getattr(self, name)
-            arr[dst] = arr[src]
+            arr[dst] = np.take(arr, src, axis=0)
         np.subtract.at(self.refcount, src, 1)
         self.table[p, k] = dst
 
