@@ -66,7 +66,7 @@ def match_icp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: M
         _, nearest, keep = correspond(pose)
         if np.count_nonzero(keep) < max(config.min_correspondences, 3):
             return None
-        return procrustes(source[keep], target[nearest[keep]])
+        return procrustes(source.compress(keep, axis=0), target[nearest.compress(keep)])
 
     pose, iterations, tolerance_met = iterate(update, initial, config)
     moved, nearest, keep = correspond(pose)
@@ -82,24 +82,33 @@ def match_plicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config:
     vertices = curve.vertices
     source = current.points
     nearest_vertex = _NearestVertex(vertices)
-    last_segment = len(vertices) - 2
+    # Per vertex v, looked up by the nearest vertex of each point (gathers instead of per-iteration clips):
+    # whether the segment to v-1 / v+1 is part of the curve, and those neighbours (clamped at the ends).
+    m = len(vertices)
+    has_before = np.zeros(m, dtype=bool)
+    has_before[1:] = curve.segment_valid
+    has_after = np.zeros(m, dtype=bool)
+    has_after[:-1] = curve.segment_valid
+    has_either = has_before | has_after
+    vertex_before = vertices[np.maximum(np.arange(m) - 1, 0)]
+    vertex_after = vertices[np.minimum(np.arange(m) + 1, m - 1)]
 
     def correspond(pose):
         moved = apply_pose(pose, source)
         distance, first = nearest_vertex(moved)
-        before_ok = (first >= 1) & curve.segment_valid[np.clip(first - 1, 0, last_segment)]
-        after_ok = (first <= last_segment) & curve.segment_valid[np.clip(first, 0, last_segment)]
-        before = vertices[np.clip(first - 1, 0, len(vertices) - 1)]
-        after = vertices[np.clip(first + 1, 0, len(vertices) - 1)]
+        before_ok, after_ok, either_ok = has_before[first], has_after[first], has_either[first]
+        before, after = vertex_before[first], vertex_after[first]
         d_before = np.where(before_ok, np.sum((moved - before) ** 2, axis=1), np.inf)
         d_after = np.where(after_ok, np.sum((moved - after) ** 2, axis=1), np.inf)
         second = np.where((d_before <= d_after)[:, None], before, after)
-        direction = second - vertices[first]
-        direction /= np.maximum(np.hypot(direction[:, 0], direction[:, 1]), 1e-12)[:, None]
-        normal = np.column_stack([-direction[:, 1], direction[:, 0]])
         anchor = vertices[first]
-        line_residual = np.where(before_ok | after_ok, np.sum(normal * (moved - anchor), axis=1), np.inf)
-        keep = select_correspondences(distance, config, line_residual) & (before_ok | after_ok)
+        direction = second - anchor
+        direction /= np.maximum(np.hypot(direction[:, 0], direction[:, 1]), 1e-12)[:, None]
+        normal = np.empty_like(direction)
+        np.negative(direction[:, 1], out=normal[:, 0])
+        normal[:, 1] = direction[:, 0]
+        line_residual = np.where(either_ok, np.sum(normal * (moved - anchor), axis=1), np.inf)
+        keep = select_correspondences(distance, config, line_residual) & either_ok
         return moved, anchor, normal, keep
 
     def update(pose):
@@ -108,7 +117,8 @@ def match_plicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config:
             return None
         # Solve for the increment applied after the current estimate, so a direction the scene leaves free
         # (a corridor) keeps its current value instead of jumping to the minimum-norm solution.
-        increment = point_to_line_pose(moved[keep], anchor[keep], normal[keep])
+        increment = point_to_line_pose(moved.compress(keep, axis=0), anchor.compress(keep, axis=0),
+                                       normal.compress(keep, axis=0))
         return compose(increment, pose)
 
     pose, iterations, tolerance_met = iterate(update, initial, config)
