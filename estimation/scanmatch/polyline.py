@@ -13,7 +13,10 @@ Warm start.  An iterative matcher projects the same points again and again while
 :class:`NearestVertexCache` keeps, per point, the 2 nearest vertices and the data of their 4 candidate segments;
 the nearest vertices are tracked by :class:`estimation.scanmatch.nearest.WarmNearest`, which re-queries the k-d
 tree only for the points whose 2 nearest vertices could have changed, and only those points' segment data are
-gathered again.  The result is exactly that of a projection without the cache.
+gathered again.  The result is that of a projection without the cache, up to exact distance ties: those are
+decided by the candidates' order [v0, v1, v0+1, v1+1] (v0 the nearest vertex) and by the order in which the
+k-d tree returns equidistant vertices, which the first tree query keeps as it always was (6 vertices for a
+matcher's cache, 2 for a one-off projection; see WarmNearest).
 """
 from __future__ import annotations
 
@@ -139,13 +142,9 @@ class Polyline:
     def n_segments(self) -> int:
         return int(np.count_nonzero(self.segment_valid))
 
-    def new_cache(self) -> NearestVertexCache:
-        """An empty warm start for this curve (the same as ``NearestVertexCache()``)."""
-        return NearestVertexCache()
-
     def project(self, queries: np.ndarray, cache: NearestVertexCache | None = None) -> Projection:
         """Closest curve point of each query.  queries: (N, 2); cache: warm start for repeated queries of the
-        same N points (updated in place; the result is the same as without it)."""
+        same N points (updated in place; the result is the same as without it, up to exact ties)."""
         queries = np.ascontiguousarray(queries, dtype=float)
         n = queries.shape[0]
         # A one-off projection asks the tree for 2 vertices, as it always did: exact ties keep their order.
