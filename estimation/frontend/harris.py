@@ -110,17 +110,21 @@ def non_maximum_suppression(response: np.ndarray, size: int, threshold: float, m
 
 
 def local_maxima(response: np.ndarray, size: int, threshold: float, region: tuple[slice, slice],
-                 buffers: ScratchBuffers | None = None) -> np.ndarray:
+                 buffers: ScratchBuffers | None = None, work: np.ndarray | None = None) -> np.ndarray:
     """Integer (row, col) (N, 2) of the pixels in ``region`` (row and column slices with explicit non-negative
-    bounds) that are the maximum of their size × size neighbourhood and above ``threshold``, row-major order."""
+    bounds) that are the maximum of their size × size neighbourhood and above ``threshold``, row-major order.
+
+    work: an array like ``response`` to overwrite (else one from ``buffers``).
+    """
     if size < 1 or size % 2 == 0:
         raise FrontEndError(f"nms_size must be odd and positive, got {size}")
     top, left = region[0].start, region[1].start
     inner_shape = (region[0].stop - top, region[1].stop - left)
     if inner_shape[0] <= 0 or inner_shape[1] <= 0:
         return np.zeros((0, 2), np.int64)
-    dilated = cv2.dilate(response, np.ones((size, size), np.uint8),
-                         dst=scratch(buffers, "nms_dilated", response.shape, response.dtype))
+    if work is None:
+        work = scratch(buffers, "nms_dilated", response.shape, response.dtype)
+    dilated = cv2.dilate(response, np.ones((size, size), np.uint8), dst=work)
     # a peak is the maximum of its neighbourhood and above the threshold: response >= max(dilated, floor) with
     # floor the smallest representable value above the threshold (one comparison pass instead of two and an and);
     # whole contiguous arrays are faster to compare than the region's view, whose border is then cleared
@@ -194,7 +198,9 @@ def detect_corners(image: np.ndarray, config: HarrisConfig = HarrisConfig(),
     peak_max = cv2.minMaxLoc(response[region])[1]  # reads the strided view directly: twice numpy's speed
     if peak_max <= 0.0:
         return np.zeros((0, 2)), np.zeros(0, np.float32)
-    peaks = local_maxima(response, config.nms_size, config.quality * peak_max, region, buffers)
+    # the suppression overwrites harris_response's dead sxx buffer: memory just touched, still in the cache
+    dead = scratch(buffers, "harris_sxx", response.shape, np.float32) if response.dtype == np.float32 else None
+    peaks = local_maxima(response, config.nms_size, config.quality * peak_max, region, buffers, dead)
     rows, cols = peaks[:, 0], peaks[:, 1]
     scores = response[rows, cols]
     keep = bucket(rows + r0, cols + c0, scores, (height, width), config.grid, config.max_corners)

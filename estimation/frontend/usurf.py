@@ -252,12 +252,12 @@ def lattice_haar_responses(integral: np.ndarray, col0: np.ndarray, row0: np.ndar
     second = work("second_difference", (k, k, m))
 
     # dx: strips 2·half high (20, 22, M), then right - 2·middle + left = the second difference along columns
-    strips = np.subtract(corners[2:], corners[:k], out=work("strips_v", (k, n, m)))
-    steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps_v", (k, n - 1, m)))
+    strips = np.subtract(corners[2:], corners[:k], out=work("strips", (k, n, m)))
+    steps = np.subtract(strips[:, 1:], strips[:, :-1], out=work("steps", (k, n - 1, m)))
     np.copyto(out[:, 0], np.subtract(steps[:, 1:], steps[:, :-1], out=second), casting="unsafe")
     # dy: strips 2·half wide (22, 20, M), bottom - 2·middle + top
-    strips = np.subtract(corners[:, 2:], corners[:, :k], out=work("strips_h", (n, k, m)))
-    steps = np.subtract(strips[1:], strips[:-1], out=work("steps_h", (n - 1, k, m)))
+    strips = np.subtract(corners[:, 2:], corners[:, :k], out=work("strips", (n, k, m)))  # same blocks as dx's
+    steps = np.subtract(strips[1:], strips[:-1], out=work("steps", (n - 1, k, m)))
     np.copyto(out[:, 1], np.subtract(steps[1:], steps[:-1], out=second), casting="unsafe")
     return out
 
