@@ -206,7 +206,7 @@ class FastSLAM:
         frame = _FrameGeometry.of(predicted, z, q6)
 
         # 1-2. candidates, descriptor join, Mahalanobis gate (in the world frame: d² is frame-invariant, and
-        # there H_x = ∂(R z + t − μ)/∂(x, y, θ) needs no rotation; see _gate)
+        # there H_x = ∂(R z + t − μ)/∂(x, y, θ) needs no rotation; see _sample_proposal)
         cand, cand_lids, cand_counts = self._candidates(predicted)
         pairs, mean, cov = self._descriptor_join(cand, cand_lids, desc, predicted, z, q6)
         if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
