@@ -71,8 +71,9 @@ def harris_response(image: np.ndarray, k: float = 0.04, window_sigma: float = 1.
     if eight_bit:
         # both 3×3 Sobel gradients in one pass, exact in int16 (|g| ≤ 1020), then float32: the same values as
         # cv2.Sobel(CV_32F) on the float image, at about two thirds of the cost
-        gx = scratch(buffers, "harris_gx", shape, np.int16)
-        gy = scratch(buffers, "harris_gy", shape, np.int16)
+        # the int16 gradients live in the first halves of the sxx and syy blocks, not written until they are read
+        gx = buf("sxx").reshape(-1).view(np.int16)[:ix.size].reshape(shape)
+        gy = buf("syy").reshape(-1).view(np.int16)[:iy.size].reshape(shape)
         cv2.spatialGradient(image, dx=gx, dy=gy, ksize=3, borderType=cv2.BORDER_REFLECT_101)
         np.copyto(ix, gx, casting="unsafe")
         np.copyto(iy, gy, casting="unsafe")
