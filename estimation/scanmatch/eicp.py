@@ -176,9 +176,11 @@ def match_eicp_mesh(reference: Scan2D, current: Scan2D, initial: np.ndarray, con
     source = current.points
     minimum = max(config.min_correspondences, 3)
     bound = config.mesh_shift_bound
+    # Warm-started like eICP's; its first tree query asks for 2 vertices, as this matcher's cold projections did.
+    warm_start = NearestVertexCache(first_query=2)
 
     def update(pose):
-        projection = curve.project(apply_pose(pose, source))
+        projection = curve.project(apply_pose(pose, source), warm_start)
         keep = select_correspondences(projection.distance, config)
         if np.count_nonzero(keep) < minimum:
             return None
