@@ -18,6 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")  # as the runtime does (runtime/__init__.py); before numpy loads
+
 import numpy as np
 
 from drivers.videre.frames import deinterleave, interleave
