@@ -10,7 +10,6 @@ distance to the *infinite* line through them, in closed form (:func:`common.poin
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from estimation.geometry import compose
 from estimation.scanmatch.common import (
@@ -25,37 +24,16 @@ from estimation.scanmatch.common import (
     rotate,
     select_correspondences,
 )
-from estimation.scanmatch.nearest import WarmNearest
+from estimation.scanmatch.nearest import NearestPoint
 from estimation.scanmatch.polyline import Polyline
 from estimation.scanmatch.scan import Scan2D
-
-
-class _NearestVertex:
-    """The nearest reference point (index and distance) of each current point, warm-started between iterations.
-
-    Called with the moved current points (N, 2) at every iteration; returns (distance (N,), index (N,) int), the
-    same as ``cKDTree.query(points)`` bit for bit (the distance is computed as the tree does, √(dx² + dy²)), but
-    queries the tree only for the points that may have changed nearest point (:class:`WarmNearest`).
-    """
-
-    def __init__(self, points: np.ndarray) -> None:
-        self._x, self._y = points[:, 0].copy(), points[:, 1].copy()
-        self._warm = WarmNearest(cKDTree(points), 1, first_query=1)   # first query as cKDTree.query's default
-
-    def __call__(self, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        moved = np.ascontiguousarray(moved)
-        self._warm.update(moved.view(np.complex128)[:, 0])
-        index = self._warm.nearest[:, 0]
-        dx = moved[:, 0] - self._x[index]
-        dy = moved[:, 1] - self._y[index]
-        return np.sqrt(dx * dx + dy * dy), index
 
 
 def match_icp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config: MatchConfig) -> MatchResult:
     """Point-to-point ICP: the pose (3,) of ``current`` in ``reference``'s frame, starting from ``initial``."""
     target = reference.points
     source = current.points
-    nearest_vertex = _NearestVertex(target)
+    nearest_vertex = NearestPoint(target)
 
     def correspond(pose):
         moved = apply_pose(pose, source)
@@ -81,7 +59,7 @@ def match_plicp(reference: Scan2D, current: Scan2D, initial: np.ndarray, config:
     curve = Polyline(reference, config.gap)
     vertices = curve.vertices
     source = current.points
-    nearest_vertex = _NearestVertex(vertices)
+    nearest_vertex = NearestPoint(vertices)
     # Per vertex v, looked up by the nearest vertex of each point (gathers instead of per-iteration clips):
     # whether the segment to v-1 / v+1 is part of the curve, and those neighbours (clamped at the ends).
     m = len(vertices)

@@ -72,3 +72,26 @@ class WarmNearest:
         else:                        # no bound known: query again next time
             self._margin[rows] = 0.0
         self.nearest[rows] = index[:, :k]
+
+
+class NearestPoint:
+    """The nearest reference point of each of N current points, warm-started between the iterations of a matcher.
+
+    Called with the moved current points (N, 2) at every iteration; returns (distance (N,), index (N,) int), the
+    same as ``cKDTree(points).query(moved)`` bit for bit — the distance is computed as the tree computes it,
+    √(dx² + dy²), and the first query is the tree's default k = 1, whose order of exactly equidistant points the
+    later queries (k = 2) might not share — while querying the tree only for the points whose nearest point may
+    have changed.  points: (M, 2) reference points, M >= 1.
+    """
+
+    def __init__(self, points: np.ndarray) -> None:
+        self._x, self._y = points[:, 0].copy(), points[:, 1].copy()
+        self._warm = WarmNearest(cKDTree(points), 1, first_query=1)
+
+    def __call__(self, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        moved = np.ascontiguousarray(moved, dtype=float)
+        self._warm.update(moved.view(np.complex128)[:, 0])
+        index = self._warm.nearest[:, 0]
+        dx = moved[:, 0] - self._x[index]
+        dy = moved[:, 1] - self._y[index]
+        return np.sqrt(dx * dx + dy * dy), index

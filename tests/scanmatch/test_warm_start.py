@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from estimation.scanmatch import Polyline, laser_scan, match_scans
 from estimation.scanmatch.common import apply_pose
-from estimation.scanmatch.nearest import WarmNearest
+from estimation.scanmatch.nearest import NearestPoint, WarmNearest
 from estimation.scanmatch.polyline import NearestVertexCache
 
 POSE = np.array([0.2, -0.4, 0.3])
@@ -39,6 +39,19 @@ def test_warm_nearest_agrees_with_a_fresh_tree_query(k):
         _, fresh = tree.query(queries, k=k)
         np.testing.assert_array_equal(np.sort(warm.nearest, axis=1), np.sort(fresh.reshape(-1, k), axis=1))
     assert queried[0] == 120 and min(queried) < 120   # it did skip queries, or this test tests nothing
+
+
+def test_nearest_point_is_bit_identical_to_the_tree_query():
+    """ICP and PL-ICP rely on it: the same index and the very same distance bits as cKDTree.query."""
+    rng = np.random.default_rng(7)
+    reference = rng.uniform(-5.0, 5.0, (180, 2))
+    tree = cKDTree(reference)
+    nearest = NearestPoint(reference)
+    for queries in random_walk(rng.uniform(-5.0, 5.0, (150, 2)), rng):
+        distance, index = nearest(queries)
+        fresh_distance, fresh_index = tree.query(queries)
+        np.testing.assert_array_equal(index, fresh_index)
+        np.testing.assert_array_equal(distance, fresh_distance)
 
 
 def test_projection_with_a_warm_cache_is_identical_to_a_cold_one(laser):
