@@ -6,8 +6,9 @@ while they move by millimetres.  :class:`WarmNearest` remembers, per point, the 
 other reference point was at least d_{k+1} away.  After the point has moved by δ from its anchor, the k are at
 most d_k + δ away and every other point at least d_{k+1} − δ, so while δ < (d_{k+1} − d_k) / 2 — the point's
 *margin* — they are still exactly the k nearest, as a set.  Only the points past their margin are queried again,
-so the answer is exactly a fresh tree query's as a set.  The k are kept in the order of their last tree query
-(closest first there): the order only matters to break exact ties, and a cold query breaks them the same way.
+so the answer is a fresh tree query's as a set (up to near-ties within rounding error).  The k are kept in the
+order of their last tree query (closest first there); the order only matters to break exact ties, and for those
+the first query can ask for as many neighbours as a caller's earlier, cold queries did (``first_query``).
 
 Checking every point's margin is two array operations; a tree query costs a fixed ~15 µs plus ~0.5 µs a point.
 Points near a tie (the k-th and (k+1)-th nearly equidistant) have a small margin and are queried again often, but
@@ -35,7 +36,8 @@ class WarmNearest:
         # The first query may ask for a different count: a k-d tree orders exactly equidistant points differently for
         # different query sizes, and the first query (at the initial pose) is where such ties occur — identical
         # readings of two scans matched from the identity.  Asking what the earlier implementations asked (6 for
-        # the curve, 1 for ICP and PL-ICP) keeps the results bit-identical.  With only k, no margin is known yet.
+        # eICP's curve, 2 for a one-off projection, 1 for ICP and PL-ICP) keeps the results bit-identical.  With
+        # only k, no margin is known yet.
         self._first_query_k = self._query_k if first_query is None else min(max(first_query, self.k), tree.n)
         self.nearest: np.ndarray | None = None   # (N, k) int
         self._anchor: np.ndarray | None = None   # (N,) complex x + iy of each point's last tree query
