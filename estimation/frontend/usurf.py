@@ -47,27 +47,12 @@ def sample_offsets(scale: float) -> np.ndarray:
     return (np.arange(SAMPLES_PER_AXIS) - (SAMPLES_PER_AXIS - 1) / 2.0) * scale
 
 
-def gaussian_weights(scale: float) -> np.ndarray:
-    """Weights (20, 20) [row, column] of the samples: Gaussian of σ = 3.3s centred on the keypoint."""
+def axis_weights(scale: float) -> np.ndarray:
+    """Gaussian weights (20,) of the samples along one axis, σ = 3.3s centred on the keypoint; sample (a, b) of the
+    window weighs axis_weights[a]·axis_weights[b]."""
     offsets = sample_offsets(scale)
     sigma = GAUSSIAN_SIGMA_IN_SCALES * scale
-    g = np.exp(-(offsets**2) / (2.0 * sigma**2))
-    return np.outer(g, g)
-
-
-@functools.lru_cache(maxsize=8)
-def pooling_matrix(scale: float) -> np.ndarray:
-    """(400, 16) float32: column 4·i + j holds the Gaussian weights of subregion (i, j)'s 25 samples, 0 elsewhere.
-
-    Multiplying a keypoint's (400,) sample responses by it gives the 16 weighted subregion sums at once.
-    """
-    sample = np.arange(SAMPLES_PER_AXIS)
-    subregion_of = sample // 5
-    region = (subregion_of[:, None] * SUBREGIONS + subregion_of[None, :]).reshape(-1)  # (400,)
-    pooling = np.zeros((SAMPLES_PER_AXIS**2, SUBREGIONS**2), np.float32)
-    pooling[np.arange(SAMPLES_PER_AXIS**2), region] = gaussian_weights(scale).reshape(-1)
-    pooling.setflags(write=False)
-    return pooling
+    return np.exp(-(offsets**2) / (2.0 * sigma**2))
 
 
 def integral_image(image: np.ndarray, buffers: ScratchBuffers | None = None,
@@ -277,13 +262,11 @@ def gather_haar_responses(dx_img: np.ndarray, dy_img: np.ndarray, cols: np.ndarr
 
 @functools.lru_cache(maxsize=8)
 def subregion_weights(scale: float) -> np.ndarray:
-    """(4, 20) float32: row i holds the Gaussian weights of the 5 samples of subregion i along one axis, 0 elsewhere.
+    """(4, 20) float32: row i holds the ``axis_weights`` of the 5 samples of subregion i along one axis, 0 elsewhere.
 
-    The 2-D weight of sample (a, b) is g_a·g_b, so ``pooling_matrix`` is this matrix's Kronecker square.
+    The weight of sample (a, b) in subregion (i, j) is weights[i, a]·weights[j, b]: pooling is separable.
     """
-    offsets = sample_offsets(scale)
-    sigma = GAUSSIAN_SIGMA_IN_SCALES * scale
-    g = np.exp(-(offsets**2) / (2.0 * sigma**2))
+    g = axis_weights(scale)
     weights = np.zeros((SUBREGIONS, SAMPLES_PER_AXIS), np.float32)
     samples = SAMPLES_PER_AXIS // SUBREGIONS
     for i in range(SUBREGIONS):
@@ -297,8 +280,7 @@ def pooled_sums(responses: np.ndarray, scale: float) -> np.ndarray:
 
     responses: (20, 4, 20, M) from ``response_buffer`` with dx, dy filled in (|dx|, |dy| are written here).
     Row-major subregions (i, j), each (Σdx, Σdy, Σ|dx|, Σ|dy|). The weights are separable, so the sums are two
-    small matrix products (over sample rows, then columns) rather than one with the 400 × 16 pooling matrix,
-    whose entries are 15/16 zero.
+    small matrix products (over sample rows, then columns) rather than one (400, 16) matrix of 15/16 zeros.
     """
     k, m = SAMPLES_PER_AXIS, responses.shape[3]
     np.abs(responses[:, :2], out=responses[:, 2:])  # the weights are positive, so Σ w·|dx| = Σ |w·dx|

@@ -146,10 +146,17 @@ def test_both_images_at_once_equal_one_at_a_time(scale):
         usurf_descriptors_of_images(images, points[:2], scale)
 
 
-def test_separable_pooling_weights_are_the_pooling_matrix():
-    # pooling runs as two products with the (4, 20) per-axis weights; their Kronecker square is the 400 × 16 matrix
-    from estimation.frontend.usurf import pooling_matrix, subregion_weights
+def test_separable_pooling_weights_are_the_gaussian_of_each_subregion():
+    # pooling runs as two products with the (4, 20) per-axis weights; their Kronecker square must give every
+    # sample (a, b) the weight exp(-(o_a² + o_b²) / 2σ²), σ = 3.3s, in its own subregion and 0 in the others
+    from estimation.frontend.usurf import subregion_weights
 
     for scale in (1.0, 2.0, 2.5):
+        offsets = (np.arange(20) - 9.5) * scale
+        g = np.exp(-(offsets**2) / (2 * (3.3 * scale) ** 2))
+        expected = np.zeros((16, 400))
+        for a in range(20):
+            for b in range(20):
+                expected[(a // 5) * 4 + b // 5, a * 20 + b] = g[a] * g[b]
         weights = subregion_weights(scale)
-        np.testing.assert_allclose(np.kron(weights, weights).T, pooling_matrix(scale), rtol=1e-6)
+        np.testing.assert_allclose(np.kron(weights, weights), expected, rtol=1e-6)
