@@ -7,13 +7,13 @@ FastSLAM consumes.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from estimation.frontend.buffers import ScratchBuffers, scratch
+from estimation.frontend.caching import once_per_value
 from estimation.frontend.descriptors import DescriptorKind, describe_pair, descriptor_kind
 from estimation.frontend.errors import FrontEndError
 from estimation.frontend.harris import HarrisConfig, detect_corners
@@ -125,16 +125,9 @@ def detection_margin(config: FrontEndConfig) -> int:
     return max(config.harris.margin, int(np.ceil(10.0 * config.scale)) + haar_half_size(config.scale) + 1)
 
 
+@once_per_value
 def _detection_settings(config: FrontEndConfig) -> HarrisConfig:
     """The Harris settings with the margin raised to where a descriptor window fits (once per configuration)."""
-    try:
-        return _cached_detection_settings(config)
-    except TypeError:  # a setting given as a list makes the configuration unhashable: no cache then
-        return dataclasses.replace(config.harris, margin=detection_margin(config))
-
-
-@functools.lru_cache(maxsize=16)
-def _cached_detection_settings(config: FrontEndConfig) -> HarrisConfig:
     return dataclasses.replace(config.harris, margin=detection_margin(config))
 
 

@@ -8,12 +8,12 @@ independent (σ_d being the sub-pixel disparity's own error), as the team's nois
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from estimation.frontend.caching import once_per_value
 from estimation.frontend.errors import FrontEndError
 
 # base_link axes (x forward, y left, z up) in terms of the optical axes: x_b = z_c, y_b = -x_c, z_b = -y_c
@@ -140,20 +140,9 @@ def triangulation_covariances(pixels: np.ndarray, disparities: np.ndarray,
     return cov
 
 
+@once_per_value
 def _camera_rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(R (3, 3), t (3,)) of ``geometry.left_camera_to_base()``, computed once per geometry (read-only)."""
-    try:
-        return _cached_rotation_translation(geometry)
-    except TypeError:  # a pose given as a list makes the geometry unhashable: no cache then
-        return _rotation_translation(geometry)
-
-
-@functools.lru_cache(maxsize=16)
-def _cached_rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
-    return _rotation_translation(geometry)
-
-
-def _rotation_translation(geometry: StereoGeometry) -> tuple[np.ndarray, np.ndarray]:
     T = geometry.left_camera_to_base()
     R, t = np.ascontiguousarray(T[:3, :3]), T[:3, 3].copy()
     R.setflags(write=False)
