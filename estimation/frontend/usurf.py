@@ -126,7 +126,9 @@ def usurf_descriptors_of_images(images: list[np.ndarray], keypoints: list[np.nda
     images = [np.asarray(image) for image in images]
     half = haar_half_size(scale)
     shape = images[0].shape
-    if len(images) > 1 and not all(im.dtype == np.uint8 and im.ndim == 2 and im.shape == shape for im in images):
+    stackable = all(im.dtype == np.uint8 and im.ndim == 2 and im.shape == shape and im.size < 2**31 // 255
+                    for im in images)  # 8-bit sums of one size, exact in int32
+    if len(images) > 1 and not stackable:
         return [usurf_descriptors_of_images([image], [points], scale, buffers)[0]
                 for image, points in zip(images, keypoints, strict=True)]
     if len(images) == 1:
