@@ -134,6 +134,8 @@ def refine_disparity_ssd(left: np.ndarray, right: np.ndarray, left_pixels: np.nd
     no interior minimum the input disparity is returned with refined = False.
     """
     left, right = np.asarray(left), np.asarray(right)  # patches are gathered first, then made float
+    if left.shape != right.shape:
+        raise FrontEndError(f"left {left.shape} and right {right.shape} images differ in size")
     k = len(left_pixels)
     result = np.asarray(disparities, dtype=np.float64).copy()
     refined = np.zeros(k, bool)
