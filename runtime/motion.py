@@ -110,12 +110,21 @@ class PurePursuit:
     turns back on itself is followed. An obstacle nearer than ``avoid_distance`` ahead (another robot in the
     corridor) is passed by a side-step ``detour_side`` m to the right (left if the right is closed) and
     ``detour_forward`` m ahead; the robot slows down for what is ahead and stops short of ``stop_distance``.
+
+    A target more than ``turn_in_place`` rad off the heading is faced on the spot first (a skid-steer robot
+    turns in place; driving a wide arc round a corner overshoots the next leg, e.g. into a door frame). A
+    robot that is told to drive but has not moved for ``stuck_steps`` commands (a bumper against a door frame
+    the sonar cannot see at that angle) backs off ``backup_steps`` commands at ``backup_speed`` when the rear
+    sonars show room, then carries on: the next approach starts further away and meets the route's line.
+    After ``max_recoveries`` of those on one leg (the pose it steers on is off, so it keeps meeting the frame)
+    it gives the leg's waypoint up and goes on with the route (``skipped`` counts them) rather than stay put.
     """
 
     def __init__(self, waypoints: np.ndarray, *, speed: float = 0.35, lookahead: float = 0.7,
                  max_turn_rate: float = 0.8, goal_tolerance: float = 0.3, stop_distance: float = 0.35,
                  avoid_distance: float = 1.3, side_clearance: float = 0.6, detour_forward: float = 0.6,
-                 detour_side: float = 0.7) -> None:
+                 detour_side: float = 0.7, turn_in_place: float = 0.8, stuck_steps: int = 20,
+                 backup_steps: int = 30, backup_speed: float = 0.15, max_recoveries: int = 3) -> None:
         self.waypoints = np.asarray(waypoints, float).reshape(-1, 2)
         if len(self.waypoints) == 0:
             raise ValueError("a route needs at least one waypoint")
@@ -127,6 +136,17 @@ class PurePursuit:
         self._detour_budget = 0
         self._detour_cooldown = 0
         self.index = 0  # the segment the robot is on: waypoints[index] -> waypoints[index + 1]
+        self.turn_in_place = turn_in_place
+        self.stuck_steps, self.backup_steps, self.backup_speed = stuck_steps, backup_steps, backup_speed
+        self.max_recoveries = max_recoveries
+        self._leg_recoveries = 0  # recoveries on the current leg (self.index)
+        self._leg = 0
+        self.skipped = 0          # waypoints given up after max_recoveries on their leg
+        self._last_xy: np.ndarray | None = None
+        self._last_v = 0.0
+        self._stuck = 0         # consecutive commands that asked for motion and got none
+        self._backing = 0       # commands of backing off still to go
+        self.recoveries = 0     # times the robot backed off after getting stuck
 
     def _target(self, xy: np.ndarray) -> np.ndarray:
         # a waypoint counts as reached within the goal tolerance or once passed (the route may turn back on
@@ -157,6 +177,41 @@ class PurePursuit:
                 ranges: np.ndarray | None = None) -> MotionCommand:
         pose = np.asarray(pose, float)
         xy = pose[:2]
+        recovery = self._recover(xy, sonar_poses, ranges)
+        if recovery is not None:
+            return recovery
+        command = self._pursue(pose, xy, sonar_poses, ranges)
+        self._last_v = command.v
+        return command
+
+    def _recover(self, xy: np.ndarray, sonar_poses: np.ndarray | None,
+                 ranges: np.ndarray | None) -> MotionCommand | None:
+        """Back off after being stuck (see the class docstring); None when driving on as usual."""
+        moved = np.inf if self._last_xy is None else float(np.linalg.norm(xy - self._last_xy))
+        self._last_xy = xy.copy()
+        if self._backing > 0:
+            self._backing -= 1
+            behind = min(_sector_min(sonar_poses, ranges, np.pi - 0.5, np.pi),
+                         _sector_min(sonar_poses, ranges, -np.pi, -np.pi + 0.5))
+            if behind > self.stop_distance + 0.1:
+                self._last_v = -self.backup_speed
+                return MotionCommand(-self.backup_speed, 0.0, False)
+            self._backing = 0  # no room behind: try forward again
+        self._stuck = self._stuck + 1 if self._last_v > 0.05 and moved < 0.005 else 0
+        if self._leg != self.index:
+            self._leg, self._leg_recoveries = self.index, 0
+        if self._stuck >= self.stuck_steps:
+            self._stuck, self._backing = 0, self.backup_steps
+            self.recoveries += 1
+            self.detour = None
+            self._leg_recoveries += 1
+            if self._leg_recoveries > self.max_recoveries and self.index < len(self.waypoints) - 1:
+                self.index += 1  # give this leg's waypoint up
+                self.skipped += 1
+        return None
+
+    def _pursue(self, pose: np.ndarray, xy: np.ndarray, sonar_poses: np.ndarray | None,
+                ranges: np.ndarray | None) -> MotionCommand:
         if self.detour is not None:
             self._detour_budget -= 1
             if np.linalg.norm(self.detour - xy) < self.goal_tolerance or self._detour_budget <= 0:
@@ -186,7 +241,7 @@ class PurePursuit:
         distance = max(float(np.hypot(local[0], local[1])), 1e-6)
         curvature = 2.0 * local[1] / distance**2  # pure pursuit: κ = 2 y / L²
         heading_error = float(np.arctan2(local[1], local[0]))
-        v = self.speed * max(0.0, np.cos(heading_error))  # turn on the spot toward a target behind
+        v = self.speed * max(0.0, np.cos(heading_error)) if abs(heading_error) < self.turn_in_place else 0.0
         w = v * curvature if v > 0.05 else np.sign(heading_error) * 0.5 * self.max_turn_rate
         if ahead < self.avoid_distance and abs(heading_error) < 0.45:  # slow down near what is ahead
             v *= float(np.clip((ahead - self.stop_distance) / (self.avoid_distance - self.stop_distance), 0, 1))

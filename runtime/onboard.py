@@ -277,6 +277,7 @@ class Onboard:
         self.odometry = OdometryBuffer()
         self.stats = OnboardStats()
         self.route_done = threading.Event()
+        self._recoveries_seen = self._skipped_seen = 0  # the controller's counts already reported
         self._frames: queue.Queue[CameraFrame] = queue.Queue(maxsize=max(1, config.frame_queue))
         self._stop = threading.Event()
         self._latest: OdometrySample | None = None
@@ -474,6 +475,7 @@ class Onboard:
                     pose = compose(self.core.first_odometry, estimate)  # back in the odometry frame's origin
             try:
                 command = self.controller.command(pose, sample.sonar_poses, sample.sonar_ranges)
+                self._report_recoveries()
                 if command.done:
                     self.link.set_velocity(0.0, 0.0)
                     if not self.route_done.is_set():
@@ -483,6 +485,15 @@ class Onboard:
                 self.link.set_velocity(command.v, command.w)
             except Exception as e:
                 self._event(f"control error: {e}", "WARN")
+
+    def _report_recoveries(self) -> None:
+        """Say when the controller backed off an obstacle it was stuck on, or gave a waypoint up."""
+        recoveries, skipped = getattr(self.controller, "recoveries", 0), getattr(self.controller, "skipped", 0)
+        if recoveries > self._recoveries_seen:
+            self._event("stuck (driving, not moving): backing off and trying again", "WARN")
+        if skipped > self._skipped_seen:
+            self._event("gave a waypoint up after getting stuck on the way to it several times", "WARN")
+        self._recoveries_seen, self._skipped_seen = recoveries, skipped
 
     def _event(self, text: str, level: str = "INFO") -> None:
         message = f"{self.robot}: {text}"

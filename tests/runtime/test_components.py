@@ -351,3 +351,38 @@ def test_a_long_trajectory_is_logged_in_segments_that_rebuild_the_path(tmp_path)
     joined = np.vstack([segments[0]] + [s[1:] for s in segments[1:]])  # each segment starts where the last ended
     np.testing.assert_allclose(joined[:, :2], path[:, :2], atol=1e-6)
     assert logged_points < n * (TRAJECTORY_SEGMENT + 1) / 2 + n
+
+
+def _drive_blocked(controller, world: World, pose: np.ndarray, steps: int, bias: np.ndarray | None = None,
+                   radius: float = 0.33):
+    """Like _drive, but the world blocks moves into walls (only the turn happens, as on the virtual P3-AT) and
+    the controller steers on the true pose plus ``bias`` (a localisation error). Returns the last command and
+    the true poses."""
+    sonar_poses = np.array([[0.1, 0.0, a] for a in np.radians([-90, -50, -30, -10, 10, 30, 50, 90, 150, 180, -150])])
+    poses, bias = [pose], np.zeros(3) if bias is None else bias
+    for _ in range(steps):
+        mounts = compose(pose, sonar_poses)
+        ranges, _ = world.raycast(mounts[:, :2], mounts[:, 2], 5.0)
+        cmd = controller.command(pose + bias, sonar_poses, ranges)
+        if cmd.done:
+            break
+        moved = compose(pose, np.array([cmd.v * 0.1, 0.0, cmd.w * 0.1]))
+        clearance_new, clearance_old = world.distance_to_walls(np.array([moved[:2], pose[:2]]))
+        if clearance_new < radius and clearance_new < clearance_old:
+            moved = np.array([pose[0], pose[1], moved[2]])
+        pose = moved
+        poses.append(pose)
+    return cmd, np.array(poses)
+
+
+def test_pure_pursuit_gives_a_waypoint_up_rather_than_stay_stuck():
+    """Steering on a pose 0.45 m off (it believes it is on the doorway's centre line, it is on the frame), the
+    robot meets the frame every time: after max_recoveries it gives the room up and finishes the route."""
+    world = World.load()
+    route = np.array([[15.0, 5.0], [15.0, 8.3], [15.0, 5.0], [12.0, 5.0]])
+    controller = PurePursuit(route, speed=0.35)
+    cmd, poses = _drive_blocked(controller, world, np.array([15.45, 5.3, np.pi / 2]), 1500,
+                                bias=np.array([-0.45, 0.0, 0.0]))
+    # each recovery backed it off the frame (it was stuck, not creeping along)
+    assert controller.recoveries == controller.max_recoveries + 1 and controller.skipped == 1
+    assert cmd.done and np.linalg.norm(poses[-1, :2] - [12.45, 5.0]) < 0.4
