@@ -13,6 +13,7 @@ frame the route is given in; blank lines and ``#`` comments are ignored.
 from __future__ import annotations
 
 import os
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -142,9 +143,8 @@ class PurePursuit:
         self._leg_recoveries = 0  # recoveries on the current leg (self.index)
         self._leg = 0
         self.skipped = 0          # waypoints given up after max_recoveries on their leg
-        self._last_xy: np.ndarray | None = None
         self._last_v = 0.0
-        self._stuck = 0         # consecutive commands that asked for motion and got none
+        self._recent: deque[tuple[np.ndarray, bool]] = deque(maxlen=stuck_steps)  # (xy, told to drive) per command
         self._backing = 0       # commands of backing off still to go
         self.recoveries = 0     # times the robot backed off after getting stuck
 
@@ -187,8 +187,7 @@ class PurePursuit:
     def _recover(self, xy: np.ndarray, sonar_poses: np.ndarray | None,
                  ranges: np.ndarray | None) -> MotionCommand | None:
         """Back off after being stuck (see the class docstring); None when driving on as usual."""
-        moved = np.inf if self._last_xy is None else float(np.linalg.norm(xy - self._last_xy))
-        self._last_xy = xy.copy()
+        self._recent.append((xy.copy(), self._last_v > 0.05))
         if self._backing > 0:
             self._backing -= 1
             behind = min(_sector_min(sonar_poses, ranges, np.pi - 0.5, np.pi),
@@ -197,11 +196,15 @@ class PurePursuit:
                 self._last_v = -self.backup_speed
                 return MotionCommand(-self.backup_speed, 0.0, False)
             self._backing = 0  # no room behind: try forward again
-        self._stuck = self._stuck + 1 if self._last_v > 0.05 and moved < 0.005 else 0
         if self._leg != self.index:
             self._leg, self._leg_recoveries = self.index, 0
-        if self._stuck >= self.stuck_steps:
-            self._stuck, self._backing = 0, self.backup_steps
+        # stuck: told to drive for the whole window and still within 3 cm of where the window began (a window,
+        # not step by step, because a pose steered on FastSLAM's estimate jitters by its corrections)
+        stuck = len(self._recent) == self.stuck_steps and all(driving for _, driving in self._recent) and \
+            max(float(np.linalg.norm(p - self._recent[0][0])) for p, _ in self._recent) < 0.03
+        if stuck:
+            self._recent.clear()
+            self._backing = self.backup_steps
             self.recoveries += 1
             self.detour = None
             self._leg_recoveries += 1
