@@ -309,11 +309,12 @@ class Mission:
             stack.callback(camera.close)
             return camera, camera.geometry
         from mocks.stereo_head import VirtualStereoHead
+        from mocks.stereo_head.backend import DEFAULT_LATENCY
 
         # one renderer (its texture atlas) shared by every head in the building
-        latency = {} if cfg.camera_latency is None else {"latency": cfg.camera_latency}
+        latency = DEFAULT_LATENCY if cfg.camera_latency is None else cfg.camera_latency
         virtual = VirtualStereoHead(world, name, rng=rng, realtime=True, clock=self.clock,
-                                    renderer=getattr(self, "_renderer", None), **latency)
+                                    renderer=getattr(self, "_renderer", None), latency=latency)
         self._renderer = virtual.renderer
         self._virtual_heads[name] = virtual
         # the driver stamps frames with their exposure time: the head's stated exposure-to-delivery delay
