@@ -24,10 +24,12 @@ class FastSLAMConfig:
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
     odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
+    anchor_first_frame: bool = False              # 2.0: a particle with an empty map takes the mean pose (see filter)
     # -- data association -----------------------------------------------------------------------------------
     mahalanobis_gate: float = 11.345              # χ²(3 dof) at 99 %: squared Mahalanobis distance gate
     descriptor_threshold: float = 0.5             # max Euclidean distance between unit descriptors (paper's th)
     observation_var_floor: float = 0.02 ** 2      # m² added to each observation covariance (model error)
+    observation_cov_scale: float = 1.0            # multiplies each observation covariance before the floor
     refresh_descriptors: bool = False             # a landmark's descriptor follows its latest match (best particle)
     max_observations: int = 40                    # per frame, keep only this many (see selection.py); 0: all
     observation_selection: str = "nearest"        # which: "nearest" (most precise) or "spread" (bearing × depth)
@@ -55,6 +57,8 @@ class FastSLAMConfig:
             raise ValueError("block_size must be ≥ 1 and descriptor_size ≥ 0")
         if self.observation_selection not in ("spread", "nearest"):
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
+        if not self.observation_cov_scale > 0.0:
+            raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

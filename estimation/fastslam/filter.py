@@ -233,7 +233,13 @@ class FastSLAM:
 
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
-            self.poses = self._sample_proposal(predicted, matched, mean, s_inv, _cols(innovation, win))
+            sampled = self._sample_proposal(predicted, matched, mean, s_inv, _cols(innovation, win))
+            if cfg.anchor_first_frame:
+                # the frame that starts a particle's map fixes its gauge: no later observation can tell a heading
+                # sampled there from the truth, so a draw only adds a permanent offset; keep the mean instead
+                empty = self.store.n_blocks == 0
+                sampled[empty] = predicted[empty]
+            self.poses = sampled
             self._motion_cov = np.zeros_like(self._motion_cov)
         poses = self.poses
 
@@ -282,7 +288,8 @@ class FastSLAM:
     def _checked(self, observations: StereoObservations):
         cfg = self.config
         z = np.asarray(observations.points, float)
-        q = symmetrise(np.asarray(observations.covariances, float)) + cfg.observation_var_floor * _EYE3
+        q = cfg.observation_cov_scale * symmetrise(np.asarray(observations.covariances, float))
+        q = q + cfg.observation_var_floor * _EYE3
         desc = np.asarray(observations.descriptors, np.float32)
         if desc.ndim != 2:
             desc = desc.reshape(len(z), -1) if len(z) else np.zeros((0, cfg.descriptor_size), np.float32)

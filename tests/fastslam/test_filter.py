@@ -244,3 +244,38 @@ def test_spread_selection_keeps_far_and_wide_observations():
         assert side.sum() >= 5                                # both edges of the image are represented
     with pytest.raises(ValueError, match="observation_selection"):
         FastSLAMConfig(observation_selection="random")
+
+
+@pytest.mark.parametrize("anchor", [False, True])
+def test_first_frame_anchors_the_map_at_the_mean_pose(anchor):
+    """The frame that starts the map fixes its gauge: anchored, every particle keeps the odometry's mean there."""
+    rng = np.random.default_rng(0)
+    slam = FastSLAM(FastSLAMConfig(n_particles=30, anchor_first_frame=anchor), np.random.default_rng(1))
+    delta = np.array([0.5, 0.05, 0.3])
+    slam.predict(OdometryIncrement(*delta, 0.0, 1.0))
+    slam.update(_obs([[4.0, 0.3, 0.8], [5.0, -0.3, 0.9]], _unit(rng, 2)))
+    spread = np.ptp(slam.poses, axis=0)
+    if anchor:
+        np.testing.assert_allclose(slam.poses, np.tile(delta, (30, 1)), atol=1e-12)
+        landmarks = slam.particle_map(7, min_count=1).positions
+        np.testing.assert_allclose(landmarks, transform_points(delta, [[4.0, 0.3, 0.8], [5.0, -0.3, 0.9]]))
+    else:
+        assert spread[2] > 0.01 and spread[0] > 0.01
+    # once the map exists the proposal samples again: the next frame spreads the particles
+    slam.predict(OdometryIncrement(0.5, 0.0, 0.2, 1.0, 2.0))
+    slam.update(_obs([[3.0, 1.0, 0.8]], _unit(rng)))
+    assert np.ptp(slam.poses[:, 2]) > 0.01
+
+
+def test_observation_covariance_scale_widens_new_landmarks():
+    rng = np.random.default_rng(0)
+    descriptor = _unit(rng)
+    covariances = []
+    for scale in (1.0, 4.0):
+        slam = FastSLAM(FastSLAMConfig(n_particles=3, observation_cov_scale=scale, observation_var_floor=0.0),
+                        np.random.default_rng(1))
+        slam.update(_obs([[4.0, 0.3, 0.8]], descriptor, sigma=0.05))
+        covariances.append(slam.particle_map(0, min_count=1).covariances[0])
+    np.testing.assert_allclose(covariances[1], 4.0 * covariances[0], rtol=1e-9)
+    with pytest.raises(ValueError, match="observation_cov_scale"):
+        FastSLAMConfig(observation_cov_scale=0.0)
