@@ -238,6 +238,8 @@ class FastSLAM:
                 # the frame that starts a particle's map fixes its gauge: no later observation can tell a heading
                 # sampled there from the truth, so a draw only adds a permanent offset; keep the mean instead
                 empty = self.store.n_blocks == 0
+                if cfg.anchor_unmatched:
+                    empty |= np.bincount(matched.m, minlength=n_particles) == 0
                 sampled[empty] = predicted[empty]
             self.poses = sampled
             self._motion_cov = np.zeros_like(self._motion_cov)

@@ -279,3 +279,14 @@ def test_observation_covariance_scale_widens_new_landmarks():
     np.testing.assert_allclose(covariances[1], 4.0 * covariances[0], rtol=1e-9)
     with pytest.raises(ValueError, match="observation_cov_scale"):
         FastSLAMConfig(observation_cov_scale=0.0)
+
+
+@pytest.mark.parametrize("unmatched", [False, True])
+def test_a_frame_without_matches_keeps_the_mean_pose_when_asked(unmatched):
+    rng = np.random.default_rng(0)
+    cfg = FastSLAMConfig(n_particles=30, anchor_first_frame=True, anchor_unmatched=unmatched)
+    slam = FastSLAM(cfg, np.random.default_rng(1))
+    slam.update(_obs([[4.0, 0.3, 0.8]], _unit(rng)))
+    slam.predict(OdometryIncrement(0.5, 0.0, 0.3, 0.0, 1.0))
+    slam.update(_obs([[2.0, -1.0, 0.5]], _unit(rng)))      # a new look, nothing to match
+    assert (np.ptp(slam.poses[:, 2]) < 1e-12) == unmatched
