@@ -24,7 +24,7 @@ class FastSLAMConfig:
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
     odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
-    anchor_first_frame: bool = False              # 2.0: a particle with an empty map takes the mean pose (see filter)
+    anchor_first_frame: bool = True               # 2.0: a particle with an empty map takes the mean pose (see filter)
     anchor_unmatched: bool = False                # 2.0, with anchor_first_frame: so does one that matched nothing
     # -- data association -----------------------------------------------------------------------------------
     mahalanobis_gate: float = 11.345              # χ²(3 dof) at 99 %: squared Mahalanobis distance gate
