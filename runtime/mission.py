@@ -23,9 +23,10 @@ import numpy as np
 
 from estimation.fastslam import FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
-from estimation.geometry import between, wrap_angle
+from estimation.geometry import between
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
+from runtime.fusion_report import FusionReport, fuse_maps
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig
 
@@ -86,108 +87,6 @@ class MissionConfig:
             raise ValueError(f"--odometry must be exact or realistic, not {self.odometry!r}")
         if self.on_mocks and self.camera == "usb":
             raise ValueError("--camera usb needs a real robot (--robot URL); the virtual robots use mock or synthetic")
-
-
-@dataclass
-class PairResult:
-    reference: str
-    other: str
-    aligned: bool
-    tx: float = float("nan")
-    ty: float = float("nan")
-    theta: float = float("nan")
-    supports: int = 0
-    common: int = 0
-    error_xy: float | None = None
-    error_theta: float | None = None
-    note: str = ""
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
-
-@dataclass
-class FusionReport:
-    t: float
-    pairs: list[PairResult]
-    merged: LandmarkMap | None
-    seconds: float
-
-    def as_dict(self) -> dict:
-        return {"t": round(self.t, 2), "pairs": [p.as_dict() for p in self.pairs],
-                "merged_landmarks": 0 if self.merged is None else len(self.merged),
-                "seconds": self.seconds}
-
-
-def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,
-              rng: np.random.Generator | None = None) -> FusionReport:
-    """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
-    from fusion import align, merge, true_relative_pose
-
-    start = time.perf_counter()
-    names = sorted(maps)
-    pairs: list[PairResult] = []
-    if len(names) < 2:
-        return FusionReport(t, pairs, maps[names[0]] if names else None, 0.0)
-    reference = names[0]
-    merged = maps[reference]
-    rng = rng if rng is not None else np.random.default_rng(0)
-    if len(names) > 2:
-        return _fuse_many(maps, names, preset, method, t, rng, start)
-    for other in names[1:]:
-        result = PairResult(reference, other, False)
-        alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
-        result.supports = int(len(alignment.supports))
-        if not alignment.found:
-            result.note = alignment.reason
-            pairs.append(result)
-            continue
-        result.aligned = True
-        result.tx, result.ty, result.theta = (float(v) for v in alignment.pose)
-        merged_pair = merge(merged, maps[other], alignment, method=method)
-        result.common = int(merged_pair.metadata.get("fusion", {}).get("common_landmarks", 0))
-        merged = merged_pair
-        truth = true_relative_pose(maps[reference], maps[other])  # from the maps' true start poses (mocks)
-        if truth is not None:
-            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
-            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
-        pairs.append(result)
-    return FusionReport(t, pairs, merged, time.perf_counter() - start)
-
-
-def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float,
-               rng: np.random.Generator, start: float) -> FusionReport:
-    """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame."""
-    from fusion import NoOverlapError, fuse_all, true_relative_pose
-
-    ordered = [maps[n] for n in names]
-    try:
-        multi = fuse_all(ordered, preset=preset, method=method, rng=rng)
-    except NoOverlapError as e:
-        pairs = [PairResult(names[0], n, False, note=str(e)) for n in names[1:]]
-        return FusionReport(t, pairs, maps[names[0]], time.perf_counter() - start)
-    parent = {child: p for p, child in multi.tree}
-    column = {r: i for i, r in enumerate(multi.map.robots)}
-    pairs = []
-    for k, other in enumerate(names[1:], 1):
-        pose = multi.poses[k]
-        result = PairResult(names[0], other, pose is not None)
-        if pose is None:
-            result.note = "not connected to the reference map"
-            pairs.append(result)
-            continue
-        result.tx, result.ty, result.theta = (float(v) for v in pose)
-        edge = multi.alignments.get(tuple(sorted((parent[k], k))))
-        result.supports = 0 if edge is None else int(len(edge.supports))
-        if names[0] in column and other in column:
-            result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
-        truth = true_relative_pose(ordered[0], ordered[k])
-        if truth is not None:
-            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
-            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
-        result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
-        pairs.append(result)
-    return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
 
 
 @dataclass

@@ -197,7 +197,7 @@ def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
 @pytest.mark.parametrize("n_robots", [2, 3])
 def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth(n_robots):
     from estimation.geometry import inverse, transform_points
-    from runtime.mission import fuse_maps
+    from runtime.fusion_report import fuse_maps
 
     world = World.load()
     rng = np.random.default_rng(6)
