@@ -37,6 +37,8 @@ class StereoObservations:
     descriptors:  (N, D) float32, unit length (U-SURF: D = 64)
     pixels:       (N, 2) left-image (u, v) of each point, pixels
     timestamp:    seconds (the camera's clock, mapped by the runtime onto the robot's)
+    ids:          (N,) int64 or None: the landmark identity each observation reports, when the sensor reads one
+                  (a fiducial's barcode or tag number; -1: this observation carries none). None: no identities.
     """
 
     points: np.ndarray
@@ -45,6 +47,7 @@ class StereoObservations:
     pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     timestamp: float = 0.0
     frame: str = "base_link"
+    ids: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -55,6 +58,11 @@ class StereoObservations:
             )
         if len(self.pixels) not in (0, n):
             raise ValueError(f"pixels has {len(self.pixels)} rows for {n} points")
+        if self.ids is not None:
+            ids = np.asarray(self.ids)
+            if ids.shape != (n,) or not (ids.dtype.kind in "iu" or (ids.size == 0)):
+                raise ValueError(f"ids must be ({n},) integers, not {ids.shape} {ids.dtype}")
+            object.__setattr__(self, "ids", ids.astype(np.int64))
 
     def __len__(self) -> int:
         return len(self.points)
