@@ -73,7 +73,10 @@ class UsbTransport:
         try:
             found = list(usb.core.find(find_all=True, idVendor=vendor_id, idProduct=product_id, backend=backend))
         except usb.core.NoBackendError as exc:
-            raise DeviceNotFoundError(f"no USB backend (libusb) to look for stereo head {ids}: {exc}") from None
+            raise DeviceNotFoundError(
+                f"no USB backend to look for stereo head {ids}: pyusb needs the libusb-1.0 library "
+                f"(Debian/Ubuntu: sudo apt-get install libusb-1.0-0; Fedora: sudo dnf install libusb1; "
+                f"macOS: brew install libusb), or try --mock for the virtual head ({exc})") from None
         if serial is not None:
             found = [d for d in found if _safe_string(d, d.iSerialNumber) == serial]
         if not found:

@@ -14,6 +14,7 @@ from drivers.errors import DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
+from runtime.commands.options import add_deprecated_alias, positive_float
 
 
 def _hex(text: str) -> int:
@@ -34,7 +35,8 @@ def _add_device_options(parser: argparse.ArgumentParser) -> None:
                         help="an IEEE-1394 head through the system's libdc1394 instead of USB")
     parser.add_argument("--guid", type=_hex, help="--ieee1394: the camera's GUID, hex (default: the first)")
     parser.add_argument("--world", type=Path, help="--mock: building file (default: the packaged one)")
-    parser.add_argument("--robot", default="robot1", help="--mock: named start pose the head's robot stands at")
+    parser.add_argument("--name", default="robot1",
+                        help="--mock: the world's robot (its start pose) the head is mounted on (default robot1)")
     parser.add_argument("--seed", type=int, default=0, help="--mock: sensor noise seed")
 
 
@@ -47,15 +49,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                       "ranges, and a summary of the calibration stored on it.")
     _add_device_options(info)
     info.add_argument("--json", action="store_true", help="print JSON")
+    add_deprecated_alias(info, "--robot", "--name")
     info.set_defaults(handler=run_info)
     grab = sub.add_parser("grab", help="save one left/right pair as PNG",
                           description="Grab one stereo pair and save left.png and right.png in DIR.")
     _add_device_options(grab)
+    add_deprecated_alias(grab, "--robot", "--name")
     grab.add_argument("--out", type=Path, required=True, metavar="DIR", help="directory for left.png and right.png")
     grab.add_argument("--rectify", action="store_true", help="rectify with the calibration stored on the head")
     grab.add_argument("--mode", default="640x480", help="WIDTHxHEIGHT (default %(default)s)")
-    grab.add_argument("--rate", type=float, default=15.0, help="frame rate, Hz (default %(default)s)")
-    grab.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for a frame")
+    grab.add_argument("--camera-rate", type=positive_float, default=15.0, metavar="HZ",
+                      help="frame rate (default %(default)s Hz)")
+    grab.add_argument("--timeout", type=positive_float, default=2.0, metavar="S", help="seconds to wait for a frame")
+    add_deprecated_alias(grab, "--rate", "--camera-rate")
     grab.set_defaults(handler=run_grab)
 
 
@@ -67,10 +73,10 @@ def _open_head(args: argparse.Namespace):
         from mocks.world import World
 
         world = World.load(args.world)
-        if args.robot not in world.start_poses:
-            raise ValueError(f"--robot {args.robot!r}: the building has start poses {sorted(world.start_poses)}")
-        world.add_robot(args.robot, world.start_poses[args.robot])
-        backend = VirtualStereoHead(world, args.robot, rng=np.random.default_rng(args.seed),
+        if args.name not in world.start_poses:
+            raise ValueError(f"--name {args.name!r}: the building has start poses {sorted(world.start_poses)}")
+        world.add_robot(args.name, world.start_poses[args.name])
+        backend = VirtualStereoHead(world, args.name, rng=np.random.default_rng(args.seed),
                                     byte_order=args.byte_order, colour=args.colour,
                                     vendor_id=args.vendor_id, product_id=args.product_id)
     if args.ieee1394 and not args.mock:
@@ -130,7 +136,7 @@ def run_info(args: argparse.Namespace) -> int:
         print("calibration: none stored on the head")
     else:
         print(f"calibration: {cal['size'][0]}x{cal['size'][1]}  fx {cal['fx']:.2f} fy {cal['fy']:.2f}  "
-              f"cx {cal['cx']:.2f} cy {cal['cy']:.2f}  baseline {cal['baseline_m'] * 1000:.1f} mm  "
+              f"cx {cal['cx']:.2f} cy {cal['cy']:.2f}  baseline {cal['baseline_m']:.4f} m  "
               f"head at ({', '.join(f'{v:.3f}' for v in cal['head_pose'][:3])}) m")
     return 0
 
@@ -143,7 +149,7 @@ def run_grab(args: argparse.Namespace) -> int:
         return 2
     try:
         with _open_head(args) as head:
-            head.set_mode(width, height, args.rate)
+            head.set_mode(width, height, args.camera_rate)
             calib = head.read_calibration().scaled(width, height) if args.rectify else None
             head.start()
             frame = head.grab(args.timeout)

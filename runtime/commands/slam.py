@@ -10,6 +10,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
+from runtime.commands.options import add_deprecated_alias, positive_float
 
 
 def register(subparsers) -> None:
@@ -26,18 +27,23 @@ def register(subparsers) -> None:
     sim.add_argument("--seconds", type=float, default=300.0, help="simulated time limit (default 300 s; the "
                      "run also ends when the route is done)")
     sim.add_argument("--seed", type=int, default=0, help="random seed (sensor, odometry and filter)")
-    sim.add_argument("--robot", default="robot1", help="name of the world's start pose and route (robot1)")
-    sim.add_argument("--start", metavar="X,Y,TH", help="start pose in the world (m, m, rad); default: the "
-                     "world's start pose of --robot, or the route's first waypoint facing the second")
-    sim.add_argument("--route", metavar="FILE", help="route file of world waypoints (x y per line); "
-                     "default: the world's route of --robot")
+    sim.add_argument("--name", default="robot1", help="the world's robot whose start pose and route to use "
+                     "(default robot1)")
+    sim.add_argument("--start-pose", metavar="X,Y,THETA", help="start pose in the world (m, m, rad); default: the "
+                     "world's start pose of --name, or the route's first waypoint facing the second")
+    sim.add_argument("--world-route", metavar="FILE", help="route file of WORLD-frame waypoints (x y per line, m); "
+                     "default: the world's route of --name")
     sim.add_argument("--world", metavar="FILE", help="building file (default: the packaged building)")
     sim.add_argument("--particles", type=int, default=100, help="number of particles (100)")
     sim.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
-    sim.add_argument("--frame-rate", type=float, default=5.0, help="stereo frames per second (5)")
+    sim.add_argument("--camera-rate", type=positive_float, default=5.0, metavar="HZ",
+                     help="stereo frames per second (default 5 Hz)")
     sim.add_argument("--out", required=True, metavar="MAP", help="map file to write (.npz landmark map)")
     sim.add_argument("--ply", metavar="FILE", help="also export the map as a PLY point cloud")
     sim.add_argument("--json", action="store_true", help="print the scores as one JSON object")
+    for old, new in (("--robot", "--name"), ("--start", "--start-pose"), ("--route", "--world-route"),
+                     ("--frame-rate", "--camera-rate")):
+        add_deprecated_alias(sim, old, new)
     sim.set_defaults(handler=_simulate)
 
 
@@ -46,9 +52,9 @@ def _parse_pose(text: str) -> np.ndarray:
     try:
         pose = np.array([float(p) for p in parts])
     except ValueError:
-        raise ValueError(f"--start {text!r}: expected three numbers X,Y,TH") from None
+        raise ValueError(f"--start-pose {text!r}: expected three numbers X,Y,THETA") from None
     if pose.shape != (3,) or not np.all(np.isfinite(pose)):
-        raise ValueError(f"--start {text!r}: expected three finite numbers X,Y,TH")
+        raise ValueError(f"--start-pose {text!r}: expected three finite numbers X,Y,THETA")
     return pose
 
 
@@ -61,33 +67,33 @@ def _simulate(args: argparse.Namespace) -> int:
     try:
         if args.particles < 1:
             raise ValueError(f"--particles must be at least 1, not {args.particles}")
-        if not (args.seconds > 0 and args.frame_rate > 0):
-            raise ValueError("--seconds and --frame-rate must be positive")
+        if not (args.seconds > 0 and args.camera_rate > 0):
+            raise ValueError("--seconds must be positive")
         world = World.load(args.world)
-        if args.route:
-            route = load_route(args.route)
-        elif args.robot in world.routes:
-            route = np.asarray(world.routes[args.robot], float)
+        if args.world_route:
+            route = load_route(args.world_route)
+        elif args.name in world.routes:
+            route = np.asarray(world.routes[args.name], float)
         else:
-            raise ValueError(f"the world has no route named {args.robot!r} (it has {sorted(world.routes)}); "
-                             f"give --route")
-        if args.start:
-            start = _parse_pose(args.start)
-        elif not args.route and args.robot in world.start_poses:
-            start = np.asarray(world.start_poses[args.robot], float)
+            raise ValueError(f"the world has no route named {args.name!r} (it has {sorted(world.routes)}); "
+                             f"give --world-route")
+        if args.start_pose:
+            start = _parse_pose(args.start_pose)
+        elif not args.world_route and args.name in world.start_poses:
+            start = np.asarray(world.start_poses[args.name], float)
         else:
             nxt = route[1] if len(route) > 1 else route[0] + [1.0, 0.0]
             start = np.array([route[0][0], route[0][1], math.atan2(nxt[1] - route[0][1], nxt[0] - route[0][0])])
         config = FastSLAMConfig(n_particles=args.particles, version=args.fastslam)
         result = simulate(world, start_pose=start, route=route, seconds=args.seconds, seed=args.seed,
-                          config=config, robot=args.robot, frame_rate=args.frame_rate)
+                          config=config, robot=args.name, frame_rate=args.camera_rate)
         result.map.save(args.out)
         if args.ply:
             result.map.export_ply(args.ply)
     except (ValueError, OSError, EstimationError) as e:  # WorldFileError, RouteFileError, MapFileError included
         print(f"p3at slam simulate: {e}", file=sys.stderr)
         return 2
-    metrics = dict(result.metrics, out=str(args.out), robot=args.robot, seed=args.seed,
+    metrics = dict(result.metrics, out=str(args.out), robot=args.name, seed=args.seed,
                    start=[float(v) for v in start])
     if args.json:
         print(json.dumps(metrics))

@@ -19,7 +19,7 @@ def full_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("slam") / "robot1.npz"
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):
-        status = main(["slam", "simulate", "--particles", "10", "--frame-rate", "3", "--seed", "1", "--out", str(out),
+        status = main(["slam", "simulate", "--particles", "10", "--camera-rate", "3", "--seed", "1", "--out", str(out),
                        "--json"])
     return out, status, json.loads(buffer.getvalue())
 
@@ -57,20 +57,32 @@ def test_route_file_and_start(tmp_path, capsys):
     route = tmp_path / "r.route"
     route.write_text("# along the corridor\n5 5\n9 5\n")
     out = tmp_path / "r.npz"
-    assert main(["slam", "simulate", "--route", str(route), "--start", "5,5,0", "--particles", "5",
+    assert main(["slam", "simulate", "--world-route", str(route), "--start-pose", "5,5,0", "--particles", "5",
                  "--out", str(out), "--json"]) == 0
     scores = json.loads(capsys.readouterr().out)
     assert scores["start"] == [5.0, 5.0, 0.0] and 9 < scores["seconds"] < 20
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--start", "1,2"], "X,Y,TH"),
-    (["--route", "/nonexistent/x.route"], "x.route"),
+    (["--start-pose", "1,2"], "X,Y,THETA"),
+    (["--world-route", "/nonexistent/x.route"], "x.route"),
     (["--particles", "0"], "--particles"),
-    (["--robot", "robot9"], "robot9"),
+    (["--name", "robot9"], "robot9"),
 ])
 def test_bad_arguments_give_one_clear_line(tmp_path, capsys, args, message):
     status = main(["slam", "simulate", "--out", str(tmp_path / "x.npz"), *args])
     err = capsys.readouterr().err
     assert status == 2 and message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_old_option_spellings_still_work_and_say_what_replaces_them(tmp_path, capsys):
+    route = tmp_path / "r.route"
+    route.write_text("5 5\n7 5\n")
+    out = tmp_path / "r.npz"
+    assert main(["slam", "simulate", "--route", str(route), "--start", "5,5,0", "--frame-rate", "3",
+                 "--particles", "5", "--out", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["start"] == [5.0, 5.0, 0.0]
+    for old, new in (("--route", "--world-route"), ("--start", "--start-pose"), ("--frame-rate", "--camera-rate")):
+        assert f"{old} is deprecated" in captured.err and f"use {new}" in captured.err

@@ -25,7 +25,7 @@ def test_camera_info_mock_json(capsys):
 def test_camera_info_text(capsys):
     assert main(["camera", "info", "--mock"]) == 0
     out = capsys.readouterr().out
-    assert "Videre Design MDS-STH" in out and "baseline 90.0 mm" in out and "exposure" in out
+    assert "Videre Design MDS-STH" in out and "baseline 0.0900 m" in out and "exposure" in out
 
 
 def test_camera_grab_mock_rectified(tmp_path: Path, capsys):
@@ -37,13 +37,13 @@ def test_camera_grab_mock_rectified(tmp_path: Path, capsys):
 
 
 def test_camera_errors_are_one_line(tmp_path: Path, capsys):
-    assert main(["camera", "grab", "--mock", "--mode", "1280x960", "--rate", "30", "--out", str(tmp_path)]) == 1
+    assert main(["camera", "grab", "--mock", "--mode", "1280x960", "--camera-rate", "30", "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("p3at camera grab: the head has no mode 1280x960 at 30 Hz") and err.count("\n") == 1
     assert main(["camera", "info", "--mock", "--world", str(tmp_path / "absent.json")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("p3at camera info:") and "absent.json" in err
-    assert main(["camera", "info", "--mock", "--robot", "nobody"]) == 1
+    assert main(["camera", "info", "--mock", "--name", "nobody"]) == 1
     assert "start poses" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 

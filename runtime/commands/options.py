@@ -1,0 +1,73 @@
+"""Option helpers every command shares: number types that refuse nonsense, and deprecated spellings.
+
+The number types are argparse ``type=`` callables: ``--max-distance nan`` or ``--seconds -1`` end in argparse's
+usage error (exit status 2) naming the option, before anything runs.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+
+def finite_float(text: str) -> float:
+    """A finite real number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, not {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, not {text!r}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number >= 0."""
+    value = finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, not {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, not {text!r}")
+    return value
+
+
+class _DeprecatedAlias(argparse.Action):
+    """Stores into the new option's destination and says, once, which spelling to use instead."""
+
+    def __init__(self, option_strings, dest, new_option: str, **kwargs) -> None:
+        self.new_option = new_option
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"{parser.prog}: {option_string} is deprecated and will go in the next release; "
+              f"use {self.new_option}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def add_deprecated_alias(parser: argparse.ArgumentParser, old: str, new: str, **kwargs) -> None:
+    """Accept ``old`` as a hidden spelling of the already added option ``new`` (same destination and type)."""
+    action = next(a for a in parser._actions if new in a.option_strings)
+    parser.add_argument(old, action=_DeprecatedAlias, new_option=new, dest=action.dest, type=action.type,
+                        choices=action.choices, metavar=action.metavar, help=argparse.SUPPRESS, **kwargs)
+
+
+def deprecated_options(parser: argparse.ArgumentParser) -> list[str]:
+    """The hidden deprecated spellings a parser accepts."""
+    return [s for a in parser._actions if isinstance(a, _DeprecatedAlias) for s in a.option_strings]
