@@ -153,16 +153,11 @@ class LandmarkMap:
         except ValueError as e:
             raise MapFileError(f"{path}: {e}") from None
 
-    def export_ply(self, path: str | os.PathLike) -> None:
-        """Write the landmark positions as an ASCII PLY point cloud (x y z, id, count), atomically."""
-        lines = [
-            "ply", "format ascii 1.0", f"comment p3at-fusion landmark map of {self.robot} in {self.frame}",
-            f"element vertex {len(self)}", "property float x", "property float y", "property float z",
-            "property int id", "property int count", "end_header",
-        ]
-        lines += [f"{p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {i} {c}"
-                  for p, i, c in zip(self.positions, self.ids, self.counts, strict=True)]
-        atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
+    def export_ply(self, path: str | os.PathLike, binary: bool = False) -> None:
+        """Write the map as a PLY point cloud with colour, robot and covariance per point (see estimation.ply)."""
+        from .ply import write_ply  # ply.py imports this module
+
+        write_ply(self, path, binary)
 
 
 def _json_bytes(obj) -> np.ndarray:
