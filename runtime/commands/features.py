@@ -21,6 +21,7 @@ from estimation.frontend import (
     StereoGeometry,
     StereoMatchConfig,
 )
+from runtime.commands.options import finite_float, positive_float
 
 DEFAULTS = StereoGeometry()
 CSV_COLUMNS = ("u_left", "v_left", "u_right", "v_right", "disparity", "x", "y", "z",
@@ -32,20 +33,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "features", help="stereo features of one image pair -> CSV of matches with 3-D points",
         description="Detect Harris corners, describe them (U-SURF, SIFT or ORB), match them along the rows of a "
                     "rectified pair (or a raw pair with --calib), triangulate, and write every match: left and "
-                    "right pixels, disparity, 3-D point and covariance (base_link, or the left camera frame).")
+                    "right pixels, disparity, 3-D point and covariance (base_link, or the left camera frame). "
+                    "The pair's geometry must be given: --calib FILE (a raw pair, rectified here), --fx PX and "
+                    "--baseline M (a rectified pair; points in the left camera frame), or --virtual-head (pairs "
+                    "from 'p3at camera grab --mock').")
     parser.add_argument("left", type=Path, help="left image (the reference camera)")
     parser.add_argument("right", type=Path, help="right image")
     parser.add_argument("--calib", type=Path, help="calibration (.ini SVS or .yaml/.xml OpenCV): the pair is raw "
                                                    "and gets rectified; its intrinsics and head pose are used")
     parser.add_argument("--descriptor", choices=("usurf", "sift", "orb"), default="usurf")
-    parser.add_argument("--fx", type=float, default=DEFAULTS.fx, help="rectified focal length px (without --calib)")
-    parser.add_argument("--fy", type=float, help="default: fx")
-    parser.add_argument("--cx", type=float, help="default: (width - 1) / 2")
-    parser.add_argument("--cy", type=float, help="default: (height - 1) / 2")
-    parser.add_argument("--baseline", type=float, default=DEFAULTS.baseline, help="metres (without --calib)")
-    parser.add_argument("--max-disparity", type=float, default=StereoMatchConfig().max_disparity, help="px")
-    parser.add_argument("--frame", choices=("base_link", "camera"), default="base_link",
-                        help="frame of the written points and covariances")
+    parser.add_argument("--virtual-head", action="store_true",
+                        help="the pair comes from the virtual STH-MDCS2 (rectified; its intrinsics and mount)")
+    parser.add_argument("--fx", type=positive_float, metavar="PX", help="rectified focal length (without --calib)")
+    parser.add_argument("--fy", type=positive_float, metavar="PX", help="default: fx")
+    parser.add_argument("--cx", type=finite_float, metavar="PX", help="default: (width - 1) / 2")
+    parser.add_argument("--cy", type=finite_float, metavar="PX", help="default: (height - 1) / 2")
+    parser.add_argument("--baseline", type=positive_float, metavar="M", help="metres (without --calib)")
+    parser.add_argument("--max-disparity", type=positive_float, default=StereoMatchConfig().max_disparity,
+                        metavar="PX", help="largest disparity searched (default %(default)s px)")
+    parser.add_argument("--frame", choices=("base_link", "camera"), default=None,
+                        help="frame of the written points and covariances (default: base_link when the head's "
+                             "mount is known, --calib or --virtual-head; camera otherwise)")
     parser.add_argument("--out", type=Path, required=True, help="CSV file to write (atomically)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
     parser.set_defaults(handler=run_features)
@@ -72,9 +80,27 @@ def front_end_from_calibration(calib, config: FrontEndConfig | None = None) -> F
     return FrontEnd(dataclasses.replace(config, geometry=stereo_geometry(calib)), RectificationMaps(l1, l2, r1, r2))
 
 
+def _geometry_source(args: argparse.Namespace) -> str:
+    """Where the pair's geometry comes from: 'calibration', 'virtual head' or 'given'; ValueError if from nowhere."""
+    given = args.fx is not None or args.baseline is not None
+    sources = [name for name, used in (("calibration", args.calib is not None), ("virtual head", args.virtual_head),
+                                       ("given", given)) if used]
+    if len(sources) != 1:
+        raise ValueError("give the pair's geometry one way: --calib FILE, --fx PX --baseline M, or --virtual-head"
+                         if not sources else f"--calib, --virtual-head and --fx/--baseline exclude each other "
+                                             f"(got {' and '.join(sources)})")
+    if sources == ["given"] and (args.fx is None or args.baseline is None):
+        raise ValueError("a rectified pair needs both --fx PX and --baseline M")
+    if sources == ["given"] and args.frame == "base_link":
+        raise ValueError("--frame base_link needs the head's mount on the robot: give --calib or --virtual-head")
+    return sources[0]
+
+
 def _front_end(args: argparse.Namespace, size: tuple[int, int]) -> FrontEnd:
     config = FrontEndConfig(descriptor=args.descriptor, matching=StereoMatchConfig(max_disparity=args.max_disparity))
     width, height = size
+    if args.virtual_head:
+        return FrontEnd(dataclasses.replace(config, geometry=DEFAULTS))
     if args.calib is None:
         geometry = StereoGeometry(fx=args.fx, fy=args.fy if args.fy is not None else args.fx,
                                   cx=args.cx if args.cx is not None else (width - 1) / 2.0,
@@ -105,6 +131,9 @@ def matches_csv(matches, frame: str) -> bytes:
 
 def run_features(args: argparse.Namespace) -> int:
     try:
+        source = _geometry_source(args)
+        if args.frame is None:
+            args.frame = "camera" if source == "given" else "base_link"
         left, right = _read_grey(args.left), _read_grey(args.right)
         if left.shape != right.shape:
             raise FrontEndError(f"{args.left} is {left.shape[1]}×{left.shape[0]} but {args.right} is "
@@ -114,16 +143,27 @@ def run_features(args: argparse.Namespace) -> int:
         atomic_write_bytes(args.out, matches_csv(matches, args.frame))
     except (FrontEndError, OSError, ValueError) as exc:  # the calibration's BadFileError is a ValueError
         print(f"p3at features: {exc}", file=sys.stderr)
-        return 1
+        return 2  # every failure here is a bad input: an unreadable image or calibration, or a bad argument
+    geometry = front_end.config.geometry
     if args.json:
         depth = matches.points_camera[:, 2]
         summary = {
             "left": str(args.left), "right": str(args.right), "out": str(args.out), "descriptor": args.descriptor,
             "frame": args.frame, "size": [int(left.shape[1]), int(left.shape[0])], "matches": len(matches),
             "disparity_px": _range(matches.disparities), "depth_m": _range(depth),
-            "geometry": front_end.config.to_dict()["geometry"], "rectified_here": args.calib is not None,
+            "geometry": front_end.config.to_dict()["geometry"], "geometry_source": source,
+            "rectified_here": args.calib is not None,
         }
         print(json.dumps(summary, indent=2))
+        return 0
+    where = {"calibration": f"from {args.calib}", "virtual head": "of the virtual STH-MDCS2", "given": "as given"}
+    print(f"{len(matches)} matches ({args.descriptor}) written to {args.out}: pixels, disparity (px), 3-D points and "
+          f"covariances in {args.frame} (m, m²)")
+    print(f"geometry {where[source]}: fx {geometry.fx:.2f} px, fy {geometry.fy:.2f} px, cx {geometry.cx:.2f} px, "
+          f"cy {geometry.cy:.2f} px, baseline {geometry.baseline:.4f} m"
+          + ("" if args.frame == "camera" else ", head mount (x y z roll pitch yaw) "
+             + " ".join(f"{v:.3f}" for v in geometry.head_pose) + " m/rad in base_link")
+          + ("; the pair was rectified here" if args.calib is not None else ""))
     return 0
 
 

@@ -31,12 +31,12 @@ def read_rows(path):
 
 def test_features_writes_every_match_and_a_json_summary(pair_files, tmp_path, capsys):
     out = tmp_path / "matches.csv"
-    status = main(["features", str(pair_files[0]), str(pair_files[1]), "--out", str(out), "--json"])
+    status = main(["features", str(pair_files[0]), str(pair_files[1]), "--virtual-head", "--out", str(out), "--json"])
     assert status == 0
     summary = json.loads(capsys.readouterr().out)
     rows = read_rows(out)
     assert tuple(rows[0].keys()) == CSV_COLUMNS
-    assert summary["matches"] == len(rows) > 50
+    assert summary["matches"] == len(rows) > 50 and summary["geometry_source"] == "virtual head"
     disparity = np.array([float(r["disparity"]) for r in rows])
     np.testing.assert_allclose(np.median(disparity), 23.4, atol=0.1)
     # base_link x = depth + 0.12 with depth = 520·0.09/23.4 = 2 m; right pixel = left pixel - disparity
@@ -85,18 +85,40 @@ def test_raw_pair_with_a_calibration_file(tmp_path):
 
 def test_errors_are_one_line_and_non_zero(pair_files, tmp_path, capsys):
     out = tmp_path / "m.csv"
-    assert main(["features", str(tmp_path / "missing.png"), str(pair_files[1]), "--out", str(out)]) == 1
+    assert main(["features", str(tmp_path / "missing.png"), str(pair_files[1]), "--virtual-head",
+                 "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("p3at features:") and "missing.png" in err and err.count("\n") == 1
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((10, 10), np.uint8))
-    assert main(["features", str(pair_files[0]), str(small), "--out", str(out)]) == 1
+    assert main(["features", str(pair_files[0]), str(small), "--virtual-head", "--out", str(out)]) == 2
     assert "small.png" in capsys.readouterr().err
     bad_calib = tmp_path / "head.ini"
     bad_calib.write_text("not a calibration\n")
-    assert main(["features", *map(str, pair_files), "--calib", str(bad_calib), "--out", str(out)]) == 1
+    assert main(["features", *map(str, pair_files), "--calib", str(bad_calib), "--out", str(out)]) == 2
     assert "head.ini" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_without_a_geometry_it_refuses_to_guess_and_otherwise_says_which_it_used(pair_files, tmp_path, capsys):
+    out = tmp_path / "m.csv"
+    assert main(["features", *map(str, pair_files), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--calib" in err and "--fx" in err and "--virtual-head" in err and err.count("\n") == 1
+    assert main(["features", *map(str, pair_files), "--fx", "400", "--out", str(out)]) == 2
+    assert "--baseline" in capsys.readouterr().err
+    assert main(["features", *map(str, pair_files), "--fx", "400", "--baseline", "0.12", "--frame", "base_link",
+                 "--out", str(out)]) == 2
+    assert "mount" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["features", *map(str, pair_files), "--fx", "400", "--baseline", "0.12", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    rows = read_rows(out)
+    assert f"{len(rows)} matches" in said and str(out) in said and "in camera" in said
+    assert "fx 400.00 px" in said and "baseline 0.1200 m" in said and "mount" not in said
+    assert main(["features", *map(str, pair_files), "--virtual-head", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "virtual STH-MDCS2" in said and "in base_link" in said and "0.120 0.000 0.500" in said
 
 
 def test_help(capsys):
