@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +27,8 @@ import numpy as np
 
 from .errors import MapFileError
 from .fileio import atomic_write_bytes
-
-FORMAT_NAME = "p3at-landmark-map"
-FORMAT_VERSION = 1
+from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, read_map_arrays
+from .safe_npz import read_npz
 
 
 @dataclass
@@ -104,54 +102,15 @@ class LandmarkMap:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LandmarkMap:
-        """Read a map written by :meth:`save`; any defect raises :class:`MapFileError` naming the file."""
+        """Read a map written by :meth:`save`; any defect raises :class:`MapFileError` naming the file and field.
+
+        Nothing the file claims is trusted: sizes are checked against bounds and the file's size before anything
+        is allocated (:mod:`estimation.safe_npz`), then dtypes, shapes, finiteness, covariances (symmetric,
+        positive definite, bounded) and the JSON fields' types (:func:`read_map_arrays`).
+        """
         path = Path(path)
-        if path.is_file() and not zipfile.is_zipfile(path):
-            # np.load would guess "pickle" for any non-npz bytes; say what is really wrong.
-            raise MapFileError(f"{path}: not a landmark-map file (not an npz archive)")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise MapFileError(f"{path}: no such map file") from None
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-            raise MapFileError(f"{path}: not a readable landmark-map file ({e})") from None
-        for key in ("format", "positions", "covariances", "descriptors", "ids", "counts", "meta"):
-            if key not in arrays:
-                raise MapFileError(f"{path}: field '{key}' is missing")
-        header = _json_load(path, "format", arrays["format"])
-        if header.get("format") != FORMAT_NAME:
-            raise MapFileError(f"{path}: field 'format' is {header.get('format')!r}, not {FORMAT_NAME!r}")
-        if header.get("version") != FORMAT_VERSION:
-            raise MapFileError(f"{path}: format version {header.get('version')!r} is not supported "
-                               f"(this reader knows version {FORMAT_VERSION})")
-        meta = _json_load(path, "meta", arrays["meta"])
-        n = len(arrays["positions"])
-        expected = {"positions": (n, 3), "covariances": (n, 3, 3), "ids": (n,), "counts": (n,)}
-        for key, shape in expected.items():
-            if arrays[key].shape != shape:
-                raise MapFileError(f"{path}: field '{key}' has shape {arrays[key].shape}, expected {shape}")
-        if arrays["descriptors"].ndim != 2 or len(arrays["descriptors"]) != n:
-            raise MapFileError(f"{path}: field 'descriptors' has shape {arrays['descriptors'].shape}, "
-                               f"expected ({n}, D)")
-        for key in ("positions", "covariances", "descriptors"):
-            if not np.all(np.isfinite(arrays[key])):
-                raise MapFileError(f"{path}: field '{key}' holds non-finite values")
-        if len(np.unique(arrays["ids"])) != n:
-            raise MapFileError(f"{path}: field 'ids' holds duplicate landmark ids")
-        robots = meta.get("robots") or [meta.get("robot", "robot")]
-        seen_by = arrays.get("seen_by")
-        if seen_by is not None and seen_by.shape != (n, len(robots)):
-            raise MapFileError(f"{path}: field 'seen_by' has shape {seen_by.shape}, expected {(n, len(robots))}")
-        try:
-            return cls(
-                arrays["positions"], arrays["covariances"], arrays["descriptors"], arrays["ids"],
-                arrays["counts"], str(meta.get("robot", "robot")), str(meta.get("frame", "map")),
-                [str(r) for r in robots], seen_by, arrays.get("trajectory", np.zeros((0, 4))),
-                dict(meta.get("metadata", {})),
-            )
-        except ValueError as e:
-            raise MapFileError(f"{path}: {e}") from None
+        arrays = read_npz(path, MEMBERS, MapFileError, what="map")
+        return read_map_arrays(arrays, str(path), cls)
 
     def export_ply(self, path: str | os.PathLike, binary: bool = False) -> None:
         """Write the map as a PLY point cloud with colour, robot and covariance per point (see estimation.ply)."""
@@ -163,12 +122,3 @@ class LandmarkMap:
 def _json_bytes(obj) -> np.ndarray:
     return np.frombuffer(json.dumps(obj).encode(), dtype=np.uint8)
 
-
-def _json_load(path: Path, key: str, raw: np.ndarray) -> dict:
-    try:
-        value = json.loads(raw.astype(np.uint8).tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError, ValueError) as e:
-        raise MapFileError(f"{path}: field '{key}' is not valid JSON ({e})") from None
-    if not isinstance(value, dict):
-        raise MapFileError(f"{path}: field '{key}' is not a JSON object")
-    return value

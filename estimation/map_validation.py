@@ -1,0 +1,174 @@
+"""What a landmark-map file must hold to be trusted (see :mod:`estimation.landmark_map` for the format).
+
+Bounds (a map past them is refused, not truncated): at most ``MAX_LANDMARKS`` landmarks, descriptors of at
+most ``MAX_DESCRIPTOR_SIZE`` floats, ``MAX_ROBOTS`` robots, ``MAX_TRAJECTORY_ROWS`` trajectory rows, JSON fields
+of ``MAX_JSON_BYTES``; coordinates within ``MAX_COORDINATE`` metres; covariances symmetric, positive definite
+(smallest eigenvalue at least ``MIN_VARIANCE``) and at most ``MAX_VARIANCE`` m² (a landmark known to a
+micrometre, or to no better than a kilometre, is a corrupt one; fusion's Kalman update needs them invertible).
+
+The two JSON fields are checked with pydantic models in strict mode: they give each wrong type with its
+path (``meta.robots[1]``), refuse unknown keys, and their JSON parser bounds nesting depth (a deeply nested
+``metadata`` is an error, not a ``RecursionError``).
+"""
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
+
+from .errors import MapFileError
+from .safe_npz import ArraySpec
+
+FORMAT_NAME = "p3at-landmark-map"
+FORMAT_VERSION = 1
+
+MAX_LANDMARKS = 2_000_000
+MAX_DESCRIPTOR_SIZE = 1024
+MAX_ROBOTS = 256
+MAX_TRAJECTORY_ROWS = 10_000_000
+MAX_JSON_BYTES = 1 << 20
+MAX_COORDINATE = 1e6  # m
+MIN_VARIANCE = 1e-12  # m²
+MAX_VARIANCE = 1e6  # m²
+_SYMMETRY_TOLERANCE = 1e-9  # relative to the largest entry
+
+_FLOAT, _INT, _BOOL, _BYTES = "f", "iu", "b", "u"
+MEMBERS: dict[str, ArraySpec] = {
+    "format": ArraySpec(_BYTES, (MAX_JSON_BYTES,)),
+    "meta": ArraySpec(_BYTES, (MAX_JSON_BYTES,)),
+    "positions": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 3)),
+    "covariances": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 3, 3)),
+    "descriptors": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, MAX_DESCRIPTOR_SIZE)),
+    "ids": ArraySpec(_INT, (MAX_LANDMARKS,)),
+    "counts": ArraySpec(_INT, (MAX_LANDMARKS,)),
+    "seen_by": ArraySpec(_BOOL, (MAX_LANDMARKS, MAX_ROBOTS)),
+    "trajectory": ArraySpec(_FLOAT + _INT, (MAX_TRAJECTORY_ROWS, 4)),
+}
+REQUIRED = ("format", "positions", "covariances", "descriptors", "ids", "counts", "meta")
+
+_Name = Annotated[str, Field(min_length=1, max_length=256)]
+
+
+class _Header(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid")
+    format: str
+    version: int
+
+
+class _Metadata(BaseModel):
+    """The free-form ``metadata``; only the keys the project reads are typed, the others pass through."""
+
+    model_config = ConfigDict(strict=True, extra="allow")
+    true_start_pose: Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)] | None = None
+
+
+class _Meta(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid")
+    robot: _Name = "robot"
+    frame: _Name = "map"
+    robots: Annotated[list[_Name], Field(min_length=1, max_length=MAX_ROBOTS)] | None = None
+    metadata: _Metadata = _Metadata()
+
+
+def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> Any:
+    """Check the arrays of a map file (read by :func:`estimation.safe_npz.read_npz` with :data:`MEMBERS`) and
+    return ``build(positions, covariances, descriptors, ids, counts, robot, frame, robots, seen_by, trajectory,
+    metadata)``. Raises :class:`MapFileError` naming ``source`` and the field."""
+    def bad(key: str, problem: str) -> MapFileError:
+        return MapFileError(f"{source}: field '{key}' {problem}")
+
+    for key in REQUIRED:
+        if key not in arrays:
+            raise bad(key, "is missing")
+    header = _json(source, "format", arrays["format"], _Header)
+    if header.format != FORMAT_NAME:
+        raise bad("format", f"is {header.format!r}, not {FORMAT_NAME!r}")
+    if header.version != FORMAT_VERSION:
+        raise MapFileError(f"{source}: format version {header.version!r} is not supported "
+                           f"(this reader knows version {FORMAT_VERSION})")
+    meta = _json(source, "meta", arrays["meta"], _Meta)
+    robots = meta.robots if meta.robots is not None else [meta.robot]
+    if len(set(robots)) != len(robots):
+        raise bad("meta.robots", "names a robot twice")
+
+    n = arrays["positions"].shape[0]
+    expected = {"positions": (n, 3), "covariances": (n, 3, 3), "ids": (n,), "counts": (n,)}
+    for key, shape in expected.items():
+        if arrays[key].shape != shape:
+            raise bad(key, f"has shape {arrays[key].shape}, expected {shape}")
+    if arrays["descriptors"].shape[0] != n:
+        raise bad("descriptors", f"has shape {arrays['descriptors'].shape}, expected ({n}, D)")
+    seen_by = arrays.get("seen_by")
+    if seen_by is not None and seen_by.shape != (n, len(robots)):
+        raise bad("seen_by", f"has shape {seen_by.shape}, expected {(n, len(robots))}")
+
+    positions = _floats(arrays["positions"], "positions", bad, MAX_COORDINATE)
+    covariances = _floats(arrays["covariances"], "covariances", bad, MAX_VARIANCE)
+    descriptors = _floats(arrays["descriptors"], "descriptors", bad, np.finfo(np.float32).max, np.float32)
+    trajectory = _floats(arrays.get("trajectory", np.zeros((0, 4))), "trajectory", bad, np.inf)
+    if trajectory.size and float(np.max(np.abs(trajectory[:, 1:3]))) > MAX_COORDINATE:
+        raise bad("trajectory", f"holds a position beyond {MAX_COORDINATE:.3g} m")
+    _check_covariances(covariances, bad)
+    ids = _integers(arrays["ids"], "ids", bad)
+    if len(np.unique(ids)) != n:
+        raise bad("ids", "holds duplicate landmark ids")
+    counts = _integers(arrays["counts"], "counts", bad)
+    if np.any(counts < 0):
+        raise bad("counts", "holds a negative observation count")
+    metadata = meta.metadata.model_dump()
+    if metadata.get("true_start_pose") is None:
+        metadata.pop("true_start_pose", None)
+    try:
+        return build(positions, covariances, descriptors, ids, counts, meta.robot, meta.frame, list(robots),
+                     seen_by, trajectory, metadata)
+    except ValueError as exc:
+        raise MapFileError(f"{source}: {exc}") from None
+
+
+def _json(source: str, key: str, raw: np.ndarray, model: type[BaseModel]) -> Any:
+    try:
+        return model.model_validate_json(raw.tobytes())
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in first["loc"])
+        if first["type"] == "json_invalid":
+            raise MapFileError(f"{source}: field '{key}' is not valid JSON ({first['msg']})") from None
+        got = "" if first["type"] == "missing" else f" (got {repr(first['input'])[:80]})"
+        raise MapFileError(f"{source}: field '{key}{where}': {first['msg']}{got}") from None
+
+
+def _floats(a: np.ndarray, key: str, bad, bound: float, dtype=np.float64) -> np.ndarray:
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = a.astype(dtype)
+    if not np.all(np.isfinite(out)):
+        raise bad(key, "holds non-finite values")
+    if out.size and float(np.max(np.abs(out))) > bound:
+        raise bad(key, f"holds a value of magnitude {float(np.max(np.abs(out))):.3g}, beyond {bound:.3g}")
+    return out
+
+
+def _integers(a: np.ndarray, key: str, bad) -> np.ndarray:
+    info = np.iinfo(np.int64)
+    if a.size and (int(a.max()) > info.max or int(a.min()) < info.min):
+        raise bad(key, "holds a value outside the 64-bit signed range")
+    return a.astype(np.int64)
+
+
+def _check_covariances(covariances: np.ndarray, bad) -> None:
+    """(N, 3, 3): symmetric, every eigenvalue in [MIN_VARIANCE, MAX_VARIANCE]."""
+    if not len(covariances):
+        return
+    scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
+    asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
+    worst = int(np.argmax(asymmetry / scale))
+    if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
+        raise bad(f"covariances[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
+    eigenvalues = np.linalg.eigvalsh(covariances)  # ascending, per landmark
+    low = int(np.argmin(eigenvalues[:, 0]))
+    if eigenvalues[low, 0] < MIN_VARIANCE:
+        raise bad(f"covariances[{low}]", f"is not positive definite (smallest eigenvalue "
+                                 f"{eigenvalues[low, 0]:.3g} m², need >= {MIN_VARIANCE:g})")
+    high = int(np.argmax(eigenvalues[:, -1]))
+    if eigenvalues[high, -1] > MAX_VARIANCE:
+        raise bad(f"covariances[{high}]", f"has a variance of {eigenvalues[high, -1]:.3g} m², beyond {MAX_VARIANCE:g}")
