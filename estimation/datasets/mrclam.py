@@ -1,0 +1,233 @@
+"""Reader for the UTIAS MRCLAM data sets (Leung et al., IJRR 2011): one robot's log as a RangeBearingLog.
+
+A data set folder holds, as plain ``.dat`` or gzip-compressed ``.dat.gz`` text (``#`` comment lines):
+
+    Robot{n}_Odometry.dat      time v w               s, m/s, rad/s (50 Hz)
+    Robot{n}_Measurement.dat   time barcode range bearing   s, -, m, rad (camera)
+    Robot{n}_Groundtruth.dat   time x y theta         s, m, m, rad (Vicon)
+    Landmark_Groundtruth.dat   subject x y sd_x sd_y  -, m, m, m, m
+    Barcodes.dat               subject barcode        subjects 1-5 are the robots, 6-20 the landmarks
+
+A sighting's barcode names a *subject* through Barcodes.dat. Sightings of robots (subjects 1-5) are not
+landmarks and are dropped, as are barcodes the table does not know (misreads); the log's notes count both.
+
+Barcodes.dat is checked against the ground truth before it is used (copies of this data set are known to carry
+swapped entries): every sighting, placed in the world from the robot's true pose, should fall near its
+subject's true position. :func:`check_barcodes` measures, for each barcode, the median distance to every
+landmark and reports the barcodes whose table subject is not the one their sightings fall on. ``barcodes``
+chooses what the reader does with it: ``"verified"`` (default) refuses a table that disagrees, naming the
+entries; ``"inferred"`` uses the subjects the sightings fall on and says so in the notes; ``"table"`` trusts
+the file and notes that it did.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DatasetError
+from .landmark_log import RangeBearingLog, integrate_velocities
+from .tables import find_table, read_table
+
+ROBOT_SUBJECTS = range(1, 6)          # subjects 1-5 are the robots; landmarks are the others
+BARCODE_POLICIES = ("verified", "inferred", "table")
+MIN_SIGHTINGS_TO_CHECK = 10           # fewer sightings of a barcode cannot tell its landmark apart
+CLEAR_MARGIN_M = 0.3                  # a better subject must be nearer by this much (and by half) to count
+
+
+@dataclass(frozen=True)
+class BarcodeVerdict:
+    """What the sightings of one barcode say about its table entry.
+
+    table_subject: the subject Barcodes.dat gives; best_subject: the landmark the sightings fall on;
+    table_median_m / best_median_m: median distance of the sightings (placed from the true pose) to each.
+    """
+
+    barcode: int
+    table_subject: int
+    best_subject: int
+    table_median_m: float
+    best_median_m: float
+    sightings: int
+
+    @property
+    def disagrees(self) -> bool:
+        return (self.best_subject != self.table_subject and self.table_median_m > 2.0 * self.best_median_m
+                and self.table_median_m - self.best_median_m > CLEAR_MARGIN_M)
+
+    def __str__(self) -> str:
+        return (f"barcode {self.barcode}: table says subject {self.table_subject} ({self.table_median_m:.2f} m "
+                f"median), its {self.sightings} sightings fall on subject {self.best_subject} "
+                f"({self.best_median_m:.2f} m)")
+
+
+@dataclass(frozen=True)
+class BarcodeCheck:
+    """The verdicts of every landmark barcode one robot saw often enough, and those it could not check."""
+
+    verdicts: tuple[BarcodeVerdict, ...]
+    unchecked: tuple[int, ...]
+
+    @property
+    def disagreements(self) -> tuple[BarcodeVerdict, ...]:
+        return tuple(v for v in self.verdicts if v.disagrees)
+
+    def inferred(self, table: dict[int, int]) -> dict[int, int]:
+        """The barcode -> subject table with each disagreeing entry replaced by the subject its sightings fall on."""
+        mapping = dict(table)
+        for verdict in self.disagreements:
+            mapping[verdict.barcode] = verdict.best_subject
+        landmarks = [s for s in mapping.values() if s not in ROBOT_SUBJECTS]
+        if len(set(landmarks)) != len(landmarks):
+            raise DatasetError("the barcodes' sightings do not give a one-to-one barcode -> landmark table: "
+                               + "; ".join(str(v) for v in self.disagreements))
+        return mapping
+
+
+def mrclam_robots(folder: str | Path) -> list[int]:
+    """The robot numbers with an odometry file in ``folder``."""
+    folder = Path(folder)
+    found = {int(p.name[5:p.name.index("_")]) for p in folder.glob("Robot*_Odometry.dat*")
+             if p.name[5:p.name.index("_")].isdigit()}
+    return sorted(found)
+
+
+def read_barcodes(folder: str | Path) -> dict[int, int]:
+    """Barcodes.dat as barcode -> subject (a DatasetError if a barcode or a subject appears twice)."""
+    path = find_table(Path(folder), "Barcodes")
+    rows, lines = read_table(path, ("subject", "barcode"), integer_columns=("subject", "barcode"), max_rows=10_000)
+    mapping: dict[int, int] = {}
+    subjects: set[int] = set()
+    for (subject, barcode), line in zip(rows.astype(np.int64), lines, strict=True):
+        if barcode in mapping or subject in subjects:
+            raise DatasetError(f"{path}:{line}: subject {subject} or barcode {barcode} appears twice")
+        mapping[int(barcode)] = int(subject)
+        subjects.add(int(subject))
+    if not mapping:
+        raise DatasetError(f"{path}: no entries")
+    return mapping
+
+
+def read_landmark_truth(folder: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Landmark_Groundtruth.dat as (subjects (L,) int64, positions (L, 2) m)."""
+    path = find_table(Path(folder), "Landmark_Groundtruth")
+    rows, lines = read_table(path, ("subject", "x", "y", "sd_x", "sd_y"), integer_columns=("subject",),
+                             max_rows=100_000)
+    subjects = rows[:, 0].astype(np.int64)
+    if len(np.unique(subjects)) != len(subjects):
+        raise DatasetError(f"{path}: a landmark subject appears twice")
+    if np.any(rows[:, 3:] < 0):
+        raise DatasetError(f"{path}:{int(lines[np.flatnonzero(np.any(rows[:, 3:] < 0, axis=1))[0]])}: "
+                           "field sd_x or sd_y is negative")
+    return subjects, rows[:, 1:3].copy()
+
+
+def check_barcodes(table: dict[int, int], subjects: np.ndarray, positions: np.ndarray, true_poses: np.ndarray,
+                   barcodes: np.ndarray, ranges: np.ndarray, bearings: np.ndarray) -> BarcodeCheck:
+    """Compare each landmark barcode's table subject with the landmark its sightings fall on.
+
+    true_poses (N, 3): the robot's true pose at each sighting; barcodes, ranges, bearings (N,).
+    """
+    x = true_poses[:, 0] + ranges * np.cos(true_poses[:, 2] + bearings)
+    y = true_poses[:, 1] + ranges * np.sin(true_poses[:, 2] + bearings)
+    verdicts, unchecked = [], []
+    for code in np.unique(barcodes):
+        subject = table.get(int(code))
+        if subject is None or subject in ROBOT_SUBJECTS or subject not in set(subjects.tolist()):
+            continue
+        seen = barcodes == code
+        if seen.sum() < MIN_SIGHTINGS_TO_CHECK:
+            unchecked.append(int(code))
+            continue
+        distance = np.hypot(x[seen, None] - positions[None, :, 0], y[seen, None] - positions[None, :, 1])
+        medians = np.median(distance, axis=0)                      # (L,)
+        best = int(np.argmin(medians))
+        mine = int(np.flatnonzero(subjects == subject)[0])
+        verdicts.append(BarcodeVerdict(int(code), int(subject), int(subjects[best]), float(medians[mine]),
+                                       float(medians[best]), int(seen.sum())))
+    return BarcodeCheck(tuple(verdicts), tuple(unchecked))
+
+
+def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
+                until: float | None = None) -> RangeBearingLog:
+    """Robot ``robot``'s log from an MRCLAM data set folder (see the module docstring for ``barcodes``).
+
+    ``until`` (s): read only the log's first part, up to that time (a fast test, a quick look).
+    """
+    folder = Path(folder)
+    if barcodes not in BARCODE_POLICIES:
+        raise ValueError(f"barcodes must be one of {', '.join(BARCODE_POLICIES)}, not {barcodes!r}")
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a folder")
+    if robot < 1:
+        raise DatasetError(f"robot must be a positive number, not {robot}")
+    bound = {"until": until}
+    table = read_barcodes(folder)
+    subjects, positions = read_landmark_truth(folder)
+    prefix = f"Robot{robot}_"
+    odometry, _ = _read_robot_table(folder, prefix + "Odometry", ("time", "v", "w"), bound)
+    sightings, _ = _read_robot_table(folder, prefix + "Measurement", ("time", "barcode", "range", "bearing"), bound,
+                                     integer_columns=("barcode",))
+    truth, _ = _read_robot_table(folder, prefix + "Groundtruth", ("time", "x", "y", "theta"), bound)
+    name = f"{folder.name}/Robot{robot}"
+    if len(odometry) < 2:
+        raise DatasetError(f"{folder}/{prefix}Odometry: fewer than 2 rows")
+    notes: list[str] = []
+
+    codes = sightings[:, 1].astype(np.int64)
+    if barcodes == "table":
+        notes.append("Barcodes.dat used as it is, not checked against the ground truth (barcodes='table')")
+    else:
+        if len(truth) < 2:
+            raise DatasetError(f"{name}: Barcodes.dat cannot be verified without ground truth; "
+                               "pass barcodes='table' to trust it")
+        probe = RangeBearingLog(name, _odometry_rows(odometry), np.zeros(0), np.zeros(0), np.zeros(0),
+                                np.zeros(0, np.int64), truth)
+        check = check_barcodes(table, subjects, positions, probe.true_pose(sightings[:, 0]), codes,
+                               sightings[:, 2], sightings[:, 3])
+        wrong = check.disagreements
+        if wrong and barcodes == "verified":
+            raise DatasetError(f"{folder}: Barcodes.dat disagrees with the ground truth (swapped entries?): "
+                               + "; ".join(str(v) for v in wrong)
+                               + ". Pass barcodes='inferred' to use the subjects the sightings fall on")
+        if wrong:
+            table = check.inferred(table)
+            notes.append("Barcodes.dat corrected from the ground truth: " + "; ".join(str(v) for v in wrong))
+        else:
+            notes.append(f"Barcodes.dat verified against the ground truth ({len(check.verdicts)} barcodes)")
+        if check.unchecked:
+            notes.append(f"barcodes seen too rarely to verify (< {MIN_SIGHTINGS_TO_CHECK} sightings): "
+                         + ", ".join(map(str, check.unchecked)))
+
+    subject_of = np.array([table.get(int(c), -1) for c in codes], np.int64)
+    is_robot = np.isin(subject_of, list(ROBOT_SUBJECTS))
+    unknown = subject_of < 0
+    if is_robot.any():
+        notes.append(f"dropped {int(is_robot.sum())} sightings of other robots (subjects "
+                     + ", ".join(map(str, sorted(set(subject_of[is_robot].tolist())))) + ")")
+    if unknown.any():
+        notes.append(f"dropped {int(unknown.sum())} sightings of barcodes not in Barcodes.dat ("
+                     + ", ".join(map(str, sorted(set(codes[unknown].tolist())))) + ")")
+    keep = ~(is_robot | unknown)
+    return RangeBearingLog(
+        name=name, odometry=_odometry_rows(odometry), sighting_times=sightings[keep, 0],
+        ranges=sightings[keep, 2], bearings=sightings[keep, 3], landmark_ids=subject_of[keep],
+        ground_truth=truth, truth_ids=subjects, truth_positions=positions, notes=tuple(notes))
+
+
+def _read_robot_table(folder: Path, stem: str, columns, bound, integer_columns=()) -> tuple[np.ndarray, np.ndarray]:
+    path = find_table(folder, stem)
+    rows, lines = read_table(path, columns, integer_columns=integer_columns, **bound)
+    back = np.flatnonzero(np.diff(rows[:, 0]) < 0)
+    if len(back):
+        raise DatasetError(f"{path}:{int(lines[back[0] + 1])}: field time goes backwards "
+                           f"({float(rows[back[0] + 1, 0])} after {float(rows[back[0], 0])})")
+    if "range" in columns and np.any(rows[:, columns.index("range")] < 0):
+        bad = int(np.flatnonzero(rows[:, columns.index("range")] < 0)[0])
+        raise DatasetError(f"{path}:{int(lines[bad])}: field range is negative")
+    return rows, lines
+
+
+def _odometry_rows(odometry: np.ndarray) -> np.ndarray:
+    return integrate_velocities(odometry[:, 0], odometry[:, 1], odometry[:, 2])
