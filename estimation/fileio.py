@@ -1,6 +1,11 @@
-"""Atomic file writes: a reader never sees half a file, a crash never loses the old one."""
+"""Atomic file writes: a reader never sees half a file, a crash (even SIGKILL or a power cut) never loses the old one.
+
+temp file in the same folder -> write -> fsync -> rename over the target -> fsync the folder, so that the rename
+itself is on disk when the call returns (without the last step a power cut can leave the old name, or none).
+"""
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from pathlib import Path
@@ -11,7 +16,7 @@ os.umask(_UMASK)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
+    """Write ``data`` to ``path``: temporary file in the same folder, fsync, ``os.replace``, fsync of the folder."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
@@ -25,3 +30,19 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_folder(target.parent)
+
+
+def fsync_folder(folder: str | os.PathLike) -> None:
+    """Make the folder's entries (a rename, a new file) durable. A no-op where folders cannot be opened."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:  # e.g. Windows: no directory handles; NTFS journals the rename itself
+        return
+    try:
+        os.fsync(fd)
+    except OSError as exc:  # some file systems refuse fsync on a folder (EINVAL): nothing more can be done there
+        if exc.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF):
+            raise
+    finally:
+        os.close(fd)
