@@ -63,6 +63,7 @@ class MissionConfig:
     route_file: Path | None = None    # a route (in the robot's odometry frame) instead of the world's routes
     time_scale: float = 1.0           # virtual robots only: simulated seconds per wall-clock second
     odometry: str = "exact"           # virtual robots' wheel odometry: "exact" or "realistic" (1 % scale, 3 % track)
+    robot_name: str | None = None     # virtual: run only this world robot (one process per robot, runtime/fleet)
 
     @property
     def on_mocks(self) -> bool:
@@ -246,6 +247,11 @@ class Mission:
         if cfg.on_mocks:
             world = World.load(cfg.world)
             names = sorted(world.start_poses)[: cfg.robots]
+            if cfg.robot_name is not None:
+                if cfg.robot_name not in world.start_poses:
+                    raise MissionError(f"the world '{world.name}' has no robot {cfg.robot_name!r} "
+                                       f"(it has {', '.join(sorted(world.start_poses))})")
+                names = [cfg.robot_name]
             if len(names) < cfg.robots:
                 raise MissionError(f"the world '{world.name}' has {len(names)} start poses, "
                                    f"{cfg.robots} robots asked")
@@ -267,6 +273,8 @@ class Mission:
         with ExitStack() as stack:
             t0 = self.clock()
             for index, name in enumerate(names):
+                if world is not None:  # a world's robot keeps its seeds whether it runs alone or with the others
+                    index = sorted(world.start_poses).index(name)
                 self.robots.append(self._robot(stack, world, index, name, t0))
             if self.logger is not None and self.robots[0].true_start is not None:
                 self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps are in robot 1's frame
