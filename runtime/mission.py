@@ -63,7 +63,7 @@ class MissionConfig:
     route_file: Path | None = None    # a route (in the robot's odometry frame) instead of the world's routes
     time_scale: float = 1.0           # virtual robots only: simulated seconds per wall-clock second
     odometry: str = "exact"           # virtual robots' wheel odometry: "exact" or "realistic" (1 % scale, 3 % track)
-    robot_name: str | None = None     # virtual: run only this world robot (one process per robot, runtime/fleet)
+    robot_name: str | None = None     # this robot's name in a fleet; virtual: the world robot run alone
 
     @property
     def on_mocks(self) -> bool:
@@ -256,7 +256,7 @@ class Mission:
                 raise MissionError(f"the world '{world.name}' has {len(names)} start poses, "
                                    f"{cfg.robots} robots asked")
         else:
-            world, names = None, ["robot1"]
+            world, names = None, [cfg.robot_name or "robot1"]
         if cfg.rerun != "none":
             self._open_logger(names, world)
         try:

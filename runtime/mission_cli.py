@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
 
@@ -53,6 +54,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
                         help="virtual robots' wheel odometry errors (default realistic: 1 %% scale, 3 %% track, "
                              "noise; exact: no error)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
+    add_exchange_arguments(parser)
 
 
 def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> MissionConfig:
@@ -64,7 +66,7 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         fusion_interval=args.fusion_interval,
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
-        odometry=args.odometry)
+        odometry=args.odometry, robot_name=getattr(args, "name", None))
 
 
 class Progress:
@@ -114,7 +116,12 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
         print(f"p3at: {e}", file=sys.stderr)
         return 2
     progress = Progress(not args.quiet)
-    mission = Mission(config, progress=progress.line, events=progress.event)
+    try:  # a Zenoh exchange (runtime/fleet) when --exchange zenoh[:CONFIG]; None: the mission's in-process one
+        exchange = open_exchange(args.exchange, args.fleet, "robot", on_event=progress.event)
+    except (ValueError, RuntimeError) as e:
+        print(f"p3at: {e}", file=sys.stderr)
+        return 2
+    mission = Mission(config, progress=progress.line, events=progress.event, exchange=exchange)
     restore = install_stop_signals(mission.stop)
     try:
         result = mission.run()
@@ -125,6 +132,8 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
     finally:
         restore()
         progress.done()
+        if exchange is not None:
+            exchange.close()
     if args.json:
         print(json.dumps(result.summary, indent=2))
     else:

@@ -26,14 +26,23 @@ def register(subparsers) -> None:
                     "alignment (tx, ty, θ of the other map's frame in the first's), its supports and the "
                     "landmark counts; where maps carry metadata.true_start_pose (simulated maps) also the "
                     "alignment error against the truth. Exit status 1 when maps do not overlap.")
-    parser.add_argument("maps", nargs="+", metavar="MAP", help="landmark-map files (.npz), at least two")
-    parser.add_argument("--out", required=True, metavar="MERGED", help="merged map file to write (.npz)")
+    parser.add_argument("maps", nargs="*", metavar="MAP", help="landmark-map files (.npz), at least two")
+    parser.add_argument("--out", default=None, metavar="MERGED",
+                        help="merged map file to write (.npz); required unless --live")
     parser.add_argument("--preset", choices=("paper", "robust"), default="robust",
                         help="alignment preset: the paper's published RANSAC or the robust one (default)")
     parser.add_argument("--method", type=int, choices=(1, 2), default=1,
                         help="common landmarks: 1 = RANSAC supports (default), 2 = nearest in position")
     parser.add_argument("--seed", type=int, default=0, help="random seed of RANSAC (default 0)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    # the live fusion node of a fleet (runtime/fleet, docs/fleet.md)
+    from runtime.fleet.options import add_exchange_arguments, add_live_arguments
+
+    parser.add_argument("--live", action="store_true",
+                        help="run the fleet's fusion node: subscribe to the robots' maps over --exchange (default "
+                             "zenoh), fuse on new data and at --interval, publish p3at/FLEET/fused/map")
+    add_exchange_arguments(parser, default="zenoh")
+    add_live_arguments(parser)
     parser.set_defaults(handler=_fuse)
 
 
@@ -41,6 +50,13 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, NoOverlapError, alignment_error, fuse_all, true_relative_pose
     from fusion.multi import pairwise_alignments
 
+    if args.live:
+        from runtime.fleet.fusion_node import run_live
+
+        return run_live(args)
+    if args.out is None:
+        print("p3at fuse: give the merged map file to write with --out MERGED", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if len(args.maps) < 2:
         print("p3at fuse: give at least two map files", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -15,6 +15,9 @@ def register(subparsers) -> None:
                         help="mock (a virtual P3-AT in the simulated building, default), a serial device such as "
                              "/dev/ttyUSB0, or socket://host:port")
     add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera="mock", camera_rate=15.0)
+    parser.add_argument("--name", default=None, metavar="ROBOT",
+                        help="this robot's name in a fleet (its Zenoh keys p3at/FLEET/ROBOT/...); with --robot mock, "
+                             "which of the world's robots to run (default robot1)")
     parser.set_defaults(handler=_run)
 
 

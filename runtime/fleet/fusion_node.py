@@ -1,0 +1,181 @@
+"""The live fusion node: what any machine of a fleet can run (``p3at fuse --live``).
+
+It reads every robot's latest map from a map exchange, fuses them through ``runtime.fusion_report.fuse_maps``
+when new data has arrived (at most every ``min_period`` s, a burst of updates is one fusion) and at least every
+``interval`` s while anything changed, publishes the merged map on ``p3at/<fleet>/fused/map``, and logs maps,
+alignments and the fused map to Rerun. A robot that leaves keeps its last map in the fusion; a restarted node
+recovers every robot's map by query before its first fusion.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runtime.exchange import MapExchange
+from runtime.fusion_report import FusionReport, fuse_maps
+
+FUSED = "fused"
+
+
+@dataclass(frozen=True)
+class FusionNodeConfig:
+    interval: float = 10.0     # s: fuse at least this often while maps change
+    min_period: float = 1.0    # s: at most this often (updates arriving together make one fusion)
+    preset: str = "robust"
+    method: int = 1
+    seed: int = 0
+    out: Path | None = None    # the fused map file, rewritten (atomically) after each fusion
+
+    def __post_init__(self) -> None:
+        if not (self.interval > 0 and self.min_period >= 0):
+            raise ValueError("--interval must be > 0 and --min-period >= 0")
+
+
+class FusionNode:
+    """Fuses an exchange's maps on new data and at intervals; ``run(stop)`` until the event is set."""
+
+    def __init__(self, exchange: MapExchange, config: FusionNodeConfig = FusionNodeConfig(), *,
+                 logger=None, on_event: Callable[[str], None] | None = None,
+                 on_report: Callable[[FusionReport], None] | None = None, clock=time.monotonic) -> None:
+        self.exchange = exchange
+        self.config = config
+        self.logger = logger
+        self.on_event = on_event or (lambda line: None)
+        self.on_report = on_report or (lambda report: None)
+        self.clock = clock
+        self.t0 = clock()
+        self.history: list[FusionReport] = []
+        self.sources: dict[str, int] = {}        # robot -> sequence of the map in the last fusion
+        self._new_data = threading.Event()
+
+    def notify(self, robot: str = "") -> None:
+        """New data arrived (the exchange's ``on_update`` hook)."""
+        if robot != FUSED:
+            self._new_data.set()
+
+    def run(self, stop: threading.Event) -> None:
+        cfg = self.config
+        last = -np.inf
+        while not stop.is_set():
+            waited = self._new_data.wait(timeout=min(cfg.interval, 0.2))
+            now = self.clock()
+            if stop.is_set():
+                break
+            due = now - last >= cfg.interval
+            if (waited and now - last >= cfg.min_period) or due:
+                self._new_data.clear()
+                if self.fuse_now() is not None or due:
+                    last = now
+
+    def fuse_now(self) -> FusionReport | None:
+        """Fuse if any robot's map changed since the last fusion; publish and log the result."""
+        messages = self.exchange.receive(excluding=FUSED)
+        sources = {r: m.sequence for r, m in messages.items()}
+        if len(messages) < 2 or sources == self.sources:
+            return None
+        t = self.clock() - self.t0
+        maps = {r: m.landmark_map for r, m in messages.items()}
+        report = fuse_maps(maps, self.config.preset, self.config.method, t,
+                           np.random.default_rng(self.config.seed + len(self.history)))
+        self.sources = sources
+        self.history.append(report)
+        if report.merged is not None and any(p.aligned for p in report.pairs):
+            merged = report.merged
+            merged.metadata = {**merged.metadata, "fused_from": {r: int(s) for r, s in sources.items()},
+                               "fusion_time": round(t, 3)}
+            self.exchange.publish(FUSED, merged, stamp=t)
+            if self.config.out is not None:
+                merged.save(self.config.out)
+        self._log(t, maps, report)
+        for pair in report.pairs:
+            self.on_event(_pair_line(t, pair))
+        self.on_report(report)
+        return report
+
+    def _log(self, t: float, maps: dict, report: FusionReport) -> None:
+        if self.logger is None:
+            return
+        for robot, m in maps.items():
+            self.logger.log_map(robot, t, m)
+        for pair in report.pairs:
+            self.logger.log_alignment(t, pair.reference, pair.other, {
+                **pair.as_dict(), "merged": 0 if report.merged is None else len(report.merged)})
+        if report.merged is not None:
+            self.logger.log_map(FUSED, t, report.merged)
+
+
+def _pair_line(t: float, pair) -> str:
+    if not pair.aligned:
+        return f"fusion at t={t:.0f}s: {pair.other} does not overlap {pair.reference} yet"
+    line = f"fusion at t={t:.0f}s: {pair.other} -> {pair.reference} ({pair.supports} supports, {pair.common} common)"
+    if pair.error_xy is not None:
+        line += f", error {pair.error_xy:.3f} m / {pair.error_theta:.4f} rad"
+    return line
+
+
+# -- p3at fuse --live ----------------------------------------------------------------------------------------
+def run_live(args: argparse.Namespace) -> int:
+    """``p3at fuse --live``: the fusion node until Ctrl-C, SIGTERM or ``--seconds``; prints each fusion."""
+    from runtime.fleet.options import open_exchange
+    from runtime.mission import install_stop_signals
+
+    spec = args.exchange if args.exchange != "inprocess" else "zenoh"  # a live node needs a network exchange
+    out = Path(args.out) if args.out else None
+    try:
+        config = FusionNodeConfig(args.interval, args.min_period, args.preset, args.method, args.seed, out)
+    except ValueError as e:
+        print(f"p3at fuse: {e}", file=sys.stderr)
+        return 2
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+
+    def event(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    node_box: list[FusionNode] = []
+    try:
+        exchange = open_exchange(spec, args.fleet, "fusion", on_event=event,
+                                 on_update=lambda robot: node_box and node_box[0].notify(robot))
+    except (ValueError, RuntimeError) as e:
+        print(f"p3at fuse: {e}", file=sys.stderr)
+        return 2
+    logger = _open_logger(args.rerun, out)
+    reports: list[FusionReport] = []
+    node = FusionNode(exchange, config, logger=logger, on_event=event, on_report=reports.append)
+    node_box.append(node)
+    stop = threading.Event()
+    restore = install_stop_signals(stop.set)
+    if args.seconds > 0:
+        threading.Timer(args.seconds, stop.set).start()
+    try:
+        exchange.request_snapshot()  # a restarted node recovers every robot's latest map
+        node.run(stop)
+    finally:
+        restore()
+        exchange.close()
+        if logger is not None:
+            logger.close()
+    final = reports[-1] if reports else None
+    if args.json:
+        print(json.dumps({"fusions": len(reports), "last": None if final is None else final.as_dict()}))
+    elif final is not None:
+        print(f"{len(reports)} fusions; the last: " + json.dumps(final.as_dict()))
+    return 0
+
+
+def _open_logger(sink: str, out: Path | None):
+    if sink == "none":
+        return None
+    from runtime.rerun_log import MissionLog, open_recording
+
+    if sink == "file":
+        sink = str(out.with_name("fusion.rrd") if out is not None else Path("fusion.rrd"))
+    return MissionLog(open_recording(sink), [])

@@ -1,0 +1,322 @@
+"""The map exchange over Eclipse Zenoh: the only module that imports ``zenoh`` (see docs/fleet.md).
+
+Key space under a fleet namespace ``p3at/<fleet>/``:
+
+    <robot>/map      map updates (mapwire full snapshots and deltas); also a queryable answering the robot's
+                     latest full snapshot, on this concrete key
+    <robot>/status   pose estimate, map size, health (mapwire status)
+    <robot>/alive    the robot's liveliness token: join and leave
+    fused/map        the fusion node's merged map (full snapshots), and its queryable
+    fused/alive      the fusion node's liveliness token
+
+Receiving never blocks Zenoh's threads on decoding: a callback puts the raw bytes in a queue bounded in bytes
+(the oldest dropped first) and one named thread decodes, validates and applies them. A message that cannot be
+used is dropped with a logged reason; a delta whose base was missed (dropped, or the receiver joined late) makes
+the receiver ask the robot's queryable for its latest full snapshot. The latest map of each robot wins.
+
+Defaults (no configuration file): peer mode, multicast scouting off, the fusion node listens on
+``tcp/127.0.0.1:7447`` and robots connect to it (and listen on a loopback port of their own). A user's Zenoh
+JSON5 file (``--exchange zenoh:FILE``) replaces the endpoints and may turn on TLS and access control; keys it
+leaves unset get the defaults above.
+"""
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from estimation.landmark_map import LandmarkMap
+from runtime.exchange import MapMessage, copy_map
+from runtime.fleet import mapwire
+
+log = logging.getLogger(__name__)
+
+DEFAULT_FLEET = "p3at"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+FUSED = "fused"                     # reserved name of the fusion node's map
+MAX_PENDING_BYTES = 64 * 1024 * 1024
+SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
+QUERY_TIMEOUT = 5.0                 # s
+
+
+class ExchangeError(RuntimeError):
+    """The exchange could not be opened (a bad configuration, an endpoint in use...)."""
+
+
+def make_config(config: str | None, role: str) -> zenoh.Config:
+    """A Zenoh config: the user's (file or inline JSON5) with this project's defaults where it leaves keys unset.
+
+    ``role``: ``"fusion"`` listens on the default endpoint; ``"robot"`` connects to it.
+    """
+    if role not in ("robot", "fusion"):
+        raise ValueError(f"role must be robot or fusion, not {role!r}")
+    try:
+        if config is None:
+            cfg = zenoh.Config()
+        elif config.lstrip().startswith("{"):
+            cfg = zenoh.Config.from_json5(config)
+        else:
+            if not Path(config).is_file():
+                raise ExchangeError(f"{config}: no such Zenoh configuration file")
+            cfg = zenoh.Config.from_file(config)
+    except zenoh.ZError as e:
+        raise ExchangeError(f"{config}: not a valid Zenoh configuration ({e})") from None
+
+    def unset(key: str) -> bool:
+        return json.loads(cfg.get_json(key)) in (None, [], {})
+
+    if unset("mode"):
+        cfg.insert_json5("mode", '"peer"')
+    if unset("scouting/multicast/enabled"):
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+    user_listen = json.loads(cfg.get_json("listen/endpoints"))
+    if config is None or isinstance(user_listen, dict):  # zenoh's per-mode default listens on every interface
+        listen = [DEFAULT_ENDPOINT] if role == "fusion" else ["tcp/127.0.0.1:0"]
+        cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    if role == "robot" and unset("connect/endpoints"):
+        cfg.insert_json5("connect/endpoints", json.dumps([DEFAULT_ENDPOINT]))
+    return cfg
+
+
+class ZenohExchange:
+    """A :class:`~runtime.exchange.MapExchange` over Zenoh, for one process (a robot, or the fusion node).
+
+    ``publish`` sends this process's robot map (delta or full snapshot), its status, declares the robot's
+    liveliness token and queryable on first use; ``receive`` returns the latest map of every robot heard of
+    (including those that have left: their last map is kept), copies as over any wire.
+    """
+
+    def __init__(self, fleet: str = DEFAULT_FLEET, config: str | None = None, role: str = "robot", *,
+                 full_every: int = 10, on_event: Callable[[str], None] | None = None,
+                 on_update: Callable[[str], None] | None = None) -> None:
+        if not mapwire.ROBOT_NAME.fullmatch(fleet):
+            raise ValueError(f"fleet name {fleet!r} must be 1-64 of A-Z a-z 0-9 _ -")
+        self.fleet = fleet
+        self.prefix = f"p3at/{fleet}"
+        self.full_every = full_every
+        self.on_event = on_event or (lambda line: None)
+        self.on_update = on_update or (lambda robot: None)
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._pending: collections.deque[tuple[str, bytes]] = collections.deque()
+        self._pending_bytes = 0
+        self._streams: dict[str, mapwire.MapStream] = {}
+        self._latest: dict[str, MapMessage] = {}
+        self._status: dict[str, dict] = {}
+        self._present: set[str] = set()
+        self._encoders: dict[str, mapwire.MapEncoder] = {}
+        self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
+        self._asked: dict[str, float] = {}
+        self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
+        self.last_drop_reason = ""
+        self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
+        self.received = 0
+        self._closed = False
+        try:
+            self.session = zenoh.open(make_config(config, role))
+        except zenoh.ZError as e:
+            raise ExchangeError(f"cannot open the Zenoh session ({e})") from None
+        self._subscribers = [
+            self.session.declare_subscriber(f"{self.prefix}/*/map", self._on_sample),
+            self.session.declare_subscriber(f"{self.prefix}/*/status", self._on_sample),
+            self.session.liveliness().declare_subscriber(f"{self.prefix}/*/alive", self._on_liveliness,
+                                                         history=True),
+        ]
+        self._worker = threading.Thread(target=self._work, name=f"zenoh-exchange-{fleet}", daemon=True)
+        self._worker.start()
+
+    # -- lifecycle --------------------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Undeclare everything (the others see this process's robots leave) and stop the worker; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._wake.notify_all()
+        self._worker.join(timeout=5.0)
+        try:
+            self.session.close()
+        except zenoh.ZError as e:  # already closed by the runtime at exit
+            log.debug("closing the Zenoh session: %s", e)
+
+    def __enter__(self) -> ZenohExchange:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- sending ----------------------------------------------------------------------------------------------
+    def _declare(self, robot: str):
+        if robot not in self._own:
+            key = f"{self.prefix}/{robot}/map"
+            publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+            status = self.session.declare_publisher(f"{self.prefix}/{robot}/status",
+                                                    congestion_control=zenoh.CongestionControl.DROP)
+            queryable = self.session.declare_queryable(key, lambda query, r=robot: self._answer(r, query))
+            token = self.session.liveliness().declare_token(f"{self.prefix}/{robot}/alive")
+            self._own[robot] = (publisher, status, queryable, token)
+        return self._own[robot]
+
+    def publish(self, robot: str, landmark_map: LandmarkMap, stamp: float = 0.0) -> None:
+        """Send ``robot``'s map (delta against the previous one, or full snapshot) and its status."""
+        snapshot = copy_map(landmark_map)
+        with self._lock:
+            encoder = self._encoders.get(robot)
+            if encoder is None:
+                encoder = self._encoders[robot] = mapwire.MapEncoder(robot, full_every=self.full_every)
+            kind, data = encoder.encode(snapshot, stamp)
+            self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
+            publisher, status, _, _ = self._declare(robot)
+        publisher.put(data)
+        self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
+        pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
+        status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose, len(snapshot))
+        status.put(status_data)
+        self.bytes_sent["status"] += len(status_data)
+
+    def publish_status(self, robot: str, stamp: float, pose=None, landmarks: int = 0,
+                       health: dict | None = None) -> None:
+        """A status beside the map updates (pose estimate, health figures)."""
+        with self._lock:
+            encoder = self._encoders.setdefault(robot, mapwire.MapEncoder(robot, full_every=self.full_every))
+            _, status, _, _ = self._declare(robot)
+        status.put(mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
+                                         health))
+
+    def _answer(self, robot: str, query) -> None:
+        with self._lock:
+            encoder = self._encoders.get(robot)
+            data = None if encoder is None else encoder.snapshot()
+        if data is not None:
+            query.reply(f"{self.prefix}/{robot}/map", data)  # the concrete key, not the wildcard asked for
+
+    # -- receiving --------------------------------------------------------------------------------------------
+    def _on_sample(self, sample) -> None:
+        self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _on_reply(self, reply) -> None:
+        sample = reply.ok
+        if sample is not None:
+            self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+
+    def _enqueue(self, key: str, data: bytes) -> None:
+        with self._lock:
+            self._pending.append((key, data))
+            self._pending_bytes += len(data)
+            while self._pending_bytes > MAX_PENDING_BYTES and len(self._pending) > 1:
+                _, old = self._pending.popleft()  # the oldest goes; a missed delta is recovered by query
+                self._pending_bytes -= len(old)
+                self.dropped["queue full"] += 1
+            self._wake.notify()
+
+    def _on_liveliness(self, sample) -> None:
+        robot = self._robot_of(str(sample.key_expr), "alive")
+        if robot is None:
+            return
+        joined = sample.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            (self._present.add if joined else self._present.discard)(robot)
+        self.on_event(f"{robot} {'joined' if joined else 'left'} the fleet")
+        if joined and robot not in self._encoders:
+            self.request_snapshot(robot)
+
+    def _robot_of(self, key: str, leaf: str) -> str | None:
+        parts = key.split("/")
+        if len(parts) != 4 or f"{parts[0]}/{parts[1]}" != self.prefix or parts[3] != leaf:
+            return None
+        return parts[2]
+
+    def _work(self) -> None:
+        while True:
+            with self._lock:
+                while not self._pending and not self._closed:
+                    self._wake.wait()
+                if self._closed:
+                    return
+                key, data = self._pending.popleft()
+                self._pending_bytes -= len(data)
+            try:
+                self._handle(key, data)
+            except mapwire.WireError as e:
+                self._drop(key, str(e))
+            except Exception as e:  # a bug must not kill the receiver either; say so loudly
+                log.exception("fleet exchange: unexpected error on %s", key)
+                self._drop(key, f"internal error {type(e).__name__}: {e}")
+
+    def _drop(self, key: str, reason: str) -> None:
+        self.dropped["malformed" if "needs message" not in reason else "gap"] += 1
+        self.last_drop_reason = f"{key}: {reason}"
+        log.warning("fleet exchange: dropped a message on %s: %s", key, reason)
+
+    def _handle(self, key: str, data: bytes) -> None:
+        leaf = key.rsplit("/", 1)[-1]
+        robot = self._robot_of(key, leaf)
+        if robot is None or leaf not in ("map", "status"):
+            raise mapwire.WireError("key is not p3at/<fleet>/<robot>/map or .../status")
+        message = mapwire.decode(data)
+        if message.robot != robot:
+            raise mapwire.WireError(f"message from {message.robot!r} on {robot!r}'s key")
+        if robot in self._encoders:
+            return  # this process's own robot: it knows its map
+        if leaf == "status":
+            if message.kind != mapwire.STATUS:
+                raise mapwire.WireError(f"a {message.kind_name} message on a status key")
+            with self._lock:
+                self._status[robot] = {"stamp": message.stamp, "session": message.session, **message.status}
+            return
+        if message.kind == mapwire.STATUS:
+            raise mapwire.WireError("a status message on a map key")
+        with self._lock:
+            stream = self._streams.setdefault(robot, mapwire.MapStream(robot))
+            restarts = stream.restarts
+        try:
+            m = stream.accept(message)
+        except mapwire.WireError:
+            self.request_snapshot(robot)
+            raise
+        if stream.restarts != restarts:
+            self.on_event(f"{robot} restarted (new session, sequence {stream.sequence})")
+        with self._lock:
+            self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
+            self.received += 1
+        self.on_update(robot)
+
+    def request_snapshot(self, robot: str = "*") -> None:
+        """Ask ``robot``'s queryable (``*``: every robot's and the fused map's) for the latest full snapshot;
+        the replies arrive like updates. Rate-limited per robot."""
+        now = time.monotonic()
+        with self._lock:
+            if now - self._asked.get(robot, -np.inf) < SNAPSHOT_RETRY or self._closed:
+                return
+            self._asked[robot] = now
+        self.session.get(f"{self.prefix}/{robot}/map", self._on_reply, timeout=QUERY_TIMEOUT)
+
+    # -- the MapExchange protocol and what a fusion node reads ------------------------------------------------
+    def receive(self, excluding: str | None = None) -> dict[str, MapMessage]:
+        """The latest map of every robot heard of (this process's own included), except ``excluding`` and
+        the fused map."""
+        with self._lock:
+            messages = {r: m for r, m in self._latest.items() if r not in (excluding, FUSED)}
+        return {r: MapMessage(m.robot, m.sequence, m.stamp, copy_map(m.landmark_map)) for r, m in messages.items()}
+
+    def fused(self) -> MapMessage | None:
+        """The latest fused map heard of."""
+        with self._lock:
+            return self._latest.get(FUSED)
+
+    def present(self) -> set[str]:
+        """Robots (and ``fused``) whose liveliness token is alive now."""
+        with self._lock:
+            return set(self._present)
+
+    def status(self) -> dict[str, dict]:
+        """The latest status of every other robot: stamp, session, pose, landmarks, health."""
+        with self._lock:
+            return {r: dict(s) for r, s in self._status.items()}
