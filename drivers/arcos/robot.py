@@ -147,6 +147,7 @@ class P3AT:
         self.session = 0
         self.parser = PacketParser()
         self.bad_packets = 0  # packets with a good checksum that did not decode
+        self.bytes_written = 0  # every byte handed to the port (a simulator's lockstep clock counts on it)
         self.unhandled_packets = 0  # packets of an ID the driver does not use
 
         self._port: Any = None
@@ -377,6 +378,7 @@ class P3AT:
                 port.write(packet)
             except (serial.SerialException, OSError) as exc:
                 raise NotConnectedError(f"{self.url}: write failed: {exc}") from exc
+            self.bytes_written += len(packet)
             self._last_tx = self.clock()
 
     # ------------------------------------------------------------------ internals: reading
