@@ -9,11 +9,11 @@
 from __future__ import annotations
 
 from .config import FastSLAMConfig, range_bearing_config
-from .filter import FastSLAM, UpdateReport
+from .filter import FastSLAM, FilterStats, UpdateReport
 from .range_bearing import range_bearing_observations
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 
 __all__ = [
-    "FastSLAM", "FastSLAMConfig", "UpdateReport", "effective_sample_size", "low_variance_resample",
+    "FastSLAM", "FastSLAMConfig", "FilterStats", "UpdateReport", "effective_sample_size", "low_variance_resample",
     "normalise_log_weights", "range_bearing_config", "range_bearing_observations",
 ]

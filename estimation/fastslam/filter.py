@@ -57,9 +57,10 @@ from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
 from .linalg import (
-    inv3,
     joseph_update,
+    lower_matvec,
     sym_adjugate,
+    sym_cholesky,
     sym_components,
     sym_inverse,
     sym_matrices,
@@ -75,6 +76,7 @@ from .selection import select_observations
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
+_TINY_POSE_VAR = np.array([1e-12, 0.0, 0.0, 1e-12, 0.0, 1e-12])[:, None]   # keeps P⁻¹ finite right after an update
 PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
 
 
@@ -85,7 +87,8 @@ class UpdateReport:
     matched, new_landmarks, dropped: means over particles; ess: effective sample size before resampling;
     new_landmark_ids (N,): the landmark id observation j created (in any particle), -1 if none;
     best_matches (N,): the landmark id observation j matched in the most probable particle, -1 if none;
-    pose_mean (3,), pose_covariance (3, 3): the weighted particle cloud before resampling.
+    pose_mean (3,), pose_covariance (3, 3): the weighted particle cloud before resampling;
+    proposal_fallbacks: particles of this update that drew from the motion model (see :class:`FilterStats`).
     """
 
     n_observations: int
@@ -98,6 +101,18 @@ class UpdateReport:
     best_matches: np.ndarray
     pose_mean: np.ndarray
     pose_covariance: np.ndarray
+    proposal_fallbacks: int = 0
+
+
+@dataclass
+class FilterStats:
+    """Counters over the filter's life (``FastSLAM.stats``).
+
+    proposal_fallbacks: FastSLAM 2.0 particles whose observation proposal was numerically not positive definite
+    and which drew from the motion model instead (0 in a healthy run; see ``_sample_proposal``).
+    """
+
+    proposal_fallbacks: int = 0
 
 
 @dataclass
@@ -159,6 +174,7 @@ class FastSLAM:
         # entry's rows; the newest entry holds all M particles, older ones only the live particles' ancestors
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
+        self.stats = FilterStats()
 
     # == 0. motion ==========================================================================================
     def predict(self, increment: OdometryIncrement) -> None:
@@ -202,6 +218,7 @@ class FastSLAM:
         z, q, desc = self._checked(observations)
         self._time = max(self._time, float(observations.timestamp))
         predicted = self.poses
+        fallbacks_before = self.stats.proposal_fallbacks
         q6 = sym_components(q)                                                     # (6, N)
         frame = _FrameGeometry.of(predicted, z, q6)
 
@@ -284,7 +301,8 @@ class FastSLAM:
             self._prune_history()
         return UpdateReport(
             n_obs, len(win) / n_particles, n_new / n_particles,
-            dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov)
+            dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov,
+            self.stats.proposal_fallbacks - fallbacks_before)
 
     # -- step helpers ----------------------------------------------------------------------------------------
     def _checked(self, observations: StereoObservations):
@@ -462,12 +480,19 @@ class FastSLAM:
         ua, ub = u00 * a + u01 * b, u01 * a + u11 * b
         terms = (u00, u01, -ua, u11, -ub, a * ua + b * ub, -y0, -y1, a * y0 + b * y1)   # HᵀS⁻¹H (6), HᵀS⁻¹ν (3)
         sums = np.stack([np.bincount(matched.m, t, minlength=n) for t in terms])
-        p_motion = self._motion_cov + 1e-12 * _EYE3
-        info = sym_components(inv3(p_motion)) + sums[:6]
-        cov6 = sym_inverse(info)
+        p_motion = sym_components(self._motion_cov) + _TINY_POSE_VAR                 # P (6, M), never singular
+        cov6 = sym_inverse(sym_inverse(p_motion) + sums[:6])                         # Σ = (P⁻¹ + ΣHᵀS⁻¹H)⁻¹
         mean_pose = predicted + sym_matvec(cov6, sums[6:]).T
-        chol = np.linalg.cholesky(symmetrise(sym_matrices(cov6)) + 1e-15 * _EYE3)
-        sample = mean_pose + (chol @ self.rng.standard_normal(predicted.shape)[:, :, None])[:, :, 0]
+        chol, ok = sym_cholesky(cov6)
+        ok &= np.all(np.isfinite(mean_pose), axis=1)
+        if not np.all(ok):
+            # a numerically indefinite proposal (an ill-conditioned S⁻¹ among the matches): that particle draws
+            # from its motion model instead, which is always a valid (if less informed) proposal
+            bad = np.flatnonzero(~ok)
+            chol[:, bad] = sym_cholesky(p_motion[:, bad])[0]
+            mean_pose[bad] = predicted[bad]
+            self.stats.proposal_fallbacks += len(bad)
+        sample = mean_pose + lower_matvec(chol, self.rng.standard_normal(predicted.shape).T).T
         sample[:, 2] = wrap_angle(sample[:, 2])
         return sample
 
@@ -482,12 +507,13 @@ class FastSLAM:
         """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
 
         mean (3, P), sigma (6, P): the landmarks before the update; ``s_inv`` (6, P): S⁻¹ from the gate, in the
-        world frame at the predicted pose (S_w = Σ + R̂ Q R̂ᵀ). Under FastSLAM 2.0 the sampled pose differs
-        slightly, which makes K slightly sub-optimal, and the Joseph form keeps Σ the correct covariance for that
-        K (and saves recomputing S). Computed in the world frame, ν_w = R z + t − μ at the sampled pose: the
-        robot-frame S⁻¹ at the predicted pose seen from the sampled one is A = Δ S_w⁻¹ Δᵀ, Δ = R_z(θ − θ̂), so
-        K_w = K Rᵀ = Σ A and K Q Kᵀ = K_w (R Q Rᵀ) K_wᵀ. (Forming S afresh at the sampled pose, the textbook
-        FastSLAM 2.0 update, was measured on the rendered runs: no better, robot1 worse; see docs/fastslam.md.)
+        world frame at the predicted pose (S_w = Σ + R̂ Q R̂ᵀ), used as is by FastSLAM 1.0 (there the pose is the
+        predicted one). FastSLAM 2.0 forms S_w = Σ + R Q Rᵀ afresh at the sampled pose (the paper's update), so
+        K_w = Σ S_w⁻¹ is the optimal gain there: ‖K_w‖ ≤ 1 and Σ only shrinks. (An earlier shortcut reused the
+        gate's S⁻¹ rotated by the proposal's turn, A = Δ S_w⁻¹ Δᵀ: for an elongated Σ (a landmark first seen
+        from afar, depth σ ≫ lateral σ) a turn of 0.1 rad made K_w ≈ 10–20, moved landmarks metres and grew Σ
+        a hundredfold per update until S⁻¹ was numerically indefinite and the proposal's Cholesky failed.)
+        Computed in the world frame, ν_w = R z + t − μ at the sampled pose; K Q Kᵀ = K_w (R Q Rᵀ) K_wᵀ.
         Returns the landmarks' new planar positions (P, 2).
         """
         if len(matched.m) == 0:
@@ -495,14 +521,16 @@ class FastSLAM:
         store = self.store
         pose = _rows(poses, matched.m)
         c, s = _cos_sin(poses, matched.m)
-        turn = poses[:, 2] - predicted[:, 2]                        # per particle: the proposal's rotation
         zx, zy, zz = _rows(z, matched.j).T
         nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
-        gain = sym_product(sigma, sym_rotate_z(np.cos(turn)[matched.m], np.sin(turn)[matched.m], s_inv))  # K_w
+        noise = sym_rotate_z(c, s, _cols(q6, matched.j))           # R Q Rᵀ at the pose the update uses
+        if self.config.version == 2:                                # S_w = Σ + R Q Rᵀ afresh at the sampled pose
+            s_inv = sym_inverse(sigma + noise)
+        gain = sym_product(sigma, s_inv)                            # K_w = Σ S_w⁻¹
         updated = np.empty((len(pose), 9))                          # mean (3) and covariance (6), one write
         for i in range(3):
             updated[:, i] = mean[i] + gain[i][0] * nx + gain[i][1] * ny + gain[i][2] * nz
-        updated[:, 3:] = joseph_update(sigma, gain, sym_rotate_z(c, s, _cols(q6, matched.j))).T
+        updated[:, 3:] = joseph_update(sigma, gain, noise).T
         store.put_state(matched.g, updated)
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0

@@ -119,3 +119,28 @@ def joseph_update(s: np.ndarray, k, r: np.ndarray) -> np.ndarray:
     for n, (i, j) in enumerate(_UPPER_PAIRS):
         out[n] = s[_SYM[i][j]] - ks[i][j] - ks[j][i] + kb[i][0] * k[j][0] + kb[i][1] * k[j][1] + kb[i][2] * k[j][2]
     return out
+
+
+def sym_cholesky(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower Cholesky factors (6, P) of symmetric S (6, P), packed (l00, l10, l20, l11, l21, l22), and an (P,)
+    bool telling which S are numerically positive definite (every pivot finite and > 0). Where not, the
+    factor's entries are meaningless (zeros); callers decide what to do with those columns."""
+    a, b, c, d, e, f = s
+    with np.errstate(invalid="ignore", divide="ignore"):
+        l00 = np.sqrt(a)
+        l10, l20 = b / l00, c / l00
+        p11 = d - l10 * l10
+        l11 = np.sqrt(p11)
+        l21 = (e - l20 * l10) / l11
+        p22 = f - l20 * l20 - l21 * l21
+        l22 = np.sqrt(p22)
+        out = np.stack([l00, l10, l20, l11, l21, l22])
+    ok = (a > 0) & (p11 > 0) & (p22 > 0) & np.all(np.isfinite(out), axis=0)
+    out[:, ~ok] = 0.0
+    return out, ok
+
+
+def lower_matvec(l6: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """L v (3, P) for packed lower-triangular L (6, P) (see :func:`sym_cholesky`) and v (3, P)."""
+    l00, l10, l20, l11, l21, l22 = l6
+    return np.stack([l00 * v[0], l10 * v[0] + l11 * v[1], l20 * v[0] + l21 * v[1] + l22 * v[2]])
