@@ -33,6 +33,16 @@ SVS_WRITE_VERSION = "4.4d"
 # Optical frame (x right, y down, z forward) to body axes (x forward, y left, z up).
 OPTICAL_TO_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
+# What a calibration may hold (see check_calibration); a file past these bounds is refused, whatever its format.
+MAX_FILE_BYTES = 1 << 20  # real calibration files are a few kB
+MAX_IMAGE_SIDE = 16384  # pixels
+MAX_FOCAL = 1e5  # pixels
+MAX_DISTORTION = 100.0  # |coefficient|
+MAX_BASELINE = 10.0  # metres
+MAX_HEAD_OFFSET = 10.0  # metres from base_link
+ROTATION_TOLERANCE = 1e-3  # max |R^T R - I| (files keep 6 to 9 digits)
+_MAX_MATRIX_SIDE = 16  # rows/cols an OpenCV matrix of this format may claim before anything is read
+
 
 @dataclass(frozen=True)
 class StereoCalibration:
@@ -167,6 +177,65 @@ def from_intrinsics(size: tuple[int, int], K1: np.ndarray, D1: np.ndarray, K2: n
                              np.zeros(6) if head_pose is None else np.asarray(head_pose, float))
 
 
+def check_calibration(calib: StereoCalibration, source: str, names: dict[str, str] | None = None,
+                      lines: dict[str, int] | None = None) -> None:
+    """Refuse what no stereo head can have: sizes not positive integers or past MAX_IMAGE_SIDE, focal lengths
+    not positive (or past MAX_FOCAL), principal points far outside the image, K or P not of the pinhole form,
+    distortion past MAX_DISTORTION, R, R1, R2 not rotations, T zero or past MAX_BASELINE, a baseline that is
+    not positive, a head pose past MAX_HEAD_OFFSET. ``names`` maps this class's field names (K1, size, ...) to
+    the file's (``left camera.f``, ``M1``, ...) for the message, ``lines`` to their line numbers. Raises
+    BadFileError."""
+    names = names or {}
+    lines = lines or {}
+
+    def bad(name: str, problem: str) -> BadFileError:
+        where = f":{lines[name]}" if name in lines else ""
+        return BadFileError(f"{source}{where}: field '{names.get(name, name)}': {problem}")
+
+    width, height = calib.size
+    for side, value in (("width", width), ("height", height)):
+        if not isinstance(value, int | np.integer) or not 1 <= value <= MAX_IMAGE_SIDE:
+            raise bad(f"size.{side}", f"image {side} {value!r} is not an integer in 1..{MAX_IMAGE_SIDE}")
+    arrays = {n: np.asarray(getattr(calib, n), float) for n in ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2",
+                                                               "P1", "P2", "head_pose")}
+    shapes = {"K1": (3, 3), "K2": (3, 3), "D1": (5,), "D2": (5,), "R": (3, 3), "T": (3,), "R1": (3, 3),
+              "R2": (3, 3), "P1": (3, 4), "P2": (3, 4), "head_pose": (6,)}
+    for name, a in arrays.items():
+        if a.shape != shapes[name]:
+            raise bad(name, f"shape {a.shape}, expected {shapes[name]}")
+        if not np.all(np.isfinite(a)):
+            raise bad(name, "non-finite number")
+    for name in ("K1", "K2", "P1", "P2"):
+        M = arrays[name]
+        fx, fy, cx, cy = M[0, 0], M[1, 1], M[0, 2], M[1, 2]
+        if not (0 < fx <= MAX_FOCAL and 0 < fy <= MAX_FOCAL):
+            raise bad(name, f"focal lengths fx={fx:g}, fy={fy:g} px must be in (0, {MAX_FOCAL:g}]")
+        if not (-0.5 * width <= cx <= 1.5 * width and -0.5 * height <= cy <= 1.5 * height):
+            raise bad(name, f"principal point ({cx:g}, {cy:g}) px is far outside the {width}x{height} image")
+        if M[1, 0] != 0 or M[2, 0] != 0 or M[2, 1] != 0 or abs(M[2, 2] - 1) > 1e-9 or abs(M[0, 1]) > fx:
+            raise bad(name, "not a pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    for name in ("D1", "D2"):
+        if np.max(np.abs(arrays[name])) > MAX_DISTORTION:
+            raise bad(name, f"a distortion coefficient beyond ±{MAX_DISTORTION:g}")
+    for name in ("R", "R1", "R2"):
+        R = arrays[name]
+        error = float(np.max(np.abs(R.T @ R - np.eye(3))))
+        if error > ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
+            raise bad(name, f"not a rotation matrix (|R^T R - I| = {error:.2g}, det {np.linalg.det(R):.3g})")
+    if not 0 < np.linalg.norm(arrays["T"]) <= MAX_BASELINE:
+        raise bad("T", f"|T| = {np.linalg.norm(arrays['T']):g} m, expected in (0, {MAX_BASELINE:g}]")
+    P1, P2 = arrays["P1"], arrays["P2"]
+    if np.any(P1[:, 3] != 0) or P2[1, 3] != 0 or P2[2, 3] != 0:
+        raise bad("P2" if np.all(P1[:, 3] == 0) else "P1", "translation column of a rectified projection must be "
+                  "(0, 0, 0) on the left and (-fx * baseline, 0, 0) on the right")
+    baseline = -P2[0, 3] / P2[0, 0]
+    if not 0 < baseline <= MAX_BASELINE:
+        raise bad("P2", f"baseline {baseline:g} m, expected in (0, {MAX_BASELINE:g}] (right camera to the right)")
+    pose = arrays["head_pose"]
+    if np.max(np.abs(pose[:3])) > MAX_HEAD_OFFSET or np.max(np.abs(pose[3:])) > 2 * math.pi:
+        raise bad("head_pose", f"head pose {pose.tolist()} is beyond {MAX_HEAD_OFFSET:g} m or 2π rad")
+
+
 # ============================== SVS parameter files ==============================
 
 _CAMERA_FIELDS = ("pwidth", "pheight", "dpx", "dpy", "sx", "Cx", "Cy", "f", "fy", "alpha",
@@ -250,8 +319,11 @@ def parse_svs(text: str, source: str = "<svs text>") -> StereoCalibration:
                 return default
             where = section_lines.get(section, len(lines))
             raise _bad(source, where, f"{section}.{key}", "missing")
+        tokens = str(entry.value).split()
         try:
-            value = float(str(entry.value).split()[0])
+            if len(tokens) != 1:
+                raise ValueError
+            value = float(tokens[0])
         except ValueError:
             raise _bad(source, entry.line, f"{section}.{key}", f"not a number: {entry.value!r}") from None
         if not math.isfinite(value):
@@ -281,7 +353,14 @@ def parse_svs(text: str, source: str = "<svs text>") -> StereoCalibration:
                       number(name, "kappa3", 0.0)])
         P = matrix(name, "proj").copy()
         P[:, 3] /= 1000.0  # mm -> m
-        cams.append((K, D, matrix(name, "rect"), P, int(number(name, "pwidth")), int(number(name, "pheight"))))
+        size = []
+        for key in ("pwidth", "pheight"):
+            value = number(name, key)
+            if value != int(value) or not 1 <= value <= MAX_IMAGE_SIDE:
+                raise _bad(source, sections[name][key.lower()].line, f"{name}.{key}",
+                           f"image size {value:g} is not an integer in 1..{MAX_IMAGE_SIDE}")
+            size.append(int(value))
+        cams.append((K, D, matrix(name, "rect"), P, size[0], size[1]))
     (K1, D1, R1, P1, w1, h1), (K2, D2, R2, P2, w2, h2) = cams
     if (w1, h1) != (w2, h2):
         raise _bad(source, sections["right camera"]["pwidth"].line, "right camera.pwidth",
@@ -300,7 +379,19 @@ def parse_svs(text: str, source: str = "<svs text>") -> StereoCalibration:
     extras = {sec: {k: str(e.value) for k, e in entries.items() if k not in known.get(sec, set())}
               for sec, entries in sections.items()}
     extras = {sec: kv for sec, kv in extras.items() if kv or sec not in known}
-    return StereoCalibration((w1, h1), K1, D1, K2, D2, R, T, R1, R2, P1, P2, head_pose, extras)
+    calib = StereoCalibration((w1, h1), K1, D1, K2, D2, R, T, R1, R2, P1, P2, head_pose, extras)
+    svs_names = {"K1": "left camera.f", "K2": "right camera.f", "D1": "left camera.kappa1",
+                 "D2": "right camera.kappa1", "R": "external.Rx", "T": "external.Tx", "R1": "left camera.rect",
+                 "R2": "right camera.rect", "P1": "left camera.proj", "P2": "right camera.proj",
+                 "size.width": "left camera.pwidth", "size.height": "left camera.pheight", "head_pose": "global.GTx"}
+    svs_lines = {}
+    for name, label in svs_names.items():
+        section, key = label.split(".", 1)
+        entry = sections.get(section, {}).get(key.lower())
+        if entry is not None:
+            svs_lines[name] = entry.line
+    check_calibration(calib, source, svs_names, svs_lines)
+    return calib
 
 
 def _fmt(x: float) -> str:
@@ -357,10 +448,14 @@ _OPENCV_SHAPES = {"M1": (3, 3), "M2": (3, 3), "R": (3, 3), "T": (3,), "R1": (3, 
 
 def read_opencv(path: str | os.PathLike) -> StereoCalibration:
     """Read an OpenCV stereo calibration (YAML or XML, ``cv2.FileStorage``): M1 D1 M2 D2 R T, optional
-    R1 R2 P1 P2 Q, image_width/image_height (or ``size``), and this project's optional ``head_pose`` (6)."""
+    R1 R2 P1 P2 Q, image_width/image_height (or ``size``), and this project's optional ``head_pose`` (6).
+
+    The file's size is bounded before it is parsed and every matrix's rows and cols before its data is read
+    (numbers only, element by element: ``FileNode.mat()`` would allocate whatever the header claims)."""
     path = Path(path)
     if not path.is_file():
         raise BadFileError(f"{path}: no such file")
+    _check_file_size(path)
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # the Python binding wraps parse errors in SystemError
@@ -376,59 +471,140 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
             pattern = re.compile(rf"^\s*(<{name}\b|{name}\s*:)")
             return next((n + 1 for n, ln in enumerate(text_lines) if pattern.search(ln)), "?")
 
+        def bad(name: str, problem: str) -> BadFileError:
+            return BadFileError(f"{path}:{line_of(name)}: field '{name}': {problem}")
+
+        root = fs.root()
+        if not root.isMap():
+            raise BadFileError(f"{path}:1: field '(top level)': expected a mapping of named matrices")
+
         def mat(name: str, required: bool) -> np.ndarray | None:
             node = fs.getNode(name)
             if node.empty():
                 if required:
                     raise BadFileError(f"{path}:?: field '{name}': missing")
                 return None
-            value = node.mat()
-            if value is None:
-                raise BadFileError(f"{path}:{line_of(name)}: field '{name}': not an opencv-matrix")
-            value = np.asarray(value, float)
+            value = _cv_matrix(node, name, bad)
             shape = _OPENCV_SHAPES.get(name)
             if name in ("D1", "D2"):
                 if value.size not in (4, 5, 8, 12, 14):
-                    raise BadFileError(f"{path}:{line_of(name)}: field '{name}': {value.size} distortion "
-                                       "coefficients, expected 4, 5, 8, 12 or 14")
+                    raise bad(name, f"{value.size} distortion coefficients, expected 4, 5, 8, 12 or 14")
                 flat = np.zeros(5)
                 flat[:min(5, value.size)] = value.ravel()[:5]
                 if value.size > 5 and np.any(value.ravel()[5:] != 0):
-                    raise BadFileError(f"{path}:{line_of(name)}: field '{name}': rational/thin-prism terms "
-                                       "are not supported")
+                    raise bad(name, "rational/thin-prism terms are not supported")
                 return flat
             if shape is not None and value.size == int(np.prod(shape)):
                 value = value.reshape(shape)
             elif shape is not None:
-                raise BadFileError(f"{path}:{line_of(name)}: field '{name}': shape {value.shape}, expected {shape}")
-            if not np.all(np.isfinite(value)):
-                raise BadFileError(f"{path}:{line_of(name)}: field '{name}': non-finite number")
+                raise bad(name, f"shape {value.shape}, expected {shape}")
             return value
 
         m = {name: mat(name, True) for name in _OPENCV_REQUIRED}
         opt = {name: mat(name, False) for name in ("R1", "R2", "P1", "P2", "head_pose")}
-        width = fs.getNode("image_width").real() if not fs.getNode("image_width").empty() else 0
-        height = fs.getNode("image_height").real() if not fs.getNode("image_height").empty() else 0
+        width = _cv_size(fs.getNode("image_width"), "image_width", bad)
+        height = _cv_size(fs.getNode("image_height"), "image_height", bad)
         size_node = fs.getNode("size")
-        if (not width or not height) and not size_node.empty():
-            size_mat = size_node.mat()
-            flat = np.asarray(size_mat).ravel() if size_mat is not None else np.array(
-                [size_node.at(0).real(), size_node.at(1).real()])
-            width, height = flat[:2]
-        if not width or not height:
+        if (width is None or height is None) and not size_node.empty():
+            if size_node.isMap():
+                flat = _cv_matrix(size_node, "size", bad).ravel()
+            elif size_node.isSeq() and size_node.size() == 2:
+                flat = np.array([_cv_number(size_node.at(i), "size", bad) for i in range(2)])
+            else:
+                raise bad("size", "expected [width, height]")
+            if flat.size != 2:
+                raise bad("size", f"{flat.size} numbers, expected [width, height]")
+            width, height = (_integral(v, "size", bad) for v in flat)
+        if width is None or height is None:
             raise BadFileError(f"{path}:?: field 'image_width': missing image size (image_width/image_height)")
+    except cv2.error as exc:
+        raise BadFileError(f"{path}:?: field '(structure)': {_cv_error_text(exc)}") from None
     finally:
         fs.release()
-    size = (int(width), int(height))
+    size = (width, height)
+    names = {"size.width": "image_width", "size.height": "image_height", "K1": "M1", "K2": "M2"}
+    lines = {k: line_of(v) for k, v in names.items()} | {k: line_of(k) for k in _OPENCV_SHAPES}
     if any(opt[k] is None for k in ("R1", "R2", "P1", "P2")):
-        calib = from_intrinsics(size, m["M1"], m["D1"], m["M2"], m["D2"], m["R"], m["T"], opt["head_pose"])
+        for name, canonical in (("M1", "K1"), ("M2", "K2"), ("R", "R"), ("T", "T")):
+            _check_before_rectify(m[name], canonical, size, lambda problem, n=name: bad(n, problem))
+        try:
+            calib = from_intrinsics(size, m["M1"], m["D1"], m["M2"], m["D2"], m["R"], m["T"], opt["head_pose"])
+        except cv2.error as exc:
+            raise BadFileError(f"{path}:?: field 'M1': cannot compute the rectification: "
+                               f"{_cv_error_text(exc)}") from None
     else:
         calib = StereoCalibration(size, m["M1"], m["D1"], m["M2"], m["D2"], m["R"], m["T"].ravel(), opt["R1"],
                                   opt["R2"], opt["P1"], opt["P2"],
                                   np.zeros(6) if opt["head_pose"] is None else opt["head_pose"])
-    if calib.P2[0, 3] == 0:
-        raise BadFileError(f"{path}:?: field 'P2': zero baseline")
+    check_calibration(calib, str(path), names, {k: v for k, v in lines.items() if v != "?"})
     return calib
+
+
+def _check_file_size(path: Path) -> None:
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise BadFileError(f"{path}: {size} bytes; a calibration file has at most {MAX_FILE_BYTES}")
+
+
+def _cv_number(node, name: str, bad) -> float:
+    if not (node.isInt() or node.isReal()):
+        raise bad(name, "not a number")
+    value = float(node.real())
+    if not math.isfinite(value):
+        raise bad(name, "non-finite number")
+    return value
+
+
+def _integral(value: float, name: str, bad) -> int:
+    if value != int(value) or not 1 <= value <= MAX_IMAGE_SIDE:
+        raise bad(name, f"image size {value:g} is not an integer in 1..{MAX_IMAGE_SIDE}")
+    return int(value)
+
+
+def _cv_size(node, name: str, bad) -> int | None:
+    return None if node.empty() else _integral(_cv_number(node, name, bad), name, bad)
+
+
+def _cv_matrix(node, name: str, bad) -> np.ndarray:
+    """An ``opencv-matrix`` node (rows, cols, dt, data) as a float array, its size bounded before reading."""
+    if not node.isMap():
+        raise bad(name, "not an opencv-matrix (rows, cols, dt, data)")
+    dims = []
+    sizes = node.getNode("sizes")  # an opencv-nd-matrix (what FileStorage writes for a 1-D array)
+    if not sizes.empty():
+        if not sizes.isSeq() or not 1 <= sizes.size() <= 2:
+            raise bad(name, "opencv-nd-matrix 'sizes' must list 1 or 2 dimensions")
+        claims = [sizes.at(i) for i in range(sizes.size())]
+    else:
+        claims = [node.getNode("rows"), node.getNode("cols")]
+    for key, sub in zip(("rows", "cols"), claims, strict=False):
+        if sub.empty() or not sub.isInt():
+            raise bad(name, f"opencv-matrix without an integer '{key}'")
+        dims.append(int(sub.real()))
+        if not 1 <= dims[-1] <= _MAX_MATRIX_SIDE:
+            raise bad(name, f"opencv-matrix claims {dims[-1]} {key}; this format's matrices have 1..{_MAX_MATRIX_SIDE}")
+    dt = node.getNode("dt")
+    if not dt.empty() and (not dt.isString() or dt.string() not in ("d", "f", "i", "u", "s", "w", "c")):
+        raise bad(name, "opencv-matrix 'dt' must be a single-channel number type (d, f, i, u, s, w, c)")
+    data = node.getNode("data")
+    count = math.prod(dims)
+    if data.empty() or not data.isSeq() or data.size() != count:
+        found = data.size() if data.isSeq() else 0
+        raise bad(name, f"opencv-matrix data holds {found} numbers, {'x'.join(map(str, dims))} needs {count}")
+    values = np.array([_cv_number(data.at(i), name, bad) for i in range(count)])
+    return values.reshape(dims)
+
+
+def _check_before_rectify(a: np.ndarray, name: str, size: tuple[int, int], fail) -> None:
+    """What cv2.stereoRectify needs to give a meaningful answer (it would otherwise return NaNs or garbage)."""
+    if name in ("K1", "K2") and not (0 < a[0, 0] <= MAX_FOCAL and 0 < a[1, 1] <= MAX_FOCAL):
+        raise fail(f"focal lengths fx={a[0, 0]:g}, fy={a[1, 1]:g} px must be in (0, {MAX_FOCAL:g}]")
+    if name == "R":
+        error = float(np.max(np.abs(a.T @ a - np.eye(3))))
+        if error > ROTATION_TOLERANCE or np.linalg.det(a) <= 0:
+            raise fail(f"not a rotation matrix (|R^T R - I| = {error:.2g})")
+    if name == "T" and not 0 < np.linalg.norm(a) <= MAX_BASELINE:
+        raise fail(f"|T| = {np.linalg.norm(a):g} m, expected in (0, {MAX_BASELINE:g}]")
 
 
 def _cv_error_text(exc: BaseException) -> str:
@@ -470,6 +646,7 @@ def load(path: str | os.PathLike) -> StereoCalibration:
         return read_opencv(path)
     if suffix == ".ini":
         try:
+            _check_file_size(path)
             text = path.read_text(encoding="latin-1")
         except OSError as exc:
             raise BadFileError(f"{path}: cannot read: {exc.strerror}") from None
@@ -478,8 +655,11 @@ def load(path: str | os.PathLike) -> StereoCalibration:
 
 
 def save(calib: StereoCalibration, path: str | os.PathLike) -> None:
-    """Write a calibration file atomically, format by suffix (``.ini`` SVS, ``.yaml/.yml/.xml`` OpenCV)."""
+    """Write a calibration file atomically, format by suffix (``.ini`` SVS, ``.yaml/.yml/.xml`` OpenCV).
+
+    What :func:`load` would refuse is not written: raises BadFileError naming the field instead."""
     path = Path(path)
+    check_calibration(calib, f"{path}: refusing to write")
     if path.suffix.lower() == ".ini":
         atomic_write_bytes(path, format_svs(calib).encode("latin-1"))
     else:
