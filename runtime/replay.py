@@ -52,7 +52,7 @@ def onboard_config_from_log(log: SensorLog, *, particles: int | None = None, see
         harris = HarrisConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in harris.items()}) \
             if harris else HarrisConfig()
     except (KeyError, TypeError, ValueError) as e:
-        raise SensorLogError(f"{log.folder}/index.json: field 'metadata' holds bad settings ({e})") from None
+        raise SensorLogError(f"{log.folder}: metadata field 'settings' holds bad settings ({e})") from None
     changes = dict(fastslam_overrides or {})
     if particles is not None:
         changes["n_particles"] = particles
@@ -78,10 +78,11 @@ def _frames(log: SensorLog):
             yield CameraFrame(float(r["t"]), int(r["seq"]), np.asarray(r["left"]), np.asarray(r["right"]))
 
 
-def replay_log(folder: str | Path, config: OnboardConfig | None = None, *, every_frame: bool = False,
+def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None, *, every_frame: bool = False,
                on_frame=None) -> ReplayResult:
-    """Run a sensor log through a fresh SlamCore (``config``: default, the logged settings)."""
-    log = SensorLog(folder)
+    """Run a sensor log (a path or an open :class:`SensorLog`) through a fresh SlamCore (``config``: default,
+    the logged settings)."""
+    log = log if isinstance(log, SensorLog) else SensorLog(log)
     config = config or onboard_config_from_log(log)
     robot = str(log.metadata.get("robot", "robot"))
     core = SlamCore(robot, config)

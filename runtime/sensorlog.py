@@ -1,123 +1,163 @@
-"""Sensor logs: the raw streams of one robot on disk, for deterministic replay on a machine with no robot.
+"""Sensor logs: one robot's raw streams as MCAP files with ROS 2 message types, for deterministic replay.
 
-Format (version 1; a folder; no pickle anywhere, read with ``np.load(allow_pickle=False)``)::
+A log is a folder of segments, ``LOG/<LOG>_<k>.mcap`` (k = 0, 1, ...; the naming of ``ros2 bag``), each a
+complete MCAP file (profile ``ros2``, CDR, zstd chunks) that Foxglove, ``ros2 bag``, Rerun's MCAP loader, the
+``mcap`` CLI and ``rosbags`` open without this project. Topics, for robot ``R`` (frames ``R/odom``,
+``R/base_link``, ``R/stereo_left_optical``, ``R/stereo_right_optical``, ``R/sonar_<i>``)::
 
-    LOG/index.json                  {"format": "p3at-sensor-log", "version": 1, "metadata": {...},
-                                     "chunks": [{"file", "stream", "count", "t0", "t1"}, ...], "closed": bool}
-    LOG/<stream>-<NNNNNN>.npz       one chunk of consecutive records of one stream
+    /R/sip                                  p3at_msgs/RawSip          every SIP: bytes + the runtime's odometry
+    /R/odom                                 nav_msgs/Odometry         the same odometry, for other tools
+    /tf                                     tf2_msgs/TFMessage        R/odom -> R/base_link at every SIP
+    /tf_static                              tf2_msgs/TFMessage        camera and sonar mounts (each segment)
+    /R/sonar/sonar_<i>                      sensor_msgs/Range         one per sonar per SIP (+inf: no echo)
+    /R/stereo/{left,right}/image_rect/compressed  sensor_msgs/CompressedImage  lossless PNG of the rectified pair
+    /R/stereo/{left,right}/camera_info      sensor_msgs/CameraInfo    the rectified geometry (right: P[3]=-fx·B)
+    /R/stereo/frame                         p3at_msgs/FrameStamp      each frame's counter and exact stamp
+    /R/stereo/observations                  p3at_msgs/StereoObservations   a synthetic camera's observations
+    /R/slam/processed                       p3at_msgs/FrameStamp      the frames the live SLAM stage processed
 
-A record is a flat mapping of field name -> number or array, and always has ``t`` (seconds, the runtime's
-clock). In a chunk each field is one array stacked over the records, axis 0. Fields whose rows differ in
-shape (e.g. a variable number of points) are stored concatenated along axis 0 with ``<field>__offsets``
-((count + 1,) int64) giving each record's slice. Streams the runtime writes:
+Stamps are the runtime's clock (header stamps and MCAP log times in integer ns); the custom types also carry it
+as float64 seconds, exactly as the runtime used it, so that replay is bit-exact. The run's settings (robot,
+camera, geometry, FastSLAM, seed...) are an MCAP metadata record ``p3at-sensor-log`` (key ``settings``, JSON).
 
-    odometry      t, x, y, theta (m, rad: odometry pose), v, w, stall (0/1), sonar (S,) m, sonar_poses (S, 3)
-    frames        t, seq, left, right ((H, W) or (H, W, 3) uint8 rectified or raw pair, see metadata)
-    observations  t, seq, points (N, 3), covariances (N, 3, 3), descriptors (N, D), pixels (N, 2)
-                  (a synthetic camera gives observations, not images)
-    processed     t, seq: the frames the live pipeline processed (the rest it dropped), in order
+Images are PNG, not JPEG: replay must feed the front end the very pixels the live run saw, and a lossy
+image would give another map. Crash safety: the segment being written is ``<LOG>_<k>.mcap.part``; it is
+closed, fsynced and renamed (then the folder fsynced) every ``segment_seconds`` of log time and at the end.
+A ``.part`` left by a crash is itself read up to its last complete chunk (the writer flushes a chunk every
+``flush_interval`` s of log time), so a SIGKILL loses at most the last ``flush_interval`` seconds.
 
-Each chunk is written atomically, then the index is rewritten atomically, so a log cut short by a crash
-or a Ctrl-C still reads up to its last complete chunk. Writing happens on the writer's own thread: a
-driver's callback only appends to a queue; records not yet on disk are bounded in bytes (records beyond the
-budget are counted in ``dropped``, never block the caller).
+Writing happens on the writer's own thread: a driver's callback only appends to a queue; records not yet on
+disk are bounded in bytes (records beyond the budget are counted in ``dropped``, never block the caller).
+The reader checks everything before use: record lengths against the file's size, chunk sizes against a bound
+before decompressing, counts inside each message against its length, finiteness, image sizes before decoding.
 """
 from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import queue
+import re
+import struct
 import threading
-import zipfile
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
 
-from estimation.fileio import atomic_write_bytes
+from runtime import ros2_messages as ros
 
-FORMAT_NAME = "p3at-sensor-log"
-FORMAT_VERSION = 1
-INDEX = "index.json"
+METADATA_NAME = "p3at-sensor-log"
+FORMAT_VERSION = 2                       # 1 was the npz-chunk folder (dropped)
+MAX_CHUNK_BYTES = 64 << 20               # a decompressed chunk larger than this is refused (ours are ~1 MiB)
+MAX_IMAGE_PIXELS = 4096 * 4096
+MAX_OBSERVATIONS = 100_000
+MAX_DESCRIPTOR = 4096
+SONAR_FIELD_OF_VIEW = 0.26               # rad, the P3-AT's sonar cone (full width)
+SONAR_MIN_RANGE, SONAR_MAX_RANGE = 0.1, 5.0   # m
+STREAMS = ("odometry", "frames", "observations", "processed")
 
 
 class SensorLogError(ValueError):
     """A sensor log is missing, malformed or of an unknown version; the message names the file and field."""
 
 
-def _stack(values: list[np.ndarray]) -> dict[str, np.ndarray]:
-    if all(v.shape == values[0].shape for v in values):
-        return {"": np.stack(values)}
-    for v in values:
-        if v.ndim == 0:
-            raise ValueError("a ragged field must be an array in every record")
-    offsets = np.cumsum([0] + [len(v) for v in values]).astype(np.int64)
-    return {"": np.concatenate(values), "__offsets": offsets}
+def _token(name: str) -> str:
+    """A valid ROS name token (letters, digits, underscores; not starting with a digit)."""
+    token = re.sub(r"[^A-Za-z0-9_]", "_", name) or "robot"
+    return token if not token[0].isdigit() else "r" + token
 
 
-def encode_chunk(records: list[Mapping], compress: bool = True) -> bytes:
-    """The npz bytes of one chunk of records that all have the same fields."""
-    fields = list(records[0])
-    arrays: dict[str, np.ndarray] = {}
-    for name in fields:
-        if "__" in name:
-            raise ValueError(f"field name {name!r} may not contain '__'")
-        for suffix, array in _stack([np.asarray(r[name]) for r in records]).items():
-            arrays[name + suffix] = array
-    buf = io.BytesIO()
-    (np.savez_compressed if compress else np.savez)(buf, **arrays)
-    return buf.getvalue()
+def segment_name(folder: Path, index: int) -> str:
+    return f"{folder.name}_{index}.mcap"
 
 
-def decode_chunk(path: Path, count: int) -> list[dict[str, np.ndarray]]:
-    """The records of one chunk file (``count`` of them)."""
+class _Segment:
+    """One MCAP file being written under a temporary name."""
+
+    TYPES = ros.TYPES
+
+    def __init__(self, path: Path, settings: Mapping, chunk_size: int) -> None:
+        self.path = path
+        self.part = path.with_name(path.name + ".part")
+        self._file = open(self.part, "wb")  # noqa: SIM115 - closed in close()
+        self.writer = McapWriter(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="p3at-fusion sensorlog")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self.writer.add_metadata(METADATA_NAME, {"settings": json.dumps(dict(settings)),
+                                                 "version": str(FORMAT_VERSION)})
+        self.t0: float | None = None
+        self.static_written: bool | None = None   # None: no mounts written yet; False: camera only; True: all
+
+    def write(self, topic: str, type_name: str, ns: int, data: bytes) -> None:
+        channel = self._channels.get(topic)
+        if channel is None:
+            schema = self._schemas.get(type_name)
+            if schema is None:
+                schema = self.writer.register_schema(ros.schema_name(type_name), "ros2msg",
+                                                     ros.message_definition(type_name).encode())
+                self._schemas[type_name] = schema
+            channel = self.writer.register_channel(topic, "cdr", schema)
+            self._channels[topic] = channel
+        self.writer.add_message(channel, log_time=max(0, ns), publish_time=max(0, ns), data=data, sequence=0)
+
+    def flush(self) -> None:
+        self.writer.flush()
+
+    def close(self) -> None:
+        """Finish the file, fsync it, give it its final name, fsync the folder."""
+        self.writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self.part, self.path)
+        _fsync_folder(self.path.parent)
+
+
+def _fsync_folder(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise SensorLogError(f"{path}: chunk file is missing") from None
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise SensorLogError(f"{path}: not a readable chunk ({e})") from None
-    if "t" not in arrays:
-        raise SensorLogError(f"{path}: field 't' is missing")
-    records: list[dict[str, np.ndarray]] = [{} for _ in range(count)]
-    for name, array in arrays.items():
-        if name.endswith("__offsets"):
-            continue
-        offsets = arrays.get(name + "__offsets")
-        if offsets is not None:
-            if offsets.shape != (count + 1,) or offsets[-1] != len(array) or np.any(np.diff(offsets) < 0):
-                raise SensorLogError(f"{path}: field '{name}__offsets' does not match {count} records")
-            for i in range(count):
-                records[i][name] = array[offsets[i]:offsets[i + 1]]
-        else:
-            if len(array) != count:
-                raise SensorLogError(f"{path}: field '{name}' has {len(array)} rows, the index says {count}")
-            for i in range(count):
-                records[i][name] = array[i]
-    return records
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 class SensorLogWriter:
     """Writes records to a log folder from any thread without blocking it (a bounded queue, own thread).
 
-    ``chunk_records``: records per chunk per stream; ``flush_interval``: seconds (of record time) after
-    which a partial chunk is written anyway, so that little is lost on a crash.
+    Records (what ``runtime.onboard`` hands over; t in seconds on the runtime clock):
+    ``odometry`` t, x, y, theta, v, w, stalled, sonar (S,), sonar_poses (S, 3), raw (SIP bytes);
+    ``frames`` t, seq, left, right (rectified uint8 (H, W) or (H, W, 3)); ``observations`` t, seq, points,
+    covariances, descriptors, pixels; ``processed`` t, seq.
     """
 
-    def __init__(self, folder: str | os.PathLike, metadata: Mapping | None = None, *, chunk_records: int = 50,
-                 flush_interval: float = 2.0, compress: bool = True, queue_size: int = 2000,
-                 max_queued_bytes: int = 256 << 20) -> None:
+    def __init__(self, folder: str | os.PathLike, metadata: Mapping | None = None, *, segment_seconds: float = 30.0,
+                 flush_interval: float = 2.0, chunk_size: int = 1 << 20, png_compression: int = 1,
+                 queue_size: int = 2000, max_queued_bytes: int = 256 << 20) -> None:
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
-        if (self.folder / INDEX).exists():
+        if any(self.folder.glob("*.mcap*")) or (self.folder / "index.json").exists():
             raise SensorLogError(f"{self.folder}: already holds a sensor log (choose a new folder)")
         self.metadata = dict(metadata or {})
-        self.chunk_records, self.flush_interval, self.compress = chunk_records, flush_interval, compress
-        self._chunks: list[dict] = []
-        self._pending: dict[str, list[Mapping]] = {}
-        self._counters: dict[str, int] = {}
+        self.robot = _token(str(self.metadata.get("robot", "robot")))
+        self.segment_seconds, self.flush_interval, self.chunk_size = segment_seconds, flush_interval, chunk_size
+        self.png_compression = png_compression
+        self.geometry = self.metadata.get("geometry") or None
+        self.segments: list[Path] = []
+        self._segment: _Segment | None = None
+        self._last_flush = -math.inf
+        self._sonar_poses: np.ndarray | None = None
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.max_queued_bytes = max_queued_bytes
         self._queued_bytes = 0
@@ -125,7 +165,6 @@ class SensorLogWriter:
         self.dropped = 0
         self.error: BaseException | None = None
         self._closed = False
-        self._write_index(closed=False)
         self._thread = threading.Thread(target=self._run, name=f"sensorlog:{self.folder.name}", daemon=True)
         self._thread.start()
 
@@ -133,6 +172,8 @@ class SensorLogWriter:
         """Queue one record (must hold ``t``); never blocks: if the disk cannot keep up it counts a drop."""
         if self._closed:
             return
+        if stream not in STREAMS:
+            raise ValueError(f"unknown sensor-log stream {stream!r} (one of {', '.join(STREAMS)})")
         if "t" not in record:
             raise ValueError("a sensor-log record needs a time field 't'")
         size = sum(getattr(v, "nbytes", 8) for v in record.values())
@@ -149,13 +190,13 @@ class SensorLogWriter:
             self.dropped += 1
 
     def flush(self) -> None:
-        """Write every queued and pending record now (blocks until done)."""
+        """Write every queued record and the chunk in progress to the file now (blocks until done)."""
         done = threading.Event()
         self._queue.put(("__flush__", done, 0))
         done.wait()
 
     def close(self) -> None:
-        """Flush everything and mark the log complete. Safe to call twice."""
+        """Write everything and close the last segment under its final name. Safe to call twice."""
         if self._closed:
             return
         self._closed = True
@@ -176,19 +217,19 @@ class SensorLogWriter:
             stream, item, size = self._queue.get()
             try:
                 if stream == "__flush__":
-                    self._write_all()
+                    if self._segment is not None:
+                        self._segment.flush()
                     item.set()
                     continue
                 if stream == "__close__":
-                    self._write_all()
-                    self._write_index(closed=True)
+                    if self._segment is not None:
+                        self._close_segment()
                     return
-                pending = self._pending.setdefault(stream, [])
-                item["__size"] = size
-                pending.append(item)
-                age = float(item["t"]) - float(pending[0]["t"])
-                if len(pending) >= self.chunk_records or age >= self.flush_interval:
-                    self._write_stream(stream)
+                try:
+                    self._write_record(stream, item)
+                finally:
+                    with self._bytes_lock:
+                        self._queued_bytes -= size
             except BaseException as e:  # keep running: a logging fault must not stop the robot
                 self.error = e
                 if stream == "__flush__":
@@ -196,73 +237,390 @@ class SensorLogWriter:
                 elif stream == "__close__":
                     return
 
-    def _write_all(self) -> None:
-        for stream in list(self._pending):
-            self._write_stream(stream)
+    def _open_segment(self, t: float) -> _Segment:
+        path = self.folder / segment_name(self.folder, len(self.segments))
+        self._segment = _Segment(path, {**self.metadata, "format_version": FORMAT_VERSION}, self.chunk_size)
+        self._segment.t0 = t
+        self._last_flush = t
+        return self._segment
 
-    def _write_stream(self, stream: str) -> None:
-        records = self._pending.pop(stream, [])
-        if not records:
+    def _close_segment(self) -> None:
+        self._segment.close()
+        self.segments.append(self._segment.path)
+        self._segment = None
+
+    def _write_record(self, stream: str, r: dict) -> None:
+        t = float(r["t"])
+        segment = self._segment
+        if segment is not None and t - segment.t0 >= self.segment_seconds:
+            self._close_segment()
+            segment = None
+        if segment is None:
+            segment = self._open_segment(t)
+        if stream == "odometry" and self._sonar_poses is None:
+            self._sonar_poses = np.asarray(r.get("sonar_poses", np.zeros((0, 3))), float).reshape(-1, 3)
+        if segment.static_written is not (self._sonar_poses is not None):  # the mounts, again once sonars are known
+            self._write_static(segment, t)
+        getattr(self, f"_write_{stream}")(segment, t, r)
+        if t - self._last_flush >= self.flush_interval:
+            segment.flush()  # a chunk on disk: what a crash can lose is bounded by flush_interval
+            self._last_flush = t
+
+    def _frame(self, name: str) -> str:
+        return f"{self.robot}/{name}"
+
+    def _write_static(self, segment: _Segment, t: float) -> None:
+        transforms = []
+        if self.geometry is not None:
+            from runtime.adapters import geometry_from_dict
+
+            g = geometry_from_dict(self.geometry)
+            left = g.left_camera_to_base()
+            right_in_left = np.eye(4)
+            right_in_left[0, 3] = g.baseline
+            transforms += [(self._frame("base_link"), self._frame("stereo_left_optical"), left),
+                           (self._frame("stereo_left_optical"), self._frame("stereo_right_optical"), right_in_left)]
+        if self._sonar_poses is not None:
+            for i, (x, y, yaw) in enumerate(self._sonar_poses):
+                T = np.eye(4)
+                T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
+                T[:2, 3] = x, y
+                transforms.append((self._frame("base_link"), self._frame(f"sonar_{i}"), T))
+        if transforms:
+            segment.write("/tf_static", "tf2_msgs/TFMessage", ros.stamp_ns(t), ros.encode_transforms(
+                ros.stamp_ns(t), transforms))
+        segment.static_written = self._sonar_poses is not None
+
+    def _write_odometry(self, segment: _Segment, t: float, r: dict) -> None:
+        ns = ros.stamp_ns(t)
+        x, y, theta = float(r["x"]), float(r["y"]), float(r["theta"])
+        raw = np.asarray(r.get("raw", np.zeros(0, np.uint8)), np.uint8).tobytes()
+        odom, base = self._frame("odom"), self._frame("base_link")
+        segment.write(f"/{self.robot}/sip", "p3at_msgs/RawSip", ns, ros.encode_raw_sip(
+            ns, odom, t, raw, x, y, theta, float(r.get("v", 0.0)), float(r.get("w", 0.0)), bool(r.get("stalled"))))
+        segment.write(f"/{self.robot}/odom", "nav_msgs/Odometry", ns, ros.encode_odometry(
+            ns, odom, base, x, y, theta, float(r.get("v", 0.0)), float(r.get("w", 0.0))))
+        T = np.eye(4)
+        T[:3, :3] = [[np.cos(theta), -np.sin(theta), 0.0], [np.sin(theta), np.cos(theta), 0.0], [0.0, 0.0, 1.0]]
+        T[:2, 3] = x, y
+        segment.write("/tf", "tf2_msgs/TFMessage", ns, ros.encode_transforms(ns, [(odom, base, T)]))
+        for i, value in enumerate(np.asarray(r.get("sonar", ()), float).reshape(-1)):
+            segment.write(f"/{self.robot}/sonar/sonar_{i}", "sensor_msgs/Range", ns, ros.encode_range(
+                ns, self._frame(f"sonar_{i}"), SONAR_FIELD_OF_VIEW, SONAR_MIN_RANGE, SONAR_MAX_RANGE,
+                math.inf if not np.isfinite(value) else float(value)))
+
+    def _camera_info(self, segment: _Segment, ns: int, width: int, height: int) -> None:
+        if self.geometry is None:
             return
-        size = sum(r.pop("__size", 0) for r in records)
-        with self._bytes_lock:  # the budget covers records until they are on disk
-            self._queued_bytes -= size
-        number = self._counters.get(stream, 0)
-        self._counters[stream] = number + 1
-        name = f"{stream}-{number:06d}.npz"
-        atomic_write_bytes(self.folder / name, encode_chunk(records, self.compress))
-        self._chunks.append({"file": name, "stream": stream, "count": len(records),
-                             "t0": float(records[0]["t"]), "t1": float(records[-1]["t"])})
-        self._write_index(closed=False)
+        g = self.geometry
+        K = np.array([[g["fx"], 0.0, g["cx"]], [0.0, g["fy"], g["cy"]], [0.0, 0.0, 1.0]])
+        for side, tx in (("left", 0.0), ("right", -g["fx"] * g["baseline"])):
+            P = np.column_stack([K, [tx, 0.0, 0.0]])
+            segment.write(f"/{self.robot}/stereo/{side}/camera_info", "sensor_msgs/CameraInfo", ns,
+                          ros.encode_camera_info(ns, self._frame(f"stereo_{side}_optical"), width, height, K, P))
 
-    def _write_index(self, closed: bool) -> None:
-        index = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "metadata": self.metadata,
-                 "chunks": self._chunks, "closed": closed}
-        atomic_write_bytes(self.folder / INDEX, json.dumps(index, indent=1).encode())
+    def _write_frames(self, segment: _Segment, t: float, r: dict) -> None:
+        ns = ros.stamp_ns(t)
+        left, right = np.asarray(r["left"], np.uint8), np.asarray(r["right"], np.uint8)
+        for side, image in (("left", left), ("right", right)):
+            ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, self.png_compression])
+            if not ok:
+                raise ValueError(f"PNG encoding of a {image.shape} image failed")
+            segment.write(f"/{self.robot}/stereo/{side}/image_rect/compressed", "sensor_msgs/CompressedImage", ns,
+                          ros.encode_compressed_image(ns, self._frame(f"stereo_{side}_optical"), "png", png.tobytes()))
+        self._camera_info(segment, ns, left.shape[1], left.shape[0])
+        segment.write(f"/{self.robot}/stereo/frame", "p3at_msgs/FrameStamp", ns, ros.encode_frame_stamp(
+            ns, self._frame("stereo_left_optical"), int(r["seq"]), t))
+
+    def _write_observations(self, segment: _Segment, t: float, r: dict) -> None:
+        ns = ros.stamp_ns(t)
+        segment.write(f"/{self.robot}/stereo/observations", "p3at_msgs/StereoObservations", ns,
+                      ros.encode_observations(ns, self._frame("base_link"), int(r["seq"]), t, r["points"],
+                                              r["covariances"], r["descriptors"], r["pixels"]))
+
+    def _write_processed(self, segment: _Segment, t: float, r: dict) -> None:
+        ns = ros.stamp_ns(t)
+        segment.write(f"/{self.robot}/slam/processed", "p3at_msgs/FrameStamp", ns, ros.encode_frame_stamp(
+            ns, self._frame("base_link"), int(r["seq"]), t))
+
+
+# == reading =================================================================================================
+@dataclass(frozen=True)
+class LoggedMessage:
+    """One message of a log: its topic, ROS type (``pkg/msg/Type``), log time (ns) and CDR bytes."""
+
+    topic: str
+    type: str
+    log_time: int
+    data: bytes
+
+
+def _segment_files(path: Path) -> list[Path]:
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise SensorLogError(f"{path}: no such sensor log (a folder of .mcap segments or one .mcap file)")
+    numbered = []
+    for p in path.iterdir():
+        found = re.fullmatch(r".*_(\d{1,9})\.mcap(\.part)?", p.name)
+        if found and p.is_file():
+            numbered.append((int(found.group(1)), p.name.endswith(".part"), p))
+    if not numbered:
+        if (path / "index.json").exists():
+            raise SensorLogError(f"{path}: an npz-chunk sensor log (format 1), which this version no longer reads; "
+                                 "record it again with --log-sensors")
+        raise SensorLogError(f"{path}: no sensor log here (no <name>_<k>.mcap segment)")
+    return [p for _, _, p in sorted(numbered)]
 
 
 class SensorLog:
-    """Reads a sensor-log folder written by :class:`SensorLogWriter`."""
+    """Reads a sensor log (a segment folder, or one ``.mcap`` file) written by :class:`SensorLogWriter`.
 
-    def __init__(self, folder: str | os.PathLike) -> None:
-        self.folder = Path(folder)
-        path = self.folder / INDEX
+    Opening scans every segment once (counts per topic, metadata, validation of the container); ``messages``
+    and ``records`` then stream, holding one chunk at a time. ``truncated`` names a segment that ended early (a
+    crash): its complete chunks are read, the rest is reported in ``warnings``.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.folder = Path(path)
+        self.files = _segment_files(self.folder)
+        self.metadata: dict = {}
+        self.counts: dict[str, int] = {}
+        self.types: dict[str, str] = {}
+        self.truncated: list[Path] = []
+        self.warnings: list[str] = []
+        self.t_first = self.t_last = None
+        for f in self.files:
+            for m in self._read_file(f, scan=True):
+                self.counts[m.topic] = self.counts.get(m.topic, 0) + 1
+                self.types.setdefault(m.topic, m.type)
+                self.t_first = m.log_time if self.t_first is None else min(self.t_first, m.log_time)
+                self.t_last = m.log_time if self.t_last is None else max(self.t_last, m.log_time)
+        self.closed = not any(f.name.endswith(".part") for f in self.files) and not self.truncated
+        robot = self.metadata.get("robot", "robot")
+        if not isinstance(robot, str):
+            raise SensorLogError(f"{self.files[0]}: metadata field 'robot' is not a string")
+        self.robot = _token(robot)
+
+    # -- the container ---------------------------------------------------------------------------------
+    def _read_file(self, path: Path, scan: bool = False) -> Iterator[LoggedMessage]:
         try:
-            index = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise SensorLogError(f"{path}: no sensor log here (index.json is missing)") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise SensorLogError(f"{path}: not a readable index ({e})") from None
-        if not isinstance(index, dict) or index.get("format") != FORMAT_NAME:
-            raise SensorLogError(f"{path}: field 'format' is not {FORMAT_NAME!r}")
-        if index.get("version") != FORMAT_VERSION:
-            raise SensorLogError(f"{path}: version {index.get('version')!r} is not supported "
-                                 f"(this reader knows version {FORMAT_VERSION})")
-        self.metadata: dict = dict(index.get("metadata") or {})
-        self.closed = bool(index.get("closed"))
-        chunks = index.get("chunks")
-        if not isinstance(chunks, list):
-            raise SensorLogError(f"{path}: field 'chunks' is not a list")
-        for i, c in enumerate(chunks):
-            if not isinstance(c, dict) or not {"file", "stream", "count"} <= set(c):
-                raise SensorLogError(f"{path}: chunks[{i}] lacks 'file', 'stream' or 'count'")
-            if "/" in str(c["file"]) or str(c["file"]).startswith("."):
-                raise SensorLogError(f"{path}: chunks[{i}] field 'file' must name a file in the log folder")
-        self.chunks: list[dict] = chunks
+            size = path.stat().st_size
+            stream = open(path, "rb")  # noqa: SIM115 - closed below
+        except OSError as e:
+            raise SensorLogError(f"{path}: cannot read ({e.strerror})") from None
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        partial = path.name.endswith(".part")
+        try:
+            reader = StreamReader(stream, emit_chunks=True, record_size_limit=size)
+            for record in reader.records:
+                if isinstance(record, Chunk):
+                    inner = _chunk_records(path, record)
+                else:
+                    inner = [record]
+                for rec in inner:
+                    if isinstance(rec, Schema):
+                        schemas[rec.id] = rec
+                    elif isinstance(rec, Channel):
+                        if rec.schema_id not in schemas or rec.message_encoding != "cdr":
+                            raise SensorLogError(f"{path}: channel '{rec.topic}' has no ROS 2 CDR schema")
+                        if schemas[rec.schema_id].encoding != "ros2msg":
+                            raise SensorLogError(f"{path}: channel '{rec.topic}' schema is not ros2msg")
+                        channels[rec.id] = rec
+                    elif isinstance(rec, Message):
+                        channel = channels.get(rec.channel_id)
+                        if channel is None:
+                            raise SensorLogError(f"{path}: a message refers to unknown channel {rec.channel_id}")
+                        yield LoggedMessage(channel.topic, schemas[channel.schema_id].name, rec.log_time, rec.data)
+                    elif isinstance(rec, Metadata) and scan and rec.name == METADATA_NAME and not self.metadata:
+                        self.metadata = _settings(path, rec.metadata)
+        except SensorLogError:
+            raise
+        except (McapError, EOFError, struct.error, ValueError, OSError, UnicodeDecodeError, MemoryError) as e:
+            # mcap's stream reader raises EndOfFile (an McapError) at a cut; a crash leaves a cut in the .part file
+            if not partial:
+                raise SensorLogError(f"{path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+            if scan:
+                self.truncated.append(path)
+                self.warnings.append(f"{path}: cut short by a crash; read up to its last complete chunk")
+        finally:
+            stream.close()
+
+    def messages(self, topics: set[str] | None = None) -> Iterator[LoggedMessage]:
+        """Every message (of ``topics``) in the order it was written."""
+        for f in self.files:
+            for m in self._read_file(f):
+                if topics is None or m.topic in topics:
+                    yield m
+
+    # -- the runtime's streams -------------------------------------------------------------------------
+    def topic(self, suffix: str) -> str:
+        return f"/{self.robot}/{suffix}"
 
     def streams(self) -> list[str]:
-        return sorted({c["stream"] for c in self.chunks})
+        return [s for s in STREAMS if self.count(s)]
 
     def count(self, stream: str) -> int:
-        return sum(int(c["count"]) for c in self.chunks if c["stream"] == stream)
-
-    def records(self, stream: str) -> Iterator[dict[str, np.ndarray]]:
-        """Every record of ``stream`` in the order it was written."""
-        for c in self.chunks:
-            if c["stream"] == stream:
-                yield from decode_chunk(self.folder / c["file"], int(c["count"]))
+        topic = {"odometry": "sip", "frames": "stereo/frame", "observations": "stereo/observations",
+                 "processed": "slam/processed"}[stream]
+        return self.counts.get(self.topic(topic), 0)
 
     def time_span(self) -> tuple[float, float]:
-        if not self.chunks:
+        if self.t_first is None:
             return 0.0, 0.0
-        return min(float(c["t0"]) for c in self.chunks), max(float(c["t1"]) for c in self.chunks)
+        return self.t_first / 1e9, self.t_last / 1e9
+
+    def records(self, stream: str) -> Iterator[dict]:
+        """The runtime's records of ``stream`` (see :class:`SensorLogWriter`), validated, in the order written."""
+        if stream == "odometry":
+            for m in self.messages({self.topic("sip")}):
+                yield _decode(m, _raw_sip)
+        elif stream == "processed":
+            for m in self.messages({self.topic("slam/processed")}):
+                yield _decode(m, _frame_stamp)
+        elif stream == "observations":
+            for m in self.messages({self.topic("stereo/observations")}):
+                yield _decode(m, _observations)
+        elif stream == "frames":
+            yield from self._frames()
+        else:
+            raise ValueError(f"unknown stream {stream!r}")
+
+    def _frames(self) -> Iterator[dict]:
+        left, right, stamp = (self.topic(f"stereo/{s}") for s in ("left/image_rect/compressed",
+                                                                   "right/image_rect/compressed", "frame"))
+        pending: dict[int, dict] = {}
+        for m in self.messages({left, right, stamp}):
+            if m.topic == stamp:
+                r = _decode(m, _frame_stamp)
+                pending.setdefault(m.log_time, {}).update(r)
+            else:
+                pending.setdefault(m.log_time, {})["left" if m.topic == left else "right"] = _decode(m, _png_image)
+            entry = pending[m.log_time]
+            if {"t", "left", "right"} <= set(entry):
+                del pending[m.log_time]
+                yield entry
+            while len(pending) > 8:  # a frame missing a part (a crash between its messages): skip it
+                pending.pop(next(iter(pending)))
+
+
+def _settings(path: Path, metadata: Mapping[str, str]) -> dict:
+    text = metadata.get("settings", "{}")
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SensorLogError(f"{path}: metadata '{METADATA_NAME}' field 'settings' is not JSON ({e})") from None
+    if not isinstance(value, dict):
+        raise SensorLogError(f"{path}: metadata '{METADATA_NAME}' field 'settings' is not a JSON object")
+    return value
+
+
+def _chunk_records(path: Path, chunk: Chunk) -> list:
+    """The records inside a chunk, decompressed with a bound (a chunk's stated size is not trusted)."""
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        raise SensorLogError(f"{path}: a chunk claims {chunk.uncompressed_size} bytes (at most {MAX_CHUNK_BYTES})")
+    if chunk.compression == "zstd":
+        import zstandard
+
+        try:
+            data = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)).read(MAX_CHUNK_BYTES + 1)
+        except zstandard.ZstdError as e:
+            raise SensorLogError(f"{path}: a chunk does not decompress ({e})") from None
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise SensorLogError(f"{path}: chunk compression {chunk.compression!r} is not supported (zstd or none)")
+    if len(data) != chunk.uncompressed_size:
+        raise SensorLogError(f"{path}: a chunk holds {len(data)} bytes, its header says {chunk.uncompressed_size}")
+    stream = ReadDataStream(io.BytesIO(data))
+    records: list = []
+    while stream.count < len(data):
+        opcode = stream.read1()
+        length = stream.read8()
+        if length > len(data) - stream.count:
+            raise SensorLogError(f"{path}: a record inside a chunk runs past the chunk's end")
+        start = stream.count
+        if opcode == Opcode.CHANNEL:
+            records.append(Channel.read(stream))
+        elif opcode == Opcode.MESSAGE:
+            records.append(Message.read(stream, length))
+        elif opcode == Opcode.SCHEMA:
+            records.append(Schema.read(stream))
+        else:
+            stream.read(length)
+        if stream.count - start != length:
+            raise SensorLogError(f"{path}: a record inside a chunk has the wrong length")
+    return records
+
+
+# -- message decoders (validated) -----------------------------------------------------------------------------
+def _decode(m: LoggedMessage, decoder) -> dict:
+    expected = decoder.type_name
+    if m.type != ros.schema_name(expected):
+        raise SensorLogError(f"topic {m.topic}: type {m.type}, expected {ros.schema_name(expected)}")
+    try:
+        return decoder(ros.CdrReader(m.data))
+    except ros.CdrError as e:
+        raise SensorLogError(f"topic {m.topic} at {m.log_time} ns: {e}") from None
+
+
+def _finite(topic: str, **values) -> None:
+    for name, v in values.items():
+        if not np.all(np.isfinite(v)):
+            raise ros.CdrError(f"field '{name}' is not finite")
+
+
+def _raw_sip(c: ros.CdrReader) -> dict:
+    c.header()
+    t = c.float64()
+    payload = c.raw_bytes()
+    x, y, theta, v, w = (c.float64() for _ in range(5))
+    stalled = c.uint8()
+    _finite("sip", t=t, x=x, y=y, theta=theta, v=v, w=w)
+    return {"t": t, "x": x, "y": y, "theta": theta, "v": v, "w": w, "stalled": stalled, "raw": payload}
+
+
+def _frame_stamp(c: ros.CdrReader) -> dict:
+    c.header()
+    seq, t = c.uint64(), c.float64()
+    _finite("frame", t=t)
+    return {"t": t, "seq": seq}
+
+
+def _observations(c: ros.CdrReader) -> dict:
+    c.header()
+    seq, t, n, d = c.uint64(), c.float64(), c.uint32(), c.uint32()
+    if n > MAX_OBSERVATIONS or d > MAX_DESCRIPTOR:
+        raise ros.CdrError(f"{n} observations of descriptor size {d} exceed the bounds")
+    points, covariances, descriptors, pixels = c.array("<f8"), c.array("<f8"), c.array("<f4"), c.array("<f8")
+    for name, array, size in (("points", points, 3 * n), ("covariances", covariances, 9 * n),
+                              ("descriptors", descriptors, d * n), ("pixels", pixels, 2 * n)):
+        if len(array) != size:
+            raise ros.CdrError(f"field '{name}' holds {len(array)} numbers, count {n} needs {size}")
+    _finite("observations", t=t, points=points, covariances=covariances, descriptors=descriptors, pixels=pixels)
+    return {"t": t, "seq": seq, "points": points.reshape(n, 3), "covariances": covariances.reshape(n, 3, 3),
+            "descriptors": descriptors.reshape(n, d), "pixels": pixels.reshape(n, 2)}
+
+
+def _png_image(c: ros.CdrReader) -> np.ndarray:
+    c.header()
+    fmt = c.string()
+    data = c.raw_bytes()
+    if fmt.split(";")[0].strip() != "png" or len(data) < 24 or data[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ros.CdrError(f"an image is not PNG (format {fmt!r})")
+    width, height = struct.unpack(">II", data[16:24])  # the IHDR chunk: checked before anything is allocated
+    if width * height > MAX_IMAGE_PIXELS or width == 0 or height == 0:
+        raise ros.CdrError(f"an image of {width}x{height} pixels exceeds the bound")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.dtype != np.uint8:
+        raise ros.CdrError("an image's PNG data does not decode to 8-bit pixels")
+    return image
+
+
+_raw_sip.type_name = "p3at_msgs/RawSip"
+_frame_stamp.type_name = "p3at_msgs/FrameStamp"
+_observations.type_name = "p3at_msgs/StereoObservations"
+_png_image.type_name = "sensor_msgs/CompressedImage"
+
+__all__ = ["FORMAT_VERSION", "LoggedMessage", "SensorLog", "SensorLogError", "SensorLogWriter", "segment_name"]

@@ -1,6 +1,7 @@
 """``p3at replay LOG``: run a logged robot's raw sensor streams through the pipeline again."""
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -16,11 +17,16 @@ def register(subparsers) -> None:
                     "deterministically, on a machine with no robot. With the logged settings (the default) it "
                     "rebuilds the live run's map; change --particles, --seed or --every-frame to see what other "
                     "settings give.")
-    parser.add_argument("log", type=Path, metavar="LOG", help="a sensor-log folder (holds index.json)")
+    parser.add_argument("log", type=Path, metavar="LOG",
+                        help="a sensor log: the folder of MCAP segments that --log-sensors writes, or one .mcap file")
     parser.add_argument("--out", type=Path, default=None, metavar="MAP.npz", help="write the resulting map here")
     parser.add_argument("--particles", type=int, default=None, help="FastSLAM particles (default: as logged)")
     parser.add_argument("--seed", type=int, default=None, help="filter seed (default: as logged)")
-    parser.add_argument("--version", type=int, choices=(1, 2), default=None, help="FastSLAM 1.0 or 2.0")
+    parser.add_argument("--fastslam", type=int, choices=(1, 2), default=None,
+                        help="FastSLAM 1.0 or 2.0 (default: as logged)")
+    # the old spelling, kept for one release: hidden from --help, warns when used
+    parser.add_argument("--version", type=int, choices=(1, 2), default=None, dest="deprecated_version",
+                        help=argparse.SUPPRESS)
     parser.add_argument("--every-frame", action="store_true",
                         help="process every logged frame, not only those the live pipeline had time for")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -28,14 +34,23 @@ def register(subparsers) -> None:
 
 
 def _replay(args) -> int:
+    if args.deprecated_version is not None:
+        print("p3at replay: --version is deprecated, use --fastslam", file=sys.stderr)
+        if args.fastslam is None:
+            args.fastslam = args.deprecated_version
     try:
         log = SensorLog(args.log)
-        overrides = {} if args.version is None else {"version": args.version}
+        for warning in log.warnings:
+            print(f"p3at replay: warning: {warning}", file=sys.stderr)
+        overrides = {} if args.fastslam is None else {"version": args.fastslam}
         config = onboard_config_from_log(log, particles=args.particles, seed=args.seed, fastslam_overrides=overrides)
-        result = replay_log(args.log, config, every_frame=args.every_frame)
+        result = replay_log(log, config, every_frame=args.every_frame)
         if args.out is not None:
             result.landmark_map.save(args.out)
-    except (SensorLogError, ValueError, OSError) as e:
+    except SensorLogError as e:  # a bad file: one line, exit 2
+        print(f"p3at replay: {e}", file=sys.stderr)
+        return 2
+    except (ValueError, OSError) as e:
         print(f"p3at replay: {e}", file=sys.stderr)
         return 1
     summary = {

@@ -1,7 +1,5 @@
-"""Map exchange, motion controllers and the sensor-log format, through their public interfaces."""
+"""Map exchange, motion controllers and the runtime's other parts, through their public interfaces."""
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
@@ -11,7 +9,6 @@ from estimation.landmark_map import LandmarkMap
 from mocks.world import World
 from runtime.exchange import InProcessExchange
 from runtime.motion import PurePursuit, RouteFileError, WallFollower, keep_right, load_route, save_route
-from runtime.sensorlog import SensorLog, SensorLogError, SensorLogWriter
 
 
 def _map(robot: str, n: int, rng: np.random.Generator) -> LandmarkMap:
@@ -79,41 +76,6 @@ def test_route_file_round_trip_and_errors(tmp_path):
         load_route(tmp_path / "b.route")
     with pytest.raises(RouteFileError, match="no such"):
         load_route(tmp_path / "missing.route")
-
-
-def test_sensor_log_round_trip_with_ragged_fields_and_partial_chunks(tmp_path):
-    rng = np.random.default_rng(2)
-    odometry = [{"t": 0.1 * i, "x": float(i), "y": 0.0, "theta": 0.1, "sonar": rng.random(8)} for i in range(23)]
-    observations = [{"t": 0.2 * i, "seq": i, "points": rng.random((i % 4, 3))} for i in range(7)]
-    with SensorLogWriter(tmp_path / "log", {"robot": "robot1"}, chunk_records=10) as writer:
-        for record in odometry:
-            writer.write("odometry", record)
-        for record in observations:
-            writer.write("observations", record)
-    log = SensorLog(tmp_path / "log")
-    assert log.closed and log.metadata == {"robot": "robot1"}
-    assert log.streams() == ["observations", "odometry"] and log.count("odometry") == 23
-    back = list(log.records("odometry"))
-    assert [float(r["x"]) for r in back] == [r["x"] for r in odometry]
-    np.testing.assert_array_equal(back[5]["sonar"], odometry[5]["sonar"])
-    for got, want in zip(log.records("observations"), observations, strict=True):
-        np.testing.assert_array_equal(got["points"], want["points"])
-
-
-def test_sensor_log_errors_name_the_file(tmp_path):
-    with pytest.raises(SensorLogError, match="index.json is missing"):
-        SensorLog(tmp_path)
-    with SensorLogWriter(tmp_path / "log", chunk_records=2) as writer:
-        for i in range(4):
-            writer.write("odometry", {"t": float(i), "x": 1.0})
-    index = json.loads((tmp_path / "log" / "index.json").read_text())
-    (tmp_path / "log" / index["chunks"][0]["file"]).write_bytes(b"garbage")
-    with pytest.raises(SensorLogError, match="odometry-000000.npz"):
-        list(SensorLog(tmp_path / "log").records("odometry"))
-    index["version"] = 9
-    (tmp_path / "log" / "index.json").write_text(json.dumps(index))
-    with pytest.raises(SensorLogError, match="version 9"):
-        SensorLog(tmp_path / "log")
 
 
 def test_two_robots_on_head_on_routes_pass_each_other_and_finish():
@@ -216,15 +178,6 @@ def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth
         assert pair.common > 20
     assert len(report.merged) < sum(len(m) for m in maps.values())
     assert sorted(report.merged.robots) == sorted(maps)
-
-
-def test_sensor_log_bounds_its_memory_and_counts_what_it_could_not_take(tmp_path):
-    writer = SensorLogWriter(tmp_path / "log", chunk_records=1000, flush_interval=1e9, max_queued_bytes=10_000)
-    for i in range(50):  # 50 × 8 kB "images" against a 10 kB budget, faster than any disk
-        writer.write("frames", {"t": float(i), "left": np.zeros(8000, np.uint8)})
-    writer.close()
-    log = SensorLog(tmp_path / "log")
-    assert writer.dropped > 0 and log.count("frames") + writer.dropped == 50
 
 
 def test_videre_camera_comes_back_after_the_head_is_unplugged():

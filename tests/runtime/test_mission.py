@@ -111,9 +111,9 @@ def test_review_and_replay_refuse_bad_input_with_a_clear_message(tmp_path, capsy
     with pytest.raises(RecordingReadError, match="bad.rrd"):
         read_recording(bad)
     assert main(["review", str(bad)]) == 1
-    assert main(["replay", str(tmp_path)]) == 1
+    assert main(["replay", str(tmp_path)]) == 2  # a bad file: one line, exit 2
     err = capsys.readouterr().err
-    assert "bad.rrd" in err and "index.json is missing" in err
+    assert "bad.rrd" in err and "no sensor log here" in err
 
 
 def test_sigterm_mid_run_stops_the_robot_and_leaves_readable_files(tmp_path):
@@ -125,7 +125,7 @@ def test_sigterm_mid_run_stops_the_robot_and_leaves_readable_files(tmp_path):
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not list((out / "robot1-log").glob("observations-*.npz")):
+        while time.monotonic() < deadline and not list((out / "robot1-log").glob("*.mcap*")):
             time.sleep(0.2)
         time.sleep(1.0)
         process.send_signal(signal.SIGTERM)
