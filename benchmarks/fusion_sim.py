@@ -247,3 +247,75 @@ def random_pair(n_common: int, n_only1: int, n_only2: int, pose, seed: int = 0, 
     row1 = np.argsort(perm1)[:n_common]   # where original row r ended up
     row2 = np.argsort(perm2)[:n_common]
     return map1, map2, np.column_stack([row1, row2]).astype(np.int64)
+
+
+def _planar_map(points: np.ndarray, frame_pose, sigma: np.ndarray, descriptors: np.ndarray, robot: str,
+                rng: np.random.Generator) -> LandmarkMap:
+    """Points (N, 3) in the world seen from ``frame_pose``: noisy positions (std ``sigma`` (N,)), isotropic
+    covariances, the given descriptors (N, D), the true start pose in the metadata."""
+    local = transform_points(inverse(np.asarray(frame_pose, float)), points)
+    noisy = local + rng.standard_normal(local.shape) * sigma[:, None] * np.array([1.0, 1.0, 0.0])
+    cov = np.eye(3)[None] * (sigma ** 2)[:, None, None]
+    cov[:, 2, 2] = 1e-6
+    return LandmarkMap(noisy, cov, descriptors, robot=robot,
+                       metadata={"true_start_pose": [float(v) for v in frame_pose]})
+
+
+def landmark_pair(n_common: int, n_only1: int, n_only2: int, pose, seed: int = 0, sigma: float = 0.05,
+                  descriptors: str = "id", extent: tuple[float, float] = (15.0, 8.0),
+                  claimed_sigma: float | None = None) -> tuple[LandmarkMap, LandmarkMap, np.ndarray]:
+    """Two small planar landmark maps like MRCLAM's (15 barcoded cylinders in 15 × 8 m).
+
+    ``descriptors``: "id" (one-hot identities, as known-ID maps carry), "none" (no descriptors, D = 0).
+    Landmarks are at least 1 m apart.  The maps' covariances claim ``claimed_sigma`` (default: the true
+    ``sigma``; smaller = overconfident maps).  Returns map1, map2 and the true common pairs (n_common, 2).
+    """
+    rng = np.random.default_rng(seed)
+    n = n_common + n_only1 + n_only2
+    pts: list[np.ndarray] = []
+    while len(pts) < n:
+        p = np.array([rng.uniform(0, extent[0]), rng.uniform(0, extent[1]), 0.0])
+        if all(np.hypot(*(p - q)[:2]) >= 1.0 for q in pts):
+            pts.append(p)
+    world = np.array(pts)
+    ids = np.eye(n, dtype=np.float32)
+    in1 = np.r_[np.arange(n_common), n_common + np.arange(n_only1)]
+    in2 = np.r_[np.arange(n_common), n_common + n_only1 + np.arange(n_only2)]
+    maps = []
+    for rows, frame, robot in ((in1, np.zeros(3), "robot1"), (in2, np.asarray(pose, float), "robot2")):
+        desc = ids[rows] if descriptors == "id" else np.zeros((len(rows), 0), np.float32)
+        m = _planar_map(world[rows], frame, np.full(len(rows), sigma), desc, robot, rng)
+        if claimed_sigma is not None:
+            m.covariances[:, :2, :2] = np.eye(2) * claimed_sigma ** 2
+        perm = rng.permutation(len(rows))
+        maps.append((m.subset(perm), perm))
+    (map1, perm1), (map2, perm2) = maps
+    common = np.column_stack([np.argsort(perm1)[:n_common], np.argsort(perm2)[:n_common]]).astype(np.int64)
+    return map1, map2, common
+
+
+def corridor_pair(doors1: range, doors2: range, pose, seed: int = 0, spacing: float = 2.0, sigma: float = 0.02,
+                  descriptors: str = "door") -> tuple[LandmarkMap, LandmarkMap]:
+    """Two maps of a corridor of identical doors: each door gives its two frame corners on both walls.
+
+    Robot 1 maps doors ``doors1``, robot 2 doors ``doors2`` (door k at x = k · spacing); map 2's frame sits
+    at ``pose`` in the corridor frame.  ``descriptors``: "door" (the same four descriptors at every door,
+    slightly noisy, as repeated texture gives) or "none".  Repeated structure: shifting by whole doors
+    fits as well as the truth wherever the door ranges allow.
+    """
+    rng = np.random.default_rng(seed)
+    base = rng.standard_normal((4, DESCRIPTOR_SIZE))
+    base /= np.linalg.norm(base, axis=1, keepdims=True)
+    offsets = np.array([[0.0, 0.0], [0.9, 0.0], [0.0, 2.4], [0.9, 2.4]])
+
+    def make(doors, frame, robot):
+        pts = np.array([[k * spacing + dx, dy, 1.0] for k in doors for dx, dy in offsets])
+        if descriptors == "door":
+            desc = _noisy_descriptors(np.tile(base, (len(doors), 1)), 0.05, rng)
+        else:
+            desc = np.zeros((len(pts), 0), np.float32)
+        m = _planar_map(pts, frame, np.full(len(pts), sigma), desc, robot, rng)
+        m.positions[:, 2] = 1.0
+        return m
+
+    return make(doors1, np.zeros(3), "robot1"), make(doors2, np.asarray(pose, float), "robot2")

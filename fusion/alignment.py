@@ -20,25 +20,32 @@ Where the code departs from the text, and why:
 * Step 1 with th0 = 2: descriptors are unit vectors, so descriptor distances lie in [0, 2] and th0 = 2
   accepts every nearest neighbour; the paper preset keeps it (the text's behaviour) and the robust preset
   replaces it with a ratio test, mutual best matches and a real distance gate.
+* Maps without descriptors (range-bearing landmark maps built without IDs): step 1 has nothing to compare,
+  so every landmark of map 1 is a candidate for every landmark of map 2 (n1·n2 candidate pairs), and a
+  support counts once per landmark (one-to-one), whatever the preset.
 
-The ``robust`` preset further adapts the iteration count to the inlier ratio and the desired confidence,
-refines the winning hypothesis by weighted least squares (Gauss–Newton) on all supports using their
-covariances, re-gates the supports with a Mahalanobis test, reports the alignment's 3×3 covariance, and
-decides that the maps do not overlap unless (a) there are at least ``min_supports`` supports, (b) they
-are spread out in space (a bunch of supports in one spot fixes no angle), and (c) that many supports are
-very unlikely by chance: against a binomial model of how many correspondences a wrong transform would
-put inside the gate (the chance rate is measured on the maps themselves, at the found transform), with a
-Bonferroni correction for the number of hypotheses tried.
+The ``robust`` preset further adapts the iteration count to the inlier ratio, refines the winning
+hypothesis by weighted least squares (Gauss–Newton) on all supports, re-gates them, and reports the
+alignment's 3×3 covariance.  Its support gate is the two landmarks' combined covariance, floored at
+``min_gate`` and inflated by the supports' own residual scale (``gate_inflation``: the median normalised
+squared residual over its χ²₂ median), because FastSLAM's per-particle landmark covariances leave the
+robot's pose error out and can be ten times too small.  It decides that the maps overlap only on the
+alignment's own evidence (:func:`evidence`): the supports beyond the two that define a hypothesis are
+compared with the number a wrong transform gathers by chance on *these* maps — measured by scoring decoy
+transforms with the same gate (landmark density, clustering along walls, map sizes) and by the best
+hypothesis distinct from the winner (repeated structure: a corridor of identical doors) — giving a
+false-alarm probability, Bonferroni-corrected for the hypotheses tried; the supports must also be spread
+out (a bunch in one spot fixes no angle).  The number of supports needed therefore adapts to the maps.
 """
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.special import bdtrc
+from scipy.sparse import csr_matrix
+from scipy.special import gammaincinv, pdtrc
 
-from estimation.geometry import between, inverse, pose_to_matrix, rot_z, transform_points, wrap_angle
+from estimation.geometry import between, inverse, pose_to_matrix, transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError, NoOverlapError
@@ -47,6 +54,9 @@ from .pose_covariance import inverse_with_covariance
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
+CHI2_2_MEDIAN = 2.0 * np.log(2.0)        # median of χ²₂: scale of the normalised residuals
+# Without descriptors every landmark pair is a candidate; beyond this many the search is not attempted.
+MAX_GEOMETRIC_PAIRS = 40_000
 
 
 @dataclass(frozen=True)
@@ -59,16 +69,19 @@ class AlignmentConfig:
     pair_tolerance: float                # paper: th1 on |d'² − d²| (m²); robust: in σ of |d' − d|
     min_pair_separation: float           # metres; shorter pairs fix no angle
     support_threshold: float             # th2, metres (Euclidean 3-D; robust: largest gate radius)
-    min_supports: int                    # `min`
+    min_supports: int                    # `min` (paper: the decision; robust: a floor, the evidence decides)
     iterations: int                      # M (paper) or the cap of the adaptive count (robust)
     adaptive: bool = False               # iteration count from the inlier ratio and `confidence`
     confidence: float = 0.999
     min_iterations: int = 32
     covariance_gating: bool = False      # gates from the landmark covariances instead of th2
     refine: bool = False                 # weighted least squares on all supports + covariance
-    significance: float | None = None    # largest accepted chance probability of the supports
+    significance: float | None = None    # largest accepted false-alarm probability of the supports
     min_spread: float = 0.0              # metres, principal standard deviation of the supports (xy)
     position_floor: float = 0.02         # metres, added in quadrature to every landmark's std
+    min_gate: float = 0.0                # metres, smallest support-gate radius in the plane
+    inflate_gate: bool = False           # scale the gate by the supports' own residuals (see module doc)
+    decoys: int = 1000                   # decoy transforms scored to measure the chance supports
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -78,32 +91,49 @@ PAPER = AlignmentConfig(
     name="paper", descriptor_threshold=2.0, ratio=None, pair_tolerance=2.0, min_pair_separation=0.0,
     support_threshold=0.2, min_supports=20, iterations=70,
 )
-# min_supports 15: on maps built from rendered frames, the building's repeated structure (door frames, symmetric
-# corridor) let a wrong transform gather 11–13 supports that the binomial chance test, which assumes independent
-# correspondences, passed; true overlaps that fix a transform well have far more.
+# min_supports 4: two supports define a hypothesis, two more are the least that can check it; above that
+# the false-alarm probability decides (10⁻⁶, Bonferroni-corrected).  min_gate 0.3 m: a landmark's position
+# in its robot's start frame is rarely better than a few decimetres once the robot's pose error is counted,
+# which FastSLAM's per-particle covariances leave out (MRCLAM: 4–7 mm claimed, 0.04–0.27 m real).
 ROBUST = AlignmentConfig(
     name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
-    support_threshold=1.0, min_supports=15, iterations=2000, adaptive=True, confidence=0.9999,
-    covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3,
+    support_threshold=1.0, min_supports=4, iterations=2000, adaptive=True, confidence=0.9999,
+    covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3, min_gate=0.3, inflate_gate=True,
 )
 PRESETS: dict[str, AlignmentConfig] = {"paper": PAPER, "robust": ROBUST}
 
 
 @dataclass(frozen=True)
 class AlignmentStatistics:
-    """How the alignment was reached (all counts refer to the putative correspondences)."""
+    """How the alignment was reached and how much it can be trusted (counts refer to the putative
+    correspondences; supports are one-to-one)."""
 
-    correspondences: int = 0             # putative descriptor correspondences
+    correspondences: int = 0             # putative correspondences (n1·n2 without descriptors)
     iterations: int = 0                  # hypotheses evaluated
     supports: int = 0
     inlier_ratio: float = 0.0            # supports / correspondences
     residual_rms: float = float("nan")   # metres, 3-D, over the supports
-    expected_chance_supports: float = float("nan")  # what a wrong transform would gather
-    log10_chance_probability: float = float("nan")  # Bonferroni-corrected, log10
-    support_spread: float = 0.0          # metres, principal std of the supports in map 1 (xy)
+    expected_chance_supports: float = float("nan")  # supports a wrong hypothesis gathers (its 2 included)
+    log10_chance_probability: float = float("nan")  # log10 false-alarm probability (Bonferroni-corrected)
+    support_spread: float = 0.0          # metres, principal std of the supports in map 1 (xy), major axis
+    support_spread_minor: float = 0.0    # metres, minor axis (≈ 0: the supports lie on a line)
+    second_best_supports: int = 0        # best hypothesis distinct from the winner (repeated structure)
+    required_supports: int = 0           # fewest supports that would have been accepted on these maps
+    gate_inflation: float = 1.0          # covariance scale the supports' residuals called for
+    gate_radius: float = float("nan")    # metres, median support-gate radius in the plane
+    descriptors: bool = True             # False: maps without descriptors, geometry alone
+
+    @property
+    def false_alarm_probability(self) -> float:
+        """Probability that maps which do not overlap give this much support (nan if not evaluated)."""
+        return float(10.0 ** self.log10_chance_probability) if np.isfinite(self.log10_chance_probability) \
+            else float("nan")
 
     def to_dict(self) -> dict:
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
+        out = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
+        p = self.false_alarm_probability
+        out["false_alarm_probability"] = None if not np.isfinite(p) else p
+        return out
 
 
 @dataclass(frozen=True)
@@ -193,6 +223,12 @@ def alignment_error(pose, true_pose) -> np.ndarray:
     return np.abs(np.array([d[0], d[1], wrap_angle(d[2])]))
 
 
+def alignment_error_xy_theta(pose, true_pose) -> tuple[float, float]:
+    """(error xy (m), error θ (rad)): the translation error's length and |Δθ| wrapped, the demo's columns."""
+    e = alignment_error(pose, true_pose)
+    return float(np.hypot(e[0], e[1])), float(e[2])
+
+
 # -- the algorithm -----------------------------------------------------------------------------------------
 def _rotations_2d(theta: np.ndarray) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
@@ -229,44 +265,102 @@ def pair_hypotheses(p1: np.ndarray, p2: np.ndarray, a: np.ndarray, b: np.ndarray
 
 @dataclass
 class _Problem:
-    """Correspondence geometry: positions (K, 3), covariances (K, 3, 3) of both sides, gates (K,)."""
+    """Correspondence geometry: positions (K, 3), covariances (K, 3, 3) of both sides, landmark rows i, j (K,),
+    per-axis combined variances var_xy, var_z (K,) (floors included), the gate scale ``inflation`` and the
+    incidence matrices that count supports one-to-one."""
 
     p1: np.ndarray
     p2: np.ndarray
     P1: np.ndarray
     P2: np.ndarray
-    gate_xy_sq: np.ndarray
-    gate_z_sq: np.ndarray
-    pair_sigma_sq: np.ndarray
+    i: np.ndarray
+    j: np.ndarray
+    var_xy: np.ndarray
+    var_z: np.ndarray
+    config: AlignmentConfig
+    distinct_scoring: bool               # RANSAC counts supports one-to-one (always so for the evidence)
+    inflation: float = 1.0
+
+    def __post_init__(self) -> None:
+        k = len(self.i)
+        # mutual matches are one-to-one already: a plain count is the one-to-one count
+        self._unique = len(np.unique(self.i)) == k and len(np.unique(self.j)) == k
+        self._inc1 = self._inc2 = None
+        if not self._unique:
+            ones = np.ones(k, np.float32)
+            self._inc1 = csr_matrix((ones, (self.i, np.arange(k))), shape=(int(self.i.max()) + 1, k))
+            self._inc2 = csr_matrix((ones, (self.j, np.arange(k))), shape=(int(self.j.max()) + 1, k))
+        self._set_gates()
+
+    def _set_gates(self) -> None:
+        c = self.config
+        if c.covariance_gating:
+            lo, hi = c.min_gate ** 2, c.support_threshold ** 2
+            self.gate_xy_sq = np.clip(CHI2_999[2] * self.inflation * self.var_xy, lo, hi)
+            self.gate_z_sq = np.clip(CHI2_999[1] * self.inflation * self.var_z, lo, hi)
+        else:
+            self.gate_xy_sq = self.gate_z_sq = np.full(len(self.i), c.support_threshold ** 2)
+        self.pair_sigma_sq = self.var_xy
+
+    def inflated(self, inflation: float) -> _Problem:
+        other = replace(self, inflation=float(inflation))
+        return other
+
+    @property
+    def gate_radius(self) -> float:
+        return float(np.sqrt(np.median(self.gate_xy_sq))) if len(self.i) else float("nan")
+
+    def masks(self, poses: np.ndarray) -> np.ndarray:
+        """(H, K) bool: which correspondences support each hypothesis poses (H, 3)."""
+        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+        x, y = self.p2[None, :, 0], self.p2[None, :, 1]
+        rx = self.p1[None, :, 0] - (c * x - s * y + poses[:, 0:1])
+        ry = self.p1[None, :, 1] - (s * x + c * y + poses[:, 1:2])
+        r_xy_sq = rx * rx + ry * ry
+        dz_sq = (self.p1[:, 2] - self.p2[:, 2]) ** 2
+        if self.config.covariance_gating:
+            return (r_xy_sq < self.gate_xy_sq) & (dz_sq < self.gate_z_sq)[None, :]
+        return r_xy_sq + dz_sq[None, :] < self.config.support_threshold ** 2
+
+    def distinct_counts(self, masks: np.ndarray) -> np.ndarray:
+        """(H,) one-to-one support counts: min(distinct map-1 landmarks, distinct map-2 landmarks) per row."""
+        if masks.shape[1] == 0:
+            return np.zeros(len(masks), np.int64)
+        if self._unique:
+            return masks.sum(axis=1)
+        m = masks.T.astype(np.float32)
+        n1 = np.count_nonzero(self._inc1 @ m, axis=0)
+        n2 = np.count_nonzero(self._inc2 @ m, axis=0)
+        return np.minimum(n1, n2).astype(np.int64)
+
+    def counts(self, masks: np.ndarray) -> np.ndarray:
+        return self.distinct_counts(masks) if self.distinct_scoring else masks.sum(axis=1)
+
+    def one_to_one(self, mask: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """The supports of ``mask`` (K,) with each landmark used once, nearest in position first."""
+        idx = np.flatnonzero(mask)
+        if len(idx) == 0:
+            return mask
+        r = self.p1[idx] - transform_points(pose, self.p2[idx])
+        order = idx[np.argsort(np.einsum("ki,ki->k", r, r), kind="stable")]
+        _, first_i = np.unique(self.i[order], return_index=True)
+        order = order[np.sort(first_i)]
+        _, first_j = np.unique(self.j[order], return_index=True)
+        keep = np.zeros_like(mask)
+        keep[order[first_j]] = True
+        return keep
 
 
-def _problem(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray, config: AlignmentConfig) -> _Problem:
-    p1, p2 = map1.positions[pairs[:, 0]], map2.positions[pairs[:, 1]]
-    P1, P2 = map1.covariances[pairs[:, 0]], map2.covariances[pairs[:, 1]]
+def _problem(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray, config: AlignmentConfig,
+             distinct_scoring: bool) -> _Problem:
+    i, j = pairs[:, 0], pairs[:, 1]
+    P1, P2 = map1.covariances[i], map2.covariances[j]
     floor_sq = config.position_floor ** 2
-    # rotation-invariant per-landmark variance in the plane (mean of the xy eigenvalues) and along z
+    # rotation-invariant per-axis variance of the difference in the plane (mean of the xy eigenvalues), and z
     var_xy = 0.5 * (np.trace(P1[:, :2, :2], axis1=1, axis2=2) + np.trace(P2[:, :2, :2], axis1=1, axis2=2))
     var_z = P1[:, 2, 2] + P2[:, 2, 2]
-    if config.covariance_gating:
-        cap = config.support_threshold ** 2
-        gate_xy = np.minimum(CHI2_999[2] * (var_xy + 2 * floor_sq), cap)
-        gate_z = np.minimum(CHI2_999[1] * (var_z + 2 * floor_sq), cap)
-    else:
-        gate_xy = gate_z = np.full(len(pairs), config.support_threshold ** 2)
-    return _Problem(p1, p2, P1, P2, gate_xy, gate_z, var_xy + 2 * floor_sq)
-
-
-def _support_masks(problem: _Problem, poses: np.ndarray, config: AlignmentConfig) -> np.ndarray:
-    """(H, K) bool: which correspondences support each hypothesis."""
-    c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-    x, y = problem.p2[None, :, 0], problem.p2[None, :, 1]
-    rx = problem.p1[None, :, 0] - (c * x - s * y + poses[:, 0:1])
-    ry = problem.p1[None, :, 1] - (s * x + c * y + poses[:, 1:2])
-    r_xy_sq = rx * rx + ry * ry
-    dz_sq = (problem.p1[:, 2] - problem.p2[:, 2]) ** 2
-    if config.covariance_gating:
-        return (r_xy_sq < problem.gate_xy_sq) & (dz_sq < problem.gate_z_sq)[None, :]
-    return r_xy_sq + dz_sq[None, :] < config.support_threshold ** 2
+    return _Problem(map1.positions[i], map2.positions[j], P1, P2, i, j, var_xy + 2 * floor_sq,
+                    var_z + 2 * floor_sq, config, distinct_scoring)
 
 
 def _pair_check(problem: _Problem, a: np.ndarray, b: np.ndarray, config: AlignmentConfig) -> np.ndarray:
@@ -275,7 +369,8 @@ def _pair_check(problem: _Problem, a: np.ndarray, b: np.ndarray, config: Alignme
     d2_sq = np.sum((problem.p2[a, :2] - problem.p2[b, :2]) ** 2, axis=1)
     if not config.covariance_gating:
         return np.abs(d2_sq - d1_sq) < config.pair_tolerance          # |d'² − d²| < th1 (m²)
-    sigma_sq = problem.pair_sigma_sq[a] + problem.pair_sigma_sq[b]
+    # the gate's own scale (min_gate, inflation) bounds how well a distance can be preserved
+    sigma_sq = (problem.gate_xy_sq[a] + problem.gate_xy_sq[b]) / CHI2_999[2]
     return np.abs(np.sqrt(d2_sq) - np.sqrt(d1_sq)) < config.pair_tolerance * np.sqrt(sigma_sq)
 
 
@@ -290,11 +385,26 @@ def _required_iterations(inlier_ratio: float, config: AlignmentConfig) -> int:
     return int(np.clip(np.ceil(n), config.min_iterations, config.iterations))
 
 
-def _ransac(problem: _Problem, pairs: np.ndarray, config: AlignmentConfig, rng: np.random.Generator
-            ) -> tuple[np.ndarray | None, np.ndarray, int]:
-    """Steps 2–3 repeated: best pose (3,) or None, its support mask (K,), hypotheses evaluated."""
-    k = len(pairs)
+@dataclass
+class _Search:
+    """What RANSAC tried: the best pose (3,) or None, its support mask (K,), and every hypothesis
+    evaluated with its support count (poses (E, 3), counts (E,))."""
+
+    pose: np.ndarray | None
+    mask: np.ndarray
+    poses: np.ndarray
+    counts: np.ndarray
+
+    @property
+    def evaluated(self) -> int:
+        return len(self.counts)
+
+
+def _ransac(problem: _Problem, config: AlignmentConfig, rng: np.random.Generator) -> _Search:
+    """Steps 2–3 repeated (hypotheses from pairs of correspondences, scored by their supports)."""
+    k = len(problem.i)
     best_pose, best_mask, best_count = None, np.zeros(k, bool), -1
+    tried_poses, tried_counts = [], []
     evaluated, draws = 0, 0
     target = config.iterations if not config.adaptive else config.min_iterations
     batch = 64
@@ -306,21 +416,25 @@ def _ransac(problem: _Problem, pairs: np.ndarray, config: AlignmentConfig, rng: 
         b += b >= a
         draws += n
         # two distinct landmarks on each side, then the distance check (corrected eq. 1)
-        ok = (pairs[a, 0] != pairs[b, 0]) & (pairs[a, 1] != pairs[b, 1])
+        ok = (problem.i[a] != problem.i[b]) & (problem.j[a] != problem.j[b])
         ok &= _pair_check(problem, a, b, config)
         poses, valid = pair_hypotheses(problem.p1, problem.p2, a, b, config)
         keep = np.flatnonzero(ok & valid)[: min(batch, target - evaluated)]
         if len(keep) == 0:
             continue
-        masks = _support_masks(problem, poses[keep], config)
-        counts = masks.sum(axis=1)
+        masks = problem.masks(poses[keep])
+        counts = problem.counts(masks)
+        tried_poses.append(poses[keep])
+        tried_counts.append(counts)
         evaluated += len(keep)
         h = int(np.argmax(counts))
         if counts[h] > best_count:
             best_pose, best_mask, best_count = poses[keep[h]], masks[h], int(counts[h])
             if config.adaptive:
                 target = _required_iterations(best_count / k, config)
-    return best_pose, best_mask, evaluated
+    poses = np.concatenate(tried_poses) if tried_poses else np.zeros((0, 3))
+    counts = np.concatenate(tried_counts) if tried_counts else np.zeros(0, np.int64)
+    return _Search(best_pose, best_mask, poses, counts)
 
 
 def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, pose, floor: float = 0.02,
@@ -363,16 +477,182 @@ def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, 
     return pose, 0.5 * (cov + cov.T), chi2
 
 
-def _mahalanobis_supports(problem: _Problem, pose: np.ndarray, config: AlignmentConfig) -> np.ndarray:
-    """(K,) bool: 3-D Mahalanobis gate with the map-2 covariance rotated into map 1, capped by th2."""
-    R3 = rot_z(pose[2])
-    q = transform_points(pose, problem.p2)
-    r = problem.p1 - q
-    S = problem.P1 + R3 @ problem.P2 @ R3.T + config.position_floor ** 2 * np.eye(3)
-    m_sq = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0])
-    return (m_sq < CHI2_999[3]) & (np.einsum("ki,ki->k", r, r) < config.support_threshold ** 2)
+def _residual_inflation(problem: _Problem, mask: np.ndarray, pose: np.ndarray) -> float:
+    """Covariance scale the supports' residuals call for: median(|r_xy|² / var_xy) over the median of χ²₂,
+    at least 1 (the gate never shrinks below the covariances)."""
+    idx = np.flatnonzero(mask)
+    if len(idx) < 3:
+        return problem.inflation
+    r = problem.p1[idx, :2] - transform_points(pose, problem.p2[idx])[:, :2]
+    m_sq = np.einsum("ki,ki->k", r, r) / problem.var_xy[idx]
+    return max(1.0, float(np.median(m_sq)) / CHI2_2_MEDIAN)
 
 
+def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: AlignmentConfig, rounds: int = 6
+            ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, _Problem]:
+    """Refine a hypothesis on its supports, re-scale the gate to their residuals and re-gate, until the
+    supports settle.  Returns pose (3,), covariance (3, 3) or None, one-to-one support mask (K,), problem."""
+    covariance = None
+    if problem.distinct_scoring or config.refine:
+        mask = problem.one_to_one(mask, pose)
+    if not config.refine:
+        return pose, covariance, mask, problem
+    for _ in range(rounds):
+        if mask.sum() < 2:
+            break
+        try:
+            pose, covariance, _ = refine_pose(problem.p1[mask], problem.P1[mask], problem.p2[mask],
+                                              problem.P2[mask], pose, config.position_floor)
+        except np.linalg.LinAlgError:        # supports all in one spot: the spread check rejects them
+            break
+        if config.inflate_gate:
+            problem = problem.inflated(_residual_inflation(problem, mask, pose))
+        new_mask = problem.one_to_one(problem.masks(pose[None])[0], pose)
+        if new_mask.sum() < 2 or np.array_equal(new_mask, mask):
+            break
+        mask = new_mask
+    return pose, covariance, mask, problem
+
+
+# -- the evidence --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Evidence:
+    """How much a hypothesis with ``supports`` one-to-one supports can be trusted on these maps.
+
+    chance_decoys: mean supports beyond its anchor that a decoy transform gathers (the chance rate);
+    second_best: supports of the best hypothesis distinct from the winner (0 if none);
+    chance_rate: the Poisson rate λ of chance supports beyond the two that define a hypothesis;
+    hypotheses: how many were tried (the Bonferroni factor); log10_p: log10 of the false-alarm
+    probability N · P(Poisson(λ) ≥ supports − 2); required: the fewest supports with p below ``significance``.
+    """
+
+    supports: int
+    chance_decoys: float
+    second_best: int
+    chance_rate: float
+    hypotheses: int
+    log10_p: float
+    required: int
+    ambiguous: bool                       # the second-best hypothesis, not the decoys, set the chance rate
+
+
+def _log10_tail(excess: int, rate: float, hypotheses: int) -> float:
+    """log10 min(1, N · P(Poisson(rate) ≥ excess))."""
+    if excess <= 0:
+        return 0.0
+    tail = float(pdtrc(excess - 1, max(rate, 1e-12)))
+    return min(0.0, float(np.log10(max(tail, 1e-300)) + np.log10(max(hypotheses, 1))))
+
+
+def _rate_for_maximum(excess: int, hypotheses: int) -> float:
+    """The Poisson rate at which the best of N wrong hypotheses reaches ``excess`` supports half the time:
+    a null calibrated on the maps' own repeated structure."""
+    if excess <= 0:
+        return 0.0
+    lo, hi = -12.0, 3.0                         # log10 λ
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if hypotheses * pdtrc(excess - 1, 10.0 ** mid) < 0.5:
+            lo = mid
+        else:
+            hi = mid
+    return 10.0 ** hi
+
+
+def decoy_chance_supports(problem: _Problem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
+                          rng: np.random.Generator) -> float:
+    """Chance supports a wrong transform gathers beyond its anchor, scored with the same gates: the 95 %
+    upper bound of their mean over the decoys.
+
+    Each decoy puts a random map-2 landmark on a random map-1 landmark at a random angle (so the maps
+    overlap as a RANSAC hypothesis makes them), then counts the correspondences inside the gate — the
+    maps' density, their clustering along walls and their sizes all enter.
+    """
+    k = len(problem.i)
+    if decoys <= 0 or k == 0 or len(map1) == 0 or len(map2) == 0:
+        return 0.0
+    theta = rng.uniform(-np.pi, np.pi, decoys)
+    a = rng.integers(len(map1), size=decoys)
+    b = rng.integers(len(map2), size=decoys)
+    R = _rotations_2d(theta)
+    t = map1.positions[a, :2] - np.einsum("hij,hj->hi", R, map2.positions[b, :2])
+    poses = np.column_stack([t, theta])
+    # the anchor itself supports a decoy only when (a, b) is a correspondence
+    n2 = max(len(map2), int(problem.j.max()) + 1)
+    keys = problem.i * n2 + problem.j
+    order = np.argsort(keys)
+    anchor = a * n2 + b
+    pos = np.clip(np.searchsorted(keys[order], anchor), 0, k - 1)
+    anchor_row = np.where(keys[order][pos] == anchor, order[pos], -1)
+    total = 0.0
+    batch = max(1, 4_000_000 // max(k, 1))
+    for start in range(0, decoys, batch):
+        sl = slice(start, start + batch)
+        masks = problem.masks(poses[sl])
+        counts = problem.distinct_counts(masks).astype(float)
+        rows = anchor_row[sl]
+        has = rows >= 0
+        counts[has] -= masks[np.flatnonzero(has), rows[has]]
+        total += counts.sum()
+    # 95 % upper confidence bound of a Poisson rate from ``total`` events in ``decoys`` trials: a finite sample
+    # of decoys that saw no chance support does not prove the rate is zero
+    return float(gammaincinv(total + 1.0, 0.95)) / decoys
+
+
+def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
+                 config: AlignmentConfig) -> int:
+    """Supports of the best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or,
+    without any, every correspondence) by more than two gate radii on average.  The three strongest
+    candidates are re-scored with the final gate and polished like the winner."""
+    if search.evaluated == 0:
+        return 0
+    pts = problem.p2[mask] if mask.sum() >= 2 else problem.p2
+    ref = transform_points(pose, pts)[:, :2]
+    far = 2.0 * problem.gate_radius
+
+    def distinct(poses: np.ndarray) -> np.ndarray:
+        R = _rotations_2d(poses[:, 2])
+        moved = np.einsum("hij,kj->hki", R, pts[:, :2]) + poses[:, None, :2]
+        return np.sqrt(np.mean(np.sum((moved - ref[None]) ** 2, axis=2), axis=1)) > far
+
+    cand = np.flatnonzero(distinct(search.poses))
+    if len(cand) == 0:
+        return 0
+    best = 0
+    counts = np.zeros(len(cand), np.int64)
+    for start in range(0, len(cand), 256):
+        sl = cand[start:start + 256]
+        counts[start:start + 256] = problem.distinct_counts(problem.masks(search.poses[sl]))
+    for c in cand[np.argsort(-counts, kind="stable")[:3]]:
+        p = search.poses[c]
+        m = problem.masks(p[None])[0]
+        p, _, m, _ = _polish(replace(problem), p, m, config)
+        m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
+        if distinct(p[None])[0]:
+            best = max(best, int(m.sum()))
+    return best
+
+
+def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray, map1: LandmarkMap,
+             map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator) -> Evidence:
+    """The alignment's own evidence (see the module docstring): supports beyond the two that define a
+    hypothesis against a Poisson null whose rate is the larger of the decoys' and the one that makes the
+    second-best distinct hypothesis a typical maximum; Bonferroni over the hypotheses tried."""
+    s = int(problem.distinct_counts(mask[None])[0])
+    n = max(search.evaluated, 1)
+    decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
+    second = _second_best(problem, search, pose, mask, config)
+    structure_rate = _rate_for_maximum(second - 2, n)
+    rate = max(decoy_rate, structure_rate, 1e-9)
+    log10_p = _log10_tail(s - 2, rate, n)
+    level = np.log10(config.significance) if config.significance is not None else -6.0
+    required = max(config.min_supports, 3)
+    while _log10_tail(required - 2, rate, n) > level and required < 100_000:
+        required += 1
+    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate)
+
+
+# -- the entry point -----------------------------------------------------------------------------------------
 def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, config: AlignmentConfig,
                     candidates: int = 4) -> np.ndarray:
     """All supports of a known transform: pairs (K, 2) near in position *and* in descriptor, one-to-one.
@@ -381,6 +661,10 @@ def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, conf
     (a k-d tree on positions) that pass the Mahalanobis gate, the one nearest in descriptor (below th0);
     a map-2 landmark claimed twice goes to the nearer descriptor.
     """
+    from scipy.spatial import cKDTree
+
+    from estimation.geometry import rot_z
+
     R3 = rot_z(pose[2])
     x2 = transform_points(pose, map2.positions)
     k = min(candidates, len(map2))
@@ -406,27 +690,12 @@ def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, conf
     return np.column_stack([i[pick], j[pick]]).astype(np.int64)
 
 
-def _chance_rate(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, radius_xy: float, radius_z: float,
-                 rng: np.random.Generator) -> float:
-    """Fraction of all (map-1, map-2) landmark pairs that fall inside the support gate at ``pose``.
-
-    This is the probability that a correspondence made by chance supports the transform.  Measured on the
-    maps themselves (landmarks crowd along walls, so a uniform-area model would be optimistic); the
-    gate's cylinder is replaced by its circumscribed ball in z-scaled space (conservative, ≤ 1.9×).
-    """
-    sample = rng.choice(len(map2), min(len(map2), 500), replace=False)
-    scale = np.array([1.0, 1.0, radius_xy / max(radius_z, 1e-9)])
-    q = transform_points(pose, map2.positions[sample])
-    tree = cKDTree(map1.positions * scale)
-    inside = np.sum(tree.query_ball_point(q * scale, r=np.sqrt(2.0) * radius_xy, return_length=True))
-    return float(inside) / (len(sample) * len(map1))
-
-
-def _spread(xy: np.ndarray) -> float:
-    """Principal standard deviation (m) of points xy (S, 2)."""
+def _spread(xy: np.ndarray) -> tuple[float, float]:
+    """Principal standard deviations (m) of points xy (S, 2): major, minor axis."""
     if len(xy) < 2:
-        return 0.0
-    return float(np.sqrt(max(np.linalg.eigvalsh(np.cov(xy.T))[-1], 0.0)))
+        return 0.0, 0.0
+    ev = np.linalg.eigvalsh(np.cov(xy.T))
+    return float(np.sqrt(max(ev[-1], 0.0))), float(np.sqrt(max(ev[0], 0.0)))
 
 
 def _resolve(preset: str | AlignmentConfig) -> AlignmentConfig:
@@ -438,13 +707,40 @@ def _resolve(preset: str | AlignmentConfig) -> AlignmentConfig:
         raise IncompatibleMapsError(f"unknown alignment preset {preset!r} (choose from {sorted(PRESETS)})") from None
 
 
+def has_descriptors(landmark_map: LandmarkMap) -> bool:
+    """False when the map's descriptors cannot tell landmarks apart (none, or all the same)."""
+    d = landmark_map.descriptors
+    if d.shape[1] == 0:
+        return False
+    return len(d) < 2 or bool(np.any(d != d[0]))
+
+
+def _correspondences(map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator
+                     ) -> tuple[np.ndarray, bool]:
+    """Step 1: putative pairs (K, 2), and whether descriptors chose them (False: every pair, geometry alone)."""
+    if not (has_descriptors(map1) and has_descriptors(map2)) and len(map1) and len(map2):
+        i, j = np.meshgrid(np.arange(len(map1)), np.arange(len(map2)), indexing="ij")
+        return np.column_stack([i.ravel(), j.ravel()]).astype(np.int64), False
+    # (very large maps: a random subset of map 1 searches; see matching.query_subset)
+    rows = query_subset(len(map1), len(map2), rng)
+    desc1 = map1.descriptors if rows is None else map1.descriptors[rows]
+    if config.ratio is None:
+        pairs, _ = nearest_correspondences(desc1, map2.descriptors, config.descriptor_threshold)
+    else:
+        pairs, _ = distinctive_correspondences(desc1, map2.descriptors, config.descriptor_threshold, config.ratio)
+    if rows is not None:
+        pairs[:, 0] = rows[pairs[:, 0]]
+    return pairs, True
+
+
 def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = "robust",
           rng: np.random.Generator | None = None) -> Alignment:
     """Align map 2 to map 1 (RANSAC, see the module docstring); never raises for non-overlapping maps.
 
-    Returns an :class:`Alignment` whose ``found`` says whether the maps overlap.  Deterministic given the
-    ``rng`` (None -> ``np.random.default_rng(0)``).  Raises :class:`IncompatibleMapsError` when the
-    descriptor sizes differ or the preset is unknown.
+    Returns an :class:`Alignment` whose ``found`` says whether the maps overlap and whose ``statistics``
+    carry the evidence (false-alarm probability, chance supports, second-best hypothesis, supports
+    required on these maps).  Deterministic given the ``rng`` (None -> ``np.random.default_rng(0)``).
+    Raises :class:`IncompatibleMapsError` when the descriptor sizes differ or the preset is unknown.
     """
     config = _resolve(preset)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -456,73 +752,71 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     def not_found(reason: str, stats: AlignmentStatistics, supports=empty) -> Alignment:
         return Alignment(False, config.name, None, None, supports, stats, reason)
 
-    # step 1: putative correspondences from descriptors
-    # (very large maps: a random subset of map 1 searches; see matching.query_subset)
-    rows = query_subset(len(map1), len(map2), rng)
-    desc1 = map1.descriptors if rows is None else map1.descriptors[rows]
-    if config.ratio is None:
-        pairs, _ = nearest_correspondences(desc1, map2.descriptors, config.descriptor_threshold)
-    else:
-        pairs, _ = distinctive_correspondences(desc1, map2.descriptors, config.descriptor_threshold, config.ratio)
-    if rows is not None:
-        pairs[:, 0] = rows[pairs[:, 0]]
+    with_descriptors = has_descriptors(map1) and has_descriptors(map2)
+    no_desc = "" if with_descriptors else (f"the maps carry no descriptors, so every landmark of one is a candidate "
+                                           f"for every landmark of the other ({len(map1)} × {len(map2)} pairs); ")
+    if not with_descriptors and len(map1) * len(map2) > MAX_GEOMETRIC_PAIRS:
+        return not_found(f"{no_desc}more than {MAX_GEOMETRIC_PAIRS} candidate pairs are too many for a search by "
+                         f"geometry alone", AlignmentStatistics(descriptors=False))
+    if not with_descriptors and min(len(map1), len(map2)) < config.min_supports:
+        return not_found(f"{no_desc}at most {min(len(map1), len(map2))} supports are possible, fewer than the "
+                         f"{config.min_supports} this preset needs", AlignmentStatistics(descriptors=False))
+
+    # step 1: putative correspondences (from descriptors, or every pair without them)
+    pairs, _ = _correspondences(map1, map2, config, rng)
+    subset_search = with_descriptors and query_subset(len(map1), len(map2), np.random.default_rng(0)) is not None
     k = len(pairs)
-    if k < max(2, config.min_supports):
-        return not_found(f"only {k} descriptor correspondences (at least {max(2, config.min_supports)} needed)",
-                         AlignmentStatistics(correspondences=k))
-    problem = _problem(map1, map2, pairs, config)
+    needed = max(2, config.min_supports)
+    if k < needed:
+        return not_found(f"only {k} descriptor correspondences (at least {needed} needed)",
+                         AlignmentStatistics(correspondences=k, descriptors=with_descriptors))
+    problem = _problem(map1, map2, pairs, config, distinct_scoring=not with_descriptors)
 
     # steps 2–3, repeated: hypotheses from pairs of correspondences, scored by their supports
-    pose, mask, iterations = _ransac(problem, pairs, config, rng)
-    if pose is None:
-        return not_found("no pair of correspondences keeps its distance between the maps",
-                         AlignmentStatistics(correspondences=k, iterations=iterations))
-    covariance = None
-    if config.refine and mask.sum() >= 2:
-        for _ in range(4):
-            try:
-                pose, covariance, _ = refine_pose(problem.p1[mask], problem.P1[mask], problem.p2[mask],
-                                                  problem.P2[mask], pose, config.position_floor)
-            except np.linalg.LinAlgError:        # supports all in one spot: the spread check rejects them
-                break
-            new_mask = _mahalanobis_supports(problem, pose, config)
-            if new_mask.sum() < 2 or np.array_equal(new_mask, mask):
-                break
-            mask = new_mask
-    supports = pairs[mask]
-    s = len(supports)
+    search = _ransac(problem, config, rng)
+    if search.pose is None:
+        return not_found(f"{no_desc}no pair of correspondences keeps its distance between the maps",
+                         AlignmentStatistics(correspondences=k, iterations=search.evaluated,
+                                             descriptors=with_descriptors))
+    raw_count = int(search.mask.sum())
+    pose, covariance, mask, problem = _polish(problem, search.pose, search.mask, config)
+    ev = evidence(problem, search, pose, mask, map1, map2, config, rng)
+    supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
+    s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan")
-
-    # would a wrong transform gather that many supports by chance?
-    radius_xy = float(np.sqrt(np.median(problem.gate_xy_sq)))
-    radius_z = float(np.sqrt(np.median(problem.gate_z_sq)))
-    p_chance = _chance_rate(map1, map2, pose, radius_xy, radius_z, rng)
-    trials = k - 2                                               # the sampled pair supports itself
-    # P(X ≥ s − 2) for X ~ Binomial(trials, p) = bdtrc(s − 3, ...); underflow is floored at 1e-300
-    tail = float(bdtrc(s - 3, trials, min(max(p_chance, 1e-12), 1.0))) if s >= 3 else 1.0
-    log10_p = float(np.log10(max(tail, 1e-300)) + np.log10(max(iterations, 1)))
-    if rows is not None and config.refine and s >= 2:
+    if subset_search and config.refine and s >= 2:
         # the subset fixed the transform; now every landmark's support, by guided matching
         guided = guided_supports(map1, map2, pose, config)
         if len(guided) >= max(s, 3):
-            g_problem = _problem(map1, map2, guided, config)
+            g_problem = _problem(map1, map2, guided, config, distinct_scoring=False)
             pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
                                               config.position_floor)
-            supports, problem, mask = guided, g_problem, np.ones(len(guided), bool)
-            residual = problem.p1 - transform_points(pose, problem.p2)
+            supports = guided
+            residual = g_problem.p1 - transform_points(pose, g_problem.p2)
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
-    s_all = len(supports)
-    spread = _spread(problem.p1[mask, :2])
-    stats = AlignmentStatistics(k, iterations, s_all, s / k, rms, 2.0 + trials * p_chance, min(log10_p, 0.0),
-                                spread)
+    major, minor = _spread(problem.p1[mask, :2])
+    stats = AlignmentStatistics(
+        correspondences=k, iterations=search.evaluated, supports=len(supports), inlier_ratio=s / k,
+        residual_rms=rms, expected_chance_supports=2.0 + ev.chance_rate, log10_chance_probability=ev.log10_p,
+        support_spread=major, support_spread_minor=minor, second_best_supports=ev.second_best,
+        required_supports=ev.required, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
+        descriptors=with_descriptors)
 
-    if s_all < config.min_supports:
-        return not_found(f"only {s_all} supports (at least {config.min_supports} needed)", stats, supports)
-    if config.significance is not None and log10_p > np.log10(config.significance):
-        return not_found(f"{s} supports are explainable by chance (probability 10^{log10_p:.1f}, expected "
-                         f"{stats.expected_chance_supports:.1f} chance supports)", stats, supports)
-    if spread < config.min_spread:
-        return not_found(f"the {s_all} supports are bunched within {spread:.2f} m (at least {config.min_spread} m "
+    counted = raw_count if not config.refine and with_descriptors else len(supports)
+    if counted < config.min_supports:
+        return not_found(f"{no_desc}only {counted} supports (at least {config.min_supports} needed)", stats, supports)
+    if config.significance is not None and ev.log10_p > np.log10(config.significance):
+        if ev.ambiguous:
+            return not_found(
+                f"ambiguous: a distinct transform gathers {ev.second_best} supports against the best one's {s} "
+                f"(repeated structure); on these maps {ev.required} would be needed (false-alarm probability "
+                f"10^{ev.log10_p:.1f})", stats, supports)
+        return not_found(
+            f"{no_desc}{s} supports are explainable by chance: a wrong transform gathers "
+            f"{stats.expected_chance_supports:.1f} on these maps and the best of {ev.hypotheses} hypotheses more; "
+            f"{ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f})", stats, supports)
+    if major < config.min_spread:
+        return not_found(f"the {s} supports are bunched within {major:.2f} m (at least {config.min_spread} m "
                          f"spread needed to fix the angle)", stats, supports)
     return Alignment(True, config.name, pose, covariance, supports, stats, "")

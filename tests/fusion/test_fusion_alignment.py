@@ -120,11 +120,26 @@ def test_no_alignment_between_building_maps_that_share_nothing(sim):
 
 
 def test_too_few_common_landmarks_decide_no_overlap(sim):
-    # 5 common landmarks: fewer than the robust minimum
-    map1, map2, _ = sim.random_pair(5, 200, 200, (1, 2, 0.3), seed=4)
-    a = align(map1, map2, "robust", np.random.default_rng(0))
-    assert not a.found
-    assert "supports" in a.reason or "correspondences" in a.reason
+    # 3 common landmarks: two define a hypothesis, one check cannot rule out chance
+    for seed in range(5):
+        map1, map2, _ = sim.random_pair(3, 200, 200, (1, 2, 0.3), seed=seed)
+        a = align(map1, map2, "robust", np.random.default_rng(0))
+        assert not a.found
+        assert "supports" in a.reason or "correspondences" in a.reason
+
+
+def test_the_supports_needed_adapt_to_the_evidence(sim):
+    # distinctive descriptors (noise 0.2) leave almost no wrong correspondence, so a handful of supports is
+    # already very unlikely by chance: 6 common landmarks among 400 align, and correctly
+    for seed in range(5):
+        map1, map2, _ = sim.random_pair(6, 200, 200, (1, 2, 0.3), seed=seed)
+        a = align(map1, map2, "robust", np.random.default_rng(0))
+        assert a.found, a.reason
+        err = alignment_error(a.pose, (1, 2, 0.3))
+        assert err[0] < 0.1 and err[1] < 0.1 and err[2] < 0.02
+        st = a.statistics
+        assert st.required_supports <= st.supports and st.log10_chance_probability < -6
+        assert 0 < st.false_alarm_probability < 1e-6
 
 
 def test_robust_beats_paper_on_building_maps(sim):
