@@ -53,7 +53,7 @@ class FusionNode:
         self.clock = clock
         self.t0 = clock()
         self.history: list[FusionReport] = []
-        self.sources: dict[str, int] = {}        # robot -> sequence of the map in the last fusion
+        self.sources: dict[str, tuple] = {}      # robot -> (sequence, stamp) of its map in the last fusion
         self._new_data = threading.Event()
 
     def notify(self, robot: str = "") -> None:
@@ -78,7 +78,7 @@ class FusionNode:
     def fuse_now(self) -> FusionReport | None:
         """Fuse if any robot's map changed since the last fusion; publish and log the result."""
         messages = self.exchange.receive(excluding=FUSED)
-        sources = {r: m.sequence for r, m in messages.items()}
+        sources = {r: (m.sequence, m.stamp) for r, m in messages.items()}
         if len(messages) < 2 or sources == self.sources:
             return None
         t = self.clock() - self.t0
@@ -89,8 +89,9 @@ class FusionNode:
         self.history.append(report)
         if report.merged is not None and any(p.aligned for p in report.pairs):
             merged = report.merged
-            merged.metadata = {**merged.metadata, "fused_from": {r: int(s) for r, s in sources.items()},
-                               "fusion_time": round(t, 3)}
+            # which update of each robot this fusion holds: [sequence, sender's stamp] (latency, staleness)
+            fused_from = {r: [int(q), float(st)] for r, (q, st) in sources.items()}
+            merged.metadata = {**merged.metadata, "fused_from": fused_from, "fusion_time": round(t, 3)}
             self.exchange.publish(FUSED, merged, stamp=t)
             if self.config.out is not None:
                 merged.save(self.config.out)

@@ -73,6 +73,14 @@ class WireError(ValueError):
     """A received message is malformed, hostile, of an unknown version, or cannot be applied."""
 
 
+class StaleMessage(WireError):
+    """A snapshot older than the map the receiver holds (a query's reply overtaken by updates): harmless."""
+
+
+class MissingBase(WireError):
+    """A delta whose base message the receiver does not hold (a message was missed): ask for a snapshot."""
+
+
 def new_session() -> str:
     """A random session id for one run of a publisher (so that a restart is told apart from a replay)."""
     return secrets.token_hex(8)
@@ -473,7 +481,7 @@ class MapStream:
             raise WireError(f"message from {message.robot!r} on {self.robot!r}'s stream")
         if message.kind == FULL:
             if message.session == self.session and message.sequence < self.sequence:
-                raise WireError(f"stale snapshot {message.sequence} (have {self.sequence})")
+                raise StaleMessage(f"stale snapshot {message.sequence} (have {self.sequence})")
             if self.session is not None and message.session != self.session:
                 self.restarts += 1  # a new run of the robot: its sequence numbers start again
             self.session, self.sequence = message.session, message.sequence
@@ -482,7 +490,7 @@ class MapStream:
         if message.kind != DELTA:
             raise WireError(f"a {message.kind_name} message carries no map")
         if message.session != self.session or message.base != self.sequence or self.map is None:
-            raise WireError(f"delta {message.sequence} needs message {message.base} of session {message.session}, "
+            raise MissingBase(f"delta {message.sequence} needs message {message.base} of session {message.session}, "
                             f"have {self.sequence} of session {self.session}")
         self.map = apply_delta(self.map, message)
         self.session, self.sequence, self.stamp = message.session, message.sequence, message.stamp

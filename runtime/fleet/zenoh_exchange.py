@@ -244,6 +244,12 @@ class ZenohExchange:
                 self._pending_bytes -= len(data)
             try:
                 self._handle(key, data)
+            except mapwire.StaleMessage as e:
+                self.dropped["stale"] += 1
+                log.debug("fleet exchange: %s: %s", key, e)
+            except mapwire.MissingBase as e:
+                self.dropped["gap"] += 1
+                log.info("fleet exchange: %s: %s; asking for a snapshot", key, e)
             except mapwire.WireError as e:
                 self._drop(key, str(e))
             except Exception as e:  # a bug must not kill the receiver either; say so loudly
@@ -251,7 +257,7 @@ class ZenohExchange:
                 self._drop(key, f"internal error {type(e).__name__}: {e}")
 
     def _drop(self, key: str, reason: str) -> None:
-        self.dropped["malformed" if "needs message" not in reason else "gap"] += 1
+        self.dropped["malformed"] += 1
         self.last_drop_reason = f"{key}: {reason}"
         log.warning("fleet exchange: dropped a message on %s: %s", key, reason)
 
@@ -278,7 +284,7 @@ class ZenohExchange:
             restarts = stream.restarts
         try:
             m = stream.accept(message)
-        except mapwire.WireError:
+        except mapwire.MissingBase:
             self.request_snapshot(robot)
             raise
         if stream.restarts != restarts:

@@ -1,0 +1,257 @@
+"""A fleet on loopback: robots as separate processes (synthetic map publishers, one Zenoh session each) and a
+fusion node in the test process, over Zenoh with random free ports.
+
+No test races the wall clock: each waits for a condition with a deadline far above what the condition needs on
+a loaded 2-core machine (process start with numpy and zenoh imports: ~2 s; Zenoh's connect retry: ~1 s), and
+fails naming the condition. The deadline for a robot's leave is Zenoh's lease (10 s) plus margin: that is
+the bound if the closed socket were missed; a killed process's socket closes at once (docs/fleet.md measures it).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+
+from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig  # noqa: E402
+from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
+from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+DEADLINE = 30.0          # s, for anything that takes a few seconds on an idle machine
+LEAVE_DEADLINE = 15.0    # s, Zenoh's 10 s lease plus margin
+STEPS = 6
+pytestmark = pytest.mark.timeout(120)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_until(condition, what: str, deadline: float = DEADLINE):
+    end = time.monotonic() + deadline
+    while time.monotonic() < end:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    pytest.fail(f"not within {deadline:g} s: {what}")
+
+
+def endpoint_config(port: int, role: str, scheme: str = "tcp", tls: dict | None = None) -> str:
+    key = "listen" if role == "fusion" else "connect"
+    config = {key: {"endpoints": [f"{scheme}/127.0.0.1:{port}"]}}
+    if tls is not None:
+        config["transport"] = {"link": {"tls": tls}}
+    return json.dumps(config)
+
+
+class Fleet:
+    """Robot processes started by a test, and the fusion node it runs; everything stopped at the end."""
+
+    def __init__(self, fleet: str, port: int) -> None:
+        self.fleet, self.port = fleet, port
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.node: FusionNode | None = None
+        self.exchange: ZenohExchange | None = None
+        self.events: list[str] = []
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start_robot(self, name: str, index: int, steps: int = STEPS, config: str | None = None,
+                    period: float = 0.3) -> subprocess.Popen:
+        config = config or endpoint_config(self.port, "robot")
+        process = subprocess.Popen(
+            [sys.executable, "-m", "runtime.fleet.synthetic", "--names", name, "--first-index", str(index),
+             "--exchange", f"zenoh:{config}", "--fleet", self.fleet, "--steps", str(steps), "--period", str(period),
+             "--full-every", "4"],
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(ROOT)})
+        self.processes[name] = process
+        return process
+
+    def start_node(self, config: str | None = None) -> None:
+        self._stop = threading.Event()
+        self.exchange = ZenohExchange(self.fleet, config or endpoint_config(self.port, "fusion"), "fusion",
+                                      on_event=self.events.append,
+                                      on_update=lambda robot: self.node is not None and self.node.notify(robot))
+        self.node = FusionNode(self.exchange, FusionNodeConfig(interval=1.0, min_period=0.2))
+        self._thread = threading.Thread(target=self.node.run, args=(self._stop,), name="test-fusion", daemon=True)
+        self._thread.start()
+
+    def stop_node(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=DEADLINE)
+        if self.exchange is not None:
+            self.exchange.close()
+        self.node = self.exchange = None
+
+    def maps(self) -> dict:
+        return self.exchange.receive()
+
+    def close(self) -> None:
+        self.stop_node()
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.kill()
+            process.wait(timeout=DEADLINE)
+
+
+@pytest.fixture
+def fleet(request):
+    f = Fleet(f"t{os.getpid()}{request.node.name[-12:].replace('[', '').replace(']', '')}"[:60]
+              .replace("-", "_"), free_port())
+    yield f
+    f.close()
+
+
+def replayed(name: str, index: int, steps: int):
+    robot = SyntheticRobot(name, index)
+    for _ in range(steps - 1):
+        robot.step()
+    return robot.step()
+
+
+def all_published(fleet: Fleet, names, steps: int = STEPS):
+    maps = fleet.maps()
+    return all(n in maps and maps[n].sequence == steps - 1 for n in names)
+
+
+def test_three_robot_processes_exchange_maps_and_the_fusion_aligns_them():
+    names = ["robot1", "robot2", "robot3"]
+    f = Fleet(f"three{os.getpid()}", free_port())
+    try:
+        f.start_node()
+        for k, n in enumerate(names):
+            f.start_robot(n, k)
+        wait_until(lambda: all_published(f, names), "every robot's last update at the fusion node")
+        maps = f.maps()
+        for k, n in enumerate(names):  # deltas and snapshots rebuilt exactly what each process built
+            expected = replayed(n, k, STEPS)
+            got = maps[n].landmark_map
+            np.testing.assert_array_equal(got.ids, expected.ids)
+            np.testing.assert_array_equal(got.positions, expected.positions)
+            np.testing.assert_array_equal(got.counts, expected.counts)
+        report = wait_until(lambda: f.node.history and f.node.sources.keys() == set(names)
+                            and all(f.node.sources[n][0] == STEPS - 1 for n in names) and f.node.history[-1],
+                            "a fusion of every robot's last map")
+        assert [p.other for p in report.pairs] == ["robot2", "robot3"]
+        for pair in report.pairs:
+            assert pair.aligned, pair.note
+            assert pair.error_xy < 0.1 and pair.error_theta < 0.02, pair
+        fused = f.exchange.fused()  # what the node published on p3at/<fleet>/fused/map
+        assert set(fused.landmark_map.metadata["fused_from"]) == set(names)
+        assert {"robot1", "robot2", "robot3"} <= f.exchange.present()
+    finally:
+        f.close()
+
+
+def test_a_killed_robot_leaves_keeps_its_map_and_rejoins_with_fresh_sequence_numbers(fleet):
+    fleet.start_node()
+    fleet.start_robot("robot1", 0)
+    robot2 = fleet.start_robot("robot2", 1)
+    wait_until(lambda: all_published(fleet, ["robot1", "robot2"]), "both robots' last updates")
+    session = fleet.exchange._streams["robot2"].session
+    robot2.send_signal(signal.SIGKILL)
+    wait_until(lambda: "robot2" not in fleet.exchange.present(), "robot2's liveliness token gone", LEAVE_DEADLINE)
+    assert "robot2 left the fleet" in fleet.events
+    kept = fleet.maps()["robot2"]  # the fusion keeps its last map
+    assert kept.sequence == STEPS - 1 and len(kept.landmark_map) == len(replayed("robot2", 1, STEPS))
+    fleet.start_robot("robot2", 1, steps=3)
+    wait_until(lambda: fleet.exchange._streams["robot2"].session != session
+               and fleet.maps()["robot2"].sequence == 2, "robot2's new session at sequence 2")
+    assert "robot2" in fleet.exchange.present()
+    assert any(e.startswith("robot2 restarted") for e in fleet.events), fleet.events
+    assert len(fleet.maps()["robot2"].landmark_map) == len(replayed("robot2", 1, 3))
+
+
+def test_a_restarted_fusion_node_recovers_every_map_by_query(fleet):
+    fleet.start_node()
+    for k, n in enumerate(["robot1", "robot2"]):
+        fleet.start_robot(n, k)
+    wait_until(lambda: all_published(fleet, ["robot1", "robot2"]), "both robots' last updates")
+    wait_until(lambda: fleet.node.history and fleet.node.history[-1].pairs[0].aligned, "a first fusion")
+    fleet.stop_node()
+    fleet.start_node()  # the robots publish nothing more: only their queryables can answer
+    wait_until(lambda: all_published(fleet, ["robot1", "robot2"]), "both maps recovered by query")
+    report = wait_until(lambda: fleet.node.history and fleet.node.history[-1], "a fusion after the restart")
+    assert report.pairs[0].aligned and report.pairs[0].error_xy < 0.1
+
+
+def test_malformed_messages_on_a_robot_key_are_dropped_and_the_receiver_goes_on(fleet):
+    import zenoh
+
+    from runtime.fleet import mapwire
+
+    fleet.start_node()
+    fleet.start_robot("robot1", 0, steps=0, period=0.2)  # publishes until stopped
+    wait_until(lambda: "robot1" in fleet.maps(), "robot1's first update")
+    config = zenoh.Config.from_json5(endpoint_config(fleet.port, "robot"))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    key = f"p3at/{fleet.fleet}/robot1/map"
+    good = mapwire.encode_full("robot2", mapwire.new_session(), 0, 0.0, replayed("robot2", 1, 1))
+    hostile = [b"", b"\x00" * 64, b"P3MW\x01\x01\x00\x00\xff\xff\xff\xff", good,  # good, but robot2's on robot1's key
+               good[:-8], good[:4] + b"\x07" + good[5:]]
+    with zenoh.open(config) as session:
+
+        def attack() -> bool:  # put again until received: puts before the route to the node exists are lost
+            for data in hostile:
+                session.put(key, data)
+            return fleet.exchange.dropped["malformed"] >= len(hostile)
+
+        wait_until(attack, "hostile messages dropped")
+    before = fleet.maps()["robot1"].sequence
+    wait_until(lambda: fleet.maps()["robot1"].sequence > before + 1, "robot1's updates still arriving")
+    assert "robot1" in fleet.exchange.last_drop_reason
+
+
+def _openssl(*args: str, cwd: Path) -> None:
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
+
+
+@pytest.fixture(scope="module")
+def certificates(tmp_path_factory) -> Path:
+    """A self-signed CA, a server certificate for 127.0.0.1 and a client certificate, made with the openssl CLI."""
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command is not installed")
+    d = tmp_path_factory.mktemp("tls")
+    _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem", "-days", "2",
+             "-subj", "/CN=p3at test CA", cwd=d)
+    for name, san in (("server", "IP:127.0.0.1,DNS:localhost"), ("client", "DNS:robot")):
+        _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}.key", "-out", f"{name}.csr",
+                 "-subj", f"/CN={name}", cwd=d)
+        (d / f"{name}.ext").write_text(f"subjectAltName={san}\n")
+        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+                 "-out", f"{name}.pem", "-days", "2", "-extfile", f"{name}.ext", cwd=d)
+    return d
+
+
+def test_tls_with_client_certificates_admits_a_robot_holding_one_and_refuses_others(fleet, certificates):
+    d = certificates
+    server = {"root_ca_certificate": str(d / "ca.pem"), "listen_certificate": str(d / "server.pem"),
+              "listen_private_key": str(d / "server.key"), "enable_mtls": True}
+    client = {"root_ca_certificate": str(d / "ca.pem"), "connect_certificate": str(d / "client.pem"),
+              "connect_private_key": str(d / "client.key"), "enable_mtls": True}
+    fleet.start_node(endpoint_config(fleet.port, "fusion", "tls", server))
+    # started first, so they have tried for longer than the admitted robot when it is checked
+    fleet.start_robot("nocert", 1, config=endpoint_config(fleet.port, "robot", "tls",
+                                                          {"root_ca_certificate": str(d / "ca.pem")}))
+    fleet.start_robot("plain", 2, config=endpoint_config(fleet.port, "robot"))
+    fleet.start_robot("robot1", 0, config=endpoint_config(fleet.port, "robot", "tls", client))
+    wait_until(lambda: all_published(fleet, ["robot1"]), "the robot with a client certificate admitted")
+    assert "nocert" not in fleet.maps() and "plain" not in fleet.maps()
+    assert fleet.exchange.present() & {"nocert", "plain"} == set()
