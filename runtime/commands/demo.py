@@ -13,4 +13,18 @@ def register(subparsers) -> None:
                     "at the end, and the alignment is scored against the truth. Prints a summary table and "
                     "writes a Rerun recording.")
     add_mission_arguments(parser, robots=2, seconds=200.0, out="out/demo", camera="mock", camera_rate=3.75)
-    parser.set_defaults(handler=run_mission_command)
+    parser.add_argument("--processes", action="store_true",
+                        help="each robot (virtual P3-AT, head and runtime) its own process, maps over Zenoh on "
+                             "loopback, the fusion node in this one; real time; --camera synthetic unless given "
+                             "(docs/fleet.md)")
+    parser.set_defaults(handler=_demo, camera=None)
+
+
+def _demo(args) -> int:
+    if args.processes:
+        from runtime.fleet.processes import run_processes_demo
+
+        args.camera = args.camera or "synthetic"  # two cores cannot render every robot's head in real time
+        return run_processes_demo(args)
+    args.camera = args.camera or "mock"
+    return run_mission_command(args)

@@ -1,0 +1,193 @@
+"""``p3at demo --processes``: the virtual world's robots, each with its runtime, as separate operating-system
+processes on loopback, maps exchanged over Zenoh, and the fusion node in this process.
+
+Each robot is ``p3at run --robot mock --name robotK`` (its virtual P3-AT, its virtual head and its onboard
+runtime in one process: the head renders from the robot's simulated pose, so they cannot be split), with the
+same seeds as in the single-process mission. The robots run in real time (docs/fleet.md says why); this
+process runs the fusion node (it listens on a free loopback port, the robots connect to it), fuses on new data
+and at ``--fusion-interval``, waits for every robot to finish, fuses once more and prints the same summary as
+the single-process demo. Rerun: each robot writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
+(every robot's map as received, the alignments, the fused map, the summary: what ``p3at review`` reads).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
+
+# p3at run options passed through unchanged (mission arguments shared with p3at demo)
+PASSED = ("seconds", "seed", "camera", "camera_rate", "camera_latency", "particles", "max_corners",
+          "max_observations", "motion", "route", "speed", "preset", "method", "world", "time_scale", "odometry")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, out: Path) -> list[str]:
+    """The ``p3at run`` command line of one robot of the demo."""
+    config = json.dumps({"connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+    command = [sys.executable, "-m", "runtime.cli", "run", "--robot", "mock", "--name", name,
+               "--exchange", f"zenoh:{config}", "--fleet", fleet, "--out", str(out / name), "--json", "--quiet",
+               "--fusion-interval", "0", "--rerun", "file" if args.rerun != "none" else "none"]
+    for key in PASSED:
+        value = getattr(args, key, None)
+        if value is not None:
+            command += [f"--{key.replace('_', '-')}", str(value)]
+    if getattr(args, "log_sensors", False):
+        command.append("--log-sensors")
+    return command
+
+
+def run_processes_demo(args: argparse.Namespace) -> int:
+    from mocks.world import World
+    from runtime.fleet.options import open_exchange
+    from runtime.mission import install_stop_signals
+    from runtime.mission_cli import Progress
+    from runtime.report import format_summary
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        world = World.load(args.world)
+    except (OSError, ValueError) as e:
+        print(f"p3at demo: {e}", file=sys.stderr)
+        return 2
+    names = sorted(world.start_poses)[: args.robots]
+    if len(names) < args.robots:
+        print(f"p3at demo: the world '{world.name}' has {len(names)} start poses, {args.robots} robots asked",
+              file=sys.stderr)
+        return 2
+    progress = Progress(not args.quiet)
+    port, fleet = free_port(), f"demo{int(time.time())}"
+    node_box: list[FusionNode] = []
+    exchange = open_exchange(f"zenoh:{json.dumps({'listen': {'endpoints': [f'tcp/127.0.0.1:{port}']}})}", fleet,
+                             "fusion", on_event=progress.event,
+                             on_update=lambda robot: node_box and node_box[0].notify(robot))
+    logger = None
+    if args.rerun != "none":
+        from runtime.rerun_log import MissionLog, open_recording
+
+        sink = str(out / "mission.rrd") if args.rerun == "file" else args.rerun
+        logger = MissionLog(open_recording(sink), names)
+        logger.log_building(world.walls, world.wall_heights)
+        logger.log_robot_frame("fused", np.asarray(world.start_poses[names[0]], float))
+    interval = args.fusion_interval if args.fusion_interval > 0 else 1e9
+    node = FusionNode(exchange, FusionNodeConfig(interval=interval, min_period=max(1.0, min(interval, 5.0)),
+                                                 preset=args.preset, method=args.method, seed=args.seed),
+                      logger=logger, on_event=progress.event)
+    node_box.append(node)
+    stop = threading.Event()
+    processes: dict[str, subprocess.Popen] = {}
+    restore = install_stop_signals(stop.set)
+    fusion_thread = threading.Thread(target=node.run, args=(stop,), name="fusion-node", daemon=True)
+    start = time.monotonic()
+    try:
+        for name in names:
+            processes[name] = subprocess.Popen(robot_command(args, name, fleet, port, out), stdout=subprocess.PIPE,
+                                               stderr=subprocess.PIPE, text=True)
+        progress.event(f"robots started as processes {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}"
+                       f"; fusion node on tcp/127.0.0.1:{port}, fleet {fleet}")
+        fusion_thread.start()
+        outputs = _wait(processes, stop, progress, node, start)
+    finally:
+        stop.set()
+        for process in processes.values():  # Ctrl-C: every robot stops its motors and flushes its files
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+        for process in processes.values():
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        if fusion_thread.is_alive():
+            fusion_thread.join(timeout=30)
+        restore()
+        progress.done()
+    summaries, failed = {}, []
+    for name, (code, stdout, stderr) in outputs.items():
+        try:
+            summaries[name] = json.loads(stdout)
+        except json.JSONDecodeError:
+            failed.append(f"{name} (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else '?'}")
+    node.sources = {}  # the final fusion, whatever the last one held
+    final = node.fuse_now()
+    exchange.close()
+    summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
+    if final is not None and final.merged is not None:
+        final.merged.save(out / "fused.npz")
+        final.merged.export_ply(out / "fused.ply")
+    if logger is not None:
+        logger.log_summary(summary)
+        logger.close()
+    for line in failed:
+        print(f"p3at demo: robot process failed: {line}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(format_summary(summary))
+        print()
+        print(f"Maps: {', '.join(r['map_file'] for r in summary['robots'].values())}"
+              + (f", merged {summary['merged_map_file']}" if summary["merged_map_file"] else ""))
+    if summary["recording"]:
+        print(f"Rerun recordings: {summary['recording']} (fleet view: maps, alignments, fused map) and "
+              f"{out}/<robot>/mission.rrd (each robot)\n  open them together: rerun {out}/mission.rrd "
+              f"{out}/*/mission.rrd\n  summarise:          p3at review {summary['recording']}",
+              file=sys.stderr if args.json else sys.stdout)
+    return 1 if failed else 0
+
+
+def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, start: float) -> dict:
+    """Wait for every robot process to end (or Ctrl-C); their exit codes and outputs."""
+    readers, outputs = {}, {}
+    for name, process in processes.items():  # read the pipes as they fill, so a chatty child never blocks
+        def read(n=name, p=process) -> None:
+            stdout, stderr = p.communicate()
+            outputs[n] = (p.returncode, stdout, stderr)
+        readers[name] = threading.Thread(target=read, name=f"read-{name}", daemon=True)
+        readers[name].start()
+    next_line = 0.0
+    while any(r.is_alive() for r in readers.values()) and not stop.wait(0.5):
+        t = time.monotonic() - start
+        if t >= next_line:
+            status = node.exchange.status() if hasattr(node.exchange, "status") else {}
+            parts = [f"t={t:5.1f}s"] + [f"{r}: map {s.get('landmarks', 0)} landmarks"
+                                        for r, s in sorted(status.items())]
+            if node.history and node.history[-1].pairs:
+                p = node.history[-1].pairs[0]
+                parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
+            progress.line(" | ".join(parts))
+            next_line = t + 1.0
+    for process in processes.values():
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+    for reader in readers.values():
+        reader.join(timeout=60)
+    return outputs
+
+
+def _summary(args, summaries: dict, node: FusionNode, final, duration: float, out: Path) -> dict:
+    robots = {}
+    for _, s in sorted(summaries.items()):
+        robots.update(s.get("robots", {}))
+    return {
+        "robots": robots, "duration": round(duration, 2), "seed": args.seed, "camera": args.camera,
+        "particles": args.particles, "processes": True,
+        "fusion": None if final is None else final.as_dict(),
+        "fusion_ms": None if final is None else round(1000.0 * final.seconds, 2),
+        "fusions_during_mission": max(0, len(node.history) - 1),
+        "merged_map_file": None if final is None or final.merged is None else str(out / "fused.npz"),
+        "recording": None if args.rerun != "file" else str(out / "mission.rrd"),
+    }
