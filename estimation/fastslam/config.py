@@ -27,6 +27,7 @@ class FastSLAMConfig:
     anchor_first_frame: bool = True               # 2.0: a particle with an empty map takes the mean pose (see filter)
     anchor_unmatched: bool = False                # 2.0, with anchor_first_frame: so does one that matched nothing
     # -- data association -----------------------------------------------------------------------------------
+    association: str = "unknown"                  # "unknown": descriptors + position; "id": observations' ids decide
     mahalanobis_gate: float = 11.345              # χ²(3 dof) at 99 %: squared Mahalanobis distance gate
     descriptor_threshold: float = 0.5             # max Euclidean distance between unit descriptors (paper's th)
     observation_var_floor: float = 0.02 ** 2      # m² added to each observation covariance (model error)
@@ -40,10 +41,17 @@ class FastSLAMConfig:
     fov_vertical: float = _VFOV                   # rad
     min_range: float = 0.3                        # m, depth along the optical axis
     max_range: float = 12.0                       # m
-    # -- provisional landmarks -------------------------------------------------------------------------------
-    confirm_count: int = 3                        # a landmark seen this often is permanent
-    max_misses: int = 3                           # a provisional landmark missed this often in view is dropped
+    # -- landmark management: existence in log-odds (see filter.py, "Landmark management") ---------------------
+    confirm_count: int = 3                        # maps export landmarks seen at least this often
+    max_misses: int = 3                           # unused since existence log-odds (kept: old maps' settings load)
     miss_fov_margin: float = 0.85                 # only landmarks well inside the view (this fraction) count misses
+    existence_initial: float = 0.0                # log-odds of a new landmark (p = 0.5: one sighting proves little)
+    existence_hit: float = 1.0                    # added per detection (matched observation)
+    existence_miss: float = -0.5                  # added per frame it was well in view and not detected
+    existence_max: float = 4.0                    # clamp: a long-seen landmark that is gone is still removed in time
+    existence_remove: float = -1.4                # removed below this (a new landmark: 3 misses, no detection)
+    merge_gate: float = 0.0                       # > 0: merge a particle's landmarks closer than this squared
+    #                                             #   Mahalanobis distance (and, with descriptors, alike); 0: off
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block
@@ -60,6 +68,12 @@ class FastSLAMConfig:
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
         if not self.observation_cov_scale > 0.0:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
+        if self.association not in ("unknown", "id"):
+            raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")
+        if not (self.existence_remove < self.existence_initial <= self.existence_max and self.existence_hit >= 0
+                and self.existence_miss <= 0):
+            raise ValueError("existence log-odds need existence_remove < existence_initial <= existence_max, "
+                             "existence_hit >= 0 and existence_miss <= 0")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

@@ -109,10 +109,14 @@ class FilterStats:
     """Counters over the filter's life (``FastSLAM.stats``).
 
     proposal_fallbacks: FastSLAM 2.0 particles whose observation proposal was numerically not positive definite
-    and which drew from the motion model instead (0 in a healthy run; see ``_sample_proposal``).
+    and which drew from the motion model instead (0 in a healthy run; see ``_sample_proposal``). The other
+    counters count (particle, landmark) or (particle, observation) events, summed over particles.
     """
 
     proposal_fallbacks: int = 0
+    id_outliers: int = 0          # "id" association: (particle, observation) pairs rejected by the gate
+    landmarks_removed: int = 0    # (particle, landmark) removals: existence fell below ``existence_remove``
+    landmarks_merged: int = 0     # (particle, landmark) merges of duplicates (``merge_gate``)
 
 
 @dataclass
@@ -175,6 +179,8 @@ class FastSLAM:
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
+        self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
+        self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
 
     # == 0. motion ==========================================================================================
     def predict(self, increment: OdometryIncrement) -> None:
@@ -195,24 +201,41 @@ class FastSLAM:
         """Incorporate one frame of 3-D point observations in base_link (see the module docstring).
 
         With ``max_observations`` > 0, only that many observations are used, chosen by
-        ``observation_selection`` (see :mod:`estimation.fastslam.selection`); the report's per-observation
-        arrays still have one entry per given observation (-1 for those left out).
+        ``observation_selection`` (see :mod:`estimation.fastslam.selection`); with ``association="id"`` only
+        those with an id ≥ 0, one per id (the first). The report's per-observation arrays still have one entry
+        per given observation (-1 for those left out).
         """
         cfg = self.config
         cap, n_given = cfg.max_observations, len(observations)
-        if cap <= 0 or n_given <= cap:
+        usable = np.ones(n_given, bool)
+        if cfg.association == "id":   # only observations that carry an identity can be associated by it
+            usable = np.zeros(n_given, bool)
+            if observations.ids is not None:   # one observation per identity and frame (the first)
+                first = np.unique(observations.ids, return_index=True)[1]
+                usable[first] = True
+                usable &= observations.ids >= 0
+        if (cap <= 0 or usable.sum() <= cap) and usable.all():
             return self._update(observations)
-        keep = select_observations(observations.points, observations.covariances, cap, cfg.observation_selection,
-                                   cfg.sensor_offset, cfg.fov_horizontal)
+        keep = np.flatnonzero(usable)
+        if 0 < cap < len(keep):
+            keep = keep[select_observations(observations.points[keep], observations.covariances[keep], cap,
+                                            cfg.observation_selection, cfg.sensor_offset, cfg.fov_horizontal)]
         pixels = observations.pixels[keep] if len(observations.pixels) else observations.pixels
+        ids = observations.ids[keep] if observations.ids is not None else None
+        capped = 0 < cap < usable.sum()
+        # a capped frame says nothing about landmarks beyond its farthest kept observation ("nearest" keeps the
+        # near ones), and less about those within it: misses count only there, weighted by the share kept
+        reach = float(np.max(np.linalg.norm(observations.points[keep] - cfg.sensor_offset, axis=1), initial=0.0))
         report = self._update(StereoObservations(
             observations.points[keep], observations.covariances[keep], observations.descriptors[keep], pixels,
-            observations.timestamp, observations.frame))
+            observations.timestamp, observations.frame, ids),
+            miss_reach=reach if capped else None, miss_weight=len(keep) / max(int(usable.sum()), 1))
         new_ids, best = np.full(n_given, -1, np.int64), np.full(n_given, -1, np.int64)
         new_ids[keep], best[keep] = report.new_landmark_ids, report.best_matches
         return replace(report, new_landmark_ids=new_ids, best_matches=best)
 
-    def _update(self, observations: StereoObservations) -> UpdateReport:
+    def _update(self, observations: StereoObservations, miss_reach: float | None = None,
+                miss_weight: float = 1.0) -> UpdateReport:
         cfg = self.config
         n_particles, n_obs = len(self.poses), len(observations)
         z, q, desc = self._checked(observations)
@@ -224,10 +247,15 @@ class FastSLAM:
 
         # 1-2. candidates, descriptor join, Mahalanobis gate (in the world frame: d² is frame-invariant, and
         # there H_x = ∂(R z + t − μ)/∂(x, y, θ) needs no rotation; see _sample_proposal)
-        cand, cand_lids, cand_counts = self._candidates(predicted)
-        pairs, mean, cov = self._descriptor_join(cand, cand_lids, desc, predicted, z, q6)
-        if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
-            pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
+        cand, cand_lids, _ = self._candidates(predicted)
+        by_id = cfg.association == "id"
+        if by_id:      # the observation's identity names the landmark; the gate below only rejects outliers
+            obs_lids = self._lids_of_external(observations.ids)
+            pairs, mean, cov, holds = self._id_join(obs_lids)
+        else:
+            pairs, mean, cov = self._descriptor_join(cand, cand_lids, desc, predicted, z, q6)
+            if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
+                pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
         mj = pairs.m * n_obs + pairs.j
         innovation = _cols(frame.world, mj) - mean                                     # ν = R z + t − μ (3, P)
         s_obs = cov + _cols(frame.noise, mj)                                           # S = Σ + R Q Rᵀ (6, P)
@@ -240,8 +268,12 @@ class FastSLAM:
         gated = d2 < cfg.mahalanobis_gate
 
         # 3. mutual exclusion
-        win, had_candidate = _exclusive_matches(pairs, d2, gated, n_particles, n_obs, len(cand.m))
+        n_slots = n_particles * self.store.table.shape[1] * self.store.block_size if by_id else len(cand.m)
+        win, had_candidate = _exclusive_matches(pairs, d2, gated, n_particles, n_obs, n_slots)
         matched = pairs.take(win)
+        if by_id:      # a new landmark only where the particle has none of that id; a gated-out one is an outlier
+            self.stats.id_outliers += int(np.count_nonzero(~gated))
+            had_candidate = holds
         log_lik = -0.5 * cfg.mahalanobis_gate * n_obs - 0.5 * np.bincount(
             matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
         mean, cov = _cols(mean, win), _cols(cov, win)
@@ -263,16 +295,17 @@ class FastSLAM:
         poses = self.poses
 
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
-        missed = self._missed_provisional(cand, cand_counts, poses, matched)
+        missed = self._missed_in_view(cand, poses, matched, by_id, miss_reach)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
         moved = self._ekf_update(matched, predicted, poses, z, q6, mean, cov, s_inv)
-        dropped = self._count_miss(missed)
+        dropped = self._count_miss(missed, miss_weight)
         self.store.include_in_bbox(matched.g, moved)
 
         # 7. new landmarks from observations no landmark was a candidate for
-        new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc)
+        new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
+                                             self._lids_for_new(observations.ids, obs_lids) if by_id else None)
 
         # 8. weights and resampling
         best_matches = np.full(n_obs, -1, np.int64)
@@ -534,14 +567,23 @@ class FastSLAM:
         store.put_state(matched.g, updated)
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
+        cfg = self.config
+        store.flat_logodds[matched.g] = np.minimum(store.flat_logodds[matched.g] + cfg.existence_hit,
+                                                   cfg.existence_max)
         return updated[:, :2]
 
-    def _missed_provisional(self, cand: _Pairs, counts: np.ndarray, poses: np.ndarray, matched: _Pairs) -> _Pairs:
-        """Candidate landmarks (their counts (C,)) still provisional, predicted well inside the view, and not
-        matched."""
+    def _missed_in_view(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs, by_id: bool = False,
+                        reach: float | None = None) -> _Pairs:
+        """Candidate landmarks predicted well inside the view (``miss_fov_margin`` of the field of view and of
+        the range) and not matched: negative evidence for their existence. (``by_id``: matched pairs come from
+        the id join, whose ``c`` is not a candidate index; they are found by (particle, slot).)"""
         store = self.store
-        candidate = counts < self.config.confirm_count
-        candidate[matched.c] = False
+        if by_id:
+            n = len(store.flat_lid)
+            candidate = ~np.isin(cand.m * n + cand.g, matched.m * n + matched.g)
+        else:
+            candidate = np.ones(len(cand.m), bool)
+            candidate[matched.c] = False
         sel = cand.take(np.flatnonzero(candidate))
         if len(sel.m) == 0:
             return sel
@@ -549,17 +591,18 @@ class FastSLAM:
         c, s = _cos_sin(poses, sel.m)
         mean = _rows(store.flat_state, sel.g)
         dx, dy = mean[:, 0] - pose[:, 0], mean[:, 1] - pose[:, 1]
-        return sel.take(np.flatnonzero(self._well_in_view(c * dx + s * dy, c * dy - s * dx, mean[:, 2])))
+        return sel.take(np.flatnonzero(self._well_in_view(c * dx + s * dy, c * dy - s * dx, mean[:, 2], reach)))
 
-    def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, reach: float | None = None) -> np.ndarray:
         """(P,) bool: base_link points (x, y, z each (P,)) inside ``miss_fov_margin`` of the field of view and
         of the range."""
         cfg = self.config
         ox, oy, oz = cfg.sensor_offset
         depth, lateral, height = x - ox, y - oy, z - oz
         margin = cfg.miss_fov_margin
+        max_range = cfg.max_range if reach is None else min(cfg.max_range, reach)
         ok = (depth > cfg.min_range) & (depth * depth + lateral * lateral + height * height
-                                        < (margin * cfg.max_range) ** 2)
+                                        < (margin * max_range) ** 2)
         if cfg.fov_horizontal < 2 * np.pi:
             ok &= depth > 0
             ok &= _within_angle(lateral, depth, margin * 0.5 * cfg.fov_horizontal)
@@ -567,19 +610,24 @@ class FastSLAM:
             ok &= _within_angle(height, np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
         return ok
 
-    def _count_miss(self, missed: _Pairs) -> int:
-        """misses += 1 for missed provisional landmarks; drop those reaching ``max_misses``."""
+    def _count_miss(self, missed: _Pairs, weight: float = 1.0) -> int:
+        """Existence log-odds += ``existence_miss`` for landmarks missed in view; those falling below
+        ``existence_remove`` are removed. Returns how many (particle, landmark) were removed."""
         if len(missed.g) == 0:
             return 0
-        store = self.store
+        store, cfg = self.store, self.config
         store.flat_misses[missed.g] += 1
-        drop = missed.g[store.flat_misses[missed.g] >= self.config.max_misses]
+        store.flat_logodds[missed.g] += weight * cfg.existence_miss
+        drop = missed.g[store.flat_logodds[missed.g] < cfg.existence_remove]
         store.flat_lid[drop] = -1
+        self.stats.landmarks_removed += len(drop)
         return len(drop)
 
-    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q6, desc) -> tuple[np.ndarray, int]:
+    def _add_landmarks(self, had_candidate: np.ndarray, poses: np.ndarray, z, q6, desc,
+                       lids: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Landmarks (μ = R z + t, Σ = R Q Rᵀ) for every (particle, observation) with no gated candidate
-        (``had_candidate`` (M·N,) bool, indexed m·N + j).
+        (``had_candidate`` (M·N,) bool, indexed m·N + j). ``lids`` (N,): the ids to give them ("id"
+        association: the id its identity already has); None: fresh ids, one per spawning observation.
 
         Returns the id each observation's new landmarks got (N,) (-1: none) and how many were made in all.
         """
@@ -589,8 +637,11 @@ class FastSLAM:
         if len(m) == 0:
             return new_ids, 0
         spawning = np.unique(j)
-        new_ids[spawning] = self._n_ids + np.arange(len(spawning))
-        self._append_descriptors(desc[spawning])
+        if lids is None:
+            new_ids[spawning] = self._n_ids + np.arange(len(spawning))
+            self._append_descriptors(desc[spawning])
+        else:
+            new_ids[spawning] = lids[spawning]
         g = self.store.append_slots(m)
         store = self.store
         pose = _rows(poses, m)
@@ -601,8 +652,63 @@ class FastSLAM:
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
+        store.flat_logodds[g] = self.config.existence_initial
         store.include_in_bbox(g)
         return new_ids, len(m)
+
+    # -- "id" association ------------------------------------------------------------------------------------
+    def _lids_of_external(self, ids: np.ndarray) -> np.ndarray:
+        """Internal landmark ids (N,) of observations' external ids (N,) (-1: not seen before)."""
+        return np.array([self._lid_of_external.get(int(i), -1) for i in ids], np.int64)
+
+    def _lids_for_new(self, ids: np.ndarray, lids: np.ndarray) -> np.ndarray:
+        """``lids`` (N,) with a fresh internal id for every external id seen for the first time."""
+        lids = lids.copy()
+        fresh = np.flatnonzero(lids < 0)
+        if len(fresh):
+            lids[fresh] = self._n_ids + np.arange(len(fresh))
+            for i, lid in zip(ids[fresh], lids[fresh], strict=True):
+                self._lid_of_external[int(i)] = int(lid)
+            self._append_descriptors(np.zeros((len(fresh), self.config.descriptor_size), np.float32))
+            self._external_of_lid[lids[fresh]] = ids[fresh]
+        return lids
+
+    def _id_join(self, obs_lids: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray, np.ndarray]:
+        """"id" association: every (particle, observation) pair whose particle holds the landmark the observation
+        names (``obs_lids`` (N,), -1: none yet), with the landmarks' means (3, P) and covariances (6, P), and
+        ``holds`` (M·N,) bool indexed m·N + j. Scans the particles' block tables: no spatial preselection, so a
+        named landmark is found however far the particle has drifted (the gate then judges it)."""
+        store = self.store
+        n_particles, n_obs = len(self.poses), len(obs_lids)
+        holds = np.zeros(n_particles * n_obs, bool)
+        width, b = store.table.shape[1], store.block_size
+        known = obs_lids[obs_lids >= 0]
+        if len(known) == 0 or int(store.n_blocks.max(initial=0)) == 0:
+            return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0)), holds
+        obs_of_lid = np.full(self._n_ids, -1, np.int64)
+        obs_of_lid[obs_lids[obs_lids >= 0]] = np.flatnonzero(obs_lids >= 0)   # update() keeps one per id
+        phys = store.table                                                      # (M, W)
+        lid = np.where((phys >= 0)[..., None], _rows(store.lid, np.maximum(phys, 0).ravel()).reshape(
+            n_particles, width, b), -1)
+        flat = np.flatnonzero((lid >= 0).ravel())
+        j = obs_of_lid[lid.ravel()[flat]]
+        flat, j = flat[j >= 0], j[j >= 0]
+        m, rest = np.divmod(flat, width * b)
+        k, slot = np.divmod(rest, b)
+        g = phys[m, k] * b + slot
+        holds[m * n_obs + j] = True
+        state = _rows(store.flat_state, g).T
+        pairs = _Pairs(m, j, k, g, flat)
+        return pairs, np.ascontiguousarray(state[:3]), np.ascontiguousarray(state[3:]), holds
+
+    def external_ids(self, lids) -> np.ndarray:
+        """External ids (L,) ("id" association: the observations' identities) of internal landmark ids (L,);
+        -1 where a landmark has none (made in "unknown" association)."""
+        lids = np.asarray(lids, np.int64)
+        out = np.full(len(lids), -1, np.int64)
+        inside = (lids >= 0) & (lids < len(self._external_of_lid))
+        out[inside] = self._external_of_lid[lids[inside]]
+        return out
 
     def _append_descriptors(self, desc: np.ndarray) -> None:
         need = self._n_ids + len(desc)
@@ -611,6 +717,7 @@ class FastSLAM:
             grown[: self._n_ids] = self._descriptors[: self._n_ids]
             self._descriptors = grown
         self._descriptors[self._n_ids:need] = desc
+        self._external_of_lid = np.concatenate([self._external_of_lid, np.full(len(desc), -1, np.int64)])
         self._n_ids = need
 
     # == prior map ===========================================================================================
@@ -638,6 +745,7 @@ class FastSLAM:
         store.flat_lid[g] = ids[order]
         store.flat_count[g] = landmark_map.counts[order]
         store.flat_misses[g] = 0
+        store.flat_logodds[g] = self.config.existence_max   # a given map's landmarks are established
         store.refresh_bbox(g // store.block_size)
         store.resample(np.zeros(len(self.poses), np.intp))   # every particle shares particle 0's blocks
         return ids

@@ -18,11 +18,12 @@ _Z_VARIANCE = 1e-6  # m²: keeps the landmark's vertical coordinate at 0 without
 
 def range_bearing_observations(ranges, bearings, sigma_range: float, sigma_bearing: float,
                                descriptors: np.ndarray | None = None, timestamp: float = 0.0,
-                               ) -> StereoObservations:
+                               ids=None) -> StereoObservations:
     """Observations (N points in base_link) from ranges (N,) m and bearings (N,) rad (counter-clockwise from x).
 
     descriptors (N, D) optional (default: none, D = 0, so association is by position alone; use
-    :func:`~estimation.fastslam.range_bearing_config`).
+    :func:`~estimation.fastslam.range_bearing_config`); ids (N,) optional: the landmark identity each
+    measurement reports (barcode, tag; -1 none), used by ``association="id"``.
     """
     r = np.asarray(ranges, float).reshape(-1)
     phi = np.asarray(bearings, float).reshape(-1)
@@ -37,4 +38,9 @@ def range_bearing_observations(ranges, bearings, sigma_range: float, sigma_beari
     cov[:, 2, 2] = _Z_VARIANCE
     if descriptors is None:
         descriptors = np.zeros((len(r), 0), np.float32)
-    return StereoObservations(points, cov, np.asarray(descriptors, np.float32), np.zeros((0, 2)), timestamp)
+    if ids is not None:
+        ids = np.asarray(ids).reshape(-1)
+        if ids.shape != r.shape:
+            raise ValueError(f"{len(ids)} ids for {len(r)} measurements")
+    return StereoObservations(points, cov, np.asarray(descriptors, np.float32), np.zeros((0, 2)), timestamp,
+                              ids=ids)

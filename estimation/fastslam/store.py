@@ -9,7 +9,8 @@ Per slot (``state``, 9 numbers, so that one gather reads both): ``mean`` (3,), `
 upper triangle (xx, xy, xz, yy, yz, zz, see
 ``linalg.sym_components``: two thirds of a 3×3's memory, and what the filter's closed forms read), ``lid`` the
 global landmark id (-1: empty slot; also the row of its descriptor in the filter's descriptor table), ``count``
-(times matched, creation included), ``misses`` (times it was in view and not matched). Per physical block:
+(times matched, creation included), ``misses`` (times it was in view and not matched), ``logodds`` (the
+landmark's existence estimate, log p/(1 − p), see the filter's landmark management). Per physical block:
 ``refcount`` and ``bbox`` (xmin, ymin, xmax, ymax of its landmarks' means), which lets association preselect
 the blocks near a particle without scanning every landmark.
 """
@@ -38,6 +39,7 @@ class LandmarkStore:
         self.lid = np.full((capacity, b), -1, np.int64)
         self.count = np.zeros((capacity, b), np.int64)
         self.misses = np.zeros((capacity, b), np.int64)
+        self.logodds = np.zeros((capacity, b))
         self.refcount = np.zeros(capacity, np.int64)
         self.bbox = np.tile(_EMPTY_BOX, (capacity, 1))
 
@@ -48,7 +50,7 @@ class LandmarkStore:
     def _grow(self, needed: int) -> None:
         old = self.capacity
         new = max(2 * old, old + needed)
-        arrays = {k: getattr(self, k) for k in ("state", "lid", "count", "misses", "refcount", "bbox")}
+        arrays = {k: getattr(self, k) for k in ("state", "lid", "count", "misses", "logodds", "refcount", "bbox")}
         self._allocate_arrays(new)
         for name, values in arrays.items():
             getattr(self, name)[:old] = values
@@ -64,6 +66,7 @@ class LandmarkStore:
         self.lid[blocks] = -1
         self.count[blocks] = 0
         self.misses[blocks] = 0
+        self.logodds[blocks] = 0.0
         self.bbox[blocks] = _EMPTY_BOX
         return blocks
 
@@ -96,7 +99,7 @@ class LandmarkStore:
             return
         p, k, src = p[shared], k[shared], phys[shared]
         dst = self._allocate(len(src))
-        for name in ("state", "lid", "count", "misses", "bbox"):
+        for name in ("state", "lid", "count", "misses", "logodds", "bbox"):
             arr = getattr(self, name)
             arr[dst] = np.take(arr, src, axis=0)
         np.subtract.at(self.refcount, src, 1)
@@ -239,3 +242,7 @@ class LandmarkStore:
     @property
     def flat_misses(self) -> np.ndarray:
         return self.misses.reshape(-1)
+
+    @property
+    def flat_logodds(self) -> np.ndarray:
+        return self.logodds.reshape(-1)

@@ -53,3 +53,18 @@ def test_closed_forms_match_dense_algebra(seed, n, theta):
     rot = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
     np.testing.assert_allclose(sym_matrices(sym_rotate_z(np.full(n, c), np.full(n, sn), s6)), rot @ s @ rot.T,
                                rtol=1e-10, atol=1e-10)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 9))
+def test_closed_form_cholesky_matches_lapack_and_flags_indefinite_matrices(seed, n):
+    from estimation.fastslam.linalg import lower_matvec, sym_cholesky
+    rng = np.random.default_rng(seed)
+    s = _spd(rng, n)
+    l6, ok = sym_cholesky(sym_components(s))
+    assert ok.all()
+    lower = np.linalg.cholesky(s)
+    v = rng.standard_normal((3, n))
+    np.testing.assert_allclose(lower_matvec(l6, v), np.einsum("nij,jn->in", lower, v), rtol=1e-9, atol=1e-12)
+    indefinite = s - 2.0 * np.linalg.eigvalsh(s)[:, -1:, None] * np.eye(3)   # shift below zero
+    assert not sym_cholesky(sym_components(indefinite))[1].any()
