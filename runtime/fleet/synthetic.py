@@ -11,6 +11,7 @@ frame, with a fixed per-landmark noise (so a landmark not re-observed does not c
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import threading
@@ -19,6 +20,7 @@ import time
 import numpy as np
 
 from estimation.landmark_map import LandmarkMap
+from runtime.fleet.mapwire import encode_full
 
 DESCRIPTOR = 64
 
@@ -91,6 +93,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--landmarks", type=int, default=600)
     p.add_argument("--grow", type=int, default=20)
     p.add_argument("--full-every", type=int, default=10)
+    p.add_argument("--report", action="store_true",
+                   help="at the end, print one JSON line: bytes sent per robot by kind, and what full snapshots "
+                        "alone would have sent")
     args = p.parse_args(argv)
     names = args.names.split(",")
     robots = [SyntheticRobot(n, args.first_index + k, args.seed, args.landmarks, args.grow)
@@ -103,12 +108,16 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(s, lambda *_: stop.set())
     print("ready", flush=True)
     step = 0
-    next_time = time.monotonic()
+    next_time = started = time.monotonic()
+    full_only = dict.fromkeys(names, 0)
     try:
         while not stop.is_set():
             if args.steps == 0 or step < args.steps:
                 for robot, exchange in zip(robots, exchanges, strict=True):
-                    exchange.publish(robot.name, robot.step(), stamp=time.time())  # wall clock: shared by processes
+                    m = robot.step()
+                    exchange.publish(robot.name, m, stamp=time.time())  # wall clock: shared by processes
+                    if args.report:
+                        full_only[robot.name] += len(encode_full(robot.name, "0" * 16, step, 0.0, m))
                 step += 1
                 if step == args.steps:
                     print("published", flush=True)
@@ -117,6 +126,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for exchange in exchanges:
             exchange.close()
+    if args.report:
+        print(json.dumps({"seconds": time.monotonic() - started, "robots": {
+            r.name: {"sent": dict(e.bytes_sent), "full_only": full_only[r.name]}
+            for r, e in zip(robots, exchanges, strict=True)}}), flush=True)
     return 0
 
 
