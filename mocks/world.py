@@ -37,6 +37,10 @@ indexes a piece, with ``s`` measured from the piece's start. A decoration must l
 below its wall's height. Doorways get a "door_frame" decoration on both faces of both sides.
 Unknown keys are errors (a misspelt "heigth" must not pass silently); keys starting with "_" are comments.
 A malformed file raises :class:`WorldFileError` (a ``ValueError``) naming the file and the field.
+
+Bounds (checked before the work they would cause): a file of at most ``MAX_FILE_BYTES``, JSON nested at most
+as deep as Python's parser allows, at most ``MAX_WALLS`` walls, ``MAX_PER_WALL`` openings and decorations per
+wall, ``MAX_WAYPOINTS`` per route, coordinates and heights within ``MAX_COORDINATE`` metres.
 """
 
 from __future__ import annotations
@@ -57,6 +61,11 @@ SUPPORTED_VERSIONS = (1,)
 DESCRIPTOR_SIZE = 64
 _EPS = 1e-9
 _RAY_CHUNK = 2048  # rays per vectorised block: keeps the (rays × walls) temporaries in cache
+MAX_FILE_BYTES = 16 << 20  # the packaged building is ~20 kB
+MAX_WALLS = 10_000
+MAX_PER_WALL = 1_000  # openings, decorations
+MAX_WAYPOINTS = 100_000
+MAX_COORDINATE = 1e5  # metres: any building, and far from float overflow in lengths and areas
 
 
 class WorldFileError(ValueError):
@@ -108,16 +117,20 @@ class _Reader:
             return float(default)
         value = obj[key]
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise self.fail(f"{field}.{key}", f"expected a finite number, got {value!r}")
+            raise self.fail(f"{field}.{key}", f"expected a finite number, got {_short(value)}")
+        if abs(value) > MAX_COORDINATE:
+            raise self.fail(f"{field}.{key}", f"{value:g} is beyond ±{MAX_COORDINATE:g}")
         if positive and value <= 0:
             raise self.fail(f"{field}.{key}", f"must be > 0, got {value!r}")
         return float(value)
 
     def vector(self, value: Any, n: int, field: str) -> np.ndarray:
         ok = isinstance(value, list) and len(value) == n
-        ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+        ok = ok and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                        and abs(v) <= MAX_COORDINATE for v in value)
         if not ok:
-            raise self.fail(field, f"expected a list of {n} finite numbers, got {value!r}")
+            raise self.fail(field, f"expected a list of {n} finite numbers within ±{MAX_COORDINATE:g}, "
+                                   f"got {_short(value)}")
         return np.asarray(value, dtype=float)
 
     def obj(self, value: Any, field: str, known: frozenset[str] | None = None) -> dict:
@@ -131,10 +144,18 @@ class _Reader:
                     raise self.fail(where, f"unknown field (known: {', '.join(sorted(known))})")
         return value
 
-    def array(self, value: Any, field: str) -> list:
+    def array(self, value: Any, field: str, limit: int | None = None) -> list:
         if not isinstance(value, list):
             raise self.fail(field, f"expected a list, got {type(value).__name__}")
+        if limit is not None and len(value) > limit:
+            raise self.fail(field, f"{len(value)} entries, more than {limit}")
         return value
+
+
+def _short(value: Any) -> str:
+    """A value for an error message, cut to one short line."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 _TOP_KEYS = frozenset({"format", "version", "name", "description", "default_wall_height", "feature_seed",
@@ -162,13 +183,13 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
         raise r.fail("name", f"expected a non-empty string, got {name!r}")
     default_height = r.number(doc, "default_wall_height", "<top level>", default=2.7, positive=True)
     feature_seed = doc.get("feature_seed", 0)
-    if not isinstance(feature_seed, int) or isinstance(feature_seed, bool) or feature_seed < 0:
+    if not isinstance(feature_seed, int) or isinstance(feature_seed, bool) or not 0 <= feature_seed < 2**63:
         raise r.fail("feature_seed", f"expected a non-negative integer, got {feature_seed!r}")
     frame = r.obj(doc.get("door_frame", {}), "door_frame", frozenset({"width", "height"}))
     frame_width = r.number(frame, "width", "door_frame", default=0.1, positive=True)
     frame_height = r.number(frame, "height", "door_frame", default=2.1, positive=True)
 
-    walls_in = r.array(doc.get("walls"), "walls") if "walls" in doc else None
+    walls_in = r.array(doc.get("walls"), "walls", MAX_WALLS) if "walls" in doc else None
     if not walls_in:
         raise r.fail("walls", "missing or empty")
 
@@ -194,7 +215,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
 
         # Split at the doorways: solid intervals [(start, end)] along the wall.
         openings = []
-        for oi, op in enumerate(r.array(wall.get("openings", []), f"{wf}.openings")):
+        for oi, op in enumerate(r.array(wall.get("openings", []), f"{wf}.openings", MAX_PER_WALL)):
             s0, s1 = r.vector(op, 2, f"{wf}.openings[{oi}]")
             if not 0.0 <= s0 < s1 <= length:
                 raise r.fail(f"{wf}.openings[{oi}]", f"need 0 <= s0 < s1 <= wall length {length:.3f}")
@@ -239,7 +260,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
         if "baseboard" in wall:
             bb = r.obj(wall["baseboard"], f"{wf}.baseboard", frozenset({"height", "sides"}))
             bb_height = r.number(bb, "height", f"{wf}.baseboard", default=0.1, positive=True)
-            sides = r.array(bb.get("sides", [1, -1]), f"{wf}.baseboard.sides")
+            sides = r.array(bb.get("sides", [1, -1]), f"{wf}.baseboard.sides", 2)
             if any(s not in (1, -1) for s in sides):
                 raise r.fail(f"{wf}.baseboard.sides", f"entries must be 1 or -1, got {sides!r}")
             for k, (q0, q1) in enumerate(solid):
@@ -248,7 +269,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
                     piece = first_piece + k
                     decorations.append(Decoration("baseboard", piece, 0.0, q1 - q0, 0.0, bb_height, seed, side))
 
-        for di, deco_doc in enumerate(r.array(wall.get("decorations", []), f"{wf}.decorations")):
+        for di, deco_doc in enumerate(r.array(wall.get("decorations", []), f"{wf}.decorations", MAX_PER_WALL)):
             df = f"{wf}.decorations[{di}]"
             deco = r.obj(deco_doc, df, _DECORATION_KEYS)
             kind = deco.get("kind")
@@ -264,7 +285,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
             if side not in (1, -1) or isinstance(side, bool):
                 raise r.fail(f"{df}.side", f"expected 1 or -1, got {side!r}")
             seed = deco.get("seed", _default_seed(f"{label}:{di}:{kind}:{s0}"))
-            if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+            if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**63:
                 raise r.fail(f"{df}.seed", f"expected a non-negative integer, got {seed!r}")
             piece, q0 = piece_of(s0, s1, df)
             decorations.append(Decoration(kind, piece, s0 - q0, s1 - q0, z0, z1, seed, side))
@@ -274,7 +295,7 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
         start_poses[key] = r.vector(value, 3, f"start_poses.{key}")
     routes: dict[str, np.ndarray] = {}
     for key, value in r.obj(doc.get("routes", {}), "routes").items():
-        points = r.array(value, f"routes.{key}")
+        points = r.array(value, f"routes.{key}", MAX_WAYPOINTS)
         if len(points) < 2:
             raise r.fail(f"routes.{key}", "a route needs at least 2 waypoints")
         routes[key] = np.stack([r.vector(p, 2, f"routes.{key}[{i}]") for i, p in enumerate(points)])
@@ -394,6 +415,9 @@ class World:
         """Load a world data file (None -> the packaged building). Bad file -> WorldFileError."""
         file = DEFAULT_WORLD_PATH if path is None else Path(path)
         try:
+            size = file.stat().st_size
+            if size > MAX_FILE_BYTES:
+                raise WorldFileError(file, "<file>", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
             text = file.read_text(encoding="utf-8")
         except OSError as exc:
             raise WorldFileError(file, "<file>", f"cannot read: {exc.strerror or exc}") from exc
@@ -403,6 +427,10 @@ class World:
             doc = json.loads(text)
         except json.JSONDecodeError as exc:
             raise WorldFileError(file, f"line {exc.lineno} column {exc.colno}", f"invalid JSON: {exc.msg}") from exc
+        except RecursionError:
+            raise WorldFileError(file, "<file>", "JSON nested too deeply") from None
+        except ValueError as exc:  # e.g. an integer of more than 4300 digits
+            raise WorldFileError(file, "<file>", f"invalid JSON: {exc}") from None
         return cls.from_dict(doc, source=file)
 
     @classmethod

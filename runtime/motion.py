@@ -39,10 +39,19 @@ class Controller(Protocol):
                 ranges: np.ndarray | None = None) -> MotionCommand: ...
 
 
+MAX_ROUTE_BYTES = 16 << 20
+MAX_WAYPOINTS = 100_000
+MAX_ROUTE_COORDINATE = 1e5  # metres
+
+
 def load_route(path: str | os.PathLike) -> np.ndarray:
-    """Waypoints (K, 2) from a route file (see the module docstring)."""
+    """Waypoints (K, 2) from a route file (see the module docstring); at most MAX_WAYPOINTS, coordinates within
+    MAX_ROUTE_COORDINATE, a file of at most MAX_ROUTE_BYTES. Raises RouteFileError naming the file and line."""
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_ROUTE_BYTES:
+            raise RouteFileError(f"{path}: {size} bytes; a route file has at most {MAX_ROUTE_BYTES}")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RouteFileError(f"{path}: no such route file") from None
@@ -60,9 +69,13 @@ def load_route(path: str | os.PathLike) -> np.ndarray:
             x, y = float(fields[0]), float(fields[1])
             if not (np.isfinite(x) and np.isfinite(y)):
                 raise ValueError("not finite")
+            if max(abs(x), abs(y)) > MAX_ROUTE_COORDINATE:
+                raise ValueError(f"beyond ±{MAX_ROUTE_COORDINATE:g} m")
         except ValueError as e:
-            raise RouteFileError(f"{path}:{number}: bad waypoint {line!r} ({e})") from None
+            raise RouteFileError(f"{path}:{number}: bad waypoint {line[:80]!r} ({e})") from None
         points.append((x, y))
+        if len(points) > MAX_WAYPOINTS:
+            raise RouteFileError(f"{path}:{number}: more than {MAX_WAYPOINTS} waypoints")
     if not points:
         raise RouteFileError(f"{path}: the route has no waypoints")
     return np.array(points, float)

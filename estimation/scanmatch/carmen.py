@@ -4,10 +4,22 @@
 metres over 180° from -90° to +90° in equal steps, the laser pose (x, y, θ) and the odometry pose.  PARAM,
 NEFF, ODOM, SYNC, other message lines and ``#`` comments are skipped; a malformed FLASER line raises
 :class:`LogFormatError` naming the file and the line number.
+
+Bounds: a line of at most ``MAX_LINE_BYTES`` (read no further: a file without newlines cannot fill the
+memory), at most ``MAX_BEAMS`` ranges per line, at most ``MAX_READINGS`` readings per log (a plain or
+decompressed log past it is refused, not truncated).
+
+Damage: :func:`read_laser_log` raises :class:`TruncatedLogError` (a LogFormatError) for a log that cannot be
+read to its end, whether the stream breaks (a ``.gz`` corrupted or cut in the middle: ``zlib.error``, a bad
+CRC, EOF) or a FLASER line is malformed (which is what a corrupted ``.gz`` usually decompresses to). The
+message names the file and the line; the error carries the readings before the damage (``.readings``), which
+a caller may choose to use (``p3at scanmatch --allow-truncated`` does, and says so). Nothing is skipped
+silently.
 """
 from __future__ import annotations
 
 import gzip
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +30,19 @@ from estimation.scanmatch.errors import LogFormatError
 from estimation.scanmatch.scan import DEFAULT_MAX_RANGE, DEFAULT_MIN_RANGE, Scan2D, laser_angles, laser_scan
 
 _FIELDS_AFTER_RANGES = 9   # x y θ odom_x odom_y odom_θ ipc_timestamp hostname logger_timestamp
+MAX_LINE_BYTES = 1 << 20  # a FLASER line of MAX_BEAMS ranges is under 100 kB
+MAX_BEAMS = 8192
+MAX_READINGS = 500_000  # the MIT/Intel/ACES logs hold 5,000 - 30,000
+
+
+class TruncatedLogError(LogFormatError):
+    """The log could not be read to its end; ``readings`` holds the FLASER readings before the damage (filled
+    by :func:`read_laser_log`) and ``line`` the number of lines read whole."""
+
+    def __init__(self, message: str, readings: list[LaserReading], line: int) -> None:
+        super().__init__(message)
+        self.readings = readings
+        self.line = line
 
 
 @dataclass(frozen=True)
@@ -58,8 +83,8 @@ def parse_flaser(line: str, *, source: str = "<string>", line_number: int = 0) -
         n = int(tokens[1])
     except (IndexError, ValueError):
         raise LogFormatError(f"{where}: FLASER reading count missing or not an integer") from None
-    if n < 2:
-        raise LogFormatError(f"{where}: FLASER reading count {n} is below 2")
+    if not 2 <= n <= MAX_BEAMS:
+        raise LogFormatError(f"{where}: FLASER reading count {n} is not in 2..{MAX_BEAMS}")
     expected = 2 + n + _FIELDS_AFTER_RANGES
     if len(tokens) != expected:
         raise LogFormatError(f"{where}: FLASER with {n} readings needs {expected} fields, got {len(tokens)}")
@@ -84,21 +109,53 @@ def parse_flaser(line: str, *, source: str = "<string>", line_number: int = 0) -
 
 
 def iter_laser(path: str | Path) -> Iterator[LaserReading]:
-    """The FLASER readings of a CARMEN log (``.gz`` read directly), in file order."""
+    """The FLASER readings of a CARMEN log (``.gz`` read directly), in file order.
+
+    Raises LogFormatError for a malformed line and for a log that cannot be read to its end (after yielding
+    what came before the damage)."""
     path = Path(path)
     opener = gzip.open if path.suffix == ".gz" else open
+    line_number = 0
     try:
-        with opener(path, "rt", encoding="ascii", errors="strict") as stream:
-            for line_number, line in enumerate(stream, start=1):
-                if line.startswith("FLASER"):
-                    yield parse_flaser(line, source=str(path), line_number=line_number)
-    except (OSError, EOFError, UnicodeDecodeError) as error:
-        raise LogFormatError(f"{path}: cannot read the log: {error}") from error
+        with opener(path, "rb") as stream:
+            while True:
+                raw = stream.readline(MAX_LINE_BYTES + 1)
+                if not raw:
+                    return
+                line_number += 1
+                if len(raw) > MAX_LINE_BYTES:
+                    raise LogFormatError(f"{path}:{line_number}: line longer than {MAX_LINE_BYTES} bytes")
+                if raw.startswith(b"FLASER"):
+                    yield parse_flaser(raw.decode("ascii"), source=str(path), line_number=line_number)
+    except FileNotFoundError:
+        raise LogFormatError(f"{path}: no such log file") from None
+    except UnicodeDecodeError as error:
+        raise LogFormatError(f"{path}:{line_number}: not ASCII text ({error.reason} at byte {error.start})") from None
+    except (OSError, EOFError, zlib.error) as error:
+        where = f"after line {line_number}" if line_number else "at the start"
+        raise TruncatedLogError(f"{path}: cannot read the log {where} ({type(error).__name__}: {error})", [],
+                                line_number) from None
 
 
-def read_laser_log(path: str | Path) -> list[LaserReading]:
-    """All FLASER readings of a CARMEN log; raises LogFormatError if there are none."""
-    readings = list(iter_laser(path))
+def read_laser_log(path: str | Path, limit: int | None = None) -> list[LaserReading]:
+    """The FLASER readings of a CARMEN log (the first ``limit`` if given); raises LogFormatError if there are
+    none, TruncatedLogError (with the readings before the damage) if the file is damaged before its end."""
+    readings: list[LaserReading] = []
+    iterator = iter_laser(path)
+    try:
+        for reading in iterator:
+            readings.append(reading)
+            if limit is not None and len(readings) >= limit:
+                break
+            if len(readings) > MAX_READINGS:
+                raise LogFormatError(f"{path}: more than {MAX_READINGS} FLASER readings (split the log)")
+    except LogFormatError as error:  # a damaged stream or a malformed line: the log is unusable from there on
+        if not readings:
+            raise
+        line = error.line if isinstance(error, TruncatedLogError) else (readings[-1].line if readings else 0)
+        raise TruncatedLogError(f"{error} ({len(readings)} readings before it)", readings, line) from None
+    finally:
+        iterator.close()
     if not readings:
         raise LogFormatError(f"{path}: no FLASER lines")
     return readings

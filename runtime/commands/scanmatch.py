@@ -1,15 +1,46 @@
-"""``p3at scanmatch LOG``: scan-to-scan odometry over a CARMEN laser log, with its error against the log's poses."""
+"""``p3at scanmatch LOG``: scan-to-scan odometry over a CARMEN laser log, with its error against the log's poses.
+
+Exit status: 0 done; 1 the matching failed; 2 bad arguments or a bad log file (one line on stderr).
+"""
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from estimation.scanmatch import METHODS, MatchConfig, ScanMatchError, read_laser_log
+from estimation.scanmatch import METHODS, LogFormatError, MatchConfig, ScanMatchError, read_laser_log
+from estimation.scanmatch.carmen import TruncatedLogError
 from estimation.scanmatch.evaluate import GUESSES, SUCCESS_ROTATION, SUCCESS_TRANSLATION, scan_odometry
+
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (``nan``, ``inf``, 0 and negatives are refused with exit status 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def _integer_at_least(low: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
+        return value
+    return parse
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -21,31 +52,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("log", type=Path, metavar="LOG", help="CARMEN log file")
     parser.add_argument("--method", choices=tuple(METHODS), default="eicp",
                         help="eicp (extended ICP), eicp-mesh (rigid-mesh eICP), icp, plicp (default: eicp)")
-    parser.add_argument("--step", type=int, default=1, metavar="K", help="match scan i+K against scan i (default 1)")
+    parser.add_argument("--step", type=_integer_at_least(1), default=1, metavar="K",
+                        help="match scan i+K against scan i (default 1)")
     parser.add_argument("--guess", choices=GUESSES, default="identity",
                         help="initial guess of each link: identity (default), constant-velocity (the previous "
                              "link), or reference (the log's relative pose: the matcher's accuracy alone)")
-    parser.add_argument("--max-distance", type=float, default=MatchConfig.max_distance, metavar="M",
+    parser.add_argument("--max-distance", type=_positive_float, default=MatchConfig.max_distance, metavar="M",
                         help=f"correspondence gate in metres (default {MatchConfig.max_distance})")
-    parser.add_argument("--limit", type=int, default=None, metavar="N", help="use only the first N scans")
+    parser.add_argument("--limit", type=_integer_at_least(2), default=None, metavar="N",
+                        help="use only the first N scans")
+    parser.add_argument("--allow-truncated", action="store_true",
+                        help="if the log is damaged part-way (a corrupted or cut .gz, a malformed line), use the "
+                             "readings before the damage (and say so) instead of refusing the log")
     parser.add_argument("--json", action="store_true", help="print the summary (and trajectory) as JSON")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        if args.step < 1:
-            raise ScanMatchError(f"--step must be >= 1, got {args.step}")
-        if args.limit is not None and args.limit < 2:
-            raise ScanMatchError(f"--limit must be >= 2, got {args.limit}")
-        readings = read_laser_log(args.log)[: args.limit]
+        readings = read_laser_log(args.log, limit=args.limit)
+    except TruncatedLogError as exc:
+        if not args.allow_truncated or len(exc.readings) < 2:
+            usable = len(exc.readings) >= 2 and not args.allow_truncated
+            hint = "; --allow-truncated uses the readings before the damage" if usable else ""
+            print(f"p3at scanmatch: {exc}{hint}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        readings = exc.readings
+        print(f"p3at scanmatch: warning: {exc}; using those {len(readings)} readings", file=sys.stderr)
+    except (LogFormatError, OSError) as exc:
+        print(f"p3at scanmatch: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
         scans = [reading.scan() for reading in readings]
         poses = np.array([reading.pose for reading in readings])
         config = MatchConfig(max_distance=args.max_distance)
         odometry = scan_odometry(scans, poses, args.method, args.step, args.guess, config)
-    except (ScanMatchError, OSError) as exc:
+    except ScanMatchError as exc:
         print(f"p3at scanmatch: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     summary = {"log": str(args.log), "method": args.method, "step": args.step, "guess": args.guess,
                **odometry.summary(poses)}
     if args.json:

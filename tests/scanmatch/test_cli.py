@@ -51,13 +51,14 @@ def test_scanmatch_text_with_step(tmp_path, capsys, laser):
 def test_scanmatch_reports_bad_input_on_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.log"
     bad.write_text("FLASER 3 1 2\n")
-    assert main(["scanmatch", str(bad)]) == 1
+    assert main(["scanmatch", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("p3at scanmatch: ") and "bad.log:1" in err and err.count("\n") == 1
-    assert main(["scanmatch", str(tmp_path / "missing.log")]) == 1
+    assert main(["scanmatch", str(tmp_path / "missing.log")]) == 2
     assert "missing.log" in capsys.readouterr().err
-    assert main(["scanmatch", str(bad), "--step", "0"]) == 1
-    assert "--step" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_status:  # argparse refuses it
+        main(["scanmatch", str(bad), "--step", "0"])
+    assert exit_status.value.code == 2 and "--step" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["scanmatch", str(bad), "--method", "ndt"])
 
