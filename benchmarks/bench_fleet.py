@@ -106,13 +106,41 @@ def run_fleet(size: int, steps: int, period: float, publishers: int) -> dict:
             "updates_fused": len(latencies), "updates_sent": size * steps}
 
 
+def leave_latency(repeats: int = 5) -> list[float]:
+    """Seconds from SIGKILL of a robot process to the fusion node seeing its liveliness token gone."""
+    out = []
+    for k in range(repeats):
+        port, fleet = free_port(), f"leave{k}x{os.getpid()}"
+        exchange = ZenohExchange(fleet, json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}), "fusion")
+        config = json.dumps({"connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+        p = subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", "robot1", "--exchange",
+                              f"zenoh:{config}", "--fleet", fleet, "--steps", "1"], cwd=ROOT, stdout=subprocess.PIPE,
+                             text=True)
+        while "robot1" not in exchange.present():
+            time.sleep(0.01)
+        killed = time.monotonic()
+        p.send_signal(signal.SIGKILL)
+        while "robot1" in exchange.present():
+            time.sleep(0.001)
+        out.append(time.monotonic() - killed)
+        p.wait()
+        exchange.close()
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
     parser.add_argument("--steps", type=int, default=20, help="updates per robot (default 20)")
     parser.add_argument("--period", type=float, default=0.5, help="s between a robot's updates (default 0.5)")
     parser.add_argument("--publishers", type=int, default=4, help="publisher processes at most (default 4)")
+    parser.add_argument("--leave", action="store_true", help="only measure how soon a killed robot is seen leaving")
     args = parser.parse_args()
+    if args.leave:
+        times = leave_latency()
+        print(f"killed robot seen leaving after (s): median {np.median(times):.3f}, max {max(times):.3f} "
+              f"over {len(times)} kills")
+        return
     print(f"{args.steps} updates per robot every {args.period:g} s; maps grow 20 landmarks per update "
           f"(to {20 * args.steps}); the machine's load: {os.getloadavg()[0]:.1f}")
     header = (f"{'robots':>6} {'delta B/s':>10} {'full B/s':>10} {'ratio':>6} {'status B/s':>10} "

@@ -225,13 +225,14 @@ def _openssl(*args: str, cwd: Path) -> None:
 
 @pytest.fixture(scope="module")
 def certificates(tmp_path_factory) -> Path:
-    """A self-signed CA, a server certificate for 127.0.0.1 and a client certificate, made with the openssl CLI."""
+    """A self-signed CA, a server certificate for 127.0.0.1 and two client certificates (CN client, CN intruder),
+    made with the openssl CLI."""
     if shutil.which("openssl") is None:
         pytest.skip("the openssl command is not installed")
     d = tmp_path_factory.mktemp("tls")
     _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem", "-days", "2",
              "-subj", "/CN=p3at test CA", cwd=d)
-    for name, san in (("server", "IP:127.0.0.1,DNS:localhost"), ("client", "DNS:robot")):
+    for name, san in (("server", "IP:127.0.0.1,DNS:localhost"), ("client", "DNS:robot"), ("intruder", "DNS:robot")):
         _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}.key", "-out", f"{name}.csr",
                  "-subj", f"/CN={name}", cwd=d)
         (d / f"{name}.ext").write_text(f"subjectAltName={san}\n")
@@ -240,18 +241,36 @@ def certificates(tmp_path_factory) -> Path:
     return d
 
 
-def test_tls_with_client_certificates_admits_a_robot_holding_one_and_refuses_others(fleet, certificates):
+ACCESS_CONTROL = {  # Zenoh 1.x access control: only the certificate CN "client" may use the fleet's keys
+    "enabled": True, "default_permission": "deny",
+    "rules": [{"id": "fleet", "permission": "allow", "flows": ["ingress", "egress"], "key_exprs": ["p3at/**"],
+               "messages": ["put", "query", "reply", "declare_subscriber", "declare_queryable", "liveliness_token",
+                            "declare_liveliness_subscriber", "liveliness_query"]}],
+    "subjects": [{"id": "robots", "cert_common_names": ["client"]}],
+    "policies": [{"rules": ["fleet"], "subjects": ["robots"]}],
+}
+
+
+def test_tls_and_access_control_admit_only_a_robot_with_an_allowed_client_certificate(fleet, certificates):
     d = certificates
     server = {"root_ca_certificate": str(d / "ca.pem"), "listen_certificate": str(d / "server.pem"),
               "listen_private_key": str(d / "server.key"), "enable_mtls": True}
-    client = {"root_ca_certificate": str(d / "ca.pem"), "connect_certificate": str(d / "client.pem"),
-              "connect_private_key": str(d / "client.key"), "enable_mtls": True}
-    fleet.start_node(endpoint_config(fleet.port, "fusion", "tls", server))
-    # started first, so they have tried for longer than the admitted robot when it is checked
+
+    def client(name: str) -> dict:
+        return {"root_ca_certificate": str(d / "ca.pem"), "connect_certificate": str(d / f"{name}.pem"),
+                "connect_private_key": str(d / f"{name}.key"), "enable_mtls": True}
+
+    node_config = json.loads(endpoint_config(fleet.port, "fusion", "tls", server))
+    fleet.start_node(json.dumps({**node_config, "access_control": ACCESS_CONTROL}))
+    # started first, so they have tried for longer than the admitted robot when it is checked:
+    # no client certificate (refused by mutual TLS), plain TCP to the TLS port, a CA-signed certificate whose
+    # CN the access control does not allow
     fleet.start_robot("nocert", 1, config=endpoint_config(fleet.port, "robot", "tls",
                                                           {"root_ca_certificate": str(d / "ca.pem")}))
     fleet.start_robot("plain", 2, config=endpoint_config(fleet.port, "robot"))
-    fleet.start_robot("robot1", 0, config=endpoint_config(fleet.port, "robot", "tls", client))
-    wait_until(lambda: all_published(fleet, ["robot1"]), "the robot with a client certificate admitted")
-    assert "nocert" not in fleet.maps() and "plain" not in fleet.maps()
-    assert fleet.exchange.present() & {"nocert", "plain"} == set()
+    fleet.start_robot("intruder", 3, config=endpoint_config(fleet.port, "robot", "tls", client("intruder")))
+    fleet.start_robot("robot1", 0, config=endpoint_config(fleet.port, "robot", "tls", client("client")))
+    wait_until(lambda: all_published(fleet, ["robot1"]), "the robot with an allowed client certificate admitted")
+    assert fleet.maps().keys() == {"robot1"}
+    assert fleet.exchange.present() & {"nocert", "plain", "intruder"} == set()
+    assert all(p.poll() is None for p in fleet.processes.values())  # the refused ones are alive, still trying
