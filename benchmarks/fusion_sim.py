@@ -319,3 +319,86 @@ def corridor_pair(doors1: range, doors2: range, pose, seed: int = 0, spacing: fl
         return m
 
     return make(doors1, np.zeros(3), "robot1"), make(doors2, np.asarray(pose, float), "robot2")
+
+
+# -- MRCLAM (real data): maps from each robot's sightings --------------------------------------------------------
+MRCLAM_DATASET2 = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
+
+
+@dataclass(frozen=True)
+class SightingMap:
+    """A map made from one robot's real sightings, and the truth to score it.
+
+    map: landmarks in the robot's start frame (its true pose at its first sighting), no descriptors, covariances
+    the sightings' scatter / count (as overconfident as FastSLAM's per-particle ones); identities (N,): the
+    landmark each row stands for (put in ``metadata["external_ids"]`` only when ``identities`` was asked);
+    true_start (3,) world pose of the frame; truth: landmark id -> true world (x, y).
+    """
+
+    map: LandmarkMap
+    identities: np.ndarray
+    true_start: np.ndarray
+    truth: dict
+
+
+def mrclam_sighting_map(folder, robot: int, identities: bool = True, until: float | None = None,
+                        min_sightings: int = 3) -> SightingMap:
+    """Robot ``robot``'s landmarks from its real range-bearing sightings placed from its Vicon poses.
+
+    Not a SLAM map: the poses are the truth, so the errors are the camera's (range bias, outliers) only.  It
+    isolates the fusion from the filter; FastSLAM maps (``p3at slam dataset``) are evaluated beside it.
+    Each landmark: the mean of its sightings within 0.5 m of their median (outliers dropped).
+    """
+    from estimation.datasets import read_mrclam
+    from estimation.geometry import between, compose
+
+    log = read_mrclam(folder, robot, until=until)
+    t0 = float(log.sighting_times[0])
+    start = log.true_pose([t0])[0]
+    poses = log.true_pose(log.sighting_times)
+    local = np.column_stack([log.ranges * np.cos(log.bearings), log.ranges * np.sin(log.bearings),
+                             np.zeros(len(log))])
+    in_start = between(start, compose(poses, local))[:, :2]
+    truth = log.true_landmarks()
+    rows, ids, covs = [], [], []
+    for lid in np.unique(log.landmark_ids):
+        if int(lid) not in truth:
+            continue
+        pts = in_start[log.landmark_ids == lid]
+        near = pts[np.linalg.norm(pts - np.median(pts, axis=0), axis=1) < 0.5]
+        if len(near) < min_sightings:
+            continue
+        rows.append(near.mean(axis=0))
+        cov = np.cov(near.T) / len(near) + np.eye(2) * 1e-8
+        covs.append(np.pad(cov, ((0, 1), (0, 1))) + np.diag([0.0, 0.0, 1e-6]))
+        ids.append(int(lid))
+    positions = np.column_stack([np.array(rows).reshape(-1, 2), np.zeros(len(rows))])
+    meta = {"true_start_pose": [float(v) for v in start], "dataset": log.name, "simulated": False,
+            "map_source": "real sightings placed from Vicon poses (not SLAM)"}
+    if identities:
+        meta["external_ids"] = list(ids)
+    m = LandmarkMap(positions, np.array(covs).reshape(-1, 3, 3), np.zeros((len(rows), 0), np.float32),
+                    robot=f"robot{robot}", frame=f"robot{robot}/start", metadata=meta)
+    return SightingMap(m, np.array(ids, np.int64), start, truth)
+
+
+def corrupt_map(m: LandmarkMap, rng: np.random.Generator, duplicates: int = 3, outliers: int = 3,
+                offset: tuple[float, float] = (0.3, 1.0)) -> LandmarkMap:
+    """A copy of ``m`` with injected faults: ``duplicates`` landmarks copied ``offset`` metres away (a duplicate
+    the filter failed to merge, same identity) and ``outliers`` landmarks at random places in the map's extent
+    carrying the identity of a random real landmark (the worst kind: a wrong identity)."""
+    n = len(m)
+    ids = m.metadata.get("external_ids")
+    src = rng.choice(n, min(duplicates, n), replace=False)
+    angle = rng.uniform(-np.pi, np.pi, len(src))
+    dist = rng.uniform(*offset, len(src))
+    dup = m.positions[src] + np.column_stack([dist * np.cos(angle), dist * np.sin(angle), np.zeros(len(src))])
+    lo, hi = m.positions.min(axis=0), m.positions.max(axis=0)
+    out = lo + rng.uniform(0, 1, (outliers, 3)) * (hi - lo)
+    cov = np.concatenate([m.covariances, m.covariances[src], np.repeat(np.median(m.covariances, 0)[None], outliers, 0)])
+    meta = dict(m.metadata)
+    if ids is not None:
+        ids = np.asarray(ids)
+        meta["external_ids"] = [int(v) for v in np.concatenate([ids, ids[src], rng.choice(ids, outliers)])]
+    desc = np.zeros((n + len(src) + outliers, m.descriptor_size), np.float32)
+    return LandmarkMap(np.vstack([m.positions, dup, out]), cov, desc, robot=m.robot, frame=m.frame, metadata=meta)

@@ -20,6 +20,9 @@ Where the code departs from the text, and why:
 * Step 1 with th0 = 2: descriptors are unit vectors, so descriptor distances lie in [0, 2] and th0 = 2
   accepts every nearest neighbour; the paper preset keeps it (the text's behaviour) and the robust preset
   replaces it with a ratio test, mutual best matches and a real distance gate.
+* Maps whose landmarks carry external identities (``metadata["external_ids"]``: barcodes, fiducials, as
+  known-ID FastSLAM writes them) pair equal identities in step 1; a duplicated identity gives several
+  candidate pairs, and supports count one-to-one.
 * Maps without descriptors (range-bearing landmark maps built without IDs): step 1 has nothing to compare,
   so every landmark of map 1 is a candidate for every landmark of map 2 (n1·n2 candidate pairs), and a
   support counts once per landmark (one-to-one), whatever the preset.
@@ -715,9 +718,39 @@ def has_descriptors(landmark_map: LandmarkMap) -> bool:
     return len(d) < 2 or bool(np.any(d != d[0]))
 
 
+def landmark_identities(landmark_map: LandmarkMap) -> np.ndarray | None:
+    """The landmarks' external identities (N,) int64 (fiducials, barcodes: ``metadata["external_ids"]``, one per
+    row, -1 = none), or None when the map has none or they do not fit its rows."""
+    ext = landmark_map.metadata.get("external_ids")
+    if ext is None:
+        return None
+    try:
+        ids = np.asarray(ext, dtype=np.int64).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    return ids if len(ids) == len(landmark_map) else None
+
+
+def identity_pairs(ids1: np.ndarray, ids2: np.ndarray) -> np.ndarray:
+    """Every (i, j) with the same identity ≥ 0 (K, 2) int64; a duplicated identity gives several pairs."""
+    order = np.argsort(ids2, kind="stable")
+    sorted2 = ids2[order]
+    lo = np.searchsorted(sorted2, ids1, "left")
+    hi = np.searchsorted(sorted2, ids1, "right")
+    valid = ids1 >= 0
+    i = np.repeat(np.arange(len(ids1)), np.where(valid, hi - lo, 0))
+    j = np.concatenate([order[a:b] for a, b, v in zip(lo, hi, valid, strict=True) if v] or [np.zeros(0, np.int64)])
+    return np.column_stack([i, j]).astype(np.int64)
+
+
 def _correspondences(map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator
                      ) -> tuple[np.ndarray, bool]:
-    """Step 1: putative pairs (K, 2), and whether descriptors chose them (False: every pair, geometry alone)."""
+    """Step 1: putative pairs (K, 2), and whether descriptors chose them (False: every pair, geometry alone).
+
+    Maps that both carry external identities (known-ID maps: barcodes, fiducials) pair equal identities."""
+    ids1, ids2 = landmark_identities(map1), landmark_identities(map2)
+    if ids1 is not None and ids2 is not None:
+        return identity_pairs(ids1, ids2), True
     if not (has_descriptors(map1) and has_descriptors(map2)) and len(map1) and len(map2):
         i, j = np.meshgrid(np.arange(len(map1)), np.arange(len(map2)), indexing="ij")
         return np.column_stack([i.ravel(), j.ravel()]).astype(np.int64), False
@@ -752,7 +785,8 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     def not_found(reason: str, stats: AlignmentStatistics, supports=empty) -> Alignment:
         return Alignment(False, config.name, None, None, supports, stats, reason)
 
-    with_descriptors = has_descriptors(map1) and has_descriptors(map2)
+    identities = landmark_identities(map1) is not None and landmark_identities(map2) is not None
+    with_descriptors = identities or (has_descriptors(map1) and has_descriptors(map2))
     no_desc = "" if with_descriptors else (f"the maps carry no descriptors, so every landmark of one is a candidate "
                                            f"for every landmark of the other ({len(map1)} × {len(map2)} pairs); ")
     if not with_descriptors and len(map1) * len(map2) > MAX_GEOMETRIC_PAIRS:
@@ -764,13 +798,15 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
 
     # step 1: putative correspondences (from descriptors, or every pair without them)
     pairs, _ = _correspondences(map1, map2, config, rng)
-    subset_search = with_descriptors and query_subset(len(map1), len(map2), np.random.default_rng(0)) is not None
+    subset_search = (not identities and with_descriptors
+                     and query_subset(len(map1), len(map2), np.random.default_rng(0)) is not None)
     k = len(pairs)
     needed = max(2, config.min_supports)
     if k < needed:
-        return not_found(f"only {k} descriptor correspondences (at least {needed} needed)",
+        what = "identity" if identities else "descriptor"
+        return not_found(f"only {k} {what} correspondences (at least {needed} needed)",
                          AlignmentStatistics(correspondences=k, descriptors=with_descriptors))
-    problem = _problem(map1, map2, pairs, config, distinct_scoring=not with_descriptors)
+    problem = _problem(map1, map2, pairs, config, distinct_scoring=not with_descriptors or identities)
 
     # steps 2–3, repeated: hypotheses from pairs of correspondences, scored by their supports
     search = _ransac(problem, config, rng)

@@ -102,12 +102,43 @@ class MergeResult:
     pairs: np.ndarray
 
 
+def check_covariances(landmark_map: LandmarkMap, name: str = "map") -> None:
+    """Raise :class:`IncompatibleMapsError` naming the first landmark whose covariance (3, 3) is not symmetric
+    positive semi-definite (relative tolerance 1e-9): the Kalman update of such a landmark is meaningless."""
+    P = landmark_map.covariances
+    if len(P) == 0:
+        return
+    scale = np.maximum(np.abs(P).max(axis=(1, 2)), np.finfo(float).tiny)
+    asym = np.abs(P - np.swapaxes(P, -1, -2)).max(axis=(1, 2)) / scale
+    low = np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, -1, -2)))[:, 0] / scale
+    bad = np.flatnonzero((asym > 1e-9) | (low < -1e-9) | ~np.isfinite(asym) | ~np.isfinite(low))
+    if len(bad):
+        k = int(bad[0])
+        what = "not symmetric" if asym[k] > 1e-9 else f"not positive semi-definite (eigenvalue {low[k] * scale[k]:.3g})"
+        raise IncompatibleMapsError(f"{name} ({landmark_map.robot}): covariance of landmark row {k} (id "
+                                    f"{int(landmark_map.ids[k])}) is {what}; {len(bad)} such landmarks")
+
+
+def _merged_identities(map1: LandmarkMap, map2: LandmarkMap, only2: np.ndarray) -> list[int] | None:
+    """External identities of the merged rows when both maps carry them (map 1's, then map 2's own)."""
+    from .alignment import landmark_identities
+
+    ids1, ids2 = landmark_identities(map1), landmark_identities(map2)
+    if ids1 is None or ids2 is None:
+        return None
+    return [int(v) for v in np.concatenate([ids1, ids2[only2]])]
+
+
 def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covariance=None,
                 metadata: dict | None = None) -> MergeResult:
     """Merge map 2 (aligned by ``pose`` (3,), optionally uncertain by ``pose_covariance`` (3, 3)) into map 1,
-    fusing the landmark ``pairs`` (K, 2) rows (i in map 1, j in map 2), which must be one-to-one."""
+    fusing the landmark ``pairs`` (K, 2) rows (i in map 1, j in map 2), which must be one-to-one.
+
+    Raises :class:`IncompatibleMapsError` when a map's covariances are not symmetric positive semi-definite."""
     if len(map1) and len(map2) and map1.descriptor_size != map2.descriptor_size:
         raise IncompatibleMapsError(f"descriptor sizes differ: {map1.descriptor_size} vs {map2.descriptor_size}")
+    check_covariances(map1, "map 1")
+    check_covariances(map2, "map 2")
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
     if len(np.unique(pairs[:, 0])) != len(pairs) or len(np.unique(pairs[:, 1])) != len(pairs):
         raise IncompatibleMapsError("common landmarks must be one-to-one between the maps")
@@ -134,6 +165,11 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
     seen2[:, col2] = map2.seen_by[only2]
     next_id = int(map1.ids.max()) + 1 if len(map1) else 0
 
+    meta = {**map1.metadata, **(metadata or {})}
+    meta.pop("external_ids", None)
+    identities = _merged_identities(map1, map2, only2)
+    if identities is not None:
+        meta["external_ids"] = identities
     rows2 = np.empty(len(map2), np.int64)
     rows2[j] = i
     rows2[only2] = len(map1) + np.arange(int(only2.sum()))
@@ -146,7 +182,7 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
         robot="+".join(robots), frame=map1.frame, robots=robots,
         seen_by=np.vstack([seen, seen2]),
         trajectory=map1.trajectory.copy(),
-        metadata={**map1.metadata, **(metadata or {})},
+        metadata=meta,
     )
     return MergeResult(merged, np.arange(len(map1)), rows2, pairs)
 
