@@ -8,13 +8,24 @@ Threads (all named, daemonic, joined on :meth:`Onboard.stop`)::
                                      Rerun, map snapshots published on the exchange every snapshot_interval
     control:<robot>               -> the motion controller at control_rate, sends (v, ω) to the robot
 
-A stage that falls behind loses frames (counted as ``dropped_frames`` and logged), never blocks a driver.
+On the wall clock a stage that falls behind loses frames (counted as ``dropped_frames`` and logged), never
+blocks a driver. On a lockstep clock (simulated time, ``mocks.simclock.SimClock``: anything with
+``wait_for`` and ``sleep_until``) every thread is a participant that waits only through the clock: the
+camera waits for room in the queue rather than dropping, the SLAM stage for its frame and its odometry, the
+control loop for its next tick (half a SIP cycle after the SIPs); time waits for the slowest stage, so the
+result does not depend on the machine's speed.
+
+Supervision: every thread runs inside a guard; a stage that raises is reported at once (``on_event`` and the
+Rerun event log, level ERROR), the robot's motors are stopped, its other stages end, and ``failure`` says
+which stage failed and why (``on_failure`` is called), so a mission never runs on with a robot blind.
+
 :class:`SlamCore` is the deterministic heart (no threads, no clock): the live runtime and ``p3at replay``
 both feed it, so a replay of a sensor log with the same settings rebuilds the same map.
 """
 from __future__ import annotations
 
 import bisect
+import contextlib
 import queue
 import threading
 import time
@@ -35,6 +46,24 @@ from runtime.motion import Controller, NoMotion
 from runtime.sensorlog import SensorLogWriter
 
 Clock = Callable[[], float]
+
+
+def is_lockstep(clock: object) -> bool:
+    """Does ``clock`` offer simulated-time waits (``wait_for``, ``sleep_until``, participants)?"""
+    return all(callable(getattr(clock, name, None)) for name in ("wait_for", "sleep_until", "add_participant"))
+
+
+@dataclass(frozen=True)
+class StageFailure:
+    """A runtime thread that raised: which robot, which stage, what error."""
+
+    robot: str
+    stage: str
+    error: str
+    t: float          # mission time, s
+
+    def __str__(self) -> str:
+        return f"{self.robot}: the {self.stage} stage failed at t={self.t:.2f} s: {self.error}"
 
 
 # -- the runtime's own view of the sensors (adapters.py converts driver types into these) ------------------
@@ -127,22 +156,25 @@ class OdometryBuffer:
 
 def log_step(logger, robot: str, t: float, frame: CameraFrame, result: StepResult, particle_poses: np.ndarray, *,
              true_pose: np.ndarray | None = None, head_mount=None, dropped: int = 0,
-             landmarks: LandmarkMap | None = None) -> None:
+             landmarks: LandmarkMap | None = None, odometry_pose: np.ndarray | None = None,
+             confirm_count: int | None = None) -> None:
     """What the runtime sends to Rerun for one processed frame (the Onboard and the pipeline benchmark share it).
 
-    logger: a ``runtime.rerun_log.MissionLog``; t: seconds since the mission started; particle_poses: (M, 3);
-    landmarks: the best particle's map when it is due (it is logged every few frames only).
+    logger: a ``runtime.rerun_log.MissionLog``; t: seconds since the mission started (the mission's clock);
+    particle_poses: (M, 3); true_pose, odometry_pose: (3,) in the map frame (the truth on mocks; odometry alone);
+    landmarks: the best particle's map, provisional landmarks included, when it is due (every few frames only);
+    confirm_count: FastSLAM's setting, which tells confirmed from provisional landmarks (default: FastSLAM's).
     """
-    logger.log_pose(robot, t, frame.seq, result.best_pose, true_pose, head_mount)
+    logger.log_pose(robot, t, frame.seq, result.best_pose, true_pose, head_mount, odometry=odometry_pose)
     logger.log_particles(robot, t, frame.seq, particle_poses)
     logger.log_scalars(robot, t, {
-        "ess": result.ess, "landmarks": result.landmarks, "observations": result.n_observations,
+        "ess": result.ess, "landmarks/all": result.landmarks, "observations": result.n_observations,
         "dropped": dropped, **{f"time/{k}": 1000.0 * v for k, v in result.timings.items()}}, frame=frame.seq)
     if result.matches is not None:
         logger.log_stereo(robot, t, frame.seq, frame.left, frame.right, result.matches.left_pixels,
                           result.matches.right_pixels)
     if landmarks is not None:
-        logger.log_landmarks(robot, t, frame.seq, landmarks.positions, landmarks.covariances)
+        logger.log_robot_landmarks(robot, t, frame.seq, landmarks, confirm_count)
 
 
 # -- the deterministic core ---------------------------------------------------------------------------------
@@ -161,6 +193,8 @@ class OnboardConfig:
     sonar_every: int = 3               # SIPs between sonar-ray logs
     steer_on_estimate: bool = False    # the controller gets FastSLAM's pose (odometry corrected at the last
                                        # frame) rather than raw odometry: for robots whose odometry drifts
+    control_phase: float = 0.05        # s after the mission start of the first control tick (lockstep clock):
+                                       # half a SIP cycle, so each command sees the newest SIP
 
 
 @dataclass
@@ -262,11 +296,15 @@ class Onboard:
                  logger=None, sensor_log: SensorLogWriter | None = None, clock: Clock = time.monotonic,
                  t0: float | None = None, truth: Callable[[], np.ndarray] | None = None,
                  true_start: np.ndarray | None = None, head_mount: tuple[float, float, float] | None = None,
-                 on_event: Callable[[str], None] | None = None, front_end: FrontEnd | None = None) -> None:
+                 on_event: Callable[[str], None] | None = None, front_end: FrontEnd | None = None,
+                 on_failure: Callable[[StageFailure], None] | None = None) -> None:
         self.robot, self.link, self.camera, self.config = robot, link, camera, config
         self.exchange, self.logger, self.sensor_log = exchange, logger, sensor_log
         self.controller = controller or NoMotion()
         self.clock = clock
+        self.lockstep = is_lockstep(clock)
+        self.on_failure = on_failure or (lambda failure: None)
+        self.failure: StageFailure | None = None
         self.t0 = clock() if t0 is None else t0
         self.truth, self.true_start = truth, true_start
         self.head_mount = head_mount
@@ -286,6 +324,7 @@ class Onboard:
         self._threads: list[threading.Thread] = []
         self._last_snapshot = -np.inf
         self._stopped = False
+        self._stop_requested = False
         self._anchor: np.ndarray | None = None            # best pose at the last frame (map frame) ...
         self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
         self.errors: list[str] = []
@@ -297,15 +336,45 @@ class Onboard:
         self.link.enable_motors(True)
         for name, target in (("camera", self._camera_loop), ("slam", self._slam_loop),
                              ("control", self._control_loop)):
-            thread = threading.Thread(target=target, name=f"{name}:{self.robot}", daemon=True)
-            thread.start()
-            self._threads.append(thread)
+            self._spawn(name, target)
 
-    def stop(self) -> None:
-        """Stop the motors first, then the threads; publish a last snapshot; flush the sensor log."""
-        if self._stopped:
+    def _spawn(self, stage: str, target: Callable[[], None]) -> None:
+        """A named daemon thread running ``target`` under supervision (and as a participant of a lockstep clock,
+        registered now so that simulated time cannot pass its first action)."""
+        token = self.clock.add_participant(f"{stage}:{self.robot}") if self.lockstep else None
+
+        def run() -> None:
+            with self.clock.participant(token) if token is not None else contextlib.nullcontext():
+                try:
+                    target()
+                except BaseException as exc:  # noqa: BLE001 - the supervisor reports it and stops the robot
+                    self._fail(stage, exc)
+
+        thread = threading.Thread(target=run, name=f"{stage}:{self.robot}", daemon=True)
+        try:
+            thread.start()
+        except BaseException:
+            if token is not None:
+                self.clock.discard(token)
+            raise
+        self._threads.append(thread)
+
+    def _fail(self, stage: str, exc: BaseException) -> None:
+        """A stage raised: report it at once, stop this robot (motors first), tell the owner."""
+        if self.failure is not None:
             return
-        self._stopped = True
+        self.failure = StageFailure(self.robot, stage, f"{type(exc).__name__}: {exc}", self.mission_time)
+        self._event(f"the {stage} stage failed: {type(exc).__name__}: {exc}; stopping the robot", "ERROR")
+        self._stop.set()
+        self._halt_motors()
+        self.on_failure(self.failure)
+
+    def request_stop(self) -> None:
+        """Stop the motors and tell every thread to end (returns at once; idempotent). On a lockstep clock,
+        call it from a participant: every thread then ends at this simulated instant."""
+        if self._stop_requested:
+            return
+        self._stop_requested = True
         self._stop.set()
         self._halt_motors()
         if self.truth is not None:
@@ -313,8 +382,18 @@ class Onboard:
                 self.final_true_pose = np.asarray(self.truth(), float)
             except LookupError:  # the virtual robot is already gone
                 pass
+
+    def stop(self) -> None:
+        """Stop the motors first, then the threads; publish a last snapshot; flush the sensor log."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self.request_stop()
         for thread in self._threads:
-            thread.join(timeout=10.0)
+            if self.lockstep:  # a participant must give the baton up while the others finish
+                self.clock.wait_for(lambda thread=thread: not thread.is_alive(), timeout=10.0)
+            else:
+                thread.join(timeout=10.0)
         self._halt_motors()
         self._wait_until_still(timeout=3.0)
         self.publish_snapshot(force=True)
@@ -322,14 +401,24 @@ class Onboard:
             self.sensor_log.close()
 
     def _wait_until_still(self, timeout: float) -> bool:
-        """Wait (real time) until the robot reports it stands still, so the logs end with the stop."""
+        """Wait until the robot reports it stands still, so the logs end with the stop."""
+        def still() -> bool:
+            sample = self.latest()
+            return sample is None or (abs(sample.v) < 0.01 and abs(sample.w) < 0.01)
+        if self.lockstep:
+            return self.clock.wait_for(still, timeout=timeout)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            sample = self.latest()
-            if sample is None or (abs(sample.v) < 0.01 and abs(sample.w) < 0.01):
+            if still():
                 return True
             time.sleep(0.05)
         return False
+
+    def _pause(self, seconds: float) -> bool:
+        """Wait ``seconds`` (on the clock) unless stopped; True if stopped."""
+        if self.lockstep:
+            return self.clock.wait_for(self._stop.is_set, timeout=seconds)
+        return self._stop.wait(seconds)
 
     def _halt_motors(self) -> None:
         try:
@@ -348,6 +437,12 @@ class Onboard:
 
     # -- driver callbacks (the driver's thread: must return at once) ---------------------------------------
     def _on_odometry(self, sample: OdometrySample) -> None:
+        try:
+            self._take_odometry(sample)
+        except Exception as exc:  # noqa: BLE001 - the driver would only log it; the supervisor stops the robot
+            self._fail("odometry", exc)
+
+    def _take_odometry(self, sample: OdometrySample) -> None:
         with self._latest_lock:
             self._latest = sample
         self.odometry.add(sample.t, sample.pose)
@@ -377,13 +472,18 @@ class Onboard:
             except Exception as e:  # a camera error must not take the robot down; count, report, retry
                 self.stats.camera_errors += 1
                 self._event(f"camera error: {e}", "WARN")
-                self._stop.wait(0.5)
+                self._pause(0.5)
                 continue
-            if frame is None:
+            if frame is None or self._stop.is_set():
                 continue
             self.stats.frames_received += 1
             if self.sensor_log is not None:
                 self.sensor_log.write(*frame_record(frame))
+            if self.lockstep:  # simulated time waits for the SLAM stage: no frame is ever dropped
+                self.clock.wait_for(lambda: self._stop.is_set() or not self._frames.full())
+                if not self._stop.is_set():
+                    self._frames.put_nowait(frame)
+                continue
             try:
                 self._frames.put_nowait(frame)
             except queue.Full:
@@ -398,13 +498,27 @@ class Onboard:
                 self._frames.put_nowait(frame)
 
     # -- SLAM thread ---------------------------------------------------------------------------------------
+    def _next_frame(self) -> CameraFrame | None:
+        if self.lockstep:
+            self.clock.wait_for(lambda: self._stop.is_set() or not self._frames.empty())
+            return None if self._stop.is_set() else self._frames.get_nowait()
+        try:
+            return self._frames.get(timeout=0.2)
+        except queue.Empty:
+            return None
+
+    def _odometry_covers(self, t: float) -> bool:
+        if self.lockstep:
+            return self.clock.wait_for(lambda: self._stop.is_set() or self.odometry.latest_time >= t,
+                                       timeout=self.config.odometry_wait) and not self._stop.is_set()
+        return self.odometry.wait_until(t, self.config.odometry_wait)
+
     def _slam_loop(self) -> None:
         while not self._stop.is_set():
-            try:
-                frame = self._frames.get(timeout=0.2)
-            except queue.Empty:
+            frame = self._next_frame()
+            if frame is None:
                 continue
-            if not self.odometry.wait_until(frame.t, self.config.odometry_wait) or self._stop.is_set():
+            if not self._odometry_covers(frame.t) or self._stop.is_set():
                 if not self._stop.is_set():
                     self.stats.frames_without_odometry += 1
                     self._event(f"frame {frame.seq}: no odometry at t={frame.t:.3f}, dropped", "WARN")
@@ -431,6 +545,11 @@ class Onboard:
         if frame.t - self.t0 - self._last_snapshot >= self.config.snapshot_interval:
             self.publish_snapshot()
         return result
+
+    def current_map(self) -> LandmarkMap | None:
+        """The best particle's map now (None before the first frame); safe from any thread."""
+        with self._core_lock:
+            return self.core.best_map() if self.core.frames else None
 
     def publish_snapshot(self, force: bool = False) -> LandmarkMap | None:
         if self.core.frames == 0:
@@ -459,12 +578,27 @@ class Onboard:
                 landmarks = self.core.slam.particle_map(self.core.slam.best_index, 1, self.robot)
         log_step(self.logger, self.robot, frame.t - self.t0, frame, result, self.core.slam.poses,
                  true_pose=true_pose, head_mount=self.head_mount, dropped=self.stats.dropped_frames,
-                 landmarks=landmarks)
+                 landmarks=landmarks, odometry_pose=self.core.dead_reckoning_pose(),
+                 confirm_count=self.config.fastslam.confirm_count)
 
     # -- control thread ------------------------------------------------------------------------------------
-    def _control_loop(self) -> None:
+    def _ticks(self):
+        """Control ticks: every 1/control_rate s; on a lockstep clock at fixed instants after t0."""
         period = 1.0 / self.config.control_rate
-        while not self._stop.wait(period):
+        k = 0
+        while True:
+            if self.lockstep:
+                stopped = self.clock.wait_for(self._stop.is_set, until=self.t0 + self.config.control_phase
+                                              + k * period)
+            else:
+                stopped = self._stop.wait(period)
+            if stopped:
+                return
+            k += 1
+            yield
+
+    def _control_loop(self) -> None:
+        for _ in self._ticks():
             sample = self.latest()
             if sample is None:
                 continue

@@ -1,37 +1,53 @@
 """Everything the project sends to (and reads back from) Rerun. The ONLY module that imports ``rerun``.
 
 Pinned to rerun-sdk 0.41. Every other module hands plain numpy data to :class:`MissionLog`, which owns an
-explicitly passed ``rr.RecordingStream`` (tests use :func:`open_recording` with ``sink="memory"``).
+explicitly passed ``rr.RecordingStream`` (tests use :func:`open_recording` with ``sink="memory"``). What a reader
+sees, and why, is in docs/recording.md.
 
-Entity tree (one recording per mission, one subtree per robot; all 3-D entities in metres, REP-103)::
+Entity tree (one recording per mission, one subtree per robot; metres, radians, REP-103)::
 
     world/building/walls                  static LineStrips3D, the floor plan (when known)
     world/<robot>                         Transform3D: the robot's map frame placed in the world
-                                          (its true start pose on the mocks, else the fusion alignment)
+                                          (its true start pose on the mocks, else the identity)
+    world/<robot>/base_link[/body]        Transform3D of the estimated pose, Boxes3D of the P3-AT in its colour
     world/<robot>/pose, true_pose         Arrows3D: estimated (best particle) and true robot pose
     world/<robot>/trajectory/<k>, true_trajectory/<k>   LineStrips3D, the path in segments of
                                           TRAJECTORY_SEGMENT poses (a frame re-logs one short segment)
     world/<robot>/particles               Points3D, every particle's (x, y)
-    world/<robot>/landmarks               Points3D + world/<robot>/landmarks/covariance Ellipsoids3D (2 σ)
+    world/<robot>/landmarks               Points3D, confirmed bright, provisional dim and small
+    world/<robot>/landmarks/covariance    Ellipsoids3D (1 σ) of the last snapshot; hidden by the blueprint
     world/<robot>/sonar                   LineStrips3D, one segment per sonar ray
     world/<robot>/stereo                  Transform3D: the head on the estimated pose
     world/<robot>/stereo/{left,right}     Pinhole + Image (JPEG), .../features Points2D (matched corners)
-    world/<robot>/stereo/pair             side-by-side Image with .../matches LineStrips2D
-    world/fused                           Transform3D of the reference robot's frame
-    world/fused/landmarks                 Points3D (+ /covariance), colour = how many robots saw each
-    plots/<robot>/{ess,landmarks,observations,dropped}   Scalars
+    world/fused/landmarks[/covariance]    Points3D coloured by robot (white: seen by several), Ellipsoids3D 1 σ
+    images/<robot>/pair[/matches]         side-by-side Image and LineStrips2D: 2-D, outside the 3-D world
+    map/<key>                             static Transform3D flipping y: the 2-D maps are drawn y up
+    map/<robot>/building                  LineStrips2D, the walls in the robot's start frame (when known)
+    map/<robot>/trajectory/{estimated,odometry,true}/<k>   LineStrips2D segments, as in the 3-D world
+    map/<robot>/pose[/heading], true_pose Points2D (labelled) + Arrows2D
+    map/<robot>/particles                 Points2D
+    map/<robot>/landmarks/{confirmed,provisional}          Points2D
+    map/fused/building                    the walls in the fused map's frame (the reference robot's start)
+    map/fused/<robot>                     Transform3D: the robot's frame as the fusion aligned it
+    map/fused/<robot>/{trajectory,pose}   its path from its last map snapshot
+    map/fused/landmarks                   Points2D of the merged map, coloured as in the 3-D world
+    plots/<robot>/{ess,observations,dropped}, plots/<robot>/landmarks/{all,confirmed,provisional}   Scalars
     plots/<robot>/time/<stage>            Scalars, milliseconds per call
-    plots/fusion/{error_xy,error_theta,common,merged}    Scalars
+    plots/fusion/{error_xy,error_theta,common,merged}    Scalars (m, rad, counts)
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
     mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints
 
-Timelines: ``sim_time`` (seconds since the mission started, the sensor timestamps) and ``frame`` (the
-robot's stereo frame number). ``set_time`` is per thread in Rerun, so every method sets both before it logs.
+Every series has its legend name with its unit (SERIES), logged once as a static SeriesLines.
+
+Timelines: ``sim_time`` (seconds since the mission started, the sensor timestamps: the mission's clock) and
+``frame`` (the robot's stereo frame number). ``set_time`` is per thread in Rerun, so every method sets both before
+it logs.
 """
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import socket
 import subprocess
@@ -40,6 +56,7 @@ import tempfile
 import threading
 import time
 import warnings
+import zlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,8 +66,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from estimation.geometry import compose
+from estimation.fastslam.config import FastSLAMConfig
+from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
+from runtime.rrd_salvage import copy_prefix, scan_rrd
 
 APPLICATION_ID = "p3at-fusion"
 ROBOT_COLOURS = [(230, 80, 60), (60, 130, 230), (70, 180, 90), (200, 160, 40), (160, 80, 200), (40, 180, 180)]
@@ -114,14 +133,22 @@ def spawn_viewer(port: int | None = None, timeout: float = 15.0) -> str:
     raise ViewerError(f"the Rerun viewer did not listen on 127.0.0.1:{port} within {timeout:g} s")
 
 
-def open_recording(sink: str, *, mission_id: str | None = None, blueprint: rrb.Blueprint | None = None
-                   ) -> rr.RecordingStream:
-    """A new RecordingStream for one mission.
+def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb.Blueprint | None = None,
+                   mission_id: str | None = None) -> rr.RecordingStream:
+    """A new RecordingStream for one mission (or for one process of a fleet).
 
     ``sink``: a path ending in ``.rrd`` (saved file), ``"spawn"`` (start a viewer on loopback), ``"memory"`` (tests),
     ``"none"`` (disabled), or a ``rerun+http://host:port/proxy`` URL (connect to a running viewer).
+
+    ``recording_id``: processes that pass the same id (and the same application id, which this module fixes) write
+    into ONE recording: stream them all to one viewer or ``rerun --serve``/``--save`` URL, or save one ``.rrd`` per
+    process and merge them (``rerun rrd merge a.rrd b.rrd -o all.rrd``; see docs/recording.md). None: a new
+    random id. ``mission_id`` is the former name of ``recording_id`` (kept for callers that still use it).
+    ``blueprint``: the default layout, sent with the stream; a fleet sends it from ONE process only (the fusion
+    node), because the last blueprint received wins.
     """
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=mission_id, default_enabled=(sink != "none"))
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or mission_id,
+                             default_enabled=(sink != "none"))
     if sink == "memory":
         rec.memory_recording()
     elif sink == "spawn":
@@ -134,28 +161,134 @@ def open_recording(sink: str, *, mission_id: str | None = None, blueprint: rrb.B
     return rec
 
 
+def recording_id(rec: rr.RecordingStream) -> str | None:
+    """The id of ``rec``'s recording: give it to the other processes of a fleet (``open_recording(recording_id=)``)."""
+    return rec.get_recording_id()
+
+
+# -- colours and names: what a reader sees ------------------------------------------------------------------
+def robot_colour(robot: str) -> tuple[int, int, int]:
+    """The robot's colour, the same in every process of a fleet: ``robotN`` gets the N-th colour of
+    ROBOT_COLOURS, any other name one picked by a hash of the name."""
+    digits = re.search(r"(\d+)$", robot)
+    index = int(digits.group(1)) - 1 if digits else zlib.crc32(robot.encode())
+    return ROBOT_COLOURS[index % len(ROBOT_COLOURS)]
+
+
+def _dim(colour: tuple[int, int, int], share: float = 0.45) -> tuple[int, int, int]:
+    """``colour`` mixed with the dark background: provisional landmarks, odometry, particles."""
+    return tuple(int(share * c + (1 - share) * 30) for c in colour)
+
+
+SHARED_COLOUR = (255, 255, 255)     # fused landmarks seen by several robots
+TRUE_COLOUR = (205, 205, 205)       # ground truth (mocks only)
+WALL_COLOUR = (110, 110, 120)
+MAP_BACKGROUND = (24, 24, 28)
+
+# plots/<robot>/<name> and plots/fusion/<name>: the legend name (with its unit) and colour of each series.
+SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
+    "ess": ("ESS (effective particles)", (230, 190, 60)),
+    "landmarks/all": ("landmarks (all, best particle)", (150, 150, 150)),
+    "landmarks/confirmed": ("landmarks (confirmed, best particle)", (70, 180, 90)),
+    "landmarks/provisional": ("landmarks (provisional, best particle)", (230, 140, 50)),
+    "observations": ("observations per frame", (90, 160, 230)),
+    "dropped": ("frames dropped (total)", (230, 80, 60)),
+    "time/frontend": ("time/frontend (ms)", (90, 160, 230)),
+    "time/predict": ("time/predict (ms)", (230, 140, 50)),
+    "time/update": ("time/update (ms)", (70, 180, 90)),
+    "error_xy": ("error xy (m)", (230, 80, 60)),
+    "error_theta": ("error θ (rad)", (160, 110, 230)),
+    "common": ("common landmarks", (70, 180, 90)),
+    "merged": ("merged landmarks", (240, 240, 240)),
+}
+_SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
+
+
+def _series_style(name: str) -> tuple[str, tuple[int, int, int]]:
+    if name in SERIES:
+        return SERIES[name]
+    label = f"{name} (ms)" if name.startswith("time/") else name
+    return label, _SPARE_COLOURS[zlib.crc32(name.encode()) % len(_SPARE_COLOURS)]
+
+
+def landmark_confirmed(landmark_map: LandmarkMap, confirm_count: int | None = None) -> np.ndarray:
+    """(N,) bool: which landmarks are confirmed (the rest are provisional).
+
+    A map that carries an existence probability per landmark (an ``existence`` array (N,)) is judged by it
+    (≥ 0.5); otherwise by the observation count against ``confirm_count`` (the FastSLAM setting the map records in
+    its metadata, else FastSLAM's default). A field of the wrong shape is ignored, not trusted.
+    """
+    n = len(landmark_map)
+    existence = getattr(landmark_map, "existence", None)
+    if existence is not None:
+        existence = np.asarray(existence, float).reshape(-1)
+        if existence.shape == (n,) and np.isfinite(existence).all():
+            return existence >= 0.5
+    if confirm_count is None:
+        recorded = (landmark_map.metadata or {}).get("fastslam", {})
+        confirm_count = recorded.get("confirm_count") if isinstance(recorded, dict) else None
+        if not isinstance(confirm_count, int):
+            confirm_count = FastSLAMConfig().confirm_count
+    return np.asarray(landmark_map.counts) >= confirm_count
+
+
+# -- the layout -------------------------------------------------------------------------------------------
+def _map_view(key: str, name: str) -> rrb.Spatial2DView:
+    """A top-down 2-D map of map/<key> (x right, y up: the flip logged at map/<key> sits below the origin)."""
+    return rrb.Spatial2DView(origin="map", contents=[f"+ map/{key}/**"], name=name, background=MAP_BACKGROUND)
+
+
+def _plot(origin: str, name: str, contents: list[str] | None = None) -> rrb.TimeSeriesView:
+    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name)
+
+
 def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
-    """The layout: the 3-D world on the left, each robot's stereo pair, and the time series."""
+    """The layout, as tabs:
+
+    - overview: each robot's top-down map in its own frame (the paper's Fig. 3), beside the fused map (Fig. 5);
+    - one tab per robot: its map, its stereo pair with the matches, and its plots, each on its own axis;
+    - fusion: the fused map and the alignment's error (m, rad) and landmark counts, each on its own axis;
+    - 3-D: the world with the robots, their cameras (pinhole + image) and the landmarks; the covariance
+      ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
+
+    2-D entities sit only under 2-D views' origins or under a pinhole (the stereo images in the 3-D world).
+    """
     robots = list(robots)
-    cameras = [rrb.Vertical(rrb.Spatial2DView(origin=f"world/{r}/stereo/pair", name=f"{r} stereo pair"),
-                            rrb.Horizontal(rrb.Spatial2DView(origin=f"world/{r}/stereo/left", name=f"{r} left"),
-                                           rrb.Spatial2DView(origin=f"world/{r}/stereo/right", name=f"{r} right")),
-                            name=r) for r in robots]
-    plots = [rrb.Vertical(rrb.TimeSeriesView(origin=f"plots/{r}", contents=[f"plots/{r}/ess", f"plots/{r}/landmarks"],
-                                             name=f"{r} ESS and landmarks"),
-                          rrb.TimeSeriesView(origin=f"plots/{r}/time", name=f"{r} ms per stage"), name=r)
-             for r in robots]
-    plots.append(rrb.TimeSeriesView(origin="plots/fusion", name="fusion"))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="world"),
-            rrb.Vertical(rrb.Tabs(*cameras), rrb.Tabs(*plots), row_shares=[1, 1]),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
+    maps = [_map_view(r, f"{r}: local map (own start frame)") for r in robots]
+    fused = _map_view("fused", "fused map (aligned and merged)")
+    robot_maps = rrb.Grid(*maps, grid_columns=1 if len(maps) <= 2 else 2) if maps else None
+    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused, column_shares=[2, 3] if maps else None,
+                              name="overview")
+    robot_tabs = []
+    for r in robots:
+        plots = rrb.Vertical(
+            _plot(f"plots/{r}/ess", "ESS (effective particles)"),
+            _plot(f"plots/{r}/landmarks", "landmarks of the best particle (count)"),
+            _plot(f"plots/{r}/observations", "observations per frame (count)"),
+            _plot(f"plots/{r}/time", "time per stage (ms)"),
+            _plot(f"plots/{r}/dropped", "frames dropped (total)"),
+            row_shares=[2, 2, 2, 2, 1])
+        robot_tabs.append(rrb.Horizontal(
+            rrb.Vertical(_map_view(r, f"{r}: local map (own start frame)"),
+                         rrb.Spatial2DView(origin=f"images/{r}/pair", name=f"{r}: stereo pair and matches"),
+                         row_shares=[3, 2]),
+            plots, column_shares=[3, 2], name=r))
+    fusion = rrb.Horizontal(
+        fused,
+        rrb.Vertical(_plot("plots/fusion/error_xy", "alignment error xy (m)"),
+                     _plot("plots/fusion/error_theta", "alignment error θ (rad)"),
+                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"])),
+        column_shares=[3, 2], name="fusion")
+    hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
+    cameras = [rrb.Spatial2DView(origin=f"world/{r}/stereo/{side}", name=f"{r} {side}")
+               for r in robots for side in ("left", "right")]
+    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden),
+                           *([rrb.Grid(*cameras, grid_columns=2)] if cameras else []),
+                           column_shares=[3, 2] if cameras else None, name="3-D")
+    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, fusion, world, active_tab=0), collapse_panels=True)
 
 
+# -- geometry helpers -------------------------------------------------------------------------------------
 def _arrow(poses: np.ndarray, length: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     poses = np.atleast_2d(poses)
     origins = np.column_stack([poses[:, 0], poses[:, 1], np.zeros(len(poses))])
@@ -167,7 +300,7 @@ def _quaternion_z(theta: float) -> rr.Quaternion:
     return rr.Quaternion(xyzw=[0.0, 0.0, float(np.sin(theta / 2)), float(np.cos(theta / 2))])
 
 
-def _ellipsoids(covariances: np.ndarray, sigmas: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def _ellipsoids(covariances: np.ndarray, sigmas: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Half sizes (N, 3) and xyzw quaternions (N, 4) of the ``sigmas``-σ ellipsoids of covariances (N, 3, 3)."""
     eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, -1, -2)))
     half_sizes = sigmas * np.sqrt(np.clip(eigenvalues, 1e-12, None))
@@ -196,7 +329,9 @@ def _ellipsoids(covariances: np.ndarray, sigmas: float = 2.0) -> tuple[np.ndarra
 
 # Poses per trajectory entity. Re-logging the whole path every frame would make each frame cost O(path) and
 # the recording O(path^2) (a 10-minute run at 15 Hz: ~1 GB); closed segments stay as they were last logged.
+# The logger keeps only the open segment: its memory does not grow with the mission.
 TRAJECTORY_SEGMENT = 150
+SNAPSHOT_TRAJECTORY_POINTS = 1000   # a map snapshot's trajectory drawn in the fused view is thinned to this
 
 
 @dataclass
@@ -205,19 +340,24 @@ class _Strip:
     segment: int = 0
 
     def add(self, point: list[float]) -> tuple[int, np.ndarray]:
-        """Append a point; returns the open segment's number and its (n, 3) points (it starts where the last
+        """Append a point; returns the open segment's number and its (n, 2) points (it starts where the last
         one ended, so the path stays connected)."""
         if len(self.points) >= TRAJECTORY_SEGMENT:
             self.points = self.points[-1:]
             self.segment += 1
         self.points.append(point)
-        return self.segment, np.array(self.points)
+        return self.segment, np.array(self.points, float)
 
 
 @dataclass
 class _Track:
     estimated: _Strip = field(default_factory=_Strip)
+    odometry: _Strip = field(default_factory=_Strip)
     true: _Strip = field(default_factory=_Strip)
+
+
+def _with_z(points: np.ndarray, z: float) -> np.ndarray:
+    return np.column_stack([points[:, :2], np.full(len(points), z)])
 
 
 def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
@@ -229,10 +369,17 @@ def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
     return rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
 
+P3AT_HALF_SIZE = (0.32, 0.25, 0.14)  # m: the Pioneer 3-AT's body, drawn at the estimated pose in the 3-D view
+Y_UP = np.diag([1.0, -1.0, 1.0])     # 2-D views draw +y down; the maps are REP-103 (x forward, y left): flip once
+
+
 class MissionLog:
     """Logs one mission to the RecordingStream it is given. Thread-safe: robots log from their own threads.
 
-    Times ``t`` are seconds since the mission started; ``frame`` is the robot's stereo frame number.
+    Times ``t`` are seconds since the mission started; ``frame`` is the robot's stereo frame number. What the
+    logger keeps between calls is bounded whatever the mission's length: the open trajectory segment of each
+    robot, each robot's last snapshot trajectory (thinned to SNAPSHOT_TRAJECTORY_POINTS) and placement, and one
+    style per plotted series.
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
@@ -243,6 +390,11 @@ class MissionLog:
         self._last_image: dict[str, float] = {}
         self._tracks: dict[str, _Track] = {}
         self._lock = threading.Lock()
+        self._once: set[str] = set()                 # static things logged once: series styles, map roots, bodies
+        self._walls: np.ndarray | None = None        # (W, 2, 2) wall end points in the world
+        self._placements: dict[str, np.ndarray] = {}  # map key -> its frame's pose in the world (x, y, θ)
+        self._snapshot_paths: dict[str, np.ndarray] = {}  # robot -> (T, 2) path of its last map snapshot
+        self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
         if blueprint and self.robots:
             rec.send_blueprint(mission_blueprint(self.robots))
 
@@ -250,7 +402,7 @@ class MissionLog:
     def colour(self, robot: str) -> tuple[int, int, int]:
         if robot not in self.robots:
             self.robots.append(robot)
-        return ROBOT_COLOURS[self.robots.index(robot) % len(ROBOT_COLOURS)]
+        return robot_colour(robot)
 
     def _time(self, t: float, frame: int | None = None) -> None:
         self.rec.set_time("sim_time", duration=float(t))
@@ -258,6 +410,21 @@ class MissionLog:
             self.rec.set_time("frame", sequence=int(frame))
         else:  # set_time is sticky per thread: do not stamp this row with an older frame number
             self.rec.disable_timeline("frame")
+
+    def _first_time(self, key: str) -> bool:
+        """True the first time ``key`` is asked (thread-safe): for static things logged once."""
+        with self._lock:
+            if key in self._once:
+                return False
+            self._once.add(key)
+            return True
+
+    def _map_root(self, key: str) -> str:
+        """map/<key>, with the y-up flip logged once (static)."""
+        root = f"map/{key}"
+        if self._first_time(root):
+            self.rec.log(root, rr.Transform3D(mat3x3=Y_UP), static=True)
+        return root
 
     def flush(self) -> None:
         self.rec.flush()
@@ -272,21 +439,37 @@ class MissionLog:
 
     # -- static scene ---------------------------------------------------------------------------------
     def log_building(self, walls: np.ndarray, heights: np.ndarray) -> None:
-        """walls (W, 4) x0, y0, x1, y1; heights (W,): each wall as a closed vertical rectangle."""
+        """walls (W, 4) x0, y0, x1, y1; heights (W,): each wall as a closed vertical rectangle in the 3-D world,
+        and as a line in every 2-D map whose frame's place in the world is known."""
         walls = np.asarray(walls, float).reshape(-1, 4)
         heights = np.broadcast_to(np.asarray(heights, float), (len(walls),))
         strips = [[[x0, y0, 0], [x1, y1, 0], [x1, y1, h], [x0, y0, h], [x0, y0, 0]]
                   for (x0, y0, x1, y1), h in zip(walls, heights, strict=True)]
         self.rec.log("world/building/walls", rr.LineStrips3D(strips, radii=0.01, colors=(150, 150, 150)),
                      static=True)
+        self._walls = walls.reshape(-1, 2, 2)
+        for key, placement in list(self._placements.items()):
+            self._log_walls_2d(key, placement)
+
+    def _log_walls_2d(self, key: str, placement: np.ndarray) -> None:
+        if self._walls is None or not len(self._walls):
+            return
+        ends = self._walls.reshape(-1, 2)
+        local = between(placement, np.column_stack([ends, np.zeros(len(ends))]))[:, :2].reshape(-1, 2, 2)
+        self.rec.log(f"{self._map_root(key)}/building", rr.LineStrips2D(local, radii=-1.0, colors=WALL_COLOUR,
+                                                                         draw_order=0.0), static=True)
 
     def log_robot_frame(self, robot: str, placement: np.ndarray, t: float | None = None) -> None:
-        """Place the robot's map frame in the world: placement (3,) = (x, y, θ) of its origin."""
+        """Place the robot's map frame in the world: placement (3,) = (x, y, θ) of its origin (its true start on
+        the mocks). Key "fused": the fused map's frame. The 2-D map of that frame gets the building's walls."""
         if t is not None:
             self._time(t)
-        x, y, theta = np.asarray(placement, float)
+        placement = np.asarray(placement, float).reshape(3)
+        x, y, theta = placement
         self.rec.log(f"world/{robot}", rr.Transform3D(translation=[x, y, 0.0], quaternion=_quaternion_z(theta)),
                      static=t is None)
+        self._placements[robot] = placement
+        self._log_walls_2d(robot, placement)
 
     def log_camera_model(self, robot: str, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
                          baseline: float) -> None:
@@ -300,28 +483,45 @@ class MissionLog:
 
     # -- per robot, per frame -------------------------------------------------------------------------
     def log_pose(self, robot: str, t: float, frame: int | None, estimated: np.ndarray,
-                 true: np.ndarray | None = None, head_mount: np.ndarray | None = None) -> None:
-        """Estimated (and true) pose (3,) in the robot's map frame; the trajectories grow with each call.
+                 true: np.ndarray | None = None, head_mount: np.ndarray | None = None,
+                 odometry: np.ndarray | None = None) -> None:
+        """Estimated (and true, and odometry-only) pose (3,) in the robot's map frame; the trajectories grow with
+        each call, in the 3-D world and in the robot's 2-D map.
 
         head_mount: (x, y, z) of the left camera in base_link; places world/<robot>/stereo (optical frame).
         """
         self._time(t, frame)
         colour = self.colour(robot)
+        estimated = np.asarray(estimated, float).reshape(3)
+        strips = {}
         with self._lock:
             track = self._tracks.setdefault(robot, _Track())
-            segment, estimated_strip = track.estimated.add([estimated[0], estimated[1], 0.02])
+            strips["estimated"] = track.estimated.add(estimated[:2].tolist())
             if true is not None:
-                true_segment, true_strip = track.true.add([true[0], true[1], 0.01])
-        origins, vectors = _arrow(np.asarray(estimated, float))
+                true = np.asarray(true, float).reshape(3)
+                strips["true"] = track.true.add(true[:2].tolist())
+            if odometry is not None:
+                odometry = np.asarray(odometry, float).reshape(3)
+                strips["odometry"] = track.odometry.add(odometry[:2].tolist())
+        # 3-D world
+        origins, vectors = _arrow(estimated)
         self.rec.log(f"world/{robot}/pose", rr.Arrows3D(vectors=vectors, origins=origins, colors=colour, radii=0.03))
+        if self._first_time(f"world/{robot}/base_link/body"):
+            self.rec.log(f"world/{robot}/base_link/body", rr.Boxes3D(
+                half_sizes=[P3AT_HALF_SIZE], centers=[[0, 0, P3AT_HALF_SIZE[2]]], colors=colour,
+                fill_mode=rr.components.FillMode.Solid), static=True)
+        self.rec.log(f"world/{robot}/base_link", rr.Transform3D(translation=[estimated[0], estimated[1], 0.0],
+                                                                quaternion=_quaternion_z(estimated[2])))
+        segment, points = strips["estimated"]
         self.rec.log(f"world/{robot}/trajectory/{segment:04d}",
-                     rr.LineStrips3D([estimated_strip], colors=colour, radii=0.02))
+                     rr.LineStrips3D([_with_z(points, 0.02)], colors=colour, radii=0.02))
         if true is not None:
-            origins, vectors = _arrow(np.asarray(true, float))
+            origins, vectors = _arrow(true)
             self.rec.log(f"world/{robot}/true_pose", rr.Arrows3D(vectors=vectors, origins=origins,
-                                                                 colors=(255, 255, 255), radii=0.02))
-            self.rec.log(f"world/{robot}/true_trajectory/{true_segment:04d}",
-                         rr.LineStrips3D([true_strip], colors=(200, 200, 200), radii=0.01))
+                                                                 colors=TRUE_COLOUR, radii=0.02))
+            segment, points = strips["true"]
+            self.rec.log(f"world/{robot}/true_trajectory/{segment:04d}",
+                         rr.LineStrips3D([_with_z(points, 0.01)], colors=TRUE_COLOUR, radii=0.01))
         if head_mount is not None:
             hx, hy, hz = head_mount
             x, y, theta = compose(estimated, [hx, hy, 0.0])
@@ -329,28 +529,74 @@ class MissionLog:
             c, s = np.cos(theta), np.sin(theta)
             mat = np.array([[s, 0, c], [-c, 0, s], [0, -1, 0]])
             self.rec.log(f"world/{robot}/stereo", rr.Transform3D(translation=[x, y, hz], mat3x3=mat))
+        # 2-D map: truth thin and light, odometry dim, the estimate bright and on top
+        root = self._map_root(robot)
+        styles = {"true": (TRUE_COLOUR, -1.0, 1.0), "odometry": (_dim(colour), -1.5, 2.0),
+                  "estimated": (colour, -2.0, 3.0)}
+        for kind, (segment, points) in strips.items():
+            line_colour, width, order = styles[kind]
+            self.rec.log(f"{root}/trajectory/{kind}/{segment:04d}",
+                         rr.LineStrips2D([points], colors=line_colour, radii=width, draw_order=order))
+        heading = 0.6 * np.array([np.cos(estimated[2]), np.sin(estimated[2])])
+        self.rec.log(f"{root}/pose", rr.Points2D([estimated[:2]], radii=-7.0, colors=colour, labels=[robot],
+                                                 show_labels=True, draw_order=10.0))
+        self.rec.log(f"{root}/pose/heading", rr.Arrows2D(vectors=[heading], origins=[estimated[:2]], radii=-2.0,
+                                                         colors=colour, draw_order=10.0))
+        if true is not None:
+            self.rec.log(f"{root}/true_pose", rr.Points2D([true[:2]], radii=-4.0, colors=TRUE_COLOUR,
+                                                          draw_order=9.0))
 
     def log_particles(self, robot: str, t: float, frame: int | None, poses: np.ndarray) -> None:
         """poses (M, 3) of every particle in the robot's map frame."""
         self._time(t, frame)
         poses = np.asarray(poses, float).reshape(-1, 3)
-        pts = np.column_stack([poses[:, :2], np.full(len(poses), 0.03)])
-        self.rec.log(f"world/{robot}/particles", rr.Points3D(pts, radii=0.015, colors=self.colour(robot)))
+        colour = self.colour(robot)
+        self.rec.log(f"world/{robot}/particles", rr.Points3D(_with_z(poses, 0.03), radii=0.015, colors=colour))
+        self.rec.log(f"{self._map_root(robot)}/particles", rr.Points2D(poses[:, :2], radii=-1.5, colors=_dim(colour),
+                                                                        draw_order=8.0))
 
     def log_landmarks(self, robot: str, t: float, frame: int | None, positions: np.ndarray,
                       covariances: np.ndarray | None = None, path: str | None = None,
-                      colours: np.ndarray | None = None) -> None:
-        """positions (N, 3), covariances (N, 3, 3): points and their 2-σ ellipsoids."""
+                      colours: np.ndarray | None = None, sigmas: float = 1.0) -> None:
+        """positions (N, 3), covariances (N, 3, 3): 3-D points and their ``sigmas``-σ ellipsoids (at .../covariance,
+        which the blueprint hides for the robots' maps)."""
         self._time(t, frame)
         path = path or f"world/{robot}/landmarks"
         positions = np.asarray(positions, float).reshape(-1, 3)
         colour = colours if colours is not None else self.colour(robot)
         self.rec.log(path, rr.Points3D(positions, radii=0.03, colors=colour))
-        if covariances is not None and len(positions):
-            half_sizes, quaternions = _ellipsoids(np.asarray(covariances, float).reshape(-1, 3, 3))
-            self.rec.log(f"{path}/covariance", rr.Ellipsoids3D(centers=positions, half_sizes=half_sizes,
-                                                               quaternions=quaternions, colors=colour,
-                                                               line_radii=0.004))
+        if covariances is not None:
+            self._log_ellipsoids(f"{path}/covariance", positions, covariances, colour, sigmas)
+
+    def _log_ellipsoids(self, path: str, positions: np.ndarray, covariances: np.ndarray, colour,
+                        sigmas: float = 1.0) -> None:
+        if not len(positions):
+            self.rec.log(path, rr.Clear(recursive=False))
+            return
+        half_sizes, quaternions = _ellipsoids(np.asarray(covariances, float).reshape(-1, 3, 3), sigmas)
+        self.rec.log(path, rr.Ellipsoids3D(centers=positions, half_sizes=half_sizes, quaternions=quaternions,
+                                           colors=colour, line_radii=0.004))
+
+    def log_robot_landmarks(self, robot: str, t: float, frame: int | None, landmark_map: LandmarkMap,
+                            confirm_count: int | None = None) -> tuple[int, int]:
+        """The best particle's landmarks (all of them, provisional ones included), coloured by state: confirmed in
+        the robot's colour, provisional dimmed and smaller, in the 3-D world and in the robot's 2-D map; their
+        counts are plotted. Returns (confirmed, provisional)."""
+        self._time(t, frame)
+        colour = self.colour(robot)
+        positions = np.asarray(landmark_map.positions, float).reshape(-1, 3)
+        confirmed = landmark_confirmed(landmark_map, confirm_count)
+        colours = np.where(confirmed[:, None], np.array(colour), np.array(_dim(colour)))
+        radii = np.where(confirmed, 0.04, 0.02)
+        self.rec.log(f"world/{robot}/landmarks", rr.Points3D(positions, radii=radii, colors=colours))
+        root = self._map_root(robot)
+        self.rec.log(f"{root}/landmarks/confirmed", rr.Points2D(positions[confirmed, :2], radii=-3.0, colors=colour,
+                                                                draw_order=6.0))
+        self.rec.log(f"{root}/landmarks/provisional", rr.Points2D(positions[~confirmed, :2], radii=-2.0,
+                                                                  colors=_dim(colour), draw_order=5.0))
+        counts = (int(confirmed.sum()), int((~confirmed).sum()))
+        self.log_scalars(robot, t, {"landmarks/confirmed": counts[0], "landmarks/provisional": counts[1]}, frame)
+        return counts
 
     def log_sonar(self, robot: str, t: float, pose: np.ndarray, sonar_poses: np.ndarray, ranges: np.ndarray,
                   max_range: float = 5.0) -> None:
@@ -369,6 +615,8 @@ class MissionLog:
         """The current pair (at most one per ``image_interval`` s) with its matched corners and match lines.
 
         left/right: (H, W) or (H, W, 3) uint8 rectified images; left_pixels, right_pixels: (N, 2) (u, v).
+        Each image sits under its pinhole in the 3-D world; the side-by-side pair is a 2-D entity of its own
+        (images/<robot>/pair), outside the 3-D world.
         """
         if t - self._last_image.get(robot, -np.inf) < self.image_interval:
             return
@@ -386,18 +634,24 @@ class MissionLog:
         if left is not None and right is not None:
             self.rec.log(f"{base}/right", _jpeg(right))
             width = left.shape[1]
-            self.rec.log(f"{base}/pair", _jpeg(np.hstack([left, right])))
+            self.rec.log(f"images/{robot}/pair", _jpeg(np.hstack([left, right])))
             if right_pixels is not None and len(right_pixels) == len(left_pixels):
                 shifted = right_pixels + [width, 0]
-                self.rec.log(f"{base}/pair/matches",
+                self.rec.log(f"images/{robot}/pair/matches",
                              rr.LineStrips2D(np.stack([left_pixels, shifted], axis=1), radii=0.7, colors=colour))
 
     def log_scalars(self, robot: str, t: float, values: Mapping[str, float], frame: int | None = None) -> None:
-        """Time series under plots/<robot>/<name> (a name may hold '/', e.g. 'time/frontend')."""
+        """Time series under plots/<robot>/<name> (a name may hold '/', e.g. 'time/frontend'); each series gets
+        its legend name (with its unit, from SERIES) and colour once."""
         self._time(t, frame)
         for name, value in values.items():
-            if value is not None and np.isfinite(value):
-                self.rec.log(f"plots/{robot}/{name}", rr.Scalars(float(value)))
+            if value is None or not np.isfinite(value):
+                continue
+            path = f"plots/{robot}/{name}"
+            if self._first_time(path):
+                label, colour = _series_style(name)
+                self.rec.log(path, rr.SeriesLines(names=label, colors=colour, widths=1.5), static=True)
+            self.rec.log(path, rr.Scalars(float(value)))
 
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:
         self._time(t)
@@ -406,9 +660,12 @@ class MissionLog:
     # -- maps, fusion and the summary -----------------------------------------------------------------
     def log_map(self, key: str, t: float, landmark_map: LandmarkMap, *, draw: bool = True,
                 placement_path: str | None = None) -> None:
-        """The map's arrays under maps/<key> (for :func:`read_recording`), and its landmarks drawn in the world.
+        """The map's arrays under maps/<key> (for :func:`read_recording`), and what a reader sees of it.
 
-        key: the robot's name, or "fused". Drawn under world/<key>/landmarks.
+        key: a robot's name (a snapshot it published) or "fused". A robot's snapshot gives its landmarks' 1-σ
+        ellipsoids in the 3-D world (hidden by default) and, once the fusion placed its frame, its path in the fused
+        map. The fused map is drawn in the 3-D world and in the fused 2-D map, each landmark in the colour of the
+        robot that saw it, white when several did.
         """
         self._time(t)
         m = landmark_map
@@ -418,21 +675,60 @@ class MissionLog:
             descriptors=m.descriptors.astype(np.float32).ravel(), descriptor_size=int(m.descriptor_size),
             ids=m.ids, counts=m.counts, seen_by=m.seen_by.astype(np.uint8).ravel(),
             trajectory=m.trajectory.ravel(), meta=json.dumps(meta), size=len(m), t=float(t)))
-        if draw:
-            colours = None
-            if key == "fused":
-                shares = m.seen_by.sum(axis=1) if len(m) else np.zeros(0)
-                colours = np.where((shares > 1)[:, None], np.array([255, 255, 0]), np.array(FUSED_COLOUR))
-            self.log_landmarks(key, t, None, m.positions, m.covariances,
-                               path=f"world/{key}/landmarks", colours=colours)
+        if not draw:
+            return
+        if key == "fused":
+            colours = self._seen_by_colours(m)
+            self.log_landmarks("fused", t, None, m.positions, m.covariances, path="world/fused/landmarks",
+                               colours=colours)
+            shared = m.seen_by.sum(axis=1) > 1 if len(m) else np.zeros(0, bool)
+            self.rec.log(f"{self._map_root('fused')}/landmarks",
+                         rr.Points2D(m.positions[:, :2], radii=np.where(shared, -4.0, -2.5), colors=colours,
+                                     draw_order=6.0))
+            return
+        self.colour(key)
+        self._log_ellipsoids(f"world/{key}/landmarks/covariance", m.positions, m.covariances, _dim(robot_colour(key)))
+        path = m.trajectory[:, 1:3]
+        if len(path) > SNAPSHOT_TRAJECTORY_POINTS:
+            path = path[np.linspace(0, len(path) - 1, SNAPSHOT_TRAJECTORY_POINTS).astype(int)]
+        self._snapshot_paths[key] = path
+        if key in self._aligned:
+            self._log_fused_path(key)
+
+    def _seen_by_colours(self, m: LandmarkMap) -> np.ndarray:
+        """(N, 3) uint8: the colour of the only robot that saw each landmark, white if several did."""
+        if not len(m):
+            return np.zeros((0, 3), np.uint8)
+        palette = np.array([robot_colour(r) for r in m.robots] + [SHARED_COLOUR], np.uint8)
+        seen = m.seen_by
+        which = np.where(seen.sum(axis=1) == 1, np.argmax(seen, axis=1), len(m.robots))
+        return palette[which]
+
+    def _log_fused_path(self, robot: str) -> None:
+        path = self._snapshot_paths.get(robot)
+        if path is None or len(path) < 2:
+            return
+        self.rec.log(f"{self._map_root('fused')}/{robot}/trajectory",
+                     rr.LineStrips2D([path], colors=robot_colour(robot), radii=-2.0, draw_order=3.0))
+        self.rec.log(f"map/fused/{robot}/pose", rr.Points2D([path[-1]], radii=-6.0, colors=robot_colour(robot),
+                                                            labels=[robot], show_labels=True, draw_order=10.0))
 
     def log_alignment(self, t: float, reference: str, other: str, result: Mapping) -> None:
-        """One pairwise alignment: ``result`` is plain JSON-able data (tx, ty, theta, supports, errors...)."""
+        """One pairwise alignment: ``result`` is plain JSON-able data (tx, ty, theta of ``other``'s frame in
+        ``reference``'s, supports, errors...). An alignment found places ``other``'s path in the fused map."""
         self._time(t)
         self.rec.log(f"fusion/alignment/{reference}_{other}", rr.AnyValues(json=json.dumps(dict(result))))
         values = {k: result.get(k) for k in ("error_xy", "error_theta", "common", "merged")}
-        values = {k: v for k, v in values.items() if isinstance(v, int | float)}
+        values = {k: v for k, v in values.items() if isinstance(v, int | float) and not isinstance(v, bool)}
         self.log_scalars("fusion", t, values)
+        pose = np.array([result.get(k, np.nan) for k in ("tx", "ty", "theta")], float)
+        if result.get("aligned", True) and np.isfinite(pose).all():
+            root = self._map_root("fused")
+            for robot, placement in ((reference, np.zeros(3)), (other, pose)):
+                self._aligned[robot] = placement
+                self.rec.log(f"{root}/{robot}", rr.Transform3D(translation=[placement[0], placement[1], 0.0],
+                                                               quaternion=_quaternion_z(placement[2])))
+                self._log_fused_path(robot)
 
     def log_summary(self, summary: Mapping) -> None:
         """The mission's figures, as JSON (read back by :func:`read_recording`) and as a text panel."""
@@ -454,6 +750,8 @@ class RecordingContents:
     alignments: dict[str, dict]           # "a_b" -> the last alignment result logged for that pair
     summary: dict | None                  # the mission summary, when the mission finished
     entity_count: int
+    truncated: str | None = None          # how the file was cut short (what was read is what it held), or None
+    ended: bool = True                    # the writer closed the stream (an End message); False after a crash
 
 
 def _last_values(rows: list[dict], key: str):
@@ -465,24 +763,51 @@ def _last_values(rows: list[dict], key: str):
 
 
 def read_recording(path: str | Path) -> RecordingContents:
-    """Read a mission's ``.rrd`` (rerun 0.41 ``rerun.chunk.RrdReader``) and rebuild its maps and figures."""
-    import rerun.chunk as rrchunk  # only used for reading
+    """Read a mission's ``.rrd`` (rerun 0.41 ``rerun.chunk.RrdReader``) and rebuild its maps and figures.
 
+    A file cut short (a crash, a kill, a full disk) is read up to its last complete message; ``truncated`` then
+    says where it was cut. Rerun's reader itself refuses such a file, so the whole prefix is copied to a
+    temporary file first (see runtime/rrd_salvage.py).
+    """
     path = Path(path)
     if not path.is_file():
         raise RecordingReadError(f"{path}: no such recording")
     try:
+        scan = scan_rrd(path)
+    except (ValueError, OSError) as e:
+        raise RecordingReadError(f"{path}: not a readable Rerun recording ({e})") from None
+    truncated = None
+    if scan.truncated:
+        truncated = (f"cut short: {scan.damage}; read the {scan.messages} complete messages "
+                     f"({scan.whole_bytes} of {scan.file_size} bytes)")
+    with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch:
+        readable = path
+        if scan.truncated:
+            readable = Path(scratch) / "whole-prefix.rrd"
+            copy_prefix(path, readable, scan.whole_bytes)
+        contents = _contents_from_chunks(path, _read_chunks(path, readable))
+    contents.truncated, contents.ended = truncated, scan.ended
+    return contents
+
+
+def _read_chunks(path: Path, readable: Path) -> list:
+    """The chunks of the maps, fusion results, summary and time series (not images and point clouds)."""
+    import rerun.chunk as rrchunk  # only used for reading
+
+    try:
         with warnings.catch_warnings():  # files saved by a viewer or `rerun --save` have no footer: read by scanning
             warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
-            reader = rrchunk.RrdReader(path)
+            reader = rrchunk.RrdReader(readable)
         if not reader.recordings():
             raise RecordingReadError(f"{path}: holds no recording")
-        # the maps, fusion results, summary and time series; not the images and point clouds
-        chunks = list(reader.stream().filter(content=["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]))
+        return list(reader.stream().filter(content=["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]))
     except RecordingReadError:
         raise
     except Exception as e:  # the bindings raise several untyped errors on corrupt files
         raise RecordingReadError(f"{path}: not a readable Rerun recording ({e})") from None
+
+
+def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
     rows_by_entity: dict[str, list[tuple[float, int, dict]]] = {}
     t_min, t_max = np.inf, -np.inf
     entities: set[str] = set()
@@ -560,5 +885,5 @@ def _map_from_row(path: Path, entity: str, rows: list[dict]) -> LandmarkMap:
         raise RecordingReadError(f"{path}: entity '{entity}' holds a malformed map ({e})") from None
 
 
-__all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "mission_blueprint", "open_recording",
-           "read_recording"]
+__all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "mission_blueprint",
+           "open_recording", "read_recording", "recording_id", "robot_colour"]
