@@ -214,22 +214,27 @@ def _series_style(name: str) -> tuple[str, tuple[int, int, int]]:
 def landmark_confirmed(landmark_map: LandmarkMap, confirm_count: int | None = None) -> np.ndarray:
     """(N,) bool: which landmarks are confirmed (the rest are provisional).
 
-    A map that carries an existence probability per landmark (an ``existence`` array (N,)) is judged by it
-    (≥ 0.5); otherwise by the observation count against ``confirm_count`` (the FastSLAM setting the map records in
-    its metadata, else FastSLAM's default). A field of the wrong shape is ignored, not trusted.
+    Confirmed: observed at least ``confirm_count`` times (what FastSLAM's exported maps keep; the setting comes
+    from the caller, else the map's recorded FastSLAM settings, else FastSLAM's default), and, when the map carries
+    an existence probability per landmark (an ``existence`` array (N,) in [0, 1]), at least 0.5 likely to exist.
+    A field that is missing, or of the wrong shape or range, is ignored rather than trusted.
     """
     n = len(landmark_map)
-    existence = getattr(landmark_map, "existence", None)
-    if existence is not None:
-        existence = np.asarray(existence, float).reshape(-1)
-        if existence.shape == (n,) and np.isfinite(existence).all():
-            return existence >= 0.5
     if confirm_count is None:
         recorded = (landmark_map.metadata or {}).get("fastslam", {})
         confirm_count = recorded.get("confirm_count") if isinstance(recorded, dict) else None
         if not isinstance(confirm_count, int):
             confirm_count = FastSLAMConfig().confirm_count
-    return np.asarray(landmark_map.counts) >= confirm_count
+    confirmed = np.asarray(landmark_map.counts).reshape(-1) >= confirm_count
+    existence = getattr(landmark_map, "existence", None)
+    if existence is not None:
+        try:
+            existence = np.asarray(existence, float).reshape(-1)
+        except (TypeError, ValueError):
+            return confirmed
+        if existence.shape == (n,) and np.all((existence >= 0) & (existence <= 1)):
+            confirmed &= existence >= 0.5
+    return confirmed
 
 
 # -- the layout -------------------------------------------------------------------------------------------

@@ -13,7 +13,8 @@ def register(subparsers) -> None:
         "review", help="summarise a mission's .rrd recording and export the maps it holds",
         description="Reads a recording written by 'p3at demo' or 'p3at run' (Rerun 0.41 .rrd), prints the robots, "
                     "the duration, the size of every map and the alignment results, and writes each map it holds "
-                    "(the last snapshot of every robot, and the fused map) as a landmark-map .npz and a .ply.")
+                    "(the last snapshot of every robot, and the fused map) as a landmark-map .npz and a .ply. "
+                    "A recording cut short (a crash, a kill) is read up to its last complete message, and said so.")
     parser.add_argument("recording", type=Path, metavar="FILE.rrd", help="the recording to read")
     parser.add_argument("--export", type=Path, default=None, metavar="DIR",
                         help="where to write the maps (default: FILE-maps/ beside the recording)")
@@ -28,6 +29,7 @@ def review_summary(contents) -> dict:
         "recording": str(contents.path), "robots": contents.robots, "duration": round(contents.duration, 2),
         "maps": {name: len(m) for name, m in sorted(contents.maps.items())},
         "alignments": contents.alignments, "mission_summary": contents.summary,
+        "truncated": contents.truncated, "ended": contents.ended,
     }
 
 
@@ -38,25 +40,32 @@ def _review(args) -> int:
         print(f"p3at review: {e}", file=sys.stderr)
         return 1
     summary = review_summary(contents)
-    exported: dict[str, str] = {}
+    exported: dict[str, list[str]] = {}   # map name -> the files written for it
     if not args.no_export and contents.maps:
         folder = args.export or args.recording.with_name(args.recording.stem + "-maps")
         try:
             for name, m in sorted(contents.maps.items()):
-                m.save(folder / f"{name}.npz")
-                m.export_ply(folder / f"{name}.ply")
-                exported[name] = str(folder / f"{name}.npz")
+                files = [folder / f"{name}.npz", folder / f"{name}.ply"]
+                m.save(files[0])
+                m.export_ply(files[1])
+                exported[name] = [str(f) for f in files]
         except OSError as e:
             print(f"p3at review: cannot write the maps to {folder}: {e}", file=sys.stderr)
             return 1
     summary["exported"] = exported
+    summary["files_written"] = [f for files in exported.values() for f in files]
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
     print(f"Recording {contents.path}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
           f"{contents.duration:.1f} s")
+    if contents.truncated:
+        print(f"  TRUNCATED recording, {contents.truncated}: what follows is what it held")
+    elif not contents.ended:
+        print("  the recording has no end-of-stream mark (its writer did not close it): it may end early")
     for name, size in summary["maps"].items():
-        print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {exported[name]}" if name in exported else ""))
+        print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
+                                                         if name in exported else ""))
     if not contents.alignments:
         print("  no alignment in this recording")
     for pair, a in sorted(contents.alignments.items()):
