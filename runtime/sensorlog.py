@@ -41,6 +41,7 @@ import queue
 import re
 import struct
 import threading
+import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -347,12 +348,13 @@ class SensorLogWriter:
 # == reading =================================================================================================
 @dataclass(frozen=True)
 class LoggedMessage:
-    """One message of a log: its topic, ROS type (``pkg/msg/Type``), log time (ns) and CDR bytes."""
+    """One message of a log: its topic, ROS type (``pkg/msg/Type``), log time (ns), CDR bytes and file."""
 
     topic: str
     type: str
     log_time: int
     data: bytes
+    file: Path
 
 
 def _segment_files(path: Path) -> list[Path]:
@@ -413,7 +415,7 @@ class SensorLog:
         channels: dict[int, Channel] = {}
         partial = path.name.endswith(".part")
         try:
-            reader = StreamReader(stream, emit_chunks=True, record_size_limit=size)
+            reader = StreamReader(_Bounded(stream, size), emit_chunks=True, record_size_limit=size)
             for record in reader.records:
                 if isinstance(record, Chunk):
                     inner = _chunk_records(path, record)
@@ -432,7 +434,8 @@ class SensorLog:
                         channel = channels.get(rec.channel_id)
                         if channel is None:
                             raise SensorLogError(f"{path}: a message refers to unknown channel {rec.channel_id}")
-                        yield LoggedMessage(channel.topic, schemas[channel.schema_id].name, rec.log_time, rec.data)
+                        yield LoggedMessage(channel.topic, schemas[channel.schema_id].name, rec.log_time, rec.data,
+                                            path)
                     elif isinstance(rec, Metadata) and scan and rec.name == METADATA_NAME and not self.metadata:
                         self.metadata = _settings(path, rec.metadata)
         except SensorLogError:
@@ -505,6 +508,19 @@ class SensorLog:
                 pending.pop(next(iter(pending)))
 
 
+class _Bounded:
+    """A file whose ``read(n)`` never asks for more than the file holds: a length field inside a record
+    (a string, a map) claiming gigabytes must not make the reader allocate them."""
+
+    def __init__(self, stream, size: int) -> None:
+        self._stream, self._left = stream, size
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._stream.read(self._left if n < 0 else min(n, self._left))
+        self._left -= len(data)
+        return data
+
+
 def _settings(path: Path, metadata: Mapping[str, str]) -> dict:
     text = metadata.get("settings", "{}")
     try:
@@ -523,16 +539,23 @@ def _chunk_records(path: Path, chunk: Chunk) -> list:
     if chunk.compression == "zstd":
         import zstandard
 
-        try:
-            data = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)).read(MAX_CHUNK_BYTES + 1)
+        pieces, total = [], 0
+        try:  # piece by piece: memory grows with what the data really holds, not with what a field claims
+            with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)) as reader:
+                while total <= chunk.uncompressed_size and (piece := reader.read(1 << 20)):
+                    pieces.append(piece)
+                    total += len(piece)
         except zstandard.ZstdError as e:
             raise SensorLogError(f"{path}: a chunk does not decompress ({e})") from None
+        data = b"".join(pieces)
     elif chunk.compression == "":
         data = chunk.data
     else:
         raise SensorLogError(f"{path}: chunk compression {chunk.compression!r} is not supported (zstd or none)")
     if len(data) != chunk.uncompressed_size:
         raise SensorLogError(f"{path}: a chunk holds {len(data)} bytes, its header says {chunk.uncompressed_size}")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise SensorLogError(f"{path}: a chunk fails its CRC check (damaged)")
     stream = ReadDataStream(io.BytesIO(data))
     records: list = []
     while stream.count < len(data):
@@ -558,11 +581,11 @@ def _chunk_records(path: Path, chunk: Chunk) -> list:
 def _decode(m: LoggedMessage, decoder) -> dict:
     expected = decoder.type_name
     if m.type != ros.schema_name(expected):
-        raise SensorLogError(f"topic {m.topic}: type {m.type}, expected {ros.schema_name(expected)}")
+        raise SensorLogError(f"{m.file}: topic {m.topic}: type {m.type}, expected {ros.schema_name(expected)}")
     try:
         return decoder(ros.CdrReader(m.data))
     except ros.CdrError as e:
-        raise SensorLogError(f"topic {m.topic} at {m.log_time} ns: {e}") from None
+        raise SensorLogError(f"{m.file}: topic {m.topic}, message at {m.log_time} ns: {e}") from None
 
 
 def _finite(topic: str, **values) -> None:
