@@ -767,31 +767,38 @@ def _last_values(rows: list[dict], key: str):
     return None
 
 
-def read_recording(path: str | Path) -> RecordingContents:
+def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
     """Read a mission's ``.rrd`` (rerun 0.41 ``rerun.chunk.RrdReader``) and rebuild its maps and figures.
+
+    ``more``: further files of the same recording, e.g. one per process of a fleet that saved its own
+    (``open_recording(..., recording_id=...)``); their contents are read as one recording.
 
     A file cut short (a crash, a kill, a full disk) is read up to its last complete message; ``truncated`` then
     says where it was cut. Rerun's reader itself refuses such a file, so the whole prefix is copied to a
     temporary file first (see runtime/rrd_salvage.py).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise RecordingReadError(f"{path}: no such recording")
-    try:
-        scan = scan_rrd(path)
-    except (ValueError, OSError) as e:
-        raise RecordingReadError(f"{path}: not a readable Rerun recording ({e})") from None
-    truncated = None
-    if scan.truncated:
-        truncated = (f"cut short: {scan.damage}; read the {scan.messages} complete messages "
-                     f"({scan.whole_bytes} of {scan.file_size} bytes)")
+    paths = [Path(p) for p in (path, *more)]
+    chunks: list = []
+    notes: list[str] = []
+    ended = True
     with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch:
-        readable = path
-        if scan.truncated:
-            readable = Path(scratch) / "whole-prefix.rrd"
-            copy_prefix(path, readable, scan.whole_bytes)
-        contents = _contents_from_chunks(path, _read_chunks(path, readable))
-    contents.truncated, contents.ended = truncated, scan.ended
+        for index, p in enumerate(paths):
+            if not p.is_file():
+                raise RecordingReadError(f"{p}: no such recording")
+            try:
+                scan = scan_rrd(p)
+            except (ValueError, OSError) as e:
+                raise RecordingReadError(f"{p}: not a readable Rerun recording ({e})") from None
+            readable = p
+            if scan.truncated:
+                notes.append((f"{p.name} " if more else "") + f"cut short: {scan.damage}; read the {scan.messages} "
+                             f"complete messages ({scan.whole_bytes} of {scan.file_size} bytes)")
+                readable = Path(scratch) / f"whole-prefix-{index}.rrd"
+                copy_prefix(p, readable, scan.whole_bytes)
+            ended = ended and scan.ended
+            chunks.extend(_read_chunks(p, readable))
+        contents = _contents_from_chunks(paths[0], chunks)
+    contents.truncated, contents.ended = ("; ".join(notes) or None), ended
     return contents
 
 

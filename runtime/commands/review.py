@@ -16,6 +16,8 @@ def register(subparsers) -> None:
                     "(the last snapshot of every robot, and the fused map) as a landmark-map .npz and a .ply. "
                     "A recording cut short (a crash, a kill) is read up to its last complete message, and said so.")
     parser.add_argument("recording", type=Path, metavar="FILE.rrd", help="the recording to read")
+    parser.add_argument("more", type=Path, nargs="*", metavar="MORE.rrd",
+                        help="more files of the same recording (a fleet whose processes each saved their own)")
     parser.add_argument("--export", type=Path, default=None, metavar="DIR",
                         help="where to write the maps (default: FILE-maps/ beside the recording)")
     parser.add_argument("--no-export", action="store_true", help="only print the summary")
@@ -35,7 +37,7 @@ def review_summary(contents) -> dict:
 
 def _review(args) -> int:
     try:
-        contents = read_recording(args.recording)
+        contents = read_recording(args.recording, *args.more)
     except RecordingReadError as e:
         print(f"p3at review: {e}", file=sys.stderr)
         return 1
@@ -57,7 +59,8 @@ def _review(args) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
-    print(f"Recording {contents.path}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
+    more = f" and {len(args.more)} more file(s)" if args.more else ""
+    print(f"Recording {contents.path}{more}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
           f"{contents.duration:.1f} s")
     if contents.truncated:
         print(f"  TRUNCATED recording, {contents.truncated}: what follows is what it held")
@@ -69,14 +72,24 @@ def _review(args) -> int:
     if not contents.alignments:
         print("  no alignment in this recording")
     for pair, a in sorted(contents.alignments.items()):
-        if a.get("aligned"):
-            line = (f"  alignment {a['other']} -> {a['reference']}: tx {a['tx']:.3f} m, ty {a['ty']:.3f} m, "
-                    f"θ {a['theta']:.4f} rad, {a['supports']} supports, {a['common']} common")
-            if a.get("error_xy") is not None:
-                line += f"; error vs truth {a['error_xy']:.3f} m / {a['error_theta']:.4f} rad"
-        else:
-            line = f"  alignment {pair}: none ({a.get('note') or 'maps do not overlap'})"
-        print(line)
+        print(_alignment_line(pair, a))
     if contents.summary is None:
         print("  (the mission did not finish: no final summary in the recording)")
     return 0
+
+
+def _number(a: dict, key: str, digits: int) -> str:
+    value = a.get(key)
+    return f"{value:.{digits}f}" if isinstance(value, int | float) else "?"
+
+
+def _alignment_line(pair: str, a: dict) -> str:
+    """One alignment as recorded (fields a recording written by another version may lack show as '?')."""
+    if not a.get("aligned"):
+        return f"  alignment {pair}: none ({a.get('note') or 'maps do not overlap'})"
+    names = f"{a['other']} -> {a['reference']}" if "other" in a and "reference" in a else pair
+    line = (f"  alignment {names}: tx {_number(a, 'tx', 3)} m, ty {_number(a, 'ty', 3)} m, "
+            f"θ {_number(a, 'theta', 4)} rad, {a.get('supports', '?')} supports, {a.get('common', '?')} common")
+    if a.get("error_xy") is not None:
+        line += f"; error vs truth {_number(a, 'error_xy', 3)} m / {_number(a, 'error_theta', 4)} rad"
+    return line
