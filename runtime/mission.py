@@ -347,6 +347,8 @@ class Mission:
         maps = {r.name: r.onboard.core.best_map() for r in self.robots}
         for name, m in maps.items():
             m.save(cfg.out / f"{name}.npz")
+        # TUM files beside each map: <robot>.tum (estimated), <robot>-odometry.tum, <robot>-truth.tum (mocks)
+        trajectory_files = {r.name: r.onboard.trajectories.write_tum(cfg.out, r.name) for r in self.robots}
         fused = final.merged if final is not None else None
         if fused is not None:
             fused.save(cfg.out / "fused.npz")
@@ -373,6 +375,7 @@ class Mission:
                 "frames_late": getattr(self._virtual_heads.get(r.name), "late_frames", None),
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
                 "map_file": str(cfg.out / f"{r.name}.npz"),
+                "trajectory_files": [str(p) for p in trajectory_files[r.name].values()],
             }
         for name, figures in robots.items():
             late, received = figures["frames_late"], max(1, figures["frames_received"])

@@ -44,6 +44,7 @@ from estimation.observations import OdometryIncrement, StereoObservations
 from runtime.exchange import MapExchange
 from runtime.motion import Controller, NoMotion
 from runtime.sensorlog import SensorLogWriter
+from runtime.trajectories import TrajectoryRecorder
 
 Clock = Callable[[], float]
 
@@ -312,6 +313,8 @@ class Onboard:
         self.core = SlamCore(robot, config, front_end)
         if true_start is not None:
             self.core.metadata["true_start_pose"] = [float(v) for v in true_start]
+        # estimated, odometry and (mocks) true pose per processed frame, for the TUM files beside the map
+        self.trajectories = TrajectoryRecorder(true_start if truth is not None else None)
         self.odometry = OdometryBuffer()
         self.stats = OnboardStats()
         self.route_done = threading.Event()
@@ -446,6 +449,8 @@ class Onboard:
         with self._latest_lock:
             self._latest = sample
         self.odometry.add(sample.t, sample.pose)
+        if self.truth is not None:
+            self.trajectories.add_truth(sample.t, self.truth)
         self.stats.odometry_samples += 1
         if self.sensor_log is not None:
             self.sensor_log.write("odometry", odometry_record(sample))
@@ -533,6 +538,7 @@ class Onboard:
         """Run one frame through the core and report it (also the entry point of tests and replay)."""
         with self._core_lock:
             result = self.core.step(frame, odometry_pose)
+        self.trajectories.add_frame(frame.t, result.best_pose, self.core.dead_reckoning_pose())
         with self._latest_lock:
             self._anchor = result.best_pose
             self._anchor_odometry = np.asarray(odometry_pose, float)
