@@ -14,9 +14,24 @@ import numpy as np
 from estimation.geometry import wrap_angle
 from estimation.landmark_map import LandmarkMap
 
+# An alignment whose false-alarm probability exceeds this is reported with a warning (the robust preset
+# never reports one as found; the paper preset, which decides by its support count alone, may).
+LOW_CONFIDENCE_PROBABILITY = 1e-6
+
 
 @dataclass
 class PairResult:
+    """One alignment of ``other``'s map to ``reference``'s.
+
+    tx, ty, theta: pose of other's frame in reference's; supports: one-to-one supports; common: landmarks both
+    maps hold after merging; error_xy (m), error_theta (rad): against the truth where the maps carry it;
+    false_alarm_probability: probability that maps which do not overlap give this much support (the
+    alignment's confidence; for an alignment composed through other maps, the weakest link's);
+    required_supports: fewest supports that would have been accepted on these maps; second_best_supports:
+    the best hypothesis distinct from the winner (repeated structure); low_confidence: found but with a
+    false-alarm probability above LOW_CONFIDENCE_PROBABILITY; note: why not found, or how it was reached.
+    """
+
     reference: str
     other: str
     aligned: bool
@@ -28,9 +43,30 @@ class PairResult:
     error_xy: float | None = None
     error_theta: float | None = None
     note: str = ""
+    false_alarm_probability: float | None = None
+    required_supports: int = 0
+    second_best_supports: int = 0
+    low_confidence: bool = False
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
+
+    def take_evidence(self, alignment) -> None:
+        """Copy the confidence figures of a :class:`fusion.Alignment` (its statistics)."""
+        st = alignment.statistics
+        p = st.false_alarm_probability
+        self.false_alarm_probability = float(p) if np.isfinite(p) else None
+        self.required_supports = int(st.required_supports)
+        self.second_best_supports = int(st.second_best_supports)
+        self.low_confidence = bool(self.aligned and (self.false_alarm_probability is None
+                                                     or self.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY))
+
+
+def confidence_text(false_alarm_probability: float | None) -> str:
+    """'false-alarm probability 3e-12' (or 'not evaluated')."""
+    if false_alarm_probability is None:
+        return "false-alarm probability not evaluated"
+    return f"false-alarm probability {false_alarm_probability:.1e}"
 
 
 @dataclass
@@ -65,11 +101,13 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
         result = PairResult(reference, other, False)
         alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
         result.supports = int(len(alignment.supports))
+        result.take_evidence(alignment)
         if not alignment.found:
             result.note = alignment.reason
             pairs.append(result)
             continue
         result.aligned = True
+        result.take_evidence(alignment)
         result.tx, result.ty, result.theta = (float(v) for v in alignment.pose)
         merged_pair = merge(merged, maps[other], alignment, method=method)
         result.common = int(merged_pair.metadata.get("fusion", {}).get("common_landmarks", 0))
@@ -106,6 +144,14 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
         result.tx, result.ty, result.theta = (float(v) for v in pose)
         edge = multi.alignments.get(tuple(sorted((parent[k], k))))
         result.supports = 0 if edge is None else int(len(edge.supports))
+        if edge is not None:
+            result.take_evidence(edge)
+            # a pose composed along the tree is as trustworthy as its weakest alignment
+            path = _tree_path(parent, k)
+            probs = [multi.alignments[tuple(sorted(e))].statistics.false_alarm_probability for e in path]
+            if probs and all(np.isfinite(probs)):
+                result.false_alarm_probability = float(max(probs))
+                result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY
         if names[0] in column and other in column:
             result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
         truth = true_relative_pose(ordered[0], ordered[k])
@@ -115,3 +161,12 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
         result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
         pairs.append(result)
     return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
+
+
+def _tree_path(parent: dict[int, int], k: int) -> list[tuple[int, int]]:
+    """Edges (parent, child) from the reference (index 0) down to map ``k``."""
+    edges = []
+    while k in parent:
+        edges.append((parent[k], k))
+        k = parent[k]
+    return edges

@@ -48,7 +48,9 @@ def register(subparsers) -> None:
 
 def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, NoOverlapError, alignment_error, fuse_all, true_relative_pose
+    from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import pairwise_alignments
+    from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -86,15 +88,21 @@ def _fuse(args: argparse.Namespace) -> int:
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
         entry["supports_count"] = len(a.supports)
+        p = a.statistics.false_alarm_probability
+        entry["false_alarm_probability"] = float(p) if np.isfinite(p) else None
+        entry["low_confidence"] = bool(a.found and not (p <= LOW_CONFIDENCE_PROBABILITY))
         truth = true_relative_pose(maps[i], maps[j])
         if truth is not None:
             entry["true_pose"] = [float(v) for v in truth]
             entry["error"] = None if not a.found else [float(v) for v in alignment_error(a.pose, truth)]
+            xy_theta = alignment_error_xy_theta(a.pose, truth) if a.found else (None, None)
+            entry["error_xy"], entry["error_theta"] = xy_theta
         report["alignments"].append(entry)
     if result is None:
         report["overlap"] = False
         report["message"] = message
         _print(report, args.json)
+        _warn_low_confidence(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
     for k, pose in enumerate(result.poses):
@@ -102,6 +110,7 @@ def _fuse(args: argparse.Namespace) -> int:
         truth = true_relative_pose(maps[result.reference], maps[k])
         if pose is not None and truth is not None and k != result.reference:
             report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
+            report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for k, m in enumerate(maps) if result.rows[k] is not None)
                                      - len(result.map))
@@ -114,6 +123,7 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     report["out"] = args.out
     _print(report, args.json)
+    _warn_low_confidence(report)
     if result.unconnected:
         print("p3at fuse: these maps overlap no other map and were left out: "
               + ", ".join(report["unconnected"]), file=sys.stderr)
@@ -136,20 +146,33 @@ def _print(report: dict, as_json: bool) -> None:
         tx, ty, th = a["pose"]
         rms = st["residual_rms"]
         print(f"{head}: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad; supports {a['supports_count']} of "
-              f"{st['correspondences']} correspondences, {st['iterations']} iterations, residual rms "
-              f"{rms:.3f} m" + ("" if a["used"] else " (not used)"))
-        if a.get("error") is not None:
-            ex, ey, et = a["error"]
-            print(f"    error vs true start poses: |Δtx|={ex:.3f} m |Δty|={ey:.3f} m |Δθ|={et:.4f} rad")
+              f"{st['correspondences']} correspondences ({st['required_supports']} needed on these maps, best "
+              f"distinct hypothesis {st['second_best_supports']}), {st['iterations']} iterations, residual rms "
+              f"{rms:.3f} m; {_confidence(a['false_alarm_probability'])}" + ("" if a["used"] else " (not used)"))
+        if a["low_confidence"]:
+            print("    warning: low confidence - maps that do not overlap could give this much support")
+        if a.get("error_xy") is not None:
+            print(f"    error vs true start poses: error xy {a['error_xy']:.3f} m, error θ {a['error_theta']:.4f} rad")
     if len(report["maps"]) > 2:
         for k, m in enumerate(report["maps"]):
             if m.get("pose_in_reference") is not None and k:
                 tx, ty, th = m["pose_in_reference"]
                 line = f"map {k} in map 0's frame: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad"
-                if m.get("pose_error") is not None:
-                    ex, ey, et = m["pose_error"]
-                    line += f" (error vs truth {ex:.3f} m, {ey:.3f} m, {et:.4f} rad)"
+                if m.get("error_xy") is not None:
+                    line += f" (error xy {m['error_xy']:.3f} m, error θ {m['error_theta']:.4f} rad vs truth)"
                 print(line)
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")
+
+
+def _confidence(p: float | None) -> str:
+    return "false-alarm probability not evaluated" if p is None else f"false-alarm probability {p:.1e}"
+
+
+def _warn_low_confidence(report: dict) -> None:
+    for a in report["alignments"]:
+        if a["low_confidence"]:
+            print(f"p3at fuse: warning: map {a['map2']} -> map {a['map1']} was aligned with low confidence "
+                  f"({_confidence(a['false_alarm_probability'])}; the {a['preset']} preset decides by its support "
+                  "count alone)", file=sys.stderr)

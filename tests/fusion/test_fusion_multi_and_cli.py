@@ -125,3 +125,49 @@ def test_compose_helpers_agree_with_tree_poses():
     result = fuse_all(maps, "robust", 1, np.random.default_rng(0))
     chained = compose(result.alignments[(0, 1)].pose, result.alignments[(1, 2)].pose)
     assert result.poses[2] == pytest.approx(chained)
+
+
+def test_cli_reports_the_confidence_and_the_demo_error_columns(map_files, capsys):
+    out = map_files / "merged_c.npz"
+    assert main(["fuse", str(map_files / "r1.npz"), str(map_files / "r2.npz"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "false-alarm probability" in text and "needed on these maps" in text
+    assert "error xy" in text and "error θ" in text and "|Δtx|" not in text
+    assert main(["fuse", str(map_files / "r1.npz"), str(map_files / "r2.npz"), "--out", str(out), "--json"]) == 0
+    a = json.loads(capsys.readouterr().out)["alignments"][0]
+    assert a["false_alarm_probability"] < 1e-6 and not a["low_confidence"]
+    assert a["error_xy"] == pytest.approx(np.hypot(a["error"][0], a["error"][1]))
+    assert a["error_theta"] == pytest.approx(a["error"][2])
+    assert a["statistics"]["required_supports"] <= a["supports_count"]
+
+
+def test_cli_warns_when_the_paper_preset_accepts_weak_evidence(sim, tmp_path, capsys):
+    # a corridor of identical doors without descriptors: the paper's rule (20 supports) accepts a shift by
+    # whole doors, the evidence says any shift fits as well; the robust preset declines
+    m1, m2 = sim.corridor_pair(range(0, 8), range(2, 10), (3.0, 0.5, 0.3), seed=1, descriptors="none")
+    m1.save(tmp_path / "c1.npz")
+    m2.save(tmp_path / "c2.npz")
+    files = [str(tmp_path / "c1.npz"), str(tmp_path / "c2.npz"), "--out", str(tmp_path / "m.npz")]
+    code = main(["fuse", *files, "--preset", "paper", "--json"])
+    captured = capsys.readouterr()
+    a = json.loads(captured.out)["alignments"][0]
+    assert code == 0 and a["found"] and a["low_confidence"]
+    assert "low confidence" in captured.err
+    assert main(["fuse", *files]) == 1
+    assert "ambiguous" in capsys.readouterr().out
+
+
+def test_pair_result_carries_the_confidence(sim):
+    from runtime.fusion_report import fuse_maps
+
+    s1, s2 = sim.building_pair(1.0, seed=3)
+    report = fuse_maps({"robot1": s1.map, "robot2": s2.map}, rng=np.random.default_rng(0))
+    p = report.pairs[0]
+    assert p.aligned and 0 < p.false_alarm_probability < 1e-6 and not p.low_confidence
+    assert p.required_supports <= p.supports
+    d = report.as_dict()["pairs"][0]
+    assert {"false_alarm_probability", "required_supports", "second_best_supports", "low_confidence",
+            "error_xy", "error_theta"} <= set(d)
+    n1, n2 = sim.non_overlapping_pair(1.0, seed=3)
+    none = fuse_maps({"robot1": n1.map, "robot2": n2.map}, rng=np.random.default_rng(0)).pairs[0]
+    assert not none.aligned and none.note and not none.low_confidence
