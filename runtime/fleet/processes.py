@@ -27,7 +27,8 @@ from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 
 # p3at run options passed through unchanged (mission arguments shared with p3at demo)
 PASSED = ("seconds", "seed", "camera", "camera_rate", "camera_latency", "particles", "max_corners",
-          "max_observations", "motion", "route", "speed", "preset", "method", "world", "time_scale", "odometry")
+          "max_observations", "motion", "route", "speed", "preset", "method", "world", "time_scale", "odometry",
+          "map_save_interval")
 
 
 def free_port() -> int:
@@ -46,8 +47,9 @@ def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, ou
         value = getattr(args, key, None)
         if value is not None:
             command += [f"--{key.replace('_', '-')}", str(value)]
-    if getattr(args, "log_sensors", False):
-        command.append("--log-sensors")
+    for flag in ("log_sensors", "realtime"):
+        if getattr(args, flag, False):
+            command.append(f"--{flag.replace('_', '-')}")
     return command
 
 

@@ -95,12 +95,14 @@ class ZenohExchange:
 
     def __init__(self, fleet: str = DEFAULT_FLEET, config: str | None = None, role: str = "robot", *,
                  full_every: int = 10, on_event: Callable[[str], None] | None = None,
-                 on_update: Callable[[str], None] | None = None) -> None:
+                 on_update: Callable[[str], None] | None = None,
+                 max_pending_bytes: int = MAX_PENDING_BYTES) -> None:
         if not mapwire.ROBOT_NAME.fullmatch(fleet):
             raise ValueError(f"fleet name {fleet!r} must be 1-64 of A-Z a-z 0-9 _ -")
         self.fleet = fleet
         self.prefix = f"p3at/{fleet}"
         self.full_every = full_every
+        self.max_pending_bytes = max_pending_bytes
         self.on_event = on_event or (lambda line: None)
         self.on_update = on_update or (lambda robot: None)
         self._lock = threading.Lock()
@@ -210,7 +212,7 @@ class ZenohExchange:
         with self._lock:
             self._pending.append((key, data))
             self._pending_bytes += len(data)
-            while self._pending_bytes > MAX_PENDING_BYTES and len(self._pending) > 1:
+            while self._pending_bytes > self.max_pending_bytes and len(self._pending) > 1:
                 _, old = self._pending.popleft()  # the oldest goes; a missed delta is recovered by query
                 self._pending_bytes -= len(old)
                 self.dropped["queue full"] += 1
@@ -316,6 +318,12 @@ class ZenohExchange:
         """The latest fused map heard of."""
         with self._lock:
             return self._latest.get(FUSED)
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes received and not yet decoded (bounded by MAX_PENDING_BYTES plus one message)."""
+        with self._lock:
+            return self._pending_bytes
 
     def present(self) -> set[str]:
         """Robots (and ``fused``) whose liveliness token is alive now."""

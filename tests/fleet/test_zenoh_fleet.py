@@ -24,6 +24,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from runtime.fleet import mapwire  # noqa: E402
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig  # noqa: E402
 from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
@@ -194,8 +195,6 @@ def test_a_restarted_fusion_node_recovers_every_map_by_query(fleet):
 def test_malformed_messages_on_a_robot_key_are_dropped_and_the_receiver_goes_on(fleet):
     import zenoh
 
-    from runtime.fleet import mapwire
-
     fleet.start_node()
     fleet.start_robot("robot1", 0, steps=0, period=0.2)  # publishes until stopped
     wait_until(lambda: "robot1" in fleet.maps(), "robot1's first update")
@@ -274,3 +273,45 @@ def test_tls_and_access_control_admit_only_a_robot_with_an_allowed_client_certif
     assert fleet.maps().keys() == {"robot1"}
     assert fleet.exchange.present() & {"nocert", "plain", "intruder"} == set()
     assert all(p.poll() is None for p in fleet.processes.values())  # the refused ones are alive, still trying
+
+
+def test_a_slow_receiver_keeps_a_bounded_queue_and_ends_with_the_latest_map():
+    """The node's worker is held (its on_update hook blocks) while a robot publishes 40 updates: the queue stays
+    within its byte bound by dropping the oldest, and once released the node ends with the robot's last map
+    (missed deltas recovered by a snapshot query)."""
+    port, fleet = free_port(), f"slow{os.getpid()}"
+    release, held = threading.Event(), threading.Event()
+
+    def slow(robot: str) -> None:
+        held.set()
+        release.wait(DEADLINE)
+
+    limit = 100_000
+    node = ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion", on_update=slow, max_pending_bytes=limit)
+    robot = ZenohExchange(fleet, endpoint_config(port, "robot"), "robot", full_every=10)
+    try:
+        source = SyntheticRobot("robot1", 0, grow=10)
+        first = source.step()
+
+        def first_update_holds_the_worker() -> bool:  # puts before the route to the node exists are lost
+            robot.publish("robot1", first, 0.0)
+            return held.wait(0.2)
+
+        wait_until(first_update_holds_the_worker, "the node's worker held by the first update")
+        peak = largest = 0
+        for step in range(40):
+            last = source.step()
+            robot.publish("robot1", last, float(step))
+            largest = max(largest, len(mapwire.encode_full("robot1", "0" * 16, step, 0.0, last)))
+            peak = max(peak, node.pending_bytes)
+        wait_until(lambda: node.dropped["queue full"] > 0, "the oldest updates dropped")
+        peak = max(peak, node.pending_bytes)
+        assert peak <= limit + largest  # the bound, plus at most the one message that went over it
+        release.set()
+        wait_until(lambda: node.receive().get("robot1") is not None
+                   and np.array_equal(node.receive()["robot1"].landmark_map.ids, last.ids), "the latest map")
+        np.testing.assert_array_equal(node.receive()["robot1"].landmark_map.positions, last.positions)
+    finally:
+        release.set()
+        robot.close()
+        node.close()

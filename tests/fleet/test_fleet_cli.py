@@ -1,0 +1,86 @@
+"""The fleet's commands as a user runs them: ``p3at run --exchange zenoh:...`` publishing a virtual robot's map,
+and ``p3at fuse --live`` fusing robots' maps, each its own process on loopback (random free ports).
+
+Waits have deadlines far above what they need; nothing asserts a duration.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+
+from estimation.landmark_map import LandmarkMap  # noqa: E402
+from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.timeout(180)
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def p3at(*args: str, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, **kwargs)
+
+
+def connect(port: int) -> str:
+    return "zenoh:" + json.dumps({"connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+
+
+def test_p3at_run_publishes_a_world_robot_map_under_its_name(tmp_path):
+    from mocks.world import World
+
+    port, fleet = free_port(), f"cli{os.getpid()}"
+    with ZenohExchange(fleet, json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}), "fusion") as node:
+        run = p3at("run", "--name", "robot2", "--camera", "synthetic", "--seconds", "6", "--rerun", "none",
+                   "--quiet", "--json", "--fusion-interval", "0", "--out", str(tmp_path / "robot2"),
+                   "--exchange", connect(port), "--fleet", fleet, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        stdout, stderr = run.communicate(timeout=150)
+        assert run.returncode == 0, stderr
+        end = time.monotonic() + 30.0  # the last snapshot is published as the robot stops
+        while "robot2" not in node.receive() and time.monotonic() < end:
+            time.sleep(0.05)
+        received = node.receive()["robot2"].landmark_map
+    saved = LandmarkMap.load(tmp_path / "robot2" / "robot2.npz")
+    np.testing.assert_array_equal(received.ids, saved.ids)
+    np.testing.assert_array_equal(received.positions, saved.positions)
+    assert received.metadata["true_start_pose"] == [float(v) for v in World.load(None).start_poses["robot2"]]
+    assert list(json.loads(stdout)["robots"]) == ["robot2"]
+
+
+def test_p3at_fuse_live_fuses_the_robots_maps_and_writes_the_merged_map(tmp_path):
+    port, fleet = free_port(), f"live{os.getpid()}"
+    listen = "zenoh:" + json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+    node = p3at("fuse", "--live", "--exchange", listen, "--fleet", fleet, "--seconds", "20", "--interval", "1",
+                "--out", str(tmp_path / "fused.npz"), "--json", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    robots = [subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", name, "--first-index",
+                                str(k), "--exchange", connect(port), "--fleet", fleet, "--steps", "6", "--period",
+                                "0.3"], cwd=ROOT, stdout=subprocess.DEVNULL)
+              for k, name in enumerate(["robot1", "robot2"])]
+    try:
+        stdout, stderr = node.communicate(timeout=120)
+    finally:
+        for r in robots:
+            r.kill()
+            r.wait()
+    assert node.returncode == 0, stderr
+    result = json.loads(stdout)
+    assert result["fusions"] >= 1
+    pair = result["last"]["pairs"][0]
+    assert pair["aligned"] and pair["error_xy"] < 0.1, pair
+    assert "robot1 joined the fleet" in stderr and "robot2 joined the fleet" in stderr
+    assert set(LandmarkMap.load(tmp_path / "fused.npz").metadata["fused_from"]) == {"robot1", "robot2"}
