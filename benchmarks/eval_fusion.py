@@ -19,9 +19,21 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import fusion_plots  # noqa: E402
-from fusion_sim import MapNoise, building_pair, load_world, non_overlapping_pair, random_pair, true_common  # noqa: E402
+from fusion_sim import (  # noqa: E402
+    MRCLAM_DATASET2,
+    MapNoise,
+    building_pair,
+    corridor_pair,
+    corrupt_map,
+    landmark_pair,
+    load_world,
+    mrclam_sighting_map,
+    non_overlapping_pair,
+    random_pair,
+    true_common,
+)
 
-from estimation.geometry import inverse, transform_points  # noqa: E402
+from estimation.geometry import between, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
 from fusion.alignment import refine_pose  # noqa: E402
@@ -90,26 +102,6 @@ def print_goal(rows):
                                                            or r[p]["error"][2] > WRONG_RAD)) for p in PRESETS}
     print(f"\nWrong alignments reported on overlapping maps (error > {WRONG_M} m or {WRONG_RAD} rad), all "
           f"{len(rows)} cases: " + ", ".join(f"{p} {wrong[p]}" for p in PRESETS))
-
-
-def false_alignments(seeds: int, noise: MapNoise):
-    print(f"\n### False alignments on maps that share nothing ({seeds} seeds each)\n")
-    print("| maps | preset | alignments reported (should be 0) |")
-    print("|---|---|---|")
-    cases = {
-        "building, disjoint features, full routes": lambda s: non_overlapping_pair(1.0, s, noise),
-        "building, disjoint features, 60 % of routes": lambda s: non_overlapping_pair(0.6, s, noise),
-        "random 250 + 300 landmarks, 35 × 10 m": lambda s: random_pair(0, 250, 300, (3, 1, 0.4), seed=s)[:2],
-    }
-    for name, make in cases.items():
-        found = dict.fromkeys(PRESETS, 0)
-        for seed in range(seeds):
-            m1, m2 = make(seed)
-            m1, m2 = getattr(m1, "map", m1), getattr(m2, "map", m2)
-            for preset in PRESETS:
-                found[preset] += align(m1, m2, preset, np.random.default_rng(seed)).found
-        for preset in PRESETS:
-            print(f"| {name} | {preset} | {found[preset]}/{seeds} |")
 
 
 def small_overlap(seeds: int):
@@ -255,6 +247,290 @@ def slam_table(folder: Path, title: str = "FastSLAM maps from `p3at slam simulat
                   f"{' / '.join(cm)} |")
 
 
+# -- issue 13: a "found" that can be trusted ----------------------------------------------------------------------
+def _strip_identities(m: LandmarkMap) -> LandmarkMap:
+    out = m.subset(np.arange(len(m)))
+    out.metadata.pop("external_ids", None)
+    return out
+
+
+def _wrong(a, truth) -> bool:
+    e = alignment_error(a.pose, truth)
+    return bool(max(e[0], e[1]) > WRONG_M or e[2] > WRONG_RAD)
+
+
+def false_alarms(total: int):
+    """``total`` simulated pairs that share nothing, spread over seven kinds; both presets."""
+    rng_pose = np.random.default_rng(12345)
+
+    def far_pose(s):
+        r = np.random.default_rng([s, 99])
+        return (r.uniform(-10, 10), r.uniform(-5, 5), r.uniform(-np.pi, np.pi))
+
+    def wrong_ids(s):
+        m1, m2, _ = landmark_pair(0, 15, 15, far_pose(s), seed=s, sigma=0.05, descriptors="id")
+        m1.metadata["external_ids"] = list(range(15))
+        m2.metadata["external_ids"] = [int(v) for v in np.random.default_rng([s, 7]).permutation(15)]
+        return m1, m2
+
+    kinds = {
+        "building, disjoint features, full routes": lambda s: non_overlapping_pair(1.0, s),
+        "building, disjoint features, 60 % of routes": lambda s: non_overlapping_pair(0.6, s),
+        "random 250 + 300 landmarks, 35 × 10 m": lambda s: random_pair(0, 250, 300, far_pose(s), seed=s)[:2],
+        "15 + 15 landmarks, 15 × 8 m, no descriptors": lambda s: landmark_pair(0, 15, 15, far_pose(s), seed=s,
+                                                                               descriptors="none")[:2],
+        "15 + 15 landmarks, identities shuffled (every one wrong)": wrong_ids,
+        "corridor of identical doors, no overlap, no descriptors": lambda s: corridor_pair(
+            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="none"),
+        "corridor of identical doors, no overlap, repeated descriptors": lambda s: corridor_pair(
+            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="door"),
+    }
+    del rng_pose
+    per = max(1, total // len(kinds))
+    print(f"\n### No false alignment on maps that share nothing ({per * len(kinds)} pairs: {per} of each kind)\n")
+    print("| maps | preset | alignments reported (should be 0) | of which low-confidence (warned) |")
+    print("|---|---|---|---|")
+    counts = {}
+    for name, make in kinds.items():
+        found = {p: [0, 0] for p in PRESETS}
+        for seed in range(per):
+            m1, m2 = make(seed)
+            m1, m2 = getattr(m1, "map", m1), getattr(m2, "map", m2)
+            for preset in PRESETS:
+                a = align(m1, m2, preset, np.random.default_rng(seed))
+                if a.found:
+                    found[preset][0] += 1
+                    found[preset][1] += not (a.statistics.false_alarm_probability <= 1e-6)
+        for preset in PRESETS:
+            print(f"| {name} | {preset} | {found[preset][0]}/{per} | {found[preset][1]} |")
+            counts[preset] = counts.get(preset, 0) + found[preset][0]
+    print(f"\nTotal alignments reported on {per * len(kinds)} non-overlapping pairs: "
+          + ", ".join(f"{p} {counts[p]}" for p in PRESETS))
+
+
+def evidence_table(seeds: int):
+    print(f"\n### Supports needed: two 15-landmark maps (15 × 8 m, landmarks ≥ 1 m apart) sharing n ({seeds} seeds)\n")
+    print("The robust preset's decision (false-alarm probability < 10⁻⁶); 'needed' is the fewest supports the "
+          "evidence would have accepted on those maps (median over seeds).\n")
+    print("| landmarks shared | identities | map σ (m) | found | correct (≤ 0.3 m, 0.05 rad) | supports needed |")
+    print("|---|---|---|---|---|---|")
+    pose = (4.0, 2.0, 1.2)
+    for desc in ("id", "none"):
+        for sigma in (0.03, 0.1):
+            for n in (4, 6, 8, 10, 12, 15):
+                found = right = 0
+                needed = []
+                for seed in range(seeds):
+                    m1, m2, _ = landmark_pair(n, 15 - n, 15 - n, pose, seed=seed, sigma=sigma, descriptors=desc)
+                    a = align(m1, m2, "robust", np.random.default_rng(seed))
+                    needed.append(a.statistics.required_supports)
+                    if a.found:
+                        found += 1
+                        e = alignment_error(a.pose, pose)
+                        right += bool(max(e[:2]) <= 0.3 and e[2] <= 0.05)
+                label = "known ids" if desc == "id" else "none (geometry alone)"
+                print(f"| {n} | {label} | {sigma} | {found}/{seeds} | {right}/{seeds} | {np.median(needed):.0f} |")
+
+
+def corridor_table():
+    print("\n### Repeated structure: a corridor of identical doors (4 corners per door, 2 m apart)\n")
+    print("| robot 1 doors | robot 2 doors | descriptors | preset | found | reason / supports |")
+    print("|---|---|---|---|---|---|")
+    for d2, label in ((range(2, 10), "2–9 (6 shared)"), (range(12, 20), "12–19 (none shared)"),
+                      (range(0, 8), "0–7 (all shared)")):
+        for desc in ("none", "door"):
+            m1, m2 = corridor_pair(range(0, 8), d2, (3.0, 0.5, 0.3), seed=1, descriptors=desc)
+            for preset in PRESETS:
+                a = align(m1, m2, preset, np.random.default_rng(0))
+                st = a.statistics
+                why = (f"found with {st.supports} supports, false-alarm probability "
+                       f"{st.false_alarm_probability:.1e}" if a.found else a.reason.split(";")[0])
+                print(f"| 0–7 | {label} | {desc} | {preset} | {'yes' if a.found else 'no'} | {why} |")
+
+
+def rigid_fit_2d(local: np.ndarray, world: np.ndarray) -> np.ndarray:
+    """Pose (3,) of a map's frame in the world that best fits its landmarks local (K, 2) onto world (K, 2)
+    (least squares, Kabsch in the plane)."""
+    mu_l, mu_w = local.mean(axis=0), world.mean(axis=0)
+    a, b = local - mu_l, world - mu_w
+    theta = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    c, s = np.cos(theta), np.sin(theta)
+    t = mu_w - np.array([c * mu_l[0] - s * mu_l[1], s * mu_l[0] + c * mu_l[1]])
+    return np.array([t[0], t[1], theta])
+
+
+def _attribute(m: LandmarkMap, truth: dict) -> np.ndarray:
+    """The true landmark id of every row (N,): the map's identities, else the nearest true landmark after
+    aligning the map to the true landmarks by geometry alone (-1: none within 0.5 m)."""
+    ids = m.metadata.get("external_ids")
+    if ids is not None and len(ids) == len(m):
+        return np.asarray(ids, np.int64)
+    keys = np.array(sorted(truth))
+    pts = np.array([truth[k] for k in keys])
+    truth_map = LandmarkMap(np.column_stack([pts, np.zeros(len(pts))]), np.repeat(np.eye(3)[None] * 0.01,
+                            len(pts), 0), np.zeros((len(pts), 0), np.float32), robot="truth")
+    a = align(truth_map, m, "robust", np.random.default_rng(0))
+    if not a.found:
+        return np.full(len(m), -1)
+    world = transform_points(a.pose, m.positions)[:, :2]
+    d = np.linalg.norm(world[:, None, :] - pts[None], axis=2)
+    return np.where(d.min(axis=1) < 0.5, keys[d.argmin(axis=1)], -1)
+
+
+def frame_fit(m: LandmarkMap, truth: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Best rigid fit of map ``m`` to the truth: pose (3,) of its frame in the world, per-row error after
+    the fit (N,) (nan where unattributed), and the rows' true ids (N,)."""
+    ids = _attribute(m, truth)
+    ok = np.array([int(i) in truth for i in ids])
+    world = np.array([truth[int(i)] for i in ids[ok]])
+    fit = rigid_fit_2d(m.positions[ok, :2], world)
+    err = np.full(len(m), np.nan)
+    err[ok] = np.linalg.norm(transform_points(fit, m.positions[ok])[:, :2] - world, axis=1)
+    return fit, err, ids
+
+
+def _fuse_cli(files: list[Path], out: Path, preset: str = "robust") -> dict:
+    """``p3at fuse FILES --out OUT --json``, its report."""
+    import contextlib
+    import io
+    import json
+
+    from runtime.cli import main as p3at
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):
+        code = p3at(["fuse", *map(str, files), "--out", str(out), "--json", "--preset", preset])
+    report = json.loads(buf.getvalue())
+    report["exit"] = code
+    return report
+
+
+def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, figures: Path | None = None):
+    """p3at fuse on five MRCLAM maps: every pair, its error against the Vicon start poses and against the
+    composition of the two maps' best rigid fits to the truth; the merged map's landmark error."""
+    files = []
+    for m in maps:
+        files.append(work / f"{m.robot}.npz")
+        m.save(files[-1])
+    out = work / "merged.npz"
+    report = _fuse_cli(files, out)
+    fits = [frame_fit(m, truth) for m in maps]
+    starts = [np.asarray(m.metadata["true_start_pose"], float) for m in maps]
+    print(f"\n### MRCLAM dataset 2, {title}: `p3at fuse` on the five maps (exit {report['exit']})\n")
+    print("| pair | landmarks | supports (needed) | false-alarm probability | error xy (m) | error θ (rad) | "
+          "alignment's own error xy (m) / θ (rad) | frame error of map i, j: xy (m) / θ (rad) |")
+    print("|---|---|---|---|---|---|---|---|")
+    e_truth, e_own = [], []
+    for a in report["alignments"]:
+        i, j = a["map1"], a["map2"]
+        label = f"{maps[i].robot}–{maps[j].robot}"
+        n = f"{len(maps[i])} / {len(maps[j])}"
+        if not a["found"]:
+            print(f"| {label} | {n} | not found | | | | | {a['reason'][:80]} |")
+            continue
+        best = between(fits[i][0], fits[j][0])          # what a perfect alignment of these two maps gives
+        own = alignment_error(a["pose"], best)
+        fi, fj = between(starts[i], fits[i][0]), between(starts[j], fits[j][0])
+        e_truth.append((a["error_xy"], a["error_theta"]))
+        e_own.append((np.hypot(own[0], own[1]), own[2]))
+        print(f"| {label} | {n} | {a['supports_count']} ({a['statistics']['required_supports']}) | "
+              f"{a['false_alarm_probability']:.1e} | {a['error_xy']:.3f} | {a['error_theta']:.4f} | "
+              f"{e_own[-1][0]:.3f} / {e_own[-1][1]:.4f} | {np.hypot(*fi[:2]):.3f} / {abs(fi[2]):.4f}, "
+              f"{np.hypot(*fj[:2]):.3f} / {abs(fj[2]):.4f} |")
+    found = sum(a["found"] for a in report["alignments"])
+    if e_truth:
+        et, eo = np.array(e_truth), np.array(e_own)
+        print(f"\nAligned {found}/{len(report['alignments'])} pairs; median error vs the Vicon start poses "
+              f"{np.median(et[:, 0]):.3f} m / {np.median(et[:, 1]):.4f} rad (goal ≤ 0.3 m / 0.05 rad); the "
+              f"alignment's own part (vs the composed best rigid fits) {np.median(eo[:, 0]):.3f} m / "
+              f"{np.median(eo[:, 1]):.4f} rad.")
+    if report["exit"] != 0 or not out.exists():
+        return
+    merged = LandmarkMap.load(out)
+    singles = [np.nanmedian(f[1]) for f in fits]
+    _, merged_err, merged_ids = frame_fit(merged, truth)
+    print("\n| map | landmarks | landmark error after the best rigid fit, median (m) | mean (m) |")
+    print("|---|---|---|---|")
+    for m, f in zip(maps, fits, strict=True):
+        print(f"| {m.robot} | {len(m)} | {np.nanmedian(f[1]):.3f} | {np.nanmean(f[1]):.3f} |")
+    print(f"| merged ({'+'.join(m.robot[-1] for m in maps)}) | {len(merged)} | {np.nanmedian(merged_err):.3f} | "
+          f"{np.nanmean(merged_err):.3f} |")
+    verdict = "lower" if np.nanmedian(merged_err) < min(singles) else "NOT lower"
+    print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "
+          f"({np.nanmedian(merged_err):.3f} vs {min(singles):.3f} m).")
+    if figures is not None:
+        fit = frame_fit(merged, truth)[0]
+        world = transform_points(fit, merged.positions)
+        pts = np.array(list(truth.values()))
+        fusion_plots.map_2d(figures / f"fusion_mrclam_{title.split()[0].lower()}_merged.png",
+                            [("true landmarks (Vicon)", pts, (60, 170, 60)),
+                             ("merged map (best rigid fit)", world, (200, 90, 30))],
+                            f"MRCLAM dataset 2: merged map of five robots ({title})", scale=40.0)
+
+
+def mrclam_faults(sightings, seeds: int):
+    print(f"\n### MRCLAM maps with injected faults ({seeds} seeds; 3 duplicates 0.3–1 m off + 3 outliers with "
+          "the identity of a random landmark, in every map)\n")
+    print("| case | identities | alignments found | wrong (> 0.3 m or 0.05 rad) |")
+    print("|---|---|---|---|")
+    for ident in (True, False):
+        found = wrong = total = 0
+        false_found = disjoint = 0
+        for seed in range(seeds):
+            rng = np.random.default_rng(seed)
+            for i in range(len(sightings)):
+                for j in range(i + 1, len(sightings)):
+                    m1 = corrupt_map(sightings[i].map, rng)
+                    m2 = corrupt_map(sightings[j].map, rng)
+                    if not ident:
+                        m1, m2 = _strip_identities(m1), _strip_identities(m2)
+                    a = align(m1, m2, "robust", np.random.default_rng(seed))
+                    total += 1
+                    if a.found:
+                        found += 1
+                        e = alignment_error(a.pose, true_relative_pose(m1, m2))
+                        wrong += bool(max(e[:2]) > 0.3 or e[2] > 0.05)
+                    # disjoint halves of the landmarks: no true overlap at all
+                    ids = np.union1d(sightings[i].identities, sightings[j].identities)
+                    half = set(rng.permutation(ids)[: len(ids) // 2].tolist())
+                    k1 = np.array([v in half for v in sightings[i].identities])
+                    k2 = np.array([v not in half for v in sightings[j].identities])
+                    d1, d2 = sightings[i].map.subset(k1), sightings[j].map.subset(k2)
+                    d1.metadata["external_ids"] = [int(v) for v in sightings[i].identities[k1]]
+                    d2.metadata["external_ids"] = [int(v) for v in sightings[j].identities[k2]]
+                    d1, d2 = corrupt_map(d1, rng, 2, 2), corrupt_map(d2, rng, 2, 2)
+                    if not ident:
+                        d1, d2 = _strip_identities(d1), _strip_identities(d2)
+                    disjoint += 1
+                    false_found += align(d1, d2, "robust", np.random.default_rng(seed)).found
+        label = "known ids (outliers: wrong ids)" if ident else "none (geometry alone)"
+        print(f"| overlapping pairs | {label} | {found}/{total} | {wrong} |")
+        print(f"| disjoint halves (no overlap) | {label} | {false_found}/{disjoint} | {false_found} |")
+
+
+def starved_table(folder: Path):
+    """Snapshots (folders of ``robot*.npz``) of maps from a demo starved of CPU: every pair aligned."""
+    snaps = sorted((p for p in folder.iterdir() if p.is_dir() and len(list(p.glob("*.npz"))) >= 2),
+                   key=lambda p: int(p.name.split("_")[-1]) if p.name.split("_")[-1].isdigit() else 0)
+    print(f"\n### Maps from a demo starved of CPU ({len(snaps)} snapshots)\n")
+    print("| preset | snapshots | found | wrong (> 0.3 m or 0.1 rad) | not found |")
+    print("|---|---|---|---|---|")
+    for preset in PRESETS:
+        found = wrong = missing = 0
+        for snap in snaps:
+            files = sorted(snap.glob("*.npz"))
+            maps = [LandmarkMap.load(f) for f in files]
+            for i in range(len(maps)):
+                for j in range(i + 1, len(maps)):
+                    a = align(maps[i], maps[j], preset, np.random.default_rng(0))
+                    truth = true_relative_pose(maps[i], maps[j])
+                    if a.found:
+                        found += 1
+                        wrong += _wrong(a, truth)
+                    else:
+                        missing += 1
+        print(f"| {preset} | {len(snaps)} | {found} | {wrong} | {missing} |")
+
+
 def figures(rows, out: Path, noise: MapNoise):
     x = np.array(FRACTIONS)
     series = {}
@@ -309,30 +585,64 @@ def figures(rows, out: Path, noise: MapNoise):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20, help="random seeds per snapshot (20)")
-    parser.add_argument("--false-seeds", type=int, default=200, help="seeds per non-overlap case (200)")
+    parser.add_argument("--false-pairs", type=int, default=1000,
+                        help="simulated pairs that share nothing, over seven kinds (1000)")
     parser.add_argument("--descriptor-noise", type=float, default=MapNoise().descriptor_noise,
                         help=f"descriptor noise of the simulated maps ({MapNoise().descriptor_noise})")
     parser.add_argument("--figures", type=Path, help="write the PNG figures into this folder")
     parser.add_argument("--slam-maps", type=Path, help="folder of FastSLAM map pairs NAME_r1.npz / NAME_r2.npz")
     parser.add_argument("--slam-growth", type=Path, help="folder of FastSLAM map pairs of one run cut at several "
                         "times (tNNNs_r1.npz / tNNNs_r2.npz)")
+    parser.add_argument("--mrclam", type=Path, default=MRCLAM_DATASET2,
+                        help="MRCLAM dataset 2 folder (default ../shared/data/mrclam/MRCLAM_Dataset2; "
+                             "skipped if absent)")
+    parser.add_argument("--mrclam-maps", type=Path, action="append", default=[],
+                        help="folder of FastSLAM maps robot1.npz ... robot5.npz of MRCLAM (p3at slam dataset); "
+                             "may be given more than once")
+    parser.add_argument("--fault-seeds", type=int, default=5, help="seeds of the injected-fault MRCLAM table (5)")
+    parser.add_argument("--starved", type=Path, help="folder of snapshot folders of maps from a CPU-starved demo")
+    parser.add_argument("--trust-only", action="store_true",
+                        help="only the tables of issue 13 (false alarms, evidence, MRCLAM), not the paper's figures")
     args = parser.parse_args()
     noise = MapNoise(descriptor_noise=args.descriptor_noise)
     t0 = time.perf_counter()
     print(f"simulated maps: {noise}")
-    rows = growth(args.seeds, noise)
-    print_growth(rows, args.seeds)
-    print_goal(rows)
-    false_alignments(args.false_seeds, noise)
-    small_overlap(args.seeds)
-    print_common(rows, args.seeds)
-    merged_accuracy(min(args.seeds, 10), noise)
-    drift_table(min(args.seeds, 10), noise)
-    if args.slam_growth:
-        slam_table(args.slam_growth, "Fig. 2 on FastSLAM maps: one run of each robot cut after t seconds")
-    if args.slam_maps:
-        slam_table(args.slam_maps)
-    if args.figures:
+    rows = None
+    if not args.trust_only:
+        rows = growth(args.seeds, noise)
+        print_growth(rows, args.seeds)
+        print_goal(rows)
+    false_alarms(args.false_pairs)
+    evidence_table(args.seeds)
+    corridor_table()
+    if not args.trust_only:
+        small_overlap(args.seeds)
+        print_common(rows, args.seeds)
+        merged_accuracy(min(args.seeds, 10), noise)
+        drift_table(min(args.seeds, 10), noise)
+        if args.slam_growth:
+            slam_table(args.slam_growth, "Fig. 2 on FastSLAM maps: one run of each robot cut after t seconds")
+        if args.slam_maps:
+            slam_table(args.slam_maps)
+    if args.mrclam and args.mrclam.is_dir():
+        import tempfile
+        sightings = [mrclam_sighting_map(args.mrclam, r) for r in range(1, 6)]
+        truth = sightings[0].truth
+        with tempfile.TemporaryDirectory() as work:
+            mrclam_table([s.map for s in sightings], truth, "maps from real sightings placed from Vicon poses",
+                         Path(work), args.figures)
+        for folder in args.mrclam_maps:
+            with tempfile.TemporaryDirectory() as work:
+                maps = [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)]
+                assoc = maps[0].metadata.get("association", "?")
+                mrclam_table(maps, truth, f"FastSLAM maps ({assoc} association, {folder.name})", Path(work),
+                             args.figures)
+        mrclam_faults(sightings, args.fault_seeds)
+    else:
+        print(f"\n(MRCLAM tables skipped: {args.mrclam} not found)")
+    if args.starved:
+        starved_table(args.starved)
+    if args.figures and rows is not None:
         figures(rows, args.figures, noise)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
