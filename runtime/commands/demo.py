@@ -15,8 +15,8 @@ def register(subparsers) -> None:
     add_mission_arguments(parser, robots=2, seconds=200.0, out="out/demo", camera="mock", camera_rate=3.75)
     parser.add_argument("--processes", action="store_true",
                         help="each robot (virtual P3-AT, head and runtime) its own process, maps over Zenoh on "
-                             "loopback, the fusion node in this one; real time; --camera synthetic unless given "
-                             "(docs/fleet.md)")
+                             "loopback, the fusion node in this one; each robot keeps its own simulated time; "
+                             "--camera synthetic unless given (docs/fleet.md)")
     parser.set_defaults(handler=_demo, camera=None)
 
 
@@ -24,7 +24,7 @@ def _demo(args) -> int:
     if args.processes:
         from runtime.fleet.processes import run_processes_demo
 
-        args.camera = args.camera or "synthetic"  # two cores cannot render every robot's head in real time
+        args.camera = args.camera or "synthetic"  # rendering every head in its own process costs far more CPU
         return run_processes_demo(args)
     args.camera = args.camera or "mock"
     return run_mission_command(args)

@@ -3,8 +3,9 @@ processes on loopback, maps exchanged over Zenoh, and the fusion node in this pr
 
 Each robot is ``p3at run --robot mock --name robotK`` (its virtual P3-AT, its virtual head and its onboard
 runtime in one process: the head renders from the robot's simulated pose, so they cannot be split), with the
-same seeds as in the single-process mission. The robots run in real time (docs/fleet.md says why); this
-process runs the fusion node (it listens on a free loopback port, the robots connect to it), fuses on new data
+same seeds as in the single-process mission. Each robot process keeps its own simulated time (or the wall clock
+with --realtime): the robots do not interact, so no clock crosses processes (docs/fleet.md). This process runs
+the fusion node (it listens on a free loopback port, the robots connect to it), fuses on new data
 and at ``--fusion-interval``, waits for every robot to finish, fuses once more and prints the same summary as
 the single-process demo. Rerun: each robot writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
 (every robot's map as received, the alignments, the fused map, the summary: what ``p3at review`` reads).
