@@ -162,6 +162,7 @@ class P3AT:
         self._thread: threading.Thread | None = None
         self._closed = False
         self._link_up = False
+        self._lost_reason = ""  # why the link was last lost, for NotConnectedError messages
         self._state_subscribers = _Subscribers("state")
         self._link_subscribers = _Subscribers("link")
         self._packet_subscribers = _Subscribers("packet")
@@ -241,7 +242,20 @@ class P3AT:
 
     @property
     def state(self) -> RobotState | None:
-        """The latest state (``None`` before the first SIP)."""
+        """The latest state (``None`` before the first SIP of a session that is up).
+
+        Raises :class:`NotConnectedError` at once while the link is down (never connected, lost, reconnecting,
+        closed): a stale state must not pass for the robot's present one. :attr:`last_state` keeps it.
+        """
+        with self._cond:
+            self._require_link()
+            s = self._state
+            return s if s is not None and s.session == self.session else None
+
+    @property
+    def last_state(self) -> RobotState | None:
+        """The last state received, even after the link was lost or closed (``None`` before any SIP); for
+        reports and diagnostics, never for control."""
         with self._cond:
             return self._state
 
@@ -249,24 +263,33 @@ class P3AT:
                        predicate: Callable[[RobotState], bool] | None = None) -> RobotState:
         """Block until a state newer than the current one (and matching ``predicate``) arrives.
 
-        Raises :class:`DriverTimeoutError` after ``timeout`` seconds, :class:`NotConnectedError` if closed.
+        Raises :class:`NotConnectedError` at once if the link is down when called or as soon as it is lost
+        while waiting (closed, lost, reconnecting), :class:`DriverTimeoutError` after ``timeout`` seconds of a
+        link that is up but brings no matching state.
         """
         with self._cond:
+            self._require_link()
             start = self._state
             start_key = (start.session, start.sequence) if start else None
 
             def ready() -> bool:
                 s = self._state
-                if self._closed:
+                if not self.connected:
                     return True
                 return (s is not None and (s.session, s.sequence) != start_key
                         and (predicate is None or predicate(s)))
             if not self._cond.wait_for(ready, timeout):
                 raise DriverTimeoutError(f"{self.url}: no matching robot state within {timeout:g} s")
-            if self._closed:
-                raise NotConnectedError(f"{self.url}: closed")
+            self._require_link()
             assert self._state is not None
             return self._state
+
+    def _require_link(self) -> None:
+        if self._closed:
+            raise NotConnectedError(f"{self.url}: closed")
+        if not self._link_up:
+            why = f" ({self._lost_reason})" if self._lost_reason else ""
+            raise NotConnectedError(f"{self.url}: link lost{why}" if self.session else f"{self.url}: not connected")
 
     # ------------------------------------------------------------------ commands
     def send_command(self, cmd: int, arg: int | str | bytes | None = None) -> None:
@@ -570,6 +593,7 @@ class P3AT:
 
     def _lose_link(self, reason: str) -> None:
         log.warning("%s: link lost (%s)", self.url, reason)
+        self._lost_reason = reason
         self._link_up = False
         self._close_port()
         self._link_subscribers.call(LinkEvent("lost", self.clock(), self.session, reason))

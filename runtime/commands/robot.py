@@ -1,7 +1,8 @@
 """``p3at robot``: talk to a P3-AT (or an ARCOS simulator) and run the virtual one.
 
 - ``p3at robot info URL [--json]``: connect, print identity, CONFIG and the current state.
-- ``p3at robot drive URL --vel M_S --rvel RAD_S --seconds T``: drive and print odometry as it goes.
+- ``p3at robot drive URL --vel M_S --rvel RAD_S --seconds T``: drive and print odometry as it goes; on a lost
+  link it stops printing at once, says "link lost" and exits 1 (the robot's own 2 s watchdog stops it).
 - ``p3at robot serve [--tcp PORT | --pty] [--world FILE] [--pose X,Y,TH] [--name NAME]``: run a virtual P3-AT.
 
 URL is anything pyserial opens: ``/dev/ttyUSB0``, a pty path, ``socket://127.0.0.1:8101``.
@@ -17,10 +18,14 @@ import threading
 import time
 from typing import Any
 
-from drivers.errors import BadFileError, DriverError
+from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
 
 EXIT_DEVICE = 1
 EXIT_BAD_INPUT = 2
+# Command-line sessions are short and watched: notice a silent link fast (the library's default, 4 s, suits
+# long runs that reconnect). 0.6 s = 6 SIP cycles of 100 ms, twice the longest gap (0.31 s) measured from the
+# virtual robot on a loaded machine, so a slow robot is not taken for a lost one.
+LINK_TIMEOUT = 0.6
 
 
 def register(subparsers: Any) -> None:
@@ -38,8 +43,10 @@ def register(subparsers: Any) -> None:
 
     drive = sub.add_parser("drive", help="drive at a velocity for some seconds, printing odometry",
                            description="Enable the motors, drive at --vel m/s and --rvel rad/s for --seconds, "
-                                       "printing odometry (x, y in metres, heading in degrees) as it goes, "
-                                       "then stop, disable the motors and disconnect.")
+                                       "printing odometry (x, y in metres, heading θ in radians) as it goes, "
+                                       "then stop, disable the motors and disconnect. If the link is lost "
+                                       "(no packet for --link-timeout s, or the port fails) it stops printing, "
+                                       "says 'link lost' and exits with status 1.")
     _url_arguments(drive)
     drive.add_argument("--vel", type=float, default=0.0, metavar="M_S", help="forward velocity, m/s (default 0)")
     drive.add_argument("--rvel", type=float, default=0.0, metavar="RAD_S",
@@ -71,6 +78,9 @@ def _url_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("url", metavar="URL", help="serial device, pty path or socket://HOST:PORT")
     parser.add_argument("--params", metavar="FILE", help="robot parameter file (default: chosen by the subtype)")
     parser.add_argument("--baud", type=int, default=9600, help="serial baud rate (default 9600)")
+    parser.add_argument("--link-timeout", type=float, default=LINK_TIMEOUT, metavar="S",
+                        help=f"seconds without any packet before the link counts as lost (default {LINK_TIMEOUT}: "
+                             "six SIP cycles, twice the longest gap seen from a loaded virtual robot)")
 
 
 def _fail(action: str, message: object, status: int) -> int:
@@ -79,9 +89,25 @@ def _fail(action: str, message: object, status: int) -> int:
 
 
 def _open(args: argparse.Namespace):
+    import logging
+
     from drivers.arcos.robot import P3AT
 
-    return P3AT(args.url, params=args.params, baudrate=args.baud, reconnect=False).connect()
+    if not logging.getLogger().handlers:
+        # Nobody configured logging: keep Python's last-resort handler from printing the driver's warnings
+        # beside this command's own one-line message (a lost link would be said twice).
+        logging.getLogger("drivers").addHandler(logging.NullHandler())
+    return P3AT(args.url, params=args.params, baudrate=args.baud, reconnect=False,
+                link_timeout=args.link_timeout).connect()
+
+
+def _check_numbers(args: argparse.Namespace, names: tuple[str, ...]) -> str | None:
+    """The first of ``names`` (attributes of args) that is not a finite number, as an error message."""
+    for name in names:
+        value = getattr(args, name)
+        if not math.isfinite(value):
+            return f"--{name.replace('_', '-')} must be a finite number, got {value}"
+    return None
 
 
 # ---------------------------------------------------------------------------------------------------- info
@@ -98,12 +124,14 @@ def _state_dict(state: Any) -> dict[str, Any]:
 def _info(args: argparse.Namespace) -> int:
     from drivers.arcos.codec import config_to_dict
 
+    if not (math.isfinite(args.link_timeout) and args.link_timeout > 0):
+        return _fail("info", f"--link-timeout must be a finite number > 0, got {args.link_timeout}", EXIT_BAD_INPUT)
     try:
         with _open(args) as robot:
             # Give the sonars one firing round so every range is filled in (each SIP carries only new ones).
             try:
                 state = robot.wait_for_state(1.5, lambda s: all(r is not None for r in s.sonar_ranges()))
-            except DriverError:
+            except DriverTimeoutError:
                 state = robot.state
             identity, config, params = robot.identity, robot.config, robot.params
             stats = robot.stats
@@ -127,8 +155,8 @@ def _info(args: argparse.Namespace) -> int:
         print("config    (the robot sent no CONFIG packet)")
     else:
         print("config    " + "  ".join(f"{k}={v}" for k, v in config_fields.items()))
-    print(f"pose      x={state.x:.3f} m  y={state.y:.3f} m  theta={math.degrees(state.theta):.1f} deg  "
-          f"v={state.v:.3f} m/s  w={state.w:.3f} rad/s")
+    print(f"pose      x={state.x:.3f} m  y={state.y:.3f} m  θ={state.theta:+.4f} rad  "
+          f"v={state.v:.3f} m/s  ω={state.w:+.4f} rad/s")
     print(f"battery   {state.battery_volts:.1f} V   motors {'on' if state.motors_enabled else 'off'}"
           f"   stall L/R {int(state.left_stall)}/{int(state.right_stall)}"
           f"   bumpers front {state.front_bumpers:#04x} rear {state.rear_bumpers:#04x}"
@@ -140,10 +168,15 @@ def _info(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------------------------- drive
 def _drive(args: argparse.Namespace) -> int:
-    if not (args.seconds >= 0 and math.isfinite(args.seconds)):
+    problem = _check_numbers(args, ("vel", "rvel", "seconds", "every", "link_timeout"))
+    if problem:
+        return _fail("drive", problem, EXIT_BAD_INPUT)
+    if not args.seconds >= 0:
         return _fail("drive", f"--seconds must be >= 0, got {args.seconds}", EXIT_BAD_INPUT)
-    if not (args.every > 0):
-        return _fail("drive", f"--every must be > 0, got {args.every}", EXIT_BAD_INPUT)
+    if not (args.every > 0 and args.link_timeout > 0):
+        return _fail("drive", "--every and --link-timeout must be > 0", EXIT_BAD_INPUT)
+
+    columns = ("t [s]", "x [m]", "y [m]", "θ [rad]", "v [m/s]", "ω [rad/s]")
 
     def show(t: float, state: Any) -> None:
         if args.json:
@@ -151,22 +184,31 @@ def _drive(args: argparse.Namespace) -> int:
                               "w": state.w, "stalled": state.stalled, "bumped": state.bumped}), flush=True)
         else:
             flags = (" STALL" if state.stalled else "") + (" BUMP" if state.bumped else "")
-            print(f"t={t:6.2f} s  x={state.x:8.3f} m  y={state.y:8.3f} m  theta={math.degrees(state.theta):7.1f} "
-                  f"deg  v={state.v:6.3f} m/s  w={state.w:6.3f} rad/s{flags}", flush=True)
+            values = (t, state.x, state.y, state.theta, state.v, state.w)
+            print("".join(f"{v:>10.3f}" if k < 3 else f"{v:>+10.4f}" for k, v in enumerate(values)) + flags,
+                  flush=True)
 
+    lost = threading.Event()  # set on the reader thread the moment the driver declares the link lost
     try:
         with _open(args) as robot:
+            robot.subscribe_link(lambda event: event.kind == "lost" and lost.set())
+            if not args.json:
+                print("".join(f"{c:>10}" for c in columns), flush=True)
             try:
                 robot.motors_on()
                 robot.set_velocity_limits(max_v=max(abs(args.vel), 0.1), max_w=max(abs(args.rvel), 0.1))
                 robot.set_velocity(args.vel, args.rvel)
                 start = time.monotonic()
                 while (elapsed := time.monotonic() - start) < args.seconds:
-                    time.sleep(min(args.every, args.seconds - elapsed))
+                    if lost.wait(min(args.every, args.seconds - elapsed)):
+                        break  # robot.state below would raise; say it once, now
                     show(time.monotonic() - start, robot.state)
             finally:
                 if robot.connected:
-                    robot.stop()
+                    try:
+                        robot.stop()
+                    except NotConnectedError:
+                        pass  # lost in between: the robot's watchdog stops it
             state = robot.wait_for_state(2.0, lambda s: s.v == 0.0 and s.w == 0.0)
             show(time.monotonic() - start, state)
     except BadFileError as e:

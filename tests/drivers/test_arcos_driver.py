@@ -1,5 +1,10 @@
 """The P3AT driver against a protocol-level fake peer (conftest.FakePeer): corner cases the virtual robot in
-mocks.p3at does not produce on demand (old session still streaming, no CONFIG, a peer that goes silent)."""
+mocks.p3at does not produce on demand (old session still streaming, no CONFIG, a peer that goes silent).
+
+No test here depends on the machine's speed: the driver's clock is injected where a test needs time to pass
+(a clock the test moves forward instead of sleeping), and every real-time wait is a failure bound
+(FAILURE_BOUND), never the expected duration: it only decides how long a broken driver takes to fail.
+"""
 from __future__ import annotations
 
 import threading
@@ -12,8 +17,26 @@ from drivers.arcos.commands import Command
 from drivers.arcos.robot import P3AT, ClampWarning, LinkEvent
 from drivers.errors import DeviceNotFoundError, DriverTimeoutError, NotConnectedError
 
+# Real-time waits are failure bounds only: 30 s is 300 SIP cycles, so a loaded CI machine that starves a thread
+# for seconds still passes, and a broken driver still fails (only later).
+FAILURE_BOUND = 30.0
 
-def wait_until(predicate, timeout: float = 3.0) -> bool:
+
+class JumpClock:
+    """time.monotonic plus an offset the test can jump forward: the driver sees time pass at once, and the
+    real-time waits it does between reads (READ_TIMEOUT) still end."""
+
+    def __init__(self) -> None:
+        self.offset = 0.0
+
+    def __call__(self) -> float:
+        return time.monotonic() + self.offset
+
+    def jump(self, seconds: float) -> None:
+        self.offset += seconds
+
+
+def wait_until(predicate, timeout: float = FAILURE_BOUND) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():
@@ -29,7 +52,7 @@ def test_handshake_identity_config_and_state(fake_peer_factory) -> None:
         assert robot.params.subtype == "p3at-sh"
         assert robot.config.name == "FakePeer" and robot.config.trans_vel_top == 1200
         assert robot.config.watchdog is None  # the peer's CONFIG ends early; the reader accepts that
-        state = robot.wait_for_state()
+        state = robot.wait_for_state(FAILURE_BOUND)
         assert state.battery_volts == pytest.approx(13.0)
         assert state.sonars[7].range_m == pytest.approx(2.5) and state.sonars[7].pose[2] < 0
     assert wait_until(lambda: peer.commands[-1:] == [(Command.CLOSE, 1)])
@@ -38,8 +61,7 @@ def test_handshake_identity_config_and_state(fake_peer_factory) -> None:
 
 
 def test_old_session_still_streaming_is_closed_and_restarted(fake_peer_factory) -> None:
-    peer = fake_peer_factory(streaming_from_old_session=True)
-    time.sleep(0.3)
+    peer = fake_peer_factory(streaming_from_old_session=True)  # streams SIPs from the start, answers no SYNC
     with P3AT(peer.url) as robot:
         assert robot.identity.subtype == "p3at-sh"
     assert (Command.CLOSE, 1) in peer.commands[: peer.commands.index((2, None))]
@@ -48,45 +70,62 @@ def test_old_session_still_streaming_is_closed_and_restarted(fake_peer_factory) 
 def test_missing_config_is_optional(fake_peer_factory) -> None:
     peer = fake_peer_factory(send_config=False)
     with P3AT(peer.url, config_timeout=0.3) as robot:
-        assert robot.config is None and robot.wait_for_state() is not None
+        assert robot.config is None and robot.wait_for_state(FAILURE_BOUND) is not None
 
 
 def test_pulse_keeps_a_quiet_client_alive(fake_peer_factory) -> None:
+    # A pulse interval no real time reaches during the test: only the clock's jumps make pulses due.
     peer = fake_peer_factory()
-    with P3AT(peer.url):
-        time.sleep(1.3)
-    pulses = [c for c in peer.commands if c == (Command.PULSE, None)]
-    assert 2 <= len(pulses) <= 4  # every 500 ms of silence, not more
+    clock = JumpClock()
+    sips: list[int] = []
+    pulses = lambda: sum(c == (Command.PULSE, None) for c in peer.commands)  # noqa: E731
+    with P3AT(peer.url, clock=clock, pulse_interval=1000.0, link_timeout=1e9) as robot:
+        robot.subscribe(lambda s: sips.append(s.sequence))
+        handshake = pulses()  # PULSE is command 0, which is also SYNC0
+        for k in (1, 2):
+            clock.jump(1000.0)  # nothing sent for one pulse interval: exactly one PULSE
+            assert wait_until(lambda k=k: pulses() >= handshake + k)
+            # Each reader iteration dispatches SIPs before it decides on a pulse; two more SIPs mean a whole
+            # iteration ran after this pulse, where a driver that pulses too often would have sent another.
+            seen = len(sips)
+            assert wait_until(lambda seen=seen: len(sips) >= seen + 2)
+            assert pulses() == handshake + k
 
 
 def test_link_loss_is_reported_and_the_driver_reconnects_with_motors_off(fake_peer_factory) -> None:
     peer = fake_peer_factory()
     events: list[LinkEvent] = []
     restored = threading.Event()
-    with P3AT(peer.url, link_timeout=0.6) as robot:
+    clock = JumpClock()
+    with P3AT(peer.url, link_timeout=1000.0, clock=clock) as robot:
         robot.subscribe_link(lambda e: (events.append(e), e.kind == "restored" and restored.set()))
         robot.motors_on()
         peer.silent = True
-        assert wait_until(lambda: not robot.connected, 3.0)
+        clock.jump(2000.0)  # the silence has now lasted past the link timeout, whatever the machine's speed
+        assert wait_until(lambda: not robot.connected)
         with pytest.raises(NotConnectedError):
             robot.set_velocity(0.1, 0.0)
+        with pytest.raises(NotConnectedError, match="link lost"):
+            _ = robot.state
+        with pytest.raises(NotConnectedError, match="link lost"):  # at once: not after the timeout
+            robot.wait_for_state(FAILURE_BOUND)
         n_before = len(peer.commands)
         peer.silent = False
-        assert restored.wait(8.0)
+        assert restored.wait(FAILURE_BOUND)
         assert [e.kind for e in events] == ["lost", "restored"] and events[1].session == 2
-        state = robot.wait_for_state(2.0, lambda s: s.session == 2)
-        assert not state.motors_enabled
+        state = robot.wait_for_state(FAILURE_BOUND, lambda s: s.session == 2)
+        assert not state.motors_enabled and robot.state.session == 2
         assert (Command.ENABLE, 0) in peer.commands[n_before:]
 
 
 def test_tcp_peer_hanging_up_is_a_lost_link_and_the_driver_reconnects(tcp_peer) -> None:
     peer = tcp_peer
     restored = threading.Event()
-    with P3AT(peer.url, link_timeout=1.0) as robot:
+    with P3AT(peer.url, link_timeout=FAILURE_BOUND) as robot:  # the hang-up itself must be noticed
         robot.subscribe_link(lambda e: e.kind == "restored" and restored.set())
         peer.drop_client()
-        assert restored.wait(8.0)
-        assert robot.wait_for_state().session == 2
+        assert restored.wait(FAILURE_BOUND)
+        assert robot.wait_for_state(FAILURE_BOUND).session == 2
 
 
 def test_clamped_command_warns(fake_peer_factory) -> None:
@@ -105,6 +144,11 @@ def test_close_is_idempotent_and_commands_after_close_raise(fake_peer_factory) -
     robot.close()
     with pytest.raises(NotConnectedError):
         robot.stop()
+    with pytest.raises(NotConnectedError, match="closed"):
+        _ = robot.state
+    with pytest.raises(NotConnectedError, match="closed"):
+        robot.wait_for_state(FAILURE_BOUND)
+    assert robot.last_state is not None  # kept for reports
     assert not any(t.name.startswith("arcos-reader") and t.is_alive() for t in threading.enumerate())
 
 

@@ -3,6 +3,10 @@
 Ground truth comes from the simulated world (``world.pose(name)``); odometry errors and sensor noise are
 configured per test. Simulated time runs ``time_scale`` times faster than the wall clock to keep the suite quick;
 the virtual robot's watchdog still counts the client's silence in wall time (2 s), as the driver's keep-alive does.
+
+Speed independence: every real-time wait below is a failure bound (FAILURE_BOUND), never the expected duration.
+Links are given a timeout no loaded machine reaches (LINK_TIMEOUT) unless the test is about losing the link, and
+then the loss is made certain (the server is closed), not waited for.
 """
 from __future__ import annotations
 
@@ -16,10 +20,15 @@ import numpy as np
 import pytest
 
 from drivers.arcos.robot import P3AT, LinkEvent
+from drivers.errors import NotConnectedError
 from mocks.p3at import OdometryErrors, SensorOptions, serve_pty, serve_tcp
 from mocks.world import World
 
 QUIET = SensorOptions(sonar_noise_m=0.0, sonar_noise_fraction=0.0, sonar_beam_rad=0.0)
+# 30 s: 300 SIP cycles, 15 times the robot's 2 s watchdog; a starved CI thread still passes, a broken driver fails.
+FAILURE_BOUND = 30.0
+# A link timeout for tests that are not about the link: a virtual robot starved for seconds is not a lost link.
+LINK_TIMEOUT = 60.0
 
 
 def box_world() -> World:
@@ -85,6 +94,7 @@ def virtual_robot(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Ca
 
 
 def driver(robot: VirtualRobot, **kwargs: object) -> P3AT:
+    kwargs.setdefault("link_timeout", LINK_TIMEOUT)
     return P3AT(robot.url, **kwargs)
 
 
@@ -95,7 +105,7 @@ def test_handshake_identity_and_config(virtual_robot) -> None:
         assert p3at.params.subtype == "p3at-sh"
         assert p3at.config.sip_cycle == 100 and p3at.config.watchdog == 2000
         assert p3at.config.trans_vel_top == 1200
-        state = p3at.wait_for_state()
+        state = p3at.wait_for_state(FAILURE_BOUND)
         assert (state.x, state.y, state.theta) == (0.0, 0.0, 0.0) and not state.motors_enabled
         assert 10.0 < state.battery_volts <= 13.0
 
@@ -107,10 +117,10 @@ def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configur
     with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity(0.5, 0.0)
-        p3at.wait_for_state(5.0, lambda s: s.x > 1.5)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.x > 1.5)
         p3at.stop()
-        state = p3at.wait_for_state(5.0, lambda s: not s.moving and s.v == 0.0)
-        state = p3at.wait_for_state()  # one more SIP: the position is final
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: not s.moving and s.v == 0.0)
+        state = p3at.wait_for_state(FAILURE_BOUND)  # one more SIP: the position is final
         travelled = robot.truth()[0] - 1.0
         assert travelled > 1.5
         assert state.x == pytest.approx(scale_error * travelled, abs=0.005)
@@ -123,10 +133,10 @@ def test_turning_matches_truth(virtual_robot) -> None:
     with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity(0.3, math.radians(30))
-        p3at.wait_for_state(5.0, lambda s: s.theta > 1.0)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.theta > 1.0)
         p3at.stop()
-        p3at.wait_for_state(5.0, lambda s: s.v == 0.0 and s.w == 0.0)
-        state = p3at.wait_for_state()
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v == 0.0 and s.w == 0.0)
+        state = p3at.wait_for_state(FAILURE_BOUND)
         x, y, th = robot.truth()
         assert (state.x, state.y, state.theta) == pytest.approx((x, y, th), abs=0.01)
 
@@ -134,7 +144,7 @@ def test_turning_matches_truth(virtual_robot) -> None:
 def test_sonar_sees_the_walls_at_the_right_distance(virtual_robot) -> None:
     robot = virtual_robot(box_world(), (5.0, 2.0, 0.0), sensors=QUIET)
     with driver(robot) as p3at:
-        state = p3at.wait_for_state(3.0, lambda s: all(r is not None for r in s.sonar_ranges()))
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: all(r is not None for r in s.sonar_ranges()))
         sonars = state.sonars
         # sonar 0 looks left from y = +0.136: the wall y = 4 is 4 - 2.136 m away; sonar 7 mirrors it.
         assert sonars[0].range_m == pytest.approx(4.0 - 2.136, abs=0.01)
@@ -147,16 +157,16 @@ def test_sonar_sees_the_walls_at_the_right_distance(virtual_robot) -> None:
 
 def test_watchdog_stops_a_robot_whose_client_went_silent(virtual_robot) -> None:
     robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=10.0)
-    with driver(robot, pulse_interval=1e9, link_timeout=30.0) as p3at:  # a client that hangs after commanding
+    with driver(robot, pulse_interval=1e9) as p3at:  # a client that hangs after commanding
         p3at.motors_on()
         p3at.set_velocity(0.4, 0.0)
-        p3at.wait_for_state(3.0, lambda s: s.v > 0.3)
-        state = p3at.wait_for_state(3.0, lambda s: s.v == 0.0)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v > 0.3)
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v == 0.0)
         assert state.motors_enabled  # stopped by the watchdog, not disabled
         assert robot.server.model.stats.watchdog_stops == 1
         x_stopped = robot.truth()[0]
-        p3at.wait_for_state()
-        p3at.wait_for_state()
+        p3at.wait_for_state(FAILURE_BOUND)
+        p3at.wait_for_state(FAILURE_BOUND)
         assert robot.truth()[0] == pytest.approx(x_stopped, abs=1e-9)
 
 
@@ -165,21 +175,65 @@ def test_driver_reconnects_after_the_robot_restarts_with_motors_disabled(virtual
     events: list[LinkEvent] = []
     restored = threading.Event()
 
+    refused: list[bool] = []
+
     def on_link(event: LinkEvent) -> None:
         events.append(event)
+        if event.kind == "lost":
+            try:
+                _ = p3at.state
+            except NotConnectedError:
+                refused.append(True)  # as documented: no state while the link is down
         if event.kind == "restored":
             restored.set()
-    with driver(robot, link_timeout=0.6) as p3at:
+    with driver(robot) as p3at:  # the restart closes the port: noticed at once, whatever the timeout
         p3at.subscribe_link(on_link)
         p3at.motors_on()
-        p3at.wait_for_state(2.0, lambda s: s.motors_enabled)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.motors_enabled)
         robot.restart()
-        assert restored.wait(10.0), events
-        assert [e.kind for e in events] == ["lost", "restored"]
-        state = p3at.wait_for_state(2.0, lambda s: s.session == 2)
+        assert restored.wait(FAILURE_BOUND), events
+        assert [e.kind for e in events] == ["lost", "restored"] and refused == [True]
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: s.session == 2)
         assert not state.motors_enabled
         p3at.motors_on()  # and it is usable again
-        assert p3at.wait_for_state(2.0, lambda s: s.motors_enabled).session == 2
+        assert p3at.wait_for_state(FAILURE_BOUND, lambda s: s.motors_enabled).session == 2
+
+
+def test_state_readers_raise_not_connected_at_once_when_the_server_closes_mid_drive(virtual_robot) -> None:
+    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0))
+    lost = threading.Event()
+    in_callback: list[BaseException] = []
+
+    def on_link(event: LinkEvent) -> None:
+        try:
+            _ = p3at.state  # already refused while the "lost" event is delivered
+        except NotConnectedError as exc:
+            in_callback.append(exc)
+        lost.set()
+    with driver(robot, reconnect=False) as p3at:
+        p3at.subscribe_link(on_link)
+        p3at.motors_on()
+        p3at.set_velocity(0.2, 0.0)
+        moving = p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v > 0.1)
+        waiter_error: list[BaseException] = []
+
+        def wait_forever() -> None:  # a reader blocked in wait_for_state when the link goes
+            try:
+                p3at.wait_for_state(10 * FAILURE_BOUND, lambda s: False)
+            except BaseException as exc:  # noqa: BLE001 - the test inspects the type
+                waiter_error.append(exc)
+        waiter = threading.Thread(target=wait_forever)
+        waiter.start()
+        robot.server.close()
+        assert lost.wait(FAILURE_BOUND)
+        waiter.join(FAILURE_BOUND)
+        assert not waiter.is_alive() and type(waiter_error[0]) is NotConnectedError
+        assert len(in_callback) == 1 and "link lost" in str(in_callback[0])
+        with pytest.raises(NotConnectedError, match="link lost"):
+            _ = p3at.state  # not the stale state
+        with pytest.raises(NotConnectedError, match="link lost"):
+            p3at.wait_for_state(10 * FAILURE_BOUND)  # at once, not a DriverTimeoutError later
+        assert p3at.last_state.sequence >= moving.sequence and p3at.last_state.v > 0.1  # kept for reports
 
 
 def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
@@ -187,7 +241,7 @@ def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
     with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity(0.5, 0.0)
-        state = p3at.wait_for_state(5.0, lambda s: s.stalled)
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: s.stalled)
         assert state.front_bumpers and not state.rear_bumpers and state.bumped
         assert robot.truth()[0] == pytest.approx(10.0 - 0.33, abs=0.05)  # stopped at the wall
 
@@ -197,14 +251,14 @@ def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
 def test_position_wraps_around_over_a_long_drive(virtual_robot) -> None:
     # p3at-sh reports mm in 15 bits: the field wraps every 32.768 m. Drive 34 m straight.
     robot = virtual_robot(open_world(60.0), (-25.0, 0.0, 0.0), time_scale=25.0)
-    with driver(robot, link_timeout=2.0) as p3at:
+    with driver(robot) as p3at:
         p3at.motors_on()
         p3at.set_velocity_limits(max_v=1.2)
         p3at.set_velocity(1.2, 0.0)
-        p3at.wait_for_state(10.0, lambda s: s.x > 34.0)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.x > 34.0)
         p3at.stop()
-        p3at.wait_for_state(5.0, lambda s: s.v == 0.0)
-        state = p3at.wait_for_state()
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v == 0.0)
+        state = p3at.wait_for_state(FAILURE_BOUND)
         travelled = robot.truth()[0] + 25.0
         assert travelled > 34.0 and state.x == pytest.approx(travelled, abs=0.01)
 
@@ -216,18 +270,18 @@ def test_position_control_odometry_reset_and_requested_packets(virtual_robot) ->
         p3at.subscribe_packets(packets.append)
         p3at.motors_on()
         p3at.move(0.5)  # MOVE: the robot's own position control
-        state = p3at.wait_for_state(5.0, lambda s: s.x > 0.45 and not s.moving)
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: s.x > 0.45 and not s.moving)
         assert robot.truth()[0] == pytest.approx(0.5, abs=0.03) and state.x == pytest.approx(0.5, abs=0.03)
         p3at.set_heading(math.pi / 2)  # HEAD: absolute heading in the odometry frame
-        state = p3at.wait_for_state(8.0, lambda s: abs(s.theta - math.pi / 2) < 0.03 and s.w == 0.0)
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: abs(s.theta - math.pi / 2) < 0.03 and s.w == 0.0)
         assert robot.truth()[2] == pytest.approx(math.pi / 2, abs=0.05)
         p3at.reset_odometry()  # SETO
-        state = p3at.wait_for_state(3.0, lambda s: abs(s.x) < 0.01 and abs(s.theta) < 0.01)
+        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: abs(s.x) < 0.01 and abs(s.theta) < 0.01)
         assert (state.x, state.y) == pytest.approx((0.0, 0.0), abs=0.01)
         p3at.request_encoders(True)
         p3at.request_io(1)
-        p3at.wait_for_state(3.0, lambda s: p3at.encoders is not None and p3at.io is not None)
+        p3at.wait_for_state(FAILURE_BOUND, lambda s: p3at.encoders is not None and p3at.io is not None)
         assert p3at.encoders.left > 0 and p3at.encoders.right > 0  # ticks since OPEN: it drove forward
-        config = p3at.request_config()
+        config = p3at.request_config(FAILURE_BOUND)  # returns when the packet comes
         assert config is not None and config.name == "vp3at"
         assert {type(p).__name__ for p in packets} >= {"RobotConfig", "EncoderCounts", "IoPacket"}
