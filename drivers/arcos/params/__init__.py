@@ -17,6 +17,9 @@ from drivers.errors import BadFileError, DeviceNotFoundError
 
 FORMAT = "p3at-fusion/arcos-params"
 VERSION = 1
+MAX_FILE_BYTES = 1 << 20  # the built-in files are ~2 kB
+MAX_SONARS = 256  # the SIP numbers sonars with one byte
+MAX_NUMBER = 1e6  # every factor, size and limit of a ground robot is far below (and stays finite in products)
 BUILTIN_DIR = Path(__file__).resolve().parent
 
 
@@ -81,6 +84,10 @@ def parse_params(text: str, source: str = "<string>") -> RobotParams:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise BadFileError(f"{source}:{exc.lineno}: not valid JSON: {exc.msg}") from exc
+    except RecursionError:
+        raise BadFileError(f"{source}:1: not valid JSON: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits
+        raise BadFileError(f"{source}:1: not valid JSON: {exc}") from None
     if not isinstance(data, dict):
         raise BadFileError(f"{source}:1: a parameter file is a JSON object")
 
@@ -106,18 +113,21 @@ def parse_params(text: str, source: str = "<string>") -> RobotParams:
             raise fail(key, "missing")
         value = data[key]
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise fail(key, f"must be a finite number, got {value!r}")
+            raise fail(key, f"must be a finite number, got {repr(value)[:60]}")
+        if abs(value) > MAX_NUMBER:
+            raise fail(key, f"{value:g} is beyond ±{MAX_NUMBER:g}")
         if positive and value <= 0:
             raise fail(key, f"must be > 0, got {value!r}")
         values[attr] = float(value)
     poses = data.get("sonar_poses")
-    if not isinstance(poses, list):
-        raise fail("sonar_poses", "missing or not a list of [x, y, heading] triples")
+    if not isinstance(poses, list) or len(poses) > MAX_SONARS:
+        raise fail("sonar_poses", f"missing or not a list of at most {MAX_SONARS} [x, y, heading] triples")
     checked = []
     for i, pose in enumerate(poses):
         if (not isinstance(pose, list) or len(pose) != 3
-                or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in pose)):
-            raise fail("sonar_poses", f"entry {i} must be [x m, y m, heading rad], got {pose!r}")
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                           and abs(v) <= MAX_NUMBER for v in pose)):
+            raise fail("sonar_poses", f"entry {i} must be [x m, y m, heading rad], got {repr(pose)[:60]}")
         checked.append((float(pose[0]), float(pose[1]), float(pose[2])))
     values["sonar_poses"] = tuple(checked)
     return RobotParams(**values, source=source)
@@ -127,6 +137,9 @@ def load_params(path: str | os.PathLike) -> RobotParams:
     """Load a parameter file (the built-ins or the user's own)."""
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise BadFileError(f"{path}: {size} bytes; a parameter file has at most {MAX_FILE_BYTES}")
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise BadFileError(f"{path}: cannot read parameter file: {exc}") from exc
