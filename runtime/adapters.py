@@ -79,18 +79,30 @@ class P3ATLink:
     def __init__(self, driver) -> None:
         self.driver = driver
         self._callbacks: list[Callable[[OdometrySample], None]] = []
-        self._subscribed = False
         self._session: int | None = None
         self._offset = np.zeros(3)          # new-session odometry -> the runtime's continuous frame
         self._last = np.zeros(3)
         self._motors_on = False
         self.reconnects = 0
+        self.last_delivered = -np.inf       # stamp of the last SIP whose callbacks have all returned
+        self._last_sample: OdometrySample | None = None
+        driver.subscribe(self._on_state)
+        state = driver.state  # the SIP of the handshake, delivered before this link existed
+        if state is not None and state.stamp > self.last_delivered:
+            self._on_state(state)
 
     def subscribe(self, callback: Callable[[OdometrySample], None]) -> None:
+        """Call ``callback(sample)`` for every SIP from now on, starting with the latest one (if any), so a
+        subscriber knows where the robot is before the next SIP."""
         self._callbacks.append(callback)
-        if not self._subscribed:
-            self._subscribed = True
-            self.driver.subscribe(self._on_state)
+        last = self._last_sample
+        if last is not None:
+            callback(last)
+
+    def delivered(self, stamp: float) -> bool:
+        """Has every SIP up to ``stamp`` (driver clock) reached the subscribers? True while disconnected (nothing
+        more will come): a quiescence predicate for a lockstep clock."""
+        return self.last_delivered >= stamp or not self.driver.connected
 
     def _on_state(self, state) -> None:
         sample = odometry_sample(state)
@@ -106,8 +118,10 @@ class P3ATLink:
         pose = compose(self._offset, sample.pose)
         self._last = pose
         sample = dataclasses.replace(sample, pose=pose)
-        for callback in self._callbacks:
+        self._last_sample = sample
+        for callback in list(self._callbacks):
             callback(sample)
+        self.last_delivered = sample.t
 
     def set_velocity(self, v: float, w: float) -> None:
         self.driver.set_velocity(v, w)
@@ -171,7 +185,8 @@ class SyntheticCamera:
     """Observations of the world's features from the robot's true pose at ``rate`` Hz (mocks only).
 
     ``observer``: anything with ``observe(pose, timestamp) -> (StereoObservations, index)``;
-    ``true_pose``: the robot's ground-truth pose in the world. Paced by ``clock``/``sleep``.
+    ``true_pose``: the robot's ground-truth pose in the world. Paced by ``clock``/``sleep`` (a lockstep clock's
+    own ``sleep_until``: frames exactly at their instants of simulated time).
     """
 
     def __init__(self, observer, true_pose: Callable[[], np.ndarray], *, rate: float = 15.0,
@@ -179,6 +194,10 @@ class SyntheticCamera:
         self.observer, self.true_pose = observer, true_pose
         self.period = 1.0 / rate
         self.clock, self.sleep = clock, sleep
+        if callable(getattr(clock, "sleep_until", None)):
+            self._sleep_until = clock.sleep_until
+        else:
+            self._sleep_until = lambda t: sleep(max(0.0, t - clock()))
         self.seq = 0
         self._next = clock()
         self._lock = threading.Lock()
@@ -186,12 +205,12 @@ class SyntheticCamera:
 
     def read(self, timeout: float) -> CameraFrame | None:
         with self._lock:
-            wait = self._next - self.clock()
-            if wait > timeout:
-                self.sleep(timeout)
+            now = self.clock()
+            if self._next - now > timeout:
+                self._sleep_until(now + timeout)
                 return None
-            if wait > 0:
-                self.sleep(wait)
+            if self._next > now:
+                self._sleep_until(self._next)
             t = self.clock()
             self._next = max(self._next + self.period, t)  # never bursts to catch up
             observations, _ = self.observer.observe(self.true_pose(), t)

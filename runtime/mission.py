@@ -7,9 +7,20 @@ knows; they share maps only through the :class:`~runtime.exchange.MapExchange`. 
 station or any robot would run) reads the exchange every ``fusion_interval`` seconds and at the end, aligns
 every map to the first robot's, merges them, and scores each alignment against the true start poses that
 simulated maps carry in their metadata.
+
+Clock: on the virtual hardware the mission runs in simulated time by default (``mocks.simclock.SimClock``,
+lockstep: time advances only when every participant has done its part, so a slow or busy machine makes the
+mission take longer, never gives it another answer; see docs/runtime.md for who waits for whom).
+``realtime=True`` keeps the wall clock (hardware-in-the-loop timing; the virtual heads then drop the frames
+they cannot deliver on time). A real robot always runs on the wall clock.
+
+Supervision: a stage that raises ends the mission (motors stopped, an event, a row in the summary's
+``failures``); every robot's map is also written to ``OUT/<robot>.npz`` every ``map_save_interval``
+simulated seconds, atomically, so a hard kill leaves readable maps.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import signal
 import threading
@@ -28,7 +39,7 @@ from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
 from runtime.fusion_report import FusionReport, fuse_maps
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
-from runtime.onboard import Clock, Onboard, OnboardConfig
+from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
 
 CAMERAS = ("mock", "synthetic", "usb")
 MOTIONS = ("route", "explore", "none")
@@ -61,13 +72,20 @@ class MissionConfig:
     world: Path | None = None
     robot_url: str = "mock"           # "mock" (virtual P3-ATs in the world), or one real robot's URL
     route_file: Path | None = None    # a route (in the robot's odometry frame) instead of the world's routes
-    time_scale: float = 1.0           # virtual robots only: simulated seconds per wall-clock second
+    time_scale: float = 1.0           # virtual robots, realtime only: simulated seconds per wall-clock second
     odometry: str = "exact"           # virtual robots' wheel odometry: "exact" or "realistic" (1 % scale, 3 % track)
     robot_name: str | None = None     # this robot's name in a fleet; virtual: the world robot run alone
+    realtime: bool = False            # virtual robots: the wall clock instead of simulated time (lockstep)
+    map_save_interval: float = 10.0   # s between atomic writes of OUT/<robot>.npz during the mission (0: end only)
 
     @property
     def on_mocks(self) -> bool:
         return self.robot_url == "mock"
+
+    @property
+    def lockstep(self) -> bool:
+        """Simulated time: the virtual hardware unless --realtime."""
+        return self.on_mocks and not self.realtime
 
     def __post_init__(self) -> None:
         if self.robots < 1:
@@ -88,6 +106,13 @@ class MissionConfig:
             raise ValueError(f"--odometry must be exact or realistic, not {self.odometry!r}")
         if self.on_mocks and self.camera == "usb":
             raise ValueError("--camera usb needs a real robot (--robot URL); the virtual robots use mock or synthetic")
+        if self.time_scale != 1.0 and self.lockstep:
+            raise ValueError("--time-scale needs --realtime (simulated time already runs as fast as the machine "
+                             "allows)")
+        if not self.time_scale > 0:
+            raise ValueError(f"--time-scale must be positive, not {self.time_scale!r}")
+        if not self.map_save_interval >= 0:
+            raise ValueError(f"--map-save-interval must be >= 0, not {self.map_save_interval!r}")
 
 
 @dataclass
@@ -104,16 +129,25 @@ class MissionResult:
     fused: LandmarkMap | None
     recording: Path | None
     fusion_history: list[FusionReport] = field(default_factory=list)
+    failures: list[StageFailure] = field(default_factory=list)
 
 
 class Mission:
     """Set up with a config, ``run()`` until the time is up, the routes are done, or ``stop()`` is called."""
 
-    def __init__(self, config: MissionConfig, *, clock: Clock = time.monotonic,
+    def __init__(self, config: MissionConfig, *, clock: Clock | None = None,
                  progress: Callable[[str], None] | None = None, events: Callable[[str], None] | None = None,
                  exchange: MapExchange | None = None) -> None:
         self.config = config
-        self.clock = clock
+        if clock is None and config.lockstep:
+            from mocks.simclock import SimClock
+
+            clock = SimClock()
+            self._own_clock = True
+        else:
+            self._own_clock = False
+        self.clock = clock if clock is not None else time.monotonic
+        self.lockstep = is_lockstep(self.clock)
         self.progress = progress or (lambda line: None)
         self.events = events or (lambda line: None)
         self.exchange = exchange if exchange is not None else InProcessExchange()
@@ -123,6 +157,12 @@ class Mission:
         self.fusion_history: list[FusionReport] = []
         self.logger = None
         self.recording_path: Path | None = None
+        self.failures: list[StageFailure] = []
+        self._servers: dict = {}   # robot -> its virtual P3-AT's server (mocks)
+        self._drivers: dict = {}   # robot -> its ARCOS driver
+        self._end_time: float | None = None
+        self._wall_start = time.monotonic()
+        self._link_lost_since: dict[str, float] = {}
 
     def stop(self) -> None:
         """Ask the mission to end (thread- and signal-safe)."""
@@ -157,13 +197,27 @@ class Mission:
             server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, clock=self.clock,
                                time_scale=cfg.time_scale, seed=cfg.seed + 100 * index, odometry=errors)
             stack.callback(server.close)
+            self._servers[name] = server
             url = server.url
         else:
-            pose, url = None, cfg.robot_url
+            server, pose, url = None, None, cfg.robot_url
         driver = P3AT(url, clock=self.clock)
         stack.callback(driver.close)
-        driver.connect()
+        self._drivers[name] = driver
+        if self.lockstep and server is not None:
+            # the server is runnable while the driver's bytes are on their way; time moves during the handshake
+            # only from OPEN to the first SIP (the driver waits for one), so setup takes the same simulated time
+            server.client_sent = lambda: driver.bytes_written
+            model = server.model
+            with self.clock.gate(lambda: model.is_open and model.stats.sips == 0):
+                driver.connect()
+        else:
+            driver.connect()
         link = P3ATLink(driver)
+        if self.lockstep and server is not None:
+            remove = self.clock.add_quiescence(f"{name}: SIPs reach the runtime",
+                                               lambda: link.delivered(server.last_sip_sent))
+            stack.callback(remove)
         camera, geometry = self._camera(stack, world, index, name)
         frontend = FrontEndConfig(geometry=geometry, harris=HarrisConfig(max_corners=cfg.max_corners))
         fastslam = FastSLAMConfig(n_particles=cfg.particles, max_observations=cfg.max_observations)
@@ -182,7 +236,8 @@ class Mission:
                           controller=self._controller(world, name, pose), logger=self.logger,
                           sensor_log=sensor_log, clock=self.clock, t0=t0,
                           truth=(lambda: world.pose(name)) if pose is not None else None, true_start=pose,
-                          head_mount=left_camera_mount(geometry), on_event=self.events)
+                          head_mount=left_camera_mount(geometry), on_event=self.events,
+                          on_failure=self._on_failure)
         stack.callback(onboard.stop)  # runs before the link, camera and server close (LIFO)
         if self.logger is not None:
             self.logger.log_robot_frame(name, pose if pose is not None else np.zeros(3))
@@ -213,8 +268,11 @@ class Mission:
 
         # one renderer (its texture atlas) shared by every head in the building
         latency = DEFAULT_LATENCY if cfg.camera_latency is None else cfg.camera_latency
+        # on the wall clock a frame that cannot arrive at exposure + latency is dropped at the head, never
+        # delivered with a stamp that is not its exposure time; in simulated time none is ever late
         virtual = VirtualStereoHead(world, name, rng=rng, realtime=True, clock=self.clock,
-                                    renderer=getattr(self, "_renderer", None), latency=latency)
+                                    renderer=getattr(self, "_renderer", None), latency=latency,
+                                    drop_late=not self.lockstep)
         self._renderer = virtual.renderer
         self._virtual_heads[name] = virtual
         # the driver stamps frames with their exposure time: the head's stated exposure-to-delivery delay
@@ -260,40 +318,110 @@ class Mission:
         if cfg.rerun != "none":
             self._open_logger(names, world)
         try:
-            t0 = self._run_robots(world, names)
-            final = self._fuse(self.clock() - t0)
-            return self._finish(final, self.clock() - t0)
+            try:
+                t0 = self._run_robots(world, names)
+            finally:
+                if self._own_clock:
+                    self.clock.close()
+            end = self._end_time if self._end_time is not None else self.clock() - t0
+            final = self._fuse_guarded(end)
+            return self._finish(final, end)
         except BaseException:
             if self.logger is not None:  # keep what was recorded readable
                 self.logger.close()
             raise
 
     def _run_robots(self, world, names: list[str]) -> float:
-        """Set up, start, run and stop every robot (motors stopped and files flushed on any exit)."""
+        """Set up, start, run and stop every robot (motors stopped and files flushed on any exit).
+
+        In simulated time the setup runs with the clock held (it advances only while a driver waits for its
+        first SIP), the mission loop is a participant, and every robot is told to stop at one simulated
+        instant; the joins and the drivers' goodbyes then run on the released clock."""
         with ExitStack() as stack:
-            t0 = self.clock()
-            for index, name in enumerate(names):
-                if world is not None:  # a world's robot keeps its seeds whether it runs alone or with the others
-                    index = sorted(world.start_poses).index(name)
-                self.robots.append(self._robot(stack, world, index, name, t0))
-            if self.logger is not None and self.robots[0].true_start is not None:
-                self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps are in robot 1's frame
-            t0 = self.clock()
-            for robot in self.robots:
-                robot.onboard.t0 = t0
-                robot.onboard.start()
-            self._loop(t0)
-            # stop every robot (motors first) before the final fusion
-            for robot in self.robots:
-                robot.onboard.stop()
+            if self.lockstep:
+                stack.callback(self.clock.release)  # runs last (LIFO): the closes below never wait on lockstep
+            watchdog = self._start_watchdog() if self.lockstep else None
+            if watchdog is not None:
+                stack.callback(watchdog.set)
+            with self.clock.hold() if self.lockstep else contextlib.nullcontext():
+                t0 = self.clock()
+                for index, name in enumerate(names):
+                    if world is not None:  # a world's robot keeps its seeds whether it runs alone or with others
+                        index = sorted(world.start_poses).index(name)
+                    self.robots.append(self._robot(stack, world, index, name, t0))
+                if self.logger is not None and self.robots[0].true_start is not None:
+                    self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps: robot 1's frame
+                t0 = self.clock()
+                self._wall_start = time.monotonic()
+                token = self.clock.add_participant("mission") if self.lockstep else None
+                for robot in self.robots:
+                    robot.onboard.t0 = t0
+                    robot.onboard.start()
+            try:
+                with self.clock.participant(token) if token is not None else contextlib.nullcontext():
+                    self._loop(t0)
+                    self._end_time = self.clock() - t0
+                    for robot in self.robots:  # motors first, every robot at this instant
+                        robot.onboard.request_stop()
+                for robot in self.robots:  # joins, a last snapshot, logs flushed (before the final fusion)
+                    robot.onboard.stop()
+            finally:
+                self._wall_end = time.monotonic()
         return t0
+
+    def _start_watchdog(self) -> threading.Event:
+        """A wall-clock thread outside the lockstep: a simulation that stops making progress (a participant that
+        never waits, a driver that stopped delivering SIPs) ends the mission with the reason, not a hang."""
+        done = threading.Event()
+
+        def watch() -> None:
+            while not done.wait(0.5):
+                dead = {name: s.error for name, s in self._servers.items() if s.error is not None}
+                stall = self.clock.stall
+                if dead or stall is not None:
+                    for name, error in dead.items():
+                        self._record_failure(StageFailure(name, "virtual robot", f"{type(error).__name__}: {error}",
+                                                          self.clock()))
+                    if stall is not None:
+                        self._record_failure(StageFailure("mission", "simulation",
+                                                          f"simulated time stalled: {stall}", self.clock()))
+                    self.clock.release()  # let every timeout run out on the wall clock: the mission ends
+                    return
+        threading.Thread(target=watch, name="mission-watchdog", daemon=True).start()
+        return done
+
+    def _on_failure(self, failure: StageFailure) -> None:
+        self._record_failure(failure)
+
+    def _record_failure(self, failure: StageFailure) -> None:
+        self.failures.append(failure)
+        message = str(failure)
+        self.events(f"FAILED: {message}")
+        if self.logger is not None:
+            try:
+                self.logger.log_event(failure.t, message, "ERROR")
+            except Exception:  # noqa: BLE001 - the report on stderr and in the summary still stands
+                pass
+        self._stop.set()
+
+    def _wait_tick(self, t0: float, k: int) -> bool:
+        """Wait for the loop's k-th tick (every 0.2 s); True if the mission was asked to stop."""
+        if self.lockstep:
+            return self.clock.wait_for(self._stop.is_set, until=t0 + 0.2 * k)
+        return self._stop.wait(0.2)
 
     def _loop(self, t0: float) -> None:
         cfg = self.config
         next_fusion = cfg.fusion_interval if cfg.fusion_interval > 0 else np.inf
+        next_save = cfg.map_save_interval if cfg.map_save_interval > 0 else np.inf
         next_progress = 0.0
-        while not self._stop.wait(0.2):
+        k = 1
+        while not self._wait_tick(t0, k):
+            k += 1
             t = self.clock() - t0
+            self._check_links(t)
+            if self._stop.is_set():
+                break
             if t >= cfg.seconds:
                 self.events(f"mission time of {cfg.seconds:g} s reached")
                 break
@@ -304,8 +432,44 @@ class Mission:
                 self.progress(self._progress_line(t))
                 next_progress = t + 1.0
             if t >= next_fusion:
-                self._fuse(t)
+                self._fuse_guarded(t)
                 next_fusion = t + cfg.fusion_interval
+            if t >= next_save:
+                self._save_maps()
+                next_save = t + cfg.map_save_interval
+
+    def _check_links(self, t: float) -> None:
+        """A driver whose link is down, or a virtual robot whose server thread died, is reported; a link that
+        stays down for 10 s ends the mission (the driver keeps trying to reconnect until then)."""
+        for name, driver in self._drivers.items():
+            server = self._servers.get(name)
+            if server is not None and server.error is not None:
+                self._record_failure(StageFailure(name, "virtual robot", f"{type(server.error).__name__}: "
+                                                  f"{server.error}", t))
+                continue
+            if driver.connected:
+                if self._link_lost_since.pop(name, None) is not None:
+                    self.events(f"{name}: link restored")
+                continue
+            since = self._link_lost_since.setdefault(name, t)
+            if since == t:
+                self.events(f"{name}: link lost; the driver is reconnecting")
+            elif t - since >= 10.0:
+                self._record_failure(StageFailure(name, "driver", f"link lost for {t - since:.0f} s", t))
+
+    def _save_maps(self) -> None:
+        """Every robot's current map to OUT/<robot>.npz, atomically: what a hard kill leaves behind."""
+        for r in self.robots:
+            snapshot = r.onboard.current_map()
+            if snapshot is not None:
+                snapshot.save(self.config.out / f"{r.name}.npz")
+
+    def _fuse_guarded(self, t: float) -> FusionReport | None:
+        try:
+            return self._fuse(t)
+        except Exception as exc:  # noqa: BLE001 - the supervisor reports the stage and ends the mission
+            self._record_failure(StageFailure("mission", "fusion", f"{type(exc).__name__}: {exc}", t))
+            return None
 
     def _progress_line(self, t: float) -> str:
         parts = [f"t={t:5.1f}s"]
@@ -371,20 +535,28 @@ class Mission:
                 "final_position_error": None if true_final is None
                 else float(np.hypot(*(final_pose[:2] - true_final[:2]))),
                 "odometry_position_error": odometry_error,
-                # mock heads: frames rendered slower than the head's stated latency, whose stamps are late
+                # mock heads on the wall clock: frames that could not arrive at exposure + latency, dropped at the
+                # head (by reason); in simulated time there are none
                 "frames_late": getattr(self._virtual_heads.get(r.name), "late_frames", None),
+                "frames_dropped_at_head": dict(getattr(self._virtual_heads.get(r.name), "dropped_at_head", {})),
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
                 "map_file": str(cfg.out / f"{r.name}.npz"),
                 "trajectory_files": [str(p) for p in trajectory_files[r.name].values()],
             }
         for name, figures in robots.items():
-            late, received = figures["frames_late"], max(1, figures["frames_received"])
-            if late and late > 0.05 * received:
-                self.events(f"{name}: {late} of {received} frames were rendered later than the virtual head's "
-                            f"latency, so their timestamps are late too (the machine is overloaded: fewer robots, "
-                            f"a lower --camera-rate or --camera synthetic)")
+            dropped, received = sum(figures["frames_dropped_at_head"].values()), figures["frames_received"]
+            if dropped:
+                reasons = "; ".join(f"{n} {why}" for why, n in figures["frames_dropped_at_head"].items())
+                self.events(f"{name}: the virtual head dropped {dropped} frames ({received} delivered): {reasons} "
+                            f"(the machine does not keep up in real time: simulated time, fewer robots, a lower "
+                            f"--camera-rate or --camera synthetic)")
+        wall = getattr(self, "_wall_end", time.monotonic()) - self._wall_start
         summary = {
             "robots": robots, "duration": round(duration, 2), "seed": cfg.seed, "camera": cfg.camera,
+            "clock": "simulated" if self.lockstep else "wall",
+            "sim_seconds": round(duration, 3), "wall_seconds": round(wall, 3),
+            "realtime_factor": round(duration / wall, 3) if wall > 0 else None,
+            "failures": [dataclasses.asdict(f) for f in self.failures],
             "particles": cfg.particles, "fusion": None if final is None else final.as_dict(),
             "fusion_ms": None if final is None else round(1000.0 * final.seconds, 2),
             "fusions_during_mission": len(self.fusion_history) - (1 if final is not None else 0),
@@ -394,7 +566,7 @@ class Mission:
         if self.logger is not None:
             self.logger.log_summary(summary)
             self.logger.close()
-        return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history)
+        return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history, list(self.failures))
 
 
 def install_stop_signals(stop: Callable[[], None]) -> Callable[[], None]:

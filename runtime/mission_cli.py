@@ -47,8 +47,15 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
                         help="file (OUT/mission.rrd, default), spawn (a live viewer), none, or a rerun+http:// URL")
     parser.add_argument("--log-sensors", action="store_true", help="log raw SIPs and frames to OUT/<robot>-log/")
     parser.add_argument("--world", type=Path, default=None, help="building file for the virtual robots")
+    parser.add_argument("--realtime", action="store_true",
+                        help="virtual robots on the wall clock (hardware-in-the-loop timing: does this machine keep "
+                             "up?) instead of simulated time; frames the virtual heads cannot deliver on time are "
+                             "dropped and counted")
     parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="virtual robots only: simulated seconds per wall-clock second (default 1)")
+                        help="with --realtime: simulated seconds per wall-clock second (default 1)")
+    parser.add_argument("--map-save-interval", type=float, default=10.0, metavar="S",
+                        help="write every robot's map to OUT/<robot>.npz every S s of mission time, atomically, so "
+                             "a killed mission leaves its maps (0: at the end only; default 10)")
     # realistic by default: a robot's wheel odometry drifts, and showing FastSLAM correcting it is the point
     parser.add_argument("--odometry", choices=("exact", "realistic"), default="realistic",
                         help="virtual robots' wheel odometry errors (default realistic: 1 %% scale, 3 %% track, "
@@ -66,7 +73,8 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         fusion_interval=args.fusion_interval,
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
-        odometry=args.odometry, robot_name=getattr(args, "name", None))
+        odometry=args.odometry, robot_name=getattr(args, "name", None), realtime=args.realtime,
+        map_save_interval=args.map_save_interval)
 
 
 class Progress:
@@ -144,4 +152,6 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
     if result.recording is not None:
         print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
-    return 0
+    for failure in result.failures:  # a stage died: the figures above are what was there when it stopped
+        print(f"p3at: mission failed: {failure}", file=sys.stderr)
+    return 1 if result.failures else 0

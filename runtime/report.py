@@ -20,7 +20,13 @@ def _table(rows: list[list[str]]) -> list[str]:
 
 def format_summary(summary: dict) -> str:
     """The mission summary (as built by :class:`runtime.mission.Mission`) as aligned text tables."""
-    lines = [f"Mission: {len(summary['robots'])} robot(s), {summary['duration']:.1f} s, camera {summary['camera']}, "
+    clock = summary.get("clock")
+    timing = f"{summary['duration']:.1f} s"
+    if clock is not None:
+        timing = (f"{summary['duration']:.1f} s {'simulated' if clock == 'simulated' else 'on the wall clock'} "
+                  f"(wall {_fmt(summary.get('wall_seconds'), '.1f')} s, "
+                  f"{_fmt(summary.get('realtime_factor'), '.2f')}x real time)")
+    lines = [f"Mission: {len(summary['robots'])} robot(s), {timing}, camera {summary['camera']}, "
              f"{summary['particles']} particles, seed {summary['seed']}", ""]
     stages = sorted({k for r in summary["robots"].values() for k in r["ms_per_frame"]})
     late = any(r.get("frames_late") is not None for r in summary["robots"].values())  # virtual heads only
@@ -33,6 +39,16 @@ def format_summary(summary: dict) -> str:
                     + [_fmt(r["final_position_error"]), _fmt(r.get("odometry_position_error"))]
                     + [_fmt(r["ms_per_frame"].get(s), ".1f") for s in stages])
     lines += _table(rows)
+    drops = {name: r.get("frames_dropped_at_head") for name, r in summary["robots"].items()
+             if r.get("frames_dropped_at_head")}
+    for name, reasons in drops.items():
+        because = "; ".join(f"{n} frames: {why}" for why, n in reasons.items())
+        lines.append(f"{name}: the virtual head dropped {because}")
+    failures = summary.get("failures") or []
+    if failures:
+        lines += ["", "FAILED stages (the mission was stopped):"]
+        lines += _table([["robot", "stage", "t (s)", "error"]]
+                        + [[f["robot"], f["stage"], _fmt(f["t"], ".2f"), f["error"]] for f in failures])
     fusion = summary.get("fusion")
     lines.append("")
     if not fusion or not fusion["pairs"]:

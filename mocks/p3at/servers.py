@@ -2,16 +2,28 @@
 
 Each server owns one named daemon thread that moves bytes between the link and the pure model and wakes for
 the model's next SIP. ``close()`` is idempotent, joins the thread and takes the robot out of the world.
-Simulated time = (clock() − start) × time_scale, so ``time_scale=5`` runs the robot five times faster than
-the wall clock (SIPs every 20 ms of wall time) for quick demos; the watchdog still waits 2 s of wall time,
-since a client's PULSEs keep wall time.
+
+Two kinds of clock:
+
+- a plain callable (wall clock, ``time.monotonic``): simulated time = (clock() − start) × time_scale, so
+  ``time_scale=5`` runs the robot five times faster than the wall clock (SIPs every 20 ms of wall time) for
+  quick demos; the watchdog still waits 2 s of wall time, since a client's PULSEs keep wall time.
+- a lockstep :class:`mocks.simclock.SimClock`: the server thread is a participant; the physics of every
+  virtual robot on that clock is stepped together, 10 ms at a time, by the clock's advance hook (so a sensor
+  sampling at ``t`` sees the world at ``t``), and the thread only moves bytes. It is runnable while bytes
+  wait to be read, while the client has written bytes not yet read (``client_sent``: the client's byte
+  count, e.g. the driver's ``bytes_written``; loopback TCP can hold bytes in the kernel for a moment), or
+  while packets wait to be sent. ``last_sip_sent`` is the clock time of the last SIP it put on the wire,
+  for a quiescence predicate "every SIP reached the runtime". Simulated time = the clock's time.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
+import select
 import selectors
 import socket
 import termios
@@ -23,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from mocks.p3at.model import VirtualP3AT
+from mocks.p3at.model import STEP_S, VirtualP3AT
+from mocks.simclock import is_lockstep
 from mocks.world import World
 
 _READ_SIZE = 4096
@@ -39,6 +52,9 @@ class _Server:
     def __init__(self, model: VirtualP3AT, clock: Callable[[], float], time_scale: float, thread_name: str) -> None:
         if not time_scale > 0:
             raise ValueError(f"time_scale must be > 0, got {time_scale!r}")
+        self.lockstep = is_lockstep(clock)
+        if self.lockstep and time_scale != 1.0:
+            raise ValueError("a lockstep clock runs as fast as the machine allows: time_scale must be 1")
         self.model = model
         model.watchdog_s *= time_scale  # the client's silence counts in wall time
         self.world = model.world
@@ -50,11 +66,82 @@ class _Server:
         self._lock = threading.Lock()  # guards the model against callers peeking from other threads
         self._stop = threading.Event()
         self._closed = False
+        self._closing = False
         self._thread = threading.Thread(target=self._run_guarded, name=thread_name, daemon=True)
         self.error: BaseException | None = None  # what stopped the thread, if anything did
+        # lockstep bookkeeping (see the module docstring)
+        self.rx_bytes = 0
+        self.client_sent: Callable[[], int] | None = None
+        self.last_sip_sent = -math.inf
+        self._outbox = bytearray()
+        self._outbox_has_sip = False
+        if self.lockstep:
+            if abs(model.time - clock()) > 1e-9:
+                raise ValueError("on a lockstep clock the model must start at the clock's time (start_time)")
+            self._token = clock.add_participant(f"p3at:{model.name}")
+            _physics(clock).add(self)
 
     def sim_now(self) -> float:
+        if self.lockstep:
+            return self._clock()
         return self._sim0 + (self._clock() - self._t0) * self.time_scale
+
+    # -- lockstep ------------------------------------------------------------------------------------------
+    def _advance_model(self, t: float) -> bool:
+        """Physics to ``t`` (the clock's advance hook, every participant blocked); due packets go to the outbox.
+        False once the server is closed."""
+        with self._lock:
+            if self._closed:
+                return False
+            sips = self.model.stats.sips
+            out = self.model.advance(t)
+            if out:
+                self._outbox += out
+                self._outbox_has_sip |= self.model.stats.sips > sips
+        return True
+
+    def _bytes_in_flight(self) -> bool:
+        return self.client_sent is not None and self._connected() and self.client_sent() > self.rx_bytes
+
+    def _ready(self) -> bool:
+        return (self._stop.is_set() or bool(self._outbox) or self._bytes_in_flight()
+                or bool(select.select(self._fds(), [], [], 0)[0]))
+
+    def _run_lockstep(self) -> None:
+        with self._clock.participant(self._token):
+            while not self._stop.is_set():
+                self._clock.wait_for(self._ready, until=self.model.next_deadline())
+                give_up = time.monotonic() + 2.0  # a client that counted bytes it never sent must not hang us
+                while not self._stop.is_set():
+                    self._service_io()
+                    if not self._bytes_in_flight() or time.monotonic() > give_up:
+                        break
+                    select.select(self._fds(), [], [], 0.001)
+                with self._lock:
+                    out, self._outbox = bytes(self._outbox), bytearray()
+                    sip, self._outbox_has_sip = self._outbox_has_sip, False
+                if out and self._emit(out) and sip:
+                    self.last_sip_sent = self._clock()
+
+    def _received(self, data: bytes) -> bytes:
+        """Bytes from the client, applied now; returns the immediate replies."""
+        with self._lock:
+            out = self.model.receive(data, self.sim_now())
+            self.rx_bytes += len(data)
+        return out
+
+    # subclasses: the descriptors to watch, one pass over them, sending, whether a client is there
+    def _fds(self) -> list:
+        raise NotImplementedError
+
+    def _service_io(self) -> None:
+        raise NotImplementedError
+
+    def _emit(self, data: bytes) -> bool:
+        raise NotImplementedError
+
+    def _connected(self) -> bool:
+        raise NotImplementedError
 
     def _wait_s(self) -> float:
         """Wall seconds until the model next has something to send (capped)."""
@@ -63,7 +150,10 @@ class _Server:
 
     def _run_guarded(self) -> None:
         try:
-            self._run()
+            if self.lockstep:
+                self._run_lockstep()
+            else:
+                self._run()
         except BaseException as exc:  # noqa: BLE001 - recorded for the owner; the thread must end quietly
             self.error = exc
 
@@ -75,12 +165,17 @@ class _Server:
 
     def close(self) -> None:
         """Stop the thread, release the port or pty, take the robot out of the world. Safe to call twice."""
-        if self._closed:
+        if self._closing:
             return
-        self._closed = True
+        self._closing = True
         self._stop.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
+        with self._lock:
+            self._closed = True
+        if self.lockstep:
+            _physics(self._clock).remove(self)
+            self._clock.discard(self._token)
         self._close_io()
         self.model.close()
 
@@ -139,6 +234,7 @@ class TcpServer(_Server):
                             conn.setblocking(True)
                             conn.settimeout(1.0)
                             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                            _quick_ack(conn)
                             self._client = conn
                             self.connections += 1
                             selector.register(conn, selectors.EVENT_READ, "client")
@@ -147,6 +243,7 @@ class TcpServer(_Server):
                         elif key.data == "client" and self._client is not None:
                             try:
                                 data = self._client.recv(_READ_SIZE)
+                                _quick_ack(self._client)
                             except OSError:
                                 data = b""
                             if not data:  # the client went away: the robot's session ends with it
@@ -163,7 +260,61 @@ class TcpServer(_Server):
             finally:
                 self._drop_client(selector)
 
+    # lockstep I/O (the thread's participant loop in _Server)
+    def _fds(self) -> list:
+        return [self._listener] + ([self._client] if self._client is not None else [])
+
+    def _connected(self) -> bool:
+        return self._client is not None
+
+    def _service_io(self) -> None:
+        readable, _, _ = select.select(self._fds(), [], [], 0)
+        if self._listener in readable:
+            try:
+                conn, _addr = self._listener.accept()
+            except OSError:
+                conn = None
+            if conn is not None:
+                self._drop_client_plain()
+                conn.setblocking(True)
+                conn.settimeout(1.0)
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                _quick_ack(conn)
+                self._client = conn
+                self.connections += 1
+                with self._lock:
+                    self.model.reset_session()
+        client = self._client
+        if client is not None and client in readable:
+            try:
+                data = client.recv(_READ_SIZE)
+                _quick_ack(client)
+            except OSError:
+                data = b""
+            if not data:
+                self._drop_client_plain()
+                with self._lock:
+                    self.model.reset_session()
+                return
+            self._emit(self._received(data))
+
+    def _emit(self, data: bytes) -> bool:
+        if not data or self._client is None:
+            return False
+        try:
+            self._client.sendall(data)
+        except OSError:
+            self._drop_client_plain()
+            return False
+        return True
+
+    def _drop_client_plain(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
     def _close_io(self) -> None:
+        self._drop_client_plain()
         self._listener.close()
 
 
@@ -219,13 +370,91 @@ class PtyServer(_Server):
                     out = self.model.advance(self.sim_now())
                 self._write(out)
 
+    # lockstep I/O (the thread's participant loop in _Server)
+    def _fds(self) -> list:
+        return [self._master]
+
+    def _connected(self) -> bool:
+        return True
+
+    def _service_io(self) -> None:
+        if not select.select([self._master], [], [], 0)[0]:
+            return
+        try:
+            data = os.read(self._master, _READ_SIZE)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            return
+        if data:
+            self._emit(self._received(data))
+
+    def _emit(self, data: bytes) -> bool:
+        if data:
+            self._write(data)
+        return bool(data)
+
     def _close_io(self) -> None:
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
 
 
-def _model(world: World, name: str, pose: np.ndarray | None, model_options: dict[str, Any]) -> VirtualP3AT:
+def _quick_ack(conn: socket.socket) -> None:
+    """ACK at once (Linux TCP_QUICKACK, which the kernel clears again: set after every read). The driver's
+    pyserial socket does not set TCP_NODELAY, so a command written as two packets (VEL, RVEL) would otherwise
+    hold its second half back until the delayed ACK of the first, ~40 ms later."""
+    quickack = getattr(socket, "TCP_QUICKACK", None)
+    if quickack is not None:
+        with contextlib.suppress(OSError):
+            conn.setsockopt(socket.IPPROTO_TCP, quickack, 1)
+
+
+class _Physics:
+    """Steps the physics of every virtual robot on one lockstep clock together, 10 ms at a time, so each robot
+    meets the others (collisions, sonar echoes) where they are at that instant; the clock's advance hook."""
+
+    def __init__(self) -> None:
+        self._servers: list[_Server] = []
+        self._lock = threading.Lock()
+
+    def add(self, server: _Server) -> None:
+        with self._lock:
+            self._servers.append(server)
+
+    def remove(self, server: _Server) -> None:
+        with self._lock:
+            if server in self._servers:
+                self._servers.remove(server)
+
+    def advance(self, t: float) -> None:
+        with self._lock:
+            servers = list(self._servers)
+        while servers:
+            behind = [s for s in servers if s.model.time + STEP_S <= t + 1e-9]
+            if not behind:
+                break
+            for server in behind:
+                if not server._advance_model(min(t, server.model.time + STEP_S)):
+                    servers.remove(server)
+        for server in servers:  # packets due exactly at t
+            server._advance_model(t)
+
+
+def _physics(clock) -> _Physics:
+    def make() -> _Physics:
+        physics = _Physics()
+        clock.add_on_advance(physics.advance)
+        return physics
+    return clock.extension("p3at-physics", make)
+
+
+def _model(world: World, name: str, pose: np.ndarray | None, model_options: dict[str, Any],
+           clock: Callable[[], float]) -> VirtualP3AT:
+    if is_lockstep(clock):
+        model_options.setdefault("start_time", clock())  # simulated time is the clock's time
     if "rng" not in model_options and "seed" in model_options:
         model_options["rng"] = np.random.default_rng(model_options.pop("seed"))
     model_options.pop("seed", None)
@@ -248,7 +477,7 @@ def serve_tcp(
     port 0 picks a free port (see ``.port`` / ``.url``). model_options go to :class:`VirtualP3AT`
     (subtype, params, rng or seed, odometry, sensors, firmware). Returns a started :class:`TcpServer`.
     """
-    model = _model(world, name, pose, dict(model_options))
+    model = _model(world, name, pose, dict(model_options), clock)
     try:
         return TcpServer(model, host, port, clock, time_scale)
     except BaseException:
@@ -266,7 +495,7 @@ def serve_pty(
     **model_options: Any,
 ) -> PtyServer:
     """Run a virtual P3-AT on a new pseudo-terminal; ``.url`` is the tty path for ``serial.serial_for_url``."""
-    model = _model(world, name, pose, dict(model_options))
+    model = _model(world, name, pose, dict(model_options), clock)
     try:
         return PtyServer(model, clock, time_scale)
     except BaseException:

@@ -5,12 +5,15 @@ transfers for registers, bulk endpoint 0x81 for frames) around a ``HeadModel``. 
 the host reads them; with ``realtime=True`` the head paces them at the selected frame rate on its clock,
 exposes each at its frame slot (the world's pose at that instant) and delivers it ``latency`` seconds later,
 as a real head's exposure, read-out and transfer do: the driver's ``StereoHead(latency=...)`` set to the same
-value stamps frames with their exposure time. A render slower than ``latency`` makes that frame late
-(``late_frames`` counts them). ``unplug()`` / ``replug()`` simulate the cable.
+value stamps frames with their exposure time. On a lockstep clock (``mocks.simclock``) that is exact; on the
+wall clock a render slower than ``latency`` makes that frame late (``late_frames`` counts them), and with
+``drop_late`` such frames are dropped at the head instead of delivered with a wrong stamp.
+``unplug()`` / ``replug()`` simulate the cable.
 """
 from __future__ import annotations
 
 import errno
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -32,6 +35,7 @@ from drivers.videre.registers import (
     REQUEST_TYPE_READ,
     REQUEST_TYPE_WRITE,
 )
+from mocks.simclock import is_lockstep
 from mocks.stereo_head.device import HeadModel, RegisterStall, pattern_source
 
 DEFAULT_CALIBRATION_PATH = Path(__file__).resolve().parent / "data" / "sth_mdcs2_default.ini"
@@ -58,8 +62,11 @@ class VirtualStereoHead(usb.backend.IBackend):
     the head shows a fixed test pattern (``device.pattern_source``).
     calibration: what the head's store holds (default: the packaged file; None: an empty store). It also sets
     the optics the renderer uses, unless ``optics`` is given (to simulate a stale stored calibration).
-    rng: noise generator. clock/sleep: time source for ``realtime`` pacing.
+    rng: noise generator. clock/sleep: time source for ``realtime`` pacing (a lockstep ``mocks.simclock.SimClock``
+    makes exposure and delivery exact in simulated time; ``sleep`` is then not used).
     latency: seconds from exposure to delivery in ``realtime`` mode (default ``DEFAULT_LATENCY``).
+    drop_late: drop frames that cannot be delivered exactly ``latency`` after their exposure (within
+    ``stamp_tolerance`` s), counted by reason in ``dropped_at_head``: a wall-clock run on a busy host.
     max_transfer: cap on the bytes one bulk read returns (frames then arrive in pieces, as on a real bus).
     renderer: an existing ``StereoRenderer`` of the same world and optics to share (its texture atlas takes
     about half a second to bake), e.g. for several heads in one building.
@@ -72,7 +79,7 @@ class VirtualStereoHead(usb.backend.IBackend):
                  serial: str = "VIRTUAL-0001", realtime: bool = False, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep, texture_resolution: float = 100.0, bus: int = 1,
                  address: int = 7, renderer=None, max_transfer: int | None = None,
-                 latency: float = DEFAULT_LATENCY):
+                 latency: float = DEFAULT_LATENCY, drop_late: bool = False, stamp_tolerance: float = 0.005):
         super().__init__()
         if calibration is _DEFAULT:
             text: str | None = default_calibration_text()
@@ -94,10 +101,18 @@ class VirtualStereoHead(usb.backend.IBackend):
         self.vendor_id, self.product_id = vendor_id, product_id
         self.strings = {1: reg.VENDOR_NAME, 2: reg.MODEL_NAME, 3: serial}
         self.realtime, self._clock, self._sleep = realtime, clock, sleep
+        if is_lockstep(clock):
+            self._sleep_until = clock.sleep_until  # simulated time: exposure and delivery exactly on time
+        else:
+            self._sleep_until = lambda t: sleep(max(0.0, t - clock()))
         if not 0.0 <= latency < 1.0:
             raise ValueError(f"latency must be in [0, 1) s, got {latency!r}")
         self.latency = float(latency)
+        self.drop_late = bool(drop_late)
+        self.stamp_tolerance = float(stamp_tolerance)
         self.late_frames = 0
+        self.dropped_at_head: dict[str, int] = {}  # reason -> frames (drop_late only)
+        self._exposed_at: float | None = None
         self.last_exposure_time: float | None = None
         self.max_transfer = max_transfer
         self._lock = threading.RLock()
@@ -155,6 +170,7 @@ class VirtualStereoHead(usb.backend.IBackend):
         return self._renderer
 
     def _render(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+        self._exposed_at = self._clock() if self.realtime else None  # the instant the world is sampled
         pose = np.asarray(self.world.pose(self.robot), float)
         self.last_frame_pose = pose
         return self.renderer.render(pose, (width, height))
@@ -281,12 +297,9 @@ class VirtualStereoHead(usb.backend.IBackend):
         if pending is None:
             if not self.model.iso_enabled:
                 if self.realtime:
-                    self._sleep(timeout / 1000.0)
+                    self._sleep_until(self._clock() + timeout / 1000.0)
                 raise usb.core.USBTimeoutError("Operation timed out", _LIBUSB_TIMEOUT, errno.ETIMEDOUT)
-            exposure = self._pace()
-            frame = self.model.frame()
-            if exposure is not None:
-                self._deliver_at(exposure + self.latency)
+            frame = self._next_frame(timeout / 1000.0)
             self._check()  # unplugged while the frame was being produced
             pending = memoryview(frame.data).cast("B")
         count = min(len(buff), len(pending), self.max_transfer or len(pending))
@@ -295,11 +308,36 @@ class VirtualStereoHead(usb.backend.IBackend):
             self._pending = pending[count:] if count < len(pending) else None
         return count
 
-    def _pace(self) -> float | None:
-        """With ``realtime``, wait for the next frame slot of the selected rate (skipping dropped slots) and
-        return the exposure time: the slot, or now if the host asked after it (the head waits for a reader)."""
+    def _next_frame(self, timeout: float) -> np.ndarray:
+        """The next frame of the stream. Without ``realtime``: at once. With it: exposed at the next frame slot
+        and delivered ``latency`` after the exposure. With ``drop_late`` (a wall clock that the host may not
+        keep up with), frames that cannot be delivered on time are dropped at the head, as an IIDC camera
+        whose host does not read drops them: the slots that passed while the host was not reading, and the
+        frames whose delivery would come later than exposure + latency + ``stamp_tolerance``. Every delivered
+        frame therefore reaches the driver at its exposure time + ``latency``, the stamp the driver gives it."""
         if not self.realtime:
-            return None
+            return self.model.frame()
+        give_up = self._clock() + timeout
+        while True:
+            due = self._pace()
+            self._exposed_at = None
+            frame = self.model.frame()
+            exposure = self._exposed_at if self._exposed_at is not None else due
+            self.last_exposure_time = exposure
+            if self._deliver_at(exposure + self.latency) or not self.drop_late:
+                return frame
+            self._drop("not deliverable within the latency (the render or the host thread was late)")
+            if self._clock() >= give_up:
+                raise usb.core.USBTimeoutError("Operation timed out", _LIBUSB_TIMEOUT, errno.ETIMEDOUT)
+
+    def _drop(self, reason: str, count: int = 1) -> None:
+        with self._lock:
+            self.dropped_at_head[reason] = self.dropped_at_head.get(reason, 0) + count
+
+    def _pace(self) -> float:
+        """Wait for the next frame slot of the selected rate (skipping dropped slots) and return it: the slot,
+        or now if the host asked after it (the head waits for a reader; with ``drop_late`` the slots that
+        passed are dropped and the next one is waited for)."""
         period = 1.0 / self.model.rate_hz
         with self._lock:
             now = self._clock()
@@ -308,18 +346,29 @@ class VirtualStereoHead(usb.backend.IBackend):
             self._next_frame_time += period * self._skip_frames
             self._skip_frames = 0
             due = self._next_frame_time
+            missed = 0
+            if self.drop_late and due < now - self.stamp_tolerance:
+                missed = math.ceil((now - self.stamp_tolerance - due) / period)
+                due += missed * period
             self._next_frame_time = max(due, now) + period
+        if missed:
+            self._drop("the host was not reading at the frame slot", missed)
         if due > now:
-            self._sleep(due - now)
-        self.last_exposure_time = max(due, now)
-        return self.last_exposure_time
+            self._sleep_until(due)
+        return max(due, now)
 
-    def _deliver_at(self, when: float) -> None:
+    def _deliver_at(self, when: float) -> bool:
+        """Wait until ``when``; False (and ``late_frames`` counted) if that moment had already passed, or with
+        ``drop_late`` if the wait overshot it by more than ``stamp_tolerance``."""
         delay = when - self._clock()
-        if delay >= 0.0:
-            self._sleep(delay)
-        else:
+        if delay < 0.0:
             self.late_frames += 1
+            return False
+        self._sleep_until(when)
+        if self.drop_late and self._clock() - when > self.stamp_tolerance:
+            self.late_frames += 1
+            return False
+        return True
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
         self._check()
