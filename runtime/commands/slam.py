@@ -10,7 +10,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
-from runtime.commands.options import add_deprecated_alias, positive_float
+from runtime.commands.options import add_deprecated_alias, positive_float, positive_int
 
 
 def register(subparsers) -> None:
@@ -45,6 +45,8 @@ def register(subparsers) -> None:
                      ("--frame-rate", "--camera-rate")):
         add_deprecated_alias(sim, old, new)
     sim.set_defaults(handler=_simulate)
+    _register_dataset(sub)
+    _register_noise(sub)
 
 
 def _parse_pose(text: str) -> np.ndarray:
@@ -110,4 +112,141 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
               f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
         print(f"  map written to {m['out']}")
+    return 0
+
+
+# -- p3at slam dataset / p3at slam noise: recorded landmark data sets ---------------------------------------------
+DATASET_FORMATS = ("mrclam",)
+
+
+def _register_dataset(sub) -> None:
+    parser = sub.add_parser(
+        "dataset", help="run FastSLAM on a recorded landmark data set and score it against its ground truth",
+        description="Play one robot of a range-bearing landmark data set (MRCLAM: a folder of .dat or .dat.gz "
+                    "files) through FastSLAM: its odometry and its landmark sightings (other robots' barcodes are "
+                    "not landmarks). Writes the most probable particle's map in the robot's frame at its first "
+                    "sighting, with metadata.true_start_pose from the ground truth (so that `p3at fuse` scores "
+                    "alignments), and prints trajectory, map and consistency scores against the ground truth.")
+    parser.add_argument("format", choices=DATASET_FORMATS, help="data set format")
+    parser.add_argument("folder", metavar="DIR", help="the data set's folder")
+    parser.add_argument("--robot", type=positive_int, required=True, metavar="N", help="robot number (1-5 in MRCLAM)")
+    parser.add_argument("--out", required=True, metavar="MAP", help="map file to write (.npz landmark map)")
+    parser.add_argument("--association", choices=("id", "unknown"), default="id",
+                        help="id: the barcode decides the landmark; unknown: position only, barcodes used for "
+                             "scoring only (default id)")
+    parser.add_argument("--noise", metavar="FILE", help="noise model (TOML, see `p3at slam noise`); default: "
+                        "estimated from this robot's own log and ground truth, and said so")
+    parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
+                        help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
+                             "correct it from the ground truth (inferred), or trust it unchecked (table)")
+    parser.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
+    parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed of the filter (0)")
+    parser.add_argument("--until", type=positive_float, metavar="S", help="stop at this log time (s)")
+    parser.add_argument("--json", action="store_true", help="print the scores as one JSON object")
+    parser.set_defaults(handler=_dataset)
+
+
+def _register_noise(sub) -> None:
+    parser = sub.add_parser(
+        "noise", help="estimate a robot's noise model (odometry and sensor) from a log with ground truth",
+        description="Fit odometry noise (random walk per metre and per radian, with scale calibration) from the "
+                    "residuals of odometry increments against the ground truth, and range-bearing sensor noise "
+                    "from the residuals of the sightings against the true landmark positions; write it as a TOML "
+                    "noise model for `p3at slam dataset --noise`. Several --robot options pool their logs.")
+    parser.add_argument("format", choices=DATASET_FORMATS, help="data set format")
+    parser.add_argument("folder", metavar="DIR", help="the data set's folder")
+    parser.add_argument("--robot", type=positive_int, action="append", required=True, metavar="N",
+                        help="robot number; repeat to pool several robots")
+    parser.add_argument("--out", required=True, metavar="FILE", help="noise model to write (.toml)")
+    parser.add_argument("--window", type=positive_float, default=5.0, metavar="S",
+                        help="odometry residual window (default 5 s; see docs/fastslam.md, Real data: MRCLAM)")
+    parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
+                        help="Barcodes.dat handling, as for `slam dataset`")
+    parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
+    parser.set_defaults(handler=_noise)
+
+
+def _dataset(args: argparse.Namespace) -> int:
+    from dataclasses import asdict
+
+    from estimation.dataset_slam import run_landmark_log
+    from estimation.datasets import read_mrclam
+    from estimation.fastslam import range_bearing_config
+    from estimation.noise_model import NoiseModel, estimate_noise
+
+    try:
+        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes)
+        if args.noise:
+            noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
+        else:
+            noise = estimate_noise([log]).model
+            noise_source = "estimated from this log's own ground truth (no --noise given)"
+        config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
+        run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
+                               association=args.association, robot=f"robot{args.robot}", until=args.until)
+        run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
+                                                                     if noise.range_bearing else {})
+        run.map.save(args.out)
+    except (ValueError, OSError, EstimationError) as e:   # DatasetError, NoiseModelError, MapFileError included
+        print(f"p3at slam dataset: {e}", file=sys.stderr)
+        return 2
+    metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
+                   noise=noise_source, notes=list(log.notes))
+    if args.json:
+        print(json.dumps(metrics))
+        return 0
+    m = metrics
+    print(f"slam dataset: {m['dataset']}, {m['frames']} frames over {m['seconds']:.0f} s, {m['particles']} "
+          f"particles, FastSLAM {m['version']}.0, association {m['association']}, seed {m['seed']}")
+    for note in m["notes"]:
+        print(f"  note: {note}")
+    print(f"  noise model: {m['noise']}")
+    print(f"  trajectory ATE        FastSLAM {m['ate_m']:.3f} m   dead reckoning {m['dead_reckoning_ate_m']:.3f} m")
+    print(f"  landmarks {m['landmarks']} for {m['true_landmarks']} true ({m['duplicate_landmarks']} duplicates, "
+          f"{100 * m['duplicate_fraction']:.0f} %): median error {m['landmark_error_median_m']:.3f} m in the start "
+          f"frame, {m['landmark_error_rigid_median_m']:.3f} m after the best rigid fit")
+    print(f"  landmark NEES: {100 * m['landmark_nees_within_bound']:.0f} % below χ²₂(95 %) "
+          f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
+    print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
+          f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
+    print(f"  map written to {m['out']}")
+    return 0
+
+
+def _noise(args: argparse.Namespace) -> int:
+    from dataclasses import asdict
+
+    from estimation.datasets import read_mrclam
+    from estimation.noise_model import estimate_noise
+
+    try:
+        logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
+        estimate = estimate_noise(logs, window_s=args.window,
+                                  platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
+        estimate.model.save(args.out)
+    except (ValueError, OSError, EstimationError) as e:
+        print(f"p3at slam noise: {e}", file=sys.stderr)
+        return 2
+    model = estimate.model
+    windows = [dict(window_s=w, xy_sigma_per_sqrt_m=a, theta_sigma_per_sqrt_rad=b, theta_sigma_per_sqrt_m=c)
+               for w, a, b, c in estimate.odometry_by_window.tolist()]
+    if args.json:
+        print(json.dumps({"out": str(args.out), "robot": model.robot, "odometry": asdict(model.odometry),
+                          "range_bearing": asdict(model.range_bearing) if model.range_bearing else None,
+                          "fit": model.fit, "odometry_by_window": windows}))
+        return 0
+    o, rb = model.odometry, model.range_bearing
+    print(f"slam noise: {model.robot}")
+    print(f"  odometry: σ_xy {math.sqrt(o.xy_var_per_m):.4f} m/√m, σ_θ {math.sqrt(o.theta_var_per_rad):.4f} rad/√rad "
+          f"+ {math.sqrt(o.theta_var_per_m):.4f} rad/√m (windows of {args.window:g} s); scales: translation "
+          f"{o.translation_scale:.4f}, rotation {o.rotation_scale:.4f}")
+    for row in windows:
+        print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
+              f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
+    if rb:
+        print(f"  sensor: σ_r = {rb.range_sigma_m:.4f} m + {rb.range_sigma_per_m:.4f}·r, "
+              f"σ_φ {rb.bearing_sigma_rad:.4f} rad, bearing offset {rb.bearing_offset_rad:+.4f} rad; "
+              f"{100 * model.fit.get('sensor_outlier_fraction', 0.0):.1f} % outliers set aside")
+    print(f"  written to {args.out}")
     return 0

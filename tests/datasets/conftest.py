@@ -12,6 +12,7 @@ MRCLAM2 = DATA / "mrclam" / "MRCLAM_Dataset2"
 
 LANDMARKS = {6: (2.0, 0.0), 7: (0.0, 2.5), 8: (-2.0, 0.5), 9: (0.5, -2.5), 10: (3.0, 3.0)}
 BARCODES = {1: 5, 2: 14, 3: 41, 6: 18, 7: 45, 8: 7, 9: 63, 10: 16}   # subject -> barcode
+SENSOR_RANGE, SENSOR_FOV = 4.5, np.radians(120.0)  # the synthetic camera reports every landmark in this footprint
 
 
 def _write(path: Path, header: str, rows, gz: bool) -> None:
@@ -26,8 +27,8 @@ def _write(path: Path, header: str, rows, gz: bool) -> None:
 def write_mrclam(folder: Path, *, robot: int = 1, gz: bool = True, swap: tuple[int, int] | None = None,
                  seconds: float = 60.0) -> dict:
     """A synthetic MRCLAM folder: robot ``robot`` drives a circle (0.2 m/s, 0.1 rad/s) among LANDMARKS and sees
-    the nearest within 4 m every 0.2 s (exact), plus robot 2 now and then. ``swap``: two subjects whose barcodes
-    Barcodes.dat exchanges. Returns the truth (start pose, trajectory)."""
+    every landmark in its footprint (SENSOR_RANGE, SENSOR_FOV) every 0.2 s (exact), plus robot 2 now and then.
+    ``swap``: two subjects whose barcodes Barcodes.dat exchanges. Returns the truth (start pose, trajectory)."""
     folder.mkdir(parents=True, exist_ok=True)
     t = np.round(np.arange(0.0, seconds, 0.02), 2)
     v, w = 0.2, 0.1
@@ -45,10 +46,9 @@ def write_mrclam(folder: Path, *, robot: int = 1, gz: bool = True, swap: tuple[i
     for k in range(0, len(t), 10):
         d = positions - [x[k], y[k]]
         r = np.hypot(d[:, 0], d[:, 1])
-        j = int(np.argmin(r))
-        if r[j] < 4.0:
-            bearing = np.angle(np.exp(1j * (np.arctan2(d[j, 1], d[j, 0]) - theta[k])))
-            rows.append((t[k], BARCODES[int(ids[j])], r[j], bearing))
+        bearing = np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - theta[k])))
+        for j in np.flatnonzero((r < SENSOR_RANGE) & (np.abs(bearing) < SENSOR_FOV / 2)):
+            rows.append((t[k], BARCODES[int(ids[j])], r[j], bearing[j]))
         if k % 200 == 0:
             rows.append((t[k], BARCODES[2], 1.0, 0.1))
     _write(folder / f"Robot{robot}_Measurement.dat", "# Time [s]    Subject #    range [m]    bearing [rad]\n", rows,
@@ -77,5 +77,6 @@ def synthetic():
 
 class _Synthetic:
     LANDMARKS = LANDMARKS
+    SENSOR_RANGE, SENSOR_FOV = SENSOR_RANGE, SENSOR_FOV
     BARCODES = BARCODES
     write = staticmethod(write_mrclam)

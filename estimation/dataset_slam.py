@@ -1,0 +1,158 @@
+"""Play a range-bearing landmark log (:mod:`estimation.datasets`) through FastSLAM and score it.
+
+The loop of one robot: sightings that share a time stamp form one observation frame; before it, the odometry
+increment since the previous frame goes to ``predict``; the frame goes to ``update``. Association:
+
+- ``"id"``: each observation carries the landmark id the data set gives (MRCLAM: the barcode's subject) in
+  ``StereoObservations.ids``; the filter associates by it (its ID mode).
+- ``"unknown"``: no ids and no descriptors: association by position alone. MRCLAM's landmarks are alike
+  cylinders to the camera except for their barcodes, and any descriptor derived from a barcode would identify
+  the landmark, so the only honest descriptor is none. The ids are used for scoring only.
+
+The map is in the robot's start frame; its metadata carries the true start pose in the world
+(``true_start_pose``, as simulated maps do, so ``p3at fuse`` scores alignments). Scores: see
+:mod:`estimation.landmark_scores`; the trajectory and pose NEES are taken at every frame.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .datasets import RangeBearingLog
+from .fastslam import FastSLAM, FastSLAMConfig, range_bearing_observations
+from .geometry import between, compose
+from .landmark_map import LandmarkMap
+from .landmark_scores import CHI2_95, ate, attribute_landmarks, map_scores, pose_nees
+from .noise_model import NoiseModel, with_fastslam
+from .observations import OdometryIncrement, StereoObservations
+
+ASSOCIATIONS = ("id", "unknown")
+
+
+@dataclass
+class DatasetRun:
+    """Outcome of :func:`run_landmark_log`. Trajectories are (T, 4) rows (t, x, y, θ) in the world frame."""
+
+    map: LandmarkMap
+    true_trajectory: np.ndarray
+    estimated_trajectory: np.ndarray
+    dead_reckoning: np.ndarray
+    pose_nees: np.ndarray                      # (T,) per frame (NaN where the cloud's covariance is singular)
+    metrics: dict = field(default_factory=dict)
+
+
+def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
+                     association: str = "id", robot: str = "robot", until: float | None = None) -> DatasetRun:
+    """Run FastSLAM over ``log`` (needs ground truth for the scores); see the module docstring.
+
+    ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
+    range, σ_φ) and the calibration (odometry scales, bearing offset); ``until``: stop after this log time (s).
+    """
+    if association not in ASSOCIATIONS:
+        raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
+    if noise.range_bearing is None:
+        raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
+    if not log.has_ground_truth:
+        raise ValueError(f"{log.name}: scoring needs ground truth, and the log has none")
+    sensor = noise.range_bearing
+    config = _association_config(with_fastslam(noise, config), association)
+    no_descriptors = np.zeros((0, 0), np.float32)
+    slam = FastSLAM(config, rng)
+    times, first = np.unique(log.sighting_times, return_index=True)
+    # the map's frame is the robot's pose at its first sighting: odometry before it (MRCLAM's robots wait, then
+    # turn on the spot) gives the map nothing, and its heading error would become a permanent offset of the frame
+    t0 = float(times[0]) if len(times) else log.start_time
+    true_start = log.true_pose([t0])[0]
+    keep = (times >= t0) & (times <= (np.inf if until is None else until))
+    times, first = times[keep], first[keep]
+    bounds = np.append(first, len(log))[1:] if len(first) else np.zeros(0, np.int64)
+    frame_times = np.concatenate([[t0], times])
+    odometry = log.odometry_pose(frame_times)
+    increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+
+    votes: dict[int, dict[int, int]] = {}
+    means, covs = [], []
+    for k, (start, stop) in enumerate(zip(first, bounds, strict=True)):
+        slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])))
+        ids = log.landmark_ids[start:stop]
+        obs = _observations(log.ranges[start:stop], log.bearings[start:stop] - sensor.bearing_offset_rad, sensor,
+                            no_descriptors.reshape(len(ids), 0), float(times[k]))
+        if association == "id":
+            obs = dataclasses.replace(obs, ids=ids)
+        report = slam.update(obs)
+        for j, true_id in enumerate(ids):
+            for lid in (report.new_landmark_ids[j], report.best_matches[j]):
+                if lid >= 0:
+                    tally = votes.setdefault(int(lid), {})
+                    tally[int(true_id)] = tally.get(int(true_id), 0) + 1
+        means.append(report.pose_mean)
+        covs.append(report.pose_covariance)
+
+    landmark_map = slam.best_map(robot=robot, metadata={
+        "true_start_pose": [float(v) for v in true_start], "dataset": log.name, "association": association,
+        "noise_model": noise.robot, "simulated": False})
+    estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
+    estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
+    truth = np.column_stack([times, log.true_pose(times)])
+    dead_start_frame = _chain(increments)
+    dead = np.column_stack([times, compose(true_start, dead_start_frame)])
+    true_in_start = between(true_start, truth[:, 1:])
+    nees = pose_nees(between(true_in_start, np.array(means).reshape(-1, 3)) if len(means) else np.zeros((0, 3)),
+                     np.array(covs).reshape(-1, 3, 3))
+    metrics = _metrics(log, landmark_map, votes, true_start, truth, estimated_world, dead, nees, t0, until)
+    metrics.update(frames=len(times), particles=config.n_particles, version=config.version,
+                   association=association)
+    return DatasetRun(landmark_map, truth, estimated_world, dead, nees, metrics)
+
+
+def _chain(increments: np.ndarray) -> np.ndarray:
+    """Poses (T, 3) reached by composing increments (T, 3) from the origin (dead reckoning, calibrated)."""
+    poses, pose = np.zeros((len(increments), 3)), np.zeros(3)
+    for i, step in enumerate(increments):
+        pose = compose(pose, step)
+        poses[i] = pose
+    return poses
+
+
+def _observations(ranges: np.ndarray, bearings: np.ndarray, sensor, descriptors: np.ndarray,
+                  timestamp: float) -> StereoObservations:
+    """range_bearing_observations with each sighting's own σ_r (σ_r grows with the range)."""
+    if len(ranges) == 1:
+        return range_bearing_observations(ranges, bearings, float(sensor.range_sigma(ranges)[0]),
+                                          sensor.bearing_sigma_rad, descriptors, timestamp=timestamp)
+    parts = [range_bearing_observations(ranges[i:i + 1], bearings[i:i + 1], float(sigma), sensor.bearing_sigma_rad,
+                                        descriptors[i:i + 1], timestamp=timestamp)
+             for i, sigma in enumerate(sensor.range_sigma(ranges))]
+    return StereoObservations(np.concatenate([p.points for p in parts]),
+                              np.concatenate([p.covariances for p in parts]),
+                              np.concatenate([p.descriptors for p in parts]), np.zeros((0, 2)), timestamp)
+
+
+def _association_config(config: FastSLAMConfig, association: str) -> FastSLAMConfig:
+    """The filter settings of an association mode: no descriptors in either (see the module docstring)."""
+    return dataclasses.replace(config, association=association, descriptor_size=0)
+
+
+def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees, t0, until) -> dict:
+    attributed = attribute_landmarks(votes, landmark_map.ids)
+    horizon = np.inf if until is None else until
+    sighted = log.landmark_ids[(log.sighting_times >= t0) & (log.sighting_times <= horizon)]
+    sighted = sighted[np.isin(sighted, log.truth_ids)]
+    finite = nees[np.isfinite(nees)]
+    metrics = {
+        "ate_m": ate(estimated[:, 1:], truth[:, 1:]),
+        "dead_reckoning_ate_m": ate(dead[:, 1:], truth[:, 1:]),
+        "final_position_error_m": float(np.hypot(*(estimated[-1, 1:3] - truth[-1, 1:3]))) if len(truth) else 0.0,
+        "pose_nees_mean": float(np.mean(finite)) if len(finite) else float("nan"),
+        "pose_nees_median": float(np.median(finite)) if len(finite) else float("nan"),
+        "pose_nees_within_chi2_95": float(np.mean(finite < CHI2_95[3])) if len(finite) else float("nan"),
+        "pose_nees_frames": int(len(finite)),
+        "seconds": float(truth[-1, 0] - t0) if len(truth) else 0.0,
+        "start_time": float(t0),
+        "true_start_pose": [float(v) for v in true_start],
+    }
+    metrics.update(map_scores(landmark_map.positions, landmark_map.covariances, attributed, true_start,
+                              log.truth_ids, log.truth_positions, sighted))
+    return metrics

@@ -1,0 +1,120 @@
+"""Scores of a planar landmark SLAM run against ground truth: trajectory, map and consistency figures.
+
+Pure functions over arrays (no filter, no files), shared by the dataset runner and the evaluation scripts.
+Poses are (x, y, θ); trajectories (T, 4) rows (t, x, y, θ).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import between, compose, wrap_angle
+
+CHI2_95 = {1: 3.841, 2: 5.991, 3: 7.815}   # χ² 95 % quantiles by degrees of freedom
+
+
+def ate(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """RMS planar position error (m) of (T, ≥3) poses against (T, ≥3) true poses at the same instants."""
+    if len(estimate) == 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum((estimate[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+
+def rigid_fit_2d(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The planar pose (x, y, θ) minimising Σ |pose ⊕ source_i − target_i|² (Kabsch; source, target (N, ≥2))."""
+    a, b = np.asarray(source, float)[:, :2], np.asarray(target, float)[:, :2]
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    h = (a - ca).T @ (b - cb)
+    theta = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = np.cos(theta), np.sin(theta)
+    t = cb - np.array([[c, -s], [s, c]]) @ ca
+    return np.array([t[0], t[1], theta])
+
+
+def points_nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """eᵀ Σ⁻¹ e per point: errors (N, 2), covariances (N, 2, 2) -> (N,) (inf where Σ is singular)."""
+    out = np.full(len(errors), np.inf)
+    det = covariances[:, 0, 0] * covariances[:, 1, 1] - covariances[:, 0, 1] * covariances[:, 1, 0]
+    ok = det > 0
+    e, c = errors[ok], covariances[ok]
+    # closed-form 2×2 inverse: [[d, -b], [-c, a]] / det
+    out[ok] = (e[:, 0] ** 2 * c[:, 1, 1] - e[:, 0] * e[:, 1] * (c[:, 0, 1] + c[:, 1, 0])
+               + e[:, 1] ** 2 * c[:, 0, 0]) / det[ok]
+    return out
+
+
+def attribute_landmarks(votes: dict[int, dict[int, int]], map_ids: np.ndarray) -> np.ndarray:
+    """The true landmark (N,) each map landmark stands for: the one most of its creating and matched sightings
+    were of (-1 for a landmark no sighting voted for). ``votes``: map id -> {true id: count}."""
+    out = np.full(len(map_ids), -1, np.int64)
+    for i, lid in enumerate(map_ids):
+        tally = votes.get(int(lid))
+        if tally:
+            out[i] = max(tally.items(), key=lambda kv: (kv[1], -kv[0]))[0]
+    return out
+
+
+def map_scores(positions: np.ndarray, covariances: np.ndarray, attributed: np.ndarray, true_start: np.ndarray,
+               truth_ids: np.ndarray, truth_positions: np.ndarray, sighted_ids: np.ndarray) -> dict:
+    """Landmark figures of a map in the robot's start frame.
+
+    positions (N, ≥2), covariances (N, ≥2, ≥2) in the start frame; attributed (N,) true id per landmark (-1:
+    none); true_start (3,) the start pose in the world; truth_ids (L,), truth_positions (L, 2) in the world;
+    sighted_ids: the true ids the robot saw (its map should hold each once).
+    """
+    n = len(positions)
+    index = {int(i): k for k, i in enumerate(truth_ids)}
+    known = np.array([int(a) in index for a in attributed], bool) if n else np.zeros(0, bool)
+    true_world = np.array([truth_positions[index[int(a)]] for a in attributed[known]]).reshape(-1, 2)
+    # the truth seen from the true start pose: where a perfect map in the start frame puts each landmark
+    true_start_frame = compose(np.zeros(3), between(true_start, np.column_stack(
+        [true_world, np.zeros(len(true_world))])))[:, :2] if len(true_world) else np.zeros((0, 2))
+    estimate = positions[known, :2]
+    errors = estimate - true_start_frame
+    distances = np.linalg.norm(errors, axis=1)
+    nees = points_nees(errors, covariances[known][:, :2, :2])
+    distinct = len(np.unique(attributed[known]))
+    scores = {
+        "landmarks": int(n),
+        "true_landmarks": int(len(np.unique(sighted_ids))),
+        "mapped_true_landmarks": int(distinct),
+        "unattributed_landmarks": int(n - known.sum()),
+        "duplicate_landmarks": int(known.sum() - distinct),
+        "duplicate_fraction": float((known.sum() - distinct) / n) if n else 0.0,
+        "landmark_error_median_m": _median(distances),
+        "landmark_error_rms_m": float(np.sqrt(np.mean(distances ** 2))) if len(distances) else float("nan"),
+        "landmark_nees_within_bound": float(np.mean(nees < CHI2_95[2])) if len(nees) else float("nan"),
+        "landmark_nees_median": _median(nees),
+        "landmark_sd_median_m": _median(np.sqrt(0.5 * (covariances[:, 0, 0] + covariances[:, 1, 1])))
+        if n else float("nan"),
+    }
+    if known.sum() >= 2:
+        fit = rigid_fit_2d(estimate, true_world)
+        fitted = compose(fit, np.column_stack([estimate, np.zeros(len(estimate))]))[:, :2]
+        rigid = np.linalg.norm(fitted - true_world, axis=1)
+        scores["landmark_error_rigid_median_m"] = _median(rigid)
+        # the same residuals, in the map's frame, against the map's own covariances
+        c, s = np.cos(fit[2]), np.sin(fit[2])
+        residual_map = (true_world - fitted) @ np.array([[c, -s], [s, c]])
+        scores["landmark_nees_rigid_within_bound"] = float(
+            np.mean(points_nees(residual_map, covariances[known][:, :2, :2]) < CHI2_95[2]))
+    else:
+        scores["landmark_error_rigid_median_m"] = float("nan")
+        scores["landmark_nees_rigid_within_bound"] = float("nan")
+    return scores
+
+
+def pose_nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """eᵀ P⁻¹ e per pose: errors (T, 3) (θ wrapped here), covariances (T, 3, 3) -> (T,); NaN where P is singular."""
+    e = np.array(errors, float)
+    e[:, 2] = wrap_angle(e[:, 2])
+    out = np.full(len(e), np.nan)
+    for i in range(len(e)):   # T is the number of sightings (thousands): a plain loop is fast enough
+        p = covariances[i]
+        if np.all(np.isfinite(p)) and np.linalg.cond(p) < 1e12:
+            out[i] = float(e[i] @ np.linalg.solve(p, e[i]))
+    return out
+
+
+def _median(values: np.ndarray) -> float:
+    values = np.asarray(values, float)
+    return float(np.median(values)) if len(values) else float("nan")

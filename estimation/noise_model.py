@@ -1,0 +1,453 @@
+"""Per-robot noise models as configuration: a TOML file with odometry and sensor noise (and calibration).
+
+File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
+
+    format = "p3at-noise-model"
+    version = 1
+    robot = "MRCLAM_Dataset2/Robot1"
+    platform = "iRobot Create (MRCLAM)"
+    source = "where the numbers come from"
+
+    [odometry]                 # random walk (FastSLAMConfig's motion model): variances grow with the motion
+    xy_var_per_m = 0.0025      # m² of along/across-track error per metre driven
+    theta_var_per_rad = 0.01   # rad² of heading error per radian turned
+    theta_var_per_m = 0.01     # rad² of heading error per metre driven
+    translation_scale = 1.0    # calibration: true distance / odometry distance
+    rotation_scale = 1.0       # calibration: true turn / odometry turn
+
+    [range_bearing]            # optional: a planar range-bearing sensor
+    range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
+    range_sigma_per_m = 0.04
+    bearing_sigma_rad = 0.01
+    bearing_offset_rad = 0.0   # calibration: subtracted from every bearing (the sensor's yaw on the robot)
+    fov_rad = 6.283185307179586   # footprint: horizontal field of view, and the ranges at which it reports
+    min_range_m = 0.0
+    max_range_m = 30.0
+
+    [stereo]                   # optional: a stereo head (the front end's TriangulationNoise)
+    sigma_u_px = 0.5
+    sigma_v_px = 0.5
+    sigma_d_px = 0.3
+
+    [fit]                      # optional, informational: figures of the estimation that wrote the file
+
+:func:`estimate_noise` fits a model from logs with ground truth (``p3at slam noise``). Defaults for a P3-AT on
+its wheels with the Videre head: :data:`P3AT_VIDERE_DEFAULT`, with its provenance in ``source``.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import nnls
+
+from .datasets import RangeBearingLog
+from .errors import EstimationError
+from .fileio import atomic_write_bytes
+from .geometry import between, wrap_angle
+
+FORMAT_NAME = "p3at-noise-model"
+FORMAT_VERSION = 1
+MAX_FILE_BYTES = 1 << 20     # a noise model is a few hundred bytes; refuse anything absurd before parsing
+
+
+class NoiseModelError(EstimationError, ValueError):
+    """A noise-model file is missing, malformed or holds an impossible value (the message names file and key)."""
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    xy_var_per_m: float
+    theta_var_per_rad: float
+    theta_var_per_m: float
+    translation_scale: float = 1.0
+    rotation_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class RangeBearingNoise:
+    range_sigma_m: float
+    range_sigma_per_m: float
+    bearing_sigma_rad: float
+    bearing_offset_rad: float = 0.0
+    fov_rad: float = 2.0 * math.pi       # the sensor's footprint (FastSLAM: candidates and negative evidence)
+    min_range_m: float = 0.0
+    max_range_m: float = 30.0
+
+    def fastslam_overrides(self) -> dict:
+        """The FastSLAMConfig fields of the sensor's footprint."""
+        return {"fov_horizontal": float(self.fov_rad), "min_range": float(self.min_range_m),
+                "max_range": float(self.max_range_m)}
+
+    def range_sigma(self, ranges) -> np.ndarray:
+        """σ_r (N,) m at ranges (N,) m."""
+        return self.range_sigma_m + self.range_sigma_per_m * np.asarray(ranges, float)
+
+
+@dataclass(frozen=True)
+class StereoNoise:
+    sigma_u_px: float
+    sigma_v_px: float
+    sigma_d_px: float
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """One robot's noise: odometry always; a range-bearing sensor, a stereo head or both."""
+
+    odometry: OdometryNoise
+    range_bearing: RangeBearingNoise | None = None
+    stereo: StereoNoise | None = None
+    robot: str = "robot"
+    platform: str = ""
+    source: str = ""
+    fit: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for section in (self.odometry, self.range_bearing, self.stereo):
+            if section is None:
+                continue
+            for f in fields(section):
+                value = getattr(section, f.name)
+                signed = f.name == "bearing_offset_rad"
+                if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value) \
+                        or (not signed and value < 0):
+                    raise NoiseModelError(f"{f.name} must be a finite number{'' if signed else ' >= 0'}, "
+                                          f"not {value!r}")
+        scales = (self.odometry.translation_scale, self.odometry.rotation_scale)
+        if not all(0.5 <= s <= 2.0 for s in scales):
+            raise NoiseModelError(f"odometry scales must lie in [0.5, 2] (a calibration, not a new robot), "
+                                  f"not {scales}")
+        rb = self.range_bearing
+        if rb is not None and not (rb.range_sigma_m > 0 and rb.bearing_sigma_rad > 0):
+            raise NoiseModelError("range_sigma_m and bearing_sigma_rad must be > 0")
+        if rb is not None and not (0 < rb.fov_rad <= 2 * math.pi and rb.min_range_m < rb.max_range_m):
+            raise NoiseModelError("the footprint needs 0 < fov_rad <= 2π and min_range_m < max_range_m")
+
+    def fastslam_overrides(self) -> dict:
+        """The FastSLAMConfig fields this model sets (its motion model; a range-bearing sensor's footprint)."""
+        o = self.odometry
+        values = {"odom_xy_var_per_m": float(o.xy_var_per_m), "odom_theta_var_per_rad": float(o.theta_var_per_rad),
+                  "odom_theta_var_per_m": float(o.theta_var_per_m)}
+        if self.range_bearing is not None:
+            values.update(self.range_bearing.fastslam_overrides())
+        return values
+
+    def calibrate_increments(self, increments: np.ndarray) -> np.ndarray:
+        """Odometry increments (T, 3) with the model's scale calibration applied."""
+        o = self.odometry
+        return np.asarray(increments, float) * [o.translation_scale, o.translation_scale, o.rotation_scale]
+
+    # -- files -------------------------------------------------------------------------------------------------
+    def to_toml(self) -> str:
+        lines = ["# p3at-fusion noise model: read by `p3at slam dataset --noise`, written by `p3at slam noise`",
+                 f"format = {_toml_value(FORMAT_NAME)}", f"version = {FORMAT_VERSION}",
+                 f"robot = {_toml_value(self.robot)}", f"platform = {_toml_value(self.platform)}",
+                 f"source = {_toml_value(self.source)}"]
+        for name in ("odometry", "range_bearing", "stereo"):
+            section = getattr(self, name)
+            if section is not None:
+                lines += ["", f"[{name}]"] + [f"{k} = {_toml_value(v)}" for k, v in asdict(section).items()]
+        if self.fit:
+            lines += ["", "[fit]"] + [f"{k} = {_toml_value(v)}" for k, v in self.fit.items()]
+        return "\n".join(lines) + "\n"
+
+    def save(self, path) -> None:
+        """Write the model as TOML, atomically."""
+        atomic_write_bytes(path, self.to_toml().encode())
+
+    @classmethod
+    def load(cls, path) -> NoiseModel:
+        """Read a file written by :meth:`save` (or by hand); any defect is a NoiseModelError naming file and key."""
+        path = Path(path)
+        try:
+            if path.stat().st_size > MAX_FILE_BYTES:
+                raise NoiseModelError(f"{path}: {path.stat().st_size} bytes, more than a noise model can hold")
+            data = tomllib.loads(path.read_bytes().decode("utf-8"))
+        except FileNotFoundError:
+            raise NoiseModelError(f"{path}: no such noise-model file") from None
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            raise NoiseModelError(f"{path}: not a readable TOML noise model ({e})") from None
+        return cls.from_dict(data, str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "<noise model>") -> NoiseModel:
+        if data.get("format") != FORMAT_NAME:
+            raise NoiseModelError(f"{where}: key 'format' is {data.get('format')!r}, not {FORMAT_NAME!r}")
+        if data.get("version") != FORMAT_VERSION:
+            raise NoiseModelError(f"{where}: version {data.get('version')!r} is not supported (this reader knows "
+                                  f"{FORMAT_VERSION})")
+        known = {"format", "version", "robot", "platform", "source", "odometry", "range_bearing", "stereo", "fit"}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise NoiseModelError(f"{where}: unknown key(s) {', '.join(unknown)}")
+        if "odometry" not in data:
+            raise NoiseModelError(f"{where}: section [odometry] is missing")
+        sections = {}
+        for name, kind in (("odometry", OdometryNoise), ("range_bearing", RangeBearingNoise), ("stereo", StereoNoise)):
+            if name not in data:
+                continue
+            values = data[name]
+            if not isinstance(values, dict):
+                raise NoiseModelError(f"{where}: {name} must be a [section]")
+            names = {f.name for f in fields(kind)}
+            extra = sorted(set(values) - names)
+            required = {f.name for f in fields(kind) if f.default is f.default_factory}  # no default: required
+            missing = sorted(required - set(values))
+            if extra or missing:
+                raise NoiseModelError(f"{where}: [{name}] " + (f"unknown key(s) {', '.join(extra)}" if extra else
+                                                               f"lacks {', '.join(missing)}"))
+            for key, value in values.items():
+                if not isinstance(value, int | float) or isinstance(value, bool):
+                    raise NoiseModelError(f"{where}: [{name}] {key} must be a number, not {value!r}")
+            sections[name] = kind(**{k: float(v) for k, v in values.items()})
+        for key in ("robot", "platform", "source"):
+            if not isinstance(data.get(key, ""), str):
+                raise NoiseModelError(f"{where}: key '{key}' must be a string")
+        fit = data.get("fit", {})
+        if not isinstance(fit, dict):
+            raise NoiseModelError(f"{where}: fit must be a [section]")
+        try:
+            return cls(sections["odometry"], sections.get("range_bearing"), sections.get("stereo"),
+                       data.get("robot", "robot"), data.get("platform", ""), data.get("source", ""), dict(fit))
+        except NoiseModelError as e:
+            raise NoiseModelError(f"{where}: {e}") from None
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise NoiseModelError(f"cannot write the non-finite value {value}")
+        return repr(value)
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        return f'"{escaped}"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise NoiseModelError(f"cannot write {type(value).__name__} values to TOML")
+
+
+# -- defaults ------------------------------------------------------------------------------------------------
+P3AT_VIDERE_DEFAULT = NoiseModel(
+    odometry=OdometryNoise(xy_var_per_m=0.03 ** 2, theta_var_per_rad=0.05 ** 2, theta_var_per_m=0.02 ** 2),
+    stereo=StereoNoise(sigma_u_px=0.5, sigma_v_px=0.5, sigma_d_px=0.3),
+    robot="p3at", platform="Pioneer P3-AT (skid steer, wheel encoders) with a Videre STH-MDCS2 head",
+    source="NOT measured: no P3-AT log with ground truth is available to this project. Odometry: the values "
+           "FastSLAMConfig has always used (shared/reference gives encoder and geometry facts, no error figures); "
+           "stereo: the front end's TriangulationNoise. Replace them with `p3at slam noise` on a log of your robot.",
+)
+
+
+# -- estimation from logs with ground truth ----------------------------------------------------------------------
+ODOMETRY_WINDOW_S = 5.0       # see estimate_noise: the errors are time-correlated, so the window matters
+OUTLIER_MADS = 4.0            # sensor residuals beyond this many robust σ are outliers (misreads, glitches)
+
+
+@dataclass(frozen=True)
+class NoiseEstimate:
+    """A fitted model, and the odometry fit at other windows (rows: window_s, σ_xy/√m, σ_θ/√rad, σ_θ/√m)."""
+
+    model: NoiseModel
+    odometry_by_window: np.ndarray
+
+
+def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
+                   robot: str | None = None, platform: str = "") -> NoiseEstimate:
+    """Fit a noise model from logs with ground truth (one robot's, or several pooled).
+
+    Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
+    true increment g (from the ground truth) give the error e = g − u in the robot frame at the window's start.
+    First the calibration: the rotation scale by least squares (g_θ ≈ k_r u_θ); then, the turns calibrated, the
+    translation scale by least squares on the window's displacement vectors (which scale linearly with it). Then
+    the random-walk variances q = (q_xy, q_θ/rad, q_θ/m) of the calibrated steps:
+    the model's covariance of a window's error is linear in q (each step's noise, propagated to the window's end
+    through the composition: a heading error also moves the end sideways), so q is the non-negative least
+    squares fit of every window's e eᵀ to it (:func:`_random_walk_fit`). On MRCLAM the variance per metre still
+    grows with the window (the odometry is commanded velocity, so its errors are correlated over seconds);
+    the model is a random walk, so the window chosen is the time scale on which the filter must trust the
+    odometry alone: the default 5 s is longer than the gaps between sightings, and the fits at other windows
+    are returned beside it (``odometry_by_window``) so that the choice can be judged.
+
+    Sensor. Each sighting is predicted from the true pose and the landmark's true position: residuals
+    Δr = r − r̂, Δφ = φ − φ̂. The bearing offset is the residuals' median (the sensor's yaw on the robot);
+    outliers (beyond OUTLIER_MADS robust σ: misread barcodes, sightings during Vicon glitches) are counted and
+    set aside; σ_r(r) = a + b·r is fitted (non-negative least squares) to |Δr|·√(π/2) of the inliers — the
+    mean absolute value of a zero-mean Gaussian is σ·√(2/π) — so the range's bias (the short-range bias the
+    data set's authors report) counts as noise, not as a correction; σ_φ is the inliers' RMS about the offset.
+    """
+    logs = list(logs)
+    if not logs:
+        raise ValueError("estimate_noise needs at least one log")
+    if not window_s > 0:
+        raise ValueError(f"window_s must be > 0, not {window_s}")
+    for log in logs:
+        if not log.has_ground_truth:
+            raise ValueError(f"{log.name}: noise estimation needs ground truth, and the log has none")
+
+    windows = [_odometry_windows(log, window_s) for log in logs]
+    u = np.concatenate([w[0] for w in windows])
+    g = np.concatenate([w[1] for w in windows])
+    if len(u) < 10:
+        raise ValueError(f"only {len(u)} odometry windows of {window_s} s: too short a log for a fit")
+    rotation_scale = float(np.sum(g[:, 2] * u[:, 2]) / max(np.sum(u[:, 2] ** 2), 1e-12))
+    # with the turns calibrated, the chain's positions scale linearly with the translation scale: regress on them
+    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale)) for log in logs]
+    u = np.concatenate([w[0] for w in turned])
+    translation_scale = float(np.sum(g[:, :2] * u[:, :2]) / max(np.sum(u[:, :2] ** 2), 1e-12))
+    scales = np.array([translation_scale, translation_scale, rotation_scale])
+    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales) for log in logs])
+    by_window = []
+    for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
+        other = [_odometry_windows(log, w, scales) for log in logs]
+        if sum(len(o[0]) for o in other) >= 10:
+            by_window.append((w, *np.sqrt(_random_walk_fit(other))))
+
+    residual_r, residual_b, ranges, bearings = [], [], [], []
+    for log in logs:
+        if len(log) == 0:
+            continue
+        pose = log.true_pose(log.sighting_times)
+        known = np.isin(log.landmark_ids, log.truth_ids)
+        target = log.truth_positions[np.searchsorted(log.truth_ids, log.landmark_ids[known])]
+        d = target - pose[known, :2]
+        residual_r.append(log.ranges[known] - np.hypot(d[:, 0], d[:, 1]))
+        residual_b.append(wrap_angle(log.bearings[known] - (np.arctan2(d[:, 1], d[:, 0]) - pose[known, 2])))
+        ranges.append(log.ranges[known])
+        bearings.append(log.bearings[known])
+    range_bearing = None
+    fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
+           "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
+    if residual_r and sum(len(r) for r in residual_r) >= 20:
+        dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
+        offset = float(np.median(db))
+        db = wrap_angle(db - offset)
+        inlier = (np.abs(dr - np.median(dr)) < OUTLIER_MADS * _robust_sigma(dr)) & \
+                 (np.abs(db) < OUTLIER_MADS * _robust_sigma(db))
+        coefficients, _ = nnls(np.column_stack([np.ones(inlier.sum()), r[inlier]]),
+                               np.abs(dr[inlier]) * math.sqrt(math.pi / 2))
+        a, b = (float(c) for c in coefficients)
+        if a <= 0:   # a σ that vanishes at r = 0 would make close sightings infinitely precise
+            a = float(np.min(np.abs(dr[inlier]) * math.sqrt(math.pi / 2)) + 1e-3)
+        # the footprint: where the sensor reported anything (extreme 0.1 % of the sightings left out)
+        fov = float(min(2.0 * np.percentile(np.abs(wrap_angle(np.concatenate(bearings) - offset)), 99.9), 2 * math.pi))
+        min_range, max_range = (float(v) for v in np.percentile(r, [0.1, 99.9]))
+        range_bearing = RangeBearingNoise(range_sigma_m=a, range_sigma_per_m=b,
+                                          bearing_sigma_rad=float(np.sqrt(np.mean(db[inlier] ** 2))),
+                                          bearing_offset_rad=offset, fov_rad=fov, min_range_m=min_range,
+                                          max_range_m=max_range)
+        for label, lo, hi in (("below_3m", 0.0, 3.0), ("3_to_5m", 3.0, 5.0), ("beyond_5m", 5.0, math.inf)):
+            probability = _detection_probability(logs, fov, lo, hi)
+            if math.isfinite(probability):
+                fit[f"detection_probability_{label}"] = probability
+        fit.update(sightings=int(len(dr)), sensor_outlier_fraction=float(1.0 - inlier.mean()),
+                   range_bias_median_m=float(np.median(dr[inlier])),
+                   range_bias_below_2m_m=float(np.median(dr[inlier & (r < 2.0)])) if np.any(inlier & (r < 2.0))
+                   else float("nan"),
+                   range_residual_rms_m=float(np.sqrt(np.mean(dr[inlier] ** 2))))
+        fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
+    name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
+    model = NoiseModel(
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale), range_bearing, None,
+        robot=name, platform=platform, fit=fit,
+        source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
+               f"truth ({len(u)} odometry windows of {window_s:g} s)")
+    return NoiseEstimate(model, np.array(by_window, float).reshape(-1, 4))
+
+
+def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0)):
+    """Consecutive windows of odometry rows inside the ground truth: odometry increments u (W, 3) calibrated by
+    ``scales``, true increments g (W, 3), and the design (W, 3, 3, 3): the error covariance of each window is
+    Σ_k q_k · design[:, k] for the model's variances q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
+    rows = log.odometry
+    rows = rows[(rows[:, 0] >= log.ground_truth[0, 0]) & (rows[:, 0] <= log.ground_truth[-1, 0])]
+    empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3, 3))
+    if len(rows) < 3:
+        return empty
+    n = max(1, int(round(window_s / max(float(np.median(np.diff(rows[:, 0]))), 1e-9))))
+    k = (len(rows) - 1) // n
+    if k < 1:
+        return empty
+    rows = rows[: k * n + 1]
+    steps = between(rows[:-1, 1:], rows[1:, 1:]) * np.asarray(scales, float)     # calibrated steps (robot frame)
+    # the calibrated chain, in closed form: heading before step j, then positions after each step
+    heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
+    c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
+    xy = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([c * steps[:, 0] - s * steps[:, 1],
+                                                             s * steps[:, 0] + c * steps[:, 1]]), axis=0)])
+    chain = np.column_stack([xy, heading])                     # (k·n + 1, 3), θ unwrapped
+    window = np.arange(k * n) // n
+    starts = chain[0:k * n:n]
+    u = between(starts, chain[n::n])
+    u[:, 2] = chain[n::n, 2] - starts[:, 2]                    # the turn itself, not wrapped
+    g = between(log.true_pose(rows[0:k * n:n, 0]), log.true_pose(rows[n::n, 0]))
+    g[:, 2] = u[:, 2] + wrap_angle(g[:, 2] - u[:, 2])          # the true turn nearest the odometry's (no 2π jumps)
+    # first-order effect on the window's end pose of a noise δ on step j (robot frame at the step's start):
+    # the end moves by R(θ_{j-1}) δ_xy + δ_θ v_j, v_j = (−(y_end − y_j), x_end − x_j, 1) in the window's frame
+    after = between(starts[window], chain[1:])
+    end = u[window]
+    v = np.column_stack([-(end[:, 1] - after[:, 1]), end[:, 0] - after[:, 0], np.ones(k * n)])
+    distance = np.hypot(steps[:, 0], steps[:, 1])
+    turn = np.abs(steps[:, 2])
+    outer = v[:, :, None] * v[:, None, :]
+    design = np.zeros((k, 3, 3, 3))
+    for a in range(3):
+        for b in range(3):
+            design[:, 1, a, b] = np.bincount(window, turn * outer[:, a, b], minlength=k)
+            design[:, 2, a, b] = np.bincount(window, distance * outer[:, a, b], minlength=k)
+    design[:, 0, 0, 0] = design[:, 0, 1, 1] = np.bincount(window, distance, minlength=k)
+    return u, g, design
+
+
+def _random_walk_fit(windows) -> tuple[float, float, float]:
+    """(q_xy, q_θ/rad, q_θ/m) ≥ 0 matching each window's e eᵀ (e = g − u) to its modelled covariance, element by
+    element (xx, yy, θθ, xy, xθ, yθ), by non-negative least squares with each element's equations scaled to unit
+    spread (metres and radians mixed)."""
+    e = np.concatenate([w[1] - w[0] for w in windows])
+    design = np.concatenate([w[2] for w in windows])
+    lhs, rhs = [], []
+    for a, b in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+        y = e[:, a] * e[:, b]
+        spread = float(np.std(y)) or 1.0
+        lhs.append(design[:, :, a, b] / spread)
+        rhs.append(y / spread)
+    q, _ = nnls(np.concatenate(lhs), np.concatenate(rhs))
+    return float(q[0]), float(q[1]), float(q[2])
+
+
+def _detection_probability(logs: Sequence[RangeBearingLog], fov: float, near: float, far: float,
+                           margin: float = 0.85) -> float:
+    """P(a landmark well inside the view (``margin`` of the half field of view) at a range in [near, far) is
+    reported in a frame), over the frames (distinct sighting times) of the logs, from the true poses."""
+    hits = total = 0
+    for log in logs:
+        if len(log) == 0 or len(log.truth_ids) == 0:
+            continue
+        times, frame = np.unique(log.sighting_times, return_inverse=True)
+        pose = log.true_pose(times)
+        d = log.truth_positions[None, :, :] - pose[:, None, :2]
+        r = np.hypot(d[..., 0], d[..., 1])
+        b = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - pose[:, 2:3])
+        in_view = (np.abs(b) < margin * fov / 2) & (r >= near) & (r < far)
+        seen = np.zeros_like(in_view)
+        known = np.isin(log.landmark_ids, log.truth_ids)
+        seen[frame[known], np.searchsorted(log.truth_ids, log.landmark_ids[known])] = True
+        hits += int((seen & in_view).sum())
+        total += int(in_view.sum())
+    return hits / total if total else float("nan")
+
+
+def _robust_sigma(x: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) + 1e-12
+
+
+def with_fastslam(model: NoiseModel, config):
+    """``config`` (a FastSLAMConfig) with the model's motion noise."""
+    return replace(config, **model.fastslam_overrides())

@@ -1,0 +1,92 @@
+"""Playing a landmark log through FastSLAM (`p3at slam dataset`, `p3at slam noise`): maps, scores and errors."""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from estimation.dataset_slam import run_landmark_log
+from estimation.datasets import read_mrclam
+from estimation.fastslam import range_bearing_config
+from estimation.landmark_map import LandmarkMap
+from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
+from runtime.cli import main
+
+KEYS = ("ate_m", "dead_reckoning_ate_m", "landmarks", "true_landmarks", "duplicate_fraction",
+        "landmark_error_median_m", "landmark_error_rigid_median_m", "landmark_nees_within_bound",
+        "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95")
+
+
+def _small_noise(synthetic) -> NoiseModel:
+    """Little noise, and the synthetic camera's footprint (negative evidence must not count beyond it)."""
+    sensor = RangeBearingNoise(0.02, 0.0, 0.01, fov_rad=synthetic.SENSOR_FOV, max_range_m=synthetic.SENSOR_RANGE)
+    return NoiseModel(OdometryNoise(0.01 ** 2, 0.01 ** 2, 0.01 ** 2), sensor)
+
+
+def _cli(*argv) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(list(argv))
+    return status, out.getvalue(), err.getvalue()
+
+
+@pytest.mark.parametrize("association", ["id", "unknown"])
+def test_exact_data_gives_an_exact_map_in_the_first_sighting_frame(tmp_path, synthetic, association):
+    truth = synthetic.write(tmp_path, seconds=60.0)
+    log = read_mrclam(tmp_path, 1)
+    # 50 particles: with 10, one or two sightings a frame let the cloud collapse and drift (pose NEES ~ 9, measured)
+    run = run_landmark_log(log, range_bearing_config(n_particles=50), np.random.default_rng(1),
+                           noise=_small_noise(synthetic), association=association, robot="robot1")
+    m = run.metrics
+    seen = set(log.landmark_ids.tolist())
+    assert m["true_landmarks"] == len(seen) and m["landmarks"] == len(seen) and m["duplicate_fraction"] == 0.0
+    # exact data, but the filter is told σ_r 2 cm and σ_φ 0.01 rad (3 cm at 3 m): it wanders on that scale
+    assert m["ate_m"] < 0.05 and m["landmark_error_median_m"] < 0.05 and m["landmark_error_rigid_median_m"] < 0.05
+    assert m["pose_nees_median"] < 7.815                     # χ²₃ 95 %: the cloud's spread covers its error
+    # the frame is the robot's pose at its first sighting (t = 0 here), as the metadata says
+    start = log.true_pose([log.sighting_times[0]])[0]
+    np.testing.assert_allclose(run.map.metadata["true_start_pose"], start)
+    np.testing.assert_allclose(start, truth["start"], atol=1e-9)
+    assert run.map.metadata["association"] == association
+
+
+def test_cli_writes_a_scored_map_and_the_noise_command_a_model_it_reads(tmp_path, synthetic):
+    synthetic.write(tmp_path / "data", seconds=40.0)
+    noise = tmp_path / "noise.toml"
+    status, out, err = _cli("slam", "noise", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out", str(noise),
+                            "--window", "2")
+    assert status == 0 and "written to" in out, err
+    model = NoiseModel.load(noise)
+    assert model.range_bearing is not None and model.odometry.translation_scale == pytest.approx(1.0, abs=1e-3)
+    out_map = tmp_path / "robot1.npz"
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out",
+                            str(out_map), "--particles", "10", "--noise", str(noise), "--json")
+    assert status == 0, err
+    scores = json.loads(out)
+    assert all(k in scores for k in KEYS) and scores["noise"] == str(noise)
+    landmark_map = LandmarkMap.load(out_map)
+    assert len(landmark_map) == scores["landmarks"] and "true_start_pose" in landmark_map.metadata
+
+
+@pytest.mark.parametrize(("args", "complaint"), [
+    (["--robot", "3"], "neither Robot3_Odometry.dat nor"),
+    (["--robot", "1", "--noise", "missing.toml"], "no such noise-model file"),
+])
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, synthetic, args, complaint):
+    synthetic.write(tmp_path, seconds=10.0)
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path), "--out", str(tmp_path / "m.npz"), *args)
+    assert status == 2 and complaint in err and err.count("\n") == 1 and not (tmp_path / "m.npz").exists()
+
+
+def test_real_dataset2_fastslam_beats_dead_reckoning(mrclam_dir):
+    """Robot 3's first 200 s: the map holds the landmarks it saw, SLAM's trajectory is better than odometry's."""
+    log = read_mrclam(mrclam_dir, 3, until=200.0)
+    noise = estimate_noise([log], window_s=5.0).model
+    run = run_landmark_log(log, range_bearing_config(n_particles=30), np.random.default_rng(0), noise=noise,
+                           association="id", robot="robot3")
+    m = run.metrics
+    assert m["ate_m"] < m["dead_reckoning_ate_m"]
+    assert 0 < m["landmarks"] <= m["true_landmarks"] + 2

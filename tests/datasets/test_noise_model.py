@@ -1,0 +1,144 @@
+"""Noise models: the TOML file (round trip, clean errors, fuzz) and the estimation from logs with ground truth."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from estimation.datasets import RangeBearingLog, read_mrclam
+from estimation.fastslam import range_bearing_config
+from estimation.geometry import between, compose, wrap_angle
+from estimation.noise_model import (
+    P3AT_VIDERE_DEFAULT,
+    NoiseModel,
+    NoiseModelError,
+    OdometryNoise,
+    RangeBearingNoise,
+    estimate_noise,
+)
+
+
+def test_round_trip_and_defaults(tmp_path):
+    model = NoiseModel(OdometryNoise(0.001, 0.002, 0.003, 0.95, 1.02), RangeBearingNoise(0.02, 0.04, 0.01, -0.01),
+                       robot='robot "1"', platform="test", source="a\nb", fit={"windows": 3, "note": "x"})
+    model.save(tmp_path / "n.toml")
+    assert NoiseModel.load(tmp_path / "n.toml") == model
+    P3AT_VIDERE_DEFAULT.save(tmp_path / "p3at.toml")
+    loaded = NoiseModel.load(tmp_path / "p3at.toml")
+    assert loaded == P3AT_VIDERE_DEFAULT and loaded.stereo is not None and "NOT measured" in loaded.source
+    assert model.fastslam_overrides() == {"odom_xy_var_per_m": 0.001, "odom_theta_var_per_rad": 0.002,
+                                          "odom_theta_var_per_m": 0.003, "fov_horizontal": 2 * math.pi,
+                                          "min_range": 0.0, "max_range": 30.0}
+    range_bearing_config(**model.fastslam_overrides())   # every key is a FastSLAMConfig field
+
+
+@pytest.mark.parametrize(("text", "complaint"), [
+    ("", "key 'format' is None"),
+    ('format = "p3at-noise-model"\nversion = 2\n', "version 2 is not supported"),
+    ('format = "p3at-noise-model"\nversion = 1\n', r"section \[odometry\] is missing"),
+    ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\n', "lacks theta_var_per_m"),
+    ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = -1\ntheta_var_per_rad = 1\n'
+     'theta_var_per_m = 1\n', "xy_var_per_m must be a finite number >= 0"),
+    ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = nan\ntheta_var_per_rad = 1\n'
+     'theta_var_per_m = 1\n', "xy_var_per_m must be a finite number"),
+    ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = "a"\ntheta_var_per_rad = 1\n'
+     'theta_var_per_m = 1\n', r"\[odometry\] xy_var_per_m must be a number"),
+    ('format = "p3at-noise-model"\nversion = 1\ncolour = 3\n', "unknown key"),
+    ("format = [", "not a readable TOML"),
+])
+def test_a_bad_file_is_one_clear_line(tmp_path, text, complaint):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(NoiseModelError, match=complaint) as error:
+        NoiseModel.load(path)
+    assert "\n" not in str(error.value) and "bad.toml" in str(error.value)
+
+
+@settings(max_examples=200, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(text=st.text(max_size=300), keep=st.booleans())
+def test_fuzz_a_clean_error_or_a_valid_model(tmp_path, text, keep):
+    base = P3AT_VIDERE_DEFAULT.to_toml() if keep else ""
+    path = tmp_path / "fuzz.toml"
+    path.write_text(base + text, encoding="utf-8")
+    try:
+        model = NoiseModel.load(path)
+    except NoiseModelError as error:
+        assert "\n" not in str(error)
+        return
+    assert all(math.isfinite(v) and v >= 0 for v in model.fastslam_overrides().values())
+
+
+def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b):
+    """A robot circling (wiggling) for 30 min at 50 Hz among 12 landmarks; odometry = (true increments +
+    random-walk noise) / scale; sightings within a camera's range."""
+    dt, n = 0.02, 90_000
+    t = np.arange(n + 1) * dt
+    v = 0.2 + 0.1 * np.sin(t[:-1] / 7.0)
+    w = 2 * np.pi / 60.0 + 0.3 * np.sin(t[:-1] / 5.0)          # a 60 s loop of ~2 m radius, wiggling
+    true_steps = np.column_stack([v * dt, np.zeros(n), w * dt])
+    truth = np.zeros((n + 1, 3))
+    truth[1:] = np.cumsum(true_steps[:, 2])[:, None] * [0, 0, 1]
+    # integrate the truth step by step (exactly the composition the estimator inverts)
+    c, s = np.cos(np.concatenate([[0.0], truth[1:-1, 2]])), np.sin(np.concatenate([[0.0], truth[1:-1, 2]]))
+    truth[1:, 0] = np.cumsum(c * true_steps[:, 0])
+    truth[1:, 1] = np.cumsum(s * true_steps[:, 0])
+    d = np.abs(true_steps[:, 0])
+    noisy = true_steps + rng.standard_normal((n, 3)) * np.sqrt(np.column_stack(
+        [q_xy * d, q_xy * d, q_theta_rad * np.abs(true_steps[:, 2]) + q_theta_m * d]))
+    noisy = noisy / [scale, scale, scale]
+    odometry = np.zeros((n + 1, 3))
+    for i in range(n):   # 90 000 compositions: a second
+        odometry[i + 1] = compose(odometry[i], noisy[i])
+    landmarks = rng.uniform(-6, 6, (12, 2)) + truth[:, :2].mean(axis=0)
+    times = t[::25]
+    poses = truth[::25]
+    ids = rng.integers(0, 12, len(times))
+    delta = landmarks[ids] - poses[:, :2]
+    r = np.hypot(delta[:, 0], delta[:, 1])
+    b = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - poses[:, 2])
+    ranges = r + rng.standard_normal(len(r)) * (sigma_r + slope_r * r)
+    bearings = b + offset_b + rng.standard_normal(len(r)) * sigma_b
+    seen = (r > 0.5) & (r < 6.0)                                       # a camera's range
+    return RangeBearingLog("synthetic", np.column_stack([t, odometry]), times[seen], np.abs(ranges[seen]),
+                           bearings[seen], ids[seen] + 6, np.column_stack([t, truth]), np.arange(6, 18), landmarks)
+
+
+def test_estimation_recovers_the_noise_that_made_the_log():
+    rng = np.random.default_rng(5)
+    q = dict(q_xy=0.04 ** 2, q_theta_rad=0.08 ** 2, q_theta_m=0.05 ** 2)
+    log = _synthetic_log(rng, **q, scale=1.08, sigma_r=0.03, slope_r=0.03, sigma_b=0.02, offset_b=-0.015)
+    model = estimate_noise([log], window_s=5.0).model
+    o, rb = model.odometry, model.range_bearing
+    # 360 windows: a variance is estimated to ~10 % (1/√(n/2)); allow 30 %
+    assert o.xy_var_per_m == pytest.approx(q["q_xy"], rel=0.3)
+    assert o.theta_var_per_rad + o.theta_var_per_m == pytest.approx(q["q_theta_rad"] + q["q_theta_m"], rel=0.35)
+    assert o.translation_scale == pytest.approx(1.08, abs=0.01) and o.rotation_scale == pytest.approx(1.08, abs=0.02)
+    assert rb.bearing_offset_rad == pytest.approx(-0.015, abs=0.002)
+    assert rb.bearing_sigma_rad == pytest.approx(0.02, rel=0.1)
+    for r in (3.0, 5.0):   # where the sightings are (2.6-5.9 m): a line fitted there is not checked elsewhere
+        assert float(rb.range_sigma([r])[0]) == pytest.approx(0.03 + 0.03 * r, rel=0.15)
+    # calibrated short increments (0.2 s: chords are paths) match the truth on average
+    t = log.ground_truth[::10, 0]
+    fixed = model.calibrate_increments(log.odometry_increments(t))
+    true = between(log.true_pose(t[:-1]), log.true_pose(t[1:]))
+    assert abs(np.sum(fixed[:, 0]) / np.sum(true[:, 0]) - 1.0) < 0.01
+
+
+def test_estimation_refuses_a_log_without_ground_truth():
+    log = RangeBearingLog("x", np.array([[0.0, 0, 0, 0], [1.0, 1, 0, 0]]), [0.5], [1.0], [0.0], [6])
+    with pytest.raises(ValueError, match="needs ground truth"):
+        estimate_noise([log])
+
+
+def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
+    log = read_mrclam(mrclam_dir, 2, until=600.0)
+    estimate = estimate_noise([log])
+    rb = estimate.model.range_bearing
+    # the camera's range error grows with the range (σ at 5 m larger than at 1 m), the bearing is good to degrees
+    assert rb.range_sigma([5.0])[0] > rb.range_sigma([1.0])[0] and rb.bearing_sigma_rad < math.radians(5)
+    # commanded-velocity odometry: the variance per metre grows with the window (errors correlated in time)
+    by_window = estimate.odometry_by_window
+    assert by_window[-1, 1] > by_window[0, 1]
