@@ -38,11 +38,13 @@ def open_exchange(spec: str, fleet: str, role: str, on_event=None, on_update=Non
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     """The options ``p3at fuse --live`` adds (beside --exchange and --fleet)."""
-    parser.add_argument("--interval", type=float, default=10.0,
+    from runtime.commands.options import non_negative_float, positive_float
+
+    parser.add_argument("--interval", type=positive_float, default=10.0, metavar="S",
                         help="--live: fuse at least every S seconds while maps change (default 10)")
-    parser.add_argument("--min-period", type=float, default=1.0,
+    parser.add_argument("--min-period", type=non_negative_float, default=1.0, metavar="S",
                         help="--live: fuse at most every S seconds (default 1)")
-    parser.add_argument("--seconds", type=float, default=0.0,
+    parser.add_argument("--seconds", type=non_negative_float, default=0.0, metavar="S",
                         help="--live: stop after S seconds (default 0: until Ctrl-C or SIGTERM)")
     parser.add_argument("--rerun", default="none", metavar="SINK",
                         help="--live: file (fusion.rrd beside --out), spawn, none (default) or a rerun+http:// URL")
