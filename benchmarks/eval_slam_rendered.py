@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
+from benchmarks.slam_consistency import landmark_scores
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, compose
@@ -67,6 +68,7 @@ class RenderedObserver:
         self._cell_index: dict[tuple[int, int, int], list[int]] = {}
         self._points: list[np.ndarray] = []
         self.frames: list[dict] = []          # per frame: n, nees (N,), depth (N,), index (N,), desc (N, D)
+        self.indices: list[np.ndarray] = []   # per frame: the true point index of each observation
         self.frontend_seconds = 0.0
         self.latency = latency
         self._previous: tuple[float, np.ndarray] | None = None
@@ -112,6 +114,7 @@ class RenderedObserver:
         for j, p in enumerate(truth):
             if np.all(np.isfinite(p)):
                 index[j] = self._point_index(p)
+        self.indices.append(index)
         if self.diagnose:
             c, s = np.cos(pose[2]), np.sin(pose[2])
             d = truth - np.array([pose[0], pose[1], 0.0])
@@ -186,6 +189,10 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
         "landmark_median_error_m", "landmark_rms_error_m")},
         "update_ms_median": float(np.median(times)), "update_ms_mean": float(np.mean(times)),
         "update_ms_p90": float(np.percentile(times, 90)),
+        **{k: v for k, v in landmark_scores(result.map, start, observer.points, slam.reports, observer.indices).items()
+           if k != "landmark_nees"},
+        "pose_nees_median": m["pose_nees_median"], "pose_nees_within_bound": m["pose_nees_within_chi2_95"],
+        "stats": vars(slam.stats).copy() if hasattr(slam, "stats") else {},
         "frontend_ms_mean": 1e3 * observer.frontend_seconds / max(1, m["frames"]),
         "observations_per_frame": float(np.mean([r.n_observations for r in slam.reports]))}
     if diagnose:
@@ -326,14 +333,18 @@ def main(argv: list[str] | None = None) -> int:
     print(f"FastSLAM {args.fastslam}.0, {args.particles} particles, rendered frames at {args.frame_rate:g} Hz, "
           f"{args.max_corners} corners, seed {args.seed}")
     print("| robot | s | ATE (m) | DR ATE (m) | final err (m) | DR final (m) | landmarks | distinct points |"
-          " duplicates | landmark median / RMS err (m) | obs/frame | update ms median / p90 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          " duplicates | landmark median / RMS err (m) | obs/frame | update ms median / p90 | duplicate fraction |"
+          " landmark NEES median / < χ²₃ 95 % | pose NEES median / < χ²₃ 95 % |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['robot']} | {r['seconds']:.0f} | {r['ate_m']:.3f} | {r['dead_reckoning_ate_m']:.3f} | "
               f"{r['final_position_error_m']:.3f} | {r['dead_reckoning_final_position_error_m']:.3f} | "
               f"{r['landmarks']} | {r['distinct_features']} | {r['duplicate_landmarks']} | "
               f"{r['landmark_median_error_m']:.3f} / {r['landmark_rms_error_m']:.3f} | "
-              f"{r['observations_per_frame']:.1f} | {r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f} |")
+              f"{r['observations_per_frame']:.1f} | {r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f} | "
+              f"{100 * r['duplicate_fraction']:.1f} % | {r['landmark_nees_median']:.1f} / "
+              f"{100 * r['landmark_nees_within_bound']:.0f} % | {r['pose_nees_median']:.1f} / "
+              f"{100 * r['pose_nees_within_bound']:.0f} % |")
     for r in rows:
         if "diagnostics" in r:
             print(f"\n{r['robot']} diagnostics:")

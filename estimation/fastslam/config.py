@@ -50,8 +50,10 @@ class FastSLAMConfig:
     existence_miss: float = -0.5                  # added per frame it was well in view and not detected
     existence_max: float = 4.0                    # clamp: a long-seen landmark that is gone is still removed in time
     existence_remove: float = -1.4                # removed below this (a new landmark: 3 misses, no detection)
-    merge_gate: float = 0.0                       # > 0: merge a particle's landmarks closer than this squared
-    #                                             #   Mahalanobis distance (and, with descriptors, alike); 0: off
+    merge_gate: float = 7.815                     # merge a particle's landmarks closer than this squared
+    #                                             #   Mahalanobis distance (χ²₃ 95 %; and alike, see below); 0: off
+    merge_radius: float = 1.0                     # m: ids whose means are farther apart are never tested
+    merge_descriptor_threshold: float = 0.8       # descriptor distance allowed between merged landmarks (see docs)
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block

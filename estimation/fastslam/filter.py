@@ -306,6 +306,8 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
+        if cfg.merge_gate > 0 and not by_id:   # duplicates: only the landmarks this frame touched can be new ones
+            self._merge_duplicates(np.unique(np.concatenate([self.store.flat_lid[matched.g], new_ids[new_ids >= 0]])))
 
         # 8. weights and resampling
         best_matches = np.full(n_obs, -1, np.int64)
@@ -656,6 +658,84 @@ class FastSLAM:
         store.include_in_bbox(g)
         return new_ids, len(m)
 
+    # -- duplicates ------------------------------------------------------------------------------------------
+    def _merge_duplicates(self, touched: np.ndarray) -> int:
+        """Merge, in each particle, landmarks that are statistically one point: (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b)
+        < ``merge_gate`` and (with descriptors) descriptors closer than ``merge_descriptor_threshold``. The
+        newer landmark (higher id) goes into the older one: μ, Σ fused as two independent estimates (given the
+        particle's trajectory they are: each observation updated only one of them), counts added, the larger
+        existence kept. Only pairs with one landmark in ``touched`` (ids matched or made this frame) and both
+        near the view are tested; pairs of ids are first kept only if their means (in one particle) are within
+        ``merge_radius``. Returns the number of (particle, landmark) merges."""
+        cfg, store = self.config, self.store
+        cand, lids, _ = self._candidates(self.poses)
+        if len(cand.m) == 0 or len(touched) == 0:
+            return 0
+        uniq, first = np.unique(lids, return_index=True)
+        ref = _rows(store.flat_mean, cand.g[first])                               # (U, 3) one particle's mean
+        t = np.flatnonzero(np.isin(uniq, touched))
+        if len(t) == 0:
+            return 0
+        d = np.linalg.norm(ref[t][:, None, :] - ref[None, :, :], axis=2)          # (T, U)
+        close = d < cfg.merge_radius
+        if cfg.descriptor_size > 0:
+            dt, du = self._descriptors[uniq[t]], self._descriptors[uniq]
+            close &= np.sum((dt[:, None, :] - du[None, :, :]) ** 2, axis=2) < cfg.merge_descriptor_threshold ** 2
+        ti, ui = np.nonzero(close)
+        a, b = uniq[t[ti]], uniq[ui]
+        keep = a != b
+        a, b = np.minimum(a, b)[keep], np.maximum(a, b)[keep]                    # a older, b newer
+        if len(a) == 0:
+            return 0
+        pair_key = np.unique(a * self._n_ids + b)
+        a, b = np.divmod(pair_key, self._n_ids)
+        # expand to the particles holding both (rows of the candidate list, looked up by particle and id)
+        key = cand.m * self._n_ids + lids
+        order = np.argsort(key, kind="stable")
+        sorted_key = key[order]
+        rows_a, pair = _rows_with_id(lids, a)                                      # candidate rows holding a
+        m = cand.m[rows_a]
+        pos = np.searchsorted(sorted_key, m * self._n_ids + b[pair])
+        pos = np.minimum(pos, len(sorted_key) - 1)
+        found = sorted_key[pos] == m * self._n_ids + b[pair]
+        rows_a, rows_b = rows_a[found], order[pos[found]]
+        if len(rows_a) == 0:
+            return 0
+        sa, sb = _rows(store.flat_state, cand.g[rows_a]).T, _rows(store.flat_state, cand.g[rows_b]).T
+        diff = sa[:3] - sb[:3]
+        adj, det = sym_adjugate(sa[3:] + sb[3:])
+        d2 = sym_quadratic(adj, diff) / det
+        ok = np.flatnonzero(d2 < cfg.merge_gate)
+        if len(ok) == 0:
+            return 0
+        rows_a, rows_b, d2 = rows_a[ok], rows_b[ok], d2[ok]
+        # one merge per landmark and frame: the nearest pair first; a landmark already merged waits a frame
+        order = np.argsort(d2, kind="stable")
+        used: set[int] = set()
+        chosen = []
+        for i in order:   # few pairs per frame (duplicates are rare once association works)
+            ra, rb = int(rows_a[i]), int(rows_b[i])
+            if ra in used or rb in used:
+                continue
+            used.update((ra, rb))
+            chosen.append(i)
+        chosen = np.array(chosen, np.int64)
+        rows_a, rows_b = rows_a[chosen], rows_b[chosen]
+        ma, mb = cand.take(rows_a), cand.take(rows_b)
+        store.make_writable(np.concatenate([ma.m, mb.m]), np.concatenate([ma.k, mb.k]))
+        ga, gb = self._remap(ma), self._remap(mb)
+        sa, sb = _rows(store.flat_state, ga).T, _rows(store.flat_state, gb).T
+        ia, ib = sym_inverse(sa[3:]), sym_inverse(sb[3:])
+        cov = sym_inverse(ia + ib)                                                  # Σ = (Σ_a⁻¹ + Σ_b⁻¹)⁻¹
+        mean = sym_matvec(cov, sym_matvec(ia, sa[:3]) + sym_matvec(ib, sb[:3]))     # μ = Σ (Σ_a⁻¹μ_a + Σ_b⁻¹μ_b)
+        store.put_state(ga, np.vstack([mean, cov]).T)
+        store.flat_count[ga] += store.flat_count[gb]
+        store.flat_logodds[ga] = np.maximum(store.flat_logodds[ga], store.flat_logodds[gb])
+        store.flat_lid[gb] = -1
+        store.include_in_bbox(ga, mean[:2].T)
+        self.stats.landmarks_merged += len(ga)
+        return len(ga)
+
     # -- "id" association ------------------------------------------------------------------------------------
     def _lids_of_external(self, ids: np.ndarray) -> np.ndarray:
         """Internal landmark ids (N,) of observations' external ids (N,) (-1: not seen before)."""
@@ -805,26 +885,70 @@ class FastSLAM:
         return counts
 
     def particle_map(self, particle: int, min_count: int = 1, robot: str = "robot", frame: str = "start",
-                     metadata: dict | None = None) -> LandmarkMap:
-        """Landmarks of one particle seen at least ``min_count`` times, as a :class:`LandmarkMap`."""
+                     metadata: dict | None = None, covariance: str = "particle") -> LandmarkMap:
+        """Landmarks of one particle seen at least ``min_count`` times, as a :class:`LandmarkMap`.
+
+        ``covariance``: "particle" = the particle's own EKF covariances (conditional on its trajectory);
+        "mixture" = each landmark's covariance over the whole particle cloud about this particle's mean (see
+        :meth:`mixture_covariances`): the one that matches the errors of a map exported from a particle filter.
+        """
+        if covariance not in ("particle", "mixture"):
+            raise ValueError(f"covariance must be 'particle' or 'mixture', not {covariance!r}")
         store = self.store
         g = store.particle_slots(int(particle))
         g = g[store.flat_count[g] >= min_count]
         lids = store.flat_lid[g]
         order = np.argsort(lids)
         g, lids = g[order], lids[order]
+        means = store.flat_mean[g].copy()
+        covs = sym_matrices(store.flat_cov[g].T)
+        meta = dict(metadata or {})
+        if covariance == "mixture":
+            covs = self.mixture_covariances(lids, means)
+        meta["landmark_covariance"] = covariance
+        if self._lid_of_external:
+            meta["external_ids"] = self.external_ids(lids).tolist()
         return LandmarkMap(
-            store.flat_mean[g].copy(), sym_matrices(store.flat_cov[g].T), self._descriptors[lids].copy(), lids,
+            means, covs, self._descriptors[lids].copy(), lids,
             store.flat_count[g].copy(), robot=robot, frame=frame, trajectory=self.trajectory(particle),
-            metadata=dict(metadata or {}))
+            metadata=meta)
+
+    def mixture_covariances(self, lids: np.ndarray, about: np.ndarray) -> np.ndarray:
+        """(L, 3, 3) covariances of landmarks ``lids`` (L,) over the weighted particle cloud, about the points
+        ``about`` (L, 3): Σ̃ = Σ_m w_m [Σ_m + (μ_m − a)(μ_m − a)ᵀ] / Σ_m w_m over the particles m holding the
+        landmark. A particle's Σ_m is conditional on its own trajectory; the spread of the μ_m over the
+        particles adds the trajectory's uncertainty, which the exported map's landmarks share."""
+        store = self.store
+        n_particles = len(self.poses)
+        width, b = store.table.shape[1], store.block_size
+        phys = store.table
+        held = _rows(store.lid, np.maximum(phys, 0).ravel()).reshape(n_particles, width, b)
+        held = np.where((phys >= 0)[..., None], held, -1)
+        rank = np.full(self._n_ids, -1, np.int64)
+        rank[lids] = np.arange(len(lids))
+        flat = np.flatnonzero(held.ravel() >= 0)
+        r = rank[held.ravel()[flat]]
+        flat, r = flat[r >= 0], r[r >= 0]
+        m, rest = np.divmod(flat, width * b)
+        k, slot = np.divmod(rest, b)
+        state = _rows(store.flat_state, phys[m, k] * b + slot)
+        w = self.weights[m]
+        dev = state[:, :3] - about[r]
+        n = len(lids)
+        total = np.bincount(r, w, minlength=n)
+        second = np.empty((6, n))
+        for c, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+            second[c] = np.bincount(r, w * (state[:, 3 + c] + dev[:, i] * dev[:, j]), minlength=n)
+        return sym_matrices(second / np.maximum(total, 1e-300))
 
     def best_map(self, robot: str = "robot", metadata: dict | None = None, min_count: int | None = None,
-                 frame: str = "start") -> LandmarkMap:
-        """The most probable particle's map (landmarks seen ≥ ``min_count``, default ``confirm_count``)."""
+                 frame: str = "start", covariance: str = "mixture") -> LandmarkMap:
+        """The most probable particle's map (landmarks seen ≥ ``min_count``, default ``confirm_count``), with
+        the landmarks' covariances over the particle cloud by default (``covariance``, see :meth:`particle_map`)."""
         min_count = self.config.confirm_count if min_count is None else min_count
         meta = {"fastslam": self.config.to_dict()}
         meta.update(metadata or {})
-        return self.particle_map(self._best, min_count, robot, frame, meta)
+        return self.particle_map(self._best, min_count, robot, frame, meta, covariance)
 
 
 def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -856,6 +980,19 @@ def _within_angle(lateral: np.ndarray, depth: np.ndarray, half_angle: float) -> 
     if half_angle >= 0.5 * np.pi:
         return np.abs(np.arctan2(lateral, depth)) < half_angle
     return np.abs(lateral) < np.tan(half_angle) * depth
+
+
+def _rows_with_id(lids: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows r of ``lids`` (C,) whose id is in ``wanted`` (K,), once per (row, k) with lids[r] == wanted[k]:
+    returns (rows, k), both (L,)."""
+    order = np.argsort(lids, kind="stable")
+    sorted_lids = lids[order]
+    lo = np.searchsorted(sorted_lids, wanted, side="left")
+    hi = np.searchsorted(sorted_lids, wanted, side="right")
+    reps = hi - lo
+    k = np.repeat(np.arange(len(wanted)), reps)
+    within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
+    return order[np.repeat(lo, reps) + within], k
 
 
 def _pose_uncertainty(p6: np.ndarray, lever: np.ndarray) -> np.ndarray:

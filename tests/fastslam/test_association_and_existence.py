@@ -127,3 +127,32 @@ def test_a_capped_frame_is_no_evidence_against_landmarks_beyond_its_reach():
     assert len(slam_far.particle_map(0)) == 6
     assert len(capped.particle_map(0)) == 5      # never created, never wrongly removed either
     assert capped.stats.landmarks_removed == 0
+
+
+@pytest.mark.parametrize("merge_gate", [0.0, 7.815])
+def test_duplicates_are_merged_only_when_statistically_one_point_and_alike(merge_gate):
+    # a corner whose look changed beyond the association gate (0.5) but not beyond the merge's (0.8) is made
+    # again at the same place: a duplicate, merged; a different-looking corner 5 cm away is not merged, nor
+    # a same-looking one 0.5 m away (20 σ)
+    rng = np.random.default_rng(3)
+    base = rng.standard_normal(64)
+    base /= np.linalg.norm(base)
+    other = rng.standard_normal(64)
+    other -= (other @ base) * base
+    other /= np.linalg.norm(other)
+    drifted = np.cos(0.6) * base + np.sin(0.6) * other          # distance 2 sin(0.3) ≈ 0.59 from base
+    unrelated = rng.standard_normal(64)
+    unrelated /= np.linalg.norm(unrelated)
+    slam = FastSLAM(FastSLAMConfig(n_particles=5, merge_gate=merge_gate, max_observations=0),
+                    np.random.default_rng(4))
+    corner, beside, far = [4.0, 0.5, 1.0], [4.0, 0.55, 1.0], [4.0, 1.0, 1.0]
+    slam.update(_stereo([corner, beside, far], [base, unrelated, base]))
+    slam.update(_stereo([corner, beside, far], [drifted, unrelated, base]))
+    kept = slam.particle_map(0)
+    if merge_gate == 0:
+        assert len(kept) == 4 and slam.stats.landmarks_merged == 0
+    else:
+        assert len(kept) == 3 and slam.stats.landmarks_merged == 5   # one merge in each particle
+        merged = kept.positions[np.argmin(np.linalg.norm(kept.positions - corner, axis=1))]
+        assert np.linalg.norm(merged - corner) < 0.02
+        assert kept.counts.max() == 2

@@ -1,0 +1,91 @@
+"""Map consistency scores of a simulated FastSLAM run: landmark NEES against the truth, duplicates, pose NEES.
+
+Used by ``bench_fastslam.py --accuracy`` (synthetic sensor) and ``eval_slam_rendered.py`` (rendered frames):
+``runtime.slam_sim.simulate`` is run with a filter that records its update reports and an observer that records
+which true point each observation stands for, so every landmark of the exported map has its true position.
+
+Landmark NEES = eᵀ Σ⁻¹ e, e = the landmark's position minus its true point, both in the robot's start frame
+(known exactly in simulation), Σ the exported covariance. A consistent map has NEES ~ χ²₃: 95 % of the
+landmarks below 7.815. Duplicate fraction = (landmarks − distinct true points they stand for) / landmarks.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+import runtime.slam_sim as slam_sim
+from estimation.fastslam import FastSLAM
+from estimation.geometry import rot_z
+
+CHI2_3_95 = 7.815
+
+
+class RecordingFastSLAM(FastSLAM):
+    """A FastSLAM that keeps every update's report (the last instance made is ``RecordingFastSLAM.last``)."""
+
+    last: RecordingFastSLAM | None = None
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.reports = []
+        RecordingFastSLAM.last = self
+
+    def update(self, observations):
+        report = super().update(observations)
+        self.reports.append(report)
+        return report
+
+
+class RecordingObserver:
+    """Wraps an observer; keeps the per-observation true point index of every frame."""
+
+    def __init__(self, observer) -> None:
+        self.observer = observer
+        self.indices: list[np.ndarray] = []
+
+    def observe(self, pose, timestamp: float = 0.0):
+        observations, index = self.observer.observe(pose, timestamp)
+        self.indices.append(np.asarray(index, np.int64))
+        return observations, index
+
+
+def landmark_scores(landmark_map, start_pose, truth_points: np.ndarray, reports, indices) -> dict:
+    """NEES (L,) of the map's landmarks whose creating observation has a true point, and summary figures."""
+    point_of = {}
+    for report, index in zip(reports, indices, strict=False):
+        for j in np.flatnonzero(report.new_landmark_ids >= 0):
+            point_of.setdefault(int(report.new_landmark_ids[j]), int(index[j]))
+    points = np.array([point_of.get(int(i), -1) for i in landmark_map.ids], np.int64)
+    known = points >= 0
+    start = np.asarray(start_pose, float)
+    truth_world = truth_points[points[known]]
+    truth_start = (truth_world - [start[0], start[1], 0.0]) @ rot_z(start[2])   # Rᵀ (p − t), row vectors
+    err = landmark_map.positions[known] - truth_start
+    nees = np.einsum("ni,ni->n", err, np.linalg.solve(landmark_map.covariances[known], err[..., None])[..., 0])
+    n = len(landmark_map)
+    distinct = len(np.unique(points[known]))
+    return {
+        "landmark_nees": nees,
+        "landmark_nees_median": float(np.median(nees)) if len(nees) else float("nan"),
+        "landmark_nees_within_bound": float(np.mean(nees < CHI2_3_95)) if len(nees) else float("nan"),
+        "landmark_error_median_m": float(np.median(np.linalg.norm(err, axis=1))) if len(err) else float("nan"),
+        "duplicate_fraction": float((known.sum() - distinct) / n) if n else 0.0,
+    }
+
+
+def run_scored(world, *, robot: str, seed: int, config, observer, scoring_world=None, **simulate_kwargs) -> dict:
+    """``slam_sim.simulate`` with ``observer`` (wrapped to record), plus :func:`landmark_scores`; returns the
+    simulate metrics, the landmark scores and the filter's stats."""
+    recording = RecordingObserver(observer)
+    original = slam_sim.FastSLAM
+    slam_sim.FastSLAM = RecordingFastSLAM
+    try:
+        result = slam_sim.simulate(scoring_world or world, start_pose=world.start_poses[robot], robot=robot,
+                                   seed=seed, config=config, observer=recording, **simulate_kwargs)
+    finally:
+        slam_sim.FastSLAM = original
+    slam = RecordingFastSLAM.last
+    truth = (scoring_world or world).features
+    scores = landmark_scores(result.map, world.start_poses[robot], truth, slam.reports, recording.indices)
+    stats = getattr(slam, "stats", None)
+    return {**result.metrics, **{k: v for k, v in scores.items() if k != "landmark_nees"},
+            "stats": vars(stats).copy() if stats is not None else {}, "_result": result, "_slam": slam}
