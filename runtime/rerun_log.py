@@ -400,7 +400,7 @@ class MissionLog:
         self._placements: dict[str, np.ndarray] = {}  # map key -> its frame's pose in the world (x, y, θ)
         self._snapshot_paths: dict[str, np.ndarray] = {}  # robot -> (T, 2) path of its last map snapshot
         self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
-        if blueprint and self.robots:
+        if blueprint and self.robots and rec.is_enabled():  # a disabled stream ("none") refuses blueprints
             rec.send_blueprint(mission_blueprint(self.robots))
 
     # -- helpers --------------------------------------------------------------------------------------
@@ -439,6 +439,8 @@ class MissionLog:
         if getattr(self, "_closed", False):
             return
         self._closed = True
+        if not self.rec.is_enabled():
+            return
         self.rec.flush()
         self.rec.disconnect()
 

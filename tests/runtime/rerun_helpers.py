@@ -1,0 +1,89 @@
+"""Shared by the Rerun tests: a small mission logged through every MissionLog method, and what a recording holds."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from estimation.landmark_map import LandmarkMap
+
+ROBOTS = ["robot1", "robot2"]
+TWO_D = ("Points2D:", "LineStrips2D:", "Arrows2D:", "Boxes2D:", "EncodedImage:", "Image:", "DepthImage:")
+
+
+def landmark_map(robot: str, n: int, rng: np.random.Generator, counts=None, trajectory_len: int = 20,
+                 robots=None, seen_by=None) -> LandmarkMap:
+    a = rng.normal(size=(n, 3, 3)) * 0.1
+    t = np.arange(trajectory_len, dtype=float)
+    return LandmarkMap(rng.uniform(-5, 5, (n, 3)), a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(3),
+                       rng.normal(size=(n, 8)).astype(np.float32), np.arange(n),
+                       counts if counts is not None else np.full(n, 5), robot, "start", robots, seen_by,
+                       np.column_stack([t, 0.1 * t, 0.05 * t, np.zeros_like(t)]))
+
+
+def log_small_mission(log, frames: int = 12, seed: int = 0) -> dict:
+    """Every kind of thing the runtime logs, for two robots and a fusion. Returns what was logged that a test
+    checks against."""
+    rng = np.random.default_rng(seed)
+    log.log_building(np.array([[-1.0, -2.0, 10.0, -2.0], [-1.0, 2.0, 10.0, 2.0]]), np.array([2.5, 2.5]))
+    starts = {"robot1": np.zeros(3), "robot2": np.array([8.0, 0.0, np.pi])}
+    for name in ROBOTS:
+        log.log_robot_frame(name, starts[name])
+        log.log_camera_model(name, 520, 520, 31.5, 23.5, 64, 48, 0.09)
+    log.log_robot_frame("fused", starts["robot1"])
+    local = None
+    for frame in range(frames):
+        t = 0.25 * frame
+        for name in ROBOTS:
+            pose = np.array([0.1 * frame, 0.01 * frame, 0.0])
+            log.log_pose(name, t, frame, pose, pose + 0.01, (0.12, 0.045, 0.5), odometry=pose * 1.1)
+            log.log_particles(name, t, frame, pose + rng.normal(0, 0.05, (20, 3)))
+            log.log_scalars(name, t, {"ess": 80.0, "landmarks/all": 10 + frame, "observations": 30,
+                                      "dropped": 0, "time/frontend": 5.0, "time/predict": 0.5,
+                                      "time/update": 9.0}, frame)
+            log.log_stereo(name, t, frame, rng.integers(0, 255, (48, 64), np.uint8),
+                           rng.integers(0, 255, (48, 64), np.uint8), rng.uniform(0, 40, (5, 2)),
+                           rng.uniform(0, 40, (5, 2)))
+            log.log_sonar(name, t, pose, np.array([[0.1, 0.0, 0.0], [0.1, 0.1, 1.0]]), np.array([2.0, 3.0]))
+            if frame % 4 == 0:
+                local = landmark_map(name, 12, rng, counts=np.array([1, 2] * 3 + [3, 4, 5, 6, 7, 8]))
+                log.log_robot_landmarks(name, t, frame, local, confirm_count=3)
+    t = 0.25 * frames
+    snapshots = {name: landmark_map(name, 8, rng) for name in ROBOTS}
+    for name, m in snapshots.items():
+        log.log_map(name, t, m)
+    log.log_alignment(t, "robot1", "robot2", {"reference": "robot1", "other": "robot2", "aligned": True,
+                                              "tx": 8.0, "ty": 0.0, "theta": np.pi, "supports": 20, "common": 6,
+                                              "error_xy": 0.05, "error_theta": 0.01, "merged": 10})
+    seen = np.zeros((10, 2), bool)
+    seen[:4, 0] = True
+    seen[4:8, 1] = True
+    seen[8:, :] = True
+    fused = landmark_map("robot1", 10, rng, robots=ROBOTS, seen_by=seen)
+    log.log_map("fused", t, fused)
+    log.log_event(t, "done")
+    log.log_summary({"robots": {}})
+    return {"snapshots": snapshots, "fused": fused, "local": local, "duration": t}
+
+
+def entity_columns(rrd: Path) -> dict[str, set[str]]:
+    """entity path (no leading '/') -> the component columns ("Archetype:field") it holds in the recording."""
+    import rerun.chunk as rrchunk
+
+    columns: dict[str, set[str]] = {}
+    for chunk in rrchunk.RrdReader(rrd).stream():
+        names = {n for n in chunk.to_record_batch().schema.names if ":" in n}
+        columns.setdefault(chunk.entity_path.lstrip("/"), set()).update(names)
+    return columns
+
+
+def entity_rows(rrd: Path, entity: str) -> list[dict]:
+    """Every row logged at ``entity``, as plain Python values (ordered as stored)."""
+    import rerun.chunk as rrchunk
+
+    rows = []
+    for chunk in rrchunk.RrdReader(rrd).stream().filter(content=[f"+ /{entity}"]):
+        batch = chunk.to_record_batch()
+        data = {k: batch.column(k).to_pylist() for k in batch.schema.names}
+        rows.extend({k: v[i] for k, v in data.items()} for i in range(chunk.num_rows))
+    return rows
