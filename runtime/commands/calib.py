@@ -1,4 +1,8 @@
-"""``p3at calib convert|show``: stereo calibration files (SVS ``.ini``, OpenCV ``.yaml/.yml/.xml``)."""
+"""``p3at calib convert|show``: stereo calibration files (SVS ``.ini``, OpenCV ``.yaml/.yml/.xml``, ROS camera_info).
+
+A ROS camera_info calibration is a folder holding ``left.yaml`` and ``right.yaml`` (see
+``drivers.videre.camera_info``); a path without a suffix, or an existing folder, names one.
+"""
 from __future__ import annotations
 
 import argparse
@@ -9,36 +13,68 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.errors import DriverError
-from drivers.videre import calibration
+from drivers.errors import BadFileError, DriverError
+from drivers.videre import calibration, camera_info
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     calib = subparsers.add_parser("calib", help="stereo calibration files: convert, show",
-                                  description="Convert between SVS parameter files (.ini) and OpenCV stereo "
-                                              "calibration files (.yaml/.yml/.xml), or show one.")
+                                  description="Convert between SVS parameter files (.ini), OpenCV stereo "
+                                              "calibration files (.yaml/.yml/.xml) and ROS camera_info YAML (a "
+                                              "folder holding left.yaml and right.yaml), or show one.")
     sub = calib.add_subparsers(dest="calib_command", metavar="ACTION", required=True)
     convert = sub.add_parser("convert", help="IN -> OUT, formats by suffix",
                              description="Read IN and write OUT (atomically), each format chosen by its suffix: "
-                                         ".ini (SVS; translations in mm) or .yaml/.yml/.xml (OpenCV; metres).")
+                                         ".ini (SVS; translations in mm), .yaml/.yml/.xml (OpenCV; metres), or "
+                                         "no suffix / an existing folder: ROS camera_info, FOLDER/left.yaml and "
+                                         "FOLDER/right.yaml as camera_calibration writes them and "
+                                         "camera_info_manager reads them (the head's pose on the robot is not "
+                                         "part of camera_info).")
     convert.add_argument("input", type=Path, metavar="IN")
     convert.add_argument("output", type=Path, metavar="OUT")
+    convert.add_argument("--camera-name", default=camera_info.DEFAULT_NAME,
+                         help="camera_info camera_name prefix (NAME/left, NAME/right; default %(default)s)")
     convert.set_defaults(handler=run_convert)
     show = sub.add_parser("show", help="print a calibration's numbers",
                           description="Print size, rectified intrinsics, baseline, distortion, R, T and head pose.")
-    show.add_argument("file", type=Path, metavar="FILE")
+    show.add_argument("file", type=Path, metavar="FILE", help="a calibration file, or a camera_info folder")
     show.add_argument("--json", action="store_true", help="print JSON")
     show.set_defaults(handler=run_show)
 
 
+def _is_camera_info_target(path: Path) -> bool:
+    return path.is_dir() or path.suffix == ""
+
+
+def load_any(path: Path) -> calibration.StereoCalibration:
+    """A calibration from an SVS/OpenCV file or a camera_info folder (one camera_info file is refused: half a head)."""
+    if path.is_dir():
+        return camera_info.read_pair(path)
+    if camera_info.is_camera_info(path):
+        raise BadFileError(f"{path}: a ROS camera_info file holds one camera; give the folder holding left.yaml and "
+                           "right.yaml")
+    return calibration.load(path)
+
+
 def run_convert(args: argparse.Namespace) -> int:
     try:
-        calib = calibration.load(args.input)
-        calibration.save(calib, args.output)
+        calib = load_any(args.input)
+        if _is_camera_info_target(args.output):
+            written = camera_info.write_pair(calib, args.output, args.camera_name)
+        else:
+            calibration.save(calib, args.output)
+            written = [args.output]
+    except BadFileError as exc:  # a bad input file: one line, exit 2
+        print(f"p3at calib convert: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, ValueError, OSError) as exc:
         print(f"p3at calib convert: {exc}", file=sys.stderr)
         return 1
-    print(f"{args.input} -> {args.output} ({calib.size[0]}x{calib.size[1]}, baseline {calib.baseline * 1000:.1f} mm)")
+    print(f"{args.input} -> {', '.join(map(str, written))} ({calib.size[0]}x{calib.size[1]}, "
+          f"baseline {calib.baseline:.5f} m)")
+    if _is_camera_info_target(args.output) and np.any(calib.head_pose != 0):
+        print("note: camera_info has no place for the head's pose on the robot (ROS keeps it in TF): "
+              f"{calib.head_pose.tolist()} (x y z m, roll pitch yaw rad) was not written")
     return 0
 
 
@@ -53,7 +89,10 @@ def summary(calib: calibration.StereoCalibration) -> dict:
 
 def run_show(args: argparse.Namespace) -> int:
     try:
-        calib = calibration.load(args.file)
+        calib = load_any(args.file)
+    except BadFileError as exc:
+        print(f"p3at calib show: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, ValueError, OSError) as exc:
         print(f"p3at calib show: {exc}", file=sys.stderr)
         return 1

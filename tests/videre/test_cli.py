@@ -64,7 +64,7 @@ def test_calib_convert_and_show(tmp_path: Path, capsys):
 def test_calib_bad_file(tmp_path: Path, capsys):
     bad = tmp_path / "bad.ini"
     bad.write_text("# SVS Engine v 1.0\n")
-    assert main(["calib", "convert", str(bad), str(tmp_path / "out.yaml")]) == 1
+    assert main(["calib", "convert", str(bad), str(tmp_path / "out.yaml")]) == 2  # a bad file: exit 2
     err = capsys.readouterr().err
     assert "bad.ini:1: field 'version'" in err
     assert not (tmp_path / "out.yaml").exists()
