@@ -94,6 +94,13 @@ class _Subscribers:
                 log.exception("%s subscriber %r raised", self._what, callback)
 
 
+def _close_quietly(port: Any) -> None:
+    try:
+        port.close()
+    except (serial.SerialException, OSError):
+        pass
+
+
 def is_local_serial_device(url: str) -> bool:
     """A real serial port, where HOSTBAUD makes sense (not a URL scheme, not a pseudo-terminal)."""
     if "://" in url:
@@ -446,14 +453,18 @@ class P3AT:
         except ValueError as exc:  # pyserial's answer to a malformed URL
             raise DeviceNotFoundError(f"{self.url}: {exc}") from exc
 
-    def _close_port(self) -> None:
+    def _close_port(self, background: bool = False) -> None:
+        """Close the port; ``background`` hands the closing to a short daemon thread, because pyserial's
+        ``socket://`` close sleeps 0.3 s ("give the server some time"), which must not delay the news of a
+        lost link nor ``close()`` joining the reader."""
         with self._write_lock:
             port, self._port = self._port, None
-        if port is not None:
-            try:
-                port.close()
-            except (serial.SerialException, OSError):
-                pass
+        if port is None:
+            return
+        if background:
+            threading.Thread(target=_close_quietly, args=(port,), name=f"arcos-closer {self.url}", daemon=True).start()
+        else:
+            _close_quietly(port)
 
     def _handshake(self) -> Identity:
         for attempt in range(self.handshake_tries):
@@ -595,10 +606,10 @@ class P3AT:
         log.warning("%s: link lost (%s)", self.url, reason)
         self._lost_reason = reason
         self._link_up = False
-        self._close_port()
-        self._link_subscribers.call(LinkEvent("lost", self.clock(), self.session, reason))
-        with self._cond:
+        with self._cond:  # waiters first: they raise NotConnectedError now
             self._cond.notify_all()
+        self._close_port(background=True)
+        self._link_subscribers.call(LinkEvent("lost", self.clock(), self.session, reason))
 
     def _reconnect_loop(self) -> bool:
         """Reconnect with exponential backoff until it works (True) or the driver is closed (False)."""
