@@ -1,0 +1,172 @@
+"""MRCLAM data set 2 through `p3at slam dataset`'s code path: five robots, both association modes, every figure of
+issue 13, and the maps for `p3at fuse`.
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
+        [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
+        [--maps /tmp/mrclam-maps] [--set FIELD=VALUE ...] [--json]
+
+Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
+with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
+the map frame's own error), dead-reckoning ATE, RPE over 1 m, landmarks against the true ones the robot saw,
+duplicate fraction, landmark error in the start frame and after the best rigid fit, the fraction of landmarks
+under the χ²₂ 95 % NEES bound (start frame and after the rigid fit), pose NEES (mean, median, fraction under
+χ²₃ 95 %). Then the issue's targets, met or not. Maps go to MAPS/{id,unknown}/robotN.npz.
+
+Noise: ``own`` fits each robot's model from its own log against the truth (what `p3at slam dataset` does without
+--noise); ``others`` from the other robots' logs only (no robot is scored with noise fitted on itself); a FILE
+is used for every robot. ``--set`` overrides a FastSLAMConfig field (a diagnosis, e.g. ``--set existence_miss=0``);
+the overrides are printed with the figures.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks import evo_metrics  # noqa: E402
+from estimation.dataset_slam import run_landmark_log  # noqa: E402
+from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.noise_model import NoiseModel, estimate_noise  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
+COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "evo-al", 3),
+           ("dead_reckoning_ate_m", "DR", 2), ("rpe_1m_m", "RPE1m", 3), ("landmarks", "lm", 0),
+           ("true_landmarks", "true", 0), ("duplicate_fraction", "dup", 2), ("landmark_error_median_m", "lm-err", 3),
+           ("landmark_error_rigid_median_m", "lm-rig", 3), ("landmark_nees_within_bound", "NEES<b", 2),
+           ("landmark_nees_rigid_within_bound", "rig<b", 2), ("pose_nees_median", "poseNEES", 1),
+           ("pose_nees_within_chi2_95", "pose<b", 2), ("seconds_cpu", "cpu s", 0))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--association", default="id,unknown")
+    parser.add_argument("--noise", default="own", help="own | others | FILE (see the module docstring)")
+    parser.add_argument("--particles", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--until", type=float)
+    parser.add_argument("--maps", type=Path, default=Path("/tmp/mrclam-maps"))
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        overrides[key] = json.loads(value)
+    robots = [int(r) for r in args.robots.split(",")]
+    modes = args.association.split(",")
+    if not args.data.is_dir():
+        print(f"eval_mrclam: no data set at {args.data}", file=sys.stderr)
+        return 2
+
+    logs = {r: read_mrclam(args.data, r) for r in robots}
+    others = {r: read_mrclam(args.data, r) for r in range(1, 6) if r not in logs} if args.noise == "others" else {}
+    noise = {}
+    for r in robots:
+        if args.noise == "own":
+            noise[r] = estimate_noise([logs[r]]).model
+        elif args.noise == "others":
+            pool = [log for k, log in {**logs, **others}.items() if k != r]
+            noise[r] = estimate_noise(pool).model
+        else:
+            noise[r] = NoiseModel.load(args.noise)
+
+    results = {}
+    for mode in modes:
+        for r in robots:
+            start = time.process_time()
+            run = run_landmark_log(logs[r], range_bearing_config(n_particles=args.particles, **overrides),
+                                   np.random.default_rng(args.seed), noise=noise[r], association=mode,
+                                   robot=f"robot{r}", until=args.until)
+            cpu = time.process_time() - start
+            out = args.maps / mode / f"robot{r}.npz"
+            run.map.save(out)
+            m = dict(run.metrics, seconds_cpu=cpu, map=str(out))
+            evo = evo_metrics.ate(run.true_trajectory, run.estimated_trajectory)
+            aligned = evo_metrics.ate(run.true_trajectory, run.estimated_trajectory, align=True)
+            rpe = evo_metrics.rpe(run.true_trajectory, run.estimated_trajectory, delta=1.0)
+            m.update(evo_ate_m=evo["ate_rmse_m"], evo_ate_aligned_m=aligned["ate_rmse_m"],
+                     rpe_1m_m=rpe["rpe_translation_rmse_m"], rpe_1m_rad=rpe["rpe_rotation_rmse_rad"])
+            results[(mode, r)] = m
+            if not args.json:
+                print(f"  {mode:7s} robot{r}: ATE {m['ate_m']:.3f} m (DR {m['dead_reckoning_ate_m']:.2f}), "
+                      f"{m['landmarks']} landmarks, {cpu:.0f} s CPU", flush=True)
+
+    summary = _summary(results, robots, modes)
+    if args.json:
+        print(json.dumps({"runs": {f"{mode}/robot{r}": m for (mode, r), m in results.items()}, "summary": summary,
+                          "noise": args.noise, "overrides": overrides, "particles": args.particles, "seed": args.seed,
+                          "maps": str(args.maps)}))
+        return 0
+    print(f"\nMRCLAM {args.data.name}, {args.particles} particles, seed {args.seed}, noise: {args.noise}"
+          + (f", until {args.until:g} s" if args.until else "") + (f", overrides {overrides}" if overrides else ""))
+    header = "mode    robot " + " ".join(f"{label:>8s}" for _, label, _ in COLUMNS)
+    print(header)
+    for (mode, r), m in results.items():
+        print(f"{mode:7s} {r:5d} " + " ".join(f"{m[k]:8.{d}f}" if isinstance(m[k], float) else f"{m[k]:8d}"
+                                              for k, _, d in COLUMNS))
+    print()
+    for line in summary["lines"]:
+        print(line)
+    print(f"\nmaps for `p3at fuse`: {args.maps}/{{{','.join(modes)}}}/robotN.npz")
+    return 0
+
+
+def _summary(results: dict, robots: list[int], modes: list[str]) -> dict:
+    lines, out = [], {}
+
+    def figures(mode, key):
+        return np.array([results[(mode, r)][key] for r in robots if (mode, r) in results], float)
+
+    if "id" in modes:
+        ate = figures("id", "ate_m")
+        rigid = figures("id", "landmark_error_rigid_median_m")
+        out.update(id_ate_median_m=float(np.median(ate)), id_ate_max_m=float(np.max(ate)),
+                   id_landmark_error_rigid_median_m=float(np.median(rigid)))
+        lines.append(f"known-ID: median ATE {np.median(ate):.3f} m (target <= 0.25): "
+                     f"{_verdict(np.median(ate) <= 0.25)}; every robot <= 0.5 m (max {np.max(ate):.3f}): "
+                     f"{_verdict(np.max(ate) <= 0.5)}; landmark error after rigid fit, median "
+                     f"{np.median(rigid):.3f} m (target <= 0.15): {_verdict(np.median(rigid) <= 0.15)}")
+    if "unknown" in modes:
+        dup = figures("unknown", "duplicate_fraction")
+        out.update(unknown_duplicate_fraction_max=float(np.max(dup)))
+        line = f"unknown: duplicates max {100 * np.max(dup):.1f} % (target < 5 %): {_verdict(np.max(dup) < 0.05)}"
+        if "id" in modes:
+            ratio = figures("unknown", "ate_m") / figures("id", "ate_m")
+            out.update(unknown_over_id_ate_max=float(np.max(ratio)))
+            line += (f"; ATE unknown/id per robot {', '.join(f'{x:.2f}' for x in ratio)} (target <= 1.5): "
+                     f"{_verdict(np.max(ratio) <= 1.5)}")
+        lines.append(line)
+    for mode in modes:
+        nees = figures(mode, "landmark_nees_within_bound")
+        rigid = figures(mode, "landmark_nees_rigid_within_bound")
+        pose = figures(mode, "pose_nees_within_chi2_95")
+        out[f"{mode}_landmark_nees_within_bound_min"] = float(np.min(nees))
+        lines.append(f"{mode}: landmarks under the NEES bound (target >= 90 %): {100 * np.min(nees):.0f}-"
+                     f"{100 * np.max(nees):.0f} % in the start frame, {100 * np.min(rigid):.0f}-"
+                     f"{100 * np.max(rigid):.0f} % after the rigid fit: {_verdict(np.min(nees) >= 0.9)}; "
+                     f"poses under χ²₃ 95 %: "
+                     f"{100 * np.min(pose):.0f}-{100 * np.max(pose):.0f} %")
+    out["lines"] = lines
+    return out
+
+
+def _verdict(ok) -> str:
+    return "met" if ok else "NOT met"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
