@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -50,3 +51,23 @@ def test_ate_is_the_rms_position_error():
     truth = np.zeros((4, 3))
     estimate = np.array([[3.0, 4.0, 0.0], [0, 0, 0], [0, 0, 0], [0, 0, 1.0]])
     assert ate(estimate, truth) == 2.5
+
+
+def test_ate_agrees_with_evo():
+    """The hand-written ATE (the product must not need evo, a dev dependency) equals evo's APE rmse."""
+    evo_metrics = pytest.importorskip("evo.core.metrics")
+    from evo.core.trajectory import PoseTrajectory3D
+
+    rng = np.random.default_rng(2)
+    t = np.arange(50.0)
+    truth = np.column_stack([np.cumsum(rng.normal(0, 0.1, (50, 2)), axis=0), rng.uniform(-3, 3, 50)])
+    estimate = truth + rng.normal(0, 0.05, (50, 3))
+
+    def evo_trajectory(poses):
+        xyz = np.column_stack([poses[:, :2], np.zeros(len(poses))])
+        quat = np.column_stack([np.cos(poses[:, 2] / 2), np.zeros((len(poses), 2)), np.sin(poses[:, 2] / 2)])
+        return PoseTrajectory3D(positions_xyz=xyz, orientations_quat_wxyz=quat, timestamps=t)
+
+    ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+    ape.process_data((evo_trajectory(truth), evo_trajectory(estimate)))
+    assert ate(estimate, truth) == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-12)
