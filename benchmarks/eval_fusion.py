@@ -286,7 +286,7 @@ def false_alarms(total: int):
             range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="door"),
     }
     del rng_pose
-    per = max(1, total // len(kinds))
+    per = max(1, -(-total // len(kinds)))                # at least ``total`` in all
     print(f"\n### No false alignment on maps that share nothing ({per * len(kinds)} pairs: {per} of each kind)\n")
     print("| maps | preset | alignments reported (should be 0) | of which low-confidence (warned) |")
     print("|---|---|---|---|")
@@ -404,7 +404,8 @@ def _fuse_cli(files: list[Path], out: Path, preset: str = "robust") -> dict:
     return report
 
 
-def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, figures: Path | None = None):
+def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, figures: Path | None = None,
+                 slug: str = "maps"):
     """p3at fuse on five MRCLAM maps: every pair, its error against the Vicon start poses and against the
     composition of the two maps' best rigid fits to the truth; the merged map's landmark error."""
     files = []
@@ -461,10 +462,10 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         fit = frame_fit(merged, truth)[0]
         world = transform_points(fit, merged.positions)
         pts = np.array(list(truth.values()))
-        fusion_plots.map_2d(figures / f"fusion_mrclam_{title.split()[0].lower()}_merged.png",
+        fusion_plots.map_2d(figures / f"fusion_mrclam_{slug}_merged.png",
                             [("true landmarks (Vicon)", pts, (60, 170, 60)),
                              ("merged map (best rigid fit)", world, (200, 90, 30))],
-                            f"MRCLAM dataset 2: merged map of five robots ({title})", scale=40.0)
+                            f"MRCLAM 2: five robots merged ({slug})", scale=60.0)
 
 
 def mrclam_faults(sightings, seeds: int):
@@ -630,13 +631,13 @@ def main() -> None:
         truth = sightings[0].truth
         with tempfile.TemporaryDirectory() as work:
             mrclam_table([s.map for s in sightings], truth, "maps from real sightings placed from Vicon poses",
-                         Path(work), args.figures)
+                         Path(work), args.figures, "sightings")
         for folder in args.mrclam_maps:
             with tempfile.TemporaryDirectory() as work:
                 maps = [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)]
                 assoc = maps[0].metadata.get("association", "?")
                 mrclam_table(maps, truth, f"FastSLAM maps ({assoc} association, {folder.name})", Path(work),
-                             args.figures)
+                             args.figures, f"fastslam_{assoc}")
         mrclam_faults(sightings, args.fault_seeds)
     else:
         print(f"\n(MRCLAM tables skipped: {args.mrclam} not found)")

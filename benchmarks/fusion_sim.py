@@ -402,3 +402,24 @@ def corrupt_map(m: LandmarkMap, rng: np.random.Generator, duplicates: int = 3, o
         meta["external_ids"] = [int(v) for v in np.concatenate([ids, ids[src], rng.choice(ids, outliers)])]
     desc = np.zeros((n + len(src) + outliers, m.descriptor_size), np.float32)
     return LandmarkMap(np.vstack([m.positions, dup, out]), cov, desc, robot=m.robot, frame=m.frame, metadata=meta)
+
+
+def main() -> None:
+    """``python benchmarks/fusion_sim.py mrclam OUT [--no-ids]``: the five MRCLAM sighting maps as files."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="write simulated or real-sighting landmark maps as files")
+    parser.add_argument("kind", choices=("mrclam",))
+    parser.add_argument("out", type=Path, help="folder to write robot1.npz ... robot5.npz into")
+    parser.add_argument("--data", type=Path, default=MRCLAM_DATASET2, help="MRCLAM dataset folder")
+    parser.add_argument("--no-ids", action="store_true", help="leave the identities out (geometry alone)")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for r in range(1, 6):
+        s = mrclam_sighting_map(args.data, r, identities=not args.no_ids)
+        s.map.save(args.out / f"robot{r}.npz")
+        print(f"{args.out / f'robot{r}.npz'}: {len(s.map)} landmarks")
+
+
+if __name__ == "__main__":
+    main()
