@@ -133,6 +133,9 @@ def spawn_viewer(port: int | None = None, timeout: float = 15.0) -> str:
     raise ViewerError(f"the Rerun viewer did not listen on 127.0.0.1:{port} within {timeout:g} s")
 
 
+FILE_FLUSH_TICK = 1.0  # s
+
+
 def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb.Blueprint | None = None,
                    mission_id: str | None = None) -> rr.RecordingStream:
     """A new RecordingStream for one mission (or for one process of a fleet).
@@ -147,8 +150,13 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     ``blueprint``: the default layout, sent with the stream; a fleet sends it from ONE process only (the fusion
     node), because the last blueprint received wins.
     """
+    live = sink in ("memory", "spawn", "none") or sink.startswith(("rerun://", "rerun+http", "http://"))
+    # a saved file is read later: batching rows for FILE_FLUSH_TICK s instead of Rerun's 0.2 s makes several times
+    # fewer chunks (each carries its own Arrow schema), for at most that long of rows held in memory (and lost
+    # on a hard kill; the maps themselves are snapshotted to disk by the runtime)
+    batching = None if live else rr.ChunkBatcherConfig(flush_tick=FILE_FLUSH_TICK)
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or mission_id,
-                             default_enabled=(sink != "none"))
+                             default_enabled=(sink != "none"), batcher_config=batching)
     if sink == "memory":
         rec.memory_recording()
     elif sink == "spawn":
