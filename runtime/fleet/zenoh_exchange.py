@@ -116,6 +116,7 @@ class ZenohExchange:
         self._encoders: dict[str, mapwire.MapEncoder] = {}
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
         self._asked: dict[str, float] = {}
+        self._wanted: set[str] = set()           # robots whose stream waits for a full snapshot
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
@@ -213,9 +214,12 @@ class ZenohExchange:
             self._pending.append((key, data))
             self._pending_bytes += len(data)
             while self._pending_bytes > self.max_pending_bytes and len(self._pending) > 1:
-                _, old = self._pending.popleft()  # the oldest goes; a missed delta is recovered by query
+                old_key, old = self._pending.popleft()  # the oldest goes; its robot's map is recovered by query
                 self._pending_bytes -= len(old)
                 self.dropped["queue full"] += 1
+                robot = self._robot_of(old_key, "map")
+                if robot is not None and robot not in self._encoders:
+                    self._wanted.add(robot)
             self._wake.notify()
 
     def _on_liveliness(self, sample) -> None:
@@ -239,7 +243,15 @@ class ZenohExchange:
         while True:
             with self._lock:
                 while not self._pending and not self._closed:
-                    self._wake.wait()
+                    if self._wanted:  # a snapshot asked for has not come (rate-limited, or its reply lost)
+                        wanted = list(self._wanted)
+                        self._lock.release()
+                        try:
+                            for robot in wanted:
+                                self.request_snapshot(robot)
+                        finally:
+                            self._lock.acquire()
+                    self._wake.wait(timeout=SNAPSHOT_RETRY / 2 if self._wanted else None)
                 if self._closed:
                     return
                 key, data = self._pending.popleft()
@@ -287,6 +299,8 @@ class ZenohExchange:
         try:
             m = stream.accept(message)
         except mapwire.MissingBase:
+            with self._lock:
+                self._wanted.add(robot)
             self.request_snapshot(robot)
             raise
         if stream.restarts != restarts:
@@ -294,11 +308,14 @@ class ZenohExchange:
         with self._lock:
             self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
             self.received += 1
+            if message.kind == mapwire.FULL:
+                self._wanted.discard(robot)
         self.on_update(robot)
 
     def request_snapshot(self, robot: str = "*") -> None:
         """Ask ``robot``'s queryable (``*``: every robot's and the fused map's) for the latest full snapshot;
-        the replies arrive like updates. Rate-limited per robot."""
+        the replies arrive like updates. Rate-limited per robot; a robot whose delta could not be applied is
+        asked again every SNAPSHOT_RETRY s until a snapshot arrives."""
         now = time.monotonic()
         with self._lock:
             if now - self._asked.get(robot, -np.inf) < SNAPSHOT_RETRY or self._closed:
