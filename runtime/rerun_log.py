@@ -246,6 +246,9 @@ def landmark_confirmed(landmark_map: LandmarkMap, confirm_count: int | None = No
 
 
 # -- the layout -------------------------------------------------------------------------------------------
+FUSED_MAP_NAME = "fused map (aligned and merged, in the reference robot's start frame)"
+
+
 def _map_view(key: str, name: str) -> rrb.Spatial2DView:
     """A top-down 2-D map of map/<key> (x right, y up: the flip logged at map/<key> sits below the origin)."""
     return rrb.Spatial2DView(origin="map", contents=[f"+ map/{key}/**"], name=name, background=MAP_BACKGROUND)
@@ -268,10 +271,10 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     """
     robots = list(robots)
     maps = [_map_view(r, f"{r}: local map (own start frame)") for r in robots]
-    fused = _map_view("fused", "fused map (aligned and merged)")
     robot_maps = rrb.Grid(*maps, grid_columns=1 if len(maps) <= 2 else 2) if maps else None
-    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused, column_shares=[2, 3] if maps else None,
-                              name="overview")
+    # a view object is one place in the layout: each tab builds its own
+    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), _map_view("fused", FUSED_MAP_NAME),
+                              column_shares=[2, 3] if maps else None, name="overview")
     robot_tabs = []
     for r in robots:
         plots = rrb.Vertical(
@@ -287,7 +290,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
                          row_shares=[3, 2]),
             plots, column_shares=[3, 2], name=r))
     fusion = rrb.Horizontal(
-        fused,
+        _map_view("fused", FUSED_MAP_NAME),
         rrb.Vertical(_plot("plots/fusion/error_xy", "alignment error xy (m)"),
                      _plot("plots/fusion/error_theta", "alignment error θ (rad)"),
                      _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"])),

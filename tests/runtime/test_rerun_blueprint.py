@@ -75,6 +75,12 @@ def test_the_tabs_are_an_overview_each_robot_the_fusion_and_the_3d_world():
     assert tabs.active_tab in (0, "overview")
 
 
+def test_each_view_has_one_place_in_the_layout():
+    """A view object placed twice shares one id: the viewer shows it in one place and leaves the other black."""
+    ids = [view.id for view in _walk(mission_blueprint(ROBOTS).root_container)]
+    assert len(ids) == len(set(ids))
+
+
 def test_no_2d_entity_sits_in_a_3d_view_without_a_pinhole_ancestor(recording):
     _, _, columns = recording
     pinholes = {e for e, c in columns.items() if any(n.startswith("Pinhole:") for n in c)}
