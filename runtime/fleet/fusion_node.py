@@ -162,9 +162,12 @@ def run_live(args: argparse.Namespace) -> int:
     finally:
         restore()
         exchange.close()
-        if logger is not None:
+        final = reports[-1] if reports else None
+        if logger is not None:  # a final summary: p3at review then knows the node ended cleanly
+            logger.log_summary({"fusion_node": True, "fusions": len(reports),
+                                "fusion": None if final is None else final.as_dict(),
+                                "robots": sorted(node.sources)})
             logger.close()
-    final = reports[-1] if reports else None
     if args.json:
         print(json.dumps({"fusions": len(reports), "last": None if final is None else final.as_dict()}))
     elif final is not None:
