@@ -8,8 +8,9 @@ own (``p3at_msgs``), for what no standard message carries bit-exactly: the runti
 
 The codec writes XCDR1 little-endian (the encapsulation ROS 2's default middlewares use): primitives aligned to
 their size counted from the end of the 4-byte encapsulation header, sequences as a uint32 count then elements.
-It is written with numpy because mcap-ros2-support's encoder appends a megabyte image byte by byte; the tests
-check every type against mcap-ros2-support's decoder and rosbags' type store.
+It is written with numpy: its bytes equal mcap-ros2-support's encoder's, but arrays go in one piece (a frame of
+150 synthetic observations: 0.24 ms instead of 11.8 ms), and the reader checks every count against the bytes
+left before it allocates. The tests check every type against mcap-ros2-support's decoder and rosbags.
 """
 from __future__ import annotations
 
