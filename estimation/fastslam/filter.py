@@ -295,7 +295,8 @@ class FastSLAM:
         poses = self.poses
 
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
-        missed = self._missed_in_view(cand, poses, matched, by_id, miss_reach)
+        # ("id": a landmark its identity named this frame was detected, even if the gate rejected the reading)
+        missed = self._missed_in_view(cand, poses, pairs if by_id else matched, by_id, miss_reach)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
@@ -577,8 +578,8 @@ class FastSLAM:
     def _missed_in_view(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs, by_id: bool = False,
                         reach: float | None = None) -> _Pairs:
         """Candidate landmarks predicted well inside the view (``miss_fov_margin`` of the field of view and of
-        the range) and not matched: negative evidence for their existence. (``by_id``: matched pairs come from
-        the id join, whose ``c`` is not a candidate index; they are found by (particle, slot).)"""
+        the range) and not matched: negative evidence for their existence. (``by_id``: ``matched`` are all the
+        pairs of the id join, gated or not, whose ``c`` is not a candidate index; found by (particle, slot).)"""
         store = self.store
         if by_id:
             n = len(store.flat_lid)
