@@ -364,3 +364,30 @@ def test_damaged_messages_inside_a_sound_file_give_a_clean_error_or_valid_record
                 assert np.all(np.isfinite(record["points"])) and record["covariances"].shape[1:] == (3, 3)
     except SensorLogError as e:
         assert "robot1_0.mcap" in str(e) and topic in str(e)
+
+
+def test_the_cdr_codec_writes_the_bytes_mcap_ros2s_encoder_writes():
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    rng = np.random.default_rng(6)
+    header = {"stamp": {"sec": 1, "nanosec": 2}, "frame_id": "r/base_link"}
+    n = 7
+    p, c, px = rng.normal(size=(n, 3)), rng.normal(size=(n, 3, 3)), rng.normal(size=(n, 2))
+    d = rng.normal(size=(n, 16)).astype(np.float32)
+    cases = [
+        ("p3at_msgs/StereoObservations", ros.encode_observations(1_000_000_002, "r/base_link", 9, 0.25, p, c, d, px),
+         {"header": header, "seq": 9, "t": 0.25, "count": n, "descriptor_size": 16, "points": p.ravel().tolist(),
+          "covariances": c.ravel().tolist(), "descriptors": d.ravel().tolist(), "pixels": px.ravel().tolist()}),
+        ("sensor_msgs/CompressedImage", ros.encode_compressed_image(1_000_000_002, "r/base_link", "png", b"\x89PNG"),
+         {"header": header, "format": "png", "data": b"\x89PNG"}),
+        ("p3at_msgs/RawSip", ros.encode_raw_sip(1_000_000_002, "r/base_link", 0.5, b"\x32\x33", 1.0, -2.0, 0.1,
+                                                 0.2, 0.3, True),
+         {"header": header, "t": 0.5, "payload": b"\x32\x33", "x": 1.0, "y": -2.0, "theta": 0.1, "v": 0.2,
+          "w": 0.3, "stalled": True}),
+        ("sensor_msgs/Range", ros.encode_range(1_000_000_002, "r/base_link", 0.26, 0.1, 5.0, 1.5),
+         {"header": header, "radiation_type": 0, "field_of_view": 0.26, "min_range": 0.1, "max_range": 5.0,
+          "range": 1.5, "variance": 0.0}),
+    ]
+    for name, ours, message in cases:
+        encoder = serialize_dynamic(ros.schema_name(name), ros.message_definition(name))[ros.schema_name(name)]
+        assert ours == encoder(message), name
