@@ -7,13 +7,16 @@ Who waits for whom:
   virtual heads' delivery (inside the camera threads), the runtime's camera, SLAM and control threads and
   the mission loop. They block only through :meth:`SimClock.wait_for` / :meth:`SimClock.sleep_until`.
 - **One participant runs at a time** (it holds the baton). When it blocks, the coordinator thread hands the
-  baton to the first participant, in name order, whose predicate holds or whose deadline has come. Which
-  thread acts first at one instant is therefore fixed, not left to the OS scheduler: the answer cannot
-  depend on the machine's load. (The cost: no two participants compute at once; with the GIL and two
-  cores that loses little.)
+  baton to the first participant whose predicate holds or whose deadline has come: first the virtual
+  world's (robot servers, sensors), then the runtime's (observers), each group in name order. Which thread
+  acts first at one instant is therefore fixed, not left to the OS scheduler: the answer cannot depend on
+  the machine's load. (The cost: no two participants compute at once; with the GIL and two cores that
+  loses little.)
 - **Quiescence predicates** cover the threads that cannot be participants (the ARCOS driver's reader
   thread, which waits on a serial port with wall-clock timeouts): e.g. "every SIP the robot sent has reached
-  the runtime". No baton is handed out and time does not move while one of them is false.
+  the runtime". No observer gets the baton and time does not move while one of them is false; world
+  participants, which read nothing the predicates guard and would run first at this instant anyway, may
+  (a virtual head renders while the driver's reader is still reading a SIP).
 - **Time advances** only when no participant can run and every quiescence predicate holds: to the earliest
   deadline of a waiting participant. The ``on_advance`` hooks run first (the virtual robots' physics steps
   to the new instant under their model locks), so a sensor sampling at ``t`` sees the world at ``t``.
@@ -43,6 +46,7 @@ class Participant:
     """A thread taking part in lockstep (made by :meth:`SimClock.add_participant`, bound by the thread)."""
 
     name: str
+    rank: int = 1                        # 0: the virtual world (sensors, robots); 1: observers (the runtime)
     thread: int | None = None            # ident of the bound thread
     predicate: Predicate | None = None   # what it waits for (None: running or about to)
     deadline: float = math.inf           # simulated time at which it wakes anyway
@@ -107,15 +111,20 @@ class SimClock:
         return not self._free
 
     # -- participants ----------------------------------------------------------------------------------
-    def add_participant(self, name: str) -> Participant:
-        """Register a participant now (before its thread starts, so time cannot run past its first action);
-        the thread enters ``with clock.participant(token):``. Names fix the order at one instant: unique."""
+    def add_participant(self, name: str, *, world: bool = False) -> Participant:
+        """Register a participant now (before its thread starts, so time cannot run past its first action;
+        register several under a :meth:`hold`); the thread enters ``with clock.participant(token):``.
+
+        ``world``: a part of the virtual world (a robot's server, a sensor) that never reads what the quiescence
+        predicates guard (what the runtime has received). World participants run first at every instant and
+        may run while a quiescence predicate is still false; the others (observers) wait for it. Within each
+        group, the names fix the order: they must be unique."""
         with self._cond:
             if any(p.name == name for p in self._participants):
                 raise ValueError(f"a participant named {name!r} is already registered")
-            p = Participant(name, predicate=_always, deadline=-math.inf)
+            p = Participant(name, 0 if world else 1, predicate=_always, deadline=-math.inf)
             self._participants.append(p)
-            self._participants.sort(key=lambda q: q.name)
+            self._participants.sort(key=lambda q: (q.rank, q.name))
             self._cond.notify_all()
             return p
 
@@ -318,12 +327,14 @@ class SimClock:
         """One decision (lock held): hand the baton out, or advance time. False if nothing could be done."""
         if self._running is not None:
             return False
+        quiet = True
         for name, predicate in self._quiescence:
             if not self._safe(predicate):
                 if self._waiting_on is None:
                     self._waiting_on, self._waiting_since = name, time.monotonic()
-                return False
-        if self._waiting_on is not None:
+                quiet = False
+                break
+        if quiet and self._waiting_on is not None:
             name = self._waiting_on
             self.quiescence_wall[name] = self.quiescence_wall.get(name, 0.0) + time.monotonic() - self._waiting_since
             self._waiting_on = None
@@ -334,6 +345,8 @@ class SimClock:
             if p.predicate is None:
                 return False   # between grant and its next wait: still running
         for p in self._participants:
+            if p.rank > 0 and not quiet:
+                return False   # observers wait until what they observe has arrived
             if p.deadline <= now or self._safe(p.predicate):
                 p.granted = True
                 p.grants += 1
@@ -341,7 +354,7 @@ class SimClock:
                 self._running = p
                 p._go.set()
                 return True
-        if self._holds and not any(self._safe(g) for g in self._gates):
+        if not quiet or (self._holds and not any(self._safe(g) for g in self._gates)):
             return False
         deadline = min((p.deadline for p in self._participants), default=math.inf)
         if not math.isfinite(deadline):

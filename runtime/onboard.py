@@ -344,7 +344,10 @@ class Onboard:
     def _spawn(self, stage: str, target: Callable[[], None]) -> None:
         """A named daemon thread running ``target`` under supervision (and as a participant of a lockstep clock,
         registered now so that simulated time cannot pass its first action)."""
-        token = self.clock.add_participant(f"{stage}:{self.robot}") if self.lockstep else None
+        # the camera thread only carries frames from the sensor to the queue: a part of the (virtual) world that
+        # reads nothing the runtime has received, so it may render while a SIP is still on its way
+        token = self.clock.add_participant(f"{stage}:{self.robot}", world=stage == "camera") if self.lockstep \
+            else None
 
         def run() -> None:
             with self.clock.participant(token) if token is not None else contextlib.nullcontext():

@@ -19,6 +19,7 @@ Two kinds of clock:
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import math
@@ -73,12 +74,13 @@ class _Server:
         self.rx_bytes = 0
         self.client_sent: Callable[[], int] | None = None
         self.last_sip_sent = -math.inf
+        self.sip_wall_times: collections.deque[float] = collections.deque(maxlen=100_000)  # monotonic, per SIP sent
         self._outbox = bytearray()
         self._outbox_has_sip = False
         if self.lockstep:
             if abs(model.time - clock()) > 1e-9:
                 raise ValueError("on a lockstep clock the model must start at the clock's time (start_time)")
-            self._token = clock.add_participant(f"p3at:{model.name}")
+            self._token = clock.add_participant(f"p3at:{model.name}", world=True)
             _physics(clock).add(self)
 
     def sim_now(self) -> float:
@@ -122,6 +124,7 @@ class _Server:
                     sip, self._outbox_has_sip = self._outbox_has_sip, False
                 if out and self._emit(out) and sip:
                     self.last_sip_sent = self._clock()
+                    self.sip_wall_times.append(time.monotonic())
 
     def _received(self, data: bytes) -> bytes:
         """Bytes from the client, applied now; returns the immediate replies."""
@@ -252,11 +255,18 @@ class TcpServer(_Server):
                                     self.model.reset_session()
                                 continue
                             with self._lock:
+                                sips = self.model.stats.sips
                                 out = self.model.receive(data, self.sim_now())
+                                sips = self.model.stats.sips - sips
                             self._send(out, selector)
+                            self.sip_wall_times.extend([time.monotonic()] * sips)
                     with self._lock:
+                        sips = self.model.stats.sips
                         out = self.model.advance(self.sim_now())
+                        sips = self.model.stats.sips - sips
                     self._send(out, selector)
+                    if sips and self._client is not None:
+                        self.sip_wall_times.extend([time.monotonic()] * sips)
             finally:
                 self._drop_client(selector)
 
@@ -364,11 +374,17 @@ class PtyServer(_Server):
                         time.sleep(0.01)
                     if data:
                         with self._lock:
+                            sips = self.model.stats.sips
                             out = self.model.receive(data, self.sim_now())
+                            sips = self.model.stats.sips - sips
                         self._write(out)
+                        self.sip_wall_times.extend([time.monotonic()] * sips)
                 with self._lock:
+                    sips = self.model.stats.sips
                     out = self.model.advance(self.sim_now())
+                    sips = self.model.stats.sips - sips
                 self._write(out)
+                self.sip_wall_times.extend([time.monotonic()] * sips)
 
     # lockstep I/O (the thread's participant loop in _Server)
     def _fds(self) -> list:

@@ -164,3 +164,59 @@ def test_time_scale_keeps_the_watchdog_in_wall_time(world: World) -> None:
                 time.sleep(0.5)
                 port.write(encode_command(Command.PULSE))
             assert server.model.w > 0 and server.model.stats.watchdog_stops == 0
+
+
+def _drive_in_lockstep(world: World, transport: str) -> tuple[list[float], np.ndarray, np.ndarray]:
+    """The real ARCOS driver drives a lockstep server for 3 simulated seconds (accelerating, then turning);
+    returns the SIP stamps, the final odometry and the final true pose."""
+    from drivers.arcos.robot import P3AT
+    from mocks.simclock import SimClock
+
+    with SimClock() as clock:
+        server = serve_tcp(world, "robot1", port=0, clock=clock, seed=1) if transport == "tcp" \
+            else serve_pty(world, "robot1", clock=clock, seed=1)
+        with server:
+            driver = P3AT(server.url, clock=clock)
+            server.client_sent = lambda: driver.bytes_written
+            stamps: list[float] = []
+            driver.subscribe(lambda state: stamps.append(state.stamp))
+            model = server.model
+            with clock.hold():
+                with clock.gate(lambda: model.is_open and model.stats.sips == 0):
+                    driver.connect(enable_motors=True)
+                clock.add_quiescence("SIPs reach the test",
+                                     lambda: not driver.connected or stamps[-1] >= server.last_sip_sent)
+                token = clock.add_participant("test")
+            with clock.participant(token):
+                t0 = clock()
+                driver.set_velocity(0.4, 0.0)
+                clock.sleep_until(t0 + 1.55)
+                driver.set_velocity(0.2, 0.5)
+                clock.sleep_until(t0 + 3.05)
+                odometry = model.odometry.copy()
+                truth = world.pose("robot1")
+                seen = list(stamps)
+            driver.close()
+    return seen, odometry, truth
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_a_lockstep_server_gives_one_trajectory_however_busy_the_machine(world: World, transport: str) -> None:
+    """On a SimClock the SIPs leave at exact 100 ms instants of simulated time and each command acts at the
+    instant it was sent, so a run beside a busy-loop process is the same run, to the bit."""
+    import subprocess
+    import sys
+
+    alone = _drive_in_lockstep(world, transport)
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        loaded = _drive_in_lockstep(world, transport)
+    finally:
+        busy.kill()
+        busy.wait()
+    stamps, odometry, truth = alone
+    np.testing.assert_allclose(np.diff(stamps), 0.1, atol=1e-9)
+    assert len(stamps) >= 30 and np.hypot(*truth[:2] - world.start_poses["robot1"][:2]) > 0.5
+    assert stamps == loaded[0]
+    np.testing.assert_array_equal(odometry, loaded[1])
+    np.testing.assert_array_equal(truth, loaded[2])
