@@ -84,3 +84,23 @@ def test_p3at_fuse_live_fuses_the_robots_maps_and_writes_the_merged_map(tmp_path
     assert pair["aligned"] and pair["error_xy"] < 0.1, pair
     assert "robot1 joined the fleet" in stderr and "robot2 joined the fleet" in stderr
     assert set(LandmarkMap.load(tmp_path / "fused.npz").metadata["fused_from"]) == {"robot1", "robot2"}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)  # ~40 s on an idle machine; 125 s measured at a load average of 28
+def test_demo_processes_prints_the_mission_summary_with_an_alignment_scored_against_the_truth(tmp_path):
+    """Each robot its own ``p3at run`` process (simulated time in each), the fusion node in the demo's process."""
+    from runtime.rerun_log import read_recording
+
+    demo = p3at("demo", "--processes", "--seconds", "45", "--json", "--quiet", "--out", str(tmp_path),
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    stdout, stderr = demo.communicate(timeout=550)
+    assert demo.returncode == 0, stderr
+    summary = json.loads(stdout)
+    assert list(summary["robots"]) == ["robot1", "robot2"]
+    assert all(r["landmarks"] > 0 and r["frames_processed"] > 0 for r in summary["robots"].values())
+    (pair,) = summary["fusion"]["pairs"]
+    assert pair["aligned"] and pair["error_xy"] < 0.1 and pair["error_theta"] < 0.02, pair
+    assert len(LandmarkMap.load(tmp_path / "fused.npz")) == summary["fusion"]["merged_landmarks"]
+    contents = read_recording(tmp_path / "mission.rrd")
+    assert {"robot1", "robot2", "fused"} <= set(contents.maps)
