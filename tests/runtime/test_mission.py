@@ -7,6 +7,7 @@ head through the Videre driver and the front end.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -31,12 +32,48 @@ REPO = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
     out = tmp_path_factory.mktemp("mission")
-    # the virtual robots run twice as fast as the wall clock: 60 s of mission in 30 s; 10 frames/s leaves the
-    # SLAM stages time to spare, so the result does not hang on the machine's load
+    # simulated time (the default on virtual hardware): the answer does not depend on the machine's load
     config = MissionConfig(robots=2, seconds=30.0, seed=3, camera="synthetic", camera_rate=10.0, particles=50,
-                           time_scale=2.0, fusion_interval=10.0, out=out, rerun="file", log_sensors=True)
+                           fusion_interval=10.0, out=out, rerun="file", log_sensors=True)
     result = Mission(config).run()
     return config, result
+
+
+def _outcome(summary: dict) -> dict:
+    """The summary's figures that are the mission's answer (not its timings, paths or wall seconds)."""
+    robots = {name: {k: r[k] for k in ("landmarks", "frames_received", "frames_processed", "frames_dropped",
+                                       "frames_without_odometry", "final_position_error", "odometry_position_error")}
+              for name, r in summary["robots"].items()}
+    fusion = summary["fusion"]
+    return json.loads(json.dumps({"robots": robots, "duration": summary["duration"], "failures": summary["failures"],
+                                  "pairs": fusion["pairs"], "merged": fusion["merged_landmarks"]}))
+
+
+@pytest.mark.slow
+def test_one_seed_gives_identical_maps_and_figures_alone_and_beside_busy_processes(tmp_path):
+    """The two-robot mission twice with one seed, the second time with two busy-loop processes competing for the
+    CPU: every array of every map file is the same, and so are the alignment figures (simulated time waits for
+    the slowest stage). Short (10 simulated seconds, enough for a first alignment) to keep the suite fast."""
+    config = MissionConfig(robots=2, seconds=10.0, seed=5, camera="synthetic", camera_rate=10.0, particles=30,
+                           fusion_interval=5.0, out=tmp_path / "alone", rerun="none", odometry="realistic")
+    first = Mission(config).run()
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        second = Mission(dataclasses.replace(config, out=tmp_path / "busy")).run()
+    finally:
+        for process in busy:
+            process.kill()
+            process.wait()
+    assert first.summary["fusion"]["pairs"][0]["aligned"]
+    assert [r.as_dict()["pairs"] for r in first.fusion_history] == [r.as_dict()["pairs"] for r in
+                                                                      second.fusion_history]
+    for name in ("robot1.npz", "robot2.npz", "fused.npz"):
+        with np.load(config.out / name) as a, np.load(tmp_path / "busy" / name) as b:
+            assert a.files == b.files
+            for key in a.files:
+                assert np.array_equal(a[key], b[key]), f"{name}: {key} differs"
+    np.testing.assert_equal(_outcome(second.summary), _outcome(first.summary))
+    assert second.summary["clock"] == "simulated" and not second.failures
 
 
 @pytest.mark.slow
@@ -45,8 +82,10 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
     summary = result.summary
     assert sorted(result.maps) == ["robot1", "robot2"]
     for name, m in result.maps.items():
-        assert len(m) > 50, f"{name} mapped only {len(m)} landmarks"
-        assert summary["robots"][name]["frames_processed"] > 100
+        # 30 simulated seconds: the robots have met in the corridor but not passed each other yet (robot2 has
+        # mapped ~40 landmarks by then, ~50 at 45 s); every frame is processed in simulated time (10 Hz)
+        assert len(m) > 30, f"{name} mapped only {len(m)} landmarks"
+        assert summary["robots"][name]["frames_processed"] == summary["robots"][name]["frames_received"] > 250
         # each map is in its own start frame and says where that was, for scoring
         assert m.metadata["true_start_pose"] is not None
         saved = LandmarkMap.load(config.out / f"{name}.npz")
@@ -56,7 +95,7 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
     # typically 0.01-0.04 m, but the maps' own heading drift (thread timing differs run to run) sometimes makes
     # it 0.4 m / 0.08 rad; a false alignment here is about 5 m / 3 rad off (the truth is (5, 0, π))
     assert pair["error_xy"] < 0.6 and pair["error_theta"] < 0.15, pair
-    assert pair["common"] >= 10
+    assert pair["common"] >= 6  # several landmarks both robots mapped (the robust preset accepts from 4)
     merged = result.fused
     assert len(merged) == summary["fusion"]["merged_landmarks"]
     assert max(len(m) for m in result.maps.values()) < len(merged) < sum(len(m) for m in result.maps.values())
@@ -153,7 +192,9 @@ def test_rendered_stereo_head_through_the_videre_driver_feeds_the_pipeline_and_r
     assert robot["frames_processed"] >= 3
     assert robot["landmarks"] > 20  # corners on the rendered walls, triangulated and mapped
     assert robot["ms_per_frame"]["frontend"] > 0
-    assert 0 <= robot["frames_late"] <= robot["frames_received"]  # the virtual head's count, in the summary
+    # simulated time: every frame reaches the driver exactly `latency` after its exposure, none is dropped
+    assert robot["frames_late"] == 0 and robot["frames_dropped_at_head"] == {}
+    assert robot["frames_dropped"] == robot["frames_without_odometry"] == 0
     from runtime.report import format_summary
 
     assert " late " in format_summary(result.summary).splitlines()[2]
@@ -179,11 +220,20 @@ def test_a_slow_slam_stage_drops_frames_and_says_so_without_blocking_the_drivers
         driver = P3AT(server.url)
         driver.connect()
         link = P3ATLink(driver)
-        # 60 frames per second into a 300-particle filter: the SLAM stage cannot keep up
+        # on the wall clock: 60 frames per second into a SLAM stage that takes at least 0.25 s per frame (it
+        # can take at most 4 frames/s whatever the machine; the camera offers far more unless the machine is
+        # slower than a frame per 0.25 s, which would fail every other test too)
         camera = SyntheticCamera(SyntheticStereo.from_world(world, np.random.default_rng(2)),
                                  lambda: world.pose("robot1"), rate=60.0)
-        onboard = Onboard("robot1", link, camera, OnboardConfig(fastslam=FastSLAMConfig(n_particles=300)),
+        onboard = Onboard("robot1", link, camera, OnboardConfig(fastslam=FastSLAMConfig(n_particles=10)),
                           on_event=events.append)
+        step = onboard.core.step
+
+        def slow_step(frame, pose):
+            time.sleep(0.25)
+            return step(frame, pose)
+
+        onboard.core.step = slow_step
         onboard.start()
         time.sleep(3.0)
         onboard.stop()
@@ -192,7 +242,9 @@ def test_a_slow_slam_stage_drops_frames_and_says_so_without_blocking_the_drivers
     assert stats.dropped_frames > 0 and any("dropped frame" in e for e in events)
     assert stats.frames_processed > 0
     assert stats.frames_received >= stats.frames_processed + stats.dropped_frames
-    assert stats.odometry_samples >= 25  # the driver kept delivering its 10 SIPs/s throughout
+    # the driver kept delivering its 10 SIPs/s throughout: 30 in 3 s, 18 allows for a loaded machine's scheduling;
+    # a reader held up by the SLAM stage would deliver at most one per 0.25 s frame, 12
+    assert stats.odometry_samples >= 18
 
 
 def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, capsys):
@@ -249,7 +301,7 @@ def test_a_mission_streams_live_to_a_running_rerun_server(rerun_server, tmp_path
     """``--rerun rerun+http://...``: the mission connects to a running Rerun server and everything arrives."""
     port, saved = rerun_server
     config = MissionConfig(robots=1, seconds=4.0, seed=1, camera="synthetic", camera_rate=10.0, particles=20,
-                           time_scale=2.0, fusion_interval=0.0, out=tmp_path / "out",
+                           fusion_interval=0.0, out=tmp_path / "out",
                            rerun=f"rerun+http://127.0.0.1:{port}/proxy")
     result = Mission(config).run()
     time.sleep(1.0)  # let the server write what it received
@@ -275,3 +327,79 @@ def test_spawn_on_a_machine_without_a_display_fails_before_the_robots_start(tmp_
     assert status == 1
     assert "Rerun viewer exited at start" in capsys.readouterr().err
     assert not (tmp_path / "robot1.npz").exists()
+
+
+def _failing_slam(monkeypatch, robot: str, after_frames: int) -> None:
+    """From its ``after_frames``-th frame on, ``robot``'s FastSLAM update raises what the proposal's Cholesky
+    factorisation raised in the field."""
+    from runtime.onboard import SlamCore
+
+    step = SlamCore.step
+
+    def step_that_fails(self, frame, pose):
+        if self.robot == robot and self.frames >= after_frames:
+            def update(observations):
+                raise np.linalg.LinAlgError("Matrix is not positive definite")
+            self.slam.update = update
+        return step(self, frame, pose)
+
+    monkeypatch.setattr(SlamCore, "step", step_that_fails)
+
+
+def test_a_stage_that_raises_stops_its_robot_and_ends_the_mission_with_the_reason(tmp_path, monkeypatch):
+    _failing_slam(monkeypatch, "robot2", after_frames=20)
+    events: list[str] = []
+    config = MissionConfig(robots=2, seconds=30.0, seed=1, camera="synthetic", camera_rate=10.0, particles=10,
+                           fusion_interval=0.0, out=tmp_path, rerun="none", log_sensors=True)
+    result = Mission(config, events=events.append).run()
+    (failure,) = result.failures
+    assert (failure.robot, failure.stage) == ("robot2", "slam") and "LinAlgError" in failure.error
+    # reported at once (the event line), and the mission ended at that simulated instant (its loop ticks at 0.2 s)
+    assert any("robot2" in e and "slam stage failed" in e and "LinAlgError" in e for e in events)
+    assert failure.t - 0.001 <= result.summary["sim_seconds"] <= failure.t + 0.2  # (the summary rounds to ms)
+    assert result.summary["failures"] == [{"robot": "robot2", "stage": "slam", "error": failure.error,
+                                           "t": failure.t}]
+    assert result.summary["robots"]["robot2"]["frames_processed"] == 20  # the 21st frame raised
+    last = [r for r in SensorLog(tmp_path / "robot2-log").records("odometry")][-1]
+    assert abs(float(last["v"])) < 0.01 and abs(float(last["w"])) < 0.01  # its motors were stopped
+    assert LandmarkMap.load(tmp_path / "robot2.npz") is not None  # what it had mapped is kept
+
+
+def test_the_command_line_exits_non_zero_naming_robot_stage_and_error(tmp_path, monkeypatch, capsys):
+    _failing_slam(monkeypatch, "robot1", after_frames=5)
+    status = main(["demo", "--camera", "synthetic", "--camera-rate", "10", "--seconds", "20", "--particles", "10",
+                   "--rerun", "none", "--out", str(tmp_path), "--quiet"])
+    captured = capsys.readouterr()
+    assert status == 1
+    assert "mission failed: robot1: the slam stage failed" in captured.err and "LinAlgError" in captured.err
+    assert "FAILED stages" in captured.out  # and a row in the summary table
+
+
+def test_a_killed_demo_leaves_readable_maps(tmp_path):
+    """SIGKILL mid-mission (no handler runs): the maps written every --map-save-interval simulated seconds are
+    whole files, since each is written to a temporary file and renamed."""
+    out = tmp_path / "demo"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    process = subprocess.Popen(
+        [sys.executable, "-m", "runtime.cli", "demo", "--camera", "synthetic", "--camera-rate", "10", "--seconds",
+         "600", "--particles", "10", "--map-save-interval", "1", "--rerun", "none", "--out", str(out), "--quiet"],
+        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        maps = []
+        while time.monotonic() < deadline and len(maps) < 2:
+            maps = sorted(out.glob("robot*.npz"))
+            time.sleep(0.1)
+        assert len(maps) == 2, "no maps were saved during the mission"
+        first = {p: p.stat().st_mtime_ns for p in maps}
+        while time.monotonic() < deadline and all(p.stat().st_mtime_ns == first[p] for p in maps):
+            time.sleep(0.02)  # kill while the saves go on, at no particular moment
+        process.kill()
+        process.wait(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == -signal.SIGKILL
+    for path in sorted(out.glob("*.npz")):
+        assert len(LandmarkMap.load(path)) > 0, path
