@@ -148,8 +148,19 @@ def _map_header(robot: str, session: str, sequence: int, stamp: float, m: Landma
 
 
 def _jsonable(obj):
-    """Metadata as plain JSON (numpy scalars and arrays become numbers and lists)."""
-    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    """Metadata as plain JSON: numpy scalars and arrays become numbers and lists, non-finite numbers null (the
+    decoder refuses NaN and infinity), anything else its string."""
+    plain = json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+    def finite(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, list):
+            return [finite(x) for x in v]
+        if isinstance(v, dict):
+            return {k: finite(x) for k, x in v.items()}
+        return v
+    return finite(plain)
 
 
 def encode_full(robot: str, session: str, sequence: int, stamp: float, m: LandmarkMap) -> bytes:

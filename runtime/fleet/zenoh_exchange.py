@@ -121,6 +121,7 @@ class ZenohExchange:
         self.last_drop_reason = ""
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
         self.received = 0
+        self.send_errors = 0
         self._closed = False
         try:
             self.session = zenoh.open(make_config(config, role))
@@ -177,11 +178,16 @@ class ZenohExchange:
             kind, data = encoder.encode(snapshot, stamp)
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
             publisher, status, _, _ = self._declare(robot)
-        publisher.put(data)
-        self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
         pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
         status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose, len(snapshot))
-        status.put(status_data)
+        try:
+            publisher.put(data)
+            status.put(status_data)
+        except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
+            self.send_errors += 1
+            log.warning("fleet exchange: could not send %s's map: %s", robot, e)
+            return
+        self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
         self.bytes_sent["status"] += len(status_data)
 
     def publish_status(self, robot: str, stamp: float, pose=None, landmarks: int = 0,

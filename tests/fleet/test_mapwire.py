@@ -210,3 +210,10 @@ def test_a_header_rewritten_by_an_attacker_is_refused_cleanly(data):
         stream.accept(decode(_reframe(raw, lambda h: h.__setitem__(key, value))))
     except WireError:
         pass
+
+
+def test_metadata_with_numpy_values_and_non_finite_numbers_travels_as_plain_json():
+    m = make_map(3)
+    m.metadata = {"pose": np.array([1.0, 2.0, 0.5]), "n": np.int64(4), "limit": float("inf"), "nested": [np.nan, 1]}
+    message = decode(mapwire.encode_full("robot1", SESSION, 0, 0.0, m))
+    assert message.landmark_map.metadata == {"pose": [1.0, 2.0, 0.5], "n": 4, "limit": None, "nested": [None, 1]}
