@@ -230,7 +230,7 @@ class ZenohExchange:
 
     def _on_liveliness(self, sample) -> None:
         robot = self._robot_of(str(sample.key_expr), "alive")
-        if robot is None:
+        if robot is None or robot in self._encoders:  # this process's own robot: no news
             return
         joined = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
