@@ -51,7 +51,7 @@ def test_id_association_builds_one_landmark_per_identity_and_rejects_outliers(ve
     assert len(set(external.tolist())) == len(external)            # one landmark per identity, no duplicates
     assert set(external.tolist()) <= set(ids.tolist())
     truth = landmarks[external - 100]
-    assert np.median(np.linalg.norm(landmark_map.positions[:, :2] - truth[:, :2], axis=1)) < 0.2
+    assert np.median(np.linalg.norm(landmark_map.positions[:, :2] - truth[:, :2], axis=1)) < 0.3   # as unknown ids
     # the 2 m misreadings are rejected in (nearly) every particle; beyond them, only the gate's 1 % and the
     # particles whose pose is off (1.0 samples the motion model: its cloud is wider) reject a reading
     assert slam.stats.id_outliers >= 0.9 * planted * 20
