@@ -34,6 +34,8 @@ class ReplayResult:
     log_span: float                      # seconds of sensor time replayed
     stage_seconds: dict[str, float]
     final_pose: np.ndarray
+    missing_frames: int = 0              # frames the live run processed that the log does not hold (the writer
+                                         # dropped them, or a crash cut them): the map then differs from live
 
     @property
     def speed(self) -> float:
@@ -94,11 +96,13 @@ def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None,
     processed = None if every_frame else {int(r["seq"]) for r in log.records("processed")}
     start = time.perf_counter()
     frames = skipped = 0
+    replayed_seqs: set[int] = set()
     t_first = t_last = None
     pose = np.zeros(3)
     for frame in _frames(log):
         if processed is not None and frame.seq not in processed:
             continue
+        replayed_seqs.add(frame.seq)
         odometry_pose = odometry.interpolate(frame.t)
         if odometry_pose is None:
             skipped += 1
@@ -112,7 +116,8 @@ def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None,
             on_frame(result)
     elapsed = time.perf_counter() - start
     span = 0.0 if t_first is None else t_last - t_first
-    return ReplayResult(robot, core.best_map(), frames, skipped, elapsed, span, dict(core.totals), pose)
+    missing = 0 if processed is None else len(processed - replayed_seqs)
+    return ReplayResult(robot, core.best_map(), frames, skipped, elapsed, span, dict(core.totals), pose, missing)
 
 
 

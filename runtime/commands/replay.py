@@ -47,6 +47,9 @@ def _replay(args) -> int:
         result = replay_log(log, config, every_frame=args.every_frame)
         if args.out is not None:
             result.landmark_map.save(args.out)
+        if result.missing_frames:
+            print(f"p3at replay: warning: {result.missing_frames} frames the live run processed are not in the log "
+                  "(dropped by the log writer or cut by a crash): this map differs from the live one", file=sys.stderr)
     except SensorLogError as e:  # a bad file: one line, exit 2
         print(f"p3at replay: {e}", file=sys.stderr)
         return 2
@@ -59,7 +62,7 @@ def _replay(args) -> int:
         "log_seconds": round(result.log_span, 2), "replay_seconds": round(result.seconds, 2),
         "times_real_time": round(result.speed, 2),
         "ms_per_frame": {k: round(1000 * v / max(1, result.frames), 2) for k, v in result.stage_seconds.items()},
-        "particles": config.fastslam.n_particles, "seed": config.seed,
+        "particles": config.fastslam.n_particles, "seed": config.seed, "missing_frames": result.missing_frames,
         "map": None if args.out is None else str(args.out),
     }
     if args.json:

@@ -50,7 +50,7 @@ def _records(n_sips: int, rng: np.random.Generator, images: bool = True, start: 
             a = rng.normal(size=(n, 3, 3))
             out.append(("observations", {"t": t_frame, "seq": k, "points": rng.normal(size=(n, 3)),
                                          "covariances": a @ np.swapaxes(a, 1, 2),
-                                         "descriptors": rng.normal(size=(n, 16)).astype(np.float32),
+                                         "descriptors": rng.normal(size=(n, 64)).astype(np.float32),
                                          "pixels": rng.uniform(0, 640, (n, 2))}))
         out.append(("processed", {"t": t_frame, "seq": k}))
     return out
@@ -391,3 +391,19 @@ def test_the_cdr_codec_writes_the_bytes_mcap_ros2s_encoder_writes():
     for name, ours, message in cases:
         encoder = serialize_dynamic(ros.schema_name(name), ros.message_definition(name))[ros.schema_name(name)]
         assert ours == encoder(message), name
+
+
+def test_replay_says_when_frames_the_live_run_processed_are_missing(tmp_path, capsys):
+    from runtime.replay import replay_log
+
+    records = _records(30, np.random.default_rng(7), images=False)
+    lost = next(r["seq"] for s, r in records if s == "observations" and r["seq"] > 4)
+    kept = [(s, r) for s, r in records if not (s == "observations" and r["seq"] == lost)]  # the writer dropped it
+    _write(tmp_path / "log", kept)
+    whole = tmp_path / "whole"
+    _write(whole, records)
+    assert replay_log(tmp_path / "log").missing_frames == 1 and replay_log(whole).missing_frames == 0
+    assert main(["replay", str(tmp_path / "log"), "--particles", "3"]) == 0
+    assert "1 frames the live run processed are not in the log" in capsys.readouterr().err
+    assert main(["replay", str(whole), "--particles", "3", "--version", "1"]) == 0  # the deprecated spelling
+    assert "--version is deprecated, use --fastslam" in capsys.readouterr().err
