@@ -86,6 +86,7 @@ class P3ATLink:
         self.reconnects = 0
         self.last_delivered = -np.inf       # stamp of the last SIP whose callbacks have all returned
         self._last_sample: OdometrySample | None = None
+        self.on_delivered: Callable[[], None] | None = None  # called after every SIP's callbacks (a sim clock's notify)
         driver.subscribe(self._on_state)
         state = driver.state  # the SIP of the handshake, delivered before this link existed
         if state is not None and state.stamp > self.last_delivered:
@@ -122,6 +123,8 @@ class P3ATLink:
         for callback in list(self._callbacks):
             callback(sample)
         self.last_delivered = sample.t
+        if self.on_delivered is not None:
+            self.on_delivered()
 
     def set_velocity(self, v: float, w: float) -> None:
         self.driver.set_velocity(v, w)

@@ -218,6 +218,7 @@ class Mission:
             remove = self.clock.add_quiescence(f"{name}: SIPs reach the runtime",
                                                lambda: link.delivered(server.last_sip_sent))
             stack.callback(remove)
+            link.on_delivered = self.clock.notify  # the coordinator looks again at once, not at its next poll
         camera, geometry = self._camera(stack, world, index, name)
         frontend = FrontEndConfig(geometry=geometry, harris=HarrisConfig(max_corners=cfg.max_corners))
         fastslam = FastSLAMConfig(n_particles=cfg.particles, max_observations=cfg.max_observations)
