@@ -44,11 +44,14 @@ class DatasetRun:
 
 
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
-                     association: str = "id", robot: str = "robot", until: float | None = None) -> DatasetRun:
+                     association: str = "id", robot: str = "robot", until: float | None = None,
+                     inflate_correlated: bool = True) -> DatasetRun:
     """Run FastSLAM over ``log`` (needs ground truth for the scores); see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
     range, σ_φ) and the calibration (odometry scales, bearing offset); ``until``: stop after this log time (s).
+    ``inflate_correlated``: multiply the sensor variances by the model's :meth:`RangeBearingNoise.variance_inflation`
+    (consecutive sightings of a landmark share most of their error; the filter takes them as independent).
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -57,6 +60,11 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not log.has_ground_truth:
         raise ValueError(f"{log.name}: scoring needs ground truth, and the log has none")
     sensor = noise.range_bearing
+    if inflate_correlated:
+        inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
+        sensor = dataclasses.replace(sensor, range_sigma_m=sensor.range_sigma_m * inflate_r,
+                                     range_sigma_per_m=sensor.range_sigma_per_m * inflate_r,
+                                     bearing_sigma_rad=sensor.bearing_sigma_rad * inflate_b)
     config = _association_config(with_fastslam(noise, config), association)
     no_descriptors = np.zeros((0, 0), np.float32)
     slam = FastSLAM(config, rng)
@@ -92,7 +100,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
 
     landmark_map = slam.best_map(robot=robot, metadata={
         "true_start_pose": [float(v) for v in true_start], "dataset": log.name, "association": association,
-        "noise_model": noise.robot, "simulated": False})
+        "noise_model": noise.robot, "inflate_correlated": bool(inflate_correlated), "simulated": False})
     estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
     estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
     truth = np.column_stack([times, log.true_pose(times)])

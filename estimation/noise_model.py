@@ -23,6 +23,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
     fov_rad = 6.283185307179586   # footprint: horizontal field of view, and the ranges at which it reports
     min_range_m = 0.0
     max_range_m = 30.0
+    range_correlation = 0.0    # lag-1 correlation of consecutive sightings' residuals (see variance_inflation)
+    bearing_correlation = 0.0
 
     [stereo]                   # optional: a stereo head (the front end's TriangulationNoise)
     sigma_u_px = 0.5
@@ -77,6 +79,15 @@ class RangeBearingNoise:
     fov_rad: float = 2.0 * math.pi       # the sensor's footprint (FastSLAM: candidates and negative evidence)
     min_range_m: float = 0.0
     max_range_m: float = 30.0
+    range_correlation: float = 0.0       # lag-1 correlation of consecutive sightings' residuals of one landmark
+    bearing_correlation: float = 0.0
+
+    def variance_inflation(self) -> tuple[float, float]:
+        """(range, bearing) factors (1 + ρ)/(1 − ρ) on the variances: an AR(1) series of N sightings with lag-1
+        correlation ρ carries the information of N (1 − ρ)/(1 + ρ) independent ones, so a filter that takes them
+        as independent must see each one's variance multiplied by this to stay consistent."""
+        return tuple((1.0 + max(rho, 0.0)) / (1.0 - max(rho, 0.0)) for rho in (self.range_correlation,
+                                                                               self.bearing_correlation))
 
     def fastslam_overrides(self) -> dict:
         """The FastSLAMConfig fields of the sensor's footprint."""
@@ -127,6 +138,8 @@ class NoiseModel:
             raise NoiseModelError("range_sigma_m and bearing_sigma_rad must be > 0")
         if rb is not None and not (0 < rb.fov_rad <= 2 * math.pi and rb.min_range_m < rb.max_range_m):
             raise NoiseModelError("the footprint needs 0 < fov_rad <= 2π and min_range_m < max_range_m")
+        if rb is not None and not (0 <= rb.range_correlation < 0.99 and 0 <= rb.bearing_correlation < 0.99):
+            raise NoiseModelError("range_correlation and bearing_correlation must lie in [0, 0.99)")
 
     def fastslam_overrides(self) -> dict:
         """The FastSLAMConfig fields this model sets (its motion model; a range-bearing sensor's footprint)."""
@@ -310,7 +323,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         if sum(len(o[0]) for o in other) >= 10:
             by_window.append((w, *np.sqrt(_random_walk_fit(other))))
 
-    residual_r, residual_b, ranges, bearings = [], [], [], []
+    residual_r, residual_b, ranges, bearings, follows = [], [], [], [], []
     for log in logs:
         if len(log) == 0:
             continue
@@ -322,6 +335,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         residual_b.append(wrap_angle(log.bearings[known] - (np.arctan2(d[:, 1], d[:, 0]) - pose[known, 2])))
         ranges.append(log.ranges[known])
         bearings.append(log.bearings[known])
+        follows.append(_consecutive(log.sighting_times[known], log.landmark_ids[known]))
     range_bearing = None
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
@@ -339,10 +353,17 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         # the footprint: where the sensor reported anything (extreme 0.1 % of the sightings left out)
         fov = float(min(2.0 * np.percentile(np.abs(wrap_angle(np.concatenate(bearings) - offset)), 99.9), 2 * math.pi))
         min_range, max_range = (float(v) for v in np.percentile(r, [0.1, 99.9]))
+        # sightings j and next[j] are consecutive sightings of one landmark (within CORRELATION_GAP_S)
+        shift = np.cumsum([0] + [len(x) for x in residual_r[:-1]])
+        nxt = np.concatenate([np.where(f >= 0, f + s0, -1) for f, s0 in zip(follows, shift, strict=True)])
+        pair = np.flatnonzero((nxt >= 0) & inlier)
+        pair = pair[inlier[nxt[pair]]]
+        rho_r = _lag_correlation(dr / (a + b * r), pair, nxt)
+        rho_b = _lag_correlation(db, pair, nxt)
         range_bearing = RangeBearingNoise(range_sigma_m=a, range_sigma_per_m=b,
                                           bearing_sigma_rad=float(np.sqrt(np.mean(db[inlier] ** 2))),
                                           bearing_offset_rad=offset, fov_rad=fov, min_range_m=min_range,
-                                          max_range_m=max_range)
+                                          max_range_m=max_range, range_correlation=rho_r, bearing_correlation=rho_b)
         for label, lo, hi in (("below_3m", 0.0, 3.0), ("3_to_5m", 3.0, 5.0), ("beyond_5m", 5.0, math.inf)):
             probability = _detection_probability(logs, fov, lo, hi)
             if math.isfinite(probability):
@@ -420,6 +441,28 @@ def _random_walk_fit(windows) -> tuple[float, float, float]:
         rhs.append(y / spread)
     q, _ = nnls(np.concatenate(lhs), np.concatenate(rhs))
     return float(q[0]), float(q[1]), float(q[2])
+
+
+CORRELATION_GAP_S = 2.0     # consecutive sightings of one landmark further apart than this are not paired
+
+
+def _consecutive(times: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """(N,) index of the next sighting of the same landmark within CORRELATION_GAP_S, or -1."""
+    out = np.full(len(times), -1, np.int64)
+    order = np.lexsort((times, ids))
+    same = (ids[order][1:] == ids[order][:-1]) & (np.diff(times[order]) <= CORRELATION_GAP_S)
+    out[order[:-1][same]] = order[1:][same]
+    return out
+
+
+def _lag_correlation(residuals: np.ndarray, pair: np.ndarray, nxt: np.ndarray) -> float:
+    """Correlation of residual j with residual next[j] over the pairs (0 if fewer than 20), clipped to [0, 0.95]."""
+    if len(pair) < 20:
+        return 0.0
+    x, y = residuals[pair], residuals[nxt[pair]]
+    x, y = x - residuals.mean(), y - residuals.mean()
+    rho = float(np.sum(x * y) / max(np.sqrt(np.sum(x * x) * np.sum(y * y)), 1e-300))
+    return float(np.clip(rho, 0.0, 0.95))
 
 
 def _detection_probability(logs: Sequence[RangeBearingLog], fov: float, near: float, far: float,

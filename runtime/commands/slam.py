@@ -139,6 +139,9 @@ def _register_dataset(sub) -> None:
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
                              "correct it from the ground truth (inferred), or trust it unchecked (table)")
+    parser.add_argument("--no-inflation", action="store_true",
+                        help="take consecutive sightings as independent (default: the sensor variances are "
+                             "multiplied by the noise model's variance inflation for correlated sightings)")
     parser.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the filter (0)")
@@ -184,7 +187,8 @@ def _dataset(args: argparse.Namespace) -> int:
             noise_source = "estimated from this log's own ground truth (no --noise given)"
         config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
         run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
-                               association=args.association, robot=f"robot{args.robot}", until=args.until)
+                               association=args.association, robot=f"robot{args.robot}", until=args.until,
+                               inflate_correlated=not args.no_inflation)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)

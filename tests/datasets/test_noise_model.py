@@ -71,7 +71,24 @@ def test_fuzz_a_clean_error_or_a_valid_model(tmp_path, text, keep):
     assert all(math.isfinite(v) and v >= 0 for v in model.fastslam_overrides().values())
 
 
-def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b):
+def _chain(steps: np.ndarray) -> np.ndarray:
+    """Poses (n + 1, 3) from the origin composing steps (n, 3) (closed form of repeated `compose`)."""
+    heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
+    c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
+    xy = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([c * steps[:, 0] - s * steps[:, 1],
+                                                             s * steps[:, 0] + c * steps[:, 1]]), axis=0)])
+    return np.column_stack([xy, wrap_angle(heading)])
+
+
+def test_closed_form_chain_is_composition():
+    steps = np.random.default_rng(0).normal(0, 0.3, (50, 3))
+    pose = np.zeros(3)
+    for step in steps:
+        pose = compose(pose, step)
+    np.testing.assert_allclose(_chain(steps)[-1], pose, atol=1e-12)
+
+
+def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b, rho_b=0.0):
     """A robot circling (wiggling) for 30 min at 50 Hz among 12 landmarks; odometry = (true increments +
     random-walk noise) / scale; sightings within a camera's range."""
     dt, n = 0.02, 90_000
@@ -89,9 +106,7 @@ def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, s
     noisy = true_steps + rng.standard_normal((n, 3)) * np.sqrt(np.column_stack(
         [q_xy * d, q_xy * d, q_theta_rad * np.abs(true_steps[:, 2]) + q_theta_m * d]))
     noisy = noisy / [scale, scale, scale]
-    odometry = np.zeros((n + 1, 3))
-    for i in range(n):   # 90 000 compositions: a second
-        odometry[i + 1] = compose(odometry[i], noisy[i])
+    odometry = _chain(noisy)
     landmarks = rng.uniform(-6, 6, (12, 2)) + truth[:, :2].mean(axis=0)
     times = t[::25]
     poses = truth[::25]
@@ -100,7 +115,14 @@ def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, s
     r = np.hypot(delta[:, 0], delta[:, 1])
     b = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - poses[:, 2])
     ranges = r + rng.standard_normal(len(r)) * (sigma_r + slope_r * r)
-    bearings = b + offset_b + rng.standard_normal(len(r)) * sigma_b
+    # bearing noise: an AR(1) series per landmark, lag-1 correlation rho_b between its consecutive sightings
+    white = rng.standard_normal(len(r))
+    noise_b = white.copy()
+    for landmark in range(12):
+        k = np.flatnonzero(ids == landmark)
+        for i in range(1, len(k)):
+            noise_b[k[i]] = rho_b * noise_b[k[i - 1]] + np.sqrt(1 - rho_b ** 2) * white[k[i]]
+    bearings = b + offset_b + noise_b * sigma_b
     seen = (r > 0.5) & (r < 6.0)                                       # a camera's range
     return RangeBearingLog("synthetic", np.column_stack([t, odometry]), times[seen], np.abs(ranges[seen]),
                            bearings[seen], ids[seen] + 6, np.column_stack([t, truth]), np.arange(6, 18), landmarks)
@@ -117,6 +139,7 @@ def test_estimation_recovers_the_noise_that_made_the_log():
     assert o.theta_var_per_rad + o.theta_var_per_m == pytest.approx(q["q_theta_rad"] + q["q_theta_m"], rel=0.35)
     assert o.translation_scale == pytest.approx(1.08, abs=0.01) and o.rotation_scale == pytest.approx(1.08, abs=0.02)
     assert rb.bearing_offset_rad == pytest.approx(-0.015, abs=0.002)
+    assert rb.range_correlation < 0.1 and rb.bearing_correlation < 0.1 and rb.variance_inflation()[0] < 1.25
     assert rb.bearing_sigma_rad == pytest.approx(0.02, rel=0.1)
     for r in (3.0, 5.0):   # where the sightings are (2.6-5.9 m): a line fitted there is not checked elsewhere
         assert float(rb.range_sigma([r])[0]) == pytest.approx(0.03 + 0.03 * r, rel=0.15)
@@ -142,3 +165,14 @@ def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
     # commanded-velocity odometry: the variance per metre grows with the window (errors correlated in time)
     by_window = estimate.odometry_by_window
     assert by_window[-1, 1] > by_window[0, 1]
+
+
+def test_correlated_sightings_are_measured_and_inflate_the_variance():
+    """Consecutive sightings of a landmark sharing their error (AR(1), ρ = 0.6): ρ is recovered, and the variance
+    inflation (1 + ρ)/(1 − ρ) = 4 is what a filter taking them as independent needs."""
+    log = _synthetic_log(np.random.default_rng(6), 0.04 ** 2, 0.08 ** 2, 0.05 ** 2, 1.0, 0.03, 0.03, 0.02, 0.0,
+                         rho_b=0.6)
+    rb = estimate_noise([log]).model.range_bearing
+    # pairs are consecutive sightings within 2 s: mostly adjacent in the AR(1) series
+    assert rb.bearing_correlation == pytest.approx(0.6, abs=0.1) and rb.range_correlation < 0.1
+    assert rb.variance_inflation()[1] == pytest.approx((1 + rb.bearing_correlation) / (1 - rb.bearing_correlation))
