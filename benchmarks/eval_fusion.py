@@ -510,7 +510,7 @@ def mrclam_faults(sightings, seeds: int):
 
 def starved_table(folder: Path):
     """Snapshots (folders of ``robot*.npz``) of maps from a demo starved of CPU: every pair aligned."""
-    snaps = sorted((p for p in folder.iterdir() if p.is_dir() and len(list(p.glob("*.npz"))) >= 2),
+    snaps = sorted((p for p in folder.iterdir() if p.is_dir() and len(list(p.glob("robot*.npz"))) >= 2),
                    key=lambda p: int(p.name.split("_")[-1]) if p.name.split("_")[-1].isdigit() else 0)
     print(f"\n### Maps from a demo starved of CPU ({len(snaps)} snapshots)\n")
     print("| preset | snapshots | found | wrong (> 0.3 m or 0.1 rad) | not found |")
@@ -518,7 +518,7 @@ def starved_table(folder: Path):
     for preset in PRESETS:
         found = wrong = missing = 0
         for snap in snaps:
-            files = sorted(snap.glob("*.npz"))
+            files = sorted(snap.glob("robot*.npz"))
             maps = [LandmarkMap.load(f) for f in files]
             for i in range(len(maps)):
                 for j in range(i + 1, len(maps)):
