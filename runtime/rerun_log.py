@@ -18,7 +18,7 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     world/<robot>/landmarks/covariance    Ellipsoids3D (1 σ) of the last snapshot; hidden by the blueprint
     world/<robot>/sonar                   LineStrips3D, one segment per sonar ray
     world/<robot>/stereo                  Transform3D: the head on the estimated pose
-    world/<robot>/stereo/{left,right}     Pinhole + Image (JPEG), .../features Points2D (matched corners)
+    world/<robot>/stereo/{left,right}     Pinhole, .../features Points2D (matched corners); a lone left image
     world/fused/landmarks[/covariance]    Points3D coloured by robot (white: seen by several), Ellipsoids3D 1 σ
     images/<robot>/pair[/matches]         side-by-side Image and LineStrips2D: 2-D, outside the 3-D world
     map/<key>                             static Transform3D flipping y: the 2-D maps are drawn y up
@@ -264,7 +264,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     - overview: each robot's top-down map in its own frame (the paper's Fig. 3), beside the fused map (Fig. 5);
     - one tab per robot: its map, its stereo pair with the matches, and its plots, each on its own axis;
     - fusion: the fused map and the alignment's error (m, rad) and landmark counts, each on its own axis;
-    - 3-D: the world with the robots, their cameras (pinhole + image) and the landmarks; the covariance
+    - 3-D: the world with the robots, their cameras (pinholes, matched corners) and the landmarks; the covariance
       ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
 
     2-D entities sit only under 2-D views' origins or under a pinhole (the stereo images in the 3-D world).
@@ -296,11 +296,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
                      _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"])),
         column_shares=[3, 2], name="fusion")
     hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
-    cameras = [rrb.Spatial2DView(origin=f"world/{r}/stereo/{side}", name=f"{r} {side}")
-               for r in robots for side in ("left", "right")]
-    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden),
-                           *([rrb.Grid(*cameras, grid_columns=2)] if cameras else []),
-                           column_shares=[3, 2] if cameras else None, name="3-D")
+    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
     return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, fusion, world, active_tab=0), collapse_panels=True)
 
 
@@ -633,8 +629,9 @@ class MissionLog:
         """The current pair (at most one per ``image_interval`` s) with its matched corners and match lines.
 
         left/right: (H, W) or (H, W, 3) uint8 rectified images; left_pixels, right_pixels: (N, 2) (u, v).
-        Each image sits under its pinhole in the 3-D world; the side-by-side pair is a 2-D entity of its own
-        (images/<robot>/pair), outside the 3-D world.
+        A pair is logged once, side by side (images/<robot>/pair, a 2-D entity outside the 3-D world, with the
+        match lines): logging each image again under its pinhole would double the recording's largest part. The
+        matched corners sit under the pinholes (world/<robot>/stereo/{left,right}/features); a lone left image too.
         """
         if t - self._last_image.get(robot, -np.inf) < self.image_interval:
             return
@@ -643,20 +640,19 @@ class MissionLog:
         left_pixels = np.asarray(left_pixels, float).reshape(-1, 2)
         colour = self.colour(robot)
         base = f"world/{robot}/stereo"
-        if left is not None:
-            self.rec.log(f"{base}/left", _jpeg(left))
         self.rec.log(f"{base}/left/features", rr.Points2D(left_pixels, radii=2.0, colors=colour))
         if right_pixels is not None:
             right_pixels = np.asarray(right_pixels, float).reshape(-1, 2)
             self.rec.log(f"{base}/right/features", rr.Points2D(right_pixels, radii=2.0, colors=colour))
         if left is not None and right is not None:
-            self.rec.log(f"{base}/right", _jpeg(right))
             width = left.shape[1]
             self.rec.log(f"images/{robot}/pair", _jpeg(np.hstack([left, right])))
             if right_pixels is not None and len(right_pixels) == len(left_pixels):
                 shifted = right_pixels + [width, 0]
                 self.rec.log(f"images/{robot}/pair/matches",
                              rr.LineStrips2D(np.stack([left_pixels, shifted], axis=1), radii=0.7, colors=colour))
+        elif left is not None:
+            self.rec.log(f"{base}/left", _jpeg(left))
 
     def log_scalars(self, robot: str, t: float, values: Mapping[str, float], frame: int | None = None) -> None:
         """Time series under plots/<robot>/<name> (a name may hold '/', e.g. 'time/frontend'); each series gets
