@@ -1,11 +1,11 @@
 """``p3at replay LOG``: run a logged robot's raw sensor streams through the pipeline again."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from runtime.commands.options import add_deprecated_alias, positive_int
 from runtime.replay import onboard_config_from_log, replay_log
 from runtime.sensorlog import SensorLog, SensorLogError
 
@@ -20,13 +20,11 @@ def register(subparsers) -> None:
     parser.add_argument("log", type=Path, metavar="LOG",
                         help="a sensor log: the folder of MCAP segments that --log-sensors writes, or one .mcap file")
     parser.add_argument("--out", type=Path, default=None, metavar="MAP.npz", help="write the resulting map here")
-    parser.add_argument("--particles", type=int, default=None, help="FastSLAM particles (default: as logged)")
+    parser.add_argument("--particles", type=positive_int, default=None, help="FastSLAM particles (default: as logged)")
     parser.add_argument("--seed", type=int, default=None, help="filter seed (default: as logged)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=None,
                         help="FastSLAM 1.0 or 2.0 (default: as logged)")
-    # the old spelling, kept for one release: hidden from --help, warns when used
-    parser.add_argument("--version", type=int, choices=(1, 2), default=None, dest="deprecated_version",
-                        help=argparse.SUPPRESS)
+    add_deprecated_alias(parser, "--version", "--fastslam")  # the old spelling, for one release: hidden, warns
     parser.add_argument("--every-frame", action="store_true",
                         help="process every logged frame, not only those the live pipeline had time for")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -34,10 +32,6 @@ def register(subparsers) -> None:
 
 
 def _replay(args) -> int:
-    if args.deprecated_version is not None:
-        print("p3at replay: --version is deprecated, use --fastslam", file=sys.stderr)
-        if args.fastslam is None:
-            args.fastslam = args.deprecated_version
     try:
         log = SensorLog(args.log)
         for warning in log.warnings:
