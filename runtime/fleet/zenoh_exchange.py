@@ -342,6 +342,12 @@ class ZenohExchange:
         with self._lock:
             return self._latest.get(FUSED)
 
+    def session_of(self, robot: str) -> str | None:
+        """The session id of ``robot``'s latest map heard of (a new one after each restart of the robot)."""
+        with self._lock:
+            stream = self._streams.get(robot)
+            return None if stream is None else stream.session
+
     @property
     def pending_bytes(self) -> int:
         """Bytes received and not yet decoded (bounded by MAX_PENDING_BYTES plus one message)."""

@@ -165,14 +165,14 @@ def test_a_killed_robot_leaves_keeps_its_map_and_rejoins_with_fresh_sequence_num
     fleet.start_robot("robot1", 0)
     robot2 = fleet.start_robot("robot2", 1)
     wait_until(lambda: all_published(fleet, ["robot1", "robot2"]), "both robots' last updates")
-    session = fleet.exchange._streams["robot2"].session
+    session = fleet.exchange.session_of("robot2")
     robot2.send_signal(signal.SIGKILL)
     wait_until(lambda: "robot2" not in fleet.exchange.present(), "robot2's liveliness token gone", LEAVE_DEADLINE)
     assert "robot2 left the fleet" in fleet.events
     kept = fleet.maps()["robot2"]  # the fusion keeps its last map
     assert kept.sequence == STEPS - 1 and len(kept.landmark_map) == len(replayed("robot2", 1, STEPS))
     fleet.start_robot("robot2", 1, steps=3)
-    wait_until(lambda: fleet.exchange._streams["robot2"].session != session
+    wait_until(lambda: fleet.exchange.session_of("robot2") != session
                and fleet.maps()["robot2"].sequence == 2, "robot2's new session at sequence 2")
     assert "robot2" in fleet.exchange.present()
     assert any(e.startswith("robot2 restarted") for e in fleet.events), fleet.events
