@@ -440,8 +440,15 @@ class Mission:
                 next_save = t + cfg.map_save_interval
 
     def _check_links(self, t: float) -> None:
-        """A driver whose link is down, or a virtual robot whose server thread died, is reported; a link that
-        stays down for 10 s ends the mission (the driver keeps trying to reconnect until then)."""
+        """Threads that report their faults as state: a sensor log whose writer failed and a virtual robot whose
+        server thread died end the mission; a driver whose link is down is reported, and a link that stays down
+        for 10 s ends the mission (the driver keeps trying to reconnect until then)."""
+        for r in self.robots:  # the sensor log's writer thread keeps running after a fault; the mission does not
+            log = r.onboard.sensor_log
+            if log is not None and getattr(log, "error", None) is not None and not any(
+                    f.robot == r.name and f.stage == "sensor log" for f in self.failures):
+                self._record_failure(StageFailure(r.name, "sensor log", f"{type(log.error).__name__}: {log.error}",
+                                                  t))
         for name, driver in self._drivers.items():
             server = self._servers.get(name)
             if server is not None and server.error is not None:

@@ -79,7 +79,7 @@ class VirtualStereoHead(usb.backend.IBackend):
                  serial: str = "VIRTUAL-0001", realtime: bool = False, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep, texture_resolution: float = 100.0, bus: int = 1,
                  address: int = 7, renderer=None, max_transfer: int | None = None,
-                 latency: float = DEFAULT_LATENCY, drop_late: bool = False, stamp_tolerance: float = 0.005):
+                 latency: float = DEFAULT_LATENCY, drop_late: bool = False, stamp_tolerance: float = 0.01):
         super().__init__()
         if calibration is _DEFAULT:
             text: str | None = default_calibration_text()
