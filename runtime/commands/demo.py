@@ -11,7 +11,8 @@ def register(subparsers) -> None:
                     "heads at the building's start poses, unknown to each other; each runs the onboard pipeline "
                     "(front end, FastSLAM) while following its route; maps are exchanged, fused at intervals and "
                     "at the end, and the alignment is scored against the truth. Prints a summary table and "
-                    "writes a Rerun recording.")
+                    "writes a Rerun recording. Runs in simulated time (lockstep): the same seed gives the same "
+                    "maps and figures on any machine, however busy; --realtime runs on the wall clock.")
     add_mission_arguments(parser, robots=2, seconds=200.0, out="out/demo", camera="mock", camera_rate=3.75)
     parser.add_argument("--processes", action="store_true",
                         help="each robot (virtual P3-AT, head and runtime) its own process, maps over Zenoh on "
