@@ -7,9 +7,10 @@ and prints how it grows.
 The mission runs in simulated time (``p3at demo`` default), so it may finish faster than 10 wall-clock minutes;
 samples are taken every ``--interval`` wall-clock seconds and placed on the mission clock by the progress the
 demo reports (the ``t=`` of its progress line) when it prints one, else by the share of wall time.
-Growth is reported two ways: start (after the first 10 % of the mission, when imports and the first map are in)
-to end, and the least-squares slope over the second half, in MB per 100 s of mission. A bounded process shows a
-slope near zero over the second half; one that keeps something per frame or per SIP shows a straight line.
+Growth is reported two ways: from 10 % of the mission (imports and the first map are in) to 95 % (before the
+end-of-mission fusion and file writing, which is a peak, not growth), and the least-squares slope from 50 % to
+95 %, in MB per 100 s of mission. A bounded process shows a slope near zero; one that keeps something per frame
+or per SIP shows a straight line.
 """
 from __future__ import annotations
 
@@ -99,15 +100,18 @@ def report(samples: list[tuple[float, float]], progress: list[tuple[float, float
     print("|---|---|---|")
     for k in np.linspace(0, len(samples) - 1, 11).astype(int):
         print(f"| {m[k]:.0f} | {w[k]:.0f} | {rss[k]:.0f} |")
-    warm = m >= 0.1 * seconds
-    second_half = m >= 0.5 * seconds
-    base = rss[warm][0] if warm.any() else rss[0]
-    slope = np.polyfit(m[second_half], rss[second_half], 1)[0] * 100 if second_half.sum() > 3 else float("nan")
-    print(f"\nRSS: first sample {rss[0]:.0f} MB, at 10 % of the mission {base:.0f} MB, peak {rss.max():.0f} MB, "
-          f"end {rss[-1]:.0f} MB")
-    print(f"growth from 10 % to the end: {rss[-1] - base:+.0f} MB ({(rss[-1] - base) / base * 100:+.0f} %); "
-          f"slope over the second half: {slope:+.1f} MB per 100 s of mission")
-
+    def at(fraction: float) -> float:
+        """RSS of the first sample at or after ``fraction`` of the mission."""
+        index = np.flatnonzero(m >= fraction * seconds)
+        return float(rss[index[0]]) if index.size else float("nan")
+    # The last 5 % hold the end of the mission (final fusion, maps and files written): a peak, not growth.
+    window = (m >= 0.5 * seconds) & (m <= 0.95 * seconds)
+    slope = np.polyfit(m[window], rss[window], 1)[0] * 100 if window.sum() > 3 else float("nan")
+    start, middle, late = at(0.1), at(0.5), at(0.95)
+    print(f"\nRSS at 10 % of the mission {start:.0f} MB, at 50 % {middle:.0f} MB, at 95 % {late:.0f} MB; "
+          f"peak {rss.max():.0f} MB (at {m[int(np.argmax(rss))]:.0f} s of mission)")
+    print(f"growth from 10 % to 95 %: {late - start:+.0f} MB ({(late - start) / start * 100:+.0f} %); slope from 50 % "
+          f"to 95 %: {slope:+.1f} MB per 100 s of mission")
 
 if __name__ == "__main__":
     main()

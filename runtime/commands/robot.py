@@ -40,6 +40,7 @@ def register(subparsers: Any) -> None:
     _url_arguments(info)
     info.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     info.set_defaults(handler=_info)
+    info.error = _one_line_error("info")  # argparse would print the usage block first: one line says it
 
     drive = sub.add_parser("drive", help="drive at a velocity for some seconds, printing odometry",
                            description="Enable the motors, drive at --vel m/s and --rvel rad/s for --seconds, "
@@ -55,6 +56,7 @@ def register(subparsers: Any) -> None:
     drive.add_argument("--every", type=float, default=0.2, metavar="S", help="print interval (default 0.2 s)")
     drive.add_argument("--json", action="store_true", help="print one JSON object per line")
     drive.set_defaults(handler=_drive)
+    drive.error = _one_line_error("drive")
 
     serve = sub.add_parser("serve", help="run a virtual P3-AT in the simulated building",
                            description="Run a virtual P3-AT (the robot side of ARCOS) in the simulated building "
@@ -81,6 +83,13 @@ def _url_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link-timeout", type=float, default=LINK_TIMEOUT, metavar="S",
                         help=f"seconds without any packet before the link counts as lost (default {LINK_TIMEOUT}: "
                              "six SIP cycles, twice the longest gap seen from a loaded virtual robot)")
+
+
+def _one_line_error(action: str):
+    def error(message: str) -> None:
+        print(f"p3at robot {action}: {message} (see p3at robot {action} --help)", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+    return error
 
 
 def _fail(action: str, message: object, status: int) -> int:

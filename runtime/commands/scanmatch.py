@@ -66,6 +66,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "readings before the damage (and say so) instead of refusing the log")
     parser.add_argument("--json", action="store_true", help="print the summary (and trajectory) as JSON")
     parser.set_defaults(handler=run)
+    parser.error = _one_line_error  # argparse would print the usage block first: one line says it
+
+
+def _one_line_error(message: str) -> None:
+    print(f"p3at scanmatch: {message} (see p3at scanmatch --help)", file=sys.stderr)
+    raise SystemExit(EXIT_BAD_INPUT)
 
 
 def run(args: argparse.Namespace) -> int:

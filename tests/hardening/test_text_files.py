@@ -85,7 +85,8 @@ def test_nonsense_numbers_are_refused_with_status_2(tmp_path, capsys, argument) 
     with pytest.raises(SystemExit) as info:
         main(["scanmatch", str(path), *argument])
     assert info.value.code == 2
-    assert f"argument {argument[0]}" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith(f"p3at scanmatch: argument {argument[0]}") and err.count("\n") == 1
 
 
 @FUZZ
