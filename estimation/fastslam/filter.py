@@ -56,6 +56,7 @@ from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
+from .drift import DriftTracker
 from .linalg import (
     joseph_update,
     lower_matvec,
@@ -76,6 +77,7 @@ from .selection import select_observations
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
+COVARIANCE_KINDS = ("particle", "mixture", "mixture+drift")   # what a map's landmark covariances are (particle_map)
 _TINY_POSE_VAR = np.array([1e-12, 0.0, 0.0, 1e-12, 0.0, 1e-12])[:, None]   # keeps P⁻¹ finite right after an update
 PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
 
@@ -179,6 +181,8 @@ class FastSLAM:
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
+        self.drift = DriftTracker()                                     # the map frame's drift (see drift.py)
+        self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
 
@@ -189,6 +193,8 @@ class FastSLAM:
         if not np.all(np.isfinite(delta)):
             raise ValueError(f"odometry increment {delta.tolist()} is not finite; the filter is unchanged")
         variance = increment_variance(delta, self.config)
+        self.drift.robot = propagate_covariance(self.poses[self._best][None], self.drift.robot[None], delta,
+                                                variance)[0]
         if self.config.version == 1:
             self.poses = sample_motion(self.poses, delta, variance, self.rng)
         else:  # keep the noise-free prediction and its covariance; the proposal samples in update()
@@ -323,6 +329,16 @@ class FastSLAM:
             # appearance drifts with distance (fixed-scale U-SURF): gate the next frame on the latest look
             self._descriptors[best_matches[matched.j[in_best]]] = desc[matched.j[in_best]]
         pose_mean, pose_cov = _weighted_pose_stats(self.poses, weights)
+        spawned = np.flatnonzero(new_ids >= 0)
+        c, s_ = np.cos(self.poses[best, 2]), np.sin(self.poses[best, 2])
+        new_xy = z[spawned, :2] @ np.array([[c, s_], [-s_, c]]) + self.poses[best, :2]    # R z + t, best particle
+        # the local pose uncertainty given the map: FastSLAM 2.0's proposal (analytic, before sampling and
+        # resampling shrink it) or else the weighted cloud, whichever is larger
+        local = pose_cov
+        if cfg.version == 2 and self._proposal_cov is not None and np.trace(self._proposal_cov) > np.trace(pose_cov):
+            local = self._proposal_cov
+        self.drift.update(np.unique(best_matches[best_matches >= 0]), new_ids[spawned], new_xy,
+                          self.poses[best], local, self._n_ids)
         parents = np.arange(n_particles)
         resampled = ess < cfg.resample_threshold * n_particles
         if resampled:
@@ -520,6 +536,7 @@ class FastSLAM:
         cov6 = sym_inverse(sym_inverse(p_motion) + sums[:6])                         # Σ = (P⁻¹ + ΣHᵀS⁻¹H)⁻¹
         mean_pose = predicted + sym_matvec(cov6, sums[6:]).T
         chol, ok = sym_cholesky(cov6)
+        self._proposal_cov = sym_matrices(np.mean(cov6[:, ok], axis=1)[:, None])[0] if ok.any() else None
         ok &= np.all(np.isfinite(mean_pose), axis=1)
         if not np.all(ok):
             # a numerically indefinite proposal (an ill-conditioned S⁻¹ among the matches): that particle draws
@@ -891,10 +908,11 @@ class FastSLAM:
 
         ``covariance``: "particle" = the particle's own EKF covariances (conditional on its trajectory);
         "mixture" = each landmark's covariance over the whole particle cloud about this particle's mean (see
-        :meth:`mixture_covariances`): the one that matches the errors of a map exported from a particle filter.
+        :meth:`mixture_covariances`); "mixture+drift" adds the map frame's drift at the landmark's creation
+        (:mod:`estimation.fastslam.drift`), which the resampled cloud forgets: the honest one for export.
         """
-        if covariance not in ("particle", "mixture"):
-            raise ValueError(f"covariance must be 'particle' or 'mixture', not {covariance!r}")
+        if covariance not in COVARIANCE_KINDS:
+            raise ValueError(f"covariance must be one of {', '.join(COVARIANCE_KINDS)}, not {covariance!r}")
         store = self.store
         g = store.particle_slots(int(particle))
         g = g[store.flat_count[g] >= min_count]
@@ -904,8 +922,10 @@ class FastSLAM:
         means = store.flat_mean[g].copy()
         covs = sym_matrices(store.flat_cov[g].T)
         meta = dict(metadata or {})
-        if covariance == "mixture":
+        if covariance.startswith("mixture"):
             covs = self.mixture_covariances(lids, means)
+        if covariance.endswith("drift"):
+            covs = covs + self.drift.landmark_covariances(lids)
         meta["landmark_covariance"] = covariance
         if self._lid_of_external:
             meta["external_ids"] = self.external_ids(lids).tolist()
@@ -943,7 +963,7 @@ class FastSLAM:
         return sym_matrices(second / np.maximum(total, 1e-300))
 
     def best_map(self, robot: str = "robot", metadata: dict | None = None, min_count: int | None = None,
-                 frame: str = "start", covariance: str = "mixture") -> LandmarkMap:
+                 frame: str = "start", covariance: str = "mixture+drift") -> LandmarkMap:
         """The most probable particle's map (landmarks seen ≥ ``min_count``, default ``confirm_count``), with
         the landmarks' covariances over the particle cloud by default (``covariance``, see :meth:`particle_map`)."""
         min_count = self.config.confirm_count if min_count is None else min_count

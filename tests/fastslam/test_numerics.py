@@ -78,3 +78,28 @@ def test_elongated_landmark_only_shrinks_when_the_proposal_turns_the_robot():
         shrink = covariance - landmark.covariances[0]
         assert np.linalg.eigvalsh(shrink).min() > -1e-9
         assert np.linalg.norm(landmark.positions[0] - position) < 0.2
+
+
+def test_exported_covariances_grow_with_the_map_frames_drift_and_shrink_back_on_old_landmarks():
+    # the drift tracker through the public filter: a landmark made after a long blind stretch carries more
+    # drift than one made at the start; re-observing the first landmark pins the robot back to its level
+    from estimation.fastslam import range_bearing_config, range_bearing_observations
+    slam = FastSLAM(range_bearing_config(n_particles=10, association="id"), np.random.default_rng(0))
+    slam.update(range_bearing_observations([3.0], [0.0], 0.05, 0.01, ids=[1]))
+    for _ in range(20):                                    # 10 m blind: dead reckoning
+        slam.predict(OdometryIncrement(0.5, 0.0, 0.0))
+    drift_after_blind = np.trace(slam.drift.robot)
+    slam.update(range_bearing_observations([2.0], [0.5], 0.05, 0.01, ids=[2]))
+    landmark_map = slam.best_map(min_count=1)
+    by_external = dict(zip(slam.external_ids(landmark_map.ids).tolist(), landmark_map.covariances, strict=True))
+    assert np.trace(by_external[2]) > 10 * np.trace(by_external[1])
+    particle_only = slam.best_map(min_count=1, covariance="particle").covariances
+    assert np.all(np.linalg.eigvalsh(landmark_map.covariances - particle_only) > -1e-12)   # only ever adds
+    for _ in range(20):                                    # back to the start, where landmark 1 is
+        slam.predict(OdometryIncrement(-0.5, 0.0, 0.0))
+    drift_back = np.trace(slam.drift.robot)
+    assert drift_back > drift_after_blind
+    slam.update(range_bearing_observations([3.0], [0.0], 0.05, 0.01, ids=[1]))
+    # pinned to landmark 1 (no drift of its own) up to what one range-bearing reading leaves open
+    assert np.trace(slam.drift.robot) < 0.3 * drift_back
+    assert np.allclose(slam.drift.robot, slam.pose_mean_and_covariance()[1], atol=0.05)

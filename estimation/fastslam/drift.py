@@ -1,0 +1,75 @@
+"""The map frame's drift: the uncertainty FastSLAM's particles forget, kept beside them (an honest export).
+
+Why: every particle's landmark EKF is conditional on that particle's trajectory, and the spread of the
+particles would carry the trajectory's own uncertainty, but resampling nearly every frame makes all particles
+descend from one recent ancestor (Bailey, Nieto & Nebot 2006): the cloud keeps the pose's uncertainty relative
+to the landmarks in view (~1 cm) and loses how far that whole neighbourhood of the map has drifted from the
+start frame. Maps exported with the EKF (or even the particle-mixture) covariances were therefore overconfident
+by one to two orders of magnitude in NEES (docs/fastslam.md).
+
+Model (a chain of relative estimates, as in visual odometry): each landmark l carries the pose covariance D_l
+the robot had, relative to the start frame, when it created l, and the position covariance C_l = H D_l Hᵀ
+that this pose error puts on l (H = ∂(t + R z)/∂(x, y, θ) = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 0]], w = μ − t).
+The robot carries D_r:
+
+- predict: D_r ← J D_r Jᵀ + G V Gᵀ (the motion model, like dead reckoning);
+- update with matches: the pose is pinned to the matched landmarks, so its absolute uncertainty is theirs plus
+  the local one, D_r ← mean_l D_l + P_local (P_local: the particle cloud's pose covariance this frame); with
+  no match D_r keeps growing with the motion;
+- a landmark created now gets D_l = D_r and C_l = H D_r Hᵀ;
+- export: Σ_l ← Σ_l + C_l.
+
+Without loops, D_r grows by P_local once per generation of landmarks (not once per frame, as landmarks are
+seen over many frames); revisiting old landmarks brings D_r back to their level. The mean over matched
+landmarks (not an information sum) is deliberate: their drifts are nearly fully correlated (one chain), so
+seeing many of them does not make the frame more certain.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .linalg import sym_components, sym_matrices
+
+
+class DriftTracker:
+    """Map-frame drift per landmark id (see the module docstring). Covariances are (6,) symmetric components."""
+
+    def __init__(self) -> None:
+        self.robot = np.zeros((3, 3))                 # D_r, the robot's pose covariance relative to the start
+        self._pose = np.zeros((0, 6))                 # D_l per landmark id
+        self._position = np.zeros((0, 6))             # C_l per landmark id
+
+    def _ensure(self, n_ids: int) -> None:
+        if n_ids > len(self._pose):
+            grow = max(n_ids, 2 * len(self._pose)) - len(self._pose)
+            self._pose = np.vstack([self._pose, np.zeros((grow, 6))])
+            self._position = np.vstack([self._position, np.zeros((grow, 6))])
+
+    def predict(self, jacobian_pose: np.ndarray, motion_noise: np.ndarray) -> None:
+        """D_r ← J D_r Jᵀ + Q_motion (both (3, 3), Q_motion already in the start frame)."""
+        self.robot = jacobian_pose @ self.robot @ jacobian_pose.T + motion_noise
+
+    def update(self, matched_ids: np.ndarray, new_ids: np.ndarray, new_positions: np.ndarray,
+               robot_pose: np.ndarray, local_covariance: np.ndarray, n_ids: int) -> None:
+        """After a frame: ``matched_ids`` (K,) landmark ids the robot re-observed, ``new_ids`` (L,) ids it created
+        with their positions (L, 3) in the start frame, ``robot_pose`` (3,), ``local_covariance`` (3, 3)."""
+        self._ensure(n_ids)
+        matched_ids = np.asarray(matched_ids, np.int64)
+        if len(matched_ids):
+            self.robot = sym_matrices(self._pose[matched_ids].mean(axis=0)[:, None])[0] + local_covariance
+        if len(new_ids):
+            d = sym_components(self.robot[None])[:, 0]
+            self._pose[new_ids] = d
+            w = np.asarray(new_positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
+            h = np.zeros((len(new_ids), 3, 3))
+            h[:, 0, 0] = h[:, 1, 1] = 1.0
+            h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
+            self._position[new_ids] = sym_components(h @ self.robot @ np.swapaxes(h, 1, 2)).T
+
+    def landmark_covariances(self, ids: np.ndarray) -> np.ndarray:
+        """C_l (L, 3, 3) for landmark ids (L,) (zeros for ids never seen by the tracker)."""
+        ids = np.asarray(ids, np.int64)
+        out = np.zeros((len(ids), 6))
+        inside = ids < len(self._position)
+        out[inside] = self._position[ids[inside]]
+        return sym_matrices(out.T)
