@@ -14,6 +14,10 @@ File format (``.npz``, version 1, read with ``allow_pickle=False``, so no pickle
 
 ``metadata`` is free-form JSON; simulated maps put their true start pose in the world there
 (``"true_start_pose": [x, y, θ]``) so that fusion can be scored against the truth.
+
+Reading trusts nothing the file claims: sizes are bounded before allocation (:mod:`estimation.safe_npz`), values
+and JSON types after (:mod:`estimation.map_validation`, which lists the bounds); any defect is a
+:class:`~estimation.errors.MapFileError` naming the file and the field.
 """
 from __future__ import annotations
 
