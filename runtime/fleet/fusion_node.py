@@ -154,12 +154,16 @@ def run_live(args: argparse.Namespace) -> int:
     node_box.append(node)
     stop = threading.Event()
     restore = install_stop_signals(stop.set)
-    if args.seconds > 0:
-        threading.Timer(args.seconds, stop.set).start()
+    timer = threading.Timer(args.seconds, stop.set) if args.seconds > 0 else None
+    if timer is not None:
+        timer.daemon = True
+        timer.start()
     try:
         exchange.request_snapshot()  # a restarted node recovers every robot's latest map
         node.run(stop)
     finally:
+        if timer is not None:
+            timer.cancel()
         restore()
         exchange.close()
         final = reports[-1] if reports else None

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -65,14 +66,18 @@ def test_p3at_run_publishes_a_world_robot_map_under_its_name(tmp_path):
 def test_p3at_fuse_live_fuses_the_robots_maps_and_writes_the_merged_map(tmp_path):
     port, fleet = free_port(), f"live{os.getpid()}"
     listen = "zenoh:" + json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
-    node = p3at("fuse", "--live", "--exchange", listen, "--fleet", fleet, "--seconds", "20", "--interval", "1",
+    node = p3at("fuse", "--live", "--exchange", listen, "--fleet", fleet, "--seconds", "120", "--interval", "1",
                 "--out", str(tmp_path / "fused.npz"), "--json", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     robots = [subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", name, "--first-index",
                                 str(k), "--exchange", connect(port), "--fleet", fleet, "--steps", "6", "--period",
                                 "0.3"], cwd=ROOT, stdout=subprocess.DEVNULL)
               for k, name in enumerate(["robot1", "robot2"])]
     try:
-        stdout, stderr = node.communicate(timeout=120)
+        end = time.monotonic() + 90.0
+        while not (tmp_path / "fused.npz").exists() and time.monotonic() < end and node.poll() is None:
+            time.sleep(0.1)
+        node.send_signal(signal.SIGTERM)  # stops cleanly, as Ctrl-C would: prints the last fusion
+        stdout, stderr = node.communicate(timeout=60)
     finally:
         for r in robots:
             r.kill()
