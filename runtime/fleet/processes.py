@@ -145,10 +145,11 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         print(f"Maps: {', '.join(r['map_file'] for r in summary['robots'].values())}"
               + (f", merged {summary['merged_map_file']}" if summary["merged_map_file"] else ""))
     if summary["recording"]:
+        files = " ".join([summary["recording"]] + [str(out / n / "mission.rrd") for n in names
+                                                    if (out / n / "mission.rrd").exists()])
         print(f"Rerun recordings: {summary['recording']} (fleet view: maps, alignments, fused map) and "
-              f"{out}/<robot>/mission.rrd (each robot)\n  open them together: rerun {out}/mission.rrd "
-              f"{out}/*/mission.rrd\n  summarise:          p3at review {summary['recording']}",
-              file=sys.stderr if args.json else sys.stdout)
+              f"{out}/<robot>/mission.rrd (each robot)\n  open them together: rerun {files}\n"
+              f"  summarise:          p3at review {files}", file=sys.stderr if args.json else sys.stdout)
     return 1 if failed else 0
 
 
