@@ -1,4 +1,5 @@
-"""``p3at slam``: onboard FastSLAM. ``slam simulate`` builds a map on a simulated run and scores it."""
+"""``p3at slam``: FastSLAM. ``simulate`` builds a map on a simulated run, ``dataset`` on a recorded landmark data set
+(MRCLAM), ``noise`` fits a noise model from a log with ground truth; each scores against the truth."""
 from __future__ import annotations
 
 import argparse
@@ -14,8 +15,10 @@ from runtime.commands.options import add_deprecated_alias, positive_float, posit
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("slam", help="onboard FastSLAM over 3-D visual landmarks",
-                                   description="Onboard FastSLAM over 3-D visual landmarks.")
+    parser = subparsers.add_parser("slam", help="FastSLAM: a simulated run, a recorded landmark data set, noise models",
+                                   description="FastSLAM over landmarks: a simulated run (simulate), a recorded "
+                                               "range-bearing data set (dataset), a noise model fitted from a log "
+                                               "with ground truth (noise).")
     sub = parser.add_subparsers(dest="slam_command", metavar="SUBCOMMAND", required=True)
     sim = sub.add_parser(
         "simulate", help="drive a virtual robot through the simulated building and build its map",
