@@ -142,15 +142,36 @@ def mrclam(sim):
     return [sim.mrclam_sighting_map(sim.MRCLAM_DATASET2, r) for r in range(1, 6)]
 
 
-def test_mrclam_all_ten_pairs_align_within_the_goal(mrclam):
-    errors = []
-    for i in range(5):
-        for j in range(i + 1, 5):
-            a = align(mrclam[i].map, mrclam[j].map, "robust", np.random.default_rng(0))
-            assert a.found, (i, j, a.reason)
-            errors.append(alignment_error(a.pose, true_relative_pose(mrclam[i].map, mrclam[j].map)))
-    errors = np.array(errors)
-    assert np.median(np.hypot(errors[:, 0], errors[:, 1])) <= 0.3 and np.median(errors[:, 2]) <= 0.05
+def test_mrclam_p3at_fuse_aligns_all_ten_pairs_within_the_goal(mrclam, tmp_path, capsys):
+    import json
+
+    from runtime.cli import main
+
+    files = []
+    for s in mrclam:
+        files.append(str(tmp_path / f"{s.map.robot}.npz"))
+        s.map.save(files[-1])
+    assert main(["fuse", *files, "--out", str(tmp_path / "merged.npz"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    pairs = report["alignments"]
+    assert len(pairs) == 10 and all(a["found"] and not a["low_confidence"] for a in pairs)
+    assert np.median([a["error_xy"] for a in pairs]) <= 0.3
+    assert np.median([a["error_theta"] for a in pairs]) <= 0.05
+    # merging improves the map: the merged landmarks are nearer the truth than the best single robot's
+    merged = LandmarkMap.load(tmp_path / "merged.npz")
+    errors = [_rigid_fit_error(s.map, s.truth) for s in mrclam]
+    assert np.median(_rigid_fit_error(merged, mrclam[0].truth)) < min(np.median(e) for e in errors)
+
+
+def _rigid_fit_error(m: LandmarkMap, truth: dict) -> np.ndarray:
+    """Per-landmark distance to the truth after the map's best rigid fit (identities from external_ids)."""
+    ids = np.asarray(m.metadata["external_ids"])
+    local, world = m.positions[:, :2], np.array([truth[int(i)] for i in ids])
+    mu_l, mu_w = local.mean(0), world.mean(0)
+    a, b = local - mu_l, world - mu_w
+    theta = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    return np.linalg.norm(a @ R.T - b, axis=1)
 
 
 def test_mrclam_with_injected_duplicates_and_outliers_never_misaligns(mrclam):
