@@ -303,11 +303,10 @@ class _Problem:
             self.gate_z_sq = np.clip(CHI2_999[1] * self.inflation * self.var_z, lo, hi)
         else:
             self.gate_xy_sq = self.gate_z_sq = np.full(len(self.i), c.support_threshold ** 2)
-        self.pair_sigma_sq = self.var_xy
 
     def inflated(self, inflation: float) -> _Problem:
-        other = replace(self, inflation=float(inflation))
-        return other
+        """The same correspondences with the gate scaled by ``inflation`` (covariance scale, ≥ 1)."""
+        return replace(self, inflation=float(inflation))
 
     @property
     def gate_radius(self) -> float:
