@@ -47,6 +47,8 @@ class PairResult:
     required_supports: int = 0
     second_best_supports: int = 0
     low_confidence: bool = False
+    sigma_xy: float | None = None        # m, 1σ of the alignment's translation (major axis); None: no covariance
+    sigma_theta: float | None = None     # rad, 1σ of its rotation
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -58,6 +60,10 @@ class PairResult:
         self.false_alarm_probability = float(p) if np.isfinite(p) else None
         self.required_supports = int(st.required_supports)
         self.second_best_supports = int(st.second_best_supports)
+        cov = alignment.covariance
+        if alignment.found and cov is not None:
+            self.sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
+            self.sigma_theta = float(np.sqrt(max(cov[2, 2], 0.0)))
         self.low_confidence = bool(self.aligned and (self.false_alarm_probability is None
                                                      or self.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY))
 
@@ -152,6 +158,10 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
             if probs and all(np.isfinite(probs)):
                 result.false_alarm_probability = float(max(probs))
                 result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY
+            cov = multi.covariances[k]                  # composed along the tree
+            if cov is not None and edge.covariance is not None:
+                result.sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
+                result.sigma_theta = float(np.sqrt(max(cov[2, 2], 0.0)))
         if names[0] in column and other in column:
             result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
         truth = true_relative_pose(ordered[0], ordered[k])

@@ -15,6 +15,8 @@ from estimation.landmark_map import LandmarkMap
 
 EXIT_NO_OVERLAP = 1
 EXIT_BAD_INPUT = 2
+# gate inflation (covariance scale) above which the maps' covariances are reported as too small: σ off by 2×
+OVERCONFIDENT_MAPS = 4.0
 
 
 def register(subparsers) -> None:
@@ -149,6 +151,13 @@ def _print(report: dict, as_json: bool) -> None:
               f"{st['correspondences']} correspondences ({st['required_supports']} needed on these maps, best "
               f"distinct hypothesis {st['second_best_supports']}), {st['iterations']} iterations, residual rms "
               f"{rms:.3f} m; {_confidence(a['false_alarm_probability'])}" + ("" if a["used"] else " (not used)"))
+        if a["covariance"] is not None:
+            cov = np.asarray(a["covariance"])
+            print(f"    precision (1σ): {np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)):.3f} m, "
+                  f"{np.sqrt(max(cov[2, 2], 0.0)):.4f} rad")
+        if st.get("gate_inflation", 1.0) > OVERCONFIDENT_MAPS:
+            print(f"    note: the supports' residuals are {np.sqrt(st['gate_inflation']):.1f}× the maps' claimed "
+                  "standard deviations (their covariances are too small; gate and precision were scaled to match)")
         if a["low_confidence"]:
             print("    warning: low confidence - maps that do not overlap could give this much support")
         if a.get("error_xy") is not None:

@@ -131,7 +131,7 @@ def test_cli_reports_the_confidence_and_the_demo_error_columns(map_files, capsys
     out = map_files / "merged_c.npz"
     assert main(["fuse", str(map_files / "r1.npz"), str(map_files / "r2.npz"), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "false-alarm probability" in text and "needed on these maps" in text
+    assert "false-alarm probability" in text and "needed on these maps" in text and "precision (1σ)" in text
     assert "error xy" in text and "error θ" in text and "|Δtx|" not in text
     assert main(["fuse", str(map_files / "r1.npz"), str(map_files / "r2.npz"), "--out", str(out), "--json"]) == 0
     a = json.loads(capsys.readouterr().out)["alignments"][0]
@@ -165,6 +165,7 @@ def test_pair_result_carries_the_confidence(sim):
     p = report.pairs[0]
     assert p.aligned and 0 < p.false_alarm_probability < 1e-6 and not p.low_confidence
     assert p.required_supports <= p.supports
+    assert 0 < p.sigma_xy < 0.05 and 0 < p.sigma_theta < 0.01
     d = report.as_dict()["pairs"][0]
     assert {"false_alarm_probability", "required_supports", "second_best_supports", "low_confidence",
             "error_xy", "error_theta"} <= set(d)
