@@ -378,6 +378,8 @@ class Mission:
         def watch() -> None:
             while not done.wait(0.5):
                 dead = {name: s.error for name, s in self._servers.items() if s.error is not None}
+                if self.clock.hook_errors:  # the virtual robots' physics raised in the clock's advance hook
+                    dead["virtual world"] = self.clock.hook_errors[0]
                 stall = self.clock.stall
                 if dead or stall is not None:
                     for name, error in dead.items():
