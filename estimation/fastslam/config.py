@@ -53,6 +53,7 @@ class FastSLAMConfig:
     merge_gate: float = 7.815                     # merge a particle's landmarks closer than this squared
     #                                             #   Mahalanobis distance (χ²₃ 95 %; and alike, see below); 0: off
     merge_radius: float = 1.0                     # m: ids whose means are farther apart are never tested
+    merge_every: int = 5                          # updates between merge passes (over the ids touched since)
     merge_descriptor_threshold: float = 0.8       # descriptor distance allowed between merged landmarks (see docs)
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
@@ -70,6 +71,8 @@ class FastSLAMConfig:
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
         if not self.observation_cov_scale > 0.0:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
+        if self.merge_every < 1:
+            raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
         if self.association not in ("unknown", "id"):
             raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")
         if not (self.existence_remove < self.existence_initial <= self.existence_max and self.existence_hit >= 0

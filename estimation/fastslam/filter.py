@@ -183,6 +183,7 @@ class FastSLAM:
         self.stats = FilterStats()
         self.drift = DriftTracker()                                     # the map frame's drift (see drift.py)
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
+        self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
 
@@ -313,8 +314,11 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
-        if cfg.merge_gate > 0 and not by_id:   # duplicates: only the landmarks this frame touched can be new ones
-            self._merge_duplicates(np.unique(np.concatenate([self.store.flat_lid[matched.g], new_ids[new_ids >= 0]])))
+        if cfg.merge_gate > 0 and not by_id:   # duplicates: only the landmarks touched since the last pass
+            self._touched.append(np.concatenate([self.store.flat_lid[matched.g], new_ids[new_ids >= 0]]))
+            if len(self._touched) >= cfg.merge_every:
+                self._merge_duplicates(np.unique(np.concatenate(self._touched)))
+                self._touched = []
 
         # 8. weights and resampling
         best_matches = np.full(n_obs, -1, np.int64)
@@ -689,17 +693,26 @@ class FastSLAM:
         cand, lids, _ = self._candidates(self.poses)
         if len(cand.m) == 0 or len(touched) == 0:
             return 0
-        uniq, first = np.unique(lids, return_index=True)
+        uniq, first, inverse = np.unique(lids, return_index=True, return_inverse=True)
         ref = _rows(store.flat_mean, cand.g[first])                               # (U, 3) one particle's mean
         t = np.flatnonzero(np.isin(uniq, touched))
         if len(t) == 0:
             return 0
-        d = np.linalg.norm(ref[t][:, None, :] - ref[None, :, :], axis=2)          # (T, U)
-        close = d < cfg.merge_radius
-        if cfg.descriptor_size > 0:
-            dt, du = self._descriptors[uniq[t]], self._descriptors[uniq]
-            close &= np.sum((dt[:, None, :] - du[None, :, :]) ** 2, axis=2) < cfg.merge_descriptor_threshold ** 2
+        # exact spatial bound per id pair: |μ_a − μ_b| ≤ |ref_a − ref_b| + spread_a + spread_b in every particle,
+        # and d² ≥ |μ_a − μ_b|² / tr(Σ_a + Σ_b), with spread and tr Σ maximised over the particles holding the id
+        state = _rows(store.flat_state, cand.g)
+        spread2, trace = np.zeros(len(uniq)), np.zeros(len(uniq))
+        np.maximum.at(spread2, inverse, np.sum((state[:, :3] - ref[inverse]) ** 2, axis=1))
+        np.maximum.at(trace, inverse, state[:, 3] + state[:, 6] + state[:, 8])
+        spread = np.sqrt(spread2)
+        d = np.linalg.norm(ref[t][:, None, :] - ref[None, :, :], axis=2) - spread[t][:, None] - spread[None, :]
+        bound = cfg.merge_gate * (trace[t][:, None] + trace[None, :])
+        close = (d < cfg.merge_radius) & (np.maximum(d, 0.0) ** 2 < bound)
         ti, ui = np.nonzero(close)
+        if cfg.descriptor_size > 0 and len(ti):   # unit descriptors: |a − b|² = 2 − 2 a·b
+            dot = np.einsum("ij,ij->i", self._descriptors[uniq[t[ti]]], self._descriptors[uniq[ui]])
+            alike = 2.0 - 2.0 * dot < cfg.merge_descriptor_threshold ** 2
+            ti, ui = ti[alike], ui[alike]
         a, b = uniq[t[ti]], uniq[ui]
         keep = a != b
         a, b = np.minimum(a, b)[keep], np.maximum(a, b)[keep]                    # a older, b newer
@@ -727,18 +740,16 @@ class FastSLAM:
         if len(ok) == 0:
             return 0
         rows_a, rows_b, d2 = rows_a[ok], rows_b[ok], d2[ok]
-        # one merge per landmark and frame: the nearest pair first; a landmark already merged waits a frame
-        order = np.argsort(d2, kind="stable")
-        used: set[int] = set()
-        chosen = []
-        for i in order:   # few pairs per frame (duplicates are rare once association works)
-            ra, rb = int(rows_a[i]), int(rows_b[i])
-            if ra in used or rb in used:
-                continue
-            used.update((ra, rb))
-            chosen.append(i)
-        chosen = np.array(chosen, np.int64)
-        rows_a, rows_b = rows_a[chosen], rows_b[chosen]
+        # one merge per landmark and frame: each newer landmark goes into its nearest older one, each older one
+        # takes its nearest newer one, and a landmark on both sides of chosen pairs waits for the next frame
+        n_rows = len(cand.m)
+        pick = _first_minimum(rows_b, d2, n_rows, np.arange(len(rows_b)))
+        pick = pick[_first_minimum(rows_a[pick], d2[pick], n_rows, pick)]
+        rows_a, rows_b = rows_a[pick], rows_b[pick]
+        clash = np.isin(rows_a, rows_b)
+        rows_a, rows_b = rows_a[~clash], rows_b[~clash]
+        if len(rows_a) == 0:
+            return 0
         ma, mb = cand.take(rows_a), cand.take(rows_b)
         store.make_writable(np.concatenate([ma.m, mb.m]), np.concatenate([ma.k, mb.k]))
         ga, gb = self._remap(ma), self._remap(mb)

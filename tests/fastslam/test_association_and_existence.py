@@ -143,7 +143,7 @@ def test_duplicates_are_merged_only_when_statistically_one_point_and_alike(merge
     drifted = np.cos(0.6) * base + np.sin(0.6) * other          # distance 2 sin(0.3) ≈ 0.59 from base
     unrelated = rng.standard_normal(64)
     unrelated /= np.linalg.norm(unrelated)
-    slam = FastSLAM(FastSLAMConfig(n_particles=5, merge_gate=merge_gate, max_observations=0),
+    slam = FastSLAM(FastSLAMConfig(n_particles=5, merge_gate=merge_gate, merge_every=1, max_observations=0),
                     np.random.default_rng(4))
     corner, beside, far = [4.0, 0.5, 1.0], [4.0, 0.55, 1.0], [4.0, 1.0, 1.0]
     slam.update(_stereo([corner, beside, far], [base, unrelated, base]))
