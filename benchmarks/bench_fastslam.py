@@ -198,28 +198,39 @@ def main() -> None:
 
 def accuracy_table(n_seeds: int) -> None:
     """Markdown table: both default routes of the building, FastSLAM 1.0 and 2.0, 100 particles, seeds 0..n-1
-    (the same runs as ``p3at slam simulate --robot R --seed S --fastslam V``), means over seeds."""
+    (the same runs as ``p3at slam simulate --robot R --seed S --fastslam V``), means over seeds; with the
+    exported map's consistency (``benchmarks/slam_consistency.py``): duplicate fraction, landmark NEES."""
+    import sys
+    from pathlib import Path
+
+    from mocks.synthetic_stereo import SyntheticStereo
     from mocks.world import World
-    from runtime.slam_sim import simulate
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from slam_consistency import run_scored
 
     world = World.load()
     keys = ["ate_m", "dead_reckoning_ate_m", "final_position_error_m", "dead_reckoning_final_position_error_m",
-            "landmark_median_error_m", "landmark_rms_error_m", "landmarks", "duplicate_landmarks",
-            "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95"]
+            "landmark_median_error_m", "landmark_rms_error_m", "landmarks", "duplicate_fraction",
+            "pose_nees_median", "pose_nees_within_chi2_95", "landmark_nees_median", "landmark_nees_within_bound"]
     print("| robot | FastSLAM | ATE (m) | dead-reckoning ATE (m) | final error (m) | dead-reckoning final (m) | "
-          "landmark median / RMS error (m) | landmarks | duplicates | pose NEES mean / median | NEES < χ²₃(95 %) |")
+          "landmark median / RMS error (m) | landmarks | duplicates | pose NEES median / < χ²₃ 95 % | "
+          "landmark NEES median / < χ²₃ 95 % |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for robot in sorted(world.routes):
         for version in (1, 2):
-            runs = [simulate(world, start_pose=world.start_poses[robot], route=world.routes[robot], seconds=300,
-                             seed=seed, config=FastSLAMConfig(n_particles=100, version=version), robot=robot).metrics
-                    for seed in range(n_seeds)]
+            runs = []
+            for seed in range(n_seeds):
+                observer = SyntheticStereo.from_world(world, np.random.default_rng(seed).spawn(3)[0])  # as simulate
+                runs.append(run_scored(world, robot=robot, seed=seed, observer=observer, route=world.routes[robot],
+                                       seconds=300, config=FastSLAMConfig(n_particles=100, version=version)))
             m = {k: float(np.mean([r[k] for r in runs])) for k in keys}
             print(f"| {robot} | {version}.0 | {m['ate_m']:.3f} | {m['dead_reckoning_ate_m']:.3f} | "
                   f"{m['final_position_error_m']:.3f} | {m['dead_reckoning_final_position_error_m']:.3f} | "
                   f"{m['landmark_median_error_m']:.3f} / {m['landmark_rms_error_m']:.3f} | {m['landmarks']:.0f} | "
-                  f"{m['duplicate_landmarks']:.1f} | {m['pose_nees_mean']:.0f} / {m['pose_nees_median']:.0f} | "
-                  f"{100 * m['pose_nees_within_chi2_95']:.0f} % |", flush=True)
+                  f"{100 * m['duplicate_fraction']:.1f} % | {m['pose_nees_median']:.0f} / "
+                  f"{100 * m['pose_nees_within_chi2_95']:.0f} % | {m['landmark_nees_median']:.1f} / "
+                  f"{100 * m['landmark_nees_within_bound']:.0f} % |", flush=True)
 
 
 def nees_windows() -> None:
