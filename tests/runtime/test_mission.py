@@ -304,8 +304,16 @@ def test_a_mission_streams_live_to_a_running_rerun_server(rerun_server, tmp_path
                            fusion_interval=0.0, out=tmp_path / "out",
                            rerun=f"rerun+http://127.0.0.1:{port}/proxy")
     result = Mission(config).run()
-    time.sleep(1.0)  # let the server write what it received
-    contents = read_recording(saved)
+    deadline = time.monotonic() + 30.0  # the server writes what it received in its own time (a loaded machine)
+    while True:
+        try:
+            contents = read_recording(saved)
+            if contents.summary is not None or time.monotonic() > deadline:
+                break
+        except RecordingReadError:
+            if time.monotonic() > deadline:
+                raise
+        time.sleep(0.2)
     assert contents.robots == ["robot1"]
     assert contents.summary is not None
     assert len(contents.maps["robot1"]) == len(result.maps["robot1"]) > 0
