@@ -471,8 +471,14 @@ class Mission:
         """Every robot's current map to OUT/<robot>.npz, atomically: what a hard kill leaves behind."""
         for r in self.robots:
             snapshot = r.onboard.current_map()
-            if snapshot is not None:
+            if snapshot is None:
+                continue
+            try:
                 snapshot.save(self.config.out / f"{r.name}.npz")
+            except OSError as exc:  # a full or vanished disk: say so and stop rather than map on unsaved
+                self._record_failure(StageFailure(r.name, "map save", f"{type(exc).__name__}: {exc}",
+                                                  self.clock() - r.onboard.t0))
+                return
 
     def _fuse_guarded(self, t: float) -> FusionReport | None:
         try:
