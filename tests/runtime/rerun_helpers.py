@@ -21,9 +21,10 @@ def landmark_map(robot: str, n: int, rng: np.random.Generator, counts=None, traj
                        np.column_stack([t, 0.1 * t, 0.05 * t, np.zeros_like(t)]))
 
 
-def log_small_mission(log, frames: int = 12, seed: int = 0) -> dict:
+def log_small_mission(log, frames: int = 12, seed: int = 0, flush_each_frame: bool = False) -> dict:
     """Every kind of thing the runtime logs, for two robots and a fusion. Returns what was logged that a test
-    checks against."""
+    checks against. ``flush_each_frame``: write each frame before the next (the file then holds them in time order,
+    as a mission slower than Rerun's batching does; a test this fast would otherwise write them all at once)."""
     rng = np.random.default_rng(seed)
     log.log_building(np.array([[-1.0, -2.0, 10.0, -2.0], [-1.0, 2.0, 10.0, 2.0]]), np.array([2.5, 2.5]))
     starts = {"robot1": np.zeros(3), "robot2": np.array([8.0, 0.0, np.pi])}
@@ -48,6 +49,8 @@ def log_small_mission(log, frames: int = 12, seed: int = 0) -> dict:
             if frame % 4 == 0:
                 local = landmark_map(name, 12, rng, counts=np.array([1, 2] * 3 + [3, 4, 5, 6, 7, 8]))
                 log.log_robot_landmarks(name, t, frame, local, confirm_count=3)
+        if flush_each_frame:
+            log.flush()
     t = 0.25 * frames
     snapshots = {name: landmark_map(name, 8, rng) for name in ROBOTS}
     for name, m in snapshots.items():

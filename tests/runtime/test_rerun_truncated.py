@@ -21,7 +21,7 @@ def whole(tmp_path_factory):
     """A finished recording and what read_recording finds in it."""
     rrd = tmp_path_factory.mktemp("whole") / "mission.rrd"
     log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)
-    log_small_mission(log, frames=40)
+    log_small_mission(log, frames=40, flush_each_frame=True)
     log.close()
     return rrd, read_recording(rrd)
 
