@@ -46,6 +46,8 @@ def main() -> None:
     parser.add_argument("--landmarks", type=int, default=2000, help="landmarks per robot at the end (default 2000)")
     parser.add_argument("--no-images", action="store_true", help="log no stereo pairs")
     parser.add_argument("--no-maps", action="store_true", help="log no landmarks and no map snapshots")
+    parser.add_argument("--flush", action="store_true",
+                        help="wait for Rerun to write everything before each sample (no queue behind the writer)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     # a textured image (JPEG-compressible like a camera's, unlike pure noise): gradients, blocks and some noise
@@ -82,6 +84,8 @@ def main() -> None:
                                                           "error_xy": 0.05, "error_theta": 0.01, "common": 50,
                                                           "merged": n})
             if (frame + 1) % 240 == 0:
+                if args.flush:
+                    log.flush()
                 samples.append(((frame + 1) / 240, rss_mb()))
                 print(f"{samples[-1][0]:7.0f} {samples[-1][1]:8.1f} {rrd.stat().st_size / 1e6:8.1f} "
                       f"{time.perf_counter() - start:7.1f}")
