@@ -103,3 +103,28 @@ def test_exported_covariances_grow_with_the_map_frames_drift_and_shrink_back_on_
     # pinned to landmark 1 (no drift of its own) up to what one range-bearing reading leaves open
     assert np.trace(slam.drift.robot) < 0.3 * drift_back
     assert np.allclose(slam.drift.robot, slam.pose_mean_and_covariance()[1], atol=0.05)
+
+
+def test_mixture_covariance_is_the_weighted_second_moment_over_the_particles():
+    from estimation.fastslam import range_bearing_config, range_bearing_observations
+    slam = FastSLAM(range_bearing_config(n_particles=8, version=1), np.random.default_rng(3))
+    slam.update(range_bearing_observations([3.0, 4.0], [0.2, -0.4], 0.05, 0.01))
+    for _ in range(3):
+        slam.predict(OdometryIncrement(0.3, 0.0, 0.05))      # FastSLAM 1.0: every particle a different pose ...
+        slam.update(range_bearing_observations([2.8, 3.8], [0.15, -0.45], 0.05, 0.01))
+    best = slam.best_index
+    exported = slam.best_map(min_count=1, covariance="mixture")
+    w = slam.weights
+    for row, lid in enumerate(exported.ids):                   # ... so each holds its own copy of the landmark
+        means, covs, weights = [], [], []
+        for m in range(len(slam.poses)):
+            own = slam.particle_map(m, min_count=1)
+            if lid in own.ids:
+                k = int(np.flatnonzero(own.ids == lid)[0])
+                means.append(own.positions[k])
+                covs.append(own.covariances[k])
+                weights.append(w[m])
+        weights = np.array(weights) / np.sum(weights)
+        dev = np.array(means) - slam.particle_map(best, min_count=1).positions[row]
+        expected = np.einsum("m,mij->ij", weights, np.array(covs) + dev[:, :, None] * dev[:, None, :])
+        np.testing.assert_allclose(exported.covariances[row], expected, rtol=1e-9, atol=1e-15)
