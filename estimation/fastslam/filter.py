@@ -28,10 +28,15 @@ One update (:meth:`FastSLAM.update`) reads as numbered steps:
    observations keeps only the nearest; the losers are ambiguous (neither matched nor new).
 4. FastSLAM 2.0 only: sample the pose from the Gaussian proposal that includes the matched observations.
 5. EKF update of the matched landmarks (Joseph form), copy-on-write of the blocks written.
-6. Negative evidence: provisional landmarks (seen < ``confirm_count`` times) predicted well inside the view and
-   not matched count a miss; ``max_misses`` misses delete them.
-7. New landmarks from observations with no gated candidate.
-8. Weights, effective sample size, low-variance resampling when ESS < ``resample_threshold`` · M.
+6. Landmark existence (log-odds): a match adds ``existence_hit``; a landmark predicted well inside the view and
+   not matched adds ``existence_miss``; below ``existence_remove`` it is removed.
+7. New landmarks from observations with no gated candidate ("id" association: with no landmark of that id);
+   every ``merge_every`` updates, duplicates among the landmarks touched since are merged.
+8. Weights, effective sample size, low-variance resampling when ESS < ``resample_threshold`` · M; the map
+   frame's drift (``drift.py``) follows the best particle.
+
+Association by identity (``association="id"``): the observation's id names the landmark (step 1 scans the
+particles' tables instead of the view's blocks), step 2's gate only rejects outliers, step 3 is trivial.
 
 Importance weights. The textbook weight is the Gaussian likelihood N(z; ẑ, S) of every matched observation
 and a constant p₀ for a new landmark. We use the robust form log w += −½ min(d², gate) per observation (an
