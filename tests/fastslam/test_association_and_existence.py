@@ -156,3 +156,16 @@ def test_duplicates_are_merged_only_when_statistically_one_point_and_alike(merge
         merged = kept.positions[np.argmin(np.linalg.norm(kept.positions - corner, axis=1))]
         assert np.linalg.norm(merged - corner) < 0.02
         assert kept.counts.max() == 2
+
+
+def test_a_named_landmark_whose_readings_are_rejected_is_not_taken_for_missing():
+    # the identity was read, so the landmark is there: a reading the gate rejects is an outlier, not a miss
+    slam = FastSLAM(range_bearing_config(n_particles=5, association="id", max_range=10.0), np.random.default_rng(0))
+    slam.update(range_bearing_observations([3.0], [0.0], 0.05, 0.01, ids=[5]))
+    for _ in range(20):
+        slam.update(range_bearing_observations([5.0], [0.0], 0.05, 0.01, ids=[5]))   # 2 m off: rejected
+    assert slam.stats.id_outliers == 20 * 5
+    assert slam.stats.landmarks_removed == 0 and len(slam.particle_map(0)) == 1
+    for _ in range(3):                   # truly not seen while in view: now it is negative evidence
+        slam.update(range_bearing_observations([2.0], [0.3], 0.05, 0.01, ids=[6]))
+    assert 5 not in slam.external_ids(slam.particle_map(0).ids).tolist()
