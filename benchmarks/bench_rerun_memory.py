@@ -46,6 +46,8 @@ def main() -> None:
     parser.add_argument("--landmarks", type=int, default=2000, help="landmarks per robot at the end (default 2000)")
     parser.add_argument("--no-images", action="store_true", help="log no stereo pairs")
     parser.add_argument("--no-maps", action="store_true", help="log no landmarks and no map snapshots")
+    parser.add_argument("--constant-map", action="store_true",
+                        help="maps of --landmarks landmarks from the start (else they grow linearly to it)")
     parser.add_argument("--flush", action="store_true",
                         help="wait for Rerun to write everything before each sample (no queue behind the writer)")
     args = parser.parse_args()
@@ -65,7 +67,7 @@ def main() -> None:
         print(f"{'sim min':>7} {'RSS MB':>8} {'file MB':>8} {'wall s':>7}")
         for frame in range(frames):
             t = frame / 4.0
-            n = int(50 + (args.landmarks - 50) * frame / frames)
+            n = args.landmarks if args.constant_map else int(50 + (args.landmarks - 50) * frame / frames)
             for name in ROBOTS:
                 pose = np.array([0.1 * t % 30, np.sin(t / 10), t / 20])
                 log.log_pose(name, t, frame, pose, pose + 0.02, (0.12, 0.045, 0.5), odometry=pose * 1.02)
