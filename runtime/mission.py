@@ -525,14 +525,23 @@ class Mission:
     def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:
         cfg = self.config
         maps = {r.name: r.onboard.core.best_map() for r in self.robots}
+        files: list[Path] = []   # every file this mission leaves, for the summary
         for name, m in maps.items():
             m.save(cfg.out / f"{name}.npz")
+            m.export_ply(cfg.out / f"{name}.ply")
+            files += [cfg.out / f"{name}.npz", cfg.out / f"{name}.ply"]
         # TUM files beside each map: <robot>.tum (estimated), <robot>-odometry.tum, <robot>-truth.tum (mocks)
         trajectory_files = {r.name: r.onboard.trajectories.write_tum(cfg.out, r.name) for r in self.robots}
+        files += [p for written in trajectory_files.values() for p in written.values()]
         fused = final.merged if final is not None else None
         if fused is not None:
             fused.save(cfg.out / "fused.npz")
             fused.export_ply(cfg.out / "fused.ply")
+            files += [cfg.out / "fused.npz", cfg.out / "fused.ply"]
+        if cfg.log_sensors:
+            files += [cfg.out / f"{r.name}-log" for r in self.robots]
+        if self.recording_path is not None:
+            files.append(self.recording_path)
         robots = {}
         for r in self.robots:
             s, core = r.onboard.stats, r.onboard.core
@@ -556,7 +565,7 @@ class Mission:
                 "frames_late": getattr(self._virtual_heads.get(r.name), "late_frames", None),
                 "frames_dropped_at_head": dict(getattr(self._virtual_heads.get(r.name), "dropped_at_head", {})),
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
-                "map_file": str(cfg.out / f"{r.name}.npz"),
+                "map_file": str(cfg.out / f"{r.name}.npz"), "ply_file": str(cfg.out / f"{r.name}.ply"),
                 "trajectory_files": [str(p) for p in trajectory_files[r.name].values()],
             }
         for name, figures in robots.items():
@@ -578,6 +587,7 @@ class Mission:
             "fusions_during_mission": len(self.fusion_history) - (1 if final is not None else 0),
             "merged_map_file": None if fused is None else str(cfg.out / "fused.npz"),
             "recording": None if self.recording_path is None else str(self.recording_path),
+            "files": [str(f) for f in files],
         }
         if self.logger is not None:
             self.logger.log_summary(summary)

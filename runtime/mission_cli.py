@@ -147,8 +147,8 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
     else:
         print(format_summary(result.summary))
         print()
-        print(f"Maps: {', '.join(r['map_file'] for r in result.summary['robots'].values())}"
-              + (f", merged {result.summary['merged_map_file']}" if result.summary["merged_map_file"] else ""))
+        print("Files written:")
+        print("\n".join(f"  {f}" for f in result.summary["files"]))
     if result.recording is not None:
         print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)

@@ -54,13 +54,20 @@ def format_summary(summary: dict) -> str:
     if not fusion or not fusion["pairs"]:
         lines.append("Fusion: fewer than two maps, nothing to fuse.")
     else:
-        rows = [["alignment", "found", "tx (m)", "ty (m)", "θ (rad)", "supports", "common", "error xy (m)",
-                 "error θ (rad)"]]
+        rows = [["alignment", "found", "tx (m)", "ty (m)", "θ (rad)", "supports", "needed", "P(chance)", "common",
+                 "error xy (m)", "error θ (rad)"]]
         for p in fusion["pairs"]:
             rows.append([f"{p['other']} -> {p['reference']}", "yes" if p["aligned"] else "no",
                          _fmt(p["tx"]), _fmt(p["ty"]), _fmt(p["theta"], ".4f"), str(p["supports"]),
+                         _fmt(p.get("required_supports"), "d"), _fmt(p.get("false_alarm_probability"), ".1e"),
                          str(p["common"]), _fmt(p["error_xy"]), _fmt(p["error_theta"], ".4f")])
         lines += _table(rows)
+        for p in fusion["pairs"]:
+            if p["aligned"] and p.get("low_confidence"):
+                lines.append(f"warning: {p['other']} -> {p['reference']} is a low-confidence alignment "
+                             f"(P(chance) {_fmt(p.get('false_alarm_probability'), '.1e')}): check it before use")
+            elif not p["aligned"] and p.get("note"):
+                lines.append(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
         lines.append("")
         lines.append(f"Merged map: {fusion['merged_landmarks']} landmarks "
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "

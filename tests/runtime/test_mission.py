@@ -103,6 +103,18 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
 
 
 @pytest.mark.slow
+def test_the_summary_lists_every_file_the_mission_left(mission):
+    config, result = mission
+    listed = {Path(f) for f in result.summary["files"]}
+    assert listed == set(config.out.iterdir())  # nothing unlisted, nothing listed that is not there
+    for name in ("robot1", "robot2"):
+        assert {config.out / f"{name}{suffix}" for suffix in (".npz", ".ply", ".tum", "-odometry.tum", "-truth.tum",
+                                                             "-log")} <= listed
+    ply = (config.out / "robot1.ply").read_bytes()
+    assert ply.startswith(b"ply\n") and f"element vertex {len(result.maps['robot1'])}".encode() in ply
+
+
+@pytest.mark.slow
 def test_review_reads_the_recording_back_with_the_same_figures(mission, tmp_path, capsys):
     config, result = mission
     rrd = config.out / "mission.rrd"
