@@ -77,6 +77,7 @@ class MissionConfig:
     robot_name: str | None = None     # this robot's name in a fleet; virtual: the world robot run alone
     realtime: bool = False            # virtual robots: the wall clock instead of simulated time (lockstep)
     map_save_interval: float = 10.0   # s between atomic writes of OUT/<robot>.npz during the mission (0: end only)
+    recording_id: str | None = None   # a fleet's processes share one Rerun recording (None: a new one)
 
     @property
     def on_mocks(self) -> bool:
@@ -177,7 +178,9 @@ class Mission:
         if sink == "file":
             self.recording_path = cfg.out / "mission.rrd"
             sink = str(self.recording_path)
-        rec = open_recording(sink, blueprint=mission_blueprint(names))
+        # one process of a fleet's shared recording sends no layout: the fusion node's (it knows every robot) wins
+        layout = None if cfg.recording_id else mission_blueprint(names)
+        rec = open_recording(sink, recording_id=cfg.recording_id, blueprint=layout)
         self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it as the default
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)

@@ -60,6 +60,9 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--odometry", choices=("exact", "realistic"), default="realistic",
                         help="virtual robots' wheel odometry errors (default realistic: 1 %% scale, 3 %% track, "
                              "noise; exact: no error)")
+    parser.add_argument("--recording-id", default=None, metavar="ID",
+                        help="Rerun recording id shared with other processes of a fleet, so that their recordings "
+                             "open as one (default: a new id)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     add_exchange_arguments(parser)
 
@@ -74,7 +77,7 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
         odometry=args.odometry, robot_name=getattr(args, "name", None), realtime=args.realtime,
-        map_save_interval=args.map_save_interval)
+        map_save_interval=args.map_save_interval, recording_id=args.recording_id)
 
 
 class Progress:

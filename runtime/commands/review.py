@@ -38,9 +38,9 @@ def review_summary(contents) -> dict:
 def _review(args) -> int:
     try:
         contents = read_recording(args.recording, *args.more)
-    except RecordingReadError as e:
+    except RecordingReadError as e:  # not a recording, or damaged before its first message: bad input
         print(f"p3at review: {e}", file=sys.stderr)
-        return 1
+        return 2
     summary = review_summary(contents)
     exported: dict[str, list[str]] = {}   # map name -> the files written for it
     if not args.no_export and contents.maps:

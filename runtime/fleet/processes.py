@@ -43,7 +43,8 @@ def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, ou
     config = json.dumps({"connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
     command = [sys.executable, "-m", "runtime.cli", "run", "--robot", "mock", "--name", name,
                "--exchange", f"zenoh:{config}", "--fleet", fleet, "--out", str(out / name), "--json", "--quiet",
-               "--fusion-interval", "0", "--rerun", "file" if args.rerun != "none" else "none"]
+               "--fusion-interval", "0", "--rerun", "file" if args.rerun != "none" else "none",
+               "--recording-id", fleet]
     for key in PASSED:
         value = getattr(args, key, None)
         if value is not None:
@@ -81,10 +82,11 @@ def run_processes_demo(args: argparse.Namespace) -> int:
                              on_update=lambda robot: node_box and node_box[0].notify(robot))
     logger = None
     if args.rerun != "none":
-        from runtime.rerun_log import MissionLog, open_recording
+        from runtime.rerun_log import MissionLog, mission_blueprint, open_recording
 
         sink = str(out / "mission.rrd") if args.rerun == "file" else args.rerun
-        logger = MissionLog(open_recording(sink), names)
+        logger = MissionLog(open_recording(sink, recording_id=fleet, blueprint=mission_blueprint(names)), names,
+                            blueprint=False)
         logger.log_building(world.walls, world.wall_heights)
         logger.log_robot_frame("fused", np.asarray(world.start_poses[names[0]], float))
     interval = args.fusion_interval if args.fusion_interval > 0 else 1e9

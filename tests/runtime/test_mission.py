@@ -161,8 +161,8 @@ def test_review_and_replay_refuse_bad_input_with_a_clear_message(tmp_path, capsy
     bad.write_bytes(b"not a recording")
     with pytest.raises(RecordingReadError, match="bad.rrd"):
         read_recording(bad)
-    assert main(["review", str(bad)]) == 1
-    assert main(["replay", str(tmp_path)]) == 2  # a bad file: one line, exit 2
+    assert main(["review", str(bad)]) == 2  # a bad file: one line, exit 2
+    assert main(["replay", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "bad.rrd" in err and "no sensor log here" in err
 
