@@ -613,14 +613,14 @@ class FastSLAM:
         else:
             candidate = np.ones(len(cand.m), bool)
             candidate[matched.c] = False
-        sel = cand.take(np.flatnonzero(candidate))
-        if len(sel.m) == 0:
-            return sel
-        pose = _rows(poses, sel.m)
-        c, s = _cos_sin(poses, sel.m)
-        mean = _rows(store.flat_state, sel.g)
-        dx, dy = mean[:, 0] - pose[:, 0], mean[:, 1] - pose[:, 1]
-        return sel.take(np.flatnonzero(self._well_in_view(c * dx + s * dy, c * dy - s * dx, mean[:, 2], reach)))
+        idx = np.flatnonzero(candidate)
+        if len(idx) == 0:
+            return cand.take(idx)
+        m, at = cand.m[idx], cand.g[idx] * 9           # 1-D gathers of x, y, z from the 9-number slot records
+        flat = store.state.reshape(-1)
+        c, s = _cos_sin(poses, m)
+        dx, dy = np.take(flat, at) - np.take(poses[:, 0], m), np.take(flat, at + 1) - np.take(poses[:, 1], m)
+        return cand.take(idx[self._well_in_view(c * dx + s * dy, c * dy - s * dx, np.take(flat, at + 2), reach)])
 
     def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, reach: float | None = None) -> np.ndarray:
         """(P,) bool: base_link points (x, y, z each (P,)) inside ``miss_fov_margin`` of the field of view and
