@@ -54,7 +54,8 @@ class FastSLAMConfig:
     #                                             #   Mahalanobis distance (χ²₃ 95 %; and alike, see below); 0: off
     merge_radius: float = 1.0                     # m: ids whose means are farther apart are never tested
     merge_every: int = 5                          # updates between merge passes (over the ids touched since)
-    merge_descriptor_threshold: float = 0.8       # descriptor distance allowed between merged landmarks (see docs)
+    merge_descriptor_threshold: float = 0.5       # descriptor distance allowed between merged landmarks (0.8
+    #                                             #   merged more duplicates but also distinct corners: docs)
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block

@@ -131,7 +131,7 @@ def test_a_capped_frame_is_no_evidence_against_landmarks_beyond_its_reach():
 
 @pytest.mark.parametrize("merge_gate", [0.0, 7.815])
 def test_duplicates_are_merged_only_when_statistically_one_point_and_alike(merge_gate):
-    # a corner whose look changed beyond the association gate (0.5) but not beyond the merge's (0.8) is made
+    # a corner whose look changed beyond the association gate (0.5) but not beyond a merge threshold of 0.8 is made
     # again at the same place: a duplicate, merged; a different-looking corner 5 cm away is not merged, nor
     # a same-looking one 0.5 m away (20 σ)
     rng = np.random.default_rng(3)
@@ -143,7 +143,8 @@ def test_duplicates_are_merged_only_when_statistically_one_point_and_alike(merge
     drifted = np.cos(0.6) * base + np.sin(0.6) * other          # distance 2 sin(0.3) ≈ 0.59 from base
     unrelated = rng.standard_normal(64)
     unrelated /= np.linalg.norm(unrelated)
-    slam = FastSLAM(FastSLAMConfig(n_particles=5, merge_gate=merge_gate, merge_every=1, max_observations=0),
+    slam = FastSLAM(FastSLAMConfig(n_particles=5, merge_gate=merge_gate, merge_every=1, max_observations=0,
+                                   merge_descriptor_threshold=0.8),
                     np.random.default_rng(4))
     corner, beside, far = [4.0, 0.5, 1.0], [4.0, 0.55, 1.0], [4.0, 1.0, 1.0]
     slam.update(_stereo([corner, beside, far], [base, unrelated, base]))

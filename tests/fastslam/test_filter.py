@@ -197,7 +197,7 @@ def test_landmark_descriptor_follows_a_gradually_changing_look(refresh):
     # (merge_gate=0 would leave the corner doubled without refresh: see test_duplicates_are_merged_...)
     # the same corner approached step by step: its fixed-scale descriptor drifts a little each frame
     rng = np.random.default_rng(3)
-    config = FastSLAMConfig(n_particles=10, refresh_descriptors=refresh, merge_every=1)
+    config = FastSLAMConfig(n_particles=10, refresh_descriptors=refresh, merge_every=1, merge_descriptor_threshold=0.8)
     slam = FastSLAM(config, np.random.default_rng(4))
     a = _unit(rng)[0]
     b = _unit(rng)[0]
