@@ -337,7 +337,7 @@ def carmen_cases(folder: Path, rng: np.random.Generator) -> tuple[str, list[Case
     gz = gzip.compress(body.encode(), mtime=0)
 
     def scan(name: str, path: Path, expect: str, *extra: str) -> None:
-        cases.append(Case("carmen", name, ["scanmatch", str(path), "--method", "icp", *extra], expect,
+        cases.append(Case("carmen", name, ["scanmatch", str(path), "--matcher", "icp", *extra], expect,
                           accept_status=(0,), error_status=(2,)))
 
     def write(name: str, data: bytes, suffix: str, expect: str = "bad", *extra: str) -> None:

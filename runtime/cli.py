@@ -55,7 +55,24 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
             importlib.import_module(module).register(sub)
         else:
             sub.add_parser(name, help=summary)
+    _one_line_usage_errors(parser)
     return parser
+
+
+class UsageError(Exception):
+    """A wrong argument: ``main`` prints it as one line and returns EXIT_BAD_INPUT."""
+
+
+def _one_line_usage_errors(parser: argparse.ArgumentParser) -> None:
+    """A wrong argument is one line naming the command (argparse would print the whole usage block first)."""
+    def error(message: str, prog: str = parser.prog) -> None:
+        raise UsageError(f"{prog}: {message} (see {prog} --help)")
+
+    parser.error = error
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                _one_line_usage_errors(child)
 
 
 def _command_named(argv: list[str]) -> str | None:
@@ -98,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parser.parse_args(argv)
         return int(args.handler(args) or 0)
+    except UsageError as error:
+        print(error, file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:

@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+from runtime.commands.options import positive_int
 from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
@@ -28,7 +29,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--camera-latency", type=float, default=None, metavar="S",
                         help="s from a stereo pair's exposure to its arrival, subtracted from frame timestamps "
                              "(default: the virtual head's 0.06; 0 for a real head -- measure yours)")
-    parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles (default 100)")
+    parser.add_argument("--particles", type=positive_int, default=100, help="FastSLAM particles (default 100)")
     parser.add_argument("--max-corners", type=int, default=150,
                         help="Harris corners per image (default 150; fewer observations, faster FastSLAM)")
     parser.add_argument("--max-observations", type=int, default=0,

@@ -19,6 +19,7 @@ import time
 from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
+from runtime.commands.options import add_deprecated_alias, positive_float
 
 EXIT_DEVICE = 1
 EXIT_BAD_INPUT = 2
@@ -40,7 +41,6 @@ def register(subparsers: Any) -> None:
     _url_arguments(info)
     info.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     info.set_defaults(handler=_info)
-    info.error = _one_line_error("info")  # argparse would print the usage block first: one line says it
 
     drive = sub.add_parser("drive", help="drive at a velocity for some seconds, printing odometry",
                            description="Enable the motors, drive at --vel m/s and --rvel rad/s for --seconds, "
@@ -52,11 +52,10 @@ def register(subparsers: Any) -> None:
     drive.add_argument("--vel", type=float, default=0.0, metavar="M_S", help="forward velocity, m/s (default 0)")
     drive.add_argument("--rvel", type=float, default=0.0, metavar="RAD_S",
                        help="rotational velocity, rad/s, counter-clockwise (default 0)")
-    drive.add_argument("--seconds", type=float, required=True, metavar="T", help="how long to drive")
+    drive.add_argument("--seconds", type=positive_float, required=True, metavar="S", help="how long to drive (s)")
     drive.add_argument("--every", type=float, default=0.2, metavar="S", help="print interval (default 0.2 s)")
     drive.add_argument("--json", action="store_true", help="print one JSON object per line")
     drive.set_defaults(handler=_drive)
-    drive.error = _one_line_error("drive")
 
     serve = sub.add_parser("serve", help="run a virtual P3-AT in the simulated building",
                            description="Run a virtual P3-AT (the robot side of ARCOS) in the simulated building "
@@ -66,9 +65,10 @@ def register(subparsers: Any) -> None:
     where.add_argument("--tcp", type=int, metavar="PORT", help="listen on 127.0.0.1:PORT (default 8101; 0 = any)")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (prints its path)")
     serve.add_argument("--world", metavar="FILE", help="world file (default: the packaged building)")
-    serve.add_argument("--pose", metavar="X,Y,TH", help="start pose in metres and radians "
+    serve.add_argument("--start-pose", metavar="X,Y,THETA", help="start pose in metres and radians "
                                                        "(default: the world's start pose for NAME)")
     serve.add_argument("--name", default="robot1", help="robot name, also the SYNC2 name (default robot1)")
+    add_deprecated_alias(serve, "--pose", "--start-pose")
     serve.add_argument("--subtype", default="p3at-sh", help="p3at-sh (ARCOS, default) or p3at (old P2OS units)")
     serve.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
     serve.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
@@ -83,13 +83,6 @@ def _url_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link-timeout", type=float, default=LINK_TIMEOUT, metavar="S",
                         help=f"seconds without any packet before the link counts as lost (default {LINK_TIMEOUT}: "
                              "six SIP cycles, twice the longest gap seen from a loaded virtual robot)")
-
-
-def _one_line_error(action: str):
-    def error(message: str) -> None:
-        print(f"p3at robot {action}: {message} (see p3at robot {action} --help)", file=sys.stderr)
-        raise SystemExit(EXIT_BAD_INPUT)
-    return error
 
 
 def _fail(action: str, message: object, status: int) -> int:
@@ -231,10 +224,10 @@ def _drive(args: argparse.Namespace) -> int:
 def _parse_pose(text: str) -> tuple[float, float, float]:
     parts = text.split(",")
     if len(parts) != 3:
-        raise ValueError(f"--pose wants X,Y,TH (three numbers), got {text!r}")
+        raise ValueError(f"--start-pose wants X,Y,THETA (three numbers), got {text!r}")
     values = tuple(float(p) for p in parts)
     if not all(math.isfinite(v) for v in values):
-        raise ValueError(f"--pose values must be finite, got {text!r}")
+        raise ValueError(f"--start-pose values must be finite, got {text!r}")
     return values  # type: ignore[return-value]
 
 
@@ -245,7 +238,7 @@ def _serve(args: argparse.Namespace) -> int:
     from mocks.world import World, WorldFileError
 
     try:
-        pose = np.array(_parse_pose(args.pose)) if args.pose else None
+        pose = np.array(_parse_pose(args.start_pose)) if args.start_pose else None
         world = World.load(args.world)
     except (ValueError, WorldFileError, OSError) as e:
         return _fail("serve", e, EXIT_BAD_INPUT)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -15,20 +14,10 @@ import numpy as np
 from estimation.scanmatch import METHODS, LogFormatError, MatchConfig, ScanMatchError, read_laser_log
 from estimation.scanmatch.carmen import TruncatedLogError
 from estimation.scanmatch.evaluate import GUESSES, SUCCESS_ROTATION, SUCCESS_TRANSLATION, scan_odometry
+from runtime.commands.options import add_deprecated_alias, positive_float, positive_int
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
-
-
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (``nan``, ``inf``, 0 and negatives are refused with exit status 2)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
 
 
 def _integer_at_least(low: int):
@@ -50,14 +39,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "one, chain the relative poses, and print the error against the log's reference poses "
                     f"(a link succeeds within {SUCCESS_TRANSLATION:.2f} m and {np.degrees(SUCCESS_ROTATION):.0f}°).")
     parser.add_argument("log", type=Path, metavar="LOG", help="CARMEN log file")
-    parser.add_argument("--method", choices=tuple(METHODS), default="eicp",
+    parser.add_argument("--matcher", choices=tuple(METHODS), default="eicp",
                         help="eicp (extended ICP), eicp-mesh (rigid-mesh eICP), icp, plicp (default: eicp)")
-    parser.add_argument("--step", type=_integer_at_least(1), default=1, metavar="K",
+    parser.add_argument("--step", type=positive_int, default=1, metavar="K",
                         help="match scan i+K against scan i (default 1)")
     parser.add_argument("--guess", choices=GUESSES, default="identity",
                         help="initial guess of each link: identity (default), constant-velocity (the previous "
                              "link), or reference (the log's relative pose: the matcher's accuracy alone)")
-    parser.add_argument("--max-distance", type=_positive_float, default=MatchConfig.max_distance, metavar="M",
+    parser.add_argument("--max-distance", type=positive_float, default=MatchConfig.max_distance, metavar="M",
                         help=f"correspondence gate in metres (default {MatchConfig.max_distance})")
     parser.add_argument("--limit", type=_integer_at_least(2), default=None, metavar="N",
                         help="use only the first N scans")
@@ -65,13 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="if the log is damaged part-way (a corrupted or cut .gz, a malformed line), use the "
                              "readings before the damage (and say so) instead of refusing the log")
     parser.add_argument("--json", action="store_true", help="print the summary (and trajectory) as JSON")
+    add_deprecated_alias(parser, "--method", "--matcher")
     parser.set_defaults(handler=run)
-    parser.error = _one_line_error  # argparse would print the usage block first: one line says it
-
-
-def _one_line_error(message: str) -> None:
-    print(f"p3at scanmatch: {message} (see p3at scanmatch --help)", file=sys.stderr)
-    raise SystemExit(EXIT_BAD_INPUT)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,11 +76,11 @@ def run(args: argparse.Namespace) -> int:
         scans = [reading.scan() for reading in readings]
         poses = np.array([reading.pose for reading in readings])
         config = MatchConfig(max_distance=args.max_distance)
-        odometry = scan_odometry(scans, poses, args.method, args.step, args.guess, config)
+        odometry = scan_odometry(scans, poses, args.matcher, args.step, args.guess, config)
     except ScanMatchError as exc:
         print(f"p3at scanmatch: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    summary = {"log": str(args.log), "method": args.method, "step": args.step, "guess": args.guess,
+    summary = {"log": str(args.log), "matcher": args.matcher, "step": args.step, "guess": args.guess,
                **odometry.summary(poses)}
     if args.json:
         summary["config"] = config.to_dict()
@@ -104,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         summary["reference"] = poses[odometry.indices].tolist()
         print(json.dumps(summary, indent=2))
         return 0
-    print(f"{args.log}: {summary['links']} links, method {args.method}, step {args.step}, guess {args.guess}")
+    print(f"{args.log}: {summary['links']} links, matcher {args.matcher}, step {args.step}, guess {args.guess}")
     print(f"  converged {100 * summary['converged_share']:.1f} %, within {SUCCESS_TRANSLATION:.2f} m / "
           f"{np.degrees(SUCCESS_ROTATION):.0f}° {100 * summary['success_share']:.1f} %")
     print(f"  per link: median error {100 * summary['median_translation_error_m']:.1f} cm, "

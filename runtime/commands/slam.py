@@ -37,7 +37,7 @@ def register(subparsers) -> None:
     sim.add_argument("--world-route", metavar="FILE", help="route file of WORLD-frame waypoints (x y per line, m); "
                      "default: the world's route of --name")
     sim.add_argument("--world", metavar="FILE", help="building file (default: the packaged building)")
-    sim.add_argument("--particles", type=int, default=100, help="number of particles (100)")
+    sim.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
     sim.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     sim.add_argument("--camera-rate", type=positive_float, default=5.0, metavar="HZ",
                      help="stereo frames per second (default 5 Hz)")

@@ -78,7 +78,7 @@ def test_errors_are_one_line_and_nonzero(capsys, tmp_path) -> None:
     assert main(["robot", "info", "socket://127.0.0.1:1", "--params", str(bad)]) == 2
     assert "bad.json:1" in capsys.readouterr().err
     assert main(["robot", "drive", "socket://127.0.0.1:1", "--seconds", "-1"]) == 2
-    assert main(["robot", "serve", "--pose", "1,2"]) == 2
+    assert main(["robot", "serve", "--start-pose", "1,2"]) == 2
     assert "X,Y,TH" in capsys.readouterr().err
     assert main(["robot", "serve", "--name", "nobody"]) == 2
 
@@ -117,7 +117,7 @@ def test_drive_refuses_nonsense_numbers(arguments, capsys) -> None:
 @pytest.mark.parametrize("where", [["--tcp", "0"], ["--pty"]])
 def test_serve_prints_where_it_listens_and_a_client_can_connect(where, capsys) -> None:
     # A separate process stopped with SIGINT (Ctrl-C) once the client is done: nothing races a --duration.
-    server = _p3at("robot", "serve", *where, "--pose", "3,5,0", "--name", "cli")
+    server = _p3at("robot", "serve", *where, "--start-pose", "3,5,0", "--name", "cli")
     try:
         deadline = time.monotonic() + FAILURE_BOUND
         out = ""
