@@ -130,9 +130,10 @@ def integrate_velocities(times: np.ndarray, v: np.ndarray, w: np.ndarray, start=
     dtheta = w * dt
     small = np.abs(dtheta) < 1e-9
     safe = np.where(small, 1.0, w)
-    # the arc in the frame at its start: (v/w sin wΔt, v/w (1 - cos wΔt), wΔt); a straight line when w ≈ 0
+    # the arc in the frame at its start: (v/w sin wΔt, v/w (1 - cos wΔt), wΔt); a straight line when w ≈ 0.
+    # 1 - cos x is written 2 sin²(x/2): for |x| < 1e-8, cos x rounds to 1 and the difference to 0
     dx = np.where(small, v * dt, v / safe * np.sin(dtheta))
-    dy = np.where(small, 0.5 * v * dt * dtheta, v / safe * (1.0 - np.cos(dtheta)))
+    dy = np.where(small, 0.5 * v * dt * dtheta, v / safe * 2.0 * np.sin(0.5 * dtheta) ** 2)
     theta = np.concatenate([[start[2]], start[2] + np.cumsum(dtheta)])
     c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
     x = np.concatenate([[start[0]], start[0] + np.cumsum(c * dx - s * dy)])
