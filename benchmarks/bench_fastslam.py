@@ -198,7 +198,7 @@ def main() -> None:
 
 def accuracy_table(n_seeds: int) -> None:
     """Markdown table: both default routes of the building, FastSLAM 1.0 and 2.0, 100 particles, seeds 0..n-1
-    (the same runs as ``p3at slam simulate --robot R --seed S --fastslam V``), means over seeds; with the
+    (the same runs as ``p3at slam simulate --name R --seed S --fastslam V``), means over seeds; with the
     exported map's consistency (``benchmarks/slam_consistency.py``): duplicate fraction, landmark NEES."""
     import sys
     from pathlib import Path
