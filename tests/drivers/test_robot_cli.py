@@ -29,9 +29,17 @@ DRIVE_SECONDS = 600.0  # ten times FAILURE_BOUND: a drive still running at FAILU
 REPO = Path(__file__).resolve().parents[2]
 
 
+def _with_default_sigint() -> None:
+    """preexec_fn: the child gets SIGINT as a terminal's Ctrl-C would, whatever this test process inherited
+    (an ignored or blocked SIGINT is inherited across exec, and then Ctrl-C could not stop the child)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _p3at(*args: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                            preexec_fn=_with_default_sigint)
 
 
 @pytest.fixture

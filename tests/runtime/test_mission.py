@@ -29,6 +29,13 @@ from runtime.sensorlog import SensorLog
 REPO = Path(__file__).resolve().parents[2]
 
 
+def _with_default_sigint() -> None:
+    """preexec_fn: the child gets SIGINT as a terminal's Ctrl-C would, whatever this test process inherited
+    (an ignored or blocked SIGINT is inherited across exec, and then Ctrl-C could not stop the child)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
     out = tmp_path_factory.mktemp("mission")
@@ -290,7 +297,7 @@ def rerun_server(tmp_path):
     port = _free_port()
     saved = tmp_path / "received.rrd"
     server = subprocess.Popen([str(rerun_cli), "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=_with_default_sigint)
     try:
         deadline = time.monotonic() + 20.0
         while time.monotonic() < deadline:  # wait until it listens

@@ -19,6 +19,13 @@ from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, rea
 ROOT = Path(__file__).resolve().parents[2]
 RECORDING_ID = "fleet-test-recording"
 
+
+def _with_default_sigint() -> None:
+    """preexec_fn: the child gets SIGINT as a terminal's Ctrl-C would, whatever this test process inherited
+    (an ignored or blocked SIGINT is inherited across exec, and then Ctrl-C could not stop the child)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 # what each robot's process runs: its own stream, the shared recording id, no blueprint (the fusion node sends it)
 ROBOT_PROCESS = """
 import sys, numpy as np
@@ -82,7 +89,7 @@ def saving_server(tmp_path):
         port = s.getsockname()[1]
     saved = tmp_path / "received.rrd"
     server = subprocess.Popen([str(rerun_cli), "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=_with_default_sigint)
     try:
         deadline = time.monotonic() + 30.0  # a loaded machine starts it in well under a second; margin 30x
         while time.monotonic() < deadline:
