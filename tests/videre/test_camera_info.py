@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from drivers.errors import BadFileError
@@ -37,7 +37,12 @@ def calibrations(draw) -> calibration.StereoCalibration:
 
     R = cv2.Rodrigues(rvec)[0]
     T = np.array([-draw(st.floats(0.03, 0.5)), draw(st.floats(-0.005, 0.005)), draw(st.floats(-0.005, 0.005))])
-    return calibration.from_intrinsics((width, height), K[0], D[0], K[1], D[1], R, T)
+    calib = calibration.from_intrinsics((width, height), K[0], D[0], K[1], D[1], R, T)
+    try:  # strong distortion on a small image can rectify to what no head has: the project refuses those
+        calibration.check_calibration(calib, "generated")
+    except BadFileError:
+        assume(False)
+    return calib
 
 
 @_fuzz_settings
@@ -49,7 +54,10 @@ def test_camera_info_round_trip_keeps_every_number_but_the_head_pose(tmp_path, c
     back = camera_info.read_pair(folder)
     for name in ("K1", "D1", "K2", "D2", "R1", "R2", "P1", "P2"):  # written and read exactly
         np.testing.assert_array_equal(getattr(back, name), getattr(calib, name), err_msg=name)
-    assert back == calib  # R and T rebuilt from the rectification and the projections
+    # R and T are rebuilt from the rectification and the projections: equal to well under a micrometre and a
+    # microradian (a component of T of a few nm, below what R1 and R2 resolve, comes back as 0)
+    np.testing.assert_allclose(back.R, calib.R, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.T, calib.T, rtol=1e-6, atol=1e-8)
     assert back.size == calib.size and np.all(back.head_pose == 0)
 
 
