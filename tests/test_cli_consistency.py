@@ -8,9 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from runtime.cli import COMMANDS, build_parser, main
-from runtime.commands.options import deprecated_options
+from runtime.commands.options import deprecated_options, positive_int, whole_number_at_least
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -114,3 +116,34 @@ def test_errors_are_one_line_with_the_documented_exit_status(tmp_path, capsys):
     assert main(["fuse", str(tmp_path / "absent.npz"), str(tmp_path / "b.npz"), "--out", str(tmp_path / "m.npz")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "absent.npz" in err and "Traceback" not in err
+
+
+@given(low=st.integers(-5, 5), value=st.integers(-10**6, 10**6))
+def test_a_whole_number_at_least_low_accepts_exactly_the_integers_from_low(low, value):
+    parse = whole_number_at_least(low)
+    if value >= low:
+        assert parse(str(value)) == value
+    else:
+        with pytest.raises(argparse.ArgumentTypeError, match=f">= {low}"):
+            parse(str(value))
+
+
+@pytest.mark.parametrize("text", ["", "1.5", "1e3", "two", "nan"])
+def test_a_whole_number_refuses_what_is_not_one(text):
+    for parse in (positive_int, whole_number_at_least(2)):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected a whole number"):
+            parse(text)
+
+
+def test_positive_int_is_the_shared_whole_number_type_from_one():
+    assert positive_int("1") == 1 and positive_int.__name__ == "positive_int"
+    with pytest.raises(argparse.ArgumentTypeError, match=">= 1"):
+        positive_int("0")
+
+
+def test_scanmatch_limit_uses_the_shared_type_and_says_the_bound(tmp_path, capsys):
+    log = tmp_path / "empty.log"
+    log.write_text("")
+    assert main(["scanmatch", str(log), "--limit", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--limit" in err and "expected a whole number >= 2, not '1'" in err

@@ -37,15 +37,25 @@ def non_negative_float(text: str) -> float:
     return value
 
 
-def positive_int(text: str) -> int:
-    """An integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, not {text!r}")
-    return value
+def whole_number_at_least(low: int, name: str | None = None):
+    """The argparse type of a whole number >= ``low``; ``name`` (default ``whole_number_at_least_<low>``) is
+    the type's ``__name__``, which tests/test_cli_consistency.py compares across commands."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {low}, not {text!r}")
+        return value
+
+    parse.__name__ = parse.__qualname__ = name or f"whole_number_at_least_{low}"
+    parse.__doc__ = f"A whole number >= {low}."
+    return parse
+
+
+positive_int = whole_number_at_least(1, name="positive_int")
 
 
 class _DeprecatedAlias(argparse.Action):

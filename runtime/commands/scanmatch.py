@@ -14,22 +14,10 @@ import numpy as np
 from estimation.scanmatch import METHODS, LogFormatError, MatchConfig, ScanMatchError, read_laser_log
 from estimation.scanmatch.carmen import TruncatedLogError
 from estimation.scanmatch.evaluate import GUESSES, SUCCESS_ROTATION, SUCCESS_TRANSLATION, scan_odometry
-from runtime.commands.options import add_deprecated_alias, positive_float, positive_int
+from runtime.commands.options import add_deprecated_alias, positive_float, positive_int, whole_number_at_least
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
-
-
-def _integer_at_least(low: int):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
-        return value
-    return parse
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -48,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "link), or reference (the log's relative pose: the matcher's accuracy alone)")
     parser.add_argument("--max-distance", type=positive_float, default=MatchConfig.max_distance, metavar="M",
                         help=f"correspondence gate in metres (default {MatchConfig.max_distance})")
-    parser.add_argument("--limit", type=_integer_at_least(2), default=None, metavar="N",
+    parser.add_argument("--limit", type=whole_number_at_least(2), default=None, metavar="N",
                         help="use only the first N scans")
     parser.add_argument("--allow-truncated", action="store_true",
                         help="if the log is damaged part-way (a corrupted or cut .gz, a malformed line), use the "
