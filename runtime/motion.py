@@ -21,6 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from estimation.geometry import between, compose, wrap_angle
+from runtime.textfile import read_bounded_text
 
 
 class RouteFileError(ValueError):
@@ -48,15 +49,7 @@ def load_route(path: str | os.PathLike) -> np.ndarray:
     """Waypoints (K, 2) from a route file (see the module docstring); at most MAX_WAYPOINTS, coordinates within
     MAX_ROUTE_COORDINATE, a file of at most MAX_ROUTE_BYTES. Raises RouteFileError naming the file and line."""
     path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_ROUTE_BYTES:
-            raise RouteFileError(f"{path}: {size} bytes; a route file has at most {MAX_ROUTE_BYTES}")
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RouteFileError(f"{path}: no such route file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise RouteFileError(f"{path}: cannot read the route file ({e})") from None
+    text = read_bounded_text(path, MAX_ROUTE_BYTES, "route file", RouteFileError)
     points = []
     for number, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()

@@ -23,6 +23,7 @@ import numpy as np
 
 from estimation.fileio import atomic_write_bytes
 from estimation.geometry import between, wrap_angle
+from runtime.textfile import read_bounded_text
 
 MAX_TUM_BYTES = 1 << 30        # a TUM file larger than this is refused before it is read
 KINDS = ("estimated", "odometry", "truth")
@@ -112,17 +113,7 @@ def read_tum(path: str | os.PathLike) -> np.ndarray:
     """(T, 8) rows (t, x, y, z, qx, qy, qz, qw) of a TUM file, validated: 8 finite numbers a line, unit
     quaternions (within 1e-6), timestamps strictly increasing. Raises :class:`TrajectoryFileError`."""
     path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_TUM_BYTES:
-            raise TrajectoryFileError(f"{path}: {size} bytes, more than a trajectory file may hold ({MAX_TUM_BYTES})")
-        text = path.read_bytes().decode("ascii")
-    except FileNotFoundError:
-        raise TrajectoryFileError(f"{path}: no such trajectory file") from None
-    except OSError as e:
-        raise TrajectoryFileError(f"{path}: cannot read ({e.strerror})") from None
-    except UnicodeDecodeError as e:
-        raise TrajectoryFileError(f"{path}: not a text file (byte {e.start} is not ASCII)") from None
+    text = read_bounded_text(path, MAX_TUM_BYTES, "trajectory file", TrajectoryFileError, encoding="ascii")
     rows = []
     for number, line in enumerate(text.splitlines(), 1):
         line = line.strip()

@@ -1,0 +1,44 @@
+"""A small text file read whole, with a bound on its size: the one helper of the runtime's text readers
+(TUM trajectories, route files), each raising its own error type with a one-line message naming the file.
+
+The drivers keep their own copy (``drivers/videre/camera_info.read_camera``): they import nothing above them.
+
+The bound holds whatever the path is and whatever it does between a look at its size and the read (a file still
+being written, a FIFO, ``/dev/zero``): at most ``max_bytes + 1`` bytes are ever read.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+_ENCODING_NAMES = {"ascii": "ASCII", "utf-8": "UTF-8"}
+
+
+def read_bounded_text(path: str | os.PathLike, max_bytes: int, what: str, error: Callable[[str], Exception],
+                      encoding: str = "utf-8") -> str:
+    """The text of ``path`` (at most ``max_bytes`` bytes, decoded with ``encoding``).
+
+    Every failure raises ``error(message)``, one line starting with the path: ``no such <what>``, ``cannot read
+    the <what> (<reason>)``, ``N bytes; a <what> has at most M``, ``not a text file (byte K is not UTF-8)``.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as stream:
+            size = os.fstat(stream.fileno()).st_size  # a regular file's size, refused before reading it
+            data = b"" if size > max_bytes else stream.read(max_bytes + 1)
+    except FileNotFoundError:
+        raise error(f"{path}: no such {what}") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+    if size > max_bytes or len(data) > max_bytes:
+        told = f"{size} bytes" if size > max_bytes else f"more than {max_bytes} bytes"
+        raise error(f"{path}: {told}; a {what} has at most {max_bytes}")
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as e:
+        name = _ENCODING_NAMES.get(encoding.lower(), encoding)
+        raise error(f"{path}: not a text file (byte {e.start} is not {name})") from None
+
+
+__all__ = ["read_bounded_text"]
