@@ -40,6 +40,7 @@ from runtime.exchange import InProcessExchange, MapExchange
 from runtime.fusion_report import FusionReport, fuse_maps
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
+from runtime.report import fusion_event_line
 
 CAMERAS = ("mock", "synthetic", "usb")
 MOTIONS = ("route", "explore", "none")
@@ -516,13 +517,7 @@ class Mission:
             if report.merged is not None:
                 self.logger.log_map("fused", t, report.merged)
         for pair in report.pairs:
-            if pair.aligned:
-                self.events(f"fusion at t={t:.0f}s: {pair.other} -> {pair.reference} "
-                            f"({pair.supports} supports, {pair.common} common)"
-                            + (f", error {pair.error_xy:.3f} m / {pair.error_theta:.4f} rad"
-                               if pair.error_xy is not None else ""))
-            else:
-                self.events(f"fusion at t={t:.0f}s: {pair.other} does not overlap {pair.reference} yet")
+            self.events(fusion_event_line(t, pair))
         return report
 
     def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:

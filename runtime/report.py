@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 
 def _fmt(value, spec: str = ".3f", missing: str = "-") -> str:
@@ -73,3 +74,29 @@ def format_summary(summary: dict) -> str:
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "
                      f"{summary.get('fusions_during_mission', 0)} fusion(s) during the mission)")
     return "\n".join(lines)
+
+
+def not_aligned_reason(pair: Mapping) -> str:
+    """Why a pair (a ``PairResult.as_dict()``) was not aligned, in one short clause: its supports against the
+    number these maps need, with the chance of that many by accident, when that decided; else the fusion's note."""
+    supports, needed = pair.get("supports", 0), pair.get("required_supports") or 0
+    note = " ".join((pair.get("note") or "").split())  # one line, whatever the note holds
+    if needed and supports < needed:
+        why = f"{supports} supports, {needed} needed"
+        if pair.get("false_alarm_probability") is not None:
+            why += f" (P(chance) {pair['false_alarm_probability']:.1e})"
+        if note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
+            why += f"; ambiguous: a distinct transform gathers {pair.get('second_best_supports', 0)}"
+        return why
+    return note or "no reason given"
+
+
+def fusion_event_line(t: float, pair) -> str:
+    """The mission's and the fusion node's event line for one pair (a ``PairResult`` or its ``as_dict()``)."""
+    p = pair if isinstance(pair, Mapping) else pair.as_dict()
+    if not p["aligned"]:
+        return f"fusion at t={t:.0f}s: {p['other']} does not overlap {p['reference']} yet: {not_aligned_reason(p)}"
+    line = f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} ({p['supports']} supports, {p['common']} common)"
+    if p.get("error_xy") is not None:
+        line += f", error {p['error_xy']:.3f} m / {p['error_theta']:.4f} rad"
+    return line

@@ -21,6 +21,7 @@ import numpy as np
 
 from runtime.exchange import MapExchange
 from runtime.fusion_report import FusionReport, fuse_maps
+from runtime.report import fusion_event_line
 
 FUSED = "fused"
 
@@ -97,7 +98,7 @@ class FusionNode:
                 merged.save(self.config.out)
         self._log(t, maps, report)
         for pair in report.pairs:
-            self.on_event(_pair_line(t, pair))
+            self.on_event(fusion_event_line(t, pair))
         self.on_report(report)
         return report
 
@@ -111,15 +112,6 @@ class FusionNode:
                 **pair.as_dict(), "merged": 0 if report.merged is None else len(report.merged)})
         if report.merged is not None:
             self.logger.log_map(FUSED, t, report.merged)
-
-
-def _pair_line(t: float, pair) -> str:
-    if not pair.aligned:
-        return f"fusion at t={t:.0f}s: {pair.other} does not overlap {pair.reference} yet"
-    line = f"fusion at t={t:.0f}s: {pair.other} -> {pair.reference} ({pair.supports} supports, {pair.common} common)"
-    if pair.error_xy is not None:
-        line += f", error {pair.error_xy:.3f} m / {pair.error_theta:.4f} rad"
-    return line
 
 
 # -- p3at fuse --live ----------------------------------------------------------------------------------------
