@@ -77,6 +77,10 @@ class _Server:
         self.sip_wall_times: collections.deque[float] = collections.deque(maxlen=100_000)  # monotonic, per SIP sent
         self._outbox = bytearray()
         self._outbox_has_sip = False
+        # wall clock: the longest the thread sleeps (the model's physics and pose are at most this old), and a
+        # hook called with the model after each of its steps, under the server's lock (e.g. to share the pose)
+        self.wake_s = _MAX_WAIT_S
+        self.on_moved: Callable[[VirtualP3AT], None] | None = None
         if self.lockstep:
             if abs(model.time - clock()) > 1e-9:
                 raise ValueError("on a lockstep clock the model must start at the clock's time (start_time)")
@@ -127,11 +131,29 @@ class _Server:
                     self.sip_wall_times.append(time.monotonic())
 
     def _received(self, data: bytes) -> bytes:
-        """Bytes from the client, applied now; returns the immediate replies."""
+        """Lockstep: bytes from the client, applied now; returns the immediate replies."""
         with self._lock:
             out = self.model.receive(data, self.sim_now())
             self.rx_bytes += len(data)
         return out
+
+    # -- wall clock ----------------------------------------------------------------------------------------
+    def _wall_step(self, data: bytes = b"") -> None:
+        """Wall clock: apply the client's bytes (if any) and run the model to now; send what fell due.
+
+        Deadlines are absolute: the model's SIPs fall at open + k·SipCycle of simulated time, itself a fixed
+        function of the clock, so a late wake-up sends the SIP late but never shifts the ones after it."""
+        with self._lock:
+            sips = self.model.stats.sips
+            now = self.sim_now()
+            out = self.model.receive(data, now) if data else self.model.advance(now)
+            self.rx_bytes += len(data)
+            sips = self.model.stats.sips - sips
+            moved = self.on_moved
+            if moved is not None:
+                moved(self.model)
+        if self._emit(out) and sips:
+            self.sip_wall_times.extend([time.monotonic()] * sips)
 
     # subclasses: the descriptors to watch, one pass over them, sending, whether a client is there
     def _fds(self) -> list:
@@ -149,7 +171,7 @@ class _Server:
     def _wait_s(self) -> float:
         """Wall seconds until the model next has something to send (capped)."""
         ahead = (self.model.next_deadline() - self.sim_now()) / self.time_scale
-        return max(0.0, min(_MAX_WAIT_S, ahead))
+        return max(0.0, min(self.wake_s, ahead))
 
     def _run_guarded(self) -> None:
         try:
@@ -203,72 +225,70 @@ class TcpServer(_Server):
         self.port = self._listener.getsockname()[1]
         self.url = f"socket://{host}:{self.port}"
         self._client: socket.socket | None = None
+        self._selector: selectors.BaseSelector | None = None  # the wall-clock loop's; None in lockstep
         self.connections = 0
         super().__init__(model, clock, time_scale, f"p3at-tcp-{model.name}-{self.port}")
         self._thread.start()
 
-    def _drop_client(self, selector: selectors.BaseSelector) -> None:
+    def _accept(self) -> bool:
+        """A new client replaces the old one and gets a fresh session (a robot behind a serial-to-TCP bridge).
+        False if the connection vanished before it was accepted."""
+        try:
+            conn, _addr = self._listener.accept()
+        except OSError:
+            return False
+        self._drop_client()
+        conn.setblocking(True)
+        conn.settimeout(1.0)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        _quick_ack(conn)
+        self._client = conn
+        self.connections += 1
+        if self._selector is not None:
+            self._selector.register(conn, selectors.EVENT_READ, "client")
+        with self._lock:
+            self.model.reset_session()
+        return True
+
+    def _read_client(self) -> bytes | None:
+        """One read from the client, acknowledged at once; None when the client went away (its session ends)."""
+        try:
+            data = self._client.recv(_READ_SIZE)
+            _quick_ack(self._client)
+        except OSError:
+            data = b""
+        if data:
+            return data
+        self._drop_client()
+        with self._lock:
+            self.model.reset_session()
+        return None
+
+    def _drop_client(self) -> None:
         if self._client is not None:
-            with contextlib.suppress(KeyError, ValueError):
-                selector.unregister(self._client)
+            if self._selector is not None:
+                with contextlib.suppress(KeyError, ValueError):
+                    self._selector.unregister(self._client)
             self._client.close()
             self._client = None
 
-    def _send(self, data: bytes, selector: selectors.BaseSelector) -> None:
-        if not data or self._client is None:
-            return
-        try:
-            self._client.sendall(data)
-        except OSError:
-            self._drop_client(selector)
-
     def _run(self) -> None:
         with selectors.DefaultSelector() as selector:
+            self._selector = selector
             selector.register(self._listener, selectors.EVENT_READ, "listen")
             try:
                 while not self._stop.is_set():
                     for key, _ in selector.select(timeout=self._wait_s()):
                         if key.data == "listen":
-                            try:
-                                conn, _addr = self._listener.accept()
-                            except OSError:
-                                continue
-                            self._drop_client(selector)
-                            conn.setblocking(True)
-                            conn.settimeout(1.0)
-                            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                            _quick_ack(conn)
-                            self._client = conn
-                            self.connections += 1
-                            selector.register(conn, selectors.EVENT_READ, "client")
-                            with self._lock:
-                                self.model.reset_session()
+                            self._accept()
                         elif key.data == "client" and self._client is not None:
-                            try:
-                                data = self._client.recv(_READ_SIZE)
-                                _quick_ack(self._client)
-                            except OSError:
-                                data = b""
-                            if not data:  # the client went away: the robot's session ends with it
-                                self._drop_client(selector)
-                                with self._lock:
-                                    self.model.reset_session()
-                                continue
-                            with self._lock:
-                                sips = self.model.stats.sips
-                                out = self.model.receive(data, self.sim_now())
-                                sips = self.model.stats.sips - sips
-                            self._send(out, selector)
-                            self.sip_wall_times.extend([time.monotonic()] * sips)
-                    with self._lock:
-                        sips = self.model.stats.sips
-                        out = self.model.advance(self.sim_now())
-                        sips = self.model.stats.sips - sips
-                    self._send(out, selector)
-                    if sips and self._client is not None:
-                        self.sip_wall_times.extend([time.monotonic()] * sips)
+                            data = self._read_client()
+                            if data is not None:
+                                self._wall_step(data)
+                    self._wall_step()
             finally:
-                self._drop_client(selector)
+                self._drop_client()
+                self._selector = None
 
     # lockstep I/O (the thread's participant loop in _Server)
     def _fds(self) -> list:
@@ -280,33 +300,11 @@ class TcpServer(_Server):
     def _service_io(self) -> None:
         readable, _, _ = select.select(self._fds(), [], [], 0)
         if self._listener in readable:
-            try:
-                conn, _addr = self._listener.accept()
-            except OSError:
-                conn = None
-            if conn is not None:
-                self._drop_client_plain()
-                conn.setblocking(True)
-                conn.settimeout(1.0)
-                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                _quick_ack(conn)
-                self._client = conn
-                self.connections += 1
-                with self._lock:
-                    self.model.reset_session()
-        client = self._client
-        if client is not None and client in readable:
-            try:
-                data = client.recv(_READ_SIZE)
-                _quick_ack(client)
-            except OSError:
-                data = b""
-            if not data:
-                self._drop_client_plain()
-                with self._lock:
-                    self.model.reset_session()
-                return
-            self._emit(self._received(data))
+            self._accept()
+        if self._client is not None and self._client in readable:
+            data = self._read_client()
+            if data is not None:
+                self._emit(self._received(data))
 
     def _emit(self, data: bytes) -> bool:
         if not data or self._client is None:
@@ -314,17 +312,12 @@ class TcpServer(_Server):
         try:
             self._client.sendall(data)
         except OSError:
-            self._drop_client_plain()
+            self._drop_client()
             return False
         return True
 
-    def _drop_client_plain(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-
     def _close_io(self) -> None:
-        self._drop_client_plain()
+        self._drop_client()
         self._listener.close()
 
 
@@ -373,18 +366,8 @@ class PtyServer(_Server):
                         data = b""
                         time.sleep(0.01)
                     if data:
-                        with self._lock:
-                            sips = self.model.stats.sips
-                            out = self.model.receive(data, self.sim_now())
-                            sips = self.model.stats.sips - sips
-                        self._write(out)
-                        self.sip_wall_times.extend([time.monotonic()] * sips)
-                with self._lock:
-                    sips = self.model.stats.sips
-                    out = self.model.advance(self.sim_now())
-                    sips = self.model.stats.sips - sips
-                self._write(out)
-                self.sip_wall_times.extend([time.monotonic()] * sips)
+                        self._wall_step(data)
+                self._wall_step()
 
     # lockstep I/O (the thread's participant loop in _Server)
     def _fds(self) -> list:
