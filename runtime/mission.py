@@ -37,6 +37,7 @@ from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
+from runtime.fleet.status import publish_robot_status
 from runtime.fusion_report import FusionReport, fuse_maps
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
@@ -437,6 +438,10 @@ class Mission:
                 break
             if t >= next_progress:
                 self.progress(self._progress_line(t))
+                # a fleet exchange (Zenoh) gets each robot's health once a second (runtime/fleet/status.py)
+                publish_robot_status(self.exchange, [(r.onboard, self._drivers.get(r.name)) for r in self.robots],
+                                     clock="simulated" if self.lockstep else "wall",
+                                     wall_time=time.monotonic() - self._wall_start, failures=self.failures)
                 next_progress = t + 1.0
             if t >= next_fusion:
                 self._fuse_guarded(t)

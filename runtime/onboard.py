@@ -441,6 +441,12 @@ class Onboard:
         with self._latest_lock:
             return self._latest
 
+    def pose_estimate(self) -> np.ndarray | None:
+        """The pose (3,) in the map frame now: the filter's estimate at the last frame moved on by odometry since
+        (None before the first frame); safe from any thread."""
+        latest = self.latest()
+        return None if latest is None else self._map_pose(latest.pose)
+
     # -- driver callbacks (the driver's thread: must return at once) ---------------------------------------
     def _on_odometry(self, sample: OdometrySample) -> None:
         try:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.exchange import MapExchange
+from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, fuse_maps
 from runtime.report import fusion_event_line
 
@@ -150,12 +151,14 @@ def run_live(args: argparse.Namespace) -> int:
     if timer is not None:
         timer.daemon = True
         timer.start()
+    printer = StatusPrinter(exchange.status, event).start()  # each robot's health, every PRINT_PERIOD s
     try:
         exchange.request_snapshot()  # a restarted node recovers every robot's latest map
         node.run(stop)
     finally:
         if timer is not None:
             timer.cancel()
+        printer.stop()
         restore()
         exchange.close()
         final = reports[-1] if reports else None

@@ -169,8 +169,7 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
         t = time.monotonic() - start
         if t >= next_line:
             status = node.exchange.status() if hasattr(node.exchange, "status") else {}
-            parts = [f"t={t:5.1f}s"] + [f"{r}: map {s.get('landmarks', 0)} landmarks"
-                                        for r, s in sorted(status.items())]
+            parts = [f"t={t:5.1f}s"] + [_robot_part(r, s) for r, s in sorted(status.items())]
             if node.history and node.history[-1].pairs:
                 p = node.history[-1].pairs[0]
                 parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
@@ -182,6 +181,15 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
     for reader in readers.values():
         reader.join(timeout=60)
     return outputs
+
+
+def _robot_part(robot: str, status: dict) -> str:
+    """A robot's part of the progress line, from its status (the health figures once they have come)."""
+    h = status.get("health") or {}
+    if not isinstance(h.get("mission_time"), int | float) or not isinstance(h.get("frames_processed"), int):
+        return f"{robot}: map {status.get('landmarks', 0)} landmarks"
+    return (f"{robot}: t={h['mission_time']:.0f}s, {h['frames_processed']} frames, "
+            f"map {status.get('landmarks', 0)} landmarks")
 
 
 def _summary(args, summaries: dict, node: FusionNode, final, duration: float, out: Path) -> dict:

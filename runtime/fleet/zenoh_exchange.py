@@ -112,6 +112,7 @@ class ZenohExchange:
         self._streams: dict[str, mapwire.MapStream] = {}
         self._latest: dict[str, MapMessage] = {}
         self._status: dict[str, dict] = {}
+        self._health: dict[str, dict] = {}       # own robot -> the health last sent (publish_status)
         self._present: set[str] = set()
         self._encoders: dict[str, mapwire.MapEncoder] = {}
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
@@ -179,7 +180,10 @@ class ZenohExchange:
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
             publisher, status, _, _ = self._declare(robot)
         pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
-        status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose, len(snapshot))
+        with self._lock:  # the latest health figures go with it: a receiver's latest status is always complete
+            health = self._health.get(robot)
+        status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose, len(snapshot),
+                                            health)
         try:
             publisher.put(data)
             status.put(status_data)
@@ -192,12 +196,19 @@ class ZenohExchange:
 
     def publish_status(self, robot: str, stamp: float, pose=None, landmarks: int = 0,
                        health: dict | None = None) -> None:
-        """A status beside the map updates (pose estimate, health figures)."""
+        """A status beside the map updates (pose estimate, health figures: runtime/fleet/status.py)."""
         with self._lock:
             encoder = self._encoders.setdefault(robot, mapwire.MapEncoder(robot, full_every=self.full_every))
             _, status, _, _ = self._declare(robot)
-        status.put(mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
-                                         health))
+            self._health[robot] = dict(health or {})
+        data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks, health)
+        try:
+            status.put(data)
+        except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
+            self.send_errors += 1
+            log.warning("fleet exchange: could not send %s's status: %s", robot, e)
+            return
+        self.bytes_sent["status"] += len(data)
 
     def _answer(self, robot: str, query) -> None:
         with self._lock:

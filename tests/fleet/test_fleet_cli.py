@@ -109,3 +109,48 @@ def test_demo_processes_prints_the_mission_summary_with_an_alignment_scored_agai
     assert len(LandmarkMap.load(tmp_path / "fused.npz")) == summary["fusion"]["merged_landmarks"]
     contents = read_recording(tmp_path / "mission.rrd")
     assert {"robot1", "robot2", "fused"} <= set(contents.maps)
+
+
+def test_p3at_run_publishes_its_health_once_a_second_under_its_name(tmp_path):
+    """The status a running robot sends (runtime/fleet/status.py) arrives under its name with figures that agree
+    with its own summary; the fusion node's status line reads it."""
+    from runtime.fleet.status import status_line
+
+    port, fleet, seconds = free_port(), f"status{os.getpid()}", 8.0
+    with ZenohExchange(fleet, json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}), "fusion") as node:
+        run = p3at("run", "--name", "robot2", "--camera", "synthetic", "--seconds", f"{seconds:g}", "--rerun",
+                   "none", "--quiet", "--json", "--fusion-interval", "0", "--out", str(tmp_path / "robot2"),
+                   "--exchange", connect(port), "--fleet", fleet, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        seen: dict[float, dict] = {}   # mission time -> status, as many as the polling catches while it runs
+        while run.poll() is None:
+            status = node.status().get("robot2")
+            if status is not None and "mission_time" in status["health"]:  # a map's status before any health: {}
+                seen[status["health"]["mission_time"]] = status
+            time.sleep(0.05)
+        stdout, stderr = run.communicate(timeout=150)
+        assert run.returncode == 0, stderr
+        # the mission loop's last tick is within its last second; its status may still be on the way
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and node.status().get("robot2", {}).get("health", {}).get(
+                "mission_time", 0.0) < seconds - 1.5:
+            time.sleep(0.05)
+        last = node.status().get("robot2")
+    assert last is not None, "no status from robot2"
+    seen[last["health"]["mission_time"]] = last
+    summary = json.loads(stdout)["robots"]["robot2"]
+    times = sorted(seen)
+    frames = [seen[t]["health"]["frames_processed"] for t in times]
+    assert frames == sorted(frames), "frames processed must not go back"
+    h = last["health"]
+    assert h["clock"] == "simulated" and seconds - 1.5 <= h["mission_time"] <= seconds
+    # sent by the health tick, or with the last map snapshot (which carries the latest health figures)
+    assert last["stamp"] >= h["mission_time"] - 1e-3 and h["wall_time"] > 0
+    assert 0 < h["frames_processed"] <= h["frames_received"] and h["frames_processed"] <= summary["frames_processed"]
+    assert h["frames_dropped"] == 0  # in simulated time the SLAM stage never falls behind (docs/runtime.md)
+    assert h["ms_update"] > 0 and h["link"] == "up" and 10.0 < h["battery_volts"] < 15.0  # a P3-AT's 12 V lead
+    assert h["last_error"] is None and isinstance(h["route_done"], bool)
+    assert 0 < last["landmarks"] <= summary["landmarks"] + 50  # the last snapshot's map, a moment before the end
+    assert last["pose"] is not None and np.all(np.isfinite(last["pose"])) and np.hypot(*last["pose"][:2]) < 10.0
+    line = status_line("robot2", last)
+    assert line.startswith("status robot2: t=") and f"{h['frames_processed']} frames (0 dropped)" in line
+    assert "link up" in line and "\n" not in line

@@ -1,0 +1,123 @@
+"""A robot's health over the fleet exchange: what the runtime already counts, sent once a second of mission time.
+
+``p3at run --exchange zenoh`` (and any mission on a fleet exchange) calls :func:`publish_robot_status` from the
+mission loop every second of mission time (the progress line's tick); it sends each robot's pose estimate, map
+size and :func:`robot_health` on ``p3at/<fleet>/<robot>/status`` (``ZenohExchange.publish_status``).
+``p3at fuse --live`` prints them with :func:`status_line` (:class:`StatusPrinter`). No new measurement is made:
+every figure is a counter or a timing the runtime keeps for its summary. Pure code (no zenoh): the exchange is
+whatever offers ``publish_status``.
+
+Health fields (a flat JSON object, docs/fleet.md): ``clock`` (``simulated`` or ``wall``), ``mission_time`` and
+``wall_time`` (s since the mission started), ``frames_received``, ``frames_processed``, ``frames_dropped`` (the SLAM
+stage was behind), ``frames_without_odometry``, ``camera_errors``, ``ms_<stage>`` (mean wall-clock ms per frame of
+``frontend``, ``predict``, ``update``), ``battery_volts``, ``link`` (``up``/``down``), ``link_reconnects``,
+``route_done``, ``last_error`` (the robot's last stage failure or runtime error, or null).
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+
+log = logging.getLogger(__name__)
+
+PRINT_PERIOD = 10.0          # s of wall time between two printed status lines of a robot (p3at fuse --live)
+MAX_ERROR_TEXT = 200         # characters of last_error sent
+
+
+def robot_health(onboard, driver=None, *, clock: str, wall_time: float, failures: Sequence = ()) -> dict:
+    """The health figures of one robot's runtime (an ``Onboard``) and its ARCOS driver (or None)."""
+    s = onboard.stats
+    frames = max(1, s.frames_processed)
+    health: dict = {
+        "clock": clock, "mission_time": round(float(onboard.mission_time), 3), "wall_time": round(wall_time, 3),
+        "frames_received": s.frames_received, "frames_processed": s.frames_processed,
+        "frames_dropped": s.dropped_frames, "frames_without_odometry": s.frames_without_odometry,
+        "camera_errors": s.camera_errors,
+    }
+    health.update({f"ms_{stage}": round(1000.0 * seconds / frames, 2)
+                   for stage, seconds in sorted(dict(s.stage_seconds).items())})
+    state = getattr(driver, "state", None)
+    health["battery_volts"] = None if state is None else float(state.battery_volts)
+    health["link"] = None if driver is None else ("up" if driver.connected else "down")
+    health["link_reconnects"] = getattr(onboard.link, "reconnects", None)
+    health["route_done"] = onboard.route_done.is_set()
+    errors = [str(f) for f in failures if getattr(f, "robot", None) == onboard.robot] + list(onboard.errors)
+    health["last_error"] = errors[-1][:MAX_ERROR_TEXT] if errors else None
+    return health
+
+
+def publish_robot_status(exchange, robots: Iterable[tuple], *, clock: str, wall_time: float,
+                         failures: Sequence = ()) -> None:
+    """Each ``(onboard, driver)``'s status on ``exchange`` (if it offers ``publish_status``). Never raises: a
+    status that cannot be built or sent is logged, and the robot goes on."""
+    publish = getattr(exchange, "publish_status", None)
+    if publish is None:
+        return
+    for onboard, driver in robots:
+        try:
+            pose = onboard.pose_estimate()
+            publish(onboard.robot, stamp=float(onboard.mission_time), landmarks=onboard.stats.map_landmarks,
+                    pose=None if pose is None else [float(v) for v in pose],
+                    health=robot_health(onboard, driver, clock=clock, wall_time=wall_time, failures=failures))
+        except Exception as e:  # noqa: BLE001 - health reports must never stop a robot
+            log.warning("fleet status of %s not sent: %s: %s", onboard.robot, type(e).__name__, e)
+
+
+def status_line(robot: str, status: dict) -> str:
+    """One line of a robot's status as received (``ZenohExchange.status()[robot]``)."""
+    h = status.get("health") or {}
+
+    def figure(key: str, spec: str, unit: str = "") -> str:
+        value = h.get(key)
+        return "-" if not isinstance(value, int | float) or isinstance(value, bool) else f"{value:{spec}}{unit}"
+
+    clock = h.get("clock")
+    parts = [f"t={figure('mission_time', '.1f', ' s')}" + (f" {clock}" if clock else ""),
+             f"{figure('frames_processed', 'd')} frames ({figure('frames_dropped', 'd')} dropped)",
+             f"{status.get('landmarks', 0)} landmarks", f"update {figure('ms_update', '.1f', ' ms')}",
+             f"battery {figure('battery_volts', '.1f', ' V')}", f"link {h.get('link') or '-'}"]
+    pose = status.get("pose")
+    if pose:
+        parts.insert(3, f"pose ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f})")
+    if h.get("last_error"):
+        parts.append(f"last error: {h['last_error']}")
+    return f"status {robot}: " + ", ".join(parts)
+
+
+class StatusPrinter:
+    """Prints each robot's newest status at most every ``period`` s of wall time, on its own daemon thread."""
+
+    def __init__(self, statuses: Callable[[], dict], out: Callable[[str], None], period: float = PRINT_PERIOD,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.statuses, self.out, self.period, self.clock = statuses, out, period, clock
+        self._printed: dict[str, tuple[float, object]] = {}   # robot -> (when printed, stamp printed)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="fleet-status-printer", daemon=True)
+
+    def poll(self) -> None:
+        """Print every robot whose status is new and whose last line is ``period`` s old."""
+        now = self.clock()
+        for robot, status in sorted(self.statuses().items()):
+            when, stamp = self._printed.get(robot, (-float("inf"), None))
+            key = (status.get("session"), status.get("stamp"))
+            if key != stamp and now - when >= self.period:
+                self.out(status_line(robot, status))
+                self._printed[robot] = (now, key)
+
+    def _run(self) -> None:
+        while not self._stop.wait(min(1.0, self.period)):
+            self.poll()
+
+    def start(self) -> StatusPrinter:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+
+
+__all__ = ["PRINT_PERIOD", "StatusPrinter", "publish_robot_status", "robot_health", "status_line"]
