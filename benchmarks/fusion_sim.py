@@ -322,6 +322,71 @@ def corridor_pair(doors1: range, doors2: range, pose, seed: int = 0, spacing: fl
 
 
 # -- MRCLAM (real data): maps from each robot's sightings --------------------------------------------------------
+def drift_walk(n_steps: int, step: float, heading_drift: float) -> np.ndarray:
+    """Covariances (n_steps, 3, 3) of a robot's pose error (x, y, θ) along a straight run in +x: heading error a
+    random walk of ``heading_drift`` rad/√m, the lateral error its integral (first order)."""
+    k = np.arange(n_steps)
+    # θ_k = Σ_{i≤k} w_i,  y_k = Σ_{j≤k} θ_j · step = Σ_i w_i (k − i + 1) step  (w_i ~ N(0, σ² step))
+    A_theta = (k[:, None] >= k[None, :]).astype(float)
+    A_y = A_theta * (k[:, None] - k[None, :] + 1) * step
+    var = heading_drift ** 2 * step
+    D = np.zeros((n_steps, 3, 3))
+    D[:, 1, 1] = np.sum(A_y * A_y, axis=1) * var
+    D[:, 2, 2] = np.sum(A_theta * A_theta, axis=1) * var
+    D[:, 1, 2] = D[:, 2, 1] = np.sum(A_y * A_theta, axis=1) * var
+    return D
+
+
+def warped_pair(seed: int = 0, heading_drift: float = 0.01, sigma: float = 0.03, honest: bool = True,
+                corridor: float = 20.0, reach1: float = 14.0, reach2: float = 8.0, landmarks: int = 60
+                ) -> tuple[LandmarkMap, LandmarkMap]:
+    """Two maps of a straight corridor (landmarks on both walls, 2 m either side), each bent by its robot's
+    heading drift (a random walk, ``heading_drift`` rad/√m, first order): robot 1 starts at x = 0 facing +x and
+    maps up to ``reach1``; robot 2 starts at x = ``corridor`` facing −x and maps down to ``reach2``.  Where they
+    overlap (reach2..reach1) robot 1 has driven far, so its part of the map is off its start frame as a whole
+    while locally rigid.  A landmark is created when its robot is 3 m short of it, with the pose error the
+    robot has then (as estimation.fastslam.drift models it).  ``honest``: the covariances carry that drift
+    (σ² I + H D Hᵀ, the export 'mixture+drift'); otherwise only σ² I (a map that does not know it is bent).
+    Distinct unit descriptors; metadata true_start_pose."""
+    rng = np.random.default_rng(seed)
+    xs = rng.uniform(0.0, corridor, landmarks)
+    world = np.column_stack([xs, rng.choice([-2.0, 2.0], landmarks) + rng.normal(0, 0.1, landmarks),
+                             rng.uniform(0.3, 2.0, landmarks)])
+    desc = rng.standard_normal((landmarks, DESCRIPTOR_SIZE))
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    step = 0.1
+    maps = []
+    for robot, start, reach in (("robot1", np.array([0.0, 0.0, 0.0]), reach1),
+                                ("robot2", np.array([corridor, 0.0, np.pi]), corridor - reach2)):
+        local = transform_points(inverse(start), world)              # the robot drives along +x of its frame
+        keep = (local[:, 0] > 0.5) & (local[:, 0] <= reach)
+        local = local[keep]
+        n_steps = int(np.ceil(reach / step)) + 1
+        D = drift_walk(n_steps, step, heading_drift)
+        # one random walk per map: draw the increments and integrate (the same model as drift_walk)
+        w = rng.normal(0.0, heading_drift * np.sqrt(step), n_steps)
+        theta = np.cumsum(w)
+        lateral = np.cumsum(theta) * step
+        at = np.clip(np.floor(np.maximum(local[:, 0] - 3.0, 0.0) / step).astype(int), 0, n_steps - 1)
+        robot_xy = np.column_stack([at * step, np.zeros(len(at))])
+        rel = local[:, :2] - robot_xy
+        e = theta[at]
+        moved = robot_xy + np.column_stack([np.zeros(len(at)), lateral[at]]) + np.column_stack(
+            [np.cos(e) * rel[:, 0] - np.sin(e) * rel[:, 1], np.sin(e) * rel[:, 0] + np.cos(e) * rel[:, 1]])
+        positions = np.column_stack([moved + rng.normal(0, sigma, (len(at), 2)), local[:, 2]])
+        H = np.zeros((len(at), 3, 3))
+        H[:, 0, 0] = H[:, 1, 1] = 1.0
+        H[:, 0, 2], H[:, 1, 2] = -rel[:, 1], rel[:, 0]
+        cov = np.repeat(np.eye(3)[None] * sigma ** 2, len(at), axis=0)
+        if honest:
+            cov = cov + H @ D[at] @ np.swapaxes(H, 1, 2)
+        cov[:, 2, 2] = sigma ** 2
+        d = _noisy_descriptors(desc[keep], 0.2, rng)
+        maps.append(LandmarkMap(positions, cov, d, robot=robot,
+                                metadata={"true_start_pose": [float(v) for v in start], "simulated": True}))
+    return maps[0], maps[1]
+
+
 MRCLAM_DATASET2 = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 
 

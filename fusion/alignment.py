@@ -52,6 +52,7 @@ from estimation.geometry import between, inverse, pose_to_matrix, transform_poin
 from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError, NoOverlapError
+from .frame_covariance import start_frame_covariance
 from .matching import distinctive_correspondences, nearest_correspondences, query_subset
 from .pose_covariance import inverse_with_covariance
 
@@ -145,7 +146,10 @@ class Alignment:
 
     found: whether the maps overlap (if False, ``pose`` and ``covariance`` are None, ``reason`` says why and
     ``supports`` holds the best rejected hypothesis' supports, for diagnostics);
-    pose (3,) (tx, ty, θ) of map 2's frame in map 1's frame; covariance (3, 3) or None (paper preset);
+    pose (3,) (tx, ty, θ) of map 2's frame in map 1's frame; covariance (3, 3) or None (paper preset): the
+    alignment's own precision (placing one map on the other; what merging adds to map 2's landmarks);
+    start_covariance (3, 3) or None: its uncertainty against the true relative pose of the two start frames,
+    each map's landmark errors taken as possibly moving together at the overlap (``frame_covariance``);
     supports (S, 2) int64 rows (landmark index in map 1, landmark index in map 2).
     """
 
@@ -156,6 +160,7 @@ class Alignment:
     supports: np.ndarray
     statistics: AlignmentStatistics = field(default_factory=AlignmentStatistics)
     reason: str = ""
+    start_covariance: np.ndarray | None = None
 
     @classmethod
     def from_pose(cls, pose, covariance=None, supports=None, preset: str = "given") -> Alignment:
@@ -163,7 +168,7 @@ class Alignment:
         sup = np.zeros((0, 2), np.int64) if supports is None else np.asarray(supports, np.int64).reshape(-1, 2)
         cov = None if covariance is None else np.asarray(covariance, float).reshape(3, 3)
         return cls(True, preset, np.asarray(pose, float).reshape(3), cov, sup,
-                   AlignmentStatistics(supports=len(sup)))
+                   AlignmentStatistics(supports=len(sup)), start_covariance=cov)
 
     @property
     def matrix(self) -> np.ndarray:
@@ -192,12 +197,14 @@ class Alignment:
         """The alignment of map 1 to map 2 (pose inverted, covariance propagated, support columns swapped)."""
         if not self.found:
             return replace(self, supports=self.supports[:, ::-1].copy())
-        cov = self.covariance
-        if cov is None:
-            pose = inverse(self.pose)
-        else:
-            pose, cov = inverse_with_covariance(self.pose, cov)
-        return replace(self, pose=pose, covariance=cov, supports=self.supports[:, ::-1].copy())
+        cov, start_cov = self.covariance, self.start_covariance
+        pose = inverse(self.pose)
+        if cov is not None:
+            cov = inverse_with_covariance(self.pose, cov)[1]
+        if start_cov is not None:
+            start_cov = inverse_with_covariance(self.pose, start_cov)[1]
+        return replace(self, pose=pose, covariance=cov, start_covariance=start_cov,
+                       supports=self.supports[:, ::-1].copy())
 
     def to_dict(self) -> dict:
         """JSON-friendly summary (supports as a list of index pairs)."""
@@ -205,6 +212,7 @@ class Alignment:
             "found": self.found, "preset": self.preset, "reason": self.reason,
             "pose": None if self.pose is None else [float(v) for v in self.pose],
             "covariance": None if self.covariance is None else self.covariance.tolist(),
+            "start_covariance": None if self.start_covariance is None else self.start_covariance.tolist(),
             "supports": self.supports.tolist(), "statistics": self.statistics.to_dict(),
         }
 
@@ -820,6 +828,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan")
+    fit = (problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask])
     if subset_search and config.refine and s >= 2:
         # the subset fixed the transform; now every landmark's support, by guided matching
         guided = guided_supports(map1, map2, pose, config)
@@ -830,6 +839,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             supports = guided
             residual = g_problem.p1 - transform_points(pose, g_problem.p2)
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
+            fit = (g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2)
     major, minor = _spread(problem.p1[mask, :2])
     stats = AlignmentStatistics(
         correspondences=k, iterations=search.evaluated, supports=len(supports), inlier_ratio=s / k,
@@ -854,4 +864,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if major < config.min_spread:
         return not_found(f"the {s} supports are bunched within {major:.2f} m (at least {config.min_spread} m "
                          f"spread needed to fix the angle)", stats, supports)
-    return Alignment(True, config.name, pose, covariance, supports, stats, "")
+    start_cov = None
+    if covariance is not None and len(fit[0]) >= 2:
+        start_cov = start_frame_covariance(*fit, pose, config.position_floor)
+    return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov)

@@ -29,7 +29,9 @@ class MultiFusion:
 
     map: the merged map in the reference map's frame (only the maps connected to the reference);
     poses[k]: (3,) pose of map k's frame in the reference frame, None if map k is not connected;
-    covariances[k]: (3, 3) or None; alignments[(i, j)] (i < j): the pairwise alignment of map j to map i;
+    covariances[k]: (3, 3) or None; start_covariances[k]: (3, 3) or None, against the true start frames
+    (``Alignment.start_covariance`` composed along the tree); alignments[(i, j)] (i < j): the pairwise
+    alignment of map j to map i;
     tree: (parent, child) edges used, in merge order; unconnected: indices of maps left out;
     rows[k]: (N_k,) row in ``map`` of each landmark of map k (None if not connected).
     """
@@ -42,6 +44,7 @@ class MultiFusion:
     tree: list[tuple[int, int]]
     unconnected: list[int] = field(default_factory=list)
     rows: list[np.ndarray | None] = field(default_factory=list)
+    start_covariances: list[np.ndarray | None] = field(default_factory=list)
 
 
 def pairwise_alignments(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust",
@@ -100,14 +103,18 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
                              f"{maps[reference].robot!r}: nothing to fuse")
     poses: list[np.ndarray | None] = [None] * n
     covs: list[np.ndarray | None] = [None] * n
+    start_covs: list[np.ndarray | None] = [None] * n
     rows: list[np.ndarray | None] = [None] * n
-    poses[reference], covs[reference] = np.zeros(3), np.zeros((3, 3))
+    poses[reference], covs[reference], start_covs[reference] = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
     rows[reference] = np.arange(len(maps[reference]))
     fused = maps[reference]
     for parent, child in edges:
         a = _edge(alignments, parent, child)
         edge_cov = a.covariance if a.covariance is not None else np.zeros((3, 3))
         poses[child], covs[child] = compose_with_covariance(poses[parent], covs[parent], a.pose, edge_cov)
+        if a.start_covariance is not None and start_covs[parent] is not None:
+            start_covs[child] = compose_with_covariance(poses[parent], start_covs[parent], a.pose,
+                                                        a.start_covariance)[1]
         pose_cov = covs[child] if a.covariance is not None else None
         if method == 1:
             sup = one_to_one_supports(maps[parent], maps[child], a)
@@ -123,4 +130,4 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
                            "tree": [list(e) for e in edges]}}
         result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info)
         fused, rows[child] = result.map, result.rows2
-    return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows)
+    return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows, start_covs)

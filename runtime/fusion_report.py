@@ -49,6 +49,10 @@ class PairResult:
     low_confidence: bool = False
     sigma_xy: float | None = None        # m, 1σ of the alignment's translation (major axis); None: no covariance
     sigma_theta: float | None = None     # rad, 1σ of its rotation
+    # 1σ against the true relative pose of the start frames (each map's error at the overlap counted as a
+    # whole, fusion.frame_covariance): what covers the truth when the maps' covariances are honest
+    start_sigma_xy: float | None = None
+    start_sigma_theta: float | None = None
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -62,10 +66,18 @@ class PairResult:
         self.second_best_supports = int(st.second_best_supports)
         cov = alignment.covariance
         if alignment.found and cov is not None:
-            self.sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
-            self.sigma_theta = float(np.sqrt(max(cov[2, 2], 0.0)))
+            self.sigma_xy, self.sigma_theta = sigmas(cov)
+        start = getattr(alignment, "start_covariance", None)
+        if alignment.found and start is not None:
+            self.start_sigma_xy, self.start_sigma_theta = sigmas(start)
         self.low_confidence = bool(self.aligned and (self.false_alarm_probability is None
                                                      or self.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY))
+
+
+def sigmas(covariance) -> tuple[float, float]:
+    """(1σ of the translation along its major axis (m), 1σ of the rotation (rad)) of a (3, 3) pose covariance."""
+    cov = np.asarray(covariance, float)
+    return float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))), float(np.sqrt(max(cov[2, 2], 0.0)))
 
 
 def confidence_text(false_alarm_probability: float | None) -> str:
@@ -160,8 +172,9 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
                 result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY
             cov = multi.covariances[k]                  # composed along the tree
             if cov is not None and edge.covariance is not None:
-                result.sigma_xy = float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)))
-                result.sigma_theta = float(np.sqrt(max(cov[2, 2], 0.0)))
+                result.sigma_xy, result.sigma_theta = sigmas(cov)
+            start = multi.start_covariances[k] if multi.start_covariances else None
+            result.start_sigma_xy, result.start_sigma_theta = (None, None) if start is None else sigmas(start)
         if names[0] in column and other in column:
             result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
         truth = true_relative_pose(ordered[0], ordered[k])

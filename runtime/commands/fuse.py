@@ -155,6 +155,11 @@ def _print(report: dict, as_json: bool) -> None:
             cov = np.asarray(a["covariance"])
             print(f"    precision (1σ): {np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)):.3f} m, "
                   f"{np.sqrt(max(cov[2, 2], 0.0)):.4f} rad")
+        if a.get("start_covariance") is not None:
+            cov = np.asarray(a["start_covariance"])
+            print(f"    against the true start frames (1σ, each map's error at the overlap as a whole): "
+                  f"{np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)):.3f} m, "
+                  f"{np.sqrt(max(cov[2, 2], 0.0)):.4f} rad")
         if st.get("gate_inflation", 1.0) > OVERCONFIDENT_MAPS:
             print(f"    note: the supports' residuals are {np.sqrt(st['gate_inflation']):.1f}× the maps' claimed "
                   "standard deviations (their covariances are too small; gate and precision were scaled to match)")
