@@ -11,6 +11,7 @@ the whole process, Rerun's Rust-side buffers included.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import resource
 import sys
 import tempfile
@@ -23,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from runtime.rerun_log import MissionLog, mission_blueprint, open_recording  # noqa: E402
+from runtime.rrd_salvage import scan_rrd  # noqa: E402
 
 ROBOTS = ["robot1", "robot2"]
 
@@ -50,6 +52,13 @@ def main() -> None:
                         help="maps of --landmarks landmarks from the start (else they grow linearly to it)")
     parser.add_argument("--flush", action="store_true",
                         help="wait for Rerun to write everything before each sample (no queue behind the writer)")
+    parser.add_argument("--footer", action="store_true",
+                        help="save with Rerun's footer (an index of every chunk, kept in memory until the end)")
+    parser.add_argument("--trim", action="store_true",
+                        help="return freed heap to the system (glibc malloc_trim) before each sample")
+    parser.add_argument("--pace", type=float, default=0.0,
+                        help="wall seconds per simulated second at least (the demo runs at 0.5-0.7; Rerun batches "
+                             "by wall time, so the pace sets the number of chunks per simulated minute)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     # a textured image (JPEG-compressible like a camera's, unlike pure noise): gradients, blocks and some noise
@@ -57,7 +66,9 @@ def main() -> None:
     image = ((u // 40 + v // 40) % 2 * 80 + u / 8 + rng.normal(0, 6, (480, 640))).clip(0, 255).astype(np.uint8)
     with tempfile.TemporaryDirectory() as scratch:
         rrd = Path(scratch) / "bench.rrd"
-        log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)
+        rec = open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS), footer=args.footer)
+        log = MissionLog(rec, ROBOTS, blueprint=False)
+        trim = ctypes.CDLL("libc.so.6").malloc_trim if args.trim else None
         log.log_building(np.array([[-5.0, -2.0, 40.0, -2.0], [-5.0, 2.0, 40.0, 2.0]]), np.array([2.5, 2.5]))
         for name in ROBOTS:
             log.log_robot_frame(name, np.zeros(3))
@@ -67,6 +78,8 @@ def main() -> None:
         print(f"{'sim min':>7} {'RSS MB':>8} {'file MB':>8} {'wall s':>7}")
         for frame in range(frames):
             t = frame / 4.0
+            if args.pace > 0:
+                time.sleep(max(0.0, start + args.pace * t - time.perf_counter()))
             n = args.landmarks if args.constant_map else int(50 + (args.landmarks - 50) * frame / frames)
             for name in ROBOTS:
                 pose = np.array([0.1 * t % 30, np.sin(t / 10), t / 20])
@@ -88,10 +101,15 @@ def main() -> None:
             if (frame + 1) % 240 == 0:
                 if args.flush:
                     log.flush()
+                if trim is not None:
+                    trim(0)
                 samples.append(((frame + 1) / 240, rss_mb()))
                 print(f"{samples[-1][0]:7.0f} {samples[-1][1]:8.1f} {rrd.stat().st_size / 1e6:8.1f} "
                       f"{time.perf_counter() - start:7.1f}")
         log.close()
+        scan = scan_rrd(rrd)
+        print(f"{scan.messages} messages (chunks) in {scan.file_size / 1e6:.0f} MB, footer {args.footer}, "
+              f"{time.perf_counter() - start:.0f} s of wall time")
     minutes = np.array([m for m, _ in samples[1:]])
     rss = np.array([r for _, r in samples[1:]])
     if len(minutes) >= 3:

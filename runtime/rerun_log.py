@@ -37,6 +37,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
     mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints
+    mission/closed                        static AnyValues, logged last by ``close``: the writer closed the stream
+                                          (a file saved without Rerun's footer has no end-of-stream message)
 
 Every series has its legend name with its unit (SERIES), logged once as a static SeriesLines.
 
@@ -47,6 +49,7 @@ it logs.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import socket
@@ -63,13 +66,26 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.rrd_salvage import copy_prefix, scan_rrd
+
+# Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
+# opts out of one. Rerun reads RUST_LOG once, when it is imported: when the user set none, import it with the
+# Python SDK's default level ("warn": a plain import prints no INFO line) and that one warning silenced, then unset
+# it again so that child processes (a spawned viewer) get their plain default. A RUST_LOG the user set is kept.
+QUIET_FOOTER_WARNING = "warn,re_log_encoding::rrd::file_sink=error"
+_users_rust_log = os.environ.get("RUST_LOG")
+if _users_rust_log is None:
+    os.environ["RUST_LOG"] = QUIET_FOOTER_WARNING
+try:
+    import rerun as rr
+    import rerun.blueprint as rrb
+finally:
+    if _users_rust_log is None:
+        os.environ.pop("RUST_LOG", None)
 
 APPLICATION_ID = "p3at-fusion"
 ROBOT_COLOURS = [(230, 80, 60), (60, 130, 230), (70, 180, 90), (200, 160, 40), (160, 80, 200), (40, 180, 180)]
@@ -134,10 +150,11 @@ def spawn_viewer(port: int | None = None, timeout: float = 15.0) -> str:
 
 
 FILE_FLUSH_TICK = 1.0  # s
+CLOSED_ENTITY = "mission/closed"
 
 
 def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb.Blueprint | None = None,
-                   mission_id: str | None = None) -> rr.RecordingStream:
+                   mission_id: str | None = None, footer: bool = False) -> rr.RecordingStream:
     """A new RecordingStream for one mission (or for one process of a fleet).
 
     ``sink``: a path ending in ``.rrd`` (saved file), ``"spawn"`` (start a viewer on loopback), ``"memory"`` (tests),
@@ -149,6 +166,11 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     random id. ``mission_id`` is the former name of ``recording_id`` (kept for callers that still use it).
     ``blueprint``: the default layout, sent with the stream; a fleet sends it from ONE process only (the fusion
     node), because the last blueprint received wins.
+    ``footer``: end a saved file with Rerun's footer, an index of every chunk for random access. Off by default:
+    Rerun keeps that index in memory until the file is closed, one row per chunk and one column per (timeline,
+    component) the recording uses (~6 kB a chunk here, ~+30 MB per 100 s of mission: the process grew without
+    bound). Without it memory stays flat; ``p3at review`` and the viewer read the file by scanning it, and
+    ``rerun rrd optimize`` writes a copy with a footer. See docs/reliability.md, "Memory over a long mission".
     """
     live = sink in ("memory", "spawn", "none") or sink.startswith(("rerun://", "rerun+http", "http://"))
     # a saved file is read later: batching rows for FILE_FLUSH_TICK s instead of Rerun's 0.2 s makes several times
@@ -165,7 +187,7 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
         rec.connect_grpc(sink, default_blueprint=blueprint)
     elif sink != "none":
         Path(sink).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(sink, default_blueprint=blueprint)
+        rec.save(sink, default_blueprint=blueprint, write_footer=footer)
     return rec
 
 
@@ -448,6 +470,7 @@ class MissionLog:
         self._closed = True
         if not self.rec.is_enabled():
             return
+        self.rec.log(CLOSED_ENTITY, rr.AnyValues(closed=True), static=True)
         self.rec.flush()
         self.rec.disconnect()
 
@@ -765,7 +788,7 @@ class RecordingContents:
     summary: dict | None                  # the mission summary, when the mission finished
     entity_count: int
     truncated: str | None = None          # how the file was cut short (what was read is what it held), or None
-    ended: bool = True                    # the writer closed the stream (an End message); False after a crash
+    ended: bool = True                    # the writer closed it (End message or mission/closed); False after a crash
 
 
 def _last_values(rows: list[dict], key: str):
@@ -804,8 +827,12 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
                              f"complete messages ({scan.whole_bytes} of {scan.file_size} bytes)")
                 readable = Path(scratch) / f"whole-prefix-{index}.rrd"
                 copy_prefix(p, readable, scan.whole_bytes)
-            ended = ended and scan.ended
-            chunks.extend(_read_chunks(p, readable))
+            held = _read_chunks(p, readable)
+            # Rerun ends a stream with an End message only when it writes its footer; the logger's last entity
+            # says the same of a file saved without one
+            closed = any(chunk.entity_path.lstrip("/") == CLOSED_ENTITY for chunk in held)
+            ended = ended and (scan.ended or (closed and not scan.truncated))
+            chunks.extend(held)
         contents = _contents_from_chunks(paths[0], chunks)
     contents.truncated, contents.ended = ("; ".join(notes) or None), ended
     return contents

@@ -18,9 +18,11 @@ from .rerun_helpers import ROBOTS, log_small_mission
 
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory):
-    """A finished recording and what read_recording finds in it."""
+    """A finished recording with Rerun's footer (its last 0.1 %: ``footer=True``, as files written before the
+    footer was turned off) and what read_recording finds in it; files without one: test_rerun_memory.py."""
     rrd = tmp_path_factory.mktemp("whole") / "mission.rrd"
-    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)
+    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS), footer=True), ROBOTS,
+                     blueprint=False)
     log_small_mission(log, frames=40, flush_each_frame=True)
     log.close()
     return rrd, read_recording(rrd)
