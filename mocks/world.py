@@ -49,6 +49,7 @@ import json
 import math
 import threading
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -408,6 +409,7 @@ class World:
         self._e = self.walls[:, 2:] - self.walls[:, :2]
         self._lock = threading.Lock()
         self._robots: dict[str, np.ndarray] = {}
+        self._pose_sources: dict[str, Callable[[], np.ndarray]] = {}  # robots whose pose is kept elsewhere
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -561,10 +563,21 @@ class World:
                 raise ValueError(f"robot {name!r} is already in world {self.name!r}")
             self._robots[name] = p
 
+    def attach_robot(self, name: str, source: Callable[[], np.ndarray]) -> None:
+        """Register a robot whose true pose is kept elsewhere (e.g. a virtual robot served by another process):
+        ``pose(name)`` and ``robot_poses()`` call ``source()`` for it, and ``set_pose`` refuses it. A name
+        already present -> ValueError."""
+        with self._lock:
+            if name in self._robots:
+                raise ValueError(f"robot {name!r} is already in world {self.name!r}")
+            self._robots[name] = np.full(3, np.nan)  # a placeholder: the source is asked instead
+            self._pose_sources[name] = source
+
     def remove_robot(self, name: str) -> None:
         """Forget a robot; unknown names are ignored (so closing twice is harmless)."""
         with self._lock:
             self._robots.pop(name, None)
+            self._pose_sources.pop(name, None)
 
     def set_pose(self, name: str, pose: np.ndarray) -> None:
         """Set a registered robot's true pose; unknown name -> KeyError."""
@@ -572,6 +585,8 @@ class World:
         with self._lock:
             if name not in self._robots:
                 raise KeyError(f"no robot {name!r} in world {self.name!r}")
+            if name in self._pose_sources:
+                raise ValueError(f"robot {name!r}'s pose is kept elsewhere (attach_robot): it cannot be set here")
             self._robots[name] = p
 
     def pose(self, name: str) -> np.ndarray:
@@ -579,7 +594,10 @@ class World:
         with self._lock:
             if name not in self._robots:
                 raise KeyError(f"no robot {name!r} in world {self.name!r}")
-            return self._robots[name].copy()
+            source = self._pose_sources.get(name)
+            if source is None:
+                return self._robots[name].copy()
+        return np.array(source(), dtype=float).reshape(3)
 
     def robot_names(self) -> list[str]:
         with self._lock:
@@ -588,4 +606,8 @@ class World:
     def robot_poses(self) -> dict[str, np.ndarray]:
         """A consistent snapshot {name: (3,)} of every robot's true pose."""
         with self._lock:
-            return {k: v.copy() for k, v in self._robots.items()}
+            poses = {k: v.copy() for k, v in self._robots.items()}
+            sources = dict(self._pose_sources)
+        for name, source in sources.items():
+            poses[name] = np.array(source(), dtype=float).reshape(3)
+        return poses

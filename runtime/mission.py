@@ -78,6 +78,7 @@ class MissionConfig:
     odometry: str = "exact"           # virtual robots' wheel odometry: "exact" or "realistic" (1 % scale, 3 % track)
     robot_name: str | None = None     # this robot's name in a fleet; virtual: the world robot run alone
     realtime: bool = False            # virtual robots: the wall clock instead of simulated time (lockstep)
+    robot_process: bool = True        # realtime: serve the virtual robots from their own process (SIP timing)
     map_save_interval: float = 10.0   # s between atomic writes of OUT/<robot>.npz during the mission (0: end only)
     recording_id: str | None = None   # a fleet's processes share one Rerun recording (None: a new one)
 
@@ -162,6 +163,7 @@ class Mission:
         self.recording_path: Path | None = None
         self.failures: list[StageFailure] = []
         self._servers: dict = {}   # robot -> its virtual P3-AT's server (mocks)
+        self._robot_process = None  # realtime: the process serving the virtual robots (mocks.p3at.RobotProcess)
         self._drivers: dict = {}   # robot -> its ARCOS driver
         self._end_time: float | None = None
         self._wall_start = time.monotonic()
@@ -196,12 +198,13 @@ class Mission:
         cfg = self.config
         if cfg.on_mocks:
             pose = np.asarray(world.start_poses[name], float)
-            from mocks.p3at import OdometryErrors
-
-            errors = OdometryErrors.realistic() if cfg.odometry == "realistic" else OdometryErrors()
-            server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, clock=self.clock,
-                               time_scale=cfg.time_scale, seed=cfg.seed + 100 * index, odometry=errors)
-            stack.callback(server.close)
+            if self._robot_process is not None:  # served from their own process (see _serve_robots_apart)
+                server = self._robot_process.servers[name]
+            else:
+                server = serve_tcp(world, name, pose, host="127.0.0.1", port=0, clock=self.clock,
+                                   time_scale=cfg.time_scale, seed=cfg.seed + 100 * index,
+                                   odometry=self._odometry_errors())
+                stack.callback(server.close)
             self._servers[name] = server
             url = server.url
         else:
@@ -250,6 +253,23 @@ class Mission:
             g = geometry
             self.logger.log_camera_model(name, g.fx, g.fy, g.cx, g.cy, 640, 480, g.baseline)
         return RobotSetup(name, onboard, pose)
+
+    def _odometry_errors(self):
+        from mocks.p3at import OdometryErrors
+
+        return OdometryErrors.realistic() if self.config.odometry == "realistic" else OdometryErrors()
+
+    def _serve_robots_apart(self, stack: ExitStack, world, names: list[str]) -> None:
+        """On the wall clock, the virtual robots run in a process of their own, as real robots are other machines:
+        beside rendering and FastSLAM, the GIL and the CPU would decide when a SIP leaves (issue 15). Their true
+        poses stay visible in ``world`` for the heads and the scores. Closed after every driver (LIFO)."""
+        from mocks.p3at import RobotSpec, serve_tcp_process
+
+        specs = [RobotSpec(name, tuple(world.start_poses[name]), seed=self.config.seed + 100 * index,
+                           odometry=self._odometry_errors())
+                 for name, index in ((n, sorted(world.start_poses).index(n)) for n in names)]
+        self._robot_process = serve_tcp_process(world, specs, time_scale=self.config.time_scale)
+        stack.callback(self._robot_process.close)
 
     def _camera(self, stack: ExitStack, world, index: int, name: str):
         cfg = self.config
@@ -349,6 +369,8 @@ class Mission:
             watchdog = self._start_watchdog() if self.lockstep else None
             if watchdog is not None:
                 stack.callback(watchdog.set)
+            if world is not None and self.clock is time.monotonic and self.config.robot_process:
+                self._serve_robots_apart(stack, world, names)
             with self.clock.hold() if self.lockstep else contextlib.nullcontext():
                 t0 = self.clock()
                 for index, name in enumerate(names):

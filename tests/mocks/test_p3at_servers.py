@@ -220,3 +220,39 @@ def test_a_lockstep_server_gives_one_trajectory_however_busy_the_machine(world: 
     assert stamps == loaded[0]
     np.testing.assert_array_equal(odometry, loaded[1])
     np.testing.assert_array_equal(truth, loaded[2])
+
+
+class ManualClock:
+    """A wall clock the test moves by hand (a plain callable: the server runs on it as on ``time.monotonic``)."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_a_wall_clock_server_keeps_absolute_sip_deadlines_however_late_it_wakes(world: World, transport: str) -> None:
+    """Each jump of the clock stands for a wake-up 37 ms late. SIPs fall at OPEN + k·100 ms of the clock however
+    late the server ran: 13 SIPs in 1.37 s, each built at its own instant (the SIP's microcontroller time), where a
+    loop sleeping 100 ms after each SIP would have sent 10, each later than the last."""
+    clock = ManualClock()
+    server = serve_tcp(world, "robot1", port=0, clock=clock) if transport == "tcp" \
+        else serve_pty(world, "robot1", clock=clock)
+    with server, serial.serial_for_url(server.url, timeout=0.05) as port:
+        parser = PacketParser()
+        handshake(port, parser)
+        deadline = time.monotonic() + 10.0  # a bound on a loaded machine, not a timing: OPEN lands at clock 0
+        while not server.model.is_open and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert server.model.is_open
+        got = []
+        for k in range(1, 11):
+            clock.t = 0.137 * k
+            due = int(clock.t / 0.1 + 1e-9)
+            want = due - len(got)
+            got += sips(read_packets(port, parser, lambda p, want=want: len(sips(p)) >= want, timeout=10.0))
+            assert len(got) == due
+        assert [s.uc_time for s in got] == [100_000 * k for k in range(1, 14)]
+        assert server.model.stats.sips == 13
