@@ -58,3 +58,31 @@ def test_maps_that_do_not_know_they_are_bent_cannot_be_covered(sim):
         if a.found:
             missed += _nees(a.pose, a.start_covariance, true_relative_pose(m1, m2)) > CHI2_3_999
     assert missed >= 3
+
+
+def test_p3at_fuse_reports_the_start_frame_uncertainty(sim, tmp_path, capsys):
+    import json
+
+    from runtime.cli import main
+
+    m1, m2 = sim.warped_pair(1, heading_drift=0.01)
+    m1.save(tmp_path / "r1.npz")
+    m2.save(tmp_path / "r2.npz")
+    files = [str(tmp_path / "r1.npz"), str(tmp_path / "r2.npz")]
+    assert main(["fuse", *files, "--out", str(tmp_path / "m.npz")]) == 0
+    assert "against the true start frames (1σ" in capsys.readouterr().out
+    assert main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["alignments"][0]
+    start = np.asarray(entry["start_covariance"])
+    assert _nees(entry["pose"], start, np.asarray(entry["true_pose"])) < CHI2_3_999
+    assert np.all(np.diag(start) >= np.diag(np.asarray(entry["covariance"])))
+
+
+def test_fusion_report_carries_the_start_frame_sigmas(sim):
+    from runtime.fusion_report import fuse_maps
+
+    m1, m2 = sim.warped_pair(2, heading_drift=0.01)
+    pair = fuse_maps({"robot1": m1, "robot2": m2}).pairs[0]
+    assert pair.aligned
+    assert pair.start_sigma_xy >= pair.sigma_xy > 0 and pair.start_sigma_theta >= pair.sigma_theta > 0
+    assert "start_sigma_xy" in pair.as_dict()
