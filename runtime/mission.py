@@ -270,6 +270,8 @@ class Mission:
                  for name, index in ((n, sorted(world.start_poses).index(n)) for n in names)]
         self._robot_process = serve_tcp_process(world, specs, time_scale=self.config.time_scale)
         stack.callback(self._robot_process.close)
+        self.events(f"virtual robots served by process {self._robot_process.pid} "
+                    f"(scheduling priority: {self._robot_process.priority})")
 
     def _camera(self, stack: ExitStack, world, index: int, name: str):
         cfg = self.config
