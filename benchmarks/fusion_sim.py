@@ -387,6 +387,36 @@ def warped_pair(seed: int = 0, heading_drift: float = 0.01, sigma: float = 0.03,
     return maps[0], maps[1]
 
 
+def half_turn_pair(seed: int = 0, sigma: float = 0.03, pattern: int = 20, repeated_in_map1: int = 8,
+                   seen_by_map2: int = 12, shared: int = 3, pose=(3.0, 1.0, 0.5)) -> tuple[LandmarkMap, LandmarkMap]:
+    """A building symmetric under a half turn whose two halves look alike (as the rendered demo's): a pattern of
+    ``pattern`` landmarks around (5, 0) and its copy turned by π about (10, 0), same descriptors.  Map 1 holds the
+    whole first half and the last ``repeated_in_map1`` of the copy (so it repeats itself); map 2, whose frame is
+    at ``pose``, holds the first ``seen_by_map2`` of the copy and truly shares only ``shared`` other landmarks
+    with map 1 (too few to align).  Map 2's copy matches map 1's first half one-to-one: the wrong, half-turned
+    alignment gathers ``seen_by_map2`` supports."""
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([rng.uniform(2.0, 8.0, pattern), rng.uniform(-2.0, 2.0, pattern),
+                         rng.uniform(0.3, 2.0, pattern)])
+    b = np.column_stack([20.0 - a[:, 0], -a[:, 1], a[:, 2]])          # the half turn about (10, 0)
+    desc = rng.standard_normal((pattern, DESCRIPTOR_SIZE))
+    shared_pts = np.column_stack([rng.uniform(22.0, 26.0, shared), rng.uniform(-2.0, 2.0, shared),
+                                  rng.uniform(0.3, 2.0, shared)])
+    own = [np.column_stack([rng.uniform(x0, x0 + 4.0, 10), rng.uniform(-2.0, 2.0, 10), rng.uniform(0.3, 2.0, 10)])
+           for x0 in (-6.0, 28.0)]
+    unique = rng.standard_normal((shared + 20, DESCRIPTOR_SIZE))
+    d_shared, d_own1, d_own2 = unique[:shared], unique[shared:shared + 10], unique[shared + 10:]
+    pts1 = np.vstack([a, b[pattern - repeated_in_map1:], shared_pts, own[0]])
+    d1 = np.vstack([desc, desc[pattern - repeated_in_map1:], d_shared, d_own1])
+    pts2 = np.vstack([b[:seen_by_map2], shared_pts, own[1]])
+    d2 = np.vstack([desc[:seen_by_map2], d_shared, d_own2])
+    maps = []
+    for pts, d, frame, robot in ((pts1, d1, np.zeros(3), "robot1"), (pts2, d2, np.asarray(pose, float), "robot2")):
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        maps.append(_planar_map(pts, frame, np.full(len(pts), sigma), _noisy_descriptors(d, 0.2, rng), robot, rng))
+    return maps[0], maps[1]
+
+
 MRCLAM_DATASET2 = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 
 

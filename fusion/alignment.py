@@ -53,7 +53,7 @@ from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError, NoOverlapError
 from .frame_covariance import start_frame_covariance
-from .matching import distinctive_correspondences, nearest_correspondences, query_subset
+from .matching import distinctive_correspondences, nearest_correspondences, query_subset, self_correspondences
 from .pose_covariance import inverse_with_covariance
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
@@ -61,6 +61,8 @@ CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
 CHI2_2_MEDIAN = 2.0 * np.log(2.0)        # median of χ²₂: scale of the normalised residuals
 # Without descriptors every landmark pair is a candidate; beyond this many the search is not attempted.
 MAX_GEOMETRIC_PAIRS = 40_000
+# Descriptor distances computed at most when a map is matched against itself (self_structure).
+SELF_SEARCH_PAIRS = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,7 @@ class AlignmentStatistics:
     support_spread: float = 0.0          # metres, principal std of the supports in map 1 (xy), major axis
     support_spread_minor: float = 0.0    # metres, minor axis (≈ 0: the supports lie on a line)
     second_best_supports: int = 0        # best hypothesis distinct from the winner (repeated structure)
+    self_repeat_supports: int = 0        # best non-identity transform of either map onto itself (self_structure)
     required_supports: int = 0           # fewest supports that would have been accepted on these maps
     gate_inflation: float = 1.0          # covariance scale the supports' residuals called for
     gate_radius: float = float("nan")    # metres, median support-gate radius in the plane
@@ -544,6 +547,7 @@ class Evidence:
     log10_p: float
     required: int
     ambiguous: bool                       # the second-best hypothesis, not the decoys, set the chance rate
+    self_repeat: int = 0                  # supports of the best repeat of either map onto itself (self_structure)
 
 
 def _log10_tail(excess: int, rate: float, hypotheses: int) -> float:
@@ -610,7 +614,7 @@ def decoy_chance_supports(problem: _Problem, map1: LandmarkMap, map2: LandmarkMa
 
 
 def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
-                 config: AlignmentConfig) -> int:
+                 config: AlignmentConfig, unordered: bool = False) -> int:
     """Supports of the best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or,
     without any, every correspondence) by more than two gate radii on average.  The three strongest
     candidates are re-scored with the final gate and polished like the winner."""
@@ -639,27 +643,54 @@ def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.
         p, _, m, _ = _polish(replace(problem), p, m, config)
         m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
         if distinct(p[None])[0]:
-            best = max(best, int(m.sum()))
+            # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
+            n = len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered else int(m.sum())
+            best = max(best, n)
     return best
 
 
+def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator) -> int:
+    """Supports of the best transform, other than the identity, that maps a map onto *itself* by its descriptors:
+    the repeated structure inside one map (a building symmetric under a half turn whose corners look alike, a
+    row of identical doors).  If one map repeats itself under T_s, a wrong cross-map alignment T_s ∘ T can
+    gather about as many supports as the repeat holds, even when the true overlap T gathers few (a damaged
+    map).  0 without descriptors."""
+    n = len(landmark_map)
+    if not has_descriptors(landmark_map) or n < 4:
+        return 0
+    # very large maps: a random subset of queries (a repeat shows in any sizeable sample of the map)
+    rows = None if n * n <= SELF_SEARCH_PAIRS else np.sort(rng.choice(n, max(64, SELF_SEARCH_PAIRS // n),
+                                                                      replace=False))
+    pairs = self_correspondences(landmark_map.descriptors, config.descriptor_threshold, config.ratio or 1.0, rows)
+    if len(pairs) < 4:
+        return 0
+    problem = _problem(landmark_map, landmark_map, pairs, config, distinct_scoring=True)
+    # a fixed number of hypotheses: the near-identity ones (duplicates side by side) must not stop the search
+    search = _ransac(problem, replace(config, adaptive=False, iterations=min(config.iterations, 500)), rng)
+    return _second_best(problem, search, np.zeros(3), np.zeros(len(pairs), bool), config, unordered=True)
+
+
 def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray, map1: LandmarkMap,
-             map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator) -> Evidence:
+             map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
+             repeats: bool = False) -> Evidence:
     """The alignment's own evidence (see the module docstring): supports beyond the two that define a
-    hypothesis against a Poisson null whose rate is the larger of the decoys' and the one that makes the
-    second-best distinct hypothesis a typical maximum; Bonferroni over the hypotheses tried."""
+    hypothesis against a Poisson null whose rate is the largest of the decoys', the one that makes the
+    second-best distinct hypothesis a typical maximum and (``repeats``: maps matched by descriptors) the one
+    that makes either map's repeat of itself (:func:`self_structure`) a typical maximum; Bonferroni over the
+    hypotheses tried."""
     s = int(problem.distinct_counts(mask[None])[0])
     n = max(search.evaluated, 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
     second = _second_best(problem, search, pose, mask, config)
-    structure_rate = _rate_for_maximum(second - 2, n)
+    repeat = max(self_structure(map1, config, rng), self_structure(map2, config, rng)) if repeats else 0
+    structure_rate = _rate_for_maximum(max(second, repeat) - 2, n)
     rate = max(decoy_rate, structure_rate, 1e-9)
     log10_p = _log10_tail(s - 2, rate, n)
     level = np.log10(config.significance) if config.significance is not None else -6.0
     required = max(config.min_supports, 3)
     while _log10_tail(required - 2, rate, n) > level and required < 100_000:
         required += 1
-    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate)
+    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat)
 
 
 # -- the entry point -----------------------------------------------------------------------------------------
@@ -823,7 +854,8 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
                                              descriptors=with_descriptors))
     raw_count = int(search.mask.sum())
     pose, covariance, mask, problem = _polish(problem, search.pose, search.mask, config)
-    ev = evidence(problem, search, pose, mask, map1, map2, config, rng)
+    ev = evidence(problem, search, pose, mask, map1, map2, config, rng,
+                  repeats=config.refine and with_descriptors and not identities)
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
@@ -845,6 +877,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
         correspondences=k, iterations=search.evaluated, supports=len(supports), inlier_ratio=s / k,
         residual_rms=rms, expected_chance_supports=2.0 + ev.chance_rate, log10_chance_probability=ev.log10_p,
         support_spread=major, support_spread_minor=minor, second_best_supports=ev.second_best,
+        self_repeat_supports=ev.self_repeat,
         required_supports=ev.required, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
         descriptors=with_descriptors)
 
@@ -852,6 +885,11 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if counted < config.min_supports:
         return not_found(f"{no_desc}only {counted} supports (at least {config.min_supports} needed)", stats, supports)
     if config.significance is not None and ev.log10_p > np.log10(config.significance):
+        if ev.ambiguous and ev.self_repeat > ev.second_best:
+            return not_found(
+                f"ambiguous: one map repeats itself under a distinct transform with {ev.self_repeat} supports "
+                f"(repeated structure), so a wrong alignment could gather as many as the best one's {s}; on these "
+                f"maps {ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f})", stats, supports)
         if ev.ambiguous:
             return not_found(
                 f"ambiguous: a distinct transform gathers {ev.second_best} supports against the best one's {s} "

@@ -113,3 +113,33 @@ def distinctive_correspondences(desc1: np.ndarray, desc2: np.ndarray, max_distan
     mutual = back[j] == i
     pairs = np.stack([i[mutual], j[mutual]], axis=1).astype(np.int64)
     return pairs, d[mutual]
+
+
+def self_correspondences(desc: np.ndarray, max_distance: float, ratio: float, rows: np.ndarray | None = None
+                         ) -> np.ndarray:
+    """Pairs of *different* landmarks of one map whose descriptors match distinctively: repeated structure
+    (look-alike corners, identical doors) or duplicates.
+
+    desc (N, D); ``rows`` (Q,) optional subset of queries (very large maps).  A query i takes its nearest other
+    landmark j if d(i, j) < max_distance and d(i, j) < ratio · d(i, next other).  Returns pairs (K, 2) int64.
+    """
+    n = len(desc)
+    if n < 3:
+        return np.zeros((0, 2), np.int64)
+    queries = np.arange(n) if rows is None else np.asarray(rows, np.int64)
+    d = desc.astype(np.float32, copy=False)
+    sq = np.einsum("ij,ij->i", d, d)
+    block_rows = int(np.clip(_BLOCK_PAIRS // n, 64, 4096))
+    out = []
+    for start in range(0, len(queries), block_rows):
+        q = queries[start:start + block_rows]
+        d2 = sq[q][:, None] + sq[None, :] - 2.0 * (d[q] @ d.T)
+        np.maximum(d2, 0.0, out=d2)
+        d2[np.arange(len(q)), q] = np.inf                     # not itself
+        near = np.argpartition(d2, 1, axis=1)[:, :2]
+        nd = np.take_along_axis(d2, near, axis=1)
+        order = np.argsort(nd, axis=1)
+        near, nd = np.take_along_axis(near, order, axis=1), np.sqrt(np.take_along_axis(nd, order, axis=1))
+        keep = (nd[:, 0] < max_distance) & (nd[:, 0] < ratio * nd[:, 1])
+        out.append(np.column_stack([q[keep], near[keep, 0]]))
+    return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
