@@ -87,7 +87,8 @@ def status_line(robot: str, status: dict) -> str:
 
 
 class StatusPrinter:
-    """Prints each robot's newest status at most every ``period`` s of wall time, on its own daemon thread."""
+    """Prints each robot's newest status at most every ``period`` s of wall time, on its own daemon thread;
+    statuses without health figures (a map update's before the first health tick, synthetic robots) are skipped."""
 
     def __init__(self, statuses: Callable[[], dict], out: Callable[[str], None], period: float = PRINT_PERIOD,
                  clock: Callable[[], float] = time.monotonic) -> None:
@@ -102,7 +103,7 @@ class StatusPrinter:
         for robot, status in sorted(self.statuses().items()):
             when, stamp = self._printed.get(robot, (-float("inf"), None))
             key = (status.get("session"), status.get("stamp"))
-            if key != stamp and now - when >= self.period:
+            if status.get("health") and key != stamp and now - when >= self.period:
                 self.out(status_line(robot, status))
                 self._printed[robot] = (now, key)
 

@@ -25,6 +25,9 @@ def test_the_printer_prints_each_robots_new_status_at_most_once_a_period():
     printer = StatusPrinter(lambda: dict(statuses), lines.append, period=10.0, clock=clock)
     printer.poll()
     assert lines == []                                   # nothing heard yet
+    statuses["robot1"] = {"stamp": 0.5, "session": "a" * 16, "pose": None, "landmarks": 0, "health": {}}
+    printer.poll()
+    assert lines == []                                   # a map update's status before any health figures
     statuses["robot1"] = _status(1.0, 15)
     printer.poll()
     assert len(lines) == 1 and lines[0].startswith("status robot1: t=1.0 s simulated, 15 frames (0 dropped)")
