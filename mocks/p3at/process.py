@@ -205,6 +205,7 @@ class RobotProcess:
                 why = reply.get("failed") if reply else f"no answer (exit status {self._child.poll()})"
                 raise RobotProcessError(f"the virtual robots' process did not start: {why}")
             self.priority = str(reply.get("priority", "normal"))
+            self._table.path.unlink()  # both sides have it mapped: a hard kill leaves no file behind
             for index, name in enumerate(names):
                 self.servers[name] = RemoteServer(self, name, host, int(reply["ready"][name]))
                 world.attach_robot(name, lambda index=index: self._table.read(index)[0])
