@@ -188,9 +188,13 @@ class RobotProcess:
         self._attached: list[str] = []
         self._table = PoseTable.create(len(names))
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(_ROOT), os.environ.get("PYTHONPATH")])))
-        self._child = subprocess.Popen([sys.executable, "-c", _CHILD], stdin=subprocess.PIPE,
-                                       stdout=subprocess.PIPE, env=env, cwd=_ROOT,
-                                       start_new_session=True)  # its own scheduling group: see the docstring
+        try:
+            self._child = subprocess.Popen([sys.executable, "-c", _CHILD], stdin=subprocess.PIPE,
+                                           stdout=subprocess.PIPE, env=env, cwd=_ROOT,
+                                           start_new_session=True)  # its own scheduling group: see the docstring
+        except BaseException:
+            self._table.close(unlink=True)
+            raise
         self.pid = self._child.pid
         try:
             config = {"world": str(world.source), "poses": str(self._table.path), "host": host,
