@@ -50,6 +50,11 @@ class FastSLAMConfig:
     existence_miss: float = -0.5                  # added per frame it was well in view and not detected
     existence_max: float = 4.0                    # clamp: a long-seen landmark that is gone is still removed in time
     existence_remove: float = -1.4                # removed below this (a new landmark: 3 misses, no detection)
+    # the sensor's rates instead of existence_hit/miss (see existence.py): P_D per range band, P_FA
+    detection_probabilities: tuple[float, ...] = ()   # P_D per band; () = use existence_hit / existence_miss
+    detection_range_edges: tuple[float, ...] = ()     # m, ascending: len(detection_probabilities) - 1 edges
+    false_alarm_probability: float = 0.05             # P_FA: share of reports that are no landmark
+    detection_correlation: float = 0.0                # lag-1 correlation of a landmark's detected/missed frames
     merge_gate: float = 7.815                     # merge a particle's landmarks closer than this squared
     #                                             #   Mahalanobis distance (χ²₃ 95 %; and alike, see below); 0: off
     merge_radius: float = 1.0                     # m: ids whose means are farther apart are never tested
@@ -80,6 +85,16 @@ class FastSLAMConfig:
                 and self.existence_miss <= 0):
             raise ValueError("existence log-odds need existence_remove < existence_initial <= existence_max, "
                              "existence_hit >= 0 and existence_miss <= 0")
+        object.__setattr__(self, "detection_probabilities", tuple(float(v) for v in self.detection_probabilities))
+        object.__setattr__(self, "detection_range_edges", tuple(float(v) for v in self.detection_range_edges))
+        if self.detection_probabilities:
+            edges, p_d = self.detection_range_edges, self.detection_probabilities
+            if len(edges) != len(p_d) - 1 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)):
+                raise ValueError("detection_range_edges must be ascending, one fewer than detection_probabilities")
+            if not (all(0.0 < p < 1.0 for p in p_d) and 0.0 < self.false_alarm_probability < 1.0):
+                raise ValueError("detection_probabilities and false_alarm_probability must lie in (0, 1)")
+        if not 0.0 <= self.detection_correlation < 1.0:
+            raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

@@ -29,7 +29,8 @@ One update (:meth:`FastSLAM.update`) reads as numbered steps:
 4. FastSLAM 2.0 only: sample the pose from the Gaussian proposal that includes the matched observations.
 5. EKF update of the matched landmarks (Joseph form), copy-on-write of the blocks written.
 6. Landmark existence (log-odds): a match adds ``existence_hit``; a landmark predicted well inside the view and
-   not matched adds ``existence_miss``; below ``existence_remove`` it is removed.
+   not matched adds ``existence_miss``; below ``existence_remove`` it is removed. With the sensor's detection
+   rates configured, both steps come from them and the range (``existence.py``).
 7. New landmarks from observations with no gated candidate ("id" association: with no landmark of that id);
    every ``merge_every`` updates, duplicates among the landmarks touched since are merged.
 8. Weights, effective sample size, low-variance resampling when ESS < ``resample_threshold`` · M; the map
@@ -62,6 +63,7 @@ from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
 from .drift import DriftTracker
+from .existence import hit_log_odds, miss_log_odds
 from .linalg import (
     joseph_update,
     lower_matvec,
@@ -308,12 +310,12 @@ class FastSLAM:
 
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
         # ("id": a landmark its identity named this frame was detected, even if the gate rejected the reading)
-        missed = self._missed_in_view(cand, poses, pairs if by_id else matched, by_id, miss_reach)
+        missed, missed_ranges = self._missed_in_view(cand, poses, pairs if by_id else matched, by_id, miss_reach)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
         moved = self._ekf_update(matched, predicted, poses, z, q6, mean, cov, s_inv)
-        dropped = self._count_miss(missed, miss_weight)
+        dropped = self._count_miss(missed, missed_ranges, miss_weight)
         self.store.include_in_bbox(matched.g, moved)
 
         # 7. new landmarks from observations no landmark was a candidate for
@@ -597,15 +599,17 @@ class FastSLAM:
         store.flat_count[matched.g] += 1
         store.flat_misses[matched.g] = 0
         cfg = self.config
-        store.flat_logodds[matched.g] = np.minimum(store.flat_logodds[matched.g] + cfg.existence_hit,
-                                                   cfg.existence_max)
+        ox, oy, _ = cfg.sensor_offset
+        hit = hit_log_odds(cfg, np.hypot(zx - ox, zy - oy))        # the reading's own range (existence.py)
+        store.flat_logodds[matched.g] = np.minimum(store.flat_logodds[matched.g] + hit, cfg.existence_max)
         return updated[:, :2]
 
     def _missed_in_view(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs, by_id: bool = False,
-                        reach: float | None = None) -> _Pairs:
+                        reach: float | None = None) -> tuple[_Pairs, np.ndarray]:
         """Candidate landmarks predicted well inside the view (``miss_fov_margin`` of the field of view and of
-        the range) and not matched: negative evidence for their existence. (``by_id``: ``matched`` are all the
-        pairs of the id join, gated or not, whose ``c`` is not a candidate index; found by (particle, slot).)"""
+        the range) and not matched: negative evidence for their existence, with their predicted ranges from the
+        sensor (P,). (``by_id``: ``matched`` are all the pairs of the id join, gated or not, whose ``c`` is not a
+        candidate index; found by (particle, slot).)"""
         store = self.store
         if by_id:
             n = len(store.flat_lid)
@@ -615,12 +619,15 @@ class FastSLAM:
             candidate[matched.c] = False
         idx = np.flatnonzero(candidate)
         if len(idx) == 0:
-            return cand.take(idx)
+            return cand.take(idx), np.zeros(0)
         m, at = cand.m[idx], cand.g[idx] * 9           # 1-D gathers of x, y, z from the 9-number slot records
         flat = store.state.reshape(-1)
         c, s = _cos_sin(poses, m)
         dx, dy = np.take(flat, at) - np.take(poses[:, 0], m), np.take(flat, at + 1) - np.take(poses[:, 1], m)
-        return cand.take(idx[self._well_in_view(c * dx + s * dy, c * dy - s * dx, np.take(flat, at + 2), reach)])
+        x, y = c * dx + s * dy, c * dy - s * dx
+        inside = np.flatnonzero(self._well_in_view(x, y, np.take(flat, at + 2), reach))
+        ox, oy, _ = self.config.sensor_offset
+        return cand.take(idx[inside]), np.hypot(x[inside] - ox, y[inside] - oy)
 
     def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, reach: float | None = None) -> np.ndarray:
         """(P,) bool: base_link points (x, y, z each (P,)) inside ``miss_fov_margin`` of the field of view and
@@ -639,14 +646,15 @@ class FastSLAM:
             ok &= _within_angle(height, np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
         return ok
 
-    def _count_miss(self, missed: _Pairs, weight: float = 1.0) -> int:
-        """Existence log-odds += ``existence_miss`` for landmarks missed in view; those falling below
-        ``existence_remove`` are removed. Returns how many (particle, landmark) were removed."""
+    def _count_miss(self, missed: _Pairs, ranges: np.ndarray, weight: float = 1.0) -> int:
+        """Existence log-odds += a miss's worth (``existence.miss_log_odds`` at the landmarks' ranges (P,)) for
+        landmarks missed in view; those falling below ``existence_remove`` are removed. Returns how many
+        (particle, landmark) were removed."""
         if len(missed.g) == 0:
             return 0
         store, cfg = self.store, self.config
         store.flat_misses[missed.g] += 1
-        store.flat_logodds[missed.g] += weight * cfg.existence_miss
+        store.flat_logodds[missed.g] += weight * miss_log_odds(cfg, ranges)
         drop = missed.g[store.flat_logodds[missed.g] < cfg.existence_remove]
         store.flat_lid[drop] = -1
         self.stats.landmarks_removed += len(drop)
@@ -681,7 +689,11 @@ class FastSLAM:
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
-        store.flat_logodds[g] = self.config.existence_initial
+        cfg = self.config
+        # the prior, plus (with the sensor's rates) the worth of the detection that made it (existence.py)
+        first = 0.0 if not cfg.detection_probabilities else hit_log_odds(cfg, np.hypot(zx - cfg.sensor_offset[0],
+                                                                                       zy - cfg.sensor_offset[1]))
+        store.flat_logodds[g] = np.minimum(cfg.existence_initial + first, cfg.existence_max)
         store.include_in_bbox(g)
         return new_ids, len(m)
 

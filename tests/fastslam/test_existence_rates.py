@@ -1,0 +1,71 @@
+"""Landmark existence from the sensor's own detection and false-alarm rates (estimation/fastslam/existence.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimation.fastslam import FastSLAM, range_bearing_config, range_bearing_observations
+
+# a camera-like footprint: ±0.6 rad, 0.5-9 m (misses count well inside it: 85 %)
+FOOTPRINT = dict(fov_horizontal=1.2, min_range=0.5, max_range=9.0, n_particles=10, association="id")
+RATES = dict(detection_probabilities=(0.7, 0.25), detection_range_edges=(3.0,), false_alarm_probability=0.02)
+
+
+def _stare(slam, frames, p_detect, rng) -> int:
+    """A robot standing still with a landmark (id 1) 6 m ahead that the sensor reports with probability
+    ``p_detect`` per frame, and a near one (id 2, 2 m) it always reports. Returns how often 1 was reported."""
+    reported = 0
+    for _ in range(frames):
+        seen = rng.random() < p_detect
+        reported += seen
+        ranges, bearings, ids = ([6.0, 2.0], [0.0, 0.3], [1, 2]) if seen else ([2.0], [0.3], [2])
+        slam.update(range_bearing_observations(ranges, bearings, 0.05, 0.01, ids=ids))
+    return reported
+
+
+def _count_of(slam, external_id):
+    landmark_map = slam.particle_map(slam.best_index)
+    return int(landmark_map.counts[slam.external_ids(landmark_map.ids) == external_id].sum())
+
+
+def test_a_real_landmark_reported_in_a_quarter_of_the_frames_is_kept_with_the_sensors_rates():
+    # the constants (+1 / -0.5) break even at P_D = 1/3: a landmark reported a quarter of the time is removed
+    # (and made again from scratch at its next sighting), which is what happened to MRCLAM's far landmarks;
+    # with the rates (log(P_D/P_FA), log(1 - P_D)) it is kept and every sighting goes into one estimate
+    constant = FastSLAM(range_bearing_config(**FOOTPRINT), np.random.default_rng(0))
+    reported = _stare(constant, 200, 0.25, np.random.default_rng(5))
+    assert constant.stats.landmarks_removed > 0 and _count_of(constant, 1) < reported
+    rates = FastSLAM(range_bearing_config(**FOOTPRINT, **RATES), np.random.default_rng(0))
+    assert _stare(rates, 200, 0.25, np.random.default_rng(5)) == reported
+    assert rates.stats.landmarks_removed == 0 and _count_of(rates, 1) == reported
+
+
+def test_a_false_alarm_is_still_removed_with_the_sensors_rates():
+    # one reading of an id at 2 m, never again while well in view: P_D = 0.7 there, so each miss costs
+    # log(0.3) = -1.2 and the single detection's log(0.7 / 0.02) = 3.6 is spent within 5 frames
+    slam = FastSLAM(range_bearing_config(**FOOTPRINT, **RATES), np.random.default_rng(0))
+    slam.update(range_bearing_observations([2.0, 2.5], [0.0, -0.2], 0.05, 0.01, ids=[9, 2]))
+    for _ in range(5):
+        slam.update(range_bearing_observations([2.5], [-0.2], 0.05, 0.01, ids=[2]))
+    assert set(slam.external_ids(slam.particle_map(0).ids).tolist()) == {2}
+
+
+def test_correlated_frames_count_as_fewer_independent_ones():
+    # lag-1 correlation ρ of the detected / missed sequence: every step is worth (1 − ρ)/(1 + ρ) of an
+    # independent frame's (the AR(1) argument of the sensor variances' inflation)
+    from estimation.fastslam.existence import hit_log_odds, miss_log_odds
+    ranges = np.array([1.0, 6.0])
+    independent = range_bearing_config(**RATES)
+    correlated = range_bearing_config(**RATES, detection_correlation=0.5)
+    np.testing.assert_allclose(hit_log_odds(correlated, ranges), hit_log_odds(independent, ranges) / 3)
+    np.testing.assert_allclose(miss_log_odds(correlated, ranges), np.log([0.3, 0.75]) / 3)
+
+
+@pytest.mark.parametrize("bad", [dict(detection_probabilities=(0.5, 0.2)),                       # edges missing
+                                 dict(detection_probabilities=(1.0,)),                          # certain detection
+                                 dict(detection_probabilities=(0.5,), false_alarm_probability=0.0),
+                                 dict(detection_probabilities=(0.5, 0.4, 0.2), detection_range_edges=(5.0, 3.0)),
+                                 dict(detection_correlation=1.0)])
+def test_impossible_rates_are_refused(bad):
+    with pytest.raises(ValueError):
+        range_bearing_config(**bad)
