@@ -46,6 +46,16 @@ def sips(packets: list[bytes]):
     return [decode_sip(p) for p in packets if p[0] in (0x32, 0x33)]
 
 
+class ManualClock:
+    """A wall clock the test moves by hand (a plain callable: the server runs on it as on ``time.monotonic``)."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
 @pytest.mark.parametrize("transport", ["tcp", "pty"])
 def test_handshake_sips_and_driving(world: World, transport: str) -> None:
     server = serve_tcp(world, "robot1", port=0) if transport == "tcp" else serve_pty(world, "robot1")
@@ -135,14 +145,24 @@ def test_close_is_idempotent_and_joins_its_thread(world: World) -> None:
     assert {t.name for t in threading.enumerate()} <= before
 
 
+def wait_until(predicate, bound: float = 10.0) -> bool:
+    """Poll ``predicate`` until it holds; ``bound`` (wall s) only limits how long a broken run hangs."""
+    deadline = time.monotonic() + bound
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.005)
+    return predicate()
+
+
 def test_time_scale_speeds_up_the_sip_stream(world: World) -> None:
-    with serve_tcp(world, "robot1", port=0, time_scale=5.0) as server:
+    clock = ManualClock()
+    with serve_tcp(world, "robot1", port=0, time_scale=5.0, clock=clock) as server:
         with serial.serial_for_url(server.url, timeout=0.05) as port:
             parser = PacketParser()
             handshake(port, parser)
-            t0 = time.monotonic()
-            got = sips(read_packets(port, parser, lambda p: len(sips(p)) >= 25))
-            assert len(got) >= 25 and time.monotonic() - t0 < 2.0  # 50 SIPs/s of wall time
+            assert wait_until(lambda: server.model.is_open)  # OPEN lands at clock 0
+            clock.t = 1.0  # one wall second = 5 simulated seconds: 50 SIPs
+            got = sips(read_packets(port, parser, lambda p: len(sips(p)) >= 50, timeout=10.0))
+            assert [s.uc_time for s in got] == [100_000 * k for k in range(1, 51)]
 
 
 def test_duplicate_name_and_bad_port_leave_nothing_behind(world: World) -> None:
@@ -155,15 +175,22 @@ def test_duplicate_name_and_bad_port_leave_nothing_behind(world: World) -> None:
 
 
 def test_time_scale_keeps_the_watchdog_in_wall_time(world: World) -> None:
-    with serve_tcp(world, "robot1", port=0, time_scale=5.0) as server:
+    clock = ManualClock()
+    with serve_tcp(world, "robot1", port=0, time_scale=5.0, clock=clock) as server:
         with serial.serial_for_url(server.url, timeout=0.05) as port:
             parser = PacketParser()
             handshake(port, parser)
             port.write(encode_command(Command.ENABLE, 1) + encode_command(Command.RVEL, 10))
-            for _ in range(3):  # ARIA's keep-alive: a PULSE every 0.5 s of wall time (2.5 s simulated)
-                time.sleep(0.5)
+            assert wait_until(lambda: server.model.motors_enabled)
+            for k in range(1, 4):  # ARIA's keep-alive: a PULSE every 0.5 s of wall time (2.5 s simulated)
+                clock.t = 0.5 * k
+                assert wait_until(lambda: server.model.time >= 5.0 * clock.t - 0.01)
+                sent = server.rx_bytes
                 port.write(encode_command(Command.PULSE))
+                assert wait_until(lambda sent=sent: server.rx_bytes > sent)
             assert server.model.w > 0 and server.model.stats.watchdog_stops == 0
+            clock.t += 2.1  # then 2.1 s of wall time in silence: the watchdog stops the robot
+            assert wait_until(lambda: server.model.stats.watchdog_stops == 1)
 
 
 def _drive_in_lockstep(world: World, transport: str) -> tuple[list[float], np.ndarray, np.ndarray]:
@@ -220,16 +247,6 @@ def test_a_lockstep_server_gives_one_trajectory_however_busy_the_machine(world: 
     assert stamps == loaded[0]
     np.testing.assert_array_equal(odometry, loaded[1])
     np.testing.assert_array_equal(truth, loaded[2])
-
-
-class ManualClock:
-    """A wall clock the test moves by hand (a plain callable: the server runs on it as on ``time.monotonic``)."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 @pytest.mark.parametrize("transport", ["tcp", "pty"])
