@@ -18,8 +18,6 @@ Scenarios:
   file), the virtual robots served as threads of the mission's process, or from their own process (the default
   of ``--realtime``);
 - ``--busy N`` runs every scenario again beside N ``while True: pass`` processes;
-- ``--driver-prompt-reads`` (an experiment for the driver's owner) makes the driver's reader return as soon as
-  bytes arrive (its handshake's ``_read_some(prompt=True)``) instead of at the end of 50 ms windows.
 
     .venv/bin/python benchmarks/bench_sip_timing.py                         # 30 s alone, 60 s demo, both modes
     .venv/bin/python benchmarks/bench_sip_timing.py --alone 20 --demo 40 --busy 0 2
@@ -126,12 +124,7 @@ def main() -> None:
     parser.add_argument("--demo", type=float, default=60.0, help="seconds of the realtime demo runs (0: skip)")
     parser.add_argument("--modes", nargs="+", choices=("thread", "process"), default=["thread", "process"])
     parser.add_argument("--busy", type=int, nargs="+", default=[0], help="busy-loop processes beside each set")
-    parser.add_argument("--driver-prompt-reads", action="store_true",
-                        help="experiment: the driver's reader stamps SIPs on arrival, not at 50 ms window ends")
     args = parser.parse_args()
-    if args.driver_prompt_reads:
-        batched = P3AT._read_some
-        P3AT._read_some = lambda self, prompt=False: batched(self, prompt=True)
     for busy in args.busy:
         loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
         try:

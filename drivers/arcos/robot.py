@@ -412,15 +412,16 @@ class P3AT:
             self._last_tx = self.clock()
 
     # ------------------------------------------------------------------ internals: reading
-    def _read_some(self, prompt: bool = False) -> None:
-        """One read; parsed payloads go to ``_pending``.
+    def _read_some(self) -> None:
+        """One read, returning as soon as any byte is there with everything already waiting; parsed payloads go
+        to ``_pending``.
 
-        The reader thread batches (one read returns after READ_TIMEOUT with everything that came: a few wake-ups
-        per second even at 9600 baud, where a SIP trickles in byte by byte); ``prompt`` returns as soon as any
-        byte is there, for the handshake's request/reply exchanges.
+        Prompt because the reader thread stamps each packet when it dispatches it: a batching ``read(4096)``
+        returns only at READ_TIMEOUT, which stamped every SIP up to 50 ms late (the runtime saw a 100 ms cycle
+        as gaps of 50 and 150 ms). At 9600 baud this wakes a few hundred times a second, as ARIA's reader does.
         """
         port = self._port
-        data = port.read(max(1, port.in_waiting)) if prompt else port.read(4096)
+        data = port.read(max(1, port.in_waiting))
         if data:
             self._pending.extend(self.parser.feed(data))
 
@@ -429,7 +430,7 @@ class P3AT:
         while not self._pending:
             if self.clock() >= deadline or self._stop.is_set():
                 return None
-            self._read_some(prompt=True)
+            self._read_some()
         return self._pending.popleft()
 
     def _drain(self, quiet: float = 0.3, limit: float = 2.0) -> None:
