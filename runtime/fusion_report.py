@@ -6,6 +6,7 @@ landmarks, and, for simulated maps whose metadata holds ``true_start_pose``, its
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -98,6 +99,14 @@ class FusionReport:
         return {"t": round(self.t, 2), "pairs": [p.as_dict() for p in self.pairs],
                 "merged_landmarks": 0 if self.merged is None else len(self.merged),
                 "seconds": self.seconds}
+
+
+def keep_latest_map(history: list[FusionReport], report: FusionReport) -> None:
+    """Append ``report`` to a mission's fusion history; earlier reports keep their figures but drop their merged
+    map (a whole map per fusion grew a long mission's memory by ~5 MB per 10 min; only the latest is used)."""
+    if history and history[-1].merged is not None:
+        history[-1] = dataclasses.replace(history[-1], merged=None)
+    history.append(report)
 
 
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,

@@ -38,7 +38,7 @@ from estimation.geometry import between
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
 from runtime.fleet.status import publish_robot_status
-from runtime.fusion_report import FusionReport, fuse_maps
+from runtime.fusion_report import FusionReport, fuse_maps, keep_latest_map
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
 from runtime.report import fusion_event_line
@@ -538,7 +538,7 @@ class Mission:
             return None
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.fusion_history)))
-        self.fusion_history.append(report)
+        keep_latest_map(self.fusion_history, report)
         if self.logger is not None:
             for pair in report.pairs:
                 self.logger.log_alignment(t, pair.reference, pair.other, {

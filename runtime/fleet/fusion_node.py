@@ -21,7 +21,7 @@ import numpy as np
 
 from runtime.exchange import MapExchange
 from runtime.fleet.status import StatusPrinter
-from runtime.fusion_report import FusionReport, fuse_maps
+from runtime.fusion_report import FusionReport, fuse_maps, keep_latest_map
 from runtime.report import fusion_event_line
 
 FUSED = "fused"
@@ -88,7 +88,7 @@ class FusionNode:
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.history)))
         self.sources = sources
-        self.history.append(report)
+        keep_latest_map(self.history, report)
         if report.merged is not None and any(p.aligned for p in report.pairs):
             merged = report.merged
             # which update of each robot this fusion holds: [sequence, sender's stamp] (latency, staleness)

@@ -180,6 +180,26 @@ def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth
     assert sorted(report.merged.robots) == sorted(maps)
 
 
+def test_a_fusion_history_keeps_every_report_but_only_the_latest_merged_map():
+    from estimation.geometry import inverse, transform_points
+    from runtime.fusion_report import fuse_maps, keep_latest_map
+
+    world = World.load()
+    rng = np.random.default_rng(3)
+    maps = {}
+    for name, start in (("robot1", np.array([3.0, 5.0, 0.0])), ("robot2", np.array([6.0, 5.2, 1.0]))):
+        near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
+        local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
+        maps[name] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
+                                 world.feature_descriptors[near], robot=name)
+    history = []
+    for t in (1.0, 2.0, 3.0):
+        keep_latest_map(history, fuse_maps(maps, "robust", 2, t=t, rng=np.random.default_rng(0)))
+    assert [r.t for r in history] == [1.0, 2.0, 3.0]
+    assert [r.merged is None for r in history] == [True, True, False]
+    assert all(r.pairs and r.pairs[0].aligned for r in history)  # the figures stay
+
+
 def test_videre_camera_comes_back_after_the_head_is_unplugged():
     from drivers.errors import DriverError
     from drivers.videre.head import StereoHead
