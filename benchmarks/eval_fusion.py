@@ -487,17 +487,19 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
               f"alignment's own part (vs the composed best rigid fits) {np.median(eo[:, 0]):.3f} m / "
               f"{np.median(eo[:, 1]):.4f} rad. Found but > {WRONG_M} m or 0.05 rad off the Vicon start poses: {wrong}, "
               f"of which not covered by the start-frame covariance (NEES > {CHI2_3_999}): {uncovered}.")
-    if report["exit"] != 0 or not out.exists():
+    if report["exit"] not in (0, 1) or not out.exists():
         return
     merged = LandmarkMap.load(out)
-    singles = [np.nanmedian(f[1]) for f in fits]
+    left_out = set(report.get("unconnected") or [])
+    inside = [k for k, f in enumerate(files) if str(f) not in left_out]   # the maps the merged map holds
+    singles = [np.nanmedian(fits[k][1]) for k in inside]
     _, merged_err, merged_ids = frame_fit(merged, truth)
     print("\n| map | landmarks | landmark error after the best rigid fit, median (m) | mean (m) |")
     print("|---|---|---|---|")
     for m, f in zip(maps, fits, strict=True):
         print(f"| {m.robot} | {len(m)} | {np.nanmedian(f[1]):.3f} | {np.nanmean(f[1]):.3f} |")
-    print(f"| merged ({'+'.join(m.robot[-1] for m in maps)}) | {len(merged)} | {np.nanmedian(merged_err):.3f} | "
-          f"{np.nanmean(merged_err):.3f} |")
+    print(f"| merged ({'+'.join(maps[k].robot[-1] for k in inside)}) | {len(merged)} | "
+          f"{np.nanmedian(merged_err):.3f} | {np.nanmean(merged_err):.3f} |")
     verdict = "lower" if np.nanmedian(merged_err) < min(singles) else "NOT lower"
     print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "
           f"({np.nanmedian(merged_err):.3f} vs {min(singles):.3f} m).")
