@@ -55,6 +55,8 @@ from .geometry import between, wrap_angle
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 1 << 20     # a noise model is a few hundred bytes; refuse anything absurd before parsing
+# range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
+DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
 
 
 class NoiseModelError(EstimationError, ValueError):
@@ -149,6 +151,20 @@ class NoiseModel:
         if self.range_bearing is not None:
             values.update(self.range_bearing.fastslam_overrides())
         return values
+
+    def existence_overrides(self) -> dict:
+        """The FastSLAMConfig fields of the sensor's detection rates (``estimation/fastslam/existence.py``), from
+        the fit's P(detect) per range band and its outlier share as the false-alarm probability; empty if the
+        model does not carry them (then the filter keeps its constant hit/miss log-odds)."""
+        p_d = [self.fit.get(f"detection_probability_{band}") for band, _ in DETECTION_BANDS]
+        p_fa = self.fit.get("sensor_outlier_fraction")
+        if any(not isinstance(p, int | float) or not math.isfinite(p) for p in [*p_d, p_fa]):
+            return {}
+        rho = self.fit.get("detection_correlation", 0.0)
+        rho = float(np.clip(rho, 0.0, 0.95)) if isinstance(rho, int | float) and math.isfinite(rho) else 0.0
+        return {"detection_probabilities": tuple(float(np.clip(p, 0.01, 0.99)) for p in p_d),
+                "detection_range_edges": tuple(edge for _, edge in DETECTION_BANDS[:-1]),
+                "false_alarm_probability": float(np.clip(p_fa, 1e-3, 0.5)), "detection_correlation": rho}
 
     def calibrate_increments(self, increments: np.ndarray) -> np.ndarray:
         """Odometry increments (T, 3) with the model's scale calibration applied."""
@@ -364,10 +380,12 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
                                           bearing_sigma_rad=float(np.sqrt(np.mean(db[inlier] ** 2))),
                                           bearing_offset_rad=offset, fov_rad=fov, min_range_m=min_range,
                                           max_range_m=max_range, range_correlation=rho_r, bearing_correlation=rho_b)
-        for label, lo, hi in (("below_3m", 0.0, 3.0), ("3_to_5m", 3.0, 5.0), ("beyond_5m", 5.0, math.inf)):
+        edges = [0.0] + [edge for _, edge in DETECTION_BANDS]
+        for (label, _), lo, hi in zip(DETECTION_BANDS, edges[:-1], edges[1:], strict=True):
             probability = _detection_probability(logs, fov, lo, hi)
             if math.isfinite(probability):
                 fit[f"detection_probability_{label}"] = probability
+        fit["detection_correlation"] = _detection_correlation(logs, fov)
         fit.update(sightings=int(len(dr)), sensor_outlier_fraction=float(1.0 - inlier.mean()),
                    range_bias_median_m=float(np.median(dr[inlier])),
                    range_bias_below_2m_m=float(np.median(dr[inlier & (r < 2.0)])) if np.any(inlier & (r < 2.0))
@@ -465,26 +483,49 @@ def _lag_correlation(residuals: np.ndarray, pair: np.ndarray, nxt: np.ndarray) -
     return float(np.clip(rho, 0.0, 0.95))
 
 
-def _detection_probability(logs: Sequence[RangeBearingLog], fov: float, near: float, far: float,
-                           margin: float = 0.85) -> float:
-    """P(a landmark well inside the view (``margin`` of the half field of view) at a range in [near, far) is
-    reported in a frame), over the frames (distinct sighting times) of the logs, from the true poses."""
+def _detection_frames(log: RangeBearingLog, fov: float, near: float, far: float, margin: float = 0.85):
+    """Per frame (distinct sighting time) and true landmark: in view (``margin`` of the half field of view, range
+    in [near, far)) at the true pose, and reported; both (F, L) bool, with the frame times (F,)."""
+    times, frame = np.unique(log.sighting_times, return_inverse=True)
+    pose = log.true_pose(times)
+    d = log.truth_positions[None, :, :] - pose[:, None, :2]
+    r = np.hypot(d[..., 0], d[..., 1])
+    b = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - pose[:, 2:3])
+    in_view = (np.abs(b) < margin * fov / 2) & (r >= near) & (r < far)
+    seen = np.zeros_like(in_view)
+    known = np.isin(log.landmark_ids, log.truth_ids)
+    seen[frame[known], np.searchsorted(log.truth_ids, log.landmark_ids[known])] = True
+    return in_view, seen, times
+
+
+def _usable(log: RangeBearingLog) -> bool:
+    return len(log) > 0 and len(log.truth_ids) > 0
+
+
+def _detection_probability(logs: Sequence[RangeBearingLog], fov: float, near: float, far: float) -> float:
+    """P(a landmark well inside the view at a range in [near, far) is reported in a frame), over the frames
+    (distinct sighting times) of the logs, from the true poses."""
     hits = total = 0
-    for log in logs:
-        if len(log) == 0 or len(log.truth_ids) == 0:
-            continue
-        times, frame = np.unique(log.sighting_times, return_inverse=True)
-        pose = log.true_pose(times)
-        d = log.truth_positions[None, :, :] - pose[:, None, :2]
-        r = np.hypot(d[..., 0], d[..., 1])
-        b = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - pose[:, 2:3])
-        in_view = (np.abs(b) < margin * fov / 2) & (r >= near) & (r < far)
-        seen = np.zeros_like(in_view)
-        known = np.isin(log.landmark_ids, log.truth_ids)
-        seen[frame[known], np.searchsorted(log.truth_ids, log.landmark_ids[known])] = True
+    for log in filter(_usable, logs):
+        in_view, seen, _ = _detection_frames(log, fov, near, far)
         hits += int((seen & in_view).sum())
         total += int(in_view.sum())
     return hits / total if total else float("nan")
+
+
+def _detection_correlation(logs: Sequence[RangeBearingLog], fov: float) -> float:
+    """Lag-1 correlation of a landmark's reported / not reported indicator over consecutive frames (at most
+    CORRELATION_GAP_S apart) in which it is well in view at the true pose; clipped to [0, 0.95]."""
+    x, y = [], []
+    for log in filter(_usable, logs):
+        in_view, seen, times = _detection_frames(log, fov, 0.0, math.inf)
+        pair = (np.diff(times) <= CORRELATION_GAP_S)[:, None] & in_view[:-1] & in_view[1:]
+        x.append(seen[:-1][pair])
+        y.append(seen[1:][pair])
+    x, y = (np.concatenate(v).astype(float) if v else np.zeros(0) for v in (x, y))
+    if len(x) < 20 or x.std() == 0 or y.std() == 0:
+        return 0.0
+    return float(np.clip(np.corrcoef(x, y)[0, 1], 0.0, 0.95))
 
 
 def _robust_sigma(x: np.ndarray) -> float:
@@ -492,5 +533,6 @@ def _robust_sigma(x: np.ndarray) -> float:
 
 
 def with_fastslam(model: NoiseModel, config):
-    """``config`` (a FastSLAMConfig) with the model's motion noise."""
-    return replace(config, **model.fastslam_overrides())
+    """``config`` (a FastSLAMConfig) with the model's motion noise, the sensor's footprint and, when the model
+    carries them, its detection rates for the landmarks' existence (:meth:`NoiseModel.existence_overrides`)."""
+    return replace(config, **model.fastslam_overrides(), **model.existence_overrides())

@@ -165,6 +165,12 @@ def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
     # commanded-velocity odometry: the variance per metre grows with the window (errors correlated in time)
     by_window = estimate.odometry_by_window
     assert by_window[-1, 1] > by_window[0, 1]
+    # a landmark the camera misses in one frame is likely missed in the next (occlusion, an unreadable barcode):
+    # the detected / missed sequence is correlated, and the far band is detected less often than the near one
+    fit = estimate.model.fit
+    assert 0.3 < fit["detection_correlation"] < 0.9
+    assert fit["detection_probability_beyond_5m"] < fit["detection_probability_below_3m"]
+    assert estimate.model.existence_overrides()["detection_correlation"] == fit["detection_correlation"]
 
 
 def test_correlated_sightings_are_measured_and_inflate_the_variance():
@@ -176,3 +182,21 @@ def test_correlated_sightings_are_measured_and_inflate_the_variance():
     # pairs are consecutive sightings within 2 s: mostly adjacent in the AR(1) series
     assert rb.bearing_correlation == pytest.approx(0.6, abs=0.1) and rb.range_correlation < 0.1
     assert rb.variance_inflation()[1] == pytest.approx((1 + rb.bearing_correlation) / (1 - rb.bearing_correlation))
+
+
+def test_the_fitted_detection_rates_set_the_filters_existence_evidence():
+    # the [fit] section's P(detect) per range band and outlier share become the filter's existence log-odds
+    # (estimation/fastslam/existence.py); a model without them leaves the filter's constants alone
+    from estimation.fastslam.existence import hit_log_odds, miss_log_odds
+    from estimation.noise_model import with_fastslam
+    odometry, sensor = OdometryNoise(0.001, 0.002, 0.003), RangeBearingNoise(0.02, 0.04, 0.01)
+    fit = {"detection_probability_below_3m": 0.6, "detection_probability_3_to_5m": 0.4,
+           "detection_probability_beyond_5m": 0.2, "sensor_outlier_fraction": 0.04}
+    config = with_fastslam(NoiseModel(odometry, sensor, fit=fit), range_bearing_config())
+    assert config.detection_probabilities == (0.6, 0.4, 0.2) and config.detection_range_edges == (3.0, 5.0)
+    assert config.false_alarm_probability == 0.04
+    ranges = np.array([1.0, 4.0, 7.0])
+    np.testing.assert_allclose(miss_log_odds(config, ranges), np.log([0.4, 0.6, 0.8]))
+    np.testing.assert_allclose(hit_log_odds(config, ranges), np.log([15.0, 10.0, 5.0]))
+    plain = with_fastslam(NoiseModel(odometry, sensor, fit={"sensor_outlier_fraction": 0.04}), range_bearing_config())
+    assert plain.detection_probabilities == () and miss_log_odds(plain, ranges) == plain.existence_miss

@@ -1,4 +1,5 @@
-"""Landmark existence from the sensor's own detection and false-alarm rates (estimation/fastslam/existence.py)."""
+"""Landmark existence from the sensor's own detection and false-alarm rates (estimation/fastslam/existence.py), and
+the "id" gate under a heading error (the pose's uncertainty must be in it)."""
 from __future__ import annotations
 
 import numpy as np
