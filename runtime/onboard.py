@@ -122,11 +122,17 @@ class OdometryBuffer:
         self._cond = threading.Condition()
 
     def add(self, t: float, pose: np.ndarray) -> None:
+        """A sample stamped ``t``. Samples stamped alike came in one read (a driver that had fallen behind
+        stamps a backlog with its read time): the newest is the pose at ``t``, the older ones are of earlier,
+        unknown instants and are dropped. An out-of-order stamp is ignored."""
         with self._cond:
-            if self._times and t <= self._times[-1]:
-                return  # a repeated or out-of-order stamp carries no new information
-            self._times.append(float(t))
-            self._poses.append(np.asarray(pose, float))
+            if self._times and t < self._times[-1]:
+                return
+            if self._times and t == self._times[-1]:
+                self._poses[-1] = np.asarray(pose, float)
+            else:
+                self._times.append(float(t))
+                self._poses.append(np.asarray(pose, float))
             self._cond.notify_all()
 
     @property
