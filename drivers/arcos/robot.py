@@ -422,6 +422,15 @@ class P3AT:
         """
         port = self._port
         data = port.read(max(1, port.in_waiting))
+        if data and port.in_waiting:
+            # more is waiting: take it all now, without waiting (a socket:// port reports 0 or 1 waiting bytes,
+            # so the line above reads one byte; a reader that fell behind would catch up a byte per call, and
+            # stamp a backlogged SIP seconds after it was sent)
+            timeout, port.timeout = port.timeout, 0
+            try:
+                data += port.read(1 << 16)
+            finally:
+                port.timeout = timeout
         if data:
             self._pending.extend(self.parser.feed(data))
 

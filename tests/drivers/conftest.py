@@ -156,6 +156,19 @@ class FakePeer:
                         self.th += self.w * 0.1
                         self._send(self._sip())
 
+    def send_burst(self, n: int, x0: float) -> None:
+        """n SIPs in one write (x = x0, x0 + 1 mm, ...): SIPs that queued while the client was not reading."""
+        with self._lock:
+            packets = []
+            for k in range(n):
+                self.x = x0 + 0.001 * k
+                packets.append(encode_packet(self._sip()))
+            data = b"".join(packets)
+            if self.transport == "pty":
+                os.write(self._master, data)
+            elif self._conn is not None:
+                self._conn.sendall(data)
+
     def drop_client(self) -> None:
         """TCP: hang up on the client (the robot was restarted); done by the peer's own thread."""
         self._drop = True
