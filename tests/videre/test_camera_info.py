@@ -54,9 +54,11 @@ def test_camera_info_round_trip_keeps_every_number_but_the_head_pose(tmp_path, c
     back = camera_info.read_pair(folder)
     for name in ("K1", "D1", "K2", "D2", "R1", "R2", "P1", "P2"):  # written and read exactly
         np.testing.assert_array_equal(getattr(back, name), getattr(calib, name), err_msg=name)
-    # R and T are rebuilt from the rectification and the projections: equal to well under a micrometre and a
-    # microradian (a component of T of a few nm, below what R1 and R2 resolve, comes back as 0)
-    np.testing.assert_allclose(back.R, calib.R, rtol=0, atol=1e-9)
+    # R and T are rebuilt from the rectification and the projections. R is exactly the rotation the files carry
+    # (R2ᵀ R1); that differs from the calibration's own R by what OpenCV's stereoRectify resolves when it makes
+    # R1 and R2 (up to 9.3e-6 over 2,000 random heads: a 1e-6 rad twist can come back as identity)
+    np.testing.assert_allclose(back.R, calib.R2.T @ calib.R1, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(back.R, calib.R, rtol=0, atol=1e-4)
     np.testing.assert_allclose(back.T, calib.T, rtol=1e-6, atol=1e-8)
     assert back.size == calib.size and np.all(back.head_pose == 0)
 
