@@ -787,8 +787,10 @@ def main() -> None:
                 mrclam_table(maps, truth, f"FastSLAM maps ({assoc} association, {folder.name})", Path(work),
                              args.figures, f"fastslam_{assoc}")
         mrclam_faults(sightings, args.fault_seeds)
-    else:
+    elif not (args.mrclam and args.mrclam.is_dir()):
         print(f"\n(MRCLAM tables skipped: {args.mrclam} not found)")
+    else:
+        print("\n(MRCLAM tables skipped: --maps-only without --mrclam-maps)")
     if args.starved:
         starved_table(args.starved)
     if args.demo_maps:
