@@ -55,13 +55,16 @@ def format_summary(summary: dict) -> str:
     if not fusion or not fusion["pairs"]:
         lines.append("Fusion: fewer than two maps, nothing to fuse.")
     else:
+        # 1σ: the alignment's uncertainty against the true start frames (each map's own frame error included),
+        # beside the error when the truth is known, so a reader sees whether the claim covers the error
         rows = [["alignment", "found", "tx (m)", "ty (m)", "θ (rad)", "supports", "needed", "P(chance)", "common",
-                 "error xy (m)", "error θ (rad)"]]
+                 "1σ xy (m)", "1σ θ (rad)", "error xy (m)", "error θ (rad)"]]
         for p in fusion["pairs"]:
             rows.append([f"{p['other']} -> {p['reference']}", "yes" if p["aligned"] else "no",
                          _fmt(p["tx"]), _fmt(p["ty"]), _fmt(p["theta"], ".4f"), str(p["supports"]),
                          _fmt(p.get("required_supports"), "d"), _fmt(p.get("false_alarm_probability"), ".1e"),
-                         str(p["common"]), _fmt(p["error_xy"]), _fmt(p["error_theta"], ".4f")])
+                         str(p["common"]), _fmt(p.get("start_sigma_xy")), _fmt(p.get("start_sigma_theta"), ".4f"),
+                         _fmt(p["error_xy"]), _fmt(p["error_theta"], ".4f")])
         lines += _table(rows)
         for p in fusion["pairs"]:
             if p["aligned"] and p.get("low_confidence"):

@@ -1,6 +1,8 @@
 """Map exchange, motion controllers and the runtime's other parts, through their public interfaces."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -198,6 +200,32 @@ def test_a_fusion_history_keeps_every_report_but_only_the_latest_merged_map():
     assert [r.t for r in history] == [1.0, 2.0, 3.0]
     assert [r.merged is None for r in history] == [True, True, False]
     assert all(r.pairs and r.pairs[0].aligned for r in history)  # the figures stay
+
+
+def test_the_summary_table_shows_each_alignment_with_its_start_frame_uncertainty_beside_its_error():
+    from estimation.geometry import inverse, transform_points
+    from runtime.fusion_report import fuse_maps
+    from runtime.report import format_summary
+
+    world = World.load()
+    rng = np.random.default_rng(5)
+    maps = {}
+    for name, start in (("robot1", np.array([3.0, 5.0, 0.0])), ("robot2", np.array([6.0, 5.2, 1.0]))):
+        near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
+        local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
+        maps[name] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
+                                 world.feature_descriptors[near], robot=name,
+                                 metadata={"true_start_pose": start.tolist()})
+    pair = fuse_maps(maps, "robust", 2, t=1.0, rng=np.random.default_rng(0)).pairs[0]
+    assert pair.aligned and pair.start_sigma_xy > 0 and pair.start_sigma_theta > 0
+    text = format_summary({"duration": 1.0, "camera": "synthetic", "particles": 1, "seed": 0, "robots": {},
+                           "fusion": {"pairs": [pair.as_dict()], "merged_landmarks": 1}})
+    header, _, row = text.splitlines()[-5:-2]
+    columns = re.split(r"\s{2,}", header.strip())
+    cells = dict(zip(columns, re.split(r"\s{2,}", row.strip()), strict=True))
+    assert float(cells["1σ xy (m)"]) == pytest.approx(pair.start_sigma_xy, abs=1e-3)
+    assert float(cells["1σ θ (rad)"]) == pytest.approx(pair.start_sigma_theta, abs=1e-4)
+    assert float(cells["error xy (m)"]) == pytest.approx(pair.error_xy, abs=1e-3)
 
 
 def test_videre_camera_comes_back_after_the_head_is_unplugged():
