@@ -199,7 +199,9 @@ class P3AT:
         """
         if self._closed:
             raise NotConnectedError(f"{self.url}: this P3AT was closed; make a new one")
-        if self._link_up:
+        if self._link_up:  # already connected (e.g. by ``with P3AT(url) as robot``): still honour the request
+            if enable_motors:
+                self.motors_on()
             return self
         try:
             self._open_session()

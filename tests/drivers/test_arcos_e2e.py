@@ -110,6 +110,14 @@ def test_handshake_identity_and_config(virtual_robot) -> None:
         assert 10.0 < state.battery_volts <= 13.0
 
 
+def test_connect_on_a_connected_driver_still_enables_the_motors_when_asked(virtual_robot) -> None:
+    robot = virtual_robot(box_world(), (5.0, 2.0, 0.0))
+    with driver(robot) as p3at:  # the with statement connected it, motors off
+        assert not p3at.wait_for_state(FAILURE_BOUND).motors_enabled
+        assert p3at.connect(enable_motors=True) is p3at
+        assert p3at.wait_for_state(FAILURE_BOUND, lambda s: s.motors_enabled).motors_enabled
+
+
 def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configured_error(virtual_robot) -> None:
     scale_error = 0.98  # the wheels measure 2 % short
     robot = virtual_robot(open_world(), (1.0, 2.0, 0.0), time_scale=10.0,
