@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import re
 import subprocess
 import sys
@@ -90,11 +91,16 @@ def test_top_level_help_imports_no_command():
         assert name in done.stdout
 
 
-def test_one_command_help_loads_only_that_command(capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        main(["fuse", "--help"])
-    assert exit_info.value.code == 0
-    assert "--preset" in capsys.readouterr().out
+def test_one_command_help_loads_only_that_command():
+    code = ("import sys; from runtime.cli import main\n"
+            "try:\n    main(['fuse', '--help'])\nexcept SystemExit as stop:\n    status = stop.code\n"
+            "loaded = sorted(m for m in sys.modules if m.startswith('runtime.commands.'))\n"
+            "sys.stderr.write(repr((status, loaded)))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    status, loaded = ast.literal_eval(done.stderr.strip())
+    assert status == 0
+    assert "--preset" in done.stdout
+    assert set(loaded) - {"runtime.commands.options"} == {"runtime.commands.fuse"}
 
 
 def test_a_closed_pipe_ends_quietly():

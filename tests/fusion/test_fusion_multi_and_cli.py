@@ -113,13 +113,6 @@ def test_cli_rejects_a_malformed_map_file(map_files, capsys):
     assert "missing.npz" in capsys.readouterr().err
 
 
-def test_cli_help(capsys):
-    with pytest.raises(SystemExit) as e:
-        main(["fuse", "--help"])
-    assert e.value.code == 0
-    assert "--preset" in capsys.readouterr().out
-
-
 def test_compose_helpers_agree_with_tree_poses():
     maps, starts, _ = _three_robot_maps()
     result = fuse_all(maps, "robust", 1, np.random.default_rng(0))
