@@ -158,21 +158,30 @@ def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
     assert contents.summary == {"robots": {}}
 
 
-@pytest.mark.parametrize("n_robots", [2, 3])
-def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth(n_robots):
+def _maps_seen_from(starts: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, LandmarkMap]:
+    """One map per robot: the building's features within 9 m of its start, in its start frame, 1 cm noise."""
     from estimation.geometry import inverse, transform_points
-    from runtime.fusion_report import fuse_maps
 
     world = World.load()
-    rng = np.random.default_rng(6)
-    starts = [np.array([3.0, 5.0, 0.0]), np.array([8.0, 5.0, np.pi]), np.array([6.0, 5.2, 1.0])][:n_robots]
     maps = {}
-    for k, start in enumerate(starts):
+    for name, start in starts.items():
         near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
         local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
-        maps[f"robot{k + 1}"] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
-                                            world.feature_descriptors[near], robot=f"robot{k + 1}",
-                                            metadata={"true_start_pose": start.tolist()})
+        maps[name] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
+                                 world.feature_descriptors[near], robot=name,
+                                 metadata={"true_start_pose": start.tolist()})
+    return maps
+
+
+TWO_STARTS = {"robot1": np.array([3.0, 5.0, 0.0]), "robot2": np.array([6.0, 5.2, 1.0])}
+
+
+@pytest.mark.parametrize("n_robots", [2, 3])
+def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth(n_robots):
+    from runtime.fusion_report import fuse_maps
+
+    starts = [np.array([3.0, 5.0, 0.0]), np.array([8.0, 5.0, np.pi]), np.array([6.0, 5.2, 1.0])][:n_robots]
+    maps = _maps_seen_from({f"robot{k + 1}": start for k, start in enumerate(starts)}, np.random.default_rng(6))
     report = fuse_maps(maps, "robust", 2, t=1.0, rng=np.random.default_rng(0))
     assert [p.other for p in report.pairs] == [f"robot{k}" for k in range(2, n_robots + 1)]
     for pair in report.pairs:
@@ -183,17 +192,9 @@ def test_fuse_maps_aligns_every_map_to_the_first_and_scores_it_against_the_truth
 
 
 def test_a_fusion_history_keeps_every_report_but_only_the_latest_merged_map():
-    from estimation.geometry import inverse, transform_points
     from runtime.fusion_report import fuse_maps, keep_latest_map
 
-    world = World.load()
-    rng = np.random.default_rng(3)
-    maps = {}
-    for name, start in (("robot1", np.array([3.0, 5.0, 0.0])), ("robot2", np.array([6.0, 5.2, 1.0]))):
-        near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
-        local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
-        maps[name] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
-                                 world.feature_descriptors[near], robot=name)
+    maps = _maps_seen_from(TWO_STARTS, np.random.default_rng(3))
     history = []
     for t in (1.0, 2.0, 3.0):
         keep_latest_map(history, fuse_maps(maps, "robust", 2, t=t, rng=np.random.default_rng(0)))
@@ -203,19 +204,10 @@ def test_a_fusion_history_keeps_every_report_but_only_the_latest_merged_map():
 
 
 def test_the_summary_table_shows_each_alignment_with_its_start_frame_uncertainty_beside_its_error():
-    from estimation.geometry import inverse, transform_points
     from runtime.fusion_report import fuse_maps
     from runtime.report import format_summary
 
-    world = World.load()
-    rng = np.random.default_rng(5)
-    maps = {}
-    for name, start in (("robot1", np.array([3.0, 5.0, 0.0])), ("robot2", np.array([6.0, 5.2, 1.0]))):
-        near = np.linalg.norm(world.features[:, :2] - start[:2], axis=1) < 9.0
-        local = transform_points(inverse(start), world.features[near]) + rng.normal(0, 0.01, (near.sum(), 3))
-        maps[name] = LandmarkMap(local, np.tile(np.eye(3) * 1e-4, (near.sum(), 1, 1)),
-                                 world.feature_descriptors[near], robot=name,
-                                 metadata={"true_start_pose": start.tolist()})
+    maps = _maps_seen_from(TWO_STARTS, np.random.default_rng(5))
     pair = fuse_maps(maps, "robust", 2, t=1.0, rng=np.random.default_rng(0)).pairs[0]
     assert pair.aligned and pair.start_sigma_xy > 0 and pair.start_sigma_theta > 0
     text = format_summary({"duration": 1.0, "camera": "synthetic", "particles": 1, "seed": 0, "robots": {},
