@@ -12,6 +12,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
+from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 
 EXIT_NO_OVERLAP = 1
 EXIT_BAD_INPUT = 2
@@ -52,7 +53,6 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, NoOverlapError, alignment_error, fuse_all, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import pairwise_alignments
-    from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -150,16 +150,14 @@ def _print(report: dict, as_json: bool) -> None:
         print(f"{head}: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad; supports {a['supports_count']} of "
               f"{st['correspondences']} correspondences ({st['required_supports']} needed on these maps, best "
               f"distinct hypothesis {st['second_best_supports']}), {st['iterations']} iterations, residual rms "
-              f"{rms:.3f} m; {_confidence(a['false_alarm_probability'])}" + ("" if a["used"] else " (not used)"))
+              f"{rms:.3f} m; {confidence_text(a['false_alarm_probability'])}" + ("" if a["used"] else " (not used)"))
         if a["covariance"] is not None:
-            cov = np.asarray(a["covariance"])
-            print(f"    precision (1σ): {np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)):.3f} m, "
-                  f"{np.sqrt(max(cov[2, 2], 0.0)):.4f} rad")
+            sigma_xy, sigma_theta = sigmas(a["covariance"])
+            print(f"    precision (1σ): {sigma_xy:.3f} m, {sigma_theta:.4f} rad")
         if a.get("start_covariance") is not None:
-            cov = np.asarray(a["start_covariance"])
+            sigma_xy, sigma_theta = sigmas(a["start_covariance"])
             print(f"    against the true start frames (1σ, each map's error at the overlap as a whole): "
-                  f"{np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0)):.3f} m, "
-                  f"{np.sqrt(max(cov[2, 2], 0.0)):.4f} rad")
+                  f"{sigma_xy:.3f} m, {sigma_theta:.4f} rad")
         if st.get("gate_inflation", 1.0) > OVERCONFIDENT_MAPS:
             print(f"    note: the supports' residuals are {np.sqrt(st['gate_inflation']):.1f}× the maps' claimed "
                   "standard deviations (their covariances are too small; gate and precision were scaled to match)")
@@ -180,13 +178,9 @@ def _print(report: dict, as_json: bool) -> None:
               f"-> {report['out']}")
 
 
-def _confidence(p: float | None) -> str:
-    return "false-alarm probability not evaluated" if p is None else f"false-alarm probability {p:.1e}"
-
-
 def _warn_low_confidence(report: dict) -> None:
     for a in report["alignments"]:
         if a["low_confidence"]:
             print(f"p3at fuse: warning: map {a['map2']} -> map {a['map1']} was aligned with low confidence "
-                  f"({_confidence(a['false_alarm_probability'])}; the {a['preset']} preset decides by its support "
+                  f"({confidence_text(a['false_alarm_probability'])}; the {a['preset']} preset decides by its support "
                   "count alone)", file=sys.stderr)
