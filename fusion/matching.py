@@ -24,12 +24,14 @@ SEARCH_BUDGET_PAIRS = 100_000_000
 _BLOCK_PAIRS = 16_000_000
 
 
-def _two_nearest_exact(queries: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices and distances of the two nearest ``base`` rows for every query, and every base row's
     nearest query (one pass over the distance matrix, in blocks of rows).
 
     queries (Q, D), base (B, D) -> index (Q, 2), distance (Q, 2) (second column -1 / inf when B < 2),
-    back (B,) index of the nearest query of each base row.
+    back (B,) index of the nearest query of each base row. ``exclude`` (Q,): a base row each query may not
+    match (a map searched against itself: the query's own row).
     """
     q = queries.astype(np.float32, copy=False)
     b = base.astype(np.float32, copy=False)
@@ -47,6 +49,8 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray) -> tuple[np.ndarra
         # |a - b|² = |a|² + |b|² - 2 a·b, clipped at zero against round-off
         d2 = np.einsum("ij,ij->i", block, block)[:, None] + b_sq[None, :] - 2.0 * (block @ b.T)
         np.maximum(d2, 0.0, out=d2)
+        if exclude is not None:
+            d2[r, exclude[start:start + len(block)]] = np.inf
         col_best = np.argmin(d2, axis=0)
         better = d2[col_best, cols] < back_d2
         back[better] = start + col_best[better]
@@ -127,19 +131,6 @@ def self_correspondences(desc: np.ndarray, max_distance: float, ratio: float, ro
     if n < 3:
         return np.zeros((0, 2), np.int64)
     queries = np.arange(n) if rows is None else np.asarray(rows, np.int64)
-    d = desc.astype(np.float32, copy=False)
-    sq = np.einsum("ij,ij->i", d, d)
-    block_rows = int(np.clip(_BLOCK_PAIRS // n, 64, 4096))
-    out = []
-    for start in range(0, len(queries), block_rows):
-        q = queries[start:start + block_rows]
-        d2 = sq[q][:, None] + sq[None, :] - 2.0 * (d[q] @ d.T)
-        np.maximum(d2, 0.0, out=d2)
-        d2[np.arange(len(q)), q] = np.inf                     # not itself
-        near = np.argpartition(d2, 1, axis=1)[:, :2]
-        nd = np.take_along_axis(d2, near, axis=1)
-        order = np.argsort(nd, axis=1)
-        near, nd = np.take_along_axis(near, order, axis=1), np.sqrt(np.take_along_axis(nd, order, axis=1))
-        keep = (nd[:, 0] < max_distance) & (nd[:, 0] < ratio * nd[:, 1])
-        out.append(np.column_stack([q[keep], near[keep, 0]]))
-    return np.concatenate(out).astype(np.int64) if out else np.zeros((0, 2), np.int64)
+    index, dist, _ = _two_nearest_exact(desc[queries], desc, exclude=queries)
+    keep = (dist[:, 0] < max_distance) & (dist[:, 0] < ratio * dist[:, 1])
+    return np.column_stack([queries[keep], index[keep, 0]]).astype(np.int64)
