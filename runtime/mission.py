@@ -265,9 +265,8 @@ class Mission:
         poses stay visible in ``world`` for the heads and the scores. Closed after every driver (LIFO)."""
         from mocks.p3at import RobotSpec, serve_tcp_process
 
-        specs = [RobotSpec(name, tuple(world.start_poses[name]), seed=self.config.seed + 100 * index,
-                           odometry=self._odometry_errors())
-                 for name, index in ((n, sorted(world.start_poses).index(n)) for n in names)]
+        specs = [RobotSpec(name, tuple(world.start_poses[name]), odometry=self._odometry_errors(),
+                           seed=self.config.seed + 100 * _world_index(world, name)) for name in names]
         self._robot_process = serve_tcp_process(world, specs, time_scale=self.config.time_scale)
         stack.callback(self._robot_process.close)
         self.events(f"virtual robots served by process {self._robot_process.pid} "
@@ -376,8 +375,8 @@ class Mission:
             with self.clock.hold() if self.lockstep else contextlib.nullcontext():
                 t0 = self.clock()
                 for index, name in enumerate(names):
-                    if world is not None:  # a world's robot keeps its seeds whether it runs alone or with others
-                        index = sorted(world.start_poses).index(name)
+                    if world is not None:
+                        index = _world_index(world, name)
                     self.robots.append(self._robot(stack, world, index, name, t0))
                 if self.logger is not None and self.robots[0].true_start is not None:
                     self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps: robot 1's frame
@@ -620,6 +619,12 @@ class Mission:
             self.logger.log_summary(summary)
             self.logger.close()
         return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history, list(self.failures))
+
+
+def _world_index(world, name: str) -> int:
+    """A world's robot's index among the world's start poses, which sets its seeds: the same whether it runs
+    alone or with others, and whether it is served in this process or another."""
+    return sorted(world.start_poses).index(name)
 
 
 def install_stop_signals(stop: Callable[[], None]) -> Callable[[], None]:
