@@ -3,43 +3,58 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 import time
 from pathlib import Path
 
-from runtime.commands.options import positive_int
+from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int
 from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
 
 
+def camera_latency(text: str) -> float:
+    """Seconds in [0, 1): the bound MissionConfig also checks, here so that ``demo --processes`` refuses it
+    before starting any process."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value < 1.0:  # nan and the infinities fail this too
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1) s, not {text!r}")
+    return value
+
+
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,
                           camera: str, camera_rate: float) -> None:
-    parser.add_argument("--robots", type=int, default=robots, help=f"number of robots (default {robots})")
-    parser.add_argument("--seconds", type=float, default=seconds,
+    parser.add_argument("--robots", type=positive_int, default=robots, help=f"number of robots (default {robots})")
+    parser.add_argument("--seconds", type=positive_float, default=seconds,
                         help=f"mission length at most, s (default {seconds:g}; ends earlier when the routes are done)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random generator (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="seed of every random generator, a whole number >= 0 (default 0)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"output folder (default {out})")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--camera", choices=CAMERAS, default=camera,
                         help=f"mock: rendered frames through the Videre driver; synthetic: simulated observations "
                              f"(fast); usb: a real head (default {camera})")
-    parser.add_argument("--camera-rate", type=float, default=camera_rate, help=f"Hz (default {camera_rate:g})")
-    parser.add_argument("--camera-latency", type=float, default=None, metavar="S",
-                        help="s from a stereo pair's exposure to its arrival, subtracted from frame timestamps "
-                             "(default: the virtual head's 0.06; 0 for a real head -- measure yours)")
+    parser.add_argument("--camera-rate", type=positive_float, default=camera_rate, metavar="HZ",
+                        help=f"stereo frames per second, Hz (default {camera_rate:g})")
+    parser.add_argument("--camera-latency", type=camera_latency, default=None, metavar="S",
+                        help="s from a stereo pair's exposure to its arrival, in [0, 1), subtracted from frame "
+                             "timestamps (default: the virtual head's 0.06; 0 for a real head -- measure yours)")
     parser.add_argument("--particles", type=positive_int, default=100, help="FastSLAM particles (default 100)")
-    parser.add_argument("--max-corners", type=int, default=150,
+    parser.add_argument("--max-corners", type=positive_int, default=150,
                         help="Harris corners per image (default 150; fewer observations, faster FastSLAM)")
-    parser.add_argument("--max-observations", type=int, default=0,
+    parser.add_argument("--max-observations", type=non_negative_int, default=0,
                         help="FastSLAM's cap on observations per frame, most precise first (default 0: all)")
     parser.add_argument("--motion", choices=MOTIONS, default="route",
                         help="route: follow a route; explore: sonar wall following; none: someone else drives")
     parser.add_argument("--route", type=Path, default=None,
                         help="route file (x y per line, in the robot's odometry frame) instead of the world's routes")
-    parser.add_argument("--speed", type=float, default=0.35, help="m/s along routes (default 0.35)")
-    parser.add_argument("--fusion-interval", type=float, default=20.0,
+    parser.add_argument("--speed", type=positive_float, default=0.35, help="m/s along routes (default 0.35)")
+    parser.add_argument("--fusion-interval", type=non_negative_float, default=20.0,
                         help="s between map fusions during the mission (0: at the end only; default 20)")
     parser.add_argument("--preset", choices=("robust", "paper"), default="robust", help="alignment preset")
     parser.add_argument("--method", type=int, choices=(1, 2), default=1,
@@ -52,9 +67,9 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
                         help="virtual robots on the wall clock (hardware-in-the-loop timing: does this machine keep "
                              "up?) instead of simulated time; frames the virtual heads cannot deliver on time are "
                              "dropped and counted")
-    parser.add_argument("--time-scale", type=float, default=1.0,
+    parser.add_argument("--time-scale", type=positive_float, default=1.0,
                         help="with --realtime: simulated seconds per wall-clock second (default 1)")
-    parser.add_argument("--map-save-interval", type=float, default=10.0, metavar="S",
+    parser.add_argument("--map-save-interval", type=non_negative_float, default=10.0, metavar="S",
                         help="write every robot's map to OUT/<robot>.npz every S s of mission time, atomically, so "
                              "a killed mission leaves its maps (0: at the end only; default 10)")
     # realistic by default: a robot's wheel odometry drifts, and showing FastSLAM correcting it is the point

@@ -14,30 +14,47 @@ from drivers.errors import DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
-from runtime.commands.options import add_deprecated_alias, positive_float
+from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_float
 
 
-def _hex(text: str) -> int:
-    return int(text, 16)
+def _unsigned_hex(bits: int):
+    """The argparse type of a hex number that fits ``bits`` unsigned bits (USB ids 16, IEEE-1394 GUIDs 64)."""
+    high = (1 << bits) - 1
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 16)
+        except ValueError:
+            value = -1
+        if not 0 <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected a hex number from 0 to {high:x}, not {text!r}")
+        return value
+
+    parse.__name__ = parse.__qualname__ = f"hex_{bits}_bits"
+    return parse
+
+
+_usb_id, _guid = _unsigned_hex(16), _unsigned_hex(64)
 
 
 def _add_device_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mock", action="store_true",
                         help="use the virtual head (renders the simulated building) instead of USB hardware")
-    parser.add_argument("--vendor-id", type=_hex, default=DEFAULT_VENDOR_ID,
-                        help=f"USB vendor id, hex (default {DEFAULT_VENDOR_ID:04x})")
-    parser.add_argument("--product-id", type=_hex, default=DEFAULT_PRODUCT_ID,
-                        help=f"USB product id, hex (default {DEFAULT_PRODUCT_ID:04x})")
+    parser.add_argument("--vendor-id", type=_usb_id, default=DEFAULT_VENDOR_ID,
+                        help=f"USB vendor id, hex 0-ffff (default {DEFAULT_VENDOR_ID:04x})")
+    parser.add_argument("--product-id", type=_usb_id, default=DEFAULT_PRODUCT_ID,
+                        help=f"USB product id, hex 0-ffff (default {DEFAULT_PRODUCT_ID:04x})")
     parser.add_argument("--byte-order", choices=(RIGHT_FIRST, LEFT_FIRST), default=RIGHT_FIRST,
                         help="which imager is byte 0 of each interleaved pixel (default: right)")
     parser.add_argument("--colour", action="store_true", help="a colour (Bayer) head")
     parser.add_argument("--ieee1394", action="store_true",
                         help="an IEEE-1394 head through the system's libdc1394 instead of USB")
-    parser.add_argument("--guid", type=_hex, help="--ieee1394: the camera's GUID, hex (default: the first)")
+    parser.add_argument("--guid", type=_guid, help="--ieee1394: the camera's GUID, hex (default: the first)")
     parser.add_argument("--world", type=Path, help="--mock: building file (default: the packaged one)")
     parser.add_argument("--name", default="robot1",
                         help="--mock: the world's robot (its start pose) the head is mounted on (default robot1)")
-    parser.add_argument("--seed", type=int, default=0, help="--mock: sensor noise seed")
+    parser.add_argument("--seed", type=non_negative_int, default=0,
+                        help="--mock: sensor noise seed, a whole number >= 0 (default 0)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
+from runtime.commands.options import non_negative_int
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 
 EXIT_NO_OVERLAP = 1
@@ -36,7 +37,7 @@ def register(subparsers) -> None:
                         help="alignment preset: the paper's published RANSAC or the robust one (default)")
     parser.add_argument("--method", type=int, choices=(1, 2), default=1,
                         help="common landmarks: 1 = RANSAC supports (default), 2 = nearest in position")
-    parser.add_argument("--seed", type=int, default=0, help="random seed of RANSAC (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of RANSAC, >= 0 (default 0)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
     # the live fusion node of a fleet (runtime/fleet, docs/fleet.md)
     from runtime.fleet.options import add_exchange_arguments, add_live_arguments

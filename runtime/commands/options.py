@@ -10,31 +10,30 @@ import math
 import sys
 
 
-def finite_float(text: str) -> float:
-    """A finite real number."""
+def _float_in(text: str, domain: str, inside) -> float:
+    """``text`` as a finite float for which ``inside(value)`` holds; else the error says ``domain``."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, not {text!r}")
+        value = math.nan
+    if not (math.isfinite(value) and inside(value)):
+        raise argparse.ArgumentTypeError(f"expected {domain}, not {text!r}")
     return value
+
+
+def finite_float(text: str) -> float:
+    """A finite real number."""
+    return _float_in(text, "a finite number", lambda value: True)
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    value = finite_float(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, not {text!r}")
-    return value
+    return _float_in(text, "a finite number > 0", lambda value: value > 0)
 
 
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
-    value = finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, not {text!r}")
-    return value
+    return _float_in(text, "a finite number >= 0", lambda value: value >= 0)
 
 
 def whole_number_at_least(low: int, name: str | None = None):
@@ -45,8 +44,8 @@ def whole_number_at_least(low: int, name: str | None = None):
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, not {text!r}") from None
-        if value < low:
+            value = None
+        if value is None or value < low:
             raise argparse.ArgumentTypeError(f"expected a whole number >= {low}, not {text!r}")
         return value
 
@@ -56,6 +55,8 @@ def whole_number_at_least(low: int, name: str | None = None):
 
 
 positive_int = whole_number_at_least(1, name="positive_int")
+# seeds (numpy's generators refuse negative ones) and counts where 0 is documented as "none" or "all"
+non_negative_int = whole_number_at_least(0, name="non_negative_int")
 
 
 class _DeprecatedAlias(argparse.Action):

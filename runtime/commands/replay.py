@@ -5,7 +5,7 @@ import json
 import sys
 from pathlib import Path
 
-from runtime.commands.options import add_deprecated_alias, positive_int
+from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_int
 from runtime.replay import onboard_config_from_log, replay_log
 from runtime.sensorlog import SensorLog, SensorLogError
 
@@ -21,7 +21,8 @@ def register(subparsers) -> None:
                         help="a sensor log: the folder of MCAP segments that --log-sensors writes, or one .mcap file")
     parser.add_argument("--out", type=Path, default=None, metavar="MAP.npz", help="write the resulting map here")
     parser.add_argument("--particles", type=positive_int, default=None, help="FastSLAM particles (default: as logged)")
-    parser.add_argument("--seed", type=int, default=None, help="filter seed (default: as logged)")
+    parser.add_argument("--seed", type=non_negative_int, default=None,
+                        help="filter seed, a whole number >= 0 (default: as logged)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=None,
                         help="FastSLAM 1.0 or 2.0 (default: as logged)")
     add_deprecated_alias(parser, "--version", "--fastslam")  # the old spelling, for one release: hidden, warns

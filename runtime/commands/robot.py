@@ -19,7 +19,14 @@ import time
 from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
-from runtime.commands.options import add_deprecated_alias, positive_float
+from runtime.commands.options import (
+    add_deprecated_alias,
+    finite_float,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 
 EXIT_DEVICE = 1
 EXIT_BAD_INPUT = 2
@@ -27,6 +34,17 @@ EXIT_BAD_INPUT = 2
 # long runs that reconnect). 0.6 s = 6 SIP cycles of 100 ms, twice the longest gap (0.31 s) measured from the
 # virtual robot on a loaded machine, so a slow robot is not taken for a lost one.
 LINK_TIMEOUT = 0.6
+
+
+def tcp_port(text: str) -> int:
+    """A TCP port, 0-65535 (0: any free one)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port from 0 to 65535, not {text!r}")
+    return port
 
 
 def register(subparsers: Any) -> None:
@@ -49,11 +67,11 @@ def register(subparsers: Any) -> None:
                                        "(no packet for --link-timeout s, or the port fails) it stops printing, "
                                        "says 'link lost' and exits with status 1.")
     _url_arguments(drive)
-    drive.add_argument("--vel", type=float, default=0.0, metavar="M_S", help="forward velocity, m/s (default 0)")
-    drive.add_argument("--rvel", type=float, default=0.0, metavar="RAD_S",
+    drive.add_argument("--vel", type=finite_float, default=0.0, metavar="M_S", help="forward velocity, m/s (default 0)")
+    drive.add_argument("--rvel", type=finite_float, default=0.0, metavar="RAD_S",
                        help="rotational velocity, rad/s, counter-clockwise (default 0)")
     drive.add_argument("--seconds", type=positive_float, required=True, metavar="S", help="how long to drive (s)")
-    drive.add_argument("--every", type=float, default=0.2, metavar="S", help="print interval (default 0.2 s)")
+    drive.add_argument("--every", type=positive_float, default=0.2, metavar="S", help="print interval (default 0.2 s)")
     drive.add_argument("--json", action="store_true", help="print one JSON object per line")
     drive.set_defaults(handler=_drive)
 
@@ -62,7 +80,8 @@ def register(subparsers: Any) -> None:
                                        "and print where it listens; runs until Ctrl-C. Any ARCOS client (this "
                                        "driver, ARIA) can connect to it.")
     where = serve.add_mutually_exclusive_group()
-    where.add_argument("--tcp", type=int, metavar="PORT", help="listen on 127.0.0.1:PORT (default 8101; 0 = any)")
+    where.add_argument("--tcp", type=tcp_port, metavar="PORT",
+                       help="listen on 127.0.0.1:PORT, 0-65535 (default 8101; 0 = any free port)")
     where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (prints its path)")
     serve.add_argument("--world", metavar="FILE", help="world file (default: the packaged building)")
     serve.add_argument("--start-pose", metavar="X,Y,THETA", help="start pose in metres and radians "
@@ -70,17 +89,19 @@ def register(subparsers: Any) -> None:
     serve.add_argument("--name", default="robot1", help="robot name, also the SYNC2 name (default robot1)")
     add_deprecated_alias(serve, "--pose", "--start-pose")
     serve.add_argument("--subtype", default="p3at-sh", help="p3at-sh (ARCOS, default) or p3at (old P2OS units)")
-    serve.add_argument("--time-scale", type=float, default=1.0, help="simulated seconds per wall second")
-    serve.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    serve.add_argument("--duration", type=float, metavar="S", help="exit after S seconds instead of at Ctrl-C")
+    serve.add_argument("--time-scale", type=positive_float, default=1.0,
+                       help="simulated seconds per wall second (default 1)")
+    serve.add_argument("--seed", type=non_negative_int, default=0, help="noise seed, a whole number >= 0 (default 0)")
+    serve.add_argument("--duration", type=non_negative_float, metavar="S",
+                       help="exit after S >= 0 seconds instead of at Ctrl-C")
     serve.set_defaults(handler=_serve)
 
 
 def _url_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("url", metavar="URL", help="serial device, pty path or socket://HOST:PORT")
     parser.add_argument("--params", metavar="FILE", help="robot parameter file (default: chosen by the subtype)")
-    parser.add_argument("--baud", type=int, default=9600, help="serial baud rate (default 9600)")
-    parser.add_argument("--link-timeout", type=float, default=LINK_TIMEOUT, metavar="S",
+    parser.add_argument("--baud", type=positive_int, default=9600, help="serial baud rate (default 9600)")
+    parser.add_argument("--link-timeout", type=positive_float, default=LINK_TIMEOUT, metavar="S",
                         help=f"seconds without any packet before the link counts as lost (default {LINK_TIMEOUT}: "
                              "six SIP cycles, twice the longest gap seen from a loaded virtual robot)")
 
@@ -103,15 +124,6 @@ def _open(args: argparse.Namespace):
                 link_timeout=args.link_timeout).connect()
 
 
-def _check_numbers(args: argparse.Namespace, names: tuple[str, ...]) -> str | None:
-    """The first of ``names`` (attributes of args) that is not a finite number, as an error message."""
-    for name in names:
-        value = getattr(args, name)
-        if not math.isfinite(value):
-            return f"--{name.replace('_', '-')} must be a finite number, got {value}"
-    return None
-
-
 # ---------------------------------------------------------------------------------------------------- info
 def _state_dict(state: Any) -> dict[str, Any]:
     return {
@@ -126,8 +138,6 @@ def _state_dict(state: Any) -> dict[str, Any]:
 def _info(args: argparse.Namespace) -> int:
     from drivers.arcos.codec import config_to_dict
 
-    if not (math.isfinite(args.link_timeout) and args.link_timeout > 0):
-        return _fail("info", f"--link-timeout must be a finite number > 0, got {args.link_timeout}", EXIT_BAD_INPUT)
     try:
         with _open(args) as robot:
             # Give the sonars one firing round so every range is filled in (each SIP carries only new ones).
@@ -170,14 +180,6 @@ def _info(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------------------------- drive
 def _drive(args: argparse.Namespace) -> int:
-    problem = _check_numbers(args, ("vel", "rvel", "seconds", "every", "link_timeout"))
-    if problem:
-        return _fail("drive", problem, EXIT_BAD_INPUT)
-    if not args.seconds >= 0:
-        return _fail("drive", f"--seconds must be >= 0, got {args.seconds}", EXIT_BAD_INPUT)
-    if not (args.every > 0 and args.link_timeout > 0):
-        return _fail("drive", "--every and --link-timeout must be > 0", EXIT_BAD_INPUT)
-
     columns = ("t [s]", "x [m]", "y [m]", "θ [rad]", "v [m/s]", "ω [rad/s]")
 
     def show(t: float, state: Any) -> None:

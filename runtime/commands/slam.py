@@ -11,7 +11,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
-from runtime.commands.options import add_deprecated_alias, positive_float, positive_int
+from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_float, positive_int
 
 
 def register(subparsers) -> None:
@@ -27,9 +27,10 @@ def register(subparsers) -> None:
                     "observations, saves the most probable particle's map (in the robot's start frame, with "
                     "metadata.true_start_pose) and prints trajectory and landmark errors against the truth "
                     "beside dead reckoning.")
-    sim.add_argument("--seconds", type=float, default=300.0, help="simulated time limit (default 300 s; the "
+    sim.add_argument("--seconds", type=positive_float, default=300.0, help="simulated time limit (default 300 s; the "
                      "run also ends when the route is done)")
-    sim.add_argument("--seed", type=int, default=0, help="random seed (sensor, odometry and filter)")
+    sim.add_argument("--seed", type=non_negative_int, default=0,
+                     help="random seed (sensor, odometry and filter), a whole number >= 0 (default 0)")
     sim.add_argument("--name", default="robot1", help="the world's robot whose start pose and route to use "
                      "(default robot1)")
     sim.add_argument("--start-pose", metavar="X,Y,THETA", help="start pose in the world (m, m, rad); default: the "
@@ -70,10 +71,6 @@ def _simulate(args: argparse.Namespace) -> int:
     from runtime.slam_sim import simulate
 
     try:
-        if args.particles < 1:
-            raise ValueError(f"--particles must be at least 1, not {args.particles}")
-        if not (args.seconds > 0 and args.camera_rate > 0):
-            raise ValueError("--seconds must be positive")
         world = World.load(args.world)
         if args.world_route:
             route = load_route(args.world_route)
@@ -147,7 +144,7 @@ def _register_dataset(sub) -> None:
                              "multiplied by the noise model's variance inflation for correlated sightings)")
     parser.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed of the filter (0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the filter, >= 0 (0)")
     parser.add_argument("--until", type=positive_float, metavar="S", help="stop at this log time (s)")
     parser.add_argument("--json", action="store_true", help="print the scores as one JSON object")
     parser.set_defaults(handler=_dataset)
