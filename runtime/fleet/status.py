@@ -65,17 +65,25 @@ def publish_robot_status(exchange, robots: Iterable[tuple], *, clock: str, wall_
             log.warning("fleet status of %s not sent: %s: %s", onboard.robot, type(e).__name__, e)
 
 
+def health_figure(status: dict, key: str) -> int | float | None:
+    """A number of a received status's health figures, or None where it is missing or not a number (a status is
+    another process's JSON: ``true`` or ``"12"`` must not print as a figure, nor break a line)."""
+    value = (status.get("health") or {}).get(key)
+    return value if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
 def status_line(robot: str, status: dict) -> str:
     """One line of a robot's status as received (``ZenohExchange.status()[robot]``)."""
     h = status.get("health") or {}
 
     def figure(key: str, spec: str, unit: str = "") -> str:
-        value = h.get(key)
-        return "-" if not isinstance(value, int | float) or isinstance(value, bool) else f"{value:{spec}}{unit}"
+        value = health_figure(status, key)
+        return "-" if value is None else f"{value:{spec}}{unit}"
 
     clock = h.get("clock")
+    # counts as '.0f': a count sent as 45.0 is still 45 (the 'd' format refuses a float)
     parts = [f"t={figure('mission_time', '.1f', ' s')}" + (f" {clock}" if clock else ""),
-             f"{figure('frames_processed', 'd')} frames ({figure('frames_dropped', 'd')} dropped)",
+             f"{figure('frames_processed', '.0f')} frames ({figure('frames_dropped', '.0f')} dropped)",
              f"{status.get('landmarks', 0)} landmarks", f"update {figure('ms_update', '.1f', ' ms')}",
              f"battery {figure('battery_volts', '.1f', ' V')}", f"link {h.get('link') or '-'}"]
     pose = status.get("pose")
@@ -121,4 +129,5 @@ class StatusPrinter:
             self._thread.join(timeout=5.0)
 
 
-__all__ = ["PRINT_PERIOD", "StatusPrinter", "publish_robot_status", "robot_health", "status_line"]
+__all__ = ["PRINT_PERIOD", "StatusPrinter", "health_figure", "publish_robot_status", "robot_health",
+           "status_line"]

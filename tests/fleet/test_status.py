@@ -3,7 +3,10 @@ whatever arrived, and a failing exchange never stopping the robot. The real path
 ``p3at run``, is tests/fleet/test_fleet_cli.py::test_p3at_run_publishes_its_health_once_a_second_under_its_name."""
 from __future__ import annotations
 
-from runtime.fleet.status import StatusPrinter, publish_robot_status, status_line
+from hypothesis import given
+from hypothesis import strategies as st
+
+from runtime.fleet.status import StatusPrinter, health_figure, publish_robot_status, status_line
 
 
 class ManualClock:
@@ -50,6 +53,28 @@ def test_a_status_line_shows_what_arrived_and_dashes_for_what_did_not():
     bare = status_line("robot3", {"stamp": 0.0, "pose": None, "landmarks": 0, "health": {"last_error": "boom"}})
     assert bare == ("status robot3: t=-, - frames (- dropped), 0 landmarks, update -, battery -, link -, "
                     "last error: boom")
+
+
+# what mapwire lets through in a health object: a flat object of finite numbers, strings, booleans (and null)
+WIRE_VALUES = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(-1e6, 1e6) | st.text(max_size=6)
+FIGURES = ("mission_time", "frames_processed", "frames_dropped", "ms_update", "battery_volts")
+
+
+@given(health=st.dictionaries(st.sampled_from(FIGURES), WIRE_VALUES))
+def test_a_status_line_prints_numbers_as_figures_and_anything_else_as_a_dash(health):
+    line = status_line("robot1", {"landmarks": 3, "pose": None, "health": health})
+    assert line.startswith("status robot1: ") and "\n" not in line
+    for key in FIGURES:
+        value = health.get(key)
+        is_number = isinstance(value, int | float) and not isinstance(value, bool)
+        assert health_figure({"health": health}, key) == (value if is_number else None)
+    if not isinstance(health.get("frames_processed"), int | float) or isinstance(health.get("frames_processed"), bool):
+        assert ", - frames (" in line
+
+
+def test_a_count_sent_as_a_float_prints_as_a_count():
+    line = status_line("robot1", {"landmarks": 3, "health": {"frames_processed": 45.0, "frames_dropped": True}})
+    assert "45 frames (- dropped)" in line
 
 
 class _Stats:
