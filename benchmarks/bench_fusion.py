@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fusion_sim import random_pair  # noqa: E402
 
@@ -51,13 +52,61 @@ def run(label: str, n_common: int, n1: int, n2: int, repeats: int, goal_ms: floa
             print(f"    merge method {method}: {ms_m:9.2f} ms wall, {cpu_m:9.2f} ms CPU -> {len(g)} landmarks")
 
 
+def _demo_maps(folder: Path | None) -> dict:
+    """The rendered demo's maps (``p3at demo --out DIR``: robot*.npz), or a random pair of its size."""
+    from estimation.landmark_map import LandmarkMap
+
+    files = sorted(folder.glob("robot*.npz")) if folder is not None else []
+    if len(files) >= 2:
+        return {f.stem: LandmarkMap.load(f) for f in files}
+    map1, map2, _ = random_pair(250, 800, 800, np.array([12.0, -3.0, 2.2]), seed=1)
+    return {"robot1": map1, "robot2": map2}
+
+
+def repeated_fusion(folder: Path | None, repeats: int) -> None:
+    """A mission fuses its maps every few seconds, mostly unchanged: ``fuse_maps`` without and with the cache."""
+    from fusion import AlignmentCache
+    from runtime.fusion_report import fuse_maps
+
+    maps = _demo_maps(folder)
+    sizes = " and ".join(str(len(m)) for m in maps.values())
+    print(f"repeated fusion of unchanged maps ({sizes} landmarks{', ' + str(folder) if folder else ', random'}):")
+    seed = iter(range(10_000))
+    fresh = _median_ms(lambda: fuse_maps(maps, rng=np.random.default_rng(next(seed))), repeats)
+    cache = AlignmentCache()
+    cached = _median_ms(lambda: fuse_maps(maps, rng=np.random.default_rng(next(seed)), cache=cache), repeats)
+    print(f"  fuse_maps without cache {fresh[0]:9.2f} ms wall, {fresh[1]:9.2f} ms CPU")
+    print(f"  fuse_maps with cache    {cached[0]:9.2f} ms wall, {cached[1]:9.2f} ms CPU "
+          f"(ratio {fresh[0] / max(cached[0], 1e-9):.0f}x wall; pair hits {cache.hits}, misses {cache.misses})")
+    # one map changes between fusions (a landmark fewer each time): its pairs are aligned again, the other
+    # maps' self-structure comes from the cache
+    last = sorted(maps)[-1]
+    drop = iter(range(len(maps[last])))
+
+    def one_changed():
+        rows = np.arange(len(maps[last])) != next(drop)
+        smaller = maps[last].subset(rows)
+        if "external_ids" in smaller.metadata:           # subset() keeps the metadata as it is
+            smaller.metadata["external_ids"] = list(np.asarray(smaller.metadata["external_ids"])[rows])
+        return fuse_maps({**maps, last: smaller}, rng=np.random.default_rng(next(seed)), cache=cache)
+
+    changed = _median_ms(one_changed, repeats)
+    print(f"  one map changed, cache  {changed[0]:9.2f} ms wall, {changed[1]:9.2f} ms CPU "
+          f"(self-structure hits {cache.self_hits}, misses {cache.self_misses})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--skip-large", action="store_true", help="only the paper-size maps")
+    parser.add_argument("--only-repeated", action="store_true", help="only the repeated-fusion (cache) figures")
+    parser.add_argument("--demo-maps", type=Path, help="folder of a rendered demo's robot*.npz for the repeated "
+                        "fusion (default: a random pair of the demo's size)")
     args = parser.parse_args()
-    run("paper size", 150, 263, 364, repeats=30, goal_ms=5.0)
-    if not args.skip_large:
-        run("large", 20_000, 50_000, 50_000, repeats=3, goal_ms=2000.0)
+    if not args.only_repeated:
+        run("paper size", 150, 263, 364, repeats=30, goal_ms=5.0)
+        if not args.skip_large:
+            run("large", 20_000, 50_000, 50_000, repeats=3, goal_ms=2000.0)
+    repeated_fusion(args.demo_maps, repeats=5)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
     align(map1, map2, preset="robust", rng=...) -> Alignment       # pose of map 2's frame in map 1's
     merge(map1, map2, alignment, method=1) -> LandmarkMap           # in map 1's frame
-    fuse_all(maps, preset="robust", method=1, rng=...) -> MultiFusion
+    fuse_all(maps, preset="robust", method=1, rng=..., cache=AlignmentCache()) -> MultiFusion
 """
 from __future__ import annotations
 
@@ -17,12 +17,13 @@ from .alignment import (
     alignment_error,
     true_relative_pose,
 )
+from .cache import AlignmentCache, map_fingerprint
 from .errors import FusionError, IncompatibleMapsError, NoOverlapError
 from .merging import common_landmarks, kalman_fuse, merge, merge_pairs
 from .multi import MultiFusion, fuse_all
 
 __all__ = [
-    "PAPER", "PRESETS", "ROBUST", "Alignment", "AlignmentConfig", "AlignmentStatistics", "FusionError",
-    "IncompatibleMapsError", "MultiFusion", "NoOverlapError", "align", "alignment_error", "common_landmarks",
-    "fuse_all", "kalman_fuse", "merge", "merge_pairs", "true_relative_pose",
+    "PAPER", "PRESETS", "ROBUST", "Alignment", "AlignmentCache", "AlignmentConfig", "AlignmentStatistics",
+    "FusionError", "IncompatibleMapsError", "MultiFusion", "NoOverlapError", "align", "alignment_error",
+    "common_landmarks", "fuse_all", "kalman_fuse", "map_fingerprint", "merge", "merge_pairs", "true_relative_pose",
 ]

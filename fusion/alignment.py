@@ -43,6 +43,7 @@ out (a bunch in one spot fixes no angle).  The number of supports needed therefo
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -51,10 +52,14 @@ from scipy.special import gammaincinv, pdtrc
 from estimation.geometry import between, inverse, pose_to_matrix, transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
+from .cache import content_rng
 from .errors import IncompatibleMapsError, NoOverlapError
 from .frame_covariance import start_frame_covariance
 from .matching import distinctive_correspondences, nearest_correspondences, query_subset, self_correspondences
 from .pose_covariance import inverse_with_covariance
+
+if TYPE_CHECKING:
+    from .cache import AlignmentCache
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
@@ -672,17 +677,21 @@ def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.r
 
 def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray, map1: LandmarkMap,
              map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
-             repeats: bool = False) -> Evidence:
+             repeats: bool = False, self_repeat=None) -> Evidence:
     """The alignment's own evidence (see the module docstring): supports beyond the two that define a
     hypothesis against a Poisson null whose rate is the largest of the decoys', the one that makes the
     second-best distinct hypothesis a typical maximum and (``repeats``: maps matched by descriptors) the one
     that makes either map's repeat of itself (:func:`self_structure`) a typical maximum; Bonferroni over the
-    hypotheses tried."""
+    hypotheses tried.  ``self_repeat(map) -> int`` gives a map's self-repeat count (default: :func:`self_structure`
+    with a generator seeded by the map's content, so that the count is a property of the map alone)."""
     s = int(problem.distinct_counts(mask[None])[0])
     n = max(search.evaluated, 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
     second = _second_best(problem, search, pose, mask, config)
-    repeat = max(self_structure(map1, config, rng), self_structure(map2, config, rng)) if repeats else 0
+    if self_repeat is None:
+        def self_repeat(m: LandmarkMap) -> int:
+            return self_structure(m, config, content_rng(m))
+    repeat = max(self_repeat(map1), self_repeat(map2)) if repeats else 0
     structure_rate = _rate_for_maximum(max(second, repeat) - 2, n)
     rate = max(decoy_rate, structure_rate, 1e-9)
     log10_p = _log10_tail(s - 2, rate, n)
@@ -805,13 +814,15 @@ def _correspondences(map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConf
 
 
 def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = "robust",
-          rng: np.random.Generator | None = None) -> Alignment:
+          rng: np.random.Generator | None = None, cache: AlignmentCache | None = None) -> Alignment:
     """Align map 2 to map 1 (RANSAC, see the module docstring); never raises for non-overlapping maps.
 
     Returns an :class:`Alignment` whose ``found`` says whether the maps overlap and whose ``statistics``
     carry the evidence (false-alarm probability, chance supports, second-best hypothesis, supports
     required on these maps).  Deterministic given the ``rng`` (None -> ``np.random.default_rng(0)``).
     Raises :class:`IncompatibleMapsError` when the descriptor sizes differ or the preset is unknown.
+    ``cache`` (:class:`fusion.cache.AlignmentCache`) supplies each map's self-repeat count computed once per map
+    content (use ``cache.align`` to reuse whole alignments of unchanged maps).
     """
     config = _resolve(preset)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -855,7 +866,8 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     raw_count = int(search.mask.sum())
     pose, covariance, mask, problem = _polish(problem, search.pose, search.mask, config)
     ev = evidence(problem, search, pose, mask, map1, map2, config, rng,
-                  repeats=config.refine and with_descriptors and not identities)
+                  repeats=config.refine and with_descriptors and not identities,
+                  self_repeat=None if cache is None else (lambda m: cache.self_structure(m, config)))
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])

@@ -18,6 +18,7 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from estimation.landmark_map import LandmarkMap
 
 from .alignment import PRESETS, Alignment, AlignmentConfig, align
+from .cache import AlignmentCache
 from .errors import IncompatibleMapsError, NoOverlapError
 from .merging import merge_pairs, one_to_one_supports, position_correspondences, transform_landmarks
 from .pose_covariance import compose_with_covariance
@@ -48,12 +49,15 @@ class MultiFusion:
 
 
 def pairwise_alignments(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust",
-                        rng: np.random.Generator | None = None) -> dict[tuple[int, int], Alignment]:
-    """align(maps[j] to maps[i]) for every i < j; each pair gets its own child generator of ``rng``."""
+                        rng: np.random.Generator | None = None, cache: AlignmentCache | None = None
+                        ) -> dict[tuple[int, int], Alignment]:
+    """align(maps[j] to maps[i]) for every i < j; each pair gets its own child generator of ``rng``.
+    With ``cache`` a pair of unchanged maps is not aligned again (:class:`fusion.cache.AlignmentCache`)."""
     rng = np.random.default_rng(0) if rng is None else rng
     keys = [(i, j) for i in range(len(maps)) for j in range(i + 1, len(maps))]
     children = rng.spawn(len(keys)) if keys else []
-    return {key: align(maps[key[0]], maps[key[1]], preset, child) for key, child in zip(keys, children, strict=True)}
+    run = align if cache is None else cache.align
+    return {key: run(maps[key[0]], maps[key[1]], preset, child) for key, child in zip(keys, children, strict=True)}
 
 
 def spanning_tree(n: int, alignments: dict[tuple[int, int], Alignment], reference: int = 0
@@ -82,10 +86,12 @@ def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int)
 
 def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", method: int = 1,
              rng: np.random.Generator | None = None, reference: int = 0,
-             alignments: dict[tuple[int, int], Alignment] | None = None) -> MultiFusion:
+             alignments: dict[tuple[int, int], Alignment] | None = None,
+             cache: AlignmentCache | None = None) -> MultiFusion:
     """Fuse every map connected to ``maps[reference]`` into its frame (see the module docstring).
 
-    ``alignments`` may be given (keys (i, j), i < j) to skip the pairwise alignment.  Raises
+    ``alignments`` may be given (keys (i, j), i < j) to skip the pairwise alignment; ``cache`` keeps the
+    alignments of unchanged maps from one call to the next (:class:`fusion.cache.AlignmentCache`).  Raises
     :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
     """
     if not maps:
@@ -96,7 +102,7 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
         raise IncompatibleMapsError(f"unknown common-landmark method {method!r} (1: RANSAC supports, 2: position)")
     n = len(maps)
     if alignments is None:
-        alignments = pairwise_alignments(maps, preset, rng)
+        alignments = pairwise_alignments(maps, preset, rng, cache)
     edges, unconnected = spanning_tree(n, alignments, reference)
     if n > 1 and not edges:
         raise NoOverlapError("none of the maps overlaps the reference map "

@@ -109,9 +109,19 @@ def keep_latest_map(history: list[FusionReport], report: FusionReport) -> None:
     history.append(report)
 
 
+def alignment_cache():
+    """A new ``fusion.AlignmentCache`` for a caller that fuses the same robots' maps again and again (the fleet's
+    fusion node, the mission): pairs of unchanged maps are then not aligned twice."""
+    from fusion import AlignmentCache
+
+    return AlignmentCache()
+
+
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,
-              rng: np.random.Generator | None = None) -> FusionReport:
-    """Align every map to the first robot's (in name order), merge them, score against the truth when known."""
+              rng: np.random.Generator | None = None, cache=None) -> FusionReport:
+    """Align every map to the first robot's (in name order), merge them, score against the truth when known.
+    ``cache`` (``fusion.AlignmentCache``, kept by the caller between fusions): pairs of unchanged maps are not
+    aligned again."""
     from fusion import align, merge, true_relative_pose
 
     start = time.perf_counter()
@@ -123,10 +133,11 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     merged = maps[reference]
     rng = rng if rng is not None else np.random.default_rng(0)
     if len(names) > 2:
-        return _fuse_many(maps, names, preset, method, t, rng, start)
+        return _fuse_many(maps, names, preset, method, t, rng, start, cache)
     for other in names[1:]:
         result = PairResult(reference, other, False)
-        alignment = align(maps[reference], maps[other], preset=preset, rng=rng)
+        run = align if cache is None else cache.align
+        alignment = run(maps[reference], maps[other], preset, rng)
         result.supports = int(len(alignment.supports))
         result.take_evidence(alignment)
         if not alignment.found:
@@ -148,13 +159,13 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
 
 
 def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float,
-               rng: np.random.Generator, start: float) -> FusionReport:
+               rng: np.random.Generator, start: float, cache=None) -> FusionReport:
     """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame."""
     from fusion import NoOverlapError, fuse_all, true_relative_pose
 
     ordered = [maps[n] for n in names]
     try:
-        multi = fuse_all(ordered, preset=preset, method=method, rng=rng)
+        multi = fuse_all(ordered, preset=preset, method=method, rng=rng, cache=cache)
     except NoOverlapError as e:
         pairs = [PairResult(names[0], n, False, note=str(e)) for n in names[1:]]
         return FusionReport(t, pairs, maps[names[0]], time.perf_counter() - start)

@@ -38,7 +38,7 @@ from estimation.geometry import between
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
 from runtime.fleet.status import publish_robot_status
-from runtime.fusion_report import FusionReport, fuse_maps, keep_latest_map
+from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
 from runtime.report import fusion_event_line
@@ -159,6 +159,7 @@ class Mission:
         self.robots: list[RobotSetup] = []
         self._virtual_heads: dict = {}  # robot -> its VirtualStereoHead (mock cameras), for the late-frame count
         self.fusion_history: list[FusionReport] = []
+        self.fusion_cache = alignment_cache()   # alignments of maps unchanged since an earlier fusion
         self.logger = None
         self.recording_path: Path | None = None
         self.failures: list[StageFailure] = []
@@ -536,7 +537,8 @@ class Mission:
         if len(maps) < 2:
             return None
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
-                           np.random.default_rng(self.config.seed + len(self.fusion_history)))
+                           np.random.default_rng(self.config.seed + len(self.fusion_history)),
+                           cache=self.fusion_cache)
         keep_latest_map(self.fusion_history, report)
         if self.logger is not None:
             for pair in report.pairs:

@@ -21,7 +21,7 @@ import numpy as np
 
 from runtime.exchange import MapExchange
 from runtime.fleet.status import StatusPrinter
-from runtime.fusion_report import FusionReport, fuse_maps, keep_latest_map
+from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.report import fusion_event_line
 
 FUSED = "fused"
@@ -52,6 +52,7 @@ class FusionNode:
         self.logger = logger
         self.on_event = on_event or (lambda line: None)
         self.on_report = on_report or (lambda report: None)
+        self.cache = alignment_cache()           # alignments of maps unchanged since an earlier fusion
         self.clock = clock
         self.t0 = clock()
         self.history: list[FusionReport] = []
@@ -86,7 +87,7 @@ class FusionNode:
         t = self.clock() - self.t0
         maps = {r: m.landmark_map for r, m in messages.items()}
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
-                           np.random.default_rng(self.config.seed + len(self.history)))
+                           np.random.default_rng(self.config.seed + len(self.history)), cache=self.cache)
         self.sources = sources
         keep_latest_map(self.history, report)
         if report.merged is not None and any(p.aligned for p in report.pairs):
