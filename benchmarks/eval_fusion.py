@@ -35,7 +35,7 @@ from fusion_sim import (  # noqa: E402
 
 from estimation.geometry import between, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
-from fusion import align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
+from fusion import NoOverlapError, align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
 from fusion.alignment import refine_pose  # noqa: E402
 
 FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
@@ -500,6 +500,23 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         print(f"| {m.robot} | {len(m)} | {np.nanmedian(f[1]):.3f} | {np.nanmean(f[1]):.3f} |")
     print(f"| merged ({'+'.join(maps[k].robot[-1] for k in inside)}) | {len(merged)} | "
           f"{np.nanmedian(merged_err):.3f} | {np.nanmean(merged_err):.3f} |")
+    # the same alignments merged by the maps' own covariances (before covariance_scales), for comparison
+    from fusion import fuse_all
+    from fusion.multi import covariance_scales, pairwise_alignments
+    alignments = pairwise_alignments(maps, "robust", np.random.default_rng(0))   # as `p3at fuse --seed 0`
+    try:
+        claimed = fuse_all(maps, "robust", 1, alignments=alignments, calibrate=False).map
+        claimed_err = frame_fit(claimed, truth)[1]
+        print(f"| merged by the maps' own covariances (calibrate=False) | {len(claimed)} | "
+              f"{np.nanmedian(claimed_err):.3f} | {np.nanmean(claimed_err):.3f} |")
+    except NoOverlapError:
+        pass
+    scales = covariance_scales(maps, alignments)
+    if scales is not None:
+        print("\nCovariance scales from the pairwise residuals (σ about a rigid placement / σ claimed): " + ", ".join(
+            f"{m.robot} {np.sqrt(c * np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2):.3f} m / "
+            f"{np.sqrt(np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2):.3f} m"
+            for m, c in zip(maps, scales, strict=True)))
     verdict = "lower" if np.nanmedian(merged_err) < min(singles) else "NOT lower"
     print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "
           f"({np.nanmedian(merged_err):.3f} vs {min(singles):.3f} m).")
