@@ -114,6 +114,11 @@ def _fuse(args: argparse.Namespace) -> int:
         if pose is not None and truth is not None and k != result.reference:
             report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
             report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
+        if result.covariance_scales is not None:      # merge weights from the pairwise residuals (fusion.multi)
+            claimed = float(np.sqrt(np.median(np.trace(maps[k].covariances[:, :2, :2], axis1=1, axis2=2)) / 2))
+            report["maps"][k]["covariance_scale"] = result.covariance_scales[k]
+            report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[k]))
+            report["maps"][k]["claimed_sigma"] = claimed
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for k, m in enumerate(maps) if result.rows[k] is not None)
                                      - len(result.map))
@@ -174,6 +179,10 @@ def _print(report: dict, as_json: bool) -> None:
                 if m.get("error_xy") is not None:
                     line += f" (error xy {m['error_xy']:.3f} m, error θ {m['error_theta']:.4f} rad vs truth)"
                 print(line)
+    if any("merge_sigma" in m for m in report["maps"]):
+        print("merge weights (σ about a rigid placement from the pairwise residuals; σ the map claims): " + ", ".join(
+            f"{m['robot']} {m['merge_sigma']:.3f} m ({m['claimed_sigma']:.3f} m)" for m in report["maps"]
+            if "merge_sigma" in m))
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")

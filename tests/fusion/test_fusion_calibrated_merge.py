@@ -101,3 +101,22 @@ def test_a_landmark_the_tree_parent_lacks_is_fused_with_the_same_identity_from_a
     assert len(ids) == len(set(ids.tolist())) == 45
     rows = result.rows[2][np.flatnonzero(np.isin(c.metadata["external_ids"], np.arange(40, 45)))]
     assert set(rows.tolist()) == set(range(20, 25))      # robot1's rows of 40–44
+
+
+def test_p3at_fuse_reports_the_merge_weights_it_used(tmp_path, capsys):
+    import json
+
+    from runtime.cli import main as p3at
+
+    _, maps, _ = _fleet(0)
+    files = []
+    for m in maps:
+        files.append(str(tmp_path / f"{m.robot}.npz"))
+        m.save(files[-1])
+    assert p3at(["fuse", *files, "--out", str(tmp_path / "merged.npz"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    merge_sigma = [m["merge_sigma"] for m in report["maps"]]
+    assert [m["claimed_sigma"] for m in report["maps"]] == pytest.approx([0.5, 0.3, 0.3, 0.15, 0.15])
+    assert min(merge_sigma[3:]) > 2 * max(merge_sigma[:3])        # the worst maps weigh least, whatever they claim
+    assert p3at(["fuse", *files, "--out", str(tmp_path / "merged.npz")]) == 0
+    assert "merge weights (σ about a rigid placement" in capsys.readouterr().out
