@@ -67,12 +67,14 @@ def test_info_text(served, capsys) -> None:
 
 def test_drive_prints_odometry_and_moves_the_robot(served, capsys) -> None:
     start = served.world.pose("robot1").copy()
-    assert main(["robot", "drive", served.url, "--vel", "0.4", "--rvel", "0", "--seconds", "0.8",
-                 "--every", "0.2", "--json"]) == 0
+    assert main(["robot", "drive", served.url, "--vel", "0.4", "--rvel", "0", "--seconds", "2",
+                 "--every", "0.25", "--json"]) == 0
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    assert len(lines) >= 2  # at least one while driving (a starved process may print fewer than 4) and the last
+    assert len(lines) >= 2  # at least one while driving (a starved process may print fewer than 8) and the last
     xs = [line["x"] for line in lines]
-    assert xs == sorted(xs) and xs[-1] > 0.2
+    # How far 2 s of wall clock take the robot depends on how much of them a loaded machine gives the server's
+    # thread (0.8 s once gave under 0.2 m beside two busy loops); that it moved forward and says where does not.
+    assert xs == sorted(xs) and xs[-1] > 0.02
     moved = float(np.linalg.norm(served.world.pose("robot1")[:2] - start[:2]))
     assert lines[-1]["v"] == 0.0 and moved == pytest.approx(xs[-1], abs=0.02)
 
