@@ -14,6 +14,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
     theta_var_per_m = 0.01     # rad² of heading error per metre driven
     translation_scale = 1.0    # calibration: true distance / odometry distance
     rotation_scale = 1.0       # calibration: true turn / odometry turn
+    heading_bias_per_m = 0.0   # calibration: rad of heading the robot turns per metre of odometry driven (a curve
+                               #   on a straight run: UMBmark's type-A error, unequal wheels); optional, 0 if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -55,6 +57,8 @@ from .geometry import between, wrap_angle
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 1 << 20     # a noise model is a few hundred bytes; refuse anything absurd before parsing
+SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m")
+MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is a broken robot, not a calibration
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
 DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
 
@@ -70,6 +74,7 @@ class OdometryNoise:
     theta_var_per_m: float
     translation_scale: float = 1.0
     rotation_scale: float = 1.0
+    heading_bias_per_m: float = 0.0      # rad per metre of odometry distance (signed; see calibrate_increments)
 
 
 @dataclass(frozen=True)
@@ -126,7 +131,7 @@ class NoiseModel:
                 continue
             for f in fields(section):
                 value = getattr(section, f.name)
-                signed = f.name == "bearing_offset_rad"
+                signed = f.name in SIGNED_FIELDS
                 if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value) \
                         or (not signed and value < 0):
                     raise NoiseModelError(f"{f.name} must be a finite number{'' if signed else ' >= 0'}, "
@@ -135,6 +140,10 @@ class NoiseModel:
         if not all(0.5 <= s <= 2.0 for s in scales):
             raise NoiseModelError(f"odometry scales must lie in [0.5, 2] (a calibration, not a new robot), "
                                   f"not {scales}")
+        if not abs(self.odometry.heading_bias_per_m) <= MAX_HEADING_BIAS_PER_M:
+            raise NoiseModelError(f"heading_bias_per_m must lie in [-{MAX_HEADING_BIAS_PER_M}, "
+                                  f"{MAX_HEADING_BIAS_PER_M}] rad/m (a calibration, not a turn), not "
+                                  f"{self.odometry.heading_bias_per_m}")
         rb = self.range_bearing
         if rb is not None and not (rb.range_sigma_m > 0 and rb.bearing_sigma_rad > 0):
             raise NoiseModelError("range_sigma_m and bearing_sigma_rad must be > 0")
@@ -167,9 +176,13 @@ class NoiseModel:
                 "false_alarm_probability": float(np.clip(p_fa, 1e-3, 0.5)), "detection_correlation": rho}
 
     def calibrate_increments(self, increments: np.ndarray) -> np.ndarray:
-        """Odometry increments (T, 3) with the model's scale calibration applied."""
+        """Odometry increments (T, 3) with the model's calibration applied: the scales, and the heading bias per
+        metre of the increment's odometry distance (its chord: increments between frames are short)."""
         o = self.odometry
-        return np.asarray(increments, float) * [o.translation_scale, o.translation_scale, o.rotation_scale]
+        raw = np.asarray(increments, float).reshape(-1, 3)
+        out = raw * [o.translation_scale, o.translation_scale, o.rotation_scale]
+        out[:, 2] += o.heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
+        return out
 
     # -- files -------------------------------------------------------------------------------------------------
     def to_toml(self) -> str:
@@ -277,6 +290,7 @@ P3AT_VIDERE_DEFAULT = NoiseModel(
 
 # -- estimation from logs with ground truth ----------------------------------------------------------------------
 ODOMETRY_WINDOW_S = 5.0       # see estimate_noise: the errors are time-correlated, so the window matters
+MAX_VARIANCE_INFLATION = 100.0  # turn and distance more collinear than this: no heading bias is fitted
 OUTLIER_MADS = 4.0            # sensor residuals beyond this many robust σ are outliers (misreads, glitches)
 
 
@@ -289,13 +303,16 @@ class NoiseEstimate:
 
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
-                   robot: str | None = None, platform: str = "") -> NoiseEstimate:
+                   robot: str | None = None, platform: str = "", heading_bias: bool = True) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
     true increment g (from the ground truth) give the error e = g − u in the robot frame at the window's start.
-    First the calibration: the rotation scale by least squares (g_θ ≈ k_r u_θ); then, the turns calibrated, the
-    translation scale by least squares on the window's displacement vectors (which scale linearly with it). Then
+    First the calibration: the rotation scale and the heading bias per metre by least squares
+    (g_θ ≈ k_r u_θ + c·d, d the window's odometry distance; ``heading_bias=False``, or a log whose turns and
+    distances are proportional so that the two cannot be told apart: c = 0, see _heading_calibration); then,
+    the turns calibrated, the translation scale by least squares on the window's displacement vectors (which
+    scale linearly with it). Then
     the random-walk variances q = (q_xy, q_θ/rad, q_θ/m) of the calibrated steps:
     the model's covariance of a window's error is linear in q (each step's noise, propagated to the window's end
     through the composition: a heading error also moves the end sideways), so q is the non-negative least
@@ -326,16 +343,20 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     g = np.concatenate([w[1] for w in windows])
     if len(u) < 10:
         raise ValueError(f"only {len(u)} odometry windows of {window_s} s: too short a log for a fit")
-    rotation_scale = float(np.sum(g[:, 2] * u[:, 2]) / max(np.sum(u[:, 2] ** 2), 1e-12))
+    distance = np.concatenate([w[2][:, 0, 0, 0] for w in windows])    # odometry metres per window
+    rotation_scale, bias, bias_se = _heading_calibration(u[:, 2], distance if heading_bias else None, g[:, 2])
+    bias_fit = {} if not heading_bias else {"heading_bias_per_m_standard_error": bias_se} if math.isfinite(bias_se) \
+        else {"heading_bias_note": "not fitted: the windows' turns and distances are proportional (a bias per "
+                                   "metre cannot be told from a rotation scale)"}
     # with the turns calibrated, the chain's positions scale linearly with the translation scale: regress on them
-    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale)) for log in logs]
+    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale), bias) for log in logs]
     u = np.concatenate([w[0] for w in turned])
     translation_scale = float(np.sum(g[:, :2] * u[:, :2]) / max(np.sum(u[:, :2] ** 2), 1e-12))
     scales = np.array([translation_scale, translation_scale, rotation_scale])
-    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales) for log in logs])
+    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias) for log in logs])
     by_window = []
     for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
-        other = [_odometry_windows(log, w, scales) for log in logs]
+        other = [_odometry_windows(log, w, scales, bias) for log in logs]
         if sum(len(o[0]) for o in other) >= 10:
             by_window.append((w, *np.sqrt(_random_walk_fit(other))))
 
@@ -354,6 +375,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         follows.append(_consecutive(log.sighting_times[known], log.landmark_ids[known]))
     range_bearing = None
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
+           **bias_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -394,17 +416,42 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
-        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale), range_bearing, None,
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias), range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
                f"truth ({len(u)} odometry windows of {window_s:g} s)")
     return NoiseEstimate(model, np.array(by_window, float).reshape(-1, 4))
 
 
-def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0)):
+def _heading_calibration(turn: np.ndarray, distance: np.ndarray | None, true_turn: np.ndarray):
+    """(rotation scale k_r, heading bias c rad/m, c's standard error) by least squares over windows, true_turn ≈
+    k_r·turn + c·distance (all (W,)); ``distance`` None: c = 0 (the scale alone, as before the bias existed).
+
+    A robot that turns in proportion to the distance it drives (a circle at constant speeds) cannot tell a bias
+    per metre from a rotation scale: when the two regressors are that collinear (variance inflation factor
+    1/(1 − cos²) > MAX_VARIANCE_INFLATION, cos their uncentred correlation), or the joint fit puts c beyond
+    MAX_HEADING_BIAS_PER_M, c = 0 and its standard error is NaN."""
+    scale_only = float(np.sum(true_turn * turn) / max(np.sum(turn ** 2), 1e-12)), 0.0, float("nan")
+    if distance is None:
+        return scale_only
+    cos = float(turn @ distance) / max(float(np.sqrt((turn @ turn) * (distance @ distance))), 1e-300)
+    if not 1.0 - cos ** 2 > 1.0 / MAX_VARIANCE_INFLATION:
+        return scale_only
+    design = np.column_stack([turn, distance])
+    (k_r, c), *_ = np.linalg.lstsq(design, true_turn, rcond=None)
+    residual = true_turn - design @ [k_r, c]
+    dof = max(len(turn) - 2, 1)
+    covariance = np.linalg.pinv(design.T @ design) * float(residual @ residual) / dof
+    if not (abs(c) <= MAX_HEADING_BIAS_PER_M and 0.5 <= k_r <= 2.0):
+        return scale_only
+    return float(k_r), float(c), float(np.sqrt(covariance[1, 1]))
+
+
+def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0):
     """Consecutive windows of odometry rows inside the ground truth: odometry increments u (W, 3) calibrated by
-    ``scales``, true increments g (W, 3), and the design (W, 3, 3, 3): the error covariance of each window is
-    Σ_k q_k · design[:, k] for the model's variances q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
+    ``scales`` and the heading bias per odometry metre, true increments g (W, 3), and the design (W, 3, 3, 3):
+    the error covariance of each window is Σ_k q_k · design[:, k] for the model's variances
+    q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
     rows = log.odometry
     rows = rows[(rows[:, 0] >= log.ground_truth[0, 0]) & (rows[:, 0] <= log.ground_truth[-1, 0])]
     empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3, 3))
@@ -415,7 +462,9 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     if k < 1:
         return empty
     rows = rows[: k * n + 1]
-    steps = between(rows[:-1, 1:], rows[1:, 1:]) * np.asarray(scales, float)     # calibrated steps (robot frame)
+    raw = between(rows[:-1, 1:], rows[1:, 1:])
+    steps = raw * np.asarray(scales, float)                    # calibrated steps (robot frame)
+    steps[:, 2] += heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
     # the calibrated chain, in closed form: heading before step j, then positions after each step
     heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
     c, s = np.cos(heading[:-1]), np.sin(heading[:-1])

@@ -88,9 +88,11 @@ def test_closed_form_chain_is_composition():
     np.testing.assert_allclose(_chain(steps)[-1], pose, atol=1e-12)
 
 
-def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b, rho_b=0.0):
+def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b, rho_b=0.0,
+                   heading_bias=0.0):
     """A robot circling (wiggling) for 30 min at 50 Hz among 12 landmarks; odometry = (true increments +
-    random-walk noise) / scale; sightings within a camera's range."""
+    random-walk noise) / scale, its heading short of the truth by ``heading_bias`` rad per metre driven (the
+    robot curves where its odometry says straight); sightings within a camera's range."""
     dt, n = 0.02, 90_000
     t = np.arange(n + 1) * dt
     v = 0.2 + 0.1 * np.sin(t[:-1] / 7.0)
@@ -105,6 +107,7 @@ def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, s
     d = np.abs(true_steps[:, 0])
     noisy = true_steps + rng.standard_normal((n, 3)) * np.sqrt(np.column_stack(
         [q_xy * d, q_xy * d, q_theta_rad * np.abs(true_steps[:, 2]) + q_theta_m * d]))
+    noisy[:, 2] -= heading_bias * d
     noisy = noisy / [scale, scale, scale]
     odometry = _chain(noisy)
     landmarks = rng.uniform(-6, 6, (12, 2)) + truth[:, :2].mean(axis=0)
@@ -150,6 +153,47 @@ def test_estimation_recovers_the_noise_that_made_the_log():
     assert abs(np.sum(fixed[:, 0]) / np.sum(true[:, 0]) - 1.0) < 0.01
 
 
+def test_a_heading_bias_per_metre_is_recovered_and_calibrated_away():
+    """Odometry whose heading misses -0.03 rad per metre (a robot that curves right on a straight run, UMBmark's
+    type-A error): the fit finds the bias, and the calibrated dead reckoning keeps its heading where the scales
+    alone let it drift by ~10 rad over the log; a log without a bias gets none (within its standard error)."""
+    q = dict(q_xy=0.04 ** 2, q_theta_rad=0.08 ** 2, q_theta_m=0.05 ** 2)
+    log = _synthetic_log(np.random.default_rng(7), **q, scale=1.0, sigma_r=0.03, slope_r=0.03, sigma_b=0.02,
+                         offset_b=0.0, heading_bias=-0.03)
+    model = estimate_noise([log]).model
+    se = model.fit["heading_bias_per_m_standard_error"]
+    assert 0 < se < 0.01 and model.odometry.heading_bias_per_m == pytest.approx(-0.03, abs=3 * se)
+    assert model.odometry.rotation_scale == pytest.approx(1.0, abs=0.02)
+    t = log.ground_truth[::10, 0]
+    true_heading = np.sum(between(log.true_pose(t[:-1]), log.true_pose(t[1:]))[:, 2])
+    calibrated = np.sum(model.calibrate_increments(log.odometry_increments(t))[:, 2])
+    unbiased = estimate_noise([log], heading_bias=False).model
+    assert unbiased.odometry.heading_bias_per_m == 0.0
+    scales_only = np.sum(unbiased.calibrate_increments(log.odometry_increments(t))[:, 2])
+    assert abs(calibrated - true_heading) < 0.2 * abs(scales_only - true_heading)
+    plain = estimate_noise([_synthetic_log(np.random.default_rng(8), **q, scale=1.0, sigma_r=0.03, slope_r=0.03,
+                                           sigma_b=0.02, offset_b=0.0)]).model
+    assert abs(plain.odometry.heading_bias_per_m) < 3 * plain.fit["heading_bias_per_m_standard_error"]
+
+
+def test_the_heading_bias_round_trips_is_optional_and_bounded(tmp_path):
+    model = NoiseModel(OdometryNoise(0.001, 0.002, 0.003, 0.95, 1.02, -0.025), RangeBearingNoise(0.02, 0.04, 0.01))
+    model.save(tmp_path / "n.toml")
+    assert NoiseModel.load(tmp_path / "n.toml").odometry.heading_bias_per_m == -0.025
+    np.testing.assert_allclose(model.calibrate_increments(np.array([[0.3, 0.4, 0.1]])),
+                               [[0.3 * 0.95, 0.4 * 0.95, 0.1 * 1.02 - 0.025 * 0.5]])
+    header = 'format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\ntheta_var_per_rad = 1\n' \
+             'theta_var_per_m = 1\n'
+    (tmp_path / "old.toml").write_text(header)            # a file written before the bias existed
+    assert NoiseModel.load(tmp_path / "old.toml").odometry.heading_bias_per_m == 0.0
+    for value, complaint in (("0.7", r"heading_bias_per_m must lie in \[-0.5, 0.5\]"), ("nan", "finite number"),
+                             ('"x"', "must be a number")):
+        (tmp_path / "bad.toml").write_text(header + f"heading_bias_per_m = {value}\n")
+        with pytest.raises(NoiseModelError, match=complaint) as error:
+            NoiseModel.load(tmp_path / "bad.toml")
+        assert "\n" not in str(error.value) and "bad.toml" in str(error.value)
+
+
 def test_estimation_refuses_a_log_without_ground_truth():
     log = RangeBearingLog("x", np.array([[0.0, 0, 0, 0], [1.0, 1, 0, 0]]), [0.5], [1.0], [0.0], [6])
     with pytest.raises(ValueError, match="needs ground truth"):
@@ -171,6 +215,14 @@ def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
     assert 0.3 < fit["detection_correlation"] < 0.9
     assert fit["detection_probability_beyond_5m"] < fit["detection_probability_below_3m"]
     assert estimate.model.existence_overrides()["detection_correlation"] == fit["detection_correlation"]
+
+
+def test_real_dataset2_robot1_odometry_curves_right(mrclam_dir):
+    # robot 1's first 900 s: its heading falls behind the commanded one by ~0.07 rad per metre driven (every
+    # robot's does, 0.02-0.06 rad/m over the whole log: docs/fastslam.md), far beyond the fit's standard error
+    model = estimate_noise([read_mrclam(mrclam_dir, 1, until=900.0)]).model
+    se = model.fit["heading_bias_per_m_standard_error"]
+    assert model.odometry.heading_bias_per_m < -2.5 * se and se < 0.05
 
 
 def test_correlated_sightings_are_measured_and_inflate_the_variance():
