@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
-from benchmarks.slam_consistency import landmark_scores
+from benchmarks.slam_consistency import landmark_scores, merge_scores
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, compose
@@ -193,6 +193,7 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
            if k != "landmark_nees"},
         "pose_nees_median": m["pose_nees_median"], "pose_nees_within_bound": m["pose_nees_within_chi2_95"],
         "stats": vars(slam.stats).copy() if hasattr(slam, "stats") else {},
+        **merge_scores(getattr(slam, "merged_pairs", []), observer.points, slam.reports, observer.indices),
         "frontend_ms_mean": 1e3 * observer.frontend_seconds / max(1, m["frames"]),
         "observations_per_frame": float(np.mean([r.n_observations for r in slam.reports]))}
     if diagnose:
@@ -334,8 +335,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.max_corners} corners, seed {args.seed}")
     print("| robot | s | ATE (m) | DR ATE (m) | final err (m) | DR final (m) | landmarks | distinct points |"
           " duplicates | landmark median / RMS err (m) | obs/frame | update ms median / p90 | duplicate fraction |"
-          " landmark NEES median / < χ²₃ 95 % | pose NEES median / < χ²₃ 95 % |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          " landmark NEES median / < χ²₃ 95 % | pose NEES median / < χ²₃ 95 % | merges (co-visibility) |"
+          " merged 5-10 cm / wrong > 10 cm |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['robot']} | {r['seconds']:.0f} | {r['ate_m']:.3f} | {r['dead_reckoning_ate_m']:.3f} | "
               f"{r['final_position_error_m']:.3f} | {r['dead_reckoning_final_position_error_m']:.3f} | "
@@ -344,7 +346,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['observations_per_frame']:.1f} | {r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f} | "
               f"{100 * r['duplicate_fraction']:.1f} % | {r['landmark_nees_median']:.1f} / "
               f"{100 * r['landmark_nees_within_bound']:.0f} % | {r['pose_nees_median']:.1f} / "
-              f"{100 * r['pose_nees_within_bound']:.0f} % |")
+              f"{100 * r['pose_nees_within_bound']:.0f} % | {r['merges']} ({r['merges_by_covisibility']}) | "
+              f"{r['merges_5_to_10cm']} / {r['merges_wrong']} |")
     for r in rows:
         if "diagnostics" in r:
             print(f"\n{r['robot']} diagnostics:")

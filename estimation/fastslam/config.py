@@ -61,6 +61,10 @@ class FastSLAMConfig:
     merge_every: int = 5                          # updates between merge passes (over the ids touched since)
     merge_descriptor_threshold: float = 0.5       # descriptor distance allowed between merged landmarks (0.8
     #                                             #   merged more duplicates but also distinct corners: docs)
+    merge_covisibility: bool = True               # two landmarks ever detected in one frame are never merged, and
+    #                                             #   two never co-detected are merged on that evidence (filter)
+    merge_log_odds: float = 2.944                 # evidence "one point" needed for that merge: log 19 (P = 0.95
+    #                                             #   from even odds), in existence.exclusive_log_odds units
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block
@@ -77,6 +81,8 @@ class FastSLAMConfig:
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
         if not self.observation_cov_scale > 0.0:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
+        if not self.merge_log_odds > 0.0:
+            raise ValueError(f"merge_log_odds must be > 0, not {self.merge_log_odds}")
         if self.merge_every < 1:
             raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
         if self.association not in ("unknown", "id"):

@@ -25,6 +25,13 @@ misses while a robot stands in front of a landmark removed landmarks seen dozens
 
 The constants +1 / −0.5 are the rates P_D ≈ 0.39, P_FA ≈ 0.145 (log(1 − 0.39) = −0.5, log(0.39/0.145) = 1):
 the defaults for the simulated stereo camera, which has no measured rates.
+
+Co-visibility of two landmarks (the duplicate test, ``exclusive_log_odds``): if two landmarks a, b are one
+point, the sensor reports it once per frame, so when one of them is detected the other, although well in view,
+is not. If they are two points, each detected with probability P_D, then P(only one | at least one) =
+2 P_D (1 − P_D) / (1 − (1 − P_D)²) = 2 (1 − P_D) / (2 − P_D). A frame with one detected and the other missed in
+view is thus worth log((2 − P_D) / (2 (1 − P_D))) for "one point" (discounted by the correlation like every
+step), and a frame with both detected rules "one point" out (likelihood 0).
 """
 from __future__ import annotations
 
@@ -57,3 +64,18 @@ def miss_log_odds(config: FastSLAMConfig, ranges: np.ndarray) -> np.ndarray | fl
     if not config.detection_probabilities:
         return config.existence_miss
     return evidence_per_frame(config) * np.log1p(-detection_probability(config, ranges))
+
+
+def detection_probability_or_constant(config: FastSLAMConfig, ranges: np.ndarray) -> np.ndarray:
+    """P_D (N,) at ranges (N,): the configured bands, or the constants' own P_D = 1 − exp(existence_miss)."""
+    ranges = np.asarray(ranges, float)
+    if config.detection_probabilities:
+        return detection_probability(config, ranges)
+    return np.full(ranges.shape, -np.expm1(config.existence_miss))
+
+
+def exclusive_log_odds(config: FastSLAMConfig, ranges: np.ndarray) -> np.ndarray:
+    """Log-likelihood ratio "one point" : "two points" (N,) of a frame in which one landmark of a pair was
+    detected and the other, predicted well in view at ``ranges`` (N,) m, was not (see the module docstring)."""
+    p = np.clip(detection_probability_or_constant(config, ranges), 1e-6, 1.0 - 1e-6)
+    return evidence_per_frame(config) * np.log((2.0 - p) / (2.0 * (1.0 - p)))

@@ -63,7 +63,7 @@ from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from .config import FastSLAMConfig
 from .drift import DriftTracker
-from .existence import hit_log_odds, miss_log_odds
+from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
 from .linalg import (
     joseph_update,
     lower_matvec,
@@ -87,6 +87,7 @@ _EYE3 = np.eye(3)
 COVARIANCE_KINDS = ("particle", "mixture", "mixture+drift")   # what a map's landmark covariances are (particle_map)
 _TINY_POSE_VAR = np.array([1e-12, 0.0, 0.0, 1e-12, 0.0, 1e-12])[:, None]   # keeps P⁻¹ finite right after an update
 PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
+_PAIR_SHIFT = 32           # a pair of landmark ids (a < b) as one int64 key: a << 32 | b
 
 
 @dataclass(frozen=True)
@@ -191,6 +192,12 @@ class FastSLAM:
         self.drift = DriftTracker()                                     # the map frame's drift (see drift.py)
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
+        # co-visibility of landmark pairs in the most probable particle (see _merge_duplicates): evidence "one
+        # point" per pair key, the keys ever detected in one frame (never merged), those ready to merge
+        self._pair_evidence: dict[int, float] = {}
+        self._codetected: set[int] = set()
+        self._merge_ready: set[int] = set()
+        self.merged_pairs: list[tuple[int, int, bool]] = []           # (older id, newer id, by co-visibility)
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
 
@@ -321,6 +328,12 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
+        if cfg.merge_gate > 0 and not by_id and cfg.merge_covisibility:
+            # what the most probable particle (the one step 8 picks) detected and missed in view, counted before
+            # any merge: two landmarks detected in this frame are two points from now on
+            self._count_covisibility(*self._best_particle_view(
+                int(np.argmax(self.log_weights + log_lik)), matched, missed, missed_ranges, had_candidate, new_ids,
+                poses, z, q6))
         if cfg.merge_gate > 0 and not by_id:   # duplicates: only the landmarks touched since the last pass
             self._touched.append(np.concatenate([self.store.flat_lid[matched.g], new_ids[new_ids >= 0]]))
             if len(self._touched) >= cfg.merge_every:
@@ -362,6 +375,7 @@ class FastSLAM:
         self._history.append((self._time, self.poses.copy(), parents))
         if len(self._history) - self._pruned_at >= PRUNE_HISTORY_EVERY:
             self._prune_history()
+            self._prune_pairs()
         return UpdateReport(
             n_obs, len(win) / n_particles, n_new / n_particles,
             dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov,
@@ -699,24 +713,130 @@ class FastSLAM:
 
     # -- duplicates ------------------------------------------------------------------------------------------
     def _merge_duplicates(self, touched: np.ndarray) -> int:
-        """Merge, in each particle, landmarks that are statistically one point: (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b)
-        < ``merge_gate`` and (with descriptors) descriptors closer than ``merge_descriptor_threshold``. The
+        """Merge, in each particle, landmarks that are one point. Two kinds of evidence (pairs of ids):
+
+        - *alike* (:meth:`_alike_pairs`): statistically one point given the particle's trajectory,
+          (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b) < ``merge_gate``, and (with descriptors) descriptors closer than
+          ``merge_descriptor_threshold``; one of them matched or made since the last pass (``touched``);
+        - *co-visibility* (``merge_covisibility``, :meth:`_count_covisibility`): never detected in one frame
+          although, again and again, one was detected while the other was predicted well in view, worth
+          ``merge_log_odds``; and one point within the covariance the landmarks really have in the map frame,
+          Σ_a + Σ_b + C_a + C_b (C: the map frame's drift at each one's creation, ``drift.py``), since a
+          landmark made again after the pose drifted sits off by that drift, not by its EKF's σ.
+
+        With ``merge_covisibility``, a pair ever detected in one frame is two points and is never merged. The
         newer landmark (higher id) goes into the older one: μ, Σ fused as two independent estimates (given the
         particle's trajectory they are: each observation updated only one of them), counts added, the larger
-        existence kept. Only pairs with one landmark in ``touched`` (ids matched or made this frame) and both
-        near the view are tested; pairs of ids are first kept only if their means (in one particle) are within
-        ``merge_radius``. Returns the number of (particle, landmark) merges."""
+        existence kept. Only landmarks near some particle's view are considered. Returns the number of
+        (particle, landmark) merges; the id pairs go to ``merged_pairs``."""
         cfg, store = self.config, self.store
         cand, lids, _ = self._candidates(self.poses)
-        if len(cand.m) == 0 or len(touched) == 0:
+        if len(cand.m) == 0:
             return 0
         uniq, first, inverse = np.unique(lids, return_index=True, return_inverse=True)
+        a, b = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        if cfg.descriptor_size > 0 or not cfg.merge_covisibility:
+            # without descriptors "statistically one point" is geometry alone, which cannot tell one landmark
+            # from two neighbours within a few σ (MRCLAM: posts 0.7-1.9 m apart, σ 0.3-0.6 m): co-visibility must
+            # then supply the second piece of evidence
+            a, b = self._alike_pairs(cand, uniq, first, inverse, touched)
+        by_evidence = np.zeros(len(a), bool)
+        if cfg.merge_covisibility:
+            if len(a) and self._codetected:
+                keep = np.array([k not in self._codetected for k in ((a << _PAIR_SHIFT) | b).tolist()], bool)
+                a, b, by_evidence = a[keep], b[keep], by_evidence[keep]
+            if self._merge_ready:
+                ready = np.fromiter(self._merge_ready, np.int64, len(self._merge_ready))
+                ra, rb = ready >> _PAIR_SHIFT, ready & ((1 << _PAIR_SHIFT) - 1)
+                present = np.zeros(self._n_ids, bool)
+                present[uniq] = True
+                near = present[ra] & present[rb]
+                a = np.concatenate([a, ra[near]])
+                b = np.concatenate([b, rb[near]])
+                by_evidence = np.concatenate([by_evidence, np.ones(int(near.sum()), bool)])
+        if len(a) == 0:
+            return 0
+        # one row per id pair (a pair on both lists may pass either test)
+        pair_key, at = np.unique(a * self._n_ids + b, return_inverse=True)
+        evidence = np.zeros(len(pair_key), bool)
+        np.logical_or.at(evidence, at, by_evidence)
+        alike = np.zeros(len(pair_key), bool)
+        np.logical_or.at(alike, at, ~by_evidence)
+        a, b = np.divmod(pair_key, self._n_ids)
+        # expand to the particles holding both (rows of the candidate list, looked up by particle and id)
+        key = cand.m * self._n_ids + lids
+        order = np.argsort(key, kind="stable")
+        sorted_key = key[order]
+        rows_a, pair = _rows_with_id(lids, a)                                      # candidate rows holding a
+        m = cand.m[rows_a]
+        pos = np.searchsorted(sorted_key, m * self._n_ids + b[pair])
+        pos = np.minimum(pos, len(sorted_key) - 1)
+        found = sorted_key[pos] == m * self._n_ids + b[pair]
+        rows_a, rows_b, pair = rows_a[found], order[pos[found]], pair[found]
+        if len(rows_a) == 0:
+            return 0
+        sa, sb = _rows(store.flat_state, cand.g[rows_a]).T, _rows(store.flat_state, cand.g[rows_b]).T
+        diff = sa[:3] - sb[:3]
+        adj, det = sym_adjugate(sa[3:] + sb[3:])
+        d2 = sym_quadratic(adj, diff) / det
+        ok = alike[pair] & (d2 < cfg.merge_gate)
+        if evidence.any():
+            drift = sym_components(self.drift.landmark_covariances(a[pair])) + sym_components(
+                self.drift.landmark_covariances(b[pair]))
+            adj, det = sym_adjugate(sa[3:] + sb[3:] + drift)
+            d2_drift = sym_quadratic(adj, diff) / det
+            by_drift = evidence[pair] & (d2_drift < cfg.merge_gate) & ~ok
+            ok |= by_drift
+            d2 = np.where(by_drift, d2_drift, d2)
+        ok = np.flatnonzero(ok)
+        if len(ok) == 0:
+            return 0
+        rows_a, rows_b, d2, pair = rows_a[ok], rows_b[ok], d2[ok], pair[ok]
+        # one merge per landmark and frame: each newer landmark goes into its nearest older one, each older one
+        # takes its nearest newer one, and a landmark on both sides of chosen pairs waits for the next frame
+        n_rows = len(cand.m)
+        pick = _first_minimum(rows_b, d2, n_rows, np.arange(len(rows_b)))
+        pick = pick[_first_minimum(rows_a[pick], d2[pick], n_rows, pick)]
+        rows_a, rows_b, pair, d2 = rows_a[pick], rows_b[pick], pair[pick], d2[pick]
+        clash = np.isin(rows_a, rows_b)
+        rows_a, rows_b, pair, d2 = rows_a[~clash], rows_b[~clash], pair[~clash], d2[~clash]
+        if len(rows_a) == 0:
+            return 0
+        ma, mb = cand.take(rows_a), cand.take(rows_b)
+        store.make_writable(np.concatenate([ma.m, mb.m]), np.concatenate([ma.k, mb.k]))
+        ga, gb = self._remap(ma), self._remap(mb)
+        sa, sb = _rows(store.flat_state, ga).T, _rows(store.flat_state, gb).T
+        ia, ib = sym_inverse(sa[3:]), sym_inverse(sb[3:])
+        cov = sym_inverse(ia + ib)                                                  # Σ = (Σ_a⁻¹ + Σ_b⁻¹)⁻¹
+        mean = sym_matvec(cov, sym_matvec(ia, sa[:3]) + sym_matvec(ib, sb[:3]))     # μ = Σ (Σ_a⁻¹μ_a + Σ_b⁻¹μ_b)
+        # a pair merged on co-visibility alone is one point seen from two drifted stretches of the trajectory, not
+        # two independent measurements of it: the older landmark keeps its estimate, consistent with the map made
+        # with it, and takes the newer one's sightings
+        drifted = ~alike[pair] | (d2 >= cfg.merge_gate)
+        mean[:, drifted], cov[:, drifted] = sa[:3, drifted], sa[3:, drifted]
+        store.put_state(ga, np.vstack([mean, cov]).T)
+        store.flat_count[ga] += store.flat_count[gb]
+        store.flat_logodds[ga] = np.maximum(store.flat_logodds[ga], store.flat_logodds[gb])
+        store.flat_lid[gb] = -1
+        store.include_in_bbox(ga, mean[:2].T)
+        self.stats.landmarks_merged += len(ga)
+        for p in np.unique(pair).tolist():
+            self.merged_pairs.append((int(a[p]), int(b[p]), bool(evidence[p] and not alike[p])))
+        return len(ga)
+
+    def _alike_pairs(self, cand: _Pairs, uniq: np.ndarray, first: np.ndarray, inverse: np.ndarray,
+                     touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Id pairs (a < b) near enough to pass ``merge_gate`` under Σ_a + Σ_b in some particle and alike in
+        descriptors, one of them in ``touched``. Vectorised: pairs of ids are first kept only if their means (in
+        one particle) are within ``merge_radius``, by an exact bound: |μ_a − μ_b| ≥ |ref_a − ref_b| − spread_a −
+        spread_b in every particle and d² ≥ |μ_a − μ_b|² / tr(Σ_a + Σ_b), with spread and tr Σ maximised over
+        the particles holding the id."""
+        cfg, store = self.config, self.store
+        none = np.zeros(0, np.int64), np.zeros(0, np.int64)
         ref = _rows(store.flat_mean, cand.g[first])                               # (U, 3) one particle's mean
         t = np.flatnonzero(np.isin(uniq, touched))
         if len(t) == 0:
-            return 0
-        # exact spatial bound per id pair: |μ_a − μ_b| ≤ |ref_a − ref_b| + spread_a + spread_b in every particle,
-        # and d² ≥ |μ_a − μ_b|² / tr(Σ_a + Σ_b), with spread and tr Σ maximised over the particles holding the id
+            return none
         state = _rows(store.flat_state, cand.g)
         spread2, trace = np.zeros(len(uniq)), np.zeros(len(uniq))
         np.maximum.at(spread2, inverse, np.sum((state[:, :3] - ref[inverse]) ** 2, axis=1))
@@ -732,55 +852,95 @@ class FastSLAM:
             ti, ui = ti[alike], ui[alike]
         a, b = uniq[t[ti]], uniq[ui]
         keep = a != b
-        a, b = np.minimum(a, b)[keep], np.maximum(a, b)[keep]                    # a older, b newer
-        if len(a) == 0:
-            return 0
-        pair_key = np.unique(a * self._n_ids + b)
-        a, b = np.divmod(pair_key, self._n_ids)
-        # expand to the particles holding both (rows of the candidate list, looked up by particle and id)
-        key = cand.m * self._n_ids + lids
-        order = np.argsort(key, kind="stable")
-        sorted_key = key[order]
-        rows_a, pair = _rows_with_id(lids, a)                                      # candidate rows holding a
-        m = cand.m[rows_a]
-        pos = np.searchsorted(sorted_key, m * self._n_ids + b[pair])
-        pos = np.minimum(pos, len(sorted_key) - 1)
-        found = sorted_key[pos] == m * self._n_ids + b[pair]
-        rows_a, rows_b = rows_a[found], order[pos[found]]
-        if len(rows_a) == 0:
-            return 0
-        sa, sb = _rows(store.flat_state, cand.g[rows_a]).T, _rows(store.flat_state, cand.g[rows_b]).T
-        diff = sa[:3] - sb[:3]
-        adj, det = sym_adjugate(sa[3:] + sb[3:])
-        d2 = sym_quadratic(adj, diff) / det
-        ok = np.flatnonzero(d2 < cfg.merge_gate)
-        if len(ok) == 0:
-            return 0
-        rows_a, rows_b, d2 = rows_a[ok], rows_b[ok], d2[ok]
-        # one merge per landmark and frame: each newer landmark goes into its nearest older one, each older one
-        # takes its nearest newer one, and a landmark on both sides of chosen pairs waits for the next frame
-        n_rows = len(cand.m)
-        pick = _first_minimum(rows_b, d2, n_rows, np.arange(len(rows_b)))
-        pick = pick[_first_minimum(rows_a[pick], d2[pick], n_rows, pick)]
-        rows_a, rows_b = rows_a[pick], rows_b[pick]
-        clash = np.isin(rows_a, rows_b)
-        rows_a, rows_b = rows_a[~clash], rows_b[~clash]
-        if len(rows_a) == 0:
-            return 0
-        ma, mb = cand.take(rows_a), cand.take(rows_b)
-        store.make_writable(np.concatenate([ma.m, mb.m]), np.concatenate([ma.k, mb.k]))
-        ga, gb = self._remap(ma), self._remap(mb)
-        sa, sb = _rows(store.flat_state, ga).T, _rows(store.flat_state, gb).T
-        ia, ib = sym_inverse(sa[3:]), sym_inverse(sb[3:])
-        cov = sym_inverse(ia + ib)                                                  # Σ = (Σ_a⁻¹ + Σ_b⁻¹)⁻¹
-        mean = sym_matvec(cov, sym_matvec(ia, sa[:3]) + sym_matvec(ib, sb[:3]))     # μ = Σ (Σ_a⁻¹μ_a + Σ_b⁻¹μ_b)
-        store.put_state(ga, np.vstack([mean, cov]).T)
-        store.flat_count[ga] += store.flat_count[gb]
-        store.flat_logodds[ga] = np.maximum(store.flat_logodds[ga], store.flat_logodds[gb])
-        store.flat_lid[gb] = -1
-        store.include_in_bbox(ga, mean[:2].T)
-        self.stats.landmarks_merged += len(ga)
-        return len(ga)
+        if not keep.any():
+            return none
+        return np.minimum(a, b)[keep], np.maximum(a, b)[keep]                    # a older, b newer
+
+    def _best_particle_view(self, best: int, matched: _Pairs, missed: _Pairs, missed_ranges: np.ndarray,
+                            had_candidate: np.ndarray, new_ids: np.ndarray, poses: np.ndarray, z: np.ndarray,
+                            q6: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What particle ``best`` saw this frame, copied before merges move blocks: the ids (D,) and states
+        (D, 9) of the landmarks it detected (matched or made now), and of those it missed well in view (K,),
+        (K, 9), with their ranges (K,)."""
+        store = self.store
+        det = matched.g[matched.m == best]
+        n_obs = len(z)
+        j = np.flatnonzero(~had_candidate[best * n_obs:(best + 1) * n_obs])
+        j = j[new_ids[j] >= 0]
+        x, y, theta = poses[best]
+        c, s = np.full(len(j), np.cos(theta)), np.full(len(j), np.sin(theta))
+        zx, zy, zz = _rows(z, j).T
+        made = np.vstack([c * zx - s * zy + x, s * zx + c * zy + y, zz, sym_rotate_z(c, s, _cols(q6, j))]).T
+        in_best = missed.m == best
+        miss = missed.g[in_best]
+        alive = store.flat_lid[miss] >= 0
+        miss = miss[alive]
+        return (np.concatenate([store.flat_lid[det], new_ids[j]]),
+                np.concatenate([_rows(store.flat_state, det), made.reshape(-1, 9)]),
+                store.flat_lid[miss].copy(), _rows(store.flat_state, miss), missed_ranges[in_best][alive])
+
+    def _count_covisibility(self, det_lids: np.ndarray, det_state: np.ndarray, miss_lids: np.ndarray,
+                            miss_state: np.ndarray, miss_ranges: np.ndarray) -> None:
+        """Co-visibility evidence of one frame of the most probable particle (see :meth:`_merge_duplicates` and
+        ``existence.exclusive_log_odds``), over the pairs (detected, detected or missed in view) that could be
+        one point, d² < ``merge_gate`` under Σ_a + Σ_b + C_a + C_b: a pair both detected is two points for good;
+        a pair with one missed gains the frame's log-likelihood ratio for "one point", and is ready to merge
+        once its sum reaches ``merge_log_odds``."""
+        n_det = len(det_lids)
+        if n_det == 0:
+            return
+        cfg = self.config
+        lids = np.concatenate([det_lids, miss_lids])
+        state = np.concatenate([det_state, miss_state])
+        cov = state[:, 3:].T + sym_components(self.drift.landmark_covariances(lids))          # (6, V)
+        trace = cov[0] + cov[3] + cov[5]
+        dist2 = np.sum((det_state[:, None, :3] - state[None, :, :3]) ** 2, axis=2)             # (D, V)
+        di, vi = np.nonzero((dist2 < cfg.merge_gate * (trace[:n_det, None] + trace[None, :]))
+                            & (det_lids[:, None] != lids[None, :]))                       # d² ≥ |Δ|²/tr S
+        if len(di) == 0:
+            return
+        adj, det = sym_adjugate(_cols(cov, di) + _cols(cov, vi))
+        d2 = sym_quadratic(adj, (state[di, :3] - state[vi, :3]).T) / det
+        near = d2 < cfg.merge_gate
+        di, vi = di[near], vi[near]
+        a, b = np.minimum(det_lids[di], lids[vi]), np.maximum(det_lids[di], lids[vi])
+        key = (a << _PAIR_SHIFT) | b
+        both = vi < n_det
+        if both.any():
+            co = set(np.unique(key[both]).tolist())
+            self._codetected |= co
+            self._merge_ready -= co
+        keys, at = np.unique(key[~both], return_inverse=True)
+        if len(keys) == 0:
+            return
+        gain = np.bincount(at, exclusive_log_odds(cfg, miss_ranges[vi[~both] - n_det]), minlength=len(keys))
+        evidence, ready, codetected = self._pair_evidence, self._merge_ready, self._codetected
+        for k, g in zip(keys.tolist(), gain.tolist(), strict=True):
+            if k in codetected:
+                continue
+            total = evidence.get(k, 0.0) + g
+            evidence[k] = total
+            if total >= cfg.merge_log_odds:
+                ready.add(k)
+
+    def _prune_pairs(self) -> None:
+        """Forget the co-visibility of pairs with an id no particle holds any more (memory follows the map)."""
+        if not (self._pair_evidence or self._codetected):
+            return
+        store = self.store
+        alive = np.zeros(self._n_ids, bool)
+        held = store.lid[store.refcount > 0]
+        alive[held[held >= 0]] = True
+        mask = (1 << _PAIR_SHIFT) - 1
+
+        def live(keys) -> set[int]:
+            k = np.fromiter(keys, np.int64, len(keys))
+            return set(k[alive[k >> _PAIR_SHIFT] & alive[k & mask]].tolist())
+
+        kept = live(self._pair_evidence)
+        self._pair_evidence = {k: v for k, v in self._pair_evidence.items() if k in kept}
+        self._codetected = live(self._codetected)
+        self._merge_ready &= kept
 
     # -- "id" association ------------------------------------------------------------------------------------
     def _lids_of_external(self, ids: np.ndarray) -> np.ndarray:
