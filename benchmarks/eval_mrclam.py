@@ -5,7 +5,7 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
-        [--maps /tmp/mrclam-maps] [--no-inflation] [--no-heading-bias] [--set FIELD=VALUE ...] [--json]
+        [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -17,8 +17,9 @@ under the χ²₂ 95 % NEES bound (start frame and after the rigid fit), pose NE
 Noise: ``own`` fits each robot's model from its own log against the truth (what `p3at slam dataset` does without
 --noise); ``others`` from the other robots' logs only (no robot is scored with noise fitted on itself); a FILE
 is used for every robot. ``--no-inflation``: take consecutive sightings as independent (the sensor variances are
-not multiplied by the noise model's variance_inflation). ``--no-heading-bias``: fit the odometry's rotation
-scale alone, without the heading bias per metre (the calibration before session 5; a FILE is used as it is).
+not multiplied by the noise model's variance_inflation). ``--heading-bias``: fit the odometry's heading bias per
+metre beside the rotation scale (estimate_noise(heading_bias=True); off by default, docs/fastslam.md "Session 5";
+a FILE is used as it is).
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -63,8 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maps", type=Path, default=Path("/tmp/mrclam-maps"))
     parser.add_argument("--no-inflation", action="store_true", help="do not inflate the sensor variances for "
                         "correlated sightings")
-    parser.add_argument("--no-heading-bias", action="store_true", help="fit no odometry heading bias per metre "
-                        "(rotation scale only)")
+    parser.add_argument("--heading-bias", action="store_true", help="fit the odometry's heading bias per metre "
+                        "beside the rotation scale")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
@@ -84,10 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     noise = {}
     for r in robots:
         if args.noise == "own":
-            noise[r] = estimate_noise([logs[r]], heading_bias=not args.no_heading_bias).model
+            noise[r] = estimate_noise([logs[r]], heading_bias=args.heading_bias).model
         elif args.noise == "others":
             pool = [log for k, log in {**logs, **others}.items() if k != r]
-            noise[r] = estimate_noise(pool, heading_bias=not args.no_heading_bias).model
+            noise[r] = estimate_noise(pool, heading_bias=args.heading_bias).model
         else:
             noise[r] = NoiseModel.load(args.noise)
 
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = _summary(results, robots, modes)
     if args.json:
         print(json.dumps({"runs": {f"{mode}/robot{r}": m for (mode, r), m in results.items()}, "summary": summary,
-                          "noise": args.noise, "heading_bias": not args.no_heading_bias,
+                          "noise": args.noise, "heading_bias": args.heading_bias,
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation,
                           "particles": args.particles, "seed": args.seed,
@@ -123,8 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"\nMRCLAM {args.data.name}, {args.particles} particles, seed {args.seed}, noise: {args.noise}"
           + (f", until {args.until:g} s" if args.until else "") + (f", overrides {overrides}" if overrides else "")
-          + (", no odometry heading bias" if args.no_heading_bias else ", odometry heading bias per metre "
-             + " ".join(f"{noise[r].odometry.heading_bias_per_m:+.4f}" for r in robots) + " rad/m")
+          + (", odometry heading bias per metre " + " ".join(f"{noise[r].odometry.heading_bias_per_m:+.4f}"
+                                                            for r in robots) + " rad/m" if args.heading_bias else "")
           + (", sensor variances not inflated" if args.no_inflation else ", sensor variances inflated for correlation"))
     header = "mode    robot " + " ".join(f"{label:>8s}" for _, label, _ in COLUMNS)
     print(header)

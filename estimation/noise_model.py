@@ -303,14 +303,15 @@ class NoiseEstimate:
 
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
-                   robot: str | None = None, platform: str = "", heading_bias: bool = True) -> NoiseEstimate:
+                   robot: str | None = None, platform: str = "", heading_bias: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
     true increment g (from the ground truth) give the error e = g − u in the robot frame at the window's start.
     First the calibration: the rotation scale and the heading bias per metre by least squares
-    (g_θ ≈ k_r u_θ + c·d, d the window's odometry distance; ``heading_bias=False``, or a log whose turns and
-    distances are proportional so that the two cannot be told apart: c = 0, see _heading_calibration); then,
+    (g_θ ≈ k_r u_θ + c·d, d the window's odometry distance) with ``heading_bias=True``; by default, or for a log
+    whose turns and distances are proportional so that the two cannot be told apart, c = 0 (see
+    _heading_calibration; off by default because on MRCLAM it did not improve the maps, docs/fastslam.md); then,
     the turns calibrated, the translation scale by least squares on the window's displacement vectors (which
     scale linearly with it). Then
     the random-walk variances q = (q_xy, q_θ/rad, q_θ/m) of the calibrated steps:

@@ -160,19 +160,19 @@ def test_a_heading_bias_per_metre_is_recovered_and_calibrated_away():
     q = dict(q_xy=0.04 ** 2, q_theta_rad=0.08 ** 2, q_theta_m=0.05 ** 2)
     log = _synthetic_log(np.random.default_rng(7), **q, scale=1.0, sigma_r=0.03, slope_r=0.03, sigma_b=0.02,
                          offset_b=0.0, heading_bias=-0.03)
-    model = estimate_noise([log]).model
+    model = estimate_noise([log], heading_bias=True).model
     se = model.fit["heading_bias_per_m_standard_error"]
     assert 0 < se < 0.01 and model.odometry.heading_bias_per_m == pytest.approx(-0.03, abs=3 * se)
     assert model.odometry.rotation_scale == pytest.approx(1.0, abs=0.02)
     t = log.ground_truth[::10, 0]
     true_heading = np.sum(between(log.true_pose(t[:-1]), log.true_pose(t[1:]))[:, 2])
     calibrated = np.sum(model.calibrate_increments(log.odometry_increments(t))[:, 2])
-    unbiased = estimate_noise([log], heading_bias=False).model
+    unbiased = estimate_noise([log]).model        # the default: the scales alone
     assert unbiased.odometry.heading_bias_per_m == 0.0
     scales_only = np.sum(unbiased.calibrate_increments(log.odometry_increments(t))[:, 2])
     assert abs(calibrated - true_heading) < 0.2 * abs(scales_only - true_heading)
     plain = estimate_noise([_synthetic_log(np.random.default_rng(8), **q, scale=1.0, sigma_r=0.03, slope_r=0.03,
-                                           sigma_b=0.02, offset_b=0.0)]).model
+                                           sigma_b=0.02, offset_b=0.0)], heading_bias=True).model
     assert abs(plain.odometry.heading_bias_per_m) < 3 * plain.fit["heading_bias_per_m_standard_error"]
 
 
@@ -220,7 +220,7 @@ def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
 def test_real_dataset2_robot1_odometry_curves_right(mrclam_dir):
     # robot 1's first 900 s: its heading falls behind the commanded one by ~0.07 rad per metre driven (every
     # robot's does, 0.02-0.06 rad/m over the whole log: docs/fastslam.md), far beyond the fit's standard error
-    model = estimate_noise([read_mrclam(mrclam_dir, 1, until=900.0)]).model
+    model = estimate_noise([read_mrclam(mrclam_dir, 1, until=900.0)], heading_bias=True).model
     se = model.fit["heading_bias_per_m_standard_error"]
     assert model.odometry.heading_bias_per_m < -2.5 * se and se < 0.05
 
