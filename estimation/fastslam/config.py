@@ -61,8 +61,10 @@ class FastSLAMConfig:
     merge_every: int = 5                          # updates between merge passes (over the ids touched since)
     merge_descriptor_threshold: float = 0.5       # descriptor distance allowed between merged landmarks (0.8
     #                                             #   merged more duplicates but also distinct corners: docs)
-    merge_covisibility: bool = True               # two landmarks ever detected in one frame are never merged, and
-    #                                             #   two never co-detected are merged on that evidence (filter)
+    merge_covisibility: bool = False              # two landmarks ever detected in one frame are never merged, and
+    #                                             #   two never co-detected are merged on that evidence (filter);
+    #                                             #   for sensors that report an object once a frame (posts, tags),
+    #                                             #   not corners: one texture blob gives two (docs, "Duplicates")
     merge_log_odds: float = 2.944                 # evidence "one point" needed for that merge: log 19 (P = 0.95
     #                                             #   from even odds), in existence.exclusive_log_odds units
     # -- resampling and storage ------------------------------------------------------------------------------
@@ -122,6 +124,7 @@ class FastSLAMConfig:
 def range_bearing_config(**overrides) -> FastSLAMConfig:
     """A configuration for planar range-bearing sensors (all-round view, sensor at the robot's origin)."""
     values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
-                  min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345)
+                  min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345,
+                  merge_covisibility=True)   # such a sensor reports each object at most once a frame
     values.update(overrides)
     return FastSLAMConfig(**values)

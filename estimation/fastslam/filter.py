@@ -32,7 +32,9 @@ One update (:meth:`FastSLAM.update`) reads as numbered steps:
    not matched adds ``existence_miss``; below ``existence_remove`` it is removed. With the sensor's detection
    rates configured, both steps come from them and the range (``existence.py``).
 7. New landmarks from observations with no gated candidate ("id" association: with no landmark of that id);
-   every ``merge_every`` updates, duplicates among the landmarks touched since are merged.
+   every ``merge_every`` updates, duplicates among the landmarks touched since are merged (with
+   ``merge_covisibility``, also pairs never detected in one frame although one was missed in view while the
+   other was detected; pairs detected together never; see :meth:`FastSLAM._merge_duplicates`).
 8. Weights, effective sample size, low-variance resampling when ESS < ``resample_threshold`` · M; the map
    frame's drift (``drift.py``) follows the best particle.
 
