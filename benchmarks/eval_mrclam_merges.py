@@ -1,0 +1,114 @@
+"""MRCLAM in unknown association: duplicates and the filter's merges scored against the barcodes.
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.eval_mrclam_merges [--robots 1,2,3,4,5] [--seed 0] [--set FIELD=VALUE ...]
+
+Per robot (each robot's noise fitted on its own log, as ``eval_mrclam`` does with ``--noise own``): ATE, duplicate
+fraction, landmarks, and every id pair the filter merged (``FastSLAM.merged_pairs``) with the barcode each
+landmark stands for (the majority of the sightings that made or matched it, as ``eval_mrclam`` attributes them).
+A merge of two landmarks attributed to different barcodes joined distinct posts ("wrong"). ``--set`` overrides a
+FastSLAMConfig field (JSON value), e.g. ``--set merge_covisibility=false`` for the merge without co-visibility.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import estimation.dataset_slam as dataset_slam  # noqa: E402
+from benchmarks.eval_mrclam import DATA  # noqa: E402
+from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from estimation.landmark_scores import attribute_landmarks  # noqa: E402
+from estimation.noise_model import estimate_noise  # noqa: E402
+
+
+class _RecordingFastSLAM(FastSLAM):
+    """FastSLAM that keeps its update reports (the last one made is ``_RecordingFastSLAM.last``)."""
+
+    last: _RecordingFastSLAM | None = None
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.reports = []
+        _RecordingFastSLAM.last = self
+
+    def update(self, observations):
+        report = super().update(observations)
+        self.reports.append(report)
+        return report
+
+
+def run_robot(log, seed: int, overrides: dict) -> dict:
+    original = dataset_slam.FastSLAM
+    dataset_slam.FastSLAM = _RecordingFastSLAM
+    try:
+        run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
+                                            np.random.default_rng(seed), noise=estimate_noise([log]).model,
+                                            association="unknown", robot=log.name)
+    finally:
+        dataset_slam.FastSLAM = original
+    slam = _RecordingFastSLAM.last
+    # the frames as run_landmark_log forms them: sightings sharing a time stamp, from the first sighting on
+    times, first = np.unique(log.sighting_times, return_index=True)
+    bounds = np.append(first, len(log))[1:]
+    votes: dict[int, dict[int, int]] = {}
+    for report, start, stop in zip(slam.reports, first, bounds, strict=False):
+        for j, true_id in enumerate(log.landmark_ids[start:stop]):
+            for lid in (report.new_landmark_ids[j], report.best_matches[j]):
+                if lid >= 0:
+                    tally = votes.setdefault(int(lid), {})
+                    tally[int(true_id)] = tally.get(int(true_id), 0) + 1
+    pairs = {(a, b): e for a, b, e in slam.merged_pairs}
+    ids = np.array([i for pair in pairs for i in pair], np.int64)
+    barcode = dict(zip(ids.tolist(), attribute_landmarks(votes, ids).tolist(), strict=True))
+    wrong = [(a, b) for a, b in pairs if barcode[a] != barcode[b]]
+    m = run.metrics
+    return {"robot": log.name, "ate_m": m["ate_m"], "duplicate_fraction": m["duplicate_fraction"],
+            "landmarks": m["landmarks"], "true_landmarks": m["true_landmarks"],
+            "landmark_error_rigid_median_m": m["landmark_error_rigid_median_m"], "merges": len(pairs),
+            "merges_by_covisibility": int(sum(pairs.values())), "merges_wrong": len(wrong),
+            "merges_wrong_by_covisibility": int(sum(pairs[p] for p in wrong)),
+            "wrong_merges": [{"older": a, "newer": b, "older_votes": votes.get(a), "newer_votes": votes.get(b)}
+                             for a, b in wrong]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    if not args.data.is_dir():
+        print(f"eval_mrclam_merges: no data set at {args.data}", file=sys.stderr)
+        return 2
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        overrides[key] = json.loads(value)
+    rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
+    if args.json:
+        print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))
+        return 0
+    print(f"MRCLAM unknown association, seed {args.seed}" + (f", overrides {overrides}" if overrides else ""))
+    print("| robot | ATE m | landmarks | duplicates | merged id pairs (by co-visibility) | wrong (by co-visibility) |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['robot']} | {r['ate_m']:.3f} | {r['landmarks']}/{r['true_landmarks']} | "
+              f"{100 * r['duplicate_fraction']:.1f} % | {r['merges']} ({r['merges_by_covisibility']}) | "
+              f"{r['merges_wrong']} ({r['merges_wrong_by_covisibility']}) |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
