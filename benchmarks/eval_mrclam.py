@@ -5,7 +5,8 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
-        [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--set FIELD=VALUE ...] [--json]
+        [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
+        [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -19,7 +20,9 @@ Noise: ``own`` fits each robot's model from its own log against the truth (what 
 is used for every robot. ``--no-inflation``: take consecutive sightings as independent (the sensor variances are
 not multiplied by the noise model's variance_inflation). ``--heading-bias``: fit the odometry's heading bias per
 metre beside the rotation scale (estimate_noise(heading_bias=True); off by default, docs/fastslam.md "Session 5";
-a FILE is used as it is).
+a FILE is used as it is). ``--sensor-correlation passes``: the sensor's correlation (its variance inflation)
+measured over whole passes of sightings instead of from the lag-1 correlation (estimate_noise's
+sensor_correlation).
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -64,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maps", type=Path, default=Path("/tmp/mrclam-maps"))
     parser.add_argument("--no-inflation", action="store_true", help="do not inflate the sensor variances for "
                         "correlated sightings")
+    parser.add_argument("--sensor-correlation", choices=("lag1", "passes"), default="lag1")
     parser.add_argument("--heading-bias", action="store_true", help="fit the odometry's heading bias per metre "
                         "beside the rotation scale")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
@@ -85,10 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     noise = {}
     for r in robots:
         if args.noise == "own":
-            noise[r] = estimate_noise([logs[r]], heading_bias=args.heading_bias).model
+            noise[r] = estimate_noise([logs[r]], heading_bias=args.heading_bias,
+                                      sensor_correlation=args.sensor_correlation).model
         elif args.noise == "others":
             pool = [log for k, log in {**logs, **others}.items() if k != r]
-            noise[r] = estimate_noise(pool, heading_bias=args.heading_bias).model
+            noise[r] = estimate_noise(pool, heading_bias=args.heading_bias,
+                                      sensor_correlation=args.sensor_correlation).model
         else:
             noise[r] = NoiseModel.load(args.noise)
 
@@ -117,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps({"runs": {f"{mode}/robot{r}": m for (mode, r), m in results.items()}, "summary": summary,
                           "noise": args.noise, "heading_bias": args.heading_bias,
+                          "sensor_correlation": args.sensor_correlation,
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation,
                           "particles": args.particles, "seed": args.seed,

@@ -303,7 +303,8 @@ class NoiseEstimate:
 
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
-                   robot: str | None = None, platform: str = "", heading_bias: bool = False) -> NoiseEstimate:
+                   robot: str | None = None, platform: str = "", heading_bias: bool = False,
+                   sensor_correlation: str = "lag1") -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -329,7 +330,13 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     set aside; σ_r(r) = a + b·r is fitted (non-negative least squares) to |Δr|·√(π/2) of the inliers — the
     mean absolute value of a zero-mean Gaussian is σ·√(2/π) — so the range's bias (the short-range bias the
     data set's authors report) counts as noise, not as a correction; σ_φ is the inliers' RMS about the offset.
+    ``sensor_correlation``: how ``range_correlation`` / ``bearing_correlation`` are measured: ``"lag1"`` the
+    lag-1 correlation of consecutive sightings of a landmark (an AR(1) assumed beyond it); ``"passes"`` the ρ
+    whose AR(1) inflation (1 + ρ)/(1 − ρ) equals the measured one of whole passes (:func:`_pass_inflation`):
+    what a filter taking a pass's sightings as independent needs to be consistent over the pass.
     """
+    if sensor_correlation not in ("lag1", "passes"):
+        raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
     logs = list(logs)
     if not logs:
         raise ValueError("estimate_noise needs at least one log")
@@ -399,6 +406,12 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         pair = pair[inlier[nxt[pair]]]
         rho_r = _lag_correlation(dr / (a + b * r), pair, nxt)
         rho_b = _lag_correlation(db, pair, nxt)
+        inflation_r = _pass_inflation(dr / (a + b * r), nxt, inlier)
+        inflation_b = _pass_inflation(db / float(np.sqrt(np.mean(db[inlier] ** 2))), nxt, inlier)
+        fit.update(range_lag1_correlation=rho_r, bearing_lag1_correlation=rho_b,
+                   range_pass_inflation=inflation_r, bearing_pass_inflation=inflation_b)
+        if sensor_correlation == "passes":
+            rho_r, rho_b = (float(np.clip((f - 1.0) / (f + 1.0), 0.0, 0.95)) for f in (inflation_r, inflation_b))
         range_bearing = RangeBearingNoise(range_sigma_m=a, range_sigma_per_m=b,
                                           bearing_sigma_rad=float(np.sqrt(np.mean(db[inlier] ** 2))),
                                           bearing_offset_rad=offset, fov_rad=fov, min_range_m=min_range,
@@ -521,6 +534,29 @@ def _consecutive(times: np.ndarray, ids: np.ndarray) -> np.ndarray:
     same = (ids[order][1:] == ids[order][:-1]) & (np.diff(times[order]) <= CORRELATION_GAP_S)
     out[order[:-1][same]] = order[1:][same]
     return out
+
+
+def _pass_inflation(residuals: np.ndarray, nxt: np.ndarray, inlier: np.ndarray) -> float:
+    """The variance inflation f a filter needs over whole passes, from residuals (N,) in units of their σ.
+
+    A pass is a chain of consecutive sightings of one landmark (``nxt``: the next one within CORRELATION_GAP_S,
+    -1 at a chain's end); its inliers' mean m over n sightings has the variance f/n if each sighting's variance
+    is taken as f (σ² = 1) and the sightings as independent, which is what the filter does. So f is estimated as
+    the mean of n·m² over the passes of at least 2 inliers (1 if there are fewer than 20 passes). Unlike the
+    lag-1 correlation's AR(1), this also counts the error a pass shares throughout (a landmark's geometry).
+    """
+    has_previous = np.zeros(len(nxt), bool)
+    has_previous[nxt[nxt >= 0]] = True
+    values = []
+    for start in np.flatnonzero(~has_previous):
+        chain, j = [], int(start)
+        while j >= 0:
+            if inlier[j]:
+                chain.append(j)
+            j = int(nxt[j])
+        if len(chain) >= 2:
+            values.append(len(chain) * float(np.mean(residuals[chain])) ** 2)
+    return float(max(np.mean(values), 1.0)) if len(values) >= 20 else 1.0
 
 
 def _lag_correlation(residuals: np.ndarray, pair: np.ndarray, nxt: np.ndarray) -> float:

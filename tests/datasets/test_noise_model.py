@@ -1,6 +1,7 @@
 """Noise models: the TOML file (round trip, clean errors, fuzz) and the estimation from logs with ground truth."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -234,6 +235,31 @@ def test_correlated_sightings_are_measured_and_inflate_the_variance():
     # pairs are consecutive sightings within 2 s: mostly adjacent in the AR(1) series
     assert rb.bearing_correlation == pytest.approx(0.6, abs=0.1) and rb.range_correlation < 0.1
     assert rb.variance_inflation()[1] == pytest.approx((1 + rb.bearing_correlation) / (1 - rb.bearing_correlation))
+
+
+def test_an_error_shared_by_a_whole_pass_is_measured_over_passes():
+    """Passes of 10 sightings 0.2 s apart, each pass's bearings sharing one offset (σ 0.01) beside white noise
+    (σ 0.01): consecutive sightings correlate at ρ = 0.5, whose AR(1) inflation (1 + ρ)/(1 − ρ) = 3 understates
+    what a pass's mean really varies by, n·Var(m)/σ² = (10·σ_p² + σ_w²)/(σ_p² + σ_w²) = 5.5; the pass measure
+    finds it, and the range (white) needs none."""
+    rng = np.random.default_rng(9)
+    log = _synthetic_log(rng, 0.04 ** 2, 0.08 ** 2, 0.05 ** 2, 1.0, 0.03, 0.03, 0.02, 0.0)
+    times = (np.arange(590)[:, None] * 3.0 + 5.0 + np.arange(10)[None, :] * 0.2).ravel()
+    ids = np.repeat(np.arange(590) % 12, 10)
+    pose = log.true_pose(times)
+    delta = log.truth_positions[ids] - pose[:, :2]
+    bearing = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - pose[:, 2])
+    bearing += np.repeat(rng.normal(0.0, 0.01, 590), 10) + rng.normal(0.0, 0.01, len(times))
+    ranges = np.hypot(delta[:, 0], delta[:, 1]) + rng.normal(0.0, 0.05, len(times))
+    log = dataclasses.replace(log, sighting_times=times, ranges=ranges, bearings=bearing, landmark_ids=ids + 6)
+    lag1 = estimate_noise([log]).model
+    passes = estimate_noise([log], sensor_correlation="passes").model
+    assert lag1.range_bearing.bearing_correlation == pytest.approx(0.5, abs=0.08)
+    assert passes.fit["bearing_pass_inflation"] == pytest.approx(5.5, rel=0.2)
+    assert passes.range_bearing.variance_inflation()[1] == pytest.approx(passes.fit["bearing_pass_inflation"])
+    assert passes.range_bearing.variance_inflation()[0] < 1.5 and lag1.range_bearing.variance_inflation()[1] < 3.5
+    with pytest.raises(ValueError, match="sensor_correlation"):
+        estimate_noise([log], sensor_correlation="lag2")
 
 
 def test_the_fitted_detection_rates_set_the_filters_existence_evidence():
