@@ -231,7 +231,7 @@ def test_correlated_sightings_are_measured_and_inflate_the_variance():
     inflation (1 + ρ)/(1 − ρ) = 4 is what a filter taking them as independent needs."""
     log = _synthetic_log(np.random.default_rng(6), 0.04 ** 2, 0.08 ** 2, 0.05 ** 2, 1.0, 0.03, 0.03, 0.02, 0.0,
                          rho_b=0.6)
-    rb = estimate_noise([log]).model.range_bearing
+    rb = estimate_noise([log], sensor_correlation="lag1").model.range_bearing
     # pairs are consecutive sightings within 2 s: mostly adjacent in the AR(1) series
     assert rb.bearing_correlation == pytest.approx(0.6, abs=0.1) and rb.range_correlation < 0.1
     assert rb.variance_inflation()[1] == pytest.approx((1 + rb.bearing_correlation) / (1 - rb.bearing_correlation))
@@ -252,8 +252,8 @@ def test_an_error_shared_by_a_whole_pass_is_measured_over_passes():
     bearing += np.repeat(rng.normal(0.0, 0.01, 590), 10) + rng.normal(0.0, 0.01, len(times))
     ranges = np.hypot(delta[:, 0], delta[:, 1]) + rng.normal(0.0, 0.05, len(times))
     log = dataclasses.replace(log, sighting_times=times, ranges=ranges, bearings=bearing, landmark_ids=ids + 6)
-    lag1 = estimate_noise([log]).model
-    passes = estimate_noise([log], sensor_correlation="passes").model
+    lag1 = estimate_noise([log], sensor_correlation="lag1").model
+    passes = estimate_noise([log]).model              # the default: measured over passes
     assert lag1.range_bearing.bearing_correlation == pytest.approx(0.5, abs=0.08)
     assert passes.fit["bearing_pass_inflation"] == pytest.approx(5.5, rel=0.2)
     assert passes.range_bearing.variance_inflation()[1] == pytest.approx(passes.fit["bearing_pass_inflation"])
