@@ -20,9 +20,9 @@ Noise: ``own`` fits each robot's model from its own log against the truth (what 
 is used for every robot. ``--no-inflation``: take consecutive sightings as independent (the sensor variances are
 not multiplied by the noise model's variance_inflation). ``--heading-bias``: fit the odometry's heading bias per
 metre beside the rotation scale (estimate_noise(heading_bias=True); off by default, docs/fastslam.md "Session 5";
-a FILE is used as it is). ``--sensor-correlation lag1``: the sensor's correlation (its variance inflation)
-from the lag-1 correlation of consecutive sightings, as before session 5, instead of measured over whole passes
-(estimate_noise's sensor_correlation, default passes).
+a FILE is used as it is). ``--sensor-correlation passes``: the sensor's correlation (its variance inflation)
+measured over whole passes of sightings instead of from the lag-1 correlation of consecutive ones
+(estimate_noise's sensor_correlation; docs/fastslam.md "Session 5").
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maps", type=Path, default=Path("/tmp/mrclam-maps"))
     parser.add_argument("--no-inflation", action="store_true", help="do not inflate the sensor variances for "
                         "correlated sightings")
-    parser.add_argument("--sensor-correlation", choices=("lag1", "passes"), default="passes")
+    parser.add_argument("--sensor-correlation", choices=("lag1", "passes"), default="lag1")
     parser.add_argument("--heading-bias", action="store_true", help="fit the odometry's heading bias per metre "
                         "beside the rotation scale")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",

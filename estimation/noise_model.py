@@ -304,7 +304,7 @@ class NoiseEstimate:
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
-                   sensor_correlation: str = "passes") -> NoiseEstimate:
+                   sensor_correlation: str = "lag1") -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -330,11 +330,12 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     set aside; σ_r(r) = a + b·r is fitted (non-negative least squares) to |Δr|·√(π/2) of the inliers — the
     mean absolute value of a zero-mean Gaussian is σ·√(2/π) — so the range's bias (the short-range bias the
     data set's authors report) counts as noise, not as a correction; σ_φ is the inliers' RMS about the offset.
-    ``sensor_correlation``: how ``range_correlation`` / ``bearing_correlation`` are measured: ``"passes"``
-    (default since session 5) the ρ whose AR(1) inflation (1 + ρ)/(1 − ρ) equals the measured one of whole
-    passes (:func:`_pass_inflation`): what a filter taking a pass's sightings as independent needs to be
-    consistent over the pass; ``"lag1"`` the lag-1 correlation of consecutive sightings of a landmark (an AR(1)
-    assumed beyond it: on MRCLAM it understated the bearing's inflation 1.5-2x and overstated the range's 2-4x).
+    ``sensor_correlation``: how ``range_correlation`` / ``bearing_correlation`` are measured: ``"lag1"``
+    (default) the lag-1 correlation of consecutive sightings of a landmark (an AR(1) assumed beyond it: on MRCLAM
+    it understates the bearing's inflation 1.5-2x and overstates the range's 2-4x); ``"passes"`` the ρ whose
+    AR(1) inflation (1 + ρ)/(1 − ρ) equals the measured one of whole passes (:func:`_pass_inflation`): what a
+    filter taking a pass's sightings as independent needs over a pass. Not the default: on MRCLAM it improved
+    known-ID maps on three seeds but made the leave-one-out and unknown-association runs worse (docs/fastslam.md).
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")

@@ -252,8 +252,8 @@ def test_an_error_shared_by_a_whole_pass_is_measured_over_passes():
     bearing += np.repeat(rng.normal(0.0, 0.01, 590), 10) + rng.normal(0.0, 0.01, len(times))
     ranges = np.hypot(delta[:, 0], delta[:, 1]) + rng.normal(0.0, 0.05, len(times))
     log = dataclasses.replace(log, sighting_times=times, ranges=ranges, bearings=bearing, landmark_ids=ids + 6)
-    lag1 = estimate_noise([log], sensor_correlation="lag1").model
-    passes = estimate_noise([log]).model              # the default: measured over passes
+    lag1 = estimate_noise([log]).model                # the default: lag-1
+    passes = estimate_noise([log], sensor_correlation="passes").model
     assert lag1.range_bearing.bearing_correlation == pytest.approx(0.5, abs=0.08)
     assert passes.fit["bearing_pass_inflation"] == pytest.approx(5.5, rel=0.2)
     assert passes.range_bearing.variance_inflation()[1] == pytest.approx(passes.fit["bearing_pass_inflation"])
