@@ -55,6 +55,15 @@ COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "
            ("pose_nees_within_chi2_95", "pose<b", 2), ("seconds_cpu", "cpu s", 0))
 
 
+def config_overrides(items: list[str]) -> dict:
+    """``--set FIELD=VALUE`` items as FastSLAMConfig overrides (each value JSON)."""
+    overrides = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        overrides[key] = json.loads(value)
+    return overrides
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
@@ -74,10 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        overrides[key] = json.loads(value)
+    overrides = config_overrides(args.set)
     robots = [int(r) for r in args.robots.split(",")]
     modes = args.association.split(",")
     if not args.data.is_dir():

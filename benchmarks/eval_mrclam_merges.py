@@ -24,49 +24,30 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
-from benchmarks.eval_mrclam import DATA  # noqa: E402
+from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from benchmarks.slam_consistency import RecordingFastSLAM  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
-from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
-from estimation.landmark_scores import attribute_landmarks  # noqa: E402
+from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
-
-
-class _RecordingFastSLAM(FastSLAM):
-    """FastSLAM that keeps its update reports (the last one made is ``_RecordingFastSLAM.last``)."""
-
-    last: _RecordingFastSLAM | None = None
-
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.reports = []
-        _RecordingFastSLAM.last = self
-
-    def update(self, observations):
-        report = super().update(observations)
-        self.reports.append(report)
-        return report
 
 
 def run_robot(log, seed: int, overrides: dict) -> dict:
     original = dataset_slam.FastSLAM
-    dataset_slam.FastSLAM = _RecordingFastSLAM
+    dataset_slam.FastSLAM = RecordingFastSLAM
     try:
         run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
                                             np.random.default_rng(seed), noise=estimate_noise([log]).model,
                                             association="unknown", robot=log.name)
     finally:
         dataset_slam.FastSLAM = original
-    slam = _RecordingFastSLAM.last
+    slam = RecordingFastSLAM.last
     # the frames as run_landmark_log forms them: sightings sharing a time stamp, from the first sighting on
     times, first = np.unique(log.sighting_times, return_index=True)
     bounds = np.append(first, len(log))[1:]
     votes: dict[int, dict[int, int]] = {}
     for report, start, stop in zip(slam.reports, first, bounds, strict=False):
-        for j, true_id in enumerate(log.landmark_ids[start:stop]):
-            for lid in (report.new_landmark_ids[j], report.best_matches[j]):
-                if lid >= 0:
-                    tally = votes.setdefault(int(lid), {})
-                    tally[int(true_id)] = tally.get(int(true_id), 0) + 1
+        count_sightings(votes, log.landmark_ids[start:stop], report)
     pairs = {(a, b): e for a, b, e in slam.merged_pairs}
     ids = np.array([i for pair in pairs for i in pair], np.int64)
     barcode = dict(zip(ids.tolist(), attribute_landmarks(votes, ids).tolist(), strict=True))
@@ -92,10 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.data.is_dir():
         print(f"eval_mrclam_merges: no data set at {args.data}", file=sys.stderr)
         return 2
-    overrides = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        overrides[key] = json.loads(value)
+    overrides = config_overrides(args.set)
     rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
     if args.json:
         print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))

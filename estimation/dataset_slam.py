@@ -24,7 +24,7 @@ from .datasets import RangeBearingLog
 from .fastslam import FastSLAM, FastSLAMConfig, range_bearing_observations
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
-from .landmark_scores import CHI2_95, ate, attribute_landmarks, map_scores, pose_nees
+from .landmark_scores import CHI2_95, ate, attribute_landmarks, count_sightings, map_scores, pose_nees
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
 
@@ -90,11 +90,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         if association == "id":
             obs = dataclasses.replace(obs, ids=ids)
         report = slam.update(obs)
-        for j, true_id in enumerate(ids):
-            for lid in (report.new_landmark_ids[j], report.best_matches[j]):
-                if lid >= 0:
-                    tally = votes.setdefault(int(lid), {})
-                    tally[int(true_id)] = tally.get(int(true_id), 0) + 1
+        count_sightings(votes, ids, report)
         means.append(report.pose_mean)
         covs.append(report.pose_covariance)
 

@@ -42,6 +42,17 @@ def points_nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     return out
 
 
+def count_sightings(votes: dict[int, dict[int, int]], true_ids: np.ndarray, report) -> None:
+    """Add one frame's sightings to ``votes`` (map id -> {true id: count}): each sighting j of true landmark
+    ``true_ids[j]`` votes for the landmark it made and the one it matched (``report``: the filter's
+    ``UpdateReport``, ``new_landmark_ids`` / ``best_matches``, -1 none)."""
+    for j, true_id in enumerate(true_ids):
+        for lid in (report.new_landmark_ids[j], report.best_matches[j]):
+            if lid >= 0:
+                tally = votes.setdefault(int(lid), {})
+                tally[int(true_id)] = tally.get(int(true_id), 0) + 1
+
+
 def attribute_landmarks(votes: dict[int, dict[int, int]], map_ids: np.ndarray) -> np.ndarray:
     """The true landmark (N,) each map landmark stands for: the one most of its creating and matched sightings
     were of (-1 for a landmark no sighting voted for). ``votes``: map id -> {true id: count}."""
