@@ -179,10 +179,8 @@ class NoiseModel:
         """Odometry increments (T, 3) with the model's calibration applied: the scales, and the heading bias per
         metre of the increment's odometry distance (its chord: increments between frames are short)."""
         o = self.odometry
-        raw = np.asarray(increments, float).reshape(-1, 3)
-        out = raw * [o.translation_scale, o.translation_scale, o.rotation_scale]
-        out[:, 2] += o.heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
-        return out
+        return _calibrated(increments, (o.translation_scale, o.translation_scale, o.rotation_scale),
+                           o.heading_bias_per_m)
 
     # -- files -------------------------------------------------------------------------------------------------
     def to_toml(self) -> str:
@@ -439,6 +437,15 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     return NoiseEstimate(model, np.array(by_window, float).reshape(-1, 4))
 
 
+def _calibrated(increments, scales, heading_bias_per_m: float) -> np.ndarray:
+    """Odometry increments (T, 3) scaled by ``scales`` (x, y, θ), plus the heading bias per metre of each
+    increment's odometry distance (its chord: increments between frames and 50 Hz steps are short)."""
+    raw = np.asarray(increments, float).reshape(-1, 3)
+    out = raw * np.asarray(scales, float)
+    out[:, 2] += heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
+    return out
+
+
 def _heading_calibration(turn: np.ndarray, distance: np.ndarray | None, true_turn: np.ndarray):
     """(rotation scale k_r, heading bias c rad/m, c's standard error) by least squares over windows, true_turn ≈
     k_r·turn + c·distance (all (W,)); ``distance`` None: c = 0 (the scale alone, as before the bias existed).
@@ -478,9 +485,7 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     if k < 1:
         return empty
     rows = rows[: k * n + 1]
-    raw = between(rows[:-1, 1:], rows[1:, 1:])
-    steps = raw * np.asarray(scales, float)                    # calibrated steps (robot frame)
-    steps[:, 2] += heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
+    steps = _calibrated(between(rows[:-1, 1:], rows[1:, 1:]), scales, heading_bias_per_m)   # robot frame
     # the calibrated chain, in closed form: heading before step j, then positions after each step
     heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
     c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
