@@ -3,13 +3,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import threading
 import time
 from pathlib import Path
 
-from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int
+from runtime.commands.options import float_where, non_negative_float, non_negative_int, positive_float, positive_int
 from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
@@ -18,13 +17,7 @@ from runtime.report import format_summary
 def camera_latency(text: str) -> float:
     """Seconds in [0, 1): the bound MissionConfig also checks, here so that ``demo --processes`` refuses it
     before starting any process."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not 0.0 <= value < 1.0:  # nan and the infinities fail this too
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1) s, not {text!r}")
-    return value
+    return float_where(text, "a number in [0, 1) s", lambda value: 0.0 <= value < 1.0)
 
 
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,

@@ -10,8 +10,9 @@ import math
 import sys
 
 
-def _float_in(text: str, domain: str, inside) -> float:
-    """``text`` as a finite float for which ``inside(value)`` holds; else the error says ``domain``."""
+def float_where(text: str, domain: str, inside) -> float:
+    """``text`` as a finite float for which ``inside(value)`` holds; else the error says ``domain`` (for a type
+    with one user, e.g. ``--camera-latency`` in [0, 1))."""
     try:
         value = float(text)
     except ValueError:
@@ -23,17 +24,28 @@ def _float_in(text: str, domain: str, inside) -> float:
 
 def finite_float(text: str) -> float:
     """A finite real number."""
-    return _float_in(text, "a finite number", lambda value: True)
+    return float_where(text, "a finite number", lambda value: True)
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    return _float_in(text, "a finite number > 0", lambda value: value > 0)
+    return float_where(text, "a finite number > 0", lambda value: value > 0)
 
 
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
-    return _float_in(text, "a finite number >= 0", lambda value: value >= 0)
+    return float_where(text, "a finite number >= 0", lambda value: value >= 0)
+
+
+def whole_number_where(text: str, domain: str, inside) -> int:
+    """``text`` as an int for which ``inside(value)`` holds; else the error says ``domain``."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not inside(value):
+        raise argparse.ArgumentTypeError(f"expected {domain}, not {text!r}")
+    return value
 
 
 def whole_number_at_least(low: int, name: str | None = None):
@@ -41,13 +53,7 @@ def whole_number_at_least(low: int, name: str | None = None):
     the type's ``__name__``, which tests/test_cli_consistency.py compares across commands."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low:
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {low}, not {text!r}")
-        return value
+        return whole_number_where(text, f"a whole number >= {low}", lambda value: value >= low)
 
     parse.__name__ = parse.__qualname__ = name or f"whole_number_at_least_{low}"
     parse.__doc__ = f"A whole number >= {low}."

@@ -26,6 +26,7 @@ from runtime.commands.options import (
     non_negative_int,
     positive_float,
     positive_int,
+    whole_number_where,
 )
 
 EXIT_DEVICE = 1
@@ -38,13 +39,7 @@ LINK_TIMEOUT = 0.6
 
 def tcp_port(text: str) -> int:
     """A TCP port, 0-65535 (0: any free one)."""
-    try:
-        port = int(text)
-    except ValueError:
-        port = -1
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a port from 0 to 65535, not {text!r}")
-    return port
+    return whole_number_where(text, "a port from 0 to 65535", lambda port: 0 <= port <= 65535)
 
 
 def register(subparsers: Any) -> None:
