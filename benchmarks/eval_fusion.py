@@ -502,7 +502,7 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
           f"{np.nanmedian(merged_err):.3f} | {np.nanmean(merged_err):.3f} |")
     # the same alignments merged by the maps' own covariances (before covariance_scales), for comparison
     from fusion import fuse_all
-    from fusion.multi import covariance_scales, pairwise_alignments
+    from fusion.multi import claimed_variance, covariance_scales, pairwise_alignments
     alignments = pairwise_alignments(maps, "robust", np.random.default_rng(0))   # as `p3at fuse --seed 0`
     try:
         claimed = fuse_all(maps, "robust", 1, alignments=alignments, calibrate=False).map
@@ -514,8 +514,7 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
     scales = covariance_scales(maps, alignments)
     if scales is not None:
         print("\nCovariance scales from the pairwise residuals (σ about a rigid placement / σ claimed): " + ", ".join(
-            f"{m.robot} {np.sqrt(c * np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2):.3f} m / "
-            f"{np.sqrt(np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2):.3f} m"
+            f"{m.robot} {np.sqrt(c * claimed_variance(m)):.3f} m / {np.sqrt(claimed_variance(m)):.3f} m"
             for m, c in zip(maps, scales, strict=True)))
     verdict = "lower" if np.nanmedian(merged_err) < min(singles) else "NOT lower"
     print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "

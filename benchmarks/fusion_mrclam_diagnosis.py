@@ -63,7 +63,7 @@ def refusals(maps: list[LandmarkMap]) -> None:
 def merge_limits(maps: list[LandmarkMap], truth: dict) -> None:
     fits = [frame_fit(m, truth) for m in maps]
     real_var = np.array([np.nanmean(f[1] ** 2) / 2 for f in fits])
-    claimed_var = np.array([np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2 for m in maps])
+    claimed_var = np.array([multi.claimed_variance(m) for m in maps])
     alignments = multi.pairwise_alignments(maps, "robust", np.random.default_rng(0))
     scales = multi.covariance_scales(maps, alignments)
     hat = "—" if scales is None else ", ".join(f"{np.sqrt(v):.3f}" for v in scales * claimed_var)

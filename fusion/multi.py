@@ -115,10 +115,17 @@ def covariance_scales(maps: list[LandmarkMap], alignments: dict[tuple[int, int],
         return None                       # e.g. two maps, or a chain: only the sums σ_i² + σ_j² are known
     variance = np.full(n, np.nan)
     variance[involved] = np.maximum(nnls(design[:, involved], np.array(rhs))[0], floor ** 2)
-    claimed = np.array([np.median(np.trace(m.covariances[:, :2, :2], axis1=1, axis2=2)) / 2 if len(m) else np.nan
-                        for m in maps])
+    claimed = np.array([claimed_variance(m) for m in maps])
     scales = variance / np.maximum(claimed, 1e-12)
     return np.where(np.isfinite(scales), scales, 1.0)
+
+
+def claimed_variance(landmark_map: LandmarkMap) -> float:
+    """The per-axis planar variance (m²) a map claims for its landmarks: the median of tr Σ_xy / 2 (NaN for an
+    empty map); :func:`covariance_scales` gives factors of it."""
+    if not len(landmark_map):
+        return float("nan")
+    return float(np.median(np.trace(landmark_map.covariances[:, :2, :2], axis1=1, axis2=2)) / 2)
 
 
 def _scaled(landmark_map: LandmarkMap, scale: float) -> LandmarkMap:

@@ -53,7 +53,7 @@ def register(subparsers) -> None:
 def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, NoOverlapError, alignment_error, fuse_all, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
-    from fusion.multi import pairwise_alignments
+    from fusion.multi import claimed_variance, pairwise_alignments
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -115,7 +115,7 @@ def _fuse(args: argparse.Namespace) -> int:
             report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
             report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
         if result.covariance_scales is not None:      # merge weights from the pairwise residuals (fusion.multi)
-            claimed = float(np.sqrt(np.median(np.trace(maps[k].covariances[:, :2, :2], axis1=1, axis2=2)) / 2))
+            claimed = float(np.sqrt(claimed_variance(maps[k])))
             report["maps"][k]["covariance_scale"] = result.covariance_scales[k]
             report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[k]))
             report["maps"][k]["claimed_sigma"] = claimed
