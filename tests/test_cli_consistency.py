@@ -80,12 +80,17 @@ def test_retired_spellings_are_still_accepted_but_hidden():
     assert {"--frame-rate", "--start", "--rate", "--pose", "--version", "--method"} <= hidden
 
 
+def _in_fresh_interpreter(code: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a new Python (nothing imported yet), capturing its output."""
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
 def test_top_level_help_imports_no_command():
     code = ("import sys; from runtime.cli import main\n"
             "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
             "heavy = [m for m in ('numpy', 'cv2', 'rerun', 'scipy') if m in sys.modules]\n"
             "sys.stderr.write(repr(heavy))")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = _in_fresh_interpreter(code)
     assert done.stderr.strip() == "[]"
     for name in COMMANDS:
         assert name in done.stdout
@@ -96,7 +101,7 @@ def test_one_command_help_loads_only_that_command():
             "try:\n    main(['fuse', '--help'])\nexcept SystemExit as stop:\n    status = stop.code\n"
             "loaded = sorted(m for m in sys.modules if m.startswith('runtime.commands.'))\n"
             "sys.stderr.write(repr((status, loaded)))")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = _in_fresh_interpreter(code)
     status, loaded = ast.literal_eval(done.stderr.strip())
     assert status == 0
     assert "--preset" in done.stdout
