@@ -4,6 +4,7 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.eval_slam_rendered [--seconds 60] [--robots robot1,robot2] [--seed 0]
         [--frame-rate 5] [--max-corners 150] [--particles 100] [--diagnose] [--json] [--set key=value ...]
+        [--frames-cache DIR]
 
 Each robot drives its world route (moved to the right of travel as the mission does) with
 ``runtime.slam_sim.simulate`` in simulated time and the synthetic odometry's realistic errors (2 % distance,
@@ -21,10 +22,14 @@ landmark error, CPU time per update. ``--diagnose`` adds: observations per frame
 to an existing landmark in the best particle, the observations' 3-D NEES against their covariances, and the
 descriptor distance between observations of the same true point at different viewing distances.
 ``--set`` overrides any FastSLAMConfig field (e.g. ``--set descriptor_threshold=0.7``).
+``--frames-cache DIR`` keeps each robot's observations (and their true points) in DIR the first time and replays
+them afterwards: the observer's frames depend only on the true route and the seed, not on the filter, so a
+replay gives the same scores as rendering, minutes faster (a replay checks every frame's pose and time).
 """
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import time
 from dataclasses import fields, replace
@@ -35,9 +40,11 @@ import numpy as np
 
 import runtime.slam_sim as slam_sim
 from benchmarks.slam_consistency import landmark_scores, merge_scores
+from drivers.fileio import atomic_write_bytes
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, compose
+from estimation.observations import StereoObservations
 from runtime.commands.features import front_end_from_calibration
 from runtime.motion import keep_right
 
@@ -131,6 +138,73 @@ class RenderedObserver:
         return obs, index
 
 
+class RecordingRenderedObserver:
+    """Wraps a :class:`RenderedObserver`; keeps every frame's observations, true-point index, pose and time."""
+
+    def __init__(self, observer: RenderedObserver) -> None:
+        self.observer = observer
+        self.frames: list[tuple[float, np.ndarray, StereoObservations, np.ndarray]] = []
+
+    @property
+    def points(self) -> np.ndarray:
+        return self.observer.points
+
+    @property
+    def indices(self) -> list[np.ndarray]:
+        return self.observer.indices
+
+    @property
+    def frontend_seconds(self) -> float:
+        return self.observer.frontend_seconds
+
+    def observe(self, pose, timestamp: float = 0.0):
+        obs, index = self.observer.observe(pose, timestamp)
+        self.frames.append((float(timestamp), np.asarray(pose, float).copy(), obs, index))
+        return obs, index
+
+    def save(self, path: Path) -> None:
+        """All frames in one .npz (plain arrays, concatenated with per-frame counts), written atomically."""
+        def cat(field: str, shape: tuple[int, ...]) -> np.ndarray:   # in the front end's own dtype
+            parts = [np.asarray(getattr(f[2], field)).reshape(-1, *shape) for f in self.frames]
+            return np.concatenate(parts) if parts else np.zeros((0, *shape))
+        arrays = {
+            "t": np.array([f[0] for f in self.frames]), "pose": np.array([f[1] for f in self.frames]).reshape(-1, 3),
+            "count": np.array([len(f[2]) for f in self.frames], np.int64),
+            "points": cat("points", (3,)), "covariances": cat("covariances", (3, 3)),
+            "descriptors": cat("descriptors", (self.frames[0][2].descriptors.shape[1],) if self.frames else (0,)),
+            "pixels": cat("pixels", (2,)),
+            "index": np.concatenate([f[3] for f in self.frames]).astype(np.int64),
+            "true_points": self.points}
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        atomic_write_bytes(path, buffer.getvalue())
+
+
+class ReplayObserver:
+    """Replays a :class:`RecordingRenderedObserver`'s file; ``observe`` checks that the pose and time match."""
+
+    def __init__(self, path: Path) -> None:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        self._arrays = arrays
+        self._starts = np.concatenate([[0], np.cumsum(arrays["count"])])
+        self._frame = 0
+        self.indices: list[np.ndarray] = []
+        self.frontend_seconds = 0.0
+        self.points = arrays["true_points"].reshape(-1, 3)
+
+    def observe(self, pose, timestamp: float = 0.0):
+        a, i = self._arrays, self._frame
+        if i >= len(a["t"]) or abs(a["t"][i] - timestamp) > 1e-9 or not np.allclose(a["pose"][i], pose, atol=1e-9):
+            raise SystemExit(f"frames cache: frame {i} does not match the route (delete the cache file)")
+        lo, hi = self._starts[i], self._starts[i + 1]
+        self._frame += 1
+        index = a["index"][lo:hi]
+        self.indices.append(index)
+        return StereoObservations(a["points"][lo:hi], a["covariances"][lo:hi], a["descriptors"][lo:hi],
+                                  a["pixels"][lo:hi], float(timestamp)), index
+
+
 class _PointWorld:
     """The world as ``simulate`` scores it, with ``features`` = the observer's distinct true points."""
 
@@ -165,10 +239,20 @@ class _TimedFastSLAM(FastSLAM):
 
 
 def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMConfig, frame_rate: float,
-              max_corners: int, diagnose: bool, latency: float = 0.0) -> dict:
+              max_corners: int, diagnose: bool, latency: float = 0.0, frames_cache: Path | None = None) -> dict:
     """One robot's run; returns the scores (and diagnostics)."""
-    observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose,
-                                latency=latency)
+    cache = None
+    if frames_cache is not None:
+        cache = frames_cache / f"{robot}-seed{seed}-{frame_rate:g}hz-{max_corners}c-{latency:g}s-{seconds:g}s.npz"
+    if cache is not None and cache.exists():
+        if diagnose:
+            raise SystemExit("--diagnose needs the rendered frames' truth: run it without --frames-cache")
+        observer = ReplayObserver(cache)
+    else:
+        observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose,
+                                    latency=latency)
+        if cache is not None:
+            observer = RecordingRenderedObserver(observer)
     route = keep_right(np.asarray(world.routes[robot], float))
     start = np.asarray(world.start_poses[robot], float)
     original = slam_sim.FastSLAM
@@ -180,6 +264,10 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
                                    observer=observer)
     finally:
         slam_sim.FastSLAM = original
+    if isinstance(observer, RecordingRenderedObserver):
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        observer.save(cache)
+        observer = observer.observer
     slam = _TimedFastSLAM.instances[-1]
     m = result.metrics
     times = np.array(slam.update_seconds) * 1e3
@@ -318,6 +406,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="s between the image and its time stamp (the pose is interpolated; default 0)")
     parser.add_argument("--diagnose", action="store_true", help="association and noise diagnostics")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--frames-cache", type=Path, default=None, metavar="DIR",
+                        help="keep the rendered observations in DIR and replay them on later runs (same scores)")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     from mocks.world import World
@@ -326,7 +416,7 @@ def main(argv: list[str] | None = None) -> int:
     config = replace(FastSLAMConfig(n_particles=args.particles, version=args.fastslam), **_parse_set(args.set))
     rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
                       frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose,
-                      latency=args.latency)
+                      latency=args.latency, frames_cache=args.frames_cache)
             for robot in args.robots.split(",")]
     if args.json:
         print(json.dumps({"config": config.to_dict(), "rows": rows}, indent=2))
