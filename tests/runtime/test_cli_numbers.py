@@ -164,13 +164,13 @@ def test_every_number_option_has_a_refused_case_and_no_bare_int_or_float():
     options = _number_options()
     assert ("run", "--seconds") in options and ("robot serve", "--tcp") in options  # the walk sees the CLI
     assert options <= {(c, o) for c, o, _, _ in REFUSED}, "number options without a refused value above"
+    parser = cli.build_parser()  # once: building it per option was most of this test's time
     bare = {(c, o) for c, o in options
-            for a in [_action(c, o)] if a.type in (int, float)}
+            for a in [_action(parser, c, o)] if a.type in (int, float)}
     assert not bare, f"options typed bare int/float, whose domain the user is not told: {sorted(bare)}"
 
 
-def _action(command: str, option: str) -> argparse.Action:
-    parser = cli.build_parser()
+def _action(parser: argparse.ArgumentParser, command: str, option: str) -> argparse.Action:
     for word in command.split():
         parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[word]
     return next(a for a in parser._actions if option in a.option_strings)
