@@ -71,6 +71,11 @@ class FastSLAMConfig:
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block
     descriptor_size: int = 64
+    descriptor_slots: int = 1                     # descriptors a landmark keeps, each with the range it was made at;
+    #                                             #   an observation is compared with the one of the nearest range
+    #                                             #   (appearance.py: U-SURF changes with distance); 1: the first only
+    descriptor_slot_ratio: float = 1.25           # a matched sighting from a range more than this factor from every
+    #                                             #   kept one is kept too (while a slot is free)
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:
@@ -85,6 +90,9 @@ class FastSLAMConfig:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
         if not self.merge_log_odds > 0.0:
             raise ValueError(f"merge_log_odds must be > 0, not {self.merge_log_odds}")
+        if self.descriptor_slots < 1 or not self.descriptor_slot_ratio > 1.0:
+            raise ValueError(f"descriptor_slots must be ≥ 1 and descriptor_slot_ratio > 1, not "
+                             f"{self.descriptor_slots} and {self.descriptor_slot_ratio}")
         if self.merge_every < 1:
             raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
         if self.association not in ("unknown", "id"):

@@ -63,6 +63,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
+from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
 from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
@@ -90,6 +91,7 @@ COVARIANCE_KINDS = ("particle", "mixture", "mixture+drift")   # what a map's lan
 _TINY_POSE_VAR = np.array([1e-12, 0.0, 0.0, 1e-12, 0.0, 1e-12])[:, None]   # keeps P⁻¹ finite right after an update
 PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
 _PAIR_SHIFT = 32           # a pair of landmark ids (a < b) as one int64 key: a << 32 | b
+MERGED_PAIRS_KEPT = 10_000  # FastSLAM.merged_pairs keeps the latest this many distinct pairs (a route makes ~60-70)
 
 
 @dataclass(frozen=True)
@@ -199,7 +201,10 @@ class FastSLAM:
         self._pair_evidence: dict[int, float] = {}
         self._codetected: set[int] = set()
         self._merge_ready: set[int] = set()
-        self.merged_pairs: list[tuple[int, int, bool]] = []           # (older id, newer id, by co-visibility)
+        self._merged: dict[tuple[int, int], bool] = {}                 # (older id, newer id) -> by co-visibility
+        # descriptors per viewing range (appearance.py); None: each landmark keeps its first descriptor only
+        self._bands = (DescriptorBands(config.descriptor_slots, config.descriptor_slot_ratio, config.descriptor_size)
+                       if config.descriptor_slots > 1 and config.descriptor_size > 0 else None)
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
 
@@ -351,6 +356,9 @@ class FastSLAM:
         best = int(np.argmax(weights))
         in_best = matched.m == best
         best_matches[matched.j[in_best]] = self.store.flat_lid[matched.g[in_best]]
+        if self._bands is not None:   # the best particle's matches teach their landmarks the look at new ranges
+            j = matched.j[in_best]
+            self._bands.learn(best_matches[j], desc[j], self._sensor_range(z[j]))
         if cfg.refresh_descriptors and cfg.descriptor_size > 0:
             # appearance drifts with distance (fixed-scale U-SURF): gate the next frame on the latest look
             self._descriptors[best_matches[matched.j[in_best]]] = desc[matched.j[in_best]]
@@ -451,7 +459,9 @@ class FastSLAM:
         present = np.zeros(self._n_ids, bool)          # ids are dense: a lookup table beats np.unique
         present[lids] = True
         uniq = np.flatnonzero(present)
-        if self.config.descriptor_size > 0:
+        if self._bands is not None:   # compare at comparable scale: the descriptor made at the nearest range
+            obs_j, uid = self._bands.matches(uniq, desc, self._sensor_range(z), self.config.descriptor_threshold)
+        elif self.config.descriptor_size > 0:
             known = _rows(self._descriptors, uniq)
             d2 = (np.sum(desc * desc, 1)[:, None] + np.sum(known * known, 1)[None, :] - 2.0 * desc @ known.T)
             obs_j, uid = np.nonzero(d2 < self.config.descriptor_threshold ** 2)
@@ -692,7 +702,7 @@ class FastSLAM:
         spawning = np.unique(j)
         if lids is None:
             new_ids[spawning] = self._n_ids + np.arange(len(spawning))
-            self._append_descriptors(desc[spawning])
+            self._append_descriptors(desc[spawning], self._sensor_range(z[spawning]))
         else:
             new_ids[spawning] = lids[spawning]
         g = self.store.append_slots(m)
@@ -822,9 +832,19 @@ class FastSLAM:
         store.flat_lid[gb] = -1
         store.include_in_bbox(ga, mean[:2].T)
         self.stats.landmarks_merged += len(ga)
-        for p in np.unique(pair).tolist():
-            self.merged_pairs.append((int(a[p]), int(b[p]), bool(evidence[p] and not alike[p])))
+        for p in np.unique(pair).tolist():   # a pair merged again (in other particles) keeps its place
+            self._merged[int(a[p]), int(b[p])] = bool(evidence[p] and not alike[p])
+        while len(self._merged) > MERGED_PAIRS_KEPT:
+            del self._merged[next(iter(self._merged))]
+        if self._bands is not None:   # the older landmark also keeps the newer one's looks at other ranges
+            self._bands.absorb(a[np.unique(pair)], b[np.unique(pair)])
         return len(ga)
+
+    @property
+    def merged_pairs(self) -> list[tuple[int, int, bool]]:
+        """The id pairs merged so far, each once, in the order first merged (the latest ``MERGED_PAIRS_KEPT``):
+        (older id, newer id, by co-visibility alone in its latest merge)."""
+        return [(a, b, e) for (a, b), e in self._merged.items()]
 
     def _alike_pairs(self, cand: _Pairs, uniq: np.ndarray, first: np.ndarray, inverse: np.ndarray,
                      touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -849,8 +869,11 @@ class FastSLAM:
         close = (d < cfg.merge_radius) & (np.maximum(d, 0.0) ** 2 < bound)
         ti, ui = np.nonzero(close)
         if cfg.descriptor_size > 0 and len(ti):   # unit descriptors: |a − b|² = 2 − 2 a·b
-            dot = np.einsum("ij,ij->i", self._descriptors[uniq[t[ti]]], self._descriptors[uniq[ui]])
-            alike = 2.0 - 2.0 * dot < cfg.merge_descriptor_threshold ** 2
+            if self._bands is None:
+                dot = np.einsum("ij,ij->i", self._descriptors[uniq[t[ti]]], self._descriptors[uniq[ui]])
+                alike = 2.0 - 2.0 * dot < cfg.merge_descriptor_threshold ** 2
+            else:   # the two descriptors made at the most similar ranges
+                alike = self._bands.pair_distance2(uniq[t[ti]], uniq[ui]) < cfg.merge_descriptor_threshold ** 2
             ti, ui = ti[alike], ui[alike]
         a, b = uniq[t[ti]], uniq[ui]
         keep = a != b
@@ -998,7 +1021,14 @@ class FastSLAM:
         out[inside] = self._external_of_lid[lids[inside]]
         return out
 
-    def _append_descriptors(self, desc: np.ndarray) -> None:
+    def _sensor_range(self, z: np.ndarray) -> np.ndarray:
+        """Distance (N,) of points z (N, 3) in base_link from the sensor (sets a fixed-scale descriptor's scale)."""
+        return np.linalg.norm(z - np.asarray(self.config.sensor_offset), axis=1)
+
+    def _append_descriptors(self, desc: np.ndarray, ranges: np.ndarray | None = None) -> None:
+        """Descriptors (n, D) of n new ids, made at ``ranges`` (n,) m from the sensor (None: unknown)."""
+        if self._bands is not None:
+            self._bands.append(desc, ranges)
         need = self._n_ids + len(desc)
         if need > len(self._descriptors):
             grown = np.zeros((max(need, 2 * len(self._descriptors)), self._descriptors.shape[1]), np.float32)
