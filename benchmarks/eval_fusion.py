@@ -670,7 +670,12 @@ def demo_table(folders: list[Path]):
         head = f"| {folder.name} | {len(m1)} / {len(m2)} ({on[0]} / {on[1]}) |"
         frames = f"{traj[0][0]}; {traj[1][0]} | {traj[0][1]}; {traj[1][1]}"
         if not a.found:
-            print(f"{head} no | {len(a.supports)} | {a.reason.split(';')[0][:90]} | {cf_fmt(cf)} | | {frames} | |")
+            st = a.statistics
+            why = a.reason.split(" (")[0]
+            if a.reason.startswith("ambiguous: a distinct"):   # the rival: how far it turns, how alike it looks
+                why += (f" (turned {st.second_best_turn:.2f} rad; descriptor distance "
+                        f"{st.second_best_descriptor_distance:.3f} vs {st.support_descriptor_distance:.3f})")
+            print(f"{head} no | {len(a.supports)} | {why} | {cf_fmt(cf)} | | {frames} | |")
             continue
         et, eo = alignment_error(a.pose, truth), alignment_error(a.pose, best)
         truth_all.append((np.hypot(et[0], et[1]), et[2]))

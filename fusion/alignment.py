@@ -131,6 +131,13 @@ class AlignmentStatistics:
     second_best_supports: int = 0        # best hypothesis distinct from the winner (repeated structure)
     self_repeat_supports: int = 0        # best non-identity transform of either map onto itself (self_structure)
     required_supports: int = 0           # fewest supports that would have been accepted on these maps
+    # the second-best hypothesis against the winner: |Δθ| (rad), the RMS distance (m) by which it moves the winner's
+    # supports, and the median descriptor distance of each one's supports (nan: none, or maps not matched by
+    # descriptors) -- what a user needs to see why a pair is ambiguous
+    second_best_turn: float = float("nan")
+    second_best_shift: float = float("nan")
+    support_descriptor_distance: float = float("nan")
+    second_best_descriptor_distance: float = float("nan")
     gate_inflation: float = 1.0          # covariance scale the supports' residuals called for
     gate_radius: float = float("nan")    # metres, median support-gate radius in the plane
     descriptors: bool = True             # False: maps without descriptors, geometry alone
@@ -553,6 +560,8 @@ class Evidence:
     required: int
     ambiguous: bool                       # the second-best hypothesis, not the decoys, set the chance rate
     self_repeat: int = 0                  # supports of the best repeat of either map onto itself (self_structure)
+    rival_pose: np.ndarray | None = None  # (3,) the second-best hypothesis' pose, None if there is none
+    rival_mask: np.ndarray | None = None  # (K,) its supports among the correspondences
 
 
 def _log10_tail(excess: int, rate: float, hypotheses: int) -> float:
@@ -618,13 +627,23 @@ def decoy_chance_supports(problem: _Problem, map1: LandmarkMap, map2: LandmarkMa
     return float(gammaincinv(total + 1.0, 0.95)) / decoys
 
 
-def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
-                 config: AlignmentConfig, unordered: bool = False) -> int:
-    """Supports of the best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or,
-    without any, every correspondence) by more than two gate radii on average.  The three strongest
-    candidates are re-scored with the final gate and polished like the winner."""
+@dataclass(frozen=True)
+class _Rival:
+    """The best hypothesis distinct from the winner: its one-to-one supports (a repeated pair counted once when a
+    map is matched against itself), pose (3,) and support mask (K,); None when there is none."""
+
+    supports: int = 0
+    pose: np.ndarray | None = None
+    mask: np.ndarray | None = None
+
+
+def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
+                   config: AlignmentConfig, unordered: bool = False) -> _Rival:
+    """The best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or, without any, every
+    correspondence) by more than two gate radii on average.  The three strongest candidates are re-scored with the
+    final gate and polished like the winner."""
     if search.evaluated == 0:
-        return 0
+        return _Rival()
     pts = problem.p2[mask] if mask.sum() >= 2 else problem.p2
     ref = transform_points(pose, pts)[:, :2]
     far = 2.0 * problem.gate_radius
@@ -636,8 +655,8 @@ def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.
 
     cand = np.flatnonzero(distinct(search.poses))
     if len(cand) == 0:
-        return 0
-    best = 0
+        return _Rival()
+    best = _Rival()
     counts = np.zeros(len(cand), np.int64)
     for start in range(0, len(cand), 256):
         sl = cand[start:start + 256]
@@ -650,8 +669,24 @@ def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.
         if distinct(p[None])[0]:
             # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
             n = len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered else int(m.sum())
-            best = max(best, n)
+            if n > best.supports:
+                best = _Rival(n, p, m)
     return best
+
+
+def _second_best(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
+                 config: AlignmentConfig, unordered: bool = False) -> int:
+    """Supports of the best hypothesis clearly distinct from ``pose`` (see :func:`_best_distinct`)."""
+    return _best_distinct(problem, search, pose, mask, config, unordered).supports
+
+
+def rival_offset(pose: np.ndarray, rival_pose: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """How far a rival hypothesis is from the winner: (RMS distance (m) by which it moves ``points`` (S, 2|3), map-2
+    positions, against the winner; |Δθ| (rad)).  Frame-independent, unlike the difference of the poses' xy."""
+    a = transform_points(pose, points)[:, :2]
+    b = transform_points(rival_pose, points)[:, :2]
+    shift = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) if len(points) else float("nan")
+    return shift, float(abs(wrap_angle(rival_pose[2] - pose[2])))
 
 
 def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator) -> int:
@@ -687,7 +722,8 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     s = int(problem.distinct_counts(mask[None])[0])
     n = max(search.evaluated, 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
-    second = _second_best(problem, search, pose, mask, config)
+    rival = _best_distinct(problem, search, pose, mask, config)
+    second = rival.supports
     if self_repeat is None:
         def self_repeat(m: LandmarkMap) -> int:
             return self_structure(m, config, content_rng(m))
@@ -699,7 +735,49 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     required = max(config.min_supports, 3)
     while _log10_tail(required - 2, rate, n) > level and required < 100_000:
         required += 1
-    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat)
+    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat,
+                    rival.pose, rival.mask)
+
+
+# -- what an ambiguous pair reports ----------------------------------------------------------------------------
+# A rival turned by more than this is reported as a half turn (a building symmetric under a half turn).
+HALF_TURN = 2.8
+DISAMBIGUATION = ("to tell them apart: more common landmarks outside the repeated part (a longer shared route), "
+                  "landmarks with identities (fiducials), or a rough relative start of the robots")
+
+
+def _median_descriptor_distance(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray) -> float:
+    if len(pairs) == 0:
+        return float("nan")
+    d = map1.descriptors[pairs[:, 0]].astype(np.float32) - map2.descriptors[pairs[:, 1]]
+    return float(np.median(np.linalg.norm(d, axis=1)))
+
+
+def _rival_figures(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray, pose: np.ndarray, mask: np.ndarray,
+                   problem: _Problem, ev: Evidence, compare_descriptors: bool) -> dict:
+    """The AlignmentStatistics fields that describe the second-best hypothesis against the winner."""
+    out = {}
+    if ev.rival_pose is not None and mask.any():
+        out["second_best_shift"], out["second_best_turn"] = rival_offset(pose, ev.rival_pose, problem.p2[mask])
+    if compare_descriptors and map1.descriptor_size:
+        out["support_descriptor_distance"] = _median_descriptor_distance(map1, map2, pairs[mask])
+        if ev.rival_mask is not None:
+            out["second_best_descriptor_distance"] = _median_descriptor_distance(map1, map2, pairs[ev.rival_mask])
+    return out
+
+
+def rival_text(stats: AlignmentStatistics) -> str:
+    """The second-best hypothesis in words ('' if none was measured): how far it turns and moves the winner's
+    supports, and how closely each one's supports match in appearance."""
+    parts = []
+    if np.isfinite(stats.second_best_turn):
+        half = " (a half turn)" if stats.second_best_turn > HALF_TURN else ""
+        parts.append(f"turned {stats.second_best_turn:.2f} rad from the best one{half}, moving its supports "
+                     f"{stats.second_best_shift:.1f} m")
+    if np.isfinite(stats.second_best_descriptor_distance) and np.isfinite(stats.support_descriptor_distance):
+        parts.append(f"median descriptor distance of its supports {stats.second_best_descriptor_distance:.3f}, "
+                     f"the best one's {stats.support_descriptor_distance:.3f}")
+    return "; ".join(parts)
 
 
 # -- the entry point -----------------------------------------------------------------------------------------
@@ -885,13 +963,15 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
             fit = (g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2)
     major, minor = _spread(problem.p1[mask, :2])
+    rival = _rival_figures(map1, map2, pairs, pose, mask, problem, ev, compare_descriptors=with_descriptors
+                           and not identities)
     stats = AlignmentStatistics(
         correspondences=k, iterations=search.evaluated, supports=len(supports), inlier_ratio=s / k,
         residual_rms=rms, expected_chance_supports=2.0 + ev.chance_rate, log10_chance_probability=ev.log10_p,
         support_spread=major, support_spread_minor=minor, second_best_supports=ev.second_best,
         self_repeat_supports=ev.self_repeat,
         required_supports=ev.required, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
-        descriptors=with_descriptors)
+        descriptors=with_descriptors, **rival)
 
     counted = raw_count if not config.refine and with_descriptors else len(supports)
     if counted < config.min_supports:
@@ -901,12 +981,14 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             return not_found(
                 f"ambiguous: one map repeats itself under a distinct transform with {ev.self_repeat} supports "
                 f"(repeated structure), so a wrong alignment could gather as many as the best one's {s}; on these "
-                f"maps {ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f})", stats, supports)
+                f"maps {ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f}); "
+                f"{DISAMBIGUATION}", stats, supports)
         if ev.ambiguous:
+            what = rival_text(stats)
             return not_found(
                 f"ambiguous: a distinct transform gathers {ev.second_best} supports against the best one's {s} "
-                f"(repeated structure); on these maps {ev.required} would be needed (false-alarm probability "
-                f"10^{ev.log10_p:.1f})", stats, supports)
+                f"(repeated structure{': ' + what if what else ''}); on these maps {ev.required} would be needed "
+                f"(false-alarm probability 10^{ev.log10_p:.1f}); {DISAMBIGUATION}", stats, supports)
         return not_found(
             f"{no_desc}{s} supports are explainable by chance: a wrong transform gathers "
             f"{stats.expected_chance_supports:.1f} on these maps and the best of {ev.hypotheses} hypotheses more; "
