@@ -61,6 +61,9 @@ def test_cli_writes_a_scored_map_and_the_noise_command_a_model_it_reads(tmp_path
     assert status == 0 and "written to" in out, err
     model = NoiseModel.load(noise)
     assert model.range_bearing is not None and model.odometry.translation_scale == pytest.approx(1.0, abs=1e-3)
+    # the heading bias is fitted only when asked (--heading-bias)
+    assert model.odometry.heading_bias_per_m == 0.0 and "heading bias" not in out
+    assert not any(key.startswith("heading_bias") for key in model.fit)
     out_map = tmp_path / "robot1.npz"
     status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out",
                             str(out_map), "--particles", "10", "--noise", str(noise), "--json")
@@ -79,6 +82,20 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, synthetic, args, complai
     synthetic.write(tmp_path, seconds=10.0)
     status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path), "--out", str(tmp_path / "m.npz"), *args)
     assert status == 2 and complaint in err and err.count("\n") == 1 and not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.slow  # the whole log of robot 1 (~3 s CPU)
+def test_real_dataset2_noise_command_fits_robot1s_heading_bias_when_asked(mrclam_dir, tmp_path):
+    """`p3at slam noise --heading-bias` on robot 1's whole log: the robot curves right (-56 ± 13 mrad/m in
+    docs/fastslam.md, Session 5), the file carries the bias and its standard error, and the text says it."""
+    noise = tmp_path / "noise.toml"
+    status, out, err = _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "1", "--heading-bias", "--out",
+                            str(noise))
+    assert status == 0, err
+    model = NoiseModel.load(noise)
+    bias, se = model.odometry.heading_bias_per_m, model.fit["heading_bias_per_m_standard_error"]
+    assert bias < -2.5 * se and 0 < se < 0.05
+    assert f"heading bias: {bias:+.4f} rad/m ± {se:.4f}" in out
 
 
 def test_real_dataset2_fastslam_beats_dead_reckoning(mrclam_dir):
