@@ -552,7 +552,7 @@ class Mission:
 
     def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:
         cfg = self.config
-        maps = {r.name: r.onboard.core.best_map() for r in self.robots}
+        maps = {r.name: r.onboard.final_map() for r in self.robots}
         files: list[Path] = []   # every file this mission leaves, for the summary
         for name, m in maps.items():
             m.save(cfg.out / f"{name}.npz")

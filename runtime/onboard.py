@@ -41,6 +41,7 @@ from estimation.frontend import FrontEnd, FrontEndConfig
 from estimation.geometry import between, compose, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from estimation.observations import OdometryIncrement, StereoObservations
+from runtime import slam_frames
 from runtime.exchange import MapExchange
 from runtime.motion import Controller, NoMotion
 from runtime.sensorlog import SensorLogWriter
@@ -567,17 +568,28 @@ class Onboard:
             self.publish_snapshot()
         return result
 
+    def _best_map(self) -> LandmarkMap:
+        """The best particle's map with the frame counts of the moment (runtime/slam_frames.py); the caller
+        holds the core lock."""
+        self.core.metadata[slam_frames.KEY] = slam_frames.frame_counts(self.stats)
+        return self.core.best_map()
+
     def current_map(self) -> LandmarkMap | None:
         """The best particle's map now (None before the first frame); safe from any thread."""
         with self._core_lock:
-            return self.core.best_map() if self.core.frames else None
+            return self._best_map() if self.core.frames else None
+
+    def final_map(self) -> LandmarkMap:
+        """The best particle's map, also before the first frame (an empty map): what the mission saves at its end."""
+        with self._core_lock:
+            return self._best_map()
 
     def publish_snapshot(self, force: bool = False) -> LandmarkMap | None:
         if self.core.frames == 0:
             return None
         t = self.mission_time
         with self._core_lock:
-            snapshot = self.core.best_map()
+            snapshot = self._best_map()
         self._last_snapshot = t
         self.stats.snapshots += 1
         self.stats.map_landmarks = len(snapshot)

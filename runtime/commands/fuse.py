@@ -29,7 +29,9 @@ def register(subparsers) -> None:
                     "into the first map's frame by a Kalman update of the common landmarks. Prints each "
                     "alignment (tx, ty, θ of the other map's frame in the first's), its supports and the "
                     "landmark counts; where maps carry metadata.true_start_pose (simulated maps) also the "
-                    "alignment error against the truth. Exit status 1 when maps do not overlap.")
+                    "alignment error against the truth; where they carry metadata.slam_frames (maps the "
+                    "runtime saved) the camera frames each robot received, mapped, dropped, with a warning "
+                    "for a starved run. Exit status 1 when maps do not overlap.")
     parser.add_argument("maps", nargs="*", metavar="MAP", help="landmark-map files (.npz), at least two")
     parser.add_argument("--out", default=None, metavar="MERGED",
                         help="merged map file to write (.npz); required unless --live")
@@ -86,7 +88,7 @@ def _fuse(args: argparse.Namespace) -> int:
 
     report = {"preset": args.preset, "method": args.method, "maps": [], "alignments": [], "out": None}
     for path, m in zip(args.maps, maps, strict=True):
-        report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m)})
+        report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m)})
     tree = set() if result is None else set(result.tree) | {(c, p) for p, c in result.tree}
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
@@ -106,6 +108,7 @@ def _fuse(args: argparse.Namespace) -> int:
         report["message"] = message
         _print(report, args.json)
         _warn_low_confidence(report)
+        _warn_starved(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
     for k, pose in enumerate(result.poses):
@@ -132,6 +135,7 @@ def _fuse(args: argparse.Namespace) -> int:
     report["out"] = args.out
     _print(report, args.json)
     _warn_low_confidence(report)
+    _warn_starved(report)
     if result.unconnected:
         print("p3at fuse: these maps overlap no other map and were left out: "
               + ", ".join(report["unconnected"]), file=sys.stderr)
@@ -144,7 +148,10 @@ def _print(report: dict, as_json: bool) -> None:
         print(json.dumps(report))
         return
     for k, m in enumerate(report["maps"]):
-        print(f"map {k}: {m['file']} ({m['robot']}, {m['landmarks']} landmarks)")
+        frames = m["slam_frames"]
+        print(f"map {k}: {m['file']} ({m['robot']}, {m['landmarks']} landmarks"
+              + ("" if frames is None else f"; frames: {frames['received']} received, {frames['processed']} "
+                 f"mapped, {frames['dropped']} dropped, {frames['without_odometry']} without odometry") + ")")
     for a in report["alignments"]:
         head = f"align map {a['map2']} -> map {a['map1']} [{a['preset']}]"
         st = a["statistics"]
@@ -186,6 +193,27 @@ def _print(report: dict, as_json: bool) -> None:
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")
+
+
+def _frame_figures(path: str, landmark_map: LandmarkMap) -> dict:
+    """A map's camera-frame counts and, for a starved run, why (runtime/slam_frames.py); None for maps that carry
+    none (older maps, data sets' maps) and for merged maps, which keep their reference map's metadata."""
+    from runtime.slam_frames import read_frame_counts, starved
+
+    counts = None
+    if len(landmark_map.robots) <= 1:
+        try:
+            counts = read_frame_counts(landmark_map.metadata)
+        except ValueError as e:   # the map itself is usable: say what is wrong and fuse it
+            print(f"p3at fuse: note: {path}: {e}; its frame counts are not shown", file=sys.stderr)
+    return {"slam_frames": counts, "starved": None if counts is None else starved(counts)}
+
+
+def _warn_starved(report: dict) -> None:
+    for k, m in enumerate(report["maps"]):
+        if m["starved"] is not None:
+            print(f"p3at fuse: warning: map {k} ({m['robot']}) comes from a starved run: {m['starved']}; it covers "
+                  "less of its route than the robot drove", file=sys.stderr)
 
 
 def _warn_low_confidence(report: dict) -> None:

@@ -110,6 +110,17 @@ def test_two_robots_build_two_maps_and_their_fusion_is_aligned(mission):
 
 
 @pytest.mark.slow
+def test_each_saved_map_carries_its_robots_frame_counts(mission):
+    """metadata["slam_frames"]: the counts of the mission's summary, in the file and in the map it returned."""
+    config, result = mission
+    for name, robot in result.summary["robots"].items():
+        want = {"received": robot["frames_received"], "processed": robot["frames_processed"],
+                "dropped": robot["frames_dropped"], "without_odometry": robot["frames_without_odometry"]}
+        assert LandmarkMap.load(config.out / f"{name}.npz").metadata["slam_frames"] == want
+        assert result.maps[name].metadata["slam_frames"] == want and want["processed"] > 250
+
+
+@pytest.mark.slow
 def test_the_summary_lists_every_file_the_mission_left(mission):
     config, result = mission
     listed = {Path(f) for f in result.summary["files"]}
@@ -432,4 +443,7 @@ def test_a_killed_demo_leaves_readable_maps(tmp_path):
             process.wait()
     assert process.returncode == -signal.SIGKILL
     for path in sorted(out.glob("*.npz")):
-        assert len(LandmarkMap.load(path)) > 0, path
+        saved = LandmarkMap.load(path)
+        assert len(saved) > 0, path
+        if path.name.startswith("robot"):  # the periodic saves carry the frame counts of their moment
+            assert 0 < saved.metadata["slam_frames"]["processed"] <= saved.metadata["slam_frames"]["received"]
