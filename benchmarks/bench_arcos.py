@@ -26,6 +26,7 @@ from drivers.arcos.codec import PacketParser, Sip, decode_sip, encode_packet, en
 from drivers.arcos.params import builtin_params  # noqa: E402
 from drivers.arcos.robot import P3AT  # noqa: E402
 from drivers.arcos.state import StateTracker  # noqa: E402
+from runtime.commands.options import positive_float  # noqa: E402
 
 
 def full_sip(i: int) -> bytes:
@@ -91,7 +92,8 @@ def bench_driver_cpu(seconds: float, transport: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=20.0, help="how long to follow the robot (default 20)")
+    parser.add_argument("--seconds", type=positive_float, default=20.0,
+                        help="how long to follow the robot (default 20)")
     parser.add_argument("--transport", choices=("tcp", "pty", "both"), default="both")
     args = parser.parse_args()
     bench_codec()

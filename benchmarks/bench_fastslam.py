@@ -34,6 +34,7 @@ from estimation.fastslam.motion import increment_variance, sample_motion  # noqa
 from estimation.geometry import compose, rot_z  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.observations import OdometryIncrement, StereoObservations  # noqa: E402
+from runtime.commands.options import positive_int  # noqa: E402
 
 N_OBS = 50
 
@@ -169,7 +170,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a smaller sweep")
     parser.add_argument("--accuracy", action="store_true", help="print the simulated runs' accuracy table")
-    parser.add_argument("--seeds", type=int, default=3, help="seeds per configuration for --accuracy (3)")
+    parser.add_argument("--seeds", type=positive_int, default=3, help="seeds per configuration for --accuracy (3)")
     parser.add_argument("--nees", action="store_true", help="print pose NEES by time window (robot1, seed 0)")
     args = parser.parse_args()
     if args.nees:

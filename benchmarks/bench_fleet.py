@@ -34,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from runtime.commands.options import positive_float, positive_int  # noqa: E402
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
 
@@ -131,10 +132,10 @@ def leave_latency(repeats: int = 5) -> list[float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16])
-    parser.add_argument("--steps", type=int, default=20, help="updates per robot (default 20)")
-    parser.add_argument("--period", type=float, default=0.5, help="s between a robot's updates (default 0.5)")
-    parser.add_argument("--publishers", type=int, default=4, help="publisher processes at most (default 4)")
+    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[2, 4, 8, 16])
+    parser.add_argument("--steps", type=positive_int, default=20, help="updates per robot (default 20)")
+    parser.add_argument("--period", type=positive_float, default=0.5, help="s between a robot's updates (default 0.5)")
+    parser.add_argument("--publishers", type=positive_int, default=4, help="publisher processes at most (default 4)")
     parser.add_argument("--leave", action="store_true", help="only measure how soon a killed robot is seen leaving")
     args = parser.parse_args()
     if args.leave:

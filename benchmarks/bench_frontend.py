@@ -41,6 +41,7 @@ from estimation.frontend.triangulation import (  # noqa: E402
     triangulate,
     triangulation_covariances,
 )
+from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 
 CONES = ROOT / ".." / "shared" / "data" / "stereo" / "middlebury-cones"
 
@@ -170,11 +171,11 @@ def keep_freed_memory() -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=50)
-    parser.add_argument("--route-frames", type=int, default=150,
+    parser.add_argument("--repeat", type=positive_int, default=50)
+    parser.add_argument("--route-frames", type=non_negative_int, default=150,
                         help="frames of bench_pipeline.py's route to time in the onboard configuration (0: skip)")
-    parser.add_argument("--max-corners", type=int, default=150, help="Harris corners per image on the route")
-    parser.add_argument("--passes", type=int, default=3, help="runs per route frame (the best counts)")
+    parser.add_argument("--max-corners", type=positive_int, default=150, help="Harris corners per image on the route")
+    parser.add_argument("--passes", type=positive_int, default=3, help="runs per route frame (the best counts)")
     parser.add_argument("--keep-freed-memory", action="store_true",
                         help="tune glibc to keep freed memory (helps OpenCV SIFT's per-call allocations)")
     args = parser.parse_args(argv)

@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from runtime.commands.options import positive_float, positive_int
+
 ROOT = Path(__file__).resolve().parents[1]
 PROGRESS = re.compile(r"^t=\s*(\d+(?:\.\d+)?)s \|", re.MULTILINE)  # the demo's progress line, every 5 s
 
@@ -72,9 +74,9 @@ class Run:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=600.0, help="mission length (default 600 s)")
-    parser.add_argument("--robots", type=int, default=2)
-    parser.add_argument("--interval", type=float, default=1.0, help="wall-clock seconds between samples")
+    parser.add_argument("--seconds", type=positive_float, default=600.0, help="mission length (default 600 s)")
+    parser.add_argument("--robots", type=positive_int, default=2)
+    parser.add_argument("--interval", type=positive_float, default=1.0, help="wall-clock seconds between samples")
     parser.add_argument("--variants", default="recording,none",
                         help=f"comma-separated, of {', '.join(VARIANTS)} (default: both, side by side)")
     parser.add_argument("--out", type=Path, help="demo output folders go under it (default: a temporary one)")

@@ -32,6 +32,7 @@ from mocks.stereo_head import VirtualStereoHead
 from mocks.synthetic_stereo import SyntheticStereo
 from mocks.world import World
 from runtime.adapters import VidereCamera, left_camera_mount
+from runtime.commands.options import positive_float, positive_int
 from runtime.motion import PurePursuit
 from runtime.onboard import CameraFrame, OnboardConfig, SlamCore, frame_record, log_step
 from runtime.rerun_log import MissionLog, open_recording
@@ -61,10 +62,11 @@ def table(title: str, rows: list[tuple[str, float]], period: float, onboard: lis
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=int, default=150)
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--rate", type=float, default=15.0)
-    parser.add_argument("--max-corners", type=int, default=150, help="Harris corners per image (runtime default)")
+    parser.add_argument("--frames", type=positive_int, default=150)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--rate", type=positive_float, default=15.0)
+    parser.add_argument("--max-corners", type=positive_int, default=150,
+                        help="Harris corners per image (runtime default)")
     args = parser.parse_args()
     try:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core

@@ -23,6 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.landmark_map import LandmarkMap  # noqa: E402
+from runtime.commands.options import non_negative_float, positive_float, positive_int  # noqa: E402
 from runtime.rerun_log import MissionLog, mission_blueprint, open_recording  # noqa: E402
 from runtime.rrd_salvage import scan_rrd  # noqa: E402
 
@@ -44,8 +45,9 @@ def landmark_map(robot: str, n: int, rng: np.random.Generator, t: float) -> Land
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--minutes", type=float, default=10.0, help="simulated mission length (default 10)")
-    parser.add_argument("--landmarks", type=int, default=2000, help="landmarks per robot at the end (default 2000)")
+    parser.add_argument("--minutes", type=positive_float, default=10.0, help="simulated mission length (default 10)")
+    parser.add_argument("--landmarks", type=positive_int, default=2000,
+                        help="landmarks per robot at the end (default 2000)")
     parser.add_argument("--no-images", action="store_true", help="log no stereo pairs")
     parser.add_argument("--no-maps", action="store_true", help="log no landmarks and no map snapshots")
     parser.add_argument("--constant-map", action="store_true",
@@ -56,7 +58,7 @@ def main() -> None:
                         help="save with Rerun's footer (an index of every chunk, kept in memory until the end)")
     parser.add_argument("--trim", action="store_true",
                         help="return freed heap to the system (glibc malloc_trim) before each sample")
-    parser.add_argument("--pace", type=float, default=0.0,
+    parser.add_argument("--pace", type=non_negative_float, default=0.0,
                         help="wall seconds per simulated second at least (the demo runs at 0.5-0.7; Rerun batches "
                              "by wall time, so the pace sets the number of chunks per simulated minute)")
     args = parser.parse_args()

@@ -28,6 +28,7 @@ import zstandard
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from runtime.commands.options import positive_float  # noqa: E402
 from runtime.sensorlog import SensorLog  # noqa: E402
 
 
@@ -52,7 +53,7 @@ def _timed(fn, frames) -> tuple[int, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--log", type=Path, default=None, help="an existing sensor-log folder")
-    parser.add_argument("--seconds", type=float, default=25.0, help="mission length when no --log is given")
+    parser.add_argument("--seconds", type=positive_float, default=25.0, help="mission length when no --log is given")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.log or _run_mission(Path(tmp), args.seconds)

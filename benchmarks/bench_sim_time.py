@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 from runtime.mission import Mission, MissionConfig  # noqa: E402
 
 
@@ -81,14 +82,14 @@ def same_maps(a: Path, b: Path) -> bool:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=20.0, help="simulated seconds (default 20)")
+    parser.add_argument("--seconds", type=positive_float, default=20.0, help="simulated seconds (default 20)")
     parser.add_argument("--camera", choices=("mock", "synthetic"), default="mock")
-    parser.add_argument("--camera-rate", type=float, default=3.75)
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--busy", type=int, nargs="+", default=[0, 2],
+    parser.add_argument("--camera-rate", type=positive_float, default=3.75)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--busy", type=non_negative_int, nargs="+", default=[0, 2],
                         help="busy-loop processes beside each run (default: 0 then 2)")
-    parser.add_argument("--sip-gaps", type=float, default=None, metavar="S",
+    parser.add_argument("--sip-gaps", type=positive_float, default=None, metavar="S",
                         help="run the demo S s on the wall clock and print the SIP gaps instead")
     args = parser.parse_args()
     if args.sip_gaps is not None:

@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.arcos.robot import P3AT  # noqa: E402
 from mocks.world import World  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int  # noqa: E402
 from runtime.mission import Mission, MissionConfig  # noqa: E402
 
 Row = tuple[str, str, np.ndarray]  # scenario, what, times (s)
@@ -120,10 +121,13 @@ def load() -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--alone", type=float, default=30.0, help="seconds of the robot-alone runs (0: skip)")
-    parser.add_argument("--demo", type=float, default=60.0, help="seconds of the realtime demo runs (0: skip)")
+    parser.add_argument("--alone", type=non_negative_float, default=30.0,
+                        help="seconds of the robot-alone runs (0: skip)")
+    parser.add_argument("--demo", type=non_negative_float, default=60.0,
+                        help="seconds of the realtime demo runs (0: skip)")
     parser.add_argument("--modes", nargs="+", choices=("thread", "process"), default=["thread", "process"])
-    parser.add_argument("--busy", type=int, nargs="+", default=[0], help="busy-loop processes beside each set")
+    parser.add_argument("--busy", type=non_negative_int, nargs="+", default=[0],
+                        help="busy-loop processes beside each set")
     args = parser.parse_args()
     for busy in args.busy:
         loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]

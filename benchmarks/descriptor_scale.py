@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.commands.options import positive_float
+
 SENSOR = np.array([0.12, 0.0, 0.50])   # the virtual head in base_link (FastSLAMConfig.sensor_offset)
 RATIO_EDGES = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 10.0)   # |ln r2/r1|: 0.1 ≈ 10 %, 0.4 ≈ 1.5×
 
@@ -149,7 +151,7 @@ def any_prior(s: dict, threshold: float) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("cache", type=Path, help="eval_slam_rendered --frames-cache DIR (its .npz files)")
-    parser.add_argument("--threshold", type=float, default=0.5, help="descriptor distance (the filter's gate)")
+    parser.add_argument("--threshold", type=positive_float, default=0.5, help="descriptor distance (the filter's gate)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     files = sorted(args.cache.glob("*.npz"))

@@ -31,6 +31,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config, range_bearing_observations  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.observations import OdometryIncrement  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 CHI2_3_95 = 7.815
@@ -172,9 +173,9 @@ def main(argv=None) -> int:
     parser.add_argument("--data", default=str(DATA))
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--association", default="id,unknown")
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--until", type=float, default=None, help="seconds of the log to use (default: all)")
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--until", type=positive_float, default=None, help="seconds of the log to use (default: all)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)

@@ -49,6 +49,7 @@ sys.path.insert(0, str(ROOT))
 from drivers.videre import calibration as cal  # noqa: E402
 from mocks.stereo_head import default_calibration, default_calibration_text  # noqa: E402
 from mocks.world import DEFAULT_WORLD_PATH  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 PYTHON = sys.executable
 
@@ -535,11 +536,11 @@ def lost_link_trials(n: int, memory_cap: int) -> tuple[Row, dict[str, list[float
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", choices=[*CATEGORIES, "lost-link"], help="categories to run")
-    parser.add_argument("--jobs", type=int, default=2, help="processes at a time (default 2)")
-    parser.add_argument("--timeout", type=float, default=120.0, help="seconds before a process counts as hung")
-    parser.add_argument("--memory-cap", type=float, default=4.0, help="address-space cap per process, GiB")
-    parser.add_argument("--trials", type=int, default=12, help="lost-link trials (a third of each kind)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--jobs", type=positive_int, default=2, help="processes at a time (default 2)")
+    parser.add_argument("--timeout", type=positive_float, default=120.0, help="seconds before a process counts as hung")
+    parser.add_argument("--memory-cap", type=positive_float, default=4.0, help="address-space cap per process, GiB")
+    parser.add_argument("--trials", type=positive_int, default=12, help="lost-link trials (a third of each kind)")
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--keep", type=Path, help="write the inputs here and keep them")
     parser.add_argument("--verbose", action="store_true", help="print every outcome")
     args = parser.parse_args()

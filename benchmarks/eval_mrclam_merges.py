@@ -30,6 +30,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int  # noqa: E402
 
 
 def run_robot(log, seed: int, overrides: dict) -> dict:
@@ -66,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)

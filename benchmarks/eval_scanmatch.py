@@ -21,6 +21,7 @@ sys.path.insert(0, str(ROOT))
 
 from estimation.scanmatch import MatchConfig, read_laser_log  # noqa: E402
 from estimation.scanmatch.evaluate import is_success, match_pairs, perturbed_guesses  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int, positive_int  # noqa: E402
 
 DATA = ROOT / ".." / "shared" / "data" / "laser"
 LOGS = ("aces", "csail")
@@ -57,10 +58,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--methods", default="eicp,icp,plicp")
     parser.add_argument("--ks", default="1,5,10")
-    parser.add_argument("--stride", type=int, default=1, help="use every STRIDE-th pair")
-    parser.add_argument("--basin-stride", type=int, default=4)
-    parser.add_argument("--perturb", type=float, nargs=2, default=(0.2, 5.0), metavar=("M", "DEG"))
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--stride", type=positive_int, default=1, help="use every STRIDE-th pair")
+    parser.add_argument("--basin-stride", type=positive_int, default=4)
+    parser.add_argument("--perturb", type=non_negative_float, nargs=2, default=(0.2, 5.0), metavar=("M", "DEG"))
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--skip-basin", action="store_true")
     args = parser.parse_args(argv)
     if not (DATA / "aces-corrected.log.gz").is_file():

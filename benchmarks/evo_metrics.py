@@ -23,6 +23,8 @@ from evo.core.trajectory import PoseTrajectory3D
 from evo.core.units import Unit
 from evo.tools import file_interface
 
+from runtime.commands.options import positive_float
+
 
 def from_planar(rows: np.ndarray) -> PoseTrajectory3D:
     """An evo trajectory from planar rows (T, 4) (t, x, y, θ)."""
@@ -83,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("reference", type=Path, help="TUM file of the reference (e.g. OUT/robot1-truth.tum)")
     parser.add_argument("estimate", type=Path, help="TUM file of the estimate (e.g. OUT/robot1.tum)")
     parser.add_argument("--align", action="store_true", help="Umeyama SE(3) alignment before the metrics")
-    parser.add_argument("--delta", type=float, default=1.0, help="RPE distance, m travelled (default 1)")
+    parser.add_argument("--delta", type=positive_float, default=1.0, help="RPE distance, m travelled (default 1)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     try:

@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.errors import BadFileError  # noqa: E402
 from drivers.videre import camera_info  # noqa: E402
 from mocks.stereo_head import default_calibration  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 from runtime.sensorlog import SensorLog, SensorLogError, SensorLogWriter  # noqa: E402
 from runtime.trajectories import TrajectoryFileError, read_tum, write_tum  # noqa: E402
 
@@ -78,8 +79,8 @@ def _run(name: str, valid: bytes, place, read, clean: type[Exception], inputs: i
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--inputs", type=int, default=300)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--inputs", type=positive_int, default=300)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     rows = []

@@ -26,6 +26,7 @@ import numpy as np
 from estimation.datasets import read_mrclam
 from estimation.geometry import wrap_angle
 from estimation.noise_model import estimate_noise
+from runtime.commands.options import positive_float
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 GLITCH_RAD = 0.6          # a window whose heading error exceeds this is a Vicon glitch, not odometry
@@ -84,7 +85,8 @@ def _structure(log, model) -> list[tuple[float, float]]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
-    parser.add_argument("--window", type=float, default=10.0, help="window (s) of the prediction and lag tests")
+    parser.add_argument("--window", type=positive_float, default=10.0,
+                        help="window (s) of the prediction and lag tests")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         print(f"mrclam_odometry: no data set at {args.data}", file=sys.stderr)

@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 from estimation.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
 from estimation.geometry import between  # noqa: E402
 from estimation.observations import OdometryIncrement, StereoObservations  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 
 def record(path: Path, n_frames: int, rate: float, synthetic: bool) -> None:
@@ -108,14 +109,15 @@ def fingerprint(slam: FastSLAM) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=150)
-    parser.add_argument("--use", type=int, default=0, metavar="N", help="replay only the first N frames")
-    parser.add_argument("--rate", type=float, default=15.0)
-    parser.add_argument("--particles", type=int, default=100)
+    parser.add_argument("--frames", type=positive_int, default=150)
+    parser.add_argument("--use", type=non_negative_int, default=0, metavar="N", help="replay only the first N frames")
+    parser.add_argument("--rate", type=positive_float, default=15.0)
+    parser.add_argument("--particles", type=positive_int, default=100)
     parser.add_argument("--synthetic", action="store_true", help="bench_pipeline's synthetic observer instead")
     parser.add_argument("--cache", type=Path, default=None, help="observation cache (default in /tmp)")
-    parser.add_argument("--repeat", type=int, default=1, help="runs to time (the minimum total is printed)")
-    parser.add_argument("--profile", type=int, default=0, metavar="N", help="cProfile; print the N costliest")
+    parser.add_argument("--repeat", type=positive_int, default=1, help="runs to time (the minimum total is printed)")
+    parser.add_argument("--profile", type=non_negative_int, default=0, metavar="N",
+                        help="cProfile; print the N costliest")
     parser.add_argument("--fingerprint", action="store_true", help="digest of the final particles and maps")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="FastSLAMConfig field")
     args = parser.parse_args()
