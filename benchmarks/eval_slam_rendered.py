@@ -18,9 +18,11 @@ cluster* (the first true point seen within 5 cm), so the map's duplicates (landm
 they stand for) and landmark errors are scored by ``simulate`` as for the synthetic sensor.
 
 Prints per robot: ATE and final position error of FastSLAM beside dead reckoning, map size and duplicates,
-landmark error, CPU time per update. ``--diagnose`` adds: observations per frame, the share that re-associate
-to an existing landmark in the best particle, the observations' 3-D NEES against their covariances, and the
-descriptor distance between observations of the same true point at different viewing distances.
+landmark error, CPU time per update; with ``--json`` also the best particle's matches that joined two true points
+(``slam_consistency.association_scores``), overall and by the range ratio to the landmark's first sighting.
+``--diagnose`` adds: observations per frame, the share that re-associate to an existing landmark in the best
+particle, the observations' 3-D NEES against their covariances, and the descriptor distance between
+observations of the same true point at different viewing distances.
 ``--set`` overrides any FastSLAMConfig field (e.g. ``--set descriptor_threshold=0.7``).
 ``--frames-cache DIR`` keeps each robot's observations (and their true points) in DIR the first time and replays
 them afterwards: the observer's frames depend only on the true route and the seed, not on the filter, so a
@@ -39,7 +41,7 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
-from benchmarks.slam_consistency import landmark_scores, merge_scores
+from benchmarks.slam_consistency import association_scores, landmark_scores, merge_scores
 from drivers.fileio import atomic_write_bytes
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
@@ -228,6 +230,7 @@ class _TimedFastSLAM(FastSLAM):
         super().__init__(*args, **kwargs)
         self.update_seconds: list[float] = []
         self.reports = []
+        self.ranges: list[np.ndarray] = []   # per update: each observation's range from the sensor (m)
         _TimedFastSLAM.instances.append(self)
 
     def update(self, observations):
@@ -235,6 +238,7 @@ class _TimedFastSLAM(FastSLAM):
         report = super().update(observations)
         self.update_seconds.append(time.process_time() - t0)
         self.reports.append(report)
+        self.ranges.append(np.linalg.norm(np.asarray(observations.points) - self.config.sensor_offset, axis=1))
         return report
 
 
@@ -282,6 +286,7 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
         "pose_nees_median": m["pose_nees_median"], "pose_nees_within_bound": m["pose_nees_within_chi2_95"],
         "stats": vars(slam.stats).copy() if hasattr(slam, "stats") else {},
         **merge_scores(getattr(slam, "merged_pairs", []), observer.points, slam.reports, observer.indices),
+        **association_scores(slam.reports, observer.indices, observer.points, slam.ranges),
         "frontend_ms_mean": 1e3 * observer.frontend_seconds / max(1, m["frames"]),
         "observations_per_frame": float(np.mean([r.n_observations for r in slam.reports]))}
     if diagnose:

@@ -97,6 +97,36 @@ def merge_scores(merged_pairs, truth_points: np.ndarray, reports, indices) -> di
             "merge_true_distance_p90_m": float(np.percentile(d, 90)) if len(d) else float("nan")}
 
 
+ASSOCIATION_RATIO_BINS = (0.0, 0.2, 0.4, np.inf)   # |ln r / r_made|: the range of a match against its landmark's first
+
+
+def association_scores(reports, indices, truth_points: np.ndarray, ranges) -> dict:
+    """The most probable particle's matches against the truth: a match whose observation stands for a true point
+    more than ``WRONG_MERGE_M`` from the one behind the landmark's first sighting joined two points. Per frame:
+    ``reports`` (UpdateReport), ``indices`` (N,) true point per observation, ``ranges`` (N,) m from the sensor;
+    shares overall and by |ln(range / range at the landmark's creation)| (``ASSOCIATION_RATIO_BINS``)."""
+    origin: dict[int, tuple[int, float]] = {}
+    apart, log_ratio = [], []
+    for report, index, rng in zip(reports, indices, ranges, strict=False):
+        for j in np.flatnonzero(report.best_matches >= 0):
+            point, made_at = origin.get(int(report.best_matches[j]), (-1, np.nan))
+            if point >= 0 and index[j] >= 0:
+                apart.append(float(np.linalg.norm(truth_points[index[j]] - truth_points[point])))
+                log_ratio.append(abs(float(np.log(rng[j] / made_at))))
+        for j in np.flatnonzero(report.new_landmark_ids >= 0):
+            origin.setdefault(int(report.new_landmark_ids[j]), (int(index[j]), float(rng[j])))
+    apart, log_ratio = np.array(apart), np.array(log_ratio)
+    out = {"matches_scored": len(apart),
+           "matches_wrong_share": float(np.mean(apart > WRONG_MERGE_M)) if len(apart) else float("nan")}
+    edges = ASSOCIATION_RATIO_BINS
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (log_ratio >= lo) & (log_ratio < hi)
+        out[f"matches_ln_ratio_{lo:g}_{hi:g}"] = int(sel.sum())
+        out[f"matches_wrong_share_ln_ratio_{lo:g}_{hi:g}"] = float(np.mean(apart[sel] > WRONG_MERGE_M)) \
+            if sel.any() else float("nan")
+    return out
+
+
 def run_scored(world, *, robot: str, seed: int, config, observer, scoring_world=None, **simulate_kwargs) -> dict:
     """``slam_sim.simulate`` with ``observer`` (wrapped to record), plus :func:`landmark_scores`; returns the
     simulate metrics, the landmark scores and the filter's stats."""
