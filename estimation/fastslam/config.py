@@ -67,6 +67,9 @@ class FastSLAMConfig:
     #                                             #   not corners: one texture blob gives two (docs, "Duplicates")
     merge_log_odds: float = 2.944                 # evidence "one point" needed for that merge: log 19 (P = 0.95
     #                                             #   from even odds), in existence.exclusive_log_odds units
+    id_relative_drift: str = "off"                # "id", 2.0: judge readings with the pose's drift relative to their
+    #                                             #   landmark (drift.py) where the gate rejects them: "off",
+    #                                             #   "rescue" or "consistent" (two landmarks at once); id_gate.py
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
     block_size: int = 64                          # landmarks per copy-on-write block
@@ -95,6 +98,9 @@ class FastSLAMConfig:
                              f"{self.descriptor_slots} and {self.descriptor_slot_ratio}")
         if self.merge_every < 1:
             raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
+        if self.id_relative_drift not in ("off", "rescue", "consistent"):
+            raise ValueError(f"id_relative_drift must be 'off', 'rescue' or 'consistent', "
+                             f"not {self.id_relative_drift!r}")
         if self.association not in ("unknown", "id"):
             raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")
         if not (self.existence_remove < self.existence_initial <= self.existence_max and self.existence_hit >= 0

@@ -66,6 +66,14 @@ class DriftTracker:
             h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
             self._position[new_ids] = sym_components(h @ self.robot @ np.swapaxes(h, 1, 2)).T
 
+    def landmark_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
+        """D_l (6, L) components for landmark ids (L,) (zeros for ids never seen by the tracker)."""
+        ids = np.asarray(ids, np.int64)
+        out = np.zeros((len(ids), 6))
+        inside = ids < len(self._pose)
+        out[inside] = self._pose[ids[inside]]
+        return out.T
+
     def landmark_covariances(self, ids: np.ndarray) -> np.ndarray:
         """C_l (L, 3, 3) for landmark ids (L,) (zeros for ids never seen by the tracker)."""
         ids = np.asarray(ids, np.int64)

@@ -63,6 +63,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
+from . import id_gate
 from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
@@ -129,6 +130,7 @@ class FilterStats:
 
     proposal_fallbacks: int = 0
     id_outliers: int = 0          # "id" association: (particle, observation) pairs rejected by the gate
+    id_rescued: int = 0           # "id", ``id_relative_drift``: pairs accepted only under the drift-widened gate
     landmarks_removed: int = 0    # (particle, landmark) removals: existence fell below ``existence_remove``
     landmarks_merged: int = 0     # (particle, landmark) merges of duplicates (``merge_gate``)
 
@@ -294,6 +296,13 @@ class FastSLAM:
         adj, det = sym_adjugate(s_gate)
         d2 = sym_quadratic(adj, innovation) / det
         gated = d2 < cfg.mahalanobis_gate
+        relative = None
+        if by_id and cfg.id_relative_drift != "off" and cfg.version == 2:   # the pose's drift since the landmark
+            lever = mean[:2] - _cols(predicted[:, :2].T, pairs.m)                # was made (id_gate.py)
+            relative = id_gate.judge(cfg.id_relative_drift, self.drift, pairs.m, obs_lids[pairs.j], d2, s_gate,
+                                     innovation, lever, cfg.mahalanobis_gate)
+            d2, gated = relative.d2, relative.gated
+            self.stats.id_rescued += int(np.count_nonzero(relative.rescued))
 
         # 3. mutual exclusion
         n_slots = n_particles * self.store.table.shape[1] * self.store.block_size if by_id else len(cand.m)
@@ -307,6 +316,9 @@ class FastSLAM:
         mean, cov = _cols(mean, win), _cols(cov, win)
 
         s_inv = sym_inverse(_cols(s_obs, win))                                        # S⁻¹ without the pose term
+        if relative is not None:   # proposal and EKF relative to each particle's oldest landmark (id_gate.py)
+            cov, self._motion_cov = relative.anchor(win, matched.m, cov, _cols(lever, win), self._motion_cov)
+            s_inv = sym_inverse(cov + _cols(frame.noise, mj[win]))
 
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
