@@ -4,7 +4,7 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.eval_slam_rendered [--seconds 60] [--robots robot1,robot2] [--seed 0]
         [--frame-rate 5] [--max-corners 150] [--particles 100] [--diagnose] [--json] [--set key=value ...]
-        [--frames-cache DIR]
+        [--frames-cache DIR] [--descriptor-depth M]
 
 Each robot drives its world route (moved to the right of travel as the mission does) with
 ``runtime.slam_sim.simulate`` in simulated time and the synthetic odometry's realistic errors (2 % distance,
@@ -27,6 +27,8 @@ observations of the same true point at different viewing distances.
 ``--frames-cache DIR`` keeps each robot's observations (and their true points) in DIR the first time and replays
 them afterwards: the observer's frames depend only on the true route and the seed, not on the filter, so a
 replay gives the same scores as rendering, minutes faster (a replay checks every frame's pose and time).
+``--descriptor-depth M`` (an experiment on the front end, off by default): every observation is described again
+with U-SURF at s = scale · M / z, z its depth, i.e. a window of fixed physical size instead of fixed pixels.
 """
 from __future__ import annotations
 
@@ -63,7 +65,7 @@ class RenderedObserver:
     """
 
     def __init__(self, world, rng: np.random.Generator, max_corners: int = 150, noise_dn: float = 1.0,
-                 diagnose: bool = False, latency: float = 0.0) -> None:
+                 diagnose: bool = False, latency: float = 0.0, descriptor_depth: float = 0.0) -> None:
         from drivers.videre import calibration
         from mocks.stereo_head.renderer import StereoRenderer
 
@@ -80,6 +82,7 @@ class RenderedObserver:
         self.indices: list[np.ndarray] = []   # per frame: the true point index of each observation
         self.frontend_seconds = 0.0
         self.latency = latency
+        self.descriptor_depth = descriptor_depth
         self._previous: tuple[float, np.ndarray] | None = None
 
     @property
@@ -103,6 +106,25 @@ class RenderedObserver:
             self._cell_index.setdefault(tuple(int(c) for c in cell), []).append(best)
         return best
 
+    def _described_at_depth(self, left: np.ndarray, right: np.ndarray, obs: StereoObservations) -> StereoObservations:
+        """The frame's observations re-described with U-SURF at s = scale · descriptor_depth / z (z the point's depth
+        in the camera): a window of fixed physical size, so a point looks the same from any distance as far as the
+        images resolve it. Corners whose window leaves the image are dropped (as the front end drops them)."""
+        from estimation.frontend.pipeline import rectify_pair
+        from estimation.frontend.usurf import usurf_descriptors
+
+        rectified, _ = rectify_pair(left, right, self.front_end.rectification)
+        depth = self.front_end.last_matches.points_camera[:, 2]
+        scale = np.round(4.0 * np.clip(self.front_end.config.scale * self.descriptor_depth / depth, 1.0, 8.0)) / 4.0
+        desc = np.zeros((len(obs), np.asarray(obs.descriptors).shape[1]), np.float32)
+        described = np.zeros(len(obs), bool)
+        for s in np.unique(scale):               # U-SURF describes at one scale a call: a quarter-pixel grid of s
+            group = np.flatnonzero(scale == s)
+            d, ok = usurf_descriptors(rectified, obs.pixels[group], float(s))
+            desc[group[ok]], described[group[ok]] = d, True
+        return StereoObservations(obs.points[described], obs.covariances[described], desc[described],
+                                  obs.pixels[described], obs.timestamp)
+
     def observe(self, pose, timestamp: float = 0.0):
         pose = np.asarray(pose, float)
         truth_pose = pose
@@ -117,6 +139,8 @@ class RenderedObserver:
                        .astype(np.uint8) for im in self.renderer.render(pose))
         t0 = time.process_time()
         obs = self.front_end.process(left, right, float(timestamp))
+        if self.descriptor_depth > 0:
+            obs = self._described_at_depth(left, right, obs)
         self.frontend_seconds += time.process_time() - t0
         truth = self.renderer.true_points(pose, obs.pixels, "left", rectified=True)
         index = np.full(len(obs), -1, np.int64)
@@ -243,18 +267,21 @@ class _TimedFastSLAM(FastSLAM):
 
 
 def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMConfig, frame_rate: float,
-              max_corners: int, diagnose: bool, latency: float = 0.0, frames_cache: Path | None = None) -> dict:
+              max_corners: int, diagnose: bool, latency: float = 0.0, frames_cache: Path | None = None,
+              descriptor_depth: float = 0.0) -> dict:
     """One robot's run; returns the scores (and diagnostics)."""
     cache = None
     if frames_cache is not None:
-        cache = frames_cache / f"{robot}-seed{seed}-{frame_rate:g}hz-{max_corners}c-{latency:g}s-{seconds:g}s.npz"
+        depth = f"-desc{descriptor_depth:g}m" if descriptor_depth > 0 else ""
+        name = f"{robot}-seed{seed}-{frame_rate:g}hz-{max_corners}c-{latency:g}s-{seconds:g}s{depth}"
+        cache = frames_cache / f"{name}.npz"
     if cache is not None and cache.exists():
         if diagnose:
             raise SystemExit("--diagnose needs the rendered frames' truth: run it without --frames-cache")
         observer = ReplayObserver(cache)
     else:
         observer = RenderedObserver(world, np.random.default_rng([seed, 1]), max_corners, diagnose=diagnose,
-                                    latency=latency)
+                                    latency=latency, descriptor_depth=descriptor_depth)
         if cache is not None:
             observer = RecordingRenderedObserver(observer)
     route = keep_right(np.asarray(world.routes[robot], float))
@@ -413,7 +440,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--frames-cache", type=Path, default=None, metavar="DIR",
                         help="keep the rendered observations in DIR and replay them on later runs (same scores)")
+    parser.add_argument("--descriptor-depth", type=float, default=0.0, metavar="M",
+                        help="experiment: re-describe every observation with U-SURF at scale·M/depth (a window of "
+                             "fixed physical size) instead of the front end's fixed scale; 0 (default): off")
     args = parser.parse_args(argv)
+    if not args.descriptor_depth >= 0:
+        raise SystemExit(f"--descriptor-depth must be ≥ 0 m, not {args.descriptor_depth}")
     cv2.setNumThreads(1)
     from mocks.world import World
 
@@ -421,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     config = replace(FastSLAMConfig(n_particles=args.particles, version=args.fastslam), **_parse_set(args.set))
     rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
                       frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose,
-                      latency=args.latency, frames_cache=args.frames_cache)
+                      latency=args.latency, frames_cache=args.frames_cache, descriptor_depth=args.descriptor_depth)
             for robot in args.robots.split(",")]
     if args.json:
         print(json.dumps({"config": config.to_dict(), "rows": rows}, indent=2))
