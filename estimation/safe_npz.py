@@ -74,7 +74,8 @@ def read_npz(path: str | os.PathLike, specs: Mapping[str, ArraySpec], error: typ
         raise error(f"{path}: no such {what} file") from None
     except zipfile.BadZipFile as exc:
         raise error(f"{path}: not a readable {what} archive ({exc})") from None
-    except (OSError, EOFError, zlib.error, NotImplementedError, RuntimeError) as exc:
+    except (OSError, EOFError, zlib.error, NotImplementedError, RuntimeError, UnicodeDecodeError) as exc:
+        # UnicodeDecodeError: zipfile decodes a member's local name as UTF-8 when its header's flag says so
         raise error(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
 
 
