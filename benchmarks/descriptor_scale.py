@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -36,9 +37,12 @@ RATIO_EDGES = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.6, 10.0)   # |ln r2/r1|: 0.1 ≈
 
 def load_sightings(path: Path) -> dict[str, np.ndarray]:
     """Per observation with a true point: frame, range (m), unit descriptor, true point index, world point."""
-    with np.load(path, allow_pickle=False) as data:
-        count, index, points = data["count"], data["index"], data["points"]
-        desc, truth = data["descriptors"].astype(np.float32), data["true_points"]
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            count, index, points = data["count"], data["index"], data["points"]
+            desc, truth = data["descriptors"].astype(np.float32), data["true_points"]
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        raise SystemExit(f"{path}: not a frames cache of eval_slam_rendered ({error})") from None
     frame = np.repeat(np.arange(len(count)), count)
     ok = index >= 0
     return {"frame": frame[ok], "range": np.linalg.norm(points[ok] - SENSOR, axis=1), "desc": desc[ok],

@@ -36,6 +36,7 @@ import argparse
 import io
 import json
 import time
+import zipfile
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, compose
 from estimation.observations import StereoObservations
 from runtime.commands.features import front_end_from_calibration
+from runtime.commands.options import non_negative_float
 from runtime.motion import keep_right
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -210,8 +212,12 @@ class ReplayObserver:
     """Replays a :class:`RecordingRenderedObserver`'s file; ``observe`` checks that the pose and time match."""
 
     def __init__(self, path: Path) -> None:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+            arrays["count"], arrays["t"], arrays["pose"]   # noqa: B018 - the fields a replay needs first
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+            raise SystemExit(f"{path}: not a frames cache ({error}); delete it to render again") from None
         self._arrays = arrays
         self._starts = np.concatenate([[0], np.cumsum(arrays["count"])])
         self._frame = 0
@@ -440,12 +446,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--frames-cache", type=Path, default=None, metavar="DIR",
                         help="keep the rendered observations in DIR and replay them on later runs (same scores)")
-    parser.add_argument("--descriptor-depth", type=float, default=0.0, metavar="M",
+    parser.add_argument("--descriptor-depth", type=non_negative_float, default=0.0, metavar="M",
                         help="experiment: re-describe every observation with U-SURF at scale·M/depth (a window of "
                              "fixed physical size) instead of the front end's fixed scale; 0 (default): off")
     args = parser.parse_args(argv)
-    if not args.descriptor_depth >= 0:
-        raise SystemExit(f"--descriptor-depth must be ≥ 0 m, not {args.descriptor_depth}")
     cv2.setNumThreads(1)
     from mocks.world import World
 
