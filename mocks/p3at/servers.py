@@ -281,7 +281,8 @@ class TcpServer(_Server):
                     for key, _ in selector.select(timeout=self._wait_s()):
                         if key.data == "listen":
                             self._accept()
-                        elif key.data == "client" and self._client is not None:
+                        elif key.data == "client" and key.fileobj is self._client:
+                            # Not a replaced client's stale event: read from the one it belongs to.
                             data = self._read_client()
                             if data is not None:
                                 self._wall_step(data)
