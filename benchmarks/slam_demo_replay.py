@@ -1,0 +1,169 @@
+"""Replay one robot of a `p3at demo` output folder through FastSLAM offline and print its timeline.
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.slam_demo_replay DEMO_DIR [--robot robot2] [--filter-seed K]
+        [--render-seed S] [--frames-cache FILE] [--from T0] [--to T1] [--every N] [--demo-only]
+
+The demo folder gives the route actually driven (``<robot>-truth.tum``), the odometry the filter was given
+(``<robot>-odometry.tum``, per frame) and the filter's settings and true start pose (``<robot>.npz``'s
+metadata). Each frame is rendered again at the true pose (``eval_slam_rendered.RenderedObserver``: the same
+renderer, 1 DN noise of its own draw, the real front end), so the replay differs from the demo only in the
+image noise and the filter's random draws (``--filter-seed``; the demo's own is ``seed * 1000 + robot index``).
+``--frames-cache FILE`` keeps the rendered observations and replays them afterwards (the filter alone: minutes).
+
+Prints, per window of ``--every`` frames: the best particle's position / heading error and the odometry's heading
+error against the truth (start frame); the filter's own heading σ — the drift tracker's D_r (the pose's
+uncertainty relative to the start), the weighted cloud's, FastSLAM 2.0's proposal; the effective sample size and
+the share of frames resampled; observations per frame, matched / new / rejected (means over particles; rejected =
+a landmark was a candidate but the gate refused it); the best particle's matches, its new landmarks and how many of
+its matches joined two true points > 10 cm apart; the truth's largest turn per frame. Then a summary line.
+``--demo-only`` prints the demo's own estimate against its truth instead (no replay): the position / heading
+error of the trajectory the demo wrote, the odometry's heading error, the truth's turn per frame.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObserver, ReplayObserver
+from estimation.fastslam import FastSLAM, FastSLAMConfig
+from estimation.geometry import between, compose, wrap_angle
+from estimation.observations import OdometryIncrement
+from runtime.commands.options import non_negative_float, non_negative_int, positive_int
+
+WRONG_MATCH = 0.10  # m: a match whose true point is this far from its landmark's first sighting joins two points
+
+
+def read_tum(path: Path) -> np.ndarray:
+    """(T, 4) rows (t, x, y, θ) of a planar TUM file."""
+    a = np.loadtxt(path, comments="#", ndmin=2)
+    return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2.0 * np.arctan2(a[:, 6], a[:, 7])])
+
+
+def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None) -> dict[str, np.ndarray]:
+    """Per-frame arrays of the replay (see the module docstring)."""
+    from mocks.world import World
+
+    with np.load(demo / f"{robot}.npz", allow_pickle=False) as data:
+        meta = json.loads(bytes(data["meta"]).decode())["metadata"]
+    start = np.array(meta["true_start_pose"], float)
+    config = FastSLAMConfig.from_dict(meta["fastslam"])
+    truth, odometry = read_tum(demo / f"{robot}-truth.tum"), read_tum(demo / f"{robot}-odometry.tum")
+    if len(truth) != len(odometry) or not np.allclose(truth[:, 0], odometry[:, 0]):
+        raise SystemExit(f"{demo}: {robot}'s truth and odometry files do not have the same frames")
+    if cache is not None and cache.exists():
+        observer = ReplayObserver(cache)
+    else:
+        observer = RecordingRenderedObserver(RenderedObserver(World.load(), np.random.default_rng([render_seed, 1])))
+    slam = FastSLAM(config, np.random.default_rng(filter_seed))
+    rows: dict[str, list] = {k: [] for k in ("t", "truth", "odometry", "best", "drift", "cloud", "proposal", "ess",
+                                             "resampled", "n_obs", "matched", "new", "best_matched", "best_new",
+                                             "best_wrong")}
+    origin: dict[int, int] = {}   # landmark id -> the true point of its first sighting
+    for i, (t, *pose) in enumerate(truth):
+        delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
+        slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
+        observations, index = observer.observe(compose(start, np.array(pose)), float(t))
+        report = slam.update(observations)
+        points = observer.points
+        for j in np.flatnonzero(report.new_landmark_ids >= 0):
+            origin[int(report.new_landmark_ids[j])] = int(index[j])
+        wrong = 0
+        for j in np.flatnonzero(report.best_matches >= 0):
+            first = origin.get(int(report.best_matches[j]), -1)
+            if first >= 0 and index[j] >= 0:
+                wrong += int(np.linalg.norm(points[first] - points[index[j]]) > WRONG_MATCH)
+        proposal = slam._proposal_cov if slam._proposal_cov is not None else np.full((3, 3), np.nan)
+        for key, value in (("t", t), ("truth", pose), ("odometry", odometry[i, 1:]), ("best", slam.best_pose()),
+                           ("drift", slam.drift.robot[2, 2]), ("cloud", report.pose_covariance[2, 2]),
+                           ("proposal", proposal[2, 2]), ("ess", report.ess), ("resampled", report.resampled),
+                           ("n_obs", report.n_observations), ("matched", report.matched),
+                           ("new", report.new_landmarks), ("best_matched", int(np.sum(report.best_matches >= 0))),
+                           ("best_new", int(np.sum(report.new_landmark_ids >= 0))), ("best_wrong", wrong)):
+            rows[key].append(value)
+    if isinstance(observer, RecordingRenderedObserver):
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        observer.save(cache)
+    out = {k: np.array(v, float) for k, v in rows.items()}
+    out["landmarks"] = np.array(len(slam.best_map(robot=robot)))
+    return out
+
+
+def print_timeline(d: dict[str, np.ndarray], t0: float, t1: float, every: int) -> None:
+    error_xy = np.hypot(*(d["best"][:, :2] - d["truth"][:, :2]).T)
+    error_theta = wrap_angle(d["best"][:, 2] - d["truth"][:, 2])
+    odometry_theta = wrap_angle(d["odometry"][:, 2] - d["truth"][:, 2])
+    rejected = d["n_obs"] - d["matched"] - d["new"]
+    turn = np.abs(wrap_angle(np.diff(d["truth"][:, 2], prepend=d["truth"][0, 2])))
+    sd = {k: np.sqrt(np.maximum(d[k], 0.0)) for k in ("drift", "cloud", "proposal")}
+    print("| t (s) | error m / rad | odometry rad | σθ drift / cloud / proposal | ESS / resampled | obs / matched / "
+          "new / rejected | best: matched / new / wrong | turn per frame |")
+    print("|---|---|---|---|---|---|---|---|")
+    for k in range(0, len(d["t"]), every):
+        if not t0 <= d["t"][k] <= t1:
+            continue
+        s = slice(k, k + every)
+        print(f"| {d['t'][k]:.1f} | {error_xy[k]:.2f} / {error_theta[k]:+.3f} | {odometry_theta[k]:+.3f} | "
+              f"{sd['drift'][k]:.3f} / {np.mean(sd['cloud'][s]):.3f} / {np.nanmean(sd['proposal'][s]):.3f} | "
+              f"{np.mean(d['ess'][s]):.0f} / {np.mean(d['resampled'][s]):.1f} | {np.mean(d['n_obs'][s]):.1f} / "
+              f"{np.mean(d['matched'][s]):.1f} / {np.mean(d['new'][s]):.1f} / {np.mean(rejected[s]):.1f} | "
+              f"{np.mean(d['best_matched'][s]):.1f} / {np.mean(d['best_new'][s]):.1f} / "
+              f"{np.sum(d['best_wrong'][s]):.0f} | {np.max(turn[s]):.3f} |")
+    late = d["t"] > d["t"][0] + 50.0
+    print(f"ATE {np.sqrt(np.mean(error_xy ** 2)):.3f} m, largest position error {error_xy.max():.2f} m, final "
+          f"{error_xy[-1]:.2f} m / {error_theta[-1]:+.3f} rad, largest |heading error| after the first 50 s "
+          f"{np.max(np.abs(error_theta[late]), initial=0.0):.3f} rad, largest σθ drift {sd['drift'].max():.3f} rad, "
+          f"landmarks {int(d['landmarks'])}")
+
+
+def print_demo(demo: Path, robot: str, t0: float, t1: float, every: int) -> None:
+    """The demo's own estimate (``<robot>.tum``) and odometry against its truth, per window of frames."""
+    estimate, truth = read_tum(demo / f"{robot}.tum"), read_tum(demo / f"{robot}-truth.tum")
+    odometry = read_tum(demo / f"{robot}-odometry.tum")
+    n = min(len(estimate), len(truth), len(odometry))
+    error_xy = np.hypot(*(estimate[:n, 1:3] - truth[:n, 1:3]).T)
+    error_theta = wrap_angle(estimate[:n, 3] - truth[:n, 3])
+    odometry_theta = wrap_angle(odometry[:n, 3] - truth[:n, 3])
+    turn = np.abs(wrap_angle(np.diff(truth[:n, 3], prepend=truth[0, 3])))
+    print("| t (s) | error m / rad | odometry rad | true heading | turn per frame |")
+    print("|---|---|---|---|---|")
+    for k in range(0, n, every):
+        if t0 <= truth[k, 0] <= t1:
+            print(f"| {truth[k, 0]:.1f} | {error_xy[k]:.2f} / {error_theta[k]:+.3f} | {odometry_theta[k]:+.3f} | "
+                  f"{truth[k, 3]:+.2f} | {np.max(turn[k:k + every]):.3f} |")
+    print(f"{n} frames over {truth[n - 1, 0] - truth[0, 0]:.0f} s; final error {error_xy[-1]:.2f} m / "
+          f"{error_theta[-1]:+.3f} rad; odometry {odometry_theta[-1]:+.3f} rad")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("demo", type=Path, help="a `p3at demo --out` folder")
+    parser.add_argument("--robot", default="robot2")
+    parser.add_argument("--filter-seed", type=non_negative_int, default=0)
+    parser.add_argument("--render-seed", type=non_negative_int, default=0, help="the image noise's draw")
+    parser.add_argument("--frames-cache", type=Path, default=None, metavar="FILE",
+                        help="keep the rendered observations in FILE and replay them on later runs")
+    parser.add_argument("--from", dest="t0", type=non_negative_float, default=0.0, help="first time printed (s)")
+    parser.add_argument("--to", dest="t1", type=non_negative_float, default=1e9, help="last time printed (s)")
+    parser.add_argument("--every", type=positive_int, default=10, help="frames per printed window")
+    parser.add_argument("--demo-only", action="store_true", help="the demo's own estimate against its truth")
+    args = parser.parse_args(argv)
+    for name in (f"{args.robot}.npz", f"{args.robot}-truth.tum", f"{args.robot}-odometry.tum"):
+        if not (args.demo / name).is_file():
+            raise SystemExit(f"{args.demo}: no {name} (a `p3at demo --out` folder of a mock run is needed)")
+    if args.demo_only:
+        print_demo(args.demo, args.robot, args.t0, args.t1, args.every)
+        return 0
+    cv2.setNumThreads(1)
+    print_timeline(replay(args.demo, args.robot, args.filter_seed, args.render_seed, args.frames_cache),
+                   args.t0, args.t1, args.every)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
