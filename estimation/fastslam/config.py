@@ -136,9 +136,14 @@ class FastSLAMConfig:
 
 
 def range_bearing_config(**overrides) -> FastSLAMConfig:
-    """A configuration for planar range-bearing sensors (all-round view, sensor at the robot's origin)."""
+    """A configuration for planar range-bearing sensors (all-round view, sensor at the robot's origin).
+
+    Known-ID readings that the gate rejects in a particle are judged with the pose's drift since their landmark
+    was made, and two such landmarks in one frame correct the pose (``id_relative_drift="consistent"``,
+    id_gate.py; MRCLAM: docs/fastslam.md, "Session 6")."""
     values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
                   min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345,
-                  merge_covisibility=True)   # such a sensor reports each object at most once a frame
+                  merge_covisibility=True,   # such a sensor reports each object at most once a frame
+                  id_relative_drift="consistent")
     values.update(overrides)
     return FastSLAMConfig(**values)
