@@ -3,7 +3,7 @@
 Run from the repository root:
 
     .venv/bin/python -m benchmarks.slam_demo_replay DEMO_DIR [--robot robot2] [--filter-seed K]
-        [--render-seed S] [--frames-cache FILE] [--from T0] [--to T1] [--every N] [--demo-only]
+        [--render-seed S] [--frames-cache FILE] [--from T0] [--to T1] [--every N] [--born-before T] [--demo-only]
 
 The demo folder gives the route actually driven (``<robot>-truth.tum``), the odometry the filter was given
 (``<robot>-odometry.tum``, per frame) and the filter's settings and true start pose (``<robot>.npz``'s
@@ -18,6 +18,8 @@ uncertainty relative to the start), the weighted cloud's, FastSLAM 2.0's proposa
 the share of frames resampled; observations per frame, matched / new / rejected (means over particles; rejected =
 a landmark was a candidate but the gate refused it); the best particle's matches, its new landmarks and how many of
 its matches joined two true points > 10 cm apart; the truth's largest turn per frame. Then a summary line.
+``--born-before T`` adds a column: the best particle's matches to landmarks made before T s (is the map after T
+tied back to the map made before it?), and their share after T in the summary.
 ``--demo-only`` prints the demo's own estimate against its truth instead (no replay): the position / heading
 error of the trajectory the demo wrote, the odometry's heading error, the truth's turn per frame.
 """
@@ -45,7 +47,8 @@ def read_tum(path: Path) -> np.ndarray:
     return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2.0 * np.arctan2(a[:, 6], a[:, 7])])
 
 
-def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None) -> dict[str, np.ndarray]:
+def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
+           born_before: float = 0.0) -> dict[str, np.ndarray]:
     """Per-frame arrays of the replay (see the module docstring)."""
     from mocks.world import World
 
@@ -63,8 +66,9 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
     slam = FastSLAM(config, np.random.default_rng(filter_seed))
     rows: dict[str, list] = {k: [] for k in ("t", "truth", "odometry", "best", "drift", "cloud", "proposal", "ess",
                                              "resampled", "n_obs", "matched", "new", "best_matched", "best_new",
-                                             "best_wrong")}
+                                             "best_wrong", "best_old")}
     origin: dict[int, int] = {}   # landmark id -> the true point of its first sighting
+    born: dict[int, float] = {}   # landmark id -> the time it was made
     for i, (t, *pose) in enumerate(truth):
         delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
         slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
@@ -73,6 +77,8 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
         points = observer.points
         for j in np.flatnonzero(report.new_landmark_ids >= 0):
             origin[int(report.new_landmark_ids[j])] = int(index[j])
+            born.setdefault(int(report.new_landmark_ids[j]), float(t))
+        old = sum(born.get(int(i), np.inf) < born_before for i in report.best_matches[report.best_matches >= 0])
         wrong = 0
         for j in np.flatnonzero(report.best_matches >= 0):
             first = origin.get(int(report.best_matches[j]), -1)
@@ -84,7 +90,8 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
                            ("proposal", proposal[2, 2]), ("ess", report.ess), ("resampled", report.resampled),
                            ("n_obs", report.n_observations), ("matched", report.matched),
                            ("new", report.new_landmarks), ("best_matched", int(np.sum(report.best_matches >= 0))),
-                           ("best_new", int(np.sum(report.new_landmark_ids >= 0))), ("best_wrong", wrong)):
+                           ("best_new", int(np.sum(report.new_landmark_ids >= 0))), ("best_wrong", wrong),
+                           ("best_old", old)):
             rows[key].append(value)
     if isinstance(observer, RecordingRenderedObserver):
         cache.parent.mkdir(parents=True, exist_ok=True)
@@ -94,16 +101,17 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
     return out
 
 
-def print_timeline(d: dict[str, np.ndarray], t0: float, t1: float, every: int) -> None:
+def print_timeline(d: dict[str, np.ndarray], t0: float, t1: float, every: int, born_before: float = 0.0) -> None:
     error_xy = np.hypot(*(d["best"][:, :2] - d["truth"][:, :2]).T)
     error_theta = wrap_angle(d["best"][:, 2] - d["truth"][:, 2])
     odometry_theta = wrap_angle(d["odometry"][:, 2] - d["truth"][:, 2])
     rejected = d["n_obs"] - d["matched"] - d["new"]
     turn = np.abs(wrap_angle(np.diff(d["truth"][:, 2], prepend=d["truth"][0, 2])))
     sd = {k: np.sqrt(np.maximum(d[k], 0.0)) for k in ("drift", "cloud", "proposal")}
+    extra = " best: matched, made before T |" if born_before else ""
     print("| t (s) | error m / rad | odometry rad | σθ drift / cloud / proposal | ESS / resampled | obs / matched / "
-          "new / rejected | best: matched / new / wrong | turn per frame |")
-    print("|---|---|---|---|---|---|---|---|")
+          "new / rejected | best: matched / new / wrong | turn per frame |" + extra)
+    print("|---|---|---|---|---|---|---|---|" + ("---|" if born_before else ""))
     for k in range(0, len(d["t"]), every):
         if not t0 <= d["t"][k] <= t1:
             continue
@@ -113,12 +121,18 @@ def print_timeline(d: dict[str, np.ndarray], t0: float, t1: float, every: int) -
               f"{np.mean(d['ess'][s]):.0f} / {np.mean(d['resampled'][s]):.1f} | {np.mean(d['n_obs'][s]):.1f} / "
               f"{np.mean(d['matched'][s]):.1f} / {np.mean(d['new'][s]):.1f} / {np.mean(rejected[s]):.1f} | "
               f"{np.mean(d['best_matched'][s]):.1f} / {np.mean(d['best_new'][s]):.1f} / "
-              f"{np.sum(d['best_wrong'][s]):.0f} | {np.max(turn[s]):.3f} |")
+              f"{np.sum(d['best_wrong'][s]):.0f} | {np.max(turn[s]):.3f} |"
+              + (f" {np.mean(d['best_old'][s]):.1f} |" if born_before else ""))
     late = d["t"] > d["t"][0] + 50.0
     print(f"ATE {np.sqrt(np.mean(error_xy ** 2)):.3f} m, largest position error {error_xy.max():.2f} m, final "
           f"{error_xy[-1]:.2f} m / {error_theta[-1]:+.3f} rad, largest |heading error| after the first 50 s "
           f"{np.max(np.abs(error_theta[late]), initial=0.0):.3f} rad, largest σθ drift {sd['drift'].max():.3f} rad, "
           f"landmarks {int(d['landmarks'])}")
+    if born_before:
+        after = d["t"] > born_before
+        old, matched = np.sum(d["best_old"][after]), np.sum(d["best_matched"][after])
+        print(f"after {born_before:g} s: {old:.0f} of the best particle's {matched:.0f} matches "
+              f"({100 * old / max(1.0, matched):.1f} %) are of landmarks made before it")
 
 
 def print_demo(demo: Path, robot: str, t0: float, t1: float, every: int) -> None:
@@ -151,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--from", dest="t0", type=non_negative_float, default=0.0, help="first time printed (s)")
     parser.add_argument("--to", dest="t1", type=non_negative_float, default=1e9, help="last time printed (s)")
     parser.add_argument("--every", type=positive_int, default=10, help="frames per printed window")
+    parser.add_argument("--born-before", type=non_negative_float, default=0.0, metavar="T",
+                        help="count the best particle's matches to landmarks made before T s (0: off)")
     parser.add_argument("--demo-only", action="store_true", help="the demo's own estimate against its truth")
     args = parser.parse_args(argv)
     for name in (f"{args.robot}.npz", f"{args.robot}-truth.tum", f"{args.robot}-odometry.tum"):
@@ -160,8 +176,8 @@ def main(argv: list[str] | None = None) -> int:
         print_demo(args.demo, args.robot, args.t0, args.t1, args.every)
         return 0
     cv2.setNumThreads(1)
-    print_timeline(replay(args.demo, args.robot, args.filter_seed, args.render_seed, args.frames_cache),
-                   args.t0, args.t1, args.every)
+    print_timeline(replay(args.demo, args.robot, args.filter_seed, args.render_seed, args.frames_cache,
+                          args.born_before), args.t0, args.t1, args.every, args.born_before)
     return 0
 
 
