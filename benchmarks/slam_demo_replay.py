@@ -19,7 +19,9 @@ the share of frames resampled; observations per frame, matched / new / rejected 
 a landmark was a candidate but the gate refused it); the best particle's matches, its new landmarks and how many of
 its matches joined two true points > 10 cm apart; the truth's largest turn per frame. Then a summary line.
 ``--born-before T`` adds a column: the best particle's matches to landmarks made before T s (is the map after T
-tied back to the map made before it?), and their share after T in the summary.
+tied back to the map made before it?), and in the summary their share after T, and the share of the observations
+of true points already seen before T that it matched to a landmark made before T (the re-tie rate, with the truth
+as the denominator a self-check would take from the filter's own in-view prediction).
 ``--demo-only`` prints the demo's own estimate against its truth instead (no replay): the position / heading
 error of the trajectory the demo wrote, the odometry's heading error, the truth's turn per frame.
 """
@@ -66,9 +68,10 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
     slam = FastSLAM(config, np.random.default_rng(filter_seed))
     rows: dict[str, list] = {k: [] for k in ("t", "truth", "odometry", "best", "drift", "cloud", "proposal", "ess",
                                              "resampled", "n_obs", "matched", "new", "best_matched", "best_new",
-                                             "best_wrong", "best_old")}
+                                             "best_wrong", "best_old", "old_seen", "old_seen_retied")}
     origin: dict[int, int] = {}   # landmark id -> the true point of its first sighting
     born: dict[int, float] = {}   # landmark id -> the time it was made
+    first_seen: dict[int, float] = {}   # true point -> the time it was first observed
     for i, (t, *pose) in enumerate(truth):
         delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
         slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
@@ -78,7 +81,11 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
         for j in np.flatnonzero(report.new_landmark_ids >= 0):
             origin[int(report.new_landmark_ids[j])] = int(index[j])
             born.setdefault(int(report.new_landmark_ids[j]), float(t))
-        old = sum(born.get(int(i), np.inf) < born_before for i in report.best_matches[report.best_matches >= 0])
+        old = sum(born.get(int(k), np.inf) < born_before for k in report.best_matches[report.best_matches >= 0])
+        for point in index[index >= 0]:
+            first_seen.setdefault(int(point), float(t))
+        seen_before = [j for j in np.flatnonzero(index >= 0) if first_seen[int(index[j])] < born_before]
+        retied = sum(born.get(int(report.best_matches[j]), np.inf) < born_before for j in seen_before)
         wrong = 0
         for j in np.flatnonzero(report.best_matches >= 0):
             first = origin.get(int(report.best_matches[j]), -1)
@@ -91,7 +98,7 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
                            ("n_obs", report.n_observations), ("matched", report.matched),
                            ("new", report.new_landmarks), ("best_matched", int(np.sum(report.best_matches >= 0))),
                            ("best_new", int(np.sum(report.new_landmark_ids >= 0))), ("best_wrong", wrong),
-                           ("best_old", old)):
+                           ("best_old", old), ("old_seen", len(seen_before)), ("old_seen_retied", retied)):
             rows[key].append(value)
     if isinstance(observer, RecordingRenderedObserver):
         cache.parent.mkdir(parents=True, exist_ok=True)
@@ -132,7 +139,10 @@ def print_timeline(d: dict[str, np.ndarray], t0: float, t1: float, every: int, b
         after = d["t"] > born_before
         old, matched = np.sum(d["best_old"][after]), np.sum(d["best_matched"][after])
         print(f"after {born_before:g} s: {old:.0f} of the best particle's {matched:.0f} matches "
-              f"({100 * old / max(1.0, matched):.1f} %) are of landmarks made before it")
+              f"({100 * old / max(1.0, matched):.1f} %) are of landmarks made before it; of its "
+              f"{np.sum(d['old_seen'][after]):.0f} observations of true points seen before it, "
+              f"{np.sum(d['old_seen_retied'][after]):.0f} matched a landmark made before it "
+              f"({100 * np.sum(d['old_seen_retied'][after]) / max(1.0, np.sum(d['old_seen'][after])):.1f} %)")
 
 
 def print_demo(demo: Path, robot: str, t0: float, t1: float, every: int) -> None:
