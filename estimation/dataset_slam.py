@@ -73,9 +73,11 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     # turn on the spot) gives the map nothing, and its heading error would become a permanent offset of the frame
     t0 = float(times[0]) if len(times) else log.start_time
     true_start = log.true_pose([t0])[0]
+    # each frame's sightings end where the next frame's begin, counted before ``until`` cuts the frames: after the
+    # cut the last kept frame would otherwise run to the end of the log and take in every later sighting
+    bounds = np.append(first, len(log))[1:]
     keep = (times >= t0) & (times <= (np.inf if until is None else until))
-    times, first = times[keep], first[keep]
-    bounds = np.append(first, len(log))[1:] if len(first) else np.zeros(0, np.int64)
+    times, first, bounds = times[keep], first[keep], bounds[keep]
     frame_times = np.concatenate([[t0], times])
     odometry = log.odometry_pose(frame_times)
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
