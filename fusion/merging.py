@@ -21,7 +21,7 @@ each landmark.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -93,13 +93,16 @@ class MergeResult:
     """The merged map and where every input landmark went.
 
     rows1 (N1,): row of each map-1 landmark in ``map`` (map 1 keeps its rows: rows1 = arange(N1));
-    rows2 (N2,): row of each map-2 landmark (a map-1 row when it was fused); pairs (K, 2) the fused pairs.
+    rows2 (N2,): row of each map-2 landmark (a map-1 row when it was fused, or when it was withheld: the map-1 row
+    that keeps its identity); pairs (K, 2) the fused pairs; withheld (W, 2) the (map-1 row, map-2 row) pairs of
+    one identity that were neither fused nor added (the maps disagree about it beyond their covariances).
     """
 
     map: LandmarkMap
     rows1: np.ndarray
     rows2: np.ndarray
     pairs: np.ndarray
+    withheld: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
 
 def check_covariances(landmark_map: LandmarkMap, name: str = "map") -> None:
@@ -130,9 +133,14 @@ def _merged_identities(map1: LandmarkMap, map2: LandmarkMap, only2: np.ndarray) 
 
 
 def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covariance=None,
-                metadata: dict | None = None) -> MergeResult:
+                metadata: dict | None = None, withheld=None, conflicts: list[dict] | None = None) -> MergeResult:
     """Merge map 2 (aligned by ``pose`` (3,), optionally uncertain by ``pose_covariance`` (3, 3)) into map 1,
     fusing the landmark ``pairs`` (K, 2) rows (i in map 1, j in map 2), which must be one-to-one.
+
+    ``withheld`` (W, 2) rows (i in map 1, j in map 2): one identity held by both maps at places the gate refused
+    to fuse; map 2's landmark j is not added (one identity is one landmark: adding it would put the same post
+    in the map twice), map 1's i is kept unchanged, and ``conflicts`` (one dict per withheld pair, saying how far
+    apart they were) are appended to the merged map's ``metadata["identity_conflicts"]``.
 
     Raises :class:`IncompatibleMapsError` when a map's covariances are not symmetric positive semi-definite."""
     if len(map1) and len(map2) and map1.descriptor_size != map2.descriptor_size:
@@ -159,8 +167,10 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
     seen[:, : len(map1.robots)] = map1.seen_by
     seen[i[:, None], col2[None, :]] |= map2.seen_by[j]
 
+    withheld = np.zeros((0, 2), np.int64) if withheld is None else np.asarray(withheld, np.int64).reshape(-1, 2)
     only2 = np.ones(len(map2), bool)
     only2[j] = False
+    only2[withheld[:, 1]] = False
     seen2 = np.zeros((int(only2.sum()), len(robots)), bool)
     seen2[:, col2] = map2.seen_by[only2]
     next_id = int(map1.ids.max()) + 1 if len(map1) else 0
@@ -170,8 +180,11 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
     identities = _merged_identities(map1, map2, only2)
     if identities is not None:
         meta["external_ids"] = identities
+    if conflicts:
+        meta["identity_conflicts"] = list(map1.metadata.get("identity_conflicts", [])) + list(conflicts)
     rows2 = np.empty(len(map2), np.int64)
     rows2[j] = i
+    rows2[withheld[:, 1]] = withheld[:, 0]
     rows2[only2] = len(map1) + np.arange(int(only2.sum()))
     merged = LandmarkMap(
         positions=np.vstack([positions, x2[only2]]),
@@ -184,7 +197,7 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
         trajectory=map1.trajectory.copy(),
         metadata=meta,
     )
-    return MergeResult(merged, np.arange(len(map1)), rows2, pairs)
+    return MergeResult(merged, np.arange(len(map1)), rows2, pairs, withheld)
 
 
 def common_landmarks(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: int = 1,

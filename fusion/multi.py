@@ -135,28 +135,45 @@ def _scaled(landmark_map: LandmarkMap, scale: float) -> LandmarkMap:
                        dict(landmark_map.metadata))
 
 
-def _identity_pairs(fused: LandmarkMap, child: LandmarkMap, pose, pose_cov, pairs: np.ndarray) -> np.ndarray:
+def _identity_pairs(fused: LandmarkMap, child: LandmarkMap, pose, pose_cov, pairs: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, list[dict]]:
     """Known-ID maps: the child's landmarks that the tree parent lacked but the fused map holds under the same
-    identity (seen by another robot), kept when inside the Mahalanobis gate of Method 2; appended to ``pairs``."""
+    identity (seen by another robot), kept when inside the Mahalanobis gate of Method 2; appended to ``pairs``.
+
+    Returns (pairs (K, 2), withheld (W, 2), conflicts): a child landmark whose identity the fused map holds but
+    which lies outside the gate is withheld (fused row, child row) — one identity is one post, so it is neither
+    fused (the maps disagree beyond their covariances) nor added as a second landmark — and each conflict says
+    which identity, how far apart and by what Mahalanobis distance (``merge_pairs`` records them)."""
+    empty = np.zeros((0, 2), np.int64)
     ids_f, ids_c = landmark_identities(fused), landmark_identities(child)
     if ids_f is None or ids_c is None:
-        return pairs
+        return pairs, empty, []
     free_f = np.ones(len(fused), bool)
     free_f[pairs[:, 0]] = False
     free_c = np.ones(len(child), bool)
     free_c[pairs[:, 1]] = False
     cand = identity_pairs(np.where(free_f, ids_f, -1), np.where(free_c, ids_c, -1))
     if len(cand) == 0:
-        return pairs
+        return pairs, empty, []
     x2, P2 = transform_landmarks(child.positions[cand[:, 1]], child.covariances[cand[:, 1]], pose, pose_cov)
     r = fused.positions[cand[:, 0]] - x2
     S = fused.covariances[cand[:, 0]] + P2 + PRESETS["robust"].position_floor ** 2 * np.eye(3)
-    inside = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0]) < CHI2_999[3]
-    cand = cand[inside]
-    _, first = np.unique(cand[:, 0], return_index=True)          # a duplicated identity: one pair per row
-    cand = cand[np.sort(first)]
-    _, first = np.unique(cand[:, 1], return_index=True)
-    return np.vstack([pairs, cand[np.sort(first)]])
+    d2 = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0])
+    inside = d2 < CHI2_999[3]
+    kept = cand[inside]
+    _, first = np.unique(kept[:, 0], return_index=True)          # a duplicated identity: one pair per row
+    kept = kept[np.sort(first)]
+    _, first = np.unique(kept[:, 1], return_index=True)
+    kept = kept[np.sort(first)]
+    refused = ~inside & ~np.isin(cand[:, 1], kept[:, 1])
+    order = np.flatnonzero(refused)[np.argsort(d2[refused], kind="stable")]
+    _, first = np.unique(cand[order, 1], return_index=True)     # per child row, its nearest same-identity row
+    order = np.sort(order[first])
+    withheld = cand[order]
+    conflicts = [{"identity": int(ids_c[c]), "robot": child.robot, "kept_row": int(f),
+                  "distance_m": float(np.linalg.norm(r[k, :2])), "mahalanobis_d2": float(d2[k]),
+                  "gate_d2": float(CHI2_999[3])} for k, (f, c) in zip(order, withheld, strict=True)]
+    return np.vstack([pairs, kept]), withheld, conflicts
 
 
 def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int) -> Alignment:
@@ -215,15 +232,17 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
             pairs = np.column_stack([rows[parent][sup[:, 0]], sup[:, 1]])
             # two parent landmarks may already be one fused landmark: keep the first pair of each row
             _, first = np.unique(pairs[:, 0], return_index=True)
-            pairs = _identity_pairs(fused, maps[child], poses[child], pose_cov, pairs[np.sort(first)])
+            pairs, withheld, conflicts = _identity_pairs(fused, maps[child], poses[child], pose_cov,
+                                                         pairs[np.sort(first)])
         else:
+            withheld, conflicts = None, None
             x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, poses[child], pose_cov)
             gate = PRESETS["paper"].support_threshold if a.preset == "paper" else None
             pairs = position_correspondences(fused.positions, fused.covariances, x2, P2, gate)
         info = {"fusion": {"maps": [m.robot for m in maps], "method": int(method), "reference": int(reference),
                            "tree": [list(e) for e in edges],
                            "covariance_scales": None if scales is None else [float(c) for c in scales]}}
-        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info)
+        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info, withheld, conflicts)
         fused, rows[child] = result.map, result.rows2
     return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows, start_covs,
                        None if scales is None else [float(c) for c in scales])
