@@ -10,7 +10,9 @@ thrown out by the gate, or ambiguity).  Then the merge: each map's real σ about
 landmarks against the σ from the pairwise residuals (``fusion.multi.covariance_scales``) and the σ it claims;
 the merged map by the claimed covariances, by the calibrated ones, by the real σ (oracle weights), and the
 plain average of the two best maps each placed by its own best rigid fit (what no weighting can beat), with the
-correlation of those two maps' errors.
+correlation of those two maps' errors; for the merged maps, the landmarks' NEES against Vicon (2-D, after the
+best rigid fit: is the merged map confidently wrong?) and the identities the maps disagreed about
+(``metadata["identity_conflicts"]``).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ from eval_fusion import MRCLAM_DATASET2, frame_fit, rigid_fit_2d  # noqa: E402
 from fusion_sim import mrclam_sighting_map  # noqa: E402
 
 import fusion.multi as multi  # noqa: E402
-from estimation.geometry import transform_points  # noqa: E402
+from estimation.geometry import rot_z, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, fuse_all  # noqa: E402
 
@@ -39,6 +41,20 @@ def _planar(points: np.ndarray) -> np.ndarray:
 def _median_error(est: np.ndarray, world: np.ndarray) -> float:
     fit = rigid_fit_2d(est, world)
     return float(np.median(np.linalg.norm(transform_points(fit, _planar(est))[:, :2] - world, axis=1)))
+
+
+CHI2_2_99 = 9.210   # 99 % quantile of χ²(2)
+
+
+def landmark_nees(m: LandmarkMap, truth: dict) -> np.ndarray:
+    """Per landmark with a true position, e_xyᵀ Σ_xy⁻¹ e_xy after the map's best rigid fit to the truth (≈ χ²(2) when
+    the map's covariances describe its shape errors)."""
+    fit, _, ids = frame_fit(m, truth)
+    R = rot_z(fit[2])[:2, :2]
+    rows = [k for k in range(len(m)) if int(ids[k]) in truth]
+    e = transform_points(fit, m.positions[rows])[:, :2] - np.array([truth[int(ids[k])] for k in rows])
+    P = R @ m.covariances[rows][:, :2, :2] @ R.T
+    return np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
 
 
 def refusals(maps: list[LandmarkMap]) -> None:
@@ -74,8 +90,15 @@ def merge_limits(maps: list[LandmarkMap], truth: dict) -> None:
     rows = [("by the claimed covariances", dict(calibrate=False)), ("calibrated (covariance_scales)", {})]
     original = multi.covariance_scales
     for label, kw in rows:
-        e = frame_fit(fuse_all(maps, "robust", 1, alignments=alignments, **kw).map, truth)[1]
-        print(f"merged {label}: median {np.nanmedian(e):.3f} m, mean {np.nanmean(e):.3f} m")
+        merged = fuse_all(maps, "robust", 1, alignments=alignments, **kw).map
+        e = frame_fit(merged, truth)[1]
+        nees = landmark_nees(merged, truth)
+        conflicts = "; ".join(f"id {c['identity']} of {c['robot']} {c['distance_m']:.2f} m off "
+                              f"(d² {c['mahalanobis_d2']:.1f} > {c['gate_d2']:.2f})"
+                              for c in merged.metadata.get("identity_conflicts", []))
+        print(f"merged {label}: {len(merged)} landmarks, median {np.nanmedian(e):.3f} m, mean {np.nanmean(e):.3f} m; "
+              f"NEES vs Vicon median {np.median(nees):.1f} (χ²(2): 1.4), {int(np.sum(nees > CHI2_2_99))} of "
+              f"{len(nees)} above {CHI2_2_99}; identity conflicts: {conflicts or 'none'}")
     try:
         multi.covariance_scales = lambda *_a, **_k: real_var / claimed_var
         e = frame_fit(fuse_all(maps, "robust", 1, alignments=alignments).map, truth)[1]
