@@ -24,12 +24,13 @@ def read_frame_counts(metadata: dict) -> dict[str, int] | None:
     counts = metadata.get(KEY)
     if counts is None:
         return None
+    # reprs are cut: one line whatever the file holds
     if not isinstance(counts, dict) or sorted(counts) != sorted(FIELDS):
-        raise ValueError(f"metadata {KEY} must hold exactly {', '.join(FIELDS)}, not {counts!r}")
+        raise ValueError(f"metadata {KEY} must hold exactly {', '.join(FIELDS)}, not {counts!r:.80}")
     for name in FIELDS:
         value = counts[name]
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"metadata {KEY}.{name} must be a whole number >= 0, not {value!r}")
+            raise ValueError(f"metadata {KEY}.{name} must be a whole number >= 0, not {value!r:.40}")
     return {name: counts[name] for name in FIELDS}
 
 

@@ -33,6 +33,13 @@ def test_malformed_counts_are_named(bad):
         read_frame_counts({"slam_frames": bad})
 
 
+@pytest.mark.parametrize("bad", [{str(k): k for k in range(100_000)}, {**HEALTHY, "dropped": "9" * 100_000}])
+def test_a_hostile_count_is_named_in_one_short_line(bad):
+    with pytest.raises(ValueError, match="slam_frames") as raised:
+        read_frame_counts({"slam_frames": bad})
+    assert "\n" not in str(raised.value) and len(str(raised.value)) < 200
+
+
 def test_a_run_is_starved_when_more_than_half_its_frames_were_not_mapped():
     assert starved(HEALTHY) is None
     assert starved({**HEALTHY, "processed": 0, "received": 0, "dropped": 0}) is None  # nothing to judge
