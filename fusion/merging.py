@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from estimation.geometry import rot_z, transform_points
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import CHI2_999, PRESETS, Alignment
+from .alignment import CHI2_999, PRESETS, Alignment, identity_pairs, landmark_identities
 from .errors import IncompatibleMapsError
 from .pose_covariance import point_jacobians
 
@@ -238,6 +238,48 @@ def one_to_one_supports(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignme
     return sup[keep]
 
 
+def identity_matches(fused: LandmarkMap, child: LandmarkMap, pose, pose_cov, pairs: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Known-ID maps: the child's landmarks outside ``pairs`` (K, 2) (the tree parent lacked them, or the alignment
+    left them out) that ``fused`` holds under the same identity, kept when inside the Mahalanobis gate of Method 2;
+    appended to ``pairs``.
+
+    Returns (pairs (K, 2), withheld (W, 2), conflicts): a child landmark whose identity the fused map holds but
+    which lies outside the gate is withheld (fused row, child row) — one identity is one post, so it is neither
+    fused (the maps disagree beyond their covariances) nor added as a second landmark — and each conflict says
+    which identity, how far apart and by what Mahalanobis distance (``merge_pairs`` records them)."""
+    empty = np.zeros((0, 2), np.int64)
+    ids_f, ids_c = landmark_identities(fused), landmark_identities(child)
+    if ids_f is None or ids_c is None:
+        return pairs, empty, []
+    free_f = np.ones(len(fused), bool)
+    free_f[pairs[:, 0]] = False
+    free_c = np.ones(len(child), bool)
+    free_c[pairs[:, 1]] = False
+    cand = identity_pairs(np.where(free_f, ids_f, -1), np.where(free_c, ids_c, -1))
+    if len(cand) == 0:
+        return pairs, empty, []
+    x2, P2 = transform_landmarks(child.positions[cand[:, 1]], child.covariances[cand[:, 1]], pose, pose_cov)
+    r = fused.positions[cand[:, 0]] - x2
+    S = fused.covariances[cand[:, 0]] + P2 + PRESETS["robust"].position_floor ** 2 * np.eye(3)
+    d2 = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0])
+    inside = d2 < CHI2_999[3]
+    kept = cand[inside]
+    _, first = np.unique(kept[:, 0], return_index=True)          # a duplicated identity: one pair per row
+    kept = kept[np.sort(first)]
+    _, first = np.unique(kept[:, 1], return_index=True)
+    kept = kept[np.sort(first)]
+    refused = ~inside & ~np.isin(cand[:, 1], kept[:, 1])
+    order = np.flatnonzero(refused)[np.argsort(d2[refused], kind="stable")]
+    _, first = np.unique(cand[order, 1], return_index=True)     # per child row, its nearest same-identity row
+    order = np.sort(order[first])
+    withheld = cand[order]
+    conflicts = [{"identity": int(ids_c[c]), "robot": child.robot, "kept_row": int(f),
+                  "distance_m": float(np.linalg.norm(r[k, :2])), "mahalanobis_d2": float(d2[k]),
+                  "gate_d2": float(CHI2_999[3])} for k, (f, c) in zip(order, withheld, strict=True)]
+    return np.vstack([pairs, kept]), withheld, conflicts
+
+
 def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: int = 1,
           gate: float | None = None, use_alignment_covariance: bool = True) -> LandmarkMap:
     """The fused map in map 1's frame (see the module docstring).
@@ -247,6 +289,9 @@ def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: in
     """
     pairs = common_landmarks(map1, map2, alignment, method, gate)
     pose_cov = alignment.covariance if use_alignment_covariance else None
+    withheld, conflicts = None, None
+    if method == 1:              # known-ID maps: one landmark per identity (a no-op without identities)
+        pairs, withheld, conflicts = identity_matches(map1, map2, alignment.pose, pose_cov, pairs)
     info = {"fusion": {"maps": [map1.robot, map2.robot], "method": int(method), "preset": alignment.preset,
                        "pose": [float(v) for v in alignment.pose], "common_landmarks": int(len(pairs))}}
-    return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info).map
+    return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info, withheld, conflicts).map

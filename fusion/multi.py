@@ -19,10 +19,10 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from estimation.geometry import transform_points
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import CHI2_999, PRESETS, Alignment, AlignmentConfig, align, identity_pairs, landmark_identities
+from .alignment import PRESETS, Alignment, AlignmentConfig, align
 from .cache import AlignmentCache
 from .errors import IncompatibleMapsError, NoOverlapError
-from .merging import merge_pairs, one_to_one_supports, position_correspondences, transform_landmarks
+from .merging import identity_matches, merge_pairs, one_to_one_supports, position_correspondences, transform_landmarks
 from .pose_covariance import compose_with_covariance
 
 
@@ -135,47 +135,6 @@ def _scaled(landmark_map: LandmarkMap, scale: float) -> LandmarkMap:
                        dict(landmark_map.metadata))
 
 
-def _identity_pairs(fused: LandmarkMap, child: LandmarkMap, pose, pose_cov, pairs: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-    """Known-ID maps: the child's landmarks that the tree parent lacked but the fused map holds under the same
-    identity (seen by another robot), kept when inside the Mahalanobis gate of Method 2; appended to ``pairs``.
-
-    Returns (pairs (K, 2), withheld (W, 2), conflicts): a child landmark whose identity the fused map holds but
-    which lies outside the gate is withheld (fused row, child row) — one identity is one post, so it is neither
-    fused (the maps disagree beyond their covariances) nor added as a second landmark — and each conflict says
-    which identity, how far apart and by what Mahalanobis distance (``merge_pairs`` records them)."""
-    empty = np.zeros((0, 2), np.int64)
-    ids_f, ids_c = landmark_identities(fused), landmark_identities(child)
-    if ids_f is None or ids_c is None:
-        return pairs, empty, []
-    free_f = np.ones(len(fused), bool)
-    free_f[pairs[:, 0]] = False
-    free_c = np.ones(len(child), bool)
-    free_c[pairs[:, 1]] = False
-    cand = identity_pairs(np.where(free_f, ids_f, -1), np.where(free_c, ids_c, -1))
-    if len(cand) == 0:
-        return pairs, empty, []
-    x2, P2 = transform_landmarks(child.positions[cand[:, 1]], child.covariances[cand[:, 1]], pose, pose_cov)
-    r = fused.positions[cand[:, 0]] - x2
-    S = fused.covariances[cand[:, 0]] + P2 + PRESETS["robust"].position_floor ** 2 * np.eye(3)
-    d2 = np.einsum("ki,ki->k", r, np.linalg.solve(S, r[..., None])[..., 0])
-    inside = d2 < CHI2_999[3]
-    kept = cand[inside]
-    _, first = np.unique(kept[:, 0], return_index=True)          # a duplicated identity: one pair per row
-    kept = kept[np.sort(first)]
-    _, first = np.unique(kept[:, 1], return_index=True)
-    kept = kept[np.sort(first)]
-    refused = ~inside & ~np.isin(cand[:, 1], kept[:, 1])
-    order = np.flatnonzero(refused)[np.argsort(d2[refused], kind="stable")]
-    _, first = np.unique(cand[order, 1], return_index=True)     # per child row, its nearest same-identity row
-    order = np.sort(order[first])
-    withheld = cand[order]
-    conflicts = [{"identity": int(ids_c[c]), "robot": child.robot, "kept_row": int(f),
-                  "distance_m": float(np.linalg.norm(r[k, :2])), "mahalanobis_d2": float(d2[k]),
-                  "gate_d2": float(CHI2_999[3])} for k, (f, c) in zip(order, withheld, strict=True)]
-    return np.vstack([pairs, kept]), withheld, conflicts
-
-
 def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int) -> Alignment:
     """The alignment of ``child`` to ``parent`` (inverting the stored one when needed)."""
     if (parent, child) in alignments:
@@ -232,8 +191,8 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
             pairs = np.column_stack([rows[parent][sup[:, 0]], sup[:, 1]])
             # two parent landmarks may already be one fused landmark: keep the first pair of each row
             _, first = np.unique(pairs[:, 0], return_index=True)
-            pairs, withheld, conflicts = _identity_pairs(fused, maps[child], poses[child], pose_cov,
-                                                         pairs[np.sort(first)])
+            pairs, withheld, conflicts = identity_matches(fused, maps[child], poses[child], pose_cov,
+                                                          pairs[np.sort(first)])
         else:
             withheld, conflicts = None, None
             x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, poses[child], pose_cov)

@@ -9,7 +9,7 @@ import pytest
 
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
-from fusion import fuse_all
+from fusion import align, fuse_all, merge
 
 FRAMES = [(0.0, 0.0, 0.0), (3.0, 1.0, 0.5), (-2.0, 4.0, -1.0)]
 
@@ -57,3 +57,13 @@ def test_maps_that_agree_report_no_conflict():
     result = fuse_all(maps, "robust", 1, np.random.default_rng(0))
     assert "identity_conflicts" not in result.map.metadata
     assert sorted(np.asarray(result.map.metadata["external_ids"]).tolist()) == list(range(30))
+
+
+def test_two_maps_merged_pairwise_keep_a_disputed_post_once():
+    _, maps = _three_maps(2, 1.5)
+    alignment = align(maps[0], maps[2], "robust", np.random.default_rng(0))
+    assert alignment.found and 7 not in alignment.supports[:, 1]          # the gate left the displaced post out
+    merged = merge(maps[0], maps[2], alignment)
+    assert sorted(np.asarray(merged.metadata["external_ids"]).tolist()) == list(range(30))
+    assert [(c["identity"], c["robot"]) for c in merged.metadata["identity_conflicts"]] == [(7, "robot3")]
+    np.testing.assert_allclose(merged.positions[7], maps[0].positions[7])  # robot1's post, not pulled
