@@ -71,6 +71,7 @@ from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
 from .linalg import (
     joseph_update,
     lower_matvec,
+    pose_uncertainty,
     sym_adjugate,
     sym_cholesky,
     sym_components,
@@ -291,7 +292,7 @@ class FastSLAM:
         s_obs = cov + _cols(frame.noise, mj)                                           # S = Σ + R Q Rᵀ (6, P)
         s_gate = s_obs
         if cfg.version == 2:  # the pose is not sampled yet: its uncertainty widens the gate
-            s_gate = s_obs + _pose_uncertainty(_cols(sym_components(self._motion_cov), pairs.m),
+            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), pairs.m),
                                                mean[:2] - _cols(predicted[:, :2].T, pairs.m))
         adj, det = sym_adjugate(s_gate)
         d2 = sym_quadratic(adj, innovation) / det
@@ -1246,17 +1247,6 @@ def _rows_with_id(lids: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.
     k = np.repeat(np.arange(len(wanted)), reps)
     within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
     return order[np.repeat(lo, reps) + within], k
-
-
-def _pose_uncertainty(p6: np.ndarray, lever: np.ndarray) -> np.ndarray:
-    """H P Hᵀ (6, P) in the world frame for pose covariances P (6, P) and landmark offsets w = μ − t (2, P):
-    H = [[−1, 0, w_y], [0, −1, −w_x], [0, 0, 0]] (see :meth:`FastSLAM._sample_proposal`)."""
-    a, b = lever[1], -lever[0]
-    out = np.zeros_like(p6)
-    out[0] = p6[0] - 2.0 * a * p6[2] + a * a * p6[5]
-    out[1] = p6[1] - b * p6[2] - a * p6[4] + a * b * p6[5]
-    out[3] = p6[3] - 2.0 * b * p6[4] + b * b * p6[5]
-    return out
 
 
 def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_particles: int, n_obs: int,

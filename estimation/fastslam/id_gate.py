@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .drift import DriftTracker
-from .linalg import sym_adjugate, sym_components, sym_matrices, sym_quadratic
+from .linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic
 
 MODES = ("off", "rescue", "consistent")
 
@@ -48,17 +48,6 @@ def psd_part(d: np.ndarray) -> np.ndarray:
     """The positive semi-definite part of symmetric matrices d (L, 3, 3) (negative eigenvalues set to 0)."""
     w, v = np.linalg.eigh(0.5 * (d + np.swapaxes(d, 1, 2)))
     return np.einsum("lij,lj,lkj->lik", v, np.clip(w, 0.0, None), v)
-
-
-def pose_uncertainty(p6: np.ndarray, lever: np.ndarray) -> np.ndarray:
-    """H P Hᵀ (6, P) in the world frame for pose covariances P (6, P) and landmark offsets w = μ − t (2, P),
-    H = [[−1, 0, w_y], [0, −1, −w_x], [0, 0, 0]] (the filter's world-frame pose Jacobian)."""
-    a, b = lever[1], -lever[0]
-    out = np.zeros_like(p6)
-    out[0] = p6[0] - 2.0 * a * p6[2] + a * a * p6[5]
-    out[1] = p6[1] - b * p6[2] - a * p6[4] + a * b * p6[5]
-    out[3] = p6[3] - 2.0 * b * p6[4] + b * b * p6[5]
-    return out
 
 
 @dataclass

@@ -144,3 +144,15 @@ def lower_matvec(l6: np.ndarray, v: np.ndarray) -> np.ndarray:
     """L v (3, P) for packed lower-triangular L (6, P) (see :func:`sym_cholesky`) and v (3, P)."""
     l00, l10, l20, l11, l21, l22 = l6
     return np.stack([l00 * v[0], l10 * v[0] + l11 * v[1], l20 * v[0] + l21 * v[1] + l22 * v[2]])
+
+
+def pose_uncertainty(p6: np.ndarray, lever: np.ndarray) -> np.ndarray:
+    """H P Hᵀ (6, P) in the world frame for pose covariances P (6, P) and landmark offsets w = μ − t (2, P):
+    H = [[−1, 0, w_y], [0, −1, −w_x], [0, 0, 0]], the filter's world-frame pose Jacobian (its gate, and the
+    known-ID gate's drift terms in id_gate.py)."""
+    a, b = lever[1], -lever[0]
+    out = np.zeros_like(p6)
+    out[0] = p6[0] - 2.0 * a * p6[2] + a * a * p6[5]
+    out[1] = p6[1] - b * p6[2] - a * p6[4] + a * b * p6[5]
+    out[3] = p6[3] - 2.0 * b * p6[4] + b * b * p6[5]
+    return out
