@@ -127,6 +127,8 @@ def _fuse(args: argparse.Namespace) -> int:
                                      - len(result.map))
     report["unconnected"] = [args.maps[k] for k in result.unconnected]
     report["overlap"] = not result.unconnected
+    # known-ID maps placing one identity beyond their covariances apart: the merged map holds it once (fusion.merging)
+    report["identity_conflicts"] = list(result.map.metadata.get("identity_conflicts", []))
     try:
         result.map.save(args.out)
     except OSError as e:
@@ -136,6 +138,7 @@ def _fuse(args: argparse.Namespace) -> int:
     _print(report, args.json)
     _warn_low_confidence(report)
     _warn_starved(report)
+    _warn_identity_conflicts(report)
     if result.unconnected:
         print("p3at fuse: these maps overlap no other map and were left out: "
               + ", ".join(report["unconnected"]), file=sys.stderr)
@@ -214,6 +217,13 @@ def _warn_starved(report: dict) -> None:
         if m["starved"] is not None:
             print(f"p3at fuse: warning: map {k} ({m['robot']}) comes from a starved run: {m['starved']}; it covers "
                   "less of its route than the robot drove", file=sys.stderr)
+
+
+def _warn_identity_conflicts(report: dict) -> None:
+    for c in report.get("identity_conflicts", []):
+        print(f"p3at fuse: warning: {c['robot']} places landmark identity {c['identity']} {c['distance_m']:.2f} m "
+              f"from the merged one (d² {c['mahalanobis_d2']:.1f} > gate {c['gate_d2']:.2f}): kept the merged "
+              "landmark, not fused with nor added beside it; one of the maps is wrong there", file=sys.stderr)
 
 
 def _warn_low_confidence(report: dict) -> None:
