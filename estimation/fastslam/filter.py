@@ -715,7 +715,7 @@ class FastSLAM:
         spawning = np.unique(j)
         if lids is None:
             new_ids[spawning] = self._n_ids + np.arange(len(spawning))
-            self._append_descriptors(desc[spawning], self._sensor_range(z[spawning]))
+            self._append_descriptors(desc[spawning], z[spawning])
         else:
             new_ids[spawning] = lids[spawning]
         g = self.store.append_slots(m)
@@ -1038,10 +1038,10 @@ class FastSLAM:
         """Distance (N,) of points z (N, 3) in base_link from the sensor (sets a fixed-scale descriptor's scale)."""
         return np.linalg.norm(z - np.asarray(self.config.sensor_offset), axis=1)
 
-    def _append_descriptors(self, desc: np.ndarray, ranges: np.ndarray | None = None) -> None:
-        """Descriptors (n, D) of n new ids, made at ``ranges`` (n,) m from the sensor (None: unknown)."""
-        if self._bands is not None:
-            self._bands.append(desc, ranges)
+    def _append_descriptors(self, desc: np.ndarray, z: np.ndarray | None = None) -> None:
+        """Descriptors (n, D) of n new ids, made from points ``z`` (n, 3) in base_link (None: range unknown)."""
+        if self._bands is not None:   # only the bands need the range a descriptor was made at
+            self._bands.append(desc, None if z is None else self._sensor_range(z))
         need = self._n_ids + len(desc)
         if need > len(self._descriptors):
             grown = np.zeros((max(need, 2 * len(self._descriptors)), self._descriptors.shape[1]), np.float32)
