@@ -4,6 +4,9 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+# FastSLAMConfig.id_relative_drift: how known-ID readings the gate rejects are judged again (id_gate.py)
+ID_RELATIVE_DRIFT_MODES = ("off", "rescue", "consistent")
+
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
 _VFOV = 2.0 * math.atan(240.0 / 520.0)
@@ -98,8 +101,8 @@ class FastSLAMConfig:
                              f"{self.descriptor_slots} and {self.descriptor_slot_ratio}")
         if self.merge_every < 1:
             raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
-        if self.id_relative_drift not in ("off", "rescue", "consistent"):
-            raise ValueError(f"id_relative_drift must be 'off', 'rescue' or 'consistent', "
+        if self.id_relative_drift not in ID_RELATIVE_DRIFT_MODES:
+            raise ValueError(f"id_relative_drift must be one of {', '.join(ID_RELATIVE_DRIFT_MODES)}, "
                              f"not {self.id_relative_drift!r}")
         if self.association not in ("unknown", "id"):
             raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")

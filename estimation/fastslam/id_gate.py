@@ -41,8 +41,6 @@ import numpy as np
 from .drift import DriftTracker
 from .linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic
 
-MODES = ("off", "rescue", "consistent")
-
 
 def psd_part(d: np.ndarray) -> np.ndarray:
     """The positive semi-definite part of symmetric matrices d (L, 3, 3) (negative eigenvalues set to 0)."""
