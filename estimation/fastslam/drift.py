@@ -68,16 +68,17 @@ class DriftTracker:
 
     def landmark_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
         """D_l (6, L) components for landmark ids (L,) (zeros for ids never seen by the tracker)."""
-        ids = np.asarray(ids, np.int64)
-        out = np.zeros((len(ids), 6))
-        inside = ids < len(self._pose)
-        out[inside] = self._pose[ids[inside]]
-        return out.T
+        return _components(self._pose, ids)
 
     def landmark_covariances(self, ids: np.ndarray) -> np.ndarray:
         """C_l (L, 3, 3) for landmark ids (L,) (zeros for ids never seen by the tracker)."""
-        ids = np.asarray(ids, np.int64)
-        out = np.zeros((len(ids), 6))
-        inside = ids < len(self._position)
-        out[inside] = self._position[ids[inside]]
-        return sym_matrices(out.T)
+        return sym_matrices(_components(self._position, ids))
+
+
+def _components(table: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Rows of a per-landmark table (n, 6) for ids (L,) as (6, L) components; zeros for ids beyond it."""
+    ids = np.asarray(ids, np.int64)
+    out = np.zeros((len(ids), 6))
+    inside = ids < len(table)
+    out[inside] = table[ids[inside]]
+    return out.T
