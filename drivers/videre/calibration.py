@@ -519,6 +519,9 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
             raise BadFileError(f"{path}:?: field 'image_width': missing image size (image_width/image_height)")
     except cv2.error as exc:
         raise BadFileError(f"{path}:?: field '(structure)': {_cv_error_text(exc)}") from None
+    except UnicodeDecodeError as exc:   # a node's text (e.g. a matrix's dt) is not UTF-8: FileNode.string() raises
+        raise BadFileError(f"{path}:?: field '(text)': not UTF-8 text ({exc.reason} at byte {exc.start} of a "
+                           "value)") from None
     finally:
         fs.release()
     size = (width, height)

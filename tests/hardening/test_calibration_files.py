@@ -178,6 +178,17 @@ def test_fuzz_corrupted_calibrations(tmp_path, texts, suffix, data) -> None:
     _roundtrip_or_clean_error(tmp_path, suffix, bytes(raw))
 
 
+def test_a_value_that_is_not_utf8_is_one_clean_error(tmp_path, texts) -> None:
+    """Found by the fuzz test above (a matrix's dt byte replaced by 0x80): cv2's FileNode.string() raised
+    UnicodeDecodeError through load()."""
+    path = tmp_path / "calib.yaml"
+    raw = texts[".yaml"].encode("latin-1")
+    assert b"dt: d\n" in raw
+    path.write_bytes(raw.replace(b"dt: d\n", b"dt: \x80\n", 1))
+    with pytest.raises(BadFileError, match=r"calib\.yaml:\?: field '\(text\)': not UTF-8 text"):
+        cal.load(path)
+
+
 numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12),
                     st.sampled_from(["'x'", "[1, 2]", "{}", ".nan", "-.inf", ""]))
 
