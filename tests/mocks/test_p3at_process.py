@@ -73,7 +73,12 @@ def test_the_virtual_head_renders_from_the_pose_the_robots_process_shares(world:
             driver.motors_on()
             driver.set_velocity(0.3, 0.0)
             drive_until(driver, lambda s: s.x >= 0.2)
-            camera.read(timeout=STATE_TIMEOUT_S)
+            # a frame may already be on its way, rendered a moment before the odometry said 0.2 m (seen under load:
+            # 0.1995 m); the robot keeps driving, so one of the next few frames is rendered beyond it
+            for _ in range(5):
+                camera.read(timeout=STATE_TIMEOUT_S)
+                if virtual.last_frame_pose[0] - start[0] >= 0.2:
+                    break
             assert virtual.last_frame_pose[0] - start[0] >= 0.2  # the frame was rendered where the robot went
         finally:
             camera.close()
