@@ -6,7 +6,8 @@ Common landmarks are found by
 * Method 2 — after alignment, mutual nearest neighbours in position within a gate (Euclidean th2 in the
   paper preset, a 3-D Mahalanobis gate in the robust one), hence one-to-one.
 
-Each common pair is fused by the stationary Kalman update (vectorised over landmarks):
+Each common pair is fused by the stationary Kalman update (vectorised over landmarks; ``rule="kalman"``, the
+default):
 
     K = P1 (P1 + P2)⁻¹          (eq. 6)
     x = x1 + K (x2 − x1)        (eq. 7 — the text has (x1 − x2), which moves the mean *away* from map 2)
@@ -14,7 +15,10 @@ Each common pair is fused by the stationary Kalman update (vectorised over landm
 
 where x2, P2 are map 2's estimate expressed in map 1's frame: x2 = R x2' + t and P2 = R P2' Rᵀ (the text
 forgets to rotate the covariance), plus, when the alignment carries a covariance Σ (robust preset),
-J Σ Jᵀ with J = ∂(R x2' + t)/∂(tx, ty, θ), so that an uncertain alignment weighs map 2 less.  The fused
+J Σ Jᵀ with J = ∂(R x2' + t)/∂(tx, ty, θ), so that an uncertain alignment weighs map 2 less.  The Kalman update
+takes the two maps' errors as independent; when they are not (robots that share sensors and landmarks, FastSLAM maps
+on MRCLAM) ``rule="intersection"`` fuses by covariance intersection (``fusion.intersection``), whose covariance holds
+for any correlation (docs/fusion.md, "Session 7: merging").  The fused
 descriptor is the mean of the two, renormalised to unit length.  Landmarks seen by one robot only are
 kept as they are (map 2's transformed into map 1's frame), and ``seen_by`` records which robots saw
 each landmark.
@@ -31,6 +35,7 @@ from estimation.landmark_map import LandmarkMap
 
 from .alignment import CHI2_999, PRESETS, Alignment, identity_pairs, landmark_identities
 from .errors import IncompatibleMapsError
+from .intersection import covariance_intersection
 from .pose_covariance import point_jacobians
 
 
@@ -42,6 +47,21 @@ def kalman_fuse(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray) 
     x = x1 + np.einsum("nij,nj->ni", K, x2 - x1)                   # eq. 7, toward map 2
     P = P1 - K @ P1                                                # eq. 8, (I − K) P1
     return x, 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+# How a landmark both maps hold is fused (docs/fusion.md, "Session 7: merging"): "kalman" is the paper's
+# stationary Kalman update (eqs. 6–8, independent maps), the default: on maps whose errors are mostly their own
+# (MRCLAM sightings) it makes the merged map better than the best single one.  "intersection" is covariance
+# intersection (fusion.intersection), which holds for any correlation between the maps' errors: honest on FastSLAM
+# maps that share their errors, but it gives up the averaging gain of independent ones.
+MERGE_RULES = {"kalman": kalman_fuse, "intersection": covariance_intersection}
+DEFAULT_MERGE_RULE = "kalman"
+
+
+def check_merge_rule(rule: str) -> None:
+    """Raise :class:`IncompatibleMapsError` naming the known rules when ``rule`` is not one of them."""
+    if rule not in MERGE_RULES:
+        raise IncompatibleMapsError(f"unknown merge rule {rule!r} (one of: {', '.join(MERGE_RULES)})")
 
 
 def transform_landmarks(positions: np.ndarray, covariances: np.ndarray, pose, pose_covariance=None
@@ -133,7 +153,8 @@ def _merged_identities(map1: LandmarkMap, map2: LandmarkMap, only2: np.ndarray) 
 
 
 def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covariance=None,
-                metadata: dict | None = None, withheld=None, conflicts: list[dict] | None = None) -> MergeResult:
+                metadata: dict | None = None, withheld=None, conflicts: list[dict] | None = None,
+                rule: str = DEFAULT_MERGE_RULE) -> MergeResult:
     """Merge map 2 (aligned by ``pose`` (3,), optionally uncertain by ``pose_covariance`` (3, 3)) into map 1,
     fusing the landmark ``pairs`` (K, 2) rows (i in map 1, j in map 2), which must be one-to-one.
 
@@ -142,7 +163,12 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
     in the map twice), map 1's i is kept unchanged, and ``conflicts`` (one dict per withheld pair, saying how far
     apart they were) are appended to the merged map's ``metadata["identity_conflicts"]``.
 
-    Raises :class:`IncompatibleMapsError` when a map's covariances are not symmetric positive semi-definite."""
+    ``rule`` fuses each pair: "kalman" (the paper's eqs. 6–8, maps taken as independent) or "intersection"
+    (covariance intersection, no independence assumed; :data:`MERGE_RULES`).
+
+    Raises :class:`IncompatibleMapsError` when a map's covariances are not symmetric positive semi-definite, or for an
+    unknown ``rule``."""
+    check_merge_rule(rule)
     if len(map1) and len(map2) and map1.descriptor_size != map2.descriptor_size:
         raise IncompatibleMapsError(f"descriptor sizes differ: {map1.descriptor_size} vs {map2.descriptor_size}")
     check_covariances(map1, "map 1")
@@ -157,7 +183,7 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
     covariances = map1.covariances.copy()
     descriptors = map1.descriptors.copy() if len(map1) else np.zeros((0, map2.descriptor_size), np.float32)
     counts = map1.counts.copy()
-    positions[i], covariances[i] = kalman_fuse(map1.positions[i], map1.covariances[i], x2[j], P2[j])
+    positions[i], covariances[i] = MERGE_RULES[rule](map1.positions[i], map1.covariances[i], x2[j], P2[j])
     descriptors[i] = _normalised_mean(map1.descriptors[i], map2.descriptors[j])
     counts[i] += map2.counts[j]
 
@@ -281,17 +307,21 @@ def identity_matches(fused: LandmarkMap, child: LandmarkMap, pose, pose_cov, pai
 
 
 def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: int = 1,
-          gate: float | None = None, use_alignment_covariance: bool = True) -> LandmarkMap:
-    """The fused map in map 1's frame (see the module docstring).
+          gate: float | None = None, use_alignment_covariance: bool = True, rule: str = DEFAULT_MERGE_RULE
+          ) -> LandmarkMap:
+    """The fused map in map 1's frame (see the module docstring), common landmarks fused by ``rule``
+    (:func:`merge_pairs`).
 
     Raises :class:`~fusion.errors.NoOverlapError` when ``alignment`` was not found.  The alignment's
     covariance (robust preset) is added to map 2's landmarks unless ``use_alignment_covariance`` is False.
     """
+    check_merge_rule(rule)
     pairs = common_landmarks(map1, map2, alignment, method, gate)
     pose_cov = alignment.covariance if use_alignment_covariance else None
     withheld, conflicts = None, None
     if method == 1:              # known-ID maps: one landmark per identity (a no-op without identities)
         pairs, withheld, conflicts = identity_matches(map1, map2, alignment.pose, pose_cov, pairs)
     info = {"fusion": {"maps": [map1.robot, map2.robot], "method": int(method), "preset": alignment.preset,
-                       "pose": [float(v) for v in alignment.pose], "common_landmarks": int(len(pairs))}}
-    return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info, withheld, conflicts).map
+                       "pose": [float(v) for v in alignment.pose], "common_landmarks": int(len(pairs)),
+                       "merge_rule": rule}}
+    return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info, withheld, conflicts, rule).map

@@ -22,7 +22,15 @@ from estimation.landmark_map import LandmarkMap
 from .alignment import PRESETS, Alignment, AlignmentConfig, align
 from .cache import AlignmentCache
 from .errors import IncompatibleMapsError, NoOverlapError
-from .merging import identity_matches, merge_pairs, one_to_one_supports, position_correspondences, transform_landmarks
+from .merging import (
+    DEFAULT_MERGE_RULE,
+    check_merge_rule,
+    identity_matches,
+    merge_pairs,
+    one_to_one_supports,
+    position_correspondences,
+    transform_landmarks,
+)
 from .pose_covariance import compose_with_covariance
 
 
@@ -128,8 +136,25 @@ def claimed_variance(landmark_map: LandmarkMap) -> float:
     return float(np.median(np.trace(landmark_map.covariances[:, :2, :2], axis1=1, axis2=2)) / 2)
 
 
-def _scaled(landmark_map: LandmarkMap, scale: float) -> LandmarkMap:
-    return LandmarkMap(landmark_map.positions, landmark_map.covariances * scale, landmark_map.descriptors,
+CALIBRATIONS = ("isotropic", "scaled")
+
+
+def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "isotropic") -> LandmarkMap:
+    """``landmark_map`` with its covariances calibrated by the factor ``scale`` of :func:`covariance_scales`.
+
+    "scaled": every covariance × scale (the claimed per-landmark structure kept, its level calibrated).
+    "isotropic": every landmark's planar block becomes σ² I₂ with σ² = scale × the claimed median per-axis variance
+    (the map's scatter about a rigid placement, as the pairwise residuals measure it), the xy–z terms 0, z's variance
+    scaled.  Why: a FastSLAM map's claimed structure is the pose drift when each landmark was made (landmarks made
+    near the start claim least), an error the alignment removes; it does not say which landmarks are bent.  On the
+    session-6 MRCLAM maps the merged landmarks' NEES against Vicon falls from median 7.3 (6 of 15 above the χ²(2)
+    99 % bound) to 3.4 (3 of 15) and their error from 0.136 to 0.121 m (docs/fusion.md, "Session 7: merging")."""
+    P = landmark_map.covariances * scale
+    if calibration == "isotropic" and len(P):
+        P = P.copy()
+        P[:, :2, :2] = scale * claimed_variance(landmark_map) * np.eye(2)
+        P[:, :2, 2] = P[:, 2, :2] = 0.0
+    return LandmarkMap(landmark_map.positions, P, landmark_map.descriptors,
                        landmark_map.ids, landmark_map.counts, landmark_map.robot, landmark_map.frame,
                        list(landmark_map.robots), landmark_map.seen_by, landmark_map.trajectory,
                        dict(landmark_map.metadata))
@@ -145,14 +170,18 @@ def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int)
 def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", method: int = 1,
              rng: np.random.Generator | None = None, reference: int = 0,
              alignments: dict[tuple[int, int], Alignment] | None = None,
-             cache: AlignmentCache | None = None, calibrate: bool = True) -> MultiFusion:
+             cache: AlignmentCache | None = None, calibrate: bool = True, merge_rule: str = DEFAULT_MERGE_RULE,
+             calibration: str = "isotropic") -> MultiFusion:
     """Fuse every map connected to ``maps[reference]`` into its frame (see the module docstring).
 
     ``alignments`` may be given (keys (i, j), i < j) to skip the pairwise alignment; ``cache`` keeps the
     alignments of unchanged maps from one call to the next (:class:`fusion.cache.AlignmentCache`).  With
     ``calibrate`` (and three or more maps whose found alignments determine it) each map's covariances are scaled
     by :func:`covariance_scales` before merging, so that the merge weighs each map by how well its landmarks
-    agree with the others' (``MultiFusion.covariance_scales``).  Raises
+    agree with the others' (``MultiFusion.covariance_scales``): ``calibration`` "isotropic" gives every landmark of
+    map k the per-axis variance σ_k² in the plane (:func:`calibrated_map`), "scaled" multiplies its claimed
+    covariances by the factor (session 5).  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
+    "kalman", the paper's update, or "intersection", covariance intersection).  Raises
     :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
     """
     if not maps:
@@ -161,6 +190,9 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
         raise IncompatibleMapsError(f"reference {reference} is not one of the {len(maps)} maps")
     if method not in (1, 2):
         raise IncompatibleMapsError(f"unknown common-landmark method {method!r} (1: RANSAC supports, 2: position)")
+    check_merge_rule(merge_rule)
+    if calibration not in CALIBRATIONS:
+        raise IncompatibleMapsError(f"unknown calibration {calibration!r} (one of: {', '.join(CALIBRATIONS)})")
     n = len(maps)
     if alignments is None:
         alignments = pairwise_alignments(maps, preset, rng, cache)
@@ -170,7 +202,7 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
                              f"{maps[reference].robot!r}: nothing to fuse")
     scales = covariance_scales(maps, alignments) if calibrate and n > 2 else None
     if scales is not None:
-        maps = [_scaled(m, float(c)) for m, c in zip(maps, scales, strict=True)]
+        maps = [calibrated_map(m, float(c), calibration) for m, c in zip(maps, scales, strict=True)]
     poses: list[np.ndarray | None] = [None] * n
     covs: list[np.ndarray | None] = [None] * n
     start_covs: list[np.ndarray | None] = [None] * n
@@ -200,8 +232,9 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
             pairs = position_correspondences(fused.positions, fused.covariances, x2, P2, gate)
         info = {"fusion": {"maps": [m.robot for m in maps], "method": int(method), "reference": int(reference),
                            "tree": [list(e) for e in edges],
-                           "covariance_scales": None if scales is None else [float(c) for c in scales]}}
-        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info, withheld, conflicts)
+                           "covariance_scales": None if scales is None else [float(c) for c in scales],
+                           "merge_rule": merge_rule, "calibration": None if scales is None else calibration}}
+        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info, withheld, conflicts, merge_rule)
         fused, rows[child] = result.map, result.rows2
     return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows, start_covs,
                        None if scales is None else [float(c) for c in scales])
