@@ -82,6 +82,8 @@ class FastSLAMConfig:
     #                                             #   (appearance.py: U-SURF changes with distance); 1: the first only
     descriptor_slot_ratio: float = 1.25           # a matched sighting from a range more than this factor from every
     #                                             #   kept one is kept too (while a slot is free)
+    self_check_false_alarm: float = 1e-5          # self_check.py: false flags "the map lost its place" per frame
+    #                                             #   (CUSUM threshold ln(1/α)); the check never changes estimates
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:
@@ -120,6 +122,8 @@ class FastSLAMConfig:
                 raise ValueError("detection_probabilities and false_alarm_probability must lie in (0, 1)")
         if not 0.0 <= self.detection_correlation < 1.0:
             raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
+        if not 0.0 < self.self_check_false_alarm < 1.0:
+            raise ValueError(f"self_check_false_alarm must lie in (0, 1), not {self.self_check_false_alarm}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

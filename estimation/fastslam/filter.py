@@ -86,6 +86,7 @@ from .linalg import (
 from .motion import increment_variance, propagate_covariance, sample_motion
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .selection import select_observations
+from .self_check import SelfCheck, slot_view
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
@@ -210,6 +211,7 @@ class FastSLAM:
                        if config.descriptor_slots > 1 and config.descriptor_size > 0 else None)
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
+        self.self_check = SelfCheck(config)                            # has the map lost its place? (read only)
 
     # == 0. motion ==========================================================================================
     def predict(self, increment: OdometryIncrement) -> None:
@@ -338,6 +340,8 @@ class FastSLAM:
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
         # ("id": a landmark its identity named this frame was detected, even if the gate rejected the reading)
         missed, missed_ranges = self._missed_in_view(cand, poses, pairs if by_id else matched, by_id, miss_reach)
+        best_now = int(np.argmax(self.log_weights + log_lik))   # the particle step 8 picks
+        self._check_self(best_now, matched, missed, pairs if by_id else None, z, miss_weight)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
         matched.g = self._remap(matched)
         missed.g = self._remap(missed)
@@ -348,6 +352,7 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
+        self.self_check.made(new_ids, z, poses[best_now])
         if cfg.merge_gate > 0 and not by_id and cfg.merge_covisibility:
             # what the most probable particle (the one step 8 picks) detected and missed in view, counted before
             # any merge: two landmarks detected in this frame are two points from now on
@@ -667,6 +672,23 @@ class FastSLAM:
         inside = np.flatnonzero(self._well_in_view(x, y, np.take(flat, at + 2), reach))
         ox, oy, _ = self.config.sensor_offset
         return cand.take(idx[inside]), np.hypot(x[inside] - ox, y[inside] - oy)
+
+    def _check_self(self, best: int, matched: _Pairs, missed: _Pairs, named: _Pairs | None, z: np.ndarray,
+                    miss_weight: float) -> None:
+        """The self-check's frame (self_check.py): the old landmarks particle ``best`` (the one step 8 picks)
+        re-detected and missed well in view, before this frame's writes; "in view" within the frame's farthest
+        observation ``z`` (N, 3) (a frame sees nothing beyond it: a near wall, a blind frame). ``named`` ("id"):
+        every pair the readings' identities named; one the gate refused is a miss."""
+        reach = float(np.max(np.linalg.norm(z - np.asarray(self.config.sensor_offset), axis=1), initial=0.0))
+        hit = matched.g[matched.m == best]
+        lost = missed.g[missed.m == best]
+        if named is not None:
+            lost = np.concatenate([lost, np.setdiff1d(named.g[named.m == best], hit)])
+        def in_view(x, y, z):
+            return self._well_in_view(x, y, z, reach)
+        pose, offset = self.poses[best], self.config.sensor_offset
+        self.self_check.observe(self._time, slot_view(self.store, pose, hit, in_view, offset),
+                                slot_view(self.store, pose, lost, in_view, offset), len(hit), self._n_ids, miss_weight)
 
     def _well_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, reach: float | None = None) -> np.ndarray:
         """(P,) bool: base_link points (x, y, z each (P,)) inside ``miss_fov_margin`` of the field of view and
@@ -1200,7 +1222,7 @@ class FastSLAM:
         """The most probable particle's map (landmarks seen ≥ ``min_count``, default ``confirm_count``), with
         the landmarks' covariances over the particle cloud by default (``covariance``, see :meth:`particle_map`)."""
         min_count = self.config.confirm_count if min_count is None else min_count
-        meta = {"fastslam": self.config.to_dict()}
+        meta = {"fastslam": self.config.to_dict(), "self_check": self.self_check.verdict()}
         meta.update(metadata or {})
         return self.particle_map(self._best, min_count, robot, frame, meta, covariance)
 
