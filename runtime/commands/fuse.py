@@ -88,7 +88,8 @@ def _fuse(args: argparse.Namespace) -> int:
 
     report = {"preset": args.preset, "method": args.method, "maps": [], "alignments": [], "out": None}
     for path, m in zip(args.maps, maps, strict=True):
-        report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m)})
+        report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
+                               **_self_check_figures(path, m)})
     tree = set() if result is None else set(result.tree) | {(c, p) for p, c in result.tree}
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
@@ -109,6 +110,7 @@ def _fuse(args: argparse.Namespace) -> int:
         _print(report, args.json)
         _warn_low_confidence(report)
         _warn_starved(report)
+        _warn_lost(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
     for k, pose in enumerate(result.poses):
@@ -138,6 +140,7 @@ def _fuse(args: argparse.Namespace) -> int:
     _print(report, args.json)
     _warn_low_confidence(report)
     _warn_starved(report)
+    _warn_lost(report)
     _warn_identity_conflicts(report)
     if result.unconnected:
         print("p3at fuse: these maps overlap no other map and were left out: "
@@ -217,6 +220,27 @@ def _warn_starved(report: dict) -> None:
         if m["starved"] is not None:
             print(f"p3at fuse: warning: map {k} ({m['robot']}) comes from a starved run: {m['starved']}; it covers "
                   "less of its route than the robot drove", file=sys.stderr)
+
+
+def _self_check_figures(path: str, landmark_map: LandmarkMap) -> dict:
+    """A map's self-check verdict (runtime/map_self_check.py) and, if it flagged itself, why; None for maps that
+    carry none (older maps, merged maps: they keep their reference map's metadata)."""
+    from runtime.map_self_check import lost_text, read_self_check
+
+    verdict = None
+    if len(landmark_map.robots) <= 1:
+        try:
+            verdict = read_self_check(landmark_map.metadata)
+        except ValueError as e:   # the map itself is usable: say what is wrong and fuse it
+            print(f"p3at fuse: note: {path}: {e}; its self-check is not shown", file=sys.stderr)
+    return {"self_check": verdict, "lost": None if verdict is None else lost_text(verdict)}
+
+
+def _warn_lost(report: dict) -> None:
+    for k, m in enumerate(report["maps"]):
+        if m["lost"] is not None:
+            print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['lost']}: the map after that is not tied to the "
+                  "map before it; an alignment through it can be right for one part only", file=sys.stderr)
 
 
 def _warn_identity_conflicts(report: dict) -> None:
