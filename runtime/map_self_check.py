@@ -8,8 +8,8 @@ from __future__ import annotations
 from estimation.fastslam.self_check import KEY
 
 ALARM_FIELDS = ("t", "since", "statistic", "frames", "predicted", "redetected", "expected")
-NUMBER_FIELDS = ("threshold", "false_alarm_per_frame", "dispersion", "max_statistic", "frames", "frames_tested",
-                 "predicted", "redetected", "expected", "n_alarms")
+NUMBER_FIELDS = ("threshold", "false_alarm_per_frame", "dispersion", "statistic", "max_statistic", "frames",
+                 "frames_tested", "predicted", "redetected", "expected", "n_alarms")
 MAX_ALARMS_READ = 100   # a hostile file's list is cut: the verdict's figures stay bounded
 
 

@@ -230,6 +230,7 @@ SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "error_theta": ("error θ (rad)", (160, 110, 230)),
     "common": ("common landmarks", (70, 180, 90)),
     "merged": ("merged landmarks", (240, 240, 240)),
+    "self_check": ("self-check CUSUM (map lost its place at its threshold)", (200, 100, 160)),
 }
 _SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
 
@@ -724,6 +725,7 @@ class MissionLog:
                                      draw_order=6.0))
             return
         self.colour(key)
+        self._log_self_check(key, t, m.metadata)
         self._log_ellipsoids(f"world/{key}/landmarks/covariance", m.positions, m.covariances, _dim(robot_colour(key)))
         path = m.trajectory[:, 1:3]
         if len(path) > SNAPSHOT_TRAJECTORY_POINTS:
@@ -731,6 +733,24 @@ class MissionLog:
         self._snapshot_paths[key] = path
         if key in self._aligned:
             self._log_fused_path(key)
+
+    def _log_self_check(self, robot: str, t: float, metadata: Mapping) -> None:
+        """A snapshot's self-check (runtime/map_self_check.py): its CUSUM beside its threshold under
+        plots/<robot>/self_check, and a warning event the first time the map says it lost its place."""
+        from runtime.map_self_check import lost_text, read_self_check
+
+        try:
+            verdict = read_self_check(metadata)
+        except ValueError as e:
+            if self._first_time(f"self_check/bad/{robot}"):
+                self.log_event(t, f"{robot}: {e}", "WARN")
+            return
+        if verdict is None:
+            return
+        self.log_scalars(robot, t, {"self_check": verdict["statistic"], "self_check/threshold": verdict["threshold"]})
+        text = lost_text(verdict)
+        if text is not None and self._first_time(f"self_check/lost/{robot}"):
+            self.log_event(t, f"{robot}: map {text}", "WARN")
 
     def _seen_by_colours(self, m: LandmarkMap) -> np.ndarray:
         """(N, 3) uint8: the colour of the only robot that saw each landmark, white if several did."""

@@ -1,0 +1,55 @@
+"""The Rerun log shows a robot's self-check (runtime/rerun_log.py): its CUSUM beside its threshold per snapshot, and
+one warning event when the map says it lost its place."""
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+from runtime.rerun_log import MissionLog
+from tests.fastslam.conftest import corridor_features
+from tests.fastslam.test_self_check import KICK, _run
+from tests.runtime.rerun_helpers import landmark_map
+
+
+class _Stream:
+    """Records what MissionLog logs (entity path, archetype) instead of sending it."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, object]] = []
+
+    def log(self, path, entity, static=False) -> None:
+        self.rows.append((path, entity))
+
+    def set_time(self, *args, **kwargs) -> None:
+        pass
+
+    def disable_timeline(self, *args) -> None:
+        pass
+
+    def is_enabled(self) -> bool:
+        return False
+
+
+def _events(stream: _Stream) -> list[str]:
+    return [str(e.text.as_arrow_array()[0]) for p, e in stream.rows if p == "mission/events"
+            and isinstance(e, rr.TextLog)]
+
+
+def test_a_snapshot_that_lost_its_place_logs_one_warning_and_its_statistic():
+    verdicts = {kick: _run(corridor_features, kick)[0].best_map().metadata["self_check"] for kick in (0.0, KICK)}
+    stream = _Stream()
+    log = MissionLog(stream, ["robot1", "robot2"], blueprint=False)
+    rng = np.random.default_rng(0)
+    for t in (1.0, 2.0):   # two snapshots of each robot: the warning once
+        for robot, kick in (("robot1", 0.0), ("robot2", KICK)):
+            m = landmark_map(robot, 8, rng)
+            m.metadata = {"self_check": verdicts[kick]}
+            log.log_map(robot, t, m)
+    events = _events(stream)
+    assert len(events) == 1 and events[0].startswith("robot2: map lost its place at t≈")
+    plotted = {p for p, _ in stream.rows}
+    assert {"plots/robot1/self_check", "plots/robot2/self_check", "plots/robot2/self_check/threshold"} <= plotted
+    old = landmark_map("robot1", 8, rng)   # a map without the key: nothing about it
+    before = len(stream.rows)
+    log.log_map("robot1", 3.0, old)
+    assert not any(p.endswith("self_check") for p, _ in stream.rows[before:])
