@@ -13,6 +13,11 @@ plain average of the two best maps each placed by its own best rigid fit (what n
 correlation of those two maps' errors; for the merged maps, the landmarks' NEES against Vicon (2-D, after the
 best rigid fit: is the merged map confidently wrong?) and the identities the maps disagreed about
 (``metadata["identity_conflicts"]``).
+
+Session 7 (``merge_rules``, ``merge_breakdown``): every merge rule × calibration (``fuse_all(merge_rule=...,
+calibration=...)``) with its error and NEES against Vicon, and where the default merge's error comes from: the same
+merge with each map placed by its own best rigid fit to Vicon (no frame error), with the best linear weights the true
+errors allow (in-sample: no weighting can do better), and the best single map on the same posts.
 """
 from __future__ import annotations
 
@@ -29,9 +34,10 @@ from eval_fusion import MRCLAM_DATASET2, frame_fit, rigid_fit_2d  # noqa: E402
 from fusion_sim import mrclam_sighting_map  # noqa: E402
 
 import fusion.multi as multi  # noqa: E402
-from estimation.geometry import rot_z, transform_points  # noqa: E402
+from estimation.geometry import compose, inverse, rot_z, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, fuse_all  # noqa: E402
+from fusion.merging import MERGE_RULES, transform_landmarks  # noqa: E402
 
 
 def _planar(points: np.ndarray) -> np.ndarray:
@@ -122,6 +128,114 @@ def merge_limits(maps: list[LandmarkMap], truth: dict) -> None:
           f"same {len(ids)} landmarks; correlation of their errors {np.corrcoef(*errs)[0, 1]:+.2f}")
 
 
+def _nees_text(nees: np.ndarray) -> str:
+    above = int(np.sum(nees > CHI2_2_99))
+    return f"NEES vs Vicon median {np.median(nees):.1f}, {above} of {len(nees)} above {CHI2_2_99}"
+
+
+def merge_rules(maps: list[LandmarkMap], truth: dict, alignments, title: str = "") -> None:
+    """The merged map's error and NEES against Vicon for every merge rule and calibration of ``fuse_all``."""
+    singles = [float(np.nanmedian(frame_fit(m, truth)[1])) for m in maps]
+    print(f"\n{title}merge rule × calibration (best single map {min(singles):.3f} m; defaults: kalman, isotropic):")
+    for calibration in multi.CALIBRATIONS:
+        for rule in MERGE_RULES:
+            merged = fuse_all(maps, "robust", 1, alignments=alignments, merge_rule=rule, calibration=calibration).map
+            e = frame_fit(merged, truth)[1]
+            print(f"  {rule:12s} {calibration:9s}: {len(merged)} landmarks, median {np.nanmedian(e):.3f} m, "
+                  f"mean {np.nanmean(e):.3f} m; {_nees_text(landmark_nees(merged, truth))}")
+
+
+def _by_identity(maps, poses, pose_covs, excluded) -> dict[int, list[tuple[int, np.ndarray, np.ndarray]]]:
+    """Every map's landmarks placed by ``poses`` (``pose_covs`` added when given): identity -> [(map, xy, P_xy)]."""
+    out: dict[int, list] = {}
+    for k, m in enumerate(maps):
+        x, P = transform_landmarks(m.positions, m.covariances, poses[k], None if pose_covs is None else pose_covs[k])
+        for r, i in enumerate(m.metadata["external_ids"]):
+            if (m.robot, int(i)) not in excluded:
+                out.setdefault(int(i), []).append((k, x[r, :2], P[r, :2, :2]))
+    return out
+
+
+def _information_merge(items) -> tuple[np.ndarray, np.ndarray]:
+    info = sum(np.linalg.inv(P) for _, _, P in items)
+    P = np.linalg.inv(info)
+    return P @ sum(np.linalg.solve(Pk, x) for _, x, Pk in items), P
+
+
+def _placed_error(estimates: dict[int, np.ndarray], truth: dict, covs: dict | None = None):
+    """Median error after the best rigid fit of id -> xy to the truth (and the NEES when ``covs`` are given)."""
+    ids = sorted(i for i in estimates if i in truth)
+    est, world = np.array([estimates[i] for i in ids]), np.array([truth[i] for i in ids])
+    fit = rigid_fit_2d(est, world)
+    e = transform_points(fit, _planar(est))[:, :2] - world
+    if covs is None:
+        return float(np.median(np.linalg.norm(e, axis=1))), None
+    R = rot_z(fit[2])[:2, :2]
+    nees = np.array([v @ np.linalg.solve(R @ covs[i] @ R.T, v) for v, i in zip(e, ids, strict=True)])
+    return float(np.median(np.linalg.norm(e, axis=1))), nees
+
+
+def merge_breakdown(maps: list[LandmarkMap], truth: dict, alignments) -> None:
+    """Where the default merge's error comes from: each map's frame (its placement in the reference frame), the
+    merge weights, or the maps' shapes (what is left with perfect frames and the best weights the truth allows)."""
+    fused = fuse_all(maps, "robust", 1, alignments=alignments)
+    excluded = {(c["robot"], int(c["identity"])) for c in fused.map.metadata.get("identity_conflicts", [])}
+    scales = fused.covariance_scales or [1.0] * len(maps)
+    calibrated = [multi.calibrated_map(m, c) for m, c in zip(maps, scales, strict=True)]
+    fits = []
+    for m in maps:      # each map's best rigid fit to Vicon, without the landmarks the merge withheld
+        ids = [int(i) for i in m.metadata["external_ids"]]
+        keep = [r for r, i in enumerate(ids) if i in truth and (m.robot, i) not in excluded]
+        fits.append(rigid_fit_2d(m.positions[keep, :2], np.array([truth[ids[r]] for r in keep])))
+    oracle = [compose(inverse(fits[fused.reference]), f) for f in fits]   # in the reference map's frame
+    frame_err = [between_text(p, o) for p, o in zip(fused.poses, oracle, strict=True)]
+    print("\nwhere the default merge's error comes from (identities the merge withheld left out):")
+    print("  each map's frame in the reference frame against its own best rigid fit to Vicon: "
+          + ", ".join(f"{m.robot} {t}" for m, t in zip(maps, frame_err, strict=True)))
+    rows = [("as merged (alignment poses, their covariance added)", fused.poses, fused.covariances),
+            ("each map on its own best rigid fit (no frame error)", oracle, None)]
+    for label, poses, covs in rows:
+        g = _by_identity(calibrated, poses, covs, excluded)
+        merged = {i: _information_merge(items) for i, items in g.items()}
+        err, nees = _placed_error({i: v[0] for i, v in merged.items()}, truth, {i: v[1] for i, v in merged.items()})
+        print(f"  {label}: median {err:.3f} m; {_nees_text(nees)}")
+    # a common frame re-estimated from all maps (generalised Procrustes): each map's pose refitted to the merged
+    # landmarks (its alignment covariance kept), the landmarks merged again, five rounds
+    poses = [np.asarray(p, float) for p in fused.poses]
+    for _ in range(5):
+        merged = {i: _information_merge(items)
+                  for i, items in _by_identity(calibrated, poses, fused.covariances, excluded).items()}
+        for k, m in enumerate(maps):
+            if k != fused.reference:
+                ids = [int(i) for i in m.metadata["external_ids"]]
+                keep = [r for r, i in enumerate(ids) if i in merged and (m.robot, i) not in excluded]
+                poses[k] = rigid_fit_2d(m.positions[keep, :2], np.array([merged[ids[r]][0] for r in keep]))
+    merged = {i: _information_merge(items)
+              for i, items in _by_identity(calibrated, poses, fused.covariances, excluded).items()}
+    err, nees = _placed_error({i: v[0] for i, v in merged.items()}, truth, {i: v[1] for i, v in merged.items()})
+    print(f"  in a common frame re-estimated from all maps (each map refitted to the merged landmarks, 5 rounds): "
+          f"median {err:.3f} m; {_nees_text(nees)}")
+    placed = _by_identity(maps, fits, None, excluded)          # in the Vicon frame
+    common = sorted(i for i, items in placed.items() if len(items) == len(maps) and i in truth)
+    errors = np.array([[np.r_[placed[i][k][1] - truth[i]] for i in common] for k in range(len(maps))])  # (K, L, 2)
+    flat = errors.reshape(len(maps), -1)
+    C = flat @ flat.T / flat.shape[1]
+    w = np.linalg.solve(C, np.ones(len(maps)))
+    w /= w.sum()
+    best_linear = {i: sum(w[k] * placed[i][k][1] for k in range(len(maps))) for i in common}
+    alone = [_placed_error({i: placed[i][k][1] for i in common}, truth)[0] for k in range(len(maps))]
+    print(f"  on the {len(common)} posts every map holds, each map on its own best rigid fit: weights from the true "
+          f"errors' covariance (best linear, in-sample) {', '.join(f'{v:+.2f}' for v in w)} -> median "
+          f"{_placed_error(best_linear, truth)[0]:.3f} m; each map alone {', '.join(f'{v:.3f}' for v in alone)} m; "
+          f"correlation of the maps' errors (pairs 12 13 14 15 23 ...) "
+          f"{np.array2string(np.corrcoef(flat)[np.triu_indices(len(maps), 1)], precision=2)}")
+
+
+def between_text(pose, reference) -> str:
+    d = compose(inverse(np.asarray(reference, float)), np.asarray(pose, float))
+    return f"{np.hypot(d[0], d[1]):.3f} m / {abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))):.4f} rad"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="folders of robot1.npz ... robot5.npz")
@@ -130,12 +244,18 @@ def main() -> None:
     if not args.mrclam.is_dir():
         print(f"fusion_mrclam_diagnosis: {args.mrclam} not found (the Vicon landmarks are needed)", file=sys.stderr)
         raise SystemExit(2)
+    sightings = [mrclam_sighting_map(args.mrclam, r).map for r in range(1, 6)]
     truth = mrclam_sighting_map(args.mrclam, 1).truth
+    merge_rules(sightings, truth, multi.pairwise_alignments(sightings, "robust", np.random.default_rng(0)),
+                "MRCLAM sighting maps (real sightings placed from Vicon poses, not SLAM): ")
     for folder in args.folders:
         maps = [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)]
         print(f"\n### {folder}\n")
         refusals(maps)
         merge_limits(maps, truth)
+        alignments = multi.pairwise_alignments(maps, "robust", np.random.default_rng(0))
+        merge_rules(maps, truth, alignments)
+        merge_breakdown(maps, truth, alignments)
 
 
 if __name__ == "__main__":
