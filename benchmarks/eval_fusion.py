@@ -691,6 +691,35 @@ def demo_table(folders: list[Path]):
               f"{o[:, 0].max():.3f} m / {o[:, 1].max():.4f} rad (goal 0.05 m / 0.01 rad).")
 
 
+def demo_merge_table(folders: list[Path]):
+    """Rendered-demo maps merged by each merge rule (``fusion.merge(rule=...)``, the alignment of ``demo_table``): the
+    merged landmark count, how many lie within 0.15 m of a true feature and their median distance, and the same for
+    the landmarks both robots hold (the ones the rule fuses) with their claimed σ."""
+    from scipy.spatial import cKDTree
+
+    from fusion.merging import MERGE_RULES
+    world = load_world()
+    tree = cKDTree(world.features)
+    print("\n### Rendered demo: the merged map by merge rule (session 7)\n")
+    print("| run | rule | merged landmarks | on features (within 0.15 m) | their median distance (m) | "
+          "common landmarks: median distance (m) / median claimed σ (m) |")
+    print("|---|---|---|---|---|---|")
+    for folder in folders:
+        m1, m2 = LandmarkMap.load(folder / "robot1.npz"), LandmarkMap.load(folder / "robot2.npz")
+        a = align(m1, m2, "robust", np.random.default_rng(0))
+        if not a.found:
+            print(f"| {folder.name} | — | not aligned | | | |")
+            continue
+        for rule in MERGE_RULES:
+            g = merge(m1, m2, a, 1, rule=rule)
+            fit, n_on, med = _feature_fit(g, world.features)
+            d, _ = tree.query(transform_points(fit, g.positions), distance_upper_bound=0.15)
+            common = g.seen_by.all(axis=1) & np.isfinite(d)
+            sigma = np.sqrt(np.trace(g.covariances[g.seen_by.all(axis=1)], axis1=1, axis2=2) / 3)
+            print(f"| {folder.name} | {rule} | {len(g)} | {n_on} | {med:.4f} | {np.median(d[common]):.4f} / "
+                  f"{np.median(sigma):.4f} |")
+
+
 def cf_fmt(e) -> str:
     return f"{np.hypot(e[0], e[1]):.3f} / {e[2]:.4f}"
 
@@ -816,6 +845,7 @@ def main() -> None:
         starved_table(args.starved)
     if args.demo_maps:
         demo_table(args.demo_maps)
+        demo_merge_table(args.demo_maps)
     if args.figures and rows is not None:
         figures(rows, args.figures, noise)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
