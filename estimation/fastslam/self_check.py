@@ -45,7 +45,9 @@ The test, per frame, on the most probable particle (read only: the filter's esti
   After an alarm S restarts from 0, so a second episode is flagged again.
 
 The verdict (:meth:`SelfCheck.verdict`, a map's ``metadata["self_check"]``) is bounded: the first
-``MAX_ALARMS`` alarms with their times and figures, and totals.
+``MAX_ALARMS`` alarms with their times and figures, and totals. An alarm's ``first_id_after_gap`` splits the map:
+landmarks with a lower id were made before the gap the test was measuring against (the part the alarm says the
+rest is no longer tied to), those from it on after it.
 """
 from __future__ import annotations
 
@@ -208,7 +210,8 @@ class SelfCheck:
                 o = self._onset
                 self.alarms.append({"t": e.t, "since": o["since"], "statistic": round(self.statistic, 3),
                                     "frames": o["frames"], "predicted": o["predicted"],
-                                    "redetected": o["redetected"], "expected": round(o["expected"], 2)})
+                                    "redetected": o["redetected"], "expected": round(o["expected"], 2),
+                                    "first_id_after_gap": self.reference_ids})
             self.statistic, self._onset = 0.0, None   # restart: a later episode is flagged again
             self._excursion[:] = 0.0                   # out of control: never part of the dispersion
         elif self.statistic == 0.0:
