@@ -92,29 +92,36 @@ def spanning_tree(n: int, alignments: dict[tuple[int, int], Alignment], referenc
 
 
 def covariance_scales(maps: list[LandmarkMap], alignments: dict[tuple[int, int], Alignment],
-                      floor: float = 0.02) -> np.ndarray | None:
+                      floor: float = 0.02, standard_errors: float = 1.0) -> np.ndarray | None:
     """Per map, the factor (N,) by which its landmark covariances must be scaled to explain how far its landmarks
     lie from the other maps' once aligned, or None when the found alignments cannot tell the maps apart.
 
     Each found pair (i, j) gives the residuals r of its supports after its alignment:
     v_ij = Σ|r|² / (2S − 3) (per axis, 3 pose parameters fitted) estimates σ_i² + σ_j², the two maps' landmark
     variances about a rigid placement (the "three-cornered hat": pairwise differences of independent estimates
-    determine each one's variance once the pairs form an odd cycle).  Non-negative least squares gives σ_k²
-    (at least ``floor``²); the factor is σ_k² over the median per-axis variance the map claims.  Why: a map's
+    determine each one's variance once the pairs form an odd cycle).  Non-negative weighted least squares gives σ_k²,
+    each v_ij weighted by its own variance 2 (σ_i² + σ_j²)² / (2S − 3) (a sample variance of 2S − 3 degrees of
+    freedom; from the fitted values, iterated), plus ``standard_errors`` of its standard error (at least ``floor``²);
+    the factor is σ_k² over the median per-axis variance the map claims.  Why the standard error: the most accurate
+    map's σ_k² is a small difference of large pair variances (its pairs are dominated by the other maps' scatter), the
+    least certain estimate, and an underestimate is what the merge trusts most — on the session-5 MRCLAM maps plain
+    least squares put robot 1 at the 0.02 m floor against 0.068 m real, and the merged landmarks' NEES against Vicon
+    had median 21.5 (docs/fusion.md, "Session 7: merging").  Why: a map's
     covariances can carry an error that an alignment removes (FastSLAM's ``mixture+drift`` export adds the frame's
     drift, which moves the overlap as a whole) and say nothing of how bent the map is: on MRCLAM the most accurate
     map (0.068 m per axis about its best rigid fit) claimed σ 0.40 m, the second worst (0.175 m) 0.14 m, and
     weighting by those claims made the merged map worse than most single maps (docs/fusion.md).
     """
     n = len(maps)
-    rows, rhs = [], []
+    rows, rhs, dof = [], [], []
     for (i, j), a in alignments.items():
         if not a.found or len(a.supports) < 2:
             continue
         x1 = maps[i].positions[a.supports[:, 0], :2]
         x2 = transform_points(a.pose, maps[j].positions[a.supports[:, 1]])[:, :2]
         rows.append(np.bincount([i, j], minlength=n).astype(float))
-        rhs.append(float(np.sum((x1 - x2) ** 2)) / (2 * len(x1) - 3))
+        dof.append(2 * len(x1) - 3)
+        rhs.append(float(np.sum((x1 - x2) ** 2)) / dof[-1])
     if not rows:
         return None
     design = np.array(rows)
@@ -122,10 +129,29 @@ def covariance_scales(maps: list[LandmarkMap], alignments: dict[tuple[int, int],
     if np.linalg.matrix_rank(design[:, involved]) < int(involved.sum()):
         return None                       # e.g. two maps, or a chain: only the sums σ_i² + σ_j² are known
     variance = np.full(n, np.nan)
-    variance[involved] = np.maximum(nnls(design[:, involved], np.array(rhs))[0], floor ** 2)
+    variance[involved] = np.maximum(_hat_variances(design[:, involved], np.array(rhs), np.array(dof, float), floor,
+                                                   standard_errors), floor ** 2)
     claimed = np.array([claimed_variance(m) for m in maps])
     scales = variance / np.maximum(claimed, 1e-12)
     return np.where(np.isfinite(scales), scales, 1.0)
+
+
+def _hat_variances(design: np.ndarray, v: np.ndarray, dof: np.ndarray, floor: float, standard_errors: float,
+                   iterations: int = 20) -> np.ndarray:
+    """σ² (K,) from v (P,) ≈ design (P, K) σ² by non-negative least squares weighted by var(v_p) = 2 (design σ²)² /
+    dof_p (iterated from the unweighted solution), plus ``standard_errors`` × the standard error of each σ²."""
+    variance = nnls(design, v)[0]
+    for _ in range(iterations):
+        fitted = np.maximum(design @ variance, 2 * floor ** 2)   # a pair's variance is at least both maps' floors
+        w = np.sqrt(dof / (2 * fitted ** 2))
+        new = nnls(design * w[:, None], v * w)[0]
+        done = np.allclose(new, variance, rtol=1e-9, atol=1e-15)
+        variance = new
+        if done:
+            break
+    fitted = np.maximum(design @ variance, 2 * floor ** 2)
+    information = design.T @ ((dof / (2 * fitted ** 2))[:, None] * design)
+    return variance + standard_errors * np.sqrt(np.maximum(np.diag(np.linalg.inv(information)), 0.0))
 
 
 def claimed_variance(landmark_map: LandmarkMap) -> float:
