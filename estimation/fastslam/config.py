@@ -6,6 +6,8 @@ from dataclasses import asdict, dataclass, fields
 
 # FastSLAMConfig.id_relative_drift: how known-ID readings the gate rejects are judged again (id_gate.py)
 ID_RELATIVE_DRIFT_MODES = ("off", "rescue", "consistent")
+# FastSLAMConfig.unknown_relative_drift: re-association of old landmarks in "unknown" association (unknown_rescue.py)
+UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -82,6 +84,9 @@ class FastSLAMConfig:
     #                                             #   (appearance.py: U-SURF changes with distance); 1: the first only
     descriptor_slot_ratio: float = 1.25           # a matched sighting from a range more than this factor from every
     #                                             #   kept one is kept too (while a slot is free)
+    unknown_relative_drift: str = "off"           # "unknown", 2.0: "consistent" re-associates old landmarks the gate
+    #                                             #   rejects where one drift correction explains two of them
+    #                                             #   jointly, each with a unique candidate (unknown_rescue.py)
     self_check_false_alarm: float = 1e-5          # self_check.py: false flags "the map lost its place" per frame
     #                                             #   (CUSUM threshold ln(1/α)); the check never changes estimates
 
@@ -106,6 +111,9 @@ class FastSLAMConfig:
         if self.id_relative_drift not in ID_RELATIVE_DRIFT_MODES:
             raise ValueError(f"id_relative_drift must be one of {', '.join(ID_RELATIVE_DRIFT_MODES)}, "
                              f"not {self.id_relative_drift!r}")
+        if self.unknown_relative_drift not in UNKNOWN_RELATIVE_DRIFT_MODES:
+            raise ValueError(f"unknown_relative_drift must be one of {', '.join(UNKNOWN_RELATIVE_DRIFT_MODES)}, "
+                             f"not {self.unknown_relative_drift!r}")
         if self.association not in ("unknown", "id"):
             raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")
         if not (self.existence_remove < self.existence_initial <= self.existence_max and self.existence_hit >= 0

@@ -63,7 +63,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
-from . import id_gate
+from . import id_gate, unknown_rescue
 from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
@@ -133,6 +133,7 @@ class FilterStats:
     proposal_fallbacks: int = 0
     id_outliers: int = 0          # "id" association: (particle, observation) pairs rejected by the gate
     id_rescued: int = 0           # "id", ``id_relative_drift``: pairs accepted only under the drift-widened gate
+    unknown_rescued: int = 0      # "unknown", ``unknown_relative_drift``: old landmarks re-associated jointly
     landmarks_removed: int = 0    # (particle, landmark) removals: existence fell below ``existence_remove``
     landmarks_merged: int = 0     # (particle, landmark) merges of duplicates (``merge_gate``)
 
@@ -306,6 +307,24 @@ class FastSLAM:
                                      innovation, lever, cfg.mahalanobis_gate)
             d2, gated = relative.d2, relative.gated
             self.stats.id_rescued += int(np.count_nonzero(relative.rescued))
+        elif not by_id and cfg.unknown_relative_drift != "off" and cfg.version == 2:
+            # old landmarks re-sighted after a drift: readings no landmark gated, judged again (unknown_rescue.py)
+            held = np.zeros(n_particles * n_obs, bool)
+            held[mj[gated]] = True
+            extra = unknown_rescue.rescue(self.drift, ~held, cand.m, cand_lids, cand.g, self.store.flat_state,
+                                          frame.world, frame.noise, self._motion_cov, predicted,
+                                          cfg.mahalanobis_gate, desc, self._descriptors, cfg.descriptor_threshold)
+            if extra is not None:
+                found = cand.take(extra.rows)
+                pairs = _Pairs(*(np.concatenate([a, b]) for a, b in zip(
+                    (pairs.m, pairs.j, pairs.k, pairs.g, pairs.c), (found.m, extra.j, found.k, found.g, found.c),
+                    strict=True)))
+                mean, cov, innovation, s_obs = (np.concatenate(ab, axis=1) for ab in (
+                    (mean, extra.mean), (cov, extra.cov), (innovation, extra.innovation), (s_obs, extra.s_obs)))
+                mj, lever = pairs.m * n_obs + pairs.j, mean[:2] - _cols(predicted[:, :2].T, pairs.m)
+                relative = extra.relative_gate(self.drift, cand_lids[pairs.c], d2, gated, cfg.mahalanobis_gate)
+                d2, gated = relative.d2, relative.gated
+                self.stats.unknown_rescued += len(extra.rows)
 
         # 3. mutual exclusion
         n_slots = n_particles * self.store.table.shape[1] * self.store.block_size if by_id else len(cand.m)

@@ -1,0 +1,135 @@
+"""MRCLAM in unknown association: every association the filter makes, judged against the barcodes.
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.mrclam_unknown_association [--robots 1,2,3,4,5] [--seed 0] [--set FIELD=VALUE ...]
+        [--json]
+
+Per robot (each robot's noise fitted on its own log, as ``eval_mrclam --noise own``; the barcodes only score):
+ATE, duplicate fraction, landmarks, rigid landmark error; the most probable particle's matches and how many went
+to a landmark standing for *another* barcode (a landmark stands for the barcode most of the sightings that made or
+matched it so far were of, as ``eval_mrclam`` attributes them); the filter's merges and the wrong ones (two
+barcodes joined, as ``eval_mrclam_merges``); and with ``--set unknown_relative_drift='"consistent"'`` the
+(particle, reading) pairs re-associated by ``estimation/fastslam/unknown_rescue.py``, right and wrong (docs/fastslam.md,
+"Session 7: unknown association"). A wrong association is the confidently wrong output: it is counted for every
+variant.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import estimation.dataset_slam as dataset_slam  # noqa: E402
+import estimation.fastslam.filter as fastslam_filter  # noqa: E402
+from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
+from estimation.noise_model import estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int  # noqa: E402
+
+
+class _Tally:
+    """Sightings' votes so far and the counts of one run."""
+
+    def __init__(self) -> None:
+        self.votes: dict[int, dict[int, int]] = {}
+        self.frame_ids = np.zeros(0, np.int64)
+        self.counts = dict(matches=0, matches_other_barcode=0, rescued=0, rescued_same_barcode=0,
+                           rescued_other_barcode=0, rescue_frames=0)
+
+    def barcode(self, lid: int) -> int:
+        return int(attribute_landmarks(self.votes, np.array([lid]))[0])
+
+
+def run_robot(log, seed: int, overrides: dict) -> dict:
+    tally = _Tally()
+    times, first = np.unique(log.sighting_times, return_index=True)
+    bounds = np.append(first, len(log))[1:]
+    ids_at = {float(t): log.landmark_ids[a:b] for t, a, b in zip(times, first, bounds, strict=True)}
+    rescue = fastslam_filter.unknown_rescue.rescue
+
+    def counted_rescue(tracker, rejected, cand_m, cand_lids, *args, **kwargs):
+        out = rescue(tracker, rejected, cand_m, cand_lids, *args, **kwargs)
+        if out is not None:
+            tally.counts["rescue_frames"] += 1
+            for row, j in zip(out.rows.tolist(), out.j.tolist(), strict=True):
+                barcode = tally.barcode(int(cand_lids[row]))
+                tally.counts["rescued"] += 1
+                tally.counts["rescued_same_barcode"] += int(barcode == tally.frame_ids[j])
+                tally.counts["rescued_other_barcode"] += int(barcode not in (-1, tally.frame_ids[j]))
+        return out
+
+    class Counting(FastSLAM):
+        last: Counting | None = None
+
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            Counting.last = self
+
+        def update(self, observations):
+            tally.frame_ids = ids_at[float(observations.timestamp)]
+            report = super().update(observations)
+            for j, lid in enumerate(report.best_matches.tolist()):
+                if lid >= 0:
+                    tally.counts["matches"] += 1
+                    tally.counts["matches_other_barcode"] += int(tally.barcode(lid) not in (-1, tally.frame_ids[j]))
+            count_sightings(tally.votes, tally.frame_ids, report)
+            return report
+
+    original = dataset_slam.FastSLAM
+    dataset_slam.FastSLAM, fastslam_filter.unknown_rescue.rescue = Counting, counted_rescue
+    try:
+        run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
+                                            np.random.default_rng(seed), noise=estimate_noise([log]).model,
+                                            association="unknown", robot=log.name)
+    finally:
+        dataset_slam.FastSLAM, fastslam_filter.unknown_rescue.rescue = original, rescue
+    pairs = [(a, b) for a, b, _ in Counting.last.merged_pairs]
+    merged_ids = np.array([i for pair in pairs for i in pair], np.int64)
+    barcode = dict(zip(merged_ids.tolist(), attribute_landmarks(tally.votes, merged_ids).tolist(), strict=True))
+    m = run.metrics
+    return {"robot": log.name, "ate_m": m["ate_m"], "duplicate_fraction": m["duplicate_fraction"],
+            "landmarks": m["landmarks"], "true_landmarks": m["true_landmarks"],
+            "landmark_error_rigid_median_m": m["landmark_error_rigid_median_m"], "merges": len(pairs),
+            "merges_wrong": sum(barcode[a] != barcode[b] for a, b in pairs), **tally.counts}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    if not args.data.is_dir():
+        print(f"mrclam_unknown_association: no data set at {args.data}", file=sys.stderr)
+        return 2
+    overrides = config_overrides(args.set)
+    rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
+    if args.json:
+        print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))
+        return 0
+    print(f"MRCLAM unknown association, seed {args.seed}" + (f", overrides {overrides}" if overrides else ""))
+    print("| robot | ATE m | landmarks | duplicates | rigid lm err m | best matches (other barcode) | "
+          "merges (wrong) | re-associated (same / other barcode) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['robot']} | {r['ate_m']:.3f} | {r['landmarks']}/{r['true_landmarks']} | "
+              f"{100 * r['duplicate_fraction']:.1f} % | {r['landmark_error_rigid_median_m']:.3f} | "
+              f"{r['matches']} ({r['matches_other_barcode']}) | {r['merges']} ({r['merges_wrong']}) | "
+              f"{r['rescued']} ({r['rescued_same_barcode']} / {r['rescued_other_barcode']}) |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
