@@ -89,6 +89,9 @@ class FastSLAMConfig:
     #                                             #   jointly, each with a unique candidate (unknown_rescue.py)
     self_check_false_alarm: float = 1e-5          # self_check.py: false flags "the map lost its place" per frame
     #                                             #   (CUSUM threshold ln(1/α)); the check never changes estimates
+    id_drift_inherit: bool = False                # with id_relative_drift: landmarks re-measured in a frame anchored
+    #                                             #   on an older one take D_a + P_local (id_gate.RelativeGate.inherit);
+    #                                             #   off: landmarks within the NEES bound fell (docs, "Session 7")
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:

@@ -17,6 +17,8 @@ The robot carries D_r:
   the local one, D_r ← mean_l D_l + P_local (P_local: the particle cloud's pose covariance this frame); with
   no match D_r keeps growing with the motion;
 - a landmark created now gets D_l = D_r and C_l = H D_r Hᵀ;
+- a landmark re-placed from a pose pinned to an older landmark a (known-ID, ``id_gate.py``) gets
+  D_l ← D_a + P_local where that is smaller (:meth:`DriftTracker.remeasured`), C_l unchanged;
 - export: Σ_l ← Σ_l + C_l.
 
 Without loops, D_r grows by P_local once per generation of landmarks (not once per frame, as landmarks are
@@ -65,6 +67,19 @@ class DriftTracker:
             h[:, 0, 0] = h[:, 1, 1] = 1.0
             h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
             self._position[new_ids] = sym_components(h @ self.robot @ np.swapaxes(h, 1, 2)).T
+
+    def remeasured(self, ids: np.ndarray, pose_covariance: np.ndarray) -> np.ndarray:
+        """Landmarks ``ids`` (L,) were re-placed from a pose whose covariance relative to the start frame is
+        ``pose_covariance`` (3, 3) (id_gate.py: a frame anchored on an older landmark): D_l ← that covariance
+        where it is smaller (trace) than D_l, so that the chain is shortened as at a loop closure. C_l, the
+        export's term, is left as made (wider, never narrower; see id_gate.RelativeGate.inherit). Returns the
+        ids lowered."""
+        ids = np.asarray(ids, np.int64)
+        ids = ids[ids < len(self._pose)]
+        d = sym_components(np.asarray(pose_covariance, float)[None])[:, 0]
+        lowered = ids[self._pose[ids][:, [0, 3, 5]].sum(axis=1) > d[[0, 3, 5]].sum()]
+        self._pose[lowered] = d
+        return lowered
 
     def landmark_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
         """D_l (6, L) components for landmark ids (L,) (zeros for ids never seen by the tracker)."""

@@ -408,6 +408,8 @@ class FastSLAM:
         local = pose_cov
         if cfg.version == 2 and self._proposal_cov is not None and np.trace(self._proposal_cov) > np.trace(pose_cov):
             local = self._proposal_cov
+        if relative is not None and cfg.id_drift_inherit:   # re-measured relative to an anchor: its pose's drift
+            relative.inherit(self.drift, best, np.unique(best_matches[best_matches >= 0]), local)
         self.drift.update(np.unique(best_matches[best_matches >= 0]), new_ids[spawned], new_xy,
                           self.poses[best], local, self._n_ids)
         parents = np.arange(n_particles)

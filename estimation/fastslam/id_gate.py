@@ -18,8 +18,10 @@ robot's now, so D_r − D_l is the drift accumulated since l was made (and D_i �
   that accepted such a reading, the oldest of them (smallest tr D) anchors the frame: the pose's prior becomes
   P + (D_r − D_a)⁺ and every matched landmark i takes Σ_i + H (D_i − D_a)⁺ Hᵀ in the proposal and its EKF update,
   so the landmarks made since the anchor (which drifted *with* the pose) cannot hold the pose where the drift
-  put it, and move onto the anchor's frame instead. (Session 5 widened the prior alone, and the newest landmarks
-  pulled the pose: robot 3 0.49 → 1.69 m.)
+  put it, and move onto the anchor's frame instead. Those the most probable particle re-measured so take
+  the drift of the pose they were re-measured from, D_a + P_local (:meth:`RelativeGate.inherit`; without it
+  they were widened and re-placed from one reading at every later rescue). (Session 5 widened the prior
+  alone, and the newest landmarks pulled the pose: robot 3 0.49 → 1.69 m.)
 - ``"consistent"``: as ``"rescue"``, but a particle's rescue needs two or more *different* landmarks rejected
   by the plain gate and accepted by the widened one in the same frame. Why: one range-bearing reading fixes
   only two of the pose's three degrees of freedom, so a correction from one landmark under a wide prior slides
@@ -94,6 +96,31 @@ class RelativeGate:
         cov = cov.copy()
         cov[:, inside] += pose_uncertainty(sym_components(psd_part(d_pair - d_a)), lever[:, inside])
         return cov, motion_cov
+
+
+    def inherit(self, tracker: DriftTracker, particle: int, lids: np.ndarray, local: np.ndarray) -> np.ndarray:
+        """The landmarks ``lids`` (L,) that ``particle`` (the most probable) matched, when its frame was anchored on
+        an older landmark a: D_i ← D_a + P_local where that is smaller than D_i (``local`` (3, 3): P_local, the
+        frame's pose covariance relative to the map, as ``DriftTracker.update`` takes it). Returns the ids lowered.
+
+        Why D_a + P_local (and not D_a): in the anchored frame the pose is x = x_a ⊕ δ, x_a the pose that made a
+        (start-frame error e_a, covariance D_a) and δ the pose relative to it, fixed by this frame's readings
+        (proposal covariance P_local; with a's reading and the loosened younger ones it is about as large as D_a
+        itself on MRCLAM: mean tr_xy 0.015 vs 0.018 m², heading 0.0022 vs 0.0077 rad², robot 5 seed 0). The
+        widened update places i from that pose: i's start-frame error is H (e_a + e_δ) + its EKF error relative
+        to the pose (Σ_i, kept by the EKF), so its pose term is D_a + P_local, exactly what a landmark *created*
+        in this frame gets (D_r = D_a + P_local). D_a alone drops e_δ, and the next landmarks pinned to i inherit
+        the loss: session 6's D_i ← D_a lowered the landmarks within the NEES bound on 8 of 15 MRCLAM runs
+        (robot 5 seed 0: 64 → 13 %). Only lowered, never raised: the widened prior Σ_i + H (D_i − D_a) Hᵀ lets the
+        reading place i wherever D_i − D_a is large, and where it is small little changes. C_i (the export's
+        term) is left as made: it is the wider of the two, so the export errs wide, not narrow.
+        """
+        if self.anchored is None or len(lids) == 0:
+            return np.zeros(0, np.int64)
+        row = int(np.searchsorted(self.anchored, particle))
+        if row >= len(self.anchored) or self.anchored[row] != particle:
+            return np.zeros(0, np.int64)
+        return tracker.remeasured(lids, self.anchor_drift[row] + local)
 
 
 def judge(mode: str, tracker: DriftTracker, particles: np.ndarray, lids: np.ndarray, d2: np.ndarray,
