@@ -18,10 +18,11 @@ robot's now, so D_r − D_l is the drift accumulated since l was made (and D_i �
   that accepted such a reading, the oldest of them (smallest tr D) anchors the frame: the pose's prior becomes
   P + (D_r − D_a)⁺ and every matched landmark i takes Σ_i + H (D_i − D_a)⁺ Hᵀ in the proposal and its EKF update,
   so the landmarks made since the anchor (which drifted *with* the pose) cannot hold the pose where the drift
-  put it, and move onto the anchor's frame instead. Those the most probable particle re-measured so take
-  the drift of the pose they were re-measured from, D_a + P_local (:meth:`RelativeGate.inherit`; without it
-  they were widened and re-placed from one reading at every later rescue). (Session 5 widened the prior
-  alone, and the newest landmarks pulled the pose: robot 3 0.49 → 1.69 m.)
+  put it, and move onto the anchor's frame instead. (Session 5 widened the prior alone, and the newest
+  landmarks pulled the pose: robot 3 0.49 → 1.69 m.) With ``id_drift_inherit`` (off by default), those the most
+  probable particle re-measured so take the drift of the pose they were re-measured from, D_a + P_local
+  (:meth:`RelativeGate.inherit`); without it their D_i stays the drift at creation and they are widened and
+  re-placed again at every later rescue (the map's shape: docs/fastslam.md "Session 7").
 - ``"consistent"``: as ``"rescue"``, but a particle's rescue needs two or more *different* landmarks rejected
   by the plain gate and accepted by the widened one in the same frame. Why: one range-bearing reading fixes
   only two of the pose's three degrees of freedom, so a correction from one landmark under a wide prior slides
