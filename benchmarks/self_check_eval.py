@@ -36,19 +36,18 @@ from runtime.commands.options import non_negative_int
 from runtime.map_self_check import read_self_check
 
 DIVERGED_HEADING = 0.1   # rad, median |heading error| over the run's second half (see the module docstring)
+ONSET_FRAMES = 11        # ~3 s at 3.75 Hz: a heading error held, not one frame's jump
 
 
 def truth_figures(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float, float | None]:
-    """(ATE m, median |heading error| over the second half rad, first time the heading error stays above
-    DIVERGED_HEADING to the end or None) of (T, 4) trajectories (t, x, y, θ) on the same frames."""
+    """(ATE m, median |heading error| over the second half rad, first time the median |heading error| over
+    ONSET_FRAMES frames exceeds DIVERGED_HEADING or None) of (T, 4) trajectories (t, x, y, θ) on the same frames."""
     n = min(len(estimate), len(truth))
     error_xy = np.hypot(*(estimate[:n, 1:3] - truth[:n, 1:3]).T)
     error_theta = np.abs(wrap_angle(estimate[:n, 3] - truth[:n, 3]))
-    above = error_theta > DIVERGED_HEADING
-    onset = None
-    if above[-1]:
-        last_below = np.flatnonzero(~above)
-        onset = float(truth[last_below[-1] + 1 if len(last_below) else 0, 0])
+    windows = np.lib.stride_tricks.sliding_window_view(error_theta, min(ONSET_FRAMES, n))
+    above = np.flatnonzero(np.median(windows, axis=1) > DIVERGED_HEADING)
+    onset = float(truth[above[0], 0]) if len(above) else None
     return float(np.sqrt(np.mean(error_xy ** 2))), float(np.median(error_theta[n // 2:])), onset
 
 
@@ -84,7 +83,7 @@ def run_maps(dirs: list[Path]) -> None:
             verdict = read_self_check(LandmarkMap.load(robot_file).metadata)
             ate, heading, onset = truth_figures(read_tum(demo / f"{robot}.tum"), read_tum(demo / f"{robot}-truth.tum"))
             diverged = heading > DIVERGED_HEADING
-            truth = "diverged" + (f" (> {DIVERGED_HEADING} rad from {onset:.1f} s)" if onset is not None else "") \
+            truth = "diverged" + (f" (> {DIVERGED_HEADING} rad first at {onset:.1f} s)" if onset is not None else "") \
                 if diverged else "holds"
             print(f"| {demo.name} | {robot} | {ate:.3f} | {heading:.3f} | {truth} | {verdict_cells(verdict)}")
             if verdict is not None:
@@ -116,7 +115,7 @@ def run_replays(demo: Path, cache: Path, seeds: list[int], robot: str) -> None:
         verdict = read_self_check(slam.best_map(robot=robot).metadata)
         ate, heading, onset = truth_figures(np.array(estimate), truth)
         diverged = heading > DIVERGED_HEADING
-        truth_text = "diverged" + (f" (> {DIVERGED_HEADING} rad from {onset:.1f} s)" if onset is not None else "") \
+        truth_text = "diverged" + (f" (> {DIVERGED_HEADING} rad first at {onset:.1f} s)" if onset is not None else "") \
             if diverged else "holds"
         print(f"| {demo.name} {robot} | {seed} | {ate:.3f} | {heading:.3f} | {truth_text} | {verdict_cells(verdict)}",
               flush=True)
