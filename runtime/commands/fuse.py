@@ -193,7 +193,8 @@ def _print(report: dict, as_json: bool) -> None:
                     line += f" (error xy {m['error_xy']:.3f} m, error θ {m['error_theta']:.4f} rad vs truth)"
                 print(line)
     if any("merge_sigma" in m for m in report["maps"]):
-        print("merge weights (σ about a rigid placement from the pairwise residuals; σ the map claims): " + ", ".join(
+        print("merge weights (σ about a rigid placement from the pairwise residuals, plus one standard error; "
+              "σ the map claims): " + ", ".join(
             f"{m['robot']} {m['merge_sigma']:.3f} m ({m['claimed_sigma']:.3f} m)" for m in report["maps"]
             if "merge_sigma" in m))
     if report.get("out"):
