@@ -46,13 +46,15 @@ def read_self_check(metadata: dict) -> dict | None:
 
 
 def lost_text(verdict: dict) -> str | None:
-    """'lost its place at t≈45.5 s (since 35.9 s: 5 of 85 old landmarks predicted in view re-detected, 33.4
-    expected; CUSUM 22.5 ≥ 11.5, false alarms ≤ 1e-05 a frame); 3 alarms in all', or None for a map that holds."""
+    """'may have lost its place at t≈45.5 s: 5 of 85 old landmarks predicted in view re-detected since 35.9 s,
+    33.4 expected (CUSUM 22.5 ≥ 11.5); 2 more alarms after it', or None for a map that holds. "May": the test's
+    stated false-alarm rate does not hold on the rendered building (it flags some healthy maps, docs/fastslam.md
+    "Session 7: self-check"), so the text states what was seen, not the rate."""
     if not verdict["lost"]:
         return None
     a = verdict["alarms"][0]
     more = verdict["n_alarms"] - 1
-    return (f"lost its place at t≈{a['t']:.1f} s (since {a['since']:.1f} s: {a['redetected']:.0f} of "
-            f"{a['predicted']:.0f} old landmarks predicted in view re-detected, {a['expected']:.1f} expected; CUSUM "
-            f"{a['statistic']:.1f} ≥ {verdict['threshold']:.1f}, false alarms ≤ {verdict['false_alarm_per_frame']:.0e}"
-            f" a frame)" + (f"; {more:.0f} more alarm{'s' if more != 1 else ''} after it" if more > 0 else ""))
+    return (f"may have lost its place at t≈{a['t']:.1f} s: {a['redetected']:.0f} of {a['predicted']:.0f} old "
+            f"landmarks predicted in view re-detected since {a['since']:.1f} s, {a['expected']:.1f} expected (CUSUM "
+            f"{a['statistic']:.1f} ≥ {verdict['threshold']:.1f})"
+            + (f"; {more:.0f} more alarm{'s' if more != 1 else ''} after it" if more > 0 else ""))

@@ -240,8 +240,9 @@ def _self_check_figures(path: str, landmark_map: LandmarkMap) -> dict:
 def _warn_lost(report: dict) -> None:
     for k, m in enumerate(report["maps"]):
         if m["lost"] is not None:
-            print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['lost']}: the map after that is not tied to the "
-                  "map before it; an alignment through it can be right for one part only", file=sys.stderr)
+            print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['lost']}; if so, the map after that is not "
+                  "tied to the map before it and an alignment through it can be right for one part only (the check "
+                  "also flags some healthy maps: docs/fastslam.md, Session 7: self-check)", file=sys.stderr)
 
 
 def _warn_identity_conflicts(report: dict) -> None:
