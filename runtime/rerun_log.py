@@ -33,6 +33,7 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     map/fused/landmarks                   Points2D of the merged map, coloured as in the 3-D world
     plots/<robot>/{ess,observations,dropped}, plots/<robot>/landmarks/{all,confirmed,provisional}   Scalars
     plots/<robot>/time/<stage>            Scalars, milliseconds per call
+    plots/<robot>/self_check[/threshold]  Scalars, the map's self-check CUSUM and its threshold (per snapshot)
     plots/fusion/{error_xy,error_theta,common,merged}    Scalars (m, rad, counts)
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
@@ -230,7 +231,8 @@ SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "error_theta": ("error θ (rad)", (160, 110, 230)),
     "common": ("common landmarks", (70, 180, 90)),
     "merged": ("merged landmarks", (240, 240, 240)),
-    "self_check": ("self-check CUSUM (map lost its place at its threshold)", (200, 100, 160)),
+    "self_check": ("self-check CUSUM (at the threshold: the map may have lost its place)", (200, 100, 160)),
+    "self_check/threshold": ("self-check threshold", (150, 150, 150)),
 }
 _SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
 
@@ -306,7 +308,8 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
             _plot(f"plots/{r}/observations", "observations per frame (count)"),
             _plot(f"plots/{r}/time", "time per stage (ms)"),
             _plot(f"plots/{r}/dropped", "frames dropped (total)"),
-            row_shares=[2, 2, 2, 2, 1])
+            _plot(f"plots/{r}/self_check", "self-check: old landmarks not re-detected (CUSUM)"),
+            row_shares=[2, 2, 2, 2, 1, 1])
         robot_tabs.append(rrb.Horizontal(
             rrb.Vertical(_map_view(r, f"{r}: local map (own start frame)"),
                          rrb.Spatial2DView(origin=f"images/{r}/pair", name=f"{r}: stereo pair and matches"),

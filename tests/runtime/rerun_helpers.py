@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from estimation.fastslam.config import FastSLAMConfig
+from estimation.fastslam.self_check import SelfCheck
 from estimation.landmark_map import LandmarkMap
 
 ROBOTS = ["robot1", "robot2"]
@@ -54,6 +56,7 @@ def log_small_mission(log, frames: int = 12, seed: int = 0, flush_each_frame: bo
     t = 0.25 * frames
     snapshots = {name: landmark_map(name, 8, rng) for name in ROBOTS}
     for name, m in snapshots.items():
+        m.metadata = {"self_check": SelfCheck(FastSLAMConfig()).verdict()}   # what FastSLAM.best_map carries
         log.log_map(name, t, m)
     log.log_alignment(t, "robot1", "robot2", {"reference": "robot1", "other": "robot2", "aligned": True,
                                               "tx": 8.0, "ty": 0.0, "theta": np.pi, "supports": 20, "common": 6,

@@ -127,7 +127,8 @@ def test_each_plot_shows_one_quantity_with_its_unit_in_distinct_colours(recordin
     rrd, _, columns = recording
     series = {e: c for e, c in columns.items() if any(n.startswith("Scalars:") for n in c)}
     unit_group = {"ess": "ess", "observations": "count/frame", "dropped": "frames", "error_xy": "m",
-                  "error_theta": "rad", "common": "landmarks", "merged": "landmarks"}
+                  "error_theta": "rad", "common": "landmarks", "merged": "landmarks",
+                  "self_check": "log-likelihood ratio", "self_check/threshold": "log-likelihood ratio"}
     for view in _views("TimeSeries"):
         shown = [e for e in series if _included(view, e)]
         assert shown, f"plot '{view.name}' shows nothing"
