@@ -35,6 +35,8 @@ step), and a frame with both detected rules "one point" out (likelihood 0).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .config import FastSLAMConfig
@@ -72,6 +74,14 @@ def detection_probability_or_constant(config: FastSLAMConfig, ranges: np.ndarray
     if config.detection_probabilities:
         return detection_probability(config, ranges)
     return np.full(ranges.shape, -np.expm1(config.existence_miss))
+
+
+def false_alarm_probability_or_constant(config: FastSLAMConfig, p_d: np.ndarray) -> np.ndarray:
+    """P_FA (N,) beside P_D (N,): the configured rate, or the constants' own P_FA = P_D / exp(existence_hit)
+    (a detection is worth log(P_D / P_FA) = existence_hit)."""
+    if config.detection_probabilities:
+        return np.full(np.shape(p_d), config.false_alarm_probability)
+    return np.asarray(p_d, float) / math.exp(config.existence_hit)
 
 
 def exclusive_log_odds(config: FastSLAMConfig, ranges: np.ndarray) -> np.ndarray:

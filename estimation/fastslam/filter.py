@@ -56,6 +56,7 @@ slide along textures) overwrites an id's descriptor with its latest match in the
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -700,13 +701,11 @@ class FastSLAM:
         re-detected and missed well in view, before this frame's writes; "in view" within the frame's farthest
         observation ``z`` (N, 3) (a frame sees nothing beyond it: a near wall, a blind frame). ``named`` ("id"):
         every pair the readings' identities named; one the gate refused is a miss."""
-        reach = float(np.max(np.linalg.norm(z - np.asarray(self.config.sensor_offset), axis=1), initial=0.0))
+        in_view = functools.partial(self._well_in_view, reach=float(np.max(self._sensor_range(z), initial=0.0)))
         hit = matched.g[matched.m == best]
         lost = missed.g[missed.m == best]
         if named is not None:
             lost = np.concatenate([lost, np.setdiff1d(named.g[named.m == best], hit)])
-        def in_view(x, y, z):
-            return self._well_in_view(x, y, z, reach)
         pose, offset = self.poses[best], self.config.sensor_offset
         self.self_check.observe(self._time, slot_view(self.store, pose, hit, in_view, offset),
                                 slot_view(self.store, pose, lost, in_view, offset), len(hit), self._n_ids, miss_weight)

@@ -62,7 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import FastSLAMConfig
-from .existence import detection_probability_or_constant, evidence_per_frame
+from .existence import detection_probability_or_constant, evidence_per_frame, false_alarm_probability_or_constant
 
 KEY = "self_check"            # the map metadata key
 VERSION = 1
@@ -72,14 +72,6 @@ MIN_DISPERSION_FRAMES = 8      # √(2/F) ≤ 1/2: the dispersion estimate is tr
 DESCRIPTOR_CHANCE_MATCH = 0.025  # H1's re-detection rate with descriptors (module docstring)
 DESCRIPTOR_RANGE_RATIO = 1.5   # see the module docstring: where a descriptor's re-detection fails
 DESCRIPTOR_VIEW_ANGLE = math.pi / 4
-
-
-def false_alarm_probability_or_constant(config: FastSLAMConfig, p_d: np.ndarray) -> np.ndarray:
-    """P_FA (N,) beside P_D (N,): the configured rate, or the constants' own P_FA = P_D / exp(existence_hit)
-    (a detection is worth log(P_D / P_FA) = existence_hit)."""
-    if config.detection_probabilities:
-        return np.full(np.shape(p_d), config.false_alarm_probability)
-    return np.asarray(p_d, float) / math.exp(config.existence_hit)
 
 
 @dataclass
