@@ -202,17 +202,25 @@ def _print(report: dict, as_json: bool) -> None:
               f"-> {report['out']}")
 
 
+def _own_metadata(path: str, landmark_map: LandmarkMap, read, what: str):
+    """What ``read(metadata)`` finds in a one-robot map's metadata; None for merged maps, which keep their
+    reference map's metadata. A malformed entry is a one-line note naming ``what`` is not shown: the map itself is
+    usable and is fused."""
+    if len(landmark_map.robots) > 1:
+        return None
+    try:
+        return read(landmark_map.metadata)
+    except ValueError as e:
+        print(f"p3at fuse: note: {path}: {e}; {what} not shown", file=sys.stderr)
+        return None
+
+
 def _frame_figures(path: str, landmark_map: LandmarkMap) -> dict:
     """A map's camera-frame counts and, for a starved run, why (runtime/slam_frames.py); None for maps that carry
-    none (older maps, data sets' maps) and for merged maps, which keep their reference map's metadata."""
+    none (older maps, data sets' maps) and for merged maps."""
     from runtime.slam_frames import read_frame_counts, starved
 
-    counts = None
-    if len(landmark_map.robots) <= 1:
-        try:
-            counts = read_frame_counts(landmark_map.metadata)
-        except ValueError as e:   # the map itself is usable: say what is wrong and fuse it
-            print(f"p3at fuse: note: {path}: {e}; its frame counts are not shown", file=sys.stderr)
+    counts = _own_metadata(path, landmark_map, read_frame_counts, "its frame counts are")
     return {"slam_frames": counts, "starved": None if counts is None else starved(counts)}
 
 
@@ -225,15 +233,10 @@ def _warn_starved(report: dict) -> None:
 
 def _self_check_figures(path: str, landmark_map: LandmarkMap) -> dict:
     """A map's self-check verdict (runtime/map_self_check.py) and, if it flagged itself, why; None for maps that
-    carry none (older maps, merged maps: they keep their reference map's metadata)."""
+    carry none (older maps) and for merged maps."""
     from runtime.map_self_check import lost_text, read_self_check
 
-    verdict = None
-    if len(landmark_map.robots) <= 1:
-        try:
-            verdict = read_self_check(landmark_map.metadata)
-        except ValueError as e:   # the map itself is usable: say what is wrong and fuse it
-            print(f"p3at fuse: note: {path}: {e}; its self-check is not shown", file=sys.stderr)
+    verdict = _own_metadata(path, landmark_map, read_self_check, "its self-check is")
     return {"self_check": verdict, "lost": None if verdict is None else lost_text(verdict)}
 
 
