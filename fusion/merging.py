@@ -315,7 +315,6 @@ def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: in
     Raises :class:`~fusion.errors.NoOverlapError` when ``alignment`` was not found.  The alignment's
     covariance (robust preset) is added to map 2's landmarks unless ``use_alignment_covariance`` is False.
     """
-    check_merge_rule(rule)
     pairs = common_landmarks(map1, map2, alignment, method, gate)
     pose_cov = alignment.covariance if use_alignment_covariance else None
     withheld, conflicts = None, None

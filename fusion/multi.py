@@ -176,8 +176,7 @@ def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "
     session-6 MRCLAM maps the merged landmarks' NEES against Vicon falls from median 7.3 (6 of 15 above the χ²(2)
     99 % bound) to 3.4 (3 of 15) and their error from 0.136 to 0.121 m (docs/fusion.md, "Session 7: merging")."""
     P = landmark_map.covariances * scale
-    if calibration == "isotropic" and len(P):
-        P = P.copy()
+    if calibration == "isotropic" and len(P):   # P is already a new array
         P[:, :2, :2] = scale * claimed_variance(landmark_map) * np.eye(2)
         P[:, :2, 2] = P[:, 2, :2] = 0.0
     return LandmarkMap(landmark_map.positions, P, landmark_map.descriptors,
