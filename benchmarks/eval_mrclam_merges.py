@@ -63,8 +63,10 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
                              for a, b in wrong]}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def robots_main(argv: list[str] | None, name: str, description: str, run_robot, print_rows) -> int:
+    """The command line both MRCLAM unknown-association scripts share: ``run_robot(log, seed, overrides) -> row``
+    per robot of ``--robots``, then the rows as JSON (``--json``) or a title and ``print_rows(rows)``."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--seed", type=non_negative_int, default=0)
@@ -72,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
-        print(f"eval_mrclam_merges: no data set at {args.data}", file=sys.stderr)
+        print(f"{name}: no data set at {args.data}", file=sys.stderr)
         return 2
     overrides = config_overrides(args.set)
     rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
@@ -80,13 +82,21 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))
         return 0
     print(f"MRCLAM unknown association, seed {args.seed}" + (f", overrides {overrides}" if overrides else ""))
+    print_rows(rows)
+    return 0
+
+
+def _print_rows(rows: list[dict]) -> None:
     print("| robot | ATE m | landmarks | duplicates | merged id pairs (by co-visibility) | wrong (by co-visibility) |")
     print("|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['robot']} | {r['ate_m']:.3f} | {r['landmarks']}/{r['true_landmarks']} | "
               f"{100 * r['duplicate_fraction']:.1f} % | {r['merges']} ({r['merges_by_covisibility']}) | "
               f"{r['merges_wrong']} ({r['merges_wrong_by_covisibility']}) |")
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return robots_main(argv, "eval_mrclam_merges", __doc__.split("\n\n")[0], run_robot, _print_rows)
 
 
 if __name__ == "__main__":

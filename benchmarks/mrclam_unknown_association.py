@@ -20,21 +20,16 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 import estimation.fastslam.filter as fastslam_filter  # noqa: E402
-from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
-from estimation.datasets import read_mrclam  # noqa: E402
+from benchmarks.eval_mrclam_merges import robots_main  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
-from runtime.commands.options import non_negative_int  # noqa: E402
 
 
 class _Tally:
@@ -103,23 +98,7 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
             "merges_wrong": sum(barcode[a] != barcode[b] for a, b in pairs), **tally.counts}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", type=Path, default=DATA)
-    parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--seed", type=non_negative_int, default=0)
-    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
-    parser.add_argument("--json", action="store_true")
-    args = parser.parse_args(argv)
-    if not args.data.is_dir():
-        print(f"mrclam_unknown_association: no data set at {args.data}", file=sys.stderr)
-        return 2
-    overrides = config_overrides(args.set)
-    rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
-    if args.json:
-        print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))
-        return 0
-    print(f"MRCLAM unknown association, seed {args.seed}" + (f", overrides {overrides}" if overrides else ""))
+def _print_rows(rows: list[dict]) -> None:
     print("| robot | ATE m | landmarks | duplicates | rigid lm err m | best matches (other barcode) | "
           "merges (wrong) | re-associated (same / other barcode) |")
     print("|---|---|---|---|---|---|---|---|")
@@ -128,7 +107,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{100 * r['duplicate_fraction']:.1f} % | {r['landmark_error_rigid_median_m']:.3f} | "
               f"{r['matches']} ({r['matches_other_barcode']}) | {r['merges']} ({r['merges_wrong']}) | "
               f"{r['rescued']} ({r['rescued_same_barcode']} / {r['rescued_other_barcode']}) |")
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return robots_main(argv, "mrclam_unknown_association", __doc__.split("\n\n")[0], run_robot, _print_rows)
 
 
 if __name__ == "__main__":
