@@ -54,6 +54,10 @@ class PairResult:
     # whole, fusion.frame_covariance): what covers the truth when the maps' covariances are honest
     start_sigma_xy: float | None = None
     start_sigma_theta: float | None = None
+    # a map of the pair that flagged itself (its self-check) was split at the alarm and each part aligned
+    # (fusion/split.py): what was decided and why, in one sentence; "" when neither map flagged itself
+    self_check: str = ""
+    split_decision: str | None = None    # "whole", "parts", "before", "after" or "none" (left out)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -132,8 +136,11 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     reference = names[0]
     merged = maps[reference]
     rng = rng if rng is not None else np.random.default_rng(0)
+    checks = _split_checks([maps[n] for n in names], preset, cache)
+    if any(c.decision != "whole" for c in checks):
+        return _fuse_split(maps, names, preset, method, t, start, cache)
     if len(names) > 2:
-        return _fuse_many(maps, names, preset, method, t, rng, start, cache)
+        return _with_checks(_fuse_many(maps, names, preset, method, t, rng, start, cache), names, checks)
     for other in names[1:]:
         result = PairResult(reference, other, False)
         run = align if cache is None else cache.align
@@ -155,6 +162,75 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
             result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
             result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
         pairs.append(result)
+    return _with_checks(FusionReport(t, pairs, merged, time.perf_counter() - start), names, checks)
+
+
+def _split_checks(ordered: list[LandmarkMap], preset: str, cache) -> list:
+    """fusion.split.check_split of every map that flagged itself (a malformed verdict is read as none)."""
+    from fusion.split import check_split, split_id
+
+    checks = []
+    for k, m in enumerate(ordered):
+        try:
+            first = split_id(m)
+        except ValueError:
+            first = None
+        if first is not None:
+            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache))
+    return checks
+
+
+def _with_checks(report: FusionReport, names: list[str], checks: list) -> FusionReport:
+    """A fusion in which every flagged map's parts agreed (it is the fusion of the maps as given): each pair with
+    a flagged map says so."""
+    for c in checks:
+        for p in report.pairs:
+            if names[c.index] in (p.reference, p.other):
+                p.self_check = f"{names[c.index]} {c.text}"
+                p.split_decision = c.decision
+    return report
+
+
+def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float, start: float,
+                cache=None) -> FusionReport:
+    """A flagged map's parts disagreed or could not be compared (fusion.split.fuse_checked): each robot's pair
+    reports the placement of its map as merged (whole, or the part made before the gap when it was kept, else the
+    part after it), the split's sentence, and the error against the truth where the maps carry it."""
+    from fusion import true_relative_pose
+    from fusion.split import fuse_checked
+
+    ordered = [maps[n] for n in names]
+    checked = fuse_checked(ordered, preset=preset, method=method, cache=cache)
+    by_map = {c.index: c for c in checked.checks}
+    multi = checked.fusion
+    pairs = []
+    for k, other in enumerate(names[1:], 1):
+        result = PairResult(names[0], other, False)
+        for c in checked.checks:
+            if c.index in (0, k):
+                result.self_check = f"{names[c.index]} {c.text}"
+                result.split_decision = c.decision
+        pieces = [i for i, (src, _) in enumerate(checked.sources) if src == k]
+        placed = [i for i in pieces if multi is not None and multi.poses[i] is not None]
+        if not placed:
+            result.note = (by_map[k].text if k in by_map and not pieces else
+                           checked.message or "not connected to the reference map")
+            pairs.append(result)
+            continue
+        i = placed[0]
+        result.aligned = True
+        result.tx, result.ty, result.theta = (float(v) for v in multi.poses[i])
+        result.supports = max(len(a.supports) for (a_i, a_j), a in multi.alignments.items()
+                              if i in (a_i, a_j) and a.found)
+        column = {r: c for c, r in enumerate(multi.map.robots)}
+        if names[0] in column and other in column:
+            result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
+        truth = true_relative_pose(ordered[0], ordered[k])
+        if truth is not None:
+            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
+            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        pairs.append(result)
+    merged = multi.map if multi is not None else maps[names[0]]
     return FusionReport(t, pairs, merged, time.perf_counter() - start)
 
 

@@ -72,6 +72,8 @@ def format_summary(summary: dict) -> str:
                              f"(P(chance) {_fmt(p.get('false_alarm_probability'), '.1e')}): check it before use")
             elif not p["aligned"] and p.get("note"):
                 lines.append(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
+            if p.get("self_check"):   # a map that flagged itself, split at the alarm (fusion/split.py)
+                lines.append(f"{p['other']} -> {p['reference']}: {p['self_check']}")
         lines.append("")
         lines.append(f"Merged map: {fusion['merged_landmarks']} landmarks "
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "

@@ -781,6 +781,9 @@ class MissionLog:
         values = {k: result.get(k) for k in ("error_xy", "error_theta", "common", "merged")}
         values = {k: v for k, v in values.items() if isinstance(v, int | float) and not isinstance(v, bool)}
         self.log_scalars("fusion", t, values)
+        split = result.get("self_check")   # a flagged map split at its alarm (fusion/split.py): once per decision
+        if split and self._first_time(f"fusion/split/{reference}_{other}/{result.get('split_decision')}"):
+            self.log_event(t, f"fusion: {split}", "INFO" if result.get("split_decision") == "whole" else "WARN")
         pose = np.array([result.get(k, np.nan) for k in ("tx", "ty", "theta")], float)
         if result.get("aligned", True) and np.isfinite(pose).all():
             root = self._map_root("fused")

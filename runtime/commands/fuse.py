@@ -53,9 +53,10 @@ def register(subparsers) -> None:
 
 
 def _fuse(args: argparse.Namespace) -> int:
-    from fusion import FusionError, NoOverlapError, alignment_error, fuse_all, true_relative_pose
+    from fusion import FusionError, alignment_error, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
+    from fusion.split import PARTS, fuse_checked
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -76,20 +77,20 @@ def _fuse(args: argparse.Namespace) -> int:
     if len(set(names)) < len(names):
         print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
     rng = np.random.default_rng(args.seed)
-    result, message = None, ""
     try:
         alignments = pairwise_alignments(maps, args.preset, rng)
-        result = fuse_all(maps, preset=args.preset, method=args.method, alignments=alignments)
-    except NoOverlapError as e:
-        message = str(e)
+        # a map that flagged itself is split at its alarm and each part aligned (fusion/split.py)
+        checked = fuse_checked(maps, preset=args.preset, method=args.method, alignments=alignments)
+        result, message = checked.fusion, checked.message
     except FusionError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
     report = {"preset": args.preset, "method": args.method, "maps": [], "alignments": [], "out": None}
-    for path, m in zip(args.maps, maps, strict=True):
+    splits = {c.index: c.to_dict() for c in checked.checks}
+    for k, (path, m) in enumerate(zip(args.maps, maps, strict=True)):
         report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
-                               **_self_check_figures(path, m)})
+                               **_self_check_figures(path, m), "split": splits.get(k)})
     tree = set() if result is None else set(result.tree) | {(c, p) for p, c in result.tree}
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
@@ -113,22 +114,28 @@ def _fuse(args: argparse.Namespace) -> int:
         _warn_lost(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
-    for k, pose in enumerate(result.poses):
+    for i, pose in enumerate(result.poses):
+        k, part = checked.sources[i]
+        if part is not None:      # a part of a split map: its own placement
+            report["maps"][k]["split"]["parts"][PARTS.index(part)]["pose_in_reference"] = (
+                None if pose is None else [float(v) for v in pose])
+            continue
         report["maps"][k]["pose_in_reference"] = None if pose is None else [float(v) for v in pose]
-        truth = true_relative_pose(maps[result.reference], maps[k])
-        if pose is not None and truth is not None and k != result.reference:
+        truth = true_relative_pose(checked.inputs[result.reference], maps[k])
+        if pose is not None and truth is not None and i != result.reference:
             report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
             report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
         if result.covariance_scales is not None:      # merge weights from the pairwise residuals (fusion.multi)
             claimed = float(np.sqrt(claimed_variance(maps[k])))
-            report["maps"][k]["covariance_scale"] = result.covariance_scales[k]
-            report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[k]))
+            report["maps"][k]["covariance_scale"] = result.covariance_scales[i]
+            report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[i]))
             report["maps"][k]["claimed_sigma"] = claimed
     report["merged_landmarks"] = len(result.map)
-    report["common_landmarks"] = int(sum(len(m) for k, m in enumerate(maps) if result.rows[k] is not None)
+    report["common_landmarks"] = int(sum(len(m) for i, m in enumerate(checked.inputs) if result.rows[i] is not None)
                                      - len(result.map))
-    report["unconnected"] = [args.maps[k] for k in result.unconnected]
-    report["overlap"] = not result.unconnected
+    merged = {checked.sources[i][0] for i, rows in enumerate(result.rows) if rows is not None}
+    report["unconnected"] = [path for k, path in enumerate(args.maps) if k not in merged]   # or left out by a split
+    report["overlap"] = not report["unconnected"]
     # known-ID maps placing one identity beyond their covariances apart: the merged map holds it once (fusion.merging)
     report["identity_conflicts"] = list(result.map.metadata.get("identity_conflicts", []))
     try:
@@ -142,7 +149,7 @@ def _fuse(args: argparse.Namespace) -> int:
     _warn_starved(report)
     _warn_lost(report)
     _warn_identity_conflicts(report)
-    if result.unconnected:
+    if report["unconnected"]:
         print("p3at fuse: these maps overlap no other map and were left out: "
               + ", ".join(report["unconnected"]), file=sys.stderr)
         return EXIT_NO_OVERLAP
@@ -197,6 +204,9 @@ def _print(report: dict, as_json: bool) -> None:
               "σ the map claims): " + ", ".join(
             f"{m['robot']} {m['merge_sigma']:.3f} m ({m['claimed_sigma']:.3f} m)" for m in report["maps"]
             if "merge_sigma" in m))
+    for k, m in enumerate(report["maps"]):
+        if m.get("split") is not None:
+            print(f"map {k} ({m['robot']}) {m['split']['text']}")
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")

@@ -53,3 +53,20 @@ def test_a_snapshot_that_lost_its_place_logs_one_warning_and_its_statistic():
     before = len(stream.rows)
     log.log_map("robot1", 3.0, old)
     assert not any(p.endswith("self_check") for p, _ in stream.rows[before:])
+
+
+def test_the_split_of_a_flagged_map_is_one_event_per_decision():
+    """fusion/split.py's decision travels in the pair's result (PairResult.self_check): one event per pair and
+    decision however often the mission fuses; a warning unless the map was used whole; none for a pair without it."""
+    stream = _Stream()
+    log = MissionLog(stream, ["robot1", "robot2"], blueprint=False)
+    pair = {"aligned": True, "tx": 0.0, "ty": 0.0, "theta": 0.0, "supports": 30, "common": 30, "self_check": "",
+            "split_decision": None}
+    log.log_alignment(1.0, "robot1", "robot2", pair)
+    split = {**pair, "self_check": "robot2 flagged itself: ... the parts disagree", "split_decision": "parts"}
+    for t in (2.0, 3.0):
+        log.log_alignment(t, "robot1", "robot2", split)
+    log.log_alignment(4.0, "robot1", "robot2", {**split, "self_check": "robot2 ... agree", "split_decision": "whole"})
+    levels = [str(e.level.as_arrow_array()[0]) for p, e in stream.rows if p == "mission/events"]
+    assert _events(stream) == ["fusion: robot2 flagged itself: ... the parts disagree", "fusion: robot2 ... agree"]
+    assert levels == ["WARN", "INFO"]
