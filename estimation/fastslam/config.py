@@ -92,6 +92,13 @@ class FastSLAMConfig:
     id_drift_inherit: bool = False                # with id_relative_drift: landmarks re-measured in a frame anchored
     #                                             #   on an older one take D_a + P_local (id_gate.RelativeGate.inherit);
     #                                             #   off: landmarks within the NEES bound fell (docs, "Session 7")
+    drift_lever: bool = False                     # the drift tracker carries a matched landmark's creation-pose
+    #                                             #   covariance to the robot with the heading's lever arm
+    #                                             #   (lever_drift.py); export and D_r only on the stereo path
+    observation_correlation: float = 0.0          # lag-1 correlation of a landmark's successive observation
+    #                                             #   errors (AR(1)); the export multiplies each landmark's EKF
+    #                                             #   covariance by lever_drift.correlated_mean_factor; estimates
+    #                                             #   unchanged. 0: the EKF's independence is taken as given
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:
@@ -135,6 +142,8 @@ class FastSLAMConfig:
             raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
         if not 0.0 < self.self_check_false_alarm < 1.0:
             raise ValueError(f"self_check_false_alarm must lie in (0, 1), not {self.self_check_false_alarm}")
+        if not 0.0 <= self.observation_correlation < 1.0:
+            raise ValueError(f"observation_correlation must lie in [0, 1), not {self.observation_correlation}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

@@ -69,6 +69,7 @@ from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
 from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
+from .lever_drift import LeverDriftTracker, correlated_mean_factor
 from .linalg import (
     joseph_update,
     lower_matvec,
@@ -199,7 +200,7 @@ class FastSLAM:
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
-        self.drift = DriftTracker()                                     # the map frame's drift (see drift.py)
+        self.drift = LeverDriftTracker() if config.drift_lever else DriftTracker()   # the map frame's drift
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
         # co-visibility of landmark pairs in the most probable particle (see _merge_duplicates): evidence "one
@@ -1199,6 +1200,9 @@ class FastSLAM:
         meta = dict(metadata or {})
         if covariance.startswith("mixture"):
             covs = self.mixture_covariances(lids, means)
+        if self.config.observation_correlation > 0:   # successive observations' errors are correlated
+            covs = covs * correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None,
+                                                                                                           None]
         if covariance.endswith("drift"):
             covs = covs + self.drift.landmark_covariances(lids)
         meta["landmark_covariance"] = covariance
