@@ -142,7 +142,8 @@ def same(folder: Path) -> None:
     plain = fuse_all(maps, rng=np.random.default_rng(0))
     diff = float(np.max(np.abs(checked.fusion.map.positions - plain.map.positions))) \
         if len(checked.fusion.map) == len(plain.map) else float("inf")
-    print(f"{folder}: {len(maps)} maps, {verdicts} carrying a self-check verdict, {flagged} flagged; fused with the check: {len(checked.fusion.map)} landmarks, "
+    print(f"{folder}: {len(maps)} maps, {verdicts} carrying a self-check verdict, {flagged} flagged; fused with the "
+          f"check: {len(checked.fusion.map)} landmarks, "
           f"without: {len(plain.map)}; largest position difference {diff:.3g} m")
 
 

@@ -28,7 +28,7 @@ The significance leans towards "disagree" on purpose: a healthy map wrongly spli
 a correct alignment (only the constraint between the parts is lost), while a lost map wrongly kept whole puts a
 misplaced part into the fused map, the worst output.
 
-Only the first alarm splits the map (later alarms are reported as not checked).
+Only the first alarm splits the map; later alarms measured against another gap are reported as not checked.
 """
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ class SplitCheck:
     index: int
     robot: str
     first_id: int
-    alarms: int
+    later_gaps: int               # later alarms measured against other gaps (not checked)
     parts: list[PartCheck]
     comparisons: list[tuple[int, float, float]] = field(default_factory=list)
     agree: bool | None = None
@@ -150,7 +150,8 @@ class SplitCheck:
     text: str = ""
 
     def to_dict(self) -> dict:
-        return {"map": self.index, "robot": self.robot, "first_id_after_gap": self.first_id, "alarms": self.alarms,
+        return {"map": self.index, "robot": self.robot, "first_id_after_gap": self.first_id,
+                "later_gaps_not_checked": self.later_gaps,
                 "agree": self.agree, "decision": self.decision, "text": self.text,
                 "comparisons": [{"against": j, "chi2": c, "p": p} for j, c, p in self.comparisons],
                 "parts": [p.to_dict() for p in self.parts]}
@@ -219,7 +220,7 @@ def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | Alignment
 
 def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str | AlignmentConfig = "robust",
                 rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
-                alarms: int = 1) -> SplitCheck:
+                later_gaps: int = 0) -> SplitCheck:
     """Split ``maps[index]`` at ``first_id``, align each part to every other map (each part as map 2: the pose of
     the flagged map's frame in the other's) and decide (module docstring). Where only one part aligns to a map, the
     other is tested at that part's transform (:func:`align_at`) before the two are compared."""
@@ -235,7 +236,7 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
                 check.alignments[j] = (cache.align(maps[j], part, config, child) if cache is not None
                                        else align(maps[j], part, config, child))
         parts.append(check)
-    result = SplitCheck(index, maps[index].robot, int(first_id), int(alarms), parts)
+    result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts)
     for j, child in zip(others, rng.spawn(len(others)), strict=True):
         found = [p for p in parts if j in p.aligned_to]
         if len(found) == 1 and not (other := parts[1 - parts.index(found[0])]).too_small:
@@ -264,8 +265,9 @@ def _text(check: SplitCheck, names: list[str], min_supports: int) -> str:
     before, after = check.parts
     head = (f"flagged itself: split at landmark id {check.first_id} ({before.landmarks} landmarks made before the "
             f"gap, {after.landmarks} from it on)")
-    if check.alarms > 1:
-        head += f"; {check.alarms - 1} later alarm{'s' if check.alarms > 2 else ''} not checked"
+    if check.later_gaps:
+        head += (f"; {check.later_gaps} later alarm{'s' if check.later_gaps > 1 else ''} measured against "
+                 f"another gap not checked")
     figures = ", ".join(f"against {names[j]}: χ² {c:.1f}, p {p:.2g}" for j, c, p in check.comparisons)
     tested = "; ".join(f"the part {p.name} the gap does not align on its own and was tested at the other part's "
                        f"transform against {names[j]} ({a.statistics.supports} supports, "
@@ -330,7 +332,7 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         message = str(e)
     check_rng = np.random.default_rng(0) if check_rng is None else check_rng
     flagged = [k for k, s in enumerate(split_ids) if s is not None]
-    checks = [check_split(maps, k, split_ids[k], preset, child, cache, _alarm_count(maps[k]))
+    checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]))
               for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
     if not any(c.decision != "whole" for c in checks):
         return CheckedFusion(whole, list(maps), [(k, None) for k in range(len(maps))], checks, whole, message)
@@ -369,6 +371,9 @@ def _split_id_or_none(landmark_map: LandmarkMap) -> int | None:
         return None
 
 
-def _alarm_count(landmark_map: LandmarkMap) -> int:
-    n = landmark_map.metadata.get(SELF_CHECK_KEY, {}).get("n_alarms", 1)
-    return int(n) if isinstance(n, int) and not isinstance(n, bool) and n >= 1 else 1
+def later_gaps(landmark_map: LandmarkMap) -> int:
+    """Later alarms of a flagged map measured against another gap than the first's (the alarms it lists): each would
+    split the map elsewhere; only the first split is checked. Alarms at the same gap are the same split."""
+    alarms = landmark_map.metadata.get(SELF_CHECK_KEY, {}).get("alarms", [])
+    first = {a.get("first_id_after_gap") for a in alarms[:1] if isinstance(a, dict)}
+    return len({a.get("first_id_after_gap") for a in alarms[1:] if isinstance(a, dict)} - first)

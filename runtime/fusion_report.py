@@ -167,7 +167,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
 
 def _split_checks(ordered: list[LandmarkMap], preset: str, cache) -> list:
     """fusion.split.check_split of every map that flagged itself (a malformed verdict is read as none)."""
-    from fusion.split import check_split, split_id
+    from fusion.split import check_split, later_gaps, split_id
 
     checks = []
     for k, m in enumerate(ordered):
@@ -176,7 +176,7 @@ def _split_checks(ordered: list[LandmarkMap], preset: str, cache) -> list:
         except ValueError:
             first = None
         if first is not None:
-            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache))
+            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache, later_gaps(m)))
     return checks
 
 

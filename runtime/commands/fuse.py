@@ -254,8 +254,9 @@ def _warn_lost(report: dict) -> None:
     for k, m in enumerate(report["maps"]):
         if m["lost"] is not None:
             print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['lost']}; if so, the map after that is not "
-                  "tied to the map before it and an alignment through it can be right for one part only (the check "
-                  "also flags some healthy maps: docs/fastslam.md, Session 7: self-check)", file=sys.stderr)
+                  "tied to the map before it, so the map was split there and each part aligned (the line 'map "
+                  f"{k} ({m['robot']}) flagged itself' says what was decided; the check also flags some healthy maps: "
+                  "docs/fastslam.md, Session 7: self-check)", file=sys.stderr)
 
 
 def _warn_identity_conflicts(report: dict) -> None:
