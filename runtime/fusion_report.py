@@ -220,8 +220,8 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
         i = placed[0]
         result.aligned = True
         result.tx, result.ty, result.theta = (float(v) for v in multi.poses[i])
-        result.supports = max(len(a.supports) for (a_i, a_j), a in multi.alignments.items()
-                              if i in (a_i, a_j) and a.found)
+        result.supports = max((len(a.supports) for (a_i, a_j), a in multi.alignments.items()
+                               if i in (a_i, a_j) and a.found), default=0)
         column = {r: c for c, r in enumerate(multi.map.robots)}
         if names[0] in column and other in column:
             result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))

@@ -91,7 +91,11 @@ def _fuse(args: argparse.Namespace) -> int:
     for k, (path, m) in enumerate(zip(args.maps, maps, strict=True)):
         report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
                                **_self_check_figures(path, m), "split": splits.get(k)})
-    tree = set() if result is None else set(result.tree) | {(c, p) for p, c in result.tree}
+    # tree edges between maps merged whole (a split map's parts were placed by their own alignments)
+    src = checked.sources
+    tree = set() if result is None else {(src[p][0], src[c][0]) for p, c in result.tree
+                                         if src[p][1] is None and src[c][1] is None}
+    tree |= {(c, p) for p, c in tree}
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
         entry["supports_count"] = len(a.supports)
