@@ -181,3 +181,23 @@ def test_p3at_fuse_marks_no_whole_map_alignment_used_for_a_map_merged_in_parts(s
                  "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert [a["used"] for a in report["alignments"]] == [True] and report["maps"][1]["split"]["decision"] == "whole"
+
+
+@settings(max_examples=50, deadline=None)
+@given(pose=st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(-np.pi, np.pi)),
+       delta=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-0.5, 0.5)),
+       sigma=st.floats(0.01, 1.0))
+def test_the_parts_difference_is_symmetric_zero_for_equal_poses_and_wraps_the_angle(pose, delta, sigma):
+    from fusion.alignment import Alignment
+    from fusion.split import parts_difference
+
+    cov = np.diag([sigma ** 2, sigma ** 2, (0.1 * sigma) ** 2])
+    a = Alignment.from_pose(pose, cov)
+    b = Alignment.from_pose(np.array(pose) + np.array(delta), cov)
+    assert parts_difference(a, a)[0] < 1e-9 and parts_difference(a, a)[1] > 0.999
+    ab, ba = parts_difference(a, b), parts_difference(b, a)
+    assert ab[0] == pytest.approx(ba[0], rel=1e-9, abs=1e-9)
+    d = np.array(delta)
+    assert ab[0] == pytest.approx(d @ np.linalg.solve(2 * cov, d), rel=1e-6, abs=1e-6)
+    turned = Alignment.from_pose(np.array(pose) + np.array([0.0, 0.0, 2 * np.pi]), cov)   # the same pose
+    assert parts_difference(a, turned)[0] < 1e-6
