@@ -144,13 +144,14 @@ class SplitCheck:
     first_id: int
     later_gaps: int               # later alarms measured against other gaps (not checked)
     parts: list[PartCheck]
+    t: float | None = None        # s, when the first alarm was raised (the map's own clock)
     comparisons: list[tuple[int, float, float]] = field(default_factory=list)
     agree: bool | None = None
     decision: str = "whole"
     text: str = ""
 
     def to_dict(self) -> dict:
-        return {"map": self.index, "robot": self.robot, "first_id_after_gap": self.first_id,
+        return {"map": self.index, "robot": self.robot, "first_id_after_gap": self.first_id, "t": self.t,
                 "later_gaps_not_checked": self.later_gaps,
                 "agree": self.agree, "decision": self.decision, "text": self.text,
                 "comparisons": [{"against": j, "chi2": c, "p": p} for j, c, p in self.comparisons],
@@ -236,7 +237,7 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
                 check.alignments[j] = (cache.align(maps[j], part, config, child) if cache is not None
                                        else align(maps[j], part, config, child))
         parts.append(check)
-    result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts)
+    result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts, _alarm_time(maps[index]))
     for j, child in zip(others, rng.spawn(len(others)), strict=True):
         found = [p for p in parts if j in p.aligned_to]
         if len(found) == 1 and not (other := parts[1 - parts.index(found[0])]).too_small:
@@ -263,8 +264,9 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
 
 def _text(check: SplitCheck, names: list[str], min_supports: int) -> str:
     before, after = check.parts
-    head = (f"flagged itself: split at landmark id {check.first_id} ({before.landmarks} landmarks made before the "
-            f"gap, {after.landmarks} from it on)")
+    when = "" if check.t is None else f" at t≈{check.t:.1f} s"
+    head = (f"flagged itself{when}: split at landmark id {check.first_id} ({before.landmarks} landmarks made before "
+            f"the gap, {after.landmarks} from it on)")
     if check.later_gaps:
         head += (f"; {check.later_gaps} later alarm{'s' if check.later_gaps > 1 else ''} measured against "
                  f"another gap not checked")
@@ -369,6 +371,12 @@ def _split_id_or_none(landmark_map: LandmarkMap) -> int | None:
         return split_id(landmark_map)
     except ValueError:   # the caller reports a malformed verdict (p3at fuse: a one-line note); the map is fused
         return None
+
+
+def _alarm_time(landmark_map: LandmarkMap) -> float | None:
+    alarms = landmark_map.metadata.get(SELF_CHECK_KEY, {}).get("alarms") or [{}]
+    t = alarms[0].get("t") if isinstance(alarms[0], dict) else None
+    return float(t) if isinstance(t, int | float) and not isinstance(t, bool) and np.isfinite(t) else None
 
 
 def later_gaps(landmark_map: LandmarkMap) -> int:

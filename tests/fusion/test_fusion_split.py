@@ -134,7 +134,7 @@ def test_p3at_fuse_reports_the_split_in_text_and_json(sim, tmp_path, capsys):
     args = ["fuse", str(tmp_path / "r1.npz"), str(tmp_path / "r2.npz"), "--out", str(tmp_path / "m.npz")]
     assert main(args) == 0
     out = capsys.readouterr().out
-    assert "map 1 (robot2) flagged itself: split at landmark id" in out and "the parts disagree" in out
+    assert "map 1 (robot2) flagged itself at t≈60.0 s: split at landmark id" in out and "the parts disagree" in out
     assert main(args + ["--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     split = report["maps"][1]["split"]
