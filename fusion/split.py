@@ -102,7 +102,7 @@ class PartCheck:
     name: str                                   # "before" or "after" the gap
     landmarks: int
     alignments: dict[int, Alignment] = field(default_factory=dict)   # other map index -> alignment of this part
-    at_other: dict[int, Alignment] = field(default_factory=dict)     # ... tested at the other part's transform
+    at_other: dict[int, Alignment] = field(default_factory=dict)     # ... tested at the other part's (align_at)
     too_small: bool = False
     used: bool = False
 
@@ -115,7 +115,9 @@ class PartCheck:
         if self.too_small:
             return (f"too small to align ({self.landmarks} landmark{'s' if self.landmarks != 1 else ''}; an "
                     f"alignment needs at least {min_supports})")
-        return "; ".join(f"against {names[j]}: {a.reason}" for j, a in self.alignments.items()) or "no other map"
+        why = [f"against {names[j]}: {a.reason}" for j, a in self.alignments.items()]
+        why += [f"against {names[j]}, {a.reason}" for j, a in self.at_other.items() if not a.found]
+        return "; ".join(why) or "no other map"
 
     def to_dict(self) -> dict:
         return {"part": self.name, "landmarks": self.landmarks, "too_small": self.too_small, "used": self.used,
@@ -241,10 +243,10 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
     for j, child in zip(others, rng.spawn(len(others)), strict=True):
         found = [p for p in parts if j in p.aligned_to]
         if len(found) == 1 and not (other := parts[1 - parts.index(found[0])]).too_small:
-            at = align_at(maps[j], halves[parts.index(other)], found[0].alignments[j].pose, config, child)
-            if at.found:
-                other.at_other[j] = at
+            other.at_other[j] = align_at(maps[j], halves[parts.index(other)], found[0].alignments[j].pose, config,
+                                         child)
         pair = [p.alignments[j] if j in p.aligned_to else p.at_other.get(j) for p in parts]
+        pair = [a if a is not None and a.found else None for a in pair]
         if all(a is not None for a in pair):
             value, p = parts_difference(*pair)
             result.comparisons.append((j, value, p))
@@ -274,7 +276,7 @@ def _text(check: SplitCheck, names: list[str], min_supports: int) -> str:
     tested = "; ".join(f"the part {p.name} the gap does not align on its own and was tested at the other part's "
                        f"transform against {names[j]} ({a.statistics.supports} supports, "
                        f"{a.statistics.expected_chance_supports - 2:.1f} by chance beyond 2)"
-                       for p in check.parts for j, a in p.at_other.items())
+                       for p in check.parts for j, a in p.at_other.items() if a.found)
     figures += f"; {tested}" if tested else ""
     kept = [p for p in check.parts if p.used]
     lost = [p for p in check.parts if not p.used]
