@@ -6,7 +6,7 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
-        [--set FIELD=VALUE ...] [--json]
+        [--range-calibration] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -16,13 +16,16 @@ under the χ²₂ 95 % NEES bound (start frame and after the rigid fit), pose NE
 χ²₃ 95 %). Then the issue's targets, met or not. Maps go to MAPS/{id,unknown}/robotN.npz.
 
 Noise: ``own`` fits each robot's model from its own log against the truth (what `p3at slam dataset` does without
---noise); ``others`` from the other robots' logs only (no robot is scored with noise fitted on itself); a FILE
-is used for every robot. ``--no-inflation``: take consecutive sightings as independent (the sensor variances are
-not multiplied by the noise model's variance_inflation). ``--heading-bias``: fit the odometry's heading bias per
-metre beside the rotation scale (estimate_noise(heading_bias=True); off by default, docs/fastslam.md "Session 5";
-a FILE is used as it is). ``--sensor-correlation passes``: the sensor's correlation (its variance inflation)
-measured over whole passes of sightings instead of from the lag-1 correlation of consecutive ones
-(estimate_noise's sensor_correlation; docs/fastslam.md "Session 5").
+--noise); ``others`` from the other robots' logs only (no robot is scored with noise fitted on itself);
+``first-half`` from the first half of the robot's own log (its sightings before the median sighting time: the
+second half is scored on a model that never saw it); a FILE is used for every robot. ``--range-calibration``: fit
+the range's calibration too (estimate_noise(range_calibration=True): the camera reports depth, not range;
+docs/fastslam.md "Session 8"; a FILE is used as it is). ``--no-inflation``: take consecutive sightings as
+independent (the sensor variances are not multiplied by the noise model's variance_inflation). ``--heading-bias``:
+fit the odometry's heading bias per metre beside the rotation scale (estimate_noise(heading_bias=True); off by
+default, docs/fastslam.md "Session 5"; a FILE is used as it is). ``--sensor-correlation passes``: the sensor's
+correlation (its variance inflation) measured over whole passes of sightings instead of from the lag-1 correlation
+of consecutive ones (estimate_noise's sensor_correlation; docs/fastslam.md "Session 5").
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--association", default="id,unknown")
-    parser.add_argument("--noise", default="own", help="own | others | FILE (see the module docstring)")
+    parser.add_argument("--noise", default="own", help="own | others | first-half | FILE (see the module docstring)")
     parser.add_argument("--particles", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--until", type=float)
@@ -79,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sensor-correlation", choices=("lag1", "passes"), default="lag1")
     parser.add_argument("--heading-bias", action="store_true", help="fit the odometry's heading bias per metre "
                         "beside the rotation scale")
+    parser.add_argument("--range-calibration", action="store_true", help="fit the range's calibration (the camera "
+                        "reports depth along its axis, not range)")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
@@ -93,14 +98,17 @@ def main(argv: list[str] | None = None) -> int:
     logs = {r: read_mrclam(args.data, r) for r in robots}
     others = {r: read_mrclam(args.data, r) for r in range(1, 6) if r not in logs} if args.noise == "others" else {}
     noise = {}
+    fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
+           "range_calibration": args.range_calibration}
     for r in robots:
         if args.noise == "own":
-            noise[r] = estimate_noise([logs[r]], heading_bias=args.heading_bias,
-                                      sensor_correlation=args.sensor_correlation).model
+            noise[r] = estimate_noise([logs[r]], **fit).model
         elif args.noise == "others":
             pool = [log for k, log in {**logs, **others}.items() if k != r]
-            noise[r] = estimate_noise(pool, heading_bias=args.heading_bias,
-                                      sensor_correlation=args.sensor_correlation).model
+            noise[r] = estimate_noise(pool, **fit).model
+        elif args.noise == "first-half":
+            noise[r] = estimate_noise([read_mrclam(args.data, r, until=float(np.median(logs[r].sighting_times)))],
+                                      **fit).model
         else:
             noise[r] = NoiseModel.load(args.noise)
 
@@ -130,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"runs": {f"{mode}/robot{r}": m for (mode, r), m in results.items()}, "summary": summary,
                           "noise": args.noise, "heading_bias": args.heading_bias,
                           "sensor_correlation": args.sensor_correlation,
+                          "range_calibration": args.range_calibration,
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation,
                           "particles": args.particles, "seed": args.seed,

@@ -29,6 +29,7 @@ from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
 
 ASSOCIATIONS = ("id", "unknown")
+_KNOWN_LANDMARK_VARIANCE = 1e-6   # m²: Vicon's landmark positions, taken as exact (known_map)
 
 
 @dataclass
@@ -45,13 +46,16 @@ class DatasetRun:
 
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
                      association: str = "id", robot: str = "robot", until: float | None = None,
-                     inflate_correlated: bool = True) -> DatasetRun:
+                     inflate_correlated: bool = True, known_map: bool = False) -> DatasetRun:
     """Run FastSLAM over ``log`` (needs ground truth for the scores); see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
     range, σ_φ) and the calibration (odometry scales, bearing offset); ``until``: stop after this log time (s).
     ``inflate_correlated``: multiply the sensor variances by the model's :meth:`RangeBearingNoise.variance_inflation`
     (consecutive sightings of a landmark share most of their error; the filter takes them as independent).
+    ``known_map``: localization only, the floor of what the filter and the noise model can reach when the map is
+    not the problem: every particle starts with the log's true landmarks (in the start frame, σ 1 mm, named by
+    their ids) and none is ever removed (needs ``association="id"``).
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -66,6 +70,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
                                      range_sigma_per_m=sensor.range_sigma_per_m * inflate_r,
                                      bearing_sigma_rad=sensor.bearing_sigma_rad * inflate_b)
     config = _association_config(with_fastslam(noise, config), association)
+    if known_map:   # the true landmarks stay whatever the existence evidence says
+        config = dataclasses.replace(config, existence_remove=-1e9)
     no_descriptors = np.zeros((0, 0), np.float32)
     slam = FastSLAM(config, rng)
     times, first = np.unique(log.sighting_times, return_index=True)
@@ -73,6 +79,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     # turn on the spot) gives the map nothing, and its heading error would become a permanent offset of the frame
     t0 = float(times[0]) if len(times) else log.start_time
     true_start = log.true_pose([t0])[0]
+    if known_map:
+        _load_true_landmarks(slam, log, true_start, association)
     # each frame's sightings end where the next frame's begin, counted before ``until`` cuts the frames: after the
     # cut the last kept frame would otherwise run to the end of the log and take in every later sighting
     bounds = np.append(first, len(log))[1:]
@@ -87,8 +95,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     for k, (start, stop) in enumerate(zip(first, bounds, strict=True)):
         slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])))
         ids = log.landmark_ids[start:stop]
-        obs = _observations(log.ranges[start:stop], log.bearings[start:stop] - sensor.bearing_offset_rad, sensor,
-                            no_descriptors.reshape(len(ids), 0), float(times[k]))
+        ranges, bearings = sensor.corrected(log.ranges[start:stop], log.bearings[start:stop])
+        obs = _observations(ranges, bearings, sensor, no_descriptors.reshape(len(ids), 0), float(times[k]))
         if association == "id":
             obs = dataclasses.replace(obs, ids=ids)
         report = slam.update(obs)
@@ -111,6 +119,18 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     metrics.update(frames=len(times), particles=config.n_particles, version=config.version,
                    association=association)
     return DatasetRun(landmark_map, truth, estimated_world, dead, nees, metrics)
+
+
+def _load_true_landmarks(slam: FastSLAM, log: RangeBearingLog, true_start: np.ndarray, association: str) -> None:
+    """Every particle's map := the log's true landmarks in the start frame, 1 mm σ (``known_map``)."""
+    if association != "id":
+        raise ValueError("known_map needs association='id' (the true landmarks are named by their ids)")
+    planar = between(true_start, np.column_stack([log.truth_positions, np.zeros(len(log.truth_ids))]))[:, :2]
+    n = len(planar)
+    covariances = np.tile(np.eye(3) * _KNOWN_LANDMARK_VARIANCE, (n, 1, 1))
+    slam.load_prior_map(LandmarkMap(np.column_stack([planar, np.zeros(n)]), covariances,
+                                    np.zeros((n, 0), np.float32), counts=np.ones(n, np.int64)),
+                        external_ids=log.truth_ids)
 
 
 def _chain(increments: np.ndarray) -> np.ndarray:

@@ -27,6 +27,10 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
     max_range_m = 30.0
     range_correlation = 0.0    # lag-1 correlation of consecutive sightings' residuals (see variance_inflation)
     bearing_correlation = 0.0
+    range_offset_m = 0.0       # calibration (optional, identity if absent): r ← a + r·(b₀ + b₁φ + b₂φ²), the
+    range_scale = 1.0          #   measured φ; a camera that reports depth along its axis, not range, has b₂ ≈ ½
+    range_scale_per_rad = 0.0  #   (1/cos φ to second order; see RangeBearingNoise.corrected)
+    range_scale_per_rad2 = 0.0
 
     [stereo]                   # optional: a stereo head (the front end's TriangulationNoise)
     sigma_u_px = 0.5
@@ -57,7 +61,8 @@ from .geometry import between, wrap_angle
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
 MAX_FILE_BYTES = 1 << 20     # a noise model is a few hundred bytes; refuse anything absurd before parsing
-SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m")
+SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m", "range_offset_m", "range_scale_per_rad",
+                 "range_scale_per_rad2")
 MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is a broken robot, not a calibration
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
 DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
@@ -88,6 +93,25 @@ class RangeBearingNoise:
     max_range_m: float = 30.0
     range_correlation: float = 0.0       # lag-1 correlation of consecutive sightings' residuals of one landmark
     bearing_correlation: float = 0.0
+    range_offset_m: float = 0.0          # calibration of the range (see corrected); identity by default
+    range_scale: float = 1.0
+    range_scale_per_rad: float = 0.0
+    range_scale_per_rad2: float = 0.0
+
+    def corrected(self, ranges, bearings) -> tuple[np.ndarray, np.ndarray]:
+        """Calibrated (ranges, bearings) (N,) from measured ones (N,): φ − ``bearing_offset_rad``, and
+        r' = a + r·(b₀ + b₁φ + b₂φ²) with the measured φ (a = ``range_offset_m``, b₀ = ``range_scale``,
+        b₁ = ``range_scale_per_rad``, b₂ = ``range_scale_per_rad2``).
+
+        Why this form: a camera that measures a landmark's distance from its apparent size measures the depth
+        along its optical axis, d = r·cos(φ − ψ) (ψ: the axis's yaw), not the range; r = d / cos(φ − ψ) =
+        d·(1 + ψ² / 2 − ψφ + φ² / 2 + O(φ⁴)) is, within the field of view (|φ| ≲ 0.6 rad: the next term is
+        under 0.5 %), this polynomial with b₂ ≈ ½ b₀, b₁ ≈ −ψ b₀; a and b₀ − 1 absorb the size's offset and
+        scale. MRCLAM's five cameras all show it (docs/fastslam.md, "Session 8")."""
+        r = np.asarray(ranges, float)
+        phi = np.asarray(bearings, float)
+        scale = self.range_scale + self.range_scale_per_rad * phi + self.range_scale_per_rad2 * phi ** 2
+        return self.range_offset_m + r * scale, phi - self.bearing_offset_rad
 
     def variance_inflation(self) -> tuple[float, float]:
         """(range, bearing) factors (1 + ρ)/(1 − ρ) on the variances: an AR(1) series of N sightings with lag-1
@@ -149,6 +173,9 @@ class NoiseModel:
             raise NoiseModelError("range_sigma_m and bearing_sigma_rad must be > 0")
         if rb is not None and not (0 < rb.fov_rad <= 2 * math.pi and rb.min_range_m < rb.max_range_m):
             raise NoiseModelError("the footprint needs 0 < fov_rad <= 2π and min_range_m < max_range_m")
+        if rb is not None and not 0.5 <= rb.range_scale <= 2.0:
+            raise NoiseModelError(f"range_scale must lie in [0.5, 2] (a calibration, not a new sensor), not "
+                                  f"{rb.range_scale}")
         if rb is not None and not (0 <= rb.range_correlation < 0.99 and 0 <= rb.bearing_correlation < 0.99):
             raise NoiseModelError("range_correlation and bearing_correlation must lie in [0, 0.99)")
 
@@ -302,7 +329,7 @@ class NoiseEstimate:
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
-                   sensor_correlation: str = "lag1") -> NoiseEstimate:
+                   sensor_correlation: str = "lag1", range_calibration: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -334,6 +361,9 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     AR(1) inflation (1 + ρ)/(1 − ρ) equals the measured one of whole passes (:func:`_pass_inflation`): what a
     filter taking a pass's sightings as independent needs over a pass. Not the default: on MRCLAM it improved
     known-ID maps on three seeds but made the leave-one-out and unknown-association runs worse (docs/fastslam.md).
+    ``range_calibration``: first fit the range's calibration r_true ≈ a + r·(b₀ + b₁φ + b₂φ²) (measured r, φ;
+    see :meth:`RangeBearingNoise.corrected`) by least squares, refitted three times on the sightings within
+    OUTLIER_MADS robust σ, and take every range residual, σ_r and correlation after it; off: the identity.
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -368,7 +398,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         if sum(len(o[0]) for o in other) >= 10:
             by_window.append((w, *np.sqrt(_random_walk_fit(other))))
 
-    residual_r, residual_b, ranges, bearings, follows = [], [], [], [], []
+    residual_r, residual_b, ranges, bearings, follows, true_ranges = [], [], [], [], [], []
     for log in logs:
         if len(log) == 0:
             continue
@@ -376,12 +406,18 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         known = np.isin(log.landmark_ids, log.truth_ids)
         target = log.truth_positions[np.searchsorted(log.truth_ids, log.landmark_ids[known])]
         d = target - pose[known, :2]
-        residual_r.append(log.ranges[known] - np.hypot(d[:, 0], d[:, 1]))
+        true_ranges.append(np.hypot(d[:, 0], d[:, 1]))
+        residual_r.append(log.ranges[known] - true_ranges[-1])
         residual_b.append(wrap_angle(log.bearings[known] - (np.arctan2(d[:, 1], d[:, 0]) - pose[known, 2])))
         ranges.append(log.ranges[known])
         bearings.append(log.bearings[known])
         follows.append(_consecutive(log.sighting_times[known], log.landmark_ids[known]))
     range_bearing = None
+    range_fit = (0.0, 1.0, 0.0, 0.0)
+    if range_calibration and residual_r and sum(len(r) for r in residual_r) >= 20:
+        range_fit = _range_calibration(np.concatenate(ranges), np.concatenate(bearings), np.concatenate(true_ranges))
+        calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
+        residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
            **bias_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
@@ -415,7 +451,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         range_bearing = RangeBearingNoise(range_sigma_m=a, range_sigma_per_m=b,
                                           bearing_sigma_rad=float(np.sqrt(np.mean(db[inlier] ** 2))),
                                           bearing_offset_rad=offset, fov_rad=fov, min_range_m=min_range,
-                                          max_range_m=max_range, range_correlation=rho_r, bearing_correlation=rho_b)
+                                          max_range_m=max_range, range_correlation=rho_r, bearing_correlation=rho_b,
+                                          **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
         edges = [0.0] + [edge for _, edge in DETECTION_BANDS]
         for (label, _), lo, hi in zip(DETECTION_BANDS, edges[:-1], edges[1:], strict=True):
             probability = _detection_probability(logs, fov, lo, hi)
@@ -435,6 +472,27 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
                f"truth ({len(u)} odometry windows of {window_s:g} s)")
     return NoiseEstimate(model, np.array(by_window, float).reshape(-1, 4))
+
+
+_RANGE_CALIBRATION = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2")
+
+
+def _range_calibration(ranges: np.ndarray, bearings: np.ndarray, true_ranges: np.ndarray) -> tuple[float, ...]:
+    """(a, b₀, b₁, b₂) of r_true ≈ a + r·(b₀ + b₁φ + b₂φ²) (measured r, φ (N,); see RangeBearingNoise.corrected):
+    least squares, refitted three times on the sightings within OUTLIER_MADS robust σ of the last fit (misread
+    barcodes and Vicon glitches must not bend it). The identity if the fit leaves b₀ outside [0.5, 2]."""
+    design = np.column_stack([np.ones_like(ranges), ranges, ranges * bearings, ranges * bearings ** 2])
+    keep = np.ones(len(ranges), bool)
+    coefficients = np.array([0.0, 1.0, 0.0, 0.0])
+    for _ in range(3):
+        if keep.sum() < design.shape[1] * 5:
+            break
+        coefficients, *_ = np.linalg.lstsq(design[keep], true_ranges[keep], rcond=None)
+        error = true_ranges - design @ coefficients
+        keep = np.abs(error - np.median(error)) < OUTLIER_MADS * _robust_sigma(error)
+    if not 0.5 <= coefficients[1] <= 2.0:
+        return 0.0, 1.0, 0.0, 0.0
+    return tuple(float(c) for c in coefficients)
 
 
 def _calibrated(increments, scales, heading_bias_per_m: float) -> np.ndarray:

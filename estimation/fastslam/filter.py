@@ -1095,12 +1095,13 @@ class FastSLAM:
         self._n_ids = need
 
     # == prior map ===========================================================================================
-    def load_prior_map(self, landmark_map: LandmarkMap, cell_size: float = 4.0) -> np.ndarray:
+    def load_prior_map(self, landmark_map: LandmarkMap, cell_size: float = 4.0, external_ids=None) -> np.ndarray:
         """Give every particle the same starting map (a previous session's, or a known one), stored once.
 
         The landmarks (in this filter's start frame) are laid out in blocks cell by cell of a ``cell_size``
         grid, so each block is spatially compact and association touches only the blocks in view. Must be
         called before the first update. Returns the ids (N,) the filter gave the map's landmarks, in order.
+        ``external_ids`` (N,) optional: each landmark's identity for ``association="id"`` (barcode, tag).
         """
         if self._n_ids or int(self.store.n_blocks.max(initial=0)):
             raise ValueError("load_prior_map must be called before the filter holds landmarks")
@@ -1112,6 +1113,9 @@ class FastSLAM:
         order = np.lexsort((cells[:, 1], cells[:, 0]))
         ids = np.arange(n, dtype=np.int64)
         self._append_descriptors(landmark_map.descriptors.astype(np.float32))
+        if external_ids is not None:
+            self._external_of_lid[ids] = np.asarray(external_ids, np.int64).reshape(n)
+            self._lid_of_external.update({int(e): int(i) for i, e in zip(ids, self._external_of_lid[ids], strict=True)})
         store = self.store
         g = store.append_slots(np.zeros(n, np.int64))
         store.flat_mean[g] = landmark_map.positions[order]
