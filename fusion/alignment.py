@@ -1000,3 +1000,47 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if covariance is not None and len(fit[0]) >= 2:
         start_cov = start_frame_covariance(*fit, pose, config.position_floor)
     return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov)
+
+
+def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | AlignmentConfig = "robust",
+             rng: np.random.Generator | None = None) -> Alignment:
+    """Map 2 tested at one given transform ``pose`` (3,) (another part's alignment): the correspondences and gates
+    of :func:`fusion.align`, the supports of ``pose`` polished as align polishes its winner, and its evidence
+    without a search: one hypothesis given from outside, so no Bonferroni factor for hypotheses tried and no rival
+    (the other part's alignment already chose among them). Found iff P(Poisson(λ_decoy) ≥ s − 2) is below the
+    preset's significance, s ≥ its minimum and the supports spread out, as for align."""
+    config = _resolve(preset)
+    rng = np.random.default_rng(0) if rng is None else rng
+    empty = np.zeros((0, 2), np.int64)
+    identities = landmark_identities(map1) is not None and landmark_identities(map2) is not None
+    with_descriptors = identities or (has_descriptors(map1) and has_descriptors(map2))
+    if not with_descriptors and len(map1) * len(map2) > MAX_GEOMETRIC_PAIRS:
+        return Alignment(False, config.name, None, None, empty, AlignmentStatistics(descriptors=False),
+                         f"more than {MAX_GEOMETRIC_PAIRS} candidate pairs without descriptors")
+    pairs, _ = _correspondences(map1, map2, config, rng)
+    if len(pairs) < max(2, config.min_supports):
+        return Alignment(False, config.name, None, None, empty, AlignmentStatistics(correspondences=len(pairs)),
+                         f"only {len(pairs)} correspondences at the other part's transform")
+    problem = _problem(map1, map2, pairs, config, distinct_scoring=not with_descriptors or identities)
+    pose = np.asarray(pose, float).copy()
+    pose, covariance, mask, problem = _polish(problem, pose, problem.masks(pose[None])[0], config)
+    s = int(problem.distinct_counts(mask[None])[0])
+    rate = max(decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1e-9)
+    log10_p = _log10_tail(s - 2, rate, 1)
+    major, minor = _spread(problem.p1[mask, :2])
+    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
+    stats = AlignmentStatistics(
+        correspondences=len(pairs), iterations=1, supports=s, inlier_ratio=s / len(pairs),
+        residual_rms=float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan"),
+        expected_chance_supports=2.0 + rate, log10_chance_probability=log10_p, support_spread=major,
+        support_spread_minor=minor, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
+        descriptors=with_descriptors)
+    supports = pairs[mask]
+    level = np.log10(config.significance) if config.significance is not None else -6.0
+    if s < config.min_supports or log10_p > level or major < config.min_spread or covariance is None:
+        return Alignment(False, config.name, None, None, supports, stats,
+                         f"at the other part's transform {s} supports, where chance gives {rate:.1f} beyond 2 "
+                         f"(false-alarm probability 10^{log10_p:.1f}), spread {major:.2f} m")
+    start = start_frame_covariance(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask], pose,
+                                   config.position_floor)
+    return Alignment(True, config.name, pose, covariance, supports, stats, "", start)

@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from estimation.geometry import transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import fuse_all, true_relative_pose
-from fusion.split import PARTS, align_at, check_split, fuse_checked, split_id, split_map
+from fusion.alignment import align_at
+from fusion.split import PARTS, check_split, fuse_checked, split_id, split_map
 
 KICK = np.array([0.8, -0.6, 0.3])   # tx, ty (m), θ (rad): the frame the lost half is built in
 SMALL_KICK = np.array([0.3, -0.2, 0.1])   # small enough that the kicked map still aligns whole
