@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass, fields
 ID_RELATIVE_DRIFT_MODES = ("off", "rescue", "consistent")
 # FastSLAMConfig.unknown_relative_drift: re-association of old landmarks in "unknown" association (unknown_rescue.py)
 UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
+# FastSLAMConfig.unknown_association_rule: which gated landmark a reading takes in "unknown" association
+UNKNOWN_ASSOCIATION_RULES = ("nearest", "sampled", "unambiguous")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -99,6 +101,12 @@ class FastSLAMConfig:
     #                                             #   errors (AR(1)); the export multiplies each landmark's EKF
     #                                             #   covariance by lever_drift.correlated_mean_factor; estimates
     #                                             #   unchanged. 0: the EKF's independence is taken as given
+    unknown_association_rule: str = "nearest"     # "unknown": each reading takes the nearest gated landmark
+    #                                             #   ("nearest", maximum likelihood); or per particle one drawn in
+    #                                             #   proportion to its likelihood, a new landmark among them
+    #                                             #   ("sampled"); or the nearest only if its posterior among the
+    #                                             #   gated ones is ≥ 0.99, else unused ("unambiguous");
+    #                                             #   association_rules.py, docs "Session 8"
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:
@@ -124,6 +132,9 @@ class FastSLAMConfig:
         if self.unknown_relative_drift not in UNKNOWN_RELATIVE_DRIFT_MODES:
             raise ValueError(f"unknown_relative_drift must be one of {', '.join(UNKNOWN_RELATIVE_DRIFT_MODES)}, "
                              f"not {self.unknown_relative_drift!r}")
+        if self.unknown_association_rule not in UNKNOWN_ASSOCIATION_RULES:
+            raise ValueError(f"unknown_association_rule must be one of {', '.join(UNKNOWN_ASSOCIATION_RULES)}, "
+                             f"not {self.unknown_association_rule!r}")
         if self.association not in ("unknown", "id"):
             raise ValueError(f"association must be 'unknown' or 'id', not {self.association!r}")
         if not (self.existence_remove < self.existence_initial <= self.existence_max and self.existence_hit >= 0

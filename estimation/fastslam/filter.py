@@ -64,7 +64,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
-from . import id_gate, unknown_rescue
+from . import association_rules, id_gate, unknown_rescue
 from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
@@ -136,6 +136,10 @@ class FilterStats:
     id_outliers: int = 0          # "id" association: (particle, observation) pairs rejected by the gate
     id_rescued: int = 0           # "id", ``id_relative_drift``: pairs accepted only under the drift-widened gate
     unknown_rescued: int = 0      # "unknown", ``unknown_relative_drift``: old landmarks re-associated jointly
+    unknown_drawn_new: int = 0    # "unknown", ``unknown_association_rule="sampled"``: pairs that drew a new landmark
+    #                             #   although a landmark was inside the gate
+    unknown_unused: int = 0       # "unknown", ``unknown_association_rule="unambiguous"``: pairs left unused, no
+    #                             #   gated landmark being probable enough (association_rules.py)
     landmarks_removed: int = 0    # (particle, landmark) removals: existence fell below ``existence_remove``
     landmarks_merged: int = 0     # (particle, landmark) merges of duplicates (``merge_gate``)
 
@@ -330,13 +334,28 @@ class FastSLAM:
 
         # 3. mutual exclusion
         n_slots = n_particles * self.store.table.shape[1] * self.store.block_size if by_id else len(cand.m)
+        drawn = None
+        if not by_id and cfg.unknown_association_rule != "nearest":   # beyond maximum likelihood (association_rules)
+            if cfg.unknown_association_rule == "sampled":
+                drawn = association_rules.sample_associations(mj, d2, gated, n_particles, n_obs,
+                                                              cfg.mahalanobis_gate, self.rng)
+            else:
+                drawn = association_rules.unambiguous_associations(mj, d2, gated, n_particles, n_obs,
+                                                                   cfg.mahalanobis_gate)
+            gated = drawn.gated
+            self.stats.unknown_drawn_new += int(np.count_nonzero(drawn.new))
+            self.stats.unknown_unused += int(np.count_nonzero(drawn.unused))
         win, had_candidate = _exclusive_matches(pairs, d2, gated, n_particles, n_obs, n_slots)
+        if drawn is not None:   # a reading left unused is no new landmark
+            had_candidate |= drawn.unused
         matched = pairs.take(win)
         if by_id:      # a new landmark only where the particle has none of that id; a gated-out one is an outlier
             self.stats.id_outliers += int(np.count_nonzero(~gated))
             had_candidate = holds
         log_lik = -0.5 * cfg.mahalanobis_gate * n_obs - 0.5 * np.bincount(
             matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
+        if drawn is not None:   # the weight does not depend on the choice: the largest term per reading
+            log_lik = drawn.log_lik
         mean, cov = _cols(mean, win), _cols(cov, win)
 
         s_inv = sym_inverse(_cols(s_obs, win))                                        # S⁻¹ without the pose term
