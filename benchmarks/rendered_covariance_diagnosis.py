@@ -247,7 +247,7 @@ def _pose_figures(slam: _RecordingFastSLAM, result, start: np.ndarray) -> dict:
     """The cloud's pose NEES (as simulate reports it, and in the start frame) and against D_r; heading error."""
     truth = result.true_trajectory[1:, 1:]
     n = min(len(truth), len(slam.reports))
-    body, frame, drift, heading, cloud_heading_sd, drift_heading_sd = [], [], [], [], [], []
+    body, frame, drift, heading, cloud_heading_sd, drift_heading_sd, trace = [], [], [], [], [], [], []
     for k in range(n):
         report = slam.reports[k]
         mean, cov = report.pose_mean, report.pose_covariance
@@ -261,6 +261,9 @@ def _pose_figures(slam: _RecordingFastSLAM, result, start: np.ndarray) -> dict:
             frame.append(float(e_start @ np.linalg.solve(cov, e_start)))
         drift.append(float(_nees(e_start[None], slam.robot_drift[k][None])[0]))
         heading.append(e_start[2])
+        trace.append([result.true_trajectory[k + 1, 0], float(np.hypot(*e_start[:2])),
+                      float(np.sqrt(slam.robot_drift[k][0, 0] + slam.robot_drift[k][1, 1])), float(e_start[2]),
+                      float(np.sqrt(slam.robot_drift[k][2, 2]))])
         cloud_heading_sd.append(np.sqrt(cov[2, 2]))
         drift_heading_sd.append(np.sqrt(slam.robot_drift[k][2, 2]))
     heading = np.array(heading)
@@ -271,7 +274,8 @@ def _pose_figures(slam: _RecordingFastSLAM, result, start: np.ndarray) -> dict:
             "heading_error_mean_rad": float(np.mean(heading)), "heading_error_sd_rad": float(np.std(heading)),
             "heading_error_abs_median_rad": float(np.median(np.abs(heading))),
             "cloud_heading_sd_median_rad": float(np.median(cloud_heading_sd)),
-            "drift_heading_sd_median_rad": float(np.median(drift_heading_sd))}
+            "drift_heading_sd_median_rad": float(np.median(drift_heading_sd)),
+            "pose_trace": trace}   # per frame: t (s), |position error| (m), D_r's position σ (m), heading error, σ
 
 
 def _print(r: dict) -> None:
@@ -307,6 +311,13 @@ def _print(r: dict) -> None:
           f"{r['cloud_heading_sd_median_rad']:.4f}, D_r heading σ median {r['drift_heading_sd_median_rad']:.4f}")
 
 
+def _print_trace(r: dict, every: int) -> None:
+    print("| t (s) | position error (m) | D_r position σ (m) | heading error (rad) | D_r heading σ (rad) |")
+    print("|---|---|---|---|---|")
+    for t, e, s, h, sh in r["pose_trace"][::every]:
+        print(f"| {t:.1f} | {e:.3f} | {s:.3f} | {h:+.4f} | {sh:.4f} |")
+
+
 def _print_observations(o: dict) -> None:
     print(f"observations against the point behind the pixel: along-ray error / claimed σ sd {o['normalised_sd']:.2f} "
           f"(|r| < 4), gross (|r| > 4) {100 * o['gross_share']:.1f} %; lag-1 correlation over {o['pairs']} "
@@ -326,6 +337,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames-cache", type=Path, default=Path("/tmp/d6/frames"))
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--trace", type=int, default=0, metavar="N",
+                        help="also print the pose error beside D_r every N frames")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     config = replace(FastSLAMConfig(max_observations=0), **_parse_set(args.set))
@@ -337,6 +350,8 @@ def main(argv: list[str] | None = None) -> int:
         for r in out:
             _print(r)
             _print_observations(r["observations"])
+            if args.trace > 0:
+                _print_trace(r, args.trace)
     return 0
 
 
