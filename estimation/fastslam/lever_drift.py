@@ -8,7 +8,7 @@ D_r ← mean_l D_l + P_local. That says "the robot is exactly as uncertain as th
 which holds for the heading but not for the position: the landmarks were made at another place, and a heading
 error δθ there puts the whole neighbourhood of the map turned about that place, so a robot that has moved by
 Δ = t_r − t_l since is off by δθ × Δ more. On robot1 seed 0 the heading σ was honest (0.019 rad against an
-error locked in at −0.018 rad) while the position σ stayed 2–4 cm against errors growing to 0.26 m: the
+error locked in at −0.018 rad) while the position σ stayed 2–4 cm against errors growing to 0.27 m: the
 predict step propagates that lever (the motion model's Jacobian), and every update threw it away.
 
 The correction is the Jacobian of "pose of the creation frame ⊕ the robot's motion relative to it" by the
