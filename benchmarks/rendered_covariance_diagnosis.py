@@ -198,7 +198,8 @@ def run(robot: str, seed: int, frame_rate: float, frames_cache: Path, config: Fa
             "ekf_over_obs_sigma_median": float(np.median(shrink)),
             "matches_median": float(np.median(stack["matches"])),
             "by_depth": by_depth, **_pose_figures(slam, result, start),
-            "observations": observation_errors(frames, starts, renderer, config)}
+            "observations": observation_errors(frames, starts, renderer, config),
+            "translation": translation_drift(slam, result, start)}
 
 
 def observation_errors(frames: dict, starts: np.ndarray, renderer, config: FastSLAMConfig) -> dict:
@@ -311,6 +312,31 @@ def _print(r: dict) -> None:
           f"{r['cloud_heading_sd_median_rad']:.4f}, D_r heading σ median {r['drift_heading_sd_median_rad']:.4f}")
 
 
+def translation_drift(slam: _RecordingFastSLAM, result, start: np.ndarray,
+                      windows: tuple[int, ...] = (3, 7, 14, 28)) -> dict:
+    """The best particle's position error increments over windows of W frames, less what the heading error at the
+    window's start explains (its lever over the true displacement), against the distance driven: rms² = a + b·d
+    fitted over the windows; b / 2 is the random walk per axis and metre (``drift_translation_per_m``), a the
+    per-frame jitter."""
+    est = slam.trajectory()[1:, 1:]
+    truth = np.array([between(start, p) for p in result.true_trajectory[1:, 1:]])[:len(est)]
+    e = truth - est
+    e[:, 2] = wrap_angle(e[:, 2])
+    step = np.linalg.norm(np.diff(truth[:, :2], axis=0), axis=1)
+    d, ms = [], []
+    for w in windows:
+        k = np.arange(0, len(e) - w, w)
+        dp = truth[k + w, :2] - truth[k, :2]
+        inc = e[k + w, :2] - e[k, :2] - e[k, 2:3] * np.column_stack([-dp[:, 1], dp[:, 0]])
+        dist = np.array([step[i:i + w].sum() for i in k])
+        moving = dist > 0.05 * w
+        d.append(float(dist[moving].mean()))
+        ms.append(float(np.mean(np.sum(inc[moving] ** 2, axis=1))))
+    b, a = np.polyfit(d, ms, 1)
+    return {"windows_m": d, "rms_m": [float(np.sqrt(v)) for v in ms], "per_axis_m2_per_m": float(b / 2),
+            "jitter_m2": float(a)}
+
+
 def _print_trace(r: dict, every: int) -> None:
     print("| t (s) | position error (m) | D_r position σ (m) | heading error (rad) | D_r heading σ (rad) |")
     print("|---|---|---|---|---|")
@@ -350,6 +376,11 @@ def main(argv: list[str] | None = None) -> int:
         for r in out:
             _print(r)
             _print_observations(r["observations"])
+            t = r["translation"]
+            print("position error increments the heading's lever does not explain: rms "
+                  + ", ".join(f"{m:.3f} m over {w:.2f} m" for m, w in zip(t["rms_m"], t["windows_m"], strict=True))
+                  + f"; fit: {t['per_axis_m2_per_m']:.2e} m² per axis per m driven (drift_translation_per_m), "
+                  f"jitter {t['jitter_m2']:.1e} m²")
             if args.trace > 0:
                 _print_trace(r, args.trace)
     return 0

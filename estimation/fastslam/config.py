@@ -101,6 +101,9 @@ class FastSLAMConfig:
     #                                             #   errors (AR(1)); the export multiplies each landmark's EKF
     #                                             #   covariance by lever_drift.correlated_mean_factor; estimates
     #                                             #   unchanged. 0: the EKF's independence is taken as given
+    drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
+    #                                             #   walks from the pose that made the landmarks it is pinned to
+    #                                             #   (lever_drift.py); export and D_r only on the stereo path
     unknown_association_rule: str = "nearest"     # "unknown": each reading takes the nearest gated landmark
     #                                             #   ("nearest", maximum likelihood); or per particle one drawn in
     #                                             #   proportion to its likelihood, a new landmark among them
@@ -153,6 +156,8 @@ class FastSLAMConfig:
             raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
         if not 0.0 < self.self_check_false_alarm < 1.0:
             raise ValueError(f"self_check_false_alarm must lie in (0, 1), not {self.self_check_false_alarm}")
+        if not self.drift_translation_per_m >= 0.0:
+            raise ValueError(f"drift_translation_per_m must be ≥ 0, not {self.drift_translation_per_m}")
         if not 0.0 <= self.observation_correlation < 1.0:
             raise ValueError(f"observation_correlation must lie in [0, 1), not {self.observation_correlation}")
         if not 0.0 <= self.resample_threshold <= 1.0:

@@ -204,7 +204,8 @@ class FastSLAM:
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
-        self.drift = LeverDriftTracker() if config.drift_lever else DriftTracker()   # the map frame's drift
+        self.drift = (LeverDriftTracker(config.drift_translation_per_m) if config.drift_lever   # the map frame's
+                      else DriftTracker())                                                      # drift
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
         # co-visibility of landmark pairs in the most probable particle (see _merge_duplicates): evidence "one

@@ -16,7 +16,12 @@ creation pose, G_l = [[1, 0, −Δ_y], [0, 1, Δ_x], [0, 0, 1]] with Δ = t_r �
 
     D_r ← mean_l G_l D_l G_lᵀ + P_local,
 
-with t_l the robot's position when it made landmark l. Everything else is as in ``drift.py`` (creation: D_l = D_r,
+with t_l the robot's position when it made landmark l. Optionally (``drift_translation_per_m`` = q > 0) the
+position also takes a random walk from the pose that made the landmarks: + q · mean_l |Δ_l| on x and y. The
+landmark-relative pose errors do not average out over the ~50 landmarks a frame matches (their errors are
+correlated), so the proposal's few-mm P_local misses it; q comes from data with ground truth
+(``benchmarks/rendered_covariance_diagnosis.py`` prints the rate of the position error's increments that the
+heading's lever does not explain). Everything else is as in ``drift.py`` (creation: D_l = D_r,
 C_l = H D_r Hᵀ; export Σ + C_l). With Δ = 0 it is the old rule. Only what the tracker claims changes: on the
 stereo path (no drift-widened gates) the particles and maps are the same, so the stereo fingerprint is too.
 """
@@ -33,9 +38,10 @@ class LeverDriftTracker(DriftTracker):
     robot is (the lever arm above). ``remeasured`` (known-ID anchoring) keeps the landmark's creation position,
     so the lever from there is counted again: wider, never narrower."""
 
-    def __init__(self) -> None:
+    def __init__(self, translation_per_m: float = 0.0) -> None:
         super().__init__()
         self._origin = np.zeros((0, 2))               # t_l: the robot's position when it made landmark l
+        self.translation_per_m = float(translation_per_m)   # q: m² per axis per metre from the landmarks' makers
 
     def update(self, matched_ids: np.ndarray, new_ids: np.ndarray, new_positions: np.ndarray,
                robot_pose: np.ndarray, local_covariance: np.ndarray, n_ids: int) -> None:
@@ -46,8 +52,11 @@ class LeverDriftTracker(DriftTracker):
         matched_ids = np.asarray(matched_ids, np.int64)
         robot_pose = np.asarray(robot_pose, float)
         if len(matched_ids):
-            self.robot = lever_mean(sym_matrices(self._pose[matched_ids].T),
-                                    robot_pose[:2] - self._origin[matched_ids]) + local_covariance
+            moved = robot_pose[:2] - self._origin[matched_ids]
+            self.robot = lever_mean(sym_matrices(self._pose[matched_ids].T), moved) + local_covariance
+            if self.translation_per_m > 0:   # pinned to landmarks made |Δ| ago: a random walk of the position
+                walk = self.translation_per_m * float(np.mean(np.hypot(moved[:, 0], moved[:, 1])))
+                self.robot[[0, 1], [0, 1]] += walk
         super().update(np.zeros(0, np.int64), new_ids, new_positions, robot_pose, local_covariance, n_ids)
         self._origin[np.asarray(new_ids, np.int64)] = robot_pose[:2]
 

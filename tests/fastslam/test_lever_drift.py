@@ -104,3 +104,19 @@ def test_exported_covariance_scales_with_the_correlation_and_the_estimates_do_no
     factor = correlated_mean_factor(plain.counts, 0.5)
     assert np.all(plain.counts == 6) and np.isclose(factor[0], 1 + 2 * sum((1 - k / 6) * 0.5 ** k for k in range(1, 6)))
     assert np.allclose(correlated.covariances, plain.covariances * factor[:, None, None])
+
+
+@settings(max_examples=30, deadline=None)
+@given(q=st.floats(1e-6, 1e-3), step=st.floats(0.05, 3.0), generations=st.integers(1, 30))
+def test_translation_walk_adds_up_over_generations_of_landmarks_to_the_path_driven(q, step, generations):
+    # each generation's landmarks are made where the robot stands and matched one step further on (no heading
+    # uncertainty, no local term): the position variance is q per metre of the whole path, as a random walk is
+    from estimation.fastslam.lever_drift import LeverDriftTracker
+    tracker = LeverDriftTracker(translation_per_m=q)
+    zero = np.zeros((3, 3))
+    tracker.update(np.zeros(0, np.int64), np.array([0]), np.array([[0.0, 1.0, 0.0]]), np.zeros(3), zero, 1)
+    for i in range(1, generations + 1):
+        pose = np.array([i * step, 0.0, 0.0])
+        tracker.update(np.array([i - 1]), np.array([i]), np.array([[i * step, 1.0, 0.0]]), pose, zero, i + 1)
+    assert np.allclose(tracker.robot[:2, :2], q * generations * step * np.eye(2), rtol=1e-9)
+    assert np.allclose(tracker.robot[2], 0.0)
