@@ -55,6 +55,7 @@ from estimation.landmark_map import LandmarkMap
 from .cache import content_rng
 from .errors import IncompatibleMapsError, NoOverlapError
 from .frame_covariance import start_frame_covariance
+from .gate_scale import residual_gate_scale
 from .matching import distinctive_correspondences, nearest_correspondences, query_subset, self_correspondences
 from .pose_covariance import inverse_with_covariance
 
@@ -93,6 +94,7 @@ class AlignmentConfig:
     min_gate: float = 0.0                # metres, smallest support-gate radius in the plane
     inflate_gate: bool = False           # scale the gate by the supports' own residuals (see module doc)
     decoys: int = 1000                   # decoy transforms scored to measure the chance supports
+    gate_scale: str = "inflate"          # "residual": the supports' residuals may also narrow it (fusion.gate_scale)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -504,13 +506,12 @@ def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, 
 
 def _residual_inflation(problem: _Problem, mask: np.ndarray, pose: np.ndarray) -> float:
     """Covariance scale the supports' residuals call for: median(|r_xy|² / var_xy) over the median of χ²₂,
-    at least 1 (the gate never shrinks below the covariances)."""
+    at least 1 unless the config's ``gate_scale`` is "residual" (:mod:`fusion.gate_scale`)."""
     idx = np.flatnonzero(mask)
     if len(idx) < 3:
         return problem.inflation
     r = problem.p1[idx, :2] - transform_points(pose, problem.p2[idx])[:, :2]
-    m_sq = np.einsum("ki,ki->k", r, r) / problem.var_xy[idx]
-    return max(1.0, float(np.median(m_sq)) / CHI2_2_MEDIAN)
+    return residual_gate_scale(r, problem.var_xy[idx], problem.config.gate_scale)
 
 
 def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: AlignmentConfig, rounds: int = 6
