@@ -55,7 +55,7 @@ from estimation.landmark_map import LandmarkMap
 from .cache import content_rng
 from .errors import IncompatibleMapsError, NoOverlapError
 from .frame_covariance import start_frame_covariance
-from .gate_scale import residual_gate_scale
+from .gate_scale import residual_gate_scale, settled_scale
 from .matching import distinctive_correspondences, nearest_correspondences, query_subset, self_correspondences
 from .pose_covariance import inverse_with_covariance
 
@@ -523,7 +523,7 @@ def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: Align
         mask = problem.one_to_one(mask, pose)
     if not config.refine:
         return pose, covariance, mask, problem
-    for _ in range(rounds):
+    for step in range(rounds):
         if mask.sum() < 2:
             break
         try:
@@ -532,12 +532,24 @@ def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: Align
         except np.linalg.LinAlgError:        # supports all in one spot: the spread check rejects them
             break
         if config.inflate_gate:
-            problem = problem.inflated(_residual_inflation(problem, mask, pose))
+            problem = problem.inflated(settled_scale(_residual_inflation(problem, mask, pose), problem.inflation,
+                                                     step, config.gate_scale))
         new_mask = problem.one_to_one(problem.masks(pose[None])[0], pose)
         if new_mask.sum() < 2 or np.array_equal(new_mask, mask):
             break
         mask = new_mask
+    else:
+        if config.gate_scale == "residual":  # not settled: report the fit of the supports reported
+            pose, covariance = _refit(problem, mask, pose, covariance, config)
     return pose, covariance, mask, problem
+
+
+def _refit(problem: _Problem, mask: np.ndarray, pose: np.ndarray, covariance, config: AlignmentConfig):
+    try:
+        return refine_pose(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask], pose,
+                           config.position_floor)[:2]
+    except np.linalg.LinAlgError:
+        return pose, covariance
 
 
 # -- the evidence --------------------------------------------------------------------------------------------

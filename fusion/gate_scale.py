@@ -42,3 +42,13 @@ def residual_gate_scale(residuals_xy: np.ndarray, var_xy: np.ndarray, rule: str 
         return float("nan")
     kappa = float(np.median(np.einsum("ki,ki->k", r, r) / v)) / CHI2_2_MEDIAN
     return max(1.0, kappa) if rule == "inflate" else kappa
+
+
+def settled_scale(kappa: float, previous: float, step: int, rule: str = "inflate") -> float:
+    """The scale a polishing round uses.  "inflate": ``kappa`` as measured (it only widens, so the re-gating
+    settles).  "residual": the first round sets it freely; later rounds may only widen it, so that the supports
+    cannot cycle between a narrower gate that drops some and a wider one that takes them back (MRCLAM robots 3-5:
+    13 -> 12 -> 11 -> 13 supports, κ 0.034 -> 0.041 -> 0.081 -> 0.034, never settled)."""
+    if rule == "residual" and step > 0:
+        return max(kappa, previous)
+    return kappa

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import ROBUST, align, alignment_error
-from fusion.gate_scale import CHI2_2_MEDIAN, residual_gate_scale
+from fusion.alignment import refine_pose
+from fusion.gate_scale import CHI2_2_MEDIAN, residual_gate_scale, settled_scale
 
 RESIDUAL = replace(ROBUST, gate_scale="residual")
 LOCAL_SIGMA = 0.03        # each landmark's own error (m)
@@ -146,6 +147,29 @@ def test_residuals_as_large_as_their_covariances_give_a_scale_of_one():
     r = rng.normal(size=(20_000, 2)) * np.sqrt(var)[:, None]
     assert residual_gate_scale(r, var, "residual") == pytest.approx(1.0, abs=0.05)
     assert CHI2_2_MEDIAN == pytest.approx(2 * np.log(2))
+
+
+@settings(max_examples=60, deadline=None)
+@given(kappas=st.lists(st.floats(1e-3, 50.0), min_size=1, max_size=8))
+def test_after_the_first_round_the_residual_rule_only_widens(kappas):
+    """The re-gating must settle: a narrower and a wider gate taking supports in turn would cycle."""
+    used, previous = [], 1.0
+    for step, k in enumerate(kappas):
+        previous = settled_scale(k, previous, step, "residual")
+        used.append(previous)
+    assert used[0] == kappas[0]
+    assert all(b >= a for a, b in zip(used, used[1:], strict=False))
+    assert all(settled_scale(k, 7.0, step, "inflate") == k for step, k in enumerate(kappas))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_reported_pose_is_the_fit_of_the_reported_supports(seed):
+    m1, m2, _, _ = symmetric_pair(seed)
+    a = align(m1, m2, RESIDUAL, np.random.default_rng(seed))
+    i, j = a.supports[:, 0], a.supports[:, 1]
+    pose, _, _ = refine_pose(m1.positions[i], m1.covariances[i], m2.positions[j], m2.covariances[j], a.pose,
+                             RESIDUAL.position_floor, iterations=50)
+    np.testing.assert_allclose(pose, a.pose, atol=1e-6)
 
 
 def test_an_unknown_rule_is_named():
