@@ -32,10 +32,11 @@ hypothesis by weighted least squares (Gauss–Newton) on all supports, re-gates 
 alignment's 3×3 covariance.  Its support gate is the two landmarks' combined covariance, floored at
 ``min_gate`` and inflated by the supports' own residual scale (``gate_inflation``: the median normalised
 squared residual over its χ²₂ median), because FastSLAM's per-particle landmark covariances leave the
-robot's pose error out and can be ten times too small.  It decides that the maps overlap only on the
-alignment's own evidence (:func:`evidence`): the supports beyond the two that define a hypothesis are
-compared with the number a wrong transform gathers by chance on *these* maps — measured by scoring decoy
-transforms with the same gate (landmark density, clustering along walls, map sizes) and by the best
+robot's pose error out and can be ten times too small; with honest start-frame covariances, whose shared drift the
+transform removes, the same scale narrows it (``gate_scale="residual"``, :mod:`fusion.gate_scale`).  It decides
+that the maps overlap only on the alignment's own evidence (:func:`evidence`): the supports beyond the two that
+define a hypothesis are compared with the number a wrong transform gathers by chance on *these* maps — measured
+by scoring decoy transforms with the same gate (landmark density, clustering along walls, map sizes) and by the best
 hypothesis distinct from the winner (repeated structure: a corridor of identical doors) — giving a
 false-alarm probability, Bonferroni-corrected for the hypotheses tried; the supports must also be spread
 out (a bunch in one spot fixes no angle).  The number of supports needed therefore adapts to the maps.
@@ -107,11 +108,14 @@ PAPER = AlignmentConfig(
 # min_supports 4: two supports define a hypothesis, two more are the least that can check it; above that
 # the false-alarm probability decides (10⁻⁶, Bonferroni-corrected).  min_gate 0.3 m: a landmark's position
 # in its robot's start frame is rarely better than a few decimetres once the robot's pose error is counted,
-# which FastSLAM's per-particle covariances leave out (MRCLAM: 4–7 mm claimed, 0.04–0.27 m real).
+# which FastSLAM's per-particle covariances leave out (MRCLAM: 4–7 mm claimed, 0.04–0.27 m real).  gate_scale
+# "residual": honest start-frame covariances hold drift the transform removes, so the supports' residuals may also
+# narrow the gate to that floor (fusion/gate_scale.py; docs/fusion.md "Session 8: the alignment's gate").
 ROBUST = AlignmentConfig(
     name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
     support_threshold=1.0, min_supports=4, iterations=2000, adaptive=True, confidence=0.9999,
     covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3, min_gate=0.3, inflate_gate=True,
+    gate_scale="residual",
 )
 PRESETS: dict[str, AlignmentConfig] = {"paper": PAPER, "robust": ROBUST}
 
@@ -504,14 +508,14 @@ def refine_pose(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, 
     return pose, 0.5 * (cov + cov.T), chi2
 
 
-def _residual_inflation(problem: _Problem, mask: np.ndarray, pose: np.ndarray) -> float:
+def _residual_inflation(problem: _Problem, mask: np.ndarray, pose: np.ndarray, rule: str = "inflate") -> float:
     """Covariance scale the supports' residuals call for: median(|r_xy|² / var_xy) over the median of χ²₂,
-    at least 1 unless the config's ``gate_scale`` is "residual" (:mod:`fusion.gate_scale`)."""
+    at least 1 unless ``rule`` (the polishing config's ``gate_scale``) is "residual" (:mod:`fusion.gate_scale`)."""
     idx = np.flatnonzero(mask)
     if len(idx) < 3:
         return problem.inflation
     r = problem.p1[idx, :2] - transform_points(pose, problem.p2[idx])[:, :2]
-    return residual_gate_scale(r, problem.var_xy[idx], problem.config.gate_scale)
+    return residual_gate_scale(r, problem.var_xy[idx], rule)
 
 
 def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: AlignmentConfig, rounds: int = 6
@@ -532,8 +536,8 @@ def _polish(problem: _Problem, pose: np.ndarray, mask: np.ndarray, config: Align
         except np.linalg.LinAlgError:        # supports all in one spot: the spread check rejects them
             break
         if config.inflate_gate:
-            problem = problem.inflated(settled_scale(_residual_inflation(problem, mask, pose), problem.inflation,
-                                                     step, config.gate_scale))
+            kappa = _residual_inflation(problem, mask, pose, config.gate_scale)
+            problem = problem.inflated(settled_scale(kappa, problem.inflation, step, config.gate_scale))
         new_mask = problem.one_to_one(problem.masks(pose[None])[0], pose)
         if new_mask.sum() < 2 or np.array_equal(new_mask, mask):
             break
@@ -674,16 +678,21 @@ def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: n
     for start in range(0, len(cand), 256):
         sl = cand[start:start + 256]
         counts[start:start + 256] = problem.distinct_counts(problem.masks(search.poses[sl]))
+    # the rival is the null: with the residual rule it is also polished as the inflate rule polishes (the gate never
+    # narrowed), and the stronger of the two counts (a rival polished in a narrowed gate can lose its own supports)
+    rules = [config] if config.gate_scale == "inflate" else [config, replace(config, gate_scale="inflate")]
     for c in cand[np.argsort(-counts, kind="stable")[:3]]:
-        p = search.poses[c]
-        m = problem.masks(p[None])[0]
-        p, _, m, _ = _polish(replace(problem), p, m, config)
-        m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
-        if distinct(p[None])[0]:
-            # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
-            n = len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered else int(m.sum())
-            if n > best.supports:
-                best = _Rival(n, p, m)
+        for rule in rules:
+            p = search.poses[c]
+            m = problem.masks(p[None])[0]
+            p, _, m, _ = _polish(replace(problem), p, m, rule)
+            m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
+            if distinct(p[None])[0]:
+                # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
+                n = (len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered
+                     else int(m.sum()))
+                if n > best.supports:
+                    best = _Rival(n, p, m)
     return best
 
 

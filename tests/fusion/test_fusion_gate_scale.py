@@ -16,10 +16,12 @@ from hypothesis import strategies as st
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import ROBUST, align, alignment_error
-from fusion.alignment import refine_pose
+from fusion.alignment import refine_pose, self_structure
+from fusion.cache import content_rng
 from fusion.gate_scale import CHI2_2_MEDIAN, residual_gate_scale, settled_scale
 
 RESIDUAL = replace(ROBUST, gate_scale="residual")
+INFLATE = replace(ROBUST, gate_scale="inflate")          # the rule before session 8
 LOCAL_SIGMA = 0.03        # each landmark's own error (m)
 MAP_DRIFT = (0.15, 0.01)  # a map's rigid drift: shift σ (m), turn σ (rad), shared by all its landmarks
 REGION_DRIFT = 0.05       # what each half of a map adds to it (m)
@@ -96,10 +98,10 @@ def test_the_residual_gate_finds_the_true_supports_and_rejects_the_half_turn(see
 
 
 def test_with_the_claimed_covariances_the_half_turn_is_a_near_tie():
-    """Why the rule exists: the same maps with the gate at least the claims (the default) call the pair
+    """Why the rule exists: the same maps with the gate at least the claims (the "inflate" rule) call the pair
     ambiguous, because the twins, 0.35 m off per axis, fit inside a gate of about 1 m."""
     m1, m2, _, _ = symmetric_pair(0)
-    a = align(m1, m2, "robust", np.random.default_rng(0))
+    a = align(m1, m2, INFLATE, np.random.default_rng(0))
     assert not a.found and "ambiguous" in a.reason
     b = align(m1, m2, RESIDUAL, np.random.default_rng(0))
     assert a.statistics.second_best_supports > 2 * b.statistics.second_best_supports
@@ -121,7 +123,7 @@ def test_where_the_residuals_call_for_a_wider_gate_both_rules_agree():
     claims, so the scale is above 1 and the rules are the same alignment.  (Such mirrored halves look exactly like
     overlapping maps whatever the gate: the limit of docs/fusion.md, tests/fusion/test_fusion_repeated_halves.py.)"""
     m1, m2, _, _ = symmetric_pair(0, common=0, twins=40)
-    a = align(m1, m2, "robust", np.random.default_rng(0))
+    a = align(m1, m2, INFLATE, np.random.default_rng(0))
     b = align(m1, m2, RESIDUAL, np.random.default_rng(0))
     assert a.statistics.gate_inflation > 1.0
     assert (a.found, a.statistics.supports) == (b.found, b.statistics.supports)
@@ -170,6 +172,19 @@ def test_the_reported_pose_is_the_fit_of_the_reported_supports(seed):
     pose, _, _ = refine_pose(m1.positions[i], m1.covariances[i], m2.positions[j], m2.covariances[j], a.pose,
                              RESIDUAL.position_floor, iterations=50)
     np.testing.assert_allclose(pose, a.pose, atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_null_is_never_weaker_under_the_residual_rule(sim, seed):
+    """The rival and a map's repeat of itself are the null the winner is judged against: under the residual rule they
+    are polished both ways and the stronger count kept, so narrowing cannot weaken them (starved-demo maps lost a
+    20-support self-repeat when it was polished in a narrowed gate)."""
+    m1, _ = sim.half_turn_pair(seed, repeated_in_map1=8)
+    assert self_structure(m1, RESIDUAL, content_rng(m1)) >= self_structure(m1, INFLATE, content_rng(m1)) > 0
+
+
+def test_the_robust_preset_uses_the_residual_rule():
+    assert ROBUST.gate_scale == "residual" and ROBUST.min_gate > 0   # the floor the residual rule narrows to
 
 
 def test_an_unknown_rule_is_named():
