@@ -29,6 +29,7 @@ from estimation.geometry import transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion.alignment import ROBUST, align, alignment_error, true_relative_pose  # noqa: E402
 from fusion.gate_scale import CHI2_2_MEDIAN, GATE_SCALES  # noqa: E402
+from runtime.commands.options import non_negative_int  # noqa: E402
 
 RULES = {rule: replace(ROBUST, gate_scale=rule) for rule in GATE_SCALES}
 WRONG_M, WRONG_RAD = 0.3, 0.1          # as eval_fusion: this far off counts as a false alignment
@@ -133,7 +134,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demo", type=Path, nargs="*", default=[], help="demo output folders (robot1/2.npz)")
     parser.add_argument("--mrclam", type=Path, help="folder of MRCLAM maps robot1..5.npz")
-    parser.add_argument("--false-pairs", type=int, default=0, help="non-overlapping pairs, over seven kinds")
+    parser.add_argument("--false-pairs", type=non_negative_int, default=0,
+                        help="non-overlapping pairs, over seven kinds")
     args = parser.parse_args()
     t0 = time.perf_counter()
     if args.demo:

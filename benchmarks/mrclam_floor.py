@@ -39,6 +39,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import wrap_angle  # noqa: E402
 from estimation.noise_model import RangeBearingNoise, estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 CENTRE, EDGE = 0.15, 0.35                    # rad: |φ| of the image's centre and edges
@@ -125,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--residuals-only", action="store_true")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)

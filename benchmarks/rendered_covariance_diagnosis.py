@@ -45,6 +45,7 @@ import runtime.slam_sim as slam_sim
 from benchmarks.eval_slam_rendered import CALIBRATION, ReplayObserver, _parse_set, _PointWorld
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, rot_z, wrap_angle
+from runtime.commands.options import non_negative_int, positive_float
 from runtime.motion import keep_right
 
 CHI2_2_95, CHI2_3_95 = 5.991, 7.815
@@ -358,12 +359,12 @@ def _print_observations(o: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", action="append", default=[], help="route name (repeatable; default both)")
-    parser.add_argument("--seed", type=int, action="append", default=[], help="repeatable; default 0")
-    parser.add_argument("--frame-rate", type=float, default=3.75)
+    parser.add_argument("--seed", type=non_negative_int, action="append", default=[], help="repeatable; default 0")
+    parser.add_argument("--frame-rate", type=positive_float, default=3.75)
     parser.add_argument("--frames-cache", type=Path, default=Path("/tmp/d6/frames"))
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--json", action="store_true")
-    parser.add_argument("--trace", type=int, default=0, metavar="N",
+    parser.add_argument("--trace", type=non_negative_int, default=0, metavar="N",
                         help="also print the pose error beside D_r every N frames")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
