@@ -18,7 +18,9 @@ def _rotation(yaw: float, pitch: float) -> np.ndarray:
 def _one_landmark_filter(position, covariance, n_particles=20, seed=1) -> FastSLAM:
     prior = LandmarkMap(np.asarray(position, float)[None], np.asarray(covariance, float)[None],
                         np.zeros((1, 0), np.float32), counts=np.array([5]))
-    slam = FastSLAM(FastSLAMConfig(n_particles=n_particles, descriptor_size=0), np.random.default_rng(seed))
+    # observation_correlation 0: these tests read the EKF's own covariance, not the export's AR(1) widening of it
+    config = FastSLAMConfig(n_particles=n_particles, descriptor_size=0, observation_correlation=0.0)
+    slam = FastSLAM(config, np.random.default_rng(seed))
     slam.load_prior_map(prior)
     return slam
 
