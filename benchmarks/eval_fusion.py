@@ -25,10 +25,10 @@ from fusion_sim import (  # noqa: E402
     building_pair,
     corridor_pair,
     corrupt_map,
+    false_pair_kinds,
     landmark_pair,
     load_world,
     mrclam_sighting_map,
-    non_overlapping_pair,
     random_pair,
     true_common,
 )
@@ -262,31 +262,7 @@ def _wrong(a, truth) -> bool:
 
 def false_alarms(total: int):
     """``total`` simulated pairs that share nothing, spread over seven kinds; both presets."""
-    rng_pose = np.random.default_rng(12345)
-
-    def far_pose(s):
-        r = np.random.default_rng([s, 99])
-        return (r.uniform(-10, 10), r.uniform(-5, 5), r.uniform(-np.pi, np.pi))
-
-    def wrong_ids(s):
-        m1, m2, _ = landmark_pair(0, 15, 15, far_pose(s), seed=s, sigma=0.05, descriptors="id")
-        m1.metadata["external_ids"] = list(range(15))
-        m2.metadata["external_ids"] = [int(v) for v in np.random.default_rng([s, 7]).permutation(15)]
-        return m1, m2
-
-    kinds = {
-        "building, disjoint features, full routes": lambda s: non_overlapping_pair(1.0, s),
-        "building, disjoint features, 60 % of routes": lambda s: non_overlapping_pair(0.6, s),
-        "random 250 + 300 landmarks, 35 × 10 m": lambda s: random_pair(0, 250, 300, far_pose(s), seed=s)[:2],
-        "15 + 15 landmarks, 15 × 8 m, no descriptors": lambda s: landmark_pair(0, 15, 15, far_pose(s), seed=s,
-                                                                               descriptors="none")[:2],
-        "15 + 15 landmarks, identities shuffled (every one wrong)": wrong_ids,
-        "corridor of identical doors, no overlap, no descriptors": lambda s: corridor_pair(
-            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="none"),
-        "corridor of identical doors, no overlap, repeated descriptors": lambda s: corridor_pair(
-            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="door"),
-    }
-    del rng_pose
+    kinds = false_pair_kinds()
     per = max(1, -(-total // len(kinds)))                # at least ``total`` in all
     print(f"\n### No false alignment on maps that share nothing ({per * len(kinds)} pairs: {per} of each kind)\n")
     print("| maps | preset | alignments reported (should be 0) | of which low-confidence (warned) |")

@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from fusion_sim import corridor_pair, landmark_pair, non_overlapping_pair, random_pair  # noqa: E402
+from fusion_sim import false_pair_kinds  # noqa: E402
 
 from estimation.geometry import transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
@@ -90,28 +90,7 @@ def mrclam_table(folder: Path) -> None:
 
 def false_pairs(total: int, rule: str = "residual") -> None:
     """eval_fusion.false_alarms' seven kinds (same generators and seeds), one rule."""
-    def far_pose(s):
-        r = np.random.default_rng([s, 99])
-        return (r.uniform(-10, 10), r.uniform(-5, 5), r.uniform(-np.pi, np.pi))
-
-    def wrong_ids(s):
-        m1, m2, _ = landmark_pair(0, 15, 15, far_pose(s), seed=s, sigma=0.05, descriptors="id")
-        m1.metadata["external_ids"] = list(range(15))
-        m2.metadata["external_ids"] = [int(v) for v in np.random.default_rng([s, 7]).permutation(15)]
-        return m1, m2
-
-    kinds = {
-        "building, disjoint features, full routes": lambda s: non_overlapping_pair(1.0, s),
-        "building, disjoint features, 60 % of routes": lambda s: non_overlapping_pair(0.6, s),
-        "random 250 + 300 landmarks, 35 × 10 m": lambda s: random_pair(0, 250, 300, far_pose(s), seed=s)[:2],
-        "15 + 15 landmarks, 15 × 8 m, no descriptors": lambda s: landmark_pair(0, 15, 15, far_pose(s), seed=s,
-                                                                               descriptors="none")[:2],
-        "15 + 15 landmarks, identities shuffled (every one wrong)": wrong_ids,
-        "corridor of identical doors, no overlap, no descriptors": lambda s: corridor_pair(
-            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="none"),
-        "corridor of identical doors, no overlap, repeated descriptors": lambda s: corridor_pair(
-            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="door"),
-    }
+    kinds = false_pair_kinds()
     per = max(1, -(-total // len(kinds)))
     print(f"\n### No false alignment, gate rule {rule!r} ({per * len(kinds)} pairs: {per} of each kind)\n")
     print("| maps | alignments reported (should be 0) | smallest gate scale κ |")

@@ -322,6 +322,34 @@ def corridor_pair(doors1: range, doors2: range, pose, seed: int = 0, spacing: fl
 
 
 # -- MRCLAM (real data): maps from each robot's sightings --------------------------------------------------------
+def false_pair_kinds() -> dict:
+    """Seven kinds of map pairs that share nothing, each ``name -> make(seed) -> (map1, map2)`` (maps or
+    SimulatedMaps): the no-false-alignment test of eval_fusion and fusion_gate_scale, one set of generators and
+    seeds for both."""
+    def far_pose(s):
+        r = np.random.default_rng([s, 99])
+        return (r.uniform(-10, 10), r.uniform(-5, 5), r.uniform(-np.pi, np.pi))
+
+    def wrong_ids(s):
+        m1, m2, _ = landmark_pair(0, 15, 15, far_pose(s), seed=s, sigma=0.05, descriptors="id")
+        m1.metadata["external_ids"] = list(range(15))
+        m2.metadata["external_ids"] = [int(v) for v in np.random.default_rng([s, 7]).permutation(15)]
+        return m1, m2
+
+    return {
+        "building, disjoint features, full routes": lambda s: non_overlapping_pair(1.0, s),
+        "building, disjoint features, 60 % of routes": lambda s: non_overlapping_pair(0.6, s),
+        "random 250 + 300 landmarks, 35 × 10 m": lambda s: random_pair(0, 250, 300, far_pose(s), seed=s)[:2],
+        "15 + 15 landmarks, 15 × 8 m, no descriptors": lambda s: landmark_pair(0, 15, 15, far_pose(s), seed=s,
+                                                                               descriptors="none")[:2],
+        "15 + 15 landmarks, identities shuffled (every one wrong)": wrong_ids,
+        "corridor of identical doors, no overlap, no descriptors": lambda s: corridor_pair(
+            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="none"),
+        "corridor of identical doors, no overlap, repeated descriptors": lambda s: corridor_pair(
+            range(0, 8), range(10 + s % 5, 18 + s % 5), far_pose(s), seed=s, descriptors="door"),
+    }
+
+
 def drift_walk(n_steps: int, step: float, heading_drift: float) -> np.ndarray:
     """Covariances (n_steps, 3, 3) of a robot's pose error (x, y, θ) along a straight run in +x: heading error a
     random walk of ``heading_drift`` rad/√m, the lateral error its integral (first order)."""
