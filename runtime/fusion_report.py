@@ -62,6 +62,21 @@ class PairResult:
     def as_dict(self) -> dict:
         return dict(self.__dict__)
 
+    def score_against_truth(self, reference_map: LandmarkMap, other_map: LandmarkMap) -> None:
+        """The error of (tx, ty, θ) against the maps' true start poses, where both carry one (simulated maps)."""
+        from fusion import true_relative_pose
+
+        truth = true_relative_pose(reference_map, other_map)
+        if truth is not None:
+            self.error_xy = float(np.hypot(self.tx - truth[0], self.ty - truth[1]))
+            self.error_theta = float(abs(wrap_angle(self.theta - truth[2])))
+
+    def count_common(self, merged: LandmarkMap) -> None:
+        """Landmarks of the merged map seen by both robots of the pair (where it names both)."""
+        column = {r: c for c, r in enumerate(merged.robots)}
+        if self.reference in column and self.other in column:
+            self.common = int(np.count_nonzero(merged.seen_by[:, [column[self.reference], column[self.other]]].all(1)))
+
     def take_evidence(self, alignment) -> None:
         """Copy the confidence figures of a :class:`fusion.Alignment` (its statistics)."""
         st = alignment.statistics
@@ -126,7 +141,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     """Align every map to the first robot's (in name order), merge them, score against the truth when known.
     ``cache`` (``fusion.AlignmentCache``, kept by the caller between fusions): pairs of unchanged maps are not
     aligned again."""
-    from fusion import align, merge, true_relative_pose
+    from fusion import align, merge
 
     start = time.perf_counter()
     names = sorted(maps)
@@ -157,10 +172,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
         merged_pair = merge(merged, maps[other], alignment, method=method)
         result.common = int(merged_pair.metadata.get("fusion", {}).get("common_landmarks", 0))
         merged = merged_pair
-        truth = true_relative_pose(maps[reference], maps[other])  # from the maps' true start poses (mocks)
-        if truth is not None:
-            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
-            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        result.score_against_truth(maps[reference], maps[other])
         pairs.append(result)
     return _with_checks(FusionReport(t, pairs, merged, time.perf_counter() - start), names, checks)
 
@@ -196,7 +208,6 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
     """A flagged map's parts disagreed or could not be compared (fusion.split.fuse_checked): each robot's pair
     reports the placement of its map as merged (whole, or the part made before the gap when it was kept, else the
     part after it), the split's sentence, and the error against the truth where the maps carry it."""
-    from fusion import true_relative_pose
     from fusion.split import fuse_checked
 
     ordered = [maps[n] for n in names]
@@ -222,13 +233,8 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
         result.tx, result.ty, result.theta = (float(v) for v in multi.poses[i])
         result.supports = max((len(a.supports) for (a_i, a_j), a in multi.alignments.items()
                                if i in (a_i, a_j) and a.found), default=0)
-        column = {r: c for c, r in enumerate(multi.map.robots)}
-        if names[0] in column and other in column:
-            result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
-        truth = true_relative_pose(ordered[0], ordered[k])
-        if truth is not None:
-            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
-            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        result.count_common(multi.map)
+        result.score_against_truth(ordered[0], ordered[k])
         pairs.append(result)
     merged = multi.map if multi is not None else maps[names[0]]
     return FusionReport(t, pairs, merged, time.perf_counter() - start)
@@ -237,7 +243,7 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
 def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float,
                rng: np.random.Generator, start: float, cache=None) -> FusionReport:
     """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame."""
-    from fusion import NoOverlapError, fuse_all, true_relative_pose
+    from fusion import NoOverlapError, fuse_all
 
     ordered = [maps[n] for n in names]
     try:
@@ -246,7 +252,6 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
         pairs = [PairResult(names[0], n, False, note=str(e)) for n in names[1:]]
         return FusionReport(t, pairs, maps[names[0]], time.perf_counter() - start)
     parent = {child: p for p, child in multi.tree}
-    column = {r: i for i, r in enumerate(multi.map.robots)}
     pairs = []
     for k, other in enumerate(names[1:], 1):
         pose = multi.poses[k]
@@ -271,12 +276,8 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
                 result.sigma_xy, result.sigma_theta = sigmas(cov)
             start = multi.start_covariances[k] if multi.start_covariances else None
             result.start_sigma_xy, result.start_sigma_theta = (None, None) if start is None else sigmas(start)
-        if names[0] in column and other in column:
-            result.common = int(np.count_nonzero(multi.map.seen_by[:, [column[names[0]], column[other]]].all(1)))
-        truth = true_relative_pose(ordered[0], ordered[k])
-        if truth is not None:
-            result.error_xy = float(np.hypot(result.tx - truth[0], result.ty - truth[1]))
-            result.error_theta = float(abs(wrap_angle(result.theta - truth[2])))
+        result.count_common(multi.map)
+        result.score_against_truth(ordered[0], ordered[k])
         result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
         pairs.append(result)
     return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
