@@ -317,6 +317,8 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
         **{k: v for k, v in landmark_scores(result.map, start, observer.points, slam.reports, observer.indices).items()
            if k != "landmark_nees"},
         "pose_nees_median": m["pose_nees_median"], "pose_nees_within_bound": m["pose_nees_within_chi2_95"],
+        "pose_nees_drift_median": m["pose_nees_drift_median"],
+        "pose_nees_drift_within_bound": m["pose_nees_drift_within_chi2_95"],
         "stats": vars(slam.stats).copy() if hasattr(slam, "stats") else {},
         **merge_scores(getattr(slam, "merged_pairs", []), observer.points, slam.reports, observer.indices),
         **association_scores(slam.reports, observer.indices, observer.points, slam.ranges),

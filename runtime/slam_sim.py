@@ -8,8 +8,10 @@ Simulated time only (no driver, no threads): a pure-pursuit follower drives the 
 
 Scores, all in the world frame (the estimate is mapped through the true start pose, which is known here):
 ATE = RMS position error of the best particle's trajectory; the same for dead reckoning; landmark error =
-RMS distance of each map landmark to the true feature that created it; pose NEES = eᵀ P⁻¹ e per frame for
-the weighted particle cloud's mean and covariance before resampling (3 on average for a consistent filter);
+RMS distance of each map landmark to the true feature that created it; pose NEES = eᵀ P⁻¹ e per frame, e the
+cloud mean's error in the start frame, against the weighted cloud's covariance before resampling and against the
+drift tracker's D_r (3 on average for a consistent filter; the cloud keeps only the local spread, D_r is what
+the map's export claims);
 duplicates = map landmarks minus distinct true features they stand for (a map that doubles a corridor on a
 loop has many).
 """
@@ -55,7 +57,7 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
     frame_pose, t = start.copy(), 0.0
     dt = 1.0 / control_rate
     steps_per_frame = max(1, round(control_rate / frame_rate))
-    truth, dead, nees, feature_of_id = [(0.0, *start)], [(0.0, *start)], [], {}
+    truth, dead, nees, drift_nees, feature_of_id = [(0.0, *start)], [(0.0, *start)], [], [], {}
     step = 0
     while t < seconds:
         command = follower.command(pose)
@@ -82,11 +84,15 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
             feature_of_id[int(report.new_landmark_ids[j])] = int(feature_index[j])
         truth.append((t, *pose))
         dead.append((t, *to_world(dead_reckoning)))
-        mean, cov = report.pose_mean, report.pose_covariance  # the weighted cloud, before resampling
-        error = between(to_world(mean), pose)
+        # The pose error in the start frame, where both covariances are: the weighted cloud's (before resampling;
+        # particle depletion keeps only the local spread) and the drift tracker's D_r (the pose's uncertainty
+        # relative to the start frame, what the map's export claims: estimation/fastslam/lever_drift.py).
+        mean, cov = report.pose_mean, report.pose_covariance
+        error = between(start, pose) - mean
         error[2] = wrap_angle(error[2])
-        if np.all(np.isfinite(cov)) and np.linalg.cond(cov) < 1e12:
-            nees.append((t, float(error @ np.linalg.solve(cov, error))))
+        for series, covariance in ((nees, cov), (drift_nees, slam.drift.robot)):
+            if np.all(np.isfinite(covariance)) and np.linalg.cond(covariance) < 1e12:
+                series.append((t, float(error @ np.linalg.solve(covariance, error))))
 
     landmark_map = slam.best_map(robot=robot, metadata={
         "true_start_pose": [float(v) for v in start], "seed": int(seed), "simulated": True,
@@ -97,7 +103,7 @@ def simulate(world, *, start_pose, route, seconds: float, seed: int, config: Fas
     dead_trajectory = np.array(dead)
     nees_series = np.array(nees, float).reshape(-1, 2)
     metrics = _score(landmark_map, world, start, true_trajectory, estimated_world, dead_trajectory,
-                     feature_of_id, nees_series[:, 1])
+                     feature_of_id, nees_series[:, 1], np.array([v for _, v in drift_nees], float))
     metrics.update(seconds=float(t), frames=len(truth) - 1, particles=config.n_particles, version=config.version)
     return SimulationResult(landmark_map, true_trajectory, estimated_world, dead_trajectory, metrics, nees_series)
 
@@ -107,7 +113,7 @@ def _ate(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((estimate[:n, 1:3] - truth[:n, 1:3]) ** 2, axis=1))))
 
 
-def _score(landmark_map: LandmarkMap, world, start, truth, estimate, dead, feature_of_id, nees) -> dict:
+def _score(landmark_map: LandmarkMap, world, start, truth, estimate, dead, feature_of_id, nees, drift_nees) -> dict:
     in_world = transform_points(start, landmark_map.positions)
     features = np.array([feature_of_id.get(int(i), -1) for i in landmark_map.ids], np.int64)
     known = features >= 0
@@ -129,4 +135,6 @@ def _score(landmark_map: LandmarkMap, world, start, truth, estimate, dead, featu
         "pose_nees_median": float(np.median(nees)) if len(nees) else float("nan"),
         "pose_nees_within_chi2_95": float(np.mean(nees < 7.815)) if len(nees) else float("nan"),
         "pose_nees_frames": len(nees),
+        "pose_nees_drift_median": float(np.median(drift_nees)) if len(drift_nees) else float("nan"),
+        "pose_nees_drift_within_chi2_95": float(np.mean(drift_nees < 7.815)) if len(drift_nees) else float("nan"),
     }

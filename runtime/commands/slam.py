@@ -110,7 +110,9 @@ def _simulate(args: argparse.Namespace) -> int:
               f"{m['duplicate_landmarks']} duplicates): RMS error {m['landmark_rms_error_m']:.3f} m, "
               f"median {m['landmark_median_error_m']:.3f} m")
         print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
-              f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
+              f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %) "
+              f"against the particle cloud; median {m['pose_nees_drift_median']:.1f}, "
+              f"{100 * m['pose_nees_drift_within_chi2_95']:.0f} % below against the map frame's drift")
         print(f"  map written to {m['out']}")
     return 0
 
