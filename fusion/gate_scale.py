@@ -11,10 +11,11 @@ squared residuals have a median 0.019 of χ²₂'s), and a gate built from it le
 supports through (the building's half turn: 38 against 40).
 
 ``residual_gate_scale`` is the covariance scale that makes the median normalised squared residual of a hypothesis'
-supports the median of χ²₂.  The ``"inflate"`` rule (the default, as before) only lets it widen the gate (≥ 1: the
-covariances too small, MRCLAM's 4–7 mm); ``"residual"`` lets it narrow the gate too, down to the preset's
-``min_gate`` floor.  Either way the chance supports are counted with the same final gate (decoys, rival, self-repeat),
-so a narrower gate cannot buy a "found": it asks for fewer supports only because fewer fall in by chance.
+supports the median of χ²₂.  The ``"inflate"`` rule (the rule before session 8; still the paper preset's) only lets
+it widen the gate (≥ 1: the covariances too small, MRCLAM's 4–7 mm); ``"residual"`` (the robust preset's) lets it
+narrow the gate too, down to the preset's ``min_gate`` floor.  Either way the chance supports are counted with the
+same final gate (decoys, rival, self-repeat), so a narrower gate cannot buy a "found": it asks for fewer supports only
+because fewer fall in by chance.
 """
 from __future__ import annotations
 
