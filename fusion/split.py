@@ -259,13 +259,14 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
                  rng: np.random.Generator | None = None, reference: int = 0,
                  alignments: dict[tuple[int, int], Alignment] | None = None, cache: AlignmentCache | None = None,
                  split_ids: list[int | None] | None = None, check_rng: np.random.Generator | None = None,
-                 **options) -> CheckedFusion:
+                 checks: list[SplitCheck] | None = None, **options) -> CheckedFusion:
     """:func:`fusion.fuse_all`, with every map that flagged itself checked by :func:`check_split` (``split_ids``:
     per map, where to split it or None; default :func:`split_id` of each map, a malformed verdict read as none).
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
     aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion.
-    Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all`` would raise
-    :class:`NoOverlapError`); other errors of ``fuse_all`` are raised."""
+    ``checks``: the flagged maps' :func:`check_split` results where the caller already has them (they are not
+    made again). Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all``
+    would raise :class:`NoOverlapError`); other errors of ``fuse_all`` are raised."""
     if split_ids is None:
         split_ids = [_split_id_or_none(m) for m in maps]
     cache = AlignmentCache() if cache is None else cache
@@ -274,10 +275,11 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         whole = fuse_all(maps, preset, method, rng, reference, alignments, cache, **options)
     except NoOverlapError as e:
         message = str(e)
-    check_rng = np.random.default_rng(0) if check_rng is None else check_rng
-    flagged = [k for k, s in enumerate(split_ids) if s is not None]
-    checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]))
-              for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
+    if checks is None:
+        check_rng = np.random.default_rng(0) if check_rng is None else check_rng
+        flagged = [k for k, s in enumerate(split_ids) if s is not None]
+        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]))
+                  for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
     if not any(c.decision != "whole" for c in checks):
         return CheckedFusion(whole, list(maps), [(k, None) for k in range(len(maps))], checks, whole, message)
     by_map = {c.index: c for c in checks}
