@@ -680,12 +680,12 @@ def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: n
         counts[start:start + 256] = problem.distinct_counts(problem.masks(search.poses[sl]))
     # the rival is the null: with the residual rule it is also polished as the inflate rule polishes (the gate never
     # narrowed), and the stronger of the two counts (a rival polished in a narrowed gate can lose its own supports)
-    rules = [config] if config.gate_scale == "inflate" else [config, replace(config, gate_scale="inflate")]
+    polish_configs = [config] if config.gate_scale == "inflate" else [config, replace(config, gate_scale="inflate")]
     for c in cand[np.argsort(-counts, kind="stable")[:3]]:
-        for rule in rules:
+        for polish_config in polish_configs:
             p = search.poses[c]
             m = problem.masks(p[None])[0]
-            p, _, m, _ = _polish(replace(problem), p, m, rule)
+            p, _, m, _ = _polish(replace(problem), p, m, polish_config)
             m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
             if distinct(p[None])[0]:
                 # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
