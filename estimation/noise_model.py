@@ -413,7 +413,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         bearings.append(log.bearings[known])
         follows.append(_consecutive(log.sighting_times[known], log.landmark_ids[known]))
     range_bearing = None
-    range_fit = (0.0, 1.0, 0.0, 0.0)
+    range_fit = _NO_RANGE_CALIBRATION
     if range_calibration and residual_r and sum(len(r) for r in residual_r) >= 20:
         range_fit = _range_calibration(np.concatenate(ranges), np.concatenate(bearings), np.concatenate(true_ranges))
         calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
@@ -475,6 +475,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
 
 
 _RANGE_CALIBRATION = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2")
+_NO_RANGE_CALIBRATION = (0.0, 1.0, 0.0, 0.0)   # a, b₀, b₁, b₂ of the identity
 
 
 def _range_calibration(ranges: np.ndarray, bearings: np.ndarray, true_ranges: np.ndarray) -> tuple[float, ...]:
@@ -483,7 +484,7 @@ def _range_calibration(ranges: np.ndarray, bearings: np.ndarray, true_ranges: np
     barcodes and Vicon glitches must not bend it). The identity if the fit leaves b₀ outside [0.5, 2]."""
     design = np.column_stack([np.ones_like(ranges), ranges, ranges * bearings, ranges * bearings ** 2])
     keep = np.ones(len(ranges), bool)
-    coefficients = np.array([0.0, 1.0, 0.0, 0.0])
+    coefficients = np.array(_NO_RANGE_CALIBRATION)
     for _ in range(3):
         if keep.sum() < design.shape[1] * 5:
             break
@@ -491,7 +492,7 @@ def _range_calibration(ranges: np.ndarray, bearings: np.ndarray, true_ranges: np
         error = true_ranges - design @ coefficients
         keep = np.abs(error - np.median(error)) < OUTLIER_MADS * _robust_sigma(error)
     if not 0.5 <= coefficients[1] <= 2.0:
-        return 0.0, 1.0, 0.0, 0.0
+        return _NO_RANGE_CALIBRATION
     return tuple(float(c) for c in coefficients)
 
 
