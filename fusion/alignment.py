@@ -61,6 +61,9 @@ from .matching import distinctive_correspondences, nearest_correspondences, quer
 from .pose_covariance import inverse_with_covariance
 
 if TYPE_CHECKING:
+    from .prior import StartPrior
+
+if TYPE_CHECKING:
     from .cache import AlignmentCache
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
@@ -147,6 +150,11 @@ class AlignmentStatistics:
     gate_inflation: float = 1.0          # covariance scale the supports' residuals called for
     gate_radius: float = float("nan")    # metres, median support-gate radius in the plane
     descriptors: bool = True             # False: maps without descriptors, geometry alone
+    # with a start prior (fusion.prior): the winner's χ² against it, the hypotheses tried inside it (the Bonferroni
+    # factor), and the supports of the best hypothesis outside it (not a rival; nan / 0 without a prior)
+    prior_chi2: float = float("nan")
+    prior_hypotheses: int = 0
+    outside_prior_supports: int = 0
 
     @property
     def false_alarm_probability(self) -> float:
@@ -182,6 +190,7 @@ class Alignment:
     statistics: AlignmentStatistics = field(default_factory=AlignmentStatistics)
     reason: str = ""
     start_covariance: np.ndarray | None = None
+    prior: StartPrior | None = None      # the start prior the decision used (fusion.prior), or None
 
     @classmethod
     def from_pose(cls, pose, covariance=None, supports=None, preset: str = "given") -> Alignment:
@@ -217,7 +226,8 @@ class Alignment:
     def inverse(self) -> Alignment:
         """The alignment of map 1 to map 2 (pose inverted, covariance propagated, support columns swapped)."""
         if not self.found:
-            return replace(self, supports=self.supports[:, ::-1].copy())
+            return replace(self, supports=self.supports[:, ::-1].copy(),
+                           prior=None if self.prior is None else self.prior.inverse())
         cov, start_cov = self.covariance, self.start_covariance
         pose = inverse(self.pose)
         if cov is not None:
@@ -225,7 +235,8 @@ class Alignment:
         if start_cov is not None:
             start_cov = inverse_with_covariance(self.pose, start_cov)[1]
         return replace(self, pose=pose, covariance=cov, start_covariance=start_cov,
-                       supports=self.supports[:, ::-1].copy())
+                       supports=self.supports[:, ::-1].copy(),
+                       prior=None if self.prior is None else self.prior.inverse())
 
     def to_dict(self) -> dict:
         """JSON-friendly summary (supports as a list of index pairs)."""
@@ -235,6 +246,7 @@ class Alignment:
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "start_covariance": None if self.start_covariance is None else self.start_covariance.tolist(),
             "supports": self.supports.tolist(), "statistics": self.statistics.to_dict(),
+            "prior": None if self.prior is None else self.prior.to_dict(),
         }
 
 
@@ -579,6 +591,7 @@ class Evidence:
     self_repeat: int = 0                  # supports of the best repeat of either map onto itself (self_structure)
     rival_pose: np.ndarray | None = None  # (3,) the second-best hypothesis' pose, None if there is none
     rival_mask: np.ndarray | None = None  # (K,) its supports among the correspondences
+    outside: int = 0                      # with a start prior: supports of the best distinct hypothesis outside it
 
 
 def _log10_tail(excess: int, rate: float, hypotheses: int) -> float:
@@ -655,10 +668,11 @@ class _Rival:
 
 
 def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray,
-                   config: AlignmentConfig, unordered: bool = False) -> _Rival:
+                   config: AlignmentConfig, unordered: bool = False, admissible=None) -> _Rival:
     """The best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or, without any, every
     correspondence) by more than two gate radii on average.  The three strongest candidates are re-scored with the
-    final gate and polished like the winner."""
+    final gate and polished like the winner.  ``admissible(poses (H, 3)) -> (H,) bool`` (a start prior) keeps only
+    the hypotheses it admits, before and after polishing."""
     if search.evaluated == 0:
         return _Rival()
     pts = problem.p2[mask] if mask.sum() >= 2 else problem.p2
@@ -670,7 +684,7 @@ def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: n
         moved = np.einsum("hij,kj->hki", R, pts[:, :2]) + poses[:, None, :2]
         return np.sqrt(np.mean(np.sum((moved - ref[None]) ** 2, axis=2), axis=1)) > far
 
-    cand = np.flatnonzero(distinct(search.poses))
+    cand = np.flatnonzero(distinct(search.poses) & (True if admissible is None else admissible(search.poses)))
     if len(cand) == 0:
         return _Rival()
     best = _Rival()
@@ -687,7 +701,7 @@ def _best_distinct(problem: _Problem, search: _Search, pose: np.ndarray, mask: n
             m = problem.masks(p[None])[0]
             p, _, m, _ = _polish(replace(problem), p, m, polish_config)
             m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
-            if distinct(p[None])[0]:
+            if distinct(p[None])[0] and (admissible is None or admissible(p[None])[0]):
                 # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
                 n = (len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered
                      else int(m.sum()))
@@ -734,17 +748,24 @@ def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.r
 
 def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray, map1: LandmarkMap,
              map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
-             repeats: bool = False, self_repeat=None) -> Evidence:
+             repeats: bool = False, self_repeat=None, admissible=None) -> Evidence:
     """The alignment's own evidence (see the module docstring): supports beyond the two that define a
     hypothesis against a Poisson null whose rate is the largest of the decoys', the one that makes the
     second-best distinct hypothesis a typical maximum and (``repeats``: maps matched by descriptors) the one
     that makes either map's repeat of itself (:func:`self_structure`) a typical maximum; Bonferroni over the
     hypotheses tried.  ``self_repeat(map) -> int`` gives a map's self-repeat count (default: :func:`self_structure`
-    with a generator seeded by the map's content, so that the count is a property of the map alone)."""
+    with a generator seeded by the map's content, so that the count is a property of the map alone).
+
+    ``admissible(poses) -> bool`` (a start prior, :mod:`fusion.prior`): only the hypotheses it admits are rivals and
+    count in the Bonferroni factor (a false alarm needs the best hypothesis inside it); the best one outside it is
+    reported (``outside``).  Each map's repeat of itself stays in the null whatever the prior: a wrong prior that
+    agrees with a wrong winner (the truth damaged, its repeat winning) must not make it "found"."""
     s = int(problem.distinct_counts(mask[None])[0])
-    n = max(search.evaluated, 1)
+    n = max(search.evaluated if admissible is None else int(admissible(search.poses).sum()), 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
-    rival = _best_distinct(problem, search, pose, mask, config)
+    rival = _best_distinct(problem, search, pose, mask, config, admissible=admissible)
+    outside = 0 if admissible is None else _best_distinct(
+        problem, search, pose, mask, config, admissible=lambda poses: ~admissible(poses)).supports
     second = rival.supports
     if self_repeat is None:
         def self_repeat(m: LandmarkMap) -> int:
@@ -758,7 +779,7 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     while _log10_tail(required - 2, rate, n) > level and required < 100_000:
         required += 1
     return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat,
-                    rival.pose, rival.mask)
+                    rival.pose, rival.mask, outside)
 
 
 # -- what an ambiguous pair reports ----------------------------------------------------------------------------
@@ -914,7 +935,8 @@ def _correspondences(map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConf
 
 
 def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = "robust",
-          rng: np.random.Generator | None = None, cache: AlignmentCache | None = None) -> Alignment:
+          rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
+          prior: StartPrior | None = None) -> Alignment:
     """Align map 2 to map 1 (RANSAC, see the module docstring); never raises for non-overlapping maps.
 
     Returns an :class:`Alignment` whose ``found`` says whether the maps overlap and whose ``statistics``
@@ -923,6 +945,9 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     Raises :class:`IncompatibleMapsError` when the descriptor sizes differ or the preset is unknown.
     ``cache`` (:class:`fusion.cache.AlignmentCache`) supplies each map's self-repeat count computed once per map
     content (use ``cache.align`` to reuse whole alignments of unchanged maps).
+    ``prior`` (:class:`fusion.prior.StartPrior`): a rough relative start of the robots; hypotheses outside it are no
+    rivals, and a best alignment outside it is "not found: ... contradicts the prior" (the prior removes hypotheses,
+    it never adds support; see :mod:`fusion.prior`).
     """
     config = _resolve(preset)
     rng = np.random.default_rng(0) if rng is None else rng
@@ -932,7 +957,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     empty = np.zeros((0, 2), np.int64)
 
     def not_found(reason: str, stats: AlignmentStatistics, supports=empty) -> Alignment:
-        return Alignment(False, config.name, None, None, supports, stats, reason)
+        return Alignment(False, config.name, None, None, supports, stats, reason, prior=prior)
 
     identities = landmark_identities(map1) is not None and landmark_identities(map2) is not None
     with_descriptors = identities or (has_descriptors(map1) and has_descriptors(map2))
@@ -965,9 +990,21 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
                                              descriptors=with_descriptors))
     raw_count = int(search.mask.sum())
     pose, covariance, mask, problem = _polish(problem, search.pose, search.mask, config)
+    inside, prior_chi2 = None, float("nan")
+    if prior is not None:
+        # the prior is about the true starts: the winner's uncertainty against them widens it (for every hypothesis)
+        winner_start = (start_frame_covariance(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask],
+                                               pose, config.position_floor)
+                        if covariance is not None and mask.sum() >= 2 else None)
+        prior_chi2 = float(prior.chi2(pose, winner_start))
+        if prior_chi2 <= prior.bound:
+
+            def inside(poses: np.ndarray) -> np.ndarray:
+                return prior.admits(poses, winner_start)
     ev = evidence(problem, search, pose, mask, map1, map2, config, rng,
                   repeats=config.refine and with_descriptors and not identities,
-                  self_repeat=None if cache is None else (lambda m: cache.self_structure(m, config)))
+                  self_repeat=None if cache is None else (lambda m: cache.self_structure(m, config)),
+                  admissible=inside)
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
@@ -993,11 +1030,15 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
         support_spread=major, support_spread_minor=minor, second_best_supports=ev.second_best,
         self_repeat_supports=ev.self_repeat,
         required_supports=ev.required, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
-        descriptors=with_descriptors, **rival)
+        descriptors=with_descriptors, prior_chi2=prior_chi2,
+        prior_hypotheses=ev.hypotheses if inside is not None else 0, outside_prior_supports=ev.outside, **rival)
 
     counted = raw_count if not config.refine and with_descriptors else len(supports)
     if counted < config.min_supports:
         return not_found(f"{no_desc}only {counted} supports (at least {config.min_supports} needed)", stats, supports)
+    if prior is not None and (inside is None or ev.outside > s):
+        return not_found(_contradiction(prior, pose, s, prior_chi2, ev, config, major, inside is None), stats,
+                         supports)
     if config.significance is not None and ev.log10_p > np.log10(config.significance):
         if ev.ambiguous and ev.self_repeat > ev.second_best:
             return not_found(
@@ -1021,7 +1062,23 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     start_cov = None
     if covariance is not None and len(fit[0]) >= 2:
         start_cov = start_frame_covariance(*fit, pose, config.position_floor)
-    return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov)
+    return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov, prior)
+
+
+def _contradiction(prior: StartPrior, pose: np.ndarray, s: int, chi2: float, ev: Evidence, config: AlignmentConfig,
+                   spread: float, winner_outside: bool) -> str:
+    """Why a best alignment that contradicts the start prior is not found: how far, and what the evidence says."""
+    if not winner_outside:
+        return (f"the maps' best alignment contradicts the prior: a hypothesis outside it gathers {ev.outside} "
+                f"supports against the best one inside's {s} ({prior.text()})")
+    dxy, dth = prior.offset(pose)
+    level = np.log10(config.significance) if config.significance is not None else -6.0
+    alone = ("the evidence alone would find it" if ev.log10_p <= level and spread >= config.min_spread
+             else f"the evidence alone would not find it either (false-alarm probability 10^{ev.log10_p:.1f}, "
+                  f"{ev.required} supports needed)")
+    return (f"the maps' best alignment contradicts the prior: {s} supports at tx={pose[0]:+.2f} m ty={pose[1]:+.2f} m "
+            f"θ={pose[2]:+.3f} rad, {dxy:.2f} m / {dth:.3f} rad from the prior's mean (χ² {chi2:.1f} > "
+            f"{prior.bound:.1f}); {alone}; {prior.text()}")
 
 
 def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | AlignmentConfig = "robust",

@@ -1,0 +1,167 @@
+"""The alignment with a rough prior on the robots' relative start (fusion/prior.py), on the rendered demo.
+
+For each demo folder (``p3at demo --seed S --out DIR``: robot1.npz, robot2.npz) the final maps are aligned four
+times: without a prior; with the configured start poses (the world's ``start_poses``, where the demo puts its
+robots) at σ ``--sigma-xy`` / ``--sigma-yaw`` each; with a *wrong* prior, the truth turned by a half turn about the
+centre of the corridor both robots drive (x 9 m, y 5 m in the world: the building's symmetry, the ambiguous rival's
+place); and a prior 3 m off the truth along map 1's x axis.  Printed: the decision, supports (needed), the rival
+inside the prior and the best hypothesis outside it, the hypotheses tried inside it of all, the error against the
+true start poses and the alignment's own error (against the composition of the two maps' best rigid fits to the
+simulator's true features, as ``eval_fusion --demo-maps``).  A found alignment more than 0.3 m or 0.1 rad off the
+truth is WRONG.  ``--false-pairs N`` runs the seven kinds of non-overlapping pairs of ``fusion_gate_scale`` with two
+priors each: a wide one (10 m / π/2 about the identity) and an adversarial one (1 m / 0.3 rad, centred on the best
+hypothesis the maps give without a prior).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.fusion_prior --demo /tmp/lead9/demo /tmp/lead9/demo-s1 ...
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.fusion_prior --false-pairs 1000
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from eval_fusion import _feature_fit  # noqa: E402
+from fusion_sim import false_pair_kinds, load_world  # noqa: E402
+
+from estimation.geometry import between, compose, inverse, transform_points  # noqa: E402
+from estimation.landmark_map import LandmarkMap  # noqa: E402
+from fusion.alignment import align, alignment_error_xy_theta, true_relative_pose  # noqa: E402
+from fusion.prior import StartPrior  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float  # noqa: E402
+
+WRONG_M, WRONG_RAD = 0.3, 0.1          # as eval_fusion: this far off counts as a false alignment
+SYMMETRY_CENTRE = (9.0, 5.0)           # world metres: the middle of the corridor both demo robots drive (x 2..16)
+
+
+def half_turned(truth: np.ndarray, start1: np.ndarray) -> np.ndarray:
+    """The truth turned by a half turn about the corridor's centre (map 1's frame): where the building's rival is."""
+    c = transform_points(inverse(start1), np.array([[*SYMMETRY_CENTRE, 0.0]]))[0, :2]
+    return compose(np.array([2 * c[0], 2 * c[1], np.pi]), truth)
+
+
+def _cell(a, truth, best) -> str:
+    if not a.found:
+        why = a.reason.split(";")[0].split(" (")[0]
+        return f"not found: {why}"
+    e = alignment_error_xy_theta(a.pose, truth)
+    o = alignment_error_xy_theta(a.pose, best)
+    wrong = " **WRONG**" if e[0] > WRONG_M or e[1] > WRONG_RAD else ""
+    return f"found{wrong}: {e[0]:.3f} m / {e[1]:.4f} rad; own {o[0]:.3f} / {o[1]:.4f}"
+
+
+def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
+    world = load_world()
+    print(f"\n### Rendered demo with a start prior (σ {sigma_xy} m / {sigma_yaw} rad per robot)\n")
+    print("| run | prior | decision: error vs truth xy / θ; own error | supports (needed) | rival inside | "
+          "best outside the prior | hypotheses inside / tried |")
+    print("|---|---|---|---|---|---|---|")
+    summary: dict[str, list] = {}
+    for folder in folders:
+        m1, m2 = LandmarkMap.load(folder / "robot1.npz"), LandmarkMap.load(folder / "robot2.npz")
+        truth = true_relative_pose(m1, m2)
+        start1 = np.asarray(world.start_poses[m1.robot], float)
+        start2 = np.asarray(world.start_poses[m2.robot], float)
+        fits = [_feature_fit(m, world.features)[0] for m in (m1, m2)]
+        best = between(fits[0], fits[1])
+        configured = StartPrior.between_starts(start1, start2, sigma_xy, sigma_yaw, source="configured starts")
+        cov = configured.covariance
+        priors = {
+            "none": None,
+            "configured starts": configured,
+            "half-turned (wrong)": StartPrior(half_turned(truth, start1), cov, source="half-turned"),
+            "3 m off in x (wrong)": StartPrior(truth + np.array([3.0, 0.0, 0.0]), cov, source="3 m off"),
+        }
+        for name, prior in priors.items():
+            a = align(m1, m2, "robust", np.random.default_rng(0), prior=prior)
+            st = a.statistics
+            inside = f"{st.prior_hypotheses} / {st.iterations}" if prior is not None else f"– / {st.iterations}"
+            outside = st.outside_prior_supports if prior is not None else "–"
+            print(f"| {folder.name} | {name} | {_cell(a, truth, best)} | {st.supports} ({st.required_supports}) | "
+                  f"{st.second_best_supports} | {outside} | {inside} |")
+            e = alignment_error_xy_theta(a.pose, truth) if a.found else None
+            o = alignment_error_xy_theta(a.pose, best) if a.found else None
+            summary.setdefault(name, []).append((a.found, e, o))
+    print()
+    for name, rows in summary.items():
+        found = [r for r in rows if r[0]]
+        wrong = sum(1 for r in found if r[1][0] > WRONG_M or r[1][1] > WRONG_RAD)
+        line = f"- {name}: found {len(found)} of {len(rows)}, wrong {wrong}"
+        if found:
+            e, o = np.array([r[1] for r in found]), np.array([r[2] for r in found])
+            line += (f"; vs truth median {np.median(e[:, 0]):.3f} m / {np.median(e[:, 1]):.4f} rad, worst "
+                     f"{e[:, 0].max():.3f} / {e[:, 1].max():.4f}; own median {np.median(o[:, 0]):.3f} m / "
+                     f"{np.median(o[:, 1]):.4f} rad, worst {o[:, 0].max():.3f} / {o[:, 1].max():.4f}")
+        print(line)
+
+
+def false_pairs(total: int) -> None:
+    """fusion_gate_scale's seven kinds (same generators and seeds), each with a wide and an adversarial prior."""
+    kinds = false_pair_kinds()
+    per = max(1, -(-total // len(kinds)))
+    print(f"\n### No false alignment with a start prior ({per * len(kinds)} pairs: {per} of each kind)\n")
+    print("| maps | found: no prior | wide prior (10 m / 1.57 rad about the identity) | adversarial prior "
+          "(1 m / 0.3 rad about the best hypothesis) |")
+    print("|---|---|---|---|")
+    totals = np.zeros(3, int)
+    for name, make in kinds.items():
+        found = np.zeros(3, int)
+        for seed in range(per):
+            m1, m2 = make(seed)
+            m1, m2 = getattr(m1, "map", m1), getattr(m2, "map", m2)
+            plain = align(m1, m2, "robust", np.random.default_rng(seed))
+            found[0] += plain.found
+            wide = StartPrior.from_sigmas(np.zeros(3), 10.0, np.pi / 2, source="wide")
+            found[1] += align(m1, m2, "robust", np.random.default_rng(seed), prior=wide).found
+            centre = plain.pose if plain.found else _best_pose(m1, m2, seed)
+            if centre is not None:
+                tight = StartPrior.from_sigmas(centre, 1.0, 0.3, source="adversarial")
+                found[2] += align(m1, m2, "robust", np.random.default_rng(seed), prior=tight).found
+        totals += found
+        print(f"| {name} | {found[0]}/{per} | {found[1]}/{per} | {found[2]}/{per} |")
+    print(f"\nFound on {per * len(kinds)} non-overlapping pairs: no prior {totals[0]}, wide prior {totals[1]}, "
+          f"adversarial prior {totals[2]}")
+
+
+def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int) -> np.ndarray | None:
+    """The pose of the best rejected hypothesis (the fit of its supports), for an adversarial prior."""
+    from fusion.alignment import ROBUST, refine_pose
+
+    a = align(m1, m2, ROBUST, np.random.default_rng(seed))
+    if len(a.supports) < 2:
+        return None
+    i, j = a.supports[:, 0], a.supports[:, 1]
+    p1, p2 = m1.positions[i], m2.positions[j]
+    # a closed-form 2-D fit from the supports, then one weighted refinement
+    c1, c2 = p1[:, :2].mean(0), p2[:, :2].mean(0)
+    h = (p2[:, :2] - c2).T @ (p1[:, :2] - c1)
+    theta = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    r = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    pose = np.array([*(c1 - r @ c2), theta])
+    return refine_pose(p1, m1.covariances[i], p2, m2.covariances[j], pose)[0]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--demo", type=Path, nargs="*", default=[], help="demo output folders (robot1/2.npz)")
+    parser.add_argument("--sigma-xy", type=positive_float, default=1.0, help="σ of each start, metres (default 1)")
+    parser.add_argument("--sigma-yaw", type=positive_float, default=0.3, help="σ of each start, rad (default 0.3)")
+    parser.add_argument("--false-pairs", type=non_negative_int, default=0,
+                        help="non-overlapping pairs, over seven kinds")
+    args = parser.parse_args()
+    t0 = time.perf_counter()
+    if args.demo:
+        demo_table(args.demo, args.sigma_xy, args.sigma_yaw)
+    if args.false_pairs:
+        false_pairs(args.false_pairs)
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
