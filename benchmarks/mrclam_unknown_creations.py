@@ -5,7 +5,7 @@ and the gate widened by the landmark's relative drift H (D_r − D_l)⁺ Hᵀ (d
 particle passes the plain gate) is a *duplicate creation* if the particle already holds a landmark attributed
 (majority vote of the best particle's sightings so far) to the observation's barcode.
 
-Run from the repository root (a diagnosis: it recomputes the filter's gate from its internals before each update;
+Run from the repository root (a diagnosis: the filter's own gate before each update, ``FastSLAM.candidate_gate``;
 ~2 min CPU per robot):
 
     .venv/bin/python -m benchmarks.mrclam_unknown_creations ROBOT [SEED] ['{"FIELD": VALUE}']
@@ -25,7 +25,6 @@ import estimation.dataset_slam as ds
 from benchmarks.eval_mrclam import DATA
 from estimation.datasets import read_mrclam
 from estimation.fastslam import FastSLAM, range_bearing_config
-from estimation.fastslam.filter import _cols, _FrameGeometry
 from estimation.fastslam.id_gate import psd_part
 from estimation.fastslam.linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic
 from estimation.landmark_scores import count_sightings
@@ -58,23 +57,10 @@ def main() -> None:
             best = int(np.argmax(self.log_weights))
             n_obs = len(ids)
             if int(self.store.n_blocks.max(initial=0)) and n_obs:
-                z, q, desc = self._checked(obs)
-                q6 = sym_components(q)
-                poses = self.poses
-                frame = _FrameGeometry.of(poses, z, q6)
-                cand, lids, _ = self._candidates(poses)
-                c = np.repeat(np.arange(len(cand.m)), n_obs)
-                j = np.tile(np.arange(n_obs), len(cand.m))
-                m = cand.m[c]
-                state = self.store.flat_state[cand.g[c]].T
-                mean, cov = state[:3], state[3:]
-                mj = m * n_obs + j
-                nu = _cols(frame.world, mj) - mean
-                lever = mean[:2] - _cols(poses[:, :2].T, m)
-                s = cov + _cols(frame.noise, mj) + pose_uncertainty(_cols(sym_components(self._motion_cov), m), lever)
-                adj, det = sym_adjugate(s)
-                d2 = sym_quadratic(adj, nu) / det
-                lid = lids[c]
+                gate_pairs = self.candidate_gate(obs)
+                m, j, lid, d2 = gate_pairs.m, gate_pairs.j, gate_pairs.lid, gate_pairs.d2
+                nu, s, lever = gate_pairs.innovation, gate_pairs.covariance, gate_pairs.lever
+                poses, mj = self.poses, m * n_obs + j
                 rel = psd_part(self.drift.robot[None] - sym_matrices(self.drift.landmark_pose_covariances(lid)))
                 s2 = s + pose_uncertainty(sym_components(rel), lever)
                 adj, det = sym_adjugate(s2)

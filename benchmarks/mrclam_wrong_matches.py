@@ -16,7 +16,7 @@ Also, over all the best particle's matches: right / wrong by the number of landm
 several), and by the association's posterior p(chosen | z) among the gated candidates (Gaussian likelihoods with
 their normalisers).
 
-Run from the repository root (a diagnosis; it recomputes the gate from the filter's internals, ~2-3 min a robot):
+Run from the repository root (a diagnosis; the gate is the filter's own, ``FastSLAM.candidate_gate``; ~2-3 min a robot):
 
     .venv/bin/python -m benchmarks.mrclam_wrong_matches [--robots 1,2,3,4,5] [--seed 0] [--set FIELD=VALUE ...]
         [--json]
@@ -34,8 +34,6 @@ import numpy as np  # noqa: E402
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 from benchmarks.eval_mrclam_merges import robots_main  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
-from estimation.fastslam.filter import _cols, _FrameGeometry  # noqa: E402
-from estimation.fastslam.linalg import pose_uncertainty, sym_adjugate, sym_components, sym_quadratic  # noqa: E402
 from estimation.geometry import between, wrap_angle  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
@@ -74,28 +72,13 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
             return report
 
         def _gate_table(self, obs, ids) -> dict | None:
-            z, q, _ = self._checked(obs)
-            q6 = sym_components(q)
-            poses, n_obs = self.poses, len(ids)
-            frame = _FrameGeometry.of(poses, z, q6)
-            cand, lids, _ = self._candidates(poses)
-            if len(cand.m) == 0:
+            gate = self.candidate_gate(obs)
+            if len(gate.m) == 0:
                 return None
-            c = np.repeat(np.arange(len(cand.m)), n_obs)
-            j = np.tile(np.arange(n_obs), len(cand.m))
-            m = cand.m[c]
-            state = self.store.flat_state[cand.g[c]].T
-            mean, cov = state[:3], state[3:]
-            mj = m * n_obs + j
-            nu = _cols(frame.world, mj) - mean
-            lever = mean[:2] - _cols(poses[:, :2].T, m)
-            s = cov + _cols(frame.noise, mj) + pose_uncertainty(_cols(sym_components(self._motion_cov), m), lever)
-            adj, det = sym_adjugate(s)
-            d2 = sym_quadratic(adj, nu) / det
-            uniq, inv = np.unique(lids[c], return_inverse=True)
+            uniq, inv = np.unique(gate.lid, return_inverse=True)
             barcode = attribute_landmarks(votes, uniq)[inv]
-            return dict(m=m, j=j, lid=lids[c], d2=d2, logdet=np.log(det), right=barcode == ids[j], ids=ids,
-                        poses=poses.copy(), prior=self.log_weights.copy())
+            return dict(m=gate.m, j=gate.j, lid=gate.lid, d2=gate.d2, logdet=gate.log_det, right=barcode == ids[gate.j],
+                        ids=ids, poses=self.poses.copy(), prior=self.log_weights.copy())
 
         def _check_self(self, best, matched, missed, named, z, miss_weight):
             super()._check_self(best, matched, missed, named, z, miss_weight)

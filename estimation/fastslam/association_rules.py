@@ -44,6 +44,24 @@ class AssociationChoice:
     unused: np.ndarray
 
 
+@dataclass(frozen=True)
+class CandidateGate:
+    """The plain gate over every (particle, reading, landmark near the particle's view) triple of a frame, all
+    arrays over the P triples (:meth:`FastSLAM.candidate_gate`): m, j, lid (P,) particle, reading, landmark id;
+    innovation (3, P) ν = R z + t − μ and covariance (6, P) S = Σ + R Q Rᵀ + H_x P H_xᵀ (symmetric components,
+    world frame, at the predicted pose); lever (2, P) the landmark's planar offset from the particle, H_x's
+    lever; d2 (P,) νᵀS⁻¹ν; log_det (P,) log |S|."""
+
+    m: np.ndarray
+    j: np.ndarray
+    lid: np.ndarray
+    innovation: np.ndarray
+    covariance: np.ndarray
+    lever: np.ndarray
+    d2: np.ndarray
+    log_det: np.ndarray
+
+
 def _largest_terms(keys: np.ndarray, d2: np.ndarray, n_particles: int, n_obs: int, gate: float):
     """(M·N,) the smallest d² per key (gate where none), and the log-weight increments (M,)."""
     best = np.full(n_particles * n_obs, float(gate))

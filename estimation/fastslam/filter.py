@@ -452,6 +452,28 @@ class FastSLAM:
             dropped / n_particles, ess, bool(resampled), new_ids, best_matches, pose_mean, pose_cov,
             self.stats.proposal_fallbacks - fallbacks_before)
 
+    def candidate_gate(self, observations: StereoObservations) -> association_rules.CandidateGate:
+        """The plain gate of step 2 for every (particle, reading, landmark in a block near the particle's view),
+        at the predicted poses, before the descriptor join and the exact pre-gates (those only drop triples that
+        fail): what the filter would decide between. Read only (the filter is unchanged); for diagnoses of the
+        association (``benchmarks/mrclam_wrong_matches.py``, ``mrclam_unknown_creations.py``)."""
+        z, q, _ = self._checked(observations)
+        poses, n_obs = self.poses, len(z)
+        frame = _FrameGeometry.of(poses, z, sym_components(q))
+        cand, lids, _ = self._candidates(poses)
+        c = np.repeat(np.arange(len(cand.m)), n_obs)
+        j = np.tile(np.arange(n_obs), len(cand.m))
+        m = cand.m[c]
+        state = self.store.flat_state[cand.g[c]].T
+        mean, cov = state[:3], state[3:]
+        mj = m * n_obs + j
+        innovation = _cols(frame.world, mj) - mean
+        lever = mean[:2] - _cols(poses[:, :2].T, m)
+        s = cov + _cols(frame.noise, mj) + pose_uncertainty(_cols(sym_components(self._motion_cov), m), lever)
+        adj, det = sym_adjugate(s)
+        d2 = sym_quadratic(adj, innovation) / det
+        return association_rules.CandidateGate(m, j, lids[c], innovation, s, lever, d2, np.log(det))
+
     # -- step helpers ----------------------------------------------------------------------------------------
     def _checked(self, observations: StereoObservations):
         cfg = self.config
