@@ -56,6 +56,17 @@ def _cell(a, truth, best) -> str:
     return f"found{wrong}: {e[0]:.3f} m / {e[1]:.4f} rad; own {o[0]:.3f} / {o[1]:.4f}"
 
 
+def _strongest_wrong(m1, m2, plain, truth) -> np.ndarray | None:
+    """The maps' strongest wrong hypothesis: the winner (the fit of its supports) if it is wrong, else the
+    second-best (on the demo, the half turn)."""
+    winner = _supports_fit(m1, m2, plain.supports) if len(plain.supports) >= 2 else None
+    if winner is not None:
+        e = alignment_error_xy_theta(winner, truth)
+        if e[0] > WRONG_M or e[1] > WRONG_RAD:
+            return winner
+    return np.array(plain.statistics.second_best_pose) if plain.statistics.second_best_pose else None
+
+
 def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
     world = load_world()
     print(f"\n### Rendered demo with a start prior (σ {sigma_xy} m / {sigma_yaw} rad per robot)\n")
@@ -72,13 +83,19 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
         best = between(fits[0], fits[1])
         configured = StartPrior.between_starts(start1, start2, sigma_xy, sigma_yaw, source="configured starts")
         cov = configured.covariance
+        plain = align(m1, m2, "robust", np.random.default_rng(0))
+        strongest_wrong = _strongest_wrong(m1, m2, plain, truth)
         priors = {
             "none": None,
             "configured starts": configured,
             "half-turned (wrong)": StartPrior(half_turned(truth, start1), cov, source="half-turned"),
+            "at the strongest wrong hypothesis (wrong)": None if strongest_wrong is None else StartPrior(
+                strongest_wrong, cov, source="strongest wrong"),
             "3 m off in x (wrong)": StartPrior(truth + np.array([3.0, 0.0, 0.0]), cov, source="3 m off"),
         }
         for name, prior in priors.items():
+            if prior is None and name != "none":
+                continue
             a = align(m1, m2, "robust", np.random.default_rng(0), prior=prior)
             st = a.statistics
             inside = f"{st.prior_hypotheses} / {st.iterations}" if prior is not None else f"– / {st.iterations}"
@@ -131,14 +148,17 @@ def false_pairs(total: int) -> None:
 
 def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int) -> np.ndarray | None:
     """The pose of the best rejected hypothesis (the fit of its supports), for an adversarial prior."""
-    from fusion.alignment import ROBUST, refine_pose
+    a = align(m1, m2, "robust", np.random.default_rng(seed))
+    return _supports_fit(m1, m2, a.supports) if len(a.supports) >= 2 else None
 
-    a = align(m1, m2, ROBUST, np.random.default_rng(seed))
-    if len(a.supports) < 2:
-        return None
-    i, j = a.supports[:, 0], a.supports[:, 1]
+
+def _supports_fit(m1: LandmarkMap, m2: LandmarkMap, supports: np.ndarray) -> np.ndarray:
+    """A closed-form 2-D rigid fit of map 2's frame in map 1's from support pairs (S, 2), then one weighted
+    refinement."""
+    from fusion.alignment import refine_pose
+
+    i, j = supports[:, 0], supports[:, 1]
     p1, p2 = m1.positions[i], m2.positions[j]
-    # a closed-form 2-D fit from the supports, then one weighted refinement
     c1, c2 = p1[:, :2].mean(0), p2[:, :2].mean(0)
     h = (p2[:, :2] - c2).T @ (p1[:, :2] - c1)
     theta = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])

@@ -153,6 +153,7 @@ class AlignmentStatistics:
     # with a start prior (fusion.prior): the winner's χ² against it, the hypotheses tried inside it (the Bonferroni
     # factor), and the supports of the best hypothesis outside it (not a rival; nan / 0 without a prior)
     prior_chi2: float = float("nan")
+    second_best_pose: tuple = ()          # (tx, ty, θ) of the second-best hypothesis (empty: none)
     prior_hypotheses: int = 0
     outside_prior_supports: int = 0
 
@@ -800,6 +801,8 @@ def _rival_figures(map1: LandmarkMap, map2: LandmarkMap, pairs: np.ndarray, pose
                    problem: _Problem, ev: Evidence, compare_descriptors: bool) -> dict:
     """The AlignmentStatistics fields that describe the second-best hypothesis against the winner."""
     out = {}
+    if ev.rival_pose is not None:
+        out["second_best_pose"] = tuple(float(v) for v in ev.rival_pose)
     if ev.rival_pose is not None and mask.any():
         out["second_best_shift"], out["second_best_turn"] = rival_offset(pose, ev.rival_pose, problem.p2[mask])
     if compare_descriptors and map1.descriptor_size:

@@ -77,18 +77,21 @@ class AlignmentCache:
         self._remember(self._self, key, value, self.max_maps)
         return value
 
-    def align(self, map1: LandmarkMap, map2: LandmarkMap, preset="robust", rng: np.random.Generator | None = None):
-        """:func:`fusion.align`, or the alignment stored for these two maps' contents and this preset."""
+    def align(self, map1: LandmarkMap, map2: LandmarkMap, preset="robust", rng: np.random.Generator | None = None,
+              prior=None):
+        """:func:`fusion.align`, or the alignment stored for these two maps' contents, this preset and this start
+        prior (``fusion.prior.StartPrior`` or None)."""
         from .alignment import _resolve, align
 
         config = _resolve(preset)
-        key = (map_fingerprint(map1), map_fingerprint(map2), astuple(config))
+        prior_key = None if prior is None else (prior.mean.tobytes(), prior.covariance.tobytes(), prior.level)
+        key = (map_fingerprint(map1), map_fingerprint(map2), astuple(config), prior_key)
         if key in self._pairs:
             self.hits += 1
             self._pairs.move_to_end(key)
             return self._pairs[key]
         self.misses += 1
-        result = align(map1, map2, config, rng, cache=self)
+        result = align(map1, map2, config, rng, cache=self, prior=prior)
         self._remember(self._pairs, key, result, self.max_pairs)
         return result
 

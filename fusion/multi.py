@@ -63,15 +63,18 @@ class MultiFusion:
 
 
 def pairwise_alignments(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust",
-                        rng: np.random.Generator | None = None, cache: AlignmentCache | None = None
-                        ) -> dict[tuple[int, int], Alignment]:
+                        rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
+                        priors: dict | None = None) -> dict[tuple[int, int], Alignment]:
     """align(maps[j] to maps[i]) for every i < j; each pair gets its own child generator of ``rng``.
-    With ``cache`` a pair of unchanged maps is not aligned again (:class:`fusion.cache.AlignmentCache`)."""
+    With ``cache`` a pair of unchanged maps is not aligned again (:class:`fusion.cache.AlignmentCache`).
+    ``priors`` {(i, j): fusion.prior.StartPrior}: a rough relative start for some pairs (fusion.prior.pair_priors)."""
     rng = np.random.default_rng(0) if rng is None else rng
     keys = [(i, j) for i in range(len(maps)) for j in range(i + 1, len(maps))]
     children = rng.spawn(len(keys)) if keys else []
     run = align if cache is None else cache.align
-    return {key: run(maps[key[0]], maps[key[1]], preset, child) for key, child in zip(keys, children, strict=True)}
+    priors = priors or {}
+    return {key: run(maps[key[0]], maps[key[1]], preset, child, prior=priors.get(key))
+            for key, child in zip(keys, children, strict=True)}
 
 
 def spanning_tree(n: int, alignments: dict[tuple[int, int], Alignment], reference: int = 0

@@ -159,7 +159,7 @@ def pair_priors(starts: dict[int, tuple[np.ndarray, tuple[float, float]]], n: in
     return out
 
 
-def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float]]]:
+def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | None]]:
     """A JSON file {"sigma_xy": m, "sigma_yaw": rad, "starts": {"<robot or index>": [x, y, yaw] or
     [x, y, yaw, sigma_xy, sigma_yaw]}} -> {key: (pose, sigmas)}; one-line errors."""
     try:
@@ -174,7 +174,8 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float]]]:
     out = {}
     for key, value in items:
         pose, sig = parse_start(",".join(str(v) for v in np.asarray(value, dtype=object).reshape(-1)))
-        sig = sig or default
-        _check_sigmas(*sig)
-        out[str(key)] = (pose, sig)
+        if sig is None and np.all(np.isfinite(default)):
+            _check_sigmas(*default)
+            sig = default
+        out[str(key)] = (pose, sig)             # None: the caller's default σ
     return out

@@ -163,10 +163,12 @@ def _covariance(a: Alignment) -> np.ndarray:
 
 def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str | AlignmentConfig = "robust",
                 rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
-                later_gaps: int = 0) -> SplitCheck:
+                later_gaps: int = 0, priors: dict | None = None) -> SplitCheck:
     """Split ``maps[index]`` at ``first_id``, align each part to every other map (each part as map 2: the pose of
     the flagged map's frame in the other's) and decide (module docstring). Where only one part aligns to a map, the
-    other is tested at that part's transform (:func:`align_at`) before the two are compared."""
+    other is tested at that part's transform (:func:`align_at`) before the two are compared.  ``priors`` {(i, j),
+    i < j: fusion.prior.StartPrior}: both parts are in the flagged map's start frame, so its pair's prior applies to
+    each."""
     config = _resolve(preset)
     rng = np.random.default_rng(0) if rng is None else rng
     halves = split_map(maps[index], first_id)
@@ -176,8 +178,9 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
         check = PartCheck(name, len(part), too_small=len(part) < max(config.min_supports, 2))
         if not check.too_small:
             for j, child in zip(others, rng.spawn(len(others)), strict=True):
-                check.alignments[j] = (cache.align(maps[j], part, config, child) if cache is not None
-                                       else align(maps[j], part, config, child))
+                prior = _pair_prior(priors, j, index)
+                check.alignments[j] = (cache.align(maps[j], part, config, child, prior=prior) if cache is not None
+                                       else align(maps[j], part, config, child, prior=prior))
         parts.append(check)
     result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts, _alarm_time(maps[index]))
     for j, child in zip(others, rng.spawn(len(others)), strict=True):
@@ -255,17 +258,27 @@ class CheckedFusion:
         return any(c.decision != "whole" for c in self.checks)
 
 
+def _pair_prior(priors: dict | None, i: int, j: int):
+    """The start prior of map j's frame in map i's from {(a, b), a < b: prior}, or None."""
+    if not priors:
+        return None
+    if (i, j) in priors:
+        return priors[(i, j)]
+    return priors[(j, i)].inverse() if (j, i) in priors else None
+
+
 def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", method: int = 1,
                  rng: np.random.Generator | None = None, reference: int = 0,
                  alignments: dict[tuple[int, int], Alignment] | None = None, cache: AlignmentCache | None = None,
                  split_ids: list[int | None] | None = None, check_rng: np.random.Generator | None = None,
-                 checks: list[SplitCheck] | None = None, **options) -> CheckedFusion:
+                 checks: list[SplitCheck] | None = None, priors: dict | None = None, **options) -> CheckedFusion:
     """:func:`fusion.fuse_all`, with every map that flagged itself checked by :func:`check_split` (``split_ids``:
     per map, where to split it or None; default :func:`split_id` of each map, a malformed verdict read as none).
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
     aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion.
     ``checks``: the flagged maps' :func:`check_split` results where the caller already has them (they are not
-    made again). Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all``
+    made again). ``priors``: start priors for the split checks (:func:`check_split`; ``alignments`` carry their own).
+    Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all``
     would raise :class:`NoOverlapError`); other errors of ``fuse_all`` are raised."""
     if split_ids is None:
         split_ids = [_split_id_or_none(m) for m in maps]
@@ -278,7 +291,7 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     if checks is None:
         check_rng = np.random.default_rng(0) if check_rng is None else check_rng
         flagged = [k for k, s in enumerate(split_ids) if s is not None]
-        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]))
+        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors)
                   for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
     if not any(c.decision != "whole" for c in checks):
         return CheckedFusion(whole, list(maps), [(k, None) for k in range(len(maps))], checks, whole, message)

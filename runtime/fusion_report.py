@@ -58,6 +58,8 @@ class PairResult:
     # (fusion/split.py): what was decided and why, in one sentence; "" when neither map flagged itself
     self_check: str = ""
     split_decision: str | None = None    # "whole", "parts", "before", "after" or "none" (left out)
+    # the rough relative start the alignment was given (fusion/prior.py), in words; "" when none was used
+    prior: str = ""
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -84,6 +86,8 @@ class PairResult:
         self.false_alarm_probability = float(p) if np.isfinite(p) else None
         self.required_supports = int(st.required_supports)
         self.second_best_supports = int(st.second_best_supports)
+        prior = getattr(alignment, "prior", None)
+        self.prior = "" if prior is None else prior.text()
         cov = alignment.covariance
         if alignment.found and cov is not None:
             self.sigma_xy, self.sigma_theta = sigmas(cov)
@@ -137,10 +141,11 @@ def alignment_cache():
 
 
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,
-              rng: np.random.Generator | None = None, cache=None) -> FusionReport:
+              rng: np.random.Generator | None = None, cache=None, priors: dict | None = None) -> FusionReport:
     """Align every map to the first robot's (in name order), merge them, score against the truth when known.
     ``cache`` (``fusion.AlignmentCache``, kept by the caller between fusions): pairs of unchanged maps are not
-    aligned again."""
+    aligned again.  ``priors`` {(robot a, robot b): fusion.prior.StartPrior of b's start in a's, a < b by name}: a
+    rough relative start the alignments use (not by a flagged map's split check)."""
     from fusion import align, merge
 
     start = time.perf_counter()
@@ -151,15 +156,17 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     reference = names[0]
     merged = maps[reference]
     rng = rng if rng is not None else np.random.default_rng(0)
-    checks = _split_checks([maps[n] for n in names], preset, cache)
+    priors = priors or {}
+    indexed = {(i, j): priors[(a, b)] for i, a in enumerate(names) for j, b in enumerate(names) if (a, b) in priors}
+    checks = _split_checks([maps[n] for n in names], preset, cache, indexed)
     if any(c.decision != "whole" for c in checks):
         return _fuse_split(maps, names, preset, method, t, start, checks, cache)
     if len(names) > 2:
-        return _with_checks(_fuse_many(maps, names, preset, method, t, rng, start, cache), names, checks)
+        return _with_checks(_fuse_many(maps, names, preset, method, t, rng, start, cache, indexed), names, checks)
     for other in names[1:]:
         result = PairResult(reference, other, False)
         run = align if cache is None else cache.align
-        alignment = run(maps[reference], maps[other], preset, rng)
+        alignment = run(maps[reference], maps[other], preset, rng, prior=priors.get((reference, other)))
         result.supports = int(len(alignment.supports))
         result.take_evidence(alignment)
         if not alignment.found:
@@ -177,7 +184,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     return _with_checks(FusionReport(t, pairs, merged, time.perf_counter() - start), names, checks)
 
 
-def _split_checks(ordered: list[LandmarkMap], preset: str, cache) -> list:
+def _split_checks(ordered: list[LandmarkMap], preset: str, cache, priors: dict | None = None) -> list:
     """fusion.split.check_split of every map that flagged itself (a malformed verdict is read as none)."""
     from fusion.split import check_split, later_gaps, split_id
 
@@ -188,7 +195,8 @@ def _split_checks(ordered: list[LandmarkMap], preset: str, cache) -> list:
         except ValueError:
             first = None
         if first is not None:
-            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache, later_gaps(m)))
+            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache, later_gaps(m),
+                                      priors))
     return checks
 
 
@@ -241,13 +249,16 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
 
 
 def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float,
-               rng: np.random.Generator, start: float, cache=None) -> FusionReport:
-    """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame."""
+               rng: np.random.Generator, start: float, cache=None, indexed: dict | None = None) -> FusionReport:
+    """More than two maps: fusion's maximum spanning tree of pairwise alignments, all in the first map's frame.
+    ``indexed``: start priors by map index in name order."""
     from fusion import NoOverlapError, fuse_all
+    from fusion.multi import pairwise_alignments
 
     ordered = [maps[n] for n in names]
     try:
-        multi = fuse_all(ordered, preset=preset, method=method, rng=rng, cache=cache)
+        alignments = pairwise_alignments(ordered, preset, rng, cache, indexed) if indexed else None
+        multi = fuse_all(ordered, preset=preset, method=method, rng=rng, cache=cache, alignments=alignments)
     except NoOverlapError as e:
         pairs = [PairResult(names[0], n, False, note=str(e)) for n in names[1:]]
         return FusionReport(t, pairs, maps[names[0]], time.perf_counter() - start)

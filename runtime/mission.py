@@ -81,6 +81,9 @@ class MissionConfig:
     robot_process: bool = True        # realtime: serve the virtual robots from their own process (SIP timing)
     map_save_interval: float = 10.0   # s between atomic writes of OUT/<robot>.npz during the mission (0: end only)
     recording_id: str | None = None   # a fleet's processes share one Rerun recording (None: a new one)
+    # (σ xy m, σ yaw rad): give the fusion the robots' configured start poses as a rough prior on their relative start
+    # (fusion/prior.py); None (the default): the robots are unknown to each other
+    start_prior: tuple[float, float] | None = None
 
     @property
     def on_mocks(self) -> bool:
@@ -117,6 +120,9 @@ class MissionConfig:
             raise ValueError(f"--time-scale must be positive, not {self.time_scale!r}")
         if not self.map_save_interval >= 0:
             raise ValueError(f"--map-save-interval must be >= 0, not {self.map_save_interval!r}")
+        if self.start_prior is not None and not self.on_mocks:
+            raise ValueError("--start-prior gives the fusion the virtual robots' configured start poses; a real robot "
+                             "has none")
 
 
 @dataclass
@@ -536,9 +542,16 @@ class Mission:
         maps = {name: message.landmark_map for name, message in messages.items()}
         if len(maps) < 2:
             return None
+        priors = self._start_priors()
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.fusion_history)),
-                           cache=self.fusion_cache)
+                           cache=self.fusion_cache, priors=priors)
+        if priors and not self.fusion_history:      # said once: the fusion is not blind to where the robots started
+            for (a, b), prior in priors.items():
+                line = f"fusion uses a start prior for {b} in {a}'s frame: {prior.text()}"
+                self.events(line)
+                if self.logger is not None:
+                    self.logger.log_event(t, line, "INFO")
         keep_latest_map(self.fusion_history, report)
         if self.logger is not None:
             for pair in report.pairs:
@@ -549,6 +562,18 @@ class Mission:
         for pair in report.pairs:
             self.events(fusion_event_line(t, pair))
         return report
+
+    def _start_priors(self) -> dict | None:
+        """With ``start_prior``: every pair's relative start from the configured start poses (where the robots were
+        put), each at the given σ (fusion.prior.StartPrior.between_starts); None without."""
+        if self.config.start_prior is None:
+            return None
+        from fusion.prior import StartPrior
+
+        starts = {r.name: r.true_start for r in self.robots if r.true_start is not None}
+        return {(a, b): StartPrior.between_starts(starts[a], starts[b], *self.config.start_prior,
+                                                  source="configured start poses")
+                for a in sorted(starts) for b in sorted(starts) if a < b}
 
     def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:
         cfg = self.config

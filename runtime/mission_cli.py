@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 import time
@@ -18,6 +19,17 @@ def camera_latency(text: str) -> float:
     """Seconds in [0, 1): the bound MissionConfig also checks, here so that ``demo --processes`` refuses it
     before starting any process."""
     return float_where(text, "a number in [0, 1) s", lambda value: 0.0 <= value < 1.0)
+
+
+def start_sigmas(text: str) -> tuple[float, float]:
+    """'SIGMA_XY,SIGMA_YAW': two positive numbers (m, rad)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected SIGMA_XY,SIGMA_YAW, two positive numbers (m, rad), not {text!r}")
+    return values
 
 
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,
@@ -72,6 +84,11 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--recording-id", default=None, metavar="ID",
                         help="Rerun recording id shared with other processes of a fleet, so that their recordings "
                              "open as one (default: a new id)")
+    parser.add_argument("--start-prior", type=start_sigmas, default=None, metavar="SIGMA_XY,SIGMA_YAW",
+                        help="give the fusion the virtual robots' configured start poses as a rough prior on their "
+                             "relative start, each known to within these standard deviations (m, rad; e.g. 1,0.3); "
+                             "a best alignment that contradicts it is reported not found (default: off, the robots "
+                             "are unknown to each other)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     add_exchange_arguments(parser)
 
@@ -86,7 +103,8 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         preset=args.preset, method=args.method, out=args.out, rerun=args.rerun, log_sensors=args.log_sensors,
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
         odometry=args.odometry, robot_name=getattr(args, "name", None), realtime=args.realtime,
-        map_save_interval=args.map_save_interval, recording_id=args.recording_id)
+        map_save_interval=args.map_save_interval, recording_id=args.recording_id,
+        start_prior=getattr(args, "start_prior", None))
 
 
 class Progress:

@@ -41,6 +41,16 @@ def register(subparsers) -> None:
                         help="common landmarks: 1 = RANSAC supports (default), 2 = nearest in position")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of RANSAC, >= 0 (default 0)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    parser.add_argument("--start", action="append", default=[], metavar="MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]",
+                        help="a rough start pose of one map's robot in a frame common to all (the lab's; metres, "
+                             "radians, REP-103), MAP its index (0, 1, ...) or robot name; repeat per map. Every pair "
+                             "of maps with a start gets a prior on its relative start: a best alignment outside it "
+                             "(χ²₃ 99.9 %%) is reported not found, never the best one inside (default: none)")
+    parser.add_argument("--start-sigma", type=_sigma_pair, default=None, metavar="SIGMA_XY,SIGMA_YAW",
+                        help="standard deviations of each --start given without its own (m, rad; e.g. 1,0.3)")
+    parser.add_argument("--starts", default=None, metavar="FILE.json",
+                        help='start poses from a file: {"sigma_xy": 1, "sigma_yaw": 0.3, "starts": {"robot1": '
+                             '[x, y, yaw], "robot2": [x, y, yaw, sigma_xy, sigma_yaw]}} (keys: names or indices)')
     # the live fusion node of a fleet (runtime/fleet, docs/fleet.md)
     from runtime.fleet.options import add_exchange_arguments, add_live_arguments
 
@@ -76,11 +86,16 @@ def _fuse(args: argparse.Namespace) -> int:
     names = [m.robot for m in maps]
     if len(set(names)) < len(names):
         print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
+    try:
+        priors = _priors(args, maps)
+    except FusionError as e:
+        print(f"p3at fuse: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     rng = np.random.default_rng(args.seed)
     try:
-        alignments = pairwise_alignments(maps, args.preset, rng)
+        alignments = pairwise_alignments(maps, args.preset, rng, priors=priors)
         # a map that flagged itself is split at its alarm and each part aligned (fusion/split.py)
-        checked = fuse_checked(maps, preset=args.preset, method=args.method, alignments=alignments)
+        checked = fuse_checked(maps, preset=args.preset, method=args.method, alignments=alignments, priors=priors)
         result, message = checked.fusion, checked.message
     except FusionError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
@@ -99,6 +114,7 @@ def _fuse(args: argparse.Namespace) -> int:
     for (i, j), a in sorted(alignments.items()):
         entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
         entry["supports_count"] = len(a.supports)
+        entry["prior_text"] = None if a.prior is None else a.prior.text()
         p = a.statistics.false_alarm_probability
         entry["false_alarm_probability"] = float(p) if np.isfinite(p) else None
         entry["low_confidence"] = bool(a.found and not (p <= LOW_CONFIDENCE_PROBABILITY))
@@ -160,6 +176,41 @@ def _fuse(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sigma_pair(text: str) -> tuple[float, float]:
+    from runtime.mission_cli import start_sigmas
+
+    return start_sigmas(text)
+
+
+def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
+    """{(i, j): StartPrior} from --start / --starts (fusion.prior.pair_priors); raises FusionError (one line)."""
+    from fusion.errors import IncompatibleMapsError
+    from fusion.prior import load_starts, pair_priors, parse_start
+
+    given: dict[str, tuple] = {}
+    if args.starts is not None:
+        given.update(load_starts(args.starts))
+    for item in args.start:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise IncompatibleMapsError(f"--start is MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]; got {item!r}")
+        pose, sig = parse_start(value)
+        given[key.strip()] = (pose, sig)
+    names = [m.robot for m in maps]
+    starts = {}
+    for key, (pose, sig) in given.items():
+        index = int(key) if key.isdigit() else (names.index(key) if key in names else None)
+        if index is None:
+            raise IncompatibleMapsError(f"a start names map {key!r}, which is neither an index nor a robot of the "
+                                        f"maps ({', '.join(names)})")
+        sig = sig if sig is not None else args.start_sigma
+        if sig is None or not all(np.isfinite(sig)):
+            raise IncompatibleMapsError(f"the start of map {key!r} has no standard deviations: give them in it or "
+                                        "with --start-sigma SIGMA_XY,SIGMA_YAW")
+        starts[index] = (pose, tuple(sig))
+    return pair_priors(starts, len(maps), source="given start poses") if len(starts) >= 2 else {}
+
+
 def _print(report: dict, as_json: bool) -> None:
     if as_json:
         print(json.dumps(report))
@@ -175,6 +226,9 @@ def _print(report: dict, as_json: bool) -> None:
         if not a["found"]:
             print(f"{head}: no overlap ({a['reason']})")
             continue
+        if a.get("prior") is not None:
+            print(f"    {a['prior_text']}; this alignment χ² {st['prior_chi2']:.1f}, "
+                  f"{st['outside_prior_supports']} supports at best outside it")
         tx, ty, th = a["pose"]
         rms = st["residual_rms"]
         print(f"{head}: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad; supports {a['supports_count']} of "

@@ -1,0 +1,75 @@
+"""``p3at fuse --start``: a rough start pose per map gives each pair a prior on its relative start (fusion/prior.py)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from estimation.geometry import compose
+from runtime.cli import main
+from tests.fusion.test_fusion_prior import HALF_TURN, TRUE_POSE, twin_pair
+
+
+def _files(tmp_path):
+    m1, m2 = twin_pair(0, common=30, twins=24)       # ambiguous without a prior: the half turn is nearly as good
+    paths = [tmp_path / "a.npz", tmp_path / "b.npz"]
+    m1.save(paths[0])
+    m2.save(paths[1])
+    return [str(p) for p in paths]
+
+
+def _start(pose) -> str:
+    return ",".join(f"{v:.6f}" for v in pose)
+
+
+def test_starts_resolve_the_half_turn_and_the_json_says_a_prior_was_used(tmp_path, capsys):
+    files = _files(tmp_path)
+    out = str(tmp_path / "merged.npz")
+    assert main(["fuse", *files, "--out", out, "--json"]) == 1
+    capsys.readouterr()
+    start2 = compose(np.array([1.0, 2.0, 0.3]), TRUE_POSE)          # map 1's robot at (1, 2, 0.3) in the lab
+    code = main(["fuse", *files, "--out", out, "--json", "--start", "0=1,2,0.3", "--start",
+                 f"robot2={_start(start2)}", "--start-sigma", "1,0.3"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0
+    a = report["alignments"][0]
+    assert a["found"] and a["prior"]["source"] == "given start poses"
+    assert np.hypot(*(np.array(a["pose"][:2]) - TRUE_POSE[:2])) < 0.1
+    assert a["statistics"]["outside_prior_supports"] >= 20
+
+
+def test_a_half_turned_start_is_reported_as_contradicting(tmp_path, capsys):
+    files = _files(tmp_path)
+    wrong = compose(HALF_TURN, TRUE_POSE)
+    code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--start", "0=0,0,0,1,0.3",
+                 "--start", f"1={_start(wrong)},1,0.3"])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "contradicts the prior" in out
+
+
+def test_bad_starts_are_one_line_errors(tmp_path, capsys):
+    files = _files(tmp_path)
+    for args in (["--start", "0=1,2"], ["--start", "robot9=1,2,3,1,1"], ["--start", "0=1,2,3"],
+                 ["--start", "no-equals-sign"]):
+        code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), *args, "--start", "1=0,0,0,1,0.3"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "start" in err[0], (args, err)
+
+
+def test_the_mission_s_start_prior_needs_virtual_robots_and_two_positive_sigmas():
+    import argparse
+
+    import pytest
+
+    from runtime.mission import MissionConfig
+    from runtime.mission_cli import start_sigmas
+
+    assert start_sigmas("1,0.3") == (1.0, 0.3)
+    for bad in ("1", "1,0", "-1,0.3", "a,b", "1,0.3,2", "inf,1"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            start_sigmas(bad)
+    assert MissionConfig(start_prior=(1.0, 0.3)).start_prior == (1.0, 0.3)
+    assert MissionConfig().start_prior is None                     # off by default: the demo is unchanged
+    with pytest.raises(ValueError, match="start-prior"):
+        MissionConfig(robots=1, robot_url="tcp://10.0.0.2:8101", camera="usb", start_prior=(1.0, 0.3))
