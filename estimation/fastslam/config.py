@@ -113,6 +113,10 @@ class FastSLAMConfig:
     #                                             #   ("sampled"); or the nearest only if its posterior among the
     #                                             #   gated ones is ≥ 0.99, else unused ("unambiguous");
     #                                             #   association_rules.py, docs "Session 8"
+    detection_in_weight: bool = False             # "unknown": a particle's weight also carries its map's detection
+    #                                             #   likelihood, P_D per landmark detected and 1 − P_D per one
+    #                                             #   missed well in view (negative information; detection_term.py,
+    #                                             #   docs "Session 9")
 
     def __post_init__(self) -> None:
         if self.n_particles < 1:

@@ -46,6 +46,8 @@ and a constant p₀ for a new landmark. We use the robust form log w += −½ mi
 unmatched or new observation costs the gate): it drops the log-det normalisers, which barely differ between
 particles observing the same landmark but make p₀ scale-dependent, and it keeps one bad match from wiping out
 a particle. FastSLAM 2.0 uses d² under S + H_x P H_xᵀ at the predicted pose (Montemerlo et al. 2003, eq. 27).
+With ``detection_in_weight`` ("unknown" association, an option) the weight also carries the map's detections and
+misses in view, log P_D and log(1 − P_D) (``detection_term.py``).
 
 Descriptor threshold: the fusion paper's th₀ = 2 cannot be a Euclidean distance between *unit* U-SURF
 descriptors (their distance is at most 2, so it would accept everything); it is presumably on unnormalised
@@ -64,7 +66,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
-from . import association_rules, id_gate, unknown_rescue
+from . import association_rules, detection_term, id_gate, unknown_rescue
 from .appearance import DescriptorBands
 from .config import FastSLAMConfig
 from .drift import DriftTracker
@@ -381,6 +383,11 @@ class FastSLAM:
         # 5-6. writes: EKF updates of matched landmarks and misses of provisional ones (copy-on-write first)
         # ("id": a landmark its identity named this frame was detected, even if the gate rejected the reading)
         missed, missed_ranges = self._missed_in_view(cand, poses, pairs if by_id else matched, by_id, miss_reach)
+        if cfg.detection_in_weight and not by_id:   # the map's detections and misses in the weight (detection_term)
+            ox, oy, _ = cfg.sensor_offset
+            log_lik = log_lik + detection_term.detection_log_likelihood(
+                cfg, n_particles, matched.m, np.hypot(z[matched.j, 0] - ox, z[matched.j, 1] - oy), missed.m,
+                missed_ranges, miss_weight)
         best_now = int(np.argmax(self.log_weights + log_lik))   # the particle step 8 picks
         self._check_self(best_now, matched, missed, pairs if by_id else None, z, miss_weight)
         self.store.make_writable(np.concatenate([matched.m, missed.m]), np.concatenate([matched.k, missed.k]))
