@@ -2,7 +2,17 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping
+
+# a flagged map's split (fusion/split.py), by its decision, in a clause short enough for a live event line
+_SPLIT_BRIEF = {
+    "whole": "the parts agree, so it is used whole",
+    "parts": "the parts disagree, so each is merged under its own alignment",
+    "before": "only the part made before the gap aligns; the rest is left out",
+    "after": "only the part made from the gap on aligns; the rest is left out",
+    "none": "neither part aligns on its own, so it is left out",
+}
 
 
 def _fmt(value, spec: str = ".3f", missing: str = "-") -> str:
@@ -70,15 +80,30 @@ def format_summary(summary: dict) -> str:
             if p["aligned"] and p.get("low_confidence"):
                 lines.append(f"warning: {p['other']} -> {p['reference']} is a low-confidence alignment "
                              f"(P(chance) {_fmt(p.get('false_alarm_probability'), '.1e')}): check it before use")
-            elif not p["aligned"] and p.get("note"):
-                lines.append(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
+            elif not p["aligned"] and p.get("note") and p["note"] not in p.get("self_check", ""):
+                lines += _wrapped(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
             if p.get("self_check"):   # a map that flagged itself, split at the alarm (fusion/split.py)
-                lines.append(f"{p['other']} -> {p['reference']}: {p['self_check']}")
+                lines += _wrapped(f"{p['other']} -> {p['reference']}: {p['self_check']}")
         lines.append("")
         lines.append(f"Merged map: {fusion['merged_landmarks']} landmarks "
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "
                      f"{summary.get('fusions_during_mission', 0)} fusion(s) during the mission)")
     return "\n".join(lines)
+
+
+def _wrapped(sentence: str, width: int = 118) -> list[str]:
+    """A long reason as lines of at most ``width`` characters, the continuation indented."""
+    return textwrap.wrap(sentence, width, subsequent_indent="    ", break_on_hyphens=False) or [sentence]
+
+
+def split_brief(pair: Mapping) -> str:
+    """A flagged map's split decision in one short clause ("" when neither map of the pair flagged itself); the
+    full sentence, with each part's reason, is ``pair["self_check"]``."""
+    decision, sentence = pair.get("split_decision"), pair.get("self_check") or ""
+    if decision not in _SPLIT_BRIEF:
+        return ""
+    who = sentence.split(" flagged itself", 1)[0] if " flagged itself" in sentence else "a map"
+    return f"{who} flagged itself and was split at its alarm: {_SPLIT_BRIEF[decision]}"
 
 
 def not_aligned_reason(pair: Mapping) -> str:
@@ -100,7 +125,8 @@ def fusion_event_line(t: float, pair) -> str:
     """The mission's and the fusion node's event line for one pair (a ``PairResult`` or its ``as_dict()``)."""
     p = pair if isinstance(pair, Mapping) else pair.as_dict()
     if not p["aligned"]:
-        return f"fusion at t={t:.0f}s: {p['other']} does not overlap {p['reference']} yet: {not_aligned_reason(p)}"
+        why = split_brief(p) or not_aligned_reason(p)   # a split's parts' reasons are in the summary, not live
+        return f"fusion at t={t:.0f}s: {p['other']} does not overlap {p['reference']} yet: {why}"
     line = f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} ({p['supports']} supports, {p['common']} common)"
     if p.get("error_xy") is not None:
         line += f", error {p['error_xy']:.3f} m / {p['error_theta']:.4f} rad"
