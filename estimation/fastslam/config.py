@@ -10,6 +10,8 @@ ID_RELATIVE_DRIFT_MODES = ("off", "rescue", "consistent")
 UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
 # FastSLAMConfig.unknown_association_rule: which gated landmark a reading takes in "unknown" association
 UNKNOWN_ASSOCIATION_RULES = ("nearest", "sampled", "unambiguous")
+# FastSLAMConfig.coincident_readings: readings of one frame that are one point (coincident.py)
+COINCIDENT_RULES = ("all", "one_per_point", "no_twin_landmark")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -41,6 +43,10 @@ class FastSLAMConfig:
     observation_cov_scale: float = 1.0            # multiplies each observation covariance before the floor
     refresh_descriptors: bool = False             # a landmark's descriptor follows its latest match (best particle)
     max_observations: int = 40                    # per frame, keep only this many (see selection.py); 0: all
+    coincident_readings: str = "all"              # readings of one frame that are one point (d² < χ²₃ 95 % under
+    #                                             #   Q_i + Q_j): "all" used; "one_per_point": the most precise only;
+    #                                             #   "no_twin_landmark": a twin of a matched one makes no landmark
+    #                                             #   (coincident.py, docs "Session 9")
     observation_selection: str = "nearest"        # which: "nearest" (most precise) or "spread" (bearing × depth)
     # -- sensor footprint: landmark preselection and negative evidence --------------------------------------
     sensor_offset: tuple[float, float, float] = (0.12, 0.0, 0.50)  # head in base_link, metres
@@ -107,6 +113,10 @@ class FastSLAMConfig:
     drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
+    drift_local_empirical: bool = False           # the drift's local pose covariance takes the position variance
+    #                                             #   of the frame's matched residuals' mean where larger than the
+    #                                             #   proposal's (lever_drift.with_empirical_position): measured
+    #                                             #   online, unlike drift_translation_per_m; export and D_r only
     unknown_association_rule: str = "nearest"     # "unknown": each reading takes the nearest gated landmark
     #                                             #   ("nearest", maximum likelihood); or per particle one drawn in
     #                                             #   proportion to its likelihood, a new landmark among them
@@ -163,6 +173,9 @@ class FastSLAMConfig:
             raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
         if not 0.0 < self.self_check_false_alarm < 1.0:
             raise ValueError(f"self_check_false_alarm must lie in (0, 1), not {self.self_check_false_alarm}")
+        if self.coincident_readings not in COINCIDENT_RULES:
+            raise ValueError(f"coincident_readings must be one of {', '.join(COINCIDENT_RULES)}, "
+                             f"not {self.coincident_readings!r}")
         if not self.drift_translation_per_m >= 0.0:
             raise ValueError(f"drift_translation_per_m must be ≥ 0, not {self.drift_translation_per_m}")
         if not 0.0 <= self.observation_correlation < 1.0:

@@ -68,10 +68,11 @@ from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
 from . import association_rules, detection_term, id_gate, unknown_rescue
 from .appearance import DescriptorBands
+from .coincident import one_per_point, twins_of_matched
 from .config import FastSLAMConfig
 from .drift import DriftTracker
 from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
-from .lever_drift import LeverDriftTracker, correlated_mean_factor
+from .lever_drift import LeverDriftTracker, correlated_mean_factor, with_empirical_position
 from .linalg import (
     joseph_update,
     lower_matvec,
@@ -257,6 +258,9 @@ class FastSLAM:
                 first = np.unique(observations.ids, return_index=True)[1]
                 usable[first] = True
                 usable &= observations.ids >= 0
+        if cfg.coincident_readings == "one_per_point":   # one physical point, one reading a frame (coincident.py)
+            usable &= one_per_point(observations.points, cfg.observation_cov_scale * np.asarray(
+                observations.covariances, float) + cfg.observation_var_floor * _EYE3)
         if (cap <= 0 or usable.sum() <= cap) and usable.all():
             return self._update(observations)
         keep = np.flatnonzero(usable)
@@ -352,6 +356,8 @@ class FastSLAM:
         if drawn is not None:   # a reading left unused is no new landmark
             had_candidate |= drawn.unused
         matched = pairs.take(win)
+        if cfg.coincident_readings == "no_twin_landmark" and not by_id:   # a matched reading's twin is no new
+            had_candidate |= twins_of_matched(z, q, matched.m, matched.j, n_particles)   # landmark (coincident.py)
         if by_id:      # a new landmark only where the particle has none of that id; a gated-out one is an outlier
             self.stats.id_outliers += int(np.count_nonzero(~gated))
             had_candidate = holds
@@ -437,6 +443,10 @@ class FastSLAM:
         local = pose_cov
         if cfg.version == 2 and self._proposal_cov is not None and np.trace(self._proposal_cov) > np.trace(pose_cov):
             local = self._proposal_cov
+        if cfg.drift_local_empirical and in_best.any():   # the frame's own residuals, not the claimed Q
+            j = matched.j[in_best]
+            seen_xy = z[j, :2] @ np.array([[c, s_], [-s_, c]]) + self.poses[best, :2]
+            local = with_empirical_position(local, seen_xy - self.store.flat_state[matched.g[in_best], :2])
         if relative is not None and cfg.id_drift_inherit:   # re-measured relative to an anchor: its pose's drift
             relative.inherit(self.drift, best, np.unique(best_matches[best_matches >= 0]), local)
         self.drift.update(np.unique(best_matches[best_matches >= 0]), new_ids[spawned], new_xy,

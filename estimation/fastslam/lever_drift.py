@@ -83,3 +83,26 @@ def correlated_mean_factor(n_observations: np.ndarray, correlation: float) -> np
     geometric = rho * (1.0 - rho ** (n - 1.0)) / (1.0 - rho)
     weighted = rho * (1.0 - n * rho ** (n - 1.0) + (n - 1.0) * rho ** n) / (1.0 - rho) ** 2
     return 1.0 + 2.0 * (geometric - weighted / n)
+
+
+def empirical_local_position(residuals_xy: np.ndarray) -> np.ndarray:
+    """(2, 2) variance of the mean position error measured from the frame's own residuals (L, 2) (observation in
+    the start frame minus its landmark, the most probable particle's matches): Σ_l r_l r_lᵀ / L², the sandwich
+    estimate of a mean's variance. It needs no error model: the proposal's P_local assumes the front end's Q,
+    whose bulk is over-claimed while ~4 % of the readings are gross (docs/fastslam.md "Session 8"), and a mean
+    of L readings is as good as their real spread, not the claimed one. Zeros with fewer than 2 residuals."""
+    r = np.asarray(residuals_xy, float).reshape(-1, 2)
+    if len(r) < 2:
+        return np.zeros((2, 2))
+    return r.T @ r / len(r) ** 2
+
+
+def with_empirical_position(local_covariance: np.ndarray, residuals_xy: np.ndarray) -> np.ndarray:
+    """P_local (3, 3) with its position block replaced by the empirical one where that is larger (trace): the
+    translation the robot's pose carries from one generation of landmarks to the next, measured online
+    (``FastSLAMConfig.drift_local_empirical``) rather than fitted per run (``drift_translation_per_m``)."""
+    local = np.array(local_covariance, float)
+    empirical = empirical_local_position(residuals_xy)
+    if np.trace(empirical) > np.trace(local[:2, :2]):
+        local[:2, :2] = empirical
+    return local

@@ -120,3 +120,26 @@ def test_translation_walk_adds_up_over_generations_of_landmarks_to_the_path_driv
         tracker.update(np.array([i - 1]), np.array([i]), np.array([[i * step, 1.0, 0.0]]), pose, zero, i + 1)
     assert np.allclose(tracker.robot[:2, :2], q * generations * step * np.eye(2), rtol=1e-9)
     assert np.allclose(tracker.robot[2], 0.0)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 60), sx=st.floats(0.005, 0.2), sy=st.floats(0.005, 0.2),
+       corr=st.floats(-0.9, 0.9))
+def test_empirical_local_position_is_the_variance_of_the_residuals_mean(seed, n, sx, sy, corr):
+    # readings whose real spread is Σ (whatever the model claims): the sandwich estimate Σ_l r rᵀ / L² has mean
+    # Σ / L over many frames, the variance of the mean of L independent readings
+    from estimation.fastslam.lever_drift import empirical_local_position
+    cov = np.array([[sx * sx, corr * sx * sy], [corr * sx * sy, sy * sy]])
+    draws = np.random.default_rng(seed).multivariate_normal(np.zeros(2), cov, (3000, n))
+    mean_estimate = np.mean([empirical_local_position(r) for r in draws], axis=0)
+    assert np.allclose(mean_estimate, cov / n, rtol=0.15, atol=0.15 * np.sqrt(sx * sx * sy * sy) / n)
+
+
+def test_empirical_position_replaces_the_claimed_one_only_where_larger():
+    from estimation.fastslam.lever_drift import with_empirical_position
+    claimed = np.diag([1e-4, 1e-4, 1e-5])
+    small, large = np.full((10, 2), 0.001), np.array([[0.3, 0.0], [-0.3, 0.0]] * 5)
+    assert np.array_equal(with_empirical_position(claimed, small), claimed)
+    widened = with_empirical_position(claimed, large)
+    assert np.isclose(widened[0, 0], 0.09 / 10) and widened[2, 2] == 1e-5 and widened[1, 1] == 0.0
+    assert np.array_equal(with_empirical_position(claimed, large[:1]), claimed)   # one reading: no spread to see
