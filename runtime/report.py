@@ -117,6 +117,8 @@ def not_aligned_reason(pair: Mapping) -> str:
             why += f" (P(chance) {pair['false_alarm_probability']:.1e})"
         if note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
             why += f"; ambiguous: a distinct transform gathers {pair.get('second_best_supports', 0)}"
+        if note.startswith("the maps' best alignment contradicts the prior"):   # fusion/prior.py
+            why += "; the best alignment contradicts the start prior"
         return why
     return note or "no reason given"
 
