@@ -73,3 +73,12 @@ def test_the_mission_s_start_prior_needs_virtual_robots_and_two_positive_sigmas(
     assert MissionConfig().start_prior is None                     # off by default: the demo is unchanged
     with pytest.raises(ValueError, match="start-prior"):
         MissionConfig(robots=1, robot_url="tcp://10.0.0.2:8101", camera="usb", start_prior=(1.0, 0.3))
+
+
+def test_the_live_fusion_line_says_the_best_alignment_contradicts_the_prior():
+    from runtime.report import not_aligned_reason
+
+    pair = {"supports": 12, "required_supports": 48, "false_alarm_probability": 1.0,
+            "note": "the maps' best alignment contradicts the prior: 12 supports at tx=+14.42 m ..."}
+    assert "contradicts the start prior" in not_aligned_reason(pair)
+    assert "contradicts" not in not_aligned_reason({**pair, "note": "only 3 supports"})
