@@ -44,7 +44,7 @@ from estimation.landmark_map import LandmarkMap
 from .alignment import Alignment, AlignmentConfig, _resolve, align, align_at
 from .cache import AlignmentCache
 from .errors import NoOverlapError
-from .multi import MultiFusion, fuse_all
+from .multi import MultiFusion, fuse_all, pairwise_alignments
 
 SPLIT_SIGNIFICANCE = 0.01   # the parts disagree when their difference is this unlikely under one frame (see above)
 PARTS = ("before", "after")
@@ -277,13 +277,16 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
     aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion.
     ``checks``: the flagged maps' :func:`check_split` results where the caller already has them (they are not
-    made again). ``priors``: start priors for the split checks (:func:`check_split`; ``alignments`` carry their own).
+    made again). ``priors`` {(i, j), i < j: fusion.prior.StartPrior}: start priors for the alignments (when not given),
+    the split checks and the fusion of the parts (a part is in its map's start frame).
     Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all``
     would raise :class:`NoOverlapError`); other errors of ``fuse_all`` are raised."""
     if split_ids is None:
         split_ids = [_split_id_or_none(m) for m in maps]
     cache = AlignmentCache() if cache is None else cache
     whole, message = None, ""
+    if alignments is None and priors:
+        alignments = pairwise_alignments(maps, preset, rng, cache, priors)
     try:
         whole = fuse_all(maps, preset, method, rng, reference, alignments, cache, **options)
     except NoOverlapError as e:
@@ -316,8 +319,15 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     if new_reference is None:
         return CheckedFusion(None, inputs, sources, checks, whole,
                              f"the reference map {maps[reference].robot!r} was left out: nothing to fuse into")
+    # each piece is in its map's start frame, so the pieces of two maps share their maps' start prior
+    piece_priors = {(a, b): p for a in range(len(inputs)) for b in range(a + 1, len(inputs))
+                    if sources[a][0] != sources[b][0]
+                    and (p := _pair_prior(priors, sources[a][0], sources[b][0])) is not None}
+    piece_alignments = (pairwise_alignments(inputs, preset, np.random.default_rng(0), cache, piece_priors)
+                        if piece_priors else None)
     try:
-        fused = fuse_all(inputs, preset, method, np.random.default_rng(0), new_reference, None, cache, **options)
+        fused = fuse_all(inputs, preset, method, np.random.default_rng(0), new_reference, piece_alignments, cache,
+                         **options)
     except NoOverlapError as e:
         return CheckedFusion(None, inputs, sources, checks, whole, str(e))
     return CheckedFusion(fused, inputs, sources, checks, whole)

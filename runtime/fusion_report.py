@@ -160,7 +160,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     indexed = {(i, j): priors[(a, b)] for i, a in enumerate(names) for j, b in enumerate(names) if (a, b) in priors}
     checks = _split_checks([maps[n] for n in names], preset, cache, indexed)
     if any(c.decision != "whole" for c in checks):
-        return _fuse_split(maps, names, preset, method, t, start, checks, cache)
+        return _fuse_split(maps, names, preset, method, t, start, checks, cache, indexed)
     if len(names) > 2:
         return _with_checks(_fuse_many(maps, names, preset, method, t, rng, start, cache, indexed), names, checks)
     for other in names[1:]:
@@ -212,14 +212,15 @@ def _with_checks(report: FusionReport, names: list[str], checks: list) -> Fusion
 
 
 def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, method: int, t: float, start: float,
-                checks: list, cache=None) -> FusionReport:
+                checks: list, cache=None, priors: dict | None = None) -> FusionReport:
     """A flagged map's parts disagreed or could not be compared (fusion.split.fuse_checked): each robot's pair
     reports the placement of its map as merged (whole, or the part made before the gap when it was kept, else the
     part after it), the split's sentence, and the error against the truth where the maps carry it."""
     from fusion.split import fuse_checked
 
     ordered = [maps[n] for n in names]
-    checked = fuse_checked(ordered, preset=preset, method=method, cache=cache, checks=checks)   # checked once
+    checked = fuse_checked(ordered, preset=preset, method=method, cache=cache, checks=checks,   # checked once
+                           priors=priors)
     by_map = {c.index: c for c in checked.checks}
     multi = checked.fusion
     pairs = []
