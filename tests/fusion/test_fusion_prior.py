@@ -198,3 +198,26 @@ def test_a_prior_needs_a_positive_definite_covariance():
         StartPrior.from_sigmas(np.zeros(3), -1.0, 0.3)
     with pytest.raises(IncompatibleMapsError, match="there are 2 maps"):
         pair_priors({0: (np.zeros(3), (1.0, 0.3)), 5: (np.zeros(3), (1.0, 0.3))}, 2)
+
+
+# -- a flagged map's split check and the fusion of its parts use the prior (fusion/split.py) --------------------------
+def test_a_split_map_s_parts_are_checked_and_fused_under_the_prior(sim):
+    from fusion import true_relative_pose
+    from fusion.split import fuse_checked
+    from tests.fusion.test_fusion_split import KICK, _pair
+
+    m1, m2, _, _ = _pair(sim, KICK)
+    truth = true_relative_pose(m1, m2)
+    right = fuse_checked([m1, m2], rng=np.random.default_rng(0), priors={(0, 1): _prior(truth)})
+    (check,) = right.checks
+    assert check.decision == "parts"                       # as without a prior (test_fusion_split)
+    assert all(a.prior is not None for p in check.parts for a in p.alignments.values())
+    # the pieces of two maps share their maps' prior; the two pieces of one map have none between them
+    assert right.fusion is not None and right.sources == [(0, None), (1, "before"), (1, "after")]
+    assert right.fusion.alignments[(0, 1)].prior is not None and right.fusion.alignments[(0, 2)].prior is not None
+    assert right.fusion.alignments[(1, 2)].prior is None
+    wrong = fuse_checked([m1, m2], rng=np.random.default_rng(0), priors={(0, 1): _prior(truth + [6.0, 0.0, 0.0])})
+    (check,) = wrong.checks
+    assert check.decision == "none"                        # neither part is placed against the prior
+    assert all("contradicts the prior" in a.reason for p in check.parts for a in p.alignments.values())
+    assert wrong.fusion is None or all(pose is None for pose in wrong.fusion.poses[1:])
