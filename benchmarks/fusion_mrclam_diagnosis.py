@@ -188,11 +188,12 @@ def merge_breakdown(maps: list[LandmarkMap], truth: dict, alignments) -> None:
         keep = [r for r, i in enumerate(ids) if i in truth and (m.robot, i) not in excluded]
         fits.append(rigid_fit_2d(m.positions[keep, :2], np.array([truth[ids[r]] for r in keep])))
     oracle = [compose(inverse(fits[fused.reference]), f) for f in fits]   # in the reference map's frame
-    frame_err = [between_text(p, o) for p, o in zip(fused.poses, oracle, strict=True)]
+    frame_err = [between_text(p, o) for p, o in zip(fused.placements, oracle, strict=True)]
     print("\nwhere the default merge's error comes from (identities the merge withheld left out):")
-    print("  each map's frame in the reference frame against its own best rigid fit to Vicon: "
+    print("  each map's placement in the reference frame against its own best rigid fit to Vicon: "
           + ", ".join(f"{m.robot} {t}" for m, t in zip(maps, frame_err, strict=True)))
-    rows = [("as merged (alignment poses, their covariance added)", fused.poses, fused.covariances),
+    rows = [("as merged (placements, their covariance added)", fused.placements, fused.placement_covariances),
+            ("placed by the alignments' start-frame poses (before session 9)", fused.poses, fused.covariances),
             ("each map on its own best rigid fit (no frame error)", oracle, None)]
     for label, poses, covs in rows:
         g = _by_identity(calibrated, poses, covs, excluded)
@@ -201,17 +202,17 @@ def merge_breakdown(maps: list[LandmarkMap], truth: dict, alignments) -> None:
         print(f"  {label}: median {err:.3f} m; {_nees_text(nees)}")
     # a common frame re-estimated from all maps (generalised Procrustes): each map's pose refitted to the merged
     # landmarks (its alignment covariance kept), the landmarks merged again, five rounds
-    poses = [np.asarray(p, float) for p in fused.poses]
+    poses = [np.asarray(p, float) for p in fused.placements]
     for _ in range(5):
         merged = {i: _information_merge(items)
-                  for i, items in _by_identity(calibrated, poses, fused.covariances, excluded).items()}
+                  for i, items in _by_identity(calibrated, poses, fused.placement_covariances, excluded).items()}
         for k, m in enumerate(maps):
             if k != fused.reference:
                 ids = [int(i) for i in m.metadata["external_ids"]]
                 keep = [r for r, i in enumerate(ids) if i in merged and (m.robot, i) not in excluded]
                 poses[k] = rigid_fit_2d(m.positions[keep, :2], np.array([merged[ids[r]][0] for r in keep]))
     merged = {i: _information_merge(items)
-              for i, items in _by_identity(calibrated, poses, fused.covariances, excluded).items()}
+              for i, items in _by_identity(calibrated, poses, fused.placement_covariances, excluded).items()}
     err, nees = _placed_error({i: v[0] for i, v in merged.items()}, truth, {i: v[1] for i, v in merged.items()})
     print(f"  in a common frame re-estimated from all maps (each map refitted to the merged landmarks, 5 rounds): "
           f"median {err:.3f} m; {_nees_text(nees)}")

@@ -31,6 +31,7 @@ from .merging import (
     position_correspondences,
     transform_landmarks,
 )
+from .placement import shape_placement
 from .pose_covariance import compose_with_covariance
 
 
@@ -47,7 +48,11 @@ class MultiFusion:
     rows[k]: (N_k,) row in ``map`` of each landmark of map k (None if not connected);
     covariance_scales[k]: the factor map k's covariances were scaled by before merging, None if not calibrated
     (the merged map's covariances then describe its landmarks about the reference map's frame, not that frame's
-    own error against the reference robot's true start, which ``start_covariances`` and the maps' metadata keep).
+    own error against the reference robot's true start, which ``start_covariances`` and the maps' metadata keep);
+    placements[k], placement_covariances[k]: where map k's landmarks were put in the merged map (``poses[k]`` when
+    the maps were not calibrated; with calibrated maps each tree edge refitted on its supports under the calibrated
+    covariances, ``fusion.placement.shape_placement``: ``poses`` answers where robot k started, ``placements``
+    where its map's shape fits the others').
     """
 
     map: LandmarkMap
@@ -60,6 +65,8 @@ class MultiFusion:
     rows: list[np.ndarray | None] = field(default_factory=list)
     start_covariances: list[np.ndarray | None] = field(default_factory=list)
     covariance_scales: list[float] | None = None   # per map, applied before merging (covariance_scales), or None
+    placements: list[np.ndarray | None] = field(default_factory=list)
+    placement_covariances: list[np.ndarray | None] = field(default_factory=list)
 
 
 def pairwise_alignments(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust",
@@ -235,7 +242,10 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     covs: list[np.ndarray | None] = [None] * n
     start_covs: list[np.ndarray | None] = [None] * n
     rows: list[np.ndarray | None] = [None] * n
+    placed: list[np.ndarray | None] = [None] * n
+    placed_covs: list[np.ndarray | None] = [None] * n
     poses[reference], covs[reference], start_covs[reference] = np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3))
+    placed[reference], placed_covs[reference] = np.zeros(3), np.zeros((3, 3))
     rows[reference] = np.arange(len(maps[reference]))
     fused = maps[reference]
     for parent, child in edges:
@@ -245,24 +255,30 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
         if a.start_covariance is not None and start_covs[parent] is not None:
             start_covs[child] = compose_with_covariance(poses[parent], start_covs[parent], a.pose,
                                                         a.start_covariance)[1]
-        pose_cov = covs[child] if a.covariance is not None else None
+        sup = one_to_one_supports(maps[parent], maps[child], a)
+        if scales is None:     # the merge weighs the maps by their claims, under which the alignment is the fit
+            edge_pose, edge_place_cov = a.pose, edge_cov
+        else:
+            edge_pose, edge_place_cov = shape_placement(maps[parent], maps[child], sup, a.pose)
+        placed[child], placed_covs[child] = compose_with_covariance(placed[parent], placed_covs[parent], edge_pose,
+                                                                    edge_place_cov)
+        pose_cov = placed_covs[child] if a.covariance is not None else None
         if method == 1:
-            sup = one_to_one_supports(maps[parent], maps[child], a)
             pairs = np.column_stack([rows[parent][sup[:, 0]], sup[:, 1]])
             # two parent landmarks may already be one fused landmark: keep the first pair of each row
             _, first = np.unique(pairs[:, 0], return_index=True)
-            pairs, withheld, conflicts = identity_matches(fused, maps[child], poses[child], pose_cov,
+            pairs, withheld, conflicts = identity_matches(fused, maps[child], placed[child], pose_cov,
                                                           pairs[np.sort(first)])
         else:
             withheld, conflicts = None, None
-            x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, poses[child], pose_cov)
+            x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, placed[child], pose_cov)
             gate = PRESETS["paper"].support_threshold if a.preset == "paper" else None
             pairs = position_correspondences(fused.positions, fused.covariances, x2, P2, gate)
         info = {"fusion": {"maps": [m.robot for m in maps], "method": int(method), "reference": int(reference),
                            "tree": [list(e) for e in edges],
                            "covariance_scales": None if scales is None else [float(c) for c in scales],
                            "merge_rule": merge_rule, "calibration": None if scales is None else calibration}}
-        result = merge_pairs(fused, maps[child], poses[child], pairs, pose_cov, info, withheld, conflicts, merge_rule)
+        result = merge_pairs(fused, maps[child], placed[child], pairs, pose_cov, info, withheld, conflicts, merge_rule)
         fused, rows[child] = result.map, result.rows2
     return MultiFusion(fused, reference, poses, covs, alignments, edges, unconnected, rows, start_covs,
-                       None if scales is None else [float(c) for c in scales])
+                       None if scales is None else [float(c) for c in scales], placed, placed_covs)

@@ -68,13 +68,24 @@ def test_scales_recover_each_maps_real_spread_and_the_calibrated_merge_beats_the
     # the worst maps are told from the best (their real σ 12× apart; 40 landmarks, 10 pairs)
     assert recovered[3:].min() > 2 * recovered[:3].max()
     np.testing.assert_allclose(recovered[3:], sigmas[3:], rtol=0.35)
-    calibrated = fuse_all(maps, "robust", 1, np.random.default_rng(seed), alignments=alignments)
-    claimed = fuse_all(maps, "robust", 1, np.random.default_rng(seed), alignments=alignments, calibrate=False)
-    assert calibrated.covariance_scales is not None and claimed.covariance_scales is None
-    assert len(calibrated.map) == 40
     best_single = min(_rigid_error(m, world) for m in maps)
-    assert _rigid_error(calibrated.map, world) < _rigid_error(claimed.map, world)
-    assert _rigid_error(calibrated.map, world) < 1.5 * best_single
+    merged = {}
+    for reference in (0, 3):        # the most accurate map, or one of the least accurate, as the reference
+        calibrated = fuse_all(maps, "robust", 1, np.random.default_rng(seed), alignments=alignments,
+                              reference=reference)
+        claimed = fuse_all(maps, "robust", 1, np.random.default_rng(seed), alignments=alignments, calibrate=False,
+                           reference=reference)
+        assert calibrated.covariance_scales is not None and claimed.covariance_scales is None
+        assert len(calibrated.map) == 40
+        merged[reference] = _rigid_error(calibrated.map, world)
+        assert merged[reference] < _rigid_error(claimed.map, world)
+        # the merge's weights come from the pairwise residuals plus one standard error, which costs the best map
+        # part of its weight (seed 2: 1.6x); before session 9 the children were also placed and weighed by the
+        # claimed alignment covariance, so the merged map was 0.9-1.2x the best one's with the best map as the
+        # reference and 1.7-2.1x with a bad one
+        assert merged[reference] < 2.0 * best_single
+    # the placements follow the calibrated maps, not the reference's claims: either reference gives a similar map
+    assert max(merged.values()) < 1.3 * min(merged.values())
 
 
 def test_two_maps_or_a_chain_cannot_be_calibrated_and_merge_as_they_claim():
