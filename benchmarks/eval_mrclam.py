@@ -84,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
                         "beside the rotation scale")
     parser.add_argument("--range-calibration", action="store_true", help="fit the range's calibration (the camera "
                         "reports depth along its axis, not range)")
+    parser.add_argument("--odometry-lag", action="store_true", help="fit the time by which the odometry (commanded "
+                        "velocity) leads the motion, and read it that much earlier")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
@@ -99,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     others = {r: read_mrclam(args.data, r) for r in range(1, 6) if r not in logs} if args.noise == "others" else {}
     noise = {}
     fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
-           "range_calibration": args.range_calibration}
+           "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag}
     for r in robots:
         if args.noise == "own":
             noise[r] = estimate_noise([logs[r]], **fit).model
@@ -138,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"runs": {f"{mode}/robot{r}": m for (mode, r), m in results.items()}, "summary": summary,
                           "noise": args.noise, "heading_bias": args.heading_bias,
                           "sensor_correlation": args.sensor_correlation,
-                          "range_calibration": args.range_calibration,
+                          "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
+                          "odometry_lag_s": {r: noise[r].odometry.lag_s for r in robots},
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation,
                           "particles": args.particles, "seed": args.seed,

@@ -87,7 +87,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     keep = (times >= t0) & (times <= (np.inf if until is None else until))
     times, first, bounds = times[keep], first[keep], bounds[keep]
     frame_times = np.concatenate([[t0], times])
-    odometry = log.odometry_pose(frame_times)
+    odometry = log.odometry_pose(noise.odometry_times(frame_times))   # the odometry's lag calibrated (noise_model)
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
 
     votes: dict[int, dict[int, int]] = {}

@@ -16,6 +16,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
     rotation_scale = 1.0       # calibration: true turn / odometry turn
     heading_bias_per_m = 0.0   # calibration: rad of heading the robot turns per metre of odometry driven (a curve
                                #   on a straight run: UMBmark's type-A error, unequal wheels); optional, 0 if absent
+    lag_s = 0.0                # calibration: s by which the odometry leads the motion (commanded velocities: the
+                               #   pose at t is the odometry's at t − lag_s); optional, 0 if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -64,6 +66,7 @@ MAX_FILE_BYTES = 1 << 20     # a noise model is a few hundred bytes; refuse anyt
 SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m", "range_offset_m", "range_scale_per_rad",
                  "range_scale_per_rad2")
 MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is a broken robot, not a calibration
+MAX_ODOMETRY_LAG_S = 1.0       # s: a drive that answers its commands a second late is not a calibration
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
 DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
 
@@ -80,6 +83,7 @@ class OdometryNoise:
     translation_scale: float = 1.0
     rotation_scale: float = 1.0
     heading_bias_per_m: float = 0.0      # rad per metre of odometry distance (signed; see calibrate_increments)
+    lag_s: float = 0.0                   # the odometry leads the motion by this (see NoiseModel.odometry_times)
 
 
 @dataclass(frozen=True)
@@ -168,6 +172,9 @@ class NoiseModel:
             raise NoiseModelError(f"heading_bias_per_m must lie in [-{MAX_HEADING_BIAS_PER_M}, "
                                   f"{MAX_HEADING_BIAS_PER_M}] rad/m (a calibration, not a turn), not "
                                   f"{self.odometry.heading_bias_per_m}")
+        if not self.odometry.lag_s <= MAX_ODOMETRY_LAG_S:
+            raise NoiseModelError(f"lag_s must lie in [0, {MAX_ODOMETRY_LAG_S}] s (a calibration), not "
+                                  f"{self.odometry.lag_s}")
         rb = self.range_bearing
         if rb is not None and not (rb.range_sigma_m > 0 and rb.bearing_sigma_rad > 0):
             raise NoiseModelError("range_sigma_m and bearing_sigma_rad must be > 0")
@@ -208,6 +215,13 @@ class NoiseModel:
         o = self.odometry
         return _calibrated(increments, (o.translation_scale, o.translation_scale, o.rotation_scale),
                            o.heading_bias_per_m)
+
+    def odometry_times(self, times) -> np.ndarray:
+        """The odometry's times (T,) for poses at ``times`` (T,): t − lag_s. Why: MRCLAM's odometry is the commanded
+        velocity, which the robot follows ~0.17 s late (docs/fastslam.md "Session 9"): at the end of a turn on the
+        spot the odometry has stopped while the robot still turns, and landmarks sighted then are placed with that
+        heading error."""
+        return np.asarray(times, float) - self.odometry.lag_s
 
     # -- files -------------------------------------------------------------------------------------------------
     def to_toml(self) -> str:
@@ -329,7 +343,8 @@ class NoiseEstimate:
 
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
-                   sensor_correlation: str = "lag1", range_calibration: bool = False) -> NoiseEstimate:
+                   sensor_correlation: str = "lag1", range_calibration: bool = False,
+                   odometry_lag: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -364,6 +379,9 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     ``range_calibration``: first fit the range's calibration r_true ≈ a + r·(b₀ + b₁φ + b₂φ²) (measured r, φ;
     see :meth:`RangeBearingNoise.corrected`) by least squares, refitted three times on the sightings within
     OUTLIER_MADS robust σ, and take every range residual, σ_r and correlation after it; off: the identity.
+    ``odometry_lag``: first fit the time by which the odometry leads the motion (:func:`_odometry_lag`: the lag
+    that minimises the heading increments' error at the filter's frame interval) and fit everything else on the
+    odometry read that much earlier; off: 0.
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -376,7 +394,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         if not log.has_ground_truth:
             raise ValueError(f"{log.name}: noise estimation needs ground truth, and the log has none")
 
-    windows = [_odometry_windows(log, window_s) for log in logs]
+    lag, lag_fit = _odometry_lag(logs) if odometry_lag else (0.0, {})
+    windows = [_odometry_windows(log, window_s, lag_s=lag) for log in logs]
     u = np.concatenate([w[0] for w in windows])
     g = np.concatenate([w[1] for w in windows])
     if len(u) < 10:
@@ -387,14 +406,15 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         else {"heading_bias_note": "not fitted: the windows' turns and distances are proportional (a bias per "
                                    "metre cannot be told from a rotation scale)"}
     # with the turns calibrated, the chain's positions scale linearly with the translation scale: regress on them
-    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale), bias) for log in logs]
+    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale), bias, lag) for log in logs]
     u = np.concatenate([w[0] for w in turned])
     translation_scale = float(np.sum(g[:, :2] * u[:, :2]) / max(np.sum(u[:, :2] ** 2), 1e-12))
     scales = np.array([translation_scale, translation_scale, rotation_scale])
-    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias) for log in logs])
+    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag)
+                                                     for log in logs])
     by_window = []
     for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
-        other = [_odometry_windows(log, w, scales, bias) for log in logs]
+        other = [_odometry_windows(log, w, scales, bias, lag) for log in logs]
         if sum(len(o[0]) for o in other) >= 10:
             by_window.append((w, *np.sqrt(_random_walk_fit(other))))
 
@@ -419,7 +439,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
         residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit,
+           **bias_fit, **lag_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -467,7 +487,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
-        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias), range_bearing, None,
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag), range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
                f"truth ({len(u)} odometry windows of {window_s:g} s)")
@@ -494,6 +514,34 @@ def _range_calibration(ranges: np.ndarray, bearings: np.ndarray, true_ranges: np
     if not 0.5 <= coefficients[1] <= 2.0:
         return _NO_RANGE_CALIBRATION
     return tuple(float(c) for c in coefficients)
+
+
+LAG_GRID_S = np.arange(0.0, 0.505, 0.01)   # candidate lags of the odometry behind the motion
+LAG_STEP_S = 0.25                           # the step the lag is judged at: MRCLAM's frame interval (~4 Hz)
+
+
+def _odometry_lag(logs: Sequence[RangeBearingLog]) -> tuple[float, dict]:
+    """The time (s, on LAG_GRID_S) by which the odometry leads the motion, and the fit's figures: the lag whose
+    odometry turns over LAG_STEP_S steps, each scaled by the least-squares rotation scale of that lag, have the
+    smallest squared error against the true turns (pooled over the logs). A commanded-velocity odometry leads by
+    the drive's actuation lag (MRCLAM: 0.16-0.20 s by cross-correlating the turn rates); encoders lead by ~0."""
+    pairs = []
+    for log in logs:
+        lo, hi = log.ground_truth[0, 0] + LAG_GRID_S[-1], log.ground_truth[-1, 0]
+        lo, hi = max(lo, log.odometry[0, 0] + LAG_GRID_S[-1]), min(hi, log.odometry[-1, 0])
+        if hi - lo > 10 * LAG_STEP_S:
+            pairs.append((log, np.arange(lo, hi, LAG_STEP_S)))
+    if not pairs:
+        return 0.0, {}
+    true_turn = np.concatenate([wrap_angle(np.diff(log.true_pose(t)[:, 2])) for log, t in pairs])
+    errors = []
+    for lag in LAG_GRID_S:
+        turn = np.concatenate([between(p[:-1], p[1:])[:, 2] for p in (log.odometry_pose(t - lag) for log, t in pairs)])
+        k = float(true_turn @ turn / max(turn @ turn, 1e-12))
+        errors.append(float(np.mean(wrap_angle(k * turn - true_turn) ** 2)))
+    best = int(np.argmin(errors))
+    return float(LAG_GRID_S[best]), {"odometry_lag_heading_rms_rad": float(np.sqrt(errors[best])),
+                                     "odometry_no_lag_heading_rms_rad": float(np.sqrt(errors[0]))}
 
 
 def _calibrated(increments, scales, heading_bias_per_m: float) -> np.ndarray:
@@ -529,9 +577,11 @@ def _heading_calibration(turn: np.ndarray, distance: np.ndarray | None, true_tur
     return float(k_r), float(c), float(np.sqrt(covariance[1, 1]))
 
 
-def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0):
+def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0,
+                      lag_s: float = 0.0):
     """Consecutive windows of odometry rows inside the ground truth: odometry increments u (W, 3) calibrated by
-    ``scales`` and the heading bias per odometry metre, true increments g (W, 3), and the design (W, 3, 3, 3):
+    ``scales`` and the heading bias per odometry metre, true increments g (W, 3) (``lag_s`` later than the odometry
+    rows' times: the odometry leads the motion), and the design (W, 3, 3, 3):
     the error covariance of each window is Σ_k q_k · design[:, k] for the model's variances
     q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
     rows = log.odometry
@@ -555,7 +605,7 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     starts = chain[0:k * n:n]
     u = between(starts, chain[n::n])
     u[:, 2] = chain[n::n, 2] - starts[:, 2]                    # the turn itself, not wrapped
-    g = between(log.true_pose(rows[0:k * n:n, 0]), log.true_pose(rows[n::n, 0]))
+    g = between(log.true_pose(rows[0:k * n:n, 0] + lag_s), log.true_pose(rows[n::n, 0] + lag_s))
     g[:, 2] = u[:, 2] + wrap_angle(g[:, 2] - u[:, 2])          # the true turn nearest the odometry's (no 2π jumps)
     # first-order effect on the window's end pose of a noise δ on step j (robot frame at the step's start):
     # the end moves by R(θ_{j-1}) δ_xy + δ_θ v_j, v_j = (−(y_end − y_j), x_end − x_j, 1) in the window's frame

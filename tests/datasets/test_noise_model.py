@@ -90,14 +90,17 @@ def test_closed_form_chain_is_composition():
 
 
 def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b, rho_b=0.0,
-                   heading_bias=0.0):
+                   heading_bias=0.0, lag=0.0, switching=False):
     """A robot circling (wiggling) for 30 min at 50 Hz among 12 landmarks; odometry = (true increments +
     random-walk noise) / scale, its heading short of the truth by ``heading_bias`` rad per metre driven (the
-    robot curves where its odometry says straight); sightings within a camera's range."""
+    robot curves where its odometry says straight), stamped ``lag`` s before the motion it reports (commanded
+    velocity, which the robot follows late); ``switching``: the wiggle's turn rate switches between two values
+    (as commanded turns do) instead of varying smoothly; sightings within a camera's range."""
     dt, n = 0.02, 90_000
     t = np.arange(n + 1) * dt
     v = 0.2 + 0.1 * np.sin(t[:-1] / 7.0)
-    w = 2 * np.pi / 60.0 + 0.3 * np.sin(t[:-1] / 5.0)          # a 60 s loop of ~2 m radius, wiggling
+    w = 2 * np.pi / 60.0 + 0.3 * (np.sign if switching else np.asarray)(np.sin(t[:-1] / 5.0))   # a 60 s loop of
+    #                                                                        # ~2 m radius, wiggling
     true_steps = np.column_stack([v * dt, np.zeros(n), w * dt])
     truth = np.zeros((n + 1, 3))
     truth[1:] = np.cumsum(true_steps[:, 2])[:, None] * [0, 0, 1]
@@ -128,7 +131,7 @@ def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, s
             noise_b[k[i]] = rho_b * noise_b[k[i - 1]] + np.sqrt(1 - rho_b ** 2) * white[k[i]]
     bearings = b + offset_b + noise_b * sigma_b
     seen = (r > 0.5) & (r < 6.0)                                       # a camera's range
-    return RangeBearingLog("synthetic", np.column_stack([t, odometry]), times[seen], np.abs(ranges[seen]),
+    return RangeBearingLog("synthetic", np.column_stack([t - lag, odometry]), times[seen], np.abs(ranges[seen]),
                            bearings[seen], ids[seen] + 6, np.column_stack([t, truth]), np.arange(6, 18), landmarks)
 
 
@@ -193,6 +196,51 @@ def test_the_heading_bias_round_trips_is_optional_and_bounded(tmp_path):
         with pytest.raises(NoiseModelError, match=complaint) as error:
             NoiseModel.load(tmp_path / "bad.toml")
         assert "\n" not in str(error.value) and "bad.toml" in str(error.value)
+
+
+def test_an_odometry_that_leads_the_motion_is_found_and_read_that_much_later():
+    """Odometry stamped 0.2 s before the motion it reports (a commanded velocity the drive follows late), its turn
+    rate switching as commanded turns do (where a lag shows: a smooth wiggle hides it in the random walk): the fit
+    finds the lag, and the heading increments read that much earlier lose most of their error; odometry without
+    a lag gets none; the option is off by default."""
+    q = dict(q_xy=0.02 ** 2, q_theta_rad=0.03 ** 2, q_theta_m=0.01 ** 2, scale=1.0, sigma_r=0.03, slope_r=0.03,
+             sigma_b=0.02, offset_b=0.0, switching=True)
+    log = _synthetic_log(np.random.default_rng(9), **q, lag=0.2)
+    model = estimate_noise([log], odometry_lag=True).model
+    assert model.odometry.lag_s == pytest.approx(0.2, abs=0.015)
+    # read 0.2 s earlier, the 0.25 s heading increments keep only the random walk's error; as stamped, twice that
+    t = np.arange(1.0, log.ground_truth[-1, 0], 0.25)
+    true = between(log.true_pose(t[:-1]), log.true_pose(t[1:]))
+    walk = float(np.sqrt(np.mean(q["q_theta_rad"] * np.abs(true[:, 2]) + q["q_theta_m"] * np.abs(true[:, 0]))))
+    assert model.fit["odometry_lag_heading_rms_rad"] == pytest.approx(walk, rel=0.15)
+    assert model.fit["odometry_no_lag_heading_rms_rad"] > 1.5 * walk
+    np.testing.assert_allclose(model.odometry_times([10.0, 20.0]), [10.0 - model.odometry.lag_s,
+                                                                    20.0 - model.odometry.lag_s])
+    assert estimate_noise([log]).model.odometry.lag_s == 0.0
+    plain = estimate_noise([_synthetic_log(np.random.default_rng(10), **q)], odometry_lag=True).model
+    assert plain.odometry.lag_s <= 0.015
+
+
+def test_the_odometry_lag_round_trips_is_optional_and_bounded(tmp_path):
+    model = NoiseModel(OdometryNoise(0.001, 0.002, 0.003, lag_s=0.18), RangeBearingNoise(0.02, 0.04, 0.01))
+    model.save(tmp_path / "n.toml")
+    assert NoiseModel.load(tmp_path / "n.toml").odometry.lag_s == 0.18
+    header = 'format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\ntheta_var_per_rad = 1\n' \
+             'theta_var_per_m = 1\n'
+    (tmp_path / "old.toml").write_text(header)            # a file written before the lag existed
+    assert NoiseModel.load(tmp_path / "old.toml").odometry.lag_s == 0.0
+    for value, complaint in (("1.5", r"lag_s must lie in \[0, 1.0\] s"), ("-0.1", "finite number >= 0")):
+        (tmp_path / "bad.toml").write_text(header + f"lag_s = {value}\n")
+        with pytest.raises(NoiseModelError, match=complaint) as error:
+            NoiseModel.load(tmp_path / "bad.toml")
+        assert "\n" not in str(error.value) and "bad.toml" in str(error.value)
+
+
+def test_real_dataset2_odometry_leads_the_motion(mrclam_dir):
+    # MRCLAM's odometry is the commanded velocity: the robots follow it ~0.17 s late (docs/fastslam.md "Session 9")
+    model = estimate_noise([read_mrclam(mrclam_dir, 2, until=600.0)], odometry_lag=True).model
+    assert 0.1 <= model.odometry.lag_s <= 0.3
+    assert model.fit["odometry_lag_heading_rms_rad"] < model.fit["odometry_no_lag_heading_rms_rad"]
 
 
 def test_estimation_refuses_a_log_without_ground_truth():
