@@ -35,7 +35,8 @@ import numpy as np
 import runtime.slam_sim as slam_sim
 from benchmarks.eval_slam_rendered import ReplayObserver, _parse_set, _PointWorld
 from estimation.fastslam import FastSLAM, FastSLAMConfig
-from runtime.commands.options import non_negative_int, positive_float
+from estimation.fastslam.coincident import coincident_pairs
+from runtime.commands.options import non_negative_int, positive_float, positive_int
 from runtime.motion import keep_right
 
 CHI2_3_95 = 7.815
@@ -56,20 +57,6 @@ class _RecordingFastSLAM(FastSLAM):
         return report
 
 
-def coincident_pairs(points: np.ndarray, covariances: np.ndarray, floor: float,
-                     gate: float = CHI2_3_95) -> np.ndarray:
-    """(P, 2) index pairs i < j of one frame's observations whose points coincide within Q_i + Q_j + 2·floor·I."""
-    n = len(points)
-    if n < 2:
-        return np.zeros((0, 2), np.int64)
-    i, j = np.triu_indices(n, 1)
-    d = points[i] - points[j]
-    s = covariances[i] + covariances[j] + 2.0 * floor * np.eye(3)
-    d2 = np.einsum("ni,ni->n", d, np.linalg.solve(s, d[..., None])[..., 0])
-    keep = d2 < gate
-    return np.stack([i[keep], j[keep]], axis=1)
-
-
 def frame_coincidences(arrays: dict, starts: np.ndarray, floor: float) -> dict:
     """Coincident observation pairs over all cached frames, scored by the true points behind them."""
     truth = arrays["true_points"].reshape(-1, 3)
@@ -78,9 +65,10 @@ def frame_coincidences(arrays: dict, starts: np.ndarray, floor: float) -> dict:
     in_pairs = 0
     for k in range(len(starts) - 1):
         lo, hi = starts[k], starts[k + 1]
-        pairs = coincident_pairs(arrays["points"][lo:hi], arrays["covariances"][lo:hi], floor)
-        if not len(pairs):
+        i, j = coincident_pairs(arrays["points"][lo:hi], arrays["covariances"][lo:hi] + floor * np.eye(3))
+        if not len(i):
             continue
+        pairs = np.stack([i, j], axis=1)
         in_pairs += len(np.unique(pairs))
         index = arrays["index"][lo:hi]
         a, b = index[pairs[:, 0]], index[pairs[:, 1]]
@@ -196,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=non_negative_int, action="append", default=None)
     parser.add_argument("--frame-rate", type=positive_float, default=3.75)
     parser.add_argument("--frames-cache", type=Path, required=True, metavar="DIR")
-    parser.add_argument("--particles", type=non_negative_int, default=100)
+    parser.add_argument("--particles", type=positive_int, default=100)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a FastSLAMConfig field")
     parser.add_argument("--json", action="store_true")
