@@ -92,6 +92,10 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
             "at the strongest wrong hypothesis (wrong)": None if strongest_wrong is None else StartPrior(
                 strongest_wrong, cov, source="strongest wrong"),
             "3 m off in x (wrong)": StartPrior(truth + np.array([3.0, 0.0, 0.0]), cov, source="3 m off"),
+            # the same offset with starts known to 0.3 m / 0.1 rad: the truth is then outside the prior
+            "3 m off in x, σ 0.3 m / 0.1 rad (wrong)": StartPrior(
+                truth + np.array([3.0, 0.0, 0.0]),
+                StartPrior.between_starts(start1, start2, 0.3, 0.1).covariance, source="3 m off, tight"),
         }
         for name, prior in priors.items():
             if prior is None and name != "none":
@@ -118,10 +122,14 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
         print(line)
 
 
-def false_pairs(total: int) -> None:
-    """fusion_gate_scale's seven kinds (same generators and seeds), each with a wide and an adversarial prior."""
+def false_pairs(total: int, only: str | None = None) -> None:
+    """fusion_gate_scale's seven kinds (same generators and seeds), each with a wide and an adversarial prior;
+    ``only``: the kinds whose name holds it (each keeps its share of ``total``)."""
     kinds = false_pair_kinds()
-    per = max(1, -(-total // len(kinds)))
+    share = len(kinds)
+    if only:
+        kinds = {k: v for k, v in kinds.items() if only in k}
+    per = max(1, -(-total // share))
     print(f"\n### No false alignment with a start prior ({per * len(kinds)} pairs: {per} of each kind)\n")
     print("| maps | found: no prior | wide prior (10 m / 1.57 rad about the identity) | adversarial prior "
           "(1 m / 0.3 rad about the best hypothesis) |")
@@ -174,12 +182,13 @@ def main() -> None:
     parser.add_argument("--sigma-yaw", type=positive_float, default=0.3, help="σ of each start, rad (default 0.3)")
     parser.add_argument("--false-pairs", type=non_negative_int, default=0,
                         help="non-overlapping pairs, over seven kinds")
+    parser.add_argument("--kind", default=None, help="only the kinds of non-overlapping pairs whose name holds this")
     args = parser.parse_args()
     t0 = time.perf_counter()
     if args.demo:
         demo_table(args.demo, args.sigma_xy, args.sigma_yaw)
     if args.false_pairs:
-        false_pairs(args.false_pairs)
+        false_pairs(args.false_pairs, args.kind)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 

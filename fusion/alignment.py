@@ -762,7 +762,8 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     reported (``outside``).  Each map's repeat of itself stays in the null whatever the prior: a wrong prior that
     agrees with a wrong winner (the truth damaged, its repeat winning) must not make it "found"."""
     s = int(problem.distinct_counts(mask[None])[0])
-    n = max(search.evaluated if admissible is None else int(admissible(search.poses).sum()), 1)
+    n_all = max(search.evaluated, 1)
+    n = n_all if admissible is None else max(int(admissible(search.poses).sum()), 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
     rival = _best_distinct(problem, search, pose, mask, config, admissible=admissible)
     outside = 0 if admissible is None else _best_distinct(
@@ -772,7 +773,9 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
         def self_repeat(m: LandmarkMap) -> int:
             return self_structure(m, config, content_rng(m))
     repeat = max(self_repeat(map1), self_repeat(map2)) if repeats else 0
-    structure_rate = _rate_for_maximum(max(second, repeat) - 2, n)
+    # the rival is the best of the n hypotheses inside the prior; the self-repeat was found without one, so its rate is
+    # calibrated on all of them (a prior must not make the repeat's null stricter than it is without a prior)
+    structure_rate = max(_rate_for_maximum(second - 2, n), _rate_for_maximum(repeat - 2, n_all))
     rate = max(decoy_rate, structure_rate, 1e-9)
     log10_p = _log10_tail(s - 2, rate, n)
     level = np.log10(config.significance) if config.significance is not None else -6.0
