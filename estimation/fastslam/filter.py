@@ -446,7 +446,8 @@ class FastSLAM:
         if cfg.drift_local_empirical and in_best.any():   # the frame's own residuals, not the claimed Q
             j = matched.j[in_best]
             seen_xy = z[j, :2] @ np.array([[c, s_], [-s_, c]]) + self.poses[best, :2]
-            local = with_empirical_position(local, seen_xy - self.store.flat_state[matched.g[in_best], :2])
+            local = with_empirical_position(local, seen_xy - self.store.flat_state[matched.g[in_best], :2],
+                                            self.store.flat_count[matched.g[in_best]], cfg.observation_correlation)
         if relative is not None and cfg.id_drift_inherit:   # re-measured relative to an anchor: its pose's drift
             relative.inherit(self.drift, best, np.unique(best_matches[best_matches >= 0]), local)
         self.drift.update(np.unique(best_matches[best_matches >= 0]), new_ids[spawned], new_xy,

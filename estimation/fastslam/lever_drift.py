@@ -97,12 +97,22 @@ def empirical_local_position(residuals_xy: np.ndarray) -> np.ndarray:
     return r.T @ r / len(r) ** 2
 
 
-def with_empirical_position(local_covariance: np.ndarray, residuals_xy: np.ndarray) -> np.ndarray:
+def with_empirical_position(local_covariance: np.ndarray, residuals_xy: np.ndarray,
+                            sightings: np.ndarray | None = None, correlation: float = 0.0) -> np.ndarray:
     """P_local (3, 3) with its position block replaced by the empirical one where that is larger (trace): the
     translation the robot's pose carries from one generation of landmarks to the next, measured online
-    (``FastSLAMConfig.drift_local_empirical``) rather than fitted per run (``drift_translation_per_m``)."""
+    (``FastSLAMConfig.drift_local_empirical``) rather than fitted per run (``drift_translation_per_m``).
+
+    ``sightings`` (L,), the matched landmarks' sighting counts, and ``correlation`` ρ: a landmark made now takes
+    this frame's pose error, but its EKF then averages the pose errors of the n frames that see it, which are
+    AR(1)-correlated like the readings, so what a generation hands on is that error × f(n, ρ)/n
+    (:func:`correlated_mean_factor`; mean over the matched landmarks, whose counts stand for the new ones').
+    Without them (or ρ = 0 and n = 1) the frame's error is handed on whole."""
     local = np.array(local_covariance, float)
     empirical = empirical_local_position(residuals_xy)
+    if sightings is not None and len(sightings):
+        n = np.maximum(np.asarray(sightings, float), 1.0)
+        empirical = empirical * float(np.mean(correlated_mean_factor(n, correlation) / n))
     if np.trace(empirical) > np.trace(local[:2, :2]):
         local[:2, :2] = empirical
     return local

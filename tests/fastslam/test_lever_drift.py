@@ -143,3 +143,18 @@ def test_empirical_position_replaces_the_claimed_one_only_where_larger():
     widened = with_empirical_position(claimed, large)
     assert np.isclose(widened[0, 0], 0.09 / 10) and widened[2, 2] == 1e-5 and widened[1, 1] == 0.0
     assert np.array_equal(with_empirical_position(claimed, large[:1]), claimed)   # one reading: no spread to see
+
+
+def test_a_generation_hands_on_its_error_averaged_over_the_correlated_sightings_of_its_landmarks():
+    from estimation.fastslam.lever_drift import empirical_local_position, with_empirical_position
+    claimed = np.diag([1e-6, 1e-6, 1e-5])
+    residuals = np.array([[0.1, 0.0], [-0.1, 0.0]] * 10)
+    whole = empirical_local_position(residuals)
+    assert np.allclose(with_empirical_position(claimed, residuals)[:2, :2], whole)
+    assert np.allclose(with_empirical_position(claimed, residuals, np.ones(20), 0.49)[:2, :2], whole)  # seen once
+    counts = np.full(20, 6)
+    averaged = with_empirical_position(claimed, residuals, counts, 0.0)[:2, :2]
+    assert np.allclose(averaged, whole / 6)                          # independent sightings: a sixth
+    correlated = with_empirical_position(claimed, residuals, counts, 0.49)[:2, :2]
+    assert np.allclose(correlated, whole * correlated_mean_factor(counts, 0.49)[0] / 6)
+    assert np.trace(averaged) < np.trace(correlated) < np.trace(whole)
