@@ -114,9 +114,10 @@ class FastSLAMConfig:
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
     drift_local_empirical: bool = False           # the drift's local pose covariance takes the position variance
-    #                                             #   of the frame's matched residuals' mean where larger than the
-    #                                             #   proposal's (lever_drift.with_empirical_position): measured
-    #                                             #   online, unlike drift_translation_per_m; export and D_r only
+    #                                             #   of the frame's matched residuals' mean, × f(n, ρ)/n of the
+    #                                             #   landmarks' sightings, where larger than the proposal's
+    #                                             #   (lever_drift.with_empirical_position): measured online,
+    #                                             #   unlike drift_translation_per_m; export and D_r only
     unknown_association_rule: str = "nearest"     # "unknown": each reading takes the nearest gated landmark
     #                                             #   ("nearest", maximum likelihood); or per particle one drawn in
     #                                             #   proportion to its likelihood, a new landmark among them
