@@ -41,14 +41,14 @@ def register(subparsers) -> None:
                         help="common landmarks: 1 = RANSAC supports (default), 2 = nearest in position")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of RANSAC, >= 0 (default 0)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
-    parser.add_argument("--start", action="append", default=[], metavar="MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]",
+    parser.add_argument("--start-pose", action="append", default=[], metavar="MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]",
                         help="a rough start pose of one map's robot in a frame common to all (the lab's; metres, "
                              "radians, REP-103), MAP its index (0, 1, ...) or robot name; repeat per map. Every pair "
                              "of maps with a start gets a prior on its relative start: a best alignment outside it "
                              "(χ²₃ 99.9 %%) is reported not found, never the best one inside (default: none)")
     parser.add_argument("--start-sigma", type=_sigma_pair, default=None, metavar="SIGMA_XY,SIGMA_YAW",
-                        help="standard deviations of each --start given without its own (m, rad; e.g. 1,0.3)")
-    parser.add_argument("--starts", default=None, metavar="FILE.json",
+                        help="standard deviations of each --start-pose given without its own (m, rad; e.g. 1,0.3)")
+    parser.add_argument("--start-poses", default=None, metavar="FILE.json",
                         help='start poses from a file: {"sigma_xy": 1, "sigma_yaw": 0.3, "starts": {"robot1": '
                              '[x, y, yaw], "robot2": [x, y, yaw, sigma_xy, sigma_yaw]}} (keys: names or indices)')
     # the live fusion node of a fleet (runtime/fleet, docs/fleet.md)
@@ -183,17 +183,17 @@ def _sigma_pair(text: str) -> tuple[float, float]:
 
 
 def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
-    """{(i, j): StartPrior} from --start / --starts (fusion.prior.pair_priors); raises FusionError (one line)."""
+    """{(i, j): StartPrior} from --start-pose / --start-poses (fusion.prior.pair_priors); raises FusionError."""
     from fusion.errors import IncompatibleMapsError
     from fusion.prior import load_starts, pair_priors, parse_start
 
     given: dict[str, tuple] = {}
-    if args.starts is not None:
-        given.update(load_starts(args.starts))
-    for item in args.start:
+    if args.start_poses is not None:
+        given.update(load_starts(args.start_poses))
+    for item in args.start_pose:
         key, sep, value = item.partition("=")
         if not sep:
-            raise IncompatibleMapsError(f"--start is MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]; got {item!r}")
+            raise IncompatibleMapsError(f"--start-pose is MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]; got {item!r}")
         pose, sig = parse_start(value)
         given[key.strip()] = (pose, sig)
     names = [m.robot for m in maps]

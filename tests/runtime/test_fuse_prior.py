@@ -1,4 +1,4 @@
-"""``p3at fuse --start``: a rough start pose per map gives each pair a prior on its relative start (fusion/prior.py)."""
+"""``p3at fuse --start-pose``: a rough start pose per map gives each pair a prior on its relative start."""
 from __future__ import annotations
 
 import json
@@ -28,7 +28,7 @@ def test_starts_resolve_the_half_turn_and_the_json_says_a_prior_was_used(tmp_pat
     assert main(["fuse", *files, "--out", out, "--json"]) == 1
     capsys.readouterr()
     start2 = compose(np.array([1.0, 2.0, 0.3]), TRUE_POSE)          # map 1's robot at (1, 2, 0.3) in the lab
-    code = main(["fuse", *files, "--out", out, "--json", "--start", "0=1,2,0.3", "--start",
+    code = main(["fuse", *files, "--out", out, "--json", "--start-pose", "0=1,2,0.3", "--start-pose",
                  f"robot2={_start(start2)}", "--start-sigma", "1,0.3"])
     report = json.loads(capsys.readouterr().out)
     assert code == 0
@@ -41,8 +41,8 @@ def test_starts_resolve_the_half_turn_and_the_json_says_a_prior_was_used(tmp_pat
 def test_a_half_turned_start_is_reported_as_contradicting(tmp_path, capsys):
     files = _files(tmp_path)
     wrong = compose(HALF_TURN, TRUE_POSE)
-    code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--start", "0=0,0,0,1,0.3",
-                 "--start", f"1={_start(wrong)},1,0.3"])
+    code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--start-pose", "0=0,0,0,1,0.3",
+                 "--start-pose", f"1={_start(wrong)},1,0.3"])
     out = capsys.readouterr().out
     assert code == 1
     assert "contradicts the prior" in out
@@ -50,9 +50,9 @@ def test_a_half_turned_start_is_reported_as_contradicting(tmp_path, capsys):
 
 def test_bad_starts_are_one_line_errors(tmp_path, capsys):
     files = _files(tmp_path)
-    for args in (["--start", "0=1,2"], ["--start", "robot9=1,2,3,1,1"], ["--start", "0=1,2,3"],
-                 ["--start", "no-equals-sign"]):
-        code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), *args, "--start", "1=0,0,0,1,0.3"])
+    for args in (["--start-pose", "0=1,2"], ["--start-pose", "robot9=1,2,3,1,1"], ["--start-pose", "0=1,2,3"],
+                 ["--start-pose", "no-equals-sign"]):
+        code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), *args, "--start-pose", "1=0,0,0,1,0.3"])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and "start" in err[0], (args, err)
 
