@@ -82,3 +82,17 @@ def test_the_live_fusion_line_says_the_best_alignment_contradicts_the_prior():
             "note": "the maps' best alignment contradicts the prior: 12 supports at tx=+14.42 m ..."}
     assert "contradicts the start prior" in not_aligned_reason(pair)
     assert "contradicts" not in not_aligned_reason({**pair, "note": "only 3 supports"})
+
+
+def test_start_poses_from_a_file_and_a_malformed_file(tmp_path, capsys):
+    files = _files(tmp_path)
+    good = tmp_path / "starts.json"
+    good.write_text(json.dumps({"sigma_xy": 1.0, "sigma_yaw": 0.3,
+                                "starts": {"robot1": [0, 0, 0], "1": [*[float(v) for v in TRUE_POSE], 1.0, 0.3]}}))
+    assert main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--json", "--start-poses", str(good)]) == 0
+    assert json.loads(capsys.readouterr().out)["alignments"][0]["prior"] is not None
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"starts": [1, 2]}')
+    assert main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--start-poses", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "start-pose file" in err[0]
