@@ -61,10 +61,8 @@ from .matching import distinctive_correspondences, nearest_correspondences, quer
 from .pose_covariance import inverse_with_covariance
 
 if TYPE_CHECKING:
-    from .prior import StartPrior
-
-if TYPE_CHECKING:
     from .cache import AlignmentCache
+    from .prior import StartPrior
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}
@@ -150,10 +148,10 @@ class AlignmentStatistics:
     gate_inflation: float = 1.0          # covariance scale the supports' residuals called for
     gate_radius: float = float("nan")    # metres, median support-gate radius in the plane
     descriptors: bool = True             # False: maps without descriptors, geometry alone
+    second_best_pose: tuple = ()         # (tx, ty, θ) of the second-best hypothesis (empty: none)
     # with a start prior (fusion.prior): the winner's χ² against it, the hypotheses tried inside it (the Bonferroni
     # factor), and the supports of the best hypothesis outside it (not a rival; nan / 0 without a prior)
     prior_chi2: float = float("nan")
-    second_best_pose: tuple = ()          # (tx, ty, θ) of the second-best hypothesis (empty: none)
     prior_hypotheses: int = 0
     outside_prior_supports: int = 0
 
