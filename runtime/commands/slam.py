@@ -172,6 +172,14 @@ def _register_noise(sub) -> None:
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "
                              "default: on MRCLAM it did not lower the trajectory error (docs/fastslam.md, Session 5)")
+    parser.add_argument("--range-calibration", action="store_true",
+                        help="also fit the range's calibration r <- a + r (b0 + b1 phi + b2 phi^2) (a camera that "
+                             "reports depth along its axis, not range), written to [range_bearing]. Off by default "
+                             "(docs/fastslam.md, Sessions 8-9)")
+    parser.add_argument("--odometry-lag", action="store_true",
+                        help="also fit the time by which the odometry leads the motion (commanded velocities), "
+                             "written as [odometry] lag_s; `slam dataset` reads the odometry that much earlier. Off "
+                             "by default (docs/fastslam.md, Session 9)")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 
@@ -233,6 +241,7 @@ def _noise(args: argparse.Namespace) -> int:
     try:
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
+                                  range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         estimate.model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
@@ -255,6 +264,10 @@ def _noise(args: argparse.Namespace) -> int:
         se = model.fit.get("heading_bias_per_m_standard_error")
         print(f"  heading bias: {o.heading_bias_per_m:+.4f} rad/m ± {se:.4f} (standard error)" if se is not None
               else f"  heading bias: none ({model.fit.get('heading_bias_note', 'not fitted')})")
+    if args.odometry_lag:
+        print(f"  odometry lag: {o.lag_s:.2f} s (heading error per 0.25 s: "
+              f"{model.fit.get('odometry_no_lag_heading_rms_rad', float('nan')):.4f} rad read as stamped, "
+              f"{model.fit.get('odometry_lag_heading_rms_rad', float('nan')):.4f} rad read {o.lag_s:.2f} s earlier)")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")

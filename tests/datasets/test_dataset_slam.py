@@ -98,6 +98,24 @@ def test_real_dataset2_noise_command_fits_robot1s_heading_bias_when_asked(mrclam
     assert f"heading bias: {bias:+.4f} rad/m ± {se:.4f}" in out
 
 
+@pytest.mark.slow  # the whole log of robot 2 (~10 s CPU)
+def test_real_dataset2_noise_command_fits_the_odometry_lag_and_range_calibration_when_asked(mrclam_dir, tmp_path):
+    """`p3at slam noise --odometry-lag --range-calibration` on robot 2: the file carries the lag (the robots follow
+    their commanded velocities ~0.17 s late, docs/fastslam.md Session 9) and the depth-not-range calibration
+    (b2 ~ b0 / 2, Session 8); without the flags, neither."""
+    noise = tmp_path / "noise.toml"
+    status, out, err = _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "2", "--odometry-lag",
+                            "--range-calibration", "--out", str(noise))
+    assert status == 0, err
+    model = NoiseModel.load(noise)
+    assert 0.1 <= model.odometry.lag_s <= 0.3 and f"odometry lag: {model.odometry.lag_s:.2f} s" in out
+    assert model.range_bearing.range_scale_per_rad2 == pytest.approx(0.5 * model.range_bearing.range_scale, abs=0.1)
+    plain = tmp_path / "plain.toml"
+    assert _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "2", "--out", str(plain))[0] == 0
+    model = NoiseModel.load(plain)
+    assert model.odometry.lag_s == 0.0 and model.range_bearing.range_scale_per_rad2 == 0.0
+
+
 def test_real_dataset2_fastslam_beats_dead_reckoning(mrclam_dir):
     """Robot 3's first 200 s: the map holds the landmarks it saw, SLAM's trajectory is better than odometry's."""
     log = read_mrclam(mrclam_dir, 3, until=200.0)
