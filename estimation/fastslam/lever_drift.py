@@ -99,9 +99,11 @@ def empirical_local_position(residuals_xy: np.ndarray) -> np.ndarray:
 
 def with_empirical_position(local_covariance: np.ndarray, residuals_xy: np.ndarray,
                             sightings: np.ndarray | None = None, correlation: float = 0.0) -> np.ndarray:
-    """P_local (3, 3) with its position block replaced by the empirical one where that is larger (trace): the
-    translation the robot's pose carries from one generation of landmarks to the next, measured online
-    (``FastSLAMConfig.drift_local_empirical``) rather than fitted per run (``drift_translation_per_m``).
+    """P_local (3, 3) plus the empirical position covariance where that is larger (trace) than P_local's own:
+    the translation the robot's pose carries from one generation of landmarks to the next, measured online
+    (``FastSLAMConfig.drift_local_empirical``) rather than fitted per run (``drift_translation_per_m``). Added, not
+    substituted for the position block: a block replaced under the proposal's position-heading cross terms need not
+    leave a positive semi-definite matrix (a demo's fusion refused such a landmark covariance).
 
     ``sightings`` (L,), the matched landmarks' sighting counts, and ``correlation`` ρ: a landmark made now takes
     this frame's pose error, but its EKF then averages the pose errors of the n frames that see it, which are
@@ -114,5 +116,5 @@ def with_empirical_position(local_covariance: np.ndarray, residuals_xy: np.ndarr
         n = np.maximum(np.asarray(sightings, float), 1.0)
         empirical = empirical * float(np.mean(correlated_mean_factor(n, correlation) / n))
     if np.trace(empirical) > np.trace(local[:2, :2]):
-        local[:2, :2] = empirical
+        local[:2, :2] += empirical
     return local

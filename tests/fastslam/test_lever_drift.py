@@ -141,7 +141,7 @@ def test_empirical_position_replaces_the_claimed_one_only_where_larger():
     small, large = np.full((10, 2), 0.001), np.array([[0.3, 0.0], [-0.3, 0.0]] * 5)
     assert np.array_equal(with_empirical_position(claimed, small), claimed)
     widened = with_empirical_position(claimed, large)
-    assert np.isclose(widened[0, 0], 0.09 / 10) and widened[2, 2] == 1e-5 and widened[1, 1] == 0.0
+    assert np.isclose(widened[0, 0], 1e-4 + 0.09 / 10) and widened[2, 2] == 1e-5 and widened[1, 1] == 1e-4
     assert np.array_equal(with_empirical_position(claimed, large[:1]), claimed)   # one reading: no spread to see
 
 
@@ -149,12 +149,28 @@ def test_a_generation_hands_on_its_error_averaged_over_the_correlated_sightings_
     from estimation.fastslam.lever_drift import empirical_local_position, with_empirical_position
     claimed = np.diag([1e-6, 1e-6, 1e-5])
     residuals = np.array([[0.1, 0.0], [-0.1, 0.0]] * 10)
-    whole = empirical_local_position(residuals)
+    whole = empirical_local_position(residuals) + claimed[:2, :2]
     assert np.allclose(with_empirical_position(claimed, residuals)[:2, :2], whole)
     assert np.allclose(with_empirical_position(claimed, residuals, np.ones(20), 0.49)[:2, :2], whole)  # seen once
     counts = np.full(20, 6)
     averaged = with_empirical_position(claimed, residuals, counts, 0.0)[:2, :2]
-    assert np.allclose(averaged, whole / 6)                          # independent sightings: a sixth
+    measured = empirical_local_position(residuals)
+    assert np.allclose(averaged, claimed[:2, :2] + measured / 6)      # independent sightings: a sixth
     correlated = with_empirical_position(claimed, residuals, counts, 0.49)[:2, :2]
-    assert np.allclose(correlated, whole * correlated_mean_factor(counts, 0.49)[0] / 6)
+    assert np.allclose(correlated, claimed[:2, :2] + measured * correlated_mean_factor(counts, 0.49)[0] / 6)
     assert np.trace(averaged) < np.trace(correlated) < np.trace(whole)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 30), corr=st.floats(-0.99, 0.99), scale=st.floats(1e-4, 1.0))
+def test_the_local_covariance_with_the_measured_position_stays_positive_semidefinite(seed, n, corr, scale):
+    # a proposal covariance with strong position-heading cross terms, and residuals along any direction
+    from estimation.fastslam.lever_drift import with_empirical_position
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(3, 3)) * [[1e-3], [1e-3], [1e-2]]
+    claimed = a @ a.T
+    claimed[:2, 2] = claimed[2, :2] = corr * np.sqrt(claimed[[0, 1], [0, 1]] * claimed[2, 2])
+    claimed = claimed + (1e-12 - min(0.0, np.linalg.eigvalsh(claimed).min())) * np.eye(3)   # a valid proposal
+    residuals = rng.normal(size=(n, 2)) * scale * rng.uniform(0.01, 1.0, 2)
+    out = with_empirical_position(claimed, residuals, rng.integers(1, 20, n), 0.49)
+    assert np.allclose(out, out.T) and np.linalg.eigvalsh(out).min() >= -1e-15
