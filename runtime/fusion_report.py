@@ -226,6 +226,8 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
     pairs = []
     for k, other in enumerate(names[1:], 1):
         result = PairResult(names[0], other, False)
+        prior = (priors or {}).get((0, k))
+        result.prior = "" if prior is None else prior.text()
         for c in checked.checks:
             if c.index in (0, k):
                 result.self_check = f"{names[c.index]} {c.text}"

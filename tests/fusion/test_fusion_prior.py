@@ -221,3 +221,21 @@ def test_a_split_map_s_parts_are_checked_and_fused_under_the_prior(sim):
     assert check.decision == "none"                        # neither part is placed against the prior
     assert all("contradicts the prior" in a.reason for p in check.parts for a in p.alignments.values())
     assert wrong.fusion is None or all(pose is None for pose in wrong.fusion.poses[1:])
+
+
+def test_the_mission_s_fusion_report_says_when_a_prior_was_used(sim):
+    from fusion import true_relative_pose
+    from runtime.fusion_report import fuse_maps
+    from tests.fusion.test_fusion_split import KICK, _pair
+
+    m1, m2 = twin_pair(0, common=30, twins=24)
+    report = fuse_maps({"robot1": m1, "robot2": m2}, priors={("robot1", "robot2"): _prior(TRUE_POSE)})
+    (pair,) = report.pairs
+    assert pair.aligned and pair.prior.startswith("prior (given)")
+    assert fuse_maps({"robot1": m1, "robot2": m2}).pairs[0].prior == ""
+    # a flagged map fused in parts (fusion_report's split path) says it too
+    s1, s2, _, _ = _pair(sim, KICK)
+    names = (s1.robot, s2.robot)
+    split = fuse_maps(dict(zip(names, (s1, s2), strict=True)),
+                      priors={names: _prior(true_relative_pose(s1, s2))})
+    assert split.pairs[0].split_decision == "parts" and split.pairs[0].prior.startswith("prior (given)")
