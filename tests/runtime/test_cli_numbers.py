@@ -77,6 +77,8 @@ REFUSED = [
     ("slam noise", "--robot", "0", ">= 1"), ("slam noise", "--window", "nan", "> 0"),
     ("fuse", "--seed", "-1", ">= 0"), ("fuse", "--interval", "0", "> 0"), ("fuse", "--min-period", "-1", ">= 0"),
     ("fuse", "--seconds", "-5", ">= 0"),
+    *[("fuse", "--start-sigma", v, "two positive numbers") for v in ("0,0.3", "1,-0.3", "nan,0.3", "1", "1,x")],
+    *[(c, "--start-prior", v, "two positive numbers") for c in MISSION for v in ("0,0.3", "inf,0.3", "1,2,3")],
     ("scanmatch", "--step", "0", ">= 1"), ("scanmatch", "--max-distance", "nan", "> 0"),
     ("scanmatch", "--limit", "1", ">= 2"),
     ("replay", "--particles", "0", ">= 1"), ("replay", "--seed", "-1", ">= 0"),
