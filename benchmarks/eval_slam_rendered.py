@@ -237,6 +237,17 @@ class ReplayObserver:
                                   a["pixels"][lo:hi], float(timestamp)), index
 
 
+def replay_default_run(world, robot: str, seed: int, frame_rate: float, frames_cache: Path
+                       ) -> tuple[ReplayObserver, np.ndarray, np.ndarray]:
+    """The diagnostics' replay of one robot's default run (150 corners, no latency, 300 s) from the frames cache:
+    (observer, its kept-right route, its true start pose); a one-line exit when the cache was never made."""
+    cache = frames_cache / f"{robot}-seed{seed}-{frame_rate:g}hz-150c-0s-300s.npz"
+    if not cache.exists():
+        raise SystemExit(f"{cache}: no frames cache (make it with eval_slam_rendered --frames-cache)")
+    return (ReplayObserver(cache), keep_right(np.asarray(world.routes[robot], float)),
+            np.asarray(world.start_poses[robot], float))
+
+
 class _PointWorld:
     """The world as ``simulate`` scores it, with ``features`` = the observer's distinct true points."""
 

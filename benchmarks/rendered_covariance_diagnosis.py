@@ -42,11 +42,10 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
-from benchmarks.eval_slam_rendered import CALIBRATION, ReplayObserver, _parse_set, _PointWorld
+from benchmarks.eval_slam_rendered import CALIBRATION, _parse_set, _PointWorld, replay_default_run
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, rot_z, wrap_angle
 from runtime.commands.options import non_negative_int, positive_float
-from runtime.motion import keep_right
 
 CHI2_2_95, CHI2_3_95 = 5.991, 7.815
 DEPTH_BANDS = (0.0, 2.0, 4.0, 6.0, 13.0)   # m, the creating observation's depth (base_link x)
@@ -85,14 +84,8 @@ def run(robot: str, seed: int, frame_rate: float, frames_cache: Path, config: Fa
     from mocks.world import World
 
     world = World.load()
-    cache = frames_cache / f"{robot}-seed{seed}-{frame_rate:g}hz-150c-0s-300s.npz"
-    if not cache.exists():
-        raise SystemExit(f"{cache}: no frames cache (make it with eval_slam_rendered --frames-cache)")
-    observer = ReplayObserver(cache)
-    frames = observer._arrays
-    starts = observer._starts
-    route = keep_right(np.asarray(world.routes[robot], float))
-    start = np.asarray(world.start_poses[robot], float)
+    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
+    frames, starts = observer._arrays, observer._starts
     original = slam_sim.FastSLAM
     slam_sim.FastSLAM = _RecordingFastSLAM
     try:

@@ -33,11 +33,10 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
-from benchmarks.eval_slam_rendered import ReplayObserver, _parse_set, _PointWorld
+from benchmarks.eval_slam_rendered import _parse_set, _PointWorld, replay_default_run
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.coincident import coincident_pairs
 from runtime.commands.options import non_negative_int, positive_float, positive_int
-from runtime.motion import keep_right
 
 CHI2_3_95 = 7.815
 CAUSES = ("made_beside", "codetected", "descriptor", "beyond_gate", "mergeable")
@@ -90,13 +89,8 @@ def run(robot: str, seed: int, frame_rate: float, frames_cache: Path, config: Fa
     from mocks.world import World
 
     world = World.load()
-    cache = frames_cache / f"{robot}-seed{seed}-{frame_rate:g}hz-150c-0s-300s.npz"
-    if not cache.exists():
-        raise SystemExit(f"{cache}: no frames cache (make it with eval_slam_rendered --frames-cache)")
-    observer = ReplayObserver(cache)
+    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
     arrays, starts = observer._arrays, observer._starts
-    route = keep_right(np.asarray(world.routes[robot], float))
-    start = np.asarray(world.start_poses[robot], float)
     original = slam_sim.FastSLAM
     slam_sim.FastSLAM = _RecordingFastSLAM
     try:
