@@ -48,10 +48,13 @@ def intersection_weights(P1: np.ndarray, P2: np.ndarray, iterations: int = 60) -
                         np.where(left, a, new), np.where(left, fa, f_new))
     omega = 0.5 * (lo + hi)
     # candidates: ½ first (an equal pair: tr P is flat in ω, and the plain average is the symmetric choice), the
-    # search's ω, and the end points (keep one input); the first within rounding of the least tr P is taken
+    # search's ω, and the end points (keep one input); the first within rounding of the least tr P is taken.
+    # Rounding of tr P grows with the inputs' condition number (a near-singular pair: 1e-12 relative at κ ~ 3e4,
+    # where a fixed 1e-12 let the order of two equal inputs pick ω = 0.16 or 0.84)
     candidates = np.stack([np.full_like(omega, 0.5), omega, np.zeros_like(omega), np.ones_like(omega)])
     cost = np.stack([_trace_of_inverse(info1, info2, c) for c in candidates])
-    best = np.argmax(cost <= cost.min(axis=0) * (1 + 1e-12), axis=0)
+    rounding = 1e-12 + 100 * np.finfo(float).eps * np.maximum(np.linalg.cond(P1), np.linalg.cond(P2))
+    best = np.argmax(cost <= cost.min(axis=0) * (1 + rounding), axis=0)
     return candidates[best, np.arange(len(omega))]
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -69,6 +69,10 @@ def test_an_estimate_fused_with_itself_is_unchanged(a, floor, x):
 @settings(max_examples=100, deadline=None)
 @given(a1=_entries, a2=_entries, floor1=st.floats(1e-3, 1.0), floor2=st.floats(1e-3, 1.0),
        x1=arrays(np.float64, 3, elements=st.floats(-5, 5)), x2=arrays(np.float64, 3, elements=st.floats(-5, 5)))
+# two equal near-singular inputs (κ ~ 3e4): tr P is flat in ω and its rounding once exceeded the tie tolerance, so the
+# order picked ω = 0.16 or 0.84 (found by a local Hypothesis draw in session 9)
+@example(a1=np.full((3, 3), 1.75180073), a2=np.full((3, 3), 1.75180073), floor1=1e-3, floor2=1e-3,
+         x1=np.zeros(3), x2=np.ones(3))
 def test_the_intersection_does_not_depend_on_the_order(a1, a2, floor1, floor2, x1, x2):
     P1, P2 = _covariance(a1, floor1), _covariance(a2, floor2)
     xa, Pa = covariance_intersection(x1[None], P1[None], x2[None], P2[None])
