@@ -3,13 +3,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import threading
 import time
 from pathlib import Path
 
-from runtime.commands.options import float_where, non_negative_float, non_negative_int, positive_float, positive_int
+from runtime.commands.options import (
+    float_where,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    start_sigmas,
+)
 from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
@@ -19,17 +25,6 @@ def camera_latency(text: str) -> float:
     """Seconds in [0, 1): the bound MissionConfig also checks, here so that ``demo --processes`` refuses it
     before starting any process."""
     return float_where(text, "a number in [0, 1) s", lambda value: 0.0 <= value < 1.0)
-
-
-def start_sigmas(text: str) -> tuple[float, float]:
-    """'SIGMA_XY,SIGMA_YAW': two positive numbers (m, rad)."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected SIGMA_XY,SIGMA_YAW, two positive numbers (m, rad), not {text!r}")
-    return values
 
 
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,

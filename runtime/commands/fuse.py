@@ -12,7 +12,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.options import non_negative_int
+from runtime.commands.options import non_negative_int, start_sigmas
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 
 EXIT_NO_OVERLAP = 1
@@ -46,7 +46,7 @@ def register(subparsers) -> None:
                              "radians, REP-103), MAP its index (0, 1, ...) or robot name; repeat per map. Every pair "
                              "of maps with a start gets a prior on its relative start: a best alignment outside it "
                              "(χ²₃ 99.9 %%) is reported not found, never the best one inside (default: none)")
-    parser.add_argument("--start-sigma", type=_sigma_pair, default=None, metavar="SIGMA_XY,SIGMA_YAW",
+    parser.add_argument("--start-sigma", type=start_sigmas, default=None, metavar="SIGMA_XY,SIGMA_YAW",
                         help="standard deviations of each --start-pose given without its own (m, rad; e.g. 1,0.3)")
     parser.add_argument("--start-poses", default=None, metavar="FILE.json",
                         help='start poses from a file: {"sigma_xy": 1, "sigma_yaw": 0.3, "starts": {"robot1": '
@@ -174,12 +174,6 @@ def _fuse(args: argparse.Namespace) -> int:
               + ", ".join(report["unconnected"]), file=sys.stderr)
         return EXIT_NO_OVERLAP
     return 0
-
-
-def _sigma_pair(text: str) -> tuple[float, float]:
-    from runtime.mission_cli import start_sigmas
-
-    return start_sigmas(text)
 
 
 def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:

@@ -37,6 +37,17 @@ def non_negative_float(text: str) -> float:
     return float_where(text, "a finite number >= 0", lambda value: value >= 0)
 
 
+def start_sigmas(text: str) -> tuple[float, float]:
+    """'SIGMA_XY,SIGMA_YAW': two positive numbers (m, rad)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected SIGMA_XY,SIGMA_YAW, two positive numbers (m, rad), not {text!r}")
+    return values
+
+
 def whole_number_where(text: str, domain: str, inside) -> int:
     """``text`` as an int for which ``inside(value)`` holds; else the error says ``domain``."""
     try:

@@ -62,8 +62,8 @@ def test_the_mission_s_start_prior_needs_virtual_robots_and_two_positive_sigmas(
 
     import pytest
 
+    from runtime.commands.options import start_sigmas
     from runtime.mission import MissionConfig
-    from runtime.mission_cli import start_sigmas
 
     assert start_sigmas("1,0.3") == (1.0, 0.3)
     for bad in ("1", "1,0", "-1,0.3", "a,b", "1,0.3,2", "inf,1"):
