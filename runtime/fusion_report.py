@@ -145,7 +145,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     """Align every map to the first robot's (in name order), merge them, score against the truth when known.
     ``cache`` (``fusion.AlignmentCache``, kept by the caller between fusions): pairs of unchanged maps are not
     aligned again.  ``priors`` {(robot a, robot b): fusion.prior.StartPrior of b's start in a's, a < b by name}: a
-    rough relative start the alignments use (not by a flagged map's split check)."""
+    rough relative start the alignments use, a flagged map's split check and the fusion of its parts included."""
     from fusion import align, merge
 
     start = time.perf_counter()
