@@ -71,6 +71,10 @@ def _fuse(args: argparse.Namespace) -> int:
     if args.live:
         from runtime.fleet.fusion_node import run_live
 
+        if args.start_pose or args.start_poses is not None:
+            print("p3at fuse: the live fusion node takes no start poses yet (--start-pose, --start-poses): fuse saved "
+                  "maps without --live to use them", file=sys.stderr)
+            return EXIT_BAD_INPUT
         return run_live(args)
     if args.out is None:
         print("p3at fuse: give the merged map file to write with --out MERGED", file=sys.stderr)
@@ -177,7 +181,8 @@ def _fuse(args: argparse.Namespace) -> int:
 
 
 def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
-    """{(i, j): StartPrior} from --start-pose / --start-poses (fusion.prior.pair_priors); raises FusionError."""
+    """{(i, j): StartPrior} from --start-pose / --start-poses (fusion.prior.pair_priors); raises FusionError, also for
+    a start given for one map only (it makes no prior); warns on stderr which maps have none when others do."""
     from fusion.errors import IncompatibleMapsError
     from fusion.prior import load_starts, pair_priors, parse_start
 
@@ -202,7 +207,16 @@ def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
             raise IncompatibleMapsError(f"the start of map {key!r} has no standard deviations: give them in it or "
                                         "with --start-sigma SIGMA_XY,SIGMA_YAW")
         starts[index] = (pose, tuple(sig))
-    return pair_priors(starts, len(maps), source="given start poses") if len(starts) >= 2 else {}
+    if len(starts) == 1:
+        # a prior is on two robots' relative start: one start alone constrains nothing
+        (only,) = starts
+        raise IncompatibleMapsError(f"a start pose for map {only} ({names[only]}) alone gives no prior: a prior is on "
+                                    f"the relative start of two maps, so give the start of another map too")
+    missing = [f"{k} ({names[k]})" for k in range(len(maps)) if starts and k not in starts]
+    if missing:
+        print(f"p3at fuse: warning: no start pose for map{'s' if len(missing) > 1 else ''} {', '.join(missing)}: "
+              f"{'their' if len(missing) > 1 else 'its'} pairs are aligned without a prior", file=sys.stderr)
+    return pair_priors(starts, len(maps), source="given start poses") if starts else {}
 
 
 def _print(report: dict, as_json: bool) -> None:

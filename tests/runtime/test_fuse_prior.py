@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from estimation.geometry import compose
+from estimation.landmark_map import LandmarkMap
 from runtime.cli import main
 from tests.fusion.test_fusion_prior import HALF_TURN, TRUE_POSE, twin_pair
 
@@ -96,3 +97,32 @@ def test_start_poses_from_a_file_and_a_malformed_file(tmp_path, capsys):
     assert main(["fuse", *files, "--out", str(tmp_path / "m.npz"), "--start-poses", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "start-pose file" in err[0]
+
+
+def test_a_start_for_one_map_of_a_pair_is_a_one_line_error_not_silently_no_prior(tmp_path, capsys):
+    files = _files(tmp_path)
+    for args in (["--start-pose", "robot1=0,0,0,1,0.3"], ["--start-pose", "1=5,0,3.1416", "--start-sigma", "1,0.3"]):
+        code = main(["fuse", *files, "--out", str(tmp_path / "m.npz"), *args])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "alone gives no prior" in err[0], (args, err)
+
+
+def test_maps_without_a_start_among_maps_with_one_are_named_in_a_warning(tmp_path, capsys):
+    files = _files(tmp_path)
+    third = tmp_path / "c.npz"
+    m3 = LandmarkMap.load(files[1])
+    LandmarkMap(m3.positions, m3.covariances, m3.descriptors, robot="robot3").save(third)
+    start2 = compose(np.array([1.0, 2.0, 0.3]), TRUE_POSE)
+    main(["fuse", *files, str(third), "--out", str(tmp_path / "m.npz"), "--json", "--start-pose", "0=1,2,0.3",
+          "--start-pose", f"robot2={_start(start2)}", "--start-sigma", "1,0.3"])
+    captured = capsys.readouterr()
+    warnings = [line for line in captured.err.splitlines() if "no start pose" in line]
+    assert len(warnings) == 1 and "map 2 (robot3)" in warnings[0] and "without a prior" in warnings[0]
+    priors = {(a["map1"], a["map2"]): a["prior"] for a in json.loads(captured.out)["alignments"]}
+    assert priors[(0, 1)] is not None and priors[(0, 2)] is None and priors[(1, 2)] is None
+
+
+def test_the_live_node_refuses_start_poses_in_one_line(tmp_path, capsys):
+    code = main(["fuse", "--live", "--start-pose", "0=0,0,0,1,0.3", "--start-pose", "1=5,0,3.14,1,0.3"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "live" in err[0] and "start" in err[0]
