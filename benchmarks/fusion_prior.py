@@ -14,12 +14,15 @@ hypothesis the maps give without a prior).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.fusion_prior --demo /tmp/lead9/demo /tmp/lead9/demo-s1 ...
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.fusion_prior --false-pairs 1000
+
+``--self-repeat-gate pair`` runs everything with a map's self-repeat counted in the pair's gate (session 10's option).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +35,14 @@ from fusion_sim import false_pair_kinds, load_world  # noqa: E402
 
 from estimation.geometry import between, compose, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
-from fusion.alignment import align, alignment_error_xy_theta, true_relative_pose  # noqa: E402
+from fusion.alignment import (  # noqa: E402
+    ROBUST,
+    SELF_REPEAT_GATES,
+    AlignmentConfig,
+    align,
+    alignment_error_xy_theta,
+    true_relative_pose,
+)
 from fusion.prior import StartPrior  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float  # noqa: E402
 
@@ -67,7 +77,7 @@ def _strongest_wrong(m1, m2, plain, truth) -> np.ndarray | None:
     return np.array(plain.statistics.second_best_pose) if plain.statistics.second_best_pose else None
 
 
-def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
+def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float, config: AlignmentConfig = ROBUST) -> None:
     world = load_world()
     print(f"\n### Rendered demo with a start prior (σ {sigma_xy} m / {sigma_yaw} rad per robot)\n")
     print("| run | prior | decision: error vs truth xy / θ; own error | supports (needed) | rival inside | "
@@ -83,7 +93,7 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
         best = between(fits[0], fits[1])
         configured = StartPrior.between_starts(start1, start2, sigma_xy, sigma_yaw, source="configured starts")
         cov = configured.covariance
-        plain = align(m1, m2, "robust", np.random.default_rng(0))
+        plain = align(m1, m2, config, np.random.default_rng(0))
         strongest_wrong = _strongest_wrong(m1, m2, plain, truth)
         priors = {
             "none": None,
@@ -100,7 +110,7 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
         for name, prior in priors.items():
             if prior is None and name != "none":
                 continue
-            a = align(m1, m2, "robust", np.random.default_rng(0), prior=prior)
+            a = align(m1, m2, config, np.random.default_rng(0), prior=prior)
             st = a.statistics
             inside = f"{st.prior_hypotheses} / {st.iterations}" if prior is not None else f"– / {st.iterations}"
             outside = st.outside_prior_supports if prior is not None else "–"
@@ -122,7 +132,7 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float) -> None:
         print(line)
 
 
-def false_pairs(total: int, only: str | None = None) -> None:
+def false_pairs(total: int, only: str | None = None, config: AlignmentConfig = ROBUST) -> None:
     """fusion_gate_scale's seven kinds (same generators and seeds), each with a wide and an adversarial prior;
     ``only``: the kinds whose name holds it (each keeps its share of ``total``)."""
     kinds = false_pair_kinds()
@@ -140,23 +150,23 @@ def false_pairs(total: int, only: str | None = None) -> None:
         for seed in range(per):
             m1, m2 = make(seed)
             m1, m2 = getattr(m1, "map", m1), getattr(m2, "map", m2)
-            plain = align(m1, m2, "robust", np.random.default_rng(seed))
+            plain = align(m1, m2, config, np.random.default_rng(seed))
             found[0] += plain.found
             wide = StartPrior.from_sigmas(np.zeros(3), 10.0, np.pi / 2, source="wide")
-            found[1] += align(m1, m2, "robust", np.random.default_rng(seed), prior=wide).found
-            centre = plain.pose if plain.found else _best_pose(m1, m2, seed)
+            found[1] += align(m1, m2, config, np.random.default_rng(seed), prior=wide).found
+            centre = plain.pose if plain.found else _best_pose(m1, m2, seed, config)
             if centre is not None:
                 tight = StartPrior.from_sigmas(centre, 1.0, 0.3, source="adversarial")
-                found[2] += align(m1, m2, "robust", np.random.default_rng(seed), prior=tight).found
+                found[2] += align(m1, m2, config, np.random.default_rng(seed), prior=tight).found
         totals += found
         print(f"| {name} | {found[0]}/{per} | {found[1]}/{per} | {found[2]}/{per} |")
     print(f"\nFound on {per * len(kinds)} non-overlapping pairs: no prior {totals[0]}, wide prior {totals[1]}, "
           f"adversarial prior {totals[2]}")
 
 
-def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int) -> np.ndarray | None:
+def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int, config: AlignmentConfig) -> np.ndarray | None:
     """The pose of the best rejected hypothesis (the fit of its supports), for an adversarial prior."""
-    a = align(m1, m2, "robust", np.random.default_rng(seed))
+    a = align(m1, m2, config, np.random.default_rng(seed))
     return _supports_fit(m1, m2, a.supports) if len(a.supports) >= 2 else None
 
 
@@ -183,12 +193,17 @@ def main() -> None:
     parser.add_argument("--false-pairs", type=non_negative_int, default=0,
                         help="non-overlapping pairs, over seven kinds")
     parser.add_argument("--kind", default=None, help="only the kinds of non-overlapping pairs whose name holds this")
+    parser.add_argument("--self-repeat-gate", choices=SELF_REPEAT_GATES, default=ROBUST.self_repeat_gate,
+                        help="where a map's self-repeat is counted (AlignmentConfig.self_repeat_gate; default: the "
+                             "robust preset's)")
     args = parser.parse_args()
+    config = replace(ROBUST, self_repeat_gate=args.self_repeat_gate)
+    print(f"robust preset, self_repeat_gate={config.self_repeat_gate}")
     t0 = time.perf_counter()
     if args.demo:
-        demo_table(args.demo, args.sigma_xy, args.sigma_yaw)
+        demo_table(args.demo, args.sigma_xy, args.sigma_yaw, config)
     if args.false_pairs:
-        false_pairs(args.false_pairs, args.kind)
+        false_pairs(args.false_pairs, args.kind, config)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 

@@ -62,18 +62,19 @@ class AlignmentCache:
         while len(store) > limit:
             store.popitem(last=False)
 
-    def self_structure(self, landmark_map: LandmarkMap, config) -> int:
-        """``fusion.alignment.self_structure`` of the map, computed once per map content and configuration."""
+    def self_structure(self, landmark_map: LandmarkMap, config, inflation: float | None = None) -> int:
+        """``fusion.alignment.self_structure`` of the map, computed once per map content, configuration and gate scale
+        (``inflation``: the pair's, with ``self_repeat_gate="pair"``)."""
         from .alignment import self_structure
 
         fp = map_fingerprint(landmark_map)
-        key = (fp, astuple(config))
+        key = (fp, astuple(config), inflation)
         if key in self._self:
             self.self_hits += 1
             self._self.move_to_end(key)
             return self._self[key]
         self.self_misses += 1
-        value = self_structure(landmark_map, config, content_rng(landmark_map, fp))
+        value = self_structure(landmark_map, config, content_rng(landmark_map, fp), inflation)
         self._remember(self._self, key, value, self.max_maps)
         return value
 
