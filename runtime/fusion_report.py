@@ -132,12 +132,18 @@ def keep_latest_map(history: list[FusionReport], report: FusionReport) -> None:
     history.append(report)
 
 
-def alignment_cache():
+def alignment_cache(confirm_after: float | None = None):
     """A new ``fusion.AlignmentCache`` for a caller that fuses the same robots' maps again and again (the fleet's
-    fusion node, the mission): pairs of unchanged maps are then not aligned twice."""
+    fusion node, the mission): pairs of unchanged maps are then not aligned twice.  With ``confirm_after`` (s): a
+    ``fusion.confirmation.ConfirmingCache``, whose found alignments are candidates until a fusion at least that much
+    later, on grown maps, agrees (call its ``start_round(t)`` before each fusion)."""
     from fusion import AlignmentCache
 
-    return AlignmentCache()
+    if confirm_after is None:
+        return AlignmentCache()
+    from fusion.confirmation import ConfirmingCache
+
+    return ConfirmingCache(confirm_after)
 
 
 def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int = 1, t: float = 0.0,

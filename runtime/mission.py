@@ -165,7 +165,9 @@ class Mission:
         self.robots: list[RobotSetup] = []
         self._virtual_heads: dict = {}  # robot -> its VirtualStereoHead (mock cameras), for the late-frame count
         self.fusion_history: list[FusionReport] = []
-        self.fusion_cache = alignment_cache()   # alignments of maps unchanged since an earlier fusion
+        # alignments of maps unchanged since an earlier fusion; a live fusion's found is a candidate until the next
+        # one agrees (fusion/confirmation.py); the final fusion is decided on the complete maps alone
+        self.fusion_cache = alignment_cache(confirm_after=self.config.fusion_interval or None)
         self.logger = None
         self.recording_path: Path | None = None
         self.failures: list[StageFailure] = []
@@ -358,7 +360,7 @@ class Mission:
                 if self._own_clock:
                     self.clock.close()
             end = self._end_time if self._end_time is not None else self.clock() - t0
-            final = self._fuse_guarded(end)
+            final = self._fuse_guarded(end, final=True)
             return self._finish(final, end)
         except BaseException:
             if self.logger is not None:  # keep what was recorded readable
@@ -519,9 +521,9 @@ class Mission:
                                                   self.clock() - r.onboard.t0))
                 return
 
-    def _fuse_guarded(self, t: float) -> FusionReport | None:
+    def _fuse_guarded(self, t: float, final: bool = False) -> FusionReport | None:
         try:
-            return self._fuse(t)
+            return self._fuse(t, final)
         except Exception as exc:  # noqa: BLE001 - the supervisor reports the stage and ends the mission
             self._record_failure(StageFailure("mission", "fusion", f"{type(exc).__name__}: {exc}", t))
             return None
@@ -537,15 +539,19 @@ class Mission:
             parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
         return " | ".join(parts)
 
-    def _fuse(self, t: float) -> FusionReport | None:
+    def _fuse(self, t: float, final: bool = False) -> FusionReport | None:
         messages = self.exchange.receive()
         maps = {name: message.landmark_map for name, message in messages.items()}
         if len(maps) < 2:
             return None
         priors = self._start_priors()
+        cache = self.fusion_cache
+        if hasattr(cache, "start_round"):          # confirming live fusions (fusion/confirmation.py)
+            cache.start_round(t)
+            cache = cache.inner if final else cache
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.fusion_history)),
-                           cache=self.fusion_cache, priors=priors)
+                           cache=cache, priors=priors)
         if priors and not self.fusion_history:      # said once: the fusion is not blind to where the robots started
             for (a, b), prior in priors.items():
                 line = f"fusion uses a start prior for {b} in {a}'s frame: {prior.text()}"

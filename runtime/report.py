@@ -5,6 +5,8 @@ import math
 import textwrap
 from collections.abc import Mapping
 
+from fusion.confirmation import candidate_clause
+
 # a flagged map's split (fusion/split.py), by its decision, in a clause short enough for a live event line
 _SPLIT_BRIEF = {
     "whole": "the parts agree, so it is used whole",
@@ -126,6 +128,9 @@ def not_aligned_reason(pair: Mapping) -> str:
 def fusion_event_line(t: float, pair) -> str:
     """The mission's and the fusion node's event line for one pair (a ``PairResult`` or its ``as_dict()``)."""
     p = pair if isinstance(pair, Mapping) else pair.as_dict()
+    candidate = candidate_clause(p.get("note") or "")
+    if not p["aligned"] and candidate is not None:   # fusion/confirmation.py: found once, not yet confirmed
+        return f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} is a candidate, not yet found ({candidate})"
     if not p["aligned"]:
         why = split_brief(p) or not_aligned_reason(p)   # a split's parts' reasons are in the summary, not live
         return f"fusion at t={t:.0f}s: {p['other']} does not overlap {p['reference']} yet: {why}"

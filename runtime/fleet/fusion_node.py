@@ -52,7 +52,9 @@ class FusionNode:
         self.logger = logger
         self.on_event = on_event or (lambda line: None)
         self.on_report = on_report or (lambda report: None)
-        self.cache = alignment_cache()           # alignments of maps unchanged since an earlier fusion
+        # alignments of maps unchanged since an earlier fusion; every fusion here is live (the maps keep growing), so
+        # a found is a candidate until a fusion an interval later agrees (fusion/confirmation.py)
+        self.cache = alignment_cache(confirm_after=config.interval)
         self.clock = clock
         self.t0 = clock()
         self.history: list[FusionReport] = []
@@ -78,16 +80,20 @@ class FusionNode:
                 if self.fuse_now() is not None or due:
                     last = now
 
-    def fuse_now(self) -> FusionReport | None:
-        """Fuse if any robot's map changed since the last fusion; publish and log the result."""
+    def fuse_now(self, final: bool = False) -> FusionReport | None:
+        """Fuse if any robot's map changed since the last fusion; publish and log the result.  ``final``: the maps
+        are complete (the robots are done, or the node stops), so the fusion is decided on them alone, as ``p3at
+        fuse`` decides on saved maps, not confirmed against earlier fusions (fusion/confirmation.py)."""
         messages = self.exchange.receive(excluding=FUSED)
         sources = {r: (m.sequence, m.stamp) for r, m in messages.items()}
         if len(messages) < 2 or sources == self.sources:
             return None
         t = self.clock() - self.t0
         maps = {r: m.landmark_map for r, m in messages.items()}
+        self.cache.start_round(t)
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
-                           np.random.default_rng(self.config.seed + len(self.history)), cache=self.cache)
+                           np.random.default_rng(self.config.seed + len(self.history)),
+                           cache=self.cache.inner if final else self.cache)
         self.sources = sources
         keep_latest_map(self.history, report)
         if report.merged is not None and any(p.aligned for p in report.pairs):
@@ -103,6 +109,12 @@ class FusionNode:
             self.on_event(fusion_event_line(t, pair))
         self.on_report(report)
         return report
+
+    def final_fusion(self) -> FusionReport | None:
+        """The fusion of every map the node holds, whatever the last fusion held, decided on the maps alone (the
+        robots are done or the node stops); published and logged like any other."""
+        self.sources = {}
+        return self.fuse_now(final=True)
 
     def _log(self, t: float, maps: dict, report: FusionReport) -> None:
         if self.logger is None:
@@ -156,6 +168,7 @@ def run_live(args: argparse.Namespace) -> int:
     try:
         exchange.request_snapshot()  # a restarted node recovers every robot's latest map
         node.run(stop)
+        node.final_fusion()          # the node's last word on the maps it holds (printed below as the last)
     finally:
         if timer is not None:
             timer.cancel()

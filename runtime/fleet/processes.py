@@ -128,8 +128,7 @@ def run_processes_demo(args: argparse.Namespace) -> int:
             summaries[name] = json.loads(stdout)
         except json.JSONDecodeError:
             failed.append(f"{name} (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else '?'}")
-    node.sources = {}  # the final fusion, whatever the last one held
-    final = node.fuse_now()
+    final = node.final_fusion()
     exchange.close()
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
     if final is not None and final.merged is not None:

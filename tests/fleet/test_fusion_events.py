@@ -7,16 +7,16 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange
-from runtime.fleet.fusion_node import FusionNode
+from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.synthetic import SyntheticRobot
 from runtime.report import fusion_event_line
 
 
-def _fuse(m1: LandmarkMap, m2: LandmarkMap):
+def _fuse(m1: LandmarkMap, m2: LandmarkMap, final: bool = False):
     exchange, lines = InProcessExchange(), []
     exchange.publish("robot1", m1)
     exchange.publish("robot2", m2)
-    report = FusionNode(exchange, on_event=lines.append).fuse_now()
+    report = FusionNode(exchange, on_event=lines.append).fuse_now(final=final)
     assert report is not None and len(report.pairs) == 1 and len(lines) == 1
     return report.pairs[0], lines[0]
 
@@ -51,7 +51,7 @@ def test_maps_without_common_landmarks_give_the_alignments_reason():
 def test_an_alignment_found_keeps_its_line():
     m1 = _robot1()
     m2 = SyntheticRobot("robot2", 1, landmarks=200, grow=200).step()
-    pair, line = _fuse(m1, m2)
+    pair, line = _fuse(m1, m2, final=True)
     assert pair.aligned
     assert line.startswith(f"fusion at t=0s: robot2 -> robot1 ({pair.supports} supports, {pair.common} common), "
                            f"error {pair.error_xy:.3f} m")
@@ -60,3 +60,54 @@ def test_an_alignment_found_keeps_its_line():
 def test_a_reason_on_several_lines_is_printed_on_one():
     pair = {"reference": "a", "other": "b", "aligned": False, "supports": 0, "note": "first\nsecond  third"}
     assert fusion_event_line(12.4, pair) == "fusion at t=12s: b does not overlap a yet: first second third"
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_a_live_found_is_a_candidate_until_a_fusion_an_interval_later_on_grown_maps_agrees():
+    """fusion/confirmation.py through the node: found once is said as a candidate with its supports and pose; the
+    same maps again confirm nothing; grown maps too soon confirm nothing; grown maps an interval later do."""
+    robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
+    exchange, lines, clock = InProcessExchange(), [], _Clock()
+    node = FusionNode(exchange, FusionNodeConfig(interval=10.0), on_event=lines.append, clock=clock)
+
+    def grow_and_fuse(at: float, grow: bool = True):
+        clock.now = at
+        if grow:
+            for r in robots:
+                exchange.publish(r.name, r.step())
+        else:
+            node.sources = {}          # fuse the unchanged maps again
+        report = node.fuse_now()
+        return report.pairs[0], lines[-1]
+
+    pair, line = grow_and_fuse(0.0)
+    assert not pair.aligned and pair.supports >= pair.required_supports > 0
+    assert line.startswith(f"fusion at t=0s: robot2 -> robot1 is a candidate, not yet found ({pair.supports} "
+                           "supports at (") and "no earlier fusion of these maps found it" in line
+    pair, line = grow_and_fuse(20.0, grow=False)
+    assert not pair.aligned and "the maps have not changed since" in line
+    pair, line = grow_and_fuse(25.0)
+    assert not pair.aligned and "less than 10 s before" in line
+    pair, line = grow_and_fuse(40.0)
+    assert pair.aligned and pair.error_xy < 0.1, pair.note
+    assert line.startswith("fusion at t=40s: robot2 -> robot1 (")
+    pair, line = grow_and_fuse(60.0)                  # stays found while each fusion agrees with the latest
+    assert pair.aligned
+
+
+def test_the_final_fusion_is_decided_on_the_maps_alone():
+    robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
+    exchange = InProcessExchange()
+    for r in robots:
+        exchange.publish(r.name, r.step())
+    node = FusionNode(exchange, FusionNodeConfig(interval=10.0))
+    assert not node.fuse_now().pairs[0].aligned          # live: a candidate
+    final = node.final_fusion()
+    assert final.pairs[0].aligned and final.merged is not None
