@@ -48,9 +48,9 @@ class AssociationChoice:
 class CandidateGate:
     """The plain gate over every (particle, reading, landmark near the particle's view) triple of a frame, all
     arrays over the P triples (:meth:`FastSLAM.candidate_gate`): m, j, lid (P,) particle, reading, landmark id;
-    innovation (3, P) ν = R z + t − μ and covariance (6, P) S = Σ + R Q Rᵀ + H_x P H_xᵀ (symmetric components,
-    world frame, at the predicted pose); lever (2, P) the landmark's planar offset from the particle, H_x's
-    lever; d2 (P,) νᵀS⁻¹ν; log_det (P,) log |S|."""
+    innovation (3, P) ν = R z + t − μ and covariance (6, P) S = Σ + R Q Rᵀ (+ H_x P H_xᵀ under FastSLAM 2.0;
+    symmetric components, world frame, at the predicted pose), the gate's own; lever (2, P) the landmark's
+    planar offset from the particle, H_x's lever; d2 (P,) νᵀS⁻¹ν; log_det (P,) log |S|."""
 
     m: np.ndarray
     j: np.ndarray
