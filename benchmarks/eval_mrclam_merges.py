@@ -2,13 +2,16 @@
 
 Run from the repository root:
 
-    .venv/bin/python -m benchmarks.eval_mrclam_merges [--robots 1,2,3,4,5] [--seed 0] [--set FIELD=VALUE ...]
+    .venv/bin/python -m benchmarks.eval_mrclam_merges [--robots 1,2,3,4,5] [--seed 0] [--particles 100]
+        [--range-calibration] [--set FIELD=VALUE ...]
 
 Per robot (each robot's noise fitted on its own log, as ``eval_mrclam`` does with ``--noise own``): ATE, duplicate
 fraction, landmarks, and every id pair the filter merged (``FastSLAM.merged_pairs``) with the barcode each
 landmark stands for (the majority of the sightings that made or matched it, as ``eval_mrclam`` attributes them).
 A merge of two landmarks attributed to different barcodes joined distinct posts ("wrong"). ``--set`` overrides a
 FastSLAMConfig field (JSON value), e.g. ``--set merge_covisibility=false`` for the merge without co-visibility.
+``--particles`` and ``--range-calibration`` as in ``eval_mrclam`` (the latter fits the camera's depth-not-range
+calibration into each robot's noise model, docs/fastslam.md "Session 8: the floor").
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -30,16 +34,33 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
-from runtime.commands.options import non_negative_int  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 
 
-def run_robot(log, seed: int, overrides: dict) -> dict:
+@dataclass(frozen=True)
+class RunSetup:
+    """What every unknown-association script runs a robot with, beside ``--set``: the particles and whether the
+    robot's noise model fits the camera's range calibration (``eval_mrclam``'s options of the same names)."""
+
+    particles: int = 100
+    range_calibration: bool = False
+
+    def config(self, overrides: dict):
+        return range_bearing_config(**{"n_particles": self.particles, **overrides})
+
+    def noise(self, log):
+        return estimate_noise([log], range_calibration=self.range_calibration).model
+
+
+PLAIN = RunSetup()   # 100 particles, each robot's own fitted noise: the figures of sessions 7-9
+
+
+def run_robot(log, seed: int, overrides: dict, setup: RunSetup = PLAIN) -> dict:
     original = dataset_slam.FastSLAM
     dataset_slam.FastSLAM = RecordingFastSLAM
     try:
-        run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
-                                            np.random.default_rng(seed), noise=estimate_noise([log]).model,
-                                            association="unknown", robot=log.name)
+        run = dataset_slam.run_landmark_log(log, setup.config(overrides), np.random.default_rng(seed),
+                                            noise=setup.noise(log), association="unknown", robot=log.name)
     finally:
         dataset_slam.FastSLAM = original
     slam = RecordingFastSLAM.last
@@ -64,12 +85,15 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
 
 
 def robots_main(argv: list[str] | None, name: str, description: str, run_robot, print_rows) -> int:
-    """The command line both MRCLAM unknown-association scripts share: ``run_robot(log, seed, overrides) -> row``
-    per robot of ``--robots``, then the rows as JSON (``--json``) or a title and ``print_rows(rows)``."""
+    """The command line the MRCLAM unknown-association scripts share: ``run_robot(log, seed, overrides, setup) ->
+    row`` per robot of ``--robots``, then the rows as JSON (``--json``) or a title and ``print_rows(rows)``."""
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--range-calibration", action="store_true",
+                        help="fit the camera's range calibration into each robot's noise model")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -77,11 +101,15 @@ def robots_main(argv: list[str] | None, name: str, description: str, run_robot, 
         print(f"{name}: no data set at {args.data}", file=sys.stderr)
         return 2
     overrides = config_overrides(args.set)
-    rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides) for r in args.robots.split(",")]
+    setup = RunSetup(args.particles, args.range_calibration)
+    rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides, setup) for r in args.robots.split(",")]
     if args.json:
-        print(json.dumps({"seed": args.seed, "overrides": overrides, "rows": rows}))
+        print(json.dumps({"seed": args.seed, "overrides": overrides, "particles": setup.particles,
+                          "range_calibration": setup.range_calibration, "rows": rows}))
         return 0
-    print(f"MRCLAM unknown association, seed {args.seed}" + (f", overrides {overrides}" if overrides else ""))
+    print(f"MRCLAM unknown association, seed {args.seed}, {setup.particles} particles"
+          + (", range calibrated" if setup.range_calibration else "")
+          + (f", overrides {overrides}" if overrides else ""))
     print_rows(rows)
     return 0
 

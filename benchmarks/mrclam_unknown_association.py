@@ -26,10 +26,9 @@ import numpy as np  # noqa: E402
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 import estimation.fastslam.filter as fastslam_filter  # noqa: E402
-from benchmarks.eval_mrclam_merges import robots_main  # noqa: E402
-from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from benchmarks.eval_mrclam_merges import PLAIN, RunSetup, robots_main  # noqa: E402
+from estimation.fastslam import FastSLAM  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
-from estimation.noise_model import estimate_noise  # noqa: E402
 
 
 class _Tally:
@@ -45,7 +44,7 @@ class _Tally:
         return int(attribute_landmarks(self.votes, np.array([lid]))[0])
 
 
-def run_robot(log, seed: int, overrides: dict) -> dict:
+def run_robot(log, seed: int, overrides: dict, setup: RunSetup = PLAIN) -> dict:
     tally = _Tally()
     times, first = np.unique(log.sighting_times, return_index=True)
     bounds = np.append(first, len(log))[1:]
@@ -83,9 +82,8 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
     original = dataset_slam.FastSLAM
     dataset_slam.FastSLAM, fastslam_filter.unknown_rescue.rescue = Counting, counted_rescue
     try:
-        run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
-                                            np.random.default_rng(seed), noise=estimate_noise([log]).model,
-                                            association="unknown", robot=log.name)
+        run = dataset_slam.run_landmark_log(log, setup.config(overrides), np.random.default_rng(seed),
+                                            noise=setup.noise(log), association="unknown", robot=log.name)
     finally:
         dataset_slam.FastSLAM, fastslam_filter.unknown_rescue.rescue = original, rescue
     pairs = [(a, b) for a, b, _ in Counting.last.merged_pairs]

@@ -32,18 +32,17 @@ import sys  # noqa: E402
 import numpy as np  # noqa: E402
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
-from benchmarks.eval_mrclam_merges import robots_main  # noqa: E402
-from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from benchmarks.eval_mrclam_merges import PLAIN, RunSetup, robots_main  # noqa: E402
+from estimation.fastslam import FastSLAM  # noqa: E402
 from estimation.geometry import between, wrap_angle  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
-from estimation.noise_model import estimate_noise  # noqa: E402
 
 
 def _pose_error(pose: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return float(np.hypot(*(pose[:2] - truth[:2]))), float(abs(wrap_angle(pose[2] - truth[2])))
 
 
-def run_robot(log, seed: int, overrides: dict) -> dict:
+def run_robot(log, seed: int, overrides: dict, setup: RunSetup = PLAIN) -> dict:
     times, first = np.unique(log.sighting_times, return_index=True)
     bounds = np.append(first, len(log))[1:]
     ids_at = {float(t): log.landmark_ids[a:b] for t, a, b in zip(times, first, bounds, strict=True)}
@@ -144,9 +143,8 @@ def run_robot(log, seed: int, overrides: dict) -> dict:
     original = dataset_slam.FastSLAM
     dataset_slam.FastSLAM = Judged
     try:
-        run = dataset_slam.run_landmark_log(log, range_bearing_config(n_particles=100, **overrides),
-                                            np.random.default_rng(seed), noise=estimate_noise([log]).model,
-                                            association="unknown", robot=log.name)
+        run = dataset_slam.run_landmark_log(log, setup.config(overrides), np.random.default_rng(seed),
+                                            noise=setup.noise(log), association="unknown", robot=log.name)
     finally:
         dataset_slam.FastSLAM = original
     row = _summary(log.name, run.metrics, wrong, right_pose_err, by_gated, by_posterior, posterior_edges)
