@@ -3,15 +3,16 @@
 Run from the repository root:
 
     .venv/bin/python -m benchmarks.eval_mrclam_merges [--robots 1,2,3,4,5] [--seed 0] [--particles 100]
-        [--range-calibration] [--set FIELD=VALUE ...]
+        [--range-calibration] [--heading-bias] [--set FIELD=VALUE ...]
 
 Per robot (each robot's noise fitted on its own log, as ``eval_mrclam`` does with ``--noise own``): ATE, duplicate
 fraction, landmarks, and every id pair the filter merged (``FastSLAM.merged_pairs``) with the barcode each
 landmark stands for (the majority of the sightings that made or matched it, as ``eval_mrclam`` attributes them).
 A merge of two landmarks attributed to different barcodes joined distinct posts ("wrong"). ``--set`` overrides a
 FastSLAMConfig field (JSON value), e.g. ``--set merge_covisibility=false`` for the merge without co-visibility.
-``--particles`` and ``--range-calibration`` as in ``eval_mrclam`` (the latter fits the camera's depth-not-range
-calibration into each robot's noise model, docs/fastslam.md "Session 8: the floor").
+``--particles``, ``--range-calibration`` and ``--heading-bias`` as in ``eval_mrclam`` (each robot's noise model also
+fits the camera's depth-not-range calibration, docs/fastslam.md "Session 8: the floor", and the odometry's heading
+bias per metre, "Session 5").
 """
 from __future__ import annotations
 
@@ -40,16 +41,18 @@ from runtime.commands.options import non_negative_int, positive_int  # noqa: E40
 @dataclass(frozen=True)
 class RunSetup:
     """What every unknown-association script runs a robot with, beside ``--set``: the particles and whether the
-    robot's noise model fits the camera's range calibration (``eval_mrclam``'s options of the same names)."""
+    robot's noise model fits the camera's range calibration and the odometry's heading bias (``eval_mrclam``'s
+    options of the same names)."""
 
     particles: int = 100
     range_calibration: bool = False
+    heading_bias: bool = False
 
     def config(self, overrides: dict):
         return range_bearing_config(**{"n_particles": self.particles, **overrides})
 
     def noise(self, log):
-        return estimate_noise([log], range_calibration=self.range_calibration).model
+        return estimate_noise([log], range_calibration=self.range_calibration, heading_bias=self.heading_bias).model
 
 
 PLAIN = RunSetup()   # 100 particles, each robot's own fitted noise: the figures of sessions 7-9
@@ -94,6 +97,8 @@ def robots_main(argv: list[str] | None, name: str, description: str, run_robot, 
     parser.add_argument("--particles", type=positive_int, default=100)
     parser.add_argument("--range-calibration", action="store_true",
                         help="fit the camera's range calibration into each robot's noise model")
+    parser.add_argument("--heading-bias", action="store_true",
+                        help="fit the odometry's heading bias per metre into each robot's noise model")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -101,14 +106,16 @@ def robots_main(argv: list[str] | None, name: str, description: str, run_robot, 
         print(f"{name}: no data set at {args.data}", file=sys.stderr)
         return 2
     overrides = config_overrides(args.set)
-    setup = RunSetup(args.particles, args.range_calibration)
+    setup = RunSetup(args.particles, args.range_calibration, args.heading_bias)
     rows = [run_robot(read_mrclam(args.data, int(r)), args.seed, overrides, setup) for r in args.robots.split(",")]
     if args.json:
         print(json.dumps({"seed": args.seed, "overrides": overrides, "particles": setup.particles,
-                          "range_calibration": setup.range_calibration, "rows": rows}))
+                          "range_calibration": setup.range_calibration, "heading_bias": setup.heading_bias,
+                          "rows": rows}))
         return 0
     print(f"MRCLAM unknown association, seed {args.seed}, {setup.particles} particles"
           + (", range calibrated" if setup.range_calibration else "")
+          + (", heading bias fitted" if setup.heading_bias else "")
           + (f", overrides {overrides}" if overrides else ""))
     print_rows(rows)
     return 0
