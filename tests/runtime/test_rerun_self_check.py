@@ -70,3 +70,18 @@ def test_the_split_of_a_flagged_map_is_one_event_per_decision():
     levels = [str(e.level.as_arrow_array()[0]) for p, e in stream.rows if p == "mission/events"]
     assert _events(stream) == ["fusion: robot2 flagged itself: ... the parts disagree", "fusion: robot2 ... agree"]
     assert levels == ["WARN", "INFO"]
+
+
+def test_a_live_candidate_is_an_event_and_places_nothing_in_the_fused_map():
+    """fusion/confirmation.py: an alignment found once and not yet confirmed is told in the event log (its supports,
+    pose and why), and robot2's path is not placed in the fused map until it is found."""
+    stream = _Stream()
+    log = MissionLog(stream, ["robot1", "robot2"], blueprint=False)
+    note = ("candidate: 26 supports at (0.15 m, -0.01 m, -0.001 rad); no earlier fusion of these maps found it; "
+            "the maps are still growing, so a fusion at least 20 s later must agree")
+    log.log_alignment(20.0, "robot1", "robot2", {"aligned": False, "supports": 26, "note": note})
+    assert _events(stream) == ["fusion: robot2 -> robot1 is a candidate, not yet found (26 supports at (0.15 m, "
+                               "-0.01 m, -0.001 rad); no earlier fusion of these maps found it)"]
+    assert not any(p.startswith("fused") or "/fused/" in p for p, _ in stream.rows)
+    log.log_alignment(40.0, "robot1", "robot2", {"aligned": False, "supports": 5, "note": "only 5 supports"})
+    assert len(_events(stream)) == 1          # a plain "not found" is no candidate event
