@@ -12,6 +12,8 @@ UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
 UNKNOWN_ASSOCIATION_RULES = ("nearest", "sampled", "unambiguous")
 # FastSLAMConfig.coincident_readings: readings of one frame that are one point (coincident.py)
 COINCIDENT_RULES = ("all", "one_per_point", "no_twin_landmark")
+# FastSLAMConfig.weight_evidence: which particles a reading's likelihood compares (shared_evidence.py)
+WEIGHT_EVIDENCE_RULES = ("all", "shared_creation")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -85,6 +87,9 @@ class FastSLAMConfig:
     #                                             #   "rescue" or "consistent" (two landmarks at once); id_gate.py
     # -- resampling and storage ------------------------------------------------------------------------------
     resample_threshold: float = 0.5               # resample when ESS < threshold · n_particles
+    weight_evidence: str = "all"                  # "id": "shared_creation" weighs a reading only between particles
+    #                                             #   that made its landmark in one creation (shared_evidence.py);
+    #                                             #   "unknown" association ignores it (ids are per particle)
     block_size: int = 64                          # landmarks per copy-on-write block
     descriptor_size: int = 64
     descriptor_slots: int = 1                     # descriptors a landmark keeps, each with the range it was made at;
@@ -183,6 +188,9 @@ class FastSLAMConfig:
             raise ValueError(f"drift_translation_per_m must be ≥ 0, not {self.drift_translation_per_m}")
         if not 0.0 <= self.observation_correlation < 1.0:
             raise ValueError(f"observation_correlation must lie in [0, 1), not {self.observation_correlation}")
+        if self.weight_evidence not in WEIGHT_EVIDENCE_RULES:
+            raise ValueError(f"weight_evidence must be one of {', '.join(WEIGHT_EVIDENCE_RULES)}, "
+                             f"not {self.weight_evidence!r}")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], not {self.resample_threshold}")
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))

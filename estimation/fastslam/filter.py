@@ -92,6 +92,7 @@ from .motion import increment_variance, propagate_covariance, sample_motion
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .selection import select_observations
 from .self_check import SelfCheck, slot_view
+from .shared_evidence import CreationTokens
 from .store import LandmarkStore
 
 _EYE3 = np.eye(3)
@@ -223,6 +224,8 @@ class FastSLAM:
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
         self.self_check = SelfCheck(config)                            # has the map lost its place? (read only)
+        self._creations = (CreationTokens(m) if config.weight_evidence == "shared_creation"   # which particles
+                           and config.association == "id" else None)   # made each landmark together
 
     # == 0. motion ==========================================================================================
     def predict(self, increment: OdometryIncrement) -> None:
@@ -304,7 +307,14 @@ class FastSLAM:
             if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
                 pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
         mj = pairs.m * n_obs + pairs.j
-        innovation, s_obs, s_gate, d2, _ = self._gate(frame, predicted, pairs.m, mj, mean, cov)
+        innovation = _cols(frame.world, mj) - mean                                     # ν = R z + t − μ (3, P)
+        s_obs = cov + _cols(frame.noise, mj)                                           # S = Σ + R Q Rᵀ (6, P)
+        s_gate = s_obs
+        if cfg.version == 2:  # the pose is not sampled yet: its uncertainty widens the gate
+            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), pairs.m),
+                                               mean[:2] - _cols(predicted[:, :2].T, pairs.m))
+        adj, det = sym_adjugate(s_gate)
+        d2 = sym_quadratic(adj, innovation) / det
         gated = d2 < cfg.mahalanobis_gate
         relative = None
         if by_id and cfg.id_relative_drift != "off" and cfg.version == 2:   # the pose's drift since the landmark
@@ -358,6 +368,11 @@ class FastSLAM:
             matched.m, d2[win] - cfg.mahalanobis_gate, minlength=n_particles)
         if drawn is not None:   # the weight does not depend on the choice: the largest term per reading
             log_lik = drawn.log_lik
+        if self._creations is not None:   # a reading compares only particles that made its landmark together
+            terms = np.full((n_particles, n_obs), -0.5 * cfg.mahalanobis_gate)
+            terms[matched.m, matched.j] = -0.5 * d2[win]
+            log_lik = self._creations.log_likelihood(self.log_weights, terms, obs_lids,
+                                                     holds.reshape(n_particles, n_obs))
         mean, cov = _cols(mean, win), _cols(cov, win)
 
         s_inv = sym_inverse(_cols(s_obs, win))                                        # S⁻¹ without the pose term
@@ -399,6 +414,9 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
+        if self._creations is not None:
+            m_new, j_new = np.divmod(np.flatnonzero(~had_candidate), max(n_obs, 1))
+            self._creations.made(new_ids[j_new], m_new, poses)
         self.self_check.made(new_ids, z, poses[best_now])
         if cfg.merge_gate > 0 and not by_id and cfg.merge_covisibility:
             # what the most probable particle (the one step 8 picks) detected and missed in view, counted before
@@ -451,6 +469,8 @@ class FastSLAM:
             parents = low_variance_resample(weights, self.rng)
             self.poses = self.poses[parents]
             self.store.resample(parents)
+            if self._creations is not None:
+                self._creations.resampled(parents)
             self.log_weights = np.zeros(n_particles)
             best = int(np.flatnonzero(parents == best)[0])  # the heaviest (w ≥ 1/M) is always copied
         self._best = best
@@ -477,24 +497,13 @@ class FastSLAM:
         m = cand.m[c]
         state = self.store.flat_state[cand.g[c]].T
         mean, cov = state[:3], state[3:]
-        innovation, _, s, d2, det = self._gate(frame, poses, m, m * n_obs + j, mean, cov)
-        lever = mean[:2] - _cols(poses[:, :2].T, m)
-        return association_rules.CandidateGate(m, j, lids[c], innovation, s, lever, d2, np.log(det))
-
-    def _gate(self, frame: _FrameGeometry, poses: np.ndarray, m: np.ndarray, mj: np.ndarray, mean: np.ndarray,
-              cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Step 2's Mahalanobis gate for (particle m, reading, landmark (mean (3, P), cov (6, P))) pairs, mj =
-        m·N + j: ν = R z + t − μ (3, P), S = Σ + R Q Rᵀ (6, P), the gate's S (with FastSLAM 2.0's pose term
-        H_x P H_xᵀ: the pose is not sampled yet), d² = νᵀ S⁻¹ ν and |S| (P,). One place for the update and
-        :meth:`candidate_gate`, so the diagnoses see the gate the filter uses."""
+        mj = m * n_obs + j
         innovation = _cols(frame.world, mj) - mean
-        s_obs = cov + _cols(frame.noise, mj)
-        s_gate = s_obs
-        if self.config.version == 2:
-            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), m),
-                                               mean[:2] - _cols(poses[:, :2].T, m))
-        adj, det = sym_adjugate(s_gate)
-        return innovation, s_obs, s_gate, sym_quadratic(adj, innovation) / det, det
+        lever = mean[:2] - _cols(poses[:, :2].T, m)
+        s = cov + _cols(frame.noise, mj) + pose_uncertainty(_cols(sym_components(self._motion_cov), m), lever)
+        adj, det = sym_adjugate(s)
+        d2 = sym_quadratic(adj, innovation) / det
+        return association_rules.CandidateGate(m, j, lids[c], innovation, s, lever, d2, np.log(det))
 
     # -- step helpers ----------------------------------------------------------------------------------------
     def _checked(self, observations: StereoObservations):

@@ -1,0 +1,95 @@
+"""Weights that select only where the readings can tell particles apart ("id" association).
+
+Why. A landmark a particle made itself sits in that particle's own map frame: made from the particle's pose, it is
+re-sighted from a pose that moved with it, so whatever heading or position error the particle's frame had when it
+made the landmark, the re-sighting cannot see it. Two particles that made the same landmark separately (from
+different poses) therefore differ in its re-sightings by noise only, and resampling on that noise is drift, not
+selection: while only such landmarks are in view (the robot explores), the cloud loses the frame hypotheses it
+will need at the next loop closure (MRCLAM robot 1, seed 2: the heading drifts 0.4 rad while new posts are made,
+and the cloud that comes back to the old posts holds 0.07 rad of heading spread; docs/fastslam.md "Session 9").
+
+The rule. Each (landmark, particle) carries a *creation token*: particles that made the landmark in one creation
+share it (they had identical poses and maps when they made it, e.g. copies of one parent, or every particle in
+the map's first frame), and resampling copies tokens with the particles. A reading of landmark L then moves
+weight only *within* each group of particles that share L's token: each group's total weight is kept, and
+within it the particles are reweighted by the reading's likelihood as usual. Particles that made L apart are not
+compared by L at all. Landmarks made before the particles diverged (the first frame's, or a common parent's)
+compare everyone, so the loop closure selects as before; frames with only the particles' own landmarks leave
+the weights flat, the effective sample size stays high and the cloud is not resampled (the ESS rule is
+unchanged).
+
+Departure from the paper (Montemerlo et al., FastSLAM 2.0): the paper's weight is the full predictive
+likelihood of every reading. Between particles that made a landmark apart, its expected value does not depend on
+the frame error (the invariance above), so dropping the between-group part removes only Monte-Carlo noise; it
+also drops what the reading says about the particles' paths since they made it, which FastSLAM 2.0's proposal
+already uses to draw the pose.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class CreationTokens:
+    """Creation tokens (lids, M) for "id" association (landmark ids common to all particles); -1: none."""
+
+    def __init__(self, n_particles: int) -> None:
+        self.tokens = np.full((0, n_particles), -1, np.int64)
+        self._next = 0
+
+    def made(self, lids: np.ndarray, particles: np.ndarray, poses: np.ndarray) -> None:
+        """Record landmarks ``lids`` (K,) just made by ``particles`` (K,) at ``poses`` (M, 3): one token per
+        landmark and distinct pose (identical poses: one creation, e.g. the map's first frame)."""
+        if len(lids) == 0:
+            return
+        top = int(lids.max()) + 1
+        if top > len(self.tokens):
+            grown = np.full((max(top, 2 * len(self.tokens)), self.tokens.shape[1]), -1, np.int64)
+            grown[:len(self.tokens)] = self.tokens
+            self.tokens = grown
+        keys = np.column_stack([lids.astype(float), poses[particles]])
+        _, group = np.unique(keys, axis=0, return_inverse=True)
+        group = group.ravel()
+        self.tokens[lids, particles] = self._next + group
+        self._next += int(group.max()) + 1
+
+    def resampled(self, parents: np.ndarray) -> None:
+        """The particles were replaced by copies of ``parents`` (M,)."""
+        self.tokens = self.tokens[:, parents]
+
+    def log_likelihood(self, log_weights: np.ndarray, terms: np.ndarray, lids: np.ndarray,
+                       holds: np.ndarray) -> np.ndarray:
+        """The frame's log-likelihood (M,) with each reading's term moving weight only within creation groups.
+
+        ``log_weights`` (M,): the weights before this frame; ``terms`` (M, N): each reading's log-likelihood
+        term per particle; ``lids`` (N,): the landmark each reading names (-1: none yet); ``holds`` (M, N): the
+        particle holds that landmark. Particles that do not hold it form one more group; a landmark with no
+        token (a prior map's) is one group. Readings are taken in
+        order, each against the weights the earlier ones left.
+        """
+        n_particles, n_obs = terms.shape
+        log_w = np.asarray(log_weights, float) - np.max(log_weights)
+        total = np.zeros(n_particles)
+        for j in range(n_obs):
+            lid = int(lids[j])
+            if lid < 0:   # a landmark no particle holds yet: the same term for all
+                continue
+            # a landmark the filter did not make (a prior map's, -1) is one creation shared by every holder
+            made_as = self.tokens[lid] if lid < len(self.tokens) else np.full(n_particles, -1, np.int64)
+            group = np.where(holds[:, j], made_as, -2)
+            _, group = np.unique(group, return_inverse=True)
+            group = group.ravel()
+            # minus the log of each group's weighted mean likelihood: the group's total weight is kept
+            term = terms[:, j] - (_group_logsumexp(log_w + terms[:, j], group)
+                                  - _group_logsumexp(log_w, group))[group]
+            total += term
+            log_w = log_w + term
+            log_w -= np.max(log_w)
+        return total
+
+
+def _group_logsumexp(values: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """log Σ exp(values) per group (G,), for group indices 0..G-1 (M,), without underflow."""
+    n = int(group.max()) + 1
+    top = np.full(n, -np.inf)
+    np.maximum.at(top, group, values)
+    return top + np.log(np.bincount(group, np.exp(values - top[group]), minlength=n))
