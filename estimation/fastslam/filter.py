@@ -307,14 +307,7 @@ class FastSLAM:
             if cfg.descriptor_size == 0:   # no descriptors thin the candidates: a cheap exact pre-gate first
                 pairs, mean, cov = self._pregate(pairs, mean, cov, frame, predicted, q6)
         mj = pairs.m * n_obs + pairs.j
-        innovation = _cols(frame.world, mj) - mean                                     # ν = R z + t − μ (3, P)
-        s_obs = cov + _cols(frame.noise, mj)                                           # S = Σ + R Q Rᵀ (6, P)
-        s_gate = s_obs
-        if cfg.version == 2:  # the pose is not sampled yet: its uncertainty widens the gate
-            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), pairs.m),
-                                               mean[:2] - _cols(predicted[:, :2].T, pairs.m))
-        adj, det = sym_adjugate(s_gate)
-        d2 = sym_quadratic(adj, innovation) / det
+        innovation, s_obs, s_gate, d2, _ = self._gate(frame, predicted, pairs.m, mj, mean, cov)
         gated = d2 < cfg.mahalanobis_gate
         relative = None
         if by_id and cfg.id_relative_drift != "off" and cfg.version == 2:   # the pose's drift since the landmark
@@ -497,13 +490,24 @@ class FastSLAM:
         m = cand.m[c]
         state = self.store.flat_state[cand.g[c]].T
         mean, cov = state[:3], state[3:]
-        mj = m * n_obs + j
-        innovation = _cols(frame.world, mj) - mean
+        innovation, _, s, d2, det = self._gate(frame, poses, m, m * n_obs + j, mean, cov)
         lever = mean[:2] - _cols(poses[:, :2].T, m)
-        s = cov + _cols(frame.noise, mj) + pose_uncertainty(_cols(sym_components(self._motion_cov), m), lever)
-        adj, det = sym_adjugate(s)
-        d2 = sym_quadratic(adj, innovation) / det
         return association_rules.CandidateGate(m, j, lids[c], innovation, s, lever, d2, np.log(det))
+
+    def _gate(self, frame: _FrameGeometry, poses: np.ndarray, m: np.ndarray, mj: np.ndarray, mean: np.ndarray,
+              cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Step 2's Mahalanobis gate for (particle m, reading, landmark (mean (3, P), cov (6, P))) pairs, mj =
+        m·N + j: ν = R z + t − μ (3, P), S = Σ + R Q Rᵀ (6, P), the gate's S (with FastSLAM 2.0's pose term
+        H_x P H_xᵀ: the pose is not sampled yet), d² = νᵀ S⁻¹ ν and |S| (P,). One place for the update and
+        :meth:`candidate_gate`, so the diagnoses see the gate the filter uses."""
+        innovation = _cols(frame.world, mj) - mean
+        s_obs = cov + _cols(frame.noise, mj)
+        s_gate = s_obs
+        if self.config.version == 2:
+            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), m),
+                                               mean[:2] - _cols(poses[:, :2].T, m))
+        adj, det = sym_adjugate(s_gate)
+        return innovation, s_obs, s_gate, sym_quadratic(adj, innovation) / det, det
 
     # -- step helpers ----------------------------------------------------------------------------------------
     def _checked(self, observations: StereoObservations):
