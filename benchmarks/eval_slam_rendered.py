@@ -266,6 +266,7 @@ class _TimedFastSLAM(FastSLAM):
     """FastSLAM that records the CPU time and the report of every update (for the diagnostics)."""
 
     instances: list[_TimedFastSLAM] = []
+    observer = None   # the run's observer (set by run_robot): its ``indices[-1]`` is the current frame's truth
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
@@ -285,8 +286,10 @@ class _TimedFastSLAM(FastSLAM):
 
 def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMConfig, frame_rate: float,
               max_corners: int, diagnose: bool, latency: float = 0.0, frames_cache: Path | None = None,
-              descriptor_depth: float = 0.0) -> dict:
-    """One robot's run; returns the scores (and diagnostics)."""
+              descriptor_depth: float = 0.0, filter_class: type[_TimedFastSLAM] | None = None) -> dict:
+    """One robot's run; returns the scores (and diagnostics). ``filter_class``: a subclass of the timed filter
+    (diagnostics that look at the truth while the filter runs, e.g. ``benchmarks.merge_oracle``)."""
+    filter_class = filter_class or _TimedFastSLAM
     cache = None
     if frames_cache is not None:
         depth = f"-desc{descriptor_depth:g}m" if descriptor_depth > 0 else ""
@@ -304,7 +307,8 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
     route = keep_right(np.asarray(world.routes[robot], float))
     start = np.asarray(world.start_poses[robot], float)
     original = slam_sim.FastSLAM
-    slam_sim.FastSLAM = _TimedFastSLAM   # simulate() builds its filter by this name; measure its updates
+    slam_sim.FastSLAM = filter_class   # simulate() builds its filter by this name; measure its updates
+    filter_class.observer = observer
     try:
         _TimedFastSLAM.instances.clear()
         result = slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=seconds,

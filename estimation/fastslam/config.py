@@ -12,6 +12,9 @@ UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
 UNKNOWN_ASSOCIATION_RULES = ("nearest", "sampled", "unambiguous")
 # FastSLAMConfig.coincident_readings: readings of one frame that are one point (coincident.py)
 COINCIDENT_RULES = ("all", "one_per_point", "no_twin_landmark")
+# FastSLAMConfig.merge_estimate / merge_look: what a merge of two alike landmarks keeps (filter._merge_duplicates)
+MERGE_ESTIMATES = ("fuse", "older")
+MERGE_LOOKS = ("older", "newer")
 # FastSLAMConfig.weight_evidence: which particles a reading's likelihood compares (shared_evidence.py)
 WEIGHT_EVIDENCE_RULES = ("all", "shared_creation")
 
@@ -82,6 +85,11 @@ class FastSLAMConfig:
     #                                             #   not corners: one texture blob gives two (docs, "Duplicates")
     merge_log_odds: float = 2.944                 # evidence "one point" needed for that merge: log 19 (P = 0.95
     #                                             #   from even odds), in existence.exclusive_log_odds units
+    merge_estimate: str = "fuse"                  # a merge of alike landmarks: "fuse" them as two independent
+    #                                             #   estimates; "older": the older keeps its estimate (the newer
+    #                                             #   sits off by the pose's drift since, docs "Session 10")
+    merge_look: str = "older"                     # the merged landmark's descriptor: the older one's, or "newer":
+    #                                             #   the look at the range it is seen from now (U-SURF changes)
     id_relative_drift: str = "off"                # "id", 2.0: judge readings with the pose's drift relative to their
     #                                             #   landmark (drift.py) where the gate rejects them: "off",
     #                                             #   "rescue" or "consistent" (two landmarks at once); id_gate.py
@@ -181,6 +189,10 @@ class FastSLAMConfig:
             raise ValueError(f"detection_correlation must lie in [0, 1), not {self.detection_correlation}")
         if not 0.0 < self.self_check_false_alarm < 1.0:
             raise ValueError(f"self_check_false_alarm must lie in (0, 1), not {self.self_check_false_alarm}")
+        if self.merge_estimate not in MERGE_ESTIMATES:
+            raise ValueError(f"merge_estimate must be one of {', '.join(MERGE_ESTIMATES)}, not {self.merge_estimate!r}")
+        if self.merge_look not in MERGE_LOOKS:
+            raise ValueError(f"merge_look must be one of {', '.join(MERGE_LOOKS)}, not {self.merge_look!r}")
         if self.coincident_readings not in COINCIDENT_RULES:
             raise ValueError(f"coincident_readings must be one of {', '.join(COINCIDENT_RULES)}, "
                              f"not {self.coincident_readings!r}")
