@@ -958,6 +958,8 @@ class FastSLAM:
         # two independent measurements of it: the older landmark keeps its estimate, consistent with the map made
         # with it, and takes the newer one's sightings
         drifted = ~alike[pair] | (d2 >= cfg.merge_gate)
+        if cfg.merge_estimate == "older":   # so is an alike pair made apart in time (docs "Session 10")
+            drifted[:] = True
         mean[:, drifted], cov[:, drifted] = sa[:3, drifted], sa[3:, drifted]
         store.put_state(ga, np.vstack([mean, cov]).T)
         store.flat_count[ga] += store.flat_count[gb]
@@ -971,6 +973,8 @@ class FastSLAM:
             del self._merged[next(iter(self._merged))]
         if self._bands is not None:   # the older landmark also keeps the newer one's looks at other ranges
             self._bands.absorb(a[np.unique(pair)], b[np.unique(pair)])
+        if cfg.merge_look == "newer" and cfg.descriptor_size > 0:   # the look it is seen with now, from nearer
+            self._descriptors[a[np.unique(pair)]] = self._descriptors[b[np.unique(pair)]]
         return len(ga)
 
     @property
