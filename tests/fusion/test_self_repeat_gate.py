@@ -2,7 +2,7 @@
 
 With honest start-frame covariances a map's own gate reaches the 1 m cap, so its self-repeat takes look-alikes
 0.5-1 m off the repeat as supports (the rendered demo's seed 8: robot 2 repeats itself under a 1 m shift with 23
-supports, 13 of them 0.4-1 m off it), while the pair's supports, decoys and rival are counted in the gate the
+supports, 12 of them 0.44-0.96 m off it), while the pair's supports, decoys and rival are counted in the gate the
 supports' residuals narrowed.  "pair" counts the repeat in that gate too; it must still keep a wrong alignment that
 the repeat explains (the truth damaged) not found.
 """
