@@ -12,6 +12,16 @@ File format (``.npz``, version 1, read with ``allow_pickle=False``, so no pickle
     trajectory   (T, 4) float64, rows (t, x, y, θ) of the robot that built the map (may be empty)
     meta         uint8 JSON bytes: {"robot", "frame", "robots", "metadata"}
 
+and, optional (both or neither; session 10, a file without them reads as before):
+
+    drift_covariances  (N, 3, 3) float64, the covariance of the robot's pose (x, y, θ) relative to the map's frame
+                       when it made each landmark (m², m·rad, rad²): the map frame's drift at the landmark
+    drift_origins      (N, 2) float64, metres, where the robot was when it made each landmark
+
+A FastSLAM map's ``covariances`` already hold that drift's effect on each landmark (``mixture+drift``); the drift
+kept apart says which landmarks share it (those made from one stretch of the route move together), so that fusion
+can tell the error an alignment removes (rigid) from the map's bend (``fusion.shape_covariance``).
+
 ``metadata`` is free-form JSON; simulated maps put their true start pose in the world there
 (``"true_start_pose": [x, y, θ]``) so that fusion can be scored against the truth.
 
@@ -40,7 +50,9 @@ class LandmarkMap:
     """A 3-D point-landmark map with per-landmark uncertainty and appearance.
 
     positions (N, 3), covariances (N, 3, 3), descriptors (N, D), ids (N,), counts (N,),
-    seen_by (N, R) bool over ``robots``; ``robot`` built it, ``frame`` names its coordinate frame.
+    seen_by (N, R) bool over ``robots``; ``robot`` built it, ``frame`` names its coordinate frame;
+    drift_covariances (N, 3, 3) and drift_origins (N, 2), or None: the frame's drift at each landmark (module
+    docstring); a map built otherwise (merged, transformed) has none.
     """
 
     positions: np.ndarray
@@ -54,6 +66,8 @@ class LandmarkMap:
     seen_by: np.ndarray | None = None
     trajectory: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     metadata: dict = field(default_factory=dict)
+    drift_covariances: np.ndarray | None = None
+    drift_origins: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
@@ -74,6 +88,11 @@ class LandmarkMap:
         self.trajectory = np.asarray(self.trajectory, np.float64).reshape(-1, 4)
         if self.ids.shape != (n,) or self.counts.shape != (n,):
             raise ValueError(f"ids {self.ids.shape} and counts {self.counts.shape} must have {n} rows")
+        if (self.drift_covariances is None) != (self.drift_origins is None):
+            raise ValueError("drift_covariances and drift_origins go together (both or neither)")
+        if self.drift_covariances is not None:
+            self.drift_covariances = np.asarray(self.drift_covariances, np.float64).reshape(n, 3, 3)
+            self.drift_origins = np.asarray(self.drift_origins, np.float64).reshape(n, 2)
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -88,6 +107,8 @@ class LandmarkMap:
             self.positions[index], self.covariances[index], self.descriptors[index], self.ids[index],
             self.counts[index], self.robot, self.frame, list(self.robots), self.seen_by[index],
             self.trajectory.copy(), dict(self.metadata),
+            None if self.drift_covariances is None else self.drift_covariances[index],
+            None if self.drift_origins is None else self.drift_origins[index],
         )
 
     # -- files ---------------------------------------------------------------------------------
@@ -95,12 +116,14 @@ class LandmarkMap:
         """Write the map atomically (see the module docstring for the format)."""
         buf = io.BytesIO()
         meta = {"robot": self.robot, "frame": self.frame, "robots": self.robots, "metadata": self.metadata}
+        drift = {} if self.drift_covariances is None else {"drift_covariances": self.drift_covariances,
+                                                            "drift_origins": self.drift_origins}
         np.savez_compressed(
             buf,
             format=_json_bytes({"format": FORMAT_NAME, "version": FORMAT_VERSION}),
             positions=self.positions, covariances=self.covariances, descriptors=self.descriptors,
             ids=self.ids, counts=self.counts, seen_by=self.seen_by, trajectory=self.trajectory,
-            meta=_json_bytes(meta),
+            meta=_json_bytes(meta), **drift,
         )
         atomic_write_bytes(path, buf.getvalue())
 

@@ -32,6 +32,7 @@ MAX_COORDINATE = 1e6  # m
 MIN_VARIANCE = 1e-12  # m²
 MAX_VARIANCE = 1e6  # m²
 _SYMMETRY_TOLERANCE = 1e-9  # relative to the largest entry
+_PSD_TOLERANCE = 1e-9  # a drift covariance may be singular (zero at the start), not negative beyond rounding
 
 _FLOAT, _INT, _BOOL, _BYTES = "f", "iu", "b", "u"
 MEMBERS: dict[str, ArraySpec] = {
@@ -44,6 +45,9 @@ MEMBERS: dict[str, ArraySpec] = {
     "counts": ArraySpec(_INT, (MAX_LANDMARKS,)),
     "seen_by": ArraySpec(_BOOL, (MAX_LANDMARKS, MAX_ROBOTS)),
     "trajectory": ArraySpec(_FLOAT + _INT, (MAX_TRAJECTORY_ROWS, 4)),
+    # optional, both or neither (session 10; a file without them reads as before): the map frame's drift per landmark
+    "drift_covariances": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 3, 3)),
+    "drift_origins": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 2)),
 }
 REQUIRED = ("format", "positions", "covariances", "descriptors", "ids", "counts", "meta")
 
@@ -74,7 +78,8 @@ class _Meta(BaseModel):
 def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> Any:
     """Check the arrays of a map file (read by :func:`estimation.safe_npz.read_npz` with :data:`MEMBERS`) and
     return ``build(positions, covariances, descriptors, ids, counts, robot, frame, robots, seen_by, trajectory,
-    metadata)``. Raises :class:`MapFileError` naming ``source`` and the field."""
+    metadata, drift_covariances, drift_origins)`` (the last two None when the file has no drift). Raises
+    :class:`MapFileError` naming ``source`` and the field."""
     def bad(key: str, problem: str) -> MapFileError:
         return MapFileError(f"{source}: field '{key}' {problem}")
 
@@ -116,14 +121,42 @@ def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> A
     counts = _integers(arrays["counts"], "counts", bad)
     if np.any(counts < 0):
         raise bad("counts", "holds a negative observation count")
+    drift = _drift(arrays, n, bad)
     metadata = meta.metadata.model_dump()
     if metadata.get("true_start_pose") is None:
         metadata.pop("true_start_pose", None)
     try:
         return build(positions, covariances, descriptors, ids, counts, meta.robot, meta.frame, list(robots),
-                     seen_by, trajectory, metadata)
+                     seen_by, trajectory, metadata, *drift)
     except ValueError as exc:
         raise MapFileError(f"{source}: {exc}") from None
+
+
+def _drift(arrays: dict[str, np.ndarray], n: int, bad) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The optional drift members: (N, 3, 3) symmetric positive semi-definite pose covariances (x, y, θ) and (N, 2)
+    positions, both or neither; (None, None) when absent."""
+    present = [key for key in ("drift_covariances", "drift_origins") if key in arrays]
+    if not present:
+        return None, None
+    if len(present) == 1:
+        other = "drift_origins" if present[0] == "drift_covariances" else "drift_covariances"
+        raise bad(other, f"is missing (a map with '{present[0]}' needs both)")
+    for key, shape in (("drift_covariances", (n, 3, 3)), ("drift_origins", (n, 2))):
+        if arrays[key].shape != shape:
+            raise bad(key, f"has shape {arrays[key].shape}, expected {shape}")
+    covariances = _floats(arrays["drift_covariances"], "drift_covariances", bad, MAX_VARIANCE)
+    origins = _floats(arrays["drift_origins"], "drift_origins", bad, MAX_COORDINATE)
+    if len(covariances):
+        scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
+        asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
+        worst = int(np.argmax(asymmetry / scale))
+        if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
+            raise bad(f"drift_covariances[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
+        low = np.linalg.eigvalsh(covariances)[:, 0]
+        worst = int(np.argmin(low / scale))
+        if low[worst] < -_PSD_TOLERANCE * scale[worst]:
+            raise bad(f"drift_covariances[{worst}]", f"is not positive semi-definite (eigenvalue {low[worst]:.3g})")
+    return covariances, origins
 
 
 def _json(source: str, key: str, raw: np.ndarray, model: type[BaseModel]) -> Any:

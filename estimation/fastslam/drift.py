@@ -40,12 +40,14 @@ class DriftTracker:
         self.robot = np.zeros((3, 3))                 # D_r, the robot's pose covariance relative to the start
         self._pose = np.zeros((0, 6))                 # D_l per landmark id
         self._position = np.zeros((0, 6))             # C_l per landmark id
+        self._origin = np.zeros((0, 2))               # where the robot was when it made l (exported beside D_l)
 
     def _ensure(self, n_ids: int) -> None:
         if n_ids > len(self._pose):
             grow = max(n_ids, 2 * len(self._pose)) - len(self._pose)
             self._pose = np.vstack([self._pose, np.zeros((grow, 6))])
             self._position = np.vstack([self._position, np.zeros((grow, 6))])
+            self._origin = np.vstack([self._origin, np.zeros((grow, 2))])
 
     def predict(self, jacobian_pose: np.ndarray, motion_noise: np.ndarray) -> None:
         """D_r ← J D_r Jᵀ + Q_motion (both (3, 3), Q_motion already in the start frame)."""
@@ -62,6 +64,7 @@ class DriftTracker:
         if len(new_ids):
             d = sym_components(self.robot[None])[:, 0]
             self._pose[new_ids] = d
+            self._origin[new_ids] = np.asarray(robot_pose, float)[:2]
             w = np.asarray(new_positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
             h = np.zeros((len(new_ids), 3, 3))
             h[:, 0, 0] = h[:, 1, 1] = 1.0
@@ -84,6 +87,16 @@ class DriftTracker:
     def landmark_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
         """D_l (6, L) components for landmark ids (L,) (zeros for ids never seen by the tracker)."""
         return _components(self._pose, ids)
+
+    def landmark_origins(self, ids: np.ndarray) -> np.ndarray:
+        """(L, 2) the robot's position when it made landmarks ``ids`` (L,) (zeros for ids never seen by the tracker):
+        with D_l, what a map file exports so that fusion can tell which landmarks share a drift
+        (``LandmarkMap.drift_origins``)."""
+        ids = np.asarray(ids, np.int64)
+        out = np.zeros((len(ids), 2))
+        inside = ids < len(self._origin)
+        out[inside] = self._origin[ids[inside]]
+        return out
 
     def landmark_covariances(self, ids: np.ndarray) -> np.ndarray:
         """C_l (L, 3, 3) for landmark ids (L,) (zeros for ids never seen by the tracker)."""

@@ -1288,15 +1288,18 @@ class FastSLAM:
         if self.config.observation_correlation > 0:   # successive observations' errors are correlated
             covs = covs * correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None,
                                                                                                            None]
-        if covariance.endswith("drift"):
+        drift, origins = None, None
+        if covariance.endswith("drift"):   # the drift is also kept apart: which landmarks share it (landmark_map.py)
             covs = covs + self.drift.landmark_covariances(lids)
+            drift = sym_matrices(self.drift.landmark_pose_covariances(lids))
+            origins = self.drift.landmark_origins(lids)
         meta["landmark_covariance"] = covariance
         if self._lid_of_external:
             meta["external_ids"] = self.external_ids(lids).tolist()
         return LandmarkMap(
             means, covs, self._descriptors[lids].copy(), lids,
             store.flat_count[g].copy(), robot=robot, frame=frame, trajectory=self.trajectory(particle),
-            metadata=meta)
+            metadata=meta, drift_covariances=drift, drift_origins=origins)
 
     def mixture_covariances(self, lids: np.ndarray, about: np.ndarray) -> np.ndarray:
         """(L, 3, 3) covariances of landmarks ``lids`` (L,) over the weighted particle cloud, about the points
