@@ -18,6 +18,9 @@ Session 7 (``merge_rules``, ``merge_breakdown``): every merge rule × calibratio
 calibration=...)``) with its error and NEES against Vicon, and where the default merge's error comes from: the same
 merge with each map placed by its own best rigid fit to Vicon (no frame error), with the best linear weights the true
 errors allow (in-sample: no weighting can do better), and the best single map on the same posts.
+
+Session 10 (``drift_split``, maps whose files keep the frame's drift): each map's frame error and local error against
+what its file says of both, and the merge with ``calibration="drift"`` among the rules.
 """
 from __future__ import annotations
 
@@ -38,6 +41,7 @@ from estimation.geometry import compose, inverse, rot_z, transform_points  # noq
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, fuse_all  # noqa: E402
 from fusion.merging import MERGE_RULES, transform_landmarks  # noqa: E402
+from fusion.shape_covariance import rigid_covariance, shape_covariances, shape_levels  # noqa: E402
 
 
 def _planar(points: np.ndarray) -> np.ndarray:
@@ -232,6 +236,48 @@ def merge_breakdown(maps: list[LandmarkMap], truth: dict, alignments) -> None:
           f"{np.array2string(np.corrcoef(flat)[np.triu_indices(len(maps), 1)], precision=2)}")
 
 
+def drift_split(maps: list[LandmarkMap], truth: dict, alignments) -> None:
+    """Per map: which part of its error is frame (rigid: its best rigid fit to Vicon against its true start, at its
+    landmarks' centroid) and which local (about that fit), and what its own file says of both (the drift it keeps,
+    ``fusion.shape_covariance``: the rigid part's covariance and each landmark's about the rigid placement), beside
+    the three-cornered hat's σ.  Maps without the drift fields are skipped (made before session 10)."""
+    if any(m.drift_covariances is None for m in maps):
+        print("\nframe and local error against what each file says: skipped (a map without the drift fields)")
+        return
+    scales = multi.covariance_scales(maps, alignments)
+    hat = [np.nan] * len(maps) if scales is None else np.sqrt(scales * [multi.claimed_variance(m) for m in maps])
+    shapes = [shape_covariances(m) for m in maps]
+    levels = shape_levels(maps, shapes, alignments)
+    print("\n| map | frame error at the centroid, xy (m) / θ (rad) | the file's rigid σ, xy (m) / θ (rad) | frame NEES "
+          "(χ²₃) | local σ per axis, real (m) | the file's shape σ (m) | hat σ (m) | shape NEES under the file, median "
+          "(χ²₂: 1.39) / under a I + b S |")
+    print("|---|---|---|---|---|---|---|---|")
+    for m, shape, h in zip(maps, shapes, hat, strict=True):
+        fit, err, ids = frame_fit(m, truth)
+        ok = np.isfinite(err)
+        start = np.asarray(m.metadata["true_start_pose"], float)
+        centroid = np.r_[m.positions[:, :2].mean(axis=0), 0.0][None]
+        d_xy = (transform_points(fit, centroid) - transform_points(start, centroid))[0, :2]
+        d_xy = rot_z(-start[2])[:2, :2] @ d_xy                      # in the map's frame, as the file's covariance
+        d_th = float(np.arctan2(np.sin(fit[2] - start[2]), np.cos(fit[2] - start[2])))
+        F = rigid_covariance(m)
+        d = np.r_[d_xy, d_th]
+        world = np.array([truth[int(i)] for i in ids[ok]])
+        r = (transform_points(fit, m.positions[ok])[:, :2] - world) @ rot_z(fit[2])[:2, :2]   # into the map's frame
+        nees = np.einsum("ki,ki->k", r, np.linalg.solve(shape[ok], r[..., None])[..., 0])
+        text = "—"
+        if levels is not None:
+            P = levels[0] * np.eye(2) + levels[1] * shape[ok]
+            text = f"{np.median(np.einsum('ki,ki->k', r, np.linalg.solve(P, r[..., None])[..., 0])):.1f}"
+        file_shape = np.sqrt(np.mean(np.trace(shape, axis1=1, axis2=2)) / 2)
+        print(f"| {m.robot} | {np.hypot(*d_xy):.3f} / {abs(d_th):.4f} | {np.sqrt(F[0, 0] + F[1, 1]):.3f} / "
+              f"{np.sqrt(F[2, 2]):.4f} | {d @ np.linalg.solve(F, d):.1f} | {np.sqrt(np.nanmean(err ** 2) / 2):.3f} | "
+              f"{file_shape:.3f} | {h:.3f} | {np.median(nees):.1f} / {text} |")
+    if levels is not None:
+        print(f"a I + b S fitted on the pairs (fusion.shape_covariance.shape_levels): "
+              f"a = ({np.sqrt(levels[0]):.3f} m)², b = {levels[1]:.3f}")
+
+
 def between_text(pose, reference) -> str:
     d = compose(inverse(np.asarray(reference, float)), np.asarray(pose, float))
     return f"{np.hypot(d[0], d[1]):.3f} m / {abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))):.4f} rad"
@@ -255,6 +301,7 @@ def main() -> None:
         refusals(maps)
         merge_limits(maps, truth)
         alignments = multi.pairwise_alignments(maps, "robust", np.random.default_rng(0))
+        drift_split(maps, truth, alignments)
         merge_rules(maps, truth, alignments)
         merge_breakdown(maps, truth, alignments)
 

@@ -33,6 +33,7 @@ from .merging import (
 )
 from .placement import shape_placement
 from .pose_covariance import compose_with_covariance
+from .shape_covariance import shape_calibrated, shape_covariances, shape_levels
 
 
 @dataclass
@@ -172,7 +173,7 @@ def claimed_variance(landmark_map: LandmarkMap) -> float:
     return float(np.median(np.trace(landmark_map.covariances[:, :2, :2], axis1=1, axis2=2)) / 2)
 
 
-CALIBRATIONS = ("isotropic", "scaled")
+CALIBRATIONS = ("isotropic", "scaled", "drift")
 
 
 def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "isotropic") -> LandmarkMap:
@@ -195,6 +196,25 @@ def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "
                        dict(landmark_map.metadata))
 
 
+def drift_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int], Alignment]
+                     ) -> tuple[list[LandmarkMap], np.ndarray] | None:
+    """Every map with each landmark's planar covariance about its map's rigid placement, from the drift its file
+    keeps (``fusion.shape_covariance``), a I + b S_l with (a, b) one pair for all maps from the found pairs' residuals
+    (``shape_levels``); and per map the
+    factor its median claimed variance was scaled by (for the report).  None when a map keeps no drift or no pair
+    was found (two maps suffice: one level is fitted, not one per map)."""
+    shapes = [shape_covariances(m) for m in maps]
+    if any(s is None for s in shapes):
+        return None
+    levels = shape_levels(maps, shapes, alignments)
+    if levels is None:
+        return None
+    a, b = levels
+    factors = np.array([(a + b * float(np.median(np.trace(s, axis1=1, axis2=2))) / 2) / max(claimed_variance(m), 1e-12)
+                        for m, s in zip(maps, shapes, strict=True)])
+    return [shape_calibrated(m, s, levels) for m, s in zip(maps, shapes, strict=True)], factors
+
+
 def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int) -> Alignment:
     """The alignment of ``child`` to ``parent`` (inverting the stored one when needed)."""
     if (parent, child) in alignments:
@@ -215,7 +235,9 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     by :func:`covariance_scales` before merging, so that the merge weighs each map by how well its landmarks
     agree with the others' (``MultiFusion.covariance_scales``): ``calibration`` "isotropic" gives every landmark of
     map k the per-axis variance σ_k² in the plane (:func:`calibrated_map`), "scaled" multiplies its claimed
-    covariances by the factor (session 5).  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
+    covariances by the factor (session 5), "drift" gives each landmark its covariance about its map's rigid placement
+    from the drift the map file keeps, at one level for all maps (:func:`drift_calibrated`; session 10; maps without
+    the drift fall back to "isotropic").  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
     "kalman", the paper's update, or "intersection", covariance intersection).  Raises
     :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
     """
@@ -235,8 +257,13 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     if n > 1 and not edges:
         raise NoOverlapError("none of the maps overlaps the reference map "
                              f"{maps[reference].robot!r}: nothing to fuse")
-    scales = covariance_scales(maps, alignments) if calibrate and n > 2 else None
-    if scales is not None:
+    shaped = drift_calibrated(maps, alignments) if calibrate and calibration == "drift" else None
+    if shaped is not None:
+        maps, scales = shaped
+    else:       # "drift" without the drift in every file falls back to the default
+        calibration = "isotropic" if calibration == "drift" else calibration
+        scales = covariance_scales(maps, alignments) if calibrate and n > 2 else None
+    if scales is not None and shaped is None:
         maps = [calibrated_map(m, float(c), calibration) for m, c in zip(maps, scales, strict=True)]
     poses: list[np.ndarray | None] = [None] * n
     covs: list[np.ndarray | None] = [None] * n
@@ -255,7 +282,8 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
         if a.start_covariance is not None and start_covs[parent] is not None:
             start_covs[child] = compose_with_covariance(poses[parent], start_covs[parent], a.pose,
                                                         a.start_covariance)[1]
-        sup = one_to_one_supports(maps[parent], maps[child], a)
+        # the supports made one-to-one: Method 1's common landmarks, and what a calibrated placement is fitted on
+        sup = one_to_one_supports(maps[parent], maps[child], a) if method == 1 or scales is not None else None
         if scales is None:     # the merge weighs the maps by their claims, under which the alignment is the fit
             edge_pose, edge_place_cov = a.pose, edge_cov
         else:
