@@ -39,9 +39,12 @@ class _OracleFastSLAM(rendered._TimedFastSLAM):
     """The timed filter whose alike pairs pass only if their true points are within ``within`` m."""
 
     within: float | None = None
+    filter_seed: int | None = None   # another draw of the filter's own randomness (the run-to-run spread)
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
+    def __init__(self, config, rng, *args, **kwargs) -> None:
+        if self.filter_seed is not None:
+            rng = np.random.default_rng([self.filter_seed, 10])
+        super().__init__(config, rng, *args, **kwargs)
         self.point_of: dict[int, int] = {}      # landmark id -> true point behind its first sighting (-1: none)
         self.made_at: dict[int, tuple[int, float]] = {}   # landmark id -> (update, range of its first sighting)
         self.vetoed = self.kept = 0
@@ -119,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--oracle", choices=("right", "none"), default="right",
                         help="right: merge only pairs whose true points are within --within m; none: as configured")
     parser.add_argument("--within", type=positive_float, default=0.1, metavar="M")
+    parser.add_argument("--filter-seed", type=int, default=None, metavar="N",
+                        help="draw the filter's particles from another seed (frames and odometry unchanged): the "
+                             "spread of ATE over the filter's own randomness")
     parser.add_argument("--pairs-out", type=Path, default=None, metavar="FILE.npz",
                         help="write every pair the alike test proposed (ids, update, creation updates and ranges, "
                              "descriptor distance, true distance) for offline study")
@@ -130,11 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     if config.max_observations != 0:
         parser.error("--set max_observations must stay 0 (the oracle maps each reading to its truth)")
     _OracleFastSLAM.within = args.within if args.oracle == "right" else None
+    _OracleFastSLAM.filter_seed = args.filter_seed
     row = rendered.run_robot(World.load(), args.robot, seconds=300.0, seed=args.seed, config=config,
                              frame_rate=args.frame_rate, max_corners=150, diagnose=False,
                              frames_cache=args.frames_cache, filter_class=_OracleFastSLAM)
     slam = rendered._TimedFastSLAM.instances[-1]
-    row.update(oracle=args.oracle, within_m=args.within, oracle_vetoed=slam.vetoed, oracle_kept=slam.kept,
+    row.update(oracle=args.oracle, within_m=args.within, filter_seed=args.filter_seed, oracle_vetoed=slam.vetoed,
+               oracle_kept=slam.kept,
                **absorbed_per_landmark(slam.merged_pairs))
     if args.pairs_out is not None:
         save_proposed(args.pairs_out, slam)
