@@ -166,7 +166,7 @@ class Mission:
         self._virtual_heads: dict = {}  # robot -> its VirtualStereoHead (mock cameras), for the late-frame count
         self.fusion_history: list[FusionReport] = []
         # alignments of maps unchanged since an earlier fusion; a live fusion's found is a candidate until the next
-        # one agrees (fusion/confirmation.py); the final fusion is decided on the complete maps alone
+        # one agrees (fusion/confirmation.py); the final fusion after every route is done is decided on the maps alone
         self.fusion_cache = alignment_cache(confirm_after=self.config.fusion_interval or None)
         self.logger = None
         self.recording_path: Path | None = None
@@ -548,7 +548,8 @@ class Mission:
         cache = self.fusion_cache
         if hasattr(cache, "start_round"):          # confirming live fusions (fusion/confirmation.py)
             cache.start_round(t)
-            cache = cache.inner if final else cache
+            if final and self._routes_finished():  # complete maps: decided on them alone, as p3at fuse decides
+                cache = cache.inner
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.fusion_history)),
                            cache=cache, priors=priors)
@@ -568,6 +569,11 @@ class Mission:
         for pair in report.pairs:
             self.events(fusion_event_line(t, pair))
         return report
+
+    def _routes_finished(self) -> bool:
+        """Every robot drove its whole route: the maps are complete.  A mission cut short (``--seconds``, Ctrl-C) or
+        without routes ends with maps that would have grown, so its final fusion is confirmed like a live one."""
+        return self.config.motion == "route" and all(r.onboard.route_done.is_set() for r in self.robots)
 
     def _start_priors(self) -> dict | None:
         """With ``start_prior``: every pair's relative start from the configured start poses (where the robots were

@@ -60,7 +60,8 @@ def _outcome(summary: dict) -> dict:
 def test_one_seed_gives_identical_maps_and_figures_alone_and_beside_busy_processes(tmp_path):
     """The two-robot mission twice with one seed, the second time with two busy-loop processes competing for the
     CPU: every array of every map file is the same, and so are the alignment figures (simulated time waits for
-    the slowest stage). Short (10 simulated seconds, enough for a first alignment) to keep the suite fast."""
+    the slowest stage). Short (10 simulated seconds, enough for a first alignment, found once and not yet confirmed by
+    a later fusion: fusion/confirmation.py) to keep the suite fast."""
     config = MissionConfig(robots=2, seconds=10.0, seed=5, camera="synthetic", camera_rate=10.0, particles=30,
                            fusion_interval=5.0, out=tmp_path / "alone", rerun="none", odometry="realistic")
     first = Mission(config).run()
@@ -71,7 +72,9 @@ def test_one_seed_gives_identical_maps_and_figures_alone_and_beside_busy_process
         for process in busy:
             process.kill()
             process.wait()
-    assert first.summary["fusion"]["pairs"][0]["aligned"]
+    pair = first.summary["fusion"]["pairs"][0]   # found by the evidence; 10 s is too short to confirm it (a candidate)
+    assert pair["aligned"] or pair["note"].startswith("candidate"), pair["note"]
+    assert pair["supports"] >= pair["required_supports"] > 0
     assert [r.as_dict()["pairs"] for r in first.fusion_history] == [r.as_dict()["pairs"] for r in
                                                                       second.fusion_history]
     for name in ("robot1.npz", "robot2.npz", "fused.npz"):
