@@ -8,13 +8,14 @@ particle passes the plain gate) is a *duplicate creation* if the particle alread
 Run from the repository root (a diagnosis: the filter's own gate before each update, ``FastSLAM.candidate_gate``;
 ~2 min CPU per robot):
 
-    .venv/bin/python -m benchmarks.mrclam_unknown_creations ROBOT [SEED] ['{"FIELD": VALUE}']
+    .venv/bin/python -m benchmarks.mrclam_unknown_creations ROBOT [SEED] ['{"FIELD": VALUE}'] [--range-calibration]
 
 Prints the creations, how many were duplicate creations, how many of those had the right old landmark inside
 the drift-widened gate, and whether it was the nearest or the only candidate there; the genuinely new ones that
 some landmark passes under the widened gate (what a widened gate alone would mis-associate); frames with two or
 more such re-sightings (what ``unknown_relative_drift="consistent"`` needs); the best particle's matches to a
-landmark of another barcode. docs/fastslam.md, "Session 7: unknown association".
+landmark of another barcode. docs/fastslam.md, "Session 7: unknown association". ``--range-calibration``: each
+robot's noise model also fits the camera's depth-not-range calibration (as ``eval_mrclam``'s option).
 """
 import json
 import sys
@@ -32,9 +33,11 @@ from estimation.noise_model import estimate_noise
 
 
 def main() -> None:
-    robot = int(sys.argv[1])
-    seed = int(sys.argv[2]) if len(sys.argv) > 2 else 0
-    over = json.loads(sys.argv[3]) if len(sys.argv) > 3 else {}
+    args = [a for a in sys.argv[1:] if a != "--range-calibration"]
+    calibrate = len(args) < len(sys.argv) - 1
+    robot = int(args[0])
+    seed = int(args[1]) if len(args) > 1 else 0
+    over = json.loads(args[2]) if len(args) > 2 else {}
     log = read_mrclam(DATA, robot)
     times, first = np.unique(log.sighting_times, return_index=True)
     bounds = np.append(first, len(log))[1:]
@@ -105,7 +108,7 @@ def main() -> None:
 
 
     ds.FastSLAM = Diag
-    noise = estimate_noise([log]).model
+    noise = estimate_noise([log], range_calibration=calibrate).model
     run = ds.run_landmark_log(log, range_bearing_config(n_particles=100, **over), np.random.default_rng(seed),
                               noise=noise, association="unknown")
     r = np.array(rows, float)
