@@ -22,8 +22,9 @@ fusion agrees with the latest found alignment; one that disagrees is a candidate
 
 What it does not do. It adds no evidence: two fusions of overlapping data can agree on a wrong alignment if the
 maps keep showing one copy each of a repetition for longer than ``min_gap``.  It only asks the wrong alignment to
-survive the maps' growth, which every one measured on the demo did not.  The mission's final fusion is made on
-the robots' complete maps and decided on them alone, as ``p3at fuse`` does on the saved maps.
+survive the maps' growth, which every one measured on the demo did not.  A final fusion on complete maps (a mission
+whose robots all finished their routes; the fleet node's last) is the caller's to decide on the maps alone, through
+``inner``, as ``p3at fuse`` does on saved maps.
 """
 from __future__ import annotations
 
