@@ -485,6 +485,11 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         claimed_err = frame_fit(claimed, truth)[1]
         print(f"| merged by the maps' own covariances (calibrate=False) | {len(claimed)} | "
               f"{np.nanmedian(claimed_err):.3f} | {np.nanmean(claimed_err):.3f} |")
+        if all(m.drift_covariances is not None for m in maps):   # files that keep the drift (session 10)
+            drift = fuse_all(maps, "robust", 1, alignments=alignments, calibration="drift").map
+            drift_err = frame_fit(drift, truth)[1]
+            print(f"| merged with the drift the files keep (calibration='drift', an option) | {len(drift)} | "
+                  f"{np.nanmedian(drift_err):.3f} | {np.nanmean(drift_err):.3f} |")
     except NoOverlapError:
         pass
     scales = covariance_scales(maps, alignments)

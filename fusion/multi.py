@@ -198,14 +198,18 @@ def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "
 
 def drift_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int], Alignment]
                      ) -> tuple[list[LandmarkMap], np.ndarray] | None:
-    """Every map with each landmark's planar covariance about its map's rigid placement, from the drift its file
-    keeps (``fusion.shape_covariance``), a I + b S_l with (a, b) one pair for all maps from the found pairs' residuals
-    (``shape_levels``); and per map the
+    """Every map with its landmarks' planar covariance (a + b s_k²) I, s_k² the mean per-axis variance of map k's
+    landmarks about its rigid placement from the drift its file keeps (``fusion.shape_covariance``), (a, b) one pair for
+    all maps from the found pairs' residuals (``shape_levels``); and per map the
     factor its median claimed variance was scaled by (for the report).  None when a map keeps no drift or no pair
     was found (two maps suffice: one level is fitted, not one per map)."""
     shapes = [shape_covariances(m) for m in maps]
     if any(s is None for s in shapes):
         return None
+    # one isotropic variance per map, its landmarks' mean about the rigid placement: the files rank the maps (MRCLAM,
+    # 20 maps: Spearman +0.59 with the real σ, the hat's +0.29), but their per-landmark blocks are nearly singular
+    # across the bend (the local part is millimetres), and merging by them was worse on 3 of 4 sets (docs/fusion.md)
+    shapes = [np.tile(np.eye(2) * float(np.mean(np.trace(s, axis1=1, axis2=2))) / 2, (len(s), 1, 1)) for s in shapes]
     levels = shape_levels(maps, shapes, alignments)
     if levels is None:
         return None
@@ -235,9 +239,9 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     by :func:`covariance_scales` before merging, so that the merge weighs each map by how well its landmarks
     agree with the others' (``MultiFusion.covariance_scales``): ``calibration`` "isotropic" gives every landmark of
     map k the per-axis variance σ_k² in the plane (:func:`calibrated_map`), "scaled" multiplies its claimed
-    covariances by the factor (session 5), "drift" gives each landmark its covariance about its map's rigid placement
-    from the drift the map file keeps, at one level for all maps (:func:`drift_calibrated`; session 10; maps without
-    the drift fall back to "isotropic").  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
+    covariances by the factor (session 5), "drift" gives map k's landmarks the variance its file's drift implies about
+    its rigid placement, at one level for all maps (:func:`drift_calibrated`; session 10; maps without the drift fall
+    back to "isotropic").  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
     "kalman", the paper's update, or "intersection", covariance intersection).  Raises
     :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
     """
