@@ -91,7 +91,7 @@ def test_a_simulated_drifting_chain_scatters_about_its_rigid_fit_as_predicted():
     # (δ_k = J δ_{k−1} + η_k, J carrying the heading error along the route), each landmark takes the pose error of
     # its making; the file keeps D_k and the robot's position.  Over many draws the landmarks' scatter about the
     # map's best rigid fit is what shape_covariances says, landmark by landmark (a rule that took the later
-    # landmark's drift, or no cross terms, is off by 2-10x here)
+    # landmark's drift, or no cross terms, fails it)
     rng = np.random.default_rng(7)
     n, draws = 12, 4000
     phi = np.linspace(0, np.pi / 2, n)
