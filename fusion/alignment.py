@@ -739,7 +739,8 @@ def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.r
     ``inflation`` (a pair's final gate scale, with ``config.self_repeat_gate == "pair"``): the repeat's supports are
     counted in the gate that scale gives, the gate every other count of the decision uses.  Without it they are
     counted in the map's own claimed covariances, which with honest start-frame covariances reach the 1 m cap
-    (rendered demo seed 8, robot 2: 23 supports of a 1 m shift, 12 of them 0.44-0.96 m off it; 14 in the pair's gate)."""
+    (rendered demo seed 8, robot 2: 23 supports of a 1 m shift, 12 of them 0.44-0.96 m off it; 14 in the pair's
+    gate)."""
     n = len(landmark_map)
     if not has_descriptors(landmark_map) or n < 4:
         return 0
