@@ -32,7 +32,7 @@ import numpy as np
 from benchmarks import eval_slam_rendered as rendered
 from drivers.fileio import atomic_write_bytes
 from estimation.fastslam import FastSLAMConfig
-from runtime.commands.options import positive_float, positive_int
+from runtime.commands.options import non_negative_int, positive_float, positive_int
 
 
 class _OracleFastSLAM(rendered._TimedFastSLAM):
@@ -113,7 +113,7 @@ def absorbed_per_landmark(merged_pairs) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robot", default="robot1")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--frame-rate", type=positive_float, default=3.75)
     parser.add_argument("--particles", type=positive_int, default=100)
     parser.add_argument("--frames-cache", type=Path, required=True, metavar="DIR")
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--oracle", choices=("right", "none"), default="right",
                         help="right: merge only pairs whose true points are within --within m; none: as configured")
     parser.add_argument("--within", type=positive_float, default=0.1, metavar="M")
-    parser.add_argument("--filter-seed", type=int, default=None, metavar="N",
+    parser.add_argument("--filter-seed", type=non_negative_int, default=None, metavar="N",
                         help="draw the filter's particles from another seed (frames and odometry unchanged): the "
                              "spread of ATE over the filter's own randomness")
     parser.add_argument("--pairs-out", type=Path, default=None, metavar="FILE.npz",
