@@ -120,7 +120,7 @@ ROBUST = AlignmentConfig(
     name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
     support_threshold=1.0, min_supports=4, iterations=2000, adaptive=True, confidence=0.9999,
     covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3, min_gate=0.3, inflate_gate=True,
-    gate_scale="residual",
+    gate_scale="residual", self_repeat_gate="pair",
 )
 PRESETS: dict[str, AlignmentConfig] = {"paper": PAPER, "robust": ROBUST}
 

@@ -1,12 +1,14 @@
 """AlignmentCache: repeated fusions of unchanged maps reuse their alignments; a changed map is recomputed."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimation.landmark_map import LandmarkMap
-from fusion import AlignmentCache, align, fuse_all, map_fingerprint
+from fusion import ROBUST, AlignmentCache, align, fuse_all, map_fingerprint
 
 
 def _pair(sim):
@@ -33,13 +35,16 @@ def test_a_cached_alignment_equals_a_fresh_one_and_is_not_recomputed_for_unchang
 
 
 def test_a_changed_map_is_aligned_again_and_an_unchanged_one_keeps_its_self_structure(sim):
+    """With the self-repeat counted in each map's own gate, an unchanged map's repeat is reused; counted in the pair's
+    gate (the robust default since session 10) it is reused only while the pair's gate scale is the same."""
     map1, map2 = _pair(sim)
+    own = replace(ROBUST, self_repeat_gate="own")
     cache = AlignmentCache()
-    cache.align(map1, map2, "robust", np.random.default_rng(1))
+    cache.align(map1, map2, own, np.random.default_rng(1))
     changed = _moved(map2, 5, 0.5)
-    result = cache.align(map1, changed, "robust", np.random.default_rng(2))
+    result = cache.align(map1, changed, own, np.random.default_rng(2))
     assert cache.misses == 2 and cache.hits == 0
-    assert result.to_dict() == align(map1, changed, "robust", np.random.default_rng(2)).to_dict()
+    assert result.to_dict() == align(map1, changed, own, np.random.default_rng(2)).to_dict()
     assert (cache.self_hits, cache.self_misses) == (1, 3)       # map 1 from the store, the changed map anew
     assert cache.align(map1, map2, "paper", np.random.default_rng(1)).preset == "paper"   # preset in the key
     assert cache.misses == 3

@@ -19,7 +19,8 @@ from fusion import align
 from fusion.alignment import ROBUST, self_structure
 from fusion.errors import IncompatibleMapsError
 
-PAIR = replace(ROBUST, self_repeat_gate="pair")
+PAIR = replace(ROBUST, self_repeat_gate="pair")   # the robust preset's default since session 10
+OWN = replace(ROBUST, self_repeat_gate="own")     # the rule before it
 CLAIMED = 0.35           # metres: a start-frame σ as wide as the demo's maps claim; the real noise is 0.02 m
 NOISE = 0.02
 SHIFT = np.array([3.0, 0.0, 0.0])
@@ -58,7 +59,7 @@ def loose_repeat_pair(seed: int, common: int = 50, loose: int = 22, tight: int =
 
 def test_a_loose_repeat_counts_in_the_map_s_own_gate_and_not_in_a_narrow_one():
     _, m2, _ = loose_repeat_pair(0)
-    own = self_structure(m2, ROBUST, np.random.default_rng(0))
+    own = self_structure(m2, OWN, np.random.default_rng(0))
     narrow = self_structure(m2, PAIR, np.random.default_rng(0), inflation=0.02)   # the floor's 0.3 m gate
     assert own >= 20
     assert narrow <= 8
@@ -67,7 +68,7 @@ def test_a_loose_repeat_counts_in_the_map_s_own_gate_and_not_in_a_narrow_one():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_true_overlap_is_found_when_the_repeat_is_counted_in_the_pair_s_gate(seed):
     m1, m2, truth = loose_repeat_pair(seed)
-    own = align(m1, m2, ROBUST, np.random.default_rng(seed))
+    own = align(m1, m2, OWN, np.random.default_rng(seed))
     pair = align(m1, m2, PAIR, np.random.default_rng(seed))
     assert not own.found and "repeats itself" in own.reason
     assert pair.found, pair.reason
@@ -100,7 +101,7 @@ def test_the_cache_keeps_the_pair_s_gate_apart_and_decides_as_align_does():
 
     m1, m2, _ = loose_repeat_pair(0)
     cache = AlignmentCache()
-    own = cache.align(m1, m2, ROBUST, np.random.default_rng(0))
+    own = cache.align(m1, m2, OWN, np.random.default_rng(0))
     pair = cache.align(m1, m2, PAIR, np.random.default_rng(0))
     assert pair.to_dict() == align(m1, m2, PAIR, np.random.default_rng(0)).to_dict()
     assert own.statistics.self_repeat_supports > pair.statistics.self_repeat_supports
