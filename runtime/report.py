@@ -5,7 +5,7 @@ import math
 import textwrap
 from collections.abc import Mapping
 
-from fusion.confirmation import candidate_clause
+from fusion.confirmation import CANDIDATE, candidate_clause
 
 # a flagged map's split (fusion/split.py), by its decision, in a clause short enough for a live event line
 _SPLIT_BRIEF = {
@@ -105,7 +105,10 @@ def split_brief(pair: Mapping) -> str:
     if decision not in _SPLIT_BRIEF:
         return ""
     who = sentence.split(" flagged itself", 1)[0] if " flagged itself" in sentence else "a map"
-    return f"{who} flagged itself and was split at its alarm: {_SPLIT_BRIEF[decision]}"
+    brief = _SPLIT_BRIEF[decision]
+    if decision == "none" and f"{CANDIDATE}: " in sentence:     # a part found once, not yet confirmed (live fusion)
+        brief = "neither part is aligned yet (a part's alignment is a candidate, not yet confirmed), so it is left out"
+    return f"{who} flagged itself and was split at its alarm: {brief}"
 
 
 def not_aligned_reason(pair: Mapping) -> str:

@@ -47,3 +47,18 @@ def test_a_split_whose_parts_disagree_is_named_by_its_decision(sim):
     assert fusion_event_line(5.0, as_not_aligned).endswith(
         "robot2 flagged itself and was split at its alarm: the parts disagree, so each is merged under its own "
         "alignment")
+
+
+def test_a_flagged_map_whose_parts_are_live_candidates_says_so(sim):
+    """In a live fusion (fusion/confirmation.py) a part found once is a candidate: the line does not say that neither
+    part aligns, but that neither is aligned yet."""
+    from fusion.confirmation import ConfirmingCache
+
+    m1, m2, _, _ = _pair(sim)
+    cache = ConfirmingCache(min_gap=20.0)
+    cache.start_round(20.0)
+    (pair,) = fuse_maps({"robot1": m1, "robot2": m2}, cache=cache).pairs
+    assert not pair.aligned and pair.split_decision == "none" and "candidate: " in pair.self_check
+    assert fusion_event_line(20.0, pair).endswith(
+        "robot2 flagged itself and was split at its alarm: neither part is aligned yet (a part's alignment is a "
+        "candidate, not yet confirmed), so it is left out")
