@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from estimation.geometry import wrap_angle
+from estimation.geometry import transform_points, wrap_angle
 
 from .cache import AlignmentCache, map_fingerprint
 
@@ -48,7 +48,7 @@ def transforms_agree(earlier: Alignment, later: Alignment, later_points: np.ndar
     """Whether two found alignments of one pair of robots are the same transform; (agree, how far apart in words).
 
     With both start covariances (else the alignments' own): the difference (Δx, Δy, Δθ) within χ²₃ at ``level`` of
-    their sum.  Without covariances (paper preset): ``later_points`` (P, 2), the later alignment's supports in the
+    their sum.  Without covariances (paper preset): ``later_points`` (P, 3), the later alignment's supports in the
     other map's frame, must land within ``support_distance`` under both transforms.
     """
     from scipy.stats import chi2
@@ -66,14 +66,8 @@ def transforms_agree(earlier: Alignment, later: Alignment, later_points: np.ndar
         return bool(d2 <= chi2.ppf(level, 3)), apart
     if later_points is None or len(later_points) == 0:
         return False, apart + " (no covariance and no supports to compare)"
-    moved = _place(later_points, b) - _place(later_points, a)
+    moved = transform_points(b, later_points) - transform_points(a, later_points)
     return bool(np.max(np.hypot(moved[:, 0], moved[:, 1])) <= support_distance), apart
-
-
-def _place(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    x, y = points[:, 0], points[:, 1]
-    return np.c_[pose[0] + c * x - s * y, pose[1] + s * x + c * y]
 
 
 @dataclasses.dataclass
@@ -120,7 +114,7 @@ class ConfirmingCache:
         result = self.inner.align(map1, map2, preset, rng, prior=prior)
         if not result.found:
             return result
-        key = (_robots(map1), _robots(map2))
+        key = (tuple(map1.robots), tuple(map2.robots))
         content = (map_fingerprint(map1), map_fingerprint(map2))
         earlier = self._latest.get(key)
         if earlier is not None and earlier.content == content:      # the same maps: no new evidence either way
@@ -133,7 +127,7 @@ class ConfirmingCache:
             from .alignment import _resolve
 
             config = _resolve(preset)
-            points = map2.positions[result.supports[:, 1], :2] if len(result.supports) else None
+            points = map2.positions[result.supports[:, 1]] if len(result.supports) else None
             confirmed, apart = transforms_agree(earlier.alignment, result, points, config.support_threshold,
                                                 self.level)
             why = (f"agrees with the fusion at t={earlier.t:.0f}s" if confirmed else
@@ -151,10 +145,6 @@ def demoted(alignment: Alignment, why: str, min_gap: float) -> Alignment:
               f"the maps are still growing, so a fusion at least {min_gap:g} s later must agree")
     return dataclasses.replace(alignment, found=False, pose=None, covariance=None, start_covariance=None,
                                reason=reason)
-
-
-def _robots(landmark_map) -> tuple:
-    return tuple(landmark_map.robots or [landmark_map.robot])
 
 
 def candidate_clause(reason: str) -> str | None:

@@ -42,7 +42,7 @@ def test_the_heading_difference_is_wrapped(eps):
 
 
 def test_without_covariances_the_supports_must_land_within_the_support_distance():
-    points = np.array([[5.0, 0.0], [0.0, 5.0], [-3.0, -3.0]])
+    points = np.array([[5.0, 0.0, 1.0], [0.0, 5.0, 0.5], [-3.0, -3.0, 2.0]])
     earlier = _found([0.0, 0.0, 0.0])
     assert transforms_agree(earlier, _found([0.05, 0.0, 0.0]), points, support_distance=0.1)[0]
     assert not transforms_agree(earlier, _found([0.05, 0.0, 0.05]), points, support_distance=0.1)[0]  # 0.25 m at 5 m
