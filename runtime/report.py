@@ -128,12 +128,21 @@ def not_aligned_reason(pair: Mapping) -> str:
     return note or "no reason given"
 
 
+def candidate_text(pair: Mapping) -> str | None:
+    """'robot2 -> robot1 is a candidate, not yet found (26 supports at (…); why)' for a pair (a
+    ``PairResult.as_dict()``) found once and not yet confirmed (fusion/confirmation.py); None for any other pair."""
+    candidate = candidate_clause(pair.get("note") or "")
+    if pair.get("aligned", True) or candidate is None:
+        return None
+    return f"{pair['other']} -> {pair['reference']} is a candidate, not yet found ({candidate})"
+
+
 def fusion_event_line(t: float, pair) -> str:
     """The mission's and the fusion node's event line for one pair (a ``PairResult`` or its ``as_dict()``)."""
     p = pair if isinstance(pair, Mapping) else pair.as_dict()
-    candidate = candidate_clause(p.get("note") or "")
-    if not p["aligned"] and candidate is not None:   # fusion/confirmation.py: found once, not yet confirmed
-        return f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} is a candidate, not yet found ({candidate})"
+    candidate = candidate_text(p)
+    if candidate is not None:
+        return f"fusion at t={t:.0f}s: {candidate}"
     if not p["aligned"]:
         why = split_brief(p) or not_aligned_reason(p)   # a split's parts' reasons are in the summary, not live
         return f"fusion at t={t:.0f}s: {p['other']} does not overlap {p['reference']} yet: {why}"

@@ -71,7 +71,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
-from fusion.confirmation import candidate_clause
+from runtime.report import candidate_text
 from runtime.rrd_salvage import copy_prefix, scan_rrd
 
 # Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
@@ -782,9 +782,9 @@ class MissionLog:
         values = {k: result.get(k) for k in ("error_xy", "error_theta", "common", "merged")}
         values = {k: v for k, v in values.items() if isinstance(v, int | float) and not isinstance(v, bool)}
         self.log_scalars("fusion", t, values)
-        candidate = candidate_clause(result.get("note") or "")  # found once, not yet confirmed (confirmation.py)
-        if candidate is not None and not result.get("aligned", True):
-            self.log_event(t, f"fusion: {other} -> {reference} is a candidate, not yet found ({candidate})", "INFO")
+        candidate = candidate_text({"reference": reference, "other": other, **result})  # found once, unconfirmed
+        if candidate is not None:
+            self.log_event(t, f"fusion: {candidate}", "INFO")
         split = result.get("self_check")   # a flagged map split at its alarm (fusion/split.py): once per decision
         if split and self._first_time(f"fusion/split/{reference}_{other}/{result.get('split_decision')}"):
             self.log_event(t, f"fusion: {split}", "INFO" if result.get("split_decision") == "whole" else "WARN")
