@@ -151,12 +151,14 @@ def pair_priors(starts: dict[int, tuple[np.ndarray, tuple[float, float]]], n: in
     for k in starts:
         if not 0 <= k < n:
             raise IncompatibleMapsError(f"a start pose names map {k}, but there are {n} maps (0..{n - 1})")
-    out = {}
-    for i in sorted(starts):
-        for j in sorted(starts):
-            if i < j:
-                out[(i, j)] = StartPrior(*_relative(*starts[i], *starts[j]), source=source)
-    return out
+    return named_pair_priors(starts, source)
+
+
+def named_pair_priors(starts: dict, source: str = "start poses") -> dict[tuple, StartPrior]:
+    """Priors for every pair (a, b), a < b, of the keys whose start poses are known: {key: (pose, (σ xy, σ θ))}.
+    Keys are map indices (``p3at fuse``) or robot names (the live fusions, whose maps come and go by robot)."""
+    return {(a, b): StartPrior(*_relative(*starts[a], *starts[b]), source=source)
+            for a in sorted(starts) for b in sorted(starts) if a < b}
 
 
 def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | None]]:

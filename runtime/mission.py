@@ -577,15 +577,13 @@ class Mission:
 
     def _start_priors(self) -> dict | None:
         """With ``start_prior``: every pair's relative start from the configured start poses (where the robots were
-        put), each at the given σ (fusion.prior.StartPrior.between_starts); None without."""
+        put), each at the given σ (fusion.prior.named_pair_priors); None without."""
         if self.config.start_prior is None:
             return None
-        from fusion.prior import StartPrior
+        from fusion.prior import named_pair_priors
 
-        starts = {r.name: r.true_start for r in self.robots if r.true_start is not None}
-        return {(a, b): StartPrior.between_starts(starts[a], starts[b], *self.config.start_prior,
-                                                  source="configured start poses")
-                for a in sorted(starts) for b in sorted(starts) if a < b}
+        starts = {r.name: (r.true_start, self.config.start_prior) for r in self.robots if r.true_start is not None}
+        return named_pair_priors(starts, source="configured start poses")
 
     def _finish(self, final: FusionReport | None, duration: float) -> MissionResult:
         cfg = self.config

@@ -1,8 +1,6 @@
 """``p3at demo``: the two-robot mission on the virtual hardware (what ``make demo`` runs)."""
 from __future__ import annotations
 
-import sys
-
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -26,11 +24,6 @@ def register(subparsers) -> None:
 def _demo(args) -> int:
     if args.processes:
         from runtime.fleet.processes import run_processes_demo
-
-        if args.start_prior is not None:
-            print("p3at demo: --start-prior is not available with --processes (the fleet's fusion node takes no prior)",
-                  file=sys.stderr)
-            return 2
 
         args.camera = args.camera or "synthetic"  # rendering every head in its own process costs far more CPU
         return run_processes_demo(args)

@@ -43,9 +43,10 @@ def register(subparsers) -> None:
     parser.add_argument("--json", action="store_true", help="print the result as one JSON object")
     parser.add_argument("--start-pose", action="append", default=[], metavar="MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]",
                         help="a rough start pose of one map's robot in a frame common to all (the lab's; metres, "
-                             "radians, REP-103), MAP its index (0, 1, ...) or robot name; repeat per map. Every pair "
-                             "of maps with a start gets a prior on its relative start: a best alignment outside it "
-                             "(χ²₃ 99.9 %%) is reported not found, never the best one inside (default: none)")
+                             "radians, REP-103), MAP its index (0, 1, ...) or robot name (with --live: its robot "
+                             "name); repeat per map. Every pair of maps with a start gets a prior on its relative "
+                             "start: a best alignment outside it (χ²₃ 99.9 %%) is reported not found, never the best "
+                             "one inside (default: none)")
     parser.add_argument("--start-sigma", type=start_sigmas, default=None, metavar="SIGMA_XY,SIGMA_YAW",
                         help="standard deviations of each --start-pose given without its own (m, rad; e.g. 1,0.3)")
     parser.add_argument("--start-poses", default=None, metavar="FILE.json",
@@ -71,11 +72,12 @@ def _fuse(args: argparse.Namespace) -> int:
     if args.live:
         from runtime.fleet.fusion_node import run_live
 
-        if args.start_pose or args.start_poses is not None:
-            print("p3at fuse: the live fusion node takes no start poses yet (--start-pose, --start-poses): fuse saved "
-                  "maps without --live to use them", file=sys.stderr)
+        try:
+            starts = _live_starts(args)
+        except FusionError as e:
+            print(f"p3at fuse: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT
-        return run_live(args)
+        return run_live(args, starts)
     if args.out is None:
         print("p3at fuse: give the merged map file to write with --out MERGED", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -184,7 +186,35 @@ def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
     """{(i, j): StartPrior} from --start-pose / --start-poses (fusion.prior.pair_priors); raises FusionError, also for
     a start given for one map only (it makes no prior); warns on stderr which maps have none when others do."""
     from fusion.errors import IncompatibleMapsError
-    from fusion.prior import load_starts, pair_priors, parse_start
+    from fusion.prior import pair_priors
+
+    names = [m.robot for m in maps]
+    starts = {}
+    for key, start in _given_starts(args).items():
+        index = int(key) if key.isdigit() else (names.index(key) if key in names else None)
+        if index is None:
+            raise IncompatibleMapsError(f"a start names map {key!r}, which is neither an index nor a robot of the "
+                                        f"maps ({', '.join(names)})")
+        starts[index] = start
+    if len(starts) == 1:
+        (only,) = starts
+        raise IncompatibleMapsError(f"a start pose for map {only} ({names[only]}) alone gives no prior: " + _ONE_START)
+    missing = [f"{k} ({names[k]})" for k in range(len(maps)) if starts and k not in starts]
+    if missing:
+        print(f"p3at fuse: warning: no start pose for map{'s' if len(missing) > 1 else ''} {', '.join(missing)}: "
+              f"{'their' if len(missing) > 1 else 'its'} pairs are aligned without a prior", file=sys.stderr)
+    return pair_priors(starts, len(maps), source="given start poses") if starts else {}
+
+
+# a prior is on two robots' relative start: one start alone constrains nothing
+_ONE_START = "a prior is on the relative start of two maps, so give the start of another map too"
+
+
+def _given_starts(args: argparse.Namespace) -> dict[str, tuple]:
+    """{key: (pose, (σ xy, σ yaw))} from --start-poses FILE and --start-pose KEY=... (which wins), each start's σ
+    its own or --start-sigma; raises FusionError (IncompatibleMapsError) with a one-line reason."""
+    from fusion.errors import IncompatibleMapsError
+    from fusion.prior import load_starts, parse_start
 
     given: dict[str, tuple] = {}
     if args.start_poses is not None:
@@ -193,30 +223,30 @@ def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
         key, sep, value = item.partition("=")
         if not sep:
             raise IncompatibleMapsError(f"--start-pose is MAP=X,Y,YAW[,SIGMA_XY,SIGMA_YAW]; got {item!r}")
-        pose, sig = parse_start(value)
-        given[key.strip()] = (pose, sig)
-    names = [m.robot for m in maps]
+        given[key.strip()] = parse_start(value)
     starts = {}
     for key, (pose, sig) in given.items():
-        index = int(key) if key.isdigit() else (names.index(key) if key in names else None)
-        if index is None:
-            raise IncompatibleMapsError(f"a start names map {key!r}, which is neither an index nor a robot of the "
-                                        f"maps ({', '.join(names)})")
         sig = sig if sig is not None else args.start_sigma
         if sig is None or not all(np.isfinite(sig)):
             raise IncompatibleMapsError(f"the start of map {key!r} has no standard deviations: give them in it or "
                                         "with --start-sigma SIGMA_XY,SIGMA_YAW")
-        starts[index] = (pose, tuple(sig))
+        starts[key] = (pose, tuple(sig))
+    return starts
+
+
+def _live_starts(args: argparse.Namespace) -> dict[str, tuple]:
+    """The live node's starts, by robot name: its maps arrive by robot, so a map index means nothing there."""
+    from fusion.errors import IncompatibleMapsError
+
+    starts = _given_starts(args)
+    numbered = sorted(k for k in starts if k.isdigit())
+    if numbered:
+        raise IncompatibleMapsError(f"the live fusion node knows maps by robot name, not by index: give "
+                                    f"--start-pose ROBOT=X,Y,YAW (got {', '.join(numbered)})")
     if len(starts) == 1:
-        # a prior is on two robots' relative start: one start alone constrains nothing
         (only,) = starts
-        raise IncompatibleMapsError(f"a start pose for map {only} ({names[only]}) alone gives no prior: a prior is on "
-                                    f"the relative start of two maps, so give the start of another map too")
-    missing = [f"{k} ({names[k]})" for k in range(len(maps)) if starts and k not in starts]
-    if missing:
-        print(f"p3at fuse: warning: no start pose for map{'s' if len(missing) > 1 else ''} {', '.join(missing)}: "
-              f"{'their' if len(missing) > 1 else 'its'} pairs are aligned without a prior", file=sys.stderr)
-    return pair_priors(starts, len(maps), source="given start poses") if starts else {}
+        raise IncompatibleMapsError(f"a start pose for {only} alone gives no prior: " + _ONE_START)
+    return starts
 
 
 def _print(report: dict, as_json: bool) -> None:

@@ -13,12 +13,13 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from fusion.prior import named_pair_priors
 from runtime.exchange import MapExchange
 from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
@@ -35,6 +36,10 @@ class FusionNodeConfig:
     method: int = 1
     seed: int = 0
     out: Path | None = None    # the fused map file, rewritten (atomically) after each fusion
+    # {robot: ((x, y, yaw), (σ xy, σ yaw))}: where robots started, roughly, in one frame; each pair of them is
+    # aligned with the prior on their relative start (fusion/prior.py); the others blind. Empty: all blind
+    starts: Mapping[str, tuple] = field(default_factory=dict)
+    starts_source: str = "given start poses"
 
     def __post_init__(self) -> None:
         if not (self.interval > 0 and self.min_period >= 0):
@@ -59,6 +64,8 @@ class FusionNode:
         self.t0 = clock()
         self.history: list[FusionReport] = []
         self.sources: dict[str, tuple] = {}      # robot -> (sequence, stamp) of its map in the last fusion
+        self.priors = named_pair_priors(dict(config.starts), source=config.starts_source)
+        self._priors_said: set[tuple[str, str]] = set()
         self._new_data = threading.Event()
 
     def notify(self, robot: str = "") -> None:
@@ -93,8 +100,9 @@ class FusionNode:
         self.cache.start_round(t)
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.history)),
-                           cache=self.cache.inner if final else self.cache)
+                           cache=self.cache.inner if final else self.cache, priors=self.priors)
         self.sources = sources
+        self._say_priors(t, maps)
         keep_latest_map(self.history, report)
         if report.merged is not None and any(p.aligned for p in report.pairs):
             merged = report.merged
@@ -116,6 +124,16 @@ class FusionNode:
         self.sources = {}
         return self.fuse_now(final=True)
 
+    def _say_priors(self, t: float, maps: dict) -> None:
+        """Once per pair, when both its robots are first fused: the fusion is not blind to where they started."""
+        for (a, b), prior in self.priors.items():
+            if a in maps and b in maps and (a, b) not in self._priors_said:
+                self._priors_said.add((a, b))
+                line = f"fusion uses a start prior for {b} in {a}'s frame: {prior.text()}"
+                self.on_event(line)
+                if self.logger is not None:
+                    self.logger.log_event(t, line, "INFO")
+
     def _log(self, t: float, maps: dict, report: FusionReport) -> None:
         if self.logger is None:
             return
@@ -129,15 +147,17 @@ class FusionNode:
 
 
 # -- p3at fuse --live ----------------------------------------------------------------------------------------
-def run_live(args: argparse.Namespace) -> int:
-    """``p3at fuse --live``: the fusion node until Ctrl-C, SIGTERM or ``--seconds``; prints each fusion."""
+def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None) -> int:
+    """``p3at fuse --live``: the fusion node until Ctrl-C, SIGTERM or ``--seconds``; prints each fusion.  ``starts``
+    {robot: (pose, sigmas)}: the robots' rough start poses (``--start-pose ROBOT=...``), a prior for their pairs."""
     from runtime.fleet.options import open_exchange
     from runtime.mission import install_stop_signals
 
     spec = args.exchange if args.exchange != "inprocess" else "zenoh"  # a live node needs a network exchange
     out = Path(args.out) if args.out else None
     try:
-        config = FusionNodeConfig(args.interval, args.min_period, args.preset, args.method, args.seed, out)
+        config = FusionNodeConfig(args.interval, args.min_period, args.preset, args.method, args.seed, out,
+                                  starts=starts or {})
     except ValueError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return 2

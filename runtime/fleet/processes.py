@@ -91,8 +91,11 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         logger.log_building(world.walls, world.wall_heights)
         logger.log_robot_frame("fused", np.asarray(world.start_poses[names[0]], float))
     interval = args.fusion_interval if args.fusion_interval > 0 else 1e9
+    # --start-prior: the fusion node gets the robots' configured start poses as a rough prior, as the mission does
+    starts = {} if args.start_prior is None else {n: (world.start_poses[n], args.start_prior) for n in names}
     node = FusionNode(exchange, FusionNodeConfig(interval=interval, min_period=max(1.0, min(interval, 5.0)),
-                                                 preset=args.preset, method=args.method, seed=args.seed),
+                                                 preset=args.preset, method=args.method, seed=args.seed,
+                                                 starts=starts, starts_source="configured start poses"),
                       logger=logger, on_event=progress.event)
     node_box.append(node)
     stop = threading.Event()

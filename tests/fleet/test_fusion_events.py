@@ -111,3 +111,45 @@ def test_the_final_fusion_is_decided_on_the_maps_alone():
     assert not node.fuse_now().pairs[0].aligned          # live: a candidate
     final = node.final_fusion()
     assert final.pairs[0].aligned and final.merged is not None
+
+
+def _twin_node(starts: dict) -> tuple[FusionNode, list[str]]:
+    """robot1 and robot2 whose maps are ambiguous under a half turn (tests/fusion/test_fusion_prior.twin_pair)."""
+    from tests.fusion.test_fusion_prior import twin_pair
+
+    m1, m2 = twin_pair(0, common=30, twins=24)
+    exchange, lines = InProcessExchange(), []
+    exchange.publish("robot1", m1)
+    exchange.publish("robot2", m2)
+    return FusionNode(exchange, FusionNodeConfig(starts=starts), on_event=lines.append), lines
+
+
+LAB_START1 = np.array([1.0, 2.0, 0.3])   # robot1's start in the lab's frame
+
+
+def _starts(pose_of_robot2_in_robot1) -> dict:
+    from estimation.geometry import compose
+
+    return {"robot1": (LAB_START1, (1.0, 0.3)), "robot2": (compose(LAB_START1, pose_of_robot2_in_robot1), (1.0, 0.3))}
+
+
+def test_the_live_node_with_the_robots_start_poses_resolves_a_half_turn_it_cannot_resolve_blind():
+    from tests.fusion.test_fusion_prior import TRUE_POSE
+
+    blind, _ = _twin_node({})
+    assert not blind.final_fusion().pairs[0].aligned
+    node, lines = _twin_node(_starts(TRUE_POSE))
+    node.fuse_now()
+    (pair,) = node.final_fusion().pairs
+    assert pair.aligned and pair.prior and np.hypot(pair.tx - TRUE_POSE[0], pair.ty - TRUE_POSE[1]) < 0.1
+    said = [line for line in lines if line.startswith("fusion uses a start prior")]
+    assert said == [f"fusion uses a start prior for robot2 in robot1's frame: {node.priors['robot1', 'robot2'].text()}"]
+
+
+def test_the_live_node_reports_a_best_alignment_that_contradicts_the_start_poses_as_not_found():
+    from tests.fusion.test_fusion_prior import WRONG_HALF_TURN
+
+    node, lines = _twin_node(_starts(WRONG_HALF_TURN))
+    (pair,) = node.final_fusion().pairs
+    assert not pair.aligned and "contradicts the prior" in pair.note
+    assert lines[-1].endswith("the best alignment contradicts the start prior")

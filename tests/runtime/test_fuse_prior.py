@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from estimation.geometry import compose
 from estimation.landmark_map import LandmarkMap
@@ -122,7 +123,13 @@ def test_maps_without_a_start_among_maps_with_one_are_named_in_a_warning(tmp_pat
     assert priors[(0, 1)] is not None and priors[(0, 2)] is None and priors[(1, 2)] is None
 
 
-def test_the_live_node_refuses_start_poses_in_one_line(tmp_path, capsys):
-    code = main(["fuse", "--live", "--start-pose", "0=0,0,0,1,0.3", "--start-pose", "1=5,0,3.14,1,0.3"])
+@pytest.mark.parametrize(("starts", "said"), [
+    (["0=0,0,0,1,0.3", "1=5,0,3.14,1,0.3"], "by robot name, not by index"),   # live maps come by robot
+    (["robot1=0,0,0,1,0.3"], "alone gives no prior"),
+    (["robot1=0,0,0", "robot2=5,0,3.14"], "no standard deviations"),
+])
+def test_the_live_node_refuses_starts_it_cannot_use_in_one_line_before_it_listens(starts, said, capsys):
+    args = [arg for start in starts for arg in ("--start-pose", start)]
+    code = main(["fuse", "--live", "--exchange", "zenoh:not json", *args])  # the exchange is never opened
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "live" in err[0] and "start" in err[0]
+    assert code == 2 and len(err) == 1 and said in err[0], err
