@@ -24,6 +24,41 @@ likelihood of every reading. Between particles that made a landmark apart, the r
 too. Measured (docs/fastslam.md, "Session 10"): the rule keeps the frame hypotheses a slow heading drift needs
 (MRCLAM robot 1 repaired on every seed) and loses the evidence a turn on the spot needs (robots 3 and 4 worse), so
 it is an option, off by default.
+
+Session 11: the weight relative to the landmark's creation, and why it is the paper's weight already. The
+proposal after session 10 was to keep the motion evidence and drop only the frame's, by judging each particle on
+its landmark expressed relative to its own pose when it made it. Write that likelihood. Particle m made landmark L
+at pose c (its pose then, in its own map frame) from the reading z₀, so its estimate is μ = c ⊕ g(z₀) with
+covariance Σ = J_c Σ₀ J_cᵀ (Σ₀ the reading's, J_c the rotation of c), later refined by readings taken from poses
+that moved with the particle. Its pose now is x = c ⊕ Δ, Δ its own motion since c (odometry and its noise, FastSLAM
+2.0's not yet sampled part with covariance P, propagated in the robot's frame). The relative-to-creation
+likelihood of a reading z of L is
+
+    p(z | Δ, ℓ) = N(z; h(Δ⁻¹ ⊕ ℓ), H_ℓ Σ_ℓ H_ℓᵀ + H_x P_Δ H_xᵀ + Q),   ℓ = c⁻¹ ⊕ μ,  Σ_ℓ = J_c⁻¹ Σ J_c⁻ᵀ,
+
+with P_Δ the motion covariance in the creation frame. The filter's weight (Montemerlo et al., FastSLAM 2.0, eq. of
+the importance weight; ``_gate``'s d² in the world frame) is N(z; h(x⁻¹ ⊕ μ), H_μ Σ H_μᵀ + H_x P H_xᵀ + Q). Every
+term is the same: x⁻¹ ⊕ μ = (c ⊕ Δ)⁻¹ ⊕ (c ⊕ ℓ) = Δ⁻¹ ⊕ ℓ, and Σ, P are the creation frame's Σ_ℓ, P_Δ rotated by c
+(P because the odometry's noise is drawn in the robot's frame), which the innovation covariance, read in the robot's
+frame, undoes. So the paper's weight for a landmark a particle made itself never judged its frame: a rigid offset
+of a particle's pose at creation, carried by the landmark it made then, leaves every later reading's weight equal
+(tests/fastslam/test_relative_evidence.py: twins in an offset frame get equal weights to 1e-9 while the weights
+spread by e^3 over their motions). What it does judge, and all it judges, is the motion since the creation; the
+frame is judged only by landmarks made before the particles' frames diverged (by the first frame or a common
+parent), as motion since *that* creation: the loop closure. The relative rule is ``weight_evidence="all"``; no
+separate option is built for it. One exception in this code: a reading the gate rejected is judged again under the
+drift tracker's covariance (``id_relative_drift``, id_gate.py), one covariance in the best particle's frame for all
+particles, so for those readings only the weight is not exactly invariant to a particle's frame.
+
+What session 10's rule dropped, then, was only motion evidence (the turn test: the heading a turn on the spot got
+wrong stays wrong), and what it gained on MRCLAM robot 1 came from weights kept flat, that is fewer resamplings,
+not from any frame evidence removed. The plain cloud's loss of frame hypotheses is the coalescence of resampling:
+the selection on each particle's motion noise is blind to its frame, but each resampling copies a few particles
+and with them their frames, so the frames drift to one ancestor's in a number of resamplings that grows with M
+(the frame spread kept is the drift since the common ancestor, not since the last shared landmark). Keeping the
+frame hypotheses without dropping evidence needs a resampling that copies the motion and not the frame (each
+particle's frame since its last shared landmark carried apart from its motion, e.g. as a Gaussian per particle
+that a loop closure updates); not built.
 """
 from __future__ import annotations
 
