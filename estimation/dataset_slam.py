@@ -27,6 +27,7 @@ from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, attribute_landmarks, count_sightings, map_scores, pose_nees
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
+from .sighting_spread import SightingRecorder
 
 ASSOCIATIONS = ("id", "unknown")
 _KNOWN_LANDMARK_VARIANCE = 1e-6   # m²: Vicon's landmark positions, taken as exact (known_map)
@@ -92,6 +93,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
 
     votes: dict[int, dict[int, int]] = {}
     means, covs = [], []
+    sightings = SightingRecorder()     # the map's own spread at each landmark (estimation.sighting_spread)
     for k, (start, stop) in enumerate(zip(first, bounds, strict=True)):
         slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])))
         ids = log.landmark_ids[start:stop]
@@ -101,12 +103,14 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
             obs = dataclasses.replace(obs, ids=ids)
         report = slam.update(obs)
         count_sightings(votes, ids, report)
+        sightings.add_report(float(times[k]), obs.points, report)
         means.append(report.pose_mean)
         covs.append(report.pose_covariance)
 
     landmark_map = slam.best_map(robot=robot, metadata={
         "true_start_pose": [float(v) for v in true_start], "dataset": log.name, "association": association,
         "noise_model": noise.robot, "inflate_correlated": bool(inflate_correlated), "simulated": False})
+    landmark_map.sighting_covariances = sightings.covariances(landmark_map)
     estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
     estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
     truth = np.column_stack([times, log.true_pose(times)])

@@ -22,6 +22,14 @@ A FastSLAM map's ``covariances`` already hold that drift's effect on each landma
 kept apart says which landmarks share it (those made from one stretch of the route move together), so that fusion
 can tell the error an alignment removes (rigid) from the map's bend (``fusion.shape_covariance``).
 
+and, optional (session 11, a file without it reads as before):
+
+    sighting_covariances  (N, 3, 3) float64, m²: the scatter of the robot's own sightings of each landmark, each
+                          placed by the map's trajectory (the robot's pose when it made the sighting), about the
+                          landmark's estimate (``estimation.sighting_spread``): how well the map agrees with itself
+                          at the landmark, which neither the EKF part (conditional on the trajectory) nor the drift
+                          (mostly rigid) says
+
 ``metadata`` is free-form JSON; simulated maps put their true start pose in the world there
 (``"true_start_pose": [x, y, θ]``) so that fusion can be scored against the truth.
 
@@ -52,7 +60,8 @@ class LandmarkMap:
     positions (N, 3), covariances (N, 3, 3), descriptors (N, D), ids (N,), counts (N,),
     seen_by (N, R) bool over ``robots``; ``robot`` built it, ``frame`` names its coordinate frame;
     drift_covariances (N, 3, 3) and drift_origins (N, 2), or None: the frame's drift at each landmark (module
-    docstring); a map built otherwise (merged, transformed) has none.
+    docstring); a map built otherwise (merged, transformed) has none; sighting_covariances (N, 3, 3) or None: the
+    spread of the robot's sightings of each landmark about it (module docstring).
     """
 
     positions: np.ndarray
@@ -68,6 +77,7 @@ class LandmarkMap:
     metadata: dict = field(default_factory=dict)
     drift_covariances: np.ndarray | None = None
     drift_origins: np.ndarray | None = None
+    sighting_covariances: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
@@ -93,6 +103,8 @@ class LandmarkMap:
         if self.drift_covariances is not None:
             self.drift_covariances = np.asarray(self.drift_covariances, np.float64).reshape(n, 3, 3)
             self.drift_origins = np.asarray(self.drift_origins, np.float64).reshape(n, 2)
+        if self.sighting_covariances is not None:
+            self.sighting_covariances = np.asarray(self.sighting_covariances, np.float64).reshape(n, 3, 3)
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -109,6 +121,7 @@ class LandmarkMap:
             self.trajectory.copy(), dict(self.metadata),
             None if self.drift_covariances is None else self.drift_covariances[index],
             None if self.drift_origins is None else self.drift_origins[index],
+            None if self.sighting_covariances is None else self.sighting_covariances[index],
         )
 
     # -- files ---------------------------------------------------------------------------------
@@ -118,6 +131,8 @@ class LandmarkMap:
         meta = {"robot": self.robot, "frame": self.frame, "robots": self.robots, "metadata": self.metadata}
         drift = {} if self.drift_covariances is None else {"drift_covariances": self.drift_covariances,
                                                             "drift_origins": self.drift_origins}
+        if self.sighting_covariances is not None:
+            drift["sighting_covariances"] = self.sighting_covariances
         np.savez_compressed(
             buf,
             format=_json_bytes({"format": FORMAT_NAME, "version": FORMAT_VERSION}),

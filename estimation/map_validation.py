@@ -48,6 +48,8 @@ MEMBERS: dict[str, ArraySpec] = {
     # optional, both or neither (session 10; a file without them reads as before): the map frame's drift per landmark
     "drift_covariances": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 3, 3)),
     "drift_origins": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 2)),
+    # optional (session 11): the spread of the robot's sightings of each landmark about it
+    "sighting_covariances": ArraySpec(_FLOAT + _INT, (MAX_LANDMARKS, 3, 3)),
 }
 REQUIRED = ("format", "positions", "covariances", "descriptors", "ids", "counts", "meta")
 
@@ -78,7 +80,8 @@ class _Meta(BaseModel):
 def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> Any:
     """Check the arrays of a map file (read by :func:`estimation.safe_npz.read_npz` with :data:`MEMBERS`) and
     return ``build(positions, covariances, descriptors, ids, counts, robot, frame, robots, seen_by, trajectory,
-    metadata, drift_covariances, drift_origins)`` (the last two None when the file has no drift). Raises
+    metadata, drift_covariances, drift_origins, sighting_covariances)`` (the drift pair None when the file has no
+    drift, the sightings' spread None when it has none). Raises
     :class:`MapFileError` naming ``source`` and the field."""
     def bad(key: str, problem: str) -> MapFileError:
         return MapFileError(f"{source}: field '{key}' {problem}")
@@ -122,12 +125,18 @@ def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> A
     if np.any(counts < 0):
         raise bad("counts", "holds a negative observation count")
     drift = _drift(arrays, n, bad)
+    sightings = None
+    if "sighting_covariances" in arrays:
+        if arrays["sighting_covariances"].shape != (n, 3, 3):
+            raise bad("sighting_covariances", f"has shape {arrays['sighting_covariances'].shape}, expected {(n, 3, 3)}")
+        sightings = _floats(arrays["sighting_covariances"], "sighting_covariances", bad, MAX_VARIANCE)
+        _check_semidefinite(sightings, "sighting_covariances", bad)
     metadata = meta.metadata.model_dump()
     if metadata.get("true_start_pose") is None:
         metadata.pop("true_start_pose", None)
     try:
         return build(positions, covariances, descriptors, ids, counts, meta.robot, meta.frame, list(robots),
-                     seen_by, trajectory, metadata, *drift)
+                     seen_by, trajectory, metadata, *drift, sightings)
     except ValueError as exc:
         raise MapFileError(f"{source}: {exc}") from None
 
@@ -146,17 +155,24 @@ def _drift(arrays: dict[str, np.ndarray], n: int, bad) -> tuple[np.ndarray | Non
             raise bad(key, f"has shape {arrays[key].shape}, expected {shape}")
     covariances = _floats(arrays["drift_covariances"], "drift_covariances", bad, MAX_VARIANCE)
     origins = _floats(arrays["drift_origins"], "drift_origins", bad, MAX_COORDINATE)
-    if len(covariances):
-        scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
-        asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
-        worst = int(np.argmax(asymmetry / scale))
-        if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
-            raise bad(f"drift_covariances[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
-        low = np.linalg.eigvalsh(covariances)[:, 0]
-        worst = int(np.argmin(low / scale))
-        if low[worst] < -_PSD_TOLERANCE * scale[worst]:
-            raise bad(f"drift_covariances[{worst}]", f"is not positive semi-definite (eigenvalue {low[worst]:.3g})")
+    _check_semidefinite(covariances, "drift_covariances", bad)
     return covariances, origins
+
+
+def _check_semidefinite(covariances: np.ndarray, key: str, bad) -> None:
+    """(N, n, n): symmetric and positive semi-definite up to rounding (may be singular: zero drift at the start, a
+    landmark seen once, sightings in a plane)."""
+    if not len(covariances):
+        return
+    scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
+    asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
+    worst = int(np.argmax(asymmetry / scale))
+    if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
+        raise bad(f"{key}[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
+    low = np.linalg.eigvalsh(covariances)[:, 0]
+    worst = int(np.argmin(low / scale))
+    if low[worst] < -_PSD_TOLERANCE * scale[worst]:
+        raise bad(f"{key}[{worst}]", f"is not positive semi-definite (eigenvalue {low[worst]:.3g})")
 
 
 def _json(source: str, key: str, raw: np.ndarray, model: type[BaseModel]) -> Any:
