@@ -33,7 +33,7 @@ from .merging import (
 )
 from .placement import shape_placement
 from .pose_covariance import compose_with_covariance
-from .shape_covariance import shape_calibrated, shape_covariances, shape_levels
+from .shape_covariance import shape_calibrated, shape_covariances, shape_levels, sighting_variances, spread_level
 
 
 @dataclass
@@ -173,7 +173,7 @@ def claimed_variance(landmark_map: LandmarkMap) -> float:
     return float(np.median(np.trace(landmark_map.covariances[:, :2, :2], axis1=1, axis2=2)) / 2)
 
 
-CALIBRATIONS = ("isotropic", "scaled", "drift")
+CALIBRATIONS = ("isotropic", "scaled", "drift", "sightings")
 
 
 def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "isotropic") -> LandmarkMap:
@@ -219,6 +219,34 @@ def drift_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int], 
     return [shape_calibrated(m, s, levels) for m, s in zip(maps, shapes, strict=True)], factors
 
 
+def sighting_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int], Alignment], per: str = "sighting",
+                        pooled: bool = False, floor: bool = False) -> tuple[list[LandmarkMap], np.ndarray] | None:
+    """Every map with each landmark's planar covariance b v_l I, v_l the variance its file's sightings' spread gives it
+    (``fusion.shape_covariance.sighting_variances``: how well the map agrees with itself at the landmark), b one factor
+    for all maps from the found pairs' residuals (``spread_level``: the spread of single sightings says which landmark
+    and which map is worse, not by how much its estimate errs), so the merge's weights are the files' own ratios.
+    Measured alternatives (docs/fusion.md, session 11): ``pooled``, v_l replaced by its map's mean (one variance per
+    map, as "drift"); ``floor``, (a + b v_l) I with (a, b) by ``shape_levels``.  And per map the factor its median
+    claimed variance was scaled by (for the report).  None when a map keeps no sightings or no pair was found."""
+    spreads = [sighting_variances(m, per) for m in maps]
+    if any(v is None for v in spreads):
+        return None
+    if pooled:
+        spreads = [np.full(len(v), float(np.mean(v))) for v in spreads]
+    shapes = [v[:, None, None] * np.eye(2) for v in spreads]
+    if floor:
+        levels = shape_levels(maps, shapes, alignments)
+    else:
+        b = spread_level(maps, spreads, alignments)
+        levels = None if b is None else (0.0, b)
+    if levels is None:
+        return None
+    a, b = levels
+    factors = np.array([(a + b * float(np.median(v))) / max(claimed_variance(m), 1e-12)
+                        for m, v in zip(maps, spreads, strict=True)])
+    return [shape_calibrated(m, s, levels) for m, s in zip(maps, shapes, strict=True)], factors
+
+
 def _edge(alignments: dict[tuple[int, int], Alignment], parent: int, child: int) -> Alignment:
     """The alignment of ``child`` to ``parent`` (inverting the stored one when needed)."""
     if (parent, child) in alignments:
@@ -241,8 +269,10 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     map k the per-axis variance σ_k² in the plane (:func:`calibrated_map`), "scaled" multiplies its claimed
     covariances by the factor (session 5), "drift" gives map k's landmarks the variance its file's drift implies about
     its rigid placement, at one level for all maps (:func:`drift_calibrated`; session 10; maps without the drift fall
-    back to "isotropic").  ``merge_rule`` fuses the common landmarks (``fusion.merging.MERGE_RULES``:
-    "kalman", the paper's update, or "intersection", covariance intersection).  Raises
+    back to "isotropic"), "sightings" gives each landmark the variance the spread of its map's own sightings of it
+    implies, at one level for all maps (:func:`sighting_calibrated`; session 11; maps without
+    ``sighting_covariances`` fall back to "isotropic").  ``merge_rule`` fuses the common landmarks
+    (``fusion.merging.MERGE_RULES``: "kalman", the paper's update, or "intersection", covariance intersection).  Raises
     :class:`NoOverlapError` only when no map at all connects to the reference (with two or more maps).
     """
     if not maps:
@@ -261,11 +291,15 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     if n > 1 and not edges:
         raise NoOverlapError("none of the maps overlaps the reference map "
                              f"{maps[reference].robot!r}: nothing to fuse")
-    shaped = drift_calibrated(maps, alignments) if calibrate and calibration == "drift" else None
+    shaped = None
+    if calibrate and calibration == "drift":
+        shaped = drift_calibrated(maps, alignments)
+    elif calibrate and calibration == "sightings":
+        shaped = sighting_calibrated(maps, alignments)
     if shaped is not None:
         maps, scales = shaped
-    else:       # "drift" without the drift in every file falls back to the default
-        calibration = "isotropic" if calibration == "drift" else calibration
+    else:       # "drift" or "sightings" without the field in every file falls back to the default
+        calibration = "isotropic" if calibration in ("drift", "sightings") else calibration
         scales = covariance_scales(maps, alignments) if calibrate and n > 2 else None
     if scales is not None and shaped is None:
         maps = [calibrated_map(m, float(c), calibration) for m, c in zip(maps, scales, strict=True)]

@@ -148,3 +148,49 @@ def shape_calibrated(landmark_map: LandmarkMap, shape: np.ndarray, levels: tuple
     m = landmark_map
     return LandmarkMap(m.positions, P, m.descriptors, m.ids, m.counts, m.robot, m.frame, list(m.robots), m.seen_by,
                        m.trajectory, dict(m.metadata))
+
+
+def sighting_variances(landmark_map: LandmarkMap, per: str = "sighting") -> np.ndarray | None:
+    """(N,) per-axis planar variance of each landmark from its file's sightings' spread (``sighting_covariances``,
+    ``estimation.sighting_spread``), or None when the file keeps none.
+
+    per="sighting": tr S_l,xy / 2 × n/(n − 1), the spread of one sighting about the landmark (n = its count; the
+    factor because the estimate is nearly the sightings' mean); per="mean": that over n, the error of the mean were the
+    sightings independent.  A landmark with fewer than 2 sightings (nothing known of its spread) takes the map's
+    largest value: a landmark the map cannot check against itself is trusted least."""
+    S = landmark_map.sighting_covariances
+    if S is None:
+        return None
+    if per not in ("sighting", "mean"):
+        raise ValueError(f"per must be 'sighting' or 'mean', not {per!r}")
+    n = landmark_map.counts.astype(float)
+    known = n >= 2
+    v = np.trace(S[:, :2, :2], axis1=1, axis2=2) / 2 * np.where(known, n / np.maximum(n - 1, 1), 1.0)
+    if per == "mean":
+        v = v / np.maximum(n, 1)
+    known &= v > 0
+    if not known.any():
+        return None
+    return np.where(known, v, v[known].max())
+
+
+def spread_level(maps: list[LandmarkMap], spreads: list[np.ndarray], alignments) -> float | None:
+    """b: every landmark of every map takes the planar covariance b v_l I (v_l its per-axis variance from its map's
+    sightings, :func:`sighting_variances`), b one number for all maps, by maximum likelihood on the found pairs'
+    supports: r ~ N(0, b (v_i + v_j) I₂), so b = Σ w |r|² / (v_i + v_j) / (2 Σ w), w = (2S − 3) / 2S per pair of S
+    supports (3 pose parameters fitted).  None without a found pair of two or more supports.
+
+    Why one factor and no floor (unlike :func:`shape_levels`): the sightings' spread is never near singular (it holds
+    the sensor's noise), and with one factor the merge's weights are the files' own ratios — two maps determine it,
+    where a floor and a factor are not told apart by one pair."""
+    num, den = 0.0, 0.0
+    for (i, j), a in alignments.items():
+        if not a.found or len(a.supports) < 2:
+            continue
+        R = np.array([[np.cos(a.pose[2]), -np.sin(a.pose[2])], [np.sin(a.pose[2]), np.cos(a.pose[2])]])
+        p, c = a.supports[:, 0], a.supports[:, 1]
+        r = maps[i].positions[p, :2] - (maps[j].positions[c, :2] @ R.T + np.asarray(a.pose[:2], float))
+        w = (2 * len(p) - 3) / (2 * len(p))
+        num += w * float(np.sum(np.sum(r ** 2, axis=1) / (spreads[i][p] + spreads[j][c])))
+        den += 2 * w * len(p)
+    return None if den == 0 else num / den
