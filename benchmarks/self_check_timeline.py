@@ -3,7 +3,7 @@
 Run from the repository root:
 
     .venv/bin/python -m benchmarks.self_check_timeline DEMO_DIR --frames-cache FILE [--robot robot2]
-        [--filter-seed K ...] [--kick T,RAD] [--every N] [--from T0] [--to T1] [--out FILE.npz]
+        [--filter-seed K ...] [--kick T,RAD] [--set KEY=JSON ...] [--every N] [--from T0] [--to T1] [--out FILE.npz]
     .venv/bin/python -m benchmarks.self_check_timeline --summary FILE.npz [FILE.npz ...]
 
 Replays one robot of a `p3at demo --out` folder from a frame cache (``slam_demo_replay``'s inputs: the true route,
@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.eval_mrclam import config_overrides
 from benchmarks.slam_demo_replay import read_tum
 from estimation.fastslam.self_check import SelfCheck
 from estimation.geometry import between, compose, wrap_angle
@@ -120,12 +121,14 @@ def lost_onset(t: np.ndarray, error_xy: np.ndarray) -> float | None:
 
 
 def replay(demo: Path, robot: str, cache: Path, filter_seed: int,
-           kick: tuple[float, float] = (np.inf, 0.0)) -> dict[str, np.ndarray]:
+           kick: tuple[float, float] = (np.inf, 0.0), overrides: dict | None = None) -> dict[str, np.ndarray]:
     from benchmarks.eval_slam_rendered import ReplayObserver
     from estimation.fastslam import FastSLAM, FastSLAMConfig
 
     meta = LandmarkMap.load(demo / f"{robot}.npz").metadata
     start, config = np.array(meta["true_start_pose"], float), FastSLAMConfig.from_dict(meta["fastslam"])
+    if overrides:
+        config = FastSLAMConfig.from_dict({**config.to_dict(), **overrides})
     truth, odometry = read_tum(demo / f"{robot}-truth.tum"), read_tum(demo / f"{robot}-odometry.tum")
     observer = ReplayObserver(cache)
     slam = FastSLAM(config, np.random.default_rng(filter_seed))
@@ -253,6 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--filter-seed", type=non_negative_int, action="append", default=[])
     parser.add_argument("--kick", type=_kick, default=(np.inf, 0.0), metavar="T,RAD",
                         help="turn the odometry by RAD from time T on")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a FastSLAMConfig field of the demo's settings (VALUE as JSON)")
     parser.add_argument("--every", type=positive_int, default=15)
     parser.add_argument("--from", dest="t0", type=non_negative_float, default=0.0)
     parser.add_argument("--to", dest="t1", type=non_negative_float, default=1e9)
@@ -266,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("a demo folder and an existing --frames-cache FILE are needed (slam_demo_replay writes one)")
     arrays = {}
     for seed in args.filter_seed or [0]:
-        d = replay(args.demo, args.robot, args.frames_cache, seed, args.kick)
+        d = replay(args.demo, args.robot, args.frames_cache, seed, args.kick, config_overrides(args.set))
         print(f"## {args.demo.name} {args.robot}, filter seed {seed}"
               + (f", odometry kicked {args.kick[1]:+g} rad at {args.kick[0]:g} s" if args.kick[1] else ""))
         print_timeline(d, args.t0, args.t1, args.every)
