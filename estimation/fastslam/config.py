@@ -90,6 +90,9 @@ class FastSLAMConfig:
     #                                             #   sits off by the pose's drift since, docs "Session 10")
     merge_look: str = "older"                     # the merged landmark's descriptor: the older one's, or "newer":
     #                                             #   the look at the range it is seen from now (U-SURF changes)
+    merge_relative_drift: bool = False            # "unknown", with merge_covisibility: also merge two landmarks never
+    #                                             #   detected in one frame that are one point under Σ_a + Σ_b plus
+    #                                             #   the pose's drift between their creations (drift_merge.py)
     id_relative_drift: str = "off"                # "id", 2.0: judge readings with the pose's drift relative to their
     #                                             #   landmark (drift.py) where the gate rejects them: "off",
     #                                             #   "rescue" or "consistent" (two landmarks at once); id_gate.py
@@ -160,6 +163,8 @@ class FastSLAMConfig:
         if self.descriptor_slots < 1 or not self.descriptor_slot_ratio > 1.0:
             raise ValueError(f"descriptor_slots must be ≥ 1 and descriptor_slot_ratio > 1, not "
                              f"{self.descriptor_slots} and {self.descriptor_slot_ratio}")
+        if self.merge_relative_drift and not self.merge_covisibility:
+            raise ValueError("merge_relative_drift needs merge_covisibility (which pairs were detected in one frame)")
         if self.merge_every < 1:
             raise ValueError(f"merge_every must be ≥ 1, not {self.merge_every}")
         if self.id_relative_drift not in ID_RELATIVE_DRIFT_MODES:

@@ -66,7 +66,7 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
-from . import association_rules, detection_term, id_gate, unknown_rescue
+from . import association_rules, detection_term, drift_merge, id_gate, unknown_rescue
 from .appearance import DescriptorBands
 from .coincident import one_per_point, twins_of_matched
 from .config import FastSLAMConfig
@@ -899,14 +899,22 @@ class FastSLAM:
                 a = np.concatenate([a, ra[near]])
                 b = np.concatenate([b, rb[near]])
                 by_evidence = np.concatenate([by_evidence, np.ones(int(near.sum()), bool)])
+        by_relative = np.zeros(len(a), bool)
+        if cfg.merge_relative_drift:   # made again after a drift, never detected in one frame (drift_merge.py)
+            ra, rb = drift_merge.candidate_pairs(self.drift, uniq, inverse, _rows(store.flat_state, cand.g), touched,
+                                                 self._codetected, cfg.merge_gate, _PAIR_SHIFT)
+            a, b = np.concatenate([a, ra]), np.concatenate([b, rb])
+            by_evidence = np.concatenate([by_evidence, np.zeros(len(ra), bool)])
+            by_relative = np.concatenate([by_relative, np.ones(len(ra), bool)])
         if len(a) == 0:
             return 0
         # one row per id pair (a pair on both lists may pass either test)
         pair_key, at = np.unique(a * self._n_ids + b, return_inverse=True)
         evidence = np.zeros(len(pair_key), bool)
         np.logical_or.at(evidence, at, by_evidence)
-        alike = np.zeros(len(pair_key), bool)
-        np.logical_or.at(alike, at, ~by_evidence)
+        alike, relative = np.zeros(len(pair_key), bool), np.zeros(len(pair_key), bool)
+        np.logical_or.at(alike, at, ~(by_evidence | by_relative))
+        np.logical_or.at(relative, at, by_relative)
         a, b = np.divmod(pair_key, self._n_ids)
         # expand to the particles holding both (rows of the candidate list, looked up by particle and id)
         key = cand.m * self._n_ids + lids
@@ -933,6 +941,15 @@ class FastSLAM:
             by_drift = evidence[pair] & (d2_drift < cfg.merge_gate) & ~ok
             ok |= by_drift
             d2 = np.where(by_drift, d2_drift, d2)
+        if relative.any():   # Σ_a + Σ_b + the drift between their creations, one candidate each (drift_merge.py)
+            r = np.flatnonzero(relative[pair])
+            adj, det = sym_adjugate(_cols(sa[3:], r) + _cols(sb[3:], r)
+                                    + drift_merge.relative_drift(self.drift, a[pair[r]], b[pair[r]], sb[:3, r].T))
+            d2_rel = sym_quadratic(adj, diff[:, r]) / det
+            hit = d2_rel < cfg.merge_gate
+            r, d2_rel = r[hit], d2_rel[hit]
+            one = drift_merge.mutually_unique(cand.m[rows_a[r]], a[pair[r]], b[pair[r]]) & ~ok[r]
+            ok[r[one]], d2[r[one]] = True, d2_rel[one]
         ok = np.flatnonzero(ok)
         if len(ok) == 0:
             return 0
