@@ -490,6 +490,11 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
             drift_err = frame_fit(drift, truth)[1]
             print(f"| merged with the drift the files keep (calibration='drift', an option) | {len(drift)} | "
                   f"{np.nanmedian(drift_err):.3f} | {np.nanmean(drift_err):.3f} |")
+        if all(m.sighting_covariances is not None for m in maps):   # files that keep the spread (session 11)
+            spread = fuse_all(maps, "robust", 1, alignments=alignments, calibration="sightings").map
+            spread_err = frame_fit(spread, truth)[1]
+            print(f"| merged by the spread of each map's own sightings (calibration='sightings', an option) | "
+                  f"{len(spread)} | {np.nanmedian(spread_err):.3f} | {np.nanmean(spread_err):.3f} |")
     except NoOverlapError:
         pass
     scales = covariance_scales(maps, alignments)

@@ -21,6 +21,11 @@ errors allow (in-sample: no weighting can do better), and the best single map on
 
 Session 10 (``drift_split``, maps whose files keep the frame's drift): each map's frame error and local error against
 what its file says of both, and the merge with ``calibration="drift"`` among the rules.
+
+Session 11 (``sighting_split``, maps whose files keep the sightings' spread): each map's real local σ against the σ
+its own sightings' spread gives (per sighting and per mean), rank correlations over maps and over each map's
+landmarks, and the merge with ``calibration="sightings"`` and its measured variants (pooled per map, with a floor,
+per mean).
 """
 from __future__ import annotations
 
@@ -41,7 +46,12 @@ from estimation.geometry import compose, inverse, rot_z, transform_points  # noq
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import align, fuse_all  # noqa: E402
 from fusion.merging import MERGE_RULES, transform_landmarks  # noqa: E402
-from fusion.shape_covariance import rigid_covariance, shape_covariances, shape_levels  # noqa: E402
+from fusion.shape_covariance import (  # noqa: E402
+    rigid_covariance,
+    shape_covariances,
+    shape_levels,
+    sighting_variances,
+)
 
 
 def _planar(points: np.ndarray) -> np.ndarray:
@@ -278,6 +288,56 @@ def drift_split(maps: list[LandmarkMap], truth: dict, alignments) -> None:
               f"a = ({np.sqrt(levels[0]):.3f} m)², b = {levels[1]:.3f}")
 
 
+def _spearman(a, b) -> float:
+    ra, rb = np.argsort(np.argsort(a)), np.argsort(np.argsort(b))
+    return float(np.corrcoef(ra, rb)[0, 1])
+
+
+def sighting_split(maps: list[LandmarkMap], truth: dict, alignments) -> None:
+    """Per map: the real local σ (about its best rigid fit to Vicon) against the σ its own sightings' spread gives
+    (``fusion.shape_covariance.sighting_variances``, per sighting and per mean), the drift's shape σ and the hat's;
+    Spearman over each map's landmarks (squared error about the fit against v_l); then the merge by
+    ``calibration="sightings"`` and its variants (``fusion.multi.sighting_calibrated``).  Maps without the field are
+    skipped (made before session 11)."""
+    if any(m.sighting_covariances is None for m in maps):
+        print("\nthe sightings' spread against the real local error: skipped (a map without sighting_covariances)")
+        return
+    scales = multi.covariance_scales(maps, alignments)
+    hat = [np.nan] * len(maps) if scales is None else np.sqrt(scales * [multi.claimed_variance(m) for m in maps])
+    print("\n| map | local σ per axis, real (m) | sightings' σ, per sighting (m) | per mean (m) | drift shape σ (m) | "
+          "hat σ (m) | Spearman over its landmarks, e² vs v (per sighting / per mean) |")
+    print("|---|---|---|---|---|---|---|")
+    real, spread, spread_mean = [], [], []
+    for m, h in zip(maps, hat, strict=True):
+        _, err, _ = frame_fit(m, truth)
+        ok = np.isfinite(err)
+        v, vm = sighting_variances(m), sighting_variances(m, "mean")
+        shape = shape_covariances(m)
+        drift = "—" if shape is None else f"{np.sqrt(np.mean(np.trace(shape, axis1=1, axis2=2)) / 2):.3f}"
+        real.append(np.sqrt(np.nanmean(err ** 2) / 2))
+        spread.append(np.sqrt(np.mean(v)))
+        spread_mean.append(np.sqrt(np.mean(vm)))
+        print(f"| {m.robot} | {real[-1]:.3f} | {spread[-1]:.3f} | {spread_mean[-1]:.3f} | {drift} | {h:.3f} | "
+              f"{_spearman(err[ok] ** 2, v[ok]):+.2f} / {_spearman(err[ok] ** 2, vm[ok]):+.2f} |")
+    print(f"Spearman over the maps, real σ vs the sightings' σ: per sighting {_spearman(real, spread):+.2f}, per mean "
+          f"{_spearman(real, spread_mean):+.2f}, the hat {_spearman(real, hat):+.2f}")
+    singles = [float(np.nanmedian(frame_fit(m, truth)[1])) for m in maps]
+    print(f"merged by the sightings' spread (best single map {min(singles):.3f} m):")
+    variants = [("calibration='sightings' (b v_l, per sighting)", {}), ("per mean (b v_l / n_l)", {"per": "mean"}),
+                ("pooled per map (b mean v)", {"pooled": True}), ("with a floor ((a + b v_l), shape_levels)",
+                                                                   {"floor": True})]
+    original = multi.sighting_calibrated
+    for label, kw in variants:
+        try:
+            multi.sighting_calibrated = lambda ms, al, _kw=kw: original(ms, al, **_kw)
+            merged = fuse_all(maps, "robust", 1, alignments=alignments, calibration="sightings").map
+        finally:
+            multi.sighting_calibrated = original
+        e = frame_fit(merged, truth)[1]
+        print(f"  {label}: {len(merged)} landmarks, median {np.nanmedian(e):.3f} m, mean {np.nanmean(e):.3f} m; "
+              f"{_nees_text(landmark_nees(merged, truth))}")
+
+
 def between_text(pose, reference) -> str:
     d = compose(inverse(np.asarray(reference, float)), np.asarray(pose, float))
     return f"{np.hypot(d[0], d[1]):.3f} m / {abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))):.4f} rad"
@@ -302,6 +362,7 @@ def main() -> None:
         merge_limits(maps, truth)
         alignments = multi.pairwise_alignments(maps, "robust", np.random.default_rng(0))
         drift_split(maps, truth, alignments)
+        sighting_split(maps, truth, alignments)
         merge_rules(maps, truth, alignments)
         merge_breakdown(maps, truth, alignments)
 
