@@ -6,7 +6,8 @@ Run from the repository root:
         [--json]
 
 Per robot (each robot's noise fitted on its own log, as ``eval_mrclam --noise own``; the barcodes only score):
-ATE, duplicate fraction, landmarks, rigid landmark error; the most probable particle's matches and how many went
+ATE, duplicate fraction, landmarks, rigid landmark error, the landmarks' NEES within the χ² 95 % bound and the
+pose NEES median; the most probable particle's matches and how many went
 to a landmark standing for *another* barcode (a landmark stands for the barcode most of the sightings that made or
 matched it so far were of, as ``eval_mrclam`` attributes them); the filter's merges and the wrong ones (two
 barcodes joined, as ``eval_mrclam_merges``); and with ``--set unknown_relative_drift='"consistent"'`` the
@@ -92,7 +93,9 @@ def run_robot(log, seed: int, overrides: dict, setup: RunSetup = PLAIN) -> dict:
     m = run.metrics
     return {"robot": log.name, "ate_m": m["ate_m"], "duplicate_fraction": m["duplicate_fraction"],
             "landmarks": m["landmarks"], "true_landmarks": m["true_landmarks"],
-            "landmark_error_rigid_median_m": m["landmark_error_rigid_median_m"], "merges": len(pairs),
+            "landmark_error_rigid_median_m": m["landmark_error_rigid_median_m"],
+            "landmark_nees_within_bound": m["landmark_nees_within_bound"], "pose_nees_median": m["pose_nees_median"],
+            "merges": len(pairs),
             "merges_wrong": sum(barcode[a] != barcode[b] for a, b in pairs), **tally.counts}
 
 
