@@ -12,8 +12,9 @@ to a landmark standing for *another* barcode (a landmark stands for the barcode 
 matched it so far were of, as ``eval_mrclam`` attributes them); the filter's merges and the wrong ones (two
 barcodes joined, as ``eval_mrclam_merges``); and with ``--set unknown_relative_drift='"consistent"'`` the
 (particle, reading) pairs re-associated by ``estimation/fastslam/unknown_rescue.py``, right and wrong (docs/fastslam.md,
-"Session 7: unknown association"). A wrong association is the confidently wrong output: it is counted for every
-variant.
+"Session 7: unknown association"). In the JSON, ``duplicate_pairs``: each pair of the final map's landmarks that
+stand for one barcode, with what each merge rule sees of it (:func:`_duplicate_pairs`). A wrong association is
+the confidently wrong output: it is counted for every variant.
 """
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ import numpy as np  # noqa: E402
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 import estimation.fastslam.filter as fastslam_filter  # noqa: E402
 from benchmarks.eval_mrclam_merges import PLAIN, RunSetup, robots_main  # noqa: E402
-from estimation.fastslam import FastSLAM  # noqa: E402
+from estimation.fastslam import FastSLAM, drift_merge  # noqa: E402
+from estimation.fastslam.linalg import sym_matrices  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 
 
@@ -96,7 +98,36 @@ def run_robot(log, seed: int, overrides: dict, setup: RunSetup = PLAIN) -> dict:
             "landmark_error_rigid_median_m": m["landmark_error_rigid_median_m"],
             "landmark_nees_within_bound": m["landmark_nees_within_bound"], "pose_nees_median": m["pose_nees_median"],
             "merges": len(pairs),
-            "merges_wrong": sum(barcode[a] != barcode[b] for a, b in pairs), **tally.counts}
+            "merges_wrong": sum(barcode[a] != barcode[b] for a, b in pairs), **tally.counts,
+            "duplicate_pairs": _duplicate_pairs(Counting.last, tally.votes)}
+
+
+def _duplicate_pairs(slam: FastSLAM, votes: dict) -> list[dict]:
+    """Every pair of the most probable particle's final landmarks that stand for one barcode (a duplicate), with
+    what the merge rules see of it: the distance, d² under Σ_a + Σ_b (the plain merge), under Σ_a + Σ_b + C_a + C_b
+    (co-visibility's gate: the drifts at creation), under Σ_a + Σ_b + H(w_b)(D_b − Φ D_a Φᵀ)⁺H(w_b)ᵀ (the drift
+    between the creations, drift_merge.py), whether the two were detected in one frame, and co-visibility's evidence
+    for "one point" so far (merged at ``merge_log_odds``)."""
+    landmarks = slam.particle_map(slam.best_index, covariance="particle")
+    ids = np.asarray(landmarks.ids, np.int64)
+    barcode = attribute_landmarks(votes, ids)
+    out = []
+    for i, j in zip(*np.triu_indices(len(ids), 1), strict=True):
+        if barcode[i] < 0 or barcode[i] != barcode[j]:
+            continue
+        (ia, a), (ib, b) = sorted([(i, int(ids[i])), (j, int(ids[j]))], key=lambda x: x[1])
+        diff = landmarks.positions[ia] - landmarks.positions[ib]
+        plain = landmarks.covariances[ia] + landmarks.covariances[ib]
+        created = slam.drift.landmark_covariances(np.array([a, b])).sum(axis=0)
+        since = sym_matrices(drift_merge.relative_drift(slam.drift, np.array([a]), np.array([b]),
+                                                        landmarks.positions[ib][None]))[0]
+        key = (a << fastslam_filter._PAIR_SHIFT) | b
+        out.append({"barcode": int(barcode[i]), "distance_m": float(np.linalg.norm(diff)),
+                    **{f"d2_{name}": float(diff @ np.linalg.pinv(cov) @ diff)
+                       for name, cov in (("plain", plain), ("creation_drift", plain + created),
+                                         ("relative_drift", plain + since))},
+                    "codetected": key in slam._codetected, "evidence": float(slam._pair_evidence.get(key, 0.0))})
+    return out
 
 
 def _print_rows(rows: list[dict]) -> None:
