@@ -119,3 +119,13 @@ def test_the_shared_drift_cancels(ox, oy, heading, reach, bearing, steps):
     # and the carry is what makes it so: the older pose's covariance, carried, is what the chain adds to it
     moved = pose[:2] - np.array([ox, oy])
     assert np.allclose(carried((a @ a.T)[None], moved[None])[0] + noise_sum, tracker.robot, atol=1e-9)
+
+
+def test_two_candidates_in_the_widened_gate_merge_neither():
+    # After the drift, posts B and C 0.3 m either side of A (d² ≈ 1.3 each under the widened gate) are seen
+    # together, never with A: A's gate holds two candidates, which says "one of these", not which. Neither merges.
+    slam, t = _mapped_then_drifted(True)
+    ranges, bearings = [np.hypot(3.0, 0.3)] * 2, [np.arctan2(0.3, 3.0), np.arctan2(-0.3, 3.0)]
+    for _ in range(5):
+        t = _see(slam, t, ranges, bearings)
+    assert len(slam.particle_map(0)) == 3 and not slam.merged_pairs
