@@ -164,15 +164,21 @@ def _check_semidefinite(covariances: np.ndarray, key: str, bad) -> None:
     landmark seen once, sightings in a plane)."""
     if not len(covariances):
         return
+    scale = _check_symmetric(covariances, key, bad)
+    low = np.linalg.eigvalsh(covariances)[:, 0]
+    worst = int(np.argmin(low / scale))
+    if low[worst] < -_PSD_TOLERANCE * scale[worst]:
+        raise bad(f"{key}[{worst}]", f"is not positive semi-definite (eigenvalue {low[worst]:.3g})")
+
+
+def _check_symmetric(covariances: np.ndarray, key: str, bad) -> np.ndarray:
+    """(N, n, n) symmetric up to rounding, relative to each matrix's largest entry; returns those scales."""
     scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
     asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
     worst = int(np.argmax(asymmetry / scale))
     if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
         raise bad(f"{key}[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
-    low = np.linalg.eigvalsh(covariances)[:, 0]
-    worst = int(np.argmin(low / scale))
-    if low[worst] < -_PSD_TOLERANCE * scale[worst]:
-        raise bad(f"{key}[{worst}]", f"is not positive semi-definite (eigenvalue {low[worst]:.3g})")
+    return scale
 
 
 def _json(source: str, key: str, raw: np.ndarray, model: type[BaseModel]) -> Any:
@@ -208,11 +214,7 @@ def _check_covariances(covariances: np.ndarray, bad) -> None:
     """(N, 3, 3): symmetric, every eigenvalue in [MIN_VARIANCE, MAX_VARIANCE]."""
     if not len(covariances):
         return
-    scale = np.maximum(np.abs(covariances).max(axis=(1, 2)), MIN_VARIANCE)
-    asymmetry = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2))
-    worst = int(np.argmax(asymmetry / scale))
-    if asymmetry[worst] > _SYMMETRY_TOLERANCE * scale[worst]:
-        raise bad(f"covariances[{worst}]", f"is not symmetric (asymmetry {asymmetry[worst]:.3g})")
+    _check_symmetric(covariances, "covariances", bad)
     eigenvalues = np.linalg.eigvalsh(covariances)  # ascending, per landmark
     low = int(np.argmin(eigenvalues[:, 0]))
     if eigenvalues[low, 0] < MIN_VARIANCE:
