@@ -41,7 +41,7 @@ from runtime.fleet.status import publish_robot_status
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
-from runtime.report import fusion_event_line
+from runtime.report import fusion_event_line, start_prior_line
 
 CAMERAS = ("mock", "synthetic", "usb")
 MOTIONS = ("route", "explore", "none")
@@ -555,7 +555,7 @@ class Mission:
                            cache=cache, priors=priors)
         if priors and not self.fusion_history:      # said once: the fusion is not blind to where the robots started
             for (a, b), prior in priors.items():
-                line = f"fusion uses a start prior for {b} in {a}'s frame: {prior.text()}"
+                line = start_prior_line(a, b, prior)
                 self.events(line)
                 if self.logger is not None:
                     self.logger.log_event(t, line, "INFO")

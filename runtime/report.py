@@ -137,6 +137,12 @@ def candidate_text(pair: Mapping) -> str | None:
     return f"{pair['other']} -> {pair['reference']} is a candidate, not yet found ({candidate})"
 
 
+def start_prior_line(reference: str, other: str, prior) -> str:
+    """The mission's and the fusion node's line, said once per pair, that its fusion uses a start prior
+    (``fusion.prior.StartPrior`` of ``other``'s start in ``reference``'s frame)."""
+    return f"fusion uses a start prior for {other} in {reference}'s frame: {prior.text()}"
+
+
 def fusion_event_line(t: float, pair) -> str:
     """The mission's and the fusion node's event line for one pair (a ``PairResult`` or its ``as_dict()``)."""
     p = pair if isinstance(pair, Mapping) else pair.as_dict()

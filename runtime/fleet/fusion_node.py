@@ -23,7 +23,7 @@ from fusion.prior import named_pair_priors
 from runtime.exchange import MapExchange
 from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
-from runtime.report import fusion_event_line
+from runtime.report import fusion_event_line, start_prior_line
 
 FUSED = "fused"
 
@@ -129,7 +129,7 @@ class FusionNode:
         for (a, b), prior in self.priors.items():
             if a in maps and b in maps and (a, b) not in self._priors_said:
                 self._priors_said.add((a, b))
-                line = f"fusion uses a start prior for {b} in {a}'s frame: {prior.text()}"
+                line = start_prior_line(a, b, prior)
                 self.on_event(line)
                 if self.logger is not None:
                     self.logger.log_event(t, line, "INFO")
