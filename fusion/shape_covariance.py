@@ -112,15 +112,10 @@ def shape_levels(maps: list[LandmarkMap], shapes: list[np.ndarray], alignments) 
     all pairs together, where a level per map (the three-cornered hat, ``fusion.multi.covariance_scales``) is a small
     difference of large pair variances."""
     residuals, covs, weights = [], [], []
-    for (i, j), a in alignments.items():
-        if not a.found or len(a.supports) < 2:
-            continue
-        R = np.array([[np.cos(a.pose[2]), -np.sin(a.pose[2])], [np.sin(a.pose[2]), np.cos(a.pose[2])]])
-        p, c = a.supports[:, 0], a.supports[:, 1]
-        x2 = maps[j].positions[c, :2] @ R.T + np.asarray(a.pose[:2], float)
-        residuals.append(maps[i].positions[p, :2] - x2)
+    for i, j, p, c, R, r, w in _support_residuals(maps, alignments):
+        residuals.append(r)
         covs.append(shapes[i][p] + R @ shapes[j][c] @ R.T)
-        weights.append(np.full(len(p), (2 * len(p) - 3) / (2 * len(p))))
+        weights.append(np.full(len(p), w))
     if not residuals:
         return None
     r, S, w = np.concatenate(residuals), np.concatenate(covs), np.concatenate(weights)
@@ -135,6 +130,20 @@ def shape_levels(maps: list[LandmarkMap], shapes: list[np.ndarray], alignments) 
     best = minimize(cost, start, method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
     a, b = np.exp(best.x)
     return float(a), float(b)
+
+
+def _support_residuals(maps: list[LandmarkMap], alignments):
+    """Per found pair (i, j) of two or more supports: (i, j, its supports' rows p in map i and c in map j, the planar
+    rotation R (2, 2) of its pose, the supports' planar residuals x_i − (R x_j + t) (S, 2), and the pair's weight
+    (2 S − 3) / 2 S: S supports, 3 pose parameters fitted to them).  What :func:`shape_levels` and
+    :func:`spread_level` fit their levels on."""
+    for (i, j), a in alignments.items():
+        if not a.found or len(a.supports) < 2:
+            continue
+        R = np.array([[np.cos(a.pose[2]), -np.sin(a.pose[2])], [np.sin(a.pose[2]), np.cos(a.pose[2])]])
+        p, c = a.supports[:, 0], a.supports[:, 1]
+        r = maps[i].positions[p, :2] - (maps[j].positions[c, :2] @ R.T + np.asarray(a.pose[:2], float))
+        yield i, j, p, c, R, r, (2 * len(p) - 3) / (2 * len(p))
 
 
 def shape_calibrated(landmark_map: LandmarkMap, shape: np.ndarray, levels: tuple[float, float]) -> LandmarkMap:
@@ -184,13 +193,7 @@ def spread_level(maps: list[LandmarkMap], spreads: list[np.ndarray], alignments)
     the sensor's noise), and with one factor the merge's weights are the files' own ratios — two maps determine it,
     where a floor and a factor are not told apart by one pair."""
     num, den = 0.0, 0.0
-    for (i, j), a in alignments.items():
-        if not a.found or len(a.supports) < 2:
-            continue
-        R = np.array([[np.cos(a.pose[2]), -np.sin(a.pose[2])], [np.sin(a.pose[2]), np.cos(a.pose[2])]])
-        p, c = a.supports[:, 0], a.supports[:, 1]
-        r = maps[i].positions[p, :2] - (maps[j].positions[c, :2] @ R.T + np.asarray(a.pose[:2], float))
-        w = (2 * len(p) - 3) / (2 * len(p))
+    for i, j, p, c, _, r, w in _support_residuals(maps, alignments):
         num += w * float(np.sum(np.sum(r ** 2, axis=1) / (spreads[i][p] + spreads[j][c])))
         den += 2 * w * len(p)
     return None if den == 0 else num / den
