@@ -56,16 +56,22 @@ def carried(pose_covariance: np.ndarray, moved: np.ndarray) -> np.ndarray:
     return phi @ pose_covariance @ np.swapaxes(phi, 1, 2)
 
 
+def drift_since(tracker: DriftTracker, older: np.ndarray, newer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(D_b − Φ D_a Φᵀ)⁺ (L, 3, 3), the pose's drift between the creations of landmarks ``older`` and ``newer`` (L,)
+    with the older pose carried to where the newer was made (module docstring), and the newer's origins o_b (L, 2)."""
+    o_a, o_b = tracker.landmark_origins(older), tracker.landmark_origins(newer)
+    d_a = sym_matrices(tracker.landmark_pose_covariances(older))
+    d_b = sym_matrices(tracker.landmark_pose_covariances(newer))
+    return psd_part(d_b - carried(d_a, o_b - o_a)), o_b
+
+
 def relative_drift(tracker: DriftTracker, older: np.ndarray, newer: np.ndarray, point: np.ndarray) -> np.ndarray:
     """H(w_b) (D_b − Φ D_a Φᵀ)⁺ H(w_b)ᵀ (6, L), the drift that separates landmark ``newer`` (L,) from landmark
     ``older`` (L,) made at one point ``point`` (L, 3 or 2) (see the module docstring): w_b = point − o_b."""
     older, newer = np.asarray(older, np.int64), np.asarray(newer, np.int64)
     key, first, at = np.unique(np.stack([older, newer]), axis=1, return_index=True, return_inverse=True)
-    ua, ub = key
-    o_a, o_b = tracker.landmark_origins(ua), tracker.landmark_origins(ub)
-    d_a = sym_matrices(tracker.landmark_pose_covariances(ua))
-    d_b = sym_matrices(tracker.landmark_pose_covariances(ub))
-    since = sym_components(psd_part(d_b - carried(d_a, o_b - o_a)))               # (6, pairs)
+    since, o_b = drift_since(tracker, *key)
+    since = sym_components(since)                                                   # (6, pairs)
     at = np.ravel(at)
     lever = (np.asarray(point, float)[:, :2] - o_b[at]).T
     return pose_uncertainty(since[:, at], lever)
@@ -117,10 +123,7 @@ def candidate_pairs(tracker: DriftTracker, ids: np.ndarray, rows_of: np.ndarray,
         a, b, ia, ib = a[keep], b[keep], ia[keep], ib[keep]
     if len(a) == 0:
         return none
-    d_a = sym_matrices(tracker.landmark_pose_covariances(a))
-    d_b = sym_matrices(tracker.landmark_pose_covariances(b))
-    o_a, o_b = tracker.landmark_origins(a), tracker.landmark_origins(b)
-    since = psd_part(d_b - carried(d_a, o_b - o_a))
+    since, o_b = drift_since(tracker, a, b)
     lever = np.linalg.norm(ref[ib, :2] - o_b, axis=1) + spread[ib]
     widen = (np.sqrt(np.maximum(since[:, 0, 0] + since[:, 1, 1], 0.0))
              + lever * np.sqrt(np.maximum(since[:, 2, 2], 0.0))) ** 2
