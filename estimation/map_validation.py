@@ -33,6 +33,9 @@ MIN_VARIANCE = 1e-12  # m²
 MAX_VARIANCE = 1e6  # m²
 _SYMMETRY_TOLERANCE = 1e-9  # relative to the largest entry
 _PSD_TOLERANCE = 1e-9  # a drift covariance may be singular (zero at the start), not negative beyond rounding
+MAX_FOOTPRINT_RADIUS = 10.0  # m: a robot whose inscribed disc is wider than 20 m is a corrupt field
+CLOCK_KEY = "clock"  # metadata: the name of the trajectory's time base (fusion/colocation.py)
+FOOTPRINT_KEY = "footprint_radius_m"  # metadata: the radius of the disc inscribed in the robot's footprint
 
 _FLOAT, _INT, _BOOL, _BYTES = "f", "iu", "b", "u"
 MEMBERS: dict[str, ArraySpec] = {
@@ -67,6 +70,28 @@ class _Metadata(BaseModel):
 
     model_config = ConfigDict(strict=True, extra="allow")
     true_start_pose: Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)] | None = None
+    # what the co-location test (fusion/colocation.py) needs; a map without them is not tested, and says so
+    clock: _Name | None = None
+    footprint_radius_m: Annotated[FiniteFloat, Field(gt=0.0, le=MAX_FOOTPRINT_RADIUS)] | None = None
+
+
+def colocation_metadata(metadata: dict) -> tuple[str | None, float | None]:
+    """(clock, footprint radius m) of a map's ``metadata`` (None where absent), checked as a map file's are:
+    ``clock`` names the time base of the trajectory's t column (two maps whose clocks are equal strings share it),
+    ``footprint_radius_m`` the radius of the disc inscribed in the robot's footprint about its trajectory's point.
+    Raises ValueError with one line for a hostile value (not a string, empty, NaN, negative, zero, huge)."""
+    clock, radius = metadata.get(CLOCK_KEY), metadata.get(FOOTPRINT_KEY)
+    if clock is not None and not (isinstance(clock, str) and 0 < len(clock) <= 256):
+        raise ValueError(f"metadata '{CLOCK_KEY}' names a time base (a string of 1-256 characters); got "
+                         f"{repr(clock)[:80]}")
+    if radius is not None:
+        ok = isinstance(radius, (int, float)) and not isinstance(radius, bool) and np.isfinite(radius) \
+            and 0.0 < radius <= MAX_FOOTPRINT_RADIUS
+        if not ok:
+            raise ValueError(f"metadata '{FOOTPRINT_KEY}' is a radius in metres in (0, {MAX_FOOTPRINT_RADIUS:g}]; got "
+                             f"{repr(radius)[:80]}")
+        radius = float(radius)
+    return clock, radius
 
 
 class _Meta(BaseModel):
@@ -132,8 +157,9 @@ def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> A
         sightings = _floats(arrays["sighting_covariances"], "sighting_covariances", bad, MAX_VARIANCE)
         _check_semidefinite(sightings, "sighting_covariances", bad)
     metadata = meta.metadata.model_dump()
-    if metadata.get("true_start_pose") is None:
-        metadata.pop("true_start_pose", None)
+    for key in ("true_start_pose", CLOCK_KEY, FOOTPRINT_KEY):
+        if metadata.get(key) is None:
+            metadata.pop(key, None)
     try:
         return build(positions, covariances, descriptors, ids, counts, meta.robot, meta.frame, list(robots),
                      seen_by, trajectory, metadata, *drift, sightings)

@@ -54,6 +54,7 @@ from estimation.geometry import between, inverse, pose_to_matrix, transform_poin
 from estimation.landmark_map import LandmarkMap
 
 from .cache import content_rng
+from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
 from .frame_covariance import start_frame_covariance
 from .gate_scale import residual_gate_scale, settled_scale
@@ -101,6 +102,9 @@ class AlignmentConfig:
     # where a map's repeat of itself is counted: "own", in the gate its own covariances give (capped at
     # support_threshold); "pair", in the pair's final gate scale, as the decoys and the rival are (see self_structure)
     self_repeat_gate: str = "own"
+    # two robots cannot be in one place at one time (fusion/colocation.py, session 12; option, off): an alignment that
+    # puts the robots' bodies together at a common time is not found, and a rival that does is no rival
+    colocation: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -158,6 +162,10 @@ class AlignmentStatistics:
     prior_chi2: float = float("nan")
     prior_hypotheses: int = 0
     outside_prior_supports: int = 0
+    # with AlignmentConfig.colocation (fusion.colocation): what the test did or why there was none ('' when off), and
+    # the supports of the best distinct hypothesis it removed (0: none)
+    colocation: str = ""
+    colocation_removed_supports: int = 0
 
     @property
     def false_alarm_probability(self) -> float:
@@ -595,6 +603,7 @@ class Evidence:
     rival_pose: np.ndarray | None = None  # (3,) the second-best hypothesis' pose, None if there is none
     rival_mask: np.ndarray | None = None  # (K,) its supports among the correspondences
     outside: int = 0                      # with a start prior: supports of the best distinct hypothesis outside it
+    impossible: int = 0                   # with a co-location test: supports of the best distinct hypothesis it removed
 
 
 def _log10_tail(excess: int, rate: float, hypotheses: int) -> float:
@@ -759,7 +768,7 @@ def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.r
 
 def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndarray, map1: LandmarkMap,
              map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
-             repeats: bool = False, self_repeat=None, admissible=None) -> Evidence:
+             repeats: bool = False, self_repeat=None, admissible=None, possible=None) -> Evidence:
     """The alignment's own evidence (see the module docstring): supports beyond the two that define a
     hypothesis against a Poisson null whose rate is the largest of the decoys', the one that makes the
     second-best distinct hypothesis a typical maximum and (``repeats``: maps matched by descriptors) the one
@@ -771,14 +780,25 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     ``admissible(poses) -> bool`` (a start prior, :mod:`fusion.prior`): only the hypotheses it admits are rivals and
     count in the Bonferroni factor (a false alarm needs the best hypothesis inside it); the best one outside it is
     reported (``outside``).  Each map's repeat of itself stays in the null whatever the prior: a wrong prior that
-    agrees with a wrong winner (the truth damaged, its repeat winning) must not make it "found"."""
+    agrees with a wrong winner (the truth damaged, its repeat winning) must not make it "found".
+
+    ``possible(poses) -> bool`` (the co-location test, :mod:`fusion.colocation`) removes hypotheses as the prior does,
+    from the rivals and the Bonferroni factor; the best one it removed is reported (``impossible``), not as outside the
+    prior."""
     s = int(problem.distinct_counts(mask[None])[0])
     n_all = max(search.evaluated, 1)
-    n = n_all if admissible is None else max(int(admissible(search.poses).sum()), 1)
+    allowed = admissible
+    if possible is not None:
+        def allowed(poses: np.ndarray) -> np.ndarray:
+            return possible(poses) & (True if admissible is None else admissible(poses))
+    n = n_all if allowed is None else max(int(allowed(search.poses).sum()), 1)
     decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
-    rival = _best_distinct(problem, search, pose, mask, config, admissible=admissible)
+    rival = _best_distinct(problem, search, pose, mask, config, admissible=allowed)
     outside = 0 if admissible is None else _best_distinct(
-        problem, search, pose, mask, config, admissible=lambda poses: ~admissible(poses)).supports
+        problem, search, pose, mask, config,
+        admissible=lambda poses: ~admissible(poses) & (True if possible is None else possible(poses))).supports
+    impossible = 0 if possible is None else _best_distinct(
+        problem, search, pose, mask, config, admissible=lambda poses: ~possible(poses)).supports
     second = rival.supports
     if config.self_repeat_gate not in SELF_REPEAT_GATES:
         raise IncompatibleMapsError(f"unknown self_repeat_gate {config.self_repeat_gate!r} (choose from "
@@ -801,7 +821,7 @@ def evidence(problem: _Problem, search: _Search, pose: np.ndarray, mask: np.ndar
     while _log10_tail(required - 2, rate, n) > level and required < 100_000:
         required += 1
     return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat,
-                    rival.pose, rival.mask, outside)
+                    rival.pose, rival.mask, outside, impossible)
 
 
 # -- what an ambiguous pair reports ----------------------------------------------------------------------------
@@ -1015,11 +1035,26 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     raw_count = int(search.mask.sum())
     pose, covariance, mask, problem = _polish(problem, search.pose, search.mask, config)
     inside, prior_chi2 = None, float("nan")
+    # the prior and the co-location test are about the true starts: the winner's uncertainty against them widens them
+    # (for every hypothesis)
+    winner_start = (start_frame_covariance(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask],
+                                           pose, config.position_floor)
+                    if (prior is not None or config.colocation) and covariance is not None and mask.sum() >= 2
+                    else None)
+    possible, colocation_note, colocation_failure = None, "", ""
+    if config.colocation:
+        test, why = colocation_test(map1, map2)
+        if test is not None and winner_start is None:
+            test, why = None, "the alignment has no covariance to carry to the robots"
+        if test is None:
+            colocation_note = f"no co-location test: {why}"
+        else:
+            colocation_note = test.text()
+            colocation_failure = test.reason(pose, winner_start)
+
+            def possible(poses: np.ndarray) -> np.ndarray:
+                return test.admits(poses, winner_start)
     if prior is not None:
-        # the prior is about the true starts: the winner's uncertainty against them widens it (for every hypothesis)
-        winner_start = (start_frame_covariance(problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask],
-                                               pose, config.position_floor)
-                        if covariance is not None and mask.sum() >= 2 else None)
         prior_chi2 = float(prior.chi2(pose, winner_start))
         if prior_chi2 <= prior.bound:
 
@@ -1029,7 +1064,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
                   repeats=config.refine and with_descriptors and not identities,
                   self_repeat=None if cache is None else (
                       lambda m, *scale: cache.self_structure(m, config, *scale)),
-                  admissible=inside)
+                  admissible=inside, possible=possible)
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
@@ -1056,7 +1091,8 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
         self_repeat_supports=ev.self_repeat,
         required_supports=ev.required, gate_inflation=problem.inflation, gate_radius=problem.gate_radius,
         descriptors=with_descriptors, prior_chi2=prior_chi2,
-        prior_hypotheses=ev.hypotheses if inside is not None else 0, outside_prior_supports=ev.outside, **rival)
+        prior_hypotheses=ev.hypotheses if inside is not None else 0, outside_prior_supports=ev.outside,
+        colocation=colocation_note, colocation_removed_supports=ev.impossible, **rival)
 
     counted = raw_count if not config.refine and with_descriptors else len(supports)
     if counted < config.min_supports:
@@ -1064,6 +1100,9 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if prior is not None and (inside is None or ev.outside > s):
         return not_found(_contradiction(prior, pose, s, prior_chi2, ev, config, major, inside is None), stats,
                          supports)
+    if colocation_failure:
+        return not_found(f"the maps' best alignment ({s} supports) contradicts co-location: {colocation_failure}",
+                         stats, supports)
     if config.significance is not None and ev.log10_p > np.log10(config.significance):
         if ev.ambiguous and ev.self_repeat > ev.second_best:
             return not_found(
