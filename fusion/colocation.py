@@ -23,9 +23,11 @@ max_t d²(t) exceeds χ²₂ at ``level`` Bonferroni-corrected over the T common
 at each time; ~26 at 99.9 % over 500 times).
 
 When it is valid: both maps' trajectories on one clock (``metadata["clock"]``: equal names), each map's footprint
-known (``metadata["footprint_radius_m"]``) and its noise model kept, and an alignment covariance.  Otherwise there is
-no test, and :func:`colocation_test` says why.  Times are robot 1's trajectory rows inside both spans; robot 2 is
-interpolated between its rows when they are at most ``MAX_GAP`` s apart, half the chord added to its σ.
+known (``metadata["footprint_radius_m"]``) and its noise model kept, neither map flagged lost by its self-check (the
+trajectory after the alarm need not be in the frame of the landmarks before it, and a split map's parts keep all of
+it), and an alignment covariance.  Otherwise there is no test, and :func:`colocation_test` says why.  Times are
+robot 1's trajectory rows inside both spans; robot 2 is interpolated between its rows when they are at most
+``MAX_GAP`` s apart, half the chord added to its σ.
 """
 from __future__ import annotations
 
@@ -195,6 +197,11 @@ def colocation_test(map1: LandmarkMap, map2: LandmarkMap, level: float = COLOCAT
             return None, f"the map of {m.robot} does not give its robot's footprint (metadata '{FOOTPRINT_KEY}')"
     if clock1 != clock2:
         return None, f"the maps' trajectories are on different clocks ({clock1!r}, {clock2!r})"
+    for m in (map1, map2):
+        verdict = m.metadata.get("self_check")
+        if isinstance(verdict, dict) and verdict.get("lost"):
+            return None, (f"the map of {m.robot} flagged itself as lost (self-check): its trajectory after the alarm "
+                          f"need not share the frame of its landmarks before it (a part of a split map keeps it all)")
     noise = [_noise(m) for m in (map1, map2)]
     for m, n in zip((map1, map2), noise, strict=True):
         if n is None:

@@ -35,9 +35,10 @@ def _path(rng, n: int, step: float) -> np.ndarray:
     return np.column_stack([0.2 * np.arange(n), xy, theta])
 
 
-def _map(trajectory, robot="robot1", clock="mission 1", radius=P3AT, noise=NOISE, n=6, seed=0) -> LandmarkMap:
+def _map(trajectory, robot="robot1", clock="mission 1", radius=P3AT, noise=NOISE, n=6, seed=0, lost=False
+         ) -> LandmarkMap:
     rng = np.random.default_rng(seed)
-    meta = {"fastslam": dict(noise)}
+    meta = {"fastslam": dict(noise), "self_check": {"lost": lost}}
     if clock is not None:
         meta["clock"] = clock
     if radius is not None:
@@ -112,6 +113,7 @@ def test_the_dead_reckoning_bound_forgives_an_overlap_late_in_a_long_drive():
     ({"radius": None}, "does not give its robot's footprint (metadata 'footprint_radius_m')"),
     ({"clock": "mission 2"}, "different clocks"),
     ({"noise": {}}, "keeps no noise model"),
+    ({"lost": True}, "flagged itself as lost"),
 ])
 def test_without_a_shared_clock_or_a_footprint_there_is_no_test_and_the_fusion_says_why(change, said):
     t = _path(np.random.default_rng(0), 20, 0.05)
