@@ -365,6 +365,110 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+# ----------------------------------------------------------------------------------------------- footprints
+
+
+def footprint_corners(pose: np.ndarray, size: tuple[float, float]) -> np.ndarray:
+    """The four corners (4, 2) of a robot's body: a ``size`` = (length along x, width along y) rectangle centred
+    on the pose (x, y, θ) and turned by θ; counter-clockwise from the front left."""
+    x, y, th = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+    hl, hw = float(size[0]) / 2.0, float(size[1]) / 2.0
+    c, s = math.cos(th), math.sin(th)
+    local = ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))
+    return np.array([(x + c * u - s * v, y + s * u + c * v) for u, v in local])
+
+
+def _axes(corners: np.ndarray) -> list[tuple[float, float]]:
+    """Unit normals of a rectangle's two edge directions (the separating-axis candidates)."""
+    out = []
+    for i in (0, 1):
+        ex, ey = corners[i + 1] - corners[i]
+        n = math.hypot(ex, ey)
+        out.append((-ey / n, ex / n))
+    return out
+
+
+def footprint_gap(pose_a: np.ndarray, size_a: tuple[float, float],
+                  pose_b: np.ndarray, size_b: tuple[float, float]) -> float:
+    """Signed gap (metres) between two robots' bodies (see :func:`footprint_corners`): the distance between them
+    when apart, 0 touching, minus the penetration depth (the shortest push that separates them) when they overlap.
+
+    Both from the separating-axis theorem: the bodies overlap exactly when their projections overlap on all four
+    edge normals, and then the shortest push along one of them that parts the projections is the penetration
+    depth (a body inside the other's projection must go the longer way out on one side); apart, the distance is
+    the nearest corner-to-edge distance (for two convex polygons the nearest points include a corner of one).
+    """
+    ca, cb = footprint_corners(pose_a, size_a), footprint_corners(pose_b, size_b)
+    depth = math.inf
+    for ax, ay in _axes(ca) + _axes(cb):
+        pa = ca[:, 0] * ax + ca[:, 1] * ay
+        pb = cb[:, 0] * ax + cb[:, 1] * ay
+        overlap = min(pa.max() - pb.min(), pb.max() - pa.min())  # the shorter push along this axis that parts them
+        if overlap <= 0.0:
+            depth = None
+            break
+        depth = min(depth, overlap)
+    if depth is not None:
+        return -depth
+    return min(_corners_to_edges(ca, cb), _corners_to_edges(cb, ca))
+
+
+def _corners_to_edges(points: np.ndarray, polygon: np.ndarray) -> float:
+    """Smallest distance from any of ``points`` (n, 2) to any edge of the closed ``polygon`` (m, 2)."""
+    a = polygon
+    e = np.roll(polygon, -1, axis=0) - polygon  # (m, 2)
+    ap = points[:, None, :] - a[None, :, :]  # (n, m, 2)
+    t = np.clip(np.einsum("nmi,mi->nm", ap, e) / np.einsum("mi,mi->m", e, e), 0.0, 1.0)
+    closest = a[None] + t[..., None] * e[None]
+    return float(np.linalg.norm(points[:, None, :] - closest, axis=2).min())
+
+
+def footprint_overlap(pose_a: np.ndarray, size_a: tuple[float, float],
+                      pose_b: np.ndarray, size_b: tuple[float, float]) -> np.ndarray:
+    """The region (k, 2) where two robots' bodies overlap, a convex polygon counter-clockwise (k = 0: they do not;
+    touching along an edge gives a degenerate polygon of zero area). Body A clipped by each edge of body B
+    (Sutherland–Hodgman)."""
+    poly = [tuple(p) for p in footprint_corners(pose_a, size_a)]
+    cb = footprint_corners(pose_b, size_b)
+    for i in range(4):
+        (x0, y0), (x1, y1) = cb[i], cb[(i + 1) % 4]
+        ex, ey = x1 - x0, y1 - y0
+
+        def side(p: tuple[float, float], x0=x0, y0=y0, ex=ex, ey=ey) -> float:  # > 0: inside (left of the edge)
+            return ex * (p[1] - y0) - ey * (p[0] - x0)
+
+        out: list[tuple[float, float]] = []
+        for j, p in enumerate(poly):
+            q = poly[(j + 1) % len(poly)]
+            sp, sq = side(p), side(q)
+            if sp >= 0.0:
+                out.append(p)
+            if (sp >= 0.0) != (sq >= 0.0):
+                f = sp / (sp - sq)
+                out.append((p[0] + f * (q[0] - p[0]), p[1] + f * (q[1] - p[1])))
+        poly = out
+        if not poly:
+            break
+    return np.asarray(poly, dtype=float).reshape(-1, 2)
+
+
+def _footprint(size: tuple[float, float] | None) -> tuple[float, float] | None:
+    if size is None:
+        return None
+    length, width = (float(v) for v in size)
+    if not (math.isfinite(length) and math.isfinite(width) and length > 0 and width > 0):
+        raise ValueError(f"a footprint is (length, width) > 0 in metres, got {size!r}")
+    return length, width
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    """Area (m²) of a simple polygon (k, 2) (shoelace; 0 for fewer than 3 points)."""
+    p = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    if len(p) < 3:
+        return 0.0
+    return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(p[:, 1], np.roll(p[:, 0], -1))))
+
+
 # ----------------------------------------------------------------------------------------------- the world
 
 
@@ -408,7 +512,11 @@ class World:
         self._a = self.walls[:, :2].copy()
         self._e = self.walls[:, 2:] - self.walls[:, :2]
         self._lock = threading.Lock()
+        # held by a virtual robot from reading the others' poses to writing its own, so that two robots stepped by
+        # different threads cannot both move into one free place (see ``moving``)
+        self._motion_lock = threading.RLock()
         self._robots: dict[str, np.ndarray] = {}
+        self._footprints: dict[str, tuple[float, float]] = {}  # length, width (m) of robots that gave theirs
         self._pose_sources: dict[str, Callable[[], np.ndarray]] = {}  # robots whose pose is kept elsewhere
 
     # ------------------------------------------------------------------ construction
@@ -555,29 +663,48 @@ class World:
         return ok
 
     # ------------------------------------------------------------------ robots (thread-safe)
-    def add_robot(self, name: str, pose: np.ndarray) -> None:
-        """Register a robot's true pose (x, y, θ). A name already present -> ValueError."""
+    def add_robot(self, name: str, pose: np.ndarray, footprint: tuple[float, float] | None = None) -> None:
+        """Register a robot's true pose (x, y, θ) and, optionally, its body's footprint (length, width) in metres
+        (:func:`footprint_corners`). A name already present -> ValueError."""
         p = np.array(pose, dtype=float).reshape(3)
+        size = _footprint(footprint)
         with self._lock:
             if name in self._robots:
                 raise ValueError(f"robot {name!r} is already in world {self.name!r}")
             self._robots[name] = p
+            if size is not None:
+                self._footprints[name] = size
 
-    def attach_robot(self, name: str, source: Callable[[], np.ndarray]) -> None:
+    def attach_robot(self, name: str, source: Callable[[], np.ndarray],
+                     footprint: tuple[float, float] | None = None) -> None:
         """Register a robot whose true pose is kept elsewhere (e.g. a virtual robot served by another process):
         ``pose(name)`` and ``robot_poses()`` call ``source()`` for it, and ``set_pose`` refuses it. A name
         already present -> ValueError."""
+        size = _footprint(footprint)
         with self._lock:
             if name in self._robots:
                 raise ValueError(f"robot {name!r} is already in world {self.name!r}")
             self._robots[name] = np.full(3, np.nan)  # a placeholder: the source is asked instead
             self._pose_sources[name] = source
+            if size is not None:
+                self._footprints[name] = size
 
     def remove_robot(self, name: str) -> None:
         """Forget a robot; unknown names are ignored (so closing twice is harmless)."""
         with self._lock:
             self._robots.pop(name, None)
             self._pose_sources.pop(name, None)
+            self._footprints.pop(name, None)
+
+    def footprints(self) -> dict[str, tuple[float, float]]:
+        """{name: (length, width)} of the registered robots that gave their footprint."""
+        with self._lock:
+            return dict(self._footprints)
+
+    def moving(self) -> threading.RLock:
+        """The lock a robot holds while it looks at the others and moves (``with world.moving(): ...``): a check
+        and the move it allows are one step for every other robot of this world."""
+        return self._motion_lock
 
     def set_pose(self, name: str, pose: np.ndarray) -> None:
         """Set a registered robot's true pose; unknown name -> KeyError."""

@@ -47,9 +47,11 @@ from drivers.arcos.commands import Command
 from drivers.arcos.params import RobotParams, builtin_params
 from drivers.errors import ProtocolError
 from mocks.p3at.options import FirmwareDefaults, OdometryErrors, SensorOptions
-from mocks.world import World
+from mocks.world import World, footprint_gap, footprint_overlap
 
 STEP_S = 0.01  # physics step
+ROBOT_CONTACTS = ("disc", "footprint")  # FirmwareDefaults.robot_contact
+_CLEAR_M = 0.005  # further than this from what it touched, a robot's bumper is released
 _HEAD_TOLERANCE_RAD = math.radians(0.5)
 _MOVE_TOLERANCE_M = 0.001
 
@@ -142,7 +144,10 @@ class VirtualP3AT:
         # Simulated seconds of client silence before the watchdog stops the motors. A server running simulated
         # time k× faster scales this by k: the client's silence is measured on its own (wall) clock.
         self.watchdog_s = self.firmware.watchdog_ms / 1000.0
-        world.add_robot(name, pose)
+        if self.firmware.robot_contact not in ROBOT_CONTACTS:
+            raise ValueError(f"robot_contact must be one of {ROBOT_CONTACTS}, got {self.firmware.robot_contact!r}")
+        self.footprint = (float(self.params.length_m), float(self.params.width_m))
+        world.add_robot(name, pose, footprint=self.footprint)
         self._closed = False
         self._time = float(start_time)
         self._battery = self.sensors.battery_volts
@@ -432,34 +437,8 @@ class VirtualP3AT:
             self.v = max(-abs(self._trans_target) / dt, min(abs(self._trans_target) / dt, self.v))
         self.w = _toward(self.w, w_want, self.rot_accel * dt, self.rot_decel * dt)
 
-        # Ground truth: the body moves unless the new position would push further into a wall or robot.
-        x, y, th = self.world.pose(self.name)
-        ds, dth = self.v * dt, self.w * dt
-        mid = th + dth / 2.0
-        nx, ny = x + ds * math.cos(mid), y + ds * math.sin(mid)
-        blocked = False
-        radius = self.firmware.collision_radius_m
-        clearance_new = math.inf
-        if ds != 0.0:
-            clearance_new, bearing = self._clearance(nx, ny)
-            if clearance_new < radius:
-                clearance_old, _ = self._clearance(x, y)
-                blocked = clearance_new < clearance_old
-        if blocked:
-            nx, ny, ds = x, y, 0.0
-            if not self._in_contact:
-                self.stats.collisions += 1
-            self._in_contact = True
-            self.stall_bumpers = self._bumper_bits(_wrap(bearing - th), self.v > 0)
-            if self.bumpstall & (1 if self.v > 0 else 2):
-                self.motors_enabled = False
-            self.v = 0.0
-        elif ds != 0.0 and clearance_new > radius + 0.005:  # clear of the obstacle again
-            self._in_contact = False
-            self.stall_bumpers = 0
-        else:  # resting against or creeping along the obstacle: the bumper stays pressed, the wheels turn freely
-            self.stall_bumpers &= ~0x0101
-        self.world.set_pose(self.name, np.array([nx, ny, _wrap(th + dth)]))
+        with self.world.moving():  # no other robot moves between this look at the world and this move
+            ds, dth = self._move(dt)
 
         # Wheels: true travel, then what the encoders measure.
         half = dth * self.track_m / 2.0
@@ -492,17 +471,90 @@ class VirtualP3AT:
         )
         self._fire_sonars()
 
-    def _clearance(self, x: float, y: float) -> tuple[float, float]:
-        """Distance from (x, y) to the nearest wall or other robot (centre to surface), and its bearing."""
+    def _move(self, dt: float) -> tuple[float, float]:
+        """Ground truth: the body moves unless the new pose would push further into a wall or another robot; then it
+        stops there with its wheels stalled and the bumper facing the contact pressed. Returns the true travel
+        (ds, dθ) of this step."""
+        x, y, th = self.world.pose(self.name)
+        ds, dth = self.v * dt, self.w * dt
+        mid = th + dth / 2.0
+        nx, ny = x + ds * math.cos(mid), y + ds * math.sin(mid)
+        footprint = self.firmware.robot_contact == "footprint"
+        blocked = False
+        radius = self.firmware.collision_radius_m
+        clearance_new = math.inf
+        if ds != 0.0:
+            clearance_new, bearing = self._clearance(nx, ny, robots=not footprint)
+            if clearance_new < radius:
+                clearance_old, _ = self._clearance(x, y, robots=not footprint)
+                blocked = clearance_new < clearance_old
+        if blocked:
+            nx, ny, ds = x, y, 0.0
+        body_gap, contact = math.inf, None
+        if footprint and (ds != 0.0 or dth != 0.0):  # turning on the spot swings the corners too
+            body_gap, point = self._body_gap(nx, ny, th + dth)
+            if body_gap < 0.0 and body_gap < self._body_gap(x, y, th)[0]:
+                nx, ny, ds, dth, contact = x, y, 0.0, 0.0, point
+        if contact is not None:  # another robot's body: stopped, the bumper on the side facing the contact
+            bearing = _wrap(math.atan2(contact[1] - y, contact[0] - x) - th)
+            self._contact(bearing, abs(bearing) < math.pi / 2)
+            self.w = 0.0
+        elif blocked:  # a wall: stopped, front or rear bumper by the direction of travel
+            self._contact(_wrap(bearing - th), self.v > 0)
+        elif ds != 0.0 and clearance_new > radius + _CLEAR_M and body_gap > _CLEAR_M:  # clear of the obstacle again
+            self._in_contact = False
+            self.stall_bumpers = 0
+        else:  # resting against or creeping along the obstacle: the bumper stays pressed, the wheels turn freely
+            self.stall_bumpers &= ~0x0101
+        self.world.set_pose(self.name, np.array([nx, ny, _wrap(th + dth)]))
+        return ds, dth
+
+    def _contact(self, bearing: float, front: bool) -> None:
+        """The robot ran into something at ``bearing`` (robot frame): stall and bumper flags, the motors' bumpstall."""
+        if not self._in_contact:
+            self.stats.collisions += 1
+        self._in_contact = True
+        self.stall_bumpers = self._bumper_bits(bearing, front)
+        if self.bumpstall & (1 if front else 2):
+            self.motors_enabled = False
+        self.v = 0.0
+
+    def _clearance(self, x: float, y: float, robots: bool = True) -> tuple[float, float]:
+        """Distance from (x, y) to the nearest wall or (``robots``: as discs) other robot (centre to surface), and
+        its bearing."""
         dist, closest = self.world.nearest_wall_points(np.array([x, y]))
         best, target = float(dist[0]), closest[0]
-        for other, pose in self.world.robot_poses().items():
-            if other == self.name:
-                continue
-            d = math.hypot(pose[0] - x, pose[1] - y) - self.firmware.collision_radius_m
-            if d < best:
-                best, target = d, pose[:2]
+        if robots:
+            for other, pose in self.world.robot_poses().items():
+                if other == self.name:
+                    continue
+                d = math.hypot(pose[0] - x, pose[1] - y) - self.firmware.collision_radius_m
+                if d < best:
+                    best, target = d, pose[:2]
         return best, math.atan2(target[1] - y, target[0] - x)
+
+    def _body_gap(self, x: float, y: float, th: float) -> tuple[float, np.ndarray | None]:
+        """The smallest signed gap between this robot's body at (x, y, θ) and another robot's (negative: they
+        overlap; :func:`~mocks.world.footprint_gap`) and, where they overlap, the middle of the overlap (world
+        frame). A robot registered without a footprint is taken to be the size of this one."""
+        sizes = self.world.footprints()
+        pose = np.array([x, y, th])
+        reach = math.hypot(*self.footprint)  # both half-diagonals, for bodies of this size
+        best, point = math.inf, None
+        for other, other_pose in self.world.robot_poses().items():
+            if other == self.name or not np.all(np.isfinite(other_pose)):
+                continue
+            size = sizes.get(other, self.footprint)
+            centres = math.hypot(other_pose[0] - x, other_pose[1] - y)
+            if centres > (reach + math.hypot(*size)) / 2.0 + 0.1:
+                best = min(best, centres - (reach + math.hypot(*size)) / 2.0)  # a lower bound is enough when far
+                continue
+            gap = footprint_gap(pose, self.footprint, other_pose, size)
+            if gap < best:
+                best = gap
+                if gap < 0.0:
+                    point = footprint_overlap(pose, self.footprint, other_pose, size).mean(axis=0)
+        return best, point
 
     def _bumper_bits(self, bearing: float, forward: bool) -> int:
         """STALL_BUMPERS: both wheels stalled, plus the bumper segment facing the contact (segment 0 leftmost)."""

@@ -46,7 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mocks.p3at.options import OdometryErrors
+from drivers.arcos.params import builtin_params
+from mocks.p3at.options import FirmwareDefaults, OdometryErrors
 from mocks.world import World
 
 _SLOT_WORDS = 8  # per robot: sequence counter, x, y, θ, simulated time, 3 spare (64 bytes, one cache line)
@@ -124,13 +125,15 @@ class PoseTable:
 @dataclass(frozen=True)
 class RobotSpec:
     """One virtual P3-AT to serve: its name in the world, its start pose (default: the world's), its model's
-    seed, wheel-odometry errors and subtype (see :class:`~mocks.p3at.model.VirtualP3AT`)."""
+    seed, wheel-odometry errors, subtype and firmware defaults (e.g. ``FirmwareDefaults(robot_contact=
+    "footprint")``; see :class:`~mocks.p3at.model.VirtualP3AT`)."""
 
     name: str
     pose: tuple[float, float, float] | None = None
     seed: int = 0
     odometry: OdometryErrors = OdometryErrors()
     subtype: str = "p3at-sh"
+    firmware: FirmwareDefaults = FirmwareDefaults()
 
 
 class RemoteServer:
@@ -201,7 +204,8 @@ class RobotProcess:
                       "time_scale": self.time_scale, "nice": nice,
                       "robots": [{"name": r.name, "pose": None if r.pose is None else [float(v) for v in r.pose],
                                   "seed": int(r.seed), "odometry": dataclasses.asdict(r.odometry),
-                                  "subtype": r.subtype} for r in robots]}
+                                  "subtype": r.subtype, "firmware": dataclasses.asdict(r.firmware)}
+                                 for r in robots]}
             self._child.stdin.write((json.dumps(config) + "\n").encode())
             self._child.stdin.flush()
             reply = self._read_message(time.monotonic() + startup_timeout)
@@ -210,9 +214,11 @@ class RobotProcess:
                 raise RobotProcessError(f"the virtual robots' process did not start: {why}")
             self.priority = str(reply.get("priority", "normal"))
             self._table.path.unlink()  # both sides have it mapped: a hard kill leaves no file behind
-            for index, name in enumerate(names):
+            for index, (name, spec) in enumerate(zip(names, robots, strict=True)):
                 self.servers[name] = RemoteServer(self, name, host, int(reply["ready"][name]))
-                world.attach_robot(name, lambda index=index: self._table.read(index)[0])
+                params = builtin_params(spec.subtype)
+                world.attach_robot(name, lambda index=index: self._table.read(index)[0],
+                                   footprint=(params.length_m, params.width_m))
                 self._attached.append(name)
         except BaseException:
             self.close()
@@ -354,7 +360,8 @@ def child_main() -> int:
             pose = None if robot["pose"] is None else np.asarray(robot["pose"], float)
             server = serve_tcp(world, robot["name"], pose, host=config["host"], port=0,
                                time_scale=config["time_scale"], seed=robot["seed"],
-                               odometry=OdometryErrors(**robot["odometry"]), subtype=robot["subtype"])
+                               odometry=OdometryErrors(**robot["odometry"]), subtype=robot["subtype"],
+                               firmware=FirmwareDefaults(**robot["firmware"]))
             servers.append(server)
             table.write(index, server.model.true_pose(), server.model.time)
             server.wake_s = STEP_S  # the shared pose is at most one physics step old
