@@ -22,9 +22,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
+import json
 import signal
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -142,6 +145,18 @@ class MissionResult:
     failures: list[StageFailure] = field(default_factory=list)
 
 
+def _time_base(config: MissionConfig, lockstep: bool) -> str:
+    """The name of the one clock this mission's robots stamp their frames on (the maps' metadata 'clock',
+    fusion/colocation.py).  Simulated time repeats with the settings (one seed gives identical map files), so it is
+    named by them (the output folder aside); a wall-clock run by a fresh id, so maps of two runs, or of robots on
+    other hosts (one robot per mission off the mocks), are never taken as sharing it."""
+    if not lockstep:
+        return f"mission {uuid.uuid4().hex[:12]} (monotonic clock)"
+    settings = {k: v for k, v in dataclasses.asdict(config).items() if k != "out"}
+    digest = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:12]
+    return f"mission {digest} (simulated clock)"
+
+
 class Mission:
     """Set up with a config, ``run()`` until the time is up, the routes are done, or ``stop()`` is called."""
 
@@ -158,6 +173,7 @@ class Mission:
             self._own_clock = False
         self.clock = clock if clock is not None else time.monotonic
         self.lockstep = is_lockstep(self.clock)
+        self.time_base = _time_base(config, self.lockstep)
         self.progress = progress or (lambda line: None)
         self.events = events or (lambda line: None)
         self.exchange = exchange if exchange is not None else InProcessExchange()
@@ -255,7 +271,7 @@ class Mission:
                           sensor_log=sensor_log, clock=self.clock, t0=t0,
                           truth=(lambda: world.pose(name)) if pose is not None else None, true_start=pose,
                           head_mount=left_camera_mount(geometry), on_event=self.events,
-                          on_failure=self._on_failure)
+                          on_failure=self._on_failure, time_base=self.time_base)
         stack.callback(onboard.stop)  # runs before the link, camera and server close (LIFO)
         if self.logger is not None:
             self.logger.log_robot_frame(name, pose if pose is not None else np.zeros(3))

@@ -186,6 +186,9 @@ def log_step(logger, robot: str, t: float, frame: CameraFrame, result: StepResul
 
 
 # -- the deterministic core ---------------------------------------------------------------------------------
+P3AT_INSCRIBED_RADIUS_M = 0.2525      # half the P3-AT's 505 mm width (its length is 626 mm)
+
+
 @dataclass(frozen=True)
 class OnboardConfig:
     """Settings of one robot's pipeline (dumped with a sensor log so a replay can reuse or change them)."""
@@ -203,6 +206,10 @@ class OnboardConfig:
                                        # frame) rather than raw odometry: for robots whose odometry drifts
     control_phase: float = 0.05        # s after the mission start of the first control tick (lockstep clock):
                                        # half a SIP cycle, so each command sees the newest SIP
+    # the radius of the disc inscribed in the robot's footprint, written into the map (metadata footprint_radius_m)
+    # for fusion's co-location test: a P3-AT is 626 x 505 mm (ARIA's p3at parameters,
+    # /work/shared/reference/arcos-protocol.md), so 0.2525 m
+    footprint_radius_m: float = P3AT_INSCRIBED_RADIUS_M
 
 
 @dataclass
@@ -305,7 +312,7 @@ class Onboard:
                  t0: float | None = None, truth: Callable[[], np.ndarray] | None = None,
                  true_start: np.ndarray | None = None, head_mount: tuple[float, float, float] | None = None,
                  on_event: Callable[[str], None] | None = None, front_end: FrontEnd | None = None,
-                 on_failure: Callable[[StageFailure], None] | None = None) -> None:
+                 on_failure: Callable[[StageFailure], None] | None = None, time_base: str | None = None) -> None:
         self.robot, self.link, self.camera, self.config = robot, link, camera, config
         self.exchange, self.logger, self.sensor_log = exchange, logger, sensor_log
         self.controller = controller or NoMotion()
@@ -320,6 +327,11 @@ class Onboard:
         self.core = SlamCore(robot, config, front_end)
         if true_start is not None:
             self.core.metadata["true_start_pose"] = [float(v) for v in true_start]
+        # what fusion's co-location test needs (fusion/colocation.py): the body, and the name of the clock the frames
+        # (so the map's trajectory) are stamped on, when the caller knows other robots share it (a mission's robots)
+        self.core.metadata["footprint_radius_m"] = float(config.footprint_radius_m)
+        if time_base is not None:
+            self.core.metadata["clock"] = str(time_base)
         # estimated, odometry and (mocks) true pose per processed frame, for the TUM files beside the map
         self.trajectories = TrajectoryRecorder(true_start if truth is not None else None)
         self.odometry = OdometryBuffer()
