@@ -60,6 +60,9 @@ class PairResult:
     split_decision: str | None = None    # "whole", "parts", "before", "after" or "none" (left out)
     # the rough relative start the alignment was given (fusion/prior.py), in words; "" when none was used
     prior: str = ""
+    # with the co-location option (AlignmentConfig.colocation, fusion/colocation.py): what was tested, or why there was
+    # no test (maps without a shared clock or a footprint), once per pair; "" when the option is off
+    colocation: str = ""
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -88,6 +91,10 @@ class PairResult:
         self.second_best_supports = int(st.second_best_supports)
         prior = getattr(alignment, "prior", None)
         self.prior = "" if prior is None else prior.text()
+        self.colocation = str(getattr(st, "colocation", ""))
+        removed = int(getattr(st, "colocation_removed_supports", 0))
+        if removed:
+            self.colocation += f"; a distinct hypothesis with {removed} supports contradicts it and is no rival"
         cov = alignment.covariance
         if alignment.found and cov is not None:
             self.sigma_xy, self.sigma_theta = sigmas(cov)

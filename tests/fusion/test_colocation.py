@@ -214,3 +214,19 @@ def test_a_best_alignment_that_stacks_the_robots_is_not_found_with_the_reason():
     assert not a.found
     assert "contradicts co-location: robot2 would overlap robot1 at t=0.0 s" in a.reason
     assert "at least 0.505 m needed, d²=" in a.reason and "\n" not in a.reason
+
+
+def test_the_fusion_report_says_once_what_the_test_did_or_why_there_was_none():
+    from runtime.fusion_report import fuse_maps
+
+    m1, m2 = _twin_maps(0)
+    pair = fuse_maps({"robot1": m1, "robot2": m2}, preset=ON).pairs[0]
+    assert pair.aligned
+    assert pair.colocation.startswith("co-location tested at 60 common times")
+    assert pair.colocation.endswith("contradicts it and is no rival") and pair.colocation.count("co-location") == 1
+    m1.metadata.pop("clock")
+    pair = fuse_maps({"robot1": m1, "robot2": m2}, preset=ON).pairs[0]
+    assert not pair.aligned and pair.note.startswith("ambiguous")
+    assert pair.colocation == "no co-location test: the map of robot1 does not name its trajectory's clock " \
+                              "(metadata 'clock')"
+    assert fuse_maps({"robot1": m1, "robot2": m2}).pairs[0].colocation == ""
