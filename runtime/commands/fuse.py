@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.options import non_negative_int, start_sigmas
+from runtime.commands.options import OutputPathError, check_output_file, non_negative_int, start_sigmas
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 
 EXIT_NO_OVERLAP = 1
@@ -83,6 +84,15 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     if len(args.maps) < 2:
         print("p3at fuse: give at least two map files", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        check_output_file(args.out)
+    except OutputPathError as e:
+        print(f"p3at fuse: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if any(_same_file(args.out, path) for path in args.maps):
+        print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
+              "another file", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         maps = [LandmarkMap.load(path) for path in args.maps]
@@ -180,6 +190,14 @@ def _fuse(args: argparse.Namespace) -> int:
               + ", ".join(report["unconnected"]), file=sys.stderr)
         return EXIT_NO_OVERLAP
     return 0
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file (a link or another spelling of the path included)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:       # one of them does not exist (yet)
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:

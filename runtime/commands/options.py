@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
+from pathlib import Path
 
 
 def float_where(text: str, domain: str, inside) -> float:
@@ -99,3 +101,34 @@ def add_deprecated_alias(parser: argparse.ArgumentParser, old: str, new: str, **
 def deprecated_options(parser: argparse.ArgumentParser) -> list[str]:
     """The hidden deprecated spellings a parser accepts."""
     return [s for a in parser._actions if isinstance(a, _DeprecatedAlias) for s in a.option_strings]
+
+
+class OutputPathError(ValueError):
+    """An output path no file (or folder) can be written at: the command says so before it does its work."""
+
+
+def _writable_ancestor(path: Path) -> str | None:
+    """Why no file can be created under ``path``'s folder (None when one can): the nearest folder that exists
+    must be writable (the writers create the missing folders below it)."""
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"cannot write in {folder} (permission denied)"
+    return None
+
+
+def check_output_file(path: str | os.PathLike | None, option: str = "--out") -> None:
+    """Raise :class:`OutputPathError` when ``path`` cannot take a file: a folder is there, a file is where a folder
+    must be, or the folder is not writable. Commands call it before their work, so that a long run does not end
+    on an output it cannot write (the write itself stays atomic: a temporary file renamed over the target)."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.is_dir():
+        raise OutputPathError(f"{option} {path}: is a folder; give a file name")
+    why = _writable_ancestor(target)
+    if why is not None:
+        raise OutputPathError(f"{option} {path}: {why}")
