@@ -193,6 +193,7 @@ class Mission:
         self._end_time: float | None = None
         self._wall_start = time.monotonic()
         self._link_lost_since: dict[str, float] = {}
+        self._touching: dict[str, str | None] = {}  # virtual robots: what each was last seen pressed against
 
     def stop(self) -> None:
         """Ask the mission to end (thread- and signal-safe)."""
@@ -354,6 +355,7 @@ class Mission:
 
         cfg = self.config
         cfg.out.mkdir(parents=True, exist_ok=True)
+        alone = None
         if cfg.on_mocks:
             world = World.load(cfg.world)
             names = sorted(world.start_poses)[: cfg.robots]
@@ -362,6 +364,9 @@ class Mission:
                     raise MissionError(f"the world '{world.name}' has no robot {cfg.robot_name!r} "
                                        f"(it has {', '.join(sorted(world.start_poses))})")
                 names = [cfg.robot_name]
+                # a fleet's robot processes (p3at demo --processes) each build their own world: say what that means
+                alone = (f"{cfg.robot_name} is alone in its copy of the world: the fleet's other robots are not in "
+                         "it, so it can neither touch them nor hear them on its sonar")
             if len(names) < cfg.robots:
                 raise MissionError(f"the world '{world.name}' has {len(names)} start poses, "
                                    f"{cfg.robots} robots asked")
@@ -369,6 +374,10 @@ class Mission:
             world, names = None, [cfg.robot_name or "robot1"]
         if cfg.rerun != "none":
             self._open_logger(names, world)
+        if alone is not None:
+            self.events(alone)
+            if self.logger is not None:
+                self.logger.log_event(0.0, alone, "WARN")
         try:
             try:
                 t0 = self._run_robots(world, names)
@@ -476,6 +485,7 @@ class Mission:
             k += 1
             t = self.clock() - t0
             self._check_links(t)
+            self._check_contacts(t)
             if self._stop.is_set():
                 break
             if t >= cfg.seconds:
@@ -523,6 +533,26 @@ class Mission:
                 self.events(f"{name}: link lost; the driver is reconnecting")
             elif t - since >= 10.0:
                 self._record_failure(StageFailure(name, "driver", f"link lost for {t - since:.0f} s", t))
+
+    def _check_contacts(self, t: float) -> None:
+        """A virtual robot that ran into another robot: an event naming both, with the bumpers its driver reports,
+        also in Rerun's mission/events (WARN), so that a reviewer sees it. Looked at every tick (0.2 s), so a touch
+        shorter than that can pass unseen; walls are not reported."""
+        for name, server in self._servers.items():
+            touching = getattr(server, "touching", None)
+            if touching == self._touching.get(name):
+                continue
+            self._touching[name] = touching
+            if touching is None or touching == "wall":
+                continue
+            driver = self._drivers.get(name)
+            state = driver.last_state if driver is not None else None
+            bumpers = "" if state is None else (f": front bumpers {state.front_bumpers:#04x}, "
+                                                 f"rear {state.rear_bumpers:#04x}")
+            message = f"{name} ran into {touching} and stopped{bumpers}"
+            self.events(message)
+            if self.logger is not None:
+                self.logger.log_event(t, message, "WARN")
 
     def _save_maps(self) -> None:
         """Every robot's current map to OUT/<robot>.npz, atomically: what a hard kill leaves behind."""

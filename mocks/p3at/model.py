@@ -199,6 +199,7 @@ class VirtualP3AT:
         self.w = 0.0  # actual rotational velocity, rad/s
         self.stall_bumpers = 0
         self._in_contact = False
+        self.touching: str | None = None  # what the robot is pressed against: another robot's name, "wall", None
         self._wheel_speeds = (0.0, 0.0)  # measured, m/s
         self.odometry = np.zeros(3)  # x, y (m), θ (rad) in the odometry frame: what the robot reports
         self.encoders = [0, 0]
@@ -484,26 +485,29 @@ class VirtualP3AT:
         radius = self.firmware.collision_radius_m
         clearance_new = math.inf
         if ds != 0.0:
-            clearance_new, bearing = self._clearance(nx, ny, robots=not footprint)
+            clearance_new, bearing, obstacle = self._clearance(nx, ny, robots=not footprint)
             if clearance_new < radius:
-                clearance_old, _ = self._clearance(x, y, robots=not footprint)
+                clearance_old, _, _ = self._clearance(x, y, robots=not footprint)
                 blocked = clearance_new < clearance_old
         if blocked:
             nx, ny, ds = x, y, 0.0
         body_gap, contact = math.inf, None
         if footprint and (ds != 0.0 or dth != 0.0):  # turning on the spot swings the corners too
-            body_gap, point = self._body_gap(nx, ny, th + dth)
+            body_gap, point, other = self._body_gap(nx, ny, th + dth)
             if body_gap < 0.0 and body_gap < self._body_gap(x, y, th)[0]:
                 nx, ny, ds, dth, contact = x, y, 0.0, 0.0, point
         if contact is not None:  # another robot's body: stopped, the bumper on the side facing the contact
             bearing = _wrap(math.atan2(contact[1] - y, contact[0] - x) - th)
             self._contact(bearing, abs(bearing) < math.pi / 2)
+            self.touching = other
             self.w = 0.0
-        elif blocked:  # a wall: stopped, front or rear bumper by the direction of travel
+        elif blocked:  # a wall (or, as discs, a robot): stopped, front or rear bumper by the direction of travel
             self._contact(_wrap(bearing - th), self.v > 0)
+            self.touching = obstacle
         elif ds != 0.0 and clearance_new > radius + _CLEAR_M and body_gap > _CLEAR_M:  # clear of the obstacle again
             self._in_contact = False
             self.stall_bumpers = 0
+            self.touching = None
         else:  # resting against or creeping along the obstacle: the bumper stays pressed, the wheels turn freely
             self.stall_bumpers &= ~0x0101
         self.world.set_pose(self.name, np.array([nx, ny, _wrap(th + dth)]))
@@ -519,28 +523,28 @@ class VirtualP3AT:
             self.motors_enabled = False
         self.v = 0.0
 
-    def _clearance(self, x: float, y: float, robots: bool = True) -> tuple[float, float]:
-        """Distance from (x, y) to the nearest wall or (``robots``: as discs) other robot (centre to surface), and
-        its bearing."""
+    def _clearance(self, x: float, y: float, robots: bool = True) -> tuple[float, float, str]:
+        """Distance from (x, y) to the nearest wall or (``robots``: as discs) other robot (centre to surface), its
+        bearing, and what it is ("wall" or the robot's name)."""
         dist, closest = self.world.nearest_wall_points(np.array([x, y]))
-        best, target = float(dist[0]), closest[0]
+        best, target, what = float(dist[0]), closest[0], "wall"
         if robots:
             for other, pose in self.world.robot_poses().items():
                 if other == self.name:
                     continue
                 d = math.hypot(pose[0] - x, pose[1] - y) - self.firmware.collision_radius_m
                 if d < best:
-                    best, target = d, pose[:2]
-        return best, math.atan2(target[1] - y, target[0] - x)
+                    best, target, what = d, pose[:2], other
+        return best, math.atan2(target[1] - y, target[0] - x), what
 
-    def _body_gap(self, x: float, y: float, th: float) -> tuple[float, np.ndarray | None]:
+    def _body_gap(self, x: float, y: float, th: float) -> tuple[float, np.ndarray | None, str | None]:
         """The smallest signed gap between this robot's body at (x, y, θ) and another robot's (negative: they
-        overlap; :func:`~mocks.world.footprint_gap`) and, where they overlap, the middle of the overlap (world
-        frame). A robot registered without a footprint is taken to be the size of this one."""
+        overlap; :func:`~mocks.world.footprint_gap`), where they overlap the middle of the overlap (world frame),
+        and that robot's name. A robot registered without a footprint is taken to be the size of this one."""
         sizes = self.world.footprints()
         pose = np.array([x, y, th])
         reach = math.hypot(*self.footprint)  # both half-diagonals, for bodies of this size
-        best, point = math.inf, None
+        best, point, nearest = math.inf, None, None
         for other, other_pose in self.world.robot_poses().items():
             if other == self.name or not np.all(np.isfinite(other_pose)):
                 continue
@@ -551,10 +555,10 @@ class VirtualP3AT:
                 continue
             gap = footprint_gap(pose, self.footprint, other_pose, size)
             if gap < best:
-                best = gap
+                best, nearest = gap, other
                 if gap < 0.0:
                     point = footprint_overlap(pose, self.footprint, other_pose, size).mean(axis=0)
-        return best, point
+        return best, point, nearest
 
     def _bumper_bits(self, bearing: float, forward: bool) -> int:
         """STALL_BUMPERS: both wheels stalled, plus the bumper segment facing the contact (segment 0 leftmost)."""

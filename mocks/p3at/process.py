@@ -50,7 +50,8 @@ from drivers.arcos.params import builtin_params
 from mocks.p3at.options import FirmwareDefaults, OdometryErrors
 from mocks.world import World
 
-_SLOT_WORDS = 8  # per robot: sequence counter, x, y, θ, simulated time, 3 spare (64 bytes, one cache line)
+_SLOT_WORDS = 8  # per robot: sequence counter, x, y, θ, simulated time, contact, 2 spare (64 bytes, a cache line)
+_NO_CONTACT, _WALL = -1.0, -2.0  # the contact word: what the robot is pressed against (k >= 0: robot k of the table)
 _ROOT = Path(__file__).resolve().parents[2]  # the project, for the child's import path
 _CHILD = "import sys; from mocks.p3at.process import child_main; sys.exit(child_main())"
 DEFAULT_NICE = -10  # asked for, granted only with CAP_SYS_NICE or RLIMIT_NICE (see the module docstring)
@@ -84,7 +85,7 @@ class PoseTable:
         finally:
             os.close(fd)
         self._seq = np.frombuffer(self._map, dtype=np.uint64).reshape(robots, _SLOT_WORDS)[:, 0]
-        self._data = np.frombuffer(self._map, dtype=np.float64).reshape(robots, _SLOT_WORDS)[:, 1:5]
+        self._data = np.frombuffer(self._map, dtype=np.float64).reshape(robots, _SLOT_WORDS)[:, 1:6]
 
     @classmethod
     def create(cls, robots: int) -> PoseTable:
@@ -95,22 +96,34 @@ class PoseTable:
         os.unlink(path)  # O_EXCL below: the file is ours
         return cls(path, robots, create=True)
 
-    def write(self, index: int, pose: np.ndarray, t: float) -> None:
+    def write(self, index: int, pose: np.ndarray, t: float, contact: int | None = None) -> None:
+        """Publish robot ``index``'s pose and simulated time, and what it is pressed against (``contact``: the table
+        index of another robot, -2 a wall, None nothing)."""
         seq = int(self._seq[index])
         self._seq[index] = seq + 1  # odd: an update is under way
         self._data[index, :3] = pose
         self._data[index, 3] = t
+        self._data[index, 4] = _NO_CONTACT if contact is None else float(contact)
         self._seq[index] = seq + 2
 
     def read(self, index: int) -> tuple[np.ndarray, float]:
         """The slot's pose (3,) and the simulated time it is of (nan, nan, nan and -inf before the first write)."""
+        values = self._slot(index)
+        if values is None:
+            return np.full(3, np.nan), -math.inf
+        return values[:3], float(values[3])
+
+    def contact(self, index: int) -> int | None:
+        """What robot ``index`` is pressed against: another robot's index, -2 a wall, None nothing."""
+        values = self._slot(index)
+        return None if values is None or values[4] == _NO_CONTACT else int(values[4])
+
+    def _slot(self, index: int) -> np.ndarray | None:
         while True:
             before = int(self._seq[index])
             values = self._data[index].copy()
             if before % 2 == 0 and int(self._seq[index]) == before:
-                if before == 0:
-                    return np.full(3, np.nan), -math.inf
-                return values[:3], float(values[3])
+                return None if before == 0 else values
             time.sleep(0)  # the writer is mid-update: let it finish
 
     def close(self, unlink: bool = False) -> None:
@@ -155,6 +168,11 @@ class RemoteServer:
 
     def true_pose(self) -> np.ndarray:
         return self._process.pose(self.name)
+
+    @property
+    def touching(self) -> str | None:
+        """What the robot is pressed against now: another robot's name, "wall", or None (as the child published)."""
+        return self._process.touching(self.name)
 
     def __repr__(self) -> str:
         return f"<RemoteServer {self.name!r} at {self.url} (pid {self._process.pid})>"
@@ -268,6 +286,13 @@ class RobotProcess:
         """The robot's latest true pose (3,) as the child published it."""
         return self._table.read(self.names.index(name))[0]
 
+    def touching(self, name: str) -> str | None:
+        """What the robot is pressed against as the child published it: another robot's name, "wall", or None."""
+        code = self._table.contact(self.names.index(name))
+        if code is None:
+            return None
+        return self.names[code] if 0 <= code < len(self.names) else "wall"
+
     # -- lifecycle ------------------------------------------------------------------------------------------
     def close(self, timeout: float = 10.0) -> None:
         """Take the robots out of the world, stop the child (its servers close their ports), collect each
@@ -343,6 +368,13 @@ def _raise_priority(nice: int) -> str:
     return ", ".join(got)
 
 
+def _contact_code(touching: str | None, indices: dict[str, int]) -> int | None:
+    """A model's ``touching`` as the pose table's contact word."""
+    if touching is None:
+        return None
+    return indices.get(touching, int(_WALL))
+
+
 def child_main() -> int:
     """The child process: serve the robots its stdin describes until that closes (see the module docstring)."""
     from mocks.p3at.model import STEP_S
@@ -356,6 +388,7 @@ def child_main() -> int:
         priority = "normal" if config.get("nice") is None else _raise_priority(int(config["nice"]))
         world = World.load(config["world"])
         table = PoseTable(config["poses"], len(config["robots"]))
+        indices = {robot["name"]: i for i, robot in enumerate(config["robots"])}
         for index, robot in enumerate(config["robots"]):
             pose = None if robot["pose"] is None else np.asarray(robot["pose"], float)
             server = serve_tcp(world, robot["name"], pose, host=config["host"], port=0,
@@ -365,7 +398,8 @@ def child_main() -> int:
             servers.append(server)
             table.write(index, server.model.true_pose(), server.model.time)
             server.wake_s = STEP_S  # the shared pose is at most one physics step old
-            server.on_moved = lambda model, i=index: table.write(i, model.true_pose(), model.time)
+            server.on_moved = lambda model, i=index: table.write(i, model.true_pose(), model.time,
+                                                                 _contact_code(model.touching, indices))
     except Exception as exc:  # noqa: BLE001 - reported to the parent in one line
         _say({"failed": f"{type(exc).__name__}: {exc}"})
         for server in servers:

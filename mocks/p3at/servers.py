@@ -87,6 +87,11 @@ class _Server:
             self._token = clock.add_participant(f"p3at:{model.name}", world=True)
             _physics(clock).add(self)
 
+    @property
+    def touching(self) -> str | None:
+        """What the robot is pressed against now: another robot's name, "wall", or None (``VirtualP3AT.touching``)."""
+        return self.model.touching
+
     def sim_now(self) -> float:
         if self.lockstep:
             return self._clock()
