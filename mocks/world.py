@@ -371,21 +371,14 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 def footprint_corners(pose: np.ndarray, size: tuple[float, float]) -> np.ndarray:
     """The four corners (4, 2) of a robot's body: a ``size`` = (length along x, width along y) rectangle centred
     on the pose (x, y, θ) and turned by θ; counter-clockwise from the front left."""
-    x, y, th = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+    return np.array(_corners(pose, size))
+
+
+def _corners(pose, size) -> list[tuple[float, float]]:
+    x, y, th = (float(v) for v in pose)
     hl, hw = float(size[0]) / 2.0, float(size[1]) / 2.0
     c, s = math.cos(th), math.sin(th)
-    local = ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))
-    return np.array([(x + c * u - s * v, y + s * u + c * v) for u, v in local])
-
-
-def _axes(corners: np.ndarray) -> list[tuple[float, float]]:
-    """Unit normals of a rectangle's two edge directions (the separating-axis candidates)."""
-    out = []
-    for i in (0, 1):
-        ex, ey = corners[i + 1] - corners[i]
-        n = math.hypot(ex, ey)
-        out.append((-ey / n, ex / n))
-    return out
+    return [(x + c * u - s * v, y + s * u + c * v) for u, v in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))]
 
 
 def footprint_gap(pose_a: np.ndarray, size_a: tuple[float, float],
@@ -397,30 +390,32 @@ def footprint_gap(pose_a: np.ndarray, size_a: tuple[float, float],
     edge normals, and then the shortest push along one of them that parts the projections is the penetration
     depth (a body inside the other's projection must go the longer way out on one side); apart, the distance is
     the nearest corner-to-edge distance (for two convex polygons the nearest points include a corner of one).
+    Plain floats: a virtual robot asks this every physics step of every robot near it.
     """
-    ca, cb = footprint_corners(pose_a, size_a), footprint_corners(pose_b, size_b)
+    ca, cb = _corners(pose_a, size_a), _corners(pose_b, size_b)
     depth = math.inf
-    for ax, ay in _axes(ca) + _axes(cb):
-        pa = ca[:, 0] * ax + ca[:, 1] * ay
-        pb = cb[:, 0] * ax + cb[:, 1] * ay
-        overlap = min(pa.max() - pb.min(), pb.max() - pa.min())  # the shorter push along this axis that parts them
-        if overlap <= 0.0:
-            depth = None
-            break
-        depth = min(depth, overlap)
-    if depth is not None:
-        return -depth
-    return min(_corners_to_edges(ca, cb), _corners_to_edges(cb, ca))
+    for th in (float(pose_a[2]), float(pose_b[2])):
+        for ax, ay in ((math.cos(th), math.sin(th)), (-math.sin(th), math.cos(th))):  # the edge normals
+            pa = [x * ax + y * ay for x, y in ca]
+            pb = [x * ax + y * ay for x, y in cb]
+            overlap = min(max(pa) - min(pb), max(pb) - min(pa))  # the shorter push along this axis that parts them
+            if overlap <= 0.0:
+                return min(_corners_to_edges(ca, cb), _corners_to_edges(cb, ca))
+            depth = min(depth, overlap)
+    return -depth
 
 
-def _corners_to_edges(points: np.ndarray, polygon: np.ndarray) -> float:
-    """Smallest distance from any of ``points`` (n, 2) to any edge of the closed ``polygon`` (m, 2)."""
-    a = polygon
-    e = np.roll(polygon, -1, axis=0) - polygon  # (m, 2)
-    ap = points[:, None, :] - a[None, :, :]  # (n, m, 2)
-    t = np.clip(np.einsum("nmi,mi->nm", ap, e) / np.einsum("mi,mi->m", e, e), 0.0, 1.0)
-    closest = a[None] + t[..., None] * e[None]
-    return float(np.linalg.norm(points[:, None, :] - closest, axis=2).min())
+def _corners_to_edges(points: list[tuple[float, float]], polygon: list[tuple[float, float]]) -> float:
+    """Smallest distance from any of ``points`` to any edge of the closed ``polygon``."""
+    best = math.inf
+    for i, (ax, ay) in enumerate(polygon):
+        bx, by = polygon[(i + 1) % len(polygon)]
+        ex, ey = bx - ax, by - ay
+        ee = ex * ex + ey * ey
+        for px, py in points:
+            t = min(1.0, max(0.0, ((px - ax) * ex + (py - ay) * ey) / ee))
+            best = min(best, math.hypot(px - ax - t * ex, py - ay - t * ey))
+    return best
 
 
 def footprint_overlap(pose_a: np.ndarray, size_a: tuple[float, float],
