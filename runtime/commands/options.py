@@ -132,3 +132,15 @@ def check_output_file(path: str | os.PathLike | None, option: str = "--out") -> 
     why = _writable_ancestor(target)
     if why is not None:
         raise OutputPathError(f"{option} {path}: {why}")
+
+
+def check_output_folder(path: str | os.PathLike | None, option: str = "--out") -> None:
+    """As :func:`check_output_file` for an output folder: a file there, or a folder that cannot be written."""
+    if path is None:
+        return
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise OutputPathError(f"{option} {path}: a file is there; give a folder")
+    why = _writable_ancestor(target / "x") if target.is_dir() else _writable_ancestor(target)
+    if why is not None:
+        raise OutputPathError(f"{option} {path}: {why}")

@@ -1,11 +1,22 @@
-"""``p3at review FILE.rrd``: read a mission's recording back, summarise it, export the maps it holds."""
+"""``p3at review FILE.rrd``: read a mission's recording back, summarise it, export the maps it holds.
+
+The recording is read (and its maps exported) in a child process: Rerun's reader (Rust) aborts the whole process
+on some damaged messages (a byte flipped in an Arrow schema gave "Timestamp type with unit of <UNKNOWN 16> not
+supported" and SIGABRT, found by flipping bytes of a demo's recording). Isolated, that is the one-line "not a
+readable Rerun recording" of any other damage, exit 2. This process does not import Rerun.
+"""
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
-from runtime.rerun_log import RecordingReadError, read_recording
+from runtime.commands.options import OutputPathError, check_output_folder
 
 
 def register(subparsers) -> None:
@@ -35,16 +46,20 @@ def review_summary(contents) -> dict:
     }
 
 
-def _review(args) -> int:
+def read_and_export(paths: list[Path], folder: Path | None) -> dict:
+    """Runs in the reading process: read the recording, write each map it holds to ``folder`` as .npz and .ply
+    (None: none), and return plain data (the caller imports no Rerun): ``{"error": why}`` for a file that is no
+    readable recording, ``{"write_error": why}``, or ``{"summary": review_summary(...) + exported files,
+    "duration": s}``."""
+    from runtime.rerun_log import RecordingReadError, read_recording
+
     try:
-        contents = read_recording(args.recording, *args.more)
+        contents = read_recording(*paths)
     except RecordingReadError as e:  # not a recording, or damaged before its first message: bad input
-        print(f"p3at review: {e}", file=sys.stderr)
-        return 2
+        return {"error": str(e)}
     summary = review_summary(contents)
     exported: dict[str, list[str]] = {}   # map name -> the files written for it
-    if not args.no_export and contents.maps:
-        folder = args.export or args.recording.with_name(args.recording.stem + "-maps")
+    if folder is not None and contents.maps:
         try:
             for name, m in sorted(contents.maps.items()):
                 files = [folder / f"{name}.npz", folder / f"{name}.ply"]
@@ -52,28 +67,82 @@ def _review(args) -> int:
                 m.export_ply(files[1])
                 exported[name] = [str(f) for f in files]
         except OSError as e:
-            print(f"p3at review: cannot write the maps to {folder}: {e}", file=sys.stderr)
-            return 1
+            return {"write_error": f"cannot write the maps to {folder}: {e}"}
     summary["exported"] = exported
     summary["files_written"] = [f for files in exported.values() for f in files]
+    return {"summary": summary, "duration": contents.duration}
+
+
+def _stderr_to(path: str) -> None:
+    """The reading process's standard error goes to ``path`` (a crash's message is read from there)."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+    os.dup2(fd, 2)
+    os.close(fd)
+
+
+def _crash_message(text: str) -> str:
+    """The reason a Rust panic gives (the line after 'panicked at ...:'), else the last line written."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    for k, line in enumerate(lines[:-1]):
+        if "panicked at" in line:
+            return lines[k + 1][:200]
+    return lines[-1][:200] if lines else "no message"
+
+
+def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
+    """:func:`read_and_export` in a child process; a reader that kills its process is ``{"error": ...}`` with the
+    reason it printed. Forked where the system can (this process has imported neither Rerun nor numpy and runs one
+    thread, so the child inherits no lock held mid-way; a spawned child would import everything again)."""
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with tempfile.NamedTemporaryFile(prefix="p3at-review-", suffix=".err") as err:
+        context = multiprocessing.get_context(method)
+        with ProcessPoolExecutor(1, mp_context=context, initializer=_stderr_to, initargs=(err.name,)) as pool:
+            try:
+                return pool.submit(read_and_export, paths, folder).result()
+            except BrokenProcessPool:
+                err.seek(0)
+                why = _crash_message(err.read().decode("utf-8", "replace"))
+                which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
+                return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
+                                 f"message ({why})"}
+
+
+def _review(args) -> int:
+    folder = None if args.no_export else (args.export or args.recording.with_name(args.recording.stem + "-maps"))
+    try:
+        check_output_folder(folder, "--export")
+    except OutputPathError as e:
+        hint = "" if args.export else " (the default, beside the recording; give --export DIR or --no-export)"
+        print(f"p3at review: {e}{hint}", file=sys.stderr)
+        return 2
+    result = _read_isolated([args.recording, *args.more], folder)
+    if "error" in result:
+        print(f"p3at review: {result['error']}", file=sys.stderr)
+        return 2
+    if "write_error" in result:
+        print(f"p3at review: {result['write_error']}", file=sys.stderr)
+        return 1
+    summary = result["summary"]
+    exported = summary["exported"]
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
     more = f" and {len(args.more)} more file(s)" if args.more else ""
-    print(f"Recording {contents.path}{more}: {len(contents.robots)} robot(s) ({', '.join(contents.robots) or 'none'}), "
-          f"{contents.duration:.1f} s")
-    if contents.truncated:
-        print(f"  TRUNCATED recording, {contents.truncated}: what follows is what it held")
-    elif not contents.ended:
+    robots = summary["robots"]
+    print(f"Recording {summary['recording']}{more}: {len(robots)} robot(s) ({', '.join(robots) or 'none'}), "
+          f"{result['duration']:.1f} s")
+    if summary["truncated"]:
+        print(f"  TRUNCATED recording, {summary['truncated']}: what follows is what it held")
+    elif not summary["ended"]:
         print("  the recording has no end-of-stream mark (its writer did not close it): it may end early")
     for name, size in summary["maps"].items():
         print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
                                                          if name in exported else ""))
-    if not contents.alignments:
+    if not summary["alignments"]:
         print("  no alignment in this recording")
-    for pair, a in sorted(contents.alignments.items()):
+    for pair, a in sorted(summary["alignments"].items()):
         print(_alignment_line(pair, a))
-    if contents.summary is None:
+    if summary["mission_summary"] is None:
         print("  (the mission did not finish: no final summary in the recording)")
     return 0
 

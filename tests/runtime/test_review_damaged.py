@@ -1,0 +1,63 @@
+"""``p3at review`` on a recording whose reader kills its process: one line, exit 2, nothing exported.
+
+Rerun's reader (Rust) aborts the process on some damaged messages: one byte flipped in a demo's 6.9 MB
+recording gave "thread '<unnamed>' panicked at .../arrow-ipc-58.3.0/src/convert.rs:390:22: Timestamp type with
+unit of <UNKNOWN 16> not supported" and SIGABRT (exit 134, no Python traceback to catch). Which byte does that
+depends on Rerun's encoding, so the test makes the reading process die the same way (a panic's message on
+stderr, then abort) instead of shipping a damaged file.
+"""
+from __future__ import annotations
+
+import faulthandler
+import os
+
+from runtime.cli import main
+from runtime.commands import review
+
+from .rerun_helpers import ROBOTS, log_small_mission
+
+
+def dies_like_a_rust_panic(paths, folder):
+    """Runs in the reading process, in place of review.read_and_export: writes to file descriptor 2 as Rust does
+    (not through sys.stderr), then aborts (faulthandler, which pytest turns on, would add its own dump)."""
+    faulthandler.disable()
+    os.write(2, b"\nthread '<unnamed>' (1447) panicked at /cargo/arrow-ipc-58.3.0/src/convert.rs:390:22:\n"
+                b"Timestamp type with unit of <UNKNOWN 16> not supported\n"
+                b"note: run with `RUST_BACKTRACE=1` environment variable to display a backtrace\n")
+    os.abort()
+
+
+def test_a_reader_that_aborts_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
+    rrd = tmp_path / "mission.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(64))
+    monkeypatch.setattr(review, "read_and_export", dies_like_a_rust_panic)
+    code = main(["review", str(rrd), "--export", str(tmp_path / "maps")])
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert code == 2 and captured.out == ""
+    assert err == [f"p3at review: {rrd}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
+                   "message (Timestamp type with unit of <UNKNOWN 16> not supported)"]
+    assert not (tmp_path / "maps").exists()
+
+
+def test_a_sound_recording_is_read_and_exported_by_the_reading_process(tmp_path, capsys):
+    from runtime.rerun_log import MissionLog, mission_blueprint, open_recording
+
+    rrd = tmp_path / "mission.rrd"
+    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)
+    log_small_mission(log, frames=8)
+    log.close()
+    code = main(["review", str(rrd), "--export", str(tmp_path / "maps")])
+    out = capsys.readouterr().out
+    assert code == 0 and "2 robot(s) (robot1, robot2)" in out
+    assert sorted(p.name for p in (tmp_path / "maps").iterdir()) == [
+        f"{name}.{ext}" for name in ("fused", *ROBOTS) for ext in ("npz", "ply")]
+
+
+def test_an_export_folder_that_is_a_file_is_refused_before_reading(tmp_path, capsys):
+    target = tmp_path / "maps"
+    target.write_text("not a folder")
+    code = main(["review", str(tmp_path / "absent.rrd"), "--export", str(target)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"p3at review: --export {target}: a file is there; give a folder"]
+    assert target.read_text() == "not a folder"
