@@ -15,6 +15,7 @@ import numpy as np
 
 from drivers.errors import BadFileError, DriverError
 from drivers.videre import calibration, camera_info
+from runtime.commands.options import OutputPathError, check_output_file, check_output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -57,6 +58,14 @@ def load_any(path: Path) -> calibration.StereoCalibration:
 
 
 def run_convert(args: argparse.Namespace) -> int:
+    try:
+        if _is_camera_info_target(args.output):
+            check_output_folder(args.output, "OUT")
+        else:
+            check_output_file(args.output, "OUT")
+    except OutputPathError as exc:
+        print(f"p3at calib convert: {exc}", file=sys.stderr)
+        return 2
     try:
         calib = load_any(args.input)
         if _is_camera_info_target(args.output):

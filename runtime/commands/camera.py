@@ -14,7 +14,13 @@ from drivers.errors import DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
-from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_float
+from runtime.commands.options import (
+    OutputPathError,
+    add_deprecated_alias,
+    check_output_folder,
+    non_negative_int,
+    positive_float,
+)
 
 
 def _unsigned_hex(bits: int):
@@ -163,6 +169,11 @@ def run_grab(args: argparse.Namespace) -> int:
         width, height = (int(v) for v in args.mode.lower().split("x"))
     except ValueError:
         print(f"p3at camera grab: --mode {args.mode!r} is not WIDTHxHEIGHT", file=sys.stderr)
+        return 2
+    try:
+        check_output_folder(args.out)
+    except OutputPathError as exc:
+        print(f"p3at camera grab: {exc}", file=sys.stderr)
         return 2
     try:
         with _open_head(args) as head:

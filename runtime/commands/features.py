@@ -21,7 +21,7 @@ from estimation.frontend import (
     StereoGeometry,
     StereoMatchConfig,
 )
-from runtime.commands.options import finite_float, positive_float
+from runtime.commands.options import check_output_file, finite_float, positive_float
 
 DEFAULTS = StereoGeometry()
 CSV_COLUMNS = ("u_left", "v_left", "u_right", "v_right", "disparity", "x", "y", "z",
@@ -60,6 +60,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _read_grey(path: Path) -> np.ndarray:
+    if not path.is_file():   # else OpenCV prints its own warning line before the answer
+        raise FrontEndError(f"{path}: {'not a file' if path.exists() else 'no such file'}")
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise FrontEndError(f"{path}: cannot read an image from this file")
@@ -131,6 +133,7 @@ def matches_csv(matches, frame: str) -> bytes:
 
 def run_features(args: argparse.Namespace) -> int:
     try:
+        check_output_file(args.out)
         source = _geometry_source(args)
         if args.frame is None:
             args.frame = "camera" if source == "given" else "base_link"

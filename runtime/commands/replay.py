@@ -5,7 +5,13 @@ import json
 import sys
 from pathlib import Path
 
-from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_int
+from runtime.commands.options import (
+    OutputPathError,
+    add_deprecated_alias,
+    check_output_file,
+    non_negative_int,
+    positive_int,
+)
 from runtime.replay import onboard_config_from_log, replay_log
 from runtime.sensorlog import SensorLog, SensorLogError
 
@@ -33,6 +39,11 @@ def register(subparsers) -> None:
 
 
 def _replay(args) -> int:
+    try:
+        check_output_file(args.out)
+    except OutputPathError as e:
+        print(f"p3at replay: {e}", file=sys.stderr)
+        return 2
     try:
         log = SensorLog(args.log)
         for warning in log.warnings:

@@ -11,7 +11,13 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
-from runtime.commands.options import add_deprecated_alias, non_negative_int, positive_float, positive_int
+from runtime.commands.options import (
+    add_deprecated_alias,
+    check_output_file,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 
 
 def register(subparsers) -> None:
@@ -71,6 +77,8 @@ def _simulate(args: argparse.Namespace) -> int:
     from runtime.slam_sim import simulate
 
     try:
+        check_output_file(args.out)
+        check_output_file(args.ply, "--ply")
         world = World.load(args.world)
         if args.world_route:
             route = load_route(args.world_route)
@@ -193,6 +201,7 @@ def _dataset(args: argparse.Namespace) -> int:
     from estimation.noise_model import NoiseModel, estimate_noise
 
     try:
+        check_output_file(args.out)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes)
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
@@ -239,6 +248,7 @@ def _noise(args: argparse.Namespace) -> int:
     from estimation.noise_model import estimate_noise
 
     try:
+        check_output_file(args.out)
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,

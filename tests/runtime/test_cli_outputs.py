@@ -76,3 +76,62 @@ def test_fuse_under_a_file_says_which_is_not_a_folder(two_maps, tmp_path, capsys
     code = main(["fuse", *two_maps, "--out", f"{two_maps[0]}/merged.npz"])
     line = _one_line(capsys)
     assert code == 2 and f"{two_maps[0]} is not a folder" in line
+
+
+# every command that writes a file: its arguments with the output replaced by OUT (nothing else is read before the
+# output is checked, so the inputs need not exist)
+FILE_WRITERS = {
+    "slam simulate --out": ["slam", "simulate", "--seconds", "3", "--out", "OUT"],
+    "slam simulate --ply": ["slam", "simulate", "--seconds", "3", "--out", "{tmp}/m.npz", "--ply", "OUT"],
+    "slam dataset": ["slam", "dataset", "mrclam", "{tmp}/no-data", "--robot", "1", "--out", "OUT"],
+    "slam noise": ["slam", "noise", "mrclam", "{tmp}/no-data", "--robot", "1", "--out", "OUT"],
+    "replay": ["replay", "{tmp}/no-log", "--out", "OUT"],
+    "features": ["features", "{tmp}/l.png", "{tmp}/r.png", "--virtual-head", "--out", "OUT"],
+    "calib convert": ["calib", "convert", "{tmp}/head.ini", "OUT"],
+}
+FOLDER_WRITERS = {
+    "camera grab": ["camera", "grab", "--mock", "--out", "OUT"],
+    "review --export": ["review", "{tmp}/no.rrd", "--export", "OUT"],
+}
+
+
+def _argv(template, tmp_path, out) -> list[str]:
+    return [str(out) if a == "OUT" else a.format(tmp=tmp_path) for a in template]
+
+
+@pytest.mark.parametrize("command", sorted(set(FILE_WRITERS) - {"calib convert"}))   # its OUT may be a folder
+def test_a_folder_where_a_file_must_go_is_one_line_before_any_work(command, tmp_path, capsys):
+    folder = tmp_path / "taken"
+    folder.mkdir()
+    code = main(_argv(FILE_WRITERS[command], tmp_path, folder))
+    line = _one_line(capsys)
+    assert code == 2 and f"{folder}: is a folder; give a file name" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken"] and list(folder.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", sorted(FILE_WRITERS))
+def test_a_file_where_a_folder_must_go_is_one_line_before_any_work(command, tmp_path, capsys):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("keep me")
+    code = main(_argv(FILE_WRITERS[command], tmp_path, blocker / "out.x"))
+    line = _one_line(capsys)
+    assert code == 2 and f"{blocker} is not a folder" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker"] and blocker.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("command", sorted(FOLDER_WRITERS))
+def test_a_file_where_an_output_folder_must_go_is_one_line(command, tmp_path, capsys):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("keep me")
+    code = main(_argv(FOLDER_WRITERS[command], tmp_path, blocker))
+    line = _one_line(capsys)
+    assert code == 2 and f"{blocker}: a file is there; give a folder" in line, line
+    assert blocker.read_text() == "keep me"
+
+
+def test_features_on_a_missing_image_says_no_such_file_in_one_line(tmp_path, capsys):
+    """It printed OpenCV's '[ WARN:0@0.638] global loadsave.cpp:279 findDecoder imread_(...)' line first, then
+    'cannot read an image from this file'."""
+    code = main(["features", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "--virtual-head", "--out",
+                 str(tmp_path / "m.csv")])
+    assert code == 2 and _one_line(capsys) == f"p3at features: {tmp_path / 'l.png'}: no such file"
