@@ -1,6 +1,9 @@
 """``p3at demo``: the two-robot mission on the virtual hardware (what ``make demo`` runs)."""
 from __future__ import annotations
 
+import sys
+
+from runtime.commands.options import check_output_folder
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -21,7 +24,32 @@ def register(subparsers) -> None:
     parser.set_defaults(handler=_demo, camera=None)
 
 
+def mission_inputs_problem(args) -> str | None:
+    """Why the mission's own files cannot serve (None when they can), said before any robot starts: the output
+    folder, the building (--world; on virtual robots also the number of robots it has start poses for) and the
+    route (--route, when the robots follow one)."""
+    from mocks.world import World
+    from runtime.motion import load_route
+
+    try:
+        check_output_folder(args.out)
+        world = World.load(args.world) if args.world is not None or getattr(args, "robot", "mock") == "mock" \
+            else None
+        if args.route is not None and args.motion == "route":
+            load_route(args.route)
+    except (ValueError, OSError) as e:   # OutputPathError, WorldFileError, RouteFileError
+        return str(e)
+    if world is not None and getattr(args, "robot", "mock") == "mock" and len(world.start_poses) < args.robots:
+        return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
+                f"({', '.join(sorted(world.start_poses))})")
+    return None
+
+
 def _demo(args) -> int:
+    problem = mission_inputs_problem(args)
+    if problem is not None:
+        print(f"p3at demo: {problem}", file=sys.stderr)
+        return 2
     if args.processes:
         from runtime.fleet.processes import run_processes_demo
 

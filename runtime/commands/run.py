@@ -1,6 +1,9 @@
 """``p3at run``: the onboard runtime of one robot, on real hardware or on the virtual robot."""
 from __future__ import annotations
 
+import sys
+
+from runtime.commands.demo import mission_inputs_problem
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -22,6 +25,10 @@ def register(subparsers) -> None:
 
 
 def _run(args) -> int:
+    problem = mission_inputs_problem(args)
+    if problem is not None:
+        print(f"p3at run: {problem}", file=sys.stderr)
+        return 2
     if args.robot != "mock" and args.camera == "mock":
         args.camera = "usb"  # a real robot carries a real head
     return run_mission_command(args, robot_url=args.robot)
