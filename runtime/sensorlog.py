@@ -49,7 +49,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError, RecordLengthLimitExceeded
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
@@ -383,8 +383,11 @@ class SensorLog:
     crash): its complete chunks are read, the rest is reported in ``warnings``.
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, allow_truncated: bool = False) -> None:
+        """``allow_truncated``: read a complete-named ``.mcap`` that ends early (copied or written in part) as a
+        crash's ``.part`` is read, up to its last complete chunk, with a warning; by default it is refused."""
         self.folder = Path(path)
+        self.allow_truncated = allow_truncated
         self.files = _segment_files(self.folder)
         self.metadata: dict = {}
         self.counts: dict[str, int] = {}
@@ -413,7 +416,7 @@ class SensorLog:
             raise SensorLogError(f"{path}: cannot read ({e.strerror})") from None
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
-        partial = path.name.endswith(".part")
+        partial = path.name.endswith(".part") or self.allow_truncated
         try:
             reader = StreamReader(_Bounded(stream, size), emit_chunks=True, record_size_limit=size)
             for record in reader.records:
@@ -442,11 +445,18 @@ class SensorLog:
             raise
         except (McapError, EOFError, struct.error, ValueError, OSError, UnicodeDecodeError, MemoryError) as e:
             # mcap's stream reader raises EndOfFile (an McapError) at a cut; a crash leaves a cut in the .part file
+            if not partial and size == 0:
+                raise SensorLogError(f"{path}: an empty file, not an MCAP log") from None
+            if not partial and isinstance(e, EndOfFile | EOFError | RecordLengthLimitExceeded | struct.error):
+                # what a file that ends inside a record gives (a segment copied or written in part)
+                raise SensorLogError(f"{path}: cut short or damaged ({size} bytes; {str(e) or 'no MCAP footer'}): "
+                                     "--allow-truncated reads it up to its last complete chunk") from None
             if not partial:
                 raise SensorLogError(f"{path}: not a readable MCAP file ({type(e).__name__}: {e})") from None
             if scan:
                 self.truncated.append(path)
-                self.warnings.append(f"{path}: cut short by a crash; read up to its last complete chunk")
+                why = "cut short by a crash" if path.name.endswith(".part") else "cut short"
+                self.warnings.append(f"{path}: {why}; read up to its last complete chunk")
         finally:
             stream.close()
 

@@ -13,7 +13,7 @@ from runtime.commands.options import (
     positive_int,
 )
 from runtime.replay import onboard_config_from_log, replay_log
-from runtime.sensorlog import SensorLog, SensorLogError
+from runtime.sensorlog import METADATA_NAME, SensorLog, SensorLogError
 
 
 def register(subparsers) -> None:
@@ -34,8 +34,23 @@ def register(subparsers) -> None:
     add_deprecated_alias(parser, "--version", "--fastslam")  # the old spelling, for one release: hidden, warns
     parser.add_argument("--every-frame", action="store_true",
                         help="process every logged frame, not only those the live pipeline had time for")
+    parser.add_argument("--allow-truncated", action="store_true",
+                        help="read a .mcap segment that ends early (copied or written in part) up to its last "
+                             "complete chunk, with a warning (a crash's .mcap.part always is); default: refuse it")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.set_defaults(handler=_replay)
+
+
+def _check_replayable(log: SensorLog, path) -> None:
+    """A log replay can use: it holds messages and the settings record p3at's logger writes first in every
+    segment. Another tool's ROS 2 bag (or a log cut before its first chunk) gave '0 frames, 0 landmarks', exit 0."""
+    if not log.counts:
+        raise SensorLogError(f"{path}: holds no complete message (cut before its first chunk was written?)")
+    if not log.metadata:
+        topics = sorted(log.counts)
+        shown = ", ".join(topics[:4]) + (f" and {len(topics) - 4} more" if len(topics) > 4 else "")
+        raise SensorLogError(f"{path}: not a p3at sensor log (no '{METADATA_NAME}' settings record; its topics: "
+                             f"{shown}): replay reads the logs that p3at run/demo --log-sensors write")
 
 
 def _replay(args) -> int:
@@ -45,7 +60,8 @@ def _replay(args) -> int:
         print(f"p3at replay: {e}", file=sys.stderr)
         return 2
     try:
-        log = SensorLog(args.log)
+        log = SensorLog(args.log, allow_truncated=args.allow_truncated)
+        _check_replayable(log, args.log)
         for warning in log.warnings:
             print(f"p3at replay: warning: {warning}", file=sys.stderr)
         overrides = {} if args.fastslam is None else {"version": args.fastslam}
