@@ -115,6 +115,10 @@ def _review(args) -> int:
         hint = "" if args.export else " (the default, beside the recording; give --export DIR or --no-export)"
         print(f"p3at review: {e}{hint}", file=sys.stderr)
         return 2
+    for path in (args.recording, *args.more):
+        if path.is_dir():   # the reader would say "no such recording" of a folder that is there
+            print(f"p3at review: {path}: a folder, not a recording (give the .rrd file in it)", file=sys.stderr)
+            return 2
     result = _read_isolated([args.recording, *args.more], folder)
     if "error" in result:
         print(f"p3at review: {result['error']}", file=sys.stderr)

@@ -61,3 +61,10 @@ def test_an_export_folder_that_is_a_file_is_refused_before_reading(tmp_path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [f"p3at review: --export {target}: a file is there; give a folder"]
     assert target.read_text() == "not a folder"
+
+
+def test_a_folder_given_as_the_recording_is_called_a_folder(tmp_path, capsys):
+    """It said 'out: no such recording' of a folder that is there (a user who gave the mission's folder)."""
+    code = main(["review", str(tmp_path), "--no-export"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"p3at review: {tmp_path}: a folder, not a recording (give the .rrd file in it)"]
