@@ -62,7 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _read_grey(path: Path) -> np.ndarray:
     if not path.is_file():   # else OpenCV prints its own warning line before the answer
         raise FrontEndError(f"{path}: {'not a file' if path.exists() else 'no such file'}")
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    except cv2.error as e:   # e.g. a header claiming 100000×100000 pixels: OpenCV's size check is an exception
+        why = f"OpenCV's check '{e.err}' failed" if e.err else str(e).strip().splitlines()[-1]
+        raise FrontEndError(f"{path}: cannot read an image from this file ({why})") from None
     if image is None:
         raise FrontEndError(f"{path}: cannot read an image from this file")
     return image
