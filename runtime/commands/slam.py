@@ -104,7 +104,7 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"p3at slam simulate: {e}", file=sys.stderr)
         return 2
     metrics = dict(result.metrics, out=str(args.out), robot=args.name, seed=args.seed,
-                   start=[float(v) for v in start])
+                   start=[float(v) for v in start], ply=None if args.ply is None else str(args.ply))
     if args.json:
         print(json.dumps(metrics))
     else:
@@ -121,7 +121,7 @@ def _simulate(args: argparse.Namespace) -> int:
               f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %) "
               f"against the particle cloud; median {m['pose_nees_drift_median']:.1f}, "
               f"{100 * m['pose_nees_drift_within_chi2_95']:.0f} % below against the map frame's drift")
-        print(f"  map written to {m['out']}")
+        print(f"  map written to {m['out']}" + (f" and {m['ply']}" if m["ply"] else ""))
     return 0
 
 

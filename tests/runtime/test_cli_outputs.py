@@ -135,3 +135,11 @@ def test_features_on_a_missing_image_says_no_such_file_in_one_line(tmp_path, cap
     code = main(["features", str(tmp_path / "l.png"), str(tmp_path / "r.png"), "--virtual-head", "--out",
                  str(tmp_path / "m.csv")])
     assert code == 2 and _one_line(capsys) == f"p3at features: {tmp_path / 'l.png'}: no such file"
+
+
+def test_slam_simulate_names_every_file_it_wrote(tmp_path, capsys):
+    """It wrote the --ply file and said only 'map written to m.npz'."""
+    out, ply = tmp_path / "m.npz", tmp_path / "m.ply"
+    assert main(["slam", "simulate", "--seconds", "2", "--out", str(out), "--ply", str(ply)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == f"  map written to {out} and {ply}"
+    assert ply.read_bytes().startswith(b"ply\n") and len(LandmarkMap.load(out)) > 0
