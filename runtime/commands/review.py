@@ -12,8 +12,6 @@ import multiprocessing
 import os
 import sys
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from runtime.commands.options import OutputPathError, check_output_folder
@@ -89,22 +87,49 @@ def _crash_message(text: str) -> str:
     return lines[-1][:200] if lines else "no message"
 
 
+def _reading_process(conn, err_path: str, paths: list[Path], folder: Path | None) -> None:
+    """The child's whole life: stderr to ``err_path``, then :func:`read_and_export`'s answer (or the exception it
+    raised, a bug the parent reports as such) sent over ``conn``."""
+    _stderr_to(err_path)
+    try:
+        answer = ("answer", read_and_export(paths, folder))
+    except Exception as e:  # noqa: BLE001 - handed to the parent, which raises it
+        answer = ("exception", e)
+    conn.send(answer)
+    conn.close()
+
+
 def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
     """:func:`read_and_export` in a child process; a reader that kills its process is ``{"error": ...}`` with the
     reason it printed. Forked where the system can (this process has imported neither Rerun nor numpy and runs one
-    thread, so the child inherits no lock held mid-way; a spawned child would import everything again)."""
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    thread, so the child inherits no lock held mid-way; a spawned child would import everything again). Ctrl-C
+    ends the child at once (it would otherwise finish its export first)."""
+    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
     with tempfile.NamedTemporaryFile(prefix="p3at-review-", suffix=".err") as err:
-        context = multiprocessing.get_context(method)
-        with ProcessPoolExecutor(1, mp_context=context, initializer=_stderr_to, initargs=(err.name,)) as pool:
-            try:
-                return pool.submit(read_and_export, paths, folder).result()
-            except BrokenProcessPool:
-                err.seek(0)
-                why = _crash_message(err.read().decode("utf-8", "replace"))
-                which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
-                return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
-                                 f"message ({why})"}
+        receive, send = context.Pipe(duplex=False)
+        child = context.Process(target=_reading_process, args=(send, err.name, paths, folder), daemon=True)
+        try:
+            child.start()
+            send.close()
+            kind, value = receive.recv()
+        except EOFError:       # the child died without answering: Rust's abort on a damaged message
+            child.join()
+            err.seek(0)
+            why = _crash_message(err.read().decode("utf-8", "replace"))
+            which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
+            return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
+                             f"message ({why})"}
+        except BaseException:  # Ctrl-C: stop the reading, do not wait for it
+            if child.pid is not None:
+                child.kill()
+                child.join()
+            raise
+        finally:
+            receive.close()
+        child.join()
+    if kind == "exception":
+        raise value
+    return value
 
 
 def _review(args) -> int:

@@ -9,7 +9,11 @@ stderr, then abort) instead of shipping a damaged file.
 from __future__ import annotations
 
 import faulthandler
+import multiprocessing
 import os
+import signal
+import threading
+import time
 
 from runtime.cli import main
 from runtime.commands import review
@@ -68,3 +72,24 @@ def test_a_folder_given_as_the_recording_is_called_a_folder(tmp_path, capsys):
     code = main(["review", str(tmp_path), "--no-export"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [f"p3at review: {tmp_path}: a folder, not a recording (give the .rrd file in it)"]
+
+
+def reads_for_ever(paths, folder):
+    """Runs in the reading process, in place of review.read_and_export: a reading that would take ten minutes."""
+    time.sleep(600)
+
+
+def test_ctrl_c_ends_the_reading_process_at_once(tmp_path, capsys, monkeypatch):
+    """Ctrl-C in the terminal reaches p3at, which stops its reading process and exits 130 (it waited for the child
+    to finish its export). The SIGINT is sent while main() waits for the child, which sleeps for ten minutes."""
+    rrd = tmp_path / "mission.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(64))
+    monkeypatch.setattr(review, "read_and_export", reads_for_ever)
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        code = main(["review", str(rrd), "--no-export"])
+    finally:
+        timer.cancel()
+    assert code == 130
+    assert multiprocessing.active_children() == []
