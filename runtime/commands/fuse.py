@@ -90,6 +90,11 @@ def _fuse(args: argparse.Namespace) -> int:
     except OutputPathError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if _same_file(a, b)), None)
+    if twice is not None:
+        print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "
+              "fused with itself would count every landmark twice and halve its covariance", file=sys.stderr)
+        return EXIT_BAD_INPUT
     if any(_same_file(args.out, path) for path in args.maps):
         print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
               "another file", file=sys.stderr)

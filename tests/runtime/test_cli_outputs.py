@@ -143,3 +143,16 @@ def test_slam_simulate_names_every_file_it_wrote(tmp_path, capsys):
     assert main(["slam", "simulate", "--seconds", "2", "--out", str(out), "--ply", str(ply)]) == 0
     assert capsys.readouterr().out.splitlines()[-1] == f"  map written to {out} and {ply}"
     assert ply.read_bytes().startswith(b"ply\n") and len(LandmarkMap.load(out)) > 0
+
+
+@pytest.mark.parametrize("spelling", ["same", "other"])
+def test_fuse_refuses_a_map_given_twice(two_maps, tmp_path, capsys, monkeypatch, spelling):
+    """It fused the demo's robot1.npz with itself (exit 0): every landmark merged with itself, the merged map's
+    covariance traces 0.50 of the map's (median over 1,008 landmarks): twice as confident, from no new evidence."""
+    monkeypatch.chdir(tmp_path)
+    again = two_maps[0] if spelling == "same" else "./robot1.npz"
+    merged = tmp_path / "merged.npz"
+    code = main(["fuse", two_maps[0], two_maps[1], again, "--out", str(merged)])
+    line = _one_line(capsys)
+    assert code == 2 and f"{two_maps[0]} is given twice" in line and "halve its covariance" in line, line
+    assert not merged.exists()
