@@ -104,6 +104,19 @@ def _fuse(args: argparse.Namespace) -> int:
     except EstimationError as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    shared = _shared_estimates(maps)
+    if shared is not None:   # a warning, not a refusal: tests/runtime/test_fuse_prior.py fuses such a copy
+        (i, j), count = shared
+        print(f"p3at fuse: warning: {args.maps[i]} and {args.maps[j]} hold the same estimates ({count} of "
+              f"{min(len(maps[i]), len(maps[j]))} landmark positions equal bit for bit: a copy, or a fused map that "
+              "already holds the other): fusing them counts those landmarks twice and halves their covariance",
+              file=sys.stderr)
+    for k, m in enumerate(maps):   # a fused map beside a map of a robot it already holds (not bit-equal: moved)
+        held = (m.metadata.get("fusion") or {}).get("maps") if isinstance(m.metadata.get("fusion"), dict) else None
+        for other, path in zip(maps, args.maps, strict=True):
+            if held and other is not m and other.robot in held:
+                print(f"p3at fuse: note: {args.maps[k]} is a fused map that already holds a map of {other.robot}; if "
+                      f"{path} is that map, its landmarks count twice", file=sys.stderr)
     names = [m.robot for m in maps]
     if len(set(names)) < len(names):
         print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
@@ -195,6 +208,19 @@ def _fuse(args: argparse.Namespace) -> int:
               + ", ".join(report["unconnected"]), file=sys.stderr)
         return EXIT_NO_OVERLAP
     return 0
+
+
+def _shared_estimates(maps: list[LandmarkMap]) -> tuple[tuple[int, int], int] | None:
+    """The first pair of maps of which more than half the smaller's landmark positions also stand, bit for bit, in
+    the other, with how many: the same estimates twice (two runs never give equal float64 positions), so no
+    independent evidence to merge. None when no pair does."""
+    rows = [{row.tobytes() for row in np.ascontiguousarray(m.positions)} for m in maps]
+    for i in range(len(maps)):
+        for j in range(i + 1, len(maps)):
+            count = len(rows[i] & rows[j])
+            if count and 2 * count > min(len(rows[i]), len(rows[j])):
+                return (i, j), count
+    return None
 
 
 def _same_file(a: str, b: str) -> bool:
