@@ -26,8 +26,9 @@ def register(subparsers) -> None:
 
 def mission_inputs_problem(args) -> str | None:
     """Why the mission's own files cannot serve (None when they can), said before any robot starts: the output
-    folder, the building (--world; on virtual robots also the number of robots it has start poses for) and the
-    route (--route, when the robots follow one)."""
+    folder (with --log-sensors: no earlier run's log in it: the second run failed after it had replaced the first
+    one's mission.rrd with an empty recording), the building (--world; on virtual robots also the number of robots
+    it has start poses for) and the route (--route, when the robots follow one)."""
     from mocks.world import World
     from runtime.motion import load_route
 
@@ -39,6 +40,13 @@ def mission_inputs_problem(args) -> str | None:
             load_route(args.route)
     except (ValueError, OSError) as e:   # OutputPathError, WorldFileError, RouteFileError
         return str(e)
+    if args.log_sensors:   # the log writer refuses a folder that holds a log, once the mission is under way
+        from pathlib import Path
+
+        held = sorted(str(p) for p in Path(args.out).glob("*-log") if p.is_dir() and any(p.glob("*.mcap*")))
+        if held:
+            return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
+                    "(or move it)")
     if world is not None and getattr(args, "robot", "mock") == "mock" and len(world.start_poses) < args.robots:
         return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
                 f"({', '.join(sorted(world.start_poses))})")

@@ -60,3 +60,19 @@ def test_more_virtual_robots_than_the_building_has_starts(command, tmp_path, cap
     code = main(_mission(command, tmp_path, "--robots", "5", "--out", str(tmp_path / "out")))
     line = _one_line(capsys)
     assert code == 2 and line.startswith(f"p3at {command}: --robots 5: the world ") and "has 3 start poses" in line
+
+
+@pytest.mark.parametrize("command", MISSIONS)
+def test_logging_into_an_earlier_runs_log_is_refused_before_its_recording_is_replaced(command, tmp_path, capsys):
+    """A second `p3at demo --log-sensors --out lg` failed (exit 1, 'mission failed: lg/robot1-log: already holds a
+    sensor log') after it had replaced the first run's mission.rrd with an empty recording (0 robots)."""
+    out = tmp_path / "lg"
+    (out / "robot1-log").mkdir(parents=True)
+    (out / "robot1-log" / "robot1-log_0.mcap").write_bytes(b"the first run's log")
+    (out / "mission.rrd").write_bytes(b"the first run's recording")
+    code = main(_mission(command, tmp_path, "--log-sensors", "--out", str(out)))
+    line = _one_line(capsys)
+    assert code == 2 and line == (f"p3at {command}: --out {out}: {out / 'robot1-log'} already holds a sensor log of "
+                                  "an earlier run; give another --out (or move it)")
+    assert (out / "mission.rrd").read_bytes() == b"the first run's recording"
+    assert sorted(p.name for p in out.iterdir()) == ["mission.rrd", "robot1-log"]
