@@ -74,8 +74,9 @@ def _fuse(args: argparse.Namespace) -> int:
         from runtime.fleet.fusion_node import run_live
 
         try:
+            check_output_file(args.out)
             starts = _live_starts(args)
-        except FusionError as e:
+        except (FusionError, OutputPathError) as e:
             print(f"p3at fuse: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT
         return run_live(args, starts)

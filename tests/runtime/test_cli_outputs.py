@@ -88,6 +88,7 @@ FILE_WRITERS = {
     "replay": ["replay", "{tmp}/no-log", "--out", "OUT"],
     "features": ["features", "{tmp}/l.png", "{tmp}/r.png", "--virtual-head", "--out", "OUT"],
     "calib convert": ["calib", "convert", "{tmp}/head.ini", "OUT"],
+    "fuse --live": ["fuse", "--live", "--exchange", "inprocess", "--seconds", "1", "--out", "OUT"],
 }
 FOLDER_WRITERS = {
     "camera grab": ["camera", "grab", "--mock", "--out", "OUT"],
