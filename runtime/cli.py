@@ -85,6 +85,21 @@ def _command_named(argv: list[str]) -> str | None:
     return None
 
 
+def _prog_named(parser: argparse.ArgumentParser, argv: list[str]) -> str:
+    """The deepest (sub-)command argv names: 'p3at slam simulate' for ['slam', 'simulate', ...]."""
+    words = iter(argv)
+    while True:
+        subparsers = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subparsers:
+            return parser.prog
+        for word in words:
+            if word in subparsers[0].choices:
+                parser = subparsers[0].choices[word]
+                break
+        else:
+            return parser.prog
+
+
 def _is_projects(error: BaseException) -> bool:
     return type(error).__module__.split(".")[0] in _PROJECT_PACKAGES
 
@@ -113,7 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     command = _command_named(argv)
     parser = build_parser([] if command is None else [command])
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:   # argparse would name the top parser ('p3at: unrecognized arguments'), not the command
+            prog = _prog_named(parser, argv)
+            raise UsageError(f"{prog}: unrecognized arguments: {' '.join(extra)} (see {prog} --help)")
         return int(args.handler(args) or 0)
     except UsageError as error:
         print(error, file=sys.stderr)
