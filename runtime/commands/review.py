@@ -95,7 +95,11 @@ def _reading_process(conn, err_path: str, paths: list[Path], folder: Path | None
         answer = ("answer", read_and_export(paths, folder))
     except Exception as e:  # noqa: BLE001 - handed to the parent, which raises it
         answer = ("exception", e)
-    conn.send(answer)
+    try:
+        conn.send(answer)
+    except Exception as e:  # noqa: BLE001 - an exception that does not pickle: its text, as the bug it is
+        raised = answer[1] if answer[0] == "exception" else e
+        conn.send(("exception", RuntimeError(f"{type(raised).__name__}: {raised}")))
     conn.close()
 
 

@@ -93,3 +93,24 @@ def test_ctrl_c_ends_the_reading_process_at_once(tmp_path, capsys, monkeypatch):
         timer.cancel()
     assert code == 130
     assert multiprocessing.active_children() == []
+
+
+class _Unpicklable(ValueError):
+    def __init__(self) -> None:
+        super().__init__("a reader bug")
+        self.hook = lambda: None       # lambdas do not pickle
+
+
+def raises_what_does_not_pickle(paths, folder):
+    """Runs in the reading process, in place of review.read_and_export: a bug whose exception cannot be sent."""
+    raise _Unpicklable()
+
+
+def test_a_bug_in_the_reading_process_is_reported_as_a_bug(tmp_path, capsys, monkeypatch):
+    """Not as a damaged recording: the exception's text reaches the parent, which reports it as internal (exit 70)."""
+    rrd = tmp_path / "mission.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(64))
+    monkeypatch.setattr(review, "read_and_export", raises_what_does_not_pickle)
+    code = main(["review", str(rrd), "--no-export"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 70 and len(err) == 1 and "_Unpicklable: a reader bug" in err[0], err
