@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import io
 import json
+import struct
 import sys
 from pathlib import Path
 
@@ -24,6 +25,9 @@ from estimation.frontend import (
 from runtime.commands.options import check_output_file, finite_float, positive_float
 
 DEFAULTS = StereoGeometry()
+# the largest image the command decodes: 64 Mpx (one grey frame of 64 MB), 50 times the STH-MDCS2's 1280×960
+MAX_IMAGE_PIXELS = 1 << 26
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 CSV_COLUMNS = ("u_left", "v_left", "u_right", "v_right", "disparity", "x", "y", "z",
                "cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz", "descriptor_distance")
 
@@ -62,6 +66,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _read_grey(path: Path) -> np.ndarray:
     if not path.is_file():   # else OpenCV prints its own warning line before the answer
         raise FrontEndError(f"{path}: {'not a file' if path.exists() else 'no such file'}")
+    with path.open("rb") as f:   # a PNG states its size before its data: refuse a huge one before decoding it
+        head = f.read(24)
+    if head[:8] == _PNG_SIGNATURE and head[12:16] == b"IHDR":
+        width, height = struct.unpack(">II", head[16:24])
+        if width * height > MAX_IMAGE_PIXELS:
+            raise FrontEndError(f"{path}: a {width}×{height} image ({width * height / 1e6:.0f} Mpx); the front end "
+                                f"decodes at most {MAX_IMAGE_PIXELS / 1e6:.0f} Mpx")
     try:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     except cv2.error as e:   # e.g. a header claiming 100000×100000 pixels: OpenCV's size check is an exception
