@@ -31,6 +31,7 @@ from estimation.landmark_map import LandmarkMap
 from fusion import alignment as fa
 from fusion.alignment import ROBUST, align, align_at, alignment_error_xy_theta, true_relative_pose
 from fusion.colocation import colocation_test
+from runtime.commands.options import positive_int
 
 P3AT_INSCRIBED_RADIUS = 0.2525
 CREATE_RADIUS = 0.16495
@@ -230,7 +231,7 @@ def main() -> None:
     p.add_argument("--data", type=Path,
                    default=Path(__file__).resolve().parents[2] / "shared/data/mrclam/MRCLAM_Dataset2")
     p = sub.add_parser("false-pairs")
-    p.add_argument("total", type=int, nargs="?", default=1000)
+    p.add_argument("total", type=positive_int, nargs="?", default=1000)
     p = sub.add_parser("eval-fusion")
     p.add_argument("rest", nargs=argparse.REMAINDER)
     args = parser.parse_args()

@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from mocks.world import footprint_gap  # noqa: E402
+from runtime.commands.options import non_negative_float, positive_float  # noqa: E402
 from runtime.trajectories import planar, read_tum  # noqa: E402
 
 
@@ -67,11 +68,11 @@ def pair_gaps(a: np.ndarray, b: np.ndarray, step: float, radius: float, size: tu
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("demos", nargs="+", type=Path, help="demo output folders")
-    parser.add_argument("--step", type=float, default=0.01, help="interpolation step, s (default 0.01)")
-    parser.add_argument("--radius", type=float, default=0.33, help="the disc's radius, m (default 0.33)")
-    parser.add_argument("--length", type=float, default=0.626, help="body length, m (default 0.626)")
-    parser.add_argument("--width", type=float, default=0.505, help="body width, m (default 0.505)")
-    parser.add_argument("--held", type=float, default=0.005, help="a disc gap within this is a contact (m)")
+    parser.add_argument("--step", type=positive_float, default=0.01, help="interpolation step, s (default 0.01)")
+    parser.add_argument("--radius", type=positive_float, default=0.33, help="the disc's radius, m (default 0.33)")
+    parser.add_argument("--length", type=positive_float, default=0.626, help="body length, m (default 0.626)")
+    parser.add_argument("--width", type=positive_float, default=0.505, help="body width, m (default 0.505)")
+    parser.add_argument("--held", type=non_negative_float, default=0.005, help="a disc gap within this is contact, m")
     args = parser.parse_args(argv)
     size = (args.length, args.width)
     print(f"{'demo':<22} {'pair':<16} {'min centre (m) at s':<22} {'min disc gap':>12} {'held':>5} "
