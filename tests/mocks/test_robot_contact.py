@@ -210,11 +210,11 @@ def test_robots_passing_side_by_side_at_0_55_m_do_not_stop() -> None:
 
 
 def test_with_the_old_discs_the_same_pass_stops_both() -> None:
-    """The default contact (``robot_contact="disc"``) still meets at 0.66 m between centres, as before."""
+    """The former default contact (``robot_contact="disc"``) still meets at 0.66 m between centres."""
     world = WatchedWorld()
     states = drive_in_lockstep(world, {"robot1": (0.0, 0.0, 0.0), "robot2": (3.0, 0.55, math.pi)},
                                {"robot1": (0.4, 0.0), "robot2": (0.4, 0.0)}, seconds=8.0,
-                               firmware=FirmwareDefaults())
+                               firmware=FirmwareDefaults(robot_contact="disc"))
     assert all(states[name][-1].bumped for name in ("robot1", "robot2"))
 
 
@@ -296,10 +296,11 @@ def test_robots_in_their_own_process_block_each_other_by_their_bodies() -> None:
 
 # ------------------------------------------------------------------ the mission reports a contact
 def test_a_mission_reports_a_robot_running_into_another_in_its_events_and_in_rerun(tmp_path) -> None:
-    """Robot 2 stands 0.62 m to the left of robot 1's line, 0.5 m ahead, out of its forward sonars' sector: robot 1
-    drives on and runs into it (the default disc contact, 0.66 m between centres). The mission says so, naming
-    both robots and the bumper the driver reports (the leftmost front segment), in its events and as a WARN line
-    of the recording's mission/events."""
+    """Robot 2 stands 0.45 m to the left of robot 1's line, 0.5 m ahead, out of its forward sonars' sector: robot 1
+    drives on and its front-left corner runs into robot 2's side (the default footprint contact: the bodies are
+    505 mm wide). The mission says so, naming both robots and the bumper the driver reports (the second front
+    segment from the left, facing the middle of the overlap), in its events and as a WARN line of the recording's
+    mission/events."""
     import json
 
     import rerun.chunk as rrchunk
@@ -310,14 +311,14 @@ def test_a_mission_reports_a_robot_running_into_another_in_its_events_and_in_rer
     doc = {"version": 1, "name": "two robots",
            "walls": [{"from": [0, 0], "to": [8, 0], "decorations": poster}, {"from": [8, 0], "to": [8, 4]},
                      {"from": [8, 4], "to": [0, 4]}, {"from": [0, 4], "to": [0, 0]}],
-           "start_poses": {"robot1": [2.0, 2.0, 0.0], "robot2": [2.5, 2.62, 0.0]},
-           "routes": {"robot1": [[2.0, 2.0], [5.0, 2.0]], "robot2": [[2.5, 2.62], [2.51, 2.62]]}}
+           "start_poses": {"robot1": [2.0, 2.0, 0.0], "robot2": [2.5, 2.45, 0.0]},
+           "routes": {"robot1": [[2.0, 2.0], [5.0, 2.0]], "robot2": [[2.5, 2.45], [2.51, 2.45]]}}
     (tmp_path / "world.json").write_text(json.dumps(doc))
     events: list[str] = []
     config = MissionConfig(robots=2, seconds=4.0, camera="synthetic", camera_rate=5.0, particles=10,
                            fusion_interval=0.0, out=tmp_path, rerun="file", world=tmp_path / "world.json")
     Mission(config, events=events.append).run()
-    contact = "robot1 ran into robot2 and stopped: front bumpers 0x01, rear 0x00"
+    contact = "robot1 ran into robot2 and stopped: front bumpers 0x02, rear 0x00"
     assert contact in events
     logged = []
     for chunk in rrchunk.RrdReader(tmp_path / "mission.rrd").stream().filter(content=["+ /mission/events"]):
