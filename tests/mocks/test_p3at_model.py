@@ -337,7 +337,8 @@ def test_robots_collide_with_each_other() -> None:
     client.connect()
     client.cmd(Command.VEL, 300)
     client.run(12.0)
-    assert client.model.true_pose()[0] == pytest.approx(2.0 - 2 * client.model.firmware.collision_radius_m, abs=0.01)
+    # the bodies meet (robot_contact="footprint", the default): two 626 mm robots head to tail stop 0.626 m apart
+    assert client.model.true_pose()[0] == pytest.approx(2.0 - client.model.params.length_m, abs=0.01)
     other.close()
 
 
