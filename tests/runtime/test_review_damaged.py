@@ -75,22 +75,29 @@ def test_a_folder_given_as_the_recording_is_called_a_folder(tmp_path, capsys):
 
 
 def reads_for_ever(paths, folder):
-    """Runs in the reading process, in place of review.read_and_export: a reading that would take ten minutes."""
-    time.sleep(600)
+    """Runs in the reading process, in place of review.read_and_export: a reading that would take a minute (if the
+    SIGINT is lost the test fails after it, not at pytest's timeout)."""
+    time.sleep(60)
 
 
 def test_ctrl_c_ends_the_reading_process_at_once(tmp_path, capsys, monkeypatch):
     """Ctrl-C in the terminal reaches p3at, which stops its reading process and exits 130 (it waited for the child
-    to finish its export). The SIGINT is sent while main() waits for the child, which sleeps for ten minutes."""
+    to finish its export). The SIGINT is sent while main() waits for the child, which sleeps for a minute.
+    SIGINT is handled here as a terminal's p3at handles it: a test process started in the background by a
+    non-interactive shell (make test from a script, CI) inherits it ignored, and the signal would be lost."""
     rrd = tmp_path / "mission.rrd"
     rrd.write_bytes(b"RRF2" + bytes(64))
     monkeypatch.setattr(review, "read_and_export", reads_for_ever)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    unblocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))
     timer.start()
     try:
         code = main(["review", str(rrd), "--no-export"])
     finally:
         timer.cancel()
+        signal.pthread_sigmask(signal.SIG_SETMASK, unblocked)
+        signal.signal(signal.SIGINT, previous)
     assert code == 130
     assert multiprocessing.active_children() == []
 
