@@ -86,11 +86,7 @@ def _fuse(args: argparse.Namespace) -> int:
     if len(args.maps) < 2:
         print("p3at fuse: give at least two map files", file=sys.stderr)
         return EXIT_BAD_INPUT
-    try:
-        check_output_file(args.out)
-    except OutputPathError as e:
-        print(f"p3at fuse: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
     twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if _same_file(a, b)), None)
     if twice is not None:
         print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "

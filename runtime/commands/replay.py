@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 from runtime.commands.options import (
-    OutputPathError,
     add_deprecated_alias,
     check_output_file,
     non_negative_int,
@@ -54,11 +53,7 @@ def _check_replayable(log: SensorLog, path) -> None:
 
 
 def _replay(args) -> int:
-    try:
-        check_output_file(args.out)
-    except OutputPathError as e:
-        print(f"p3at replay: {e}", file=sys.stderr)
-        return 2
+    check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before the replay
     try:
         log = SensorLog(args.log, allow_truncated=args.allow_truncated)
         _check_replayable(log, args.log)
