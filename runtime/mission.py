@@ -24,6 +24,7 @@ import contextlib
 import dataclasses
 import hashlib
 import json
+import os
 import signal
 import threading
 import time
@@ -186,6 +187,9 @@ class Mission:
         self.fusion_cache = alignment_cache(confirm_after=self.config.fusion_interval or None)
         self.logger = None
         self.recording_path: Path | None = None
+        # an earlier run's OUT/mission.rrd is replaced only once every robot is set up: until then the new recording
+        # is written beside it (a run that fails at start must not leave an empty recording in its place)
+        self._recording_pending: Path | None = None
         self.failures: list[StageFailure] = []
         self._servers: dict = {}   # robot -> its virtual P3-AT's server (mocks)
         self._robot_process = None  # realtime: the process serving the virtual robots (mocks.p3at.RobotProcess)
@@ -208,12 +212,28 @@ class Mission:
         if sink == "file":
             self.recording_path = cfg.out / "mission.rrd"
             sink = str(self.recording_path)
+            if self.recording_path.exists():
+                self._recording_pending = cfg.out / f".mission.rrd.{os.getpid()}.starting"
+                sink = str(self._recording_pending)
         # one process of a fleet's shared recording sends no layout: the fusion node's (it knows every robot) wins
         layout = None if cfg.recording_id else mission_blueprint(names)
         rec = open_recording(sink, recording_id=cfg.recording_id, blueprint=layout)
         self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it as the default
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)
+
+    def _commit_recording(self) -> None:
+        """The robots are up: the new recording takes mission.rrd's name (Rerun's file sink writes on through the
+        rename, which is atomic on one file system)."""
+        if self._recording_pending is not None:
+            os.replace(self._recording_pending, self.recording_path)
+            self._recording_pending = None
+
+    def _discard_pending_recording(self) -> None:
+        """The run failed before its robots were up: the earlier mission.rrd stays, the new one goes."""
+        if self._recording_pending is not None:
+            self._recording_pending.unlink(missing_ok=True)
+            self._recording_pending = None
 
     def _robot(self, stack: ExitStack, world, index: int, name: str, t0: float) -> RobotSetup:
         from drivers.arcos.robot import P3AT
@@ -390,6 +410,7 @@ class Mission:
         except BaseException:
             if self.logger is not None:  # keep what was recorded readable
                 self.logger.close()
+            self._discard_pending_recording()
             raise
 
     def _run_robots(self, world, names: list[str]) -> float:
@@ -412,6 +433,7 @@ class Mission:
                     if world is not None:
                         index = _world_index(world, name)
                     self.robots.append(self._robot(stack, world, index, name, t0))
+                self._commit_recording()
                 if self.logger is not None and self.robots[0].true_start is not None:
                     self.logger.log_robot_frame("fused", self.robots[0].true_start)  # fused maps: robot 1's frame
                 t0 = self.clock()

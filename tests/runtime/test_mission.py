@@ -470,3 +470,32 @@ def test_a_killed_demo_leaves_readable_maps(tmp_path):
         assert len(saved) > 0, path
         if path.name.startswith("robot"):  # the periodic saves carry the frame counts of their moment
             assert 0 < saved.metadata["slam_frames"]["processed"] <= saved.metadata["slam_frames"]["received"]
+
+
+def test_a_run_that_fails_at_start_keeps_the_earlier_recording(tmp_path, capsys):
+    """`p3at run` on a robot it cannot set up (here: no stereo head) used to replace an earlier run's mission.rrd
+    with an empty recording before failing; the new recording now takes the name only once every robot is up."""
+    from mocks.p3at import serve_tcp
+    from mocks.world import World
+
+    earlier = tmp_path / "mission.rrd"
+    earlier.write_bytes(b"the first run's recording")
+    with serve_tcp(World.load(), "robot1", port=0, seed=1) as server:
+        status = main(["run", "--robot", server.url, "--seconds", "2", "--out", str(tmp_path), "--quiet"])
+    assert status == 1 and "mission failed" in capsys.readouterr().err
+    assert earlier.read_bytes() == b"the first run's recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mission.rrd"]
+
+
+def test_a_run_that_starts_replaces_the_earlier_recording(tmp_path):
+    """Once the robots are up the new recording is mission.rrd, whole and readable, and no temporary file is left."""
+    from runtime.rerun_log import read_recording
+
+    earlier = tmp_path / "mission.rrd"
+    earlier.write_bytes(b"the first run's recording")
+    status = main(["demo", "--camera", "synthetic", "--robots", "1", "--seconds", "2", "--quiet",
+                   "--out", str(tmp_path)])
+    assert status == 0
+    contents = read_recording(earlier)
+    assert contents.robots == ["robot1"] and contents.ended and contents.summary is not None
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".mission.rrd")]
