@@ -36,7 +36,7 @@ from fusion_sim import (  # noqa: E402
 from estimation.geometry import between, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion import NoOverlapError, align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
-from fusion.alignment import refine_pose  # noqa: E402
+from fusion.ransac import refine_pose  # noqa: E402
 
 FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PRESETS = ("paper", "robust")

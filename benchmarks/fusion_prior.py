@@ -37,12 +37,12 @@ from estimation.geometry import between, compose, inverse, transform_points  # n
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion.alignment import (  # noqa: E402
     ROBUST,
-    SELF_REPEAT_GATES,
     AlignmentConfig,
     align,
     alignment_error_xy_theta,
     true_relative_pose,
 )
+from fusion.evidence import SELF_REPEAT_GATES  # noqa: E402
 from fusion.prior import StartPrior  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float  # noqa: E402
 
@@ -173,7 +173,7 @@ def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int, config: AlignmentCon
 def _supports_fit(m1: LandmarkMap, m2: LandmarkMap, supports: np.ndarray) -> np.ndarray:
     """A closed-form 2-D rigid fit of map 2's frame in map 1's from support pairs (S, 2), then one weighted
     refinement."""
-    from fusion.alignment import refine_pose
+    from fusion.ransac import refine_pose
 
     i, j = supports[:, 0], supports[:, 1]
     p1, p2 = m1.positions[i], m2.positions[j]

@@ -31,6 +31,7 @@ from eval_fusion import _feature_fit  # noqa: E402
 from fusion_sim import load_world  # noqa: E402
 
 import fusion.alignment as al  # noqa: E402
+import fusion.ransac as rs  # noqa: E402
 from estimation.geometry import between, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 
@@ -46,7 +47,7 @@ def _best_in(problem, poses: np.ndarray, select: np.ndarray):
         return None
     counts = problem.distinct_counts(problem.masks(cand))
     pose = cand[int(np.argmax(counts))]
-    pose, _, mask, polished = al._polish(replace(problem), pose, problem.masks(pose[None])[0], al.ROBUST)
+    pose, _, mask, polished = rs.polish(replace(problem), pose, problem.masks(pose[None])[0], al.ROBUST)
     return pose, polished.one_to_one(polished.masks(pose[None])[0], pose), polished
 
 
@@ -72,7 +73,7 @@ def describe(m1: LandmarkMap, m2: LandmarkMap, pose: np.ndarray, mask: np.ndarra
         "floor": int((z < FLOOR_Z).sum()), "wall": int(((z >= FLOOR_Z) & (z <= CEILING_Z)).sum()),
         "ceiling": int((z > CEILING_Z).sum()),
         "r_xy": float(np.median(np.hypot(r[:, 0], r[:, 1]))), "r_z": float(np.median(np.abs(r[:, 2]))),
-        "spread": al._spread(problem.p1[mask, :2]), "cells": (covered, cells), "guided": len(guided),
+        "spread": al.support_spread(problem.p1[mask, :2]), "cells": (covered, cells), "guided": len(guided),
         "coincide": int((near < 0.1).sum()),
     }
 
@@ -82,12 +83,12 @@ def run(folder: Path, world) -> list[str]:
     fits = [_feature_fit(m, world.features)[0] for m in (m1, m2)]
     truth = between(fits[0], fits[1])
     a = al.align(m1, m2, "robust", np.random.default_rng(0))
-    pairs, _ = al._correspondences(m1, m2, al.ROBUST, np.random.default_rng(0))
-    problem = al._problem(m1, m2, pairs, al.ROBUST, False)
+    pairs, _ = rs.putative_correspondences(m1, m2, al.ROBUST, np.random.default_rng(0))
+    problem = rs.correspondence_problem(m1, m2, pairs, al.ROBUST, False)
     rng = np.random.default_rng(1)
     first, second = rng.integers(len(pairs), size=(2, 30_000))
-    poses, valid = al.pair_hypotheses(problem.p1, problem.p2, first, second, al.ROBUST)
-    poses = poses[valid & al._pair_check(problem, first, second, al.ROBUST)]
+    poses, valid = rs.pair_hypotheses(problem.p1, problem.p2, first, second, al.ROBUST)
+    poses = poses[valid & rs.distance_preserved(problem, first, second, al.ROBUST)]
     near = np.hypot(*(poses[:, :2] - truth[:2]).T) < 1.0
     groups = {"true": near & (np.cos(poses[:, 2] - truth[2]) > np.cos(0.14)),
               "half turn": np.cos(poses[:, 2] - truth[2] - np.pi) > np.cos(0.14)}

@@ -63,9 +63,9 @@ class AlignmentCache:
             store.popitem(last=False)
 
     def self_structure(self, landmark_map: LandmarkMap, config, inflation: float | None = None) -> int:
-        """``fusion.alignment.self_structure`` of the map, computed once per map content, configuration and gate scale
+        """``fusion.evidence.self_structure`` of the map, computed once per map content, configuration and gate scale
         (``inflation``: the pair's, with ``self_repeat_gate="pair"``)."""
-        from .alignment import self_structure
+        from .evidence import self_structure
 
         fp = map_fingerprint(landmark_map)
         key = (fp, astuple(config), inflation)
@@ -82,9 +82,9 @@ class AlignmentCache:
               prior=None):
         """:func:`fusion.align`, or the alignment stored for these two maps' contents, this preset and this start
         prior (``fusion.prior.StartPrior`` or None)."""
-        from .alignment import _resolve, align
+        from .alignment import align, resolve_preset
 
-        config = _resolve(preset)
+        config = resolve_preset(preset)
         prior_key = None if prior is None else (prior.mean.tobytes(), prior.covariance.tobytes(), prior.level)
         key = (map_fingerprint(map1), map_fingerprint(map2), astuple(config), prior_key)
         if key in self._pairs:

@@ -124,9 +124,9 @@ class ConfirmingCache:
         elif self.t - earlier.t < self.min_gap:
             confirmed, why = False, f"the fusion at t={earlier.t:.0f}s is less than {self.min_gap:g} s before"
         else:
-            from .alignment import _resolve
+            from .alignment import resolve_preset
 
-            config = _resolve(preset)
+            config = resolve_preset(preset)
             points = map2.positions[result.supports[:, 1]] if len(result.supports) else None
             confirmed, apart = transforms_agree(earlier.alignment, result, points, config.support_threshold,
                                                 self.level)

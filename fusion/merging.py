@@ -33,10 +33,11 @@ from scipy.spatial import cKDTree
 from estimation.geometry import rot_z, transform_points
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import CHI2_999, PRESETS, Alignment, identity_pairs, landmark_identities
+from .alignment import PRESETS, Alignment
 from .errors import IncompatibleMapsError
 from .intersection import covariance_intersection
 from .pose_covariance import point_jacobians
+from .ransac import CHI2_999, identity_pairs, landmark_identities
 
 
 def kalman_fuse(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,8 +145,6 @@ def check_covariances(landmark_map: LandmarkMap, name: str = "map") -> None:
 
 def _merged_identities(map1: LandmarkMap, map2: LandmarkMap, only2: np.ndarray) -> list[int] | None:
     """External identities of the merged rows when both maps carry them (map 1's, then map 2's own)."""
-    from .alignment import landmark_identities
-
     ids1, ids2 = landmark_identities(map1), landmark_identities(map2)
     if ids1 is None or ids2 is None:
         return None

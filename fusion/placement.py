@@ -20,7 +20,7 @@ import numpy as np
 
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import refine_pose
+from .ransac import refine_pose
 
 
 def shape_placement(parent: LandmarkMap, child: LandmarkMap, supports: np.ndarray, pose

@@ -41,7 +41,7 @@ from estimation.fastslam.self_check import KEY as SELF_CHECK_KEY
 from estimation.geometry import wrap_angle
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import Alignment, AlignmentConfig, _resolve, align, align_at
+from .alignment import Alignment, AlignmentConfig, align, align_at, resolve_preset
 from .cache import AlignmentCache
 from .errors import NoOverlapError
 from .multi import MultiFusion, fuse_all, pairwise_alignments
@@ -169,7 +169,7 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
     other is tested at that part's transform (:func:`align_at`) before the two are compared.  ``priors`` {(i, j),
     i < j: fusion.prior.StartPrior}: both parts are in the flagged map's start frame, so its pair's prior applies to
     each."""
-    config = _resolve(preset)
+    config = resolve_preset(preset)
     rng = np.random.default_rng(0) if rng is None else rng
     halves = split_map(maps[index], first_id)
     others = [j for j in range(len(maps)) if j != index]

@@ -18,8 +18,8 @@ from fusion import (
     alignment_error,
     true_relative_pose,
 )
-from fusion.alignment import pair_hypotheses, refine_pose
 from fusion.matching import nearest_correspondences
+from fusion.ransac import pair_hypotheses, refine_pose
 
 poses = st.tuples(st.floats(-30, 30), st.floats(-30, 30), st.floats(-np.pi + 1e-6, np.pi - 1e-6))
 # robot 2 starting inside the mapped area (35 × 10 m), as robots do

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from estimation.geometry import compose, transform_points
 from fusion import align
-from fusion.alignment import rival_offset
+from fusion.evidence import rival_offset
 
 HALF_TURN_CENTRE = np.array([10.0, 0.0])        # fusion_sim.half_turn_pair turns its pattern about (10, 0)
 

@@ -6,7 +6,7 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from fusion import IncompatibleMapsError, align, alignment_error, merge, true_relative_pose
-from fusion.alignment import identity_pairs
+from fusion.ransac import identity_pairs
 
 POSE = (4.0, 2.0, 1.2)
 

@@ -16,8 +16,9 @@ import pytest
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import align
-from fusion.alignment import ROBUST, self_structure
+from fusion.alignment import ROBUST
 from fusion.errors import IncompatibleMapsError
+from fusion.evidence import self_structure
 
 PAIR = replace(ROBUST, self_repeat_gate="pair")   # the robust preset's default since session 10
 OWN = replace(ROBUST, self_repeat_gate="own")     # the rule before it

@@ -1,0 +1,283 @@
+"""Whether an alignment can be trusted, on the alignment's own evidence (issue 13).
+
+The supports beyond the two that define a hypothesis are compared with the number a wrong transform gathers by
+chance on *these* maps: decoy transforms scored with the same gate (landmark density, clustering along walls, map
+sizes), the best hypothesis distinct from the winner, and each map's repeat of itself (repeated structure: a
+building symmetric under a half turn, a corridor of identical doors).  The result is a false-alarm probability,
+Bonferroni-corrected for the hypotheses tried, and the number of supports these maps need.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.special import gammaincinv, pdtrc
+
+from estimation.geometry import transform_points, wrap_angle
+from estimation.landmark_map import LandmarkMap
+
+from .cache import content_rng
+from .errors import IncompatibleMapsError
+from .matching import self_correspondences
+from .ransac import (
+    CorrespondenceProblem,
+    RansacSearch,
+    correspondence_problem,
+    has_descriptors,
+    polish,
+    ransac,
+    rotations_2d,
+)
+
+if TYPE_CHECKING:
+    from .alignment import AlignmentConfig
+
+# Descriptor distances computed at most when a map is matched against itself (self_structure).
+SELF_SEARCH_PAIRS = 20_000_000
+SELF_REPEAT_GATES = ("own", "pair")      # AlignmentConfig.self_repeat_gate
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """How much a hypothesis with ``supports`` one-to-one supports can be trusted on these maps.
+
+    chance_decoys: mean supports beyond its anchor that a decoy transform gathers (the chance rate);
+    second_best: supports of the best hypothesis distinct from the winner (0 if none);
+    chance_rate: the Poisson rate λ of chance supports beyond the two that define a hypothesis;
+    hypotheses: how many were tried (the Bonferroni factor); log10_p: log10 of the false-alarm
+    probability N · P(Poisson(λ) ≥ supports − 2); required: the fewest supports with p below ``significance``.
+    """
+
+    supports: int
+    chance_decoys: float
+    second_best: int
+    chance_rate: float
+    hypotheses: int
+    log10_p: float
+    required: int
+    ambiguous: bool                       # the second-best hypothesis, not the decoys, set the chance rate
+    self_repeat: int = 0                  # supports of the best repeat of either map onto itself (self_structure)
+    rival_pose: np.ndarray | None = None  # (3,) the second-best hypothesis' pose, None if there is none
+    rival_mask: np.ndarray | None = None  # (K,) its supports among the correspondences
+    outside: int = 0                      # with a start prior: supports of the best distinct hypothesis outside it
+    impossible: int = 0                   # with a co-location test: supports of the best distinct hypothesis it removed
+
+
+def log10_false_alarm(excess: int, rate: float, hypotheses: int) -> float:
+    """log10 min(1, N · P(Poisson(rate) ≥ excess))."""
+    if excess <= 0:
+        return 0.0
+    tail = float(pdtrc(excess - 1, max(rate, 1e-12)))
+    return min(0.0, float(np.log10(max(tail, 1e-300)) + np.log10(max(hypotheses, 1))))
+
+
+def _rate_for_maximum(excess: int, hypotheses: int) -> float:
+    """The Poisson rate at which the best of N wrong hypotheses reaches ``excess`` supports half the time:
+    a null calibrated on the maps' own repeated structure."""
+    if excess <= 0:
+        return 0.0
+    lo, hi = -12.0, 3.0                         # log10 λ
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if hypotheses * pdtrc(excess - 1, 10.0 ** mid) < 0.5:
+            lo = mid
+        else:
+            hi = mid
+    return 10.0 ** hi
+
+
+def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
+                          rng: np.random.Generator) -> float:
+    """Chance supports a wrong transform gathers beyond its anchor, scored with the same gates: the 95 %
+    upper bound of their mean over the decoys.
+
+    Each decoy puts a random map-2 landmark on a random map-1 landmark at a random angle (so the maps
+    overlap as a RANSAC hypothesis makes them), then counts the correspondences inside the gate — the
+    maps' density, their clustering along walls and their sizes all enter.
+    """
+    k = len(problem.i)
+    if decoys <= 0 or k == 0 or len(map1) == 0 or len(map2) == 0:
+        return 0.0
+    theta = rng.uniform(-np.pi, np.pi, decoys)
+    a = rng.integers(len(map1), size=decoys)
+    b = rng.integers(len(map2), size=decoys)
+    R = rotations_2d(theta)
+    t = map1.positions[a, :2] - np.einsum("hij,hj->hi", R, map2.positions[b, :2])
+    poses = np.column_stack([t, theta])
+    # the anchor itself supports a decoy only when (a, b) is a correspondence
+    n2 = max(len(map2), int(problem.j.max()) + 1)
+    keys = problem.i * n2 + problem.j
+    order = np.argsort(keys)
+    anchor = a * n2 + b
+    pos = np.clip(np.searchsorted(keys[order], anchor), 0, k - 1)
+    anchor_row = np.where(keys[order][pos] == anchor, order[pos], -1)
+    total = 0.0
+    batch = max(1, 4_000_000 // max(k, 1))
+    for start in range(0, decoys, batch):
+        sl = slice(start, start + batch)
+        masks = problem.masks(poses[sl])
+        counts = problem.distinct_counts(masks).astype(float)
+        rows = anchor_row[sl]
+        has = rows >= 0
+        counts[has] -= masks[np.flatnonzero(has), rows[has]]
+        total += counts.sum()
+    # 95 % upper confidence bound of a Poisson rate from ``total`` events in ``decoys`` trials: a finite sample
+    # of decoys that saw no chance support does not prove the rate is zero
+    return float(gammaincinv(total + 1.0, 0.95)) / decoys
+
+
+@dataclass(frozen=True)
+class _Rival:
+    """The best hypothesis distinct from the winner: its one-to-one supports (a repeated pair counted once when a
+    map is matched against itself), pose (3,) and support mask (K,); None when there is none."""
+
+    supports: int = 0
+    pose: np.ndarray | None = None
+    mask: np.ndarray | None = None
+
+
+def _best_distinct(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndarray, mask: np.ndarray,
+                   config: AlignmentConfig, unordered: bool = False, admissible=None) -> _Rival:
+    """The best hypothesis clearly distinct from ``pose``: it moves the winner's supports (or, without any, every
+    correspondence) by more than two gate radii on average.  The three strongest candidates are re-scored with the
+    final gate and polished like the winner.  ``admissible(poses (H, 3)) -> (H,) bool`` (a start prior) keeps only
+    the hypotheses it admits, before and after polishing."""
+    if search.evaluated == 0:
+        return _Rival()
+    pts = problem.p2[mask] if mask.sum() >= 2 else problem.p2
+    ref = transform_points(pose, pts)[:, :2]
+    far = 2.0 * problem.gate_radius
+
+    def distinct(poses: np.ndarray) -> np.ndarray:
+        R = rotations_2d(poses[:, 2])
+        moved = np.einsum("hij,kj->hki", R, pts[:, :2]) + poses[:, None, :2]
+        return np.sqrt(np.mean(np.sum((moved - ref[None]) ** 2, axis=2), axis=1)) > far
+
+    cand = np.flatnonzero(distinct(search.poses) & (True if admissible is None else admissible(search.poses)))
+    if len(cand) == 0:
+        return _Rival()
+    best = _Rival()
+    counts = np.zeros(len(cand), np.int64)
+    for start in range(0, len(cand), 256):
+        sl = cand[start:start + 256]
+        counts[start:start + 256] = problem.distinct_counts(problem.masks(search.poses[sl]))
+    # the rival is the null: with the residual rule it is also polished as the inflate rule polishes (the gate never
+    # narrowed), and the stronger of the two counts (a rival polished in a narrowed gate can lose its own supports)
+    polish_configs = [config] if config.gate_scale == "inflate" else [config, replace(config, gate_scale="inflate")]
+    for c in cand[np.argsort(-counts, kind="stable")[:3]]:
+        for polish_config in polish_configs:
+            p = search.poses[c]
+            m = problem.masks(p[None])[0]
+            p, _, m, _ = polish(replace(problem), p, m, polish_config)
+            m = problem.one_to_one(problem.masks(p[None])[0], p)     # scored with the winner's gate
+            if distinct(p[None])[0] and (admissible is None or admissible(p[None])[0]):
+                # a map matched against itself: (i, j) and (j, i) are one repeated pair (a half turn maps both ways)
+                n = (len({frozenset(e) for e in zip(problem.i[m], problem.j[m], strict=True)}) if unordered
+                     else int(m.sum()))
+                if n > best.supports:
+                    best = _Rival(n, p, m)
+    return best
+
+
+def _second_best(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndarray, mask: np.ndarray,
+                 config: AlignmentConfig, unordered: bool = False) -> int:
+    """Supports of the best hypothesis clearly distinct from ``pose`` (see :func:`_best_distinct`)."""
+    return _best_distinct(problem, search, pose, mask, config, unordered).supports
+
+
+def rival_offset(pose: np.ndarray, rival_pose: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """How far a rival hypothesis is from the winner: (RMS distance (m) by which it moves ``points`` (S, 2|3), map-2
+    positions, against the winner; |Δθ| (rad)).  Frame-independent, unlike the difference of the poses' xy."""
+    a = transform_points(pose, points)[:, :2]
+    b = transform_points(rival_pose, points)[:, :2]
+    shift = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) if len(points) else float("nan")
+    return shift, float(abs(wrap_angle(rival_pose[2] - pose[2])))
+
+
+def self_structure(landmark_map: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
+                   inflation: float | None = None) -> int:
+    """Supports of the best transform, other than the identity, that maps a map onto *itself* by its descriptors:
+    the repeated structure inside one map (a building symmetric under a half turn whose corners look alike, a
+    row of identical doors).  If one map repeats itself under T_s, a wrong cross-map alignment T_s ∘ T can
+    gather about as many supports as the repeat holds, even when the true overlap T gathers few (a damaged
+    map).  0 without descriptors.
+
+    ``inflation`` (a pair's final gate scale, with ``config.self_repeat_gate == "pair"``): the repeat's supports are
+    counted in the gate that scale gives, the gate every other count of the decision uses.  Without it they are
+    counted in the map's own claimed covariances, which with honest start-frame covariances reach the 1 m cap
+    (rendered demo seed 8, robot 2: 23 supports of a 1 m shift, 12 of them 0.44-0.96 m off it; 14 in the pair's
+    gate)."""
+    n = len(landmark_map)
+    if not has_descriptors(landmark_map) or n < 4:
+        return 0
+    # very large maps: a random subset of queries (a repeat shows in any sizeable sample of the map)
+    rows = None if n * n <= SELF_SEARCH_PAIRS else np.sort(rng.choice(n, max(64, SELF_SEARCH_PAIRS // n),
+                                                                      replace=False))
+    pairs = self_correspondences(landmark_map.descriptors, config.descriptor_threshold, config.ratio or 1.0, rows)
+    if len(pairs) < 4:
+        return 0
+    problem = correspondence_problem(landmark_map, landmark_map, pairs, config, distinct_scoring=True)
+    # a fixed number of hypotheses: the near-identity ones (duplicates side by side) must not stop the search
+    search = ransac(problem, replace(config, adaptive=False, iterations=min(config.iterations, 500)), rng)
+    scored = problem if inflation is None else problem.inflated(inflation)
+    return _second_best(scored, search, np.zeros(3), np.zeros(len(pairs), bool), config, unordered=True)
+
+
+def evidence(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndarray, mask: np.ndarray,
+             map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
+             repeats: bool = False, self_repeat=None, admissible=None, possible=None) -> Evidence:
+    """The alignment's own evidence (see the module docstring): supports beyond the two that define a
+    hypothesis against a Poisson null whose rate is the largest of the decoys', the one that makes the
+    second-best distinct hypothesis a typical maximum and (``repeats``: maps matched by descriptors) the one
+    that makes either map's repeat of itself (:func:`self_structure`) a typical maximum; Bonferroni over the
+    hypotheses tried.  ``self_repeat(map) -> int`` gives a map's self-repeat count (default: :func:`self_structure`
+    with a generator seeded by the map's content, so that the count is a property of the map alone); with
+    ``config.self_repeat_gate == "pair"`` it is called as ``self_repeat(map, inflation)``, the pair's gate scale.
+
+    ``admissible(poses) -> bool`` (a start prior, :mod:`fusion.prior`): only the hypotheses it admits are rivals and
+    count in the Bonferroni factor (a false alarm needs the best hypothesis inside it); the best one outside it is
+    reported (``outside``).  Each map's repeat of itself stays in the null whatever the prior: a wrong prior that
+    agrees with a wrong winner (the truth damaged, its repeat winning) must not make it "found".
+
+    ``possible(poses) -> bool`` (the co-location test, :mod:`fusion.colocation`) removes hypotheses as the prior does,
+    from the rivals and the Bonferroni factor; the best one it removed is reported (``impossible``), not as outside the
+    prior."""
+    s = int(problem.distinct_counts(mask[None])[0])
+    n_all = max(search.evaluated, 1)
+    allowed = admissible
+    if possible is not None:
+        def allowed(poses: np.ndarray) -> np.ndarray:
+            return possible(poses) & (True if admissible is None else admissible(poses))
+    n = n_all if allowed is None else max(int(allowed(search.poses).sum()), 1)
+    decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
+    rival = _best_distinct(problem, search, pose, mask, config, admissible=allowed)
+    outside = 0 if admissible is None else _best_distinct(
+        problem, search, pose, mask, config,
+        admissible=lambda poses: ~admissible(poses) & (True if possible is None else possible(poses))).supports
+    impossible = 0 if possible is None else _best_distinct(
+        problem, search, pose, mask, config, admissible=lambda poses: ~possible(poses)).supports
+    second = rival.supports
+    if config.self_repeat_gate not in SELF_REPEAT_GATES:
+        raise IncompatibleMapsError(f"unknown self_repeat_gate {config.self_repeat_gate!r} (choose from "
+                                    f"{', '.join(SELF_REPEAT_GATES)})")
+    pair_gate = config.self_repeat_gate == "pair"
+    if self_repeat is None:
+        def self_repeat(m: LandmarkMap, inflation: float | None = None) -> int:
+            return self_structure(m, config, content_rng(m), inflation)
+    repeat = 0
+    if repeats:
+        counts = [self_repeat(m, problem.inflation) if pair_gate else self_repeat(m) for m in (map1, map2)]
+        repeat = max(counts)
+    # the rival is the best of the n hypotheses inside the prior; the self-repeat was found without one, so its rate is
+    # calibrated on all of them (a prior must not make the repeat's null stricter than it is without a prior)
+    structure_rate = max(_rate_for_maximum(second - 2, n), _rate_for_maximum(repeat - 2, n_all))
+    rate = max(decoy_rate, structure_rate, 1e-9)
+    log10_p = log10_false_alarm(s - 2, rate, n)
+    level = np.log10(config.significance) if config.significance is not None else -6.0
+    required = max(config.min_supports, 3)
+    while log10_false_alarm(required - 2, rate, n) > level and required < 100_000:
+        required += 1
+    return Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat,
+                    rival.pose, rival.mask, outside, impossible)
+
