@@ -1,6 +1,7 @@
 """``p3at fuse``: align landmark maps of several robots (RANSAC) and merge them into one (Kalman).
 
-Exit status: 0 fused; 1 the maps (or some of them) do not overlap; 2 bad arguments or unreadable map file.
+Exit status: 0 fused; 1 the maps (or some of them) do not overlap; 2 bad arguments, an unreadable map file, or two
+maps holding the same estimates (a map twice, a copy of it, or a fused map beside a map it holds).
 """
 from __future__ import annotations
 
@@ -102,12 +103,13 @@ def _fuse(args: argparse.Namespace) -> int:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     shared = _shared_estimates(maps)
-    if shared is not None:   # a warning, not a refusal: tests/runtime/test_fuse_prior.py fuses such a copy
+    if shared is not None:   # no independent evidence: a merge would be confidently wrong, so none is made
         (i, j), count = shared
-        print(f"p3at fuse: warning: {args.maps[i]} and {args.maps[j]} hold the same estimates ({count} of "
+        print(f"p3at fuse: {args.maps[i]} and {args.maps[j]} hold the same estimates ({count} of "
               f"{min(len(maps[i]), len(maps[j]))} landmark positions equal bit for bit: a copy, or a fused map that "
-              "already holds the other): fusing them counts those landmarks twice and halves their covariance",
-              file=sys.stderr)
+              "already holds the other): fusing them would count those landmarks twice and halve their covariance; "
+              "give only one of them", file=sys.stderr)
+        return EXIT_BAD_INPUT
     for k, m in enumerate(maps):   # a fused map beside a map of a robot it already holds (not bit-equal: moved)
         held = (m.metadata.get("fusion") or {}).get("maps") if isinstance(m.metadata.get("fusion"), dict) else None
         for other, path in zip(maps, args.maps, strict=True):

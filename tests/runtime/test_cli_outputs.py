@@ -159,22 +159,25 @@ def test_fuse_refuses_a_map_given_twice(two_maps, tmp_path, capsys, monkeypatch,
     assert not merged.exists()
 
 
-def test_fuse_warns_of_a_copy_of_a_map_and_of_a_fused_map_beside_its_reference(two_maps, tmp_path, capsys):
+def test_fuse_refuses_a_copy_of_a_map_and_a_fused_map_beside_its_reference(two_maps, tmp_path, capsys):
     """A copy (another file, the same bytes) and a fused map beside the map it was made in the frame of both merged
-    the same estimates twice without a word (demo: fused.npz + robot1.npz, 971 of 1,008 positions equal bit for
-    bit). A warning names the pair; the merge still runs (a refusal is proposed, not made)."""
+    the same estimates twice (demo: fused.npz + robot1.npz, 971 of 1,008 positions equal bit for bit): every such
+    landmark counted twice, its covariance halved. Session 12 warned and merged; now it is refused (exit 2, one line
+    naming both files), and no merged map is written."""
     copy = tmp_path / "copy.npz"
     copy.write_bytes(open(two_maps[0], "rb").read())
     fused = tmp_path / "fused.npz"
     assert main(["fuse", *two_maps, "--out", str(fused)]) == 0
     capsys.readouterr()
+    again = tmp_path / "again.npz"
     for pair in ([two_maps[0], str(copy)], [str(fused), two_maps[0]]):
-        main(["fuse", *pair, "--out", str(tmp_path / "again.npz")])
-        warnings = [line for line in capsys.readouterr().err.splitlines() if "hold the same estimates" in line]
-        assert len(warnings) == 1 and f"{pair[0]} and {pair[1]}" in warnings[0], warnings
-        assert "counts those landmarks twice" in warnings[0]
+        code = main(["fuse", *pair, "--out", str(again)])
+        line = _one_line(capsys)
+        assert code == 2 and f"{pair[0]} and {pair[1]} hold the same estimates" in line, line
+        assert "count those landmarks twice" in line and "give only one of them" in line
+        assert not again.exists()
     # the other robot's map sits in the fused map moved into the reference's frame: not bit-equal, a note by name
-    assert main(["fuse", str(fused), two_maps[1], "--out", str(tmp_path / "again.npz")]) in (0, 1)
+    assert main(["fuse", str(fused), two_maps[1], "--out", str(again)]) in (0, 1)
     assert "already holds a map of robot2" in capsys.readouterr().err
 
 

@@ -111,8 +111,9 @@ def test_a_start_for_one_map_of_a_pair_is_a_one_line_error_not_silently_no_prior
 def test_maps_without_a_start_among_maps_with_one_are_named_in_a_warning(tmp_path, capsys):
     files = _files(tmp_path)
     third = tmp_path / "c.npz"
-    m3 = LandmarkMap.load(files[1])
-    LandmarkMap(m3.positions, m3.covariances, m3.descriptors, robot="robot3").save(third)
+    m3 = LandmarkMap.load(files[1])        # a third robot's map of robot2's landmarks, its own estimates (σ 3 cm)
+    moved = m3.positions + np.random.default_rng(3).normal(0, 0.03, m3.positions.shape)
+    LandmarkMap(moved, m3.covariances, m3.descriptors, robot="robot3").save(third)
     start2 = compose(np.array([1.0, 2.0, 0.3]), TRUE_POSE)
     main(["fuse", *files, str(third), "--out", str(tmp_path / "m.npz"), "--json", "--start-pose", "0=1,2,0.3",
           "--start-pose", f"robot2={_start(start2)}", "--start-sigma", "1,0.3"])
