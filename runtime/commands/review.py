@@ -12,6 +12,7 @@ import multiprocessing
 import os
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 from runtime.commands.options import OutputPathError, check_output_folder
@@ -87,12 +88,13 @@ def _crash_message(text: str) -> str:
     return lines[-1][:200] if lines else "no message"
 
 
-def _reading_process(conn, err_path: str, paths: list[Path], folder: Path | None) -> None:
-    """The child's whole life: stderr to ``err_path``, then :func:`read_and_export`'s answer (or the exception it
-    raised, a bug the parent reports as such) sent over ``conn``."""
+def _reading_process(conn, err_path: str, reader, paths: list[Path], folder: Path | None) -> None:
+    """The child's whole life: stderr to ``err_path``, then ``reader(paths, folder)``'s answer (or the exception it
+    raised, a bug the parent reports as such) sent over ``conn``. The reader is an argument, not looked up here, so
+    that a spawned child (which imports this module afresh) runs the one the parent chose."""
     _stderr_to(err_path)
     try:
-        answer = ("answer", read_and_export(paths, folder))
+        answer = ("answer", reader(paths, folder))
     except Exception as e:  # noqa: BLE001 - handed to the parent, which raises it
         answer = ("exception", e)
     try:
@@ -103,15 +105,28 @@ def _reading_process(conn, err_path: str, paths: list[Path], folder: Path | None
     conn.close()
 
 
+def _fork_is_safe() -> bool:
+    """Whether this process runs one thread, so that a forked child inherits no lock held mid-way."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return False
+    try:
+        return len(os.listdir("/proc/self/task")) == 1          # every thread, Rust's and OpenBLAS's included
+    except OSError:  # no /proc: Rerun's and OpenBLAS's threads start when they are imported
+        return threading.active_count() == 1 and not {"rerun", "numpy"} & sys.modules.keys()
+
+
 def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
     """:func:`read_and_export` in a child process; a reader that kills its process is ``{"error": ...}`` with the
-    reason it printed. Forked where the system can (this process has imported neither Rerun nor numpy and runs one
-    thread, so the child inherits no lock held mid-way; a spawned child would import everything again). Ctrl-C
-    ends the child at once (it would otherwise finish its export first)."""
-    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+    reason it printed. Ctrl-C ends the child at once (it would otherwise finish its export first).
+
+    Forked when this process runs a single thread (``p3at review`` itself: it has imported neither Rerun nor numpy),
+    so that the child starts at once; otherwise spawned, since a fork copies any lock another thread holds at that
+    instant (Rerun starts threads when imported: a caller such as a test process or a notebook)."""
+    context = multiprocessing.get_context("fork" if _fork_is_safe() else "spawn")
     with tempfile.NamedTemporaryFile(prefix="p3at-review-", suffix=".err") as err:
         receive, send = context.Pipe(duplex=False)
-        child = context.Process(target=_reading_process, args=(send, err.name, paths, folder), daemon=True)
+        child = context.Process(target=_reading_process, args=(send, err.name, read_and_export, paths, folder),
+                                daemon=True)
         try:
             child.start()
             send.close()

@@ -121,3 +121,22 @@ def test_a_bug_in_the_reading_process_is_reported_as_a_bug(tmp_path, capsys, mon
     code = main(["review", str(rrd), "--no-export"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 70 and len(err) == 1 and "_Unpicklable: a reader bug" in err[0], err
+
+
+def test_the_reading_process_is_forked_only_from_a_single_thread():
+    """A fork copies any lock another thread holds at that instant (Rerun starts threads when imported), so a
+    process with a second thread spawns its reader; `p3at review` itself runs one thread and forks (a fast start)."""
+    import subprocess
+    import sys
+
+    release = threading.Event()
+    other = threading.Thread(target=release.wait, daemon=True)
+    other.start()
+    try:
+        assert not review._fork_is_safe()
+    finally:
+        release.set()
+        other.join()
+    fresh = subprocess.run([sys.executable, "-c", "from runtime.cli import main; from runtime.commands import review; "
+                            "print(review._fork_is_safe())"], capture_output=True, text=True, timeout=120)
+    assert fresh.stdout.strip() == "True", fresh.stderr
