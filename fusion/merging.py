@@ -37,6 +37,7 @@ from .alignment import PRESETS, Alignment
 from .errors import IncompatibleMapsError
 from .intersection import covariance_intersection
 from .pose_covariance import point_jacobians
+from .provenance import source_metadata
 from .ransac import CHI2_999, identity_pairs, landmark_identities
 
 
@@ -319,7 +320,8 @@ def merge(map1: LandmarkMap, map2: LandmarkMap, alignment: Alignment, method: in
     withheld, conflicts = None, None
     if method == 1:              # known-ID maps: one landmark per identity (a no-op without identities)
         pairs, withheld, conflicts = identity_matches(map1, map2, alignment.pose, pose_cov, pairs)
-    info = {"fusion": {"maps": [map1.robot, map2.robot], "method": int(method), "preset": alignment.preset,
+    info = {"fusion": {"maps": [map1.robot, map2.robot], **source_metadata([map1, map2]), "method": int(method),
+                       "preset": alignment.preset,
                        "pose": [float(v) for v in alignment.pose], "common_landmarks": int(len(pairs)),
                        "merge_rule": rule}}
     return merge_pairs(map1, map2, alignment.pose, pairs, pose_cov, info, withheld, conflicts, rule).map

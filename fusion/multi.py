@@ -33,6 +33,7 @@ from .merging import (
 )
 from .placement import shape_placement
 from .pose_covariance import compose_with_covariance
+from .provenance import source_metadata
 from .shape_covariance import shape_calibrated, shape_covariances, shape_levels, sighting_variances, spread_level
 
 
@@ -291,6 +292,8 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
     if n > 1 and not edges:
         raise NoOverlapError("none of the maps overlaps the reference map "
                              f"{maps[reference].robot!r}: nothing to fuse")
+    # which maps the fused map holds, by content as given (before any calibration scales their covariances)
+    sources = source_metadata(maps, [k for k in range(n) if k not in unconnected])
     shaped = None
     if calibrate and calibration == "drift":
         shaped = drift_calibrated(maps, alignments)
@@ -340,8 +343,8 @@ def fuse_all(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", 
             x2, P2 = transform_landmarks(maps[child].positions, maps[child].covariances, placed[child], pose_cov)
             gate = PRESETS["paper"].support_threshold if a.preset == "paper" else None
             pairs = position_correspondences(fused.positions, fused.covariances, x2, P2, gate)
-        info = {"fusion": {"maps": [m.robot for m in maps], "method": int(method), "reference": int(reference),
-                           "tree": [list(e) for e in edges],
+        info = {"fusion": {"maps": [m.robot for m in maps], **sources, "method": int(method),
+                           "reference": int(reference), "tree": [list(e) for e in edges],
                            "covariance_scales": None if scales is None else [float(c) for c in scales],
                            "merge_rule": merge_rule, "calibration": None if scales is None else calibration}}
         result = merge_pairs(fused, maps[child], placed[child], pairs, pose_cov, info, withheld, conflicts, merge_rule)

@@ -69,6 +69,7 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, alignment_error, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
+    from fusion.provenance import source_metadata
     from fusion.split import PARTS, fuse_checked
 
     if args.live:
@@ -110,12 +111,10 @@ def _fuse(args: argparse.Namespace) -> int:
               "already holds the other): fusing them would count those landmarks twice and halve their covariance; "
               "give only one of them", file=sys.stderr)
         return EXIT_BAD_INPUT
-    for k, m in enumerate(maps):   # a fused map beside a map of a robot it already holds (not bit-equal: moved)
-        held = (m.metadata.get("fusion") or {}).get("maps") if isinstance(m.metadata.get("fusion"), dict) else None
-        for other, path in zip(maps, args.maps, strict=True):
-            if held and other is not m and other.robot in held:
-                print(f"p3at fuse: note: {args.maps[k]} is a fused map that already holds a map of {other.robot}; if "
-                      f"{path} is that map, its landmarks count twice", file=sys.stderr)
+    held = _held_maps(args.maps, maps)
+    if held is not None:
+        print(f"p3at fuse: {held}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     names = [m.robot for m in maps]
     if len(set(names)) < len(names):
         print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
@@ -183,6 +182,10 @@ def _fuse(args: argparse.Namespace) -> int:
             report["maps"][k]["covariance_scale"] = result.covariance_scales[i]
             report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[i]))
             report["maps"][k]["claimed_sigma"] = claimed
+    if any(part is not None for _, part in checked.sources):   # the fused map holds the files' maps, not parts
+        result.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in checked.sources],
+                                                             sorted({i for i, r in enumerate(result.rows)
+                                                                     if r is not None})))
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for i, m in enumerate(checked.inputs) if result.rows[i] is not None)
                                      - len(result.map))
@@ -219,6 +222,34 @@ def _shared_estimates(maps: list[LandmarkMap]) -> tuple[tuple[int, int], int] | 
             count = len(rows[i] & rows[j])
             if count and 2 * count > min(len(rows[i]), len(rows[j])):
                 return (i, j), count
+    return None
+
+
+def _held_maps(paths: list[str], maps: list[LandmarkMap]) -> str | None:
+    """Why the maps cannot be fused when a fused map among them already holds another of them (the other's content
+    fingerprint is among those it records: its landmarks would count twice), else None. A fused map beside another
+    map of a robot it holds gets a note on stderr: certainly a different map where the fused map records
+    fingerprints (another run of that robot: new evidence), possibly the same map where it does not (older files).
+    """
+    from fusion.provenance import content_fingerprint, held_fingerprints
+
+    prints = [content_fingerprint(m) for m in maps]
+    fused = [(k, m.metadata["fusion"], held_fingerprints(m)) for k, m in enumerate(maps)
+             if isinstance(m.metadata.get("fusion"), dict)]
+    pairs = [(k, j, fusion, holds) for k, fusion, holds in fused for j in range(len(maps)) if j != k]
+    for k, j, _, holds in pairs:
+        if holds is not None and prints[j] in holds:
+            return (f"{paths[k]} is a fused map that already holds {paths[j]} (its map of {maps[j].robot}, fingerprint "
+                    f"{prints[j]}): fusing them would count its landmarks twice and halve their covariance; leave "
+                    f"{paths[j]} out (its landmarks are in {paths[k]} already)")
+    for k, j, fusion, holds in pairs:
+        robots = fusion.get("maps")
+        if isinstance(robots, list) and maps[j].robot in robots:
+            print(f"p3at fuse: note: {paths[k]} is a fused map that already holds a map of {maps[j].robot}; "
+                  + (f"{paths[j]} is another one (its fingerprint {prints[j]} is not among those {paths[k]} "
+                     "records), fused as new evidence" if holds is not None else
+                     f"if {paths[j]} is that map, its landmarks count twice (the fused map was written before maps "
+                     "recorded their sources' fingerprints, so it cannot tell)"), file=sys.stderr)
     return None
 
 
