@@ -32,10 +32,10 @@ def mission_inputs_problem(args) -> str | None:
     from mocks.world import World
     from runtime.motion import load_route
 
+    virtual = getattr(args, "robot", "mock") == "mock"   # `p3at run` has --robot; `p3at demo` drives mocks only
     try:
         check_output_folder(args.out)
-        world = World.load(args.world) if args.world is not None or getattr(args, "robot", "mock") == "mock" \
-            else None
+        world = World.load(args.world) if args.world is not None or virtual else None
         if args.route is not None and args.motion == "route":
             load_route(args.route)
     except (ValueError, OSError) as e:   # OutputPathError, WorldFileError, RouteFileError
@@ -47,7 +47,7 @@ def mission_inputs_problem(args) -> str | None:
         if held:
             return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
                     "(or move it)")
-    if world is not None and getattr(args, "robot", "mock") == "mock" and len(world.start_poses) < args.robots:
+    if world is not None and virtual and len(world.start_poses) < args.robots:
         return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
                 f"({', '.join(sorted(world.start_poses))})")
     return None
