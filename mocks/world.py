@@ -74,9 +74,9 @@ class WorldFileError(ValueError):
 
     def __init__(self, path: str | Path, field: str, problem: str) -> None:
         self.path = str(path)
-        self.field = field
+        self.field = field    # "" where the problem is the file as a whole (unreadable, not JSON, too large)
         self.problem = problem
-        super().__init__(f"{self.path}: {field}: {problem}")
+        super().__init__(f"{self.path}: {field}: {problem}" if field else f"{self.path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -522,20 +522,20 @@ class World:
         try:
             size = file.stat().st_size
             if size > MAX_FILE_BYTES:
-                raise WorldFileError(file, "<file>", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
+                raise WorldFileError(file, "", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
             text = file.read_text(encoding="utf-8")
         except OSError as exc:
-            raise WorldFileError(file, "<file>", f"cannot read: {exc.strerror or exc}") from exc
+            raise WorldFileError(file, "", f"cannot read: {exc.strerror or exc}") from exc
         except UnicodeDecodeError as exc:
-            raise WorldFileError(file, "<file>", f"not UTF-8 text: {exc}") from exc
+            raise WorldFileError(file, "", f"not UTF-8 text: {exc}") from exc
         try:
             doc = json.loads(text)
         except json.JSONDecodeError as exc:
             raise WorldFileError(file, f"line {exc.lineno} column {exc.colno}", f"invalid JSON: {exc.msg}") from exc
         except RecursionError:
-            raise WorldFileError(file, "<file>", "JSON nested too deeply") from None
+            raise WorldFileError(file, "", "JSON nested too deeply") from None
         except ValueError as exc:  # e.g. an integer of more than 4300 digits
-            raise WorldFileError(file, "<file>", f"invalid JSON: {exc}") from None
+            raise WorldFileError(file, "", f"invalid JSON: {exc}") from None
         return cls.from_dict(doc, source=file)
 
     @classmethod

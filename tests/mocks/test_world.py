@@ -286,3 +286,24 @@ def test_line_of_sight_is_symmetric_and_agrees_with_raycast(coords) -> None:
             assert not forward
         if ranges[0] >= length:  # nothing up to p1: visible
             assert forward
+
+
+@pytest.mark.parametrize(("content", "said"), [
+    (b"", "invalid JSON: Expecting value"),               # a JSON error at a place names it: line 1 column 1
+    (b"\xff\xfe not text", "not UTF-8 text: "),
+    (b"[" * 100_000, "JSON nested too deeply"),
+    (b"1" * 5000, "invalid JSON: "),                       # more than 4300 digits: Python's int limit
+    (None, "cannot read: "),
+])
+def test_a_file_that_is_no_world_file_reads_naturally(tmp_path, content, said) -> None:
+    """The whole-file problems said '<file>' where a field goes ('bad.json: <file>: cannot read: ...')."""
+    path = tmp_path / "bad.json"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(WorldFileError) as info:
+        World.load(path)
+    message = str(info.value)
+    assert "<file>" not in message and said in message, message
+    assert message.startswith(f"{path}: "), message
+    if info.value.field == "":
+        assert message.startswith(f"{path}: {said.split(':')[0]}"), message
