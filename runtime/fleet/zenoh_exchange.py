@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import json
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -50,6 +51,23 @@ class ExchangeError(RuntimeError):
     """The exchange could not be opened (a bad configuration, an endpoint in use...)."""
 
 
+# where in Zenoh's Rust sources an error was made: " at /root/.cargo/git/.../io/zenoh-link/src/lib.rs:183." (nested
+# errors carry one each, inside their brackets)
+_RUST_SOURCE = re.compile(r"\s+at\s+\S+\.rs:\d+(?::\d+)?\.?(?=\]|\s|$)")
+# a JSON5 syntax error (pest): " --> 2:26\n  |\n2 |   listen: ...\n  |  ^---\n  |\n  = expected array, ..."
+_PEST = re.compile(r"-->\s*(\d+):(\d+).*?=\s*(.+)$", re.S)
+
+
+def zenoh_message(error: BaseException) -> str:
+    """A Zenoh error's text on one line, for a user: without the Rust source paths it ends with (which say where in
+    Zenoh, not what is wrong), a JSON5 syntax error as 'line L column C: expected ...'."""
+    text = _RUST_SOURCE.sub("", str(error)).strip()
+    pest = _PEST.search(text)
+    if pest is not None:
+        text = f"line {pest.group(1)} column {pest.group(2)}: {pest.group(3).strip()}"
+    return " ".join(text.split())
+
+
 def make_config(config: str | None, role: str) -> zenoh.Config:
     """A Zenoh config: the user's (file or inline JSON5) with this project's defaults where it leaves keys unset.
 
@@ -67,7 +85,8 @@ def make_config(config: str | None, role: str) -> zenoh.Config:
                 raise ExchangeError(f"{config}: no such Zenoh configuration file")
             cfg = zenoh.Config.from_file(config)
     except zenoh.ZError as e:
-        raise ExchangeError(f"{config}: not a valid Zenoh configuration ({e})") from None
+        shown = " ".join(config.split())   # an inline configuration may span lines: the message is one
+        raise ExchangeError(f"{shown}: not a valid Zenoh configuration ({zenoh_message(e)})") from None
 
     def unset(key: str) -> bool:
         return json.loads(cfg.get_json(key)) in (None, [], {})
@@ -127,7 +146,7 @@ class ZenohExchange:
         try:
             self.session = zenoh.open(make_config(config, role))
         except zenoh.ZError as e:
-            raise ExchangeError(f"cannot open the Zenoh session ({e})") from None
+            raise ExchangeError(f"cannot open the Zenoh session ({zenoh_message(e)})") from None
         self._subscribers = [
             self.session.declare_subscriber(f"{self.prefix}/*/map", self._on_sample),
             self.session.declare_subscriber(f"{self.prefix}/*/status", self._on_sample),
@@ -149,7 +168,7 @@ class ZenohExchange:
         try:
             self.session.close()
         except zenoh.ZError as e:  # already closed by the runtime at exit
-            log.debug("closing the Zenoh session: %s", e)
+            log.debug("closing the Zenoh session: %s", zenoh_message(e))
 
     def __enter__(self) -> ZenohExchange:
         return self
@@ -189,7 +208,7 @@ class ZenohExchange:
             status.put(status_data)
         except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
             self.send_errors += 1
-            log.warning("fleet exchange: could not send %s's map: %s", robot, e)
+            log.warning("fleet exchange: could not send %s's map: %s", robot, zenoh_message(e))
             return
         self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
         self.bytes_sent["status"] += len(status_data)
@@ -206,7 +225,7 @@ class ZenohExchange:
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
-            log.warning("fleet exchange: could not send %s's status: %s", robot, e)
+            log.warning("fleet exchange: could not send %s's status: %s", robot, zenoh_message(e))
             return
         self.bytes_sent["status"] += len(data)
 
