@@ -278,16 +278,20 @@ def matrix_quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
     return float(x), float(y), float(z), float(w)
 
 
-def encode_odometry(ns: int, frame: str, child: str, x: float, y: float, theta: float, v: float, w: float) -> bytes:
+def encode_odometry(ns: int, frame: str, child: str, x: float, y: float, theta: float, v: float, w: float,
+                    pose_covariance: np.ndarray, twist_covariance: np.ndarray) -> bytes:
+    """A nav_msgs/Odometry; ``pose_covariance`` and ``twist_covariance`` (6, 6) over (x, y, z, rotation about X, Y,
+    Z), written row-major (geometry_msgs/PoseWithCovariance, TwistWithCovariance). runtime/sensorlog.py's
+    ``OdometryCovariance`` makes them: an all-zero matrix would claim a perfectly known pose."""
     c = CdrWriter()
     c.header(ns, frame)
     c.string(child)
     for value in (x, y, 0.0, *yaw_quaternion(theta)):
         c.float64(value)
-    c.array(np.zeros(36), "<f8", 36)
+    c.array(np.asarray(pose_covariance, float).reshape(36), "<f8", 36)
     for value in (v, 0.0, 0.0, 0.0, 0.0, w):
         c.float64(value)
-    c.array(np.zeros(36), "<f8", 36)
+    c.array(np.asarray(twist_covariance, float).reshape(36), "<f8", 36)
     return bytes(c)
 
 

@@ -56,6 +56,9 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 
+from estimation.fastslam.config import FastSLAMConfig
+from estimation.fastslam.motion import increment_variance, propagate_covariance
+from estimation.geometry import between
 from runtime import ros2_messages as ros
 
 METADATA_NAME = "p3at-sensor-log"
@@ -134,6 +137,83 @@ def _fsync_folder(folder: Path) -> None:
         os.close(fd)
 
 
+UNUSED_AXIS_VARIANCE = 1e6   # m², rad², (m/s)², (rad/s)²: z, roll, pitch and their rates (OdometryCovariance)
+NOMINAL_SIP_PERIOD = 0.1     # s, ARCOS's default SIP cycle: the period of a log's first odometry record
+ODOMETRY_NOISE_KEYS = ("odom_xy_var_per_m", "odom_theta_var_per_rad", "odom_theta_var_per_m", "odom_var_floor")
+
+
+class OdometryCovariance:
+    """The covariances of the ``/R/odom`` messages (nav_msgs/Odometry), from the robot's odometry noise model.
+
+    The noise model is the random walk FastSLAM moves its particles with (estimation/fastslam/motion.py): an
+    increment (dx, dy, dθ) between two odometry poses has variances ``xy_var_per_m``·d on x and y,
+    ``theta_var_per_rad``·|dθ| + ``theta_var_per_m``·d on θ (d its length), plus ``var_floor``. Its values are the
+    log's own settings (metadata ``fastslam``: what the robot's filter used), else FastSLAMConfig's defaults
+    (= estimation.noise_model.P3AT_VIDERE_DEFAULT's odometry: NOT measured on a P3-AT, see its ``source``).
+
+    Pose (odometry frame): the covariance of the integrated odometry, propagated increment by increment from the
+    log's first record exactly as the filter propagates a pose (``propagate_covariance``: a heading error turns into
+    a cross-track error as the robot drives on), so it grows with the distance driven and the angle turned. The
+    log's first pose counts as known (its floor only): the runtime starts its log when the robot connects, where
+    the odometry frame has its origin; a log started later gives a lower bound.
+
+    Twist (base_link): each SIP carries its velocities, not an increment's error, so the variance written is that
+    of the mean velocity over the period since the previous SIP that the increment's random walk implies:
+    var(v) = var(dx) / dt², var(ω) = var(dθ) / dt² (dt of the log's first record: NOMINAL_SIP_PERIOD). At rest that
+    is the floor (1e-8 / 0.1² = 1e-6: σ 1 mm/s), never 0.
+
+    Axes a planar robot does not measure (z, roll, pitch; their rates) get UNUSED_AXIS_VARIANCE, a variance so large
+    that a filter fusing the message learns nothing on them, not 0 (which tells robot_localization and every other
+    consumer that the value is perfectly known) and not -1: -1 in element 0 is sensor_msgs/Imu's marker for a whole
+    estimate missing; geometry_msgs/PoseWithCovariance and TwistWithCovariance define no such marker, and a negative
+    variance makes the matrix invalid for a consumer that reads it as a covariance. 1e6 is what ROS drivers of
+    planar bases write there (e.g. the TurtleBot 2 / Kobuki-style ``covariances.py``: 1e6 on z, roll, pitch).
+    Row-major 6×6 over (x, y, z, rotation about X, Y, Z), REP-103 units.
+    """
+
+    def __init__(self, xy_var_per_m: float, theta_var_per_rad: float, theta_var_per_m: float,
+                 var_floor: float) -> None:
+        from types import SimpleNamespace
+
+        values = (xy_var_per_m, theta_var_per_rad, theta_var_per_m, var_floor)
+        if not all(math.isfinite(v) and v >= 0 for v in values):
+            raise ValueError(f"odometry noise must be finite and >= 0, not {values}")
+        # the field names estimation.fastslam.motion reads
+        self.noise = SimpleNamespace(**dict(zip(ODOMETRY_NOISE_KEYS, map(float, values), strict=True)))
+        self._t: float | None = None
+        self._pose: np.ndarray | None = None
+        self._cov = np.zeros((3, 3))
+
+    @classmethod
+    def from_settings(cls, fastslam: Mapping | None) -> OdometryCovariance:
+        """From a log's ``fastslam`` settings (FastSLAMConfig.to_dict); a missing or unusable value: the default."""
+        default = FastSLAMConfig()
+        given = fastslam if isinstance(fastslam, Mapping) else {}
+        values = []
+        for key in ODOMETRY_NOISE_KEYS:
+            v = given.get(key)
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+            values.append(float(v) if ok else float(getattr(default, key)))
+        return cls(*values)
+
+    def update(self, t: float, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pose covariance (6, 6), twist covariance (6, 6)) at the odometry pose (x, y, θ) of time ``t``."""
+        pose = np.asarray(pose, float)
+        previous = pose if self._pose is None else self._pose
+        delta = between(previous, pose)
+        dt = NOMINAL_SIP_PERIOD if self._t is None or not t > self._t else t - self._t
+        variance = increment_variance(delta, self.noise)
+        cov = propagate_covariance(previous[None], self._cov[None], delta, variance)[0]
+        self._cov = (cov + cov.T) / 2.0     # exactly symmetric, as a consumer may check
+        self._t, self._pose = float(t), pose
+        planar = [0, 1, 5]     # x, y, rotation about Z in the 6×6
+        pose_cov = np.diag(np.full(6, UNUSED_AXIS_VARIANCE))
+        pose_cov[np.ix_(planar, planar)] = self._cov
+        twist_cov = np.diag(np.full(6, UNUSED_AXIS_VARIANCE))
+        twist_cov[np.ix_(planar, planar)] = np.diag(variance) / dt ** 2
+        return pose_cov, twist_cov
+
+
 class SensorLogWriter:
     """Writes records to a log folder from any thread without blocking it (a bounded queue, own thread).
 
@@ -159,6 +239,7 @@ class SensorLogWriter:
         self._segment: _Segment | None = None
         self._last_flush = -math.inf
         self._sonar_poses: np.ndarray | None = None
+        self._odometry_covariance = OdometryCovariance.from_settings(self.metadata.get("fastslam"))
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.max_queued_bytes = max_queued_bytes
         self._queued_bytes = 0
@@ -299,8 +380,9 @@ class SensorLogWriter:
         odom, base = self._frame("odom"), self._frame("base_link")
         segment.write(f"/{self.robot}/sip", "p3at_msgs/RawSip", ns, ros.encode_raw_sip(
             ns, odom, t, raw, x, y, theta, float(r.get("v", 0.0)), float(r.get("w", 0.0)), bool(r.get("stalled"))))
+        pose_cov, twist_cov = self._odometry_covariance.update(t, np.array([x, y, theta]))
         segment.write(f"/{self.robot}/odom", "nav_msgs/Odometry", ns, ros.encode_odometry(
-            ns, odom, base, x, y, theta, float(r.get("v", 0.0)), float(r.get("w", 0.0))))
+            ns, odom, base, x, y, theta, float(r.get("v", 0.0)), float(r.get("w", 0.0)), pose_cov, twist_cov))
         T = np.eye(4)
         T[:3, :3] = [[np.cos(theta), -np.sin(theta), 0.0], [np.sin(theta), np.cos(theta), 0.0], [0.0, 0.0, 1.0]]
         T[:2, 3] = x, y
