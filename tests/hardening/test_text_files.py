@@ -116,8 +116,8 @@ WORLD = json.loads(DEFAULT_WORLD_PATH.read_text())
 
 
 @pytest.mark.parametrize("text, field", [
-    ("[" * 100_000 + "]" * 100_000, "<file>: JSON nested too deeply"),
-    ('{"version": 1, "feature_seed": ' + "9" * 5000 + "}", "<file>: invalid JSON"),
+    ("[" * 100_000 + "]" * 100_000, "w.json: JSON nested too deeply"),
+    ('{"version": 1, "feature_seed": ' + "9" * 5000 + "}", "w.json: invalid JSON"),
     (json.dumps({**WORLD, "walls": [{"from": [0, 0], "to": [1e300, 0]}]}), "walls[0].to"),
     (json.dumps({**WORLD, "walls": [{"from": [0, 0], "to": [1, 0]}] * 10_001}), "walls: 10001 entries"),
     (json.dumps({**WORLD, "feature_seed": 2**70}), "feature_seed"),
