@@ -28,8 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from estimation.landmark_map import LandmarkMap
-from fusion import alignment as fa
-from fusion.alignment import ROBUST, align, align_at, alignment_error_xy_theta, true_relative_pose
+from fusion import alignment_config
+from fusion.alignment import align, align_at, alignment_error_xy_theta, true_relative_pose
+from fusion.alignment_config import ROBUST
 from fusion.colocation import colocation_test
 from runtime.commands.options import positive_int
 
@@ -213,7 +214,7 @@ def false_pairs(total: int) -> None:
 def eval_fusion(argv: list[str]) -> None:
     """benchmarks/eval_fusion.py with the robust preset's co-location option on (the PRESETS entry every caller
     resolves 'robust' through, p3at fuse included)."""
-    fa.PRESETS["robust"] = dataclasses.replace(ROBUST, colocation=True)
+    alignment_config.PRESETS["robust"] = dataclasses.replace(ROBUST, colocation=True)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import eval_fusion
     sys.argv = ["eval_fusion.py", *argv]

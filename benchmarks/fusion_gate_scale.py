@@ -27,7 +27,8 @@ from fusion_sim import false_pair_kinds  # noqa: E402
 
 from estimation.geometry import transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
-from fusion.alignment import ROBUST, align, alignment_error, true_relative_pose  # noqa: E402
+from fusion.alignment import align, alignment_error, true_relative_pose  # noqa: E402
+from fusion.alignment_config import ROBUST  # noqa: E402
 from fusion.gate_scale import CHI2_2_MEDIAN, GATE_SCALES  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 

@@ -35,13 +35,8 @@ from fusion_sim import false_pair_kinds, load_world  # noqa: E402
 
 from estimation.geometry import between, compose, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
-from fusion.alignment import (  # noqa: E402
-    ROBUST,
-    AlignmentConfig,
-    align,
-    alignment_error_xy_theta,
-    true_relative_pose,
-)
+from fusion.alignment import align, alignment_error_xy_theta, true_relative_pose  # noqa: E402
+from fusion.alignment_config import ROBUST, AlignmentConfig  # noqa: E402
 from fusion.evidence import SELF_REPEAT_GATES  # noqa: E402
 from fusion.prior import StartPrior  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float  # noqa: E402

@@ -34,6 +34,7 @@ import fusion.alignment as al  # noqa: E402
 import fusion.ransac as rs  # noqa: E402
 from estimation.geometry import between, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
+from fusion.alignment_config import ROBUST  # noqa: E402
 
 CELL = 2.0               # metres: overlap cells
 CELL_LANDMARKS = 5       # landmarks of each map for a cell to count as mapped by both
@@ -47,7 +48,7 @@ def _best_in(problem, poses: np.ndarray, select: np.ndarray):
         return None
     counts = problem.distinct_counts(problem.masks(cand))
     pose = cand[int(np.argmax(counts))]
-    pose, _, mask, polished = rs.polish(replace(problem), pose, problem.masks(pose[None])[0], al.ROBUST)
+    pose, _, mask, polished = rs.polish(replace(problem), pose, problem.masks(pose[None])[0], ROBUST)
     return pose, polished.one_to_one(polished.masks(pose[None])[0], pose), polished
 
 
@@ -66,7 +67,7 @@ def describe(m1: LandmarkMap, m2: LandmarkMap, pose: np.ndarray, mask: np.ndarra
     r = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     z = problem.p1[mask, 2]
     cells, covered = _overlap_cells(m1, m2, pose, problem.p1[mask, :2])
-    guided = al.guided_supports(m1, m2, pose, al.ROBUST)
+    guided = al.guided_supports(m1, m2, pose, ROBUST)
     near, _ = cKDTree(m1.positions).query(transform_points(pose, m2.positions))
     return {
         "supports": int(mask.sum()), "descriptor": float(np.median(desc)),
@@ -83,12 +84,12 @@ def run(folder: Path, world) -> list[str]:
     fits = [_feature_fit(m, world.features)[0] for m in (m1, m2)]
     truth = between(fits[0], fits[1])
     a = al.align(m1, m2, "robust", np.random.default_rng(0))
-    pairs, _ = rs.putative_correspondences(m1, m2, al.ROBUST, np.random.default_rng(0))
-    problem = rs.correspondence_problem(m1, m2, pairs, al.ROBUST, False)
+    pairs, _ = rs.putative_correspondences(m1, m2, ROBUST, np.random.default_rng(0))
+    problem = rs.correspondence_problem(m1, m2, pairs, ROBUST, False)
     rng = np.random.default_rng(1)
     first, second = rng.integers(len(pairs), size=(2, 30_000))
-    poses, valid = rs.pair_hypotheses(problem.p1, problem.p2, first, second, al.ROBUST)
-    poses = poses[valid & rs.distance_preserved(problem, first, second, al.ROBUST)]
+    poses, valid = rs.pair_hypotheses(problem.p1, problem.p2, first, second, ROBUST)
+    poses = poses[valid & rs.distance_preserved(problem, first, second, ROBUST)]
     near = np.hypot(*(poses[:, :2] - truth[:2]).T) < 1.0
     groups = {"true": near & (np.cos(poses[:, 2] - truth[2]) > np.cos(0.14)),
               "half turn": np.cos(poses[:, 2] - truth[2] - np.pi) > np.cos(0.14)}

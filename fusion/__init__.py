@@ -6,19 +6,11 @@
 """
 from __future__ import annotations
 
-from .alignment import (
-    PAPER,
-    PRESETS,
-    ROBUST,
-    Alignment,
-    AlignmentConfig,
-    AlignmentStatistics,
-    align,
-    alignment_error,
-    true_relative_pose,
-)
-from .cache import AlignmentCache, map_fingerprint
+from .alignment import Alignment, AlignmentStatistics, align, alignment_error, true_relative_pose
+from .alignment_config import PAPER, PRESETS, ROBUST, AlignmentConfig
+from .cache import AlignmentCache
 from .errors import FusionError, IncompatibleMapsError, NoOverlapError
+from .fingerprint import map_fingerprint
 from .merging import common_landmarks, kalman_fuse, merge, merge_pairs
 from .multi import MultiFusion, fuse_all
 

@@ -55,6 +55,7 @@ import numpy as np
 from estimation.geometry import between, inverse, pose_to_matrix, transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
+from .alignment_config import AlignmentConfig, resolve_preset
 from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
 from .evidence import Evidence, decoy_chance_supports, evidence, log10_false_alarm, rival_offset
@@ -77,60 +78,6 @@ from .ransac import (
 if TYPE_CHECKING:
     from .cache import AlignmentCache
     from .prior import StartPrior
-
-
-@dataclass(frozen=True)
-class AlignmentConfig:
-    """Parameters of the RANSAC alignment.  ``paper`` and ``robust`` are the two presets."""
-
-    name: str
-    descriptor_threshold: float          # th0: largest accepted descriptor distance
-    ratio: float | None                  # Lowe ratio test + mutual matches; None = the paper's nearest match
-    pair_tolerance: float                # paper: th1 on |d'² − d²| (m²); robust: in σ of |d' − d|
-    min_pair_separation: float           # metres; shorter pairs fix no angle
-    support_threshold: float             # th2, metres (Euclidean 3-D; robust: largest gate radius)
-    min_supports: int                    # `min` (paper: the decision; robust: a floor, the evidence decides)
-    iterations: int                      # M (paper) or the cap of the adaptive count (robust)
-    adaptive: bool = False               # iteration count from the inlier ratio and `confidence`
-    confidence: float = 0.999
-    min_iterations: int = 32
-    covariance_gating: bool = False      # gates from the landmark covariances instead of th2
-    refine: bool = False                 # weighted least squares on all supports + covariance
-    significance: float | None = None    # largest accepted false-alarm probability of the supports
-    min_spread: float = 0.0              # metres, principal standard deviation of the supports (xy)
-    position_floor: float = 0.02         # metres, added in quadrature to every landmark's std
-    min_gate: float = 0.0                # metres, smallest support-gate radius in the plane
-    inflate_gate: bool = False           # scale the gate by the supports' own residuals (see module doc)
-    decoys: int = 1000                   # decoy transforms scored to measure the chance supports
-    gate_scale: str = "inflate"          # "residual": the supports' residuals may also narrow it (fusion.gate_scale)
-    # where a map's repeat of itself is counted: "own", in the gate its own covariances give (capped at
-    # support_threshold); "pair", in the pair's final gate scale, as the decoys and the rival are (see self_structure)
-    self_repeat_gate: str = "own"
-    # two robots cannot be in one place at one time (fusion/colocation.py, session 12; option, off): an alignment that
-    # puts the robots' bodies together at a common time is not found, and a rival that does is no rival
-    colocation: bool = False
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-PAPER = AlignmentConfig(
-    name="paper", descriptor_threshold=2.0, ratio=None, pair_tolerance=2.0, min_pair_separation=0.0,
-    support_threshold=0.2, min_supports=20, iterations=70,
-)
-# min_supports 4: two supports define a hypothesis, two more are the least that can check it; above that
-# the false-alarm probability decides (10⁻⁶, Bonferroni-corrected).  min_gate 0.3 m: a landmark's position
-# in its robot's start frame is rarely better than a few decimetres once the robot's pose error is counted,
-# which FastSLAM's per-particle covariances leave out (MRCLAM: 4–7 mm claimed, 0.04–0.27 m real).  gate_scale
-# "residual": honest start-frame covariances hold drift the transform removes, so the supports' residuals may also
-# narrow the gate to that floor (fusion/gate_scale.py; docs/fusion.md "Session 8: the alignment's gate").
-ROBUST = AlignmentConfig(
-    name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
-    support_threshold=1.0, min_supports=4, iterations=2000, adaptive=True, confidence=0.9999,
-    covariance_gating=True, refine=True, significance=1e-6, min_spread=0.3, min_gate=0.3, inflate_gate=True,
-    gate_scale="residual", self_repeat_gate="pair",
-)
-PRESETS: dict[str, AlignmentConfig] = {"paper": PAPER, "robust": ROBUST}
 
 
 @dataclass(frozen=True)
@@ -377,15 +324,6 @@ def support_spread(xy: np.ndarray) -> tuple[float, float]:
         return 0.0, 0.0
     ev = np.linalg.eigvalsh(np.cov(xy.T))
     return float(np.sqrt(max(ev[-1], 0.0))), float(np.sqrt(max(ev[0], 0.0)))
-
-
-def resolve_preset(preset: str | AlignmentConfig) -> AlignmentConfig:
-    if isinstance(preset, AlignmentConfig):
-        return preset
-    try:
-        return PRESETS[preset]
-    except KeyError:
-        raise IncompatibleMapsError(f"unknown alignment preset {preset!r} (choose from {sorted(PRESETS)})") from None
 
 
 

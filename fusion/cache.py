@@ -13,7 +13,6 @@ generator seeded by the map's content, in :func:`fusion.align` as here, so it is
 """
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from dataclasses import astuple
 
@@ -21,24 +20,10 @@ import numpy as np
 
 from estimation.landmark_map import LandmarkMap
 
-
-def map_fingerprint(landmark_map: LandmarkMap) -> bytes:
-    """16-byte digest of everything an alignment reads from a map (positions, covariances, descriptors,
-    ``metadata["external_ids"]``); equal maps give equal digests, a changed landmark another."""
-    h = hashlib.blake2b(digest_size=16)
-    for arr in (landmark_map.positions, landmark_map.covariances, landmark_map.descriptors):
-        a = np.ascontiguousarray(arr)
-        h.update(str((a.dtype.str, a.shape)).encode())
-        h.update(a.tobytes())
-    ids = landmark_map.metadata.get("external_ids")
-    h.update(b"ids:" + (b"-" if ids is None else repr([int(v) for v in np.asarray(ids).reshape(-1)]).encode()))
-    return h.digest()
-
-
-def content_rng(landmark_map: LandmarkMap, fingerprint: bytes | None = None) -> np.random.Generator:
-    """A generator seeded by the map's content: what is computed from one map alone depends on that map only."""
-    fp = map_fingerprint(landmark_map) if fingerprint is None else fingerprint
-    return np.random.default_rng(int.from_bytes(fp[:8], "little"))
+from .alignment import align
+from .alignment_config import resolve_preset
+from .evidence import self_structure
+from .fingerprint import content_rng, map_fingerprint
 
 
 class AlignmentCache:
@@ -65,7 +50,6 @@ class AlignmentCache:
     def self_structure(self, landmark_map: LandmarkMap, config, inflation: float | None = None) -> int:
         """``fusion.evidence.self_structure`` of the map, computed once per map content, configuration and gate scale
         (``inflation``: the pair's, with ``self_repeat_gate="pair"``)."""
-        from .evidence import self_structure
 
         fp = map_fingerprint(landmark_map)
         key = (fp, astuple(config), inflation)
@@ -82,8 +66,6 @@ class AlignmentCache:
               prior=None):
         """:func:`fusion.align`, or the alignment stored for these two maps' contents, this preset and this start
         prior (``fusion.prior.StartPrior`` or None)."""
-        from .alignment import align, resolve_preset
-
         config = resolve_preset(preset)
         prior_key = None if prior is None else (prior.mean.tobytes(), prior.covariance.tobytes(), prior.level)
         key = (map_fingerprint(map1), map_fingerprint(map2), astuple(config), prior_key)

@@ -35,7 +35,8 @@ import numpy as np
 
 from estimation.geometry import transform_points, wrap_angle
 
-from .cache import AlignmentCache, map_fingerprint
+from .cache import AlignmentCache
+from .fingerprint import map_fingerprint
 
 if TYPE_CHECKING:
     from .alignment import Alignment
@@ -124,7 +125,7 @@ class ConfirmingCache:
         elif self.t - earlier.t < self.min_gap:
             confirmed, why = False, f"the fusion at t={earlier.t:.0f}s is less than {self.min_gap:g} s before"
         else:
-            from .alignment import resolve_preset
+            from .alignment_config import resolve_preset
 
             config = resolve_preset(preset)
             points = map2.positions[result.supports[:, 1]] if len(result.supports) else None

@@ -17,8 +17,8 @@ from scipy.special import gammaincinv, pdtrc
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
-from .cache import content_rng
 from .errors import IncompatibleMapsError
+from .fingerprint import content_rng
 from .matching import self_correspondences
 from .ransac import (
     CorrespondenceProblem,
@@ -31,7 +31,7 @@ from .ransac import (
 )
 
 if TYPE_CHECKING:
-    from .alignment import AlignmentConfig
+    from .alignment_config import AlignmentConfig
 
 # Descriptor distances computed at most when a map is matched against itself (self_structure).
 SELF_SEARCH_PAIRS = 20_000_000

@@ -33,7 +33,8 @@ from scipy.spatial import cKDTree
 from estimation.geometry import rot_z, transform_points
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import PRESETS, Alignment
+from .alignment import Alignment
+from .alignment_config import PRESETS
 from .errors import IncompatibleMapsError
 from .intersection import covariance_intersection
 from .pose_covariance import point_jacobians

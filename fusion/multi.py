@@ -19,7 +19,8 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from estimation.geometry import transform_points
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import PRESETS, Alignment, AlignmentConfig, align
+from .alignment import Alignment, align
+from .alignment_config import PRESETS, AlignmentConfig
 from .cache import AlignmentCache
 from .errors import IncompatibleMapsError, NoOverlapError
 from .merging import (

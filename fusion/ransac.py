@@ -21,7 +21,7 @@ from .gate_scale import residual_gate_scale, settled_scale
 from .matching import distinctive_correspondences, nearest_correspondences, query_subset
 
 if TYPE_CHECKING:
-    from .alignment import AlignmentConfig
+    from .alignment_config import AlignmentConfig
 
 # χ² quantiles at 0.999 for 1, 2 and 3 degrees of freedom (gates that keep 99.9 % of true supports).
 CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266}

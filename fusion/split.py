@@ -41,7 +41,8 @@ from estimation.fastslam.self_check import KEY as SELF_CHECK_KEY
 from estimation.geometry import wrap_angle
 from estimation.landmark_map import LandmarkMap
 
-from .alignment import Alignment, AlignmentConfig, align, align_at, resolve_preset
+from .alignment import Alignment, align, align_at
+from .alignment_config import AlignmentConfig, resolve_preset
 from .cache import AlignmentCache
 from .errors import NoOverlapError
 from .multi import MultiFusion, fuse_all, pairwise_alignments

@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import ROBUST, align, alignment_error
-from fusion.cache import content_rng
 from fusion.evidence import self_structure
+from fusion.fingerprint import content_rng
 from fusion.gate_scale import CHI2_2_MEDIAN, residual_gate_scale, settled_scale
 from fusion.ransac import refine_pose
 

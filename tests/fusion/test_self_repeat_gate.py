@@ -16,7 +16,7 @@ import pytest
 from estimation.geometry import inverse, transform_points
 from estimation.landmark_map import LandmarkMap
 from fusion import align
-from fusion.alignment import ROBUST
+from fusion.alignment_config import ROBUST
 from fusion.errors import IncompatibleMapsError
 from fusion.evidence import self_structure
 
