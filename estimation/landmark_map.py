@@ -50,6 +50,7 @@ import numpy as np
 from .errors import MapFileError
 from .fileio import atomic_write_bytes
 from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, read_map_arrays
+from .ply import write_ply
 from .safe_npz import read_npz
 
 
@@ -156,8 +157,6 @@ class LandmarkMap:
 
     def export_ply(self, path: str | os.PathLike, binary: bool = False) -> None:
         """Write the map as a PLY point cloud with colour, robot and covariance per point (see estimation.ply)."""
-        from .ply import write_ply  # ply.py imports this module
-
         write_ply(self, path, binary)
 
 

@@ -15,11 +15,14 @@ One vertex per landmark with these properties, in this order::
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .fileio import atomic_write_bytes
-from .landmark_map import LandmarkMap
+
+if TYPE_CHECKING:
+    from .landmark_map import LandmarkMap
 
 # Robot colours (Okabe-Ito, readable by colour-blind readers), cycled past eight robots.
 ROBOT_COLOURS = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],

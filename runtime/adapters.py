@@ -31,18 +31,6 @@ def stereo_geometry(calibration: StereoCalibration) -> StereoGeometry:
                                              cy=calibration.cy, baseline=calibration.baseline)
 
 
-def geometry_to_dict(g: StereoGeometry) -> dict:
-    return {"fx": g.fx, "fy": g.fy, "cx": g.cx, "cy": g.cy, "baseline": g.baseline, "head_pose": list(g.head_pose),
-            "left_camera_pose": None if g.left_camera_pose is None else list(g.left_camera_pose)}
-
-
-def geometry_from_dict(d: dict) -> StereoGeometry:
-    pose = d.get("left_camera_pose")
-    return StereoGeometry(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), float(d["baseline"]),
-                          tuple(float(v) for v in d.get("head_pose", (0.12, 0.0, 0.5, 0.0, 0.0, 0.0))),
-                          None if pose is None else tuple(float(v) for v in pose))
-
-
 def left_camera_mount(g: StereoGeometry) -> tuple[float, float, float]:
     """(x, y, z) of the left optical centre in base_link (for drawing the camera)."""
     if g.left_camera_pose is not None:

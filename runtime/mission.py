@@ -281,9 +281,8 @@ class Mission:
                                        steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks)
         sensor_log = None
         if cfg.log_sensors:
-            from runtime.adapters import geometry_to_dict
             sensor_log = SensorLogWriter(cfg.out / f"{name}-log", {
-                "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry_to_dict(geometry),
+                "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry.to_dict(),
                 "true_start_pose": None if pose is None else [float(v) for v in pose], "seed": onboard_config.seed,
                 "fastslam": onboard_config.fastslam.to_dict(), "harris": dataclasses.asdict(frontend.harris),
                 "t0": t0})

@@ -16,10 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from estimation.fastslam import FastSLAMConfig
-from estimation.frontend import FrontEndConfig, HarrisConfig
+from estimation.frontend import FrontEndConfig, HarrisConfig, StereoGeometry
 from estimation.landmark_map import LandmarkMap
 from estimation.observations import StereoObservations
-from runtime.adapters import geometry_from_dict
 from runtime.onboard import CameraFrame, OdometryBuffer, OnboardConfig, SlamCore
 from runtime.sensorlog import SensorLog, SensorLogError
 
@@ -49,7 +48,7 @@ def onboard_config_from_log(log: SensorLog, *, particles: int | None = None, see
     meta = log.metadata
     try:
         fastslam = FastSLAMConfig.from_dict(dict(meta.get("fastslam") or {}))
-        geometry = geometry_from_dict(meta["geometry"]) if meta.get("geometry") else None
+        geometry = StereoGeometry.from_dict(meta["geometry"]) if meta.get("geometry") else None
         harris = meta.get("harris")
         harris = HarrisConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in harris.items()}) \
             if harris else HarrisConfig()

@@ -58,6 +58,7 @@ from mcap.writer import Writer as McapWriter
 
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.motion import increment_variance, propagate_covariance
+from estimation.frontend import StereoGeometry
 from estimation.geometry import between
 from runtime import ros2_messages as ros
 
@@ -354,9 +355,7 @@ class SensorLogWriter:
     def _write_static(self, segment: _Segment, t: float) -> None:
         transforms = []
         if self.geometry is not None:
-            from runtime.adapters import geometry_from_dict
-
-            g = geometry_from_dict(self.geometry)
+            g = StereoGeometry.from_dict(self.geometry)
             left = g.left_camera_to_base()
             right_in_left = np.eye(4)
             right_in_left[0, 3] = g.baseline

@@ -48,6 +48,21 @@ class StereoGeometry:
         if len(self.head_pose) != 6:
             raise FrontEndError(f"head_pose must be (x, y, z, roll, pitch, yaw), got {self.head_pose}")
 
+    def to_dict(self) -> dict:
+        """Plain numbers for a file's settings (a sensor log's metadata); :meth:`from_dict` reads them back."""
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy, "baseline": self.baseline,
+                "head_pose": list(self.head_pose),
+                "left_camera_pose": None if self.left_camera_pose is None else list(self.left_camera_pose)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> StereoGeometry:
+        """The geometry :meth:`to_dict` wrote (``head_pose`` defaults to the virtual head's). A missing field is a
+        KeyError, a field that is no number a TypeError or ValueError: the reader of the file names it."""
+        pose = d.get("left_camera_pose")
+        return cls(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]), float(d["baseline"]),
+                   tuple(float(v) for v in d.get("head_pose", cls.head_pose)),
+                   None if pose is None else tuple(float(v) for v in pose))
+
     @classmethod
     def with_head_matrix(cls, head_to_base: np.ndarray, **intrinsics: float) -> StereoGeometry:
         """Geometry whose head pose is given as a 4×4 head-to-base_link transform."""

@@ -1,7 +1,10 @@
 """Triangulation: projection round trip, frames, covariance against Monte Carlo, dropping far points."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -84,3 +87,21 @@ def test_far_and_tiny_disparities_are_dropped():
     g, noise = StereoGeometry(), TriangulationNoise()  # fx·B = 46.8 px·m: 12 m is d = 3.9 px
     keep = keep_triangulable(np.array([2.0, 3.5, 3.9, 4.0, 60.0, -5.0]), g, noise)
     assert keep.tolist() == [False, False, True, True, True, False]
+
+
+_finite = st.floats(-10.0, 10.0, allow_nan=False)
+
+
+@given(fx=st.floats(1.0, 5000.0), fy=st.floats(1.0, 5000.0), cx=_finite, cy=_finite, baseline=st.floats(0.01, 1.0),
+       head_pose=st.tuples(*[_finite] * 6), left=st.none() | st.tuples(*[_finite] * 16))
+def test_geometry_settings_round_trip(fx, fy, cx, cy, baseline, head_pose, left):
+    """A sensor log's settings hold the geometry as plain numbers (JSON); reading them back gives the same geometry."""
+    g = StereoGeometry(fx, fy, cx, cy, baseline, head_pose, left)
+    assert StereoGeometry.from_dict(json.loads(json.dumps(g.to_dict()))) == g
+
+
+def test_geometry_settings_without_a_field_name_it():
+    d = StereoGeometry().to_dict()
+    del d["baseline"]
+    with pytest.raises(KeyError, match="baseline"):
+        StereoGeometry.from_dict(d)
