@@ -29,7 +29,8 @@ class PairResult:
     false_alarm_probability: probability that maps which do not overlap give this much support (the
     alignment's confidence; for an alignment composed through other maps, the weakest link's);
     required_supports: fewest supports that would have been accepted on these maps; second_best_supports:
-    the best hypothesis distinct from the winner (repeated structure); low_confidence: found but with a
+    the best hypothesis distinct from the winner (repeated structure); self_repeat_supports: the best repeat of
+    either map onto itself; low_confidence: found but with a
     false-alarm probability above LOW_CONFIDENCE_PROBABILITY; note: why not found, or how it was reached.
     """
 
@@ -47,6 +48,7 @@ class PairResult:
     false_alarm_probability: float | None = None
     required_supports: int = 0
     second_best_supports: int = 0
+    self_repeat_supports: int = 0        # the best repeat of either map onto itself (fusion.evidence.self_structure)
     low_confidence: bool = False
     sigma_xy: float | None = None        # m, 1σ of the alignment's translation (major axis); None: no covariance
     sigma_theta: float | None = None     # rad, 1σ of its rotation
@@ -89,6 +91,7 @@ class PairResult:
         self.false_alarm_probability = float(p) if np.isfinite(p) else None
         self.required_supports = int(st.required_supports)
         self.second_best_supports = int(st.second_best_supports)
+        self.self_repeat_supports = int(st.self_repeat_supports)
         prior = getattr(alignment, "prior", None)
         self.prior = "" if prior is None else prior.text()
         self.colocation = str(getattr(st, "colocation", ""))

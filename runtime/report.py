@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import re
 import textwrap
 from collections.abc import Mapping
 
@@ -112,10 +111,6 @@ def split_brief(pair: Mapping) -> str:
     return f"{who} flagged itself and was split at its alarm: {brief}"
 
 
-# fusion/alignment.py's reason when a map's repeat of itself, larger than any rival transform, decided
-_SELF_REPEAT = re.compile(r"ambiguous: one map repeats itself under a distinct transform with (\d+) supports")
-
-
 def not_aligned_reason(pair: Mapping) -> str:
     """Why a pair (a ``PairResult.as_dict()``) was not aligned, in one short clause: its supports against the
     number these maps need, with the chance of that many by accident, when that decided; else the fusion's note."""
@@ -125,9 +120,9 @@ def not_aligned_reason(pair: Mapping) -> str:
         why = f"{supports} supports, {needed} needed"
         if pair.get("false_alarm_probability") is not None:
             why += f" (P(chance) {pair['false_alarm_probability']:.1e})"
-        repeat = _SELF_REPEAT.match(note)
-        if repeat is not None:    # a map's own repeat set the number needed (fusion/alignment.py), not a rival
-            why += f"; ambiguous: one map repeats itself under a distinct transform with {repeat.group(1)} supports"
+        repeat, rival = pair.get("self_repeat_supports", 0), pair.get("second_best_supports", 0)
+        if note.startswith("ambiguous") and repeat > rival:  # a map's own repeat set the number needed, not a rival
+            why += f"; ambiguous: one map repeats itself under a distinct transform with {repeat} supports"
         elif note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
             why += f"; ambiguous: a distinct transform gathers {pair.get('second_best_supports', 0)}"
         if note.startswith("the maps' best alignment contradicts the prior"):   # fusion/prior.py
