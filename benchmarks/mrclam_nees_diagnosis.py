@@ -1,0 +1,283 @@
+"""Why MRCLAM known-ID maps fail the landmark NEES bound: the map frame's error against the drift the export claims.
+
+Run from the repository root:
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_nees_diagnosis [--robots 1,2,3,4,5] [--seeds 0,1]
+        [--set FIELD=VALUE ...] [--export-lever] [--one-landmark-heading] [--no-windows] [--landmarks] [--json]
+
+Each robot runs through `p3at slam dataset`'s code path (``run_landmark_log``, known-ID association, own noise
+model) with the filter recorded at every update. For every landmark of the exported map:
+
+- its error e in the start frame, split into the *frame part* f (where the landmark would be if it were placed
+  exactly, relative to the pose that made it, from that pose as the final best particle's ancestry has it:
+  f = x̂_c ⊕ (x_c ⊖ p) − p, x_c the true creation pose, x̂_c the estimated one, p the true landmark) and the
+  *shape part* e − f (how far the landmark sits from the truth relative to the pose that made it);
+- the NEES of e under the exported covariance Σ + C_l, of f under C_l = H D_l Hᵀ (the drift's share), of e − f
+  under Σ (the mixture's share), and the pose NEES (χ²₃) of the creation pose's error under D_l;
+- the same split for the landmarks outside the χ²₂ 95 % bound.
+
+And per run: the live best particle's pose error against the drift tracker's D_r at every frame (χ²₃, the
+position's χ²₂ and the heading's e_θ²/D_θθ; by the number of landmarks the frame matched, with the sum of the
+log-changes of D_r's heading variance in the update), and whether the motion model covers dead reckoning over
+windows of 5-120 s (the noise model's random walk is fitted on 5 s windows; MRCLAM's odometry errors are correlated
+over longer spans). The ``eval_*`` figures are `eval_mrclam`'s (the same ``map_scores``).
+
+``--export-lever``: the filter's tracker is replaced by ``export_drift.ExportLeverDriftTracker`` (the gate reads the
+plain tracker, so every estimate is the same; the export carries the heading's lever); ``--one-landmark-heading``:
+the same with ``one_landmark_heading=True`` (docs/fastslam.md, "Session 13 ... (N)"). The ``export_drift`` figures
+are the live pose against that tracker's D_r.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from estimation import dataset_slam  # noqa: E402
+from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from estimation.fastslam.drift import DriftTracker  # noqa: E402
+from estimation.fastslam.export_drift import ExportLeverDriftTracker  # noqa: E402
+from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
+from estimation.geometry import between, compose, wrap_angle  # noqa: E402
+from estimation.landmark_scores import CHI2_95, points_nees  # noqa: E402
+from estimation.noise_model import estimate_noise, with_fastslam  # noqa: E402
+
+WINDOWS_S = (5.0, 20.0, 60.0, 120.0)
+
+
+class RecordingFastSLAM(FastSLAM):
+    """FastSLAM that keeps, after every update, the drift tracker's D_r, the best particle's pose and the ids made."""
+
+    last: RecordingFastSLAM | None = None
+    export_lever = False                 # --export-lever: the drift's lever in the export only (export_drift.py)
+    one_landmark_heading = False         # --one-landmark-heading: and a one-landmark frame keeps the heading
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if self.export_lever and type(self.drift) is DriftTracker:
+            self.drift = ExportLeverDriftTracker(self.one_landmark_heading)
+        self.frames: list[dict] = []
+        RecordingFastSLAM.last = self
+
+    def update(self, observations, *args, **kwargs):
+        predicted = self.drift.robot.copy()
+        report = super().update(observations, *args, **kwargs)
+        lever = getattr(self.drift, "lever_robot", None)   # the export's D_r (ExportLeverDriftTracker)
+        self.frames.append({"robot_drift": self.drift.robot.copy(), "best_pose": self.poses[self._best].copy(),
+                            "export_drift": None if lever is None else lever.copy(), "predicted_drift": predicted,
+                            "matched": len(np.unique(report.best_matches[report.best_matches >= 0])),
+                            "new": np.unique(report.new_landmark_ids[report.new_landmark_ids >= 0])})
+        return report
+
+
+def run(log, noise, config, seed: int) -> tuple:
+    """The run through ``run_landmark_log`` with a recording filter: (DatasetRun, the filter)."""
+    original = dataset_slam.FastSLAM
+    dataset_slam.FastSLAM = RecordingFastSLAM
+    try:
+        result = dataset_slam.run_landmark_log(log, config, np.random.default_rng(seed), noise=noise,
+                                               association="id", robot=log.name)
+    finally:
+        dataset_slam.FastSLAM = original
+    return result, RecordingFastSLAM.last
+
+
+def landmark_split(result, slam: RecordingFastSLAM, log) -> dict:
+    """Per landmark of the exported map: the start-frame error, its frame and shape parts and their NEES."""
+    lmap = result.map
+    meta = lmap.metadata
+    true_start = np.asarray(meta["true_start_pose"], float)
+    times = result.true_trajectory[:, 0]
+    truth_start = between(true_start, result.true_trajectory[:, 1:])            # (T, 3) true poses, start frame
+    trajectory = slam.trajectory()[1:, 1:]                                      # the final best particle's ancestry
+    created = {}
+    for k, frame in enumerate(slam.frames):
+        for lid in frame["new"]:
+            created[int(lid)] = k                                              # the latest creation of that id
+    external = slam.external_ids(lmap.ids)
+    index = {int(i): k for k, i in enumerate(log.truth_ids)}
+    rows = []
+    drift_c = slam.drift.landmark_covariances(lmap.ids)                         # C_l (N, 3, 3)
+    pose_d = lmap.drift_covariances                                             # D_l (N, 3, 3)
+    for n, (lid, ext) in enumerate(zip(lmap.ids, external, strict=True)):
+        if int(ext) not in index or int(lid) not in created:
+            continue
+        k = created[int(lid)]
+        world = np.append(log.truth_positions[index[int(ext)]], 0.0)
+        p = between(true_start, world[None])[0, :2]                            # the true landmark, start frame
+        relative = between(truth_start[k][None], np.append(p, 0.0)[None])       # p seen from the true creation pose
+        f = compose(trajectory[k][None], relative)[0, :2] - p                   # the frame part
+        e = lmap.positions[n, :2] - p
+        pose_error = trajectory[k] - truth_start[k]
+        pose_error[2] = wrap_angle(pose_error[2])
+        total = lmap.covariances[n, :2, :2]
+        c = drift_c[n, :2, :2]
+        d = pose_d[n]
+        pose_nees = float(pose_error @ np.linalg.solve(d, pose_error)) if np.linalg.cond(d) < 1e12 else np.nan
+        rows.append({"id": int(ext), "created_s": float(times[k] - times[0]), "error_m": float(np.hypot(*e)),
+                     "frame_m": float(np.hypot(*f)), "shape_m": float(np.hypot(*(e - f))),
+                     "nees": float(points_nees(e[None], total[None])[0]),
+                     "frame_nees": float(points_nees(f[None], c[None])[0]),
+                     "shape_nees": float(points_nees((e - f)[None], (total - c)[None])[0]),
+                     "nees_without_frame": float(points_nees((e - f)[None], total[None])[0]),
+                     "creation_pose_nees": pose_nees,
+                     "creation_heading_error_rad": float(pose_error[2]),
+                     "creation_heading_sd_rad": float(np.sqrt(max(d[2, 2], 0.0))),
+                     "creation_position_error_m": float(np.hypot(*pose_error[:2])),
+                     "creation_position_sd_m": float(np.sqrt(max(0.5 * (d[0, 0] + d[1, 1]), 0.0))),
+                     "sd_m": float(np.sqrt(0.5 * np.trace(total))), "drift_sd_m": float(np.sqrt(0.5 * np.trace(c)))})
+    return {"landmarks": rows}
+
+
+def live_drift(result, slam: RecordingFastSLAM) -> dict:
+    """The live best particle's pose error against the tracker's D_r at every frame."""
+    true_start = np.asarray(result.map.metadata["true_start_pose"], float)
+    truth = between(true_start, result.true_trajectory[:, 1:])
+    out = {}
+    for key, name in (("robot_drift", "drift"), ("export_drift", "export_drift")):
+        nees, heading, position = [], [], []
+        for k, frame in enumerate(slam.frames):
+            d = frame[key]
+            if d is None:
+                break
+            e = frame["best_pose"] - truth[k]
+            e[2] = wrap_angle(e[2])
+            if np.linalg.cond(d) < 1e12:
+                nees.append(float(e @ np.linalg.solve(d, e)))
+                position.append(float(e[:2] @ np.linalg.solve(d[:2, :2], e[:2])))
+            heading.append(float(e[2] ** 2 / max(d[2, 2], 1e-300)))
+        if not heading:
+            continue
+        nees, heading, position = np.array(nees), np.array(heading), np.array(position)
+        counts = np.array([frame["matched"] for frame in slam.frames[:len(heading)]])
+        change = np.array([np.log(max(frame[key][2, 2], 1e-300) / max(frame["predicted_drift"][2, 2], 1e-300))
+                           for frame in slam.frames[:len(heading)]]) if key == "robot_drift" else None
+        for label, sel in (("1", counts == 1), ("2", counts == 2), ("3+", counts >= 3)):
+            if sel.any():   # frames by the number of landmarks the best particle matched
+                out[f"heading_vs_{name}_within_chi2_95_matched_{label}"] = float(np.mean(heading[sel] < CHI2_95[1]))
+                if change is not None:
+                    out[f"frames_matched_{label}"] = float(np.mean(sel))
+                    out[f"heading_variance_log_change_sum_matched_{label}"] = float(np.sum(change[sel]))
+        out.update({f"pose_vs_{name}_nees_median": float(np.median(nees)),
+                    f"pose_vs_{name}_within_chi2_95": float(np.mean(nees < CHI2_95[3])),
+                    f"position_vs_{name}_within_chi2_95": float(np.mean(position < CHI2_95[2])),
+                    f"heading_vs_{name}_within_chi2_95": float(np.mean(heading < CHI2_95[1]))})
+    return out
+
+
+def odometry_windows(log, noise, config) -> dict:
+    """Dead reckoning over windows of WINDOWS_S against the motion model propagated over the same steps (χ²₃)."""
+    times = np.unique(log.sighting_times)
+    odometry = log.odometry_pose(noise.odometry_times(times))
+    increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+    truth = log.true_pose(times)
+    cfg = with_fastslam(noise, config)
+    out = {}
+    for window in WINDOWS_S:
+        nees, heading = [], []
+        start = 0
+        while True:
+            stop = int(np.searchsorted(times, times[start] + window))
+            if stop >= len(times):
+                break
+            pose, cov = np.zeros(3), np.zeros((3, 3))
+            for k in range(start, stop):
+                delta = increments[k]
+                variance = increment_variance(delta, cfg)
+                cov = propagate_covariance(pose[None], cov[None], delta, variance)[0]
+                pose = compose(pose[None], delta[None])[0]
+            true = between(truth[start][None], truth[stop][None])[0]
+            e = pose - true
+            e[2] = wrap_angle(e[2])
+            nees.append(float(e @ np.linalg.solve(cov + 1e-12 * np.eye(3), e)))
+            heading.append(float(e[2] ** 2 / max(cov[2, 2], 1e-300)))
+            start = stop
+        if nees:
+            out[f"{window:g}s"] = {"windows": len(nees), "nees_median": float(np.median(nees)),
+                                   "within_chi2_95": float(np.mean(np.array(nees) < CHI2_95[3])),
+                                   "heading_ratio_median": float(np.median(heading))}
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    """The split's figures over a map's landmarks (and over those outside the bound)."""
+    if not rows:
+        return {}
+    a = {k: np.array([r[k] for r in rows], float) for k in rows[0]}
+    out_bound = a["nees"] >= CHI2_95[2]
+    s = {"landmarks": len(rows), "within": float(np.mean(~out_bound)), "nees_median": float(np.median(a["nees"])),
+         "sd_median_m": float(np.median(a["sd_m"])), "drift_sd_median_m": float(np.median(a["drift_sd_m"])),
+         "error_median_m": float(np.median(a["error_m"])), "frame_median_m": float(np.median(a["frame_m"])),
+         "shape_median_m": float(np.median(a["shape_m"])),
+         "frame_within_under_drift": float(np.mean(a["frame_nees"] < CHI2_95[2])),
+         "shape_within_under_mixture": float(np.mean(a["shape_nees"] < CHI2_95[2])),
+         "within_if_frame_zero": float(np.mean(a["nees_without_frame"] < CHI2_95[2])),
+         "creation_pose_nees_median": float(np.nanmedian(a["creation_pose_nees"])),
+         "creation_heading_abs_error_median_rad": float(np.median(np.abs(a["creation_heading_error_rad"]))),
+         "creation_heading_sd_median_rad": float(np.median(a["creation_heading_sd_rad"])),
+         "creation_position_error_median_m": float(np.median(a["creation_position_error_m"])),
+         "creation_position_sd_median_m": float(np.median(a["creation_position_sd_m"])),
+         "outside": int(out_bound.sum())}
+    if out_bound.any():
+        s["outside_frame_median_m"] = float(np.median(a["frame_m"][out_bound]))
+        s["outside_shape_median_m"] = float(np.median(a["shape_m"][out_bound]))
+        s["outside_frame_larger"] = int(np.sum(a["frame_m"][out_bound] > a["shape_m"][out_bound]))
+    return s
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--seeds", default="0")
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    parser.add_argument("--no-windows", action="store_true", help="skip the dead-reckoning windows")
+    parser.add_argument("--landmarks", action="store_true", help="print every landmark's row")
+    parser.add_argument("--export-lever", action="store_true", help="export the drift with the heading's lever, "
+                        "the gate's tracker unchanged (estimation/fastslam/export_drift.py)")
+    parser.add_argument("--one-landmark-heading", action="store_true", help="with the export's lever: a frame that "
+                        "matched one landmark keeps the predicted heading uncertainty as a turn about it")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    RecordingFastSLAM.export_lever = args.export_lever or args.one_landmark_heading
+    RecordingFastSLAM.one_landmark_heading = args.one_landmark_heading
+    if not args.data.is_dir():
+        print(f"mrclam_nees_diagnosis: no data set at {args.data}", file=sys.stderr)
+        return 2
+    overrides = config_overrides(args.set)
+    out = {}
+    for r in (int(x) for x in args.robots.split(",")):
+        log = read_mrclam(args.data, r)
+        noise = estimate_noise([log]).model
+        config = range_bearing_config(**overrides)
+        windows = {} if args.no_windows else odometry_windows(log, noise, config)
+        for seed in (int(x) for x in args.seeds.split(",")):
+            result, slam = run(log, noise, config, seed)
+            split = landmark_split(result, slam, log)
+            entry = {"ate_m": result.metrics["ate_m"],
+                     "eval_within": result.metrics["landmark_nees_within_bound"],
+                     "eval_rigid_within": result.metrics["landmark_nees_rigid_within_bound"],
+                     "eval_nees_median": result.metrics["landmark_nees_median"],
+                     **summarise(split["landmarks"]), **live_drift(result, slam), "windows": windows}
+            if args.landmarks:
+                entry["rows"] = split["landmarks"]
+            out[f"robot{r}/seed{seed}"] = entry
+            if not args.json:
+                print(f"robot{r} seed {seed}: " + json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
+                                                              for k, v in entry.items() if k != "rows"}), flush=True)
+    if args.json:
+        print(json.dumps({"runs": out, "overrides": overrides}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
