@@ -3,7 +3,8 @@
 Run from the repository root:
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_nees_diagnosis [--robots 1,2,3,4,5] [--seeds 0,1]
-        [--set FIELD=VALUE ...] [--export-lever] [--one-landmark-heading] [--no-windows] [--landmarks] [--json]
+        [--set FIELD=VALUE ...] [--export-lever] [--one-landmark-heading] [--no-windows] [--landmarks] [--pinning T0,T1]
+        [--json]
 
 Each robot runs through `p3at slam dataset`'s code path (``run_landmark_log``, known-ID association, own noise
 model) with the filter recorded at every update. For every landmark of the exported map:
@@ -58,6 +59,7 @@ class RecordingFastSLAM(FastSLAM):
     """FastSLAM that keeps, after every update, the drift tracker's D_r, the best particle's pose and the ids made."""
 
     last: RecordingFastSLAM | None = None
+    keep_estimates = False               # --pinning: keep the matched landmarks' estimates per frame
     export_lever = False                 # --export-lever: the drift's lever in the export only (export_drift.py)
     one_landmark_heading = False         # --one-landmark-heading: and a one-landmark frame keeps the heading
 
@@ -75,8 +77,46 @@ class RecordingFastSLAM(FastSLAM):
         self.frames.append({"robot_drift": self.drift.robot.copy(), "best_pose": self.poses[self._best].copy(),
                             "export_drift": None if lever is None else lever.copy(), "predicted_drift": predicted,
                             "matched": len(np.unique(report.best_matches[report.best_matches >= 0])),
+                            "matched_ids": np.unique(report.best_matches[report.best_matches >= 0]),
                             "new": np.unique(report.new_landmark_ids[report.new_landmark_ids >= 0])})
+        if self.keep_estimates:   # the best particle's estimate of each landmark it matched (--pinning)
+            self.frames[-1]["estimates"] = {int(lid): self.store.flat_state[self.store.flat_lid == lid][:1, :2].copy()
+                                            for lid in self.frames[-1]["matched_ids"]}
         return report
+
+
+def pinning(result, slam: RecordingFastSLAM, log, t_from: float, t_to: float) -> list[str]:
+    """The frames between t_from and t_to (s) that matched two or more landmarks and cut D_r's heading variance by
+    more than 30 %: the heading error then, and each matched landmark's creation time, D_l's σθ and its estimate's
+    distance from the truth in the start frame at that frame."""
+    true_start = np.asarray(result.map.metadata["true_start_pose"], float)
+    truth = between(true_start, result.true_trajectory[:, 1:])
+    t = result.true_trajectory[:, 0] - result.true_trajectory[0, 0]
+    created: dict[int, int] = {}
+    for k, frame in enumerate(slam.frames):
+        for lid in frame["new"]:
+            created.setdefault(int(lid), k)
+    index = {int(i): k for k, i in enumerate(log.truth_ids)}
+    lines = []
+    for k, frame in enumerate(slam.frames):
+        before, after = frame["predicted_drift"][2, 2], frame["robot_drift"][2, 2]
+        if not t_from <= t[k] <= t_to or len(frame["matched_ids"]) < 2 or after > 0.7 * before:
+            continue
+        e = wrap_angle(frame["best_pose"][2] - truth[k][2])
+        parts = []
+        for lid in frame["matched_ids"]:
+            ext = int(slam.external_ids(np.array([lid]))[0])
+            sd = float(np.sqrt(max(slam.drift.landmark_pose_covariances(np.array([lid]))[5, 0], 0.0)))
+            est = frame["estimates"].get(int(lid), np.zeros((0, 2)))
+            err = np.nan
+            if ext in index and len(est):
+                p = between(true_start, np.append(log.truth_positions[index[ext]], 0.0)[None])[0, :2]
+                err = float(np.hypot(*(est[0] - p)))
+            made = t[created[int(lid)]] if int(lid) in created else float("nan")
+            parts.append(f"id {ext} made {made:.0f} s, D_l σθ {sd:.3f}, off {err:.2f} m")
+        lines.append(f"{t[k]:6.1f} s: heading error {e:+.3f} rad, σθ {np.sqrt(before):.3f} -> {np.sqrt(after):.3f} | "
+                     + "; ".join(parts))
+    return lines
 
 
 def run(log, noise, config, seed: int) -> tuple:
@@ -246,8 +286,11 @@ def main(argv: list[str] | None = None) -> int:
                         "the gate's tracker unchanged (estimation/fastslam/export_drift.py)")
     parser.add_argument("--one-landmark-heading", action="store_true", help="with the export's lever: a frame that "
                         "matched one landmark keeps the predicted heading uncertainty as a turn about it")
+    parser.add_argument("--pinning", metavar="T0,T1", help="print the frames between T0 and T1 s (first robot and "
+                        "seed) whose two or more matched landmarks cut D_r's heading σ, and how far those are off")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    RecordingFastSLAM.keep_estimates = bool(args.pinning)
     RecordingFastSLAM.export_lever = args.export_lever or args.one_landmark_heading
     RecordingFastSLAM.one_landmark_heading = args.one_landmark_heading
     if not args.data.is_dir():
@@ -270,6 +313,11 @@ def main(argv: list[str] | None = None) -> int:
                      **summarise(split["landmarks"]), **live_drift(result, slam), "windows": windows}
             if args.landmarks:
                 entry["rows"] = split["landmarks"]
+            if args.pinning:
+                t_from, t_to = (float(x) for x in args.pinning.split(","))
+                entry["pinning"] = pinning(result, slam, log, t_from, t_to)
+                if not args.json:
+                    print("\n".join(entry["pinning"]))
             out[f"robot{r}/seed{seed}"] = entry
             if not args.json:
                 print(f"robot{r} seed {seed}: " + json.dumps({k: (round(v, 4) if isinstance(v, float) else v)
