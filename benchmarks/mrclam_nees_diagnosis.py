@@ -23,10 +23,10 @@ log-changes of D_r's heading variance in the update), and whether the motion mod
 windows of 5-120 s (the noise model's random walk is fitted on 5 s windows; MRCLAM's odometry errors are correlated
 over longer spans). The ``eval_*`` figures are `eval_mrclam`'s (the same ``map_scores``).
 
-``--export-lever``: the filter's tracker is replaced by ``export_drift.ExportLeverDriftTracker`` (the gate reads the
-plain tracker, so every estimate is the same; the export carries the heading's lever); ``--one-landmark-heading``:
-the same with ``one_landmark_heading=True`` (docs/fastslam.md, "Session 13 ... (N)"). The ``export_drift`` figures
-are the live pose against that tracker's D_r.
+``--export-lever``: ``FastSLAMConfig.drift_export="lever"``, the tracker ``export_drift.ExportLeverDriftTracker`` (the
+gate reads the plain tracker, so every estimate is the same; the export carries the heading's lever);
+``--one-landmark-heading``: ``drift_export="lever+heading"`` (docs/fastslam.md, "Session 13 ... (N)"). The
+``export_drift`` figures are the live pose against that tracker's D_r.
 """
 from __future__ import annotations
 
@@ -45,8 +45,6 @@ from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
 from estimation import dataset_slam  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
-from estimation.fastslam.drift import DriftTracker  # noqa: E402
-from estimation.fastslam.export_drift import ExportLeverDriftTracker  # noqa: E402
 from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, points_nees  # noqa: E402
@@ -60,13 +58,9 @@ class RecordingFastSLAM(FastSLAM):
 
     last: RecordingFastSLAM | None = None
     keep_estimates = False               # --pinning: keep the matched landmarks' estimates per frame
-    export_lever = False                 # --export-lever: the drift's lever in the export only (export_drift.py)
-    one_landmark_heading = False         # --one-landmark-heading: and a one-landmark frame keeps the heading
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        if self.export_lever and type(self.drift) is DriftTracker:
-            self.drift = ExportLeverDriftTracker(self.one_landmark_heading)
         self.frames: list[dict] = []
         RecordingFastSLAM.last = self
 
@@ -291,12 +285,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     RecordingFastSLAM.keep_estimates = bool(args.pinning)
-    RecordingFastSLAM.export_lever = args.export_lever or args.one_landmark_heading
-    RecordingFastSLAM.one_landmark_heading = args.one_landmark_heading
     if not args.data.is_dir():
         print(f"mrclam_nees_diagnosis: no data set at {args.data}", file=sys.stderr)
         return 2
     overrides = config_overrides(args.set)
+    if args.export_lever or args.one_landmark_heading:   # FastSLAMConfig.drift_export (export_drift.py)
+        overrides["drift_export"] = "lever+heading" if args.one_landmark_heading else "lever"
     out = {}
     for r in (int(x) for x in args.robots.split(",")):
         log = read_mrclam(args.data, r)

@@ -17,6 +17,8 @@ MERGE_ESTIMATES = ("fuse", "older")
 MERGE_LOOKS = ("older", "newer")
 # FastSLAMConfig.weight_evidence: which particles a reading's likelihood compares (shared_evidence.py)
 WEIGHT_EVIDENCE_RULES = ("all", "shared_creation")
+# FastSLAMConfig.drift_export: the known-ID range-bearing path's exported drift term (export_drift.py)
+DRIFT_EXPORTS = ("plain", "lever", "lever+heading")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -126,6 +128,12 @@ class FastSLAMConfig:
     #                                             #   unchanged. 0.49: measured on the stereo front end's rendered
     #                                             #   frames (0.47-0.49 on four runs; docs/fastslam.md "Session 8:
     #                                             #   honest covariances"); 0: the EKF's independence taken as given
+    drift_export: str = "plain"                   # without drift_lever, "id" association only: "lever" exports the
+    #                                             #   landmarks' drift term with the heading's lever; "lever+heading"
+    #                                             #   also keeps the heading through frames that match one landmark
+    #                                             #   (export_drift.py); the gate, so every estimate, unchanged. MRCLAM
+    #                                             #   within the NEES bound 23-86 % -> 57-100 % (docs/fastslam.md
+    #                                             #   "Session 13 ... (N)"); not the default: robot 5 too wide
     drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
@@ -201,6 +209,11 @@ class FastSLAMConfig:
         if self.coincident_readings not in COINCIDENT_RULES:
             raise ValueError(f"coincident_readings must be one of {', '.join(COINCIDENT_RULES)}, "
                              f"not {self.coincident_readings!r}")
+        if self.drift_export not in DRIFT_EXPORTS:
+            raise ValueError(f"drift_export must be one of {', '.join(DRIFT_EXPORTS)}, not {self.drift_export!r}")
+        if self.drift_export != "plain" and self.drift_lever:
+            raise ValueError(f"drift_export={self.drift_export!r} needs drift_lever=False (the lever tracker exports "
+                             "the lever already)")
         if not self.drift_translation_per_m >= 0.0:
             raise ValueError(f"drift_translation_per_m must be ≥ 0, not {self.drift_translation_per_m}")
         if not 0.0 <= self.observation_correlation < 1.0:

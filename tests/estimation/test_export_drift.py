@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -68,9 +69,8 @@ def _turn_then_drive(seed: int, export_lever: bool):
     model), makes four landmarks, drives 10 m re-observing them, then makes four more, with the known-ID gate's
     drift on (``range_bearing_config``). Returns (the trajectory, the map, the last four's 2-D NEES)."""
     rng = np.random.default_rng(seed)
-    slam = FastSLAM(range_bearing_config(n_particles=10, association="id"), rng.spawn(1)[0])
-    if export_lever:
-        slam.drift = ExportLeverDriftTracker()
+    slam = FastSLAM(range_bearing_config(n_particles=10, association="id",
+                                         drift_export="lever" if export_lever else "plain"), rng.spawn(1)[0])
     turn = np.pi / 2
     heading_error = rng.normal(0.0, np.sqrt(slam.config.odom_theta_var_per_rad * turn))
     slam.predict(OdometryIncrement(0.0, 0.0, turn + heading_error))
@@ -146,3 +146,16 @@ def test_one_landmark_pins_the_two_observed_degrees_of_freedom_and_keeps_the_tur
     # ... and the heading keeps the predicted uncertainty where that was larger than the landmark's
     assert np.isclose(kept[2, 2], max(rule[2, 2], _spd(predicted)[2, 2]), rtol=1e-9)
     assert np.all(np.linalg.eigvalsh(kept) > -1e-12 * scale)
+
+
+def test_the_option_is_for_the_known_id_path_only():
+    """The lever tracker exports the lever already, and in "unknown" association merges read the exported
+    covariances (estimates would change): both are refused with the reason."""
+    with pytest.raises(ValueError, match="drift_export='lever' needs association='id'"):
+        FastSLAM(range_bearing_config(association="unknown", drift_export="lever"), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="drift_export='lever\\+heading' needs drift_lever=False"):
+        range_bearing_config(association="id", drift_export="lever+heading", drift_lever=True)
+    with pytest.raises(ValueError, match="drift_export must be one of plain, lever, lever\\+heading"):
+        range_bearing_config(association="id", drift_export="levers")
+    slam = FastSLAM(range_bearing_config(association="id", drift_export="lever+heading"), np.random.default_rng(0))
+    assert isinstance(slam.drift, ExportLeverDriftTracker) and slam.drift.one_landmark_heading
