@@ -7,16 +7,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.fastslam import FastSLAM, range_bearing_config, range_bearing_observations
+from estimation.fastslam import FastSLAM, range_bearing_config
 from estimation.fastslam.drift import DriftTracker
 from estimation.fastslam.export_drift import ExportLeverDriftTracker
 from estimation.fastslam.lever_drift import LeverDriftTracker
 from estimation.fastslam.motion import propagate_covariance
-from estimation.geometry import between, compose
-from estimation.observations import OdometryIncrement
+from estimation.geometry import compose
+from tests.fastslam.test_lever_drift import turn_then_drive
 
 CHI2_2_95 = 5.991
-SIGMA_RANGE, SIGMA_BEARING = 0.05, 0.01
 
 step = st.tuples(st.floats(-1.0, 1.0), st.floats(-0.5, 0.5), st.floats(-1.0, 1.0),   # the odometry increment
                  st.integers(0, 3),                                                     # predicts before the update
@@ -57,38 +56,10 @@ def test_the_export_is_the_lever_trackers_and_the_gate_reads_the_plain_trackers(
                           trackers["plain"].landmark_pose_covariances(ids))
 
 
-def _observe(rng, pose, landmarks, ids):
-    local = between(pose, np.column_stack([landmarks, np.zeros(len(landmarks))]))[:, :2]
-    r = np.hypot(local[:, 0], local[:, 1]) + rng.normal(0.0, SIGMA_RANGE, len(local))
-    phi = np.arctan2(local[:, 1], local[:, 0]) + rng.normal(0.0, SIGMA_BEARING, len(local))
-    return range_bearing_observations(r, phi, SIGMA_RANGE, SIGMA_BEARING, ids=ids)
-
-
 def _turn_then_drive(seed: int, export_lever: bool):
-    """A robot turns a quarter on the spot seeing nothing (its heading error drawn from the filter's own motion
-    model), makes four landmarks, drives 10 m re-observing them, then makes four more, with the known-ID gate's
-    drift on (``range_bearing_config``). Returns (the trajectory, the map, the last four's 2-D NEES)."""
-    rng = np.random.default_rng(seed)
-    slam = FastSLAM(range_bearing_config(n_particles=10, association="id",
-                                         drift_export="lever" if export_lever else "plain"), rng.spawn(1)[0])
-    turn = np.pi / 2
-    heading_error = rng.normal(0.0, np.sqrt(slam.config.odom_theta_var_per_rad * turn))
-    slam.predict(OdometryIncrement(0.0, 0.0, turn + heading_error))
-    pose = np.array([0.0, 0.0, turn])
-    first = np.array([[-2.0, 1.0], [2.0, 1.5], [-2.5, 3.0], [2.5, 2.5]])
-    for _ in range(20):
-        slam.update(_observe(rng, pose, first, [1, 2, 3, 4]))
-        slam.predict(OdometryIncrement(0.5, 0.0, 0.0))
-        pose = compose(pose, [0.5, 0.0, 0.0])
-    second = np.array([[-2.0, 11.0], [2.0, 11.5], [-2.5, 12.0], [2.5, 10.5]])
-    for _ in range(3):
-        slam.update(_observe(rng, pose, np.vstack([first, second]), [1, 2, 3, 4, 5, 6, 7, 8]))
-    landmarks = slam.best_map(min_count=1)
-    ids = slam.external_ids(landmarks.ids)
-    err = landmarks.positions[ids >= 5, :2] - second
-    cov = landmarks.covariances[ids >= 5][:, :2, :2]
-    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
-    return slam.trajectory(), landmarks, nees
+    """tests/fastslam/test_lever_drift.py's scenario with the known-ID gate's drift on: (trajectory, map, NEES)."""
+    slam, nees = turn_then_drive(seed, drift_export="lever" if export_lever else "plain")
+    return slam.trajectory(), slam.best_map(min_count=1), nees
 
 
 def test_export_lever_changes_no_estimate_and_makes_far_landmarks_honest():

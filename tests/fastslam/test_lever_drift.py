@@ -23,13 +23,14 @@ def _observe(rng, pose, landmarks, ids):
     return range_bearing_observations(r, phi, SIGMA_RANGE, SIGMA_BEARING, ids=ids)
 
 
-def _turn_then_drive(seed: int, lever: bool) -> np.ndarray:
+def turn_then_drive(seed: int, **overrides) -> tuple[FastSLAM, np.ndarray]:
     """A robot turns a quarter on the spot seeing nothing (its odometry's heading error is drawn from the filter's
-    own motion model), makes four landmarks, drives 10 m ahead re-observing them, then makes four more.
-    Returns the 2-D NEES (4,) of the last four against their truth: the map frame turned by the heading error
-    puts them ~10 m × δθ off, which only a drift that carries the heading's lever can cover."""
+    own motion model), makes four landmarks, drives 10 m ahead re-observing them, then makes four more, with
+    ``range_bearing_config(n_particles=10, association="id", **overrides)``. Returns the filter and the 2-D NEES (4,)
+    of the last four against their truth: the map frame turned by the heading error puts them ~10 m × δθ off, which
+    only a drift that carries the heading's lever can cover (tests/estimation/test_export_drift.py uses it too)."""
     rng = np.random.default_rng(seed)
-    config = range_bearing_config(n_particles=10, association="id", id_relative_drift="off", drift_lever=lever)
+    config = range_bearing_config(n_particles=10, association="id", **overrides)
     slam = FastSLAM(config, rng.spawn(1)[0])
     turn = np.pi / 2
     heading_error = rng.normal(0.0, np.sqrt(config.odom_theta_var_per_rad * turn))
@@ -47,7 +48,11 @@ def _turn_then_drive(seed: int, lever: bool) -> np.ndarray:
     ids = slam.external_ids(landmarks.ids)
     err = landmarks.positions[ids >= 5, :2] - second
     cov = landmarks.covariances[ids >= 5][:, :2, :2]
-    return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+    return slam, np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+
+
+def _turn_then_drive(seed: int, lever: bool) -> np.ndarray:
+    return turn_then_drive(seed, id_relative_drift="off", drift_lever=lever)[1]
 
 
 def test_the_heading_lever_makes_far_landmarks_honest_and_without_it_they_are_overconfident():
