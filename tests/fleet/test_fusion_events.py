@@ -37,7 +37,11 @@ def test_too_few_supports_are_said_with_the_number_needed_and_the_chance(kept):
     assert line.startswith("fusion at t=0s: robot2 does not overlap robot1 yet: ") and "\n" not in line
     assert (f"{pair.supports} supports, {pair.required_supports} needed "
             f"(P(chance) {pair.false_alarm_probability:.1e})") in line
-    assert ("ambiguous: a distinct transform gathers" in line) == pair.note.startswith("ambiguous")
+    # an ambiguous pair names what set the number needed: a rival transform, or a map's repeat of itself
+    ambiguous = pair.note.startswith("ambiguous")
+    repeat = ambiguous and pair.self_repeat_supports > pair.second_best_supports
+    assert ("ambiguous: a distinct transform gathers" in line) == (ambiguous and not repeat)
+    assert ("repeats itself" in line) == repeat
 
 
 def test_maps_without_common_landmarks_give_the_alignments_reason():
