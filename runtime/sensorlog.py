@@ -45,6 +45,7 @@ import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -174,8 +175,6 @@ class OdometryCovariance:
 
     def __init__(self, xy_var_per_m: float, theta_var_per_rad: float, theta_var_per_m: float,
                  var_floor: float) -> None:
-        from types import SimpleNamespace
-
         values = (xy_var_per_m, theta_var_per_rad, theta_var_per_m, var_floor)
         if not all(math.isfinite(v) and v >= 0 for v in values):
             raise ValueError(f"odometry noise must be finite and >= 0, not {values}")
