@@ -46,6 +46,7 @@ from .alignment_config import AlignmentConfig, resolve_preset
 from .cache import AlignmentCache
 from .errors import NoOverlapError
 from .multi import MultiFusion, fuse_all, pairwise_alignments
+from .provenance import source_metadata
 
 SPLIT_SIGNIFICANCE = 0.01   # the parts disagree when their difference is this unlikely under one frame (see above)
 PARTS = ("before", "after")
@@ -331,6 +332,9 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
                          **options)
     except NoOverlapError as e:
         return CheckedFusion(None, inputs, sources, checks, whole, str(e))
+    # the fused map holds the maps as given, not their parts: a file given again beside it is known by its fingerprint
+    fused.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in sources],
+                                                        [i for i, r in enumerate(fused.rows) if r is not None]))
     return CheckedFusion(fused, inputs, sources, checks, whole)
 
 

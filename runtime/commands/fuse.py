@@ -69,7 +69,6 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, alignment_error, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
-    from fusion.provenance import source_metadata
     from fusion.split import PARTS, fuse_checked
 
     if args.live:
@@ -182,10 +181,6 @@ def _fuse(args: argparse.Namespace) -> int:
             report["maps"][k]["covariance_scale"] = result.covariance_scales[i]
             report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[i]))
             report["maps"][k]["claimed_sigma"] = claimed
-    if any(part is not None for _, part in checked.sources):   # the fused map holds the files' maps, not parts
-        result.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in checked.sources],
-                                                             sorted({i for i, r in enumerate(result.rows)
-                                                                     if r is not None})))
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for i, m in enumerate(checked.inputs) if result.rows[i] is not None)
                                      - len(result.map))
