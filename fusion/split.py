@@ -333,8 +333,10 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     except NoOverlapError as e:
         return CheckedFusion(None, inputs, sources, checks, whole, str(e))
     # the fused map holds the maps as given, not their parts: a file given again beside it is known by its fingerprint
-    fused.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in sources],
-                                                        [i for i, r in enumerate(fused.rows) if r is not None]))
+    # (a fusion that merged nothing, the reference's part alone, records no sources)
+    if isinstance(fused.map.metadata.get("fusion"), dict):
+        fused.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in sources],
+                                                            [i for i, r in enumerate(fused.rows) if r is not None]))
     return CheckedFusion(fused, inputs, sources, checks, whole)
 
 
