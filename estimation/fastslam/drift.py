@@ -65,11 +65,7 @@ class DriftTracker:
             d = sym_components(self.robot[None])[:, 0]
             self._pose[new_ids] = d
             self._origin[new_ids] = np.asarray(robot_pose, float)[:2]
-            w = np.asarray(new_positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
-            h = np.zeros((len(new_ids), 3, 3))
-            h[:, 0, 0] = h[:, 1, 1] = 1.0
-            h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
-            self._position[new_ids] = sym_components(h @ self.robot @ np.swapaxes(h, 1, 2)).T
+            self._position[new_ids] = made_position_covariances(self.robot, robot_pose, new_positions)
 
     def remeasured(self, ids: np.ndarray, pose_covariance: np.ndarray) -> np.ndarray:
         """Landmarks ``ids`` (L,) were re-placed from a pose whose covariance relative to the start frame is
@@ -110,3 +106,14 @@ def _components(table: np.ndarray, ids: np.ndarray) -> np.ndarray:
     inside = ids < len(table)
     out[inside] = table[ids[inside]]
     return out.T
+
+
+def made_position_covariances(pose_covariance: np.ndarray, robot_pose: np.ndarray, positions: np.ndarray
+                              ) -> np.ndarray:
+    """C_l = H D Hᵀ (L, 6 components) of landmarks made at ``positions`` (L, ≥2) from a robot at ``robot_pose`` whose
+    pose covariance is D (3, 3): H = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 1]], w the landmark's offset from the robot."""
+    w = np.asarray(positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
+    h = np.zeros((len(w), 3, 3))
+    h[:, 0, 0] = h[:, 1, 1] = 1.0
+    h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
+    return sym_components(h @ pose_covariance @ np.swapaxes(h, 1, 2)).T

@@ -29,16 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .drift import DriftTracker, _components
-from .lever_drift import lever_mean
+from .drift import DriftTracker, _components, made_position_covariances
+from .lever_drift import lever_mean, shears
 from .linalg import sym_components, sym_matrices
-
-
-def shear(moved: np.ndarray) -> np.ndarray:
-    """G(Δ) (3, 3) for a displacement Δ (2,): the Jacobian of "pose ⊕ a motion that moved it by Δ" by the pose."""
-    g = np.eye(3)
-    g[0, 2], g[1, 2] = -float(moved[1]), float(moved[0])
-    return g
 
 
 class ExportLeverDriftTracker(DriftTracker):
@@ -79,7 +72,7 @@ class ExportLeverDriftTracker(DriftTracker):
         carried beyond the landmark's stays, as a turn about it. Two or more landmarks observe the heading too
         (the rule above)."""
         robot_pose = np.asarray(robot_pose, float)
-        g = shear(robot_pose[:2] - self._last_position)
+        g = shears(robot_pose[:2] - self._last_position)[0]
         lever = self.robot + g @ self._difference @ g.T                 # carried from the last update to here
         super().update(matched_ids, new_ids, new_positions, robot_pose, local_covariance, n_ids)
         matched_ids = np.asarray(matched_ids, np.int64)
@@ -94,11 +87,7 @@ class ExportLeverDriftTracker(DriftTracker):
         new_ids = np.asarray(new_ids, np.int64)
         if len(new_ids):
             self._lever_pose[new_ids] = sym_components(lever[None])[:, 0]
-            w = np.asarray(new_positions, float)[:, :2] - robot_pose[:2]
-            h = np.zeros((len(new_ids), 3, 3))
-            h[:, 0, 0] = h[:, 1, 1] = 1.0
-            h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
-            self._lever_position[new_ids] = sym_components(h @ lever @ np.swapaxes(h, 1, 2)).T
+            self._lever_position[new_ids] = made_position_covariances(lever, robot_pose, new_positions)
             self._made_at[new_ids] = np.asarray(new_positions, float)[:, :2]
         self._difference = lever - self.robot
         self._last_position = robot_pose[:2].copy()

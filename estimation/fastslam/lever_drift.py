@@ -64,9 +64,17 @@ class LeverDriftTracker(DriftTracker):
 def lever_mean(pose_covariances: np.ndarray, moved: np.ndarray) -> np.ndarray:
     """mean_l G_l D_l G_lᵀ (3, 3) for creation-pose covariances D_l (L, 3, 3) and the robot's displacement since
     each creation Δ_l (L, 2), G_l = [[1, 0, −Δ_y], [0, 1, Δ_x], [0, 0, 1]] (the lever of the heading error)."""
+    g = shears(moved)
+    return (g @ pose_covariances @ np.swapaxes(g, 1, 2)).mean(axis=0)
+
+
+def shears(moved: np.ndarray) -> np.ndarray:
+    """G(Δ) (L, 3, 3) = [[1, 0, −Δ_y], [0, 1, Δ_x], [0, 0, 1]] for displacements Δ (L, 2): the Jacobian of "pose ⊕ a
+    motion that moved it by Δ" by the pose (the lever of a heading error)."""
+    moved = np.asarray(moved, float).reshape(-1, 2)
     g = np.tile(np.eye(3), (len(moved), 1, 1))
     g[:, 0, 2], g[:, 1, 2] = -moved[:, 1], moved[:, 0]
-    return (g @ pose_covariances @ np.swapaxes(g, 1, 2)).mean(axis=0)
+    return g
 
 
 def correlated_mean_factor(n_observations: np.ndarray, correlation: float) -> np.ndarray:
