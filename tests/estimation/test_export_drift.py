@@ -41,7 +41,7 @@ def test_the_export_is_the_lever_trackers_and_the_gate_reads_the_plain_trackers(
         new_ids = np.arange(made, made + new)
         positions = np.column_stack([pose[:2] + rng.normal(0.0, 3.0, (new, 2)), np.zeros(new)])
         for t in trackers.values():
-            t.update(matched_ids, new_ids, positions, pose, local_cov, 16)
+            t.update(matched_ids, new_ids, positions, pose, local_cov, made + new)   # the ids that exist now
         made += new
     ids = np.arange(made)
     scale = 1.0 + np.abs(trackers["lever"].landmark_covariances(ids)).max(initial=0.0)
