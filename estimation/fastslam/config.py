@@ -128,12 +128,15 @@ class FastSLAMConfig:
     #                                             #   unchanged. 0.49: measured on the stereo front end's rendered
     #                                             #   frames (0.47-0.49 on four runs; docs/fastslam.md "Session 8:
     #                                             #   honest covariances"); 0: the EKF's independence taken as given
-    drift_export: str = "plain"                   # without drift_lever, "id" association only: "lever" exports the
-    #                                             #   landmarks' drift term with the heading's lever; "lever+heading"
-    #                                             #   also keeps the heading through frames that match one landmark
-    #                                             #   (export_drift.py); the gate, so every estimate, unchanged. MRCLAM
-    #                                             #   within the NEES bound 23-86 % -> 57-100 % (docs/fastslam.md
-    #                                             #   "Session 13 ... (N)"); not the default: robot 5 too wide
+    drift_export: str = "plain"                   # "id" association without drift_lever only (drift_lever's
+    #                                             #   tracker exports the lever itself; "unknown" keeps the
+    #                                             #   plain tracker, whose C_l its merges read): "lever" exports
+    #                                             #   the landmarks' drift term with the heading's lever;
+    #                                             #   "lever+heading" also keeps the heading through frames that
+    #                                             #   match one landmark (export_drift.py); the gate, so every
+    #                                             #   estimate, unchanged. range_bearing_config's choice since
+    #                                             #   session 14: MRCLAM within the NEES bound 23-86 % -> 57-100 %
+    #                                             #   (docs/fastslam.md "Session 13 ... (N)", "Session 14")
     drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
@@ -211,9 +214,6 @@ class FastSLAMConfig:
                              f"not {self.coincident_readings!r}")
         if self.drift_export not in DRIFT_EXPORTS:
             raise ValueError(f"drift_export must be one of {', '.join(DRIFT_EXPORTS)}, not {self.drift_export!r}")
-        if self.drift_export != "plain" and self.drift_lever:
-            raise ValueError(f"drift_export={self.drift_export!r} needs drift_lever=False (the lever tracker exports "
-                             "the lever already)")
         if not self.drift_translation_per_m >= 0.0:
             raise ValueError(f"drift_translation_per_m must be ≥ 0, not {self.drift_translation_per_m}")
         if not 0.0 <= self.observation_correlation < 1.0:
@@ -244,7 +244,9 @@ def range_bearing_config(**overrides) -> FastSLAMConfig:
 
     Known-ID readings that the gate rejects in a particle are judged with the pose's drift since their landmark
     was made, and two such landmarks in one frame correct the pose (``id_relative_drift="consistent"``,
-    id_gate.py; MRCLAM: docs/fastslam.md, "Session 6")."""
+    id_gate.py; MRCLAM: docs/fastslam.md, "Session 6"). With known IDs the exported landmark covariances carry the
+    heading's lever and keep the heading through one-landmark frames (``drift_export="lever+heading"``,
+    export_drift.py; MRCLAM: docs/fastslam.md, "Session 14")."""
     values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
                   min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345,
                   merge_covisibility=True,   # such a sensor reports each object at most once a frame
@@ -252,6 +254,9 @@ def range_bearing_config(**overrides) -> FastSLAMConfig:
                   # the drift feeds the known-ID gate here, so the lever would change estimates, not only what the
                   # export claims (not measured on MRCLAM); the AR(1) factor was measured on stereo frames only,
                   # and so was the empirical drift (it too would feed the gate here)
-                  drift_lever=False, observation_correlation=0.0, drift_local_empirical=False)
+                  drift_lever=False, observation_correlation=0.0, drift_local_empirical=False,
+                  # known-ID only (export_drift.py): the plain tracker's reset drops the heading's lever and takes
+                  # the heading from one-landmark frames; the export carries both, estimates unchanged
+                  drift_export="lever+heading")
     values.update(overrides)
     return FastSLAMConfig(**values)

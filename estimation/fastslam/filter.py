@@ -209,13 +209,12 @@ class FastSLAM:
         self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
-        # checked here, not in the config: a data set's reader sets the association on the config it is given
-        if config.drift_export != "plain" and config.association != "id":
-            raise ValueError(f"drift_export={config.drift_export!r} needs association='id' (in 'unknown' association "
-                             "merges read the exported covariances, so estimates would change)")
+        # drift_export is the known-ID path's export: in "unknown" association merges read the exported
+        # covariances, so the export's tracker would change estimates there; that path keeps the plain one
+        export_only = config.drift_export != "plain" and config.association == "id"
         self.drift = (LeverDriftTracker(config.drift_translation_per_m) if config.drift_lever   # the map frame's
-                      else DriftTracker() if config.drift_export == "plain"                     # drift
-                      else ExportLeverDriftTracker(one_landmark_heading=config.drift_export == "lever+heading"))
+                      else ExportLeverDriftTracker(one_landmark_heading=config.drift_export == "lever+heading")
+                      if export_only else DriftTracker())                                       # drift
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
         # co-visibility of landmark pairs in the most probable particle (see _merge_duplicates): evidence "one

@@ -119,14 +119,16 @@ def test_one_landmark_pins_the_two_observed_degrees_of_freedom_and_keeps_the_tur
     assert np.all(np.linalg.eigvalsh(kept) > -1e-12 * scale)
 
 
-def test_the_option_is_for_the_known_id_path_only():
-    """The lever tracker exports the lever already, and in "unknown" association merges read the exported
-    covariances (estimates would change): both are refused with the reason."""
-    with pytest.raises(ValueError, match="drift_export='lever' needs association='id'"):
-        FastSLAM(range_bearing_config(association="unknown", drift_export="lever"), np.random.default_rng(0))
-    with pytest.raises(ValueError, match="drift_export='lever\\+heading' needs drift_lever=False"):
-        range_bearing_config(association="id", drift_export="lever+heading", drift_lever=True)
+def test_the_export_tracker_serves_the_known_id_path_only():
+    """range_bearing_config exports with the lever and the one-landmark heading, in "id" association only: in
+    "unknown" association merges read the exported covariances (estimates would change), so the plain tracker
+    stays there; with drift_lever the lever tracker gates and exports with the lever itself."""
+    slam = FastSLAM(range_bearing_config(association="id"), np.random.default_rng(0))
+    assert type(slam.drift) is ExportLeverDriftTracker and slam.drift.one_landmark_heading
+    assert type(FastSLAM(range_bearing_config(association="unknown"), np.random.default_rng(0)).drift) is DriftTracker
+    lever = FastSLAM(range_bearing_config(association="id", drift_lever=True), np.random.default_rng(0))
+    assert type(lever.drift) is LeverDriftTracker
+    plain = FastSLAM(range_bearing_config(association="id", drift_export="plain"), np.random.default_rng(0))
+    assert type(plain.drift) is DriftTracker
     with pytest.raises(ValueError, match="drift_export must be one of plain, lever, lever\\+heading"):
         range_bearing_config(association="id", drift_export="levers")
-    slam = FastSLAM(range_bearing_config(association="id", drift_export="lever+heading"), np.random.default_rng(0))
-    assert isinstance(slam.drift, ExportLeverDriftTracker) and slam.drift.one_landmark_heading
