@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import tempfile
 from pathlib import Path
+from typing import BinaryIO
 
 # mkstemp creates 0600 files; give the final file the permissions open() would (read once: umask is process-wide).
 _UMASK = os.umask(0)
@@ -46,3 +48,21 @@ def fsync_folder(folder: str | os.PathLike) -> None:
             raise
     finally:
         os.close(fd)
+
+
+
+def open_input(path: str | os.PathLike) -> BinaryIO:
+    """``path`` opened for binary reading without ever waiting: a folder is refused (IsADirectoryError); a FIFO is
+    opened without waiting for a writer (a plain ``open`` waits forever), so one that nothing writes to reads as
+    empty, while a pipe that is written to (``<(command)``) reads as usual. A device (``/dev/zero``) reads as it
+    does: the callers bound what they read."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        if stat.S_ISDIR(os.fstat(fd).st_mode):
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)  # reads wait for data again; only the open must not wait
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise

@@ -47,6 +47,7 @@ its wheels with the Videre head: :data:`P3AT_VIDERE_DEFAULT`, with its provenanc
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -57,7 +58,7 @@ from scipy.optimize import nnls
 
 from .datasets import RangeBearingLog
 from .errors import EstimationError
-from .fileio import atomic_write_bytes
+from .fileio import atomic_write_bytes, open_input
 from .geometry import between, wrap_angle
 
 FORMAT_NAME = "p3at-noise-model"
@@ -246,13 +247,22 @@ class NoiseModel:
         """Read a file written by :meth:`save` (or by hand); any defect is a NoiseModelError naming file and key."""
         path = Path(path)
         try:
-            if path.stat().st_size > MAX_FILE_BYTES:
-                raise NoiseModelError(f"{path}: {path.stat().st_size} bytes, more than a noise model can hold")
-            data = tomllib.loads(path.read_bytes().decode("utf-8"))
+            with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
+                size = os.fstat(stream.fileno()).st_size
+                if size > MAX_FILE_BYTES:
+                    raise NoiseModelError(f"{path}: {size} bytes, more than a noise model can hold")
+                raw = stream.read(MAX_FILE_BYTES + 1)
+            if len(raw) > MAX_FILE_BYTES:
+                raise NoiseModelError(f"{path}: more than {MAX_FILE_BYTES} bytes, more than a noise model can hold")
+            data = tomllib.loads(raw.decode("utf-8"))
         except FileNotFoundError:
             raise NoiseModelError(f"{path}: no such noise-model file") from None
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        except OSError as e:
+            raise NoiseModelError(f"{path}: cannot read the noise model ({e.strerror or e})") from None
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
             raise NoiseModelError(f"{path}: not a readable TOML noise model ({e})") from None
+        except RecursionError:  # tomllib nests arrays and inline tables by recursion
+            raise NoiseModelError(f"{path}: not a readable TOML noise model (nested too deeply)") from None
         return cls.from_dict(data, str(path))
 
     @classmethod
@@ -284,7 +294,9 @@ class NoiseModel:
                                                                f"lacks {', '.join(missing)}"))
             for key, value in values.items():
                 if not isinstance(value, int | float) or isinstance(value, bool):
-                    raise NoiseModelError(f"{where}: [{name}] {key} must be a number, not {value!r}")
+                    raise NoiseModelError(f"{where}: [{name}] {key} must be a number, not {repr(value)[:60]}")
+                if isinstance(value, int) and not abs(value) <= 2**63:  # float() of a 400-digit int overflows
+                    raise NoiseModelError(f"{where}: [{name}] {key} is out of range ({len(str(value))} digits)")
             sections[name] = kind(**{k: float(v) for k, v in values.items()})
         for key in ("robot", "platform", "source"):
             if not isinstance(data.get(key, ""), str):
@@ -292,6 +304,9 @@ class NoiseModel:
         fit = data.get("fit", {})
         if not isinstance(fit, dict):
             raise NoiseModelError(f"{where}: fit must be a [section]")
+        for key, value in fit.items():  # figures read back as floats (existence_overrides)
+            if isinstance(value, int) and not abs(value) <= 2**63:
+                raise NoiseModelError(f"{where}: [fit] {key} is out of range ({len(str(value))} digits)")
         try:
             return cls(sections["odometry"], sections.get("range_bearing"), sections.get("stereo"),
                        data.get("robot", "robot"), data.get("platform", ""), data.get("source", ""), dict(fit))

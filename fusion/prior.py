@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from estimation.fileio import open_input
 from estimation.geometry import wrap_angle
 
 from .errors import IncompatibleMapsError
@@ -134,11 +135,11 @@ def parse_start(text: str) -> tuple[np.ndarray, tuple[float, float] | None]:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise IncompatibleMapsError(f"a start pose is x,y,yaw[,sigma_xy,sigma_yaw] in metres and radians; got {text!r}"
-                                    ) from None
+        raise IncompatibleMapsError("a start pose is x,y,yaw[,sigma_xy,sigma_yaw] in metres and radians; got "
+                                    f"{text[:80]!r}") from None
     if len(values) not in (3, 5) or not np.all(np.isfinite(values)):
         raise IncompatibleMapsError(f"a start pose is x,y,yaw[,sigma_xy,sigma_yaw] (3 or 5 finite numbers); "
-                                    f"got {text!r}")
+                                    f"got {text[:80]!r}")
     sig = None if len(values) == 3 else (values[3], values[4])
     if sig is not None:
         _check_sigmas(*sig)
@@ -161,21 +162,40 @@ def named_pair_priors(starts: dict, source: str = "start poses") -> dict[tuple, 
             for a in sorted(starts) for b in sorted(starts) if a < b}
 
 
+MAX_START_FILE_BYTES = 1 << 20   # a start-pose file holds a few poses: refuse anything absurd before parsing
+
+
 def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | None]]:
     """A JSON file {"sigma_xy": m, "sigma_yaw": rad, "starts": {"<robot or index>": [x, y, yaw] or
     [x, y, yaw, sigma_xy, sigma_yaw]}} -> {key: (pose, sigmas)}; one-line errors."""
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
+        with open_input(path) as f:  # never waits on a FIFO (a folder: IsADirectoryError)
+            raw = f.read(MAX_START_FILE_BYTES + 1)
+        if len(raw) > MAX_START_FILE_BYTES:
+            raise ValueError(f"more than {MAX_START_FILE_BYTES} bytes")
+        data = json.loads(raw.decode("utf-8"))
         default = (float(data.get("sigma_xy", "nan")), float(data.get("sigma_yaw", "nan")))
         starts = data["starts"]
         items = starts.items()
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+    except OSError as e:
+        raise IncompatibleMapsError(f"{path}: cannot read the start-pose file ({e.strerror or e})") from None
+    except (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError) as e:
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e)[:200]
         raise IncompatibleMapsError(f"{path}: not a start-pose file ({{\"starts\": {{name: [x, y, yaw]}}, "
-                                    f"\"sigma_xy\": m, \"sigma_yaw\": rad}}): {e}") from None
+                                    f"\"sigma_xy\": m, \"sigma_yaw\": rad}}): {why}") from None
     out = {}
     for key, value in items:
-        pose, sig = parse_start(",".join(str(v) for v in np.asarray(value, dtype=object).reshape(-1)))
+        numbers = isinstance(value, list) and all(isinstance(v, int | float) and not isinstance(v, bool)
+                                                  for v in value)
+        if not (numbers or isinstance(value, str)):   # a string "x,y,yaw" as --start-pose takes it
+            raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]} must be [x, y, yaw] or [x, y, yaw, "
+                                        f"sigma_xy, sigma_yaw] (numbers); got {json.dumps(value)[:60]}")
+        try:
+            pose, sig = parse_start(",".join(repr(float(v)) for v in value) if numbers else value)
+        except OverflowError:  # float() of an integer of hundreds of digits
+            raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]} holds a number out of range") from None
+        except IncompatibleMapsError as e:
+            raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]}: {e}") from None
         if sig is None and np.all(np.isfinite(default)):
             _check_sigmas(*default)
             sig = default

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import threading
 import zlib
 from collections.abc import Callable
@@ -55,6 +56,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from estimation.fileio import open_input
 
 DEFAULT_WORLD_PATH = Path(__file__).resolve().parent / "data" / "building.json"
 FORMAT_NAME = "p3at-fusion-world"
@@ -520,10 +523,14 @@ class World:
         """Load a world data file (None -> the packaged building). Bad file -> WorldFileError."""
         file = DEFAULT_WORLD_PATH if path is None else Path(path)
         try:
-            size = file.stat().st_size
-            if size > MAX_FILE_BYTES:
-                raise WorldFileError(file, "", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
-            text = file.read_text(encoding="utf-8")
+            with open_input(file) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
+                size = os.fstat(stream.fileno()).st_size
+                if size > MAX_FILE_BYTES:
+                    raise WorldFileError(file, "", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
+                data = stream.read(MAX_FILE_BYTES + 1)
+            if len(data) > MAX_FILE_BYTES:
+                raise WorldFileError(file, "", f"more than {MAX_FILE_BYTES} bytes; a world file has at most that")
+            text = data.decode("utf-8")
         except OSError as exc:
             raise WorldFileError(file, "", f"cannot read: {exc.strerror or exc}") from exc
         except UnicodeDecodeError as exc:

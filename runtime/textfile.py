@@ -4,13 +4,16 @@
 The drivers keep their own copy (``drivers/videre/camera_info.read_camera``): they import nothing above them.
 
 The bound holds whatever the path is and whatever it does between a look at its size and the read (a file still
-being written, a FIFO, ``/dev/zero``): at most ``max_bytes + 1`` bytes are ever read.
+being written, a pipe, ``/dev/zero``): at most ``max_bytes + 1`` bytes are ever read. A FIFO that nothing writes to
+is not waited on: it reads as empty (``estimation.fileio.open_input``).
 """
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
 from pathlib import Path
+
+from estimation.fileio import open_input
 
 _ENCODING_NAMES = {"ascii": "ASCII", "utf-8": "UTF-8"}
 
@@ -24,7 +27,7 @@ def read_bounded_text(path: str | os.PathLike, max_bytes: int, what: str, error:
     """
     path = Path(path)
     try:
-        with path.open("rb") as stream:
+        with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
             size = os.fstat(stream.fileno()).st_size  # a regular file's size, refused before reading it
             data = b"" if size > max_bytes else stream.read(max_bytes + 1)
     except FileNotFoundError:

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from drivers.errors import BadFileError
-from drivers.fileio import atomic_write_bytes
+from drivers.fileio import atomic_write_bytes, open_input
 
 SVS_HEADER = "# SVS Engine v "
 SVS_MIN_VERSION = (2, 1)
@@ -453,8 +453,10 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
     The file's size is bounded before it is parsed and every matrix's rows and cols before its data is read
     (numbers only, element by element: ``FileNode.mat()`` would allocate whatever the header claims)."""
     path = Path(path)
-    if not path.is_file():
-        raise BadFileError(f"{path}: no such file")
+    if not path.is_file():  # a FIFO would block cv2.FileStorage forever
+        kind = "a folder" if path.is_dir() else "a FIFO, a device or a socket"
+        raise BadFileError(f"{path}: cannot read: not a regular file but {kind}" if path.exists() else
+                           f"{path}: no such file")
     _check_file_size(path)
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
@@ -649,10 +651,16 @@ def load(path: str | os.PathLike) -> StereoCalibration:
         return read_opencv(path)
     if suffix == ".ini":
         try:
-            _check_file_size(path)
-            text = path.read_text(encoding="latin-1")
+            with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
+                size = os.fstat(stream.fileno()).st_size
+                if size > MAX_FILE_BYTES:
+                    raise BadFileError(f"{path}: {size} bytes; a calibration file has at most {MAX_FILE_BYTES}")
+                data = stream.read(MAX_FILE_BYTES + 1)
+            if len(data) > MAX_FILE_BYTES:
+                raise BadFileError(f"{path}: more than {MAX_FILE_BYTES} bytes; a calibration file has at most that")
+            text = data.decode("latin-1")
         except OSError as exc:
-            raise BadFileError(f"{path}: cannot read: {exc.strerror}") from None
+            raise BadFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
         return parse_svs(text, str(path))
     raise BadFileError(f"{path}: unknown calibration format (expected .ini, .yaml, .yml or .xml)")
 

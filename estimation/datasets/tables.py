@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from estimation.fileio import open_input
+
 from .errors import DatasetError
 
 MAX_LINE = 4096           # characters: far above any numeric row of these formats
@@ -27,6 +29,9 @@ def find_table(folder: Path, stem: str) -> Path:
     for name in (f"{stem}.dat", f"{stem}.dat.gz"):
         if (folder / name).is_file():
             return folder / name
+    for name in (f"{stem}.dat", f"{stem}.dat.gz"):  # there, but a folder, a FIFO or a link to nothing
+        if (folder / name).is_symlink() or (folder / name).exists():
+            return folder / name                      # read_table names what it is
     raise DatasetError(f"{folder}: neither {stem}.dat nor {stem}.dat.gz is there")
 
 
@@ -88,13 +93,28 @@ def read_table(path: Path, columns: Sequence[str], *, max_rows: int = MAX_ROWS, 
 
 
 def _open_text(path: Path) -> io.TextIOBase:
-    if not path.is_file():
-        raise DatasetError(f"{path}: no such file")
-    with open(path, "rb") as probe:
-        magic = probe.read(2)
+    try:
+        raw = open_input(path)  # never waits on a FIFO (a folder: IsADirectoryError)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: no such file") from None
+    except OSError as error:
+        raise DatasetError(f"{path}: cannot read the file ({error.strerror or error})") from None
+    magic = raw.peek(2)[:2]  # not read: a pipe cannot seek back
     if magic == b"\x1f\x8b":  # by content, not by name: a .dat that is really gzip still reads
-        return gzip.open(path, "rt", encoding="ascii", errors="strict", newline=None)
-    return open(path, encoding="ascii", errors="strict", newline=None)
+        return io.TextIOWrapper(_ClosingGzip(fileobj=raw, mode="rb"), encoding="ascii", errors="strict", newline=None)
+    return io.TextIOWrapper(raw, encoding="ascii", errors="strict", newline=None)
+
+
+class _ClosingGzip(gzip.GzipFile):
+    """A GzipFile that closes the file it was given (``gzip.open`` of a path does; of a file object, not)."""
+
+    def close(self) -> None:
+        fileobj = self.fileobj
+        try:
+            super().close()
+        finally:
+            if fileobj is not None:
+                fileobj.close()
 
 
 def _convert(path: Path, tokens: list[list[str]], numbers: list[int], columns: Sequence[str],

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimation.fileio import open_input
 from estimation.scanmatch.errors import LogFormatError
 from estimation.scanmatch.scan import DEFAULT_MAX_RANGE, DEFAULT_MIN_RANGE, Scan2D, laser_angles, laser_scan
 
@@ -114,10 +115,15 @@ def iter_laser(path: str | Path) -> Iterator[LaserReading]:
     Raises LogFormatError for a malformed line and for a log that cannot be read to its end (after yielding
     what came before the damage)."""
     path = Path(path)
-    opener = gzip.open if path.suffix == ".gz" else open
+    try:
+        file = open_input(path)  # never waits on a FIFO (a folder: IsADirectoryError)
+    except FileNotFoundError:
+        raise LogFormatError(f"{path}: no such log file") from None
+    except OSError as error:
+        raise LogFormatError(f"{path}: cannot read the log ({error.strerror or error})") from None
     line_number = 0
     try:
-        with opener(path, "rb") as stream:
+        with file, (gzip.GzipFile(fileobj=file, mode="rb") if path.suffix == ".gz" else file) as stream:
             while True:
                 raw = stream.readline(MAX_LINE_BYTES + 1)
                 if not raw:
@@ -127,8 +133,6 @@ def iter_laser(path: str | Path) -> Iterator[LaserReading]:
                     raise LogFormatError(f"{path}:{line_number}: line longer than {MAX_LINE_BYTES} bytes")
                 if raw.startswith(b"FLASER"):
                     yield parse_flaser(raw.decode("ascii"), source=str(path), line_number=line_number)
-    except FileNotFoundError:
-        raise LogFormatError(f"{path}: no such log file") from None
     except UnicodeDecodeError as error:
         raise LogFormatError(f"{path}:{line_number}: not ASCII text ({error.reason} at byte {error.start})") from None
     except (OSError, EOFError, zlib.error) as error:
