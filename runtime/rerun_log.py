@@ -845,8 +845,8 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
     ended = True
     with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch:
         for index, p in enumerate(paths):
-            if not p.is_file():
-                raise RecordingReadError(f"{p}: no such recording")
+            if not p.is_file():  # a FIFO would block Rerun's reader; a link to nothing is not "no such" file
+                raise RecordingReadError(f"{p}: {_not_a_file(p)}")
             try:
                 scan = scan_rrd(p)
             except (ValueError, OSError) as e:
@@ -965,3 +965,15 @@ def _map_from_row(path: Path, entity: str, rows: list[dict]) -> LandmarkMap:
 
 __all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "mission_blueprint",
            "open_recording", "read_recording", "recording_id", "robot_colour"]
+
+
+def _not_a_file(path: Path) -> str:
+    """Why ``path``, which is not a regular file, cannot be read as one: what is there instead."""
+    try:
+        path.stat()
+    except FileNotFoundError:
+        return "no such recording" if not path.is_symlink() else "a link to nothing"
+    except OSError as e:
+        return f"cannot read it ({e.strerror or e})"
+    return "a folder, not a recording" if path.is_dir() else "not a regular file but a FIFO, a device or a socket"
+

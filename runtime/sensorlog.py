@@ -441,7 +441,14 @@ def _segment_files(path: Path) -> list[Path]:
     if path.is_file():
         return [path]
     if not path.is_dir():
-        raise SensorLogError(f"{path}: no such sensor log (a folder of .mcap segments or one .mcap file)")
+        try:
+            path.stat()
+            why = "not a regular file but a FIFO, a device or a socket"
+        except FileNotFoundError:
+            why = "a link to nothing" if path.is_symlink() else "no such sensor log"
+        except OSError as e:
+            why = f"cannot read it ({e.strerror or e})"
+        raise SensorLogError(f"{path}: {why}; a sensor log is a folder of .mcap segments or one .mcap file")
     numbered = []
     for p in path.iterdir():
         found = re.fullmatch(r".*_(\d{1,9})\.mcap(\.part)?", p.name)

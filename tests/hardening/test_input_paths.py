@@ -212,3 +212,20 @@ def test_a_start_given_as_text_in_the_file_is_still_read(tmp_path):
     path = _written(tmp_path / "s.json", b'{"starts": {"robot1": "1,2,0.5,1,0.3"}}')
     (pose, sig), = load_starts(str(path)).values()
     assert list(pose) == [1.0, 2.0, 0.5] and sig == (1.0, 0.3)
+
+
+# ------------------------------------------------------------------------------------------------ logs, recordings
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+@pytest.mark.parametrize("command", ["replay", "review"])
+def test_a_log_or_recording_that_is_a_fifo_or_a_broken_link_says_what_is_there(tmp_path, capsys, command):
+    """Both said 'no such sensor log' / 'no such recording' of a path that is there."""
+    fifo, dangling, loop = tmp_path / "f.x", tmp_path / "d.x", tmp_path / "l.x"
+    os.mkfifo(fifo)
+    dangling.symlink_to(tmp_path / "nothing")
+    loop.symlink_to(loop)
+    for path, said in ((fifo, "not a regular file but a FIFO"), (dangling, "a link to nothing"),
+                       (loop, "cannot read it (Too many levels of symbolic links)"), (tmp_path / "absent", "no such")):
+        extra = ["--no-export"] if command == "review" else []
+        assert main([command, str(path), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"p3at {command}: {path}: {said}") and err.count("\n") == 1, err
