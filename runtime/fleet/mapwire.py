@@ -51,6 +51,7 @@ MAX_DESCRIPTOR = 512
 MAX_ROBOTS = 64
 MAX_TRAJECTORY = 200_000
 MAX_SEQUENCE = 2**53 - 1          # exact in JSON numbers
+MAX_INT_DIGITS = 300              # any JSON integer in a header: within a float's range (10^308)
 ROBOT_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")  # also a safe Zenoh key chunk (no / * $ # ?)
 SESSION = re.compile(r"[0-9a-f]{8,32}")
 
@@ -274,9 +275,11 @@ def decode(data: bytes | bytearray | memoryview, max_bytes: int = MAX_MESSAGE_BY
         raise WireError(f"header length {header_len} exceeds the message or the {MAX_HEADER_BYTES}-byte limit")
     try:
         header = json.loads(bytes(data[_PREFIX.size:_PREFIX.size + header_len]).decode("utf-8"),
-                            parse_constant=_reject_constant)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-        raise WireError(f"header is not valid JSON ({e})") from None
+                            parse_constant=_reject_constant, parse_int=_bounded_int)
+    except WireError:
+        raise
+    except (ValueError, RecursionError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise WireError(f"header is not valid JSON ({str(e)[:200]})") from None
     if not isinstance(header, dict):
         raise WireError("header is not a JSON object")
     message = _common_fields(kind, header)
@@ -307,6 +310,14 @@ def decode(data: bytes | bytearray | memoryview, max_bytes: int = MAX_MESSAGE_BY
 
 def _reject_constant(name: str):
     raise WireError(f"header holds the non-finite number {name}")
+
+
+def _bounded_int(text: str) -> int:
+    """A JSON integer a float can hold: a 400-digit one made ``float()`` and ``math.isfinite`` raise OverflowError
+    in the field checks (stamp, pose, health, metadata), and 4300 digits made ``int()`` raise ValueError."""
+    if len(text) > MAX_INT_DIGITS:
+        raise WireError(f"header holds an integer of {len(text)} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
 
 
 def _field(header: dict, key: str, kind: type, limit: int | None = None):
