@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from drivers.errors import BadFileError
-from drivers.fileio import atomic_write_bytes
+from drivers.fileio import atomic_write_bytes, open_input
 
 from .calibration import StereoCalibration, check_calibration
 
@@ -87,16 +87,23 @@ def read_camera(path: str | os.PathLike) -> dict:
     (size bounds before parsing, every field present, shapes, finite numbers). Raises BadFileError."""
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
-            raise BadFileError(f"{path}: {size} bytes; a camera_info file holds about 1 kB (at most {MAX_FILE_BYTES})")
-        text = path.read_bytes().decode("utf-8")
+        with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
+            size = os.fstat(stream.fileno()).st_size
+            if size > MAX_FILE_BYTES:
+                raise BadFileError(f"{path}: {size} bytes; a camera_info file holds about 1 kB (at most "
+                                   f"{MAX_FILE_BYTES})")
+            data = stream.read(MAX_FILE_BYTES + 1)
+        if len(data) > MAX_FILE_BYTES:
+            raise BadFileError(f"{path}: more than {MAX_FILE_BYTES} bytes; a camera_info file holds about 1 kB")
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise BadFileError(f"{path}: no such file") from None
     except OSError as e:
         raise BadFileError(f"{path}: cannot read: {e.strerror}") from None
     except UnicodeDecodeError:
         raise BadFileError(f"{path}: not a text file") from None
+    if not text.strip():  # also what a FIFO that nothing writes to reads as
+        raise BadFileError(f"{path}: an empty file, not a camera_info file")
     if text.count("[") + text.count("{") > MAX_BRACKETS or "\x00" in text:
         raise BadFileError(f"{path}: field '(syntax)': not a camera_info file (nested or binary content)")
     lines = text.splitlines()

@@ -1,8 +1,9 @@
 """Paths that are not plain files, and numbers a float cannot hold, given to every reader of a user's file.
 
-A FIFO that nothing writes to used to hang the route, world, CARMEN, noise-model, start-pose, SVS calibration and
-robot-parameter readers for ever (``open`` waits for a writer); each now reads it as empty and says what is wrong
-in one line, while a pipe that is written to (``--noise <(command)``) still reads. A folder is one line naming it.
+A FIFO that nothing writes to used to hang the route, world, CARMEN, noise-model, start-pose, SVS calibration,
+camera_info and robot-parameter readers for ever (``open`` waits for a writer); each now reads it as empty and
+says what is wrong in one line, while a pipe that is written to (``--noise <(command)``) still reads. A folder is
+one line naming it.
 A noise model or a start-pose file with a 400-digit integer or arrays nested 100 000 deep raised OverflowError or
 RecursionError (an "internal error", exit 70); fuzzed ones now give the reader's own error or a valid object.
 """
@@ -22,6 +23,7 @@ from hypothesis import strategies as st
 from drivers.arcos.params import load_params
 from drivers.errors import BadFileError
 from drivers.videre.calibration import load as load_calibration
+from drivers.videre.camera_info import read_camera
 from estimation.datasets import DatasetError
 from estimation.datasets.mrclam import read_barcodes
 from estimation.noise_model import P3AT_VIDERE_DEFAULT, NoiseModel, NoiseModelError
@@ -47,6 +49,7 @@ READERS: dict[str, tuple[Callable[[Path], object], type[Exception], str]] = {
     "calibration-ini": (load_calibration, BadFileError, "c.ini"),
     "calibration-yaml": (load_calibration, BadFileError, "c.yaml"),
     "robot-params": (load_params, BadFileError, "p.json"),
+    "camera-info": (read_camera, BadFileError, "left.yaml"),
     "mrclam-barcodes": (lambda p: read_barcodes(p.parent), DatasetError, "Barcodes.dat"),
 }
 # a failure bound, far above what the read takes: a reader that waits for a writer waits for ever
