@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from estimation.fileio import open_input
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import MapMessage, copy_map
 from runtime.fleet import mapwire
@@ -43,6 +44,8 @@ DEFAULT_FLEET = "p3at"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 FUSED = "fused"                     # reserved name of the fusion node's map
 MAX_PENDING_BYTES = 64 * 1024 * 1024
+MAX_CONFIG_BYTES = 1 << 20        # a Zenoh configuration file is a few kB
+MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows the stack at ~30 000
 SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
 QUERY_TIMEOUT = 5.0                 # s
 
@@ -68,6 +71,46 @@ def zenoh_message(error: BaseException) -> str:
     return " ".join(text.split())
 
 
+def _read_config(path: str) -> str:
+    try:
+        with open_input(path) as stream:  # never waits on a FIFO
+            data = stream.read(MAX_CONFIG_BYTES + 1)
+    except OSError as e:
+        raise ExchangeError(f"{path}: cannot read the Zenoh configuration ({e.strerror or e})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ExchangeError(f"{path}: more than {MAX_CONFIG_BYTES} bytes; a Zenoh configuration is a few kB")
+    return data.decode("utf-8", errors="replace")
+
+
+def _check_config_text(text: str, shown: str) -> None:
+    """Refuse what Zenoh's parser cannot survive: its JSON5/YAML readers recurse per level of nesting, and a
+    configuration nested ~30 000 deep overflows the native stack (SIGSEGV: no exception, no message). Brackets
+    are counted outside quoted strings; comments are counted too, which can only over-count."""
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ExchangeError(f"{shown}: more than {MAX_CONFIG_BYTES} bytes; a Zenoh configuration is a few kB")
+    depth = deepest = 0
+    quote = ""
+    escaped = False
+    for ch in text:
+        if quote:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == quote:
+                quote = ""
+        elif ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    if deepest > MAX_CONFIG_DEPTH:
+        raise ExchangeError(f"{shown}: nested {deepest} levels deep; a Zenoh configuration has at most "
+                            f"{MAX_CONFIG_DEPTH}")
+
+
 def make_config(config: str | None, role: str) -> zenoh.Config:
     """A Zenoh config: the user's (file or inline JSON5) with this project's defaults where it leaves keys unset.
 
@@ -79,10 +122,12 @@ def make_config(config: str | None, role: str) -> zenoh.Config:
         if config is None:
             cfg = zenoh.Config()
         elif config.lstrip().startswith("{"):
+            _check_config_text(config, " ".join(config.split())[:80])
             cfg = zenoh.Config.from_json5(config)
         else:
             if not Path(config).is_file():
                 raise ExchangeError(f"{config}: no such Zenoh configuration file")
+            _check_config_text(_read_config(config), config)
             cfg = zenoh.Config.from_file(config)
     except zenoh.ZError as e:
         shown = " ".join(config.split())   # an inline configuration may span lines: the message is one
