@@ -4,7 +4,7 @@ Run from the repository root:
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_nees_diagnosis [--robots 1,2,3,4,5] [--seeds 0,1]
         [--set FIELD=VALUE ...] [--export-lever] [--one-landmark-heading] [--no-windows] [--landmarks] [--pinning T0,T1]
-        [--json]
+        [--nis [--dump DIR]] [--calibrated] [--json]
 
 Each robot runs through `p3at slam dataset`'s code path (``run_landmark_log``, known-ID association, own noise
 model) with the filter recorded at every update. For every landmark of the exported map:
@@ -27,6 +27,15 @@ over longer spans). The ``eval_*`` figures are `eval_mrclam`'s (the same ``map_s
 gate reads the plain tracker, so every estimate is the same; the export carries the heading's lever);
 ``--one-landmark-heading``: ``drift_export="lever+heading"`` (docs/fastslam.md, "Session 13 ... (N)"). The
 ``export_drift`` figures are the live pose against that tracker's D_r.
+
+``--nis`` (docs/fastslam.md, "Session 14 ... (I)"): every landmark update in every particle is recorded (the
+innovation ν at the sampled pose and the S = Σ + R Q Rᵀ ``_ekf_update`` uses, the gate's d² of the same pair), the
+final best particle's ancestry is traced through the resamplings' parents, and per landmark of the map its updates
+there are tested (``innovation_consistency.py``: the NIS against χ²₂, the a-posteriori variance factor, the
+whiteness); with the shape part's size and the particle's σ when it was placed, after 10 updates, half-way and at
+the end; and the within-bound fraction if the export's mixture part were scaled by factors the innovations give, or
+held at the particle's Σ after its first n updates. ``--calibrated``: the noise model fitted with eval_mrclam's
+three calibrations (range, heading bias, odometry lag).
 """
 from __future__ import annotations
 
@@ -45,6 +54,14 @@ from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
 from estimation import dataset_slam  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
+from estimation.fastslam.innovation_consistency import (  # noqa: E402
+    block_variance_ratio,
+    lag1_correlation,
+    normalised_innovations,
+    variance_factor,
+)
+from estimation.fastslam.lever_drift import correlated_mean_factor  # noqa: E402
+from estimation.fastslam.linalg import sym_matrices, sym_rotate_z  # noqa: E402
 from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, points_nees  # noqa: E402
@@ -62,21 +79,193 @@ class RecordingFastSLAM(FastSLAM):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.frames: list[dict] = []
+        self.nis_rows: list[np.ndarray] = []   # --nis: one row per landmark update (all particles), see nis_rows
+        self._gate_d2: tuple[np.ndarray, np.ndarray] | None = None
+        self._parents: np.ndarray | None = None
+        resample = self.store.resample
+
+        def recording_resample(parents):   # the raw parents (the history's are re-indexed when it is pruned)
+            self._parents = np.asarray(parents).copy()
+            return resample(parents)
+        self.store.resample = recording_resample
         RecordingFastSLAM.last = self
+
+    def _gate(self, frame, poses, m, mj, mean, cov):
+        out = super()._gate(frame, poses, m, mj, mean, cov)
+        self._gate_d2 = (np.asarray(mj).copy(), out[3].copy())   # the gate's d² (predicted pose, with P's term)
+        return out
+
+    def _ekf_update(self, matched, predicted, poses, z, q6, mean, sigma, s_inv):
+        if len(matched.m):
+            self.nis_rows.append(update_nis(self, matched, poses, z, q6, mean, sigma))
+        return super()._ekf_update(matched, predicted, poses, z, q6, mean, sigma, s_inv)
 
     def update(self, observations, *args, **kwargs):
         predicted = self.drift.robot.copy()
+        self._parents = None
+        n_rows = len(self.nis_rows)
         report = super().update(observations, *args, **kwargs)
+        k = len(self.frames)
+        for rows in self.nis_rows[n_rows:]:
+            rows[:, 0] = k
+        parents = self._parents if report.resampled else np.arange(len(self.poses))
         lever = getattr(self.drift, "lever_robot", None)   # the export's D_r (ExportLeverDriftTracker)
         self.frames.append({"robot_drift": self.drift.robot.copy(), "best_pose": self.poses[self._best].copy(),
                             "export_drift": None if lever is None else lever.copy(), "predicted_drift": predicted,
                             "matched": len(np.unique(report.best_matches[report.best_matches >= 0])),
                             "matched_ids": np.unique(report.best_matches[report.best_matches >= 0]),
-                            "new": np.unique(report.new_landmark_ids[report.new_landmark_ids >= 0])})
+                            "new": np.unique(report.new_landmark_ids[report.new_landmark_ids >= 0]),
+                            "parents": parents, "resampled": bool(report.resampled)})
         if self.keep_estimates:   # the best particle's estimate of each landmark it matched (--pinning)
             self.frames[-1]["estimates"] = {int(lid): self.store.flat_state[self.store.flat_lid == lid][:1, :2].copy()
                                             for lid in self.frames[-1]["matched_ids"]}
         return report
+
+
+CAPS = (5, 10, 20, 50)
+NIS_COLUMNS = ("frame", "particle", "lid", "nis", "gate_d2", "count", "sd_m", "nu_x", "nu_y", "s_xx", "s_xy", "s_yy",
+               "mean_x", "mean_y", "cov_xx", "cov_xy", "cov_yy")
+
+
+def update_nis(slam: RecordingFastSLAM, matched, poses, z, q6, mean, sigma) -> np.ndarray:
+    """One row per landmark update (NIS_COLUMNS): the planar NIS νᵀ S⁻¹ ν of the innovation the EKF uses (at the
+    sampled pose, S = Σ + R Q Rᵀ as ``_ekf_update`` forms it in FastSLAM 2.0), the gate's d² of the same pair (at
+    the predicted pose, S with the pose's term H P Hᵀ), the landmark's sightings and σ before the update. The
+    range-bearing reading's height is a fixed 0 (``_Z_VARIANCE``), so both have two degrees of freedom (χ²₂)."""
+    m, j = matched.m, matched.j
+    pose = poses[m]
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    nu = np.stack([c * z[j, 0] - s * z[j, 1] + pose[:, 0] - mean[0], s * z[j, 0] + c * z[j, 1] + pose[:, 1] - mean[1]],
+                  axis=1)
+    big_s = sym_matrices(sigma + sym_rotate_z(c, s, q6[:, j]))[:, :2, :2]
+    nis = np.einsum("pi,pi->p", nu, np.linalg.solve(big_s, nu[..., None])[..., 0])
+    gate = np.full(len(m), np.nan)
+    if slam._gate_d2 is not None:
+        keys, d2 = slam._gate_d2
+        order = np.argsort(keys, kind="stable")
+        want = m * len(z) + j
+        at = np.clip(np.searchsorted(keys[order], want), 0, max(len(keys) - 1, 0))
+        if len(keys):
+            hit = keys[order][at] == want
+            gate[hit] = d2[order][at][hit]
+    return np.stack([np.full(len(m), -1.0), m, slam.store.flat_lid[matched.g], nis, gate,
+                     slam.store.flat_count[matched.g], np.sqrt(0.5 * (sigma[0] + sigma[3])), nu[:, 0], nu[:, 1],
+                     big_s[:, 0, 0], big_s[:, 0, 1], big_s[:, 1, 1], mean[0], mean[1], sigma[0], sigma[1], sigma[3]],
+                    axis=1)
+
+
+def lineage_nis(slam: RecordingFastSLAM) -> dict[int, np.ndarray]:
+    """The landmark updates of the final best particle's ancestry, by landmark id: rows (NIS_COLUMNS) in time order.
+    At frame k the update was made in particle parents_k[i_k] (before the resampling), i_k its index after it."""
+    rows = np.concatenate(slam.nis_rows) if slam.nis_rows else np.zeros((0, len(NIS_COLUMNS)))
+    ancestor = np.empty(len(slam.frames), np.int64)
+    i = slam._best
+    for k in range(len(slam.frames) - 1, -1, -1):
+        ancestor[k] = slam.frames[k]["parents"][i]
+        i = ancestor[k]
+    on = rows[:, 1].astype(np.int64) == ancestor[rows[:, 0].astype(np.int64)]
+    rows = rows[on]
+    return {int(lid): rows[rows[:, 2] == lid] for lid in np.unique(rows[:, 2])}
+
+
+def innovation_whiteness(u: np.ndarray) -> tuple[float, float]:
+    """One landmark's updates (rows NIS_COLUMNS, time order): the lag-1 correlation ρ of its whitened innovations
+    S^(-1/2) ν and the variance ratio of sums of 50 successive ones (innovation_consistency.py: 0 and 1 if white)."""
+    c = {n: i for i, n in enumerate(NIS_COLUMNS)}
+    nu = u[:, [c["nu_x"], c["nu_y"]]]
+    s = np.stack([u[:, [c["s_xx"], c["s_xy"]]], u[:, [c["s_xy"], c["s_yy"]]]], axis=1)
+    w, _ = normalised_innovations(nu, s)
+    return lag1_correlation(w), block_variance_ratio(w, 50)
+
+
+def nis_summary(split_rows: list[dict], by_lid: dict[int, np.ndarray], slam: RecordingFastSLAM) -> dict:
+    """Does the update's NIS see the shape part? Per landmark of the map, over its updates in the final best
+    particle's ancestry: the mean NIS (χ²₂: 2), the fraction above χ²₂'s 95 % bound, the gate's d², the innovations'
+    whiteness (:func:`innovation_whiteness`); for the landmarks whose shape part is outside the bound under the
+    mixture Σ ("shape_out") and for the others. When the shape part arises: its size and the particle's σ at the
+    landmark's first update (the placement), after 10 updates, half-way and at the end (the shape part at update
+    i is μ_i − μ_end + (e − f)). And the export-only variants' figures, the mixture's part of the exported
+    covariance scaled by a factor ≥ 1 (the drift's C_l kept): the a-posteriori variance factor F = Σ NIS / (2 n),
+    the AR(1) (Bartlett) factor of ρ (lever_drift.correlated_mean_factor), the 50-update ratio, and a cap on the
+    readings' count: the mixture no smaller (in trace) than the particle's Σ after the landmark's first n updates
+    (``cap{n}``, n in CAPS)."""
+    bound = CHI2_95[2]
+    c = {n: i for i, n in enumerate(NIS_COLUMNS)}
+    resampled = np.array([f["resampled"] for f in slam.frames])
+    out: dict = {"resampled_frames": float(np.mean(resampled))}
+    per = []
+    for r in split_rows:
+        u = by_lid.get(r["lid"])
+        if u is None or not len(u):
+            continue
+        u = u[np.argsort(u[:, 0], kind="stable")]
+        nis = u[:, c["nis"]]
+        rho, ratio50 = innovation_whiteness(u)
+        e, f = np.array(r["e"]), np.array(r["f"])
+        mixture, drift = np.array(r["mixture"]), np.array(r["drift"])
+        means = u[:, [c["mean_x"], c["mean_y"]]]
+        shape_then = np.hypot(*(means - means[-1] + (e - f)).T)          # before each update
+        sd_then = np.sqrt(0.5 * (u[:, c["cov_xx"]] + u[:, c["cov_yy"]]))
+
+        def scaled(factor: float, e=e, mixture=mixture, drift=drift) -> float:
+            return float(points_nees(e[None], (max(factor, 1.0) * mixture + drift)[None])[0])
+        after_resampling = resampled[np.maximum(u[:, 0].astype(np.int64) - 1, 0)]
+        half = len(u) // 2
+        factors = {"nis": variance_factor(nis, 2),
+                   "bartlett": float(correlated_mean_factor(np.array([len(u)]), min(max(rho, 0.0), 0.99))[0]),
+                   "ratio50": ratio50 if np.isfinite(ratio50) else 1.0}
+        for cap in CAPS:   # the landmark's σ no smaller than after its first `cap` updates (an effective count)
+            at = min(cap, len(u) - 1)
+            factors[f"cap{cap}"] = float((u[at, c["cov_xx"]] + u[at, c["cov_yy"]]) / max(np.trace(mixture), 1e-300))
+        per.append({"shape_out": r["shape_nees"] >= bound, "updates": len(u), "nis_mean": float(np.mean(nis)),
+                    "nis_over": float(np.mean(nis > bound)), "gate_mean": float(np.nanmean(u[:, c["gate_d2"]])),
+                    "nis_first10": float(np.mean(nis[:10])), "nis_after_resampling":
+                    float(np.mean(nis[after_resampling])) if after_resampling.any() else np.nan,
+                    "nis_not_after_resampling": float(np.mean(nis[~after_resampling]))
+                    if (~after_resampling).any() else np.nan,
+                    "rho": rho, "ratio50": ratio50,
+                    "shape_m_first": float(shape_then[0]), "shape_m_10": float(shape_then[min(10, len(u) - 1)]),
+                    "shape_m_half": float(shape_then[half]), "shape_m_end": float(np.hypot(*(e - f))),
+                    "sd_m_first": float(sd_then[0]), "sd_m_10": float(sd_then[min(10, len(u) - 1)]),
+                    "sd_m_half": float(sd_then[half]),
+                    "needed_factor": float(r["shape_nees"] / bound),
+                    **{f"factor_{k}": v for k, v in factors.items()},
+                    **{f"nees_{k}": scaled(v) for k, v in factors.items()}, "nees": r["nees"]})
+        r["nis_mean"], r["nis_updates"], r["rho"], r["ratio50"] = per[-1]["nis_mean"], len(u), rho, ratio50
+    if not per:
+        return out
+    a = {k: np.array([p[k] for p in per], float) for k in per[0]}
+    for label, sel in (("shape_out", a["shape_out"] > 0), ("shape_in", a["shape_out"] == 0)):
+        if sel.any():
+            out[f"{label}_landmarks"] = int(sel.sum())
+            for k in per[0]:
+                if k not in ("shape_out", "nees") and not k.startswith("nees_"):
+                    out[f"{label}_{k}_median"] = float(np.nanmedian(a[k][sel]))
+    all_nis = np.concatenate([u[:, c["nis"]] for u in by_lid.values()])
+    out.update({"updates": len(all_nis), "nis_mean_all": float(np.mean(all_nis)),
+                "nis_over_all": float(np.mean(all_nis > bound)), "within": float(np.mean(a["nees"] < bound)),
+                "nees_median": float(np.median(a["nees"]))})
+    for k in ("nis", "bartlett", "ratio50", *(f"cap{cap}" for cap in CAPS)):
+        out[f"within_scaled_{k}"] = float(np.mean(a[f"nees_{k}"] < bound))
+        out[f"nees_median_scaled_{k}"] = float(np.median(a[f"nees_{k}"]))
+    return out
+
+
+def readings_shared_error(log, noise) -> float:
+    """Median over the landmarks of the distance from the truth of the mean of a landmark's readings projected from
+    the TRUE poses (the noise model's corrections, no filter): the error a landmark's readings share, which no
+    number of them averages out (landmarks with ≥ 5 readings)."""
+    ranges, bearings = noise.range_bearing.corrected(log.ranges, log.bearings)
+    pose = log.true_pose(log.sighting_times)
+    errors = []
+    for lid in log.truth_ids:
+        sel = log.landmark_ids == lid
+        if sel.sum() < 5:
+            continue
+        angle = pose[sel, 2] + bearings[sel]
+        seen = pose[sel, :2] + ranges[sel, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        errors.append(np.hypot(*(seen.mean(axis=0) - log.truth_positions[np.searchsorted(log.truth_ids, lid)])))
+    return float(np.median(errors)) if errors else float("nan")
 
 
 def pinning(result, slam: RecordingFastSLAM, log, t_from: float, t_to: float) -> list[str]:
@@ -157,7 +346,9 @@ def landmark_split(result, slam: RecordingFastSLAM, log) -> dict:
         c = drift_c[n, :2, :2]
         d = pose_d[n]
         pose_nees = float(pose_error @ np.linalg.solve(d, pose_error)) if np.linalg.cond(d) < 1e12 else np.nan
-        rows.append({"id": int(ext), "created_s": float(times[k] - times[0]), "error_m": float(np.hypot(*e)),
+        rows.append({"id": int(ext), "lid": int(lid), "e": e.tolist(), "f": f.tolist(),   # --nis reads these
+                     "mixture": (total - c).tolist(), "drift": c.tolist(),
+                     "created_s": float(times[k] - times[0]), "error_m": float(np.hypot(*e)),
                      "frame_m": float(np.hypot(*f)), "shape_m": float(np.hypot(*(e - f))),
                      "nees": float(points_nees(e[None], total[None])[0]),
                      "frame_nees": float(points_nees(f[None], c[None])[0]),
@@ -246,7 +437,7 @@ def summarise(rows: list[dict]) -> dict:
     """The split's figures over a map's landmarks (and over those outside the bound)."""
     if not rows:
         return {}
-    a = {k: np.array([r[k] for r in rows], float) for k in rows[0]}
+    a = {k: np.array([r[k] for r in rows], float) for k in rows[0] if not isinstance(rows[0][k], list)}
     out_bound = a["nees"] >= CHI2_95[2]
     s = {"landmarks": len(rows), "within": float(np.mean(~out_bound)), "nees_median": float(np.median(a["nees"])),
          "sd_median_m": float(np.median(a["sd_m"])), "drift_sd_median_m": float(np.median(a["drift_sd_m"])),
@@ -282,6 +473,12 @@ def main(argv: list[str] | None = None) -> int:
                         "matched one landmark keeps the predicted heading uncertainty as a turn about it")
     parser.add_argument("--pinning", metavar="T0,T1", help="print the frames between T0 and T1 s (first robot and "
                         "seed) whose two or more matched landmarks cut D_r's heading σ, and how far those are off")
+    parser.add_argument("--nis", action="store_true", help="the landmark updates' NIS in the final best particle's "
+                        "ancestry, for the landmarks whose shape part is outside the bound and the others")
+    parser.add_argument("--calibrated", action="store_true", help="fit the noise model with the range's calibration, "
+                        "the heading bias and the odometry lag (eval_mrclam's three options)")
+    parser.add_argument("--dump", type=Path, help="with --nis: save each run's ancestry updates and landmark rows "
+                        "(DIR/robotR_seedS.npz)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     RecordingFastSLAM.keep_estimates = bool(args.pinning)
@@ -294,7 +491,8 @@ def main(argv: list[str] | None = None) -> int:
     out = {}
     for r in (int(x) for x in args.robots.split(",")):
         log = read_mrclam(args.data, r)
-        noise = estimate_noise([log]).model
+        noise = estimate_noise([log], **({"range_calibration": True, "heading_bias": True, "odometry_lag": True}
+                                         if args.calibrated else {})).model
         config = range_bearing_config(**overrides)
         windows = {} if args.no_windows else odometry_windows(log, noise, config)
         for seed in (int(x) for x in args.seeds.split(",")):
@@ -305,8 +503,18 @@ def main(argv: list[str] | None = None) -> int:
                      "eval_rigid_within": result.metrics["landmark_nees_rigid_within_bound"],
                      "eval_nees_median": result.metrics["landmark_nees_median"],
                      **summarise(split["landmarks"]), **live_drift(result, slam), "windows": windows}
+            if args.nis:
+                by_lid = lineage_nis(slam)
+                entry["nis"] = nis_summary(split["landmarks"], by_lid, slam)
+                entry["nis"]["readings_shared_error_median_m"] = readings_shared_error(log, noise)
+                if args.dump:
+                    args.dump.mkdir(parents=True, exist_ok=True)
+                    np.savez(args.dump / f"robot{r}_seed{seed}.npz", columns=np.array(NIS_COLUMNS),
+                             updates=np.concatenate(list(by_lid.values())),
+                             landmarks=json.dumps(split["landmarks"]))
             if args.landmarks:
-                entry["rows"] = split["landmarks"]
+                entry["rows"] = [{k: v for k, v in row.items() if not isinstance(v, list)}
+                                 for row in split["landmarks"]]
             if args.pinning:
                 t_from, t_to = (float(x) for x in args.pinning.split(","))
                 entry["pinning"] = pinning(result, slam, log, t_from, t_to)
