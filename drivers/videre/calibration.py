@@ -458,6 +458,8 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
         raise BadFileError(f"{path}: cannot read: not a regular file but {kind}" if path.exists() else
                            f"{path}: no such file")
     _check_file_size(path)
+    if path.stat().st_size == 0:  # OpenCV would say '(-215:Assertion failed) buf in function 'open''
+        raise BadFileError(f"{path}: an empty file, not an OpenCV calibration")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # the Python binding wraps parse errors in SystemError

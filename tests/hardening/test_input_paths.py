@@ -232,3 +232,11 @@ def test_a_log_or_recording_that_is_a_fifo_or_a_broken_link_says_what_is_there(t
         assert main([command, str(path), *extra]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"p3at {command}: {path}: {said}") and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("name", ["c.yaml", "c.yml", "c.xml"])
+def test_an_empty_opencv_calibration_says_it_is_empty(tmp_path, name):
+    """It said OpenCV's '(-215:Assertion failed) buf in function 'open''."""
+    path = _written(tmp_path / name, b"")
+    with pytest.raises(BadFileError, match=rf"^{path}: an empty file, not an OpenCV calibration$"):
+        load_calibration(path)
