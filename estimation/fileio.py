@@ -56,11 +56,12 @@ def open_input(path: str | os.PathLike) -> BinaryIO:
     opened without waiting for a writer (a plain ``open`` waits forever), so one that nothing writes to reads as
     empty, while a pipe that is written to (``<(command)``) reads as usual. A device (``/dev/zero``) reads as it
     does: the callers bound what they read."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    nonblocking = getattr(os, "O_NONBLOCK", 0)  # POSIX; elsewhere open() does not wait on a pipe's writer
+    fd = os.open(path, os.O_RDONLY | nonblocking | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
     try:
         if stat.S_ISDIR(os.fstat(fd).st_mode):
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
-        if hasattr(os, "set_blocking"):
+        if nonblocking:
             os.set_blocking(fd, True)  # reads wait for data again; only the open must not wait
         return os.fdopen(fd, "rb")
     except BaseException:
