@@ -16,6 +16,7 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     world/<robot>/particles               Points3D, every particle's (x, y)
     world/<robot>/landmarks               Points3D, confirmed bright, provisional dim and small
     world/<robot>/landmarks/covariance    Ellipsoids3D (1 σ) of the last snapshot; hidden by the blueprint
+    world/<robot>/true_landmarks          Points3D, a data set's true landmarks (static, labelled)
     world/<robot>/sonar                   LineStrips3D, one segment per sonar ray
     world/<robot>/stereo                  Transform3D: the head on the estimated pose
     world/<robot>/stereo/{left,right}     Pinhole, .../features Points2D (matched corners); a lone left image
@@ -27,6 +28,7 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     map/<robot>/pose[/heading], true_pose Points2D (labelled) + Arrows2D
     map/<robot>/particles                 Points2D
     map/<robot>/landmarks/{confirmed,provisional}          Points2D
+    map/<robot>/true_landmarks            Points2D, a data set's true landmarks (static, labelled)
     map/fused/building                    the walls in the fused map's frame (the reference robot's start)
     map/fused/<robot>                     Transform3D: the robot's frame as the fusion aligned it
     map/fused/<robot>/{trajectory,pose}   its path from its last map snapshot
@@ -34,6 +36,7 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     plots/<robot>/{ess,observations,dropped}, plots/<robot>/landmarks/{all,confirmed,provisional}   Scalars
     plots/<robot>/time/<stage>            Scalars, milliseconds per call
     plots/<robot>/self_check[/threshold]  Scalars, the map's self-check CUSUM and its threshold (per snapshot)
+    plots/<robot>/pose_nees               Scalars, a data set run's pose NEES against its ground truth
     plots/fusion/{error_xy,error_theta,common,merged}    Scalars (m, rad, counts)
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
@@ -234,6 +237,7 @@ SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "merged": ("merged landmarks", (240, 240, 240)),
     "self_check": ("self-check CUSUM (at the threshold: the map may have lost its place)", (200, 100, 160)),
     "self_check/threshold": ("self-check threshold", (150, 150, 150)),
+    "pose_nees": ("pose NEES (χ²₃: 3 is consistent)", (230, 190, 60)),
 }
 _SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
 
@@ -325,6 +329,20 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
     return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, fusion, world, active_tab=0), collapse_panels=True)
+
+
+def dataset_blueprint(robot: str) -> rrb.Blueprint:
+    """The layout of one robot's run on a data set (runtime/dataset_recording.py): its 2-D map (estimated, dead
+    reckoning and true paths, its landmarks over the true ones) beside the pose NEES over time; a 3-D tab with the
+    landmarks' 1-σ ellipsoids shown (the point of a run with ground truth is to see whether they cover the truth).
+    No fusion view: one robot, nothing fused."""
+    overview = rrb.Horizontal(
+        _map_view(robot, f"{robot}: map and paths (own start frame; grey: ground truth)"),
+        _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)"),
+        column_shares=[3, 2], name="overview")
+    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
+                           name="3-D")
+    return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
 
 
 # -- geometry helpers -------------------------------------------------------------------------------------
@@ -522,6 +540,25 @@ class MissionLog:
             self.rec.log(path, rr.Pinhole(focal_length=[fx, fy], principal_point=[cx, cy], width=width,
                                           height=height, camera_xyz=rr.ViewCoordinates.RDF,
                                           image_plane_distance=0.3), static=True)
+
+    def log_disc_body(self, robot: str, radius: float, height: float = 0.1) -> None:
+        """Draw the robot as a disc of ``radius`` m (e.g. MRCLAM's iRobot Creates) instead of the P3-AT's box: call
+        before its first :meth:`log_pose`."""
+        if self._first_time(f"world/{robot}/base_link/body"):
+            self.rec.log(f"world/{robot}/base_link/body", rr.Cylinders3D(
+                lengths=[height], radii=[radius], centers=[[0, 0, height / 2]], colors=self.colour(robot),
+                fill_mode=rr.components.FillMode.Solid), static=True)
+
+    def log_true_landmarks(self, robot: str, positions: np.ndarray, labels: Iterable[str] = ()) -> None:
+        """The true landmarks (N, 2) in the robot's map frame (a data set's ground truth; static), labelled, in the
+        3-D world and in the robot's 2-D map, drawn under its estimated landmarks."""
+        positions = np.asarray(positions, float).reshape(-1, 2)
+        labels = [str(label) for label in labels] or None
+        self.rec.log(f"world/{robot}/true_landmarks", rr.Points3D(_with_z(positions, 0.0), radii=0.05,
+                                                                  colors=TRUE_COLOUR, labels=labels), static=True)
+        self.rec.log(f"{self._map_root(robot)}/true_landmarks",
+                     rr.Points2D(positions, radii=-5.0, colors=TRUE_COLOUR, labels=labels, show_labels=True,
+                                 draw_order=4.0), static=True)
 
     # -- per robot, per frame -------------------------------------------------------------------------
     def log_pose(self, robot: str, t: float, frame: int | None, estimated: np.ndarray,

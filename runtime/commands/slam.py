@@ -141,6 +141,10 @@ def _register_dataset(sub) -> None:
     parser.add_argument("folder", metavar="DIR", help="the data set's folder")
     parser.add_argument("--robot", type=positive_int, required=True, metavar="N", help="robot number (1-5 in MRCLAM)")
     parser.add_argument("--out", required=True, metavar="MAP", help="map file to write (.npz landmark map)")
+    parser.add_argument("--rerun", default=None, metavar="SINK",
+                        help="also write the run to Rerun: FILE.rrd, spawn (a live viewer) or a rerun+http:// URL; "
+                             "the paths (estimated, dead reckoning, true), the map over the true landmarks, the pose "
+                             "NEES over time")
     parser.add_argument("--association", choices=("id", "unknown"), default="id",
                         help="id: the barcode decides the landmark; unknown: position only, barcodes used for "
                              "scoring only (default id)")
@@ -192,6 +196,15 @@ def _register_noise(sub) -> None:
     parser.set_defaults(handler=_noise)
 
 
+def _check_rerun_sink(sink: str | None) -> None:
+    """Refuse a ``--rerun`` sink before the run, not after it: FILE.rrd (its folder writable), spawn or a URL."""
+    if sink is None or sink == "spawn" or sink.startswith(("rerun://", "rerun+http://", "rerun+https://", "http://")):
+        return
+    if not sink.endswith(".rrd"):
+        raise ValueError(f"--rerun {sink}: give FILE.rrd, spawn or a rerun+http:// URL")
+    check_output_file(sink, "--rerun")
+
+
 def _dataset(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
@@ -202,6 +215,7 @@ def _dataset(args: argparse.Namespace) -> int:
 
     try:
         check_output_file(args.out)
+        _check_rerun_sink(args.rerun)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes)
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
@@ -218,8 +232,17 @@ def _dataset(args: argparse.Namespace) -> int:
     except (ValueError, OSError, EstimationError) as e:   # DatasetError, NoiseModelError, MapFileError included
         print(f"p3at slam dataset: {e}", file=sys.stderr)
         return 2
+    if args.rerun:
+        from runtime.dataset_recording import record_dataset_run
+        from runtime.rerun_log import ViewerError
+        try:
+            record_dataset_run(args.rerun, run, log, f"robot{args.robot}")
+        except (OSError, ViewerError) as e:
+            print(f"p3at slam dataset: the map is written to {args.out}, but the recording failed: {e}",
+                  file=sys.stderr)
+            return 2
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
-                   noise=noise_source, notes=list(log.notes))
+                   noise=noise_source, notes=list(log.notes), recording=args.rerun)
     if args.json:
         print(json.dumps(metrics))
         return 0
@@ -237,7 +260,7 @@ def _dataset(args: argparse.Namespace) -> int:
           f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
     print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
           f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
-    print(f"  map written to {m['out']}")
+    print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
     return 0
 
 

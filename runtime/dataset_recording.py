@@ -1,0 +1,72 @@
+"""A landmark data set's run (``p3at slam dataset ... --rerun SINK``) as a Rerun recording, beside its ground truth.
+
+What a reader sees, in the robot's 2-D map (its start frame, as the map file): the estimated path, the dead
+reckoning and the true path (Vicon on MRCLAM) growing over the log's time, the final map's landmarks with the true
+ones labelled by id under them, and the pose NEES over time (plots/<robot>/pose_nees); in the 3-D world the same
+placed at the robot's true start, with the landmarks' 1-σ ellipsoids (hidden by default, as for every map). The
+map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it.
+
+The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
+pose every ``POSE_INTERVAL_S`` of log time. A saved file is written beside its name and renamed over it when
+complete: an interrupted run never leaves half a recording, nor replaces an earlier one.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from estimation.dataset_slam import DatasetRun
+from estimation.datasets import RangeBearingLog
+from estimation.geometry import between
+
+from .rerun_log import MissionLog, dataset_blueprint, open_recording
+
+POSE_INTERVAL_S = 0.2   # log time between logged poses: 5 Hz draws the paths smoothly and keeps the file small
+
+
+def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
+    """Log ``run`` (of ``log``, robot name ``robot``) to ``sink``: a path ending in .rrd, "spawn" or a rerun+http
+    URL (see :func:`runtime.rerun_log.open_recording`). A map whose metadata gives ``footprint_radius_m`` (MRCLAM's
+    iRobot Creates) draws its robot as that disc, not as the P3-AT's box."""
+    saved = sink.endswith(".rrd")
+    target = Path(sink)
+    partial = target.with_name(f".{target.name}.{os.getpid()}.partial") if saved else None
+    rec = open_recording(str(partial) if saved else sink, blueprint=dataset_blueprint(robot))
+    mission = MissionLog(rec, [robot], blueprint=False)
+    try:
+        _log_run(mission, run, log, robot)
+        mission.close()
+        if partial is not None:
+            os.replace(partial, target)
+    finally:
+        mission.close()
+        if partial is not None:
+            partial.unlink(missing_ok=True)
+
+
+def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
+    start = np.asarray(run.metrics["true_start_pose"], float)
+    t0 = float(run.metrics["start_time"])
+    mission.log_robot_frame(robot, start)
+    if "footprint_radius_m" in run.map.metadata:
+        mission.log_disc_body(robot, float(run.map.metadata["footprint_radius_m"]))
+    if len(log.truth_ids):
+        true_landmarks = between(start, np.column_stack([log.truth_positions, np.zeros(len(log.truth_ids))]))
+        mission.log_true_landmarks(robot, true_landmarks[:, :2], labels=log.truth_ids.tolist())
+    estimated = between(start, run.estimated_trajectory[:, 1:])
+    true = between(start, run.true_trajectory[:, 1:])
+    dead = between(start, run.dead_reckoning[:, 1:])
+    times = run.estimated_trajectory[:, 0] - t0
+    last = -np.inf
+    for k, t in enumerate(times):
+        if t - last < POSE_INTERVAL_S and k != len(times) - 1:
+            continue
+        last = t
+        mission.log_pose(robot, float(t), None, estimated[k], true=true[k], odometry=dead[k])
+        mission.log_scalars(robot, float(t), {"pose_nees": float(run.pose_nees[k])})
+    end = float(times[-1]) if len(times) else 0.0
+    mission.log_robot_landmarks(robot, end, None, run.map)
+    mission.log_map(robot, end, run.map)
+    mission.log_summary({key: value for key, value in run.metrics.items() if np.isscalar(value)} | {"robot": robot})
