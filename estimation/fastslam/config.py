@@ -18,7 +18,7 @@ MERGE_LOOKS = ("older", "newer")
 # FastSLAMConfig.weight_evidence: which particles a reading's likelihood compares (shared_evidence.py)
 WEIGHT_EVIDENCE_RULES = ("all", "shared_creation")
 # FastSLAMConfig.drift_export: the known-ID range-bearing path's exported drift term (export_drift.py)
-DRIFT_EXPORTS = ("plain", "lever", "lever+heading")
+DRIFT_EXPORTS = ("plain", "lever", "lever+heading", "lever+heading+relative")
 
 # Default virtual STH-MDCS2 (docs: STEREO_DEFAULTS): 640×480, f = 520 px, head at (0.12, 0, 0.50) in base_link.
 _HFOV = 2.0 * math.atan(320.0 / 520.0)
@@ -133,7 +133,10 @@ class FastSLAMConfig:
     #                                             #   plain tracker, whose C_l its merges read): "lever" exports
     #                                             #   the landmarks' drift term with the heading's lever;
     #                                             #   "lever+heading" also keeps the heading through frames that
-    #                                             #   match one landmark (export_drift.py); the gate, so every
+    #                                             #   match one landmark; "lever+heading+relative" also the
+    #                                             #   mean drift of the poses that re-sighted a landmark relative
+    #                                             #   to the one that made it, the landmark's shape part (export_
+    #                                             #   drift.py, docs "Session 14 ... (J)"); the gate, so every
     #                                             #   estimate, unchanged. range_bearing_config's choice since
     #                                             #   session 14: MRCLAM within the NEES bound 23-86 % -> 57-100 %
     #                                             #   (docs/fastslam.md "Session 13 ... (N)", "Session 14")

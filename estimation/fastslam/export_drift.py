@@ -24,12 +24,27 @@ between two updates the lever D_r is the plain one plus G(Δ) (S − P) G(Δ)ᵀ
 last update and Δ the best particle's displacement since (its positions at the two updates; the proposal's shift
 of a few cm within a frame is the approximation). ``remeasured`` (known-ID anchoring, ``id_drift_inherit``) lowers
 the plain D_l only; the export's stays as made (wider, never narrower, as ``remeasured`` leaves C_l).
+
+``relative=True`` (``drift_export="lever+heading+relative"``, docs/fastslam.md "Session 14 ... (J)"): the landmark's
+shape part. C_l counts the creation pose's error; a landmark's EKF then averages its readings placed from the poses
+that re-sighted it, and each of those poses drifted relative to the creation pose, which the EKF (conditional on one
+path) does not count. With e_k = G_k e_c + δ_k (the pose at sighting k, G_k = G(t_k − t_c) the lever from the
+creation position t_c), the reading placed from it is off by H_k e_k = H_c e_c + H_k δ_k (H_k G_k = H_c: the lever
+composes), so beyond C_l = H_c D_l H_cᵀ sighting k adds H_k R_k H_kᵀ with R_k = (D_r,k − G_k D_l G_kᵀ)⁺ (the PSD
+part, as ``id_gate`` takes D_r − D_l; D_r,k the lever D_r right after frame k's update, the pose the EKF placed the
+reading from; H_k's lever w = p_l − t_k, p_l where l was made). The landmark is a weighted mean of its n readings
+(the creation one with R = 0), so its error carries Σ a_k H_k δ_k, whose covariance is at most Σ a_k H_k R_k H_kᵀ
+(the weighted variance of the vectors is ⪰ 0) and equal to it when the δ_k are fully correlated and alike, as
+successive sightings' drifts are (one chain): the mean, not the sum (the n sightings share one drift) and not 1/n of
+it (they are not independent). Weights: equal, the EKF's own for a static point whose readings have equal noise (gain
+1/k at the k-th reading); the tracker sees frames, not the readings' noise. Export: C_l + mean_k H_k R_k H_kᵀ.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .drift import DriftTracker, _components, made_position_covariances
+from .id_gate import psd_part
 from .lever_drift import lever_mean, shears
 from .linalg import sym_components, sym_matrices
 
@@ -37,9 +52,12 @@ from .linalg import sym_components, sym_matrices
 class ExportLeverDriftTracker(DriftTracker):
     """:class:`DriftTracker` for the gate, with the heading's lever carried for the export (module docstring)."""
 
-    def __init__(self, one_landmark_heading: bool = False) -> None:
+    def __init__(self, one_landmark_heading: bool = False, relative: bool = False) -> None:
         super().__init__()
         self.one_landmark_heading = bool(one_landmark_heading)   # see :meth:`update`
+        self.relative = bool(relative)                 # export the shape part too (module docstring)
+        self._relative_sum = np.zeros((0, 6))          # Σ_k H_k R_k H_kᵀ over l's re-sightings (components)
+        self._sightings = np.zeros(0)                  # n: l's sightings, its creation included
         self._made_at = np.zeros((0, 2))               # each landmark's position when it was made (start frame)
         self._lever_pose = np.zeros((0, 6))            # the lever tracker's D_l per landmark id
         self._lever_position = np.zeros((0, 6))        # its C_l = H D_l Hᵀ: the export's term
@@ -53,6 +71,8 @@ class ExportLeverDriftTracker(DriftTracker):
             self._lever_pose = np.vstack([self._lever_pose, np.zeros((grow, 6))])
             self._lever_position = np.vstack([self._lever_position, np.zeros((grow, 6))])
             self._made_at = np.vstack([self._made_at, np.zeros((grow, 2))])
+            self._relative_sum = np.vstack([self._relative_sum, np.zeros((grow, 6))])
+            self._sightings = np.concatenate([self._sightings, np.zeros(grow)])
 
     @property
     def lever_robot(self) -> np.ndarray:
@@ -84,18 +104,50 @@ class ExportLeverDriftTracker(DriftTracker):
                 arm = robot_pose[:2] - self._made_at[matched_ids[0]]
                 g = np.array([-arm[1], arm[0], 1.0])
                 lever = lever + max(0.0, predicted[2, 2] - lever[2, 2]) * np.outer(g, g)
+            if self.relative:
+                self._accumulate(matched_ids, lever, robot_pose, moved)
         new_ids = np.asarray(new_ids, np.int64)
         if len(new_ids):
             self._lever_pose[new_ids] = sym_components(lever[None])[:, 0]
             self._lever_position[new_ids] = made_position_covariances(lever, robot_pose, new_positions)
             self._made_at[new_ids] = np.asarray(new_positions, float)[:, :2]
+            self._relative_sum[new_ids] = 0.0
+            self._sightings[new_ids] = 1.0
         self._difference = lever - self.robot
         self._last_position = robot_pose[:2].copy()
 
+    def _accumulate(self, ids: np.ndarray, robot: np.ndarray, robot_pose: np.ndarray, moved: np.ndarray) -> None:
+        """Σ_k += H_k (D_r − G_k D_l G_kᵀ)⁺ H_kᵀ and n += 1 for re-sighted landmarks ``ids`` (K,), D_r = ``robot``
+        (3, 3) the lever D_r after this frame's update, ``moved`` (K, 2) = t_k − t_c (module docstring)."""
+        g = shears(moved)
+        relative = psd_part(robot[None] - g @ sym_matrices(self._lever_pose[ids].T) @ np.swapaxes(g, 1, 2))
+        self._relative_sum[ids] += made_position_covariances_stack(relative, robot_pose, self._made_at[ids])
+        self._sightings[ids] += 1.0
+
+    def relative_covariances(self, ids: np.ndarray) -> np.ndarray:
+        """The shape part mean_k H_k R_k H_kᵀ (L, 3, 3) of landmarks ``ids`` (L,) (module docstring; zeros for ids
+        never seen, never re-sighted, or without ``relative``, which accumulates nothing)."""
+        total = _components(self._relative_sum, ids)
+        n = _components(np.repeat(self._sightings[:, None], 6, axis=1), ids)
+        return sym_matrices(total / np.maximum(n, 1.0))
+
     def landmark_covariances(self, ids: np.ndarray) -> np.ndarray:
-        """C_l (L, 3, 3) of the lever tracker (the export's term; zeros for ids never seen by the tracker)."""
-        return sym_matrices(_components(self._lever_position, ids))
+        """C_l (L, 3, 3) of the lever tracker (the export's term; zeros for ids never seen by the tracker); with
+        ``relative``, plus the shape part (:meth:`relative_covariances`)."""
+        made = sym_matrices(_components(self._lever_position, ids))
+        return made + self.relative_covariances(ids) if self.relative else made
 
     def export_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
         """The lever tracker's D_l (6, L) components (the gate reads the plain ones, ``landmark_pose_covariances``)."""
         return _components(self._lever_pose, ids)
+
+
+def made_position_covariances_stack(pose_covariances: np.ndarray, robot_pose: np.ndarray, positions: np.ndarray
+                                    ) -> np.ndarray:
+    """H_l D_l H_lᵀ (L, 6 components) for one pose covariance per landmark D_l (L, 3, 3) (``made_position_covariances``
+    takes one D for all): H_l = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 0]], w_l = positions_l − the robot's position."""
+    w = np.asarray(positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
+    h = np.zeros((len(w), 3, 3))
+    h[:, 0, 0] = h[:, 1, 1] = 1.0
+    h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
+    return sym_components(h @ pose_covariances @ np.swapaxes(h, 1, 2)).T

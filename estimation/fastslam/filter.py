@@ -213,7 +213,8 @@ class FastSLAM:
         # covariances, so the export's tracker would change estimates there; that path keeps the plain one
         export_only = config.drift_export != "plain" and config.association == "id"
         self.drift = (LeverDriftTracker(config.drift_translation_per_m) if config.drift_lever   # the map frame's
-                      else ExportLeverDriftTracker(one_landmark_heading=config.drift_export == "lever+heading")
+                      else ExportLeverDriftTracker(config.drift_export.startswith("lever+heading"),
+                                                   relative=config.drift_export.endswith("+relative"))
                       if export_only else DriftTracker())                                       # drift
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
