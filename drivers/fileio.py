@@ -50,7 +50,6 @@ def fsync_folder(folder: str | os.PathLike) -> None:
         os.close(fd)
 
 
-
 def open_input(path: str | os.PathLike) -> BinaryIO:
     """``path`` opened for binary reading without ever waiting: a folder is refused (IsADirectoryError); a FIFO is
     opened without waiting for a writer (a plain ``open`` waits forever), so one that nothing writes to reads as
@@ -67,3 +66,21 @@ def open_input(path: str | os.PathLike) -> BinaryIO:
     except BaseException:
         os.close(fd)
         raise
+
+
+class InputTooLargeError(ValueError):
+    """A file larger than its reader takes; the message says how large ("N bytes" or "more than M bytes")."""
+
+
+def read_bounded(path: str | os.PathLike, max_bytes: int) -> bytes:
+    """The bytes of ``path`` (opened by :func:`open_input`: never waits on a FIFO), at most ``max_bytes``: a larger
+    regular file is refused by its size before any read, and whatever the path is (a file still growing, a pipe,
+    ``/dev/zero``) at most ``max_bytes + 1`` bytes are read. Raises InputTooLargeError, or OSError as ``open`` does."""
+    with open_input(path) as stream:
+        size = os.fstat(stream.fileno()).st_size
+        if size > max_bytes:
+            raise InputTooLargeError(f"{size} bytes")
+        data = stream.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise InputTooLargeError(f"more than {max_bytes} bytes")
+    return data

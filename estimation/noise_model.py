@@ -47,7 +47,6 @@ its wheels with the Videre head: :data:`P3AT_VIDERE_DEFAULT`, with its provenanc
 from __future__ import annotations
 
 import math
-import os
 import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -58,7 +57,7 @@ from scipy.optimize import nnls
 
 from .datasets import RangeBearingLog
 from .errors import EstimationError
-from .fileio import atomic_write_bytes, open_input
+from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 from .geometry import between, wrap_angle
 
 FORMAT_NAME = "p3at-noise-model"
@@ -247,14 +246,9 @@ class NoiseModel:
         """Read a file written by :meth:`save` (or by hand); any defect is a NoiseModelError naming file and key."""
         path = Path(path)
         try:
-            with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-                size = os.fstat(stream.fileno()).st_size
-                if size > MAX_FILE_BYTES:
-                    raise NoiseModelError(f"{path}: {size} bytes, more than a noise model can hold")
-                raw = stream.read(MAX_FILE_BYTES + 1)
-            if len(raw) > MAX_FILE_BYTES:
-                raise NoiseModelError(f"{path}: more than {MAX_FILE_BYTES} bytes, more than a noise model can hold")
-            data = tomllib.loads(raw.decode("utf-8"))
+            data = tomllib.loads(read_bounded(path, MAX_FILE_BYTES).decode("utf-8"))   # never waits on a FIFO
+        except InputTooLargeError as e:
+            raise NoiseModelError(f"{path}: {e}; a noise model has at most {MAX_FILE_BYTES}") from None
         except FileNotFoundError:
             raise NoiseModelError(f"{path}: no such noise-model file") from None
         except OSError as e:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from estimation.fileio import open_input
+from estimation.fileio import read_bounded
 from estimation.geometry import wrap_angle
 
 from .errors import IncompatibleMapsError
@@ -169,11 +169,7 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | 
     """A JSON file {"sigma_xy": m, "sigma_yaw": rad, "starts": {"<robot or index>": [x, y, yaw] or
     [x, y, yaw, sigma_xy, sigma_yaw]}} -> {key: (pose, sigmas)}; one-line errors."""
     try:
-        with open_input(path) as f:  # never waits on a FIFO (a folder: IsADirectoryError)
-            raw = f.read(MAX_START_FILE_BYTES + 1)
-        if len(raw) > MAX_START_FILE_BYTES:
-            raise ValueError(f"more than {MAX_START_FILE_BYTES} bytes")
-        data = json.loads(raw.decode("utf-8"))
+        data = json.loads(read_bounded(path, MAX_START_FILE_BYTES).decode("utf-8"))   # never waits on a FIFO
         default = (float(data.get("sigma_xy", "nan")), float(data.get("sigma_yaw", "nan")))
         starts = data["starts"]
         items = starts.items()

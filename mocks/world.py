@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import threading
 import zlib
 from collections.abc import Callable
@@ -57,7 +56,7 @@ from typing import Any
 
 import numpy as np
 
-from estimation.fileio import open_input
+from estimation.fileio import InputTooLargeError, read_bounded
 
 DEFAULT_WORLD_PATH = Path(__file__).resolve().parent / "data" / "building.json"
 FORMAT_NAME = "p3at-fusion-world"
@@ -523,14 +522,9 @@ class World:
         """Load a world data file (None -> the packaged building). Bad file -> WorldFileError."""
         file = DEFAULT_WORLD_PATH if path is None else Path(path)
         try:
-            with open_input(file) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-                size = os.fstat(stream.fileno()).st_size
-                if size > MAX_FILE_BYTES:
-                    raise WorldFileError(file, "", f"{size} bytes; a world file has at most {MAX_FILE_BYTES}")
-                data = stream.read(MAX_FILE_BYTES + 1)
-            if len(data) > MAX_FILE_BYTES:
-                raise WorldFileError(file, "", f"more than {MAX_FILE_BYTES} bytes; a world file has at most that")
-            text = data.decode("utf-8")
+            text = read_bounded(file, MAX_FILE_BYTES).decode("utf-8")   # never waits on a FIFO
+        except InputTooLargeError as exc:
+            raise WorldFileError(file, "", f"{exc}; a world file has at most {MAX_FILE_BYTES}") from None
         except OSError as exc:
             raise WorldFileError(file, "", f"cannot read: {exc.strerror or exc}") from exc
         except UnicodeDecodeError as exc:

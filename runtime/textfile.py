@@ -13,7 +13,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from estimation.fileio import open_input
+from estimation.fileio import InputTooLargeError, read_bounded
 
 _ENCODING_NAMES = {"ascii": "ASCII", "utf-8": "UTF-8"}
 
@@ -27,16 +27,13 @@ def read_bounded_text(path: str | os.PathLike, max_bytes: int, what: str, error:
     """
     path = Path(path)
     try:
-        with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-            size = os.fstat(stream.fileno()).st_size  # a regular file's size, refused before reading it
-            data = b"" if size > max_bytes else stream.read(max_bytes + 1)
+        data = read_bounded(path, max_bytes)   # never waits on a FIFO (a folder: IsADirectoryError)
+    except InputTooLargeError as e:
+        raise error(f"{path}: {e}; a {what} has at most {max_bytes}") from None
     except FileNotFoundError:
         raise error(f"{path}: no such {what}") from None
     except OSError as e:
         raise error(f"{path}: cannot read the {what} ({e.strerror or e})") from None
-    if size > max_bytes or len(data) > max_bytes:
-        told = f"{size} bytes" if size > max_bytes else f"more than {max_bytes} bytes"
-        raise error(f"{path}: {told}; a {what} has at most {max_bytes}")
     try:
         return data.decode(encoding)
     except UnicodeDecodeError as e:

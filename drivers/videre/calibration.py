@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from drivers.errors import BadFileError
-from drivers.fileio import atomic_write_bytes, open_input
+from drivers.fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 
 SVS_HEADER = "# SVS Engine v "
 SVS_MIN_VERSION = (2, 1)
@@ -653,14 +653,9 @@ def load(path: str | os.PathLike) -> StereoCalibration:
         return read_opencv(path)
     if suffix == ".ini":
         try:
-            with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-                size = os.fstat(stream.fileno()).st_size
-                if size > MAX_FILE_BYTES:
-                    raise BadFileError(f"{path}: {size} bytes; a calibration file has at most {MAX_FILE_BYTES}")
-                data = stream.read(MAX_FILE_BYTES + 1)
-            if len(data) > MAX_FILE_BYTES:
-                raise BadFileError(f"{path}: more than {MAX_FILE_BYTES} bytes; a calibration file has at most that")
-            text = data.decode("latin-1")
+            text = read_bounded(path, MAX_FILE_BYTES).decode("latin-1")   # never waits on a FIFO
+        except InputTooLargeError as exc:
+            raise BadFileError(f"{path}: {exc}; a calibration file has at most {MAX_FILE_BYTES}") from None
         except OSError as exc:
             raise BadFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
         return parse_svs(text, str(path))

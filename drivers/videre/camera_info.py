@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from drivers.errors import BadFileError
-from drivers.fileio import atomic_write_bytes, open_input
+from drivers.fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 
 from .calibration import StereoCalibration, check_calibration
 
@@ -87,15 +87,9 @@ def read_camera(path: str | os.PathLike) -> dict:
     (size bounds before parsing, every field present, shapes, finite numbers). Raises BadFileError."""
     path = Path(path)
     try:
-        with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-            size = os.fstat(stream.fileno()).st_size
-            if size > MAX_FILE_BYTES:
-                raise BadFileError(f"{path}: {size} bytes; a camera_info file holds about 1 kB (at most "
-                                   f"{MAX_FILE_BYTES})")
-            data = stream.read(MAX_FILE_BYTES + 1)
-        if len(data) > MAX_FILE_BYTES:
-            raise BadFileError(f"{path}: more than {MAX_FILE_BYTES} bytes; a camera_info file holds about 1 kB")
-        text = data.decode("utf-8")
+        text = read_bounded(path, MAX_FILE_BYTES).decode("utf-8")   # never waits on a FIFO
+    except InputTooLargeError as e:
+        raise BadFileError(f"{path}: {e}; a camera_info file holds about 1 kB (at most {MAX_FILE_BYTES})") from None
     except FileNotFoundError:
         raise BadFileError(f"{path}: no such file") from None
     except OSError as e:

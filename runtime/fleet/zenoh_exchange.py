@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from estimation.fileio import open_input
+from estimation.fileio import InputTooLargeError, read_bounded
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import MapMessage, copy_map
 from runtime.fleet import mapwire
@@ -73,12 +73,11 @@ def zenoh_message(error: BaseException) -> str:
 
 def _read_config(path: str) -> str:
     try:
-        with open_input(path) as stream:  # never waits on a FIFO
-            data = stream.read(MAX_CONFIG_BYTES + 1)
+        data = read_bounded(path, MAX_CONFIG_BYTES)   # never waits on a FIFO
+    except InputTooLargeError as e:
+        raise ExchangeError(f"{path}: {e}; a Zenoh configuration is a few kB (at most {MAX_CONFIG_BYTES})") from None
     except OSError as e:
         raise ExchangeError(f"{path}: cannot read the Zenoh configuration ({e.strerror or e})") from None
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ExchangeError(f"{path}: more than {MAX_CONFIG_BYTES} bytes; a Zenoh configuration is a few kB")
     return data.decode("utf-8", errors="replace")
 
 

@@ -200,7 +200,7 @@ def test_a_start_pose_file_with_any_values_is_a_clean_error_or_valid_starts(tmp_
 
 @pytest.mark.parametrize(("content", "complaint"), [
     ('{"starts": ' + "[" * 100_000 + "]" * 100_000 + "}", "nested too deeply"),
-    (" " * (1 << 20) + "{}", "more than 1048576 bytes"),
+    (" " * (1 << 20) + "{}", "1048578 bytes"),
     ('{"starts": {"robot1": [0, 0, 1' + "0" * 400 + "]}}", "starts.robot1 holds a number out of range"),
     ('{"starts": {"robot1": {"x": 1}}}', 'starts.robot1 must be [x, y, yaw]'),
 ])

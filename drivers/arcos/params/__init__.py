@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import BadFileError, DeviceNotFoundError
-from drivers.fileio import open_input
+from drivers.fileio import InputTooLargeError, read_bounded
 
 FORMAT = "p3at-fusion/arcos-params"
 VERSION = 1
@@ -138,14 +138,9 @@ def load_params(path: str | os.PathLike) -> RobotParams:
     """Load a parameter file (the built-ins or the user's own)."""
     path = Path(path)
     try:
-        with open_input(path) as stream:  # never waits on a FIFO (a folder: IsADirectoryError)
-            size = os.fstat(stream.fileno()).st_size
-            if size > MAX_FILE_BYTES:
-                raise BadFileError(f"{path}: {size} bytes; a parameter file has at most {MAX_FILE_BYTES}")
-            data = stream.read(MAX_FILE_BYTES + 1)
-        if len(data) > MAX_FILE_BYTES:
-            raise BadFileError(f"{path}: more than {MAX_FILE_BYTES} bytes; a parameter file has at most that")
-        text = data.decode("utf-8")
+        text = read_bounded(path, MAX_FILE_BYTES).decode("utf-8")   # never waits on a FIFO
+    except InputTooLargeError as exc:
+        raise BadFileError(f"{path}: {exc}; a parameter file has at most {MAX_FILE_BYTES}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise BadFileError(f"{path}: cannot read parameter file: {exc}") from exc
     return parse_params(text, str(path))
