@@ -75,7 +75,7 @@ from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import candidate_text
-from runtime.rrd_salvage import copy_prefix, scan_rrd
+from runtime.rrd_salvage import copy_prefix, salvage, scan_rrd
 
 # Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
 # opts out of one. Rerun reads RUST_LOG once, when it is imported: when the user set none, import it with the
@@ -856,6 +856,7 @@ class RecordingContents:
     entity_count: int
     truncated: str | None = None          # how the file was cut short (what was read is what it held), or None
     ended: bool = True                    # the writer closed it (End message or mission/closed); False after a crash
+    damaged: str | None = None            # which messages did not decode and were left out (the rest was read), or None
 
 
 def _last_values(rows: list[dict], key: str):
@@ -874,11 +875,13 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
 
     A file cut short (a crash, a kill, a full disk) is read up to its last complete message; ``truncated`` then
     says where it was cut. Rerun's reader itself refuses such a file, so the whole prefix is copied to a
-    temporary file first (see runtime/rrd_salvage.py).
+    temporary file first (see runtime/rrd_salvage.py). A file with messages Rerun cannot decode (bytes flipped
+    inside them) is read without them; ``damaged`` then says which.
     """
     paths = [Path(p) for p in (path, *more)]
     chunks: list = []
     notes: list[str] = []
+    damaged: list[str] = []
     ended = True
     with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch:
         for index, p in enumerate(paths):
@@ -894,7 +897,11 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
                              f"complete messages ({scan.whole_bytes} of {scan.file_size} bytes)")
                 readable = Path(scratch) / f"whole-prefix-{index}.rrd"
                 copy_prefix(p, readable, scan.whole_bytes)
-            held = _read_chunks(p, readable)
+            try:
+                held = _read_chunks(p, readable)
+            except RecordingReadError as refused:
+                held, note = _read_around_damage(p, scan.whole_bytes, Path(scratch) / f"salvage-{index}", refused)
+                damaged.append(note)
             # Rerun ends a stream with an End message only when it writes its footer; the logger's last entity
             # says the same of a file saved without one
             closed = any(chunk.entity_path.lstrip("/") == CLOSED_ENTITY for chunk in held)
@@ -902,7 +909,48 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
             chunks.extend(held)
         contents = _contents_from_chunks(paths[0], chunks)
     contents.truncated, contents.ended = ("; ".join(notes) or None), ended
+    contents.damaged = "; ".join(damaged) or None
     return contents
+
+
+def _read_around_damage(path: Path, whole_bytes: int, scratch: Path, refused: RecordingReadError) -> tuple[list, str]:
+    """The chunks of ``path`` without the messages Rerun cannot decode, and one line saying which were left out;
+    ``refused`` (what reading the whole file said) when no message can be blamed."""
+    try:
+        scratch.mkdir()
+        found = salvage(path, whole_bytes, _decodes, scratch)
+    except (OSError, ValueError):  # the file went or changed under the reader: what the reader said stands
+        raise refused from None
+    if found.store_damaged:
+        raise RecordingReadError(f"{path}: not a readable Rerun recording: its store information does not decode "
+                                 f"({found.ranges()})") from None
+    if not found.damaged and not found.had_end:
+        raise refused
+    held = _read_chunks(path, found.copy)
+    if not found.damaged:  # only the footer (Rerun's manifest of the messages) failed
+        return held, f"{path}: its footer does not decode, left out; all {found.total:,} messages read"
+    return held, (f"{path}: {len(found.damaged):,} of {found.total:,} messages damaged ({found.ranges()}), "
+                  "skipped; the rest read")
+
+
+def _decodes(candidate: Path) -> bool:
+    """Whether Rerun's reader reads ``candidate`` through (as :func:`_read_chunks` does), whatever stores it holds."""
+    import rerun.chunk as rrchunk
+
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
+            reader = rrchunk.RrdReader(candidate)
+        stores = reader.recordings() or reader.blueprints()
+        if stores:
+            for _ in reader.stream(store=stores[0]).filter(content=_READ_CONTENT):
+                pass
+        return True
+    except Exception:  # the bindings raise several untyped errors on corrupt files
+        return False
+
+
+_READ_CONTENT = ["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]
 
 
 def _read_chunks(path: Path, readable: Path) -> list:
@@ -913,9 +961,16 @@ def _read_chunks(path: Path, readable: Path) -> list:
         with warnings.catch_warnings():  # files saved by a viewer or `rerun --save` have no footer: read by scanning
             warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
             reader = rrchunk.RrdReader(readable)
-        if not reader.recordings():
+        recordings = reader.recordings()
+        if not recordings:
             raise RecordingReadError(f"{path}: holds no recording")
-        return list(reader.stream().filter(content=["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]))
+        # a file holds one recording; a second one comes from a store id damaged in one of its SetStoreInfo
+        # messages (which Rerun repeats): an empty store then, the data being in the store its messages name
+        for store in recordings:
+            held = list(reader.stream(store=store).filter(content=_READ_CONTENT))
+            if held:
+                break
+        return held
     except RecordingReadError:
         raise
     except Exception as e:  # the bindings raise several untyped errors on corrupt files

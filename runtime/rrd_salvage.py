@@ -12,11 +12,20 @@ Framing of an ``.rrd`` stream (rerun 0.41, ``re_log_encoding``; checked against 
     after End       a 32-byte footer trailer ending in b"RRF2FOOT" + a u32 version (the End payload is the footer)
 
 Several streams may follow each other in one file (each starts with its own header).
+
+A byte flipped inside a message's payload (a bad disk) leaves the frames whole, but Rerun's reader then refuses the
+whole file. The format has no checksum, so only decoding tells a damaged message from a sound one: :func:`salvage`
+finds the messages Rerun cannot decode by reading candidate files made of the stream header, the store information
+and blocks of messages (bisecting a block that fails), and writes a copy without them. Rerun decodes each message on
+its own (its own Protobuf envelope, its own LZ4 block, its own Arrow IPC schema), so a block reads if and only if
+each of its messages does.
 """
 from __future__ import annotations
 
+import os
 import struct
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 STREAM_MAGIC = b"RRF2"
@@ -25,7 +34,8 @@ MESSAGE_HEADER_SIZE = 16
 FOOTER_TRAILER_SIZE = 32
 FOOTER_MAGIC = b"RRF2FOOT"
 KIND_END = 0
-KNOWN_KINDS = {KIND_END, 1, 2, 3}
+KIND_ARROW = 2
+KNOWN_KINDS = {KIND_END, 1, KIND_ARROW, 3}
 
 
 @dataclass(frozen=True)
@@ -104,4 +114,146 @@ def copy_prefix(source: str | Path, target: str | Path, length: int, block: int 
             remaining -= len(data)
 
 
-__all__ = ["RrdScan", "copy_prefix", "scan_rrd"]
+@dataclass(frozen=True)
+class Message:
+    """One complete message: ``start`` is its frame header's offset, ``size`` frame header + payload, ``header`` the
+    offset of the stream header it follows (a file may hold several streams)."""
+
+    start: int
+    size: int
+    kind: int
+    header: int
+
+
+def messages(path: str | Path, whole_bytes: int) -> tuple[list[Message], bool]:
+    """The complete messages of the first ``whole_bytes`` of ``path`` (:attr:`RrdScan.whole_bytes`), in file order,
+    End messages left out; and whether there was an End message (its footer, Rerun's manifest, gives the offsets of
+    the messages: a copy without some of them cannot keep it). Reads the frame headers only."""
+    out: list[Message] = []
+    had_end = False
+    with Path(path).open("rb") as f:
+        position = header = 0
+        while position < whole_bytes:
+            f.seek(position)
+            head = f.read(MESSAGE_HEADER_SIZE)
+            if head[:4] == STREAM_MAGIC:
+                header, position = position, position + STREAM_HEADER_SIZE
+                continue
+            if len(head) < MESSAGE_HEADER_SIZE:
+                break
+            kind, length = struct.unpack("<QQ", head)
+            size = MESSAGE_HEADER_SIZE + length
+            if kind == KIND_END:
+                had_end = True
+                f.seek(position + size)
+                trailer = f.read(FOOTER_TRAILER_SIZE)
+                size += FOOTER_TRAILER_SIZE if trailer[20:28] == FOOTER_MAGIC else 0
+            else:
+                out.append(Message(position, size, kind, header))
+            position += size
+    return out, had_end
+
+
+def write_messages(source: str | Path, target: str | Path, chosen: list[Message], block: int = 1 << 20) -> None:
+    """Write ``chosen`` (in file order) to ``target`` as one stream, atomically (a ``.part`` file renamed at the end).
+    Memory: one block. A following stream's header is written only where its encoding differs from the one before
+    (Rerun reads a stream header after a message only after an End message, and a copy has none)."""
+    target = Path(target)
+    part = target.with_name(target.name + ".part")
+    with Path(source).open("rb") as src, part.open("wb") as dst:
+        header = None
+        for m in chosen:
+            src.seek(m.header)
+            if (stream := src.read(STREAM_HEADER_SIZE)) != header:
+                dst.write(stream)
+                header = stream
+            src.seek(m.start)
+            remaining = m.size
+            while remaining > 0:
+                data = src.read(min(block, remaining))
+                if not data:
+                    raise ValueError(f"{source}: changed while it was read (a message ends past its end)")
+                dst.write(data)
+                remaining -= len(data)
+    os.replace(part, target)
+
+
+@dataclass
+class Salvage:
+    """What :func:`salvage` found: ``damaged`` the messages left out (file order), ``total`` the messages there were,
+    ``copy`` the file written without them, ``probes`` how many candidate files were read, ``store_damaged``: the
+    store information itself does not decode (nothing can be read)."""
+
+    total: int
+    damaged: list[Message] = field(default_factory=list)
+    copy: Path | None = None
+    probes: int = 0
+    had_end: bool = False
+    store_damaged: bool = False
+
+    def ranges(self, at_most: int = 3) -> str:
+        """The damaged byte ranges, e.g. "bytes 1,234–5,678, 9,000–9,999"."""
+        parts = [f"{m.start:,}–{m.start + m.size - 1:,}" for m in self.damaged[:at_most]]
+        more = len(self.damaged) - at_most
+        return ("bytes " + ", ".join(parts) + (f" and {more} more" if more > 0 else "")) if parts else ""
+
+
+def salvage(path: str | Path, whole_bytes: int, decodes: Callable[[Path], bool], scratch: str | Path,
+            block_bytes: int = 4 << 20) -> Salvage:
+    """Find the messages of ``path``'s first ``whole_bytes`` that Rerun cannot decode and write a copy without them.
+
+    ``decodes(candidate)``: whether Rerun reads a candidate file whole (the caller's reader; it runs in the caller's
+    process). Every candidate holds the stream header and the store information (SetStoreInfo, blueprint
+    activation); the Arrow messages go in blocks of about ``block_bytes``, and a block that fails is bisected down to
+    its damaged messages: about one extra reading of the file, plus ~2 log2(block's messages) small candidates per
+    damaged message. Store information that does not decode is left out if the rest still reads. The copy (and each
+    candidate) is written in ``scratch``; memory is one copy block plus the list of message offsets.
+    """
+    scratch = Path(scratch)
+    found, had_end = messages(path, whole_bytes)
+    result = Salvage(total=len(found), had_end=had_end)
+    candidate = scratch / "salvage-candidate.rrd"
+
+    def reads(chosen: list[Message]) -> bool:
+        result.probes += 1
+        write_messages(path, candidate, sorted(chosen, key=lambda m: m.start))
+        return decodes(candidate)
+
+    store = [m for m in found if m.kind != KIND_ARROW]
+    arrows = [m for m in found if m.kind == KIND_ARROW]
+    if not reads(store):  # one at a time, keeping those that read with the ones kept before them
+        kept: list[Message] = []
+        for m in store:
+            (kept.append if reads([*kept, m]) else result.damaged.append)(m)
+        if not kept or not reads(kept):
+            result.store_damaged = True
+            return result
+        store = kept
+
+    def bisect(block: list[Message]) -> None:  # ``block`` does not read
+        if len(block) == 1:
+            result.damaged.append(block[0])
+            return
+        for half in (block[: len(block) // 2], block[len(block) // 2:]):
+            if not reads([*store, *half]):
+                bisect(half)
+
+    block: list[Message] = []
+    size = 0
+    for m in [*arrows, None]:
+        if m is not None:
+            block.append(m)
+            size += m.size
+        if block and (m is None or size >= block_bytes):
+            if not reads([*store, *block]):
+                bisect(block)
+            block, size = [], 0
+    result.damaged.sort(key=lambda m: m.start)
+    dropped = {m.start for m in result.damaged}
+    result.copy = scratch / "salvaged.rrd"
+    write_messages(path, result.copy, [m for m in found if m.start not in dropped])
+    candidate.unlink(missing_ok=True)
+    return result
+
+
+__all__ = ["Message", "RrdScan", "Salvage", "copy_prefix", "messages", "salvage", "scan_rrd", "write_messages"]

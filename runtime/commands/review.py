@@ -24,7 +24,8 @@ def register(subparsers) -> None:
         description="Reads a recording written by 'p3at demo' or 'p3at run' (Rerun 0.41 .rrd), prints the robots, "
                     "the duration, the size of every map and the alignment results, and writes each map it holds "
                     "(the last snapshot of every robot, and the fused map) as a landmark-map .npz and a .ply. "
-                    "A recording cut short (a crash, a kill) is read up to its last complete message, and said so.")
+                    "A recording cut short (a crash, a kill) is read up to its last complete message, and said so; "
+                    "messages Rerun cannot decode (bytes flipped inside them) are skipped, and said so.")
     parser.add_argument("recording", type=Path, metavar="FILE.rrd", help="the recording to read")
     parser.add_argument("more", type=Path, nargs="*", metavar="MORE.rrd",
                         help="more files of the same recording (a fleet whose processes each saved their own)")
@@ -41,7 +42,7 @@ def review_summary(contents) -> dict:
         "recording": str(contents.path), "robots": contents.robots, "duration": round(contents.duration, 2),
         "maps": {name: len(m) for name, m in sorted(contents.maps.items())},
         "alignments": contents.alignments, "mission_summary": contents.summary,
-        "truncated": contents.truncated, "ended": contents.ended,
+        "truncated": contents.truncated, "ended": contents.ended, "damaged": contents.damaged,
     }
 
 
@@ -179,6 +180,8 @@ def _review(args) -> int:
     robots = summary["robots"]
     print(f"Recording {summary['recording']}{more}: {len(robots)} robot(s) ({', '.join(robots) or 'none'}), "
           f"{result['duration']:.1f} s")
+    if summary["damaged"]:
+        print(f"  DAMAGED recording, {summary['damaged']}")
     if summary["truncated"]:
         print(f"  TRUNCATED recording, {summary['truncated']}: what follows is what it held")
     elif not summary["ended"]:
