@@ -748,12 +748,11 @@ class MissionLog:
         """
         self._time(t)
         m = landmark_map
-        meta = {"robot": m.robot, "frame": m.frame, "robots": m.robots, "metadata": m.metadata}
+        meta = json.dumps({"robot": m.robot, "frame": m.frame, "robots": m.robots, "metadata": m.metadata})
+        arrays = _map_arrays(m.positions, m.covariances, m.descriptors, m.ids, m.counts, m.seen_by, m.trajectory)
         self.rec.log(f"maps/{key}", rr.AnyValues(
-            positions=m.positions.ravel(), covariances=m.covariances.ravel(),
-            descriptors=m.descriptors.astype(np.float32).ravel(), descriptor_size=int(m.descriptor_size),
-            ids=m.ids, counts=m.counts, seen_by=m.seen_by.astype(np.uint8).ravel(),
-            trajectory=m.trajectory.ravel(), meta=json.dumps(meta), size=len(m), t=float(t)))
+            **{name: a.ravel() for name, a in arrays.items()}, descriptor_size=int(m.descriptor_size),
+            meta=meta, size=len(m), t=float(t), checksum=_map_checksum(arrays, meta)))
         if not draw:
             return
         if key == "fused":
@@ -909,7 +908,7 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
             chunks.extend(held)
         contents = _contents_from_chunks(paths[0], chunks)
     contents.truncated, contents.ended = ("; ".join(notes) or None), ended
-    contents.damaged = "; ".join(damaged) or None
+    contents.damaged = "; ".join(damaged + ([contents.damaged] if contents.damaged else [])) or None
     return contents
 
 
@@ -1003,11 +1002,13 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
     maps: dict[str, LandmarkMap] = {}
     alignments: dict[str, dict] = {}
     summary = None
+    stale: list[str] = []
     for entity, rows in rows_by_entity.items():
         rows.sort(key=lambda r: (r[0], r[1]))
         plain = [r[2] for r in rows]
         if entity.startswith("maps/"):
-            maps[entity.removeprefix("maps/")] = _map_from_row(path, entity, plain)
+            maps[entity.removeprefix("maps/")], note = _map_from_row(path, entity, plain)
+            stale += [note] if note else []
         elif entity.startswith("fusion/alignment/"):
             text = _last_values(plain, "json")
             if text:
@@ -1020,7 +1021,8 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
                     - {"fusion"} | {k for k in maps if k != "fused"})
     robots = [r for r in robots if r]
     duration = float(t_max - t_min) if np.isfinite(t_min) else 0.0
-    return RecordingContents(path, robots, duration, maps, alignments, summary, len(entities))
+    return RecordingContents(path, robots, duration, maps, alignments, summary, len(entities),
+                             damaged="; ".join(stale) or None)
 
 
 def _scalar(value):
@@ -1029,29 +1031,64 @@ def _scalar(value):
     return value
 
 
-def _map_from_row(path: Path, entity: str, rows: list[dict]) -> LandmarkMap:
-    # empty arrays are not stored by AnyValues: only the scalars are sure to be there
-    row = next((r for r in reversed(rows) if all(r.get(f) is not None for f in ("meta", "descriptor_size", "size"))),
-               None)
-    if row is None:
-        raise RecordingReadError(f"{path}: entity '{entity}' does not hold a complete map")
+def _map_arrays(positions, covariances, descriptors, ids, counts, seen_by, trajectory) -> dict[str, np.ndarray]:
+    """A map's arrays in the types they are logged and read back in: what its checksum is taken over."""
+    return {"positions": np.asarray(positions, float), "covariances": np.asarray(covariances, float),
+            "descriptors": np.asarray(descriptors, np.float32), "ids": np.asarray(ids, np.int64),
+            "counts": np.asarray(counts, np.int64), "seen_by": np.asarray(seen_by, np.uint8),
+            "trajectory": np.asarray(trajectory, float)}
 
+
+def _map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
+    """CRC-32 of a map's arrays and metadata text. Rerun's messages carry no checksum of their own: a flipped bit
+    that still decodes would change a map silently (a landmark moved, a covariance shrunk)."""
+    crc = zlib.crc32(meta.encode("utf-8"))
+    for name in sorted(arrays):
+        crc = zlib.crc32(np.ascontiguousarray(arrays[name]).tobytes(), zlib.crc32(name.encode(), crc))
+    return crc
+
+
+def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMap, str | None]:
+    """The newest snapshot of ``entity`` that is whole, and a note when a newer one failed its checksum (it is
+    left out: a map read back must be the map that was logged) or None."""
+    # empty arrays are not stored by AnyValues: only the scalars are sure to be there
+    complete = [r for r in rows if all(r.get(f) is not None for f in ("meta", "descriptor_size", "size"))]
+    if not complete:
+        raise RecordingReadError(f"{path}: entity '{entity}' does not hold a complete map")
+    for skipped, row in enumerate(reversed(complete)):
+        landmark_map, whole = _map_from(path, entity, row)
+        if whole:
+            note = (f"{entity}: the last {skipped} snapshot(s) fail their checksum; the one before them is read"
+                    if skipped else None)
+            return landmark_map, note
+    raise RecordingReadError(f"{path}: entity '{entity}': every snapshot ({len(complete)}) fails its checksum "
+                             "(bytes changed in the file)")
+
+
+def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:
+    """One logged snapshot as a map, and whether it matches its checksum (True for files written before it had one)."""
     def array(name: str, dtype) -> np.ndarray:
         value = row.get(name)
         return np.asarray(value if value is not None else [], dtype)
 
     try:
-        meta = json.loads(_scalar(row["meta"]))
+        text = str(_scalar(row["meta"]))
+        meta = json.loads(text)
         d = int(_scalar(row["descriptor_size"]))
         n = int(_scalar(row["size"]))
         robots = [str(r) for r in meta.get("robots") or [meta.get("robot", "robot")]]
+        arrays = _map_arrays(array("positions", float).reshape(n, 3), array("covariances", float).reshape(n, 3, 3),
+                             array("descriptors", np.float32).reshape(n, d), array("ids", np.int64).reshape(n),
+                             array("counts", np.int64).reshape(n),
+                             array("seen_by", np.uint8).reshape(n, len(robots)),
+                             array("trajectory", float).reshape(-1, 4))
+        stored = row.get("checksum")
+        whole = stored is None or int(_scalar(stored)) == _map_checksum(arrays, text)
         return LandmarkMap(
-            array("positions", float).reshape(n, 3), array("covariances", float).reshape(n, 3, 3),
-            array("descriptors", np.float32).reshape(n, d), array("ids", np.int64).reshape(n),
-            array("counts", np.int64).reshape(n), str(meta.get("robot", "robot")), str(meta.get("frame", "map")),
-            robots, array("seen_by", np.uint8).reshape(n, len(robots)).astype(bool),
-            array("trajectory", float).reshape(-1, 4), dict(meta.get("metadata", {})))
-    except (ValueError, TypeError, KeyError, json.JSONDecodeError) as e:
+            arrays["positions"], arrays["covariances"], arrays["descriptors"], arrays["ids"], arrays["counts"],
+            str(meta.get("robot", "robot")), str(meta.get("frame", "map")), robots, arrays["seen_by"].astype(bool),
+            arrays["trajectory"], dict(meta.get("metadata", {}))), whole
+    except (ValueError, TypeError, KeyError, AttributeError, json.JSONDecodeError) as e:
         raise RecordingReadError(f"{path}: entity '{entity}' holds a malformed map ({e})") from None
 
 

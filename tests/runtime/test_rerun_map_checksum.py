@@ -1,0 +1,64 @@
+"""A map read back from a recording is the map that was logged: each snapshot carries a CRC-32 of its arrays, and a
+snapshot whose bytes changed in the file (a flipped bit that still decodes: Rerun's messages have no checksum) is
+left out, the one before it read, and said so."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from runtime.rerun_log import MissionLog, RecordingReadError, open_recording, read_recording
+from tests.runtime.rerun_helpers import landmark_map
+
+
+def _recording(path, snapshots):
+    log = MissionLog(open_recording(str(path)), ["robot1"])
+    for t, m in enumerate(snapshots):
+        log.log_map("robot1", float(t), m)
+        log.flush()     # one message per snapshot, in order
+    log.close()
+
+
+def _flip_in(path, values: np.ndarray, occurrence: int = -1) -> None:
+    """Flip the low bit of the first byte of ``values`` (float64) where the file holds them: Rerun compresses its
+    messages with LZ4, which keeps random bytes (uniform positions) as literals, so the message still decodes, with
+    one number changed."""
+    data = bytearray(path.read_bytes())
+    needle = np.ascontiguousarray(values, float).tobytes()[:48]   # the first six numbers
+    places, start = [], 0
+    while (at := data.find(needle, start)) >= 0:
+        places.append(at)
+        start = at + 1
+    assert places, "the array's bytes are not in the file as written"
+    data[places[occurrence]] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def test_an_untouched_recording_reads_every_map_as_logged(tmp_path):
+    rng = np.random.default_rng(0)
+    first, last = landmark_map("robot1", 30, rng), landmark_map("robot1", 40, rng)
+    _recording(tmp_path / "r.rrd", [first, last])
+    contents = read_recording(tmp_path / "r.rrd")
+    assert contents.damaged is None
+    np.testing.assert_array_equal(contents.maps["robot1"].positions, last.positions)
+    np.testing.assert_array_equal(contents.maps["robot1"].covariances, last.covariances)
+
+
+def test_a_snapshot_changed_in_the_file_is_left_out_and_the_one_before_read(tmp_path):
+    rng = np.random.default_rng(1)
+    first, last = landmark_map("robot1", 30, rng), landmark_map("robot1", 40, rng)
+    path = tmp_path / "r.rrd"
+    _recording(path, [first, last])
+    _flip_in(path, last.positions)
+    contents = read_recording(path)
+    np.testing.assert_array_equal(contents.maps["robot1"].positions, first.positions)   # not a changed map
+    assert "maps/robot1" in contents.damaged and "checksum" in contents.damaged
+
+
+def test_a_map_whose_every_snapshot_changed_is_refused_in_one_line(tmp_path):
+    m = landmark_map("robot1", 30, np.random.default_rng(2))
+    path = tmp_path / "r.rrd"
+    _recording(path, [m])
+    _flip_in(path, m.positions)
+    with pytest.raises(RecordingReadError, match="every snapshot \\(1\\) fails its checksum") as refused:
+        read_recording(path)
+    assert "\n" not in str(refused.value)
