@@ -138,8 +138,9 @@ class FastSLAMConfig:
     #                                             #   to the one that made it, the landmark's shape part (export_
     #                                             #   drift.py, docs "Session 14 ... (J)"); the gate, so every
     #                                             #   estimate, unchanged. range_bearing_config's choice since
-    #                                             #   session 14: MRCLAM within the NEES bound 23-86 % -> 57-100 %
-    #                                             #   (docs/fastslam.md "Session 13 ... (N)", "Session 14")
+    #                                             #   session 14 ("lever+heading+relative"): MRCLAM within the NEES
+    #                                             #   bound 23-86 % (plain) -> 57-100 % -> 79-100 % (docs/fastslam.md
+    #                                             #   "Session 13 ... (N)", "Session 14 ... (J)")
     drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
@@ -248,8 +249,9 @@ def range_bearing_config(**overrides) -> FastSLAMConfig:
     Known-ID readings that the gate rejects in a particle are judged with the pose's drift since their landmark
     was made, and two such landmarks in one frame correct the pose (``id_relative_drift="consistent"``,
     id_gate.py; MRCLAM: docs/fastslam.md, "Session 6"). With known IDs the exported landmark covariances carry the
-    heading's lever and keep the heading through one-landmark frames (``drift_export="lever+heading"``,
-    export_drift.py; MRCLAM: docs/fastslam.md, "Session 14")."""
+    heading's lever, keep the heading through one-landmark frames and count the re-sighting poses' drift relative to
+    each landmark's creation (``drift_export="lever+heading+relative"``, export_drift.py; MRCLAM: docs/fastslam.md,
+    "Session 14")."""
     values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
                   min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345,
                   merge_covisibility=True,   # such a sensor reports each object at most once a frame
@@ -259,7 +261,9 @@ def range_bearing_config(**overrides) -> FastSLAMConfig:
                   # and so was the empirical drift (it too would feed the gate here)
                   drift_lever=False, observation_correlation=0.0, drift_local_empirical=False,
                   # known-ID only (export_drift.py): the plain tracker's reset drops the heading's lever and takes
-                  # the heading from one-landmark frames; the export carries both, estimates unchanged
-                  drift_export="lever+heading")
+                  # the heading from one-landmark frames, and no tracker counted the re-sighting poses' drift
+                  # relative to the landmark's creation (its shape part); the export carries all three, estimates
+                  # unchanged
+                  drift_export="lever+heading+relative")
     values.update(overrides)
     return FastSLAMConfig(**values)

@@ -111,7 +111,8 @@ def _components(table: np.ndarray, ids: np.ndarray) -> np.ndarray:
 def made_position_covariances(pose_covariance: np.ndarray, robot_pose: np.ndarray, positions: np.ndarray
                               ) -> np.ndarray:
     """C_l = H D Hᵀ (L, 6 components) of landmarks made at ``positions`` (L, ≥2) from a robot at ``robot_pose`` whose
-    pose covariance is D (3, 3): H = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 1]], w the landmark's offset from the robot."""
+    pose covariance is D (3, 3), or one D per landmark (L, 3, 3): H = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 0]], w the
+    landmark's offset from the robot."""
     w = np.asarray(positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
     h = np.zeros((len(w), 3, 3))
     h[:, 0, 0] = h[:, 1, 1] = 1.0

@@ -121,7 +121,7 @@ class ExportLeverDriftTracker(DriftTracker):
         (3, 3) the lever D_r after this frame's update, ``moved`` (K, 2) = t_k − t_c (module docstring)."""
         g = shears(moved)
         relative = psd_part(robot[None] - g @ sym_matrices(self._lever_pose[ids].T) @ np.swapaxes(g, 1, 2))
-        self._relative_sum[ids] += made_position_covariances_stack(relative, robot_pose, self._made_at[ids])
+        self._relative_sum[ids] += made_position_covariances(relative, robot_pose, self._made_at[ids])
         self._sightings[ids] += 1.0
 
     def relative_covariances(self, ids: np.ndarray) -> np.ndarray:
@@ -141,13 +141,3 @@ class ExportLeverDriftTracker(DriftTracker):
         """The lever tracker's D_l (6, L) components (the gate reads the plain ones, ``landmark_pose_covariances``)."""
         return _components(self._lever_pose, ids)
 
-
-def made_position_covariances_stack(pose_covariances: np.ndarray, robot_pose: np.ndarray, positions: np.ndarray
-                                    ) -> np.ndarray:
-    """H_l D_l H_lᵀ (L, 6 components) for one pose covariance per landmark D_l (L, 3, 3) (``made_position_covariances``
-    takes one D for all): H_l = [[1, 0, −w_y], [0, 1, w_x], [0, 0, 0]], w_l = positions_l − the robot's position."""
-    w = np.asarray(positions, float)[:, :2] - np.asarray(robot_pose, float)[:2]
-    h = np.zeros((len(w), 3, 3))
-    h[:, 0, 0] = h[:, 1, 1] = 1.0
-    h[:, 0, 2], h[:, 1, 2] = -w[:, 1], w[:, 0]
-    return sym_components(h @ pose_covariances @ np.swapaxes(h, 1, 2)).T
