@@ -3,7 +3,8 @@
 What a reader sees, in the robot's 2-D map (its start frame, as the map file): the estimated path, the dead
 reckoning and the true path (Vicon on MRCLAM) growing over the log's time, the final map's landmarks with the true
 ones labelled by id under them, and the pose NEES over time (plots/<robot>/pose_nees); in the 3-D world the same
-placed at the robot's true start, with the landmarks' 1-σ ellipsoids (hidden by default, as for every map). The
+placed at the robot's true start, with the landmarks' 1-σ ellipsoids shown (the layout is
+:func:`runtime.rerun_log.dataset_blueprint`: whether they cover the truth is what a run with ground truth shows). The
 map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it.
 
 The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
