@@ -76,6 +76,7 @@ from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import candidate_text
 from runtime.rrd_salvage import copy_prefix, salvage, scan_rrd
+from runtime.textfile import not_a_file
 
 # Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
 # opts out of one. Rerun reads RUST_LOG once, when it is imported: when the user set none, import it with the
@@ -885,7 +886,7 @@ def read_recording(path: str | Path, *more: str | Path) -> RecordingContents:
     with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch:
         for index, p in enumerate(paths):
             if not p.is_file():  # a FIFO would block Rerun's reader; a link to nothing is not "no such" file
-                raise RecordingReadError(f"{p}: {_not_a_file(p)}")
+                raise RecordingReadError(f"{p}: {not_a_file(p, 'recording')}")
             try:
                 scan = scan_rrd(p)
             except (ValueError, OSError) as e:
@@ -932,14 +933,19 @@ def _read_around_damage(path: Path, whole_bytes: int, scratch: Path, refused: Re
                   "skipped; the rest read")
 
 
-def _decodes(candidate: Path) -> bool:
-    """Whether Rerun's reader reads ``candidate`` through (as :func:`_read_chunks` does), whatever stores it holds."""
+def _rrd_reader(path: Path):
+    """Rerun's reader of ``path`` (``rerun.chunk.RrdReader``; imported here: only reading needs it)."""
     import rerun.chunk as rrchunk
 
+    with warnings.catch_warnings():  # files saved by a viewer or `rerun --save` have no footer: read by scanning
+        warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
+        return rrchunk.RrdReader(path)
+
+
+def _decodes(candidate: Path) -> bool:
+    """Whether Rerun's reader reads ``candidate`` through (as :func:`_read_chunks` does), whatever stores it holds."""
     try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
-            reader = rrchunk.RrdReader(candidate)
+        reader = _rrd_reader(candidate)
         stores = reader.recordings() or reader.blueprints()
         if stores:
             for _ in reader.stream(store=stores[0]).filter(content=_READ_CONTENT):
@@ -954,12 +960,8 @@ _READ_CONTENT = ["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]
 
 def _read_chunks(path: Path, readable: Path) -> list:
     """The chunks of the maps, fusion results, summary and time series (not images and point clouds)."""
-    import rerun.chunk as rrchunk  # only used for reading
-
     try:
-        with warnings.catch_warnings():  # files saved by a viewer or `rerun --save` have no footer: read by scanning
-            warnings.filterwarnings("ignore", message=".*no footer/manifest.*")
-            reader = rrchunk.RrdReader(readable)
+        reader = _rrd_reader(readable)
         recordings = reader.recordings()
         if not recordings:
             raise RecordingReadError(f"{path}: holds no recording")
@@ -1094,15 +1096,3 @@ def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:
 
 __all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "mission_blueprint",
            "open_recording", "read_recording", "recording_id", "robot_colour"]
-
-
-def _not_a_file(path: Path) -> str:
-    """Why ``path``, which is not a regular file, cannot be read as one: what is there instead."""
-    try:
-        path.stat()
-    except FileNotFoundError:
-        return "no such recording" if not path.is_symlink() else "a link to nothing"
-    except OSError as e:
-        return f"cannot read it ({e.strerror or e})"
-    return "a folder, not a recording" if path.is_dir() else "not a regular file but a FIFO, a device or a socket"
-

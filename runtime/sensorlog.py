@@ -62,6 +62,7 @@ from estimation.fastslam.motion import increment_variance, propagate_covariance
 from estimation.frontend import StereoGeometry
 from estimation.geometry import between
 from runtime import ros2_messages as ros
+from runtime.textfile import not_a_file
 
 METADATA_NAME = "p3at-sensor-log"
 FORMAT_VERSION = 2                       # 1 was the npz-chunk folder (dropped)
@@ -441,14 +442,8 @@ def _segment_files(path: Path) -> list[Path]:
     if path.is_file():
         return [path]
     if not path.is_dir():
-        try:
-            path.stat()
-            why = "not a regular file but a FIFO, a device or a socket"
-        except FileNotFoundError:
-            why = "a link to nothing" if path.is_symlink() else "no such sensor log"
-        except OSError as e:
-            why = f"cannot read it ({e.strerror or e})"
-        raise SensorLogError(f"{path}: {why}; a sensor log is a folder of .mcap segments or one .mcap file")
+        raise SensorLogError(f"{path}: {not_a_file(path, 'sensor log')}; a sensor log is a folder of .mcap segments "
+                             "or one .mcap file")
     numbered = []
     for p in path.iterdir():
         found = re.fullmatch(r".*_(\d{1,9})\.mcap(\.part)?", p.name)

@@ -1,7 +1,9 @@
 """A small text file read whole, with a bound on its size: the one helper of the runtime's text readers
-(TUM trajectories, route files), each raising its own error type with a one-line message naming the file.
+(TUM trajectories, route files), each raising its own error type with a one-line message naming the file; and what
+a path given as a file is when it is not one (:func:`not_a_file`), for the readers of logs and recordings.
 
-The drivers keep their own copy (``drivers/videre/camera_info.read_camera``): they import nothing above them.
+The bounded read itself is ``estimation.fileio.read_bounded`` (the drivers call their copy in ``drivers.fileio``:
+they import nothing above them).
 
 The bound holds whatever the path is and whatever it does between a look at its size and the read (a file still
 being written, a pipe, ``/dev/zero``): at most ``max_bytes + 1`` bytes are ever read. A FIFO that nothing writes to
@@ -41,4 +43,18 @@ def read_bounded_text(path: str | os.PathLike, max_bytes: int, what: str, error:
         raise error(f"{path}: not a text file (byte {e.start} is not {name})") from None
 
 
-__all__ = ["read_bounded_text"]
+def not_a_file(path: str | os.PathLike, what: str) -> str:
+    """Why ``path``, which is not a regular file, cannot be read as a ``what``: "no such <what>", "a link to
+    nothing", "a folder, not a <what>", "not a regular file but a FIFO, a device or a socket", or why it cannot be
+    looked at."""
+    path = Path(path)
+    try:
+        path.stat()
+    except FileNotFoundError:
+        return "a link to nothing" if path.is_symlink() else f"no such {what}"
+    except OSError as e:
+        return f"cannot read it ({e.strerror or e})"
+    return f"a folder, not a {what}" if path.is_dir() else "not a regular file but a FIFO, a device or a socket"
+
+
+__all__ = ["not_a_file", "read_bounded_text"]
