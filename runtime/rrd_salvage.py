@@ -105,13 +105,19 @@ def scan_rrd(path: str | Path) -> RrdScan:
 def copy_prefix(source: str | Path, target: str | Path, length: int, block: int = 1 << 20) -> None:
     """Copy the first ``length`` bytes of ``source`` to ``target`` in blocks (memory: one block)."""
     with Path(source).open("rb") as src, Path(target).open("wb") as dst:
-        remaining = length
-        while remaining > 0:
-            data = src.read(min(block, remaining))
-            if not data:
-                break
-            dst.write(data)
-            remaining -= len(data)
+        _copy(src, dst, length, block)
+
+
+def _copy(src, dst, length: int, block: int) -> int:
+    """Copy up to ``length`` bytes from ``src``'s position to ``dst`` in blocks; returns the bytes left (short file)."""
+    remaining = length
+    while remaining > 0:
+        data = src.read(min(block, remaining))
+        if not data:
+            break
+        dst.write(data)
+        remaining -= len(data)
+    return remaining
 
 
 @dataclass(frozen=True)
@@ -168,13 +174,8 @@ def write_messages(source: str | Path, target: str | Path, chosen: list[Message]
                 dst.write(stream)
                 header = stream
             src.seek(m.start)
-            remaining = m.size
-            while remaining > 0:
-                data = src.read(min(block, remaining))
-                if not data:
-                    raise ValueError(f"{source}: changed while it was read (a message ends past its end)")
-                dst.write(data)
-                remaining -= len(data)
+            if _copy(src, dst, m.size, block):
+                raise ValueError(f"{source}: changed while it was read (a message ends past its end)")
     os.replace(part, target)
 
 

@@ -140,4 +140,3 @@ class ExportLeverDriftTracker(DriftTracker):
     def export_pose_covariances(self, ids: np.ndarray) -> np.ndarray:
         """The lever tracker's D_l (6, L) components (the gate reads the plain ones, ``landmark_pose_covariances``)."""
         return _components(self._lever_pose, ids)
-
