@@ -140,7 +140,7 @@ def update_nis(slam: RecordingFastSLAM, matched, poses, z, q6, mean, sigma) -> n
     nu = np.stack([c * z[j, 0] - s * z[j, 1] + pose[:, 0] - mean[0], s * z[j, 0] + c * z[j, 1] + pose[:, 1] - mean[1]],
                   axis=1)
     big_s = sym_matrices(sigma + sym_rotate_z(c, s, q6[:, j]))[:, :2, :2]
-    nis = np.einsum("pi,pi->p", nu, np.linalg.solve(big_s, nu[..., None])[..., 0])
+    _, nis = normalised_innovations(nu, big_s)
     gate = np.full(len(m), np.nan)
     if slam._gate_d2 is not None:
         keys, d2 = slam._gate_d2
