@@ -8,6 +8,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.self_check import SelfCheck
 from estimation.landmark_map import LandmarkMap
+from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
 
 ROBOTS = ["robot1", "robot2"]
 TWO_D = ("Points2D:", "LineStrips2D:", "Arrows2D:", "Boxes2D:", "EncodedImage:", "Image:", "DepthImage:")
@@ -21,6 +22,16 @@ def landmark_map(robot: str, n: int, rng: np.random.Generator, counts=None, traj
                        rng.normal(size=(n, 8)).astype(np.float32), np.arange(n),
                        counts if counts is not None else np.full(n, 5), robot, "start", robots, seen_by,
                        np.column_stack([t, 0.1 * t, 0.05 * t, np.zeros_like(t)]))
+
+
+def footed_recording(rrd: Path, frames: int):
+    """A finished small mission saved to ``rrd`` with Rerun's footer (``footer=True``, as files written before the
+    footer was turned off), each frame written before the next; returns (rrd, what read_recording finds in it)."""
+    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS), footer=True), ROBOTS,
+                     blueprint=False)
+    log_small_mission(log, frames=frames, flush_each_frame=True)
+    log.close()
+    return rrd, read_recording(rrd)
 
 
 def log_small_mission(log, frames: int = 12, seed: int = 0, flush_each_frame: bool = False) -> dict:

@@ -10,22 +10,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, RecordingReadError, mission_blueprint, open_recording, read_recording
+from runtime.rerun_log import RecordingReadError, read_recording
 from runtime.rrd_salvage import scan_rrd
 
-from .rerun_helpers import ROBOTS, log_small_mission
+from .rerun_helpers import footed_recording
 
 
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory):
     """A finished recording with Rerun's footer (its last 0.1 %: ``footer=True``, as files written before the
     footer was turned off) and what read_recording finds in it; files without one: test_rerun_memory.py."""
-    rrd = tmp_path_factory.mktemp("whole") / "mission.rrd"
-    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS), footer=True), ROBOTS,
-                     blueprint=False)
-    log_small_mission(log, frames=40, flush_each_frame=True)
-    log.close()
-    return rrd, read_recording(rrd)
+    return footed_recording(tmp_path_factory.mktemp("whole") / "mission.rrd", frames=40)
 
 
 def _boundaries(rrd) -> list[int]:

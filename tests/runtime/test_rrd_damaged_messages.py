@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from runtime.cli import main
 from runtime.rerun_log import MissionLog, RecordingReadError, mission_blueprint, open_recording, read_recording
 
-from .rerun_helpers import ROBOTS, log_small_mission
+from .rerun_helpers import ROBOTS, footed_recording, log_small_mission
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*no footer/manifest")  # candidate files are written without one
 
@@ -47,12 +47,7 @@ for line in sys.stdin:
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory):
     """A finished recording with Rerun's footer, and what read_recording finds in it."""
-    rrd = tmp_path_factory.mktemp("whole") / "mission.rrd"
-    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS), footer=True), ROBOTS,
-                     blueprint=False)
-    log_small_mission(log, frames=12, flush_each_frame=True)
-    log.close()
-    return rrd, read_recording(rrd)
+    return footed_recording(tmp_path_factory.mktemp("whole") / "mission.rrd", frames=12)
 
 
 def _frames(data: bytes) -> list[tuple[int, int, int]]:
