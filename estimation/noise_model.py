@@ -309,14 +309,14 @@ class NoiseModel:
 
 
 def _toml_value(value) -> str:
-    if isinstance(value, bool):
+    if isinstance(value, bool | np.bool_):
         return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
         if not math.isfinite(value):
             raise NoiseModelError(f"cannot write the non-finite value {value}")
-        return repr(value)
+        return repr(float(value))      # numpy's repr is "np.float64(1.0)", which no TOML reader takes
     if isinstance(value, str):
         escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
         return f'"{escaped}"'

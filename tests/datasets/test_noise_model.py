@@ -36,6 +36,20 @@ def test_round_trip_and_defaults(tmp_path):
     range_bearing_config(**model.fastslam_overrides())   # every key is a FastSLAMConfig field
 
 
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(values=st.lists(st.floats(1e-6, 6.0), min_size=4, max_size=4), windows=st.integers(0, 2 ** 40))
+def test_numpy_numbers_round_trip(tmp_path, values, windows):
+    """A model built from numpy scalars (as a fit makes it) writes a file its reader takes: numpy's repr,
+    "np.float64(1.0)", is no TOML value (found by session 15's smoothing test)."""
+    a, b, c, fov = (np.float64(v) for v in values)
+    model = NoiseModel(OdometryNoise(a, b, c), RangeBearingNoise(a, b, c, fov_rad=fov),
+                       fit={"windows": np.int64(windows), "share": np.float32(0.5), "ok": np.bool_(True)})
+    model.save(tmp_path / "n.toml")
+    loaded = NoiseModel.load(tmp_path / "n.toml")
+    assert loaded.odometry == model.odometry and loaded.range_bearing == model.range_bearing
+    assert loaded.fit == {"windows": windows, "share": 0.5, "ok": True}
+
+
 @pytest.mark.parametrize(("text", "complaint"), [
     ("", "key 'format' is None"),
     ('format = "p3at-noise-model"\nversion = 2\n', "version 2 is not supported"),
