@@ -6,7 +6,7 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
-        [--range-calibration] [--set FIELD=VALUE ...] [--json]
+        [--range-calibration] [--smooth] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -26,6 +26,8 @@ fit the odometry's heading bias per metre beside the rotation scale (estimate_no
 default, docs/fastslam.md "Session 5"; a FILE is used as it is). ``--sensor-correlation passes``: the sensor's
 correlation (its variance inflation) measured over whole passes of sightings instead of from the lag-1 correlation
 of consecutive ones (estimate_noise's sensor_correlation; docs/fastslam.md "Session 5").
+``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
+docs/fastslam.md "Session 15"); the filter's own figures stay under ``filter_``.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -86,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
                         "reports depth along its axis, not range)")
     parser.add_argument("--odometry-lag", action="store_true", help="fit the time by which the odometry (commanded "
                         "velocity) leads the motion, and read it that much earlier")
+    parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
@@ -120,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
             start = time.process_time()
             run = run_landmark_log(logs[r], range_bearing_config(n_particles=args.particles, **overrides),
                                    np.random.default_rng(args.seed), noise=noise[r], association=mode,
-                                   robot=f"robot{r}", until=args.until, inflate_correlated=not args.no_inflation)
+                                   robot=f"robot{r}", until=args.until, inflate_correlated=not args.no_inflation,
+                                   smooth=args.smooth and mode == "id")
             cpu = time.process_time() - start
             out = args.maps / mode / f"robot{r}.npz"
             run.map.save(out)
@@ -143,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
                           "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
                           "odometry_lag_s": {r: noise[r].odometry.lag_s for r in robots},
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
-                          "overrides": overrides, "inflation": not args.no_inflation,
+                          "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
                           "particles": args.particles, "seed": args.seed,
                           "maps": str(args.maps)}))
         return 0

@@ -52,7 +52,7 @@ class DatasetRun:
 
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
                      association: str = "id", robot: str = "robot", until: float | None = None,
-                     inflate_correlated: bool = True, known_map: bool = False) -> DatasetRun:
+                     inflate_correlated: bool = True, known_map: bool = False, smooth: bool = False) -> DatasetRun:
     """Run FastSLAM over ``log`` (needs ground truth for the scores); see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
@@ -62,6 +62,9 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     ``known_map``: localization only, the floor of what the filter and the noise model can reach when the map is
     not the problem: every particle starts with the log's true landmarks (in the start frame, σ 1 mm, named by
     their ids) and none is ever removed (needs ``association="id"``).
+    ``smooth``: after the filter, the whole log's MAP poses and landmarks from the filter's best particle
+    (:mod:`estimation.dataset_smoothing`; needs ``association="id"``): the map, trajectory and pose NEES are then
+    the smoother's, the filter's figures stay in the metrics under ``filter_``.
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -70,6 +73,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not log.has_ground_truth:
         raise ValueError(f"{log.name}: scoring needs ground truth, and the log has none")
     sensor = noise.range_bearing
+    if smooth and association != "id":
+        raise ValueError("smoothing needs association='id' (the sightings must name their landmarks)")
     if inflate_correlated:
         inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
         sensor = dataclasses.replace(sensor, range_sigma_m=sensor.range_sigma_m * inflate_r,
@@ -97,7 +102,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
 
     votes: dict[int, dict[int, int]] = {}
-    means, covs = [], []
+    means, covs, frames = [], [], []
     sightings = SightingRecorder()     # the map's own spread at each landmark (estimation.sighting_spread)
     for k, (start, stop) in enumerate(zip(first, bounds, strict=True)):
         slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])))
@@ -107,6 +112,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         if association == "id":
             obs = dataclasses.replace(obs, ids=ids)
         report = slam.update(obs)
+        frames.append((ids, ranges, bearings))
         count_sightings(votes, ids, report)
         sightings.add_report(float(times[k]), obs.points, report)
         means.append(report.pose_mean)
@@ -130,7 +136,11 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     metrics = _metrics(log, landmark_map, votes, true_start, truth, estimated_world, dead, nees, t0, until)
     metrics.update(frames=len(times), particles=config.n_particles, version=config.version,
                    association=association)
-    return DatasetRun(landmark_map, truth, estimated_world, dead, nees, metrics)
+    run = DatasetRun(landmark_map, truth, estimated_world, dead, nees, metrics)
+    if not smooth:
+        return run
+    from .dataset_smoothing import smooth_run
+    return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
 
 
 def _body(log: RangeBearingLog) -> dict:

@@ -1,0 +1,117 @@
+"""A data set run's map and trajectory smoothed over the whole log (``run_landmark_log(..., smooth=True)``).
+
+The filter's best particle is the initial guess; :func:`estimation.landmark_smoother.smooth` finds the MAP poses
+and landmarks of every odometry increment and every sighting (by its landmark's identity). The map it writes is
+the smoother's: positions (z = 0, the sensor is planar), the marginal covariances of the landmarks in the map's
+frame (the inverse information, so no drift export is added: the frame's uncertainty is in them already), the
+identities in ``metadata["external_ids"]``, the smoothed trajectory. The filter's own figures stay in the metrics
+under ``filter_``; ``smoother_*`` report the fit (χ² per degree of freedom, sightings dropped as outliers,
+convergence).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import between, compose
+from .landmark_map import LandmarkMap
+from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
+from .landmark_smoother import LandmarkLogProblem, smooth
+
+_Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
+_FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95",
+                "pose_nees_frames", "landmarks", "duplicate_fraction", "landmark_error_median_m",
+                "landmark_error_rigid_median_m", "landmark_nees_within_bound", "landmark_nees_rigid_within_bound",
+                "landmark_nees_median")
+
+
+def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_start, t0, until):
+    """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
+
+    frames: per filter frame k, (ids, ranges, bearings) as the filter was given them (calibrated); increments
+    (T, 3) the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise;
+    config the filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
+    """
+    if not any(len(ids) for ids, _, _ in frames):
+        before = "" if until is None else f" before {until:g} s"
+        raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
+    problem, landmark_ids = _problem(frames, increments, sensor, config)
+    initial = np.vstack([np.zeros(3), filter_poses])
+    solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial))
+    times = run.true_trajectory[:, 0]
+    estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
+    landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times)
+    covariance_rows = solution.covariance_poses - 1
+    true_in_start = between(true_start, run.true_trajectory[covariance_rows, 1:])
+    nees = np.full(len(times), np.nan)
+    # the covariances are of (x, y, θ) in the map's frame: the error is the difference there (θ wrapped)
+    nees[covariance_rows] = pose_nees(solution.poses[solution.covariance_poses] - true_in_start,
+                                      solution.pose_covariances)
+    finite = nees[np.isfinite(nees)]
+    metrics = {f"filter_{key}": run.metrics[key] for key in _FILTER_KEYS if key in run.metrics}
+    metrics.update(run.metrics)
+    metrics.update(
+        ate_m=ate(estimated_world[:, 1:], run.true_trajectory[:, 1:]),
+        final_position_error_m=float(np.hypot(*(estimated_world[-1, 1:3] - run.true_trajectory[-1, 1:3]))),
+        pose_nees_mean=float(np.mean(finite)), pose_nees_median=float(np.median(finite)),
+        pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)),
+        smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
+        smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
+        smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    horizon = np.inf if until is None else until
+    sighted = log.landmark_ids[(log.sighting_times >= t0) & (log.sighting_times <= horizon)]
+    sighted = sighted[np.isin(sighted, log.truth_ids)]
+    metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
+                              np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
+                              log.truth_ids, log.truth_positions, sighted))
+    return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
+
+
+def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np.ndarray]:
+    """The factors of the run, and the identity (L,) of each landmark index."""
+    pose_index = np.concatenate([np.full(len(ids), k + 1) for k, (ids, _, _) in enumerate(frames)]).astype(int)
+    ids = np.concatenate([f[0] for f in frames]).astype(np.int64)
+    ranges = np.concatenate([f[1] for f in frames]).astype(float)
+    bearings = np.concatenate([f[2] for f in frames]).astype(float)
+    named = ids >= 0
+    landmark_ids, landmark_index = np.unique(ids[named], return_inverse=True)
+    trans = np.hypot(increments[:, 0], increments[:, 1])
+    var_xy = config.odom_xy_var_per_m * trans + config.odom_var_floor
+    var_theta = (config.odom_theta_var_per_rad * np.abs(increments[:, 2]) + config.odom_theta_var_per_m * trans
+                 + config.odom_var_floor)
+    variances = np.column_stack([var_xy, var_xy, var_theta])
+    problem = LandmarkLogProblem(np.asarray(increments, float), variances, pose_index[named], landmark_index,
+                                 ranges[named], bearings[named], sensor.range_sigma(ranges[named]),
+                                 np.full(int(named.sum()), float(sensor.bearing_sigma_rad)))
+    return problem, landmark_ids
+
+
+def _initial_landmarks(filter_map: LandmarkMap, landmark_ids, problem, poses) -> np.ndarray:
+    """The filter's landmark of each identity; one it does not hold: placed from its first sighting."""
+    external = np.asarray(filter_map.metadata.get("external_ids", []), np.int64)
+    out = np.zeros((len(landmark_ids), 2))
+    for i, identity in enumerate(landmark_ids):
+        rows = np.flatnonzero(external == identity)
+        if len(rows):
+            out[i] = filter_map.positions[rows[0], :2]
+            continue
+        s = int(np.flatnonzero(problem.landmark_index == i)[0])
+        x, y, theta = poses[problem.pose_index[s]]
+        angle = theta + problem.bearings[s]
+        out[i] = (x + problem.ranges[s] * np.cos(angle), y + problem.ranges[s] * np.sin(angle))
+    return out
+
+
+def _smoothed_map(filter_map: LandmarkMap, solution, landmark_ids, landmark_index, times) -> LandmarkMap:
+    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(len(landmark_ids), -1)), axis=1)
+    n = int(seen.sum())
+    covariances = np.zeros((n, 3, 3))
+    covariances[:, :2, :2] = solution.landmark_covariances[seen]
+    covariances[:, 2, 2] = _Z_VARIANCE
+    counts = np.bincount(landmark_index[solution.inliers], minlength=len(landmark_ids))[seen]
+    metadata = dict(filter_map.metadata, external_ids=[int(i) for i in landmark_ids[seen]], smoothed=True,
+                    smoother_chi2_per_dof=solution.chi2_per_dof)
+    return LandmarkMap(np.column_stack([solution.landmarks[seen], np.zeros(n)]), covariances,
+                       np.zeros((n, 0), np.float32), ids=np.arange(n), counts=counts, robot=filter_map.robot,
+                       frame=filter_map.frame, trajectory=np.column_stack([np.append(times[:1], times),
+                                                                           solution.poses]),
+                       metadata=metadata)

@@ -1,0 +1,298 @@
+"""Full-trajectory smoothing of a planar range-bearing landmark log (known associations), after the filter.
+
+FastSLAM estimates online: each particle's landmarks are conditioned on that particle's trajectory, and the
+filter keeps a few hundred trajectory hypotheses whose diversity resampling erodes (Bailey, Nieto & Nebot 2006).
+Once a log is over, the question "which trajectory and which map explain all of it" has a direct answer: the
+maximum a-posteriori estimate of every pose and every landmark together (full SLAM; Thrun & Montemerlo's
+GraphSLAM, Dellaert & Kaess's square-root SAM). This module computes it, starting from the filter's best
+particle, for logs whose sightings name their landmark (fiducials, barcodes: ``association="id"``).
+
+The problem, in the map's frame (pose 0 is the frame's origin and is held fixed: the gauge):
+
+- odometry factors: between(x_k, x_{k+1}) − δ_k with covariance diag(σ_xy², σ_xy², σ_θ²), the same random-walk
+  increment model the filter samples from (``estimation.fastslam.motion.increment_variance``);
+- sighting factors: (‖m − t_k‖ − r, atan2(m − t_k) − θ_k − φ) with the sensor's (σ_r, σ_φ), the variances
+  inflated for correlated sightings as the filter's are.
+
+Solved by Gauss–Newton with Levenberg damping on the sparse normal equations. Outliers: the sightings are first
+weighted by Huber's function (k = 2.45, χ²₂ 70 %), then every sighting whose squared normalised residual exceeds
+χ²₂ 99 % is dropped and the problem solved again without weights; the dropped ones are reported. The covariances
+are the inverse of the information matrix JᵀJ at the solution (the Laplace approximation), its landmark blocks
+and a sample of its pose blocks, computed from one sparse factorisation.
+
+What it is not: an association method. A sighting is given its landmark; a wrong identity that stays within the
+χ²₂ 99 % bound moves the solution. And the covariances are as honest as the noise model: if consecutive
+sightings share their error beyond the model's inflation, the smoother, like the filter, is overconfident; the
+solution's χ² per degree of freedom (``Smoothed.chi2_per_dof``) says how far the data are from the model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .geometry import between, compose, wrap_angle
+
+HUBER_K = 2.45                    # σ: Huber's threshold on a sighting's normalised residual norm (χ²₂ 70 %)
+OUTLIER_CHI2 = 9.21               # χ²₂ 99 %: a sighting beyond it after the robust solve is dropped
+MAX_ITERATIONS = 60
+_STEP_TOLERANCE = 1e-7            # stop when no variable moves more than this (m or rad)
+
+
+class SmoothingError(ValueError):
+    """The smoothing problem is malformed (shapes, indices, variances)."""
+
+
+@dataclass(frozen=True)
+class LandmarkLogProblem:
+    """One robot's log as factors. Poses 0..T: pose 0 is the frame's origin (fixed); increment k (T, 3) leads from
+    pose k to pose k + 1 with variances ``increment_variances[k]`` (3,). Sighting s (S,) was taken at pose
+    ``pose_index[s]`` (1..T) of landmark ``landmark_index[s]`` (0..L−1) with range, bearing and their σ."""
+
+    increments: np.ndarray
+    increment_variances: np.ndarray
+    pose_index: np.ndarray
+    landmark_index: np.ndarray
+    ranges: np.ndarray
+    bearings: np.ndarray
+    range_sigmas: np.ndarray
+    bearing_sigmas: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = len(self.increments)
+        if self.increments.shape != (t, 3) or self.increment_variances.shape != (t, 3):
+            raise SmoothingError("increments and their variances must both be (T, 3)")
+        if np.any(~np.isfinite(self.increment_variances)) or np.any(self.increment_variances <= 0):
+            raise SmoothingError("increment variances must be finite and positive")
+        s = len(self.ranges)
+        for name in ("pose_index", "landmark_index", "bearings", "range_sigmas", "bearing_sigmas"):
+            if getattr(self, name).shape != (s,):
+                raise SmoothingError(f"{name} must be ({s},), like the ranges")
+        if s and (self.pose_index.min() < 1 or self.pose_index.max() > t):
+            raise SmoothingError(f"sightings must be taken at poses 1..{t}")
+        if s and self.landmark_index.min() < 0:
+            raise SmoothingError("landmark indices must be non-negative")
+        if np.any(self.range_sigmas <= 0) or np.any(self.bearing_sigmas <= 0):
+            raise SmoothingError("sighting σ must be positive")
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.increments)
+
+    @property
+    def n_landmarks(self) -> int:
+        return int(self.landmark_index.max()) + 1 if len(self.landmark_index) else 0
+
+
+@dataclass
+class Smoothed:
+    """The solution: poses (T + 1, 3) (row 0 the origin), landmarks (L, 2), their marginal covariances (L, 2, 2),
+    pose covariances (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit."""
+
+    poses: np.ndarray
+    landmarks: np.ndarray
+    landmark_covariances: np.ndarray
+    covariance_poses: np.ndarray
+    pose_covariances: np.ndarray
+    inliers: np.ndarray
+    chi2: float
+    dof: int
+    iterations: int
+    converged: bool
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else float("nan")
+
+
+def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
+           pose_covariance_stride: int = 10) -> Smoothed:
+    """The MAP poses and landmarks of ``problem`` from an initial guess (poses (T + 1, 3), landmarks (L, 2); a
+    landmark never sighted keeps its guess and gets an infinite covariance). Pose covariances at every
+    ``pose_covariance_stride``-th pose (and the last)."""
+    t, n_landmarks = problem.n_poses, max(problem.n_landmarks, len(initial_landmarks))
+    poses = np.array(initial_poses, float).reshape(t + 1, 3)
+    landmarks = np.array(initial_landmarks, float).reshape(-1, 2)
+    if len(landmarks) < n_landmarks:
+        raise SmoothingError(f"{n_landmarks} landmarks sighted but {len(landmarks)} initial positions")
+    poses[0] = 0.0
+    inliers = np.ones(len(problem.ranges), bool)
+    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True)
+    _, residual = _residuals(problem, poses, landmarks)
+    inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False)
+    odometry, sightings = _residuals(problem, poses, landmarks)
+    chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
+    seen = np.zeros(n_landmarks, bool)
+    seen[problem.landmark_index[inliers]] = True
+    dof = 2 * int(inliers.sum()) - 2 * int(seen.sum())     # the odometry's 3T residuals pay for the 3T poses
+    information = _information(problem, poses, landmarks, inliers, n_landmarks)
+    stride = max(int(pose_covariance_stride), 1)
+    covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
+    landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses)
+    return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2, dof,
+                    iterations_robust + iterations, converged)
+
+
+def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray):
+    """Normalised residuals: odometry (T·3,), sightings (S·2,) interleaved (range, bearing)."""
+    odometry = between(poses[:-1], poses[1:]) - problem.increments
+    odometry[:, 2] = wrap_angle(odometry[:, 2])
+    odometry /= np.sqrt(problem.increment_variances)
+    at = poses[problem.pose_index]
+    d = landmarks[problem.landmark_index] - at[:, :2]
+    predicted_range = np.hypot(d[:, 0], d[:, 1])
+    predicted_bearing = np.arctan2(d[:, 1], d[:, 0]) - at[:, 2]
+    sightings = np.column_stack([(predicted_range - problem.ranges) / problem.range_sigmas,
+                                 wrap_angle(predicted_bearing - problem.bearings) / problem.bearing_sigmas])
+    return odometry.ravel(), sightings.ravel()
+
+
+def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
+              sighting_weights: np.ndarray) -> sp.csr_matrix:
+    """∂(normalised residuals)/∂(poses 1..T, landmarks), sightings scaled by their weights (S,)."""
+    t = problem.n_poses
+    rows, cols, vals = [], [], []
+
+    def put(r, c, v):
+        keep = c >= 0                       # pose 0 is fixed: no column
+        rows.append(r[keep])
+        cols.append(c[keep])
+        vals.append(v[keep])
+
+    k = np.arange(t)
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    sigma = np.sqrt(problem.increment_variances)
+    col_a, col_b = 3 * (k - 1), 3 * k            # pose j's columns start at 3(j − 1)
+    col_a = np.where(k == 0, -1, col_a)
+    # between: e_x = c dx + s dy, e_y = −s dx + c dy, e_θ = b_θ − a_θ
+    for axis, (wx, wy, wth) in enumerate(((c, s, -s * dx + c * dy), (-s, c, -c * dx - s * dy))):
+        r = 3 * k + axis
+        w = 1.0 / sigma[:, axis]
+        put(r, np.where(col_a < 0, -1, col_a), -wx * w)
+        put(r, np.where(col_a < 0, -1, col_a + 1), -wy * w)
+        put(r, np.where(col_a < 0, -1, col_a + 2), wth * w)
+        put(r, col_b, wx * w)
+        put(r, col_b + 1, wy * w)
+    r = 3 * k + 2
+    put(r, np.where(col_a < 0, -1, col_a + 2), -1.0 / sigma[:, 2])
+    put(r, col_b + 2, 1.0 / sigma[:, 2])
+
+    at = poses[problem.pose_index]
+    d = landmarks[problem.landmark_index] - at[:, :2]
+    q = np.maximum(d[:, 0] ** 2 + d[:, 1] ** 2, 1e-12)
+    rng = np.sqrt(q)
+    base = 3 * t + 2 * np.arange(len(d))
+    pose_col = 3 * (problem.pose_index - 1)
+    landmark_col = 3 * t + 2 * problem.landmark_index
+    wr = sighting_weights / problem.range_sigmas
+    wb = sighting_weights / problem.bearing_sigmas
+    for col_offset, dr, db in ((0, d[:, 0] / rng, -d[:, 1] / q), (1, d[:, 1] / rng, d[:, 0] / q)):
+        put(base, landmark_col + col_offset, dr * wr)
+        put(base, pose_col + col_offset, -dr * wr)
+        put(base + 1, landmark_col + col_offset, db * wb)
+        put(base + 1, pose_col + col_offset, -db * wb)
+    put(base + 1, pose_col + 2, -wb)
+    shape = (3 * t + 2 * len(d), 3 * t + 2 * n_landmarks)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
+
+
+def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
+    """√(IRLS weight) per sighting: 0 for dropped ones, Huber's on the residual norm when ``robust``."""
+    weights = inliers.astype(float)
+    if robust:
+        norm = np.sqrt(np.sum(sightings.reshape(-1, 2) ** 2, axis=1))
+        weights *= np.sqrt(np.minimum(1.0, HUBER_K / np.maximum(norm, 1e-12)))
+    return weights
+
+
+def _cost(problem, poses, landmarks, inliers, robust) -> float:
+    odometry, sightings = _residuals(problem, poses, landmarks)
+    norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
+    if robust:
+        norm = np.sqrt(norm2)
+        rho = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
+    else:
+        rho = norm2
+    return float(np.sum(odometry ** 2) + np.sum(rho))
+
+
+def _solve(problem, poses, landmarks, inliers, robust) -> tuple[int, bool]:
+    """Levenberg–Marquardt (IRLS weights when ``robust``) in place on poses[1:] and landmarks."""
+    t, n_landmarks = problem.n_poses, len(landmarks)
+    damping = 1e-4
+    cost = _cost(problem, poses, landmarks, inliers, robust)
+    for iteration in range(1, MAX_ITERATIONS + 1):
+        odometry, sightings = _residuals(problem, poses, landmarks)
+        weights = _sighting_weights(sightings, inliers, robust)
+        jac = _jacobian(problem, poses, landmarks, n_landmarks, weights)
+        residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()])
+        normal = (jac.T @ jac).tocsc()
+        gradient = jac.T @ residual
+        diagonal = normal.diagonal()
+        while True:
+            damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
+            step = -spla.spsolve(damped, gradient)
+            trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
+            trial_poses[1:] += step[:3 * t].reshape(t, 3)
+            trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
+            trial_landmarks += step[3 * t:].reshape(n_landmarks, 2)
+            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust)
+            if trial <= cost:
+                break
+            damping *= 10.0
+            if damping > 1e8:
+                return iteration, False
+        poses[:], landmarks[:] = trial_poses, trial_landmarks
+        damping = max(damping / 10.0, 1e-9)
+        improvement, cost = cost - trial, trial
+        if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
+            return iteration, True
+    return MAX_ITERATIONS, False
+
+
+def _information(problem, poses, landmarks, inliers, n_landmarks) -> sp.csc_matrix:
+    jac = _jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float))
+    return (jac.T @ jac).tocsc()
+
+
+def _marginals(information, t, n_landmarks, seen, covariance_poses):
+    """Landmark (L, 2, 2) and pose (P, 3, 3) blocks of the information's inverse; a landmark never sighted (no
+    information) gets an infinite covariance and is left out of the factorisation."""
+    free = np.ones(information.shape[0], bool)
+    free[3 * t:] = np.repeat(seen, 2)
+    index = np.full(information.shape[0], -1)
+    index[free] = np.arange(int(free.sum()))
+    factor = spla.splu(information[free][:, free].tocsc(), permc_spec="COLAMD")
+    landmark_cov = np.full((n_landmarks, 2, 2), np.inf)
+    columns = index[3 * t + 2 * np.flatnonzero(seen)[:, None] + np.arange(2)].ravel()
+    if len(columns):
+        solved = _solve_columns(factor, columns, int(free.sum()))
+        n_seen = len(columns) // 2
+        blocks = solved[columns].reshape(n_seen, 2, n_seen, 2)
+        landmark_cov[seen] = blocks[np.arange(n_seen), :, np.arange(n_seen), :]
+    pose_cov = np.zeros((len(covariance_poses), 3, 3))
+    for chunk in range(0, len(covariance_poses), 100):
+        which = covariance_poses[chunk:chunk + 100]
+        columns = (3 * (which[:, None] - 1) + np.arange(3)).ravel()
+        solved = _solve_columns(factor, columns, int(free.sum()))[columns].reshape(len(which), 3, len(which), 3)
+        pose_cov[chunk:chunk + len(which)] = solved[np.arange(len(which)), :, np.arange(len(which)), :]
+    return landmark_cov, 0.5 * (pose_cov + pose_cov.transpose(0, 2, 1))
+
+
+def _solve_columns(factor, columns, n) -> np.ndarray:
+    rhs = np.zeros((n, len(columns)))
+    rhs[columns, np.arange(len(columns))] = 1.0
+    return factor.solve(rhs)
+
+
+def dead_reckoning(increments: np.ndarray) -> np.ndarray:
+    """Poses (T + 1, 3) from the origin by composing increments (T, 3): an initial guess without a filter."""
+    poses = np.zeros((len(increments) + 1, 3))
+    for k, step in enumerate(increments):
+        poses[k + 1] = compose(poses[k], step)
+    return poses

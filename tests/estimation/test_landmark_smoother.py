@@ -1,0 +1,158 @@
+"""The full-trajectory smoother (estimation/landmark_smoother.py) against simulated logs with known truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimation.geometry import between, compose, wrap_angle
+from estimation.landmark_scores import points_nees, pose_nees
+from estimation.landmark_smoother import (
+    LandmarkLogProblem,
+    SmoothingError,
+    _jacobian,
+    _residuals,
+    dead_reckoning,
+    smooth,
+)
+
+CHI2_2_95 = 5.991
+XY_VAR_PER_M, THETA_VAR_PER_M = 2e-3, 2e-3
+SIGMA_R, SIGMA_B = 0.05, 0.02
+
+
+def simulated_log(seed: int, steps: int = 240, outliers: int = 0):
+    """A robot driving a 4 m circle twice among 8 landmarks, odometry and sightings drawn from the model.
+    Returns (problem, true poses (T + 1, 3) in the start frame, true landmarks (L, 2))."""
+    rng = np.random.default_rng(seed)
+    step = np.array([2 * np.pi * 2.0 / 120, 0.0, 2 * np.pi / 120])       # 120 steps a lap, radius 2 m
+    truth = dead_reckoning(np.tile(step, (steps, 1)))
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    landmarks = np.column_stack([3.2 * np.cos(angles), 2.0 + 3.2 * np.sin(angles)])
+    trans = np.hypot(step[0], step[1])
+    variance = np.array([XY_VAR_PER_M * trans, XY_VAR_PER_M * trans, THETA_VAR_PER_M * trans])
+    measured = between(truth[:-1], truth[1:]) + rng.standard_normal((steps, 3)) * np.sqrt(variance)
+    pose_index, landmark_index, ranges, bearings = [], [], [], []
+    for k in range(1, steps + 1):
+        d = landmarks - truth[k, :2]
+        r = np.hypot(d[:, 0], d[:, 1])
+        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[k, 2])
+        visible = np.flatnonzero((np.abs(b) < 0.8) & (r < 5.0))
+        pose_index += [k] * len(visible)
+        landmark_index += list(visible)
+        ranges += list(r[visible] + SIGMA_R * rng.standard_normal(len(visible)))
+        bearings += list(b[visible] + SIGMA_B * rng.standard_normal(len(visible)))
+    ranges = np.array(ranges)
+    if outliers:
+        bad = rng.choice(len(ranges), outliers, replace=False)
+        ranges[bad] += 1.5
+    s = len(ranges)
+    problem = LandmarkLogProblem(measured, np.tile(variance, (steps, 1)), np.array(pose_index),
+                                 np.array(landmark_index), ranges, np.array(bearings),
+                                 np.full(s, SIGMA_R), np.full(s, SIGMA_B))
+    return problem, truth, landmarks
+
+
+def initial_guess(problem: LandmarkLogProblem):
+    poses = dead_reckoning(problem.increments)
+    landmarks = np.zeros((problem.n_landmarks, 2))
+    for i in range(problem.n_landmarks):
+        s = int(np.flatnonzero(problem.landmark_index == i)[0])
+        x, y, theta = poses[problem.pose_index[s]]
+        landmarks[i] = (x + problem.ranges[s] * np.cos(theta + problem.bearings[s]),
+                        y + problem.ranges[s] * np.sin(theta + problem.bearings[s]))
+    return poses, landmarks
+
+
+def test_smoothing_beats_dead_reckoning_and_holds_the_landmarks():
+    problem, truth, landmarks = simulated_log(seed=3)
+    poses, guess = initial_guess(problem)
+    solution = smooth(problem, poses, guess)
+    assert solution.converged
+    dead_error = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    smoothed_error = np.hypot(*(solution.poses[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(smoothed_error ** 2)) < 0.5 * np.sqrt(np.mean(dead_error ** 2))
+    assert np.max(np.hypot(*(solution.landmarks - landmarks).T)) < 0.2
+    assert solution.inliers.all()
+
+
+def test_covariances_are_consistent_over_many_logs():
+    """The NEES of the landmarks and of the sampled poses follow χ²: the model is the data's, so the Laplace
+    covariances must cover the errors about 95 % of the time (mean NEES near the dimension)."""
+    landmark_nees, poses_nees = [], []
+    for seed in range(12):
+        problem, truth, landmarks = simulated_log(seed)
+        solution = smooth(problem, *initial_guess(problem), pose_covariance_stride=30)
+        landmark_nees.append(points_nees(solution.landmarks - landmarks, solution.landmark_covariances))
+        errors = solution.poses[solution.covariance_poses] - truth[solution.covariance_poses]   # the map's frame
+        poses_nees.append(pose_nees(errors, solution.pose_covariances))
+    landmark_nees, poses_nees = np.concatenate(landmark_nees), np.concatenate(poses_nees)
+    assert 1.4 < np.mean(landmark_nees) < 2.8          # χ²₂: mean 2; 96 values
+    assert np.mean(landmark_nees < CHI2_2_95) > 0.85
+    assert 2.2 < np.mean(poses_nees) < 4.0              # χ²₃: mean 3; 96 values
+
+
+def test_gross_outliers_are_dropped_and_the_solution_holds():
+    problem, truth, landmarks = simulated_log(seed=5, outliers=12)
+    solution = smooth(problem, *initial_guess(problem))
+    bad = np.flatnonzero(np.abs(problem.ranges - _true_ranges(problem, truth, landmarks)) > 1.0)
+    assert len(bad) == 12
+    assert not solution.inliers[bad].any()
+    good = np.ones(len(problem.ranges), bool)
+    good[bad] = False
+    assert solution.inliers[good].mean() > 0.97           # χ²₂ 99 % drops 1 % of good sightings by design
+    assert np.max(np.hypot(*(solution.landmarks - landmarks).T)) < 0.2
+
+
+def test_a_wrong_start_is_recovered_from_a_good_enough_guess():
+    problem, truth, landmarks = simulated_log(seed=7)
+    poses, guess = initial_guess(problem)
+    solution = smooth(problem, compose(poses, np.array([0.3, -0.2, 0.1])), guess + 0.3)
+    assert np.max(np.hypot(*(solution.landmarks - landmarks).T)) < 0.2
+
+
+def _true_ranges(problem, truth, landmarks):
+    d = landmarks[problem.landmark_index] - truth[problem.pose_index, :2]
+    return np.hypot(d[:, 0], d[:, 1])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), steps=st.integers(1, 8), n_landmarks=st.integers(1, 4))
+def test_jacobian_matches_finite_differences(seed, steps, n_landmarks):
+    rng = np.random.default_rng(seed)
+    s = 2 * steps
+    problem = LandmarkLogProblem(rng.normal(0, 0.4, (steps, 3)), rng.uniform(0.01, 0.1, (steps, 3)),
+                                 rng.integers(1, steps + 1, s), rng.integers(0, n_landmarks, s),
+                                 rng.uniform(0.5, 4, s), rng.uniform(-1, 1, s), rng.uniform(0.02, 0.2, s),
+                                 rng.uniform(0.01, 0.1, s))
+    poses = dead_reckoning(problem.increments) + rng.normal(0, 0.2, (steps + 1, 3))
+    poses[0] = 0
+    landmarks = rng.uniform(-3, 3, (n_landmarks, 2)) + np.array([5.0, 0.0])   # never on top of a pose
+    jac = _jacobian(problem, poses, landmarks, n_landmarks, np.ones(s)).toarray()
+    x0 = np.concatenate([poses[1:].ravel(), landmarks.ravel()])
+
+    def residuals(x):
+        p = poses.copy()
+        p[1:] = x[:3 * steps].reshape(steps, 3)
+        odometry, sightings = _residuals(problem, p, x[3 * steps:].reshape(n_landmarks, 2))
+        return np.concatenate([odometry, sightings])
+
+    numeric = np.column_stack([(residuals(x0 + e) - residuals(x0 - e)) / 2e-6 for e in np.eye(len(x0)) * 1e-6])
+    np.testing.assert_allclose(jac, numeric, atol=1e-5)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"increment_variances": np.zeros((3, 3))}, "positive"),
+    ({"pose_index": np.array([0, 1])}, "poses 1..3"),
+    ({"landmark_index": np.array([-1, 0])}, "non-negative"),
+    ({"bearings": np.zeros(3)}, "bearings"),
+    ({"range_sigmas": np.array([0.1, 0.0])}, "σ"),
+])
+def test_malformed_problems_are_refused(change, message):
+    fields = dict(increments=np.zeros((3, 3)), increment_variances=np.full((3, 3), 0.01),
+                  pose_index=np.array([1, 2]), landmark_index=np.array([0, 0]), ranges=np.ones(2),
+                  bearings=np.zeros(2), range_sigmas=np.full(2, 0.1), bearing_sigmas=np.full(2, 0.1))
+    fields.update(change)
+    with pytest.raises(SmoothingError, match=message):
+        LandmarkLogProblem(**fields)
