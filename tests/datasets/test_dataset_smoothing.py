@@ -14,6 +14,7 @@ from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
 from runtime.cli import main
+from runtime.rerun_log import read_recording
 
 
 def _cli(*argv) -> tuple[int, str, str]:
@@ -56,6 +57,15 @@ def test_cli_smooth_writes_the_smoothed_map_and_refuses_unknown_association(tmp_
     assert status == 0, err
     assert "smoothed over the whole log" in out and "trajectory ATE        smoothed" in out
     assert LandmarkMap.load(out_map).metadata["smoothed"] is True
+    recording = tmp_path / "run.rrd"
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out",
+                            str(out_map), "--particles", "10", "--noise", str(noise), "--smooth", "--rerun",
+                            str(recording), "--json")
+    assert status == 0, err
+    contents = read_recording(recording)           # the recording holds the smoothed map and the smoother's fit
+    np.testing.assert_array_equal(contents.maps["robot1"].positions, LandmarkMap.load(out_map).positions)
+    assert contents.summary["smoothed"] is True
+    assert contents.summary["smoother_chi2_per_dof"] == pytest.approx(json.loads(out)["smoother_chi2_per_dof"])
     status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out",
                             str(tmp_path / "u.npz"), "--association", "unknown", "--smooth", "--noise", str(noise))
     assert status == 2 and "association='id'" in err and err.count("\n") == 1
