@@ -2,8 +2,11 @@
 
 The recording is read (and its maps exported) in a child process: Rerun's reader (Rust) aborts the whole process
 on some damaged messages (a byte flipped in an Arrow schema gave "Timestamp type with unit of <UNKNOWN 16> not
-supported" and SIGABRT, found by flipping bytes of a demo's recording). Isolated, that is the one-line "not a
-readable Rerun recording" of any other damage, exit 2. This process does not import Rerun.
+supported" and SIGABRT, found by flipping bytes of a demo's recording; about 3 % of single-bit flips). When it does,
+a second child reads the recording again, asking this process before it reads any file whether Rerun reads it
+through; this process answers by reading that file in children of its own (runtime/rrd_salvage.ReadingProcesses),
+so that the damaged messages are found and left out even when reading them aborts. The recording is then read as
+any other damaged one (the DAMAGED line, exit 0). This process does not import Rerun (nor numpy): forking it is safe.
 """
 from __future__ import annotations
 
@@ -46,6 +49,11 @@ def review_summary(contents) -> dict:
     }
 
 
+# in a reading process started after Rerun's reader killed the first one: asks the parent whether Rerun reads a
+# file through (see _reading_process); None: read here
+_ask_parent = None
+
+
 def read_and_export(paths: list[Path], folder: Path | None) -> dict:
     """Runs in the reading process: read the recording, write each map it holds to ``folder`` as .npz and .ply
     (None: none), and return plain data (the caller imports no Rerun): ``{"error": why}`` for a file that is no
@@ -54,7 +62,7 @@ def read_and_export(paths: list[Path], folder: Path | None) -> dict:
     from runtime.rerun_log import RecordingReadError, read_recording
 
     try:
-        contents = read_recording(*paths)
+        contents = read_recording(*paths, decodes=_ask_parent)
     except RecordingReadError as e:  # not a recording, or damaged before its first message: bad input
         return {"error": str(e)}
     summary = review_summary(contents)
@@ -89,11 +97,21 @@ def _crash_message(text: str) -> str:
     return lines[-1][:200] if lines else "no message"
 
 
-def _reading_process(conn, err_path: str, reader, paths: list[Path], folder: Path | None) -> None:
+def _reading_process(conn, err_path: str, reader, paths: list[Path], folder: Path | None,
+                     ask_parent: bool = False) -> None:
     """The child's whole life: stderr to ``err_path``, then ``reader(paths, folder)``'s answer (or the exception it
     raised, a bug the parent reports as such) sent over ``conn``. The reader is an argument, not looked up here, so
-    that a spawned child (which imports this module afresh) runs the one the parent chose."""
+    that a spawned child (which imports this module afresh) runs the one the parent chose. ``ask_parent``: before
+    reading a file, ask the parent over ``conn`` (``("probe", path)``, answered True or False) whether Rerun reads it
+    through."""
+    global _ask_parent
     _stderr_to(err_path)
+    if ask_parent:
+        def _ask(candidate: Path) -> bool:
+            conn.send(("probe", str(candidate)))
+            return bool(conn.recv())
+
+        _ask_parent = _ask
     try:
         answer = ("answer", reader(paths, folder))
     except Exception as e:  # noqa: BLE001 - handed to the parent, which raises it
@@ -116,40 +134,79 @@ def _fork_is_safe() -> bool:
         return threading.active_count() == 1 and not {"rerun", "numpy"} & sys.modules.keys()
 
 
+def _decodes_here(candidate: Path) -> bool:
+    """Whether Rerun reads ``candidate`` through, read in this process (a reading process of the parent's)."""
+    from runtime.rerun_log import _decodes
+
+    return _decodes(candidate)
+
+
+def _import_reader() -> None:
+    """Run by a reading process as it starts: the import (~1 s) then overlaps the reading of the one before it."""
+    import runtime.rerun_log  # noqa: F401
+
+
 def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
-    """:func:`read_and_export` in a child process; a reader that kills its process is ``{"error": ...}`` with the
-    reason it printed. Ctrl-C ends the child at once (it would otherwise finish its export first).
+    """:func:`read_and_export` in a child process. When Rerun's reader kills it, a second child reads again, every
+    file it reads first read through by a child of this process's (:func:`_read_in_child`); a child that dies all the
+    same is ``{"error": ...}`` with the reason the first printed. Ctrl-C ends the children at once (the reading one
+    would otherwise finish its export first).
 
     Forked when this process runs a single thread (``p3at review`` itself: it has imported neither Rerun nor numpy),
     so that the child starts at once; otherwise spawned, since a fork copies any lock another thread holds at that
     instant (Rerun starts threads when imported: a caller such as a test process or a notebook)."""
     context = multiprocessing.get_context("fork" if _fork_is_safe() else "spawn")
     with tempfile.NamedTemporaryFile(prefix="p3at-review-", suffix=".err") as err:
-        receive, send = context.Pipe(duplex=False)
-        child = context.Process(target=_reading_process, args=(send, err.name, read_and_export, paths, folder),
-                                daemon=True)
-        try:
-            child.start()
-            send.close()
-            kind, value = receive.recv()
-        except EOFError:       # the child died without answering: Rust's abort on a damaged message
-            child.join()
-            err.seek(0)
-            why = _crash_message(err.read().decode("utf-8", "replace"))
+        kind, value = _read_in_child(context, err.name, paths, folder, None)
+        if kind == "died":       # Rust's abort on a damaged message: read again, each file first tried in a child
+            from runtime.rrd_salvage import ReadingProcesses
+
+            with ReadingProcesses(_decodes_here, context, prepare=_import_reader) as reading:
+                reading.warm()   # their import overlaps the reading child's
+
+                def probe(candidate: Path) -> bool:  # the one file given is the one the first reader died on
+                    return False if paths == [candidate] else reading(candidate)
+
+                kind, value = _read_in_child(context, err.name, paths, folder, probe)
+        err.seek(0)
+        why = _crash_message(err.read().decode("utf-8", "replace"))
+        if kind == "died":
             which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
             return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
                              f"message ({why})"}
-        except BaseException:  # Ctrl-C: stop the reading, do not wait for it
-            if child.pid is not None:
-                child.kill()
-                child.join()
-            raise
-        finally:
-            receive.close()
-        child.join()
+        if kind == "answer" and value.get("error", "").endswith("stopped on a damaged message"):
+            value = {"error": f"{value['error']} ({why})"}   # no message to blame: the first reader's reason
     if kind == "exception":
         raise value
     return value
+
+
+def _read_in_child(context, err_path: str, paths: list[Path], folder: Path | None, probe) -> tuple[str, object]:
+    """One reading process: ``("answer", dict)``, ``("exception", e)`` or ``("died", None)``. ``probe``: None, or
+    what answers the child's questions ("does Rerun read this file through?") while it reads."""
+    receive, send = context.Pipe(duplex=probe is not None)
+    child = context.Process(target=_reading_process,
+                            args=(send, err_path, read_and_export, paths, folder, probe is not None), daemon=True)
+    try:
+        child.start()
+        send.close()
+        while True:
+            kind, value = receive.recv()
+            if kind != "probe":
+                break
+            receive.send(probe(Path(value)))
+    except EOFError:       # the child died without answering
+        child.join()
+        return "died", None
+    except BaseException:  # Ctrl-C: stop the reading, do not wait for it
+        if child.pid is not None:
+            child.kill()
+            child.join()
+        raise
+    finally:
+        receive.close()
+    child.join()
+    return kind, value
 
 
 def _review(args) -> int:
