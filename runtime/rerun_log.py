@@ -750,8 +750,13 @@ class MissionLog:
         """
         self._time(t)
         m = landmark_map
-        meta = json.dumps({"robot": m.robot, "frame": m.frame, "robots": m.robots, "metadata": m.metadata})
-        arrays = _map_arrays(m.positions, m.covariances, m.descriptors, m.ids, m.counts, m.seen_by, m.trajectory)
+        optional = {name: getattr(m, name) for name in OPTIONAL_MAP_ARRAYS if getattr(m, name) is not None}
+        # which optional arrays the snapshot holds is said in its metadata (AnyValues does not store an empty
+        # array, so a map of no landmarks could not tell "none" from "empty" otherwise); absent in older recordings
+        meta = json.dumps({"robot": m.robot, "frame": m.frame, "robots": m.robots, "metadata": m.metadata,
+                           **({"optional": sorted(optional)} if optional else {})})
+        arrays = _map_arrays(m.positions, m.covariances, m.descriptors, m.ids, m.counts, m.seen_by, m.trajectory,
+                             **optional)
         self.rec.log(f"maps/{key}", rr.AnyValues(
             **{name: a.ravel() for name, a in arrays.items()}, descriptor_size=int(m.descriptor_size),
             meta=meta, size=len(m), t=float(t), checksum=_map_checksum(arrays, meta)))
@@ -1070,12 +1075,20 @@ def _scalar(value):
     return value
 
 
-def _map_arrays(positions, covariances, descriptors, ids, counts, seen_by, trajectory) -> dict[str, np.ndarray]:
-    """A map's arrays in the types they are logged and read back in: what its checksum is taken over."""
+# a map's arrays that only some maps have (estimation/landmark_map.py): the drift and sightings calibrations of
+# fusion.fuse_all use them; a snapshot carries those its map has (recordings before session 15 carry none)
+OPTIONAL_MAP_ARRAYS = {"drift_covariances": (3, 3), "drift_origins": (2,), "sighting_covariances": (3, 3)}
+
+
+def _map_arrays(positions, covariances, descriptors, ids, counts, seen_by, trajectory,
+                **optional) -> dict[str, np.ndarray]:
+    """A map's arrays in the types they are logged and read back in: what its checksum is taken over. ``optional``:
+    those of OPTIONAL_MAP_ARRAYS the map has."""
     return {"positions": np.asarray(positions, float), "covariances": np.asarray(covariances, float),
             "descriptors": np.asarray(descriptors, np.float32), "ids": np.asarray(ids, np.int64),
             "counts": np.asarray(counts, np.int64), "seen_by": np.asarray(seen_by, np.uint8),
-            "trajectory": np.asarray(trajectory, float)}
+            "trajectory": np.asarray(trajectory, float),
+            **{name: np.asarray(optional[name], float) for name in OPTIONAL_MAP_ARRAYS if name in optional}}
 
 
 def _map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
@@ -1116,17 +1129,20 @@ def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:
         d = int(_scalar(row["descriptor_size"]))
         n = int(_scalar(row["size"]))
         robots = [str(r) for r in meta.get("robots") or [meta.get("robot", "robot")]]
+        optional = {name: array(name, float).reshape(n, *OPTIONAL_MAP_ARRAYS[name])
+                    for name in meta.get("optional", []) if name in OPTIONAL_MAP_ARRAYS}
         arrays = _map_arrays(array("positions", float).reshape(n, 3), array("covariances", float).reshape(n, 3, 3),
                              array("descriptors", np.float32).reshape(n, d), array("ids", np.int64).reshape(n),
                              array("counts", np.int64).reshape(n),
                              array("seen_by", np.uint8).reshape(n, len(robots)),
-                             array("trajectory", float).reshape(-1, 4))
+                             array("trajectory", float).reshape(-1, 4), **optional)
         stored = row.get("checksum")
         whole = stored is None or int(_scalar(stored)) == _map_checksum(arrays, text)
         return LandmarkMap(
             arrays["positions"], arrays["covariances"], arrays["descriptors"], arrays["ids"], arrays["counts"],
             str(meta.get("robot", "robot")), str(meta.get("frame", "map")), robots, arrays["seen_by"].astype(bool),
-            arrays["trajectory"], dict(meta.get("metadata", {}))), whole
+            arrays["trajectory"], dict(meta.get("metadata", {})),
+            **{name: arrays.get(name) for name in OPTIONAL_MAP_ARRAYS}), whole
     except (ValueError, TypeError, KeyError, AttributeError, json.JSONDecodeError) as e:
         raise RecordingReadError(f"{path}: entity '{entity}' holds a malformed map ({e})") from None
 
