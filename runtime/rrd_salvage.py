@@ -271,13 +271,14 @@ def salvage(path: str | Path, whole_bytes: int, decodes: Callable[[Path], bool],
 
 def _serve(conn, decode: Callable[[Path], bool], prepare: Callable[[], object] | None, stderr: str) -> None:
     """A reading process's life: standard error to ``stderr`` (a Rust panic prints its backtrace there), ``prepare()``,
-    then one answer per candidate path received, until None or the parent goes. An exception is a refusal (as in
-    :func:`salvage`'s in-process reading); an abort ends the process, which the parent sees as the pipe's end."""
+    "ready", then one answer per candidate path received, until None or the parent goes. An exception is a refusal (as
+    in :func:`salvage`'s in-process reading); an abort ends the process, which the parent sees as the pipe's end."""
     fd = os.open(stderr, os.O_WRONLY | os.O_APPEND)
     os.dup2(fd, 2)
     os.close(fd)
     if prepare is not None:
         prepare()
+    conn.send("ready")   # a child that dies before this died of its start, not of a candidate
     while True:
         try:
             candidate = conn.recv()
@@ -292,6 +293,10 @@ def _serve(conn, decode: Callable[[Path], bool], prepare: Callable[[], object] |
         conn.send(answer)
 
 
+class ReadingProcessError(RuntimeError):
+    """A reading process of :class:`ReadingProcesses` died before it could read (not a candidate's fault)."""
+
+
 class ReadingProcesses:
     """``decodes(candidate)`` for :func:`salvage`, asked of a child process running ``decode``: a reader that kills
     its process (Rerun's Rust code aborts on some damaged messages) costs only that child, and the candidate counts as
@@ -303,7 +308,9 @@ class ReadingProcesses:
     ``decode`` imports Rerun only when first called). ``context``: a multiprocessing context; "fork" only from a
     process that runs one thread (a forked child copies every lock another thread holds at that instant: Rerun's
     threads start when it is imported), else "spawn" (``decode`` and ``prepare`` must then be importable by name).
-    ``decode`` runs only in the children. Use as a context manager, or call :meth:`close`.
+    ``decode`` runs only in the children. A child that dies before it is ready to read (its import failed, it was
+    killed) raises :class:`ReadingProcessError` rather than blaming a candidate. Use as a context manager, or call
+    :meth:`close`.
     """
 
     def __init__(self, decode: Callable[[Path], bool], context: BaseContext, reads_per_child: int | None = None,
@@ -312,7 +319,7 @@ class ReadingProcesses:
             raise ValueError(f"reads_per_child must be at least 1, not {reads_per_child}")
         self._decode, self._context, self._limit, self._stderr = decode, context, reads_per_child, stderr
         self._prepare = prepare
-        self._active: tuple | None = None    # (process, connection, reads so far)
+        self._active: tuple | None = None    # (process, connection, reads so far, said it is ready)
         self._spare: tuple | None = None
         self.started = 0    # children started
         self.died = 0       # children that died reading a candidate
@@ -325,7 +332,7 @@ class ReadingProcesses:
         child.start()
         theirs.close()
         self.started += 1
-        return child, mine, 0
+        return child, mine, 0, False
 
     def _next(self) -> tuple:
         """The child to read with: the active one, else the spare (a new spare started behind it)."""
@@ -340,7 +347,16 @@ class ReadingProcesses:
         self._next()
 
     def __call__(self, candidate: Path) -> bool:
-        child, conn, reads = self._next()
+        child, conn, reads, ready = self._next()
+        if not ready:
+            try:
+                conn.recv()          # "ready"
+            except (EOFError, OSError):
+                conn.close()
+                child.join()
+                self._active = None
+                raise ReadingProcessError(f"a reading process died as it started (exit status {child.exitcode}), "
+                                          "before it read anything") from None
         self.reads += 1
         try:
             conn.send(str(candidate))
@@ -351,7 +367,7 @@ class ReadingProcesses:
             self.died += 1
             self._active = None
             return False
-        self._active = (child, conn, reads + 1)
+        self._active = (child, conn, reads + 1, True)
         if self._limit is not None and reads + 1 >= self._limit:
             self._retire(self._active)
             self._active = None
@@ -361,7 +377,7 @@ class ReadingProcesses:
     def _retire(entry: tuple | None, wait: float = 5.0) -> None:
         if entry is None:
             return
-        child, conn, _ = entry
+        child, conn = entry[:2]
         try:
             conn.send(None)
         except OSError:
@@ -373,9 +389,10 @@ class ReadingProcesses:
             child.join()
 
     def close(self, kill: bool = False) -> None:
-        """Stop the children (a spare still importing, and with ``kill`` every one, is killed, not waited for)."""
-        for entry, now in ((self._active, kill), (self._spare, True)):
-            if entry is not None and now:
+        """Stop the children (the spare, one still starting, and with ``kill`` every one, are killed, not waited
+        for)."""
+        for entry in (self._active, self._spare):
+            if entry is not None and (kill or entry is self._spare or not entry[3]):
                 entry[0].kill()
             self._retire(entry)
         self._active = self._spare = None
@@ -387,5 +404,5 @@ class ReadingProcesses:
         self.close(kill=kind is not None)   # Ctrl-C or an error: do not wait for a reading
 
 
-__all__ = ["Message", "ReadingProcesses", "RrdScan", "Salvage", "copy_prefix", "messages", "salvage", "scan_rrd",
-           "write_messages"]
+__all__ = ["Message", "ReadingProcessError", "ReadingProcesses", "RrdScan", "Salvage", "copy_prefix", "messages",
+           "salvage", "scan_rrd", "write_messages"]

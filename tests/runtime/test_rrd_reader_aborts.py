@@ -22,7 +22,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.rrd_salvage import ReadingProcesses, salvage, scan_rrd
+from runtime.rrd_salvage import ReadingProcessError, ReadingProcesses, salvage, scan_rrd
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*no footer/manifest")  # candidate files are written without one
 
@@ -205,6 +205,26 @@ def test_a_child_that_dies_is_a_candidate_that_does_not_decode(tmp_path):
         assert (reading.died, reading.reads) == (2, 6)
         assert reading.started == 4     # the first, one after each death, and the spare behind the last
     assert answers == [True, False, False, True, False, True]
+    assert multiprocessing.active_children() == []
+
+
+def dies_as_it_starts() -> None:
+    """A reading process's preparation that kills it (an import that fails, a memory limit): runs in the children."""
+    import faulthandler
+
+    faulthandler.disable()
+    os.abort()
+
+
+def test_a_child_that_dies_before_reading_blames_no_candidate(tmp_path):
+    """Not "does not decode" (every message would be called damaged): an error saying what happened."""
+    import multiprocessing
+
+    (tmp_path / "ok.rrd").write_bytes(b"ok")
+    with ReadingProcesses(decode_or_die, multiprocessing.get_context("spawn"), prepare=dies_as_it_starts) as reading:
+        with pytest.raises(ReadingProcessError, match=r"died as it started \(exit status -6\)"):
+            reading(tmp_path / "ok.rrd")
+        assert reading.reads == 0 and reading.died == 0
     assert multiprocessing.active_children() == []
 
 
