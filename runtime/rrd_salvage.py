@@ -216,7 +216,9 @@ def salvage(path: str | Path, whole_bytes: int, decodes: Callable[[Path], bool],
     ~``fanout`` log_fanout(block's messages) small candidates per damaged message. A larger ``fanout`` reads more
     (smaller) candidates but fewer that fail: worth it when a failing candidate costs a process (one that aborts
     Rerun's reader). Store information that does not decode is left out if the rest still reads. The copy (and each
-    candidate) is written in ``scratch``; memory is one copy block plus the list of message offsets.
+    candidate) is written in ``scratch``; memory is one copy block plus the list of message offsets. Meant for a file
+    Rerun refused: a single block holding every message is taken to fail without reading it (if it does read, its
+    parts all read and nothing is left out: only the reading is wasted).
     """
     if fanout < 2:
         raise ValueError(f"fanout must be at least 2, not {fanout}")
@@ -251,16 +253,20 @@ def salvage(path: str | Path, whole_bytes: int, decodes: Callable[[Path], bool],
             if not reads([*store, *part]):
                 bisect(part)
 
-    block: list[Message] = []
+    blocks: list[list[Message]] = [[]]
     size = 0
-    for m in [*arrows, None]:
-        if m is not None:
-            block.append(m)
-            size += m.size
-        if block and (m is None or size >= block_bytes):
-            if not reads([*store, *block]):
-                bisect(block)
-            block, size = [], 0
+    for m in arrows:
+        if size >= block_bytes:
+            blocks.append([])
+            size = 0
+        blocks[-1].append(m)
+        size += m.size
+    # one block with the whole store information and no End: that candidate is the file, which Rerun refused (the
+    # reason salvage is called): not read again (when it is an aborting file, reading it costs a process)
+    is_the_file = len(blocks) == 1 and len(blocks[0]) > 1 and len(store) == len(found) - len(arrows) and not had_end
+    for block in blocks:
+        if block and (is_the_file or not reads([*store, *block])):
+            bisect(block)   # (it reads every part of a block of several messages: nothing is blamed unread)
     result.damaged.sort(key=lambda m: m.start)
     dropped = {m.start for m in result.damaged}
     result.copy = scratch / "salvaged.rrd"

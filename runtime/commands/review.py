@@ -158,22 +158,26 @@ def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
     context = multiprocessing.get_context("fork" if _fork_is_safe() else "spawn")
     with tempfile.NamedTemporaryFile(prefix="p3at-review-", suffix=".err") as err:
         kind, value = _read_in_child(context, err.name, paths, folder, None)
+        again = ""
         if kind == "died":       # Rust's abort on a damaged message: read again, each file first tried in a child
-            from runtime.rrd_salvage import ReadingProcesses
+            from runtime.rrd_salvage import ReadingProcessError, ReadingProcesses
 
-            with ReadingProcesses(_decodes_here, context, prepare=_import_reader) as reading:
-                reading.warm()   # their import overlaps the reading child's
+            try:
+                with ReadingProcesses(_decodes_here, context, prepare=_import_reader) as reading:
+                    reading.warm()   # their import overlaps the reading child's
 
-                def probe(candidate: Path) -> bool:  # the one file given is the one the first reader died on
-                    return False if paths == [candidate] else reading(candidate)
+                    def probe(candidate: Path) -> bool:  # the one file given is the one the first reader died on
+                        return False if paths == [candidate] else reading(candidate)
 
-                kind, value = _read_in_child(context, err.name, paths, folder, probe)
+                    kind, value = _read_in_child(context, err.name, paths, folder, probe)
+            except ReadingProcessError as e:
+                again = f"; reading it again in separate processes failed: {e}"
         err.seek(0)
         why = _crash_message(err.read().decode("utf-8", "replace"))
         if kind == "died":
             which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
             return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
-                             f"message ({why})"}
+                             f"message ({why}){again}"}
         if kind == "answer" and value.get("error", "").endswith("stopped on a damaged message"):
             value = {"error": f"{value['error']} ({why})"}   # no message to blame: the first reader's reason
     if kind == "exception":

@@ -228,6 +228,38 @@ def test_a_child_that_dies_before_reading_blames_no_candidate(tmp_path):
     assert multiprocessing.active_children() == []
 
 
+def aborts_then_asks(paths, folder):
+    """In place of review.read_and_export (runs in the reading processes): the first one dies as on a damaged message;
+    the second asks its parent about a candidate, as read_recording would."""
+    import faulthandler
+
+    from runtime.commands import review
+
+    if review._ask_parent is None:
+        faulthandler.disable()
+        os.abort()
+    review._ask_parent(paths[0].with_name("candidate.rrd"))
+    return {"error": "not reached: the parent's reading processes die as they start"}
+
+
+def test_review_says_so_when_its_reading_processes_cannot_start(tmp_path, capsys, monkeypatch):
+    """One line, exit 2: the first reader's death, and why reading again failed (no message blamed)."""
+    from runtime.cli import main
+    from runtime.commands import review
+
+    rrd = tmp_path / "mission.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(64))
+    monkeypatch.setattr(review, "read_and_export", aborts_then_asks)
+    monkeypatch.setattr(review, "_import_reader", dies_as_it_starts)
+    code = main(["review", str(rrd), "--no-export"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"p3at review: {rrd}: not a readable Rerun recording: Rerun's reader stopped on a "
+                             "damaged message (")
+    assert err[0].endswith("; reading it again in separate processes failed: a reading process died as it started "
+                           "(exit status -6), before it read anything"), err
+
+
 def test_salvage_with_reading_processes_leaves_out_what_aborts_and_what_raises(tmp_path):
     import multiprocessing
 
