@@ -39,6 +39,8 @@ HUBER_K = 2.45                    # σ: Huber's threshold on a sighting's normal
 OUTLIER_CHI2 = 9.21               # χ²₂ 99 %: a sighting beyond it after the robust solve is dropped
 MAX_ITERATIONS = 60
 _STEP_TOLERANCE = 1e-7            # stop when no variable moves more than this (m or rad)
+MAX_DENSE_ENTRIES = 50_000_000    # the Schur elimination holds H_pp⁻¹ H_pl, 3T × 2L dense: 400 MB at most
+_COLUMN_BLOCK_ENTRIES = 4_000_000 # pose covariances are solved for in blocks of columns this size (32 MB)
 
 
 class SmoothingError(ValueError):
@@ -113,6 +115,9 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     landmark never sighted keeps its guess and gets an infinite covariance). Pose covariances at every
     ``pose_covariance_stride``-th pose (and the last)."""
     t, n_landmarks = problem.n_poses, max(problem.n_landmarks, len(initial_landmarks))
+    if 3 * t * 2 * n_landmarks > MAX_DENSE_ENTRIES:
+        raise SmoothingError(f"{t} poses and {n_landmarks} landmarks are too many to smooth here (a dense "
+                             f"{3 * t} × {2 * n_landmarks} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
     poses = np.array(initial_poses, float).reshape(t + 1, 3)
     landmarks = np.array(initial_landmarks, float).reshape(-1, 2)
     if len(landmarks) < n_landmarks:
@@ -300,8 +305,9 @@ class _NormalFactor:
         """(P, 3, 3) diagonal blocks of H⁻¹ at poses (P,) (1..T): (H_pp⁻¹ + X S⁻¹ Xᵀ) there, X = H_pp⁻¹ H_pl."""
         out = np.zeros((len(poses), 3, 3))
         landmark_cov = self.landmark_covariance()
-        for chunk in range(0, len(poses), 200):
-            which = poses[chunk:chunk + 200]
+        step = max(1, _COLUMN_BLOCK_ENTRIES // (9 * max(self.t, 1)))
+        for chunk in range(0, len(poses), step):
+            which = poses[chunk:chunk + step]
             columns = (3 * (which[:, None] - 1) + np.arange(3)).ravel()
             unit = np.zeros((3 * self.t, len(columns)))
             unit[columns, np.arange(len(columns))] = 1.0

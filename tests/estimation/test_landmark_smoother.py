@@ -142,6 +142,13 @@ def test_jacobian_matches_finite_differences(seed, steps, n_landmarks):
     np.testing.assert_allclose(jac, numeric, atol=1e-5)
 
 
+def test_a_problem_too_large_for_the_dense_block_is_refused_before_any_work(monkeypatch):
+    problem, _, _ = simulated_log(seed=1, steps=120)
+    monkeypatch.setattr("estimation.landmark_smoother.MAX_DENSE_ENTRIES", 3 * 120 * 2 * 8 - 1)
+    with pytest.raises(SmoothingError, match="120 poses and 8 landmarks are too many to smooth"):
+        smooth(problem, *initial_guess(problem))
+
+
 @pytest.mark.parametrize("change, message", [
     ({"increment_variances": np.zeros((3, 3))}, "positive"),
     ({"pose_index": np.array([0, 1])}, "poses 1..3"),
