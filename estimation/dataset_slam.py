@@ -143,6 +143,13 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
 
 
+def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:
+    """The true landmark ids the robot sighted between t0 and ``until`` (its map should hold each once)."""
+    horizon = np.inf if until is None else until
+    sighted = log.landmark_ids[(log.sighting_times >= t0) & (log.sighting_times <= horizon)]
+    return sighted[np.isin(sighted, log.truth_ids)]
+
+
 def _body(log: RangeBearingLog) -> dict:
     """What fusion's co-location test needs, where the data set says it: an MRCLAM data set's five logs are on one
     clock (the distributed files start at 0 on the same 0.02 s ticks; the Vicon poses of two robots never come closer
@@ -195,9 +202,7 @@ def _association_config(config: FastSLAMConfig, association: str) -> FastSLAMCon
 
 def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees, t0, until) -> dict:
     attributed = attribute_landmarks(votes, landmark_map.ids)
-    horizon = np.inf if until is None else until
-    sighted = log.landmark_ids[(log.sighting_times >= t0) & (log.sighting_times <= horizon)]
-    sighted = sighted[np.isin(sighted, log.truth_ids)]
+    sighted = sighted_true_ids(log, t0, until)
     finite = nees[np.isfinite(nees)]
     metrics = {
         "ate_m": ate(estimated[:, 1:], truth[:, 1:]),

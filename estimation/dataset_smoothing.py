@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .dataset_slam import sighted_true_ids
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
@@ -57,12 +58,9 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
-    horizon = np.inf if until is None else until
-    sighted = log.landmark_ids[(log.sighting_times >= t0) & (log.sighting_times <= horizon)]
-    sighted = sighted[np.isin(sighted, log.truth_ids)]
     metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
                               np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
-                              log.truth_ids, log.truth_positions, sighted))
+                              log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
 
 
