@@ -282,11 +282,17 @@ def _serve(conn, decode: Callable[[Path], bool], prepare: Callable[[], object] |
     fd = os.open(stderr, os.O_WRONLY | os.O_APPEND)
     os.dup2(fd, 2)
     os.close(fd)
+    parent = os.getppid()
     if prepare is not None:
         prepare()
     conn.send("ready")   # a child that dies before this died of its start, not of a candidate
     while True:
         try:
+            # a forked child holds its elder siblings' pipe ends, so a parent killed outright (SIGKILL) closes no pipe:
+            # a child whose parent is gone leaves, which closes them
+            while not conn.poll(1.0):
+                if os.getppid() != parent:
+                    return
             candidate = conn.recv()
         except (EOFError, OSError):
             return

@@ -260,6 +260,47 @@ def test_review_says_so_when_its_reading_processes_cannot_start(tmp_path, capsys
                            "(exit status -6), before it read anything"), err
 
 
+ORPHANS = """
+import multiprocessing, sys, time
+from pathlib import Path
+from runtime.rrd_salvage import ReadingProcesses
+from tests.runtime.test_rrd_reader_aborts import decode_or_die
+reading = ReadingProcesses(decode_or_die, multiprocessing.get_context("fork"))
+Path(sys.argv[1]).write_bytes(b"ok")
+for _ in range(3):
+    reading(Path(sys.argv[1]))
+print(*(p.pid for p in multiprocessing.active_children()), flush=True)
+time.sleep(120)
+"""
+
+
+def test_reading_processes_leave_when_their_parent_is_killed(tmp_path):
+    """A `p3at review` killed outright (SIGKILL: no cleanup) leaves no reading process behind: forked children hold
+    each other's pipe ends, so they would wait for ever; each leaves once its parent is gone."""
+    import signal
+    import time
+
+    parent = subprocess.Popen([sys.executable, "-c", ORPHANS, str(tmp_path / "ok.rrd")], stdout=subprocess.PIPE,
+                              text=True, env=ENV, cwd=ROOT)
+    try:
+        children = [int(pid) for pid in parent.stdout.readline().split()]
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=60)
+    assert len(children) == 2     # the reading one and its spare
+
+    def alive(pid: int) -> bool:
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+        except OSError:
+            return False
+
+    deadline = time.monotonic() + 30
+    while any(alive(pid) for pid in children) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(pid) for pid in children)
+
+
 def test_salvage_with_reading_processes_leaves_out_what_aborts_and_what_raises(tmp_path):
     import multiprocessing
 
