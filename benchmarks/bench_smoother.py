@@ -31,7 +31,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose  # noqa: E402
 from estimation.landmark_scores import ate  # noqa: E402
-from estimation.landmark_smoother import dead_reckoning, smooth  # noqa: E402
+from estimation.landmark_smoother import dead_reckoning, landmarks_from_first_sightings, smooth  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         peak = tracemalloc.get_traced_memory()[1] / 1e6
         tracemalloc.stop()
         odometry = dead_reckoning(problem.increments)
-        from_odometry = smooth(problem, odometry, _landmarks_from(problem, odometry))
+        from_odometry = smooth(problem, odometry, landmarks_from_first_sightings(problem, odometry))
         start_pose = np.array(run.metrics["true_start_pose"])
         truth = run.true_trajectory[:, 1:]
         errors = [ate(compose(start_pose, s.poses[1:]), truth) for s in (from_filter, from_odometry)]
@@ -90,17 +90,6 @@ def _smoothed_run(log):
     finally:
         dataset_smoothing.smooth = smooth
     return run, captured
-
-
-def _landmarks_from(problem, poses) -> np.ndarray:
-    """Each landmark placed from its first sighting off the given poses."""
-    out = np.zeros((problem.n_landmarks, 2))
-    for i in range(problem.n_landmarks):
-        s = int(np.flatnonzero(problem.landmark_index == i)[0])
-        x, y, theta = poses[problem.pose_index[s]]
-        out[i] = (x + problem.ranges[s] * np.cos(theta + problem.bearings[s]),
-                  y + problem.ranges[s] * np.sin(theta + problem.bearings[s]))
-    return out
 
 
 if __name__ == "__main__":

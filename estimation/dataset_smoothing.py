@@ -16,7 +16,7 @@ from .dataset_slam import sighted_true_ids
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
-from .landmark_smoother import LandmarkLogProblem, smooth
+from .landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
 _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95",
@@ -85,17 +85,12 @@ def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np
 
 def _initial_landmarks(filter_map: LandmarkMap, landmark_ids, problem, poses) -> np.ndarray:
     """The filter's landmark of each identity; one it does not hold: placed from its first sighting."""
+    out = landmarks_from_first_sightings(problem, poses)
     external = np.asarray(filter_map.metadata.get("external_ids", []), np.int64)
-    out = np.zeros((len(landmark_ids), 2))
     for i, identity in enumerate(landmark_ids):
         rows = np.flatnonzero(external == identity)
         if len(rows):
             out[i] = filter_map.positions[rows[0], :2]
-            continue
-        s = int(np.flatnonzero(problem.landmark_index == i)[0])
-        x, y, theta = poses[problem.pose_index[s]]
-        angle = theta + problem.bearings[s]
-        out[i] = (x + problem.ranges[s] * np.cos(angle), y + problem.ranges[s] * np.sin(angle))
     return out
 
 

@@ -332,6 +332,19 @@ def _marginals(information, t, n_landmarks, seen, covariance_poses):
     return landmark_cov, factor.pose_covariance_blocks(covariance_poses)
 
 
+def landmarks_from_first_sightings(problem: LandmarkLogProblem, poses: np.ndarray) -> np.ndarray:
+    """Landmarks (L, 2), each placed by its first sighting from ``poses`` (T + 1, 3): an initial guess."""
+    first = np.full(problem.n_landmarks, -1)
+    order = np.arange(len(problem.landmark_index))[::-1]
+    first[problem.landmark_index[order]] = order          # the last write of each index is its first sighting
+    out = np.zeros((problem.n_landmarks, 2))                # an index never sighted stays at the origin
+    seen = first >= 0
+    at = poses[problem.pose_index[first[seen]]]
+    angle = at[:, 2] + problem.bearings[first[seen]]
+    out[seen] = at[:, :2] + problem.ranges[first[seen], None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    return out
+
+
 def dead_reckoning(increments: np.ndarray) -> np.ndarray:
     """Poses (T + 1, 3) from the origin by composing increments (T, 3): an initial guess without a filter."""
     poses = np.zeros((len(increments) + 1, 3))

@@ -14,6 +14,7 @@ from estimation.landmark_smoother import (
     _jacobian,
     _residuals,
     dead_reckoning,
+    landmarks_from_first_sightings,
     smooth,
 )
 
@@ -56,13 +57,7 @@ def simulated_log(seed: int, steps: int = 240, outliers: int = 0):
 
 def initial_guess(problem: LandmarkLogProblem):
     poses = dead_reckoning(problem.increments)
-    landmarks = np.zeros((problem.n_landmarks, 2))
-    for i in range(problem.n_landmarks):
-        s = int(np.flatnonzero(problem.landmark_index == i)[0])
-        x, y, theta = poses[problem.pose_index[s]]
-        landmarks[i] = (x + problem.ranges[s] * np.cos(theta + problem.bearings[s]),
-                        y + problem.ranges[s] * np.sin(theta + problem.bearings[s]))
-    return poses, landmarks
+    return poses, landmarks_from_first_sightings(problem, poses)
 
 
 def test_smoothing_beats_dead_reckoning_and_holds_the_landmarks():
