@@ -34,7 +34,8 @@ def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: 
     saved = sink.endswith(".rrd")
     target = Path(sink)
     partial = target.with_name(f".{target.name}.{os.getpid()}.partial") if saved else None
-    rec = open_recording(str(partial) if saved else sink, blueprint=dataset_blueprint(robot))
+    blueprint = dataset_blueprint(robot, smoothed=bool(run.metrics.get("smoothed")))
+    rec = open_recording(str(partial) if saved else sink, blueprint=blueprint)
     mission = MissionLog(rec, [robot], blueprint=False)
     try:
         _log_run(mission, run, log, robot)

@@ -333,13 +333,15 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, fusion, world, active_tab=0), collapse_panels=True)
 
 
-def dataset_blueprint(robot: str) -> rrb.Blueprint:
+def dataset_blueprint(robot: str, smoothed: bool = False) -> rrb.Blueprint:
     """The layout of one robot's run on a data set (runtime/dataset_recording.py): its 2-D map (estimated, dead
     reckoning and true paths, its landmarks over the true ones) beside the pose NEES over time; a 3-D tab with the
     landmarks' 1-σ ellipsoids shown (the point of a run with ground truth is to see whether they cover the truth).
-    No fusion view: one robot, nothing fused."""
+    No fusion view: one robot, nothing fused. ``smoothed``: the map and path are the whole log's (``--smooth``), and
+    the title says so (a path drawn as it grows is then hindsight, not what the robot knew at that time)."""
+    estimate = "smoothed map and path (the whole log's)" if smoothed else "map and paths"
     overview = rrb.Horizontal(
-        _map_view(robot, f"{robot}: map and paths (own start frame; grey: ground truth)"),
+        _map_view(robot, f"{robot}: {estimate} (own start frame; grey: ground truth)"),
         _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)"),
         column_shares=[3, 2], name="overview")
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
