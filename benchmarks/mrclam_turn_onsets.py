@@ -41,13 +41,15 @@ STEADY = 0.02          # rad/s: commanded ω that moves less than this over a wi
 TURNING = 0.1          # rad/s: a turn
 DROPOUT_S = 0.1        # a commanded zero this short inside a turn is a dropout of the log, not a stop
 RESPONSE_S = 0.5       # the window's class looks this far before it (the robot is still answering)
-CLASSES = ("steady_still", "steady_turn", "start", "stop", "dropout", "other_change")
+CLASSES = ("steady_still", "steady_turn", "start", "stop", "dropout", "other_change", "stall", "vicon_glitch")
 LAG_GRID = np.arange(0.0, 0.405, 0.01)
 ALPHA_GRID = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 1e9)     # rad/s²
 TAU_GRID = (0.0, 0.02, 0.05, 0.08, 0.1, 0.15, 0.2, 0.3)              # s
 STEP_S = 0.25
 STALL_FRACTION = 0.3   # a stall: Vicon ω below this share of a steady commanded turn ...
 STALL_S = 0.2          # ... for at least this long
+GLITCH_RAD = 0.5       # a window's heading error beyond this is Vicon's (a lost track), not the odometry's
+DROPOUT_LOOKBACK_S = 0.4   # a dropout this shortly before a stall's onset (lagged) is counted as announcing it
 
 
 def commanded(log) -> tuple[np.ndarray, np.ndarray]:
@@ -120,6 +122,41 @@ def analyse(log, robot: int) -> dict:
               "windows": {}}
     odo_theta = np.unwrap(log.odometry[:, 3])
     odo_dist = np.r_[0.0, np.cumsum(np.hypot(np.diff(log.odometry[:, 1]), np.diff(log.odometry[:, 2])))]
+    # Vicon's turn rate
+    gtt = log.ground_truth[:, 0]
+
+    def true_rate(times):   # Vicon's turn rate over ±0.05 s (its time stamps repeat: no np.gradient)
+        return (np.interp(times + 0.05, gtt, true_theta) - np.interp(times - 0.05, gtt, true_theta)) / 0.1
+
+    # stalls: the robot stops turning (Vicon ω < STALL_FRACTION of the command) for ≥ STALL_S while the command
+    # (dropouts filled) is a steady turn of |ω| > 0.3 rad/s, read lag_s earlier
+    grid50 = np.arange(gt0 + 1.0, gt1 - 1.0, 0.02)
+    cmd = np.interp(grid50 - o.lag_s, t, wf)
+    steady = np.abs(cmd) > 0.3
+    low = steady & (true_rate(grid50) * np.sign(cmd) < STALL_FRACTION * np.abs(cmd))
+    edges = np.flatnonzero(np.diff(np.r_[0, low.astype(int), 0]))
+    stalls = [(grid50[a], (b - a) * 0.02, float(np.sum(np.abs(cmd[a:b]) - true_rate(grid50[a:b]) * np.sign(cmd[a:b]))
+                                               * 0.02)) for a, b in zip(edges[::2], edges[1::2], strict=True)
+              if (b - a) * 0.02 >= STALL_S]
+    stalls = [x for x in stalls if x[2] < GLITCH_RAD]   # more heading than that in a stall: Vicon lost its track
+    first = float(log.sighting_times[0]) if len(log) else float("nan")
+    # is a stall announced by a commanded-zero dropout just before it (read lag_s earlier)? against the rate at
+    # random instants of the same steady turning
+    drop_times = t[drop]
+
+    def dropout_before(times):
+        i = np.searchsorted(drop_times, times - o.lag_s)
+        j = np.searchsorted(drop_times, times - o.lag_s - DROPOUT_LOOKBACK_S)
+        return i > j
+
+    random_instants = grid50[steady][::25]
+    stall_dropout = float(np.mean(dropout_before(np.array([x[0] for x in stalls])))) if stalls else float("nan")
+    result["stalls"] = {"count": len(stalls), "steady_turn_s": float(steady.sum() * 0.02),
+                        "heading_lost_rad": float(sum(x[2] for x in stalls)),
+                        "lost_median_rad": float(np.median([x[2] for x in stalls])) if stalls else 0.0,
+                        "with_dropout_before": stall_dropout,
+                        "random_with_dropout_before": float(np.mean(dropout_before(random_instants))),
+                        "within_2s_of_first_sighting": [list(x) for x in stalls if abs(x[0] - first) < 2.0]}
     for width in (0.5, 1.0, 2.0):
         starts = np.arange(gt0 + 1.0, gt1 - width, width)
         ends = starts + width
@@ -131,32 +168,22 @@ def analyse(log, robot: int) -> dict:
                                                                                 true_theta)
         e = wrap_angle(true - predicted)
         model_var = o.theta_var_per_rad * np.abs(o.rotation_scale * turn) + o.theta_var_per_m * dist
-        kind = np.array([classify(t, wf, drop, a, b) for a, b in zip(sa, sb, strict=True)])
+        kind = np.array([classify(t, wf, drop, a, b) for a, b in zip(sa, sb, strict=True)], dtype="<U16")
+        for onset, length, _ in stalls:   # a window a stall overlaps is a stall window, whatever its command
+            kind[(starts < onset + length) & (ends > onset)] = "stall"
+        kind[np.abs(e) > GLITCH_RAD] = "vicon_glitch"
         sign = np.sign(np.where(np.abs(turn) > 1e-6, turn, 1.0))
-        total, total_model = float(np.sum(e ** 2)), float(np.sum(model_var))
+        clean = kind != "vicon_glitch"    # the shares are of the windows Vicon tracked
+        total, total_model = float(np.sum(e[clean] ** 2)), float(np.sum(model_var[clean]))
         rows = {}
         for c in CLASSES:
             m = kind == c
             rows[c] = {"windows": int(m.sum()), "share_windows": float(m.mean()),
                        "rms_rad": float(np.sqrt(np.mean(e[m] ** 2))) if m.any() else float("nan"),
-                       "share_sq_error": float(np.sum(e[m] ** 2) / total),
-                       "share_model_var": float(np.sum(model_var[m]) / total_model),
+                       "share_sq_error": float(np.sum(e[m & clean] ** 2) / total),
+                       "share_model_var": float(np.sum(model_var[m & clean]) / total_model),
                        "mean_signed_rad": float(np.mean(e[m] * sign[m])) if m.any() else float("nan")}
-        # acceleration-limit prediction for starts: a deficit ω²/(2α) → 1/α from the signed errors
-        m = kind == "start"
-        if m.sum() >= 5:
-            omega = np.array([w[(t >= a) & (t <= b)][-1] if np.any((t >= a) & (t <= b)) else 0.0
-                              for a, b in zip(sa[m], sb[m], strict=True)])
-            x = omega ** 2 / 2
-            y = -e[m] * np.sign(omega)
-            rows["start"]["alpha_from_deficit"] = float(x @ x / max(x @ y, 1e-12)) if x @ y > 0 else float("inf")
         result["windows"][str(width)] = rows
-    # event-averaged response, Vicon ω over the commanded step, at the commanded time + lag
-    gtt = log.ground_truth[:, 0]
-
-    def true_rate(times):   # Vicon's turn rate over ±0.05 s (its time stamps repeat: no np.gradient)
-        return (np.interp(times + 0.05, gtt, true_theta) - np.interp(times - 0.05, gtt, true_theta)) / 0.1
-
     offsets = np.arange(0.0, 1.0001, 0.05)
     events = {"start": [], "stop": [], "dropout": []}
     for k in range(1, len(w) - 60):
@@ -188,21 +215,6 @@ def analyse(log, robot: int) -> dict:
             out.append((float(np.sqrt(np.mean(wrap_angle(k * steps - true_steps) ** 2))), float(lag)))
         return min(out)
 
-    # stalls: the robot stops turning (Vicon ω < STALL_FRACTION of the command) for ≥ STALL_S while the command
-    # (dropouts filled) is a steady turn of |ω| > 0.3 rad/s, read lag_s earlier
-    grid50 = np.arange(gt0 + 1.0, gt1 - 1.0, 0.02)
-    cmd = np.interp(grid50 - o.lag_s, t, wf)
-    steady = np.abs(cmd) > 0.3
-    low = steady & (true_rate(grid50) * np.sign(cmd) < STALL_FRACTION * np.abs(cmd))
-    edges = np.flatnonzero(np.diff(np.r_[0, low.astype(int), 0]))
-    stalls = [(grid50[a], (b - a) * 0.02, float(np.sum(np.abs(cmd[a:b]) - true_rate(grid50[a:b]) * np.sign(cmd[a:b]))
-                                               * 0.02)) for a, b in zip(edges[::2], edges[1::2], strict=True)
-              if (b - a) * 0.02 >= STALL_S]
-    first = float(log.sighting_times[0])
-    result["stalls"] = {"count": len(stalls), "steady_turn_s": float(steady.sum() * 0.02),
-                        "heading_lost_rad": float(sum(x[2] for x in stalls)),
-                        "lost_median_rad": float(np.median([x[2] for x in stalls])) if stalls else 0.0,
-                        "within_2s_of_first_sighting": [list(x) for x in stalls if abs(x[0] - first) < 2.0]}
     result["fit_pure_delay"] = dict(zip(("rms_rad", "lag_s"), best(w), strict=True))
     result["fit_alpha"] = [dict(zip(("rms_rad", "lag_s"), best(limited(t, w, a, 0.0)), strict=True), alpha=a)
                            for a in ALPHA_GRID]
@@ -217,11 +229,10 @@ def report(r: dict) -> None:
           f"{r['heading_bias_per_m']:+.4f} rad/m, σθ {np.sqrt(r['theta_var_per_rad']):.3f}/√rad "
           f"{np.sqrt(r['theta_var_per_m']):.3f}/√m, commanded-zero dropouts in turns: {r['dropouts']}")
     for width, rows in r["windows"].items():
-        print(f"  windows {width} s: class  n  share  rms(rad)  share Σe²  share model var  mean signed e(rad)")
+        print(f"  windows {width} s: class    n  share  rms(rad)  share Σe²  share model var  mean signed e(rad)")
         for c, v in rows.items():
-            extra = f"  α from deficit {v['alpha_from_deficit']:.2f}" if "alpha_from_deficit" in v else ""
             print(f"    {c:13s} {v['windows']:5d} {v['share_windows']:5.3f} {v['rms_rad']:8.4f} "
-                  f"{v['share_sq_error']:8.3f} {v['share_model_var']:8.3f} {v['mean_signed_rad']:+8.4f}{extra}")
+                  f"{v['share_sq_error']:8.3f} {v['share_model_var']:8.3f} {v['mean_signed_rad']:+8.4f}")
     resp = r["response"]
     print("  response (Vicon ω / commanded step, median) at commanded time + lag + offset − 0.1 s:")
     print("    offset  " + " ".join(f"{x - 0.1:5.2f}" for x in resp["offsets_s"][::2]))
@@ -236,7 +247,9 @@ def report(r: dict) -> None:
     st = r["stalls"]
     print(f"  stalls (Vicon ω < {STALL_FRACTION} of a steady commanded turn > 0.3 rad/s for ≥ {STALL_S} s): "
           f"{st['count']} in {st['steady_turn_s']:.0f} s of such turning, heading lost {st['heading_lost_rad']:.3f} "
-          f"rad (median {st['lost_median_rad']:.3f} each); within 2 s of the first sighting (t, s, rad): "
+          f"rad (median {st['lost_median_rad']:.3f} each); a dropout in the {DROPOUT_LOOKBACK_S} s before: "
+          f"{st['with_dropout_before']:.2f} of stalls vs {st['random_with_dropout_before']:.2f} of random instants of "
+          f"such turning; within 2 s of the first sighting (t, s, rad): "
           + (", ".join(f"({a:.2f}, {b:.2f}, {c:.3f})" for a, b, c in st["within_2s_of_first_sighting"]) or "none"))
     print("    α (rad/s²): " + "  ".join(f"{a['alpha']:g}:{a['rms_rad']:.4f}@{a['lag_s']:.2f}"
                                          for a in r["fit_alpha"]))
