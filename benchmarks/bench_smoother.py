@@ -33,6 +33,7 @@ from estimation.geometry import compose  # noqa: E402
 from estimation.landmark_scores import ate  # noqa: E402
 from estimation.landmark_smoother import dead_reckoning, landmarks_from_first_sightings, smooth  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
+from runtime.commands.options import positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 
@@ -41,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=positive_int, default=3)
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         print(f"bench_smoother: no data set at {args.data}", file=sys.stderr)
