@@ -76,7 +76,7 @@ from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import candidate_text
-from runtime.rrd_salvage import ReadingProcesses, copy_prefix, salvage, scan_rrd
+from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
 
 # Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
@@ -925,8 +925,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
                 copy_prefix(p, readable, scan.whole_bytes)
             refused = None
             if decodes is not None and not decodes(readable):  # it would refuse it, or kill this process
-                refused = RecordingReadError(f"{p}: not a readable Rerun recording: Rerun's reader stopped on a "
-                                             "damaged message")
+                refused = RecordingReadError(f"{p}: {STOPPED_ON_DAMAGE}")
             else:
                 try:
                     held = _read_chunks(p, readable)

@@ -41,6 +41,9 @@ FOOTER_TRAILER_SIZE = 32
 FOOTER_MAGIC = b"RRF2FOOT"
 KIND_END = 0
 KIND_ARROW = 2
+# what a reading says when Rerun's reader stopped on a damaged message it could not blame or leave out (killed by it,
+# or refused by a probe): written by runtime/rerun_log.py and runtime/commands/review.py, recognised by the latter
+STOPPED_ON_DAMAGE = "not a readable Rerun recording: Rerun's reader stopped on a damaged message"
 KNOWN_KINDS = {KIND_END, 1, KIND_ARROW, 3}
 
 
@@ -416,5 +419,5 @@ class ReadingProcesses:
         self.close(kill=kind is not None)   # Ctrl-C or an error: do not wait for a reading
 
 
-__all__ = ["Message", "ReadingProcessError", "ReadingProcesses", "RrdScan", "Salvage", "copy_prefix", "messages",
-           "salvage", "scan_rrd", "write_messages"]
+__all__ = ["STOPPED_ON_DAMAGE", "Message", "ReadingProcessError", "ReadingProcesses", "RrdScan", "Salvage",
+           "copy_prefix", "messages", "salvage", "scan_rrd", "write_messages"]

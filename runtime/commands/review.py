@@ -19,6 +19,7 @@ import threading
 from pathlib import Path
 
 from runtime.commands.options import OutputPathError, check_output_folder
+from runtime.rrd_salvage import STOPPED_ON_DAMAGE
 
 
 def register(subparsers) -> None:
@@ -176,9 +177,8 @@ def _read_isolated(paths: list[Path], folder: Path | None) -> dict:
         why = _crash_message(err.read().decode("utf-8", "replace"))
         if kind == "died":
             which = str(paths[0]) if len(paths) == 1 else "one of " + ", ".join(map(str, paths))
-            return {"error": f"{which}: not a readable Rerun recording: Rerun's reader stopped on a damaged "
-                             f"message ({why}){again}"}
-        if kind == "answer" and value.get("error", "").endswith("stopped on a damaged message"):
+            return {"error": f"{which}: {STOPPED_ON_DAMAGE} ({why}){again}"}
+        if kind == "answer" and value.get("error", "").endswith(STOPPED_ON_DAMAGE):
             value = {"error": f"{value['error']} ({why})"}   # no message to blame: the first reader's reason
     if kind == "exception":
         raise value
