@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .dataset_slam import sighted_true_ids
+from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
@@ -72,13 +73,9 @@ def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np
     bearings = np.concatenate([f[2] for f in frames]).astype(float)
     named = ids >= 0
     landmark_ids, landmark_index = np.unique(ids[named], return_inverse=True)
-    trans = np.hypot(increments[:, 0], increments[:, 1])
-    var_xy = config.odom_xy_var_per_m * trans + config.odom_var_floor
-    var_theta = (config.odom_theta_var_per_rad * np.abs(increments[:, 2]) + config.odom_theta_var_per_m * trans
-                 + config.odom_var_floor)
-    variances = np.column_stack([var_xy, var_xy, var_theta])
-    problem = LandmarkLogProblem(np.asarray(increments, float), variances, pose_index[named], landmark_index,
-                                 ranges[named], bearings[named], sensor.range_sigma(ranges[named]),
+    problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
+                                 pose_index[named], landmark_index, ranges[named], bearings[named],
+                                 sensor.range_sigma(ranges[named]),
                                  np.full(int(named.sum()), float(sensor.bearing_sigma_rad)))
     return problem, landmark_ids
 

@@ -8,12 +8,13 @@ from .config import FastSLAMConfig
 
 
 def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
-    """Variances (3,) of (dx, dy, dθ) for one odometry increment ``delta`` (3,) (random-walk model)."""
-    trans = float(np.hypot(delta[0], delta[1]))
+    """Variances (..., 3) of (dx, dy, dθ) for odometry increments ``delta`` (..., 3) (random-walk model)."""
+    delta = np.asarray(delta, float)
+    trans = np.hypot(delta[..., 0], delta[..., 1])
     var_xy = config.odom_xy_var_per_m * trans + config.odom_var_floor
-    var_theta = (config.odom_theta_var_per_rad * abs(float(delta[2])) + config.odom_theta_var_per_m * trans
+    var_theta = (config.odom_theta_var_per_rad * np.abs(delta[..., 2]) + config.odom_theta_var_per_m * trans
                  + config.odom_var_floor)
-    return np.array([var_xy, var_xy, var_theta])
+    return np.stack([var_xy, var_xy, var_theta], axis=-1)
 
 
 def sample_motion(poses: np.ndarray, delta: np.ndarray, variance: np.ndarray,
