@@ -29,9 +29,9 @@ import estimation.dataset_smoothing as dataset_smoothing  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.geometry import compose  # noqa: E402
+from estimation.geometry import compose, dead_reckoning  # noqa: E402
 from estimation.landmark_scores import ate  # noqa: E402
-from estimation.landmark_smoother import dead_reckoning, landmarks_from_first_sightings, smooth  # noqa: E402
+from estimation.landmark_smoother import landmarks_from_first_sightings, smooth  # noqa: E402
 from estimation.noise_model import estimate_noise  # noqa: E402
 from runtime.commands.options import positive_int  # noqa: E402
 

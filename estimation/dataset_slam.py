@@ -23,7 +23,7 @@ import numpy as np
 
 from .datasets import RangeBearingLog
 from .fastslam import FastSLAM, FastSLAMConfig, range_bearing_observations
-from .geometry import between, compose
+from .geometry import between, compose, dead_reckoning
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, attribute_landmarks, count_sightings, map_scores, pose_nees
 from .noise_model import NoiseModel, with_fastslam
@@ -128,7 +128,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
     estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
     truth = np.column_stack([times, log.true_pose(times)])
-    dead_start_frame = _chain(increments)
+    dead_start_frame = dead_reckoning(increments)[1:]
     dead = np.column_stack([times, compose(true_start, dead_start_frame)])
     true_in_start = between(true_start, truth[:, 1:])
     nees = pose_nees(between(true_in_start, np.array(means).reshape(-1, 3)) if len(means) else np.zeros((0, 3)),
@@ -170,15 +170,6 @@ def _load_true_landmarks(slam: FastSLAM, log: RangeBearingLog, true_start: np.nd
     slam.load_prior_map(LandmarkMap(np.column_stack([planar, np.zeros(n)]), covariances,
                                     np.zeros((n, 0), np.float32), counts=np.ones(n, np.int64)),
                         external_ids=log.truth_ids)
-
-
-def _chain(increments: np.ndarray) -> np.ndarray:
-    """Poses (T, 3) reached by composing increments (T, 3) from the origin (dead reckoning, calibrated)."""
-    poses, pose = np.zeros((len(increments), 3)), np.zeros(3)
-    for i, step in enumerate(increments):
-        pose = compose(pose, step)
-        poses[i] = pose
-    return poses
 
 
 def _observations(ranges: np.ndarray, bearings: np.ndarray, sensor, descriptors: np.ndarray,

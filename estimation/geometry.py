@@ -37,6 +37,14 @@ def between(a, b):
     return compose(inverse(a), b)
 
 
+def dead_reckoning(increments) -> np.ndarray:
+    """Poses (T + 1, 3) from the origin by composing increments (T, 3) one after the other (row 0: the origin)."""
+    poses = np.zeros((len(increments) + 1, 3))
+    for k, step in enumerate(np.asarray(increments, dtype=float)):
+        poses[k + 1] = compose(poses[k], step)
+    return poses
+
+
 def rot_z(theta) -> np.ndarray:
     """3×3 rotation about z by θ (stacked for an array of angles: (..., 3, 3))."""
     theta = np.asarray(theta, dtype=float)

@@ -33,7 +33,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from .geometry import between, compose, wrap_angle
+from .geometry import between, wrap_angle
 
 HUBER_K = 2.45                    # σ: Huber's threshold on a sighting's normalised residual norm (χ²₂ 70 %)
 OUTLIER_CHI2 = 9.21               # χ²₂ 99 %: a sighting beyond it after the robust solve is dropped
@@ -343,11 +343,3 @@ def landmarks_from_first_sightings(problem: LandmarkLogProblem, poses: np.ndarra
     angle = at[:, 2] + problem.bearings[first[seen]]
     out[seen] = at[:, :2] + problem.ranges[first[seen], None] * np.column_stack([np.cos(angle), np.sin(angle)])
     return out
-
-
-def dead_reckoning(increments: np.ndarray) -> np.ndarray:
-    """Poses (T + 1, 3) from the origin by composing increments (T, 3): an initial guess without a filter."""
-    poses = np.zeros((len(increments) + 1, 3))
-    for k, step in enumerate(increments):
-        poses[k + 1] = compose(poses[k], step)
-    return poses

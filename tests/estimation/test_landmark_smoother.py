@@ -6,14 +6,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.geometry import between, compose, wrap_angle
+from estimation.geometry import between, compose, dead_reckoning, wrap_angle
 from estimation.landmark_scores import points_nees, pose_nees
 from estimation.landmark_smoother import (
     LandmarkLogProblem,
     SmoothingError,
     _jacobian,
     _residuals,
-    dead_reckoning,
     landmarks_from_first_sightings,
     smooth,
 )
