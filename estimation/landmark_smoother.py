@@ -48,6 +48,61 @@ class SmoothingError(ValueError):
 
 
 @dataclass(frozen=True)
+class HeadingLoss:
+    """A heavy-tailed loss on each odometry increment's heading residual, an option of :func:`smooth` (the default,
+    ``None``, is the Gaussian of the random-walk variances).
+
+    In units of the increment's own σ_θ (r = (Δθ_smoothed − Δθ_odometry) / σ_θ), the negative log-likelihood ρ(r),
+    scaled so that ρ ≈ r² near 0:
+
+    - ``"student-t"``: ρ = (ν + 1) log(1 + r²/(ν + 1)), ``dof`` ν (a t density whose scale is chosen so that its
+      curvature at 0 is the Gaussian's: the same information for a residual that fits, less in the tails);
+    - ``"mixture"``: a stall model, ρ = −2 log[(1 − π) e^{−r²/2} + (π/κ) e^{−r²/(2κ²)}] + const, π
+      ``stall_probability`` (per increment), κ² = 1 + s²/σ_θ² with s ``stall_sigma_rad`` (the size of a stall).
+
+    Solved by iteratively reweighted least squares: each Gauss–Newton step weights a heading residual by
+    w(r) = ρ'(r)/(2r) (Student-t: (ν + 1)/(ν + 1 + r²); mixture: γ + (1 − γ)/κ², γ the narrow component's
+    responsibility). The covariances are the inverse of JᵀWJ at the solution with these weights: a heading increment
+    the loss has taken as an outlier gives the solution that much less information, so the poses and landmarks it
+    held get wider covariances. (The exact Hessian of ρ is smaller still in the tail, and negative beyond the
+    inflection, so it is not a covariance; W is the Gauss–Newton information, the usual choice.)
+    """
+
+    kind: str = "student-t"
+    dof: float = 3.0
+    stall_probability: float = 0.01
+    stall_sigma_rad: float = 0.12
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("student-t", "mixture"):
+            raise SmoothingError(f"heading loss must be 'student-t' or 'mixture', not {self.kind!r}")
+        if not self.dof > 0 or not 0 < self.stall_probability < 1 or not self.stall_sigma_rad > 0:
+            raise SmoothingError("heading loss: dof and stall σ must be positive, the stall probability in (0, 1)")
+
+    def _kappa2(self, sigma: np.ndarray) -> np.ndarray:
+        return 1.0 + (self.stall_sigma_rad / sigma) ** 2
+
+    def rho(self, r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        """ρ(r) (≥ 0, 0 at r = 0) of normalised heading residuals r with their σ_θ."""
+        if self.kind == "student-t":
+            return (self.dof + 1.0) * np.log1p(r ** 2 / (self.dof + 1.0))
+        k2, p = self._kappa2(sigma), self.stall_probability
+        at_zero = (1 - p) + p / np.sqrt(k2)
+        mix = (1 - p) * np.exp(-0.5 * r ** 2) + p / np.sqrt(k2) * np.exp(-0.5 * r ** 2 / k2)
+        return -2.0 * np.log(np.maximum(mix, 1e-300) / at_zero)
+
+    def weight(self, r: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+        """The IRLS weight w(r) = ρ'(r)/(2r) in (0, 1]."""
+        if self.kind == "student-t":
+            return (self.dof + 1.0) / (self.dof + 1.0 + r ** 2)
+        k2, p = self._kappa2(sigma), self.stall_probability
+        narrow = (1 - p) * np.exp(-0.5 * r ** 2)
+        wide = p / np.sqrt(k2) * np.exp(-0.5 * r ** 2 / k2)
+        gamma = narrow / np.maximum(narrow + wide, 1e-300)
+        return gamma + (1.0 - gamma) / k2
+
+
+@dataclass(frozen=True)
 class LandmarkLogProblem:
     """One robot's log as factors. Poses 0..T: pose 0 is the frame's origin (fixed); increment k (T, 3) leads from
     pose k to pose k + 1 with variances ``increment_variances[k]`` (3,). Sighting s (S,) was taken at pose
@@ -105,6 +160,7 @@ class Smoothed:
     dof: int
     iterations: int
     converged: bool
+    heading_weights: np.ndarray | None = None     # (T,) the heading loss's IRLS weights at the solution, if any
 
     @property
     def chi2_per_dof(self) -> float:
@@ -112,10 +168,12 @@ class Smoothed:
 
 
 def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
-           pose_covariance_stride: int = 10) -> Smoothed:
+           pose_covariance_stride: int = 10, heading_loss: HeadingLoss | None = None) -> Smoothed:
     """The MAP poses and landmarks of ``problem`` from an initial guess (poses (T + 1, 3), landmarks (L, 2); a
     landmark never sighted keeps its guess and gets an infinite covariance). Pose covariances at every
-    ``pose_covariance_stride``-th pose (and the last)."""
+    ``pose_covariance_stride``-th pose (and the last). ``heading_loss``: a heavy-tailed loss on the odometry's
+    heading residuals (:class:`HeadingLoss`; ``None``, the default: Gaussian). ``chi2`` is Σ r² of the normalised
+    residuals whatever the loss (the data's distance from the model's σ)."""
     t, n_landmarks = problem.n_poses, max(problem.n_landmarks, len(initial_landmarks))
     if 3 * t * 2 * n_landmarks > MAX_DENSE_ENTRIES:
         raise SmoothingError(f"{t} poses and {n_landmarks} landmarks are too many to smooth here (a dense "
@@ -126,21 +184,39 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
         raise SmoothingError(f"{n_landmarks} landmarks sighted but {len(landmarks)} initial positions")
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
-    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True)
+    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss)
     _, residual = _residuals(problem, poses, landmarks)
     inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False)
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss)
     odometry, sightings = _residuals(problem, poses, landmarks)
+    heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     seen = np.zeros(n_landmarks, bool)
     seen[problem.landmark_index[inliers]] = True
     dof = 2 * int(inliers.sum()) - 2 * int(seen.sum())     # the odometry's 3T residuals pay for the 3T poses
-    information = _information(problem, poses, landmarks, inliers, n_landmarks)
+    information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights)
     stride = max(int(pose_covariance_stride), 1)
     covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
     landmark_cov, joint, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, joint, covariance_poses, pose_cov, inliers, chi2,
-                    dof, iterations_robust + iterations, converged)
+                    dof, iterations_robust + iterations, converged, heading_weights)
+
+
+def _heading_weights(problem: LandmarkLogProblem, odometry: np.ndarray,
+                     heading_loss: HeadingLoss | None) -> np.ndarray | None:
+    """The heading loss's IRLS weights (T,) at normalised odometry residuals (T·3,); None without a loss."""
+    if heading_loss is None:
+        return None
+    return heading_loss.weight(odometry.reshape(-1, 3)[:, 2], np.sqrt(problem.increment_variances[:, 2]))
+
+
+def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) -> sp.csr_matrix:
+    """The Jacobian with each heading row (3k + 2) scaled by √w_k (unchanged without weights)."""
+    if heading_weights is None:
+        return jac
+    scale = np.ones(jac.shape[0])
+    scale[3 * np.arange(t) + 2] = np.sqrt(heading_weights)
+    return sp.diags(scale, format="csr") @ jac
 
 
 def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray):
@@ -217,7 +293,7 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
     return weights
 
 
-def _cost(problem, poses, landmarks, inliers, robust) -> float:
+def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None) -> float:
     odometry, sightings = _residuals(problem, poses, landmarks)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
@@ -225,18 +301,27 @@ def _cost(problem, poses, landmarks, inliers, robust) -> float:
         rho = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
     else:
         rho = norm2
-    return float(np.sum(odometry ** 2) + np.sum(rho))
+    if heading_loss is None:
+        return float(np.sum(odometry ** 2) + np.sum(rho))
+    odometry = odometry.reshape(-1, 3)
+    heading = heading_loss.rho(odometry[:, 2], np.sqrt(problem.increment_variances[:, 2]))
+    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho))
 
 
-def _solve(problem, poses, landmarks, inliers, robust) -> tuple[int, bool]:
-    """Levenberg–Marquardt (IRLS weights when ``robust``) in place on poses[1:] and landmarks."""
+def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None) -> tuple[int, bool]:
+    """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
+    landmarks."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     damping = 1e-4
-    cost = _cost(problem, poses, landmarks, inliers, robust)
+    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss)
     for iteration in range(1, MAX_ITERATIONS + 1):
         odometry, sightings = _residuals(problem, poses, landmarks)
         weights = _sighting_weights(sightings, inliers, robust)
-        jac = _jacobian(problem, poses, landmarks, n_landmarks, weights)
+        heading_weights = _heading_weights(problem, odometry, heading_loss)
+        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights), t, heading_weights)
+        if heading_weights is not None:
+            odometry = odometry.copy()
+            odometry[2::3] *= np.sqrt(heading_weights)
         residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()])
         normal = (jac.T @ jac).tocsc()
         gradient = jac.T @ residual
@@ -248,7 +333,7 @@ def _solve(problem, poses, landmarks, inliers, robust) -> tuple[int, bool]:
             trial_poses[1:] += step[:3 * t].reshape(t, 3)
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_landmarks += step[3 * t:].reshape(n_landmarks, 2)
-            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust)
+            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss)
             if trial <= cost:
                 break
             damping *= 10.0
@@ -262,8 +347,9 @@ def _solve(problem, poses, landmarks, inliers, robust) -> tuple[int, bool]:
     return MAX_ITERATIONS, False
 
 
-def _information(problem, poses, landmarks, inliers, n_landmarks) -> sp.csc_matrix:
-    jac = _jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float))
+def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None) -> sp.csc_matrix:
+    jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float)), problem.n_poses,
+                      heading_weights)
     return (jac.T @ jac).tocsc()
 
 
