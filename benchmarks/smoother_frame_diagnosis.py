@@ -25,6 +25,8 @@ none; ``both``), its smoothing problem captured, then:
   (dx, dy, dθ).
 - **curvature**: Σ true forward travel / Σ odometry forward travel per band of |dθ|/dx (rad/m) over the whole log.
 - **early poses**: the smoothed heading's error and σ (its Laplace covariance) at 0.5, 1, 2, 5, 10, 30 s.
+- **landmarks**, by first sighting: each one's rotation about the origin and its tangential / radial error against
+  its σ in each direction (are the first turn's landmarks the rotated ones?).
 
 ``--heading-loss student-t|mixture`` (``--heading-dof``, ``--stall-probability``, ``--stall-sigma``) solves every
 variant with that heavy-tailed odometry heading loss (``estimation.landmark_smoother.HeadingLoss``; docs/fastslam.md
@@ -306,6 +308,30 @@ def early_poses(cap: Captured, solution) -> list[dict]:
     return out
 
 
+def landmark_errors(cap: Captured, solution) -> list[dict]:
+    """Each landmark's start-frame error split across (tangential, about the origin) and along (radial) its
+    direction from the origin, with its σ in each, and when it was first sighted: are the landmarks seen in the
+    first turn the rotated ones?"""
+    p = cap.problem
+    out = []
+    for j in np.argsort([cap.times[p.pose_index[p.landmark_index == j]].min() for j in range(len(cap.landmark_ids))]):
+        sel = p.landmark_index == j
+        true = cap.true_landmarks[j]
+        distance = float(np.hypot(*true))
+        radial = true / distance
+        tangential = np.array([-radial[1], radial[0]])
+        error = solution.landmarks[j] - true
+        cov = solution.landmark_covariances[j]
+        out.append({"id": int(cap.landmark_ids[j]), "first_seen_s": float(cap.times[p.pose_index[sel]].min()),
+                    "sightings": int(sel.sum()), "distance_m": distance,
+                    "rotation_rad": float(tangential @ error / distance),
+                    "tangential_m": float(tangential @ error), "tangential_sd_m": float(np.sqrt(tangential @ cov
+                                                                                                 @ tangential)),
+                    "radial_m": float(radial @ error), "radial_sd_m": float(np.sqrt(radial @ cov @ radial)),
+                    "nees": float(points_nees(error[None], cov[None])[0])})
+    return out
+
+
 def diagnose(cap: Captured, early_s: float, smooth_options: dict) -> dict:
     base = smooth(cap.problem, cap.initial_poses, cap.initial_landmarks, **smooth_options)
     out = {"scores": scores(cap, base), "attribution": attribution(cap, base.inliers),
@@ -313,7 +339,8 @@ def diagnose(cap: Captured, early_s: float, smooth_options: dict) -> dict:
            if smooth_options else None,
            "heading_weights_below_half": int(np.sum(base.heading_weights < 0.5))
            if base.heading_weights is not None else None,
-           "early_poses": early_poses(cap, base), "curvature": curvature_ratios(cap), "oracles": {}}
+           "early_poses": early_poses(cap, base), "landmarks": landmark_errors(cap, base),
+           "curvature": curvature_ratios(cap), "oracles": {}}
     for label, problem in oracle_problems(cap, early_s).items():
         if label == "as built":
             continue
@@ -368,6 +395,11 @@ def _print(robot, kind, result):
               f"{share[0]:5.2f} {share[1]:5.2f} {share[2]:5.2f}      {c[0]:+.3f} {c[1]:+.3f} {c[2]:+.4f}")
     print("  early poses: " + "; ".join(f"{e['t_s']:.1f} s θ err {e['heading_error_rad']:+.3f} σ "
                                          f"{e['heading_sd_rad']:.3f}" for e in result["early_poses"]))
+    print("  landmarks by first sighting (s): rotation about the origin (rad), tangential / radial error (σ) (m):")
+    for lm in result["landmarks"]:
+        print(f"    {lm['id']:3d} at {lm['first_seen_s']:6.1f} s, {lm['distance_m']:4.1f} m: "
+              f"{lm['rotation_rad']:+.3f}; {lm['tangential_m']:+.3f} ({lm['tangential_sd_m']:.3f}) / "
+              f"{lm['radial_m']:+.3f} ({lm['radial_sd_m']:.3f}); NEES {lm['nees']:.1f}")
     print("  forward travel true/odometry by curvature: " + ", ".join(
         f"{c['from_rad_per_m']:g}-{c['to_rad_per_m']:g} rad/m {c['ratio']:.2f} (n {c['n']})"
         for c in result["curvature"]))

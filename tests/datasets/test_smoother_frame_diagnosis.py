@@ -14,6 +14,7 @@ from benchmarks.smoother_frame_diagnosis import (
     attribution,
     curvature_ratios,
     frame_error,
+    landmark_errors,
     oracle_problems,
 )
 from estimation.geometry import between, dead_reckoning, wrap_angle
@@ -94,6 +95,26 @@ def test_an_early_forward_bias_is_found_where_it_was_put():
     along = from_the_bias @ change / np.hypot(*change)
     assert 0.7 * np.hypot(*change) < along < 1.5 * np.hypot(*change)
     assert np.hypot(*(from_the_bias - along * change / np.hypot(*change))) < 0.2 * np.hypot(*change)
+
+
+def test_a_rotated_map_reads_as_rotation_per_landmark_and_in_the_frame():
+    """Landmark errors that are a small rotation about the origin plus a translation, δ (−y, x) + t: the frame's
+    rigid fit returns (t, δ), and each landmark reads δ plus the translation's tangential share as its rotation and
+    the translation's radial share as its radial error."""
+    cap = simulated(8)
+    solution = smooth(cap.problem, cap.initial_poses, cap.initial_landmarks)
+    delta, shift = 0.05, np.array([0.03, -0.01])
+    true = cap.true_landmarks
+    moved = dataclasses.replace(solution, landmarks=true + delta * np.column_stack([-true[:, 1], true[:, 0]]) + shift)
+    frame = frame_error(cap, moved)
+    assert [frame["dx_m"], frame["dy_m"], frame["dtheta_rad"]] == pytest.approx([0.03, -0.01, 0.05], abs=1e-12)
+    assert frame["within_both_removed"] == 1.0
+    for lm in landmark_errors(cap, moved):
+        j = int(np.flatnonzero(cap.landmark_ids == lm["id"])[0])
+        radial = true[j] / np.hypot(*true[j])
+        tangential = np.array([-radial[1], radial[0]])
+        assert lm["rotation_rad"] == pytest.approx(delta + shift @ tangential / lm["distance_m"], abs=1e-12)
+        assert lm["radial_m"] == pytest.approx(shift @ radial, abs=1e-12)
 
 
 def test_forward_travel_by_curvature_is_measured_in_its_band():
