@@ -18,6 +18,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
                                #   on a straight run: UMBmark's type-A error, unequal wheels); optional, 0 if absent
     lag_s = 0.0                # calibration: s by which the odometry leads the motion (commanded velocities: the
                                #   pose at t is the odometry's at t − lag_s); optional, 0 if absent
+    forward_deficit_per_rad = 0.0  # calibration: m of travel the robot does not make per radian of odometry turn
+                               #   (MRCLAM's Creates make 0.65 of the commanded distance in arcs); optional, 0 if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -53,7 +55,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
+from scipy.optimize import minimize_scalar, nnls
 
 from .datasets import RangeBearingLog
 from .errors import EstimationError
@@ -67,6 +69,7 @@ SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m", "range_offset_m", "
                  "range_scale_per_rad2")
 MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is a broken robot, not a calibration
 MAX_ODOMETRY_LAG_S = 1.0       # s: a drive that answers its commands a second late is not a calibration
+MAX_FORWARD_DEFICIT_PER_RAD = 0.5  # m/rad: a robot that loses half a metre per radian turned is not calibrated
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
 DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
 
@@ -84,6 +87,7 @@ class OdometryNoise:
     rotation_scale: float = 1.0
     heading_bias_per_m: float = 0.0      # rad per metre of odometry distance (signed; see calibrate_increments)
     lag_s: float = 0.0                   # the odometry leads the motion by this (see NoiseModel.odometry_times)
+    forward_deficit_per_rad: float = 0.0  # m of travel lost per radian of odometry turn (see calibrate_increments)
 
 
 @dataclass(frozen=True)
@@ -172,6 +176,10 @@ class NoiseModel:
             raise NoiseModelError(f"heading_bias_per_m must lie in [-{MAX_HEADING_BIAS_PER_M}, "
                                   f"{MAX_HEADING_BIAS_PER_M}] rad/m (a calibration, not a turn), not "
                                   f"{self.odometry.heading_bias_per_m}")
+        if not self.odometry.forward_deficit_per_rad <= MAX_FORWARD_DEFICIT_PER_RAD:
+            raise NoiseModelError(f"forward_deficit_per_rad must lie in [0, "
+                                  f"{MAX_FORWARD_DEFICIT_PER_RAD}] m/rad (a calibration), not "
+                                  f"{self.odometry.forward_deficit_per_rad}")
         if not self.odometry.lag_s <= MAX_ODOMETRY_LAG_S:
             raise NoiseModelError(f"lag_s must lie in [0, {MAX_ODOMETRY_LAG_S}] s (a calibration), not "
                                   f"{self.odometry.lag_s}")
@@ -210,11 +218,13 @@ class NoiseModel:
                 "false_alarm_probability": float(np.clip(p_fa, 1e-3, 0.5)), "detection_correlation": rho}
 
     def calibrate_increments(self, increments: np.ndarray) -> np.ndarray:
-        """Odometry increments (T, 3) with the model's calibration applied: the scales, and the heading bias per
-        metre of the increment's odometry distance (its chord: increments between frames are short)."""
+        """Odometry increments (T, 3) with the model's calibration applied: the scales, the heading bias per
+        metre of the increment's odometry distance (its chord: increments between frames are short), and the
+        forward deficit per radian of its odometry turn (the chord shortened by ``forward_deficit_per_rad``·|Δθ|,
+        never below zero; see _calibrated)."""
         o = self.odometry
         return _calibrated(increments, (o.translation_scale, o.translation_scale, o.rotation_scale),
-                           o.heading_bias_per_m)
+                           o.heading_bias_per_m, o.forward_deficit_per_rad)
 
     def odometry_times(self, times) -> np.ndarray:
         """The odometry's times (T,) for poses at ``times`` (T,): t − lag_s. Why: MRCLAM's odometry is the commanded
@@ -353,7 +363,7 @@ class NoiseEstimate:
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
-                   odometry_lag: bool = False) -> NoiseEstimate:
+                   odometry_lag: bool = False, turn_translation: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -391,6 +401,11 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     ``odometry_lag``: first fit the time by which the odometry leads the motion (:func:`_odometry_lag`: the lag
     that minimises the heading increments' error at the filter's frame interval) and fit everything else on the
     odometry read that much earlier; off: 0.
+    ``turn_translation``: fit the translation scale k jointly with a forward deficit per radian turned c (each
+    50 Hz step's distance d → max(d − c·|Δθ|, 0), then scaled by k; :func:`_calibrated`) on the same windows,
+    c by a bounded search on [0, MAX_FORWARD_DEFICIT_PER_RAD] with k in closed form for each c, and c's standard
+    error from the profile's curvature; off: c = 0 (one translation scale for all motion). Why: MRCLAM's robots
+    cover 0.65 of the commanded distance in arcs and all of it straight (docs/fastslam.md "Session 16 (Q)").
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -415,15 +430,14 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         else {"heading_bias_note": "not fitted: the windows' turns and distances are proportional (a bias per "
                                    "metre cannot be told from a rotation scale)"}
     # with the turns calibrated, the chain's positions scale linearly with the translation scale: regress on them
-    turned = [_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale), bias, lag) for log in logs]
-    u = np.concatenate([w[0] for w in turned])
-    translation_scale = float(np.sum(g[:, :2] * u[:, :2]) / max(np.sum(u[:, :2] ** 2), 1e-12))
+    translation_scale, deficit, deficit_fit = _translation_calibration(logs, window_s, rotation_scale, bias, lag,
+                                                                       g, turn_translation)
     scales = np.array([translation_scale, translation_scale, rotation_scale])
-    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag)
+    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag, deficit)
                                                      for log in logs])
     by_window = []
     for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
-        other = [_odometry_windows(log, w, scales, bias, lag) for log in logs]
+        other = [_odometry_windows(log, w, scales, bias, lag, deficit) for log in logs]
         if sum(len(o[0]) for o in other) >= 10:
             by_window.append((w, *np.sqrt(_random_walk_fit(other))))
 
@@ -448,7 +462,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
         residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit, **lag_fit,
+           **bias_fit, **lag_fit, **deficit_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -496,7 +510,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
-        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag), range_bearing, None,
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit),
+        range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
                f"truth ({len(u)} odometry windows of {window_s:g} s)")
@@ -553,12 +568,57 @@ def _odometry_lag(logs: Sequence[RangeBearingLog]) -> tuple[float, dict]:
                                      "odometry_no_lag_heading_rms_rad": float(np.sqrt(errors[0]))}
 
 
-def _calibrated(increments, scales, heading_bias_per_m: float) -> np.ndarray:
+def _translation_calibration(logs, window_s: float, rotation_scale: float, bias: float, lag: float,
+                             g: np.ndarray, turn_translation: bool) -> tuple[float, float, dict]:
+    """(translation scale k, forward deficit per radian c, the fit's figures): with the turns calibrated, the
+    windows' calibrated displacements u(c) scale linearly with k, so k(c) = Σ g·u / Σ u² (g the true ones) and
+    the squared error left, S(c), is minimised over c in [0, MAX_FORWARD_DEFICIT_PER_RAD] (c = 0 unless
+    ``turn_translation``). c's standard error: √(2σ² / S''(c)), σ² = S / (2W − 2) (W windows, x and y each)."""
+    def profile(c: float) -> tuple[float, float]:
+        u = np.concatenate([_odometry_windows(log, window_s, (1.0, 1.0, rotation_scale), bias, lag, c)[0]
+                            for log in logs])[:, :2]
+        k = float(np.sum(g[:, :2] * u) / max(np.sum(u ** 2), 1e-12))
+        return k, float(np.sum((g[:, :2] - k * u) ** 2))
+
+    k0, s0 = profile(0.0)
+    if not turn_translation:
+        return k0, 0.0, {}
+    best = minimize_scalar(lambda c: profile(c)[1], bounds=(0.0, MAX_FORWARD_DEFICIT_PER_RAD), method="bounded",
+                           options={"xatol": 1e-4})
+    c = float(best.x) if best.fun < s0 else 0.0
+    k, s = profile(c)
+    if not 0.5 <= k <= 2.0:
+        return k0, 0.0, {"forward_deficit_note": f"not fitted: the translation scale with it would be {k:.3f}"}
+    h = 0.005
+    lo, hi = max(c - h, 0.0), min(c + h, MAX_FORWARD_DEFICIT_PER_RAD)
+    mid = 0.5 * (lo + hi)
+    curvature = (profile(hi)[1] - 2.0 * profile(mid)[1] + profile(lo)[1]) / (0.5 * (hi - lo)) ** 2
+    sigma2 = s / max(2 * len(g) - 2, 1)
+    se = float(np.sqrt(2.0 * sigma2 / curvature)) if curvature > 0 else float("nan")
+    fit = {"forward_deficit_translation_scale_alone": k0,
+           "forward_deficit_displacement_rms_m": float(np.sqrt(s / max(len(g), 1))),
+           "forward_deficit_none_displacement_rms_m": float(np.sqrt(s0 / max(len(g), 1)))}
+    if math.isfinite(se):
+        fit["forward_deficit_per_rad_standard_error"] = se
+    return k, c, fit
+
+
+def _calibrated(increments, scales, heading_bias_per_m: float, forward_deficit_per_rad: float = 0.0) -> np.ndarray:
     """Odometry increments (T, 3) scaled by ``scales`` (x, y, θ), plus the heading bias per metre of each
-    increment's odometry distance (its chord: increments between frames and 50 Hz steps are short)."""
+    increment's odometry distance (its chord: increments between frames and 50 Hz steps are short); with a
+    forward deficit c, each increment's translation is first shortened by c·|Δθ| (its odometry turn) along its
+    own direction, to no less than zero: d' = max(d − c·|Δθ|, 0). Why this form: MRCLAM's robots (iRobot Creates
+    driven by commanded velocity) make 0.65 of the commanded distance in arcs of 0.38 rad/s and all of it going
+    straight, and the deficit's rate follows |ω| at any speed (docs/fastslam.md "Session 16 (Q)"), so it is a
+    distance per radian, which adds up the same over 50 Hz steps and 0.25 s frames; a turn on the spot, whose
+    odometry distance is zero, keeps it zero (the clip)."""
     raw = np.asarray(increments, float).reshape(-1, 3)
     out = raw * np.asarray(scales, float)
-    out[:, 2] += heading_bias_per_m * np.hypot(raw[:, 0], raw[:, 1])
+    distance = np.hypot(raw[:, 0], raw[:, 1])
+    if forward_deficit_per_rad != 0.0:
+        keep = np.clip(1.0 - forward_deficit_per_rad * np.abs(raw[:, 2]) / np.maximum(distance, 1e-300), 0.0, 1.0)
+        out[:, :2] *= keep[:, None]
+    out[:, 2] += heading_bias_per_m * distance
     return out
 
 
@@ -587,10 +647,10 @@ def _heading_calibration(turn: np.ndarray, distance: np.ndarray | None, true_tur
 
 
 def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0,
-                      lag_s: float = 0.0):
+                      lag_s: float = 0.0, forward_deficit_per_rad: float = 0.0):
     """Consecutive windows of odometry rows inside the ground truth: odometry increments u (W, 3) calibrated by
-    ``scales`` and the heading bias per odometry metre, true increments g (W, 3) (``lag_s`` later than the odometry
-    rows' times: the odometry leads the motion), and the design (W, 3, 3, 3):
+    ``scales``, the heading bias per odometry metre and the forward deficit per radian, true increments g (W, 3)
+    (``lag_s`` later than the odometry rows' times: the odometry leads the motion), and the design (W, 3, 3, 3):
     the error covariance of each window is Σ_k q_k · design[:, k] for the model's variances
     q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
     rows = log.odometry
@@ -603,7 +663,8 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     if k < 1:
         return empty
     rows = rows[: k * n + 1]
-    steps = _calibrated(between(rows[:-1, 1:], rows[1:, 1:]), scales, heading_bias_per_m)   # robot frame
+    steps = _calibrated(between(rows[:-1, 1:], rows[1:, 1:]), scales, heading_bias_per_m,   # robot frame
+                        forward_deficit_per_rad)
     # the calibrated chain, in closed form: heading before step j, then positions after each step
     heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
     c, s = np.cos(heading[:-1]), np.sin(heading[:-1])

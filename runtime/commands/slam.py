@@ -196,6 +196,11 @@ def _register_noise(sub) -> None:
                         help="also fit the time by which the odometry leads the motion (commanded velocities), "
                              "written as [odometry] lag_s; `slam dataset` reads the odometry that much earlier. Off "
                              "by default (docs/fastslam.md, Session 9)")
+    parser.add_argument("--turn-translation", action="store_true",
+                        help="also fit the travel the robot does not make per radian turned (each increment's "
+                             "distance d -> max(d - c |dtheta|, 0)) beside the translation scale, written as "
+                             "[odometry] forward_deficit_per_rad and applied where the scales are. Off by default "
+                             "(docs/fastslam.md, Session 16 (Q))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 
@@ -286,6 +291,7 @@ def _noise(args: argparse.Namespace) -> int:
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
+                                  turn_translation=args.turn_translation,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         estimate.model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
@@ -312,6 +318,13 @@ def _noise(args: argparse.Namespace) -> int:
         print(f"  odometry lag: {o.lag_s:.2f} s (heading error per 0.25 s: "
               f"{model.fit.get('odometry_no_lag_heading_rms_rad', float('nan')):.4f} rad read as stamped, "
               f"{model.fit.get('odometry_lag_heading_rms_rad', float('nan')):.4f} rad read {o.lag_s:.2f} s earlier)")
+    if args.turn_translation:
+        se = model.fit.get("forward_deficit_per_rad_standard_error", float("nan"))
+        print(f"  forward deficit: {o.forward_deficit_per_rad:.4f} m/rad ± {se:.4f} (standard error; 5 s windows' "
+              f"displacement error {model.fit.get('forward_deficit_none_displacement_rms_m', float('nan')):.4f} m "
+              f"RMS with one translation scale, {model.fit.get('forward_deficit_displacement_rms_m', float('nan')):.4f}"
+              f" m with the deficit)" if "forward_deficit_note" not in model.fit
+              else f"  forward deficit: none ({model.fit['forward_deficit_note']})")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")

@@ -104,12 +104,14 @@ def test_closed_form_chain_is_composition():
 
 
 def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, sigma_b, offset_b, rho_b=0.0,
-                   heading_bias=0.0, lag=0.0, switching=False):
+                   heading_bias=0.0, lag=0.0, switching=False, forward_deficit=0.0):
     """A robot circling (wiggling) for 30 min at 50 Hz among 12 landmarks; odometry = (true increments +
     random-walk noise) / scale, its heading short of the truth by ``heading_bias`` rad per metre driven (the
     robot curves where its odometry says straight), stamped ``lag`` s before the motion it reports (commanded
     velocity, which the robot follows late); ``switching``: the wiggle's turn rate switches between two values
-    (as commanded turns do) instead of varying smoothly; sightings within a camera's range."""
+    (as commanded turns do) instead of varying smoothly; ``forward_deficit``: the odometry's distance exceeds the
+    truth's by that many metres per radian turned (a robot that covers less ground in turns than commanded);
+    sightings within a camera's range."""
     dt, n = 0.02, 90_000
     t = np.arange(n + 1) * dt
     v = 0.2 + 0.1 * np.sin(t[:-1] / 7.0)
@@ -126,6 +128,7 @@ def _synthetic_log(rng, q_xy, q_theta_rad, q_theta_m, scale, sigma_r, slope_r, s
     noisy = true_steps + rng.standard_normal((n, 3)) * np.sqrt(np.column_stack(
         [q_xy * d, q_xy * d, q_theta_rad * np.abs(true_steps[:, 2]) + q_theta_m * d]))
     noisy[:, 2] -= heading_bias * d
+    noisy[:, 0] += forward_deficit * np.abs(true_steps[:, 2])
     noisy = noisy / [scale, scale, scale]
     odometry = _chain(noisy)
     landmarks = rng.uniform(-6, 6, (12, 2)) + truth[:, :2].mean(axis=0)
@@ -340,3 +343,81 @@ def test_the_fitted_detection_rates_set_the_filters_existence_evidence():
     np.testing.assert_allclose(hit_log_odds(config, ranges), np.log([15.0, 10.0, 5.0]))
     plain = with_fastslam(NoiseModel(odometry, sensor, fit={"sensor_outlier_fraction": 0.04}), range_bearing_config())
     assert plain.detection_probabilities == () and miss_log_odds(plain, ranges) == plain.existence_miss
+
+
+def test_a_forward_deficit_per_radian_is_recovered_and_calibrated_away():
+    """Odometry that says 0.09 m more than the robot drove per radian turned (MRCLAM's Creates in arcs): the fit
+    finds the deficit and the straight-line scale, the random walk left is the one that made the log (one scale for
+    all motion takes the deficit as noise: q_xy several times too large), and the calibrated increments of the
+    turning steps add up to the true forward travel; a log without one gets none; off by default.
+
+    The log's 50 Hz steps carry little noise against their own turn and chord (a commanded-velocity odometry, like
+    MRCLAM's, carries none): the calibration reads each step's |Δθ| and chord, so noise in them biases the fit as
+    errors in variables do — E|Δθ + n| > |Δθ| raises the translation scale, and the chord's sideways noise raises c
+    by E[chord / forward] (at this log's q_xy 1.3 %; at q_xy = 0.02², q_θ = 0.05² c came out 6 % and k 1 % high)."""
+    q = dict(q_xy=0.01 ** 2, q_theta_rad=0.01 ** 2, q_theta_m=0.005 ** 2, sigma_r=0.03, slope_r=0.03, sigma_b=0.02,
+             offset_b=0.0)
+    log = _synthetic_log(np.random.default_rng(11), **q, scale=1.05, forward_deficit=0.09)
+    model = estimate_noise([log], turn_translation=True).model
+    se = model.fit["forward_deficit_per_rad_standard_error"]
+    assert 0 < se < 0.01 and model.odometry.forward_deficit_per_rad == pytest.approx(0.09, abs=3 * se)
+    assert model.odometry.translation_scale == pytest.approx(1.05, abs=0.01)
+    assert model.odometry.xy_var_per_m == pytest.approx(q["q_xy"], rel=0.3)
+    assert model.fit["forward_deficit_displacement_rms_m"] < 0.7 * model.fit["forward_deficit_none_displacement_rms_m"]
+    scale_only = estimate_noise([log]).model
+    assert scale_only.odometry.forward_deficit_per_rad == 0.0 and "forward_deficit_per_rad_standard_error" not in \
+        scale_only.fit
+    assert scale_only.odometry.xy_var_per_m > 2 * q["q_xy"]
+    t = log.ground_truth[::10, 0]
+    raw = log.odometry_increments(t)
+    true = between(log.true_pose(t[:-1]), log.true_pose(t[1:]))
+    turning = np.abs(true[:, 2]) / 0.2 > 0.25
+    for fitted, tolerance in ((model, 0.01), (scale_only, None)):
+        ratio = np.sum(fitted.calibrate_increments(raw)[turning, 0]) / np.sum(true[turning, 0])
+        if tolerance is None:
+            assert ratio > 1.04          # one scale: the turns' forward travel overstated
+        else:
+            assert abs(ratio - 1.0) < tolerance
+    plain = estimate_noise([_synthetic_log(np.random.default_rng(12), **q, scale=1.05)], turn_translation=True).model
+    assert plain.odometry.forward_deficit_per_rad < max(3 * plain.fit.get("forward_deficit_per_rad_standard_error",
+                                                                         0.0), 0.005)
+    assert plain.odometry.translation_scale == pytest.approx(1.05, abs=0.01)
+
+
+@settings(max_examples=50, deadline=None)
+@given(increment=st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-1.0, 1.0)),
+       deficit=st.floats(0.0, 0.5), scale=st.floats(0.5, 2.0), bias=st.floats(-0.5, 0.5))
+def test_the_forward_deficit_shortens_the_chord_along_itself_to_no_less_than_zero(increment, deficit, scale, bias):
+    raw = np.array([increment])
+    with_deficit = NoiseModel(OdometryNoise(1e-3, 1e-3, 1e-3, scale, 1.0, bias, forward_deficit_per_rad=deficit))
+    without = dataclasses.replace(with_deficit, odometry=dataclasses.replace(with_deficit.odometry,
+                                                                             forward_deficit_per_rad=0.0))
+    out, plain = with_deficit.calibrate_increments(raw)[0], without.calibrate_increments(raw)[0]
+    distance = math.hypot(increment[0], increment[1])
+    assert out[2] == plain[2] == pytest.approx(increment[2] + bias * distance)     # the turn is not touched
+    expected = scale * max(distance - deficit * abs(increment[2]), 0.0)
+    assert math.hypot(out[0], out[1]) == pytest.approx(expected, abs=1e-12)
+    assert out[0] * increment[1] - out[1] * increment[0] == pytest.approx(0.0, abs=1e-12)   # along the chord
+    assert out[0] * increment[0] + out[1] * increment[1] >= 0.0                             # never backwards
+    np.testing.assert_array_equal(plain, [increment[0] * scale, increment[1] * scale, increment[2] + bias * distance])
+
+
+def test_the_forward_deficit_round_trips_is_optional_and_bounded(tmp_path):
+    model = NoiseModel(OdometryNoise(0.001, 0.002, 0.003, 1.06, 0.96, forward_deficit_per_rad=0.092),
+                       RangeBearingNoise(0.02, 0.04, 0.01))
+    model.save(tmp_path / "n.toml")
+    assert NoiseModel.load(tmp_path / "n.toml") == model
+    np.testing.assert_allclose(model.calibrate_increments(np.array([[0.3, 0.4, 0.5], [0.0, 0.0, 0.3]])),
+                               [[0.3 * 1.06 * 0.908, 0.4 * 1.06 * 0.908, 0.5 * 0.96], [0.0, 0.0, 0.3 * 0.96]])
+    header = 'format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\ntheta_var_per_rad = 1\n' \
+             'theta_var_per_m = 1\n'
+    (tmp_path / "old.toml").write_text(header)            # a file written before the deficit existed
+    old = NoiseModel.load(tmp_path / "old.toml")
+    assert old.odometry.forward_deficit_per_rad == 0.0
+    np.testing.assert_array_equal(old.calibrate_increments(np.array([[0.3, 0.4, 0.5]])), [[0.3, 0.4, 0.5]])
+    for value, complaint in (("0.7", r"forward_deficit_per_rad must lie in \[0, 0.5\]"),
+                             ("-0.1", "finite number >= 0"), ("inf", "finite number")):
+        (tmp_path / "bad.toml").write_text(header + f"forward_deficit_per_rad = {value}\n")
+        with pytest.raises(NoiseModelError, match=complaint) as error:
+            NoiseModel.load(tmp_path / "bad.toml")
+        assert "\n" not in str(error.value) and "bad.toml" in str(error.value)
