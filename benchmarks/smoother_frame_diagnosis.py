@@ -23,7 +23,9 @@ none; ``both``), its smoothing problem captured, then:
   (true/odometry) or, with no truth, by the smoother's own (three passes, each re-solved from the last); figures
   as eval_mrclam prints them (start-frame and rigid NEES within the bound, ATE, pose NEES median) and the frame's
   (dx, dy, dθ).
-- **curvature**: Σ true forward travel / Σ odometry forward travel per band of |dθ|/dx (rad/m) over the whole log.
+- **curvature**: Σ true forward travel / Σ odometry forward travel per band of |dθ|/dx (rad/m) over the whole log;
+  and through whole turns, the forward error's mean, lag-1 correlation and Σz/√n per turn (a unit normal if the
+  random walk were right).
 - **early poses**: the smoothed heading's error and σ (its Laplace covariance) at 0.5, 1, 2, 5, 10, 30 s.
 - **landmarks**, by first sighting: each one's rotation about the origin and its tangential / radial error against
   its σ in each direction (are the first turn's landmarks the rotated ones?).
@@ -289,6 +291,28 @@ def curvature_ratios(cap: Captured) -> list[dict]:
     return out
 
 
+def turn_errors(cap: Captured, min_increments: int = 4) -> dict:
+    """The odometry's forward error through whole turns (runs of ≥ ``min_increments`` consecutive increments of
+    ≥ 2 rad/m, gaps < 1 s): z = (true − odometry) forward travel / σ per increment; the random walk says each turn's
+    Σz/√n is a unit normal. Mean z, its lag-1 correlation about the mean, and Σz/√n's rms and mean over the turns."""
+    p = cap.problem
+    true_increments = between(cap.true_poses[:-1], cap.true_poses[1:])
+    z = (true_increments[:, 0] - p.increments[:, 0]) / np.sqrt(p.increment_variances[:, 0])
+    turning = (_curvature(p.increments) >= 2.0) & (np.abs(p.increments[:, 0]) > 0.005) & (np.diff(cap.times) < 1.0)
+    pair = turning[:-1] & turning[1:]
+    centred = z - z[turning].mean() if turning.any() else z
+    a, b = centred[:-1][pair], centred[1:][pair]
+    lag1 = float(np.sum(a * b) / np.sqrt(np.sum(a ** 2) * np.sum(b ** 2))) if pair.sum() > 2 else float("nan")
+    edges = np.flatnonzero(np.diff(np.r_[0, turning.astype(int), 0]))
+    runs = [(start, stop) for start, stop in zip(edges[::2], edges[1::2], strict=True)
+            if stop - start >= min_increments]
+    per_turn = np.array([z[start:stop].sum() / np.sqrt(stop - start) for start, stop in runs])
+    return {"increments": int(turning.sum()), "mean_z": float(z[turning].mean()) if turning.any() else float("nan"),
+            "lag1_correlation": lag1, "turns": len(runs),
+            "turn_sum_rms": float(np.sqrt(np.mean(per_turn ** 2))) if len(runs) else float("nan"),
+            "turn_sum_mean": float(np.mean(per_turn)) if len(runs) else float("nan")}
+
+
 def early_poses(cap: Captured, solution) -> list[dict]:
     """The smoothed heading's error and its Laplace σ at a few times after the first sighting."""
     which = np.unique([min(int(np.searchsorted(cap.times, s)), len(cap.times) - 1) for s in EARLY_TIMES])
@@ -340,7 +364,7 @@ def diagnose(cap: Captured, early_s: float, smooth_options: dict) -> dict:
            "heading_weights_below_half": int(np.sum(base.heading_weights < 0.5))
            if base.heading_weights is not None else None,
            "early_poses": early_poses(cap, base), "landmarks": landmark_errors(cap, base),
-           "curvature": curvature_ratios(cap), "oracles": {}}
+           "curvature": curvature_ratios(cap), "turns": turn_errors(cap), "oracles": {}}
     for label, problem in oracle_problems(cap, early_s).items():
         if label == "as built":
             continue
@@ -403,6 +427,10 @@ def _print(robot, kind, result):
     print("  forward travel true/odometry by curvature: " + ", ".join(
         f"{c['from_rad_per_m']:g}-{c['to_rad_per_m']:g} rad/m {c['ratio']:.2f} (n {c['n']})"
         for c in result["curvature"]))
+    t = result["turns"]
+    print(f"  forward error through turns (≥ 2 rad/m): {t['increments']} increments, mean z {t['mean_z']:+.2f}, lag-1 "
+          f"correlation {t['lag1_correlation']:+.2f}; over {t['turns']} turns of ≥ 4 increments Σz/√n has rms "
+          f"{t['turn_sum_rms']:.2f} and mean {t['turn_sum_mean']:+.2f} (the random walk: 1 and 0)")
     print("  oracles:                                            within  rigid   ATE    poseNEES  frame dx, dy, dθ")
     for label, o in result["oracles"].items():
         f = o["frame"]

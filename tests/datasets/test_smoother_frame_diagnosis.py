@@ -16,6 +16,7 @@ from benchmarks.smoother_frame_diagnosis import (
     frame_error,
     landmark_errors,
     oracle_problems,
+    turn_errors,
 )
 from estimation.geometry import between, dead_reckoning, wrap_angle
 from estimation.landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
@@ -128,6 +129,16 @@ def test_forward_travel_by_curvature_is_measured_in_its_band():
     assert turning["ratio"] == pytest.approx(0.65, abs=0.03)
     assert bands[(0.5, 2.0)]["n"] >= 100
     assert bands[(0.5, 2.0)]["ratio"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_a_forward_bias_through_a_turn_shows_in_the_turns_sum_not_as_noise():
+    """A 40-increment turn whose odometry overstates the forward travel by 1/0.65 (≈ 1.1 σ an increment): the turn's
+    Σz/√n is far beyond a unit normal; the same turn without the bias stays within one."""
+    biased = turn_errors(simulated(9, forward_in_turns=0.65, turn_steps=40))
+    clean = turn_errors(simulated(9, turn_steps=40))
+    assert biased["turns"] == clean["turns"] == 1 and biased["increments"] >= 35
+    assert biased["mean_z"] < -0.8 and biased["turn_sum_mean"] < -5.0
+    assert abs(clean["mean_z"]) < 0.5 and abs(clean["turn_sum_mean"]) < 3.5
 
 
 def test_the_fixed_oracle_holds_the_early_poses_at_the_truth():
