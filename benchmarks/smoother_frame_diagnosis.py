@@ -6,8 +6,9 @@ Run from the repository root:
         [--early 5] [--cache DIR] [--json]
 
 Per robot, the known-ID run with ``--smooth`` exactly as ``benchmarks.eval_mrclam --association id --seed 0
---smooth`` builds it (``--noise calibrated``: ``--range-calibration --heading-bias --odometry-lag``; ``default``:
-none; ``both``), its smoothing problem captured, then:
+--smooth`` builds it (``--noise calibrated``: ``--range-calibration --heading-bias --odometry-lag``; ``turn``: those
+and the forward deficit per radian turned, ``estimate_noise(turn_translation=True)``; ``default``: none; ``both``:
+calibrated and default), its smoothing problem captured, then:
 
 - **frame**: the smoothed map's error in the start frame as one rigid motion (dx, dy, dθ: the least-squares fit of
   the landmark errors, rotation about the origin), its covariance from the smoother's own information (the same
@@ -69,6 +70,7 @@ from runtime.commands.options import float_where, non_negative_float, positive_f
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 CALIBRATED = {"heading_bias": True, "range_calibration": True, "odometry_lag": True}
+NOISE_FITS = {"calibrated": CALIBRATED, "default": {}, "turn": dict(CALIBRATED, turn_translation=True)}
 WINDOWS = (0.0, 1.0, 5.0, 30.0, np.inf)           # s after the first sighting: attribution windows
 EARLY_TIMES = (0.5, 1.0, 2.0, 5.0, 10.0, 30.0)
 CURVATURE_BANDS = (0.0, 0.5, 2.0, 4.0, 8.0, np.inf)  # rad/m
@@ -382,7 +384,7 @@ def load(robot: int, noise_kind: str, data: Path, cache: Path | None) -> Capture
         with path.open("rb") as f:
             return Captured(**pickle.load(f))
     log = read_mrclam(data, robot)
-    noise = estimate_noise([log], **(CALIBRATED if noise_kind == "calibrated" else {})).model
+    noise = estimate_noise([log], **NOISE_FITS[noise_kind]).model
     cap = capture(log, noise)
     if path:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -447,7 +449,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", default="1")
-    parser.add_argument("--noise", choices=("calibrated", "default", "both"), default="calibrated")
+    parser.add_argument("--noise", choices=("calibrated", "default", "turn", "both"), default="calibrated",
+                        help="calibrated: the three calibrations; turn: those and the forward deficit per radian "
+                        "turned (estimate_noise(turn_translation=True)); both: calibrated and default")
     parser.add_argument("--early", type=non_negative_float, default=5.0, help="seconds after the first sighting "
                         "the oracles change (robot 1's first turn ends at 4.6 s)")
     parser.add_argument("--cache", type=Path, help="keep/reuse each robot's captured problem here")
