@@ -15,8 +15,8 @@ with ``turn_translation=True`` (``deficit``):
    (``NoiseModel.calibrate_increments``), classed by the commanded |ω| and speed v over the step (from the raw
    odometry increment). Per class: Σ true forward travel / Σ odometry forward travel (robot frame at the step's
    start), the least-squares true/odometry turn ratio, and the sideways error (true − odometry lateral travel,
-   signed by the turn's direction) per radian turned. Steps whose heading error passes 0.5 rad (Vicon's lost
-   tracks) are left out.
+   signed by the turn's direction) per radian turned (not for the straight class: its turns are noise). Steps
+   whose heading error passes 0.5 rad (Vicon's lost tracks) are left out.
 2. **forms**: on the 0.25 s steps that move (v ≥ 0.01 m/s), the true forward travel g_x fitted by least squares as
    k·s − c·|Δθ| (a deficit per radian turned, equivalently a scale 1 − (c/k)·κ falling with the curvature κ), as
    k·s − b·s·|ω| (a scale falling with the turn rate at any speed), and with both terms (s the raw odometry
@@ -89,7 +89,7 @@ def bands(raw, u, g, step_s: float) -> list[dict]:
                         "odometry_forward_m": odometry, "true_forward_m": true,
                         "forward_ratio": true / odometry if odometry > 0.05 else float("nan"),
                         "turn_ratio": float(g[sel, 2] @ u[sel, 2] / max(u[sel, 2] @ u[sel, 2], 1e-12)),
-                        "sideways_m_per_rad": float(side.sum() / turn) if turn > 0.5 else float("nan")})
+                        "sideways_m_per_rad": float(side.sum() / turn) if turn > 0.5 and w_lo > 0 else float("nan")})
     return out
 
 
