@@ -63,10 +63,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     not the problem: every particle starts with the log's true landmarks (in the start frame, σ 1 mm, named by
     their ids) and none is ever removed (needs ``association="id"``).
     ``smooth``: after the filter, the whole log's MAP poses and landmarks from the filter's best particle
-    (:mod:`estimation.dataset_smoothing`): the map, trajectory and pose NEES are then the smoother's, the filter's
-    figures stay in the metrics under ``filter_``. With ``association="unknown"`` the sightings name the landmarks
-    the best particle's ancestry gave them, and landmarks the smoothed log shows to be one are merged
-    (:mod:`estimation.landmark_correspondence`).
+    (:mod:`estimation.dataset_smoothing`; needs ``association="id"``): the map, trajectory and pose NEES are then
+    the smoother's, the filter's figures stay in the metrics under ``filter_``.
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -75,6 +73,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not log.has_ground_truth:
         raise ValueError(f"{log.name}: scoring needs ground truth, and the log has none")
     sensor = noise.range_bearing
+    if smooth and association != "id":
+        raise ValueError("smoothing needs association='id' (the sightings must name their landmarks)")
     if inflate_correlated:
         inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
         sensor = dataclasses.replace(sensor, range_sigma_m=sensor.range_sigma_m * inflate_r,
@@ -140,10 +140,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not smooth:
         return run
     from .dataset_smoothing import smooth_run
-    named = [ids for ids, _, _ in frames]
-    if association == "unknown":   # the best particle's own associations name the landmarks (ids score only)
-        named = slam.association_history()[1:]
-    return smooth_run(run, log, frames, named, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
+    return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
 
 
 def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:

@@ -15,7 +15,6 @@ import numpy as np
 from .dataset_slam import sighted_true_ids
 from .fastslam.motion import increment_variance
 from .geometry import between, compose
-from .landmark_correspondence import smooth_with_correspondences
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
 from .landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
@@ -27,36 +26,22 @@ _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_
                 "landmark_nees_median")
 
 
-def smooth_run(run, log, frames, named, increments, sensor, config, filter_poses, true_start, t0, until):
+def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_start, t0, until):
     """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
 
-    frames: per filter frame k, (true ids, ranges, bearings) as the filter was given them (calibrated); named: per
-    frame, the landmark each sighting names (its id with ``association="id"``; the best particle's landmark id with
-    ``"unknown"``, whose landmarks are then merged where the smoothed log shows them to be one); increments (T, 3)
-    the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise; config the
-    filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
+    frames: per filter frame k, (ids, ranges, bearings) as the filter was given them (calibrated); increments
+    (T, 3) the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise;
+    config the filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
     """
     if not any(len(ids) for ids, _, _ in frames):
         before = "" if until is None else f" before {until:g} s"
         raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
-    by_id = config.association == "id"
+    problem, landmark_ids = _problem(frames, increments, sensor, config)
     initial = np.vstack([np.zeros(3), filter_poses])
-    problem, landmark_keys = _problem(frames, named, increments, sensor, config)
-    initial_landmarks = _initial_landmarks(run.map, landmark_keys, problem, initial, by_id)
-    merge_metrics = {}
-    if by_id:
-        solution = smooth(problem, initial, initial_landmarks)
-        landmark_ids, written = landmark_keys, np.ones(len(landmark_keys), bool)
-    else:
-        found = smooth_with_correspondences(problem, initial, initial_landmarks)
-        solution, problem = found.solution, found.problem
-        landmark_ids = _majority_true_ids(problem, solution.inliers, _true_ids(frames, named), len(solution.landmarks))
-        written = _still_believed(found.merged_into, landmark_keys, run.map.ids, len(solution.landmarks))
-        merge_metrics = dict(smoother_merges=len(found.merges), smoother_merges_undone=len(found.rejected),
-                             smoother_merge_rounds=found.rounds, smoother_landmarks_dropped=int((~written).sum()))
+    solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial))
     times = run.true_trajectory[:, 0]
     estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
-    landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times, written, by_id)
+    landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times)
     covariance_rows = solution.covariance_poses - 1
     true_in_start = between(true_start, run.true_trajectory[covariance_rows, 1:])
     nees = np.full(len(times), np.nan)
@@ -73,85 +58,48 @@ def smooth_run(run, log, frames, named, increments, sensor, config, filter_poses
         pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)),
         smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
-        smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged), **merge_metrics)
-    attributed = (np.asarray(landmark_map.metadata["external_ids"], np.int64) if by_id
-                  else landmark_ids[_written_rows(solution, written)])
-    metrics.update(map_scores(landmark_map.positions, landmark_map.covariances, attributed, true_start,
+        smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
+                              np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                               log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
 
 
-def _problem(frames, named, increments, sensor, config) -> tuple[LandmarkLogProblem, np.ndarray]:
-    """The factors of the run (the sightings that name a landmark, ≥ 0), and the name (L,) of each landmark index."""
+def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np.ndarray]:
+    """The factors of the run, and the identity (L,) of each landmark index."""
     pose_index = np.concatenate([np.full(len(ids), k + 1) for k, (ids, _, _) in enumerate(frames)]).astype(int)
-    keys = np.concatenate([np.asarray(k, np.int64) for k in named]).astype(np.int64)
+    ids = np.concatenate([f[0] for f in frames]).astype(np.int64)
     ranges = np.concatenate([f[1] for f in frames]).astype(float)
     bearings = np.concatenate([f[2] for f in frames]).astype(float)
-    used = keys >= 0
-    landmark_keys, landmark_index = np.unique(keys[used], return_inverse=True)
+    named = ids >= 0
+    landmark_ids, landmark_index = np.unique(ids[named], return_inverse=True)
     problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
-                                 pose_index[used], landmark_index, ranges[used], bearings[used],
-                                 sensor.range_sigma(ranges[used]),
-                                 np.full(int(used.sum()), float(sensor.bearing_sigma_rad)))
-    return problem, landmark_keys
+                                 pose_index[named], landmark_index, ranges[named], bearings[named],
+                                 sensor.range_sigma(ranges[named]),
+                                 np.full(int(named.sum()), float(sensor.bearing_sigma_rad)))
+    return problem, landmark_ids
 
 
-def _true_ids(frames, named) -> np.ndarray:
-    """The true id of each sighting the problem holds (those that name a landmark), for scoring."""
-    keys = np.concatenate([np.asarray(k, np.int64) for k in named])
-    return np.concatenate([np.asarray(f[0], np.int64) for f in frames])[keys >= 0]
-
-
-def _majority_true_ids(problem, inliers, true_ids, n_landmarks) -> np.ndarray:
-    """The true id most of each landmark's kept sightings were of (scoring only; -1: none kept)."""
-    out = np.full(n_landmarks, -1, np.int64)
-    for landmark in range(n_landmarks):
-        ids = true_ids[inliers & (problem.landmark_index == landmark)]
-        if len(ids):
-            values, counts = np.unique(ids, return_counts=True)
-            out[landmark] = values[np.argmax(counts)]
-    return out
-
-
-def _still_believed(merged_into, landmark_keys, filter_map_ids, n_landmarks) -> np.ndarray:
-    """(L,) bool: the landmark holds a landmark of the filter's final map. The filter's existence estimate removed
-    the others (seen too seldom where they should have been); their sightings stay in the smoothing (they tie their
-    poses together) but the map does not claim them."""
-    out = np.zeros(n_landmarks, bool)
-    alive = np.isin(landmark_keys, np.asarray(filter_map_ids, np.int64))
-    out[merged_into[alive]] = True
-    return out
-
-
-def _initial_landmarks(filter_map: LandmarkMap, landmark_keys, problem, poses, by_id: bool) -> np.ndarray:
-    """The filter's landmark of each name (its identity, or its id in the filter); one the filter's final map does
-    not hold: placed from its first sighting."""
+def _initial_landmarks(filter_map: LandmarkMap, landmark_ids, problem, poses) -> np.ndarray:
+    """The filter's landmark of each identity; one it does not hold: placed from its first sighting."""
     out = landmarks_from_first_sightings(problem, poses)
-    names = np.asarray(filter_map.metadata.get("external_ids", []) if by_id else filter_map.ids, np.int64)
-    for i, key in enumerate(landmark_keys):
-        rows = np.flatnonzero(names == key)
+    external = np.asarray(filter_map.metadata.get("external_ids", []), np.int64)
+    for i, identity in enumerate(landmark_ids):
+        rows = np.flatnonzero(external == identity)
         if len(rows):
             out[i] = filter_map.positions[rows[0], :2]
     return out
 
 
-def _written_rows(solution, written) -> np.ndarray:
-    """(L,) bool: the landmarks the map holds: ``written`` and sighted (a finite covariance)."""
-    return np.all(np.isfinite(solution.landmark_covariances.reshape(len(written), -1)), axis=1) & written
-
-
-def _smoothed_map(filter_map: LandmarkMap, solution, landmark_ids, landmark_index, times, written,
-                  by_id: bool) -> LandmarkMap:
-    """The map of the landmarks ``written`` (L,) that were sighted; identities in the metadata in ID mode."""
-    seen = _written_rows(solution, written)
+def _smoothed_map(filter_map: LandmarkMap, solution, landmark_ids, landmark_index, times) -> LandmarkMap:
+    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(len(landmark_ids), -1)), axis=1)
     n = int(seen.sum())
     covariances = np.zeros((n, 3, 3))
     covariances[:, :2, :2] = solution.landmark_covariances[seen]
     covariances[:, 2, 2] = _Z_VARIANCE
     counts = np.bincount(landmark_index[solution.inliers], minlength=len(landmark_ids))[seen]
-    metadata = dict(filter_map.metadata, smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof)
-    if by_id:
-        metadata["external_ids"] = [int(i) for i in landmark_ids[seen]]
+    metadata = dict(filter_map.metadata, external_ids=[int(i) for i in landmark_ids[seen]], smoothed=True,
+                    smoother_chi2_per_dof=solution.chi2_per_dof)
     return LandmarkMap(np.column_stack([solution.landmarks[seen], np.zeros(n)]), covariances,
                        np.zeros((n, 0), np.float32), ids=np.arange(n), counts=counts, robot=filter_map.robot,
                        frame=filter_map.frame, trajectory=np.column_stack([np.append(times[:1], times),

@@ -204,11 +204,9 @@ class FastSLAM:
         self._motion_cov = np.zeros((m, 3, 3))   # FastSLAM 2.0: covariance of the motion not yet sampled
         self._best = 0
         self._time = 0.0
-        # ancestry, one entry per update: (t, poses (K, 3), parents (K,), associations (K, N)) where parents index
-        # the previous entry's rows and associations[k, j] is the landmark id observation j was given in that
-        # particle (-1: none); the newest entry holds all M particles, older ones only the live particles' ancestors
-        self._history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = [
-            (0.0, self.poses.copy(), np.arange(m), np.zeros((m, 0), np.int32))]
+        # ancestry, one entry per update: (t, poses (K, 3), parents (K,)) where parents index the previous
+        # entry's rows; the newest entry holds all M particles, older ones only the live particles' ancestors
+        self._history: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, self.poses.copy(), np.arange(m))]
         self._pruned_at = 0
         self.stats = FilterStats()
         # drift_export is the known-ID path's export: in "unknown" association merges read the exported
@@ -290,10 +288,6 @@ class FastSLAM:
             miss_reach=reach if capped else None, miss_weight=len(keep) / max(int(usable.sum()), 1))
         new_ids, best = np.full(n_given, -1, np.int64), np.full(n_given, -1, np.int64)
         new_ids[keep], best[keep] = report.new_landmark_ids, report.best_matches
-        t, poses, parents, kept = self._history[-1]
-        given = np.full((len(kept), n_given), -1, np.int32)
-        given[:, keep] = kept
-        self._history[-1] = (t, poses, parents, given)
         return replace(report, new_landmark_ids=new_ids, best_matches=best)
 
     def _update(self, observations: StereoObservations, miss_reach: float | None = None,
@@ -419,7 +413,6 @@ class FastSLAM:
         # 7. new landmarks from observations no landmark was a candidate for
         new_ids, n_new = self._add_landmarks(had_candidate, poses, z, q6, desc,
                                              self._lids_for_new(observations.ids, obs_lids) if by_id else None)
-        associations = self._associations(matched, had_candidate, new_ids, n_particles, n_obs)   # before merges
         if self._creations is not None:
             m_new, j_new = np.divmod(np.flatnonzero(~had_candidate), max(n_obs, 1))
             self._creations.made(new_ids[j_new], m_new, poses)
@@ -480,7 +473,7 @@ class FastSLAM:
             self.log_weights = np.zeros(n_particles)
             best = int(np.flatnonzero(parents == best)[0])  # the heaviest (w ≥ 1/M) is always copied
         self._best = best
-        self._history.append((self._time, self.poses.copy(), parents, associations[parents]))
+        self._history.append((self._time, self.poses.copy(), parents))
         if len(self._history) - self._pruned_at >= PRUNE_HISTORY_EVERY:
             self._prune_history()
             self._prune_pairs()
@@ -1266,41 +1259,19 @@ class FastSLAM:
         """(T, 4) rows (t, x, y, θ) of a particle's ancestry, one row per update (best particle by default)."""
         index = self._best if particle is None else int(particle)
         rows = []
-        for t, poses, parents, _ in reversed(self._history):
+        for t, poses, parents in reversed(self._history):
             rows.append((t, *poses[index]))
             index = parents[index]
         return np.array(rows[::-1], dtype=float).reshape(-1, 4)
-
-    def association_history(self, particle: int | None = None) -> list[np.ndarray]:
-        """The landmark id each observation was given along a particle's ancestry (best particle by default): one
-        (N,) array per update, in the order of :meth:`trajectory`'s rows (the first, the initial pose, is empty);
-        -1 where the observation matched no landmark and made none in that ancestor (left out, gated out as an
-        outlier, or unused). Ids as the ancestor had them then: a landmark merged or removed later keeps its id here.
-        """
-        index = self._best if particle is None else int(particle)
-        out = []
-        for _, _, parents, associations in reversed(self._history):
-            out.append(associations[index].astype(np.int64))
-            index = parents[index]
-        return out[::-1]
-
-    def _associations(self, matched: _Pairs, had_candidate: np.ndarray, new_ids: np.ndarray, n_particles: int,
-                      n_obs: int) -> np.ndarray:
-        """(M, N) the landmark id each particle gave each observation in this update (-1: none)."""
-        out = np.full((n_particles, n_obs), -1, np.int32)
-        made = ~had_candidate.reshape(n_particles, n_obs) & (new_ids >= 0)[None, :]
-        out[made] = np.broadcast_to(new_ids, (n_particles, n_obs))[made]
-        out[matched.m, matched.j] = self.store.flat_lid[matched.g]
-        return out
 
     def _prune_history(self) -> None:
         """Keep only the ancestors of the live particles in the history (the lineages coalesce, so old
         entries shrink to a pose or two): memory grows with the run's length, not with length × M."""
         need = np.arange(len(self._history[-1][1]))
         for i in range(len(self._history) - 1, -1, -1):
-            t, poses, parents, associations = self._history[i]
+            t, poses, parents = self._history[i]
             previous = np.unique(parents[need])
-            self._history[i] = (t, poses[need], np.searchsorted(previous, parents[need]), associations[need])
+            self._history[i] = (t, poses[need], np.searchsorted(previous, parents[need]))
             need = previous
         self._pruned_at = len(self._history)
 
