@@ -145,14 +145,12 @@ class LandmarkLogProblem:
 
 @dataclass
 class Smoothed:
-    """The solution: poses (T + 1, 3) (row 0 the origin), landmarks (L, 2), their marginal covariances (L, 2, 2)
-    and their joint covariance (2L, 2L) (rows and columns of a landmark never sighted: NaN), pose covariances
-    (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit."""
+    """The solution: poses (T + 1, 3) (row 0 the origin), landmarks (L, 2), their marginal covariances (L, 2, 2),
+    pose covariances (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit."""
 
     poses: np.ndarray
     landmarks: np.ndarray
     landmark_covariances: np.ndarray
-    landmark_joint_covariance: np.ndarray
     covariance_poses: np.ndarray
     pose_covariances: np.ndarray
     inliers: np.ndarray
@@ -197,8 +195,8 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights)
     stride = max(int(pose_covariance_stride), 1)
     covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
-    landmark_cov, joint, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses)
-    return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, joint, covariance_poses, pose_cov, inliers, chi2,
+    landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses)
+    return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
                     dof, iterations_robust + iterations, converged, heading_weights)
 
 
@@ -407,22 +405,17 @@ class _NormalFactor:
 
 
 def _marginals(information, t, n_landmarks, seen, covariance_poses):
-    """Landmark (L, 2, 2) blocks, the landmarks' joint (2L, 2L) and pose (P, 3, 3) blocks of the information's
-    inverse; a landmark never sighted (no information) gets an infinite covariance (NaN in the joint) and is left
-    out of the factorisation."""
+    """Landmark (L, 2, 2) and pose (P, 3, 3) blocks of the information's inverse; a landmark never sighted (no
+    information) gets an infinite covariance and is left out of the factorisation."""
     free = np.ones(information.shape[0], bool)
     free[3 * t:] = np.repeat(seen, 2)
     factor = _NormalFactor(information[free][:, free], t)
     landmark_cov = np.full((n_landmarks, 2, 2), np.inf)
-    joint = np.full((2 * n_landmarks, 2 * n_landmarks), np.nan)
     n_seen = int(seen.sum())
     if n_seen:
-        seen_joint = factor.landmark_covariance()
-        blocks = seen_joint.reshape(n_seen, 2, n_seen, 2)
+        blocks = factor.landmark_covariance().reshape(n_seen, 2, n_seen, 2)
         landmark_cov[seen] = blocks[np.arange(n_seen), :, np.arange(n_seen), :]
-        rows = np.repeat(seen, 2)
-        joint[np.ix_(rows, rows)] = seen_joint
-    return landmark_cov, joint, factor.pose_covariance_blocks(covariance_poses)
+    return landmark_cov, factor.pose_covariance_blocks(covariance_poses)
 
 
 def landmarks_from_first_sightings(problem: LandmarkLogProblem, poses: np.ndarray) -> np.ndarray:
