@@ -6,7 +6,8 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
-        [--range-calibration] [--odometry-lag] [--turn-translation] [--smooth] [--set FIELD=VALUE ...] [--json]
+        [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--smooth]
+        [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -29,6 +30,9 @@ of consecutive ones (estimate_noise's sensor_correlation; docs/fastslam.md "Sess
 ``--turn-translation``: fit the odometry's forward deficit per radian turned beside the translation scale
 (estimate_noise(turn_translation=True): MRCLAM's robots cover 0.65 of the commanded distance in arcs;
 docs/fastslam.md "Session 16 (Q)"; a FILE is used as it is).
+``--turn-variance``: fit the inflation of the x/y variance of a turn's increments, the turns' overdispersion
+(estimate_noise(turn_variance=True): a turn's forward error persists through it; docs/fastslam.md "Session 16:
+the odometry's variance in turns (lead)"; a FILE is used as it is).
 ``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
 docs/fastslam.md "Session 15"); the filter's own figures stay under ``filter_``.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
@@ -93,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
                         "velocity) leads the motion, and read it that much earlier")
     parser.add_argument("--turn-translation", action="store_true", help="fit the forward travel the robot loses per "
                         "radian turned beside the translation scale")
+    parser.add_argument("--turn-variance", action="store_true", help="fit the inflation of the x/y variance of a "
+                        "turn's increments (a turn's forward error persists through it)")
     parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
@@ -110,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     noise = {}
     fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
            "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
-           "turn_translation": args.turn_translation}
+           "turn_translation": args.turn_translation, "turn_variance": args.turn_variance}
     for r in robots:
         if args.noise == "own":
             noise[r] = estimate_noise([logs[r]], **fit).model
@@ -155,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
                           "heading_bias_per_m": {r: noise[r].odometry.heading_bias_per_m for r in robots},
                           "turn_translation": args.turn_translation,
                           "forward_deficit_per_rad": {r: noise[r].odometry.forward_deficit_per_rad for r in robots},
+                          "turn_variance": args.turn_variance,
+                          "turn_xy_inflation": {r: noise[r].odometry.turn_xy_inflation for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
                           "particles": args.particles, "seed": args.seed,
                           "maps": str(args.maps)}))
@@ -166,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
           + (", forward deficit per radian turned " + " ".join(f"{noise[r].odometry.forward_deficit_per_rad:.4f}"
                                                               for r in robots) + " m/rad" if args.turn_translation
              else "")
+          + (", x/y variance in turns × " + " ".join(f"{noise[r].odometry.turn_xy_inflation:.2f}" for r in robots)
+             if args.turn_variance else "")
           + (", sensor variances not inflated" if args.no_inflation else ", sensor variances inflated for correlation"))
     header = "mode    robot " + " ".join(f"{label:>8s}" for _, label, _ in COLUMNS)
     print(header)

@@ -20,6 +20,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
                                #   pose at t is the odometry's at t − lag_s); optional, 0 if absent
     forward_deficit_per_rad = 0.0  # calibration: m of travel the robot does not make per radian of odometry turn
                                #   (MRCLAM's Creates make 0.65 of the commanded distance in arcs); optional, 0 if absent
+    turn_xy_inflation = 1.0    # × the x/y variance of the increments of a turn (≥ 2 rad/m): a turn's forward error
+                               #   persists through it, so its increments are not independent; optional, 1 if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -59,6 +61,8 @@ from scipy.optimize import minimize_scalar, nnls
 
 from .datasets import RangeBearingLog
 from .errors import EstimationError
+from .fastslam.config import FastSLAMConfig
+from .fastslam.motion import turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 from .geometry import between, wrap_angle
 
@@ -70,6 +74,9 @@ SIGNED_FIELDS = ("bearing_offset_rad", "heading_bias_per_m", "range_offset_m", "
 MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is a broken robot, not a calibration
 MAX_ODOMETRY_LAG_S = 1.0       # s: a drive that answers its commands a second late is not a calibration
 MAX_FORWARD_DEFICIT_PER_RAD = 0.5  # m/rad: a robot that loses half a metre per radian turned is not calibrated
+MAX_TURN_XY_INFLATION = 100.0      # beyond, a turn's odometry says nothing of its travel: not a calibration
+TURN_STEP_S = 0.25                 # the increments on which a turn's overdispersion is measured (a frame interval)
+TURN_MIN_INCREMENTS = 4            # a turn shorter than this says nothing of the errors' persistence
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
 DETECTION_BANDS = (("below_3m", 3.0), ("3_to_5m", 5.0), ("beyond_5m", math.inf))
 
@@ -88,6 +95,7 @@ class OdometryNoise:
     heading_bias_per_m: float = 0.0      # rad per metre of odometry distance (signed; see calibrate_increments)
     lag_s: float = 0.0                   # the odometry leads the motion by this (see NoiseModel.odometry_times)
     forward_deficit_per_rad: float = 0.0  # m of travel lost per radian of odometry turn (see calibrate_increments)
+    turn_xy_inflation: float = 1.0        # × the x/y variance in turns (FastSLAMConfig.odom_turn_xy_inflation)
 
 
 @dataclass(frozen=True)
@@ -180,6 +188,9 @@ class NoiseModel:
             raise NoiseModelError(f"forward_deficit_per_rad must lie in [0, "
                                   f"{MAX_FORWARD_DEFICIT_PER_RAD}] m/rad (a calibration), not "
                                   f"{self.odometry.forward_deficit_per_rad}")
+        if not 1.0 <= self.odometry.turn_xy_inflation <= MAX_TURN_XY_INFLATION:
+            raise NoiseModelError(f"turn_xy_inflation must lie in [1, {MAX_TURN_XY_INFLATION}] (a variance "
+                                  f"inflation), not {self.odometry.turn_xy_inflation}")
         if not self.odometry.lag_s <= MAX_ODOMETRY_LAG_S:
             raise NoiseModelError(f"lag_s must lie in [0, {MAX_ODOMETRY_LAG_S}] s (a calibration), not "
                                   f"{self.odometry.lag_s}")
@@ -198,7 +209,8 @@ class NoiseModel:
         """The FastSLAMConfig fields this model sets (its motion model; a range-bearing sensor's footprint)."""
         o = self.odometry
         values = {"odom_xy_var_per_m": float(o.xy_var_per_m), "odom_theta_var_per_rad": float(o.theta_var_per_rad),
-                  "odom_theta_var_per_m": float(o.theta_var_per_m)}
+                  "odom_theta_var_per_m": float(o.theta_var_per_m),
+                  "odom_turn_xy_inflation": float(o.turn_xy_inflation)}
         if self.range_bearing is not None:
             values.update(self.range_bearing.fastslam_overrides())
         return values
@@ -363,7 +375,8 @@ class NoiseEstimate:
 def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETRY_WINDOW_S,
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
-                   odometry_lag: bool = False, turn_translation: bool = False) -> NoiseEstimate:
+                   odometry_lag: bool = False, turn_translation: bool = False,
+                   turn_variance: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
@@ -406,6 +419,13 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     c by a bounded search on [0, MAX_FORWARD_DEFICIT_PER_RAD] with k in closed form for each c, and c's standard
     error from the profile's curvature; off: c = 0 (one translation scale for all motion). Why: MRCLAM's robots
     cover 0.65 of the commanded distance in arcs and all of it straight (docs/fastslam.md "Session 16 (Q)").
+    ``turn_variance``: fit ``turn_xy_inflation``, the turns' overdispersion (:func:`_turn_inflation`): on
+    increments of TURN_STEP_S with everything above calibrated, z = (true − odometry forward travel) / σ_xy of the
+    fitted random walk; over each turn (≥ TURN_MIN_INCREMENTS consecutive increments of
+    ``estimation.fastslam.motion.turning``) Σz/√n is a unit normal if the increments' errors are independent; the
+    inflation is its mean square over the turns (≥ 1; a mean error counts: a bias the calibration left is a
+    persistent error too); off: 1. Why: the smoothed MRCLAM maps' start frames fail on the forward travel of the
+    first turns, correlated through each turn (docs/fastslam.md "Session 16 (P)").
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -435,6 +455,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     scales = np.array([translation_scale, translation_scale, rotation_scale])
     q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag, deficit)
                                                      for log in logs])
+    inflation, turn_fit = (_turn_inflation(logs, scales, bias, lag, deficit, q_xy) if turn_variance
+                           else (1.0, {}))
     by_window = []
     for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
         other = [_odometry_windows(log, w, scales, bias, lag, deficit) for log in logs]
@@ -462,7 +484,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
         residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit, **lag_fit, **deficit_fit,
+           **bias_fit, **lag_fit, **deficit_fit, **turn_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -510,7 +532,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
-        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit),
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit, inflation),
         range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
@@ -644,6 +666,30 @@ def _heading_calibration(turn: np.ndarray, distance: np.ndarray | None, true_tur
     if not (abs(c) <= MAX_HEADING_BIAS_PER_M and 0.5 <= k_r <= 2.0):
         return scale_only
     return float(k_r), float(c), float(np.sqrt(covariance[1, 1]))
+
+
+def _turn_inflation(logs, scales, heading_bias_per_m, lag_s, forward_deficit_per_rad, q_xy):
+    """The turns' overdispersion (see estimate_noise's ``turn_variance``) and its figures for ``fit``."""
+    per_turn, increments = [], 0
+    for log in logs:
+        u, g, _ = _odometry_windows(log, TURN_STEP_S, scales, heading_bias_per_m, lag_s, forward_deficit_per_rad)
+        if len(u) == 0:
+            continue
+        sigma = np.sqrt(q_xy * np.hypot(u[:, 0], u[:, 1]) + FastSLAMConfig.odom_var_floor)
+        z = (g[:, 0] - u[:, 0]) / sigma
+        edges = np.flatnonzero(np.diff(np.r_[0, turning(u).astype(int), 0]))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if stop - start >= TURN_MIN_INCREMENTS:
+                per_turn.append(float(z[start:stop].sum() / np.sqrt(stop - start)))
+                increments += int(stop - start)
+    if len(per_turn) < 3:
+        return 1.0, {"turn_xy_inflation_note": f"not fitted: {len(per_turn)} turns of ≥ {TURN_MIN_INCREMENTS} "
+                                                f"increments of {TURN_STEP_S:g} s"}
+    square = float(np.mean(np.square(per_turn)))
+    inflation = float(np.clip(square, 1.0, MAX_TURN_XY_INFLATION))
+    return inflation, {"turn_xy_inflation_turns": len(per_turn), "turn_xy_inflation_increments": increments,
+                       "turn_xy_inflation_mean_z_sum": float(np.mean(per_turn)),
+                       "turn_xy_inflation_measured": square}
 
 
 def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0,

@@ -40,6 +40,8 @@ class FastSLAMConfig:
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
     odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
+    odom_turn_xy_inflation: float = 1.0           # × the x/y variance of an increment in a turn (motion.py: the
+                                                  #   forward error of a turn is correlated; noise_model fits it)
     anchor_first_frame: bool = True               # 2.0: a particle with an empty map takes the mean pose (see filter)
     anchor_unmatched: bool = False                # 2.0, with anchor_first_frame: so does one that matched nothing
     # -- data association -----------------------------------------------------------------------------------
@@ -171,6 +173,8 @@ class FastSLAMConfig:
             raise ValueError("block_size must be ≥ 1 and descriptor_size ≥ 0")
         if self.observation_selection not in ("spread", "nearest"):
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
+        if not self.odom_turn_xy_inflation >= 1.0:
+            raise ValueError(f"odom_turn_xy_inflation must be ≥ 1, not {self.odom_turn_xy_inflation}")
         if not self.observation_cov_scale > 0.0:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
         if not self.merge_log_odds > 0.0:

@@ -201,6 +201,10 @@ def _register_noise(sub) -> None:
                              "distance d -> max(d - c |dtheta|, 0)) beside the translation scale, written as "
                              "[odometry] forward_deficit_per_rad and applied where the scales are. Off by default "
                              "(docs/fastslam.md, Session 16 (Q))")
+    parser.add_argument("--turn-variance", action="store_true",
+                        help="also fit how much a turn's forward error outlasts one increment (the turns' "
+                             "overdispersion), written as [odometry] turn_xy_inflation: the x/y variance of a turn's "
+                             "increments is multiplied by it. Off by default (docs/fastslam.md, Session 16 (lead))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 
@@ -291,7 +295,7 @@ def _noise(args: argparse.Namespace) -> int:
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
-                                  turn_translation=args.turn_translation,
+                                  turn_translation=args.turn_translation, turn_variance=args.turn_variance,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         estimate.model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
@@ -325,6 +329,10 @@ def _noise(args: argparse.Namespace) -> int:
               f"RMS with one translation scale, {model.fit.get('forward_deficit_displacement_rms_m', float('nan')):.4f}"
               f" m with the deficit)" if "forward_deficit_note" not in model.fit
               else f"  forward deficit: none ({model.fit['forward_deficit_note']})")
+    if args.turn_variance:
+        print(f"  x/y variance in turns: × {o.turn_xy_inflation:.2f} (over "
+              f"{model.fit.get('turn_xy_inflation_turns', 0)} turns)" if "turn_xy_inflation_note" not in model.fit
+              else f"  x/y variance in turns: × 1 ({model.fit['turn_xy_inflation_note']})")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
