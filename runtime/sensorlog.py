@@ -142,7 +142,8 @@ def _fsync_folder(folder: Path) -> None:
 
 UNUSED_AXIS_VARIANCE = 1e6   # m², rad², (m/s)², (rad/s)²: z, roll, pitch and their rates (OdometryCovariance)
 NOMINAL_SIP_PERIOD = 0.1     # s, ARCOS's default SIP cycle: the period of a log's first odometry record
-ODOMETRY_NOISE_KEYS = ("odom_xy_var_per_m", "odom_theta_var_per_rad", "odom_theta_var_per_m", "odom_var_floor")
+ODOMETRY_NOISE_KEYS = ("odom_xy_var_per_m", "odom_theta_var_per_rad", "odom_theta_var_per_m", "odom_var_floor",
+                       "odom_turn_xy_inflation")
 
 
 class OdometryCovariance:
@@ -150,7 +151,8 @@ class OdometryCovariance:
 
     The noise model is the random walk FastSLAM moves its particles with (estimation/fastslam/motion.py): an
     increment (dx, dy, dθ) between two odometry poses has variances ``xy_var_per_m``·d on x and y,
-    ``theta_var_per_rad``·|dθ| + ``theta_var_per_m``·d on θ (d its length), plus ``var_floor``. Its values are the
+    ``theta_var_per_rad``·|dθ| + ``theta_var_per_m``·d on θ (d its length), plus ``var_floor``, the x/y ones of an
+    increment in a turn multiplied by ``turn_xy_inflation`` (1 unless the noise model fitted it). Its values are the
     log's own settings (metadata ``fastslam``: what the robot's filter used), else FastSLAMConfig's defaults
     (= estimation.noise_model.P3AT_VIDERE_DEFAULT's odometry: NOT measured on a P3-AT, see its ``source``).
 
@@ -175,10 +177,10 @@ class OdometryCovariance:
     """
 
     def __init__(self, xy_var_per_m: float, theta_var_per_rad: float, theta_var_per_m: float,
-                 var_floor: float) -> None:
-        values = (xy_var_per_m, theta_var_per_rad, theta_var_per_m, var_floor)
-        if not all(math.isfinite(v) and v >= 0 for v in values):
-            raise ValueError(f"odometry noise must be finite and >= 0, not {values}")
+                 var_floor: float, turn_xy_inflation: float = 1.0) -> None:
+        values = (xy_var_per_m, theta_var_per_rad, theta_var_per_m, var_floor, turn_xy_inflation)
+        if not all(math.isfinite(v) and v >= 0 for v in values) or not turn_xy_inflation >= 1.0:
+            raise ValueError(f"odometry noise must be finite and >= 0 (the turns' inflation >= 1), not {values}")
         # the field names estimation.fastslam.motion reads
         self.noise = SimpleNamespace(**dict(zip(ODOMETRY_NOISE_KEYS, map(float, values), strict=True)))
         self._t: float | None = None
@@ -193,7 +195,8 @@ class OdometryCovariance:
         values = []
         for key in ODOMETRY_NOISE_KEYS:
             v = given.get(key)
-            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0 and (
+                key != "odom_turn_xy_inflation" or v >= 1.0)
             values.append(float(v) if ok else float(getattr(default, key)))
         return cls(*values)
 

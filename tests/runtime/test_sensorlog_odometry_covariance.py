@@ -95,3 +95,18 @@ def test_the_twist_covariance_is_the_increment_s_over_the_sip_period_and_the_def
     np.testing.assert_allclose(np.diag(moving)[PLANAR], (want + default.odom_var_floor) / dt ** 2, rtol=1e-6)
     first = _matrices(messages[0])[1]
     np.testing.assert_allclose(first[0, 0], default.odom_var_floor / NOMINAL_SIP_PERIOD ** 2, rtol=1e-9)
+
+
+def test_a_turns_inflation_in_the_settings_widens_a_tight_arcs_increments_and_a_bad_one_is_the_default():
+    from runtime.sensorlog import OdometryCovariance
+    default = FastSLAMConfig()
+    arc = np.array([0.02, 0.0, 0.1])                     # 5 rad/m: an increment of a turn (motion.turning)
+    straight = np.array([0.05, 0.0, 0.03])               # 0.6 rad/m: not one
+    for settings, factor in (({"odom_turn_xy_inflation": 5.0}, 5.0), ({"odom_turn_xy_inflation": 0.5}, 1.0),
+                             ({}, 1.0)):
+        for increment, widened in ((arc, factor), (straight, 1.0)):
+            covariance = OdometryCovariance.from_settings(settings)
+            covariance.update(0.0, np.zeros(3))
+            twist = covariance.update(0.1, increment)[1]
+            want = default.odom_xy_var_per_m * np.hypot(*increment[:2]) + default.odom_var_floor
+            np.testing.assert_allclose(twist[0, 0] * 0.1 ** 2, want * widened, rtol=1e-9)
