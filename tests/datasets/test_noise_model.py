@@ -400,7 +400,8 @@ def test_the_forward_deficit_shortens_the_chord_along_itself_to_no_less_than_zer
     assert math.hypot(out[0], out[1]) == pytest.approx(expected, abs=1e-12)
     assert out[0] * increment[1] - out[1] * increment[0] == pytest.approx(0.0, abs=1e-12)   # along the chord
     assert out[0] * increment[0] + out[1] * increment[1] >= 0.0                             # never backwards
-    np.testing.assert_array_equal(plain, [increment[0] * scale, increment[1] * scale, increment[2] + bias * distance])
+    np.testing.assert_allclose(plain, [increment[0] * scale, increment[1] * scale, increment[2] + bias * distance],
+                               rtol=1e-12, atol=1e-15)   # the same arithmetic up to rounding (order of operations)
 
 
 def test_the_forward_deficit_round_trips_is_optional_and_bounded(tmp_path):
