@@ -43,9 +43,8 @@ import struct
 import threading
 import zlib
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -179,10 +178,11 @@ class OdometryCovariance:
     def __init__(self, xy_var_per_m: float, theta_var_per_rad: float, theta_var_per_m: float,
                  var_floor: float, turn_xy_inflation: float = 1.0) -> None:
         values = (xy_var_per_m, theta_var_per_rad, theta_var_per_m, var_floor, turn_xy_inflation)
-        if not all(math.isfinite(v) and v >= 0 for v in values) or not turn_xy_inflation >= 1.0:
-            raise ValueError(f"odometry noise must be finite and >= 0 (the turns' inflation >= 1), not {values}")
-        # the field names estimation.fastslam.motion reads
-        self.noise = SimpleNamespace(**dict(zip(ODOMETRY_NOISE_KEYS, map(float, values), strict=True)))
+        if not all(math.isfinite(v) and v >= 0 for v in values):
+            raise ValueError(f"odometry noise must be finite and >= 0, not {values}")
+        # the filter's own settings with these values (FastSLAMConfig checks them too: the turns' inflation >= 1), so
+        # estimation.fastslam.motion reads here whatever it reads in the filter
+        self.noise = replace(FastSLAMConfig(), **dict(zip(ODOMETRY_NOISE_KEYS, map(float, values), strict=True)))
         self._t: float | None = None
         self._pose: np.ndarray | None = None
         self._cov = np.zeros((3, 3))
