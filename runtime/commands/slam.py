@@ -134,9 +134,10 @@ def _register_dataset(sub) -> None:
         "dataset", help="run FastSLAM on a recorded landmark data set and score it against its ground truth",
         description="Play one robot of a range-bearing landmark data set (MRCLAM: a folder of .dat or .dat.gz "
                     "files) through FastSLAM: its odometry and its landmark sightings (other robots' barcodes are "
-                    "not landmarks). Writes the most probable particle's map in the robot's frame at its first "
-                    "sighting, with metadata.true_start_pose from the ground truth (so that `p3at fuse` scores "
-                    "alignments), and prints trajectory, map and consistency scores against the ground truth.")
+                    "not landmarks), then (known-ID association) smooths the whole log from the best particle. "
+                    "Writes the map in the robot's frame at its first sighting, with metadata.true_start_pose "
+                    "from the ground truth (so that `p3at fuse` scores alignments), and prints "
+                    "trajectory, map and consistency scores against the ground truth.")
     parser.add_argument("format", choices=DATASET_FORMATS, help="data set format")
     parser.add_argument("folder", metavar="DIR", help="the data set's folder")
     parser.add_argument("--robot", type=positive_int, required=True, metavar="N", help="robot number (1-5 in MRCLAM)")
@@ -149,17 +150,21 @@ def _register_dataset(sub) -> None:
                         help="id: the barcode decides the landmark; unknown: position only, barcodes used for "
                              "scoring only (default id)")
     parser.add_argument("--noise", metavar="FILE", help="noise model (TOML, see `p3at slam noise`); default: "
-                        "estimated from this robot's own log and ground truth, and said so")
+                        "estimated from this robot's own log and ground truth with the range calibration, heading "
+                        "bias, odometry lag and turns' variance (as `p3at slam noise --range-calibration "
+                        "--heading-bias --odometry-lag --turn-variance`), and said so")
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
                              "correct it from the ground truth (inferred), or trust it unchecked (table)")
     parser.add_argument("--no-inflation", action="store_true",
                         help="take consecutive sightings as independent (default: the sensor variances are "
                              "multiplied by the noise model's variance inflation for correlated sightings)")
-    parser.add_argument("--smooth", action="store_true",
+    parser.add_argument("--smooth", action=argparse.BooleanOptionalAction, default=None,
                         help="after the filter, solve for the whole log's most probable trajectory and map together "
-                             "(full SLAM from the best particle; --association id only): the map, trajectory and "
-                             "scores are then the smoother's, the filter's beside them (docs/fastslam.md)")
+                             "(full SLAM from the best particle): the map, trajectory and scores are then the "
+                             "smoother's, the filter's beside them (docs/fastslam.md). Default: on with --association "
+                             "id, off with unknown (where it is refused: the filter's own associations make it "
+                             "confidently wrong); --no-smooth gives the filter alone")
     parser.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the filter, >= 0 (0)")
@@ -224,7 +229,7 @@ def _dataset(args: argparse.Namespace) -> int:
     from estimation.dataset_slam import run_landmark_log
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
-    from estimation.noise_model import NoiseModel, estimate_noise
+    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
     try:
         check_output_file(args.out)
@@ -233,12 +238,14 @@ def _dataset(args: argparse.Namespace) -> int:
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
         else:
-            noise = estimate_noise([log]).model
-            noise_source = "estimated from this log's own ground truth (no --noise given)"
+            noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+            noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
+                            "odometry lag and turns' variance (no --noise given)")
+        smooth = args.association == "id" if args.smooth is None else args.smooth
         config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
         run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
                                association=args.association, robot=f"robot{args.robot}", until=args.until,
-                               inflate_correlated=not args.no_inflation, smooth=args.smooth)
+                               inflate_correlated=not args.no_inflation, smooth=smooth)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)
@@ -321,7 +328,8 @@ def _noise(args: argparse.Namespace) -> int:
     if args.odometry_lag:
         print(f"  odometry lag: {o.lag_s:.2f} s (heading error per 0.25 s: "
               f"{model.fit.get('odometry_no_lag_heading_rms_rad', float('nan')):.4f} rad read as stamped, "
-              f"{model.fit.get('odometry_lag_heading_rms_rad', float('nan')):.4f} rad read {o.lag_s:.2f} s earlier)")
+              f"{model.fit.get('odometry_lag_heading_rms_rad', float('nan')):.4f} rad read {o.lag_s:.2f} s earlier)"
+              if "odometry_lag_note" not in model.fit else f"  odometry lag: none ({model.fit['odometry_lag_note']})")
     if args.turn_translation:
         se = model.fit.get("forward_deficit_per_rad_standard_error", float("nan"))
         print(f"  forward deficit: {o.forward_deficit_per_rad:.4f} m/rad ± {se:.4f} (standard error; 5 s windows' "

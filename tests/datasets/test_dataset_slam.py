@@ -74,6 +74,14 @@ def test_cli_writes_a_scored_map_and_the_noise_command_a_model_it_reads(tmp_path
     assert len(landmark_map) == scores["landmarks"] and "true_start_pose" in landmark_map.metadata
 
 
+def test_a_log_whose_turn_rate_never_varies_fits_no_odometry_lag(tmp_path, synthetic):
+    """A circle at constant speeds: every lag fits it alike, so none is fitted. The grid's minimum was rounding noise
+    (0.19 s), which read the exact odometry 4 cm off and put the default's smoothed map far outside its covariance."""
+    synthetic.write(tmp_path, seconds=60.0)
+    model = estimate_noise([read_mrclam(tmp_path, 1)], odometry_lag=True).model
+    assert model.odometry.lag_s == 0.0 and "not fitted" in model.fit["odometry_lag_note"]
+
+
 @pytest.mark.parametrize(("args", "complaint"), [
     (["--robot", "3"], "neither Robot3_Odometry.dat nor"),
     (["--robot", "1", "--noise", "missing.toml"], "no such noise-model file"),
