@@ -6,7 +6,7 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
-        [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--smooth]
+        [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--smooth] [--defaults]
         [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
@@ -35,6 +35,8 @@ docs/fastslam.md "Session 16 (Q)"; a FILE is used as it is).
 the odometry's variance in turns (lead)"; a FILE is used as it is).
 ``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
 docs/fastslam.md "Session 15"); the filter's own figures stay under ``filter_``.
+``--defaults``: what `p3at slam dataset` does without options since session 17: the range calibration, heading
+bias, odometry lag and turns' variance fitted (``DATASET_CALIBRATIONS``) and the known-ID runs smoothed.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -56,7 +58,7 @@ from benchmarks import evo_metrics  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.noise_model import NoiseModel, estimate_noise  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "evo-al", 3),
@@ -100,10 +102,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--turn-variance", action="store_true", help="fit the inflation of the x/y variance of a "
                         "turn's increments (a turn's forward error persists through it)")
     parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
+    parser.add_argument("--defaults", action="store_true", help="what `p3at slam dataset` does without options: "
+                        "the four calibrations of DATASET_CALIBRATIONS, and the known-ID runs smoothed")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.defaults:
+        vars(args).update(DATASET_CALIBRATIONS, smooth=True)
     overrides = config_overrides(args.set)
     robots = [int(r) for r in args.robots.split(",")]
     modes = args.association.split(",")
