@@ -238,7 +238,10 @@ def _dataset(args: argparse.Namespace) -> int:
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
         else:
-            noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+            try:
+                noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+            except ValueError as e:
+                raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
             noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
                             "odometry lag and turns' variance (no --noise given)")
         smooth = args.association == "id" if args.smooth is None else args.smooth

@@ -85,6 +85,7 @@ def test_a_log_whose_turn_rate_never_varies_fits_no_odometry_lag(tmp_path, synth
 @pytest.mark.parametrize(("args", "complaint"), [
     (["--robot", "3"], "neither Robot3_Odometry.dat nor"),
     (["--robot", "1", "--noise", "missing.toml"], "no such noise-model file"),
+    (["--robot", "1"], "fitting this log's own noise model: only 1 odometry windows"),   # 10 s: give --noise
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, synthetic, args, complaint):
     synthetic.write(tmp_path, seconds=10.0)
