@@ -19,7 +19,9 @@ they stand for) and landmark errors are scored by ``simulate`` as for the synthe
 
 Prints per robot: ATE and final position error of FastSLAM beside dead reckoning, map size and duplicates,
 landmark error, CPU time per update; with ``--json`` also the best particle's matches that joined two true points
-(``slam_consistency.association_scores``), overall and by the range ratio to the landmark's first sighting.
+(``slam_consistency.association_scores``), overall and by the range ratio to the landmark's first sighting, and
+the exported map's merges of coincident landmarks (``export_merges``; ``export_merges_wrong``: the true points behind
+the two first sightings > 10 cm apart; ``FastSLAMConfig.export_merge_coincident``).
 ``--diagnose`` adds: observations per frame, the share that re-associate to an existing landmark in the best
 particle, the observations' 3-D NEES against their covariances, and the descriptor distance between
 observations of the same true point at different viewing distances.
@@ -336,6 +338,9 @@ def run_robot(world, robot: str, *, seconds: float, seed: int, config: FastSLAMC
         "pose_nees_drift_within_bound": m["pose_nees_drift_within_chi2_95"],
         "stats": vars(slam.stats).copy() if hasattr(slam, "stats") else {},
         **merge_scores(getattr(slam, "merged_pairs", []), observer.points, slam.reports, observer.indices),
+        **{f"export_{k}": v for k, v in merge_scores(
+            [(a, b, False) for a, b in result.map.metadata.get("merged_at_export", [])], observer.points,
+            slam.reports, observer.indices).items() if "covisibility" not in k},
         **association_scores(slam.reports, observer.indices, observer.points, slam.ranges),
         "frontend_ms_mean": 1e3 * observer.frontend_seconds / max(1, m["frames"]),
         "observations_per_frame": float(np.mean([r.n_observations for r in slam.reports]))}

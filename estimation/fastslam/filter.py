@@ -73,6 +73,7 @@ from .config import FastSLAMConfig
 from .drift import DriftTracker
 from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
 from .export_drift import ExportLeverDriftTracker
+from .export_merge import merge_coincident
 from .lever_drift import LeverDriftTracker, correlated_mean_factor, with_empirical_position
 from .linalg import (
     joseph_update,
@@ -1304,13 +1305,13 @@ class FastSLAM:
         order = np.argsort(lids)
         g, lids = g[order], lids[order]
         means = store.flat_mean[g].copy()
-        covs = sym_matrices(store.flat_cov[g].T)
+        conditional = covs = sym_matrices(store.flat_cov[g].T)
         meta = dict(metadata or {})
         if covariance.startswith("mixture"):
             covs = self.mixture_covariances(lids, means)
         if self.config.observation_correlation > 0:   # successive observations' errors are correlated
-            covs = covs * correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None,
-                                                                                                           None]
+            factor = correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None, None]
+            covs, conditional = covs * factor, conditional * factor
         drift, origins = None, None
         if covariance.endswith("drift"):   # the drift is also kept apart: which landmarks share it (landmark_map.py)
             covs = covs + self.drift.landmark_covariances(lids)
@@ -1319,10 +1320,13 @@ class FastSLAM:
         meta["landmark_covariance"] = covariance
         if self._lid_of_external:
             meta["external_ids"] = self.external_ids(lids).tolist()
-        return LandmarkMap(
+        landmark_map = LandmarkMap(
             means, covs, self._descriptors[lids].copy(), lids,
             store.flat_count[g].copy(), robot=robot, frame=frame, trajectory=self.trajectory(particle),
             metadata=meta, drift_covariances=drift, drift_origins=origins)
+        if self.config.export_merge_coincident and self.config.association == "unknown":
+            landmark_map = merge_coincident(landmark_map, conditional)
+        return landmark_map
 
     def mixture_covariances(self, lids: np.ndarray, about: np.ndarray) -> np.ndarray:
         """(L, 3, 3) covariances of landmarks ``lids`` (L,) over the weighted particle cloud, about the points
