@@ -1305,13 +1305,13 @@ class FastSLAM:
         order = np.argsort(lids)
         g, lids = g[order], lids[order]
         means = store.flat_mean[g].copy()
-        conditional = covs = sym_matrices(store.flat_cov[g].T)
+        covs = sym_matrices(store.flat_cov[g].T)
         meta = dict(metadata or {})
         if covariance.startswith("mixture"):
             covs = self.mixture_covariances(lids, means)
         if self.config.observation_correlation > 0:   # successive observations' errors are correlated
-            factor = correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None, None]
-            covs, conditional = covs * factor, conditional * factor
+            covs = covs * correlated_mean_factor(store.flat_count[g], self.config.observation_correlation)[:, None,
+                                                                                                           None]
         drift, origins = None, None
         if covariance.endswith("drift"):   # the drift is also kept apart: which landmarks share it (landmark_map.py)
             covs = covs + self.drift.landmark_covariances(lids)
@@ -1320,13 +1320,10 @@ class FastSLAM:
         meta["landmark_covariance"] = covariance
         if self._lid_of_external:
             meta["external_ids"] = self.external_ids(lids).tolist()
-        landmark_map = LandmarkMap(
+        return LandmarkMap(
             means, covs, self._descriptors[lids].copy(), lids,
             store.flat_count[g].copy(), robot=robot, frame=frame, trajectory=self.trajectory(particle),
             metadata=meta, drift_covariances=drift, drift_origins=origins)
-        if self.config.export_merge_coincident and self.config.association == "unknown":
-            landmark_map = merge_coincident(landmark_map, conditional)
-        return landmark_map
 
     def mixture_covariances(self, lids: np.ndarray, about: np.ndarray) -> np.ndarray:
         """(L, 3, 3) covariances of landmarks ``lids`` (L,) over the weighted particle cloud, about the points
@@ -1359,11 +1356,17 @@ class FastSLAM:
     def best_map(self, robot: str = "robot", metadata: dict | None = None, min_count: int | None = None,
                  frame: str = "start", covariance: str = "mixture+drift") -> LandmarkMap:
         """The most probable particle's map (landmarks seen ≥ ``min_count``, default ``confirm_count``), with
-        the landmarks' covariances over the particle cloud by default (``covariance``, see :meth:`particle_map`)."""
+        the landmarks' covariances over the particle cloud by default (``covariance``, see :meth:`particle_map`).
+        With ``export_merge_coincident`` ("unknown" association), landmarks that coincide under the particle's own
+        covariances are merged (export_merge.py); a particle's own map (:meth:`particle_map`) is never merged."""
         min_count = self.config.confirm_count if min_count is None else min_count
         meta = {"fastslam": self.config.to_dict(), "self_check": self.self_check.verdict()}
         meta.update(metadata or {})
-        return self.particle_map(self._best, min_count, robot, frame, meta, covariance)
+        exported = self.particle_map(self._best, min_count, robot, frame, meta, covariance)
+        if self.config.export_merge_coincident and self.config.association == "unknown":
+            conditional = self.particle_map(self._best, min_count, robot, frame, covariance="particle").covariances
+            exported = merge_coincident(exported, conditional)
+        return exported
 
 
 def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
