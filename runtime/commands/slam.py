@@ -265,7 +265,7 @@ def _dataset(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
-                   noise=noise_source, notes=list(log.notes), recording=args.rerun)
+                   noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=_map_warnings(run.metrics))
     if args.json:
         print(json.dumps(metrics))
         return 0
@@ -290,8 +290,30 @@ def _dataset(args: argparse.Namespace) -> int:
           f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
     print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
           f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
+    for warning in m["warnings"]:
+        print(f"  WARNING: {warning}")
     print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
     return 0
+
+
+NEES_WITHIN_GOAL = 0.9        # issue 13: at least 90 % of the landmarks within the χ² 95 % bound
+DUPLICATE_GOAL = 0.05         # issue 13: duplicates under 5 % of a map
+
+
+def _map_warnings(metrics: dict) -> list[str]:
+    """What the ground truth says about the written map that its user must not miss: covariances that do not hold
+    its errors (a map confidently wrong) and duplicates (one post mapped more than once)."""
+    warnings = []
+    within = metrics.get("landmark_nees_within_bound", float("nan"))
+    if within < NEES_WITHIN_GOAL:
+        warnings.append(f"only {100 * within:.0f} % of the landmarks are within their covariance's χ²₂ 95 % bound "
+                        f"(the goal is {100 * NEES_WITHIN_GOAL:.0f} %): the map claims more certainty than "
+                        "it has; do not fuse or navigate on its covariances")
+    duplicates = metrics.get("duplicate_fraction", 0.0)
+    if duplicates > DUPLICATE_GOAL:
+        warnings.append(f"{100 * duplicates:.0f} % of the landmarks are duplicates of another (true landmarks mapped "
+                        "more than once)")
+    return warnings
 
 
 def _noise(args: argparse.Namespace) -> int:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import gzip
 import io
 import json
 
@@ -80,6 +81,29 @@ def test_a_log_whose_turn_rate_never_varies_fits_no_odometry_lag(tmp_path, synth
     synthetic.write(tmp_path, seconds=60.0)
     model = estimate_noise([read_mrclam(tmp_path, 1)], odometry_lag=True).model
     assert model.odometry.lag_s == 0.0 and "not fitted" in model.fit["odometry_lag_note"]
+
+
+def test_cli_warns_when_the_truth_says_the_map_is_confidently_wrong_or_duplicated(tmp_path, synthetic):
+    """A map whose landmarks sit 0.5 m from the truth's, with covariances of a few cm: the text and the JSON say
+    that its covariances do not hold its errors; a map that agrees with the truth gets no warning."""
+    synthetic.write(tmp_path / "data", seconds=40.0)
+    noise = tmp_path / "noise.toml"
+    _small_noise(synthetic).save(noise)
+    args = ("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--out", str(tmp_path / "m.npz"),
+            "--particles", "20", "--noise", str(noise), "--barcodes", "table")
+    status, out, err = _cli(*args, "--json")
+    assert status == 0 and json.loads(out)["warnings"] == [], err
+    table = tmp_path / "data" / "Landmark_Groundtruth.dat.gz"
+    with gzip.open(table, "rt") as f:
+        rows = [line if line.startswith("#") else " ".join(
+            str(float(v) + (0.5 if k in (1, 2) else 0.0)) for k, v in enumerate(line.split())) + "\n" for line in f]
+    with gzip.open(table, "wt") as f:
+        f.writelines(rows)
+    status, out, err = _cli(*args)
+    assert status == 0, err
+    warnings = [line for line in out.splitlines() if line.strip().startswith("WARNING:")]
+    assert len(warnings) == 1 and "within their covariance's χ²₂ 95 % bound" in warnings[0]
+    assert json.loads(_cli(*args, "--json")[1])["warnings"][0] == warnings[0].split("WARNING: ", 1)[1]
 
 
 @pytest.mark.parametrize(("args", "complaint"), [
