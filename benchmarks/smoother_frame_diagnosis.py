@@ -35,7 +35,8 @@ calibrated and default), its smoothing problem captured, then:
 ``--heading-loss student-t|mixture`` (``--heading-dof``, ``--stall-probability``, ``--stall-sigma``) solves every
 variant with that heavy-tailed odometry heading loss (``estimation.landmark_smoother.HeadingLoss``; docs/fastslam.md
 "Session 16 (P)") and prints the Gaussian default's figures beside it.
-``--cache DIR`` keeps each robot's captured problem (a pickle of arrays) so later runs skip the filter.
+``--cache DIR`` keeps each robot's captured problem (an .npz of its arrays, the pipeline's figures as JSON; read
+without pickle) so later runs skip the filter.
 """
 from __future__ import annotations
 
@@ -45,8 +46,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import io  # noqa: E402
 import json  # noqa: E402
-import pickle  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -56,6 +57,7 @@ import estimation.dataset_smoothing as dataset_smoothing  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.fileio import atomic_write_bytes  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, pose_nees  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
@@ -392,18 +394,37 @@ def diagnose(cap: Captured, early_s: float, smooth_options: dict) -> dict:
     return out
 
 
+def save_captured(cap: Captured, path: Path) -> None:
+    """Write ``cap`` as an .npz (the problem's arrays under ``problem.``, the pipeline's figures as JSON text)."""
+    arrays = {f"problem.{f.name}": getattr(cap.problem, f.name) for f in dataclasses.fields(cap.problem)}
+    arrays.update({f.name: getattr(cap, f.name) for f in dataclasses.fields(cap)
+                   if f.name not in ("problem", "pipeline_metrics")})
+    arrays["pipeline_metrics"] = np.array(json.dumps(cap.pipeline_metrics))
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_captured(path: Path) -> Captured:
+    """Read what :func:`save_captured` wrote (no pickle: object arrays are refused)."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {name: z[name] for name in z.files}
+    problem = LandmarkLogProblem(**{k.removeprefix("problem."): v for k, v in arrays.items()
+                                    if k.startswith("problem.")})
+    rest = {k: v for k, v in arrays.items() if not k.startswith("problem.") and k != "pipeline_metrics"}
+    return Captured(problem=problem, pipeline_metrics=json.loads(str(arrays["pipeline_metrics"])), **rest)
+
+
 def load(robot: int, noise_kind: str, data: Path, cache: Path | None) -> Captured:
-    path = cache / f"robot{robot}-{noise_kind}.pkl" if cache else None
+    path = cache / f"robot{robot}-{noise_kind}.npz" if cache else None
     if path and path.exists():
-        with path.open("rb") as f:
-            return Captured(**pickle.load(f))
+        return load_captured(path)
     log = read_mrclam(data, robot)
     noise = estimate_noise([log], **NOISE_FITS[noise_kind]).model
     cap = capture(log, noise)
     if path:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("wb") as f:
-            pickle.dump({field.name: getattr(cap, field.name) for field in dataclasses.fields(cap)}, f)
+        save_captured(cap, path)
     return cap
 
 

@@ -169,13 +169,10 @@ def test_mrclam_robot_1s_frame_fails_on_its_translation_not_its_rotation():
 
 
 def test_a_captured_problem_round_trips_through_the_cache(tmp_path):
-    import pickle
+    from benchmarks.smoother_frame_diagnosis import load, save_captured
 
     cap = simulated(7)
-    path = tmp_path / "robot1-calibrated.pkl"
-    with path.open("wb") as f:
-        pickle.dump({field.name: getattr(cap, field.name) for field in dataclasses.fields(cap)}, f)
-    from benchmarks.smoother_frame_diagnosis import load
+    save_captured(cap, tmp_path / "robot1-calibrated.npz")
 
     again = load(1, "calibrated", DATA, tmp_path)
     np.testing.assert_array_equal(again.problem.increments, cap.problem.increments)
