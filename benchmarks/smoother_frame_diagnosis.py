@@ -57,6 +57,7 @@ import estimation.dataset_smoothing as dataset_smoothing  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.fastslam.motion import turn_spans  # noqa: E402
 from estimation.fileio import atomic_write_bytes  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, pose_nees  # noqa: E402
@@ -313,9 +314,7 @@ def turn_errors(cap: Captured, min_increments: int = 4) -> dict:
     centred = z - z[turning].mean() if turning.any() else z
     a, b = centred[:-1][pair], centred[1:][pair]
     lag1 = float(np.sum(a * b) / np.sqrt(np.sum(a ** 2) * np.sum(b ** 2))) if pair.sum() > 2 else float("nan")
-    edges = np.flatnonzero(np.diff(np.r_[0, turning.astype(int), 0]))
-    runs = [(start, stop) for start, stop in zip(edges[::2], edges[1::2], strict=True)
-            if stop - start >= min_increments]
+    runs = turn_spans(turning, min_increments)
     per_turn = np.array([z[start:stop].sum() / np.sqrt(stop - start) for start, stop in runs])
     return {"increments": int(turning.sum()), "mean_z": float(z[turning].mean()) if turning.any() else float("nan"),
             "lag1_correlation": lag1, "turns": len(runs),

@@ -62,7 +62,7 @@ from scipy.optimize import minimize_scalar, nnls
 from .datasets import RangeBearingLog
 from .errors import EstimationError
 from .fastslam.config import FastSLAMConfig
-from .fastslam.motion import turning
+from .fastslam.motion import increment_variance, turn_spans, turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 from .geometry import between, wrap_angle
 
@@ -688,13 +688,12 @@ def _turn_inflation(logs, scales, heading_bias_per_m, lag_s, forward_deficit_per
         u, g, _ = _odometry_windows(log, TURN_STEP_S, scales, heading_bias_per_m, lag_s, forward_deficit_per_rad)
         if len(u) == 0:
             continue
-        sigma = np.sqrt(q_xy * np.hypot(u[:, 0], u[:, 1]) + FastSLAMConfig.odom_var_floor)
+        # σ of each increment's forward travel under the fitted random walk, as the filter moves particles by it
+        sigma = np.sqrt(increment_variance(u, replace(FastSLAMConfig(), odom_xy_var_per_m=q_xy))[:, 0])
         z = (g[:, 0] - u[:, 0]) / sigma
-        edges = np.flatnonzero(np.diff(np.r_[0, turning(u).astype(int), 0]))
-        for start, stop in zip(edges[::2], edges[1::2], strict=True):
-            if stop - start >= TURN_MIN_INCREMENTS:
-                per_turn.append(float(z[start:stop].sum() / np.sqrt(stop - start)))
-                increments += int(stop - start)
+        for start, stop in turn_spans(turning(u), TURN_MIN_INCREMENTS):
+            per_turn.append(float(z[start:stop].sum() / np.sqrt(stop - start)))
+            increments += stop - start
     if len(per_turn) < 3:
         return 1.0, {"turn_xy_inflation_note": f"not fitted: {len(per_turn)} turns of ≥ {TURN_MIN_INCREMENTS} "
                                                 f"increments of {TURN_STEP_S:g} s"}

@@ -17,6 +17,12 @@ def turning(delta: np.ndarray) -> np.ndarray:
     return (trans > TURN_MIN_TRAVEL_M) & (np.abs(delta[..., 2]) >= TURN_CURVATURE_RAD_PER_M * trans)
 
 
+def turn_spans(mask: np.ndarray, min_increments: int) -> list[tuple[int, int]]:
+    """(start, stop) of each run of ≥ ``min_increments`` consecutive True in ``mask`` (T,): the whole turns."""
+    edges = np.flatnonzero(np.diff(np.r_[0, np.asarray(mask, int), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= min_increments]
+
+
 def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
     """Variances (..., 3) of (dx, dy, dθ) for odometry increments ``delta`` (..., 3) (random-walk model).
 

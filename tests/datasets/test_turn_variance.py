@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam import FastSLAMConfig
-from estimation.fastslam.motion import increment_variance, turning
+from estimation.fastslam.motion import increment_variance, turn_spans, turning
 from estimation.geometry import wrap_angle
 from estimation.noise_model import (
     NoiseModel,
@@ -115,3 +115,17 @@ def test_real_dataset2_turns_are_overdispersed(mrclam_dir):
     # persists through it
     assert 3.0 < model.odometry.turn_xy_inflation < 10.0
     assert model.fit["turn_xy_inflation_mean_z_sum"] < -1.0     # the robot covers less ground in turns than commanded
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.booleans(), max_size=60), st.integers(1, 6))
+def test_turn_spans_are_exactly_the_long_enough_runs_of_a_mask(mask, min_increments):
+    spans = turn_spans(np.array(mask, bool), min_increments)
+    covered = np.zeros(len(mask), bool)
+    for start, stop in spans:
+        assert stop - start >= min_increments and all(mask[start:stop])
+        assert (start == 0 or not mask[start - 1]) and (stop == len(mask) or not mask[stop])   # maximal runs
+        covered[start:stop] = True
+    # every run of True not reported is shorter than min_increments
+    rest = "".join("1" if m and not c else "0" for m, c in zip(mask, covered, strict=True))
+    assert all(len(run) < min_increments for run in rest.split("0"))
