@@ -10,6 +10,8 @@ import numpy as np
 from .geometry import between, compose, wrap_angle
 
 CHI2_95 = {1: 3.841, 2: 5.991, 3: 7.815}   # χ² 95 % quantiles by degrees of freedom
+NEES_WITHIN_GOAL = 0.9     # issue 13: at least 90 % of a map's landmarks within the χ² 95 % NEES bound
+DUPLICATE_GOAL = 0.05      # issue 13: duplicates under 5 % of a map
 
 
 def ate(estimate: np.ndarray, truth: np.ndarray) -> float:

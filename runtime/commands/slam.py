@@ -296,13 +296,11 @@ def _dataset(args: argparse.Namespace) -> int:
     return 0
 
 
-NEES_WITHIN_GOAL = 0.9        # issue 13: at least 90 % of the landmarks within the χ² 95 % bound
-DUPLICATE_GOAL = 0.05         # issue 13: duplicates under 5 % of a map
-
-
 def _map_warnings(metrics: dict) -> list[str]:
     """What the ground truth says about the written map that its user must not miss: covariances that do not hold
     its errors (a map confidently wrong) and duplicates (one post mapped more than once)."""
+    from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL
+
     warnings = []
     within = metrics.get("landmark_nees_within_bound", float("nan"))
     if within < NEES_WITHIN_GOAL:
@@ -357,7 +355,8 @@ def _noise(args: argparse.Namespace) -> int:
               if "odometry_lag_note" not in model.fit else f"  odometry lag: none ({model.fit['odometry_lag_note']})")
     if args.turn_translation:
         se = model.fit.get("forward_deficit_per_rad_standard_error", float("nan"))
-        print(f"  forward deficit: {o.forward_deficit_per_rad:.4f} m/rad ± {se:.4f} (standard error; 5 s windows' "
+        print(f"  forward deficit: {o.forward_deficit_per_rad:.4f} m/rad ± {se:.4f} (standard error; {args.window:g} s "
+              "windows' "
               f"displacement error {model.fit.get('forward_deficit_none_displacement_rms_m', float('nan')):.4f} m "
               f"RMS with one translation scale, {model.fit.get('forward_deficit_displacement_rms_m', float('nan')):.4f}"
               f" m with the deficit)" if "forward_deficit_note" not in model.fit
