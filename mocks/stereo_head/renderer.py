@@ -8,6 +8,11 @@ its real orientation (pitch/roll, the stereo rotation) and lens distortion. Text
 ``cv2.remap`` into the baked atlas (``textures.py``), so a 640x480 pair costs two raycasts of ~700 rays and
 four remaps.
 
+Every remap takes fixed-point maps (``cv2.convertMaps``: 1/32 px), never float maps: OpenCV 4.x quantizes
+float maps to 1/32 px inside ``remap`` while 5.x interpolates them exactly, so float maps made the simulated
+hardware, and every figure measured on it, depend on the OpenCV build. Fixed-point maps give the same
+pixels in both.
+
 The output is radiance (albedo, float32 0..1); the virtual head's sensor model turns it into digital
 numbers with exposure, gain and noise. ``true_points`` gives the exact 3-D point behind any pixel.
 """
@@ -44,6 +49,12 @@ class _CameraSetup:
     fixed_maps: tuple[np.ndarray, np.ndarray]  # the same as cv2's fixed-point maps (faster remap)
     rays_x: np.ndarray  # (W',) level-frame x/z of each ideal column
     rays_y: np.ndarray  # (H',) level-frame y/z of each ideal row
+
+
+def _remap(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, border: int) -> np.ndarray:
+    """Bilinear ``cv2.remap`` of ``image`` through float32 maps, quantized to OpenCV's fixed point first."""
+    fixed = cv2.convertMaps(map_x, map_y, cv2.CV_16SC2)
+    return cv2.remap(image, *fixed, cv2.INTER_LINEAR, borderMode=border)
 
 
 def _rot_z(angle: float) -> np.ndarray:
@@ -155,7 +166,7 @@ class StereoRenderer:
         map_x = np.empty((len(yl), len(xl)), f32)
         map_x[:] = col_x
         map_y = col_y[None, :] + yl[:, None] * col_dy[None, :]
-        image = cv2.remap(atlas.image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        image = _remap(atlas.image, map_x, map_y, cv2.BORDER_REPLICATE)
         # Floor (rows below the horizon) and ceiling (above): where the row meets the plane before the wall.
         texels_per_m = f32(atlas.tile_pixels / FLOOR_TILE_M)
         step_x = (secant * cos_a).astype(f32)[None, :] * texels_per_m
@@ -169,9 +180,10 @@ class StereoRenderer:
             if len(band) != rows.stop - rows.start or drop == 0:
                 continue
             dist = (f32(drop) / band)[:, None]  # optical depth where each row meets the plane
-            tx = f32(centre[0] * texels_per_m) + dist * step_x
-            ty = f32(centre[1] * texels_per_m) + dist * step_y
-            plane = cv2.remap(tile, tx, ty, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+            # Wrapped into the tile first: fixed-point maps hold 16-bit integer parts.
+            tx = np.mod(f32(centre[0] * texels_per_m) + dist * step_x, f32(tile.shape[1]))
+            ty = np.mod(f32(centre[1] * texels_per_m) + dist * step_y, f32(tile.shape[0]))
+            plane = _remap(tile, tx, ty, cv2.BORDER_WRAP)
             nearer = (dist < depth32) & (dist > 0)
             image[rows] = np.where(nearer, plane, image[rows])
         return image
