@@ -189,15 +189,21 @@ class OdometryCovariance:
 
     @classmethod
     def from_settings(cls, fastslam: Mapping | None) -> OdometryCovariance:
-        """From a log's ``fastslam`` settings (FastSLAMConfig.to_dict); a missing or unusable value: the default."""
+        """From a log's ``fastslam`` settings (FastSLAMConfig.to_dict); a missing value (or None): the default.
+
+        A value given is checked where the filter's are, not here: the constructor's (finite, >= 0) and
+        FastSLAMConfig's own (the turns' inflation >= 1), so a value the filter would refuse is refused here with
+        the same ``ValueError``, never replaced by the default."""
         default = FastSLAMConfig()
         given = fastslam if isinstance(fastslam, Mapping) else {}
         values = []
         for key in ODOMETRY_NOISE_KEYS:
             v = given.get(key)
-            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0 and (
-                key != "odom_turn_xy_inflation" or v >= 1.0)
-            values.append(float(v) if ok else float(getattr(default, key)))
+            if v is None:
+                v = getattr(default, key)
+            elif isinstance(v, bool) or not isinstance(v, int | float):
+                raise ValueError(f"{key} must be a number, not {v!r}")
+            values.append(float(v))
         return cls(*values)
 
     def update(self, t: float, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

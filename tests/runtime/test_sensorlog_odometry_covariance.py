@@ -97,16 +97,37 @@ def test_the_twist_covariance_is_the_increment_s_over_the_sip_period_and_the_def
     np.testing.assert_allclose(first[0, 0], default.odom_var_floor / NOMINAL_SIP_PERIOD ** 2, rtol=1e-9)
 
 
-def test_a_turns_inflation_in_the_settings_widens_a_tight_arcs_increments_and_a_bad_one_is_the_default():
+def test_a_turns_inflation_in_the_settings_widens_a_tight_arcs_increments_and_a_missing_one_is_the_default():
     from runtime.sensorlog import OdometryCovariance
     default = FastSLAMConfig()
     arc = np.array([0.02, 0.0, 0.1])                     # 5 rad/m: an increment of a turn (motion.turning)
     straight = np.array([0.05, 0.0, 0.03])               # 0.6 rad/m: not one
-    for settings, factor in (({"odom_turn_xy_inflation": 5.0}, 5.0), ({"odom_turn_xy_inflation": 0.5}, 1.0),
-                             ({}, 1.0)):
+    for settings, factor in (({"odom_turn_xy_inflation": 5.0}, 5.0), ({"odom_turn_xy_inflation": 1}, 1.0),
+                             ({"odom_turn_xy_inflation": None}, 1.0), ({}, 1.0), (None, 1.0)):
         for increment, widened in ((arc, factor), (straight, 1.0)):
             covariance = OdometryCovariance.from_settings(settings)
             covariance.update(0.0, np.zeros(3))
             twist = covariance.update(0.1, increment)[1]
             want = default.odom_xy_var_per_m * np.hypot(*increment[:2]) + default.odom_var_floor
             np.testing.assert_allclose(twist[0, 0] * 0.1 ** 2, want * widened, rtol=1e-9)
+
+
+@pytest.mark.parametrize("inflation", [0.5, 0.0, 0.999])
+def test_a_turns_inflation_the_filter_refuses_is_refused_with_the_filter_s_error(tmp_path, inflation):
+    """One rule (FastSLAMConfig's: the turns' inflation >= 1): the sensor log's settings give its error, not the
+    default in silence."""
+    with pytest.raises(ValueError) as by_the_config:
+        FastSLAMConfig(odom_turn_xy_inflation=inflation)
+    with pytest.raises(ValueError) as by_the_log:
+        SensorLogWriter(tmp_path / "robot1-log", {"robot": "robot1", "fastslam": {
+            **NOISE, "odom_turn_xy_inflation": inflation}})
+    assert str(by_the_log.value) == str(by_the_config.value)
+    assert "odom_turn_xy_inflation must be ≥ 1" in str(by_the_log.value)
+
+
+@pytest.mark.parametrize(("key", "value"), [("odom_xy_var_per_m", -1e-4), ("odom_var_floor", float("nan")),
+                                            ("odom_theta_var_per_rad", "0.01"), ("odom_turn_xy_inflation", True)])
+def test_any_other_bad_odometry_noise_in_the_settings_is_an_error_too(key, value):
+    from runtime.sensorlog import OdometryCovariance
+    with pytest.raises(ValueError, match="must be"):
+        OdometryCovariance.from_settings({**NOISE, key: value})
