@@ -57,7 +57,7 @@ import estimation.dataset_smoothing as dataset_smoothing  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.fastslam.motion import turn_spans  # noqa: E402
+from estimation.fastslam.motion import turn_spans, turning  # noqa: E402
 from estimation.fileio import atomic_write_bytes  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, pose_nees  # noqa: E402
@@ -275,11 +275,6 @@ def self_calibrated(cap: Captured, smooth_options: dict, passes: int = 3):
     return solution, ratios
 
 
-def _turning(increments):
-    """Increments of a turn: ≥ 2 rad/m while moving forward (> 5 mm)."""
-    return (_curvature(increments) >= 2.0) & (np.abs(increments[:, 0]) > 0.005)
-
-
 def _curvature(increments):
     return np.abs(increments[:, 2]) / np.maximum(np.abs(increments[:, 0]), 1e-3)
 
@@ -303,20 +298,21 @@ def curvature_ratios(cap: Captured) -> list[dict]:
 
 
 def turn_errors(cap: Captured, min_increments: int = 4) -> dict:
-    """The odometry's forward error through whole turns (runs of ≥ ``min_increments`` consecutive increments of
-    ≥ 2 rad/m, gaps < 1 s): z = (true − odometry) forward travel / σ per increment; the random walk says each turn's
-    Σz/√n is a unit normal. Mean z, its lag-1 correlation about the mean, and Σz/√n's rms and mean over the turns."""
+    """The odometry's forward error through whole turns (runs of ≥ ``min_increments`` consecutive increments of a
+    turn, ``motion.turning``: ≥ 2 rad/m over > 5 mm, as the filter's inflation reads them; gaps < 1 s):
+    z = (true − odometry) forward travel / σ per increment; the random walk says each turn's Σz/√n is a unit
+    normal. Mean z, its lag-1 correlation about the mean, and Σz/√n's rms and mean over the turns."""
     p = cap.problem
     true_increments = between(cap.true_poses[:-1], cap.true_poses[1:])
     z = (true_increments[:, 0] - p.increments[:, 0]) / np.sqrt(p.increment_variances[:, 0])
-    turning = _turning(p.increments) & (np.diff(cap.times) < 1.0)
-    pair = turning[:-1] & turning[1:]
-    centred = z - z[turning].mean() if turning.any() else z
+    in_turn = turning(p.increments) & (np.diff(cap.times) < 1.0)
+    pair = in_turn[:-1] & in_turn[1:]
+    centred = z - z[in_turn].mean() if in_turn.any() else z
     a, b = centred[:-1][pair], centred[1:][pair]
     lag1 = float(np.sum(a * b) / np.sqrt(np.sum(a ** 2) * np.sum(b ** 2))) if pair.sum() > 2 else float("nan")
-    runs = turn_spans(turning, min_increments)
+    runs = turn_spans(in_turn, min_increments)
     per_turn = np.array([z[start:stop].sum() / np.sqrt(stop - start) for start, stop in runs])
-    return {"increments": int(turning.sum()), "mean_z": float(z[turning].mean()) if turning.any() else float("nan"),
+    return {"increments": int(in_turn.sum()), "mean_z": float(z[in_turn].mean()) if in_turn.any() else float("nan"),
             "lag1_correlation": lag1, "turns": len(runs),
             "turn_sum_rms": float(np.sqrt(np.mean(per_turn ** 2))) if len(runs) else float("nan"),
             "turn_sum_mean": float(np.mean(per_turn)) if len(runs) else float("nan")}
@@ -382,7 +378,7 @@ def diagnose(cap: Captured, early_s: float, smooth_options: dict) -> dict:
     turns = out["turns"]
     factor = turns["turn_sum_rms"] ** 2 if np.isfinite(turns["turn_sum_rms"]) else 1.0
     variances = cap.problem.increment_variances.copy()
-    variances[_turning(cap.problem.increments), :2] *= factor
+    variances[turning(cap.problem.increments), :2] *= factor
     solution = smooth(_with(cap.problem, variances=variances), cap.initial_poses, cap.initial_landmarks,
                       **smooth_options)
     out["oracles"][f"turning x/y variance ×{factor:.1f} (the turns' Σz/√n rms²)"] = dict(
