@@ -295,7 +295,8 @@ class OnboardStats:
     frames_without_odometry: int = 0
     odometry_samples: int = 0
     snapshots: int = 0
-    map_landmarks: int = 0           # in the last snapshot (confirmed landmarks of the best particle)
+    map_landmarks: int = 0           # in the last snapshot: the exported map (the best particle's confirmed
+    #                                  landmarks, coincident ones merged: FastSLAM.best_map), as saved
     camera_errors: int = 0
     stage_seconds: dict[str, float] = field(default_factory=dict)
 
@@ -609,6 +610,9 @@ class Onboard:
             self.exchange.publish(self.robot, snapshot, stamp=t)
         if self.logger is not None:
             self.logger.log_map(self.robot, t, snapshot)
+            # the count the progress line, the fleet status and the summary give (the exported map: confirmed,
+            # coincident landmarks merged), beside the per-frame counts of the filter's best particle
+            self.logger.log_scalars(self.robot, t, {"landmarks/map": len(snapshot)})
         return snapshot
 
     def _report(self, frame: CameraFrame, result: StepResult) -> None:

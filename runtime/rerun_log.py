@@ -226,8 +226,10 @@ MAP_BACKGROUND = (24, 24, 28)
 SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "ess": ("ESS (effective particles)", (230, 190, 60)),
     "landmarks/all": ("landmarks (all, best particle)", (150, 150, 150)),
-    "landmarks/confirmed": ("landmarks (confirmed, best particle)", (70, 180, 90)),
+    "landmarks/confirmed": ("landmarks (confirmed, best particle, before the export's merge)", (70, 180, 90)),
     "landmarks/provisional": ("landmarks (provisional, best particle)", (230, 140, 50)),
+    "landmarks/map": ("landmarks (the exported map: confirmed, coincident ones merged; each snapshot)",
+                      (90, 160, 230)),
     "observations": ("observations per frame", (90, 160, 230)),
     "dropped": ("frames dropped (total)", (230, 80, 60)),
     "time/frontend": ("time/frontend (ms)", (90, 160, 230)),
@@ -311,7 +313,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     for r in robots:
         plots = rrb.Vertical(
             _plot(f"plots/{r}/ess", "ESS (effective particles)"),
-            _plot(f"plots/{r}/landmarks", "landmarks of the best particle (count)"),
+            _plot(f"plots/{r}/landmarks", "landmarks: the best particle's and its exported map's (count)"),
             _plot(f"plots/{r}/observations", "observations per frame (count)"),
             _plot(f"plots/{r}/time", "time per stage (ms)"),
             _plot(f"plots/{r}/dropped", "frames dropped (total)"),

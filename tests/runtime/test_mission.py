@@ -124,6 +124,26 @@ def test_each_saved_map_carries_its_robots_frame_counts(mission):
 
 
 @pytest.mark.slow
+def test_the_recording_plots_the_landmarks_of_the_exported_map_the_summary_counts(mission):
+    """The progress line, the fleet status and the summary count the exported map (FastSLAM.best_map: confirmed
+    landmarks, coincident ones merged); the recording's per-frame counts are the best particle's own. Each snapshot's
+    count is plotted beside them, and the last (the snapshot taken when the robot stops) is the summary's."""
+    from runtime.rerun_log import SERIES
+
+    from .rerun_helpers import entity_rows
+
+    config, result = mission
+    for name, robot in result.summary["robots"].items():
+        rows = [r for r in entity_rows(config.out / "mission.rrd", f"plots/{name}/landmarks/map")
+                if r.get("Scalars:scalars") is not None]
+        assert len(rows) >= 6  # a snapshot every 5 s of 30 s, and one at the stop
+        last = max(rows, key=lambda r: r["sim_time"])
+        assert last["Scalars:scalars"] == [float(robot["landmarks"])]
+        assert robot["landmarks"] == len(result.maps[name]) > 30
+    assert "exported map" in SERIES["landmarks/map"][0] and "merge" in SERIES["landmarks/confirmed"][0]
+
+
+@pytest.mark.slow
 def test_the_summary_lists_every_file_the_mission_left(mission):
     config, result = mission
     listed = {Path(f) for f in result.summary["files"]}
