@@ -237,10 +237,12 @@ class SensorLogWriter:
                  flush_interval: float = 2.0, chunk_size: int = 1 << 20, png_compression: int = 1,
                  queue_size: int = 2000, max_queued_bytes: int = 256 << 20) -> None:
         self.folder = Path(folder)
+        self.metadata = dict(metadata or {})
+        # Settings are checked before the folder is made: a refused log leaves nothing behind.
+        self._odometry_covariance = OdometryCovariance.from_settings(self.metadata.get("fastslam"))
         self.folder.mkdir(parents=True, exist_ok=True)
         if any(self.folder.glob("*.mcap*")) or (self.folder / "index.json").exists():
             raise SensorLogError(f"{self.folder}: already holds a sensor log (choose a new folder)")
-        self.metadata = dict(metadata or {})
         self.robot = _token(str(self.metadata.get("robot", "robot")))
         self.segment_seconds, self.flush_interval, self.chunk_size = segment_seconds, flush_interval, chunk_size
         self.png_compression = png_compression
@@ -249,7 +251,6 @@ class SensorLogWriter:
         self._segment: _Segment | None = None
         self._last_flush = -math.inf
         self._sonar_poses: np.ndarray | None = None
-        self._odometry_covariance = OdometryCovariance.from_settings(self.metadata.get("fastslam"))
         self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.max_queued_bytes = max_queued_bytes
         self._queued_bytes = 0

@@ -123,6 +123,7 @@ def test_a_turns_inflation_the_filter_refuses_is_refused_with_the_filter_s_error
             **NOISE, "odom_turn_xy_inflation": inflation}})
     assert str(by_the_log.value) == str(by_the_config.value)
     assert "odom_turn_xy_inflation must be ≥ 1" in str(by_the_log.value)
+    assert not (tmp_path / "robot1-log").exists()   # a refused log leaves no empty folder behind
 
 
 @pytest.mark.parametrize(("key", "value"), [("odom_xy_var_per_m", -1e-4), ("odom_var_floor", float("nan")),
