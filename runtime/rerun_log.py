@@ -226,10 +226,11 @@ MAP_BACKGROUND = (24, 24, 28)
 SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "ess": ("ESS (effective particles)", (230, 190, 60)),
     "landmarks/all": ("landmarks (all, best particle)", (150, 150, 150)),
-    "landmarks/confirmed": ("landmarks (confirmed, best particle, before the export's merge)", (70, 180, 90)),
+    "landmarks/confirmed": ("landmarks (confirmed, best particle, unmerged)", (70, 180, 90)),
     "landmarks/provisional": ("landmarks (provisional, best particle)", (230, 140, 50)),
-    "landmarks/map": ("landmarks (the exported map: confirmed, coincident ones merged; each snapshot)",
-                      (90, 160, 230)),
+    # the exported map (FastSLAM.best_map: confirmed, coincident landmarks merged) at each snapshot: the count
+    # the progress line and the summary give. Legends stay short: a long one covers the plot.
+    "landmarks/map": ("landmarks (exported map, merged)", (90, 160, 230)),
     "observations": ("observations per frame", (90, 160, 230)),
     "dropped": ("frames dropped (total)", (230, 80, 60)),
     "time/frontend": ("time/frontend (ms)", (90, 160, 230)),
