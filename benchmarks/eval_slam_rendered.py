@@ -244,6 +244,12 @@ class ReplayObserver:
                                   a["pixels"][lo:hi], float(timestamp)), index
 
 
+def runtime_config(particles: int = 100, version: int = 2) -> FastSLAMConfig:
+    """The filter the robots run (``runtime.mission``): every reading of a frame (``MissionConfig.max_observations``),
+    not FastSLAMConfig's own cap of the 40 nearest."""
+    return FastSLAMConfig(n_particles=particles, version=version, max_observations=MissionConfig.max_observations)
+
+
 def replay_default_run(world, robot: str, seed: int, frame_rate: float, frames_cache: Path
                        ) -> tuple[ReplayObserver, np.ndarray, np.ndarray]:
     """The diagnostics' replay of one robot's default run (150 corners, no latency, 300 s) from the frames cache:
@@ -481,8 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     from mocks.world import World
 
     world = World.load()
-    config = replace(FastSLAMConfig(n_particles=args.particles, version=args.fastslam,
-                                    max_observations=MissionConfig.max_observations), **_parse_set(args.set))
+    config = replace(runtime_config(args.particles, args.fastslam), **_parse_set(args.set))
     rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
                       frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose,
                       latency=args.latency, frames_cache=args.frames_cache, descriptor_depth=args.descriptor_depth)

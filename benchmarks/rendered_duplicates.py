@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 import runtime.slam_sim as slam_sim
-from benchmarks.eval_slam_rendered import _parse_set, _PointWorld, replay_default_run
+from benchmarks.eval_slam_rendered import _parse_set, _PointWorld, replay_default_run, runtime_config
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.coincident import coincident_pairs
 from estimation.fastslam.drift_merge import relative_drift
@@ -549,17 +549,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a FastSLAMConfig field")
     parser.add_argument("--exported", action="store_true",
-                        help="the map eval_slam_rendered scores: its default config (no max_observations=0), the "
+                        help="the map eval_slam_rendered scores: its default config (the runtime's), the "
                              "exported map after the export's merge; sorted by co-detection, with distances, d², "
                              "creation times and true points (the module docstring's second part)")
     parser.add_argument("--pairs", action="store_true", help="with --exported --json: every pair's row")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    config = FastSLAMConfig(n_particles=args.particles)
-    if not args.exported:
-        config = replace(config, max_observations=0)
-    config = replace(config, **_parse_set(args.set))
+    config = replace(runtime_config(args.particles), **_parse_set(args.set))
     if args.exported:
         out = [run_exported(robot, seed, args.frame_rate, args.frames_cache, config, args.pairs)
                for seed in (args.seed or [0]) for robot in (args.robot or ["robot1", "robot2"])]
