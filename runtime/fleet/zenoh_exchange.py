@@ -9,8 +9,15 @@ Key space under a fleet namespace ``p3at/<fleet>/``:
     fused/map        the fusion node's merged map (full snapshots), and its queryable
     fused/alive      the fusion node's liveliness token
 
-Receiving never blocks Zenoh's threads on decoding: a callback puts the raw bytes in a queue bounded in bytes
-(the oldest dropped first) and one named thread decodes, validates and applies them. A message that cannot be
+Receiving never blocks Zenoh's threads, and Zenoh's threads never run Python: every subscriber, the liveliness
+subscriber, the queryables and the snapshot requests' replies use Zenoh's own channels (no Python callback, so no
+Python thread of zenoh's either). Two named threads of this module do the work: a pump drains the channels
+(raw bytes into a queue bounded in bytes, the oldest dropped first; liveliness; queries answered), and a worker
+decodes, validates and applies what is queued, so a slow decode never holds the channels. ``close`` (and, for an
+exchange left open, an exit hook that runs before the interpreter finalizes) stops and joins both before closing
+the session: a thread that enters a Python callback, or comes back from native code, while
+CPython 3.11 finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the
+process ("FATAL: exception not rethrown"). A message that cannot be
 used is dropped with a logged reason; a delta whose base was missed (dropped, or the receiver joined late) makes
 the receiver ask the robot's queryable for its latest full snapshot. The latest map of each robot wins.
 
@@ -21,12 +28,14 @@ leaves unset get the defaults above.
 """
 from __future__ import annotations
 
+import atexit
 import collections
 import json
 import logging
 import re
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 
@@ -48,6 +57,19 @@ MAX_CONFIG_BYTES = 1 << 20        # a Zenoh configuration file is a few kB
 MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows the stack at ~30 000
 SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
 QUERY_TIMEOUT = 5.0                 # s
+POLL_INTERVAL = 0.01                # s between two looks at Zenoh's channels when there is nothing to do
+CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
+REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
+
+_OPEN: weakref.WeakSet[ZenohExchange] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_exchanges() -> None:
+    """Close every exchange still open before the interpreter finalizes (atexit runs first): its thread is
+    joined while it can still take the GIL."""
+    for exchange in list(_OPEN):
+        exchange.close()
 
 
 class ExchangeError(RuntimeError):
@@ -180,6 +202,7 @@ class ZenohExchange:
         self._encoders: dict[str, mapwire.MapEncoder] = {}
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
         self._asked: dict[str, float] = {}
+        self._replies: list = []                 # Zenoh reply channels of the snapshot requests still open
         self._wanted: set[str] = set()           # robots whose stream waits for a full snapshot
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
@@ -187,28 +210,43 @@ class ZenohExchange:
         self.received = 0
         self.send_errors = 0
         self._closed = False
+        self._calls = 0                          # publish/publish_status/request_snapshot inside Zenoh now
+        self._idle = threading.Condition(self._lock)
         try:
             self.session = zenoh.open(make_config(config, role))
         except zenoh.ZError as e:
             raise ExchangeError(f"cannot open the Zenoh session ({zenoh_message(e)})") from None
+        ring = zenoh.handlers.RingChannel
         self._subscribers = [
-            self.session.declare_subscriber(f"{self.prefix}/*/map", self._on_sample),
-            self.session.declare_subscriber(f"{self.prefix}/*/status", self._on_sample),
-            self.session.liveliness().declare_subscriber(f"{self.prefix}/*/alive", self._on_liveliness,
-                                                         history=True),
+            self.session.declare_subscriber(f"{self.prefix}/*/map", ring(CHANNEL_CAPACITY)),
+            self.session.declare_subscriber(f"{self.prefix}/*/status", ring(CHANNEL_CAPACITY)),
         ]
+        self._liveliness = self.session.liveliness().declare_subscriber(f"{self.prefix}/*/alive",
+                                                                        ring(CHANNEL_CAPACITY), history=True)
+        _OPEN.add(self)
+        self._stop = threading.Event()
+        self._pump_thread = threading.Thread(target=self._pump_loop, name=f"zenoh-pump-{fleet}", daemon=True)
         self._worker = threading.Thread(target=self._work, name=f"zenoh-exchange-{fleet}", daemon=True)
+        self._pump_thread.start()
         self._worker.start()
 
     # -- lifecycle --------------------------------------------------------------------------------------------
     def close(self) -> None:
-        """Undeclare everything (the others see this process's robots leave) and stop the worker; idempotent."""
+        """Stop and join the pump and the worker, then undeclare everything (the others see this process's robots
+        leave); idempotent. Called at exit for an exchange left open."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
             self._wake.notify_all()
-        self._worker.join(timeout=5.0)
+        self._stop.set()
+        _OPEN.discard(self)
+        for thread in (self._pump_thread, self._worker):
+            if thread is not threading.current_thread():  # on_event/on_update may close it from these threads
+                thread.join()
+        with self._lock:  # a sender's thread (a robot's stage) still in Zenoh: let it come out first
+            while self._calls:
+                self._idle.wait()
         try:
             self.session.close()
         except zenoh.ZError as e:  # already closed by the runtime at exit
@@ -227,7 +265,7 @@ class ZenohExchange:
             publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
             status = self.session.declare_publisher(f"{self.prefix}/{robot}/status",
                                                     congestion_control=zenoh.CongestionControl.DROP)
-            queryable = self.session.declare_queryable(key, lambda query, r=robot: self._answer(r, query))
+            queryable = self.session.declare_queryable(key, zenoh.handlers.RingChannel(CHANNEL_CAPACITY))
             token = self.session.liveliness().declare_token(f"{self.prefix}/{robot}/alive")
             self._own[robot] = (publisher, status, queryable, token)
         return self._own[robot]
@@ -236,24 +274,28 @@ class ZenohExchange:
         """Send ``robot``'s map (delta against the previous one, or full snapshot) and its status."""
         snapshot = copy_map(landmark_map)
         with self._lock:
+            if self._closed:  # nothing enters Zenoh after close: the process may be finalizing
+                return
             encoder = self._encoders.get(robot)
             if encoder is None:
                 encoder = self._encoders[robot] = mapwire.MapEncoder(robot, full_every=self.full_every)
             kind, data = encoder.encode(snapshot, stamp)
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
             publisher, status, _, _ = self._declare(robot)
+            health = self._health.get(robot)  # the latest health figures go with it: a receiver's status is complete
+            self._calls += 1
         pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
-        with self._lock:  # the latest health figures go with it: a receiver's latest status is always complete
-            health = self._health.get(robot)
-        status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose, len(snapshot),
-                                            health)
         try:
+            status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose,
+                                                len(snapshot), health)
             publisher.put(data)
             status.put(status_data)
         except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
             self.send_errors += 1
             log.warning("fleet exchange: could not send %s's map: %s", robot, zenoh_message(e))
             return
+        finally:
+            self._call_done()
         self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
         self.bytes_sent["status"] += len(status_data)
 
@@ -261,33 +303,82 @@ class ZenohExchange:
                        health: dict | None = None) -> None:
         """A status beside the map updates (pose estimate, health figures: runtime/fleet/status.py)."""
         with self._lock:
+            if self._closed:
+                return
             encoder = self._encoders.setdefault(robot, mapwire.MapEncoder(robot, full_every=self.full_every))
             _, status, _, _ = self._declare(robot)
             self._health[robot] = dict(health or {})
-        data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks, health)
+            self._calls += 1
         try:
+            data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
+                                         health)
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
             log.warning("fleet exchange: could not send %s's status: %s", robot, zenoh_message(e))
             return
+        finally:
+            self._call_done()
         self.bytes_sent["status"] += len(data)
 
-    def _answer(self, robot: str, query) -> None:
+    def _call_done(self) -> None:
         with self._lock:
-            encoder = self._encoders.get(robot)
-            data = None if encoder is None else encoder.snapshot()
-        if data is not None:
-            query.reply(f"{self.prefix}/{robot}/map", data)  # the concrete key, not the wildcard asked for
+            self._calls -= 1
+            self._idle.notify_all()
+
+    def _answer(self, robot: str, query) -> None:
+        try:
+            with self._lock:
+                encoder = self._encoders.get(robot)
+                data = None if encoder is None else encoder.snapshot()
+            if data is not None:
+                query.reply(f"{self.prefix}/{robot}/map", data)  # the concrete key, not the wildcard asked for
+        finally:
+            query.drop()  # finalizes the query: the asker's get ends without waiting for its timeout
 
     # -- receiving --------------------------------------------------------------------------------------------
-    def _on_sample(self, sample) -> None:
-        self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
-
-    def _on_reply(self, reply) -> None:
-        sample = reply.ok
-        if sample is not None:
-            self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+    def _pump(self) -> bool:
+        """Move what Zenoh's channels hold: samples into the queue, liveliness changes, queries answered,
+        replies; at most one channel's capacity each. Whether anything came."""
+        came = False
+        for subscriber in self._subscribers:
+            for _ in range(CHANNEL_CAPACITY):
+                sample = subscriber.try_recv()
+                if sample is None:
+                    break
+                came = True
+                self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+        for _ in range(CHANNEL_CAPACITY):
+            sample = self._liveliness.try_recv()
+            if sample is None:
+                break
+            came = True
+            self._on_liveliness(sample)
+        with self._lock:
+            own = [(robot, entry[2]) for robot, entry in self._own.items()]
+            replies = list(self._replies)
+        for robot, queryable in own:
+            for _ in range(CHANNEL_CAPACITY):
+                query = queryable.try_recv()
+                if query is None:
+                    break
+                came = True
+                self._answer(robot, query)
+        for channel in replies:
+            for _ in range(REPLY_CAPACITY):
+                try:
+                    reply = channel.try_recv()
+                except zenoh.ZError:  # empty and closed: the request is over (answered, or timed out)
+                    with self._lock:
+                        self._replies.remove(channel)
+                    break
+                if reply is None:
+                    break
+                came = True
+                sample = reply.ok
+                if sample is not None:
+                    self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+        return came
 
     def _enqueue(self, key: str, data: bytes) -> None:
         with self._lock:
@@ -318,6 +409,19 @@ class ZenohExchange:
         if len(parts) != 4 or f"{parts[0]}/{parts[1]}" != self.prefix or parts[3] != leaf:
             return None
         return parts[2]
+
+    def _pump_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                came = self._pump()
+            except zenoh.ZError as e:  # a channel closed under us: the session is going away
+                log.debug("fleet exchange: %s", zenoh_message(e))
+                came = False
+            except Exception:  # a bug (or an on_event hook's) must not stop the receiving; say so loudly
+                log.exception("fleet exchange: unexpected error while receiving")
+                came = False
+            if not came:
+                self._stop.wait(POLL_INTERVAL)
 
     def _work(self) -> None:
         while True:
@@ -401,7 +505,14 @@ class ZenohExchange:
             if now - self._asked.get(robot, -np.inf) < SNAPSHOT_RETRY or self._closed:
                 return
             self._asked[robot] = now
-        self.session.get(f"{self.prefix}/{robot}/map", self._on_reply, timeout=QUERY_TIMEOUT)
+            self._calls += 1
+        try:  # replies: one per robot; a Fifo channel keeps them after the query's end (a ring would not)
+            channel = self.session.get(f"{self.prefix}/{robot}/map", zenoh.handlers.FifoChannel(REPLY_CAPACITY),
+                                       timeout=QUERY_TIMEOUT)
+        finally:
+            self._call_done()
+        with self._lock:
+            self._replies.append(channel)
 
     # -- the MapExchange protocol and what a fusion node reads ------------------------------------------------
     def receive(self, excluding: str | None = None) -> dict[str, MapMessage]:

@@ -330,3 +330,52 @@ def test_a_slow_receiver_keeps_a_bounded_queue_and_ends_with_the_latest_map():
         release.set()
         robot.close()
         node.close()
+
+
+# A robot process that never closes its exchange: it receives the node's stream, publishes its map, then exits.
+UNCLOSED_ROBOT = """
+import sys, time
+from runtime.fleet.synthetic import SyntheticRobot
+from runtime.fleet.zenoh_exchange import ZenohExchange
+exchange = ZenohExchange(sys.argv[1], sys.argv[2], "robot")
+end = time.monotonic() + 60.0
+while "robot1" not in exchange.receive() and time.monotonic() < end:
+    exchange.publish("robot9", SyntheticRobot("robot9", 3, grow=30).step(), 0.0)
+    time.sleep(0.05)
+print("received" if "robot1" in exchange.receive() else "nothing received", flush=True)
+"""
+
+
+def test_a_process_that_exits_without_closing_its_exchange_exits_while_maps_stream_in():
+    """The exchange's own threads are stopped and joined at exit (before the interpreter finalizes), and Zenoh
+    holds no thread of Python's: a process that never calls close exits, with code 0, while the node's updates
+    are still arriving. (With Python callbacks, zenoh's callback threads kept such a process alive for ever.)"""
+    port, fleet = free_port(), f"unclosed{os.getpid()}"
+    stop = threading.Event()
+    with ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion", full_every=1) as node:
+        source = SyntheticRobot("robot1", 0, grow=30)
+
+        def stream() -> None:  # full snapshots, 20 a second, until the child has gone
+            while not stop.is_set():
+                node.publish("robot1", source.step(), time.time())
+                stop.wait(0.05)
+
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        try:
+            child = subprocess.Popen([sys.executable, "-c", UNCLOSED_ROBOT, fleet, endpoint_config(port, "robot")],
+                                     cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     env={**os.environ, "PYTHONPATH": str(ROOT)})
+            try:
+                stdout, stderr = child.communicate(timeout=90)  # a hang, not a slow machine: it needs ~3 s
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.communicate()
+                pytest.fail("a process whose exchange was left open did not exit")
+            wait_until(lambda: "robot9" in node.receive(), "the child's map at the node")
+        finally:
+            stop.set()
+            streamer.join()
+    assert child.returncode == 0, stderr
+    assert stdout.strip() == "received"
+    assert "FATAL" not in stderr
