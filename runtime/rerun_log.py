@@ -1055,7 +1055,9 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
         rows.sort(key=lambda r: (r[0], r[1]))
         plain = [r[2] for r in rows]
         if entity.startswith("maps/"):
-            maps[entity.removeprefix("maps/")], note = _map_from_row(path, entity, plain)
+            landmark_map, note = _map_from_row(path, entity, plain)
+            if landmark_map is not None:
+                maps[entity.removeprefix("maps/")] = landmark_map
             stale += [note] if note else []
         elif entity.startswith("fusion/alignment/"):
             text = _last_values(plain, "json")
@@ -1104,9 +1106,10 @@ def _map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
     return crc
 
 
-def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMap, str | None]:
+def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMap | None, str | None]:
     """The newest snapshot of ``entity`` that is whole, and a note when a newer one failed its checksum (it is
-    left out: a map read back must be the map that was logged) or None."""
+    left out: a map read back must be the map that was logged) or None. A map none of whose snapshots is whole is
+    None, with a note: it is left out, and the recording's other maps are still read."""
     # empty arrays are not stored by AnyValues: only the scalars are sure to be there
     complete = [r for r in rows if all(r.get(f) is not None for f in ("meta", "descriptor_size", "size"))]
     if not complete:
@@ -1117,8 +1120,8 @@ def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMa
             note = (f"{entity}: the last {skipped} snapshot(s) fail their checksum; the one before them is read"
                     if skipped else None)
             return landmark_map, note
-    raise RecordingReadError(f"{path}: entity '{entity}': every snapshot ({len(complete)}) fails its checksum "
-                             "(bytes changed in the file)")
+    return None, (f"{entity}: every snapshot ({len(complete)}) fails its checksum (bytes changed in the file); "
+                  "the map is left out")
 
 
 def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:

@@ -239,8 +239,12 @@ def test_a_flipped_bit_loses_at_most_its_own_message(whole, reader_process, tmp_
         assert answer["maps"].get(name) in allowed, (name, position, answer["damaged"], answer["truncated"])
     if answer["damaged"] and k is not None and not in_frame and frames[k][2] != 0:  # one message, named
         start, size, _ = frames[k]
-        assert f": 1 of {len(frames) - 1:,} messages damaged (bytes {start:,}–{start + size - 1:,})" \
-            in answer["damaged"], (position, answer["damaged"])
+        named = f": 1 of {len(frames) - 1:,} messages damaged (bytes {start:,}–{start + size - 1:,})"
+        # or a flip that still decodes, inside a map it holds: that map's checksum says so (left out, or an older
+        # snapshot read)
+        by_checksum = "checksum" in answer["damaged"] and any(
+            f"{e}: " in answer["damaged"] for e in held if e.startswith("maps/"))
+        assert named in answer["damaged"] or by_checksum, (position, answer["damaged"])
 
 
 def test_a_store_id_changed_in_one_of_the_repeated_store_infos_still_reads_the_data(tmp_path):
