@@ -15,11 +15,11 @@ Python thread of zenoh's either). Two named threads of this module do the work: 
 (raw bytes into a queue bounded in bytes, the oldest dropped first; liveliness; queries answered), and a worker
 decodes, validates and applies what is queued, so a slow decode never holds the channels. ``close`` (and, for an
 exchange left open, an exit hook that runs before the interpreter finalizes) stops and joins both before closing
-the session: a thread that enters a Python callback, or comes back from native code, while
-CPython 3.11 finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the
-process ("FATAL: exception not rethrown"). A message that cannot be
-used is dropped with a logged reason; a delta whose base was missed (dropped, or the receiver joined late) makes
-the receiver ask the robot's queryable for its latest full snapshot. The latest map of each robot wins.
+the session: a thread that enters a Python callback, or comes back from native code, while CPython 3.11
+finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the process
+("FATAL: exception not rethrown"). A message that cannot be used is dropped with a logged reason; a delta
+whose base was missed (dropped, or the receiver joined late) makes the receiver ask the robot's queryable for its
+latest full snapshot. The latest map of each robot wins.
 
 Defaults (no configuration file): peer mode, multicast scouting off, the fusion node listens on
 ``tcp/127.0.0.1:7447`` and robots connect to it (and listen on a loopback port of their own). A user's Zenoh
