@@ -57,6 +57,7 @@ MAX_CONFIG_BYTES = 1 << 20        # a Zenoh configuration file is a few kB
 MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows the stack at ~30 000
 SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
 QUERY_TIMEOUT = 5.0                 # s
+CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for sends inside Zenoh, then goes on
 POLL_INTERVAL = 0.01                # s between two looks at Zenoh's channels when there is nothing to do
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
@@ -241,12 +242,19 @@ class ZenohExchange:
             self._wake.notify_all()
         self._stop.set()
         _OPEN.discard(self)
+        deadline = time.monotonic() + CLOSE_TIMEOUT
         for thread in (self._pump_thread, self._worker):
             if thread is not threading.current_thread():  # on_event/on_update may close it from these threads
-                thread.join()
+                thread.join(timeout=max(0.0, deadline - time.monotonic()))
+                if thread.is_alive():   # a user's hook that does not return: say so rather than hang the exit
+                    log.warning("closing the exchange: thread %s still running after %.0f s", thread.name,
+                                CLOSE_TIMEOUT)
         with self._lock:  # a sender's thread (a robot's stage) still in Zenoh: let it come out first
-            while self._calls:
-                self._idle.wait()
+            while self._calls and time.monotonic() < deadline:
+                self._idle.wait(timeout=max(0.0, deadline - time.monotonic()))
+            if self._calls:
+                log.warning("closing the exchange: %d send(s) still inside Zenoh after %.0f s", self._calls,
+                            CLOSE_TIMEOUT)
         try:
             self.session.close()
         except zenoh.ZError as e:  # already closed by the runtime at exit
