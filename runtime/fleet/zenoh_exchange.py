@@ -58,7 +58,7 @@ MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows 
 SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
 QUERY_TIMEOUT = 5.0                 # s
 CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for sends inside Zenoh, then goes on
-POLL_INTERVAL = 0.01                # s between two looks at Zenoh's channels when there is nothing to do
+POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
 
