@@ -261,6 +261,22 @@ def replay_default_run(world, robot: str, seed: int, frame_rate: float, frames_c
             np.asarray(world.start_poses[robot], float))
 
 
+def replay_through(filter_class, world, robot: str, seed: int, frame_rate: float, frames_cache: Path,
+                   config: FastSLAMConfig):
+    """The default run of ``robot`` replayed from the frames cache through ``filter_class`` (a FastSLAM subclass
+    that records what the diagnosis needs and keeps its last instance as ``filter_class.last``):
+    (observer, true start pose, the simulation's result, the filter)."""
+    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
+    original = slam_sim.FastSLAM
+    slam_sim.FastSLAM = filter_class   # simulate() builds its filter by this name
+    try:
+        result = slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=300.0,
+                                   seed=seed, config=config, robot=robot, frame_rate=frame_rate, observer=observer)
+    finally:
+        slam_sim.FastSLAM = original
+    return observer, start, result, filter_class.last
+
+
 class _PointWorld:
     """The world as ``simulate`` scores it, with ``features`` = the observer's distinct true points."""
 

@@ -41,8 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-import runtime.slam_sim as slam_sim
-from benchmarks.eval_slam_rendered import CALIBRATION, _parse_set, _PointWorld, replay_default_run
+from benchmarks.eval_slam_rendered import CALIBRATION, _parse_set, replay_through
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, rot_z, wrap_angle
 from runtime.commands.options import non_negative_int, positive_float
@@ -84,16 +83,9 @@ def run(robot: str, seed: int, frame_rate: float, frames_cache: Path, config: Fa
     from mocks.world import World
 
     world = World.load()
-    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
+    observer, start, result, slam = replay_through(_RecordingFastSLAM, world, robot, seed, frame_rate,
+                                                   frames_cache, config)
     frames, starts = observer._arrays, observer._starts
-    original = slam_sim.FastSLAM
-    slam_sim.FastSLAM = _RecordingFastSLAM
-    try:
-        result = slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=300.0,
-                                   seed=seed, config=config, robot=robot, frame_rate=frame_rate, observer=observer)
-    finally:
-        slam_sim.FastSLAM = original
-    slam = _RecordingFastSLAM.last
     renderer = StereoRenderer(world, calibration.load(CALIBRATION))
     lmap = result.map
     lids = np.asarray(lmap.ids, np.int64)

@@ -49,8 +49,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-import runtime.slam_sim as slam_sim
-from benchmarks.eval_slam_rendered import _parse_set, _PointWorld, replay_default_run, runtime_config
+from benchmarks.eval_slam_rendered import _parse_set, replay_through, runtime_config
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.coincident import coincident_pairs
 from estimation.fastslam.drift_merge import relative_drift
@@ -110,16 +109,9 @@ def run(robot: str, seed: int, frame_rate: float, frames_cache: Path, config: Fa
     from mocks.world import World
 
     world = World.load()
-    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
+    observer, start, result, slam = replay_through(_RecordingFastSLAM, world, robot, seed, frame_rate,
+                                                   frames_cache, config)
     arrays, starts = observer._arrays, observer._starts
-    original = slam_sim.FastSLAM
-    slam_sim.FastSLAM = _RecordingFastSLAM
-    try:
-        slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=300.0,
-                          seed=seed, config=config, robot=robot, frame_rate=frame_rate, observer=observer)
-    finally:
-        slam_sim.FastSLAM = original
-    slam = _RecordingFastSLAM.last
     lmap = slam.particle_map(slam.best_index, config.confirm_count, covariance="particle")
     row_of = {int(i): r for r, i in enumerate(lmap.ids)}
 
@@ -346,16 +338,9 @@ def run_exported(robot: str, seed: int, frame_rate: float, frames_cache: Path, c
     from mocks.world import World
 
     world = World.load()
-    observer, route, start = replay_default_run(world, robot, seed, frame_rate, frames_cache)
+    observer, start, result, slam = replay_through(_RecordingFastSLAM, world, robot, seed, frame_rate,
+                                                   frames_cache, config)
     arrays, starts = observer._arrays, observer._starts
-    original = slam_sim.FastSLAM
-    slam_sim.FastSLAM = _RecordingFastSLAM
-    try:
-        result = slam_sim.simulate(_PointWorld(world, observer), start_pose=start, route=route, seconds=300.0,
-                                   seed=seed, config=config, robot=robot, frame_rate=frame_rate, observer=observer)
-    finally:
-        slam_sim.FastSLAM = original
-    slam = _RecordingFastSLAM.last
     lmap = result.map
     # the export merge's own covariances for the merged map: the conditional ones, merged the same way
     particle = slam.particle_map(slam.best_index, config.confirm_count, covariance="particle")
