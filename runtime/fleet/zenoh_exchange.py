@@ -193,7 +193,8 @@ class ZenohExchange:
         self.on_update = on_update or (lambda robot: None)
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
-        self._pending: collections.deque[tuple[str, bytes]] = collections.deque()
+        # (key, bytes, when the snapshot request it answers was sent; None for a published sample)
+        self._pending: collections.deque[tuple[str, bytes, float | None]] = collections.deque()
         self._pending_bytes = 0
         self._streams: dict[str, mapwire.MapStream] = {}
         self._latest: dict[str, MapMessage] = {}
@@ -203,8 +204,8 @@ class ZenohExchange:
         self._encoders: dict[str, mapwire.MapEncoder] = {}
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
         self._asked: dict[str, float] = {}
-        self._replies: list = []                 # Zenoh reply channels of the snapshot requests still open
-        self._wanted: set[str] = set()           # robots whose stream waits for a full snapshot
+        self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
+        self._wanted: dict[str, float] = {}      # robot whose stream waits for a full snapshot -> since when
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
@@ -372,34 +373,41 @@ class ZenohExchange:
                     break
                 came = True
                 self._answer(robot, query)
-        for channel in replies:
+        for request in replies:
+            channel, asked = request
             for _ in range(REPLY_CAPACITY):
                 try:
                     reply = channel.try_recv()
                 except zenoh.ZError:  # empty and closed: the request is over (answered, or timed out)
                     with self._lock:
-                        self._replies.remove(channel)
+                        self._replies.remove(request)
                     break
                 if reply is None:
                     break
                 came = True
                 sample = reply.ok
                 if sample is not None:
-                    self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
+                    self._enqueue(str(sample.key_expr), sample.payload.to_bytes(), asked)
         return came
 
-    def _enqueue(self, key: str, data: bytes) -> None:
+    def _enqueue(self, key: str, data: bytes, asked: float | None = None) -> None:
+        """Queue a received message; ``asked``: when the snapshot request it answers was sent (None for a
+        published sample)."""
         with self._lock:
-            self._pending.append((key, data))
+            self._pending.append((key, data, asked))
             self._pending_bytes += len(data)
             while self._pending_bytes > self.max_pending_bytes and len(self._pending) > 1:
-                old_key, old = self._pending.popleft()  # the oldest goes; its robot's map is recovered by query
+                old_key, old, _ = self._pending.popleft()  # the oldest goes; its robot's map is recovered by query
                 self._pending_bytes -= len(old)
                 self.dropped["queue full"] += 1
                 robot = self._robot_of(old_key, "map")
                 if robot is not None and robot not in self._encoders:
-                    self._wanted.add(robot)
+                    self._want(robot)
             self._wake.notify()
+
+    def _want(self, robot: str) -> None:
+        """Mark ``robot``'s stream as waiting for a full snapshot newer than what it missed (lock held)."""
+        self._wanted.setdefault(robot, time.monotonic())
 
     def _on_liveliness(self, sample) -> None:
         robot = self._robot_of(str(sample.key_expr), "alive")
@@ -446,10 +454,10 @@ class ZenohExchange:
                     self._wake.wait(timeout=SNAPSHOT_RETRY / 2 if self._wanted else None)
                 if self._closed:
                     return
-                key, data = self._pending.popleft()
+                key, data, asked = self._pending.popleft()
                 self._pending_bytes -= len(data)
             try:
-                self._handle(key, data)
+                self._handle(key, data, asked)
             except mapwire.StaleMessage as e:
                 self.dropped["stale"] += 1
                 log.debug("fleet exchange: %s: %s", key, e)
@@ -467,7 +475,7 @@ class ZenohExchange:
         self.last_drop_reason = f"{key}: {reason}"
         log.warning("fleet exchange: dropped a message on %s: %s", key, reason)
 
-    def _handle(self, key: str, data: bytes) -> None:
+    def _handle(self, key: str, data: bytes, asked: float | None = None) -> None:
         leaf = key.rsplit("/", 1)[-1]
         robot = self._robot_of(key, leaf)
         if robot is None or leaf not in ("map", "status"):
@@ -492,7 +500,7 @@ class ZenohExchange:
             m = stream.accept(message)
         except mapwire.MissingBase:
             with self._lock:
-                self._wanted.add(robot)
+                self._want(robot)
             self.request_snapshot(robot)
             raise
         if stream.restarts != restarts:
@@ -500,8 +508,12 @@ class ZenohExchange:
         with self._lock:
             self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
             self.received += 1
-            if message.kind == mapwire.FULL:
-                self._wanted.discard(robot)
+            # a published snapshot is newer than anything missed before it was handled; a reply is only if it was
+            # asked for after the miss (a request's reply may come after newer updates: the reply to the request
+            # made when the robot joined came after the drops it predates, and ended the wait with a stale map)
+            wanted = self._wanted.get(robot)
+            if message.kind == mapwire.FULL and wanted is not None and (asked is None or asked >= wanted):
+                del self._wanted[robot]
         self.on_update(robot)
 
     def request_snapshot(self, robot: str = "*") -> None:
@@ -520,7 +532,7 @@ class ZenohExchange:
         finally:
             self._call_done()
         with self._lock:
-            self._replies.append(channel)
+            self._replies.append((channel, now))
 
     # -- the MapExchange protocol and what a fusion node reads ------------------------------------------------
     def receive(self, excluding: str | None = None) -> dict[str, MapMessage]:
