@@ -214,11 +214,13 @@ def encode_delta(robot: str, session: str, sequence: int, base_sequence: int, st
 
 
 def encode_status(robot: str, session: str, sequence: int, stamp: float, pose=None, landmarks: int = 0,
-                  health: dict | None = None) -> bytes:
-    """A robot's status: its latest pose estimate [x, y, θ] (or None), map size, and health figures."""
+                  health: dict | None = None, has_map: bool = True) -> bytes:
+    """A robot's status: its latest pose estimate [x, y, θ] (or None), map size, and health figures.
+    ``sequence``: the robot's latest map message (what its queryable answers); ``has_map`` False: it has published
+    no map yet (``sequence`` is then 0 and names nothing)."""
     header = {"robot": robot, "session": session, "sequence": int(sequence), "stamp": float(stamp),
               "pose": None if pose is None else [float(v) for v in pose], "landmarks": int(landmarks),
-              "health": _jsonable(health or {})}
+              "health": _jsonable(health or {}), "has_map": bool(has_map)}
     return _frame(STATUS, header, [])
 
 
@@ -360,11 +362,14 @@ def _status_fields(header: dict) -> dict:
         raise WireError("field 'pose' is not null or three finite numbers")
     landmarks = _int_field(header, "landmarks", MAX_LANDMARKS)
     health = _field(header, "health", dict)
+    has_map = header.get("has_map", True)   # absent (a sender before session 19): its sequence names a map
+    if not isinstance(has_map, bool):
+        raise WireError("field 'has_map' is not a boolean")
     if len(health) > 64 or not all(isinstance(k, str) and len(k) <= 64 and (
             v is None or isinstance(v, str | bool) or isinstance(v, int | float) and math.isfinite(v))
             for k, v in health.items()):
         raise WireError("field 'health' must be a flat object of at most 64 finite numbers, strings or booleans")
-    return {"pose": pose, "landmarks": landmarks, "health": health}
+    return {"pose": pose, "landmarks": landmarks, "health": health, "has_map": has_map}
 
 
 def _arrays(header: dict, body: memoryview, expected: dict, n_robots: int) -> dict[str, np.ndarray]:

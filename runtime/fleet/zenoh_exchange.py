@@ -19,7 +19,8 @@ the session: a thread that enters a Python callback, or comes back from native c
 finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the process
 ("FATAL: exception not rethrown"). A message that cannot be used is dropped with a logged reason; a delta
 whose base was missed (dropped, or the receiver joined late) makes the receiver ask the robot's queryable for its
-latest full snapshot. The latest map of each robot wins.
+latest full snapshot; so does a status naming a newer map than the one held, after a grace (a robot's last map,
+lost on the way, is followed by no delta that would show the gap). The latest map of each robot wins.
 
 Defaults (no configuration file): peer mode, multicast scouting off, the fusion node listens on
 ``tcp/127.0.0.1:7447`` and robots connect to it (and listen on a loopback port of their own). A user's Zenoh
@@ -56,6 +57,8 @@ MAX_PENDING_BYTES = 64 * 1024 * 1024
 MAX_CONFIG_BYTES = 1 << 20        # a Zenoh configuration file is a few kB
 MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows the stack at ~30 000
 SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
+BEHIND_GRACE = 1.0                  # s a status may name a map not yet handled before its robot is asked for it
+BEHIND_RETRY_MAX = 30.0             # s: a map a status names and no reply brings is asked for again 2, 4... s on
 QUERY_TIMEOUT = 5.0                 # s
 CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for sends inside Zenoh, then goes on
 POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
@@ -71,6 +74,15 @@ def _close_open_exchanges() -> None:
     joined while it can still take the GIL."""
     for exchange in list(_OPEN):
         exchange.close()
+
+
+class _Behind:
+    """A robot's map that its status names and this receiver does not hold: when to ask for it next."""
+
+    __slots__ = ("session", "sequence", "due", "delay")
+
+    def __init__(self, session: str, sequence: int, due: float) -> None:
+        self.session, self.sequence, self.due, self.delay = session, sequence, due, BEHIND_GRACE
 
 
 class ExchangeError(RuntimeError):
@@ -206,6 +218,7 @@ class ZenohExchange:
         self._asked: dict[str, float] = {}
         self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
         self._wanted: dict[str, float] = {}      # robot whose stream waits for a full snapshot -> since when
+        self._behind: dict[str, _Behind] = {}    # robot whose status names a map newer than the one held
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
@@ -320,7 +333,7 @@ class ZenohExchange:
             self._calls += 1
         try:
             data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
-                                         health)
+                                         health, has_map=encoder.latest is not None)
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
@@ -416,6 +429,8 @@ class ZenohExchange:
         joined = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
             (self._present.add if joined else self._present.discard)(robot)
+            if not joined:  # its queryable has gone with it: nothing to ask (a rejoin asks anyway)
+                self._behind.pop(robot, None)
         self.on_event(f"{robot} {'joined' if joined else 'left'} the fleet")
         if joined and robot not in self._encoders:
             self.request_snapshot(robot)
@@ -443,19 +458,23 @@ class ZenohExchange:
         while True:
             with self._lock:
                 while not self._pending and not self._closed:
-                    if self._wanted:  # a snapshot asked for has not come (rate-limited, or its reply lost)
-                        wanted = list(self._wanted)
+                    # a snapshot asked for has not come (rate-limited, or its reply lost); a status's map is missing
+                    ask = set(self._wanted) | self._behind_due()
+                    if ask:
                         self._lock.release()
                         try:
-                            for robot in wanted:
+                            for robot in sorted(ask):
                                 self.request_snapshot(robot)
                         finally:
                             self._lock.acquire()
-                    self._wake.wait(timeout=SNAPSHOT_RETRY / 2 if self._wanted else None)
+                    self._wake.wait(timeout=self._idle_wait())
                 if self._closed:
                     return
                 key, data, asked = self._pending.popleft()
                 self._pending_bytes -= len(data)
+                ask = self._behind_due()  # a busy queue must not hold them back
+            for robot in sorted(ask):
+                self.request_snapshot(robot)
             try:
                 self._handle(key, data, asked)
             except mapwire.StaleMessage as e:
@@ -469,6 +488,43 @@ class ZenohExchange:
             except Exception as e:  # a bug must not kill the receiver either; say so loudly
                 log.exception("fleet exchange: unexpected error on %s", key)
                 self._drop(key, f"internal error {type(e).__name__}: {e}")
+
+    def _behind_due(self) -> set[str]:
+        """Robots whose missing map is due to be asked for now; their next ask is set 2x further on (lock held)."""
+        now = time.monotonic()
+        due = set()
+        for robot, behind in self._behind.items():
+            if behind.due <= now:
+                due.add(robot)
+                behind.delay = min(2 * behind.delay, BEHIND_RETRY_MAX)
+                behind.due = now + behind.delay
+        return due
+
+    def _idle_wait(self) -> float | None:
+        """How long the idle worker may wait for a message before it has something to ask (lock held)."""
+        waits = [SNAPSHOT_RETRY / 2] if self._wanted else []
+        waits += [max(0.0, b.due - time.monotonic()) for b in self._behind.values()]
+        return min(waits, default=None)
+
+    def _note_status(self, robot: str, message: mapwire.Message) -> None:
+        """A status names the robot's latest map (session, sequence): if that is newer than the map held, the map
+        was lost on the way (published with CongestionControl.DROP; a robot's last one is never followed by a
+        delta that would show the gap) or is still in flight. After BEHIND_GRACE, the robot is asked (lock held)."""
+        stream = self._streams.get(robot)
+        if not message.status["has_map"] or (stream is not None and stream.map is not None
+                                             and stream.session == message.session
+                                             and stream.sequence >= message.sequence):
+            self._behind.pop(robot, None)
+            return
+        behind = self._behind.get(robot)
+        if behind is None:
+            self._behind[robot] = _Behind(message.session, message.sequence, time.monotonic() + BEHIND_GRACE)
+        elif (behind.session, behind.sequence) != (message.session, message.sequence):
+            # a newer map again: keep the ask that is due (a robot that runs ahead is asked all the same), and
+            # ask again soon after it (the backoff was for a reply that never came)
+            behind.session, behind.sequence = message.session, message.sequence
+            behind.due = min(behind.due, time.monotonic() + BEHIND_GRACE)
+            behind.delay = BEHIND_GRACE
 
     def _drop(self, key: str, reason: str) -> None:
         self.dropped["malformed"] += 1
@@ -490,6 +546,7 @@ class ZenohExchange:
                 raise mapwire.WireError(f"a {message.kind_name} message on a status key")
             with self._lock:
                 self._status[robot] = {"stamp": message.stamp, "session": message.session, **message.status}
+                self._note_status(robot, message)
             return
         if message.kind == mapwire.STATUS:
             raise mapwire.WireError("a status message on a map key")
@@ -514,6 +571,9 @@ class ZenohExchange:
             wanted = self._wanted.get(robot)
             if message.kind == mapwire.FULL and wanted is not None and (asked is None or asked >= wanted):
                 del self._wanted[robot]
+            behind = self._behind.get(robot)
+            if behind is not None and stream.session == behind.session and stream.sequence >= behind.sequence:
+                del self._behind[robot]
         self.on_update(robot)
 
     def request_snapshot(self, robot: str = "*") -> None:

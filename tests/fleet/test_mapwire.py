@@ -117,7 +117,18 @@ def test_status_round_trips():
                                  health={"frames_dropped": 2, "camera": "ok"})
     message = decode(data)
     assert message.status == {"pose": [1.0, 2.0, 0.1], "landmarks": 40,
-                              "health": {"frames_dropped": 2, "camera": "ok"}}
+                              "health": {"frames_dropped": 2, "camera": "ok"}, "has_map": True}
+    assert message.sequence == 3
+
+
+def test_a_status_says_whether_its_sequence_names_a_map():
+    """A robot's status before its first map says so (its sequence 0 names nothing a query could return); a
+    status without the field (an older sender) names a map; anything but a boolean is refused."""
+    assert decode(mapwire.encode_status("robot2", SESSION, 0, 0.5, has_map=False)).status["has_map"] is False
+    older = _reframe(mapwire.encode_status("robot2", SESSION, 4, 0.5), lambda h: h.pop("has_map"))
+    assert decode(older).status["has_map"] is True
+    with pytest.raises(WireError, match="has_map"):
+        decode(_reframe(mapwire.encode_status("robot2", SESSION, 4, 0.5), lambda h: h.update(has_map=1)))
 
 
 def _reframe(data: bytes, edit) -> bytes:

@@ -379,3 +379,103 @@ def test_a_process_that_exits_without_closing_its_exchange_exits_while_maps_stre
     assert child.returncode == 0, stderr
     assert stdout.strip() == "received"
     assert "FATAL" not in stderr
+
+
+def _bare_session(port: int):
+    """A Zenoh session of the test's own, connected to the node like a robot: it sends mapwire messages by hand
+    (so a map can be lost on the way for certain: it is simply not sent) and answers queries when the test pumps
+    its queryable."""
+    import zenoh
+
+    config = zenoh.Config.from_json5(endpoint_config(port, "robot"))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return zenoh.open(config)
+
+
+def _answer_queries(queryable, queries: list, answer: bytes | None) -> None:
+    """Answer what the node asked so far (``answer`` None: as a robot with no map, nothing), noting when."""
+    while (query := queryable.try_recv()) is not None:
+        queries.append(time.monotonic())
+        if answer is not None:
+            query.reply(str(query.key_expr), answer)
+        query.drop()
+
+
+def test_a_robots_last_map_lost_on_the_wire_is_asked_for_when_its_status_names_it():
+    """Map 1 of robot1 never reaches the node (maps go with CongestionControl.DROP) and it is the robot's last, so
+    no later delta shows the gap: only its statuses, which name sequence 1, do. The node asks the robot's queryable
+    and ends with map 1. (Before session 19 it kept map 0 for ever.)"""
+    import zenoh
+
+    port, fleet = free_port(), f"lost{os.getpid()}"
+    key, status_key = f"p3at/{fleet}/robot1/map", f"p3at/{fleet}/robot1/status"
+    session = mapwire.new_session()
+    source = SyntheticRobot("robot1", 0)
+    first, last = source.step(), source.step()
+    with ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion") as node, _bare_session(port) as robot:
+
+        def first_map_at_the_node() -> bool:  # puts before the route to the node exists are lost
+            robot.put(key, mapwire.encode_full("robot1", session, 0, 0.0, first))
+            return "robot1" in node.receive()
+
+        wait_until(first_map_at_the_node, "robot1's map 0 at the node")
+        queryable = robot.declare_queryable(key, zenoh.handlers.RingChannel(16))
+        queries: list[float] = []
+        answer = mapwire.encode_full("robot1", session, 1, 1.0, last)
+
+        def map_1_at_the_node() -> bool:  # map 1 is never put; the statuses say it exists (runtime: once a second)
+            _answer_queries(queryable, queries, answer)
+            robot.put(status_key, mapwire.encode_status("robot1", session, 1, 1.0, landmarks=len(last)))
+            return node.receive()["robot1"].sequence == 1
+
+        wait_until(map_1_at_the_node, "robot1's map 1, named by its status, recovered by query")
+        got = node.receive()["robot1"].landmark_map
+        np.testing.assert_array_equal(got.ids, last.ids)
+        np.testing.assert_array_equal(got.positions, last.positions)
+        assert queries, "recovered without a query?"
+
+
+def test_a_robot_with_no_map_yet_is_not_asked_and_a_missing_map_is_asked_for_ever_less_often():
+    """Statuses before a robot's first map (sequence 0, has_map false) name nothing: the node does not ask (asked,
+    the queryable answers nothing, and the node would ask again and again). A status that names a map the node
+    lacks and no reply brings is asked for after BEHIND_GRACE, then 2 s, 4 s... later: never a storm."""
+    import zenoh
+
+    from runtime.fleet.zenoh_exchange import BEHIND_GRACE
+
+    port, fleet = free_port(), f"nomap{os.getpid()}"
+    key, status_key = f"p3at/{fleet}/robot1/map", f"p3at/{fleet}/robot1/status"
+    session = mapwire.new_session()
+    with ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion") as node, _bare_session(port) as robot:
+        queryable = robot.declare_queryable(key, zenoh.handlers.RingChannel(16))
+        queries: list[float] = []
+
+        def node_reaches_the_queryable() -> bool:  # so that an ask of the node's could not go unseen below
+            node.request_snapshot("robot1")
+            _answer_queries(queryable, queries, None)
+            return bool(queries)
+
+        wait_until(node_reaches_the_queryable, "the node's query at robot1's queryable")
+        queries.clear()
+        stamp = 0.0
+
+        def status_handled(has_map: bool, sequence: int, until: float) -> bool:
+            nonlocal stamp
+            stamp += 1.0
+            robot.put(status_key, mapwire.encode_status("robot1", session, sequence, stamp, has_map=has_map))
+            _answer_queries(queryable, queries, None)
+            return node.status().get("robot1", {}).get("stamp", -1.0) >= until
+
+        wait_until(lambda: status_handled(False, 0, 0.0), "robot1's first status at the node")
+        # statuses sent for three grace periods after the node handled the first: each was a chance to ask
+        later = stamp + 1.0
+        end = time.monotonic() + 3 * BEHIND_GRACE
+        wait_until(lambda: status_handled(False, 0, later) and time.monotonic() >= end, "3 s of statuses")
+        wait_until(lambda: status_handled(False, 0, stamp), "the last status without a map handled")
+        assert queries == [], f"asked {len(queries)} time(s) for the map of a robot that has none"
+        named = time.monotonic()
+        wait_until(lambda: status_handled(True, 2, 0.0) and len(queries) >= 3, "three asks for map 2",
+                   DEADLINE + 7.0)
+        # asked BEHIND_GRACE after the status, then 2x and 4x further on: the third >= 7 s after (every second: 3 s)
+        assert queries[2] - named >= 6 * BEHIND_GRACE, [q - named for q in queries]
