@@ -26,6 +26,11 @@ from runtime.cli import main
 
 FAILURE_BOUND = 60.0
 DRIVE_SECONDS = 600.0  # ten times FAILURE_BOUND: a drive still running at FAILURE_BOUND did not notice the loss
+# The commands' default --link-timeout (0.6 s) is for a robot on its own machine; here the served robot's thread
+# shares this process (and a loaded CI machine) with the command, and was once silent for over 0.6 s (1 drive in
+# 40 beside two busy loops said 'link lost'). Tests that are not about the link give it a timeout no starved
+# thread reaches; the one that is gives DRIVE_SECONDS, so the loss it sees can only be the closed server.
+LINK = ["--link-timeout", str(DRIVE_SECONDS)]
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -51,7 +56,7 @@ def served() -> Iterator:
 
 
 def test_info_json(served, capsys) -> None:
-    assert main(["robot", "info", served.url, "--json"]) == 0
+    assert main(["robot", "info", served.url, "--json", *LINK]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["identity"] == {"name": "robot1", "type": "Pioneer", "subtype": "p3at-sh"}
     assert info["config"]["watchdog"] == 2000 and info["params"].endswith("p3at-sh.json")
@@ -60,7 +65,7 @@ def test_info_json(served, capsys) -> None:
 
 
 def test_info_text(served, capsys) -> None:
-    assert main(["robot", "info", served.url]) == 0
+    assert main(["robot", "info", served.url, *LINK]) == 0
     out = capsys.readouterr().out
     assert "robot1  (Pioneer p3at-sh)" in out and "sip_cycle=100" in out and "sonar m" in out
 
@@ -68,7 +73,7 @@ def test_info_text(served, capsys) -> None:
 def test_drive_prints_odometry_and_moves_the_robot(served, capsys) -> None:
     start = served.world.pose("robot1").copy()
     assert main(["robot", "drive", served.url, "--vel", "0.4", "--rvel", "0", "--seconds", "2",
-                 "--every", "0.25", "--json"]) == 0
+                 "--every", "0.25", "--json", *LINK]) == 0
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert len(lines) >= 2  # at least one while driving (a starved process may print fewer than 8) and the last
     xs = [line["x"] for line in lines]
@@ -94,7 +99,8 @@ def test_errors_are_one_line_and_nonzero(capsys, tmp_path) -> None:
 
 
 def test_drive_says_link_lost_and_exits_nonzero_when_the_server_closes(served) -> None:
-    drive = _p3at("robot", "drive", served.url, "--vel", "0.2", "--seconds", str(DRIVE_SECONDS), "--every", "0.1")
+    drive = _p3at("robot", "drive", served.url, "--vel", "0.2", "--seconds", str(DRIVE_SECONDS), "--every", "0.1",
+                  *LINK)
     try:
         first = drive.stdout.readline()  # the column header: the robot is connected
         second = drive.stdout.readline()  # a state while driving
@@ -109,10 +115,10 @@ def test_drive_says_link_lost_and_exits_nonzero_when_the_server_closes(served) -
 
 
 def test_info_and_drive_print_radians_with_units(served, capsys) -> None:
-    assert main(["robot", "info", served.url]) == 0
+    assert main(["robot", "info", served.url, *LINK]) == 0
     out = capsys.readouterr().out
     assert re.search(r"θ=[+-]\d\.\d{4} rad", out) and "deg" not in out
-    assert main(["robot", "drive", served.url, "--seconds", "0.1", "--rvel", "0.3"]) == 0
+    assert main(["robot", "drive", served.url, "--seconds", "0.1", "--rvel", "0.3", *LINK]) == 0
     header = capsys.readouterr().out.splitlines()[0].split()
     assert header == ["t", "[s]", "x", "[m]", "y", "[m]", "θ", "[rad]", "v", "[m/s]", "ω", "[rad/s]"]
 
@@ -134,7 +140,7 @@ def test_serve_prints_where_it_listens_and_a_client_can_connect(where, capsys) -
         while "listening on" not in out and time.monotonic() < deadline and server.poll() is None:
             out += server.stdout.readline()
         url = re.search(r"listening on (\S+)", out).group(1)
-        assert main(["robot", "info", url, "--json"]) == 0
+        assert main(["robot", "info", url, "--json", *LINK]) == 0
         assert json.loads(capsys.readouterr().out)["identity"]["name"] == "cli"
         server.send_signal(signal.SIGINT)
         assert server.wait(FAILURE_BOUND) == 0
