@@ -35,6 +35,8 @@ EXIT_BAD_INPUT = 2
 # long runs that reconnect). 0.6 s = 6 SIP cycles of 100 ms, twice the longest gap (0.31 s) measured from the
 # virtual robot on a loaded machine, so a slow robot is not taken for a lost one.
 LINK_TIMEOUT = 0.6
+STOP_CYCLES = 30      # state packets the drive command waits for the robot to stop: 3 s of a P3-AT's 100 ms
+STOP_WAIT_BACKSTOP = 600.0  # s; never reached: the packets, or the link's silence, end the wait first
 
 
 def tcp_port(text: str) -> int:
@@ -208,13 +210,29 @@ def _drive(args: argparse.Namespace) -> int:
                         robot.stop()
                     except NotConnectedError:
                         pass  # lost in between: the robot's watchdog stops it
-            state = robot.wait_for_state(2.0, lambda s: s.v == 0.0 and s.w == 0.0)
-            show(time.monotonic() - start, state)
+            show(time.monotonic() - start, _stopped_state(robot))
     except BadFileError as e:
         return _fail("drive", e, EXIT_BAD_INPUT)
     except DriverError as e:
         return _fail("drive", e, EXIT_DEVICE)
     return 0
+
+
+def _stopped_state(robot: Any) -> Any:
+    """The robot's first state that reports it stopped, waited for in the robot's own time: at most STOP_CYCLES of
+    its state packets (a P3-AT sends one every 100 ms). A starved simulator's packets, like its motion, come slower,
+    so it gets the same travel to stop in as a real robot; a link that goes silent ends the wait as lost
+    (``--link-timeout``). A robot still moving after them is an error (exit 1), as a silent one is."""
+    first = robot.state
+
+    def stopped_or_done(s: Any) -> bool:
+        return (s.v == 0.0 and s.w == 0.0) or s.session != first.session or s.sequence - first.sequence >= STOP_CYCLES
+
+    state = robot.wait_for_state(STOP_WAIT_BACKSTOP, stopped_or_done)
+    if state.v != 0.0 or state.w != 0.0:
+        raise DriverTimeoutError(f"{robot.url}: the robot still reports v {state.v:+.3f} m/s, w {state.w:+.3f} rad/s "
+                                 f"{STOP_CYCLES} state packets after the stop command")
+    return state
 
 
 # ---------------------------------------------------------------------------------------------------- serve
