@@ -6,7 +6,8 @@ frame, with a fixed per-landmark noise (so a landmark not re-observed does not c
 ``metadata.true_start_pose`` for scoring. Each step adds ``grow`` landmarks and re-observes ``reobserve`` old ones.
 
 ``python -m runtime.fleet.synthetic --names robot1,robot2 --exchange zenoh:CONFIG`` runs them; it prints
-``ready`` when its sessions are open, and stops on SIGTERM, Ctrl-C or after ``--steps``.
+``ready`` when its sessions are open and ``published`` after ``--steps`` updates, then idles as a runtime robot
+whose mission has ended (its status once a second, naming its last map) until SIGTERM or Ctrl-C.
 """
 from __future__ import annotations
 
@@ -108,28 +109,39 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(s, lambda *_: stop.set())
     print("ready", flush=True)
     step = 0
-    next_time = started = time.monotonic()
+    next_time = started = next_status = time.monotonic()
     full_only = dict.fromkeys(names, 0)
+    sizes = dict.fromkeys(names, 0)
+    sent = None  # bytes sent by the updates (and their statuses) alone: what --report gives
     try:
         while not stop.is_set():
             if args.steps == 0 or step < args.steps:
                 for robot, exchange in zip(robots, exchanges, strict=True):
                     m = robot.step()
                     exchange.publish(robot.name, m, stamp=time.time())  # wall clock: shared by processes
+                    sizes[robot.name] = len(m)
                     if args.report:
                         full_only[robot.name] += len(encode_full(robot.name, "0" * 16, step, 0.0, m))
                 step += 1
                 if step == args.steps:
+                    sent = [dict(e.bytes_sent) for e in exchanges]
                     print("published", flush=True)
+            elif time.monotonic() >= next_status:
+                # as a robot whose mission has ended (runtime/fleet/status.py): a status once a second names the
+                # last map, so a receiver that lost it on the wire (maps go with CongestionControl.DROP) asks for it
+                next_status = time.monotonic() + 1.0
+                for robot, exchange in zip(robots, exchanges, strict=True):
+                    exchange.publish_status(robot.name, time.time(), landmarks=sizes[robot.name])
             next_time += args.period
             stop.wait(max(0.0, next_time - time.monotonic()))
     finally:
         for exchange in exchanges:
             exchange.close()
     if args.report:
+        sent = sent or [dict(e.bytes_sent) for e in exchanges]
         print(json.dumps({"seconds": time.monotonic() - started, "robots": {
-            r.name: {"sent": dict(e.bytes_sent), "full_only": full_only[r.name]}
-            for r, e in zip(robots, exchanges, strict=True)}}), flush=True)
+            r.name: {"sent": s, "full_only": full_only[r.name]} for r, s in zip(robots, sent, strict=True)}}),
+              flush=True)
     return 0
 
 
