@@ -278,14 +278,18 @@ def salvage(path: str | Path, whole_bytes: int, decodes: Callable[[Path], bool],
     return result
 
 
-def _serve(conn, decode: Callable[[Path], bool], prepare: Callable[[], object] | None, stderr: str) -> None:
+def _serve(conn, decode: Callable[[Path], bool], prepare: Callable[[], object] | None, stderr: str,
+           parent: int) -> None:
     """A reading process's life: standard error to ``stderr`` (a Rust panic prints its backtrace there), ``prepare()``,
     "ready", then one answer per candidate path received, until None or the parent goes. An exception is a refusal (as
-    in :func:`salvage`'s in-process reading); an abort ends the process, which the parent sees as the pipe's end."""
+    in :func:`salvage`'s in-process reading); an abort ends the process, which the parent sees as the pipe's end.
+
+    ``parent``: the starting process's pid, as it gave it. Not read here with ``os.getppid()``: a child that first
+    runs after its parent was killed (a spare forked just before a SIGKILL, on a busy machine) would read its new
+    parent's pid, never see it change, and wait for ever (a loaded CI run left one behind that way)."""
     fd = os.open(stderr, os.O_WRONLY | os.O_APPEND)
     os.dup2(fd, 2)
     os.close(fd)
-    parent = os.getppid()
     if prepare is not None:
         prepare()
     conn.send("ready")   # a child that dies before this died of its start, not of a candidate
@@ -342,8 +346,8 @@ class ReadingProcesses:
 
     def _start(self) -> tuple:
         mine, theirs = self._context.Pipe(duplex=True)
-        child = self._context.Process(target=_serve, args=(theirs, self._decode, self._prepare, self._stderr),
-                                      daemon=True)
+        child = self._context.Process(target=_serve, daemon=True,
+                                      args=(theirs, self._decode, self._prepare, self._stderr, os.getpid()))
         child.start()
         theirs.close()
         self.started += 1
