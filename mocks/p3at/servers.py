@@ -147,11 +147,22 @@ class _Server:
         """Wall clock: apply the client's bytes (if any) and run the model to now; send what fell due.
 
         Deadlines are absolute: the model's SIPs fall at open + k·SipCycle of simulated time, itself a fixed
-        function of the clock, so a late wake-up sends the SIP late but never shifts the ones after it."""
+        function of the clock, so a late wake-up sends the SIP late but never shifts the ones after it.
+
+        The watchdog counts only the silence this thread saw. Bytes it reads came at some instant since it last
+        looked, which it cannot know if it ran late (a loaded machine), so the physics up to now runs without the
+        watchdog before they are applied; and a step without bytes first makes sure none wait on the link (if some
+        do, the data step that follows at once takes them). Without both, a thread starved for the watchdog's 2 s
+        of wall time stopped a robot whose client had pulsed all along."""
         with self._lock:
             sips = self.model.stats.sips
             now = self.sim_now()
-            out = self.model.receive(data, now) if data else self.model.advance(now)
+            if data:
+                out = self.model.advance(now, watchdog=False) + self.model.receive(data, now)
+            elif self._bytes_waiting():
+                return
+            else:
+                out = self.model.advance(now)
             self.rx_bytes += len(data)
             sips = self.model.stats.sips - sips
             moved = self.on_moved
@@ -162,6 +173,10 @@ class _Server:
 
     # subclasses: the descriptors to watch, one pass over them, sending, whether a client is there
     def _fds(self) -> list:
+        raise NotImplementedError
+
+    def _bytes_waiting(self) -> bool:
+        """Whether the client's bytes (or its hang-up) wait on the link now."""
         raise NotImplementedError
 
     def _service_io(self) -> None:
@@ -303,6 +318,9 @@ class TcpServer(_Server):
     def _connected(self) -> bool:
         return self._client is not None
 
+    def _bytes_waiting(self) -> bool:
+        return self._client is not None and bool(select.select([self._client], [], [], 0)[0])
+
     def _service_io(self) -> None:
         readable, _, _ = select.select(self._fds(), [], [], 0)
         if self._listener in readable:
@@ -381,6 +399,9 @@ class PtyServer(_Server):
 
     def _connected(self) -> bool:
         return True
+
+    def _bytes_waiting(self) -> bool:
+        return bool(select.select([self._master], [], [], 0)[0])
 
     def _service_io(self) -> None:
         if not select.select([self._master], [], [], 0)[0]:

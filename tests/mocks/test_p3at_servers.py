@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import select
 import threading
 import time
 
@@ -199,6 +200,40 @@ def test_time_scale_keeps_the_watchdog_in_wall_time(world: World) -> None:
             assert server.model.w > 0 and server.model.stats.watchdog_stops == 0
             clock.t += 2.1  # then 2.1 s of wall time in silence: the watchdog stops the robot
             assert wait_until(lambda: server.model.stats.watchdog_stops == 1)
+
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_a_server_thread_that_ran_late_does_not_take_waiting_pulses_for_silence(world: World, transport: str) -> None:
+    """The watchdog counts the client's silence, not the server thread's: a thread that did not run for 2.5 s of
+    wall time (a loaded machine; here a hook holds it after a step) and then finds the client's PULSE waiting
+    cannot know when in those 2.5 s it came, and the robot drives on. It stopped the robot: the thread stepped
+    the physics to its late 'now' before it looked at the link (seen as a CLI drive's robot going 1.75 s without
+    a SIP beside two busy loops, 0.25 s short of a false watchdog stop)."""
+    clock = ManualClock()
+    server = serve_tcp(world, "robot1", port=0, time_scale=5.0, clock=clock) if transport == "tcp" \
+        else serve_pty(world, "robot1", time_scale=5.0, clock=clock)
+    with server, serial.serial_for_url(server.url, timeout=0.05) as port:
+        handshake(port, PacketParser())
+        port.write(encode_command(Command.ENABLE, 1) + encode_command(Command.RVEL, 10))
+        assert wait_until(lambda: server.model.motors_enabled)
+        sent = server.rx_bytes
+        held, resume = threading.Event(), threading.Event()
+
+        def hold(_model) -> None:  # the server's thread stops after a step, as a starved thread would
+            held.set()
+            resume.wait(FAILURE_BOUND)
+        server.on_moved = hold
+        assert held.wait(FAILURE_BOUND)
+        clock.t = 2.5  # 12.5 s simulated, 2.5 s of wall time: past the 2 s watchdog
+        port.write(encode_command(Command.PULSE))
+        assert select.select(server._fds()[-1:], [], [], FAILURE_BOUND)[0]  # the PULSE waits on the link
+        server.on_moved = None
+        resume.set()
+        assert wait_until(lambda: server.rx_bytes > sent and server.model.time >= 12.5 - 1e-6)
+        assert server.model.stats.watchdog_stops == 0 and server.model.w > 0
+        clock.t += 2.1  # and a silence the thread sees still stops the robot
+        assert wait_until(lambda: server.model.stats.watchdog_stops == 1)
 
 
 def _drive_in_lockstep(world: World, transport: str) -> tuple[list[float], np.ndarray, np.ndarray]:
