@@ -437,9 +437,13 @@ class P3AT:
             self._pending.extend(self.parser.feed(data))
 
     def _next_packet(self, timeout: float) -> bytes | None:
+        """The next packet, or None after ``timeout``; raises NotConnectedError once the driver is closing (the
+        session's waits loop on this until their deadlines: returning None would spin them until then)."""
         deadline = self.clock() + timeout
         while not self._pending:
-            if self.clock() >= deadline or self._stop.is_set():
+            if self._stop.is_set():
+                raise NotConnectedError(f"{self.url}: closed")
+            if self.clock() >= deadline:
                 return None
             self._read_some()
         return self._pending.popleft()
@@ -447,7 +451,7 @@ class P3AT:
     def _drain(self, quiet: float = 0.3, limit: float = 2.0) -> None:
         """Read and discard until the line has been quiet for ``quiet`` s (at most ``limit`` s)."""
         start = last = self.clock()
-        while self.clock() - last < quiet and self.clock() - start < limit:
+        while self.clock() - last < quiet and self.clock() - start < limit and not self._stop.is_set():
             if self._port.read(4096):
                 last = self.clock()
         self._pending.clear()
@@ -634,9 +638,11 @@ class P3AT:
                 self._write(encode_command(Command.ENABLE, 0))  # come back with motors disabled
             except (serial.SerialException, OSError, NotConnectedError, DriverTimeoutError, ProtocolError,
                     DeviceNotFoundError) as exc:
-                log.info("%s: reconnect failed (%s); retrying in %.1f s", self.url, exc, backoff)
                 self._link_up = False
                 self._close_port()
+                if self._stop.is_set():
+                    return False
+                log.info("%s: reconnect failed (%s); retrying in %.1f s", self.url, exc, backoff)
                 backoff = min(backoff * 2, self.max_backoff)
                 continue
             log.warning("%s: link restored (session %d)", self.url, self.session)

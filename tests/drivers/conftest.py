@@ -39,6 +39,7 @@ class FakePeer:
         self.send_config = send_config
         self.streaming = streaming_from_old_session  # SIPs before any handshake
         self.silent = False  # when True, reads are discarded and nothing is sent
+        self.sips = True  # when False, commands are answered but no SIP is sent (a session that opens mute)
         self.commands: list[tuple[int, object]] = []
         self.x = self.y = self.th = 0.0
         self.v = self.w = 0.0
@@ -150,7 +151,7 @@ class FakePeer:
                 now = time.monotonic()
                 if now >= next_sip:
                     next_sip = now + 0.1
-                    if self.streaming:
+                    if self.streaming and self.sips:
                         self.x += self.v * 0.1 * math.cos(self.th)
                         self.y += self.v * 0.1 * math.sin(self.th)
                         self.th += self.w * 0.1

@@ -134,6 +134,28 @@ def test_tcp_peer_hanging_up_is_a_lost_link_and_the_driver_reconnects(tcp_peer) 
         assert robot.wait_for_state(FAILURE_BOUND).session == 2
 
 
+
+def test_close_during_a_reconnect_that_waits_for_its_first_sip_stops_the_reader_at_once(tcp_peer) -> None:
+    """A reconnect whose handshake passed but whose first SIP has not come (a robot that opens mute) is cut short
+    by close(): the reader ends with it. It spun in the SIP wait until its deadline (link_timeout / 2: here 500 s
+    of the reader's busy loop) after close() had given up joining it."""
+    peer = tcp_peer
+    clock = JumpClock()
+    robot = P3AT(peer.url, link_timeout=1000.0, clock=clock).connect()
+    try:
+        peer.sips = False
+
+        def lost() -> bool:
+            clock.jump(2000.0)  # at every poll (see the link-loss test above)
+            return not robot.connected
+        assert wait_until(lost)
+        # the reconnect's handshake and OPEN pass (a new TCP client is a new session for the peer) ...
+        assert wait_until(lambda: peer.commands.count((Command.OPEN, 1)) == 2 and robot.connected)
+    finally:
+        robot.close()  # ... and it waits for a SIP that never comes
+    assert not any(t.name.startswith("arcos-reader") and t.is_alive() for t in threading.enumerate())
+
+
 def test_clamped_command_warns(fake_peer_factory) -> None:
     peer = fake_peer_factory()
     with P3AT(peer.url) as robot:
