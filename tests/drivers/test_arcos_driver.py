@@ -47,7 +47,10 @@ def wait_until(predicate, timeout: float = FAILURE_BOUND) -> bool:
 
 def test_handshake_identity_config_and_state(fake_peer_factory) -> None:
     peer = fake_peer_factory()
-    with P3AT(peer.url) as robot:
+    # The peer answers every SYNC and CONFIG: the waits for them are failure bounds here, not the driver's 0.5 s
+    # and 1 s, which a peer thread starved for that long (seen: 1.75 s in a loaded run) would overrun: a SYNC
+    # sent again, or no CONFIG, and the sequence asserted below differs.
+    with P3AT(peer.url, reply_timeout=FAILURE_BOUND, config_timeout=FAILURE_BOUND) as robot:
         assert robot.identity.name == "FakePeer" and robot.identity.subtype == "p3at-sh"
         assert robot.params.subtype == "p3at-sh"
         assert robot.config.name == "FakePeer" and robot.config.trans_vel_top == 1200

@@ -100,7 +100,8 @@ def driver(robot: VirtualRobot, **kwargs: object) -> P3AT:
 
 def test_handshake_identity_and_config(virtual_robot) -> None:
     robot = virtual_robot(box_world(), (5.0, 2.0, 0.0))
-    with driver(robot) as p3at:
+    # the robot answers CONFIG: waited for as a failure bound, not the driver's 1 s a starved server thread overruns
+    with driver(robot, config_timeout=FAILURE_BOUND) as p3at:
         assert (p3at.identity.name, p3at.identity.type, p3at.identity.subtype) == ("vp3at", "Pioneer", "p3at-sh")
         assert p3at.params.subtype == "p3at-sh"
         assert p3at.config.sip_cycle == 100 and p3at.config.watchdog == 2000
