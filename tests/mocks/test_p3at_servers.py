@@ -140,18 +140,22 @@ def test_garbage_over_tcp_does_not_stop_the_server(world: World) -> None:
 
 
 def test_close_is_idempotent_and_joins_its_thread(world: World) -> None:
-    before = {t.name for t in threading.enumerate()}
+    def servers() -> set[str]:  # only the servers' threads: another test's thread may start meanwhile
+        return {t.name for t in threading.enumerate() if t.name.startswith(("p3at-tcp-", "p3at-pty-"))}
+
+    before = servers()
     server = serve_tcp(world, "robot1", port=0, time_scale=4.0)
     assert any(t.name.startswith("p3at-tcp-robot1") for t in threading.enumerate())
     server.close()
     server.close()
-    assert {t.name for t in threading.enumerate()} <= before
+    assert servers() <= before
     with pytest.raises(OSError), serial.serial_for_url(server.url, timeout=0.1):
         pass
     pty = serve_pty(world, "robot1")
+    assert any(t.name.startswith("p3at-pty-robot1") for t in threading.enumerate())
     pty.close()
     pty.close()
-    assert {t.name for t in threading.enumerate()} <= before
+    assert servers() <= before
 
 
 def wait_until(predicate, bound: float = FAILURE_BOUND) -> bool:
