@@ -470,9 +470,9 @@ class ZenohExchange:
                     self._wake.wait(timeout=self._idle_wait())
                 if self._closed:
                     return
+                ask = self._behind_due()  # a busy queue must not hold them back
                 key, data, asked = self._pending.popleft()
                 self._pending_bytes -= len(data)
-                ask = self._behind_due()  # a busy queue must not hold them back
             for robot in sorted(ask):
                 self.request_snapshot(robot)
             try:
@@ -490,14 +490,22 @@ class ZenohExchange:
                 self._drop(key, f"internal error {type(e).__name__}: {e}")
 
     def _behind_due(self) -> set[str]:
-        """Robots whose missing map is due to be asked for now; their next ask is set 2x further on (lock held)."""
+        """Robots whose missing map is due to be asked for now; their next ask is set 2x further on. One with a map
+        still in the queue is not asked yet: a worker more than BEHIND_GRACE behind holds the status's map there
+        (lock held)."""
         now = time.monotonic()
-        due = set()
+        due, queued = set(), None
         for robot, behind in self._behind.items():
-            if behind.due <= now:
-                due.add(robot)
-                behind.delay = min(2 * behind.delay, BEHIND_RETRY_MAX)
-                behind.due = now + behind.delay
+            if behind.due > now:
+                continue
+            if queued is None:
+                queued = {self._robot_of(key, "map") for key, _, _ in self._pending}
+            if robot in queued:
+                behind.due = now + BEHIND_GRACE
+                continue
+            due.add(robot)
+            behind.delay = min(2 * behind.delay, BEHIND_RETRY_MAX)
+            behind.due = now + behind.delay
         return due
 
     def _idle_wait(self) -> float | None:
