@@ -184,7 +184,12 @@ class FakePeer:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2)
+        # The descriptors close only once the thread has ended: closed under it, their numbers go to the next
+        # test's pty or socket (the lowest free numbers), and a thread still running would read that test's bytes.
+        # It ends within one 20 ms poll of running; the bound is a failure bound (a starved thread once did not
+        # run for 1.75 s; this waited 2 s and then closed the descriptors anyway).
+        self._thread.join(timeout=60.0)
+        assert not self._thread.is_alive(), "the fake peer's thread did not stop"
         if self.transport == "pty":
             os.close(self._master)
             os.close(self._slave)
