@@ -68,6 +68,9 @@ class _Server:
         self._stop = threading.Event()
         self._closed = False
         self._closing = False
+        self._thread_done = False
+        self._io_left_to_thread = False
+        self.join_timeout = 5.0  # wall s close() waits for the thread (see close)
         self._thread = threading.Thread(target=self._run_guarded, name=thread_name, daemon=True)
         self.error: BaseException | None = None  # what stopped the thread, if anything did
         # lockstep bookkeeping (see the module docstring)
@@ -201,6 +204,12 @@ class _Server:
                 self._run()
         except BaseException as exc:  # noqa: BLE001 - recorded for the owner; the thread must end quietly
             self.error = exc
+        finally:
+            with self._lock:
+                self._thread_done = True
+                close_io = self._io_left_to_thread
+            if close_io:
+                self._close_io()
 
     def _run(self) -> None:
         raise NotImplementedError
@@ -215,13 +224,18 @@ class _Server:
         self._closing = True
         self._stop.set()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
-            self._thread.join(timeout=5.0)
+            self._thread.join(timeout=self.join_timeout)
         with self._lock:
             self._closed = True
+            # A thread still running (starved, or waiting for a lockstep baton) closes the port or pty itself as
+            # it ends: closed under it, the descriptors' numbers would go to the next server or client, and the
+            # thread would read and write there.
+            self._io_left_to_thread = not self._thread_done and self._thread.ident is not None
         if self.lockstep:
             _physics(self._clock).remove(self)
             self._clock.discard(self._token)
-        self._close_io()
+        if not self._io_left_to_thread:
+            self._close_io()
         self.model.close()
 
     def __enter__(self) -> Any:

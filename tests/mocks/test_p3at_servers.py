@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import select
+import socket
 import threading
 import time
 
@@ -156,6 +158,34 @@ def test_close_is_idempotent_and_joins_its_thread(world: World) -> None:
     pty.close()
     pty.close()
     assert servers() <= before
+
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_a_thread_still_running_at_close_closes_its_port_itself_as_it_ends(world: World, transport: str) -> None:
+    """close() waits join_timeout for the server's thread; one still running then (starved, or waiting for a
+    lockstep baton) keeps its port or pty until it ends: closed under it, the numbers went to the next server's
+    descriptors, which the old thread would read and write."""
+    server = serve_tcp(world, "robot1", port=0) if transport == "tcp" else serve_pty(world, "robot1")
+    fd = server._fds()[0]
+    number = fd.fileno() if isinstance(fd, socket.socket) else fd
+    held, resume = threading.Event(), threading.Event()
+    emit = server._emit
+
+    def hold(data: bytes) -> bool:  # the thread stops between steps (holding no lock), as a starved thread would
+        held.set()
+        resume.wait(FAILURE_BOUND)
+        return emit(data)
+    server._emit = hold
+    assert held.wait(FAILURE_BOUND)
+    server.join_timeout = 0.05
+    server.close()
+    os.fstat(number)  # still open: the thread may still use it
+    assert world.robot_names() == []
+    resume.set()
+    assert wait_until(lambda: not server._thread.is_alive())
+    with pytest.raises(OSError):
+        os.fstat(number)
 
 
 def wait_until(predicate, bound: float = FAILURE_BOUND) -> bool:
