@@ -348,6 +348,7 @@ class Onboard:
         self._last_snapshot = -np.inf
         self._stopped = False
         self._stop_requested = False
+        self._stop_time: float | None = None   # mission time at request_stop: when the robot's mission ended
         self._anchor: np.ndarray | None = None            # best pose at the last frame (map frame) ...
         self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
         self.errors: list[str] = []
@@ -401,6 +402,7 @@ class Onboard:
         if self._stop_requested:
             return
         self._stop_requested = True
+        self._stop_time = self.mission_time
         self._stop.set()
         self._halt_motors()
         if self.truth is not None:
@@ -483,8 +485,10 @@ class Onboard:
         self.stats.odometry_samples += 1
         if self.sensor_log is not None:
             self.sensor_log.write("odometry", odometry_record(sample))
+        # the recording ends with the mission: a SIP of the shutdown (the joins take wall time, and simulated time
+        # runs on meanwhile: more of it the busier the machine) is in the sensor log, not in the recording
         if self.logger is not None and self.stats.odometry_samples % self.config.sonar_every == 0 \
-                and len(sample.sonar_ranges):
+                and len(sample.sonar_ranges) and (self._stop_time is None or sample.t - self.t0 <= self._stop_time):
             pose = self._map_pose(sample.pose)
             if pose is not None:
                 ranges = np.nan_to_num(sample.sonar_ranges, nan=0.0)
@@ -600,7 +604,9 @@ class Onboard:
     def publish_snapshot(self, force: bool = False) -> LandmarkMap | None:
         if self.core.frames == 0:
             return None
-        t = self.mission_time
+        # after the stop the map is the one of the stop's instant (every stage ended then): stamped so, not with
+        # the end of the joins, which on a simulated clock comes later the busier the machine is
+        t = self.mission_time if self._stop_time is None else self._stop_time
         with self._core_lock:
             snapshot = self._best_map()
         self._last_snapshot = t

@@ -169,7 +169,9 @@ def test_review_reads_the_recording_back_with_the_same_figures(mission, tmp_path
     alignment = review["alignments"]["robot1_robot2"]
     final = result.summary["fusion"]["pairs"][0]
     np.testing.assert_equal([alignment[k] for k in ("tx", "ty", "theta")], [final[k] for k in ("tx", "ty", "theta")])
-    assert review["duration"] == pytest.approx(result.summary["duration"], abs=2.0)
+    # the recording ends with the mission: nothing of the shutdown (whose simulated length grows with the machine's
+    # load: 3.3 s over 30 s seen in a loaded run) is stamped after the stop
+    assert review["duration"] == pytest.approx(result.summary["duration"], abs=0.05)
     for name, m in result.maps.items():  # the exported maps are the robots' maps, array for array
         exported = LandmarkMap.load(tmp_path / f"{name}.npz")
         np.testing.assert_array_equal(exported.positions, m.positions)
