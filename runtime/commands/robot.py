@@ -35,8 +35,10 @@ EXIT_BAD_INPUT = 2
 # long runs that reconnect). 0.6 s = 6 SIP cycles of 100 ms, twice the longest gap (0.31 s) measured from the
 # virtual robot on a loaded machine, so a slow robot is not taken for a lost one.
 LINK_TIMEOUT = 0.6
-STOP_CYCLES = 30      # state packets the drive command waits for the robot to stop: 3 s of a P3-AT's 100 ms
-STOP_WAIT_BACKSTOP = 600.0  # s; never reached: the packets, or the link's silence, end the wait first
+STOP_MARGIN_CYCLES = 10   # state packets beyond twice a stop's time at the robot's deceleration (1 s of a P3-AT's)
+# ARCOS's factory TransDecel (mm/s²), RotDecel (°/s²), SipCycle and SonarCycle (ms), for a CONFIG that lacks them
+DEFAULT_TRANS_DECEL, DEFAULT_ROT_DECEL, DEFAULT_SIP_CYCLE, DEFAULT_SONAR_CYCLE = 300, 100, 100, 40
+PACKET_WAIT_BACKSTOP = 600.0  # s; never reached: the packets, or the link's silence, end the wait first
 
 
 def tcp_port(text: str) -> int:
@@ -137,11 +139,12 @@ def _info(args: argparse.Namespace) -> int:
 
     try:
         with _open(args) as robot:
-            # Give the sonars one firing round so every range is filled in (each SIP carries only new ones).
-            try:
-                state = robot.wait_for_state(1.5, lambda s: all(r is not None for r in s.sonar_ranges()))
-            except DriverTimeoutError:
-                state = robot.state
+            # Give the sonars one firing round so every range is filled in (each SIP carries only new ones), in
+            # the robot's own time: a starved simulator's round takes longer on the wall clock
+            first = robot.state
+            cycles = _sonar_round_cycles(robot.config, len(first.sonar_ranges()))
+            state = robot.wait_for_state(PACKET_WAIT_BACKSTOP, lambda s: all(r is not None for r in s.sonar_ranges())
+                                         or s.session != first.session or s.sequence - first.sequence >= cycles)
             identity, config, params = robot.identity, robot.config, robot.params
             stats = robot.stats
     except BadFileError as e:
@@ -219,20 +222,46 @@ def _drive(args: argparse.Namespace) -> int:
 
 
 def _stopped_state(robot: Any) -> Any:
-    """The robot's first state that reports it stopped, waited for in the robot's own time: at most STOP_CYCLES of
-    its state packets (a P3-AT sends one every 100 ms). A starved simulator's packets, like its motion, come slower,
-    so it gets the same travel to stop in as a real robot; a link that goes silent ends the wait as lost
-    (``--link-timeout``). A robot still moving after them is an error (exit 1), as a silent one is."""
+    """The robot's first state that reports it stopped, waited for in the robot's own time: its state packets, as
+    many as twice the stop takes at its own deceleration, plus STOP_MARGIN_CYCLES (:func:`_stop_cycles`). A starved
+    simulator's packets, like its motion, come slower, so it gets the same travel to stop in as a real robot; a link
+    that goes silent ends the wait as lost (``--link-timeout``). A robot still moving after them is an error
+    (exit 1), as a silent one is."""
     first = robot.state
+    cycles = _stop_cycles(robot.config, first.v, first.w)
 
     def stopped_or_done(s: Any) -> bool:
-        return (s.v == 0.0 and s.w == 0.0) or s.session != first.session or s.sequence - first.sequence >= STOP_CYCLES
+        return (s.v == 0.0 and s.w == 0.0) or s.session != first.session or s.sequence - first.sequence >= cycles
 
-    state = robot.wait_for_state(STOP_WAIT_BACKSTOP, stopped_or_done)
+    state = robot.wait_for_state(PACKET_WAIT_BACKSTOP, stopped_or_done)
     if state.v != 0.0 or state.w != 0.0:
         raise DriverTimeoutError(f"{robot.url}: the robot still reports v {state.v:+.3f} m/s, w {state.w:+.3f} rad/s "
-                                 f"{STOP_CYCLES} state packets after the stop command")
+                                 f"{cycles} state packets after the stop command")
     return state
+
+
+def _config_field(config: Any, name: str, default: int) -> int:
+    """A positive CONFIG field, or ARCOS's factory value where the robot sent none (a CONFIG may end early)."""
+    value = getattr(config, name, None)
+    return value if isinstance(value, int) and value > 0 else default
+
+
+def _stop_cycles(config: Any, v: float, w: float) -> int:
+    """State packets a robot moving at ``v`` (m/s), ``w`` (rad/s) is given to stop: twice the time its CONFIG's
+    TransDecel and RotDecel take, in its SipCycle, plus a margin."""
+    trans_decel = _config_field(config, "trans_decel", DEFAULT_TRANS_DECEL) / 1000.0
+    rot_decel = math.radians(_config_field(config, "rot_decel", DEFAULT_ROT_DECEL))
+    cycle = _config_field(config, "sip_cycle", DEFAULT_SIP_CYCLE) / 1000.0
+    seconds = max(abs(v) / trans_decel, abs(w) / rot_decel)
+    return math.ceil(2.0 * seconds / cycle) + STOP_MARGIN_CYCLES
+
+
+def _sonar_round_cycles(config: Any, sonars: int) -> int:
+    """State packets in which ``sonars`` sonars, fired one every SonarCycle, all report: twice a round, plus a
+    margin (16 sonars of a P3-AT: 0.64 s, 23 packets)."""
+    sonar = _config_field(config, "sonar_cycle", DEFAULT_SONAR_CYCLE) / 1000.0
+    cycle = _config_field(config, "sip_cycle", DEFAULT_SIP_CYCLE) / 1000.0
+    return math.ceil(2.0 * sonars * sonar / cycle) + STOP_MARGIN_CYCLES
 
 
 # ---------------------------------------------------------------------------------------------------- serve

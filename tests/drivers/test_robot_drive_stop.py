@@ -1,14 +1,16 @@
-"""``p3at robot drive`` waits for the robot to stop in the robot's own time (its state packets), not this
-process's seconds: a robot whose clock runs slower than the wall's (a starved simulator, here one run at a quarter
-of the wall clock's speed) still stops within its deceleration, and the drive ends with it at rest."""
+"""``p3at robot drive`` waits for the robot to stop, and ``p3at robot info`` for a round of its sonars, in the
+robot's own time (its state packets), not this process's seconds, for as long as the robot's own CONFIG says: a
+robot whose clock runs slower than the wall's (a starved simulator, here one run at a quarter of the wall clock's
+speed) and one that brakes gently both end the drive at rest, and info shows every sonar's range."""
 from __future__ import annotations
 
 import json
 from collections.abc import Iterator
 
+import numpy as np
 import pytest
 
-from mocks.p3at import serve_tcp
+from mocks.p3at import FirmwareDefaults, serve_tcp
 from mocks.world import World
 from runtime.cli import main
 
@@ -32,3 +34,23 @@ def test_a_robot_slower_than_the_wall_clock_is_waited_for_until_it_stops(slow_ro
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert max(line["v"] for line in lines) > 0.2   # it did drive fast enough to need the time to stop
     assert lines[-1]["v"] == 0.0 and lines[-1]["w"] == 0.0
+
+
+def test_a_robot_that_brakes_gently_is_waited_for_as_long_as_its_deceleration_says(capsys) -> None:
+    # 100 mm/s² (a third of ARCOS's default), in the robot's CONFIG: from 0.6 m/s it needs 6 s of its own time to
+    # stop, 60 state packets, twice what a fixed 3 s allowed (G's proposal; the test is G's)
+    walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
+    with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, time_scale=2.0, seed=3,
+                   firmware=FirmwareDefaults(trans_accel=2000, trans_decel=100)) as server:
+        assert main(["robot", "drive", server.url, "--vel", "0.6", "--seconds", "1", "--json", *LINK]) == 0, \
+            capsys.readouterr().err
+    last = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert last["v"] == 0.0 and last["x"] > 2.0   # it drove fast, and stopped
+
+
+def test_info_waits_for_a_whole_sonar_round_of_a_robot_slower_than_the_wall_clock(slow_robot, capsys) -> None:
+    # a round of 16 sonars is 0.64 s of the robot's time, 2.6 s of the wall's here: more than the 1.5 s of wall
+    # clock the command used to wait (6 of 16 ranges were missing, G's measurement)
+    assert main(["robot", "info", slow_robot.url, "--json", *LINK]) == 0
+    sonars = json.loads(capsys.readouterr().out)["state"]["sonars"]
+    assert len(sonars) == 16 and all(s["range_m"] is not None for s in sonars)
