@@ -347,8 +347,7 @@ class Onboard:
         self._threads: list[threading.Thread] = []
         self._last_snapshot = -np.inf
         self._stopped = False
-        self._stop_requested = False
-        self._stop_time: float | None = None   # mission time at request_stop: when the robot's mission ended
+        self._stop_time: float | None = None   # mission time at request_stop (None: not requested)
         self._anchor: np.ndarray | None = None            # best pose at the last frame (map frame) ...
         self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
         self.errors: list[str] = []
@@ -399,9 +398,8 @@ class Onboard:
     def request_stop(self) -> None:
         """Stop the motors and tell every thread to end (returns at once; idempotent). On a lockstep clock,
         call it from a participant: every thread then ends at this simulated instant."""
-        if self._stop_requested:
+        if self._stop_time is not None:
             return
-        self._stop_requested = True
         self._stop_time = self.mission_time
         self._stop.set()
         self._halt_motors()

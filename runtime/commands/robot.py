@@ -16,6 +16,7 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
@@ -143,8 +144,7 @@ def _info(args: argparse.Namespace) -> int:
             # the robot's own time: a starved simulator's round takes longer on the wall clock
             first = robot.state
             cycles = _sonar_round_cycles(robot.config, len(first.sonar_ranges()))
-            state = robot.wait_for_state(PACKET_WAIT_BACKSTOP, lambda s: all(r is not None for r in s.sonar_ranges())
-                                         or s.session != first.session or s.sequence - first.sequence >= cycles)
+            state = _wait_in_packets(robot, first, cycles, lambda s: all(r is not None for r in s.sonar_ranges()))
             identity, config, params = robot.identity, robot.config, robot.params
             stats = robot.stats
     except BadFileError as e:
@@ -229,15 +229,18 @@ def _stopped_state(robot: Any) -> Any:
     (exit 1), as a silent one is."""
     first = robot.state
     cycles = _stop_cycles(robot.config, first.v, first.w)
-
-    def stopped_or_done(s: Any) -> bool:
-        return (s.v == 0.0 and s.w == 0.0) or s.session != first.session or s.sequence - first.sequence >= cycles
-
-    state = robot.wait_for_state(PACKET_WAIT_BACKSTOP, stopped_or_done)
+    state = _wait_in_packets(robot, first, cycles, lambda s: s.v == 0.0 and s.w == 0.0)
     if state.v != 0.0 or state.w != 0.0:
         raise DriverTimeoutError(f"{robot.url}: the robot still reports v {state.v:+.3f} m/s, w {state.w:+.3f} rad/s "
                                  f"{cycles} state packets after the stop command")
     return state
+
+
+def _wait_in_packets(robot: Any, first: Any, cycles: int, done: Callable[[Any], bool]) -> Any:
+    """The first state after ``first`` for which ``done`` holds, or the one ``cycles`` state packets on, or the first
+    of a new session (a reconnect): a wait in the robot's own time. A link that goes silent ends it as lost."""
+    return robot.wait_for_state(PACKET_WAIT_BACKSTOP, lambda s: done(s) or s.session != first.session
+                                or s.sequence - first.sequence >= cycles)
 
 
 def _config_field(config: Any, name: str, default: int) -> int:
