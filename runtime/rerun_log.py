@@ -878,6 +878,28 @@ def _last_values(rows: list[dict], key: str):
     return None
 
 
+class _LazyScratch:
+    """A ``p3at-review-*`` temporary folder made only when :meth:`path` is first asked for (a file cut short, a
+    salvage) and removed as the ``with`` block ends, whichever way it ends. Reading a sound recording makes none, so
+    a reader killed while reading one (the usual case) leaves nothing behind in the temporary folder."""
+
+    def __init__(self) -> None:
+        self._folder: tempfile.TemporaryDirectory | None = None
+
+    def path(self) -> Path:
+        if self._folder is None:
+            self._folder = tempfile.TemporaryDirectory(prefix="p3at-review-")
+        return Path(self._folder.name)
+
+    def __enter__(self) -> "_LazyScratch":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._folder is not None:
+            self._folder.cleanup()
+            self._folder = None
+
+
 def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
                    decodes: Callable[[Path], bool] | None = None) -> RecordingContents:
     """Read a mission's ``.rrd`` (rerun 0.41 ``rerun.chunk.RrdReader``) and rebuild its maps and figures.
@@ -912,7 +934,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
         import multiprocessing
 
         decodes = pool = ReadingProcesses(_decodes, multiprocessing.get_context("spawn"))
-    with tempfile.TemporaryDirectory(prefix="p3at-review-") as scratch, pool or contextlib.nullcontext():
+    with _LazyScratch() as scratch, pool or contextlib.nullcontext():
         for index, p in enumerate(paths):
             if not p.is_file():  # a FIFO would block Rerun's reader; a link to nothing is not "no such" file
                 raise RecordingReadError(f"{p}: {not_a_file(p, 'recording')}")
@@ -924,7 +946,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
             if scan.truncated:
                 notes.append((f"{p.name} " if more else "") + f"cut short: {scan.damage}; read the {scan.messages} "
                              f"complete messages ({scan.whole_bytes} of {scan.file_size} bytes)")
-                readable = Path(scratch) / f"whole-prefix-{index}.rrd"
+                readable = scratch.path() / f"whole-prefix-{index}.rrd"
                 copy_prefix(p, readable, scan.whole_bytes)
             refused = None
             if decodes is not None and not decodes(readable):  # it would refuse it, or kill this process
@@ -935,7 +957,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
                 except RecordingReadError as e:
                     refused = e
             if refused is not None:
-                held, note = _read_around_damage(p, scan.whole_bytes, Path(scratch) / f"salvage-{index}", refused,
+                held, note = _read_around_damage(p, scan.whole_bytes, scratch.path() / f"salvage-{index}", refused,
                                                  decodes)
                 damaged.append(note)
             # Rerun ends a stream with an End message only when it writes its footer; the logger's last entity
