@@ -51,6 +51,7 @@ class Participant:
     predicate: Predicate | None = None   # what it waits for (None: running or about to)
     deadline: float = math.inf           # simulated time at which it wakes anyway
     granted: bool = False                # it holds the baton
+    discarded: bool = False              # unregistered (its thread has left, or will never start)
     running_wall: float = 0.0            # wall seconds spent holding the baton
     grants: int = 0
     _granted_at: float = field(default=0.0, repr=False)
@@ -129,8 +130,11 @@ class SimClock:
             return p
 
     def discard(self, participant: Participant) -> None:
-        """Unregister (a thread that will not start, or has ended). Releases the baton if it held it."""
+        """Unregister (a thread that will not start, or has ended). Releases the baton if it held it. Sets
+        ``participant.discarded``: a predicate for whoever waits for that thread to end (e.g. ``wait_for(lambda:
+        p.discarded)`` from a participant: it then ends at a simulated instant that does not depend on the load)."""
         with self._cond:
+            participant.discarded = True
             if participant in self._participants:
                 self._participants.remove(participant)
             if participant.thread is not None:

@@ -417,7 +417,10 @@ class Mission:
 
         In simulated time the setup runs with the clock held (it advances only while a driver waits for its
         first SIP), the mission loop is a participant, and every robot is told to stop at one simulated
-        instant; the joins and the drivers' goodbyes then run on the released clock."""
+        instant; the joins, the wait for the robots to stand still and the sensor logs' last records follow in
+        simulated time, the loop still a participant (so the same seed gives the same logs, however busy the
+        machine); the drivers' goodbyes then run on the released clock. A stall (the watchdog) releases the clock
+        and every wait of the stop then runs out on the wall clock."""
         with ExitStack() as stack:
             if self.lockstep:
                 stack.callback(self.clock.release)  # runs last (LIFO): the closes below never wait on lockstep
@@ -447,8 +450,11 @@ class Mission:
                     self._end_time = self.clock() - t0
                     for robot in self.robots:  # motors first, every robot at this instant
                         robot.onboard.request_stop()
-                for robot in self.robots:  # joins, a last snapshot, logs flushed (before the final fusion)
-                    robot.onboard.stop()
+                    # joins, a last snapshot, logs flushed (before the final fusion), still as a participant: its
+                    # waits (each stage's end, the robot standing still) are on simulated time, so the stop and the
+                    # sensor logs' last records do not depend on the machine's load; every wait is bounded
+                    for robot in self.robots:
+                        robot.onboard.stop()
             finally:
                 self._wall_end = time.monotonic()
         return t0

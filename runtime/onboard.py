@@ -49,6 +49,8 @@ from runtime.trajectories import TrajectoryRecorder
 
 Clock = Callable[[], float]
 
+STAGE_END_TIMEOUT = 10.0   # seconds (on the clock) a stage thread has to end after the stop before it is a failure
+
 
 def is_lockstep(clock: object) -> bool:
     """Does ``clock`` offer simulated-time waits (``wait_for``, ``sleep_until``, participants)?"""
@@ -344,7 +346,7 @@ class Onboard:
         self._latest: OdometrySample | None = None
         self._latest_lock = threading.Lock()
         self._core_lock = threading.Lock()
-        self._threads: list[threading.Thread] = []
+        self._threads: list[tuple[str, threading.Thread, object]] = []   # (stage, thread, participant or None)
         self._last_snapshot = -np.inf
         self._stopped = False
         self._stop_time: float | None = None   # mission time at request_stop (None: not requested)
@@ -383,7 +385,7 @@ class Onboard:
             if token is not None:
                 self.clock.discard(token)
             raise
-        self._threads.append(thread)
+        self._threads.append((stage, thread, token))
 
     def _fail(self, stage: str, exc: BaseException) -> None:
         """A stage raised: report it at once, stop this robot (motors first), tell the owner."""
@@ -410,21 +412,43 @@ class Onboard:
                 pass
 
     def stop(self) -> None:
-        """Stop the motors first, then the threads; publish a last snapshot; flush the sensor log."""
+        """Stop the motors first, then the threads; publish a last snapshot; flush the sensor log.
+
+        On a lockstep clock, call it from a participant (the mission's): the stages then end at the stop's
+        simulated instant, the wait for the robot to stand still and the sensor log's last records are the same
+        however busy the machine is. A stage that has not ended :data:`STAGE_END_TIMEOUT` seconds after the stop
+        is a failure (``on_failure``), and the stop goes on without it."""
         if self._stopped:
             return
         self._stopped = True
         self.request_stop()
-        for thread in self._threads:
-            if self.lockstep:  # a participant must give the baton up while the others finish
-                self.clock.wait_for(lambda thread=thread: not thread.is_alive(), timeout=10.0)
-            else:
-                thread.join(timeout=10.0)
+        self._join_stages()
         self._halt_motors()
         self._wait_until_still(timeout=3.0)
         self.publish_snapshot(force=True)
         if self.sensor_log is not None:
             self.sensor_log.close()
+
+    def _join_stages(self) -> None:
+        """Wait for every stage thread to end, each for up to :data:`STAGE_END_TIMEOUT` s. On a lockstep clock the
+        wait is for its participant to be discarded (the clock sees that at a simulated instant: the thread's
+        last act as a participant) and only then for the thread itself, which has nothing left but to return; a
+        wait for the thread alone would let simulated time run while it returns, longer the busier the machine."""
+        late = []
+        for stage, thread, token in self._threads:
+            if token is not None:
+                self.clock.wait_for(lambda token=token: token.discarded, timeout=STAGE_END_TIMEOUT)
+            thread.join(timeout=STAGE_END_TIMEOUT if token is None or token.discarded else 0.0)
+            if thread.is_alive():
+                late.append(stage)
+        if late:
+            failure = StageFailure(self.robot, late[0], f"did not end within {STAGE_END_TIMEOUT:g} s of the stop "
+                                   f"({', '.join(late)} still running)", self.mission_time)
+            self.failure = self.failure or failure
+            self._event(f"the {' and '.join(late)} stage{'s' if len(late) > 1 else ''} did not end within "
+                        f"{STAGE_END_TIMEOUT:g} s of the stop; stopping without {'them' if len(late) > 1 else 'it'}",
+                        "ERROR")
+            self.on_failure(failure)
 
     def _wait_until_still(self, timeout: float) -> bool:
         """Wait until the robot reports it stands still, so the logs end with the stop."""

@@ -61,9 +61,11 @@ def test_one_seed_gives_identical_maps_and_figures_alone_and_beside_busy_process
     """The two-robot mission twice with one seed, the second time with two busy-loop processes competing for the
     CPU: every array of every map file is the same, and so are the alignment figures (simulated time waits for
     the slowest stage). Short (10 simulated seconds, enough for a first alignment, found once and not yet confirmed by
-    a later fusion: fusion/confirmation.py) to keep the suite fast."""
+    a later fusion: fusion/confirmation.py) to keep the suite fast. The sensor logs are the same message for message,
+    their last records (the stop's, in simulated time: test_mission_stop.py) too."""
     config = MissionConfig(robots=2, seconds=10.0, seed=5, camera="synthetic", camera_rate=10.0, particles=30,
-                           fusion_interval=5.0, out=tmp_path / "alone", rerun="none", odometry="realistic")
+                           fusion_interval=5.0, out=tmp_path / "alone", rerun="none", odometry="realistic",
+                           log_sensors=True)
     first = Mission(config).run()
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     try:
@@ -84,6 +86,11 @@ def test_one_seed_gives_identical_maps_and_figures_alone_and_beside_busy_process
                 assert np.array_equal(a[key], b[key]), f"{name}: {key} differs"
     np.testing.assert_equal(_outcome(second.summary), _outcome(first.summary))
     assert second.summary["clock"] == "simulated" and not second.failures
+    for name in ("robot1", "robot2"):
+        alone, busy_log = SensorLog(config.out / f"{name}-log"), SensorLog(tmp_path / "busy" / f"{name}-log")
+        assert alone.counts == busy_log.counts, name
+        assert [(m.topic, m.log_time, m.data) for m in alone.messages()] == \
+            [(m.topic, m.log_time, m.data) for m in busy_log.messages()], name
 
 
 @pytest.mark.slow
