@@ -75,7 +75,8 @@ class WireError(ValueError):
 
 
 class StaleMessage(WireError):
-    """A snapshot older than the map the receiver holds (a query's reply overtaken by updates): harmless."""
+    """A map older than the one the receiver holds (a query's reply overtaken by updates, or updates overtaken by a
+    reply): harmless."""
 
 
 class MissingBase(WireError):
@@ -516,6 +517,9 @@ class MapStream:
             return self.map
         if message.kind != DELTA:
             raise WireError(f"a {message.kind_name} message carries no map")
+        if message.session == self.session and message.sequence <= self.sequence and self.map is not None:
+            # overtaken (by a snapshot query's reply): older than the map held, not a missed base
+            raise StaleMessage(f"stale delta {message.sequence} (have {self.sequence})")
         if message.session != self.session or message.base != self.sequence or self.map is None:
             raise MissingBase(f"delta {message.sequence} needs message {message.base} of session {message.session}, "
                             f"have {self.sequence} of session {self.session}")

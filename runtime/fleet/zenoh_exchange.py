@@ -17,10 +17,17 @@ decodes, validates and applies what is queued, so a slow decode never holds the 
 exchange left open, an exit hook that runs before the interpreter finalizes) stops and joins both before closing
 the session: a thread that enters a Python callback, or comes back from native code, while CPython 3.11
 finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the process
-("FATAL: exception not rethrown"). A message that cannot be used is dropped with a logged reason; a delta
-whose base was missed (dropped, or the receiver joined late) makes the receiver ask the robot's queryable for its
-latest full snapshot; so does a status naming a newer map than the one held, after a grace (a robot's last map,
-lost on the way, is followed by no delta that would show the gap). The latest map of each robot wins.
+("FATAL: exception not rethrown"). A message that cannot be used is dropped with a logged reason. The latest
+map of each robot wins.
+
+A map missed on the way starts one wait per robot for its full snapshot (``_Wait``): a delta whose base was missed
+(it names a map that exists), a map dropped from the full queue (anything newer than the miss), or a status naming
+a map newer than the one held (a robot's last map, lost on the way, is followed by no delta that would show the
+gap). The wait keeps the newest (session, sequence) known to exist and when it began; a map that reaches that
+sequence ends it (with no sequence known: a full snapshot published after the miss, or a reply to a request sent
+after it); the robot's leaving cancels it. One retry policy: the robot's queryable is asked at once (for a status:
+after BEHIND_GRACE, the map may be in flight), then 2, 4, 8, 16 s later, then every 30 s; never while a map of
+the robot still waits in the queue or within BEHIND_GRACE of a map of it handled (either may end the wait).
 
 Defaults (no configuration file): peer mode, multicast scouting off, the fusion node listens on
 ``tcp/127.0.0.1:7447`` and robots connect to it (and listen on a loopback port of their own). A user's Zenoh
@@ -56,9 +63,9 @@ FUSED = "fused"                     # reserved name of the fusion node's map
 MAX_PENDING_BYTES = 64 * 1024 * 1024
 MAX_CONFIG_BYTES = 1 << 20        # a Zenoh configuration file is a few kB
 MAX_CONFIG_DEPTH = 64             # its nesting is ~6; Zenoh's parser overflows the stack at ~30 000
-SNAPSHOT_RETRY = 1.0                # s between two snapshot requests for the same robot
+SNAPSHOT_RETRY = 1.0                # s: at most one snapshot request per robot in this time
 BEHIND_GRACE = 1.0                  # s a status may name a map not yet handled before its robot is asked for it
-BEHIND_RETRY_MAX = 30.0             # s: a map a status names and no reply brings is asked for again 2, 4... s on
+BEHIND_RETRY_MAX = 30.0             # s: a wait's asks come 2, 4, 8, 16 s apart, then every 30 s
 QUERY_TIMEOUT = 5.0                 # s
 CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for sends inside Zenoh, then goes on
 POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
@@ -76,13 +83,19 @@ def _close_open_exchanges() -> None:
         exchange.close()
 
 
-class _Behind:
-    """A robot's map that its status names and this receiver does not hold: when to ask for it next."""
+class _Wait:
+    """A robot's full snapshot this receiver waits for: the newest (session, sequence) known to exist (None:
+    anything newer than a miss), since when, and when to ask for it next (``delay``: the gap after that ask)."""
 
-    __slots__ = ("session", "sequence", "due", "delay")
+    __slots__ = ("session", "sequence", "since", "due", "delay")
 
-    def __init__(self, session: str, sequence: int, due: float) -> None:
-        self.session, self.sequence, self.due, self.delay = session, sequence, due, BEHIND_GRACE
+    def __init__(self, since: float, due: float) -> None:
+        self.session: str | None = None
+        self.sequence = -1
+        self.since, self.due, self.delay = since, due, SNAPSHOT_RETRY
+
+    def reached(self, session: str | None, sequence: int) -> bool:
+        return self.session is not None and session == self.session and sequence >= self.sequence
 
 
 class ExchangeError(RuntimeError):
@@ -217,8 +230,8 @@ class ZenohExchange:
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
         self._asked: dict[str, float] = {}
         self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
-        self._wanted: dict[str, float] = {}      # robot whose stream waits for a full snapshot -> since when
-        self._behind: dict[str, _Behind] = {}    # robot whose status names a map newer than the one held
+        self._waits: dict[str, _Wait] = {}       # robot whose full snapshot is waited for (a map missed)
+        self._left: set[str] = set()             # robots seen leaving (and not back): nothing to wait for
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
@@ -414,13 +427,24 @@ class ZenohExchange:
                 self._pending_bytes -= len(old)
                 self.dropped["queue full"] += 1
                 robot = self._robot_of(old_key, "map")
-                if robot is not None and robot not in self._encoders:
-                    self._want(robot)
+                if robot is not None:
+                    self._wait_for(robot, None, -1, 0.0)
             self._wake.notify()
 
-    def _want(self, robot: str) -> None:
-        """Mark ``robot``'s stream as waiting for a full snapshot newer than what it missed (lock held)."""
-        self._wanted.setdefault(robot, time.monotonic())
+    def _wait_for(self, robot: str, session: str | None, sequence: int, first_ask: float,
+                  from_status: bool = False) -> None:
+        """Start or raise ``robot``'s wait: (``session``, ``sequence``) is known to exist (``session`` None: only
+        that something newer than now was missed); a new wait's first ask is ``first_ask`` s on. A robot seen
+        leaving waits only on a status's word: a status says the robot is there (a restarted robot's join may be
+        seen before its old token's leave) (lock held)."""
+        if robot in self._encoders or (robot in self._left and not from_status):  # own robot; one that has gone
+            return
+        now = time.monotonic()
+        wait = self._waits.get(robot)
+        if wait is None:
+            wait = self._waits[robot] = _Wait(now, now + first_ask)
+        if session is not None and (session != wait.session or sequence > wait.sequence):
+            wait.session, wait.sequence = session, sequence
 
     def _on_liveliness(self, sample) -> None:
         robot = self._robot_of(str(sample.key_expr), "alive")
@@ -429,8 +453,9 @@ class ZenohExchange:
         joined = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
             (self._present.add if joined else self._present.discard)(robot)
+            (self._left.discard if joined else self._left.add)(robot)
             if not joined:  # its queryable has gone with it: nothing to ask (a rejoin asks anyway)
-                self._behind.pop(robot, None)
+                self._waits.pop(robot, None)
         self.on_event(f"{robot} {'joined' if joined else 'left'} the fleet")
         if joined and robot not in self._encoders:
             self.request_snapshot(robot)
@@ -458,23 +483,20 @@ class ZenohExchange:
         while True:
             with self._lock:
                 while not self._pending and not self._closed:
-                    # a snapshot asked for has not come (rate-limited, or its reply lost); a status's map is missing
-                    ask = set(self._wanted) | self._behind_due()
+                    ask = self._due()
                     if ask:
                         self._lock.release()
                         try:
-                            for robot in sorted(ask):
-                                self.request_snapshot(robot)
+                            self._ask(ask)
                         finally:
                             self._lock.acquire()
                     self._wake.wait(timeout=self._idle_wait())
                 if self._closed:
                     return
-                ask = self._behind_due()  # a busy queue must not hold them back
+                ask = self._due()  # a busy queue must not hold them back
                 key, data, asked = self._pending.popleft()
                 self._pending_bytes -= len(data)
-            for robot in sorted(ask):
-                self.request_snapshot(robot)
+            self._ask(ask)
             try:
                 self._handle(key, data, asked)
             except mapwire.StaleMessage as e:
@@ -489,50 +511,65 @@ class ZenohExchange:
                 log.exception("fleet exchange: unexpected error on %s", key)
                 self._drop(key, f"internal error {type(e).__name__}: {e}")
 
-    def _behind_due(self) -> set[str]:
-        """Robots whose missing map is due to be asked for now; their next ask is set 2x further on. One with a map
-        still in the queue is not asked yet: a worker more than BEHIND_GRACE behind holds the status's map there
-        (lock held)."""
+    def _due(self) -> list[str]:
+        """Robots whose wait is due to be asked now. One with a map still in the queue is not asked yet, but looked
+        at again BEHIND_GRACE later: that map may end the wait (a worker more than BEHIND_GRACE behind holds a
+        status's map there; a full snapshot may follow a gap) (lock held)."""
         now = time.monotonic()
-        due, queued = set(), None
-        for robot, behind in self._behind.items():
-            if behind.due > now:
+        due, queued = [], None
+        for robot, wait in self._waits.items():
+            if wait.due > now:
                 continue
             if queued is None:
                 queued = {self._robot_of(key, "map") for key, _, _ in self._pending}
             if robot in queued:
-                behind.due = now + BEHIND_GRACE
+                wait.due = now + BEHIND_GRACE
                 continue
-            due.add(robot)
-            behind.delay = min(2 * behind.delay, BEHIND_RETRY_MAX)
-            behind.due = now + behind.delay
-        return due
+            due.append(robot)
+        return sorted(due)
+
+    def _ask(self, robots: list[str]) -> None:
+        """Ask each robot for its snapshot; its wait's next ask is set ``delay`` on, the delay doubled (at most
+        BEHIND_RETRY_MAX); an ask the rate limit held back is made as soon as the limit allows."""
+        for robot in robots:
+            sent = self.request_snapshot(robot)
+            with self._lock:
+                wait = self._waits.get(robot)
+                if wait is None:
+                    continue
+                now = time.monotonic()
+                if sent:
+                    wait.delay = min(2 * wait.delay, BEHIND_RETRY_MAX)
+                    wait.due = now + wait.delay
+                else:
+                    wait.due = max(now, self._asked.get(robot, now) + SNAPSHOT_RETRY)
+
+    def _defer(self, robot: str) -> None:
+        """A map of ``robot``'s was handled that does not end its wait: no ask within BEHIND_GRACE (lock held)."""
+        wait = self._waits.get(robot)
+        if wait is not None:
+            wait.due = max(wait.due, time.monotonic() + BEHIND_GRACE)
 
     def _idle_wait(self) -> float | None:
         """How long the idle worker may wait for a message before it has something to ask (lock held)."""
-        waits = [SNAPSHOT_RETRY / 2] if self._wanted else []
-        waits += [max(0.0, b.due - time.monotonic()) for b in self._behind.values()]
-        return min(waits, default=None)
+        now = time.monotonic()
+        return min((max(0.0, w.due - now) for w in self._waits.values()), default=None)
 
     def _note_status(self, robot: str, message: mapwire.Message) -> None:
         """A status names the robot's latest map (session, sequence): if that is newer than the map held, the map
         was lost on the way (published with CongestionControl.DROP; a robot's last one is never followed by a
-        delta that would show the gap) or is still in flight. After BEHIND_GRACE, the robot is asked (lock held)."""
+        delta that would show the gap) or is still in flight: the robot's wait, its first ask after BEHIND_GRACE.
+        A status with no map (a robot restarted, no map yet) ends a wait for another session's map (lock held)."""
         stream = self._streams.get(robot)
-        if not message.status["has_map"] or (stream is not None and stream.map is not None
-                                             and stream.session == message.session
-                                             and stream.sequence >= message.sequence):
-            self._behind.pop(robot, None)
+        if not message.status["has_map"]:
+            wait = self._waits.get(robot)
+            if wait is not None and wait.session is not None and wait.session != message.session:
+                del self._waits[robot]
             return
-        behind = self._behind.get(robot)
-        if behind is None:
-            self._behind[robot] = _Behind(message.session, message.sequence, time.monotonic() + BEHIND_GRACE)
-        elif (behind.session, behind.sequence) != (message.session, message.sequence):
-            # a newer map again: keep the ask that is due (a robot that runs ahead is asked all the same), and
-            # ask again soon after it (the backoff was for a reply that never came)
-            behind.session, behind.sequence = message.session, message.sequence
-            behind.due = min(behind.due, time.monotonic() + BEHIND_GRACE)
-            behind.delay = BEHIND_GRACE
+        if stream is not None and stream.map is not None and stream.session == message.session \
+                and stream.sequence >= message.sequence:
+            return
+        self._wait_for(robot, message.session, message.sequence, BEHIND_GRACE, from_status=True)
 
     def _drop(self, key: str, reason: str) -> None:
         self.dropped["malformed"] += 1
@@ -564,34 +601,40 @@ class ZenohExchange:
         try:
             m = stream.accept(message)
         except mapwire.MissingBase:
-            with self._lock:
-                self._want(robot)
-            self.request_snapshot(robot)
+            with self._lock:  # the delta's map exists: the wait's first ask at once (the worker's next turn)
+                self._wait_for(robot, message.session, message.sequence, 0.0)
+            raise
+        except mapwire.StaleMessage:
+            with self._lock:  # the robot's maps flow, behind a reply: the one waited for may follow
+                self._defer(robot)
             raise
         if stream.restarts != restarts:
             self.on_event(f"{robot} restarted (new session, sequence {stream.sequence})")
         with self._lock:
             self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
             self.received += 1
-            # a published snapshot is newer than anything missed before it was handled; a reply is only if it was
-            # asked for after the miss (a request's reply may come after newer updates: the reply to the request
-            # made when the robot joined came after the drops it predates, and ended the wait with a stale map)
-            wanted = self._wanted.get(robot)
-            if message.kind == mapwire.FULL and wanted is not None and (asked is None or asked >= wanted):
-                del self._wanted[robot]
-            behind = self._behind.get(robot)
-            if behind is not None and stream.session == behind.session and stream.sequence >= behind.sequence:
-                del self._behind[robot]
+            # with no sequence known, a published snapshot is newer than anything missed before it was handled; a
+            # reply is only if it was asked for after the miss (a request's reply may come after newer updates: the
+            # reply to the request made when the robot joined came after the drops it predates)
+            wait = self._waits.get(robot)
+            if wait is not None:
+                if wait.reached(stream.session, stream.sequence) or (
+                        wait.session is None and message.kind == mapwire.FULL
+                        and (asked is None or asked >= wait.since)) or (
+                        stream.restarts != restarts and wait.session not in (None, stream.session)):
+                    del self._waits[robot]  # (a restart: another session's map is not coming; a status renews it)
+                else:  # the stream moves: the map waited for may be in flight behind this one
+                    self._defer(robot)
         self.on_update(robot)
 
-    def request_snapshot(self, robot: str = "*") -> None:
+    def request_snapshot(self, robot: str = "*") -> bool:
         """Ask ``robot``'s queryable (``*``: every robot's and the fused map's) for the latest full snapshot;
-        the replies arrive like updates. Rate-limited per robot; a robot whose delta could not be applied is
-        asked again every SNAPSHOT_RETRY s until a snapshot arrives."""
+        the replies arrive like updates. At most one request per robot every SNAPSHOT_RETRY s: whether this one
+        was sent. (A robot whose map was missed is asked by the worker until it comes: the module's docstring.)"""
         now = time.monotonic()
         with self._lock:
             if now - self._asked.get(robot, -np.inf) < SNAPSHOT_RETRY or self._closed:
-                return
+                return False
             self._asked[robot] = now
             self._calls += 1
         try:  # replies: one per robot; a Fifo channel keeps them after the query's end (a ring would not)
@@ -601,6 +644,7 @@ class ZenohExchange:
             self._call_done()
         with self._lock:
             self._replies.append((channel, now))
+        return True
 
     # -- the MapExchange protocol and what a fusion node reads ------------------------------------------------
     def receive(self, excluding: str | None = None) -> dict[str, MapMessage]:

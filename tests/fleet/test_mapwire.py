@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from estimation.landmark_map import LandmarkMap
 from runtime.fleet import mapwire
-from runtime.fleet.mapwire import DELTA, FULL, MapEncoder, MapStream, WireError, decode
+from runtime.fleet.mapwire import DELTA, FULL, MapEncoder, MapStream, StaleMessage, WireError, decode
 
 SESSION = "0123456789abcdef"
 
@@ -111,6 +111,22 @@ def test_a_restarted_robot_starts_a_new_session_from_sequence_zero():
         stream.accept(decode(mapwire.encode_full("robot1", second.session, 0, 0.0, m)))
     assert stream.sequence == 1
 
+
+
+def test_a_delta_overtaken_by_a_snapshot_is_stale_not_a_missed_base():
+    """A query's reply (the latest full snapshot) handled before deltas still on the way: those deltas are older
+    than the map held, refused as stale; a missed base would make the receiver ask for a snapshot it holds."""
+    stream = MapStream("robot1")
+    encoder = MapEncoder("robot1", full_every=100)
+    updates = [encoder.encode(make_map(5 + step, step), float(step))[1] for step in range(4)]
+    stream.accept(decode(updates[0]))
+    stream.accept(decode(encoder.snapshot()))  # the reply: map 3
+    for update in updates[1:]:
+        with pytest.raises(StaleMessage):
+            stream.accept(decode(update))
+    assert stream.sequence == 3
+    later = encoder.encode(make_map(9, 4), 4.0)[1]
+    assert_same_map(stream.accept(decode(later)), make_map(9, 4))  # the next delta applies on the reply's map
 
 def test_status_round_trips():
     data = mapwire.encode_status("robot2", SESSION, 3, 1.5, pose=[1.0, 2.0, 0.1], landmarks=40,

@@ -540,3 +540,99 @@ def test_a_map_still_queued_behind_its_status_is_not_asked_for():
         finally:
             for gate in gates.values():
                 gate.set()
+
+
+def _flush(node, queryable, queries: list, answer: bytes | None) -> None:
+    """A wildcard query of the test's own: once it has come, every ask the node sent before it has come too."""
+    def reached() -> bool:
+        node.request_snapshot("*")
+        return _answer_queries(queryable, queries, answer)
+
+    wait_until(reached, "the node's wildcard query at robot1's queryable")
+
+
+def test_a_gap_and_a_status_naming_a_newer_map_make_one_wait_ended_only_by_the_named_map():
+    """A delta whose base was missed (sequence 3) and a status naming a newer map (5) at once: one wait for map 5,
+    one series of asks (at once, then 2 s, then 4 s later; before session 20 the gap asked every second beside
+    the status's own asks), and a reply with an older map (2, newer than the one held) does not end it."""
+    import zenoh
+
+    from runtime.fleet.zenoh_exchange import BEHIND_GRACE
+
+    port, fleet = free_port(), f"merged{os.getpid()}"
+    key, status_key = f"p3at/{fleet}/robot1/map", f"p3at/{fleet}/robot1/status"
+    source = SyntheticRobot("robot1", 0)
+    maps = [source.step() for _ in range(6)]
+    encoder = mapwire.MapEncoder("robot1", full_every=100)
+    messages = [encoder.encode(m, float(i))[1] for i, m in enumerate(maps)]
+    session = encoder.session
+    stale = mapwire.encode_full("robot1", session, 2, 2.0, maps[2])
+    named = mapwire.encode_full("robot1", session, 5, 5.0, maps[5])
+    with ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion") as node, _bare_session(port) as robot:
+        queryable = robot.declare_queryable(key, zenoh.handlers.RingChannel(16))
+        queries: list[float] = []
+
+        def map_0_at_the_node() -> bool:  # puts before the route to the node exists are lost
+            _answer_queries(queryable, queries, None)
+            robot.put(key, messages[0])
+            return "robot1" in node.receive()
+
+        wait_until(map_0_at_the_node, "robot1's map 0 at the node")
+        _flush(node, queryable, queries, None)
+        queries.clear()
+        start = time.monotonic()
+        robot.put(key, messages[3])  # its base, map 2, never sent
+        robot.put(status_key, mapwire.encode_status("robot1", session, 5, 5.0, landmarks=len(maps[5])))
+        wait_until(lambda: _answer_queries(queryable, queries, stale) and queries, "the first ask")
+        wait_until(lambda: node.receive()["robot1"].sequence == 2, "the older map 2 of the reply held")
+
+        def asked(n: int) -> bool:
+            _answer_queries(queryable, queries, stale)
+            return len(queries) >= n
+
+        wait_until(lambda: asked(3), "the wait goes on asking after the older reply", DEADLINE + 7.0)
+        # one series: at once, then 2 s and 4 s on (each ask is seen after it was sent: never earlier)
+        assert queries[2] - start >= 6 * BEHIND_GRACE, [q - start for q in queries]
+        assert node.receive()["robot1"].sequence == 2
+        wait_until(lambda: _answer_queries(queryable, queries, named) or node.receive()["robot1"].sequence == 5,
+                   "map 5, named by the status, by a reply", DEADLINE + 16.0)
+        wait_until(lambda: node.receive()["robot1"].sequence == 5, "map 5 at the node")
+        np.testing.assert_array_equal(node.receive()["robot1"].landmark_map.ids, maps[5].ids)
+
+
+def test_a_robot_that_left_is_no_longer_asked_for_a_missed_map():
+    """A delta whose base was missed starts a wait; the robot's liveliness token goes (it left): the wait ends
+    with it, and the node does not ask again (before session 20 it asked every second for ever). The test keeps
+    the robot's queryable up, so that an ask would be seen."""
+    import zenoh
+
+    port, fleet = free_port(), f"gone{os.getpid()}"
+    key = f"p3at/{fleet}/robot1/map"
+    source = SyntheticRobot("robot1", 0)
+    encoder = mapwire.MapEncoder("robot1", full_every=100)
+    first, second = (encoder.encode(source.step(), float(i))[1] for i in range(2))
+    events: list[str] = []
+    with ZenohExchange(fleet, endpoint_config(port, "fusion"), "fusion", on_event=events.append) as node, \
+            _bare_session(port) as robot:
+        queryable = robot.declare_queryable(key, zenoh.handlers.RingChannel(16))
+        token = robot.liveliness().declare_token(f"p3at/{fleet}/robot1/alive")
+        queries: list[float] = []
+        wait_until(lambda: "robot1" in node.present(), "robot1 present at the node")
+        _flush(node, queryable, queries, None)
+        queries.clear()
+
+        def gap_asked() -> bool:  # puts before the route to the node exists are lost
+            robot.put(key, second)  # its base, map 0 (``first``), never sent
+            _answer_queries(queryable, queries, None)
+            return bool(queries)
+
+        wait_until(gap_asked, "the node's ask for robot1's snapshot after the gap")
+        assert node.dropped["gap"] > 0 and first
+        token.undeclare()
+        wait_until(lambda: "robot1 left the fleet" in events, "robot1's leave at the node")
+        _flush(node, queryable, queries, None)  # every ask sent before the leave has come
+        queries.clear()
+        end = time.monotonic() + 6.0  # the wait's next asks would have come 2 s and 6 s after its first
+        wait_until(lambda: time.monotonic() >= end and not _answer_queries(queryable, queries, None), "6 s")
+        _flush(node, queryable, queries, None)
+        assert queries == [], f"asked {len(queries)} time(s) for the map of a robot that left"
