@@ -6,8 +6,10 @@ runtime in one process: the head renders from the robot's simulated pose, so the
 same seeds as in the single-process mission. Each robot process keeps its own simulated time (or the wall clock
 with --realtime): the robots do not interact, so no clock crosses processes (docs/fleet.md). This process runs
 the fusion node (it listens on a free loopback port, the robots connect to it), fuses on new data
-and at ``--fusion-interval``, waits for every robot to finish, fuses once more and prints the same summary as
-the single-process demo. Rerun: each robot writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
+and at ``--fusion-interval``, waits for every robot to finish and (at most LAST_MAP_WAIT s) for the map each
+robot's last status names, fuses once more and prints the same summary as the single-process demo (a robot's
+last map that never came is said on stderr and in the summary's ``last_maps_missing``). Rerun: each robot
+writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
 (every robot's map as received, the alignments, the fused map, the summary: what ``p3at review`` reads).
 """
 from __future__ import annotations
@@ -31,6 +33,39 @@ from runtime.fleet.status import health_figure
 PASSED = ("seconds", "seed", "camera", "camera_rate", "camera_latency", "particles", "max_corners",
           "max_observations", "motion", "route", "speed", "preset", "method", "world", "time_scale", "odometry",
           "map_save_interval")
+
+
+LAST_MAP_WAIT = 5.0  # s the final fusion waits for each robot's last map, the one its last status names
+
+
+def missing_last_maps(exchange) -> dict[str, dict]:
+    """Robots whose last status names a map the exchange does not hold: robot -> {"named": its sequence, "held":
+    the sequence held of that session, or None}."""
+    status = exchange.status() if hasattr(exchange, "status") else {}
+    held = exchange.held() if hasattr(exchange, "held") else {}
+    missing = {}
+    for robot, s in status.items():
+        if not s.get("has_map", True) or "sequence" not in s:
+            continue
+        have = held.get(robot)
+        if have is None or have[0] != s["session"] or have[1] < s["sequence"]:
+            missing[robot] = {"named": s["sequence"],
+                              "held": None if have is None or have[0] != s["session"] else have[1]}
+    return missing
+
+
+def await_last_maps(exchange, timeout: float = LAST_MAP_WAIT) -> dict[str, dict]:
+    """Wait, at most ``timeout`` s, until the exchange has handled what it received and holds every robot's last
+    map (its last status names it): a map still in the node's queue, or on the way, is in the final fusion. The
+    robots whose last map never came (lost on the wire after its robot exited): :func:`missing_last_maps`."""
+    end = time.monotonic() + timeout
+    while True:
+        missing = missing_last_maps(exchange)
+        if not missing and getattr(exchange, "pending_bytes", 0) == 0:
+            return {}
+        if time.monotonic() >= end:
+            return missing
+        time.sleep(0.05)
 
 
 def free_port() -> int:
@@ -131,9 +166,11 @@ def run_processes_demo(args: argparse.Namespace) -> int:
             summaries[name] = json.loads(stdout)
         except json.JSONDecodeError:
             failed.append(f"{name} (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else '?'}")
+    missing = await_last_maps(exchange)  # a robot's last map still queued or on the way goes into the final fusion
     final = node.final_fusion()
     exchange.close()
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
+    summary["last_maps_missing"] = missing
     if final is not None and final.merged is not None:
         final.merged.save(out / "fused.npz")
         final.merged.export_ply(out / "fused.ply")
@@ -142,6 +179,10 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         logger.close()
     for line in failed:
         print(f"p3at demo: robot process failed: {line}", file=sys.stderr)
+    for robot, m in sorted(missing.items()):
+        print(f"p3at demo: {robot}'s last map (sequence {m['named']}) never came to the fusion node within "
+              f"{LAST_MAP_WAIT:g} s (it holds {'none of that run' if m['held'] is None else m['held']}); the final "
+              f"fusion has the map it holds", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -590,7 +590,8 @@ class ZenohExchange:
             if message.kind != mapwire.STATUS:
                 raise mapwire.WireError(f"a {message.kind_name} message on a status key")
             with self._lock:
-                self._status[robot] = {"stamp": message.stamp, "session": message.session, **message.status}
+                self._status[robot] = {"stamp": message.stamp, "session": message.session,
+                                       "sequence": message.sequence, **message.status}
                 self._note_status(robot, message)
             return
         if message.kind == mapwire.STATUS:
@@ -676,7 +677,13 @@ class ZenohExchange:
         with self._lock:
             return set(self._present)
 
+    def held(self) -> dict[str, tuple[str, int]]:
+        """(session, sequence) of the map held of every other robot (and the fused map)."""
+        with self._lock:
+            return {r: (s.session, s.sequence) for r, s in self._streams.items() if s.map is not None}
+
     def status(self) -> dict[str, dict]:
-        """The latest status of every other robot: stamp, session, pose, landmarks, health."""
+        """The latest status of every other robot: stamp, session, sequence (of the map it names, if has_map),
+        pose, landmarks, health."""
         with self._lock:
             return {r: dict(s) for r, s in self._status.items()}

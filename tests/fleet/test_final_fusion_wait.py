@@ -1,0 +1,90 @@
+"""``p3at demo --processes``'s final fusion waits (bounded) for the map each robot's last status names: a robot's
+last map still in the fusion node's queue is fused; one lost on the wire is reported (runtime/fleet/processes.py).
+
+A bare Zenoh session plays the robot (its messages sent by hand), the fusion node's exchange is a real one whose
+worker the test holds, so that the last map is in the queue, or lost, for certain."""
+from __future__ import annotations
+
+import json
+import os
+import socket
+import threading
+import time
+
+import pytest
+
+pytest.importorskip("zenoh")
+
+from runtime.fleet import mapwire  # noqa: E402
+from runtime.fleet.processes import await_last_maps  # noqa: E402
+from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
+from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+
+DEADLINE = 30.0
+pytestmark = pytest.mark.timeout(120)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def endpoint(port: int, role: str) -> str:
+    return json.dumps({"listen" if role == "fusion" else "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+
+
+def wait_until(condition, what: str, deadline: float = DEADLINE):
+    end = time.monotonic() + deadline
+    while time.monotonic() < end:
+        if condition():
+            return
+        time.sleep(0.05)
+    pytest.fail(f"not within {deadline:g} s: {what}")
+
+
+def bare_session(port: int):
+    import zenoh
+
+    config = zenoh.Config.from_json5(endpoint(port, "robot"))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    return zenoh.open(config)
+
+
+def test_the_final_fusion_waits_for_a_last_map_still_queued_and_reports_one_that_never_came():
+    port, fleet = free_port(), f"final{os.getpid()}"
+    key, status_key = f"p3at/{fleet}/robot1/map", f"p3at/{fleet}/robot1/status"
+    session = mapwire.new_session()
+    source = SyntheticRobot("robot1", 0)
+    first, second = source.step(), source.step()
+    gate, held = threading.Event(), []
+
+    def hook(robot: str) -> None:  # the node's worker waits here after each map it handles
+        held.append(robot)
+        gate.wait(DEADLINE)
+
+    with ZenohExchange(fleet, endpoint(port, "fusion"), "fusion", on_update=hook) as node, \
+            bare_session(port) as robot:
+        try:
+            def map_0_handled() -> bool:  # puts before the route to the node exists are lost
+                robot.put(key, mapwire.encode_full("robot1", session, 0, 0.0, first))
+                return bool(held)
+
+            wait_until(map_0_handled, "robot1's map 0 holding the node's worker")
+            robot.put(key, mapwire.encode_full("robot1", session, 1, 1.0, second))  # the last map, queued
+            robot.put(status_key, mapwire.encode_status("robot1", session, 1, 1.0, landmarks=len(second)))
+            wait_until(lambda: node.pending_bytes > 0 and len(held) == 1, "map 1 and its status queued")
+            # fused now (as before session 20), the final fusion would have map 0
+            assert node.receive()["robot1"].sequence == 0
+            threading.Timer(0.5, gate.set).start()
+            assert await_last_maps(node, timeout=DEADLINE) == {}
+            assert node.receive()["robot1"].sequence == 1
+            # a status naming map 2, which never comes: reported after the bound, with the map held
+            robot.put(status_key, mapwire.encode_status("robot1", session, 2, 2.0, landmarks=len(second)))
+            wait_until(lambda: node.status().get("robot1", {}).get("sequence") == 2, "the status naming map 2")
+            start = time.monotonic()
+            assert await_last_maps(node, timeout=1.0) == {"robot1": {"named": 2, "held": 1}}
+            assert time.monotonic() - start >= 1.0
+        finally:
+            gate.set()
