@@ -891,7 +891,7 @@ class _LazyScratch:
             self._folder = tempfile.TemporaryDirectory(prefix="p3at-review-")
         return Path(self._folder.name)
 
-    def __enter__(self) -> "_LazyScratch":
+    def __enter__(self) -> _LazyScratch:
         return self
 
     def __exit__(self, *exc) -> None:

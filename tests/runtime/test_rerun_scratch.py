@@ -13,8 +13,8 @@ import tempfile
 import pytest
 
 from runtime import rerun_log
-from runtime.commands import review
 from runtime.cli import main
+from runtime.commands import review
 
 from .rerun_helpers import footed_recording
 from .test_review_damaged import dies_like_a_rust_panic
