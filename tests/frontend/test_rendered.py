@@ -9,12 +9,12 @@ import pytest
 
 pytest.importorskip("mocks.stereo_head.renderer", reason="the virtual stereo head renderer is not installed")
 
-EVAL_SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "eval_frontend.py"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
-def load_evaluation():
-    """The evaluation script (benchmarks/ is not a package on the test path), loaded from its file."""
-    spec = importlib.util.spec_from_file_location("eval_frontend", EVAL_SCRIPT)
+def load_benchmark(name: str):
+    """A script of benchmarks/ (not a package on the test path), loaded from its file."""
+    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -23,7 +23,7 @@ def load_evaluation():
 @pytest.mark.slow
 def test_rendered_frames_are_accurate_and_the_covariances_consistent():
     # two poses of the office building (~1.5 s of rendering); docs/frontend.md reports six
-    result = load_evaluation().evaluate_rendered(poses=((3.0, 5.0, 0.0), (10.0, 4.5, -0.3)), seed=1)
+    result = load_benchmark("eval_frontend").evaluate_rendered(poses=((3.0, 5.0, 0.0), (10.0, 4.5, -0.3)), seed=1)
     assert result["points"] > 150
     assert result["disparity_within_1px"] >= 0.93
     assert result["median_3d_error_m"] <= 0.06
@@ -36,21 +36,13 @@ def test_rendered_frames_are_accurate_and_the_covariances_consistent():
     assert np.isfinite(result["median_depth_m"])
 
 
-def load_bias_script():
-    path = EVAL_SCRIPT.parent / "disparity_bias.py"
-    spec = importlib.util.spec_from_file_location("disparity_bias", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.mark.slow
 def test_rendered_disparities_carry_no_signed_bias():
     # Session 20 (S): a constant disparity bias δ makes depth errors that grow with depth, Z' ≈ Z(1 − δZ/fB); the
     # rendered maps' along-track lag asked for δ ≈ +0.03…0.05 px. The readings have none: −0.002 ± 0.004 px over
     # 30 poses (benchmarks/disparity_bias.py). A pixel-centre slip between the renderer's two cameras, or a biased
     # sub-pixel estimator, would show here (~2.5 s of rendering, 24 poses, ~2800 inlier readings, σ_mean ≈ 0.0045 px).
-    bias = load_bias_script()
+    bias = load_benchmark("disparity_bias")
     errors = bias.rendered_errors(bias.corridor_poses(24), "ssd")
     e, z = errors["error_d"], errors["z"]
     inlier = np.abs(e) <= 1.0
