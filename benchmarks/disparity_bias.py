@@ -1,8 +1,8 @@
 """Signed bias of the front end's disparities (measured - true) on rendered frames and on the real cones pair.
 
 A fractional depth error that grows with depth is what a constant disparity bias gives (Z' = fB/(d + δ)), and a
-depth-dependent landmark bias makes a scale error in the filter (docs/fastslam.md, session 20 (S)). This prints the
-signed disparity error by depth band and by the fractional part of the true disparity (pixel locking of a sub-pixel
+depth-dependent landmark bias makes a scale error in the filter (docs/fastslam-history.md, session 20 (S)). This prints
+the signed disparity error by depth band and by the fractional part of the true disparity (pixel locking of a sub-pixel
 estimator shows as a sawtooth), for each sub-pixel mode, and the signed error of the depth Z and of the range along
 the ray.
 

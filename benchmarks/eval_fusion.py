@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/eval_fusion.py [--seeds 20] [--false-seeds 200] [--figures docs/figures]
 
-Prints the tables of docs/fusion.md: Fig. 2 (alignment error against ground truth as the maps grow),
+Prints the tables of docs/fusion-history.md: Fig. 2 (alignment error against ground truth as the maps grow),
 the robust preset's accuracy goal, false alignments on maps that share nothing, Fig. 4 (common landmarks
 by Method 1 and Method 2, and how many are right), and the merged map's accuracy; with --figures it also
 writes the PNG figures (Figs. 2, 3, 4, 5 and 6).

@@ -21,20 +21,20 @@ Noise: ``own`` fits each robot's model from its own log against the truth (what 
 ``first-half`` from the first half of the robot's own log (its sightings before the median sighting time: the
 second half is scored on a model that never saw it); a FILE is used for every robot. ``--range-calibration``: fit
 the range's calibration too (estimate_noise(range_calibration=True): the camera reports depth, not range;
-docs/fastslam.md "Session 8"; a FILE is used as it is). ``--no-inflation``: take consecutive sightings as
+docs/fastslam-history.md "Session 8"; a FILE is used as it is). ``--no-inflation``: take consecutive sightings as
 independent (the sensor variances are not multiplied by the noise model's variance_inflation). ``--heading-bias``:
 fit the odometry's heading bias per metre beside the rotation scale (estimate_noise(heading_bias=True); off by
-default, docs/fastslam.md "Session 5"; a FILE is used as it is). ``--sensor-correlation passes``: the sensor's
+default, docs/fastslam-history.md "Session 5"; a FILE is used as it is). ``--sensor-correlation passes``: the sensor's
 correlation (its variance inflation) measured over whole passes of sightings instead of from the lag-1 correlation
-of consecutive ones (estimate_noise's sensor_correlation; docs/fastslam.md "Session 5").
+of consecutive ones (estimate_noise's sensor_correlation; docs/fastslam-history.md "Session 5").
 ``--turn-translation``: fit the odometry's forward deficit per radian turned beside the translation scale
 (estimate_noise(turn_translation=True): MRCLAM's robots cover 0.65 of the commanded distance in arcs;
-docs/fastslam.md "Session 16 (Q)"; a FILE is used as it is).
+docs/fastslam-history.md "Session 16 (Q)"; a FILE is used as it is).
 ``--turn-variance``: fit the inflation of the x/y variance of a turn's increments, the turns' overdispersion
-(estimate_noise(turn_variance=True): a turn's forward error persists through it; docs/fastslam.md "Session 16:
+(estimate_noise(turn_variance=True): a turn's forward error persists through it; docs/fastslam-history.md "Session 16:
 the odometry's variance in turns (lead)"; a FILE is used as it is).
 ``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
-docs/fastslam.md "Session 15"); the filter's own figures stay under ``filter_``.
+docs/fastslam-history.md "Session 15"); the filter's own figures stay under ``filter_``.
 ``--defaults``: what `p3at slam dataset` does without options since session 17: the range calibration, heading
 bias, odometry lag and turns' variance fitted (``DATASET_CALIBRATIONS``) and the known-ID runs smoothed.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,

@@ -11,8 +11,8 @@ landmark stands for (the majority of the sightings that made or matched it, as `
 A merge of two landmarks attributed to different barcodes joined distinct posts ("wrong"). ``--set`` overrides a
 FastSLAMConfig field (JSON value), e.g. ``--set merge_covisibility=false`` for the merge without co-visibility.
 ``--particles``, ``--range-calibration`` and ``--heading-bias`` as in ``eval_mrclam`` (each robot's noise model also
-fits the camera's depth-not-range calibration, docs/fastslam.md "Session 8: the floor", and the odometry's heading
-bias per metre, "Session 5").
+fits the camera's depth-not-range calibration, docs/fastslam-history.md "Session 8: the floor", and the odometry's
+heading bias per metre, "Session 5").
 """
 from __future__ import annotations
 

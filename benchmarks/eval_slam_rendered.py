@@ -27,7 +27,7 @@ particle, the observations' 3-D NEES against their covariances, and the descript
 observations of the same true point at different viewing distances.
 The filter is configured as the runtime's (``runtime.mission.MissionConfig``): every reading of a frame
 (``max_observations=0``), not FastSLAMConfig's own cap of the 40 nearest, so the figures are the demo's robots'.
-(Until session 18 the cap applied here, and the rendered NEES and duplicates in docs/fastslam.md's tables of
+(Until session 18 the cap applied here, and the rendered NEES and duplicates in docs/fastslam-history.md's tables of
 sessions 17–18 were measured with it: ``--set max_observations=40`` gives them again.)
 ``--set`` overrides any FastSLAMConfig field (e.g. ``--set descriptor_threshold=0.7``).
 ``--frames-cache DIR`` keeps each robot's observations (and their true points) in DIR the first time and replays

@@ -1,6 +1,6 @@
 """Is the rendered building's half-turn symmetry real in appearance?  The true and the half-turned hypothesis of
-rendered demo maps, side by side, on every piece of evidence the maps hold (docs/fusion.md, "Rendered demo:
-why the half-turned hypothesis is a real rival").
+rendered demo maps, side by side, on every piece of evidence the maps hold (docs/fusion-history.md, "Rendered demo:
+is the half-turn symmetry real in appearance?").
 
     .venv/bin/python -m benchmarks.fusion_symmetry DIR [DIR ...]     # DIR: p3at demo --out DIR (robot1/2.npz)
 

@@ -1,12 +1,12 @@
 """The along-track lag of rendered FastSLAM runs with the readings' covariances at the measured or the TRUE disparity.
 
 The front end evaluates each reading's covariance at its own measured disparity (σ along the ray ∝ 1/d², weight ∝ d⁴),
-so a reading that errs short weighs more and the fused landmark is short by ≈ 3σ_d²/d² (docs/fastslam.md, "Session
-20 ... (S)"). This replays a frames cache of ``benchmarks.eval_slam_rendered`` twice: as recorded ("measured"), and
-with every reading's covariance recomputed by the front end's own ``triangulation_covariances`` at the true disparity
-fB/Z of the renderer's point behind its pixel ("oracle": an upper bound on what a covariance at the predicted point
-could give). It prints ATE and the signed error of the estimate along the direction of travel (negative: behind the
-truth) after 3, 5, 8 and 10 m of travel and its median over the first 10 m.
+so a reading that errs short weighs more and the fused landmark is short by ≈ 3σ_d²/d² (docs/fastslam-history.md,
+"Session 20 ... (S)"). This replays a frames cache of ``benchmarks.eval_slam_rendered`` twice: as recorded ("measured"),
+and with every reading's covariance recomputed by the front end's own ``triangulation_covariances`` at the true
+disparity fB/Z of the renderer's point behind its pixel ("oracle": an upper bound on what a covariance at the predicted
+point could give). It prints ATE and the signed error of the estimate along the direction of travel (negative: behind
+the truth) after 3, 5, 8 and 10 m of travel and its median over the first 10 m.
 
 Run from the repository root (caches made by eval_slam_rendered --frames-cache DIR, 3.75 Hz, default run):
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.lag_covariance_oracle --cache DIR --robot robot1 --seed 0

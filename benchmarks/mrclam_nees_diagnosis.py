@@ -25,12 +25,12 @@ over longer spans). The ``eval_*`` figures are `eval_mrclam`'s (the same ``map_s
 
 ``--export-lever``: ``FastSLAMConfig.drift_export="lever"``, the tracker ``export_drift.ExportLeverDriftTracker`` (the
 gate reads the plain tracker, so every estimate is the same; the export carries the heading's lever);
-``--one-landmark-heading``: ``drift_export="lever+heading"`` (docs/fastslam.md, "Session 13 ... (N)"). The
+``--one-landmark-heading``: ``drift_export="lever+heading"`` (docs/fastslam-history.md, "Session 13 ... (N)"). The
 ``export_drift`` figures are the live pose against that tracker's D_r. Without either flag the run uses
 ``range_bearing_config``'s export ("lever+heading+relative" since session 14); ``--set 'drift_export="plain"'`` gives
 the plain tracker's.
 
-``--nis`` (docs/fastslam.md, "Session 14 ... (I)"): every landmark update in every particle is recorded (the
+``--nis`` (docs/fastslam-history.md, "Session 14 ... (I)"): every landmark update in every particle is recorded (the
 innovation ν at the sampled pose and the S = Σ + R Q Rᵀ ``_ekf_update`` uses, the gate's d² of the same pair), the
 final best particle's ancestry is traced through the resamplings' parents, and per landmark of the map its updates
 there are tested (``innovation_consistency.py``: the NIS against χ²₂, the a-posteriori variance factor, the

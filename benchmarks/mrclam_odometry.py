@@ -4,7 +4,7 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.mrclam_odometry [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--window 10]
 
-Prints, per robot (docs/fastslam.md, "Session 5"):
+Prints, per robot (docs/fastslam-history.md, "Session 5"):
 1. the heading bias per metre (UMBmark's type-A error: a curve on a straight run) fitted with the rotation scale
    (`estimate_noise(heading_bias=True)`, 5 s windows), on the whole log, its first half, and the other four robots;
 2. whether a bias fitted on one part predicts another: the rms over 100 s blocks of the heading error left in the

@@ -1,6 +1,6 @@
 """MRCLAM: where the (calibrated, lagged) commanded-velocity odometry loses heading, against Vicon — at changes of
 the commanded turn rate (an acceleration limit: ω²/(2α) lost at each start, given back at the stop; or a first-order
-response), or elsewhere. docs/fastslam.md "Session 15: … (M)".
+response), or elsewhere. docs/fastslam-history.md "Session 15: … (M)".
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_turn_onsets [--data DIR] [--robots 1,2,3,4,5]
         [--json]

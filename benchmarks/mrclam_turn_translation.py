@@ -1,7 +1,7 @@
 """MRCLAM: the forward travel of the (calibrated, lagged) commanded-velocity odometry in turns, against Vicon — a
 scale that falls with the turn rate, a deficit per radian turned, or a sideways component; and how much of the
 odometry's position error the forward deficit per radian (``estimate_noise(turn_translation=True)``) explains.
-docs/fastslam.md "Session 16: … (Q)".
+docs/fastslam-history.md "Session 16: … (Q)".
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_turn_translation [--data DIR] [--robots 1,2,3,4,5]
         [--json]

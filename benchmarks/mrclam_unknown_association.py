@@ -11,10 +11,10 @@ pose NEES median; the most probable particle's matches and how many went
 to a landmark standing for *another* barcode (a landmark stands for the barcode most of the sightings that made or
 matched it so far were of, as ``eval_mrclam`` attributes them); the filter's merges and the wrong ones (two
 barcodes joined, as ``eval_mrclam_merges``); and with ``--set unknown_relative_drift='"consistent"'`` the
-(particle, reading) pairs re-associated by ``estimation/fastslam/unknown_rescue.py``, right and wrong (docs/fastslam.md,
-"Session 7: unknown association"). In the JSON, ``duplicate_pairs``: each pair of the final map's landmarks that
-stand for one barcode, with what each merge rule sees of it (:func:`_duplicate_pairs`). A wrong association is
-the confidently wrong output: it is counted for every variant.
+(particle, reading) pairs re-associated by ``estimation/fastslam/unknown_rescue.py``, right and wrong
+(docs/fastslam-history.md, "Session 7: unknown association"). In the JSON, ``duplicate_pairs``: each pair of the final
+map's landmarks that stand for one barcode, with what each merge rule sees of it (:func:`_duplicate_pairs`). A wrong
+association is the confidently wrong output: it is counted for every variant.
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ Prints the creations, how many were duplicate creations, how many of those had t
 the drift-widened gate, and whether it was the nearest or the only candidate there; the genuinely new ones that
 some landmark passes under the widened gate (what a widened gate alone would mis-associate); frames with two or
 more such re-sightings (what ``unknown_relative_drift="consistent"`` needs); the best particle's matches to a
-landmark of another barcode. docs/fastslam.md, "Session 7: unknown association". ``--range-calibration``: each
+landmark of another barcode. docs/fastslam-history.md, "Session 7: unknown association". ``--range-calibration``: each
 robot's noise model also fits the camera's depth-not-range calibration (as ``eval_mrclam``'s option).
 """
 import json

@@ -10,7 +10,7 @@ Run from the repository root:
 Per robot: the verdict (first alarm, its figures, alarms in all) beside the truth: the demo's own trajectory
 (``<robot>.tum``) against ``<robot>-truth.tum``, ATE and the median |heading error| over the second half of the
 run. A map is *diverged* when that median exceeds ``DIVERGED_HEADING`` = 0.1 rad: a map built in a turned frame
-(docs/fastslam.md: the diverged runs stay 0.13-0.25 rad off, the healthy ones return within 0.04 rad). The table
+(docs/fastslam-history.md: the diverged runs stay 0.13-0.25 rad off, the healthy ones return within 0.04 rad). The table
 counts detected / missed / false flags.
 
 ``replay``: one robot of a demo folder replayed offline from a frame cache (``slam_demo_replay``'s inputs: the

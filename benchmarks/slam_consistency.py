@@ -77,7 +77,7 @@ def merge_scores(merged_pairs, truth_points: np.ndarray, reports, indices) -> di
     """The filter's merges (``FastSLAM.merged_pairs``: older id, newer id, by co-visibility) against the truth:
     the distance between the true points behind each pair's first observations. A merge of points more than
     ``WRONG_MERGE_M`` apart joined distinct landmarks; the front end's own corners slide by up to 8-9 cm (90th
-    percentile, docs/fastslam.md), so merges of points 5-10 cm apart are counted separately, not as wrong."""
+    percentile, docs/fastslam-history.md), so merges of points 5-10 cm apart are counted separately, not as wrong."""
     point_of = {}
     for report, index in zip(reports, indices, strict=False):
         for j in np.flatnonzero(report.new_landmark_ids >= 0):

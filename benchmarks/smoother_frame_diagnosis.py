@@ -33,8 +33,8 @@ calibrated and default), its smoothing problem captured, then:
   its σ in each direction (are the first turn's landmarks the rotated ones?).
 
 ``--heading-loss student-t|mixture`` (``--heading-dof``, ``--stall-probability``, ``--stall-sigma``) solves every
-variant with that heavy-tailed odometry heading loss (``estimation.landmark_smoother.HeadingLoss``; docs/fastslam.md
-"Session 16 (P)") and prints the Gaussian default's figures beside it.
+variant with that heavy-tailed odometry heading loss (``estimation.landmark_smoother.HeadingLoss``;
+docs/fastslam-history.md "Session 16 (P)") and prints the Gaussian default's figures beside it.
 ``--cache DIR`` keeps each robot's captured problem (an .npz of its arrays, the pipeline's figures as JSON; read
 without pickle) so later runs skip the filter.
 """

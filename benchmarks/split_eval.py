@@ -38,7 +38,7 @@ from fusion import fuse_all, true_relative_pose
 from fusion.alignment import alignment_error_xy_theta
 from fusion.split import fuse_checked, split_id
 
-KICK_THETA = 0.2    # rad: the demo's diverged maps are 0.13-0.25 rad off (docs/fastslam.md)
+KICK_THETA = 0.2    # rad: the demo's diverged maps are 0.13-0.25 rad off (docs/fastslam-history.md)
 KICK_SHIFT = 0.5    # m
 NEAR = 0.15         # m: a landmark "on a feature"
 

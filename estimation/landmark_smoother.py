@@ -67,9 +67,9 @@ class HeadingLoss:
     held get wider covariances. (The exact Hessian of ρ is smaller still in the tail, and negative beyond the
     inflection, so it is not a covariance; W is the Gauss–Newton information, the usual choice.)
 
-    Measured on MRCLAM (docs/fastslam.md, "Session 16 … (P)"): no gain (robot 1's start frame stays at 13 % within
-    the bound with every loss: the stall it was built for lies in the increments that fix the frame, where it leaves
-    no residual). Kept, off, for logs whose stalls fall where sightings can show them.
+    Measured on MRCLAM (docs/fastslam-history.md, "Session 16 … (P)"): no gain (robot 1's start frame stays at 13 %
+    within the bound with every loss: the stall it was built for lies in the increments that fix the frame, where it
+    leaves no residual). Kept, off, for logs whose stalls fall where sightings can show them.
     """
 
     kind: str = "student-t"

@@ -123,7 +123,7 @@ class RangeBearingNoise:
         along its optical axis, d = r·cos(φ − ψ) (ψ: the axis's yaw), not the range; r = d / cos(φ − ψ) =
         d·(1 + ψ² / 2 − ψφ + φ² / 2 + O(φ⁴)) is, within the field of view (|φ| ≲ 0.6 rad: the next term is
         under 0.5 %), this polynomial with b₂ ≈ ½ b₀, b₁ ≈ −ψ b₀; a and b₀ − 1 absorb the size's offset and
-        scale. MRCLAM's five cameras all show it (docs/fastslam.md, "Session 8")."""
+        scale. MRCLAM's five cameras all show it (docs/fastslam-history.md, "Session 8")."""
         r = np.asarray(ranges, float)
         phi = np.asarray(bearings, float)
         scale = self.range_scale + self.range_scale_per_rad * phi + self.range_scale_per_rad2 * phi ** 2
@@ -240,8 +240,8 @@ class NoiseModel:
 
     def odometry_times(self, times) -> np.ndarray:
         """The odometry's times (T,) for poses at ``times`` (T,): t − lag_s. Why: MRCLAM's odometry is the commanded
-        velocity, which the robot follows ~0.17 s late (docs/fastslam.md "Session 9"): at the end of a turn on the
-        spot the odometry has stopped while the robot still turns, and landmarks sighted then are placed with that
+        velocity, which the robot follows ~0.17 s late (docs/fastslam-history.md "Session 9"): at the end of a turn on
+        the spot the odometry has stopped while the robot still turns, and landmarks sighted then are placed with that
         heading error."""
         return np.asarray(times, float) - self.odometry.lag_s
 
@@ -362,10 +362,11 @@ P3AT_VIDERE_DEFAULT = NoiseModel(
 ODOMETRY_WINDOW_S = 5.0       # see estimate_noise: the errors are time-correlated, so the window matters
 MAX_VARIANCE_INFLATION = 100.0  # turn and distance more collinear than this: no heading bias is fitted
 OUTLIER_MADS = 4.0            # sensor residuals beyond this many robust σ are outliers (misreads, glitches)
-# The calibrations that together make MRCLAM's smoothed known-ID maps honest in their start frame (docs/fastslam.md,
-# "Session 16: the odometry's variance in turns" and "Session 17: the data set's default"): what `p3at slam
-# dataset` fits from the log's own ground truth when no noise model is given. Each is per robot (the cameras'
-# range and bearing offsets differ by up to 10 cm and 0.012 rad), so a model fitted on other robots does not serve.
+# The calibrations that together make MRCLAM's smoothed known-ID maps honest in their start frame
+# (docs/fastslam-history.md, "Session 16: the odometry's variance in turns" and "Session 17: the data set's default"):
+# what `p3at slam dataset` fits from the log's own ground truth when no noise model is given. Each is per robot (the
+# cameras' range and bearing offsets differ by up to 10 cm and 0.012 rad), so a model fitted on other robots does not
+# serve.
 DATASET_CALIBRATIONS = {"range_calibration": True, "heading_bias": True, "odometry_lag": True, "turn_variance": True}
 
 
@@ -389,7 +390,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     First the calibration: the rotation scale and the heading bias per metre by least squares
     (g_θ ≈ k_r u_θ + c·d, d the window's odometry distance) with ``heading_bias=True``; by default, or for a log
     whose turns and distances are proportional so that the two cannot be told apart, c = 0 (see
-    _heading_calibration; off by default because on MRCLAM it did not improve the maps, docs/fastslam.md); then,
+    _heading_calibration; off by default because on MRCLAM it did not improve the maps, docs/fastslam-history.md); then,
     the turns calibrated, the translation scale by least squares on the window's displacement vectors (which
     scale linearly with it). Then
     the random-walk variances q = (q_xy, q_θ/rad, q_θ/m) of the calibrated steps:
@@ -412,25 +413,25 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     it understates the bearing's inflation 1.5-2x and overstates the range's 2-4x); ``"passes"`` the ρ whose
     AR(1) inflation (1 + ρ)/(1 − ρ) equals the measured one of whole passes (:func:`_pass_inflation`): what a
     filter taking a pass's sightings as independent needs over a pass. Not the default: on MRCLAM it improved
-    known-ID maps on three seeds but made the leave-one-out and unknown-association runs worse (docs/fastslam.md).
-    ``range_calibration``: first fit the range's calibration r_true ≈ a + r·(b₀ + b₁φ + b₂φ²) (measured r, φ;
-    see :meth:`RangeBearingNoise.corrected`) by least squares, refitted three times on the sightings within
-    OUTLIER_MADS robust σ, and take every range residual, σ_r and correlation after it; off: the identity.
-    ``odometry_lag``: first fit the time by which the odometry leads the motion (:func:`_odometry_lag`: the lag
-    that minimises the heading increments' error at the filter's frame interval) and fit everything else on the
+    known-ID maps on three seeds but made the leave-one-out and unknown-association runs worse
+    (docs/fastslam-history.md). ``range_calibration``: first fit the range's calibration r_true ≈ a + r·(b₀ + b₁φ +
+    b₂φ²) (measured r, φ; see :meth:`RangeBearingNoise.corrected`) by least squares, refitted three times on the
+    sightings within OUTLIER_MADS robust σ, and take every range residual, σ_r and correlation after it; off: the
+    identity. ``odometry_lag``: first fit the time by which the odometry leads the motion (:func:`_odometry_lag`: the
+    lag that minimises the heading increments' error at the filter's frame interval) and fit everything else on the
     odometry read that much earlier; off: 0.
     ``turn_translation``: fit the translation scale k jointly with a forward deficit per radian turned c (each
     50 Hz step's distance d → max(d − c·|Δθ|, 0), then scaled by k; :func:`_calibrated`) on the same windows,
     c by a bounded search on [0, MAX_FORWARD_DEFICIT_PER_RAD] with k in closed form for each c, and c's standard
     error from the profile's curvature; off: c = 0 (one translation scale for all motion). Why: MRCLAM's robots
-    cover 0.65 of the commanded distance in arcs and all of it straight (docs/fastslam.md "Session 16 (Q)").
+    cover 0.65 of the commanded distance in arcs and all of it straight (docs/fastslam-history.md "Session 16 (Q)").
     ``turn_variance``: fit ``turn_xy_inflation``, the turns' overdispersion (:func:`_turn_inflation`): on
     increments of TURN_STEP_S with everything above calibrated, z = (true − odometry forward travel) / σ_xy of the
     fitted random walk; over each turn (≥ TURN_MIN_INCREMENTS consecutive increments of
     ``estimation.fastslam.motion.turning``) Σz/√n is a unit normal if the increments' errors are independent; the
     inflation is its mean square over the turns (≥ 1; a mean error counts: a bias the calibration left is a
     persistent error too); off: 1. Why: the smoothed MRCLAM maps' start frames fail on the forward travel of the
-    first turns, correlated through each turn (docs/fastslam.md "Session 16 (P)").
+    first turns, correlated through each turn (docs/fastslam-history.md "Session 16 (P)").
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -644,7 +645,7 @@ def _calibrated(increments, scales, heading_bias_per_m: float, forward_deficit_p
     forward deficit c, each increment's translation is first shortened by c·|Δθ| (its odometry turn) along its
     own direction, to no less than zero: d' = max(d − c·|Δθ|, 0). Why this form: MRCLAM's robots (iRobot Creates
     driven by commanded velocity) make 0.65 of the commanded distance in arcs of 0.38 rad/s and all of it going
-    straight, and the deficit's rate follows |ω| at any speed (docs/fastslam.md "Session 16 (Q)"), so it is a
+    straight, and the deficit's rate follows |ω| at any speed (docs/fastslam-history.md "Session 16 (Q)"), so it is a
     distance per radian, which adds up the same over 50 Hz steps and 0.25 s frames; a turn on the spot, whose
     odometry distance is zero, keeps it zero (the clip)."""
     raw = np.asarray(increments, float).reshape(-1, 3)

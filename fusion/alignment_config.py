@@ -52,7 +52,7 @@ PAPER = AlignmentConfig(
 # in its robot's start frame is rarely better than a few decimetres once the robot's pose error is counted,
 # which FastSLAM's per-particle covariances leave out (MRCLAM: 4–7 mm claimed, 0.04–0.27 m real).  gate_scale
 # "residual": honest start-frame covariances hold drift the transform removes, so the supports' residuals may also
-# narrow the gate to that floor (fusion/gate_scale.py; docs/fusion.md "Session 8: the alignment's gate").
+# narrow the gate to that floor (fusion/gate_scale.py; docs/fusion-history.md "Session 8: the alignment's gate").
 ROBUST = AlignmentConfig(
     name="robust", descriptor_threshold=0.8, ratio=0.8, pair_tolerance=3.0, min_pair_separation=0.5,
     support_threshold=1.0, min_supports=4, iterations=2000, adaptive=True, confidence=0.9999,

@@ -4,7 +4,8 @@ The paper's stationary Kalman update (``fusion.merging.kalman_fuse``, eqs. 6–8
 landmark as independent, so the fused covariance is (P1⁻¹ + P2⁻¹)⁻¹ — half of either when they are equal.  Maps of
 one place made by robots that share sensors, landmarks and a placement into one frame are not independent: on
 MRCLAM the two best maps' errors correlate +0.59 and the Kalman merge of five maps claims about 1/√5 of their σ
-(docs/fusion.md, "Session 7: merging").  Covariance intersection (Julier & Uhlmann 1997) needs no cross-covariance:
+(docs/fusion-history.md, "Session 7: merging").  Covariance intersection (Julier & Uhlmann 1997) needs no
+cross-covariance:
 
     P⁻¹ = ω P1⁻¹ + (1 − ω) P2⁻¹,    x = P (ω P1⁻¹ x1 + (1 − ω) P2⁻¹ x2),    ω ∈ [0, 1]
 

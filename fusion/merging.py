@@ -18,7 +18,7 @@ forgets to rotate the covariance), plus, when the alignment carries a covariance
 J Σ Jᵀ with J = ∂(R x2' + t)/∂(tx, ty, θ), so that an uncertain alignment weighs map 2 less.  The Kalman update
 takes the two maps' errors as independent; when they are not (robots that share sensors and landmarks, FastSLAM maps
 on MRCLAM) ``rule="intersection"`` fuses by covariance intersection (``fusion.intersection``), whose covariance holds
-for any correlation (docs/fusion.md, "Session 7: merging").  The fused
+for any correlation (docs/fusion-history.md, "Session 7: merging").  The fused
 descriptor is the mean of the two, renormalised to unit length.  Landmarks seen by one robot only are
 kept as they are (map 2's transformed into map 1's frame), and ``seen_by`` records which robots saw
 each landmark.
@@ -52,7 +52,7 @@ def kalman_fuse(x1: np.ndarray, P1: np.ndarray, x2: np.ndarray, P2: np.ndarray) 
     return x, 0.5 * (P + np.swapaxes(P, -1, -2))
 
 
-# How a landmark both maps hold is fused (docs/fusion.md, "Session 7: merging"): "kalman" is the paper's
+# How a landmark both maps hold is fused (docs/fusion-history.md, "Session 7: merging"): "kalman" is the paper's
 # stationary Kalman update (eqs. 6–8, independent maps), the default: on maps whose errors are mostly their own
 # (MRCLAM sightings) it makes the merged map better than the best single one.  "intersection" is covariance
 # intersection (fusion.intersection), which holds for any correlation between the maps' errors: honest on FastSLAM

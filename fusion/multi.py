@@ -119,11 +119,11 @@ def covariance_scales(maps: list[LandmarkMap], alignments: dict[tuple[int, int],
     map's σ_k² is a small difference of large pair variances (its pairs are dominated by the other maps' scatter), the
     least certain estimate, and an underestimate is what the merge trusts most — on the session-5 MRCLAM maps plain
     least squares put robot 1 at the 0.02 m floor against 0.068 m real, and the merged landmarks' NEES against Vicon
-    had median 21.5 (docs/fusion.md, "Session 7: merging").  Why: a map's
+    had median 21.5 (docs/fusion-history.md, "Session 7: merging").  Why: a map's
     covariances can carry an error that an alignment removes (FastSLAM's ``mixture+drift`` export adds the frame's
     drift, which moves the overlap as a whole) and say nothing of how bent the map is: on MRCLAM the most accurate
     map (0.068 m per axis about its best rigid fit) claimed σ 0.40 m, the second worst (0.175 m) 0.14 m, and
-    weighting by those claims made the merged map worse than most single maps (docs/fusion.md).
+    weighting by those claims made the merged map worse than most single maps (docs/fusion-history.md).
     """
     n = len(maps)
     rows, rhs, dof = [], [], []
@@ -187,7 +187,8 @@ def calibrated_map(landmark_map: LandmarkMap, scale: float, calibration: str = "
     scaled.  Why: a FastSLAM map's claimed structure is the pose drift when each landmark was made (landmarks made
     near the start claim least), an error the alignment removes; it does not say which landmarks are bent.  On the
     session-6 MRCLAM maps the merged landmarks' NEES against Vicon falls from median 7.3 (6 of 15 above the χ²(2)
-    99 % bound) to 3.4 (3 of 15) and their error from 0.136 to 0.121 m (docs/fusion.md, "Session 7: merging")."""
+    99 % bound) to 3.4 (3 of 15) and their error from 0.136 to 0.121 m (docs/fusion-history.md, "Session 7:
+    merging")."""
     P = landmark_map.covariances * scale
     if calibration == "isotropic" and len(P):   # P is already a new array
         P[:, :2, :2] = scale * claimed_variance(landmark_map) * np.eye(2)
@@ -210,7 +211,8 @@ def drift_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int], 
         return None
     # one isotropic variance per map, its landmarks' mean about the rigid placement: the files rank the maps (MRCLAM,
     # 20 maps: Spearman +0.59 with the real σ, the hat's +0.29), but their per-landmark blocks are nearly singular
-    # across the bend (the local part is millimetres), and merging by them was worse on 3 of 4 sets (docs/fusion.md)
+    # across the bend (the local part is millimetres), and merging by them was worse on 3 of 4 sets
+    # (docs/fusion-history.md)
     shapes = [np.tile(np.eye(2) * float(np.mean(np.trace(s, axis1=1, axis2=2))) / 2, (len(s), 1, 1)) for s in shapes]
     levels = shape_levels(maps, shapes, alignments)
     if levels is None:
@@ -227,8 +229,8 @@ def sighting_calibrated(maps: list[LandmarkMap], alignments: dict[tuple[int, int
     (``fusion.shape_covariance.sighting_variances``: how well the map agrees with itself at the landmark), b one factor
     for all maps from the found pairs' residuals (``spread_level``: the spread of single sightings says which landmark
     and which map is worse, not by how much its estimate errs), so the merge's weights are the files' own ratios.
-    Measured alternatives (docs/fusion.md, session 11): ``pooled``, v_l replaced by its map's mean (one variance per
-    map, as "drift"); ``floor``, (a + b v_l) I with (a, b) by ``shape_levels``.  And per map the factor its median
+    Measured alternatives (docs/fusion-history.md, session 11): ``pooled``, v_l replaced by its map's mean (one variance
+    per map, as "drift"); ``floor``, (a + b v_l) I with (a, b) by ``shape_levels``.  And per map the factor its median
     claimed variance was scaled by (for the report).  None when a map keeps no sightings or no pair was found."""
     spreads = [sighting_variances(m, per) for m in maps]
     if any(v is None for v in spreads):

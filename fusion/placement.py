@@ -4,14 +4,14 @@ An alignment answers "where is robot j's start frame in robot i's": ``refine_pos
 claimed covariances, and a FastSLAM map claims its start-frame error (``mixture+drift``: the drift of the pose when a
 landmark was made), so the landmarks mapped near the start, which claim least, set the pose.  That is the right
 estimate of the start frames (MRCLAM, calibrated maps of seed 0: 0.215 m / 0.052 rad median against Vicon, against
-0.284 m / 0.065 rad for an unweighted fit of the same supports; docs/fusion.md, "Session 9").
+0.284 m / 0.065 rad for an unweighted fit of the same supports; docs/fusion-history.md, "Session 9").
 
 Merging asks another question: where do map j's landmarks best lie on map i's?  Once ``fusion.multi`` has calibrated
 the maps (``covariance_scales``: each map's scatter about a rigid placement, σ_k² per axis, from the pairwise
 residuals), the merge's own model of a map is "its landmarks scatter σ_k about a rigid placement", and the maximum
 likelihood placement under that model is the least-squares fit of the supports under the *calibrated* covariances
 (with the isotropic calibration: the plain Kabsch fit).  Placing each map by the alignment's start-frame pose put
-the calibrated MRCLAM maps 0.06–0.20 m off where their own shapes fit (docs/fusion.md, "Session 9"), which is an
+the calibrated MRCLAM maps 0.06–0.20 m off where their own shapes fit (docs/fusion-history.md, "Session 9"), which is an
 error every landmark of that map carries into the merge.
 """
 from __future__ import annotations

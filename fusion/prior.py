@@ -2,7 +2,7 @@
 
 Real fleets usually know roughly where their robots started (one docking area, a tape mark, a rendezvous), and
 MRPT/ROS map mergers take an initial guess.  The alignment's evidence alone cannot tell a building's half turn from
-the truth when both look alike (docs/fusion.md, "Rendered demo: is the half-turn symmetry real in appearance?");
+the truth when both look alike (docs/fusion-history.md, "Rendered demo: is the half-turn symmetry real in appearance?");
 a prior can, and :func:`fusion.align` uses it only to *remove* hypotheses, never to add support:
 
 * a hypothesis is consistent with the prior when χ² = dᵀ (C_prior + C) ⁻¹ d is within χ²₃ at ``level`` (99.9 %:

@@ -108,9 +108,9 @@ def shape_levels(maps: list[LandmarkMap], shapes: list[np.ndarray], alignments) 
     S_l can be nearly singular across the direction the drift bends a landmark, while the landmarks also err a few
     centimetres on their own (the sensor).  Why b: the files say which map and which landmark is bent how much
     relative to the others, but their level rests on the filter's own chain of mean drifts, which is pessimistic
-    (MRCLAM: about 4x the real scatter, docs/fusion.md "Session 10").  Two numbers for all maps are well determined by
-    all pairs together, where a level per map (the three-cornered hat, ``fusion.multi.covariance_scales``) is a small
-    difference of large pair variances."""
+    (MRCLAM: about 4x the real scatter, docs/fusion-history.md "Session 10").  Two numbers for all maps are well
+    determined by all pairs together, where a level per map (the three-cornered hat, ``fusion.multi.covariance_scales``)
+    is a small difference of large pair variances."""
     residuals, covs, weights = [], [], []
     for i, j, p, c, R, r, w in _support_residuals(maps, alignments):
         residuals.append(r)

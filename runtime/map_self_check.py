@@ -48,7 +48,7 @@ def read_self_check(metadata: dict) -> dict | None:
 def lost_text(verdict: dict) -> str | None:
     """'may have lost its place at t≈45.5 s: 5 of 85 old landmarks predicted in view re-detected since 35.9 s,
     33.4 expected (CUSUM 22.5 ≥ 11.5); 2 more alarms after it', or None for a map that holds. "May": the test's
-    stated false-alarm rate does not hold on the rendered building (it flags some healthy maps, docs/fastslam.md
+    stated false-alarm rate does not hold on the rendered building (it flags some healthy maps, docs/fastslam-history.md
     "Session 7: self-check"), so the text states what was seen, not the rate."""
     if not verdict["lost"]:
         return None

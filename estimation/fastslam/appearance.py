@@ -4,7 +4,7 @@ Fixed-scale U-SURF changes with the viewing distance: on rendered frames the med
 sightings of one true point grows from 0.17 (same range) to 0.52 (one 1.5–1.8× the other's range) and 0.67
 (farther still), against the association's threshold of 0.5 (``benchmarks/descriptor_scale.py``). A landmark
 that keeps only its first descriptor is therefore not recognised from another distance, and a second landmark
-is made for the same point: most rendered duplicates (docs/fastslam.md, "Duplicates").
+is made for the same point: most rendered duplicates (docs/fastslam-history.md, "Duplicates").
 
 :class:`DescriptorBands` keeps up to ``slots`` descriptors per landmark id, each with the sensor range it was
 made at. An observation is compared only with the descriptor made at the most similar range (|ln r/r_k|

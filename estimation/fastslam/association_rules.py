@@ -1,6 +1,6 @@
 """Unknown association: which gated landmark a reading takes, beyond "the nearest" (``unknown_association_rule``).
 
-Measured on MRCLAM (docs/fastslam.md, "Session 8: unknown association"): 7–27 % of the most probable particle's
+Measured on MRCLAM (docs/fastslam-history.md, "Session 8: unknown association"): 7–27 % of the most probable particle's
 matches go to a landmark of another post under the plain gate, and in most of those frames no particle made the
 right association: with maximum likelihood every particle near one pose makes the same choice. Two rules, each an
 option (the default stays "nearest", maximum likelihood):

@@ -1,7 +1,7 @@
 """Readings of one frame that are one point by their own covariances (``FastSLAMConfig.coincident_readings``;
 "all", the default, uses every reading as before).
 
-Why (measured on the rendered building, ``benchmarks/rendered_duplicates.py``, docs/fastslam.md "Session 9"):
+Why (measured on the rendered building, ``benchmarks/rendered_duplicates.py``, docs/fastslam-history.md "Session 9"):
 a Harris detector with non-maximum suppression over 5 px reports two corners on one texture blob 2-6 cm apart
 at 3-6 m. On robot1 seed 0, 35 % of the exported map's duplicate pairs were made that way: the newer landmark
 came from a reading of the very frame in which the best particle detected the older one, 4.7 cm away (median)

@@ -132,8 +132,8 @@ class FastSLAMConfig:
     #                                             #   errors (AR(1)); the export multiplies each landmark's EKF
     #                                             #   covariance by lever_drift.correlated_mean_factor; estimates
     #                                             #   unchanged. 0.49: measured on the stereo front end's rendered
-    #                                             #   frames (0.47-0.49 on four runs; docs/fastslam.md "Session 8:
-    #                                             #   honest covariances"); 0: the EKF's independence taken as given
+    #                                             #   frames (0.47-0.49 on four runs; docs/fastslam-history.md "Session
+    #                                             #   8: honest covariances"); 0: the EKF's independence taken as given
     drift_export: str = "plain"                   # "id" association without drift_lever only (drift_lever's
     #                                             #   tracker exports the lever itself; "unknown" keeps the
     #                                             #   plain tracker, whose C_l its merges read): "lever" exports
@@ -145,8 +145,9 @@ class FastSLAMConfig:
     #                                             #   drift.py, docs "Session 14 ... (J)"); the gate, so every
     #                                             #   estimate, unchanged. range_bearing_config's choice since
     #                                             #   session 14 ("lever+heading+relative"): MRCLAM within the NEES
-    #                                             #   bound 23-86 % (plain) -> 57-100 % -> 79-100 % (docs/fastslam.md
-    #                                             #   "Session 13 ... (N)", "Session 14 ... (J)")
+    #                                             #   bound 23-86 % (plain) -> 57-100 % -> 79-100 %
+    #                                             #   (docs/fastslam-history.md "Session 13 ... (N)", "Session 14 ...
+    #                                             #   (J)")
     drift_translation_per_m: float = 0.0          # with drift_lever: m² per axis per metre the robot's position
     #                                             #   walks from the pose that made the landmarks it is pinned to
     #                                             #   (lever_drift.py); export and D_r only on the stereo path
@@ -256,10 +257,10 @@ def range_bearing_config(**overrides) -> FastSLAMConfig:
 
     Known-ID readings that the gate rejects in a particle are judged with the pose's drift since their landmark
     was made, and two such landmarks in one frame correct the pose (``id_relative_drift="consistent"``,
-    id_gate.py; MRCLAM: docs/fastslam.md, "Session 6"). With known IDs the exported landmark covariances carry the
-    heading's lever, keep the heading through one-landmark frames and count the re-sighting poses' drift relative to
-    each landmark's creation (``drift_export="lever+heading+relative"``, export_drift.py; MRCLAM: docs/fastslam.md,
-    "Session 14")."""
+    id_gate.py; MRCLAM: docs/fastslam-history.md, "Session 6"). With known IDs the exported landmark covariances carry
+    the heading's lever, keep the heading through one-landmark frames and count the re-sighting poses' drift relative to
+    each landmark's creation (``drift_export="lever+heading+relative"``, export_drift.py; MRCLAM:
+    docs/fastslam-history.md, "Session 14")."""
     values = dict(sensor_offset=(0.0, 0.0, 0.0), fov_horizontal=2 * math.pi, fov_vertical=math.pi,
                   min_range=0.0, max_range=30.0, descriptor_size=0, mahalanobis_gate=11.345,
                   merge_covisibility=True,   # such a sensor reports each object at most once a frame

@@ -12,7 +12,7 @@ too; the detection model whose log-likelihood ratios ``existence.py`` adds to ea
   detected: 1 − P_D(r).
 
 With ``FastSLAMConfig.detection_in_weight`` (unknown association only; off by default and in
-``range_bearing_config``: measured on MRCLAM in docs/fastslam.md, "Session 9") each particle's log-weight gains
+``range_bearing_config``: measured on MRCLAM in docs/fastslam-history.md, "Session 9") each particle's log-weight gains
 
     w · [Σ_detected log P_D(r) + miss_weight · Σ_missed log(1 − P_D(r))],   w = (1 − ρ)/(1 + ρ),
 

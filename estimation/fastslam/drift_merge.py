@@ -1,8 +1,8 @@
 """Duplicates made after a drift: a merge gate widened by the pose's drift between the two landmarks' creations.
 
-Why (docs/fastslam.md, "Session 10: unknown association" and "Session 11 (K)"): with the camera's range calibrated
-the association gate is narrow, so an old landmark re-sighted after the pose drifted falls outside it in every
-particle and is made again. The merge's plain test, (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b) < ``merge_gate``, cannot
+Why (docs/fastslam-history.md, "Session 10: unknown association" and "Session 11 (K)"): with the camera's range
+calibrated the association gate is narrow, so an old landmark re-sighted after the pose drifted falls outside it in
+every particle and is made again. The merge's plain test, (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b) < ``merge_gate``, cannot
 join the two: each Σ is the landmark's EKF covariance *given the particle's trajectory*, and the two estimates
 differ by how far that trajectory drifted between their creations, which no Σ holds. Co-visibility's merge
 (``merge_covisibility``) widens by the absolute drifts, Σ_a + Σ_b + C_a + C_b, but only after the old landmark was

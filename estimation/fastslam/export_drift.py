@@ -1,7 +1,7 @@
 """The drift's heading lever in the exported covariance only: the gate keeps the plain tracker, the map file the lever.
 
-Why (docs/fastslam.md, "Session 13 ... (N)"; ``benchmarks/mrclam_nees_diagnosis.py``): on MRCLAM known-ID maps the
-landmarks outside the χ²₂ 95 % bound are outside by the map frame's error, and that error is the heading's lever.
+Why (docs/fastslam-history.md, "Session 13 ... (N)"; ``benchmarks/mrclam_nees_diagnosis.py``): on MRCLAM known-ID maps
+the landmarks outside the χ²₂ 95 % bound are outside by the map frame's error, and that error is the heading's lever.
 The plain tracker (:class:`~estimation.fastslam.drift.DriftTracker`, what ``range_bearing_config`` uses) resets the
 robot after every matched frame to D_r ← mean_l D_l + P_local: the robot as uncertain as the poses that made the
 landmarks it sees, *where they were*. Its heading σ covers the creation poses' heading errors, but a heading error
@@ -25,10 +25,10 @@ last update and Δ the best particle's displacement since (its positions at the 
 of a few cm within a frame is the approximation). ``remeasured`` (known-ID anchoring, ``id_drift_inherit``) lowers
 the plain D_l only; the export's stays as made (wider, never narrower, as ``remeasured`` leaves C_l).
 
-``relative=True`` (``drift_export="lever+heading+relative"``, docs/fastslam.md "Session 14 ... (J)"): the landmark's
-shape part. C_l counts the creation pose's error; a landmark's EKF then averages its readings placed from the poses
-that re-sighted it, and each of those poses drifted relative to the creation pose, which the EKF (conditional on one
-path) does not count. With e_k = G_k e_c + δ_k (the pose at sighting k, G_k = G(t_k − t_c) the lever from the
+``relative=True`` (``drift_export="lever+heading+relative"``, docs/fastslam-history.md "Session 14 ... (J)"): the
+landmark's shape part. C_l counts the creation pose's error; a landmark's EKF then averages its readings placed from the
+poses that re-sighted it, and each of those poses drifted relative to the creation pose, which the EKF (conditional on
+one path) does not count. With e_k = G_k e_c + δ_k (the pose at sighting k, G_k = G(t_k − t_c) the lever from the
 creation position t_c), the reading placed from it is off by H_k e_k = H_c e_c + H_k δ_k (H_k G_k = H_c: the lever
 composes), so beyond C_l = H_c D_l H_cᵀ sighting k adds H_k R_k H_kᵀ with R_k = (D_r,k − G_k D_l G_kᵀ)⁺ (the PSD
 part, as ``id_gate`` takes D_r − D_l; D_r,k the lever D_r right after frame k's update, the pose the EKF placed the

@@ -1,6 +1,6 @@
 """One point, one landmark in the exported map: coincident landmarks merged at export, the filter untouched.
 
-A rendered run's map holds ~23 % duplicates (docs/fastslam.md, "Session 17: coincident landmarks merged at
+A rendered run's map holds ~23 % duplicates (docs/fastslam-history.md, "Session 17: coincident landmarks merged at
 export"): the front end reports two corners of one texture blob, and U-SURF's look changes with the range, so the
 filter makes a point again where its descriptor no longer matches. Merging them inside the filter cost ATE
 (sessions 9-11): a reading that makes or joins a merged landmark stops localizing the robot. Merging them in the

@@ -1,6 +1,6 @@
 """Known-ID association: readings judged with the pose's drift relative to the landmark seen, not only its last step.
 
-Why (docs/fastslam.md, "Session 6"): in "id" association the barcode names the landmark and the Mahalanobis
+Why (docs/fastslam-history.md, "Session 6"): in "id" association the barcode names the landmark and the Mahalanobis
 gate only has to reject outliers. Its S holds the landmark's EKF covariance (conditional on the particle's
 trajectory), the sensor noise and the pose's uncertainty *since the last frame*: the particle cloud's spread
 is supposed to carry the rest, but after resampling nearly every frame it keeps only the pose's uncertainty
@@ -22,7 +22,7 @@ robot's now, so D_r − D_l is the drift accumulated since l was made (and D_i �
   landmarks pulled the pose: robot 3 0.49 → 1.69 m.) With ``id_drift_inherit`` (off by default), those the most
   probable particle re-measured so take the drift of the pose they were re-measured from, D_a + P_local
   (:meth:`RelativeGate.inherit`); without it their D_i stays the drift at creation and they are widened and
-  re-placed again at every later rescue (the map's shape: docs/fastslam.md "Session 7").
+  re-placed again at every later rescue (the map's shape: docs/fastslam-history.md "Session 7").
 - ``"consistent"``: as ``"rescue"``, but a particle's rescue needs two or more *different* landmarks rejected
   by the plain gate and accepted by the widened one in the same frame. Why: one range-bearing reading fixes
   only two of the pose's three degrees of freedom, so a correction from one landmark under a wide prior slides

@@ -15,7 +15,7 @@ innovations w_i = L_i⁻¹ ν_i (S_i = L_i L_iᵀ), whose components are i.i.d. 
   Unlike the AR(1) (Bartlett) factor of ρ (:func:`estimation.fastslam.lever_drift.correlated_mean_factor`) it
   assumes no model of the correlation.
 
-docs/fastslam.md, "Session 14: ... (I)": on MRCLAM known-ID maps the landmarks' NIS is far below χ²₂'s mean (the
+docs/fastslam-history.md, "Session 14: ... (I)": on MRCLAM known-ID maps the landmarks' NIS is far below χ²₂'s mean (the
 innovations do not see the landmarks' shape error) while their innovations are correlated.
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The map frame's drift with the heading's lever arm: a robot pinned to old landmarks is as far off as they are,
 plus the heading error times the distance it has moved since they were made.
 
-Why (measured on the rendered building, ``benchmarks/rendered_covariance_diagnosis.py``, docs/fastslam.md
+Why (measured on the rendered building, ``benchmarks/rendered_covariance_diagnosis.py``, docs/fastslam-history.md
 "Session 8"): :class:`~estimation.fastslam.drift.DriftTracker` sets the robot's pose covariance, after a frame
 that matched landmarks, to the mean of their creation-time covariances plus the local one,
 D_r ← mean_l D_l + P_local. That says "the robot is exactly as uncertain as the pose that made those landmarks",
@@ -97,7 +97,7 @@ def empirical_local_position(residuals_xy: np.ndarray) -> np.ndarray:
     """(2, 2) variance of the mean position error measured from the frame's own residuals (L, 2) (observation in
     the start frame minus its landmark, the most probable particle's matches): Σ_l r_l r_lᵀ / L², the sandwich
     estimate of a mean's variance. It needs no error model: the proposal's P_local assumes the front end's Q,
-    whose bulk is over-claimed while ~4 % of the readings are gross (docs/fastslam.md "Session 8"), and a mean
+    whose bulk is over-claimed while ~4 % of the readings are gross (docs/fastslam-history.md "Session 8"), and a mean
     of L readings is as good as their real spread, not the claimed one. Zeros with fewer than 2 residuals."""
     r = np.asarray(residuals_xy, float).reshape(-1, 2)
     if len(r) < 2:

@@ -1,7 +1,7 @@
 """Does the map still know where it is? A sequential test of the old map's re-detections (session 7).
 
 A map that is confidently wrong is the worst output. FastSLAM's particles cannot tell: after a stretch in which
-the map did not hold the pose (a turn on the spot facing a near wall, docs/fastslam.md "Rendered: why robot 2
+the map did not hold the pose (a turn on the spot facing a near wall, docs/fastslam-history.md "Rendered: why robot 2
 diverges"), the cloud can settle around a wrong heading with a normal spread, ESS and association counts, and the
 map after the stretch is built, consistently with itself, in a turned frame. What does show it is the map made
 *before* the stretch: the best particle predicts its landmarks in view, and they are not re-detected.
@@ -18,7 +18,7 @@ The test, per frame, on the most probable particle (read only: the filter's esti
 - *Re-detectable*: with descriptors deciding the association, only landmarks seen now from within
   ``DESCRIPTOR_RANGE_RATIO`` of the range and ``DESCRIPTOR_VIEW_ANGLE`` of the direction they were made from: the
   fixed-scale upright descriptor of a point seen from 1.5-1.8× its first range is farther than the association
-  threshold from its first one in most sightings (median 0.52 > 0.5, docs/fastslam.md "Descriptors per viewing
+  threshold from its first one in most sightings (median 0.52 > 0.5, docs/fastslam-history.md "Descriptors per viewing
   range"), and local descriptors of a planar patch stop matching beyond ~40-50° of viewpoint change (Mikolajczyk
   et al. 2005, Bay et al. 2008). Outside those, the map's own association cannot re-detect a landmark that is
   there, so its miss says nothing. By identity (or without descriptors) every landmark in view is re-detectable.
@@ -27,7 +27,7 @@ The test, per frame, on the most probable particle (read only: the filter's esti
   P_D = 1 − exp(existence_miss)); under H1 "the map lost its place" nothing is where it is predicted, and the
   association re-detects it only by chance: with descriptors, when an unrelated point's descriptor passes the
   threshold, ``DESCRIPTOR_CHANCE_MATCH`` (2–2.5 % of random pairs of the front end's descriptors are under 0.5,
-  docs/fastslam.md "Rendered frames"; the diverged replay re-detects 1.4 %); by identity or without descriptors,
+  docs/fastslam-history.md "Rendered frames"; the diverged replay re-detects 1.4 %); by identity or without descriptors,
   as a false alarm, the existence model's P_FA (``false_alarm_probability``, or the constants' P_FA = P_D /
   exp(existence_hit)). That is the existence test applied to the old map as a whole. (With the constants' P_FA =
   0.14 as the descriptor path's H1, healthy stretches re-detecting 10 % of the old landmarks in view drove the

@@ -6,7 +6,7 @@ made the landmark, the re-sighting cannot see it. Two particles that made the sa
 different poses) therefore differ in its re-sightings by noise only, and resampling on that noise is drift, not
 selection: while only such landmarks are in view (the robot explores), the cloud loses the frame hypotheses it
 will need at the next loop closure (MRCLAM robot 1, seed 2: the heading drifts 0.4 rad while new posts are made,
-and the cloud that comes back to the old posts holds 0.07 rad of heading spread; docs/fastslam.md "Session 9").
+and the cloud that comes back to the old posts holds 0.07 rad of heading spread; docs/fastslam-history.md "Session 9").
 
 The rule. Each (landmark, particle) carries a *creation token*: particles that made the landmark in one creation
 share it (they had identical poses and maps when they made it, e.g. copies of one parent, or every particle in
@@ -21,7 +21,7 @@ unchanged).
 Departure from the paper (Montemerlo et al., FastSLAM 2.0): the paper's weight is the full predictive
 likelihood of every reading. Between particles that made a landmark apart, the reading cannot see the frame error
 (the invariance above), but it does judge each particle's motion since it made the landmark, and that is dropped
-too. Measured (docs/fastslam.md, "Session 10"): the rule keeps the frame hypotheses a slow heading drift needs
+too. Measured (docs/fastslam-history.md, "Session 10"): the rule keeps the frame hypotheses a slow heading drift needs
 (MRCLAM robot 1 repaired on every seed) and loses the evidence a turn on the spot needs (robots 3 and 4 worse), so
 it is an option, off by default.
 
@@ -54,7 +54,7 @@ What session 10's rule dropped, then, was only motion evidence (the turn test: t
 wrong stays wrong), and what it gained on MRCLAM robot 1 came from weights kept flat while only young posts were
 in view, that is no resampling there, not from any frame evidence removed (seed 2, the first 140 s: 0 resamplings
 against the plain weights' 31, the cloud's heading σ at 90-140 s 0.169 against 0.072 rad; over the whole run the
-counts differ little, 718 against 777 of 4,159 frames; docs/fastslam.md "Session 11").
+counts differ little, 718 against 777 of 4,159 frames; docs/fastslam-history.md "Session 11").
 The plain cloud's loss of frame hypotheses is the selection's concentration of weight: the selection on each
 particle's motion since creation is blind to its frame, but it picks a few particles and their frames come with
 them (hitch-hike), whether resampling copies them or their weights alone dominate. Resampling less does not keep

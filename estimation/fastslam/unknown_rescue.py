@@ -1,6 +1,6 @@
 """Unknown association: old landmarks re-sighted after a drift, re-associated when one pose correction explains two.
 
-Why (docs/fastslam.md, "Session 7: unknown association"): the gate's S holds the landmark's EKF covariance, the
+Why (docs/fastslam-history.md, "Session 7: unknown association"): the gate's S holds the landmark's EKF covariance, the
 sensor noise and the pose's uncertainty since the last frame; the resampled particle cloud forgets how far the
 pose has drifted relative to landmarks made long ago (Bailey, Nieto & Nebot 2006; ``id_gate.py``). When such a
 landmark comes back into view every particle rejects its reading and makes a *new* landmark there: a duplicate,

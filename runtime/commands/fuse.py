@@ -426,7 +426,7 @@ def _warn_lost(report: dict) -> None:
             print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['lost']}; if so, the map after that is not "
                   "tied to the map before it, so the map was split there and each part aligned (the line 'map "
                   f"{k} ({m['robot']}) flagged itself' says what was decided; the check also flags some healthy maps: "
-                  "docs/fastslam.md, Session 7: self-check)", file=sys.stderr)
+                  "docs/fastslam-history.md, Session 7: self-check)", file=sys.stderr)
 
 
 def _warn_identity_conflicts(report: dict) -> None:

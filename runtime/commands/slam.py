@@ -186,30 +186,32 @@ def _register_noise(sub) -> None:
                         help="robot number; repeat to pool several robots")
     parser.add_argument("--out", required=True, metavar="FILE", help="noise model to write (.toml)")
     parser.add_argument("--window", type=positive_float, default=5.0, metavar="S",
-                        help="odometry residual window (default 5 s; see docs/fastslam.md, Real data: MRCLAM)")
+                        help="odometry residual window (default 5 s; see docs/fastslam.md, Noise models)")
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
                         help="Barcodes.dat handling, as for `slam dataset`")
     parser.add_argument("--heading-bias", action="store_true",
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "
-                             "default: on MRCLAM it did not lower the trajectory error (docs/fastslam.md, Session 5)")
+                             "default: on MRCLAM it did not lower the trajectory error "
+                             "(docs/fastslam-history.md, Session 5)")
     parser.add_argument("--range-calibration", action="store_true",
                         help="also fit the range's calibration r <- a + r (b0 + b1 phi + b2 phi^2) (a camera that "
                              "reports depth along its axis, not range), written to [range_bearing]. Off by default "
-                             "(docs/fastslam.md, Sessions 8-9)")
+                             "(docs/fastslam-history.md, Sessions 8-9)")
     parser.add_argument("--odometry-lag", action="store_true",
                         help="also fit the time by which the odometry leads the motion (commanded velocities), "
                              "written as [odometry] lag_s; `slam dataset` reads the odometry that much earlier. Off "
-                             "by default (docs/fastslam.md, Session 9)")
+                             "by default (docs/fastslam-history.md, Session 9)")
     parser.add_argument("--turn-translation", action="store_true",
                         help="also fit the travel the robot does not make per radian turned (each increment's "
                              "distance d -> max(d - c |dtheta|, 0)) beside the translation scale, written as "
                              "[odometry] forward_deficit_per_rad and applied where the scales are. Off by default "
-                             "(docs/fastslam.md, Session 16 (Q))")
+                             "(docs/fastslam-history.md, Session 16 (Q))")
     parser.add_argument("--turn-variance", action="store_true",
                         help="also fit how much a turn's forward error outlasts one increment (the turns' "
                              "overdispersion), written as [odometry] turn_xy_inflation: the x/y variance of a turn's "
-                             "increments is multiplied by it. Off by default (docs/fastslam.md, Session 16 (lead))")
+                             "increments is multiplied by it. Off by default "
+                             "(docs/fastslam-history.md, Session 16 (lead))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 

@@ -120,7 +120,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, synthetic, args, complai
 @pytest.mark.slow  # the whole log of robot 1 (~3 s CPU)
 def test_real_dataset2_noise_command_fits_robot1s_heading_bias_when_asked(mrclam_dir, tmp_path):
     """`p3at slam noise --heading-bias` on robot 1's whole log: the robot curves right (-56 ± 13 mrad/m in
-    docs/fastslam.md, Session 5), the file carries the bias and its standard error, and the text says it."""
+    docs/fastslam-history.md, Session 5), the file carries the bias and its standard error, and the text says it."""
     noise = tmp_path / "noise.toml"
     status, out, err = _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "1", "--heading-bias", "--out",
                             str(noise))
@@ -134,7 +134,7 @@ def test_real_dataset2_noise_command_fits_robot1s_heading_bias_when_asked(mrclam
 @pytest.mark.slow  # the whole log of robot 2 (~10 s CPU)
 def test_real_dataset2_noise_command_fits_the_odometry_lag_and_range_calibration_when_asked(mrclam_dir, tmp_path):
     """`p3at slam noise --odometry-lag --range-calibration` on robot 2: the file carries the lag (the robots follow
-    their commanded velocities ~0.17 s late, docs/fastslam.md Session 9) and the depth-not-range calibration
+    their commanded velocities ~0.17 s late, docs/fastslam-history.md Session 9) and the depth-not-range calibration
     (b2 ~ b0 / 2, Session 8); without the flags, neither."""
     noise = tmp_path / "noise.toml"
     status, out, err = _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "2", "--odometry-lag",

@@ -135,7 +135,7 @@ def test_real_dataset2_robot1_smoothed_with_the_turns_inflation_is_honest_in_its
     """Robot 1 is MRCLAM's hardest frame (a stall and forward creep in its first turn). With the three
     calibrations and the turns' x/y inflation the smoothed map's start-frame covariance holds its errors (≥ 90 % of
     the landmarks within χ²₂ 95 %; 13 % without the inflation), and the known-ID targets of issue 13 hold, even
-    from a filter that lost its frame (docs/fastslam.md, session 16)."""
+    from a filter that lost its frame (docs/fastslam-history.md, session 16)."""
     log = read_mrclam(mrclam_dir, 1)
     fit = dict(range_calibration=True, heading_bias=True, odometry_lag=True)
     with_turns = estimate_noise([log], turn_variance=True, **fit).model

@@ -1,5 +1,6 @@
 """MRCLAM's commanded-velocity odometry overstates the forward travel in turns (benchmarks/mrclam_turn_translation.py,
-docs/fastslam.md "Session 16 (Q)"): measured on the first 900 s of robot 1 against Vicon; skips without the data."""
+docs/fastslam-history.md "Session 16 (Q)"): measured on the first 900 s of robot 1 against Vicon; skips without the
+data."""
 from __future__ import annotations
 
 import functools

@@ -255,7 +255,8 @@ def test_the_odometry_lag_round_trips_is_optional_and_bounded(tmp_path):
 
 
 def test_real_dataset2_odometry_leads_the_motion(mrclam_dir):
-    # MRCLAM's odometry is the commanded velocity: the robots follow it ~0.17 s late (docs/fastslam.md "Session 9")
+    # MRCLAM's odometry is the commanded velocity: the robots follow it ~0.17 s late
+    # (docs/fastslam-history.md "Session 9")
     model = estimate_noise([read_mrclam(mrclam_dir, 2, until=600.0)], odometry_lag=True).model
     assert 0.1 <= model.odometry.lag_s <= 0.3
     assert model.fit["odometry_lag_heading_rms_rad"] < model.fit["odometry_no_lag_heading_rms_rad"]
@@ -286,7 +287,7 @@ def test_real_dataset2_noise_is_plausible_and_time_correlated(mrclam_dir):
 
 def test_real_dataset2_robot1_odometry_curves_right(mrclam_dir):
     # robot 1's first 900 s: its heading falls behind the commanded one by ~0.07 rad per metre driven (every
-    # robot's does, 0.02-0.06 rad/m over the whole log: docs/fastslam.md), far beyond the fit's standard error
+    # robot's does, 0.02-0.06 rad/m over the whole log: docs/fastslam-history.md), far beyond the fit's standard error
     model = estimate_noise([read_mrclam(mrclam_dir, 1, until=900.0)], heading_bias=True).model
     se = model.fit["heading_bias_per_m_standard_error"]
     assert model.odometry.heading_bias_per_m < -2.5 * se and se < 0.05

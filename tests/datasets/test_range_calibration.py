@@ -1,5 +1,5 @@
 """The range calibration of a camera that reports depth along its axis, not range (noise_model, Session 8), and
-localization on a known map (run_landmark_log(known_map=True), the floor of docs/fastslam.md "Session 8")."""
+localization on a known map (run_landmark_log(known_map=True), the floor of docs/fastslam-history.md "Session 8")."""
 from __future__ import annotations
 
 import dataclasses

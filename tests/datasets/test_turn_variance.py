@@ -111,7 +111,7 @@ def test_the_inflation_round_trips_is_optional_bounded_and_reaches_the_filter(tm
 
 def test_real_dataset2_turns_are_overdispersed(mrclam_dir):
     model = estimate_noise([read_mrclam(mrclam_dir, 1)], turn_variance=True).model
-    # P and the lead measured 3.8-6.8 on the five robots (docs/fastslam.md, session 16): a turn's forward error
+    # P and the lead measured 3.8-6.8 on the five robots (docs/fastslam-history.md, session 16): a turn's forward error
     # persists through it
     assert 3.0 < model.odometry.turn_xy_inflation < 10.0
     assert model.fit["turn_xy_inflation_mean_z_sum"] < -1.0     # the robot covers less ground in turns than commanded

@@ -1,4 +1,4 @@
-"""The drift's heading lever in the export only (``estimation/fastslam/export_drift.py``, docs/fastslam.md
+"""The drift's heading lever in the export only (``estimation/fastslam/export_drift.py``, docs/fastslam-history.md
 "Session 13 ... (N)"): the gate's tracker unchanged, the exported C_l that of the lever tracker."""
 from __future__ import annotations
 

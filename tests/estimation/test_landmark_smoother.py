@@ -233,7 +233,7 @@ def test_a_heading_loss_that_never_leaves_the_gaussian_gives_the_gaussian_soluti
 def test_a_stall_before_the_frame_is_pinned_is_invisible_to_any_heading_loss():
     """A stall on the first increment (pose 0, the frame, to pose 1, the first sighting): nothing else sees pose 0,
     so the sightings take the stall as the frame's rotation, its residual is 0 and no loss on residuals can down-weight
-    it. The map comes out rotated by the stall with either loss (MRCLAM robot 1's first turn; docs/fastslam.md
+    it. The map comes out rotated by the stall with either loss (MRCLAM robot 1's first turn; docs/fastslam-history.md
     "Session 16 (P)")."""
     problem, truth, _, _ = stalled_log(seed=1, stalls=0)
     increments = problem.increments.copy()

@@ -1,5 +1,5 @@
 """The landmark's shape part in the export (``export_drift.ExportLeverDriftTracker(relative=True)``,
-``drift_export="lever+heading+relative"``, docs/fastslam.md "Session 14 ... (J)"): the drift of the poses that
+``drift_export="lever+heading+relative"``, docs/fastslam-history.md "Session 14 ... (J)"): the drift of the poses that
 re-sighted a landmark relative to the pose that made it, as the mean over its sightings, added to the exported C_l;
 the gate's tracker, so every estimate, unchanged."""
 from __future__ import annotations

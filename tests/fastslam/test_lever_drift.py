@@ -1,4 +1,4 @@
-"""Honest exported covariances (docs/fastslam.md, "Session 8"): the drift's heading lever arm and the correlated
+"""Honest exported covariances (docs/fastslam-history.md, "Session 8"): the drift's heading lever arm and the correlated
 observations' variance inflation (``estimation/fastslam/lever_drift.py``), through the public filter."""
 from __future__ import annotations
 

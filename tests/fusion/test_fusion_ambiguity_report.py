@@ -1,7 +1,7 @@
 """Issue 13, the rendered demo's ambiguous seeds: an ambiguous pair says what its rival is and what would settle it.
 
 On the demo the rival of the true alignment is a half turn whose supports match as closely in appearance as the
-true ones (docs/fusion.md, "Rendered demo: why the half-turned hypothesis is a real rival"); the decision keeps
+true ones (docs/fusion-history.md, "Rendered demo: is the half-turn symmetry real in appearance?"); the decision keeps
 "ambiguous", and the report must let a user see why.
 """
 from __future__ import annotations
