@@ -110,7 +110,8 @@ class MissionConfig:
         if not self.on_mocks and self.robots != 1:
             raise ValueError("a real robot URL runs exactly one robot (--robots 1)")
         if not self.on_mocks and self.camera != "usb":
-            raise ValueError("a real robot needs a real stereo head (--camera usb)")
+            raise ValueError(f"--robot {self.robot_url}: a robot given by URL needs a real stereo head (--camera usb); "
+                             "the virtual heads (mock, synthetic) ride only on the virtual robots (--robot mock)")
         if self.camera_latency is not None and not 0.0 <= self.camera_latency < 1.0:
             raise ValueError(f"--camera-latency must be in [0, 1) s, not {self.camera_latency!r}")
         if self.odometry not in ("exact", "realistic"):

@@ -28,7 +28,7 @@ def camera_latency(text: str) -> float:
 
 
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,
-                          camera: str, camera_rate: float) -> None:
+                          camera: str, camera_rate: float, camera_default: str | None = None) -> None:
     parser.add_argument("--robots", type=positive_int, default=robots, help=f"number of robots (default {robots})")
     parser.add_argument("--seconds", type=positive_float, default=seconds,
                         help=f"mission length at most, s (default {seconds:g}; ends earlier when the routes are done)")
@@ -38,7 +38,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     parser.add_argument("--camera", choices=CAMERAS, default=camera,
                         help=f"mock: rendered frames through the Videre driver; synthetic: simulated observations "
-                             f"(fast); usb: a real head (default {camera})")
+                             f"(fast); usb: a real head (default {camera_default or camera})")
     parser.add_argument("--camera-rate", type=positive_float, default=camera_rate, metavar="HZ",
                         help=f"stereo frames per second, Hz (default {camera_rate:g})")
     parser.add_argument("--camera-latency", type=camera_latency, default=None, metavar="S",

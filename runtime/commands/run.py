@@ -17,11 +17,12 @@ def register(subparsers) -> None:
     parser.add_argument("--robot", default="mock", metavar="URL",
                         help="mock (a virtual P3-AT in the simulated building, default), a serial device such as "
                              "/dev/ttyUSB0, or socket://host:port")
-    add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera="mock", camera_rate=15.0)
+    add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera="mock", camera_rate=15.0,
+                          camera_default="mock; usb with --robot URL")
     parser.add_argument("--name", default=None, metavar="ROBOT",
                         help="this robot's name in a fleet (its Zenoh keys p3at/FLEET/ROBOT/...); with --robot mock, "
                              "which of the world's robots to run (default robot1)")
-    parser.set_defaults(handler=_run)
+    parser.set_defaults(handler=_run, camera=None)  # None: chosen by --robot; a --camera given is kept as given
 
 
 def _run(args) -> int:
@@ -29,6 +30,6 @@ def _run(args) -> int:
     if problem is not None:
         print(f"p3at run: {problem}", file=sys.stderr)
         return 2
-    if args.robot != "mock" and args.camera == "mock":
-        args.camera = "usb"  # a real robot carries a real head
+    if args.camera is None:
+        args.camera = "mock" if args.robot == "mock" else "usb"  # a real robot carries a real head
     return run_mission_command(args, robot_url=args.robot)
