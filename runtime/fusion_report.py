@@ -304,8 +304,8 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
             cov = multi.covariances[k]                  # composed along the tree
             if cov is not None and edge.covariance is not None:
                 result.sigma_xy, result.sigma_theta = sigmas(cov)
-            start = multi.start_covariances[k] if multi.start_covariances else None
-            result.start_sigma_xy, result.start_sigma_theta = (None, None) if start is None else sigmas(start)
+            start_cov = multi.start_covariances[k] if multi.start_covariances else None  # `start` is the clock's
+            result.start_sigma_xy, result.start_sigma_theta = (None, None) if start_cov is None else sigmas(start_cov)
         result.count_common(multi.map)
         result.score_against_truth(ordered[0], ordered[k])
         result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
