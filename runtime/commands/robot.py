@@ -213,7 +213,8 @@ def _drive(args: argparse.Namespace) -> int:
                         robot.stop()
                     except NotConnectedError:
                         pass  # lost in between: the robot's watchdog stops it
-            show(time.monotonic() - start, _stopped_state(robot))
+            stopped = _stopped_state(robot)   # waits for the robot to stand: the line's time is after the wait
+            show(time.monotonic() - start, stopped)
     except BadFileError as e:
         return _fail("drive", e, EXIT_BAD_INPUT)
     except DriverError as e:
