@@ -238,11 +238,18 @@ def _robot_part(robot: str, status: dict) -> str:
 
 
 def _summary(args, summaries: dict, node: FusionNode, final, duration: float, out: Path) -> dict:
+    """``duration`` is this process's wall time; the mission's length is the robots' own (each ran its simulated
+    time), as the in-process mission reports it, with the wall time beside it."""
     robots = {}
     for _, s in sorted(summaries.items()):
         robots.update(s.get("robots", {}))
+    clocks = {s.get("clock") for s in summaries.values()}
+    mission = max((s["duration"] for s in summaries.values() if "duration" in s), default=None)
+    timing = {"duration": round(duration, 2)} if mission is None or len(clocks) != 1 else {
+        "duration": mission, "clock": clocks.pop(), "sim_seconds": mission, "wall_seconds": round(duration, 3),
+        "realtime_factor": round(mission / duration, 3) if duration > 0 else None}
     return {
-        "robots": robots, "duration": round(duration, 2), "seed": args.seed, "camera": args.camera,
+        "robots": robots, **timing, "seed": args.seed, "camera": args.camera,
         "particles": args.particles, "processes": True,
         "fusion": None if final is None else final.as_dict(),
         "fusion_ms": None if final is None else round(1000.0 * final.seconds, 2),

@@ -1,0 +1,32 @@
+"""``p3at demo --processes`` reports the mission's length as the in-process demo does: the robots' simulated seconds,
+with the wall time beside it. It printed "Mission: 2 robot(s), 19.1 s" for a ``--seconds 30`` mission (113 frames at
+3.75 Hz): the wall time of the demo's own process, in the place where the in-process demo puts the mission's."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("zenoh")
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.timeout(600)  # ~10 s on an idle machine; a loaded one only takes longer
+def test_the_summary_gives_the_robots_simulated_seconds_and_the_wall_time_beside_them(tmp_path):
+    seconds = 4.0
+    demo = subprocess.run([sys.executable, "-m", "runtime.cli", "demo", "--processes", "--seconds", f"{seconds:g}",
+                           "--json", "--quiet", "--rerun", "none", "--out", str(tmp_path)],
+                          cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                          timeout=550)
+    assert demo.returncode == 0, demo.stderr
+    summary = json.loads(demo.stdout)
+    assert summary["clock"] == "simulated" and summary["duration"] == summary["sim_seconds"]
+    assert seconds - 0.5 <= summary["duration"] <= seconds + 0.5, summary["duration"]   # the robots' mission time
+    assert summary["wall_seconds"] > 0 and summary["realtime_factor"] == pytest.approx(
+        summary["duration"] / summary["wall_seconds"], rel=1e-2)
+    assert list(summary["robots"]) == ["robot1", "robot2"]
