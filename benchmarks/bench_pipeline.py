@@ -90,7 +90,8 @@ def main() -> None:
                               "rerun logging", "sensor log")}
     n_obs = 0
     with tempfile.TemporaryDirectory() as tmp:
-        writer = SensorLogWriter(Path(tmp) / "log", compress=False)
+        writer = SensorLogWriter(Path(tmp) / "log", {"robot": "robot1", "camera": "mock", "rectified": True,
+                                                     "geometry": camera.geometry.to_dict()})   # as the mission's
         start = world.start_poses["robot1"]
         for i, pose in enumerate(poses):
             world.set_pose("robot1", pose)
