@@ -111,3 +111,23 @@ def test_every_named_command_answers_help(command, capsys):
     with pytest.raises(SystemExit) as done:
         main([command, "--help"])
     assert done.value.code == 0 and f"usage: p3at {command}" in capsys.readouterr().out
+
+
+def _fenced_make(text: str) -> list[str]:
+    found, fence = [], None
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fence = None if fence is not None else line[3:].strip()
+        elif fence is not None and re.match(r"make [\w./-]+", line.strip()):
+            found.append(line.strip().split()[1])
+    return found
+
+
+def test_every_make_target_the_documents_name_is_in_the_makefile():
+    targets = set(re.findall(r"^([\w./$()-]+):", (ROOT / "Makefile").read_text(encoding="utf-8"), re.MULTILINE))
+    named = set()
+    for name in DOCUMENTS:
+        text = (ROOT / name).read_text(encoding="utf-8")
+        named |= set(re.findall(r"`make ([\w./-]+)", text)) | set(_fenced_make(text))
+    assert {"demo", "test", "bench"} <= named, named
+    assert named <= targets, f"not in the Makefile: {sorted(named - targets)}"
