@@ -253,8 +253,9 @@ def synthetic_section(seeds: int) -> dict:
 
 def _mean_se(values) -> str:
     v = np.asarray([x for x in values if x is not None], float)
-    se = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")
-    return f"{v.mean():+.3f} ± {se:.3f}"
+    if len(v) < 2:
+        return f"{v.mean():+.3f}" if len(v) else "—"
+    return f"{v.mean():+.3f} ± {v.std(ddof=1) / np.sqrt(len(v)):.3f}"
 
 
 def _print(out: dict) -> None:
