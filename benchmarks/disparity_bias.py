@@ -22,6 +22,7 @@ import numpy as np
 
 from estimation.frontend import FrontEndConfig, StereoMatchConfig, TriangulationNoise, run_frontend
 from estimation.frontend.evaluation import middlebury_truth, truth_at
+from runtime.commands.options import non_negative_int, positive_int
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data"
@@ -168,8 +169,8 @@ def _fmt(s: dict, scale: float = 1.0, unit: str = "") -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--poses", type=int, default=24)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--poses", type=positive_int, default=24)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     parser.add_argument("--json", action="store_true")

@@ -25,6 +25,7 @@ import runtime.slam_sim as slam_sim
 from estimation.fastslam import FastSLAMConfig
 from estimation.frontend.triangulation import camera_to_base, triangulation_covariances
 from estimation.observations import StereoObservations
+from runtime.commands.options import non_negative_int
 
 ROOT = Path(__file__).resolve().parents[1]
 DISTANCES_M = (3.0, 5.0, 8.0, 10.0)
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, required=True, help="eval_slam_rendered's --frames-cache directory")
     parser.add_argument("--robot", default="robot1")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--capped", action="store_true", help="FastSLAMConfig's cap of 40 readings a frame")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)

@@ -49,6 +49,7 @@ from estimation.frontend.triangulation import camera_to_base, triangulation_cova
 from estimation.geometry import compose, transform_points
 from estimation.observations import StereoObservations
 from mocks.synthetic_stereo import OdometryErrorModel, SyntheticOdometry
+from runtime.commands.options import positive_int
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHES = "/tmp/S20/cache-head-s{seed}-{robot}"
@@ -339,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--caches", default=CACHES, help="cache directory pattern with {seed} and {robot}")
     parser.add_argument("--seeds", default="0,1,2,3")
     parser.add_argument("--robots", default="robot1,robot2")
-    parser.add_argument("--filter-seeds", type=int, default=5, help="filter draws per cache in the readings section")
+    parser.add_argument("--filter-seeds", type=positive_int, default=5,
+                        help="filter draws per cache in the readings section")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     sections = args.section or ["map", "readings", "errors", "synthetic"]
