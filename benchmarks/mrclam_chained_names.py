@@ -92,6 +92,7 @@ from estimation.landmark_smoother import (  # noqa: E402  (private: the joint co
     smooth,
 )
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise, with_fastslam  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 CHI2_2_99 = 9.210                 # χ²₂ 99 %: a sighting falls on a landmark; two names are candidates for one post
 MIN_WINDOW_FRAMES = 2             # a window with fewer sighting frames makes no map
@@ -656,14 +657,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", default=str(DATA))
     parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--window", type=float, default=40.0)
-    parser.add_argument("--step", type=float, default=None, help="seconds between window starts (default: half)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--ratio", type=float, default=100.0, help="likelihood ratio of a merge over the second")
+    parser.add_argument("--window", type=positive_float, default=40.0)
+    parser.add_argument("--step", type=positive_float, default=None,
+                        help="seconds between window starts (default: half)")
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--ratio", type=positive_float, default=100.0,
+                        help="likelihood ratio of a merge over the second")
     parser.add_argument("--rivals", choices=("contradicting", "all"), default="contradicting",
                         help="which names the likelihood ratio is taken over (merge_candidates)")
-    parser.add_argument("--max-rounds", type=int, default=50)
+    parser.add_argument("--max-rounds", type=non_negative_int, default=50)
     parser.add_argument("--no-reference", action="store_true", help="skip the known-ID and unknown-filter runs")
     parser.add_argument("--progress", action="store_true", help="each loop-closing round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
