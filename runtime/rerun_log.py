@@ -1129,25 +1129,38 @@ def _map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
 
 
 def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMap | None, str | None]:
-    """The newest snapshot of ``entity`` that is whole, and a note when a newer one failed its checksum (it is
-    left out: a map read back must be the map that was logged) or None. A map none of whose snapshots is whole is
-    None, with a note: it is left out, and the recording's other maps are still read."""
+    """The newest snapshot of ``entity`` that is whole, and a note when a newer one is damaged (it failed its checksum
+    or no longer decodes into a map: it is left out, since a map read back must be the map that was logged) or None.
+    A map none of whose snapshots is whole is None, with a note: it is left out, and the recording's other maps are
+    still read."""
     # empty arrays are not stored by AnyValues: only the scalars are sure to be there
     complete = [r for r in rows if all(r.get(f) is not None for f in ("meta", "descriptor_size", "size"))]
     if not complete:
         raise RecordingReadError(f"{path}: entity '{entity}' does not hold a complete map")
-    for skipped, row in enumerate(reversed(complete)):
-        landmark_map, whole = _map_from(path, entity, row)
-        if whole:
-            note = (f"{entity}: the last {skipped} snapshot(s) fail their checksum; the one before them is read"
-                    if skipped else None)
-            return landmark_map, note
-    return None, (f"{entity}: every snapshot ({len(complete)}) fails its checksum (bytes changed in the file); "
+    damages: list[str] = []
+    for row in reversed(complete):
+        landmark_map, damage = _map_from(entity, row)
+        if damage is None:
+            if not damages:
+                return landmark_map, None
+            what = ("fail their checksum" if all(d == CHECKSUM_FAILED for d in damages)
+                    else f"are damaged ({'; '.join(dict.fromkeys(damages))})")
+            return landmark_map, f"{entity}: the last {len(damages)} snapshot(s) {what}; the one before them is read"
+        damages.append(damage)
+    if all(d == CHECKSUM_FAILED for d in damages):
+        return None, (f"{entity}: every snapshot ({len(complete)}) fails its checksum (bytes changed in the file); "
+                      "the map is left out")
+    return None, (f"{entity}: every snapshot ({len(complete)}) is damaged ({'; '.join(dict.fromkeys(damages))}); "
                   "the map is left out")
 
 
-def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:
-    """One logged snapshot as a map, and whether it matches its checksum (True for files written before it had one)."""
+CHECKSUM_FAILED = "fails its checksum"
+
+
+def _map_from(entity: str, row: dict) -> tuple[LandmarkMap | None, str | None]:
+    """One logged snapshot as a map and None, or None and what is wrong with it: it fails its checksum (files written
+    before snapshots had one are not checked), or its arrays do not decode into a map (a flipped bit can empty or
+    shorten one of them)."""
     def array(name: str, dtype) -> np.ndarray:
         value = row.get(name)
         return np.asarray(value if value is not None else [], dtype)
@@ -1166,14 +1179,15 @@ def _map_from(path: Path, entity: str, row: dict) -> tuple[LandmarkMap, bool]:
                              array("seen_by", np.uint8).reshape(n, len(robots)),
                              array("trajectory", float).reshape(-1, 4), **optional)
         stored = row.get("checksum")
-        whole = stored is None or int(_scalar(stored)) == _map_checksum(arrays, text)
+        if stored is not None and int(_scalar(stored)) != _map_checksum(arrays, text):
+            return None, CHECKSUM_FAILED
         return LandmarkMap(
             arrays["positions"], arrays["covariances"], arrays["descriptors"], arrays["ids"], arrays["counts"],
             str(meta.get("robot", "robot")), str(meta.get("frame", "map")), robots, arrays["seen_by"].astype(bool),
             arrays["trajectory"], dict(meta.get("metadata", {})),
-            **{name: arrays.get(name) for name in OPTIONAL_MAP_ARRAYS}), whole
+            **{name: arrays.get(name) for name in OPTIONAL_MAP_ARRAYS}), None
     except (ValueError, TypeError, KeyError, AttributeError, json.JSONDecodeError) as e:
-        raise RecordingReadError(f"{path}: entity '{entity}' holds a malformed map ({e})") from None
+        return None, f"does not decode into a map: {e}"
 
 
 __all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "mission_blueprint",

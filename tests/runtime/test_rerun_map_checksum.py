@@ -3,6 +3,8 @@ snapshot whose bytes changed in the file (a flipped bit that still decodes: Reru
 left out, the one before it read, and said so."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from runtime.rerun_log import MissionLog, open_recording, read_recording
@@ -66,4 +68,46 @@ def test_a_map_whose_every_snapshot_changed_is_left_out_and_the_other_maps_read(
     assert "robot1" not in contents.maps                  # no snapshot of it is the map that was logged
     np.testing.assert_array_equal(contents.maps["robot2"].positions, intact.positions)
     assert "maps/robot1: every snapshot (1) fails its checksum" in contents.damaged
+    assert "left out" in contents.damaged and "\n" not in contents.damaged
+
+
+def _log_undecodable_snapshot(log: MissionLog, key: str, t: float, like) -> None:
+    """A snapshot of ``like`` whose descriptors are gone (what a flipped bit in an array's length did in a CI run:
+    "cannot reshape array of size 0 into shape (8,1)"): every other field as MissionLog writes it."""
+    import rerun as rr
+
+    log.rec.set_time("sim_time", duration=t)
+    log.rec.log(f"maps/{key}", rr.AnyValues(
+        positions=like.positions.ravel(), covariances=like.covariances.ravel(), ids=like.ids, counts=like.counts,
+        seen_by=like.seen_by.astype(np.uint8).ravel(), trajectory=np.asarray(like.trajectory, float).ravel(),
+        descriptor_size=int(like.descriptor_size), size=len(like), t=t,
+        meta=json.dumps({"robot": key, "frame": "start", "robots": [key], "metadata": {}})))
+
+
+def test_a_snapshot_that_no_longer_decodes_is_left_out_and_the_one_before_read(tmp_path):
+    rng = np.random.default_rng(3)
+    first, last = landmark_map("robot1", 30, rng), landmark_map("robot1", 40, rng)
+    path = tmp_path / "r.rrd"
+    log = MissionLog(open_recording(str(path)), ["robot1"])
+    log.log_map("robot1", 0.0, first)
+    log.flush()
+    _log_undecodable_snapshot(log, "robot1", 1.0, last)
+    log.close()
+    contents = read_recording(path)
+    np.testing.assert_array_equal(contents.maps["robot1"].positions, first.positions)
+    assert "maps/robot1: the last 1 snapshot(s) are damaged (does not decode into a map: " in contents.damaged
+
+
+def test_a_map_that_never_decodes_is_left_out_and_the_other_maps_read(tmp_path):
+    rng = np.random.default_rng(4)
+    broken, intact = landmark_map("robot1", 30, rng), landmark_map("robot2", 35, rng)
+    path = tmp_path / "r.rrd"
+    log = MissionLog(open_recording(str(path)), ["robot1", "robot2"])
+    _log_undecodable_snapshot(log, "robot1", 0.0, broken)
+    log.log_map("robot2", 0.0, intact)
+    log.close()
+    contents = read_recording(path)   # it refused the whole file ("holds a malformed map"), losing robot2's map
+    assert "robot1" not in contents.maps
+    np.testing.assert_array_equal(contents.maps["robot2"].positions, intact.positions)
+    assert "maps/robot1: every snapshot (1) is damaged (does not decode into a map: " in contents.damaged
     assert "left out" in contents.damaged and "\n" not in contents.damaged
