@@ -442,16 +442,12 @@ def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, con
     named = named_problem(log, names, noise, config)
     problem = named.problem
     if initial_poses is None:
-        initial_poses = np.vstack([np.zeros(3), _dead_reckoning(problem.increments)])
+        initial_poses = dead_reckoning(problem.increments)
     landmarks = landmarks_from_first_sightings(problem, initial_poses)
     for k, name in enumerate(named.names):
         if initial is not None and int(name) in initial:
             landmarks[k] = initial[int(name)]
     return named, smooth(problem, initial_poses, landmarks)
-
-
-def _dead_reckoning(increments: np.ndarray) -> np.ndarray:
-    return dead_reckoning(increments)[1:]
 
 
 def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
