@@ -28,7 +28,7 @@ def camera_latency(text: str) -> float:
 
 
 def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, seconds: float, out: str,
-                          camera: str, camera_rate: float, camera_default: str | None = None) -> None:
+                          camera: str | None, camera_rate: float, camera_default: str | None = None) -> None:
     parser.add_argument("--robots", type=positive_int, default=robots, help=f"number of robots (default {robots})")
     parser.add_argument("--seconds", type=positive_float, default=seconds,
                         help=f"mission length at most, s (default {seconds:g}; ends earlier when the routes are done)")

@@ -17,12 +17,13 @@ def register(subparsers) -> None:
     parser.add_argument("--robot", default="mock", metavar="URL",
                         help="mock (a virtual P3-AT in the simulated building, default), a serial device such as "
                              "/dev/ttyUSB0, or socket://host:port")
-    add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera="mock", camera_rate=15.0,
+    # camera None: chosen by --robot in _run; a --camera given is kept as given
+    add_mission_arguments(parser, robots=1, seconds=600.0, out="out/run", camera=None, camera_rate=15.0,
                           camera_default="mock; usb with --robot URL")
     parser.add_argument("--name", default=None, metavar="ROBOT",
                         help="this robot's name in a fleet (its Zenoh keys p3at/FLEET/ROBOT/...); with --robot mock, "
                              "which of the world's robots to run (default robot1)")
-    parser.set_defaults(handler=_run, camera=None)  # None: chosen by --robot; a --camera given is kept as given
+    parser.set_defaults(handler=_run)
 
 
 def _run(args) -> int:
