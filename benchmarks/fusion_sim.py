@@ -527,22 +527,41 @@ def corrupt_map(m: LandmarkMap, rng: np.random.Generator, duplicates: int = 3, o
     return LandmarkMap(np.vstack([m.positions, dup, out]), cov, desc, robot=m.robot, frame=m.frame, metadata=meta)
 
 
-def main() -> None:
-    """``python benchmarks/fusion_sim.py mrclam OUT [--no-ids]``: the five MRCLAM sighting maps as files."""
+def output_inside_input(out: Path, data: Path) -> bool:
+    """True when the folder ``out`` is the folder ``data`` or inside it (symbolic links and ``..`` resolved)."""
+    return Path(out).resolve().is_relative_to(Path(data).resolve())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python benchmarks/fusion_sim.py mrclam --out OUT_DIR [--data DIR] [--no-ids]``: the five MRCLAM sighting
+    maps as files ``OUT_DIR/robot1.npz`` ... ``robot5.npz``.  An output folder that is the data set folder or inside
+    it is refused (exit 2, one line): a benchmark never writes into its input."""
     import argparse
 
     parser = argparse.ArgumentParser(description="write simulated or real-sighting landmark maps as files")
     parser.add_argument("kind", choices=("mrclam",))
-    parser.add_argument("out", type=Path, help="folder to write robot1.npz ... robot5.npz into")
-    parser.add_argument("--data", type=Path, default=MRCLAM_DATASET2, help="MRCLAM dataset folder")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="folder to write robot1.npz ... robot5.npz into (not the data set folder nor inside it)")
+    parser.add_argument("--data", type=Path, default=MRCLAM_DATASET2, help="MRCLAM dataset folder (only read)")
     parser.add_argument("--no-ids", action="store_true", help="leave the identities out (geometry alone)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if output_inside_input(args.out, args.data):
+        print(f"fusion_sim.py: error: --out {args.out} is inside the data set folder --data {args.data}; "
+              "choose an output folder outside it", file=sys.stderr)
+        return 2
+    from estimation.datasets import DatasetError
+
+    try:  # all five read before anything is written: an unreadable data set leaves no half-filled folder
+        maps = [mrclam_sighting_map(args.data, r, identities=not args.no_ids).map for r in range(1, 6)]
+    except DatasetError as error:
+        print(f"fusion_sim.py: error: {error}", file=sys.stderr)
+        return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    for r in range(1, 6):
-        s = mrclam_sighting_map(args.data, r, identities=not args.no_ids)
-        s.map.save(args.out / f"robot{r}.npz")
-        print(f"{args.out / f'robot{r}.npz'}: {len(s.map)} landmarks")
+    for r, m in enumerate(maps, start=1):
+        m.save(args.out / f"robot{r}.npz")
+        print(f"{args.out / f'robot{r}.npz'}: {len(m)} landmarks")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
