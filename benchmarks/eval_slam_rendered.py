@@ -43,6 +43,7 @@ import io
 import json
 import time
 import zipfile
+from collections.abc import Callable
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -478,6 +479,39 @@ def _parse_set(items: list[str]) -> dict:
     return out
 
 
+# The printed table, one (header, cell) pair per column: the header and the rows cannot disagree on the columns.
+COLUMNS: tuple[tuple[str, Callable[[dict], str]], ...] = (
+    ("robot", lambda r: f"{r['robot']}"),
+    ("s", lambda r: f"{r['seconds']:.0f}"),
+    ("ATE (m)", lambda r: f"{r['ate_m']:.3f}"),
+    ("DR ATE (m)", lambda r: f"{r['dead_reckoning_ate_m']:.3f}"),
+    ("final err (m)", lambda r: f"{r['final_position_error_m']:.3f}"),
+    ("DR final (m)", lambda r: f"{r['dead_reckoning_final_position_error_m']:.3f}"),
+    ("landmarks", lambda r: f"{r['landmarks']}"),
+    ("distinct points", lambda r: f"{r['distinct_features']}"),
+    ("duplicates", lambda r: f"{r['duplicate_landmarks']}"),
+    ("landmark median / RMS err (m)",
+     lambda r: f"{r['landmark_median_error_m']:.3f} / {r['landmark_rms_error_m']:.3f}"),
+    ("obs/frame", lambda r: f"{r['observations_per_frame']:.1f}"),
+    ("update ms median / p90", lambda r: f"{r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f}"),
+    ("duplicate fraction", lambda r: f"{100 * r['duplicate_fraction']:.1f} %"),
+    ("landmark NEES median / < χ²₃ 95 %",
+     lambda r: f"{r['landmark_nees_median']:.1f} / {100 * r['landmark_nees_within_bound']:.0f} %"),
+    ("pose NEES median / < χ²₃ 95 %",
+     lambda r: f"{r['pose_nees_median']:.1f} / {100 * r['pose_nees_within_bound']:.0f} %"),
+    ("merges (co-visibility)", lambda r: f"{r['merges']} ({r['merges_by_covisibility']})"),
+    ("merged 5-10 cm / wrong > 10 cm", lambda r: f"{r['merges_5_to_10cm']} / {r['merges_wrong']}"),
+)
+
+
+def table(rows: list[dict]) -> list[str]:
+    """The Markdown table of run_robot's rows: header, separator and one line per row, all from COLUMNS."""
+    def line(cells) -> str:
+        return "| " + " | ".join(cells) + " |"
+
+    return [line(h for h, _ in COLUMNS), "|" + "---|" * len(COLUMNS), *(line(f(r) for _, f in COLUMNS) for r in rows)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=300.0, help="simulated time limit (the route ends first)")
@@ -513,21 +547,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"FastSLAM {args.fastslam}.0, {args.particles} particles, rendered frames at {args.frame_rate:g} Hz, "
           f"{args.max_corners} corners, seed {args.seed}")
-    print("| robot | s | ATE (m) | DR ATE (m) | final err (m) | DR final (m) | landmarks | distinct points |"
-          " duplicates | landmark median / RMS err (m) | obs/frame | update ms median / p90 | duplicate fraction |"
-          " landmark NEES median / < χ²₃ 95 % | pose NEES median / < χ²₃ 95 % | merges (co-visibility) |"
-          " merged 5-10 cm / wrong > 10 cm |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['robot']} | {r['seconds']:.0f} | {r['ate_m']:.3f} | {r['dead_reckoning_ate_m']:.3f} | "
-              f"{r['final_position_error_m']:.3f} | {r['dead_reckoning_final_position_error_m']:.3f} | "
-              f"{r['landmarks']} | {r['distinct_features']} | {r['duplicate_landmarks']} | "
-              f"{r['landmark_median_error_m']:.3f} / {r['landmark_rms_error_m']:.3f} | "
-              f"{r['observations_per_frame']:.1f} | {r['update_ms_median']:.1f} / {r['update_ms_p90']:.1f} | "
-              f"{100 * r['duplicate_fraction']:.1f} % | {r['landmark_nees_median']:.1f} / "
-              f"{100 * r['landmark_nees_within_bound']:.0f} % | {r['pose_nees_median']:.1f} / "
-              f"{100 * r['pose_nees_within_bound']:.0f} % | {r['merges']} ({r['merges_by_covisibility']}) | "
-              f"{r['merges_5_to_10cm']} / {r['merges_wrong']} |")
+    print("\n".join(table(rows)))
     for r in rows:
         if "diagnostics" in r:
             print(f"\n{r['robot']} diagnostics:")
