@@ -69,6 +69,8 @@ def await_last_maps(exchange, timeout: float = LAST_MAP_WAIT) -> dict[str, dict]
 
 
 def free_port() -> int:
+    """A TCP port free on loopback now (the OS picks it; another process may take it before it is used): the port
+    the demo's fusion node listens on, and the fleet tests' ports."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -237,17 +239,26 @@ def _robot_part(robot: str, status: dict) -> str:
     return f"{robot}: t={t:.0f}s, {frames:.0f} frames, {landmarks}"
 
 
+def mission_timing(summaries: dict, wall: float) -> dict:
+    """The demo's timing figures from its robots' own summaries (``p3at run --json``, by robot) and this process's
+    wall time ``wall`` (s): the mission's length is the longest robot's ``sim_seconds`` as that robot gave it (the
+    seconds of its mission clock: simulated, or the wall clock with --realtime), ``duration`` that rounded as the
+    in-process mission rounds it, with the wall time and the real-time factor beside it. Robots that give no
+    ``sim_seconds`` or disagree on the clock: ``duration`` is the wall time alone."""
+    clocks = {s.get("clock") for s in summaries.values()}
+    mission = max((s["sim_seconds"] for s in summaries.values() if s.get("sim_seconds") is not None), default=None)
+    if mission is None or len(clocks) != 1:
+        return {"duration": round(wall, 2)}
+    return {"duration": round(mission, 2), "clock": clocks.pop(), "sim_seconds": mission,
+            "wall_seconds": round(wall, 3), "realtime_factor": round(mission / wall, 3) if wall > 0 else None}
+
+
 def _summary(args, summaries: dict, node: FusionNode, final, duration: float, out: Path) -> dict:
-    """``duration`` is this process's wall time; the mission's length is the robots' own (each ran its simulated
-    time), as the in-process mission reports it, with the wall time beside it."""
+    """``duration`` is this process's wall time; the mission's length is the robots' own (:func:`mission_timing`)."""
     robots = {}
     for _, s in sorted(summaries.items()):
         robots.update(s.get("robots", {}))
-    clocks = {s.get("clock") for s in summaries.values()}
-    mission = max((s["duration"] for s in summaries.values() if "duration" in s), default=None)
-    timing = {"duration": round(duration, 2)} if mission is None or len(clocks) != 1 else {
-        "duration": mission, "clock": clocks.pop(), "sim_seconds": mission, "wall_seconds": round(duration, 3),
-        "realtime_factor": round(mission / duration, 3) if duration > 0 else None}
+    timing = mission_timing(summaries, duration)
     return {
         "robots": robots, **timing, "seed": args.seed, "camera": args.camera,
         "particles": args.particles, "processes": True,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import threading
 import time
 
@@ -16,18 +15,12 @@ import pytest
 pytest.importorskip("zenoh")
 
 from runtime.fleet import mapwire  # noqa: E402
-from runtime.fleet.processes import await_last_maps  # noqa: E402
+from runtime.fleet.processes import await_last_maps, free_port  # noqa: E402
 from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
 
 DEADLINE = 30.0
 pytestmark = pytest.mark.timeout(120)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def endpoint(port: int, role: str) -> str:

@@ -12,7 +12,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -26,6 +25,7 @@ pytest.importorskip("zenoh")
 
 from runtime.fleet import mapwire  # noqa: E402
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig  # noqa: E402
+from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
 
@@ -34,12 +34,6 @@ DEADLINE = 30.0          # s, for anything that takes a few seconds on an idle m
 LEAVE_DEADLINE = 15.0    # s, Zenoh's 10 s lease plus margin
 STEPS = 6
 pytestmark = pytest.mark.timeout(120)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_until(condition, what: str, deadline: float = DEADLINE):
