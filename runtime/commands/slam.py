@@ -317,10 +317,11 @@ def _map_warnings(metrics: dict) -> list[str]:
 
 
 def _noise(args: argparse.Namespace) -> int:
-    from dataclasses import asdict
+    from dataclasses import asdict, replace
 
     from estimation.datasets import read_mrclam
     from estimation.noise_model import estimate_noise
+    from estimation.odometry_consistency import CHI2_3_95, CHI2_3_MEDIAN, fit_keys, odometry_consistency
 
     try:
         check_output_file(args.out)
@@ -329,17 +330,20 @@ def _noise(args: argparse.Namespace) -> int:
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
-        estimate.model.save(args.out)
+        # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too
+        consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model)
+        model = replace(estimate.model, fit={**estimate.model.fit, **fit_keys(consistency)})
+        model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
         print(f"p3at slam noise: {e}", file=sys.stderr)
         return 2
-    model = estimate.model
     windows = [dict(window_s=w, xy_sigma_per_sqrt_m=a, theta_sigma_per_sqrt_rad=b, theta_sigma_per_sqrt_m=c)
                for w, a, b, c in estimate.odometry_by_window.tolist()]
     if args.json:
         print(json.dumps({"out": str(args.out), "robot": model.robot, "odometry": asdict(model.odometry),
                           "range_bearing": asdict(model.range_bearing) if model.range_bearing else None,
-                          "fit": model.fit, "odometry_by_window": windows}))
+                          "fit": model.fit, "odometry_by_window": windows,
+                          "odometry_consistency": [row.as_dict() for row in consistency]}))
         return 0
     o, rb = model.odometry, model.range_bearing
     print(f"slam noise: {model.robot}")
@@ -370,6 +374,12 @@ def _noise(args: argparse.Namespace) -> int:
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
+    if consistency:
+        print(f"  dead reckoning under this model over longer paths (NEES of the end pose; consistent: median "
+              f"{CHI2_3_MEDIAN:.2f}, 95 % below {CHI2_3_95:.2f}):")
+    for row in consistency:
+        print(f"    {row.horizon_s:>4g} s: median {row.nees_median:5.2f}, {100 * row.within_chi2_95:5.1f} % within "
+              f"({row.windows} windows, {row.independent} without overlap): {row.verdict}")
     if rb:
         print(f"  sensor: σ_r = {rb.range_sigma_m:.4f} m + {rb.range_sigma_per_m:.4f}·r, "
               f"σ_φ {rb.bearing_sigma_rad:.4f} rad, bearing offset {rb.bearing_offset_rad:+.4f} rad; "
