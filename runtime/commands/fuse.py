@@ -1,7 +1,8 @@
 """``p3at fuse``: align landmark maps of several robots (RANSAC) and merge them into one (Kalman).
 
-Exit status: 0 fused; 1 the maps (or some of them) do not overlap; 2 bad arguments, an unreadable map file, or two
-maps holding the same estimates (a map twice, a copy of it, or a fused map beside a map it holds).
+Exit status: 0 fused; 1 the maps (or some of them) do not overlap, or (``--live``) no two robots' maps came, so
+nothing was fused; 2 bad arguments, an unreadable map file, or two maps holding the same estimates (a map twice, a
+copy of it, or a fused map beside a map it holds).
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def register(subparsers) -> None:
                     "landmark counts; where maps carry metadata.true_start_pose (simulated maps) also the "
                     "alignment error against the truth; where they carry metadata.slam_frames (maps the "
                     "runtime saved) the camera frames each robot received, mapped, dropped, with a warning "
-                    "for a starved run. Exit status 1 when maps do not overlap.")
+                    "for a starved run. Exit status 1 when maps do not overlap (--live: when no two "
+                    "robots' maps came).")
     parser.add_argument("maps", nargs="*", metavar="MAP", help="landmark-map files (.npz), at least two")
     parser.add_argument("--out", default=None, metavar="MERGED",
                         help="merged map file to write (.npz); required unless --live")

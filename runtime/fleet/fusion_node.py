@@ -26,6 +26,7 @@ from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep
 from runtime.report import fusion_event_line, start_prior_line
 
 FUSED = "fused"
+EXIT_NOTHING_TO_FUSE = 1   # p3at fuse --live: no two robots' maps ever came, so no fusion was made
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,7 @@ class FusionNode:
         self.sources: dict[str, tuple] = {}      # robot -> (sequence, stamp) of its map in the last fusion
         self.priors = named_pair_priors(dict(config.starts), source=config.starts_source)
         self._priors_said: set[tuple[str, str]] = set()
+        self.mapped: list[str] = []    # the robots whose map the node has held, in the order they first came
         self._new_data = threading.Event()
 
     def notify(self, robot: str = "") -> None:
@@ -92,6 +94,10 @@ class FusionNode:
         are complete (the robots are done, or the node stops), so the fusion is decided on them alone, as ``p3at
         fuse`` decides on saved maps, not confirmed against earlier fusions (fusion/confirmation.py)."""
         messages = self.exchange.receive(excluding=FUSED)
+        for robot in sorted(set(messages) - set(self.mapped)):
+            self.mapped.append(robot)
+            self.on_event(f"first map from {robot}: {len(messages[robot].landmark_map)} landmarks"
+                          + ("; a fusion waits for another robot's map" if len(messages) < 2 else ""))
         sources = {r: (m.sequence, m.stamp) for r, m in messages.items()}
         if len(messages) < 2 or sources == self.sources:
             return None
@@ -185,6 +191,7 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
         timer.daemon = True
         timer.start()
     printer = StatusPrinter(exchange.status, event).start()  # each robot's health, every PRINT_PERIOD s
+    heard: list[str] = []
     try:
         exchange.request_snapshot()  # a restarted node recovers every robot's latest map
         node.run(stop)
@@ -194,6 +201,7 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
             timer.cancel()
         printer.stop()
         restore()
+        heard = sorted(set(exchange.status()) - {FUSED})   # robots whose status came, with a map or not
         exchange.close()
         final = reports[-1] if reports else None
         if logger is not None:  # a final summary: p3at review then knows the node ended cleanly
@@ -201,11 +209,27 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
                                 "fusion": None if final is None else final.as_dict(),
                                 "robots": sorted(node.sources)})
             logger.close()
+    nothing = None if reports else nothing_to_fuse(node.mapped, heard, node.clock() - node.t0, args.fleet)
     if args.json:
-        print(json.dumps({"fusions": len(reports), "last": None if final is None else final.as_dict()}))
+        print(json.dumps({"fusions": len(reports), "last": None if final is None else final.as_dict(),
+                          "robots_with_maps": sorted(node.mapped), "nothing_to_fuse": nothing}))
     elif final is not None:
         print(f"{len(reports)} fusions; the last: " + json.dumps(final.as_dict()))
+    if nothing is not None:
+        print(f"p3at fuse: nothing to fuse: {nothing}", file=sys.stderr)
+        return EXIT_NOTHING_TO_FUSE
     return 0
+
+
+def nothing_to_fuse(mapped: list[str], heard: list[str], seconds: float, fleet: str) -> str:
+    """Why a live node that ends without a fusion made none, in one line: the robots of fleet ``fleet`` whose map
+    came (fewer than two), and those heard (their status came) that sent none."""
+    silent = [r for r in heard if r not in mapped]
+    said = (f"no robot of fleet '{fleet}' sent a map in {seconds:.0f} s" if not mapped else
+            f"only {mapped[0]} of fleet '{fleet}' sent a map in {seconds:.0f} s; a fusion needs the maps of two robots")
+    if silent:
+        said += f" ({', '.join(silent)} {'was' if len(silent) == 1 else 'were'} heard but sent no map)"
+    return said
 
 
 def _open_logger(sink: str, out: Path | None):

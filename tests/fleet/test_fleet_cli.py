@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -19,18 +20,11 @@ import pytest
 pytest.importorskip("zenoh")
 
 from estimation.landmark_map import LandmarkMap  # noqa: E402
+from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(180)
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def p3at(*args: str, **kwargs) -> subprocess.Popen:
@@ -160,3 +154,59 @@ def test_p3at_run_publishes_its_health_once_a_second_under_its_name(tmp_path):
     line = status_line("robot2", last)
     assert line.startswith("status robot2: t=") and f"{h['frames_processed']} frames (0 dropped)" in line
     assert "link up" in line and "\n" not in line
+
+
+def listen(port: int) -> str:
+    return "zenoh:" + json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
+
+
+@pytest.mark.parametrize("as_json", [True, False])
+def test_p3at_fuse_live_with_no_robot_says_it_had_nothing_to_fuse(as_json):
+    """It ended with exit 0 and, without --json, printed nothing at all: a script could not tell it fused nothing."""
+    port, fleet = free_port(), f"none{os.getpid()}"
+    node = p3at("fuse", "--live", "--exchange", listen(port), "--fleet", fleet, "--seconds", "2",
+                *(["--json"] if as_json else []), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    stdout, stderr = node.communicate(timeout=120)
+    assert node.returncode == 1, stderr
+    said = [line for line in stderr.splitlines() if line.startswith("p3at fuse:")]
+    assert said == [f"p3at fuse: nothing to fuse: no robot of fleet '{fleet}' sent a map in 2 s"], stderr
+    if as_json:
+        result = json.loads(stdout)
+        assert result["fusions"] == 0 and result["last"] is None and result["robots_with_maps"] == []
+        assert said[0].endswith(result["nothing_to_fuse"])
+    else:
+        assert stdout == ""
+
+
+def test_p3at_fuse_live_with_one_robot_names_it_and_says_a_fusion_needs_two(tmp_path):
+    port, fleet = free_port(), f"one{os.getpid()}"
+    node = p3at("fuse", "--live", "--exchange", listen(port), "--fleet", fleet, "--json", "--out",
+                str(tmp_path / "fused.npz"), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(node.stderr), daemon=True)  # the node's events, as they come
+    reader.start()
+    robot = subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", "robot1", "--exchange",
+                              connect(port), "--fleet", fleet, "--steps", "3", "--period", "0.3"], cwd=ROOT,
+                             stdout=subprocess.DEVNULL)
+    try:
+        end = time.monotonic() + 90.0
+        while not any("first map from robot1" in line for line in lines) and time.monotonic() < end:
+            assert node.poll() is None, "".join(lines)
+            time.sleep(0.1)
+        assert any("first map from robot1" in line for line in lines), "".join(lines)
+        node.send_signal(signal.SIGTERM)   # as Ctrl-C would
+        stdout = node.stdout.read()
+        node.wait(timeout=60)
+        reader.join(timeout=30)
+    finally:
+        robot.kill()
+        robot.wait()
+        if node.poll() is None:
+            node.kill()
+    assert node.returncode == 1, "".join(lines)
+    result = json.loads(stdout)
+    assert result["fusions"] == 0 and result["robots_with_maps"] == ["robot1"]
+    assert result["nothing_to_fuse"].startswith(f"only robot1 of fleet '{fleet}' sent a map in ")
+    assert result["nothing_to_fuse"].endswith("; a fusion needs the maps of two robots")
+    assert lines[-1].rstrip("\n") == f"p3at fuse: nothing to fuse: {result['nothing_to_fuse']}"
+    assert not (tmp_path / "fused.npz").exists()
