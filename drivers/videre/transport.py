@@ -66,9 +66,12 @@ class UsbTransport:
         self.description = description
         self._closed = False
 
-    @classmethod
-    def open(cls, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID,
-             backend: Any = None, serial: str | None = None) -> UsbTransport:
+    @staticmethod
+    def find(vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID, backend: Any = None,
+             serial: str | None = None) -> list[Any]:
+        """The USB devices with these ids (and serial), without opening any: DeviceNotFoundError if none, or if
+        pyusb has no backend to look with. Its messages name no command-line option (the driver serves every
+        command and program): a command adds its own hint."""
         ids = f"{vendor_id:04x}:{product_id:04x}"
         try:
             found = list(usb.core.find(find_all=True, idVendor=vendor_id, idProduct=product_id, backend=backend))
@@ -76,13 +79,19 @@ class UsbTransport:
             raise DeviceNotFoundError(
                 f"no USB backend to look for stereo head {ids}: pyusb needs the libusb-1.0 library "
                 f"(Debian/Ubuntu: sudo apt-get install libusb-1.0-0; Fedora: sudo dnf install libusb1; "
-                f"macOS: brew install libusb), or try --mock for the virtual head ({exc})") from None
+                f"macOS: brew install libusb) ({exc})") from None
         if serial is not None:
             found = [d for d in found if _safe_string(d, d.iSerialNumber) == serial]
         if not found:
             which = f" with serial {serial}" if serial else ""
             raise DeviceNotFoundError(f"no stereo head found at USB {ids}{which} (plugged in? permissions?)")
-        device = found[0]
+        return found
+
+    @classmethod
+    def open(cls, vendor_id: int = DEFAULT_VENDOR_ID, product_id: int = DEFAULT_PRODUCT_ID,
+             backend: Any = None, serial: str | None = None) -> UsbTransport:
+        ids = f"{vendor_id:04x}:{product_id:04x}"
+        device = cls.find(vendor_id, product_id, backend, serial)[0]
         description = f"USB {ids} bus {device.bus} address {device.address}"
         try:
             device.set_configuration()

@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.errors import DriverError
+from drivers.errors import DeviceNotFoundError, DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
@@ -113,6 +113,14 @@ def _open_head(args: argparse.Namespace):
         head.close()
 
 
+def _hint(exc: Exception, args: argparse.Namespace) -> str:
+    """This command's way to the virtual head, after a driver's message that found no head (the driver's own
+    messages name no option)."""
+    if isinstance(exc, DeviceNotFoundError) and not args.mock:
+        return "; without the head, --mock uses the virtual one"
+    return ""
+
+
 def _describe(head: StereoHead) -> dict:
     identity = head.identify()
     try:
@@ -138,7 +146,7 @@ def run_info(args: argparse.Namespace) -> int:
         with _open_head(args) as head:
             info = _describe(head)
     except (DriverError, ValueError) as exc:
-        print(f"p3at camera info: {exc}", file=sys.stderr)
+        print(f"p3at camera info: {exc}{_hint(exc, args)}", file=sys.stderr)
         return 1
     if args.json:
         print(json.dumps(info, indent=2))
@@ -193,7 +201,7 @@ def run_grab(args: argparse.Namespace) -> int:
             atomic_write_bytes(path, png.tobytes())
             paths.append(path)
     except (DriverError, ValueError, OSError) as exc:
-        print(f"p3at camera grab: {exc}", file=sys.stderr)
+        print(f"p3at camera grab: {exc}{_hint(exc, args)}", file=sys.stderr)
         return 1
     print(f"frame {frame.counter} at t={frame.timestamp:.3f} s ({width}x{height}"
           f"{', rectified' if args.rectify else ''}): {paths[0]} {paths[1]}")

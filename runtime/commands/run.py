@@ -33,4 +33,24 @@ def _run(args) -> int:
         return 2
     if args.camera is None:
         args.camera = "mock" if args.robot == "mock" else "usb"  # a real robot carries a real head
+    if args.camera == "usb" and args.robot != "mock":  # (a virtual robot with --camera usb is refused as a config)
+        problem = usb_head_problem()
+        if problem is not None:
+            print(f"p3at run: {problem}", file=sys.stderr)
+            return 1
     return run_mission_command(args, robot_url=args.robot)
+
+
+def usb_head_problem() -> str | None:
+    """Why the stereo head on USB cannot be found (None when it is there), said before the robot is connected:
+    the driver's message (it names no option) and this command's way to the virtual head. The head is looked for,
+    not opened: the mission opens it."""
+    from drivers.errors import DeviceNotFoundError
+    from drivers.videre.transport import UsbTransport
+
+    try:
+        UsbTransport.find()
+    except DeviceNotFoundError as e:
+        return (f"{e}; without the head, the virtual robot with its virtual head runs as "
+                "p3at run --robot mock --camera mock")
+    return None
