@@ -72,8 +72,9 @@ class HorizonConsistency:
 class DeadReckonedWindows:
     """Per window (W,): start time, the dead-reckoned end pose e_u (W, 3) and the true one g (W, 3) in the window's
     start frame (θ wrapped), the model's covariance P (W, 3, 3), and the Jacobians of the end pose
-    (W, 3) by a scale on every translation (``by_scale``), a heading change per metre driven (``by_heading_per_m``)
-    and a scale on every turn (``by_turn_scale``): what a systematic error constant over the window moves."""
+    (W, 3) by a scale on every translation (``by_scale``), a heading change per metre driven (``by_heading_per_m``),
+    a scale on every turn (``by_turn_scale``) and a heading change per second (``by_heading_per_s``): what a
+    systematic error constant over the window moves."""
 
     start: np.ndarray
     estimate: np.ndarray
@@ -82,6 +83,7 @@ class DeadReckonedWindows:
     by_scale: np.ndarray
     by_heading_per_m: np.ndarray
     by_turn_scale: np.ndarray
+    by_heading_per_s: np.ndarray
 
     @property
     def error(self) -> np.ndarray:
@@ -122,7 +124,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     times = lo + step_s * np.arange(max(int(np.floor((hi - lo) / step_s)) + 1, 0))
     empty = np.zeros((0, 3))
     if len(times) <= n:
-        return DeadReckonedWindows(np.zeros(0), empty, empty, np.zeros((0, 3, 3)), empty, empty, empty)
+        return DeadReckonedWindows(np.zeros(0), empty, empty, np.zeros((0, 3, 3)), empty, empty, empty, empty)
     odo = _poses_at(odometry, model.odometry_times(times))
     raw = between(odo[:-1], odo[1:])
     steps = model.calibrate_increments(raw)
@@ -142,8 +144,8 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     # for the systematic errors' Jacobians: Σ over steps of the step's weight times v_j = (−(y_end − y_j),
     # x_end − x_j, 1) (a heading change at step j swings the rest of the path about the pose after it), collected as
     # Σ a_j (−(y_end), x_end, 1) − Σ a_j (−y_j, x_j, 0) with the end known only at the end
-    weight_sums = np.zeros((w, 2))          # Σ d_j and Σ Δθ_j
-    moment_sums = np.zeros((w, 2, 2))       # Σ d_j (x_j, y_j) and Σ Δθ_j (x_j, y_j) after each step
+    weight_sums = np.zeros((w, 3))          # Σ d_j, Σ Δθ_j and Σ Δt_j
+    moment_sums = np.zeros((w, 3, 2))       # Σ d_j (x_j, y_j), Σ Δθ_j (x_j, y_j), Σ Δt_j (x_j, y_j) after each step
     for j in range(n):
         delta, var = steps[starts + j], variance[starts + j]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
@@ -154,7 +156,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
         jb[:, 0, 0], jb[:, 0, 1], jb[:, 1, 0], jb[:, 1, 1], jb[:, 2, 2] = c, -s, s, c, 1.0
         cov = ja @ cov @ np.swapaxes(ja, 1, 2) + (jb * var[:, None, :]) @ np.swapaxes(jb, 1, 2)
         pose = compose(pose, delta)
-        a = np.column_stack([raw_distance[starts + j], delta[:, 2]])
+        a = np.column_stack([raw_distance[starts + j], delta[:, 2], np.full(w, step_s)])
         weight_sums += a
         moment_sums += a[:, :, None] * pose[:, None, :2]
     end = pose
@@ -170,7 +172,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     true_start, true_end = _poses_at(truth, times[starts]), _poses_at(truth, times[starts + n])
     g = between(true_start, true_end)
     g[:, 2] = end[:, 2] + wrap_angle(g[:, 2] - end[:, 2])
-    return DeadReckonedWindows(times[starts], end, g, cov, by_scale, swing(0), swing(1))
+    return DeadReckonedWindows(times[starts], end, g, cov, by_scale, swing(0), swing(1), swing(2))
 
 
 def nees(windows: DeadReckonedWindows, covariance: np.ndarray | None = None) -> np.ndarray:

@@ -112,8 +112,9 @@ def test_a_systematic_error_unknown_to_the_model_shows_as_the_horizon_grows(scal
 
 
 def test_the_systematic_jacobians_are_what_a_constant_error_moves():
-    """The end pose's derivatives by a scale on every translation, a heading change per metre and a scale on every
-    turn (the research's systematic terms) agree with dead reckoning under a model that has that error."""
+    """The end pose's derivatives by a scale on every translation, a heading change per metre, a scale on every
+    turn and a heading change per second (the research's systematic terms) agree with dead reckoning under a model
+    (or odometry) that has that error."""
     rng = np.random.default_rng(3)
     true_steps = _motion(rng, 200.0)
     rows = _rows(true_steps)
@@ -127,6 +128,10 @@ def test_the_systematic_jacobians_are_what_a_constant_error_moves():
         change = moved.estimate - base.estimate
         change[:, 2] = wrap_angle(change[:, 2])
         np.testing.assert_allclose(change / eps, jacobian, rtol=1e-3, atol=1e-3)
+    turning = dead_reckoned_windows(_rows(true_steps + [0.0, 0.0, eps * STEP]), rows, model, 60.0, stride_s=20.0)
+    change = turning.estimate - base.estimate
+    change[:, 2] = wrap_angle(change[:, 2])
+    np.testing.assert_allclose(change / eps, base.by_heading_per_s, rtol=1e-3, atol=1e-3)
     # exact odometry: no error, so a NEES of 0 in every window
     assert len(base.start) == 8 and np.all(nees(base) < 1e-12)
 
