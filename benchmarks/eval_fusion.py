@@ -35,6 +35,7 @@ from fusion_sim import (  # noqa: E402
 
 from estimation.geometry import between, inverse, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
+from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
 from fusion import NoOverlapError, align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
 from fusion.ransac import refine_pose  # noqa: E402
 
@@ -355,17 +356,6 @@ def corridor_table():
                 why = (f"found with {st.supports} supports, false-alarm probability "
                        f"{st.false_alarm_probability:.1e}" if a.found else a.reason.split(";")[0])
                 print(f"| 0–7 | {label} | {desc} | {preset} | {'yes' if a.found else 'no'} | {why} |")
-
-
-def rigid_fit_2d(local: np.ndarray, world: np.ndarray) -> np.ndarray:
-    """Pose (3,) of a map's frame in the world that best fits its landmarks local (K, 2) onto world (K, 2)
-    (least squares, Kabsch in the plane)."""
-    mu_l, mu_w = local.mean(axis=0), world.mean(axis=0)
-    a, b = local - mu_l, world - mu_w
-    theta = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
-    c, s = np.cos(theta), np.sin(theta)
-    t = mu_w - np.array([c * mu_l[0] - s * mu_l[1], s * mu_l[0] + c * mu_l[1]])
-    return np.array([t[0], t[1], theta])
 
 
 def _attribute(m: LandmarkMap, truth: dict) -> np.ndarray:

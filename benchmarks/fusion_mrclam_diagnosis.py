@@ -38,12 +38,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from eval_fusion import MRCLAM_DATASET2, frame_fit, rigid_fit_2d  # noqa: E402
+from eval_fusion import MRCLAM_DATASET2, frame_fit  # noqa: E402
 from fusion_sim import mrclam_sighting_map  # noqa: E402
 
 import fusion.multi as multi  # noqa: E402
 from estimation.geometry import compose, inverse, rot_z, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
+from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
 from fusion import align, fuse_all  # noqa: E402
 from fusion.merging import MERGE_RULES, transform_landmarks  # noqa: E402
 from fusion.shape_covariance import (  # noqa: E402

@@ -1,5 +1,5 @@
 """benchmarks/eval_slam_rendered.py's printed table: header, separator and rows come from one column list, so each
-line has as many cells as the header (the header once had 13 of the rows' 17 columns)."""
+line has as many cells as the header (they were written out separately, each grown by hand as columns were added)."""
 from __future__ import annotations
 
 from collections import defaultdict
