@@ -17,6 +17,7 @@ for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 if hasattr(os, "sched_setaffinity"):   # one core
     os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
 
+import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import timeit  # noqa: E402
@@ -68,7 +69,8 @@ def log_pairs(count: int):
     return [(scans[i], scans[j], g) for (i, j), g in zip(index, guesses, strict=True)], "aces k=1 (180 beams)"
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # no options: --help
     pairs, source = log_pairs(20) if LOG.is_file() else synthetic_pairs(20)
     print(f"scan pairs: {source}, {len(pairs)} pairs, median {np.median([len(b) for _, b, _ in pairs]):.0f} points")
     print(f"one CPU ({sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'}), "

@@ -5,6 +5,7 @@ one thread, so every figure is for one core.
 """
 from __future__ import annotations
 
+import argparse
 import time
 
 import cv2
@@ -29,7 +30,8 @@ def rate(fn, seconds: float = 1.5, warmup: int = 2) -> tuple[float, float]:
     return count / (time.process_time() - cpu), count / (time.perf_counter() - start)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # no options: --help
     cv2.setNumThreads(1)  # the figures are for one core
     rng = np.random.default_rng(0)
     calib = default_calibration()

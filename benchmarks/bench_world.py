@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -26,7 +27,8 @@ def rate(fn, repeat: int) -> float:
     return repeat / best
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # no options: --help
     world = World.load()
     rng = np.random.default_rng(0)
     print(f"world {world.name!r}: {len(world.walls)} wall pieces, {len(world.features)} features")

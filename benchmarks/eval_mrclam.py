@@ -54,6 +54,8 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
 from benchmarks import evo_metrics  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402

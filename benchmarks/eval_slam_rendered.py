@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import sys
 import time
 import zipfile
 from collections.abc import Callable
@@ -49,6 +50,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import runtime.slam_sim as slam_sim
 from benchmarks.slam_consistency import association_scores, landmark_scores, merge_scores

@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import benchmarks.eval_slam_rendered as esr
 import runtime.slam_sim as slam_sim

@@ -23,11 +23,14 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks import eval_slam_rendered as rendered
 from drivers.fileio import atomic_write_bytes

@@ -59,6 +59,7 @@ code and seed.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -72,6 +73,8 @@ from dataclasses import dataclass, field  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.stats  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402

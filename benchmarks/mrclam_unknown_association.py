@@ -19,12 +19,15 @@ association is the confidently wrong output: it is counted for every variant.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 import estimation.fastslam.filter as fastslam_filter  # noqa: E402

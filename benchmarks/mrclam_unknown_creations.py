@@ -17,10 +17,14 @@ more such re-sightings (what ``unknown_relative_drift="consistent"`` needs); the
 landmark of another barcode. docs/fastslam-history.md, "Session 7: unknown association". ``--range-calibration``: each
 robot's noise model also fits the camera's depth-not-range calibration (as ``eval_mrclam``'s option).
 """
+import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import estimation.dataset_slam as ds
 from benchmarks.eval_mrclam import DATA
@@ -30,14 +34,26 @@ from estimation.fastslam.id_gate import psd_part
 from estimation.fastslam.linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic
 from estimation.landmark_scores import count_sightings
 from estimation.noise_model import estimate_noise
+from runtime.commands.options import non_negative_int, positive_int
 
 
-def main() -> None:
-    args = [a for a in sys.argv[1:] if a != "--range-calibration"]
-    calibrate = len(args) < len(sys.argv) - 1
-    robot = int(args[0])
-    seed = int(args[1]) if len(args) > 1 else 0
-    over = json.loads(args[2]) if len(args) > 2 else {}
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("robot", type=positive_int, help="MRCLAM robot number (1-5)")
+    parser.add_argument("seed", type=non_negative_int, nargs="?", default=0)
+    parser.add_argument("overrides", nargs="?", default="{}", metavar="JSON",
+                        help='range_bearing_config fields, e.g. \'{"FIELD": VALUE}\'')
+    parser.add_argument("--range-calibration", action="store_true",
+                        help="the noise model also fits the camera's depth-not-range calibration")
+    args = parser.parse_args(argv)
+    robot, seed, calibrate = args.robot, args.seed, args.range_calibration
+    try:
+        over = json.loads(args.overrides)
+    except json.JSONDecodeError as error:
+        parser.error(f"JSON overrides: {error}")
+    if not DATA.is_dir():
+        print(f"mrclam_unknown_creations: no data set at {DATA}", file=sys.stderr)
+        return 2
     log = read_mrclam(DATA, robot)
     times, first = np.unique(log.sighting_times, return_index=True)
     bounds = np.append(first, len(log))[1:]
@@ -132,7 +148,8 @@ def main() -> None:
     f = np.array(frames, float)
     print(f"  frames {len(f)}; with >= 1 rescuable {np.sum(f[:, 2] >= 1)}; with >= 2 {np.sum(f[:, 2] >= 2)}; "
           f"obs/frame mean {f[:, 1].mean():.2f}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

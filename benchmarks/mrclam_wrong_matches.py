@@ -24,12 +24,15 @@ Run from the repository root (a diagnosis; the gate is the filter's own, ``FastS
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 from benchmarks.eval_mrclam_merges import PLAIN, RunSetup, robots_main  # noqa: E402

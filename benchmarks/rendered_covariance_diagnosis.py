@@ -35,11 +35,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_slam_rendered import CALIBRATION, _parse_set, replay_through
 from estimation.fastslam import FastSLAM, FastSLAMConfig

@@ -32,9 +32,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import config_overrides
 from benchmarks.slam_demo_replay import read_tum

@@ -29,10 +29,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObserver, ReplayObserver
 from estimation.fastslam import FastSLAM, FastSLAMConfig

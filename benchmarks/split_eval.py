@@ -26,10 +26,13 @@ without, landmark by landmark (a map set none of which flagged itself must not c
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.fusion_sim import load_world
 from estimation.geometry import transform_points
