@@ -17,8 +17,10 @@ def _fuse(m1: LandmarkMap, m2: LandmarkMap, final: bool = False):
     exchange.publish("robot1", m1)
     exchange.publish("robot2", m2)
     report = FusionNode(exchange, on_event=lines.append).fuse_now(final=final)
-    assert report is not None and len(report.pairs) == 1 and len(lines) == 1
-    return report.pairs[0], lines[0]
+    # each robot's first map is said as it comes (sorted by name), then the fusion's line
+    first = [f"first map from {robot}: {len(m)} landmarks" for robot, m in (("robot1", m1), ("robot2", m2))]
+    assert report is not None and len(report.pairs) == 1 and lines[:2] == first and len(lines) == 3, lines
+    return report.pairs[0], lines[2]
 
 
 def _robot1() -> LandmarkMap:
