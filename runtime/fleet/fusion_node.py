@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.prior import named_pair_priors
-from runtime.exchange import MapExchange
+from runtime.exchange import MapExchange, MapMessage
 from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.report import fusion_event_line, start_prior_line
@@ -89,11 +89,12 @@ class FusionNode:
                 if self.fuse_now() is not None or due:
                     last = now
 
-    def fuse_now(self, final: bool = False) -> FusionReport | None:
+    def fuse_now(self, final: bool = False, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
         """Fuse if any robot's map changed since the last fusion; publish and log the result.  ``final``: the maps
         are complete (the robots are done, or the node stops), so the fusion is decided on them alone, as ``p3at
-        fuse`` decides on saved maps, not confirmed against earlier fusions (fusion/confirmation.py)."""
-        messages = self.exchange.receive(excluding=FUSED)
+        fuse`` decides on saved maps, not confirmed against earlier fusions (fusion/confirmation.py). ``replace``:
+        robots' maps that stand in for those the exchange holds (a last map lost on the wire, read from its file)."""
+        messages = {**self.exchange.receive(excluding=FUSED), **(replace or {})}
         for robot in sorted(set(messages) - set(self.mapped)):
             self.mapped.append(robot)
             self.on_event(f"first map from {robot}: {len(messages[robot].landmark_map)} landmarks"
@@ -124,11 +125,12 @@ class FusionNode:
         self.on_report(report)
         return report
 
-    def final_fusion(self) -> FusionReport | None:
-        """The fusion of every map the node holds, whatever the last fusion held, decided on the maps alone (the
-        robots are done or the node stops); published and logged like any other."""
+    def final_fusion(self, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
+        """The fusion of every map the node holds (``replace``: maps standing in for some, see :meth:`fuse_now`),
+        whatever the last fusion held, decided on the maps alone (the robots are done or the node stops);
+        published and logged like any other."""
         self.sources = {}
-        return self.fuse_now(final=True)
+        return self.fuse_now(final=True, replace=replace)
 
     def _say_priors(self, t: float, maps: dict) -> None:
         """Once per pair, when both its robots are first fused: the fusion is not blind to where they started."""

@@ -7,8 +7,9 @@ same seeds as in the single-process mission. Each robot process keeps its own si
 with --realtime): the robots do not interact, so no clock crosses processes (docs/fleet.md). This process runs
 the fusion node (it listens on a free loopback port, the robots connect to it), fuses on new data
 and at ``--fusion-interval``, waits for every robot to finish and (at most LAST_MAP_WAIT s) for the map each
-robot's last status names, fuses once more and prints the same summary as the single-process demo (a robot's
-last map that never came is said on stderr and in the summary's ``last_maps_missing``). Rerun: each robot
+robot's last status names, fuses once more and prints the same summary as the single-process demo. A robot's last map
+lost on the wire is read from the map file its process wrote at its end (said on stderr and in the summary's
+``last_maps_from_file``); one that can be had neither way is said in ``last_maps_missing``. Rerun: each robot
 writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
 (every robot's map as received, the alignments, the fused map, the summary: what ``p3at review`` reads).
 """
@@ -66,6 +67,61 @@ def await_last_maps(exchange, timeout: float = LAST_MAP_WAIT) -> dict[str, dict]
         if time.monotonic() >= end:
             return missing
         time.sleep(0.05)
+
+
+def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) -> tuple[dict, dict[str, dict]]:
+    """The robots' last maps that never came over the wire, read from their files.
+
+    A robot process that ends with its summary has written its final map at its end, atomically, after its last
+    publish (``OUT/<robot>/<robot>.npz``, the summary's ``map_file``): the map it published last. Where the fusion
+    node holds another map of that robot, its last map was lost on the wire: named by a status that came
+    (``missing``, :func:`await_last_maps`), or lost with its status, so that nothing named it. The file's map then
+    stands in, as the wire would have carried it (the wire's fields only). A file that cannot be read, or whose
+    landmark count is not the one the robot's summary gives, is not used; nor an empty map.
+
+    Returns (robot -> ``MapMessage`` for :meth:`FusionNode.final_fusion`, robot -> what the summary says: the file,
+    its landmarks, the sequence the robot's status named (None if none named it) and the one held (None: none))."""
+    from estimation.errors import EstimationError
+    from estimation.landmark_map import LandmarkMap
+    from runtime.exchange import MapMessage
+    from runtime.fleet import mapwire
+
+    held = exchange.receive(excluding="fused")
+    messages, read = {}, {}
+    for robot, summary in sorted(summaries.items()):
+        entry = (summary.get("robots") or {}).get(robot) or {}
+        if not entry.get("map_file"):
+            continue
+        try:
+            saved = LandmarkMap.load(entry["map_file"])
+        except (EstimationError, OSError, ValueError):
+            continue
+        if len(saved) == 0 or len(saved) != entry.get("landmarks"):
+            continue
+        named = missing.get(robot, {}).get("named")
+        stamp = float(summary.get("sim_seconds") or 0.0)   # the robot's stop instant: its last map's stamp
+        wire = mapwire.decode(mapwire.encode_full(robot, "0" * 16, 0 if named is None else named, stamp,
+                                                  saved)).landmark_map
+        have = held.get(robot)
+        if have is not None and np.array_equal(have.landmark_map.ids, wire.ids) and np.array_equal(
+                have.landmark_map.positions, wire.positions):
+            continue   # the node holds the robot's final map
+        sequence = named if named is not None else -1 if have is None else have.sequence + 1
+        messages[robot] = MapMessage(robot, sequence, stamp, wire)
+        read[robot] = {"file": entry["map_file"], "landmarks": len(saved), "named": named,
+                       "held": None if have is None else have.sequence}
+    return messages, read
+
+
+def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WAIT):
+    """The demo's final fusion, once the robot processes have ended (``summaries``: their own, by robot): wait for
+    the robots' last maps (:func:`await_last_maps`), read from its file each one lost on the wire
+    (:func:`last_maps_from_files`), fuse. Returns (the fusion's report or None, last maps missing, last maps read
+    from file)."""
+    missing = await_last_maps(node.exchange, timeout)
+    replace, read = last_maps_from_files(node.exchange, summaries, missing)
+    final = node.final_fusion(replace=replace)
+    return final, {r: m for r, m in missing.items() if r not in read}, read
 
 
 def free_port() -> int:
@@ -168,11 +224,12 @@ def run_processes_demo(args: argparse.Namespace) -> int:
             summaries[name] = json.loads(stdout)
         except json.JSONDecodeError:
             failed.append(f"{name} (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else '?'}")
-    missing = await_last_maps(exchange)  # a robot's last map still queued or on the way goes into the final fusion
-    final = node.final_fusion()
+    # a robot's last map still queued or on the way goes into the final fusion; one lost on the wire, from its file
+    final, missing, read = final_fusion(node, summaries)
     exchange.close()
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
     summary["last_maps_missing"] = missing
+    summary["last_maps_from_file"] = read
     if final is not None and final.merged is not None:
         final.merged.save(out / "fused.npz")
         final.merged.export_ply(out / "fused.ply")
@@ -185,6 +242,11 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         print(f"p3at demo: {robot}'s last map (sequence {m['named']}) never came to the fusion node within "
               f"{LAST_MAP_WAIT:g} s (it holds {'none of that run' if m['held'] is None else m['held']}); the final "
               f"fusion has the map it holds", file=sys.stderr)
+    for robot, m in sorted(read.items()):
+        which = "with the status naming it" if m["named"] is None else f"sequence {m['named']}"
+        print(f"p3at demo: {robot}'s last map ({which}) never came to the fusion node (it holds "
+              f"{'none' if m['held'] is None else m['held']}); the final fusion reads it from {m['file']} "
+              f"({m['landmarks']} landmarks), which {robot} wrote at its end", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -81,3 +81,44 @@ def test_the_final_fusion_waits_for_a_last_map_still_queued_and_reports_one_that
             assert time.monotonic() - start >= 1.0
         finally:
             gate.set()
+
+
+@pytest.mark.parametrize("status_came", [True, False], ids=["named-by-a-status", "lost-with-its-status"])
+def test_a_last_map_lost_on_the_wire_is_read_from_the_file_its_robot_wrote(tmp_path, status_came):
+    """robot1's last map (its map 1) never reaches the node; its process wrote it to its map file at its end. The
+    final fusion had fused map 0: now it reads map 1 from the file, whether a status named map 1 (the map alone was
+    lost) or not (lost with its status: nothing told the node). robot2's file holds the map the node has: not read."""
+    from estimation.landmark_map import LandmarkMap
+    from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
+    from runtime.fleet.processes import final_fusion
+
+    port, fleet = free_port(), f"file{os.getpid()}{int(status_came)}"
+    session = mapwire.new_session()
+    robot1, robot2 = SyntheticRobot("robot1", 0), SyntheticRobot("robot2", 1)
+    map1_0, map1_1 = robot1.step(), robot1.step()
+    map2 = [robot2.step() for _ in range(2)][-1]
+    summaries = {}
+    for name, last, seconds in (("robot1", map1_1, 2.0), ("robot2", map2, 1.5)):   # as `p3at run --json` gives them
+        (tmp_path / name).mkdir()
+        last.save(tmp_path / name / f"{name}.npz")
+        summaries[name] = {"clock": "simulated", "sim_seconds": seconds, "robots": {name: {
+            "map_file": str(tmp_path / name / f"{name}.npz"), "landmarks": len(last)}}}
+    with ZenohExchange(fleet, endpoint(port, "fusion"), "fusion") as exchange, bare_session(port) as robot:
+        def sent(name: str, m: LandmarkMap, stamp: float) -> bool:   # puts before the route to the node exist are lost
+            robot.put(f"p3at/{fleet}/{name}/map", mapwire.encode_full(name, session, 0, stamp, m))
+            return name in exchange.receive()
+
+        wait_until(lambda: sent("robot1", map1_0, 1.0), "robot1's map 0 at the node")
+        wait_until(lambda: sent("robot2", map2, 1.5), "robot2's map at the node")
+        named = 1 if status_came else 0
+        robot.put(f"p3at/{fleet}/robot1/status", mapwire.encode_status("robot1", session, named, 2.0,
+                                                                      landmarks=len(map1_1)))
+        wait_until(lambda: exchange.status().get("robot1", {}).get("sequence") == named, "robot1's status")
+        node = FusionNode(exchange, FusionNodeConfig())
+        final, missing, read = final_fusion(node, summaries, timeout=1.0)
+    assert missing == {}
+    assert read == {"robot1": {"file": str(tmp_path / "robot1" / "robot1.npz"), "landmarks": len(map1_1),
+                               "named": 1 if status_came else None, "held": 0}}
+    assert final is not None and {r: q for r, (q, _) in node.sources.items()} == {"robot1": 1, "robot2": 0}
+    # what was fused is the file's map, as the wire would have carried it
+    assert node.sources["robot1"][1] == 2.0 and len(map1_1) > len(map1_0)
