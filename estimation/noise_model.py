@@ -717,7 +717,11 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3, 3))
     if len(rows) < 3:
         return empty
-    n = max(1, int(round(window_s / max(float(np.median(np.diff(rows[:, 0]))), 1e-9))))
+    # the rows' interval: the median of the positive steps, as stamps may be coarser than the rows (MRCLAM's copy
+    # stamps its rows to 0.1 s from t = 1000 s on, five 50 Hz rows to a stamp: the median step there is 0)
+    steps_s = np.diff(rows[:, 0])
+    n = max(1, int(round(window_s / max(float(np.median(steps_s[steps_s > 0])) if np.any(steps_s > 0) else 0.0,
+                                        1e-9))))
     k = (len(rows) - 1) // n
     if k < 1:
         return empty

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.datasets import read_mrclam
+from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.motion import increment_variance
 from estimation.geometry import dead_reckoning, wrap_angle
@@ -185,3 +185,25 @@ def test_real_dataset2_the_default_model_is_honest_at_5_s_and_overconfident_over
         assert report[300.0].nees_median > 1.4 * CHI2_3_MEDIAN and report[300.0].within_chi2_95 < 0.87, \
             (robot, report[300.0])
         assert report[300.0].verdict == "overconfident"
+
+
+def test_a_log_stamped_coarser_than_its_rows_is_fitted_and_judged():
+    """Odometry and ground truth whose stamps are rounded to 0.1 s (five 50 Hz rows to a stamp, as MRCLAM's copy
+    from t = 1000 s on): the fit takes 5 s windows of rows (it found none when the rows' median step was 0) and the
+    model's dead reckoning is judged as on the exact stamps."""
+    rng = np.random.default_rng(4)
+    model = NoiseModel(OdometryNoise(0.02 ** 2, 0.02 ** 2, 0.005 ** 2))
+    true_steps = _motion(rng, 5_000.0)[np.repeat(np.arange(20_000), 5)] / 5     # rows every 0.02 s
+    truth, odometry = _rows(true_steps), _odometry_for(model, true_steps, rng)
+    truth[:, 0] = odometry[:, 0] = np.arange(len(truth)) * 0.02                   # the rows' own times ...
+    coarse_truth, coarse_odometry = truth.copy(), odometry.copy()
+    coarse_truth[:, 0] = coarse_odometry[:, 0] = np.round(truth[:, 0], 1)         # ... stamped to 0.1 s
+    log = RangeBearingLog("coarse", coarse_odometry, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
+                          coarse_truth)
+    fitted = estimate_noise([log]).model
+    assert fitted.fit["odometry_windows"] >= 350
+    assert np.sqrt(fitted.odometry.xy_var_per_m) == pytest.approx(0.02, rel=0.3)
+    exact, coarse = (odometry_consistency([(o, t)], model, (5.0, 60.0))
+                     for o, t in ((odometry, truth), (coarse_odometry, coarse_truth)))
+    for a, b in zip(exact, coarse, strict=True):
+        assert b.windows == a.windows and b.nees_median == pytest.approx(a.nees_median, rel=0.2)
