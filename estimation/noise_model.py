@@ -717,11 +717,12 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3, 3))
     if len(rows) < 3:
         return empty
-    # the rows' interval: the median of the positive steps, as stamps may be coarser than the rows (MRCLAM's copy
-    # stamps its rows to 0.1 s from t = 1000 s on, five 50 Hz rows to a stamp: the median step there is 0)
-    steps_s = np.diff(rows[:, 0])
-    n = max(1, int(round(window_s / max(float(np.median(steps_s[steps_s > 0])) if np.any(steps_s > 0) else 0.0,
-                                        1e-9))))
+    # the rows' interval: their median step, or, where most rows share a stamp (stamps coarser than the rows: MRCLAM's
+    # copy stamps its 50 Hz rows to 0.1 s from t = 1000 s on, so the median step there is 0), the mean step
+    step_s = float(np.median(np.diff(rows[:, 0])))
+    if not step_s > 0:
+        step_s = float(rows[-1, 0] - rows[0, 0]) / (len(rows) - 1)
+    n = max(1, int(round(window_s / max(step_s, 1e-9))))
     k = (len(rows) - 1) // n
     if k < 1:
         return empty

@@ -201,7 +201,7 @@ def test_a_log_stamped_coarser_than_its_rows_is_fitted_and_judged():
     log = RangeBearingLog("coarse", coarse_odometry, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
                           coarse_truth)
     fitted = estimate_noise([log]).model
-    assert fitted.fit["odometry_windows"] >= 350
+    assert fitted.fit["odometry_windows"] == 400      # 5 s windows of 250 rows (not of 50 rows: 1 s)
     assert np.sqrt(fitted.odometry.xy_var_per_m) == pytest.approx(0.02, rel=0.3)
     exact, coarse = (odometry_consistency([(o, t)], model, (5.0, 60.0))
                      for o, t in ((odometry, truth), (coarse_odometry, coarse_truth)))
