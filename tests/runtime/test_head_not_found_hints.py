@@ -7,14 +7,13 @@ pyusb's lookup is replaced so that the tests do not depend on this machine's lib
 (no libusb) and with a backend that finds no head."""
 from __future__ import annotations
 
-import socket
-
 import pytest
 import usb.core
 
 from drivers.errors import DeviceNotFoundError
 from drivers.videre.transport import UsbTransport
 from runtime.cli import main
+from runtime.fleet.processes import free_port
 
 
 def _no_backend(*args, **kwargs):
@@ -36,12 +35,6 @@ def lookup(request, monkeypatch):
     return message
 
 
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_the_drivers_message_names_no_option(lookup):
     with pytest.raises(DeviceNotFoundError) as caught:
         UsbTransport.open()
@@ -59,7 +52,7 @@ def test_p3at_camera_adds_its_mock_option(action, lookup, tmp_path, capsys):
 
 
 def test_p3at_run_adds_its_virtual_head_before_connecting_to_the_robot(lookup, tmp_path, capsys):
-    url = f"socket://127.0.0.1:{_closed_port()}"   # nobody listens: the head is looked for before the robot
+    url = f"socket://127.0.0.1:{free_port()}"   # nobody listens: the head is looked for before the robot
     code = main(["run", "--robot", url, "--quiet", "--rerun", "none", "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1, (code, err)
