@@ -13,20 +13,23 @@ Prints (docs/fastslam-history.md, "Session 22: the odometry model over long open
    σ_b, a turn scale σ_r, a heading change per second σ_ω: variance ∝ path²), fitted across horizons on the first
    half of each log, pooled (the random walk and the calibrations fitted on that half too), so that each horizon's
    NEES median is 2.37 and 95 % of its windows are within the bound (see fit_two_term); checked on the second
-   halves. Beside it the model as fitted on the whole logs, the first halves and the second halves.
+   halves. Beside it the model as fitted on the whole logs, the first halves and the second halves;
+3. what does not carry from one half to the other: the second halves scored with their own model, with the first
+   halves', and with the calibrations (scales, heading bias, lag, forward deficit) of one and the variances
+   (random walk, turns' inflation) of the other.
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
 
 from estimation.datasets import read_mrclam
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+from estimation.noise_model import DATASET_CALIBRATIONS, OdometryNoise, estimate_noise
 from estimation.odometry_consistency import (
     CHI2_3_95,
     CHI2_3_MEDIAN,
@@ -40,6 +43,8 @@ from runtime.commands.options import positive_int
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 TERMS = ("white ×α", "σ_s (scale)", "σ_b (rad/m)", "σ_r (turn scale)", "σ_ω (rad/s)")
 WHITE = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "turn_xy_inflation")
+CALIBRATIONS = tuple(f.name for f in fields(OdometryNoise) if f.name not in VARIANCES)
 
 
 def half(log, first: bool):
@@ -114,7 +119,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(DATA), help="MRCLAM data set 2 folder")
     parser.add_argument("--robots", type=positive_int, nargs="+", default=[1, 2, 3, 4, 5])
-    parser.add_argument("--section", choices=("all", "horizons", "two-term"), default="all")
+    parser.add_argument("--section", choices=("all", "horizons", "two-term", "halves"), default="all")
     args = parser.parse_args(argv)
     if not Path(args.data).is_dir():
         print(f"no data set at {args.data}", file=sys.stderr)
@@ -151,6 +156,25 @@ def main(argv=None) -> int:
             print(f"   {label}: {_describe(p)}")
             print(_row("  first (in sample)", first, p))
             print(_row("  second (out of sample)", second, p))
+    if args.section in ("all", "halves"):
+        print("3. The second halves scored with (NEES median / % within, per horizon)")
+        print("   " + " " * 24 + " " + "  ".join(f"{h:>12}" for h in horizons))
+        scored = {label: [[] for _ in HORIZONS_S] for label in ("own model", "the first half's",
+                                                                "first's calibration", "first's variances")}
+        for r, log in logs.items():
+            a, b = half(log, True), half(log, False)
+            model_a, model_b = (estimate_noise([x], **DATASET_CALIBRATIONS).model for x in (a, b))
+            oa, ob = model_a.odometry, model_b.odometry
+            print(f"   robot {r}: " + ", ".join(f"{name} {getattr(oa, name):.4g} -> {getattr(ob, name):.4g}"
+                                                for name in ("translation_scale", "rotation_scale",
+                                                             "heading_bias_per_m", "lag_s")))
+            mixed_calibration = replace(model_b, odometry=replace(ob, **{k: getattr(oa, k) for k in CALIBRATIONS}))
+            mixed_variances = replace(model_b, odometry=replace(ob, **{k: getattr(oa, k) for k in VARIANCES}))
+            for label, model in zip(scored, (model_b, model_a, mixed_calibration, mixed_variances), strict=True):
+                for k, h in enumerate(HORIZONS_S):
+                    scored[label][k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model, h))
+        for label, windows in scored.items():
+            print(_row(label, windows, WHITE))
     return 0
 
 
