@@ -69,7 +69,7 @@ def await_last_maps(exchange, timeout: float = LAST_MAP_WAIT) -> dict[str, dict]
         time.sleep(0.05)
 
 
-def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) -> tuple[dict, dict[str, dict]]:
+def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) -> tuple[dict, dict[str, dict], set]:
     """The robots' last maps that never came over the wire, read from their files.
 
     A robot process that ends with its summary has written its final map at its end, atomically, after its last
@@ -80,14 +80,16 @@ def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) ->
     landmark count is not the one the robot's summary gives, is not used; nor an empty map.
 
     Returns (robot -> ``MapMessage`` for :meth:`FusionNode.final_fusion`, robot -> what the summary says: the file,
-    its landmarks, the sequence the robot's status named (None if none named it) and the one held (None: none))."""
+    its landmarks, the sequence the robot's status named (None if none named it) and the one held (None: none),
+    the robots whose file holds the map the node holds: their final map is in the fusion, whatever a status
+    named)."""
     from estimation.errors import EstimationError
     from estimation.landmark_map import LandmarkMap
     from runtime.exchange import MapMessage
     from runtime.fleet import mapwire
 
     held = exchange.receive(excluding="fused")
-    messages, read = {}, {}
+    messages, read, final_held = {}, {}, set()
     for robot, summary in sorted(summaries.items()):
         entry = (summary.get("robots") or {}).get(robot) or {}
         if not entry.get("map_file"):
@@ -105,12 +107,13 @@ def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) ->
         have = held.get(robot)
         if have is not None and np.array_equal(have.landmark_map.ids, wire.ids) and np.array_equal(
                 have.landmark_map.positions, wire.positions):
-            continue   # the node holds the robot's final map
+            final_held.add(robot)   # the node holds the robot's final map
+            continue
         sequence = named if named is not None else -1 if have is None else have.sequence + 1
         messages[robot] = MapMessage(robot, sequence, stamp, wire)
         read[robot] = {"file": entry["map_file"], "landmarks": len(saved), "named": named,
                        "held": None if have is None else have.sequence}
-    return messages, read
+    return messages, read, final_held
 
 
 def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WAIT):
@@ -119,9 +122,9 @@ def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WA
     (:func:`last_maps_from_files`), fuse. Returns (the fusion's report or None, last maps missing, last maps read
     from file)."""
     missing = await_last_maps(node.exchange, timeout)
-    replace, read = last_maps_from_files(node.exchange, summaries, missing)
+    replace, read, final_held = last_maps_from_files(node.exchange, summaries, missing)
     final = node.final_fusion(replace=replace)
-    return final, {r: m for r, m in missing.items() if r not in read}, read
+    return final, {r: m for r, m in missing.items() if r not in read and r not in final_held}, read
 
 
 def free_port() -> int:

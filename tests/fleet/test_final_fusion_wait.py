@@ -83,19 +83,23 @@ def test_the_final_fusion_waits_for_a_last_map_still_queued_and_reports_one_that
             gate.set()
 
 
-@pytest.mark.parametrize("status_came", [True, False], ids=["named-by-a-status", "lost-with-its-status"])
+@pytest.mark.parametrize("status_came", [True, False, "same map"],
+                         ids=["named-by-a-status", "lost-with-its-status", "lost-map-equal-to-the-one-held"])
 def test_a_last_map_lost_on_the_wire_is_read_from_the_file_its_robot_wrote(tmp_path, status_came):
     """robot1's last map (its map 1) never reaches the node; its process wrote it to its map file at its end. The
     final fusion had fused map 0: now it reads map 1 from the file, whether a status named map 1 (the map alone was
-    lost) or not (lost with its status: nothing told the node). robot2's file holds the map the node has: not read."""
+    lost) or not (lost with its status: nothing told the node). robot2's file holds the map the node has: not read.
+    A lost map 1 equal to map 0 (published again with nothing new): the node holds the final map, nothing missing."""
     from estimation.landmark_map import LandmarkMap
     from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
     from runtime.fleet.processes import final_fusion
 
-    port, fleet = free_port(), f"file{os.getpid()}{int(status_came)}"
+    port, fleet = free_port(), f"file{os.getpid()}_{str(status_came).replace(' ', '')}"
     session = mapwire.new_session()
     robot1, robot2 = SyntheticRobot("robot1", 0), SyntheticRobot("robot2", 1)
     map1_0, map1_1 = robot1.step(), robot1.step()
+    if status_came == "same map":
+        map1_1 = map1_0
     map2 = [robot2.step() for _ in range(2)][-1]
     summaries = {}
     for name, last, seconds in (("robot1", map1_1, 2.0), ("robot2", map2, 1.5)):   # as `p3at run --json` gives them
@@ -117,6 +121,9 @@ def test_a_last_map_lost_on_the_wire_is_read_from_the_file_its_robot_wrote(tmp_p
         node = FusionNode(exchange, FusionNodeConfig())
         final, missing, read = final_fusion(node, summaries, timeout=1.0)
     assert missing == {}
+    if status_came == "same map":
+        assert read == {} and {r: q for r, (q, _) in node.sources.items()} == {"robot1": 0, "robot2": 0}
+        return
     assert read == {"robot1": {"file": str(tmp_path / "robot1" / "robot1.npz"), "landmarks": len(map1_1),
                                "named": 1 if status_came else None, "held": 0}}
     assert final is not None and {r: q for r, (q, _) in node.sources.items()} == {"robot1": 1, "robot2": 0}
