@@ -57,6 +57,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks import evo_metrics  # noqa: E402
+from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
@@ -118,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     modes = args.association.split(",")
     if not args.data.is_dir():
         print(f"eval_mrclam: no data set at {args.data}", file=sys.stderr)
+        return 2
+    refusal = output_refusal("eval_mrclam", "--maps", args.maps, args.data)
+    if refusal:
+        print(refusal, file=sys.stderr)
         return 2
 
     logs = {r: read_mrclam(args.data, r) for r in robots}

@@ -527,11 +527,6 @@ def corrupt_map(m: LandmarkMap, rng: np.random.Generator, duplicates: int = 3, o
     return LandmarkMap(np.vstack([m.positions, dup, out]), cov, desc, robot=m.robot, frame=m.frame, metadata=meta)
 
 
-def output_inside_input(out: Path, data: Path) -> bool:
-    """True when the folder ``out`` is the folder ``data`` or inside it (symbolic links and ``..`` resolved)."""
-    return Path(out).resolve().is_relative_to(Path(data).resolve())
-
-
 def main(argv: list[str] | None = None) -> int:
     """``python benchmarks/fusion_sim.py mrclam --out OUT_DIR [--data DIR] [--no-ids]``: the five MRCLAM sighting
     maps as files ``OUT_DIR/robot1.npz`` ... ``robot5.npz``.  An output folder that is the data set folder or inside
@@ -545,9 +540,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=MRCLAM_DATASET2, help="MRCLAM dataset folder (only read)")
     parser.add_argument("--no-ids", action="store_true", help="leave the identities out (geometry alone)")
     args = parser.parse_args(argv)
-    if output_inside_input(args.out, args.data):
-        print(f"fusion_sim.py: error: --out {args.out} is inside the data set folder --data {args.data}; "
-              "choose an output folder outside it", file=sys.stderr)
+    from benchmarks.output_paths import output_refusal
+
+    refusal = output_refusal("fusion_sim.py", "--out", args.out, args.data)
+    if refusal:
+        print(refusal, file=sys.stderr)
         return 2
     from estimation.datasets import DatasetError
 

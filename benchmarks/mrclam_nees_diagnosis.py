@@ -55,6 +55,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation import dataset_slam  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config  # noqa: E402
@@ -488,6 +489,10 @@ def main(argv: list[str] | None = None) -> int:
     RecordingFastSLAM.keep_estimates = bool(args.pinning)
     if not args.data.is_dir():
         print(f"mrclam_nees_diagnosis: no data set at {args.data}", file=sys.stderr)
+        return 2
+    refusal = output_refusal("mrclam_nees_diagnosis", "--dump", args.dump, args.data)
+    if refusal:
+        print(refusal, file=sys.stderr)
         return 2
     overrides = config_overrides(args.set)
     if args.export_lever or args.one_landmark_heading:   # FastSLAMConfig.drift_export (export_drift.py)

@@ -53,7 +53,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
 import estimation.dataset_smoothing as dataset_smoothing  # noqa: E402
+from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
@@ -495,6 +498,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         print(f"smoother_frame_diagnosis: no data set at {args.data}", file=sys.stderr)
+        return 2
+    refusal = output_refusal("smoother_frame_diagnosis", "--cache", args.cache, args.data)
+    if refusal:
+        print(refusal, file=sys.stderr)
         return 2
     kinds = ("calibrated", "default") if args.noise == "both" else (args.noise,)
     options = {} if args.heading_loss == "gaussian" else {"heading_loss": HeadingLoss(
