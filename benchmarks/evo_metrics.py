@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from evo.core import metrics, sync
+from evo.core import filters, metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
 from evo.core.units import Unit
 from evo.tools import file_interface
@@ -71,7 +71,7 @@ def rpe(reference, estimate, *, delta: float = 1.0, align: bool = False, max_dif
         try:
             metric.process_data((ref, est))
             out[key] = float(metric.get_statistic(metrics.StatisticsType.rmse))
-        except metrics.MetricsException:  # a path shorter than delta has no pair to compare
+        except (metrics.MetricsException, filters.FilterException):  # a path shorter than delta: no pair to compare
             out[key] = float("nan")
     return out
 
