@@ -108,6 +108,8 @@ def test_demo_processes_prints_the_mission_summary_with_an_alignment_scored_agai
     (pair,) = summary["fusion"]["pairs"]
     assert pair["aligned"] and pair["error_xy"] < 0.1 and pair["error_theta"] < 0.02, pair
     assert len(LandmarkMap.load(tmp_path / "fused.npz")) == summary["fusion"]["merged_landmarks"]
+    # every robot's final map is in the final fusion: from the wire, or from its file where the wire lost it
+    assert summary["last_maps_missing"] == {}, (summary["last_maps_missing"], summary["last_maps_from_file"])
     contents = read_recording(tmp_path / "mission.rrd")
     assert {"robot1", "robot2", "fused"} <= set(contents.maps)
 
