@@ -16,7 +16,10 @@ Prints (docs/fastslam-history.md, "Session 22: the odometry model over long open
    halves. Beside it the model as fitted on the whole logs, the first halves and the second halves;
 3. what does not carry from one half to the other: the second halves scored with their own model, with the first
    halves', and with the calibrations (scales, heading bias, lag, forward deficit) of one and the variances
-   (random walk, turns' inflation) of the other.
+   (random walk, turns' inflation) of the other;
+4. a drifting heading bias: the random walk plus a heading bias per metre that is a first-order Gauss–Markov process
+   (stationary σ_b, correlation time τ; ``dead_reckoned_windows(heading_drift=...)``), (σ_b, τ) chosen on a grid by
+   the same criterion on the first halves, scored on the second halves and on the whole logs (their own models).
 """
 from __future__ import annotations
 
@@ -43,6 +46,8 @@ from runtime.commands.options import positive_int
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 TERMS = ("white ×α", "σ_s (scale)", "σ_b (rad/m)", "σ_r (turn scale)", "σ_ω (rad/s)")
 WHITE = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+DRIFT_SIGMAS = (0.04, 0.08, 0.12, 0.16, 0.24)    # rad/m
+DRIFT_TAUS = (10.0, 30.0, 100.0, 300.0)          # s
 VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "turn_xy_inflation")
 CALIBRATIONS = tuple(f.name for f in fields(OdometryNoise) if f.name not in VARIANCES)
 
@@ -119,7 +124,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(DATA), help="MRCLAM data set 2 folder")
     parser.add_argument("--robots", type=positive_int, nargs="+", default=[1, 2, 3, 4, 5])
-    parser.add_argument("--section", choices=("all", "horizons", "two-term", "halves"), default="all")
+    parser.add_argument("--section", choices=("all", "horizons", "two-term", "halves", "drift"), default="all")
     args = parser.parse_args(argv)
     if not Path(args.data).is_dir():
         print(f"no data set at {args.data}", file=sys.stderr)
@@ -175,6 +180,33 @@ def main(argv=None) -> int:
                     scored[label][k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model, h))
         for label, windows in scored.items():
             print(_row(label, windows, WHITE))
+    if args.section in ("all", "drift"):
+        print("4. A drifting heading bias (Gauss–Markov) on the random walk, fitted on the first halves")
+        print("   " + " " * 24 + " " + "  ".join(f"{h:>12}" for h in horizons))
+        parts = {"first": [], "second": [], "whole": []}
+        for log in logs.values():
+            a, b = half(log, True), half(log, False)
+            model_a = estimate_noise([a], **DATASET_CALIBRATIONS).model
+            parts["first"].append((a, model_a))
+            parts["second"].append((b, model_a))
+            parts["whole"].append((log, estimate_noise([log], **DATASET_CALIBRATIONS).model))
+
+        def drift_windows(part, drift):
+            return [[dead_reckoned_windows(x.odometry, x.ground_truth, m, h, heading_drift=drift) for x, m in part]
+                    for h in HORIZONS_S]
+
+        def cost(windows) -> float:
+            return float(sum(np.log(m / CHI2_3_MEDIAN) ** 2 + ((f - 0.95) / 0.05) ** 2
+                             for m, f in scores(windows, WHITE)))
+
+        tried = sorted((cost(drift_windows(parts["first"], (sigma, tau))), sigma, tau)
+                       for sigma in DRIFT_SIGMAS for tau in DRIFT_TAUS)
+        print("   grid (σ_b rad/m, τ s: cost on the first halves): "
+              + ", ".join(f"({sigma:g}, {tau:g}): {c:.1f}" for c, sigma, tau in tried[:6]) + ", ...")
+        for _, sigma, tau in tried[:2]:
+            for name in ("first", "second", "whole"):
+                print(_row(f"σ_b {sigma:g}, τ {tau:g}: {name}", drift_windows(parts[name], (sigma, tau)), WHITE))
+        print(_row("no drift: second", drift_windows(parts["second"], None), WHITE))
     return 0
 
 

@@ -110,10 +110,16 @@ def _check_rows(name: str, rows) -> np.ndarray:
 
 def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, *, step_s: float = STEP_S,
                           stride_s: float = STRIDE_S, min_path_m: float = MIN_PATH_M,
-                          min_turn_rad: float = MIN_TURN_RAD) -> DeadReckonedWindows:
+                          min_turn_rad: float = MIN_TURN_RAD,
+                          heading_drift: tuple[float, float] | None = None) -> DeadReckonedWindows:
     """Windows of ``horizon_s`` (see the module's doc) of odometry rows (K, 4) (t, x, y, θ: the dead-reckoned pose in
     the odometry's frame, as ``RangeBearingLog.odometry``) against ground-truth rows (M, 4), under ``model``'s
-    calibration (its lag, scales, biases) and random walk."""
+    calibration (its lag, scales, biases) and random walk.
+
+    ``heading_drift`` (σ rad/m, τ s): the covariance also carries a heading bias per metre of odometry that the
+    model's calibration does not know, a first-order Gauss–Markov process (stationary σ, correlation time τ: b ←
+    e^(−Δt/τ) b + noise), as a filter would with a bias state: the pose's covariance is propagated jointly with it
+    (research, not the noise model's: docs/fastslam-history.md, Session 22 (O))."""
     odometry, truth = _check_rows("odometry", odometry), _check_rows("ground truth", truth)
     if not (horizon_s > 0 and step_s > 0 and stride_s > 0):
         raise ValueError("horizon_s, step_s and stride_s must be > 0")
@@ -140,7 +146,13 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     starts = starts[moved]
     w = len(starts)
     pose = np.zeros((w, 3))
-    cov = np.zeros((w, 3, 3))
+    # the pose's covariance with the heading drift's state as a 4th row and column (its variance 0 without a drift)
+    drift_var, drift_tau = (float(heading_drift[0]) ** 2, float(heading_drift[1])) if heading_drift else (0.0, 1.0)
+    if not (drift_var >= 0 and drift_tau > 0 and np.isfinite(drift_var)):
+        raise ValueError(f"heading_drift must be (σ ≥ 0, τ > 0), not {heading_drift}")
+    decay = float(np.exp(-step_s / drift_tau))
+    cov = np.zeros((w, 4, 4))
+    cov[:, 3, 3] = drift_var
     # for the systematic errors' Jacobians: Σ over steps of the step's weight times v_j = (−(y_end − y_j),
     # x_end − x_j, 1) (a heading change at step j swings the rest of the path about the pose after it), collected as
     # Σ a_j (−(y_end), x_end, 1) − Σ a_j (−y_j, x_j, 0) with the end known only at the end
@@ -149,12 +161,15 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     for j in range(n):
         delta, var = steps[starts + j], variance[starts + j]
         c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-        ja = np.tile(np.eye(3), (w, 1, 1))
+        ja = np.tile(np.eye(4), (w, 1, 1))
         ja[:, 0, 2] = -s * delta[:, 0] - c * delta[:, 1]
         ja[:, 1, 2] = c * delta[:, 0] - s * delta[:, 1]
-        jb = np.zeros((w, 3, 3))
+        ja[:, 2, 3] = raw_distance[starts + j]          # the drift turns the heading by b per metre driven
+        ja[:, 3, 3] = decay
+        jb = np.zeros((w, 4, 3))
         jb[:, 0, 0], jb[:, 0, 1], jb[:, 1, 0], jb[:, 1, 1], jb[:, 2, 2] = c, -s, s, c, 1.0
         cov = ja @ cov @ np.swapaxes(ja, 1, 2) + (jb * var[:, None, :]) @ np.swapaxes(jb, 1, 2)
+        cov[:, 3, 3] += drift_var * (1.0 - decay ** 2)
         pose = compose(pose, delta)
         a = np.column_stack([raw_distance[starts + j], delta[:, 2], np.full(w, step_s)])
         weight_sums += a
@@ -172,7 +187,8 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     true_start, true_end = _poses_at(truth, times[starts]), _poses_at(truth, times[starts + n])
     g = between(true_start, true_end)
     g[:, 2] = end[:, 2] + wrap_angle(g[:, 2] - end[:, 2])
-    return DeadReckonedWindows(times[starts], end, g, cov, by_scale, swing(0), swing(1), swing(2))
+    return DeadReckonedWindows(times[starts], end, g, np.ascontiguousarray(cov[:, :3, :3]), by_scale, swing(0),
+                               swing(1), swing(2))
 
 
 def nees(windows: DeadReckonedWindows, covariance: np.ndarray | None = None) -> np.ndarray:
@@ -197,15 +213,17 @@ def summarize(horizon_s: float, values: np.ndarray, span_s: float) -> HorizonCon
 
 def odometry_consistency(pairs: Sequence[tuple[np.ndarray, np.ndarray]], model: NoiseModel,
                          horizons: Sequence[float] = HORIZONS_S, *, step_s: float = STEP_S,
-                         stride_s: float = STRIDE_S) -> list[HorizonConsistency]:
+                         stride_s: float = STRIDE_S,
+                         heading_drift: tuple[float, float] | None = None) -> list[HorizonConsistency]:
     """Per horizon, the NEES of ``model``'s dead reckoning over windows of (odometry rows, ground-truth rows) pairs
-    (one per log, pooled; see :func:`dead_reckoned_windows`). Horizons with no window (longer than every log, or the
-    robot never moving) are left out."""
+    (one per log, pooled; see :func:`dead_reckoned_windows`, also for ``heading_drift``). Horizons with no window
+    (longer than every log, or the robot never moving) are left out."""
     out = []
     span = sum(max(min(t[-1, 0], o[-1, 0]) - max(t[0, 0], o[0, 0]), 0.0)
                for o, t in ((np.asarray(o, float), np.asarray(t, float)) for o, t in pairs))
     for horizon in horizons:
-        values = [nees(dead_reckoned_windows(o, t, model, horizon, step_s=step_s, stride_s=stride_s))
+        values = [nees(dead_reckoned_windows(o, t, model, horizon, step_s=step_s, stride_s=stride_s,
+                                             heading_drift=heading_drift))
                   for o, t in pairs]
         row = summarize(horizon, np.concatenate(values) if values else np.zeros(0), span)
         if row.windows:
