@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         for row in r["same_point_by_ratio"]:
             print(f"| {row['abs_ln_ratio']} | {row['pairs']} | {row['median']:.3f} | {row['p90']:.3f} | "
                   f"{100 * row['below_threshold']:.0f} % |")
-        print("| memory | re-sightings accepted | neighbours' sightings accepted (5-30 cm) |")
+        print("\n| memory | re-sightings accepted | neighbours' sightings accepted (5-30 cm) |")  # a table of its own
         print("|---|---|---|")
         for m, v in r["memories"].items():
             print(f"| {m} | {100 * v['accepted']:.1f} % of {v['resightings']} | "

@@ -272,7 +272,7 @@ def _print(r: dict) -> None:
     print(f"\n{r['robot']} seed {r['seed']}: ATE {r['ate_m']:.3f} m, {r['landmarks']} landmarks "
           f"({r['scored']} scored), within the χ²₃ 95 % bound {100 * r['within_bound']:.0f} %, "
           f"NEES median {r['nees_median']:.1f}; |e| median {r['total_median_m']:.3f} m")
-    print("| part | median |e| (m) | p90 (m) | within bound if this part were zero | its own NEES (against) |")
+    print("| part | median \\|e\\| (m) | p90 (m) | within bound if this part were zero | its own NEES (against) |")
     print("|---|---|---|---|---|")
     own = {"snap": "—", "pose": f"{100 * r['pose_nees2_within']:.0f} % (median {r['pose_nees2_median']:.1f}; "
            "C_l, χ²₂)", "obs": f"{100 * r['obs_nees_within']:.0f} % (median {r['obs_nees_median']:.2f}; claimed Q)",
