@@ -22,7 +22,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import json
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -36,13 +35,8 @@ sys.path.insert(0, str(ROOT))
 
 from runtime.commands.options import positive_float, positive_int  # noqa: E402
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig  # noqa: E402
+from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def run_fleet(size: int, steps: int, period: float, publishers: int) -> dict:

@@ -21,6 +21,7 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from runtime.cli import main
+from runtime.fleet.processes import free_port
 from runtime.mission import Mission, MissionConfig
 from runtime.replay import replay_log
 from runtime.rerun_log import RecordingReadError, read_recording
@@ -344,14 +345,6 @@ def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, c
     assert "mission failed" in capsys.readouterr().err
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def rerun_server(tmp_path):
     """The rerun CLI's headless server on a free loopback port, saving what it receives: (port, file)."""
@@ -360,7 +353,7 @@ def rerun_server(tmp_path):
     rerun_cli = Path(sys.executable).parent / "rerun"
     if not rerun_cli.exists():
         pytest.skip(f"no rerun CLI beside {sys.executable}")
-    port = _free_port()
+    port = free_port()
     saved = tmp_path / "received.rrd"
     server = subprocess.Popen([str(rerun_cli), "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=_with_default_sigint)
@@ -414,7 +407,7 @@ def test_spawn_reuses_a_viewer_already_listening_on_loopback(rerun_server):
 def test_spawn_on_a_machine_without_a_display_fails_before_the_robots_start(tmp_path, capsys, monkeypatch):
     for variable in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(variable, raising=False)
-    monkeypatch.setattr("runtime.rerun_log.VIEWER_PORT", _free_port())
+    monkeypatch.setattr("runtime.rerun_log.VIEWER_PORT", free_port())
     status = main(["demo", "--rerun", "spawn", "--camera", "synthetic", "--seconds", "2", "--out", str(tmp_path),
                    "--quiet"])
     assert status == 1

@@ -4,22 +4,15 @@ the virtual head got "no USB backend ... or try --mock" (exit 1, after connectin
 before anything starts, naming why, as ``--camera synthetic`` already was."""
 from __future__ import annotations
 
-import socket
-
 import pytest
 
 from runtime.cli import main
-
-
-def _closed_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from runtime.fleet.processes import free_port
 
 
 @pytest.mark.parametrize("camera", ["mock", "synthetic"])
 def test_a_virtual_head_beside_a_robot_url_is_refused_as_asked(camera, tmp_path, capsys):
-    url = f"socket://127.0.0.1:{_closed_port()}"
+    url = f"socket://127.0.0.1:{free_port()}"
     code = main(["run", "--robot", url, "--camera", camera, "--quiet", "--rerun", "none",
                  "--out", str(tmp_path / "out")])
     captured = capsys.readouterr()
