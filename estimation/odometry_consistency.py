@@ -237,7 +237,7 @@ def fit_keys(report: Sequence[HorizonConsistency]) -> dict:
     for row in report:
         if row.windows == 0:
             continue
-        label = f"{row.horizon_s:g}s"
+        label = f"{row.horizon_s:g}s".replace(".", "_")      # a dot in a TOML key would nest a table
         out[f"odometry_nees_windows_{label}"] = row.windows
         out[f"odometry_nees_median_{label}"] = row.nees_median
         out[f"odometry_nees_within_chi2_95_{label}"] = row.within_chi2_95

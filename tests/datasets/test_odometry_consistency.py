@@ -173,6 +173,19 @@ def test_bad_input_is_refused_and_a_robot_at_rest_is_left_out():
     assert fit_keys([]) == {}
 
 
+def test_the_fit_keys_round_trip_through_a_noise_model_file(tmp_path):
+    """The report's [fit] keys are flat TOML keys (a horizon of 2.5 s must not become a nested table) that load back."""
+    rng = np.random.default_rng(8)
+    model = NoiseModel(OdometryNoise(0.02 ** 2, 0.02 ** 2, 0.005 ** 2))
+    steps = _motion(rng, 300.0)
+    report = odometry_consistency([(_odometry_for(model, steps, rng), _rows(steps))], model, (2.5, 60.0))
+    keys = fit_keys(report)
+    assert set(keys) == {f"odometry_nees_{name}_{label}" for name in ("windows", "median", "within_chi2_95")
+                         for label in ("2_5s", "60s")}
+    replace(model, fit=keys).save(tmp_path / "n.toml")
+    assert NoiseModel.load(tmp_path / "n.toml").fit == pytest.approx(keys)
+
+
 def _cli(*argv) -> tuple[int, str, str]:
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
