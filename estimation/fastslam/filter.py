@@ -1016,19 +1016,21 @@ class FastSLAM:
         the particles holding the id."""
         cfg, store = self.config, self.store
         none = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        ref = _rows(store.flat_mean, cand.g[first])                               # (U, 3) one particle's mean
         t = np.flatnonzero(np.isin(uniq, touched))
         if len(t) == 0:
             return none
         state = _rows(store.flat_state, cand.g)
+        ref = np.ascontiguousarray(state[first, :3])                              # (U, 3) one particle's mean
+        # (not np.take of store.flat_mean: a strided view, which np.take first copies whole: every slot's mean)
         spread2, trace = np.zeros(len(uniq)), np.zeros(len(uniq))
         np.maximum.at(spread2, inverse, np.sum((state[:, :3] - ref[inverse]) ** 2, axis=1))
         np.maximum.at(trace, inverse, state[:, 3] + state[:, 6] + state[:, 8])
         spread = np.sqrt(spread2)
-        d = np.linalg.norm(ref[t][:, None, :] - ref[None, :, :], axis=2) - spread[t][:, None] - spread[None, :]
-        bound = cfg.merge_gate * (trace[t][:, None] + trace[None, :])
+        ti, ui = _x_window_pairs(ref[:, 0], t, cfg.merge_radius + spread[t] + spread.max())
+        d = np.linalg.norm(ref[t[ti]] - ref[ui], axis=1) - spread[t[ti]] - spread[ui]
+        bound = cfg.merge_gate * (trace[t[ti]] + trace[ui])
         close = (d < cfg.merge_radius) & (np.maximum(d, 0.0) ** 2 < bound)
-        ti, ui = np.nonzero(close)
+        ti, ui = ti[close], ui[close]
         if cfg.descriptor_size > 0 and len(ti):   # unit descriptors: |a − b|² = 2 − 2 a·b
             if self._bands is None:
                 dot = np.einsum("ij,ij->i", self._descriptors[uniq[t[ti]]], self._descriptors[uniq[ui]])
@@ -1386,6 +1388,22 @@ def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
 def _cols(a: np.ndarray, index: np.ndarray) -> np.ndarray:
     """a[:, index] (np.take along the second axis: several times faster than fancy indexing)."""
     return np.take(a, index, axis=1)
+
+
+def _x_window_pairs(x: np.ndarray, rows: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i, u) with |x[rows[i]] − x[u]| ≤ half[i] (+ a rounding margin), in row-major order (i, then u ascending):
+    the nonzero entries of the (len(rows), len(x)) matrix |Δx| ≤ half, found through x sorted, without the matrix.
+    A superset of any pairs whose distance (of which |Δx| is a lower bound) is below half."""
+    order = np.argsort(x, kind="stable")
+    xs = x[order]
+    half = half + 1e-6 * (1.0 + np.max(np.abs(x), initial=0.0) + np.abs(half))   # never lose a pair to rounding
+    lo = np.searchsorted(xs, x[rows] - half, "left")
+    n = np.searchsorted(xs, x[rows] + half, "right") - lo
+    n = np.maximum(n, 0)
+    i = np.repeat(np.arange(len(rows)), n)
+    u = order[np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n - lo, n)]
+    key = np.argsort(i * len(x) + u, kind="stable")
+    return i[key], u[key]
 
 
 def _cos_sin(poses: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
