@@ -459,6 +459,7 @@ class MissionLog:
         self._placements: dict[str, np.ndarray] = {}  # map key -> its frame's pose in the world (x, y, θ)
         self._snapshot_paths: dict[str, np.ndarray] = {}  # robot -> (T, 2) path of its last map snapshot
         self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
+        self._styles: dict[tuple, list] = {}          # (archetype, key) -> its styling fields' component batches
         if blueprint and self.robots and rec.is_enabled():  # a disabled stream ("none") refuses blueprints
             rec.send_blueprint(mission_blueprint(self.robots))
 
@@ -482,6 +483,17 @@ class MissionLog:
                 return False
             self._once.add(key)
             return True
+
+    def _log_styled(self, path: str, archetype, key: tuple, data: dict, style: dict) -> None:
+        """rec.log(path, archetype(**data, **style)) with the styling fields' batches (colours, radii, draw order,
+        labels: the same every call for one ``key``) converted once and kept: the same components as one archetype
+        logged whole, at the same time, without converting the styling each time (log_pose, every frame)."""
+        batches = self._styles.get((archetype, key))
+        if batches is None:
+            batches = list(archetype.from_fields(**style).as_component_batches())
+            with self._lock:
+                self._styles[(archetype, key)] = batches
+        self.rec.log(path, [*archetype.from_fields(**data).as_component_batches(), *batches])
 
     def _map_root(self, key: str) -> str:
         """map/<key>, with the y-up flip logged once (static)."""
@@ -591,7 +603,8 @@ class MissionLog:
                 strips["odometry"] = track.odometry.add(odometry[:2].tolist())
         # 3-D world
         origins, vectors = _arrow(estimated)
-        self.rec.log(f"world/{robot}/pose", rr.Arrows3D(vectors=vectors, origins=origins, colors=colour, radii=0.03))
+        self._log_styled(f"world/{robot}/pose", rr.Arrows3D, ("pose", colour),
+                         {"vectors": vectors, "origins": origins}, {"colors": colour, "radii": 0.03})
         if self._first_time(f"world/{robot}/base_link/body"):
             self.rec.log(f"world/{robot}/base_link/body", rr.Boxes3D(
                 half_sizes=[P3AT_HALF_SIZE], centers=[[0, 0, P3AT_HALF_SIZE[2]]], colors=colour,
@@ -599,15 +612,15 @@ class MissionLog:
         self.rec.log(f"world/{robot}/base_link", rr.Transform3D(translation=[estimated[0], estimated[1], 0.0],
                                                                 quaternion=_quaternion_z(estimated[2])))
         segment, points = strips["estimated"]
-        self.rec.log(f"world/{robot}/trajectory/{segment:04d}",
-                     rr.LineStrips3D([_with_z(points, 0.02)], colors=colour, radii=0.02))
+        self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D, ("trajectory", colour),
+                         {"strips": [_with_z(points, 0.02)]}, {"colors": colour, "radii": 0.02})
         if true is not None:
             origins, vectors = _arrow(true)
-            self.rec.log(f"world/{robot}/true_pose", rr.Arrows3D(vectors=vectors, origins=origins,
-                                                                 colors=TRUE_COLOUR, radii=0.02))
+            self._log_styled(f"world/{robot}/true_pose", rr.Arrows3D, ("true_pose",),
+                             {"vectors": vectors, "origins": origins}, {"colors": TRUE_COLOUR, "radii": 0.02})
             segment, points = strips["true"]
-            self.rec.log(f"world/{robot}/true_trajectory/{segment:04d}",
-                         rr.LineStrips3D([_with_z(points, 0.01)], colors=TRUE_COLOUR, radii=0.01))
+            self._log_styled(f"world/{robot}/true_trajectory/{segment:04d}", rr.LineStrips3D, ("true_trajectory",),
+                             {"strips": [_with_z(points, 0.01)]}, {"colors": TRUE_COLOUR, "radii": 0.01})
         if head_mount is not None:
             hx, hy, hz = head_mount
             x, y, theta = compose(estimated, [hx, hy, 0.0])
@@ -621,16 +634,19 @@ class MissionLog:
                   "estimated": (colour, -2.0, 3.0)}
         for kind, (segment, points) in strips.items():
             line_colour, width, order = styles[kind]
-            self.rec.log(f"{root}/trajectory/{kind}/{segment:04d}",
-                         rr.LineStrips2D([points], colors=line_colour, radii=width, draw_order=order))
+            self._log_styled(f"{root}/trajectory/{kind}/{segment:04d}", rr.LineStrips2D, ("map trajectory", kind,
+                             colour), {"strips": [points]}, {"colors": line_colour, "radii": width,
+                                                            "draw_order": order})
         heading = 0.6 * np.array([np.cos(estimated[2]), np.sin(estimated[2])])
-        self.rec.log(f"{root}/pose", rr.Points2D([estimated[:2]], radii=-7.0, colors=colour, labels=[robot],
-                                                 show_labels=True, draw_order=10.0))
-        self.rec.log(f"{root}/pose/heading", rr.Arrows2D(vectors=[heading], origins=[estimated[:2]], radii=-2.0,
-                                                         colors=colour, draw_order=10.0))
+        self._log_styled(f"{root}/pose", rr.Points2D, ("map pose", robot, colour), {"positions": [estimated[:2]]},
+                         {"radii": -7.0, "colors": colour, "labels": [robot], "show_labels": True,
+                          "draw_order": 10.0})
+        self._log_styled(f"{root}/pose/heading", rr.Arrows2D, ("map heading", colour),
+                         {"vectors": [heading], "origins": [estimated[:2]]},
+                         {"radii": -2.0, "colors": colour, "draw_order": 10.0})
         if true is not None:
-            self.rec.log(f"{root}/true_pose", rr.Points2D([true[:2]], radii=-4.0, colors=TRUE_COLOUR,
-                                                          draw_order=9.0))
+            self._log_styled(f"{root}/true_pose", rr.Points2D, ("map true pose",), {"positions": [true[:2]]},
+                             {"radii": -4.0, "colors": TRUE_COLOUR, "draw_order": 9.0})
 
     def log_particles(self, robot: str, t: float, frame: int | None, poses: np.ndarray) -> None:
         """poses (M, 3) of every particle in the robot's map frame."""
