@@ -4,6 +4,9 @@ is the half-turn symmetry real in appearance?").
 
     .venv/bin/python -m benchmarks.fusion_symmetry DIR [DIR ...]     # DIR: p3at demo --out DIR (robot1/2.npz)
 
+Only rendered demo maps (descriptors, the simulator's start poses) have the truth this needs; any other folder
+(MRCLAM maps from ``fusion_sim.py mrclam``, a missing map) is refused in one line, exit 2, before any work.
+
 For each run, the robust preset's RANSAC hypotheses (two correspondences each) are split into those within 1 m
 and 0.14 rad of the true relative pose of the maps (the composition of each map's best rigid fit to the
 simulator's features, as in eval_fusion's demo table) and those turned by π ± 0.14 rad from it; the best of each
@@ -79,6 +82,24 @@ def describe(m1: LandmarkMap, m2: LandmarkMap, pose: np.ndarray, mask: np.ndarra
     }
 
 
+def refusal(folder: Path) -> str | None:
+    """Why ``folder`` cannot be studied here (one line), or None when it holds two rendered demo maps."""
+    for k in (1, 2):
+        path = folder / f"robot{k}.npz"
+        if not path.is_file():
+            return f"{path}: no such map (this needs p3at demo --out folders)"
+        try:
+            m = LandmarkMap.load(path)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file gets the same one line
+            return f"{path}: not a landmark map ({type(exc).__name__}: {exc})"
+        if "dataset" in m.metadata or m.metadata.get("external_ids") is not None:
+            return (f"{path}: a map of the data set {m.metadata.get('dataset', '?')}, not a rendered demo map "
+                    "(this compares appearance in the simulated building; use p3at demo --out folders)")
+        if m.descriptor_size == 0 or "true_start_pose" not in m.metadata:
+            return f"{path}: not a rendered demo map (no descriptors or no true_start_pose)"
+    return None
+
+
 def run(folder: Path, world) -> list[str]:
     m1, m2 = (LandmarkMap.load(folder / f"robot{k}.npz") for k in (1, 2))
     fits = [_feature_fit(m, world.features)[0] for m in (m1, m2)]
@@ -114,10 +135,15 @@ def run(folder: Path, world) -> list[str]:
     return rows
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="p3at demo --out folders (robot1.npz, robot2.npz)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for folder in args.folders:
+        reason = refusal(folder)
+        if reason is not None:
+            print(f"fusion_symmetry: {reason}", file=sys.stderr)
+            return 2
     world = load_world()
     print("| run | hypothesis (off the maps' composed fits) | supports | descriptor distance (median) | "
           "floor / wall / ceiling | residual xy / z (m, median) | spread (m) | overlap cells with a support | "
@@ -126,7 +152,8 @@ def main() -> None:
     for folder in args.folders:
         for row in run(folder, world):
             print(row, flush=True)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
