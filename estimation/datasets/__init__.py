@@ -6,6 +6,7 @@ through FastSLAM is :mod:`estimation.dataset_slam`'s job, so the readers never i
     from estimation.datasets import read_mrclam
     log = read_mrclam("../shared/data/mrclam/MRCLAM_Dataset2", robot=3)   # .dat or .dat.gz
     log.notes            # what was dropped, verified or corrected (Barcodes.dat is checked against the truth)
+    log.stamp_resolution # streams whose stamps were written coarser than their rows (MRCLAM: 0.1 s from 1000 s)
 """
 from __future__ import annotations
 
@@ -21,10 +22,11 @@ from .mrclam import (
     read_landmark_truth,
     read_mrclam,
 )
+from .stamps import StampQuantization, stamp_quantization
 from .tables import find_table, read_table
 
 __all__ = [
     "BARCODE_POLICIES", "BarcodeCheck", "BarcodeVerdict", "DatasetError", "RangeBearingLog", "check_barcodes",
     "find_table", "integrate_velocities", "mrclam_robots", "read_barcodes", "read_landmark_truth", "read_mrclam",
-    "read_table",
+    "read_table", "StampQuantization", "stamp_quantization",
 ]

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..geometry import between, compose, wrap_angle
 from .errors import DatasetError
+from .stamps import StampQuantization
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,8 @@ class RangeBearingLog:
     truth_ids:            (L,) int64 landmark ids with a known true position (L = 0: none)
     truth_positions:      (L, 2) m, world frame
     notes:                what the reader dropped, corrected or could not verify (one sentence each)
+    stamp_resolution:     the streams whose stamps the file wrote coarser than their rows (stamps.py; () = none
+                          found or not looked for); reported only, the times are used as written
     """
 
     name: str
@@ -41,6 +44,7 @@ class RangeBearingLog:
     truth_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     truth_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     notes: tuple[str, ...] = ()
+    stamp_resolution: tuple[StampQuantization, ...] = ()
 
     def __post_init__(self) -> None:
         def as_float(name, shape_tail):

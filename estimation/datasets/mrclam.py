@@ -8,6 +8,10 @@ A data set folder holds, as plain ``.dat`` or gzip-compressed ``.dat.gz`` text (
     Landmark_Groundtruth.dat   subject x y sd_x sd_y  -, m, m, m, m
     Barcodes.dat               subject barcode        subjects 1-5 are the robots, 6-20 the landmarks
 
+Stamps are used as written; a stream whose stamps sit on a grid coarser than its rows (this copy's files have
+five significant digits: 0.1 s stamps from t = 1000 s) is reported in the notes and ``stamp_resolution``
+(:mod:`.stamps`).
+
 A sighting's barcode names a *subject* through Barcodes.dat. Sightings of robots (subjects 1-5) are not
 landmarks and are dropped, as are barcodes the table does not know (misreads); the log's notes count both.
 
@@ -28,6 +32,7 @@ import numpy as np
 
 from .errors import DatasetError
 from .landmark_log import RangeBearingLog, integrate_velocities
+from .stamps import quantization_note, stamp_quantization
 from .tables import find_table, read_table
 
 ROBOT_SUBJECTS = range(1, 6)          # subjects 1-5 are the robots; landmarks are the others
@@ -210,10 +215,16 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
         notes.append(f"dropped {int(unknown.sum())} sightings of barcodes not in Barcodes.dat ("
                      + ", ".join(map(str, sorted(set(codes[unknown].tolist())))) + ")")
     keep = ~(is_robot | unknown)
+    quantized = tuple(q for q in (stamp_quantization(odometry[:, 0], "odometry"),
+                                  stamp_quantization(sightings[:, 0], "sightings"),
+                                  stamp_quantization(truth[:, 0], "ground truth")) if q is not None)
+    if quantized:
+        notes.append(quantization_note(quantized))
     return RangeBearingLog(
         name=name, odometry=_odometry_rows(odometry), sighting_times=sightings[keep, 0],
         ranges=sightings[keep, 2], bearings=sightings[keep, 3], landmark_ids=subject_of[keep],
-        ground_truth=truth, truth_ids=subjects, truth_positions=positions, notes=tuple(notes))
+        ground_truth=truth, truth_ids=subjects, truth_positions=positions, notes=tuple(notes),
+        stamp_resolution=quantized)
 
 
 def _read_robot_table(folder: Path, stem: str, columns, bound, integer_columns=()) -> tuple[np.ndarray, np.ndarray]:

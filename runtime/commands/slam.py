@@ -267,7 +267,8 @@ def _dataset(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
-                   noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=_map_warnings(run.metrics))
+                   noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=_map_warnings(run.metrics),
+                   stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
     if args.json:
         print(json.dumps(metrics))
         return 0
