@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import DatasetError
 from .landmark_log import RangeBearingLog, integrate_velocities
-from .stamps import quantization_note, stamp_quantization
+from .stamps import quantization_note, spread_rows, stamp_quantization
 from .tables import find_table, read_table
 
 ROBOT_SUBJECTS = range(1, 6)          # subjects 1-5 are the robots; landmarks are the others
@@ -154,15 +154,22 @@ def check_barcodes(table: dict[int, int], subjects: np.ndarray, positions: np.nd
     return BarcodeCheck(tuple(verdicts), tuple(unchecked))
 
 
+SPREADABLE = ("odometry", "ground truth")
+
+
 def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
-                until: float | None = None) -> RangeBearingLog:
+                until: float | None = None, spread: tuple[str, ...] = ()) -> RangeBearingLog:
     """Robot ``robot``'s log from an MRCLAM data set folder (see the module docstring for ``barcodes``).
 
     ``until`` (s): read only the log's first part, up to that time (a fast test, a quick look).
+    ``spread``: streams among SPREADABLE whose rows sharing a coarse stamp are placed evenly about it
+    (:func:`.stamps.spread_rows`; a measurement's opt-in, off by default; noted when used).
     """
     folder = Path(folder)
     if barcodes not in BARCODE_POLICIES:
         raise ValueError(f"barcodes must be one of {', '.join(BARCODE_POLICIES)}, not {barcodes!r}")
+    if not set(spread) <= set(SPREADABLE):
+        raise ValueError(f"spread takes streams among {', '.join(SPREADABLE)}, not {spread!r}")
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder")
     if robot < 1:
@@ -220,6 +227,11 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
                                   stamp_quantization(truth[:, 0], "ground truth")) if q is not None)
     if quantized:
         notes.append(quantization_note(quantized))
+    for q in quantized:
+        if q.stream in spread:
+            stream_rows = odometry if q.stream == "odometry" else truth
+            stream_rows[:, 0] = spread_rows(stream_rows[:, 0], q)
+            notes.append(f"{q.stream} rows sharing a {q.resolution_s:g} s stamp spread evenly about it (spread=)")
     return RangeBearingLog(
         name=name, odometry=_odometry_rows(odometry), sighting_times=sightings[keep, 0],
         ranges=sightings[keep, 2], bearings=sightings[keep, 3], landmark_ids=subject_of[keep],

@@ -116,3 +116,22 @@ def quantization_note(found: tuple[StampQuantization, ...]) -> str | None:
     widest = max(q.resolution_s for q in found)
     return ("time stamps written coarser than the rows (not corrected): " + ", ".join(q.brief() for q in found)
             + f"; a time on a {_seconds(widest)} grid is uncertain by ±{_seconds(widest / 2)}")
+
+
+def spread_rows(times, quantization: StampQuantization) -> np.ndarray:
+    """An opt-in for measurement (``read_mrclam(spread=...)``), not a default: the rows sharing a coarse stamp
+    placed evenly about it at the stream's own row interval (at most the grid over the rows), earlier rows kept.
+
+    k rows of stamp t become t + (i - (k - 1)/2) h, i = 0..k-1, h = min(row interval, grid / k); the result is
+    non-decreasing when the rows were (no row is moved before the last row ahead of the coarse grid)."""
+    t = np.asarray(times, np.float64).reshape(-1).copy()
+    first = int(np.searchsorted(t, quantization.from_s, side="left"))
+    tail = t[first:]
+    stamps, start, counts = np.unique(tail, return_index=True, return_counts=True)
+    rank = np.arange(len(tail)) - np.repeat(start, counts)
+    k = np.repeat(counts, counts).astype(float)
+    h = np.minimum(quantization.row_interval_s, quantization.resolution_s / k)
+    spread = tail + (rank - (k - 1.0) / 2.0) * h
+    # the first coarse stamp may hold only its later rows (999.98 is still written finely): not before the row ahead
+    t[first:] = np.maximum(spread, t[first - 1]) if first > 0 else spread
+    return t

@@ -210,3 +210,35 @@ def test_mrclam_dataset_2(mrclam_dir):
             assert q.resolution_s == pytest.approx(0.1) and q.earlier_resolution_s == pytest.approx(0.01)
             assert 995.0 < q.from_s <= 1001.0
         assert streams["odometry"].rows_per_stamp == pytest.approx(5.0, abs=0.01)
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(st.integers(3, 6), st.integers(2, 3), st.floats(1.0, 40.0), st.floats(5.0, 80.0))
+def test_spreading_a_coarse_stamp_places_its_rows_about_it(digits, c, before, after):
+    """The measurement opt-in (read_mrclam(spread=...)): rows of one stamp evenly about it, within its interval,
+    non-decreasing, the rows before the coarse grid untouched."""
+    from estimation.datasets.stamps import spread_rows
+
+    stamps = written(log_times(0.02, before, after, c), digits)
+    q = stamp_quantization(stamps, "odometry")
+    if q is None:
+        return
+    spread = spread_rows(stamps, q)
+    assert np.all(np.diff(spread) >= 0)
+    early = stamps < q.from_s
+    assert np.array_equal(spread[early], stamps[early])
+    assert np.all(np.abs(spread[~early] - stamps[~early]) <= q.resolution_s / 2 + 1e-9)
+    for t in np.unique(stamps[~early])[1:-1]:          # a whole stamp's rows are centred on it
+        assert np.mean(spread[stamps == t]) == pytest.approx(t, abs=1e-9)
+
+
+def test_a_50_hz_log_written_with_5_digits_gets_its_times_back(tmp_path):
+    times = log_times(0.02, 20.0, 30.0, 3)
+    write_log(tmp_path, times, 5)
+    log = read_mrclam(tmp_path, 1, barcodes="table", spread=("odometry", "ground truth"))
+    inner = (times >= 1000.06) & (times <= 1029.94)     # every whole 0.1 s stamp: the true times, to rounding
+    np.testing.assert_allclose(log.odometry[inner, 0], times[inner], atol=1e-4)
+    np.testing.assert_allclose(log.ground_truth[inner, 0], times[inner], atol=1e-4)
+    assert sum("spread evenly" in n for n in log.notes) == 2
+    with pytest.raises(ValueError, match="spread"):
+        read_mrclam(tmp_path, 1, barcodes="table", spread=("sightings",))
