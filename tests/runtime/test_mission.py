@@ -334,6 +334,8 @@ def test_a_slow_slam_stage_drops_frames_and_says_so_without_blocking_the_drivers
 
 
 def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, capsys):
+    """No head on USB (no libusb, or no device): one line naming the head, exit 1, the robot's motors never enabled
+    (the head is looked for before the robot is connected, e47d0e7)."""
     from mocks.p3at import serve_tcp
     from mocks.world import World
 
@@ -341,8 +343,14 @@ def test_run_on_a_real_robot_url_without_a_stereo_head_fails_cleanly(tmp_path, c
     with serve_tcp(world, "robot1", port=0, seed=1) as server:
         status = main(["run", "--robot", server.url, "--seconds", "2", "--out", str(tmp_path), "--quiet"])
         motors = server.model.motors_enabled
+    err = capsys.readouterr().err
     assert status == 1 and not motors
-    assert "mission failed" in capsys.readouterr().err
+    assert "stereo head" in err and len(err.strip().splitlines()) == 1
+
+
+def _head_found_by_the_check(monkeypatch):
+    """The run's look for the head finds one, which is gone when the mission opens it (unplugged in between)."""
+    monkeypatch.setattr("runtime.commands.run.usb_head_problem", lambda: None)
 
 
 @pytest.fixture
@@ -494,11 +502,14 @@ def test_a_killed_demo_leaves_readable_maps(tmp_path):
             assert 0 < saved.metadata["slam_frames"]["processed"] <= saved.metadata["slam_frames"]["received"]
 
 
-def test_a_run_that_fails_at_start_keeps_the_earlier_recording(tmp_path, capsys):
-    """`p3at run` on a robot it cannot set up (here: no stereo head) used to replace an earlier run's mission.rrd
-    with an empty recording before failing; the new recording now takes the name only once every robot is up."""
+def test_a_run_that_fails_at_start_keeps_the_earlier_recording(tmp_path, capsys, monkeypatch):
+    """`p3at run` on a robot it cannot set up (here: a stereo head gone when the mission opens it) used to replace an
+    earlier run's mission.rrd with an empty recording before failing; the new recording now takes the name only once
+    every robot is up."""
     from mocks.p3at import serve_tcp
     from mocks.world import World
+
+    _head_found_by_the_check(monkeypatch)
 
     earlier = tmp_path / "mission.rrd"
     earlier.write_bytes(b"the first run's recording")
