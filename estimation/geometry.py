@@ -45,6 +45,18 @@ def dead_reckoning(increments) -> np.ndarray:
     return poses
 
 
+def interpolate_poses(rows: np.ndarray, times) -> np.ndarray:
+    """Poses (N, 3) at ``times`` (N,) linearly interpolated in pose rows (K, 4) (t, x, y, θ) with non-decreasing t;
+    θ through its unwrapped sequence (no jump at ±π), returned wrapped. Times outside the rows take the end rows."""
+    rows = np.asarray(rows, float)
+    t = np.asarray(times, float).reshape(-1)
+    theta = np.unwrap(rows[:, 3])
+    out = np.column_stack([np.interp(t, rows[:, 0], rows[:, 1]), np.interp(t, rows[:, 0], rows[:, 2]),
+                           np.interp(t, rows[:, 0], theta)])
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
 def rot_z(theta) -> np.ndarray:
     """3×3 rotation about z by θ (stacked for an array of angles: (..., 3, 3))."""
     theta = np.asarray(theta, dtype=float)

@@ -27,7 +27,7 @@ from scipy.stats import chi2
 
 from .fastslam.config import FastSLAMConfig
 from .fastslam.motion import increment_variance
-from .geometry import between, compose, wrap_angle
+from .geometry import between, compose, interpolate_poses, wrap_angle
 
 if TYPE_CHECKING:
     from .noise_model import NoiseModel
@@ -92,13 +92,6 @@ class DeadReckonedWindows:
         return e
 
 
-def _poses_at(rows: np.ndarray, times: np.ndarray) -> np.ndarray:
-    rows = np.asarray(rows, float)
-    theta = np.unwrap(rows[:, 3])
-    return np.column_stack([np.interp(times, rows[:, 0], rows[:, 1]), np.interp(times, rows[:, 0], rows[:, 2]),
-                            np.interp(times, rows[:, 0], theta)])
-
-
 def _check_rows(name: str, rows) -> np.ndarray:
     rows = np.asarray(rows, float)
     if rows.ndim != 2 or rows.shape[1] != 4 or len(rows) < 2:
@@ -131,7 +124,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     empty = np.zeros((0, 3))
     if len(times) <= n:
         return DeadReckonedWindows(np.zeros(0), empty, empty, np.zeros((0, 3, 3)), empty, empty, empty, empty)
-    odo = _poses_at(odometry, model.odometry_times(times))
+    odo = interpolate_poses(odometry, model.odometry_times(times))
     raw = between(odo[:-1], odo[1:])
     steps = model.calibrate_increments(raw)
     config = replace(FastSLAMConfig(), **{k: v for k, v in model.fastslam_overrides().items() if k.startswith("odom")})
@@ -184,7 +177,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
         return out
 
     by_scale = np.column_stack([end[:, :2], np.zeros(w)])
-    true_start, true_end = _poses_at(truth, times[starts]), _poses_at(truth, times[starts + n])
+    true_start, true_end = interpolate_poses(truth, times[starts]), interpolate_poses(truth, times[starts + n])
     g = between(true_start, true_end)
     g[:, 2] = end[:, 2] + wrap_angle(g[:, 2] - end[:, 2])
     return DeadReckonedWindows(times[starts], end, g, np.ascontiguousarray(cov[:, :3, :3]), by_scale, swing(0),

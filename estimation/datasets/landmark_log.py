@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import between, compose, wrap_angle
+from ..geometry import between, compose, interpolate_poses, wrap_angle
 from .errors import DatasetError
 from .stamps import StampQuantization
 
@@ -99,13 +99,13 @@ class RangeBearingLog:
 
     def odometry_pose(self, times) -> np.ndarray:
         """Dead-reckoned poses (T, 3) at ``times`` (T,), interpolated (clamped at the log's ends)."""
-        return _interpolate_poses(self.odometry, times)
+        return interpolate_poses(self.odometry, times)
 
     def true_pose(self, times) -> np.ndarray:
         """Ground-truth poses (T, 3) at ``times`` (T,), interpolated (clamped at the ends); needs ground truth."""
         if not self.has_ground_truth:
             raise DatasetError(f"{self.name}: the log has no ground truth")
-        return _interpolate_poses(self.ground_truth, times)
+        return interpolate_poses(self.ground_truth, times)
 
     def odometry_increments(self, times) -> np.ndarray:
         """Motions (T-1, 3) between consecutive ``times`` (T,), each in the robot frame at its start."""
@@ -145,10 +145,3 @@ def integrate_velocities(times: np.ndarray, v: np.ndarray, w: np.ndarray, start=
     return np.column_stack([times, x, y, wrap_angle(theta)])
 
 
-def _interpolate_poses(rows: np.ndarray, times) -> np.ndarray:
-    t = np.asarray(times, float).reshape(-1)
-    theta = np.unwrap(rows[:, 3])
-    out = np.column_stack([np.interp(t, rows[:, 0], rows[:, 1]), np.interp(t, rows[:, 0], rows[:, 2]),
-                           np.interp(t, rows[:, 0], theta)])
-    out[:, 2] = wrap_angle(out[:, 2])
-    return out
