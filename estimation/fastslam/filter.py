@@ -581,9 +581,7 @@ class FastSLAM:
         if len(cand.m) == 0 or n_obs == 0:
             return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0))
         store = self.store
-        present = np.zeros(self._n_ids, bool)          # ids are dense: a lookup table beats np.unique
-        present[lids] = True
-        uniq = np.flatnonzero(present)
+        uniq, inverse = _id_ranks(lids, self._n_ids)
         if self._bands is not None:   # compare at comparable scale: the descriptor made at the nearest range
             obs_j, uid = self._bands.matches(uniq, desc, self._sensor_range(z), self.config.descriptor_threshold)
         elif self.config.descriptor_size > 0:
@@ -592,9 +590,6 @@ class FastSLAM:
             obs_j, uid = np.nonzero(d2 < self.config.descriptor_threshold ** 2)
         else:
             obs_j, uid = np.divmod(np.arange(n_obs * len(uniq)), len(uniq))
-        rank = np.full(self._n_ids, -1, np.int64)
-        rank[uniq] = np.arange(len(uniq))
-        inverse = rank[lids]
         # only candidates whose landmark some observation's descriptor matched are read from the store
         wanted = np.zeros(len(uniq), bool)
         wanted[uid] = True
@@ -1394,15 +1389,21 @@ def _cols(a: np.ndarray, index: np.ndarray) -> np.ndarray:
     return np.take(a, index, axis=1)
 
 
-def _unique_ids(lids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """np.unique(lids, return_index=True, return_inverse=True) for ids in [0, n_ids) (the same three arrays: ids
-    ascending, each one's first row, each row's rank) through lookup tables, without sorting the rows."""
+def _id_ranks(lids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(lids, return_inverse=True) for ids in [0, n_ids) (ids ascending, each row's rank among them)
+    through lookup tables: ids are dense, so this beats sorting the rows."""
     present = np.zeros(n_ids, bool)
     present[lids] = True
     uniq = np.flatnonzero(present)
     rank = np.full(n_ids, -1, np.int64)
     rank[uniq] = np.arange(len(uniq))
-    inverse = rank[lids]
+    return uniq, rank[lids]
+
+
+def _unique_ids(lids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """np.unique(lids, return_index=True, return_inverse=True) for ids in [0, n_ids) (the same three arrays: ids
+    ascending, each one's first row, each row's rank; :func:`_id_ranks`), without sorting the rows."""
+    uniq, inverse = _id_ranks(lids, n_ids)
     first = np.full(len(uniq), len(lids), np.int64)
     np.minimum.at(first, inverse, np.arange(len(lids)))
     return uniq, first, inverse
