@@ -45,14 +45,6 @@ class StampQuantization:
     def as_dict(self) -> dict:
         return asdict(self) | {"rows_per_stamp": self.rows_per_stamp}
 
-    def __str__(self) -> str:
-        before = ("" if self.earlier_resolution_s is None
-                  else f" ({_seconds(self.earlier_resolution_s)} before)")
-        return (f"{self.stream} stamps on a {_seconds(self.resolution_s)} grid from t = {self.from_s:g} s{before}, "
-                f"{self.rows} rows on {self.stamps} stamps ({self.rows_per_stamp:.1f} a stamp, a row every "
-                f"{_seconds(self.row_interval_s)})")
-
-
     def brief(self) -> str:
         before = "" if self.earlier_resolution_s is None else f"{_seconds(self.earlier_resolution_s)} before; "
         return (f"{self.stream} on a {_seconds(self.resolution_s)} grid from t = {self.from_s:g} s ({before}"
