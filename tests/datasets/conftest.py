@@ -1,7 +1,9 @@
 """Fixtures for the dataset tests: a small synthetic MRCLAM folder with exact measurements, and the real one."""
 from __future__ import annotations
 
+import contextlib
 import gzip
+import io
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,16 @@ MRCLAM2 = DATA / "mrclam" / "MRCLAM_Dataset2"
 LANDMARKS = {6: (2.0, 0.0), 7: (0.0, 2.5), 8: (-2.0, 0.5), 9: (0.5, -2.5), 10: (3.0, 3.0)}
 BARCODES = {1: 5, 2: 14, 3: 41, 6: 18, 7: 45, 8: 7, 9: 63, 10: 16}   # subject -> barcode
 SENSOR_RANGE, SENSOR_FOV = 4.5, np.radians(120.0)  # the synthetic camera reports every landmark in this footprint
+
+
+def run_cli(*argv) -> tuple[int, str, str]:
+    """``p3at ARGV...`` in this process: (exit status, stdout, stderr)."""
+    from runtime.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(list(argv))
+    return status, out.getvalue(), err.getvalue()
 
 
 def _write(path: Path, header: str, rows, gz: bool) -> None:

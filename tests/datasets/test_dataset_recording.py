@@ -1,24 +1,15 @@
 """`p3at slam dataset ... --rerun SINK`: the run, beside its ground truth, in a Rerun recording that review reads."""
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
 import numpy as np
 import pytest
 
 from estimation.landmark_map import LandmarkMap
-from runtime.cli import main
 from runtime.dataset_recording import POSE_INTERVAL_S
 from runtime.rerun_log import read_recording
-
-
-def _cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main(list(argv))
-    return status, out.getvalue(), err.getvalue()
+from tests.datasets.conftest import run_cli as _cli
 
 
 def test_the_run_is_recorded_with_its_map_and_figures(tmp_path, synthetic):

@@ -1,9 +1,7 @@
 """Playing a landmark log through FastSLAM (`p3at slam dataset`, `p3at slam noise`): maps, scores and errors."""
 from __future__ import annotations
 
-import contextlib
 import gzip
-import io
 import json
 
 import numpy as np
@@ -14,7 +12,7 @@ from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
-from runtime.cli import main
+from tests.datasets.conftest import run_cli as _cli
 
 KEYS = ("ate_m", "dead_reckoning_ate_m", "landmarks", "true_landmarks", "duplicate_fraction",
         "landmark_error_median_m", "landmark_error_rigid_median_m", "landmark_nees_within_bound",
@@ -25,13 +23,6 @@ def _small_noise(synthetic) -> NoiseModel:
     """Little noise, and the synthetic camera's footprint (negative evidence must not count beyond it)."""
     sensor = RangeBearingNoise(0.02, 0.0, 0.01, fov_rad=synthetic.SENSOR_FOV, max_range_m=synthetic.SENSOR_RANGE)
     return NoiseModel(OdometryNoise(0.01 ** 2, 0.01 ** 2, 0.01 ** 2), sensor)
-
-
-def _cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main(list(argv))
-    return status, out.getvalue(), err.getvalue()
 
 
 @pytest.mark.parametrize("association", ["id", "unknown"])

@@ -1,8 +1,6 @@
 """`run_landmark_log(..., smooth=True)` and `p3at slam dataset --smooth`: the whole log's MAP trajectory and map."""
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 
 import numpy as np
@@ -13,15 +11,8 @@ from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
-from runtime.cli import main
 from runtime.rerun_log import read_recording
-
-
-def _cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main(list(argv))
-    return status, out.getvalue(), err.getvalue()
+from tests.datasets.conftest import run_cli as _cli
 
 
 def _small_noise(synthetic) -> NoiseModel:

@@ -1,8 +1,6 @@
 """Does an odometry noise model hold beyond its fitting window? (estimation/odometry_consistency.py, `slam noise`)"""
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from dataclasses import replace
 
@@ -24,7 +22,7 @@ from estimation.odometry_consistency import (
     nees,
     odometry_consistency,
 )
-from runtime.cli import main
+from tests.datasets.conftest import run_cli as _cli
 
 STEP = 0.25
 
@@ -184,13 +182,6 @@ def test_the_fit_keys_round_trip_through_a_noise_model_file(tmp_path):
                          for label in ("2_5s", "60s")}
     replace(model, fit=keys).save(tmp_path / "n.toml")
     assert NoiseModel.load(tmp_path / "n.toml").fit == pytest.approx(keys)
-
-
-def _cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main(list(argv))
-    return status, out.getvalue(), err.getvalue()
 
 
 def test_the_noise_command_reports_the_models_consistency_per_horizon(tmp_path, synthetic):

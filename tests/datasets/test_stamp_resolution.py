@@ -2,9 +2,7 @@
 significant digits loses a decimal at every power of ten, so from C = 10^c on its stamps sit on a 10^(c+1-S) grid."""
 from __future__ import annotations
 
-import contextlib
 import gzip
-import io
 import json
 
 import numpy as np
@@ -14,7 +12,7 @@ from hypothesis import strategies as st
 
 from estimation.datasets import read_mrclam, stamp_quantization
 from estimation.datasets.stamps import MIN_STAMPS, stamp_grids
-from runtime.cli import main
+from tests.datasets.conftest import run_cli as _cli
 
 LANDMARK, BARCODE = 6, 18
 
@@ -161,13 +159,6 @@ def _coarsen(folder, offset: float, digits: int) -> None:
                " ".join([f"{float(line.split()[0]) + offset:.{digits}g}", *line.split()[1:]]) for line in lines]
         with gzip.open(path, "wt") as stream:
             stream.write("\n".join(out) + "\n")
-
-
-def _cli(*argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = main(list(argv))
-    return status, out.getvalue(), err.getvalue()
 
 
 def test_slam_dataset_reports_the_stamp_resolution(tmp_path, synthetic):
