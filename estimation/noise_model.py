@@ -22,6 +22,9 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
                                #   (MRCLAM's Creates make 0.65 of the commanded distance in arcs); optional, 0 if absent
     turn_xy_inflation = 1.0    # × the x/y variance of the increments of a turn (≥ 2 rad/m): a turn's forward error
                                #   persists through it, so its increments are not independent; optional, 1 if absent
+    heading_drift_sigma_per_m = 0.0  # a drifting heading bias per metre (rad/m): a first-order Gauss–Markov process
+    heading_drift_tau_s = 0.0  #   with this stationary σ and correlation time τ (s) that the filter carries per
+                               #   particle (FastSLAMConfig.odom_heading_drift_*); optional, 0 (off) if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -75,6 +78,7 @@ MAX_HEADING_BIAS_PER_M = 0.5   # rad/m: a 2 m circle when commanded straight is 
 MAX_ODOMETRY_LAG_S = 1.0       # s: a drive that answers its commands a second late is not a calibration
 MAX_FORWARD_DEFICIT_PER_RAD = 0.5  # m/rad: a robot that loses half a metre per radian turned is not calibrated
 MAX_TURN_XY_INFLATION = 100.0      # beyond, a turn's odometry says nothing of its travel: not a calibration
+MAX_HEADING_DRIFT_PER_M = 1.0      # rad/m: σ of the drifting heading bias; beyond, the heading says nothing
 TURN_STEP_S = 0.25                 # the increments on which a turn's overdispersion is measured (a frame interval)
 TURN_MIN_INCREMENTS = 4            # a turn shorter than this says nothing of the errors' persistence
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
@@ -96,6 +100,15 @@ class OdometryNoise:
     lag_s: float = 0.0                   # the odometry leads the motion by this (see NoiseModel.odometry_times)
     forward_deficit_per_rad: float = 0.0  # m of travel lost per radian of odometry turn (see calibrate_increments)
     turn_xy_inflation: float = 1.0        # × the x/y variance in turns (FastSLAMConfig.odom_turn_xy_inflation)
+    heading_drift_sigma_per_m: float = 0.0  # σ_b rad/m of a Gauss–Markov heading bias per metre; 0: none
+    heading_drift_tau_s: float = 0.0        # its correlation time τ s (> 0 when σ_b > 0)
+
+    @property
+    def heading_drift(self) -> tuple[float, float] | None:
+        """(σ_b rad/m, τ s) of the drifting heading bias, or None when there is none (σ_b = 0)."""
+        if self.heading_drift_sigma_per_m == 0.0:
+            return None
+        return (self.heading_drift_sigma_per_m, self.heading_drift_tau_s)
 
 
 @dataclass(frozen=True)
@@ -191,6 +204,13 @@ class NoiseModel:
         if not 1.0 <= self.odometry.turn_xy_inflation <= MAX_TURN_XY_INFLATION:
             raise NoiseModelError(f"turn_xy_inflation must lie in [1, {MAX_TURN_XY_INFLATION}] (a variance "
                                   f"inflation), not {self.odometry.turn_xy_inflation}")
+        drift_sigma, drift_tau = self.odometry.heading_drift_sigma_per_m, self.odometry.heading_drift_tau_s
+        if not drift_sigma <= MAX_HEADING_DRIFT_PER_M:
+            raise NoiseModelError(f"heading_drift_sigma_per_m must lie in [0, {MAX_HEADING_DRIFT_PER_M}] rad/m, not "
+                                  f"{drift_sigma}")
+        if drift_sigma > 0 and not drift_tau > 0:
+            raise NoiseModelError(f"heading_drift_tau_s must be > 0 when heading_drift_sigma_per_m is > 0, not "
+                                  f"{drift_tau}")
         if not self.odometry.lag_s <= MAX_ODOMETRY_LAG_S:
             raise NoiseModelError(f"lag_s must lie in [0, {MAX_ODOMETRY_LAG_S}] s (a calibration), not "
                                   f"{self.odometry.lag_s}")
@@ -210,7 +230,9 @@ class NoiseModel:
         o = self.odometry
         values = {"odom_xy_var_per_m": float(o.xy_var_per_m), "odom_theta_var_per_rad": float(o.theta_var_per_rad),
                   "odom_theta_var_per_m": float(o.theta_var_per_m),
-                  "odom_turn_xy_inflation": float(o.turn_xy_inflation)}
+                  "odom_turn_xy_inflation": float(o.turn_xy_inflation),
+                  "odom_heading_drift_sigma_per_m": float(o.heading_drift_sigma_per_m),
+                  "odom_heading_drift_tau_s": float(o.heading_drift_tau_s)}
         if self.range_bearing is not None:
             values.update(self.range_bearing.fastslam_overrides())
         return values

@@ -112,8 +112,11 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     ``heading_drift`` (σ rad/m, τ s): the covariance also carries a heading bias per metre of odometry that the
     model's calibration does not know, a first-order Gauss–Markov process (stationary σ, correlation time τ: b ←
     e^(−Δt/τ) b + noise), as a filter would with a bias state: the pose's covariance is propagated jointly with it
-    (research, not the noise model's: docs/fastslam-history.md, Session 22 (O))."""
+    None: the model's own (``OdometryNoise.heading_drift``, none when its σ is 0), as the filter carries it;
+    (0, τ) for none whatever the model says (docs/fastslam-history.md, Session 22 (O), Session 23 (D))."""
     odometry, truth = _check_rows("odometry", odometry), _check_rows("ground truth", truth)
+    if heading_drift is None:
+        heading_drift = model.odometry.heading_drift
     if not (horizon_s > 0 and step_s > 0 and stride_s > 0):
         raise ValueError("horizon_s, step_s and stride_s must be > 0")
     lag = model.odometry.lag_s

@@ -42,6 +42,10 @@ class FastSLAMConfig:
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
     odom_turn_xy_inflation: float = 1.0           # × the x/y variance of an increment in a turn (motion.py: the
                                                   #   forward error of a turn is correlated; noise_model fits it)
+    odom_heading_drift_sigma_per_m: float = 0.0   # σ_b rad/m: each particle carries a heading bias per metre b, a
+    odom_heading_drift_tau_s: float = 0.0         #   Gauss–Markov process (stationary σ_b, correlation time τ s):
+    #                                             #   b ← e^(−Δt/τ) b + σ_b √(1 − e^(−2Δt/τ)) ε per predict, the
+    #                                             #   increment's heading + b × its distance (motion.py); 0: none
     anchor_first_frame: bool = True               # 2.0: a particle with an empty map takes the mean pose (see filter)
     anchor_unmatched: bool = False                # 2.0, with anchor_first_frame: so does one that matched nothing
     # -- data association -----------------------------------------------------------------------------------
@@ -180,6 +184,13 @@ class FastSLAMConfig:
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
         if not self.odom_turn_xy_inflation >= 1.0:
             raise ValueError(f"odom_turn_xy_inflation must be ≥ 1, not {self.odom_turn_xy_inflation}")
+        drift_sigma, drift_tau = self.odom_heading_drift_sigma_per_m, self.odom_heading_drift_tau_s
+        if not (math.isfinite(drift_sigma) and drift_sigma >= 0.0 and math.isfinite(drift_tau) and drift_tau >= 0.0):
+            raise ValueError(f"odom_heading_drift_sigma_per_m and odom_heading_drift_tau_s must be finite and ≥ 0, "
+                             f"not {drift_sigma} and {drift_tau}")
+        if drift_sigma > 0.0 and not drift_tau > 0.0:
+            raise ValueError(f"odom_heading_drift_tau_s must be > 0 when odom_heading_drift_sigma_per_m is > 0, "
+                             f"not {drift_tau}")
         if not self.observation_cov_scale > 0.0:
             raise ValueError(f"observation_cov_scale must be > 0, not {self.observation_cov_scale}")
         if not self.merge_log_odds > 0.0:
