@@ -22,11 +22,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import sys  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
+from benchmarks.config_overrides import config_overrides  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAM, range_bearing_config, range_bearing_observations  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
@@ -157,17 +161,6 @@ def run(log, association: str, particles: int, seed: int, overrides: dict) -> di
             "stats": vars(slam.stats).copy(), "noise": noise}
 
 
-def _parse_set(items):
-    out = {}
-    for item in items:
-        key, value = item.split("=", 1)
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(DATA))
@@ -186,7 +179,7 @@ def main(argv=None) -> int:
     for robot in (int(r) for r in args.robots.split(",")):
         log = read_mrclam(args.data, robot, until=args.until)
         for association in args.association.split(","):
-            row = run(log, association, args.particles, args.seed, _parse_set(args.set))
+            row = run(log, association, args.particles, args.seed, config_overrides(args.set))
             rows.append(row)
             if args.json:
                 print(json.dumps(row), flush=True)

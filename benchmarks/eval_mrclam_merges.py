@@ -31,7 +31,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import estimation.dataset_slam as dataset_slam  # noqa: E402
-from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from benchmarks.config_overrides import config_overrides  # noqa: E402
+from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.slam_consistency import RecordingFastSLAM  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402

@@ -45,7 +45,7 @@ import sys
 import time
 import zipfile
 from collections.abc import Callable
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -54,6 +54,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 import runtime.slam_sim as slam_sim
+from benchmarks.config_overrides import config_overrides
 from benchmarks.slam_consistency import association_scores, landmark_scores, merge_scores
 from drivers.fileio import atomic_write_bytes
 from estimation.fastslam import FastSLAM, FastSLAMConfig
@@ -465,23 +466,6 @@ def _diagnostics(observer: RenderedObserver, slam: _TimedFastSLAM) -> dict:
     }
 
 
-def _parse_set(items: list[str]) -> dict:
-    types = {f.name: f.type for f in fields(FastSLAMConfig)}
-    out = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        if key not in types:
-            raise SystemExit(f"--set {item!r}: FastSLAMConfig has no field {key!r}")
-        kind = types[key] if isinstance(types[key], str) else types[key].__name__
-        if kind == "bool":
-            out[key] = value.lower() in ("1", "true", "yes")
-        elif kind == "str":
-            out[key] = value
-        else:
-            out[key] = int(value) if kind == "int" else float(value)
-    return out
-
-
 # The printed table, one (header, cell) pair per column: the header and the rows cannot disagree on the columns.
 COLUMNS: tuple[tuple[str, Callable[[dict], str]], ...] = (
     ("robot", lambda r: f"{r['robot']}"),
@@ -540,7 +524,7 @@ def main(argv: list[str] | None = None) -> int:
     from mocks.world import World
 
     world = World.load()
-    config = replace(runtime_config(args.particles, args.fastslam), **_parse_set(args.set))
+    config = replace(runtime_config(args.particles, args.fastslam), **config_overrides(args.set))
     rows = [run_robot(world, robot, seconds=args.seconds, seed=args.seed, config=config,
                       frame_rate=args.frame_rate, max_corners=args.max_corners, diagnose=args.diagnose,
                       latency=args.latency, frames_cache=args.frames_cache, descriptor_depth=args.descriptor_depth)

@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks import eval_slam_rendered as rendered
+from benchmarks.config_overrides import config_overrides
 from drivers.fileio import atomic_write_bytes
 from estimation.fastslam import FastSLAMConfig
 from runtime.commands.options import non_negative_int, positive_float, positive_int
@@ -289,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(1)
     from mocks.world import World
 
-    config = replace(FastSLAMConfig(n_particles=args.particles), **rendered._parse_set(args.set))
+    config = replace(FastSLAMConfig(n_particles=args.particles), **config_overrides(args.set))
     if config.max_observations != 0:
         parser.error("--set max_observations must stay 0 (the oracle maps each reading to its truth)")
     _OracleFastSLAM.within = args.within if args.oracle == "right" else None

@@ -54,7 +54,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_mrclam import DATA, config_overrides  # noqa: E402
+from benchmarks.config_overrides import config_overrides  # noqa: E402
+from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation import dataset_slam  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402

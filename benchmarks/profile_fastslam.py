@@ -26,6 +26,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
+from benchmarks.config_overrides import config_overrides  # noqa: E402
 from estimation.fastslam import FastSLAM, FastSLAMConfig  # noqa: E402
 from estimation.geometry import between  # noqa: E402
 from estimation.observations import OdometryIncrement, StereoObservations  # noqa: E402
@@ -128,11 +131,7 @@ def main() -> None:
     frames, odometry = load(cache)
     if args.use:
         frames, odometry = frames[: args.use], odometry[: args.use]
-    values = {"n_particles": args.particles, "max_observations": 0}
-    for item in args.set:
-        key, value = item.split("=", 1)
-        values[key] = type(getattr(FastSLAMConfig(), key))(eval(value, {}))  # noqa: S307 (hand-run script)
-    config = FastSLAMConfig(**values)
+    config = FastSLAMConfig(**{"n_particles": args.particles, "max_observations": 0, **config_overrides(args.set)})
     if args.profile:
         profiler = cProfile.Profile()
         profiler.enable()

@@ -44,7 +44,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_slam_rendered import CALIBRATION, _parse_set, replay_through
+from benchmarks.config_overrides import config_overrides
+from benchmarks.eval_slam_rendered import CALIBRATION, replay_through
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, rot_z, wrap_angle
 from runtime.commands.options import non_negative_int, positive_float
@@ -356,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="also print the pose error beside D_r every N frames")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    config = replace(FastSLAMConfig(max_observations=0), **_parse_set(args.set))
+    config = replace(FastSLAMConfig(max_observations=0), **config_overrides(args.set))
     out = [run(robot, seed, args.frame_rate, args.frames_cache, config)
            for seed in (args.seed or [0]) for robot in (args.robot or ["robot1", "robot2"])]
     if args.json:

@@ -52,7 +52,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_slam_rendered import _parse_set, replay_through, runtime_config
+from benchmarks.config_overrides import config_overrides
+from benchmarks.eval_slam_rendered import replay_through, runtime_config
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.coincident import coincident_pairs
 from estimation.fastslam.drift_merge import relative_drift
@@ -544,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    config = replace(runtime_config(args.particles), **_parse_set(args.set))
+    config = replace(runtime_config(args.particles), **config_overrides(args.set))
     if args.exported:
         out = [run_exported(robot, seed, args.frame_rate, args.frames_cache, config, args.pairs)
                for seed in (args.seed or [0]) for robot in (args.robot or ["robot1", "robot2"])]

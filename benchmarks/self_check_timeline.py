@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_mrclam import config_overrides
+from benchmarks.config_overrides import config_overrides
 from benchmarks.slam_demo_replay import read_tum
 from estimation.fastslam.self_check import SelfCheck
 from estimation.geometry import between, compose, wrap_angle
