@@ -65,6 +65,20 @@ class _Header(BaseModel):
     version: int
 
 
+_Int64 = Annotated[int, Field(ge=-(1 << 63), lt=1 << 63)]
+
+
+class _IdentityConflict(BaseModel):
+    """One entry of ``metadata["identity_conflicts"]`` (fusion/merging.py writes them; ``p3at fuse`` prints them)."""
+
+    model_config = ConfigDict(strict=True, extra="allow")
+    identity: _Int64
+    robot: _Name
+    distance_m: FiniteFloat
+    mahalanobis_d2: FiniteFloat
+    gate_d2: FiniteFloat
+
+
 class _Metadata(BaseModel):
     """The free-form ``metadata``; only the keys the project reads are typed, the others pass through."""
 
@@ -73,6 +87,11 @@ class _Metadata(BaseModel):
     # what the co-location test (fusion/colocation.py) needs; a map without them is not tested, and says so
     clock: _Name | None = None
     footprint_radius_m: Annotated[FiniteFloat, Field(gt=0.0, le=MAX_FOOTPRINT_RADIUS)] | None = None
+    # each landmark's identity (barcode, fiducial; -1 none), read by the alignment (fusion/ransac.py) and the map's
+    # fingerprint: whole numbers in int64 (a string, a float, a nested list or a 30-digit number is a corrupt field;
+    # a list whose length is not the map's is ignored by the alignment, as documented there)
+    external_ids: Annotated[list[_Int64], Field(max_length=MAX_LANDMARKS)] | None = None
+    identity_conflicts: Annotated[list[_IdentityConflict], Field(max_length=MAX_LANDMARKS)] | None = None
 
 
 def colocation_metadata(metadata: dict) -> tuple[str | None, float | None]:
@@ -157,7 +176,7 @@ def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> A
         sightings = _floats(arrays["sighting_covariances"], "sighting_covariances", bad, MAX_VARIANCE)
         _check_semidefinite(sightings, "sighting_covariances", bad)
     metadata = meta.metadata.model_dump()
-    for key in ("true_start_pose", CLOCK_KEY, FOOTPRINT_KEY):
+    for key in ("true_start_pose", CLOCK_KEY, FOOTPRINT_KEY, "external_ids", "identity_conflicts"):
         if metadata.get(key) is None:
             metadata.pop(key, None)
     try:

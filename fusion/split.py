@@ -347,15 +347,29 @@ def _split_id_or_none(landmark_map: LandmarkMap) -> int | None:
         return None
 
 
+def _alarms(landmark_map: LandmarkMap) -> list:
+    """The verdict's alarms as the file gives them; [] where the verdict or its list is malformed (split_id has
+    said so already, or found the first alarm sound: the later ones are only counted)."""
+    verdict = landmark_map.metadata.get(SELF_CHECK_KEY)
+    alarms = verdict.get("alarms") if isinstance(verdict, dict) else None
+    return alarms if isinstance(alarms, list) else []
+
+
 def _alarm_time(landmark_map: LandmarkMap) -> float | None:
-    alarms = landmark_map.metadata.get(SELF_CHECK_KEY, {}).get("alarms") or [{}]
+    alarms = _alarms(landmark_map) or [{}]
     t = alarms[0].get("t") if isinstance(alarms[0], dict) else None
     return float(t) if isinstance(t, int | float) and not isinstance(t, bool) and np.isfinite(t) else None
 
 
+def _gap(alarm) -> int | None:
+    value = alarm.get("first_id_after_gap") if isinstance(alarm, dict) else None
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
 def later_gaps(landmark_map: LandmarkMap) -> int:
     """Later alarms of a flagged map measured against another gap than the first's (the alarms it lists): each would
-    split the map elsewhere; only the first split is checked. Alarms at the same gap are the same split."""
-    alarms = landmark_map.metadata.get(SELF_CHECK_KEY, {}).get("alarms", [])
-    first = {a.get("first_id_after_gap") for a in alarms[:1] if isinstance(a, dict)}
-    return len({a.get("first_id_after_gap") for a in alarms[1:] if isinstance(a, dict)} - first)
+    split the map elsewhere; only the first split is checked. Alarms at the same gap are the same split; an alarm
+    whose gap is not a whole number (a corrupt file) names no gap and is not counted."""
+    alarms = _alarms(landmark_map)
+    first = {_gap(a) for a in alarms[:1]}
+    return len({_gap(a) for a in alarms[1:]} - first - {None})

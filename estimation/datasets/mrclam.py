@@ -155,6 +155,11 @@ def check_barcodes(table: dict[int, int], subjects: np.ndarray, positions: np.nd
 
 
 SPREADABLE = ("odometry", "ground truth")
+# magnitudes a robot table's fields may have: stamps up to 1e10 s (MRCLAM's are Unix times, 1.25e9 s), every other
+# field (m, rad, m/s, rad/s, barcodes) up to 1e6. A stamp of 1e300 overflowed the odometry's integration and the
+# stamp grids (RuntimeWarnings on stderr, then inf poses), silently when it was the last row.
+MAX_TIME_S = 1e10
+MAX_FIELD = 1e6
 
 
 def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
@@ -242,6 +247,12 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
 def _read_robot_table(folder: Path, stem: str, columns, bound, integer_columns=()) -> tuple[np.ndarray, np.ndarray]:
     path = find_table(folder, stem)
     rows, lines = read_table(path, columns, integer_columns=integer_columns, **bound)
+    for k, name in enumerate(columns):
+        limit = MAX_TIME_S if name == "time" else MAX_FIELD
+        far = np.flatnonzero(np.abs(rows[:, k]) > limit)
+        if len(far):
+            raise DatasetError(f"{path}:{int(lines[far[0]])}: field {name} is out of range ({rows[far[0], k]:.3g}; "
+                               f"at most {limit:g} in magnitude)")
     back = np.flatnonzero(np.diff(rows[:, 0]) < 0)
     if len(back):
         raise DatasetError(f"{path}:{int(lines[back[0] + 1])}: field time goes backwards "

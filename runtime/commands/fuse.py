@@ -431,8 +431,17 @@ def _warn_lost(report: dict) -> None:
                   "docs/fastslam-history.md, Session 7: self-check)", file=sys.stderr)
 
 
+# identity conflicts printed one per line at most; the rest are counted (all are in --json and the merged map)
+MAX_CONFLICT_LINES = 20
+
+
 def _warn_identity_conflicts(report: dict) -> None:
-    for c in report.get("identity_conflicts", []):
+    conflicts = report.get("identity_conflicts", [])
+    if len(conflicts) > MAX_CONFLICT_LINES:
+        print(f"p3at fuse: warning: {len(conflicts)} landmark identities placed beyond their covariances apart; the "
+              f"first {MAX_CONFLICT_LINES} follow, all are in the merged map's metadata identity_conflicts",
+              file=sys.stderr)
+    for c in conflicts[:MAX_CONFLICT_LINES]:
         print(f"p3at fuse: warning: {c['robot']} places landmark identity {c['identity']} {c['distance_m']:.2f} m "
               f"from the merged one (d² {c['mahalanobis_d2']:.1f} > gate {c['gate_d2']:.2f}): kept the merged "
               "landmark, not fused with nor added beside it; one of the maps is wrong there", file=sys.stderr)
