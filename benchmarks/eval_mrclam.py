@@ -7,7 +7,7 @@ Run from the repository root:
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
         [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--smooth] [--defaults]
-        [--set FIELD=VALUE ...] [--json]
+        [--heading-drift whole|first-half|SIGMA,TAU] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -37,6 +37,11 @@ the odometry's variance in turns (lead)"; a FILE is used as it is).
 docs/fastslam-history.md "Session 15"); the filter's own figures stay under ``filter_``.
 ``--defaults``: what `p3at slam dataset` does without options since session 17: the range calibration, heading
 bias, odometry lag and turns' variance fitted (``DATASET_CALIBRATIONS``) and the known-ID runs smoothed.
+``--heading-drift``: each particle carries a drifting heading bias per metre (estimation/fastslam/motion.py; the
+noise model's ``heading_drift_sigma_per_m``, ``heading_drift_tau_s``), its (σ_b, τ) fitted on the robot's whole log
+(``whole``: estimate_noise(heading_drift=True)), on the first half of its log in time (``first-half``: the half's own
+calibrated model, the benchmark ``mrclam_odometry_horizons``'s halves), or given (``0.16,10``); the rest of the model
+as without it (docs/fastslam-history.md "Session 23 ... (D)").
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -50,6 +55,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -82,6 +88,34 @@ def config_overrides(items: list[str]) -> dict:
     return overrides
 
 
+def heading_drift_option(text: str):
+    """``--heading-drift``: "whole", "first-half" or "SIGMA,TAU" (σ_b ≥ 0 rad/m, τ > 0 s)."""
+    if text in ("whole", "first-half"):
+        return text
+    try:
+        sigma, tau = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected whole, first-half or SIGMA,TAU, not {text!r}") from None
+    if not (0.0 <= sigma <= 1.0 and 0.0 < tau < float("inf")):
+        raise argparse.ArgumentTypeError(f"SIGMA must lie in [0, 1] rad/m and TAU be > 0 s, not {text!r}")
+    return (sigma, tau)
+
+
+def with_drift(model: NoiseModel, log, how, fit: dict) -> NoiseModel:
+    """``model`` with the heading drift of ``--heading-drift`` (see the module docstring): ``fit`` is estimate_noise's
+    options (the calibrations), with which the drift's own model is fitted."""
+    if how == "whole":
+        drift = estimate_noise([log], **fit, heading_drift=True).model.odometry
+        how = (drift.heading_drift_sigma_per_m, drift.heading_drift_tau_s)
+    elif how == "first-half":
+        from benchmarks.mrclam_odometry_horizons import half
+
+        drift = estimate_noise([half(log, True)], **fit, heading_drift=True).model.odometry
+        how = (drift.heading_drift_sigma_per_m, drift.heading_drift_tau_s)
+    return replace(model, odometry=replace(model.odometry, heading_drift_sigma_per_m=how[0],
+                                           heading_drift_tau_s=how[1]))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DATA)
@@ -108,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
     parser.add_argument("--defaults", action="store_true", help="what `p3at slam dataset` does without options: "
                         "the four calibrations of DATASET_CALIBRATIONS, and the known-ID runs smoothed")
+    parser.add_argument("--heading-drift", type=heading_drift_option, default=None,
+                        metavar="whole|first-half|SIGMA,TAU", help="a drifting heading bias per particle: (σ_b "
+                        "rad/m, τ s) fitted on the whole log, its first half, or given")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
@@ -142,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
                                       **fit).model
         else:
             noise[r] = NoiseModel.load(args.noise)
+        if args.heading_drift is not None:
+            noise[r] = with_drift(noise[r], logs[r], args.heading_drift, fit)
 
     results = {}
     for mode in modes:
@@ -177,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
                           "forward_deficit_per_rad": {r: noise[r].odometry.forward_deficit_per_rad for r in robots},
                           "turn_variance": args.turn_variance,
                           "turn_xy_inflation": {r: noise[r].odometry.turn_xy_inflation for r in robots},
+                          "heading_drift": {r: [noise[r].odometry.heading_drift_sigma_per_m,
+                                                noise[r].odometry.heading_drift_tau_s] for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
                           "particles": args.particles, "seed": args.seed,
                           "maps": str(args.maps)}))

@@ -48,7 +48,8 @@ TERMS = ("white ×α", "σ_s (scale)", "σ_b (rad/m)", "σ_r (turn scale)", "σ_
 WHITE = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
 DRIFT_SIGMAS = (0.04, 0.08, 0.12, 0.16, 0.24)    # rad/m
 DRIFT_TAUS = (10.0, 30.0, 100.0, 300.0)          # s
-VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "turn_xy_inflation")
+VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "turn_xy_inflation", "heading_drift_sigma_per_m",
+             "heading_drift_tau_s")
 CALIBRATIONS = tuple(f.name for f in fields(OdometryNoise) if f.name not in VARIANCES)
 
 

@@ -68,6 +68,7 @@ from .fastslam.config import FastSLAMConfig
 from .fastslam.motion import increment_variance, turn_spans, turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 from .geometry import between, wrap_angle
+from .odometry_consistency import fit_heading_drift
 
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
@@ -404,8 +405,10 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
                    odometry_lag: bool = False, turn_translation: bool = False,
-                   turn_variance: bool = False) -> NoiseEstimate:
+                   turn_variance: bool = False, heading_drift: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
+
+    ``heading_drift=True``: also a drifting heading bias per metre (σ_b, τ; see :func:`_with_heading_drift`).
 
     Odometry. The log's span is cut into windows of ``window_s``; in each, the odometry increment u and the
     true increment g (from the ground truth) give the error e = g − u in the robot frame at the window's start.
@@ -565,7 +568,19 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
                f"truth ({len(u)} odometry windows of {window_s:g} s)")
+    if heading_drift:
+        model = _with_heading_drift(model, logs)
     return NoiseEstimate(model, np.array(by_window, float).reshape(-1, 4))
+
+
+def _with_heading_drift(model: NoiseModel, logs: Sequence[RangeBearingLog]) -> NoiseModel:
+    """``model`` with a drifting heading bias per metre (σ_b, τ) fitted to its dead reckoning over 5-600 s
+    (``odometry_consistency.fit_heading_drift``: the grid whose NEES per horizon looks most like χ²₃), and the fit's
+    costs in [fit]. σ_b = 0 (none) if no drift does better than none."""
+    drift = fit_heading_drift([(log.odometry, log.ground_truth) for log in logs], model)
+    odometry = replace(model.odometry, heading_drift_sigma_per_m=drift.sigma_per_m, heading_drift_tau_s=drift.tau_s)
+    fit = {**model.fit, "heading_drift_cost": drift.cost, "heading_drift_cost_without": drift.cost_without}
+    return replace(model, odometry=odometry, fit=fit)
 
 
 _RANGE_CALIBRATION = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2")

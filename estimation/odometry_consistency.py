@@ -238,3 +238,66 @@ def fit_keys(report: Sequence[HorizonConsistency]) -> dict:
         out[f"odometry_nees_median_{label}"] = row.nees_median
         out[f"odometry_nees_within_chi2_95_{label}"] = row.within_chi2_95
     return out
+
+
+# -- fitting the drifting heading bias (σ_b, τ) -----------------------------------------------------------------
+DRIFT_TAUS_S = (5.0, 10.0, 20.0, 30.0, 60.0, 100.0, 300.0)          # the correlation times tried
+DRIFT_SIGMAS_PER_M = tuple(round(0.01 * k, 2) for k in range(41))   # 0 (none) to 0.4 rad/m by 0.01
+
+
+@dataclass(frozen=True)
+class HeadingDriftFit:
+    """The (σ_b rad/m, τ s) whose dead reckoning looks most like χ²₃ at every horizon (``cost``: the sum over
+    horizons of log(median / 2.37)² + ((share within the 95 % bound − 0.95) / 0.05)²), and the same cost without a
+    drift. σ_b = 0: no drift did better than none."""
+
+    sigma_per_m: float
+    tau_s: float
+    cost: float
+    cost_without: float
+
+    @property
+    def heading_drift(self) -> tuple[float, float] | None:
+        return (self.sigma_per_m, self.tau_s) if self.sigma_per_m > 0 else None
+
+
+def _drift_cost(windows_by_horizon, white, unit, sigma: float) -> float:
+    total = 0.0
+    for ws, p0, p1 in zip(windows_by_horizon, white, unit, strict=True):
+        values = np.concatenate([nees(w, a + sigma * sigma * (b - a)) for w, a, b in zip(ws, p0, p1, strict=True)])
+        if len(values):
+            total += float(np.log(np.median(values) / CHI2_3_MEDIAN) ** 2
+                           + ((np.mean(values < CHI2_3_95) - 0.95) / 0.05) ** 2)
+    return total
+
+
+def fit_heading_drift(pairs: Sequence[tuple[np.ndarray, np.ndarray]], model: NoiseModel,
+                      horizons: Sequence[float] = HORIZONS_S, *, taus: Sequence[float] = DRIFT_TAUS_S,
+                      sigmas: Sequence[float] = DRIFT_SIGMAS_PER_M, step_s: float = STEP_S,
+                      stride_s: float = STRIDE_S) -> HeadingDriftFit:
+    """(σ_b, τ) of a Gauss–Markov heading bias per metre for ``model``'s odometry on (odometry rows, ground-truth
+    rows) pairs, on the grid ``taus`` × ``sigmas`` (see :class:`HeadingDriftFit` for the criterion: session 22 (O)'s,
+    which on MRCLAM's first halves chose σ_b 0.16 rad/m, τ 10 s). The model's own drift, if any, is ignored.
+
+    Every σ_b of one τ costs one propagation: the covariance is linear in σ_b² (P = P_white + σ_b² (P₁ − P_white),
+    P₁ with σ_b = 1), since the drift's initial variance and its driving noise both scale with it."""
+    if not taus or not sigmas or any(not (t > 0 and np.isfinite(t)) for t in taus) \
+            or any(not (0 <= s <= 1 and np.isfinite(s)) for s in sigmas):
+        raise ValueError("fit_heading_drift needs correlation times > 0 and σ_b in [0, 1] rad/m")
+    pairs = [(np.asarray(o, float), np.asarray(t, float)) for o, t in pairs]
+
+    def windows(drift):
+        return [[dead_reckoned_windows(o, t, model, h, step_s=step_s, stride_s=stride_s, heading_drift=drift)
+                 for o, t in pairs] for h in horizons]
+
+    white_windows = windows((0.0, 1.0))
+    white = [[w.covariance for w in ws] for ws in white_windows]
+    cost_without = _drift_cost(white_windows, white, white, 0.0)
+    best = (cost_without, 0.0, 0.0)
+    for tau in taus:
+        unit = [[w.covariance for w in ws] for ws in windows((1.0, float(tau)))]
+        for sigma in sigmas:
+            if sigma > 0:
+                best = min(best, (_drift_cost(white_windows, white, unit, float(sigma)), float(sigma), float(tau)))
+    cost, sigma, tau = best
+    return HeadingDriftFit(sigma, tau, cost, cost_without)

@@ -90,7 +90,15 @@ from .linalg import (
     sym_rotate_z,
     symmetrise,
 )
-from .motion import increment_variance, propagate_covariance, sample_motion
+from .motion import (
+    heading_drift_decay,
+    increment_variance,
+    propagate_covariance,
+    propagate_with_heading_drift,
+    sample_motion,
+    walk_heading_bias,
+    with_heading_bias,
+)
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .selection import select_observations
 from .self_check import SelfCheck, slot_view
@@ -203,6 +211,11 @@ class FastSLAM:
         self._descriptors = np.zeros((256, config.descriptor_size), np.float32)  # (ids, D) by landmark id
         self._n_ids = 0
         self._motion_cov = np.zeros((m, 3, 3))   # FastSLAM 2.0: covariance of the motion not yet sampled
+        # a drifting heading bias per metre, one per particle (rad/m; config.odom_heading_drift_*, see predict):
+        # drawn N(0, σ_b²) here, walked at every predict, carried by resampling; zeros (and no draw) without it
+        sigma_b = config.odom_heading_drift_sigma_per_m
+        self.heading_bias = sigma_b * rng.standard_normal(m) if sigma_b > 0 else np.zeros(m)
+        self._drift_bias_cross = np.zeros(3)     # the drift tracker's D_r: its covariance with the bias (predict)
         self._best = 0
         self._time = 0.0
         # ancestry, one entry per update: (t, poses (K, 3), parents (K,)) where parents index the previous
@@ -241,13 +254,24 @@ class FastSLAM:
         if not np.all(np.isfinite(delta)):
             raise ValueError(f"odometry increment {delta.tolist()} is not finite; the filter is unchanged")
         variance = increment_variance(delta, self.config)
-        self.drift.robot = propagate_covariance(self.poses[self._best][None], self.drift.robot[None], delta,
-                                                variance)[0]
+        sigma_b = self.config.odom_heading_drift_sigma_per_m
+        if sigma_b > 0:   # a drifting heading bias per metre (config): each particle's own, then walked
+            decay = heading_drift_decay(increment.t1 - increment.t0, self.config.odom_heading_drift_tau_s)
+            self.drift.robot, self._drift_bias_cross = propagate_with_heading_drift(
+                self.poses[self._best], self.drift.robot, self._drift_bias_cross, delta, variance, sigma_b, decay)
+            moved = with_heading_bias(delta, self.heading_bias)   # (M, 3): the random walk's noise comes on top
+        else:
+            self.drift.robot = propagate_covariance(self.poses[self._best][None], self.drift.robot[None], delta,
+                                                    variance)[0]
+            moved = delta
         if self.config.version == 1:
-            self.poses = sample_motion(self.poses, delta, variance, self.rng)
+            self.poses = sample_motion(self.poses, moved, variance, self.rng)
         else:  # keep the noise-free prediction and its covariance; the proposal samples in update()
+            # (with a heading drift, each particle's prediction takes its own bias: b is sampled, not in P)
             self._motion_cov = propagate_covariance(self.poses, self._motion_cov, delta, variance)
-            self.poses = compose(self.poses, delta)
+            self.poses = compose(self.poses, moved)
+        if sigma_b > 0:
+            self.heading_bias = walk_heading_bias(self.heading_bias, decay, sigma_b, self.rng)
         self._time = max(self._time, float(increment.t1))
 
     # == update ==============================================================================================
@@ -463,11 +487,14 @@ class FastSLAM:
             relative.inherit(self.drift, best, np.unique(best_matches[best_matches >= 0]), local)
         self.drift.update(np.unique(best_matches[best_matches >= 0]), new_ids[spawned], new_xy,
                           self.poses[best], local, self._n_ids)
+        if in_best.any():   # D_r pinned to old landmarks: its error is theirs, no longer the current bias's
+            self._drift_bias_cross = np.zeros(3)
         parents = np.arange(n_particles)
         resampled = ess < cfg.resample_threshold * n_particles
         if resampled:
             parents = low_variance_resample(weights, self.rng)
             self.poses = self.poses[parents]
+            self.heading_bias = self.heading_bias[parents]
             self.store.resample(parents)
             if self._creations is not None:
                 self._creations.resampled(parents)

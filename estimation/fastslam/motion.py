@@ -44,7 +44,8 @@ def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
 
 def sample_motion(poses: np.ndarray, delta: np.ndarray, variance: np.ndarray,
                   rng: np.random.Generator) -> np.ndarray:
-    """Poses (M, 3) each moved by its own noisy copy of ``delta`` (3,) drawn with ``variance`` (3,)."""
+    """Poses (M, 3) each moved by its own noisy copy of ``delta`` (3,) (or its own delta, (M, 3)) drawn with
+    ``variance`` (3,)."""
     noisy = delta + rng.standard_normal(poses.shape) * np.sqrt(variance)
     return compose(poses, noisy)
 
@@ -61,3 +62,45 @@ def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
     ja[:, 1, 2] = c * delta[0] - s * delta[1]
     jb = rot_z(poses[:, 2])
     return ja @ cov @ np.swapaxes(ja, 1, 2) + (jb * variance) @ np.swapaxes(jb, 1, 2)
+
+
+# -- a drifting heading bias per metre (docs/fastslam.md "Noise models"; history: Session 23 (D)) ----------------
+def heading_drift_decay(dt: float, tau: float) -> float:
+    """e^(−Δt/τ): how much of a Gauss–Markov heading bias survives ``dt`` seconds (a negative Δt counts as 0)."""
+    return float(np.exp(-max(float(dt), 0.0) / tau))
+
+
+def walk_heading_bias(bias: np.ndarray, decay: float, sigma: float, rng: np.random.Generator) -> np.ndarray:
+    """b ← e^(−Δt/τ) b + σ_b √(1 − e^(−2Δt/τ)) ε per particle (M,): the first-order Gauss–Markov process whose
+    stationary standard deviation is σ_b (``decay`` = :func:`heading_drift_decay`). Draws M normals."""
+    return decay * bias + sigma * np.sqrt(1.0 - decay * decay) * rng.standard_normal(bias.shape)
+
+
+def with_heading_bias(delta: np.ndarray, bias: np.ndarray) -> np.ndarray:
+    """(M, 3) the increment ``delta`` (3,) of each particle, its heading turned by that particle's bias (M,) rad per
+    metre times the increment's distance (its chord, as the noise model's heading bias per metre)."""
+    out = np.tile(np.asarray(delta, float), (len(bias), 1))
+    out[:, 2] += bias * float(np.hypot(delta[0], delta[1]))
+    return out
+
+
+def propagate_with_heading_drift(pose: np.ndarray, cov: np.ndarray, cross: np.ndarray, delta: np.ndarray,
+                                 variance: np.ndarray, sigma: float, decay: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pose covariance (3, 3) and its cross-covariance with the heading bias b (3,) after ``delta`` (3,) from
+    ``pose`` (3,): the 4-state [pose, b] propagation of ``odometry_consistency.dead_reckoned_windows`` with
+    Var(b) = σ_b² (stationary), ∂θ'/∂b = the increment's distance d, b' = e^(−Δt/τ) b + noise:
+
+        P' = J P Jᵀ + d (J c e_θᵀ + e_θ cᵀ Jᵀ) + d² σ_b² e_θ e_θᵀ + G V Gᵀ,   c' = e^(−Δt/τ) (J c + d σ_b² e_θ).
+    """
+    d = float(np.hypot(delta[0], delta[1]))
+    c_s = np.array([np.cos(pose[2]), np.sin(pose[2])])
+    ja = np.eye(3)
+    ja[0, 2] = -c_s[1] * delta[0] - c_s[0] * delta[1]
+    ja[1, 2] = c_s[0] * delta[0] - c_s[1] * delta[1]
+    jc = ja @ cross
+    out = propagate_covariance(pose[None], cov[None], delta, variance)[0]
+    out[:, 2] += d * jc
+    out[2, :] += d * jc
+    out[2, 2] += d * d * sigma * sigma
+    jc[2] += d * sigma * sigma
+    return out, decay * jc

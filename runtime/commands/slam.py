@@ -212,6 +212,11 @@ def _register_noise(sub) -> None:
                              "overdispersion), written as [odometry] turn_xy_inflation: the x/y variance of a turn's "
                              "increments is multiplied by it. Off by default "
                              "(docs/fastslam-history.md, Session 16 (lead))")
+    parser.add_argument("--heading-drift", action="store_true",
+                        help="also fit a drifting heading bias per metre (a Gauss-Markov process: stationary "
+                             "sigma_b rad/m, correlation time tau s) to the dead reckoning's NEES over 5-600 s, "
+                             "written as [odometry] heading_drift_sigma_per_m and heading_drift_tau_s; the filter "
+                             "carries one such bias per particle. Off by default (docs/fastslam.md, Noise models)")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 
@@ -330,6 +335,7 @@ def _noise(args: argparse.Namespace) -> int:
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
+                                  heading_drift=args.heading_drift,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too
         consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model)
@@ -372,6 +378,11 @@ def _noise(args: argparse.Namespace) -> int:
         print(f"  x/y variance in turns: × {o.turn_xy_inflation:.2f} (over "
               f"{model.fit.get('turn_xy_inflation_turns', 0)} turns)" if "turn_xy_inflation_note" not in model.fit
               else f"  x/y variance in turns: × 1 ({model.fit['turn_xy_inflation_note']})")
+    if args.heading_drift:
+        print(f"  drifting heading bias: σ_b {o.heading_drift_sigma_per_m:.2f} rad/m, τ {o.heading_drift_tau_s:g} s "
+              f"(cost {model.fit['heading_drift_cost']:.1f} against {model.fit['heading_drift_cost_without']:.1f} "
+              f"without)" if o.heading_drift_sigma_per_m > 0 else "  drifting heading bias: none (no drift made the "
+              "dead reckoning more consistent)")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
