@@ -15,7 +15,13 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.options import OutputPathError, check_output_file, non_negative_int, start_sigmas
+from runtime.commands.options import (
+    OutputPathError,
+    check_output_apart,
+    check_output_file,
+    non_negative_int,
+    start_sigmas,
+)
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 
 EXIT_NO_OVERLAP = 1
@@ -78,6 +84,7 @@ def _fuse(args: argparse.Namespace) -> int:
 
         try:
             check_output_file(args.out)
+            check_output_apart(args.out, files={"--start-poses": args.start_poses})
             starts = _live_starts(args)
         except (FusionError, OutputPathError) as e:
             print(f"p3at fuse: {e}", file=sys.stderr)
@@ -90,6 +97,7 @@ def _fuse(args: argparse.Namespace) -> int:
         print("p3at fuse: give at least two map files", file=sys.stderr)
         return EXIT_BAD_INPUT
     check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
+    check_output_apart(args.out, files={"--start-poses": args.start_poses})
     twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if _same_file(a, b)), None)
     if twice is not None:
         print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "

@@ -144,3 +144,21 @@ def check_output_folder(path: str | os.PathLike | None, option: str = "--out") -
     why = _writable_ancestor(target / "x") if target.is_dir() else _writable_ancestor(target)
     if why is not None:
         raise OutputPathError(f"{option} {path}: {why}")
+
+
+def check_output_apart(path: str | os.PathLike | None, option: str = "--out", *, files: dict | None = None,
+                       folders: dict | None = None) -> None:
+    """Raise :class:`OutputPathError` when the output ``path`` names one of the command's input ``files`` ({option or
+    role: path}; any spelling of it, or a link to it) or lies inside one of its input ``folders`` (a data set, whose
+    tables a file written there could replace): the write would destroy what the command reads."""
+    if path is None:
+        return
+    target = Path(os.path.realpath(path))
+    for role, given in (files or {}).items():
+        if given is not None and target == Path(os.path.realpath(given)):
+            raise OutputPathError(f"{option} {path} is the {role} file {given}: writing it would replace it; give "
+                                  "another file")
+    for role, given in (folders or {}).items():
+        if given is not None and target.is_relative_to(Path(os.path.realpath(given))):
+            raise OutputPathError(f"{option} {path} is inside the {role} folder {given}: a file written there could "
+                                  "replace one of its files; write it elsewhere")

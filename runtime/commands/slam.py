@@ -13,6 +13,7 @@ from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
 from runtime.commands.options import (
     add_deprecated_alias,
+    check_output_apart,
     check_output_file,
     non_negative_int,
     positive_float,
@@ -241,6 +242,11 @@ def _dataset(args: argparse.Namespace) -> int:
     try:
         check_output_file(args.out)
         _check_rerun_sink(args.rerun)
+        # neither output may replace what the run reads (the noise model, a table of the data set) or the other
+        recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None
+        check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
+                           folders={"data set": args.folder})
+        check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes)
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
@@ -331,6 +337,7 @@ def _noise(args: argparse.Namespace) -> int:
 
     try:
         check_output_file(args.out)
+        check_output_apart(args.out, folders={"data set": args.folder})   # its tables stay as they are
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
