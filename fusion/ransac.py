@@ -12,7 +12,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.sparse import csr_matrix
 
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
@@ -88,6 +87,35 @@ def putative_correspondences(map1: LandmarkMap, map2: LandmarkMap, config: Align
 
 
 # -- steps 2–3: hypotheses, the search, the refinement -------------------------------------------------
+# masks(): hypotheses × correspondences per block of its float work (8 bytes each: its arrays stay in cache); blocks
+# of at least this many hypotheses are screened by one matrix product first, unless more than this fraction of
+# the block passes the screen (a true hypothesis' batch: then the block is computed whole)
+_MASK_BLOCK = 16_384
+_SCREEN_BLOCK = 131_072
+_SCREEN_MIN_HYPOTHESES = 16
+_SCREEN_MAX_FRACTION = 0.25
+# distinct_counts() counts from the supports' positions when at most one element in this many is a support
+_SPARSE_COUNTS = 16
+
+
+def _landmark_groups(rows: np.ndarray) -> tuple | None:
+    """How the correspondences share landmarks (rows (K,): each one's landmark on one side): (the correspondences
+    of landmarks in several, sorted by landmark; the start of each such landmark's group among them; the same
+    correspondences in their own order; every correspondence's landmark as 0 … G−1; G); None when every landmark
+    takes part once."""
+    if len(rows) == 0:
+        return None
+    _, inverse, size = np.unique(rows, return_inverse=True, return_counts=True)
+    shared = size[inverse] > 1
+    if not shared.any():
+        return None
+    columns = np.flatnonzero(shared)
+    order = columns[np.argsort(rows[columns], kind="stable")]
+    sorted_rows = rows[order]
+    starts = np.flatnonzero(np.r_[True, sorted_rows[1:] != sorted_rows[:-1]])
+    return order, starts, columns, inverse.reshape(-1), len(size)
+
+
 def rotations_2d(theta: np.ndarray) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
@@ -140,14 +168,14 @@ class CorrespondenceProblem:
     inflation: float = 1.0
 
     def __post_init__(self) -> None:
-        k = len(self.i)
-        # mutual matches are one-to-one already: a plain count is the one-to-one count
-        self._unique = len(np.unique(self.i)) == k and len(np.unique(self.j)) == k
-        self._inc1 = self._inc2 = None
-        if not self._unique:
-            ones = np.ones(k, np.float32)
-            self._inc1 = csr_matrix((ones, (self.i, np.arange(k))), shape=(int(self.i.max()) + 1, k))
-            self._inc2 = csr_matrix((ones, (self.j, np.arange(k))), shape=(int(self.j.max()) + 1, k))
+        # what masks() and distinct_counts() reuse for every hypothesis: contiguous coordinates, the height
+        # differences, and each side's grouping of correspondences by landmark (None: every landmark once, so a
+        # plain count of a row is its distinct count -- mutual matches, the paper's one match per map-1 landmark)
+        self._x1, self._y1 = np.ascontiguousarray(self.p1[:, 0]), np.ascontiguousarray(self.p1[:, 1])
+        self._x2, self._y2 = np.ascontiguousarray(self.p2[:, 0]), np.ascontiguousarray(self.p2[:, 1])
+        self._dz_sq = (self.p1[:, 2] - self.p2[:, 2]) ** 2
+        self._features = None
+        self._groups = [g for g in (_landmark_groups(self.i), _landmark_groups(self.j)) if g is not None]
         self._set_gates()
 
     def _set_gates(self) -> None:
@@ -156,8 +184,15 @@ class CorrespondenceProblem:
             lo, hi = c.min_gate ** 2, c.support_threshold ** 2
             self.gate_xy_sq = np.clip(CHI2_999[2] * self.inflation * self.var_xy, lo, hi)
             self.gate_z_sq = np.clip(CHI2_999[1] * self.inflation * self.var_z, lo, hi)
+            # a correspondence whose heights differ beyond its gate supports no hypothesis: only the others are
+            # computed (None: all of them)
+            z_ok = self._dz_sq < self.gate_z_sq
+            self._columns = None if z_ok.all() else np.flatnonzero(z_ok)
         else:
             self.gate_xy_sq = self.gate_z_sq = np.full(len(self.i), c.support_threshold ** 2)
+            self._columns = None
+        cols = slice(None) if self._columns is None else self._columns
+        self._computed = (self._x1[cols], self._y1[cols], self._x2[cols], self._y2[cols], self.gate_xy_sq[cols])
 
     def inflated(self, inflation: float) -> CorrespondenceProblem:
         """The same correspondences with the gate scaled by ``inflation`` (covariance scale, ≥ 1)."""
@@ -168,27 +203,109 @@ class CorrespondenceProblem:
         return float(np.sqrt(np.median(self.gate_xy_sq))) if len(self.i) else float("nan")
 
     def masks(self, poses: np.ndarray) -> np.ndarray:
-        """(H, K) bool: which correspondences support each hypothesis poses (H, 3)."""
-        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
-        x, y = self.p2[None, :, 0], self.p2[None, :, 1]
-        rx = self.p1[None, :, 0] - (c * x - s * y + poses[:, 0:1])
-        ry = self.p1[None, :, 1] - (s * x + c * y + poses[:, 1:2])
-        r_xy_sq = rx * rx + ry * ry
-        dz_sq = (self.p1[:, 2] - self.p2[:, 2]) ** 2
+        """(H, K) bool: which correspondences support each hypothesis poses (H, 3).
+
+        r = p1 − (R(θ) p2 + t) in the plane, |r|² against the gate (covariance gating: and the height difference
+        against its own gate; else |r|² + dz² against th2²), each |r|² computed as the plain broadcast form computes
+        it (the same floating-point operations in the same order; tests/fusion/test_fusion_exact_forms.py), only
+        for the correspondences whose heights pass.  Many hypotheses (the decoys, RANSAC's batches) are screened
+        first by |r|² expanded as one matrix product, with a margin far beyond its round-off; only those near or
+        inside the gate are then computed exactly, so the screen changes no mask."""
+        poses = np.asarray(poses, float)
+        h, k = len(poses), len(self.i)
+        cols = self._columns
+        x1, y1, x2, y2, gate = self._computed
+        n = len(x1)
+        out = np.zeros((h, k), bool)
+        if h == 0 or n == 0:
+            return out
+        limit = gate if self.config.covariance_gating else self.config.support_threshold ** 2
+        cos, sin = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+        rows = max(1, _SCREEN_BLOCK // n) if h >= _SCREEN_MIN_HYPOTHESES else h
+        for start in range(0, h, rows):
+            p = poses[start:start + rows]
+            c, s = cos[start:start + rows], sin[start:start + rows]
+            if len(p) >= _SCREEN_MIN_HYPOTHESES:
+                hh, kk = np.divmod(np.flatnonzero(self._screen(p, c[:, 0], s[:, 0], limit)), n)
+                if len(hh) <= _SCREEN_MAX_FRACTION * len(p) * n:
+                    ok = self._exact(p[hh], c[hh, 0], s[hh, 0], kk)
+                    hh, kk = hh[ok], kk[ok]
+                    out[start + hh, kk if cols is None else cols[kk]] = True
+                    continue
+            step = max(1, _MASK_BLOCK // n)               # the broadcast form's temporaries, a block at a time
+            for sub in range(0, len(p), step):
+                block = self._exact_block(p[sub:sub + step], c[sub:sub + step], s[sub:sub + step])
+                rows_out = slice(start + sub, start + sub + len(block))
+                if cols is None:
+                    out[rows_out] = block
+                else:
+                    out[rows_out, cols] = block
+        return out
+
+    def _residual_sq(self, p, c, s, kk):
+        """|r|² of hypotheses p (N, 3) (cos c, sin s) and computed correspondences kk (N,) (or all of them, with p, c,
+        s as (H, 1) columns): the broadcast form's operations, rx = x1 − ((c·x2 − s·y2) + tx), ry likewise."""
+        x1, y1, x2, y2, _ = self._computed
+        if kk is not None:
+            x1, y1, x2, y2 = x1[kk], y1[kk], x2[kk], y2[kk]
+        tx, ty = (p[:, 0], p[:, 1]) if kk is not None else (p[:, 0:1], p[:, 1:2])
+        rx = x1 - (c * x2 - s * y2 + tx)
+        ry = y1 - (s * x2 + c * y2 + ty)
+        return rx * rx + ry * ry
+
+    def _passes(self, r_xy_sq, kk):
+        """The gate on |r|² (and the height difference) of computed correspondences kk (or all, as columns)."""
+        sl = slice(None) if kk is None else kk
         if self.config.covariance_gating:
-            return (r_xy_sq < self.gate_xy_sq) & (dz_sq < self.gate_z_sq)[None, :]
-        return r_xy_sq + dz_sq[None, :] < self.config.support_threshold ** 2
+            return r_xy_sq < self._computed[4][sl]
+        dz_sq = self._dz_sq if self._columns is None else self._dz_sq[self._columns]
+        return r_xy_sq + dz_sq[sl] < self.config.support_threshold ** 2
+
+    def _exact(self, p, c, s, kk):
+        return self._passes(self._residual_sq(p, c, s, kk), kk)
+
+    def _exact_block(self, p, c, s):
+        return self._passes(self._residual_sq(p, c, s, None), None)
+
+    def _screen(self, p, c, s, limit):
+        """(H, n) bool, a superset of the supports: |r|² = |p1|² + |p2|² − 2c p1·p2 − 2s (y1 x2 − x1 y2) − 2 p1·t
+        + 2 x2 (c tx + s ty) + 2 y2 (c ty − s tx) + |t|², eight terms per hypothesis and correspondence, as one
+        matrix product, against the gate plus 1e-9 of the coordinates' squared scale (its round-off is below
+        1e-13 of it, the plain form's too)."""
+        if self._features is None:
+            x1, y1, x2, y2, _ = self._computed
+            self._features = np.stack([x1 * x1 + y1 * y1 + x2 * x2 + y2 * y2, -2.0 * (x1 * x2 + y1 * y2),
+                                       -2.0 * (y1 * x2 - x1 * y2), -2.0 * x1, -2.0 * y1, 2.0 * x2, 2.0 * y2,
+                                       np.ones_like(x1)])
+            self._scale = float(max(np.max(np.abs(x1) + np.abs(y1)), np.max(np.abs(x2) + np.abs(y2))))
+        tx, ty = p[:, 0], p[:, 1]
+        fh = np.column_stack([np.ones_like(c), c, s, tx, ty, c * tx + s * ty, c * ty - s * tx, tx * tx + ty * ty])
+        scale = max(self._scale, float(np.max(np.abs(tx) + np.abs(ty))), 1e-3)
+        approx = fh @ self._features
+        return approx < np.add(limit, 1e-9 * scale * scale)
 
     def distinct_counts(self, masks: np.ndarray) -> np.ndarray:
         """(H,) one-to-one support counts: min(distinct map-1 landmarks, distinct map-2 landmarks) per row."""
-        if masks.shape[1] == 0:
-            return np.zeros(len(masks), np.int64)
-        if self._unique:
-            return masks.sum(axis=1)
-        m = masks.T.astype(np.float32)
-        n1 = np.count_nonzero(self._inc1 @ m, axis=0)
-        n2 = np.count_nonzero(self._inc2 @ m, axis=0)
-        return np.minimum(n1, n2).astype(np.int64)
+        h, k = masks.shape
+        if k == 0:
+            return np.zeros(h, np.int64)
+        hit = np.flatnonzero(masks)
+        if len(hit) * _SPARSE_COUNTS <= h * k:
+            # few supports (decoys, wrong hypotheses): from the supports themselves
+            rows, cols = np.divmod(hit, k)
+            counts = [np.bincount(rows, minlength=h)]
+            for *_, landmark, n_landmarks in self._groups:
+                seen = np.unique(rows * n_landmarks + landmark[cols])
+                counts.append(np.bincount(seen // n_landmarks, minlength=h))
+            return np.minimum.reduce(counts).astype(np.int64)
+        total = np.count_nonzero(masks, axis=1)
+        counts = [total]
+        for order, starts, shared, *_ in self._groups:
+            # the landmarks seen once count their column; a landmark in several correspondences counts once if any
+            # of them supports
+            any_hit = np.logical_or.reduceat(masks[:, order], starts, axis=1)
+            counts.append(total - np.count_nonzero(masks[:, shared], axis=1) + np.count_nonzero(any_hit, axis=1))
+        return np.minimum.reduce(counts).astype(np.int64)
 
     def counts(self, masks: np.ndarray) -> np.ndarray:
         return self.distinct_counts(masks) if self.distinct_scoring else masks.sum(axis=1)
