@@ -127,6 +127,19 @@ def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map
     return float(gammaincinv(total + 1.0, 0.95)) / decoys
 
 
+def rms_shift(poses: np.ndarray, points: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(H,) RMS distance (m) between ``points`` (S, 2|3) moved by each of ``poses`` (H, 3) and ``reference`` (S, 2).
+
+    Each coordinate of R(θ) p + t is summed as ``np.einsum("hij,kj->hki", R, p) + t`` sums it (r_i0·x + r_i1·y,
+    then + t), bit for bit (tests/fusion/test_fusion_exact_forms.py), without einsum's general loop (1.4 ms for 70
+    hypotheses × 150 points, against 0.1 ms)."""
+    R = rotations_2d(poses[:, 2])
+    x, y = points[:, 0], points[:, 1]
+    dx = (R[:, 0, 0, None] * x + R[:, 0, 1, None] * y + poses[:, 0, None]) - reference[:, 0]
+    dy = (R[:, 1, 0, None] * x + R[:, 1, 1, None] * y + poses[:, 1, None]) - reference[:, 1]
+    return np.sqrt(np.mean(dx ** 2 + dy ** 2, axis=1))
+
+
 @dataclass(frozen=True)
 class _Rival:
     """The best hypothesis distinct from the winner: its one-to-one supports (a repeated pair counted once when a
@@ -150,9 +163,7 @@ def _best_distinct(problem: CorrespondenceProblem, search: RansacSearch, pose: n
     far = 2.0 * problem.gate_radius
 
     def distinct(poses: np.ndarray) -> np.ndarray:
-        R = rotations_2d(poses[:, 2])
-        moved = np.einsum("hij,kj->hki", R, pts[:, :2]) + poses[:, None, :2]
-        return np.sqrt(np.mean(np.sum((moved - ref[None]) ** 2, axis=2), axis=1)) > far
+        return rms_shift(poses, pts, ref) > far
 
     cand = np.flatnonzero(distinct(search.poses) & (True if admissible is None else admissible(search.poses)))
     if len(cand) == 0:
