@@ -8,7 +8,7 @@ the best hypothesis is trusted.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -105,6 +105,8 @@ def _landmark_groups(rows: np.ndarray) -> tuple | None:
     takes part once."""
     if len(rows) == 0:
         return None
+    if rows.min() >= 0 and rows.max() < 8 * len(rows) + 64 and np.bincount(rows).max() == 1:
+        return None                                   # (landmark rows: a count is cheaper than np.unique)
     _, inverse, size = np.unique(rows, return_inverse=True, return_counts=True)
     shared = size[inverse] > 1
     if not shared.any():
@@ -166,16 +168,27 @@ class CorrespondenceProblem:
     config: AlignmentConfig
     distinct_scoring: bool               # RANSAC counts supports one-to-one (always so for the evidence)
     inflation: float = 1.0
+    # what depends on the correspondences alone, shared by the copies replace() and inflated() make of them (each
+    # polishing round, each re-scored rival): rebuilt only when a copy holds other arrays
+    _geometry: dict | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # what masks() and distinct_counts() reuse for every hypothesis: contiguous coordinates, the height
         # differences, and each side's grouping of correspondences by landmark (None: every landmark once, so a
         # plain count of a row is its distinct count -- mutual matches, the paper's one match per map-1 landmark)
-        self._x1, self._y1 = np.ascontiguousarray(self.p1[:, 0]), np.ascontiguousarray(self.p1[:, 1])
-        self._x2, self._y2 = np.ascontiguousarray(self.p2[:, 0]), np.ascontiguousarray(self.p2[:, 1])
-        self._dz_sq = (self.p1[:, 2] - self.p2[:, 2]) ** 2
+        arrays = (self.p1, self.p2, self.i, self.j)
+        g = self._geometry
+        if g is None or any(a is not b for a, b in zip(g["arrays"], arrays, strict=True)):
+            g = self._geometry = {
+                "arrays": arrays,
+                "xy": (np.ascontiguousarray(self.p1[:, 0]), np.ascontiguousarray(self.p1[:, 1]),
+                       np.ascontiguousarray(self.p2[:, 0]), np.ascontiguousarray(self.p2[:, 1])),
+                "dz_sq": (self.p1[:, 2] - self.p2[:, 2]) ** 2,
+                "groups": [x for x in (_landmark_groups(self.i), _landmark_groups(self.j)) if x is not None]}
+        self._x1, self._y1, self._x2, self._y2 = g["xy"]
+        self._dz_sq = g["dz_sq"]
+        self._groups = g["groups"]
         self._features = None
-        self._groups = [g for g in (_landmark_groups(self.i), _landmark_groups(self.j)) if g is not None]
         self._set_gates()
 
     def _set_gates(self) -> None:
