@@ -6,7 +6,9 @@ the smoother's: positions (z = 0, the sensor is planar), the marginal covariance
 frame (the inverse information, so no drift export is added: the frame's uncertainty is in them already), the
 identities in ``metadata["external_ids"]``, the smoothed trajectory. The filter's own figures stay in the metrics
 under ``filter_``; ``smoother_*`` report the fit (χ² per degree of freedom, sightings dropped as outliers,
-convergence).
+convergence). With a heading drift (:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter
+config's ``odom_heading_drift_sigma_per_m`` / ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the
+smoother carries a heading-bias state per frame; ``smoother_heading_drift_*`` then say which (absent when off).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
-from .landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
+from .landmark_smoother import HeadingDrift, LandmarkLogProblem, landmarks_from_first_sightings, smooth
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
 _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95",
@@ -26,20 +28,24 @@ _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_
                 "landmark_nees_median")
 
 
-def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_start, t0, until):
+def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_start, t0, until, *,
+               heading_drift: HeadingDrift | None = None):
     """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
 
     frames: per filter frame k, (ids, ranges, bearings) as the filter was given them (calibrated); increments
     (T, 3) the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise;
     config the filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
+    heading_drift: the smoother's heading-bias states (None: the config's drift if it has one, else none).
     """
     if not any(len(ids) for ids, _, _ in frames):
         before = "" if until is None else f" before {until:g} s"
         raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
-    problem, landmark_ids = _problem(frames, increments, sensor, config)
-    initial = np.vstack([np.zeros(3), filter_poses])
-    solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial))
     times = run.true_trajectory[:, 0]
+    problem, landmark_ids = _problem(frames, increments, sensor, config, np.diff(np.concatenate([[t0], times])))
+    drift = heading_drift if heading_drift is not None else config_drift(config)
+    initial = np.vstack([np.zeros(3), filter_poses])
+    solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial),
+                      heading_drift=drift)
     estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
     landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times)
     covariance_rows = solution.covariance_poses - 1
@@ -59,14 +65,27 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    if solution.heading_drift is not None:
+        metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
+                       smoother_heading_drift_tau_s=solution.heading_drift.tau_s)
     metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
                               np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                               log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
 
 
-def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np.ndarray]:
-    """The factors of the run, and the identity (L,) of each landmark index."""
+def config_drift(config) -> HeadingDrift | None:
+    """The filter config's heading drift (``odom_heading_drift_sigma_per_m``, ``odom_heading_drift_tau_s``: the
+    noise model's, which the filter's particles carry), None if it has none or σ is 0."""
+    sigma = float(config.odom_heading_drift_sigma_per_m)
+    if sigma <= 0:
+        return None
+    return HeadingDrift(sigma, float(config.odom_heading_drift_tau_s))
+
+
+def _problem(frames, increments, sensor, config, seconds=None) -> tuple[LandmarkLogProblem, np.ndarray]:
+    """The factors of the run (``seconds`` (T,): each increment's duration), and the identity (L,) of each landmark
+    index."""
     pose_index = np.concatenate([np.full(len(ids), k + 1) for k, (ids, _, _) in enumerate(frames)]).astype(int)
     ids = np.concatenate([f[0] for f in frames]).astype(np.int64)
     ranges = np.concatenate([f[1] for f in frames]).astype(float)
@@ -76,7 +95,8 @@ def _problem(frames, increments, sensor, config) -> tuple[LandmarkLogProblem, np
     problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
                                  pose_index[named], landmark_index, ranges[named], bearings[named],
                                  sensor.range_sigma(ranges[named]),
-                                 np.full(int(named.sum()), float(sensor.bearing_sigma_rad)))
+                                 np.full(int(named.sum()), float(sensor.bearing_sigma_rad)),
+                                 np.zeros(0) if seconds is None else np.asarray(seconds, float))
     return problem, landmark_ids
 
 

@@ -27,7 +27,7 @@ solution's χ² per degree of freedom (``Smoothed.chi2_per_dof``) says how far t
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -38,6 +38,7 @@ from .geometry import between, wrap_angle
 HUBER_K = 2.45                    # σ: Huber's threshold on a sighting's normalised residual norm (χ²₂ 70 %)
 OUTLIER_CHI2 = 9.21               # χ²₂ 99 %: a sighting beyond it after the robust solve is dropped
 MAX_ITERATIONS = 60
+MIN_DRIFT_STEP_S = 1e-3           # s: the heading drift's factors take at least this long between two increments
 _STEP_TOLERANCE = 1e-7            # stop when no variable moves more than this (m or rad)
 MAX_DENSE_ENTRIES = 50_000_000    # the Schur elimination holds H_pp⁻¹ H_pl, 3T × 2L dense: 400 MB at most
 _COLUMN_BLOCK_ENTRIES = 4_000_000 # pose covariances are solved for in blocks of columns this size (32 MB)
@@ -107,6 +108,35 @@ class HeadingLoss:
 
 
 @dataclass(frozen=True)
+class HeadingDrift:
+    """A drifting heading bias per metre of odometry, an option of :func:`smooth` (the default, ``None``, is the
+    white random walk alone).
+
+    Each increment k carries a bias b_k (rad/m) that turns its heading by b_k × its distance d_k (the odometry's
+    translation): the odometry factor's heading residual is Δθ_smoothed − Δθ_odometry − b_k d_k. The biases are a
+    first-order Gauss–Markov process of stationary σ ``sigma_per_m`` and correlation time ``tau_s``: a prior
+    b_0 ~ N(0, σ²) and factors b_{k+1} − e^(−Δ/τ) b_k of variance σ²(1 − e^(−2Δ/τ)), Δ the time between the
+    increments' middles (floored at ``MIN_DRIFT_STEP_S``; the problem's ``increment_seconds`` give it). This is the
+    error structure measured on MRCLAM's odometry in session 22 (O): honest at every horizon 5–600 s with σ 0.12–0.16
+    rad/m, τ 10–30 s, where the white random walk is overconfident from a minute on. ``sigma_per_m`` 0 is off: the
+    solution is then exactly the one without the option.
+    """
+
+    sigma_per_m: float
+    tau_s: float
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_per_m) and self.sigma_per_m >= 0):
+            raise SmoothingError(f"heading drift σ must be finite and ≥ 0 rad/m, not {self.sigma_per_m}")
+        if not (np.isfinite(self.tau_s) and self.tau_s > 0):
+            raise SmoothingError(f"heading drift τ must be finite and > 0 s, not {self.tau_s}")
+
+    @property
+    def on(self) -> bool:
+        return self.sigma_per_m > 0
+
+
+@dataclass(frozen=True)
 class LandmarkLogProblem:
     """One robot's log as factors. Poses 0..T: pose 0 is the frame's origin (fixed); increment k (T, 3) leads from
     pose k to pose k + 1 with variances ``increment_variances[k]`` (3,). Sighting s (S,) was taken at pose
@@ -120,6 +150,8 @@ class LandmarkLogProblem:
     bearings: np.ndarray
     range_sigmas: np.ndarray
     bearing_sigmas: np.ndarray
+    # (T,) each increment's duration (s), needed by a HeadingDrift; empty (the default): not known
+    increment_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         t = len(self.increments)
@@ -137,6 +169,9 @@ class LandmarkLogProblem:
             raise SmoothingError("landmark indices must be non-negative")
         if np.any(self.range_sigmas <= 0) or np.any(self.bearing_sigmas <= 0):
             raise SmoothingError("sighting σ must be positive")
+        if np.shape(self.increment_seconds) not in ((0,), (t,)) or not np.all(np.isfinite(self.increment_seconds)) \
+                or np.any(np.asarray(self.increment_seconds) < 0):
+            raise SmoothingError(f"increment_seconds must be ({t},) (or empty: not known), finite and ≥ 0")
 
     @property
     def n_poses(self) -> int:
@@ -150,7 +185,8 @@ class LandmarkLogProblem:
 @dataclass
 class Smoothed:
     """The solution: poses (T + 1, 3) (row 0 the origin), landmarks (L, 2), their marginal covariances (L, 2, 2),
-    pose covariances (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit."""
+    pose covariances (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit; with a
+    :class:`HeadingDrift`, the drift and each increment's heading bias (T,) (rad/m)."""
 
     poses: np.ndarray
     landmarks: np.ndarray
@@ -163,6 +199,8 @@ class Smoothed:
     iterations: int
     converged: bool
     heading_weights: np.ndarray | None = None     # (T,) the heading loss's IRLS weights at the solution, if any
+    heading_drift: HeadingDrift | None = None     # the drift the solution carries (None: off)
+    heading_biases: np.ndarray | None = None      # (T,) each increment's heading bias (rad/m) with the drift
 
     @property
     def chi2_per_dof(self) -> float:
@@ -170,38 +208,108 @@ class Smoothed:
 
 
 def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
-           pose_covariance_stride: int = 10, heading_loss: HeadingLoss | None = None) -> Smoothed:
+           pose_covariance_stride: int = 10, heading_loss: HeadingLoss | None = None,
+           heading_drift: HeadingDrift | None = None) -> Smoothed:
     """The MAP poses and landmarks of ``problem`` from an initial guess (poses (T + 1, 3), landmarks (L, 2); a
     landmark never sighted keeps its guess and gets an infinite covariance). Pose covariances at every
     ``pose_covariance_stride``-th pose (and the last). ``heading_loss``: a heavy-tailed loss on the odometry's
-    heading residuals (:class:`HeadingLoss`; ``None``, the default: Gaussian). ``chi2`` is Σ r² of the normalised
-    residuals whatever the loss (the data's distance from the model's σ)."""
+    heading residuals (:class:`HeadingLoss`; ``None``, the default: Gaussian). ``heading_drift``: a heading bias
+    state per increment (:class:`HeadingDrift`, needs ``problem.increment_seconds``; ``None`` or σ 0: none, today's
+    solution exactly); the biases start at 0. ``chi2`` is Σ r² of the normalised residuals whatever the loss (the
+    data's distance from the model's σ), the drift's factors included (they pay for their own states)."""
     t, n_landmarks = problem.n_poses, max(problem.n_landmarks, len(initial_landmarks))
-    if 3 * t * 2 * n_landmarks > MAX_DENSE_ENTRIES:
+    drift = _Drift(problem, heading_drift) if heading_drift is not None and heading_drift.on else None
+    width = _width(drift)
+    if width * t * 2 * n_landmarks > MAX_DENSE_ENTRIES:
         raise SmoothingError(f"{t} poses and {n_landmarks} landmarks are too many to smooth here (a dense "
-                             f"{3 * t} × {2 * n_landmarks} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
+                             f"{width * t} × {2 * n_landmarks} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
     poses = np.array(initial_poses, float).reshape(t + 1, 3)
     landmarks = np.array(initial_landmarks, float).reshape(-1, 2)
     if len(landmarks) < n_landmarks:
         raise SmoothingError(f"{n_landmarks} landmarks sighted but {len(landmarks)} initial positions")
+    bias = None if drift is None else np.zeros(t)
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
-    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss)
-    _, residual = _residuals(problem, poses, landmarks)
+    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss,
+                                  drift=drift, bias=bias)
+    _, residual = _residuals(problem, poses, landmarks, bias)
     inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss)
-    odometry, sightings = _residuals(problem, poses, landmarks)
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
+                                   drift=drift, bias=bias)
+    odometry, sightings = _residuals(problem, poses, landmarks, bias)
     heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
+    if drift is not None:
+        chi2 += float(np.sum(drift.residuals(bias) ** 2))
     seen = np.zeros(n_landmarks, bool)
     seen[problem.landmark_index[inliers]] = True
     dof = 2 * int(inliers.sum()) - 2 * int(seen.sum())     # the odometry's 3T residuals pay for the 3T poses
-    information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights)
+    information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights, drift)
     stride = max(int(pose_covariance_stride), 1)
     covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
-    landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses)
+    landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses, width)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
-                    dof, iterations_robust + iterations, converged, heading_weights)
+                    dof, iterations_robust + iterations, converged, heading_weights,
+                    heading_drift if drift is not None else None, bias)
+
+
+def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The solution's normalised residuals: odometry (T, 3), sightings (S, 2) (range, bearing; dropped ones too),
+    and the heading drift's factors (T,) (empty without a drift)."""
+    drift = _solution_drift(problem, solution)
+    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, solution.heading_biases)
+    extra = drift.residuals(solution.heading_biases) if drift is not None else np.zeros(0)
+    return odometry.reshape(-1, 3), sightings.reshape(-1, 2), extra
+
+
+def joint_landmark_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
+    """The landmarks' joint marginal covariance (2L, 2L) at ``solution`` (the inverse information, its heading drift
+    and loss weights included; rows of landmarks with no kept sighting: inf)."""
+    t, n = problem.n_poses, len(solution.landmarks)
+    drift = _solution_drift(problem, solution)
+    width = _width(drift)
+    seen = np.zeros(n, bool)
+    seen[problem.landmark_index[solution.inliers]] = True
+    information = _information(problem, solution.poses, solution.landmarks, solution.inliers, n,
+                               solution.heading_weights, drift)
+    free = np.ones(information.shape[0], bool)
+    free[width * t:] = np.repeat(seen, 2)
+    factor = _NormalFactor(information[free][:, free], t, width)
+    out = np.full((2 * n, 2 * n), np.inf)
+    keep = np.repeat(seen, 2)
+    out[np.ix_(keep, keep)] = factor.landmark_covariance()
+    return out
+
+
+def _solution_drift(problem: LandmarkLogProblem, solution: Smoothed) -> _Drift | None:
+    drift = solution.heading_drift
+    return _Drift(problem, drift) if drift is not None and drift.on else None
+
+
+class _Drift:
+    """A :class:`HeadingDrift`'s factors on one problem: each increment's distance d (T,), the prior's σ, and the
+    Gauss–Markov factors' decay a (T − 1,) and σ (T − 1,). Its states b (T,) follow the poses' (x, y, θ) in the
+    variables: pose j's block is (x_j, y_j, θ_j, b_{j−1}), so every factor still touches two consecutive blocks."""
+
+    def __init__(self, problem: LandmarkLogProblem, drift: HeadingDrift) -> None:
+        if len(problem.increment_seconds) != problem.n_poses:
+            raise SmoothingError("a heading drift needs the problem's increment_seconds (each increment's duration)")
+        seconds = np.asarray(problem.increment_seconds, float)
+        self.distance = np.hypot(problem.increments[:, 0], problem.increments[:, 1])
+        gap = np.maximum(0.5 * (seconds[:-1] + seconds[1:]), MIN_DRIFT_STEP_S)
+        self.prior_sd = float(drift.sigma_per_m)
+        self.decay = np.exp(-gap / drift.tau_s)
+        self.sd = drift.sigma_per_m * np.sqrt(-np.expm1(-2.0 * gap / drift.tau_s))
+
+    def residuals(self, bias: np.ndarray) -> np.ndarray:
+        """(T,) normalised: b_0 / σ, then (b_{k+1} − a_k b_k) / σ_k."""
+        return np.concatenate([bias[:1] / self.prior_sd, (bias[1:] - self.decay * bias[:-1]) / self.sd])
+
+
+def _width(drift: _Drift | None) -> int:
+    """Variables per pose: (x, y, θ), and the heading bias with a drift."""
+    return 3 if drift is None else 4
 
 
 def _heading_weights(problem: LandmarkLogProblem, odometry: np.ndarray,
@@ -221,9 +329,13 @@ def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) 
     return sp.diags(scale, format="csr") @ jac
 
 
-def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray):
-    """Normalised residuals: odometry (T·3,), sightings (S·2,) interleaved (range, bearing)."""
+def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray,
+               bias: np.ndarray | None = None):
+    """Normalised residuals: odometry (T·3,) (the heading less b_k d_k with biases (T,)), sightings (S·2,)
+    interleaved (range, bearing)."""
     odometry = between(poses[:-1], poses[1:]) - problem.increments
+    if bias is not None:
+        odometry[:, 2] -= bias * np.hypot(problem.increments[:, 0], problem.increments[:, 1])
     odometry[:, 2] = wrap_angle(odometry[:, 2])
     odometry /= np.sqrt(problem.increment_variances)
     at = poses[problem.pose_index]
@@ -236,9 +348,11 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
 
 
 def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
-              sighting_weights: np.ndarray) -> sp.csr_matrix:
-    """∂(normalised residuals)/∂(poses 1..T, landmarks), sightings scaled by their weights (S,)."""
+              sighting_weights: np.ndarray, drift: _Drift | None = None) -> sp.csr_matrix:
+    """∂(normalised residuals)/∂(poses 1..T, landmarks), sightings scaled by their weights (S,). With a drift, pose
+    j's columns are (x, y, θ, b_{j−1}) and the drift's factors are rows after the sightings'."""
     t = problem.n_poses
+    width = _width(drift)
     rows, cols, vals = [], [], []
 
     def put(r, c, v):
@@ -252,7 +366,7 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
     sigma = np.sqrt(problem.increment_variances)
-    col_a, col_b = 3 * (k - 1), 3 * k            # pose j's columns start at 3(j − 1)
+    col_a, col_b = width * (k - 1), width * k    # pose j's columns start at width·(j − 1)
     col_a = np.where(k == 0, -1, col_a)
     # between: e_x = c dx + s dy, e_y = −s dx + c dy, e_θ = b_θ − a_θ
     for axis, (wx, wy, wth) in enumerate(((c, s, -s * dx + c * dy), (-s, c, -c * dx - s * dy))):
@@ -266,14 +380,16 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     r = 3 * k + 2
     put(r, np.where(col_a < 0, -1, col_a + 2), -1.0 / sigma[:, 2])
     put(r, col_b + 2, 1.0 / sigma[:, 2])
+    if drift is not None:
+        put(r, col_b + 3, -drift.distance / sigma[:, 2])         # the heading less b_k d_k
 
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
     q = np.maximum(d[:, 0] ** 2 + d[:, 1] ** 2, 1e-12)
     rng = np.sqrt(q)
     base = 3 * t + 2 * np.arange(len(d))
-    pose_col = 3 * (problem.pose_index - 1)
-    landmark_col = 3 * t + 2 * problem.landmark_index
+    pose_col = width * (problem.pose_index - 1)
+    landmark_col = width * t + 2 * problem.landmark_index
     wr = sighting_weights / problem.range_sigmas
     wb = sighting_weights / problem.bearing_sigmas
     for col_offset, dr, db in ((0, d[:, 0] / rng, -d[:, 1] / q), (1, d[:, 1] / rng, d[:, 0] / q)):
@@ -282,7 +398,13 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         put(base + 1, landmark_col + col_offset, db * wb)
         put(base + 1, pose_col + col_offset, -db * wb)
     put(base + 1, pose_col + 2, -wb)
-    shape = (3 * t + 2 * len(d), 3 * t + 2 * n_landmarks)
+    n_rows = 3 * t + 2 * len(d)
+    if drift is not None and t:
+        # b_0 / σ, then (b_k − a b_{k−1}) / σ_k: b_k is the 4th column of pose k + 1's block
+        put(n_rows + k, width * k + 3, np.concatenate([[1.0 / drift.prior_sd], 1.0 / drift.sd]))
+        put(n_rows + k[1:], width * k[:-1] + 3, -drift.decay / drift.sd)
+        n_rows += t
+    shape = (n_rows, width * t + 2 * n_landmarks)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
 
 
@@ -295,53 +417,63 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
     return weights
 
 
-def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None) -> float:
-    odometry, sightings = _residuals(problem, poses, landmarks)
+def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None) -> float:
+    odometry, sightings = _residuals(problem, poses, landmarks, bias)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
         norm = np.sqrt(norm2)
         rho = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
     else:
         rho = norm2
+    extra = 0.0 if drift is None else float(np.sum(drift.residuals(bias) ** 2))
     if heading_loss is None:
-        return float(np.sum(odometry ** 2) + np.sum(rho))
+        return float(np.sum(odometry ** 2) + np.sum(rho)) + extra
     odometry = odometry.reshape(-1, 3)
     heading = heading_loss.rho(odometry[:, 2], np.sqrt(problem.increment_variances[:, 2]))
-    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho))
+    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + extra
 
 
-def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None) -> tuple[int, bool]:
+def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None
+           ) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
-    landmarks."""
+    landmarks (and the biases (T,) with a drift)."""
     t, n_landmarks = problem.n_poses, len(landmarks)
+    width = _width(drift)
     damping = 1e-4
-    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss)
+    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        odometry, sightings = _residuals(problem, poses, landmarks)
+        odometry, sightings = _residuals(problem, poses, landmarks, bias)
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)
-        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights), t, heading_weights)
+        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights, drift), t, heading_weights)
         if heading_weights is not None:
             odometry = odometry.copy()
             odometry[2::3] *= np.sqrt(heading_weights)
-        residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()])
+        parts = [odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()]
+        if drift is not None:
+            parts.append(drift.residuals(bias))
+        residual = np.concatenate(parts)
         normal = (jac.T @ jac).tocsc()
         gradient = jac.T @ residual
         diagonal = normal.diagonal()
         while True:
             damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
-            step = -_NormalFactor(damped, t).solve(gradient)
+            step = -_NormalFactor(damped, t, width).solve(gradient)
             trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
-            trial_poses[1:] += step[:3 * t].reshape(t, 3)
+            pose_step = step[:width * t].reshape(t, width)
+            trial_poses[1:] += pose_step[:, :3]
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
-            trial_landmarks += step[3 * t:].reshape(n_landmarks, 2)
-            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss)
+            trial_landmarks += step[width * t:].reshape(n_landmarks, 2)
+            trial_bias = None if drift is None else bias + pose_step[:, 3]
+            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift, trial_bias)
             if trial <= cost:
                 break
             damping *= 10.0
             if damping > 1e8:
                 return iteration, False
         poses[:], landmarks[:] = trial_poses, trial_landmarks
+        if drift is not None:
+            bias[:] = trial_bias
         damping = max(damping / 10.0, 1e-9)
         improvement, cost = cost - trial, trial
         if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
@@ -349,41 +481,45 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None) -> tup
     return MAX_ITERATIONS, False
 
 
-def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None) -> sp.csc_matrix:
-    jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float)), problem.n_poses,
-                      heading_weights)
+def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None, drift=None
+                 ) -> sp.csc_matrix:
+    jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float), drift),
+                      problem.n_poses, heading_weights)
     return (jac.T @ jac).tocsc()
 
 
 class _NormalFactor:
-    """The normal matrix H of poses 1..T (first 3T variables) and landmarks (the rest), factored by its structure.
+    """The normal matrix H of poses 1..T (first ``width``·T variables: (x, y, θ) per pose, and a heading bias with a
+    drift) and landmarks (the rest), factored by its structure.
 
     Every factor touches at most two consecutive poses, or one pose and one landmark, so the pose block H_pp is
-    block-tridiagonal (a band of half-width 5): a banded Cholesky factors it in O(T). The landmarks are eliminated
-    through their Schur complement S = H_ll − H_lp H_pp⁻¹ H_pl (2L × 2L, dense and small), whose inverse is exactly
-    the landmarks' marginal covariance. A general sparse LU (SuperLU) did the same in 10–30× the time on MRCLAM.
+    block-tridiagonal (a band of half-width 2·width − 1: 5, or 7 with the drift's bias): a banded Cholesky factors it
+    in O(T). The landmarks are eliminated through their Schur complement S = H_ll − H_lp H_pp⁻¹ H_pl (2L × 2L, dense
+    and small), whose inverse is exactly the landmarks' marginal covariance. A general sparse LU (SuperLU) did the
+    same in 10–30× the time on MRCLAM.
     """
 
-    BAND = 5
-
-    def __init__(self, normal: sp.spmatrix, t: int) -> None:
+    def __init__(self, normal: sp.spmatrix, t: int, width: int = 3) -> None:
         normal = normal.tocsc()
-        self.t = t
-        pp = normal[:3 * t, :3 * t]
-        self.pl = normal[:3 * t, 3 * t:].toarray()
-        band = np.zeros((self.BAND + 1, 3 * t))
-        for offset in range(self.BAND + 1):
-            band[self.BAND - offset, offset:] = pp.diagonal(offset)
+        self.t, self.width = t, width
+        n = width * t
+        half = 2 * width - 1
+        pp = normal[:n, :n]
+        self.pl = normal[:n, n:].toarray()
+        band = np.zeros((half + 1, n))
+        for offset in range(half + 1):
+            band[half - offset, offset:] = pp.diagonal(offset)
         self.band = scipy.linalg.cholesky_banded(band, lower=False)
         self.x = self._pose_solve(self.pl)                           # H_pp⁻¹ H_pl
-        schur = normal[3 * t:, 3 * t:].toarray() - self.pl.T @ self.x
+        schur = normal[n:, n:].toarray() - self.pl.T @ self.x
         self.schur = scipy.linalg.cho_factor(0.5 * (schur + schur.T)) if len(schur) else None
 
     def _pose_solve(self, rhs: np.ndarray) -> np.ndarray:
         return scipy.linalg.cho_solve_banded((self.band, False), rhs) if self.t else rhs
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        rp, rl = rhs[:3 * self.t], rhs[3 * self.t:]
+        n = self.width * self.t
+        rp, rl = rhs[:n], rhs[n:]
         dl = scipy.linalg.cho_solve(self.schur, rl - self.pl.T @ self._pose_solve(rp)) if self.schur else rl
         return np.concatenate([self._pose_solve(rp - self.pl @ dl), dl])
 
@@ -392,14 +528,15 @@ class _NormalFactor:
         return scipy.linalg.cho_solve(self.schur, np.eye(n)) if self.schur else np.zeros((0, 0))
 
     def pose_covariance_blocks(self, poses: np.ndarray) -> np.ndarray:
-        """(P, 3, 3) diagonal blocks of H⁻¹ at poses (P,) (1..T): (H_pp⁻¹ + X S⁻¹ Xᵀ) there, X = H_pp⁻¹ H_pl."""
+        """(P, 3, 3) (x, y, θ) diagonal blocks of H⁻¹ at poses (P,) (1..T): (H_pp⁻¹ + X S⁻¹ Xᵀ) there,
+        X = H_pp⁻¹ H_pl."""
         out = np.zeros((len(poses), 3, 3))
         landmark_cov = self.landmark_covariance()
         step = max(1, _COLUMN_BLOCK_ENTRIES // (9 * max(self.t, 1)))
         for chunk in range(0, len(poses), step):
             which = poses[chunk:chunk + step]
-            columns = (3 * (which[:, None] - 1) + np.arange(3)).ravel()
-            unit = np.zeros((3 * self.t, len(columns)))
+            columns = (self.width * (which[:, None] - 1) + np.arange(3)).ravel()
+            unit = np.zeros((self.width * self.t, len(columns)))
             unit[columns, np.arange(len(columns))] = 1.0
             own = self._pose_solve(unit)[columns].reshape(len(which), 3, len(which), 3)
             blocks = own[np.arange(len(which)), :, np.arange(len(which)), :]
@@ -408,12 +545,12 @@ class _NormalFactor:
         return 0.5 * (out + out.transpose(0, 2, 1))
 
 
-def _marginals(information, t, n_landmarks, seen, covariance_poses):
+def _marginals(information, t, n_landmarks, seen, covariance_poses, width=3):
     """Landmark (L, 2, 2) and pose (P, 3, 3) blocks of the information's inverse; a landmark never sighted (no
     information) gets an infinite covariance and is left out of the factorisation."""
     free = np.ones(information.shape[0], bool)
-    free[3 * t:] = np.repeat(seen, 2)
-    factor = _NormalFactor(information[free][:, free], t)
+    free[width * t:] = np.repeat(seen, 2)
+    factor = _NormalFactor(information[free][:, free], t, width)
     landmark_cov = np.full((n_landmarks, 2, 2), np.inf)
     n_seen = int(seen.sum())
     if n_seen:
