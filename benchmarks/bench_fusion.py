@@ -55,11 +55,15 @@ def run(label: str, n_common: int, n1: int, n2: int, repeats: int, goal_ms: floa
 
 def _demo_maps(folder: Path | None) -> dict:
     """The rendered demo's maps (``p3at demo --out DIR``: robot*.npz), or a random pair of its size."""
+    from estimation.errors import MapFileError
     from estimation.landmark_map import LandmarkMap
 
     files = sorted(folder.glob("robot*.npz")) if folder is not None else []
     if len(files) >= 2:
         return {f.stem: LandmarkMap.load(f) for f in files}
+    if folder is not None:   # a folder given is what to measure: not silently a random pair instead
+        raise MapFileError(f"{folder}: holds {len(files)} robot*.npz map file(s), not the two or more of a demo's "
+                           "--out folder")
     map1, map2, _ = random_pair(250, 800, 800, np.array([12.0, -3.0, 2.2]), seed=1)
     return {"robot1": map1, "robot2": map2}
 
@@ -111,4 +115,10 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from estimation.errors import MapFileError
+
+    try:
+        main()
+    except MapFileError as e:   # a map file of a given folder missing or unreadable: one line naming it
+        print(f"{Path(__file__).name}: {e}", file=sys.stderr)
+        sys.exit(2)

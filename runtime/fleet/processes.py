@@ -226,7 +226,7 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         try:
             summaries[name] = json.loads(stdout)
         except json.JSONDecodeError:
-            failed.append(f"{name} (exit {code}): {stderr.strip().splitlines()[-1] if stderr.strip() else '?'}")
+            failed.append(failure_line(name, code, stderr, out / name / f"{name}.npz"))
     # a robot's last map still queued or on the way goes into the final fusion; one lost on the wire, from its file
     final, missing, read = final_fusion(node, summaries)
     exchange.close()
@@ -264,6 +264,23 @@ def run_processes_demo(args: argparse.Namespace) -> int:
               f"{out}/<robot>/mission.rrd (each robot)\n  open them together: rerun {files}\n"
               f"  summarise:          p3at review {files}", file=sys.stderr if args.json else sys.stdout)
     return 1 if failed else 0
+
+
+def failure_line(robot: str, code: int | None, stderr: str, map_file: Path) -> str:
+    """What to say of a robot process that ended without its summary: its exit status (the signal that killed it),
+    its last line on stderr, and the map it saved last (its periodic saves are atomic: a killed robot leaves the map
+    of its last save), which the final fusion does not read: it fuses the robot's map the node received last."""
+    lines = stderr.strip().splitlines()
+    if code is not None and code < 0:
+        try:
+            why = f"killed by {signal.Signals(-code).name}, no summary"
+        except ValueError:
+            why = f"killed by signal {-code}, no summary"
+    else:
+        why = lines[-1] if lines else "no summary, nothing on stderr"
+    left = (f"; its last saved map {map_file} is left (the final fusion has the map the node received last)"
+            if map_file.is_file() else "; it saved no map")
+    return f"{robot} (exit {code}): {why}{left}"
 
 
 def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, start: float) -> dict:

@@ -40,6 +40,7 @@ import atexit
 import collections
 import json
 import logging
+import math
 import re
 import threading
 import time
@@ -71,6 +72,7 @@ CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for se
 POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
+DROP_REPORT_INTERVAL = 30.0         # s: malformed messages are said once, then counted in one line at most this often
 
 _OPEN: weakref.WeakSet[ZenohExchange] = weakref.WeakSet()
 
@@ -234,6 +236,8 @@ class ZenohExchange:
         self._left: set[str] = set()             # robots seen leaving (and not back): nothing to wait for
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
+        self._unreported_drops = 0               # malformed messages dropped since the last line said so
+        self._drop_said = -math.inf              # when (monotonic) the last such line was logged
         self.bytes_sent = collections.Counter()  # "full"/"delta"/"status" -> bytes
         self.received = 0
         self.send_errors = 0
@@ -282,6 +286,7 @@ class ZenohExchange:
             if self._calls:
                 log.warning("closing the exchange: %d send(s) still inside Zenoh after %.0f s", self._calls,
                             CLOSE_TIMEOUT)
+        self._report_drops(time.monotonic())   # what the last interval counted (the worker has stopped)
         try:
             self.session.close()
         except zenoh.ZError as e:  # already closed by the runtime at exit
@@ -572,9 +577,25 @@ class ZenohExchange:
         self._wait_for(robot, message.session, message.sequence, BEHIND_GRACE, from_status=True)
 
     def _drop(self, key: str, reason: str) -> None:
+        """Count a malformed message; say the first one, then at most one line every DROP_REPORT_INTERVAL with how
+        many more came (a peer publishing garbage at 47,000 messages a second wrote one warning line each)."""
         self.dropped["malformed"] += 1
         self.last_drop_reason = f"{key}: {reason}"
-        log.warning("fleet exchange: dropped a message on %s: %s", key, reason)
+        now = time.monotonic()
+        if self.dropped["malformed"] == 1:
+            log.warning("fleet exchange: dropped a message on %s: %s (further malformed messages are counted, said "
+                        "at most every %.0f s)", key, reason, DROP_REPORT_INTERVAL)
+            self._drop_said = now
+            return
+        self._unreported_drops += 1
+        if now - self._drop_said >= DROP_REPORT_INTERVAL:
+            self._report_drops(now)
+
+    def _report_drops(self, now: float) -> None:
+        if self._unreported_drops:
+            log.warning("fleet exchange: dropped %d more malformed message(s) (%d in all); the last on %s",
+                        self._unreported_drops, self.dropped["malformed"], self.last_drop_reason)
+        self._unreported_drops, self._drop_said = 0, now
 
     def _handle(self, key: str, data: bytes, asked: float | None = None) -> None:
         leaf = key.rsplit("/", 1)[-1]
