@@ -24,14 +24,15 @@ SEARCH_BUDGET_PAIRS = 100_000_000
 _BLOCK_PAIRS = 16_000_000
 
 
-def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarray | None = None
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarray | None = None,
+                       back_matches: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices and distances of the two nearest ``base`` rows for every query, and every base row's
     nearest query (one pass over the distance matrix, in blocks of rows).
 
     queries (Q, D), base (B, D) -> index (Q, 2), distance (Q, 2) (second column -1 / inf when B < 2),
     back (B,) index of the nearest query of each base row. ``exclude`` (Q,): a base row each query may not
-    match (a map searched against itself: the query's own row).
+    match (a map searched against itself: the query's own row).  ``back_matches=False``: ``back`` is left zero
+    (only the mutual-match test needs it; it costs two more passes over every block).
     """
     q = queries.astype(np.float32, copy=False)
     b = base.astype(np.float32, copy=False)
@@ -60,12 +61,13 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarra
             d2[r, exclude[start:start + len(block)]] = np.inf
         # each base row's nearest query: the first row that reaches the column's minimum (argmin along the
         # columns copies the block; the minimum and a byte-wide comparison do not)
-        col_min = d2.min(axis=0)
-        better = col_min < back_d2
-        if better.any():
-            col_best = np.argmax(d2 == col_min[None, :], axis=0)
-            back[better] = start + col_best[better]
-            back_d2[better] = col_min[better]
+        if back_matches:
+            col_min = d2.min(axis=0)
+            better = col_min < back_d2
+            if better.any():
+                col_best = np.argmax(d2 == col_min[None, :], axis=0)
+                back[better] = start + col_best[better]
+                back_d2[better] = col_min[better]
         first = np.argmin(d2, axis=1)
         index[start:start + len(block), 0] = first
         dist[start:start + len(block), 0] = np.sqrt(d2[r, first])
@@ -79,7 +81,7 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarra
 
 def two_nearest(queries: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and second-nearest ``base`` descriptor of every query: index (Q, 2), distance (Q, 2)."""
-    return _two_nearest_exact(queries, base)[:2]
+    return _two_nearest_exact(queries, base, back_matches=False)[:2]
 
 
 def query_subset(n1: int, n2: int, rng: np.random.Generator) -> np.ndarray | None:
@@ -142,6 +144,6 @@ def self_correspondences(desc: np.ndarray, max_distance: float, ratio: float, ro
     if n < 3:
         return np.zeros((0, 2), np.int64)
     queries = np.arange(n) if rows is None else np.asarray(rows, np.int64)
-    index, dist, _ = _two_nearest_exact(desc[queries], desc, exclude=queries)
+    index, dist, _ = _two_nearest_exact(desc[queries], desc, exclude=queries, back_matches=False)
     keep = (dist[:, 0] < max_distance) & (dist[:, 0] < ratio * dist[:, 1])
     return np.column_stack([queries[keep], index[keep, 0]]).astype(np.int64)
