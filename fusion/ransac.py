@@ -238,8 +238,9 @@ class CorrespondenceProblem:
         for start in range(0, h, rows):
             p = poses[start:start + rows]
             c, s = cos[start:start + rows], sin[start:start + rows]
-            if len(p) >= _SCREEN_MIN_HYPOTHESES:
-                hh, kk = np.divmod(np.flatnonzero(self._screen(p, c[:, 0], s[:, 0], limit)), n)
+            screen = self._screen(p, c[:, 0], s[:, 0], limit) if len(p) >= _SCREEN_MIN_HYPOTHESES else None
+            if screen is not None:
+                hh, kk = np.divmod(np.flatnonzero(screen), n)
                 if len(hh) <= _SCREEN_MAX_FRACTION * len(p) * n:
                     ok = self._exact(p[hh], c[hh, 0], s[hh, 0], kk)
                     hh, kk = hh[ok], kk[ok]
@@ -281,10 +282,10 @@ class CorrespondenceProblem:
         return self._passes(self._residual_sq(p, c, s, None), None)
 
     def _screen(self, p, c, s, limit):
-        """(H, n) bool, a superset of the supports: |r|² = |p1|² + |p2|² − 2c p1·p2 − 2s (y1 x2 − x1 y2) − 2 p1·t
-        + 2 x2 (c tx + s ty) + 2 y2 (c ty − s tx) + |t|², eight terms per hypothesis and correspondence, as one
-        matrix product, against the gate plus 1e-9 of the coordinates' squared scale (its round-off is below
-        1e-13 of it, the plain form's too)."""
+        """(H, n) bool, a superset of the supports (None: no screen possible): |r|² = |p1|² + |p2|² − 2c p1·p2
+        − 2s (y1 x2 − x1 y2) − 2 p1·t + 2 x2 (c tx + s ty) + 2 y2 (c ty − s tx) + |t|², eight terms per hypothesis
+        and correspondence, as one matrix product, against the gate plus 1e-9 of the coordinates' squared scale (its
+        round-off is below 1e-13 of it, the plain form's too)."""
         if self._features is None:
             x1, y1, x2, y2, _ = self._computed
             self._features = np.stack([x1 * x1 + y1 * y1 + x2 * x2 + y2 * y2, -2.0 * (x1 * x2 + y1 * y2),
@@ -294,6 +295,8 @@ class CorrespondenceProblem:
         tx, ty = p[:, 0], p[:, 1]
         fh = np.column_stack([np.ones_like(c), c, s, tx, ty, c * tx + s * ty, c * ty - s * tx, tx * tx + ty * ty])
         scale = max(self._scale, float(np.max(np.abs(tx) + np.abs(ty))), 1e-3)
+        if not np.isfinite(scale):               # a coordinate not finite: no bound on the round-off, no screen
+            return None
         approx = fh @ self._features
         return approx < np.add(limit, 1e-9 * scale * scale)
 

@@ -162,3 +162,17 @@ def test_rival_shift_equals_the_plain_form(seed, h, k, scale):
     moved = np.einsum("hij,kj->hki", rotations_2d(poses[:, 2]), points[:, :2]) + poses[:, None, :2]
     expected = np.sqrt(np.mean(np.sum((moved - reference[None]) ** 2, axis=2), axis=1))
     assert np.array_equal(rms_shift(poses, points, reference), expected)
+
+
+def test_masks_with_a_coordinate_not_finite_equal_the_plain_form():
+    problem, truth, rng = random_problem(7, 120, 40.0, False, False, 1.0)
+    for bad in (np.nan, np.inf):
+        p1 = problem.p1.copy()
+        p1[3, 0] = bad
+        broken = CorrespondenceProblem(p1, problem.p2, problem.P1, problem.P2, problem.i, problem.j, problem.var_xy,
+                                       problem.var_z, problem.config, distinct_scoring=True)
+        poses = hypotheses(rng, broken, truth, 20, 300)
+        with np.errstate(invalid="ignore"):          # inf − inf, in both forms
+            masks, expected = broken.masks(poses), reference_masks(broken, poses)
+        assert np.array_equal(masks, expected)
+        assert masks[:, 3].sum() == 0 and masks.sum() > 0
