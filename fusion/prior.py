@@ -124,10 +124,27 @@ def _relative(start1, sigmas1, start2, sigmas2) -> tuple[np.ndarray, np.ndarray]
     return compose_with_covariance(inv1, cov_inv1, np.asarray(start2, float).reshape(3), c2)
 
 
+# a start pose and its standard deviations are a lab's rough guess: beyond these they are corrupt (1e300 overflowed
+# the relative pose's covariance: RuntimeWarnings, or OverflowError and exit 70 for σ = 1e300)
+MAX_START_COORDINATE = 1e6   # m, as a map's coordinates (estimation.map_validation.MAX_COORDINATE)
+MAX_START_YAW = 1e3          # rad
+MAX_START_SIGMA = 1e6        # m or rad
+
+
 def _check_sigmas(sigma_xy: float, sigma_theta: float) -> None:
     if not (np.isfinite(sigma_xy) and np.isfinite(sigma_theta) and sigma_xy > 0 and sigma_theta > 0):
         raise IncompatibleMapsError(f"a start prior's standard deviations must be positive and finite; got "
                                     f"{sigma_xy} m, {sigma_theta} rad")
+    if max(sigma_xy, sigma_theta) > MAX_START_SIGMA:
+        raise IncompatibleMapsError(f"a start prior's standard deviations must be at most {MAX_START_SIGMA:g}; got "
+                                    f"{sigma_xy:g} m, {sigma_theta:g} rad")
+
+
+def _check_pose(pose) -> None:
+    x, y, yaw = (float(v) for v in np.asarray(pose, float).reshape(3))
+    if not (max(abs(x), abs(y)) <= MAX_START_COORDINATE and abs(yaw) <= MAX_START_YAW):
+        raise IncompatibleMapsError(f"a start pose must lie within {MAX_START_COORDINATE:g} m and {MAX_START_YAW:g} "
+                                    f"rad; got {x:g}, {y:g}, {yaw:g}")
 
 
 def parse_start(text: str) -> tuple[np.ndarray, tuple[float, float] | None]:
@@ -143,6 +160,7 @@ def parse_start(text: str) -> tuple[np.ndarray, tuple[float, float] | None]:
     sig = None if len(values) == 3 else (values[3], values[4])
     if sig is not None:
         _check_sigmas(*sig)
+    _check_pose(values[:3])
     return np.array(values[:3]), sig
 
 
@@ -158,6 +176,9 @@ def pair_priors(starts: dict[int, tuple[np.ndarray, tuple[float, float]]], n: in
 def named_pair_priors(starts: dict, source: str = "start poses") -> dict[tuple, StartPrior]:
     """Priors for every pair (a, b), a < b, of the keys whose start poses are known: {key: (pose, (σ xy, σ θ))}.
     Keys are map indices (``p3at fuse``) or robot names (the live fusions, whose maps come and go by robot)."""
+    for pose, sigmas in starts.values():   # also those given apart from parse_start (a --start-sigma, the API)
+        _check_pose(pose)
+        _check_sigmas(*sigmas)
     return {(a, b): StartPrior(*_relative(*starts[a], *starts[b]), source=source)
             for a in sorted(starts) for b in sorted(starts) if a < b}
 
@@ -193,7 +214,10 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | 
         except IncompatibleMapsError as e:
             raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]}: {e}") from None
         if sig is None and np.all(np.isfinite(default)):
-            _check_sigmas(*default)
+            try:
+                _check_sigmas(*default)
+            except IncompatibleMapsError as e:
+                raise IncompatibleMapsError(f"{path}: sigma_xy, sigma_yaw: {e}") from None
             sig = default
         out[str(key)] = (pose, sig)             # None: the caller's default σ
     return out

@@ -12,6 +12,7 @@ from runtime.commands.options import (
     float_where,
     non_negative_float,
     non_negative_int,
+    particle_count,
     positive_float,
     positive_int,
     start_sigmas,
@@ -44,7 +45,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--camera-latency", type=camera_latency, default=None, metavar="S",
                         help="s from a stereo pair's exposure to its arrival, in [0, 1), subtracted from frame "
                              "timestamps (default: the virtual head's 0.06; 0 for a real head -- measure yours)")
-    parser.add_argument("--particles", type=positive_int, default=100, help="FastSLAM particles (default 100)")
+    parser.add_argument("--particles", type=particle_count, default=100, help="FastSLAM particles (default 100)")
     parser.add_argument("--max-corners", type=positive_int, default=150,
                         help="Harris corners per image (default 150; fewer observations, faster FastSLAM)")
     parser.add_argument("--max-observations", type=non_negative_int, default=0,

@@ -9,7 +9,7 @@ from runtime.commands.options import (
     add_deprecated_alias,
     check_output_file,
     non_negative_int,
-    positive_int,
+    particle_count,
 )
 from runtime.replay import onboard_config_from_log, replay_log
 from runtime.sensorlog import METADATA_NAME, SensorLog, SensorLogError
@@ -25,7 +25,8 @@ def register(subparsers) -> None:
     parser.add_argument("log", type=Path, metavar="LOG",
                         help="a sensor log: the folder of MCAP segments that --log-sensors writes, or one .mcap file")
     parser.add_argument("--out", type=Path, default=None, metavar="MAP.npz", help="write the resulting map here")
-    parser.add_argument("--particles", type=positive_int, default=None, help="FastSLAM particles (default: as logged)")
+    parser.add_argument("--particles", type=particle_count, default=None,
+                        help="FastSLAM particles (default: as logged)")
     parser.add_argument("--seed", type=non_negative_int, default=None,
                         help="filter seed, a whole number >= 0 (default: as logged)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=None,

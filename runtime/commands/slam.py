@@ -16,6 +16,7 @@ from runtime.commands.options import (
     check_output_apart,
     check_output_file,
     non_negative_int,
+    particle_count,
     positive_float,
     positive_int,
 )
@@ -45,7 +46,7 @@ def register(subparsers) -> None:
     sim.add_argument("--world-route", metavar="FILE", help="route file of WORLD-frame waypoints (x y per line, m); "
                      "default: the world's route of --name")
     sim.add_argument("--world", metavar="FILE", help="building file (default: the packaged building)")
-    sim.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
+    sim.add_argument("--particles", type=particle_count, default=100, help="number of particles (100)")
     sim.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     sim.add_argument("--camera-rate", type=positive_float, default=5.0, metavar="HZ",
                      help="stereo frames per second (default 5 Hz)")
@@ -166,7 +167,7 @@ def _register_dataset(sub) -> None:
                              "smoother's, the filter's beside them (docs/fastslam.md). Default: on with --association "
                              "id, off with unknown (where it is refused: the filter's own associations make it "
                              "confidently wrong); --no-smooth gives the filter alone")
-    parser.add_argument("--particles", type=positive_int, default=100, help="number of particles (100)")
+    parser.add_argument("--particles", type=particle_count, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the filter, >= 0 (0)")
     parser.add_argument("--until", type=positive_float, metavar="S", help="stop at this log time (s)")

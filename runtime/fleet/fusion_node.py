@@ -188,7 +188,8 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     node_box.append(node)
     stop = threading.Event()
     restore = install_stop_signals(stop.set)
-    timer = threading.Timer(args.seconds, stop.set) if args.seconds > 0 else None
+    # --seconds beyond what a timer can wait (1e300: its thread died with OverflowError) is until Ctrl-C
+    timer = threading.Timer(args.seconds, stop.set) if 0 < args.seconds < threading.TIMEOUT_MAX else None
     if timer is not None:
         timer.daemon = True
         timer.start()
