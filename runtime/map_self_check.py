@@ -5,6 +5,8 @@ every map it exports (``FastSLAM.best_map``); read by ``p3at fuse`` (a warning l
 """
 from __future__ import annotations
 
+import math
+
 from estimation.fastslam.self_check import KEY
 
 ALARM_FIELDS = ("t", "since", "statistic", "frames", "predicted", "redetected", "expected")
@@ -14,9 +16,15 @@ MAX_ALARMS_READ = 100   # a hostile file's list is cut: the verdict's figures st
 
 
 def _number(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or value != value:
-        raise ValueError(f"metadata {KEY}.{where} must be a number, not {value!r:.40}")
-    return float(value)
+    # finite: an Infinity would be printed by `p3at fuse --json` as Infinity, which strict JSON readers (jq) refuse;
+    # an integer of hundreds of digits is one too (float() of it raises OverflowError)
+    try:
+        number = math.nan if isinstance(value, bool) or not isinstance(value, int | float) else float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise ValueError(f"metadata {KEY}.{where} must be a finite number, not {value!r:.40}")
+    return number
 
 
 def read_self_check(metadata: dict) -> dict | None:

@@ -191,7 +191,10 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     elif sink == "spawn":
         rec.connect_grpc(spawn_viewer(), default_blueprint=blueprint)
     elif sink.startswith(("rerun://", "rerun+http://", "rerun+https://", "http://")):
-        rec.connect_grpc(sink, default_blueprint=blueprint)
+        try:
+            rec.connect_grpc(sink, default_blueprint=blueprint)
+        except RuntimeError as e:   # Rerun's 'invalid endpoint ...': a bad URL is the user's, said in one line
+            raise ViewerError(f"--rerun {sink}: {e}") from None
     elif sink != "none":
         Path(sink).parent.mkdir(parents=True, exist_ok=True)
         rec.save(sink, default_blueprint=blueprint, write_footer=footer)

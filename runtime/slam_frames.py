@@ -29,8 +29,9 @@ def read_frame_counts(metadata: dict) -> dict[str, int] | None:
         raise ValueError(f"metadata {KEY} must hold exactly {', '.join(FIELDS)}, not {counts!r:.80}")
     for name in FIELDS:
         value = counts[name]
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"metadata {KEY}.{name} must be a whole number >= 0, not {value!r:.40}")
+        # below 2^63 (a frame count, as int64 holds it): a count of 400 digits made starved() raise OverflowError
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 1 << 63:
+            raise ValueError(f"metadata {KEY}.{name} must be a whole number >= 0 below 2^63, not {value!r:.40}")
     return {name: counts[name] for name in FIELDS}
 
 

@@ -182,7 +182,12 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     except (ValueError, RuntimeError) as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return 2
-    logger = _open_logger(args.rerun, out)
+    try:
+        logger = _open_logger(args.rerun, out)
+    except RuntimeError as e:   # a --rerun URL Rerun refuses (runtime.rerun_log.ViewerError): exit 70 before
+        exchange.close()
+        print(f"p3at fuse: {e}", file=sys.stderr)
+        return 2
     reports: list[FusionReport] = []
     node = FusionNode(exchange, config, logger=logger, on_event=event, on_report=reports.append)
     node_box.append(node)
