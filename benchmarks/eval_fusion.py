@@ -828,4 +828,10 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from estimation.errors import MapFileError
+
+    try:
+        main()
+    except MapFileError as e:   # a map file of a given folder missing or unreadable: one line naming it
+        print(f"{Path(__file__).name}: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -15,7 +15,7 @@ from estimation.landmark_map import LandmarkMap
 ROOT = Path(__file__).resolve().parents[2]
 RUNS = [("bench_fusion.py", "--only-repeated", "--demo-maps"), ("fusion_prior.py", "--demo"),
         ("fusion_gate_scale.py", "--demo"), ("fusion_gate_scale.py", "--mrclam"), ("colocation_eval.py", "demo"),
-        ("colocation_eval.py", "mrclam")]
+        ("colocation_eval.py", "mrclam"), ("eval_fusion.py", "--maps-only", "--demo-maps")]
 
 
 @pytest.fixture(scope="module")
