@@ -84,18 +84,18 @@ from estimation.fastslam.motion import increment_variance  # noqa: E402
 from estimation.geometry import between, compose, dead_reckoning  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import ate, map_scores  # noqa: E402
-from estimation.landmark_smoother import (  # noqa: E402  (private: the joint covariance needs its information matrix)
+from estimation.landmark_smoother import (  # noqa: E402
     OUTLIER_CHI2,
+    HeadingDrift,
     LandmarkLogProblem,
     Smoothed,
-    _information,
-    _NormalFactor,
-    _residuals,
+    joint_landmark_covariance,
     landmarks_from_first_sightings,
+    normalised_residuals,
     smooth,
 )
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise, with_fastslam  # noqa: E402
-from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
 CHI2_2_99 = 9.210                 # χ²₂ 99 %: a sighting falls on a landmark; two names are candidates for one post
 MIN_WINDOW_FRAMES = 2             # a window with fewer sighting frames makes no map
@@ -308,31 +308,16 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
                                  frame.astype(int) + 1, landmark_index.astype(int), ranges, bearings,
                                  sensor.range_sigma(ranges) * inflate_r,
-                                 np.full(len(rows), sensor.bearing_sigma_rad * inflate_b))
+                                 np.full(len(rows), sensor.bearing_sigma_rad * inflate_b), np.diff(frame_times))
     return NamedProblem(problem, unique_names, times, rows)
 
 
-def joint_landmark_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
-    """The landmarks' joint marginal covariance (2L, 2L) at ``solution`` (rows of landmarks never sighted: inf)."""
-    t, n = problem.n_poses, len(solution.landmarks)
-    seen = np.zeros(n, bool)
-    seen[problem.landmark_index[solution.inliers]] = True
-    information = _information(problem, solution.poses, solution.landmarks, solution.inliers, n)
-    free = np.ones(information.shape[0], bool)
-    free[3 * t:] = np.repeat(seen, 2)
-    factor = _NormalFactor(information[free][:, free], t)
-    out = np.full((2 * n, 2 * n), np.inf)
-    keep = np.repeat(seen, 2)
-    out[np.ix_(keep, keep)] = factor.landmark_covariance()
-    return out
-
-
 def truncated_cost(problem: LandmarkLogProblem, solution: Smoothed) -> float:
-    """Σ r² of the odometry plus Σ min(r², χ²₂ 99 %) of every sighting: one cost for solutions that dropped
-    different sightings as outliers (a dropped sighting counts at the bound)."""
-    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks)
-    per = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)
-    return float(np.sum(odometry ** 2) + np.sum(np.minimum(per, OUTLIER_CHI2)))
+    """Σ r² of the odometry (and of the heading drift's factors) plus Σ min(r², χ²₂ 99 %) of every sighting: one
+    cost for solutions that dropped different sightings as outliers (a dropped sighting counts at the bound)."""
+    odometry, sightings, drift = normalised_residuals(problem, solution)
+    per = np.sum(sightings ** 2, axis=1)
+    return float(np.sum(odometry ** 2) + np.sum(drift ** 2) + np.sum(np.minimum(per, OUTLIER_CHI2)))
 
 
 @dataclass
@@ -422,6 +407,7 @@ class MergeRound:
     names: np.ndarray
     named: NamedProblem
     solution: Smoothed
+    candidates: list[MergeCandidate] = field(default_factory=list)
 
 
 @dataclass
@@ -438,10 +424,11 @@ class LoopClosure:
 
 
 def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
-                 initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None
-                 ) -> tuple[NamedProblem, Smoothed]:
+                 initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
+                 heading_drift: HeadingDrift | None = None) -> tuple[NamedProblem, Smoothed]:
     """The smoother on ``log`` with ``names``; initial poses (T + 1, 3) (default: the calibrated dead reckoning),
-    initial landmark positions by name (default: placed from their first sightings)."""
+    initial landmark positions by name (default: placed from their first sightings); ``heading_drift``: the
+    smoother's heading-bias states (None: none)."""
     named = named_problem(log, names, noise, config)
     problem = named.problem
     if initial_poses is None:
@@ -450,19 +437,23 @@ def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, con
     for k, name in enumerate(named.names):
         if initial is not None and int(name) in initial:
             landmarks[k] = initial[int(name)]
-    return named, smooth(problem, initial_poses, landmarks)
+    return named, smooth(problem, initial_poses, landmarks, heading_drift=heading_drift)
 
 
 def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
                 initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
                 ratio: float = 100.0, rivals: str = "contradicting", max_rounds: int = 200,
-                on_round=None) -> LoopClosure:
+                on_round=None, heading_drift: HeadingDrift | None = None, batch: int | None = None
+                ) -> LoopClosure:
     """Smooth with ``names``, then merge names that pass :func:`merge_candidates` until none does (module
     docstring, step 3). ``initial_poses``, ``initial``: the first smoothing's initial guess, poses (T + 1, 3) at the
     named frames and landmark positions by name (defaults: :func:`smooth_named`'s). ``on_round(round)`` is called
-    after the first smoothing and every round (a benchmark scores them)."""
+    after the first smoothing and every round (a benchmark scores them). ``heading_drift``: every smoothing's
+    heading-bias states (None: none). ``batch``: merge at most this many pairs a round, most certain first (None:
+    every pair that passes; 1: one at a time, each checked alone by the cost's rise)."""
     names = np.asarray(names, np.int64).copy()
-    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial)
+    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
+                                   heading_drift=heading_drift)
     first = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
     out = LoopClosure(first)
     if on_round is not None:
@@ -473,12 +464,14 @@ def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, conf
         candidates = merge_candidates(current.named, current.solution, ratio=ratio, refused=refused, rivals=rivals)
         if not candidates:
             break
-        attempt = _merge(log, current, candidates, noise, config)
+        if batch is not None:
+            candidates = candidates[:batch]
+        attempt = _merge(log, current, candidates, noise, config, heading_drift)
         if not attempt.accepted and len(candidates) > 1:
             out.rounds.append(attempt)
             if on_round is not None:
                 on_round(attempt)
-            attempt = _merge(log, current, candidates[:1], noise, config)
+            attempt = _merge(log, current, candidates[:1], noise, config, heading_drift)
         out.rounds.append(attempt)
         if on_round is not None:
             on_round(attempt)
@@ -489,20 +482,21 @@ def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, conf
     return out
 
 
-def _merge(log, current: MergeRound, candidates: list[MergeCandidate], noise, config) -> MergeRound:
+def _merge(log, current: MergeRound, candidates: list[MergeCandidate], noise, config, heading_drift=None
+           ) -> MergeRound:
     names = current.names.copy()
     position = dict(zip(current.named.names.tolist(), current.solution.landmarks, strict=True))
     for c in candidates:
         names[names == c.b] = c.a
         position[c.a] = 0.5 * (position[c.a] + position[c.b])
     named, solution = smooth_named(log, names, noise, config, initial_poses=current.solution.poses,
-                                   initial=position)
+                                   initial=position, heading_drift=heading_drift)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
     bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(candidates)))
     merged = [(c.a, c.b) for c in candidates]
     if rise <= bound:
-        return MergeRound(merged, rise, bound, True, names, named, solution)
-    return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
+        return MergeRound(merged, rise, bound, True, names, named, solution, list(candidates))
+    return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution, list(candidates))
 
 
 # ---- scoring (the barcodes) ---------------------------------------------------------------------------------------
@@ -553,7 +547,9 @@ def round_scores(log: RangeBearingLog, r: MergeRound, owner_before: dict[int, in
                         true_start, log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, None))
     wrong = [(a, b) for a, b in r.merged if owner_before.get(a) != owner_before.get(b)]
     naming = naming_scores(r.names, log.landmark_ids)
-    return {"merged": len(r.merged), "wrong_merges": len(wrong), "accepted": r.accepted,
+    wrong_pairs = [{"names": [c.a, c.b], "barcodes": [owner_before.get(c.a), owner_before.get(c.b)], "d2": c.d2,
+                    "log_ratio": c.log_ratio} for c in r.candidates if (c.a, c.b) in wrong]
+    return {"merged": len(r.merged), "wrong_merges": len(wrong), "accepted": r.accepted, "wrong_pairs": wrong_pairs,
             "cost_rise": r.rise, "cost_bound": r.bound,
             "ate_m": ate(compose(true_start, sol.poses[1:]), log.true_pose(named.frame_times)),
             "names": naming["names"], "names_per_post": naming["names_per_post"],
@@ -602,19 +598,38 @@ def gap_table(log: RangeBearingLog, r: MergeRound) -> list[dict]:
 
 # ---- the benchmark -------------------------------------------------------------------------------------------------
 
-def run_robot(log: RangeBearingLog, args) -> dict:
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    config = range_bearing_config(n_particles=args.particles)
-    barcodes = log.landmark_ids
+def _chained(log: RangeBearingLog, args, noise: NoiseModel, config: FastSLAMConfig) -> tuple[ChainedNames, dict]:
+    """The chained names of ``log`` and the windows' figures; kept in (and read back from) ``args.names_cache`` if
+    given, one .npz per robot, window, step, seed and particle count (the windows are most of the run's time)."""
+    step = args.step or args.window / 2
+    cache = None
+    if args.names_cache:
+        cache = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
+                                          f"-p{args.particles}.npz")
+        if cache.is_file():
+            with np.load(cache, allow_pickle=False) as data:
+                return ChainedNames(data["names"], []), json.loads(str(data["row"]))
     started = time.process_time()
     windows = run_windows(log, args.window, config, noise, seed=args.seed, step=args.step)
     window_cpu = time.process_time() - started
+    barcodes = log.landmark_ids
     per_window = [naming_scores(w.sighting_landmark, barcodes[w.sightings]) for w in windows]
     chained = chain_windows(windows, len(log))
     row = {"robot": log.name, "windows": len(windows), "window_cpu_s": window_cpu,
            "window_wrong_fraction": sum(p["wrong"] for p in per_window) / max(sum(p["named"] for p in per_window), 1),
-           "chain_links": chained.links, "chain_unlinked": chained.unlinked,
-           "chained": naming_scores(chained.names, barcodes)}
+           "chain_links": chained.links, "chain_unlinked": chained.unlinked}
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(cache, names=chained.names, row=np.array(json.dumps(row)))
+    return chained, row
+
+
+def run_robot(log: RangeBearingLog, args) -> dict:
+    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    config = range_bearing_config(n_particles=args.particles)
+    barcodes = log.landmark_ids
+    chained, row = _chained(log, args, noise, config)
+    row["chained"] = naming_scores(chained.names, barcodes)
     # the smoother's starting guess: the known-ID filter and smoother with the chained names as identities
     keep = chained.names >= 0
     named_log = dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
@@ -622,25 +637,48 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     started = time.process_time()
     guess = run_landmark_log(named_log, config, np.random.default_rng(args.seed), noise=noise, association="id",
                              smooth=True)
+    row["guess_cpu_s"] = time.process_time() - started
     initial = {int(n): p[:2] for n, p in zip(guess.map.metadata["external_ids"], guess.map.positions, strict=True)}
     rounds: list[dict] = []
     owners = [majority(chained.names, barcodes)]
 
+    gaps: list[list[dict]] = []
+
     def on_round(r: MergeRound) -> None:
         rounds.append(round_scores(log, r, owners[-1]))
-        if args.progress and len(rounds) > 1:
-            _print_round(len(rounds) - 1, rounds[-1], file=sys.stderr)
+        if len(rounds) == 1:
+            gaps.append(gap_table(log, r))
+        if args.progress:
+            if len(rounds) > 1:
+                _print_round(len(rounds) - 1, rounds[-1], file=sys.stderr)
+            else:
+                _print_first(rounds[0], gaps[-1], file=sys.stderr)
         if r.accepted:
             owners.append(majority(r.names, barcodes))
 
-    closure = close_loops(log, chained.names, noise, config, initial_poses=guess.map.trajectory[:, 1:],
-                          initial=initial, ratio=args.ratio, rivals=args.rivals, max_rounds=args.max_rounds,
-                          on_round=on_round)
-    row.update(smoothed=rounds[0], rounds=rounds[1:], smooth_cpu_s=time.process_time() - started,
-               merges=sum(r["merged"] for r in rounds[1:] if r["accepted"]),
-               wrong_merges=sum(r["wrong_merges"] for r in rounds[1:] if r["accepted"]),
-               final=rounds[[i for i, r in enumerate(rounds) if r["accepted"]][-1]],
-               gaps=gap_table(log, closure.first))
+    variants = [] if args.drift_only else [("off", None)]
+    variants += [(f"drift {sigma:g} rad/m, {tau:g} s", HeadingDrift(sigma, tau)) for sigma, tau in args.drift or []]
+    results = {}
+    for label, drift in variants:
+        rounds.clear()
+        del owners[1:]
+        if args.progress:
+            print(f"{log.name}: smoothing, {label}", file=sys.stderr, flush=True)
+        started_variant = time.process_time()
+        max_rounds = args.max_rounds if drift is not None or args.white_rounds is None else args.white_rounds
+        close_loops(log, chained.names, noise, config, initial_poses=guess.map.trajectory[:, 1:], initial=initial,
+                    ratio=args.ratio, rivals=args.rivals, max_rounds=max_rounds, on_round=on_round,
+                    heading_drift=drift, batch=args.batch)
+        results[label] = dict(
+            smoothed=list(rounds)[0], rounds=list(rounds)[1:],
+            smooth_cpu_s=time.process_time() - started_variant,
+            merges=sum(r["merged"] for r in rounds[1:] if r["accepted"]),
+            wrong_merges=sum(r["wrong_merges"] for r in rounds[1:] if r["accepted"]),
+            final=rounds[[i for i, r in enumerate(rounds) if r["accepted"]][-1]],
+            gaps=gaps[-1])
+    row.update(results[variants[0][0]])
+    if len(variants) > 1:
+        row["variants"] = results
     if not args.no_reference:
         keys = ("ate_m", "landmarks", "duplicate_fraction", "landmark_nees_within_bound", "landmark_error_median_m")
         known = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise, association="id",
@@ -666,10 +704,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rivals", choices=("contradicting", "all"), default="contradicting",
                         help="which names the likelihood ratio is taken over (merge_candidates)")
     parser.add_argument("--max-rounds", type=non_negative_int, default=50)
+    parser.add_argument("--batch", type=positive_int, default=None,
+                        help="merge at most this many pairs a round (1: one at a time; default: all that pass)")
+    parser.add_argument("--drift", type=non_negative_float, nargs=2, action="append", metavar=("RAD_PER_M", "S"),
+                        help="also smooth with a heading drift (σ rad/m, τ s) beside the white model; repeatable")
+    parser.add_argument("--drift-only", action="store_true", help="only the --drift variants, not the white model")
+    parser.add_argument("--white-rounds", type=non_negative_int, default=None,
+                        help="loop-closing rounds for the white model (default: --max-rounds; 0: the open chain only)")
     parser.add_argument("--no-reference", action="store_true", help="skip the known-ID and unknown-filter runs")
     parser.add_argument("--progress", action="store_true", help="each loop-closing round on stderr as it ends")
+    parser.add_argument("--names-cache", metavar="DIR", default=None,
+                        help="keep each robot's chained names here and reuse them (the windows' filter runs)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.drift_only and not args.drift:
+        parser.error("--drift-only needs at least one --drift")
+    if any(not tau > 0 for _, tau in args.drift or []):
+        parser.error("--drift: the correlation time must be > 0 s")
     if not os.path.isdir(args.data):
         print(f"mrclam_chained_names: no data set at {args.data}", file=sys.stderr)
         return 2
@@ -690,14 +741,47 @@ def _print_round(k: int, r: dict, file=None) -> None:
     print(f"  round {k}: {r['merged']} merged ({r['wrong_merges']} wrong), cost rise {r['cost_rise']:.1f} "
           f"(bound {r['cost_bound']:.1f}) {'kept' if r['accepted'] else 'undone'}; names {r['names']}, "
           f"ATE {r['ate_m']:.3f} m, NEES within {100 * r['landmark_nees_within_bound']:.0f} %", file=file, flush=True)
+    for w in r.get("wrong_pairs", []):
+        print(f"    wrong: names {w['names']} (barcodes {w['barcodes']}), d² {w['d2']:.2f}, log ratio "
+              f"{w['log_ratio']:.1f}", file=file, flush=True)
+
+
+def _print_first(s: dict, gaps: list[dict], file=None) -> None:
+    print(f"  smoothed on the chained names: ATE {s['ate_m']:.3f} m, landmark NEES within bound "
+          f"{100 * s['landmark_nees_within_bound']:.0f} %, error median {s['landmark_error_median_m']:.2f} m "
+          f"(σ median {s['landmark_sd_median_m']:.2f} m), χ²/dof {s['chi2_per_dof']:.3f}", file=file, flush=True)
+    for g in gaps:
+        _print_gap(g, file=file)
+
+
+def _print_gap(g: dict, file=None) -> None:
+    hi = "∞" if g["gap_s"][1] is None else f"{g['gap_s'][1]:.0f}"
+    same = (f"σ {g['same_post_sd_median_m']:.2f} m, d² median {g['same_post_d2_median']:.2f}, in gate "
+            f"{100 * g['same_post_in_gate']:.0f} %") if g["same_post_pairs"] else "-"
+    other = f"{100 * g['other_post_in_gate']:.0f} %" if g["other_post_pairs"] else "-"
+    print(f"  gap {g['gap_s'][0]:.0f}-{hi} s: {g['same_post_pairs']} same-post pairs ({same}); "
+          f"{g['other_post_pairs']} other-post pairs, in gate {other}", file=file, flush=True)
 
 
 def _print(row: dict) -> None:
-    c, s, f = row["chained"], row["smoothed"], row["final"]
+    c = row["chained"]
     print(f"{row['robot']}: {row['windows']} windows ({row['window_cpu_s']:.0f} s CPU), window sightings wrong "
           f"{100 * row['window_wrong_fraction']:.2f} %; chained: {row['chain_links']} links, "
           f"{row['chain_unlinked']} unlinked, wrong {100 * c['wrong_fraction']:.2f} %, {c['names']} names "
           f"({c['names_per_post']:.1f} per post, duplicates {100 * c['duplicate_fraction']:.0f} %)")
+    for label, variant in (row.get("variants") or {"": row}).items():
+        if label:
+            print(f" {label}:")
+        _print_variant(variant)
+    for key in ("known_id", "unknown_filter"):
+        if key in row:
+            m = row[key]
+            print(f"  {key}: ATE {m['ate_m']:.3f} m, {m['landmarks']} landmarks, duplicates "
+                  f"{100 * m['duplicate_fraction']:.0f} %, NEES within {100 * m['landmark_nees_within_bound']:.0f} %")
+
+
+def _print_variant(row: dict) -> None:
+    s, f = row["smoothed"], row["final"]
     print(f"  smoothed on the chained names: ATE {s['ate_m']:.3f} m, landmark NEES within bound "
           f"{100 * s['landmark_nees_within_bound']:.0f} %, error median {s['landmark_error_median_m']:.2f} m "
           f"(σ median {s['landmark_sd_median_m']:.2f} m), χ²/dof {s['chi2_per_dof']:.3f}")
@@ -706,17 +790,7 @@ def _print(row: dict) -> None:
     print(f"  loops closed: {row['merges']} merges, {row['wrong_merges']} wrong; final: ATE {f['ate_m']:.3f} m, "
           f"{f['names_per_post']:.1f} names per post, NEES within {100 * f['landmark_nees_within_bound']:.0f} %")
     for g in row["gaps"]:
-        hi = "∞" if g["gap_s"][1] is None else f"{g['gap_s'][1]:.0f}"
-        same = (f"σ {g['same_post_sd_median_m']:.2f} m, d² median {g['same_post_d2_median']:.2f}, in gate "
-                f"{100 * g['same_post_in_gate']:.0f} %") if g["same_post_pairs"] else "-"
-        other = f"{100 * g['other_post_in_gate']:.0f} %" if g["other_post_pairs"] else "-"
-        print(f"  gap {g['gap_s'][0]:.0f}-{hi} s: {g['same_post_pairs']} same-post pairs ({same}); "
-              f"{g['other_post_pairs']} other-post pairs, in gate {other}")
-    for key in ("known_id", "unknown_filter"):
-        if key in row:
-            m = row[key]
-            print(f"  {key}: ATE {m['ate_m']:.3f} m, {m['landmarks']} landmarks, duplicates "
-                  f"{100 * m['duplicate_fraction']:.0f} %, NEES within {100 * m['landmark_nees_within_bound']:.0f} %")
+        _print_gap(g)
 
 
 if __name__ == "__main__":
