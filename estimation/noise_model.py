@@ -80,6 +80,14 @@ MAX_ODOMETRY_LAG_S = 1.0       # s: a drive that answers its commands a second l
 MAX_FORWARD_DEFICIT_PER_RAD = 0.5  # m/rad: a robot that loses half a metre per radian turned is not calibrated
 MAX_TURN_XY_INFLATION = 100.0      # beyond, a turn's odometry says nothing of its travel: not a calibration
 MAX_HEADING_DRIFT_PER_M = 1.0      # rad/m: σ of the drifting heading bias; beyond, the heading says nothing
+# magnitudes beyond which a value describes no robot or sensor (and its square overflows the filter's arithmetic:
+# a σ of 1e308 m was an OverflowError, a variance of 1e308 dozens of RuntimeWarnings); the others have checks below
+MAGNITUDE_BOUNDS = {"xy_var_per_m": 100.0, "theta_var_per_rad": 100.0, "theta_var_per_m": 100.0,   # m²/m, rad²/…
+                    "heading_drift_tau_s": 1e6,                                                    # s (11 days)
+                    "range_sigma_m": 1e3, "range_sigma_per_m": 1e3, "bearing_sigma_rad": 2 * math.pi,  # m, m/m, rad
+                    "bearing_offset_rad": math.pi, "max_range_m": 1e4,   # rad, m (min_range_m < max_range_m)
+                    "range_offset_m": 1e3, "range_scale_per_rad": 10.0, "range_scale_per_rad2": 10.0,
+                    "sigma_u_px": 1e4, "sigma_v_px": 1e4, "sigma_d_px": 1e4}                      # px
 TURN_STEP_S = 0.25                 # the increments on which a turn's overdispersion is measured (a frame interval)
 TURN_MIN_INCREMENTS = 4            # a turn shorter than this says nothing of the errors' persistence
 # range bands (label, upper edge m) of the fitted detection probabilities ([fit] detection_probability_<label>)
@@ -190,6 +198,10 @@ class NoiseModel:
                         or (not signed and value < 0):
                     raise NoiseModelError(f"{f.name} must be a finite number{'' if signed else ' >= 0'}, "
                                           f"not {value!r}")
+                bound = MAGNITUDE_BOUNDS.get(f.name)
+                if bound is not None and abs(value) > bound:
+                    raise NoiseModelError(f"{f.name} must lie within {'±' if signed else '[0, '}{bound:g}"
+                                          f"{'' if signed else ']'}, not {value!r}")
         scales = (self.odometry.translation_scale, self.odometry.rotation_scale)
         if not all(0.5 <= s <= 2.0 for s in scales):
             raise NoiseModelError(f"odometry scales must lie in [0.5, 2] (a calibration, not a new robot), "
