@@ -103,8 +103,9 @@ def test_cli_warns_when_the_truth_says_the_map_is_confidently_wrong_or_duplicate
     (["--robot", "1"], "fitting this log's own noise model: only 1 odometry windows"),   # 10 s: give --noise
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, synthetic, args, complaint):
-    synthetic.write(tmp_path, seconds=10.0)
-    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path), "--out", str(tmp_path / "m.npz"), *args)
+    synthetic.write(tmp_path / "data", seconds=10.0)   # the map beside the data set: never inside it (session 23)
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--out", str(tmp_path / "m.npz"),
+                            *args)
     assert status == 2 and complaint in err and err.count("\n") == 1 and not (tmp_path / "m.npz").exists()
 
 
