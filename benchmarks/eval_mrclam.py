@@ -63,6 +63,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks import evo_metrics  # noqa: E402
+from benchmarks.config_overrides import config_overrides  # noqa: E402
 from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
@@ -77,15 +78,6 @@ COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "
            ("landmark_error_rigid_median_m", "lm-rig", 3), ("landmark_nees_within_bound", "NEES<b", 2),
            ("landmark_nees_rigid_within_bound", "rig<b", 2), ("pose_nees_median", "poseNEES", 1),
            ("pose_nees_within_chi2_95", "pose<b", 2), ("seconds_cpu", "cpu s", 0))
-
-
-def config_overrides(items: list[str]) -> dict:
-    """``--set FIELD=VALUE`` items as FastSLAMConfig overrides (each value JSON)."""
-    overrides = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        overrides[key] = json.loads(value)
-    return overrides
 
 
 def heading_drift_option(text: str):
