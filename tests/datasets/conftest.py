@@ -27,6 +27,17 @@ def run_cli(*argv) -> tuple[int, str, str]:
     return status, out.getvalue(), err.getvalue()
 
 
+def gauss_markov(rng: np.random.Generator, n: int, sigma: float, decay: float) -> np.ndarray:
+    """(n,) a stationary first-order Gauss–Markov series: stationary deviation ``sigma``, ``decay`` = e^(−Δt/τ) per
+    step (a drifting heading bias per metre, session 22)."""
+    series = np.empty(n)
+    series[0] = sigma * rng.standard_normal()
+    shocks = sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal(n)
+    for k in range(1, n):
+        series[k] = decay * series[k - 1] + shocks[k]
+    return series
+
+
 def _write(path: Path, header: str, rows, gz: bool) -> None:
     text = header + "".join(" ".join(f"{v:.10g}" for v in row) + "\n" for row in rows)
     if gz:

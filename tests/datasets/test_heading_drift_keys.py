@@ -11,7 +11,7 @@ from estimation.fastslam import FastSLAMConfig, range_bearing_config
 from estimation.geometry import dead_reckoning
 from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, RangeBearingNoise, with_fastslam
 from estimation.odometry_consistency import fit_heading_drift, odometry_consistency
-from tests.datasets.conftest import run_cli
+from tests.datasets.conftest import gauss_markov, run_cli
 
 HEADER = ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\ntheta_var_per_rad = 1\n'
           'theta_var_per_m = 1\n')
@@ -72,12 +72,7 @@ def _drifting_log(rng, seconds: float, sigma: float, tau: float, model: NoiseMod
     v = 0.3 + 0.2 * np.sin(t / 11.0)
     w = 0.4 * np.sin(t / 7.0) + 0.2 * np.sin(t / 2.3)
     true_steps = np.column_stack([v * STEP, np.zeros_like(t), w * STEP])
-    decay = np.exp(-STEP / tau)
-    bias = np.empty(len(t))
-    bias[0] = sigma * rng.standard_normal()
-    shocks = sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal(len(t))
-    for k in range(1, len(t)):
-        bias[k] = decay * bias[k - 1] + shocks[k]
+    bias = gauss_markov(rng, len(t), sigma, np.exp(-STEP / tau))
     o = model.odometry
     noisy = true_steps + rng.standard_normal(true_steps.shape) * np.sqrt(
         [o.xy_var_per_m * v * STEP, o.xy_var_per_m * v * STEP,

@@ -22,6 +22,7 @@ from estimation.odometry_consistency import (
     nees,
     odometry_consistency,
 )
+from tests.datasets.conftest import gauss_markov
 from tests.datasets.conftest import run_cli as _cli
 
 STEP = 0.25
@@ -118,12 +119,7 @@ def test_a_drifting_heading_bias_is_within_the_bound_of_a_model_that_carries_it(
     model = NoiseModel(OdometryNoise(0.02 ** 2, 0.02 ** 2, 0.005 ** 2))
     sigma, tau = 0.01, 20.0
     true_steps = _motion(rng, 30_000.0)
-    decay = np.exp(-STEP / tau)
-    bias = np.empty(len(true_steps))
-    bias[0] = sigma * rng.standard_normal()
-    shocks = sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal(len(true_steps))
-    for k in range(1, len(bias)):
-        bias[k] = decay * bias[k - 1] + shocks[k]
+    bias = gauss_markov(rng, len(true_steps), sigma, np.exp(-STEP / tau))
     config = replace(FastSLAMConfig(), **{k: v for k, v in model.fastslam_overrides().items() if k.startswith("odom")})
     noisy = true_steps + rng.standard_normal(true_steps.shape) * np.sqrt(increment_variance(true_steps, config))
     noisy[:, 2] -= bias * np.hypot(noisy[:, 0], noisy[:, 1])       # the truth turns b per metre more
