@@ -178,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     for mode in modes:
         for r in robots:
             start = time.process_time()
-            run = run_landmark_log(logs[r], range_bearing_config(n_particles=args.particles, **overrides),
+            run = run_landmark_log(logs[r], range_bearing_config(**({"n_particles": args.particles} | overrides)),
                                    np.random.default_rng(args.seed), noise=noise[r], association=mode,
                                    robot=f"robot{r}", until=args.until, inflate_correlated=not args.no_inflation,
                                    smooth=args.smooth and mode == "id")
