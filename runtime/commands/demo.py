@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from runtime.commands.options import check_output_folder
+from runtime.commands.options import check_output_folder, rerun_url_problem
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -21,18 +21,35 @@ def register(subparsers) -> None:
                         help="each robot (virtual P3-AT, head and runtime) its own process, maps over Zenoh on "
                              "loopback, the fusion node in this one; each robot keeps its own simulated time; "
                              "--camera synthetic unless given (docs/fleet.md)")
-    parser.set_defaults(handler=_demo, camera=None)
+    # None: not given (--processes refuses them given, _processes_problem); the in-process demo's defaults in _demo
+    parser.set_defaults(handler=_demo, camera=None, exchange=None, fleet=None)
+
+
+def _processes_problem(args) -> str | None:
+    """Why --processes cannot run as asked (None when it can): --exchange or --fleet given. Its robots and fusion
+    node meet on a loopback port and a fleet name made for the run (runtime/fleet/processes.py), so that two demos
+    never hear each other or the lab's fleet; honouring a user's exchange would need two Zenoh configurations (the
+    node's listen side, the robots' connect side, with their own certificates), which one --exchange cannot give."""
+    given = [option for option, value in (("--exchange", args.exchange), ("--fleet", args.fleet)) if value is not None]
+    if not given:
+        return None
+    return (f"{' and '.join(given)} {'does' if len(given) == 1 else 'do'} not apply to --processes: its robots and "
+            "fusion node meet on a loopback port and a fleet name of their own; for a fleet on your exchange, run "
+            "p3at run --exchange SPEC --fleet NAME for each robot and p3at fuse --live (docs/fleet.md)")
 
 
 def mission_inputs_problem(args) -> str | None:
     """Why the mission's own files cannot serve (None when they can), said before any robot starts: the output
     folder (with --log-sensors: no earlier run's log in it: the second run failed after it had replaced the first
     one's mission.rrd with an empty recording), the building (--world; on virtual robots also the number of robots
-    it has start poses for) and the route (--route, when the robots follow one)."""
+    it has start poses for), the route (--route, when the robots follow one) and a --rerun URL Rerun refuses."""
     from mocks.world import World
     from runtime.motion import load_route
 
     virtual = getattr(args, "robot", "mock") == "mock"   # `p3at run` has --robot; `p3at demo` drives mocks only
+    url = rerun_url_problem(args.rerun)   # the mission (or the fusion node of --processes) opens it only once started
+    if url is not None:
+        return url
     try:
         check_output_folder(args.out)
         world = World.load(args.world) if args.world is not None or virtual else None
@@ -54,7 +71,7 @@ def mission_inputs_problem(args) -> str | None:
 
 
 def _demo(args) -> int:
-    problem = mission_inputs_problem(args)
+    problem = (_processes_problem(args) if args.processes else None) or mission_inputs_problem(args)
     if problem is not None:
         print(f"p3at demo: {problem}", file=sys.stderr)
         return 2
@@ -63,5 +80,8 @@ def _demo(args) -> int:
 
         args.camera = args.camera or "synthetic"  # rendering every head in its own process costs far more CPU
         return run_processes_demo(args)
+    from runtime.fleet.options import DEFAULT_FLEET
+
     args.camera = args.camera or "mock"
+    args.exchange, args.fleet = args.exchange or "inprocess", args.fleet or DEFAULT_FLEET
     return run_mission_command(args)

@@ -173,3 +173,21 @@ def check_output_apart(path: str | os.PathLike | None, option: str = "--out", *,
         if given is not None and target.is_relative_to(Path(os.path.realpath(given))):
             raise OutputPathError(f"{option} {path} is inside the {role} folder {given}: a file written there could "
                                   "replace one of its files; write it elsewhere")
+
+
+RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")   # what the commands take as a URL
+
+
+def rerun_url_problem(sink: str | None) -> str | None:
+    """Why Rerun refuses the ``--rerun`` URL ``sink``, in one line naming the option (None when ``sink`` is no URL,
+    or one Rerun takes), found by Rerun's own parser without connecting to anything: a command says it before it
+    starts, not when its recording opens (``demo``/``run`` ended in exit 1, ``mission failed: --rerun ...``)."""
+    if sink is None or not sink.startswith(RERUN_URL_PREFIXES):
+        return None
+    from runtime.rerun_log import rr  # runtime/rerun_log.py is the one module that imports rerun
+
+    try:
+        rr.GrpcSink(sink)   # parses the URL as connect_grpc does; opens no connection
+    except RuntimeError as e:   # Rerun's 'invalid endpoint "...": invalid IPv4 address'
+        return f"--rerun {sink}: {e}"
+    return None
