@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 
 import numpy as np
@@ -20,6 +19,7 @@ from runtime.commands.options import (
     check_output_apart,
     check_output_file,
     non_negative_int,
+    same_file,
     start_sigmas,
 )
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
@@ -98,12 +98,12 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
     check_output_apart(args.out, files={"--start-poses": args.start_poses})
-    twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if _same_file(a, b)), None)
+    twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if same_file(a, b)), None)
     if twice is not None:
         print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "
               "fused with itself would count every landmark twice and halve its covariance", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if any(_same_file(args.out, path) for path in args.maps):
+    if any(same_file(args.out, path) for path in args.maps):
         print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
               "another file", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -256,14 +256,6 @@ def _held_maps(paths: list[str], maps: list[LandmarkMap]) -> str | None:
                      f"if {paths[j]} is that map, its landmarks count twice (the fused map was written before maps "
                      "recorded their sources' fingerprints, so it cannot tell)"), file=sys.stderr)
     return None
-
-
-def _same_file(a: str, b: str) -> bool:
-    """Whether two paths name one file (a link or another spelling of the path included)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:       # one of them does not exist (yet)
-        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:

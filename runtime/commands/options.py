@@ -157,18 +157,29 @@ def check_output_folder(path: str | os.PathLike | None, option: str = "--out") -
         raise OutputPathError(f"{option} {path}: {why}")
 
 
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two paths name one file: any spelling of it (``..``, a relative path), a symbolic link to it, or a
+    hard link (both exist: ``os.path.samefile``); a path that does not exist (yet) by its resolved spelling."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:       # one of them does not exist (yet): no inode to compare
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
 def check_output_apart(path: str | os.PathLike | None, option: str = "--out", *, files: dict | None = None,
                        folders: dict | None = None) -> None:
     """Raise :class:`OutputPathError` when the output ``path`` names one of the command's input ``files`` ({option or
-    role: path}; any spelling of it, or a link to it) or lies inside one of its input ``folders`` (a data set, whose
-    tables a file written there could replace): the write would destroy what the command reads."""
+    role: path}; :func:`same_file`) or is, or lies inside, one of its input ``folders`` (a data set, whose tables a
+    file written there could replace; links and ``..`` resolved): the write would destroy what the command reads.
+    The one check of outputs against inputs: the commands' (``fuse``, ``slam``) and the benchmarks'
+    (``benchmarks/output_paths.py``)."""
     if path is None:
         return
-    target = Path(os.path.realpath(path))
     for role, given in (files or {}).items():
-        if given is not None and target == Path(os.path.realpath(given)):
+        if given is not None and same_file(path, given):
             raise OutputPathError(f"{option} {path} is the {role} file {given}: writing it would replace it; give "
                                   "another file")
+    target = Path(os.path.realpath(path))
     for role, given in (folders or {}).items():
         if given is not None and target.is_relative_to(Path(os.path.realpath(given))):
             raise OutputPathError(f"{option} {path} is inside the {role} folder {given}: a file written there could "

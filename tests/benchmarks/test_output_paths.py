@@ -5,17 +5,18 @@ from __future__ import annotations
 import pytest
 
 from benchmarks import eval_mrclam, mrclam_nees_diagnosis, smoother_frame_diagnosis
-from benchmarks.output_paths import output_inside_input, output_refusal
+from benchmarks.output_paths import output_refusal
 
 
 def test_inside_is_the_folder_itself_or_below_it_after_resolving(tmp_path):
+    """The commands' check (runtime.commands.options.check_output_apart), since session 24 the only one."""
     data = tmp_path / "data"
     data.mkdir()
     (tmp_path / "link").symlink_to(data, target_is_directory=True)
     for inside in (data, data / "maps", data / "a" / ".." / "b", tmp_path / "link" / "maps", tmp_path / "link"):
-        assert output_inside_input(inside, data), inside
+        assert output_refusal("s", "--out", inside, data) is not None, inside
     for outside in (tmp_path, tmp_path / "data-maps", tmp_path / "other", data / ".." / "maps"):
-        assert not output_inside_input(outside, data), outside
+        assert output_refusal("s", "--out", outside, data) is None, outside
 
 
 def test_the_refusal_is_one_line_naming_the_option_and_none_without_an_output(tmp_path):

@@ -82,3 +82,26 @@ def test_check_output_apart_admits_what_is_apart(tmp_path) -> None:
     check_output_apart(None, files={"--noise": tmp_path / "in.toml"})
     with pytest.raises(OutputPathError, match="is the --noise file"):
         check_output_apart(tmp_path / "x" / ".." / "in.toml", files={"--noise": tmp_path / "in.toml"})
+
+
+def test_one_file_is_one_file_by_any_spelling_or_link(tmp_path) -> None:
+    """`same_file`, the one comparison of an output with an input (`fuse`'s maps given twice and its --out among
+    them used their own, which saw hard links that check_output_apart did not)."""
+    from runtime.commands.options import same_file
+
+    (tmp_path / "d").mkdir()
+    original = tmp_path / "d" / "m.npz"
+    original.write_bytes(b"x")
+    (tmp_path / "soft.npz").symlink_to(original)
+    (tmp_path / "hard.npz").hardlink_to(original)
+    (tmp_path / "dlink").symlink_to(tmp_path / "d", target_is_directory=True)
+    for other in (tmp_path / "soft.npz", tmp_path / "hard.npz", tmp_path / "d" / ".." / "d" / "m.npz",
+                  tmp_path / "dlink" / "m.npz"):
+        assert same_file(other, original), other
+        with pytest.raises(OutputPathError, match="is the --noise file"):
+            check_output_apart(other, files={"--noise": original})
+    # not there yet: compared by the resolved path (through the folder's link too)
+    assert same_file(tmp_path / "dlink" / "new.npz", tmp_path / "d" / "new.npz")
+    assert not same_file(tmp_path / "d" / "new.npz", original)
+    (tmp_path / "copy.npz").write_bytes(b"x")
+    assert not same_file(tmp_path / "copy.npz", original)   # equal bytes, another file
