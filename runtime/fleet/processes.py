@@ -9,9 +9,12 @@ the fusion node (it listens on a free loopback port, the robots connect to it), 
 and at ``--fusion-interval``, waits for every robot to finish and (at most LAST_MAP_WAIT s) for the map each
 robot's last status names, fuses once more and prints the same summary as the single-process demo. A robot's last map
 lost on the wire is read from the map file its process wrote at its end (said on stderr and in the summary's
-``last_maps_from_file``); one that can be had neither way is said in ``last_maps_missing``. Rerun: each robot
-writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd
-(every robot's map as received, the alignments, the fused map, the summary: what ``p3at review`` reads).
+``last_maps_from_file``); one that can be had neither way is said in ``last_maps_missing``. A robot process that
+ends without its summary (killed) leaves the map of its last periodic save: the final fusion reads it where it is
+newer than the node's map of that robot (built from more camera frames), said in the robot's failure line and in the
+summary's ``robot_processes_failed``; ``fused_from`` gives which map of each robot the final fusion held.
+Rerun: each robot writes OUT/<robot>/mission.rrd, the fusion node OUT/mission.rrd (every robot's map as received,
+the alignments, the fused map, the summary: what ``p3at review`` reads).
 """
 from __future__ import annotations
 
@@ -23,10 +26,12 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from runtime.exchange import MapMessage
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.status import health_figure
 
@@ -85,8 +90,6 @@ def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) ->
     named)."""
     from estimation.errors import EstimationError
     from estimation.landmark_map import LandmarkMap
-    from runtime.exchange import MapMessage
-    from runtime.fleet import mapwire
 
     held = exchange.receive(excluding="fused")
     messages, read, final_held = {}, {}, set()
@@ -102,11 +105,9 @@ def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) ->
             continue
         named = missing.get(robot, {}).get("named")
         stamp = float(summary.get("sim_seconds") or 0.0)   # the robot's stop instant: its last map's stamp
-        wire = mapwire.decode(mapwire.encode_full(robot, "0" * 16, 0 if named is None else named, stamp,
-                                                  saved)).landmark_map
+        wire = _as_wire(robot, saved, stamp)
         have = held.get(robot)
-        if have is not None and np.array_equal(have.landmark_map.ids, wire.ids) and np.array_equal(
-                have.landmark_map.positions, wire.positions):
+        if have is not None and _same_map(have.landmark_map, wire):
             final_held.add(robot)   # the node holds the robot's final map
             continue
         sequence = named if named is not None else -1 if have is None else have.sequence + 1
@@ -116,15 +117,113 @@ def last_maps_from_files(exchange, summaries: dict, missing: dict[str, dict]) ->
     return messages, read, final_held
 
 
-def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WAIT):
+def _as_wire(robot: str, saved, stamp: float):
+    """A map read from a file as the wire would have carried it (encoded and decoded: the wire's fields only)."""
+    from runtime.fleet import mapwire
+
+    return mapwire.decode(mapwire.encode_full(robot, "0" * 16, 0, stamp, saved)).landmark_map
+
+
+def _same_map(a, b) -> bool:
+    """Whether two maps of one robot are the same snapshot (its landmarks, by id and position)."""
+    return np.array_equal(a.ids, b.ids) and np.array_equal(a.positions, b.positions)
+
+
+def _frames(m) -> int | None:
+    """The camera frames a robot's map was built from (its ``slam_frames``), None if it carries no sound count."""
+    from runtime.slam_frames import read_frame_counts
+
+    try:
+        counts = read_frame_counts(m.metadata)
+    except ValueError:
+        return None
+    return None if counts is None else counts["processed"]
+
+
+def _built(landmarks: int, frames: int | None) -> str:
+    """'47 landmarks from 4 frames' (the frames left out when unknown)."""
+    said = f"{landmarks} landmark{'' if landmarks == 1 else 's'}"
+    return said if frames is None else f"{said} from {frames} frame{'' if frames == 1 else 's'}"
+
+
+@dataclass
+class LeftMap:
+    """A robot process that ended without its summary (killed, or died before it could print it): the map file
+    its periodic saves leave (atomic: a whole map or none), and what the final fusion made of it
+    (:func:`map_left`): ``used`` it, ``said`` why or why not (the end of the robot's failure line)."""
+
+    file: Path
+    used: bool = False
+    said: str = ""
+    landmarks: int | None = None
+
+
+def map_left(robot: str, left: LeftMap, have: MapMessage | None) -> MapMessage | None:
+    """The map a robot process that ended without its summary left in ``left.file`` (its last periodic save), as
+    the final fusion's stand-in for ``have`` (the robot's ``MapMessage`` the node holds; None: none), or None; sets
+    ``left.used``, ``left.said`` and ``left.landmarks``.
+
+    Without the robot's summary nothing gives the file's landmark count to check it by (as
+    :func:`last_maps_from_files` does): the file must load (the map reader's checks), be this robot's map, hold a
+    landmark, and be newer than the map held: built from more camera frames (``slam_frames.processed``: a robot's
+    map only grows with its frames). The same snapshot as the one held is not read again; a file whose age cannot be
+    told (no frame counts) does not replace a map held."""
+    from estimation.errors import EstimationError
+    from estimation.landmark_map import LandmarkMap
+
+    kept = (f"the final fusion has the map the node received last ({len(have.landmark_map)} landmarks)"
+            if have is not None else "the final fusion has no map of it")
+    if not left.file.is_file():
+        left.said = f"it saved no map; {kept}"
+        return None
+    try:
+        saved = LandmarkMap.load(left.file)
+    except (EstimationError, OSError, ValueError) as e:
+        left.said = f"its map file is not used ({e}); {kept}"
+        return None
+    left.landmarks = len(saved)
+    why_not = (f"it is {saved.robot}'s map, not {robot}'s" if saved.robot != robot else
+               "it holds no landmark" if len(saved) == 0 else None)
+    if why_not is not None:
+        left.said = f"its map file {left.file} is not used ({why_not}); {kept}"
+        return None
+    stamp = float(saved.trajectory[-1, 0]) if len(saved.trajectory) else 0.0   # mission time of its last pose
+    wire = _as_wire(robot, saved, stamp)
+    frames, held_frames = _frames(wire), None if have is None else _frames(have.landmark_map)
+    mine = f"its last saved map {left.file} ({_built(len(saved), frames)})"
+    if have is not None and _same_map(have.landmark_map, wire):
+        left.said = f"{mine} is the map the node received last, in the final fusion"
+        return None
+    if have is not None and (frames is None or held_frames is None or frames <= held_frames):
+        than = ("cannot be told older or newer than the map the node received last (no frame counts), which the "
+                f"final fusion has ({len(have.landmark_map)} landmarks)" if frames is None or held_frames is None else
+                f"is no newer than the map the node received last ({_built(len(have.landmark_map), held_frames)}), "
+                "which the final fusion has")
+        left.said = f"{mine} {than}"
+        return None
+    left.used = True
+    left.said = (f"the final fusion reads {mine}" + ("" if have is None else
+                 f", newer than the map the node received last ({_built(len(have.landmark_map), held_frames)})"))
+    return MapMessage(robot, -1 if have is None else have.sequence + 1, stamp, wire)
+
+
+def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WAIT,
+                 left: dict[str, LeftMap] | None = None):
     """The demo's final fusion, once the robot processes have ended (``summaries``: their own, by robot): wait for
     the robots' last maps (:func:`await_last_maps`), read from its file each one lost on the wire
-    (:func:`last_maps_from_files`), fuse. Returns (the fusion's report or None, last maps missing, last maps read
-    from file)."""
+    (:func:`last_maps_from_files`) and each newer one a robot that left no summary saved (``left``, robot ->
+    :class:`LeftMap`, filled in: :func:`map_left`), fuse. Returns (the fusion's report or None, last maps missing,
+    last maps read from file of robots that gave their summary)."""
     missing = await_last_maps(node.exchange, timeout)
     replace, read, final_held = last_maps_from_files(node.exchange, summaries, missing)
+    held = node.exchange.receive(excluding="fused")
+    for robot, entry in sorted((left or {}).items()):
+        message = map_left(robot, entry, held.get(robot))
+        if message is not None:
+            replace[robot] = message
     final = node.final_fusion(replace=replace)
-    return final, {r: m for r, m in missing.items() if r not in read and r not in final_held}, read
+    used = {r for r, entry in (left or {}).items() if entry.used}
+    return final, {r: m for r, m in missing.items() if r not in read and r not in final_held and r not in used}, read
 
 
 def free_port() -> int:
@@ -221,18 +320,26 @@ def run_processes_demo(args: argparse.Namespace) -> int:
             fusion_thread.join(timeout=30)
         restore()
         progress.done()
-    summaries, failed = {}, []
+    summaries, ended = {}, {}
     for name, (code, stdout, stderr) in outputs.items():
         try:
             summaries[name] = json.loads(stdout)
         except json.JSONDecodeError:
-            failed.append(failure_line(name, code, stderr, out / name / f"{name}.npz"))
-    # a robot's last map still queued or on the way goes into the final fusion; one lost on the wire, from its file
-    final, missing, read = final_fusion(node, summaries)
+            ended[name] = (code, stderr)
+    # a robot's last map still queued or on the way goes into the final fusion; one lost on the wire, from its file;
+    # a robot that died without its summary (killed), from the file of its last periodic save where that is newer
+    left = {name: LeftMap(out / name / f"{name}.npz") for name in ended}
+    final, missing, read = final_fusion(node, summaries, left=left)
     exchange.close()
+    failed = [failure_line(name, code, stderr, left[name].said) for name, (code, stderr) in sorted(ended.items())]
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
     summary["last_maps_missing"] = missing
     summary["last_maps_from_file"] = read
+    summary["robot_processes_failed"] = {
+        name: {"exit": code, "map_file": str(left[name].file) if left[name].landmarks is not None else None,
+               "landmarks": left[name].landmarks, "map_used": left[name].used}
+        for name, (code, _) in sorted(ended.items())}
+    summary["fused_from"] = {r: [int(q), float(t)] for r, (q, t) in sorted(node.sources.items())}
     if final is not None and final.merged is not None:
         final.merged.save(out / "fused.npz")
         final.merged.export_ply(out / "fused.ply")
@@ -266,10 +373,10 @@ def run_processes_demo(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def failure_line(robot: str, code: int | None, stderr: str, map_file: Path) -> str:
+def failure_line(robot: str, code: int | None, stderr: str, left: str) -> str:
     """What to say of a robot process that ended without its summary: its exit status (the signal that killed it),
-    its last line on stderr, and the map it saved last (its periodic saves are atomic: a killed robot leaves the map
-    of its last save), which the final fusion does not read: it fuses the robot's map the node received last."""
+    its last line on stderr, then ``left``: what became of the map it saved last (:func:`map_left`; its periodic
+    saves are atomic: a killed robot leaves the map of its last save)."""
     lines = stderr.strip().splitlines()
     if code is not None and code < 0:
         try:
@@ -278,9 +385,7 @@ def failure_line(robot: str, code: int | None, stderr: str, map_file: Path) -> s
             why = f"killed by signal {-code}, no summary"
     else:
         why = lines[-1] if lines else "no summary, nothing on stderr"
-    left = (f"; its last saved map {map_file} is left (the final fusion has the map the node received last)"
-            if map_file.is_file() else "; it saved no map")
-    return f"{robot} (exit {code}): {why}{left}"
+    return f"{robot} (exit {code}): {why}; {left}"
 
 
 def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, start: float) -> dict:
