@@ -329,6 +329,23 @@ def _map_warnings(metrics: dict) -> list[str]:
     return warnings
 
 
+MIN_WINDOW_INTERVALS = 3   # odometry intervals a residual window must span at the least
+
+
+def _window_problem(window: float, logs) -> str | None:
+    """Why ``--window`` is too short for these logs (None when it is not): a window must span MIN_WINDOW_INTERVALS
+    of a log's odometry intervals (their median), else its windows hold one row or none and the fit is of nothing
+    (session 23: ``--window 1e-300`` wrote a model, exit 0)."""
+    for log in logs:
+        stamps = log.odometry[:, 0]
+        interval = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
+        if window < MIN_WINDOW_INTERVALS * interval:
+            return (f"--window {window:g}: shorter than {MIN_WINDOW_INTERVALS} odometry intervals of {log.name} "
+                    f"({interval:.3g} s, the median); give at least {MIN_WINDOW_INTERVALS * interval:.3g} s (default "
+                    "5 s)")
+    return None
+
+
 def _noise(args: argparse.Namespace) -> int:
     from dataclasses import asdict, replace
 
@@ -340,6 +357,9 @@ def _noise(args: argparse.Namespace) -> int:
         check_output_file(args.out)
         check_output_apart(args.out, folders={"data set": args.folder})   # its tables stay as they are
         logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
+        short = _window_problem(args.window, logs)
+        if short is not None:
+            raise ValueError(short)
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
