@@ -462,7 +462,7 @@ class MissionLog:
         self._placements: dict[str, np.ndarray] = {}  # map key -> its frame's pose in the world (x, y, θ)
         self._snapshot_paths: dict[str, np.ndarray] = {}  # robot -> (T, 2) path of its last map snapshot
         self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
-        self._styles: dict[tuple, list] = {}          # (archetype, key) -> its styling fields' component batches
+        self._styled: dict[str, str] = {}             # family -> the entity whose style was last logged static
         if blueprint and self.robots and rec.is_enabled():  # a disabled stream ("none") refuses blueprints
             rec.send_blueprint(mission_blueprint(self.robots))
 
@@ -487,16 +487,27 @@ class MissionLog:
             self._once.add(key)
             return True
 
-    def _log_styled(self, path: str, archetype, key: tuple, data: dict, style: dict) -> None:
-        """rec.log(path, archetype(**data, **style)) with the styling fields' batches (colours, radii, draw order,
-        labels: the same every call for one ``key``) converted once and kept: the same components as one archetype
-        logged whole, at the same time, without converting the styling each time (log_pose, every frame)."""
-        batches = self._styles.get((archetype, key))
-        if batches is None:
-            batches = list(archetype.from_fields(**style).as_component_batches())
-            with self._lock:
-                self._styles[(archetype, key)] = batches
-        self.rec.log(path, [*archetype.from_fields(**data).as_component_batches(), *batches])
+    def _log_styled(self, path: str, archetype, family: str, data: dict, style: dict) -> None:
+        """What ``rec.log(path, archetype(**data, **style))`` shows a viewer, for what is logged every frame: the
+        styling fields (colours, radii, draw order, labels: the same every call for one ``family``) are logged once
+        per entity, static, and each call logs only ``data``.
+
+        A viewer resolves each component of an entity at the time it shows by a latest-at query, static data
+        included (Rerun's data model: static data belongs to every timeline and shadows temporal data of the same
+        component; its own "incremental logging" example logs colours and radii once). So every frame draws as
+        before, while a call converts and sends fewer component arrays (Rerun's ``log_arrow_msg`` costs about as
+        much per array as per call). Static, not at the first frame's time: a viewer's memory limit drops old
+        temporal rows, never static ones, so later frames cannot lose their style. ``family``: the entity with its
+        segment number left out (``world/robot1/trajectory``): the logger keeps the one entity of each family
+        whose style it logged last, so a new segment gets its own and nothing grows with the mission.
+        """
+        with self._lock:
+            fresh = self._styled.get(family) != path
+            if fresh:
+                self._styled[family] = path
+        if fresh:
+            self.rec.log(path, archetype.from_fields(**style), static=True)
+        self.rec.log(path, archetype.from_fields(**data))
 
     def _map_root(self, key: str) -> str:
         """map/<key>, with the y-up flip logged once (static)."""
@@ -606,7 +617,7 @@ class MissionLog:
                 strips["odometry"] = track.odometry.add(odometry[:2].tolist())
         # 3-D world
         origins, vectors = _arrow(estimated)
-        self._log_styled(f"world/{robot}/pose", rr.Arrows3D, ("pose", colour),
+        self._log_styled(f"world/{robot}/pose", rr.Arrows3D, f"world/{robot}/pose",
                          {"vectors": vectors, "origins": origins}, {"colors": colour, "radii": 0.03})
         if self._first_time(f"world/{robot}/base_link/body"):
             self.rec.log(f"world/{robot}/base_link/body", rr.Boxes3D(
@@ -615,15 +626,16 @@ class MissionLog:
         self.rec.log(f"world/{robot}/base_link", rr.Transform3D(translation=[estimated[0], estimated[1], 0.0],
                                                                 quaternion=_quaternion_z(estimated[2])))
         segment, points = strips["estimated"]
-        self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D, ("trajectory", colour),
+        self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D, f"world/{robot}/trajectory",
                          {"strips": [_with_z(points, 0.02)]}, {"colors": colour, "radii": 0.02})
         if true is not None:
             origins, vectors = _arrow(true)
-            self._log_styled(f"world/{robot}/true_pose", rr.Arrows3D, ("true_pose",),
+            self._log_styled(f"world/{robot}/true_pose", rr.Arrows3D, f"world/{robot}/true_pose",
                              {"vectors": vectors, "origins": origins}, {"colors": TRUE_COLOUR, "radii": 0.02})
             segment, points = strips["true"]
-            self._log_styled(f"world/{robot}/true_trajectory/{segment:04d}", rr.LineStrips3D, ("true_trajectory",),
-                             {"strips": [_with_z(points, 0.01)]}, {"colors": TRUE_COLOUR, "radii": 0.01})
+            self._log_styled(f"world/{robot}/true_trajectory/{segment:04d}", rr.LineStrips3D,
+                             f"world/{robot}/true_trajectory", {"strips": [_with_z(points, 0.01)]},
+                             {"colors": TRUE_COLOUR, "radii": 0.01})
         if head_mount is not None:
             hx, hy, hz = head_mount
             x, y, theta = compose(estimated, [hx, hy, 0.0])
@@ -637,18 +649,17 @@ class MissionLog:
                   "estimated": (colour, -2.0, 3.0)}
         for kind, (segment, points) in strips.items():
             line_colour, width, order = styles[kind]
-            self._log_styled(f"{root}/trajectory/{kind}/{segment:04d}", rr.LineStrips2D, ("map trajectory", kind,
-                             colour), {"strips": [points]}, {"colors": line_colour, "radii": width,
-                                                            "draw_order": order})
+            self._log_styled(f"{root}/trajectory/{kind}/{segment:04d}", rr.LineStrips2D, f"{root}/trajectory/{kind}",
+                             {"strips": [points]}, {"colors": line_colour, "radii": width, "draw_order": order})
         heading = 0.6 * np.array([np.cos(estimated[2]), np.sin(estimated[2])])
-        self._log_styled(f"{root}/pose", rr.Points2D, ("map pose", robot, colour), {"positions": [estimated[:2]]},
+        self._log_styled(f"{root}/pose", rr.Points2D, f"{root}/pose", {"positions": [estimated[:2]]},
                          {"radii": -7.0, "colors": colour, "labels": [robot], "show_labels": True,
                           "draw_order": 10.0})
-        self._log_styled(f"{root}/pose/heading", rr.Arrows2D, ("map heading", colour),
+        self._log_styled(f"{root}/pose/heading", rr.Arrows2D, f"{root}/pose/heading",
                          {"vectors": [heading], "origins": [estimated[:2]]},
                          {"radii": -2.0, "colors": colour, "draw_order": 10.0})
         if true is not None:
-            self._log_styled(f"{root}/true_pose", rr.Points2D, ("map true pose",), {"positions": [true[:2]]},
+            self._log_styled(f"{root}/true_pose", rr.Points2D, f"{root}/true_pose", {"positions": [true[:2]]},
                              {"radii": -4.0, "colors": TRUE_COLOUR, "draw_order": 9.0})
 
     def log_particles(self, robot: str, t: float, frame: int | None, poses: np.ndarray) -> None:
@@ -656,9 +667,11 @@ class MissionLog:
         self._time(t, frame)
         poses = np.asarray(poses, float).reshape(-1, 3)
         colour = self.colour(robot)
-        self.rec.log(f"world/{robot}/particles", rr.Points3D(_with_z(poses, 0.03), radii=0.015, colors=colour))
-        self.rec.log(f"{self._map_root(robot)}/particles", rr.Points2D(poses[:, :2], radii=-1.5, colors=_dim(colour),
-                                                                        draw_order=8.0))
+        self._log_styled(f"world/{robot}/particles", rr.Points3D, f"world/{robot}/particles",
+                         {"positions": _with_z(poses, 0.03)}, {"radii": 0.015, "colors": colour})
+        path = f"{self._map_root(robot)}/particles"
+        self._log_styled(path, rr.Points2D, path, {"positions": poses[:, :2]},
+                         {"radii": -1.5, "colors": _dim(colour), "draw_order": 8.0})
 
     def log_landmarks(self, robot: str, t: float, frame: int | None, positions: np.ndarray,
                       covariances: np.ndarray | None = None, path: str | None = None,

@@ -104,3 +104,56 @@ def entity_rows(rrd: Path, entity: str) -> list[dict]:
         data = {k: batch.column(k).to_pylist() for k in batch.schema.names}
         rows.extend({k: v[i] for k, v in data.items()} for i in range(chunk.num_rows))
     return rows
+
+
+def viewer_state(rrd: Path, timeline: str, times) -> dict[str, dict[int, dict]]:
+    """What a viewer shows of each entity at each of ``times`` on ``timeline`` (``frame``: sequence numbers;
+    ``sim_time``: nanoseconds): entity -> time -> {component column ("Archetype:field"): value}.
+
+    Each component resolved as Rerun's viewer does (its data model, "Query semantics" and "Static data"): a static
+    value shadows every temporal one; otherwise the value of the newest row at or before the time that holds the
+    component (ties broken by row id, the order of logging). Rows that lack the timeline are not on it. An entity
+    with temporal rows is left out of the times before its first one (its static style alone draws nothing); an
+    entity with static data only is at every time. Only the recording is read, not the blueprint."""
+    import bisect
+
+    import rerun.chunk as rrchunk
+
+    reader = rrchunk.RrdReader(rrd)
+    static: dict[str, dict[str, tuple[bytes, object]]] = {}
+    temporal: dict[str, dict[str, list[tuple[int, bytes, object]]]] = {}
+    for store in reader.recordings():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            names = batch.schema.names
+            entity = chunk.entity_path.lstrip("/")
+            row_ids = batch.column("rerun.controls.RowId").to_pylist()
+            components = [n for n in names if ":" in n]
+            if chunk.is_static:
+                held = static.setdefault(entity, {})
+                for name in components:
+                    for row_id, value in zip(row_ids, batch.column(name).to_pylist(), strict=True):
+                        if value is not None and (name not in held or held[name][0] < row_id):
+                            held[name] = (row_id, value)
+            elif timeline in names:
+                stamps = batch.column(timeline).cast("int64").to_pylist()
+                held = temporal.setdefault(entity, {})
+                for name in components:
+                    for stamp, row_id, value in zip(stamps, row_ids, batch.column(name).to_pylist(), strict=True):
+                        if value is not None and stamp is not None:
+                            held.setdefault(name, []).append((stamp, row_id, value))
+    state: dict[str, dict[int, dict]] = {}
+    for entity in sorted(set(static) | set(temporal)):
+        columns = {name: sorted(rows, key=lambda r: (r[0], r[1])) for name, rows in temporal.get(entity, {}).items()}
+        stamps = {name: [r[0] for r in rows] for name, rows in columns.items()}
+        fixed = {name: value for name, (_, value) in static.get(entity, {}).items()}
+        for t in times:
+            seen = {}
+            for name, rows in columns.items():
+                k = bisect.bisect_right(stamps[name], t)
+                if k:
+                    seen[name] = rows[k - 1][2]
+            # an entity with temporal rows shows nothing before its first one (its static style alone draws nothing)
+            if seen or not columns:
+                state.setdefault(entity, {})[t] = {**seen, **fixed}
+    return state
