@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import TRUE_COLOUR, MissionLog, open_recording, robot_colour, rr
+from runtime.rerun_log import HELD_ROWS_MAX, TRUE_COLOUR, MissionLog, open_recording, robot_colour, rr
 
 from .rerun_helpers import viewer_state
 
 ROBOT = "robot2"
 FRAMES = 6
+HELD_FRAMES = HELD_ROWS_MAX + 8   # past the rows an entity holds at most: sent in several columns
 
 
 def _poses(frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -116,3 +117,68 @@ def test_the_style_is_sent_once_per_entity_and_each_frame_sends_only_its_data(lo
     assert rows[(f"map/{ROBOT}/pose", True)] == [{"Points2D:radii", "Points2D:colors", "Points2D:labels",
                                                   "Points2D:show_labels", "Points2D:draw_order"}]
     assert all(r == {"Points3D:positions"} for r in rows[(f"world/{ROBOT}/particles", False)])
+
+
+def _rows(rrd) -> dict[str, list]:
+    """entity -> its temporal rows as (sim_time, frame, whether log_time is set, {component: value}), sorted."""
+    import rerun.chunk as rrchunk
+
+    reader = rrchunk.RrdReader(rrd)
+    found: dict[str, list] = {}
+    for store in reader.recordings():
+        for chunk in reader.stream(store=store):
+            if chunk.is_static:
+                continue
+            batch = chunk.to_record_batch()
+            data = {k: batch.column(k).to_pylist() for k in batch.schema.names}
+            for i in range(chunk.num_rows):
+                found.setdefault(chunk.entity_path.lstrip("/"), []).append((
+                    data["sim_time"][i], data.get("frame", [None] * chunk.num_rows)[i],
+                    data.get("log_time", [None] * chunk.num_rows)[i] is not None,
+                    {k: v[i] for k, v in data.items() if ":" in k and v[i] is not None}))
+    return {entity: sorted(rows, key=repr) for entity, rows in found.items()}
+
+
+def _mission(log: MissionLog, frames: int) -> None:
+    """Per-frame logging with and without frame numbers (a data set's poses carry none), a self-check series
+    logged without one, and a flush halfway."""
+    for frame in range(frames):
+        estimated, true, odometry, particles = _poses(frame)
+        numbered = frame if frame % 4 else None
+        log.log_pose(ROBOT, 0.25 * frame, numbered, estimated, true, (0.12, 0.045, 0.5), odometry=odometry)
+        log.log_particles(ROBOT, 0.25 * frame, numbered, particles)
+        log.log_scalars(ROBOT, 0.25 * frame, {"ess": 50.0 + frame, "time/update": 0.5 * frame}, numbered)
+        if frame % 3 == 0:
+            log.log_scalars(ROBOT, 0.25 * frame, {"self_check": 0.1 * frame})
+        if frame == frames // 2:
+            log.flush()
+
+
+def test_rows_held_for_a_saved_file_are_the_rows_a_live_stream_gets(tmp_path):
+    """A saved file holds each entity's per-frame rows and sends them as columns: the same rows, at the same times
+    (sim_time, frame, log_time), with the same values, and the same view at every frame, as logged one by one."""
+    held, live = tmp_path / "held.rrd", tmp_path / "live.rrd"
+    for rrd, hold in ((held, None), (live, False)):
+        log = MissionLog(open_recording(str(rrd)), [ROBOT], blueprint=False, hold_rows=hold)
+        assert log.hold_rows == (hold is None)  # None: a file open_recording saves is held
+        _mission(log, HELD_FRAMES)
+        log.close()
+    rows = _rows(held)
+    assert rows == _rows(live)
+    assert len(rows[f"map/{ROBOT}/pose"]) == HELD_FRAMES
+    assert len(rows[f"plots/{ROBOT}/self_check"]) == (HELD_FRAMES + 2) // 3
+    for timeline, times in (("frame", range(HELD_FRAMES)),
+                            ("sim_time", [250_000_000 * k for k in range(HELD_FRAMES)])):
+        shown, expected = viewer_state(held, timeline, times), viewer_state(live, timeline, times)
+        shown.pop("__properties"), expected.pop("__properties")   # Rerun's own: the recording's start time
+        assert shown == expected
+
+
+def test_held_rows_are_in_the_file_once_flushed_and_a_live_stream_holds_none(tmp_path):
+    rrd = tmp_path / "m.rrd"
+    log = MissionLog(open_recording(str(rrd)), [ROBOT], blueprint=False)
+    _mission(log, 3)
+    log.flush()
+    assert len(_rows(rrd)[f"world/{ROBOT}/base_link"]) == 3   # read while the stream is still open
+    log.close()
+    assert not MissionLog(open_recording("memory"), [ROBOT]).hold_rows
