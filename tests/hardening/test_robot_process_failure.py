@@ -106,8 +106,11 @@ def test_a_robot_killed_in_the_demo_has_its_last_saved_map_in_the_final_fusion(t
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(demo.stderr), daemon=True)
-    reader.start()
+    stdout: list[str] = []
+    readers = [threading.Thread(target=lambda: lines.extend(demo.stderr), daemon=True),   # the pipes read as they
+               threading.Thread(target=lambda: stdout.append(demo.stdout.read()), daemon=True)]   # fill, never blocks
+    for reader in readers:
+        reader.start()
     saved_file = tmp_path / "robot1" / "robot1.npz"
     deadline = time.monotonic() + 500
     pid = None
@@ -119,17 +122,18 @@ def test_a_robot_killed_in_the_demo_has_its_last_saved_map_in_the_final_fusion(t
             time.sleep(0.05)
         assert pid is not None and _holds_landmarks(saved_file), "".join(lines)
         os.kill(pid, signal.SIGKILL)
-        stdout = demo.communicate(timeout=500)[0]
+        demo.wait(timeout=500)
     finally:
         if demo.poll() is None:
             demo.kill()
-    reader.join(timeout=10)
+    for reader in readers:
+        reader.join(timeout=30)
     err = "".join(lines)
     assert demo.returncode == 1, err
     failure = [line for line in err.splitlines() if "robot process failed: robot1" in line]
     assert len(failure) == 1 and "robot1 (exit -9): killed by SIGKILL, no summary; " in failure[0], err
     saved = LandmarkMap.load(saved_file)
-    summary = json.loads(stdout)
+    summary = json.loads("".join(stdout))
     assert summary["robot_processes_failed"] == {"robot1": {"exit": -9, "map_file": str(saved_file),
                                                             "landmarks": len(saved), "map_used": True}}, failure
     assert f"the final fusion reads its last saved map {saved_file} ({len(saved)} landmarks" in failure[0]
