@@ -69,6 +69,7 @@ from .ransac import (
     correspondence_problem,
     has_descriptors,
     landmark_identities,
+    place_points,
     polish,
     putative_correspondences,
     ransac,
@@ -416,7 +417,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
                   admissible=inside, possible=possible)
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
-    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
+    residual = problem.p1[mask] - place_points(pose, problem.p2[mask])
     rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan")
     fit = (problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask])
     if subset_search and config.refine and s >= 2:
@@ -427,9 +428,10 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
             pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
                                               config.position_floor)
             supports = guided
-            residual = g_problem.p1 - transform_points(pose, g_problem.p2)
+            residual = g_problem.p1 - place_points(pose, g_problem.p2)
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
             fit = (g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2)
+            winner_start = None                    # computed on the supports before guided matching: not this fit's
     major, minor = support_spread(problem.p1[mask, :2])
     rival = _rival_figures(map1, map2, pairs, pose, mask, problem, ev, compare_descriptors=with_descriptors
                            and not identities)
@@ -472,8 +474,8 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     if major < config.min_spread:
         return not_found(f"the {s} supports are bunched within {major:.2f} m (at least {config.min_spread} m "
                          f"spread needed to fix the angle)", stats, supports)
-    start_cov = None
-    if covariance is not None and len(fit[0]) >= 2:
+    start_cov = winner_start                       # (with a prior or the co-location test: this fit's, computed once)
+    if start_cov is None and covariance is not None and len(fit[0]) >= 2:
         start_cov = start_frame_covariance(*fit, pose, config.position_floor)
     return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov, prior)
 
@@ -520,7 +522,7 @@ def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | Alignment
     rate = max(decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1e-9)
     log10_p = log10_false_alarm(s - 2, rate, 1)
     major, minor = support_spread(problem.p1[mask, :2])
-    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
+    residual = problem.p1[mask] - place_points(pose, problem.p2[mask])
     stats = AlignmentStatistics(
         correspondences=len(pairs), iterations=1, supports=s, inlier_ratio=s / len(pairs),
         residual_rms=float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan"),

@@ -53,7 +53,8 @@ def _correlation_scale(terms: np.ndarray, total: np.ndarray) -> float:
     _, vecs = np.linalg.eigh(total)
     u = np.vstack([u, vecs.T / np.sqrt(np.einsum("di,ij,dj->d", vecs.T, total, vecs.T))[:, None]])
     sigma = np.sqrt(np.maximum(np.einsum("di,kij,dj->dk", u, terms, u), 0.0))   # (D, K)
-    return float(np.clip(np.max(np.sum(sigma, axis=1) ** 2), 1.0, len(terms)))
+    # min(max(·, 1), K) as np.clip does it (NaN through), without its call overhead on one number
+    return float(min(max(float(np.max(np.sum(sigma, axis=1) ** 2)), 1.0), float(len(terms))))
 
 
 def start_frame_covariance(p1: np.ndarray, P1: np.ndarray, p2: np.ndarray, P2: np.ndarray, pose,

@@ -43,6 +43,7 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarra
     back_d2 = np.full(len(b), np.inf, np.float32)
     block_rows = int(np.clip(_BLOCK_PAIRS // max(len(b), 1), 64, 4096))
     rows = np.arange(block_rows)
+    columns = np.arange(len(b))
     # two (block, B) arrays for all blocks: fresh arrays of this size cost their pages every time
     shape = (min(block_rows, len(q)), len(b))
     d2_buffer, ab_buffer = np.empty(shape, np.float32), np.empty(shape, np.float32)
@@ -51,21 +52,24 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarra
         r = rows[: len(block)]
         d2, ab = d2_buffer[: len(block)], ab_buffer[: len(block)]
         # |a - b|² = (|a|² + |b|²) - 2 a·b, clipped at zero against round-off (the same operations as the
-        # expression written out, in place)
+        # expression written out, in place; the clip sets the few negatives to +0.0, as np.maximum(d2, 0.0) does,
+        # in a quarter of its time: a comparison and a scan)
         np.add(np.einsum("ij,ij->i", block, block)[:, None], b_sq[None, :], out=d2)
         np.matmul(block, b.T, out=ab)
         ab *= 2.0
         d2 -= ab
-        np.maximum(d2, 0.0, out=d2)
+        negative = d2 < 0.0
+        if negative.any():
+            d2[negative] = 0.0
         if exclude is not None:
             d2[r, exclude[start:start + len(block)]] = np.inf
-        # each base row's nearest query: the first row that reaches the column's minimum (argmin along the
-        # columns copies the block; the minimum and a byte-wide comparison do not)
+        # each base row's nearest query: the first row that reaches the column's minimum (argmin along the columns,
+        # and the minimum read at it: a column holding NaN gives NaN as d2.min(axis=0) does, and is never better)
         if back_matches:
-            col_min = d2.min(axis=0)
+            col_best = np.argmin(d2, axis=0)
+            col_min = d2[col_best, columns]
             better = col_min < back_d2
             if better.any():
-                col_best = np.argmax(d2 == col_min[None, :], axis=0)
                 back[better] = start + col_best[better]
                 back_d2[better] = col_min[better]
         first = np.argmin(d2, axis=1)
