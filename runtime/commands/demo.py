@@ -20,7 +20,8 @@ def register(subparsers) -> None:
     parser.add_argument("--processes", action="store_true",
                         help="each robot (virtual P3-AT, head and runtime) its own process, maps over Zenoh on "
                              "loopback, the fusion node in this one; each robot keeps its own simulated time; "
-                             "--camera synthetic unless given (docs/fleet.md)")
+                             "--camera synthetic unless given; its own loopback port and fleet name, so not with "
+                             "--exchange or --fleet (docs/fleet.md)")
     # None: not given (--processes refuses them given, _processes_problem); the in-process demo's defaults in _demo
     parser.set_defaults(handler=_demo, camera=None, exchange=None, fleet=None)
 
