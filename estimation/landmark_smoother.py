@@ -27,6 +27,7 @@ solution's χ² per degree of freedom (``Smoothed.chi2_per_dof``) says how far t
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -181,6 +182,18 @@ class LandmarkLogProblem:
     def n_landmarks(self) -> int:
         return int(self.landmark_index.max()) + 1 if len(self.landmark_index) else 0
 
+    # what depends on the odometry alone, computed once per problem (every iteration of a solve reads it; the
+    # problem's arrays are taken as given, not changed in place: make a new problem with dataclasses.replace)
+    @functools.cached_property
+    def increment_sigmas(self) -> np.ndarray:
+        """(T, 3) the increments' σ, √ of ``increment_variances``."""
+        return np.sqrt(self.increment_variances)
+
+    @functools.cached_property
+    def increment_distances(self) -> np.ndarray:
+        """(T,) each increment's distance (its chord), which a heading bias per metre multiplies."""
+        return np.hypot(self.increments[:, 0], self.increments[:, 1])
+
 
 @dataclass
 class Smoothed:
@@ -296,7 +309,7 @@ class _Drift:
         if len(problem.increment_seconds) != problem.n_poses:
             raise SmoothingError("a heading drift needs the problem's increment_seconds (each increment's duration)")
         seconds = np.asarray(problem.increment_seconds, float)
-        self.distance = np.hypot(problem.increments[:, 0], problem.increments[:, 1])
+        self.distance = problem.increment_distances
         gap = np.maximum(0.5 * (seconds[:-1] + seconds[1:]), MIN_DRIFT_STEP_S)
         self.prior_sd = float(drift.sigma_per_m)
         self.decay = np.exp(-gap / drift.tau_s)
@@ -317,7 +330,7 @@ def _heading_weights(problem: LandmarkLogProblem, odometry: np.ndarray,
     """The heading loss's IRLS weights (T,) at normalised odometry residuals (T·3,); None without a loss."""
     if heading_loss is None:
         return None
-    return heading_loss.weight(odometry.reshape(-1, 3)[:, 2], np.sqrt(problem.increment_variances[:, 2]))
+    return heading_loss.weight(odometry.reshape(-1, 3)[:, 2], problem.increment_sigmas[:, 2])
 
 
 def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) -> sp.csr_matrix:
@@ -335,9 +348,9 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
     interleaved (range, bearing)."""
     odometry = between(poses[:-1], poses[1:]) - problem.increments
     if bias is not None:
-        odometry[:, 2] -= bias * np.hypot(problem.increments[:, 0], problem.increments[:, 1])
+        odometry[:, 2] -= bias * problem.increment_distances
     odometry[:, 2] = wrap_angle(odometry[:, 2])
-    odometry /= np.sqrt(problem.increment_variances)
+    odometry /= problem.increment_sigmas
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
     predicted_range = np.hypot(d[:, 0], d[:, 1])
@@ -365,7 +378,7 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     a, b = poses[:-1], poses[1:]
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    sigma = np.sqrt(problem.increment_variances)
+    sigma = problem.increment_sigmas
     col_a, col_b = width * (k - 1), width * k    # pose j's columns start at width·(j − 1)
     col_a = np.where(k == 0, -1, col_a)
     # between: e_x = c dx + s dy, e_y = −s dx + c dy, e_θ = b_θ − a_θ
@@ -429,7 +442,7 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
     if heading_loss is None:
         return float(np.sum(odometry ** 2) + np.sum(rho)) + extra
     odometry = odometry.reshape(-1, 3)
-    heading = heading_loss.rho(odometry[:, 2], np.sqrt(problem.increment_variances[:, 2]))
+    heading = heading_loss.rho(odometry[:, 2], problem.increment_sigmas[:, 2])
     return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + extra
 
 
