@@ -50,17 +50,26 @@ def sample_motion(poses: np.ndarray, delta: np.ndarray, variance: np.ndarray,
     return compose(poses, noisy)
 
 
-def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
-                         variance: np.ndarray) -> np.ndarray:
-    """P ← J_a P J_aᵀ + J_b diag(variance) J_bᵀ for the composition poses ⊕ delta.
-
-    poses (M, 3) before the motion, cov (M, 3, 3) -> (M, 3, 3); J_a, J_b the Jacobians of ⊕ by its arguments.
-    """
+def motion_jacobians(poses: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J_a, J_b (M, 3, 3): the Jacobians of the composition poses ⊕ delta by the poses (M, 3) and by ``delta`` (3,)."""
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     ja = np.tile(np.eye(3), (len(poses), 1, 1))
     ja[:, 0, 2] = -s * delta[0] - c * delta[1]
     ja[:, 1, 2] = c * delta[0] - s * delta[1]
-    jb = rot_z(poses[:, 2])
+    return ja, rot_z(poses[:, 2])
+
+
+def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
+                         variance: np.ndarray) -> np.ndarray:
+    """P ← J_a P J_aᵀ + J_b diag(variance) J_bᵀ for the composition poses ⊕ delta.
+
+    poses (M, 3) before the motion, cov (M, 3, 3) -> (M, 3, 3); J_a, J_b the Jacobians of ⊕ by its arguments
+    (:func:`motion_jacobians`).
+    """
+    return _propagated(*motion_jacobians(poses, delta), cov, variance)
+
+
+def _propagated(ja: np.ndarray, jb: np.ndarray, cov: np.ndarray, variance: np.ndarray) -> np.ndarray:
     return ja @ cov @ np.swapaxes(ja, 1, 2) + (jb * variance) @ np.swapaxes(jb, 1, 2)
 
 
@@ -93,12 +102,9 @@ def propagate_with_heading_drift(pose: np.ndarray, cov: np.ndarray, cross: np.nd
         P' = J P Jᵀ + d (J c e_θᵀ + e_θ cᵀ Jᵀ) + d² σ_b² e_θ e_θᵀ + G V Gᵀ,   c' = e^(−Δt/τ) (J c + d σ_b² e_θ).
     """
     d = float(np.hypot(delta[0], delta[1]))
-    c_s = np.array([np.cos(pose[2]), np.sin(pose[2])])
-    ja = np.eye(3)
-    ja[0, 2] = -c_s[1] * delta[0] - c_s[0] * delta[1]
-    ja[1, 2] = c_s[0] * delta[0] - c_s[1] * delta[1]
-    jc = ja @ cross
-    out = propagate_covariance(pose[None], cov[None], delta, variance)[0]
+    ja, jb = motion_jacobians(pose[None], delta)   # built once, for the pose block and the cross term
+    jc = ja[0] @ cross
+    out = _propagated(ja, jb, cov[None], variance)[0]
     out[:, 2] += d * jc
     out[2, :] += d * jc
     out[2, 2] += d * d * sigma * sigma

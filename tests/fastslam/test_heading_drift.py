@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimation.fastslam import FastSLAM, FastSLAMConfig
-from estimation.fastslam.motion import increment_variance, sample_motion
+from estimation.fastslam.motion import increment_variance, propagate_with_heading_drift, sample_motion
 from estimation.geometry import compose
 from estimation.observations import OdometryIncrement
 from mocks.synthetic_stereo import SyntheticStereo
@@ -119,3 +119,32 @@ def test_resampling_carries_each_particles_bias(corridor):
         assert len(np.unique(slam.heading_bias)) == len(first) < 30
         checked += 1
     assert checked >= 4
+
+
+@settings(max_examples=200, deadline=None)
+@given(pose=st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(-4, 4)),
+       delta=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.1, 0.1), st.floats(-0.6, 0.6)),
+       spread=st.lists(st.floats(-1, 1), min_size=9, max_size=9), cross=st.tuples(*[st.floats(-0.05, 0.05)] * 3),
+       sigma=st.floats(0.0, 0.3), decay=st.floats(0.0, 1.0))
+def test_the_drift_trackers_propagation_is_the_dense_four_state_one(pose, delta, spread, cross, sigma, decay):
+    """The filter's closed form (pose covariance P, its cross-covariance c with b, Var(b) held at σ_b²) is the dense
+    [x, y, θ, b] propagation ``odometry_consistency.dead_reckoned_windows`` does, F Σ Fᵀ + G V Gᵀ + Q_b with
+    F = [[J, d e_θ], [0, e^(−Δt/τ)]], to round-off: the two propagations of the drift agree."""
+    pose, delta, cross = np.array(pose), np.array(delta), np.array(cross)
+    a = np.array(spread).reshape(3, 3)
+    cov = a @ a.T + 1e-6 * np.eye(3)
+    variance = increment_variance(delta, FastSLAMConfig())
+    out, out_cross = propagate_with_heading_drift(pose, cov, cross, delta, variance, sigma, decay)
+    d, c, s = np.hypot(delta[0], delta[1]), np.cos(pose[2]), np.sin(pose[2])
+    dense = np.zeros((4, 4))
+    dense[:3, :3], dense[:3, 3], dense[3, :3], dense[3, 3] = cov, cross, cross, sigma ** 2
+    f = np.eye(4)
+    f[0, 2], f[1, 2], f[2, 3], f[3, 3] = -s * delta[0] - c * delta[1], c * delta[0] - s * delta[1], d, decay
+    g = np.zeros((4, 3))
+    g[:2, :2], g[2, 2] = [[c, -s], [s, c]], 1.0
+    dense = f @ dense @ f.T + (g * variance) @ g.T
+    dense[3, 3] += sigma ** 2 * (1.0 - decay ** 2)
+    scale = 1.0 + np.abs(dense).max()
+    np.testing.assert_allclose(out, dense[:3, :3], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(out_cross, dense[:3, 3], rtol=0, atol=1e-12 * scale)
+    assert dense[3, 3] == pytest.approx(sigma ** 2, rel=1e-12, abs=1e-15)   # Var(b) stays stationary: held, not lost
