@@ -99,7 +99,8 @@ def _holds_landmarks(path: Path) -> bool:
 def test_a_robot_killed_in_the_demo_has_its_last_saved_map_in_the_final_fusion(tmp_path) -> None:
     """The real command: robot1's process is killed (SIGKILL) as soon as a periodic save holding landmarks is on
     disk. On the wall clock (--realtime) that is about 1 s into the mission, well before robot1's second publish (5 s):
-    the node holds its first map, of its first frame, and the file is newer."""
+    the node holds its first map, of its first frame, and the file is newer. Should a loaded machine let the second
+    publish in first, the node's map is as new, and the test checks that this is what was fused and said."""
     demo = subprocess.Popen([sys.executable, "-m", "runtime.cli", "demo", "--processes", "--realtime", "--seconds",
                              "8", "--json", "--rerun", "none", "--map-save-interval", "1", "--out", str(tmp_path)],
                             cwd=ROOT,
@@ -134,9 +135,16 @@ def test_a_robot_killed_in_the_demo_has_its_last_saved_map_in_the_final_fusion(t
     assert len(failure) == 1 and "robot1 (exit -9): killed by SIGKILL, no summary; " in failure[0], err
     saved = LandmarkMap.load(saved_file)
     summary = json.loads("".join(stdout))
+    used = summary["robot_processes_failed"]["robot1"]["map_used"]
     assert summary["robot_processes_failed"] == {"robot1": {"exit": -9, "map_file": str(saved_file),
-                                                            "landmarks": len(saved), "map_used": True}}, failure
-    assert f"the final fusion reads its last saved map {saved_file} ({len(saved)} landmarks" in failure[0]
-    # what the final fusion held of robot1: the file's map, stamped with its last pose's mission time
-    assert summary["fused_from"]["robot1"][1] == pytest.approx(float(saved.trajectory[-1, 0]))
+                                                            "landmarks": len(saved), "map_used": used}}, failure
+    saved_stamp = float(saved.trajectory[-1, 0])
+    if used:   # the usual case: killed ~1 s in, before robot1's second publish (5 s)
+        assert f"the final fusion reads its last saved map {saved_file} ({len(saved)} landmarks" in failure[0]
+        # what the final fusion held of robot1: the file's map, stamped with its last pose's mission time
+        assert summary["fused_from"]["robot1"][1] == pytest.approx(saved_stamp)
+    else:      # a loaded machine let the second publish in before the kill: the node's map is as new, and is said so
+        assert any(said in failure[0] for said in ("is no newer than the map the node received last",
+                                                   "is the map the node received last")), failure
+        assert summary["fused_from"]["robot1"][1] >= saved_stamp - 1e-9, summary["fused_from"]
     assert summary["last_maps_missing"] == {} and "robot2" in summary["fused_from"]
