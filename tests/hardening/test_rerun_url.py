@@ -50,3 +50,15 @@ def test_a_url_rerun_takes_is_not_refused() -> None:
     assert rerun_url_problem("rerun+http://127.0.0.1:9876/proxy") is None   # no viewer needed: nothing connects
     for sink in ("file", "none", "spawn", "out/x.rrd", None):
         assert rerun_url_problem(sink) is None
+
+
+def test_slam_dataset_says_a_bad_rerun_url_before_its_run(tmp_path) -> None:
+    """`slam dataset` ran the whole log and wrote its map before Rerun refused the URL (session 24: said first)."""
+    from tests.datasets.conftest import write_mrclam
+
+    folder, out = tmp_path / "data", tmp_path / "map.npz"
+    write_mrclam(folder, gz=False)
+    status, _, err = run_cli("slam", "dataset", "mrclam", str(folder), "--robot", "1", "--out", str(out),
+                             "--rerun", BAD)
+    assert status == 2 and err.count("\n") == 1 and f"--rerun {BAD}: invalid endpoint" in err, err
+    assert not out.exists()
