@@ -1,0 +1,395 @@
+"""MRCLAM without barcodes: a pass's co-visible names matched to an earlier pass's jointly (a constellation test).
+
+Run from the repository root:
+
+    .venv/bin/python -m benchmarks.mrclam_constellation [--robots 1,2,3,4,5] [--seed 0] [--names-cache DIR]
+        [--drift 0.16 10] [--pass-seconds 20] [--min-pairs 3] [--ratio R] [--max-rounds 3] [--progress] [--json]
+
+Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
+states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
+the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pairwise gate. A pass past the posts sees
+3–6 of them within seconds, and their relative geometry is known to centimetres; this benchmark tests a pass's
+names against an earlier pass's *together* (:mod:`estimation.constellation`).
+
+The method (the barcodes never decide; they only score):
+
+1. **Names**: session 21's chained names (``mrclam_chained_names._chained``, the same ``--names-cache``), smoothed
+   with the heading drift (``--drift``, default σ_b 0.16 rad/m, τ 10 s, E's) from the known-ID filter's guess.
+2. **Passes**: the log cut into disjoint spans of ``--pass-seconds``; a pass holds the names with at least
+   ``--min-sightings`` kept sightings in its span.
+3. **Joint test**: each pass P against each earlier pass Q
+   (:func:`estimation.constellation.match_constellation`; names both hold are pairings already made, counted
+   towards ``--min-pairs``, the others are tested): positions and joint covariance from the smoother
+   (``joint_landmark_covariance``: the pass's unknown offset is in the cross covariance, drift included), pairings
+   only between names never sighted in one frame; matched when ≥ ``--min-pairs`` pairings are jointly compatible
+   (χ²_{2m} 99 %) and no rival with as many pairings is (or, with ``--ratio``, none is within that likelihood
+   ratio). Then across the earlier passes P matched: all their pairings together must be jointly compatible
+   (two different places for one pass's constellation: ambiguous, refused).
+4. **Merges**: the matched passes' pairings, most pairings first then largest ratio, joined name by name unless the
+   join puts two names sighted in one frame together; re-smoothed, the batch kept when the truncated cost's rise
+   is within χ² 99 % for 2 per absorbed name (else retried as the strongest pass's pairings alone); up to
+   ``--max-rounds`` rounds.
+
+Printed per robot and round: passes (matched / ambiguous / too few / incompatible / no earlier pass), unique
+constellations, pairings proposed and wrong (two barcodes), merges made and wrong, names per post, duplicates,
+ATE, start-frame landmark NEES within χ²₂ 95 %.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from dataclasses import dataclass, field  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy.stats  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
+from benchmarks.eval_mrclam import DATA  # noqa: E402
+from benchmarks.mrclam_chained_names import (  # noqa: E402
+    MergeRound,
+    NamedProblem,
+    _chained,
+    _covisible,
+    majority,
+    round_scores,
+    smooth_named,
+    truncated_cost,
+)
+from estimation.constellation import joint_d2, match_constellation  # noqa: E402
+from estimation.dataset_slam import run_landmark_log  # noqa: E402
+from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
+from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.landmark_smoother import HeadingDrift, Smoothed, joint_landmark_covariance  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
+
+STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
+
+
+@dataclass
+class Pass:
+    """One span of the log: [start, end) s, the landmark indices (of the named problem) it holds."""
+
+    start: float
+    end: float
+    landmarks: np.ndarray
+
+
+@dataclass
+class PassVerdict:
+    """A pass's outcome against every earlier pass: status, its pairings (landmark indices) when matched, the
+    number of pairings and the smallest log likelihood ratio over a rival among the matched earlier passes."""
+
+    index: int
+    status: str
+    pairs: list[tuple[int, int]] = field(default_factory=list)
+    strength: tuple[int, float] = (0, 0.0)
+    matched_earlier: int = 0
+    unique: bool | None = None
+
+
+def passes_of(named: NamedProblem, solution: Smoothed, seconds: float, min_sightings: int) -> list[Pass]:
+    """The log cut into spans of ``seconds`` from its first frame; each span's landmarks with ≥ ``min_sightings``
+    kept sightings in it."""
+    problem = named.problem
+    times = named.frame_times[problem.pose_index - 1]
+    kept = solution.inliers
+    out = []
+    t = float(named.frame_times[0])
+    end = float(named.frame_times[-1])
+    while t <= end:
+        rows = kept & (times >= t) & (times < t + seconds)
+        marks, counts = np.unique(problem.landmark_index[rows], return_counts=True)
+        out.append(Pass(t, t + seconds, marks[counts >= min_sightings]))
+        t += seconds
+    return out
+
+
+def judge_passes(positions: np.ndarray, covariance: np.ndarray, covisible: np.ndarray, passes: list[Pass], *,
+                 min_pairs: int, ratio: float, probability: float = 0.99) -> list[PassVerdict]:
+    """Every pass against every earlier pass (module docstring, step 3): positions (n, 2)
+    and their joint covariance (2n, 2n), covisible (n, n) names sighted in one frame (never paired)."""
+    n = len(positions)
+    allowed = ~covisible
+    seen = np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1)
+    out = []
+    for i, p in enumerate(passes):
+        mine = [int(k) for k in p.landmarks if seen[k]]
+        matched, statuses, hypotheses = [], [], []
+        for q in passes[:i]:
+            theirs = [int(k) for k in q.landmarks if seen[k]]
+            # a name both passes hold is already one post: a pairing the constellation counts, with nothing to
+            # test (its difference is zero by construction; the others' joint covariance carries it)
+            shared = set(mine) & set(theirs)
+            rest_p = [k for k in mine if k not in shared]
+            rest_q = [k for k in theirs if k not in shared]
+            if not rest_p or not rest_q:
+                continue
+            result = match_constellation(positions, covariance, rest_p, rest_q, allowed=allowed,
+                                         min_pairs=max(min_pairs - len(shared), 1), probability=probability,
+                                         ratio=ratio)
+            statuses.append(result.status)
+            if result.status == "matched":
+                matched.append(result)
+            if result.status in ("matched", "ambiguous"):
+                hypotheses += [h for h in (result.best, result.rival) if h is not None]
+        if matched:
+            # every compatible hypothesis of enough pairings, against any earlier pass, must be able to hold
+            # together with the matches: else the constellation has two places in the map
+            pairs = sorted({pair for h in hypotheses for pair in h.pairs})
+            d2, _ = joint_d2(positions, covariance, pairs)
+            if d2 < scipy.stats.chi2.ppf(probability, 2 * len(pairs)):
+                strength = (max(len(m.best.pairs) for m in matched), min(m.log_ratio for m in matched))
+                out.append(PassVerdict(i, "matched", pairs, strength, len(matched), True))
+            else:
+                out.append(PassVerdict(i, "ambiguous", [], (0, 0.0), len(matched), False))
+            continue
+        for status in ("ambiguous", "too_few", "incompatible"):
+            if status in statuses:
+                out.append(PassVerdict(i, status, unique=False if status == "ambiguous" else None))
+                break
+        else:
+            out.append(PassVerdict(i, "no_earlier"))
+    return out
+
+
+def merges_from(verdicts: list[PassVerdict], covisible: np.ndarray) -> tuple[dict[int, int], list[PassVerdict]]:
+    """{landmark: its cluster's root} from the matched passes' pairings, strongest pass first; a pass whose pairings
+    would put two co-visible landmarks in one cluster is skipped whole. Returns the map and the passes used."""
+    parent: dict[int, int] = {}
+    members: dict[int, set[int]] = {}
+    used = []
+    for v in sorted((v for v in verdicts if v.status == "matched"), key=lambda v: (-v.strength[0], -v.strength[1])):
+        trial_parent = dict(parent)
+        trial_members = {k: set(s) for k, s in members.items()}
+        ok = True
+        for a, b in v.pairs:
+            ra, rb = _root(trial_parent, a), _root(trial_parent, b)
+            if ra == rb:
+                continue
+            ga, gb = trial_members.get(ra, {ra}), trial_members.get(rb, {rb})
+            if covisible[np.ix_(sorted(ga), sorted(gb))].any():
+                ok = False
+                break
+            keep, drop = min(ra, rb), max(ra, rb)
+            trial_parent[drop] = keep
+            trial_members[keep] = ga | gb
+            trial_members.pop(drop, None)
+        if ok:
+            parent, members = trial_parent, trial_members
+            used.append(v)
+    return {x: _root(parent, x) for x in parent}, used
+
+
+def _root(parent: dict[int, int], x: int) -> int:
+    while parent.get(x, x) != x:
+        x = parent[x]
+    return x
+
+
+def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift) -> MergeRound:
+    """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution; kept when the
+    truncated cost rises by no more than χ² 99 % for 2 per absorbed name (module docstring, step 4)."""
+    names = current.names.copy()
+    index_name = current.named.names
+    position = dict(zip(index_name.tolist(), current.solution.landmarks, strict=True))
+    groups: dict[int, list[int]] = {}
+    for k, r in clusters.items():
+        groups.setdefault(r, []).append(k)
+    merged = []
+    for r, ks in groups.items():
+        keep = int(index_name[r])
+        all_names = {int(index_name[k]) for k in ks} | {keep}
+        position[keep] = np.mean([position[x] for x in all_names], axis=0)
+        for x in all_names - {keep}:
+            names[names == x] = keep
+            merged.append((keep, x))
+    named, solution = smooth_named(log, names, noise, config, initial_poses=current.solution.poses,
+                                   initial=position, heading_drift=drift)
+    rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
+    bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(merged)))
+    if rise <= bound:
+        return MergeRound(merged, rise, bound, True, names, named, solution)
+    return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
+
+
+def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
+    counts = {s: sum(v.status == s for v in verdicts) for s in STATUSES}
+    code = np.array([owner.get(int(x), -1) for x in named.names])
+    pairs = [pair for v in verdicts if v.status == "matched" for pair in v.pairs]
+    wrong = sum(code[a] != code[b] for a, b in pairs)
+    wrong_passes = sum(any(code[a] != code[b] for a, b in v.pairs) for v in verdicts if v.status == "matched")
+    decided = counts["matched"] + counts["ambiguous"]
+    return {"passes": len(verdicts), **counts, "pairings": len(pairs), "wrong_pairings": int(wrong),
+            "wrong_passes": int(wrong_passes),
+            "unique_fraction": counts["matched"] / decided if decided else float("nan")}
+
+
+def run_robot(log: RangeBearingLog, args) -> dict:
+    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    config = range_bearing_config(n_particles=args.particles)
+    barcodes = log.landmark_ids
+    chained, row = _chained(log, args, noise, config)
+    names = chained.names
+    initial_poses, initial = _guess(log, names, noise, config, args)
+    drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
+    started = time.process_time()
+    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
+                                   heading_drift=drift)
+    current = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
+    owner = majority(names, barcodes)
+    first = round_scores(log, current, owner)
+    row.update(first_smoothing=first, smooth_cpu_s=time.process_time() - started, rounds=[])
+    if args.progress:
+        _print_scores(f"{log.name} chain", first, file=sys.stderr)
+    for k in range(args.max_rounds):
+        started = time.process_time()
+        covariance = joint_landmark_covariance(current.named.problem, current.solution)
+        passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
+        covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
+        verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
+                                ratio=args.ratio if args.ratio is not None else np.inf)
+        owner = majority(current.names, barcodes)
+        judged = score_verdicts(verdicts, current.named, owner)
+        judged["judge_cpu_s"] = time.process_time() - started
+        clusters, used = merges_from(verdicts, covisible)
+        record = {"round": k + 1, "judged": judged, "passes_used": len(used)}
+        if args.progress:
+            _print_judged(k + 1, judged, file=sys.stderr)
+        if not clusters:
+            row["rounds"].append(record)
+            break
+        attempt = apply_merges(log, current, clusters, noise, config, drift)
+        record["batch"] = _round(log, attempt, owner)
+        if not attempt.accepted and len(used) > 1:
+            single, _ = merges_from(used[:1], covisible)
+            attempt = apply_merges(log, current, single, noise, config, drift)
+            record["single"] = _round(log, attempt, owner)
+        record["cpu_s"] = time.process_time() - started
+        row["rounds"].append(record)
+        if args.progress:
+            for key in ("batch", "single"):
+                if key in record:
+                    _print_scores(f"  round {k + 1} {key}", record[key], file=sys.stderr)
+        if not attempt.accepted:
+            break
+        current = attempt
+    final = round_scores(log, current, majority(names, barcodes))
+    final["merges"] = sum(r[key]["merged"] for r in row["rounds"] for key in ("batch", "single")
+                          if key in r and r[key]["accepted"])
+    final["wrong_merges"] = sum(r[key]["wrong_merges"] for r in row["rounds"] for key in ("batch", "single")
+                                if key in r and r[key]["accepted"])
+    row["final"] = final
+    return row
+
+
+def _round(log, attempt: MergeRound, owner) -> dict:
+    scores = round_scores(log, attempt, owner)
+    if not attempt.accepted:       # round_scores counts the merges of the attempt, scored on the kept solution
+        scores["merged"] = len(attempt.merged)
+    return scores
+
+
+def _guess(log, names, noise, config, args):
+    """The known-ID filter and smoother with the chained names as identities (U's starting guess), kept beside the
+    names' cache when one is given."""
+    cache = None
+    if args.names_cache:
+        step = args.step or args.window / 2
+        cache = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
+                                          f"-p{args.particles}-guess.npz")
+        if cache.is_file():
+            with np.load(cache, allow_pickle=False) as data:
+                return data["poses"], dict(zip(data["ids"].tolist(), data["positions"], strict=True))
+    keep = names >= 0
+    named_log = dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
+                                    bearings=log.bearings[keep], landmark_ids=names[keep])
+    guess = run_landmark_log(named_log, config, np.random.default_rng(args.seed), noise=noise, association="id",
+                             smooth=True)
+    ids = np.asarray(guess.map.metadata["external_ids"], np.int64)
+    positions = np.asarray(guess.map.positions)[:, :2]
+    poses = guess.map.trajectory[:, 1:]
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_suffix(".tmp.npz")
+        np.savez(tmp, poses=poses, ids=ids, positions=positions)
+        os.replace(tmp, cache)
+    return poses, dict(zip(ids.tolist(), positions, strict=True))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", default=str(DATA))
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--window", type=positive_float, default=40.0, help="the chain's windows, s")
+    parser.add_argument("--step", type=positive_float, default=None, help="the chain's window step, s (default: half)")
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--particles", type=positive_int, default=100)
+    parser.add_argument("--names-cache", metavar="DIR", default=None,
+                        help="mrclam_chained_names' cache of chained names (and the smoother's guess here)")
+    parser.add_argument("--drift", type=positive_float, nargs=2, default=(0.16, 10.0), metavar=("RAD_PER_M", "S"),
+                        help="the smoother's heading drift σ (rad/m) and correlation time (s)")
+    parser.add_argument("--pass-seconds", type=positive_float, default=20.0, help="a pass's span, s")
+    parser.add_argument("--min-sightings", type=positive_int, default=2,
+                        help="kept sightings of a name within a pass's span for it to be the pass's")
+    parser.add_argument("--min-pairs", type=positive_int, default=3, help="pairings a match needs")
+    parser.add_argument("--ratio", type=positive_float, default=None,
+                        help="likelihood ratio of the best hypothesis over a rival (default: no rival allowed)")
+    parser.add_argument("--max-rounds", type=non_negative_int, default=3)
+    parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    if not os.path.isdir(args.data):
+        print(f"mrclam_constellation: no data set at {args.data}", file=sys.stderr)
+        return 2
+    rows = []
+    for robot in (int(r) for r in args.robots.split(",")):
+        row = run_robot(read_mrclam(args.data, robot), args)
+        rows.append(row)
+        if not args.json:
+            _print(row)
+    if args.json:
+        print(json.dumps({"seed": args.seed, "drift": list(args.drift), "pass_s": args.pass_seconds,
+                          "min_pairs": args.min_pairs, "ratio": args.ratio, "robots": rows}))
+    return 0
+
+
+def _print_scores(label: str, s: dict, file=None) -> None:
+    merged = f"{s['merged']} merged ({s['wrong_merges']} wrong), rise {s['cost_rise']:.1f} (bound " \
+             f"{s['cost_bound']:.1f}) {'kept' if s['accepted'] else 'undone'}; " if s["merged"] else ""
+    print(f"{label}: {merged}names {s['names']} ({s['names_per_post']:.1f} per post, duplicates "
+          f"{100 * s['duplicate_fraction']:.0f} %), ATE {s['ate_m']:.3f} m, NEES within "
+          f"{100 * s['landmark_nees_within_bound']:.0f} %", file=file, flush=True)
+
+
+def _print_judged(k: int, j: dict, file=None) -> None:
+    print(f"  round {k} passes {j['passes']}: matched {j['matched']} ({j['wrong_passes']} with a wrong pairing; "
+          f"{j['pairings']} pairings, {j['wrong_pairings']} wrong), ambiguous {j['ambiguous']}, too few "
+          f"{j['too_few']}, incompatible {j['incompatible']}, no earlier pass {j['no_earlier']}; unique "
+          f"{100 * j['unique_fraction']:.0f} % of the decided ({j['judge_cpu_s']:.0f} s CPU)", file=file, flush=True)
+
+
+def _print(row: dict) -> None:
+    _print_scores(f"{row['robot']}: chain, smoothed with the drift", row["first_smoothing"])
+    for r in row["rounds"]:
+        _print_judged(r["round"], r["judged"])
+        for key in ("batch", "single"):
+            if key in r:
+                _print_scores(f"    {key}", r[key])
+    f = row["final"]
+    print(f"  final: {f['merges']} merges ({f['wrong_merges']} wrong), names {f['names']} "
+          f"({f['names_per_post']:.1f} per post, duplicates {100 * f['duplicate_fraction']:.0f} %), ATE "
+          f"{f['ate_m']:.3f} m, NEES within {100 * f['landmark_nees_within_bound']:.0f} %")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

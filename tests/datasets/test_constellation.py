@@ -1,0 +1,169 @@
+"""estimation/constellation: a pass's co-visible points matched to a map's points jointly, not pair by pair.
+
+Synthetic constellations: a random layout of posts (the map, each post known to a few centimetres), a pass that sees
+3–6 of them with tight relative geometry but an uncertain rigid offset (metres, a tenth of a radian) carried in the
+joint covariance, as an honest smoother's cross covariance carries it. A rigidly moved pass is matched to the right
+posts; a layout holding the pass's constellation twice within the offset's uncertainty is refused as ambiguous; a
+pass whose internal geometry is off by more than its covariance allows is refused.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimation.constellation import joint_d2, match_constellation
+
+SIGMA_POST = 0.03          # m, each map post and each pass point alone
+SIGMA_SHIFT = 1.5          # m, the pass's unknown translation
+SIGMA_TURN = 0.08          # rad, the pass's unknown rotation about its centroid
+
+
+def _layout(rng, n, spacing=0.7, size=8.0):
+    """n posts in a size × size arena, no two closer than ``spacing`` (like MRCLAM's 15 posts)."""
+    out = []
+    while len(out) < n:
+        p = rng.uniform(0, size, 2)
+        if all(np.hypot(*(p - q)) >= spacing for q in out):
+            out.append(p)
+    return np.array(out)
+
+
+def _problem(map_xy, pass_true, shift, turn, rng, noise=SIGMA_POST):
+    """positions (map then pass) and their joint covariance: the pass moved rigidly by (shift, turn) about its
+    centroid plus independent noise; the covariance carries the rigid offset's prior (linearised) and σ per point."""
+    m, k = len(map_xy), len(pass_true)
+    centre = pass_true.mean(axis=0)
+    c, s = np.cos(turn), np.sin(turn)
+    rot = np.array([[c, -s], [s, c]])
+    moved = (pass_true - centre) @ rot.T + centre + shift + rng.normal(0, noise, (k, 2))
+    positions = np.vstack([map_xy, moved])
+    n = m + k
+    covariance = np.eye(2 * n) * SIGMA_POST ** 2
+    jac = np.zeros((2 * n, 3))                 # d(pass point)/d(shift x, shift y, turn)
+    for i in range(k):
+        r = moved[i] - centre
+        jac[2 * (m + i):2 * (m + i) + 2] = [[1, 0, -r[1]], [0, 1, r[0]]]
+    covariance += jac @ np.diag([SIGMA_SHIFT ** 2, SIGMA_SHIFT ** 2, SIGMA_TURN ** 2]) @ jac.T
+    return positions, covariance
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), k=st.integers(3, 6))
+def test_a_rigidly_moved_pass_of_a_random_layout_is_matched_to_its_posts(seed, k):
+    rng = np.random.default_rng(seed)
+    map_xy = _layout(rng, 15)
+    seen = rng.choice(15, size=k, replace=False)
+    shift = rng.normal(0, SIGMA_SHIFT / 2, 2)
+    turn = rng.normal(0, SIGMA_TURN / 2)
+    positions, covariance = _problem(map_xy, map_xy[seen], shift, turn, rng)
+    result = match_constellation(positions, covariance, range(15, 15 + k), range(15))
+    # a random layout may repeat a constellation within the pass's uncertainty: then the match must be refused,
+    # never wrong
+    assert result.status in ("matched", "ambiguous")
+    if result.status == "matched":
+        assert dict(result.best.pairs) == {15 + i: int(q) for i, q in enumerate(seen)}
+        assert result.best.d2 < 30
+
+
+def test_most_passes_of_five_posts_are_unique_in_a_random_layout():
+    """How often the decision can be made at all: with the offsets above, a pass of five posts of a 15-post layout."""
+    matched = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        map_xy = _layout(rng, 15)
+        seen = rng.choice(15, size=5, replace=False)
+        positions, covariance = _problem(map_xy, map_xy[seen], rng.normal(0, 0.7, 2), rng.normal(0, 0.04), rng)
+        result = match_constellation(positions, covariance, range(15, 20), range(15))
+        assert result.status != "matched" or dict(result.best.pairs) == {15 + i: int(q) for i, q in enumerate(seen)}
+        matched += result.status == "matched"
+    assert matched >= 30
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), k=st.integers(3, 5))
+def test_a_layout_that_repeats_the_pass_is_refused_as_ambiguous(seed, k):
+    rng = np.random.default_rng(seed)
+    block = _layout(rng, k, size=3.0)
+    copy = block + np.array([4.0, 1.0])      # the same constellation 4.1 m away: within 3 σ of the pass's shift
+    others = _layout(rng, 4, size=2.0) + np.array([0.0, 6.0])
+    map_xy = np.vstack([block, copy, others])
+    m = len(map_xy)
+    positions, covariance = _problem(map_xy, block, np.array([1.5, 0.5]), 0.0, rng)
+    result = match_constellation(positions, covariance, range(m, m + k), range(m))
+    assert result.status == "ambiguous"
+    assert result.rival is not None and len(result.rival.pairs) == len(result.best.pairs)
+    # with the copy gone the same pass is matched
+    keep = np.r_[0:k, 2 * k:m]
+    positions2 = np.vstack([map_xy[keep], positions[m:]])
+    idx = np.r_[keep, np.arange(m, m + k)]
+    sub = covariance[np.ix_(np.repeat(2 * idx, 2) + np.tile([0, 1], len(idx)),
+                            np.repeat(2 * idx, 2) + np.tile([0, 1], len(idx)))]
+    m2 = len(keep)
+    again = match_constellation(positions2, sub, range(m2, m2 + k), range(m2))
+    assert again.status == "matched"
+    assert dict(again.best.pairs) == {m2 + i: i for i in range(k)}
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1))
+def test_a_pass_whose_shape_is_off_beyond_its_covariance_is_refused(seed):
+    rng = np.random.default_rng(seed)
+    map_xy = _layout(rng, 15)
+    seen = rng.choice(15, size=4, replace=False)
+    # the pass's shape stretched by 30 % about its centroid (0.3-1.5 m at the points, 10-50 σ): no rigid offset
+    # explains it, however large
+    centre = map_xy[seen].mean(axis=0)
+    bent = centre + 1.3 * (map_xy[seen] - centre)
+    positions, covariance = _problem(map_xy, bent, np.zeros(2), 0.0, rng)
+    result = match_constellation(positions, covariance, range(15, 19), range(15))
+    truth = {15 + i: int(q) for i, q in enumerate(seen)}
+    assert not (result.status == "matched" and dict(result.best.pairs) == truth)
+
+
+def test_two_pairings_are_too_few_by_default_and_enough_when_asked():
+    rng = np.random.default_rng(3)
+    map_xy = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 9.0], [9.0, 9.0]])
+    positions, covariance = _problem(map_xy, map_xy[:2], np.array([0.3, -0.2]), 0.02, rng)
+    assert match_constellation(positions, covariance, [4, 5], range(4)).status == "too_few"
+    two = match_constellation(positions, covariance, [4, 5], range(4), min_pairs=2)
+    assert two.status == "matched" and dict(two.best.pairs) == {4: 0, 5: 1}
+
+
+def test_disallowed_pairings_are_not_made_and_far_points_are_incompatible():
+    rng = np.random.default_rng(4)
+    map_xy = _layout(rng, 6)
+    positions, covariance = _problem(map_xy, map_xy[:3], np.zeros(2), 0.0, rng)
+    allowed = np.ones((9, 9), bool)
+    allowed[6, 0] = False
+    result = match_constellation(positions, covariance, [6, 7, 8], range(6), allowed=allowed)
+    assert all(pair != (6, 0) for pair in (result.best.pairs if result.best else ()))
+    far = positions.copy()
+    far[6:] += 100.0
+    assert match_constellation(far, covariance, [6, 7, 8], range(6)).status == "incompatible"
+
+
+def test_joint_d2_is_the_sum_for_independent_pairs_and_rejects_bad_input():
+    positions = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0], [0.0, 0.0]])
+    covariance = np.eye(8) * 0.25
+    d2, _ = joint_d2(positions, covariance, [(0, 1), (2, 3)])
+    assert d2 == pytest.approx(1 / 0.5 + 4 / 0.5)
+    with pytest.raises(ValueError, match="both in the pass and in the map"):
+        match_constellation(positions, covariance, [0, 1], [1, 2])
+    with pytest.raises(ValueError, match="min_pairs"):
+        match_constellation(positions, covariance, [0], [1], min_pairs=0)
+
+
+def test_merges_join_the_strongest_passes_first_and_never_two_names_seen_together():
+    from benchmarks.mrclam_constellation import PassVerdict, merges_from
+
+    covisible = np.eye(8, dtype=bool)
+    covisible[5, 7] = covisible[7, 5] = True             # names 5 and 7 were sighted in one frame
+    strong = PassVerdict(0, "matched", [(4, 0), (5, 1), (6, 2)], (3, 9.0))
+    clash = PassVerdict(1, "matched", [(7, 3), (1, 7)], (3, 2.0))   # after the strong one: 7 ~ 1 ~ 5
+    refused = PassVerdict(2, "ambiguous")
+    clusters, used = merges_from([clash, refused, strong], covisible)
+    assert used == [strong]
+    assert {k: clusters[k] for k in (4, 5, 6)} == {4: 0, 5: 1, 6: 2}
+    assert 7 not in clusters and 3 not in clusters
