@@ -5,10 +5,17 @@ Goals (issue 6): two maps of the paper's size (263 and 364 landmarks) aligned in
 the goal's verdict is on the CPU time, which the machine's other load does not count.
 Set OPENBLAS_NUM_THREADS=1 on a loaded machine: OpenBLAS's thread pool makes small matrix products
 erratic (tens of ms) when other processes hold the cores.
+
+``--against DIR`` (session 24): another checkout's ``fusion`` package (a git worktree of an older commit), imported
+under its own name beside this one, aligns the same maps alternately with this checkout's in the same process: both
+CPU medians, their ratio, and whether every result is the same to the bit -- a speed-up measured under one load, not
+two runs under two loads.  (The other tree's fusion runs on this checkout's ``estimation``.)
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import os
 import sys
 import time
 from pathlib import Path
@@ -35,11 +42,55 @@ def _median_ms(fn, repeats: int) -> tuple[float, float, object]:
     return 1000.0 * float(np.median(wall)), 1000.0 * float(np.median(cpu)), out
 
 
-def run(label: str, n_common: int, n1: int, n2: int, repeats: int, goal_ms: float) -> None:
+def _fusion_from(root: Path):
+    """The ``fusion`` package of the checkout ``root``, imported as ``fusion_against`` (beside this one's)."""
+    init = root / "fusion" / "__init__.py"
+    if not init.is_file():
+        raise SystemExit(f"{Path(__file__).name}: --against {root}: no fusion/__init__.py there")
+    spec = importlib.util.spec_from_file_location("fusion_against", init, submodule_search_locations=[str(init.parent)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["fusion_against"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _same_result(a, b) -> bool:
+    """Two alignments equal to the bit: decision, reason, pose, covariances, supports, every statistic."""
+    def bits(x):
+        return None if x is None else np.asarray(x).tobytes()
+    return (a.found == b.found and a.reason == b.reason and bits(a.pose) == bits(b.pose)
+            and bits(a.covariance) == bits(b.covariance) and bits(a.start_covariance) == bits(b.start_covariance)
+            and bits(a.supports) == bits(b.supports) and repr(a.statistics) == repr(b.statistics))
+
+
+def alternated(map1, map2, other, repeats: int, rounds: int = 6) -> None:
+    """This checkout's align and ``other``'s on the same maps, alternated round by round in this process (each round
+    ``repeats // rounds`` alignments of each, the order swapped every round): CPU medians and their ratio."""
+    per_round = max(1, repeats // rounds)
+    for preset in ("paper", "robust"):
+        sides = {"this": align, "against": other.align}
+        results = {name: fn(map1, map2, preset, np.random.default_rng(0)) for name, fn in sides.items()}   # warm-up
+        cpu = {name: [] for name in sides}
+        for r in range(rounds):
+            for name in (("this", "against") if r % 2 == 0 else ("against", "this")):
+                for _ in range(per_round):
+                    c0 = time.process_time()
+                    sides[name](map1, map2, preset, np.random.default_rng(0))
+                    cpu[name].append(time.process_time() - c0)
+        this, against = (1000.0 * float(np.median(cpu[name])) for name in ("this", "against"))
+        same = "every result the same to the bit" if _same_result(results["this"], results["against"]) else \
+            "RESULTS DIFFER"
+        print(f"  align [{preset:6s}] this checkout {this:8.2f} ms CPU, --against {against:8.2f} ms CPU "
+              f"(ratio {against / max(this, 1e-9):.2f}, {rounds} rounds of {per_round} alternated; {same})")
+
+
+def run(label: str, n_common: int, n1: int, n2: int, repeats: int, goal_ms: float, other=None) -> None:
     pose = np.array([12.0, -3.0, 2.2])
     extent = (35.0, 10.0) if n1 < 5000 else (350.0, 100.0)
     map1, map2, _ = random_pair(n_common, n1 - n_common, n2 - n_common, pose, seed=1, extent=extent)
     print(f"{label}: maps of {len(map1)} and {len(map2)} landmarks, {n_common} common")
+    if other is not None:
+        alternated(map1, map2, other, repeats)
     for preset in ("paper", "robust"):
         ms, cpu, a = _median_ms(lambda preset=preset: align(map1, map2, preset, np.random.default_rng(0)), repeats)
         err = np.abs(a.pose - pose) if a.found else None
@@ -68,11 +119,13 @@ def _demo_maps(folder: Path | None) -> dict:
     return {"robot1": map1, "robot2": map2}
 
 
-def demo_align(folder: Path, repeats: int) -> None:
+def demo_align(folder: Path, repeats: int, other=None) -> None:
     """align on the rendered demo's first two maps (real maps: walls, a building's half turn, repeated corners)."""
     maps = _demo_maps(folder)
     (name1, map1), (name2, map2) = sorted(maps.items())[:2]
     print(f"demo maps {name1} + {name2} ({len(map1)} + {len(map2)} landmarks, {folder}):")
+    if other is not None:
+        alternated(map1, map2, other, repeats)
     for preset in ("paper", "robust"):
         ms, cpu, a = _median_ms(lambda preset=preset: align(map1, map2, preset, np.random.default_rng(0)), repeats)
         print(f"  align [{preset:6s}] {ms:9.2f} ms wall, {cpu:9.2f} ms CPU; found {a.found}, "
@@ -117,14 +170,24 @@ def main() -> None:
     parser.add_argument("--only-repeated", action="store_true", help="only the repeated-fusion (cache) figures")
     parser.add_argument("--demo-maps", type=Path, help="folder of a rendered demo's robot*.npz: align on its first "
                         "two maps, and the repeated fusion (default: a random pair of the demo's size)")
+    parser.add_argument("--against", type=Path, metavar="DIR", help="another checkout (e.g. a git worktree of an "
+                        "older commit): its fusion package aligns the same maps alternately with this one's, in this "
+                        "process (paper-size pair, demo maps; not the large pair nor the repeated fusion)")
     args = parser.parse_args()
+    other = None if args.against is None else _fusion_from(args.against.resolve())
+    print(f"load average {os.getloadavg()[0]:.1f} at the start")
     if not args.only_repeated:
-        run("paper size", 150, 263, 364, repeats=30, goal_ms=5.0)
+        run("paper size", 150, 263, 364, repeats=30, goal_ms=5.0, other=other)
         if not args.skip_large:
             run("large", 20_000, 50_000, 50_000, repeats=3, goal_ms=2000.0)
         if args.demo_maps is not None:
-            demo_align(args.demo_maps, repeats=5)
+            demo_align(args.demo_maps, repeats=5, other=other)
+        elif other is not None:                   # the demo's size without its maps: the random pair of that size
+            map1, map2 = _demo_maps(None).values()
+            print(f"random pair of the demo's size ({len(map1)} + {len(map2)} landmarks, 250 common):")
+            alternated(map1, map2, other, repeats=12)
     repeated_fusion(args.demo_maps, repeats=5)
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 if __name__ == "__main__":
