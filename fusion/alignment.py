@@ -60,7 +60,7 @@ from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
 from .evidence import Evidence, decoy_chance_supports, evidence, log10_false_alarm, rival_offset
 from .frame_covariance import start_frame_covariance
-from .matching import query_subset
+from .matching import query_subset, search_workspace
 from .pose_covariance import inverse_with_covariance
 from .ransac import (
     CHI2_999,
@@ -343,6 +343,12 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     rivals, and a best alignment outside it is "not found: ... contradicts the prior" (the prior removes hypotheses,
     it never adds support; see :mod:`fusion.prior`).
     """
+    with search_workspace():       # its three descriptor searches share their distance buffers
+        return _align(map1, map2, preset, rng, cache, prior)
+
+
+def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, rng: np.random.Generator | None,
+           cache: AlignmentCache | None, prior: StartPrior | None) -> Alignment:
     config = resolve_preset(preset)
     rng = np.random.default_rng(0) if rng is None else rng
     if map1.descriptor_size != map2.descriptor_size and len(map1) and len(map2):

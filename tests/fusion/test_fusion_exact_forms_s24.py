@@ -19,7 +19,7 @@ from fusion.alignment_config import ROBUST
 from fusion.evidence import self_structure
 from fusion.fingerprint import content_rng
 from fusion.frame_covariance import _DIRECTIONS, _correlation_scale, start_frame_covariance
-from fusion.matching import self_correspondences
+from fusion.matching import distinctive_correspondences, self_correspondences
 from fusion.prior import StartPrior
 from fusion.ransac import CorrespondenceProblem, has_descriptors, place_points, refine_pose, rotations_2d
 
@@ -260,3 +260,33 @@ def test_with_a_prior_the_start_covariance_is_the_supports_own(sim, seed):
     expected = start_frame_covariance(map1.positions[i], map1.covariances[i], map2.positions[j],
                                       map2.covariances[j], a.pose, ROBUST.position_floor)
     assert same_bits(a.start_covariance, expected)
+
+
+def test_searches_in_one_workspace_equal_searches_apart():
+    """Inside search_workspace() the searches reuse one pair of distance buffers (grown when a search needs more,
+    kept by a nested workspace, freed on leaving); every value read is written first, so the results are the same."""
+    from fusion import matching
+
+    rng = np.random.default_rng(3)
+
+    def unit(n):
+        d = rng.normal(size=(n, 64)).astype(np.float32)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    a, b, c = unit(700), unit(600), unit(900)
+    a[:50] = b[:50]                                       # mutual matches and exact ties
+    c[:30] = c[30:60]                                     # repeats inside one map
+    calls = [lambda: distinctive_correspondences(a, b, 0.9, 0.8), lambda: self_correspondences(a, 0.9, 0.8),
+             lambda: self_correspondences(c, 0.9, 0.8), lambda: distinctive_correspondences(b, a, 0.9, 0.8),
+             lambda: self_correspondences(unit(40), 0.9, 0.8)]       # below the workspace's size: fresh buffers
+    apart = [call() for call in calls]
+    with matching.search_workspace():
+        together = [call() for call in calls[:2]]
+        with matching.search_workspace():
+            together += [call() for call in calls[2:4]]
+        assert matching._WORKSPACE.buffers and matching._WORKSPACE.buffers[0].size >= 900 * 900
+        together.append(calls[4]())
+    assert matching._WORKSPACE.buffers is None
+    for x, y in zip(apart[:4], together[:4], strict=True):
+        assert same_bits(x[0] if isinstance(x, tuple) else x, y[0] if isinstance(y, tuple) else y)
+    assert len(apart[0][0]) >= 50 and len(apart[2]) >= 30
