@@ -447,15 +447,24 @@ def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
 HELD_ROWS_MAX = 32   # rows of one entity held at most (~2 s at 15 Hz) before they are sent, whatever the time
 
 
+def _hold_share(path: str) -> float:
+    """The share, in [0.5, 1), of FILE_FLUSH_TICK and HELD_ROWS_MAX that the entity ``path`` holds its rows for:
+    fixed by its name, different between entities, so that they are sent at different frames (all sent at once, a
+    frame would carry the whole second's sending: 10-40 ms on the loaded 2-core machine, against ~0.6 ms a frame)."""
+    return 0.5 + 0.5 * zlib.crc32(path.encode()) / 2**32
+
+
 class _HeldRows:
     """The rows of one entity held to be sent as one ``send_columns`` (MissionLog, saved files): each row's times
     and, per field, its instances ((n, ...) arrays; ``strips``: a list of (n, d) arrays)."""
 
-    __slots__ = ("archetype", "with_frame", "sim_time", "frame", "log_time", "fields")
+    __slots__ = ("archetype", "with_frame", "since", "hold", "cap", "sim_time", "frame", "log_time", "fields")
 
-    def __init__(self, archetype, with_frame: bool) -> None:
+    def __init__(self, archetype, with_frame: bool, since: float, share: float) -> None:
         self.archetype = archetype
         self.with_frame = with_frame
+        self.since = since                                  # time.monotonic() of the first row held
+        self.hold, self.cap = share * FILE_FLUSH_TICK, max(1, round(share * HELD_ROWS_MAX))
         self.sim_time: list[float] = []
         self.frame: list[int] = []
         self.log_time: list[int] = []
@@ -506,7 +515,7 @@ class MissionLog:
         # (see _emit); a live stream gets each row as it is logged. None: hold when open_recording saves ``rec``
         self.hold_rows = rec in _SAVED if hold_rows is None else bool(hold_rows)
         self._held: dict[str, _HeldRows] = {}
-        self._held_since: float | None = None
+        self._swept = time.monotonic()               # when held rows were last looked over for stale ones
         self._held_lock = threading.Lock()
         self._now = threading.local()               # this thread's (t, frame), as _time set Rerun's (per thread)
         self.robots = list(robots)
@@ -570,8 +579,10 @@ class MissionLog:
     def _emit(self, path: str, archetype, data: Mapping) -> None:
         """One row of ``archetype``'s fields ``data`` (each a batch of instances: ``[[x, y, z]]`` for one) at the time
         :meth:`_time` set in this thread: logged at once on a live stream; on a saved file (``hold_rows``) held and
-        sent with the entity's other rows as one ``send_columns`` when the oldest held row is FILE_FLUSH_TICK s old
-        (or an entity holds HELD_ROWS_MAX rows), or at :meth:`flush` and :meth:`close`.
+        sent with the entity's other rows as one ``send_columns`` when its oldest held row is a share of
+        FILE_FLUSH_TICK s old or it holds that share of HELD_ROWS_MAX rows (the share, 0.5-1, differs by entity:
+        :func:`_hold_share`), when an entity no longer logged has held a row for FILE_FLUSH_TICK s, or at
+        :meth:`flush` and :meth:`close`.
 
         The file holds the same rows at the same times (sim_time, frame, log_time as ``rr.log`` stamps it) either
         way; a row sent with others costs a fraction of one ``rr.log`` (one conversion and one Rust call per column
@@ -586,14 +597,16 @@ class MissionLog:
             if rows is not None and (rows.archetype is not archetype or rows.with_frame != (frame is not None)):
                 self._send(path, self._held.pop(path))  # a row of another kind: what is held goes first
                 rows = None
-            if rows is None:
-                rows = self._held[path] = _HeldRows(archetype, frame is not None)
-            rows.add(t, frame, time.time_ns(), data)
             now = time.monotonic()
-            if self._held_since is None:
-                self._held_since = now
-            if now - self._held_since >= FILE_FLUSH_TICK or len(rows.sim_time) >= HELD_ROWS_MAX:
-                self._send_held()
+            if rows is None:
+                rows = self._held[path] = _HeldRows(archetype, frame is not None, now, _hold_share(path))
+            rows.add(t, frame, time.time_ns(), data)
+            if now - rows.since >= rows.hold or len(rows.sim_time) >= rows.cap:
+                self._send(path, self._held.pop(path))
+            if now - self._swept >= FILE_FLUSH_TICK:  # entities no longer logged (a closed path segment, a robot gone)
+                self._swept = now
+                for stale in [p for p, r in self._held.items() if now - r.since >= FILE_FLUSH_TICK]:
+                    self._send(stale, self._held.pop(stale))
 
     def _send(self, path: str, rows: _HeldRows) -> None:
         indexes, columns = rows.columns()
@@ -601,7 +614,7 @@ class MissionLog:
 
     def _send_held(self) -> None:
         """Send every held row (the caller holds ``_held_lock``: one thread sends at a time, in order)."""
-        held, self._held, self._held_since = self._held, {}, None
+        held, self._held = self._held, {}
         for path, rows in held.items():
             self._send(path, rows)
 
