@@ -549,9 +549,13 @@ class _NormalFactor:
         for chunk in range(0, len(poses), step):
             which = poses[chunk:chunk + step]
             columns = (self.width * (which[:, None] - 1) + np.arange(3)).ravel()
-            unit = np.zeros((self.width * self.t, len(columns)))
-            unit[columns, np.arange(len(columns))] = 1.0
-            own = self._pose_solve(unit)[columns].reshape(len(which), 3, len(which), 3)
+            # rows above the chunk's first column stay exactly 0 in the forward pass Uᵀy = e and the back
+            # substitution U x = y below them never reads them: the trailing block of U gives the same rows
+            start = int(columns.min())
+            unit = np.zeros((self.width * self.t - start, len(columns)))
+            unit[columns - start, np.arange(len(columns))] = 1.0
+            own = scipy.linalg.cho_solve_banded((self.band[:, start:], False), unit)[columns - start]
+            own = own.reshape(len(which), 3, len(which), 3)
             blocks = own[np.arange(len(which)), :, np.arange(len(which)), :]
             x = self.x[columns].reshape(len(which), 3, -1)
             out[chunk:chunk + len(which)] = blocks + x @ landmark_cov @ x.transpose(0, 2, 1)

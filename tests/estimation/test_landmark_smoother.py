@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from estimation import landmark_smoother
 from estimation.dataset_smoothing import config_drift
 from estimation.fastslam import FastSLAMConfig
 from estimation.geometry import between, compose, dead_reckoning, wrap_angle
@@ -416,3 +417,26 @@ def test_the_data_sets_smoother_takes_the_filters_drift_when_it_has_one():
     assert config_drift(FastSLAMConfig()) is None
     drifting = dataclasses.replace(FastSLAMConfig(), odom_heading_drift_sigma_per_m=0.16, odom_heading_drift_tau_s=10.0)
     assert config_drift(drifting) == HeadingDrift(0.16, 10.0)
+
+
+@pytest.mark.parametrize("drift", [None, HeadingDrift(0.1, 5.0)])
+def test_pose_covariances_are_the_blocks_of_the_dense_inverse_in_every_chunk(monkeypatch, drift):
+    """The pose covariance blocks are solved chunk by chunk from the trailing part of the banded factor (rows above
+    a chunk's first pose stay 0 in its solves): they are the (x, y, θ) blocks of the dense information matrix's
+    inverse at every pose, in the first chunk and in the last."""
+    problem, _, _ = simulated_log(seed=3, steps=60)
+    problem = dataclasses.replace(problem, increment_seconds=np.full(problem.n_poses, 0.5))
+    monkeypatch.setattr(landmark_smoother, "_COLUMN_BLOCK_ENTRIES", 9 * problem.n_poses * 7)   # 7 poses a chunk
+    solution = smooth(problem, *initial_guess(problem), pose_covariance_stride=1, heading_drift=drift)
+    width = 3 if drift is None else 4
+    information = landmark_smoother._information(
+        problem, solution.poses, solution.landmarks, solution.inliers, len(solution.landmarks), None,
+        landmark_smoother._solution_drift(problem, solution)).toarray()
+    seen = np.zeros(len(solution.landmarks), bool)
+    seen[problem.landmark_index[solution.inliers]] = True
+    free = np.concatenate([np.ones(width * problem.n_poses, bool), np.repeat(seen, 2)])
+    dense = np.linalg.inv(information[np.ix_(free, free)])
+    rows = width * (solution.covariance_poses[:, None] - 1) + np.arange(3)
+    expected = dense[rows[:, :, None], rows[:, None, :]]
+    assert len(solution.covariance_poses) == problem.n_poses
+    np.testing.assert_allclose(solution.pose_covariances, expected, rtol=1e-8, atol=1e-12)
