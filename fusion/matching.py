@@ -27,11 +27,13 @@ import numpy as np
 SEARCH_BUDGET_PAIRS = 100_000_000
 _BLOCK_PAIRS = 16_000_000
 
-# the distance buffers one thread's searches share inside search_workspace() (None outside it), for searches of at
-# least _WORKSPACE_MIN distances: smaller buffers come from the allocator's heap without page faults, and holding them
-# would only push the alignment's later temporaries out of it
+# the distance buffers one thread's searches share inside search_workspace() (None outside it), for searches of
+# _WORKSPACE_MIN to _WORKSPACE_MAX distances per block: smaller buffers come from the allocator's heap without page
+# faults, and holding them would only push the alignment's later temporaries out of it; larger ones (the 50,000-landmark
+# pair's 64 MB blocks) held through the alignment would raise its peak memory (304 -> 375 MB), for little
 _WORKSPACE = threading.local()
-_WORKSPACE_MIN = 262_144
+_WORKSPACE_MIN, _WORKSPACE_MAX = 262_144, 4_194_304
+_CLIP_BY_MASK = 1 << 20
 
 
 @contextmanager
@@ -40,8 +42,8 @@ def search_workspace() -> Iterator[None]:
 
     An alignment searches three times (the pair, then each map against itself); buffers of a map of 1,000 landmarks
     hold 4 MB each, above the allocator's mmap threshold, so each fresh pair costs ~2,000 page faults (1.5-2.5 ms).
-    Nested use keeps the outer workspace.  The values computed are the same either way: every element a search reads
-    it has written."""
+    Only searches of 262,144 to 4,194,304 distances per block use it (see _WORKSPACE_MIN).  Nested use keeps the outer
+    workspace.  The values computed are the same either way: every element a search reads it has written."""
     if getattr(_WORKSPACE, "buffers", None) is not None:
         yield
         return
@@ -56,7 +58,7 @@ def _distance_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """Two float32 arrays of ``shape`` (C order): the workspace's, grown when too small, or fresh outside one."""
     store = getattr(_WORKSPACE, "buffers", None)
     n = shape[0] * shape[1]
-    if store is None or n < _WORKSPACE_MIN:
+    if store is None or not _WORKSPACE_MIN <= n <= _WORKSPACE_MAX:
         return np.empty(shape, np.float32), np.empty(shape, np.float32)
     if not store or store[0].size < n:
         store[:] = [np.empty(n, np.float32), np.empty(n, np.float32)]
@@ -90,15 +92,19 @@ def _two_nearest_exact(queries: np.ndarray, base: np.ndarray, exclude: np.ndarra
         r = rows[: len(block)]
         d2, ab = d2_buffer[: len(block)], ab_buffer[: len(block)]
         # |a - b|² = (|a|² + |b|²) - 2 a·b, clipped at zero against round-off (the same operations as the
-        # expression written out, in place; the clip sets the few negatives to +0.0, as np.maximum(d2, 0.0) does,
-        # in a quarter of its time: a comparison and a scan)
+        # expression written out, in place; on blocks of up to 2^20 distances the clip sets the few negatives to +0.0
+        # as np.maximum(d2, 0.0) does, in a quarter of its time: a comparison and a scan -- larger blocks keep
+        # np.maximum, whose bytes of comparison would add 16 MB to the 50,000-landmark search's peak)
         np.add(np.einsum("ij,ij->i", block, block)[:, None], b_sq[None, :], out=d2)
         np.matmul(block, b.T, out=ab)
         ab *= 2.0
         d2 -= ab
-        negative = d2 < 0.0
-        if negative.any():
-            d2[negative] = 0.0
+        if d2.size > _CLIP_BY_MASK:
+            np.maximum(d2, 0.0, out=d2)
+        else:
+            negative = d2 < 0.0
+            if negative.any():
+                d2[negative] = 0.0
         if exclude is not None:
             d2[r, exclude[start:start + len(block)]] = np.inf
         # each base row's nearest query: the first row that reaches the column's minimum (argmin along the columns

@@ -290,3 +290,23 @@ def test_searches_in_one_workspace_equal_searches_apart():
     for x, y in zip(apart[:4], together[:4], strict=True):
         assert same_bits(x[0] if isinstance(x, tuple) else x, y[0] if isinstance(y, tuple) else y)
     assert len(apart[0][0]) >= 50 and len(apart[2]) >= 30
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_both_clips_at_zero_give_the_same_neighbours(monkeypatch, seed):
+    """Blocks above 2^20 distances are clipped by np.maximum, smaller ones by a mask: the same values (negatives ->
+    +0.0, NaN kept), so the same neighbours, distances and mutual matches."""
+    from fusion import matching
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(300, 16)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    e = np.concatenate([d[:100], rng.normal(size=(150, 16)).astype(np.float32)])   # exact duplicates: d2 below 0
+    e[100:] /= np.linalg.norm(e[100:], axis=1, keepdims=True)
+    e[-1, 3] = np.nan
+    with np.errstate(invalid="ignore"):
+        by_mask = [matching._two_nearest_exact(d, e), matching._two_nearest_exact(e, e, exclude=np.arange(len(e)))]
+        monkeypatch.setattr(matching, "_CLIP_BY_MASK", 0)
+        by_maximum = [matching._two_nearest_exact(d, e), matching._two_nearest_exact(e, e, exclude=np.arange(len(e)))]
+    for x, y in zip(by_mask, by_maximum, strict=True):
+        assert all(same_bits(u, v) for u, v in zip(x, y, strict=True))
