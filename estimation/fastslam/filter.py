@@ -588,12 +588,14 @@ class FastSLAM:
         p, k = store.blocks_near(centres, radius)
         b = store.block_size
         phys = store.table[p, k]
-        lid = _rows(store.lid, phys).ravel()                                       # (pairs·B,)
-        live = np.flatnonzero(lid >= 0)
-        pair = live // b
-        g = phys[pair] * b + live % b
-        cand = _Pairs(p[pair], np.full(len(g), -1, np.int64), k[pair], g, np.arange(len(g)))
-        return cand, lid[live]
+        lid = _rows(store.lid, phys)                                               # (pairs, B)
+        alive = lid >= 0
+        live = np.flatnonzero(alive)
+        g = (phys[:, None] * b + np.arange(b)).ravel()[live]    # each block's slots, no division per candidate
+        per_block = np.count_nonzero(alive, axis=1)
+        cand = _Pairs(np.repeat(p, per_block), np.full(len(g), -1, np.int64), np.repeat(k, per_block), g,
+                      np.arange(len(g)))
+        return cand, lid.ravel()[live]
 
     def _descriptor_join(self, cand: _Pairs, lids: np.ndarray, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
                          q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
