@@ -792,18 +792,18 @@ class FastSLAM:
         else:
             candidate = np.ones(len(cand.m), bool)
             candidate[matched.c] = False
-        idx = np.flatnonzero(candidate)
-        if len(idx) == 0:
-            return cand.take(idx), np.zeros(0)
-        m, at = cand.m[idx], cand.g[idx] * 9           # 1-D gathers of x, y, z from the 9-number slot records
+        if len(cand.m) == 0:
+            return cand.take(np.zeros(0, np.int64)), np.zeros(0)
+        m, at = cand.m, cand.g * 9           # 1-D gathers of x, y, z from the 9-number slot records
         flat = store.state.reshape(-1)
         c, s = _cos_sin(poses, m)
         dx, dy = np.take(flat, at) - np.take(poses[:, 0], m), np.take(flat, at + 1) - np.take(poses[:, 1], m)
         x, y = c * dx + s * dy, c * dy - s * dx
         # the planar half of the test first: most candidates are behind or beside the view (in bench_fastslam's
         # 10,000-landmark map ~2 % of them are well in view), and only those ahead need their height and range
-        ahead = np.flatnonzero(self._ahead_in_view(x, y))
-        idx, x, y, at = idx[ahead], x[ahead], y[ahead], at[ahead]
+        # (the matched ones are dropped here too: cheaper than selecting the others before any arithmetic)
+        idx = np.flatnonzero(self._ahead_in_view(x, y) & candidate)
+        x, y, at = x[idx], y[idx], at[idx]
         inside = np.flatnonzero(self._near_in_view(x, y, np.take(flat, at + 2), reach))
         ox, oy, _ = self.config.sensor_offset
         return cand.take(idx[inside]), np.hypot(x[inside] - ox, y[inside] - oy)
