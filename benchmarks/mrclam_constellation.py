@@ -196,9 +196,11 @@ def _root(parent: dict[int, int], x: int) -> int:
     return x
 
 
-def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift) -> MergeRound:
-    """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution; kept when the
-    truncated cost rises by no more than χ² 99 % for 2 per absorbed name (module docstring, step 4)."""
+def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None
+                 ) -> MergeRound:
+    """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution (or, with
+    ``reguess(names) -> (poses, {name: position})``, from that guess); kept when the truncated cost rises by no more
+    than χ² 99 % for 2 per absorbed name (module docstring, step 4)."""
     names = current.names.copy()
     index_name = current.named.names
     position = dict(zip(index_name.tolist(), current.solution.landmarks, strict=True))
@@ -213,7 +215,10 @@ def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, conf
         for x in all_names - {keep}:
             names[names == x] = keep
             merged.append((keep, x))
-    named, solution = smooth_named(log, names, noise, config, initial_poses=current.solution.poses,
+    initial_poses = current.solution.poses
+    if reguess is not None:         # a fresh start: the known-ID filter and smoother on the merged names
+        initial_poses, position = reguess(names)
+    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses,
                                    initial=position, heading_drift=drift)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
     bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(merged)))
@@ -268,11 +273,15 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         if not clusters:
             row["rounds"].append(record)
             break
-        attempt = apply_merges(log, current, clusters, noise, config, drift)
+        reguess = None
+        if args.reguess:
+            def reguess(merged_names):
+                return _guess(log, merged_names, noise, config, args, cache=False)
+        attempt = apply_merges(log, current, clusters, noise, config, drift, reguess)
         record["batch"] = _round(log, attempt, owner)
         if not attempt.accepted and len(used) > 1:
             single, _ = merges_from(used[:1], covisible)
-            attempt = apply_merges(log, current, single, noise, config, drift)
+            attempt = apply_merges(log, current, single, noise, config, drift, reguess)
             record["single"] = _round(log, attempt, owner)
         record["cpu_s"] = time.process_time() - started
         row["rounds"].append(record)
@@ -294,21 +303,22 @@ def run_robot(log: RangeBearingLog, args) -> dict:
 
 def _round(log, attempt: MergeRound, owner) -> dict:
     scores = round_scores(log, attempt, owner)
+    scores["converged"], scores["iterations"] = bool(attempt.solution.converged), int(attempt.solution.iterations)
     if not attempt.accepted:       # round_scores counts the merges of the attempt, scored on the kept solution
         scores["merged"] = len(attempt.merged)
     return scores
 
 
-def _guess(log, names, noise, config, args):
+def _guess(log, names, noise, config, args, cache: bool = True):
     """The known-ID filter and smoother with the chained names as identities (U's starting guess), kept beside the
     names' cache when one is given."""
-    cache = None
-    if args.names_cache:
+    path = None
+    if args.names_cache and cache:
         step = args.step or args.window / 2
-        cache = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
-                                          f"-p{args.particles}-guess.npz")
-        if cache.is_file():
-            with np.load(cache, allow_pickle=False) as data:
+        path = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
+                                         f"-p{args.particles}-guess.npz")
+        if path.is_file():
+            with np.load(path, allow_pickle=False) as data:
                 return data["poses"], dict(zip(data["ids"].tolist(), data["positions"], strict=True))
     keep = names >= 0
     named_log = dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
@@ -318,11 +328,11 @@ def _guess(log, names, noise, config, args):
     ids = np.asarray(guess.map.metadata["external_ids"], np.int64)
     positions = np.asarray(guess.map.positions)[:, :2]
     poses = guess.map.trajectory[:, 1:]
-    if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_suffix(".tmp.npz")
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
         np.savez(tmp, poses=poses, ids=ids, positions=positions)
-        os.replace(tmp, cache)
+        os.replace(tmp, path)
     return poses, dict(zip(ids.tolist(), positions, strict=True))
 
 
@@ -345,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ratio", type=positive_float, default=None,
                         help="likelihood ratio of the best hypothesis over a rival (default: no rival allowed)")
     parser.add_argument("--max-rounds", type=non_negative_int, default=3)
+    parser.add_argument("--reguess", action="store_true",
+                        help="re-smooth each merge from the known-ID filter on the merged names, not the last solution")
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
