@@ -1072,7 +1072,8 @@ class FastSLAM:
         np.maximum.at(trace, inverse, state[:, 3] + state[:, 6] + state[:, 8])
         spread = np.sqrt(spread2)
         ti, ui = _x_window_pairs(ref[:, 0], t, cfg.merge_radius + spread[t] + spread.max())
-        d = np.linalg.norm(ref[t[ti]] - ref[ui], axis=1) - spread[t[ti]] - spread[ui]
+        gap = (_rows(ref, t[ti]) - _rows(ref, ui)).T   # |gap| column by column: np.linalg.norm's sums, in order
+        d = np.sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]) - spread[t[ti]] - spread[ui]
         bound = cfg.merge_gate * (trace[t[ti]] + trace[ui])
         close = (d < cfg.merge_radius) & (np.maximum(d, 0.0) ** 2 < bound)
         ti, ui = ti[close], ui[close]
