@@ -465,13 +465,13 @@ class _HeldRows:
         self.with_frame = with_frame
         self.since = since                                  # time.monotonic() of the first row held
         self.hold, self.cap = share * FILE_FLUSH_TICK, max(1, round(share * HELD_ROWS_MAX))
-        self.sim_time: list[float] = []
+        self.sim_time: list[int] = []                      # ns, rounded as rr.set_time rounds seconds
         self.frame: list[int] = []
         self.log_time: list[int] = []
         self.fields: dict[str, list] = {}
 
     def add(self, t: float, frame: int | None, log_time: int, data: Mapping) -> None:
-        self.sim_time.append(t)
+        self.sim_time.append(round(1e9 * t))
         if frame is not None:
             self.frame.append(frame)
         self.log_time.append(log_time)
@@ -481,7 +481,7 @@ class _HeldRows:
 
     def columns(self) -> tuple[list, list]:
         """The index columns and the component columns, each row partitioned back to its own instances."""
-        indexes = [rr.TimeColumn("sim_time", duration=self.sim_time),
+        indexes = [rr.TimeColumn("sim_time", duration=np.array(self.sim_time, "timedelta64[ns]")),
                    rr.TimeColumn("log_time", timestamp=np.array(self.log_time, "datetime64[ns]"))]
         if self.with_frame:
             indexes.append(rr.TimeColumn("frame", sequence=self.frame))
