@@ -672,10 +672,11 @@ class FastSLAM:
         d_theta = float(np.max(np.abs(wrap_angle(poses[:, 2] - ref_theta))))
         c, s = np.cos(ref_theta), np.sin(ref_theta)
         zj = z[obs_j]
-        world = np.stack([ref_xy[0] + c * zj[:, 0] - s * zj[:, 1], ref_xy[1] + s * zj[:, 0] + c * zj[:, 1],
-                          zj[:, 2]], axis=1)
-        lower = (np.linalg.norm(world - ref_mean[uid], axis=1) - d_pose - d_theta * np.hypot(zj[:, 0], zj[:, 1])
-                 - spread[uid])
+        at_ref = ref_mean[uid].T
+        ex = ref_xy[0] + c * zj[:, 0] - s * zj[:, 1] - at_ref[0]   # w̄(z) − μ̄, column by column: |·| adds the
+        ey = ref_xy[1] + s * zj[:, 0] + c * zj[:, 1] - at_ref[1]   # squares in np.linalg.norm's order
+        ez = zj[:, 2] - at_ref[2]
+        lower = np.sqrt(ex * ex + ey * ey + ez * ez) - d_pose - d_theta * np.hypot(zj[:, 0], zj[:, 1]) - spread[uid]
         trace = cov_trace[uid] + (q6[0] + q6[3] + q6[5])[obs_j]
         if self.config.version == 2:
             r_max = np.linalg.norm(ref_mean[uid, :2] - ref_xy, axis=1) + spread[uid] + d_pose
@@ -880,7 +881,7 @@ class FastSLAM:
         m, j = np.divmod(np.flatnonzero(~had_candidate), max(n_obs, 1))
         if len(m) == 0:
             return new_ids, 0
-        spawning = np.unique(j)
+        spawning = np.flatnonzero(np.bincount(j, minlength=n_obs))   # np.unique(j) for j in [0, N), no sort
         if lids is None:
             new_ids[spawning] = self._n_ids + np.arange(len(spawning))
             self._append_descriptors(desc[spawning], z[spawning])
@@ -1514,7 +1515,9 @@ def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_parti
     choice = _first_minimum(key, d2[idx], n_particles * n_obs, np.arange(len(idx)))   # one per (m, j)
     claimed = pairs.c[idx[choice]]
     keep = _first_minimum(claimed, d2[idx[choice]], n_candidates, key[choice])        # one per landmark
-    return np.sort(idx[choice[keep]]), had_candidate
+    won = np.zeros(len(d2), bool)   # ascending through a mask: distinct positions, no sort
+    won[idx[choice[keep]]] = True
+    return np.flatnonzero(won), had_candidate
 
 
 def _first_minimum(key: np.ndarray, value: np.ndarray, n_keys: int, rank: np.ndarray) -> np.ndarray:
