@@ -504,8 +504,9 @@ class MissionLog:
 
     Times ``t`` are seconds since the mission started; ``frame`` is the robot's stereo frame number. What the
     logger keeps between calls is bounded whatever the mission's length: the open trajectory segment of each
-    robot, each robot's last snapshot trajectory (thinned to SNAPSHOT_TRAJECTORY_POINTS) and placement, and one
-    style per plotted series.
+    robot, each robot's last snapshot trajectory (thinned to SNAPSHOT_TRAJECTORY_POINTS) and placement, one
+    style per plotted series, the entity last styled of each per-frame family, and (saved files) each entity's held
+    rows (at most HELD_ROWS_MAX, at most FILE_FLUSH_TICK s: :meth:`_emit`).
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
