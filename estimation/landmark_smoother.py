@@ -549,8 +549,9 @@ class _NormalFactor:
         for chunk in range(0, len(poses), step):
             which = poses[chunk:chunk + step]
             columns = (self.width * (which[:, None] - 1) + np.arange(3)).ravel()
-            # rows above the chunk's first column stay exactly 0 in the forward pass Uᵀy = e and the back
-            # substitution U x = y below them never reads them: the trailing block of U gives the same rows
+            # the rows before the chunk's first column stay exactly 0 in the forward pass Uᵀy = e, and the back
+            # substitution U x = y finds the rows from that column on from the rows after them alone: solving with
+            # the trailing block of the same factor gives those rows, with less work the later the chunk
             start = int(columns.min())
             unit = np.zeros((self.width * self.t - start, len(columns)))
             unit[columns - start, np.arange(len(columns))] = 1.0
