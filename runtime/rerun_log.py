@@ -52,6 +52,7 @@ it logs.
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import json
 import os
@@ -454,6 +455,15 @@ def _hold_share(path: str) -> float:
     return 0.5 + 0.5 * zlib.crc32(path.encode()) / 2**32
 
 
+def _send_at_exit(ref: weakref.ref) -> None:
+    """At interpreter exit, send what a MissionLog never closed still holds (atexit runs this before Rerun's own
+    shutdown, registered earlier, flushes the streams)."""
+    log = ref()
+    if log is not None and not getattr(log, "_closed", False):
+        with contextlib.suppress(Exception):  # the stream may already be gone: nothing more to save
+            log.send_held_rows()
+
+
 class _HeldRows:
     """The rows of one entity held to be sent as one ``send_columns`` (MissionLog, saved files): each row's times
     and, per field, its instances ((n, ...) arrays; ``strips``: a list of (n, d) arrays)."""
@@ -519,6 +529,8 @@ class MissionLog:
         self._swept = time.monotonic()               # when held rows were last looked over for stale ones
         self._held_lock = threading.Lock()
         self._now = threading.local()               # this thread's (t, frame), as _time set Rerun's (per thread)
+        if self.hold_rows:  # a script that never closes its logger still gets its last rows written at exit
+            atexit.register(_send_at_exit, weakref.ref(self))
         self.robots = list(robots)
         self.image_interval = float(image_interval)   # s between logged stereo pairs of one robot (file size)
         self._last_image: dict[str, float] = {}

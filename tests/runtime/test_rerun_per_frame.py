@@ -182,3 +182,21 @@ def test_held_rows_are_in_the_file_once_flushed_and_a_live_stream_holds_none(tmp
     assert len(_rows(rrd)[f"world/{ROBOT}/base_link"]) == 3   # read while the stream is still open
     log.close()
     assert not MissionLog(open_recording("memory"), [ROBOT]).hold_rows
+
+
+def test_a_logger_never_closed_still_writes_its_held_rows_at_exit(tmp_path):
+    """A script that forgets ``close()``: Rerun flushes its own buffers at exit, and the rows held for the file are
+    sent before that."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    rrd = tmp_path / "m.rrd"
+    script = ("import numpy as np\n"
+              "from runtime.rerun_log import MissionLog, open_recording\n"
+              f"log = MissionLog(open_recording({str(rrd)!r}), ['robot2'], blueprint=False)\n"
+              "for frame in range(5):\n"
+              "    log.log_pose('robot2', 0.25 * frame, frame, np.array([0.1 * frame, 0.0, 0.0]))\n")
+    root = Path(__file__).resolve().parents[2]
+    subprocess.run([sys.executable, "-c", script], check=True, cwd=root, timeout=120)
+    assert len(_rows(rrd)[f"world/{ROBOT}/base_link"]) == 5
