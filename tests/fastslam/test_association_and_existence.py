@@ -3,9 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimation.fastslam import FastSLAM, FastSLAMConfig, range_bearing_config, range_bearing_observations
 from estimation.geometry import compose, transform_points
+from estimation.landmark_map import LandmarkMap
 from estimation.observations import OdometryIncrement, StereoObservations
 
 
@@ -170,3 +173,33 @@ def test_a_named_landmark_whose_readings_are_rejected_is_not_taken_for_missing()
     for _ in range(3):                   # truly not seen while in view: now it is negative evidence
         slam.update(range_bearing_observations([2.0], [0.3], 0.05, 0.01, ids=[6]))
     assert 5 not in slam.external_ids(slam.particle_map(0).ids).tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), pose=st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(-3.1, 3.1)))
+def test_a_frame_misses_exactly_the_landmarks_well_inside_the_view(seed, pose):
+    """One frame that detects nothing: every landmark predicted inside ``miss_fov_margin`` of the field of view and
+    of the range takes one miss, and no other. Checked against the geometry written out here (angles by atan2), on
+    landmarks all around the robot, above and below the view, near and far; one miss removes a landmark (a miss worth
+    −6 from the prior map's clamp of 4 falls below existence_remove)."""
+    rng = np.random.default_rng(seed)
+    cfg = FastSLAMConfig(n_particles=1, max_observations=0, existence_miss=-6.0)
+    local = np.column_stack([rng.uniform(-14, 14, 400), rng.uniform(-14, 14, 400), rng.uniform(-4, 5, 400)])
+    depth, lateral, height = (local - np.asarray(cfg.sensor_offset)).T
+    margin, max_range = cfg.miss_fov_margin, cfg.max_range
+    bounds = (depth - cfg.min_range, depth, 0.5 * margin * cfg.fov_horizontal - np.abs(np.arctan2(lateral, depth)),
+              0.5 * margin * cfg.fov_vertical - np.abs(np.arctan2(height, np.maximum(depth, 1e-9))),
+              margin * max_range - np.sqrt(depth ** 2 + lateral ** 2 + height ** 2))
+    clear = np.all([np.abs(b) > 1e-6 for b in bounds], axis=0)     # none on a boundary, where rounding decides
+    local, inside = local[clear], np.all([b > 0 for b in bounds], axis=0)[clear]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    world = np.column_stack([pose[0] + c * local[:, 0] - s * local[:, 1], pose[1] + s * local[:, 0] + c * local[:, 1],
+                             local[:, 2]])
+    n = len(world)
+    slam = FastSLAM(cfg, np.random.default_rng(0), initial_pose=pose)
+    ids = slam.load_prior_map(LandmarkMap(world, np.tile(0.01 * np.eye(3), (n, 1, 1)), np.zeros((n, 64), np.float32),
+                                          counts=np.full(n, 5)))
+    slam.update(StereoObservations(np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 64), np.float32)))
+    kept = slam.particle_map(0, 1)
+    assert set(kept.ids.tolist()) == set(ids[~inside].tolist())
+    assert slam.stats.landmarks_removed == int(inside.sum())
