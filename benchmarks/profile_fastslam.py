@@ -8,6 +8,12 @@ digest of the final particles and maps: two versions of the filter that associat
     .venv/bin/python benchmarks/profile_fastslam.py [--frames 150] [--particles 100] [--cache PATH]
     .venv/bin/python benchmarks/profile_fastslam.py --profile 25      # cProfile, the 25 costliest functions
     .venv/bin/python benchmarks/profile_fastslam.py --synthetic       # bench_pipeline's synthetic observer
+    .venv/bin/python benchmarks/profile_fastslam.py --against /tmp/old --repeat 30   # beside another checkout
+
+``--against TREE``: the filter of another checkout (a git worktree of an older commit) is imported beside this one
+and both replay the same frames in this process, run by run alternated, so the machine's load falls on both alike;
+printed: each frame's minimum over the runs (mean over frames), the medians of the runs, new/old of each, and both
+fingerprints (a change that keeps the results prints the same one twice).
 """
 from __future__ import annotations
 
@@ -20,7 +26,9 @@ import argparse  # noqa: E402
 import cProfile  # noqa: E402
 import hashlib  # noqa: E402
 import pstats  # noqa: E402
+import statistics  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -83,9 +91,9 @@ def load(path: Path) -> tuple[list[StereoObservations], np.ndarray]:
     return frames, data["odometry"]
 
 
-def run(frames, odometry, config: FastSLAMConfig, seed: int = 0) -> tuple[FastSLAM, np.ndarray]:
+def run(frames, odometry, config: FastSLAMConfig, seed: int = 0, filter_class=FastSLAM) -> tuple[FastSLAM, np.ndarray]:
     """SlamCore's sequence of predict/update calls; returns the filter and CPU ms per update (F,)."""
-    slam = FastSLAM(config, np.random.default_rng(seed))
+    slam = filter_class(config, np.random.default_rng(seed))
     update_ms = []
     for i, obs in enumerate(frames):
         if i:
@@ -95,6 +103,51 @@ def run(frames, odometry, config: FastSLAMConfig, seed: int = 0) -> tuple[FastSL
         slam.update(obs)
         update_ms.append(1e3 * (time.process_time() - t0))
     return slam, np.array(update_ms)
+
+
+_LINKS: list[tempfile.TemporaryDirectory] = []   # kept for the process's life: a package may import lazily
+
+
+def other_fastslam(tree: Path):
+    """The ``estimation.fastslam`` package of another checkout, imported as ``estimation_against.fastslam`` (through a
+    symlink in a temporary directory) beside this one: its modules import each other relatively, so none of this
+    checkout's code mixes in."""
+    import importlib
+
+    source = (tree / "estimation").resolve()
+    if not (source / "fastslam" / "filter.py").is_file():
+        raise SystemExit(f"profile_fastslam: {tree} holds no estimation/fastslam/filter.py")
+    links = tempfile.TemporaryDirectory(prefix="profile_fastslam_")
+    _LINKS.append(links)
+    (Path(links.name) / "estimation_against").symlink_to(source, target_is_directory=True)
+    sys.path.insert(0, links.name)
+    return importlib.import_module("estimation_against.fastslam")
+
+
+def side_by_side(frames, odometry, fields: dict, tree: Path, runs: int) -> None:
+    """This filter and ``tree``'s on the same frames, ``runs`` runs each, alternated; prints both and new/old."""
+    other = other_fastslam(tree)
+    filters = {"this": (FastSLAM, FastSLAMConfig), "against": (other.FastSLAM, other.FastSLAMConfig)}
+    ms: dict[str, list[np.ndarray]] = {"this": [], "against": []}
+    digests: dict[str, set[str]] = {"this": set(), "against": set()}
+    for r in range(runs):
+        for name in (("against", "this") if r % 2 == 0 else ("this", "against")):
+            cls, config = filters[name]
+            slam, times = run(frames, odometry, config(**fields), filter_class=cls)
+            ms[name].append(times)
+            digests[name].add(fingerprint(slam))
+    new, old = np.array(ms["this"]), np.array(ms["against"])
+    print(f"update CPU ms/frame, this checkout vs {tree}, {runs} runs each alternated (load "
+          f"{os.getloadavg()[0]:.1f})")
+    best_new, best_old = new.min(axis=0), old.min(axis=0)
+    print(f"  each frame's minimum over the runs, mean over frames: {best_old.mean():.2f} -> {best_new.mean():.2f} "
+          f"(new/old {best_new.mean() / best_old.mean():.3f}; last 50 frames "
+          f"{best_new[-50:].mean() / best_old[-50:].mean():.3f})")
+    for label, stat in (("median", np.median), ("mean", np.mean)):
+        a, b = stat(old, axis=1), stat(new, axis=1)
+        print(f"  {label} of a run: {statistics.median(a):.2f} -> {statistics.median(b):.2f} (new/old of the "
+              f"alternated pairs: median {statistics.median(b / a):.3f}, {np.min(b / a):.3f}-{np.max(b / a):.3f})")
+    print(f"  fingerprints: this {sorted(digests['this'])}, against {sorted(digests['against'])}")
 
 
 def fingerprint(slam: FastSLAM) -> str:
@@ -123,6 +176,8 @@ def main() -> None:
                         help="cProfile; print the N costliest")
     parser.add_argument("--fingerprint", action="store_true", help="digest of the final particles and maps")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="FastSLAMConfig field")
+    parser.add_argument("--against", type=Path, default=None, metavar="TREE",
+                        help="another checkout: both filters on the same frames, --repeat runs each, alternated")
     args = parser.parse_args()
     kind = "synthetic" if args.synthetic else "rendered"
     cache = args.cache or Path(f"/tmp/profile_fastslam_{kind}_{args.frames}_{args.rate:g}.npz")
@@ -131,7 +186,11 @@ def main() -> None:
     frames, odometry = load(cache)
     if args.use:
         frames, odometry = frames[: args.use], odometry[: args.use]
-    config = FastSLAMConfig(**{"n_particles": args.particles, "max_observations": 0, **config_overrides(args.set)})
+    fields = {"n_particles": args.particles, "max_observations": 0, **config_overrides(args.set)}
+    if args.against is not None:
+        side_by_side(frames, odometry, fields, args.against, args.repeat)
+        return
+    config = FastSLAMConfig(**fields)
     if args.profile:
         profiler = cProfile.Profile()
         profiler.enable()
