@@ -239,6 +239,53 @@ def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict
             "unique_fraction": counts["matched"] / decided if decided else float("nan")}
 
 
+def ceiling(log: RangeBearingLog, names: np.ndarray, noise, config, drift, args) -> dict:
+    """A diagnostic, the barcodes deciding: every name merged into its majority barcode, smoothed (from the known-ID
+    filter on those names): what the loops would give if every pass were matched right."""
+    owner = majority(names, log.landmark_ids)
+    merged = np.array([owner[int(x)] if x >= 0 else -1 for x in names], np.int64)
+    poses, initial = _guess(log, merged, noise, config, args, cache=False)
+    named, solution = smooth_named(log, merged, noise, config, initial_poses=poses, initial=initial,
+                                   heading_drift=drift)
+    final = MergeRound([], 0.0, 0.0, True, merged, named, solution)
+    return round_scores(log, final, majority(merged, log.landmark_ids))
+
+
+def layout_uniqueness(log: RangeBearingLog, named: NamedProblem, passes: list[Pass], *, turn_sigma: float,
+                      shift_sigma: float, post_sigma: float = 0.05) -> dict:
+    """How often a pass's set of posts is unique in the layout (the barcodes and the true positions, a diagnostic):
+    each pass's true posts at their true positions, σ ``post_sigma`` each and a rigid offset prior (σ translation,
+    σ rotation about the pass's centroid), matched against all the true posts by ``match_constellation``."""
+    owner = majority(named.names[named.problem.landmark_index], np.asarray(log.landmark_ids)[named.sightings])
+    code = np.array([owner[int(x)] for x in named.names])
+    ids = sorted(int(i) for i in log.truth_ids)
+    truth = dict(zip((int(i) for i in log.truth_ids), np.asarray(log.truth_positions)[:, :2], strict=True))
+    layout = np.array([truth[i] for i in ids])
+    out = {"passes": len(passes), "fewer_than_3": 0, "matched_right": 0, "matched_wrong": 0, "ambiguous": 0,
+           "other": 0}
+    for p in passes:
+        posts = sorted({int(code[k]) for k in p.landmarks} & set(ids))
+        if len(posts) < 3:
+            out["fewer_than_3"] += 1
+            continue
+        seen = np.array([truth[i] for i in posts])
+        positions = np.vstack([layout, seen])
+        m, n = len(layout), len(layout) + len(posts)
+        covariance = np.eye(2 * n) * post_sigma ** 2
+        jac = np.zeros((2 * n, 3))
+        centre = seen.mean(axis=0)
+        for j, xy in enumerate(seen - centre):
+            jac[2 * (m + j):2 * (m + j) + 2] = [[1, 0, -xy[1]], [0, 1, xy[0]]]
+        covariance += jac @ np.diag([shift_sigma ** 2, shift_sigma ** 2, turn_sigma ** 2]) @ jac.T
+        result = match_constellation(positions, covariance, range(m, n), range(m))
+        if result.status == "matched":
+            right = all(ids[q] == posts[k - m] for k, q in result.best.pairs)
+            out["matched_right" if right else "matched_wrong"] += 1
+        else:
+            out["ambiguous" if result.status == "ambiguous" else "other"] += 1
+    return out
+
+
 def run_robot(log: RangeBearingLog, args) -> dict:
     noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
     config = range_bearing_config(n_particles=args.particles)
@@ -254,6 +301,13 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     owner = majority(names, barcodes)
     first = round_scores(log, current, owner)
     row.update(first_smoothing=first, smooth_cpu_s=time.process_time() - started, rounds=[])
+    if args.layout:
+        first_passes = passes_of(named, solution, args.pass_seconds, args.min_sightings)
+        row["layout"] = {f"turn {turn:g} rad, shift {shift:g} m": layout_uniqueness(
+            log, named, first_passes, turn_sigma=turn, shift_sigma=shift) for turn in (0.05, 0.2, 0.5)
+            for shift in (0.5, 2.0)}
+    if args.ceiling:
+        row["ceiling"] = ceiling(log, names, noise, config, drift, args)
     if args.progress:
         _print_scores(f"{log.name} chain", first, file=sys.stderr)
     for k in range(args.max_rounds):
@@ -357,6 +411,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-rounds", type=non_negative_int, default=3)
     parser.add_argument("--reguess", action="store_true",
                         help="re-smooth each merge from the known-ID filter on the merged names, not the last solution")
+    parser.add_argument("--layout", action="store_true",
+                        help="also: how often the passes' true constellations are unique in the true layout")
+    parser.add_argument("--ceiling", action="store_true",
+                        help="also: the names merged by their barcodes, smoothed (what matching every pass gives)")
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -392,6 +450,11 @@ def _print_judged(k: int, j: dict, file=None) -> None:
 
 def _print(row: dict) -> None:
     _print_scores(f"{row['robot']}: chain, smoothed with the drift", row["first_smoothing"])
+    for label, u in (row.get("layout") or {}).items():
+        print(f"  layout ({label}): of {u['passes']} passes {u['fewer_than_3']} hold < 3 posts; matched right "
+              f"{u['matched_right']}, wrong {u['matched_wrong']}, ambiguous {u['ambiguous']}, other {u['other']}")
+    if "ceiling" in row:
+        _print_scores("  ceiling (names merged by their barcodes)", row["ceiling"])
     for r in row["rounds"]:
         _print_judged(r["round"], r["judged"])
         for key in ("batch", "single"):
