@@ -3,7 +3,15 @@
 Run from the repository root:
 
     .venv/bin/python -m benchmarks.mrclam_constellation [--robots 1,2,3,4,5] [--seed 0] [--names-cache DIR]
-        [--drift 0.16 10] [--pass-seconds 20] [--min-pairs 3] [--ratio R] [--max-rounds 3] [--progress] [--json]
+        [--drift 0.16 10] [--pass-seconds 20] [--min-pairs 3] [--ratio R] [--max-rounds 3] [--reguess] [--layout]
+        [--ceiling] [--progress] [--json]
+
+Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
+**negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
+that held one was undone by the cost rise); ATE 4.03 / 0.92 / 2.21 / 2.96 / 1.42 -> 2.62 / 0.127 / 0.100 / 2.77 /
+0.139 m (known-ID 0.286 / 0.030 / 0.095 / 0.044 / 0.030 m), but duplicates 83 / 75 / 46 / 85 / 89 % and the partly
+merged maps overconfident (start-frame NEES within 28 / 52 / 70 / 73 / 94 %). ``--ceiling`` (the names merged by
+their barcodes): ATE 0.075 / 0.029 / 0.095 / 0.044 / 0.028 m, NEES within 100 %: the names would do.
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
@@ -29,6 +37,10 @@ The method (the barcodes never decide; they only score):
    join puts two names sighted in one frame together; re-smoothed, the batch kept when the truncated cost's rise
    is within χ² 99 % for 2 per absorbed name (else retried as the strongest pass's pairings alone); up to
    ``--max-rounds`` rounds.
+
+``--reguess`` re-smooths each merge from the known-ID filter on the merged names instead of the last solution (the
+same solution on robot 2). ``--layout`` and ``--ceiling`` are diagnostics in which the barcodes decide: how often the
+passes' true constellations are unique in the true layout, and the names merged by their barcodes.
 
 Printed per robot and round: passes (matched / ambiguous / too few / incompatible / no earlier pass), unique
 constellations, pairings proposed and wrong (two barcodes), merges made and wrong, names per post, duplicates,
