@@ -567,7 +567,7 @@ class MissionLog:
             self._once.add(key)
             return True
 
-    def _log_styled(self, path: str, archetype, family: str, data: dict, style: dict) -> None:
+    def _log_styled(self, path: str, archetype, data: dict, style: dict, *, family: str | None = None) -> None:
         """What ``rec.log(path, archetype(**data, **style))`` shows a viewer, for what is logged every frame: the
         styling fields (colours, radii, draw order, labels: the same every call for one ``family``) are logged once
         per entity, static, and each call logs only ``data``.
@@ -577,10 +577,12 @@ class MissionLog:
         component; its own "incremental logging" example logs colours and radii once). So every frame draws as
         before, while a call converts and sends fewer component arrays (Rerun's ``log_arrow_msg`` costs about as
         much per array as per call). Static, not at the first frame's time: a viewer's memory limit drops old
-        temporal rows, never static ones, so later frames cannot lose their style. ``family``: the entity with its
-        segment number left out (``world/robot1/trajectory``): the logger keeps the one entity of each family
-        whose style it logged last, so a new segment gets its own and nothing grows with the mission.
+        temporal rows, never static ones, so later frames cannot lose their style. ``family``: for an entity logged
+        in numbered segments, its path with the segment number left out (``world/robot1/trajectory``; default
+        ``path``): the logger keeps the one entity of each family whose style it logged last, so a new segment gets
+        its own and nothing grows with the mission.
         """
+        family = path if family is None else family
         with self._lock:
             fresh = self._styled.get(family) != path
             if fresh:
@@ -625,16 +627,13 @@ class MissionLog:
         indexes, columns = rows.columns()
         self.rec.send_columns(path, indexes=indexes, columns=columns)
 
-    def _send_held(self) -> None:
-        """Send every held row (the caller holds ``_held_lock``: one thread sends at a time, in order)."""
-        held, self._held = self._held, {}
-        for path, rows in held.items():
-            self._send(path, rows)
-
     def send_held_rows(self) -> None:
-        """Send the rows held for a saved file now (:meth:`flush` and :meth:`close` do)."""
+        """Send the rows held for a saved file now (:meth:`flush` and :meth:`close` do); under the lock, so that one
+        thread sends at a time, in order."""
         with self._held_lock:
-            self._send_held()
+            held, self._held = self._held, {}
+            for path, rows in held.items():
+                self._send(path, rows)
 
     def _map_root(self, key: str) -> str:
         """map/<key>, with the y-up flip logged once (static)."""
@@ -746,7 +745,7 @@ class MissionLog:
                 strips["odometry"] = track.odometry.add(odometry[:2].tolist())
         # 3-D world
         origins, vectors = _arrow(estimated)
-        self._log_styled(f"world/{robot}/pose", rr.Arrows3D, f"world/{robot}/pose",
+        self._log_styled(f"world/{robot}/pose", rr.Arrows3D,
                          {"vectors": vectors, "origins": origins}, {"colors": colour, "radii": 0.03})
         if self._first_time(f"world/{robot}/base_link/body"):
             self.rec.log(f"world/{robot}/base_link/body", rr.Boxes3D(
@@ -755,16 +754,17 @@ class MissionLog:
         self._emit(f"world/{robot}/base_link", rr.Transform3D,
                    {"translation": [[estimated[0], estimated[1], 0.0]], "quaternion": [_xyzw_z(estimated[2])]})
         segment, points = strips["estimated"]
-        self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D, f"world/{robot}/trajectory",
-                         {"strips": [_with_z(points, 0.02)]}, {"colors": colour, "radii": 0.02})
+        self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D,
+                         {"strips": [_with_z(points, 0.02)]}, {"colors": colour, "radii": 0.02},
+                         family=f"world/{robot}/trajectory")
         if true is not None:
             origins, vectors = _arrow(true)
-            self._log_styled(f"world/{robot}/true_pose", rr.Arrows3D, f"world/{robot}/true_pose",
+            self._log_styled(f"world/{robot}/true_pose", rr.Arrows3D,
                              {"vectors": vectors, "origins": origins}, {"colors": TRUE_COLOUR, "radii": 0.02})
             segment, points = strips["true"]
             self._log_styled(f"world/{robot}/true_trajectory/{segment:04d}", rr.LineStrips3D,
-                             f"world/{robot}/true_trajectory", {"strips": [_with_z(points, 0.01)]},
-                             {"colors": TRUE_COLOUR, "radii": 0.01})
+                             {"strips": [_with_z(points, 0.01)]}, {"colors": TRUE_COLOUR, "radii": 0.01},
+                             family=f"world/{robot}/true_trajectory")
         if head_mount is not None:
             hx, hy, hz = head_mount
             x, y, theta = compose(estimated, [hx, hy, 0.0])
@@ -778,17 +778,18 @@ class MissionLog:
                   "estimated": (colour, -2.0, 3.0)}
         for kind, (segment, points) in strips.items():
             line_colour, width, order = styles[kind]
-            self._log_styled(f"{root}/trajectory/{kind}/{segment:04d}", rr.LineStrips2D, f"{root}/trajectory/{kind}",
-                             {"strips": [points]}, {"colors": line_colour, "radii": width, "draw_order": order})
+            self._log_styled(f"{root}/trajectory/{kind}/{segment:04d}", rr.LineStrips2D, {"strips": [points]},
+                             {"colors": line_colour, "radii": width, "draw_order": order},
+                             family=f"{root}/trajectory/{kind}")
         heading = 0.6 * np.array([np.cos(estimated[2]), np.sin(estimated[2])])
-        self._log_styled(f"{root}/pose", rr.Points2D, f"{root}/pose", {"positions": [estimated[:2]]},
+        self._log_styled(f"{root}/pose", rr.Points2D, {"positions": [estimated[:2]]},
                          {"radii": -7.0, "colors": colour, "labels": [robot], "show_labels": True,
                           "draw_order": 10.0})
-        self._log_styled(f"{root}/pose/heading", rr.Arrows2D, f"{root}/pose/heading",
+        self._log_styled(f"{root}/pose/heading", rr.Arrows2D,
                          {"vectors": [heading], "origins": [estimated[:2]]},
                          {"radii": -2.0, "colors": colour, "draw_order": 10.0})
         if true is not None:
-            self._log_styled(f"{root}/true_pose", rr.Points2D, f"{root}/true_pose", {"positions": [true[:2]]},
+            self._log_styled(f"{root}/true_pose", rr.Points2D, {"positions": [true[:2]]},
                              {"radii": -4.0, "colors": TRUE_COLOUR, "draw_order": 9.0})
 
     def log_particles(self, robot: str, t: float, frame: int | None, poses: np.ndarray) -> None:
@@ -796,10 +797,10 @@ class MissionLog:
         self._time(t, frame)
         poses = np.asarray(poses, float).reshape(-1, 3)
         colour = self.colour(robot)
-        self._log_styled(f"world/{robot}/particles", rr.Points3D, f"world/{robot}/particles",
+        self._log_styled(f"world/{robot}/particles", rr.Points3D,
                          {"positions": _with_z(poses, 0.03)}, {"radii": 0.015, "colors": colour})
         path = f"{self._map_root(robot)}/particles"
-        self._log_styled(path, rr.Points2D, path, {"positions": poses[:, :2]},
+        self._log_styled(path, rr.Points2D, {"positions": poses[:, :2]},
                          {"radii": -1.5, "colors": _dim(colour), "draw_order": 8.0})
 
     def log_landmarks(self, robot: str, t: float, frame: int | None, positions: np.ndarray,
