@@ -216,7 +216,7 @@ def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WA
     last maps read from file of robots that gave their summary)."""
     missing = await_last_maps(node.exchange, timeout)
     replace, read, final_held = last_maps_from_files(node.exchange, summaries, missing)
-    held = node.exchange.receive(excluding="fused")
+    held = node.exchange.receive(excluding="fused") if left else {}   # copies of every map: only when one is needed
     for robot, entry in sorted((left or {}).items()):
         message = map_left(robot, entry, held.get(robot))
         if message is not None:
