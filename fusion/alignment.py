@@ -69,7 +69,6 @@ from .ransac import (
     correspondence_problem,
     has_descriptors,
     landmark_identities,
-    place_points,
     polish,
     putative_correspondences,
     ransac,
@@ -423,7 +422,7 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
                   admissible=inside, possible=possible)
     supports = pairs[mask] if (config.refine or not with_descriptors) else pairs[search.mask]
     s = ev.supports
-    residual = problem.p1[mask] - place_points(pose, problem.p2[mask])
+    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan")
     fit = (problem.p1[mask], problem.P1[mask], problem.p2[mask], problem.P2[mask])
     if subset_search and config.refine and s >= 2:
@@ -434,7 +433,7 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
             pose, covariance, _ = refine_pose(g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2, pose,
                                               config.position_floor)
             supports = guided
-            residual = g_problem.p1 - place_points(pose, g_problem.p2)
+            residual = g_problem.p1 - transform_points(pose, g_problem.p2)
             rms = float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1))))
             fit = (g_problem.p1, g_problem.P1, g_problem.p2, g_problem.P2)
             winner_start = None                    # computed on the supports before guided matching: not this fit's
@@ -528,7 +527,7 @@ def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | Alignment
     rate = max(decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1e-9)
     log10_p = log10_false_alarm(s - 2, rate, 1)
     major, minor = support_spread(problem.p1[mask, :2])
-    residual = problem.p1[mask] - place_points(pose, problem.p2[mask])
+    residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     stats = AlignmentStatistics(
         correspondences=len(pairs), iterations=1, supports=s, inlier_ratio=s / len(pairs),
         residual_rms=float(np.sqrt(np.mean(np.sum(residual ** 2, axis=1)))) if s else float("nan"),

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.special import gammaincinv, pdtrc
 
-from estimation.geometry import wrap_angle
+from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
 from .errors import IncompatibleMapsError
@@ -25,7 +25,6 @@ from .ransac import (
     RansacSearch,
     correspondence_problem,
     has_descriptors,
-    place_points,
     polish,
     ransac,
     rotations_2d,
@@ -160,7 +159,7 @@ def _best_distinct(problem: CorrespondenceProblem, search: RansacSearch, pose: n
     if search.evaluated == 0:
         return _Rival()
     pts = problem.p2[mask] if mask.sum() >= 2 else problem.p2
-    ref = place_points(pose, pts)[:, :2]
+    ref = transform_points(pose, pts)[:, :2]
     far = 2.0 * problem.gate_radius
 
     def distinct(poses: np.ndarray) -> np.ndarray:
@@ -201,8 +200,8 @@ def _second_best(problem: CorrespondenceProblem, search: RansacSearch, pose: np.
 def rival_offset(pose: np.ndarray, rival_pose: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     """How far a rival hypothesis is from the winner: (RMS distance (m) by which it moves ``points`` (S, 2|3), map-2
     positions, against the winner; |Δθ| (rad)).  Frame-independent, unlike the difference of the poses' xy."""
-    a = place_points(pose, points)[:, :2]
-    b = place_points(rival_pose, points)[:, :2]
+    a = transform_points(pose, points)[:, :2]
+    b = transform_points(rival_pose, points)[:, :2]
     shift = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) if len(points) else float("nan")
     return shift, float(abs(wrap_angle(rival_pose[2] - pose[2])))
 

@@ -21,7 +21,7 @@ from fusion.fingerprint import content_rng
 from fusion.frame_covariance import _DIRECTIONS, _correlation_scale, start_frame_covariance
 from fusion.matching import distinctive_correspondences, self_correspondences
 from fusion.prior import StartPrior
-from fusion.ransac import CorrespondenceProblem, has_descriptors, place_points, refine_pose, rotations_2d
+from fusion.ransac import CorrespondenceProblem, has_descriptors, refine_pose, rotations_2d
 
 SETTINGS = settings(max_examples=80, deadline=None)
 
@@ -103,13 +103,20 @@ def test_rotations_filled_in_place_equal_the_stacked_form(seed, shape, theta0, s
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 300), theta=angles,
        scale=st.sampled_from([0.0, 1e-3, 5.0, 1e4]))
 def test_one_pose_placed_equals_transform_points(seed, n, theta, scale):
+    """transform_points of one pose (rot_z's one-angle matrix, filled in) against the stacked matrices' form that the
+    alignment used before session 24 (rot_z of a 1-element array): the same bits."""
     rng = np.random.default_rng(seed)
     pose = np.array([rng.uniform(-scale, scale), rng.uniform(-scale, scale), theta])
     points = rng.normal(0.0, scale + 1e-12, (n, 3))
     points[: n // 4] = 0.0                                 # zeros: the signs of the sums' zeros
-    assert same_bits(place_points(pose, points), transform_points(pose, points))
+
+    def stacked(pose, points):
+        points = np.asarray(points, dtype=float)
+        return points @ rot_z(np.asarray([pose[2]], float))[0].T + np.array([pose[0], pose[1], 0.0])
+
+    assert same_bits(transform_points(pose, points), stacked(pose, points))
     if n:                                                  # lists, as transform_points takes them
-        assert same_bits(place_points(list(pose), points.tolist()), transform_points(list(pose), points.tolist()))
+        assert same_bits(transform_points(list(pose), points.tolist()), stacked(list(pose), points.tolist()))
 
 
 def _supports(rng, k, diagonal, scale):
@@ -239,8 +246,8 @@ def test_self_repeat_without_a_generator_draws_from_the_map_s_content(seed, repe
         assert self_structure(m, ROBUST, None) > 0
 
 
-def test_rot_z_is_the_rotation_place_points_uses():
-    # place_points writes rot_z's matrix itself; if rot_z changes, this says so before the exactness tests do
+def test_rot_z_of_one_angle_is_the_matrix_filled_in():
+    # rot_z fills one angle's matrix itself (no np.stack); if that changes, this says so before the exactness tests do
     theta = 0.7
     R = np.zeros((3, 3))
     R[0, 0], R[0, 1], R[1, 0], R[1, 1], R[2, 2] = np.cos(theta), -np.sin(theta), np.sin(theta), np.cos(theta), 1.0
