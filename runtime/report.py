@@ -140,6 +140,34 @@ def candidate_text(pair: Mapping) -> str | None:
     return f"{pair['other']} -> {pair['reference']} is a candidate, not yet found ({candidate})"
 
 
+def alignment_status(t: float, pair: Mapping) -> str:
+    """One pair's last fusion (a ``PairResult.as_dict()``) as a Markdown paragraph for the recording's fusion status
+    (runtime/rerun_log.py, ``fusion/status``): aligned or why not, and what the claim rests on -- the supports against
+    the number these maps need, the chance of that many by accident, the 1-σ of the alignment beside its error
+    against the truth where that is known: what the summary table says, at the time the viewer shows."""
+    head = f"**{pair.get('other', '?')} → {pair.get('reference', '?')}** (fusion at t = {t:.0f} s): "
+    split = split_brief(pair)
+    candidate = candidate_text(pair)
+    if candidate is not None:
+        return head + f"**not yet aligned**: {candidate.split(' is ', 1)[-1]}" + (f"; {split}" if split else "")
+    if not pair.get("aligned", True):
+        return head + f"**not aligned**: {split or not_aligned_reason(pair)}"
+    needed, chance = pair.get("required_supports"), pair.get("false_alarm_probability")
+    text = (head + f"**aligned**: tx {_fmt(pair.get('tx'))} m, ty {_fmt(pair.get('ty'))} m, "
+            f"θ {_fmt(pair.get('theta'), '.4f')} rad; {pair.get('supports', '-')} supports"
+            + (f" ({needed} needed" + (f", P(chance) {chance:.1e}" if chance is not None else "") + ")"
+               if needed else "")
+            + f", {pair.get('common', '-')} common landmarks")
+    if pair.get("start_sigma_xy") is not None:
+        text += (f"; 1σ {_fmt(pair.get('start_sigma_xy'))} m / {_fmt(pair.get('start_sigma_theta'), '.4f')} rad")
+    if pair.get("error_xy") is not None:
+        text += (f"; error against the truth {_fmt(pair.get('error_xy'))} m / "
+                 f"{_fmt(pair.get('error_theta'), '.4f')} rad")
+    if pair.get("low_confidence"):
+        text += "; **low confidence**: check it before use"
+    return text + (f"; {split}" if split else "")
+
+
 def start_prior_line(reference: str, other: str, prior) -> str:
     """The mission's and the fusion node's line, said once per pair, that its fusion uses a start prior
     (``fusion.prior.StartPrior`` of ``other``'s start in ``reference``'s frame)."""

@@ -40,11 +40,16 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     plots/fusion/{error_xy,error_theta,common,merged}    Scalars (m, rad, counts)
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
+    fusion/status                         TextDocument (Markdown): each pair's last fusion, aligned or why not, with
+                                          its supports, P(chance), 1 σ and error; shown beside the fused map
+    mission/events                        TextLog: warnings and notices (fusion candidates, splits, contacts...)
     mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints
     mission/closed                        static AnyValues, logged last by ``close``: the writer closed the stream
                                           (a file saved without Rerun's footer has no end-of-stream message)
 
-Every series has its legend name with its unit (SERIES), logged once as a static SeriesLines.
+Every series has its legend name with its unit (SERIES), logged once as a static SeriesLines. ``world`` carries
+ViewCoordinates RIGHT_HAND_Z_UP (REP-103: x forward, y left, z up), so the 3-D view's up is +z whatever a viewer
+would guess.
 
 Timelines: ``sim_time`` (seconds since the mission started, the sensor timestamps: the mission's clock) and
 ``frame`` (the robot's stereo frame number). ``set_time`` is per thread in Rerun, so every method sets both before
@@ -77,7 +82,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
-from runtime.report import candidate_text
+from runtime.report import alignment_status, candidate_text
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
 
@@ -296,16 +301,38 @@ def _map_view(key: str, name: str) -> rrb.Spatial2DView:
     return rrb.Spatial2DView(origin="map", contents=[f"+ map/{key}/**"], name=name, background=MAP_BACKGROUND)
 
 
+WHOLE_TIMELINE = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
+                                                       end=rrb.TimeRangeBoundary.infinite()))
+
+
 def _plot(origin: str, name: str, contents: list[str] | None = None) -> rrb.TimeSeriesView:
-    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name)
+    """A plot whose time axis spans the whole recording (the viewer's default follows the time cursor with a window
+    of about a minute: a 200 s mission's ESS, or a 30-minute data set's NEES, would show a minute at a time)."""
+    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name, axis_x=WHOLE_TIMELINE)
+
+
+FUSION_STATUS = "fusion/status"
+EVENTS = "mission/events"
+
+
+def _fusion_status_view() -> rrb.TextDocumentView:
+    """Each pair's last fusion in words (aligned or why not, supports, P(chance), 1 σ, error): a fused map that shows
+    one robot's landmarks alone is then read as "not aligned (why)", not as a fusion that lost a map."""
+    return rrb.TextDocumentView(origin=FUSION_STATUS, name="fusion status (the last fusion: aligned or why not)")
+
+
+def _events_view() -> rrb.TextLogView:
+    return rrb.TextLogView(origin=EVENTS, name="mission events (warnings, fusion candidates, splits)")
 
 
 def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     """The layout, as tabs:
 
-    - overview: each robot's top-down map in its own frame (the paper's Fig. 3), beside the fused map (Fig. 5);
+    - overview: each robot's top-down map in its own frame (the paper's Fig. 3), beside the fused map (Fig. 5) and
+      the fusion's status in words;
     - one tab per robot: its map, its stereo pair with the matches, and its plots, each on its own axis;
-    - fusion: the fused map and the alignment's error (m, rad) and landmark counts, each on its own axis;
+    - fusion: the fused map; each pair's last fusion in words (aligned or why not, with what it rests on); the
+      alignment's error (m, rad) and landmark counts, each on its own axis; the mission's events (warnings);
     - 3-D: the world with the robots, their cameras (pinholes, matched corners) and the landmarks; the covariance
       ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
 
@@ -315,7 +342,8 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     maps = [_map_view(r, f"{r}: local map (own start frame)") for r in robots]
     robot_maps = rrb.Grid(*maps, grid_columns=1 if len(maps) <= 2 else 2) if maps else None
     # a view object is one place in the layout: each tab builds its own
-    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), _map_view("fused", FUSED_MAP_NAME),
+    fused_overview = rrb.Vertical(_map_view("fused", FUSED_MAP_NAME), _fusion_status_view(), row_shares=[5, 1])
+    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused_overview,
                               column_shares=[2, 3] if maps else None, name="overview")
     robot_tabs = []
     for r in robots:
@@ -334,9 +362,11 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
             plots, column_shares=[3, 2], name=r))
     fusion = rrb.Horizontal(
         _map_view("fused", FUSED_MAP_NAME),
-        rrb.Vertical(_plot("plots/fusion/error_xy", "alignment error xy (m)"),
+        rrb.Vertical(_fusion_status_view(),
+                     _plot("plots/fusion/error_xy", "alignment error xy (m)"),
                      _plot("plots/fusion/error_theta", "alignment error θ (rad)"),
-                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"])),
+                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"]),
+                     _events_view(), row_shares=[2, 2, 2, 2, 2]),
         column_shares=[3, 2], name="fusion")
     hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
@@ -350,10 +380,10 @@ def dataset_blueprint(robot: str, smoothed: bool = False) -> rrb.Blueprint:
     No fusion view: one robot, nothing fused. ``smoothed``: the map and path are the whole log's (``--smooth``), and
     the title says so (a path drawn as it grows is then hindsight, not what the robot knew at that time)."""
     estimate = "smoothed map and path (the whole log's)" if smoothed else "map and paths"
+    nees = _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)")
     overview = rrb.Horizontal(
-        _map_view(robot, f"{robot}: {estimate} (own start frame; grey: ground truth)"),
-        _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)"),
-        column_shares=[3, 2], name="overview")
+        _map_view(robot, f"{robot}: {estimate} (own start frame; dimmed: dead reckoning; grey: ground truth)"),
+        nees, column_shares=[3, 2], name="overview")
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
                            name="3-D")
     return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
@@ -542,8 +572,11 @@ class MissionLog:
         self._snapshot_paths: dict[str, np.ndarray] = {}  # robot -> (T, 2) path of its last map snapshot
         self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
         self._styled: dict[str, str] = {}             # family -> the entity whose style was last logged static
+        self._status: dict[tuple[str, str], str] = {}  # (reference, other) -> its last fusion in words
         if blueprint and self.robots and rec.is_enabled():  # a disabled stream ("none") refuses blueprints
             rec.send_blueprint(mission_blueprint(self.robots))
+        # REP-103 in the 3-D view: z up (without it a viewer guesses the up axis from what it is shown)
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     # -- helpers --------------------------------------------------------------------------------------
     def colour(self, robot: str) -> tuple[int, int, int]:
@@ -903,7 +936,7 @@ class MissionLog:
 
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:
         self._time(t)
-        self.rec.log("mission/events", rr.TextLog(text, level=level))
+        self.rec.log(EVENTS, rr.TextLog(text, level=level))
 
     # -- maps, fusion and the summary -----------------------------------------------------------------
     def log_map(self, key: str, t: float, landmark_map: LandmarkMap, *, draw: bool = True,
@@ -989,6 +1022,11 @@ class MissionLog:
         ``reference``'s, supports, errors...). An alignment found places ``other``'s path in the fused map."""
         self._time(t)
         self.rec.log(f"fusion/alignment/{reference}_{other}", rr.AnyValues(json=json.dumps(dict(result))))
+        with self._lock:  # one paragraph per pair (bounded by the pairs), the document re-logged whole
+            self._status[(reference, other)] = alignment_status(t, {"reference": reference, "other": other,
+                                                                    **result})
+            document = "\n\n".join(self._status[key] for key in sorted(self._status))
+        self.rec.log(FUSION_STATUS, rr.TextDocument(document, media_type="text/markdown"))
         values = {k: result.get(k) for k in ("error_xy", "error_theta", "common", "merged")}
         values = {k: v for k, v in values.items() if isinstance(v, int | float) and not isinstance(v, bool)}
         self.log_scalars("fusion", t, values)

@@ -1,0 +1,98 @@
+"""What a reviewer sees of the fusion in the viewer, read back from a saved recording with Rerun's own reader: each
+pair's last fusion in words (aligned or why not, with its supports, P(chance), 1 σ and error) at the time shown,
+the layout places it beside the fused map with the mission's events, the plots span the whole recording, and the 3-D
+world says z is up (REP-103)."""
+from __future__ import annotations
+
+import pytest
+
+from runtime.rerun_log import (
+    EVENTS,
+    FUSION_STATUS,
+    MissionLog,
+    dataset_blueprint,
+    mission_blueprint,
+    open_recording,
+)
+
+from .rerun_helpers import ROBOTS, entity_rows, viewer_state
+
+NOT_ALIGNED = {"aligned": False, "tx": None, "ty": None, "theta": None, "supports": 9, "required_supports": 34,
+               "false_alarm_probability": 1.0, "common": 0, "self_repeat_supports": 22, "second_best_supports": 7,
+               "note": "ambiguous: one map repeats itself under a distinct transform with 22 supports",
+               "error_xy": None, "error_theta": None}
+ALIGNED = {"aligned": True, "tx": 12.5, "ty": -0.25, "theta": 3.1, "supports": 41, "required_supports": 13,
+           "false_alarm_probability": 2.5e-9, "common": 37, "start_sigma_xy": 0.06, "start_sigma_theta": 0.004,
+           "error_xy": 0.041, "error_theta": 0.0021}
+
+
+def _walk(node):
+    if hasattr(node, "class_identifier"):
+        yield node
+        return
+    for child in getattr(node, "contents", None) or []:
+        yield from _walk(child)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    rrd = tmp_path_factory.mktemp("status") / "m.rrd"
+    log = MissionLog(open_recording(str(rrd)), ROBOTS, blueprint=False)
+    log.log_alignment(20.0, "robot1", "robot2", NOT_ALIGNED)
+    log.log_alignment(40.0, "robot1", "robot2", ALIGNED)
+    log.close()
+    return rrd
+
+
+def test_the_fusion_status_says_why_a_pair_is_not_aligned_then_what_its_alignment_rests_on(recording):
+    ns = 1_000_000_000
+    shown = viewer_state(recording, "sim_time", [30 * ns, 50 * ns])[FUSION_STATUS]
+    before, after = (str(shown[t]["TextDocument:text"][0]) for t in (30 * ns, 50 * ns))
+    assert "robot2 → robot1" in before and "**not aligned**" in before
+    assert "9 supports, 34 needed" in before and "repeats itself" in before
+    assert "**aligned**" in after and "tx 12.500 m" in after and "41 supports (13 needed, P(chance) 2.5e-09)" in after
+    assert "1σ 0.060 m / 0.0040 rad" in after and "error against the truth 0.041 m / 0.0021 rad" in after
+    (media,) = {str(r["TextDocument:media_type"][0]) for r in entity_rows(recording, FUSION_STATUS)}
+    assert media == "text/markdown"
+
+
+def test_the_3d_world_says_z_is_up(recording):
+    rows = [r for r in entity_rows(recording, "world") if r.get("ViewCoordinates:xyz") is not None]
+    assert rows, "world carries no ViewCoordinates: the viewer guesses the up axis"
+    # Rerun's ViewCoordinates: 1 Up, 2 Down, 3 Right, 4 Left, 5 Forward, 6 Back; RIGHT_HAND_Z_UP is (Right, Forward, Up)
+    assert list(rows[-1]["ViewCoordinates:xyz"][0]) == [3, 5, 1]
+
+
+def test_the_fused_map_has_the_fusion_status_beside_it_and_the_fusion_tab_the_events():
+    tabs = mission_blueprint(ROBOTS).root_container
+    by_name = {tab.name: list(_walk(tab)) for tab in tabs.contents}
+    for tab in ("overview", "fusion"):
+        documents = [v for v in by_name[tab] if v.class_identifier == "TextDocument"]
+        assert [str(v.origin).strip("/") for v in documents] == [FUSION_STATUS], tab
+    logs = [v for v in by_name["fusion"] if v.class_identifier == "TextLog"]
+    assert [str(v.origin).strip("/") for v in logs] == [EVENTS]
+
+
+@pytest.mark.parametrize("blueprint", [mission_blueprint(ROBOTS), dataset_blueprint("robot2", smoothed=True)])
+def test_every_plot_spans_the_whole_recording(blueprint):
+    """The viewer's default time axis follows the cursor with a window of about a minute: a 30-minute data set's
+    NEES would show a minute at a time."""
+    plots = [v for v in _walk(blueprint.root_container) if v.class_identifier == "TimeSeries"]
+    assert plots
+    for view in plots:
+        axis = view.properties.get("TimeAxis")
+        assert axis is not None, view.name
+        (view_range,) = axis.view_range.as_arrow_array().to_pylist()
+        assert view_range == {"start": None, "end": None}, (view.name, view_range)
+
+
+def test_a_pair_found_once_and_not_confirmed_reads_as_not_yet_aligned(tmp_path):
+    rrd = tmp_path / "c.rrd"
+    log = MissionLog(open_recording(str(rrd)), ROBOTS, blueprint=False)
+    note = ("candidate: 26 supports at (0.15 m, -0.01 m, -0.001 rad); no earlier fusion of these maps found it; "
+            "the maps are still growing, so a fusion at least 20 s later must agree")
+    log.log_alignment(20.0, "robot1", "robot2", {"aligned": False, "supports": 26, "note": note})
+    log.close()
+    (row,) = entity_rows(rrd, FUSION_STATUS)
+    text = str(row["TextDocument:text"][0])
+    assert "**not yet aligned**: a candidate, not yet found (26 supports at (0.15 m" in text
