@@ -110,6 +110,38 @@ def schema_name(name: str) -> str:
 TYPES = tuple(_DEFINITIONS)
 
 
+# -- what ``ros2 bag play`` needs besides the messages ---------------------------------------------------------
+LATCHED_TOPICS = frozenset({"/tf_static"})   # published transient-local, as tf2's StaticTransformBroadcaster does
+
+
+def offered_qos_profiles(topic: str) -> str:
+    """The ``offered_qos_profiles`` text of a channel (MCAP's ``ros2`` profile requires it in each channel's metadata):
+    the QoS the recorded publisher offered, which ``ros2 bag play`` offers again. Without it the player offers its
+    default, volatile, and tf2's listeners, which ask for transient-local on ``/tf_static``, receive none of the
+    camera and sonar mounts (ros2/rviz#916, ros2/rosbag2#1049). Reliable (a reliable offer serves reliable and
+    best-effort subscribers alike), keep-last, durations unspecified (0: the middleware's defaults).
+
+    Written as rosbag2 writes it up to metadata version 8 (Humble, Iron): a YAML list, the policies as integers
+    (rmw's enums: history keep-last 1; reliability reliable 1; durability transient-local 1, volatile 2; liveliness
+    automatic 1). Humble reads only integers; later rosbag2 reads integers from a file whose ``rosbag2`` metadata
+    record (:data:`ROSBAG2_METADATA`) carries no serialized metadata, as every segment's does."""
+    latched = topic in LATCHED_TOPICS
+    zero = "\n    sec: 0\n    nsec: 0"
+    return (f"- history: 1\n  depth: {1 if latched else 10}\n  reliability: 1\n  durability: {1 if latched else 2}\n"
+            f"  deadline:{zero}\n  lifespan:{zero}\n  liveliness: 1\n  liveliness_lease_duration:{zero}\n"
+            "  avoid_ros_namespace_conventions: false")
+
+
+def channel_metadata(topic: str) -> dict[str, str]:
+    """The metadata of a sensor-log channel (MCAP ``ros2`` profile): its offered QoS."""
+    return {"offered_qos_profiles": offered_qos_profiles(topic)}
+
+
+# the MCAP metadata record rosbag2 looks for: with empty serialized metadata it reads the channels' QoS as a bag of
+# metadata version 8 (integers), see offered_qos_profiles
+ROSBAG2_METADATA = ("rosbag2", {"serialized_metadata": ""})
+
+
 # -- encoding -----------------------------------------------------------------------------------------------
 class CdrWriter:
     """XCDR1 little-endian; ``bytes()`` gives the message with its encapsulation header."""
