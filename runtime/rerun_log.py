@@ -257,6 +257,10 @@ SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
     "pose_nees": ("pose NEES (χ²₃: 3 is consistent)", (230, 190, 60)),
 }
 _SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
+# series logged once per fusion or map snapshot (every 10-20 s), drawn with markers as well as lines: a fusion that
+# aligned once (the final one) is a single value, which a line alone does not draw
+SPARSE_SERIES = frozenset({"error_xy", "error_theta", "common", "merged", "landmarks/map", "self_check",
+                           "self_check/threshold"})
 
 
 def _series_style(name: str) -> tuple[str, tuple[int, int, int]]:
@@ -932,6 +936,8 @@ class MissionLog:
             if self._first_time(path):
                 label, colour = _series_style(name)
                 self.rec.log(path, rr.SeriesLines(names=label, colors=colour, widths=1.5), static=True)
+                if name in SPARSE_SERIES:  # a line needs two values: a marker shows a fusion's first and only one
+                    self.rec.log(path, rr.SeriesPoints(names=label, colors=colour, marker_sizes=5.0), static=True)
             self._emit(path, rr.Scalars, {"scalars": [float(value)]})
 
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:

@@ -96,3 +96,12 @@ def test_a_pair_found_once_and_not_confirmed_reads_as_not_yet_aligned(tmp_path):
     (row,) = entity_rows(rrd, FUSION_STATUS)
     text = str(row["TextDocument:text"][0])
     assert "**not yet aligned**: a candidate, not yet found (26 supports at (0.15 m" in text
+
+
+def test_a_fusion_that_aligned_once_is_drawn_a_value_a_line_alone_would_not_draw(recording):
+    """One aligned fusion (often the final one) is a single value of plots/fusion/error_xy: the series carries a
+    marker style beside its line style; a dense series (ESS, every frame) keeps its line alone."""
+    rows = entity_rows(recording, "plots/fusion/error_xy")
+    assert [r["Scalars:scalars"] for r in rows if r.get("Scalars:scalars") is not None] == [[0.041]]
+    assert any(r.get("SeriesPoints:names") == ["error xy (m)"] for r in rows)
+    assert any(r.get("SeriesLines:names") == ["error xy (m)"] for r in rows)
