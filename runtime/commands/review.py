@@ -250,10 +250,13 @@ def _review(args) -> int:
     for name, size in summary["maps"].items():
         print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
                                                          if name in exported else ""))
-    if not summary["alignments"]:
+    run = _dataset_run_line(summary["mission_summary"])   # a data set's run: one robot, nothing to align
+    if not summary["alignments"] and run is None:
         print("  no alignment in this recording")
     for pair, a in sorted(summary["alignments"].items()):
         print(_alignment_line(pair, a))
+    if run:
+        print(run)
     if summary["mission_summary"] is None:
         print("  (the mission did not finish: no final summary in the recording)")
     return 0
@@ -265,12 +268,40 @@ def _number(a: dict, key: str, digits: int) -> str:
 
 
 def _alignment_line(pair: str, a: dict) -> str:
-    """One alignment as recorded (fields a recording written by another version may lack show as '?')."""
-    if not a.get("aligned"):
-        return f"  alignment {pair}: none ({a.get('note') or 'maps do not overlap'})"
+    """One alignment as recorded (fields a recording written by another version may lack show as '?'), with what
+    it rests on as the demo's table says it: supports against the number needed, P(chance), its 1 σ."""
     names = f"{a['other']} -> {a['reference']}" if "other" in a and "reference" in a else pair
+    if not a.get("aligned"):
+        return f"  alignment {names}: none ({a.get('note') or 'maps do not overlap'})"
     line = (f"  alignment {names}: tx {_number(a, 'tx', 3)} m, ty {_number(a, 'ty', 3)} m, "
-            f"θ {_number(a, 'theta', 4)} rad, {a.get('supports', '?')} supports, {a.get('common', '?')} common")
+            f"θ {_number(a, 'theta', 4)} rad, {a.get('supports', '?')} supports")
+    if isinstance(a.get("required_supports"), int):
+        line += f" ({a['required_supports']} needed"
+        chance = a.get("false_alarm_probability")
+        line += f", P(chance) {chance:.1e})" if isinstance(chance, int | float) else ")"
+    line += f", {a.get('common', '?')} common"
+    if isinstance(a.get("start_sigma_xy"), int | float):
+        line += f"; 1σ {_number(a, 'start_sigma_xy', 3)} m / {_number(a, 'start_sigma_theta', 4)} rad"
     if a.get("error_xy") is not None:
         line += f"; error vs truth {_number(a, 'error_xy', 3)} m / {_number(a, 'error_theta', 4)} rad"
+    if a.get("low_confidence"):
+        line += "; LOW CONFIDENCE: check it before use"
     return line
+
+
+def _dataset_run_line(run: dict | None) -> str | None:
+    """A data set run's figures (``p3at slam dataset ... --rerun``: its summary holds the run's metrics), the ones
+    its own output leads with; None for a mission's recording."""
+    if not isinstance(run, dict) or not isinstance(run.get("ate_m"), int | float):
+        return None
+    line = f"  run: ATE {_number(run, 'ate_m', 3)} m"
+    if isinstance(run.get("dead_reckoning_ate_m"), int | float):
+        line += f" (dead reckoning {_number(run, 'dead_reckoning_ate_m', 3)} m)"
+    if isinstance(run.get("landmark_error_median_m"), int | float):
+        line += (f", landmarks {run.get('landmarks', '?')} for {run.get('true_landmarks', '?')} true, median error "
+                 f"{_number(run, 'landmark_error_median_m', 3)} m")
+    if isinstance(run.get("pose_nees_median"), int | float):
+        within = run.get("pose_nees_within_chi2_95")
+        line += f", pose NEES median {_number(run, 'pose_nees_median', 1)}" + (
+            f" ({100 * within:.0f} % below χ²₃(95 %))" if isinstance(within, int | float) else "")
+    return line + ("; smoothed over the whole log" if run.get("smoothed") else "")
