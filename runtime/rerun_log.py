@@ -1229,6 +1229,7 @@ def _decodes(candidate: Path) -> bool:
         return False
 
 
+ROW_ID = "rerun.controls.RowId"   # a logged row's id, in every chunk that holds a part of it
 _READ_CONTENT = ["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]
 
 
@@ -1253,7 +1254,10 @@ def _read_chunks(path: Path, readable: Path) -> list:
 
 
 def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
-    rows_by_entity: dict[str, list[tuple[float, int, dict]]] = {}
+    """What the chunks hold. A logged row may come back split over several chunks, each with some of its components
+    (``rerun rrd optimize`` stores a map snapshot's scalars and its arrays apart): the pieces share the row's id and
+    are joined here."""
+    rows_by_entity: dict[str, dict[object, list]] = {}   # entity -> row id -> [time, first chunk, components]
     t_min, t_max = np.inf, -np.inf
     entities: set[str] = set()
     wanted = ("maps/", "fusion/alignment/", "mission/summary")
@@ -1272,15 +1276,21 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
             continue
         columns = {k: batch.column(k).to_pylist() for k in names
                    if k not in ("log_time", "sim_time", "frame") and not k.startswith("rerun.")}
+        ids = (batch.column(ROW_ID).to_pylist() if ROW_ID in names else [None] * chunk.num_rows)
+        held = rows_by_entity.setdefault(entity, {})
         for i in range(chunk.num_rows):
             row = {k: v[i] for k, v in columns.items()}
-            rows_by_entity.setdefault(entity, []).append((float(times[i]), order, row))
+            key = ids[i] if ids[i] is not None else (order, i)
+            if key in held:
+                held[key][2].update({k: v for k, v in row.items() if v is not None})
+            else:
+                held[key] = [float(times[i]), order, row]
     maps: dict[str, LandmarkMap] = {}
     alignments: dict[str, dict] = {}
     summary = None
     stale: list[str] = []
-    for entity, rows in rows_by_entity.items():
-        rows.sort(key=lambda r: (r[0], r[1]))
+    for entity, by_id in rows_by_entity.items():
+        rows = sorted(by_id.values(), key=lambda r: (r[0], r[1]))
         plain = [r[2] for r in rows]
         if entity.startswith("maps/"):
             landmark_map, note = _map_from_row(path, entity, plain)
