@@ -358,7 +358,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
             _plot(f"plots/{r}/time", "time per stage (ms)"),
             _plot(f"plots/{r}/dropped", "frames dropped (total)"),
             _plot(f"plots/{r}/self_check", "self-check: old landmarks not re-detected (CUSUM)"),
-            row_shares=[2, 2, 2, 2, 1, 2])
+            row_shares=[2, 3, 2, 2, 1, 2])  # the landmarks plot has four series, each legend line long
         robot_tabs.append(rrb.Horizontal(
             rrb.Vertical(_map_view(r, f"{r}: local map (own start frame)"),
                          rrb.Spatial2DView(origin=f"images/{r}/pair", name=f"{r}: stereo pair and matches"),
