@@ -18,8 +18,12 @@ os.umask(_UMASK)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path``: temporary file in the same folder, fsync, ``os.replace``, fsync of the folder."""
+    """Write ``data`` to ``path``: temporary file in the same folder, fsync, ``os.replace``, fsync of the folder.
+
+    A path where a FIFO, a device or a socket is raises OSError (EINVAL) and leaves it there: the rename would
+    replace it with a plain file (``/dev/null``, for a process allowed to write in /dev)."""
     target = Path(path)
+    _refuse_special(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
@@ -33,6 +37,16 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         Path(tmp).unlink(missing_ok=True)
         raise
     fsync_folder(target.parent)
+
+
+def _refuse_special(target: Path) -> None:
+    try:
+        mode = os.stat(target).st_mode
+    except (OSError, ValueError):   # nothing there (yet), or a path the write itself will refuse
+        return
+    if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
+        raise OSError(errno.EINVAL, "not a regular file (a FIFO, device or socket), which the atomic write would "
+                                    "replace with a file", str(target))
 
 
 def fsync_folder(folder: str | os.PathLike) -> None:

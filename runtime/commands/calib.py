@@ -15,7 +15,7 @@ import numpy as np
 
 from drivers.errors import BadFileError, DriverError
 from drivers.videre import calibration, camera_info
-from runtime.commands.options import OutputPathError, check_output_file, check_output_folder
+from runtime.commands.options import OutputPathError, check_output_apart, check_output_file, check_output_folder
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -43,6 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show.set_defaults(handler=run_show)
 
 
+SUFFIXES = (".ini", ".yaml", ".yml", ".xml")   # the file formats calibration.save writes
+
+
 def _is_camera_info_target(path: Path) -> bool:
     return path.is_dir() or path.suffix == ""
 
@@ -63,6 +66,11 @@ def run_convert(args: argparse.Namespace) -> int:
             check_output_folder(args.output, "OUT")
         else:
             check_output_file(args.output, "OUT")
+            if args.output.suffix.lower() not in SUFFIXES:
+                raise OutputPathError(f"OUT {args.output}: unknown calibration format (give .ini, .yaml, .yml or "
+                                      ".xml, or a folder for camera_info)")
+        # IN rewritten in place would lose what the writer does not carry (comments, fields of another format)
+        check_output_apart(args.output, "OUT", files={"IN": args.input})
     except OutputPathError as exc:
         print(f"p3at calib convert: {exc}", file=sys.stderr)
         return 2

@@ -22,7 +22,7 @@ from estimation.frontend import (
     StereoGeometry,
     StereoMatchConfig,
 )
-from runtime.commands.options import check_output_file, finite_float, positive_float
+from runtime.commands.options import check_output_apart, check_output_file, finite_float, positive_float
 
 DEFAULTS = StereoGeometry()
 # the largest image the command decodes: 64 Mpx (one grey frame of 64 MB), 50 times the STH-MDCS2's 1280×960
@@ -149,6 +149,8 @@ def matches_csv(matches, frame: str) -> bytes:
 def run_features(args: argparse.Namespace) -> int:
     try:
         check_output_file(args.out)
+        check_output_apart(args.out, files={"left image": args.left, "right image": args.right,
+                                            "--calib": args.calib})
         source = _geometry_source(args)
         if args.frame is None:
             args.frame = "camera" if source == "given" else "base_link"

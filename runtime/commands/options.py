@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import stat
 import sys
 from pathlib import Path
 
@@ -131,6 +132,22 @@ def _writable_ancestor(path: Path) -> str | None:
     return None
 
 
+def special_file_kind(path: str | os.PathLike) -> str | None:
+    """What ``path`` is when it exists but is neither a regular file nor a folder ("a FIFO", "a device", "a
+    socket"), following links; None otherwise (nothing there, a file, a folder)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return None
+
+
 def check_output_file(path: str | os.PathLike | None, option: str = "--out") -> None:
     """Raise :class:`OutputPathError` when ``path`` cannot take a file: a folder is there, a file is where a folder
     must be, or the folder is not writable. Commands call it before their work, so that a long run does not end
@@ -140,6 +157,10 @@ def check_output_file(path: str | os.PathLike | None, option: str = "--out") -> 
     target = Path(path)
     if target.is_dir():
         raise OutputPathError(f"{option} {path}: is a folder; give a file name")
+    kind = special_file_kind(target)
+    if kind is not None:   # the atomic write renames a new file over it: a FIFO, or /dev/null as root, would go
+        raise OutputPathError(f"{option} {path}: is {kind}, not a file (a file is written beside it and renamed "
+                              "over it); give a file name")
     why = _writable_ancestor(target)
     if why is not None:
         raise OutputPathError(f"{option} {path}: {why}")

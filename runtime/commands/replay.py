@@ -7,6 +7,7 @@ from pathlib import Path
 
 from runtime.commands.options import (
     add_deprecated_alias,
+    check_output_apart,
     check_output_file,
     non_negative_int,
     particle_count,
@@ -55,6 +56,9 @@ def _check_replayable(log: SensorLog, path) -> None:
 
 def _replay(args) -> int:
     check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before the replay
+    log_path = Path(args.log)     # the map must not replace a segment: a folder's, or the one file given
+    check_output_apart(args.out, files={"sensor log": None if log_path.is_dir() else log_path},
+                       folders={"sensor log": log_path if log_path.is_dir() else None})
     try:
         log = SensorLog(args.log, allow_truncated=args.allow_truncated)
         _check_replayable(log, args.log)

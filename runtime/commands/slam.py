@@ -83,6 +83,9 @@ def _simulate(args: argparse.Namespace) -> int:
     try:
         check_output_file(args.out)
         check_output_file(args.ply, "--ply")
+        inputs = {"--world": args.world, "--world-route": args.world_route}
+        check_output_apart(args.out, files=inputs)
+        check_output_apart(args.ply, "--ply", files={"--out": args.out, **inputs})
         world = World.load(args.world)
         if args.world_route:
             route = load_route(args.world_route)
