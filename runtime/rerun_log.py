@@ -340,15 +340,22 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     - 3-D: the world with the robots, their cameras (pinholes, matched corners) and the landmarks; the covariance
       ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
 
+    One robot (``p3at run`` on its own): nothing is fused, so no fused map and no fusion tab; the overview is its map
+    above the mission's events.
+
     2-D entities sit only under 2-D views' origins or under a pinhole (the stereo images in the 3-D world).
     """
     robots = list(robots)
     maps = [_map_view(r, f"{r}: local map (own start frame)") for r in robots]
     robot_maps = rrb.Grid(*maps, grid_columns=1 if len(maps) <= 2 else 2) if maps else None
+    fleet = len(robots) != 1
     # a view object is one place in the layout: each tab builds its own
-    fused_overview = rrb.Vertical(_map_view("fused", FUSED_MAP_NAME), _fusion_status_view(), row_shares=[5, 1])
-    overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused_overview,
-                              column_shares=[2, 3] if maps else None, name="overview")
+    if fleet:
+        fused_overview = rrb.Vertical(_map_view("fused", FUSED_MAP_NAME), _fusion_status_view(), row_shares=[5, 1])
+        overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused_overview,
+                                  column_shares=[2, 3] if maps else None, name="overview")
+    else:
+        overview = rrb.Vertical(robot_maps, _events_view(), row_shares=[5, 1], name="overview")
     robot_tabs = []
     for r in robots:
         plots = rrb.Vertical(
@@ -374,7 +381,8 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
         column_shares=[3, 2], name="fusion")
     hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
-    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, fusion, world, active_tab=0), collapse_panels=True)
+    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, *([fusion] if fleet else []), world, active_tab=0),
+                         collapse_panels=True)
 
 
 def dataset_blueprint(robot: str, smoothed: bool = False) -> rrb.Blueprint:

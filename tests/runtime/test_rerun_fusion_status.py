@@ -105,3 +105,13 @@ def test_a_fusion_that_aligned_once_is_drawn_a_value_a_line_alone_would_not_draw
     assert [r["Scalars:scalars"] for r in rows if r.get("Scalars:scalars") is not None] == [[0.041]]
     assert any(r.get("SeriesPoints:names") == ["error xy (m)"] for r in rows)
     assert any(r.get("SeriesLines:names") == ["error xy (m)"] for r in rows)
+
+
+def test_a_robot_on_its_own_gets_no_fused_map_and_no_fusion_tab_but_its_events():
+    """``p3at run`` with one robot fuses nothing: an empty fused map and an empty status would only puzzle."""
+    tabs = mission_blueprint(["robot1"]).root_container
+    assert [t.name for t in tabs.contents] == ["overview", "robot1", "3-D"]
+    views = list(_walk(tabs))
+    assert not [v for v in views if "fused" in str(v.origin) or str(v.origin).strip("/") == FUSION_STATUS]
+    (overview,) = [t for t in tabs.contents if t.name == "overview"]
+    assert [str(v.origin).strip("/") for v in _walk(overview) if v.class_identifier == "TextLog"] == [EVENTS]
