@@ -80,7 +80,7 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAMConfig, range_bearing_config  # noqa: E402
-from estimation.fastslam.motion import increment_variance  # noqa: E402
+from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
 from estimation.geometry import between, compose, dead_reckoning  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import ate, map_scores  # noqa: E402
@@ -290,11 +290,14 @@ class NamedProblem:
     sightings: np.ndarray
 
 
-def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig
-                  ) -> NamedProblem:
+def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
+                  path_step_s: float | None = None) -> NamedProblem:
     """The factors ``run_landmark_log(association="id", smooth=True)`` builds for ``log`` with each sighting named
     ``names`` (−1: left out): frames at the named sightings' time stamps, from the first; the calibrated odometry
-    increments between them; each sighting's calibrated range and bearing with the inflated σ."""
+    increments between them; each sighting's calibrated range and bearing with the inflated σ.
+
+    ``path_step_s``: the increments' variances propagated along the odometry's path in steps of about this many
+    seconds (:func:`path_variances`) instead of the random walk's variance of the chord (None, the default)."""
     sensor = noise.range_bearing
     inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
     config = with_fastslam(noise, config)
@@ -303,13 +306,47 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     frame_times = np.concatenate([times[:1], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+    variances = increment_variance(increments, config)
+    if path_step_s is not None:
+        variances = np.maximum(variances, path_variances(log, noise, config, frame_times, path_step_s))
     ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
     unique_names, landmark_index = np.unique(np.asarray(names)[rows], return_inverse=True)
-    problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
+    problem = LandmarkLogProblem(np.asarray(increments, float), variances,
                                  frame.astype(int) + 1, landmark_index.astype(int), ranges, bearings,
                                  sensor.range_sigma(ranges) * inflate_r,
                                  np.full(len(rows), sensor.bearing_sigma_rad * inflate_b), np.diff(frame_times))
     return NamedProblem(problem, unique_names, times, rows)
+
+
+def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, frame_times: np.ndarray,
+                   step_s: float) -> np.ndarray:
+    """(T, 3) the variances of the increments between consecutive ``frame_times`` (T + 1,) as the random walk gives
+    them along the odometry's path: each increment cut into steps of at most ``step_s`` s, each step's calibrated
+    increment and variance (``config``: with the noise model's fastslam keys) composed from the increment's start
+    (``propagate_covariance``), the diagonal of the result in the start pose's frame (the frame of the smoother's
+    odometry residual). An increment of one step has its chord's variance; one across a gap of sightings in which the
+    robot turned back and forth or drove a curve gets what the path it drove gives (the chord's variance of a spin
+    out and back is the variance of no turn)."""
+    frame_times = np.asarray(frame_times, float)
+    t = len(frame_times) - 1
+    steps = np.maximum(np.ceil(np.diff(frame_times) / step_s).astype(int), 1)
+    owner = np.repeat(np.arange(t), steps)
+    first = np.concatenate([[0], np.cumsum(steps)[:-1]])
+    within = np.arange(len(owner)) - first[owner]
+    start = frame_times[:-1][owner] + within * (np.diff(frame_times) / steps)[owner]
+    grid = np.append(start, frame_times[-1])
+    odometry = log.odometry_pose(noise.odometry_times(grid))
+    fine = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+    fine_var = increment_variance(fine, config)
+    pose = np.zeros((t, 3))
+    cov = np.zeros((t, 3, 3))
+    for k in range(int(steps.max()) if t else 0):
+        on = np.flatnonzero(steps > k)
+        j = first[on] + k
+        for i, row in zip(on, j, strict=True):      # a few long increments: a loop over them is cheap
+            cov[i] = propagate_covariance(pose[i:i + 1], cov[i:i + 1], fine[row], fine_var[row])[0]
+        pose[on] = compose(pose[on], fine[j])
+    return np.diagonal(cov, axis1=1, axis2=2).copy()
 
 
 def truncated_cost(problem: LandmarkLogProblem, solution: Smoothed) -> float:
@@ -425,11 +462,12 @@ class LoopClosure:
 
 def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
                  initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
-                 heading_drift: HeadingDrift | None = None) -> tuple[NamedProblem, Smoothed]:
+                 heading_drift: HeadingDrift | None = None, path_step_s: float | None = None
+                 ) -> tuple[NamedProblem, Smoothed]:
     """The smoother on ``log`` with ``names``; initial poses (T + 1, 3) (default: the calibrated dead reckoning),
     initial landmark positions by name (default: placed from their first sightings); ``heading_drift``: the
-    smoother's heading-bias states (None: none)."""
-    named = named_problem(log, names, noise, config)
+    smoother's heading-bias states (None: none); ``path_step_s``: :func:`named_problem`'s."""
+    named = named_problem(log, names, noise, config, path_step_s=path_step_s)
     problem = named.problem
     if initial_poses is None:
         initial_poses = dead_reckoning(problem.increments)

@@ -82,7 +82,7 @@ from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, Smoothed, joint_landmark_covariance  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
-from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
 STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
 
@@ -208,8 +208,8 @@ def _root(parent: dict[int, int], x: int) -> int:
     return x
 
 
-def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None
-                 ) -> MergeRound:
+def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
+                 path_step_s: float | None = None) -> MergeRound:
     """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution (or, with
     ``reguess(names) -> (poses, {name: position})``, from that guess); kept when the truncated cost rises by no more
     than χ² 99 % for 2 per absorbed name (module docstring, step 4)."""
@@ -231,12 +231,67 @@ def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, conf
     if reguess is not None:         # a fresh start: the known-ID filter and smoother on the merged names
         initial_poses, position = reguess(names)
     named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses,
-                                   initial=position, heading_drift=drift)
+                                   initial=position, heading_drift=drift, path_step_s=path_step_s)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
     bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(merged)))
     if rise <= bound:
         return MergeRound(merged, rise, bound, True, names, named, solution)
     return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
+
+
+def name_pairs(verdicts: list[PassVerdict], named: NamedProblem) -> list[list[tuple[int, int]]]:
+    """Each pass's pairings as names (they outlive the landmark indices of one smoothing)."""
+    return [[(int(named.names[a]), int(named.names[b])) for a, b in v.pairs] for v in verdicts]
+
+
+def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias: dict[int, int]
+                ) -> dict[int, int]:
+    """:func:`merges_from` on ``current``'s landmark indices for passes given as name pairs; ``alias`` maps a name
+    absorbed by an earlier merge to the name that absorbed it."""
+    index = {int(x): k for k, x in enumerate(current.named.names)}
+
+    def now(x: int) -> int:
+        while x in alias:
+            x = alias[x]
+        return x
+
+    verdicts = []
+    for pairs in passes:
+        at = [(index[now(a)], index[now(b)]) for a, b in pairs if now(a) in index and now(b) in index]
+        at = [(a, b) for a, b in at if a != b]
+        if at:
+            verdicts.append(PassVerdict(0, "matched", at))
+    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
+    return merges_from(verdicts, covisible)[0]
+
+
+def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]], noise, config, drift, *,
+                    depth: int, alias: dict[int, int], reguess=None, path_step_s: float | None = None
+                    ) -> tuple[MergeRound, list[MergeRound]]:
+    """The passes' merges (strongest first) as one batch; a batch the cost check refuses is cut in two halves, each
+    tried in turn (the second on top of the first if it was kept), down to ``depth`` cuts; a batch still refused at
+    the last level is retried as its strongest pass alone (depth 0: U's rule, the strongest pass alone at once).
+    Returns the last kept state and every attempt; ``alias`` gains the names each kept merge absorbed."""
+    clusters = clusters_of(current, passes, alias)
+    if not clusters:
+        return current, []
+    attempt = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s)
+    attempts = [attempt]
+    if attempt.accepted:
+        alias.update({x: keep for keep, x in attempt.merged})
+        return attempt, attempts
+    if len(passes) == 1:
+        return current, attempts
+    if depth <= 0:
+        state, more = merge_bisecting(log, current, passes[:1], noise, config, drift, depth=0, alias=alias,
+                                      reguess=reguess, path_step_s=path_step_s)
+        return state, attempts + more
+    half = (len(passes) + 1) // 2
+    state, first = merge_bisecting(log, current, passes[:half], noise, config, drift, depth=depth - 1, alias=alias,
+                                   reguess=reguess, path_step_s=path_step_s)
+    state, second = merge_bisecting(log, state, passes[half:], noise, config, drift, depth=depth - 1, alias=alias,
+                                    reguess=reguess, path_step_s=path_step_s)
+    return state, attempts + first + second
 
 
 def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
@@ -258,7 +313,7 @@ def ceiling(log: RangeBearingLog, names: np.ndarray, noise, config, drift, args)
     merged = np.array([owner[int(x)] if x >= 0 else -1 for x in names], np.int64)
     poses, initial = _guess(log, merged, noise, config, args, cache=False)
     named, solution = smooth_named(log, merged, noise, config, initial_poses=poses, initial=initial,
-                                   heading_drift=drift)
+                                   heading_drift=drift, path_step_s=_path_step(args))
     final = MergeRound([], 0.0, 0.0, True, merged, named, solution)
     return round_scores(log, final, majority(merged, log.landmark_ids))
 
@@ -307,8 +362,9 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     initial_poses, initial = _guess(log, names, noise, config, args)
     drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
     started = time.process_time()
+    path_step_s = _path_step(args)
     named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
-                                   heading_drift=drift)
+                                   heading_drift=drift, path_step_s=path_step_s)
     current = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
     owner = majority(names, barcodes)
     first = round_scores(log, current, owner)
@@ -343,28 +399,37 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         if args.reguess:
             def reguess(merged_names):
                 return _guess(log, merged_names, noise, config, args, cache=False)
-        attempt = apply_merges(log, current, clusters, noise, config, drift, reguess)
-        record["batch"] = _round(log, attempt, owner)
-        if not attempt.accepted and len(used) > 1:
-            single, _ = merges_from(used[:1], covisible)
-            attempt = apply_merges(log, current, single, noise, config, drift, reguess)
-            record["single"] = _round(log, attempt, owner)
+        state, attempts = merge_bisecting(log, current, name_pairs(used, current.named), noise, config, drift,
+                                          depth=args.bisect, alias={}, reguess=reguess, path_step_s=path_step_s)
+        record["batch"] = _round(log, attempts[0], owner)
+        record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
         record["cpu_s"] = time.process_time() - started
         row["rounds"].append(record)
         if args.progress:
-            for key in ("batch", "single"):
-                if key in record:
-                    _print_scores(f"  round {k + 1} {key}", record[key], file=sys.stderr)
-        if not attempt.accepted:
+            for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
+                _print_scores(f"  round {k + 1} {key}", scores, file=sys.stderr)
+        if state is current:
             break
-        current = attempt
+        current = state
     final = round_scores(log, current, majority(names, barcodes))
-    final["merges"] = sum(r[key]["merged"] for r in row["rounds"] for key in ("batch", "single")
-                          if key in r and r[key]["accepted"])
-    final["wrong_merges"] = sum(r[key]["wrong_merges"] for r in row["rounds"] for key in ("batch", "single")
-                                if key in r and r[key]["accepted"])
+    kept = [a for r in row["rounds"] for a in [r.get("batch")] + r.get("tries", []) if a and a["accepted"]]
+    final["merges"] = sum(a["merged"] for a in kept)
+    final["wrong_merges"] = sum(a["wrong_merges"] for a in kept)
+    final["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
     row["final"] = final
     return row
+
+
+def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:
+    """Sightings kept by the smoother under a name whose barcode (its sightings' majority) is not theirs (scoring)."""
+    owner = majority(r.names, log.landmark_ids)
+    problem = r.named.problem
+    mine = np.array([owner[int(r.named.names[k])] for k in problem.landmark_index])
+    return int(np.sum((np.asarray(log.landmark_ids)[r.named.sightings] != mine) & r.solution.inliers))
+
+
+def _path_step(args) -> float | None:
+    return args.path_step if args.path_step > 0 else None
 
 
 def _round(log, attempt: MergeRound, owner) -> dict:
@@ -421,6 +486,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ratio", type=positive_float, default=None,
                         help="likelihood ratio of the best hypothesis over a rival (default: no rival allowed)")
     parser.add_argument("--max-rounds", type=non_negative_int, default=3)
+    parser.add_argument("--path-step", type=non_negative_float, default=0.25, metavar="S",
+                        help="the odometry increments' variances propagated along the path in steps of S s (0: the "
+                             "random walk's variance of the chord between sighting frames, session 24's)")
+    parser.add_argument("--bisect", type=non_negative_int, default=2, metavar="DEPTH",
+                        help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
+                             "strongest pass alone, session 24's)")
     parser.add_argument("--reguess", action="store_true",
                         help="re-smooth each merge from the known-ID filter on the merged names, not the last solution")
     parser.add_argument("--layout", action="store_true",
@@ -469,13 +540,14 @@ def _print(row: dict) -> None:
         _print_scores("  ceiling (names merged by their barcodes)", row["ceiling"])
     for r in row["rounds"]:
         _print_judged(r["round"], r["judged"])
-        for key in ("batch", "single"):
-            if key in r:
-                _print_scores(f"    {key}", r[key])
+        for key, scores in [("batch", r.get("batch"))] + [("try", t) for t in r.get("tries", [])]:
+            if scores:
+                _print_scores(f"    {key}", scores)
     f = row["final"]
     print(f"  final: {f['merges']} merges ({f['wrong_merges']} wrong), names {f['names']} "
           f"({f['names_per_post']:.1f} per post, duplicates {100 * f['duplicate_fraction']:.0f} %), ATE "
-          f"{f['ate_m']:.3f} m, NEES within {100 * f['landmark_nees_within_bound']:.0f} %")
+          f"{f['ate_m']:.3f} m, NEES within {100 * f['landmark_nees_within_bound']:.0f} %, wrong sightings kept "
+          f"{f['wrong_sightings_kept']}")
 
 
 if __name__ == "__main__":

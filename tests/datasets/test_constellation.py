@@ -167,3 +167,36 @@ def test_merges_join_the_strongest_passes_first_and_never_two_names_seen_togethe
     assert used == [strong]
     assert {k: clusters[k] for k in (4, 5, 6)} == {4: 0, 5: 1, 6: 2}
     assert 7 not in clusters and 3 not in clusters
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(2, 12), st.data())
+def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_takes(n_passes, data):
+    # the cost check (stood in for here) refuses any batch that holds a bad pass; bisecting deep enough keeps every
+    # good pass, never a bad one, and a good batch is kept in one attempt
+    import benchmarks.mrclam_constellation as mc
+    from benchmarks.mrclam_chained_names import MergeRound
+
+    bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), max_size=2)))
+    passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]       # pass k joins name 10k + 1 to 10k
+
+    def clusters_of(current, some, alias):
+        return {a: b for pairs in some for a, b in pairs if a not in alias}
+
+    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None):
+        merged = [(b, a) for a, b in clusters.items()]
+        ok = not any(a // 10 in bad for a in clusters)
+        kept = current.merged + merged if ok else current.merged
+        return MergeRound(merged if not ok else kept, 0.0, 1.0, ok, None, None, None)
+
+    start = MergeRound([], 0.0, 0.0, True, None, None, None)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mc, "clusters_of", clusters_of)
+        patch.setattr(mc, "apply_merges", apply_merges)
+        depth = int(np.ceil(np.log2(n_passes)))
+        state, attempts = mc.merge_bisecting(None, start, passes, None, None, None, depth=depth, alias={})
+    joined = {a // 10 for _, a in state.merged}
+    assert joined == set(range(n_passes)) - bad
+    if not bad:
+        assert len(attempts) == 1
+    assert len(attempts) <= 2 * n_passes - 1
