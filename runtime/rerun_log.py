@@ -82,6 +82,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
+from runtime.commands.options import RERUN_URL_PREFIXES  # one spelling; options.py loads no rerun
 from runtime.report import alignment_status, candidate_text
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
@@ -187,7 +188,7 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     bound). Without it memory stays flat; ``p3at review`` and the viewer read the file by scanning it, and
     ``rerun rrd optimize`` writes a copy with a footer. See docs/reliability.md, "Memory over a long mission".
     """
-    live = sink in ("memory", "spawn", "none") or sink.startswith(("rerun://", "rerun+http", "http://"))
+    live = sink in ("memory", "spawn", "none") or sink.startswith(RERUN_URL_PREFIXES)
     # a saved file is read later: batching rows for FILE_FLUSH_TICK s instead of Rerun's 0.2 s makes several times
     # fewer chunks (each carries its own Arrow schema), for at most that long of rows held in memory (and lost
     # on a hard kill; the maps themselves are snapshotted to disk by the runtime)
@@ -198,7 +199,7 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
         rec.memory_recording()
     elif sink == "spawn":
         rec.connect_grpc(spawn_viewer(), default_blueprint=blueprint)
-    elif sink.startswith(("rerun://", "rerun+http://", "rerun+https://", "http://")):
+    elif sink.startswith(RERUN_URL_PREFIXES):
         try:
             rec.connect_grpc(sink, default_blueprint=blueprint)
         except RuntimeError as e:   # Rerun's 'invalid endpoint ...': a bad URL is the user's, said in one line

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from runtime.commands.options import check_output_folder, rerun_url_problem
+from runtime.commands.options import RERUN_KEYWORDS, check_output_folder, rerun_sink_problem
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -43,14 +43,16 @@ def mission_inputs_problem(args) -> str | None:
     """Why the mission's own files cannot serve (None when they can), said before any robot starts: the output
     folder (with --log-sensors: no earlier run's log in it: the second run failed after it had replaced the first
     one's mission.rrd with an empty recording), the building (--world; on virtual robots also the number of robots
-    it has start poses for), the route (--route, when the robots follow one) and a --rerun URL Rerun refuses."""
+    it has start poses for), the route (--route, when the robots follow one) and the --rerun sink (a URL Rerun
+    refuses, a word that is neither a keyword nor FILE.rrd, a .rrd no file can be written at)."""
     from mocks.world import World
     from runtime.motion import load_route
 
     virtual = getattr(args, "robot", "mock") == "mock"   # `p3at run` has --robot; `p3at demo` drives mocks only
-    url = rerun_url_problem(args.rerun)   # the mission (or the fusion node of --processes) opens it only once started
-    if url is not None:
-        return url
+    # the mission (or the fusion node of --processes) opens it only once started
+    sink = rerun_sink_problem(args.rerun, RERUN_KEYWORDS)
+    if sink is not None:
+        return sink
     try:
         check_output_folder(args.out)
         world = World.load(args.world) if args.world is not None or virtual else None

@@ -15,10 +15,12 @@ import numpy as np
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
 from runtime.commands.options import (
+    RERUN_KEYWORDS,
     OutputPathError,
     check_output_apart,
     check_output_file,
     non_negative_int,
+    rerun_sink_problem,
     same_file,
     start_sigmas,
 )
@@ -83,8 +85,14 @@ def _fuse(args: argparse.Namespace) -> int:
         from runtime.fleet.fusion_node import run_live
 
         try:
+            if args.maps:   # the node fuses what the robots send: map files given were ignored without a word
+                raise OutputPathError(f"map files ({args.maps[0]}{', ...' if len(args.maps) > 1 else ''}) do not "
+                                      "apply to --live: the node fuses the maps the robots send; fuse files "
+                                      "without --live")
             check_output_file(args.out)
             check_output_apart(args.out, files={"--start-poses": args.start_poses})
+            if (problem := rerun_sink_problem(args.rerun, RERUN_KEYWORDS)) is not None:
+                raise OutputPathError(problem)
             starts = _live_starts(args)
         except (FusionError, OutputPathError) as e:
             print(f"p3at fuse: {e}", file=sys.stderr)

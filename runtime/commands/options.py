@@ -207,7 +207,28 @@ def check_output_apart(path: str | os.PathLike | None, option: str = "--out", *,
                                   "replace one of its files; write it elsewhere")
 
 
-RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")   # what the commands take as a URL
+# what a --rerun sink is taken as a URL for: the one spelling of them (runtime/rerun_log.py's open_recording uses it
+# too; this module stays free of rerun, so that `p3at --help` does not load it)
+RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")
+RERUN_KEYWORDS = ("file", "spawn", "none")   # --rerun of demo, run and fuse --live, beside FILE.rrd and a URL
+
+
+def rerun_sink_problem(sink: str | None, keywords: tuple[str, ...] = ()) -> str | None:
+    """Why the ``--rerun`` sink cannot serve, in one line naming it (None when it can), said before any work: one of
+    the command's ``keywords`` (e.g. file, spawn, none), a URL Rerun takes (:func:`rerun_url_problem`), or a
+    ``FILE.rrd`` a file can be written at. Any other word was saved to a file of that name (``--rerun foo``, a
+    mistyped keyword, made a file 'foo'; ``--rerun DIR`` ended in Rerun's warnings and exit 1)."""
+    if sink is None or sink in keywords:
+        return None
+    if sink.startswith(RERUN_URL_PREFIXES):
+        return rerun_url_problem(sink)
+    if not sink.endswith(".rrd"):
+        return f"--rerun {sink}: give {', '.join(keywords + ('FILE.rrd',))} or a rerun+http:// URL"
+    try:
+        check_output_file(sink, "--rerun")
+    except OutputPathError as e:
+        return str(e)
+    return None
 
 
 def rerun_url_problem(sink: str | None) -> str | None:

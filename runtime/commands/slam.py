@@ -12,7 +12,6 @@ import numpy as np
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
 from runtime.commands.options import (
-    RERUN_URL_PREFIXES,
     add_deprecated_alias,
     check_output_apart,
     check_output_file,
@@ -20,7 +19,7 @@ from runtime.commands.options import (
     particle_count,
     positive_float,
     positive_int,
-    rerun_url_problem,
+    rerun_sink_problem,
 )
 
 
@@ -230,15 +229,8 @@ def _register_noise(sub) -> None:
 
 def _check_rerun_sink(sink: str | None) -> None:
     """Refuse a ``--rerun`` sink before the run, not after it: FILE.rrd (its folder writable), spawn or a URL."""
-    if sink is None or sink == "spawn":
-        return
-    if sink.startswith(RERUN_URL_PREFIXES):
-        if (problem := rerun_url_problem(sink)) is not None:
-            raise ValueError(problem)
-        return
-    if not sink.endswith(".rrd"):
-        raise ValueError(f"--rerun {sink}: give FILE.rrd, spawn or a rerun+http:// URL")
-    check_output_file(sink, "--rerun")
+    if (problem := rerun_sink_problem(sink, ("spawn",))) is not None:
+        raise ValueError(problem)
 
 
 def _dataset(args: argparse.Namespace) -> int:
