@@ -762,9 +762,10 @@ def main() -> None:
     parser.add_argument("--slam-maps", type=Path, help="folder of FastSLAM map pairs NAME_r1.npz / NAME_r2.npz")
     parser.add_argument("--slam-growth", type=Path, help="folder of FastSLAM map pairs of one run cut at several "
                         "times (tNNNs_r1.npz / tNNNs_r2.npz)")
-    parser.add_argument("--mrclam", type=Path, default=MRCLAM_DATASET2,
-                        help="MRCLAM dataset 2 folder (default ../shared/data/mrclam/MRCLAM_Dataset2; "
-                             "skipped if absent)")
+    parser.add_argument("--mrclam", type=Path, default=None,
+                        help=f"MRCLAM dataset 2 folder (default {MRCLAM_DATASET2}, found from this file's place "
+                             "whatever the working folder; its tables are skipped, and said so, if it is absent; "
+                             "a folder given that is not there is an error)")
     parser.add_argument("--mrclam-maps", type=Path, action="append", default=[],
                         help="folder of FastSLAM maps robot1.npz ... robot5.npz of MRCLAM (p3at slam dataset); "
                              "may be given more than once")
@@ -777,6 +778,10 @@ def main() -> None:
     parser.add_argument("--trust-only", action="store_true",
                         help="only the tables of issue 13 (false alarms, evidence, MRCLAM), not the paper's figures")
     args = parser.parse_args()
+    if args.mrclam is None:
+        args.mrclam = MRCLAM_DATASET2
+    elif not args.mrclam.is_dir():   # asked for by name: skipping it with a note would hide a typo
+        parser.error(f"--mrclam {args.mrclam}: not a folder")
     noise = MapNoise(descriptor_noise=args.descriptor_noise)
     t0 = time.perf_counter()
     print(f"simulated maps: {noise}")
