@@ -3,8 +3,8 @@
 Run from the repository root:
 
     .venv/bin/python -m benchmarks.mrclam_constellation [--robots 1,2,3,4,5] [--seed 0] [--names-cache DIR]
-        [--drift 0.16 10] [--pass-seconds 20] [--min-pairs 3] [--ratio R] [--max-rounds 3] [--reguess] [--layout]
-        [--ceiling] [--progress] [--json]
+        [--drift 0.16 10] [--path-step 0.25] [--split-bends] [--pass-seconds 20] [--min-pairs 3] [--ratio R]
+        [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -22,7 +22,11 @@ names against an earlier pass's *together* (:mod:`estimation.constellation`).
 The method (the barcodes never decide; they only score):
 
 1. **Names**: session 21's chained names (``mrclam_chained_names._chained``, the same ``--names-cache``), smoothed
-   with the heading drift (``--drift``, default σ_b 0.16 rad/m, τ 10 s, E's) from the known-ID filter's guess.
+   with the heading drift (``--drift``, default σ_b 0.16 rad/m, τ 10 s, E's) from the known-ID filter's guess; the
+   odometry increments between sighting frames with their variance along the path driven (``--path-step``, 0.25 s
+   steps; session 25: the chord's variance made a gap of sightings in which the robot turned back and forth as
+   certain as no turn). 1b. With ``--split-bends``: names split where the odometry bends and the cost says so
+   (:func:`split_at_bends`; session 25: a chained name holding a run of another post's sightings).
 2. **Passes**: the log cut into disjoint spans of ``--pass-seconds``; a pass holds the names with at least
    ``--min-sightings`` kept sightings in its span.
 3. **Joint test**: each pass P against each earlier pass Q
@@ -35,8 +39,9 @@ The method (the barcodes never decide; they only score):
    (two different places for one pass's constellation: ambiguous, refused).
 4. **Merges**: the matched passes' pairings, most pairings first then largest ratio, joined name by name unless the
    join puts two names sighted in one frame together; re-smoothed, the batch kept when the truncated cost's rise
-   is within χ² 99 % for 2 per absorbed name (else retried as the strongest pass's pairings alone); up to
-   ``--max-rounds`` rounds.
+   is within χ² 99 % for 2 per absorbed name; a refused batch is cut in halves, each tried in turn, down to
+   ``--bisect`` levels, the last level's refused halves retried as their strongest pass alone (``--bisect 0``:
+   session 24's rule, the strongest pass alone at once); up to ``--max-rounds`` rounds.
 
 ``--reguess`` re-smooths each merge from the known-ID filter on the merged names instead of the last solution (the
 same solution on robot 2). ``--layout`` and ``--ceiling`` are diagnostics in which the barcodes decide: how often the
@@ -80,7 +85,12 @@ from estimation.constellation import joint_d2, match_constellation  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift, Smoothed, joint_landmark_covariance  # noqa: E402
+from estimation.landmark_smoother import (  # noqa: E402
+    HeadingDrift,
+    Smoothed,
+    joint_landmark_covariance,
+    normalised_residuals,
+)
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
@@ -294,6 +304,55 @@ def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]
     return state, attempts + first + second
 
 
+def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_s: float | None = None,
+                   window_s: float = 20.0, bend_probability: float = 0.999, probability: float = 0.99
+                   ) -> tuple[MergeRound, list[dict]]:
+    """Names split where the odometry bends (module docstring, step 1b): each increment whose normalised odometry
+    χ²₃ exceeds ``bend_probability``; each name with kept sightings within ``window_s`` s on both sides of it is
+    split there (its sightings from the bend on get a new name) and re-smoothed alone; a split is kept when the
+    truncated cost falls by more than χ²₂ at ``probability``. The kept splits are applied together and re-smoothed.
+    Returns the new state (``current`` if none is kept) and each split tried (name, time, cost drop, kept)."""
+    problem, solution = current.named.problem, current.solution
+    odometry = normalised_residuals(problem, solution)[0]
+    times = current.named.frame_times
+    sighted = times[problem.pose_index - 1]
+    base = truncated_cost(problem, solution)
+    position = dict(zip(current.named.names.tolist(), solution.landmarks, strict=True))
+    next_name = int(current.names.max()) + 1
+    tried, kept = [], []
+    bend_bound = scipy.stats.chi2.ppf(bend_probability, 3)
+    for j in np.flatnonzero(np.sum(odometry ** 2, axis=1) > bend_bound):
+        at = float(times[j])
+        near = solution.inliers & (sighted >= at - window_s) & (sighted < at + window_s)
+        for k in np.unique(problem.landmark_index[near]):
+            mine = near & (problem.landmark_index == k)
+            if not (np.any(mine & (sighted < at)) and np.any(mine & (sighted >= at))):
+                continue
+            name = int(current.named.names[k])
+            names = current.names.copy()
+            names[(names == name) & (log.sighting_times >= at)] = next_name
+            named, trial = smooth_named(log, names, noise, config, initial_poses=solution.poses,
+                                        initial={**position, next_name: position[name]}, heading_drift=drift,
+                                        path_step_s=path_step_s)
+            drop = base - truncated_cost(named.problem, trial)
+            keep = drop > scipy.stats.chi2.ppf(probability, 2)
+            tried.append({"name": name, "t": at, "cost_drop": float(drop), "kept": bool(keep)})
+            if keep:
+                kept.append((name, at))
+    if not kept:
+        return current, tried
+    names = current.names.copy()
+    initial = dict(position)
+    for name, at in kept:
+        names[(names == name) & (log.sighting_times >= at)] = next_name
+        initial[next_name] = position[name]
+        next_name += 1
+    named, trial = smooth_named(log, names, noise, config, initial_poses=solution.poses, initial=initial,
+                                heading_drift=drift, path_step_s=path_step_s)
+    rise = truncated_cost(named.problem, trial) - base
+    return MergeRound([], rise, 0.0, True, names, named, trial), tried
+
+
 def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
     counts = {s: sum(v.status == s for v in verdicts) for s in STATUSES}
     code = np.array([owner.get(int(x), -1) for x in named.names])
@@ -378,6 +437,21 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         row["ceiling"] = ceiling(log, names, noise, config, drift, args)
     if args.progress:
         _print_scores(f"{log.name} chain", first, file=sys.stderr)
+    if args.split_bends:
+        current, tried = split_at_bends(log, current, noise, config, drift, path_step_s=path_step_s)
+        code = np.asarray(barcodes)
+        for t in tried:       # scored: the barcodes of the name's sightings before and after the split
+            mine = names == t["name"]
+            t["before"] = sorted({int(c) for c in code[mine & (log.sighting_times < t["t"])]})
+            t["after"] = sorted({int(c) for c in code[mine & (log.sighting_times >= t["t"])]})
+        row["splits"] = tried
+        row["after_splits"] = round_scores(log, current, majority(current.names, barcodes))
+        row["after_splits"]["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
+        if args.progress:
+            for t in tried:
+                print(f"  split name {t['name']} at {t['t']:.1f} s (barcodes {t['before']} | {t['after']}): cost drop "
+                      f"{t['cost_drop']:.1f} {'kept' if t['kept'] else 'not kept'}", file=sys.stderr, flush=True)
+            _print_scores(f"{log.name} after the splits", row["after_splits"], file=sys.stderr)
     for k in range(args.max_rounds):
         started = time.process_time()
         covariance = joint_landmark_covariance(current.named.problem, current.solution)
@@ -492,6 +566,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bisect", type=non_negative_int, default=2, metavar="DEPTH",
                         help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
                              "strongest pass alone, session 24's)")
+    parser.add_argument("--split-bends", action="store_true",
+                        help="before the rounds, split names where the odometry bends if the cost falls (step 1b)")
     parser.add_argument("--reguess", action="store_true",
                         help="re-smooth each merge from the known-ID filter on the merged names, not the last solution")
     parser.add_argument("--layout", action="store_true",
@@ -538,6 +614,11 @@ def _print(row: dict) -> None:
               f"{u['matched_right']}, wrong {u['matched_wrong']}, ambiguous {u['ambiguous']}, other {u['other']}")
     if "ceiling" in row:
         _print_scores("  ceiling (names merged by their barcodes)", row["ceiling"])
+    for t in row.get("splits", []):
+        print(f"  split name {t['name']} at {t['t']:.1f} s (barcodes {t['before']} | {t['after']}): cost drop "
+              f"{t['cost_drop']:.1f} {'kept' if t['kept'] else 'not kept'}")
+    if "after_splits" in row:
+        _print_scores("  after the splits", row["after_splits"])
     for r in row["rounds"]:
         _print_judged(r["round"], r["judged"])
         for key, scores in [("batch", r.get("batch"))] + [("try", t) for t in r.get("tries", [])]:
