@@ -43,7 +43,7 @@ import struct
 import threading
 import zlib
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import cv2
@@ -623,15 +623,126 @@ class _Bounded:
         return data
 
 
+# bounds on what a log's settings may ask of a replay: FastSLAM's particles as `--particles` takes them, descriptor
+# lengths far above any descriptor's (U-SURF 64, SIFT 128), block sizes and descriptor slots far above the defaults
+# (a block of 10^9 landmarks asked numpy for 1 TiB), corners per image, and every number's magnitude in the
+# settings of the filter, the front end and the geometry (1e308 overflowed FastSLAM's field of view, exit 70)
+MAX_LOGGED_DESCRIPTOR = 4096
+MAX_LOGGED_CORNERS = 1_000_000
+MAX_LOGGED_BLOCK = 4096        # landmarks per copy-on-write block (64 by default)
+MAX_LOGGED_SLOTS = 64          # descriptors a landmark keeps (1 by default)
+MAX_LOGGED_MAGNITUDE = 1e9
+_SECTIONS = ("fastslam", "geometry", "harris")
+
+
 def _settings(path: Path, metadata: Mapping[str, str]) -> dict:
     text = metadata.get("settings", "{}")
     try:
         value = json.loads(text)
     except json.JSONDecodeError as e:
         raise SensorLogError(f"{path}: metadata '{METADATA_NAME}' field 'settings' is not JSON ({e})") from None
+    except RecursionError:
+        raise SensorLogError(f"{path}: metadata '{METADATA_NAME}' field 'settings' is nested too deeply") from None
     if not isinstance(value, dict):
         raise SensorLogError(f"{path}: metadata '{METADATA_NAME}' field 'settings' is not a JSON object")
+    problem = _settings_problem(value)
+    if problem is not None:
+        raise SensorLogError(f"{path}: metadata field 'settings' holds bad settings ({problem})")
     return value
+
+
+def _numbers(value, where: str) -> Iterator[tuple[str, float]]:
+    """Every number inside a JSON value, with where it is (``fastslam.max_range``, ``geometry.head_pose[2]``)."""
+    if isinstance(value, bool):
+        return
+    if isinstance(value, int | float):
+        yield where, value
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from _numbers(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for k, item in enumerate(value):
+            yield from _numbers(item, f"{where}[{k}]")
+
+
+def _section_defaults(section: str) -> dict:
+    """The default value of every field a settings section may hold (a field whose default is None is unchecked)."""
+    from estimation.frontend import HarrisConfig
+
+    if section == "fastslam":
+        return FastSLAMConfig().to_dict()
+    if section == "harris":
+        return {f.name: getattr(HarrisConfig(), f.name) for f in fields(HarrisConfig)}
+    return StereoGeometry().to_dict()
+
+
+def _same_kind(value, default) -> bool:
+    """Whether a JSON value has the kind of a setting's default: a flag, a whole number, a number, a word, or a list
+    (of numbers when the default's are)."""
+    if isinstance(default, bool):
+        return isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(default, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if isinstance(default, str):
+        return isinstance(value, str)
+    if isinstance(default, list | tuple):
+        numbers = all(isinstance(v, int | float) and not isinstance(v, bool) for v in default)
+        return isinstance(value, list) and (not numbers or all(_same_kind(v, 0.0) for v in value))
+    return True
+
+
+def _kind_name(default) -> str:
+    for kind, name in ((bool, "true or false"), (int, "a whole number"), (float, "a number"), (str, "a string")):
+        if isinstance(default, kind):
+            return name
+    return "a list of numbers" if isinstance(default, list | tuple) else type(default).__name__
+
+
+def _whole(value, low: int, high: float) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+
+def _settings_problem(settings: dict) -> str | None:
+    """Why a log's settings cannot drive a replay (None when they can): a section of the wrong type, a number that
+    is not finite or beyond MAX_LOGGED_MAGNITUDE in a section, a seed that is no whole number >= 0, more particles
+    than MAX_PARTICLES, a true start pose that is no three finite numbers. Before, such settings ended in exit 70
+    (MemoryError, OverflowError, AttributeError) or exit 1, or a replay of NaN gates that 'succeeded'."""
+    from runtime.commands.options import MAX_PARTICLES
+
+    for where, number in _numbers(settings, "settings"):
+        if not math.isfinite(number):
+            return f"{where.removeprefix('settings.')} is {number}"
+    for section in _SECTIONS:
+        if settings.get(section) is not None and not isinstance(settings[section], dict):
+            return f"{section} is not an object"
+        for key, value in (settings.get(section) or {}).items():
+            default = _section_defaults(section).get(key)
+            if default is not None and not _same_kind(value, default):
+                return f"{section}.{key} is {json.dumps(value)[:40]}, not {_kind_name(default)}"
+        for where, number in _numbers(settings.get(section), section):
+            if abs(number) > MAX_LOGGED_MAGNITUDE:
+                return f"{where} is {number:g}, beyond ±{MAX_LOGGED_MAGNITUDE:g}"
+    if "seed" in settings and not _whole(settings["seed"], 0, math.inf):
+        return f"seed must be a whole number >= 0, not {json.dumps(settings['seed'])[:40]}"
+    fastslam = settings.get("fastslam") or {}
+    # the settings that size FastSLAM's arrays (particles x blocks of landmarks x descriptor slots x descriptor)
+    for key, low, high in (("n_particles", 1, MAX_PARTICLES), ("descriptor_size", 0, MAX_LOGGED_DESCRIPTOR),
+                           ("block_size", 1, MAX_LOGGED_BLOCK), ("descriptor_slots", 1, MAX_LOGGED_SLOTS)):
+        if key in fastslam and not _whole(fastslam[key], low, high):
+            return f"fastslam.{key} must be a whole number from {low} to {high}"
+    harris = settings.get("harris") or {}
+    if "max_corners" in harris and not _whole(harris["max_corners"], 1, MAX_LOGGED_CORNERS):
+        return f"harris.max_corners must be a whole number from 1 to {MAX_LOGGED_CORNERS}"
+    if "grid" in harris and not (isinstance(harris["grid"], list) and len(harris["grid"]) == 2
+                                 and all(_whole(v, 1, 1000) for v in harris["grid"])):
+        return "harris.grid must be two whole numbers from 1 to 1000"
+    start = settings.get("true_start_pose")
+    if start is not None and not (isinstance(start, list) and len(start) == 3
+                                  and all(isinstance(v, int | float) and not isinstance(v, bool) for v in start)):
+        return "true_start_pose must be three numbers (x, y, yaw) or null"
+    return None
 
 
 def _chunk_records(path: Path, chunk: Chunk) -> list:
