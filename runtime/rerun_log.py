@@ -586,15 +586,23 @@ class MissionLog:
         self._aligned: dict[str, np.ndarray] = {}     # robot -> its frame in the fused map's frame (x, y, θ)
         self._styled: dict[str, str] = {}             # family -> the entity whose style was last logged static
         self._status: dict[tuple[str, str], str] = {}  # (reference, other) -> its last fusion in words
-        if blueprint and self.robots and rec.is_enabled():  # a disabled stream ("none") refuses blueprints
+        # the layout, again whenever a robot is first seen (a fleet's fusion node learns its robots from their maps;
+        # the last blueprint received wins); a disabled stream ("none") refuses blueprints
+        self._send_layout = bool(blueprint) and rec.is_enabled()
+        if self._send_layout and self.robots:
             rec.send_blueprint(mission_blueprint(self.robots))
         # REP-103 in the 3-D view: z up (without it a viewer guesses the up axis from what it is shown)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     # -- helpers --------------------------------------------------------------------------------------
     def colour(self, robot: str) -> tuple[int, int, int]:
+        """The robot's colour; a robot first seen here joins the layout."""
         if robot not in self.robots:
-            self.robots.append(robot)
+            with self._lock:  # sent under the lock: the layouts go out in the order the robots came
+                if robot not in self.robots:
+                    self.robots.append(robot)
+                    if self._send_layout:
+                        self.rec.send_blueprint(mission_blueprint(self.robots))
         return robot_colour(robot)
 
     def _time(self, t: float, frame: int | None = None) -> None:

@@ -4,6 +4,7 @@ the layout places it beside the fused map with the mission's events, the plots s
 world says z is up (REP-103)."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from runtime.rerun_log import (
@@ -15,7 +16,7 @@ from runtime.rerun_log import (
     open_recording,
 )
 
-from .rerun_helpers import ROBOTS, entity_rows, viewer_state
+from .rerun_helpers import ROBOTS, entity_rows, landmark_map, viewer_state
 
 NOT_ALIGNED = {"aligned": False, "tx": None, "ty": None, "theta": None, "supports": 9, "required_supports": 34,
                "false_alarm_probability": 1.0, "common": 0, "self_repeat_supports": 22, "second_best_supports": 7,
@@ -115,3 +116,29 @@ def test_a_robot_on_its_own_gets_no_fused_map_and_no_fusion_tab_but_its_events()
     assert not [v for v in views if "fused" in str(v.origin) or str(v.origin).strip("/") == FUSION_STATUS]
     (overview,) = [t for t in tabs.contents if t.name == "overview"]
     assert [str(v.origin).strip("/") for v in _walk(overview) if v.class_identifier == "TextLog"] == [EVENTS]
+
+
+def _layout_names(rrd) -> set[str]:
+    import rerun.chunk as rrchunk
+
+    reader = rrchunk.RrdReader(rrd)
+    names: set[str] = set()
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "ContainerBlueprint:display_name" in batch.schema.names:
+                names |= {str(v[0]) for v in batch.column("ContainerBlueprint:display_name").to_pylist() if v}
+    return names
+
+
+def test_a_fusion_node_that_learns_its_robots_from_their_maps_sends_their_layout(tmp_path):
+    """``p3at fuse --live --rerun file``: the node's logger starts with no robot (runtime/fleet/fusion_node.py) and
+    learns them from the maps that come; its recording had no layout at all (the viewer's guess)."""
+    rrd = tmp_path / "fusion.rrd"
+    log = MissionLog(open_recording(str(rrd)), [])
+    rng = np.random.default_rng(2)
+    for robot in ROBOTS:
+        log.log_map(robot, 1.0, landmark_map(robot, 6, rng))
+    log.log_alignment(1.0, "robot1", "robot2", ALIGNED)
+    log.close()
+    assert {"overview", "robot1", "robot2", "fusion", "3-D"} <= _layout_names(rrd)
