@@ -18,6 +18,7 @@ from runtime.commands.options import (
     OutputPathError,
     add_deprecated_alias,
     check_output_folder,
+    float_where,
     non_negative_int,
     positive_float,
 )
@@ -63,6 +64,15 @@ def _add_device_options(parser: argparse.ArgumentParser) -> None:
                         help="--mock: sensor noise seed, a whole number >= 0 (default 0)")
 
 
+MAX_GRAB_TIMEOUT = 86400.0   # s: a day; 1e308 overflowed the USB read's milliseconds (exit 70)
+
+
+def grab_timeout(text: str) -> float:
+    """--timeout: seconds > 0, at most MAX_GRAB_TIMEOUT."""
+    return float_where(text, f"a number of seconds > 0 and at most {MAX_GRAB_TIMEOUT:g}",
+                       lambda value: 0 < value <= MAX_GRAB_TIMEOUT)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     camera = subparsers.add_parser("camera", help="the STH-MDCS2 stereo head: identification, grabbing",
                                    description="Identify the stereo head or grab a left/right pair.")
@@ -83,7 +93,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     grab.add_argument("--mode", default="640x480", help="WIDTHxHEIGHT (default %(default)s)")
     grab.add_argument("--camera-rate", type=positive_float, default=15.0, metavar="HZ",
                       help="frame rate (default %(default)s Hz)")
-    grab.add_argument("--timeout", type=positive_float, default=2.0, metavar="S", help="seconds to wait for a frame")
+    grab.add_argument("--timeout", type=grab_timeout, default=2.0, metavar="S",
+                      help=f"seconds to wait for a frame (at most {MAX_GRAB_TIMEOUT:g})")
     add_deprecated_alias(grab, "--rate", "--camera-rate")
     grab.set_defaults(handler=run_grab)
 

@@ -276,9 +276,9 @@ def _priors(args: argparse.Namespace, maps: list[LandmarkMap]) -> dict:
     starts = {}
     for key, start in _given_starts(args).items():
         index = int(key) if key.isdigit() else (names.index(key) if key in names else None)
-        if index is None:
-            raise IncompatibleMapsError(f"a start names map {key!r}, which is neither an index nor a robot of the "
-                                        f"maps ({', '.join(names)})")
+        if index is None or index >= len(maps):   # an index past the last map ended in IndexError (exit 70)
+            raise IncompatibleMapsError(f"a start names map {key!r}, which is neither an index (0 to "
+                                        f"{len(maps) - 1}) nor a robot of the maps ({', '.join(names)})")
         starts[index] = start
     if len(starts) == 1:
         (only,) = starts

@@ -307,7 +307,8 @@ def _serve(args: argparse.Namespace) -> int:
         print("connect with: p3at robot info " + server.url + "   (Ctrl-C to stop)", flush=True)
         done = threading.Event()
         try:
-            done.wait(args.duration)  # None: until Ctrl-C
+            # None: until Ctrl-C; so is a duration past what a wait can take (1e308 s: OverflowError, exit 70)
+            done.wait(args.duration if args.duration is not None and args.duration < threading.TIMEOUT_MAX else None)
         except KeyboardInterrupt:
             pass
         if server.error is not None:

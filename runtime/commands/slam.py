@@ -344,6 +344,9 @@ def _window_problem(window: float, logs) -> str | None:
             return (f"--window {window:g}: shorter than {MIN_WINDOW_INTERVALS} odometry intervals of {log.name} "
                     f"({interval:.3g} s, the median); give at least {MIN_WINDOW_INTERVALS * interval:.3g} s (default "
                     "5 s)")
+        span = float(stamps[-1] - stamps[0]) if len(stamps) > 1 else 0.0
+        if window > span:   # no window fits; 1e308 overflowed the window's count of intervals (exit 70)
+            return f"--window {window:g}: longer than the odometry of {log.name} ({span:.3g} s); give a shorter one"
     return None
 
 
