@@ -119,6 +119,8 @@ def read_landmark_truth(folder: str | Path) -> tuple[np.ndarray, np.ndarray]:
     path = find_table(Path(folder), "Landmark_Groundtruth")
     rows, lines = read_table(path, ("subject", "x", "y", "sd_x", "sd_y"), integer_columns=("subject",),
                              max_rows=100_000)
+    if not len(rows):   # (a FIFO reads as empty) no landmark to score against: every sighting was quietly unknown
+        raise DatasetError(f"{path}: no entries")
     subjects = rows[:, 0].astype(np.int64)
     if len(np.unique(subjects)) != len(subjects):
         raise DatasetError(f"{path}: a landmark subject appears twice")

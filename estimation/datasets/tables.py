@@ -21,6 +21,9 @@ from .errors import DatasetError
 
 MAX_LINE = 4096           # characters: far above any numeric row of these formats
 MAX_ROWS = 5_000_000      # rows per table: 5 M × 5 columns × 8 B = 200 MB at most
+# integer fields (ids, barcodes) up to 2^31 - 1: 1e20 passed the integer check and its cast to int64 gave a
+# RuntimeWarning on stderr and a wrong id (session 25)
+MAX_INTEGER = 2**31 - 1
 _CHUNK = 65536            # rows converted at once (one numpy call; per-line checks only when it fails)
 
 
@@ -127,9 +130,12 @@ def _convert(path: Path, tokens: list[list[str]], numbers: list[int], columns: S
         _explain(path, tokens, numbers, columns)
     for name in integer_columns:
         column = values[:, list(columns).index(name)]
-        bad = np.flatnonzero(column != np.round(column))
+        bad = np.flatnonzero((column != np.round(column)) | (np.abs(column) > MAX_INTEGER))
         if len(bad):
             i, token = int(bad[0]), tokens[int(bad[0])][list(columns).index(name)]
+            if abs(column[i]) > MAX_INTEGER:
+                raise DatasetError(f"{path}:{numbers[i]}: field {name} is out of range ({token[:40]}; at most "
+                                   f"{MAX_INTEGER} in magnitude)")
             raise DatasetError(f"{path}:{numbers[i]}: field {name} is not an integer: {token[:40]!r}")
     return values
 

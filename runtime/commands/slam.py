@@ -255,6 +255,8 @@ def _dataset(args: argparse.Namespace) -> int:
         else:
             try:
                 noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+                if (problem := _no_sensor_fit(noise, [log])) is not None:
+                    raise ValueError(problem)
             except ValueError as e:
                 raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
             noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
@@ -330,6 +332,17 @@ def _map_warnings(metrics: dict) -> list[str]:
     return warnings
 
 
+def _no_sensor_fit(model, logs) -> str | None:
+    """Why a fitted noise model has no sensor part (None when it has one): too few sightings of landmarks whose
+    positions the data set knows. `slam noise` wrote such a model without a word (exit 0) and `slam dataset --noise`
+    then refused it; `slam dataset` said its own fitted model 'has no [range_bearing] section'."""
+    if model.range_bearing is not None:
+        return None
+    known = sum(int(np.isin(log.landmark_ids, log.truth_ids).sum()) for log in logs)
+    return (f"too few sightings of landmarks with known positions to fit the sensor noise ({known} in the log): the "
+            "model would lack its [range_bearing] part, which slam dataset needs")
+
+
 MIN_WINDOW_INTERVALS = 3   # odometry intervals a residual window must span at the least
 
 
@@ -369,6 +382,8 @@ def _noise(args: argparse.Namespace) -> int:
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
                                   heading_drift=args.heading_drift,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
+        if (problem := _no_sensor_fit(estimate.model, logs)) is not None:
+            raise ValueError(problem)
         # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too
         consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model)
         model = replace(estimate.model, fit={**estimate.model.fit, **fit_keys(consistency)})
