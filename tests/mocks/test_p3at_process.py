@@ -17,6 +17,10 @@ from mocks.world import World
 # Generous wall-clock bounds on a loaded 2-core machine: each only limits how long a broken run hangs; the
 # robot needs ~1 s of wall time to cover the distances below at 0.3 m/s.
 STATE_TIMEOUT_S = 20.0
+# Not about the link: the driver's default (4 s without a packet) counted a robot process starved for that long as
+# lost (seen beside the other helpers' runs: "link lost (no packet for 4.3 s)", then a new session with the motors
+# off, and the drive never reached its distance); reproduced by stopping the robot's process for 5 s.
+LINK_TIMEOUT_S = 600.0
 
 
 @pytest.fixture
@@ -35,7 +39,7 @@ def test_a_robot_in_its_own_process_is_driven_by_the_driver_and_its_true_pose_is
         assert robots.pid != os.getpid() and server.url.startswith("socket://127.0.0.1:")
         assert sorted(world.robot_names()) == ["robot1", "robot2"]
         np.testing.assert_allclose(world.pose("robot1"), start)  # published before the child says it is ready
-        with P3AT(server.url) as driver:
+        with P3AT(server.url, link_timeout=LINK_TIMEOUT_S) as driver:
             driver.connect()
             driver.motors_on()
             driver.set_velocity(0.3, 0.0)
@@ -63,7 +67,8 @@ def test_the_virtual_head_renders_from_the_pose_the_robots_process_shares(world:
     from runtime.adapters import VidereCamera
 
     start = np.asarray(world.start_poses["robot1"], float)
-    with serve_tcp_process(world, [RobotSpec("robot1")]) as robots, P3AT(robots.servers["robot1"].url) as driver:
+    with serve_tcp_process(world, [RobotSpec("robot1")]) as robots, \
+            P3AT(robots.servers["robot1"].url, link_timeout=LINK_TIMEOUT_S) as driver:
         virtual = VirtualStereoHead(world, "robot1", rng=np.random.default_rng(0))
         camera = VidereCamera(StereoHead.open(backend=virtual), width=320, height=240, rate=7.5)
         try:
