@@ -423,16 +423,21 @@ class P3AT:
         as gaps of 50 and 150 ms). At 9600 baud this wakes a few hundred times a second, as ARIA's reader does.
         """
         port = self._port
-        data = port.read(max(1, port.in_waiting))
-        if data and port.in_waiting:
-            # more is waiting: take it all now, without waiting (a socket:// port reports 0 or 1 waiting bytes,
-            # so the line above reads one byte; a reader that fell behind would catch up a byte per call, and
-            # stamp a backlogged SIP seconds after it was sent)
-            timeout, port.timeout = port.timeout, 0
-            try:
-                data += port.read(1 << 16)
-            finally:
-                port.timeout = timeout
+        try:
+            data = port.read(max(1, port.in_waiting))
+            if data and port.in_waiting:
+                # more is waiting: take it all now, without waiting (a socket:// port reports 0 or 1 waiting bytes,
+                # so the line above reads one byte; a reader that fell behind would catch up a byte per call, and
+                # stamp a backlogged SIP seconds after it was sent)
+                timeout, port.timeout = port.timeout, 0
+                try:
+                    data += port.read(1 << 16)
+                finally:
+                    port.timeout = timeout
+        except (serial.SerialException, OSError) as exc:
+            # the peer closed or reset the link (a bridge that drops the connection during the handshake): a lost
+            # link, as the reader thread reports one, not pyserial's exception (`robot info`: 'internal error')
+            raise NotConnectedError(f"{self.url}: link dropped ({exc})") from exc
         if data:
             self._pending.extend(self.parser.feed(data))
 
