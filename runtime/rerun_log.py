@@ -180,8 +180,8 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     into ONE recording: stream them all to one viewer or ``rerun --serve``/``--save`` URL, or save one ``.rrd`` per
     process and merge them (``rerun rrd merge a.rrd b.rrd -o all.rrd``; see docs/recording.md). None: a new
     random id. ``mission_id`` is the former name of ``recording_id`` (kept for callers that still use it).
-    ``blueprint``: the default layout, sent with the stream; a fleet sends it from ONE process only (the fusion
-    node), because the last blueprint received wins.
+    ``blueprint``: the layout, sent with the stream as the active one (and the default); a fleet sends it from ONE
+    process only (the fusion node), because the last blueprint received wins.
     ``footer``: end a saved file with Rerun's footer, an index of every chunk for random access. Off by default:
     Rerun keeps that index in memory until the file is closed, one row per chunk and one column per (timeline,
     component) the recording uses (~6 kB a chunk here, ~+30 MB per 100 s of mission: the process grew without
@@ -197,17 +197,22 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
                              default_enabled=(sink != "none"), batcher_config=batching)
     if sink == "memory":
         rec.memory_recording()
-    elif sink == "spawn":
-        rec.connect_grpc(spawn_viewer(), default_blueprint=blueprint)
+        return rec
+    if sink == "spawn":
+        rec.connect_grpc(spawn_viewer())
     elif sink.startswith(RERUN_URL_PREFIXES):
         try:
-            rec.connect_grpc(sink, default_blueprint=blueprint)
+            rec.connect_grpc(sink)
         except RuntimeError as e:   # Rerun's 'invalid endpoint ...': a bad URL is the user's, said in one line
             raise ViewerError(f"--rerun {sink}: {e}") from None
     elif sink != "none":
         Path(sink).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(sink, default_blueprint=blueprint, write_footer=footer)
+        rec.save(sink, write_footer=footer)
         _SAVED.add(rec)
+    if blueprint is not None and sink != "none":
+        # active, not only the default: a viewer keeps the layout it last showed for this application id (any earlier
+        # p3at recording, a data set run's included), and a default would wait behind it for "reset blueprint"
+        rec.send_blueprint(blueprint, make_active=True, make_default=True)
     return rec
 
 
