@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from runtime.commands.options import RERUN_KEYWORDS, check_output_folder, rerun_sink_problem
+from runtime.commands.options import RERUN_KEYWORDS, check_output_folder, rerun_sink_problem, time_scale_problem
 from runtime.mission_cli import add_mission_arguments, run_mission_command
 
 
@@ -53,6 +53,16 @@ def mission_inputs_problem(args) -> str | None:
     sink = rerun_sink_problem(args.rerun, RERUN_KEYWORDS)
     if sink is not None:
         return sink
+    if args.realtime and (problem := time_scale_problem(args.time_scale)) is not None:
+        return problem
+    if virtual and args.motion == "route":
+        # the virtual P3-AT's top speed: faster, every command was clamped with a warning on stderr (--speed 100:
+        # a hundred lines in 3 s)
+        from drivers.arcos.params import builtin_params
+
+        top = builtin_params("p3at-sh").max_velocity_m_s
+        if args.speed > top:
+            return f"--speed {args.speed:g}: faster than the virtual P3-AT's top speed, {top:g} m/s"
     try:
         check_output_folder(args.out)
         world = World.load(args.world) if args.world is not None or virtual else None
@@ -67,6 +77,10 @@ def mission_inputs_problem(args) -> str | None:
         if held:
             return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
                     "(or move it)")
+    name = getattr(args, "name", None)   # `p3at run --name`: on the virtual robot, which of the world's robots
+    if world is not None and virtual and name is not None and name not in world.start_poses:
+        return (f"--name {name}: the world '{world.name}' has no robot {name!r} (it has "
+                f"{', '.join(sorted(world.start_poses))})")
     if world is not None and virtual and len(world.start_poses) < args.robots:
         return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
                 f"({', '.join(sorted(world.start_poses))})")

@@ -79,6 +79,20 @@ positive_int = whole_number_at_least(1, name="positive_int")
 # seeds (numpy's generators refuse negative ones) and counts where 0 is documented as "none" or "all"
 non_negative_int = whole_number_at_least(0, name="non_negative_int")
 
+# --time-scale of the virtual robots on the wall clock (robot serve, run/demo --realtime): beyond this the robot's
+# physics, run to the wall clock's simulated time, falls behind for good (1e9 s per wall second: `robot serve
+# --duration 1` never ended; run --time-scale 1e308: 'no ARCOS handshake after 10 tries', exit 1)
+MAX_TIME_SCALE = 1000.0
+
+
+def time_scale_problem(time_scale: float) -> str | None:
+    """Why a --time-scale cannot run (None when it can)."""
+    if time_scale > MAX_TIME_SCALE:
+        return (f"--time-scale {time_scale:g}: at most {MAX_TIME_SCALE:g} simulated seconds per wall second (the "
+                "virtual robot's physics could not keep up)")
+    return None
+
+
 # FastSLAM particles: memory grows with them (~15 kB each with a handful of landmarks, more with a building's worth:
 # 100,000 took 1.6 GB and 124 s for 20 s of a small log; --particles 100000000 was killed by the kernel at 22 GB)
 MAX_PARTICLES = 10_000

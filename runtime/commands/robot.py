@@ -21,12 +21,14 @@ from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
 from runtime.commands.options import (
+    MAX_TIME_SCALE,
     add_deprecated_alias,
     finite_float,
     non_negative_float,
     non_negative_int,
     positive_float,
     positive_int,
+    time_scale_problem,
     whole_number_where,
 )
 
@@ -90,7 +92,7 @@ def register(subparsers: Any) -> None:
     add_deprecated_alias(serve, "--pose", "--start-pose")
     serve.add_argument("--subtype", default="p3at-sh", help="p3at-sh (ARCOS, default) or p3at (old P2OS units)")
     serve.add_argument("--time-scale", type=positive_float, default=1.0,
-                       help="simulated seconds per wall second (default 1)")
+                       help=f"simulated seconds per wall second, at most {MAX_TIME_SCALE:g} (default 1)")
     serve.add_argument("--seed", type=non_negative_int, default=0, help="noise seed, a whole number >= 0 (default 0)")
     serve.add_argument("--duration", type=non_negative_float, metavar="S",
                        help="exit after S >= 0 seconds instead of at Ctrl-C")
@@ -285,6 +287,8 @@ def _serve(args: argparse.Namespace) -> int:
     from mocks.p3at import serve_pty, serve_tcp
     from mocks.world import World, WorldFileError
 
+    if (problem := time_scale_problem(args.time_scale)) is not None:
+        return _fail("serve", problem, EXIT_BAD_INPUT)
     try:
         pose = np.array(_parse_pose(args.start_pose)) if args.start_pose else None
         world = World.load(args.world)
