@@ -13,6 +13,13 @@ that held one was undone by the cost rise); ATE 4.03 / 0.92 / 2.21 / 2.96 / 1.42
 merged maps overconfident (start-frame NEES within 28 / 52 / 70 / 73 / 94 %). ``--ceiling`` (the names merged by
 their barcodes): ATE 0.075 / 0.029 / 0.095 / 0.044 / 0.028 m, NEES within 100 %: the names would do.
 
+Session 25 (A; docs: "Session 25: why partly merged maps are overconfident ... (A)"): the overconfidence had two
+causes on robot 2, each measured: increments across sighting gaps took the random walk's variance of their chord
+(now ``--path-step 0.25``: along the path), and a chained name's run of another post's sightings pinned its stretch
+once the name was merged (``--split-bends`` finds it: cost drop 33.2 against 0.0-3.6). With both, robot 2's round 1
+keeps NEES within 90 % (69 % before) and round 2 reaches ATE 0.048 m, 2.7 names per post, with one wrong merge in a
+batch of 75. ``--bisect`` keeps more right merges but let a wrong one through in a piece of 7 (rise 6.3 over 29.1).
+
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
 the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pairwise gate. A pass past the posts sees
@@ -305,13 +312,14 @@ def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]
 
 
 def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_s: float | None = None,
-                   window_s: float = 20.0, bend_probability: float = 0.999, probability: float = 0.99
-                   ) -> tuple[MergeRound, list[dict]]:
+                   window_s: float = 20.0, bend_probability: float = 0.999, probability: float = 0.99,
+                   on_try=None) -> tuple[MergeRound, list[dict]]:
     """Names split where the odometry bends (module docstring, step 1b): each increment whose normalised odometry
     χ²₃ exceeds ``bend_probability``; each name with kept sightings within ``window_s`` s on both sides of it is
     split there (its sightings from the bend on get a new name) and re-smoothed alone; a split is kept when the
     truncated cost falls by more than χ²₂ at ``probability``. The kept splits are applied together and re-smoothed.
-    Returns the new state (``current`` if none is kept) and each split tried (name, time, cost drop, kept)."""
+    Returns the new state (``current`` if none is kept) and each split tried (name, time, cost drop, kept), each
+    also given to ``on_try(split)`` as it is measured (a benchmark's progress)."""
     problem, solution = current.named.problem, current.solution
     odometry = normalised_residuals(problem, solution)[0]
     times = current.named.frame_times
@@ -337,6 +345,8 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
             drop = base - truncated_cost(named.problem, trial)
             keep = drop > scipy.stats.chi2.ppf(probability, 2)
             tried.append({"name": name, "t": at, "cost_drop": float(drop), "kept": bool(keep)})
+            if on_try is not None:
+                on_try(tried[-1])
             if keep:
                 kept.append((name, at))
     if not kept:
@@ -438,7 +448,11 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     if args.progress:
         _print_scores(f"{log.name} chain", first, file=sys.stderr)
     if args.split_bends:
-        current, tried = split_at_bends(log, current, noise, config, drift, path_step_s=path_step_s)
+        def on_try(t):
+            if args.progress:
+                print(f"  split name {t['name']} at {t['t']:.1f} s: cost drop {t['cost_drop']:.1f}", file=sys.stderr,
+                      flush=True)
+        current, tried = split_at_bends(log, current, noise, config, drift, path_step_s=path_step_s, on_try=on_try)
         code = np.asarray(barcodes)
         for t in tried:       # scored: the barcodes of the name's sightings before and after the split
             mine = names == t["name"]
