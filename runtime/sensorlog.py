@@ -103,6 +103,7 @@ class _Segment:
         self._channels: dict[str, int] = {}
         self.writer.add_metadata(METADATA_NAME, {"settings": json.dumps(dict(settings)),
                                                  "version": str(FORMAT_VERSION)})
+        self.writer.add_metadata(*ros.ROSBAG2_METADATA)   # rosbag2 then reads the channels' QoS as integers (v8)
         self.t0: float | None = None
         self.static_written: bool | None = None   # None: no mounts written yet; False: camera only; True: all
 
@@ -114,7 +115,7 @@ class _Segment:
                 schema = self.writer.register_schema(ros.schema_name(type_name), "ros2msg",
                                                      ros.message_definition(type_name).encode())
                 self._schemas[type_name] = schema
-            channel = self.writer.register_channel(topic, "cdr", schema)
+            channel = self.writer.register_channel(topic, "cdr", schema, metadata=ros.channel_metadata(topic))
             self._channels[topic] = channel
         self.writer.add_message(channel, log_time=max(0, ns), publish_time=max(0, ns), data=data, sequence=0)
 

@@ -33,3 +33,24 @@ def test_the_profiles_are_rosbag2_version_8_yaml_integers_that_humble_reads():
     assert all(isinstance(profile[k], int) for k in ("history", "reliability", "durability", "liveliness"))
     name, record = ros.ROSBAG2_METADATA
     assert name == "rosbag2" and record == {"serialized_metadata": ""}   # read as version 8 by later rosbag2
+
+
+def test_a_written_log_declares_each_topics_qos_to_rosbags_reader(tmp_path):
+    """End to end: a log ``p3at run --log-sensors`` writes carries the profiles in its channels, and the ``rosbag2``
+    metadata record that makes rosbag2 read them as version 8 (integers)."""
+    import numpy as np
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    from runtime.sensorlog import SensorLog
+    from tests.runtime.test_sensorlog_mcap import _records, _write
+
+    _write(tmp_path / "log", _records(20, np.random.default_rng(5)), segment_seconds=100.0)
+    (segment,) = SensorLog(tmp_path / "log").files
+    with AnyReader([segment]) as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    assert all(len(profiles) == 1 for profiles in qos.values()), qos
+    assert qos["/tf_static"][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert {p[0].durability for t, p in qos.items() if t != "/tf_static"} == {QosDurability.VOLATILE}
+    with open(segment, "rb") as f:
+        assert "rosbag2" in {m.name for m in make_reader(f).get_summary().metadata_indexes}
