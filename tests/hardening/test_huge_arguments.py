@@ -55,3 +55,28 @@ def test_a_start_pose_for_a_map_index_past_the_last_is_one_line(key, tmp_path) -
     status, _, err = run_cli("fuse", *paths, "--out", str(tmp_path / "f.npz"), "--start-pose", f"{key}=0,0,0",
                              "--start-pose", "0=0,0,0", "--start-sigma", "1,0.3")
     assert status == 2 and err.count("\n") == 1 and "neither an index (0 to 1)" in err, err
+
+
+def _carmen(path: Path, scans: int) -> Path:
+    import math
+
+    import numpy as np
+
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 181)
+    lines = []
+    for i in range(scans):
+        ranges = np.minimum(4.0 / np.maximum(np.abs(np.cos(angles)), 1e-3), 8.0) - 0.02 * i
+        lines.append("FLASER 181 " + " ".join(f"{r:.3f}" for r in ranges) + f" {0.02 * i:.3f} 0 0 0 0 0 {i} host {i}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(("scans", "step"), [(5, "5"), (5, "1000000000"), (1, "1")])
+def test_a_scanmatch_step_the_log_cannot_give_is_a_usage_error(tmp_path, scans, step) -> None:
+    """`scanmatch --step` as long as the log (or a log of one scan) was 'too few for step', exit 1: the user's
+    arguments against the user's file, exit 2."""
+    log = _carmen(tmp_path / "scans.log", scans)
+    status, _, err = run_cli("scanmatch", str(log), "--step", step)
+    assert status == 2 and err.count("\n") == 1 and "too few for one link" in err, (status, err)
+    status, _, err = run_cli("scanmatch", str(_carmen(tmp_path / "more.log", 6)), "--step", "5")
+    assert status == 0, err
