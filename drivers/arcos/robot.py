@@ -94,6 +94,10 @@ class _Subscribers:
                 log.exception("%s subscriber %r raised", self._what, callback)
 
 
+class _ReadFailedError(NotConnectedError):
+    """A read the port refused (the peer closed or reset the link): its cause is pyserial's own exception."""
+
+
 def _close_quietly(port: Any) -> None:
     try:
         port.close()
@@ -437,7 +441,7 @@ class P3AT:
         except (serial.SerialException, OSError) as exc:
             # the peer closed or reset the link (a bridge that drops the connection during the handshake): a lost
             # link, as the reader thread reports one, not pyserial's exception (`robot info`: 'internal error')
-            raise NotConnectedError(f"{self.url}: link dropped ({exc})") from exc
+            raise _ReadFailedError(f"{self.url}: link dropped ({exc})") from exc
         if data:
             self._pending.extend(self.parser.feed(data))
 
@@ -620,8 +624,8 @@ class P3AT:
                 elif now - self._last_tx >= self.pulse_interval:
                     self._write(encode_command(Command.PULSE))
             except (serial.SerialException, OSError, NotConnectedError) as exc:
-                if not self._stop.is_set():
-                    self._lose_link(f"I/O error: {exc}")
+                if not self._stop.is_set():   # a dropped read in pyserial's words, not its URL again
+                    self._lose_link(f"I/O error: {exc.__cause__ if isinstance(exc, _ReadFailedError) else exc}")
 
     def _lose_link(self, reason: str) -> None:
         log.warning("%s: link lost (%s)", self.url, reason)
