@@ -55,6 +55,7 @@ from estimation.fileio import InputTooLargeError, read_bounded
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import MapMessage, copy_map
 from runtime.fleet import mapwire
+from runtime.textfile import not_a_file
 
 log = logging.getLogger(__name__)
 
@@ -174,8 +175,8 @@ def make_config(config: str | None, role: str) -> zenoh.Config:
             _check_config_text(config, " ".join(config.split())[:80])
             cfg = zenoh.Config.from_json5(config)
         else:
-            if not Path(config).is_file():
-                raise ExchangeError(f"{config}: no such Zenoh configuration file")
+            if not Path(config).is_file():   # there but a folder or a FIFO: say what it is, not "no such"
+                raise ExchangeError(f"{config}: {not_a_file(config, 'Zenoh configuration file')}")
             _check_config_text(_read_config(config), config)
             cfg = zenoh.Config.from_file(config)
     except zenoh.ZError as e:
