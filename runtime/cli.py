@@ -123,7 +123,34 @@ def _describe(error: Exception) -> str:
     return text.splitlines()[0]
 
 
+class _OneLineWrites:
+    """``sys.stderr`` while a command runs: a newline inside one write (a path that holds one, in an error naming
+    it) is written as ``\\n``, so that every message stays one line; the newline ending a write is kept. ``print``
+    writes its text and its end separately, a logging or warnings record its whole text at once."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        body, end = (text[:-1], "\n") if text.endswith("\n") else (text, "")
+        if "\n" in body:
+            body = body.replace("\n", "\\n")
+        return self._stream.write(body + end)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
+    stderr, sys.stderr = sys.stderr, _OneLineWrites(sys.stderr)
+    try:
+        return _main(argv)
+    finally:
+        if isinstance(sys.stderr, _OneLineWrites):
+            sys.stderr = stderr
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     command = _command_named(argv)
     parser = build_parser([] if command is None else [command])
