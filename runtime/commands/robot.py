@@ -306,11 +306,11 @@ def _serve(args: argparse.Namespace) -> int:
         return _fail("serve", f"cannot listen: {e}", EXIT_DEVICE)
     with server:
         x, y, th = world.pose(args.name)
-        print(f"virtual P3-AT {args.name!r} ({args.subtype}) at x={x:.2f} y={y:.2f} theta={th:.2f} in "
-              f"{world.name!r}; listening on {server.url}", flush=True)
-        print("connect with: p3at robot info " + server.url + "   (Ctrl-C to stop)", flush=True)
         done = threading.Event()
         try:
+            print(f"virtual P3-AT {args.name!r} ({args.subtype}) at x={x:.2f} y={y:.2f} theta={th:.2f} in "
+                  f"{world.name!r}; listening on {server.url}", flush=True)
+            print("connect with: p3at robot info " + server.url + "   (Ctrl-C to stop)", flush=True)
             # None: until Ctrl-C; so is a duration past what a wait can take (1e308 s: OverflowError, exit 70)
             done.wait(args.duration if args.duration is not None and args.duration < threading.TIMEOUT_MAX else None)
         except KeyboardInterrupt:

@@ -22,6 +22,7 @@ def test_serve_for_longer_than_a_wait_can_take_runs_until_ctrl_c() -> None:
                              cwd=Path(__file__).resolve().parents[2], env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
     try:
         assert "listening on" in serve.stdout.readline()
+        assert "Ctrl-C to stop" in serve.stdout.readline()   # both lines are printed inside serve's Ctrl-C guard
         assert serve.poll() is None          # still serving (it ended at once, exit 70)
         serve.send_signal(signal.SIGINT)
         _, err = serve.communicate(timeout=60)
