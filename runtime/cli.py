@@ -15,6 +15,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 from collections.abc import Iterable
 
 # name -> (module defining ``register(subparsers)`` whose handlers return an exit status, one-line summary)
@@ -142,10 +143,21 @@ class _OneLineWrites:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = _command_named(argv)
+    prefix = "p3at" if command is None else f"p3at {command}"
+
+    def one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+        # Python's own format is two lines (file:line: Category: message, then the source line): a clamped velocity
+        # of `robot drive`, a numpy RuntimeWarning; said as the command's other messages are
+        print(f"{prefix}: warning: {message}", file=sys.stderr if file is None else file)
+
     stderr, sys.stderr = sys.stderr, _OneLineWrites(sys.stderr)
+    showwarning, warnings.showwarning = warnings.showwarning, one_line_warning
     try:
         return _main(argv)
     finally:
+        warnings.showwarning = showwarning
         if isinstance(sys.stderr, _OneLineWrites):
             sys.stderr = stderr
 

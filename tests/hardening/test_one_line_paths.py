@@ -48,3 +48,24 @@ def test_each_write_is_one_line_and_keeps_its_text(parts) -> None:
     lines = sink.getvalue().split("\n")[:-1]
     assert len(lines) == len(parts)
     assert [line.replace("\\n", "\n") for line in lines] == [p.replace("\\n", "\n") for p in parts]
+
+
+def test_a_warning_is_one_line_in_the_commands_words(monkeypatch, capsys) -> None:
+    """Python prints a warning as two lines (file:line: Category: message, then the source line): `robot drive --vel
+    5` printed two per clamped command. While a command runs, a warning is `p3at COMMAND: warning: message`."""
+    import warnings
+
+    def handler(args) -> int:
+        warnings.warn("velocity 5 m/s is outside [-1.2, 1.2] m/s; clamped to 1.2", UserWarning, stacklevel=1)
+        warnings.warn("invalid value encountered in cast", RuntimeWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr("runtime.commands.calib.run_show", handler)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        before = warnings.showwarning
+        assert main(["calib", "show", "x.ini"]) == 0
+        assert warnings.showwarning is before     # given back when the command ends
+    assert capsys.readouterr().err.splitlines() == [
+        "p3at calib: warning: velocity 5 m/s is outside [-1.2, 1.2] m/s; clamped to 1.2",
+        "p3at calib: warning: invalid value encountered in cast"]
