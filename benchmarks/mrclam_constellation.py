@@ -18,7 +18,10 @@ causes on robot 2, each measured: increments across sighting gaps took the rando
 (now ``--path-step 0.25``: along the path), and a chained name's run of another post's sightings pinned its stretch
 once the name was merged (``--split-bends`` finds it: cost drop 33.2 against 0.0-3.6). With both, robot 2's round 1
 keeps NEES within 90 % (69 % before) and round 2 reaches ATE 0.048 m, 2.7 names per post, with one wrong merge in a
-batch of 75. ``--bisect`` keeps more right merges but let a wrong one through in a piece of 7 (rise 6.3 over 29.1).
+batch of 75. ``--bisect`` keeps more right merges but let a wrong one through twice (robot 2: a piece of 7, rise 6.3
+over 29.1; robot 5 seed 2: a half of 71, 183.1 over 184.1). Seed 0 with path variances and bisection, 0 wrong merges:
+robots 1 / 3 / 4 / 5 at 1.5 / 1.9 / 2.5 / 2.0 names per post, ATE 0.086 / 0.101 / 0.122 / 0.030 m (known-ID 0.286 /
+0.095 / 0.044 / 0.030 m). Duplicates < 5 % not reached: the passes left are incompatible with the map.
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
