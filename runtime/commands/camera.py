@@ -99,6 +99,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     grab.set_defaults(handler=run_grab)
 
 
+class BadArgumentError(ValueError):
+    """--mock's building (--world) or robot (--name) cannot serve: exit 2, not a device's exit 1."""
+
+
 @contextmanager
 def _open_head(args: argparse.Namespace):
     backend = None
@@ -106,9 +110,12 @@ def _open_head(args: argparse.Namespace):
         from mocks.stereo_head import VirtualStereoHead
         from mocks.world import World
 
-        world = World.load(args.world)
+        try:
+            world = World.load(args.world)
+        except (ValueError, OSError) as exc:   # WorldFileError: the user's file, exit 2 (it was exit 1, a device's)
+            raise BadArgumentError(str(exc)) from None
         if args.name not in world.start_poses:
-            raise ValueError(f"--name {args.name!r}: the building has start poses {sorted(world.start_poses)}")
+            raise BadArgumentError(f"--name {args.name!r}: the building has start poses {sorted(world.start_poses)}")
         world.add_robot(args.name, world.start_poses[args.name])
         backend = VirtualStereoHead(world, args.name, rng=np.random.default_rng(args.seed),
                                     byte_order=args.byte_order, colour=args.colour,
@@ -156,6 +163,9 @@ def run_info(args: argparse.Namespace) -> int:
     try:
         with _open_head(args) as head:
             info = _describe(head)
+    except BadArgumentError as exc:
+        print(f"p3at camera info: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, ValueError) as exc:
         print(f"p3at camera info: {exc}{_hint(exc, args)}", file=sys.stderr)
         return 1
@@ -211,6 +221,9 @@ def run_grab(args: argparse.Namespace) -> int:
             path = args.out / f"{name}.png"
             atomic_write_bytes(path, png.tobytes())
             paths.append(path)
+    except BadArgumentError as exc:
+        print(f"p3at camera grab: {exc}", file=sys.stderr)
+        return 2
     except (DriverError, ValueError, OSError) as exc:
         print(f"p3at camera grab: {exc}{_hint(exc, args)}", file=sys.stderr)
         return 1

@@ -40,10 +40,10 @@ def test_camera_errors_are_one_line(tmp_path: Path, capsys):
     assert main(["camera", "grab", "--mock", "--mode", "1280x960", "--camera-rate", "30", "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("p3at camera grab: the head has no mode 1280x960 at 30 Hz") and err.count("\n") == 1
-    assert main(["camera", "info", "--mock", "--world", str(tmp_path / "absent.json")]) == 1
+    assert main(["camera", "info", "--mock", "--world", str(tmp_path / "absent.json")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("p3at camera info:") and "absent.json" in err
-    assert main(["camera", "info", "--mock", "--name", "nobody"]) == 1
+    assert main(["camera", "info", "--mock", "--name", "nobody"]) == 2
     assert "start poses" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 
