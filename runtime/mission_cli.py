@@ -61,7 +61,8 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--method", type=int, choices=(1, 2), default=1,
                         help="common landmarks for merging: 1 RANSAC supports (default), 2 nearest in position")
     parser.add_argument("--rerun", default="file", metavar="SINK",
-                        help="file (OUT/mission.rrd, default), spawn (a live viewer), none, or a rerun+http:// URL")
+                        help="file (OUT/mission.rrd, default), spawn (a live viewer), none, FILE.rrd or a "
+                             "rerun+http:// URL")
     parser.add_argument("--log-sensors", action="store_true", help="log raw SIPs and frames to OUT/<robot>-log/")
     parser.add_argument("--world", type=Path, default=None, help="building file for the virtual robots")
     parser.add_argument("--realtime", action="store_true",

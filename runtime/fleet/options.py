@@ -47,4 +47,5 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=non_negative_float, default=0.0, metavar="S",
                         help="--live: stop after S seconds (default 0: until Ctrl-C or SIGTERM)")
     parser.add_argument("--rerun", default="none", metavar="SINK",
-                        help="--live: file (fusion.rrd beside --out), spawn, none (default) or a rerun+http:// URL")
+                        help="--live: file (fusion.rrd beside --out), spawn, none (default), FILE.rrd or a "
+                             "rerun+http:// URL")
