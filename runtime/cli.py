@@ -152,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         # of `robot drive`, a numpy RuntimeWarning; said as the command's other messages are
         print(f"{prefix}: warning: {message}", file=sys.stderr if file is None else file)
 
+    if os.environ.get("P3AT_DEBUG"):   # a developer's run: Python's own tracebacks and warnings, untouched
+        return _main(argv)
     stderr, sys.stderr = sys.stderr, _OneLineWrites(sys.stderr)
     showwarning, warnings.showwarning = warnings.showwarning, one_line_warning
     try:

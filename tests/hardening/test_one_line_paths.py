@@ -69,3 +69,10 @@ def test_a_warning_is_one_line_in_the_commands_words(monkeypatch, capsys) -> Non
     assert capsys.readouterr().err.splitlines() == [
         "p3at calib: warning: velocity 5 m/s is outside [-1.2, 1.2] m/s; clamped to 1.2",
         "p3at calib: warning: invalid value encountered in cast"]
+
+
+def test_a_developers_run_keeps_pythons_own_output(capsys, monkeypatch) -> None:
+    """P3AT_DEBUG=1 (tracebacks wanted): stderr is not rewritten, so a traceback or a path keeps its newlines."""
+    monkeypatch.setenv("P3AT_DEBUG", "1")
+    main(["calib", "show", "no\nsuch.ini"])
+    assert "no\nsuch.ini" in capsys.readouterr().err
