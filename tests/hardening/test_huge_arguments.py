@@ -16,10 +16,18 @@ from tests.datasets.conftest import run_cli, write_mrclam
 from tests.hardening.test_map_metadata import _pair
 
 
+def _with_default_sigint() -> None:
+    """preexec_fn: the child gets SIGINT as a terminal's Ctrl-C would, whatever this test process inherited (a
+    blocked SIGINT is inherited across exec: the Ctrl-C below then stayed pending and the test waited 60 s)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_serve_for_longer_than_a_wait_can_take_runs_until_ctrl_c() -> None:
     serve = subprocess.Popen([sys.executable, "-m", "runtime.cli", "robot", "serve", "--tcp", "0", "--duration",
                               "1e308"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             cwd=Path(__file__).resolve().parents[2], env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+                             cwd=Path(__file__).resolve().parents[2], env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+                             preexec_fn=_with_default_sigint)
     try:
         assert "listening on" in serve.stdout.readline()
         assert "Ctrl-C to stop" in serve.stdout.readline()   # both lines are printed inside serve's Ctrl-C guard
