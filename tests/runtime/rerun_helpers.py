@@ -157,3 +157,12 @@ def viewer_state(rrd: Path, timeline: str, times) -> dict[str, dict[int, dict]]:
             if seen or not columns:
                 state.setdefault(entity, {})[t] = {**seen, **fixed}
     return state
+
+
+def blueprint_views(node):
+    """Every view of a blueprint (or container), depth first."""
+    if hasattr(node, "class_identifier"):
+        yield node
+        return
+    for child in getattr(node, "contents", None) or []:
+        yield from blueprint_views(child)

@@ -20,7 +20,7 @@ from runtime.rerun_log import (
     robot_colour,
 )
 
-from .rerun_helpers import ROBOTS, TWO_D, entity_columns, entity_rows, landmark_map, log_small_mission
+from .rerun_helpers import ROBOTS, TWO_D, blueprint_views, entity_columns, entity_rows, landmark_map, log_small_mission
 
 
 @pytest.fixture(scope="module")
@@ -30,15 +30,6 @@ def recording(tmp_path_factory):
     logged = log_small_mission(log)
     log.close()
     return rrd, logged, entity_columns(rrd)
-
-
-def _walk(node):
-    """Every view of a blueprint (or container), depth first."""
-    if hasattr(node, "class_identifier"):
-        yield node
-        return
-    for child in getattr(node, "contents", None) or []:
-        yield from _walk(child)
 
 
 def _included(view, entity: str) -> bool:
@@ -64,7 +55,7 @@ def _included(view, entity: str) -> bool:
 
 
 def _views(kind: str):
-    return [v for v in _walk(mission_blueprint(ROBOTS).root_container) if v.class_identifier == kind]
+    return [v for v in blueprint_views(mission_blueprint(ROBOTS).root_container) if v.class_identifier == kind]
 
 
 def _is_2d(columns: set[str]) -> bool:
@@ -79,7 +70,7 @@ def test_the_tabs_are_an_overview_each_robot_the_fusion_and_the_3d_world():
 
 def test_each_view_has_one_place_in_the_layout():
     """A view object placed twice shares one id: the viewer shows it in one place and leaves the other black."""
-    ids = [view.id for view in _walk(mission_blueprint(ROBOTS).root_container)]
+    ids = [view.id for view in blueprint_views(mission_blueprint(ROBOTS).root_container)]
     assert len(ids) == len(set(ids))
 
 

@@ -16,7 +16,7 @@ from runtime.rerun_log import (
     open_recording,
 )
 
-from .rerun_helpers import ROBOTS, entity_rows, landmark_map, viewer_state
+from .rerun_helpers import ROBOTS, blueprint_views, entity_rows, landmark_map, viewer_state
 
 NOT_ALIGNED = {"aligned": False, "tx": None, "ty": None, "theta": None, "supports": 9, "required_supports": 34,
                "false_alarm_probability": 1.0, "common": 0, "self_repeat_supports": 22, "second_best_supports": 7,
@@ -25,14 +25,6 @@ NOT_ALIGNED = {"aligned": False, "tx": None, "ty": None, "theta": None, "support
 ALIGNED = {"aligned": True, "tx": 12.5, "ty": -0.25, "theta": 3.1, "supports": 41, "required_supports": 13,
            "false_alarm_probability": 2.5e-9, "common": 37, "start_sigma_xy": 0.06, "start_sigma_theta": 0.004,
            "error_xy": 0.041, "error_theta": 0.0021}
-
-
-def _walk(node):
-    if hasattr(node, "class_identifier"):
-        yield node
-        return
-    for child in getattr(node, "contents", None) or []:
-        yield from _walk(child)
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +58,7 @@ def test_the_3d_world_says_z_is_up(recording):
 
 def test_the_fused_map_has_the_fusion_status_beside_it_and_the_fusion_tab_the_events():
     tabs = mission_blueprint(ROBOTS).root_container
-    by_name = {tab.name: list(_walk(tab)) for tab in tabs.contents}
+    by_name = {tab.name: list(blueprint_views(tab)) for tab in tabs.contents}
     for tab in ("overview", "fusion"):
         documents = [v for v in by_name[tab] if v.class_identifier == "TextDocument"]
         assert [str(v.origin).strip("/") for v in documents] == [FUSION_STATUS], tab
@@ -78,7 +70,7 @@ def test_the_fused_map_has_the_fusion_status_beside_it_and_the_fusion_tab_the_ev
 def test_every_plot_spans_the_whole_recording(blueprint):
     """The viewer's default time axis follows the cursor with a window of about a minute: a 30-minute data set's
     NEES would show a minute at a time."""
-    plots = [v for v in _walk(blueprint.root_container) if v.class_identifier == "TimeSeries"]
+    plots = [v for v in blueprint_views(blueprint.root_container) if v.class_identifier == "TimeSeries"]
     assert plots
     for view in plots:
         axis = view.properties.get("TimeAxis")
@@ -112,10 +104,10 @@ def test_a_robot_on_its_own_gets_no_fused_map_and_no_fusion_tab_but_its_events()
     """``p3at run`` with one robot fuses nothing: an empty fused map and an empty status would only puzzle."""
     tabs = mission_blueprint(["robot1"]).root_container
     assert [t.name for t in tabs.contents] == ["overview", "robot1", "3-D"]
-    views = list(_walk(tabs))
+    views = list(blueprint_views(tabs))
     assert not [v for v in views if "fused" in str(v.origin) or str(v.origin).strip("/") == FUSION_STATUS]
     (overview,) = [t for t in tabs.contents if t.name == "overview"]
-    assert [str(v.origin).strip("/") for v in _walk(overview) if v.class_identifier == "TextLog"] == [EVENTS]
+    assert [str(v.origin).strip("/") for v in blueprint_views(overview) if v.class_identifier == "TextLog"] == [EVENTS]
 
 
 def _layout_names(rrd) -> set[str]:
