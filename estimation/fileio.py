@@ -23,7 +23,10 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     A path where a FIFO, a device or a socket is raises OSError (EINVAL) and leaves it there: the rename would
     replace it with a plain file (``/dev/null``, for a process allowed to write in /dev)."""
     target = Path(path)
-    _refuse_special(target)
+    kind = special_file_kind(target)
+    if kind is not None:
+        raise OSError(errno.EINVAL, f"not a regular file ({kind}), which the atomic write would replace with a file",
+                      str(target))
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
@@ -39,14 +42,20 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     fsync_folder(target.parent)
 
 
-def _refuse_special(target: Path) -> None:
+def special_file_kind(path: str | os.PathLike) -> str | None:
+    """What ``path`` is when it exists but is neither a regular file nor a folder ("a FIFO", "a device", "a
+    socket"), following links; None otherwise (nothing there, a file, a folder, a path that cannot be looked at)."""
     try:
-        mode = os.stat(target).st_mode
-    except (OSError, ValueError):   # nothing there (yet), or a path the write itself will refuse
-        return
-    if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode) or stat.S_ISBLK(mode) or stat.S_ISSOCK(mode):
-        raise OSError(errno.EINVAL, "not a regular file (a FIFO, device or socket), which the atomic write would "
-                                    "replace with a file", str(target))
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return None
 
 
 def fsync_folder(folder: str | os.PathLike) -> None:

@@ -8,9 +8,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import stat
 import sys
 from pathlib import Path
+
+from estimation.fileio import special_file_kind  # stdlib only: `p3at --help` stays light
 
 
 def float_where(text: str, domain: str, inside) -> float:
@@ -143,22 +144,6 @@ def _writable_ancestor(path: Path) -> str | None:
         return f"{folder} is not a folder"
     if not os.access(folder, os.W_OK | os.X_OK):
         return f"cannot write in {folder} (permission denied)"
-    return None
-
-
-def special_file_kind(path: str | os.PathLike) -> str | None:
-    """What ``path`` is when it exists but is neither a regular file nor a folder ("a FIFO", "a device", "a
-    socket"), following links; None otherwise (nothing there, a file, a folder)."""
-    try:
-        mode = os.stat(path).st_mode
-    except (OSError, ValueError):
-        return None
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
     return None
 
 
