@@ -153,20 +153,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{prefix}: warning: {message}", file=sys.stderr if file is None else file)
 
     if os.environ.get("P3AT_DEBUG"):   # a developer's run: Python's own tracebacks and warnings, untouched
-        return _main(argv)
+        return _main(argv, command)
     stderr, sys.stderr = sys.stderr, _OneLineWrites(sys.stderr)
     showwarning, warnings.showwarning = warnings.showwarning, one_line_warning
     try:
-        return _main(argv)
+        return _main(argv, command)
     finally:
         warnings.showwarning = showwarning
         if isinstance(sys.stderr, _OneLineWrites):
             sys.stderr = stderr
 
 
-def _main(argv: list[str] | None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    command = _command_named(argv)
+def _main(argv: list[str], command: str | None) -> int:
     parser = build_parser([] if command is None else [command])
     try:
         args, extra = parser.parse_known_args(argv)

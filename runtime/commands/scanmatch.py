@@ -61,10 +61,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"p3at scanmatch: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if len(readings) <= args.step:   # the arguments ask for more than the log holds: the user's, exit 2 (was 1)
-        print(f"p3at scanmatch: --step {args.step}: the log{' (--limit ' + str(args.limit) + ')' if args.limit else ''}"
-              f" has {len(readings)} scans, too few for one link (a step of at most {len(readings) - 1})"
-              if len(readings) > 1 else f"p3at scanmatch: {args.log}: {len(readings)} scan, too few for one link",
-              file=sys.stderr)
+        if len(readings) > 1:
+            limit = f" (--limit {args.limit})" if args.limit else ""
+            why = (f"--step {args.step}: the log{limit} has {len(readings)} scans, too few for one link (a step of "
+                   f"at most {len(readings) - 1})")
+        else:
+            why = f"{args.log}: {len(readings)} scan, too few for one link"
+        print(f"p3at scanmatch: {why}", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         scans = [reading.scan() for reading in readings]
