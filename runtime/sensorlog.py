@@ -718,8 +718,9 @@ def _settings_problem(settings: dict) -> str | None:
     for section in _SECTIONS:
         if settings.get(section) is not None and not isinstance(settings[section], dict):
             return f"{section} is not an object"
+        defaults = _section_defaults(section)
         for key, value in (settings.get(section) or {}).items():
-            default = _section_defaults(section).get(key)
+            default = defaults.get(key)
             if default is not None and not _same_kind(value, default):
                 return f"{section}.{key} is {json.dumps(value)[:40]}, not {_kind_name(default)}"
         for where, number in _numbers(settings.get(section), section):
