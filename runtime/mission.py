@@ -219,7 +219,7 @@ class Mission:
         # one process of a fleet's shared recording sends no layout: the fusion node's (it knows every robot) wins
         layout = None if cfg.recording_id else mission_blueprint(names)
         rec = open_recording(sink, recording_id=cfg.recording_id, blueprint=layout)
-        self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it as the default
+        self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it (active)
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)
 
