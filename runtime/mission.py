@@ -197,6 +197,9 @@ class Mission:
         self._drivers: dict = {}   # robot -> its ARCOS driver
         self._end_time: float | None = None
         self._wall_start = time.monotonic()
+        # on the wall clock, what puts the runtime's clock on the epoch for the sensor logs' stamps: read once, for
+        # every robot's log (runtime.sensorlog.epoch_offset_ns)
+        self._epoch_offset: int | None = None
         self._link_lost_since: dict[str, float] = {}
         self._touching: dict[str, str | None] = {}  # virtual robots: what each was last seen pressed against
 
@@ -240,7 +243,7 @@ class Mission:
         from drivers.arcos.robot import P3AT
         from mocks.p3at import serve_tcp
         from runtime.adapters import P3ATLink, left_camera_mount
-        from runtime.sensorlog import SensorLogWriter
+        from runtime.sensorlog import SensorLogWriter, epoch_offset_ns
 
         cfg = self.config
         if cfg.on_mocks:
@@ -282,11 +285,13 @@ class Mission:
                                        steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks)
         sensor_log = None
         if cfg.log_sensors:
+            if not self.lockstep and self._epoch_offset is None:
+                self._epoch_offset = epoch_offset_ns(self.clock)
             sensor_log = SensorLogWriter(cfg.out / f"{name}-log", {
                 "robot": name, "camera": cfg.camera, "rectified": True, "geometry": geometry.to_dict(),
                 "true_start_pose": None if pose is None else [float(v) for v in pose], "seed": onboard_config.seed,
                 "fastslam": onboard_config.fastslam.to_dict(), "harris": dataclasses.asdict(frontend.harris),
-                "t0": t0})
+                "t0": t0}, epoch_offset=self._epoch_offset)
         onboard = Onboard(name, link, camera, onboard_config, exchange=self.exchange,
                           controller=self._controller(world, name, pose), logger=self.logger,
                           sensor_log=sensor_log, clock=self.clock, t0=t0,

@@ -16,9 +16,13 @@ complete MCAP file (profile ``ros2``, CDR, zstd chunks) that Foxglove, ``ros2 ba
     /R/stereo/observations                  p3at_msgs/StereoObservations   a synthetic camera's observations
     /R/slam/processed                       p3at_msgs/FrameStamp      the frames the live SLAM stage processed
 
-Stamps are the runtime's clock (header stamps and MCAP log times in integer ns); the custom types also carry it
-as float64 seconds, exactly as the runtime used it, so that replay is bit-exact. The run's settings (robot,
-camera, geometry, FastSLAM, seed...) are an MCAP metadata record ``p3at-sensor-log`` (key ``settings``, JSON).
+Header stamps and MCAP log times are integer ns. In simulated time they are the runtime's clock (sim time from
+0, as ROS's ``use_sim_time`` expects); on the wall clock (a real robot, ``--realtime``) they are on the epoch, as
+ROS stamps: the runtime's clock plus ``epoch_offset_ns``, an offset read once when the writer starts (never again:
+the epoch clock jumps) and recorded in the settings, so that ``log_time - epoch_offset_ns`` is the runtime's clock
+in ns exactly. The custom types also carry the runtime's clock as float64 seconds, exactly as the runtime used it,
+so that replay is bit-exact. The run's settings (robot, camera, geometry, FastSLAM, seed...) are an MCAP metadata
+record ``p3at-sensor-log`` (key ``settings``, JSON).
 
 Images are PNG, not JPEG: replay must feed the front end the very pixels the live run saw, and a lossy
 image would give another map. Crash safety: the segment being written is ``<LOG>_<k>.mcap.part``; it is
@@ -41,8 +45,9 @@ import queue
 import re
 import struct
 import threading
+import time
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
@@ -86,6 +91,19 @@ def _token(name: str) -> str:
 
 def segment_name(folder: Path, index: int) -> str:
     return f"{folder.name}_{index}.mcap"
+
+
+EPOCH_OFFSET_KEY = "epoch_offset_ns"     # the settings' key: stamps (ns) = the runtime's clock (ns) + this
+
+
+def epoch_offset_ns(clock: Callable[[], float] = time.monotonic) -> int:
+    """Nanoseconds that put a time of ``clock`` (seconds) on the epoch, ROS's clock for header stamps: the epoch
+    read on either side of one read of ``clock``, their mean paired with it. Read it once per log: the epoch clock
+    jumps (NTP, the user), a monotonic clock does not."""
+    before = time.time_ns()
+    now = clock()
+    after = time.time_ns()
+    return (before + after) // 2 - ros.stamp_ns(now)
 
 
 class _Segment:
@@ -236,9 +254,20 @@ class SensorLogWriter:
 
     def __init__(self, folder: str | os.PathLike, metadata: Mapping | None = None, *, segment_seconds: float = 30.0,
                  flush_interval: float = 2.0, chunk_size: int = 1 << 20, png_compression: int = 1,
-                 queue_size: int = 2000, max_queued_bytes: int = 256 << 20) -> None:
+                 queue_size: int = 2000, max_queued_bytes: int = 256 << 20,
+                 epoch_offset: int | None = None) -> None:
+        """``epoch_offset``: on the wall clock, :func:`epoch_offset_ns` of the runtime's clock, read once at the
+        start; header stamps and log times are then the runtime's clock plus it (the epoch, as ROS stamps), and the
+        settings record it (key ``epoch_offset_ns``). None (simulated time): they are the runtime's clock."""
         self.folder = Path(folder)
         self.metadata = dict(metadata or {})
+        if EPOCH_OFFSET_KEY in self.metadata:
+            raise ValueError(f"the settings' {EPOCH_OFFSET_KEY!r} is the writer's: pass epoch_offset instead")
+        if epoch_offset is not None:
+            if isinstance(epoch_offset, bool) or not isinstance(epoch_offset, int):
+                raise ValueError(f"epoch_offset must be whole nanoseconds, not {epoch_offset!r}")
+            self.metadata[EPOCH_OFFSET_KEY] = epoch_offset
+        self.epoch_offset = 0 if epoch_offset is None else epoch_offset
         # Settings are checked before the folder is made: a refused log leaves nothing behind.
         self._odometry_covariance = OdometryCovariance.from_settings(self.metadata.get("fastslam"))
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -363,6 +392,10 @@ class SensorLogWriter:
     def _frame(self, name: str) -> str:
         return f"{self.robot}/{name}"
 
+    def _ns(self, t: float) -> int:
+        """A record's header stamp and log time (ns): its runtime-clock time, on the epoch on the wall clock."""
+        return ros.stamp_ns(t) + self.epoch_offset
+
     def _write_static(self, segment: _Segment, t: float) -> None:
         transforms = []
         if self.geometry is not None:
@@ -379,12 +412,12 @@ class SensorLogWriter:
                 T[:2, 3] = x, y
                 transforms.append((self._frame("base_link"), self._frame(f"sonar_{i}"), T))
         if transforms:
-            segment.write("/tf_static", "tf2_msgs/TFMessage", ros.stamp_ns(t), ros.encode_transforms(
-                ros.stamp_ns(t), transforms))
+            segment.write("/tf_static", "tf2_msgs/TFMessage", self._ns(t), ros.encode_transforms(
+                self._ns(t), transforms))
         segment.static_written = self._sonar_poses is not None
 
     def _write_odometry(self, segment: _Segment, t: float, r: dict) -> None:
-        ns = ros.stamp_ns(t)
+        ns = self._ns(t)
         x, y, theta = float(r["x"]), float(r["y"]), float(r["theta"])
         raw = np.asarray(r.get("raw", np.zeros(0, np.uint8)), np.uint8).tobytes()
         odom, base = self._frame("odom"), self._frame("base_link")
@@ -413,7 +446,7 @@ class SensorLogWriter:
                           ros.encode_camera_info(ns, self._frame(f"stereo_{side}_optical"), width, height, K, P))
 
     def _write_frames(self, segment: _Segment, t: float, r: dict) -> None:
-        ns = ros.stamp_ns(t)
+        ns = self._ns(t)
         left, right = np.asarray(r["left"], np.uint8), np.asarray(r["right"], np.uint8)
         for side, image in (("left", left), ("right", right)):
             ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, self.png_compression])
@@ -426,13 +459,13 @@ class SensorLogWriter:
             ns, self._frame("stereo_left_optical"), int(r["seq"]), t))
 
     def _write_observations(self, segment: _Segment, t: float, r: dict) -> None:
-        ns = ros.stamp_ns(t)
+        ns = self._ns(t)
         segment.write(f"/{self.robot}/stereo/observations", "p3at_msgs/StereoObservations", ns,
                       ros.encode_observations(ns, self._frame("base_link"), int(r["seq"]), t, r["points"],
                                               r["covariances"], r["descriptors"], r["pixels"]))
 
     def _write_processed(self, segment: _Segment, t: float, r: dict) -> None:
-        ns = ros.stamp_ns(t)
+        ns = self._ns(t)
         segment.write(f"/{self.robot}/slam/processed", "p3at_msgs/FrameStamp", ns, ros.encode_frame_stamp(
             ns, self._frame("base_link"), int(r["seq"]), t))
 
@@ -499,6 +532,9 @@ class SensorLog:
         if not isinstance(robot, str):
             raise SensorLogError(f"{self.files[0]}: metadata field 'robot' is not a string")
         self.robot = _token(robot)
+        # log times minus this are the runtime's clock (ns): 0 in simulated time and in logs written before the
+        # offset was recorded (their wall-clock stamps were the monotonic clock itself)
+        self.epoch_offset: int = self.metadata.get(EPOCH_OFFSET_KEY, 0)
 
     # -- the container ---------------------------------------------------------------------------------
     def _read_file(self, path: Path, scan: bool = False) -> Iterator[LoggedMessage]:
@@ -573,9 +609,10 @@ class SensorLog:
         return self.counts.get(self.topic(topic), 0)
 
     def time_span(self) -> tuple[float, float]:
+        """The first and last log time, in seconds on the runtime's clock (the epoch offset taken off)."""
         if self.t_first is None:
             return 0.0, 0.0
-        return self.t_first / 1e9, self.t_last / 1e9
+        return (self.t_first - self.epoch_offset) / 1e9, (self.t_last - self.epoch_offset) / 1e9
 
     def records(self, stream: str) -> Iterator[dict]:
         """The runtime's records of ``stream`` (see :class:`SensorLogWriter`), validated, in the order written."""
@@ -633,6 +670,7 @@ MAX_LOGGED_CORNERS = 1_000_000
 MAX_LOGGED_BLOCK = 4096        # landmarks per copy-on-write block (64 by default)
 MAX_LOGGED_SLOTS = 64          # descriptors a landmark keeps (1 by default)
 MAX_LOGGED_MAGNITUDE = 1e9
+MAX_EPOCH_OFFSET = 10 ** 19    # ns (317 years): beyond any epoch a monotonic clock is from; stamps are uint64 ns
 _SECTIONS = ("fastslam", "geometry", "harris")
 
 
@@ -740,6 +778,9 @@ def _settings_problem(settings: dict) -> str | None:
     if "grid" in harris and not (isinstance(harris["grid"], list) and len(harris["grid"]) == 2
                                  and all(_whole(v, 1, 1000) for v in harris["grid"])):
         return "harris.grid must be two whole numbers from 1 to 1000"
+    offset = settings.get(EPOCH_OFFSET_KEY)
+    if EPOCH_OFFSET_KEY in settings and not _whole(offset, -MAX_EPOCH_OFFSET, MAX_EPOCH_OFFSET):
+        return f"{EPOCH_OFFSET_KEY} must be a whole number of ns within ±{MAX_EPOCH_OFFSET:.0e}"
     start = settings.get("true_start_pose")
     if start is not None and not (isinstance(start, list) and len(start) == 3
                                   and all(isinstance(v, int | float) and not isinstance(v, bool) for v in start)):

@@ -106,6 +106,9 @@ def test_the_base_settings_replay(tmp_path) -> None:
     ({"seed": "abc"}, "seed must be a whole number >= 0"),
     ({"true_start_pose": "abc"}, "true_start_pose must be three numbers"),
     ({"true_start_pose": [1.0, math.inf, 0.0]}, "true_start_pose[1] is inf"),
+    ({"epoch_offset_ns": "abc"}, "epoch_offset_ns must be a whole number"),
+    ({"epoch_offset_ns": 1.5e18}, "epoch_offset_ns must be a whole number"),
+    ({"epoch_offset_ns": 10**20}, "epoch_offset_ns must be a whole number"),
 ], ids=lambda v: str(v)[:40] if isinstance(v, str) else None)
 def test_settings_a_replay_cannot_use_are_one_line(tmp_path, change, says) -> None:
     _write(tmp_path / "log", {**BASE, **change})
@@ -131,7 +134,7 @@ JSON = st.recursive(JSON_LEAF, lambda inner: st.lists(inner, max_size=4) | st.di
 def test_any_one_setting_changed_replays_or_is_one_line(tmp_path_factory, section, data) -> None:
     settings_ = json.loads(json.dumps(BASE))
     if section is None:
-        key = data.draw(st.sampled_from(["seed", "true_start_pose", "t0", "robot", "camera"]))
+        key = data.draw(st.sampled_from(["seed", "true_start_pose", "t0", "robot", "camera", "epoch_offset_ns"]))
         settings_[key] = data.draw(JSON)
     else:
         key = data.draw(st.sampled_from(sorted(settings_[section])))
