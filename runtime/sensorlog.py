@@ -44,6 +44,7 @@ import os
 import queue
 import re
 import struct
+import sys
 import threading
 import time
 import zlib
@@ -717,7 +718,7 @@ def _section_defaults(section: str) -> dict:
 
 def _same_kind(value, default) -> bool:
     """Whether a JSON value has the kind of a setting's default: a flag, a whole number, a number, a word, or a list
-    (of numbers when the default's are)."""
+    (of numbers when the default's are; as many as the default's when it holds some: a pose, an offset)."""
     if isinstance(default, bool):
         return isinstance(value, bool)
     if isinstance(default, int):
@@ -728,7 +729,8 @@ def _same_kind(value, default) -> bool:
         return isinstance(value, str)
     if isinstance(default, list | tuple):
         numbers = all(isinstance(v, int | float) and not isinstance(v, bool) for v in default)
-        return isinstance(value, list) and (not numbers or all(_same_kind(v, 0.0) for v in value))
+        return isinstance(value, list) and (not numbers or all(_same_kind(v, 0.0) for v in value)) \
+            and (not numbers or not default or len(value) == len(default))
     return True
 
 
@@ -736,7 +738,9 @@ def _kind_name(default) -> str:
     for kind, name in ((bool, "true or false"), (int, "a whole number"), (float, "a number"), (str, "a string")):
         if isinstance(default, kind):
             return name
-    return "a list of numbers" if isinstance(default, list | tuple) else type(default).__name__
+    if isinstance(default, list | tuple):
+        return f"a list of {len(default)} numbers" if default else "a list of numbers"
+    return type(default).__name__
 
 
 def _whole(value, low: int, high: float) -> bool:
@@ -751,6 +755,8 @@ def _settings_problem(settings: dict) -> str | None:
     from runtime.commands.options import MAX_PARTICLES
 
     for where, number in _numbers(settings, "settings"):
+        if isinstance(number, int) and abs(number) > sys.float_info.max:   # JSON's integers have no bound
+            return f"{where.removeprefix('settings.')} is a {len(str(abs(number)))}-digit number, beyond any float"
         if not math.isfinite(number):
             return f"{where.removeprefix('settings.')} is {number}"
     for section in _SECTIONS:

@@ -3,7 +3,9 @@ record is JSON the reader parsed but did not check: `replay` of a log claiming 1
 blocks of 10^9 landmarks ended in MemoryError (exit 70), a 'geometry' or 'harris' that is no object or a threshold
 that is null in AttributeError/TypeError (exit 70), max_range 1e308 in OverflowError and RuntimeWarnings (exit 70,
 5 lines), a seed of -1 or "abc" or a true start pose "abc" in exit 1, settings nested 10^5 deep in RecursionError
-(exit 70); NaN gates replayed to a map (exit 0)."""
+(exit 70); NaN gates replayed to a map (exit 0). Session 26 (C): a whole number beyond a float's range (JSON's integers
+are unbounded: a seed of 10^400) ended in OverflowError, exit 70; a FastSLAM sensor offset of [] in "not enough
+values to unpack", exit 1."""
 from __future__ import annotations
 
 import dataclasses
@@ -106,6 +108,11 @@ def test_the_base_settings_replay(tmp_path) -> None:
     ({"seed": "abc"}, "seed must be a whole number >= 0"),
     ({"true_start_pose": "abc"}, "true_start_pose must be three numbers"),
     ({"true_start_pose": [1.0, math.inf, 0.0]}, "true_start_pose[1] is inf"),
+    ({"seed": 10**400}, "seed is a 401-digit number, beyond any float"),
+    ({"true_start_pose": [10**309, 0, 0]}, "true_start_pose[0] is a 310-digit number"),
+    ({"fastslam": {**BASE["fastslam"], "max_range": -(10**400)}}, "fastslam.max_range is a 401-digit number"),
+    ({"fastslam": {**BASE["fastslam"], "sensor_offset": []}}, "fastslam.sensor_offset is [], not a list of 3 numbers"),
+    ({"geometry": {**BASE["geometry"], "head_pose": [0.1, 0.2]}}, "geometry.head_pose is [0.1, 0.2], not a list of 6"),
     ({"epoch_offset_ns": "abc"}, "epoch_offset_ns must be a whole number"),
     ({"epoch_offset_ns": 1.5e18}, "epoch_offset_ns must be a whole number"),
     ({"epoch_offset_ns": 10**20}, "epoch_offset_ns must be a whole number"),
