@@ -87,11 +87,19 @@ from benchmarks.mrclam_chained_names import (  # noqa: E402
     _chained,
     _covisible,
     majority,
+    named_problem,
     round_scores,
     smooth_named,
     truncated_cost,
 )
-from estimation.constellation import joint_d2, match_constellation  # noqa: E402
+from estimation.constellation import (  # noqa: E402
+    guard_batches,
+    joint_d2,
+    leave_one_out,
+    match_constellation,
+    pairwise_groups,
+    spanning_pairs,
+)
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
@@ -431,10 +439,14 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     barcodes = log.landmark_ids
     chained, row = _chained(log, args, noise, config)
     names = chained.names
-    initial_poses, initial = _guess(log, names, noise, config, args)
     drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
-    started = time.process_time()
     path_step_s = _path_step(args)
+    if args.from_round is not None:
+        return _run_rounds(log, row, names, *load_state(state_path(args.state_dir, log, args.seed,
+                                                                     f"round{args.from_round}"), log, noise,
+                                                          config, drift, path_step_s), noise, config, drift, args)
+    initial_poses, initial = _guess(log, names, noise, config, args)
+    started = time.process_time()
     named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
                                    heading_drift=drift, path_step_s=path_step_s)
     current = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
@@ -469,7 +481,26 @@ def run_robot(log: RangeBearingLog, args) -> dict:
                 print(f"  split name {t['name']} at {t['t']:.1f} s (barcodes {t['before']} | {t['after']}): cost drop "
                       f"{t['cost_drop']:.1f} {'kept' if t['kept'] else 'not kept'}", file=sys.stderr, flush=True)
             _print_scores(f"{log.name} after the splits", row["after_splits"], file=sys.stderr)
-    for k in range(args.max_rounds):
+    meta = _state_meta(log, args, drift, 0)
+    if args.state_dir:
+        save_state(state_path(args.state_dir, log, args.seed, "round0"), current, meta)
+    return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
+
+
+def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: MergeRound, meta: dict, noise, config,
+                drift, args) -> dict:
+    """Rounds from the state ``current`` (made by ``meta["round"]`` rounds) up to round ``args.max_rounds``, each
+    kept state saved in ``args.state_dir``; the final scores in ``row``."""
+    barcodes = log.landmark_ids
+    path_step_s = _path_step(args)
+    row.setdefault("rounds", [])
+    start = int(meta["round"])
+    if start:
+        row["from_round"] = start
+        row["first_smoothing"] = round_scores(log, current, majority(current.names, barcodes))
+        if args.progress:
+            _print_scores(f"{log.name} state after round {start}", row["first_smoothing"], file=sys.stderr)
+    for k in range(start, args.max_rounds):
         started = time.process_time()
         covariance = joint_landmark_covariance(current.named.problem, current.solution)
         passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
@@ -483,6 +514,11 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         record = {"round": k + 1, "judged": judged, "passes_used": len(used)}
         if args.progress:
             _print_judged(k + 1, judged, file=sys.stderr)
+        if used and args.guard:
+            record["guard"], used = guard_record(current, covariance, used, owner)
+            clusters = merges_from(used, covisible)[0]
+            if args.progress:
+                _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
         if not clusters:
             row["rounds"].append(record)
             break
@@ -502,13 +538,155 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         if state is current:
             break
         current = state
+        if args.state_dir:
+            save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), current,
+                       _state_meta(log, args, drift, k + 1, _round(log, current, owner)))
+    if args.pairwise:
+        current = _pairwise_rounds(log, row, current, noise, config, drift, args)
     final = round_scores(log, current, majority(names, barcodes))
-    kept = [a for r in row["rounds"] for a in [r.get("batch")] + r.get("tries", []) if a and a["accepted"]]
+    kept = [a for r in row["rounds"] + row.get("pairwise", []) for a in [r.get("batch")] + r.get("tries", [])
+            if a and a["accepted"]]
     final["merges"] = sum(a["merged"] for a in kept)
     final["wrong_merges"] = sum(a["wrong_merges"] for a in kept)
     final["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
     row["final"] = final
     return row
+
+
+STATE_ARRAYS = ("poses", "landmarks", "landmark_covariances", "covariance_poses", "pose_covariances", "inliers")
+
+
+def state_path(directory, log: RangeBearingLog, seed: int, tag: str) -> Path:
+    """Where ``--state-dir`` keeps one state of a robot's run: DIR/<robot>-seed<S>-<tag>.npz (tag: round<k>)."""
+    return Path(directory) / f"{Path(log.name).name}-seed{seed}-{tag}.npz"
+
+
+def save_state(path, state: MergeRound, meta: dict) -> None:
+    """The names (N,) and the smoother's solution of ``state`` in an .npz (no pickle: arrays and a JSON string),
+    written atomically; ``meta``: what the state was made with (robot, seed, drift, path step, round, scores), read
+    back by :func:`load_state` to refuse a state made with other settings. The landmarks' joint covariance is not
+    kept: :func:`load_state` gives back the problem and solution it is computed from."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sol = state.solution
+    arrays = {k: np.asarray(getattr(sol, k)) for k in STATE_ARRAYS}
+    for k in ("heading_weights", "heading_biases"):
+        if getattr(sol, k) is not None:
+            arrays[k] = np.asarray(getattr(sol, k))
+    fit = {"chi2": float(sol.chi2), "dof": int(sol.dof), "iterations": int(sol.iterations),
+           "converged": bool(sol.converged)}
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, names=state.names, meta=np.array(json.dumps({**meta, "fit": fit})), **arrays)
+    os.replace(tmp, path)
+
+
+def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: float | None) -> tuple[MergeRound, dict]:
+    """:func:`save_state`'s state of ``log`` as a MergeRound (the named problem rebuilt from the names, the solution
+    as saved: no smoothing) and its meta; a state made with another drift or path step is refused (ValueError)."""
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+        arrays = {k: data[k] for k in data.files if k not in ("names", "meta")}
+        names = data["names"]
+    want = {"robot": log.name, "drift": [drift.sigma_per_m, drift.tau_s] if drift is not None else None,
+            "path_step_s": path_step_s}
+    for key, value in want.items():
+        if meta.get(key) != value:
+            raise ValueError(f"{path}: a state made with {key} {meta.get(key)!r}, not {value!r}")
+    named = named_problem(log, names, noise, config, path_step_s=path_step_s)
+    fit = meta["fit"]
+    solution = Smoothed(*(arrays[k] for k in STATE_ARRAYS), fit["chi2"], fit["dof"], fit["iterations"],
+                        fit["converged"], arrays.get("heading_weights"), drift, arrays.get("heading_biases"))
+    return MergeRound([], 0.0, 0.0, True, names, named, solution), meta
+
+
+def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
+    return {"robot": log.name, "seed": args.seed, "drift": [drift.sigma_per_m, drift.tau_s] if drift else None,
+            "path_step_s": _path_step(args), "round": round_done, "scores": scores or {}}
+
+
+def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int]
+                 ) -> tuple[dict, list[PassVerdict]]:
+    """:func:`estimation.constellation.guard_batches` on the passes a round would merge: the passes kept, and what
+    it did, scored (a pass set aside with a wrong pairing: two barcodes)."""
+    positions = current.solution.landmarks
+    code = np.array([owner.get(int(x), -1) for x in current.named.names])
+
+    def wrong(v: PassVerdict) -> int:
+        return int(sum(code[a] != code[b] for a, b in v.pairs))
+
+    linear, _ = joint_d2(positions, covariance, spanning_pairs([p for v in used for p in v.pairs]))
+    keep, dropped = guard_batches(positions, covariance, [v.pairs for v in used])
+    shares = leave_one_out(positions, covariance, [v.pairs for v in used])
+    record = {"passes": len(used), "linear_d2": float(linear),
+              "wrong_passes": sum(wrong(v) > 0 for v in used),
+              "shares": [{"pass": v.index, "d2": d2, "dof": dof, "wrong_pairings": wrong(v)}
+                         for v, (d2, dof) in zip(used, shares, strict=True)],
+              "set_aside": [{"pass": used[i].index, "d2": d2, "dof": dof, "wrong_pairings": wrong(used[i])}
+                            for i, d2, dof in dropped],
+              "kept_wrong_passes": sum(wrong(used[i]) > 0 for i in keep)}
+    return record, [used[i] for i in keep]
+
+
+def _print_guard(label: str, g: dict, file=None) -> None:
+    aside = ", ".join(f"pass {a['pass']} d² {a['d2']:.1f}/{a['dof']}{' WRONG' if a['wrong_pairings'] else ''}"
+                      for a in g["set_aside"])
+    print(f"{label} guard: {g['passes']} passes ({g['wrong_passes']} with a wrong pairing), linear d² "
+          f"{g['linear_d2']:.1f}; set aside {len(g['set_aside'])} ({aside or '-'}); kept with a wrong pairing "
+          f"{g['kept_wrong_passes']}", file=file, flush=True)
+
+
+def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
+                     ) -> MergeRound:
+    """The last merges on a tight map (:func:`estimation.constellation.pairwise_groups`): every group of names
+    that can be one post and nothing else, merged (with ``--guard``, the groups' leave-one-out shares tested
+    first), checked by the cost rise and bisected as the passes are; repeated until nothing merges or
+    ``--pairwise`` rounds. Each round's record in ``row["pairwise"]``."""
+    barcodes = log.landmark_ids
+    row["pairwise"] = []
+    for k in range(args.pairwise):
+        started = time.process_time()
+        problem, solution = current.named.problem, current.solution
+        n = len(current.named.names)
+        covariance = joint_landmark_covariance(problem, solution)
+        covisible = _covisible(problem, solution.inliers, n)
+        seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+        groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible)
+        owner = majority(current.names, barcodes)
+        code = np.array([owner.get(int(x), -1) for x in current.named.names])
+        record = {"round": k + 1, "groups": {s: sum(g.status == s for g in groups)
+                                             for s in ("merge", "covisible", "not_joint")},
+                  "groups_wrong": {s: sum(g.status == s and len({code[m] for m in g.members}) > 1 for g in groups)
+                                   for s in ("merge", "covisible", "not_joint")}}
+        merging = [PassVerdict(-1 - i, "matched", spanning_pairs([(g.members[0], m) for m in g.members[1:]]),
+                               (len(g.members), -g.d2 / g.dof), 0, True)
+                   for i, g in enumerate(x for x in groups if x.status == "merge")]
+        clusters, used = merges_from(merging, covisible)
+        if used and args.guard:
+            record["guard"], used = guard_record(current, covariance, used, owner)
+        record["judge_cpu_s"] = time.process_time() - started
+        if args.progress:
+            print(f"  pairwise {k + 1}: groups {record['groups']} (wrong {record['groups_wrong']}), "
+                  f"{record['judge_cpu_s']:.0f} s CPU", file=sys.stderr, flush=True)
+            if "guard" in record:
+                _print_guard(f"  pairwise {k + 1}", record["guard"], file=sys.stderr)
+        row["pairwise"].append(record)
+        if not used:
+            break
+        state, attempts = merge_bisecting(log, current, name_pairs(used, current.named), noise, config, drift,
+                                          depth=args.bisect, alias={}, path_step_s=_path_step(args))
+        record["batch"] = _round(log, attempts[0], owner)
+        record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
+        record["cpu_s"] = time.process_time() - started
+        if args.progress:
+            for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
+                _print_scores(f"  pairwise {k + 1} {key}", scores, file=sys.stderr)
+        if state is current:
+            break
+        current = state
+        if args.state_dir:
+            save_state(state_path(args.state_dir, log, args.seed, f"pairwise{k + 1}"), current,
+                       _state_meta(log, args, drift, -(k + 1), _round(log, current, owner)))
+    return current
 
 
 def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:
@@ -576,13 +754,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-pairs", type=positive_int, default=3, help="pairings a match needs")
     parser.add_argument("--ratio", type=positive_float, default=None,
                         help="likelihood ratio of the best hypothesis over a rival (default: no rival allowed)")
-    parser.add_argument("--max-rounds", type=non_negative_int, default=3)
+    parser.add_argument("--max-rounds", type=non_negative_int, default=3,
+                        help="the last round to run (counted from the chain, also after --from-round)")
+    parser.add_argument("--state-dir", metavar="DIR", default=None,
+                        help="keep each robot's state (names and solution) after the chain and every kept round "
+                             "here, as <robot>-seed<S>-round<k>.npz")
+    parser.add_argument("--from-round", type=non_negative_int, default=None, metavar="K",
+                        help="start from the state --state-dir kept after round K instead of the chain")
     parser.add_argument("--path-step", type=non_negative_float, default=0.25, metavar="S",
                         help="the odometry increments' variances propagated along the path in steps of S s (0: the "
                              "random walk's variance of the chord between sighting frames, session 24's)")
     parser.add_argument("--bisect", type=non_negative_int, default=2, metavar="DEPTH",
                         help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
                              "strongest pass alone, session 24's)")
+    parser.add_argument("--guard", action="store_true",
+                        help="before a batch is merged, set aside each pass whose share of it, tested given the "
+                             "others' (leave one out), is beyond χ² 99 %%")
+    parser.add_argument("--pairwise", type=non_negative_int, default=0, metavar="ROUNDS",
+                        help="after the rounds, up to ROUNDS rounds of pairwise merges of the names left (groups "
+                             "of names within each other's χ²₂ 99 %% gate and no rival's; 0: none)")
     parser.add_argument("--split-bends", action="store_true",
                         help="before the rounds, split names where the odometry bends if the cost falls (step 1b)")
     parser.add_argument("--reguess", action="store_true",
@@ -594,6 +784,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.from_round is not None and not args.state_dir:
+        parser.error("--from-round needs --state-dir")
     if not os.path.isdir(args.data):
         print(f"mrclam_constellation: no data set at {args.data}", file=sys.stderr)
         return 2

@@ -159,3 +159,157 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     if rival is not None and not log_ratio >= np.log(ratio):
         return ConstellationMatch("ambiguous", best, rival, log_ratio, compatible)
     return ConstellationMatch("matched", best, rival, log_ratio, compatible)
+
+
+# ---- a tight map's last merges, pair by pair; a batch's merges tested one pass at a time ---------------------------
+
+@dataclass(frozen=True)
+class PairwiseGroup:
+    """Points that :func:`pairwise_groups` finds within each other's gate: ``members`` (indices, ascending), d² of
+    their differences from the first under the joint covariance and its degrees of freedom, and the verdict:
+    ``"merge"`` (every two members within the gate, never sighted together, jointly compatible, no point outside
+    the group within any member's gate) or why not: ``"covisible"`` (two members may not be one point),
+    ``"not_joint"`` (a member outside another's gate, or the members' differences jointly out of the gate)."""
+
+    members: tuple[int, ...]
+    d2: float
+    dof: int
+    status: str
+
+
+def pairwise_d2(positions: np.ndarray, covariance: np.ndarray, points) -> np.ndarray:
+    """(k, k) d² of every two of ``points``' difference under their joint covariance (the 2 × 2 blocks of the
+    covariance, cross terms included: two points' shared pose error cancels in their difference); inf on the
+    diagonal and where the covariance is not finite or not positive definite."""
+    points = np.asarray(points, int)
+    k = len(points)
+    idx = np.stack([2 * points, 2 * points + 1], 1).reshape(-1)
+    blocks = np.asarray(covariance, float)[np.ix_(idx, idx)].reshape(k, 2, k, 2).transpose(0, 2, 1, 3)
+    own = blocks[np.arange(k), np.arange(k)]
+    with np.errstate(invalid="ignore"):
+        s = own[:, None] + own[None, :] - blocks - blocks.transpose(1, 0, 3, 2)
+    ok = np.all(np.isfinite(s.reshape(k, k, 4)), axis=2) & ~np.eye(k, dtype=bool)
+    s = np.where(ok[..., None, None], s, np.eye(2))
+    det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
+    ok &= (det > 0) & (s[..., 0, 0] > 0)
+    det = np.where(ok, det, 1.0)
+    d = np.asarray(positions, float)[points][:, None] - np.asarray(positions, float)[points][None]
+    d2 = (s[..., 1, 1] * d[..., 0] ** 2 - 2 * s[..., 0, 1] * d[..., 0] * d[..., 1]
+          + s[..., 0, 0] * d[..., 1] ** 2) / det
+    return np.where(ok, d2, np.inf)
+
+
+def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, allowed: np.ndarray | None = None,
+                    probability: float = 0.99) -> list[PairwiseGroup]:
+    """The last merges of a tight map: which of ``points`` are one point, judged pair by pair but never alone.
+
+    Two points are linked when the d² of their difference under their joint covariance (:func:`pairwise_d2`) is
+    within χ²₂ at ``probability``. Each connected set of linked points (two or more) is one group, merged only when
+    it can be one point and nothing else can be: every two members linked and allowed (``allowed`` (n, n) bool,
+    e.g. not sighted in one frame; default all), and the members' stacked differences from the first jointly
+    within χ²_{2(m−1)}. A point inside a member's gate is in the group by construction, so a rival — a second point
+    the member could be, which cannot be the same point as the first — leaves the group not all linked, or not
+    allowed, or jointly out of the gate, and refuses the whole group (ambiguous: nothing merges)."""
+    points = [int(p) for p in points]
+    if not points:
+        return []
+    d2 = pairwise_d2(positions, covariance, points)
+    gate = float(scipy.stats.chi2.ppf(probability, 2))
+    linked = d2 < gate
+    label = list(range(len(points)))
+
+    def find(i: int) -> int:
+        while label[i] != i:
+            label[i] = label[label[i]]
+            i = label[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(linked, 1)), strict=True):
+        label[find(int(i))] = find(int(j))
+    components: dict[int, list[int]] = {}
+    for i in range(len(points)):
+        components.setdefault(find(i), []).append(i)
+    out = []
+    for local in components.values():
+        if len(local) < 2:
+            continue
+        members = [points[i] for i in local]
+        order = np.argsort(members)
+        local = [local[i] for i in order]
+        members = [points[i] for i in local]
+        pairs = [(members[0], m) for m in members[1:]]
+        joint, _ = joint_d2(positions, covariance, pairs)
+        dof = 2 * len(pairs)
+        sub = np.ix_(local, local)
+        if allowed is not None and not np.all(np.asarray(allowed)[np.ix_(members, members)]
+                                              | np.eye(len(members), dtype=bool)):
+            status = "covisible"
+        elif not np.all(linked[sub] | np.eye(len(local), dtype=bool)) \
+                or not joint < scipy.stats.chi2.ppf(probability, dof):
+            status = "not_joint"
+        else:
+            status = "merge"
+        out.append(PairwiseGroup(tuple(members), float(joint), dof, status))
+    return sorted(out, key=lambda g: g.d2 / g.dof)
+
+
+def spanning_pairs(pairs) -> list[tuple[int, int]]:
+    """The pairings that join the same points into the same groups without a redundant one (a spanning forest:
+    (root, member) for every point a group absorbs), so that their stacked differences have a regular covariance."""
+    parent: dict[int, int] = {}
+
+    def find(x: int) -> int:
+        while parent.get(x, x) != x:
+            x = parent[x]
+        return x
+
+    out = []
+    for a, b in pairs:
+        ra, rb = find(int(a)), find(int(b))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+            out.append((int(a), int(b)))
+    return out
+
+
+def leave_one_out(positions: np.ndarray, covariance: np.ndarray, batches) -> list[tuple[float, int]]:
+    """Each batch's share of a set of merges, tested given all the others: (d², degrees of freedom) of batch b's
+    pairings conditioned on every other batch's — d²(all) − d²(all but b), each of the stacked differences of a
+    spanning set of the pairings under their joint covariance, dof 2 per point b's pairings absorb beyond the
+    others'. To first order the d² of all pairings is the cost a smoother pays to merge them, so this is the rise
+    the batch adds on top of the others; a wrong batch hidden in many right ones stands out in its own share where
+    the sum's rise cannot show it."""
+    batches = [[(int(a), int(b)) for a, b in batch] for batch in batches]
+    every = [pair for batch in batches for pair in batch]
+    span = spanning_pairs(every)
+    total, _ = joint_d2(positions, covariance, span)
+    out = []
+    for k in range(len(batches)):
+        rest = spanning_pairs([pair for j, batch in enumerate(batches) if j != k for pair in batch])
+        d2, _ = joint_d2(positions, covariance, rest)
+        out.append((float(total - d2), 2 * (len(span) - len(rest))))
+    return out
+
+
+def guard_batches(positions: np.ndarray, covariance: np.ndarray, batches, *, probability: float = 0.99
+                  ) -> tuple[list[int], list[tuple[int, float, int]]]:
+    """The batches that may be merged together: while some batch's :func:`leave_one_out` share is beyond χ² at
+    ``probability`` for its degrees of freedom, the one furthest beyond (by the χ² survival probability) is set aside
+    and the shares taken again without it. Returns the kept batches' indices and the set-aside ones as (index, d²,
+    dof) in the order they went."""
+    keep = list(range(len(batches)))
+    dropped = []
+    while keep:
+        shares = leave_one_out(positions, covariance, [batches[k] for k in keep])
+        worst, worst_log = None, float(np.log1p(-probability))
+        for k, (d2, dof) in zip(keep, shares, strict=True):
+            if dof == 0:
+                continue
+            log_sf = float(scipy.stats.chi2.logsf(d2, dof))
+            if log_sf < worst_log:
+                worst, worst_log = (k, d2, dof), log_sf
+        if worst is None:
+            break
+        keep.remove(worst[0])
+        dropped.append(worst)
+    return keep, dropped

@@ -200,3 +200,111 @@ def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_ta
     if not bad:
         assert len(attempts) == 1
     assert len(attempts) <= 2 * n_passes - 1
+
+
+# ---- the last pairwise merges of a tight map, and the leave-one-out guard of a batch ------------------------------
+
+SIGMA_NAME = 0.02          # m, each name of a tight map alone
+SIGMA_COMMON = 1.0         # m, the map's common offset (every name shares it: it cancels in their differences)
+
+
+def _names(rng, post_xy, of_post, noise=SIGMA_NAME):
+    """Names of a tight map: name i stands for post ``of_post[i]``, placed there with its own σ and a common
+    offset of metres that every name shares (in the joint covariance, as a smoother's shared pose error)."""
+    n = len(of_post)
+    positions = post_xy[of_post] + rng.normal(0, noise, (n, 2)) + rng.normal(0, SIGMA_COMMON, 2)
+    jac = np.tile(np.eye(2), (n, 1))
+    covariance = np.eye(2 * n) * SIGMA_NAME ** 2 + jac @ jac.T * SIGMA_COMMON ** 2
+    return positions, covariance
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), copies=st.integers(2, 3))
+def test_names_of_one_post_merge_and_names_of_other_posts_do_not(seed, copies):
+    from estimation.constellation import pairwise_groups
+
+    rng = np.random.default_rng(seed)
+    post_xy = _layout(rng, 15)
+    of_post = np.r_[np.zeros(copies, int), np.arange(1, 15)]
+    positions, covariance = _names(rng, post_xy, of_post, noise=SIGMA_NAME / 2)
+    groups = pairwise_groups(positions, covariance, range(len(of_post)))
+    # the common offset (1 m) is as large as the posts' spacing: each name's marginal σ would put every post in its
+    # gate; the joint covariance sees the names' 2-3 cm differences
+    assert [(g.members, g.status) for g in groups] == [(tuple(range(copies)), "merge")]
+
+
+@settings(max_examples=50, deadline=None)
+@given(sigma=st.floats(0.005, 0.3), apart=st.floats(5.0, 50.0), angle=st.floats(0, 2 * np.pi),
+       common=st.floats(0.0, 3.0))
+def test_names_of_two_posts_five_sigma_apart_never_merge(sigma, apart, angle, common):
+    from estimation.constellation import pairwise_groups
+
+    sd = np.sqrt(2) * sigma                     # σ of the two names' difference
+    positions = np.array([[0.0, 0.0], [np.cos(angle), np.sin(angle)]]) * apart * sd + 7.0
+    jac = np.tile(np.eye(2), (2, 1))
+    covariance = np.eye(4) * sigma ** 2 + jac @ jac.T * common ** 2
+    assert pairwise_groups(positions, covariance, [0, 1]) == []
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), how=st.sampled_from(["covisible", "outside"]))
+def test_a_rival_inside_the_gate_blocks_the_merge(seed, how):
+    from estimation.constellation import pairwise_groups
+
+    rng = np.random.default_rng(seed)
+    post_xy = np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 3.0]])
+    of_post = np.array([0, 0, 1, 2])            # names 0 and 1 are post 0; name 4 the rival
+    positions, covariance = _names(rng, post_xy, of_post, noise=SIGMA_NAME / 2)
+    direction = rng.normal(size=2)
+    direction /= np.linalg.norm(direction)
+    sd = np.sqrt(2) * SIGMA_NAME                # σ of a difference: the gate at 3.03 σ
+    rival = positions[0] + direction * 2.0 * sd
+    if how == "outside":                        # within name 0's gate (2.5 σ), beyond name 1's (4 σ)
+        positions[1] = positions[0] + direction * 1.5 * sd
+        rival = positions[0] - direction * 2.5 * sd
+    positions = np.vstack([positions, rival])
+    jac = np.tile(np.eye(2), (5, 1))
+    covariance = np.eye(10) * SIGMA_NAME ** 2 + jac @ jac.T * SIGMA_COMMON ** 2
+    allowed = np.ones((5, 5), bool)
+    if how == "covisible":                      # the rival was sighted in one frame with name 1
+        allowed[1, 4] = allowed[4, 1] = False
+    groups = pairwise_groups(positions, covariance, range(5), allowed=allowed)
+    assert all(g.status != "merge" for g in groups if 0 in g.members or 1 in g.members)
+    # without the rival the two names merge
+    alone = pairwise_groups(positions[:4], covariance[:8, :8], range(4))
+    assert [(g.members, g.status) for g in alone] == [((0, 1), "merge")]
+
+
+def test_leave_one_out_shares_of_independent_batches_are_their_own_d2():
+    from estimation.constellation import leave_one_out, spanning_pairs
+
+    positions = np.array([[0.0, 0.0], [0.1, 0.0], [5.0, 0.0], [5.0, 0.3], [5.1, 0.3]])
+    covariance = np.eye(10) * 0.01
+    batches = [[(0, 1)], [(2, 3), (3, 4), (2, 4)]]            # the second holds a redundant pairing
+    assert spanning_pairs(batches[1]) == [(2, 3), (3, 4)]
+    shares = leave_one_out(positions, covariance, batches)
+    assert shares[0] == (pytest.approx(joint_d2(positions, covariance, [(0, 1)])[0]), 2)
+    assert shares[1] == (pytest.approx(joint_d2(positions, covariance, [(2, 3), (3, 4)])[0]), 4)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), n_right=st.integers(3, 12))
+def test_the_guard_sets_aside_one_wrong_pass_among_many_right_ones(seed, n_right):
+    # every pass pairs three names of one map (a later pass's names) with the earlier pass's; the wrong pass pairs
+    # one name with the post next to it (0.7-1.5 m away: 25+ σ): summed over the batch's 2 × 3 × (n + 1) degrees
+    # of freedom its rise can hide, its own share cannot
+    from estimation.constellation import guard_batches
+
+    rng = np.random.default_rng(seed)
+    post_xy = _layout(rng, 15)
+    n_passes = n_right + 1
+    posts = [rng.choice(15, 3, replace=False) for _ in range(n_passes)]
+    of_post = np.concatenate([np.r_[p, p] for p in posts])     # pass k: names 6k..6k+2 then their copies
+    positions, covariance = _names(rng, post_xy, of_post, noise=SIGMA_NAME / 2)
+    batches = [[(6 * k + i, 6 * k + 3 + i) for i in range(3)] for k in range(n_passes)]
+    wrong = int(rng.integers(n_passes))
+    near = np.argsort(np.linalg.norm(post_xy - post_xy[posts[wrong][0]], axis=1))[1]
+    positions[6 * wrong + 3] = post_xy[near] + (positions[6 * wrong] - post_xy[posts[wrong][0]])
+    keep, dropped = guard_batches(positions, covariance, batches)
+    assert [d[0] for d in dropped] == [wrong]
+    assert keep == [k for k in range(n_passes) if k != wrong]
