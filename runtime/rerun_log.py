@@ -82,7 +82,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.options import RERUN_URL_PREFIXES  # one spelling; options.py loads no rerun
+from runtime.limits import RERUN_URL_PREFIXES  # the one spelling, shared with the CLI's checks
 from runtime.report import alignment_status, candidate_text
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file

@@ -67,6 +67,7 @@ from estimation.fastslam.motion import increment_variance, propagate_covariance
 from estimation.frontend import StereoGeometry
 from estimation.geometry import between
 from runtime import ros2_messages as ros
+from runtime.limits import MAX_PARTICLES
 from runtime.textfile import not_a_file
 
 METADATA_NAME = "p3at-sensor-log"
@@ -752,8 +753,6 @@ def _settings_problem(settings: dict) -> str | None:
     is not finite or beyond MAX_LOGGED_MAGNITUDE in a section, a seed that is no whole number >= 0, more particles
     than MAX_PARTICLES, a true start pose that is no three finite numbers. Before, such settings ended in exit 70
     (MemoryError, OverflowError, AttributeError) or exit 1, or a replay of NaN gates that 'succeeded'."""
-    from runtime.commands.options import MAX_PARTICLES
-
     for where, number in _numbers(settings, "settings"):
         if isinstance(number, int) and abs(number) > sys.float_info.max:   # JSON's integers have no bound
             return f"{where.removeprefix('settings.')} is a {len(str(abs(number)))}-digit number, beyond any float"

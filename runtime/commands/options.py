@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from estimation.fileio import special_file_kind  # stdlib only: `p3at --help` stays light
+from runtime.limits import MAX_PARTICLES, RERUN_URL_PREFIXES  # shared with the runtime's modules; stdlib only
 
 
 def float_where(text: str, domain: str, inside) -> float:
@@ -92,11 +93,6 @@ def time_scale_problem(time_scale: float) -> str | None:
         return (f"--time-scale {time_scale:g}: at most {MAX_TIME_SCALE:g} simulated seconds per wall second (the "
                 "virtual robot's physics could not keep up)")
     return None
-
-
-# FastSLAM particles: memory grows with them (~15 kB each with a handful of landmarks, more with a building's worth:
-# 100,000 took 1.6 GB and 124 s for 20 s of a small log; --particles 100000000 was killed by the kernel at 22 GB)
-MAX_PARTICLES = 10_000
 
 
 def particle_count(text: str) -> int:
@@ -206,9 +202,6 @@ def check_output_apart(path: str | os.PathLike | None, option: str = "--out", *,
                                   "replace one of its files; write it elsewhere")
 
 
-# what a --rerun sink is taken as a URL for: the one spelling of them (runtime/rerun_log.py's open_recording uses it
-# too; this module stays free of rerun, so that `p3at --help` does not load it)
-RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")
 RERUN_KEYWORDS = ("file", "spawn", "none")   # --rerun of demo, run and fuse --live, beside FILE.rrd and a URL
 
 

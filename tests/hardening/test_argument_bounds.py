@@ -81,7 +81,8 @@ def test_a_particle_count_beyond_the_bound_is_refused_before_any_work(argv) -> N
 
 
 def test_the_bound_admits_its_own_maximum(tmp_path) -> None:
-    from runtime.commands.options import MAX_PARTICLES, particle_count
+    from runtime.commands.options import particle_count
+    from runtime.limits import MAX_PARTICLES
 
     assert particle_count(str(MAX_PARTICLES)) == MAX_PARTICLES and particle_count("1") == 1
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from runtime.commands.options import RERUN_URL_PREFIXES, rerun_sink_problem
+from runtime.commands.options import rerun_sink_problem
+from runtime.limits import RERUN_URL_PREFIXES
 from tests.datasets.conftest import run_cli
 
 MISSION = ["--camera", "synthetic", "--seconds", "1", "--quiet"]
