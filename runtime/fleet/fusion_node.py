@@ -161,7 +161,11 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     from runtime.fleet.options import open_exchange
     from runtime.mission import install_stop_signals
 
-    spec = args.exchange if args.exchange != "inprocess" else "zenoh"  # a live node needs a network exchange
+    if args.exchange == "inprocess":   # silently ran Zenoh before: say so, before anything starts
+        print("p3at fuse: --live needs a network exchange to hear the robots' maps: --exchange zenoh or "
+              "zenoh:CONFIG (inprocess is one process's own)", file=sys.stderr)
+        return 2
+    spec = args.exchange
     out = Path(args.out) if args.out else None
     try:
         config = FusionNodeConfig(args.interval, args.min_period, args.preset, args.method, args.seed, out,
