@@ -23,8 +23,8 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.stats import chi2
 
+from . import chi2
 from .fastslam.config import FastSLAMConfig
 from .fastslam.motion import increment_variance
 from .geometry import between, compose, interpolate_poses, wrap_angle

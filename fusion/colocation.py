@@ -35,8 +35,8 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
+from estimation import chi2
 from estimation.landmark_map import LandmarkMap
 from estimation.map_validation import CLOCK_KEY, FOOTPRINT_KEY, colocation_metadata
 

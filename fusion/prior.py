@@ -22,8 +22,8 @@ import json
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
+from estimation import chi2
 from estimation.fileio import read_bounded
 from estimation.geometry import wrap_angle
 

@@ -35,8 +35,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2
 
+from estimation import chi2
 from estimation.fastslam.self_check import KEY as SELF_CHECK_KEY
 from estimation.geometry import wrap_angle
 from estimation.landmark_map import LandmarkMap

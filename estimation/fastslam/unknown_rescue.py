@@ -34,8 +34,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
+from .. import chi2
 from .drift import DriftTracker
 from .id_gate import RelativeGate, psd_part
 from .linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic

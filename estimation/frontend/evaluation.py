@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.stats import chi2
+
+from .. import chi2
 
 
 @dataclass(frozen=True)

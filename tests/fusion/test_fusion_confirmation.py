@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from scipy.stats import chi2
 
+from estimation import chi2
 from estimation.landmark_map import LandmarkMap
 from fusion import Alignment, AlignmentCache, align
 from fusion.confirmation import CANDIDATE, ConfirmingCache, candidate_clause, transforms_agree

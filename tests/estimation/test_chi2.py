@@ -1,0 +1,70 @@
+"""estimation.chi2 returns bit for bit what scipy.stats.chi2 returns (so that replacing one by the other moves no
+gate, no confirmation and no estimate), over degrees of freedom and probabilities, at the edges (0, 1, outside,
+NaN, a bad dof) and broadcast over arrays; and importing it does not import scipy.stats."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2 as reference
+
+from estimation import chi2
+
+FUNCTIONS = ("cdf", "sf", "ppf", "isf")
+dofs = st.one_of(st.integers(1, 400), st.floats(1e-3, 1e3))
+probabilities = st.one_of(st.floats(0.0, 1.0), st.sampled_from([1e-300, 1e-12, 1e-6, 0.001, 0.05, 0.5, 0.95,
+                                                                0.999, 1 - 1e-12, 0.0, 1.0]))
+values = st.one_of(st.floats(0.0, 1e4), st.sampled_from([0.0, 1e-300, 1e-9, 7.814727903251178, 1e300, np.inf]))
+
+
+def same(ours, theirs) -> bool:
+    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    return ours.dtype == theirs.dtype and ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
+
+
+@settings(max_examples=300, deadline=None)
+@given(q=probabilities, df=dofs)
+def test_ppf_and_isf_are_scipy_s_bit_for_bit(q, df):
+    assert same(chi2.ppf(q, df), reference.ppf(q, df))
+    assert same(chi2.isf(q, df), reference.isf(q, df))
+
+
+@settings(max_examples=300, deadline=None)
+@given(x=values, df=dofs)
+def test_cdf_and_sf_are_scipy_s_bit_for_bit(x, df):
+    assert same(chi2.cdf(x, df), reference.cdf(x, df))
+    assert same(chi2.sf(x, df), reference.sf(x, df))
+
+
+@pytest.mark.parametrize("name", FUNCTIONS)
+@pytest.mark.parametrize("arg", [-0.5, 1.5, -np.inf, np.nan, 0.0, 1.0, np.inf])
+@pytest.mark.parametrize("df", [3, 0, -1, np.nan, np.inf])
+def test_the_edges_are_scipy_s(name, arg, df):
+    with np.errstate(invalid="ignore"):
+        assert same(getattr(chi2, name)(arg, df), getattr(reference, name)(arg, df))
+
+
+@settings(max_examples=50, deadline=None)
+@given(p=st.lists(st.floats(0.0, 1.0), min_size=1, max_size=8), dof=st.lists(st.integers(1, 60), min_size=1,
+                                                                             max_size=8))
+def test_arrays_broadcast_as_scipy_s(p, dof):
+    p, dof = np.array(p)[:, None], np.array(dof)[None, :]
+    for name in FUNCTIONS:
+        assert same(getattr(chi2, name)(p, dof), getattr(reference, name)(p, dof))
+        assert same(getattr(chi2, name)(p[:, 0], 3), getattr(reference, name)(p[:, 0], 3))
+
+
+def test_the_gates_the_code_uses():
+    assert chi2.ppf(0.95, 3) == pytest.approx(7.814727903251178, rel=1e-15)
+    assert chi2.isf(0.05, 3) == pytest.approx(chi2.ppf(0.95, 3), rel=1e-12)
+    assert chi2.sf(chi2.ppf(0.999, 3), 3) == pytest.approx(0.001, rel=1e-12)
+
+
+def test_importing_it_does_not_import_scipy_stats():
+    code = "import sys, estimation.chi2; print('scipy.stats' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "False"
