@@ -145,16 +145,17 @@ class Progress:
 
 
 def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> int:
+    prog = f"p3at {args.command}" if getattr(args, "command", None) else "p3at"   # its errors name the command
     try:
         config = config_from_args(args, robot_url)
     except ValueError as e:
-        print(f"p3at: {e}", file=sys.stderr)
+        print(f"{prog}: {e}", file=sys.stderr)
         return 2
     progress = Progress(not args.quiet)
     try:  # a Zenoh exchange (runtime/fleet) when --exchange zenoh[:CONFIG]; None: the mission's in-process one
         exchange = open_exchange(args.exchange, args.fleet, "robot", on_event=progress.event)
     except (ValueError, RuntimeError) as e:
-        print(f"p3at: {e}", file=sys.stderr)
+        print(f"{prog}: {e}", file=sys.stderr)
         return 2
     mission = Mission(config, progress=progress.line, events=progress.event, exchange=exchange)
     restore = install_stop_signals(mission.stop)
@@ -162,7 +163,7 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
         result = mission.run()
     except (OSError, ValueError, LookupError, RuntimeError) as e:  # drivers' and files' typed errors
         progress.done()
-        print(f"p3at: mission failed: {e}", file=sys.stderr)
+        print(f"{prog}: mission failed: {e}", file=sys.stderr)
         return 1
     finally:
         restore()
@@ -180,5 +181,5 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
         print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
     for failure in result.failures:  # a stage died: the figures above are what was there when it stopped
-        print(f"p3at: mission failed: {failure}", file=sys.stderr)
+        print(f"{prog}: mission failed: {failure}", file=sys.stderr)
     return 1 if result.failures else 0

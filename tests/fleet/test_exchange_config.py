@@ -62,4 +62,4 @@ def test_p3at_run_with_a_bad_exchange_says_so_in_one_line(tmp_path):
                           "zenoh:/no/such/file.json5", "--out", str(tmp_path)], cwd=ROOT, capture_output=True,
                          text=True, timeout=120)
     assert run.returncode == 2
-    assert run.stderr.strip().splitlines() == ["p3at: /no/such/file.json5: no such Zenoh configuration file"]
+    assert run.stderr.strip().splitlines() == ["p3at run: /no/such/file.json5: no such Zenoh configuration file"]

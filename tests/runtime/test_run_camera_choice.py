@@ -18,7 +18,7 @@ def test_a_virtual_head_beside_a_robot_url_is_refused_as_asked(camera, tmp_path,
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
     assert code == 2 and len(err) == 1, (code, err)
-    assert err[0].startswith(f"p3at: --robot {url}: a robot given by URL needs a real stereo head (--camera usb)")
+    assert err[0].startswith(f"p3at run: --robot {url}: a robot given by URL needs a real stereo head (--camera usb)")
     assert not (tmp_path / "out").exists()
 
 
