@@ -308,3 +308,35 @@ def test_the_guard_sets_aside_one_wrong_pass_among_many_right_ones(seed, n_right
     keep, dropped = guard_batches(positions, covariance, batches)
     assert [d[0] for d in dropped] == [wrong]
     assert keep == [k for k in range(n_passes) if k != wrong]
+
+
+def test_a_saved_state_reloads_to_the_same_solution_and_refuses_other_settings(tmp_path):
+    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
+    from benchmarks.mrclam_constellation import load_state, save_state, state_path
+    from estimation.datasets import read_mrclam
+    from estimation.fastslam import range_bearing_config
+    from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance
+    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+
+    from .conftest import MRCLAM2
+
+    if not MRCLAM2.is_dir():
+        pytest.skip("MRCLAM data set 2 is not in ../shared/data")
+    log = read_mrclam(MRCLAM2, 2, until=120.0)
+    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    config = range_bearing_config(n_particles=10)
+    drift = HeadingDrift(0.16, 10.0)
+    names = np.asarray(log.landmark_ids, np.int64).copy()
+    named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
+    path = state_path(tmp_path, log, 0, "round3")
+    save_state(path, MergeRound([], 0.0, 0.0, True, names, named, solution),
+               {"robot": log.name, "drift": [0.16, 10.0], "path_step_s": 0.25, "round": 3})
+    state, meta = load_state(path, log, noise, config, drift, 0.25)
+    assert meta["round"] == 3 and list(tmp_path.iterdir()) == [path]          # written whole, no temporary left
+    np.testing.assert_array_equal(state.names, names)
+    np.testing.assert_array_equal(state.solution.landmarks, solution.landmarks)
+    np.testing.assert_array_equal(state.solution.inliers, solution.inliers)
+    np.testing.assert_allclose(joint_landmark_covariance(state.named.problem, state.solution),
+                               joint_landmark_covariance(named.problem, solution), rtol=1e-12)
+    with pytest.raises(ValueError, match="path_step_s"):
+        load_state(path, log, noise, config, drift, None)
