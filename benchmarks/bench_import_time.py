@@ -1,0 +1,122 @@
+"""How long a process takes to start: ``import fusion``, ``p3at fuse --help`` and a benchmark's ``--help``, in this
+tree and (``--baseline REV``) in an older revision's tree, runs alternated, medians and ratios side by side.
+
+Each measurement is a fresh ``python`` process (``OPENBLAS_NUM_THREADS=1``, the tree under test first on
+``PYTHONPATH``), timed from spawn to exit (wall seconds): that is what a user and tests/benchmarks/test_scripts_help.py
+pay. ``import fusion`` is also run under ``-X importtime`` and the package's own cumulative import time is read from
+it, with whether ``scipy.stats`` was imported at all. The baseline tree is exported with ``git archive`` into
+``--scratch`` (never into the repository); each row's baseline and current runs alternate, so a machine whose load
+changes during the run shifts both alike.
+
+    .venv/bin/python benchmarks/bench_import_time.py                                   # this tree only
+    .venv/bin/python benchmarks/bench_import_time.py --baseline 397be2f --scratch /tmp/imports --repeats 9
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from runtime.commands.options import positive_int  # noqa: E402
+
+FUSE_HELP = "import sys; from runtime.cli import main; sys.argv = ['p3at', 'fuse', '--help']; sys.exit(main())"
+
+
+def commands(tree: Path, script: str) -> dict[str, list[str]]:
+    return {"import fusion": ["-c", "import fusion"],
+            "p3at fuse --help": ["-c", FUSE_HELP],
+            f"{script} --help": [str(tree / "benchmarks" / script), "--help"]}
+
+
+def environment(tree: Path) -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"PYTHONPATH": str(tree),
+                                                                         "OPENBLAS_NUM_THREADS": "1"}
+
+
+def wall(tree: Path, argv: list[str], cwd: Path) -> float:
+    start = time.perf_counter()
+    subprocess.run([sys.executable, *argv], cwd=cwd, env=environment(tree), check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def importtime(tree: Path, cwd: Path) -> tuple[float, bool]:
+    """(``fusion``'s cumulative import time in seconds, whether scipy.stats was imported) from ``-X importtime``."""
+    done = subprocess.run([sys.executable, "-X", "importtime", "-c", "import fusion"], cwd=cwd, env=environment(tree),
+                          check=True, capture_output=True, text=True)
+    rows = [line.split("|") for line in done.stderr.splitlines() if line.startswith("import time:")]
+    cumulative = {name.strip(): int(total) for _self, total, name in rows if total.strip().isdigit()}
+    return cumulative["fusion"] / 1e6, "scipy.stats" in cumulative
+
+
+def check_tree(tree: Path, cwd: Path) -> None:
+    """Refuse to measure a tree that is not the one imported (an installed copy would win over PYTHONPATH)."""
+    done = subprocess.run([sys.executable, "-c", "import fusion; print(fusion.__file__)"], cwd=cwd,
+                          env=environment(tree), check=True, capture_output=True, text=True)
+    if not Path(done.stdout.strip()).resolve().is_relative_to(tree.resolve()):
+        sys.exit(f"bench_import_time: {tree} is not what python imports ({done.stdout.strip()})")
+
+
+def export(rev: str, scratch: Path) -> Path:
+    tree = scratch / f"tree-{rev}"
+    if not (tree / "fusion").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--baseline", metavar="REV", help="a git revision to compare with (exported into --scratch)")
+    parser.add_argument("--scratch", type=Path, help="folder for the baseline tree (default: a temporary folder)")
+    parser.add_argument("--repeats", type=positive_int, default=7, help="runs of each command per tree (default 7)")
+    parser.add_argument("--script", default="eval_fusion.py", help="the benchmark whose --help is timed "
+                                                                   "(default eval_fusion.py)")
+    args = parser.parse_args(argv)
+    if args.scratch is not None and args.scratch.resolve().is_relative_to(ROOT):
+        parser.error(f"--scratch {args.scratch} is inside the repository: give a folder outside it")
+    with tempfile.TemporaryDirectory(prefix="bench_import_time-") as tmp:
+        cwd = Path(tmp)
+        trees = {"current": ROOT}
+        if args.baseline:
+            trees = {f"baseline {args.baseline}": export(args.baseline, args.scratch or cwd / "trees"), **trees}
+        for tree in trees.values():
+            check_tree(tree, cwd)
+        times: dict[tuple[str, str], list[float]] = {}
+        stats_loaded: dict[str, bool] = {}
+        for _ in range(args.repeats):
+            for label, tree in trees.items():          # alternated: baseline, current, baseline, current ...
+                for name, command in commands(tree, args.script).items():
+                    times.setdefault((name, label), []).append(wall(tree, command, cwd))
+                seconds, stats_loaded[label] = importtime(tree, cwd)
+                times.setdefault(("import fusion (-X importtime, fusion's cumulative)", label), []).append(seconds)
+    names = list(dict.fromkeys(name for name, _ in times))
+    labels = list(trees)
+    print(f"{args.repeats} runs per command and tree, alternated; medians in seconds "
+          f"(OPENBLAS_NUM_THREADS=1, python {sys.version.split()[0]})")
+    width = max(len(n) for n in names)
+    print(f"{'':{width}}  " + "  ".join(f"{label:>22}" for label in labels) + ("   current/baseline" if
+                                                                               len(labels) == 2 else ""))
+    for name in names:
+        medians = [float(np.median(times[name, label])) for label in labels]
+        row = f"{name:{width}}  " + "  ".join(f"{m:22.3f}" for m in medians)
+        if len(labels) == 2:
+            row += f"   {medians[1] / medians[0]:.2f}"
+        print(row)
+    for label in labels:
+        print(f"{label}: import fusion imports scipy.stats: {'yes' if stats_loaded[label] else 'no'}")
+
+
+if __name__ == "__main__":
+    main()
