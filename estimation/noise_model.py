@@ -66,7 +66,7 @@ from .datasets import RangeBearingLog
 from .errors import EstimationError
 from .fastslam.config import FastSLAMConfig
 from .fastslam.motion import increment_variance, turn_spans, turning
-from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded
+from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded, special_file_kind
 from .geometry import between, wrap_angle
 from .odometry_consistency import fit_heading_drift
 
@@ -303,7 +303,12 @@ class NoiseModel:
         """Read a file written by :meth:`save` (or by hand); any defect is a NoiseModelError naming file and key."""
         path = Path(path)
         try:
-            data = tomllib.loads(read_bounded(path, MAX_FILE_BYTES).decode("utf-8"))   # never waits on a FIFO
+            text = read_bounded(path, MAX_FILE_BYTES).decode("utf-8")   # never waits on a FIFO
+            if not text.strip():   # said "key 'format' is None" (a FIFO nothing writes to reads as empty)
+                what = special_file_kind(path)
+                raise NoiseModelError(f"{path}: {'an empty file' if what is None else what + ' that gave nothing'}, "
+                                      "not a noise model (TOML, see `p3at slam noise`)")
+            data = tomllib.loads(text)
         except InputTooLargeError as e:
             raise NoiseModelError(f"{path}: {e}; a noise model has at most {MAX_FILE_BYTES}") from None
         except FileNotFoundError:
@@ -318,6 +323,8 @@ class NoiseModel:
 
     @classmethod
     def from_dict(cls, data: dict, where: str = "<noise model>") -> NoiseModel:
+        if "format" not in data:   # said "key 'format' is None"
+            raise NoiseModelError(f"{where}: no key 'format' (a noise model says format = {FORMAT_NAME!r})")
         if data.get("format") != FORMAT_NAME:
             raise NoiseModelError(f"{where}: key 'format' is {data.get('format')!r}, not {FORMAT_NAME!r}")
         if data.get("version") != FORMAT_VERSION:

@@ -53,7 +53,10 @@ def test_numpy_numbers_round_trip(tmp_path, values, windows):
 
 
 @pytest.mark.parametrize(("text", "complaint"), [
-    ("", "key 'format' is None"),
+    ("", "an empty file, not a noise model"),
+    ("  \n\n", "an empty file, not a noise model"),
+    ("# a comment alone\n", "no key 'format' \\(a noise model says format = 'p3at-noise-model'\\)"),
+    ('format = "x"\n', "key 'format' is 'x', not 'p3at-noise-model'"),
     ('format = "p3at-noise-model"\nversion = 2\n', "version 2 is not supported"),
     ('format = "p3at-noise-model"\nversion = 1\n', r"section \[odometry\] is missing"),
     ('format = "p3at-noise-model"\nversion = 1\n[odometry]\nxy_var_per_m = 1\n', "lacks theta_var_per_m"),

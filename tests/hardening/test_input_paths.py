@@ -90,6 +90,16 @@ def test_a_fifo_nothing_writes_to_is_a_clean_error_not_a_hang(tmp_path, kind):
     assert str(error).startswith(str(fifo)) and "\n" not in str(error)
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_noise_model_fifo_that_gives_nothing_says_so_not_key_format_is_none(tmp_path):
+    """`slam dataset --noise FIFO` said "key 'format' is None" (session 25's note; fixed in session 26, C)."""
+    fifo = tmp_path / "n.toml"
+    os.mkfifo(fifo)
+    finished, error = _read_in_thread(lambda: NoiseModel.load(fifo), fifo)
+    assert finished and isinstance(error, NoiseModelError)
+    assert str(error) == f"{fifo}: a FIFO that gave nothing, not a noise model (TOML, see `p3at slam noise`)"
+
+
 @pytest.mark.parametrize("kind", sorted(READERS))
 def test_a_folder_is_one_line_naming_it(tmp_path, kind):
     read, error_class, name = READERS[kind]
