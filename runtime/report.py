@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import sys
 import textwrap
 from collections.abc import Mapping
 
@@ -101,9 +102,10 @@ def _wrapped(sentence: str, width: int = 118) -> list[str]:
 def split_brief(pair: Mapping) -> str:
     """A flagged map's split decision in one short clause ("" when neither map of the pair flagged itself); the
     full sentence, with each part's reason, is ``pair["self_check"]``."""
-    decision, sentence = pair.get("split_decision"), pair.get("self_check") or ""
-    if decision not in _SPLIT_BRIEF:
+    decision, sentence = pair.get("split_decision"), pair.get("self_check")
+    if not isinstance(decision, str) or decision not in _SPLIT_BRIEF:
         return ""
+    sentence = sentence if isinstance(sentence, str) else ""
     who = sentence.split(" flagged itself", 1)[0] if " flagged itself" in sentence else "a map"
     brief = _SPLIT_BRIEF[decision]
     if decision == "none" and f"{CANDIDATE}: " in sentence:     # a part found once, not yet confirmed (live fusion)
@@ -114,13 +116,18 @@ def split_brief(pair: Mapping) -> str:
 def not_aligned_reason(pair: Mapping) -> str:
     """Why a pair (a ``PairResult.as_dict()``) was not aligned, in one short clause: its supports against the
     number these maps need, with the chance of that many by accident, when that decided; else the fusion's note."""
-    supports, needed = pair.get("supports", 0), pair.get("required_supports") or 0
-    note = " ".join((pair.get("note") or "").split())  # one line, whatever the note holds
+    def whole(key: str) -> int:   # a count as recorded; 0 when absent or no count (another version's recording)
+        value = pair.get(key)
+        return value if isinstance(value, int) and not isinstance(value, bool) else 0
+
+    supports, needed = whole("supports"), whole("required_supports")
+    note = pair.get("note")
+    note = " ".join(note.split()) if isinstance(note, str) else ""  # one line, whatever the note holds
     if needed and supports < needed:
         why = f"{supports} supports, {needed} needed"
-        if pair.get("false_alarm_probability") is not None:
+        if _number(pair.get("false_alarm_probability"), ".1e", ""):
             why += f" (P(chance) {pair['false_alarm_probability']:.1e})"
-        repeat, rival = pair.get("self_repeat_supports", 0), pair.get("second_best_supports", 0)
+        repeat, rival = whole("self_repeat_supports"), whole("second_best_supports")
         if note.startswith("ambiguous") and repeat > rival:  # a map's own repeat set the number needed, not a rival
             why += f"; ambiguous: one map repeats itself under a distinct transform with {repeat} supports"
         elif note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
@@ -140,32 +147,63 @@ def candidate_text(pair: Mapping) -> str | None:
     return f"{pair['other']} -> {pair['reference']} is a candidate, not yet found ({candidate})"
 
 
+def _number(value, spec: str, missing: str) -> str:
+    """A recorded figure, or ``missing`` when it is none (absent, null, not finite, or no number at all: a recording
+    written by another version)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return missing
+    if isinstance(value, int):   # JSON's integers are unbounded
+        if spec == "d":
+            return format(value, spec)
+        if abs(value) > sys.float_info.max:
+            return missing
+        value = float(value)
+    elif spec == "d" or not math.isfinite(value):
+        return missing
+    return format(value, spec)
+
+
+def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-") -> str:
+    """One pair's state after a fusion (a ``PairResult.as_dict()``, as recorded), in the words of both the
+    recording's fusion status (Markdown, :func:`alignment_status`) and ``p3at review`` (plain text; a figure a
+    recording lacks shows as ``missing``): aligned and what the claim rests on -- the supports against the number
+    these maps need, the chance of that many by accident, the 1-σ of the alignment beside its error against the
+    truth where that is known --, not yet aligned (a candidate), or not aligned and why."""
+    def strong(word: str) -> str:
+        return f"**{word}**" if markdown else word
+
+    split = split_brief(pair)
+    note = pair.get("note")
+    candidate = candidate_clause(note) if isinstance(note, str) and not pair.get("aligned", True) else None
+    if candidate is not None:   # found once, not yet confirmed (fusion/confirmation.py)
+        return (f"{strong('not yet aligned')}: a candidate, not yet found ({candidate})"
+                + (f"; {split}" if split else ""))
+    if not pair.get("aligned", True):
+        return f"{strong('not aligned')}: {split or not_aligned_reason(pair)}"
+    needed, chance = pair.get("required_supports"), pair.get("false_alarm_probability")
+    text = (f"{strong('aligned')}: tx {_number(pair.get('tx'), '.3f', missing)} m, "
+            f"ty {_number(pair.get('ty'), '.3f', missing)} m, θ {_number(pair.get('theta'), '.4f', missing)} rad; "
+            f"{_number(pair.get('supports'), 'd', missing)} supports")
+    if isinstance(needed, int) and not isinstance(needed, bool) and needed:
+        text += f" ({needed} needed" + (f", P(chance) {_number(chance, '.1e', missing)}" if chance is not None
+                                        else "") + ")"
+    text += f", {_number(pair.get('common'), 'd', missing)} common landmarks"
+    if pair.get("start_sigma_xy") is not None:
+        text += (f"; 1σ {_number(pair.get('start_sigma_xy'), '.3f', missing)} m / "
+                 f"{_number(pair.get('start_sigma_theta'), '.4f', missing)} rad")
+    if pair.get("error_xy") is not None:
+        text += (f"; error against the truth {_number(pair.get('error_xy'), '.3f', missing)} m / "
+                 f"{_number(pair.get('error_theta'), '.4f', missing)} rad")
+    if pair.get("low_confidence"):
+        text += f"; {strong('low confidence') if markdown else 'LOW CONFIDENCE'}: check it before use"
+    return text + (f"; {split}" if split else "")
+
+
 def alignment_status(t: float, pair: Mapping) -> str:
     """One pair's last fusion (a ``PairResult.as_dict()``) as a Markdown paragraph for the recording's fusion status
-    (runtime/rerun_log.py, ``fusion/status``): aligned or why not, and what the claim rests on -- the supports against
-    the number these maps need, the chance of that many by accident, the 1-σ of the alignment beside its error
-    against the truth where that is known: what the summary table says, at the time the viewer shows."""
-    head = f"**{pair.get('other', '?')} → {pair.get('reference', '?')}** (fusion at t = {t:.0f} s): "
-    split = split_brief(pair)
-    candidate = candidate_text(pair)
-    if candidate is not None:
-        return head + f"**not yet aligned**: {candidate.split(' is ', 1)[-1]}" + (f"; {split}" if split else "")
-    if not pair.get("aligned", True):
-        return head + f"**not aligned**: {split or not_aligned_reason(pair)}"
-    needed, chance = pair.get("required_supports"), pair.get("false_alarm_probability")
-    text = (head + f"**aligned**: tx {_fmt(pair.get('tx'))} m, ty {_fmt(pair.get('ty'))} m, "
-            f"θ {_fmt(pair.get('theta'), '.4f')} rad; {pair.get('supports', '-')} supports"
-            + (f" ({needed} needed" + (f", P(chance) {chance:.1e}" if chance is not None else "") + ")"
-               if needed else "")
-            + f", {pair.get('common', '-')} common landmarks")
-    if pair.get("start_sigma_xy") is not None:
-        text += (f"; 1σ {_fmt(pair.get('start_sigma_xy'))} m / {_fmt(pair.get('start_sigma_theta'), '.4f')} rad")
-    if pair.get("error_xy") is not None:
-        text += (f"; error against the truth {_fmt(pair.get('error_xy'))} m / "
-                 f"{_fmt(pair.get('error_theta'), '.4f')} rad")
-    if pair.get("low_confidence"):
-        text += "; **low confidence**: check it before use"
-    return text + (f"; {split}" if split else "")
+    (runtime/rerun_log.py, ``fusion/status``): :func:`alignment_text` at the time the viewer shows."""
+    return f"**{pair.get('other', '?')} → {pair.get('reference', '?')}** (fusion at t = {t:.0f} s): " + \
+        alignment_text(pair, markdown=True)
 
 
 def start_prior_line(reference: str, other: str, prior) -> str:

@@ -268,25 +268,13 @@ def _number(a: dict, key: str, digits: int) -> str:
 
 
 def _alignment_line(pair: str, a: dict) -> str:
-    """One alignment as recorded (fields a recording written by another version may lack show as '?'), with what
-    it rests on as the demo's table says it: supports against the number needed, P(chance), its 1 σ."""
+    """One alignment as recorded, in the words of the recording's fusion status in the viewer
+    (runtime.report.alignment_text: one wording of one state); a figure a recording written by another version
+    lacks shows as '?'."""
+    from runtime.report import alignment_text
+
     names = f"{a['other']} -> {a['reference']}" if "other" in a and "reference" in a else pair
-    if not a.get("aligned"):
-        return f"  alignment {names}: none ({a.get('note') or 'maps do not overlap'})"
-    line = (f"  alignment {names}: tx {_number(a, 'tx', 3)} m, ty {_number(a, 'ty', 3)} m, "
-            f"θ {_number(a, 'theta', 4)} rad, {a.get('supports', '?')} supports")
-    if isinstance(a.get("required_supports"), int):
-        line += f" ({a['required_supports']} needed"
-        chance = a.get("false_alarm_probability")
-        line += f", P(chance) {chance:.1e})" if isinstance(chance, int | float) else ")"
-    line += f", {a.get('common', '?')} common"
-    if isinstance(a.get("start_sigma_xy"), int | float):
-        line += f"; 1σ {_number(a, 'start_sigma_xy', 3)} m / {_number(a, 'start_sigma_theta', 4)} rad"
-    if a.get("error_xy") is not None:
-        line += f"; error vs truth {_number(a, 'error_xy', 3)} m / {_number(a, 'error_theta', 4)} rad"
-    if a.get("low_confidence"):
-        line += "; LOW CONFIDENCE: check it before use"
-    return line
+    return f"  alignment {names}: {alignment_text(a, missing='?')}"
 
 
 def _dataset_run_line(run: dict | None) -> str | None:

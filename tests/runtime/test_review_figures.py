@@ -3,6 +3,8 @@ its 1 σ, a low-confidence flag) as the demo's table does, names a pair not alig
 run's recording (``p3at slam dataset ... --rerun``) with the run's own figures."""
 from __future__ import annotations
 
+import pytest
+
 from runtime.cli import main
 from runtime.rerun_log import MissionLog, open_recording
 
@@ -22,8 +24,9 @@ def _review(tmp_path, capsys, name: str, log_it) -> list[str]:
 
 def test_an_alignment_is_reviewed_with_what_it_rests_on(tmp_path, capsys):
     out = _review(tmp_path, capsys, "aligned", lambda log: log.log_alignment(144.0, "robot1", "robot2", ALIGNED))
-    assert ("  alignment robot2 -> robot1: tx 4.992 m, ty 0.024 m, θ 3.1382 rad, 39 supports (33 needed, P(chance) "
-            "6.9e-11), 39 common; 1σ 0.457 m / 0.0632 rad; error vs truth 0.025 m / 0.0034 rad") in out
+    assert ("  alignment robot2 -> robot1: aligned: tx 4.992 m, ty 0.024 m, θ 3.1382 rad; 39 supports (33 needed, "
+            "P(chance) 6.9e-11), 39 common landmarks; 1σ 0.457 m / 0.0632 rad; error against the truth 0.025 m / "
+            "0.0034 rad") in out
     low = _review(tmp_path, capsys, "low", lambda log: log.log_alignment(
         144.0, "robot1", "robot2", {**ALIGNED, "low_confidence": True}))
     assert any(line.endswith("LOW CONFIDENCE: check it before use") for line in low)
@@ -33,7 +36,42 @@ def test_a_pair_not_aligned_is_named_as_the_demo_names_it(tmp_path, capsys):
     out = _review(tmp_path, capsys, "none", lambda log: log.log_alignment(
         60.0, "robot1", "robot2", {"reference": "robot1", "other": "robot2", "aligned": False, "supports": 9,
                                    "note": "only 9 supports"}))
-    assert "  alignment robot2 -> robot1: none (only 9 supports)" in out
+    assert "  alignment robot2 -> robot1: not aligned: only 9 supports" in out
+
+
+# the states a pair can be in after a fusion, as the mission records them (PairResult.as_dict())
+STATES = {
+    "aligned": ALIGNED,
+    "low confidence": {**ALIGNED, "low_confidence": True},
+    "too few supports": {"reference": "robot1", "other": "robot2", "aligned": False, "supports": 9,
+                         "required_supports": 34, "false_alarm_probability": 1.0, "self_repeat_supports": 22,
+                         "second_best_supports": 7, "note": "ambiguous: one map repeats itself under a distinct "
+                                                             "transform with 22 supports"},
+    "candidate": {"reference": "robot1", "other": "robot2", "aligned": False, "supports": 26,
+                  "note": "candidate: 26 supports at (0.15 m, -0.01 m, -0.001 rad); no earlier fusion of these maps "
+                          "found it"},
+    "split": {**ALIGNED, "split_decision": "before", "self_check": "robot2 flagged itself at 80 s ..."},
+    "another version's": {"reference": "robot1", "other": "robot2", "aligned": True, "tx": 1.0, "ty": 2.0,
+                          "supports": 3},
+}
+
+
+@pytest.mark.parametrize("state", sorted(STATES))
+def test_review_says_an_alignment_in_the_words_of_the_viewers_fusion_status(tmp_path, capsys, state):
+    """Session 26 (C): review and the viewer's fusion status worded one state two ways ('none (…)' beside
+    '**not aligned**: 9 supports, 34 needed …'; a candidate as 'none' beside 'not yet aligned'); now one function
+    (runtime.report.alignment_text) words both, the viewer's in Markdown."""
+    from runtime.rerun_log import FUSION_STATUS
+
+    from .rerun_helpers import entity_rows
+
+    out = _review(tmp_path, capsys, "s", lambda log: log.log_alignment(30.0, "robot1", "robot2", STATES[state]))
+    (line,) = [line for line in out if line.startswith("  alignment ")]
+    shown = str(entity_rows(tmp_path / "s.rrd", FUSION_STATUS)[-1]["TextDocument:text"][0])
+    head = "**robot2 → robot1** (fusion at t = 30 s): "
+    assert shown.startswith(head)
+    viewer = shown.removeprefix(head).replace("**low confidence**", "LOW CONFIDENCE").replace("**", "")
+    assert line.removeprefix("  alignment robot2 -> robot1: ") == viewer.replace(" - ", " ? ")
 
 
 def test_a_data_set_runs_recording_leads_with_the_runs_figures(tmp_path, capsys):
