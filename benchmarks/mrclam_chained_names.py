@@ -385,7 +385,7 @@ def merge_candidates(named: NamedProblem, solution: Smoothed, *, ratio: float = 
     blocks = covariance.reshape(n, 2, n, 2).transpose(0, 2, 1, 3)              # [i, j] the (2, 2) block
     own = blocks[np.arange(n), np.arange(n)]
     with np.errstate(invalid="ignore"):
-        s = own[:, None] + own[None, :] - blocks - blocks.transpose(1, 0, 3, 2)
+        s = own[:, None] + own[None, :] - blocks - blocks.transpose(1, 0, 2, 3)
     d = solution.landmarks[:, None, :] - solution.landmarks[None, :, :]
     covisible = _covisible(problem, solution.inliers, n)
     valid = seen[:, None] & seen[None, :] & ~np.eye(n, dtype=bool) & ~covisible
@@ -608,7 +608,7 @@ def gap_table(log: RangeBearingLog, r: MergeRound) -> list[dict]:
     blocks = covariance.reshape(n, 2, n, 2).transpose(0, 2, 1, 3)
     own = blocks[np.arange(n), np.arange(n)]
     with np.errstate(invalid="ignore"):
-        s = own[:, None] + own[None] - blocks - blocks.transpose(1, 0, 3, 2)
+        s = own[:, None] + own[None] - blocks - blocks.transpose(1, 0, 2, 3)
     covisible = _covisible(named.problem, sol.inliers, n) | np.eye(n, dtype=bool)
     finite = np.all(np.isfinite(s.reshape(n, n, 4)), axis=2) & ~covisible
     s = np.where(finite[..., None, None], s, np.eye(2))

@@ -515,7 +515,7 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         if args.progress:
             _print_judged(k + 1, judged, file=sys.stderr)
         if used and args.guard:
-            record["guard"], used = guard_record(current, covariance, used, owner)
+            record["guard"], used = guard_record(current, covariance, used, owner, covisible)
             clusters = merges_from(used, covisible)[0]
             if args.progress:
                 _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
@@ -604,35 +604,47 @@ def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict
             "path_step_s": _path_step(args), "round": round_done, "scores": scores or {}}
 
 
-def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int]
-                 ) -> tuple[dict, list[PassVerdict]]:
-    """:func:`estimation.constellation.guard_batches` on the passes a round would merge: the passes kept, and what
-    it did, scored (a pass set aside with a wrong pairing: two barcodes)."""
+def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
+                 covisible: np.ndarray) -> tuple[dict, list[PassVerdict]]:
+    """:func:`estimation.constellation.guard_batches` on the groups of names a round would merge (the clusters
+    :func:`merges_from` makes of the passes' pairings: disjoint, so each group's share is its own; a pairing that
+    several passes hold, as a wrong one did on robot 2, leaves each pass a share of 0 degrees of freedom). Returns
+    what it did, scored (a group of two barcodes is wrong), and the groups kept, each as a verdict of pairings
+    (root, member) for :func:`merge_bisecting`, largest first."""
     positions = current.solution.landmarks
     code = np.array([owner.get(int(x), -1) for x in current.named.names])
+    clusters = merges_from(used, covisible)[0]
+    members: dict[int, list[int]] = {}
+    for k, r in clusters.items():
+        if k != r:
+            members.setdefault(r, []).append(k)
+    roots = sorted(members)
+    groups = [[(r, k) for k in sorted(members[r])] for r in roots]
 
-    def wrong(v: PassVerdict) -> int:
-        return int(sum(code[a] != code[b] for a, b in v.pairs))
+    def wrong(g) -> bool:
+        return len({code[a] for pair in g for a in pair}) > 1
 
-    linear, _ = joint_d2(positions, covariance, spanning_pairs([p for v in used for p in v.pairs]))
-    keep, dropped = guard_batches(positions, covariance, [v.pairs for v in used])
-    shares = leave_one_out(positions, covariance, [v.pairs for v in used])
-    record = {"passes": len(used), "linear_d2": float(linear),
-              "wrong_passes": sum(wrong(v) > 0 for v in used),
-              "shares": [{"pass": v.index, "d2": d2, "dof": dof, "wrong_pairings": wrong(v)}
-                         for v, (d2, dof) in zip(used, shares, strict=True)],
-              "set_aside": [{"pass": used[i].index, "d2": d2, "dof": dof, "wrong_pairings": wrong(used[i])}
-                            for i, d2, dof in dropped],
-              "kept_wrong_passes": sum(wrong(used[i]) > 0 for i in keep)}
-    return record, [used[i] for i in keep]
+    linear, _ = joint_d2(positions, covariance, [p for g in groups for p in g])
+    keep, dropped = guard_batches(positions, covariance, groups)
+    shares = leave_one_out(positions, covariance, groups)
+    record = {"passes": len(used), "groups": len(groups), "linear_d2": float(linear),
+              "wrong_groups": sum(wrong(g) for g in groups),
+              "shares": [{"group": [int(current.named.names[x]) for x in (g[0][0], *(m for _, m in g))], "d2": d2,
+                          "dof": dof, "wrong": wrong(g)} for g, (d2, dof) in zip(groups, shares, strict=True)],
+              "set_aside": [{"group": [int(current.named.names[x]) for x in (groups[i][0][0],
+                                                                            *(m for _, m in groups[i]))],
+                             "d2": d2, "dof": dof, "wrong": wrong(groups[i])} for i, d2, dof in dropped],
+              "kept_wrong_groups": sum(wrong(groups[i]) for i in keep)}
+    kept = sorted((groups[i] for i in keep), key=len, reverse=True)
+    return record, [PassVerdict(-1 - i, "matched", g, (len(g), 0.0), 0, True) for i, g in enumerate(kept)]
 
 
 def _print_guard(label: str, g: dict, file=None) -> None:
-    aside = ", ".join(f"pass {a['pass']} d² {a['d2']:.1f}/{a['dof']}{' WRONG' if a['wrong_pairings'] else ''}"
+    aside = ", ".join(f"{len(a['group'])} names d² {a['d2']:.1f}/{a['dof']}{' WRONG' if a['wrong'] else ''}"
                       for a in g["set_aside"])
-    print(f"{label} guard: {g['passes']} passes ({g['wrong_passes']} with a wrong pairing), linear d² "
-          f"{g['linear_d2']:.1f}; set aside {len(g['set_aside'])} ({aside or '-'}); kept with a wrong pairing "
-          f"{g['kept_wrong_passes']}", file=file, flush=True)
+    print(f"{label} guard: {g['passes']} passes, {g['groups']} groups ({g['wrong_groups']} of two posts), linear d² "
+          f"{g['linear_d2']:.1f}; set aside {len(g['set_aside'])} ({aside or '-'}); kept of two posts "
+          f"{g['kept_wrong_groups']}", file=file, flush=True)
 
 
 def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
@@ -662,7 +674,7 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
                    for i, g in enumerate(x for x in groups if x.status == "merge")]
         clusters, used = merges_from(merging, covisible)
         if used and args.guard:
-            record["guard"], used = guard_record(current, covariance, used, owner)
+            record["guard"], used = guard_record(current, covariance, used, owner, covisible)
         record["judge_cpu_s"] = time.process_time() - started
         if args.progress:
             print(f"  pairwise {k + 1}: groups {record['groups']} (wrong {record['groups_wrong']}), "

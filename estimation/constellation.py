@@ -187,14 +187,14 @@ def pairwise_d2(positions: np.ndarray, covariance: np.ndarray, points) -> np.nda
     blocks = np.asarray(covariance, float)[np.ix_(idx, idx)].reshape(k, 2, k, 2).transpose(0, 2, 1, 3)
     own = blocks[np.arange(k), np.arange(k)]
     with np.errstate(invalid="ignore"):
-        s = own[:, None] + own[None, :] - blocks - blocks.transpose(1, 0, 3, 2)
+        s = own[:, None] + own[None, :] - blocks - blocks.transpose(1, 0, 2, 3)
     ok = np.all(np.isfinite(s.reshape(k, k, 4)), axis=2) & ~np.eye(k, dtype=bool)
     s = np.where(ok[..., None, None], s, np.eye(2))
     det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
     ok &= (det > 0) & (s[..., 0, 0] > 0)
     det = np.where(ok, det, 1.0)
     d = np.asarray(positions, float)[points][:, None] - np.asarray(positions, float)[points][None]
-    d2 = (s[..., 1, 1] * d[..., 0] ** 2 - 2 * s[..., 0, 1] * d[..., 0] * d[..., 1]
+    d2 = (s[..., 1, 1] * d[..., 0] ** 2 - (s[..., 0, 1] + s[..., 1, 0]) * d[..., 0] * d[..., 1]
           + s[..., 0, 0] * d[..., 1] ** 2) / det
     return np.where(ok, d2, np.inf)
 

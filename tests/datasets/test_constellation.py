@@ -340,3 +340,21 @@ def test_a_saved_state_reloads_to_the_same_solution_and_refuses_other_settings(t
                                joint_landmark_covariance(named.problem, solution), rtol=1e-12)
     with pytest.raises(ValueError, match="path_step_s"):
         load_state(path, log, noise, config, drift, None)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), n=st.integers(2, 6))
+def test_pairwise_d2_is_joint_d2_of_each_pair_for_any_covariance(seed, n):
+    # a smoother's cross covariance of two points is not symmetric: their difference's covariance is
+    # C_ii + C_jj − C_ij − C_ji (twice C_ij is wrong)
+    from estimation.constellation import pairwise_d2
+
+    rng = np.random.default_rng(seed)
+    root = rng.normal(size=(2 * n, 2 * n))
+    covariance = root @ root.T + 0.1 * np.eye(2 * n)
+    positions = rng.normal(size=(n, 2))
+    d2 = pairwise_d2(positions, covariance, range(n))
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                assert d2[i, j] == pytest.approx(joint_d2(positions, covariance, [(i, j)])[0], rel=1e-9)
