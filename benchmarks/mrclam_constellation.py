@@ -514,9 +514,11 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         record = {"round": k + 1, "judged": judged, "passes_used": len(used)}
         if args.progress:
             _print_judged(k + 1, judged, file=sys.stderr)
-        if used and args.guard:
-            record["guard"], used = guard_record(current, covariance, used, owner, covisible)
-            clusters = merges_from(used, covisible)[0]
+        if used:          # the guard's verdict is recorded on every round, and acted on with --guard
+            record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
+            if args.guard:
+                used = guarded
+                clusters = merges_from(used, covisible)[0]
             if args.progress:
                 _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
         if not clusters:
@@ -673,8 +675,10 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
                                (len(g.members), -g.d2 / g.dof), 0, True)
                    for i, g in enumerate(x for x in groups if x.status == "merge")]
         clusters, used = merges_from(merging, covisible)
-        if used and args.guard:
-            record["guard"], used = guard_record(current, covariance, used, owner, covisible)
+        if used:
+            record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
+            if args.guard:
+                used = guarded
         record["judge_cpu_s"] = time.process_time() - started
         if args.progress:
             print(f"  pairwise {k + 1}: groups {record['groups']} (wrong {record['groups_wrong']}), "
@@ -780,8 +784,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
                              "strongest pass alone, session 24's)")
     parser.add_argument("--guard", action="store_true",
-                        help="before a batch is merged, set aside each pass whose share of it, tested given the "
-                             "others' (leave one out), is beyond χ² 99 %%")
+                        help="before a batch is merged, set aside each group of names whose share of it, tested "
+                             "given the others' (leave one out), is beyond χ² 99 %% (without it the guard's verdict "
+                             "is only printed)")
     parser.add_argument("--pairwise", type=non_negative_int, default=0, metavar="ROUNDS",
                         help="after the rounds, up to ROUNDS rounds of pairwise merges of the names left (groups "
                              "of names within each other's χ²₂ 99 %% gate and no rival's; 0: none)")
