@@ -95,7 +95,12 @@ class _Subscribers:
 
 
 class _ReadFailedError(NotConnectedError):
-    """A read the port refused (the peer closed or reset the link): its cause is pyserial's own exception."""
+    """A read the port refused (the peer closed or reset the link). Its message names the port, for the caller of
+    a session step; ``reason`` is what the link's "lost" event says: pyserial's own words, as for any I/O error."""
+
+    def __init__(self, url: str, cause: BaseException) -> None:
+        super().__init__(f"{url}: link dropped ({cause})")
+        self.reason = f"I/O error: {cause}"
 
 
 def _close_quietly(port: Any) -> None:
@@ -441,7 +446,7 @@ class P3AT:
         except (serial.SerialException, OSError) as exc:
             # the peer closed or reset the link (a bridge that drops the connection during the handshake): a lost
             # link, as the reader thread reports one, not pyserial's exception (`robot info`: 'internal error')
-            raise _ReadFailedError(f"{self.url}: link dropped ({exc})") from exc
+            raise _ReadFailedError(self.url, exc) from exc
         if data:
             self._pending.extend(self.parser.feed(data))
 
@@ -623,9 +628,12 @@ class P3AT:
                     self._lose_link(f"no packet for {now - self._last_rx:.1f} s")
                 elif now - self._last_tx >= self.pulse_interval:
                     self._write(encode_command(Command.PULSE))
+            except _ReadFailedError as exc:   # a dropped read: the reason it carries (not its URL again)
+                if not self._stop.is_set():
+                    self._lose_link(exc.reason)
             except (serial.SerialException, OSError, NotConnectedError) as exc:
-                if not self._stop.is_set():   # a dropped read in pyserial's words, not its URL again
-                    self._lose_link(f"I/O error: {exc.__cause__ if isinstance(exc, _ReadFailedError) else exc}")
+                if not self._stop.is_set():
+                    self._lose_link(f"I/O error: {exc}")
 
     def _lose_link(self, reason: str) -> None:
         log.warning("%s: link lost (%s)", self.url, reason)

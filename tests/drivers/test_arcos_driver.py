@@ -138,6 +138,20 @@ def test_tcp_peer_hanging_up_is_a_lost_link_and_the_driver_reconnects(tcp_peer) 
 
 
 
+def test_a_dropped_read_is_lost_in_pyserials_words_and_a_session_step_names_the_port(tcp_peer) -> None:
+    """The link's "lost" event says why in pyserial's words ("I/O error: read failed: ..."), not the port again;
+    a session step that meets the drop raises NotConnectedError naming the port (tests/hardening/test_link_dropped.py
+    for the commands). Session 26 (C): the error carries the event's text (no unwrapping of its cause)."""
+    peer = tcp_peer
+    events: list = []
+    with P3AT(peer.url, link_timeout=FAILURE_BOUND) as robot:
+        robot.subscribe_link(events.append)
+        peer.drop_client()
+        assert wait_until(lambda: any(e.kind == "lost" for e in events))
+    (lost,) = [e for e in events if e.kind == "lost"][:1]
+    assert lost.reason.startswith("I/O error: ") and peer.url not in lost.reason and "link dropped" not in lost.reason
+
+
 def test_close_during_a_reconnect_that_waits_for_its_first_sip_stops_the_reader_at_once(tcp_peer) -> None:
     """A reconnect whose handshake passed but whose first SIP has not come (a robot that opens mute) is cut short
     by close(): the reader ends with it. It spun in the SIP wait until its deadline (link_timeout / 2: here 500 s
