@@ -97,6 +97,7 @@ from estimation.constellation import (  # noqa: E402
     joint_d2,
     leave_one_out,
     match_constellation,
+    pairwise_d2,
     pairwise_groups,
     spanning_pairs,
 )
@@ -627,6 +628,7 @@ def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVer
         return len({code[a] for pair in g for a in pair}) > 1
 
     linear, _ = joint_d2(positions, covariance, [p for g in groups for p in g])
+    rivals = group_rivals(positions, covariance, groups, covisible)
     keep, dropped = guard_batches(positions, covariance, groups)
     shares = leave_one_out(positions, covariance, groups)
     record = {"passes": len(used), "groups": len(groups), "linear_d2": float(linear),
@@ -636,9 +638,37 @@ def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVer
               "set_aside": [{"group": [int(current.named.names[x]) for x in (groups[i][0][0],
                                                                             *(m for _, m in groups[i]))],
                              "d2": d2, "dof": dof, "wrong": wrong(groups[i])} for i, d2, dof in dropped],
-              "kept_wrong_groups": sum(wrong(groups[i]) for i in keep)}
+              "kept_wrong_groups": sum(wrong(groups[i]) for i in keep),
+              "with_rivals": sum(r > 0 for r in rivals),
+              "wrong_with_rivals": sum(r > 0 and wrong(g) for g, r in zip(groups, rivals, strict=True))}
     kept = sorted((groups[i] for i in keep), key=len, reverse=True)
     return record, [PassVerdict(-1 - i, "matched", g, (len(g), 0.0), 0, True) for i, g in enumerate(kept)]
+
+
+def group_rivals(positions: np.ndarray, covariance: np.ndarray, groups: list[list[tuple[int, int]]],
+                 covisible: np.ndarray, probability: float = 0.99) -> list[int]:
+    """A diagnostic beside the guard: for each group of names to be merged (pairings (root, member)), how many names
+    outside it lie within some member's χ²₂ gate (:func:`pairwise_d2`) yet cannot be the group's post (sighted in
+    one frame with a member, or the group with it jointly out of χ²_{2m}): rivals the passes' search never met."""
+    n = len(positions)
+    seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+    d2 = np.full((n, n), np.inf)
+    d2[np.ix_(seen, seen)] = pairwise_d2(positions, covariance, seen)
+    gate = float(scipy.stats.chi2.ppf(probability, 2))
+    out = []
+    for g in groups:
+        members = [g[0][0]] + [m for _, m in g]
+        near = set(np.flatnonzero((d2[members] < gate).any(axis=0)).tolist()) - set(members)
+        count = 0
+        for x in near:
+            if covisible[x, members].any():
+                count += 1
+                continue
+            pairs = g + [(members[0], x)]
+            joint, _ = joint_d2(positions, covariance, pairs)
+            count += not joint < scipy.stats.chi2.ppf(probability, 2 * len(pairs))
+        out.append(count)
+    return out
 
 
 def _print_guard(label: str, g: dict, file=None) -> None:
@@ -646,7 +676,8 @@ def _print_guard(label: str, g: dict, file=None) -> None:
                       for a in g["set_aside"])
     print(f"{label} guard: {g['passes']} passes, {g['groups']} groups ({g['wrong_groups']} of two posts), linear d² "
           f"{g['linear_d2']:.1f}; set aside {len(g['set_aside'])} ({aside or '-'}); kept of two posts "
-          f"{g['kept_wrong_groups']}", file=file, flush=True)
+          f"{g['kept_wrong_groups']}; groups with a rival {g['with_rivals']} ({g['wrong_with_rivals']} of two posts)",
+          file=file, flush=True)
 
 
 def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
