@@ -33,6 +33,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -40,12 +41,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_fusion import _feature_fit  # noqa: E402
 from fusion_sim import load_world  # noqa: E402
 
-from estimation.geometry import between, inverse, transform_points, wrap_angle  # noqa: E402
+from estimation.geometry import between, compose, inverse, transform_points, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
 from fusion.alignment import align, alignment_error, true_relative_pose  # noqa: E402
 from fusion.shape_covariance import _lever, _psd  # noqa: E402  (the chain model's lever and PSD floor)
-from runtime.commands.options import non_negative_float  # noqa: E402
+from runtime.commands.options import non_negative_float, positive_float  # noqa: E402
 from runtime.trajectories import planar, read_tum  # noqa: E402
 
 FEATURE_RADIUS = 0.15          # m: a landmark this close to a true feature (after the map's fit) stands for it
@@ -76,7 +77,6 @@ def on_features(m: LandmarkMap, features: np.ndarray, fit: np.ndarray, rows: np.
                 ) -> tuple[np.ndarray, np.ndarray]:
     """The rows (of ``rows``, default all) whose landmark lies within FEATURE_RADIUS of a true feature after the map's
     fit ``fit`` (world frame), and those features (K, 3) in the world."""
-    from scipy.spatial import cKDTree
     rows = np.arange(len(m)) if rows is None else np.asarray(rows)
     d, k = cKDTree(features).query(transform_points(fit, m.positions[rows]), distance_upper_bound=FEATURE_RADIUS)
     ok = np.isfinite(d)
@@ -191,56 +191,78 @@ def _map_truth(folder: Path, m: LandmarkMap) -> tuple[np.ndarray, np.ndarray]:
     return traj[k[ok]], truth[ok]
 
 
-def alignment_rows(folders: list[Path], floor: float) -> None:
+def overlap_frame(m: LandmarkMap, features: np.ndarray, rows: np.ndarray, radius: float
+                  ) -> tuple[np.ndarray, int]:
+    """Map ``m``'s frame where it overlaps the other map: the rigid fit, to the true features in the true start frame,
+    of its on-feature landmarks within ``radius`` m of one of its supports ``rows``, composed with the true start
+    (a world pose, (3,)), and how many landmarks it rests on."""
+    start = np.asarray(m.metadata["true_start_pose"], float)
+    near = np.flatnonzero(cKDTree(m.positions[rows, :2]).query(m.positions[:, :2])[0] <= radius)
+    on, feats = on_features(m, features, _feature_fit(m, features)[0], near)
+    if len(on) < 3:
+        return np.full(3, np.nan), len(on)
+    return compose(start, frame_error(m.positions[on], transform_points(inverse(start), feats))), len(on)
+
+
+def alignment_rows(folders: list[Path], floor: float, radius: float) -> None:
     world = load_world()
     print("\n### The alignment against the truth, and each map's frame error where the maps overlap\n")
-    print("Per map: dθ, the rigid fit of its supports on true features to them in the true start frame (rad; the "
-          "correction to the map, minus its heading error); e, the map's own heading error (its trajectory against "
-          "the truth) when it made the supports (median over them); their median creation time; the map's heading σ "
-          "there (drift tracker); |e| in those σ; how many supports were made with σθ ≤ 0.01 rad. A map turned by e "
-          "about its start turns the alignment by e₁ − e₂.\n")
-    print("| run | supports | error vs truth xy (m) / θ (rad) (signed θ) | own | map 1: dθ; e; made at; σθ; z; "
-          "steady | map 2: dθ; e; made at; σθ; z; steady | e₁ − e₂ (mrad) | start-frame 1σ xy / θ (NEES) | GLS, "
-          "correlated drift: vs truth (NEES) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"Overlap: each map's landmarks within {radius:g} m of a support that lie on a true feature, fitted to those "
+          "features in the map's true start frame; their composition is the best alignment of the two overlaps, and "
+          "against the truth it is the maps' frame error there ('own' = the alignment against it). e: a map's heading "
+          "error (its trajectory against the truth) when it made the supports (median over them), with its heading σ "
+          "there (drift tracker), |e| in those σ, the supports' median creation time and how many were made with "
+          f"σθ ≤ {STEADY_SIGMA} rad. A map turned by e about its start turns the alignment by e₁ − e₂. Early: map 2's "
+          f"landmarks made with σθ ≤ {STEADY_SIGMA} rad (how many on true features), and how many true features they "
+          "share with map 1's on-feature landmarks (whether map 2's well-framed part overlaps map 1 at all).\n")
+    print("| run | supports | error vs truth xy (m) / θ (rad) | best alignment of the overlaps vs truth (landmarks) | "
+          "own | map 1: e mrad (σθ, z; made at; steady) | map 2: e mrad (σθ, z; made at; steady) | e₁ − e₂ vs "
+          "signed θ error (mrad) | map 2 early: landmarks; true features shared with map 1 | start-frame 1σ xy / θ "
+          "(NEES) | GLS, correlated drift: vs truth (NEES) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for folder in folders:
         m1, m2 = LandmarkMap.load(folder / "robot1.npz"), LandmarkMap.load(folder / "robot2.npz")
         truth = true_relative_pose(m1, m2)
         a = align(m1, m2, "robust", np.random.default_rng(0))
         if not a.found:
-            print(f"| {folder.name} | {len(a.supports)} | not found: {a.reason.split(';')[0][:90]} | | | | | | |")
+            print(f"| {folder.name} | {len(a.supports)} | not found: {a.reason.split(';')[0][:90]} |"
+                  + " |" * 8)
             continue
-        fits, cells, heading = [], [], []
+        frames, counts, cells, heading = [], [], [], []
         for m, rows in ((m1, a.supports[:, 0]), (m2, a.supports[:, 1])):
-            fit = _feature_fit(m, world.features)[0]
-            fits.append(fit)
-            start = np.asarray(m.metadata["true_start_pose"], float)
-            on, feats = on_features(m, world.features, fit, rows)
-            fe = frame_error(m.positions[on], transform_points(inverse(start), feats)) if len(on) >= 3 else None
+            frame, n_on = overlap_frame(m, world.features, rows, radius)
+            frames.append(frame)
+            counts.append(n_on)
             made = creation_times(m)[rows]
             traj, truth_rows = _map_truth(folder, m)
             k = np.clip(np.searchsorted(truth_rows[:, 0], made), 0, len(truth_rows) - 1)
             heading.append(float(np.median(wrap_angle(traj[k, 3] - truth_rows[k, 3]))))
-            sig = float(np.median(np.sqrt(m.drift_covariances[rows, 2, 2]))) if m.drift_covariances is not None \
-                else float("nan")
-            steady = int(np.sum(np.sqrt(m.drift_covariances[rows, 2, 2]) <= STEADY_SIGMA)) \
-                if m.drift_covariances is not None else 0
-            cells.append(("–" if fe is None else f"{fe[2]:+.4f} ({len(on)} on features)")
-                         + f"; {1000 * heading[-1]:+.0f} mrad; {np.nanmedian(made):.0f} s; {sig:.4f}; "
-                         f"{abs(heading[-1]) / sig:.1f}; {steady}")
-        best = between(*fits)
+            if m.drift_covariances is None:
+                cells.append(f"{1000 * heading[-1]:+.0f} (no drift in the file; {np.nanmedian(made):.0f} s)")
+                continue
+            sig_rows = np.sqrt(m.drift_covariances[rows, 2, 2])
+            sig = float(np.median(sig_rows))
+            cells.append(f"{1000 * heading[-1]:+.0f} ({sig:.4f}, {abs(heading[-1]) / sig:.1f}; "
+                         f"{np.nanmedian(made):.0f} s; {int(np.sum(sig_rows <= STEADY_SIGMA))})")
+        best = between(*frames)
         sc = a.start_covariance
         start_txt = (f"{np.sqrt(sc[0, 0] + sc[1, 1]):.3f} / {np.sqrt(sc[2, 2]):.4f} ({nees3(a.pose, sc, truth):.1f})"
                      if sc is not None else "–")
+        early_txt, gls_txt = "–", "– (no drift in the files)"
         if m1.drift_covariances is not None and m2.drift_covariances is not None:
             g, gc = gls_alignment(m1, m2, a.supports, a.pose, floor)
             gls_txt = f"{_xy_th(alignment_error(g, truth))} ({nees3(g, gc, truth):.1f})"
-        else:
-            gls_txt = "– (no drift in the files)"
+            early = np.flatnonzero(np.sqrt(m2.drift_covariances[:, 2, 2]) <= STEADY_SIGMA)
+            e_on, e_feats = on_features(m2, world.features, _feature_fit(m2, world.features)[0], early)
+            _, m1_feats = on_features(m1, world.features, _feature_fit(m1, world.features)[0])
+            shared = {tuple(f) for f in np.round(e_feats, 6)} & {tuple(f) for f in np.round(m1_feats, 6)}
+            early_txt = f"{len(early)} ({len(e_on)} on features); {len(shared)}"
         signed = wrap_angle(a.pose[2] - truth[2])
-        print(f"| {folder.name} | {len(a.supports)} | {_xy_th(alignment_error(a.pose, truth))} ({1000 * signed:+.1f} "
-              f"mrad) | {_xy_th(alignment_error(a.pose, best))} | {cells[0]} | {cells[1]} | "
-              f"{1000 * (heading[0] - heading[1]):+.1f} | {start_txt} | {gls_txt} |")
+        print(f"| {folder.name} | {len(a.supports)} | {_xy_th(alignment_error(a.pose, truth))} | "
+              f"{_xy_th(alignment_error(best, truth))} ({counts[0]} / {counts[1]}) | "
+              f"{_xy_th(alignment_error(a.pose, best))} | {cells[0]} | {cells[1]} | "
+              f"{1000 * (heading[0] - heading[1]):+.1f} vs {1000 * signed:+.1f} | {early_txt} | {start_txt} | "
+              f"{gls_txt} |")
 
 
 def window_rows(folders: list[Path]) -> None:
@@ -296,13 +318,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("folders", nargs="+", type=Path, help="p3at demo output folders")
     parser.add_argument("--windows", action="store_true", help="each map's frame error by creation time")
     parser.add_argument("--legs", action="store_true", help="each map's heading error along its run")
+    parser.add_argument("--overlap-radius", type=positive_float, default=1.0,
+                        help="m, a map's landmarks this close to one of its supports make its overlap (default 1)")
     parser.add_argument("--floor", type=non_negative_float, default=0.02,
                         help="m, the position floor of the GLS refit (default 0.02, the robust preset's)")
     args = parser.parse_args(argv)
     for f in args.folders:
         if not (f / "robot1.npz").is_file() or not (f / "robot2.npz").is_file():
             parser.error(f"{f}: no robot1.npz / robot2.npz (a p3at demo --out folder)")
-    alignment_rows(args.folders, args.floor)
+    alignment_rows(args.folders, args.floor, args.overlap_radius)
     if args.windows:
         window_rows(args.folders)
     if args.legs:
