@@ -424,9 +424,11 @@ def _margin(loglik, covisible, d2, valid, i: int, j: int) -> float:
     return float(loglik[i, j] - (loglik[i][rival].max() if rival.any() else -np.inf))
 
 
-def _covisible(problem: LandmarkLogProblem, inliers: np.ndarray, n: int) -> np.ndarray:
-    """(L, L) True where two landmarks were sighted in one frame (every sighting counts, kept or dropped)."""
-    incidence = sp.csr_matrix((np.ones(len(problem.pose_index)), (problem.pose_index, problem.landmark_index)),
+def _covisible(problem: LandmarkLogProblem, inliers: np.ndarray, n: int, *, kept_only: bool = False) -> np.ndarray:
+    """(L, L) True where two landmarks were sighted in one frame (every sighting counts, kept or dropped; with
+    ``kept_only`` only the sightings the smoother kept: a dropped one is not the landmark's by its own verdict)."""
+    rows = np.asarray(inliers, bool) if kept_only else np.ones(len(problem.pose_index), bool)
+    incidence = sp.csr_matrix((np.ones(int(rows.sum())), (problem.pose_index[rows], problem.landmark_index[rows])),
                               shape=(problem.n_poses + 1, n))
     return (incidence.T @ incidence).toarray() > 0
 

@@ -273,8 +273,8 @@ def name_pairs(verdicts: list[PassVerdict], named: NamedProblem) -> list[list[tu
     return [[(int(named.names[a]), int(named.names[b])) for a, b in v.pairs] for v in verdicts]
 
 
-def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias: dict[int, int]
-                ) -> dict[int, int]:
+def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias: dict[int, int], *,
+                kept_covisible: bool = False) -> dict[int, int]:
     """:func:`merges_from` on ``current``'s landmark indices for passes given as name pairs; ``alias`` maps a name
     absorbed by an earlier merge to the name that absorbed it."""
     index = {int(x): k for k, x in enumerate(current.named.names)}
@@ -290,18 +290,19 @@ def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias:
         at = [(a, b) for a, b in at if a != b]
         if at:
             verdicts.append(PassVerdict(0, "matched", at))
-    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
+    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names),
+                           kept_only=kept_covisible)
     return merges_from(verdicts, covisible)[0]
 
 
 def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]], noise, config, drift, *,
-                    depth: int, alias: dict[int, int], reguess=None, path_step_s: float | None = None
-                    ) -> tuple[MergeRound, list[MergeRound]]:
+                    depth: int, alias: dict[int, int], reguess=None, path_step_s: float | None = None,
+                    kept_covisible: bool = False) -> tuple[MergeRound, list[MergeRound]]:
     """The passes' merges (strongest first) as one batch; a batch the cost check refuses is cut in two halves, each
     tried in turn (the second on top of the first if it was kept), down to ``depth`` cuts; a batch still refused at
     the last level is retried as its strongest pass alone (depth 0: U's rule, the strongest pass alone at once).
     Returns the last kept state and every attempt; ``alias`` gains the names each kept merge absorbed."""
-    clusters = clusters_of(current, passes, alias)
+    clusters = clusters_of(current, passes, alias, kept_covisible=kept_covisible)
     if not clusters:
         return current, []
     attempt = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s)
@@ -313,13 +314,13 @@ def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]
         return current, attempts
     if depth <= 0:
         state, more = merge_bisecting(log, current, passes[:1], noise, config, drift, depth=0, alias=alias,
-                                      reguess=reguess, path_step_s=path_step_s)
+                                      reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
         return state, attempts + more
     half = (len(passes) + 1) // 2
     state, first = merge_bisecting(log, current, passes[:half], noise, config, drift, depth=depth - 1, alias=alias,
-                                   reguess=reguess, path_step_s=path_step_s)
+                                   reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
     state, second = merge_bisecting(log, state, passes[half:], noise, config, drift, depth=depth - 1, alias=alias,
-                                    reguess=reguess, path_step_s=path_step_s)
+                                    reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
     return state, attempts + first + second
 
 
@@ -693,7 +694,9 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         problem, solution = current.named.problem, current.solution
         n = len(current.named.names)
         covariance = joint_landmark_covariance(problem, solution)
-        covisible = _covisible(problem, solution.inliers, n)
+        if args.name_floor > 0:      # each name's own unmodelled offset, independent of the others'
+            covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
+        covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
         seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
         groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible)
         owner = majority(current.names, barcodes)
@@ -720,7 +723,8 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         if not used:
             break
         state, attempts = merge_bisecting(log, current, name_pairs(used, current.named), noise, config, drift,
-                                          depth=args.bisect, alias={}, path_step_s=_path_step(args))
+                                          depth=args.bisect, alias={}, path_step_s=_path_step(args),
+                                          kept_covisible=args.kept_covisible)
         record["batch"] = _round(log, attempts[0], owner)
         record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
         record["cpu_s"] = time.process_time() - started
@@ -821,6 +825,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairwise", type=non_negative_int, default=0, metavar="ROUNDS",
                         help="after the rounds, up to ROUNDS rounds of pairwise merges of the names left (groups "
                              "of names within each other's χ²₂ 99 %% gate and no rival's; 0: none)")
+    parser.add_argument("--name-floor", type=non_negative_float, default=0.0, metavar="M",
+                        help="the pairwise merges' gate: σ (m) of an offset of each name of its own (the sightings' "
+                             "systematic error, which their number does not average out), added to its covariance")
+    parser.add_argument("--kept-covisible", action="store_true",
+                        help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
+                             "kept (default: every sighting counts)")
     parser.add_argument("--split-bends", action="store_true",
                         help="before the rounds, split names where the odometry bends if the cost falls (step 1b)")
     parser.add_argument("--reguess", action="store_true",

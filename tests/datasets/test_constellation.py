@@ -180,7 +180,7 @@ def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_ta
     bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), max_size=2)))
     passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]       # pass k joins name 10k + 1 to 10k
 
-    def clusters_of(current, some, alias):
+    def clusters_of(current, some, alias, **_):
         return {a: b for pairs in some for a, b in pairs if a not in alias}
 
     def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None):
