@@ -888,6 +888,15 @@ def _print(row: dict) -> None:
         _print_scores("  after the splits", row["after_splits"])
     for r in row["rounds"]:
         _print_judged(r["round"], r["judged"])
+        if "guard" in r:
+            _print_guard("   ", r["guard"])
+        for key, scores in [("batch", r.get("batch"))] + [("try", t) for t in r.get("tries", [])]:
+            if scores:
+                _print_scores(f"    {key}", scores)
+    for r in row.get("pairwise", []):
+        print(f"  pairwise {r['round']}: groups {r['groups']} (of two posts {r['groups_wrong']})")
+        if "guard" in r:
+            _print_guard("   ", r["guard"])
         for key, scores in [("batch", r.get("batch"))] + [("try", t) for t in r.get("tries", [])]:
             if scores:
                 _print_scores(f"    {key}", scores)
