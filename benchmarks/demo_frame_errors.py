@@ -7,16 +7,19 @@ Run from the repository root, on ``p3at demo --seed S --out DIR`` folders (robot
 A map's *frame error* is where its landmarks sit against its robot's true start frame. A map is not one rigid body:
 landmarks made at different times carry the robot's pose error of that time (the drift). Printed:
 
-``alignment`` (one row per folder): the robust alignment of the two final maps against the true relative start
-  (``error``), against the composition of each map's best rigid fit to the simulator's true features (``own``, as
-  ``eval_fusion --demo-maps``); then per map, the frame error *on the alignment's supports* only (the rigid fit of the
-  supports that lie within 0.15 m of a true feature to those features, in the true start frame: what the alignment
-  inherits), when those supports were made (median creation time), the map's own heading σ there (the drift
-  tracker's, ``LandmarkMap.drift_covariances``) and the error in those σ; the alignment's start-frame 1σ
-  (``Alignment.start_covariance``) and its NEES (χ²₃, 95 % bound 7.81) against the truth; and, for step (a) of the
-  question, the supports refitted by generalised least squares with each map's landmarks *correlated* by the drift
-  they share (the chain model of ``fusion.shape_covariance``: two landmarks share the drift of the one made with the
-  smaller drift), which lets landmarks made near a start pin that map's frame.
+``alignment`` (one row per folder): the robust alignment of the two final maps against the true relative start;
+  the best alignment of the two maps' *overlaps* against the truth (each map's landmarks within ``--overlap-radius``
+  of its supports that lie within 0.15 m of a true feature, fitted rigidly to those features in the map's true start
+  frame, the two fits composed: what a perfect alignment of these maps gives, and its error is the maps' frame error
+  where they overlap) and the alignment against it (``own``); per map, its heading error e (its trajectory against
+  the truth) when it made the supports, the drift tracker's heading σ there and |e| in those σ, the supports' median
+  creation time and how many were made with σθ ≤ 0.01 rad; e₁ − e₂ beside the alignment's signed θ error (a map
+  turned by e about its start turns the alignment by e₁ − e₂); map 2's landmarks made with σθ ≤ 0.01 rad and how many
+  true features they share with map 1 (does map 2's well-framed part overlap map 1 at all?); the alignment's
+  start-frame 1σ (``Alignment.start_covariance``) and its NEES (χ²₃, 95 % bound 7.81) against the truth; and, for step
+  (a) of the question, the supports refitted by generalised least squares with each map's landmarks *correlated* by
+  the drift they share (the chain model of ``fusion.shape_covariance``: two landmarks share the drift of the one made
+  with the smaller drift), which lets landmarks made near a start pin that map's frame.
 ``--windows``: per map, the rigid fit of its on-feature landmarks grouped by creation time (when the frame went off).
 ``--legs``: per map, the heading error of the map's own trajectory (the best particle's ancestry, ``trajectory``)
   over each stretch between turns on the spot (median, a second off each end), the turns on the spot (time, angle
