@@ -5,6 +5,7 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.mrclam_constellation [--robots 1,2,3,4,5] [--seed 0] [--names-cache DIR]
         [--drift 0.16 10] [--path-step 0.25] [--split-bends] [--pass-seconds 20] [--min-pairs 3] [--ratio R]
         [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
+        [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -51,7 +52,20 @@ The method (the barcodes never decide; they only score):
    join puts two names sighted in one frame together; re-smoothed, the batch kept when the truncated cost's rise
    is within χ² 99 % for 2 per absorbed name; a refused batch is cut in halves, each tried in turn, down to
    ``--bisect`` levels, the last level's refused halves retried as their strongest pass alone (``--bisect 0``:
-   session 24's rule, the strongest pass alone at once); up to ``--max-rounds`` rounds.
+   session 24's rule, the strongest pass alone at once); up to ``--max-rounds`` rounds. Before the merge, the
+   guard (:func:`estimation.constellation.guard_batches`) tests each merge group's share of the batch given the
+   others' (leave one out, linearised on the current map); its verdict is printed on every round and, with
+   ``--guard``, a batch the cost check refuses is retried without the groups it set aside before it is bisected
+   (session 26: on loose maps the linear shares are far above the smoother's rise, so the guard never overrules an
+   accepted batch).
+5. **Pairwise** (``--pairwise ROUNDS``, after the rounds): every group of names within each other's χ²₂ 99 % gate
+   under the joint covariance, never sighted in one frame, jointly compatible and with no rival in any member's gate
+   (:func:`estimation.constellation.pairwise_groups`), merged and checked as a batch is (session 26: the pass
+   structure never pairs two names one pass holds). ``--kept-covisible``: "sighted in one frame" by kept sightings
+   only. ``--name-floor``: a per-name offset σ added in the pairwise gate.
+
+``--state-dir DIR`` keeps each robot's state (names and the smoother's solution, ``.npz``) after the chain
+(``round0``), every kept round (``round<k>``) and pairwise round (``pairwise<k>``); ``--from-round K`` starts there.
 
 ``--reguess`` re-smooths each merge from the known-ID filter on the merged names instead of the last solution (the
 same solution on robot 2). ``--layout`` and ``--ceiling`` are diagnostics in which the barcodes decide: how often the
@@ -324,6 +338,28 @@ def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]
     return state, attempts + first + second
 
 
+def merge_guarded(log, current: MergeRound, passes: list[list[tuple[int, int]]],
+                  guarded: list[list[tuple[int, int]]] | None, noise, config, drift, *, depth: int, reguess=None,
+                  path_step_s: float | None = None, kept_covisible: bool = False
+                  ) -> tuple[MergeRound, list[MergeRound]]:
+    """The round's batch whole; if the cost check refuses it and the guard set groups aside (``guarded``: the groups
+    it kept, as name pairs; None: it set none aside or is off), the guard's groups are tried and bisected instead of
+    the whole batch (the cost check says something in the batch is wrong, the guard's shares say which); else
+    :func:`merge_bisecting` as before. Returns the last kept state and every attempt."""
+    if guarded is None:
+        return merge_bisecting(log, current, passes, noise, config, drift, depth=depth, alias={}, reguess=reguess,
+                               path_step_s=path_step_s, kept_covisible=kept_covisible)
+    clusters = clusters_of(current, passes, {}, kept_covisible=kept_covisible)
+    if not clusters:
+        return current, []
+    whole = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s)
+    if whole.accepted:
+        return whole, [whole]
+    state, more = merge_bisecting(log, current, guarded, noise, config, drift, depth=depth, alias={},
+                                  reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
+    return state, [whole] + more
+
+
 def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_s: float | None = None,
                    window_s: float = 20.0, bend_probability: float = 0.999, probability: float = 0.99,
                    on_try=None) -> tuple[MergeRound, list[dict]]:
@@ -518,11 +554,12 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
             _print_judged(k + 1, judged, file=sys.stderr)
         if used:          # the guard's verdict is recorded on every round, and acted on with --guard
             record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
-            if args.guard:
-                used = guarded
-                clusters = merges_from(used, covisible)[0]
+            if not (args.guard and record["guard"]["set_aside"]):
+                guarded = None
             if args.progress:
                 _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
+        else:
+            guarded = None
         if not clusters:
             row["rounds"].append(record)
             break
@@ -530,8 +567,10 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         if args.reguess:
             def reguess(merged_names):
                 return _guess(log, merged_names, noise, config, args, cache=False)
-        state, attempts = merge_bisecting(log, current, name_pairs(used, current.named), noise, config, drift,
-                                          depth=args.bisect, alias={}, reguess=reguess, path_step_s=path_step_s)
+        state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
+                                        None if guarded is None else name_pairs(guarded, current.named), noise,
+                                        config, drift,
+                                        depth=args.bisect, reguess=reguess, path_step_s=path_step_s)
         record["batch"] = _round(log, attempts[0], owner)
         record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
         record["cpu_s"] = time.process_time() - started
@@ -711,8 +750,8 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         clusters, used = merges_from(merging, covisible)
         if used:
             record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
-            if args.guard:
-                used = guarded
+            if not (args.guard and record["guard"]["set_aside"]):
+                guarded = None
         record["judge_cpu_s"] = time.process_time() - started
         if args.progress:
             print(f"  pairwise {k + 1}: groups {record['groups']} (wrong {record['groups_wrong']}), "
@@ -722,9 +761,11 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         row["pairwise"].append(record)
         if not used:
             break
-        state, attempts = merge_bisecting(log, current, name_pairs(used, current.named), noise, config, drift,
-                                          depth=args.bisect, alias={}, path_step_s=_path_step(args),
-                                          kept_covisible=args.kept_covisible)
+        state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
+                                        None if guarded is None else name_pairs(guarded, current.named), noise,
+                                        config, drift,
+                                        depth=args.bisect, path_step_s=_path_step(args),
+                                        kept_covisible=args.kept_covisible)
         record["batch"] = _round(log, attempts[0], owner)
         record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
         record["cpu_s"] = time.process_time() - started
@@ -819,9 +860,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
                              "strongest pass alone, session 24's)")
     parser.add_argument("--guard", action="store_true",
-                        help="before a batch is merged, set aside each group of names whose share of it, tested "
-                             "given the others' (leave one out), is beyond χ² 99 %% (without it the guard's verdict "
-                             "is only printed)")
+                        help="when the cost check refuses a round's batch, leave out the groups of names whose share "
+                             "of it, tested given the others' (leave one out), is beyond χ² 99 %%, before bisecting "
+                             "(without it the guard's verdict is only printed)")
     parser.add_argument("--pairwise", type=non_negative_int, default=0, metavar="ROUNDS",
                         help="after the rounds, up to ROUNDS rounds of pairwise merges of the names left (groups "
                              "of names within each other's χ²₂ 99 %% gate and no rival's; 0: none)")

@@ -358,3 +358,33 @@ def test_pairwise_d2_is_joint_d2_of_each_pair_for_any_covariance(seed, n):
         for j in range(n):
             if i != j:
                 assert d2[i, j] == pytest.approx(joint_d2(positions, covariance, [(i, j)])[0], rel=1e-9)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(2, 10), st.data())
+def test_a_refused_batch_is_retried_without_the_groups_the_guard_set_aside(n_passes, data):
+    import benchmarks.mrclam_constellation as mc
+    from benchmarks.mrclam_chained_names import MergeRound
+
+    bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), min_size=1, max_size=2)))
+    passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]
+    guarded = [p for k, p in enumerate(passes) if k not in bad]      # the guard saw the bad ones
+
+    def clusters_of(current, some, alias, **_):
+        return {a: b for pairs in some for a, b in pairs if a not in alias}
+
+    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None):
+        ok = not any(a // 10 in bad for a in clusters)
+        merged = [(b, a) for a, b in clusters.items()]
+        return MergeRound(current.merged + merged if ok else merged, 0.0, 1.0, ok, None, None, None)
+
+    start = MergeRound([], 0.0, 0.0, True, None, None, None)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(mc, "clusters_of", clusters_of)
+        patch.setattr(mc, "apply_merges", apply_merges)
+        state, attempts = mc.merge_guarded(None, start, passes, guarded, None, None, None, depth=2)
+        unguarded, _ = mc.merge_guarded(None, start, passes, None, None, None, None, depth=0)
+    assert {a // 10 for _, a in state.merged} == set(range(n_passes)) - bad
+    assert len(attempts) == (2 if guarded else 1)      # the whole batch, then the guard's groups at once
+    assert not attempts[0].accepted
+    assert not ({a // 10 for _, a in unguarded.merged} & bad)
