@@ -10,6 +10,7 @@ changes during the run shifts both alike.
 
     .venv/bin/python benchmarks/bench_import_time.py                                   # this tree only
     .venv/bin/python benchmarks/bench_import_time.py --baseline 397be2f --scratch /tmp/imports --repeats 9
+    .venv/bin/python benchmarks/bench_import_time.py --baseline 397be2f --scratch /tmp/imports --all-scripts --repeats 2
 """
 from __future__ import annotations
 
@@ -75,6 +76,28 @@ def export(rev: str, scratch: Path) -> Path:
     return tree
 
 
+def all_scripts(trees: dict[str, Path], cwd: Path, repeats: int) -> None:
+    """Each script's ``--help`` in both trees back to back (the order alternating), ``repeats`` times: per script the
+    median of each tree, and the sums, which is what the help test's subprocesses cost."""
+    (base_label, base), (_label, current) = trees.items()
+    names = sorted(p.name for p in (current / "benchmarks").glob("*.py") if (base / "benchmarks" / p.name).exists())
+    medians = {}
+    for name in names:
+        runs: dict[Path, list[float]] = {base: [], current: []}
+        for k in range(repeats):
+            for tree in ((base, current) if k % 2 == 0 else (current, base)):
+                runs[tree].append(wall(tree, [str(tree / "benchmarks" / name), "--help"], cwd))
+        medians[name] = (float(np.median(runs[base])), float(np.median(runs[current])))
+    print(f"--help of {len(names)} benchmark scripts, {repeats} runs each per tree, back to back; medians in seconds")
+    print(f"{'script':32} {base_label:>20} {'current':>10}  ratio")
+    for name, (b, c) in medians.items():
+        print(f"{name:32} {b:20.3f} {c:10.3f}  {c / b:.2f}")
+    total_b, total_c = (sum(m[i] for m in medians.values()) for i in (0, 1))
+    ratios = [c / b for b, c in medians.values()]
+    print(f"{'sum':32} {total_b:20.2f} {total_c:10.2f}  {total_c / total_b:.2f}   (median of the ratios "
+          f"{float(np.median(ratios)):.2f})")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -83,7 +106,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=positive_int, default=7, help="runs of each command per tree (default 7)")
     parser.add_argument("--script", default="eval_fusion.py", help="the benchmark whose --help is timed "
                                                                    "(default eval_fusion.py)")
+    parser.add_argument("--all-scripts", action="store_true",
+                        help="with --baseline: instead, every benchmark script both trees have, its --help run in "
+                             "both trees back to back (what tests/benchmarks/test_scripts_help.py pays)")
     args = parser.parse_args(argv)
+    if args.all_scripts and not args.baseline:
+        parser.error("--all-scripts compares two trees: give --baseline REV")
     if args.scratch is not None and args.scratch.resolve().is_relative_to(ROOT):
         parser.error(f"--scratch {args.scratch} is inside the repository: give a folder outside it")
     with tempfile.TemporaryDirectory(prefix="bench_import_time-") as tmp:
@@ -93,6 +121,9 @@ def main(argv: list[str] | None = None) -> None:
             trees = {f"baseline {args.baseline}": export(args.baseline, args.scratch or cwd / "trees"), **trees}
         for tree in trees.values():
             check_tree(tree, cwd)
+        if args.all_scripts:
+            all_scripts(trees, cwd, args.repeats)
+            return
         times: dict[tuple[str, str], list[float]] = {}
         stats_loaded: dict[str, bool] = {}
         for _ in range(args.repeats):
