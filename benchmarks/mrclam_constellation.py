@@ -24,6 +24,13 @@ over 29.1; robot 5 seed 2: a half of 71, 183.1 over 184.1). Seed 0 with path var
 robots 1 / 3 / 4 / 5 at 1.5 / 1.9 / 2.5 / 2.0 names per post, ATE 0.086 / 0.101 / 0.122 / 0.030 m (known-ID 0.286 /
 0.095 / 0.044 / 0.030 m). Duplicates < 5 % not reached: the passes left are incompatible with the map.
 
+Session 26 (A; docs: "Session 26: the last merges of a tight map pair by pair, ... (A)"): ``--pairwise`` on robot
+5 seed 0 after six rounds (``--kept-covisible``): 8 merges, 0 wrong, 33 -> 25 names (1.6 per post, duplicates 38 %),
+ATE 0.029 m; on robot 3 it makes one wrong merge (its map is 0.6 m wrong at σ 0.1 m over a 22 s stretch). The last
+passes are incompatible because 55 of 90 are never offered their twin (a name the pass itself holds) and 35 find it
+3-13 cm off at σ ~1 cm. ``--guard`` on robot 5 seed 2 sets aside exactly session 25's three wrong groups (0 wrong, ATE
+0.074 m, 2.9 names per post); it does not see robot 2's (posts 19 and 20, 0.73 m apart, are not told apart there).
+
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
 the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pairwise gate. A pass past the posts sees
