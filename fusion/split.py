@@ -29,6 +29,11 @@ a correct alignment (only the constraint between the parts is lost), while a los
 misplaced part into the fused map, the worst output.
 
 Only the first alarm splits the map; later alarms measured against another gap are reported as not checked.
+
+A part made after the gap does not share its map's start: it is in the frame the map was in after it lost its place,
+so its alignment places that frame, and its difference from the true start poses (simulated maps) is the map's loss,
+not the alignment's error. A report scores only a whole map or the part made before the gap against the start poses
+and says why not for the other (:meth:`SplitCheck.apart_from_start`, :func:`holds_start`).
 """
 from __future__ import annotations
 
@@ -138,12 +143,25 @@ class SplitCheck:
     decision: str = "whole"
     text: str = ""
 
+    def apart_from_start(self) -> str:
+        """Why the part made after the gap is not scored against its map's true start, in words: "the part after
+        robot2's gap at t≈13.8 s does not share robot2's start" (module docstring)."""
+        when = "" if self.t is None else f" at t≈{self.t:.1f} s"
+        return f"the part after {self.robot}'s gap{when} does not share {self.robot}'s start"
+
     def to_dict(self) -> dict:
         return {"map": self.index, "robot": self.robot, "first_id_after_gap": self.first_id, "t": self.t,
                 "later_gaps_not_checked": self.later_gaps,
                 "agree": self.agree, "decision": self.decision, "text": self.text,
                 "comparisons": [{"against": j, "chi2": c, "p": p} for j, c, p in self.comparisons],
                 "parts": [p.to_dict() for p in self.parts]}
+
+
+def holds_start(part: str | None) -> bool:
+    """Whether a piece of a checked fusion (``CheckedFusion.sources[i][1]``: None for a whole map, "before" or
+    "after") holds its map's start frame: the whole map and the part made before the gap do, the part after it does
+    not (module docstring)."""
+    return part != "after"
 
 
 def parts_difference(a: Alignment, b: Alignment) -> tuple[float, float]:

@@ -28,7 +28,8 @@ class PairResult:
     maps hold after merging; error_xy (m), error_theta (rad): against the truth where the maps carry it;
     false_alarm_probability: probability that maps which do not overlap give this much support (the
     alignment's confidence; for an alignment composed through other maps, the weakest link's);
-    required_supports: fewest supports that would have been accepted on these maps; second_best_supports:
+    required_supports: fewest supports that would have been accepted on these maps (for a split map's part, of the
+    part's own alignment); second_best_supports:
     the best hypothesis distinct from the winner (repeated structure); self_repeat_supports: the best repeat of
     either map onto itself; low_confidence: found but with a
     false-alarm probability above LOW_CONFIDENCE_PROBABILITY; note: why not found, or how it was reached.
@@ -60,6 +61,12 @@ class PairResult:
     # (fusion/split.py): what was decided and why, in one sentence; "" when neither map flagged itself
     self_check: str = ""
     split_decision: str | None = None    # "whole", "parts", "before", "after" or "none" (left out)
+    # the placement is of this part of other's map ("before" or "after" its gap), not of the whole map; None: whole
+    aligned_part: str | None = None
+    # why error_xy / error_theta are None although the maps carry their true starts, in words: the placement is of a
+    # part made after its map's gap, which does not share the start they are measured from (fusion/split.py); ""
+    # when the error is given or no truth is known
+    error_not_comparable: str = ""
     # the rough relative start the alignment was given (fusion/prior.py), in words; "" when none was used
     prior: str = ""
     # with the co-location option (AlignmentConfig.colocation, fusion/colocation.py): what was tested, or why there was
@@ -231,8 +238,11 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
                 checks: list, cache=None, priors: dict | None = None) -> FusionReport:
     """A flagged map's parts disagreed or could not be compared (fusion.split.fuse_checked): each robot's pair
     reports the placement of its map as merged (whole, or the part made before the gap when it was kept, else the
-    part after it), the split's sentence, and the error against the truth where the maps carry it."""
-    from fusion.split import fuse_checked
+    part after it) with the evidence of the alignment it rests on (supports, needed, P(chance), 1σ), the split's
+    sentence, and the error against the truth where the maps carry it -- not for a part made after the gap, which
+    does not share its map's start (``error_not_comparable`` says so)."""
+    from fusion import true_relative_pose
+    from fusion.split import fuse_checked, holds_start
 
     ordered = [maps[n] for n in names]
     checked = fuse_checked(ordered, preset=preset, method=method, cache=cache, checks=checks,   # checked once
@@ -257,11 +267,18 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
             continue
         i = placed[0]
         result.aligned = True
+        result.aligned_part = checked.sources[i][1]
         result.tx, result.ty, result.theta = (float(v) for v in multi.poses[i])
-        result.supports = max((len(a.supports) for (a_i, a_j), a in multi.alignments.items()
-                               if i in (a_i, a_j) and a.found), default=0)
+        _take_tree_evidence(result, multi, i)
+        result.prior = "" if prior is None else prior.text()
         result.count_common(multi.map)
-        result.score_against_truth(ordered[0], ordered[k])
+        # the fused frame is the reference's start unless its kept part is the one after its gap (nothing before it)
+        apart = [by_map[src].apart_from_start() for src, part in (checked.sources[multi.reference], checked.sources[i])
+                 if not holds_start(part)]
+        if not apart:
+            result.score_against_truth(ordered[0], ordered[k])
+        elif true_relative_pose(ordered[0], ordered[k]) is not None:
+            result.error_not_comparable = apart[0]
         pairs.append(result)
     merged = multi.map if multi is not None else maps[names[0]]
     return FusionReport(t, pairs, merged, time.perf_counter() - start)
@@ -291,26 +308,34 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
             pairs.append(result)
             continue
         result.tx, result.ty, result.theta = (float(v) for v in pose)
-        edge = multi.alignments.get(tuple(sorted((parent[k], k))))
-        result.supports = 0 if edge is None else int(len(edge.supports))
-        if edge is not None:
-            result.take_evidence(edge)
-            # a pose composed along the tree is as trustworthy as its weakest alignment
-            path = _tree_path(parent, k)
-            probs = [multi.alignments[tuple(sorted(e))].statistics.false_alarm_probability for e in path]
-            if probs and all(np.isfinite(probs)):
-                result.false_alarm_probability = float(max(probs))
-                result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY
-            cov = multi.covariances[k]                  # composed along the tree
-            if cov is not None and edge.covariance is not None:
-                result.sigma_xy, result.sigma_theta = sigmas(cov)
-            start_cov = multi.start_covariances[k] if multi.start_covariances else None  # `start` is the clock's
-            result.start_sigma_xy, result.start_sigma_theta = (None, None) if start_cov is None else sigmas(start_cov)
+        _take_tree_evidence(result, multi, k)
         result.count_common(multi.map)
         result.score_against_truth(ordered[0], ordered[k])
         result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
         pairs.append(result)
     return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
+
+
+def _take_tree_evidence(result: PairResult, multi, k: int) -> None:
+    """The evidence of map ``k``'s placement in a ``fusion.MultiFusion``: the supports and figures of the tree edge
+    that placed it, the weakest false-alarm probability along its path from the reference, and the 1σ composed along
+    it."""
+    parent = {child: p for p, child in multi.tree}
+    edge = multi.alignments.get(tuple(sorted((parent[k], k)))) if k in parent else None
+    result.supports = 0 if edge is None else int(len(edge.supports))
+    if edge is None:
+        return
+    result.take_evidence(edge)
+    # a pose composed along the tree is as trustworthy as its weakest alignment
+    probs = [multi.alignments[tuple(sorted(e))].statistics.false_alarm_probability for e in _tree_path(parent, k)]
+    if probs and all(np.isfinite(probs)):
+        result.false_alarm_probability = float(max(probs))
+        result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY
+    cov = multi.covariances[k]                  # composed along the tree
+    if cov is not None and edge.covariance is not None:
+        result.sigma_xy, result.sigma_theta = sigmas(cov)
+    start_cov = multi.start_covariances[k] if multi.start_covariances else None
+    result.start_sigma_xy, result.start_sigma_theta = (None, None) if start_cov is None else sigmas(start_cov)
 
 
 def _tree_path(parent: dict[int, int], k: int) -> list[tuple[int, int]]:

@@ -85,6 +85,8 @@ def format_summary(summary: dict) -> str:
                              f"(P(chance) {_fmt(p.get('false_alarm_probability'), '.1e')}): check it before use")
             elif not p["aligned"] and p.get("note") and p["note"] not in p.get("self_check", ""):
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
+            if p["aligned"] and _words(p.get("error_not_comparable")):   # a split map's part after its gap
+                lines += _wrapped(f"{p['other']} -> {p['reference']}: {not_comparable_text(p)}")
             if p.get("self_check"):   # a map that flagged itself, split at the alarm (fusion/split.py)
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: {p['self_check']}")
         lines.append("")
@@ -97,6 +99,18 @@ def format_summary(summary: dict) -> str:
 def _wrapped(sentence: str, width: int = 118) -> list[str]:
     """A long reason as lines of at most ``width`` characters, the continuation indented."""
     return textwrap.wrap(sentence, width, subsequent_indent="    ", break_on_hyphens=False) or [sentence]
+
+
+def _words(value) -> str:
+    """A recorded sentence on one line; "" when it is none (absent, empty, or not text: another version's recording)."""
+    return " ".join(value.split()) if isinstance(value, str) else ""
+
+
+def not_comparable_text(pair: Mapping) -> str:
+    """'error against the truth not comparable: the part after robot2's gap at t≈13.8 s does not share robot2's
+    start' for an aligned pair placed by a split map's part that lacks its start (fusion/split.py); "" otherwise."""
+    why = _words(pair.get("error_not_comparable"))
+    return f"error against the truth not comparable: {why}" if why else ""
 
 
 def split_brief(pair: Mapping) -> str:
@@ -194,6 +208,8 @@ def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-")
     if pair.get("error_xy") is not None:
         text += (f"; error against the truth {_number(pair.get('error_xy'), '.3f', missing)} m / "
                  f"{_number(pair.get('error_theta'), '.4f', missing)} rad")
+    elif not_comparable_text(pair):
+        text += f"; {not_comparable_text(pair)}"
     if pair.get("low_confidence"):
         text += f"; {strong('low confidence') if markdown else 'LOW CONFIDENCE'}: check it before use"
     return text + (f"; {split}" if split else "")
@@ -224,4 +240,6 @@ def fusion_event_line(t: float, pair) -> str:
     line = f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} ({p['supports']} supports, {p['common']} common)"
     if p.get("error_xy") is not None:
         line += f", error {p['error_xy']:.3f} m / {p['error_theta']:.4f} rad"
+    elif not_comparable_text(p):
+        line += f", {not_comparable_text(p)}"
     return line

@@ -79,7 +79,7 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion import FusionError, alignment_error, true_relative_pose
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
-    from fusion.split import PARTS, fuse_checked
+    from fusion.split import PARTS, fuse_checked, holds_start
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -152,6 +152,7 @@ def _fuse(args: argparse.Namespace) -> int:
 
     report = {"preset": args.preset, "method": args.method, "maps": [], "alignments": [], "out": None}
     splits = {c.index: c.to_dict() for c in checked.checks}
+    by_index = {c.index: c for c in checked.checks if c.decision != "whole"}   # maps split at their alarm
     for k, (path, m) in enumerate(zip(args.maps, maps, strict=True)):
         report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
                                **_self_check_figures(path, m), "split": splits.get(k)})
@@ -170,9 +171,14 @@ def _fuse(args: argparse.Namespace) -> int:
         truth = true_relative_pose(maps[i], maps[j])
         if truth is not None:
             entry["true_pose"] = [float(v) for v in truth]
-            entry["error"] = None if not a.found else [float(v) for v in alignment_error(a.pose, truth)]
-            xy_theta = alignment_error_xy_theta(a.pose, truth) if a.found else (None, None)
-            entry["error_xy"], entry["error_theta"] = xy_theta
+            apart = _apart_from_start(a, [(k, c) for k, c in ((0, by_index.get(i)), (1, by_index.get(j)))
+                                          if c is not None], maps)
+            scored = a.found and not apart
+            entry["error"] = None if not scored else [float(v) for v in alignment_error(a.pose, truth)]
+            entry["error_xy"], entry["error_theta"] = alignment_error_xy_theta(a.pose, truth) if scored else (None,
+                                                                                                            None)
+            if a.found and apart:
+                entry["error_not_comparable"] = apart
         report["alignments"].append(entry)
     if result is None:
         report["overlap"] = False
@@ -191,7 +197,11 @@ def _fuse(args: argparse.Namespace) -> int:
             continue
         report["maps"][k]["pose_in_reference"] = None if pose is None else [float(v) for v in pose]
         truth = true_relative_pose(checked.inputs[result.reference], maps[k])
-        if pose is not None and truth is not None and i != result.reference:
+        root, root_part = checked.sources[result.reference]
+        framed = holds_start(root_part)   # else the fused frame is the reference's part after its gap
+        if pose is not None and truth is not None and i != result.reference and not framed:
+            report["maps"][k]["error_not_comparable"] = by_index[root].apart_from_start()
+        if pose is not None and truth is not None and i != result.reference and framed:
             report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
             report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
         if result.covariance_scales is not None:      # merge weights from the pairwise residuals (fusion.multi)
@@ -223,6 +233,20 @@ def _fuse(args: argparse.Namespace) -> int:
               + ", ".join(report["unconnected"]), file=sys.stderr)
         return EXIT_NO_OVERLAP
     return 0
+
+
+def _apart_from_start(alignment, split: list, maps: list[LandmarkMap]) -> str:
+    """Why a whole-map alignment's error against the true start poses is not its error, or "": some of its supports
+    lie in the part of a split map (``split``: (column of the supports, fusion.split.SplitCheck)) made after its gap,
+    which does not share that map's start (fusion/split.py); the alignment then places that part's frame."""
+    why = []
+    for column, check in split:
+        ids = maps[check.index].ids[np.asarray(alignment.supports, np.int64).reshape(-1, 2)[:, column]]
+        after = int(np.count_nonzero(ids >= check.first_id))
+        if after:
+            why.append(f"{after} of its {len(ids)} supports in {check.robot}'s map lie in "
+                       + check.apart_from_start().replace(" does not", ", which does not", 1))
+    return "; ".join(why)
 
 
 def _shared_estimates(maps: list[LandmarkMap]) -> tuple[tuple[int, int], int] | None:
@@ -371,6 +395,8 @@ def _print(report: dict, as_json: bool) -> None:
             print("    warning: low confidence - maps that do not overlap could give this much support")
         if a.get("error_xy") is not None:
             print(f"    error vs true start poses: error xy {a['error_xy']:.3f} m, error θ {a['error_theta']:.4f} rad")
+        elif a.get("error_not_comparable"):
+            print(f"    error vs true start poses: not comparable: {a['error_not_comparable']}")
     if len(report["maps"]) > 2:
         for k, m in enumerate(report["maps"]):
             if m.get("pose_in_reference") is not None and k:
@@ -378,6 +404,8 @@ def _print(report: dict, as_json: bool) -> None:
                 line = f"map {k} in map 0's frame: tx={tx:+.3f} m ty={ty:+.3f} m θ={th:+.4f} rad"
                 if m.get("error_xy") is not None:
                     line += f" (error xy {m['error_xy']:.3f} m, error θ {m['error_theta']:.4f} rad vs truth)"
+                elif m.get("error_not_comparable"):
+                    line += f" (error vs truth not comparable: {m['error_not_comparable']})"
                 print(line)
     if any("merge_sigma" in m for m in report["maps"]):
         print("merge weights (σ about a rigid placement from the pairwise residuals, plus one standard error; "
