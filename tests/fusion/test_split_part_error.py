@@ -97,16 +97,28 @@ def test_the_part_before_the_gap_is_still_scored_with_its_evidence(sim):
     assert pair.required_supports > 0 and pair.false_alarm_probability < 1e-6 and pair.start_sigma_xy > 0
 
 
-def test_a_reference_map_with_nothing_before_its_gap_gives_no_start_error(sim):
+def test_a_reference_map_with_nothing_before_its_gap_gives_no_start_error(sim, tmp_path, capsys):
     """The reference's part after its gap is the fused frame when nothing was made before it: no pair is scored
-    against the reference's start then."""
+    against the reference's start then, in the mission's report or by p3at fuse."""
+    from runtime.cli import main
+
     m1, m2, _, _ = _pair(sim)
     del m2.metadata["self_check"]
     m1.ids = np.arange(len(m1))
     m1.metadata["self_check"] = _verdict(0)
     (pair,) = fuse_maps({"robot1": m1, "robot2": m2}).pairs
-    assert pair.aligned and pair.aligned_part is None and pair.error_xy is None
-    assert pair.error_not_comparable == "the part after robot1's gap at t≈60.0 s does not share robot1's start"
+    why = "the part after robot1's gap at t≈60.0 s does not share robot1's start"
+    assert pair.aligned and pair.aligned_part is None and pair.error_xy is None and pair.error_not_comparable == why
+    m1.save(tmp_path / "r1.npz")
+    m2.save(tmp_path / "r2.npz")
+    assert main(["fuse", str(tmp_path / "r1.npz"), str(tmp_path / "r2.npz"), "--out", str(tmp_path / "m.npz"),
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    placed = report["maps"][1]
+    assert placed["pose_in_reference"] is not None and placed.get("error_xy") is None
+    assert placed["error_not_comparable"] == why
+    assert report["alignments"][0]["error_xy"] is None and "robot1's gap" in report["alignments"][0][
+        "error_not_comparable"]
 
 
 def test_maps_without_truth_give_no_reason_for_a_missing_error(sim):
