@@ -45,7 +45,7 @@ from runtime.fleet.status import publish_robot_status
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
-from runtime.report import fusion_event_line, start_prior_line
+from runtime.report import fusion_event_line, fusion_progress_part, start_prior_line
 
 CAMERAS = ("mock", "synthetic", "usb")
 MOTIONS = ("route", "explore", "none")
@@ -615,7 +615,7 @@ class Mission:
                          f"map {s.map_landmarks} landmarks")
         if self.fusion_history and self.fusion_history[-1].pairs:
             p = self.fusion_history[-1].pairs[0]
-            parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
+            parts.append(fusion_progress_part(p))
         return " | ".join(parts)
 
     def _fuse(self, t: float, final: bool = False) -> FusionReport | None:

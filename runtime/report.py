@@ -243,3 +243,14 @@ def fusion_event_line(t: float, pair) -> str:
     elif not_comparable_text(p):
         line += f", {not_comparable_text(p)}"
     return line
+
+
+def fusion_progress_part(pair) -> str:
+    """The fusion's part of the mission's and the fleet's progress line, for the last fusion's first pair (a
+    ``PairResult``): its error against the truth where the maps carry it, "aligned" where they do not (real robots,
+    a split map's part made after its gap), else "no alignment" (a candidate is not yet an alignment)."""
+    if not pair.aligned:
+        return "fusion: no alignment"
+    if pair.error_xy is not None:
+        return f"fusion: error {pair.error_xy:.2f} m"
+    return f"fusion: aligned ({pair.supports} supports)"

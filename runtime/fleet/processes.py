@@ -34,6 +34,7 @@ import numpy as np
 from runtime.exchange import MapMessage
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.status import health_figure
+from runtime.report import fusion_progress_part
 
 # p3at run options passed through unchanged (mission arguments shared with p3at demo)
 PASSED = ("seconds", "seed", "camera", "camera_rate", "camera_latency", "particles", "max_corners",
@@ -405,7 +406,7 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
             parts = [f"t={t:5.1f}s"] + [_robot_part(r, s) for r, s in sorted(status.items())]
             if node.history and node.history[-1].pairs:
                 p = node.history[-1].pairs[0]
-                parts.append(f"fusion: error {p.error_xy:.2f} m" if p.error_xy is not None else "fusion: no alignment")
+                parts.append(fusion_progress_part(p))
             progress.line(" | ".join(parts))
             next_line = t + 1.0
     for process in processes.values():
