@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from estimation import chi2
 from estimation.geometry import transform_points, wrap_angle
 
 from .cache import AlignmentCache
@@ -52,8 +53,6 @@ def transforms_agree(earlier: Alignment, later: Alignment, later_points: np.ndar
     their sum.  Without covariances (paper preset): ``later_points`` (P, 3), the later alignment's supports in the
     other map's frame, must land within ``support_distance`` under both transforms.
     """
-    from scipy.stats import chi2
-
     a, b = np.asarray(earlier.pose, float), np.asarray(later.pose, float)
     delta = np.array([b[0] - a[0], b[1] - a[1], wrap_angle(b[2] - a[2])])
     apart = f"{np.hypot(delta[0], delta[1]):.2f} m / {abs(delta[2]):.3f} rad apart"
