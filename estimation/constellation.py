@@ -161,7 +161,7 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     return ConstellationMatch("matched", best, rival, log_ratio, compatible)
 
 
-# ---- a tight map's last merges, pair by pair; a batch's merges tested one pass at a time ---------------------------
+# ---- a tight map's last merges, pair by pair; a batch's merges tested one group at a time --------------------------
 
 @dataclass(frozen=True)
 class PairwiseGroup:
@@ -296,7 +296,9 @@ def guard_batches(positions: np.ndarray, covariance: np.ndarray, batches, *, pro
     """The batches that may be merged together: while some batch's :func:`leave_one_out` share is beyond χ² at
     ``probability`` for its degrees of freedom, the one furthest beyond (by the χ² survival probability) is set aside
     and the shares taken again without it. Returns the kept batches' indices and the set-aside ones as (index, d²,
-    dof) in the order they went."""
+    dof) in the order they went. The batches should be disjoint groups of points: a pairing two batches both hold
+    leaves each of them a share of 0 degrees of freedom (it is tested in neither). The shares are linearised at the
+    current map: on a map far from linear (headings uncertain by tenths of a radian) they overstate the rise."""
     keep = list(range(len(batches)))
     dropped = []
     while keep:
