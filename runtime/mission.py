@@ -447,11 +447,15 @@ class Mission:
                 t0 = self.clock()
                 self._wall_start = time.monotonic()
                 token = self.clock.add_participant("mission") if self.lockstep else None
-                for robot in self.robots:
-                    robot.onboard.t0 = t0
-                    robot.onboard.start()
             try:
                 with self.clock.participant(token) if token is not None else contextlib.nullcontext():
+                    # the robots start as the participant: its grant comes once every SIP sent has reached the
+                    # runtime (the clock's quiescence), so each robot's odometry and sensor log begin with the same
+                    # SIP however busy the machine is (started from the setup thread, a SIP still in the driver's
+                    # reader was delivered before or after the subscription by chance: one SIP more in a log)
+                    for robot in self.robots:
+                        robot.onboard.t0 = t0
+                        robot.onboard.start()
                     self._loop(t0)
                     self._end_time = self.clock() - t0
                     for robot in self.robots:  # motors first, every robot at this instant
