@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 import sys
 import textwrap
 from collections.abc import Mapping
@@ -19,9 +20,24 @@ _SPLIT_BRIEF = {
 
 
 def _fmt(value, spec: str = ".3f", missing: str = "-") -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+    """A figure, or ``missing`` when it is none (absent, null, not finite, or no number at all: a recording written
+    by another version)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return missing
+    if isinstance(value, numbers.Integral):   # JSON's integers are unbounded
+        if spec == "d":
+            return format(value, spec)
+        if abs(value) > sys.float_info.max:
+            return missing
+        value = float(value)
+    elif spec == "d" or not math.isfinite(value):
         return missing
     return format(value, spec)
+
+
+def _count(value) -> int:
+    """A count as recorded; 0 when it is absent or no count (another version's recording)."""
+    return value if isinstance(value, int) and not isinstance(value, bool) else 0
 
 
 def _table(rows: list[list[str]]) -> list[str]:
@@ -130,18 +146,14 @@ def split_brief(pair: Mapping) -> str:
 def not_aligned_reason(pair: Mapping) -> str:
     """Why a pair (a ``PairResult.as_dict()``) was not aligned, in one short clause: its supports against the
     number these maps need, with the chance of that many by accident, when that decided; else the fusion's note."""
-    def whole(key: str) -> int:   # a count as recorded; 0 when absent or no count (another version's recording)
-        value = pair.get(key)
-        return value if isinstance(value, int) and not isinstance(value, bool) else 0
-
-    supports, needed = whole("supports"), whole("required_supports")
-    note = pair.get("note")
-    note = " ".join(note.split()) if isinstance(note, str) else ""  # one line, whatever the note holds
+    supports, needed = _count(pair.get("supports")), _count(pair.get("required_supports"))
+    note = _words(pair.get("note"))  # one line, whatever the note holds
     if needed and supports < needed:
         why = f"{supports} supports, {needed} needed"
-        if _number(pair.get("false_alarm_probability"), ".1e", ""):
-            why += f" (P(chance) {pair['false_alarm_probability']:.1e})"
-        repeat, rival = whole("self_repeat_supports"), whole("second_best_supports")
+        chance = _fmt(pair.get("false_alarm_probability"), ".1e", "")
+        if chance:
+            why += f" (P(chance) {chance})"
+        repeat, rival = _count(pair.get("self_repeat_supports")), _count(pair.get("second_best_supports"))
         if note.startswith("ambiguous") and repeat > rival:  # a map's own repeat set the number needed, not a rival
             why += f"; ambiguous: one map repeats itself under a distinct transform with {repeat} supports"
         elif note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
@@ -159,22 +171,6 @@ def candidate_text(pair: Mapping) -> str | None:
     if pair.get("aligned", True) or candidate is None:
         return None
     return f"{pair['other']} -> {pair['reference']} is a candidate, not yet found ({candidate})"
-
-
-def _number(value, spec: str, missing: str) -> str:
-    """A recorded figure, or ``missing`` when it is none (absent, null, not finite, or no number at all: a recording
-    written by another version)."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return missing
-    if isinstance(value, int):   # JSON's integers are unbounded
-        if spec == "d":
-            return format(value, spec)
-        if abs(value) > sys.float_info.max:
-            return missing
-        value = float(value)
-    elif spec == "d" or not math.isfinite(value):
-        return missing
-    return format(value, spec)
 
 
 def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-") -> str:
@@ -195,19 +191,19 @@ def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-")
     if not pair.get("aligned", True):
         return f"{strong('not aligned')}: {split or not_aligned_reason(pair)}"
     needed, chance = pair.get("required_supports"), pair.get("false_alarm_probability")
-    text = (f"{strong('aligned')}: tx {_number(pair.get('tx'), '.3f', missing)} m, "
-            f"ty {_number(pair.get('ty'), '.3f', missing)} m, θ {_number(pair.get('theta'), '.4f', missing)} rad; "
-            f"{_number(pair.get('supports'), 'd', missing)} supports")
-    if isinstance(needed, int) and not isinstance(needed, bool) and needed:
-        text += f" ({needed} needed" + (f", P(chance) {_number(chance, '.1e', missing)}" if chance is not None
+    text = (f"{strong('aligned')}: tx {_fmt(pair.get('tx'), '.3f', missing)} m, "
+            f"ty {_fmt(pair.get('ty'), '.3f', missing)} m, θ {_fmt(pair.get('theta'), '.4f', missing)} rad; "
+            f"{_fmt(pair.get('supports'), 'd', missing)} supports")
+    if _count(needed):
+        text += f" ({needed} needed" + (f", P(chance) {_fmt(chance, '.1e', missing)}" if chance is not None
                                         else "") + ")"
-    text += f", {_number(pair.get('common'), 'd', missing)} common landmarks"
+    text += f", {_fmt(pair.get('common'), 'd', missing)} common landmarks"
     if pair.get("start_sigma_xy") is not None:
-        text += (f"; 1σ {_number(pair.get('start_sigma_xy'), '.3f', missing)} m / "
-                 f"{_number(pair.get('start_sigma_theta'), '.4f', missing)} rad")
+        text += (f"; 1σ {_fmt(pair.get('start_sigma_xy'), '.3f', missing)} m / "
+                 f"{_fmt(pair.get('start_sigma_theta'), '.4f', missing)} rad")
     if pair.get("error_xy") is not None:
-        text += (f"; error against the truth {_number(pair.get('error_xy'), '.3f', missing)} m / "
-                 f"{_number(pair.get('error_theta'), '.4f', missing)} rad")
+        text += (f"; error against the truth {_fmt(pair.get('error_xy'), '.3f', missing)} m / "
+                 f"{_fmt(pair.get('error_theta'), '.4f', missing)} rad")
     elif not_comparable_text(pair):
         text += f"; {not_comparable_text(pair)}"
     if pair.get("low_confidence"):
