@@ -189,6 +189,8 @@ def _fuse(args: argparse.Namespace) -> int:
         _warn_lost(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
+    root, root_part = checked.sources[result.reference]
+    framed = holds_start(root_part)   # else the fused frame is the reference's part after its gap
     for i, pose in enumerate(result.poses):
         k, part = checked.sources[i]
         if part is not None:      # a part of a split map: its own placement
@@ -197,13 +199,13 @@ def _fuse(args: argparse.Namespace) -> int:
             continue
         report["maps"][k]["pose_in_reference"] = None if pose is None else [float(v) for v in pose]
         truth = true_relative_pose(checked.inputs[result.reference], maps[k])
-        root, root_part = checked.sources[result.reference]
-        framed = holds_start(root_part)   # else the fused frame is the reference's part after its gap
-        if pose is not None and truth is not None and i != result.reference and not framed:
-            report["maps"][k]["error_not_comparable"] = by_index[root].apart_from_start()
-        if pose is not None and truth is not None and i != result.reference and framed:
-            report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
-            report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose, truth)
+        if pose is not None and truth is not None and i != result.reference:
+            if framed:
+                report["maps"][k]["pose_error"] = [float(v) for v in alignment_error(pose, truth)]
+                report["maps"][k]["error_xy"], report["maps"][k]["error_theta"] = alignment_error_xy_theta(pose,
+                                                                                                         truth)
+            else:
+                report["maps"][k]["error_not_comparable"] = by_index[root].apart_from_start()
         if result.covariance_scales is not None:      # merge weights from the pairwise residuals (fusion.multi)
             claimed = float(np.sqrt(claimed_variance(maps[k])))
             report["maps"][k]["covariance_scale"] = result.covariance_scales[i]
