@@ -2,6 +2,9 @@
 
 temp file in the same folder -> write -> fsync -> rename over the target -> fsync the folder, so that the rename
 itself is on disk when the call returns (without the last step a power cut can leave the old name, or none).
+
+drivers/fileio.py holds the same functions: drivers and estimation are independent packages (import-linter), and
+there is no lower one to share. Change both; tests/hardening/test_atomic_write.py runs its tests on both.
 """
 from __future__ import annotations
 
