@@ -20,6 +20,10 @@ weighted by Huber's function (k = 2.45, χ²₂ 70 %), then every sighting whose
 are the inverse of the information matrix JᵀJ at the solution (the Laplace approximation), its landmark blocks
 and a sample of its pose blocks, from one factorisation that follows the problem's structure (`_NormalFactor`).
 
+Option (``sighting_offset``, off by default): a systematic offset per group of sightings (:class:`SightingOffset`:
+a post seen from one side, one visit's sightings sharing that error), so that no number of sightings of one group
+makes its landmark more certain than the offset's σ.
+
 What it is not: an association method. A sighting is given its landmark; a wrong identity that stays within the
 χ²₂ 99 % bound moves the solution. And the covariances are as honest as the noise model: if consecutive
 sightings share their error beyond the model's inflation, the smoother, like the filter, is overconfident; the
@@ -138,6 +142,33 @@ class HeadingDrift:
 
 
 @dataclass(frozen=True)
+class SightingOffset:
+    """A systematic offset shared by all the sightings of one group, an option of :func:`smooth` (the default,
+    ``None``, is none: every sighting's error is its own).
+
+    A post is not a point: the camera sees one side of it, so the range to its surface and the bearing to its barcode
+    depend on the side it is seen from, and the sightings of one visit share that error however many they are. Each
+    group g (the problem's ``offset_index``: by default each landmark is its own group) gets an offset o_g (2,), in
+    the map's frame, with the prior o_g ~ N(0, σ² I) (σ ``sigma_m``); a sighting of landmark l in group g sees
+    m_l + o_g. So a landmark seen by one group has a covariance of at least σ² I however many sightings it has, and
+    two groups of one landmark (two visits, two names of one post merged) may differ by ≈ σ√2 at the prior's cost
+    (|o_g|²/σ²) instead of the sightings'. With one group per landmark the MAP poses and landmarks are exactly those
+    without the option (the offsets are 0) and each landmark's covariance is larger by σ² I; with several groups of
+    one landmark the solution moves. ``sigma_m`` 0 is off: the solution is then exactly the one without the option.
+    """
+
+    sigma_m: float
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_m) and self.sigma_m >= 0):
+            raise SmoothingError(f"sighting offset σ must be finite and ≥ 0 m, not {self.sigma_m}")
+
+    @property
+    def on(self) -> bool:
+        return self.sigma_m > 0
+
+
+@dataclass(frozen=True)
 class LandmarkLogProblem:
     """One robot's log as factors. Poses 0..T: pose 0 is the frame's origin (fixed); increment k (T, 3) leads from
     pose k to pose k + 1 with variances ``increment_variances[k]`` (3,). Sighting s (S,) was taken at pose
@@ -153,6 +184,8 @@ class LandmarkLogProblem:
     bearing_sigmas: np.ndarray
     # (T,) each increment's duration (s), needed by a HeadingDrift; empty (the default): not known
     increment_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # (S,) each sighting's offset group for a SightingOffset (0..G−1); empty (the default): its landmark's
+    offset_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
     def __post_init__(self) -> None:
         t = len(self.increments)
@@ -173,6 +206,9 @@ class LandmarkLogProblem:
         if np.shape(self.increment_seconds) not in ((0,), (t,)) or not np.all(np.isfinite(self.increment_seconds)) \
                 or np.any(np.asarray(self.increment_seconds) < 0):
             raise SmoothingError(f"increment_seconds must be ({t},) (or empty: not known), finite and ≥ 0")
+        if np.shape(self.offset_index) not in ((0,), (s,)) or (len(self.offset_index) and (
+                not np.issubdtype(np.asarray(self.offset_index).dtype, np.integer) or np.min(self.offset_index) < 0)):
+            raise SmoothingError(f"offset_index must be ({s},) non-negative integers (or empty: each landmark's own)")
 
     @property
     def n_poses(self) -> int:
@@ -184,6 +220,11 @@ class LandmarkLogProblem:
 
     # what depends on the odometry alone, computed once per problem (every iteration of a solve reads it; the
     # problem's arrays are taken as given, not changed in place: make a new problem with dataclasses.replace)
+    @functools.cached_property
+    def offset_groups(self) -> np.ndarray:
+        """(S,) each sighting's offset group: ``offset_index``, or its landmark when that is empty."""
+        return np.asarray(self.offset_index if len(self.offset_index) else self.landmark_index, int)
+
     @functools.cached_property
     def increment_sigmas(self) -> np.ndarray:
         """(T, 3) the increments' σ, √ of ``increment_variances``."""
@@ -214,6 +255,8 @@ class Smoothed:
     heading_weights: np.ndarray | None = None     # (T,) the heading loss's IRLS weights at the solution, if any
     heading_drift: HeadingDrift | None = None     # the drift the solution carries (None: off)
     heading_biases: np.ndarray | None = None      # (T,) each increment's heading bias (rad/m) with the drift
+    sighting_offset: SightingOffset | None = None  # the sighting offsets the solution carries (None: off)
+    offsets: np.ndarray | None = None             # (G, 2) each offset group's offset (m) with them
 
     @property
     def chi2_per_dof(self) -> float:
@@ -222,57 +265,72 @@ class Smoothed:
 
 def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
            pose_covariance_stride: int = 10, heading_loss: HeadingLoss | None = None,
-           heading_drift: HeadingDrift | None = None) -> Smoothed:
+           heading_drift: HeadingDrift | None = None, sighting_offset: SightingOffset | None = None) -> Smoothed:
     """The MAP poses and landmarks of ``problem`` from an initial guess (poses (T + 1, 3), landmarks (L, 2); a
     landmark never sighted keeps its guess and gets an infinite covariance). Pose covariances at every
     ``pose_covariance_stride``-th pose (and the last). ``heading_loss``: a heavy-tailed loss on the odometry's
     heading residuals (:class:`HeadingLoss`; ``None``, the default: Gaussian). ``heading_drift``: a heading bias
     state per increment (:class:`HeadingDrift`, needs ``problem.increment_seconds``; ``None`` or σ 0: none, today's
-    solution exactly); the biases start at 0. ``chi2`` is Σ r² of the normalised residuals whatever the loss (the
-    data's distance from the model's σ), the drift's factors included (they pay for their own states)."""
+    solution exactly); the biases start at 0. ``sighting_offset``: an offset per group of sightings
+    (:class:`SightingOffset`, groups ``problem.offset_index``; ``None`` or σ 0: none, today's solution exactly); the
+    offsets start at 0. ``chi2`` is Σ r² of the normalised residuals whatever the loss (the data's distance from the
+    model's σ), the drift's and the offsets' factors included (they pay for their own states)."""
     t, n_landmarks = problem.n_poses, max(problem.n_landmarks, len(initial_landmarks))
     drift = _Drift(problem, heading_drift) if heading_drift is not None and heading_drift.on else None
     width = _width(drift)
-    if width * t * 2 * n_landmarks > MAX_DENSE_ENTRIES:
-        raise SmoothingError(f"{t} poses and {n_landmarks} landmarks are too many to smooth here (a dense "
-                             f"{width * t} × {2 * n_landmarks} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
+    offset = _Offsets(problem, sighting_offset) if sighting_offset is not None and sighting_offset.on else None
+    n_dense = n_landmarks + (offset.count if offset is not None else 0)
+    if width * t * 2 * n_dense > MAX_DENSE_ENTRIES:
+        what = f"{n_landmarks} landmarks" + ("" if offset is None else f" and {offset.count} sighting offsets")
+        raise SmoothingError(f"{t} poses and {what} are too many to smooth here (a dense "
+                             f"{width * t} × {2 * n_dense} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
     poses = np.array(initial_poses, float).reshape(t + 1, 3)
     landmarks = np.array(initial_landmarks, float).reshape(-1, 2)
     if len(landmarks) < n_landmarks:
         raise SmoothingError(f"{n_landmarks} landmarks sighted but {len(landmarks)} initial positions")
     bias = None if drift is None else np.zeros(t)
+    offsets = None if offset is None else np.zeros((offset.count, 2))
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
     iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss,
-                                  drift=drift, bias=bias)
-    _, residual = _residuals(problem, poses, landmarks, bias)
+                                  drift=drift, bias=bias, offset=offset, offsets=offsets)
+    _, residual = _residuals(problem, poses, landmarks, bias, offsets)
     inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
-                                   drift=drift, bias=bias)
-    odometry, sightings = _residuals(problem, poses, landmarks, bias)
+                                   drift=drift, bias=bias, offset=offset, offsets=offsets)
+    odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
     heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if drift is not None:
         chi2 += float(np.sum(drift.residuals(bias) ** 2))
+    if offset is not None:
+        chi2 += float(np.sum(offset.residuals(offsets) ** 2))
     seen = np.zeros(n_landmarks, bool)
     seen[problem.landmark_index[inliers]] = True
-    dof = 2 * int(inliers.sum()) - 2 * int(seen.sum())     # the odometry's 3T residuals pay for the 3T poses
-    information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights, drift)
+    # the odometry's 3T residuals pay for the 3T poses, the offsets' priors for the offsets
+    dof = 2 * int(inliers.sum()) - 2 * int(seen.sum())
+    information = _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights, drift,
+                               offset, offsets)
     stride = max(int(pose_covariance_stride), 1)
     covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
     landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses, width)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
                     dof, iterations_robust + iterations, converged, heading_weights,
-                    heading_drift if drift is not None else None, bias)
+                    heading_drift if drift is not None else None, bias,
+                    sighting_offset if offset is not None else None, offsets)
 
 
 def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The solution's normalised residuals: odometry (T, 3), sightings (S, 2) (range, bearing; dropped ones too),
-    and the heading drift's factors (T,) (empty without a drift)."""
+    and the extra factors: the heading drift's (T,) then the sighting offsets' priors (2G,) (empty without them)."""
     drift = _solution_drift(problem, solution)
-    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, solution.heading_biases)
+    offset = _solution_offset(problem, solution)
+    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, solution.heading_biases,
+                                     solution.offsets if offset is not None else None)
     extra = drift.residuals(solution.heading_biases) if drift is not None else np.zeros(0)
+    if offset is not None:
+        extra = np.concatenate([extra, offset.residuals(solution.offsets)])
     return odometry.reshape(-1, 3), sightings.reshape(-1, 2), extra
 
 
@@ -281,23 +339,46 @@ def joint_landmark_covariance(problem: LandmarkLogProblem, solution: Smoothed) -
     and loss weights included; rows of landmarks with no kept sighting: inf)."""
     t, n = problem.n_poses, len(solution.landmarks)
     drift = _solution_drift(problem, solution)
+    offset = _solution_offset(problem, solution)
     width = _width(drift)
     seen = np.zeros(n, bool)
     seen[problem.landmark_index[solution.inliers]] = True
     information = _information(problem, solution.poses, solution.landmarks, solution.inliers, n,
-                               solution.heading_weights, drift)
+                               solution.heading_weights, drift, offset,
+                               solution.offsets if offset is not None else None)
     free = np.ones(information.shape[0], bool)
-    free[width * t:] = np.repeat(seen, 2)
+    free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
     factor = _NormalFactor(information[free][:, free], t, width)
     out = np.full((2 * n, 2 * n), np.inf)
     keep = np.repeat(seen, 2)
-    out[np.ix_(keep, keep)] = factor.landmark_covariance()
+    n_kept = 2 * int(seen.sum())
+    out[np.ix_(keep, keep)] = factor.landmark_covariance()[:n_kept, :n_kept]
     return out
 
 
 def _solution_drift(problem: LandmarkLogProblem, solution: Smoothed) -> _Drift | None:
     drift = solution.heading_drift
     return _Drift(problem, drift) if drift is not None and drift.on else None
+
+
+def _solution_offset(problem: LandmarkLogProblem, solution: Smoothed) -> _Offsets | None:
+    option = solution.sighting_offset
+    return _Offsets(problem, option, len(solution.offsets)) if option is not None and option.on else None
+
+
+class _Offsets:
+    """A :class:`SightingOffset` on one problem: each sighting's group (S,), the number of groups G and σ. The
+    offsets (G, 2) are variables after the landmarks' (they are eliminated with them, in the dense Schur block), and
+    their priors o/σ are rows after the sightings' (and the drift's)."""
+
+    def __init__(self, problem: LandmarkLogProblem, option: SightingOffset, count: int | None = None) -> None:
+        self.index = problem.offset_groups
+        self.count = int(self.index.max()) + 1 if count is None and len(self.index) else int(count or 0)
+        self.sigma = float(option.sigma_m)
+
+    def residuals(self, offsets: np.ndarray) -> np.ndarray:
+        """(2G,) normalised: the offsets' priors o / σ."""
+        return np.asarray(offsets, float).ravel() / self.sigma
 
 
 class _Drift:
@@ -343,9 +424,9 @@ def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) 
 
 
 def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray,
-               bias: np.ndarray | None = None):
+               bias: np.ndarray | None = None, offsets: np.ndarray | None = None):
     """Normalised residuals: odometry (T·3,) (the heading less b_k d_k with biases (T,)), sightings (S·2,)
-    interleaved (range, bearing)."""
+    interleaved (range, bearing) (each of landmark + its group's offset, with offsets (G, 2))."""
     odometry = between(poses[:-1], poses[1:]) - problem.increments
     if bias is not None:
         odometry[:, 2] -= bias * problem.increment_distances
@@ -353,6 +434,8 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
     odometry /= problem.increment_sigmas
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
+    if offsets is not None:
+        d = d + offsets[problem.offset_groups]
     predicted_range = np.hypot(d[:, 0], d[:, 1])
     predicted_bearing = np.arctan2(d[:, 1], d[:, 0]) - at[:, 2]
     sightings = np.column_stack([(predicted_range - problem.ranges) / problem.range_sigmas,
@@ -361,9 +444,11 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
 
 
 def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
-              sighting_weights: np.ndarray, drift: _Drift | None = None) -> sp.csr_matrix:
+              sighting_weights: np.ndarray, drift: _Drift | None = None, offset: _Offsets | None = None,
+              offsets: np.ndarray | None = None) -> sp.csr_matrix:
     """∂(normalised residuals)/∂(poses 1..T, landmarks), sightings scaled by their weights (S,). With a drift, pose
-    j's columns are (x, y, θ, b_{j−1}) and the drift's factors are rows after the sightings'."""
+    j's columns are (x, y, θ, b_{j−1}) and the drift's factors are rows after the sightings'. With sighting offsets
+    (G, 2), their columns follow the landmarks' and their priors' rows follow the others."""
     t = problem.n_poses
     width = _width(drift)
     rows, cols, vals = [], [], []
@@ -398,6 +483,8 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
 
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
+    if offset is not None:
+        d = d + offsets[offset.index]
     q = np.maximum(d[:, 0] ** 2 + d[:, 1] ** 2, 1e-12)
     rng = np.sqrt(q)
     base = 3 * t + 2 * np.arange(len(d))
@@ -410,6 +497,10 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         put(base, pose_col + col_offset, -dr * wr)
         put(base + 1, landmark_col + col_offset, db * wb)
         put(base + 1, pose_col + col_offset, -db * wb)
+        if offset is not None:                                   # m + o: the same derivatives
+            offset_col = width * t + 2 * n_landmarks + 2 * offset.index + col_offset
+            put(base, offset_col, dr * wr)
+            put(base + 1, offset_col, db * wb)
     put(base + 1, pose_col + 2, -wb)
     n_rows = 3 * t + 2 * len(d)
     if drift is not None and t:
@@ -417,7 +508,13 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         put(n_rows + k, width * k + 3, np.concatenate([[1.0 / drift.prior_sd], 1.0 / drift.sd]))
         put(n_rows + k[1:], width * k[:-1] + 3, -drift.decay / drift.sd)
         n_rows += t
-    shape = (n_rows, width * t + 2 * n_landmarks)
+    n_columns = width * t + 2 * n_landmarks
+    if offset is not None and offset.count:
+        g = np.arange(2 * offset.count)
+        put(n_rows + g, n_columns + g, np.full(len(g), 1.0 / offset.sigma))
+        n_rows += len(g)
+        n_columns += len(g)
+    shape = (n_rows, n_columns)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
 
 
@@ -430,8 +527,9 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
     return weights
 
 
-def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None) -> float:
-    odometry, sightings = _residuals(problem, poses, landmarks, bias)
+def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
+          offsets=None) -> float:
+    odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
         norm = np.sqrt(norm2)
@@ -439,6 +537,8 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
     else:
         rho = norm2
     extra = 0.0 if drift is None else float(np.sum(drift.residuals(bias) ** 2))
+    if offset is not None:
+        extra += float(np.sum(offset.residuals(offsets) ** 2))
     if heading_loss is None:
         return float(np.sum(odometry ** 2) + np.sum(rho)) + extra
     odometry = odometry.reshape(-1, 3)
@@ -446,25 +546,28 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
     return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + extra
 
 
-def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None
-           ) -> tuple[int, bool]:
+def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
+           offsets=None) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
-    landmarks (and the biases (T,) with a drift)."""
+    landmarks (and the biases (T,) with a drift, the offsets (G, 2) with sighting offsets)."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     width = _width(drift)
     damping = 1e-4
-    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias)
+    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        odometry, sightings = _residuals(problem, poses, landmarks, bias)
+        odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)
-        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights, drift), t, heading_weights)
+        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights, drift, offset, offsets), t,
+                          heading_weights)
         if heading_weights is not None:
             odometry = odometry.copy()
             odometry[2::3] *= np.sqrt(heading_weights)
         parts = [odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()]
         if drift is not None:
             parts.append(drift.residuals(bias))
+        if offset is not None:
+            parts.append(offset.residuals(offsets))
         residual = np.concatenate(parts)
         normal = (jac.T @ jac).tocsc()
         gradient = jac.T @ residual
@@ -476,9 +579,11 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             pose_step = step[:width * t].reshape(t, width)
             trial_poses[1:] += pose_step[:, :3]
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
-            trial_landmarks += step[width * t:].reshape(n_landmarks, 2)
+            trial_landmarks += step[width * t:width * t + 2 * n_landmarks].reshape(n_landmarks, 2)
             trial_bias = None if drift is None else bias + pose_step[:, 3]
-            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift, trial_bias)
+            trial_offsets = None if offset is None else offsets + step[width * t + 2 * n_landmarks:].reshape(-1, 2)
+            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift, trial_bias,
+                          offset, trial_offsets)
             if trial <= cost:
                 break
             damping *= 10.0
@@ -487,6 +592,8 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
         poses[:], landmarks[:] = trial_poses, trial_landmarks
         if drift is not None:
             bias[:] = trial_bias
+        if offset is not None:
+            offsets[:] = trial_offsets
         damping = max(damping / 10.0, 1e-9)
         improvement, cost = cost - trial, trial
         if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
@@ -494,10 +601,10 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
     return MAX_ITERATIONS, False
 
 
-def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None, drift=None
-                 ) -> sp.csc_matrix:
-    jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float), drift),
-                      problem.n_poses, heading_weights)
+def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None, drift=None, offset=None,
+                 offsets=None) -> sp.csc_matrix:
+    jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, inliers.astype(float), drift, offset,
+                                offsets), problem.n_poses, heading_weights)
     return (jac.T @ jac).tocsc()
 
 
@@ -567,12 +674,12 @@ def _marginals(information, t, n_landmarks, seen, covariance_poses, width=3):
     """Landmark (L, 2, 2) and pose (P, 3, 3) blocks of the information's inverse; a landmark never sighted (no
     information) gets an infinite covariance and is left out of the factorisation."""
     free = np.ones(information.shape[0], bool)
-    free[width * t:] = np.repeat(seen, 2)
+    free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)     # offsets after them: all kept (priors)
     factor = _NormalFactor(information[free][:, free], t, width)
     landmark_cov = np.full((n_landmarks, 2, 2), np.inf)
     n_seen = int(seen.sum())
     if n_seen:
-        blocks = factor.landmark_covariance().reshape(n_seen, 2, n_seen, 2)
+        blocks = factor.landmark_covariance()[:2 * n_seen, :2 * n_seen].reshape(n_seen, 2, n_seen, 2)
         landmark_cov[seen] = blocks[np.arange(n_seen), :, np.arange(n_seen), :]
     return landmark_cov, factor.pose_covariance_blocks(covariance_poses)
 

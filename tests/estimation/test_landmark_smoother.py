@@ -440,3 +440,139 @@ def test_pose_covariances_are_the_blocks_of_the_dense_inverse_in_every_chunk(mon
     expected = dense[rows[:, :, None], rows[:, None, :]]
     assert len(solution.covariance_poses) == problem.n_poses
     np.testing.assert_allclose(solution.pose_covariances, expected, rtol=1e-8, atol=1e-12)
+
+
+# --- sighting offsets (SightingOffset): a systematic error shared by a group of sightings (session 27, A) ---
+
+def offset_log(seed: int, sigma: float, steps: int = 240, lap: int = 120):
+    """:func:`simulated_log` whose sightings of each landmark on each lap (a visit) all see it displaced by one
+    offset drawn from N(0, σ² I): the problem's ``offset_index`` is the visit. Returns (problem, truth, landmarks)."""
+    problem, truth, landmarks = simulated_log(seed, steps)
+    rng = np.random.default_rng(seed + 10_000)
+    _, group = np.unique(problem.landmark_index * (steps // lap + 1) + (problem.pose_index - 1) // lap,
+                         return_inverse=True)
+    offsets = rng.normal(0.0, sigma, (group.max() + 1, 2))
+    at = truth[problem.pose_index]
+    d = landmarks[problem.landmark_index] + offsets[group] - at[:, :2]
+    ranges = np.hypot(d[:, 0], d[:, 1]) + SIGMA_R * rng.standard_normal(len(d))
+    bearings = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - at[:, 2] + SIGMA_B * rng.standard_normal(len(d)))
+    return dataclasses.replace(problem, ranges=ranges, bearings=bearings, offset_index=group.astype(int)), truth, \
+        landmarks
+
+
+def test_with_offsets_per_visit_the_landmark_nees_follows_chi2_and_without_them_it_does_not():
+    """Sightings that share an offset per visit (σ 0.1 m): without the option the landmarks are overconfident
+    (their error is the visits' mean offset, their covariance that of the sightings' noise); with it their NEES
+    against the posts follows χ²₂."""
+    plain, offset = [], []
+    for seed in range(12):
+        problem, _, landmarks = offset_log(seed, 0.1)
+        guess = initial_guess(problem)
+        without = smooth(problem, *guess, pose_covariance_stride=60)
+        with_it = smooth(problem, *guess, pose_covariance_stride=60,
+                         sighting_offset=landmark_smoother.SightingOffset(0.1))
+        assert with_it.converged and with_it.offsets.shape == (problem.offset_index.max() + 1, 2)
+        plain.append(points_nees(without.landmarks - landmarks, without.landmark_covariances))
+        offset.append(points_nees(with_it.landmarks - landmarks, with_it.landmark_covariances))
+    plain, offset = np.concatenate(plain), np.concatenate(offset)
+    assert np.mean(plain < CHI2_2_95) < 0.6                    # measured 28 %
+    assert 1.4 < np.mean(offset) < 2.8 and np.mean(offset < CHI2_2_95) > 0.85     # measured 2.2, 92 %
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), laps=st.integers(1, 4), sigma=st.floats(0.005, 0.2))
+def test_a_landmark_seen_by_one_group_never_gets_more_certain_than_the_offset(seed, laps, sigma):
+    """However many sightings one group holds (one to four laps), the landmark's covariance stays ≥ σ² I; and with
+    one group per landmark (the default grouping) the poses and landmarks are those without the option, each
+    landmark's covariance larger by exactly σ² I."""
+    problem, _, _ = offset_log(seed, sigma, steps=120 * laps, lap=120 * laps)
+    problem = dataclasses.replace(problem, offset_index=np.zeros(0, int))      # the default: each landmark's own
+    guess = initial_guess(problem)
+    plain = smooth(problem, *guess)
+    solution = smooth(problem, *guess, sighting_offset=landmark_smoother.SightingOffset(sigma))
+    assert np.linalg.eigvalsh(solution.landmark_covariances).min() >= sigma ** 2 * (1 - 1e-9)
+    np.testing.assert_allclose(solution.poses, plain.poses, atol=1e-6)
+    np.testing.assert_allclose(solution.landmarks, plain.landmarks, atol=1e-6)
+    np.testing.assert_allclose(solution.offsets, 0.0, atol=1e-6)
+    np.testing.assert_allclose(solution.landmark_covariances, plain.landmark_covariances + sigma ** 2 * np.eye(2),
+                               rtol=1e-6, atol=1e-12)
+    joint = joint_landmark_covariance(problem, solution)
+    np.testing.assert_allclose(joint, joint_landmark_covariance(problem, plain) + sigma ** 2 * np.eye(len(joint)),
+                               rtol=1e-6, atol=1e-12)
+    assert solution.dof == plain.dof
+    _, _, extra = normalised_residuals(problem, solution)
+    assert len(extra) == 2 * len(solution.offsets)
+
+
+def test_two_visits_of_one_post_that_disagree_are_fitted_by_their_offsets_not_by_the_sightings():
+    """Two laps (visits) see every post 0.2 m apart in range: with offsets per visit (σ 0.1 m) the sightings fit as
+    well as those of the same log without the disagreement, the offsets' priors paying for it; without the option the
+    sightings' χ² pays."""
+    clean, _, _ = offset_log(seed=2, sigma=0.0)
+    lap = clean.offset_index % 3                          # groups are landmark × lap (3 per landmark on 240 steps)
+    problem = dataclasses.replace(clean, ranges=clean.ranges + np.where(lap == 1, 0.1, -0.1))
+
+    def sightings_chi2(p, solution):
+        return float(np.sum(normalised_residuals(p, solution)[1][solution.inliers] ** 2))
+
+    baseline = sightings_chi2(clean, smooth(clean, *initial_guess(clean)))
+    plain = smooth(problem, *initial_guess(problem))
+    solution = smooth(problem, *initial_guess(problem), sighting_offset=landmark_smoother.SightingOffset(0.1))
+    assert sightings_chi2(problem, plain) > 1.4 * baseline
+    assert sightings_chi2(problem, solution) < 1.1 * baseline
+    assert solution.chi2 < plain.chi2
+    assert np.median(np.abs(solution.offsets)) > 0.02
+
+
+def test_an_offset_of_sigma_zero_is_the_solution_without_it_bit_for_bit():
+    problem, _, _ = offset_log(seed=4, sigma=0.05)
+    plain = smooth(dataclasses.replace(problem, offset_index=np.zeros(0, int)), *initial_guess(problem))
+    for other in (smooth(problem, *initial_guess(problem), sighting_offset=landmark_smoother.SightingOffset(0.0)),
+                  smooth(problem, *initial_guess(problem))):
+        for name in ("poses", "landmarks", "landmark_covariances", "pose_covariances", "inliers"):
+            assert np.array_equal(getattr(plain, name), getattr(other, name)), name
+        assert (plain.chi2, plain.dof, plain.iterations) == (other.chi2, other.dof, other.iterations)
+        assert other.sighting_offset is None and other.offsets is None
+        np.testing.assert_array_equal(joint_landmark_covariance(problem, plain),
+                                      joint_landmark_covariance(problem, other))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), steps=st.integers(1, 8), n_landmarks=st.integers(1, 4),
+       n_groups=st.integers(1, 5))
+def test_jacobian_with_offsets_matches_finite_differences(seed, steps, n_landmarks, n_groups):
+    rng = np.random.default_rng(seed)
+    s = 2 * steps
+    problem = LandmarkLogProblem(rng.normal(0, 0.4, (steps, 3)), rng.uniform(0.01, 0.1, (steps, 3)),
+                                 rng.integers(1, steps + 1, s), rng.integers(0, n_landmarks, s),
+                                 rng.uniform(0.5, 4, s), rng.uniform(-1, 1, s), rng.uniform(0.02, 0.2, s),
+                                 rng.uniform(0.01, 0.1, s), offset_index=rng.integers(0, n_groups, s))
+    poses = dead_reckoning(problem.increments) + rng.normal(0, 0.2, (steps + 1, 3))
+    poses[0] = 0
+    landmarks = rng.uniform(-3, 3, (n_landmarks, 2)) + np.array([5.0, 0.0])
+    option = landmark_smoother.SightingOffset(float(rng.uniform(0.01, 0.2)))
+    offset = landmark_smoother._Offsets(problem, option, n_groups)
+    offsets = rng.normal(0, 0.1, (n_groups, 2))
+    jac = _jacobian(problem, poses, landmarks, n_landmarks, np.ones(s), None, offset, offsets).toarray()
+    x0 = np.concatenate([poses[1:].ravel(), landmarks.ravel(), offsets.ravel()])
+
+    def residuals(x):
+        p = poses.copy()
+        p[1:] = x[:3 * steps].reshape(steps, 3)
+        o = x[3 * steps + 2 * n_landmarks:].reshape(n_groups, 2)
+        odometry, sightings = _residuals(problem, p, x[3 * steps:3 * steps + 2 * n_landmarks].reshape(-1, 2), None, o)
+        return np.concatenate([odometry, sightings, offset.residuals(o)])
+
+    numeric = np.column_stack([(residuals(x0 + e) - residuals(x0 - e)) / 2e-6 for e in np.eye(len(x0)) * 1e-6])
+    np.testing.assert_allclose(jac, numeric, atol=1e-5)
+
+
+@pytest.mark.parametrize("sigma", [-0.1, float("nan"), float("inf")])
+def test_malformed_sighting_offsets_are_refused(sigma):
+    with pytest.raises(SmoothingError, match="sighting offset σ"):
+        landmark_smoother.SightingOffset(sigma)
+    problem, _, _ = simulated_log(seed=1, steps=10)
+    with pytest.raises(SmoothingError, match="offset_index"):
+        dataclasses.replace(problem, offset_index=np.zeros(len(problem.ranges) + 1, int))
+    with pytest.raises(SmoothingError, match="offset_index"):
+        dataclasses.replace(problem, offset_index=np.full(len(problem.ranges), -1))
