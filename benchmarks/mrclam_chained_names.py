@@ -88,6 +88,7 @@ from estimation.landmark_smoother import (  # noqa: E402
     OUTLIER_CHI2,
     HeadingDrift,
     LandmarkLogProblem,
+    SightingOffset,
     Smoothed,
     joint_landmark_covariance,
     landmarks_from_first_sightings,
@@ -464,12 +465,20 @@ class LoopClosure:
 
 def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
                  initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
-                 heading_drift: HeadingDrift | None = None, path_step_s: float | None = None
+                 heading_drift: HeadingDrift | None = None, path_step_s: float | None = None,
+                 sighting_offset: SightingOffset | None = None, offset_names: np.ndarray | None = None
                  ) -> tuple[NamedProblem, Smoothed]:
     """The smoother on ``log`` with ``names``; initial poses (T + 1, 3) (default: the calibrated dead reckoning),
     initial landmark positions by name (default: placed from their first sightings); ``heading_drift``: the
-    smoother's heading-bias states (None: none); ``path_step_s``: :func:`named_problem`'s."""
+    smoother's heading-bias states (None: none); ``path_step_s``: :func:`named_problem`'s. ``sighting_offset``: an
+    offset per group of sightings (:class:`~estimation.landmark_smoother.SightingOffset`), the groups given by
+    ``offset_names`` (N,) (each sighting's name before any merge: a chained name's sightings share one offset; default
+    ``names``: each landmark its own)."""
     named = named_problem(log, names, noise, config, path_step_s=path_step_s)
+    if sighting_offset is not None and sighting_offset.on and offset_names is not None:
+        groups = np.unique(np.asarray(offset_names)[named.sightings], return_inverse=True)[1]
+        named = dataclasses.replace(named, problem=dataclasses.replace(named.problem,
+                                                                       offset_index=groups.astype(int)))
     problem = named.problem
     if initial_poses is None:
         initial_poses = dead_reckoning(problem.increments)
@@ -477,7 +486,8 @@ def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, con
     for k, name in enumerate(named.names):
         if initial is not None and int(name) in initial:
             landmarks[k] = initial[int(name)]
-    return named, smooth(problem, initial_poses, landmarks, heading_drift=heading_drift)
+    return named, smooth(problem, initial_poses, landmarks, heading_drift=heading_drift,
+                         sighting_offset=sighting_offset)
 
 
 def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,

@@ -127,6 +127,7 @@ from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     HeadingDrift,
+    SightingOffset,
     Smoothed,
     joint_landmark_covariance,
     normalised_residuals,
@@ -135,6 +136,17 @@ from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa:
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
 STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
+
+# ``--sighting-offset``: the smoother's offset per chained name (estimation.landmark_smoother.SightingOffset), set by
+# run_robot for the robot it runs (the option, and each log sighting's name before any merge: its offset group);
+# every smoothing of this benchmark goes through _smooth_named, which adds it
+_OFFSET: dict = {"option": None, "names": None}
+
+
+def _smooth_named(log, names, noise, config, **kwargs):
+    """:func:`mrclam_chained_names.smooth_named` with the run's sighting offset (``--sighting-offset``), if any."""
+    return smooth_named(log, names, noise, config, sighting_offset=_OFFSET["option"], offset_names=_OFFSET["names"],
+                        **kwargs)
 
 
 @dataclass
@@ -280,7 +292,7 @@ def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, conf
     initial_poses = current.solution.poses
     if reguess is not None:         # a fresh start: the known-ID filter and smoother on the merged names
         initial_poses, position = reguess(names)
-    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses,
+    named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses,
                                    initial=position, heading_drift=drift, path_step_s=path_step_s)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
     bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(merged)))
@@ -395,7 +407,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
             name = int(current.named.names[k])
             names = current.names.copy()
             names[(names == name) & (log.sighting_times >= at)] = next_name
-            named, trial = smooth_named(log, names, noise, config, initial_poses=solution.poses,
+            named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses,
                                         initial={**position, next_name: position[name]}, heading_drift=drift,
                                         path_step_s=path_step_s)
             drop = base - truncated_cost(named.problem, trial)
@@ -413,7 +425,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
         names[(names == name) & (log.sighting_times >= at)] = next_name
         initial[next_name] = position[name]
         next_name += 1
-    named, trial = smooth_named(log, names, noise, config, initial_poses=solution.poses, initial=initial,
+    named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses, initial=initial,
                                 heading_drift=drift, path_step_s=path_step_s)
     rise = truncated_cost(named.problem, trial) - base
     return MergeRound([], rise, 0.0, True, names, named, trial), tried
@@ -437,7 +449,7 @@ def ceiling(log: RangeBearingLog, names: np.ndarray, noise, config, drift, args)
     owner = majority(names, log.landmark_ids)
     merged = np.array([owner[int(x)] if x >= 0 else -1 for x in names], np.int64)
     poses, initial = _guess(log, merged, noise, config, args, cache=False)
-    named, solution = smooth_named(log, merged, noise, config, initial_poses=poses, initial=initial,
+    named, solution = _smooth_named(log, merged, noise, config, initial_poses=poses, initial=initial,
                                    heading_drift=drift, path_step_s=_path_step(args))
     final = MergeRound([], 0.0, 0.0, True, merged, named, solution)
     return round_scores(log, final, majority(merged, log.landmark_ids))
@@ -486,13 +498,23 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     names = chained.names
     drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
     path_step_s = _path_step(args)
+    _OFFSET.update(option=SightingOffset(args.sighting_offset) if args.sighting_offset > 0 else None, names=None)
     if args.from_round is not None:
-        return _run_rounds(log, row, names, *load_state(state_path(args.state_dir, log, args.seed,
-                                                                     f"round{args.from_round}"), log, noise,
-                                                          config, drift, path_step_s), noise, config, drift, args)
+        current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
+                                   config, drift, path_step_s)
+        if _OFFSET["option"] is not None:     # the groups: the names after the chain (round 0); re-smoothed with them
+            with np.load(state_path(args.state_dir, log, args.seed, "round0"), allow_pickle=False) as data:
+                _OFFSET["names"] = data["names"]
+            current = _with_offsets(log, current, noise, config, drift, path_step_s)
+            if args.progress:
+                _print_scores(f"{log.name} round {args.from_round} re-smoothed with sighting offsets "
+                              f"σ {args.sighting_offset:g} m", round_scores(log, current, majority(current.names,
+                                                                                                   barcodes)),
+                              file=sys.stderr)
+        return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
     initial_poses, initial = _guess(log, names, noise, config, args)
     started = time.process_time()
-    named, solution = smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
+    named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
                                    heading_drift=drift, path_step_s=path_step_s)
     current = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
     owner = majority(names, barcodes)
@@ -529,7 +551,19 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     meta = _state_meta(log, args, drift, 0)
     if args.state_dir:
         save_state(state_path(args.state_dir, log, args.seed, "round0"), current, meta)
+    if _OFFSET["option"] is not None:       # the groups: the names after the chain (and the splits)
+        _OFFSET["names"] = current.names.copy()
+        current = _with_offsets(log, current, noise, config, drift, path_step_s)
     return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
+
+
+def _with_offsets(log: RangeBearingLog, current: MergeRound, noise, config, drift, path_step_s) -> MergeRound:
+    """``current``'s names re-smoothed with the run's sighting offsets, from its solution (one name's offset alone
+    moves nothing; merged names' offsets let them differ)."""
+    initial = dict(zip(current.named.names.tolist(), current.solution.landmarks, strict=True))
+    named, solution = _smooth_named(log, current.names, noise, config, initial_poses=current.solution.poses,
+                                    initial=initial, heading_drift=drift, path_step_s=path_step_s)
+    return MergeRound([], 0.0, 0.0, True, current.names, named, solution)
 
 
 def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: MergeRound, meta: dict, noise, config,
@@ -651,7 +685,8 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
 
 def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
     return {"robot": log.name, "seed": args.seed, "drift": [drift.sigma_per_m, drift.tau_s] if drift else None,
-            "path_step_s": _path_step(args), "round": round_done, "scores": scores or {}}
+            "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},
+            "sighting_offset_m": args.sighting_offset}
 
 
 def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
@@ -876,6 +911,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name-floor", type=non_negative_float, default=0.0, metavar="M",
                         help="the pairwise merges' gate: σ (m) of an offset of each name of its own (the sightings' "
                              "systematic error, which their number does not average out), added to its covariance")
+    parser.add_argument("--sighting-offset", type=non_negative_float, default=0.0, metavar="M",
+                        help="the smoother's offset per chained name, σ in m (0: off; the groups are the names after "
+                             "the chain, round 0)")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")
