@@ -72,11 +72,11 @@ from dataclasses import dataclass, field  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
-import scipy.stats  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
+from estimation import chi2  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAMConfig, range_bearing_config  # noqa: E402
@@ -542,7 +542,7 @@ def _merge(log, current: MergeRound, candidates: list[MergeCandidate], noise, co
     named, solution = smooth_named(log, names, noise, config, initial_poses=current.solution.poses,
                                    initial=position, heading_drift=heading_drift)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
-    bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(candidates)))
+    bound = float(chi2.ppf(0.99, 2 * len(candidates)))
     merged = [(c.a, c.b) for c in candidates]
     if rise <= bound:
         return MergeRound(merged, rise, bound, True, names, named, solution, list(candidates))

@@ -97,7 +97,6 @@ import time  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.stats  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
@@ -113,6 +112,7 @@ from benchmarks.mrclam_chained_names import (  # noqa: E402
     smooth_named,
     truncated_cost,
 )
+from estimation import chi2  # noqa: E402
 from estimation.constellation import (  # noqa: E402
     guard_batches,
     joint_d2,
@@ -221,7 +221,7 @@ def judge_passes(positions: np.ndarray, covariance: np.ndarray, covisible: np.nd
             # together with the matches: else the constellation has two places in the map
             pairs = sorted({pair for h in hypotheses for pair in h.pairs})
             d2, _ = joint_d2(positions, covariance, pairs)
-            if d2 < scipy.stats.chi2.ppf(probability, 2 * len(pairs)):
+            if d2 < chi2.ppf(probability, 2 * len(pairs)):
                 strength = (max(len(m.best.pairs) for m in matched), min(m.log_ratio for m in matched))
                 out.append(PassVerdict(i, "matched", pairs, strength, len(matched), True))
             else:
@@ -295,7 +295,7 @@ def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, conf
     named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses,
                                    initial=position, heading_drift=drift, path_step_s=path_step_s)
     rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
-    bound = float(scipy.stats.chi2.ppf(0.99, 2 * len(merged)))
+    bound = float(chi2.ppf(0.99, 2 * len(merged)))
     if rise <= bound:
         return MergeRound(merged, rise, bound, True, names, named, solution)
     return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
@@ -396,7 +396,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
     position = dict(zip(current.named.names.tolist(), solution.landmarks, strict=True))
     next_name = int(current.names.max()) + 1
     tried, kept = [], []
-    bend_bound = scipy.stats.chi2.ppf(bend_probability, 3)
+    bend_bound = chi2.ppf(bend_probability, 3)
     for j in np.flatnonzero(np.sum(odometry ** 2, axis=1) > bend_bound):
         at = float(times[j])
         near = solution.inliers & (sighted >= at - window_s) & (sighted < at + window_s)
@@ -411,7 +411,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
                                         initial={**position, next_name: position[name]}, heading_drift=drift,
                                         path_step_s=path_step_s)
             drop = base - truncated_cost(named.problem, trial)
-            keep = drop > scipy.stats.chi2.ppf(probability, 2)
+            keep = drop > chi2.ppf(probability, 2)
             tried.append({"name": name, "t": at, "cost_drop": float(drop), "kept": bool(keep)})
             if on_try is not None:
                 on_try(tried[-1])
@@ -736,7 +736,7 @@ def group_rivals(positions: np.ndarray, covariance: np.ndarray, groups: list[lis
     seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
     d2 = np.full((n, n), np.inf)
     d2[np.ix_(seen, seen)] = pairwise_d2(positions, covariance, seen)
-    gate = float(scipy.stats.chi2.ppf(probability, 2))
+    gate = float(chi2.ppf(probability, 2))
     out = []
     for g in groups:
         members = [g[0][0]] + [m for _, m in g]
@@ -748,7 +748,7 @@ def group_rivals(positions: np.ndarray, covariance: np.ndarray, groups: list[lis
                 continue
             pairs = g + [(members[0], x)]
             joint, _ = joint_d2(positions, covariance, pairs)
-            count += not joint < scipy.stats.chi2.ppf(probability, 2 * len(pairs))
+            count += not joint < chi2.ppf(probability, 2 * len(pairs))
         out.append(count)
     return out
 

@@ -31,7 +31,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
+
+from . import chi2
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,7 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     map_points = [int(q) for q in map_points]
     if set(pass_points) & set(map_points):
         raise ValueError("a point cannot be both in the pass and in the map")
-    gates = scipy.stats.chi2.ppf(probability, 2 * np.arange(1, len(pass_points) + 2))
+    gates = chi2.ppf(probability, 2 * np.arange(1, len(pass_points) + 2))
     # individually compatible pairings first (the tree's branches)
     options: list[list[int]] = []
     for p in pass_points:
@@ -214,7 +215,7 @@ def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, al
     if not points:
         return []
     d2 = pairwise_d2(positions, covariance, points)
-    gate = float(scipy.stats.chi2.ppf(probability, 2))
+    gate = float(chi2.ppf(probability, 2))
     linked = d2 < gate
     label = list(range(len(points)))
 
@@ -245,7 +246,7 @@ def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, al
                                               | np.eye(len(members), dtype=bool)):
             status = "covisible"
         elif not np.all(linked[sub] | np.eye(len(local), dtype=bool)) \
-                or not joint < scipy.stats.chi2.ppf(probability, dof):
+                or not joint < chi2.ppf(probability, dof):
             status = "not_joint"
         else:
             status = "merge"
@@ -307,7 +308,7 @@ def guard_batches(positions: np.ndarray, covariance: np.ndarray, batches, *, pro
         for k, (d2, dof) in zip(keep, shares, strict=True):
             if dof == 0:
                 continue
-            log_sf = float(scipy.stats.chi2.logsf(d2, dof))
+            log_sf = float(chi2.logsf(d2, dof))
             if log_sf < worst_log:
                 worst, worst_log = (k, d2, dof), log_sf
         if worst is None:

@@ -14,7 +14,7 @@ from scipy.stats import chi2 as reference
 
 from estimation import chi2
 
-FUNCTIONS = ("cdf", "sf", "ppf", "isf")
+FUNCTIONS = ("cdf", "sf", "logsf", "ppf", "isf")
 dofs = st.one_of(st.integers(1, 400), st.floats(1e-3, 1e3))
 probabilities = st.one_of(st.floats(0.0, 1.0), st.sampled_from([1e-300, 1e-12, 1e-6, 0.001, 0.05, 0.5, 0.95,
                                                                 0.999, 1 - 1e-12, 0.0, 1.0]))
@@ -38,6 +38,38 @@ def test_ppf_and_isf_are_scipy_s_bit_for_bit(q, df):
 def test_cdf_and_sf_are_scipy_s_bit_for_bit(x, df):
     assert same(chi2.cdf(x, df), reference.cdf(x, df))
     assert same(chi2.sf(x, df), reference.sf(x, df))
+
+
+@settings(max_examples=300, deadline=None)
+@given(x=values, df=dofs)
+def test_logsf_is_scipy_s_bit_for_bit_where_scipy_s_is_finite(x, df):
+    theirs = reference.logsf(x, df)
+    if np.isfinite(theirs) or not 0 < x < np.inf:
+        assert same(chi2.logsf(x, df), theirs)
+    else:                                           # sf underflowed: ours is the tail's log, finite
+        assert np.isfinite(chi2.logsf(x, df)) and chi2.logsf(x, df) < np.log(np.finfo(float).tiny)
+
+
+@settings(max_examples=200, deadline=None)
+@given(df=st.one_of(st.integers(1, 200), st.floats(0.5, 200.0)), x=st.floats(1.0, 1e7),
+       step=st.floats(1e-3, 1e4))
+def test_logsf_past_the_underflow_is_the_tail_continued_and_decreasing(df, x, step):
+    """Where sf is finite but tiny, the continued fraction the underflow uses agrees with log(sf) to 1e-12; and the
+    log tail falls as x grows, below where sf underflows too."""
+    x = max(x, 2.0 * df + 20.0)                      # the continued fraction's range, x/2 > df/2 + 1
+    with np.errstate(divide="ignore"):
+        theirs = np.log(reference.sf(x, df))
+    if np.isfinite(theirs) and theirs < -50:
+        ours = chi2._log_upper_gamma_regularised(np.array([df / 2.0]), np.array([x / 2.0]))[0]
+        assert ours == pytest.approx(theirs, rel=1e-12)
+    assert chi2.logsf(x + step, df) < chi2.logsf(x, df)
+
+
+def test_logsf_far_in_the_tail_is_exact_where_it_is_known():
+    # χ²₂: sf = exp(−x/2) exactly; scipy's logsf is −inf from x ≈ 1490 on
+    for x in (1000.0, 1500.0, 1e4, 1e8):
+        assert chi2.logsf(x, 2) == pytest.approx(-x / 2, rel=1e-14)
+    assert np.isneginf(reference.logsf(1e4, 2))
 
 
 @pytest.mark.parametrize("name", FUNCTIONS)
