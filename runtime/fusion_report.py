@@ -67,6 +67,11 @@ class PairResult:
     # part made after its map's gap, which does not share the start they are measured from (fusion/split.py); ""
     # when the error is given or no truth is known
     error_not_comparable: str = ""
+    # why start_sigma_xy / start_sigma_theta are None although the alignment was found, in words (truth known or
+    # not): the placement is of a part made after its map's gap, and the start-frame 1σ is a claim about the map's
+    # start, which the gap broke (session 26's demo: 0.563 m / 0.108 rad); sigma_xy / sigma_theta, the precision of
+    # the part's own alignment, are what holds for it. "" when the start-frame 1σ is given or there is none
+    start_sigma_not_comparable: str = ""
     # the rough relative start the alignment was given (fusion/prior.py), in words; "" when none was used
     prior: str = ""
     # with the co-location option (AlignmentConfig.colocation, fusion/colocation.py): what was tested, or why there was
@@ -240,7 +245,8 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
     reports the placement of its map as merged (whole, or the part made before the gap when it was kept, else the
     part after it) with the evidence of the alignment it rests on (supports, needed, P(chance), 1σ), the split's
     sentence, and the error against the truth where the maps carry it -- not for a part made after the gap, which
-    does not share its map's start (``error_not_comparable`` says so)."""
+    does not share its map's start (``error_not_comparable`` says so), nor its 1σ against the start frames, only
+    its own alignment's (``start_sigma_not_comparable`` says why)."""
     from fusion import true_relative_pose
     from fusion.split import fuse_checked, holds_start
 
@@ -277,8 +283,11 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
                  if not holds_start(part)]
         if not apart:
             result.score_against_truth(ordered[0], ordered[k])
-        elif true_relative_pose(ordered[0], ordered[k]) is not None:
-            result.error_not_comparable = apart[0]
+        else:   # the start-frame 1σ claims the map's start, which the gap broke: the part's own precision holds
+            result.start_sigma_xy = result.start_sigma_theta = None
+            result.start_sigma_not_comparable = apart[0]
+            if true_relative_pose(ordered[0], ordered[k]) is not None:
+                result.error_not_comparable = apart[0]
         pairs.append(result)
     merged = multi.map if multi is not None else maps[names[0]]
     return FusionReport(t, pairs, merged, time.perf_counter() - start)

@@ -85,7 +85,8 @@ def format_summary(summary: dict) -> str:
         lines.append("Fusion: fewer than two maps, nothing to fuse.")
     else:
         # 1σ: the alignment's uncertainty against the true start frames (each map's own frame error included),
-        # beside the error when the truth is known, so a reader sees whether the claim covers the error
+        # beside the error when the truth is known, so a reader sees whether the claim covers the error; none for a
+        # split map's part made after its gap (the line below the table gives its own alignment's 1σ and why)
         rows = [["alignment", "found", "tx (m)", "ty (m)", "θ (rad)", "supports", "needed", "P(chance)", "common",
                  "1σ xy (m)", "1σ θ (rad)", "error xy (m)", "error θ (rad)"]]
         for p in fusion["pairs"]:
@@ -101,7 +102,10 @@ def format_summary(summary: dict) -> str:
                              f"(P(chance) {_fmt(p.get('false_alarm_probability'), '.1e')}): check it before use")
             elif not p["aligned"] and p.get("note") and p["note"] not in p.get("self_check", ""):
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: not aligned: {p['note']}")
-            if p["aligned"] and _words(p.get("error_not_comparable")):   # a split map's part after its gap
+            if p["aligned"] and _words(p.get("start_sigma_not_comparable")):   # a split map's part after its gap
+                lines += _wrapped(f"{p['other']} -> {p['reference']}: "
+                                  + "; ".join(t for t in (sigma_text(p), not_comparable_text(p)) if t))
+            elif p["aligned"] and _words(p.get("error_not_comparable")):
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: {not_comparable_text(p)}")
             if p.get("self_check"):   # a map that flagged itself, split at the alarm (fusion/split.py)
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: {p['self_check']}")
@@ -120,6 +124,24 @@ def _wrapped(sentence: str, width: int = 118) -> list[str]:
 def _words(value) -> str:
     """A recorded sentence on one line; "" when it is none (absent, empty, or not text: another version's recording)."""
     return " ".join(value.split()) if isinstance(value, str) else ""
+
+
+def sigma_text(pair: Mapping, missing: str = "-") -> str:
+    """'1σ 0.457 m / 0.0632 rad' (against the true start frames); for a placement of a split map's part made after
+    its gap, whose start-frame 1σ the gap broke (fusion/split.py): '1σ 0.082 m / 0.0155 rad of the part's own
+    alignment, none against the start frames', with the reason unless the error's clause gives the same one;
+    "" when the pair carries neither."""
+    why = _words(pair.get("start_sigma_not_comparable"))
+    if why:
+        if pair.get("sigma_xy") is None:
+            return f"no 1σ against the start frames: {why}"
+        text = (f"1σ {_fmt(pair.get('sigma_xy'), '.3f', missing)} m / {_fmt(pair.get('sigma_theta'), '.4f', missing)}"
+                " rad of the part's own alignment, none against the start frames")
+        return text if why == _words(pair.get("error_not_comparable")) else f"{text} ({why})"
+    if pair.get("start_sigma_xy") is None:
+        return ""
+    return (f"1σ {_fmt(pair.get('start_sigma_xy'), '.3f', missing)} m / "
+            f"{_fmt(pair.get('start_sigma_theta'), '.4f', missing)} rad")
 
 
 def not_comparable_text(pair: Mapping) -> str:
@@ -198,9 +220,9 @@ def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-")
         text += f" ({needed} needed" + (f", P(chance) {_fmt(chance, '.1e', missing)}" if chance is not None
                                         else "") + ")"
     text += f", {_fmt(pair.get('common'), 'd', missing)} common landmarks"
-    if pair.get("start_sigma_xy") is not None:
-        text += (f"; 1σ {_fmt(pair.get('start_sigma_xy'), '.3f', missing)} m / "
-                 f"{_fmt(pair.get('start_sigma_theta'), '.4f', missing)} rad")
+    sigma = sigma_text(pair, missing)
+    if sigma:
+        text += f"; {sigma}"
     if pair.get("error_xy") is not None:
         text += (f"; error against the truth {_fmt(pair.get('error_xy'), '.3f', missing)} m / "
                  f"{_fmt(pair.get('error_theta'), '.4f', missing)} rad")

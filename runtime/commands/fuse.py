@@ -168,11 +168,14 @@ def _fuse(args: argparse.Namespace) -> int:
         p = a.statistics.false_alarm_probability
         entry["false_alarm_probability"] = float(p) if np.isfinite(p) else None
         entry["low_confidence"] = bool(a.found and not (p <= LOW_CONFIDENCE_PROBABILITY))
+        apart = _apart_from_start(a, [(k, c) for k, c in ((0, by_index.get(i)), (1, by_index.get(j)))
+                                      if c is not None], maps) if a.found else ""
+        if apart:   # its start-frame 1σ claims a start the gap broke: only its own precision (covariance) holds
+            entry["start_covariance"] = None
+            entry["start_covariance_not_comparable"] = apart
         truth = true_relative_pose(maps[i], maps[j])
         if truth is not None:
             entry["true_pose"] = [float(v) for v in truth]
-            apart = _apart_from_start(a, [(k, c) for k, c in ((0, by_index.get(i)), (1, by_index.get(j)))
-                                          if c is not None], maps)
             scored = a.found and not apart
             entry["error"] = None if not scored else [float(v) for v in alignment_error(a.pose, truth)]
             entry["error_xy"], entry["error_theta"] = alignment_error_xy_theta(a.pose, truth) if scored else (None,
@@ -390,6 +393,9 @@ def _print(report: dict, as_json: bool) -> None:
             sigma_xy, sigma_theta = sigmas(a["start_covariance"])
             print(f"    against the true start frames (1σ, each map's error at the overlap as a whole): "
                   f"{sigma_xy:.3f} m, {sigma_theta:.4f} rad")
+        elif a.get("start_covariance_not_comparable"):
+            print(f"    against the true start frames: no 1σ (the precision above is of the part's own alignment): "
+                  f"{a['start_covariance_not_comparable']}")
         if st.get("gate_inflation", 1.0) > OVERCONFIDENT_MAPS:
             print(f"    note: the supports' residuals are {np.sqrt(st['gate_inflation']):.1f}× the maps' claimed "
                   "standard deviations (their covariances are too small; gate and precision were scaled to match)")

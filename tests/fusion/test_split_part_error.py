@@ -1,6 +1,8 @@
 """A split map's part made after its gap does not share its map's start (fusion/split.py): the reports (the mission's
-and fleet node's ``fuse_maps``, its summary, live line and viewer text, and ``p3at fuse``) never score it against the
-true start poses, say so in words, and carry the evidence of the alignment that placed it (session 26, E).
+and fleet node's ``fuse_maps``, its summary, ``--json``, live line and viewer text, ``p3at review``, and ``p3at fuse``)
+never score it against the true start poses, say so in words, and carry the evidence of the alignment that placed it
+(session 26, E). Its 1σ is its own alignment's, said so, not the start-frame 1σ, which claims the map's start the gap
+broke (session 27, D: the demo printed 0.563 m / 0.108 rad beside the part's own 0.082 m / 0.0155 rad).
 
 Found on ``p3at demo --seed 0 --odometry exact``: robot 2 lost its frame at 13.8 s, only the part after the gap
 aligned, and the demo printed "found, error 0.309 m / 0.2504 rad" (the map's loss, not the alignment's error) with
@@ -19,11 +21,12 @@ from hypothesis import strategies as st
 from fusion import true_relative_pose
 from fusion.alignment import alignment_error_xy_theta
 from fusion.split import check_split, fuse_checked, split_id
-from runtime.fusion_report import fuse_maps
-from runtime.report import alignment_text, format_summary, fusion_event_line
+from runtime.fusion_report import fuse_maps, sigmas
+from runtime.report import alignment_status, alignment_text, format_summary, fusion_event_line
 from tests.fusion.test_fusion_split import KICK, _pair, _verdict
 
 AFTER = "the part after robot2's gap at t≈60.0 s does not share robot2's start"
+OWN = "of the part's own alignment, none against the start frames"
 
 
 def _summary(report) -> dict:
@@ -63,9 +66,9 @@ def test_a_part_after_the_gap_is_not_scored_against_the_start_and_says_why(sim):
     assert f"error against the truth not comparable: {AFTER}" in text and "error against the truth 0" not in text
     summary = format_summary(_summary(fuse_maps({"robot1": m1, "robot2": m2})))
     row = next(s for s in summary.splitlines() if s.startswith("robot2 -> robot1  "))
-    assert row.split()[-2:] == ["-", "-"]
-    assert f"robot2 -> robot1: error against the truth not comparable: {AFTER}" in " ".join(
-        s.strip() for s in summary.splitlines())
+    assert row.split()[-4:] == ["-", "-", "-", "-"]     # no start-frame 1σ, no error
+    assert (f"robot2 -> robot1: 1σ {pair.sigma_xy:.3f} m / {pair.sigma_theta:.4f} rad {OWN}; error against the truth "
+            f"not comparable: {AFTER}") in " ".join(s.strip() for s in summary.splitlines())
 
 
 def test_a_part_after_the_gap_carries_its_own_evidence(sim):
@@ -82,9 +85,37 @@ def test_a_part_after_the_gap_carries_its_own_evidence(sim):
     assert pair.false_alarm_probability == st_.false_alarm_probability < 1e-6 and not pair.low_confidence
     assert (pair.second_best_supports, pair.self_repeat_supports) == (st_.second_best_supports,
                                                                       st_.self_repeat_supports)
-    assert pair.sigma_xy > 0 and pair.sigma_theta > 0 and pair.start_sigma_xy > 0 and pair.start_sigma_theta > 0
     text = alignment_text(pair.as_dict())
     assert f"{pair.supports} supports ({pair.required_supports} needed, P(chance) " in text and "; 1σ " in text
+
+
+def test_a_part_after_the_gap_shows_its_own_alignments_1_sigma_not_the_broken_start_claim(sim):
+    """The 1σ beside the part is its own alignment's (the fusion's covariance of its placement), said so; the
+    start-frame 1σ, a claim about robot 2's start that the gap broke (here 10x the own one), is shown nowhere: not in
+    the pair (``--json``), the summary's columns, review's or the viewer's text."""
+    m1, m2 = _after_only(sim)
+    (pair,) = fuse_maps({"robot1": m1, "robot2": m2}).pairs
+    checked = _as_fuse_maps_fuses(m1, m2)
+    after = checked.sources.index((1, "after"))
+    own, claim = sigmas(checked.fusion.covariances[after]), sigmas(checked.fusion.start_covariances[after])
+    assert claim[0] > 3 * own[0] and claim[1] > 3 * own[1]
+    assert (pair.sigma_xy, pair.sigma_theta) == own > (0, 0)
+    assert pair.start_sigma_xy is None and pair.start_sigma_theta is None
+    assert pair.start_sigma_not_comparable == AFTER
+    recorded = json.loads(json.dumps(pair.as_dict()))           # as --json and the recording carry it
+    assert recorded["start_sigma_xy"] is None and recorded["start_sigma_not_comparable"] == AFTER
+    clause = f"1σ {own[0]:.3f} m / {own[1]:.4f} rad {OWN}; error against the truth not comparable: {AFTER}"
+    for text in (alignment_text(recorded), alignment_text(recorded, missing="?"), alignment_status(137.0, recorded)):
+        assert clause in text and f"{claim[0]:.3f}" not in text
+
+
+def test_a_part_before_the_gap_keeps_its_start_frame_1_sigma(sim):
+    m1, m2, _, _ = _pair(sim, KICK)
+    (pair,) = fuse_maps({"robot1": m1, "robot2": m2}).pairs
+    assert pair.aligned_part == "before" and pair.start_sigma_xy > 0 and pair.start_sigma_not_comparable == ""
+    text = alignment_text(pair.as_dict())
+    assert f"; 1σ {pair.start_sigma_xy:.3f} m / {pair.start_sigma_theta:.4f} rad; error against the truth" in text
+    assert OWN not in text
 
 
 def test_the_part_before_the_gap_is_still_scored_with_its_evidence(sim):
@@ -109,6 +140,7 @@ def test_a_reference_map_with_nothing_before_its_gap_gives_no_start_error(sim, t
     (pair,) = fuse_maps({"robot1": m1, "robot2": m2}).pairs
     why = "the part after robot1's gap at t≈60.0 s does not share robot1's start"
     assert pair.aligned and pair.aligned_part is None and pair.error_xy is None and pair.error_not_comparable == why
+    assert pair.start_sigma_xy is None and pair.start_sigma_not_comparable == why
     m1.save(tmp_path / "r1.npz")
     m2.save(tmp_path / "r2.npz")
     assert main(["fuse", str(tmp_path / "r1.npz"), str(tmp_path / "r2.npz"), "--out", str(tmp_path / "m.npz"),
@@ -129,6 +161,9 @@ def test_maps_without_truth_give_no_reason_for_a_missing_error(sim):
     assert pair.aligned and pair.aligned_part == "after"
     assert pair.error_xy is None and pair.error_not_comparable == ""
     assert fusion_event_line(1.0, pair).endswith(f"({pair.supports} supports, {pair.common} common)")
+    # no truth to compare with, but the start-frame 1σ is still a claim about a start the part does not share
+    assert pair.start_sigma_xy is None and pair.start_sigma_not_comparable == AFTER
+    assert f"1σ {pair.sigma_xy:.3f} m / {pair.sigma_theta:.4f} rad {OWN} ({AFTER})" in alignment_text(pair.as_dict())
 
 
 def test_p3at_fuse_gives_no_start_error_for_an_alignment_resting_on_a_part_after_the_gap(sim, tmp_path, capsys):
@@ -144,12 +179,18 @@ def test_p3at_fuse_gives_no_start_error_for_an_alignment_resting_on_a_part_after
     assert entry["found"] and not entry["used"] and entry["true_pose"] is not None
     assert entry["error"] is None and entry["error_xy"] is None and entry["error_theta"] is None
     count = entry["supports_count"]
-    assert entry["error_not_comparable"] == (f"{count} of its {count} supports in robot2's map lie in the part after "
-                                             "robot2's gap at t≈60.0 s, which does not share robot2's start")
+    why = f"{count} of its {count} supports in robot2's map lie in the part after robot2's gap at t≈60.0 s, which " \
+          "does not share robot2's start"
+    assert entry["error_not_comparable"] == why
+    # its start-frame 1σ claims robot2's start: not given; its own precision is
+    assert entry["covariance"] is not None and entry["start_covariance"] is None
+    assert entry["start_covariance_not_comparable"] == why
     assert main(args) == 0
     out = capsys.readouterr().out
     assert f"error vs true start poses: not comparable: {count} of its {count} supports" in out
     assert "error vs true start poses: error xy" not in out
+    assert "    precision (1σ): " in out and "against the true start frames (1σ" not in out
+    assert f"against the true start frames: no 1σ (the precision above is of the part's own alignment): {why}" in out
 
 
 def test_p3at_fuse_still_scores_an_alignment_of_a_map_used_whole(sim, tmp_path, capsys):
@@ -164,14 +205,22 @@ def test_p3at_fuse_still_scores_an_alignment_of_a_map_used_whole(sim, tmp_path, 
     (entry,) = report["alignments"]
     assert report["maps"][1]["split"]["decision"] == "whole"
     assert entry["error_xy"] < 0.1 and "error_not_comparable" not in entry
+    assert entry["start_covariance"] is not None and "start_covariance_not_comparable" not in entry
 
 
 @settings(max_examples=100, deadline=None)
 @given(why=st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=30),
-                     st.lists(st.text(max_size=3), max_size=2)))
-def test_any_recorded_reason_is_worded_in_one_line(why):
-    """A recording written by another version (or anything) may hold any JSON in the field: one line, no exception."""
+                     st.lists(st.text(max_size=3), max_size=2)),
+       sigma_why=st.one_of(st.none(), st.integers(), st.text(max_size=30), st.just(AFTER)),
+       sigma=st.one_of(st.none(), st.floats(), st.text(max_size=3)))
+def test_any_recorded_reason_is_worded_in_one_line(why, sigma_why, sigma):
+    """A recording written by another version (or anything) may hold any JSON in the fields: one line, no
+    exception, in the review's and viewer's text and the summary."""
     pair = {"reference": "robot1", "other": "robot2", "aligned": True, "tx": 1.0, "ty": 2.0, "theta": 0.1,
-            "supports": 40, "common": 40, "error_xy": None, "error_theta": None, "error_not_comparable": why}
+            "supports": 40, "common": 40, "error_xy": None, "error_theta": None, "error_not_comparable": why,
+            "start_sigma_not_comparable": sigma_why, "sigma_xy": sigma, "sigma_theta": sigma}
     for text in (alignment_text(pair), alignment_text(pair, markdown=True), fusion_event_line(3.0, pair)):
         assert isinstance(text, str) and "\n" not in text and "\r" not in text
+    summary = format_summary({"robots": {}, "camera": "x", "particles": 1, "seed": 0, "duration": 1.0,
+                              "fusion": {"pairs": [dict(pair, supports=40)], "merged_landmarks": 1}})
+    assert "robot2 -> robot1" in summary
