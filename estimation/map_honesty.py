@@ -1,0 +1,164 @@
+"""Is a smoothed landmark map honest where it is sure? Barcode-free tests of a :mod:`estimation.landmark_smoother`
+solution (issue 13, MRCLAM in unknown association).
+
+Sessions 25–26 found the partly merged maps of the unknown-association pipeline (``benchmarks.mrclam_constellation``)
+confidently wrong in stretches — robot 3 seed 0's 1253–1275 s, 0.35 rad off at σ 0.06 rad — and no global sign of
+it: χ²/dof 0.25–0.38 and the outlier fraction 0.2–1 % on honest and wrong maps alike. Session 27 (B) traced robot 3's
+stretch to **one sighting**: the chain named a sighting of post 19 at 1252.6 s as post 20's name, whose other 43
+sightings come after a 12 s gap in which the robot turned 0.75 rad; that stretch is held by nothing but odometry, so
+the one sighting, taken from a well-known pose, ties it to the map — turned so that post 20 lies on post 19 — and the
+stretch inherits the map's certainty. Removing the sighting drops the truncated cost by 15.9 and puts the stretch's
+names 0.10 m from their posts instead of 0.61 m.
+
+The sign of it is local: the sightings of one name fall into **runs** (separated by gaps of time), and a run that is
+not the name's post disagrees with the rest of the name. The test here asks, for each run, how much the fit would
+improve if the run were its own landmark — the **split score**: the score (Lagrange-multiplier) statistic for a 2-D
+offset δ added to the landmark in that run's sightings only, at the solution,
+
+    s = gᵀ V⁻¹ g,  g = J_δᵀ r,  V = J_δᵀ J_δ − (J_xᵀ J_δ)ᵀ H⁻¹ (J_xᵀ J_δ),
+
+r the run's normalised residuals, J_δ their derivative with respect to δ (the landmark's own columns on the run's
+rows), H = JᵀJ the solution's information over every other variable (poses, heading biases, landmarks). To first
+order s is the drop of the smoother's cost Σr² when the run is split off (the generalised likelihood ratio), χ²₂
+under the smoother's model; it needs no re-smoothing, one factorisation of H for all runs of a map. A split score far
+beyond χ²₂ says the run and the rest of its name cannot be one point given everything else the map holds — a wrong
+run, or a stretch the map holds wrongly.
+
+What it cannot see: a stretch whose only error is the odometry's and whose names nothing else contradicts. Robot 2
+seed 0's 784–817 s after round 1 is one: the robot wiggles in place and its odometry (commanded velocities) is 0.78
+rad off at σ 0.19 over 38 s, and the stretch is sighted only by names of its own. There the split scores flag the one
+name that holds a wrong run (name 80's two sightings of post 19, the name round 2 then merged into post 19), but
+taking those sightings out does not right the stretch: no data contradict its odometry.
+
+Uses the smoother's own factorisation of the normal equations (``landmark_smoother._NormalFactor``), so the split
+scores are computed on exactly the information the solution's covariances come from.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import chi2
+from .landmark_smoother import (
+    LandmarkLogProblem,
+    Smoothed,
+    _information,
+    _jacobian,
+    _NormalFactor,
+    _row_scaled,
+    _solution_drift,
+    _solution_offset,
+    _width,
+    normalised_residuals,
+)
+
+__all__ = ["Run", "split_scores", "sighting_runs", "sighting_times", "split_threshold"]
+
+_SOLVE_COLUMNS = 256        # right-hand sides per banded solve (each column is one float per variable)
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run of one landmark's kept sightings: ``sightings`` (indices into the problem's sightings, in time order),
+    none more than the run's gap apart; ``start_s``, ``end_s`` their times (s from pose 0)."""
+
+    landmark: int
+    sightings: np.ndarray
+    start_s: float
+    end_s: float
+
+
+def sighting_times(problem: LandmarkLogProblem) -> np.ndarray:
+    """(S,) each sighting's time (s from pose 0), from the increments' durations (``increment_seconds``)."""
+    if len(problem.increment_seconds) != problem.n_poses:
+        raise ValueError("sighting times need the problem's increment_seconds (each increment's duration)")
+    pose_times = np.concatenate([[0.0], np.cumsum(problem.increment_seconds)])
+    return pose_times[problem.pose_index]
+
+
+def sighting_runs(problem: LandmarkLogProblem, solution: Smoothed, gap_s: float) -> list[Run]:
+    """Every landmark's kept sightings cut into runs wherever two consecutive ones are more than ``gap_s`` apart;
+    only landmarks with two runs or more (a landmark of one run has nothing to be tested against)."""
+    if not (np.isfinite(gap_s) and gap_s >= 0):
+        raise ValueError(f"the runs' gap must be finite and ≥ 0 s, not {gap_s}")
+    times = sighting_times(problem)
+    kept = np.flatnonzero(np.asarray(solution.inliers, bool))
+    out = []
+    for landmark in np.unique(problem.landmark_index[kept]):
+        mine = kept[problem.landmark_index[kept] == landmark]
+        mine = mine[np.argsort(times[mine], kind="stable")]
+        cuts = np.flatnonzero(np.diff(times[mine]) > gap_s) + 1
+        if len(cuts) == 0:
+            continue
+        for part in np.split(mine, cuts):
+            out.append(Run(int(landmark), part, float(times[part[0]]), float(times[part[-1]])))
+    return out
+
+
+def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run], details: dict | None = None
+                 ) -> np.ndarray:
+    """(R,) each run's split score (module docstring): the first-order drop of the smoother's cost Σr² if the run's
+    sightings were given a landmark of their own, χ²₂ under the model. A run holding all of its landmark's kept
+    sightings cannot be split off: NaN."""
+    t, n = problem.n_poses, len(solution.landmarks)
+    if not runs:
+        return np.zeros(0)
+    drift = _solution_drift(problem, solution)
+    offset = _solution_offset(problem, solution)
+    offsets = solution.offsets if offset is not None else None
+    width = _width(drift)
+    inliers = np.asarray(solution.inliers, bool)
+    seen = np.zeros(n, bool)
+    seen[problem.landmark_index[inliers]] = True
+    jac = _row_scaled(_jacobian(problem, solution.poses, solution.landmarks, n, inliers.astype(float), drift,
+                                offset, offsets), t, solution.heading_weights).tocsr()
+    information = _information(problem, solution.poses, solution.landmarks, inliers, n, solution.heading_weights,
+                               drift, offset, offsets)
+    free = np.ones(information.shape[0], bool)
+    free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
+    jac = jac[:, np.flatnonzero(free)]
+    column = np.cumsum(free) - 1                 # a variable's column among the free ones
+    factor = _NormalFactor(information[free][:, free], t, width)
+    _, residuals, _ = normalised_residuals(problem, solution)
+
+    base = 3 * t                                 # the sightings' rows follow the odometry's 3T
+    cross, own, grad = [], [], []
+    for run in runs:
+        rows = (base + 2 * run.sightings[:, None] + np.arange(2)).ravel()
+        block = jac[rows]                                                     # (2m, free)
+        cols = column[width * t + 2 * run.landmark + np.arange(2)]
+        j_delta = block[:, cols].toarray()                                   # (2m, 2)
+        cross.append(sp.csc_matrix(block.T @ j_delta))                      # (free, 2): J_xᵀ J_δ
+        own.append(j_delta.T @ j_delta)
+        grad.append(j_delta.T @ residuals[run.sightings].ravel())
+    out = np.full(len(runs), np.nan)
+    if details is not None:
+        details.update(offset=np.full((len(runs), 2), np.nan), influence=np.full(len(runs), np.nan),
+                       kept_information=np.full(len(runs), np.nan))
+    for start in range(0, len(runs), _SOLVE_COLUMNS // 2):
+        chunk = range(start, min(start + _SOLVE_COLUMNS // 2, len(runs)))
+        rhs = sp.hstack([cross[i] for i in chunk]).toarray()
+        solved = factor.solve(rhs)
+        for k, i in enumerate(chunk):
+            c = rhs[:, 2 * k:2 * k + 2]
+            v = own[i] - c.T @ solved[:, 2 * k:2 * k + 2]
+            v = 0.5 * (v + v.T)
+            if np.linalg.eigvalsh(v).min() <= 1e-9 * max(np.trace(own[i]), 1e-300):
+                continue                          # the rest of the landmark holds nothing against the run
+            offset_hat = np.linalg.solve(v, grad[i])
+            out[i] = float(grad[i] @ offset_hat)
+            if details is not None:
+                details["offset"][i] = -offset_hat
+                details["influence"][i] = float(offset_hat @ (own[i] - v) @ offset_hat)
+                details["kept_information"][i] = float(np.sqrt(np.linalg.det(v) / np.linalg.det(own[i])))
+    return out
+
+
+def split_threshold(n_tests: int, alpha: float = 0.01) -> float:
+    """The split score beyond which a run is flagged: χ²₂ at 1 − α/n (Bonferroni over the ``n_tests`` runs of a
+    map, so that an honest map of n runs raises a false alarm with probability ≤ α)."""
+    if n_tests < 1 or not 0 < alpha < 1:
+        raise ValueError(f"need n_tests ≥ 1 and 0 < α < 1, not {n_tests} and {alpha}")
+    return float(chi2.isf(alpha / n_tests, 2))
