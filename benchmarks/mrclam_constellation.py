@@ -779,13 +779,16 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
             covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
         covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
         seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
-        groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible)
+        groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible,
+                                 split_ambiguous=args.split_ambiguous)
         owner = majority(current.names, barcodes)
         code = np.array([owner.get(int(x), -1) for x in current.named.names])
         record = {"round": k + 1, "groups": {s: sum(g.status == s for g in groups)
                                              for s in ("merge", "covisible", "not_joint")},
                   "groups_wrong": {s: sum(g.status == s and len({code[m] for m in g.members}) > 1 for g in groups)
                                    for s in ("merge", "covisible", "not_joint")}}
+        if args.split_ambiguous:
+            record["groups"]["ambiguous"] = sum(g.status == "ambiguous" for g in groups)
         merging = [PassVerdict(-1 - i, "matched", spanning_pairs([(g.members[0], m) for m in g.members[1:]]),
                                (len(g.members), -g.d2 / g.dof), 0, True)
                    for i, g in enumerate(x for x in groups if x.status == "merge")]
@@ -914,6 +917,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sighting-offset", type=non_negative_float, default=0.0, metavar="M",
                         help="the smoother's offset per chained name, σ in m (0: off; the groups are the names after "
                              "the chain, round 0)")
+    parser.add_argument("--split-ambiguous", action="store_true",
+                        help="pairwise: a refused group is judged again without the names whose gate holds two "
+                             "names that cannot be one post")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")

@@ -201,7 +201,7 @@ def pairwise_d2(positions: np.ndarray, covariance: np.ndarray, points) -> np.nda
 
 
 def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, allowed: np.ndarray | None = None,
-                    probability: float = 0.99) -> list[PairwiseGroup]:
+                    probability: float = 0.99, split_ambiguous: bool = False) -> list[PairwiseGroup]:
     """The last merges of a tight map: which of ``points`` are one point, judged pair by pair but never alone.
 
     Two points are linked when the d² of their difference under their joint covariance (:func:`pairwise_d2`) is
@@ -210,13 +210,21 @@ def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, al
     e.g. not sighted in one frame; default all), and the members' stacked differences from the first jointly
     within χ²_{2(m−1)}. A point inside a member's gate is in the group by construction, so a rival — a second point
     the member could be, which cannot be the same point as the first — leaves the group not all linked, or not
-    allowed, or jointly out of the gate, and refuses the whole group (ambiguous: nothing merges)."""
+    allowed, or jointly out of the gate, and refuses the whole group (ambiguous: nothing merges).
+
+    ``split_ambiguous`` (session 27): a refused group is not refused whole. Its *ambiguous* members — those whose
+    gate holds two members that cannot be one point (not linked to each other, or not allowed) — are left out (they
+    stay as they are, status ``ambiguous``, one group each), and the rest is grouped and judged again by the same
+    rules, until nothing is left out: a glimpse that could be either of two posts no longer keeps the names of
+    each post apart. The names it could be are unaffected by where it goes."""
     points = [int(p) for p in points]
     if not points:
         return []
     d2 = pairwise_d2(positions, covariance, points)
     gate = float(chi2.ppf(probability, 2))
     linked = d2 < gate
+    if split_ambiguous:
+        return _split_groups(positions, covariance, points, linked, allowed, probability)
     label = list(range(len(points)))
 
     def find(i: int) -> int:
@@ -252,6 +260,40 @@ def pairwise_groups(positions: np.ndarray, covariance: np.ndarray, points, *, al
             status = "merge"
         out.append(PairwiseGroup(tuple(members), float(joint), dof, status))
     return sorted(out, key=lambda g: g.d2 / g.dof)
+
+
+def _split_groups(positions, covariance, points, linked, allowed, probability) -> list[PairwiseGroup]:
+    """:func:`pairwise_groups` with ``split_ambiguous``: each refused group judged again without its ambiguous
+    members, until every group merges or has no ambiguous member."""
+    index = {p: i for i, p in enumerate(points)}
+    can = np.ones((len(points), len(points)), bool) if allowed is None else \
+        np.asarray(allowed)[np.ix_(points, points)] | np.eye(len(points), dtype=bool)
+    compatible = (linked | np.eye(len(points), dtype=bool)) & can       # two members that may be one point
+    out, todo = [], [points]
+    while todo:
+        subset = todo.pop()
+        groups = pairwise_groups(positions, covariance, subset, allowed=allowed, probability=probability)
+        for g in groups:
+            if g.status == "merge":
+                out.append(g)
+                continue
+            local = [index[m] for m in g.members]
+            ambiguous = [m for m, i in zip(g.members, local, strict=True)
+                         if _holds_two_apart(i, local, linked, compatible)]
+            if not ambiguous:
+                out.append(g)
+                continue
+            out.extend(PairwiseGroup((m,), 0.0, 0, "ambiguous") for m in ambiguous)
+            rest = [m for m in g.members if m not in ambiguous]
+            if len(rest) >= 2:
+                todo.append(rest)
+    return sorted(out, key=lambda g: g.d2 / g.dof if g.dof else np.inf)
+
+
+def _holds_two_apart(i: int, local: list[int], linked: np.ndarray, compatible: np.ndarray) -> bool:
+    """Whether member ``i``'s gate holds two members of ``local`` that cannot be one point."""
+    near = [j for j in local if j != i and linked[i, j]]
+    return any(not compatible[a, b] for k, a in enumerate(near) for b in near[k + 1:])
 
 
 def spanning_pairs(pairs) -> list[tuple[int, int]]:

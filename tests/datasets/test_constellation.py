@@ -388,3 +388,58 @@ def test_a_refused_batch_is_retried_without_the_groups_the_guard_set_aside(n_pas
     assert len(attempts) == (2 if guarded else 1)      # the whole batch, then the guard's groups at once
     assert not attempts[0].accepted
     assert not ({a // 10 for _, a in unguarded.merged} & bad)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), glimpses=st.integers(1, 3), glimpse_sd=st.floats(0.3, 1.0))
+def test_split_ambiguous_merges_each_post_s_names_around_a_glimpse_that_could_be_either(seed, glimpses, glimpse_sd):
+    """Two posts' names (two each, tight) and glimpses between the posts whose own σ puts both posts in their gate:
+    the glimpses join the four names into one group that cannot merge; with ``split_ambiguous`` the glimpses are
+    left out and each post's names merge (session 27: robot 2's name 34, robot 1's name 128)."""
+    from estimation.constellation import pairwise_groups
+
+    rng = np.random.default_rng(seed)
+    post_xy = np.array([[0.0, 0.0], [0.8, 0.0]])
+    of_post = np.array([0, 0, 1, 1])
+    positions, covariance = _names(rng, post_xy, of_post, noise=SIGMA_NAME / 2)
+    middle = positions[[0, 2]].mean(axis=0)
+    extra = middle + rng.normal(0, 0.05, (glimpses, 2))
+    n = 4 + glimpses
+    positions = np.vstack([positions, extra])
+    jac = np.tile(np.eye(2), (n, 1))
+    own = np.r_[np.full(8, SIGMA_NAME ** 2), np.full(2 * glimpses, glimpse_sd ** 2)]
+    covariance = np.diag(own) + jac @ jac.T * SIGMA_COMMON ** 2
+    allowed = np.ones((n, n), bool)
+    allowed[0, 2] = allowed[2, 0] = False           # the two posts were sighted in one frame
+    whole = pairwise_groups(positions, covariance, range(n), allowed=allowed)
+    assert all(g.status != "merge" for g in whole)
+    split = pairwise_groups(positions, covariance, range(n), allowed=allowed, split_ambiguous=True)
+    merged = sorted(g.members for g in split if g.status == "merge")
+    assert merged == [(0, 1), (2, 3)]
+    assert sorted(g.members[0] for g in split if g.status == "ambiguous") == list(range(4, n))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), n_glimpses=st.integers(0, 6))
+def test_split_ambiguous_never_merges_names_of_two_posts(seed, n_glimpses):
+    """Random layouts of 15 posts, 1-3 tight names each and glimpses (σ 0.2-0.6 m) within 1.5 σ of random posts
+    (inside their own post's gate: a glimpse beyond it is lost to any pairwise gate, split or not): every group
+    ``split_ambiguous`` merges holds one post's names."""
+    from estimation.constellation import pairwise_groups
+
+    rng = np.random.default_rng(seed)
+    post_xy = _layout(rng, 15)
+    of_post = np.r_[np.arange(15), rng.integers(0, 15, rng.integers(0, 10)), rng.integers(0, 15, n_glimpses)]
+    n = len(of_post)
+    positions, covariance = _names(rng, post_xy, of_post, noise=SIGMA_NAME / 2)
+    sd = np.full(n, SIGMA_NAME)
+    sd[n - n_glimpses:] = rng.uniform(0.2, 0.6, n_glimpses)
+    off = rng.normal(0, 1, (n_glimpses, 2))
+    off *= np.minimum(1.0, 1.5 / np.maximum(np.hypot(off[:, 0], off[:, 1]), 1e-12))[:, None]
+    positions[n - n_glimpses:] += off * sd[n - n_glimpses:, None]
+    jac = np.tile(np.eye(2), (n, 1))
+    covariance = np.diag(np.repeat(sd ** 2, 2)) + jac @ jac.T * SIGMA_COMMON ** 2
+    allowed = ~np.eye(n, dtype=bool) | np.eye(n, dtype=bool)
+    for g in pairwise_groups(positions, covariance, range(n), allowed=allowed, split_ambiguous=True):
+        if g.status == "merge":
+            assert len({int(of_post[m]) for m in g.members}) == 1
