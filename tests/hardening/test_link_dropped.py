@@ -36,8 +36,10 @@ def dropping_peer():
     thread.start()
     yield f"socket://127.0.0.1:{server.getsockname()[1]}"
     stop.set()
+    server.shutdown(socket.SHUT_RDWR)   # wakes the accept() the thread waits in (close alone does not, on Linux)
     server.close()
     thread.join(timeout=5)
+    assert not thread.is_alive()
 
 
 @pytest.mark.parametrize("argv", [["robot", "info"], ["robot", "drive", "--seconds", "1"]], ids=" ".join)
