@@ -823,7 +823,8 @@ def main() -> None:
     t0 = time.perf_counter()
     print(f"simulated maps: {noise}")
     rows = None
-    if not args.trust_only:
+    simulated = not args.trust_only and not args.maps_only   # the paper's figures on simulated maps
+    if simulated:
         rows = growth(args.seeds, noise)
         print_growth(rows, args.seeds)
         print_goal(rows)
@@ -832,11 +833,12 @@ def main() -> None:
         bent_table(args.seeds)
         evidence_table(args.seeds)
         corridor_table()
-    if not args.trust_only:
+    if simulated:
         small_overlap(args.seeds)
         print_common(rows, args.seeds)
         merged_accuracy(min(args.seeds, 10), noise)
         drift_table(min(args.seeds, 10), noise)
+    if not args.trust_only:
         if args.slam_growth:
             slam_table(args.slam_growth, "Fig. 2 on FastSLAM maps: one run of each robot cut after t seconds")
         if args.slam_maps:
