@@ -38,6 +38,7 @@ from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
 from fusion import NoOverlapError, align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
 from fusion.ransac import refine_pose  # noqa: E402
+from runtime.commands.options import non_negative_float, positive_int  # noqa: E402
 
 FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 PRESETS = ("paper", "robust")
@@ -790,10 +791,10 @@ def figures(rows, out: Path, noise: MapNoise):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=20, help="random seeds per snapshot (20)")
-    parser.add_argument("--false-pairs", type=int, default=1000,
+    parser.add_argument("--seeds", type=positive_int, default=20, help="random seeds per snapshot (20)")
+    parser.add_argument("--false-pairs", type=positive_int, default=1000,
                         help="simulated pairs that share nothing, over seven kinds (1000)")
-    parser.add_argument("--descriptor-noise", type=float, default=MapNoise().descriptor_noise,
+    parser.add_argument("--descriptor-noise", type=non_negative_float, default=MapNoise().descriptor_noise,
                         help=f"descriptor noise of the simulated maps ({MapNoise().descriptor_noise})")
     parser.add_argument("--figures", type=Path, help="write the PNG figures into this folder")
     parser.add_argument("--slam-maps", type=Path, help="folder of FastSLAM map pairs NAME_r1.npz / NAME_r2.npz")
@@ -806,7 +807,8 @@ def main() -> None:
     parser.add_argument("--mrclam-maps", type=Path, action="append", default=[],
                         help="folder of FastSLAM maps robot1.npz ... robot5.npz of MRCLAM (p3at slam dataset); "
                              "may be given more than once")
-    parser.add_argument("--fault-seeds", type=int, default=5, help="seeds of the injected-fault MRCLAM table (5)")
+    parser.add_argument("--fault-seeds", type=positive_int, default=5,
+                        help="seeds of the injected-fault MRCLAM table (5)")
     parser.add_argument("--starved", type=Path, help="folder of snapshot folders of maps from a CPU-starved demo")
     parser.add_argument("--demo-maps", type=Path, nargs="+", default=[],
                         help="output folders of rendered demos (p3at demo --out DIR): frame-error table")
