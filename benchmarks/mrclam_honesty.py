@@ -1,0 +1,267 @@
+"""MRCLAM without barcodes: does a partly merged map say where it is wrong? Split scores of saved constellation states.
+
+Run from the repository root, on the states ``benchmarks.mrclam_constellation --state-dir DIR`` keeps:
+
+    .venv/bin/python -m benchmarks.mrclam_honesty --state-dir DIR [--robots 1,2,3,4,5] [--seeds 0,2] [--tags round4,...]
+        [--gap 5] [--alpha 0.01] [--top 5] [--json]
+
+For every state (a robot's names and the smoother's solution after a round), every landmark's kept sightings are cut
+into runs at gaps of more than ``--gap`` s, and each run gets its split score
+(:func:`estimation.map_honesty.split_scores`: the first-order drop of the smoother's cost if the run were a name of
+its own, χ²₂ under the model). No barcode is used for that. The barcodes and Vicon only score it: a run is **wrong**
+when most of its sightings are of another post than most of its name's; a right run lies in a **wrong stretch** when
+the smoothed pose at it is confidently wrong (pose NEES against Vicon beyond χ²₃ 99 %, 11.3, at the pose covariance
+nearest the run's middle). Printed per state: runs (wrong, right in a wrong stretch), the map-wide threshold (χ²₂ at
+1 − α/runs, Bonferroni), runs flagged beyond it — wrong runs / right runs in a wrong stretch / false alarms —, the
+rank of the first wrong run among all runs by score, the top score, and the names flagged by the **per-name** test
+(a name's largest run score beyond χ²₂ at 1 − α/its runs: the test to apply to the few names of a proposed merge),
+with how many of them hold a wrong run, against how many names hold one. ``--top N``: the N highest-scoring runs of
+each state with their barcodes, the offset the split would give them and the pose's error at them. ``--groups``: the
+pairwise merge groups ``mrclam_constellation --pairwise --kept-covisible`` would propose on the state, each marked
+refused when a member name is flagged by the per-name test.
+
+Session 27 (B; docs: "Session 27: … (B)"): robot 3 seed 0's 1253–1275 s stretch rests on one wrong sighting (1252.6
+s) whose run scores 15.6 — the top of the map's 328 runs but below the map-wide threshold 20.8; the per-name test
+(threshold 10.6 for its two runs) flags it, and with ``--groups`` on the state before session 26's wrong pairwise
+merge (pairwise1) the wrong group {10, 71, 121} is refused and the right one passes; on robot 2 seed 0's round 3 the
+wrong group {5, 172} is refused and its 3 right groups pass.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import re  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
+from benchmarks.eval_mrclam import DATA  # noqa: E402
+from benchmarks.mrclam_chained_names import _covisible, majority  # noqa: E402
+from benchmarks.mrclam_constellation import load_state  # noqa: E402
+from estimation import chi2  # noqa: E402
+from estimation.constellation import pairwise_groups  # noqa: E402
+from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.geometry import compose, wrap_angle  # noqa: E402
+from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance  # noqa: E402
+from estimation.map_honesty import sighting_runs, split_scores, split_threshold  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
+
+POSE_NEES_99 = float(chi2.ppf(0.99, 3))      # a run's stretch is confidently wrong beyond it (11.34)
+STATE = re.compile(r"Robot(?P<robot>\d+)-seed(?P<seed>\d+)-(?P<tag>(?P<kind>round|pairwise)(?P<k>\d+))\.npz$")
+
+
+def probability(text: str) -> float:
+    return float_where(text, "a probability in (0, 1)", lambda v: 0 < v < 1)
+
+
+def states(directory, robots: list[int], seeds: list[int], tags: list[str] | None) -> list[tuple[int, int, str, Path]]:
+    """(robot, seed, tag, path) of the saved states in ``directory``, rounds before pairwise rounds."""
+    out = []
+    for path in sorted(Path(directory).glob("Robot*-seed*-*.npz")):
+        m = STATE.search(path.name)
+        if m is None:
+            continue
+        robot, seed, tag = int(m["robot"]), int(m["seed"]), m["tag"]
+        if robot in robots and seed in seeds and (tags is None or tag in tags):
+            out.append(((robot, seed, m["kind"] == "pairwise", int(m["k"])), (robot, seed, tag, path)))
+    return [s for _, s in sorted(out)]
+
+
+def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, groups: bool = False) -> dict:
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
+    current, _ = load_state(path, log, noise, config, drift, meta.get("path_step_s"))
+    named, solution = current.named, current.solution
+    problem = named.problem
+    started = time.process_time()
+    runs = sighting_runs(problem, solution, gap_s)
+    details: dict = {}
+    scores = split_scores(problem, solution, runs, details)
+    cpu = time.process_time() - started
+    barcodes = log.landmark_ids[named.sightings]
+    owner = majority(current.names, log.landmark_ids)
+    name_post = np.array([owner[int(n)] for n in named.names])
+    wrong = np.array([majority(np.zeros(len(r.sightings), np.int64), barcodes[r.sightings])[0]
+                      != name_post[r.landmark] for r in runs], bool)
+    nees = run_pose_nees(log, named, solution, runs)
+    bad_stretch = nees > POSE_NEES_99
+    finite = np.isfinite(scores)
+    threshold = split_threshold(max(int(finite.sum()), 1), alpha)
+    flagged = finite & (scores > threshold)
+    order = np.argsort(-np.where(finite, scores, -np.inf), kind="stable")
+    rank = np.empty(len(runs), int)
+    rank[order] = np.arange(1, len(runs) + 1)
+    names_with_runs: dict[int, list[int]] = {}
+    for i, r in enumerate(runs):
+        names_with_runs.setdefault(r.landmark, []).append(i)
+    name_flags, name_wrong, flagged_landmarks = [], [], set()
+    for landmark, members in names_with_runs.items():
+        k = len(members)
+        best = np.nanmax(scores[members]) if np.isfinite(scores[members]).any() else np.nan
+        if np.isfinite(best) and best > float(chi2.isf(alpha / k, 2)):
+            name_flags.append(int(named.names[landmark]))
+            name_wrong.append(bool(wrong[members].any()))
+            flagged_landmarks.add(landmark)
+    names_holding_wrong = len({runs[i].landmark for i in np.flatnonzero(wrong)})
+    row = {"runs": len(runs), "names": len(named.names), "wrong_runs": int(wrong.sum()),
+           "wrong_stretch_runs": int((bad_stretch & ~wrong).sum()),
+           "threshold": threshold, "flagged": int(flagged.sum()), "hits": int((flagged & wrong).sum()),
+           "stretch_hits": int((flagged & ~wrong & bad_stretch).sum()),
+           "false_alarms": int((flagged & ~wrong & ~bad_stretch).sum()),
+           "first_wrong_rank": int(rank[wrong].min()) if wrong.any() else None,
+           "top_score": float(scores[order[0]]) if len(runs) and finite.any() else None,
+           "names_flagged": len(name_flags), "names_flagged_wrong": int(sum(name_wrong)),
+           "names_holding_wrong": names_holding_wrong, "split_cpu_s": cpu, "top": []}
+    if groups:
+        row["groups"] = merge_groups(problem, solution, name_post, flagged_landmarks, named.names)
+    if top:
+        t = np.concatenate([named.frame_times[:1], named.frame_times])
+        true = log.true_pose(t)
+        estimate = compose(np.tile(true[0], (len(t), 1)), solution.poses)
+        error = true - estimate
+        error[:, 2] = wrap_angle(error[:, 2])
+        for i in order[:top]:
+            r = runs[i]
+            codes, counts = np.unique(barcodes[r.sightings], return_counts=True)
+            pose = int(np.median(problem.pose_index[r.sightings]))
+            row["top"].append({
+                "name": int(named.names[r.landmark]), "post": int(name_post[r.landmark]),
+                "start_s": float(log.sighting_times[named.sightings[r.sightings[0]]]),
+                "end_s": float(log.sighting_times[named.sightings[r.sightings[-1]]]),
+                "sightings": len(r.sightings), "barcodes": dict(zip(codes.tolist(), counts.tolist(), strict=True)),
+                "score": float(scores[i]), "offset_m": float(np.hypot(*details["offset"][i])), "wrong": bool(wrong[i]),
+                "pose_error_m": float(np.hypot(*error[pose, :2])), "heading_error_rad": float(error[pose, 2]),
+                "pose_nees": float(nees[i])})
+    return row
+
+
+def run_pose_nees(log, named, solution, runs) -> np.ndarray:
+    """(R,) the smoothed pose's NEES against Vicon (in the start frame, χ²₃) at each run: the pose covariance
+    nearest the run's middle sighting (the solution keeps every 10th), its error there."""
+    t = np.concatenate([named.frame_times[:1], named.frame_times])
+    true = log.true_pose(t)
+    estimate = compose(np.tile(true[0], (len(t), 1)), solution.poses)
+    error = true - estimate
+    error[:, 2] = wrap_angle(error[:, 2])
+    c, s = np.cos(true[0, 2]), np.sin(true[0, 2])
+    rot = np.array([[c, -s], [s, c]])
+    out = np.full(len(runs), np.nan)
+    for i, r in enumerate(runs):
+        pose = int(np.median(named.problem.pose_index[r.sightings]))
+        near = int(np.argmin(np.abs(solution.covariance_poses - pose)))
+        p = solution.pose_covariances[near].copy()
+        p[:2, :2] = rot @ p[:2, :2] @ rot.T
+        p[:2, 2] = rot @ p[:2, 2]
+        p[2, :2] = p[:2, 2]
+        e = error[solution.covariance_poses[near]]
+        out[i] = float(e @ np.linalg.solve(p, e))
+    return out
+
+
+def merge_groups(problem, solution, name_post: np.ndarray, flagged: set[int], names: np.ndarray) -> list[dict]:
+    """The pairwise merges ``mrclam_constellation --pairwise --kept-covisible`` would propose on this state
+    (:func:`estimation.constellation.pairwise_groups`, status merge), each with its names, whether it joins two posts
+    (the barcodes), and whether the per-name split test refuses it (a member name flagged)."""
+    n = len(solution.landmarks)
+    covariance = joint_landmark_covariance(problem, solution)
+    covisible = _covisible(problem, solution.inliers, n, kept_only=True)
+    seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+    out = []
+    for g in pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible):
+        if g.status != "merge":
+            continue
+        members = [int(m) for m in g.members]
+        out.append({"names": [int(names[m]) for m in members], "posts": sorted({int(name_post[m]) for m in members}),
+                    "two_posts": len({int(name_post[m]) for m in members}) > 1,
+                    "refused": any(m in flagged for m in members)})
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", default=str(DATA))
+    parser.add_argument("--state-dir", metavar="DIR", required=True,
+                        help="the saved states (benchmarks.mrclam_constellation --state-dir)")
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--seeds", default="0,2")
+    parser.add_argument("--tags", default=None, help="only these states, e.g. round4,pairwise1 (default: all)")
+    parser.add_argument("--gap", type=non_negative_float, default=5.0, metavar="S",
+                        help="a landmark's sightings more than S s apart start a new run")
+    parser.add_argument("--alpha", type=probability, default=0.01, metavar="PROBABILITY",
+                        help="false-alarm probability of the map-wide test (Bonferroni over its runs) and per name")
+    parser.add_argument("--top", type=positive_int, default=None, metavar="N",
+                        help="also print each state's N highest-scoring runs with their truth (default: none)")
+    parser.add_argument("--groups", action="store_true",
+                        help="also the pairwise merge groups of each state (as mrclam_constellation --pairwise "
+                             "--kept-covisible would propose them), each refused when a member is flagged by the "
+                             "per-name split test")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    if not os.path.isdir(args.data):
+        print(f"mrclam_honesty: no data set at {args.data}", file=sys.stderr)
+        return 2
+    if not os.path.isdir(args.state_dir):
+        print(f"mrclam_honesty: no state folder at {args.state_dir}", file=sys.stderr)
+        return 2
+    robots = [int(r) for r in args.robots.split(",")]
+    seeds = [int(s) for s in args.seeds.split(",")]
+    found = states(args.state_dir, robots, seeds, args.tags.split(",") if args.tags else None)
+    if not found:
+        print(f"mrclam_honesty: no saved states of robots {args.robots}, seeds {args.seeds} in {args.state_dir}",
+              file=sys.stderr)
+        return 2
+    setups: dict = {}
+    rows = []
+    if not args.json:
+        print(f"split scores, runs cut at gaps > {args.gap:g} s, α {args.alpha:g} "
+              "(map-wide: Bonferroni over runs; per name: over the name's runs)")
+        print("| state | names | runs (wrong, right in a wrong stretch) | threshold | flagged: wrong runs / right "
+              "runs in a wrong stretch / false alarms | first wrong run's rank "
+              "| top score | names flagged (holding a wrong run) / names holding one |")
+        print("|---|---|---|---|---|---|---|---|")
+    for robot, seed, tag, path in found:
+        if robot not in setups:
+            log = read_mrclam(args.data, robot)
+            noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+            setups[robot] = (log, noise, range_bearing_config(n_particles=100))
+        row = {"robot": robot, "seed": seed, "tag": tag,
+               **run_state(*setups[robot], path, args.gap, args.alpha, args.top or 0, args.groups)}
+        rows.append(row)
+        if not args.json:
+            _print(row)
+    if args.json:
+        print(json.dumps({"gap_s": args.gap, "alpha": args.alpha, "states": rows}))
+    return 0
+
+
+def _print(row: dict) -> None:
+    rank = row["first_wrong_rank"] if row["first_wrong_rank"] is not None else "–"
+    top = f"{row['top_score']:.1f}" if row["top_score"] is not None else "–"
+    print(f"| robot {row['robot']} s{row['seed']} {row['tag']} | {row['names']} | {row['runs']} ({row['wrong_runs']}, "
+          f"{row['wrong_stretch_runs']}) | {row['threshold']:.1f} | {row['flagged']}: {row['hits']} / "
+          f"{row['stretch_hits']} / {row['false_alarms']} | {rank} | {top} "
+          f"| {row['names_flagged']} ({row['names_flagged_wrong']}) / {row['names_holding_wrong']} |", flush=True)
+    for t in row["top"]:
+        print(f"    score {t['score']:6.1f}  name {t['name']} (post {t['post']}) {t['start_s']:.1f}–{t['end_s']:.1f} "
+              f"s, "
+              f"{t['sightings']} sightings {t['barcodes']}{' WRONG' if t['wrong'] else ''}; split offset "
+              f"{t['offset_m']:.3f} m; pose err {t['pose_error_m']:.3f} m, {t['heading_error_rad']:+.3f} rad, "
+              f"NEES {t['pose_nees']:.1f}", flush=True)
+    for g in row.get("groups", []):
+        print(f"    merge group {g['names']} (posts {g['posts']}){' TWO POSTS' if g['two_posts'] else ''}: "
+              f"{'refused (a name flagged)' if g['refused'] else 'passes'}", flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
