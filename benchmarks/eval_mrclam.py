@@ -70,6 +70,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int, particle_count, positive_float  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "evo-al", 3),
@@ -114,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--association", default="id,unknown")
     parser.add_argument("--noise", default="own", help="own | others | first-half | FILE (see the module docstring)")
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--until", type=float)
+    parser.add_argument("--particles", type=particle_count, default=100)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--until", type=positive_float)
     parser.add_argument("--maps", type=Path, default=Path("/tmp/mrclam-maps"))
     parser.add_argument("--no-inflation", action="store_true", help="do not inflate the sensor variances for "
                         "correlated sightings")

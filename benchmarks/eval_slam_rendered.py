@@ -62,7 +62,7 @@ from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between, compose
 from estimation.observations import StereoObservations
 from runtime.commands.features import front_end_from_calibration
-from runtime.commands.options import non_negative_float
+from runtime.commands.options import non_negative_float, non_negative_int, particle_count, positive_float, positive_int
 from runtime.mission import MissionConfig
 from runtime.motion import keep_right
 
@@ -501,16 +501,17 @@ def table(rows: list[dict]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=300.0, help="simulated time limit (the route ends first)")
+    parser.add_argument("--seconds", type=positive_float, default=300.0,
+                        help="simulated time limit (the route ends first)")
     parser.add_argument("--robots", default="robot1,robot2", help="comma-separated world route names")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--frame-rate", type=float, default=5.0)
-    parser.add_argument("--max-corners", type=int, default=150, help="Harris corners per image (runtime: 150)")
-    parser.add_argument("--particles", type=int, default=100)
-    parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
+    parser.add_argument("--frame-rate", type=positive_float, default=5.0)
+    parser.add_argument("--max-corners", type=positive_int, default=150, help="Harris corners per image (runtime: 150)")
+    parser.add_argument("--particles", type=particle_count, default=100)
+    parser.add_argument("--fastslam", type=positive_int, choices=(1, 2), default=2)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a FastSLAMConfig field")
-    parser.add_argument("--latency", type=float, default=0.0,
+    parser.add_argument("--latency", type=non_negative_float, default=0.0,
                         help="s between the image and its time stamp (the pose is interpolated; default 0)")
     parser.add_argument("--diagnose", action="store_true", help="association and noise diagnostics")
     parser.add_argument("--json", action="store_true")

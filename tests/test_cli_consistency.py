@@ -160,11 +160,6 @@ def test_scanmatch_limit_uses_the_shared_type_and_says_the_bound(tmp_path, capsy
     assert err.count("\n") == 1 and "--limit" in err and "expected a whole number >= 2, not '1'" in err
 
 
-# benchmark scripts still parsing bare int/float: edited by other engineers in session 6, to be given the shared
-# types when they are free (this set may only shrink)
-BARE_NUMBER_SCRIPTS = {"eval_fusion.py", "eval_mrclam.py", "eval_slam_rendered.py"}
-
-
 def test_benchmark_options_parse_numbers_with_the_shared_types():
     """A benchmark's `--particles 0` or `--seconds nan` is refused with the domain, as in `p3at`: no option of a
     benchmark script is typed bare int or float (read from the source, nothing imported)."""
@@ -179,4 +174,4 @@ def test_benchmark_options_parse_numbers_with_the_shared_types():
                     if keyword.arg == "type" and isinstance(keyword.value, ast.Name) \
                             and keyword.value.id in ("int", "float"):
                         bare.setdefault(script.name, []).append(ast.literal_eval(node.args[0]))
-    assert set(bare) <= BARE_NUMBER_SCRIPTS, {k: v for k, v in bare.items() if k not in BARE_NUMBER_SCRIPTS}
+    assert not bare, bare
