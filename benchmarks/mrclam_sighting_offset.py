@@ -21,6 +21,12 @@ the groups the constellation's ``--sighting-offset`` uses). ``visit about post``
 mean (the part that differs between visits). Sightings whose error exceeds ``--outlier`` m are left out (counted).
 
 Printed per robot and group kind: groups, σ per axis (m), the median |ē_g| and the noise's share.
+
+``--known-id post|visit --offset M``: instead, ``benchmarks.eval_mrclam --association id --defaults`` (the protected
+known-ID figures' code path, its table printed) with the smoother given the offsets, one group per post (``post``:
+the MAP is the option-off one, each post's covariance + σ² I) or per visit (``visit``: the estimate moves).
+Measured through a stand-in for ``estimation.dataset_smoothing.smooth`` set for this process only (the data set
+pipeline has no such option: that is a proposal, not wired); ``--known-id off`` runs it unchanged.
 """
 from __future__ import annotations
 
@@ -130,6 +136,42 @@ def run_robot(folder, robot: int, args) -> dict:
     return row
 
 
+def visit_groups(problem, gap: float) -> np.ndarray:
+    """(S,) a visit per sighting of a smoothing problem: a landmark's sightings with no gap over ``gap`` s (the
+    poses' times from the problem's increment durations)."""
+    times = np.concatenate([[0.0], np.cumsum(problem.increment_seconds)])[problem.pose_index]
+    out = np.zeros(len(times), np.int64)
+    label = 0
+    for landmark in np.unique(problem.landmark_index):
+        rows = np.flatnonzero(problem.landmark_index == landmark)
+        order = rows[np.argsort(times[rows], kind="stable")]
+        breaks = np.concatenate([[True], np.diff(times[order]) > gap])
+        out[order] = label + np.cumsum(breaks) - 1
+        label += int(breaks.sum())
+    return out
+
+
+def known_id(args) -> int:
+    """eval_mrclam's known-ID defaults with the smoother's sighting offsets (module docstring)."""
+    import dataclasses
+
+    from benchmarks import eval_mrclam
+    from estimation import dataset_smoothing
+    from estimation.landmark_smoother import SightingOffset, smooth
+
+    if args.known_id != "off":
+        option = SightingOffset(args.offset)
+
+        def with_offsets(problem, *a, **kw):
+            if args.known_id == "visit":
+                problem = dataclasses.replace(problem, offset_index=visit_groups(problem, args.gap))
+            return smooth(problem, *a, sighting_offset=option, **kw)
+
+        dataset_smoothing.smooth = with_offsets
+    return eval_mrclam.main(["--data", args.data, "--robots", args.robots, "--association", "id", "--defaults",
+                             "--maps", args.maps, "--seed", str(args.seed)])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data", default=str(DATA))
@@ -139,11 +181,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--outlier", type=positive_float, default=1.0, help="sightings farther off are left out, m")
     parser.add_argument("--state-dir", metavar="DIR", default=None,
                         help="mrclam_constellation's states: group by the round-0 names too")
-    parser.add_argument("--seed", type=non_negative_int, default=0, help="the states' seed")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="the states' seed (and --known-id's)")
+    parser.add_argument("--known-id", choices=("off", "post", "visit"), default=None,
+                        help="eval_mrclam's known-ID defaults with offsets per post or per visit (module docstring)")
+    parser.add_argument("--offset", type=positive_float, default=0.03, help="--known-id's offset σ per axis, m")
+    parser.add_argument("--maps", default="/tmp/mrclam-offset-maps", help="--known-id: eval_mrclam's --maps")
     args = parser.parse_args(argv)
     if not Path(args.data).is_dir():
         print(f"no MRCLAM data at {args.data}", file=sys.stderr)
         return 2
+    if args.known_id is not None:
+        return known_id(args)
     kinds = ("post", "visit", "visit about post", "name")
     sigmas: dict[str, list[float]] = {k: [] for k in kinds}
     for robot in (int(r) for r in args.robots.split(",")):
