@@ -44,7 +44,6 @@ from . import chi2
 from .landmark_smoother import (
     LandmarkLogProblem,
     Smoothed,
-    _information,
     _jacobian,
     _NormalFactor,
     _row_scaled,
@@ -114,8 +113,7 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
     seen[problem.landmark_index[inliers]] = True
     jac = _row_scaled(_jacobian(problem, solution.poses, solution.landmarks, n, inliers.astype(float), drift,
                                 offset, offsets), t, solution.heading_weights).tocsr()
-    information = _information(problem, solution.poses, solution.landmarks, inliers, n, solution.heading_weights,
-                               drift, offset, offsets)
+    information = (jac.T @ jac).tocsc()         # the smoother's own normal matrix (its _information)
     free = np.ones(information.shape[0], bool)
     free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
     jac = jac[:, np.flatnonzero(free)]
