@@ -55,7 +55,7 @@ REASONS = ("matched", "descriptor", "gate", "duplicate", "other", "elsewhere", "
 SAME = 0.10  # m: a landmark made from a sighting of a true point this close stands for the same point
 FIELDS = ("t", "since_turn", "turn", "point", "lid", "reason", "range_ratio", "view_angle", "heading_error",
           "landmark_error", "lateral_offset", "d2", "descriptor_distance", "pose_sigma_theta", "position_gated",
-          "position_right")
+          "position_right", "gone_by")
 
 
 def sighting_reason(matched_old: bool, descriptor_distance: float, d2: float, went_to_same_point: bool,
@@ -98,6 +98,14 @@ def gate_d2_many(pose: np.ndarray, motion_cov: np.ndarray, z: np.ndarray, q: np.
     h[:, 0, 2], h[:, 1, 2] = lever[:, 1], -lever[:, 0]
     s_gate = covs + rot @ q @ rot.T + h @ motion_cov @ h.transpose(0, 2, 1)
     return np.einsum("li,li->l", nu, np.linalg.solve(s_gate, nu[..., None])[..., 0])
+
+
+def view_change(point: np.ndarray, camera: np.ndarray, first_camera: np.ndarray) -> tuple[float, float]:
+    """(range ratio, angle in rad between the horizontal lines of sight) of a point (2,) seen from ``camera`` (2,)
+    against from ``first_camera`` (2,)."""
+    now, first = camera - point, first_camera - point
+    angle = abs(float(wrap_angle(np.arctan2(now[1], now[0]) - np.arctan2(first[1], first[0]))))
+    return float(np.linalg.norm(now) / max(np.linalg.norm(first), 1e-9)), angle
 
 
 def particle_slots(slam: FastSLAM, table: np.ndarray, n_blocks: np.ndarray, lid: np.ndarray, m: int) -> np.ndarray:
@@ -205,7 +213,10 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
                 continue
             held = [lid for lid in near.tolist() if lid in slot_of]
             if not held:
-                rows.append({**row, "reason": "gone" if not alive_anywhere & set(near.tolist()) else "elsewhere"})
+                oldest = int(min(near.tolist(), key=lambda k: born[k]))
+                ratio, angle = view_change(points[p][:2], camera, first_camera[oldest])
+                rows.append({**row, "reason": "gone" if not alive_anywhere & set(near.tolist()) else "elsewhere",
+                             "lid": oldest, "range_ratio": ratio, "view_angle": angle})
                 continue
             lid = min(held, key=lambda k: born[k])
             slot = slot_of[lid]
@@ -224,10 +235,7 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
             true_world = points[p]
             true_start = np.array([c0 * (true_world[0] - start[0]) + s0 * (true_world[1] - start[1]),
                                    -s0 * (true_world[0] - start[0]) + c0 * (true_world[1] - start[1])])
-            r_now = np.linalg.norm(true_world[:2] - camera)
-            r_first = np.linalg.norm(true_world[:2] - first_camera[lid])
-            a_now = np.arctan2(*(camera - true_world[:2])[::-1])
-            a_first = np.arctan2(*(first_camera[lid] - true_world[:2])[::-1])
+            ratio, angle = view_change(true_world[:2], camera, first_camera[lid])
             # the landmark's offset across the line of sight, as the particle sees it (what a heading error moves)
             c, s = np.cos(poses[best, 2]), np.sin(poses[best, 2])
             seen = np.array([c * z_all[j, 0] - s * z_all[j, 1], s * z_all[j, 0] + c * z_all[j, 1]]) + poses[best, :2]
@@ -237,10 +245,14 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
             rows.append({**row, "lid": lid, "reason": sighting_reason(
                 went in held, dd, d2, went_same, config.descriptor_threshold,
                 config.mahalanobis_gate),
-                "range_ratio": float(r_now / max(r_first, 1e-9)), "view_angle": float(abs(wrap_angle(a_now - a_first))),
+                "range_ratio": ratio, "view_angle": angle,
                 "heading_error": heading_error, "landmark_error": float(np.linalg.norm(mean[:2] - true_start)),
                 "lateral_offset": lateral, "d2": d2, "descriptor_distance": dd,
                 "pose_sigma_theta": float(np.sqrt(max(report.pose_covariance[2, 2], 0.0)))})
+    merged_away = {newer for _, newer, _ in slam.merged_pairs}
+    for r in rows:   # a landmark no particle holds any more: merged into another id, or removed by its misses
+        if r["reason"] == "gone":
+            r["gone_by"] = "merged" if r["lid"] in merged_away else "removed"
     if isinstance(observer, RecordingRenderedObserver) and cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         observer.save(cache)
@@ -287,6 +299,12 @@ def print_table(rows: list[dict], turns: list[tuple[float, float]], unconfirmed:
                   f" rad, descriptor distance {_median(sel, 'descriptor_distance')}, d² {_median(sel, 'd2')}, "
                   f"|heading error| {np.median([abs(r['heading_error']) for r in sel]):.3f} rad, landmark error "
                   f"{_median(sel, 'landmark_error')} m")
+    gone = [r for r in rows if r["reason"] == "gone"]
+    if gone:
+        merged = sum(r["gone_by"] == "merged" for r in gone)
+        print(f"  gone: {len(gone) - merged} removed by misses, {merged} merged into another id; view angle to the "
+              f"landmark's first sighting < 0.1 / 0.1–0.3 / > 0.3 rad: {sum(r['view_angle'] < 0.1 for r in gone)} / "
+              f"{sum(0.1 <= r['view_angle'] < 0.3 for r in gone)} / {sum(r['view_angle'] >= 0.3 for r in gone)}")
     judged = [r for r in rows if "view_angle" in r and r["reason"] in ("matched", "descriptor")]
     print("  descriptor refusals among sightings matched or refused by descriptor, by the change of view:")
     for lo, hi in ((0.0, 0.1), (0.1, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, np.pi)):
@@ -303,7 +321,7 @@ def print_table(rows: list[dict], turns: list[tuple[float, float]], unconfirmed:
 
 def print_position_only(rows: list[dict], new_points: list[int]) -> None:
     """What an association on position alone (the gate, no descriptor) would do where the descriptor refused."""
-    refused = [r for r in rows if "position_gated" in r]
+    refused = [r for r in rows if "position_gated" in r and r["reason"] == "descriptor"]
     if not refused:
         return
     gated = np.array([r["position_gated"] for r in refused])

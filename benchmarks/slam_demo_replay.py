@@ -4,6 +4,7 @@ Run from the repository root:
 
     .venv/bin/python -m benchmarks.slam_demo_replay DEMO_DIR [--robot robot2] [--filter-seed K]
         [--render-seed S] [--frames-cache FILE] [--from T0] [--to T1] [--every N] [--born-before T] [--demo-only]
+        [--set KEY=VALUE ...]
 
 The demo folder gives the route actually driven (``<robot>-truth.tum``), the odometry the filter was given
 (``<robot>-odometry.tum``, per frame) and the filter's settings and true start pose (``<robot>.npz``'s
@@ -22,6 +23,7 @@ its matches joined two true points > 10 cm apart; the truth's largest turn per f
 tied back to the map made before it?), and in the summary their share after T, and the share of the observations
 of true points already seen before T that it matched to a landmark made before T (the re-tie rate, with the truth
 as the denominator a self-check would take from the filter's own in-view prediction).
+``--set KEY=VALUE`` replays with a FastSLAM setting other than the demo's (``benchmarks/config_overrides.py``).
 ``--demo-only`` prints the demo's own estimate against its truth instead (no replay): the position / heading
 error of the trajectory the demo wrote, the odometry's heading error, the truth's turn per frame.
 """
@@ -37,6 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
+from benchmarks.config_overrides import config_overrides
 from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObserver, ReplayObserver
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, wrap_angle
@@ -53,14 +56,14 @@ def read_tum(path: Path) -> np.ndarray:
 
 
 def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
-           born_before: float = 0.0) -> dict[str, np.ndarray]:
+           born_before: float = 0.0, overrides: dict | None = None) -> dict[str, np.ndarray]:
     """Per-frame arrays of the replay (see the module docstring)."""
     from mocks.world import World
 
     with np.load(demo / f"{robot}.npz", allow_pickle=False) as data:
         meta = json.loads(bytes(data["meta"]).decode())["metadata"]
     start = np.array(meta["true_start_pose"], float)
-    config = FastSLAMConfig.from_dict(meta["fastslam"])
+    config = FastSLAMConfig.from_dict({**meta["fastslam"], **(overrides or {})})
     truth, odometry = read_tum(demo / f"{robot}-truth.tum"), read_tum(demo / f"{robot}-odometry.tum")
     if len(truth) != len(odometry) or not np.allclose(truth[:, 0], odometry[:, 0]):
         raise SystemExit(f"{demo}: {robot}'s truth and odometry files do not have the same frames")
@@ -181,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--born-before", type=non_negative_float, default=0.0, metavar="T",
                         help="count the best particle's matches to landmarks made before T s (0: off)")
     parser.add_argument("--demo-only", action="store_true", help="the demo's own estimate against its truth")
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+                        help="a FastSLAM setting over the demo's, e.g. existence_miss=0 (benchmarks/config_overrides)")
     args = parser.parse_args(argv)
     for name in (f"{args.robot}.npz", f"{args.robot}-truth.tum", f"{args.robot}-odometry.tum"):
         if not (args.demo / name).is_file():
@@ -190,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     cv2.setNumThreads(1)
     print_timeline(replay(args.demo, args.robot, args.filter_seed, args.render_seed, args.frames_cache,
-                          args.born_before), args.t0, args.t1, args.every, args.born_before)
+                          args.born_before, config_overrides(args.settings)), args.t0, args.t1, args.every,
+                   args.born_before)
     return 0
 
 
