@@ -279,9 +279,9 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     drift = _Drift(problem, heading_drift) if heading_drift is not None and heading_drift.on else None
     width = _width(drift)
     offset = _Offsets(problem, sighting_offset) if sighting_offset is not None and sighting_offset.on else None
-    n_dense = n_landmarks + (offset.count if offset is not None else 0)
+    n_dense = n_landmarks + (offset.n_explicit if offset is not None else 0)
     if width * t * 2 * n_dense > MAX_DENSE_ENTRIES:
-        what = f"{n_landmarks} landmarks" + ("" if offset is None else f" and {offset.count} sighting offsets")
+        what = f"{n_landmarks} landmarks" + ("" if offset is None else f" and {offset.n_explicit} sighting offsets")
         raise SmoothingError(f"{t} poses and {what} are too many to smooth here (a dense "
                              f"{width * t} × {2 * n_dense} block, over {MAX_DENSE_ENTRIES * 8 // 10 ** 6} MB)")
     poses = np.array(initial_poses, float).reshape(t + 1, 3)
@@ -314,6 +314,8 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     stride = max(int(pose_covariance_stride), 1)
     covariance_poses = np.unique(np.append(np.arange(stride, t + 1, stride), t)) if t else np.zeros(0, int)
     landmark_cov, pose_cov = _marginals(information, t, n_landmarks, seen, covariance_poses, width)
+    if offset is not None:
+        landmark_cov[offset.sole_landmarks] += offset.sigma ** 2 * np.eye(2)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
                     dof, iterations_robust + iterations, converged, heading_weights,
                     heading_drift if drift is not None else None, bias,
@@ -323,7 +325,8 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
 def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The solution's normalised residuals: odometry (T, 3), sightings (S, 2) (range, bearing; dropped ones too),
-    and the extra factors: the heading drift's (T,) then the sighting offsets' priors (2G,) (empty without them)."""
+    and the extra factors: the heading drift's (T,) then the explicit sighting offsets' priors (2E,) (empty
+    without them; a sole group's offset is 0 and has none: :class:`_Offsets`)."""
     drift = _solution_drift(problem, solution)
     offset = _solution_offset(problem, solution)
     odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, solution.heading_biases,
@@ -353,6 +356,10 @@ def joint_landmark_covariance(problem: LandmarkLogProblem, solution: Smoothed) -
     keep = np.repeat(seen, 2)
     n_kept = 2 * int(seen.sum())
     out[np.ix_(keep, keep)] = factor.landmark_covariance()[:n_kept, :n_kept]
+    if offset is not None:
+        rows = 2 * offset.sole_landmarks
+        out[rows, rows] += offset.sigma ** 2
+        out[rows + 1, rows + 1] += offset.sigma ** 2
     return out
 
 
@@ -367,18 +374,34 @@ def _solution_offset(problem: LandmarkLogProblem, solution: Smoothed) -> _Offset
 
 
 class _Offsets:
-    """A :class:`SightingOffset` on one problem: each sighting's group (S,), the number of groups G and σ. The
-    offsets (G, 2) are variables after the landmarks' (they are eliminated with them, in the dense Schur block), and
-    their priors o/σ are rows after the sightings' (and the drift's)."""
+    """A :class:`SightingOffset` on one problem: each sighting's group (S,), the number of groups G and σ.
+
+    A group that is its landmark's only group and holds no other landmark's sightings (a *sole* group: every
+    landmark's with the default grouping) is marginalised exactly instead of solved for: m + o enters the sightings
+    only as a sum, so its offset stays 0, the MAP is the one without it and the landmark's covariance gains σ² I
+    (added after the solve). The others (``explicit_groups``, E) are variables after the landmarks' (eliminated with
+    them in the dense Schur block) and their priors o/σ are rows after the sightings' (and the drift's). The offsets
+    array is (G, 2), the sole groups' rows 0."""
 
     def __init__(self, problem: LandmarkLogProblem, option: SightingOffset, count: int | None = None) -> None:
         self.index = problem.offset_groups
         self.count = int(self.index.max()) + 1 if count is None and len(self.index) else int(count or 0)
         self.sigma = float(option.sigma_m)
+        pairs = np.unique(np.column_stack([problem.landmark_index, self.index]).reshape(-1, 2), axis=0)
+        per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]] if len(pairs) else np.zeros(0, int)
+        per_group = np.bincount(pairs[:, 1], minlength=self.count)[pairs[:, 1]] if len(pairs) else np.zeros(0, int)
+        sole = (per_landmark == 1) & (per_group == 1)
+        explicit = np.ones(self.count, bool)
+        explicit[pairs[sole, 1]] = False
+        self.explicit_groups = np.flatnonzero(explicit)
+        self.n_explicit = len(self.explicit_groups)
+        self.sole_landmarks = pairs[sole, 0]
+        self.column = np.full(self.count, -1)                # each group's place among the explicit ones (−1: sole)
+        self.column[self.explicit_groups] = np.arange(self.n_explicit)
 
     def residuals(self, offsets: np.ndarray) -> np.ndarray:
-        """(2G,) normalised: the offsets' priors o / σ."""
-        return np.asarray(offsets, float).ravel() / self.sigma
+        """(2E,) normalised: the explicit offsets' priors o / σ (the sole ones are 0)."""
+        return np.asarray(offsets, float)[self.explicit_groups].ravel() / self.sigma
 
 
 class _Drift:
@@ -498,7 +521,8 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         put(base + 1, landmark_col + col_offset, db * wb)
         put(base + 1, pose_col + col_offset, -db * wb)
         if offset is not None:                                   # m + o: the same derivatives
-            offset_col = width * t + 2 * n_landmarks + 2 * offset.index + col_offset
+            column = offset.column[offset.index]
+            offset_col = np.where(column < 0, -1, width * t + 2 * n_landmarks + 2 * column + col_offset)
             put(base, offset_col, dr * wr)
             put(base + 1, offset_col, db * wb)
     put(base + 1, pose_col + 2, -wb)
@@ -509,8 +533,8 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         put(n_rows + k[1:], width * k[:-1] + 3, -drift.decay / drift.sd)
         n_rows += t
     n_columns = width * t + 2 * n_landmarks
-    if offset is not None and offset.count:
-        g = np.arange(2 * offset.count)
+    if offset is not None and offset.n_explicit:
+        g = np.arange(2 * offset.n_explicit)
         put(n_rows + g, n_columns + g, np.full(len(g), 1.0 / offset.sigma))
         n_rows += len(g)
         n_columns += len(g)
@@ -581,7 +605,10 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_landmarks += step[width * t:width * t + 2 * n_landmarks].reshape(n_landmarks, 2)
             trial_bias = None if drift is None else bias + pose_step[:, 3]
-            trial_offsets = None if offset is None else offsets + step[width * t + 2 * n_landmarks:].reshape(-1, 2)
+            trial_offsets = None
+            if offset is not None:
+                trial_offsets = offsets.copy()
+                trial_offsets[offset.explicit_groups] += step[width * t + 2 * n_landmarks:].reshape(-1, 2)
             trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift, trial_bias,
                           offset, trial_offsets)
             if trial <= cost:

@@ -501,7 +501,7 @@ def test_a_landmark_seen_by_one_group_never_gets_more_certain_than_the_offset(se
                                rtol=1e-6, atol=1e-12)
     assert solution.dof == plain.dof
     _, _, extra = normalised_residuals(problem, solution)
-    assert len(extra) == 2 * len(solution.offsets)
+    assert len(extra) == 0                           # every group is its landmark's only one: marginalised exactly
 
 
 def test_two_visits_of_one_post_that_disagree_are_fitted_by_their_offsets_not_by_the_sightings():
@@ -553,13 +553,15 @@ def test_jacobian_with_offsets_matches_finite_differences(seed, steps, n_landmar
     option = landmark_smoother.SightingOffset(float(rng.uniform(0.01, 0.2)))
     offset = landmark_smoother._Offsets(problem, option, n_groups)
     offsets = rng.normal(0, 0.1, (n_groups, 2))
+    offsets[np.setdiff1d(np.arange(n_groups), offset.explicit_groups)] = 0.0      # sole groups: marginalised, 0
     jac = _jacobian(problem, poses, landmarks, n_landmarks, np.ones(s), None, offset, offsets).toarray()
-    x0 = np.concatenate([poses[1:].ravel(), landmarks.ravel(), offsets.ravel()])
+    x0 = np.concatenate([poses[1:].ravel(), landmarks.ravel(), offsets[offset.explicit_groups].ravel()])
 
     def residuals(x):
         p = poses.copy()
         p[1:] = x[:3 * steps].reshape(steps, 3)
-        o = x[3 * steps + 2 * n_landmarks:].reshape(n_groups, 2)
+        o = offsets.copy()
+        o[offset.explicit_groups] = x[3 * steps + 2 * n_landmarks:].reshape(-1, 2)
         odometry, sightings = _residuals(problem, p, x[3 * steps:3 * steps + 2 * n_landmarks].reshape(-1, 2), None, o)
         return np.concatenate([odometry, sightings, offset.residuals(o)])
 
@@ -576,3 +578,37 @@ def test_malformed_sighting_offsets_are_refused(sigma):
         dataclasses.replace(problem, offset_index=np.zeros(len(problem.ranges) + 1, int))
     with pytest.raises(SmoothingError, match="offset_index"):
         dataclasses.replace(problem, offset_index=np.full(len(problem.ranges), -1))
+
+
+def test_a_sole_group_marginalised_is_the_group_solved_for(monkeypatch):
+    """A landmark's only group (no other landmark in it) is marginalised exactly, not solved for (it costs the
+    dense block nothing): the solution, covariances and cost are those with every offset a variable."""
+    problem, _, _ = offset_log(seed=6, sigma=0.05)
+    lap = problem.offset_index % 3
+    # landmarks 0-3 keep one group each (sole), landmarks 4-7 one group per lap (explicit)
+    groups = np.where(problem.landmark_index < 4, problem.landmark_index, 4 + 3 * problem.landmark_index + lap)
+    problem = dataclasses.replace(problem, offset_index=np.unique(groups, return_inverse=True)[1].astype(int))
+    option = landmark_smoother.SightingOffset(0.05)
+    marginalised = smooth(problem, *initial_guess(problem), sighting_offset=option)
+    assert landmark_smoother._Offsets(problem, option).n_explicit < problem.offset_index.max() + 1
+
+    class AllExplicit(landmark_smoother._Offsets):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.explicit_groups = np.arange(self.count)
+            self.n_explicit = self.count
+            self.sole_landmarks = np.zeros(0, int)
+            self.column = np.arange(self.count)
+
+    monkeypatch.setattr(landmark_smoother, "_Offsets", AllExplicit)
+    solved = smooth(problem, *initial_guess(problem), sighting_offset=option)
+    np.testing.assert_allclose(marginalised.poses, solved.poses, atol=1e-6)
+    np.testing.assert_allclose(marginalised.landmarks, solved.landmarks, atol=1e-6)
+    np.testing.assert_allclose(marginalised.offsets, solved.offsets, atol=1e-6)
+    np.testing.assert_allclose(marginalised.landmark_covariances, solved.landmark_covariances, rtol=1e-5, atol=1e-12)
+    np.testing.assert_allclose(marginalised.pose_covariances, solved.pose_covariances, rtol=1e-5, atol=1e-12)
+    assert marginalised.chi2 == pytest.approx(solved.chi2, rel=1e-8)
+    monkeypatch.undo()
+    joint = joint_landmark_covariance(problem, marginalised)
+    monkeypatch.setattr(landmark_smoother, "_Offsets", AllExplicit)
+    np.testing.assert_allclose(joint, joint_landmark_covariance(problem, solved), rtol=1e-5, atol=1e-12)
