@@ -6,6 +6,7 @@ Run from the repository root:
         [--drift 0.16 10] [--path-step 0.25] [--split-bends] [--pass-seconds 20] [--min-pairs 3] [--ratio R]
         [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
+        [--sighting-offset M] [--split-ambiguous]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -30,6 +31,16 @@ ATE 0.029 m; on robot 3 it makes one wrong merge (its map is 0.6 m wrong at σ 0
 passes are incompatible because 55 of 90 are never offered their twin (a name the pass itself holds) and 35 find it
 3-13 cm off at σ ~1 cm. ``--guard`` on robot 5 seed 2 sets aside exactly session 25's three wrong groups (0 wrong, ATE
 0.074 m, 2.9 names per post); it does not see robot 2's (posts 19 and 20, 0.73 m apart, are not told apart there).
+
+Session 27 (A; docs: "Session 27: a sighting offset per name in the smoother's model ... (A)"): ``--sighting-offset
+0.03`` gives every smoothing a 2-D offset per chained name (the round-0 names) with prior σ 0.03 m per axis
+(:class:`estimation.landmark_smoother.SightingOffset`; σ measured against the truth by
+``benchmarks.mrclam_sighting_offset``: a visit's or a name's sightings share ≈ 3 cm, a post's all visits ≈ 1 cm), so
+merged names of one post may differ by ≈ σ√2 at the prior's cost. ``--split-ambiguous``: a refused pairwise group is
+judged again without the glimpses whose gate holds two posts. From session 26's states, 0 wrong merges: robot 5
+seed 0 25 → 20 names (duplicates 38 → 25 %), robot 1 seed 0 20 → 17 names, robot 2 seed 2 20 → 16 names (duplicates
+6 %, one 5-sighting glimpse left), ATE within 1.1× known-ID (robot 1 0.067 m against 0.286 m); robot 3 seed 0 still
+makes session 26's wrong pairwise merge (its map, not the offsets).
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
@@ -69,7 +80,10 @@ The method (the barcodes never decide; they only score):
    under the joint covariance, never sighted in one frame, jointly compatible and with no rival in any member's gate
    (:func:`estimation.constellation.pairwise_groups`), merged and checked as a batch is (session 26: the pass
    structure never pairs two names one pass holds). ``--kept-covisible``: "sighted in one frame" by kept sightings
-   only. ``--name-floor``: a per-name offset σ added in the pairwise gate.
+   only. ``--name-floor``: a per-name offset σ added in the pairwise gate. ``--split-ambiguous``: a refused group
+   is judged again without its ambiguous members (``pairwise_groups(split_ambiguous=True)``).
+6. ``--sighting-offset M`` (session 27): every smoothing (and so every joint covariance, gate and cost check) carries
+   an offset per round-0 name of prior σ M per axis; from a saved state, the state is re-smoothed with it first.
 
 ``--state-dir DIR`` keeps each robot's state (names and the smoother's solution, ``.npz``) after the chain
 (``round0``), every kept round (``round<k>``) and pairwise round (``pairwise<k>``); ``--from-round K`` starts there.
@@ -503,7 +517,11 @@ def run_robot(log: RangeBearingLog, args) -> dict:
         current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
                                    config, drift, path_step_s)
         if _OFFSET["option"] is not None:     # the groups: the names after the chain (round 0); re-smoothed with them
-            with np.load(state_path(args.state_dir, log, args.seed, "round0"), allow_pickle=False) as data:
+            first = state_path(args.state_dir, log, args.seed, "round0")
+            if not first.exists():
+                raise SystemExit(f"--sighting-offset from round {args.from_round} needs {first} (its names are the "
+                                 f"offsets' groups)")
+            with np.load(first, allow_pickle=False) as data:
                 _OFFSET["names"] = data["names"]
             current = _with_offsets(log, current, noise, config, drift, path_step_s)
             if args.progress:
