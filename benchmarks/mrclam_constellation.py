@@ -807,6 +807,14 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
                                    for s in ("merge", "covisible", "not_joint")}}
         if args.split_ambiguous:
             record["groups"]["ambiguous"] = sum(g.status == "ambiguous" for g in groups)
+        if args.honest_names is not None:      # helper B's screen (session 27): a member holding a run that bends
+            flagged = flagged_names(problem, solution, args.honest_names)
+            held = [g for g in groups if g.status == "merge" and flagged[list(g.members)].any()]
+            record["honest_names"] = {"flagged": int(flagged.sum()), "groups_refused": len(held),
+                                      "wrong_refused": sum(len({code[m] for m in g.members}) > 1 for g in held)}
+            groups = [g for g in groups if not any(g is h for h in held)]
+            if args.progress:
+                print(f"  pairwise {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
         merging = [PassVerdict(-1 - i, "matched", spanning_pairs([(g.members[0], m) for m in g.members[1:]]),
                                (len(g.members), -g.d2 / g.dof), 0, True)
                    for i, g in enumerate(x for x in groups if x.status == "merge")]
@@ -842,6 +850,23 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
             save_state(state_path(args.state_dir, log, args.seed, f"pairwise{k + 1}"), current,
                        _state_meta(log, args, drift, -(k + 1), _round(log, current, owner)))
     return current
+
+
+def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0) -> np.ndarray:
+    """(L,) the names holding a run of sightings (cut at gaps over ``gap_s``) whose split score
+    (:func:`estimation.map_honesty.split_scores`: the first-order cost drop if the run were a name of its own) is
+    beyond χ²₂ at 1 − α/k, k the name's runs (helper B, session 27: the screen that refused session 26's two wrong
+    pairwise merges on robots 3 and 2, seed 0)."""
+    from estimation.map_honesty import sighting_runs, split_scores
+
+    runs = sighting_runs(problem, solution, gap_s)
+    scores = split_scores(problem, solution, runs)
+    out = np.zeros(len(solution.landmarks), bool)
+    per = np.bincount([r.landmark for r in runs], minlength=len(out))
+    for run, score in zip(runs, scores, strict=True):
+        if np.isfinite(score) and score > chi2.isf(alpha / per[run.landmark], 2):
+            out[run.landmark] = True
+    return out
 
 
 def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:
@@ -938,6 +963,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
+    parser.add_argument("--honest-names", type=positive_float, default=None, metavar="ALPHA",
+                        help="pairwise: set aside every group with a member holding a run whose split score is beyond "
+                             "chi2_2 at 1 - ALPHA/k (estimation.map_honesty; helper B's screen)")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")
@@ -952,6 +980,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.honest_names is not None and not 0 < args.honest_names < 1:
+        parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
     if args.from_round is not None and not args.state_dir:
         parser.error("--from-round needs --state-dir")
     if not os.path.isdir(args.data):
