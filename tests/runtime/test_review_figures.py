@@ -82,3 +82,25 @@ def test_a_data_set_runs_recording_leads_with_the_runs_figures(tmp_path, capsys)
     assert ("  run: ATE 0.030 m (dead reckoning 3.404 m), landmarks 15 for 15 true, median error 0.022 m, pose NEES "
             "median 1.5 (96 % below χ²₃(95 %)); smoothed over the whole log") in out
     assert "  no alignment in this recording" not in out
+
+
+def test_a_part_after_its_gap_is_reviewed_with_its_own_1_sigma_as_the_viewer_shows_it(tmp_path, capsys):
+    """Session 27 (D): a split map's part made after its gap, as the mission records it (``p3at demo --seed 0
+    --odometry exact``): review and the viewer's fusion status give its own alignment's 1σ, said so, and not the
+    start-frame 1σ (null in the record), with the reason once."""
+    from runtime.rerun_log import FUSION_STATUS
+
+    from .rerun_helpers import entity_rows
+
+    why = "the part after robot2's gap at t≈13.8 s does not share robot2's start"
+    part = {**ALIGNED, "tx": 5.129, "ty": 0.281, "theta": -2.8912, "supports": 50, "required_supports": 30,
+            "false_alarm_probability": 3.3e-21, "common": 50, "sigma_xy": 0.082, "sigma_theta": 0.0155,
+            "start_sigma_xy": None, "start_sigma_theta": None, "start_sigma_not_comparable": why, "error_xy": None,
+            "error_theta": None, "error_not_comparable": why, "split_decision": "after", "aligned_part": "after",
+            "self_check": "robot2 flagged itself at t≈13.8 s: ..."}
+    out = _review(tmp_path, capsys, "after", lambda log: log.log_alignment(137.0, "robot1", "robot2", part))
+    (line,) = [line for line in out if line.startswith("  alignment ")]
+    assert ("50 common landmarks; 1σ 0.082 m / 0.0155 rad of the part's own alignment, none against the start "
+            f"frames; error against the truth not comparable: {why}; robot2 flagged itself") in line
+    shown = str(entity_rows(tmp_path / "after.rrd", FUSION_STATUS)[-1]["TextDocument:text"][0])
+    assert line.removeprefix("  alignment robot2 -> robot1: ") == shown.split("): ", 1)[1].replace("**", "")
