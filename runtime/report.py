@@ -133,9 +133,8 @@ def sigma_text(pair: Mapping, missing: str = "-") -> str:
     "" when the pair carries neither."""
     why = _words(pair.get("start_sigma_not_comparable"))
     if why:
-        if pair.get("sigma_xy") is None:
-            return f"no 1σ against the start frames: {why}"
-        text = (f"1σ {_fmt(pair.get('sigma_xy'), '.3f', missing)} m / {_fmt(pair.get('sigma_theta'), '.4f', missing)}"
+        text = ("no 1σ against the start frames" if pair.get("sigma_xy") is None else
+                f"1σ {_fmt(pair.get('sigma_xy'), '.3f', missing)} m / {_fmt(pair.get('sigma_theta'), '.4f', missing)}"
                 " rad of the part's own alignment, none against the start frames")
         return text if why == _words(pair.get("error_not_comparable")) else f"{text} ({why})"
     if pair.get("start_sigma_xy") is None:

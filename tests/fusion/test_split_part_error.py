@@ -208,6 +208,16 @@ def test_p3at_fuse_still_scores_an_alignment_of_a_map_used_whole(sim, tmp_path, 
     assert entry["start_covariance"] is not None and "start_covariance_not_comparable" not in entry
 
 
+def test_a_part_without_its_own_covariance_shows_no_1_sigma_and_says_why():
+    """Recorded without the alignment's own covariance (no sigma_xy): no 1σ at all, the reason said once."""
+    pair = {"reference": "robot1", "other": "robot2", "aligned": True, "tx": 1.0, "ty": 2.0, "theta": 0.1,
+            "supports": 40, "common": 40, "start_sigma_xy": None, "start_sigma_not_comparable": AFTER}
+    assert f"; no 1σ against the start frames ({AFTER})" in alignment_text(pair)
+    text = alignment_text({**pair, "error_xy": None, "error_not_comparable": AFTER})
+    assert f"; no 1σ against the start frames; error against the truth not comparable: {AFTER}" in text
+    assert text.count(AFTER) == 1
+
+
 @settings(max_examples=100, deadline=None)
 @given(why=st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=30),
                      st.lists(st.text(max_size=3), max_size=2)),
