@@ -592,7 +592,7 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     path_step_s = _path_step(args)
     row.setdefault("rounds", [])
     start = int(meta["round"])
-    if start:
+    if start or "first_smoothing" not in row:       # from a saved state (round 0 included)
         row["from_round"] = start
         row["first_smoothing"] = round_scores(log, current, majority(current.names, barcodes))
         if args.progress:
