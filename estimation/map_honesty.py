@@ -96,11 +96,19 @@ def sighting_runs(problem: LandmarkLogProblem, solution: Smoothed, gap_s: float)
     return out
 
 
-def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run], details: dict | None = None
-                 ) -> np.ndarray:
+def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run], details: dict | None = None,
+                 *, floor_m: float = 0.0) -> np.ndarray:
     """(R,) each run's split score (module docstring): the first-order drop of the smoother's cost Σr² if the run's
     sightings were given a landmark of their own, χ²₂ under the model. A run holding all of its landmark's kept
-    sightings cannot be split off: NaN."""
+    sightings cannot be split off: NaN.
+
+    ``floor_m``: σ (m) of an offset each run may have of its own that the sighting model does not carry (session
+    26 measured ≈ 3.5 cm between one post's names on MRCLAM: the side of the post seen, the range calibration's
+    residual). The split's offset estimate δ̂ = V⁻¹g then has covariance V⁻¹ + σ²I under the model, and the score is
+    δ̂ᵀ(V⁻¹ + σ²I)⁻¹δ̂, still χ²₂: a run of many sightings a few centimetres off no longer counts as a disagreement,
+    a run metres off still does. 0 (the default): gᵀV⁻¹g exactly."""
+    if not (np.isfinite(floor_m) and floor_m >= 0):
+        raise ValueError(f"the runs' offset floor must be finite and ≥ 0 m, not {floor_m}")
     t, n = problem.n_poses, len(solution.landmarks)
     if not runs:
         return np.zeros(0)
@@ -146,7 +154,10 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
             if np.linalg.eigvalsh(v).min() <= 1e-9 * max(np.trace(own[i]), 1e-300):
                 continue                          # the rest of the landmark holds nothing against the run
             offset_hat = np.linalg.solve(v, grad[i])
-            out[i] = float(grad[i] @ offset_hat)
+            if floor_m > 0:
+                out[i] = float(offset_hat @ np.linalg.solve(np.linalg.inv(v) + floor_m ** 2 * np.eye(2), offset_hat))
+            else:
+                out[i] = float(grad[i] @ offset_hat)
             if details is not None:
                 details["offset"][i] = -offset_hat
                 details["influence"][i] = float(offset_hat @ (own[i] - v) @ offset_hat)

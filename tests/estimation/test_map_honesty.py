@@ -119,6 +119,23 @@ def test_a_wrong_sighting_that_ties_a_loose_stretch_to_the_map_has_the_top_split
     assert honest_flags == 0
 
 
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), floor=st.floats(0.005, 0.5))
+def test_an_offset_floor_lowers_every_score_and_leaves_a_metre_off_run_flagged(seed, floor):
+    problem, injected, _ = stretch_log(seed, np.array([0.0, 1.2]))
+    solution = solved(problem)
+    assume(solution.inliers[injected])
+    runs = sighting_runs(problem, solution, 5.0)
+    exact = split_scores(problem, solution, runs)
+    floored = split_scores(problem, solution, runs, floor_m=floor)
+    assert np.array_equal(split_scores(problem, solution, runs, floor_m=0.0), exact)
+    assert np.all(floored <= exact + 1e-9)
+    wrong = problem.landmark_index[injected]
+    mine = [i for i, r in enumerate(runs) if r.landmark == wrong]
+    if floor <= 0.05 and exact[mine].max() > 2 * split_threshold(len(runs)):   # a few cm of floor against a metre
+        assert floored[mine].max() > split_threshold(len(runs))
+
+
 def test_runs_are_cut_at_gaps_and_a_landmark_of_one_run_is_not_tested():
     problem, injected, _ = stretch_log(3, np.array([0.0, 1.2]))
     solution = solved(problem)
@@ -147,6 +164,8 @@ def test_a_run_that_is_all_of_its_landmark_gets_no_score_and_bad_arguments_are_r
     assert split_scores(problem, solution, []).shape == (0,)
     with pytest.raises(ValueError, match="gap"):
         sighting_runs(problem, solution, -1.0)
+    with pytest.raises(ValueError, match="floor"):
+        split_scores(problem, solution, sighting_runs(problem, solution, 5.0), floor_m=float("nan"))
     with pytest.raises(ValueError, match="n_tests"):
         split_threshold(0)
     assert split_threshold(1) == pytest.approx(9.2103, abs=1e-3)
