@@ -3,7 +3,7 @@
 Run from the repository root, on the states ``benchmarks.mrclam_constellation --state-dir DIR`` keeps:
 
     .venv/bin/python -m benchmarks.mrclam_honesty --state-dir DIR [--robots 1,2,3,4,5] [--seeds 0,2] [--tags round4,...]
-        [--gap 5] [--alpha 0.01] [--top 5] [--json]
+        [--gap 5] [--floor 0] [--alpha 0.01] [--top 5] [--groups] [--json]
 
 For every state (a robot's names and the smoother's solution after a round), every landmark's kept sightings are cut
 into runs at gaps of more than ``--gap`` s, and each run gets its split score
@@ -77,7 +77,8 @@ def states(directory, robots: list[int], seeds: list[int], tags: list[str] | Non
     return [s for _, s in sorted(out)]
 
 
-def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, groups: bool = False) -> dict:
+def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, groups: bool = False,
+              floor_m: float = 0.0) -> dict:
     with np.load(path, allow_pickle=False) as data:
         meta = json.loads(str(data["meta"]))
     drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
@@ -87,7 +88,7 @@ def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, gr
     started = time.process_time()
     runs = sighting_runs(problem, solution, gap_s)
     details: dict = {}
-    scores = split_scores(problem, solution, runs, details)
+    scores = split_scores(problem, solution, runs, details, floor_m=floor_m)
     cpu = time.process_time() - started
     barcodes = log.landmark_ids[named.sightings]
     owner = majority(current.names, log.landmark_ids)
@@ -198,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tags", default=None, help="only these states, e.g. round4,pairwise1 (default: all)")
     parser.add_argument("--gap", type=non_negative_float, default=5.0, metavar="S",
                         help="a landmark's sightings more than S s apart start a new run")
+    parser.add_argument("--floor", type=non_negative_float, default=0.0, metavar="M",
+                        help="σ of an offset each run may have of its own (split_scores' floor_m; session 26 measured "
+                             "≈ 0.035 m between one post's names; default 0: none)")
     parser.add_argument("--alpha", type=probability, default=0.01, metavar="PROBABILITY",
                         help="false-alarm probability of the map-wide test (Bonferroni over its runs) and per name")
     parser.add_argument("--top", type=positive_int, default=None, metavar="N",
@@ -224,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     setups: dict = {}
     rows = []
     if not args.json:
-        print(f"split scores, runs cut at gaps > {args.gap:g} s, α {args.alpha:g} "
+        print(f"split scores, runs cut at gaps > {args.gap:g} s, offset floor {args.floor:g} m, α {args.alpha:g} "
               "(map-wide: Bonferroni over runs; per name: over the name's runs)")
         print("| state | names | runs (wrong, right in a wrong stretch) | threshold | flagged: wrong runs / right "
               "runs in a wrong stretch / false alarms | first wrong run's rank "
@@ -236,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
             noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
             setups[robot] = (log, noise, range_bearing_config(n_particles=100))
         row = {"robot": robot, "seed": seed, "tag": tag,
-               **run_state(*setups[robot], path, args.gap, args.alpha, args.top or 0, args.groups)}
+               **run_state(*setups[robot], path, args.gap, args.alpha, args.top or 0, args.groups,
+                                   args.floor)}
         rows.append(row)
         if not args.json:
             _print(row)
