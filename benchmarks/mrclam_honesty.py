@@ -24,7 +24,9 @@ Session 27 (B; docs: "Session 27: … (B)"): robot 3 seed 0's 1253–1275 s stre
 s) whose run scores 15.6 — the top of the map's 328 runs but below the map-wide threshold 20.8; the per-name test
 (threshold 10.6 for its two runs) flags it, and with ``--groups`` on the state before session 26's wrong pairwise
 merge (pairwise1) the wrong group {10, 71, 121} is refused and the right one passes; on robot 2 seed 0's round 3 the
-wrong group {5, 172} is refused and its 3 right groups pass.
+wrong group {5, 172} is refused and its 3 right groups pass. With ``--floor 0.035`` (each run's own offset σ, the
+spread of one post's names session 26 measured) the same two are refused and fewer right groups (robot 5 seed 0
+round 6: 1 of 6 instead of 2).
 """
 from __future__ import annotations
 
