@@ -67,8 +67,8 @@ from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, po
 from estimation.landmark_smoother import (  # noqa: E402
     HeadingLoss,
     LandmarkLogProblem,
+    NormalFactor,
     _jacobian,
-    _NormalFactor,
     _residuals,
     smooth,
 )
@@ -188,7 +188,7 @@ def _functional_covariance(problem, poses, landmarks, inliers, functional):
     jac = _jacobian(problem, poses, landmarks, len(landmarks), inliers.astype(float))
     w = np.zeros((3, 3 * t + 2 * len(landmarks)))
     w[:, 3 * t:] = functional
-    return w @ _NormalFactor((jac.T @ jac).tocsc(), t).solve(w.T)
+    return w @ NormalFactor((jac.T @ jac).tocsc(), t).solve(w.T)
 
 
 def attribution(cap: Captured, inliers: np.ndarray) -> dict:
@@ -200,7 +200,7 @@ def attribution(cap: Captured, inliers: np.ndarray) -> dict:
     residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * inliers[:, None]).ravel()])
     w = np.zeros((3, 3 * t + 2 * n_landmarks))
     w[:, 3 * t:] = _rigid_functional(cap)
-    u = _NormalFactor((jac.T @ jac).tocsc(), t).solve(w.T)
+    u = NormalFactor((jac.T @ jac).tocsc(), t).solve(w.T)
     g = np.asarray(jac @ u)
     variance = np.sum(g ** 2, axis=0)
     contribution = -g * residual[:, None]
@@ -327,7 +327,7 @@ def early_poses(cap: Captured, solution) -> list[dict]:
     which = which[which >= 1]
     p, t = cap.problem, cap.problem.n_poses
     jac = _jacobian(p, solution.poses, solution.landmarks, len(solution.landmarks), solution.inliers.astype(float))
-    factor = _NormalFactor((jac.T @ jac).tocsc(), t)
+    factor = NormalFactor((jac.T @ jac).tocsc(), t)
     unit = np.zeros((3 * t + 2 * len(solution.landmarks), len(which)))
     unit[3 * (which - 1) + 2, np.arange(len(which))] = 1.0
     variance = np.einsum("ij,ij->j", unit, factor.solve(unit))

@@ -18,7 +18,7 @@ Solved by Gauss–Newton with Levenberg damping on the sparse normal equations. 
 weighted by Huber's function (k = 2.45, χ²₂ 70 %), then every sighting whose squared normalised residual exceeds
 χ²₂ 99 % is dropped and the problem solved again without weights; the dropped ones are reported. The covariances
 are the inverse of the information matrix JᵀJ at the solution (the Laplace approximation), its landmark blocks
-and a sample of its pose blocks, from one factorisation that follows the problem's structure (`_NormalFactor`).
+and a sample of its pose blocks, from one factorisation that follows the problem's structure (`NormalFactor`).
 
 Option (``sighting_offset``, off by default): a systematic offset per group of sightings (:class:`SightingOffset`:
 a post seen from one side, one visit's sightings sharing that error), so that no number of sightings of one group
@@ -337,21 +337,31 @@ def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
     return odometry.reshape(-1, 3), sightings.reshape(-1, 2), extra
 
 
+def solution_jacobian(problem: LandmarkLogProblem, solution: Smoothed) -> tuple[sp.csr_matrix, int]:
+    """The smoother's Jacobian at ``solution``, each heading row scaled by its loss weight, and the number of
+    variables per pose (3, or 4 with the heading drift's bias). Rows: the odometry's 3T, the kept sightings' 2S, then
+    the priors; columns: the poses' width·T, the landmarks' 2L, then the sighting offsets'. Its JᵀJ is the normal
+    matrix every covariance of the solution comes from (:class:`NormalFactor` factors it)."""
+    drift = _solution_drift(problem, solution)
+    offset = _solution_offset(problem, solution)
+    jac = _jacobian(problem, solution.poses, solution.landmarks, len(solution.landmarks),
+                    np.asarray(solution.inliers, float), drift, offset,
+                    solution.offsets if offset is not None else None)
+    return _row_scaled(jac, problem.n_poses, solution.heading_weights).tocsr(), _width(drift)
+
+
 def joint_landmark_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
     """The landmarks' joint marginal covariance (2L, 2L) at ``solution`` (the inverse information, its heading drift
     and loss weights included; rows of landmarks with no kept sighting: inf)."""
     t, n = problem.n_poses, len(solution.landmarks)
-    drift = _solution_drift(problem, solution)
+    jac, width = solution_jacobian(problem, solution)
     offset = _solution_offset(problem, solution)
-    width = _width(drift)
     seen = np.zeros(n, bool)
     seen[problem.landmark_index[solution.inliers]] = True
-    information = _information(problem, solution.poses, solution.landmarks, solution.inliers, n,
-                               solution.heading_weights, drift, offset,
-                               solution.offsets if offset is not None else None)
+    information = (jac.T @ jac).tocsc()
     free = np.ones(information.shape[0], bool)
     free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
-    factor = _NormalFactor(information[free][:, free], t, width)
+    factor = NormalFactor(information[free][:, free], t, width)
     out = np.full((2 * n, 2 * n), np.inf)
     keep = np.repeat(seen, 2)
     n_kept = 2 * int(seen.sum())
@@ -598,7 +608,7 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
         diagonal = normal.diagonal()
         while True:
             damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
-            step = -_NormalFactor(damped, t, width).solve(gradient)
+            step = -NormalFactor(damped, t, width).solve(gradient)
             trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
             pose_step = step[:width * t].reshape(t, width)
             trial_poses[1:] += pose_step[:, :3]
@@ -635,7 +645,7 @@ def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weight
     return (jac.T @ jac).tocsc()
 
 
-class _NormalFactor:
+class NormalFactor:
     """The normal matrix H of poses 1..T (first ``width``·T variables: (x, y, θ) per pose, and a heading bias with a
     drift) and landmarks (the rest), factored by its structure.
 
@@ -702,7 +712,7 @@ def _marginals(information, t, n_landmarks, seen, covariance_poses, width=3):
     information) gets an infinite covariance and is left out of the factorisation."""
     free = np.ones(information.shape[0], bool)
     free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)     # offsets after them: all kept (priors)
-    factor = _NormalFactor(information[free][:, free], t, width)
+    factor = NormalFactor(information[free][:, free], t, width)
     landmark_cov = np.full((n_landmarks, 2, 2), np.inf)
     n_seen = int(seen.sum())
     if n_seen:

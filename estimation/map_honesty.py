@@ -30,8 +30,8 @@ rad off at σ 0.19 over 38 s, and the stretch is sighted only by names of its ow
 name that holds a wrong run (name 80's two sightings of post 19, the name round 2 then merged into post 19), but
 taking those sightings out does not right the stretch: no data contradict its odometry.
 
-Uses the smoother's own factorisation of the normal equations (``landmark_smoother._NormalFactor``), so the split
-scores are computed on exactly the information the solution's covariances come from.
+Uses the smoother's own Jacobian and factorisation of the normal equations (``landmark_smoother.solution_jacobian``,
+``NormalFactor``), so the split scores are computed on exactly the information the solution's covariances come from.
 """
 from __future__ import annotations
 
@@ -43,14 +43,10 @@ import scipy.sparse as sp
 from . import chi2
 from .landmark_smoother import (
     LandmarkLogProblem,
+    NormalFactor,
     Smoothed,
-    _jacobian,
-    _NormalFactor,
-    _row_scaled,
-    _solution_drift,
-    _solution_offset,
-    _width,
     normalised_residuals,
+    solution_jacobian,
 )
 
 __all__ = ["Run", "split_scores", "sighting_runs", "sighting_times", "split_threshold"]
@@ -112,21 +108,15 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
     t, n = problem.n_poses, len(solution.landmarks)
     if not runs:
         return np.zeros(0)
-    drift = _solution_drift(problem, solution)
-    offset = _solution_offset(problem, solution)
-    offsets = solution.offsets if offset is not None else None
-    width = _width(drift)
-    inliers = np.asarray(solution.inliers, bool)
+    jac, width = solution_jacobian(problem, solution)
     seen = np.zeros(n, bool)
-    seen[problem.landmark_index[inliers]] = True
-    jac = _row_scaled(_jacobian(problem, solution.poses, solution.landmarks, n, inliers.astype(float), drift,
-                                offset, offsets), t, solution.heading_weights).tocsr()
-    information = (jac.T @ jac).tocsc()         # the smoother's own normal matrix (its _information)
+    seen[problem.landmark_index[np.asarray(solution.inliers, bool)]] = True
+    information = (jac.T @ jac).tocsc()         # the smoother's own normal matrix
     free = np.ones(information.shape[0], bool)
     free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
     jac = jac[:, np.flatnonzero(free)]
     column = np.cumsum(free) - 1                 # a variable's column among the free ones
-    factor = _NormalFactor(information[free][:, free], t, width)
+    factor = NormalFactor(information[free][:, free], t, width)
     _, residuals, _ = normalised_residuals(problem, solution)
 
     base = 3 * t                                 # the sightings' rows follow the odometry's 3T
