@@ -31,10 +31,7 @@ prints per turn the reasons and the medians of these by reason, then a summary o
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -44,12 +41,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.config_overrides import config_overrides
 from benchmarks.demo_frame_errors import turns_on_the_spot
-from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObserver, ReplayObserver
-from benchmarks.slam_demo_replay import read_tum
-from estimation.fastslam import FastSLAM, FastSLAMConfig
+from benchmarks.slam_demo_replay import add_replay_arguments, open_replay, save_frames
+from estimation.fastslam import FastSLAM
+from estimation.fileio import atomic_write_bytes
 from estimation.geometry import between, compose, wrap_angle
 from estimation.observations import OdometryIncrement
-from runtime.commands.options import non_negative_int
 
 REASONS = ("matched", "descriptor", "gate", "duplicate", "other", "elsewhere", "gone")
 SAME = 0.10  # m: a landmark made from a sighting of a true point this close stands for the same point
@@ -120,21 +116,9 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
                      overrides: dict | None = None
                      ) -> tuple[list[dict], list[tuple[float, float]], dict[int, int], list[int]]:
     """Replay the robot's run and judge every sighting after each turn on the spot (module docstring)."""
-    from mocks.world import World
-
-    with np.load(demo / f"{robot}.npz", allow_pickle=False) as data:
-        meta = json.loads(bytes(data["meta"]).decode())["metadata"]
-    start = np.array(meta["true_start_pose"], float)
-    config = FastSLAMConfig.from_dict({**meta["fastslam"], **(overrides or {})})
-    truth, odometry = read_tum(demo / f"{robot}-truth.tum"), read_tum(demo / f"{robot}-odometry.tum")
-    if len(truth) != len(odometry) or not np.allclose(truth[:, 0], odometry[:, 0]):
-        raise SystemExit(f"{demo}: {robot}'s truth and odometry files do not have the same frames")
+    start, config, truth, odometry, observer, slam = open_replay(demo, robot, filter_seed, render_seed, cache,
+                                                                 overrides)
     turns = [(truth[a, 0], truth[b, 0]) for a, b in turns_on_the_spot(truth)]
-    if cache is not None and cache.exists():
-        observer = ReplayObserver(cache)
-    else:
-        observer = RecordingRenderedObserver(RenderedObserver(World.load(), np.random.default_rng([render_seed, 1])))
-    slam = FastSLAM(config, np.random.default_rng(filter_seed))
     c0, s0 = np.cos(start[2]), np.sin(start[2])
     origin: dict[int, int] = {}          # landmark id -> true point of its first sighting
     born: dict[int, float] = {}          # landmark id -> time made
@@ -253,9 +237,7 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
     for r in rows:   # a landmark no particle holds any more: merged into another id, or removed by its misses
         if r["reason"] == "gone":
             r["gone_by"] = "merged" if r["lid"] in merged_away else "removed"
-    if isinstance(observer, RecordingRenderedObserver) and cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        observer.save(cache)
+    save_frames(observer, cache)
     return rows, turns, unconfirmed, new_points
 
 
@@ -343,20 +325,12 @@ def write_csv(rows: list[dict], path: Path) -> None:
     for r in rows:
         lines.append(",".join(str(r.get(k, "")) for k in FIELDS))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("demo", type=Path, help="a `p3at demo --out` folder")
-    parser.add_argument("--robot", default="robot2")
-    parser.add_argument("--filter-seed", type=non_negative_int, default=0)
-    parser.add_argument("--render-seed", type=non_negative_int, default=0, help="the image noise's draw")
-    parser.add_argument("--frames-cache", type=Path, default=None, metavar="FILE",
-                        help="keep the rendered observations in FILE and replay them on later runs")
+    add_replay_arguments(parser)
     parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
                         help="a FastSLAM setting over the demo's, e.g. descriptor_slots=4")
     parser.add_argument("--sightings", type=Path, default=None, metavar="FILE.csv",

@@ -55,9 +55,12 @@ def read_tum(path: Path) -> np.ndarray:
     return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2.0 * np.arctan2(a[:, 6], a[:, 7])])
 
 
-def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
-           born_before: float = 0.0, overrides: dict | None = None) -> dict[str, np.ndarray]:
-    """Per-frame arrays of the replay (see the module docstring)."""
+def open_replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
+                overrides: dict | None = None) -> tuple[np.ndarray, FastSLAMConfig, np.ndarray, np.ndarray, object,
+                                                        FastSLAM]:
+    """One robot of a `p3at demo --out` folder set up for replay: its true start pose, the demo's FastSLAM settings
+    (with ``overrides``), its truth and odometry (T, 4) on the same frames, the observer (the frames cache when it
+    exists, else the rendered camera, recording) and a fresh filter."""
     from mocks.world import World
 
     with np.load(demo / f"{robot}.npz", allow_pickle=False) as data:
@@ -71,7 +74,31 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
         observer = ReplayObserver(cache)
     else:
         observer = RecordingRenderedObserver(RenderedObserver(World.load(), np.random.default_rng([render_seed, 1])))
-    slam = FastSLAM(config, np.random.default_rng(filter_seed))
+    return start, config, truth, odometry, observer, FastSLAM(config, np.random.default_rng(filter_seed))
+
+
+def save_frames(observer, cache: Path | None) -> None:
+    """Keep a rendered replay's frames in ``cache`` for later runs (nothing when they came from it, or no cache)."""
+    if isinstance(observer, RecordingRenderedObserver) and cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        observer.save(cache)
+
+
+def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a replay of one demo robot, shared by the replay scripts."""
+    parser.add_argument("demo", type=Path, help="a `p3at demo --out` folder")
+    parser.add_argument("--robot", default="robot2")
+    parser.add_argument("--filter-seed", type=non_negative_int, default=0)
+    parser.add_argument("--render-seed", type=non_negative_int, default=0, help="the image noise's draw")
+    parser.add_argument("--frames-cache", type=Path, default=None, metavar="FILE",
+                        help="keep the rendered observations in FILE and replay them on later runs")
+
+
+def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
+           born_before: float = 0.0, overrides: dict | None = None) -> dict[str, np.ndarray]:
+    """Per-frame arrays of the replay (see the module docstring)."""
+    start, config, truth, odometry, observer, slam = open_replay(demo, robot, filter_seed, render_seed, cache,
+                                                                 overrides)
     rows: dict[str, list] = {k: [] for k in ("t", "truth", "odometry", "best", "drift", "cloud", "proposal", "ess",
                                              "resampled", "n_obs", "matched", "new", "best_matched", "best_new",
                                              "best_wrong", "best_old", "old_seen", "old_seen_retied")}
@@ -106,9 +133,7 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
                            ("best_new", int(np.sum(report.new_landmark_ids >= 0))), ("best_wrong", wrong),
                            ("best_old", old), ("old_seen", len(seen_before)), ("old_seen_retied", retied)):
             rows[key].append(value)
-    if isinstance(observer, RecordingRenderedObserver):
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        observer.save(cache)
+    save_frames(observer, cache)
     out = {k: np.array(v, float) for k, v in rows.items()}
     out["landmarks"] = np.array(len(slam.best_map(robot=robot)))
     return out
@@ -172,12 +197,7 @@ def print_demo(demo: Path, robot: str, t0: float, t1: float, every: int) -> None
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("demo", type=Path, help="a `p3at demo --out` folder")
-    parser.add_argument("--robot", default="robot2")
-    parser.add_argument("--filter-seed", type=non_negative_int, default=0)
-    parser.add_argument("--render-seed", type=non_negative_int, default=0, help="the image noise's draw")
-    parser.add_argument("--frames-cache", type=Path, default=None, metavar="FILE",
-                        help="keep the rendered observations in FILE and replay them on later runs")
+    add_replay_arguments(parser)
     parser.add_argument("--from", dest="t0", type=non_negative_float, default=0.0, help="first time printed (s)")
     parser.add_argument("--to", dest="t1", type=non_negative_float, default=1e9, help="last time printed (s)")
     parser.add_argument("--every", type=positive_int, default=10, help="frames per printed window")

@@ -26,7 +26,6 @@ Prints the figures per robot and pooled, and the ``--set`` items that give them 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -35,9 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObserver, ReplayObserver
-from benchmarks.slam_demo_replay import read_tum
-from estimation.fastslam import FastSLAM, FastSLAMConfig
+from benchmarks.slam_demo_replay import open_replay, save_frames
 from estimation.geometry import between, compose
 from estimation.noise_model import DETECTION_BANDS
 from estimation.observations import OdometryIncrement
@@ -63,20 +60,7 @@ def lag1_correlation(sequences: list[np.ndarray]) -> float:
 
 def measure(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None) -> dict:
     """Counts of one robot's replay: per band in view / matched / reported, the runs for ρ, readings / outliers."""
-    from mocks.world import World
-
-    with np.load(demo / f"{robot}.npz", allow_pickle=False) as data:
-        meta = json.loads(bytes(data["meta"]).decode())["metadata"]
-    start = np.array(meta["true_start_pose"], float)
-    config = FastSLAMConfig.from_dict(meta["fastslam"])
-    truth, odometry = read_tum(demo / f"{robot}-truth.tum"), read_tum(demo / f"{robot}-odometry.tum")
-    if len(truth) != len(odometry) or not np.allclose(truth[:, 0], odometry[:, 0]):
-        raise SystemExit(f"{demo}: {robot}'s truth and odometry files do not have the same frames")
-    if cache is not None and cache.exists():
-        observer = ReplayObserver(cache)
-    else:
-        observer = RecordingRenderedObserver(RenderedObserver(World.load(), np.random.default_rng([render_seed, 1])))
-    slam = FastSLAM(config, np.random.default_rng(filter_seed))
+    start, config, truth, odometry, observer, slam = open_replay(demo, robot, filter_seed, render_seed, cache)
     origin: dict[int, int] = {}
     n_bands = len(DETECTION_BANDS)
     in_view, matched, reported = np.zeros(n_bands, int), np.zeros(n_bands, int), np.zeros(n_bands, int)
@@ -135,9 +119,7 @@ def measure(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: P
             if len(seen_points):
                 reported[band] += int(np.min(np.linalg.norm(seen_points - points[origin[int(lids[k])]], axis=1)) < SAME)
             runs.setdefault(int(lids[k]), []).append((i, int(hit[k])))
-    if isinstance(observer, RecordingRenderedObserver) and cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        observer.save(cache)
+    save_frames(observer, cache)
     sequences = []
     for entries in runs.values():   # split each landmark's frames into runs of consecutive frames
         frames = np.array([f for f, _ in entries])
