@@ -41,11 +41,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.config_overrides import config_overrides
 from benchmarks.demo_frame_errors import turns_on_the_spot
-from benchmarks.slam_demo_replay import add_replay_arguments, open_replay, save_frames
+from benchmarks.slam_demo_replay import add_replay_arguments, open_replay, predicted_frames, save_frames
 from estimation.fastslam import FastSLAM
 from estimation.fileio import atomic_write_bytes
-from estimation.geometry import between, compose, wrap_angle
-from estimation.observations import OdometryIncrement
+from estimation.geometry import wrap_angle
 
 REASONS = ("matched", "descriptor", "gate", "duplicate", "other", "elsewhere", "gone")
 SAME = 0.10  # m: a landmark made from a sighting of a true point this close stands for the same point
@@ -130,11 +129,7 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
     #                                      first turn): how many of its landmarks pass the gate on position alone
     rows: list[dict] = []
     ox, oy, _ = config.sensor_offset
-    for i, (t, *pose) in enumerate(truth):
-        delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
-        slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
-        world_pose = compose(start, np.array(pose))
-        observations, index = observer.observe(world_pose, float(t))
+    for _, t, pose, world_pose, observations, index in predicted_frames(start, truth, odometry, observer, slam):
         store = slam.store
         kept = (slam.poses.copy(), slam._motion_cov.copy(), store.table.copy(), store.n_blocks.copy(),
                 store.lid.copy(), store.state.copy())

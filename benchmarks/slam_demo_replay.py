@@ -94,6 +94,17 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the rendered observations in FILE and replay them on later runs")
 
 
+def predicted_frames(start: np.ndarray, truth: np.ndarray, odometry: np.ndarray, observer, slam: FastSLAM):
+    """Each frame of a replay after the filter's prediction from the demo's odometry: (frame, t, the true pose in the
+    start frame, the true pose in the world, the observations, each observation's true point or -1)."""
+    for i, (t, *pose) in enumerate(truth):
+        delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
+        slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
+        world_pose = compose(start, np.array(pose))
+        observations, index = observer.observe(world_pose, float(t))
+        yield i, t, pose, world_pose, observations, index
+
+
 def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
            born_before: float = 0.0, overrides: dict | None = None) -> dict[str, np.ndarray]:
     """Per-frame arrays of the replay (see the module docstring)."""
@@ -105,10 +116,7 @@ def replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Pa
     origin: dict[int, int] = {}   # landmark id -> the true point of its first sighting
     born: dict[int, float] = {}   # landmark id -> the time it was made
     first_seen: dict[int, float] = {}   # true point -> the time it was first observed
-    for i, (t, *pose) in enumerate(truth):
-        delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
-        slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
-        observations, index = observer.observe(compose(start, np.array(pose)), float(t))
+    for i, t, pose, _, observations, index in predicted_frames(start, truth, odometry, observer, slam):
         report = slam.update(observations)
         points = observer.points
         for j in np.flatnonzero(report.new_landmark_ids >= 0):

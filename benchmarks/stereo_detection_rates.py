@@ -34,10 +34,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.slam_demo_replay import open_replay, save_frames
-from estimation.geometry import between, compose
+from benchmarks.slam_demo_replay import open_replay, predicted_frames, save_frames
 from estimation.noise_model import DETECTION_BANDS
-from estimation.observations import OdometryIncrement
 from runtime.commands.options import non_negative_int
 
 SAME = 0.10  # m: a landmark made from a sighting of a true point this close stands for that point
@@ -66,11 +64,7 @@ def measure(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: P
     in_view, matched, reported = np.zeros(n_bands, int), np.zeros(n_bands, int), np.zeros(n_bands, int)
     runs: dict[int, list[tuple[int, int]]] = {}     # landmark id -> (frame, matched) while well in view
     readings = outliers = 0
-    for i, (t, *pose) in enumerate(truth):
-        delta = between(odometry[i - 1, 1:], odometry[i, 1:]) if i else np.zeros(3)
-        slam.predict(OdometryIncrement(*map(float, delta), float(truth[i - 1, 0]) if i else float(t), float(t)))
-        world_pose = compose(start, np.array(pose))
-        observations, index = observer.observe(world_pose, float(t))
+    for i, _, _, world_pose, observations, index in predicted_frames(start, truth, odometry, observer, slam):
         store = slam.store
         kept_table, kept_blocks = store.table.copy(), store.n_blocks.copy()
         kept_lid, kept_state, kept_count = store.lid.copy(), store.state.copy(), store.count.copy()
