@@ -44,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.map_honesty import sighting_times  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
@@ -93,16 +94,23 @@ def group_sigma(error: np.ndarray, cov: np.ndarray, groups: np.ndarray, min_size
             "median_size": float(np.median(counts[keep])) if keep.any() else float("nan")}
 
 
-def visits(log, gap: float) -> np.ndarray:
-    """(N,) a visit label per sighting: a post's sightings with no gap over ``gap`` s."""
-    out = np.zeros(len(log.sighting_times), np.int64)
+def gap_labels(keys: np.ndarray, times: np.ndarray, gap: float) -> np.ndarray:
+    """(N,) a label per item: the items of one key in time order, cut wherever two are more than ``gap`` s apart,
+    each stretch its own label (labels count up by key, then by time)."""
+    out = np.zeros(len(keys), np.int64)
     label = 0
-    for post in np.unique(log.landmark_ids):
-        rows = np.flatnonzero(log.landmark_ids == post)
-        breaks = np.concatenate([[True], np.diff(log.sighting_times[rows]) > gap])
+    for key in np.unique(keys):
+        rows = np.flatnonzero(keys == key)
+        rows = rows[np.argsort(times[rows], kind="stable")]
+        breaks = np.concatenate([[True], np.diff(times[rows]) > gap])
         out[rows] = label + np.cumsum(breaks) - 1
         label += int(breaks.sum())
     return out
+
+
+def visits(log, gap: float) -> np.ndarray:
+    """(N,) a visit label per sighting: a post's sightings with no gap over ``gap`` s."""
+    return gap_labels(log.landmark_ids, log.sighting_times, gap)
 
 
 def run_robot(folder, robot: int, args) -> dict:
@@ -139,16 +147,7 @@ def run_robot(folder, robot: int, args) -> dict:
 def visit_groups(problem, gap: float) -> np.ndarray:
     """(S,) a visit per sighting of a smoothing problem: a landmark's sightings with no gap over ``gap`` s (the
     poses' times from the problem's increment durations)."""
-    times = np.concatenate([[0.0], np.cumsum(problem.increment_seconds)])[problem.pose_index]
-    out = np.zeros(len(times), np.int64)
-    label = 0
-    for landmark in np.unique(problem.landmark_index):
-        rows = np.flatnonzero(problem.landmark_index == landmark)
-        order = rows[np.argsort(times[rows], kind="stable")]
-        breaks = np.concatenate([[True], np.diff(times[order]) > gap])
-        out[order] = label + np.cumsum(breaks) - 1
-        label += int(breaks.sum())
-    return out
+    return gap_labels(problem.landmark_index, sighting_times(problem), gap)
 
 
 def known_id(args) -> int:
