@@ -38,6 +38,7 @@ from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
 from fusion import NoOverlapError, align, alignment_error, common_landmarks, merge, true_relative_pose  # noqa: E402
 from fusion.ransac import refine_pose  # noqa: E402
+from runtime import trajectories  # noqa: E402
 from runtime.commands.options import non_negative_float, positive_int  # noqa: E402
 
 FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
@@ -581,8 +582,7 @@ def starved_table(folder: Path):
 
 def _read_tum_planar(path: Path) -> np.ndarray:
     """(N, 3) x, y, yaw of a TUM trajectory file (t x y z qx qy qz qw; yaw from a z-axis quaternion)."""
-    a = np.loadtxt(path, ndmin=2)
-    return np.column_stack([a[:, 1], a[:, 2], 2.0 * np.arctan2(a[:, 6], a[:, 7])])
+    return trajectories.planar(trajectories.read_tum(path))[:, 1:]
 
 
 def _feature_fit(m: LandmarkMap, features: np.ndarray, radii=(0.3, 0.15)) -> tuple[np.ndarray, int, float]:

@@ -44,15 +44,15 @@ from benchmarks.eval_slam_rendered import RecordingRenderedObserver, RenderedObs
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import between, compose, wrap_angle
 from estimation.observations import OdometryIncrement
+from runtime import trajectories
 from runtime.commands.options import non_negative_float, non_negative_int, positive_int
 
 WRONG_MATCH = 0.10  # m: a match whose true point is this far from its landmark's first sighting joins two points
 
 
 def read_tum(path: Path) -> np.ndarray:
-    """(T, 4) rows (t, x, y, θ) of a planar TUM file."""
-    a = np.loadtxt(path, comments="#", ndmin=2)
-    return np.column_stack([a[:, 0], a[:, 1], a[:, 2], 2.0 * np.arctan2(a[:, 6], a[:, 7])])
+    """(T, 4) rows (t, x, y, θ) of a planar TUM file (runtime.trajectories' reader: validated)."""
+    return trajectories.planar(trajectories.read_tum(path))
 
 
 def open_replay(demo: Path, robot: str, filter_seed: int, render_seed: int, cache: Path | None,
