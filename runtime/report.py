@@ -225,8 +225,8 @@ def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-")
     if pair.get("error_xy") is not None:
         text += (f"; error against the truth {_fmt(pair.get('error_xy'), '.3f', missing)} m / "
                  f"{_fmt(pair.get('error_theta'), '.4f', missing)} rad")
-    elif not_comparable_text(pair):
-        text += f"; {not_comparable_text(pair)}"
+    elif why := not_comparable_text(pair):
+        text += f"; {why}"
     if pair.get("low_confidence"):
         text += f"; {strong('low confidence') if markdown else 'LOW CONFIDENCE'}: check it before use"
     return text + (f"; {split}" if split else "")
@@ -257,8 +257,8 @@ def fusion_event_line(t: float, pair) -> str:
     line = f"fusion at t={t:.0f}s: {p['other']} -> {p['reference']} ({p['supports']} supports, {p['common']} common)"
     if p.get("error_xy") is not None:
         line += f", error {p['error_xy']:.3f} m / {p['error_theta']:.4f} rad"
-    elif not_comparable_text(p):
-        line += f", {not_comparable_text(p)}"
+    elif why := not_comparable_text(p):
+        line += f", {why}"
     return line
 
 
