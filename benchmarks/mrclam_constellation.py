@@ -857,16 +857,10 @@ def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0)
     (:func:`estimation.map_honesty.split_scores`: the first-order cost drop if the run were a name of its own) is
     beyond χ²₂ at 1 − α/k, k the name's runs (helper B, session 27: the screen that refused session 26's two wrong
     pairwise merges on robots 3 and 2, seed 0)."""
-    from estimation.map_honesty import sighting_runs, split_scores
+    from estimation.map_honesty import flagged_landmarks, sighting_runs, split_scores
 
     runs = sighting_runs(problem, solution, gap_s)
-    scores = split_scores(problem, solution, runs)
-    out = np.zeros(len(solution.landmarks), bool)
-    per = np.bincount([r.landmark for r in runs], minlength=len(out))
-    for run, score in zip(runs, scores, strict=True):
-        if np.isfinite(score) and score > chi2.isf(alpha / per[run.landmark], 2):
-            out[run.landmark] = True
-    return out
+    return flagged_landmarks(runs, split_scores(problem, solution, runs), len(solution.landmarks), alpha)
 
 
 def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:

@@ -54,7 +54,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose, wrap_angle  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance  # noqa: E402
-from estimation.map_honesty import sighting_runs, split_scores, split_threshold  # noqa: E402
+from estimation.map_honesty import flagged_landmarks, sighting_runs, split_scores, split_threshold  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
 
@@ -105,18 +105,9 @@ def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, gr
     order = np.argsort(-np.where(finite, scores, -np.inf), kind="stable")
     rank = np.empty(len(runs), int)
     rank[order] = np.arange(1, len(runs) + 1)
-    names_with_runs: dict[int, list[int]] = {}
-    for i, r in enumerate(runs):
-        names_with_runs.setdefault(r.landmark, []).append(i)
-    name_flags, name_wrong, flagged_landmarks = [], [], set()
-    for landmark, members in names_with_runs.items():
-        k = len(members)
-        best = np.nanmax(scores[members]) if np.isfinite(scores[members]).any() else np.nan
-        if np.isfinite(best) and best > float(chi2.isf(alpha / k, 2)):
-            name_flags.append(int(named.names[landmark]))
-            name_wrong.append(bool(wrong[members].any()))
-            flagged_landmarks.add(landmark)
-    names_holding_wrong = len({runs[i].landmark for i in np.flatnonzero(wrong)})
+    name_flagged = flagged_landmarks(runs, scores, len(named.names), alpha)      # the per-name test
+    name_holds_wrong = np.zeros(len(named.names), bool)
+    name_holds_wrong[[runs[i].landmark for i in np.flatnonzero(wrong)]] = True
     row = {"runs": len(runs), "names": len(named.names), "wrong_runs": int(wrong.sum()),
            "wrong_stretch_runs": int((bad_stretch & ~wrong).sum()),
            "threshold": threshold, "flagged": int(flagged.sum()), "hits": int((flagged & wrong).sum()),
@@ -124,10 +115,12 @@ def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, gr
            "false_alarms": int((flagged & ~wrong & ~bad_stretch).sum()),
            "first_wrong_rank": int(rank[wrong].min()) if wrong.any() else None,
            "top_score": float(scores[order[0]]) if len(runs) and finite.any() else None,
-           "names_flagged": len(name_flags), "names_flagged_wrong": int(sum(name_wrong)),
-           "names_holding_wrong": names_holding_wrong, "split_cpu_s": cpu, "top": []}
+           "names_flagged": int(name_flagged.sum()),
+           "names_flagged_wrong": int((name_flagged & name_holds_wrong).sum()),
+           "names_holding_wrong": int(name_holds_wrong.sum()), "split_cpu_s": cpu, "top": []}
     if groups:
-        row["groups"] = merge_groups(problem, solution, name_post, flagged_landmarks, named.names)
+        row["groups"] = merge_groups(problem, solution, name_post, set(np.flatnonzero(name_flagged).tolist()),
+                                     named.names)
     if top:
         t = np.concatenate([named.frame_times[:1], named.frame_times])
         true = log.true_pose(t)

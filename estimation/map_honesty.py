@@ -49,7 +49,7 @@ from .landmark_smoother import (
     solution_jacobian,
 )
 
-__all__ = ["Run", "split_scores", "sighting_runs", "sighting_times", "split_threshold"]
+__all__ = ["Run", "flagged_landmarks", "split_scores", "sighting_runs", "sighting_times", "split_threshold"]
 
 _SOLVE_COLUMNS = 256        # right-hand sides per banded solve (each column is one float per variable)
 
@@ -161,3 +161,15 @@ def split_threshold(n_tests: int, alpha: float = 0.01) -> float:
     if n_tests < 1 or not 0 < alpha < 1:
         raise ValueError(f"need n_tests ≥ 1 and 0 < α < 1, not {n_tests} and {alpha}")
     return float(chi2.isf(alpha / n_tests, 2))
+
+
+def flagged_landmarks(runs: list[Run], scores: np.ndarray, n_landmarks: int, alpha: float = 0.01) -> np.ndarray:
+    """(L,) the per-name test: the landmarks holding a run whose split score is beyond :func:`split_threshold` over
+    the landmark's own k runs (χ²₂ at 1 − α/k), the test to apply to the few names of a proposed merge (a map-wide
+    threshold, over all R runs, would hide one wrong run among hundreds)."""
+    runs_per_landmark = np.bincount([r.landmark for r in runs], minlength=n_landmarks)
+    out = np.zeros(n_landmarks, bool)
+    for run, score in zip(runs, scores, strict=True):
+        if np.isfinite(score) and score > split_threshold(int(runs_per_landmark[run.landmark]), alpha):
+            out[run.landmark] = True
+    return out

@@ -16,7 +16,14 @@ from estimation.landmark_smoother import (
     normalised_residuals,
     smooth,
 )
-from estimation.map_honesty import Run, sighting_runs, sighting_times, split_scores, split_threshold
+from estimation.map_honesty import (
+    Run,
+    flagged_landmarks,
+    sighting_runs,
+    sighting_times,
+    split_scores,
+    split_threshold,
+)
 
 SIGMA_R, SIGMA_B = 0.05, 0.02
 STEPS, LAP = 300, 120                 # 1 s a step, a 2 m circle in 120 steps: 2.5 laps
@@ -117,6 +124,24 @@ def test_a_wrong_sighting_that_ties_a_loose_stretch_to_the_map_has_the_top_split
             len(honest_runs))
     assert flagged >= 10                             # measured 11 of 12 (the 12th: score 12.9, threshold 15.5)
     assert honest_flags == 0
+
+
+def test_the_per_name_test_flags_the_wrong_name_against_its_own_runs_only():
+    problem, injected, _ = stretch_log(0, np.array([0.0, 1.2]))
+    solution = solved(problem)
+    runs = sighting_runs(problem, solution, 5.0)
+    scores = split_scores(problem, solution, runs)
+    flagged = flagged_landmarks(runs, scores, len(solution.landmarks))
+    assert flagged.shape == (len(solution.landmarks),)
+    assert flagged[problem.landmark_index[injected]]
+    for landmark in np.flatnonzero(flagged):        # each flag has a run beyond χ²₂ at 1 − α/k, k its own runs
+        own = [s for r, s in zip(runs, scores, strict=True) if r.landmark == landmark]
+        assert np.nanmax(own) > split_threshold(len(own))
+    honest, _, _ = stretch_log(0)
+    honest_solution = solved(honest)
+    honest_runs = sighting_runs(honest, honest_solution, 5.0)
+    assert not flagged_landmarks(honest_runs, split_scores(honest, honest_solution, honest_runs),
+                                 len(honest_solution.landmarks)).any()
 
 
 @settings(max_examples=8, deadline=None)
