@@ -6,7 +6,8 @@ Run from the repository root:
         [--drift 0.16 10] [--path-step 0.25] [--split-bends] [--pass-seconds 20] [--min-pairs 3] [--ratio R]
         [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
-        [--sighting-offset M] [--split-ambiguous]
+        [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
+        [--leave-out-ambiguous]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -84,6 +85,14 @@ The method (the barcodes never decide; they only score):
    is judged again without its ambiguous members (``pairwise_groups(split_ambiguous=True)``).
 6. ``--sighting-offset M`` (session 27): every smoothing (and so every joint covariance, gate and cost check) carries
    an offset per round-0 name of prior σ M per axis; from a saved state, the state is re-smoothed with it first.
+   ``--offsets-once-tight`` (session 28): the rounds run without the offsets until one keeps nothing (or the last
+   round), then the state is re-smoothed with them and that round judged again (session 27: on a loose map the
+   offsets let batches holding wrong pairings pass the cost check; they belong to the tight map's last merges).
+7. ``--leave-out-ambiguous`` (session 28): after the merges, each name whose pairwise gate holds two names that
+   cannot be one post (:func:`ambiguous_names`, the least certain first, judged again after each) is left out of
+   the map — its sightings unnamed, the rest re-smoothed — instead of standing as a second name of one post; then
+   the pairwise rounds again (a name the glimpse kept apart from its twin may merge). Scored by the barcodes (was it
+   a duplicate, did a post lose its only name).
 
 ``--state-dir DIR`` keeps each robot's state (names and the smoother's solution, ``.npz``) after the chain
 (``round0``), every kept round (``round<k>``) and pairwise round (``pairwise<k>``); ``--from-round K`` starts there.
@@ -139,6 +148,7 @@ from estimation.constellation import (  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.geometry import between  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     HeadingDrift,
     SightingOffset,
@@ -512,17 +522,19 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     names = chained.names
     drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
     path_step_s = _path_step(args)
-    _OFFSET.update(option=SightingOffset(args.sighting_offset) if args.sighting_offset > 0 else None, names=None)
+    offsets_now = args.sighting_offset > 0 and not args.offsets_once_tight      # else from when the map is tight
+    _OFFSET.update(option=SightingOffset(args.sighting_offset) if offsets_now else None, names=None)
     if args.from_round is not None:
         current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
                                    config, drift, path_step_s)
-        if _OFFSET["option"] is not None:     # the groups: the names after the chain (round 0); re-smoothed with them
+        if args.sighting_offset > 0:     # the groups: the names after the chain (round 0)
             first = state_path(args.state_dir, log, args.seed, "round0")
             if not first.exists():
                 raise SystemExit(f"--sighting-offset from round {args.from_round} needs {first} (its names are the "
                                  f"offsets' groups)")
             with np.load(first, allow_pickle=False) as data:
                 _OFFSET["names"] = data["names"]
+        if offsets_now:
             current = _with_offsets(log, current, noise, config, drift, path_step_s)
             if args.progress:
                 _print_scores(f"{log.name} round {args.from_round} re-smoothed with sighting offsets "
@@ -569,8 +581,9 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     meta = _state_meta(log, args, drift, 0)
     if args.state_dir:
         save_state(state_path(args.state_dir, log, args.seed, "round0"), current, meta)
-    if _OFFSET["option"] is not None:       # the groups: the names after the chain (and the splits)
+    if args.sighting_offset > 0:       # the groups: the names after the chain (and the splits)
         _OFFSET["names"] = current.names.copy()
+    if offsets_now:
         current = _with_offsets(log, current, noise, config, drift, path_step_s)
     return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
 
@@ -587,9 +600,10 @@ def _with_offsets(log: RangeBearingLog, current: MergeRound, noise, config, drif
 def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: MergeRound, meta: dict, noise, config,
                 drift, args) -> dict:
     """Rounds from the state ``current`` (made by ``meta["round"]`` rounds) up to round ``args.max_rounds``, each
-    kept state saved in ``args.state_dir``; the final scores in ``row``."""
+    kept state saved in ``args.state_dir``; with ``--offsets-once-tight``, the sighting offsets enter when a round
+    keeps nothing (or after the last round) and that round is judged again with them; then pairwise and
+    ``--leave-out-ambiguous``; the final scores in ``row``."""
     barcodes = log.landmark_ids
-    path_step_s = _path_step(args)
     row.setdefault("rounds", [])
     start = int(meta["round"])
     if start or "first_smoothing" not in row:       # from a saved state (round 0 included)
@@ -597,54 +611,30 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         row["first_smoothing"] = round_scores(log, current, majority(current.names, barcodes))
         if args.progress:
             _print_scores(f"{log.name} state after round {start}", row["first_smoothing"], file=sys.stderr)
-    for k in range(start, args.max_rounds):
-        started = time.process_time()
-        covariance = joint_landmark_covariance(current.named.problem, current.solution)
-        passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
-        covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
-        verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
-                                ratio=args.ratio if args.ratio is not None else np.inf)
-        owner = majority(current.names, barcodes)
-        judged = score_verdicts(verdicts, current.named, owner)
-        judged["judge_cpu_s"] = time.process_time() - started
-        clusters, used = merges_from(verdicts, covisible)
-        record = {"round": k + 1, "judged": judged, "passes_used": len(used)}
-        if args.progress:
-            _print_judged(k + 1, judged, file=sys.stderr)
-        if used:          # the guard's verdict is recorded on every round, and acted on with --guard
-            record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
-            if not (args.guard and record["guard"]["set_aside"]):
-                guarded = None
-            if args.progress:
-                _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
-        else:
-            guarded = None
-        if not clusters:
-            row["rounds"].append(record)
-            break
-        reguess = None
-        if args.reguess:
-            def reguess(merged_names):
-                return _guess(log, merged_names, noise, config, args, cache=False)
-        state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
-                                        None if guarded is None else name_pairs(guarded, current.named), noise,
-                                        config, drift,
-                                        depth=args.bisect, reguess=reguess, path_step_s=path_step_s)
-        record["batch"] = _round(log, attempts[0], owner)
-        record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
-        record["cpu_s"] = time.process_time() - started
-        row["rounds"].append(record)
-        if args.progress:
-            for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
-                _print_scores(f"  round {k + 1} {key}", scores, file=sys.stderr)
-        if state is current:
-            break
-        current = state
-        if args.state_dir:
-            save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), current,
-                       _state_meta(log, args, drift, k + 1, _round(log, current, owner)))
+    pending = args.offsets_once_tight and _OFFSET["option"] is None and args.sighting_offset > 0
+    k = start
+    while k < args.max_rounds:
+        state = _one_round(log, row, current, k, noise, config, drift, args)
+        if state is None:
+            if not pending:
+                break
+            current, pending = _enter_offsets(log, row, current, k, noise, config, drift, args), False
+            continue                # the round that kept nothing, judged again with the offsets
+        current, k = state, k + 1
+    if pending:
+        current = _enter_offsets(log, row, current, k, noise, config, drift, args)
     if args.pairwise:
         current = _pairwise_rounds(log, row, current, noise, config, drift, args)
+    if args.leave_out_ambiguous:
+        current, row["left_out"] = leave_out_ambiguous(log, current, noise, config, drift, args)
+        if args.progress:
+            print(f"  left out as ambiguous: {row['left_out']['names'] or 'none'}; posts lost "
+                  f"{row['left_out']['posts_lost']}", file=sys.stderr, flush=True)
+        if args.state_dir and row["left_out"]["names"]:
+            save_state(state_path(args.state_dir, log, args.seed, "leftout"), current,
+                       _state_meta(log, args, drift, -1, _round(log, current, majority(names, barcodes))))
+        if args.pairwise and row["left_out"]["names"]:      # names the glimpses kept apart may merge now
+            current = _pairwise_rounds(log, row, current, noise, config, drift, args)
     final = round_scores(log, current, majority(names, barcodes))
     kept = [a for r in row["rounds"] + row.get("pairwise", []) for a in [r.get("batch")] + r.get("tries", [])
             if a and a["accepted"]]
@@ -653,6 +643,137 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     final["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
     row["final"] = final
     return row
+
+
+def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noise, config, drift, args
+               ) -> MergeRound | None:
+    """Round k + 1 on ``current`` (module docstring, steps 2-4), recorded in ``row["rounds"]`` and its kept state
+    saved; the new state, or None when the round keeps nothing."""
+    barcodes = log.landmark_ids
+    started = time.process_time()
+    covariance = joint_landmark_covariance(current.named.problem, current.solution)
+    passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
+    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
+    verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
+                            ratio=args.ratio if args.ratio is not None else np.inf)
+    owner = majority(current.names, barcodes)
+    judged = score_verdicts(verdicts, current.named, owner)
+    judged["judge_cpu_s"] = time.process_time() - started
+    clusters, used = merges_from(verdicts, covisible)
+    record = {"round": k + 1, "judged": judged, "passes_used": len(used),
+              "sighting_offsets": _OFFSET["option"] is not None}
+    row["rounds"].append(record)
+    if args.progress:
+        _print_judged(k + 1, judged, file=sys.stderr)
+    guarded = None
+    if used:          # the guard's verdict is recorded on every round, and acted on with --guard
+        record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
+        if not (args.guard and record["guard"]["set_aside"]):
+            guarded = None
+        if args.progress:
+            _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
+    if not clusters:
+        return None
+    reguess = None
+    if args.reguess:
+        def reguess(merged_names):
+            return _guess(log, merged_names, noise, config, args, cache=False)
+    state = _merge_recorded(log, current, used, guarded, record, f"round {k + 1}", owner, started, noise, config,
+                            drift, args, reguess=reguess)
+    if state is current:
+        return None
+    if args.state_dir:
+        save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), state,
+                   _state_meta(log, args, drift, k + 1, _round(log, state, owner)))
+    return state
+
+
+def _merge_recorded(log: RangeBearingLog, current: MergeRound, used: list[PassVerdict], guarded, record: dict,
+                    label: str, owner: dict[int, int], started: float, noise, config, drift, args, *, reguess=None,
+                    kept_covisible: bool = False) -> MergeRound:
+    """A round's merges (:func:`merge_guarded`, the guard's kept groups ``guarded`` or None), each attempt scored
+    into ``record``; the state kept (``current`` when none was)."""
+    state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
+                                    None if guarded is None else name_pairs(guarded, current.named), noise, config,
+                                    drift, depth=args.bisect, reguess=reguess, path_step_s=_path_step(args),
+                                    kept_covisible=kept_covisible)
+    record["batch"] = _round(log, attempts[0], owner)
+    record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
+    record["cpu_s"] = time.process_time() - started
+    if args.progress:
+        for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
+            _print_scores(f"  {label} {key}", scores, file=sys.stderr)
+    return state
+
+
+def _enter_offsets(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noise, config, drift, args
+                   ) -> MergeRound:
+    """``--offsets-once-tight``: the sighting offsets switched on after round k (the rounds without them stopped, or
+    ran out) and ``current`` re-smoothed with them. Session 27 (A): from round 0, on a loose map, a 3 cm offset per
+    name lets batches holding wrong pairings pass the cost check; it belongs to the tight map's last merges."""
+    _OFFSET["option"] = SightingOffset(args.sighting_offset)
+    current = _with_offsets(log, current, noise, config, drift, _path_step(args))
+    scores = round_scores(log, current, majority(current.names, log.landmark_ids))
+    row["offsets_entered"] = {"after_round": k, "scores": scores}
+    if args.progress:
+        _print_scores(f"{log.name} after round {k}, re-smoothed with sighting offsets σ {args.sighting_offset:g} m",
+                      scores, file=sys.stderr)
+    return current
+
+
+def ambiguous_names(current: MergeRound, args) -> list[int]:
+    """The names to leave out so that no name is ambiguous under the pairwise judgement
+    (:func:`estimation.constellation.pairwise_groups` with ``split_ambiguous``: a name whose χ²₂ 99 % gate holds two
+    names that cannot be one post), the least certain first: while any name is ambiguous, the ambiguous name of
+    largest position covariance (determinant) goes and the rest are judged again. A well-seen name is ambiguous only
+    through the glimpses around it (a difference's covariance is the sum of both names'); once the glimpses go, it
+    is not (session 28, robot 1 seed 0: a 519-sighting name, ambiguous beside a 10-sighting glimpse)."""
+    problem, solution = current.named.problem, current.solution
+    n = len(current.named.names)
+    covariance = joint_landmark_covariance(problem, solution)
+    if args.name_floor > 0:
+        covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
+    covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
+    points = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1)).tolist()
+    blocks = covariance.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n), :]
+    spread = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] * blocks[:, 1, 0]
+    left = []
+    while True:
+        groups = pairwise_groups(solution.landmarks, covariance, points, allowed=~covisible, split_ambiguous=True)
+        ambiguous = [g.members[0] for g in groups if g.status == "ambiguous"]
+        if not ambiguous:
+            return sorted(int(current.named.names[i]) for i in left)
+        worst = max(ambiguous, key=lambda i: spread[i])
+        left.append(worst)
+        points.remove(worst)
+
+
+def leave_out_ambiguous(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
+                        ) -> tuple[MergeRound, dict]:
+    """``--leave-out-ambiguous``: after the merges, each name that could be either of two posts
+    (:func:`ambiguous_names`) is left out of the map — its sightings unnamed, the rest re-smoothed — rather than
+    kept as a second name of one of them. Returns the new state (``current`` itself when nothing is left out) and
+    what was left out, scored by the barcodes: each name's sightings and post, whether it was a duplicate (its post
+    has another name), and the posts that lost their only name."""
+    left = ambiguous_names(current, args)
+    owner = majority(current.names, log.landmark_ids)
+    record = {"names": [{"name": x, "sightings": int(np.sum(current.names == x)), "post": owner[x],
+                         "duplicate": any(owner[y] == owner[x] for y in owner if y != x)} for x in left],
+              "posts_lost": sorted({owner[x] for x in left} - {owner[x] for x in owner if x not in left})}
+    if not left:
+        return current, record
+    names = current.names.copy()
+    names[np.isin(names, left)] = -1
+    # the frames left are a subset of the old ones (a frame that saw only the left-out names goes); the guess is
+    # the old solution at them, in the frame of the new first pose (the old one if its frame stays)
+    times = np.unique(log.sighting_times[names >= 0])
+    at = current.solution.poses[1 + np.searchsorted(current.named.frame_times, np.r_[times[:1], times])]
+    start = at[0]
+    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
+               for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) not in left}
+    named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,
+                                    heading_drift=drift, path_step_s=_path_step(args))
+    return MergeRound([], 0.0, 0.0, True, names, named, solution), record
 
 
 STATE_ARRAYS = ("poses", "landmarks", "landmark_covariances", "covariance_poses", "pose_covariances", "inliers")
@@ -704,7 +825,7 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
 def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
     return {"robot": log.name, "seed": args.seed, "drift": [drift.sigma_per_m, drift.tau_s] if drift else None,
             "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},
-            "sighting_offset_m": args.sighting_offset}
+            "sighting_offset_m": _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0}
 
 
 def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
@@ -785,10 +906,10 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
     """The last merges on a tight map (:func:`estimation.constellation.pairwise_groups`): every group of names
     that can be one post and nothing else, merged (with ``--guard``, the groups' leave-one-out shares tested
     first), checked by the cost rise and bisected as the passes are; repeated until nothing merges or
-    ``--pairwise`` rounds. Each round's record in ``row["pairwise"]``."""
+    ``--pairwise`` rounds. Each round's record in ``row["pairwise"]``, numbered on from the rounds already there."""
     barcodes = log.landmark_ids
-    row["pairwise"] = []
-    for k in range(args.pairwise):
+    done = len(row.setdefault("pairwise", []))
+    for k in range(done, done + args.pairwise):
         started = time.process_time()
         problem, solution = current.named.problem, current.solution
         n = len(current.named.names)
@@ -832,17 +953,8 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         row["pairwise"].append(record)
         if not used:
             break
-        state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
-                                        None if guarded is None else name_pairs(guarded, current.named), noise,
-                                        config, drift,
-                                        depth=args.bisect, path_step_s=_path_step(args),
-                                        kept_covisible=args.kept_covisible)
-        record["batch"] = _round(log, attempts[0], owner)
-        record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
-        record["cpu_s"] = time.process_time() - started
-        if args.progress:
-            for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
-                _print_scores(f"  pairwise {k + 1} {key}", scores, file=sys.stderr)
+        state = _merge_recorded(log, current, used, guarded, record, f"pairwise {k + 1}", owner, started, noise,
+                                config, drift, args, kept_covisible=args.kept_covisible)
         if state is current:
             break
         current = state
@@ -954,6 +1066,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sighting-offset", type=non_negative_float, default=0.0, metavar="M",
                         help="the smoother's offset per chained name, σ in m (0: off; the groups are the names after "
                              "the chain, round 0)")
+    parser.add_argument("--offsets-once-tight", action="store_true",
+                        help="with --sighting-offset: the rounds run without the offsets until one keeps nothing (the "
+                             "map is tight), then go on with them (session 27: on a loose map they let wrong "
+                             "pairings through)")
+    parser.add_argument("--leave-out-ambiguous", action="store_true",
+                        help="after the merges, leave out of the map each name whose gate holds two names that cannot "
+                             "be one post (its sightings unnamed), rather than keep it as a second name of one")
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
@@ -976,6 +1095,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.honest_names is not None and not 0 < args.honest_names < 1:
         parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
+    if args.offsets_once_tight and not args.sighting_offset > 0:
+        parser.error("--offsets-once-tight needs --sighting-offset M")
     if args.from_round is not None and not args.state_dir:
         parser.error("--from-round needs --state-dir")
     if not os.path.isdir(args.data):
@@ -1034,6 +1155,13 @@ def _print(row: dict) -> None:
         for key, scores in [("batch", r.get("batch"))] + [("try", t) for t in r.get("tries", [])]:
             if scores:
                 _print_scores(f"    {key}", scores)
+    if "offsets_entered" in row:
+        _print_scores(f"  sighting offsets entered after round {row['offsets_entered']['after_round']}",
+                      row["offsets_entered"]["scores"])
+    if "left_out" in row:
+        left = row["left_out"]
+        which = ", ".join(f"{x['name']}: {x['sightings']} sightings" for x in left["names"]) or "-"
+        print(f"  left out as ambiguous: {len(left['names'])} names ({which}); posts lost {len(left['posts_lost'])}")
     f = row["final"]
     print(f"  final: {f['merges']} merges ({f['wrong_merges']} wrong), names {f['names']} "
           f"({f['names_per_post']:.1f} per post, duplicates {100 * f['duplicate_fraction']:.0f} %), ATE "
