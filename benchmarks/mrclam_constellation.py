@@ -43,6 +43,13 @@ seed 0 25 → 20 names (duplicates 38 → 25 %), robot 1 seed 0 20 → 17 names,
 6 %, one 5-sighting glimpse left), ATE within 1.1× known-ID (robot 1 0.067 m against 0.286 m); robot 3 seed 0 still
 makes session 26's wrong pairwise merge (its map, not the offsets).
 
+Session 28 (lead; docs: "Session 28: the whole chain as one command ... (lead)"): ``--max-rounds 9 --guard
+--sighting-offset 0.03 --offsets-once-tight --pairwise 6 --kept-covisible --split-ambiguous --honest-names 0.01
+--leave-out-ambiguous --leave-out-unconfirmed``: robots 1, 3, 5 seed 0 and 2 seed 2 at 15 names for 15 posts
+(duplicates 0 %), ATE 0.064 / 0.137 / 0.033 / 0.033 m, landmark NEES within 100 %, 0 wrong merges, no post lost;
+robot 5 seed 2 the same but ATE 0.070 m (2.3x known-ID); robots 2 s0, 3 s2, 1 s2, 4 s0, 4 s2 keep the wrong merges of
+their first rounds (``--min-pairs 4`` removes robot 4's and adds 3 on robots 1 and 2 seed 0).
+
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
 the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pairwise gate. A pass past the posts sees
@@ -664,9 +671,13 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
     owner = majority(current.names, barcodes)
     judged = score_verdicts(verdicts, current.named, owner)
     judged["judge_cpu_s"] = time.process_time() - started
+    record = {"round": k + 1, "judged": judged, "sighting_offsets": _OFFSET["option"] is not None}
+    if args.honest_rounds:
+        verdicts, record["honest_names"] = _without_flagged(current, verdicts, owner, args.honest_names)
+        if args.progress:
+            print(f"  round {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
     clusters, used = merges_from(verdicts, covisible)
-    record = {"round": k + 1, "judged": judged, "passes_used": len(used),
-              "sighting_offsets": _OFFSET["option"] is not None}
+    record["passes_used"] = len(used)
     row["rounds"].append(record)
     if args.progress:
         _print_judged(k + 1, judged, file=sys.stderr)
@@ -691,6 +702,22 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
         save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), state,
                    _state_meta(log, args, drift, k + 1, _round(log, state, owner)))
     return state
+
+
+def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float
+                     ) -> tuple[list[PassVerdict], dict]:
+    """``--honest-rounds``: the round's matched passes without their pairings of a name the split-score screen flags
+    (:func:`flagged_names`: a run of its sightings the rest of the map bends to fit), as ``--honest-names`` does to
+    the pairwise groups; a pass left without pairings merges nothing. Session 27 (B) measured it refusing robot 2 seed
+    0's round-2 and robot 3 seed 2's round-1 wrong merges. Also returns what it held back (scored by the barcodes)."""
+    flagged = flagged_names(current.named.problem, current.solution, alpha)
+    code = np.array([owner.get(int(x), -1) for x in current.named.names])
+    held = [(a, b) for v in verdicts if v.status == "matched" for a, b in v.pairs if flagged[a] or flagged[b]]
+    kept = [dataclasses.replace(v, pairs=[(a, b) for a, b in v.pairs if not (flagged[a] or flagged[b])])
+            if v.status == "matched" else v for v in verdicts]
+    kept = [v for v in kept if v.status != "matched" or v.pairs]
+    return kept, {"flagged": int(flagged.sum()), "pairings_held": len(held),
+                  "wrong_held": int(sum(code[a] != code[b] for a, b in held))}
 
 
 def _report_left_out(log: RangeBearingLog, current: MergeRound, record: dict, why: str, drift, args) -> None:
@@ -1137,6 +1164,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--honest-names", type=positive_float, default=None, metavar="ALPHA",
                         help="pairwise: set aside every group with a member holding a run whose split score is beyond "
                              "chi2_2 at 1 - ALPHA/k (estimation.map_honesty; helper B's screen)")
+    parser.add_argument("--honest-rounds", action="store_true",
+                        help="with --honest-names: the same screen in the rounds (a matched pass's pairings of a "
+                             "flagged name are not merged)")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")
@@ -1153,6 +1183,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.honest_names is not None and not 0 < args.honest_names < 1:
         parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
+    if args.honest_rounds and args.honest_names is None:
+        parser.error("--honest-rounds needs --honest-names ALPHA")
     if args.offsets_once_tight and not args.sighting_offset > 0:
         parser.error("--offsets-once-tight needs --sighting-offset M")
     if args.from_round is not None and not args.state_dir:

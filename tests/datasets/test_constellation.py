@@ -313,19 +313,9 @@ def test_the_guard_sets_aside_one_wrong_pass_among_many_right_ones(seed, n_right
 def test_a_saved_state_reloads_to_the_same_solution_and_refuses_other_settings(tmp_path):
     from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import load_state, save_state, state_path
-    from estimation.datasets import read_mrclam
-    from estimation.fastslam import range_bearing_config
-    from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.landmark_smoother import joint_landmark_covariance
 
-    from .conftest import MRCLAM2
-
-    if not MRCLAM2.is_dir():
-        pytest.skip("MRCLAM data set 2 is not in ../shared/data")
-    log = read_mrclam(MRCLAM2, 2, until=120.0)
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    config = range_bearing_config(n_particles=10)
-    drift = HeadingDrift(0.16, 10.0)
+    log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
     named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
     path = state_path(tmp_path, log, 0, "round3")
@@ -454,19 +444,7 @@ def test_a_glimpse_that_could_be_either_of_two_posts_is_left_out_and_a_post_that
 
     from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import ambiguous_names, leave_out
-    from estimation.datasets import read_mrclam
-    from estimation.fastslam import range_bearing_config
-    from estimation.landmark_smoother import HeadingDrift
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
-
-    from .conftest import MRCLAM2
-
-    if not MRCLAM2.is_dir():
-        pytest.skip("MRCLAM data set 2 is not in ../shared/data")
-    log = read_mrclam(MRCLAM2, 2, until=120.0)
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    config = range_bearing_config(n_particles=10)
-    drift = HeadingDrift(0.16, 10.0)
+    log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
     glimpse = np.flatnonzero(names == 19)[:3]
     names[glimpse] = 999
@@ -501,19 +479,7 @@ def test_a_name_the_sensor_saw_only_a_few_times_where_another_name_stood_is_left
 
     from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import leave_out, unconfirmed_names
-    from estimation.datasets import read_mrclam
-    from estimation.fastslam import range_bearing_config
-    from estimation.landmark_smoother import HeadingDrift
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
-
-    from .conftest import MRCLAM2
-
-    if not MRCLAM2.is_dir():
-        pytest.skip("MRCLAM data set 2 is not in ../shared/data")
-    log = read_mrclam(MRCLAM2, 2, until=300.0)
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    config = range_bearing_config(n_particles=10)
-    drift = HeadingDrift(0.16, 10.0)
+    log, noise, config, drift = _robot2(until=300.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
     moved = np.flatnonzero(names == 18)[10:15]
     names[moved] = 999
@@ -530,3 +496,48 @@ def test_a_name_the_sensor_saw_only_a_few_times_where_another_name_stood_is_left
     left, record = leave_out(log, state, [999], noise, config, drift, options)
     assert record["names"] == [{"name": 999, "sightings": 5, "post": 18, "duplicate": True}]
     np.testing.assert_array_equal(left.names[moved], -1)
+
+
+def test_honest_rounds_hold_back_a_pass_s_pairings_of_a_name_holding_another_post_s_run():
+    """MRCLAM robot 2's first 120 s with the barcodes as names and post 19's last three sightings under post 20's
+    name (a chain error): the split-score screen flags name 20 alone, and the rounds' screen removes every matched
+    pass's pairing of it, keeps the rest, and drops a pass left with none; on the honest names nothing changes."""
+    from benchmarks.mrclam_chained_names import MergeRound, majority, smooth_named
+    from benchmarks.mrclam_constellation import PassVerdict, _without_flagged
+    log, noise, config, drift = _robot2(until=120.0)
+    honest = np.asarray(log.landmark_ids, np.int64)
+    names = honest.copy()
+    names[np.flatnonzero(honest == 19)[-3:]] = 20
+
+    def state(names):
+        named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
+        return MergeRound([], 0.0, 0.0, True, names, named, solution)
+
+    wrong = state(names)
+    at = {int(x): i for i, x in enumerate(wrong.named.names)}
+    verdicts = [PassVerdict(0, "matched", [(at[20], at[7]), (at[6], at[8])], (2, 0.0), 1, True),
+                PassVerdict(1, "matched", [(at[20], at[9])], (1, 0.0), 1, True),
+                PassVerdict(2, "ambiguous")]
+    kept, record = _without_flagged(wrong, verdicts, majority(names, log.landmark_ids), 0.01)
+    assert record == {"flagged": 1, "pairings_held": 2, "wrong_held": 2}
+    assert [(v.index, v.status, v.pairs) for v in kept] == [(0, "matched", [(at[6], at[8])]), (2, "ambiguous", [])]
+    clean = state(honest)
+    same, record = _without_flagged(clean, verdicts, majority(honest, log.landmark_ids), 0.01)
+    assert record["flagged"] == 0 and same == verdicts
+
+
+def _robot2(until: float):
+    """MRCLAM robot 2's first ``until`` s, its calibrated noise model, a 10-particle range-bearing configuration and
+    the smoother's heading drift; the test is skipped when the data set is absent."""
+    from estimation.datasets import read_mrclam
+    from estimation.fastslam import range_bearing_config
+    from estimation.landmark_smoother import HeadingDrift
+    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+
+    from .conftest import MRCLAM2
+
+    if not MRCLAM2.is_dir():
+        pytest.skip("MRCLAM data set 2 is not in ../shared/data")
+    log = read_mrclam(MRCLAM2, 2, until=until)
+    return log, estimate_noise([log], **DATASET_CALIBRATIONS).model, range_bearing_config(n_particles=10), \
+        HeadingDrift(0.16, 10.0)
