@@ -48,7 +48,9 @@ Session 28 (lead; docs: "Session 28: the whole chain as one command ... (lead)")
 --leave-out-ambiguous --leave-out-unconfirmed``: robots 1, 3, 5 seed 0 and 2 seed 2 at 15 names for 15 posts
 (duplicates 0 %), ATE 0.064 / 0.137 / 0.033 / 0.033 m, landmark NEES within 100 %, 0 wrong merges, no post lost;
 robot 5 seed 2 the same but ATE 0.070 m (2.3x known-ID); robots 2 s0, 3 s2, 1 s2, 4 s0, 4 s2 keep the wrong merges of
-their first rounds (``--min-pairs 4`` removes robot 4's and adds 3 on robots 1 and 2 seed 0).
+their first rounds (``--min-pairs 4`` removes robot 4's and adds 3 on robots 1 and 2 seed 0). With ``--honest-rounds``
+also robot 3 seed 2 (15 names, 0.129 m, 0 wrong): five robot-seeds; robot 2 seed 0 then makes 2 wrong pairwise
+merges on its overconfident wiggle stretch, robot 4 seed 0 keeps its 15.
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
