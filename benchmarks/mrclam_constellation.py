@@ -772,13 +772,10 @@ def ambiguous_names(current: MergeRound, args) -> list[int]:
     largest position covariance (determinant) goes and the rest are judged again. A well-seen name is ambiguous only
     through the glimpses around it (a difference's covariance is the sum of both names'); once the glimpses go, it
     is not (session 28, robot 1 seed 0: a 519-sighting name, ambiguous beside a 10-sighting glimpse)."""
-    problem, solution = current.named.problem, current.solution
+    solution = current.solution
     n = len(current.named.names)
-    covariance = joint_landmark_covariance(problem, solution)
-    if args.name_floor > 0:
-        covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
-    covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
-    points = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1)).tolist()
+    covariance, covisible, seen = _pairwise_inputs(current, args)
+    points = seen.tolist()
     blocks = covariance.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n), :]
     spread = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] * blocks[:, 1, 0]
     left = []
@@ -984,6 +981,20 @@ def _print_guard(label: str, g: dict, file=None) -> None:
           file=file, flush=True)
 
 
+def _pairwise_inputs(current: MergeRound, args) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the pairwise judgement of ``current`` works on: the names' joint covariance (with ``--name-floor``'s
+    own offset per name), which names were sighted in one frame (``--kept-covisible``: by kept sightings only), and
+    the indices of the names with a finite covariance."""
+    problem, solution = current.named.problem, current.solution
+    n = len(current.named.names)
+    covariance = joint_landmark_covariance(problem, solution)
+    if args.name_floor > 0:      # each name's own unmodelled offset, independent of the others'
+        covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
+    covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
+    seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+    return covariance, covisible, seen
+
+
 def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
                      ) -> MergeRound:
     """The last merges on a tight map (:func:`estimation.constellation.pairwise_groups`): every group of names
@@ -995,12 +1006,7 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
     for k in range(done, done + args.pairwise):
         started = time.process_time()
         problem, solution = current.named.problem, current.solution
-        n = len(current.named.names)
-        covariance = joint_landmark_covariance(problem, solution)
-        if args.name_floor > 0:      # each name's own unmodelled offset, independent of the others'
-            covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
-        covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
-        seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+        covariance, covisible, seen = _pairwise_inputs(current, args)
         groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible,
                                  split_ambiguous=args.split_ambiguous)
         owner = majority(current.names, barcodes)
