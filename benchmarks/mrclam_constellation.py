@@ -902,6 +902,15 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
     return MergeRound([], 0.0, 0.0, True, names, named, solution), meta
 
 
+def load_saved_state(path, log: RangeBearingLog, noise, config) -> tuple[MergeRound, dict]:
+    """:func:`load_state` with the drift and path step the state was made with (read from its own meta): for tools
+    that examine saved states rather than continue a run."""
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
+    return load_state(path, log, noise, config, drift, meta.get("path_step_s"))
+
+
 def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
     return {"robot": log.name, "seed": args.seed, "drift": [drift.sigma_per_m, drift.tau_s] if drift else None,
             "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},

@@ -47,13 +47,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import _covisible, majority  # noqa: E402
-from benchmarks.mrclam_constellation import load_state  # noqa: E402
+from benchmarks.mrclam_constellation import load_saved_state  # noqa: E402
 from estimation import chi2  # noqa: E402
 from estimation.constellation import pairwise_groups  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose, wrap_angle  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance  # noqa: E402
+from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
 from estimation.map_honesty import flagged_landmarks, sighting_runs, split_scores, split_threshold  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
@@ -81,10 +81,7 @@ def states(directory, robots: list[int], seeds: list[int], tags: list[str] | Non
 
 def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, groups: bool = False,
               floor_m: float = 0.0) -> dict:
-    with np.load(path, allow_pickle=False) as data:
-        meta = json.loads(str(data["meta"]))
-    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
-    current, _ = load_state(path, log, noise, config, drift, meta.get("path_step_s"))
+    current, _ = load_saved_state(path, log, noise, config)
     named, solution = current.named, current.solution
     problem = named.problem
     started = time.process_time()

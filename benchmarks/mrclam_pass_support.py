@@ -53,14 +53,14 @@ from benchmarks.mrclam_constellation import (  # noqa: E402
     PassVerdict,
     guard_record,
     judge_passes,
-    load_state,
+    load_saved_state,
     merges_from,
     passes_of,
 )
 from benchmarks.mrclam_honesty import states  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance  # noqa: E402
+from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import positive_float, positive_int  # noqa: E402
 
@@ -236,10 +236,7 @@ def without_groups(verdicts: list[PassVerdict], groups) -> list[PassVerdict]:
 def judge_state(log, noise, config, path, args) -> dict:
     """The next round of a saved state judged as ``mrclam_constellation`` does, each merge group with its support,
     the guard's share, its looseness and (scoring) whether it joins two posts and which of its passes' pairings do."""
-    with np.load(path, allow_pickle=False) as data:
-        meta = json.loads(str(data["meta"]))
-    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
-    current, _ = load_state(path, log, noise, config, drift, meta.get("path_step_s"))
+    current, _ = load_saved_state(path, log, noise, config)
     started = time.process_time()
     named, solution = current.named, current.solution
     n = len(named.names)
