@@ -706,6 +706,14 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
     return state
 
 
+def without_pairings(verdicts: list[PassVerdict], drop) -> list[PassVerdict]:
+    """``verdicts`` with the matched passes' pairings (a, b) for which ``drop(a, b)`` holds removed; a matched pass
+    left without pairings goes (it would merge nothing), the other verdicts stay as they are."""
+    kept = [dataclasses.replace(v, pairs=[(a, b) for a, b in v.pairs if not drop(a, b)]) if v.status == "matched"
+            else v for v in verdicts]
+    return [v for v in kept if v.status != "matched" or v.pairs]
+
+
 def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float
                      ) -> tuple[list[PassVerdict], dict]:
     """``--honest-rounds``: the round's matched passes without their pairings of a name the split-score screen flags
@@ -715,9 +723,7 @@ def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: di
     flagged = flagged_names(current.named.problem, current.solution, alpha)
     code = np.array([owner.get(int(x), -1) for x in current.named.names])
     held = [(a, b) for v in verdicts if v.status == "matched" for a, b in v.pairs if flagged[a] or flagged[b]]
-    kept = [dataclasses.replace(v, pairs=[(a, b) for a, b in v.pairs if not (flagged[a] or flagged[b])])
-            if v.status == "matched" else v for v in verdicts]
-    kept = [v for v in kept if v.status != "matched" or v.pairs]
+    kept = without_pairings(verdicts, lambda a, b: flagged[a] or flagged[b])
     return kept, {"flagged": int(flagged.sum()), "pairings_held": len(held),
                   "wrong_held": int(sum(code[a] != code[b] for a, b in held))}
 

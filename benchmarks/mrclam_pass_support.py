@@ -56,6 +56,7 @@ from benchmarks.mrclam_constellation import (  # noqa: E402
     load_saved_state,
     merges_from,
     passes_of,
+    without_pairings,
 )
 from benchmarks.mrclam_honesty import states  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
@@ -222,15 +223,10 @@ def hold_back(verdicts: list[PassVerdict], groups, *, rule: str = "one visit", v
 
 
 def without_groups(verdicts: list[PassVerdict], groups) -> list[PassVerdict]:
-    """``verdicts`` with every pairing that joins two names of one of ``groups`` removed; a verdict left with no
-    pairing is dropped."""
+    """The matched ``verdicts`` (``merges_from``'s used passes) with every pairing that joins two names of one of
+    ``groups`` removed; a pass left with no pairing is dropped."""
     held = [group_members(g) for g in groups]
-    out = []
-    for v in verdicts:
-        pairs = [(a, b) for a, b in v.pairs if not any(a in m and b in m for m in held)]
-        if pairs:
-            out.append(PassVerdict(v.index, v.status, pairs, v.strength, v.matched_earlier, v.unique))
-    return out
+    return without_pairings(verdicts, lambda a, b: any(a in m and b in m for m in held))
 
 
 def judge_state(log, noise, config, path, args) -> dict:
