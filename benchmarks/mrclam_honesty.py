@@ -181,13 +181,18 @@ def merge_groups(problem, solution, name_post: np.ndarray, flagged: set[int], na
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def add_state_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that say which saved states a tool reads: the data set, the state folder, robots and seeds."""
     parser.add_argument("--data", default=str(DATA))
     parser.add_argument("--state-dir", metavar="DIR", required=True,
                         help="the saved states (benchmarks.mrclam_constellation --state-dir)")
     parser.add_argument("--robots", default="1,2,3,4,5")
     parser.add_argument("--seeds", default="0,2")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    add_state_arguments(parser)
     parser.add_argument("--tags", default=None, help="only these states, e.g. round4,pairwise1 (default: all)")
     parser.add_argument("--gap", type=non_negative_float, default=5.0, metavar="S",
                         help="a landmark's sightings more than S s apart start a new run")

@@ -47,7 +47,6 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
-from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import _covisible, majority  # noqa: E402
 from benchmarks.mrclam_constellation import (  # noqa: E402
     PassVerdict,
@@ -58,7 +57,7 @@ from benchmarks.mrclam_constellation import (  # noqa: E402
     passes_of,
     without_pairings,
 )
-from benchmarks.mrclam_honesty import states  # noqa: E402
+from benchmarks.mrclam_honesty import add_state_arguments, states  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
@@ -345,11 +344,7 @@ def tally(rows: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--data", default=str(DATA))
-    parser.add_argument("--state-dir", metavar="DIR", required=True,
-                        help="the saved states (benchmarks.mrclam_constellation --state-dir)")
-    parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--seeds", default="0,2")
+    add_state_arguments(parser)
     parser.add_argument("--rounds", default="0,1",
                         help="judge the round after each of these saved rounds (0: the chain, the loosest map)")
     parser.add_argument("--pass-seconds", type=positive_float, default=20.0, metavar="S", help="a pass's span, s")
