@@ -30,6 +30,14 @@ rad off at σ 0.19 over 38 s, and the stretch is sighted only by names of its ow
 name that holds a wrong run (name 80's two sightings of post 19, the name round 2 then merged into post 19), but
 taking those sightings out does not right the stretch: no data contradict its odometry.
 
+Session 29 (D): names that hold two posts *interleaved in time* (a chained name whose window filter took two posts
+0.7–1.9 m apart for one) are one run, and invisible sighting by sighting under MRCLAM robot 1's bearing σ of 0.10 rad
+(the calibrated 0.030 rad inflated ×3.3 for the sightings' lag-1 correlation 0.84). Two barcode-free signs of them:
+a name sighted twice in one frame (:func:`self_covisible_frames`), and a jump between consecutive sightings beyond
+what the calibrated, correlated sensor and the odometry between the frames allow (:func:`sighting_jumps`: on robot 1
+seed 2's chained names 61 of the 63 barcode switches between consecutive sightings beyond χ²₂ Bonferroni, 2 of
+6,218 same-post pairs). :func:`two_point_split` cuts such a name in two with those pairs kept apart.
+
 Uses the smoother's own Jacobian and factorisation of the normal equations (``landmark_smoother.solution_jacobian``,
 ``NormalFactor``), so the split scores are computed on exactly the information the solution's covariances come from.
 """
@@ -49,7 +57,8 @@ from .landmark_smoother import (
     solution_jacobian,
 )
 
-__all__ = ["Run", "flagged_landmarks", "split_scores", "sighting_runs", "sighting_times", "split_threshold"]
+__all__ = ["Run", "flagged_landmarks", "self_covisible_frames", "split_scores", "sighting_runs", "sighting_times",
+           "sighting_jumps", "split_threshold", "two_point_split"]
 
 _SOLVE_COLUMNS = 256        # right-hand sides per banded solve (each column is one float per variable)
 
@@ -172,4 +181,127 @@ def flagged_landmarks(runs: list[Run], scores: np.ndarray, n_landmarks: int, alp
     for run, score in zip(runs, scores, strict=True):
         if np.isfinite(score) and score > split_threshold(int(runs_per_landmark[run.landmark]), alpha):
             out[run.landmark] = True
+    return out
+
+
+def self_covisible_frames(problem: LandmarkLogProblem) -> np.ndarray:
+    """(L,) for each landmark, the frames (poses) holding two or more of its sightings (kept by the smoother or not:
+    the sensor reported two things in that frame, whatever the smoother made of them). A camera reports a post once a
+    frame, so a landmark sighted twice in one frame holds two points, whatever its split scores say (session 29:
+    robot 1 seed 2's chained name 8 holds posts 19 and 20, 0.73 m apart, sighted alternately over 93–108 s and
+    together in 6 frames: one run, no run-based split separates them, and their 0.15 rad of bearing is 1.5 σ of the
+    inflated bearing model, so each sighting's residual is within 1 σ)."""
+    out = np.zeros(problem.n_landmarks, int)
+    pairs, counts = np.unique(np.column_stack([problem.landmark_index, problem.pose_index]), axis=0,
+                              return_counts=True)
+    np.add.at(out, pairs[counts > 1, 0], 1)
+    return out
+
+
+def _implied_points(problem: LandmarkLogProblem, solution: Smoothed, sightings: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Each sighting's point in the map frame from its smoothed pose (S', 2), and its information there (S', 2, 2):
+    the range and bearing σ turned into the map frame (the pose's own uncertainty left out: it is shared by the
+    sightings of one frame, the ones a split has to tell apart)."""
+    pose = solution.poses[problem.pose_index[sightings]]
+    r, b = problem.ranges[sightings], problem.bearings[sightings]
+    angle = pose[:, 2] + b
+    c, s = np.cos(angle), np.sin(angle)
+    points = pose[:, :2] + r[:, None] * np.column_stack([c, s])
+    along, across = problem.range_sigmas[sightings] ** 2, (r * problem.bearing_sigmas[sightings]) ** 2
+    rot = np.stack([np.column_stack([c, -s]), np.column_stack([s, c])], axis=1)          # (S', 2, 2)
+    information = rot @ (np.eye(2) * np.column_stack([1 / along, 1 / across])[:, None, :]) @ rot.transpose(0, 2, 1)
+    return points, information
+
+
+def sighting_jumps(problem: LandmarkLogProblem, solution: Smoothed, range_sigmas: np.ndarray, bearing_sigma_rad: float,
+                   range_correlation: float, bearing_correlation: float, *, gap_s: float = 2.0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive sightings of one landmark (by time; in different frames, at most ``gap_s`` apart): (J, 2) their
+    indices (earlier a, later b) and (J,) the jump of their residuals at the solution, χ²₂ under the model: per
+    component the difference e_b − e_a, whose variance under the sensor model the smoother's inflated σ comes from
+    (the calibrated per-sighting σ, ``range_sigmas`` (S,) and ``bearing_sigma_rad``, errors AR(1) with the lag-1
+    correlations ρ of consecutive sightings, ``estimation.noise_model``) is 2σ² (1 − ρ), plus what the odometry
+    between the two frames may shift and turn the line of sight (the increments' x + y and heading variances summed;
+    a shift turns it by 1/r_b). The inflation (1 + ρ)/(1 − ρ) makes a name's average honest but each sighting ×3.3
+    less certain in bearing on MRCLAM robot 1 (σ 0.10 rad): two posts 0.7 m apart 5 m off are 1.5 of those σ apart,
+    and ~8 σ of the difference. A jump far beyond χ²₂ says the two sightings are of two points."""
+    correlations = np.array([range_correlation, bearing_correlation], float)
+    if not (np.all((correlations >= 0) & (correlations < 1)) and bearing_sigma_rad > 0 and gap_s > 0
+            and np.shape(range_sigmas) == (len(problem.ranges),) and np.all(np.asarray(range_sigmas) > 0)):
+        raise ValueError(f"need 0 ≤ ρ < 1, σ > 0 (one range σ a sighting) and a gap > 0, not {correlations}, "
+                         f"{bearing_sigma_rad}, {gap_s}")
+    times = sighting_times(problem)
+    error = normalised_residuals(problem, solution)[1] * np.column_stack([problem.range_sigmas,
+                                                                          problem.bearing_sigmas])
+    order = np.lexsort((times, problem.landmark_index))
+    a, b = order[:-1], order[1:]
+    dt = times[b] - times[a]
+    keep = (problem.landmark_index[a] == problem.landmark_index[b]) & (dt > 0) & (dt <= gap_s)
+    a, b = a[keep], b[keep]
+    summed = np.vstack([np.zeros(3), np.cumsum(problem.increment_variances, axis=0)])   # increments before pose k
+    moved = summed[problem.pose_index[b]] - summed[problem.pose_index[a]]
+    shift = moved[:, 0] + moved[:, 1]
+    sensor = np.column_stack([np.asarray(range_sigmas)[a] * np.asarray(range_sigmas)[b],
+                              np.full(len(a), bearing_sigma_rad ** 2)])
+    variance = 2 * sensor * (1 - correlations) + np.column_stack([shift, moved[:, 2] + shift / problem.ranges[b] ** 2])
+    return np.column_stack([a, b]), np.sum((error[b] - error[a]) ** 2 / variance, axis=1)
+
+
+def two_point_split(problem: LandmarkLogProblem, solution: Smoothed, landmark: int, *,
+                    apart: np.ndarray | None = None, near_frames: int = 3, max_iterations: int = 50) -> np.ndarray:
+    """(k,) bool over ``landmark``'s sightings (in the problem's order, kept or not): the sightings of the second
+    point of a landmark that holds two, as pairs of its sightings that cannot be one point say: its frames of two
+    sightings (:func:`self_covisible_frames`; of three or more, the outermost two by bearing) and the pairs
+    ``apart`` (P, 2) (problem sighting indices, e.g. :func:`sighting_jumps` beyond a threshold; pairs of other
+    landmarks are ignored). Each sighting's point in the map frame (:func:`_implied_points`). First the pairs: one
+    to each point (the one of larger bearing residual to the first, to start), then each pair the cheaper way round
+    against the two points' information-weighted means until none changes (a 2-means in each sighting's own
+    metric, a pair's two kept apart). Then every other sighting goes to the nearer point as the ``near_frames``
+    pairs nearest it in time place them: across a long name the smoothed poses of a name bent to fit one point
+    carry errors the local pairs share (a synthetic circle's second lap: 12 of 120 sightings wrong with the whole
+    name's means, 0 with the near pairs'). A landmark with no such pair is refused (ValueError): nothing says it
+    holds two points."""
+    mine = np.flatnonzero(problem.landmark_index == landmark)
+    points, information = _implied_points(problem, solution, mine)
+    poses = problem.pose_index[mine]
+    error = normalised_residuals(problem, solution)[1][mine, 1] * problem.bearing_sigmas[mine]
+    frames: dict[int, list[int]] = {}
+    for j, pose in enumerate(poses):
+        frames.setdefault(int(pose), []).append(j)
+    found = [(by[0], by[-1]) for by in (sorted(m, key=lambda j: -problem.bearings[mine[j]])
+                                        for m in frames.values() if len(m) > 1)]
+    if apart is not None and len(apart):
+        local = {int(s): j for j, s in enumerate(mine)}
+        for a, b in np.asarray(apart, int).reshape(-1, 2):
+            if int(a) in local and int(b) in local:
+                ja, jb = local[int(a)], local[int(b)]
+                found.append((ja, jb) if error[ja] >= error[jb] else (jb, ja))
+    if not found:
+        raise ValueError(f"landmark {landmark} has no two sightings that cannot be one point")
+    pairs = np.array(found, int)
+
+    def mean(rows: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(information[rows].sum(axis=0), np.einsum("sij,sj->i", information[rows], points[rows]))
+
+    def d2(rows: np.ndarray, centre: np.ndarray) -> np.ndarray:
+        return np.einsum("si,sij,sj->s", points[rows] - centre, information[rows], points[rows] - centre)
+
+    order = pairs.copy()                # (first point's sighting, second's) of each pair
+    for _ in range(max_iterations):
+        first, second = mean(order[:, 0]), mean(order[:, 1])
+        swap = d2(pairs[:, 0], second) + d2(pairs[:, 1], first) < d2(pairs[:, 0], first) + d2(pairs[:, 1], second)
+        updated = np.where(swap[:, None], pairs[:, ::-1], pairs)
+        if np.array_equal(updated, order):
+            break
+        order = updated
+    out = np.zeros(len(mine), bool)
+    out[order[:, 1]] = True
+    torn = np.intersect1d(order[:, 0], order[:, 1])     # first in one pair, second in another: the nearer mean
+    out[torn] = d2(torn, second) < d2(torn, first)
+    pair_poses = poses[order[:, 0]]
+    for j in np.setdiff1d(np.arange(len(mine)), pairs.ravel()):
+        near = np.argsort(np.abs(pair_poses - poses[j]), kind="stable")[:near_frames]
+        rows = np.array([j])
+        out[j] = d2(rows, mean(order[near, 1]))[0] < d2(rows, mean(order[near, 0]))[0]
     return out

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from estimation import chi2
 from estimation.geometry import between, dead_reckoning, wrap_angle
 from estimation.landmark_smoother import (
     LandmarkLogProblem,
@@ -19,10 +20,13 @@ from estimation.landmark_smoother import (
 from estimation.map_honesty import (
     Run,
     flagged_landmarks,
+    self_covisible_frames,
+    sighting_jumps,
     sighting_runs,
     sighting_times,
     split_scores,
     split_threshold,
+    two_point_split,
 )
 
 SIGMA_R, SIGMA_B = 0.05, 0.02
@@ -194,3 +198,102 @@ def test_a_run_that_is_all_of_its_landmark_gets_no_score_and_bad_arguments_are_r
     with pytest.raises(ValueError, match="n_tests"):
         split_threshold(0)
     assert split_threshold(1) == pytest.approx(9.2103, abs=1e-3)
+
+
+def twin_log(seed: int, separation: float, direction: float, *, one_name: bool = True):
+    """The 2 m circle among 8 landmarks (:func:`stretch_log`'s, no blind steps), plus a ninth point ``separation`` m
+    from landmark 0 towards ``direction`` (rad); each sighting missed with probability 0.3, so the two are sighted
+    together in some frames and alone in others. The sensor's σ (0.02 m, 0.005 rad) is far below the model's (0.05
+    m, 0.1 rad), as MRCLAM's is below its inflated bearing σ. With ``one_name`` the ninth point's sightings are named
+    landmark 0 (a chained name that holds two posts). Returns the problem and each sighting's true point (0..8)."""
+    rng = np.random.default_rng(seed)
+    step = np.array([2 * np.pi * 2.0 / LAP, 0.0, 2 * np.pi / LAP])
+    truth = dead_reckoning(np.tile(step, (STEPS, 1)))
+    angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    landmarks = np.column_stack([3.2 * np.cos(angles), 2.0 + 3.2 * np.sin(angles)])
+    landmarks = np.vstack([landmarks, landmarks[0] + separation * np.array([np.cos(direction), np.sin(direction)])])
+    variance = np.tile(2e-3 * np.hypot(step[0], step[1]), (STEPS, 3))
+    measured = between(truth[:-1], truth[1:]) + rng.standard_normal((STEPS, 3)) * np.sqrt(variance)
+    pose_index, points, ranges, bearings = [], [], [], []
+    for k in range(1, STEPS + 1):
+        d = landmarks - truth[k, :2]
+        r = np.hypot(d[:, 0], d[:, 1])
+        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[k, 2])
+        visible = np.flatnonzero((np.abs(b) < 0.8) & (r < 5.0) & (rng.random(len(r)) > 0.3))
+        pose_index += [k] * len(visible)
+        points += list(visible)
+        ranges += list(r[visible] + 0.02 * rng.standard_normal(len(visible)))
+        bearings += list(b[visible] + 0.005 * rng.standard_normal(len(visible)))
+    points = np.array(points)
+    names = np.where(points == 8, 0, points) if one_name else points
+    s = len(ranges)
+    problem = LandmarkLogProblem(measured, variance, np.array(pose_index), names, np.array(ranges),
+                                 np.array(bearings), np.full(s, 0.05), np.full(s, 0.1),
+                                 increment_seconds=np.ones(STEPS))
+    return problem, points
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), separation=st.floats(0.5, 1.5), direction=st.floats(-np.pi, np.pi))
+def test_a_name_sighted_twice_in_one_frame_is_found_and_split_into_its_two_points(seed, separation, direction):
+    problem, points = twin_log(seed, separation, direction)
+    both = set(problem.pose_index[points == 0]) & set(problem.pose_index[points == 8])
+    assume(len(both) >= 1)
+    frames = self_covisible_frames(problem)
+    assert frames[0] == len(both)                    # the frames that saw both points, and only on the shared name
+    assert not frames[1:].any()
+    solution = solved(problem)
+    second = two_point_split(problem, solution, 0)
+    truth = points[problem.landmark_index == 0] == 8
+    agree = max(np.mean(second == truth), np.mean(second != truth))     # which part is "second" does not matter
+    assert agree >= 0.95                             # measured ≥ 0.99 in 20 draws (0.90 with the whole name's means)
+
+
+def test_an_honest_map_has_no_self_covisible_name_and_a_split_needs_one():
+    problem, _ = twin_log(4, 0.8, 1.0, one_name=False)
+    assert not self_covisible_frames(problem).any()
+    with pytest.raises(ValueError, match="cannot be one point"):
+        two_point_split(problem, solved(problem), 0)
+
+
+def jumps_beyond(problem: LandmarkLogProblem, solution) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sighting_jumps` under :func:`twin_log`'s sensor (0.02 m, 0.005 rad, no correlation), and which are
+    beyond χ²₂ at 1 − 0.01/J."""
+    pairs, jump = sighting_jumps(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, gap_s=1.0)
+    return pairs, jump > chi2.isf(0.01 / len(jump), 2)
+
+
+@settings(max_examples=6, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), separation=st.floats(0.5, 1.5), direction=st.floats(-np.pi, np.pi))
+def test_jumps_beyond_the_sensor_s_own_noise_are_the_steps_between_two_points_of_one_name(
+        seed, separation, direction):
+    problem, points = twin_log(seed, separation, direction)
+    pairs, beyond = jumps_beyond(problem, solved(problem))
+    assert np.all(problem.landmark_index[pairs[:, 0]] == problem.landmark_index[pairs[:, 1]])
+    assert np.all(problem.pose_index[pairs[:, 1]] == problem.pose_index[pairs[:, 0]] + 1)   # 1 s a step: the next
+    switch = points[pairs[:, 0]] != points[pairs[:, 1]]
+    assume(switch.any())
+    assert beyond[switch].mean() >= 0.9             # measured: every step between the points in 8 draws
+    assert beyond[~switch].mean() <= 0.02           # measured: none
+    honest, _ = twin_log(seed, separation, direction, one_name=False)
+    assert not jumps_beyond(honest, solved(honest))[1].any()
+
+
+def test_two_points_split_by_their_jumps_alone():
+    problem, points = twin_log(7, 1.0, 0.5)
+    both = np.intersect1d(problem.pose_index[points == 0], problem.pose_index[points == 8])
+    keep = ~((points == 8) & np.isin(problem.pose_index, both))     # the frames that saw both lose the twin's sighting
+    single = dataclasses.replace(
+        problem, pose_index=problem.pose_index[keep], landmark_index=problem.landmark_index[keep],
+        ranges=problem.ranges[keep], bearings=problem.bearings[keep], range_sigmas=problem.range_sigmas[keep],
+        bearing_sigmas=problem.bearing_sigmas[keep])
+    assert not self_covisible_frames(single).any()
+    solution = solved(single)
+    pairs, beyond = jumps_beyond(single, solution)
+    second = two_point_split(single, solution, 0, apart=pairs[beyond])
+    truth = points[keep][single.landmark_index == 0] == 8
+    assert max(np.mean(second == truth), np.mean(second != truth)) >= 0.95
+    with pytest.raises(ValueError, match="cannot be one point"):
+        two_point_split(single, solution, 0)
+    with pytest.raises(ValueError, match="ρ"):
+        sighting_jumps(single, solution, np.full(len(single.ranges), 0.02), 0.005, 0.0, 1.0)
