@@ -44,6 +44,7 @@ HUBER_K = 2.45                    # σ: Huber's threshold on a sighting's normal
 OUTLIER_CHI2 = 9.21               # χ²₂ 99 %: a sighting beyond it after the robust solve is dropped
 MAX_ITERATIONS = 60
 MIN_DRIFT_STEP_S = 1e-3           # s: the heading drift's factors take at least this long between two increments
+IN_PLACE_M_PER_RAD = 0.1          # m/rad: an increment travelling less than this per radian it turns, turns on the spot
 _STEP_TOLERANCE = 1e-7            # stop when no variable moves more than this (m or rad)
 MAX_DENSE_ENTRIES = 50_000_000    # the Schur elimination holds H_pp⁻¹ H_pl, 3T × 2L dense: 400 MB at most
 _COLUMN_BLOCK_ENTRIES = 4_000_000 # pose covariances are solved for in blocks of columns this size (32 MB)
@@ -125,20 +126,31 @@ class HeadingDrift:
     error structure measured on MRCLAM's odometry in session 22 (O): honest at every horizon 5–600 s with σ 0.12–0.16
     rad/m, τ 10–30 s, where the white random walk is overconfident from a minute on. ``sigma_per_m`` 0 is off: the
     solution is then exactly the one without the option.
+
+    ``sigma_per_rad`` (rad/rad, default 0: none): a second process of the same kind and τ, a heading slip c_k per
+    radian the odometry turns *on the spot* (|Δθ_k| of an increment travelling less than ``IN_PLACE_M_PER_RAD`` per
+    radian, either direction; 0 for the others): the heading residual also loses c_k |Δθ_k|. Why: a turn on the spot
+    travels ~0 m, so the bias per metre adds nothing there, and MRCLAM's commanded-velocity odometry in place turns
+    0.6–0.9 of what it reports and is 2–4× overdispersed, in runs of one sign (robot 2's wiggle at 779–817 s: +0.8 rad
+    at a σ of 0.19), while in arcs it is within its model (benchmarks/mrclam_heading_slip.py, session 29 (C)). Its
+    states follow the per-metre one's.
     """
 
     sigma_per_m: float
     tau_s: float
+    sigma_per_rad: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.sigma_per_m) and self.sigma_per_m >= 0):
             raise SmoothingError(f"heading drift σ must be finite and ≥ 0 rad/m, not {self.sigma_per_m}")
         if not (np.isfinite(self.tau_s) and self.tau_s > 0):
             raise SmoothingError(f"heading drift τ must be finite and > 0 s, not {self.tau_s}")
+        if not (np.isfinite(self.sigma_per_rad) and self.sigma_per_rad >= 0):
+            raise SmoothingError(f"heading slip σ must be finite and ≥ 0 rad/rad, not {self.sigma_per_rad}")
 
     @property
     def on(self) -> bool:
-        return self.sigma_per_m > 0
+        return self.sigma_per_m > 0 or self.sigma_per_rad > 0
 
 
 @dataclass(frozen=True)
@@ -235,12 +247,20 @@ class LandmarkLogProblem:
         """(T,) each increment's distance (its chord), which a heading bias per metre multiplies."""
         return np.hypot(self.increments[:, 0], self.increments[:, 1])
 
+    @functools.cached_property
+    def in_place_turns(self) -> np.ndarray:
+        """(T,) each increment's odometry turn |Δθ| (rad) if it turns on the spot (travels less than
+        ``IN_PLACE_M_PER_RAD`` per radian), else 0: what a heading slip per radian multiplies."""
+        turn = np.abs(self.increments[:, 2])
+        return np.where(self.increment_distances < IN_PLACE_M_PER_RAD * turn, turn, 0.0)
+
 
 @dataclass
 class Smoothed:
     """The solution: poses (T + 1, 3) (row 0 the origin), landmarks (L, 2), their marginal covariances (L, 2, 2),
     pose covariances (P, 3, 3) at poses ``covariance_poses`` (P,), the sightings kept (S,) bool, and the fit; with a
-    :class:`HeadingDrift`, the drift and each increment's heading bias (T,) (rad/m)."""
+    :class:`HeadingDrift`, the drift and each increment's heading bias (T,) (rad/m; None if its σ per metre is 0) and
+    heading slip (T,) (rad/rad; None if its σ per radian is 0)."""
 
     poses: np.ndarray
     landmarks: np.ndarray
@@ -257,6 +277,7 @@ class Smoothed:
     heading_biases: np.ndarray | None = None      # (T,) each increment's heading bias (rad/m) with the drift
     sighting_offset: SightingOffset | None = None  # the sighting offsets the solution carries (None: off)
     offsets: np.ndarray | None = None             # (G, 2) each offset group's offset (m) with them
+    turn_biases: np.ndarray | None = None         # (T,) each increment's heading slip (rad/rad) with sigma_per_rad
 
     @property
     def chi2_per_dof(self) -> float:
@@ -288,17 +309,17 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     landmarks = np.array(initial_landmarks, float).reshape(-1, 2)
     if len(landmarks) < n_landmarks:
         raise SmoothingError(f"{n_landmarks} landmarks sighted but {len(landmarks)} initial positions")
-    bias = None if drift is None else np.zeros(t)
+    bias = None if drift is None else np.zeros((t, drift.n))
     offsets = None if offset is None else np.zeros((offset.count, 2))
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
     iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss,
                                   drift=drift, bias=bias, offset=offset, offsets=offsets)
-    _, residual = _residuals(problem, poses, landmarks, bias, offsets)
+    _, residual = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
                                    drift=drift, bias=bias, offset=offset, offsets=offsets)
-    odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
+    odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if drift is not None:
@@ -318,20 +339,22 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
         landmark_cov[offset.sole_landmarks] += offset.sigma ** 2 * np.eye(2)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
                     dof, iterations_robust + iterations, converged, heading_weights,
-                    heading_drift if drift is not None else None, bias,
-                    sighting_offset if offset is not None else None, offsets)
+                    heading_drift if drift is not None else None, None if drift is None else drift.per_metre(bias),
+                    sighting_offset if offset is not None else None, offsets,
+                    None if drift is None else drift.per_radian(bias))
 
 
 def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The solution's normalised residuals: odometry (T, 3), sightings (S, 2) (range, bearing; dropped ones too),
-    and the extra factors: the heading drift's (T,) then the explicit sighting offsets' priors (2E,) (empty
-    without them; a sole group's offset is 0 and has none: :class:`_Offsets`)."""
+    and the extra factors: the heading drift's (T,) (and its slip's (T,) after them), then the explicit sighting
+    offsets' priors (2E,) (empty without them; a sole group's offset is 0 and has none: :class:`_Offsets`)."""
     drift = _solution_drift(problem, solution)
     offset = _solution_offset(problem, solution)
-    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, solution.heading_biases,
+    bias = None if drift is None else drift.stacked(solution)
+    odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, _shift(drift, bias),
                                      solution.offsets if offset is not None else None)
-    extra = drift.residuals(solution.heading_biases) if drift is not None else np.zeros(0)
+    extra = drift.residuals(bias) if drift is not None else np.zeros(0)
     if offset is not None:
         extra = np.concatenate([extra, offset.residuals(solution.offsets)])
     return odometry.reshape(-1, 3), sightings.reshape(-1, 2), extra
@@ -339,9 +362,10 @@ def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
 
 def solution_jacobian(problem: LandmarkLogProblem, solution: Smoothed) -> tuple[sp.csr_matrix, int]:
     """The smoother's Jacobian at ``solution``, each heading row scaled by its loss weight, and the number of
-    variables per pose (3, or 4 with the heading drift's bias). Rows: the odometry's 3T, the kept sightings' 2S, then
-    the priors; columns: the poses' width·T, the landmarks' 2L, then the sighting offsets'. Its JᵀJ is the normal
-    matrix every covariance of the solution comes from (:class:`NormalFactor` factors it)."""
+    variables per pose (3, and one per heading drift process: the bias per metre, the slip per radian). Rows: the
+    odometry's 3T, the kept sightings' 2S, then the priors; columns: the poses' width·T, the landmarks' 2L, then the
+    sighting offsets'. Its JᵀJ is the normal matrix every covariance of the solution comes from (:class:`NormalFactor`
+    factors it)."""
     drift = _solution_drift(problem, solution)
     offset = _solution_offset(problem, solution)
     jac = _jacobian(problem, solution.poses, solution.landmarks, len(solution.landmarks),
@@ -415,28 +439,63 @@ class _Offsets:
 
 
 class _Drift:
-    """A :class:`HeadingDrift`'s factors on one problem: each increment's distance d (T,), the prior's σ, and the
-    Gauss–Markov factors' decay a (T − 1,) and σ (T − 1,). Its states b (T,) follow the poses' (x, y, θ) in the
-    variables: pose j's block is (x_j, y_j, θ_j, b_{j−1}), so every factor still touches two consecutive blocks."""
+    """A :class:`HeadingDrift`'s factors on one problem: its n processes (1 or 2: the bias per metre if its σ is > 0,
+    then the slip per radian if its σ is > 0), each with its multiplier (T,) of the increments (the distance d, the
+    odometry turn on the spot |Δθ|), its prior's σ and its Gauss–Markov factors' σ (T − 1,); their decay a (T − 1,)
+    is shared (one τ). The states (T, n) follow the poses' (x, y, θ) in the variables: pose j's block is
+    (x_j, y_j, θ_j, b_{j−1}, c_{j−1}), so every factor still touches two consecutive blocks."""
 
     def __init__(self, problem: LandmarkLogProblem, drift: HeadingDrift) -> None:
         if len(problem.increment_seconds) != problem.n_poses:
             raise SmoothingError("a heading drift needs the problem's increment_seconds (each increment's duration)")
         seconds = np.asarray(problem.increment_seconds, float)
-        self.distance = problem.increment_distances
         gap = np.maximum(0.5 * (seconds[:-1] + seconds[1:]), MIN_DRIFT_STEP_S)
-        self.prior_sd = float(drift.sigma_per_m)
         self.decay = np.exp(-gap / drift.tau_s)
-        self.sd = drift.sigma_per_m * np.sqrt(-np.expm1(-2.0 * gap / drift.tau_s))
+        unit_sd = np.sqrt(-np.expm1(-2.0 * gap / drift.tau_s))
+        processes = [(drift.sigma_per_m, problem.increment_distances), (drift.sigma_per_rad, problem.in_place_turns)]
+        self.has_metre, self.has_radian = drift.sigma_per_m > 0, drift.sigma_per_rad > 0
+        kept = [(sigma, multiplier) for sigma, multiplier in processes if sigma > 0]
+        self.n = len(kept)
+        self.multipliers = [multiplier for _, multiplier in kept]
+        self.prior_sds = [float(sigma) for sigma, _ in kept]
+        self.sds = [sigma * unit_sd for sigma, _ in kept]
+
+    def shift(self, bias: np.ndarray) -> np.ndarray:
+        """(T,) the heading each increment loses to the states (T, n): b_k d_k (+ c_k |Δθ_k|)."""
+        out = bias[:, 0] * self.multipliers[0]
+        for j in range(1, self.n):
+            out = out + bias[:, j] * self.multipliers[j]
+        return out
 
     def residuals(self, bias: np.ndarray) -> np.ndarray:
-        """(T,) normalised: b_0 / σ, then (b_{k+1} − a_k b_k) / σ_k."""
-        return np.concatenate([bias[:1] / self.prior_sd, (bias[1:] - self.decay * bias[:-1]) / self.sd])
+        """(n·T,) normalised, process by process: b_0 / σ, then (b_{k+1} − a_k b_k) / σ_k."""
+        return np.concatenate([np.concatenate([bias[:1, j] / self.prior_sds[j],
+                                               (bias[1:, j] - self.decay * bias[:-1, j]) / self.sds[j]])
+                               for j in range(self.n)])
+
+    def per_metre(self, bias: np.ndarray) -> np.ndarray | None:
+        return bias[:, 0].copy() if self.has_metre else None
+
+    def per_radian(self, bias: np.ndarray) -> np.ndarray | None:
+        return bias[:, self.n - 1].copy() if self.has_radian else None
+
+    def stacked(self, solution: Smoothed) -> np.ndarray:
+        """(T, n) a solution's states (a process the solution does not carry, e.g. a saved state's slip: 0)."""
+        t = len(self.decay) + 1
+        columns = [solution.heading_biases if self.has_metre else None,
+                   solution.turn_biases if self.has_radian else None]
+        return np.column_stack([np.zeros(t) if c is None else np.asarray(c, float)
+                                for c, kept in zip(columns, (self.has_metre, self.has_radian), strict=True)
+                                if kept])
+
+
+def _shift(drift: _Drift | None, bias: np.ndarray | None) -> np.ndarray | None:
+    return None if drift is None else drift.shift(bias)
 
 
 def _width(drift: _Drift | None) -> int:
-    """Variables per pose: (x, y, θ), and the heading bias with a drift."""
-    return 3 if drift is None else 4
+    """Variables per pose: (x, y, θ), and one per heading drift process."""
+    return 3 if drift is None else 3 + drift.n
 
 
 def _heading_weights(problem: LandmarkLogProblem, odometry: np.ndarray,
@@ -457,12 +516,12 @@ def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) 
 
 
 def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray,
-               bias: np.ndarray | None = None, offsets: np.ndarray | None = None):
-    """Normalised residuals: odometry (T·3,) (the heading less b_k d_k with biases (T,)), sightings (S·2,)
-    interleaved (range, bearing) (each of landmark + its group's offset, with offsets (G, 2))."""
+               shift: np.ndarray | None = None, offsets: np.ndarray | None = None):
+    """Normalised residuals: odometry (T·3,) (the heading less the drift's shift (T,): b_k d_k, + c_k |Δθ_k|),
+    sightings (S·2,) interleaved (range, bearing) (each of landmark + its group's offset, with offsets (G, 2))."""
     odometry = between(poses[:-1], poses[1:]) - problem.increments
-    if bias is not None:
-        odometry[:, 2] -= bias * problem.increment_distances
+    if shift is not None:
+        odometry[:, 2] -= shift
     odometry[:, 2] = wrap_angle(odometry[:, 2])
     odometry /= problem.increment_sigmas
     at = poses[problem.pose_index]
@@ -512,7 +571,8 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     put(r, np.where(col_a < 0, -1, col_a + 2), -1.0 / sigma[:, 2])
     put(r, col_b + 2, 1.0 / sigma[:, 2])
     if drift is not None:
-        put(r, col_b + 3, -drift.distance / sigma[:, 2])         # the heading less b_k d_k
+        for j, multiplier in enumerate(drift.multipliers):     # the heading less b_k d_k (and c_k |Δθ_k|)
+            put(r, col_b + 3 + j, -multiplier / sigma[:, 2])
 
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
@@ -538,10 +598,11 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     put(base + 1, pose_col + 2, -wb)
     n_rows = 3 * t + 2 * len(d)
     if drift is not None and t:
-        # b_0 / σ, then (b_k − a b_{k−1}) / σ_k: b_k is the 4th column of pose k + 1's block
-        put(n_rows + k, width * k + 3, np.concatenate([[1.0 / drift.prior_sd], 1.0 / drift.sd]))
-        put(n_rows + k[1:], width * k[:-1] + 3, -drift.decay / drift.sd)
-        n_rows += t
+        # per process j: b_0 / σ, then (b_k − a b_{k−1}) / σ_k: b_k is column 3 + j of pose k + 1's block
+        for j in range(drift.n):
+            put(n_rows + k, width * k + 3 + j, np.concatenate([[1.0 / drift.prior_sds[j]], 1.0 / drift.sds[j]]))
+            put(n_rows + k[1:], width * k[:-1] + 3 + j, -drift.decay / drift.sds[j])
+            n_rows += t
     n_columns = width * t + 2 * n_landmarks
     if offset is not None and offset.n_explicit:
         g = np.arange(2 * offset.n_explicit)
@@ -563,7 +624,7 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
 
 def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
           offsets=None) -> float:
-    odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
+    odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
         norm = np.sqrt(norm2)
@@ -583,13 +644,13 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
 def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
            offsets=None) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
-    landmarks (and the biases (T,) with a drift, the offsets (G, 2) with sighting offsets)."""
+    landmarks (and the biases (T, n) with a drift, the offsets (G, 2) with sighting offsets)."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     width = _width(drift)
     damping = 1e-4
     cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        odometry, sightings = _residuals(problem, poses, landmarks, bias, offsets)
+        odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)
         jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights, drift, offset, offsets), t,
@@ -614,7 +675,7 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             trial_poses[1:] += pose_step[:, :3]
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_landmarks += step[width * t:width * t + 2 * n_landmarks].reshape(n_landmarks, 2)
-            trial_bias = None if drift is None else bias + pose_step[:, 3]
+            trial_bias = None if drift is None else bias + pose_step[:, 3:]
             trial_offsets = None
             if offset is not None:
                 trial_offsets = offsets.copy()
@@ -650,10 +711,10 @@ class NormalFactor:
     drift) and landmarks (the rest), factored by its structure.
 
     Every factor touches at most two consecutive poses, or one pose and one landmark, so the pose block H_pp is
-    block-tridiagonal (a band of half-width 2·width − 1: 5, or 7 with the drift's bias): a banded Cholesky factors it
-    in O(T). The landmarks are eliminated through their Schur complement S = H_ll − H_lp H_pp⁻¹ H_pl (2L × 2L, dense
-    and small), whose inverse is exactly the landmarks' marginal covariance. A general sparse LU (SuperLU) did the
-    same in 10–30× the time on MRCLAM.
+    block-tridiagonal (a band of half-width 2·width − 1: 5, 7 with the drift's bias, 9 with its slip too): a banded
+    Cholesky factors it in O(T). The landmarks are eliminated through their Schur complement
+    S = H_ll − H_lp H_pp⁻¹ H_pl (2L × 2L, dense and small), whose inverse is exactly the landmarks' marginal
+    covariance. A general sparse LU (SuperLU) did the same in 10–30× the time on MRCLAM.
     """
 
     def __init__(self, normal: sp.spmatrix, t: int, width: int = 3) -> None:

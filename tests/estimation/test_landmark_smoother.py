@@ -419,7 +419,7 @@ def test_the_data_sets_smoother_takes_the_filters_drift_when_it_has_one():
     assert config_drift(drifting) == HeadingDrift(0.16, 10.0)
 
 
-@pytest.mark.parametrize("drift", [None, HeadingDrift(0.1, 5.0)])
+@pytest.mark.parametrize("drift", [None, HeadingDrift(0.1, 5.0), HeadingDrift(0.1, 5.0, sigma_per_rad=0.05)])
 def test_pose_covariances_are_the_blocks_of_the_dense_inverse_in_every_chunk(monkeypatch, drift):
     """The pose covariance blocks are solved chunk by chunk from the trailing part of the banded factor (rows above
     a chunk's first pose stay 0 in its solves): they are the (x, y, θ) blocks of the dense information matrix's
@@ -428,7 +428,7 @@ def test_pose_covariances_are_the_blocks_of_the_dense_inverse_in_every_chunk(mon
     problem = dataclasses.replace(problem, increment_seconds=np.full(problem.n_poses, 0.5))
     monkeypatch.setattr(landmark_smoother, "_COLUMN_BLOCK_ENTRIES", 9 * problem.n_poses * 7)   # 7 poses a chunk
     solution = smooth(problem, *initial_guess(problem), pose_covariance_stride=1, heading_drift=drift)
-    width = 3 if drift is None else 4
+    width = 3 if drift is None else 3 + (drift.sigma_per_m > 0) + (drift.sigma_per_rad > 0)
     information = landmark_smoother._information(
         problem, solution.poses, solution.landmarks, solution.inliers, len(solution.landmarks), None,
         landmark_smoother._solution_drift(problem, solution)).toarray()
