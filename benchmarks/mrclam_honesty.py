@@ -3,7 +3,7 @@
 Run from the repository root, on the states ``benchmarks.mrclam_constellation --state-dir DIR`` keeps:
 
     .venv/bin/python -m benchmarks.mrclam_honesty --state-dir DIR [--robots 1,2,3,4,5] [--seeds 0,2] [--tags round4,...]
-        [--gap 5] [--floor 0] [--alpha 0.01] [--top 5] [--groups] [--json]
+        [--gap 5] [--floor 0] [--alpha 0.01] [--top 5] [--groups] [--two-points] [--json]
 
 For every state (a robot's names and the smoother's solution after a round), every landmark's kept sightings are cut
 into runs at gaps of more than ``--gap`` s, and each run gets its split score
@@ -18,7 +18,9 @@ rank of the first wrong run among all runs by score, the top score, and the name
 with how many of them hold a wrong run, against how many names hold one. ``--top N``: the N highest-scoring runs of
 each state with their barcodes, the offset the split would give them and the pose's error at them. ``--groups``: the
 pairwise merge groups ``mrclam_constellation --pairwise --kept-covisible`` would propose on the state, each marked
-refused when a member name is flagged by the per-name test.
+refused when a member name is flagged by the per-name test. ``--two-points``: the names that hold two points
+(:func:`two_point_names`: sighted twice in one frame, or a jump between consecutive sightings beyond the calibrated
+sensor's χ²₂, Bonferroni), each cut in two, with its split score, scored by the barcodes.
 
 Session 27 (B; docs: "Session 27: … (B)"): robot 3 seed 0's 1253–1275 s stretch rests on one wrong sighting (1252.6
 s) whose run scores 15.6 — the top of the map's 328 runs but below the map-wide threshold 20.8; the per-name test
@@ -54,7 +56,16 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose, wrap_angle  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
-from estimation.map_honesty import flagged_landmarks, sighting_runs, split_scores, split_threshold  # noqa: E402
+from estimation.map_honesty import (  # noqa: E402
+    Run,
+    flagged_landmarks,
+    self_covisible_frames,
+    sighting_jumps,
+    sighting_runs,
+    split_scores,
+    split_threshold,
+    two_point_split,
+)
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
 
@@ -80,7 +91,7 @@ def states(directory, robots: list[int], seeds: list[int], tags: list[str] | Non
 
 
 def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, groups: bool = False,
-              floor_m: float = 0.0) -> dict:
+              floor_m: float = 0.0, two_points: bool = False) -> dict:
     current, _ = load_saved_state(path, log, noise, config)
     named, solution = current.named, current.solution
     problem = named.problem
@@ -115,6 +126,8 @@ def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, gr
            "names_flagged": int(name_flagged.sum()),
            "names_flagged_wrong": int((name_flagged & name_holds_wrong).sum()),
            "names_holding_wrong": int(name_holds_wrong.sum()), "split_cpu_s": cpu, "top": []}
+    if two_points:
+        row["two_points"] = two_point_names(log, noise, named, solution, alpha)
     if groups:
         row["groups"] = merge_groups(problem, solution, name_post, set(np.flatnonzero(name_flagged).tolist()),
                                      named.names)
@@ -137,6 +150,51 @@ def run_state(log, noise, config, path, gap_s: float, alpha: float, top: int, gr
                 "pose_error_m": float(np.hypot(*error[pose, :2])), "heading_error_rad": float(error[pose, 2]),
                 "pose_nees": float(nees[i])})
     return row
+
+
+def two_point_names(log, noise, named, solution, alpha: float) -> dict:
+    """Names that hold two points (session 29), barcode-free: sighted twice in one frame
+    (:func:`~estimation.map_honesty.self_covisible_frames`) or with a jump between consecutive sightings beyond χ²₂
+    at 1 − α/J (:func:`~estimation.map_honesty.sighting_jumps` under the calibrated sensor, Bonferroni over the
+    map's J pairs); each cut by :func:`~estimation.map_honesty.two_point_split` and the split score of its second
+    part's kept sightings (χ²₂; "cut" when beyond χ²₂ at 1 − α: the cost says so). Scored by the barcodes: the
+    jumps between two barcodes found, the same-barcode pairs flagged, each part's barcodes."""
+    problem = named.problem
+    sensor = noise.range_bearing
+    codes = np.asarray(log.landmark_ids)[named.sightings]
+    pairs, jump = sighting_jumps(problem, solution, sensor.range_sigma(problem.ranges), sensor.bearing_sigma_rad,
+                                 sensor.range_correlation, sensor.bearing_correlation)
+    threshold = float(chi2.isf(alpha / max(len(jump), 1), 2))
+    beyond = jump > threshold
+    switch = codes[pairs[:, 0]] != codes[pairs[:, 1]]
+    frames = self_covisible_frames(problem)
+    apart = pairs[beyond]
+    candidates = sorted(set(np.flatnonzero(frames).tolist()) | set(problem.landmark_index[apart[:, 0]].tolist()))
+    runs, parts = [], []
+    for k in candidates:
+        mine = np.flatnonzero(problem.landmark_index == k)
+        second = two_point_split(problem, solution, k, apart=apart)
+        runs.append(Run(k, mine[second & np.asarray(solution.inliers, bool)[mine]], 0.0, 0.0))
+        parts.append([_counts(codes[mine[~second]]), _counts(codes[mine[second]])])
+    scores = split_scores(problem, solution, runs) if runs else np.zeros(0)
+    names = []
+    for k, part, score in zip(candidates, parts, scores, strict=True):
+        mine = problem.landmark_index == k
+        names.append({"name": int(named.names[k]), "frames": int(frames[k]),
+                      "jumps": int((problem.landmark_index[apart[:, 0]] == k).sum()), "parts": part,
+                      "two_posts": len(np.unique(codes[mine])) > 1, "split_score": float(score),
+                      "cut": bool(np.isfinite(score) and score > chi2.isf(alpha, 2))})
+    mixed = [int(named.names[k]) for k in range(len(named.names))
+             if len(np.unique(codes[problem.landmark_index == k])) > 1]
+    return {"pairs": len(jump), "threshold": threshold, "switches": int(switch.sum()),
+            "switches_beyond": int((switch & beyond).sum()), "same_beyond": int((~switch & beyond).sum()),
+            "names_two_posts": len(mixed), "names_two_posts_found": sum(n["two_posts"] for n in names),
+            "names": names}
+
+
+def _counts(codes: np.ndarray) -> dict[int, int]:
+    values, counts = np.unique(codes, return_counts=True)
+    return dict(zip(values.tolist(), counts.tolist(), strict=True))
 
 
 def run_pose_nees(log, named, solution, runs) -> np.ndarray:
@@ -207,6 +265,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="also the pairwise merge groups of each state (as mrclam_constellation --pairwise "
                              "--kept-covisible would propose them), each refused when a member is flagged by the "
                              "per-name split test")
+    parser.add_argument("--two-points", action="store_true",
+                        help="also the names that hold two points (sighted twice in one frame, or a jump between "
+                             "consecutive sightings beyond the calibrated sensor's χ²₂ Bonferroni), each cut in two "
+                             "and its split score (session 29)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if not os.path.isdir(args.data):
@@ -238,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
             setups[robot] = (log, noise, range_bearing_config(n_particles=100))
         row = {"robot": robot, "seed": seed, "tag": tag,
                **run_state(*setups[robot], path, args.gap, args.alpha, args.top or 0, args.groups,
-                                   args.floor)}
+                           args.floor, args.two_points)}
         rows.append(row)
         if not args.json:
             _print(row)
@@ -260,6 +322,15 @@ def _print(row: dict) -> None:
               f"{t['sightings']} sightings {t['barcodes']}{' WRONG' if t['wrong'] else ''}; split offset "
               f"{t['offset_m']:.3f} m; pose err {t['pose_error_m']:.3f} m, {t['heading_error_rad']:+.3f} rad, "
               f"NEES {t['pose_nees']:.1f}", flush=True)
+    if "two_points" in row:
+        t = row["two_points"]
+        print(f"    two points: {t['pairs']} consecutive pairs, jump threshold {t['threshold']:.1f}: barcode switches "
+              f"beyond it {t['switches_beyond']} / {t['switches']}, same-barcode pairs beyond it {t['same_beyond']}; "
+              f"names of two barcodes found {t['names_two_posts_found']} / {t['names_two_posts']}", flush=True)
+        for n in t["names"]:
+            print(f"      name {n['name']}: {n['frames']} frames of two, {n['jumps']} jumps; parts {n['parts'][0]} | "
+                  f"{n['parts'][1]}; split score {n['split_score']:.1f}{' cut' if n['cut'] else ''}"
+                  f"{'' if n['two_posts'] else ' (one barcode)'}", flush=True)
     for g in row.get("groups", []):
         print(f"    merge group {g['names']} (posts {g['posts']}){' TWO POSTS' if g['two_posts'] else ''}: "
               f"{'refused (a name flagged)' if g['refused'] else 'passes'}", flush=True)
