@@ -57,8 +57,8 @@ from .landmark_smoother import (
     solution_jacobian,
 )
 
-__all__ = ["Run", "flagged_landmarks", "self_covisible_frames", "split_scores", "sighting_runs", "sighting_times",
-           "sighting_jumps", "split_threshold", "two_point_split"]
+__all__ = ["Run", "flagged_landmarks", "implied_points", "self_covisible_frames", "split_scores", "sighting_runs",
+           "sighting_times", "sighting_jumps", "split_threshold", "two_point_split"]
 
 _SOLVE_COLUMNS = 256        # right-hand sides per banded solve (each column is one float per variable)
 
@@ -198,7 +198,7 @@ def self_covisible_frames(problem: LandmarkLogProblem) -> np.ndarray:
     return out
 
 
-def _implied_points(problem: LandmarkLogProblem, solution: Smoothed, sightings: np.ndarray
+def implied_points(problem: LandmarkLogProblem, solution: Smoothed, sightings: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Each sighting's point in the map frame from its smoothed pose (S', 2), and its information there (S', 2, 2):
     the range and bearing σ turned into the map frame (the pose's own uncertainty left out: it is shared by the
@@ -254,7 +254,7 @@ def two_point_split(problem: LandmarkLogProblem, solution: Smoothed, landmark: i
     point of a landmark that holds two, as pairs of its sightings that cannot be one point say: its frames of two
     sightings (:func:`self_covisible_frames`; of three or more, the outermost two by bearing) and the pairs
     ``apart`` (P, 2) (problem sighting indices, e.g. :func:`sighting_jumps` beyond a threshold; pairs of other
-    landmarks are ignored). Each sighting's point in the map frame (:func:`_implied_points`). First the pairs: one
+    landmarks are ignored). Each sighting's point in the map frame (:func:`implied_points`). First the pairs: one
     to each point (the one of larger bearing residual to the first, to start), then each pair the cheaper way round
     against the two points' information-weighted means until none changes (a 2-means in each sighting's own
     metric, a pair's two kept apart). Then every other sighting goes to the nearer point as the ``near_frames``
@@ -263,7 +263,7 @@ def two_point_split(problem: LandmarkLogProblem, solution: Smoothed, landmark: i
     name's means, 0 with the near pairs'). A landmark with no such pair is refused (ValueError): nothing says it
     holds two points."""
     mine = np.flatnonzero(problem.landmark_index == landmark)
-    points, information = _implied_points(problem, solution, mine)
+    points, information = implied_points(problem, solution, mine)
     poses = problem.pose_index[mine]
     error = normalised_residuals(problem, solution)[1][mine, 1] * problem.bearing_sigmas[mine]
     frames: dict[int, list[int]] = {}
