@@ -7,7 +7,7 @@ Run from the repository root:
         [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
-        [--leave-out-ambiguous] [--leave-out-unconfirmed]
+        [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--slip 0.3]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -536,7 +536,7 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     barcodes = log.landmark_ids
     chained, row = _chained(log, args, noise, config)
     names = chained.names
-    drift = HeadingDrift(*args.drift) if args.drift[0] > 0 else None
+    drift = HeadingDrift(*args.drift, sigma_per_rad=args.slip) if args.drift[0] > 0 or args.slip > 0 else None
     path_step_s = _path_step(args)
     offsets_now = args.sighting_offset > 0 and not args.offsets_once_tight      # else from when the map is tight
     _OFFSET.update(option=SightingOffset(args.sighting_offset) if offsets_now else None, names=None)
@@ -990,7 +990,7 @@ def save_state(path, state: MergeRound, meta: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     sol = state.solution
     arrays = {k: np.asarray(getattr(sol, k)) for k in STATE_ARRAYS}
-    for k in ("heading_weights", "heading_biases"):
+    for k in ("heading_weights", "heading_biases", "turn_biases"):
         if getattr(sol, k) is not None:
             arrays[k] = np.asarray(getattr(sol, k))
     fit = {"chi2": float(sol.chi2), "dof": int(sol.dof), "iterations": int(sol.iterations),
@@ -1007,7 +1007,7 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
         meta = json.loads(str(data["meta"]))
         arrays = {k: data[k] for k in data.files if k not in ("names", "meta")}
         names = data["names"]
-    want = {"robot": log.name, "drift": [drift.sigma_per_m, drift.tau_s] if drift is not None else None,
+    want = {"robot": log.name, "drift": _drift_meta(drift),
             "path_step_s": path_step_s}
     for key, value in want.items():
         if meta.get(key) != value:
@@ -1015,7 +1015,8 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
     named = named_problem(log, names, noise, config, path_step_s=path_step_s)
     fit = meta["fit"]
     solution = Smoothed(*(arrays[k] for k in STATE_ARRAYS), fit["chi2"], fit["dof"], fit["iterations"],
-                        fit["converged"], arrays.get("heading_weights"), drift, arrays.get("heading_biases"))
+                        fit["converged"], arrays.get("heading_weights"), drift, arrays.get("heading_biases"),
+                        turn_biases=arrays.get("turn_biases"))
     return MergeRound([], 0.0, 0.0, True, names, named, solution), meta
 
 
@@ -1028,8 +1029,16 @@ def load_saved_state(path, log: RangeBearingLog, noise, config) -> tuple[MergeRo
     return load_state(path, log, noise, config, drift, meta.get("path_step_s"))
 
 
+def _drift_meta(drift: HeadingDrift | None) -> list | None:
+    """The drift as a state's meta records it: [σ_b, τ], and the slip's σ per radian after them when it has one (so
+    the states saved before the slip existed still load)."""
+    if drift is None:
+        return None
+    return [drift.sigma_per_m, drift.tau_s] + ([drift.sigma_per_rad] if drift.sigma_per_rad > 0 else [])
+
+
 def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
-    return {"robot": log.name, "seed": args.seed, "drift": [drift.sigma_per_m, drift.tau_s] if drift else None,
+    return {"robot": log.name, "seed": args.seed, "drift": _drift_meta(drift),
             "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},
             "sighting_offset_m": _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0}
 
@@ -1249,6 +1258,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="mrclam_chained_names' cache of chained names (and the smoother's guess here)")
     parser.add_argument("--drift", type=positive_float, nargs=2, default=(0.16, 10.0), metavar=("RAD_PER_M", "S"),
                         help="the smoother's heading drift σ (rad/m) and correlation time (s)")
+    parser.add_argument("--slip", type=non_negative_float, default=0.0, metavar="RAD_PER_RAD",
+                        help="the smoother's heading slip per radian turned on the spot (HeadingDrift.sigma_per_rad, "
+                             "τ the drift's; 0: none; 0.3 measured by benchmarks.mrclam_heading_slip)")
     parser.add_argument("--pass-seconds", type=positive_float, default=20.0, help="a pass's span, s")
     parser.add_argument("--min-sightings", type=positive_int, default=2,
                         help="kept sightings of a name within a pass's span for it to be the pass's")
@@ -1336,7 +1348,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.json:
             _print(row)
     if args.json:
-        print(json.dumps({"seed": args.seed, "drift": list(args.drift), "pass_s": args.pass_seconds,
+        print(json.dumps({"seed": args.seed, "drift": list(args.drift), "slip": args.slip, "pass_s": args.pass_seconds,
                           "min_pairs": args.min_pairs, "ratio": args.ratio, "robots": rows}))
     return 0
 

@@ -88,14 +88,23 @@ def joint_d2(positions: np.ndarray, covariance: np.ndarray, pairs) -> tuple[floa
 
 def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_points, map_points, *,
                         allowed: np.ndarray | None = None, min_pairs: int = 3, probability: float = 0.99,
-                        ratio: float = np.inf, max_nodes: int = 200_000) -> ConstellationMatch:
+                        ratio: float = np.inf, max_nodes: int = 200_000,
+                        fewer_rival: bool = False) -> ConstellationMatch:
     """Which of ``map_points`` the ``pass_points`` are, tested jointly (module docstring).
 
     positions (n, 2), covariance (2n, 2n): every point's position and their joint covariance; pass_points,
     map_points: indices into them (disjoint). ``allowed`` (n, n) bool: pairings that may be made at all (e.g. not
     two points seen in one frame; default: all). ``probability``: the χ² gate of every test. ``ratio``: a rival
     within this likelihood ratio of the best refuses the match (∞: any compatible rival does). ``max_nodes``: a
-    cap on the search (exceeding it raises: the caller's candidates are too many for an exhaustive search)."""
+    cap on the search (exceeding it raises: the caller's candidates are too many for an exhaustive search).
+
+    ``fewer_rival`` (session 29): a match is also refused (``"ambiguous"``, the rival returned) when a hypothesis
+    with one pairing fewer that shares no pairing with the best fits at least as well — its d² as likely under
+    χ²_{2(k−1)} as the best's under χ²_{2k}. "Most pairings wins" assumes a wrong hypothesis cannot gather as many
+    pairings as the truth; on a loose map (gates metres wide) a row of posts shifted by one post gathers one pairing
+    more than the truth, which leaves the row's end post unpaired, and only the fit tells them apart. A match must
+    then out-fit the best contradicting hypothesis of one pairing fewer, not only out-number it (searched again
+    without the best's pairings, so the search cost at most doubles)."""
     if min_pairs < 1:
         raise ValueError(f"a match needs at least one pairing, not min_pairs={min_pairs}")
     if not ratio > 1:
@@ -106,6 +115,33 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     if set(pass_points) & set(map_points):
         raise ValueError("a point cannot be both in the pass and in the map")
     gates = chi2.ppf(probability, 2 * np.arange(1, len(pass_points) + 2))
+    found = _most_pairings(positions, covariance, pass_points, map_points, allowed, gates, max_nodes)
+    if not found:
+        return ConstellationMatch("incompatible", None, None, float("-inf"), 0)
+    compatible = len(found)
+    top = max(len(h.pairs) for h in found)
+    peers = sorted((h for h in found if len(h.pairs) == top), key=lambda h: -h.log_likelihood)
+    best = peers[0]
+    # every other hypothesis with as many pairings pairs some point differently: both cannot hold, or their union
+    # (more pairings) would have been compatible and the best
+    rival = peers[1] if len(peers) > 1 else None
+    log_ratio = best.log_likelihood - rival.log_likelihood if rival is not None else float("inf")
+    if top < min_pairs:
+        return ConstellationMatch("too_few", best, rival, log_ratio, compatible)
+    if rival is not None and not log_ratio >= np.log(ratio):
+        return ConstellationMatch("ambiguous", best, rival, log_ratio, compatible)
+    if fewer_rival and top > 1:
+        near = _best_fewer_rival(positions, covariance, pass_points, map_points, allowed, gates, max_nodes, best)
+        if near is not None and chi2.logsf(near.d2, near.dof) >= chi2.logsf(best.d2, best.dof):
+            return ConstellationMatch("ambiguous", best, near, best.log_likelihood - near.log_likelihood,
+                                      compatible)
+    return ConstellationMatch("matched", best, rival, log_ratio, compatible)
+
+
+def _most_pairings(positions, covariance, pass_points, map_points, allowed, gates, max_nodes) -> list[Hypothesis]:
+    """The depth-first search of :func:`match_constellation`: every jointly compatible hypothesis it meets with at
+    least as many pairings as the most found so far (so those with the most pairings are all among them); [] when
+    no pairing is individually compatible."""
     # individually compatible pairings first (the tree's branches)
     options: list[list[int]] = []
     for p in pass_points:
@@ -118,7 +154,7 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
                 row.append(q)
         options.append(row)
     if not any(options):
-        return ConstellationMatch("incompatible", None, None, float("-inf"), 0)
+        return []
     found: list[Hypothesis] = []
     nodes = 0
     most = 0
@@ -147,19 +183,23 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
             search(i + 1, pairs, used)
 
     search(0, [], set())
-    compatible = len(found)
-    top = max(len(h.pairs) for h in found)
-    peers = sorted((h for h in found if len(h.pairs) == top), key=lambda h: -h.log_likelihood)
-    best = peers[0]
-    # every other hypothesis with as many pairings pairs some point differently: both cannot hold, or their union
-    # (more pairings) would have been compatible and the best
-    rival = peers[1] if len(peers) > 1 else None
-    log_ratio = best.log_likelihood - rival.log_likelihood if rival is not None else float("inf")
-    if top < min_pairs:
-        return ConstellationMatch("too_few", best, rival, log_ratio, compatible)
-    if rival is not None and not log_ratio >= np.log(ratio):
-        return ConstellationMatch("ambiguous", best, rival, log_ratio, compatible)
-    return ConstellationMatch("matched", best, rival, log_ratio, compatible)
+    return found
+
+
+def _best_fewer_rival(positions, covariance, pass_points, map_points, allowed, gates, max_nodes,
+                      best: Hypothesis) -> Hypothesis | None:
+    """The best-fitting (least d²) compatible hypothesis with one pairing fewer than ``best`` that makes none of its
+    pairings; None when the most such a hypothesis reaches is fewer (or as many: that is a rival of equal size,
+    already judged by the ratio)."""
+    n = len(positions)
+    without = np.ones((n, n), bool) if allowed is None else np.array(allowed, bool, copy=True)
+    for p, q in best.pairs:
+        without[p, q] = without[q, p] = False
+    found = _most_pairings(positions, covariance, pass_points, map_points, without, gates, max_nodes)
+    fewer = [h for h in found if len(h.pairs) == len(best.pairs) - 1]
+    if not fewer or max(len(h.pairs) for h in found) != len(best.pairs) - 1:
+        return None
+    return min(fewer, key=lambda h: h.d2)
 
 
 # ---- a tight map's last merges, pair by pair; a batch's merges tested one group at a time --------------------------

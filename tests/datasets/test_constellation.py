@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from estimation import chi2
 from estimation.constellation import joint_d2, match_constellation
 
 SIGMA_POST = 0.03          # m, each map post and each pass point alone
@@ -541,3 +542,76 @@ def _robot2(until: float):
     log = read_mrclam(MRCLAM2, 2, until=until)
     return log, estimate_noise([log], **DATASET_CALIBRATIONS).model, range_bearing_config(n_particles=10), \
         HeadingDrift(0.16, 10.0)
+
+
+def _row_of_posts(step):
+    """An earlier pass past three posts of a row 1.5 m apart (x = 0, 1.5, 3) and a later pass past the last two and
+    the next one, ``step`` m further: with the pass's metres of offset, the later pass shifted back by one post pairs
+    all three of its points, while the truth pairs two and leaves the new post unpaired."""
+    rng = np.random.default_rng(0)
+    earlier = np.array([[0.0, 0.0], [1.5, 0.0], [3.0, 0.0]])
+    later = np.array([[1.5, 0.0], [3.0, 0.0], [3.0 + step, 0.0]])
+    return _problem(earlier, later, np.array([0.3, -0.2]), 0.02, rng, noise=0.0)
+
+
+def test_a_row_shifted_by_one_post_outnumbers_the_truth_and_fewer_rival_refuses_it():
+    # robot 4 (MRCLAM, session 28): posts on an arc ~1.5 m apart, shifted pairing d² 9.89, truth 1.57
+    positions, covariance = _row_of_posts(1.35)
+    truth = {3: 1, 4: 2}
+    shifted = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2])
+    assert shifted.status == "matched" and dict(shifted.best.pairs) == {3: 0, 4: 1, 5: 2}   # most pairings wins
+    assert shifted.best.d2 > 5
+    refused = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2], fewer_rival=True)
+    assert refused.status == "ambiguous"
+    assert refused.best == shifted.best and dict(refused.rival.pairs) == truth
+    assert refused.rival.d2 < 1
+
+
+def test_fewer_rival_keeps_a_match_whose_shifted_alternative_of_one_pairing_fewer_fits_worse():
+    # the same three posts seen again (the truth pairs all three); shifted forward by one post, two of them pair
+    # too, but the row's uneven spacing (1.5 m, then 1.35 m) leaves that alternative 0.15 m out of shape
+    rng = np.random.default_rng(0)
+    earlier = np.array([[0.0, 0.0], [1.5, 0.0], [2.85, 0.0]])
+    positions, covariance = _problem(earlier, earlier, np.array([0.3, -0.2]), 0.02, rng, noise=0.0)
+    plain = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2])
+    kept = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2], fewer_rival=True)
+    assert kept.status == plain.status == "matched" and dict(kept.best.pairs) == {3: 0, 4: 1, 5: 2}
+    shifted, _ = joint_d2(positions, covariance, [(3, 1), (4, 2)])
+    assert shifted < chi2.ppf(0.99, 4)          # the alternative exists (compatible) and is out-fitted
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), k=st.integers(3, 5), repeat=st.booleans())
+def test_fewer_rival_only_refuses_matches_and_never_changes_the_best(seed, k, repeat):
+    rng = np.random.default_rng(seed)
+    map_xy = _layout(rng, 15)
+    if repeat:          # a row of posts at one spacing: shifted hypotheses of one pairing more or fewer abound
+        map_xy[:6] = np.array([[1.0 + 1.5 * i, 1.0 + 0.05 * i * i] for i in range(6)])
+    seen = rng.choice(6 if repeat else 15, size=k, replace=False)
+    positions, covariance = _problem(map_xy, map_xy[seen], rng.normal(0, 0.7, 2), rng.normal(0, 0.04), rng)
+    plain = match_constellation(positions, covariance, range(15, 15 + k), range(15))
+    strict = match_constellation(positions, covariance, range(15, 15 + k), range(15), fewer_rival=True)
+    assert strict.best == plain.best and strict.compatible == plain.compatible
+    if plain.status != "matched":
+        assert strict.status == plain.status and strict.rival == plain.rival
+    elif strict.status == "ambiguous":
+        near = strict.rival
+        assert len(near.pairs) == len(plain.best.pairs) - 1 and not set(near.pairs) & set(plain.best.pairs)
+        assert chi2.logsf(near.d2, near.dof) >= chi2.logsf(plain.best.d2, plain.best.dof)
+    else:
+        assert strict.status == "matched"
+
+
+def test_fewer_rival_keeps_most_unique_passes_of_three_posts_in_a_random_layout():
+    """The price on a layout without repeats: passes of three posts that the plain rule matches (all 40 here) and
+    that a contradicting 2-pairing hypothesis out-fits (2 here)."""
+    kept = 0
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        map_xy = _layout(rng, 15)
+        seen = rng.choice(15, size=3, replace=False)
+        positions, covariance = _problem(map_xy, map_xy[seen], rng.normal(0, 0.7, 2), rng.normal(0, 0.04), rng)
+        result = match_constellation(positions, covariance, range(15, 18), range(15), fewer_rival=True)
+        assert result.status != "matched" or dict(result.best.pairs) == {15 + i: int(q) for i, q in enumerate(seen)}
+        kept += result.status == "matched"
+    assert kept >= 35
