@@ -89,7 +89,7 @@ def joint_d2(positions: np.ndarray, covariance: np.ndarray, pairs) -> tuple[floa
 def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_points, map_points, *,
                         allowed: np.ndarray | None = None, min_pairs: int = 3, probability: float = 0.99,
                         ratio: float = np.inf, max_nodes: int = 200_000,
-                        fewer_rival: bool = False) -> ConstellationMatch:
+                        fewer_rival: bool = False, distinct_points: bool = False) -> ConstellationMatch:
     """Which of ``map_points`` the ``pass_points`` are, tested jointly (module docstring).
 
     positions (n, 2), covariance (2n, 2n): every point's position and their joint covariance; pass_points,
@@ -104,7 +104,13 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     pairings as the truth; on a loose map (gates metres wide) a row of posts shifted by one post gathers one pairing
     more than the truth, which leaves the row's end post unpaired, and only the fit tells them apart. A match must
     then out-fit the best contradicting hypothesis of one pairing fewer, not only out-number it (searched again
-    without the best's pairings, so the search cost at most doubles)."""
+    without the best's pairings, so the search cost at most doubles).
+
+    ``distinct_points`` (session 29): the pairings that count towards ``min_pairs`` are the best's *distinct* pass
+    points — two of its pass points within each other's χ²₂ gate (two names the chain left of one post: their
+    difference is centimetres, known to centimetres) are one point of the constellation. Pairing such twins with an
+    earlier pass's twins adds a pairing but no distance or angle: a row of two posts then looks like three, and
+    any two neighbours of a row 1.5 m apart match (robot 4, session 29). Fewer distinct points: ``"too_few"``."""
     if min_pairs < 1:
         raise ValueError(f"a match needs at least one pairing, not min_pairs={min_pairs}")
     if not ratio > 1:
@@ -128,6 +134,8 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
     log_ratio = best.log_likelihood - rival.log_likelihood if rival is not None else float("inf")
     if top < min_pairs:
         return ConstellationMatch("too_few", best, rival, log_ratio, compatible)
+    if distinct_points and distinct_count(positions, covariance, [p for p, _ in best.pairs], probability) < min_pairs:
+        return ConstellationMatch("too_few", best, rival, log_ratio, compatible)
     if rival is not None and not log_ratio >= np.log(ratio):
         return ConstellationMatch("ambiguous", best, rival, log_ratio, compatible)
     if fewer_rival and top > 1:
@@ -136,6 +144,25 @@ def match_constellation(positions: np.ndarray, covariance: np.ndarray, pass_poin
             return ConstellationMatch("ambiguous", best, near, best.log_likelihood - near.log_likelihood,
                                       compatible)
     return ConstellationMatch("matched", best, rival, log_ratio, compatible)
+
+
+def distinct_count(positions: np.ndarray, covariance: np.ndarray, points, probability: float = 0.99) -> int:
+    """How many distinct places ``points`` are: the connected sets of points within each other's χ²₂ gate at
+    ``probability`` (:func:`pairwise_d2`, the joint covariance's cross terms included)."""
+    points = [int(p) for p in points]
+    if len(points) < 2:
+        return len(points)
+    linked = pairwise_d2(positions, covariance, points) < chi2.ppf(probability, 2)
+    label = list(range(len(points)))
+
+    def find(i: int) -> int:
+        while label[i] != i:
+            i = label[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(linked, 1)), strict=True):
+        label[find(int(i))] = find(int(j))
+    return len({find(i) for i in range(len(points))})
 
 
 def _most_pairings(positions, covariance, pass_points, map_points, allowed, gates, max_nodes) -> list[Hypothesis]:

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimation import chi2
-from estimation.constellation import joint_d2, match_constellation
+from estimation.constellation import distinct_count, joint_d2, match_constellation
 
 SIGMA_POST = 0.03          # m, each map post and each pass point alone
 SIGMA_SHIFT = 1.5          # m, the pass's unknown translation
@@ -615,3 +615,49 @@ def test_fewer_rival_keeps_most_unique_passes_of_three_posts_in_a_random_layout(
         assert result.status != "matched" or dict(result.best.pairs) == {15 + i: int(q) for i, q in enumerate(seen)}
         kept += result.status == "matched"
     assert kept >= 35
+
+
+def test_twin_names_paired_with_twin_names_are_one_point_of_the_constellation():
+    # robot 4 seed 0 (session 29): a later pass past posts 16, 17 (17 under two names) matched with three pairings an
+    # earlier pass past 18, 19 (19 under two names): two posts 1.5 m apart match any two neighbours of the row
+    rng = np.random.default_rng(1)
+    earlier = np.array([[0.0, 0.0], [1.5, 0.0], [1.5, 0.0]])
+    later = np.array([[0.0, 0.0], [1.52, 0.0], [1.52, 0.0]])
+    positions, covariance = _problem(earlier, later, np.array([0.3, -0.2]), 0.02, rng, noise=0.0)
+    allowed = np.ones((6, 6), bool)         # the twins paired in one order only (else the other order is a rival)
+    allowed[4, 2] = allowed[2, 4] = allowed[5, 1] = allowed[1, 5] = False
+    plain = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2], allowed=allowed)
+    assert plain.status == "matched" and len(plain.best.pairs) == 3
+    assert distinct_count(positions, covariance, [3, 4, 5]) == 2
+    strict = match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2], allowed=allowed, distinct_points=True)
+    assert strict.status == "too_few" and strict.best == plain.best
+    assert match_constellation(positions, covariance, [3, 4, 5], [0, 1, 2], allowed=allowed, distinct_points=True,
+                               min_pairs=2).status == "matched"
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), k=st.integers(2, 6), twins=st.integers(0, 3))
+def test_distinct_count_counts_posts_not_names(seed, k, twins):
+    """Names of a pass's posts (≥ 0.7 m apart, a pass's internal σ 3 cm), ``twins`` of them named twice: as many
+    distinct points as posts."""
+    rng = np.random.default_rng(seed)
+    posts = _layout(rng, k)
+    twins = min(twins, k)
+    names = np.vstack([posts, posts[:twins]])
+    positions, covariance = _problem(np.zeros((0, 2)), names, rng.normal(0, 1.0, 2), rng.normal(0, 0.05), rng,
+                                     noise=0.0)
+    assert distinct_count(positions, covariance, range(len(names))) == k
+
+
+def test_distinct_points_keeps_a_random_layout_s_passes_matched():
+    matched = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        map_xy = _layout(rng, 15)
+        seen = rng.choice(15, size=4, replace=False)
+        positions, covariance = _problem(map_xy, map_xy[seen], rng.normal(0, 0.7, 2), rng.normal(0, 0.04), rng)
+        plain = match_constellation(positions, covariance, range(15, 19), range(15))
+        strict = match_constellation(positions, covariance, range(15, 19), range(15), distinct_points=True)
+        assert (strict.status, strict.best) == (plain.status, plain.best)
+        matched += strict.status == "matched"
+    assert matched >= 18
