@@ -8,6 +8,7 @@ Run from the repository root:
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--slip 0.3]
+        [--fewer-rival] [--distinct-points]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -229,7 +230,8 @@ def passes_of(named: NamedProblem, solution: Smoothed, seconds: float, min_sight
 
 
 def judge_passes(positions: np.ndarray, covariance: np.ndarray, covisible: np.ndarray, passes: list[Pass], *,
-                 min_pairs: int, ratio: float, probability: float = 0.99) -> list[PassVerdict]:
+                 min_pairs: int, ratio: float, probability: float = 0.99, fewer_rival: bool = False,
+                 distinct_points: bool = False) -> list[PassVerdict]:
     """Every pass against every earlier pass (module docstring, step 3): positions (n, 2)
     and their joint covariance (2n, 2n), covisible (n, n) names sighted in one frame (never paired)."""
     n = len(positions)
@@ -250,7 +252,7 @@ def judge_passes(positions: np.ndarray, covariance: np.ndarray, covisible: np.nd
                 continue
             result = match_constellation(positions, covariance, rest_p, rest_q, allowed=allowed,
                                          min_pairs=max(min_pairs - len(shared), 1), probability=probability,
-                                         ratio=ratio)
+                                         ratio=ratio, fewer_rival=fewer_rival, distinct_points=distinct_points)
             statuses.append(result.status)
             if result.status == "matched":
                 matched.append(result)
@@ -677,7 +679,8 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
     passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
     covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
     verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
-                            ratio=args.ratio if args.ratio is not None else np.inf)
+                            ratio=args.ratio if args.ratio is not None else np.inf,
+                            fewer_rival=args.fewer_rival, distinct_points=args.distinct_points)
     owner = majority(current.names, barcodes)
     judged = score_verdicts(verdicts, current.named, owner)
     judged["judge_cpu_s"] = time.process_time() - started
@@ -1267,6 +1270,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-pairs", type=positive_int, default=3, help="pairings a match needs")
     parser.add_argument("--ratio", type=positive_float, default=None,
                         help="likelihood ratio of the best hypothesis over a rival (default: no rival allowed)")
+    parser.add_argument("--fewer-rival", action="store_true",
+                        help="a match is refused when a hypothesis of one pairing fewer, sharing none of its "
+                             "pairings, fits as well (χ² survival; session 29: a row of posts shifted by one)")
+    parser.add_argument("--distinct-points", action="store_true",
+                        help="a match's pairings counted by its distinct pass points (two names within each "
+                             "other's χ²₂ gate are one; session 29)")
     parser.add_argument("--max-rounds", type=non_negative_int, default=3,
                         help="the last round to run (counted from the chain, also after --from-round)")
     parser.add_argument("--state-dir", metavar="DIR", default=None,
@@ -1349,7 +1358,8 @@ def main(argv: list[str] | None = None) -> int:
             _print(row)
     if args.json:
         print(json.dumps({"seed": args.seed, "drift": list(args.drift), "slip": args.slip, "pass_s": args.pass_seconds,
-                          "min_pairs": args.min_pairs, "ratio": args.ratio, "robots": rows}))
+                          "min_pairs": args.min_pairs, "ratio": args.ratio, "fewer_rival": args.fewer_rival,
+                          "distinct_points": args.distinct_points, "robots": rows}))
     return 0
 
 
