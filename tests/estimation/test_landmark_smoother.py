@@ -284,6 +284,32 @@ DRIFT_SIGMA, DRIFT_TAU = 0.01, 20.0          # rad/m, s
 CHI2_3_95 = 7.815
 
 
+def gauss_markov(steps: int, sigma: float, tau: float, rng) -> np.ndarray:
+    """(steps,) a first-order Gauss–Markov process of stationary σ and correlation time τ steps (1 s each)."""
+    decay = np.exp(-1.0 / tau)
+    out = np.zeros(steps)
+    out[0] = sigma * rng.standard_normal()
+    for i in range(1, steps):
+        out[i] = decay * out[i - 1] + sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal()
+    return out
+
+
+def simulated_sightings(truth: np.ndarray, landmarks: np.ndarray, rng) -> tuple[list, list, list, list]:
+    """Range-bearing sightings (σ SIGMA_R, SIGMA_B) from poses 1..T of ``truth`` (T + 1, 3) of every landmark within
+    4 m and ±0.8 rad: pose indices, landmark indices, ranges, bearings."""
+    pose_index, landmark_index, ranges, bearings = [], [], [], []
+    for j in range(1, len(truth)):
+        d = landmarks - truth[j, :2]
+        r = np.hypot(d[:, 0], d[:, 1])
+        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[j, 2])
+        visible = np.flatnonzero((np.abs(b) < 0.8) & (r < 4.0))
+        pose_index += [j] * len(visible)
+        landmark_index += list(visible)
+        ranges += list(r[visible] + SIGMA_R * rng.standard_normal(len(visible)))
+        bearings += list(b[visible] + SIGMA_B * rng.standard_normal(len(visible)))
+    return pose_index, landmark_index, ranges, bearings
+
+
 def drifting_log(seed: int, steps: int = 150, sigma: float = DRIFT_SIGMA, tau: float = DRIFT_TAU):
     """A robot meandering 0.3 m a second along an open path past landmarks strewn beside it (each in view for a
     few metres), its odometry's heading off by b_k × 0.3 m at step k, b a Gauss–Markov process (stationary σ rad/m,
@@ -294,24 +320,11 @@ def drifting_log(seed: int, steps: int = 150, sigma: float = DRIFT_SIGMA, tau: f
     k = np.arange(steps)
     true_increments = np.column_stack([np.full(steps, speed), np.zeros(steps), 0.08 * np.sin(2 * np.pi * k / 80)])
     truth = dead_reckoning(true_increments)
-    decay = np.exp(-1.0 / tau)
-    bias = np.zeros(steps)
-    bias[0] = sigma * rng.standard_normal()
-    for i in range(1, steps):
-        bias[i] = decay * bias[i - 1] + sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal()
+    bias = gauss_markov(steps, sigma, tau, rng)
     measured = true_increments + rng.standard_normal((steps, 3)) * np.sqrt(variance)
     measured[:, 2] -= bias * speed
     landmarks = truth[::5, :2] + rng.normal(0, 1.5, (len(truth[::5]), 2))
-    pose_index, landmark_index, ranges, bearings = [], [], [], []
-    for j in range(1, steps + 1):
-        d = landmarks - truth[j, :2]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[j, 2])
-        visible = np.flatnonzero((np.abs(b) < 0.8) & (r < 4.0))
-        pose_index += [j] * len(visible)
-        landmark_index += list(visible)
-        ranges += list(r[visible] + SIGMA_R * rng.standard_normal(len(visible)))
-        bearings += list(b[visible] + SIGMA_B * rng.standard_normal(len(visible)))
+    pose_index, landmark_index, ranges, bearings = simulated_sightings(truth, landmarks, rng)
     sighted, landmark_index = np.unique(landmark_index, return_inverse=True)
     s = len(ranges)
     problem = LandmarkLogProblem(measured, np.tile(variance, (steps, 1)), np.array(pose_index), landmark_index,

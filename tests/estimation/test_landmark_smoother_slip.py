@@ -17,9 +17,8 @@ from estimation.landmark_smoother import (
     normalised_residuals,
     smooth,
 )
-from tests.estimation.test_landmark_smoother import simulated_log
+from tests.estimation.test_landmark_smoother import SIGMA_B, SIGMA_R, gauss_markov, simulated_log, simulated_sightings
 
-SIGMA_R, SIGMA_B = 0.05, 0.02
 SLIP_SIGMA, SLIP_TAU = 0.05, 20.0          # rad/rad, s
 CHI2_3_95 = 7.815
 
@@ -37,24 +36,11 @@ def wiggling_log(seed: int, blocks: int = 10, sigma: float = SLIP_SIGMA, tau: fl
     truth = dead_reckoning(true_increments)
     distance, turn = np.hypot(true_increments[:, 0], true_increments[:, 1]), np.abs(true_increments[:, 2])
     variance = np.column_stack([1e-4 * distance + 1e-6, 1e-4 * distance + 1e-6, 2e-4 * turn + 1e-4 * distance + 1e-6])
-    decay = np.exp(-1.0 / tau)
-    slip = np.zeros(steps)
-    slip[0] = sigma * rng.standard_normal()
-    for i in range(1, steps):
-        slip[i] = decay * slip[i - 1] + sigma * np.sqrt(1 - decay ** 2) * rng.standard_normal()
+    slip = gauss_markov(steps, sigma, tau, rng)
     measured = true_increments + rng.standard_normal((steps, 3)) * np.sqrt(variance)
     measured[:, 2] -= slip * turn
     landmarks = truth[::6, :2] + rng.normal(0, 1.5, (len(truth[::6]), 2))
-    pose_index, landmark_index, ranges, bearings = [], [], [], []
-    for j in range(1, steps + 1):
-        d = landmarks - truth[j, :2]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[j, 2])
-        visible = np.flatnonzero((np.abs(b) < 0.8) & (r < 4.0))
-        pose_index += [j] * len(visible)
-        landmark_index += list(visible)
-        ranges += list(r[visible] + SIGMA_R * rng.standard_normal(len(visible)))
-        bearings += list(b[visible] + SIGMA_B * rng.standard_normal(len(visible)))
+    pose_index, landmark_index, ranges, bearings = simulated_sightings(truth, landmarks, rng)
     _, landmark_index = np.unique(landmark_index, return_inverse=True)
     s = len(ranges)
     problem = LandmarkLogProblem(measured, variance, np.array(pose_index), landmark_index, np.array(ranges),
