@@ -45,6 +45,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.geometry import between, wrap_angle  # noqa: E402
 from estimation.landmark_smoother import IN_PLACE_M_PER_RAD  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from runtime.commands.options import positive_float  # noqa: E402
 
 STEP_S = 0.25                    # the filter's frame interval: the smoother's increments
 HORIZONS_S = (1, 2, 5, 10, 20, 30, 60)
@@ -152,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", default=str(DATA))
     parser.add_argument("--robots", default="1,2,3,4,5")
-    parser.add_argument("--slip", type=float, nargs=2, action="append", metavar=("RAD_PER_RAD", "S"),
+    parser.add_argument("--slip", type=positive_float, nargs=2, action="append", metavar=("RAD_PER_RAD", "S"),
                         help="a heading slip per radian (σ, τ) to add to the model; repeatable "
                              "(default 0.2 10, 0.3 10)")
     parser.add_argument("--all-turns", action="store_true", help="the slip multiplies every turn, not only those on "
