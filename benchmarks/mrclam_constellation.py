@@ -831,16 +831,14 @@ def unconfirmed_names(log: RangeBearingLog, current: MergeRound, noise, config) 
     own (robot 1 seed 0's post 8: existence −18.8) has no such neighbour and stays. Only the smoother's frames count
     (frames without any sighting are not poses of it), so misses are undercounted: the test errs towards keeping."""
     config = with_fastslam(noise, config)
-    solution, problem = current.solution, current.named.problem
+    solution = current.solution
     poses = solution.poses[1:]                                  # pose k + 1 is frame k
     offset = solution.landmarks[None, :, :] - poses[:, None, :2]
     ranges = np.hypot(offset[..., 0], offset[..., 1])
     bearings = wrap_angle(np.arctan2(offset[..., 1], offset[..., 0]) - poses[:, None, 2])
     in_view = (ranges >= config.min_range) & (ranges <= config.max_range) \
         & (np.abs(bearings) <= config.fov_horizontal / 2)
-    detected = np.zeros(in_view.shape, bool)
-    kept = solution.inliers
-    detected[problem.pose_index[kept] - 1, problem.landmark_index[kept]] = True
+    detected = detected_in_frames(current)
     existence = config.existence_initial + np.where(
         detected, hit_log_odds(config, ranges), np.where(in_view, miss_log_odds(config, ranges), 0.0)).sum(axis=0)
     exclusive = exclusive_log_odds(config, ranges)
@@ -875,16 +873,7 @@ def leave_out(log: RangeBearingLog, current: MergeRound, left: list[int], noise,
         return current, record
     names = current.names.copy()
     names[np.isin(names, left)] = -1
-    # the frames left are a subset of the old ones (a frame that saw only the left-out names goes); the guess is
-    # the old solution at them, in the frame of the new first pose (the old one if its frame stays)
-    times = np.unique(log.sighting_times[names >= 0])
-    at = current.solution.poses[1 + np.searchsorted(current.named.frame_times, np.r_[times[:1], times])]
-    start = at[0]
-    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
-               for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) not in left}
-    named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,
-                                    heading_drift=drift, path_step_s=_path_step(args))
-    return MergeRound([], 0.0, 0.0, True, names, named, solution), record
+    return resmoothed(log, current, names, noise, config, drift, args), record
 
 
 def poses_at(log: RangeBearingLog, current: MergeRound, noise, times: np.ndarray) -> np.ndarray:
@@ -932,9 +921,7 @@ def unnamed_names(log: RangeBearingLog, current: MergeRound, noise, offset_sigma
     d2 = np.einsum("rli,rli->rl", e, np.linalg.solve(s, e[..., None])[..., 0])
     # a name already detected in the sighting's frame cannot be its name
     frame_of = {float(t): i for i, t in enumerate(named.frame_times)}
-    detected = np.zeros((len(named.frame_times), len(named.names)), bool)
-    kept = solution.inliers
-    detected[named.problem.pose_index[kept] - 1, named.problem.landmark_index[kept]] = True
+    detected = detected_in_frames(current)
     out: dict[int, int] = {}
     taken: dict[tuple[float, int], list[int]] = {}
     for i, row in enumerate(rows):
@@ -977,17 +964,35 @@ def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift
         fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times) > 5.0)]
         groups[order] = int(max(groups.max(), names.max())) + np.cumsum(fresh)
         _OFFSET["names"] = groups
-    frames = np.unique(log.sighting_times[names >= 0])
-    at = poses_at(log, current, noise, np.r_[frames[:1], frames])
-    start = at[0]
-    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
-               for x, p in zip(current.named.names, current.solution.landmarks, strict=True)}
-    named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,
-                                    heading_drift=drift, path_step_s=_path_step(args))
+    state = resmoothed(log, current, names, noise, config, drift, args)
+    named, solution = state.named, state.solution
     kept_rows = np.setdiff1d(rows, named.sightings[~solution.inliers])     # the rest the smoother dropped
     record.update(kept=int(len(kept_rows)),
                   wrong_kept=sum(owner.get(int(names[r])) != int(log.landmark_ids[r]) for r in kept_rows))
-    return MergeRound([], 0.0, 0.0, True, names, named, solution), record
+    return state, record
+
+
+def detected_in_frames(current: MergeRound) -> np.ndarray:
+    """(frames, names) bool: which names a kept sighting reports in each of the smoother's frames."""
+    problem, kept = current.named.problem, current.solution.inliers
+    detected = np.zeros((len(current.named.frame_times), len(current.named.names)), bool)
+    detected[problem.pose_index[kept] - 1, problem.landmark_index[kept]] = True
+    return detected
+
+
+def resmoothed(log: RangeBearingLog, current: MergeRound, names: np.ndarray, noise, config, drift, args
+               ) -> MergeRound:
+    """``names`` smoothed from ``current``'s solution: the poses at the new frames (:func:`poses_at`: an old frame's
+    own pose, a new one's nearest moved by the odometry) and the names kept, in the frame of the new first pose."""
+    frames = np.unique(log.sighting_times[names >= 0])
+    at = poses_at(log, current, noise, np.r_[frames[:1], frames])
+    start = at[0]
+    kept = set(np.unique(names[names >= 0]).tolist())
+    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
+               for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) in kept}
+    named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,
+                                    heading_drift=drift, path_step_s=_path_step(args))
+    return MergeRound([], 0.0, 0.0, True, names, named, solution)
 
 
 STATE_ARRAYS = ("poses", "landmarks", "landmark_covariances", "covariance_poses", "pose_covariances", "inliers")
