@@ -8,7 +8,7 @@ Run from the repository root:
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--slip 0.3]
-        [--fewer-rival] [--distinct-points]
+        [--fewer-rival] [--distinct-points] [--rival-rounds K]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -86,7 +86,7 @@ The method (the barcodes never decide; they only score):
    (two different places for one pass's constellation: ambiguous, refused). ``--fewer-rival``: a match is refused
    when a hypothesis of one pairing fewer, sharing none of its pairings, fits as well by χ² survival (a row of posts
    shifted by one pairs one name more than the truth); ``--distinct-points``: pairings counted by distinct pass
-   points.
+   points; ``--rival-rounds K``: both in rounds 1..K only (the loose map's, where a shifted row fits).
 4. **Merges**: the matched passes' pairings, most pairings first then largest ratio, joined name by name unless the
    join puts two names sighted in one frame together; re-smoothed, the batch kept when the truncated cost's rise
    is within χ² 99 % for 2 per absorbed name; a refused batch is cut in halves, each tried in turn, down to
@@ -694,7 +694,7 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
     covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
     verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
                             ratio=args.ratio if args.ratio is not None else np.inf,
-                            fewer_rival=args.fewer_rival, distinct_points=args.distinct_points)
+                            **rival_options(args, k + 1))
     owner = majority(current.names, barcodes)
     judged = score_verdicts(verdicts, current.named, owner)
     judged["judge_cpu_s"] = time.process_time() - started
@@ -729,6 +729,12 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
         save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), state,
                    _state_meta(log, args, drift, k + 1, _round(log, state, owner)))
     return state
+
+
+def rival_options(args, round_number: int) -> dict:
+    """A's ``--fewer-rival``/``--distinct-points`` for round ``round_number``: off after ``--rival-rounds``."""
+    on = args.rival_rounds is None or round_number <= args.rival_rounds
+    return {"fewer_rival": args.fewer_rival and on, "distinct_points": args.distinct_points and on}
 
 
 def without_pairings(verdicts: list[PassVerdict], drop) -> list[PassVerdict]:
@@ -1295,6 +1301,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--distinct-points", action="store_true",
                         help="a match's pairings counted by its distinct pass points (two names within each "
                              "other's χ²₂ gate are one; session 29)")
+    parser.add_argument("--rival-rounds", type=positive_int, default=None, metavar="K",
+                        help="--fewer-rival and --distinct-points in rounds 1..K only (the loose map's; default: "
+                             "every round; session 30)")
     parser.add_argument("--max-rounds", type=non_negative_int, default=3,
                         help="the last round to run (counted from the chain, also after --from-round)")
     parser.add_argument("--state-dir", metavar="DIR", default=None,
@@ -1364,6 +1373,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--honest-rounds needs --honest-names ALPHA")
     if args.offsets_once_tight and not args.sighting_offset > 0:
         parser.error("--offsets-once-tight needs --sighting-offset M")
+    if args.rival_rounds is not None and not (args.fewer_rival or args.distinct_points):
+        parser.error("--rival-rounds needs --fewer-rival or --distinct-points")
     if args.from_round is not None and not args.state_dir:
         parser.error("--from-round needs --state-dir")
     if not os.path.isdir(args.data):
@@ -1378,7 +1389,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps({"seed": args.seed, "drift": list(args.drift), "slip": args.slip, "pass_s": args.pass_seconds,
                           "min_pairs": args.min_pairs, "ratio": args.ratio, "fewer_rival": args.fewer_rival,
-                          "distinct_points": args.distinct_points, "robots": rows}))
+                          "distinct_points": args.distinct_points, "rival_rounds": args.rival_rounds,
+                          "robots": rows}))
     return 0
 
 

@@ -18,3 +18,23 @@ def test_judge_passes_refuses_a_shifted_row_with_fewer_rival_and_matches_it_with
     for options in ({"fewer_rival": True}, {"fewer_rival": True, "distinct_points": True}):
         refused = judge_passes(positions, covariance, covisible, passes, min_pairs=3, ratio=np.inf, **options)
         assert [v.status for v in refused] == ["no_earlier", "ambiguous"] and refused[1].pairs == []
+
+
+def test_rival_rounds_keeps_the_options_in_the_first_rounds_only():
+    from types import SimpleNamespace
+
+    from benchmarks.mrclam_constellation import rival_options
+    args = SimpleNamespace(fewer_rival=True, distinct_points=False, rival_rounds=1)
+    assert rival_options(args, 1) == {"fewer_rival": True, "distinct_points": False}
+    assert rival_options(args, 2) == {"fewer_rival": False, "distinct_points": False}
+    every = SimpleNamespace(fewer_rival=True, distinct_points=True, rival_rounds=None)
+    assert rival_options(every, 9) == {"fewer_rival": True, "distinct_points": True}
+
+
+def test_rival_rounds_without_a_rival_option_is_refused(capsys):
+    import pytest
+
+    from benchmarks.mrclam_constellation import main
+    with pytest.raises(SystemExit):
+        main(["--rival-rounds", "1"])
+    assert "--rival-rounds needs --fewer-rival" in capsys.readouterr().err
