@@ -3,7 +3,8 @@
 Run from the repository root, on the states ``benchmarks.mrclam_constellation --state-dir DIR`` keeps:
 
     .venv/bin/python -m benchmarks.mrclam_pass_support --state-dir DIR [--robots 1,2,3,4,5] [--seeds 0,2]
-        [--rounds 0,1] [--pass-seconds 20] [--min-sightings 2] [--min-pairs 3] [--visit-gap 2] [--groups] [--json]
+        [--rounds 0,1] [--pass-seconds 20] [--min-sightings 2] [--min-pairs 3] [--fewer-rival] [--distinct-points]
+        [--visit-gap 2] [--groups] [--json]
 
 For every saved state ``round<K>`` the next round is judged exactly as ``mrclam_constellation``'s rounds judge it
 (``passes_of``, ``judge_passes``, ``merges_from``, and the merge groups ``guard_record`` builds: the clusters of the
@@ -239,7 +240,7 @@ def judge_state(log, noise, config, path, args) -> dict:
     passes = passes_of(named, solution, args.pass_seconds, args.min_sightings)
     covisible = _covisible(named.problem, solution.inliers, n)
     verdicts = judge_passes(solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
-                            ratio=np.inf)
+                            ratio=np.inf, fewer_rival=args.fewer_rival, distinct_points=args.distinct_points)
     _, used = merges_from(verdicts, covisible)
     owner = majority(current.names, log.landmark_ids)
     code = np.array([owner.get(int(x), -1) for x in named.names])
@@ -351,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-sightings", type=positive_int, default=2,
                         help="kept sightings of a name within a pass's span for it to be the pass's")
     parser.add_argument("--min-pairs", type=positive_int, default=3, help="pairings a match needs")
+    parser.add_argument("--fewer-rival", action="store_true",
+                        help="judge as mrclam_constellation --fewer-rival does (a shifted row refused by its fit)")
+    parser.add_argument("--distinct-points", action="store_true",
+                        help="judge as mrclam_constellation --distinct-points does (pairings by distinct points)")
     parser.add_argument("--visit-gap", type=positive_int, default=2, metavar="PASSES",
                         help="proposing passes at least this many spans apart are separate visits (2: adjacent "
                              "spans are one visit)")
