@@ -20,6 +20,7 @@ from estimation.landmark_smoother import (
 from estimation.map_honesty import (
     Run,
     flagged_landmarks,
+    flagged_runs,
     self_covisible_frames,
     sighting_jumps,
     sighting_runs,
@@ -146,6 +147,65 @@ def test_the_per_name_test_flags_the_wrong_name_against_its_own_runs_only():
     honest_runs = sighting_runs(honest, honest_solution, 5.0)
     assert not flagged_landmarks(honest_runs, split_scores(honest, honest_solution, honest_runs),
                                  len(honest_solution.landmarks)).any()
+
+
+def without_sightings(problem: LandmarkLogProblem, drop: np.ndarray) -> LandmarkLogProblem:
+    keep = np.ones(len(problem.ranges), bool)
+    keep[drop] = False
+    return dataclasses.replace(problem, pose_index=problem.pose_index[keep],
+                               landmark_index=problem.landmark_index[keep], ranges=problem.ranges[keep],
+                               bearings=problem.bearings[keep],
+                               range_sigmas=problem.range_sigmas[keep], bearing_sigmas=problem.bearing_sigmas[keep])
+
+
+def landmark_nees(solution, truth: np.ndarray, index: np.ndarray) -> np.ndarray:
+    error = solution.landmarks[index] - truth[index]
+    return np.einsum("li,li->l", error, np.linalg.solve(solution.landmark_covariances[index], error[..., None])[..., 0])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_taking_the_flagged_runs_out_of_their_names_makes_the_bent_stretch_honest(seed):
+    problem, injected, truth = stretch_log(seed, np.array([0.0, 1.2]))
+    solution = solved(problem)
+    runs = sighting_runs(problem, solution, 5.0)
+    out = flagged_runs(runs, split_scores(problem, solution, runs))
+    taken = np.concatenate([runs[i].sightings for i in np.flatnonzero(out)])
+    wrong = problem.landmark_index[injected]
+    assert injected in taken                        # the wrong sighting's run goes, its name's stretch run stays
+    in_stretch = (problem.pose_index >= STRETCH[0]) & (problem.pose_index < STRETCH[1])
+    assert not np.isin(np.flatnonzero(in_stretch & (problem.landmark_index == wrong)), taken).any()
+    stretch = np.unique(problem.landmark_index[in_stretch])
+    bound = chi2.ppf(0.95, 2)
+    assert landmark_nees(solution, truth, stretch).max() > 10 * bound     # bent to fit it: confidently wrong
+    rest = without_sightings(problem, taken)
+    resolved = solved(rest)
+    assert np.all(landmark_nees(resolved, truth, stretch) < bound)          # measured ≤ 4.6 on seeds 0-11
+    rest_runs = sighting_runs(rest, resolved, 5.0)
+    assert not flagged_runs(rest_runs, split_scores(rest, resolved, rest_runs)).any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(sizes=st.lists(st.tuples(st.integers(0, 4), st.integers(1, 30)), min_size=1, max_size=20),
+       raw=st.lists(st.one_of(st.floats(0.0, 60.0), st.just(float("nan"))), min_size=20, max_size=20),
+       alpha=st.floats(0.001, 0.2))
+def test_a_name_keeps_its_largest_run_and_loses_every_other_run_beyond_its_own_threshold(sizes, raw, alpha):
+    runs = [Run(landmark, np.arange(size), 0.0, 1.0) for landmark, size in sizes]
+    scores = np.array(raw[:len(runs)])
+    out = flagged_runs(runs, scores, alpha)
+    landmarks = {run.landmark for run in runs}
+    flagged_names = flagged_landmarks(runs, scores, 5, alpha)
+    for landmark in landmarks:
+        mine = [i for i, run in enumerate(runs) if run.landmark == landmark]
+        largest = max(mine, key=lambda i: (len(runs[i].sightings), -i))
+        assert not out[largest]                     # the name keeps its largest run (of equals, the first)
+        threshold = split_threshold(len(mine), alpha)
+        for i in mine:
+            if i != largest:
+                assert out[i] == (np.isfinite(scores[i]) and scores[i] > threshold)
+        if any(out[i] for i in mine):
+            assert flagged_names[landmark]          # a run taken out is a flag of the per-name screen
+    with pytest.raises(ValueError, match="one score a run"):
+        flagged_runs(runs, np.zeros(len(runs) + 1))
 
 
 @settings(max_examples=8, deadline=None)
