@@ -196,7 +196,7 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     posts = np.array([owner.get(int(x), -1) for x in named.names])
     t0 = float(named.frame_times[0])
     record["first_frame_s"] = t0
-    return named.problem, current.solution, posts, _truth_in_frame(log, posts, log.true_pose([t0])[0]), record
+    return named.problem, current.solution, posts, truth_in_frame(log, posts, log.true_pose([t0])[0]), record
 
 
 def known_id_map(robot: int, data: Path):
@@ -214,7 +214,7 @@ def known_id_map(robot: int, data: Path):
     return cap.problem, solution, cap.landmark_ids, cap.true_landmarks, record
 
 
-def _truth_in_frame(log, posts: np.ndarray, true_start: np.ndarray) -> np.ndarray:
+def truth_in_frame(log, posts: np.ndarray, true_start: np.ndarray) -> np.ndarray:
     index = {int(i): k for k, i in enumerate(log.truth_ids)}
     world = np.array([log.truth_positions[index[int(p)]] if int(p) in index else (np.nan, np.nan)
                       for p in posts]).reshape(-1, 2)
