@@ -7,7 +7,7 @@ Run from the repository root:
         [--max-rounds 3] [--bisect 2] [--reguess] [--layout] [--ceiling] [--progress] [--json]
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
-        [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--slip 0.3]
+        [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--runs-out] [--slip 0.3]
         [--fewer-rival] [--distinct-points] [--rival-rounds K]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
@@ -123,6 +123,12 @@ The method (the barcodes never decide; they only score):
    smoothed pose by the smoother's own outlier bound (:func:`unnamed_names`) is named, and the map re-smoothed
    (:func:`name_unnamed`): the first seconds' sightings tie the map's frame.
 
+10. ``--runs-out`` (session 30, B), after the naming: the runs of sightings the honest-names screen flags
+   (:func:`estimation.map_honesty.flagged_runs`, a name's largest run never) are taken out of their names
+   (:func:`leave_out_flagged_runs`), then the pairwise rounds and the naming run again: a flagged run no longer keeps
+   its name from its twin (robot 4), and a stray run no longer bends the stretch that holds a post's second name
+   (robot 2 seed 0).
+
 ``--state-dir DIR`` keeps each robot's state (names and the smoother's solution, ``.npz``) after the chain
 (``round0``), every kept round (``round<k>``) and pairwise round (``pairwise<k>``); ``--from-round K`` starts there.
 
@@ -186,6 +192,13 @@ from estimation.landmark_smoother import (  # noqa: E402
     Smoothed,
     joint_landmark_covariance,
     normalised_residuals,
+)
+from estimation.map_honesty import (  # noqa: E402
+    flagged_landmarks,
+    flagged_runs,
+    sighting_runs,
+    split_scores,
+    split_threshold,
 )
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
@@ -670,6 +683,16 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         current, row["named_again"] = name_unnamed(log, current, noise, config, drift, args)
         if args.progress:
             print(f"  unnamed sightings named: {row['named_again']}", file=sys.stderr, flush=True)
+    if args.runs_out:
+        current, row["runs_out"] = leave_out_flagged_runs(log, current, noise, config, drift, args)
+        if args.progress:
+            print(f"  runs taken out of their names: {row['runs_out']['runs'] or 'none'}", file=sys.stderr, flush=True)
+        if row["runs_out"]["runs"]:           # their names judged again without them, their sightings re-offered
+            if args.pairwise:
+                current = _pairwise_rounds(log, row, current, noise, config, drift, args)
+            current, row["named_after_runs_out"] = name_unnamed(log, current, noise, config, drift, args)
+            if args.progress:
+                print(f"  unnamed sightings named again: {row['named_after_runs_out']}", file=sys.stderr, flush=True)
     final = round_scores(log, current, majority(names, barcodes))
     kept = [a for r in row["rounds"] + row.get("pairwise", []) for a in [r.get("batch")] + r.get("tries", [])
             if a and a["accepted"]]
@@ -879,6 +902,41 @@ def leave_out(log: RangeBearingLog, current: MergeRound, left: list[int], noise,
         return current, record
     names = current.names.copy()
     names[np.isin(names, left)] = -1
+    return resmoothed(log, current, names, noise, config, drift, args), record
+
+
+def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
+                           ) -> tuple[MergeRound, dict]:
+    """``--runs-out`` (session 30, B), after ``--name-unnamed``: the runs of sightings the honest-names screen flags
+    (:func:`estimation.map_honesty.flagged_runs`: split score beyond χ²₂ at 1 − α/k, k the name's runs; a name's
+    largest run never) are taken out of their names — their sightings unnamed, the rest re-smoothed — instead of
+    standing in the map and keeping their names from every merge; the pairwise rounds and the naming then run again.
+    Robot 4: a right run of 9 sightings at 13.5 against 13.1 kept its name from its twin 1.3 cm away; robot 2 seed
+    0: 17 sightings of post 8 under post 9's name bent the stretch around them, and post 9's own sightings there
+    stood as a second name 0.5 m off. Returns the new state (``current`` when no run is flagged) and the runs taken
+    out, scored by the barcodes (each run's name, post, span, sightings, score and wrong sightings)."""
+    named, solution = current.named, current.solution
+    problem = named.problem
+    runs = sighting_runs(problem, solution, 5.0)
+    scores = split_scores(problem, solution, runs)
+    out = flagged_runs(runs, scores, args.honest_names)
+    per_name = np.bincount([run.landmark for run in runs], minlength=len(named.names))
+    owner = majority(current.names, log.landmark_ids)
+    times = named.frame_times[problem.pose_index - 1] - log.start_time
+    barcodes = np.asarray(log.landmark_ids)
+    names = current.names.copy()
+    record = {"runs": []}
+    for run, score in ((r, s) for r, s, o in zip(runs, scores, out, strict=True) if o):
+        rows = named.sightings[run.sightings]
+        name = int(named.names[run.landmark])
+        record["runs"].append({"name": name, "post": owner[name], "from_s": float(times[run.sightings[0]]),
+                               "to_s": float(times[run.sightings[-1]]), "sightings": len(rows),
+                               "score": float(score),
+                               "threshold": split_threshold(int(per_name[run.landmark]), args.honest_names),
+                               "wrong": int(np.sum(barcodes[rows] != owner[name]))})
+        names[rows] = -1
+    if not record["runs"]:
+        return current, record
     return resmoothed(log, current, names, noise, config, drift, args), record
 
 
@@ -1221,7 +1279,6 @@ def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0)
     (:func:`estimation.map_honesty.split_scores`: the first-order cost drop if the run were a name of its own) is
     beyond χ²₂ at 1 − α/k, k the name's runs (helper B, session 27: the screen that refused session 26's two wrong
     pairwise merges on robots 3 and 2, seed 0)."""
-    from estimation.map_honesty import flagged_landmarks, sighting_runs, split_scores
 
     runs = sighting_runs(problem, solution, gap_s)
     return flagged_landmarks(runs, split_scores(problem, solution, runs), len(solution.landmarks), alpha)
@@ -1344,6 +1401,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name-unnamed", action="store_true",
                         help="last: name the sightings no name holds where the final map names them unambiguously "
                              "(the smoother's outlier bound, one name within it)")
+    parser.add_argument("--runs-out", action="store_true",
+                        help="after --name-unnamed: take the runs of sightings the --honest-names screen flags out of "
+                             "their names (a name's largest run never), then the pairwise rounds and the naming again")
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
@@ -1371,6 +1431,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
     if args.honest_rounds and args.honest_names is None:
         parser.error("--honest-rounds needs --honest-names ALPHA")
+    if args.runs_out and (args.honest_names is None or not args.name_unnamed):
+        parser.error("--runs-out needs --honest-names ALPHA and --name-unnamed")
     if args.offsets_once_tight and not args.sighting_offset > 0:
         parser.error("--offsets-once-tight needs --sighting-offset M")
     if args.rival_rounds is not None and not (args.fewer_rival or args.distinct_points):
@@ -1390,6 +1452,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"seed": args.seed, "drift": list(args.drift), "slip": args.slip, "pass_s": args.pass_seconds,
                           "min_pairs": args.min_pairs, "ratio": args.ratio, "fewer_rival": args.fewer_rival,
                           "distinct_points": args.distinct_points, "rival_rounds": args.rival_rounds,
+                          "runs_out": args.runs_out,
                           "robots": rows}))
     return 0
 
