@@ -25,7 +25,9 @@ score; nothing here decides anything):
   "≥ 90 % within" (and the same for independent landmarks, binomial, for comparison).
 
 ``--sighting-offset M``: the state re-smoothed with the run's sighting offsets first (groups: the robot's round-0
-names, ``Robot<R>-seed<S>-round0.npz`` beside the state), as ``mrclam_constellation --sighting-offset`` does.
+names, ``Robot<R>-seed<S>-round0.npz`` beside the state), as ``mrclam_constellation --sighting-offset`` does. Give it
+for a state made with offsets: its saved marginal covariances carry them, but the joint covariance is recomputed
+from the problem and the solution, which do not keep the option (without it the two disagree).
 ``--name-unnamed``: then its last step, :func:`benchmarks.mrclam_constellation.name_unnamed` (the run's final map:
 ``--state-dir`` does not keep it). ``--known-id``: the same figures for the known-ID smoothing of the robot's log
 (``eval_mrclam --association id``'s, the noise model's four calibrations).
