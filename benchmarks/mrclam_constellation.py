@@ -196,6 +196,7 @@ from estimation.landmark_smoother import (  # noqa: E402
 from estimation.map_honesty import (  # noqa: E402
     flagged_landmarks,
     flagged_runs,
+    self_covisible_frames,
     sighting_runs,
     split_scores,
     split_threshold,
@@ -723,7 +724,8 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
     judged["judge_cpu_s"] = time.process_time() - started
     record = {"round": k + 1, "judged": judged, "sighting_offsets": _OFFSET["option"] is not None}
     if args.honest_rounds:
-        verdicts, record["honest_names"] = _without_flagged(current, verdicts, owner, args.honest_names)
+        verdicts, record["honest_names"] = _without_flagged(current, verdicts, owner, args.honest_names,
+                                                            args.hold_two_points)
         if args.progress:
             print(f"  round {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
     clusters, used = merges_from(verdicts, covisible)
@@ -768,13 +770,13 @@ def without_pairings(verdicts: list[PassVerdict], drop) -> list[PassVerdict]:
     return [v for v in kept if v.status != "matched" or v.pairs]
 
 
-def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float
-                     ) -> tuple[list[PassVerdict], dict]:
+def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float,
+                     two_points: bool = False) -> tuple[list[PassVerdict], dict]:
     """``--honest-rounds``: the round's matched passes without their pairings of a name the split-score screen flags
     (:func:`flagged_names`: a run of its sightings the rest of the map bends to fit), as ``--honest-names`` does to
     the pairwise groups; a pass left without pairings merges nothing. Session 27 (B) measured it refusing robot 2 seed
     0's round-2 and robot 3 seed 2's round-1 wrong merges. Also returns what it held back (scored by the barcodes)."""
-    flagged = flagged_names(current.named.problem, current.solution, alpha)
+    flagged = flagged_names(current.named.problem, current.solution, alpha, two_points=two_points)
     code = np.array([owner.get(int(x), -1) for x in current.named.names])
     held = [(a, b) for v in verdicts if v.status == "matched" for a, b in v.pairs if flagged[a] or flagged[b]]
     kept = without_pairings(verdicts, lambda a, b: flagged[a] or flagged[b])
@@ -1239,7 +1241,7 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         if args.split_ambiguous:
             record["groups"]["ambiguous"] = sum(g.status == "ambiguous" for g in groups)
         if args.honest_names is not None:      # helper B's screen (session 27): a member holding a run that bends
-            flagged = flagged_names(problem, solution, args.honest_names)
+            flagged = flagged_names(problem, solution, args.honest_names, two_points=args.hold_two_points)
             held = [g for g in groups if g.status == "merge" and flagged[list(g.members)].any()]
             record["honest_names"] = {"flagged": int(flagged.sum()), "groups_refused": len(held),
                                       "wrong_refused": sum(len({code[m] for m in g.members}) > 1 for g in held)}
@@ -1274,14 +1276,20 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
     return current
 
 
-def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0) -> np.ndarray:
+def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0, two_points: bool = False
+                  ) -> np.ndarray:
     """(L,) the names holding a run of sightings (cut at gaps over ``gap_s``) whose split score
     (:func:`estimation.map_honesty.split_scores`: the first-order cost drop if the run were a name of its own) is
     beyond χ²₂ at 1 − α/k, k the name's runs (helper B, session 27: the screen that refused session 26's two wrong
-    pairwise merges on robots 3 and 2, seed 0)."""
-
+    pairwise merges on robots 3 and 2, seed 0). ``two_points`` (``--hold-two-points``, session 30, C): also every
+    name sighted twice in one frame (:func:`estimation.map_honesty.self_covisible_frames`: a camera reports a post
+    once a frame, so such a name holds two posts, whatever its split scores say), so that its pairings are held back
+    from the merges rather than cut (session 29, D: cutting changed which passes the loose first round matched)."""
     runs = sighting_runs(problem, solution, gap_s)
-    return flagged_landmarks(runs, split_scores(problem, solution, runs), len(solution.landmarks), alpha)
+    flagged = flagged_landmarks(runs, split_scores(problem, solution, runs), len(solution.landmarks), alpha)
+    if two_points:
+        flagged |= self_covisible_frames(problem) > 0
+    return flagged
 
 
 def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:
@@ -1413,6 +1421,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--honest-rounds", action="store_true",
                         help="with --honest-names: the same screen in the rounds (a matched pass's pairings of a "
                              "flagged name are not merged)")
+    parser.add_argument("--hold-two-points", action="store_true",
+                        help="with --honest-names: a name sighted twice in one frame (two posts) is flagged too, its "
+                             "pairings held back from every round's and pairwise round's merges (session 30)")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")
@@ -1431,6 +1442,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
     if args.honest_rounds and args.honest_names is None:
         parser.error("--honest-rounds needs --honest-names ALPHA")
+    if args.hold_two_points and args.honest_names is None:
+        parser.error("--hold-two-points needs --honest-names ALPHA")
     if args.runs_out and (args.honest_names is None or not args.name_unnamed):
         parser.error("--runs-out needs --honest-names ALPHA and --name-unnamed")
     if args.offsets_once_tight and not args.sighting_offset > 0:
@@ -1452,7 +1465,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({"seed": args.seed, "drift": list(args.drift), "slip": args.slip, "pass_s": args.pass_seconds,
                           "min_pairs": args.min_pairs, "ratio": args.ratio, "fewer_rival": args.fewer_rival,
                           "distinct_points": args.distinct_points, "rival_rounds": args.rival_rounds,
-                          "runs_out": args.runs_out,
+                          "runs_out": args.runs_out, "hold_two_points": args.hold_two_points,
                           "robots": rows}))
     return 0
 
