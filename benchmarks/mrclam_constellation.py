@@ -123,11 +123,12 @@ The method (the barcodes never decide; they only score):
    smoothed pose by the smoother's own outlier bound (:func:`unnamed_names`) is named, and the map re-smoothed
    (:func:`name_unnamed`): the first seconds' sightings tie the map's frame.
 
-10. ``--runs-out`` (session 30, B), after the naming: the runs of sightings the honest-names screen flags
+10. ``--runs-out`` (session 30, B and the lead): the runs of sightings the honest-names screen flags
    (:func:`estimation.map_honesty.flagged_runs`, a name's largest run never) are taken out of their names
-   (:func:`leave_out_flagged_runs`), then the pairwise rounds and the naming run again: a flagged run no longer keeps
-   its name from its twin (robot 4), and a stray run no longer bends the stretch that holds a post's second name
-   (robot 2 seed 0).
+   (:func:`leave_out_flagged_runs`) on the tight map before the pairwise rounds, so that the last merges do not judge
+   a stretch the runs bend (robot 2 seed 0 with ``--fewer-rival``: 3 wrong pairwise merges -> 0), and again after the
+   naming, then the pairwise rounds and the naming run again: a flagged run no longer keeps its name from its twin
+   (robot 4), and a stray run no longer bends the stretch that holds a post's second name (robot 2 seed 0).
 
 ``--state-dir DIR`` keeps each robot's state (names and the smoother's solution, ``.npz``) after the chain
 (``round0``), every kept round (``round<k>``) and pairwise round (``pairwise<k>``); ``--from-round K`` starts there.
@@ -170,6 +171,7 @@ from benchmarks.mrclam_chained_names import (  # noqa: E402
     smooth_named,
     truncated_cost,
 )
+from benchmarks.mrclam_frame_nees import map_figures, truth_in_frame  # noqa: E402
 from estimation import chi2  # noqa: E402
 from estimation.constellation import (  # noqa: E402
     guard_batches,
@@ -669,6 +671,8 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         current, k = state, k + 1
     if pending:
         current = _enter_offsets(log, row, current, k, noise, config, drift, args)
+    if args.runs_out:        # the last merges judge the tight map without the runs that bend it
+        current = _take_runs_out(log, row, current, "runs_out_before_pairwise", noise, config, drift, args)
     if args.pairwise:
         current = _pairwise_rounds(log, row, current, noise, config, drift, args)
     if args.leave_out_ambiguous:
@@ -685,9 +689,7 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         if args.progress:
             print(f"  unnamed sightings named: {row['named_again']}", file=sys.stderr, flush=True)
     if args.runs_out:
-        current, row["runs_out"] = leave_out_flagged_runs(log, current, noise, config, drift, args)
-        if args.progress:
-            print(f"  runs taken out of their names: {row['runs_out']['runs'] or 'none'}", file=sys.stderr, flush=True)
+        current = _take_runs_out(log, row, current, "runs_out", noise, config, drift, args)
         if row["runs_out"]["runs"]:           # their names judged again without them, their sightings re-offered
             if args.pairwise:
                 current = _pairwise_rounds(log, row, current, noise, config, drift, args)
@@ -703,8 +705,23 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     # s after the log's start: the map's frame is the pose at its first named sighting, the ATE's start pose
     # (session 29: robot 1 seed 0's two sightings of its first second move its ATE from 0.058 to 0.336 m)
     final["first_frame_s"] = float(current.named.frame_times[0] - log.start_time)
+    final.update(map_consistency(log, current))
     row["final"] = final
     return row
+
+
+def map_consistency(log: RangeBearingLog, current: MergeRound, draws: int = 20_000) -> dict:
+    """Scoring (session 30, C): the landmark NEES figure counts landmarks that all share the map frame's error, so it
+    is one noisy draw; beside it, the joint NEES of the landmarks with a post (χ²_{2L}: is the map consistent as one
+    estimate), the frame's rigid error (dx, dy, dθ) with its NEES₃, and how often a map exactly as uncertain as its
+    joint covariance says fails "≥ 90 % within" (``benchmarks.mrclam_frame_nees``)."""
+    owner = majority(current.names, log.landmark_ids)
+    posts = np.array([owner.get(int(x), -1) for x in current.named.names])
+    truth = truth_in_frame(log, posts, log.true_pose(current.named.frame_times[:1])[0])
+    figures, _ = map_figures(current.named.problem, current.solution, truth, draws, np.random.default_rng(1))
+    return {"landmark_joint_nees": figures["joint_nees"], "landmark_joint_dof": figures["joint_dof"],
+            "landmark_joint_p": figures["joint_p"], "frame_error": figures["frame"],
+            "nees_figure_p_fail": figures["figure_under_model"]["p_fail"]}
 
 
 def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noise, config, drift, args
@@ -905,6 +922,15 @@ def leave_out(log: RangeBearingLog, current: MergeRound, left: list[int], noise,
     names = current.names.copy()
     names[np.isin(names, left)] = -1
     return resmoothed(log, current, names, noise, config, drift, args), record
+
+
+def _take_runs_out(log: RangeBearingLog, row: dict, current: MergeRound, key: str, noise, config, drift, args
+                   ) -> MergeRound:
+    """:func:`leave_out_flagged_runs` on ``current``, recorded in ``row[key]`` (and on stderr with ``--progress``)."""
+    current, row[key] = leave_out_flagged_runs(log, current, noise, config, drift, args)
+    if args.progress:
+        print(f"  runs taken out of their names ({key}): {row[key]['runs'] or 'none'}", file=sys.stderr, flush=True)
+    return current
 
 
 def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
@@ -1410,8 +1436,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="last: name the sightings no name holds where the final map names them unambiguously "
                              "(the smoother's outlier bound, one name within it)")
     parser.add_argument("--runs-out", action="store_true",
-                        help="after --name-unnamed: take the runs of sightings the --honest-names screen flags out of "
-                             "their names (a name's largest run never), then the pairwise rounds and the naming again")
+                        help="before the pairwise rounds and after --name-unnamed: take the runs of sightings the "
+                             "--honest-names screen flags out of their names (a name's largest run never); after the "
+                             "naming, then the pairwise rounds and the naming again")
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
