@@ -58,7 +58,15 @@ Session 29 (lead, A, C; docs: "Session 29: sightings the chain left unnamed ... 
 ``--distinct-points`` (step 3, A). With ``--slip 0.3 --name-unnamed`` robots 3, 5 seed 0 and 2, 3, 5 seed 2 meet every
 figure (15 names, ATE ≤ 1.1x known-ID, NEES within 100 %, 0 wrong); robot 1 seed 0's ATE is 0.340 m (its first
 second, named now, moves the frame: known-ID 0.288 m) with NEES within 87 %; A's options give robot 4 both seeds
-0 wrong merges and 16 names but robot 2 seed 0 three wrong merges.
+0 wrong merges and 16 names but robot 2 seed 0 three wrong merges. (Robot 2 seed 2's row there was a scratch run:
+with the committed code its round 2 keeps one wrong merge; session 30, B.)
+
+Session 30 (lead, B, C; docs: "Session 30: the remedies in one command ... (lead)"): ``--runs-out`` (step 10, B),
+``--hold-two-points`` (C), ``--rival-rounds`` (not adopted), ``map_consistency`` in the final record (C). Session
+29's command with ``--fewer-rival --distinct-points --hold-two-points --runs-out``: all five robots of seed 0 at 15
+names, ATE 1.02-1.17x known-ID, NEES within 93-100 %, 0 wrong merges on robots 1-4 and one on robot 5 (round 5);
+robot 4 seed 2 the same with 0 wrong; seed 2 does not meet (robot 5's rounds go 1 m off with A's options, robot 1
+keeps wrong merges, robot 2 one round-2 wrong merge).
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
