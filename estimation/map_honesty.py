@@ -48,6 +48,7 @@ Uses the smoother's own Jacobian and factorisation of the normal equations (``la
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -181,12 +182,19 @@ def flagged_landmarks(runs: list[Run], scores: np.ndarray, n_landmarks: int, alp
     """(L,) the per-name test: the landmarks holding a run whose split score is beyond :func:`split_threshold` over
     the landmark's own k runs (χ²₂ at 1 − α/k), the test to apply to the few names of a proposed merge (a map-wide
     threshold, over all R runs, would hide one wrong run among hundreds)."""
-    runs_per_landmark = np.bincount([r.landmark for r in runs], minlength=n_landmarks)
     out = np.zeros(n_landmarks, bool)
-    for run, score in zip(runs, scores, strict=True):
-        if np.isfinite(score) and score > split_threshold(int(runs_per_landmark[run.landmark]), alpha):
-            out[run.landmark] = True
+    out[[run.landmark for run, beyond in zip(runs, _runs_beyond(runs, scores, alpha), strict=True) if beyond]] = True
     return out
+
+
+def _runs_beyond(runs: list[Run], scores: np.ndarray, alpha: float) -> np.ndarray:
+    """(R,) bool: each run's split score beyond :func:`split_threshold` over its landmark's own k runs."""
+    scores = np.asarray(scores, float)
+    if len(scores) != len(runs):
+        raise ValueError(f"one score a run: {len(scores)} scores for {len(runs)} runs")
+    runs_per_landmark = Counter(run.landmark for run in runs)
+    thresholds = np.array([split_threshold(runs_per_landmark[run.landmark], alpha) for run in runs])
+    return np.isfinite(scores) & (scores > thresholds)
 
 
 def flagged_runs(runs: list[Run], scores: np.ndarray, alpha: float = 0.01) -> np.ndarray:
@@ -198,19 +206,12 @@ def flagged_runs(runs: list[Run], scores: np.ndarray, alpha: float = 0.01) -> np
     name's. The name is the larger part, the one its merges and the map were built on; the smaller is the stray.
     So every landmark keeps at least its largest run (session 30: robot 2 seed 0's name of post 9 held 17 sightings
     of post 8 in two runs, flagged at 16.3 and 18.2 against 15.0, its largest run 101 sightings of post 9)."""
-    scores = np.asarray(scores, float)
-    if len(scores) != len(runs):
-        raise ValueError(f"one score a run: {len(scores)} scores for {len(runs)} runs")
-    runs_per_landmark: dict[int, int] = {}
+    out = _runs_beyond(runs, scores, alpha)
     largest: dict[int, int] = {}
     for i, run in enumerate(runs):
-        runs_per_landmark[run.landmark] = runs_per_landmark.get(run.landmark, 0) + 1
         if run.landmark not in largest or len(run.sightings) > len(runs[largest[run.landmark]].sightings):
             largest[run.landmark] = i
-    out = np.zeros(len(runs), bool)
-    for i, (run, score) in enumerate(zip(runs, scores, strict=True)):
-        out[i] = bool(np.isfinite(score) and largest[run.landmark] != i
-                      and score > split_threshold(runs_per_landmark[run.landmark], alpha))
+    out[list(largest.values())] = False
     return out
 
 
