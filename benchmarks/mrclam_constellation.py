@@ -190,11 +190,12 @@ from estimation.constellation import (  # noqa: E402
     pairwise_groups,
     spanning_pairs,
 )
-from estimation.dataset_slam import run_landmark_log  # noqa: E402
+from estimation.dataset_slam import log_body_metadata, run_landmark_log  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
+from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     OUTLIER_CHI2,
     HeadingDrift,
@@ -715,7 +716,38 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     final["first_frame_s"] = float(current.named.frame_times[0] - log.start_time)
     final.update(map_consistency(log, current))
     row["final"] = final
+    if args.out_maps:
+        path = Path(args.out_maps) / f"robot{_robot_number(log)}.npz"
+        chain_map(log, current).save(path)
+        row["map"] = str(path)
     return row
+
+
+def _robot_number(log: RangeBearingLog) -> int:
+    return int(log.name.rstrip("/").rsplit("Robot", 1)[-1])
+
+
+def chain_map(log: RangeBearingLog, current: MergeRound) -> LandmarkMap:
+    """The chain's final state as a landmark map that ``p3at fuse`` reads: each name's smoothed position and
+    covariance (z pinned at 0, as the dataset maps do), the smoothed trajectory, the true start pose for scoring.
+    No descriptors and no identities: the names are the chain's own (unknown association), so fusion aligns the
+    maps by geometry alone; the barcodes stay out of the file."""
+    sol, named = current.solution, current.named
+    n = len(named.names)
+    seen = np.all(np.isfinite(sol.landmark_covariances.reshape(n, -1)), axis=1)
+    covariances = np.zeros((int(seen.sum()), 3, 3))
+    covariances[:, :2, :2] = sol.landmark_covariances[seen]
+    covariances[:, 2, 2] = 1e-6
+    counts = np.bincount(named.problem.landmark_index[sol.inliers], minlength=n)[seen]
+    times = named.frame_times
+    true_start = log.true_pose(times[:1])[0]
+    metadata = {"true_start_pose": [float(v) for v in true_start], "dataset": log.name,
+                "association": "unknown-chain", "simulated": False, "smoothed": True,
+                "smoother_chi2_per_dof": float(sol.chi2_per_dof), **log_body_metadata(log)}
+    return LandmarkMap(np.column_stack([sol.landmarks[seen], np.zeros(int(seen.sum()))]), covariances,
+                       np.zeros((int(seen.sum()), 0), np.float32), counts=counts.astype(np.int64),
+                       robot=f"robot{_robot_number(log)}", trajectory=np.column_stack([times, sol.poses[1:]]),
+                       metadata=metadata)
 
 
 def map_consistency(log: RangeBearingLog, current: MergeRound, draws: int = 20_000) -> dict:
@@ -1440,6 +1472,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="last, leave out each name the sensor's record says is not a landmark of its own: "
                              "existence below the filter's removal threshold and, within merge_radius, a name never "
                              "detected with it that the co-visibility test calls the same point")
+    parser.add_argument("--out-maps", metavar="DIR", default=None,
+                        help="write each robot's final map as DIR/robot<N>.npz (no descriptors, no identities: "
+                             "`p3at fuse` aligns them by geometry alone; benchmarks.eval_fusion --mrclam-maps DIR)")
     parser.add_argument("--name-unnamed", action="store_true",
                         help="last: name the sightings no name holds where the final map names them unambiguously "
                              "(the smoother's outlier bound, one name within it)")

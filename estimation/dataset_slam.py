@@ -122,7 +122,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         "true_start_pose": [float(v) for v in true_start], "dataset": log.name, "association": association,
         "noise_model": noise.robot, "inflate_correlated": bool(inflate_correlated), "simulated": False})
     landmark_map.sighting_covariances = sightings.covariances(landmark_map)
-    landmark_map.metadata.update(_body(log))
+    landmark_map.metadata.update(log_body_metadata(log))
     if len(landmark_map.trajectory) and landmark_map.trajectory[0, 0] < t0:
         landmark_map.trajectory[0, 0] = t0     # row 0 is the pose the map's frame is: the robot's at its first sighting
     estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
@@ -150,7 +150,7 @@ def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np
     return sighted[np.isin(sighted, log.truth_ids)]
 
 
-def _body(log: RangeBearingLog) -> dict:
+def log_body_metadata(log: RangeBearingLog) -> dict:
     """What fusion's co-location test needs, where the data set says it: an MRCLAM data set's five logs are on one
     clock (the distributed files start at 0 on the same 0.02 s ticks; the Vicon poses of two robots never come closer
     than 0.332 m, two Create radii being 0.330 m) and its robots are Creates.  {} for any other log."""
