@@ -21,6 +21,7 @@ from estimation.map_honesty import (
     Run,
     flagged_landmarks,
     flagged_runs,
+    jumping_landmarks,
     self_covisible_frames,
     sighting_jumps,
     sighting_runs,
@@ -357,3 +358,57 @@ def test_two_points_split_by_their_jumps_alone():
         two_point_split(single, solution, 0)
     with pytest.raises(ValueError, match="ρ"):
         sighting_jumps(single, solution, np.full(len(single.ranges), 0.02), 0.005, 0.0, 1.0)
+
+
+def landmarks_that_jump(problem: LandmarkLogProblem, solution) -> np.ndarray:
+    """:func:`jumping_landmarks` under :func:`twin_log`'s sensor (0.02 m, 0.005 rad, no correlation), α 0.01."""
+    return jumping_landmarks(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, 0.01, gap_s=1.0)
+
+
+@settings(max_examples=6, deadline=None)
+@given(seed=st.integers(0, 2 ** 16), separation=st.floats(0.5, 1.5), direction=st.floats(-np.pi, np.pi))
+def test_the_name_of_two_points_is_the_one_whose_kept_sightings_jump(seed, separation, direction):
+    problem, points = twin_log(seed, separation, direction)
+    solution = solved(problem)
+    mine = np.flatnonzero((problem.landmark_index == 0) & solution.inliers)
+    mine = mine[np.argsort(problem.pose_index[mine], kind="stable")]
+    step = np.diff(problem.pose_index[mine])
+    switches = int(np.sum((step == 1) & (points[mine][1:] != points[mine][:-1])))
+    assume(switches > 0)        # both points kept in consecutive frames (else the smoother kept one a stretch)
+    jumps = landmarks_that_jump(problem, solution)
+    assert jumps[0] >= 0.9 * switches                # measured: every kept step between the points, 2 draws of 6
+    assert not jumps[1:].any()
+    honest, _ = twin_log(seed, separation, direction, one_name=False)
+    assert not landmarks_that_jump(honest, solved(honest)).any()
+
+
+def test_a_sighting_the_smoother_leaves_out_makes_no_landmark_jump():
+    problem, points = twin_log(3, 0.8, 1.0, one_name=False)
+    stray = np.flatnonzero(points == 1)[len(np.flatnonzero(points == 1)) // 2]     # mid-way through a landmark's
+    ranges = problem.ranges.copy()
+    ranges[stray] += 1.0                             # 20 σ of the model's range: a reading of something 1 m beyond
+    problem = dataclasses.replace(problem, ranges=ranges)
+    solution = solved(problem)
+    assert not solution.inliers[stray]
+    pairs, beyond = jumps_beyond(problem, solution)
+    assert beyond[(pairs == stray).any(axis=1)].any()    # the jump test sees the stray's steps
+    assert not landmarks_that_jump(problem, solution).any()
+    with pytest.raises(ValueError, match="α"):
+        jumping_landmarks(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, 1.0)
+
+
+def test_a_step_in_range_alone_makes_a_landmark_jump_in_both_components_but_not_in_bearing_alone():
+    problem, points = twin_log(5, 0.8, 1.0, one_name=False)
+    mine = np.flatnonzero(points == 1)
+    steps = np.flatnonzero(np.diff(problem.pose_index[mine]) == 1) + 1        # sightings one frame after another
+    later = mine[steps[len(steps) // 2]:]
+    ranges = problem.ranges.copy()
+    ranges[later] += 0.25        # the rest read 25 cm long, as MRCLAM robot 5's range steps (0.28–0.37 m at 8 m)
+    problem = dataclasses.replace(problem, ranges=ranges)
+    solution = solved(problem)
+    assert solution.inliers[mine].all()             # within the model's σ (0.05 m): the smoother keeps every one
+    both = landmarks_that_jump(problem, solution)
+    bearing = jumping_landmarks(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, 0.01,
+                                gap_s=1.0, bearing_only=True)
+    assert both[1] >= 1 and not np.delete(both, 1).any()
+    assert not bearing.any()
