@@ -8,7 +8,8 @@ Run from the repository root:
         [--state-dir DIR] [--from-round K] [--pairwise ROUNDS] [--kept-covisible] [--name-floor M] [--guard]
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--runs-out] [--slip 0.3]
-        [--fewer-rival] [--distinct-points] [--rival-rounds K]
+        [--fewer-rival] [--distinct-points] [--rival-rounds K] [--hold-two-points] [--mutual-rounds] [--fresh-start]
+        [--audit-parts FLOOR_M] [--out-maps DIR]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -67,6 +68,13 @@ Session 30 (lead, B, C; docs: "Session 30: the remedies in one command ... (lead
 names, ATE 1.02-1.17x known-ID, NEES within 93-100 %, 0 wrong merges on robots 1-4 and one on robot 5 (round 5);
 robot 4 seed 2 the same with 0 wrong; seed 2 does not meet (robot 5's rounds go 1 m off with A's options, robot 1
 keeps wrong merges, robot 2 one round-2 wrong merge).
+
+Session 31 (lead, A, B, C; docs: "Session 31 ..."): ``--out-maps`` writes each final map without descriptors or
+identities for ``p3at fuse`` (geometry alone); three options for the remaining wrong merges, each measured by its
+helper on the robot-seeds it was designed on: ``--mutual-rounds`` (B: a round's cluster merges only if its members
+are all within each other's gate; robot 1 seed 2), ``--fresh-start`` (A: a refused whole batch judged again from the
+filter's guess on the merged names; robot 5 seed 2's local minimum), ``--audit-parts 0.042`` (C: each part of a merged
+name tested on the merged map, floor √2 × the 3 cm per-name offset; robots 5 seed 0 and 2 seed 2).
 
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
@@ -194,6 +202,7 @@ from estimation.dataset_slam import log_body_metadata, run_landmark_log  # noqa:
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402
+from estimation.fresh_start import judge_at_starts, names_guess  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
@@ -212,6 +221,7 @@ from estimation.map_honesty import (  # noqa: E402
     split_scores,
     split_threshold,
 )
+from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
@@ -221,6 +231,11 @@ STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
 # run_robot for the robot it runs (the option, and each log sighting's name before any merge: its offset group);
 # every smoothing of this benchmark goes through _smooth_named, which adds it
 _OFFSET: dict = {"option": None, "names": None}
+
+# ``--audit-parts``: the floor (m) of the part-by-part audit of every accepted batch (None: off), whether parts the
+# map cannot test are held too (the rounds: yes; the pairwise rounds, whose groups refuse a rival in any gate: no),
+# and the audits since the last record (scored by the barcodes)
+_AUDIT: dict = {"floor_m": None, "untestable": True, "records": []}
 
 
 def _smooth_named(log, names, noise, config, **kwargs):
@@ -345,6 +360,31 @@ def merges_from(verdicts: list[PassVerdict], covisible: np.ndarray) -> tuple[dic
     return {x: _root(parent, x) for x in parent}, used
 
 
+def mutual_merges(verdicts: list[PassVerdict], covisible: np.ndarray, positions: np.ndarray, covariance: np.ndarray,
+                  probability: float = 0.99) -> tuple[dict[int, int], list[PassVerdict], list[list[int]]]:
+    """:func:`merges_from`, with each cluster whose members are not all within each other's χ²₂ gate at
+    ``probability`` (:func:`estimation.constellation.pairwise_d2`: the pairwise rounds' own link) set aside for the
+    round: its names' pairings dropped from the matched passes and the clusters formed again, until none fails. A
+    pass links each name to its partner only, so a loose name can join two tight names that no pass pairs and that
+    cannot be one point (session 31, B: robot 1 seed 2's wrong merge, a 3-sighting glimpse of post 8 joined to post
+    9's names through a post-9 name of σ 0.52 m, 1.16 m between the glimpse and post 9's names, d² 11.7–14.2).
+    Returns the clusters, the passes used and the clusters set aside (landmark indices)."""
+    gate = float(chi2.ppf(probability, 2))
+    aside: list[list[int]] = []
+    while True:
+        clusters, used = merges_from(verdicts, covisible)
+        members: dict[int, set[int]] = {}
+        for k, r in clusters.items():
+            members.setdefault(r, {r}).add(k)
+        apart = [m for m in (sorted(x) for x in members.values())
+                 if np.any(pairwise_d2(positions, covariance, m)[np.triu_indices(len(m), 1)] >= gate)]
+        if not apart:
+            return clusters, used, aside
+        aside += apart
+        out = {x for m in apart for x in m}
+        verdicts = without_pairings(verdicts, lambda a, b, out=out: a in out or b in out)
+
+
 def _root(parent: dict[int, int], x: int) -> int:
     while parent.get(x, x) != x:
         x = parent[x]
@@ -352,10 +392,75 @@ def _root(parent: dict[int, int], x: int) -> int:
 
 
 def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
-                 path_step_s: float | None = None) -> MergeRound:
+                 path_step_s: float | None = None, fresh_start=None) -> MergeRound:
     """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution (or, with
     ``reguess(names) -> (poses, {name: position})``, from that guess); kept when the truncated cost rises by no more
-    than χ² 99 % for 2 per absorbed name (module docstring, step 4)."""
+    than χ² 99 % for 2 per absorbed name (module docstring, step 4). With ``--audit-parts`` (session 31, C) a kept
+    batch is audited part by part on its merged map (:func:`audit_batch`) and merged again without the names it
+    holds back, up to three times; a batch it holds back whole keeps nothing (accepted, no merge: not bisected).
+    ``fresh_start`` (a guess as ``reguess``'s, ``--fresh-start``; session 31, A): a batch refused from the current
+    solution is smoothed again from it and judged at the lower cost (:func:`estimation.fresh_start.judge_at_starts`:
+    the current solution can be a local minimum that refuses right loop closures)."""
+    attempt = _merge_once(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
+    for _ in range(3):
+        if not (attempt.accepted and _AUDIT["floor_m"] is not None):
+            break
+        held = audit_batch(log, current, attempt)
+        if not held:
+            break
+        clusters = without_members(clusters, held)
+        if not clusters:
+            return MergeRound([], 0.0, 0.0, True, current.names, current.named, current.solution)
+        attempt = _merge_once(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
+    return attempt
+
+
+def audit_batch(log, current: MergeRound, attempt: MergeRound) -> set[int]:
+    """The names (landmark indices of ``current``) whose part of a merged name ``attempt``'s map holds back
+    (:func:`estimation.merge_audit.held_parts` at ``--audit-parts``' floor: refused, its floored split score beyond
+    χ²₂ Bonferroni over the batch's parts; untestable, in the rounds only, its offset as wide as the nearest two posts
+    stand); the audit recorded in ``_AUDIT["records"]`` (scored by the barcodes: a part is wrong when its name's
+    barcode before is not its merged name's)."""
+    named, solution = attempt.named, attempt.solution
+    before = current.names[named.sightings]
+    parts = merged_parts(named.problem, solution, before)
+    if not parts:
+        return set()
+    splits = part_splits(named.problem, solution, parts)
+    spacing = covisible_spacing(named.problem, solution)
+    verdict = held_parts(splits, floor_m=_AUDIT["floor_m"], spacing_m=spacing)
+    hold = verdict["refused"] | (verdict["untestable"] & _AUDIT["untestable"])
+    earlier = [int(before[p.sightings[0]]) for p in parts]
+    owner_before, owner_after = majority(current.names, log.landmark_ids), majority(attempt.names, log.landmark_ids)
+    wrong = [owner_before[e] != owner_after[int(named.names[p.landmark])] for e, p in zip(earlier, parts, strict=True)]
+    _AUDIT["records"].append({
+        "parts": len(parts), "wrong_parts": int(sum(wrong)), "spacing_m": spacing,
+        "held": [{"name": e, "sightings": len(p.sightings), "refused": bool(r), "untestable": bool(u), "wrong": w}
+                 for e, p, r, u, h, w in zip(earlier, parts, verdict["refused"], verdict["untestable"], hold, wrong,
+                                             strict=True) if h]})
+    index = {int(x): k for k, x in enumerate(current.named.names)}
+    return {index[e] for e, h in zip(earlier, hold, strict=True) if h}
+
+
+def without_members(clusters: dict[int, int], out: set[int]) -> dict[int, int]:
+    """``clusters`` (landmark index → root) without the indices ``out``: a group that loses its root takes its
+    smallest member left as root, a group left with one name goes."""
+    groups: dict[int, set[int]] = {}
+    for k, r in clusters.items():
+        groups.setdefault(r, {r}).add(k)
+    kept = {}
+    for r, members in groups.items():
+        left = members - out
+        if len(left) >= 2:
+            root = r if r in left else min(left)
+            kept.update({m: root for m in left if m != root})
+    return kept
+
+
+def _merge_once(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
+                path_step_s: float | None = None, fresh_start=None) -> MergeRound:
+    """:func:`apply_merges` without the audit: the batch merged, re-smoothed (and, refused, from ``fresh_start`` too)
+    and cost-checked once."""
     names = current.names.copy()
     index_name = current.named.names
     position = dict(zip(index_name.tolist(), current.solution.landmarks, strict=True))
@@ -375,8 +480,16 @@ def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, conf
         initial_poses, position = reguess(names)
     named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses,
                                    initial=position, heading_drift=drift, path_step_s=path_step_s)
-    rise = truncated_cost(named.problem, solution) - truncated_cost(current.named.problem, current.solution)
+    before = truncated_cost(current.named.problem, current.solution)
+    rise = truncated_cost(named.problem, solution) - before
     bound = float(chi2.ppf(0.99, 2 * len(merged)))
+    if rise > bound and fresh_start is not None and reguess is None:
+        poses, guessed = fresh_start(names)
+        fresh = _smooth_named(log, names, noise, config, initial_poses=poses, initial=guessed, heading_drift=drift,
+                              path_step_s=path_step_s)
+        verdict = judge_at_starts(before, [before + rise, truncated_cost(fresh[0].problem, fresh[1])], bound)
+        if verdict.best == 1:
+            (named, solution), rise = fresh, verdict.rise
     if rise <= bound:
         return MergeRound(merged, rise, bound, True, names, named, solution)
     return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
@@ -411,15 +524,16 @@ def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias:
 
 def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]], noise, config, drift, *,
                     depth: int, alias: dict[int, int], reguess=None, path_step_s: float | None = None,
-                    kept_covisible: bool = False) -> tuple[MergeRound, list[MergeRound]]:
+                    kept_covisible: bool = False, fresh_start=None) -> tuple[MergeRound, list[MergeRound]]:
     """The passes' merges (strongest first) as one batch; a batch the cost check refuses is cut in two halves, each
     tried in turn (the second on top of the first if it was kept), down to ``depth`` cuts; a batch still refused at
     the last level is retried as its strongest pass alone (depth 0: U's rule, the strongest pass alone at once).
-    Returns the last kept state and every attempt; ``alias`` gains the names each kept merge absorbed."""
+    Returns the last kept state and every attempt; ``alias`` gains the names each kept merge absorbed.
+    ``fresh_start``: :func:`apply_merges`' for this whole batch only, not its halves."""
     clusters = clusters_of(current, passes, alias, kept_covisible=kept_covisible)
     if not clusters:
         return current, []
-    attempt = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s)
+    attempt = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
     attempts = [attempt]
     if attempt.accepted:
         alias.update({x: keep for keep, x in attempt.merged})
@@ -440,7 +554,7 @@ def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]
 
 def merge_guarded(log, current: MergeRound, passes: list[list[tuple[int, int]]],
                   guarded: list[list[tuple[int, int]]] | None, noise, config, drift, *, depth: int, reguess=None,
-                  path_step_s: float | None = None, kept_covisible: bool = False
+                  path_step_s: float | None = None, kept_covisible: bool = False, fresh_start=None
                   ) -> tuple[MergeRound, list[MergeRound]]:
     """The round's batch whole; if the cost check refuses it and the guard set groups aside (``guarded``: the groups
     it kept, as name pairs; None: it set none aside or is off), the guard's groups are tried and bisected instead of
@@ -448,11 +562,11 @@ def merge_guarded(log, current: MergeRound, passes: list[list[tuple[int, int]]],
     :func:`merge_bisecting` as before. Returns the last kept state and every attempt."""
     if guarded is None:
         return merge_bisecting(log, current, passes, noise, config, drift, depth=depth, alias={}, reguess=reguess,
-                               path_step_s=path_step_s, kept_covisible=kept_covisible)
+                               path_step_s=path_step_s, kept_covisible=kept_covisible, fresh_start=fresh_start)
     clusters = clusters_of(current, passes, {}, kept_covisible=kept_covisible)
     if not clusters:
         return current, []
-    whole = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s)
+    whole = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
     if whole.accepted:
         return whole, [whole]
     state, more = merge_bisecting(log, current, guarded, noise, config, drift, depth=depth, alias={},
@@ -580,6 +694,7 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     drift = HeadingDrift(*args.drift, sigma_per_rad=args.slip) if args.drift[0] > 0 or args.slip > 0 else None
     path_step_s = _path_step(args)
     offsets_now = args.sighting_offset > 0 and not args.offsets_once_tight      # else from when the map is tight
+    _AUDIT.update(floor_m=args.audit_parts, records=[])
     _OFFSET.update(option=SightingOffset(args.sighting_offset) if offsets_now else None, names=None)
     if args.from_round is not None:
         current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
@@ -785,7 +900,16 @@ def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noi
                                                             args.hold_two_points)
         if args.progress:
             print(f"  round {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
-    clusters, used = merges_from(verdicts, covisible)
+    if args.mutual_rounds:
+        clusters, used, aside = mutual_merges(verdicts, covisible, current.solution.landmarks, covariance)
+        record["mutual_aside"] = [{"names": [int(current.named.names[x]) for x in m],
+                                   "wrong": len({owner.get(int(current.named.names[x]), -1) for x in m}) > 1}
+                                  for m in aside]
+        if args.progress and aside:
+            print(f"  round {k + 1}: set aside, not all within each other's gate: {record['mutual_aside']}",
+                  file=sys.stderr, flush=True)
+    else:
+        clusters, used = merges_from(verdicts, covisible)
     record["passes_used"] = len(used)
     row["rounds"].append(record)
     if args.progress:
@@ -853,19 +977,32 @@ def _report_left_out(log: RangeBearingLog, current: MergeRound, record: dict, wh
 
 def _merge_recorded(log: RangeBearingLog, current: MergeRound, used: list[PassVerdict], guarded, record: dict,
                     label: str, owner: dict[int, int], started: float, noise, config, drift, args, *, reguess=None,
-                    kept_covisible: bool = False) -> MergeRound:
+                    kept_covisible: bool = False, untestable: bool = True) -> MergeRound:
     """A round's merges (:func:`merge_guarded`, the guard's kept groups ``guarded`` or None), each attempt scored
-    into ``record``; the state kept (``current`` when none was)."""
+    into ``record``; the state kept (``current`` when none was). ``untestable``: with ``--audit-parts``, whether the
+    audit holds back the parts the map cannot test (the rounds) or only those it refuses (the pairwise rounds)."""
+    _AUDIT.update(untestable=untestable, records=[])
+    fresh_start = None
+    if args.fresh_start:       # the filter's guess on the merged names (no barcodes), for a refused whole batch
+        def fresh_start(merged_names):
+            return names_guess(log, merged_names, noise, config, np.random.default_rng(args.seed))
     state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
                                     None if guarded is None else name_pairs(guarded, current.named), noise, config,
                                     drift, depth=args.bisect, reguess=reguess, path_step_s=_path_step(args),
-                                    kept_covisible=kept_covisible)
+                                    kept_covisible=kept_covisible, fresh_start=fresh_start)
     record["batch"] = _round(log, attempts[0], owner)
     record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
     record["cpu_s"] = time.process_time() - started
+    if _AUDIT["floor_m"] is not None:
+        record["audit"] = _AUDIT["records"]
     if args.progress:
+        for audit in record.get("audit", []):
+            print(f"  {label} audit: {audit['parts']} parts ({audit['wrong_parts']} wrong), spacing "
+                  f"{audit['spacing_m']:.2f} m, held {audit['held'] or 'none'}", file=sys.stderr, flush=True)
         for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
             _print_scores(f"  {label} {key}", scores, file=sys.stderr)
+    if np.array_equal(state.names, current.names):      # the audit held every merge back: nothing kept
+        return current
     return state
 
 
@@ -1332,7 +1469,7 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
         if not used:
             break
         state = _merge_recorded(log, current, used, guarded, record, f"pairwise {k + 1}", owner, started, noise,
-                                config, drift, args, kept_covisible=args.kept_covisible)
+                                config, drift, args, kept_covisible=args.kept_covisible, untestable=False)
         if state is current:
             break
         current = state
@@ -1448,6 +1585,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--bisect", type=non_negative_int, default=2, metavar="DEPTH",
                         help="a refused batch of merges is cut in halves down to DEPTH levels (0: retried as its "
                              "strongest pass alone, session 24's)")
+    parser.add_argument("--fresh-start", action="store_true",
+                        help="a round's or pairwise round's whole batch refused by the cost check is smoothed again "
+                             "from the filter's guess on the merged names and judged at the lower cost (session 31)")
     parser.add_argument("--guard", action="store_true",
                         help="when the cost check refuses a round's batch, leave out the groups of names whose share "
                              "of it, tested given the others' (leave one out), is beyond χ² 99 %%, before bisecting "
@@ -1482,6 +1622,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="before the pairwise rounds and after --name-unnamed: take the runs of sightings the "
                              "--honest-names screen flags out of their names (a name's largest run never); after the "
                              "naming, then the pairwise rounds and the naming again")
+    parser.add_argument("--audit-parts", type=non_negative_float, default=None, metavar="FLOOR_M",
+                        help="audit every kept batch part by part on its merged map (estimation.merge_audit): hold "
+                             "back a merged name's part whose split score, with an offset of σ FLOOR_M allowed, is "
+                             "beyond chi2_2 Bonferroni over the batch's parts, and in the rounds a part the map cannot "
+                             "tell from a post as near as two posts are known to stand; the rest merged again "
+                             "(session 31: 0.042)")
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
@@ -1494,6 +1640,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hold-two-points", action="store_true",
                         help="with --honest-names: a name sighted twice in one frame (two posts) is flagged too, its "
                              "pairings held back from every round's and pairwise round's merges (session 30)")
+    parser.add_argument("--mutual-rounds", action="store_true",
+                        help="the rounds merge a cluster of names only when every two of its members are within "
+                             "each other's chi2_2 99 %% gate (the pairwise rounds' link); a cluster that is not waits "
+                             "(session 31)")
     parser.add_argument("--kept-covisible", action="store_true",
                         help="the pairwise merges: two names are sighted in one frame only by sightings the smoother "
                              "kept (default: every sighting counts)")
@@ -1536,7 +1686,8 @@ def main(argv: list[str] | None = None) -> int:
                           "min_pairs": args.min_pairs, "ratio": args.ratio, "fewer_rival": args.fewer_rival,
                           "distinct_points": args.distinct_points, "rival_rounds": args.rival_rounds,
                           "runs_out": args.runs_out, "hold_two_points": args.hold_two_points,
-                          "robots": rows}))
+                          "mutual_rounds": args.mutual_rounds, "fresh_start": args.fresh_start,
+                          "audit_parts": args.audit_parts, "robots": rows}))
     return 0
 
 

@@ -184,7 +184,7 @@ def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_ta
     def clusters_of(current, some, alias, **_):
         return {a: b for pairs in some for a, b in pairs if a not in alias}
 
-    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None):
+    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None, fresh_start=None):
         merged = [(b, a) for a, b in clusters.items()]
         ok = not any(a // 10 in bad for a in clusters)
         kept = current.merged + merged if ok else current.merged
@@ -364,7 +364,7 @@ def test_a_refused_batch_is_retried_without_the_groups_the_guard_set_aside(n_pas
     def clusters_of(current, some, alias, **_):
         return {a: b for pairs in some for a, b in pairs if a not in alias}
 
-    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None):
+    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None, fresh_start=None):
         ok = not any(a // 10 in bad for a in clusters)
         merged = [(b, a) for a, b in clusters.items()]
         return MergeRound(current.merged + merged if ok else merged, 0.0, 1.0, ok, None, None, None)
