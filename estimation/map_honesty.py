@@ -124,7 +124,10 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
     26 measured ≈ 3.5 cm between one post's names on MRCLAM: the side of the post seen, the range calibration's
     residual). The split's offset estimate δ̂ = V⁻¹g then has covariance V⁻¹ + σ²I under the model, and the score is
     δ̂ᵀ(V⁻¹ + σ²I)⁻¹δ̂, still χ²₂: a run of many sightings a few centimetres off no longer counts as a disagreement,
-    a run metres off still does. 0 (the default): gᵀV⁻¹g exactly."""
+    a run metres off still does. 0 (the default): gᵀV⁻¹g exactly.
+
+    ``details``, if given, receives per run: ``offset`` (R, 2) δ̂ as the run's point minus the rest of its landmark,
+    ``covariance`` (R, 2, 2) V⁻¹, ``influence`` and ``kept_information`` (NaN where there is no score)."""
     if not (np.isfinite(floor_m) and floor_m >= 0):
         raise ValueError(f"the runs' offset floor must be finite and ≥ 0 m, not {floor_m}")
     t, n = problem.n_poses, len(solution.landmarks)
@@ -153,7 +156,8 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
         grad.append(j_delta.T @ residuals[run.sightings].ravel())
     out = np.full(len(runs), np.nan)
     if details is not None:
-        details.update(offset=np.full((len(runs), 2), np.nan), influence=np.full(len(runs), np.nan),
+        details.update(offset=np.full((len(runs), 2), np.nan), covariance=np.full((len(runs), 2, 2), np.nan),
+                       influence=np.full(len(runs), np.nan),
                        kept_information=np.full(len(runs), np.nan))
     for start in range(0, len(runs), _SOLVE_COLUMNS // 2):
         chunk = range(start, min(start + _SOLVE_COLUMNS // 2, len(runs)))
@@ -172,6 +176,7 @@ def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run
                 out[i] = float(grad[i] @ offset_hat)
             if details is not None:
                 details["offset"][i] = -offset_hat
+                details["covariance"][i] = np.linalg.inv(v)
                 details["influence"][i] = float(offset_hat @ (own[i] - v) @ offset_hat)
                 details["kept_information"][i] = float(np.sqrt(np.linalg.det(v) / np.linalg.det(own[i])))
     return out

@@ -19,15 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import chi2
-from .landmark_smoother import LandmarkLogProblem, NormalFactor, Smoothed, normalised_residuals, solution_jacobian
-from .map_honesty import Run, sighting_times
+from .landmark_smoother import LandmarkLogProblem, Smoothed
+from .map_honesty import Run, sighting_times, split_scores
 
 __all__ = ["PartSplits", "covisible_spacing", "floored_scores", "held_parts", "merged_parts", "part_splits"]
-
-_SOLVE_COLUMNS = 256        # right-hand sides per banded solve
 
 
 @dataclass(frozen=True)
@@ -77,45 +74,11 @@ def part_splits(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run]
     residuals r with respect to an offset of its landmark in its sightings only, V = J_δᵀJ_δ − (J_xᵀJ_δ)ᵀ H⁻¹
     (J_xᵀJ_δ) that offset's information given every other variable (H the smoother's normal matrix). A run that is
     all of its landmark's kept sightings, or that the rest holds nothing against, gets NaN."""
-    count = len(runs)
-    out = PartSplits(np.full(count, np.nan), np.full((count, 2), np.nan), np.full((count, 2, 2), np.nan))
+    details: dict = {}
+    score = split_scores(problem, solution, runs, details)
     if not runs:
-        return out
-    t, n = problem.n_poses, len(solution.landmarks)
-    jac, width = solution_jacobian(problem, solution)
-    seen = np.zeros(n, bool)
-    seen[problem.landmark_index[np.asarray(solution.inliers, bool)]] = True
-    information = (jac.T @ jac).tocsc()
-    free = np.ones(information.shape[0], bool)
-    free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
-    jac = jac[:, np.flatnonzero(free)]
-    column = np.cumsum(free) - 1
-    factor = NormalFactor(information[free][:, free], t, width)
-    _, residuals, _ = normalised_residuals(problem, solution)
-    base = 3 * t                                 # the sightings' rows follow the odometry's 3T
-    cross, own, grad = [], [], []
-    for run in runs:
-        rows = (base + 2 * run.sightings[:, None] + np.arange(2)).ravel()
-        block = jac[rows]
-        j_delta = block[:, column[width * t + 2 * run.landmark + np.arange(2)]].toarray()
-        cross.append(sp.csc_matrix(block.T @ j_delta))
-        own.append(j_delta.T @ j_delta)
-        grad.append(j_delta.T @ residuals[run.sightings].ravel())
-    for start in range(0, count, _SOLVE_COLUMNS // 2):
-        chunk = range(start, min(start + _SOLVE_COLUMNS // 2, count))
-        rhs = sp.hstack([cross[i] for i in chunk]).toarray()
-        solved = factor.solve(rhs)
-        for k, i in enumerate(chunk):
-            c = rhs[:, 2 * k:2 * k + 2]
-            v = own[i] - c.T @ solved[:, 2 * k:2 * k + 2]
-            v = 0.5 * (v + v.T)
-            if np.linalg.eigvalsh(v).min() <= 1e-9 * max(np.trace(own[i]), 1e-300):
-                continue
-            step = np.linalg.solve(v, grad[i])
-            out.score[i] = float(grad[i] @ step)
-            out.offset[i] = -step          # the smoother's residual sign: the part sits at −V⁻¹g (tests)
-            out.covariance[i] = np.linalg.inv(v)
-    return out
+        return PartSplits(np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2)))
+    return PartSplits(score, details["offset"], details["covariance"])
 
 
 def floored_scores(splits: PartSplits, floor_m: float) -> np.ndarray:
