@@ -580,20 +580,27 @@ def naming_scores(names: np.ndarray, barcodes: np.ndarray) -> dict:
             "duplicate_fraction": (len(codes) - posts) / len(codes) if codes else 0.0}
 
 
+def planar_landmarks(solution: Smoothed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The smoothed names as map landmarks: which have a finite covariance (N,) bool, their positions (K, 3) with z
+    pinned at 0 and covariances (K, 3, 3) with a 1e-6 m² height variance (the planar sensor says nothing of it)."""
+    n = len(solution.landmarks)
+    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(n, -1)), axis=1)
+    covariances = np.zeros((int(seen.sum()), 3, 3))
+    covariances[:, :2, :2] = solution.landmark_covariances[seen]
+    covariances[:, 2, 2] = 1e-6
+    return seen, np.column_stack([solution.landmarks[seen], np.zeros(int(seen.sum()))]), covariances
+
+
 def round_scores(log: RangeBearingLog, r: MergeRound, owner_before: dict[int, int]) -> dict:
     """One smoothing's figures in the start frame, its names attributed to their barcodes; wrong merges by the
     names' barcodes before the round."""
     sol, named = r.solution, r.named
     owner = majority(r.names, log.landmark_ids)
-    n = len(named.names)
-    seen = np.all(np.isfinite(sol.landmark_covariances.reshape(n, -1)), axis=1)
-    covariances = np.zeros((int(seen.sum()), 3, 3))
-    covariances[:, :2, :2] = sol.landmark_covariances[seen]
-    covariances[:, 2, 2] = 1e-6
+    seen, positions, covariances = planar_landmarks(sol)
     attributed = np.array([owner.get(int(x), -1) for x in named.names], np.int64)[seen]
     t0 = float(named.frame_times[0])
     true_start = log.true_pose([t0])[0]
-    scores = map_scores(np.column_stack([sol.landmarks[seen], np.zeros(int(seen.sum()))]), covariances, attributed,
+    scores = map_scores(positions, covariances, attributed,
                         true_start, log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, None))
     wrong = [(a, b) for a, b in r.merged if owner_before.get(a) != owner_before.get(b)]
     naming = naming_scores(r.names, log.landmark_ids)

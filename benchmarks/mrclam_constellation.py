@@ -183,6 +183,7 @@ from benchmarks.mrclam_chained_names import (  # noqa: E402
     _covisible,
     majority,
     named_problem,
+    planar_landmarks,
     round_scores,
     smooth_named,
     truncated_cost,
@@ -848,21 +849,16 @@ def chain_map(log: RangeBearingLog, current: MergeRound) -> LandmarkMap:
     No descriptors and no identities: the names are the chain's own (unknown association), so fusion aligns the
     maps by geometry alone; the barcodes stay out of the file."""
     sol, named = current.solution, current.named
-    n = len(named.names)
-    seen = np.all(np.isfinite(sol.landmark_covariances.reshape(n, -1)), axis=1)
-    covariances = np.zeros((int(seen.sum()), 3, 3))
-    covariances[:, :2, :2] = sol.landmark_covariances[seen]
-    covariances[:, 2, 2] = 1e-6
-    counts = np.bincount(named.problem.landmark_index[sol.inliers], minlength=n)[seen]
+    seen, positions, covariances = planar_landmarks(sol)
+    counts = np.bincount(named.problem.landmark_index[sol.inliers], minlength=len(seen))[seen]
     times = named.frame_times
     true_start = log.true_pose(times[:1])[0]
     metadata = {"true_start_pose": [float(v) for v in true_start], "dataset": log.name,
                 "association": "unknown-chain", "simulated": False, "smoothed": True,
                 "smoother_chi2_per_dof": float(sol.chi2_per_dof), **log_body_metadata(log)}
-    return LandmarkMap(np.column_stack([sol.landmarks[seen], np.zeros(int(seen.sum()))]), covariances,
-                       np.zeros((int(seen.sum()), 0), np.float32), counts=counts.astype(np.int64),
-                       robot=f"robot{_robot_number(log)}", trajectory=np.column_stack([times, sol.poses[1:]]),
-                       metadata=metadata)
+    return LandmarkMap(positions, covariances, np.zeros((len(positions), 0), np.float32),
+                       counts=counts.astype(np.int64), robot=f"robot{_robot_number(log)}",
+                       trajectory=np.column_stack([times, sol.poses[1:]]), metadata=metadata)
 
 
 def map_consistency(log: RangeBearingLog, current: MergeRound, draws: int = 20_000) -> dict:
