@@ -199,7 +199,7 @@ from estimation.constellation import (  # noqa: E402
     pairwise_groups,
     spanning_pairs,
 )
-from estimation.dataset_slam import log_body_metadata, run_landmark_log  # noqa: E402
+from estimation.dataset_slam import log_body_metadata  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402
@@ -1522,20 +1522,13 @@ def _guess(log, names, noise, config, args, cache: bool = True):
         if path.is_file():
             with np.load(path, allow_pickle=False) as data:
                 return data["poses"], dict(zip(data["ids"].tolist(), data["positions"], strict=True))
-    keep = names >= 0
-    named_log = dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
-                                    bearings=log.bearings[keep], landmark_ids=names[keep])
-    guess = run_landmark_log(named_log, config, np.random.default_rng(args.seed), noise=noise, association="id",
-                             smooth=True)
-    ids = np.asarray(guess.map.metadata["external_ids"], np.int64)
-    positions = np.asarray(guess.map.positions)[:, :2]
-    poses = guess.map.trajectory[:, 1:]
+    poses, guess = names_guess(log, names, noise, config, np.random.default_rng(args.seed))
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, poses=poses, ids=ids, positions=positions)
+        np.savez(tmp, poses=poses, ids=np.array(list(guess), np.int64), positions=np.array(list(guess.values())))
         os.replace(tmp, path)
-    return poses, dict(zip(ids.tolist(), positions, strict=True))
+    return poses, guess
 
 
 def main(argv: list[str] | None = None) -> int:
