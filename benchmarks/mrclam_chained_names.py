@@ -78,6 +78,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation import chi2  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
+from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAMConfig, range_bearing_config  # noqa: E402
 from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
@@ -578,17 +579,6 @@ def naming_scores(names: np.ndarray, barcodes: np.ndarray) -> dict:
             "names": len(owner), "names_min_sightings": len(codes), "posts": posts,
             "names_per_post": len(codes) / posts if posts else float("nan"),
             "duplicate_fraction": (len(codes) - posts) / len(codes) if codes else 0.0}
-
-
-def planar_landmarks(solution: Smoothed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The smoothed names as map landmarks: which have a finite covariance (N,) bool, their positions (K, 3) with z
-    pinned at 0 and covariances (K, 3, 3) with a 1e-6 m² height variance (the planar sensor says nothing of it)."""
-    n = len(solution.landmarks)
-    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(n, -1)), axis=1)
-    covariances = np.zeros((int(seen.sum()), 3, 3))
-    covariances[:, :2, :2] = solution.landmark_covariances[seen]
-    covariances[:, 2, 2] = 1e-6
-    return seen, np.column_stack([solution.landmarks[seen], np.zeros(int(seen.sum()))]), covariances
 
 
 def round_scores(log: RangeBearingLog, r: MergeRound, owner_before: dict[int, int]) -> dict:

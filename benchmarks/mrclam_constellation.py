@@ -183,7 +183,6 @@ from benchmarks.mrclam_chained_names import (  # noqa: E402
     _covisible,
     majority,
     named_problem,
-    planar_landmarks,
     round_scores,
     smooth_named,
     truncated_cost,
@@ -200,6 +199,7 @@ from estimation.constellation import (  # noqa: E402
     spanning_pairs,
 )
 from estimation.dataset_slam import log_body_metadata  # noqa: E402
+from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402

@@ -111,17 +111,22 @@ def _initial_landmarks(filter_map: LandmarkMap, landmark_ids, problem, poses) ->
     return out
 
 
-def _smoothed_map(filter_map: LandmarkMap, solution, landmark_ids, landmark_index, times) -> LandmarkMap:
-    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(len(landmark_ids), -1)), axis=1)
+def planar_landmarks(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A smoother solution's landmarks as map landmarks: which have a finite covariance (L,) bool, their positions
+    (K, 3) with z pinned at 0 and covariances (K, 3, 3) with the planar sensor's height variance."""
+    seen = np.all(np.isfinite(solution.landmark_covariances.reshape(len(solution.landmarks), -1)), axis=1)
     n = int(seen.sum())
     covariances = np.zeros((n, 3, 3))
     covariances[:, :2, :2] = solution.landmark_covariances[seen]
     covariances[:, 2, 2] = _Z_VARIANCE
+    return seen, np.column_stack([solution.landmarks[seen], np.zeros(n)]), covariances
+
+
+def _smoothed_map(filter_map: LandmarkMap, solution, landmark_ids, landmark_index, times) -> LandmarkMap:
+    seen, positions, covariances = planar_landmarks(solution)
     counts = np.bincount(landmark_index[solution.inliers], minlength=len(landmark_ids))[seen]
     metadata = dict(filter_map.metadata, external_ids=[int(i) for i in landmark_ids[seen]], smoothed=True,
                     smoother_chi2_per_dof=solution.chi2_per_dof)
-    return LandmarkMap(np.column_stack([solution.landmarks[seen], np.zeros(n)]), covariances,
-                       np.zeros((n, 0), np.float32), ids=np.arange(n), counts=counts, robot=filter_map.robot,
-                       frame=filter_map.frame, trajectory=np.column_stack([np.append(times[:1], times),
-                                                                           solution.poses]),
-                       metadata=metadata)
+    return LandmarkMap(positions, covariances, np.zeros((len(positions), 0), np.float32),
+                       ids=np.arange(len(positions)), counts=counts, robot=filter_map.robot, frame=filter_map.frame,
+                       trajectory=np.column_stack([np.append(times[:1], times), solution.poses]), metadata=metadata)

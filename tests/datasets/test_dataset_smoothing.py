@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 
 from estimation.dataset_slam import run_landmark_log
+from estimation.dataset_smoothing import planar_landmarks
 from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
+from estimation.landmark_smoother import Smoothed
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
 from runtime.rerun_log import read_recording
 from tests.datasets.conftest import run_cli as _cli
@@ -36,6 +38,18 @@ def test_exact_data_smooths_to_the_truth_and_the_filter_figures_stay(tmp_path, s
     with pytest.raises(ValueError, match="nothing to smooth: no sightings before -1 s"):
         run_landmark_log(log, range_bearing_config(n_particles=5), np.random.default_rng(1),
                          noise=_small_noise(synthetic), association="id", until=-1.0, smooth=True)
+
+
+def test_planar_landmarks_keep_the_landmarks_the_smoother_placed_on_the_floor():
+    covariances = np.stack([np.diag([0.01, 0.04]), np.full((2, 2), np.inf), np.diag([0.09, 0.01])])
+    solution = Smoothed(np.zeros((1, 3)), np.array([[1.0, 2.0], [np.nan, np.nan], [-3.0, 0.5]]), covariances,
+                        np.zeros(0, np.int64), np.zeros((0, 3, 3)), np.ones(0, bool), 0.0, 0, 1, True)
+    seen, positions, planar = planar_landmarks(solution)
+    assert seen.tolist() == [True, False, True]     # a landmark no sighting pinned (infinite variance) is no landmark
+    np.testing.assert_array_equal(positions, [[1.0, 2.0, 0.0], [-3.0, 0.5, 0.0]])
+    np.testing.assert_array_equal(planar[:, :2, :2], covariances[[0, 2]])
+    assert np.all(planar[:, 2, 2] > 0) and np.all(planar[:, 2, 2] < 1e-4) and np.all(planar[:, :2, 2] == 0)
+    assert np.all(np.linalg.eigvalsh(planar) > 0)   # a covariance a map can invert
 
 
 def test_cli_smooth_writes_the_smoothed_map_and_refuses_unknown_association(tmp_path, synthetic):
