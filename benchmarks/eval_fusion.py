@@ -361,8 +361,10 @@ def corridor_table():
 
 
 def _attribute(m: LandmarkMap, truth: dict) -> np.ndarray:
-    """The true landmark id of every row (N,): the map's identities, else the nearest true landmark after
-    aligning the map to the true landmarks by geometry alone (-1: none within 0.5 m)."""
+    """The true landmark id of every row (N,): the map's identities, else the nearest true landmark (-1: none within
+    0.5 m) after placing the map on the true landmarks by geometry alone, or, when geometry finds no unambiguous
+    placement (a map with duplicates of a repeated layout), by its true start pose (scoring only) refined by two
+    rigid fits of the rows so attributed."""
     ids = m.metadata.get("external_ids")
     if ids is not None and len(ids) == len(m):
         return np.asarray(ids, np.int64)
@@ -371,18 +373,41 @@ def _attribute(m: LandmarkMap, truth: dict) -> np.ndarray:
     truth_map = LandmarkMap(np.column_stack([pts, np.zeros(len(pts))]), np.repeat(np.eye(3)[None] * 0.01,
                             len(pts), 0), np.zeros((len(pts), 0), np.float32), robot="truth")
     a = align(truth_map, m, "robust", np.random.default_rng(0))
-    if not a.found:
+    start = m.metadata.get("true_start_pose")
+    if not a.found and start is None:
         return np.full(len(m), -1)
-    world = transform_points(a.pose, m.positions)[:, :2]
-    d = np.linalg.norm(world[:, None, :] - pts[None], axis=2)
-    return np.where(d.min(axis=1) < 0.5, keys[d.argmin(axis=1)], -1)
+    placement, refits = (a.pose, 0) if a.found else (np.asarray(start, float), 2)
+    for _ in range(refits + 1):
+        world = transform_points(placement, m.positions)[:, :2]
+        d = np.linalg.norm(world[:, None, :] - pts[None], axis=2)
+        ids = np.where(d.min(axis=1) < 0.5, keys[d.argmin(axis=1)], -1)
+        if (ids >= 0).sum() >= 3:
+            placement = rigid_fit_2d(m.positions[ids >= 0, :2], pts[d.argmin(axis=1)[ids >= 0]])
+    return ids
+
+
+def _median(errors: np.ndarray) -> float:
+    """The median of the scored errors (nan when none is)."""
+    errors = np.asarray(errors, float)
+    return float(np.median(errors[~np.isnan(errors)])) if (~np.isnan(errors)).any() else float("nan")
+
+
+def _error_cells(errors: np.ndarray) -> str:
+    """A map's median and mean landmark error as two table cells, or why it has none."""
+    if np.isnan(errors).all():
+        return "not placed on the truth by geometry (unscored) | "
+    return f"{np.nanmedian(errors):.3f} | {np.nanmean(errors):.3f}"
 
 
 def frame_fit(m: LandmarkMap, truth: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Best rigid fit of map ``m`` to the truth: pose (3,) of its frame in the world, per-row error after
-    the fit (N,) (nan where unattributed), and the rows' true ids (N,)."""
+    the fit (N,) (nan where unattributed), and the rows' true ids (N,). A map that cannot be placed on the truth
+    (fewer than three rows attributed: geometry alone found no unambiguous placement) has a nan pose and errors: it
+    is not scored, rather than scored wrong."""
     ids = _attribute(m, truth)
     ok = np.array([int(i) in truth for i in ids])
+    if ok.sum() < 3:
+        return np.full(3, np.nan), np.full(len(m), np.nan), ids
     world = np.array([truth[int(i)] for i in ids[ok]])
     fit = rigid_fit_2d(m.positions[ok, :2], world)
     err = np.full(len(m), np.nan)
@@ -452,22 +477,22 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         et, eo = np.array(e_truth), np.array(e_own)
         print(f"\nAligned {found}/{len(report['alignments'])} pairs; median error vs the Vicon start poses "
               f"{np.median(et[:, 0]):.3f} m / {np.median(et[:, 1]):.4f} rad (goal ≤ 0.3 m / 0.05 rad); the "
-              f"alignment's own part (vs the composed best rigid fits) {np.median(eo[:, 0]):.3f} m / "
-              f"{np.median(eo[:, 1]):.4f} rad. Found but > {WRONG_M} m or 0.05 rad off the Vicon start poses: {wrong}, "
+              f"alignment's own part (vs the composed best rigid fits) {_median(eo[:, 0]):.3f} m / "
+              f"{_median(eo[:, 1]):.4f} rad (pairs of maps placed on the truth). Found but > {WRONG_M} m or 0.05 "
+              f"rad off the Vicon start poses: {wrong}, "
               f"of which not covered by the start-frame covariance (NEES > {CHI2_3_999}): {uncovered}.")
     if report["exit"] not in (0, 1) or not out.exists():
         return
     merged = LandmarkMap.load(out)
     left_out = set(report.get("unconnected") or [])
     inside = [k for k, f in enumerate(files) if str(f) not in left_out]   # the maps the merged map holds
-    singles = [np.nanmedian(fits[k][1]) for k in inside]
+    singles = [_median(fits[k][1]) for k in inside]
     _, merged_err, merged_ids = frame_fit(merged, truth)
     print("\n| map | landmarks | landmark error after the best rigid fit, median (m) | mean (m) |")
     print("|---|---|---|---|")
     for m, f in zip(maps, fits, strict=True):
-        print(f"| {m.robot} | {len(m)} | {np.nanmedian(f[1]):.3f} | {np.nanmean(f[1]):.3f} |")
-    print(f"| merged ({'+'.join(maps[k].robot[-1] for k in inside)}) | {len(merged)} | "
-          f"{np.nanmedian(merged_err):.3f} | {np.nanmean(merged_err):.3f} |")
+        print(f"| {m.robot} | {len(m)} | {_error_cells(f[1])} |")
+    print(f"| merged ({'+'.join(maps[k].robot[-1] for k in inside)}) | {len(merged)} | {_error_cells(merged_err)} |")
     # the same alignments merged by the maps' own covariances (before covariance_scales), for comparison
     from fusion import fuse_all
     from fusion.multi import claimed_variance, covariance_scales, pairwise_alignments
@@ -476,17 +501,17 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         claimed = fuse_all(maps, "robust", 1, alignments=alignments, calibrate=False).map
         claimed_err = frame_fit(claimed, truth)[1]
         print(f"| merged by the maps' own covariances (calibrate=False) | {len(claimed)} | "
-              f"{np.nanmedian(claimed_err):.3f} | {np.nanmean(claimed_err):.3f} |")
+              f"{_error_cells(claimed_err)} |")
         if all(m.drift_covariances is not None for m in maps):   # files that keep the drift (session 10)
             drift = fuse_all(maps, "robust", 1, alignments=alignments, calibration="drift").map
             drift_err = frame_fit(drift, truth)[1]
             print(f"| merged with the drift the files keep (calibration='drift', an option) | {len(drift)} | "
-                  f"{np.nanmedian(drift_err):.3f} | {np.nanmean(drift_err):.3f} |")
+                  f"{_error_cells(drift_err)} |")
         if all(m.sighting_covariances is not None for m in maps):   # files that keep the spread (session 11)
             spread = fuse_all(maps, "robust", 1, alignments=alignments, calibration="sightings").map
             spread_err = frame_fit(spread, truth)[1]
             print(f"| merged by the spread of each map's own sightings (calibration='sightings', an option) | "
-                  f"{len(spread)} | {np.nanmedian(spread_err):.3f} | {np.nanmean(spread_err):.3f} |")
+                  f"{len(spread)} | {_error_cells(spread_err)} |")
     except NoOverlapError:
         pass
     scales = covariance_scales(maps, alignments)
@@ -494,11 +519,16 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
         print("\nCovariance scales from the pairwise residuals (σ about a rigid placement / σ claimed): " + ", ".join(
             f"{m.robot} {np.sqrt(c * claimed_variance(m)):.3f} m / {np.sqrt(claimed_variance(m)):.3f} m"
             for m, c in zip(maps, scales, strict=True)))
-    verdict = "lower" if np.nanmedian(merged_err) < min(singles) else "NOT lower"
-    print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "
-          f"({np.nanmedian(merged_err):.3f} vs {min(singles):.3f} m).")
-    if figures is not None:
-        fit = frame_fit(merged, truth)[0]
+    scored = [e for e in singles if not np.isnan(e)]
+    if scored and not np.isnan(_median(merged_err)):
+        verdict = "lower" if _median(merged_err) < min(scored) else "NOT lower"
+        print(f"\nThe merged map's median landmark error is {verdict} than the best single robot's "
+              f"({_median(merged_err):.3f} vs {min(scored):.3f} m; of the {len(scored)} maps placed on the truth).")
+    else:
+        print("\nThe merged map's landmark error is not scored: it or every single map could not be placed on the "
+              "truth by geometry.")
+    fit = frame_fit(merged, truth)[0]
+    if figures is not None and not np.isnan(fit).any():
         world = transform_points(fit, merged.positions)
         pts = np.array(list(truth.values()))
         fusion_plots.map_2d(figures / f"fusion_mrclam_{slug}_merged.png",

@@ -70,3 +70,36 @@ def test_frame_fit_places_a_map_with_identities_in_its_true_frame(motion, seed):
     assert abs(wrap_angle(fit[2] - frame[2])) < 1e-9
     assert np.all(err[:-1] < 1e-7) and np.isnan(err[-1])
     assert list(got_ids) == [*ids, -1]
+
+
+def _grid_map(frame: np.ndarray, metadata: dict) -> tuple[LandmarkMap, dict]:
+    """A 5 × 3 lattice of 1 m (a layout geometry alone cannot place: shifted by a column it fits 12 of 15) seen
+    from ``frame``, without identities."""
+    xs, ys = np.meshgrid(np.arange(5.0), np.arange(3.0))
+    world = np.column_stack([xs.ravel(), ys.ravel()])
+    local = transform_points(inverse(frame), np.column_stack([world, np.zeros(len(world))]))
+    m = LandmarkMap(local, np.repeat(np.eye(3)[None] * 1e-4, len(local), 0), np.zeros((len(local), 0), np.float32),
+                    robot="robot1", metadata=metadata)
+    return m, {100 + i: tuple(p) for i, p in enumerate(world)}
+
+
+# a robot starts among the landmarks it maps, so a start pose's heading error moves none of them far (here ≤ 0.3 m)
+starts_among_the_lattice = st.tuples(st.floats(-1, 5), st.floats(-1, 3), st.floats(-np.pi, np.pi))
+
+
+@settings(max_examples=20, deadline=None)
+@given(starts_among_the_lattice, st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.floats(-0.04, 0.04))
+def test_frame_fit_places_a_map_geometry_cannot_by_its_true_start_pose(start, dx, dy, dtheta):
+    frame = np.array(start)
+    m, truth = _grid_map(frame, {"true_start_pose": list(frame + [dx, dy, dtheta])})
+    assert np.isnan(eval_fusion.frame_fit(_grid_map(frame, {})[0], truth)[0]).all()   # geometry alone cannot
+    fit, err, ids = eval_fusion.frame_fit(m, truth)
+    np.testing.assert_allclose(fit[:2], frame[:2], atol=1e-7)
+    assert abs(wrap_angle(fit[2] - frame[2])) < 1e-9
+    assert list(ids) == sorted(truth) and np.all(err < 1e-7)
+
+
+def test_frame_fit_leaves_a_map_it_cannot_place_unscored_rather_than_crash():
+    m, truth = _grid_map(np.array([2.0, -1.0, 0.3]), {})
+    fit, err, ids = eval_fusion.frame_fit(m, truth)
+    assert np.isnan(fit).all() and np.isnan(err).all() and np.all(ids == -1)
