@@ -12,7 +12,16 @@ Measured (session 32, robot 3 seed 1 round 2, the wrong pairing of post 19's nam
 an accepted batch of 30): the share is 7.36 on 2 (the guard's own number), the offset 0.17 m with σ 0.038 × 0.126 m,
 so the map *could* test it (widest σ × √χ²₂(99 %) = 0.38 m, within the 0.66 m at which two of its posts are seen in
 one frame) and found it one point. Against the truth the difference's error has NEES 25.5: the map before the round
-was confidently wrong there, which no test on it can see. The functions are kept as the tool of that diagnosis.
+was confidently wrong there, which no test on it can see.
+
+Why it was wrong: name 48 held, besides its 35 sightings of post 19 (488–503 s), one sighting of post 20 at 453.0 s,
+35 s and an on-the-spot turn earlier (the odometry under-reports that turn by 0.22 rad). Kept as an inlier, that one
+sighting pins the stretch after the turn so that post 19's sightings land on post 20's place (heading 0.23 rad off
+at σ 0.078). Its split score is 1.8: the stretch bends to fit it almost for free, so the honest-names screen cannot
+flag it. But it cannot be *tested* either: the offset of that one-sighting run from the rest of its name has a
+widest σ of 0.36 m, so a neighbouring post 0.66 m away would score within χ²₂ 99 %. :func:`untestable_runs` finds
+such runs (merge_audit's power rule on a name's runs instead of a merged name's parts). With that sighting unnamed,
+the round's two passes holding name 48 are ambiguous and the wrong pairing is not made.
 """
 from __future__ import annotations
 
@@ -21,8 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import chi2
+from .landmark_smoother import LandmarkLogProblem, Smoothed
+from .map_honesty import Run, sighting_runs
+from .merge_audit import covisible_spacing, held_parts, part_splits
 
-__all__ = ["GroupOffsets", "group_offsets", "untestable_groups"]
+__all__ = ["GroupOffsets", "group_offsets", "untestable_groups", "untestable_runs"]
 
 
 @dataclass(frozen=True)
@@ -101,3 +113,25 @@ def untestable_groups(shares: GroupOffsets, spacing_m: float, alpha: float = 0.0
         raise ValueError(f"need 0 < α < 1 and a spacing > 0 m, not {alpha} and {spacing_m}")
     wide = shares.widest_sigma()
     return np.isfinite(wide) & (np.nan_to_num(wide) * np.sqrt(chi2.ppf(1 - alpha, 2)) > spacing_m)
+
+
+def untestable_runs(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s: float = 5.0, alpha: float = 0.01
+                    ) -> list[Run]:
+    """The runs of a name's kept sightings (cut at gaps over ``gap_s``, :func:`estimation.map_honesty.sighting_runs`)
+    that the map cannot test against the rest of their name: the run's offset from the rest could be the nearest
+    distance at which two of the map's landmarks are seen in one frame
+    (:func:`estimation.merge_audit.covisible_spacing`) along its widest axis and still score within χ²₂ at 1 − α
+    (merge_audit's "untestable", on runs). A name's largest
+    run is never returned (ties: the earliest): it is what the name is. Such a run holds the stretch it was seen from
+    to wherever its name is, whether or not it is that name's post, and nothing can say which."""
+    runs = sighting_runs(problem, solution, gap_s)
+    largest: dict[int, Run] = {}
+    for run in runs:
+        if run.landmark not in largest or len(run.sightings) > len(largest[run.landmark].sightings):
+            largest[run.landmark] = run
+    candidates = [run for run in runs if largest[run.landmark] is not run]
+    if not candidates:
+        return []
+    splits = part_splits(problem, solution, candidates)
+    verdict = held_parts(splits, floor_m=0.0, spacing_m=covisible_spacing(problem, solution), alpha=alpha)
+    return [run for run, untestable in zip(candidates, verdict["untestable"], strict=True) if untestable]

@@ -6,8 +6,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.batch_audit import group_offsets, untestable_groups
+from estimation.batch_audit import group_offsets, untestable_groups, untestable_runs
 from estimation.constellation import leave_one_out
+from estimation.geometry import between, dead_reckoning, wrap_angle
+from estimation.landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
+from estimation.map_honesty import sighting_runs
 
 
 def correlated_covariance(rng: np.random.Generator, n: int, frame_sigma: float = 1.0, own_sigma: float = 0.05
@@ -130,3 +133,62 @@ def test_a_point_without_a_finite_covariance_gives_no_share_and_is_not_called_un
     assert not untestable_groups(shares, 0.5).any()
     with pytest.raises(ValueError):
         untestable_groups(shares, 0.0)
+
+
+def glimpse_log(seed: int, loose: bool):
+    """A robot driving a 2 m circle twice (1 s a step) among 8 landmarks 3.2 m from its centre and a ninth 0.7 m
+    beyond landmark 5 (as MRCLAM's posts 19 and 20: the map's co-visible spacing), odometry and sightings drawn
+    from the model, each sighting named by its true landmark. Over steps 200-222 of the second lap
+    the robot sees nothing but one sighting of landmark 5 (step 211); with ``loose`` the odometry over that stretch is
+    loose (σ 0.5 m and rad in all), as an on-the-spot turn the odometry under-reports. Returns the problem and the
+    glimpse's sighting index."""
+    rng = np.random.default_rng(seed)
+    steps, lap, marks = 240, 120, 8
+    step = np.array([2 * np.pi * 2.0 / lap, 0.0, 2 * np.pi / lap])
+    truth = dead_reckoning(np.tile(step, (steps, 1)))
+    angles = np.linspace(0, 2 * np.pi, marks, endpoint=False)
+    landmarks = np.column_stack([3.2 * np.cos(angles), 2.0 + 3.2 * np.sin(angles)])
+    landmarks = np.vstack([landmarks, [3.9 * np.cos(angles[5]), 2.0 + 3.9 * np.sin(angles[5])]])
+    variance = np.tile(2e-3 * np.hypot(step[0], step[1]), (steps, 3))
+    if loose:
+        variance[199:222] = 0.5 ** 2 / 23
+    measured = between(truth[:-1], truth[1:]) + rng.standard_normal((steps, 3)) * np.sqrt(variance)
+    pose_index, index, ranges, bearings, glimpse = [], [], [], [], -1
+    for k in range(1, steps + 1):
+        for m in range(marks + 1):
+            if 200 <= k < 222 and not (k == 211 and m == 5):
+                continue
+            d = landmarks[m] - truth[k, :2]
+            r, b = np.hypot(d[0], d[1]), wrap_angle(np.arctan2(d[1], d[0]) - truth[k, 2])
+            if not (abs(b) < 0.8 and r < 5.0):
+                continue
+            if k == 211:
+                glimpse = len(ranges)
+            pose_index.append(k)
+            index.append(m)
+            ranges.append(r + 0.05 * rng.standard_normal())
+            bearings.append(b + 0.02 * rng.standard_normal())
+    s = len(ranges)
+    problem = LandmarkLogProblem(measured, variance, np.array(pose_index), np.array(index), np.array(ranges),
+                                 np.array(bearings), np.full(s, 0.05), np.full(s, 0.02),
+                                 increment_seconds=np.ones(steps))
+    return problem, glimpse
+
+
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2 ** 16))
+def test_a_glimpse_from_a_loose_stretch_is_the_one_untestable_run_and_from_a_tight_one_none_is(seed):
+    for loose in (True, False):
+        problem, glimpse = glimpse_log(seed, loose)
+        assert glimpse >= 0
+        poses = dead_reckoning(problem.increments)
+        solution = smooth(problem, poses, landmarks_from_first_sightings(problem, poses))
+        assert solution.inliers[glimpse]
+        runs = sighting_runs(problem, solution, 5.0)
+        assert any(glimpse in r.sightings for r in runs)      # the glimpse is a run of its landmark's
+        found = untestable_runs(problem, solution)
+        if loose:
+            assert [r.sightings.tolist() for r in found] == [[glimpse]]
+        else:
+            assert found == []
+
