@@ -15,8 +15,9 @@ left two wrong pairwise merges that passed every one of those tests (measured in
   each group by its own rise.
 
 Measured (docs/fastslam-history.md, "Session 32 ... (A)"): the groups' own check refuses robot 2 seed 1's glimpse
-and none of 35 right groups over four end-to-end runs (seed 0 robots 1, 3, 5 unchanged; robot 2 seed 1 then meets
-every figure of its pairwise rounds), by a thin margin (9.56 against 9.21). The rival just outside the gate is
+(alone 9.5–9.6 against 9.21) and none of 91 right-group checks (58 over six end-to-end runs, 33 surveyed; the
+nearest 9.1). Seed 0 robots 1, 3, 5 come out unchanged. Robot 2 seed 1 with session 31's three options then meets
+every figure with 0 wrong merges. The margins are thin on both sides. The rival just outside the gate is
 **negative** as a rule: at χ²₂ 99.9 % it holds robot 1 seed 2's wrong group and 6 of 23 right ones, and that level was
 chosen after seeing the case (fitted). Robot 1 seed 2's wrong member is a name of two posts that the map places on
 post 8: no pairwise test sees it (merged alone 2.4 against 13.3).
