@@ -9,7 +9,7 @@ Run from the repository root:
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--runs-out] [--slip 0.3]
         [--fewer-rival] [--distinct-points] [--rival-rounds K] [--hold-two-points] [--mutual-rounds] [--fresh-start]
-        [--audit-parts FLOOR_M] [--out-maps DIR]
+        [--audit-parts FLOOR_M] [--pairwise-alone] [--out-maps DIR]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -76,6 +76,10 @@ are all within each other's gate; robot 1 seed 2), ``--fresh-start`` (A: a refus
 filter's guess on the merged names; robot 5 seed 2's local minimum), ``--audit-parts 0.042`` (C: each part of a merged
 name tested on the merged map, floor √2 × the 3 cm per-name offset; robots 5 seed 0 and 2 seed 2).
 
+Session 32 (lead, A, B; docs: "Session 32 ..."): ``--pairwise-alone`` (A: each pairwise group merged alone
+first and left out of the batch when its own rise is beyond χ² 99 % for 2 per absorbed name; robot 2 seed 1's glimpse,
+9.6 alone against 9.21, hid in its batch's 14.2 against 23.2).
+
 Session 23 (E) left the chain of names (``benchmarks.mrclam_chained_names``) honest with the smoother's heading-bias
 states, and its loops unclosed: over hundreds of seconds the difference of two names of one post has σ 1.7–3.7 m,
 the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pairwise gate. A pass past the posts sees
@@ -119,6 +123,8 @@ The method (the barcodes never decide; they only score):
    structure never pairs two names one pass holds). ``--kept-covisible``: "sighted in one frame" by kept sightings
    only. ``--name-floor``: a per-name offset σ added in the pairwise gate. ``--split-ambiguous``: a refused group
    is judged again without its ambiguous members (``pairwise_groups(split_ambiguous=True)``).
+   ``--pairwise-alone``: each group merged alone first, and left out when its own rise is beyond the bound for its
+   absorbed names (:func:`estimation.pairwise_audit.refused_alone`).
 6. ``--sighting-offset M`` (session 27): every smoothing (and so every joint covariance, gate and cost check) carries
    an offset per round-0 name of prior σ M per axis; from a saved state, the state is re-smoothed with it first.
    ``--offsets-once-tight`` (session 28): the rounds run without the offsets until one keeps nothing (or the last
@@ -224,6 +230,7 @@ from estimation.map_honesty import (  # noqa: E402
 )
 from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
+from estimation.pairwise_audit import refused_alone  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
 STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
@@ -1451,6 +1458,8 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
                                (len(g.members), -g.d2 / g.dof), 0, True)
                    for i, g in enumerate(x for x in groups if x.status == "merge")]
         clusters, used = merges_from(merging, covisible)
+        if used and args.pairwise_alone:       # each group's own cost check before the batch's (session 32, A)
+            used = _alone_checked(log, current, used, covisible, record, code, noise, config, drift, args)
         if used:
             record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
             if not (args.guard and record["guard"]["set_aside"]):
@@ -1473,6 +1482,29 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
             save_state(state_path(args.state_dir, log, args.seed, f"pairwise{k + 1}"), current,
                        _state_meta(log, args, drift, -(k + 1), _round(log, current, owner)))
     return current
+
+
+def _alone_checked(log: RangeBearingLog, current: MergeRound, used: list[PassVerdict], covisible: np.ndarray,
+                   record: dict, code: np.ndarray, noise, config, drift, args) -> list[PassVerdict]:
+    """``--pairwise-alone`` (session 32, A): each pairwise group merged alone from ``current`` and kept for the batch
+    only when its own rise is within χ² 99 % for 2 per absorbed name (:func:`estimation.pairwise_audit.refused_alone`):
+    the batch's bound is the sum over its groups, and one wrong group hides in the others' slack (robot 2 seed 1's
+    glimpse: 9.6 alone against 9.2, 14.2 against 23.2 in its batch of five). Recorded (scored by the barcodes)."""
+    rises, absorbed = [], []
+    for v in used:
+        alone = _merge_once(log, current, merges_from([v], covisible)[0], noise, config, drift,
+                            path_step_s=_path_step(args))
+        rises.append(alone.rise)
+        absorbed.append(len(alone.merged))
+    refused = refused_alone(rises, absorbed)
+    record["alone"] = [{"group": sorted(int(current.named.names[a]) for a in {x for p in v.pairs for x in p}),
+                        "rise": r, "absorbed": a, "refused": bool(f),
+                        "wrong": len({code[x] for p in v.pairs for x in p}) > 1}
+                       for v, r, a, f in zip(used, rises, absorbed, refused, strict=True)]
+    if args.progress:
+        print(f"  alone: {sum(refused)} of {len(used)} groups refused "
+              f"{[g for g in record['alone'] if g['refused']] or ''}", file=sys.stderr, flush=True)
+    return [v for v, f in zip(used, refused, strict=True) if not f]
 
 
 def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0, two_points: bool = False
@@ -1617,6 +1649,10 @@ def main(argv: list[str] | None = None) -> int:
                              "beyond chi2_2 Bonferroni over the batch's parts, and in the rounds a part the map cannot "
                              "tell from a post as near as two posts are known to stand; the rest merged again "
                              "(session 31: 0.042)")
+    parser.add_argument("--pairwise-alone", action="store_true",
+                        help="pairwise: each group merged alone first and left out of the batch when its own cost "
+                             "rise is beyond chi2 99 %% for 2 per absorbed name (session 32: a wrong group hides in "
+                             "a batch's summed bound)")
     parser.add_argument("--split-ambiguous", action="store_true",
                         help="pairwise: a refused group is judged again without the names whose gate holds two "
                              "names that cannot be one post")
@@ -1676,7 +1712,8 @@ def main(argv: list[str] | None = None) -> int:
                           "distinct_points": args.distinct_points, "rival_rounds": args.rival_rounds,
                           "runs_out": args.runs_out, "hold_two_points": args.hold_two_points,
                           "mutual_rounds": args.mutual_rounds, "fresh_start": args.fresh_start,
-                          "audit_parts": args.audit_parts, "robots": rows}))
+                          "audit_parts": args.audit_parts, "pairwise_alone": args.pairwise_alone,
+                          "robots": rows}))
     return 0
 
 

@@ -121,3 +121,29 @@ def test_a_batch_whose_every_merge_the_audit_holds_back_keeps_nothing_and_is_not
     assert held.accepted and held.merged == [] and held.names is current.names   # not bisected: nothing to cut
     monkeypatch.setattr(mc, "audit_batch", lambda log, before, attempt: set())
     assert mc.apply_merges(None, current, clusters, None, None, None).merged == [(0, 1)]
+
+
+def test_pairwise_alone_leaves_out_the_group_whose_own_rise_its_batch_would_hide(monkeypatch):
+    # names 0..3, two groups: {0, 1} costs 2.0 merged, {2, 3} 9.6 (beyond χ²₂ 99 % = 9.21 for one absorbed name);
+    # together 11.6, within χ²₄ 99 % = 13.28: the batch alone would keep the wrong group (session 32, A)
+    penalty = {1: 2.0, 3: 9.6}
+    current = SimpleNamespace(names=np.array([0, 0, 1, 1, 2, 2, 3, 3]),
+                              named=SimpleNamespace(names=np.arange(4), problem=None),
+                              solution=SimpleNamespace(landmarks=np.zeros((4, 2)), poses=None, cost=100.0))
+
+    def smooth(log, names, noise, config, **_):
+        return SimpleNamespace(problem=None), SimpleNamespace(cost=100.0 + sum(p for x, p in penalty.items()
+                                                                              if x not in names))
+
+    monkeypatch.setattr(mc, "_smooth_named", smooth)
+    monkeypatch.setattr(mc, "truncated_cost", lambda problem, solution: solution.cost)
+    groups = [_matched(-1, [(0, 1)]), _matched(-2, [(2, 3)])]
+    covisible = np.zeros((4, 4), bool)
+    assert mc._merge_once(None, current, mc.merges_from(groups, covisible)[0], None, None, None).accepted
+    record = {}
+    kept = mc._alone_checked(None, current, groups, covisible, record, np.array([6, 6, 8, 9]), None, None, None,
+                             SimpleNamespace(path_step=0.0, progress=False))
+    assert kept == groups[:1]
+    assert [(g["group"], g["refused"], g["wrong"]) for g in record["alone"]] == [([0, 1], False, False),
+                                                                                 ([2, 3], True, True)]
+    assert [g["rise"] for g in record["alone"]] == pytest.approx([2.0, 9.6])
