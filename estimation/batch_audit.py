@@ -26,7 +26,8 @@ the round's two passes holding name 48 are ambiguous and the wrong pairing is no
 Measured end to end, negative: every untestable run of the round-0 map unnamed before the rounds (scratch driver,
 the session-30 command) gives robot 3 seed 1 0 wrong merges and 15 names (fitted: the rule was found on it), but robot
 2 seed 1 6 wrong merges (2 without) and robot 1 seed 0, which had none, 4: the changed loose maps send other
-batches to the guard. Not wired; the functions are the diagnosis's tools.
+batches to the guard. Dropping instead each round's pairings of names that hold an untestable run leaves robot 1 seed
+0 with 1 wrong merge (round 7). Not wired; the functions are the diagnosis's tools.
 """
 from __future__ import annotations
 
