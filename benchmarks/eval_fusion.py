@@ -373,17 +373,24 @@ def _attribute(m: LandmarkMap, truth: dict) -> np.ndarray:
     truth_map = LandmarkMap(np.column_stack([pts, np.zeros(len(pts))]), np.repeat(np.eye(3)[None] * 0.01,
                             len(pts), 0), np.zeros((len(pts), 0), np.float32), robot="truth")
     a = align(truth_map, m, "robust", np.random.default_rng(0))
-    start = m.metadata.get("true_start_pose")
-    if not a.found and start is None:
-        return np.full(len(m), -1)
-    placement, refits = (a.pose, 0) if a.found else (np.asarray(start, float), 2)
-    for _ in range(refits + 1):
+
+    def nearest(placement) -> np.ndarray:
         world = transform_points(placement, m.positions)[:, :2]
         d = np.linalg.norm(world[:, None, :] - pts[None], axis=2)
-        ids = np.where(d.min(axis=1) < 0.5, keys[d.argmin(axis=1)], -1)
-        if (ids >= 0).sum() >= 3:
-            placement = rigid_fit_2d(m.positions[ids >= 0, :2], pts[d.argmin(axis=1)[ids >= 0]])
-    return ids
+        return np.where(d.min(axis=1) < 0.5, keys[d.argmin(axis=1)], -1)
+
+    if a.found:
+        return nearest(a.pose)
+    start = m.metadata.get("true_start_pose")
+    if start is None:
+        return np.full(len(m), -1)
+    placement = np.asarray(start, float)
+    for _ in range(2):
+        ids = nearest(placement)
+        if (ids >= 0).sum() < 3:
+            return ids
+        placement = rigid_fit_2d(m.positions[ids >= 0, :2], pts[np.searchsorted(keys, ids[ids >= 0])])
+    return nearest(placement)
 
 
 def _median(errors: np.ndarray) -> float:
@@ -487,7 +494,7 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
     left_out = set(report.get("unconnected") or [])
     inside = [k for k, f in enumerate(files) if str(f) not in left_out]   # the maps the merged map holds
     singles = [_median(fits[k][1]) for k in inside]
-    _, merged_err, merged_ids = frame_fit(merged, truth)
+    merged_fit, merged_err, _ = frame_fit(merged, truth)
     print("\n| map | landmarks | landmark error after the best rigid fit, median (m) | mean (m) |")
     print("|---|---|---|---|")
     for m, f in zip(maps, fits, strict=True):
@@ -527,9 +534,8 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
     else:
         print("\nThe merged map's landmark error is not scored: it or every single map could not be placed on the "
               "truth by geometry.")
-    fit = frame_fit(merged, truth)[0]
-    if figures is not None and not np.isnan(fit).any():
-        world = transform_points(fit, merged.positions)
+    if figures is not None and not np.isnan(merged_fit).any():
+        world = transform_points(merged_fit, merged.positions)
         pts = np.array(list(truth.values()))
         fusion_plots.map_2d(figures / f"fusion_mrclam_{slug}_merged.png",
                             [("true landmarks (Vicon)", pts, (60, 170, 60)),
