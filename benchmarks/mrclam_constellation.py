@@ -839,6 +839,10 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     final["first_frame_s"] = float(current.named.frame_times[0] - log.start_time)
     final.update(map_consistency(log, current))
     row["final"] = final
+    if args.state_dir:      # the final names: what a vote across seeds reads (benchmarks.mrclam_seed_vote)
+        save_state(state_path(args.state_dir, log, args.seed, "final"), current,
+                   _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
+                                                    if isinstance(v, (int, float, np.number))}))
     if args.out_maps:
         path = Path(args.out_maps) / f"robot{_robot_number(log)}.npz"
         chain_map(log, current).save(path)
