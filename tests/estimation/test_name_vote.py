@@ -1,0 +1,101 @@
+"""estimation.name_vote: the names a majority of runs agree on, as partitions of one log's sightings."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimation.name_vote import voted_names
+
+
+def canonical(names: np.ndarray) -> np.ndarray:
+    """The partition ``names`` stands for, numbered by first sighting (−1 kept)."""
+    out = np.full(len(names), -1, np.int64)
+    number: dict[int, int] = {}
+    for i, x in enumerate(names.tolist()):
+        if x >= 0:
+            out[i] = number.setdefault(x, len(number))
+    return out
+
+
+partitions = st.lists(st.integers(-1, 5), min_size=1, max_size=40).map(lambda v: np.array(v, np.int64))
+
+
+@st.composite
+def runs_of_one_log(draw, max_runs: int = 5):
+    n = draw(st.integers(1, 40))
+    k = draw(st.integers(1, max_runs))
+    rows = [draw(st.lists(st.integers(-1, 6), min_size=n, max_size=n)) for _ in range(k)]
+    return np.array(rows, np.int64)
+
+
+@given(partitions, st.integers(1, 5))
+def test_runs_that_agree_give_their_own_names(names, k):
+    runs = np.tile(names, (k, 1))
+    assert np.array_equal(voted_names(runs), canonical(names))
+
+
+@settings(max_examples=200)
+@given(runs_of_one_log(), st.randoms(use_true_random=False))
+def test_the_vote_ignores_the_runs_order_and_labels(runs, rnd):
+    shuffled = runs[rnd.sample(range(len(runs)), len(runs))].copy()
+    for row in shuffled:                  # each run's labels replaced by others, one to one
+        labels = sorted(set(row[row >= 0].tolist()))
+        new = rnd.sample(range(100, 200), len(labels))
+        row[row >= 0] = [new[labels.index(x)] for x in row[row >= 0]]
+    assert np.array_equal(voted_names(shuffled), voted_names(runs))
+
+
+@settings(max_examples=200)
+@given(runs_of_one_log())
+def test_no_name_holds_what_a_majority_keeps_apart_and_unanimous_pairs_stay(runs):
+    k, n = runs.shape
+    majority = k // 2 + 1
+    names = voted_names(runs)
+    assert np.array_equal(names, canonical(names))          # numbered by first sighting
+    named_by = (runs >= 0).sum(axis=0)
+    assert np.all((names >= 0) == (named_by >= majority))
+    for i, j in itertools.combinations(range(n), 2):
+        both = (runs[:, i] >= 0) & (runs[:, j] >= 0)
+        apart = int(np.sum(both & (runs[:, i] != runs[:, j])))
+        together = int(np.sum(both & (runs[:, i] == runs[:, j])))
+        if names[i] >= 0 and names[i] == names[j]:
+            assert apart < majority, (i, j)
+        if together == k:
+            assert names[i] == names[j] >= 0, (i, j)
+
+
+@given(partitions.filter(lambda v: len(set(v[v >= 0].tolist())) >= 2), st.integers(0, 2), st.data())
+def test_one_run_of_three_neither_merges_wrongly_nor_leaves_a_duplicate(truth, odd, data):
+    labels = sorted(set(truth[truth >= 0].tolist()))
+    a, b = data.draw(st.permutations(labels))[:2]
+    merged = np.where(truth == b, a, truth)                 # a wrong merge of two names
+    split = truth.copy()                                    # a duplicate: one name's later sightings renamed
+    rows = np.flatnonzero(truth == a)
+    split[rows[len(rows) // 2:]] = 99
+    for wrong in (merged, split):
+        runs = np.tile(truth, (3, 1))
+        runs[odd] = wrong
+        assert np.array_equal(voted_names(runs), canonical(truth))
+
+
+def test_two_runs_that_disagree_keep_apart_what_one_of_them_keeps_apart():
+    # a strict majority of two is both: a join only one run makes is not made
+    runs = np.array([[0, 0, 1, 1], [0, 0, 0, 0]])
+    assert voted_names(runs).tolist() == [0, 0, 1, 1]
+
+
+def test_a_chain_of_majorities_stops_where_a_majority_keeps_the_ends_apart():
+    # sightings 0~1 by runs 0, 1; 1~2 by runs 1, 2; runs 0 and 2 keep 0 and 2 apart: the later join is refused
+    runs = np.array([[0, 0, 1], [0, 0, 0], [1, 2, 2]])
+    names = voted_names(runs)
+    assert names[0] == names[1] and names[2] != names[0]
+
+
+@pytest.mark.parametrize("bad", [np.zeros(3, np.int64), np.zeros((0, 3), np.int64)])
+def test_runs_of_the_wrong_shape_are_refused(bad):
+    with pytest.raises(ValueError):
+        voted_names(bad)
