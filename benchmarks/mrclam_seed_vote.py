@@ -1,0 +1,203 @@
+"""MRCLAM without barcodes: the names that several seeds' chain runs agree on, smoothed into one map per robot.
+
+Run from the repository root, after ``benchmarks.mrclam_constellation --state-dir DIR`` has run each robot with each
+seed (it keeps every run's final names, ``<Robot>-seed<S>-final.npz``, and its chained names, ``-round0.npz``):
+
+    .venv/bin/python -m benchmarks.mrclam_seed_vote --state-dir DIR [DIR ...] --seeds 0,1,2 [--robots 1,2,3,4,5]
+        [--out-maps DIR] [--json]
+
+Why (session 33): the chain's wrong merges and left-over duplicates depend on the filter's seed (session 32: with
+session 30's command, seed 0 meets on all five robots, seed 1 on one). :func:`estimation.name_vote.voted_names` keeps
+two sightings under one name when a majority of the runs does and never joins what a majority keeps apart. The voted
+names are then smoothed as the chain's last state is: the smoother's heading drift and slip and path step as the runs
+had them (from their states), a sighting offset (σ as the runs had it) per group of sightings that every run's chain
+put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a sighting that exactly one name
+explains is named). The barcodes only score.
+
+Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
+under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote
+settled: sightings the runs name alike, sightings contested, sightings the vote leaves unnamed.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
+
+from benchmarks import mrclam_constellation as chain  # noqa: E402
+from benchmarks.eval_mrclam import DATA  # noqa: E402
+from benchmarks.mrclam_chained_names import MergeRound, majority, round_scores  # noqa: E402
+from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
+from estimation.fastslam import range_bearing_config  # noqa: E402
+from estimation.geometry import between  # noqa: E402
+from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
+from estimation.name_vote import voted_names  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from runtime.commands.options import non_negative_int  # noqa: E402
+
+VISIT_GAP_S = 5.0   # the chain's own visit rule for sightings it names late (mrclam_constellation.name_unnamed)
+
+
+def find_state(directories: list[str], log: RangeBearingLog, seed: int, tag: str) -> Path:
+    """The state ``tag`` of ``log``'s run with ``seed`` in the first of ``directories`` that has it."""
+    for directory in directories:
+        path = chain.state_path(directory, log, seed, tag)
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"no {chain.state_path('DIR', log, seed, tag).name} in {', '.join(directories)} "
+                            f"(run benchmarks.mrclam_constellation --state-dir with seed {seed})")
+
+
+def pairs_apart(a: np.ndarray, b: np.ndarray) -> int:
+    """Sighting pairs that one of the two namings puts under one name and the other does not (both named)."""
+    both = (a >= 0) & (b >= 0)
+    a, b = a[both], b[both]
+
+    def together(*labels):
+        counts = np.unique(np.stack(labels), axis=1, return_counts=True)[1]
+        return int(np.sum(counts * (counts - 1) // 2))
+    return together(a) + together(b) - 2 * together(a, b)
+
+
+def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Each sighting's offset group: the sightings every run's chain put under one round-0 name share one; a
+    sighting no chain named gets its name's visit (its name's sightings less than VISIT_GAP_S apart), as the chain
+    gives the sightings it names late."""
+    groups = np.unique(round0.T, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    loose = np.flatnonzero((round0 < 0).all(axis=0) & (names >= 0))
+    if len(loose):
+        order = loose[np.lexsort((times[loose], names[loose]))]
+        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > VISIT_GAP_S)]
+        groups[order] = groups.max() + np.cumsum(fresh)
+    return groups
+
+
+def voted_state(log: RangeBearingLog, start: MergeRound, names: np.ndarray, noise, config, drift,
+                path_step_s: float | None) -> MergeRound:
+    """``names`` smoothed from a run's final state ``start``: the poses at the named frames from it (each frame's
+    nearest pose moved by the odometry), the landmarks placed from their first sightings, in the frame of the first
+    named sighting's pose."""
+    frames = np.unique(log.sighting_times[names >= 0])
+    at = chain.poses_at(log, start, noise, np.r_[frames[:1], frames])
+    named, solution = chain._smooth_named(log, names, noise, config, initial_poses=between(at[0], at),
+                                          heading_drift=drift, path_step_s=path_step_s)
+    return MergeRound([], 0.0, 0.0, True, names, named, solution)
+
+
+def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], out_maps: str | None = None) -> dict:
+    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    config = range_bearing_config(n_particles=100)      # the chain's (its named problems read it)
+    finals, metas, round0 = [], [], []
+    for seed in seeds:
+        state, meta = chain.load_saved_state(find_state(directories, log, seed, "final"), log, noise, config)
+        finals.append(state)
+        metas.append(meta)
+        with np.load(find_state(directories, log, seed, "round0"), allow_pickle=False) as data:
+            round0.append(data["names"])
+    settings = {(json.dumps(m["drift"]), m["path_step_s"], m["sighting_offset_m"]) for m in metas}
+    if len(settings) > 1:
+        raise SystemExit(f"{log.name}: the runs were made with different smoother settings {sorted(settings)}")
+    drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
+    drift = HeadingDrift(*drift_meta) if drift_meta else None
+    runs = np.stack([s.names for s in finals])
+    names = voted_names(runs)
+    nearest = int(np.argmin([pairs_apart(s.names, names) for s in finals]))
+    before = dict(chain._OFFSET)       # the chain's smoothings read their sighting offsets from there
+    chain._OFFSET.update(option=SightingOffset(offset_m) if offset_m > 0 else None,
+                         names=offset_groups(np.stack(round0), names, log.sighting_times))
+    try:
+        state = voted_state(log, finals[nearest], names, noise, config, drift, path_step_s)
+        state, named_again = chain.name_unnamed(log, state, noise, config, drift,
+                                                SimpleNamespace(path_step=path_step_s or 0.0))
+    finally:
+        chain._OFFSET.clear()
+        chain._OFFSET.update(before)
+    final = round_scores(log, state, majority(state.names, log.landmark_ids))
+    final["wrong_sightings_kept"] = chain.wrong_sightings_kept(log, state)
+    final["first_frame_s"] = float(state.named.frame_times[0] - log.start_time)
+    final.update(chain.map_consistency(log, state))
+    alike = all(np.array_equal(r >= 0, runs[0] >= 0) and pairs_apart(r, runs[0]) == 0 for r in runs)
+    figures = ("names", "duplicate_fraction", "wrong_merges", "wrong_sightings_kept", "ate_m",
+               "landmark_nees_within_bound", "landmark_joint_nees", "landmark_joint_dof")
+    each = [{"seed": seed, **{k: meta["scores"].get(k) for k in figures},
+             "pairs_apart_from_vote": pairs_apart(run.names, names)}
+            for seed, meta, run in zip(seeds, metas, finals, strict=True)]
+    row = {"robot": log.name, "seeds": seeds, "runs": each,
+           "vote": {"sightings": int(len(names)), "named": int(np.sum(names >= 0)),
+                    "all_runs_alike": alike,
+                    "unnamed_by_majority": int(np.sum(names < 0)),
+                    "started_from_seed": seeds[nearest], "named_again": named_again},
+           "final": final}
+    if out_maps:
+        path = Path(out_maps) / f"robot{chain._robot_number(log)}.npz"
+        chain.chain_map(log, state).save(path)
+        row["map"] = str(path)
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.mrclam_seed_vote", description=__doc__.split("\n")[0])
+    parser.add_argument("--data", default=str(DATA))
+    parser.add_argument("--state-dir", nargs="+", required=True, metavar="DIR",
+                        help="where mrclam_constellation --state-dir kept the runs' states")
+    parser.add_argument("--seeds", required=True, help="the runs to vote, e.g. 0,1,2")
+    parser.add_argument("--robots", default="1,2,3,4,5")
+    parser.add_argument("--out-maps", metavar="DIR", default=None,
+                        help="write each robot's voted map (no identities) for p3at fuse")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        seeds = [non_negative_int(s) for s in args.seeds.split(",")]
+        robots = [int(r) for r in args.robots.split(",")]
+    except (ValueError, argparse.ArgumentTypeError) as exc:
+        parser.error(f"--seeds/--robots: {exc}")
+    if len(set(seeds)) != len(seeds):
+        parser.error(f"--seeds: a seed named twice in {args.seeds}")
+    if not os.path.isdir(args.data):
+        print(f"mrclam_seed_vote: no data set at {args.data}", file=sys.stderr)
+        return 2
+    rows = []
+    for robot in robots:
+        try:
+            row = vote_robot(read_mrclam(args.data, robot), args.state_dir, seeds, args.out_maps)
+        except FileNotFoundError as exc:
+            print(f"mrclam_seed_vote: {exc}", file=sys.stderr)
+            return 2
+        rows.append(row)
+        if not args.json:
+            _print(row)
+    if args.json:
+        print(json.dumps({"seeds": seeds, "robots": rows}))
+    return 0
+
+
+def _figures(s: dict) -> str:
+    return (f"names {s['names']:.0f}, duplicates {100 * s['duplicate_fraction']:.0f} %, wrong sightings kept "
+            f"{s['wrong_sightings_kept']:.0f}, ATE {s['ate_m']:.3f} m, NEES within "
+            f"{100 * s['landmark_nees_within_bound']:.0f} %, joint {s['landmark_joint_nees']:.1f} on "
+            f"{s['landmark_joint_dof']:.0f}")
+
+
+def _print(row: dict) -> None:
+    print(f"{row['robot']}:")
+    for r in row["runs"]:
+        print(f"  seed {r['seed']}: {r['wrong_merges']:.0f} wrong merges, {_figures(r)}; "
+              f"{r['pairs_apart_from_vote']} sighting pairs named otherwise than the vote")
+    v = row["vote"]
+    print(f"  vote of seeds {','.join(map(str, row['seeds']))}: {v['named']} of {v['sightings']} sightings named, "
+          f"{v['unnamed_by_majority']} left unnamed by the majority, named again {v['named_again']['kept']}; "
+          f"{_figures(row['final'])}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""benchmarks/mrclam_seed_vote: the names several chain runs agree on, smoothed into one map.
+
+The helpers are checked against brute force; the whole vote on MRCLAM robot 2's first 300 s, with the barcodes as one
+run's names and two runs that each make one mistake (a wrong merge, a duplicate). The barcodes only score.
+"""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from benchmarks.mrclam_seed_vote import offset_groups, pairs_apart
+
+from .test_constellation import _robot2
+
+namings = st.lists(st.tuples(st.integers(-1, 4), st.integers(-1, 4)), min_size=1, max_size=30).map(
+    lambda rows: np.array(rows, np.int64).T)
+
+
+@given(namings)
+def test_pairs_apart_counts_the_pairs_one_naming_joins_and_the_other_does_not(pair):
+    a, b = pair
+    brute = sum((a[i] == a[j]) != (b[i] == b[j]) for i, j in itertools.combinations(range(len(a)), 2)
+                if min(a[i], a[j], b[i], b[j]) >= 0)
+    assert pairs_apart(a, b) == brute
+    assert pairs_apart(a, a) == 0
+
+
+@given(st.lists(st.tuples(st.integers(-1, 3), st.integers(-1, 3), st.integers(-1, 4)), min_size=1, max_size=30))
+def test_offset_groups_are_the_chains_common_names_and_the_rest_by_visit(rows):
+    rows = np.array(rows, np.int64)
+    round0, names = rows[:, :2].T, rows[:, 2]
+    times = np.arange(len(names)) * 3.0          # 3 s apart: a visit ends where a sighting of another kind comes
+    groups = offset_groups(round0, names, times)
+    loose = (round0 < 0).all(axis=0) & (names >= 0)          # named, but by no run's chain
+    for i, j in itertools.combinations(range(len(names)), 2):
+        if not loose[i] and not loose[j]:       # the runs' chains: one group exactly when every chain agrees
+            assert (groups[i] == groups[j]) == bool(np.array_equal(round0[:, i], round0[:, j])), (i, j)
+        elif loose[i] and loose[j]:             # one visit: one name, nothing else between
+            one_visit = bool(np.all(loose[i:j + 1] & (names[i:j + 1] == names[i])))
+            assert (groups[i] == groups[j]) == one_visit, (i, j)
+        else:
+            assert groups[i] != groups[j], (i, j)
+
+
+def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_voted_out(tmp_path):
+    from benchmarks import mrclam_constellation as chain
+    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
+    from benchmarks.mrclam_seed_vote import vote_robot
+    from estimation.landmark_smoother import HeadingDrift
+
+    log, noise, config, _ = _robot2(until=300.0)
+    drift = HeadingDrift(0.16, 10.0, sigma_per_rad=0.3)          # the chain's, with session 30's slip
+    truth = np.asarray(log.landmark_ids, np.int64)
+    posts, counts = np.unique(truth, return_counts=True)
+    a, b, c = posts[np.argsort(-counts)[:3]]
+    wrong = np.where(truth == b, a, truth)                  # two posts under one name
+    duplicate = truth.copy()                                # a post's later sightings under a second name
+    rows = np.flatnonzero(truth == c)
+    duplicate[rows[len(rows) // 2:]] = 1000
+    for seed, names in enumerate((truth, wrong, duplicate)):
+        named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
+        state = MergeRound([], 0.0, 0.0, True, names, named, solution)
+        meta = {"robot": log.name, "seed": seed, "drift": chain._drift_meta(drift), "path_step_s": 0.25,
+                "round": 9, "scores": {}, "sighting_offset_m": 0.03}
+        for tag in ("final", "round0"):
+            chain.save_state(chain.state_path(tmp_path, log, seed, tag), state, meta)
+    before = dict(chain._OFFSET)
+    row = vote_robot(log, [str(tmp_path)], [0, 1, 2])
+    assert chain._OFFSET == before                          # the chain's own setting left as it was
+    final = row["final"]
+    assert final["names"] == len(posts)
+    assert final["duplicate_fraction"] == 0.0
+    assert final["wrong_sightings_kept"] == 0
+    apart = [r["pairs_apart_from_vote"] for r in row["runs"]]
+    assert apart[0] == 0 and apart[1] > 0 and apart[2] > 0
+    assert row["vote"]["started_from_seed"] == 0
+    assert final["ate_m"] < 0.1
