@@ -23,7 +23,7 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
     """The names (N,) that a strict majority of ``runs`` (K, N) agrees on; each row one run's name per sighting,
     −1 for a sighting that run left unnamed. The labels of different runs are unrelated.
 
-    - A sighting that a majority of the runs leaves unnamed is unnamed (−1).
+    - A sighting that a majority of the runs leaves unnamed is unnamed (−1), and so is one of a fragment (below).
     - Two sightings' *co-association* is the share of the K runs that name both alike. Sightings that every run
       names alike form *atoms* (the runs' common refinement); two sightings that every run holds under one name
       are always in one voted name.
@@ -31,6 +31,11 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
       2005): the two groups whose sighting pairs have the highest mean co-association, while that mean is above
       1/2. So every voted name's pairs are, on average, held together by a majority of the runs, and no two voted
       names are.
+    - A group stands as a name only when more than half of the runs have a name that is that group, by mutual
+      majority of sightings; the rest are *fragments* the runs name but disagree about, and are left unnamed.
+      Session 33, robot 1 seeds 3–5: ten sightings that one run named with post 8 and another with post 9, and
+      two that each run named with a different post, each stood as a name of their own (18 names where every run
+      had 15).
 
     Why the mean and not every pair: a majority is not transitive. Session 33, robot 1: five sightings that one run
     names apart from their post would, pair by pair, have kept six others that another run names apart from that
@@ -75,7 +80,22 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
         first[a] = min(first[a], first[b])
         alive[b] = False
         atom_of[atom_of == b] = a
-    starts = {int(r): int(first[r]) for r in np.flatnonzero(alive)}
-    number = {r: i for i, r in enumerate(sorted(starts, key=starts.get))}
-    names[voted] = [number[int(c)] for c in atom_of]
+    groups = np.full(n, -1, np.int64)
+    groups[voted] = atom_of
+    standing = [g for g in np.flatnonzero(alive) if _held_by_majority(runs, groups == g)]
+    starts = {int(g): int(first[g]) for g in standing}
+    for number, g in enumerate(sorted(starts, key=starts.get)):
+        names[groups == g] = number
     return names
+
+
+def _held_by_majority(runs: np.ndarray, group: np.ndarray) -> bool:
+    """Whether more than half of the runs have a name that is ``group`` by mutual majority: more than half of the
+    group's sightings are under that name, and more than half of that name's sightings are in the group."""
+    size = int(group.sum())
+    held = 0
+    for run in runs:
+        labels, counts = np.unique(run[group & (run >= 0)], return_counts=True)
+        if len(labels) and counts.max() > size / 2:
+            held += counts.max() > np.sum(run == labels[np.argmax(counts)]) / 2
+    return held > len(runs) / 2
