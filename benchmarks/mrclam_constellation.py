@@ -235,6 +235,13 @@ from runtime.commands.options import non_negative_float, non_negative_int, posit
 
 STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
 
+# a visit: one name's sightings less than this apart (the offset group of a sighting named late)
+VISIT_GAP_S = 5.0
+
+# what a saved final state records of the command that made it (benchmarks.mrclam_seed_vote votes only runs of one
+# command): every option but where the run read and wrote and what it printed
+_NOT_THE_METHOD = {"data", "robots", "seed", "names_cache", "state_dir", "from_round", "out_maps", "progress", "json"}
+
 # ``--sighting-offset``: the smoother's offset per chained name (estimation.landmark_smoother.SightingOffset), set by
 # run_robot for the robot it runs (the option, and each log sighting's name before any merge: its offset group);
 # every smoothing of this benchmark goes through _smooth_named, which adds it
@@ -840,9 +847,10 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     final.update(map_consistency(log, current))
     row["final"] = final
     if args.state_dir:      # the final names: what a vote across seeds reads (benchmarks.mrclam_seed_vote)
-        save_state(state_path(args.state_dir, log, args.seed, "final"), current,
-                   _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
-                                                    if isinstance(v, (int, float, np.number))}))
+        meta = _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
+                                                 if isinstance(v, (int, float, np.number))})
+        meta["command"] = {key: value for key, value in vars(args).items() if key not in _NOT_THE_METHOD}
+        save_state(state_path(args.state_dir, log, args.seed, "final"), current, meta)
     if args.out_maps:
         path = Path(args.out_maps) / f"robot{_robot_number(log)}.npz"
         chain_map(log, current).save(path)
@@ -1237,7 +1245,7 @@ def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift
         groups = _OFFSET["names"].copy()
         order = rows[np.lexsort((log.sighting_times[rows], names[rows]))]
         times = log.sighting_times[order]
-        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times) > 5.0)]
+        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times) > VISIT_GAP_S)]
         groups[order] = int(max(groups.max(), names.max())) + np.cumsum(fresh)
         _OFFSET["names"] = groups
     state = resmoothed(log, current, names, noise, config, drift, args)

@@ -8,15 +8,17 @@ seed (it keeps every run's final names, ``<Robot>-seed<S>-final.npz``, and its c
 
 Why (session 33): the chain's wrong merges and left-over duplicates depend on the filter's seed (session 32: with
 session 30's command, seed 0 meets on all five robots, seed 1 on one). :func:`estimation.name_vote.voted_names` keeps
-two sightings under one name when a majority of the runs does and never joins what a majority keeps apart. The voted
-names are then smoothed as the chain's last state is: the smoother's heading drift and slip and path step as the runs
-had them (from their states), a sighting offset (σ as the runs had it) per group of sightings that every run's chain
-put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a sighting that exactly one name
-explains is named). The barcodes only score.
+groups of sightings under one name when a majority of the runs does, on average over their pairs, and leaves unnamed
+the fragments that no majority of runs has as a name. The runs must come from one command (the vote refuses runs
+whose final states record different options). The voted names are then smoothed as the chain's last state is: the
+smoother's heading drift and slip and path step as the runs had them (from their states), a sighting offset (σ as
+the runs had it) per group of sightings that every run's chain put under one round-0 name, and last the chain's own
+``--name-unnamed`` step (a sighting that exactly one name explains is named). The barcodes only score.
 
 Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
 under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote
-settled: sightings the runs name alike, sightings contested, sightings the vote leaves unnamed.
+settled: sightings named, sightings a majority of the runs leaves unnamed, sightings of fragments, sightings named
+again by the last step, and how many sighting pairs each run names otherwise than the vote.
 """
 from __future__ import annotations
 
@@ -45,8 +47,6 @@ from estimation.name_vote import voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 
-VISIT_GAP_S = 5.0   # the chain's own visit rule for sightings it names late (mrclam_constellation.name_unnamed)
-
 
 def find_state(directories: list[str], log: RangeBearingLog, seed: int, tag: str) -> Path:
     """The state ``tag`` of ``log``'s run with ``seed`` in the first of ``directories`` that has it."""
@@ -71,13 +71,13 @@ def pairs_apart(a: np.ndarray, b: np.ndarray) -> int:
 
 def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> np.ndarray:
     """Each sighting's offset group: the sightings every run's chain put under one round-0 name share one; a
-    sighting no chain named gets its name's visit (its name's sightings less than VISIT_GAP_S apart), as the chain
+    sighting no chain named gets its name's visit (its name's sightings less than a visit gap apart), as the chain
     gives the sightings it names late."""
     groups = np.unique(round0.T, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
     loose = np.flatnonzero((round0 < 0).all(axis=0) & (names >= 0))
     if len(loose):
         order = loose[np.lexsort((times[loose], names[loose]))]
-        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > VISIT_GAP_S)]
+        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > chain.VISIT_GAP_S)]
         groups[order] = groups.max() + np.cumsum(fresh)
     return groups
 
@@ -104,14 +104,19 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
         metas.append(meta)
         with np.load(find_state(directories, log, seed, "round0"), allow_pickle=False) as data:
             round0.append(data["names"])
-    settings = {(json.dumps(m["drift"]), m["path_step_s"], m["sighting_offset_m"]) for m in metas}
+    settings = {json.dumps([m["drift"], m["path_step_s"], m["sighting_offset_m"], m.get("command")], sort_keys=True)
+                for m in metas}
     if len(settings) > 1:
-        raise SystemExit(f"{log.name}: the runs were made with different smoother settings {sorted(settings)}")
+        raise SystemExit(f"{log.name}: the runs of seeds {seeds} were made with different commands or smoother "
+                         f"settings; a vote needs runs of one command")
     drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
     drift = HeadingDrift(*drift_meta) if drift_meta else None
     runs = np.stack([s.names for s in finals])
     names = voted_names(runs)
-    nearest = int(np.argmin([pairs_apart(s.names, names) for s in finals]))
+    # the smoothing starts from the run nearest the vote: fewest pairs named otherwise, then fewest sightings
+    # named where the vote leaves them unnamed or the other way round
+    nearest = min(range(len(finals)), key=lambda i: (pairs_apart(finals[i].names, names),
+                                                     int(np.sum((finals[i].names >= 0) != (names >= 0)))))
     before = dict(chain._OFFSET)       # the chain's smoothings read their sighting offsets from there
     chain._OFFSET.update(option=SightingOffset(offset_m) if offset_m > 0 else None,
                          names=offset_groups(np.stack(round0), names, log.sighting_times))
@@ -126,6 +131,7 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     final["wrong_sightings_kept"] = chain.wrong_sightings_kept(log, state)
     final["first_frame_s"] = float(state.named.frame_times[0] - log.start_time)
     final.update(chain.map_consistency(log, state))
+    majority_unnamed = (runs >= 0).sum(axis=0) <= len(runs) / 2
     alike = all(np.array_equal(r >= 0, runs[0] >= 0) and pairs_apart(r, runs[0]) == 0 for r in runs)
     figures = ("names", "duplicate_fraction", "wrong_merges", "wrong_sightings_kept", "ate_m",
                "landmark_nees_within_bound", "landmark_joint_nees", "landmark_joint_dof")
@@ -135,7 +141,8 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     row = {"robot": log.name, "seeds": seeds, "runs": each,
            "vote": {"sightings": int(len(names)), "named": int(np.sum(names >= 0)),
                     "all_runs_alike": alike,
-                    "unnamed_by_majority": int(np.sum(names < 0)),
+                    "unnamed_by_majority": int(np.sum(majority_unnamed)),
+                    "fragments": int(np.sum((names < 0) & ~majority_unnamed)),
                     "started_from_seed": seeds[nearest], "named_again": named_again},
            "final": final}
     if out_maps:
@@ -195,7 +202,8 @@ def _print(row: dict) -> None:
               f"{r['pairs_apart_from_vote']} sighting pairs named otherwise than the vote")
     v = row["vote"]
     print(f"  vote of seeds {','.join(map(str, row['seeds']))}: {v['named']} of {v['sightings']} sightings named, "
-          f"{v['unnamed_by_majority']} left unnamed by the majority, named again {v['named_again']['kept']}; "
+          f"{v['unnamed_by_majority']} left unnamed by the majority, {v['fragments']} in fragments, named again "
+          f"{v['named_again']['kept']}; "
           f"{_figures(row['final'])}")
 
 

@@ -26,7 +26,7 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
     - A sighting that a majority of the runs leaves unnamed is unnamed (−1), and so is one of a fragment (below).
     - Two sightings' *co-association* is the share of the K runs that name both alike. Sightings that every run
       names alike form *atoms* (the runs' common refinement); two sightings that every run holds under one name
-      are always in one voted name.
+      are named alike (one voted name, or both unnamed as a fragment).
     - Groups are joined by average linkage on the co-association (evidence accumulation, Fred & Jain, IEEE PAMI
       2005): the two groups whose sighting pairs have the highest mean co-association, while that mean is above
       1/2. So every voted name's pairs are, on average, held together by a majority of the runs, and no two voted
@@ -61,10 +61,10 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
     named = atoms >= 0                                                   # (A, K)
     agree = ((atoms[:, None, :] == atoms[None, :, :]) & named[:, None, :] & named[None, :, :]).sum(axis=2)
     # pair sums of the co-association between groups (Lance–Williams: a joined group's row is the sum of its parts)
-    between = size[:, None] * size[None, :] * agree
+    pair_sums = size[:, None] * size[None, :] * agree
     alive = np.ones(len(atoms), bool)
     while True:
-        mean = between / (size[:, None] * size[None, :] * k)
+        mean = pair_sums / (size[:, None] * size[None, :] * k)
         mean[~alive] = -1.0
         mean[:, ~alive] = -1.0
         np.fill_diagonal(mean, -1.0)
@@ -74,28 +74,29 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
         a, b = np.nonzero(mean == best)
         pick = np.lexsort((np.maximum(first[a], first[b]), np.minimum(first[a], first[b])))[0]
         a, b = (int(a[pick]), int(b[pick])) if first[a[pick]] < first[b[pick]] else (int(b[pick]), int(a[pick]))
-        between[a] += between[b]
-        between[:, a] += between[:, b]
+        pair_sums[a] += pair_sums[b]
+        pair_sums[:, a] += pair_sums[:, b]
         size[a] += size[b]
         first[a] = min(first[a], first[b])
         alive[b] = False
         atom_of[atom_of == b] = a
     groups = np.full(n, -1, np.int64)
     groups[voted] = atom_of
-    standing = [g for g in np.flatnonzero(alive) if _held_by_majority(runs, groups == g)]
+    standing = [g for g in np.flatnonzero(alive) if _held_by_majority(runs, groups == g, groups >= 0)]
     starts = {int(g): int(first[g]) for g in standing}
     for number, g in enumerate(sorted(starts, key=starts.get)):
         names[groups == g] = number
     return names
 
 
-def _held_by_majority(runs: np.ndarray, group: np.ndarray) -> bool:
+def _held_by_majority(runs: np.ndarray, group: np.ndarray, voted: np.ndarray) -> bool:
     """Whether more than half of the runs have a name that is ``group`` by mutual majority: more than half of the
-    group's sightings are under that name, and more than half of that name's sightings are in the group."""
+    group's sightings are under that name, and more than half of that name's ``voted`` sightings (those a majority
+    names) are in the group. A run's name stretched over sightings most runs leave unnamed is still that name."""
     size = int(group.sum())
     held = 0
     for run in runs:
         labels, counts = np.unique(run[group & (run >= 0)], return_counts=True)
         if len(labels) and counts.max() > size / 2:
-            held += counts.max() > np.sum(run == labels[np.argmax(counts)]) / 2
+            held += counts.max() > np.sum((run == labels[np.argmax(counts)]) & voted) / 2
     return held > len(runs) / 2

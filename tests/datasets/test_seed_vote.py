@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -45,10 +46,10 @@ def test_offset_groups_are_the_chains_common_names_and_the_rest_by_visit(rows):
             assert groups[i] != groups[j], (i, j)
 
 
-def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_voted_out(tmp_path):
+def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_voted_out(tmp_path, monkeypatch):
     from benchmarks import mrclam_constellation as chain
+    from benchmarks import mrclam_seed_vote
     from benchmarks.mrclam_chained_names import MergeRound, smooth_named
-    from benchmarks.mrclam_seed_vote import vote_robot
     from estimation.landmark_smoother import HeadingDrift
 
     log, noise, config, _ = _robot2(until=300.0)
@@ -57,18 +58,21 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     posts, counts = np.unique(truth, return_counts=True)
     a, b, c = posts[np.argsort(-counts)[:3]]
     wrong = np.where(truth == b, a, truth)                  # two posts under one name
+    wrong[::50] = -1                                        # and sightings the run left unnamed
     duplicate = truth.copy()                                # a post's later sightings under a second name
     rows = np.flatnonzero(truth == c)
     duplicate[rows[len(rows) // 2:]] = 1000
+    chained = np.where(np.arange(len(truth)) % 7 == 0, -1, truth)   # round 0: some sightings no chain named
     for seed, names in enumerate((truth, wrong, duplicate)):
         named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
         state = MergeRound([], 0.0, 0.0, True, names, named, solution)
         meta = {"robot": log.name, "seed": seed, "drift": chain._drift_meta(drift), "path_step_s": 0.25,
                 "round": 9, "scores": {}, "sighting_offset_m": 0.03}
-        for tag in ("final", "round0"):
-            chain.save_state(chain.state_path(tmp_path, log, seed, tag), state, meta)
+        chain.save_state(chain.state_path(tmp_path, log, seed, "final"), state, meta)
+        chain.save_state(chain.state_path(tmp_path, log, seed, "round0"), MergeRound(
+            [], 0.0, 0.0, True, chained, named, solution), meta)
     before = dict(chain._OFFSET)
-    row = vote_robot(log, [str(tmp_path)], [0, 1, 2])
+    row = mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2])
     assert chain._OFFSET == before                          # the chain's own setting left as it was
     final = row["final"]
     assert final["names"] == len(posts)
@@ -77,4 +81,30 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     apart = [r["pairs_apart_from_vote"] for r in row["runs"]]
     assert apart[0] == 0 and apart[1] > 0 and apart[2] > 0
     assert row["vote"]["started_from_seed"] == 0
+    assert row["vote"]["unnamed_by_majority"] == 0 and row["vote"]["fragments"] == 0
     assert final["ate_m"] < 0.1
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the smoother stopped")
+    monkeypatch.setattr(chain, "name_unnamed", broken)
+    with pytest.raises(RuntimeError):
+        mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2])
+    assert chain._OFFSET == before                          # restored on the way out, too
+
+
+def test_runs_of_different_commands_are_not_voted(tmp_path):
+    from benchmarks import mrclam_constellation as chain
+    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
+    from benchmarks.mrclam_seed_vote import vote_robot
+
+    log, noise, config, drift = _robot2(until=120.0)
+    names = np.asarray(log.landmark_ids, np.int64)
+    named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
+    for seed in (0, 1, 2):
+        meta = {"robot": log.name, "seed": seed, "drift": chain._drift_meta(drift), "path_step_s": 0.25,
+                "round": 9, "scores": {}, "sighting_offset_m": 0.03, "command": {"pairwise": 6 if seed else 0}}
+        for tag in ("final", "round0"):
+            chain.save_state(chain.state_path(tmp_path, log, seed, tag), MergeRound(
+                [], 0.0, 0.0, True, names, named, solution), meta)
+    with pytest.raises(SystemExit, match="one command"):
+        vote_robot(log, [str(tmp_path)], [0, 1, 2])

@@ -68,7 +68,9 @@ def test_each_name_is_held_together_by_a_majority_on_average_and_no_two_names_ar
         assert share[np.ix_(names == x, names == y)].mean() <= 0.5 + 1e-12, (x, y)
     for x in labels:                                         # a majority of runs has it as one of its names
         group = names == x
-        same = [np.sum(group & (run == y)) > group.sum() / 2 and np.sum(group & (run == y)) > np.sum(run == y) / 2
+        voted = (runs >= 0).sum(axis=0) > k / 2
+        same = [np.sum(group & (run == y)) > group.sum() / 2
+                and np.sum(group & (run == y)) > np.sum((run == y) & voted) / 2
                 for run in runs for y in set(run[group].tolist()) - {-1}]
         assert sum(same) > k / 2, x
     for i, j in itertools.combinations(range(n), 2):         # what every run names alike is named alike
@@ -128,3 +130,28 @@ def test_a_few_sightings_one_run_names_apart_do_not_keep_others_from_their_post(
     runs[0, 3:5] = 3
     names = voted_names(runs)
     assert names[:20].tolist() == [0] * 20 and names[20:].tolist() == [1] * 5
+
+
+def test_a_name_a_run_stretches_over_sightings_most_runs_leave_unnamed_still_stands():
+    # every run names sightings 0-3 alike; run 0 also names 10-14 with them and run 1 15-19 (as each run's last
+    # naming step may): those are unnamed by the majority, and the post's name stands
+    runs = np.full((3, 20), -1, np.int64)
+    runs[:, :4] = 0
+    runs[:, 4:10] = 1
+    runs[0, 10:15] = 0
+    runs[1, 15:20] = 0
+    assert voted_names(runs).tolist() == [0] * 4 + [1] * 6 + [-1] * 10
+
+
+@settings(max_examples=200)
+@given(runs_of_one_log())
+def test_a_group_every_run_names_exactly_alike_is_named(runs):
+    k, _ = runs.shape
+    voted = (runs >= 0).sum(axis=0) > k / 2
+    names = voted_names(runs)
+    for label in set(runs[0][voted].tolist()) - {-1}:
+        group = voted & (runs[0] == label)
+        exact = all(len(set(run[group].tolist())) == 1 and run[group][0] >= 0
+                    and not np.any(voted & ~group & (run == run[group][0])) for run in runs)
+        if exact:
+            assert len(set(names[group].tolist())) == 1 and names[group][0] >= 0
