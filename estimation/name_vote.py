@@ -34,7 +34,7 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
       are, taken together, held together by a majority of the runs that name them, and no two voted names are.
       Session 33, robot 5 seeds 0–2: with an unnamed sighting counted as "not alike", post 19's two halves stayed
       two names (one run had left 131 of the later half's 276 sightings unnamed; 16 names); abstaining, 15. That
-      was changed after seeing robot 5; the other eight votes measured came out the same.
+      was changed after seeing robot 5; the other eight votes measured kept their number of names.
     - A group stands as a name only when more than half of the runs have a name that is that group, by mutual
       majority of sightings; the rest are *fragments* the runs name but disagree about, and are left unnamed.
       Session 33, robot 1 seeds 3–5: ten sightings that one run named with post 8 and another with post 9, and
