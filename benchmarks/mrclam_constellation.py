@@ -835,16 +835,11 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
             current, row["named_after_runs_out"] = name_unnamed(log, current, noise, config, drift, args)
             if args.progress:
                 print(f"  unnamed sightings named again: {row['named_after_runs_out']}", file=sys.stderr, flush=True)
-    final = round_scores(log, current, majority(names, barcodes))
+    final = final_scores(log, current, majority(names, barcodes))
     kept = [a for r in row["rounds"] + row.get("pairwise", []) for a in [r.get("batch")] + r.get("tries", [])
             if a and a["accepted"]]
     final["merges"] = sum(a["merged"] for a in kept)
     final["wrong_merges"] = sum(a["wrong_merges"] for a in kept)
-    final["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
-    # s after the log's start: the map's frame is the pose at its first named sighting, the ATE's start pose
-    # (session 29: robot 1 seed 0's two sightings of its first second move its ATE from 0.058 to 0.336 m)
-    final["first_frame_s"] = float(current.named.frame_times[0] - log.start_time)
-    final.update(map_consistency(log, current))
     row["final"] = final
     if args.state_dir:      # the final names: what a vote across seeds reads (benchmarks.mrclam_seed_vote)
         meta = _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
@@ -856,6 +851,18 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         chain_map(log, current).save(path)
         row["map"] = str(path)
     return row
+
+
+def final_scores(log: RangeBearingLog, current: MergeRound, owner_before: dict[int, int]) -> dict:
+    """A final map's figures (scoring): :func:`round_scores`, the wrong sightings kept, when the map's frame starts
+    and :func:`map_consistency`."""
+    final = round_scores(log, current, owner_before)
+    final["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
+    # s after the log's start: the map's frame is the pose at its first named sighting, the ATE's start pose
+    # (session 29: robot 1 seed 0's two sightings of its first second move its ATE from 0.058 to 0.336 m)
+    final["first_frame_s"] = float(current.named.frame_times[0] - log.start_time)
+    final.update(map_consistency(log, current))
+    return final
 
 
 def _robot_number(log: RangeBearingLog) -> int:
@@ -1243,10 +1250,8 @@ def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift
     names[rows] = [proposed[r] for r in rows]
     if _OFFSET["option"] is not None and _OFFSET["names"] is not None:
         groups = _OFFSET["names"].copy()
-        order = rows[np.lexsort((log.sighting_times[rows], names[rows]))]
-        times = log.sighting_times[order]
-        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times) > VISIT_GAP_S)]
-        groups[order] = int(max(groups.max(), names.max())) + np.cumsum(fresh)
+        order, visit = visits(rows, names, log.sighting_times)
+        groups[order] = int(max(groups.max(), names.max())) + visit
         _OFFSET["names"] = groups
     state = resmoothed(log, current, names, noise, config, drift, args)
     named, solution = state.named, state.solution
@@ -1254,6 +1259,14 @@ def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift
     record.update(kept=int(len(kept_rows)),
                   wrong_kept=sum(owner.get(int(names[r])) != int(log.landmark_ids[r]) for r in kept_rows))
     return state, record
+
+
+def visits(rows: np.ndarray, names: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``rows`` ordered by name, then time, and each one's visit, numbered from 1: a visit is one name's sightings
+    less than VISIT_GAP_S apart (the offset group of the sightings a step names late)."""
+    order = rows[np.lexsort((times[rows], names[rows]))]
+    fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > VISIT_GAP_S)]
+    return order, np.cumsum(fresh)
 
 
 def detected_in_frames(current: MergeRound) -> np.ndarray:
@@ -1264,14 +1277,16 @@ def detected_in_frames(current: MergeRound) -> np.ndarray:
     return detected
 
 
-def resmoothed(log: RangeBearingLog, current: MergeRound, names: np.ndarray, noise, config, drift, args
-               ) -> MergeRound:
+def resmoothed(log: RangeBearingLog, current: MergeRound, names: np.ndarray, noise, config, drift, args,
+               same_labels: bool = True) -> MergeRound:
     """``names`` smoothed from ``current``'s solution: the poses at the new frames (:func:`poses_at`: an old frame's
-    own pose, a new one's nearest moved by the odometry) and the names kept, in the frame of the new first pose."""
+    own pose, a new one's nearest moved by the odometry) and the names kept, in the frame of the new first pose.
+    ``same_labels`` False: ``names`` label the landmarks otherwise than ``current`` does (another run's), so they are
+    placed from their first sightings instead."""
     frames = np.unique(log.sighting_times[names >= 0])
     at = poses_at(log, current, noise, np.r_[frames[:1], frames])
     start = at[0]
-    kept = set(np.unique(names[names >= 0]).tolist())
+    kept = set(np.unique(names[names >= 0]).tolist()) if same_labels else set()
     initial = {int(x): between(start, np.r_[p, 0.0])[:2]
                for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) in kept}
     named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,

@@ -38,10 +38,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks import mrclam_constellation as chain  # noqa: E402
 from benchmarks.eval_mrclam import DATA  # noqa: E402
-from benchmarks.mrclam_chained_names import MergeRound, majority, round_scores  # noqa: E402
+from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.geometry import between  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
 from estimation.name_vote import voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
@@ -76,22 +75,9 @@ def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> n
     groups = np.unique(round0.T, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
     loose = np.flatnonzero((round0 < 0).all(axis=0) & (names >= 0))
     if len(loose):
-        order = loose[np.lexsort((times[loose], names[loose]))]
-        fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > chain.VISIT_GAP_S)]
-        groups[order] = groups.max() + np.cumsum(fresh)
+        order, visit = chain.visits(loose, names, times)
+        groups[order] = groups.max() + visit
     return groups
-
-
-def voted_state(log: RangeBearingLog, start: MergeRound, names: np.ndarray, noise, config, drift,
-                path_step_s: float | None) -> MergeRound:
-    """``names`` smoothed from a run's final state ``start``: the poses at the named frames from it (each frame's
-    nearest pose moved by the odometry), the landmarks placed from their first sightings, in the frame of the first
-    named sighting's pose."""
-    frames = np.unique(log.sighting_times[names >= 0])
-    at = chain.poses_at(log, start, noise, np.r_[frames[:1], frames])
-    named, solution = chain._smooth_named(log, names, noise, config, initial_poses=between(at[0], at),
-                                          heading_drift=drift, path_step_s=path_step_s)
-    return MergeRound([], 0.0, 0.0, True, names, named, solution)
 
 
 def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], out_maps: str | None = None) -> dict:
@@ -115,29 +101,27 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     names = voted_names(runs)
     # the smoothing starts from the run nearest the vote: fewest pairs named otherwise, then fewest sightings
     # named where the vote leaves them unnamed or the other way round
-    nearest = min(range(len(finals)), key=lambda i: (pairs_apart(finals[i].names, names),
-                                                     int(np.sum((finals[i].names >= 0) != (names >= 0)))))
+    apart = [pairs_apart(run.names, names) for run in finals]
+    nearest = min(range(len(finals)), key=lambda i: (apart[i], int(np.sum((finals[i].names >= 0) != (names >= 0)))))
+    steps = SimpleNamespace(path_step=path_step_s or 0.0)      # the chain's smoothings read only this of its options
     before = dict(chain._OFFSET)       # the chain's smoothings read their sighting offsets from there
     chain._OFFSET.update(option=SightingOffset(offset_m) if offset_m > 0 else None,
                          names=offset_groups(np.stack(round0), names, log.sighting_times))
     try:
-        state = voted_state(log, finals[nearest], names, noise, config, drift, path_step_s)
-        state, named_again = chain.name_unnamed(log, state, noise, config, drift,
-                                                SimpleNamespace(path_step=path_step_s or 0.0))
+        # the poses from the nearest run, its landmarks not: its labels are not the vote's
+        state = chain.resmoothed(log, finals[nearest], names, noise, config, drift, steps, same_labels=False)
+        state, named_again = chain.name_unnamed(log, state, noise, config, drift, steps)
     finally:
         chain._OFFSET.clear()
         chain._OFFSET.update(before)
-    final = round_scores(log, state, majority(state.names, log.landmark_ids))
-    final["wrong_sightings_kept"] = chain.wrong_sightings_kept(log, state)
-    final["first_frame_s"] = float(state.named.frame_times[0] - log.start_time)
-    final.update(chain.map_consistency(log, state))
+    final = chain.final_scores(log, state, majority(state.names, log.landmark_ids))
     majority_unnamed = (runs >= 0).sum(axis=0) <= len(runs) / 2
     alike = all(np.array_equal(r >= 0, runs[0] >= 0) and pairs_apart(r, runs[0]) == 0 for r in runs)
     figures = ("names", "duplicate_fraction", "wrong_merges", "wrong_sightings_kept", "ate_m",
                "landmark_nees_within_bound", "landmark_joint_nees", "landmark_joint_dof")
     each = [{"seed": seed, **{k: meta["scores"].get(k) for k in figures},
-             "pairs_apart_from_vote": pairs_apart(run.names, names)}
-            for seed, meta, run in zip(seeds, metas, finals, strict=True)]
+             "pairs_apart_from_vote": a}
+            for seed, meta, a in zip(seeds, metas, apart, strict=True)]
     row = {"robot": log.name, "seeds": seeds, "runs": each,
            "vote": {"sightings": int(len(names)), "named": int(np.sum(names >= 0)),
                     "all_runs_alike": alike,
