@@ -42,7 +42,7 @@ from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
-from estimation.name_vote import voted_names  # noqa: E402
+from estimation.name_vote import name_support, voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 
@@ -80,6 +80,17 @@ def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> n
     return groups
 
 
+def contested(names: np.ndarray, support: np.ndarray, k: int, log: RangeBearingLog) -> list[dict]:
+    """The voted names that fewer than all ``k`` runs hold (:func:`estimation.name_vote.name_support`): each one's
+    number, sightings, runs holding it, and first and last sighting (s from the log's start)."""
+    rows = []
+    for name in np.flatnonzero(support < k):
+        times = log.sighting_times[names == name] - log.start_time
+        rows.append({"name": int(name), "sightings": len(times), "held_by": int(support[name]),
+                     "from_s": round(float(times.min()), 2), "to_s": round(float(times.max()), 2)})
+    return rows
+
+
 def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], out_maps: str | None = None) -> dict:
     noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
     config = range_bearing_config(n_particles=100)      # the chain's (its named problems read it)
@@ -99,6 +110,7 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     drift = HeadingDrift(*drift_meta) if drift_meta else None
     runs = np.stack([s.names for s in finals])
     names = voted_names(runs)
+    support = name_support(runs, names)
     # the smoothing starts from the run nearest the vote: fewest pairs named otherwise, then fewest sightings
     # named where the vote leaves them unnamed or the other way round
     apart = [pairs_apart(run.names, names) for run in finals]
@@ -127,7 +139,8 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
                     "all_runs_alike": alike,
                     "unnamed_by_majority": int(np.sum(majority_unnamed)),
                     "fragments": int(np.sum((names < 0) & ~majority_unnamed)),
-                    "started_from_seed": seeds[nearest], "named_again": named_again},
+                    "started_from_seed": seeds[nearest], "named_again": named_again,
+                    "held_by": support.tolist(), "contested": contested(names, support, len(runs), log)},
            "final": final}
     if out_maps:
         path = Path(out_maps) / f"robot{chain._robot_number(log)}.npz"
@@ -189,6 +202,10 @@ def _print(row: dict) -> None:
           f"{v['unnamed_by_majority']} left unnamed by the majority, {v['fragments']} in fragments, named again "
           f"{v['named_again']['kept']}; "
           f"{_figures(row['final'])}")
+    k = len(row["seeds"])
+    for c in v["contested"]:
+        print(f"  contested: name {c['name']} ({c['sightings']} sightings, {c['from_s']:.0f}-{c['to_s']:.0f} s) "
+              f"held by {c['held_by']} of {k} runs: not settled, vote more seeds")
 
 
 if __name__ == "__main__":

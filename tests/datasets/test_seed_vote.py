@@ -82,6 +82,10 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     assert apart[0] == 0 and apart[1] > 0 and apart[2] > 0
     assert row["vote"]["started_from_seed"] == 0
     assert row["vote"]["unnamed_by_majority"] == 0 and row["vote"]["fragments"] == 0
+    # run 1's name for a and b is a's by mutual majority (a is the larger), so b alone is contested; run 2 still
+    # holds c by its later half (55 of c's 109 sightings)
+    assert [(x["sightings"], x["held_by"]) for x in row["vote"]["contested"]] == [(int(np.sum(truth == b)), 2)]
+    assert sorted(row["vote"]["held_by"]) == [2] + [3] * (len(posts) - 1)
     assert final["ate_m"] < 0.1
 
     def broken(*args, **kwargs):
