@@ -144,7 +144,9 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
            "final": final}
     if out_maps:
         path = Path(out_maps) / f"robot{chain._robot_number(log)}.npz"
-        chain.chain_map(log, state).save(path)
+        voted_map = chain.chain_map(log, state)
+        voted_map.metadata["vote"] = {"seeds": seeds, "contested_names": len(row["vote"]["contested"])}
+        voted_map.save(path)
         row["map"] = str(path)
     return row
 

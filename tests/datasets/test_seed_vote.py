@@ -13,6 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from benchmarks.mrclam_seed_vote import offset_groups, pairs_apart
+from estimation.landmark_map import LandmarkMap
 
 from .test_constellation import _robot2
 
@@ -72,7 +73,9 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
         chain.save_state(chain.state_path(tmp_path, log, seed, "round0"), MergeRound(
             [], 0.0, 0.0, True, chained, named, solution), meta)
     before = dict(chain._OFFSET)
-    row = mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2])
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    row = mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2], out_maps=str(maps))
     assert chain._OFFSET == before                          # the chain's own setting left as it was
     final = row["final"]
     assert final["names"] == len(posts)
@@ -86,6 +89,9 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     # holds c by its later half (55 of c's 109 sightings)
     assert [(x["sightings"], x["held_by"]) for x in row["vote"]["contested"]] == [(int(np.sum(truth == b)), 2)]
     assert sorted(row["vote"]["held_by"]) == [2] + [3] * (len(posts) - 1)
+    voted_map = LandmarkMap.load(row["map"])                # the map carries its doubt for p3at fuse's user
+    assert len(voted_map.positions) == len(posts)
+    assert voted_map.metadata["vote"] == {"seeds": [0, 1, 2], "contested_names": 1}
     assert final["ate_m"] < 0.1
 
     def broken(*args, **kwargs):
