@@ -28,6 +28,7 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.geometry import between  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from runtime.commands.options import positive_float  # noqa: E402
 
 ROBOTS = (1, 2, 3, 4, 5)
 TURNING_RAD = 0.1           # the odometry's turn in a step above which the step is "turning"
@@ -76,11 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.mrclam_encounter_heading",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--data", default=str(DATA))
-    parser.add_argument("--near", type=float, nargs="+", default=[1.0, 1.5], metavar="M",
+    parser.add_argument("--near", type=positive_float, nargs="+", default=[1.0, 1.5], metavar="M",
                         help="distances to the nearest other robot that count as an encounter")
     args = parser.parse_args(argv)
-    if any(not np.isfinite(d) or d <= 0 for d in args.near):
-        parser.error("--near: distances must be positive metres")
     if not Path(args.data).is_dir():
         print(f"mrclam_encounter_heading: no data set at {args.data}", file=sys.stderr)
         return 2
