@@ -40,10 +40,10 @@ def heading_steps(log: RangeBearingLog, others: list[RangeBearingLog], step_s: f
     ``error`` (rad, |true − calibrated odometry| heading change), ``turn`` (rad, the calibrated odometry's heading
     change) and ``nearest_m`` (the nearest of ``others`` at either end of the step, by their ground truth)."""
     noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    times = np.arange(log.ground_truth[0, 0] + step_s, log.ground_truth[-1, 0] - step_s, step_s)
+    times = np.arange(log.ground_truth[0, 0] + step_s, log.ground_truth[-1, 0], step_s)
     true = log.true_pose(times)
-    odometry = noise.calibrate_increments(between(*_ends(log.odometry_pose(noise.odometry_times(times)))))
-    truth = between(*_ends(true))
+    odometry = noise.calibrate_increments(log.odometry_increments(noise.odometry_times(times)))
+    truth = between(true[:-1], true[1:])
     error = np.abs((truth[:, 2] - odometry[:, 2] + np.pi) % (2 * np.pi) - np.pi)
     nearest = np.full(len(times), np.inf)
     for other in others:
@@ -51,10 +51,6 @@ def heading_steps(log: RangeBearingLog, others: list[RangeBearingLog], step_s: f
         nearest = np.minimum(nearest, np.hypot(where[:, 0] - true[:, 0], where[:, 1] - true[:, 1]))
     return {"start_s": times[:-1] - log.start_time, "error": error, "turn": odometry[:, 2],
             "nearest_m": np.minimum(nearest[:-1], nearest[1:])}
-
-
-def _ends(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return poses[:-1], poses[1:]
 
 
 def fault_shares(steps: list[dict], near_m: float) -> dict:

@@ -18,7 +18,9 @@ the runs had it) per group of sightings that every run's chain put under one rou
 Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
 under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote
 settled: sightings named, sightings a majority of the runs leaves unnamed, sightings of fragments, sightings named
-again by the last step, and how many sighting pairs each run names otherwise than the vote.
+again by the last step, and how many sighting pairs each run names otherwise than the vote; then each *contested*
+name, one that fewer than all the runs hold (:func:`estimation.name_vote.name_support`; session 34: every vote of
+three that kept a duplicate had one, and the votes of five settled them).
 """
 from __future__ import annotations
 
@@ -42,7 +44,7 @@ from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
-from estimation.name_vote import name_support, voted_names  # noqa: E402
+from estimation.name_vote import majority_named, name_support, voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 
@@ -82,7 +84,8 @@ def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> n
 
 def contested(names: np.ndarray, support: np.ndarray, k: int, log: RangeBearingLog) -> list[dict]:
     """The voted names that fewer than all ``k`` runs hold (:func:`estimation.name_vote.name_support`): each one's
-    number, sightings, runs holding it, and first and last sighting (s from the log's start)."""
+    number, sightings, runs holding it, and first and last sighting (s from the log's start). The vote's sightings,
+    before the last step names more."""
     rows = []
     for name in np.flatnonzero(support < k):
         times = log.sighting_times[names == name] - log.start_time
@@ -127,7 +130,7 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
         chain._OFFSET.clear()
         chain._OFFSET.update(before)
     final = chain.final_scores(log, state, majority(state.names, log.landmark_ids))
-    majority_unnamed = (runs >= 0).sum(axis=0) <= len(runs) / 2
+    majority_unnamed = ~majority_named(runs)
     alike = all(np.array_equal(r >= 0, runs[0] >= 0) and pairs_apart(r, runs[0]) == 0 for r in runs)
     figures = ("names", "duplicate_fraction", "wrong_merges", "wrong_sightings_kept", "ate_m",
                "landmark_nees_within_bound", "landmark_joint_nees", "landmark_joint_dof")
@@ -207,7 +210,7 @@ def _print(row: dict) -> None:
     k = len(row["seeds"])
     for c in v["contested"]:
         print(f"  contested: name {c['name']} ({c['sightings']} sightings, {c['from_s']:.0f}-{c['to_s']:.0f} s) "
-              f"held by {c['held_by']} of {k} runs: not settled, vote more seeds")
+              f"held by {c['held_by']} of {k} runs: contested; a vote of more seeds decides it")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["voted_names"]
+__all__ = ["majority_named", "name_support", "voted_names"]
 
 
 def voted_names(runs: np.ndarray) -> np.ndarray:
@@ -54,7 +54,7 @@ def voted_names(runs: np.ndarray) -> np.ndarray:
     if k == 0:
         raise ValueError("no runs to vote")
     names = np.full(n, -1, np.int64)
-    voted = np.flatnonzero((runs >= 0).sum(axis=0) > k / 2)
+    voted = np.flatnonzero(majority_named(runs))
     if not len(voted):
         return names
     atoms, atom_of = np.unique(runs[:, voted].T, axis=0, return_inverse=True)
@@ -102,12 +102,14 @@ def name_support(runs: np.ndarray, names: np.ndarray) -> np.ndarray:
     as one of theirs, by the mutual majority that lets a voted name stand: (M,) integers in (K/2, K].
 
     A name held by fewer than all K runs is *contested*: a run dissents, by splitting it, by joining it to another
-    name, or by leaving it unnamed. Session 34, robots 1–4, the 80 votes of three of seeds 0–5: every vote that kept
-    a wrong name (8) had a name held by 2 of 3; so had 10 of the 72 right votes."""
+    name, or by leaving it mostly unnamed. Session 34, robots 1–4, the 80 votes of three of seeds 0–5 (session 30's
+    runs): each of the 8 votes that kept a duplicate (16 names; none kept a wrong merge) had exactly one contested
+    name, the duplicate itself (held by 2 of 3); so had 10 of the 72 right votes (robot 4, every triple with seed 3,
+    which leaves most of one post's sightings unnamed; there the name is right)."""
     runs, names = np.asarray(runs), np.asarray(names)
     if runs.ndim != 2 or names.shape != runs.shape[1:]:
         raise ValueError(f"runs (K, N) and names (N,) needed, not shapes {runs.shape} and {names.shape}")
-    voted = (runs >= 0).sum(axis=0) > len(runs) / 2           # as voted_names counts a run's name
+    voted = majority_named(runs)
     return np.array([_runs_holding(runs, names == x, voted) for x in range(int(names.max(initial=-1)) + 1)],
                     np.int64)
 
@@ -121,5 +123,12 @@ def _runs_holding(runs: np.ndarray, group: np.ndarray, voted: np.ndarray) -> int
     for run in runs:
         labels, counts = np.unique(run[group & (run >= 0)], return_counts=True)
         if len(labels) and counts.max() > size / 2:
-            held += counts.max() > np.sum((run == labels[np.argmax(counts)]) & voted) / 2
+            held += bool(counts.max() > np.sum((run == labels[np.argmax(counts)]) & voted) / 2)
     return held
+
+
+def majority_named(runs: np.ndarray) -> np.ndarray:
+    """The sightings (N,) that a strict majority of ``runs`` (K, N) names: the only ones a vote can name, and the
+    ones over which a run's name is counted when it is checked against a voted name."""
+    runs = np.asarray(runs)
+    return (runs >= 0).sum(axis=0) > len(runs) / 2

@@ -89,7 +89,7 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     # holds c by its later half (55 of c's 109 sightings)
     assert [(x["sightings"], x["held_by"]) for x in row["vote"]["contested"]] == [(int(np.sum(truth == b)), 2)]
     assert sorted(row["vote"]["held_by"]) == [2] + [3] * (len(posts) - 1)
-    voted_map = LandmarkMap.load(row["map"])                # the map carries its doubt for p3at fuse's user
+    voted_map = LandmarkMap.load(row["map"])                # the map records the seeds and the contested count
     assert len(voted_map.positions) == len(posts)
     assert voted_map.metadata["vote"] == {"seeds": [0, 1, 2], "contested_names": 1}
     assert final["ate_m"] < 0.1

@@ -194,13 +194,37 @@ def test_a_duplicate_two_runs_of_three_share_is_named_but_contested():
 
 
 def test_a_name_one_run_splits_in_halves_is_contested():
-    # session 34, robot 4: seed 3 names one post as two, half each; every vote with seed 3 holds the post by 2 of 3
+    # a run that splits a name in halves holds neither half, so the name is held by 2 of 3
     runs = np.zeros((3, 20), np.int64)
     runs[:, 12:] = 1
     runs[1, 6:12] = 2
     names = voted_names(runs)
     assert names.tolist() == [0] * 12 + [1] * 8
     assert name_support(runs, names).tolist() == [2, 3]
+
+
+def test_a_name_one_run_leaves_mostly_unnamed_is_contested():
+    # session 34, robot 4: seed 3 leaves 92 of post 7's 123 sightings unnamed and names 31; every vote with seed 3
+    # holds the post by 2 of 3
+    runs = np.zeros((3, 20), np.int64)
+    runs[:, 12:] = 1
+    runs[2, :9] = -1
+    names = voted_names(runs)
+    assert names.tolist() == [0] * 12 + [1] * 8
+    assert name_support(runs, names).tolist() == [2, 3]
+
+
+def test_a_run_whose_name_is_mostly_a_fragment_does_not_hold_the_name():
+    # run 0 names post 0 (10 sightings) and 12 more with it; runs 1 and 2 split those 12 between posts 1 and 2,
+    # opposite ways round, so they are a fragment (unnamed). Run 0's name is mostly the fragment: not post 0's.
+    # The support counts a run's name over the sightings a majority names, as the vote does (not the voted ones)
+    runs = np.zeros((3, 42), np.int64)
+    runs[:, 22:32], runs[:, 32:] = 1, 2
+    runs[1, 10:16], runs[1, 16:22] = 1, 2
+    runs[2, 10:16], runs[2, 16:22] = 2, 1
+    names = voted_names(runs)
+    assert names.tolist() == [0] * 10 + [-1] * 12 + [1] * 10 + [2] * 10
+    assert name_support(runs, names).tolist() == [2, 3, 3]
 
 
 def test_support_needs_runs_and_names_of_one_log():
