@@ -210,7 +210,7 @@ def _print(row: dict) -> None:
     k = len(row["seeds"])
     for c in v["contested"]:
         print(f"  contested: name {c['name']} ({c['sightings']} sightings, {c['from_s']:.0f}-{c['to_s']:.0f} s) "
-              f"held by {c['held_by']} of {k} runs: contested; a vote of more seeds decides it")
+              f"held by {c['held_by']} of {k} runs; a vote of more seeds decides it")
 
 
 if __name__ == "__main__":
