@@ -41,10 +41,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from benchmarks import mrclam_constellation as chain  # noqa: E402
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
+from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
-from estimation.name_vote import majority_named, name_support, voted_names  # noqa: E402
+from estimation.name_vote import VOTE_KEY, majority_named, name_support, vote_metadata, voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 
@@ -148,7 +149,9 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     if out_maps:
         path = Path(out_maps) / f"robot{chain._robot_number(log)}.npz"
         voted_map = chain.chain_map(log, state)
-        voted_map.metadata["vote"] = {"seeds": seeds, "contested_names": len(row["vote"]["contested"])}
+        # each landmark's support: the map's rows are the solution's landmarks that have sightings, in order
+        rows = state.named.names[planar_landmarks(state.solution)[0]]
+        voted_map.metadata[VOTE_KEY] = vote_metadata(seeds, support[rows])
         voted_map.save(path)
         row["map"] = str(path)
     return row

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["majority_named", "name_support", "voted_names"]
+__all__ = ["VOTE_KEY", "majority_named", "name_support", "vote_metadata", "voted_names"]
+
+VOTE_KEY = "vote"        # a voted map's metadata key (read by runtime/map_vote.py for ``p3at fuse``)
 
 
 def voted_names(runs: np.ndarray) -> np.ndarray:
@@ -132,3 +134,12 @@ def majority_named(runs: np.ndarray) -> np.ndarray:
     ones over which a run's name is counted when it is checked against a voted name."""
     runs = np.asarray(runs)
     return (runs >= 0).sum(axis=0) > len(runs) / 2
+
+
+def vote_metadata(seeds: list[int], held_by: np.ndarray) -> dict:
+    """A voted map's ``metadata[VOTE_KEY]``: the seeds of its runs and, per landmark of the map (in its order), how
+    many of those runs hold it (:func:`name_support`). A landmark held by fewer than all of them is contested."""
+    held_by = np.asarray(held_by, np.int64).reshape(-1)
+    if len(seeds) == 0 or held_by.min(initial=0) < 0 or held_by.max(initial=0) > len(seeds):
+        raise ValueError(f"each landmark is held by 0 to {len(seeds)} runs (the seeds {seeds}), not {held_by}")
+    return {"seeds": [int(s) for s in seeds], "held_by": held_by.tolist()}

@@ -42,8 +42,9 @@ def register(subparsers) -> None:
                     "landmark counts; where maps carry metadata.true_start_pose (simulated maps) also the "
                     "alignment error against the truth; where they carry metadata.slam_frames (maps the "
                     "runtime saved) the camera frames each robot received, mapped, dropped, with a warning "
-                    "for a starved run. Exit status 1 when maps do not overlap (--live: when no two "
-                    "robots' maps came).")
+                    "for a starved run; where they carry metadata.vote (maps voted from several runs) a "
+                    "warning naming the landmarks the runs disagree on. Exit status 1 when maps do not overlap "
+                    "(--live: when no two robots' maps came).")
     parser.add_argument("maps", nargs="*", metavar="MAP", help="landmark-map files (.npz), at least two")
     parser.add_argument("--out", default=None, metavar="MERGED",
                         help="merged map file to write (.npz); required unless --live")
@@ -155,7 +156,7 @@ def _fuse(args: argparse.Namespace) -> int:
     by_index = {c.index: c for c in checked.checks if c.decision != "whole"}   # maps split at their alarm
     for k, (path, m) in enumerate(zip(args.maps, maps, strict=True)):
         report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
-                               **_self_check_figures(path, m), "split": splits.get(k)})
+                               **_self_check_figures(path, m), **_vote_figures(path, m), "split": splits.get(k)})
     # tree edges between maps merged whole (a split map's parts were placed by their own alignments)
     src = checked.sources
     tree = set() if result is None else {(src[p][0], src[c][0]) for p, c in result.tree
@@ -190,6 +191,7 @@ def _fuse(args: argparse.Namespace) -> int:
         _warn_low_confidence(report)
         _warn_starved(report)
         _warn_lost(report)
+        _warn_contested(report)
         print(f"p3at fuse: {message}", file=sys.stderr)
         return EXIT_NO_OVERLAP
     root, root_part = checked.sources[result.reference]
@@ -232,6 +234,7 @@ def _fuse(args: argparse.Namespace) -> int:
     _warn_low_confidence(report)
     _warn_starved(report)
     _warn_lost(report)
+    _warn_contested(report)
     _warn_identity_conflicts(report)
     if report["unconnected"]:
         print("p3at fuse: these maps overlap no other map and were left out: "
@@ -473,6 +476,22 @@ def _warn_lost(report: dict) -> None:
                   "tied to the map before it, so the map was split there and each part aligned (the line 'map "
                   f"{k} ({m['robot']}) flagged itself' says what was decided; the check also flags some healthy maps: "
                   "docs/fastslam-history.md, Session 7: self-check)", file=sys.stderr)
+
+
+def _vote_figures(path: str, landmark_map: LandmarkMap) -> dict:
+    """A voted map's record of its vote (runtime/map_vote.py) and, if some of its landmarks are contested, the
+    sentence naming them; None for maps that carry none (maps of one run, older maps) and for merged maps."""
+    from runtime.map_vote import contested_text, read_vote
+
+    vote = _own_metadata(path, landmark_map, lambda metadata: read_vote(metadata, len(landmark_map)),
+                         "its vote record is")
+    return {"vote": vote, "contested": None if vote is None else contested_text(vote, landmark_map.positions)}
+
+
+def _warn_contested(report: dict) -> None:
+    for k, m in enumerate(report["maps"]):
+        if m["contested"] is not None:
+            print(f"p3at fuse: warning: map {k} ({m['robot']}) {m['contested']}", file=sys.stderr)
 
 
 # identity conflicts printed one per line at most; the rest are counted (all are in --json and the merged map)

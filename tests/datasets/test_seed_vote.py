@@ -13,6 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from benchmarks.mrclam_seed_vote import offset_groups, pairs_apart
+from estimation.geometry import between
 from estimation.landmark_map import LandmarkMap
 
 from .test_constellation import _robot2
@@ -89,9 +90,13 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
     # holds c by its later half (55 of c's 109 sightings)
     assert [(x["sightings"], x["held_by"]) for x in row["vote"]["contested"]] == [(int(np.sum(truth == b)), 2)]
     assert sorted(row["vote"]["held_by"]) == [2] + [3] * (len(posts) - 1)
-    voted_map = LandmarkMap.load(row["map"])                # the map records the seeds and the contested count
+    voted_map = LandmarkMap.load(row["map"])                # the map records the seeds and each landmark's support
     assert len(voted_map.positions) == len(posts)
-    assert voted_map.metadata["vote"] == {"seeds": [0, 1, 2], "contested_names": 1}
+    record = voted_map.metadata["vote"]
+    assert record["seeds"] == [0, 1, 2] and sorted(record["held_by"]) == [2] + [3] * (len(posts) - 1)
+    post_b = between(np.asarray(voted_map.metadata["true_start_pose"]), np.append(log.true_landmarks()[int(b)], 0.0))
+    nearest_b = int(np.argmin(np.linalg.norm(voted_map.positions[:, :2] - post_b[:2], axis=1)))
+    assert record["held_by"][nearest_b] == 2                 # the contested landmark is post b's, not another's
     assert final["ate_m"] < 0.1
 
     def broken(*args, **kwargs):
