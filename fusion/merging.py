@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from estimation.geometry import rot_z, transform_points
 from estimation.landmark_map import LandmarkMap
+from estimation.name_vote import VOTE_KEY
 
 from .alignment import Alignment
 from .alignment_config import PRESETS
@@ -204,6 +205,7 @@ def merge_pairs(map1: LandmarkMap, map2: LandmarkMap, pose, pairs, pose_covarian
 
     meta = {**map1.metadata, **(metadata or {})}
     meta.pop("external_ids", None)
+    meta.pop(VOTE_KEY, None)      # a vote's per-landmark record describes the voted map's rows, not the merged map's
     identities = _merged_identities(map1, map2, only2)
     if identities is not None:
         meta["external_ids"] = identities

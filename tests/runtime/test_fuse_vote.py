@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from estimation.landmark_map import LandmarkMap
 from estimation.name_vote import vote_metadata
 from runtime.cli import main
 from runtime.map_vote import CONTESTED_SHOWN, contested_text, read_vote
@@ -100,6 +101,8 @@ def test_fuse_names_the_contested_landmarks_of_a_voted_map_and_json_carries_the_
     report = json.loads(out)
     assert [m["vote"]["contested"] for m in report["maps"]] == [[], [4, 9]]
     assert report["maps"][0]["contested"] is None and report["maps"][1]["contested"].startswith("has 2 contested")
+    merged = LandmarkMap.load(maps / "merged-contested.npz")
+    assert "vote" not in merged.metadata            # its per-landmark record described the voted map's rows
 
 
 def test_maps_without_a_record_or_settled_fuse_as_before_and_a_malformed_one_is_a_note(maps, capsys):
