@@ -308,7 +308,7 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     frame_times = np.concatenate([times[:1], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    variances = increment_variance(increments, config)
+    variances = increment_variance(increments, config, np.diff(frame_times))
     if path_step_s is not None:
         variances = np.maximum(variances, path_variances(log, noise, config, frame_times, path_step_s))
     ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
@@ -339,7 +339,7 @@ def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConf
     grid = np.append(start, frame_times[-1])
     odometry = log.odometry_pose(noise.odometry_times(grid))
     fine = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    fine_var = increment_variance(fine, config)
+    fine_var = increment_variance(fine, config, np.diff(grid))
     pose = np.zeros((t, 3))
     cov = np.zeros((t, 3, 3))
     for k in range(int(steps.max()) if t else 0):

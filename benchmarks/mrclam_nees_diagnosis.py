@@ -423,7 +423,7 @@ def odometry_windows(log, noise, config) -> dict:
             pose, cov = np.zeros(3), np.zeros((3, 3))
             for k in range(start, stop):
                 delta = increments[k]
-                variance = increment_variance(delta, cfg)
+                variance = increment_variance(delta, cfg, times[k + 1] - times[k])
                 cov = propagate_covariance(pose[None], cov[None], delta, variance)[0]
                 pose = compose(pose[None], delta[None])[0]
             true = between(truth[start][None], truth[stop][None])[0]

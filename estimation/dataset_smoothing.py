@@ -92,7 +92,7 @@ def _problem(frames, increments, sensor, config, seconds=None) -> tuple[Landmark
     bearings = np.concatenate([f[2] for f in frames]).astype(float)
     named = ids >= 0
     landmark_ids, landmark_index = np.unique(ids[named], return_inverse=True)
-    problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config),
+    problem = LandmarkLogProblem(np.asarray(increments, float), increment_variance(increments, config, seconds),
                                  pose_index[named], landmark_index, ranges[named], bearings[named],
                                  sensor.range_sigma(ranges[named]),
                                  np.full(int(named.sum()), float(sensor.bearing_sigma_rad)),

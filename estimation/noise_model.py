@@ -25,6 +25,8 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
     heading_drift_sigma_per_m = 0.0  # a drifting heading bias per metre (rad/m): a first-order Gauss–Markov process
     heading_drift_tau_s = 0.0  #   with this stationary σ and correlation time τ (s) that the filter carries per
                                #   particle (FastSLAMConfig.odom_heading_drift_*); optional, 0 (off) if absent
+    theta_var_per_s = 0.0      # rad² of heading error per second, moving or not (bumps, pushes, slip: a stopped
+                               #   robot's heading wanders too); optional, 0 if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -83,6 +85,7 @@ MAX_HEADING_DRIFT_PER_M = 1.0      # rad/m: σ of the drifting heading bias; bey
 # magnitudes beyond which a value describes no robot or sensor (and its square overflows the filter's arithmetic:
 # a σ of 1e308 m was an OverflowError, a variance of 1e308 dozens of RuntimeWarnings); the others have checks below
 MAGNITUDE_BOUNDS = {"xy_var_per_m": 100.0, "theta_var_per_rad": 100.0, "theta_var_per_m": 100.0,   # m²/m, rad²/…
+                    "theta_var_per_s": 100.0,                                                      # rad²/s
                     "heading_drift_tau_s": 1e6,                                                    # s (11 days)
                     "range_sigma_m": 1e3, "range_sigma_per_m": 1e3, "bearing_sigma_rad": 2 * math.pi,  # m, m/m, rad
                     "bearing_offset_rad": math.pi, "max_range_m": 1e4,   # rad, m (min_range_m < max_range_m)
@@ -111,6 +114,7 @@ class OdometryNoise:
     turn_xy_inflation: float = 1.0        # × the x/y variance in turns (FastSLAMConfig.odom_turn_xy_inflation)
     heading_drift_sigma_per_m: float = 0.0  # σ_b rad/m of a Gauss–Markov heading bias per metre; 0: none
     heading_drift_tau_s: float = 0.0        # its correlation time τ s (> 0 when σ_b > 0)
+    theta_var_per_s: float = 0.0            # rad² of heading error per second (FastSLAMConfig.odom_theta_var_per_s)
 
     @property
     def heading_drift(self) -> tuple[float, float] | None:
@@ -245,7 +249,8 @@ class NoiseModel:
                   "odom_theta_var_per_m": float(o.theta_var_per_m),
                   "odom_turn_xy_inflation": float(o.turn_xy_inflation),
                   "odom_heading_drift_sigma_per_m": float(o.heading_drift_sigma_per_m),
-                  "odom_heading_drift_tau_s": float(o.heading_drift_tau_s)}
+                  "odom_heading_drift_tau_s": float(o.heading_drift_tau_s),
+                  "odom_theta_var_per_s": float(o.theta_var_per_s)}
         if self.range_bearing is not None:
             values.update(self.range_bearing.fastslam_overrides())
         return values
@@ -424,7 +429,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
                    robot: str | None = None, platform: str = "", heading_bias: bool = False,
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
                    odometry_lag: bool = False, turn_translation: bool = False,
-                   turn_variance: bool = False, heading_drift: bool = False) -> NoiseEstimate:
+                   turn_variance: bool = False, heading_drift: bool = False,
+                   time_variance: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     ``heading_drift=True``: also a drifting heading bias per metre (σ_b, τ; see :func:`_with_heading_drift`).
@@ -476,6 +482,11 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     inflation is its mean square over the turns (≥ 1; a mean error counts: a bias the calibration left is a
     persistent error too); off: 1. Why: the smoothed MRCLAM maps' start frames fail on the forward travel of the
     first turns, correlated through each turn (docs/fastslam-history.md "Session 16 (P)").
+    ``time_variance``: fit a fourth random-walk variance, ``theta_var_per_s`` (rad² of heading per second, moving or
+    not), in the same non-negative least squares (each step's heading noise q_θ/s × its duration, propagated like the
+    others; :func:`_odometry_windows`' time column), and write the three-term fit's q_θ/rad and q_θ/m beside it in
+    [fit]; off: 0. Why and what it does and does not explain: docs/fastslam-history.md "Session 35: a heading
+    variance per second (A)".
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -503,8 +514,13 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     translation_scale, deficit, deficit_fit = _translation_calibration(logs, window_s, rotation_scale, bias, lag,
                                                                        g, turn_translation)
     scales = np.array([translation_scale, translation_scale, rotation_scale])
-    q_xy, q_theta_rad, q_theta_m = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag, deficit)
-                                                     for log in logs])
+    q_xy, q_theta_rad, q_theta_m, *q_theta_s = _random_walk_fit(
+        [_odometry_windows(log, window_s, scales, bias, lag, deficit, time_variance) for log in logs])
+    q_theta_s = q_theta_s[0] if q_theta_s else 0.0
+    time_fit = {}
+    if time_variance:   # the three-term fit beside it: what the time term took from the others
+        without = _random_walk_fit([_odometry_windows(log, window_s, scales, bias, lag, deficit) for log in logs])
+        time_fit = {"theta_var_per_rad_without_time": without[1], "theta_var_per_m_without_time": without[2]}
     inflation, turn_fit = (_turn_inflation(logs, scales, bias, lag, deficit, q_xy) if turn_variance
                            else (1.0, {}))
     by_window = []
@@ -534,7 +550,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
         residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit, **lag_fit, **deficit_fit, **turn_fit,
+           **bias_fit, **lag_fit, **deficit_fit, **turn_fit, **time_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -582,7 +598,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         fit = {k: v for k, v in fit.items() if not (isinstance(v, float) and not math.isfinite(v))}
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
-        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit, inflation),
+        OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit, inflation,
+                      theta_var_per_s=q_theta_s),
         range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "
@@ -762,15 +779,18 @@ def _turn_inflation(logs, scales, heading_bias_per_m, lag_s, forward_deficit_per
 
 
 def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1.0), heading_bias_per_m=0.0,
-                      lag_s: float = 0.0, forward_deficit_per_rad: float = 0.0):
+                      lag_s: float = 0.0, forward_deficit_per_rad: float = 0.0, time_column: bool = False):
     """Consecutive windows of odometry rows inside the ground truth: odometry increments u (W, 3) calibrated by
     ``scales``, the heading bias per odometry metre and the forward deficit per radian, true increments g (W, 3)
-    (``lag_s`` later than the odometry rows' times: the odometry leads the motion), and the design (W, 3, 3, 3):
+    (``lag_s`` later than the odometry rows' times: the odometry leads the motion), and the design (W, K, 3, 3):
     the error covariance of each window is Σ_k q_k · design[:, k] for the model's variances
-    q = (q_xy, q_θ/rad, q_θ/m) (see _random_walk_fit)."""
+    q = (q_xy, q_θ/rad, q_θ/m), K = 3, and with ``time_column`` also q_θ/s, K = 4: each step's heading noise of
+    variance q_θ/s × its duration (the window's duration over its steps: MRCLAM's stamps are coarser than its rows)
+    (see _random_walk_fit)."""
     rows = log.odometry
     rows = rows[(rows[:, 0] >= log.ground_truth[0, 0]) & (rows[:, 0] <= log.ground_truth[-1, 0])]
-    empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3, 3))
+    columns = 4 if time_column else 3
+    empty = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, columns, 3, 3))
     if len(rows) < 3:
         return empty
     # the rows' interval: their median step, or, where most rows share a stamp (stamps coarser than the rows: MRCLAM's
@@ -805,19 +825,22 @@ def _odometry_windows(log: RangeBearingLog, window_s: float, scales=(1.0, 1.0, 1
     distance = np.hypot(steps[:, 0], steps[:, 1])
     turn = np.abs(steps[:, 2])
     outer = v[:, :, None] * v[:, None, :]
-    design = np.zeros((k, 3, 3, 3))
+    design = np.zeros((k, columns, 3, 3))
+    seconds = ((rows[n::n, 0] - rows[0:k * n:n, 0]) / n)[window] if time_column else None
     for a in range(3):
         for b in range(3):
             design[:, 1, a, b] = np.bincount(window, turn * outer[:, a, b], minlength=k)
             design[:, 2, a, b] = np.bincount(window, distance * outer[:, a, b], minlength=k)
+            if time_column:
+                design[:, 3, a, b] = np.bincount(window, seconds * outer[:, a, b], minlength=k)
     design[:, 0, 0, 0] = design[:, 0, 1, 1] = np.bincount(window, distance, minlength=k)
     return u, g, design
 
 
-def _random_walk_fit(windows) -> tuple[float, float, float]:
-    """(q_xy, q_θ/rad, q_θ/m) ≥ 0 matching each window's e eᵀ (e = g − u) to its modelled covariance, element by
-    element (xx, yy, θθ, xy, xθ, yθ), by non-negative least squares with each element's equations scaled to unit
-    spread (metres and radians mixed)."""
+def _random_walk_fit(windows) -> tuple[float, ...]:
+    """(q_xy, q_θ/rad, q_θ/m) ≥ 0 (and q_θ/s, if the windows' design has the time column) matching each window's
+    e eᵀ (e = g − u) to its modelled covariance, element by element (xx, yy, θθ, xy, xθ, yθ), by non-negative least
+    squares with each element's equations scaled to unit spread (metres and radians mixed)."""
     e = np.concatenate([w[1] - w[0] for w in windows])
     design = np.concatenate([w[2] for w in windows])
     lhs, rhs = [], []
@@ -827,7 +850,7 @@ def _random_walk_fit(windows) -> tuple[float, float, float]:
         lhs.append(design[:, :, a, b] / spread)
         rhs.append(y / spread)
     q, _ = nnls(np.concatenate(lhs), np.concatenate(rhs))
-    return float(q[0]), float(q[1]), float(q[2])
+    return tuple(float(v) for v in q)
 
 
 CORRELATION_GAP_S = 2.0     # consecutive sightings of one landmark further apart than this are not paired

@@ -131,7 +131,7 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     raw = between(odo[:-1], odo[1:])
     steps = model.calibrate_increments(raw)
     config = replace(FastSLAMConfig(), **{k: v for k, v in model.fastslam_overrides().items() if k.startswith("odom")})
-    variance = increment_variance(steps, config)
+    variance = increment_variance(steps, config, np.diff(times))
     distance = np.hypot(steps[:, 0], steps[:, 1])
     raw_distance = np.hypot(raw[:, 0], raw[:, 1])
     every = max(1, int(round(stride_s / step_s)))

@@ -30,7 +30,8 @@ class FastSLAMConfig:
     """Every tunable of :class:`~estimation.fastslam.FastSLAM`.
 
     Motion noise is a random walk: the variance of each odometry increment grows linearly with the distance
-    travelled and the angle turned, so splitting one increment into several gives the same spread.
+    travelled and the angle turned (and, with ``odom_theta_var_per_s``, the heading's with the time it takes), so
+    splitting one increment into several gives the same spread.
     """
 
     n_particles: int = 100
@@ -39,6 +40,8 @@ class FastSLAMConfig:
     odom_xy_var_per_m: float = 0.03 ** 2          # m² of along/across-track error per metre driven
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
     odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
+    odom_theta_var_per_s: float = 0.0             # rad² of heading error per second, moving or not (motion.py:
+                                                  #   needs each increment's duration; noise_model fits it); 0: none
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
     odom_turn_xy_inflation: float = 1.0           # × the x/y variance of an increment in a turn (motion.py: the
                                                   #   forward error of a turn is correlated; noise_model fits it)
@@ -182,6 +185,8 @@ class FastSLAMConfig:
             raise ValueError("block_size must be ≥ 1 and descriptor_size ≥ 0")
         if self.observation_selection not in ("spread", "nearest"):
             raise ValueError(f"observation_selection must be 'spread' or 'nearest', not {self.observation_selection!r}")
+        if not (math.isfinite(self.odom_theta_var_per_s) and self.odom_theta_var_per_s >= 0.0):
+            raise ValueError(f"odom_theta_var_per_s must be finite and ≥ 0, not {self.odom_theta_var_per_s}")
         if not self.odom_turn_xy_inflation >= 1.0:
             raise ValueError(f"odom_turn_xy_inflation must be ≥ 1, not {self.odom_turn_xy_inflation}")
         drift_sigma, drift_tau = self.odom_heading_drift_sigma_per_m, self.odom_heading_drift_tau_s

@@ -253,7 +253,7 @@ class FastSLAM:
         delta = increment.delta
         if not np.all(np.isfinite(delta)):
             raise ValueError(f"odometry increment {delta.tolist()} is not finite; the filter is unchanged")
-        variance = increment_variance(delta, self.config)
+        variance = increment_variance(delta, self.config, max(float(increment.t1 - increment.t0), 0.0))
         sigma_b = self.config.odom_heading_drift_sigma_per_m
         if sigma_b > 0:   # a drifting heading bias per metre (config): each particle's own, then walked
             decay = heading_drift_decay(increment.t1 - increment.t0, self.config.odom_heading_drift_tau_s)

@@ -23,8 +23,13 @@ def turn_spans(mask: np.ndarray, min_increments: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= min_increments]
 
 
-def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
+def increment_variance(delta: np.ndarray, config: FastSLAMConfig, seconds=None) -> np.ndarray:
     """Variances (..., 3) of (dx, dy, dθ) for odometry increments ``delta`` (..., 3) (random-walk model).
+
+    ``seconds`` (...,) (or a scalar): each increment's duration, which ``config.odom_theta_var_per_s`` multiplies
+    (a heading that wanders with time, the robot moving or not: bumps, pushes, slip; the noise model fits it,
+    ``estimate_noise(time_variance=True)``). Needed when that term is non-zero (a ValueError without it: dropping it
+    would make a stopped increment as certain as before); ignored when it is 0.
 
     ``config.odom_turn_xy_inflation`` multiplies the x/y variance of the increments of a turn (:func:`turning`):
     where a robot's forward travel in turns is wrong by an error that persists through the turn (MRCLAM's Creates
@@ -39,6 +44,15 @@ def increment_variance(delta: np.ndarray, config: FastSLAMConfig) -> np.ndarray:
         var_xy = np.where(turning(delta), var_xy * config.odom_turn_xy_inflation, var_xy)
     var_theta = (config.odom_theta_var_per_rad * np.abs(delta[..., 2]) + config.odom_theta_var_per_m * trans
                  + config.odom_var_floor)
+    per_s = config.odom_theta_var_per_s
+    if per_s != 0.0:
+        if seconds is None:
+            raise ValueError("increment_variance: odom_theta_var_per_s is set, so each increment's duration "
+                             "(seconds) is needed")
+        seconds = np.asarray(seconds, float)
+        if np.any(~np.isfinite(seconds)) or np.any(seconds < 0):
+            raise ValueError("increment_variance: increments' durations must be finite and ≥ 0")
+        var_theta = var_theta + per_s * seconds
     return np.stack([var_xy, var_xy, var_theta], axis=-1)
 
 

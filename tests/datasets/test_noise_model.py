@@ -33,7 +33,7 @@ def test_round_trip_and_defaults(tmp_path):
     assert model.fastslam_overrides() == {"odom_xy_var_per_m": 0.001, "odom_theta_var_per_rad": 0.002,
                                           "odom_theta_var_per_m": 0.003, "odom_turn_xy_inflation": 1.0,
                                           "odom_heading_drift_sigma_per_m": 0.0, "odom_heading_drift_tau_s": 0.0,
-                                          "fov_horizontal": 2 * math.pi,
+                                          "odom_theta_var_per_s": 0.0, "fov_horizontal": 2 * math.pi,
                                           "min_range": 0.0, "max_range": 30.0}
     range_bearing_config(**model.fastslam_overrides())   # every key is a FastSLAMConfig field
 
