@@ -6,7 +6,8 @@ Run from the repository root:
     .venv/bin/python -m benchmarks.eval_mrclam [--data ../shared/data/mrclam/MRCLAM_Dataset2] [--robots 1,2,3,4,5]
         [--association id,unknown] [--noise own|others|FILE] [--particles 100] [--seed 0] [--until S]
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
-        [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--smooth] [--defaults]
+        [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--time-variance] [--smooth]
+        [--defaults]
         [--heading-drift whole|first-half|SIGMA,TAU] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
@@ -33,6 +34,9 @@ docs/fastslam-history.md "Session 16 (Q)"; a FILE is used as it is).
 ``--turn-variance``: fit the inflation of the x/y variance of a turn's increments, the turns' overdispersion
 (estimate_noise(turn_variance=True): a turn's forward error persists through it; docs/fastslam-history.md "Session 16:
 the odometry's variance in turns (lead)"; a FILE is used as it is).
+``--time-variance``: fit the odometry's heading variance per second too (estimate_noise(time_variance=True), the
+noise model's ``theta_var_per_s``: the heading wanders with time, moving or not; not among the defaults:
+docs/fastslam-history.md "Session 35: a heading variance per second (A)"; a FILE is used as it is).
 ``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
 docs/fastslam-history.md "Session 15"); the filter's own figures stay under ``filter_``.
 ``--defaults``: what `p3at slam dataset` does without options since session 17: the range calibration, heading
@@ -132,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
                         "radian turned beside the translation scale")
     parser.add_argument("--turn-variance", action="store_true", help="fit the inflation of the x/y variance of a "
                         "turn's increments (a turn's forward error persists through it)")
+    parser.add_argument("--time-variance", action="store_true", help="fit the odometry's heading variance per second "
+                        "(the heading wanders with time, moving or not)")
     parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
     parser.add_argument("--defaults", action="store_true", help="what `p3at slam dataset` does without options: "
                         "the four calibrations of DATASET_CALIBRATIONS, and the known-ID runs smoothed")
@@ -160,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     noise = {}
     fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
            "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
-           "turn_translation": args.turn_translation, "turn_variance": args.turn_variance}
+           "turn_translation": args.turn_translation, "turn_variance": args.turn_variance,
+           "time_variance": args.time_variance}
     for r in robots:
         if args.noise == "own":
             noise[r] = estimate_noise([logs[r]], **fit).model
@@ -209,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
                           "forward_deficit_per_rad": {r: noise[r].odometry.forward_deficit_per_rad for r in robots},
                           "turn_variance": args.turn_variance,
                           "turn_xy_inflation": {r: noise[r].odometry.turn_xy_inflation for r in robots},
+                          "time_variance": args.time_variance,
+                          "theta_var_per_s": {r: noise[r].odometry.theta_var_per_s for r in robots},
                           "heading_drift": {r: [noise[r].odometry.heading_drift_sigma_per_m,
                                                 noise[r].odometry.heading_drift_tau_s] for r in robots},
                           "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
@@ -224,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
              else "")
           + (", x/y variance in turns × " + " ".join(f"{noise[r].odometry.turn_xy_inflation:.2f}" for r in robots)
              if args.turn_variance else "")
+          + (", heading variance per second " + " ".join(f"{noise[r].odometry.theta_var_per_s:.2e}" for r in robots)
+             + " rad²/s" if args.time_variance else "")
           + (", sensor variances not inflated" if args.no_inflation else ", sensor variances inflated for correlation"))
     header = "mode    robot " + " ".join(f"{label:>8s}" for _, label, _ in COLUMNS)
     print(header)
