@@ -223,6 +223,11 @@ def _register_noise(sub) -> None:
                              "sigma_b rad/m, correlation time tau s) to the dead reckoning's NEES over 5-600 s, "
                              "written as [odometry] heading_drift_sigma_per_m and heading_drift_tau_s; the filter "
                              "carries one such bias per particle. Off by default (docs/fastslam.md, Noise models)")
+    parser.add_argument("--time-variance", action="store_true",
+                        help="also fit a heading variance per second of each increment, moving or not (a heading "
+                             "that wanders with time: bumps, pushes), written as [odometry] theta_var_per_s. Off by "
+                             "default: on MRCLAM the data show rare large faults, not such a variance "
+                             "(docs/fastslam-history.md, Session 35 (A))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)
 
@@ -380,7 +385,7 @@ def _noise(args: argparse.Namespace) -> int:
         estimate = estimate_noise(logs, window_s=args.window, heading_bias=args.heading_bias,
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
-                                  heading_drift=args.heading_drift,
+                                  heading_drift=args.heading_drift, time_variance=args.time_variance,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         if (problem := _no_sensor_fit(estimate.model, logs)) is not None:
             raise ValueError(problem)
@@ -430,6 +435,9 @@ def _noise(args: argparse.Namespace) -> int:
               f"(cost {model.fit['heading_drift_cost']:.1f} against {model.fit['heading_drift_cost_without']:.1f} "
               f"without)" if o.heading_drift_sigma_per_m > 0 else "  drifting heading bias: none (no drift made the "
               "dead reckoning more consistent)")
+    if args.time_variance:
+        print(f"  heading variance per second: {o.theta_var_per_s:.3g} rad²/s (σ_θ {math.sqrt(o.theta_var_per_s):.4f} "
+              "rad/√s, moving or not)")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
