@@ -88,6 +88,7 @@ from estimation.landmark_scores import ate, map_scores  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     OUTLIER_CHI2,
     HeadingDrift,
+    HeadingLoss,
     LandmarkLogProblem,
     SightingOffset,
     Smoothed,
@@ -351,12 +352,20 @@ def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConf
     return np.diagonal(cov, axis1=1, axis2=2).copy()
 
 
-def truncated_cost(problem: LandmarkLogProblem, solution: Smoothed) -> float:
+def truncated_cost(problem: LandmarkLogProblem, solution: Smoothed, heading_loss: HeadingLoss | None = None
+                   ) -> float:
     """Σ r² of the odometry (and of the heading drift's factors) plus Σ min(r², χ²₂ 99 %) of every sighting: one
-    cost for solutions that dropped different sightings as outliers (a dropped sighting counts at the bound)."""
+    cost for solutions that dropped different sightings as outliers (a dropped sighting counts at the bound).
+    ``heading_loss``: the smoother's heavy-tailed heading loss, if the solution was smoothed with one: the odometry's
+    heading residuals then count by its ρ(r), the cost the smoother minimised (None: r², today's cost exactly)."""
     odometry, sightings, drift = normalised_residuals(problem, solution)
     per = np.sum(sightings ** 2, axis=1)
-    return float(np.sum(odometry ** 2) + np.sum(drift ** 2) + np.sum(np.minimum(per, OUTLIER_CHI2)))
+    if heading_loss is None:
+        odometry_cost = np.sum(odometry ** 2)
+    else:
+        odometry_cost = np.sum(odometry[:, :2] ** 2) + np.sum(heading_loss.rho(odometry[:, 2],
+                                                                               problem.increment_sigmas[:, 2]))
+    return float(odometry_cost + np.sum(drift ** 2) + np.sum(np.minimum(per, OUTLIER_CHI2)))
 
 
 @dataclass
@@ -467,14 +476,15 @@ class LoopClosure:
 def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
                  initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
                  heading_drift: HeadingDrift | None = None, path_step_s: float | None = None,
-                 sighting_offset: SightingOffset | None = None, offset_names: np.ndarray | None = None
-                 ) -> tuple[NamedProblem, Smoothed]:
+                 sighting_offset: SightingOffset | None = None, offset_names: np.ndarray | None = None,
+                 heading_loss: HeadingLoss | None = None) -> tuple[NamedProblem, Smoothed]:
     """The smoother on ``log`` with ``names``; initial poses (T + 1, 3) (default: the calibrated dead reckoning),
     initial landmark positions by name (default: placed from their first sightings); ``heading_drift``: the
     smoother's heading-bias states (None: none); ``path_step_s``: :func:`named_problem`'s. ``sighting_offset``: an
     offset per group of sightings (:class:`~estimation.landmark_smoother.SightingOffset`), the groups given by
     ``offset_names`` (N,) (each sighting's name before any merge: a chained name's sightings share one offset; default
-    ``names``: each landmark its own)."""
+    ``names``: each landmark its own). ``heading_loss``: the smoother's heavy-tailed loss on the odometry's heading
+    residuals (:class:`~estimation.landmark_smoother.HeadingLoss`; None: Gaussian)."""
     named = named_problem(log, names, noise, config, path_step_s=path_step_s)
     if sighting_offset is not None and sighting_offset.on and offset_names is not None:
         groups = np.unique(np.asarray(offset_names)[named.sightings], return_inverse=True)[1]
@@ -488,7 +498,7 @@ def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, con
         if initial is not None and int(name) in initial:
             landmarks[k] = initial[int(name)]
     return named, smooth(problem, initial_poses, landmarks, heading_drift=heading_drift,
-                         sighting_offset=sighting_offset)
+                         sighting_offset=sighting_offset, heading_loss=heading_loss)
 
 
 def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,

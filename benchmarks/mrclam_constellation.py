@@ -9,7 +9,7 @@ Run from the repository root:
         [--sighting-offset M] [--offsets-once-tight] [--split-ambiguous] [--honest-names ALPHA]
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--runs-out] [--slip 0.3]
         [--fewer-rival] [--distinct-points] [--rival-rounds K] [--hold-two-points] [--mutual-rounds] [--fresh-start]
-        [--audit-parts FLOOR_M] [--pairwise-alone] [--out-maps DIR]
+        [--audit-parts FLOOR_M] [--pairwise-alone] [--out-maps DIR] [--heading-loss student-t] [--heading-dof NU]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -215,6 +215,7 @@ from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     OUTLIER_CHI2,
     HeadingDrift,
+    HeadingLoss,
     SightingOffset,
     Smoothed,
     joint_landmark_covariance,
@@ -253,10 +254,22 @@ _OFFSET: dict = {"option": None, "names": None}
 _AUDIT: dict = {"floor_m": None, "untestable": True, "records": []}
 
 
+# ``--heading-loss``: the smoother's heavy-tailed loss on the odometry's heading residuals
+# (estimation.landmark_smoother.HeadingLoss; None: Gaussian), set by run_robot; every smoothing goes through
+# _smooth_named and every cost the merges are judged by through _cost, which add it
+_LOSS: dict = {"heading": None}
+
+
 def _smooth_named(log, names, noise, config, **kwargs):
-    """:func:`mrclam_chained_names.smooth_named` with the run's sighting offset (``--sighting-offset``), if any."""
+    """:func:`mrclam_chained_names.smooth_named` with the run's sighting offset (``--sighting-offset``) and heading
+    loss (``--heading-loss``), if any."""
     return smooth_named(log, names, noise, config, sighting_offset=_OFFSET["option"], offset_names=_OFFSET["names"],
-                        **kwargs)
+                        heading_loss=_LOSS["heading"], **kwargs)
+
+
+def _cost(problem, solution) -> float:
+    """:func:`mrclam_chained_names.truncated_cost` with the run's heading loss (the cost its smoothings minimise)."""
+    return truncated_cost(problem, solution, heading_loss=_LOSS["heading"])
 
 
 @dataclass
@@ -495,14 +508,14 @@ def _merge_once(log, current: MergeRound, clusters: dict[int, int], noise, confi
         initial_poses, position = reguess(names)
     named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses,
                                    initial=position, heading_drift=drift, path_step_s=path_step_s)
-    before = truncated_cost(current.named.problem, current.solution)
-    rise = truncated_cost(named.problem, solution) - before
+    before = _cost(current.named.problem, current.solution)
+    rise = _cost(named.problem, solution) - before
     bound = float(chi2.ppf(0.99, 2 * len(merged)))
     if rise > bound and fresh_start is not None and reguess is None:
         poses, guessed = fresh_start(names)
         fresh = _smooth_named(log, names, noise, config, initial_poses=poses, initial=guessed, heading_drift=drift,
                               path_step_s=path_step_s)
-        verdict = judge_at_starts(before, [before + rise, truncated_cost(fresh[0].problem, fresh[1])], bound)
+        verdict = judge_at_starts(before, [before + rise, _cost(fresh[0].problem, fresh[1])], bound)
         if verdict.best == 1:
             (named, solution), rise = fresh, verdict.rise
     if rise <= bound:
@@ -602,7 +615,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
     odometry = normalised_residuals(problem, solution)[0]
     times = current.named.frame_times
     sighted = times[problem.pose_index - 1]
-    base = truncated_cost(problem, solution)
+    base = _cost(problem, solution)
     position = dict(zip(current.named.names.tolist(), solution.landmarks, strict=True))
     next_name = int(current.names.max()) + 1
     tried, kept = [], []
@@ -620,7 +633,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
             named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses,
                                         initial={**position, next_name: position[name]}, heading_drift=drift,
                                         path_step_s=path_step_s)
-            drop = base - truncated_cost(named.problem, trial)
+            drop = base - _cost(named.problem, trial)
             keep = drop > chi2.ppf(probability, 2)
             tried.append({"name": name, "t": at, "cost_drop": float(drop), "kept": bool(keep)})
             if on_try is not None:
@@ -637,7 +650,7 @@ def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_
         next_name += 1
     named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses, initial=initial,
                                 heading_drift=drift, path_step_s=path_step_s)
-    rise = truncated_cost(named.problem, trial) - base
+    rise = _cost(named.problem, trial) - base
     return MergeRound([], rise, 0.0, True, names, named, trial), tried
 
 
@@ -711,9 +724,10 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     offsets_now = args.sighting_offset > 0 and not args.offsets_once_tight      # else from when the map is tight
     _AUDIT.update(floor_m=args.audit_parts, records=[])
     _OFFSET.update(option=SightingOffset(args.sighting_offset) if offsets_now else None, names=None)
+    _LOSS["heading"] = HeadingLoss("student-t", args.heading_dof) if args.heading_loss == "student-t" else None
     if args.from_round is not None:
         current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
-                                   config, drift, path_step_s)
+                                   config, drift, path_step_s, _loss_meta())
         if args.sighting_offset > 0:     # the groups: the names after the chain (round 0)
             first = state_path(args.state_dir, log, args.seed, "round0")
             if not first.exists():
@@ -1321,15 +1335,17 @@ def save_state(path, state: MergeRound, meta: dict) -> None:
     os.replace(tmp, path)
 
 
-def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: float | None) -> tuple[MergeRound, dict]:
+def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: float | None,
+               heading_loss: list | None = None) -> tuple[MergeRound, dict]:
     """:func:`save_state`'s state of ``log`` as a MergeRound (the named problem rebuilt from the names, the solution
-    as saved: no smoothing) and its meta; a state made with another drift or path step is refused (ValueError)."""
+    as saved: no smoothing) and its meta; a state made with another drift, path step or heading loss (as
+    :func:`_loss_meta` records it; None: Gaussian) is refused (ValueError)."""
     with np.load(path, allow_pickle=False) as data:
         meta = json.loads(str(data["meta"]))
         arrays = {k: data[k] for k in data.files if k not in ("names", "meta")}
         names = data["names"]
     want = {"robot": log.name, "drift": _drift_meta(drift),
-            "path_step_s": path_step_s}
+            "path_step_s": path_step_s, "heading_loss": heading_loss}
     for key, value in want.items():
         if meta.get(key) != value:
             raise ValueError(f"{path}: a state made with {key} {meta.get(key)!r}, not {value!r}")
@@ -1342,12 +1358,12 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
 
 
 def load_saved_state(path, log: RangeBearingLog, noise, config) -> tuple[MergeRound, dict]:
-    """:func:`load_state` with the drift and path step the state was made with (read from its own meta): for tools
-    that examine saved states rather than continue a run."""
+    """:func:`load_state` with the drift, path step and heading loss the state was made with (read from its own
+    meta): for tools that examine saved states rather than continue a run."""
     with np.load(path, allow_pickle=False) as data:
         meta = json.loads(str(data["meta"]))
     drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
-    return load_state(path, log, noise, config, drift, meta.get("path_step_s"))
+    return load_state(path, log, noise, config, drift, meta.get("path_step_s"), meta.get("heading_loss"))
 
 
 def _drift_meta(drift: HeadingDrift | None) -> list | None:
@@ -1361,7 +1377,14 @@ def _drift_meta(drift: HeadingDrift | None) -> list | None:
 def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
     return {"robot": log.name, "seed": args.seed, "drift": _drift_meta(drift),
             "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},
-            "sighting_offset_m": _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0}
+            "sighting_offset_m": _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0,
+            **({"heading_loss": _loss_meta()} if _LOSS["heading"] is not None else {})}
+
+
+def _loss_meta() -> list | None:
+    """A state's heading loss ([kind, ν]; None, and absent from the meta: Gaussian, as every state before it)."""
+    loss = _LOSS["heading"]
+    return None if loss is None else [loss.kind, float(loss.dof)]
 
 
 def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
@@ -1605,6 +1628,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--slip", type=non_negative_float, default=0.0, metavar="RAD_PER_RAD",
                         help="the smoother's heading slip per radian turned on the spot (HeadingDrift.sigma_per_rad, "
                              "τ the drift's; 0: none; 0.3 measured by benchmarks.mrclam_heading_slip)")
+    parser.add_argument("--heading-loss", choices=("gaussian", "student-t"), default="gaussian",
+                        help="the loss on the odometry's heading residuals in every smoothing and merge cost "
+                             "(estimation.landmark_smoother.HeadingLoss; gaussian: none)")
+    parser.add_argument("--heading-dof", type=positive_float, default=3.0, metavar="NU",
+                        help="--heading-loss student-t's degrees of freedom ν")
     parser.add_argument("--pass-seconds", type=positive_float, default=20.0, help="a pass's span, s")
     parser.add_argument("--min-sightings", type=positive_int, default=2,
                         help="kept sightings of a name within a pass's span for it to be the pass's")

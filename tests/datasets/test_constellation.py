@@ -661,3 +661,72 @@ def test_distinct_points_keeps_a_random_layout_s_passes_matched():
         assert (strict.status, strict.best) == (plain.status, plain.best)
         matched += strict.status == "matched"
     assert matched >= 18
+
+
+def test_the_heading_loss_option_reaches_every_smoothing_and_its_absence_leaves_the_run_as_it_was(tmp_path,
+                                                                                                 monkeypatch):
+    """MRCLAM robot 2's first 300 s with a +0.3 rad heading fault in the odometry at 150 s (the rest of the path turned
+    about the pose there, as robot 2's fault near 1,310 s) and names that start again every 60 s (each post's passes
+    under names of their own, for the chain to merge), through the benchmark's session-30 command. With
+    ``--heading-loss student-t`` every smoothing gets the Student-t loss, the increments holding the fault get a
+    small IRLS weight while most keep theirs, and the final state records the loss; without it no smoothing has a
+    loss, the state holds no heading weights nor a loss in its meta (as every state before the option), and the map
+    is not the one with the loss."""
+    import dataclasses
+    import io
+    import json
+    from contextlib import redirect_stdout
+
+    import benchmarks.mrclam_constellation as mc
+    from benchmarks.mrclam_chained_names import ChainedNames
+
+    from .conftest import MRCLAM2
+
+    log, noise, config, _ = _robot2(until=300.0)
+    fault_t, fault = log.odometry[0, 0] + 150.0, 0.3
+    odometry = log.odometry.copy()
+    after = odometry[:, 0] >= fault_t
+    pivot = odometry[np.flatnonzero(after)[0] - 1, 1:3]
+    c, s = np.cos(fault), np.sin(fault)
+    odometry[after, 1:3] = (odometry[after, 1:3] - pivot) @ np.array([[c, -s], [s, c]]).T + pivot
+    odometry[after, 3] += fault
+    faulty = dataclasses.replace(log, odometry=odometry)
+    names = np.asarray(log.landmark_ids, np.int64) + 100 * ((log.sighting_times - log.sighting_times[0]) // 60.0
+                                                             ).astype(np.int64)
+    monkeypatch.setattr(mc, "read_mrclam", lambda data, robot: faulty)
+    monkeypatch.setattr(mc, "_chained", lambda log, args, noise, config: (ChainedNames(names.copy(), []),
+                                                                          {"robot": log.name}))
+    losses = []
+    smooth_named = mc.smooth_named
+
+    def recorded(*args, **kwargs):
+        losses.append(kwargs.get("heading_loss"))
+        return smooth_named(*args, **kwargs)
+
+    monkeypatch.setattr(mc, "smooth_named", recorded)
+    command = ["--data", str(MRCLAM2), "--robots", "2", "--seed", "0", "--particles", "10", "--max-rounds", "9",
+               "--guard", "--sighting-offset", "0.03", "--offsets-once-tight", "--pairwise", "6", "--kept-covisible",
+               "--split-ambiguous", "--honest-names", "0.01", "--honest-rounds", "--leave-out-ambiguous",
+               "--leave-out-unconfirmed", "--slip", "0.3", "--name-unnamed", "--fewer-rival", "--distinct-points",
+               "--hold-two-points", "--runs-out", "--json"]
+    finals = {}
+    for option in ([], ["--heading-loss", "student-t"]):
+        losses.clear()
+        directory = tmp_path / (option[-1] if option else "gaussian")
+        with redirect_stdout(io.StringIO()) as out:
+            assert mc.main([*command, "--state-dir", str(directory), *option]) == 0
+        assert json.loads(out.getvalue())["robots"][0]["final"]["names"] > 0
+        state, meta = mc.load_saved_state(mc.state_path(directory, faulty, 0, "final"), faulty, noise, config)
+        finals[bool(option)] = state
+        assert len(losses) >= 2
+        if option:
+            assert all(loss == mc.HeadingLoss("student-t", 3.0) for loss in losses)
+            assert meta["heading_loss"] == ["student-t", 3.0] and meta["command"]["heading_loss"] == "student-t"
+            weights = state.solution.heading_weights
+            first = int(np.searchsorted(state.named.frame_times, fault_t))   # the increment ending after it
+            assert weights is not None and np.min(weights[first:first + 2]) < 0.5 and np.median(weights) > 0.9
+        else:
+            assert all(loss is None for loss in losses)
+            assert "heading_loss" not in meta and state.solution.heading_weights is None
+    with_loss, without = finals[True].solution.poses, finals[False].solution.poses
+    assert with_loss.shape != without.shape or not np.allclose(with_loss, without, atol=1e-6)
