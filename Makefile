@@ -12,10 +12,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# pytest's workers (pytest-xdist): two where the machine has two cores or more, none (one process, as before) on one.
+# Two were measured (docs/reliability.md, "Suite time"); more were not: the tests were hardened for a loaded 2-core
+# machine, and the slowest few (missions, Zenoh exchanges) set the end anyway. `make test WORKERS=0` runs serially.
+WORKERS ?= $(shell [ "$$(nproc 2>/dev/null || echo 1)" -ge 2 ] && echo 2 || echo 0)
+
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(WORKERS)
 
 demo: $(STAMP)
 	$(BIN)/p3at demo
