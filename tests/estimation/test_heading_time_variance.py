@@ -12,20 +12,11 @@ from hypothesis import strategies as st
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.motion import increment_variance
-from estimation.geometry import wrap_angle
 from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, estimate_noise
 from estimation.observations import OdometryIncrement
+from tests.datasets.test_noise_model import _chain
 
 STEP_S = 0.02
-
-
-def _chain(steps: np.ndarray) -> np.ndarray:
-    """Poses (n + 1, 3) from the origin composing steps (n, 3)."""
-    heading = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
-    c, s = np.cos(heading[:-1]), np.sin(heading[:-1])
-    xy = np.vstack([[0.0, 0.0], np.cumsum(np.column_stack([c * steps[:, 0] - s * steps[:, 1],
-                                                             s * steps[:, 0] + c * steps[:, 1]]), axis=0)])
-    return np.column_stack([xy, wrap_angle(heading)])
 
 
 def _stop_and_go_log(rng: np.random.Generator, q_xy: float, q_theta_rad: float, q_theta_s: float,

@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 
 from estimation.landmark_map import LandmarkMap
 from estimation.name_vote import vote_metadata
-from runtime.cli import main
 from runtime.map_vote import CONTESTED_SHOWN, contested_text, read_vote
+from tests.runtime.test_fuse_self_check import _fuse
 
 _BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
@@ -81,13 +81,6 @@ def maps(tmp_path_factory):
                 m.metadata["vote"]["held_by"] = m.metadata["vote"]["held_by"][:-1]
             m.save(d / f"r{k + 1}-{suffix}.npz")
     return d
-
-
-def _fuse(capsys, maps: Path, suffix: str, *extra: str) -> tuple[int, str, str]:
-    status = main(["fuse", str(maps / f"r1-{suffix}.npz"), str(maps / f"r2-{suffix}.npz"), "--out",
-                   str(maps / f"merged-{suffix}.npz"), *extra])
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
 
 
 def test_fuse_names_the_contested_landmarks_of_a_voted_map_and_json_carries_the_record(maps, capsys):
