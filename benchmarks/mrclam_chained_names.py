@@ -52,6 +52,12 @@ The method (the barcodes never decide; they only score):
    sightings: the σ of their difference under the joint covariance, the median d² of the same-post pairs (χ²₂'s median
    is 1.39 for an honest covariance) and the fraction of other-post pairs inside the χ²₂ 99 % gate.
 
+Since session 36 (A) the algorithm is in ``estimation``: steps 1-2 (windows and names, ``chain_log``) in
+:mod:`estimation.chained_names`; the smoothing on a naming (step 3's, each round's of step 4), the truncated cost,
+co-visibility and ``MergeRound`` in :mod:`estimation.named_smoothing`. This benchmark keeps step 3's starting guess
+(in :func:`run_robot`), the loop-closing test of step 4 (:func:`merge_candidates`, :func:`close_loops`), step 5,
+the scoring by the barcodes and the reference runs.
+
 Beside them, unless ``--no-reference``: the known-ID default (the barcodes, calibrated model, smoothed:
 ``eval_mrclam --association id --defaults``) and the unknown-association filter over the whole log, from the same
 code and seed.
@@ -71,312 +77,29 @@ import time  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation import chi2  # noqa: E402
+from estimation.chained_names import CHI2_2_99, ChainedNames, chain_log  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import FastSLAMConfig, range_bearing_config  # noqa: E402
-from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
-from estimation.geometry import between, compose, dead_reckoning  # noqa: E402
-from estimation.landmark_map import LandmarkMap  # noqa: E402
+from estimation.geometry import compose  # noqa: E402
 from estimation.landmark_scores import ate, map_scores  # noqa: E402
-from estimation.landmark_smoother import (  # noqa: E402
-    OUTLIER_CHI2,
-    HeadingDrift,
-    HeadingLoss,
-    LandmarkLogProblem,
-    SightingOffset,
-    Smoothed,
-    joint_landmark_covariance,
-    landmarks_from_first_sightings,
-    normalised_residuals,
-    smooth,
+from estimation.landmark_smoother import HeadingDrift, Smoothed, joint_landmark_covariance  # noqa: E402
+from estimation.named_smoothing import (  # noqa: E402
+    MergeCandidate,
+    MergeRound,
+    NamedProblem,
+    smooth_named,
+    truncated_cost,
 )
-from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise, with_fastslam  # noqa: E402
+from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
-
-CHI2_2_99 = 9.210                 # χ²₂ 99 %: a sighting falls on a landmark; two names are candidates for one post
-MIN_WINDOW_FRAMES = 2             # a window with fewer sighting frames makes no map
-
-
-@dataclass
-class Window:
-    """One window: its span [start_time, start_time + seconds) of log time, its sightings (N,) (indices into the log)
-    and their times, the row of ``map`` each falls on (−1: none within the gate), the filter's map of the window (in
-    the robot's frame at the window's first sighting)."""
-
-    start_time: float
-    seconds: float
-    sightings: np.ndarray
-    times: np.ndarray
-    sighting_landmark: np.ndarray
-    map: LandmarkMap
-
-
-@dataclass
-class ChainedNames:
-    """names (N,) per sighting of the log (−1: unnamed); window_names[w] (n_w,) the name of each landmark of window
-    w; links: chain links made between consecutive windows; unlinked: landmarks with overlap sightings but no mutual
-    partner (a new name starts there)."""
-
-    names: np.ndarray
-    window_names: list[np.ndarray]
-    links: int = 0
-    unlinked: int = 0
-
-
-def overlapping_windows(log: RangeBearingLog, seconds: float, step: float | None = None
-                        ) -> list[tuple[float, np.ndarray, RangeBearingLog]]:
-    """Windows of ``seconds`` starting every ``step`` (default seconds / 2) from the first sighting: (start time, the
-    log's sighting indices, the window's log). A window's log holds its sightings and the odometry and ground truth
-    around them (one row either side); windows with fewer than MIN_WINDOW_FRAMES sighting frames are left out."""
-    if not seconds > 0:
-        raise ValueError(f"a window lasts > 0 s, not {seconds}")
-    step = seconds / 2 if step is None else float(step)
-    if not 0 < step <= seconds:
-        raise ValueError(f"windows start every 0 < step <= {seconds} s, not {step}")
-    if len(log) == 0:
-        return []
-    t_first, t_last = float(log.sighting_times[0]), float(log.sighting_times[-1])
-    out = []
-    start = t_first
-    while start <= t_last:
-        rows = np.flatnonzero((log.sighting_times >= start) & (log.sighting_times < start + seconds))
-        if len(np.unique(log.sighting_times[rows])) >= MIN_WINDOW_FRAMES:
-            times = log.sighting_times[rows]
-            out.append((start, rows, _sub_log(log, rows, float(times[0]), float(times[-1]))))
-        if start + seconds > t_last:
-            break
-        start += step
-    return out
-
-
-def _sub_log(log: RangeBearingLog, rows: np.ndarray, t0: float, t1: float) -> RangeBearingLog:
-    def around(table: np.ndarray) -> np.ndarray:
-        if len(table) == 0:
-            return table
-        a = max(int(np.searchsorted(table[:, 0], t0, side="right")) - 1, 0)
-        b = min(int(np.searchsorted(table[:, 0], t1, side="left")) + 1, len(table) - 1)
-        return table[a:b + 1]
-
-    return dataclasses.replace(log, odometry=around(log.odometry), sighting_times=log.sighting_times[rows],
-                               ranges=log.ranges[rows], bearings=log.bearings[rows],
-                               landmark_ids=log.landmark_ids[rows], ground_truth=around(log.ground_truth))
-
-
-def run_windows(log: RangeBearingLog, seconds: float, config: FastSLAMConfig, noise: NoiseModel, *, seed: int = 0,
-                step: float | None = None) -> list[Window]:
-    """Every window of :func:`overlapping_windows` through the unknown-association filter from its own start, its
-    sightings named by its map. ``run_landmark_log`` needs the log's ground truth (it scores every run); the names
-    do not use it (the window's trajectory is taken back to the window's own frame)."""
-    sensor = noise.range_bearing
-    inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
-    out = []
-    for k, (start, rows, sub) in enumerate(overlapping_windows(log, seconds, step)):
-        run = run_landmark_log(sub, config, np.random.default_rng([seed, k]), noise=noise, association="unknown",
-                               robot=f"{log.name}@{start:.0f}s")
-        true_start = np.asarray(run.metrics["true_start_pose"], float)
-        poses = between(true_start, run.estimated_trajectory[:, 1:])         # the window's frame
-        frame_times = run.estimated_trajectory[:, 0]
-        ranges, bearings = sensor.corrected(sub.ranges, sub.bearings)
-        sigma_r = sensor.range_sigma(ranges) * inflate_r
-        sigma_b = np.full(len(ranges), sensor.bearing_sigma_rad * inflate_b)
-        frame = np.searchsorted(frame_times, sub.sighting_times)
-        labels = name_sightings(run.map, poses[frame], frame, ranges, bearings, sigma_r, sigma_b)
-        out.append(Window(start, seconds, rows, sub.sighting_times, labels, run.map))
-    return out
-
-
-def name_sightings(landmarks: LandmarkMap, poses: np.ndarray, frame: np.ndarray, ranges: np.ndarray,
-                   bearings: np.ndarray, sigma_r: np.ndarray, sigma_b: np.ndarray) -> np.ndarray:
-    """(N,) the row of ``landmarks`` each sighting falls on, −1 for none.
-
-    poses (N, 3): the pose each sighting was taken from, in the map's frame; frame (N,): its frame (one landmark per
-    frame); ranges, bearings, sigma_r, sigma_b (N,). d² of the placed sighting to each landmark under the landmark's
-    covariance (x, y) plus the sighting's; the nearest within χ²₂ 99 %, assigned greedily by d² within a frame."""
-    n = len(ranges)
-    out = np.full(n, -1, np.int64)
-    if n == 0 or len(landmarks) == 0:
-        return out
-    heading = poses[:, 2] + bearings
-    points = compose(poses, np.column_stack([ranges * np.cos(bearings), ranges * np.sin(bearings),
-                                             np.zeros(n)]))[:, :2]
-    u = np.column_stack([np.cos(heading), np.sin(heading)])
-    v = np.column_stack([-np.sin(heading), np.cos(heading)])
-    R = (sigma_r ** 2)[:, None, None] * u[:, :, None] * u[:, None, :] \
-        + ((ranges * sigma_b) ** 2)[:, None, None] * v[:, :, None] * v[:, None, :]
-    diff = points[:, None, :] - landmarks.positions[None, :, :2]
-    S = R[:, None] + landmarks.covariances[None, :, :2, :2]
-    d2 = np.einsum("nli,nli->nl", diff, np.linalg.solve(S, diff[..., None])[..., 0])
-    for f in np.unique(frame):
-        rows = np.flatnonzero(frame == f)
-        block = d2[rows].copy()
-        while True:
-            r, c = np.unravel_index(np.argmin(block), block.shape)
-            if not block[r, c] < CHI2_2_99:
-                break
-            out[rows[r]] = c
-            block[r, :] = np.inf
-            block[:, c] = np.inf
-    return out
-
-
-def chain_windows(windows: list[Window], n_sightings: int, *, min_shared: int = 1) -> ChainedNames:
-    """Names across the log from consecutive windows' shared sightings (module docstring, step 2). ``min_shared``:
-    the fewest overlap sightings two landmarks must share to be linked."""
-    window_names: list[np.ndarray] = []
-    next_name = 0
-    links = unlinked = 0
-    for k, w in enumerate(windows):
-        names = np.full(len(w.map), -1, np.int64)
-        if k > 0:
-            partner = _mutual_partners(windows[k - 1], w, min_shared)
-            for b, a in partner.items():
-                names[b] = window_names[k - 1][a]
-            links += len(partner)
-            unlinked += len(_overlap_landmarks(windows[k - 1], w)) - len(partner)
-        for b in np.flatnonzero(names < 0):
-            names[b] = next_name
-            next_name += 1
-        window_names.append(names)
-    out = np.full(n_sightings, -1, np.int64)
-    distance = np.full(n_sightings, np.inf)
-    for w, names in zip(windows, window_names, strict=True):
-        named = w.sighting_landmark >= 0
-        rows = w.sightings[named]
-        middle = w.start_time + w.seconds / 2
-        # the core window (nearest middle) names a sighting; another window only one the core window left unnamed
-        d = np.abs(w.times[named] - middle)
-        better = (d < distance[rows]) | (out[rows] < 0)
-        out[rows[better]] = names[w.sighting_landmark[named][better]]
-        distance[rows[better]] = d[better]
-    return ChainedNames(out, window_names, links, unlinked)
-
-
-def _overlap_landmarks(a: Window, b: Window) -> set[int]:
-    """Landmarks of ``b`` named by sightings ``a`` also holds."""
-    shared = np.isin(b.sightings, a.sightings)
-    labels = b.sighting_landmark[shared]
-    return set(int(x) for x in labels[labels >= 0])
-
-
-def _mutual_partners(a: Window, b: Window, min_shared: int) -> dict[int, int]:
-    """{landmark of b: landmark of a} for pairs sharing a clear majority (> ½) of each one's overlap sightings."""
-    common, ia, ib = np.intersect1d(a.sightings, b.sightings, return_indices=True)
-    la, lb = a.sighting_landmark[ia], b.sighting_landmark[ib]
-    out = {}
-    for x in np.unique(la[la >= 0]):
-        of_x = la == x
-        ys, counts = np.unique(lb[of_x & (lb >= 0)], return_counts=True)
-        if not len(ys):
-            continue
-        y, c = int(ys[np.argmax(counts)]), int(counts.max())
-        if c < min_shared or 2 * c <= int(of_x.sum()) or 2 * c <= int((lb == y).sum()):
-            continue
-        out[y] = int(x)
-    return out
-
-
-@dataclass
-class NamedProblem:
-    """A log's smoothing problem with given names: ``problem`` (landmark index ``k`` is name ``names[k]``), the
-    frames' log times (T,) (pose k + 1 is frame k), the sightings (S,) of the log each factor is (row indices)."""
-
-    problem: LandmarkLogProblem
-    names: np.ndarray
-    frame_times: np.ndarray
-    sightings: np.ndarray
-
-
-def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
-                  path_step_s: float | None = None) -> NamedProblem:
-    """The factors ``run_landmark_log(association="id", smooth=True)`` builds for ``log`` with each sighting named
-    ``names`` (−1: left out): frames at the named sightings' time stamps, from the first; the calibrated odometry
-    increments between them; each sighting's calibrated range and bearing with the inflated σ.
-
-    ``path_step_s``: the increments' variances propagated along the odometry's path in steps of about this many
-    seconds (:func:`path_variances`) instead of the random walk's variance of the chord (None, the default)."""
-    sensor = noise.range_bearing
-    inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
-    config = with_fastslam(noise, config)
-    rows = np.flatnonzero(np.asarray(names) >= 0)
-    times, frame = np.unique(log.sighting_times[rows], return_inverse=True)
-    frame_times = np.concatenate([times[:1], times])
-    odometry = log.odometry_pose(noise.odometry_times(frame_times))
-    increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    variances = increment_variance(increments, config, np.diff(frame_times))
-    if path_step_s is not None:
-        variances = np.maximum(variances, path_variances(log, noise, config, frame_times, path_step_s))
-    ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
-    unique_names, landmark_index = np.unique(np.asarray(names)[rows], return_inverse=True)
-    problem = LandmarkLogProblem(np.asarray(increments, float), variances,
-                                 frame.astype(int) + 1, landmark_index.astype(int), ranges, bearings,
-                                 sensor.range_sigma(ranges) * inflate_r,
-                                 np.full(len(rows), sensor.bearing_sigma_rad * inflate_b), np.diff(frame_times))
-    return NamedProblem(problem, unique_names, times, rows)
-
-
-def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, frame_times: np.ndarray,
-                   step_s: float) -> np.ndarray:
-    """(T, 3) the variances of the increments between consecutive ``frame_times`` (T + 1,) as the random walk gives
-    them along the odometry's path: each increment cut into steps of at most ``step_s`` s, each step's calibrated
-    increment and variance (``config``: with the noise model's fastslam keys) composed from the increment's start
-    (``propagate_covariance``), the diagonal of the result in the start pose's frame (the frame of the smoother's
-    odometry residual). An increment of one step has its chord's variance; one across a gap of sightings in which the
-    robot turned back and forth or drove a curve gets what the path it drove gives (the chord's variance of a spin
-    out and back is the variance of no turn)."""
-    frame_times = np.asarray(frame_times, float)
-    t = len(frame_times) - 1
-    steps = np.maximum(np.ceil(np.diff(frame_times) / step_s).astype(int), 1)
-    owner = np.repeat(np.arange(t), steps)
-    first = np.concatenate([[0], np.cumsum(steps)[:-1]])
-    within = np.arange(len(owner)) - first[owner]
-    start = frame_times[:-1][owner] + within * (np.diff(frame_times) / steps)[owner]
-    grid = np.append(start, frame_times[-1])
-    odometry = log.odometry_pose(noise.odometry_times(grid))
-    fine = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    fine_var = increment_variance(fine, config, np.diff(grid))
-    pose = np.zeros((t, 3))
-    cov = np.zeros((t, 3, 3))
-    for k in range(int(steps.max()) if t else 0):
-        on = np.flatnonzero(steps > k)
-        j = first[on] + k
-        for i, row in zip(on, j, strict=True):      # a few long increments: a loop over them is cheap
-            cov[i] = propagate_covariance(pose[i:i + 1], cov[i:i + 1], fine[row], fine_var[row])[0]
-        pose[on] = compose(pose[on], fine[j])
-    return np.diagonal(cov, axis1=1, axis2=2).copy()
-
-
-def truncated_cost(problem: LandmarkLogProblem, solution: Smoothed, heading_loss: HeadingLoss | None = None
-                   ) -> float:
-    """Σ r² of the odometry (and of the heading drift's factors) plus Σ min(r², χ²₂ 99 %) of every sighting: one
-    cost for solutions that dropped different sightings as outliers (a dropped sighting counts at the bound).
-    ``heading_loss``: the smoother's heavy-tailed heading loss, if the solution was smoothed with one: the odometry's
-    heading residuals then count by its ρ(r), the cost the smoother minimised (None: r², today's cost exactly)."""
-    odometry, sightings, drift = normalised_residuals(problem, solution)
-    per = np.sum(sightings ** 2, axis=1)
-    if heading_loss is None:
-        odometry_cost = np.sum(odometry ** 2)
-    else:
-        odometry_cost = np.sum(odometry[:, :2] ** 2) + np.sum(heading_loss.rho(odometry[:, 2],
-                                                                               problem.increment_sigmas[:, 2]))
-    return float(odometry_cost + np.sum(drift ** 2) + np.sum(np.minimum(per, OUTLIER_CHI2)))
-
-
-@dataclass
-class MergeCandidate:
-    """Names ``a`` < ``b`` proposed as one post: d² under their difference's covariance, and the log likelihood
-    ratio of the pair over the second most likely partner of either (the smaller of the two)."""
-
-    a: int
-    b: int
-    d2: float
-    log_ratio: float
 
 
 def merge_candidates(named: NamedProblem, solution: Smoothed, *, ratio: float = 100.0,
@@ -435,31 +158,6 @@ def _margin(loglik, covisible, d2, valid, i: int, j: int) -> float:
     return float(loglik[i, j] - (loglik[i][rival].max() if rival.any() else -np.inf))
 
 
-def _covisible(problem: LandmarkLogProblem, inliers: np.ndarray, n: int, *, kept_only: bool = False) -> np.ndarray:
-    """(L, L) True where two landmarks were sighted in one frame (every sighting counts, kept or dropped; with
-    ``kept_only`` only the sightings the smoother kept: a dropped one is not the landmark's by its own verdict)."""
-    rows = np.asarray(inliers, bool) if kept_only else np.ones(len(problem.pose_index), bool)
-    incidence = sp.csr_matrix((np.ones(int(rows.sum())), (problem.pose_index[rows], problem.landmark_index[rows])),
-                              shape=(problem.n_poses + 1, n))
-    return (incidence.T @ incidence).toarray() > 0
-
-
-@dataclass
-class MergeRound:
-    """One round of :func:`close_loops`: the pairs merged (name kept, name absorbed), the truncated cost's rise and
-    its χ² 99 % bound for the merges' 2·m degrees of freedom, whether it was kept; the names (N,) and the solution
-    after it (those before it when it was undone)."""
-
-    merged: list[tuple[int, int]]
-    rise: float
-    bound: float
-    accepted: bool
-    names: np.ndarray
-    named: NamedProblem
-    solution: Smoothed
-    candidates: list[MergeCandidate] = field(default_factory=list)
-
-
 @dataclass
 class LoopClosure:
     """:func:`close_loops`' outcome: the first smoothing (chained names), each round, the final names and solution."""
@@ -471,34 +169,6 @@ class LoopClosure:
     def final(self) -> MergeRound:
         kept = [r for r in self.rounds if r.accepted]
         return kept[-1] if kept else self.first
-
-
-def smooth_named(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
-                 initial_poses: np.ndarray | None = None, initial: dict[int, np.ndarray] | None = None,
-                 heading_drift: HeadingDrift | None = None, path_step_s: float | None = None,
-                 sighting_offset: SightingOffset | None = None, offset_names: np.ndarray | None = None,
-                 heading_loss: HeadingLoss | None = None) -> tuple[NamedProblem, Smoothed]:
-    """The smoother on ``log`` with ``names``; initial poses (T + 1, 3) (default: the calibrated dead reckoning),
-    initial landmark positions by name (default: placed from their first sightings); ``heading_drift``: the
-    smoother's heading-bias states (None: none); ``path_step_s``: :func:`named_problem`'s. ``sighting_offset``: an
-    offset per group of sightings (:class:`~estimation.landmark_smoother.SightingOffset`), the groups given by
-    ``offset_names`` (N,) (each sighting's name before any merge: a chained name's sightings share one offset; default
-    ``names``: each landmark its own). ``heading_loss``: the smoother's heavy-tailed loss on the odometry's heading
-    residuals (:class:`~estimation.landmark_smoother.HeadingLoss`; None: Gaussian)."""
-    named = named_problem(log, names, noise, config, path_step_s=path_step_s)
-    if sighting_offset is not None and sighting_offset.on and offset_names is not None:
-        groups = np.unique(np.asarray(offset_names)[named.sightings], return_inverse=True)[1]
-        named = dataclasses.replace(named, problem=dataclasses.replace(named.problem,
-                                                                       offset_index=groups.astype(int)))
-    problem = named.problem
-    if initial_poses is None:
-        initial_poses = dead_reckoning(problem.increments)
-    landmarks = landmarks_from_first_sightings(problem, initial_poses)
-    for k, name in enumerate(named.names):
-        if initial is not None and int(name) in initial:
-            landmarks[k] = initial[int(name)]
-    return named, smooth(problem, initial_poses, landmarks, heading_drift=heading_drift,
-                         sighting_offset=sighting_offset, heading_loss=heading_loss)
 
 
 def close_loops(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, config: FastSLAMConfig, *,
@@ -656,8 +326,10 @@ def gap_table(log: RangeBearingLog, r: MergeRound) -> list[dict]:
 # ---- the benchmark -------------------------------------------------------------------------------------------------
 
 def _chained(log: RangeBearingLog, args, noise: NoiseModel, config: FastSLAMConfig) -> tuple[ChainedNames, dict]:
-    """The chained names of ``log`` and the windows' figures; kept in (and read back from) ``args.names_cache`` if
-    given, one .npz per robot, window, step, seed and particle count (the windows are most of the run's time)."""
+    """The chained names of ``log`` (:func:`estimation.chained_names.chain_log` with ``args.window``, ``args.step``,
+    ``args.seed``) and the windows' figures, scored by the barcodes; kept in (and read back from)
+    ``args.names_cache`` if given, one .npz per robot, window, step, seed and particle count (the windows are most
+    of the run's time)."""
     step = args.step or args.window / 2
     cache = None
     if args.names_cache:
@@ -667,11 +339,11 @@ def _chained(log: RangeBearingLog, args, noise: NoiseModel, config: FastSLAMConf
             with np.load(cache, allow_pickle=False) as data:
                 return ChainedNames(data["names"], []), json.loads(str(data["row"]))
     started = time.process_time()
-    windows = run_windows(log, args.window, config, noise, seed=args.seed, step=args.step)
+    chained = chain_log(log, noise, config, seconds=args.window, step=args.step, seed=args.seed)
     window_cpu = time.process_time() - started
+    windows = chained.windows
     barcodes = log.landmark_ids
     per_window = [naming_scores(w.sighting_landmark, barcodes[w.sightings]) for w in windows]
-    chained = chain_windows(windows, len(log))
     row = {"robot": log.name, "windows": len(windows), "window_cpu_s": window_cpu,
            "window_wrong_fraction": sum(p["wrong"] for p in per_window) / max(sum(p["named"] for p in per_window), 1),
            "chain_links": chained.links, "chain_unlinked": chained.unlinked}

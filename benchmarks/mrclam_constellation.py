@@ -182,17 +182,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
-from benchmarks.mrclam_chained_names import (  # noqa: E402
-    MergeRound,
-    NamedProblem,
-    _chained,
-    _covisible,
-    majority,
-    named_problem,
-    round_scores,
-    smooth_named,
-    truncated_cost,
-)
+from benchmarks.mrclam_chained_names import _chained, majority, round_scores  # noqa: E402
 from benchmarks.mrclam_frame_nees import map_figures, truth_in_frame  # noqa: E402
 from estimation import chi2  # noqa: E402
 from estimation.constellation import (  # noqa: E402
@@ -230,6 +220,14 @@ from estimation.map_honesty import (  # noqa: E402
     split_threshold,
 )
 from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
+from estimation.named_smoothing import (  # noqa: E402
+    MergeRound,
+    NamedProblem,
+    named_problem,
+    smooth_named,
+    truncated_cost,
+)
+from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
 from estimation.pairwise_audit import refused_alone  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402

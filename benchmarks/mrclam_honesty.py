@@ -48,7 +48,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
-from benchmarks.mrclam_chained_names import _covisible, majority  # noqa: E402
+from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from benchmarks.mrclam_constellation import load_saved_state  # noqa: E402
 from estimation import chi2  # noqa: E402
 from estimation.constellation import pairwise_groups  # noqa: E402
@@ -66,6 +66,7 @@ from estimation.map_honesty import (  # noqa: E402
     split_threshold,
     two_point_split,
 )
+from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
 

@@ -176,7 +176,7 @@ def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_ta
     # the cost check (stood in for here) refuses any batch that holds a bad pass; bisecting deep enough keeps every
     # good pass, never a bad one, and a good batch is kept in one attempt
     import benchmarks.mrclam_constellation as mc
-    from benchmarks.mrclam_chained_names import MergeRound
+    from estimation.named_smoothing import MergeRound
 
     bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), max_size=2)))
     passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]       # pass k joins name 10k + 1 to 10k
@@ -312,9 +312,9 @@ def test_the_guard_sets_aside_one_wrong_pass_among_many_right_ones(seed, n_right
 
 
 def test_a_saved_state_reloads_to_the_same_solution_and_refuses_other_settings(tmp_path):
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import load_state, save_state, state_path
     from estimation.landmark_smoother import joint_landmark_covariance
+    from estimation.named_smoothing import MergeRound, smooth_named
 
     log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
@@ -355,7 +355,7 @@ def test_pairwise_d2_is_joint_d2_of_each_pair_for_any_covariance(seed, n):
 @given(st.integers(2, 10), st.data())
 def test_a_refused_batch_is_retried_without_the_groups_the_guard_set_aside(n_passes, data):
     import benchmarks.mrclam_constellation as mc
-    from benchmarks.mrclam_chained_names import MergeRound
+    from estimation.named_smoothing import MergeRound
 
     bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), min_size=1, max_size=2)))
     passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]
@@ -443,8 +443,8 @@ def test_a_glimpse_that_could_be_either_of_two_posts_is_left_out_and_a_post_that
     gates of real posts hold two posts too: they are left out, and the posts that lost their only name are said."""
     import argparse
 
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import ambiguous_names, leave_out
+    from estimation.named_smoothing import MergeRound, smooth_named
     log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
     glimpse = np.flatnonzero(names == 19)[:3]
@@ -478,8 +478,8 @@ def test_a_name_the_sensor_saw_only_a_few_times_where_another_name_stood_is_left
     import argparse
     import dataclasses
 
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import leave_out, unconfirmed_names
+    from estimation.named_smoothing import MergeRound, smooth_named
     log, noise, config, drift = _robot2(until=300.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
     moved = np.flatnonzero(names == 18)[10:15]
@@ -503,8 +503,9 @@ def test_honest_rounds_hold_back_a_pass_s_pairings_of_a_name_holding_another_pos
     """MRCLAM robot 2's first 120 s with the barcodes as names and post 19's last three sightings under post 20's
     name (a chain error): the split-score screen flags name 20 alone, and the rounds' screen removes every matched
     pass's pairing of it, keeps the rest, and drops a pass left with none; on the honest names nothing changes."""
-    from benchmarks.mrclam_chained_names import MergeRound, majority, smooth_named
+    from benchmarks.mrclam_chained_names import majority
     from benchmarks.mrclam_constellation import PassVerdict, _without_flagged
+    from estimation.named_smoothing import MergeRound, smooth_named
     log, noise, config, drift = _robot2(until=120.0)
     honest = np.asarray(log.landmark_ids, np.int64)
     names = honest.copy()
@@ -678,7 +679,7 @@ def test_the_heading_loss_option_reaches_every_smoothing_and_its_absence_leaves_
     from contextlib import redirect_stdout
 
     import benchmarks.mrclam_constellation as mc
-    from benchmarks.mrclam_chained_names import ChainedNames
+    from estimation.chained_names import ChainedNames
 
     from .conftest import MRCLAM2
 

@@ -9,9 +9,9 @@ from .test_constellation import _robot2
 
 
 def test_a_state_with_the_slip_reloads_to_the_same_solution_and_a_run_without_it_refuses_it(tmp_path):
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_constellation import _drift_meta, load_saved_state, load_state, save_state, state_path
     from estimation.landmark_smoother import HeadingDrift, joint_landmark_covariance
+    from estimation.named_smoothing import MergeRound, smooth_named
 
     log, noise, config, plain = _robot2(until=900.0)          # its wiggle on the spot: 779-817 s
     slip = HeadingDrift(plain.sigma_per_m, plain.tau_s, sigma_per_rad=0.3)

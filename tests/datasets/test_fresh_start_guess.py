@@ -8,8 +8,8 @@ from .test_constellation import _robot2
 
 
 def test_the_guess_takes_names_as_labels_leaves_unnamed_sightings_out_and_fits_the_smoothers_frames():
-    from benchmarks.mrclam_chained_names import named_problem
     from estimation.fresh_start import names_guess
+    from estimation.named_smoothing import named_problem
     log, noise, config, _ = _robot2(until=120.0)
     barcodes = np.asarray(log.landmark_ids, np.int64)
     posts = np.unique(barcodes)

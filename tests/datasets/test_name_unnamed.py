@@ -14,7 +14,7 @@ from .test_constellation import _robot2
 
 
 def _state(log, names, noise, config, drift):
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
+    from estimation.named_smoothing import MergeRound, smooth_named
     named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
     return MergeRound([], 0.0, 0.0, True, names, named, solution)
 

@@ -51,8 +51,8 @@ def test_offset_groups_are_the_chains_common_names_and_the_rest_by_visit(rows):
 def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_voted_out(tmp_path, monkeypatch):
     from benchmarks import mrclam_constellation as chain
     from benchmarks import mrclam_seed_vote
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from estimation.landmark_smoother import HeadingDrift
+    from estimation.named_smoothing import MergeRound, smooth_named
 
     log, noise, config, _ = _robot2(until=300.0)
     drift = HeadingDrift(0.16, 10.0, sigma_per_rad=0.3)          # the chain's, with session 30's slip
@@ -109,8 +109,8 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
 
 def test_runs_of_different_commands_are_not_voted(tmp_path):
     from benchmarks import mrclam_constellation as chain
-    from benchmarks.mrclam_chained_names import MergeRound, smooth_named
     from benchmarks.mrclam_seed_vote import vote_robot
+    from estimation.named_smoothing import MergeRound, smooth_named
 
     log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64)
