@@ -88,14 +88,16 @@ names against an earlier pass's *together* (:mod:`estimation.constellation`).
 
 The method (the barcodes never decide; they only score):
 
-1. **Names**: session 21's chained names (``mrclam_chained_names._chained``, the same ``--names-cache``), smoothed
+1. **Names**: session 21's chained names (``mrclam_chained_names._chained``, the same ``--names-cache``; the method
+   is :mod:`estimation.chained_names`, the smoothing :mod:`estimation.named_smoothing`), smoothed
    with the heading drift (``--drift``, default σ_b 0.16 rad/m, τ 10 s, E's) from the known-ID filter's guess; the
    odometry increments between sighting frames with their variance along the path driven (``--path-step``, 0.25 s
    steps; session 25: the chord's variance made a gap of sightings in which the robot turned back and forth as
    certain as no turn). 1b. With ``--split-bends``: names split where the odometry bends and the cost says so
    (:func:`split_at_bends`; session 25: a chained name holding a run of another post's sightings).
-2. **Passes**: the log cut into disjoint spans of ``--pass-seconds``; a pass holds the names with at least
-   ``--min-sightings`` kept sightings in its span.
+2. **Passes** (steps 2 to 4's passes, joint tests and merge clusters are :mod:`estimation.pass_matching`'s): the
+   log cut into disjoint spans of ``--pass-seconds``; a pass holds the names with at least ``--min-sightings`` kept
+   sightings in its span.
 3. **Joint test**: each pass P against each earlier pass Q
    (:func:`estimation.constellation.match_constellation`; names both hold are pairings already made, counted
    towards ``--min-pairs``, the others are tested): positions and joint covariance from the smoother
@@ -171,11 +173,9 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from dataclasses import dataclass, field  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -230,9 +230,20 @@ from estimation.named_smoothing import (  # noqa: E402
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
 from estimation.pairwise_audit import refused_alone  # noqa: E402
+from estimation.pass_matching import (  # noqa: E402
+    STATUSES,
+    Pass,
+    PassVerdict,
+    clusters_of,
+    judge_passes,
+    merges_from,
+    mutual_merges,
+    name_pairs,
+    passes_of,
+    without_members,
+    without_pairings,
+)
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
-
-STATUSES = ("matched", "ambiguous", "too_few", "incompatible", "no_earlier")
 
 # a visit: one name's sightings less than this apart (the offset group of a sighting named late)
 VISIT_GAP_S = 5.0
@@ -259,165 +270,18 @@ _LOSS: dict = {"heading": None}
 
 
 def _smooth_named(log, names, noise, config, **kwargs):
-    """:func:`mrclam_chained_names.smooth_named` with the run's sighting offset (``--sighting-offset``) and heading
-    loss (``--heading-loss``), if any."""
+    """:func:`estimation.named_smoothing.smooth_named` with the run's sighting offset (``--sighting-offset``) and
+    heading loss (``--heading-loss``), if any."""
     return smooth_named(log, names, noise, config, sighting_offset=_OFFSET["option"], offset_names=_OFFSET["names"],
                         heading_loss=_LOSS["heading"], **kwargs)
 
 
 def _cost(problem, solution) -> float:
-    """:func:`mrclam_chained_names.truncated_cost` with the run's heading loss (the cost its smoothings minimise);
+    """:func:`estimation.named_smoothing.truncated_cost` with the run's heading loss (the cost its smoothings minimise);
     without one, the call it always was (tests stand in for it with a function of the problem and solution)."""
     if _LOSS["heading"] is None:
         return truncated_cost(problem, solution)
     return truncated_cost(problem, solution, heading_loss=_LOSS["heading"])
-
-
-@dataclass
-class Pass:
-    """One span of the log: [start, end) s, the landmark indices (of the named problem) it holds."""
-
-    start: float
-    end: float
-    landmarks: np.ndarray
-
-
-@dataclass
-class PassVerdict:
-    """A pass's outcome against every earlier pass: status, its pairings (landmark indices) when matched, the
-    number of pairings and the smallest log likelihood ratio over a rival among the matched earlier passes."""
-
-    index: int
-    status: str
-    pairs: list[tuple[int, int]] = field(default_factory=list)
-    strength: tuple[int, float] = (0, 0.0)
-    matched_earlier: int = 0
-    unique: bool | None = None
-
-
-def passes_of(named: NamedProblem, solution: Smoothed, seconds: float, min_sightings: int) -> list[Pass]:
-    """The log cut into spans of ``seconds`` from its first frame; each span's landmarks with ≥ ``min_sightings``
-    kept sightings in it."""
-    problem = named.problem
-    times = named.frame_times[problem.pose_index - 1]
-    kept = solution.inliers
-    out = []
-    t = float(named.frame_times[0])
-    end = float(named.frame_times[-1])
-    while t <= end:
-        rows = kept & (times >= t) & (times < t + seconds)
-        marks, counts = np.unique(problem.landmark_index[rows], return_counts=True)
-        out.append(Pass(t, t + seconds, marks[counts >= min_sightings]))
-        t += seconds
-    return out
-
-
-def judge_passes(positions: np.ndarray, covariance: np.ndarray, covisible: np.ndarray, passes: list[Pass], *,
-                 min_pairs: int, ratio: float, probability: float = 0.99, fewer_rival: bool = False,
-                 distinct_points: bool = False) -> list[PassVerdict]:
-    """Every pass against every earlier pass (module docstring, step 3): positions (n, 2)
-    and their joint covariance (2n, 2n), covisible (n, n) names sighted in one frame (never paired)."""
-    n = len(positions)
-    allowed = ~covisible
-    seen = np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1)
-    out = []
-    for i, p in enumerate(passes):
-        mine = [int(k) for k in p.landmarks if seen[k]]
-        matched, statuses, hypotheses = [], [], []
-        for q in passes[:i]:
-            theirs = [int(k) for k in q.landmarks if seen[k]]
-            # a name both passes hold is already one post: a pairing the constellation counts, with nothing to
-            # test (its difference is zero by construction; the others' joint covariance carries it)
-            shared = set(mine) & set(theirs)
-            rest_p = [k for k in mine if k not in shared]
-            rest_q = [k for k in theirs if k not in shared]
-            if not rest_p or not rest_q:
-                continue
-            result = match_constellation(positions, covariance, rest_p, rest_q, allowed=allowed,
-                                         min_pairs=max(min_pairs - len(shared), 1), probability=probability,
-                                         ratio=ratio, fewer_rival=fewer_rival, distinct_points=distinct_points)
-            statuses.append(result.status)
-            if result.status == "matched":
-                matched.append(result)
-            if result.status in ("matched", "ambiguous"):
-                hypotheses += [h for h in (result.best, result.rival) if h is not None]
-        if matched:
-            # every compatible hypothesis of enough pairings, against any earlier pass, must be able to hold
-            # together with the matches: else the constellation has two places in the map
-            pairs = sorted({pair for h in hypotheses for pair in h.pairs})
-            d2, _ = joint_d2(positions, covariance, pairs)
-            if d2 < chi2.ppf(probability, 2 * len(pairs)):
-                strength = (max(len(m.best.pairs) for m in matched), min(m.log_ratio for m in matched))
-                out.append(PassVerdict(i, "matched", pairs, strength, len(matched), True))
-            else:
-                out.append(PassVerdict(i, "ambiguous", [], (0, 0.0), len(matched), False))
-            continue
-        for status in ("ambiguous", "too_few", "incompatible"):
-            if status in statuses:
-                out.append(PassVerdict(i, status, unique=False if status == "ambiguous" else None))
-                break
-        else:
-            out.append(PassVerdict(i, "no_earlier"))
-    return out
-
-
-def merges_from(verdicts: list[PassVerdict], covisible: np.ndarray) -> tuple[dict[int, int], list[PassVerdict]]:
-    """{landmark: its cluster's root} from the matched passes' pairings, strongest pass first; a pass whose pairings
-    would put two co-visible landmarks in one cluster is skipped whole. Returns the map and the passes used."""
-    parent: dict[int, int] = {}
-    members: dict[int, set[int]] = {}
-    used = []
-    for v in sorted((v for v in verdicts if v.status == "matched"), key=lambda v: (-v.strength[0], -v.strength[1])):
-        trial_parent = dict(parent)
-        trial_members = {k: set(s) for k, s in members.items()}
-        ok = True
-        for a, b in v.pairs:
-            ra, rb = _root(trial_parent, a), _root(trial_parent, b)
-            if ra == rb:
-                continue
-            ga, gb = trial_members.get(ra, {ra}), trial_members.get(rb, {rb})
-            if covisible[np.ix_(sorted(ga), sorted(gb))].any():
-                ok = False
-                break
-            keep, drop = min(ra, rb), max(ra, rb)
-            trial_parent[drop] = keep
-            trial_members[keep] = ga | gb
-            trial_members.pop(drop, None)
-        if ok:
-            parent, members = trial_parent, trial_members
-            used.append(v)
-    return {x: _root(parent, x) for x in parent}, used
-
-
-def mutual_merges(verdicts: list[PassVerdict], covisible: np.ndarray, positions: np.ndarray, covariance: np.ndarray,
-                  probability: float = 0.99) -> tuple[dict[int, int], list[PassVerdict], list[list[int]]]:
-    """:func:`merges_from`, with each cluster whose members are not all within each other's χ²₂ gate at
-    ``probability`` (:func:`estimation.constellation.pairwise_d2`: the pairwise rounds' own link) set aside for the
-    round: its names' pairings dropped from the matched passes and the clusters formed again, until none fails. A
-    pass links each name to its partner only, so a loose name can join two tight names that no pass pairs and that
-    cannot be one point (session 31, B: robot 1 seed 2's wrong merge, a 3-sighting glimpse of post 8 joined to post
-    9's names through a post-9 name of σ 0.52 m, 1.16 m between the glimpse and post 9's names, d² 11.7–14.2).
-    Returns the clusters, the passes used and the clusters set aside (landmark indices)."""
-    gate = float(chi2.ppf(probability, 2))
-    aside: list[list[int]] = []
-    while True:
-        clusters, used = merges_from(verdicts, covisible)
-        members: dict[int, set[int]] = {}
-        for k, r in clusters.items():
-            members.setdefault(r, {r}).add(k)
-        apart = [m for m in (sorted(x) for x in members.values())
-                 if np.any(pairwise_d2(positions, covariance, m)[np.triu_indices(len(m), 1)] >= gate)]
-        if not apart:
-            return clusters, used, aside
-        aside += apart
-        out = {x for m in apart for x in m}
-        verdicts = without_pairings(verdicts, lambda a, b, out=out: a in out or b in out)
-
-
-def _root(parent: dict[int, int], x: int) -> int:
-    while parent.get(x, x) != x:
-        x = parent[x]
-    return x
 
 
 def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
@@ -471,21 +335,6 @@ def audit_batch(log, current: MergeRound, attempt: MergeRound) -> set[int]:
     return {index[e] for e, h in zip(earlier, hold, strict=True) if h}
 
 
-def without_members(clusters: dict[int, int], out: set[int]) -> dict[int, int]:
-    """``clusters`` (landmark index → root) without the indices ``out``: a group that loses its root takes its
-    smallest member left as root, a group left with one name goes."""
-    groups: dict[int, set[int]] = {}
-    for k, r in clusters.items():
-        groups.setdefault(r, {r}).add(k)
-    kept = {}
-    for r, members in groups.items():
-        left = members - out
-        if len(left) >= 2:
-            root = r if r in left else min(left)
-            kept.update({m: root for m in left if m != root})
-    return kept
-
-
 def _merge_once(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
                 path_step_s: float | None = None, fresh_start=None) -> MergeRound:
     """:func:`apply_merges` without the audit: the batch merged, re-smoothed (and, refused, from ``fresh_start`` too)
@@ -522,33 +371,6 @@ def _merge_once(log, current: MergeRound, clusters: dict[int, int], noise, confi
     if rise <= bound:
         return MergeRound(merged, rise, bound, True, names, named, solution)
     return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
-
-
-def name_pairs(verdicts: list[PassVerdict], named: NamedProblem) -> list[list[tuple[int, int]]]:
-    """Each pass's pairings as names (they outlive the landmark indices of one smoothing)."""
-    return [[(int(named.names[a]), int(named.names[b])) for a, b in v.pairs] for v in verdicts]
-
-
-def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias: dict[int, int], *,
-                kept_covisible: bool = False) -> dict[int, int]:
-    """:func:`merges_from` on ``current``'s landmark indices for passes given as name pairs; ``alias`` maps a name
-    absorbed by an earlier merge to the name that absorbed it."""
-    index = {int(x): k for k, x in enumerate(current.named.names)}
-
-    def now(x: int) -> int:
-        while x in alias:
-            x = alias[x]
-        return x
-
-    verdicts = []
-    for pairs in passes:
-        at = [(index[now(a)], index[now(b)]) for a, b in pairs if now(a) in index and now(b) in index]
-        at = [(a, b) for a, b in at if a != b]
-        if at:
-            verdicts.append(PassVerdict(0, "matched", at))
-    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names),
-                           kept_only=kept_covisible)
-    return merges_from(verdicts, covisible)[0]
 
 
 def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]], noise, config, drift, *,
@@ -978,14 +800,6 @@ def rival_options(args, round_number: int) -> dict:
     """A's ``--fewer-rival``/``--distinct-points`` for round ``round_number``: off after ``--rival-rounds``."""
     on = args.rival_rounds is None or round_number <= args.rival_rounds
     return {"fewer_rival": args.fewer_rival and on, "distinct_points": args.distinct_points and on}
-
-
-def without_pairings(verdicts: list[PassVerdict], drop) -> list[PassVerdict]:
-    """``verdicts`` with the matched passes' pairings (a, b) for which ``drop(a, b)`` holds removed; a matched pass
-    left without pairings goes (it would merge nothing), the other verdicts stay as they are."""
-    kept = [dataclasses.replace(v, pairs=[(a, b) for a, b in v.pairs if not drop(a, b)]) if v.status == "matched"
-            else v for v in verdicts]
-    return [v for v in kept if v.status != "matched" or v.pairs]
 
 
 def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float,

@@ -5,7 +5,6 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from benchmarks.mrclam_constellation import PassVerdict, merges_from
 from benchmarks.mrclam_pass_support import (
     held_passes,
     hold_back,
@@ -14,6 +13,7 @@ from benchmarks.mrclam_pass_support import (
     visit_labels,
     without_groups,
 )
+from estimation.pass_matching import PassVerdict, merges_from
 
 
 def matched(index: int, pairs, best: int | None = None, earlier: int = 1) -> PassVerdict:

@@ -156,20 +156,6 @@ def test_joint_d2_is_the_sum_for_independent_pairs_and_rejects_bad_input():
         match_constellation(positions, covariance, [0], [1], min_pairs=0)
 
 
-def test_merges_join_the_strongest_passes_first_and_never_two_names_seen_together():
-    from benchmarks.mrclam_constellation import PassVerdict, merges_from
-
-    covisible = np.eye(8, dtype=bool)
-    covisible[5, 7] = covisible[7, 5] = True             # names 5 and 7 were sighted in one frame
-    strong = PassVerdict(0, "matched", [(4, 0), (5, 1), (6, 2)], (3, 9.0))
-    clash = PassVerdict(1, "matched", [(7, 3), (1, 7)], (3, 2.0))   # after the strong one: 7 ~ 1 ~ 5
-    refused = PassVerdict(2, "ambiguous")
-    clusters, used = merges_from([clash, refused, strong], covisible)
-    assert used == [strong]
-    assert {k: clusters[k] for k in (4, 5, 6)} == {4: 0, 5: 1, 6: 2}
-    assert 7 not in clusters and 3 not in clusters
-
-
 @settings(max_examples=30, deadline=None)
 @given(st.integers(2, 12), st.data())
 def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_takes(n_passes, data):

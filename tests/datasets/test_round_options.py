@@ -1,59 +1,20 @@
-"""benchmarks/mrclam_constellation's session-31 options, through the benchmark's own functions with the smoother and
-its cost stood in for: ``--mutual-rounds`` (helper B: a round's cluster merges only when its members are all within
-each other's gate), ``--fresh-start`` (helper A: a refused whole batch judged again from the filter's guess) and
-``--audit-parts``' regrouping (helper C: the names an audit holds back leave their groups)."""
+"""benchmarks/mrclam_constellation's session-31 and 32 options, through the benchmark's own functions with the
+smoother and its cost stood in for: ``--fresh-start`` (helper A: a refused whole batch judged again from the filter's
+guess), ``--audit-parts`` (helper C: a batch whose every merge the audit holds back keeps nothing) and
+``--pairwise-alone``. ``--mutual-rounds``' clusters and the audit's regrouping are
+:mod:`estimation.pass_matching`'s (tests/estimation/test_pass_matching.py)."""
 from __future__ import annotations
 
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 import benchmarks.mrclam_constellation as mc
-from estimation import chi2
-from estimation.constellation import pairwise_d2
-
-GATE = float(chi2.ppf(0.99, 2))
 
 
 def _matched(i, pairs):
     return mc.PassVerdict(i, "matched", pairs, (len(pairs), 1.0), 1, True)
-
-
-def test_a_loose_name_does_not_join_two_tight_names_that_cannot_be_one_point():
-    # post 9's tight name 0 and a tight glimpse 1 of post 8, 1.16 m apart; name 2 of post 9 loose (σ 0.5 m) between
-    positions = np.array([[0.0, 0.0], [1.16, 0.0], [0.3, 0.0]])
-    covariance = np.diag(np.repeat([0.15, 0.3, 0.5], 2) ** 2)
-    covisible = np.zeros((3, 3), bool)
-    verdicts = [_matched(0, [(2, 0)]), _matched(1, [(2, 1)])]          # each pass: the loose name and one partner
-    assert mc.merges_from(verdicts, covisible)[0] == {1: 0, 2: 0}       # one cluster through the loose name
-    clusters, used, aside = mc.mutual_merges(verdicts, covisible, positions, covariance)
-    assert aside == [[0, 1, 2]] and clusters == {} and used == []
-    clusters, used, aside = mc.mutual_merges(verdicts[:1], covisible, positions, covariance)
-    assert clusters == {2: 0} and aside == []                            # the loose name and one partner merge
-
-
-@settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2 ** 16))
-def test_every_cluster_merged_is_mutually_within_the_gate_and_every_one_set_aside_is_not(seed):
-    rng = np.random.default_rng(seed)
-    n = 10
-    positions = rng.uniform(0, 3, (n, 2))
-    covariance = np.diag(np.repeat(rng.uniform(0.05, 0.8, n), 2) ** 2)
-    covisible = np.zeros((n, n), bool)
-    verdicts = [_matched(i, [tuple(int(x) for x in rng.choice(n, 2, replace=False))]) for i in range(8)]
-    clusters, used, aside = mc.mutual_merges(verdicts, covisible, positions, covariance)
-    members = {}
-    for k, r in clusters.items():
-        members.setdefault(r, {r}).add(k)
-    for m in members.values():
-        m = sorted(m)
-        assert np.all(pairwise_d2(positions, covariance, m)[np.triu_indices(len(m), 1)] < GATE)
-    for m in aside:
-        assert np.any(pairwise_d2(positions, covariance, m)[np.triu_indices(len(m), 1)] >= GATE)
-        assert not set(m) & (set(clusters) | set(clusters.values()))
 
 
 def _one_merge_batch(monkeypatch, costs: dict[str, float]):
@@ -96,21 +57,6 @@ def test_a_kept_batch_never_calls_the_fresh_start(monkeypatch):
         raise AssertionError("a kept batch needs no other start")
 
     assert mc.apply_merges(None, current, clusters, None, None, None, fresh_start=fresh_start).accepted
-
-
-@given(st.lists(st.integers(0, 5), max_size=25), st.sets(st.integers(0, 24)))
-def test_names_held_back_leave_their_groups_and_the_rest_stay_together(group_of, out):
-    groups = {}
-    for index, group in enumerate(group_of):
-        groups.setdefault(group, set()).add(index)
-    clusters = {k: min(m) for m in groups.values() for k in m if k != min(m)}     # index -> root, as merges_from
-    kept = mc.without_members(clusters, out)
-    assert not (set(kept) | set(kept.values())) & out
-    regrouped = {}
-    for k, r in kept.items():
-        regrouped.setdefault(r, {r}).add(k)
-    expected = [m - out for m in groups.values() if len(m - out) >= 2]
-    assert sorted(map(sorted, regrouped.values())) == sorted(map(sorted, expected))
 
 
 def test_a_batch_whose_every_merge_the_audit_holds_back_keeps_nothing_and_is_not_refused(monkeypatch):
