@@ -199,7 +199,7 @@ from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402
-from estimation.fresh_start import judge_at_starts, names_guess  # noqa: E402
+from estimation.fresh_start import names_guess  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
@@ -209,7 +209,6 @@ from estimation.landmark_smoother import (  # noqa: E402
     SightingOffset,
     Smoothed,
     joint_landmark_covariance,
-    normalised_residuals,
 )
 from estimation.map_honesty import (  # noqa: E402
     flagged_landmarks,
@@ -220,12 +219,12 @@ from estimation.map_honesty import (  # noqa: E402
     split_threshold,
 )
 from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
+from estimation.name_merging import NamedSmoother, merge_guarded, merge_once, split_at_bends  # noqa: E402
 from estimation.named_smoothing import (  # noqa: E402
     MergeRound,
     NamedProblem,
     named_problem,
     smooth_named,
-    truncated_cost,
 )
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
@@ -234,13 +233,11 @@ from estimation.pass_matching import (  # noqa: E402
     STATUSES,
     Pass,
     PassVerdict,
-    clusters_of,
     judge_passes,
     merges_from,
     mutual_merges,
     name_pairs,
     passes_of,
-    without_members,
     without_pairings,
 )
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
@@ -265,8 +262,20 @@ _AUDIT: dict = {"floor_m": None, "untestable": True, "records": []}
 
 # ``--heading-loss``: the smoother's heavy-tailed loss on the odometry's heading residuals
 # (estimation.landmark_smoother.HeadingLoss; None: Gaussian), set by run_robot; every smoothing goes through
-# _smooth_named and every cost the merges are judged by through _cost, which add it
+# _smooth_named and every cost the merges are judged by through the run's NamedSmoother (_smoother), which add it
 _LOSS: dict = {"heading": None}
+
+
+def _smoother(log, noise, config, drift, path_step_s) -> NamedSmoother:
+    """The run's :class:`estimation.name_merging.NamedSmoother`: its sighting offset and heading loss as they stand."""
+    return NamedSmoother(log, noise, config, drift, path_step_s, _OFFSET["option"], _OFFSET["names"], _LOSS["heading"])
+
+
+def _audit(log):
+    """``--audit-parts``' audit of a kept batch (:func:`audit_batch`), or None when it is off."""
+    if _AUDIT["floor_m"] is None:
+        return None
+    return lambda current, attempt: audit_batch(log, current, attempt)
 
 
 def _smooth_named(log, names, noise, config, **kwargs):
@@ -274,38 +283,6 @@ def _smooth_named(log, names, noise, config, **kwargs):
     heading loss (``--heading-loss``), if any."""
     return smooth_named(log, names, noise, config, sighting_offset=_OFFSET["option"], offset_names=_OFFSET["names"],
                         heading_loss=_LOSS["heading"], **kwargs)
-
-
-def _cost(problem, solution) -> float:
-    """:func:`estimation.named_smoothing.truncated_cost` with the run's heading loss (the cost its smoothings minimise);
-    without one, the call it always was (tests stand in for it with a function of the problem and solution)."""
-    if _LOSS["heading"] is None:
-        return truncated_cost(problem, solution)
-    return truncated_cost(problem, solution, heading_loss=_LOSS["heading"])
-
-
-def apply_merges(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
-                 path_step_s: float | None = None, fresh_start=None) -> MergeRound:
-    """Names joined by ``clusters`` (landmark index → root), re-smoothed from the current solution (or, with
-    ``reguess(names) -> (poses, {name: position})``, from that guess); kept when the truncated cost rises by no more
-    than χ² 99 % for 2 per absorbed name (module docstring, step 4). With ``--audit-parts`` (session 31, C) a kept
-    batch is audited part by part on its merged map (:func:`audit_batch`) and merged again without the names it
-    holds back, up to three times; a batch it holds back whole keeps nothing (accepted, no merge: not bisected).
-    ``fresh_start`` (a guess as ``reguess``'s, ``--fresh-start``; session 31, A): a batch refused from the current
-    solution is smoothed again from it and judged at the lower cost (:func:`estimation.fresh_start.judge_at_starts`:
-    the current solution can be a local minimum that refuses right loop closures)."""
-    attempt = _merge_once(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
-    for _ in range(3):
-        if not (attempt.accepted and _AUDIT["floor_m"] is not None):
-            break
-        held = audit_batch(log, current, attempt)
-        if not held:
-            break
-        clusters = without_members(clusters, held)
-        if not clusters:
-            return MergeRound([], 0.0, 0.0, True, current.names, current.named, current.solution)
-        attempt = _merge_once(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
-    return attempt
 
 
 def audit_batch(log, current: MergeRound, attempt: MergeRound) -> set[int]:
@@ -333,148 +310,6 @@ def audit_batch(log, current: MergeRound, attempt: MergeRound) -> set[int]:
                                              strict=True) if h]})
     index = {int(x): k for k, x in enumerate(current.named.names)}
     return {index[e] for e, h in zip(earlier, hold, strict=True) if h}
-
-
-def _merge_once(log, current: MergeRound, clusters: dict[int, int], noise, config, drift, reguess=None,
-                path_step_s: float | None = None, fresh_start=None) -> MergeRound:
-    """:func:`apply_merges` without the audit: the batch merged, re-smoothed (and, refused, from ``fresh_start`` too)
-    and cost-checked once."""
-    names = current.names.copy()
-    index_name = current.named.names
-    position = dict(zip(index_name.tolist(), current.solution.landmarks, strict=True))
-    groups: dict[int, list[int]] = {}
-    for k, r in clusters.items():
-        groups.setdefault(r, []).append(k)
-    merged = []
-    for r, ks in groups.items():
-        keep = int(index_name[r])
-        all_names = {int(index_name[k]) for k in ks} | {keep}
-        position[keep] = np.mean([position[x] for x in all_names], axis=0)
-        for x in all_names - {keep}:
-            names[names == x] = keep
-            merged.append((keep, x))
-    initial_poses = current.solution.poses
-    if reguess is not None:         # a fresh start: the known-ID filter and smoother on the merged names
-        initial_poses, position = reguess(names)
-    named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses,
-                                   initial=position, heading_drift=drift, path_step_s=path_step_s)
-    before = _cost(current.named.problem, current.solution)
-    rise = _cost(named.problem, solution) - before
-    bound = float(chi2.ppf(0.99, 2 * len(merged)))
-    if rise > bound and fresh_start is not None and reguess is None:
-        poses, guessed = fresh_start(names)
-        fresh = _smooth_named(log, names, noise, config, initial_poses=poses, initial=guessed, heading_drift=drift,
-                              path_step_s=path_step_s)
-        verdict = judge_at_starts(before, [before + rise, _cost(fresh[0].problem, fresh[1])], bound)
-        if verdict.best == 1:
-            (named, solution), rise = fresh, verdict.rise
-    if rise <= bound:
-        return MergeRound(merged, rise, bound, True, names, named, solution)
-    return MergeRound(merged, rise, bound, False, current.names, current.named, current.solution)
-
-
-def merge_bisecting(log, current: MergeRound, passes: list[list[tuple[int, int]]], noise, config, drift, *,
-                    depth: int, alias: dict[int, int], reguess=None, path_step_s: float | None = None,
-                    kept_covisible: bool = False, fresh_start=None) -> tuple[MergeRound, list[MergeRound]]:
-    """The passes' merges (strongest first) as one batch; a batch the cost check refuses is cut in two halves, each
-    tried in turn (the second on top of the first if it was kept), down to ``depth`` cuts; a batch still refused at
-    the last level is retried as its strongest pass alone (depth 0: U's rule, the strongest pass alone at once).
-    Returns the last kept state and every attempt; ``alias`` gains the names each kept merge absorbed.
-    ``fresh_start``: :func:`apply_merges`' for this whole batch only, not its halves."""
-    clusters = clusters_of(current, passes, alias, kept_covisible=kept_covisible)
-    if not clusters:
-        return current, []
-    attempt = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
-    attempts = [attempt]
-    if attempt.accepted:
-        alias.update({x: keep for keep, x in attempt.merged})
-        return attempt, attempts
-    if len(passes) == 1:
-        return current, attempts
-    if depth <= 0:
-        state, more = merge_bisecting(log, current, passes[:1], noise, config, drift, depth=0, alias=alias,
-                                      reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
-        return state, attempts + more
-    half = (len(passes) + 1) // 2
-    state, first = merge_bisecting(log, current, passes[:half], noise, config, drift, depth=depth - 1, alias=alias,
-                                   reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
-    state, second = merge_bisecting(log, state, passes[half:], noise, config, drift, depth=depth - 1, alias=alias,
-                                    reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
-    return state, attempts + first + second
-
-
-def merge_guarded(log, current: MergeRound, passes: list[list[tuple[int, int]]],
-                  guarded: list[list[tuple[int, int]]] | None, noise, config, drift, *, depth: int, reguess=None,
-                  path_step_s: float | None = None, kept_covisible: bool = False, fresh_start=None
-                  ) -> tuple[MergeRound, list[MergeRound]]:
-    """The round's batch whole; if the cost check refuses it and the guard set groups aside (``guarded``: the groups
-    it kept, as name pairs; None: it set none aside or is off), the guard's groups are tried and bisected instead of
-    the whole batch (the cost check says something in the batch is wrong, the guard's shares say which); else
-    :func:`merge_bisecting` as before. Returns the last kept state and every attempt."""
-    if guarded is None:
-        return merge_bisecting(log, current, passes, noise, config, drift, depth=depth, alias={}, reguess=reguess,
-                               path_step_s=path_step_s, kept_covisible=kept_covisible, fresh_start=fresh_start)
-    clusters = clusters_of(current, passes, {}, kept_covisible=kept_covisible)
-    if not clusters:
-        return current, []
-    whole = apply_merges(log, current, clusters, noise, config, drift, reguess, path_step_s, fresh_start)
-    if whole.accepted:
-        return whole, [whole]
-    state, more = merge_bisecting(log, current, guarded, noise, config, drift, depth=depth, alias={},
-                                  reguess=reguess, path_step_s=path_step_s, kept_covisible=kept_covisible)
-    return state, [whole] + more
-
-
-def split_at_bends(log, current: MergeRound, noise, config, drift, *, path_step_s: float | None = None,
-                   window_s: float = 20.0, bend_probability: float = 0.999, probability: float = 0.99,
-                   on_try=None) -> tuple[MergeRound, list[dict]]:
-    """Names split where the odometry bends (module docstring, step 1b): each increment whose normalised odometry
-    χ²₃ exceeds ``bend_probability``; each name with kept sightings within ``window_s`` s on both sides of it is
-    split there (its sightings from the bend on get a new name) and re-smoothed alone; a split is kept when the
-    truncated cost falls by more than χ²₂ at ``probability``. The kept splits are applied together and re-smoothed.
-    Returns the new state (``current`` if none is kept) and each split tried (name, time, cost drop, kept), each
-    also given to ``on_try(split)`` as it is measured (a benchmark's progress)."""
-    problem, solution = current.named.problem, current.solution
-    odometry = normalised_residuals(problem, solution)[0]
-    times = current.named.frame_times
-    sighted = times[problem.pose_index - 1]
-    base = _cost(problem, solution)
-    position = dict(zip(current.named.names.tolist(), solution.landmarks, strict=True))
-    next_name = int(current.names.max()) + 1
-    tried, kept = [], []
-    bend_bound = chi2.ppf(bend_probability, 3)
-    for j in np.flatnonzero(np.sum(odometry ** 2, axis=1) > bend_bound):
-        at = float(times[j])
-        near = solution.inliers & (sighted >= at - window_s) & (sighted < at + window_s)
-        for k in np.unique(problem.landmark_index[near]):
-            mine = near & (problem.landmark_index == k)
-            if not (np.any(mine & (sighted < at)) and np.any(mine & (sighted >= at))):
-                continue
-            name = int(current.named.names[k])
-            names = current.names.copy()
-            names[(names == name) & (log.sighting_times >= at)] = next_name
-            named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses,
-                                        initial={**position, next_name: position[name]}, heading_drift=drift,
-                                        path_step_s=path_step_s)
-            drop = base - _cost(named.problem, trial)
-            keep = drop > chi2.ppf(probability, 2)
-            tried.append({"name": name, "t": at, "cost_drop": float(drop), "kept": bool(keep)})
-            if on_try is not None:
-                on_try(tried[-1])
-            if keep:
-                kept.append((name, at))
-    if not kept:
-        return current, tried
-    names = current.names.copy()
-    initial = dict(position)
-    for name, at in kept:
-        names[(names == name) & (log.sighting_times >= at)] = next_name
-        initial[next_name] = position[name]
-        next_name += 1
-    named, trial = _smooth_named(log, names, noise, config, initial_poses=solution.poses, initial=initial,
-                                heading_drift=drift, path_step_s=path_step_s)
-    rise = _cost(named.problem, trial) - base
-    return MergeRound([], rise, 0.0, True, names, named, trial), tried
 
 
 def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
@@ -588,7 +423,7 @@ def run_robot(log: RangeBearingLog, args) -> dict:
             if args.progress:
                 print(f"  split name {t['name']} at {t['t']:.1f} s: cost drop {t['cost_drop']:.1f}", file=sys.stderr,
                       flush=True)
-        current, tried = split_at_bends(log, current, noise, config, drift, path_step_s=path_step_s, on_try=on_try)
+        current, tried = split_at_bends(_smoother(log, noise, config, drift, path_step_s), current, on_try=on_try)
         code = np.asarray(barcodes)
         for t in tried:       # scored: the barcodes of the name's sightings before and after the split
             mine = names == t["name"]
@@ -837,10 +672,11 @@ def _merge_recorded(log: RangeBearingLog, current: MergeRound, used: list[PassVe
     if args.fresh_start:       # the filter's guess on the merged names (no barcodes), for a refused whole batch
         def fresh_start(merged_names):
             return names_guess(log, merged_names, noise, config, np.random.default_rng(args.seed))
-    state, attempts = merge_guarded(log, current, name_pairs(used, current.named),
-                                    None if guarded is None else name_pairs(guarded, current.named), noise, config,
-                                    drift, depth=args.bisect, reguess=reguess, path_step_s=_path_step(args),
-                                    kept_covisible=kept_covisible, fresh_start=fresh_start)
+    state, attempts = merge_guarded(_smoother(log, noise, config, drift, _path_step(args)), current,
+                                    name_pairs(used, current.named),
+                                    None if guarded is None else name_pairs(guarded, current.named),
+                                    depth=args.bisect, reguess=reguess, kept_covisible=kept_covisible,
+                                    fresh_start=fresh_start, audit=_audit(log))
     record["batch"] = _round(log, attempts[0], owner)
     record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
     record["cpu_s"] = time.process_time() - started
@@ -1357,8 +1193,8 @@ def _alone_checked(log: RangeBearingLog, current: MergeRound, used: list[PassVer
     glimpse: 9.6 alone against 9.2, 14.2 against 23.2 in its batch of five). Recorded (scored by the barcodes)."""
     rises, absorbed = [], []
     for v in used:
-        alone = _merge_once(log, current, merges_from([v], covisible)[0], noise, config, drift,
-                            path_step_s=_path_step(args))
+        alone = merge_once(_smoother(log, noise, config, drift, _path_step(args)), current,
+                           merges_from([v], covisible)[0])
         rises.append(alone.rise)
         absorbed.append(len(alone.merged))
     refused = refused_alone(rises, absorbed)

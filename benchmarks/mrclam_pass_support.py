@@ -49,21 +49,14 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
-from benchmarks.mrclam_constellation import (  # noqa: E402
-    PassVerdict,
-    guard_record,
-    judge_passes,
-    load_saved_state,
-    merges_from,
-    passes_of,
-    without_pairings,
-)
+from benchmarks.mrclam_constellation import guard_record, load_saved_state  # noqa: E402
 from benchmarks.mrclam_honesty import add_state_arguments, states  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.pass_matching import PassVerdict, judge_passes, merges_from, passes_of, without_pairings  # noqa: E402
 from runtime.commands.options import positive_float, positive_int  # noqa: E402
 
 

@@ -156,39 +156,6 @@ def test_joint_d2_is_the_sum_for_independent_pairs_and_rejects_bad_input():
         match_constellation(positions, covariance, [0], [1], min_pairs=0)
 
 
-@settings(max_examples=30, deadline=None)
-@given(st.integers(2, 12), st.data())
-def test_a_refused_batch_is_cut_in_halves_and_keeps_every_pass_the_cost_check_takes(n_passes, data):
-    # the cost check (stood in for here) refuses any batch that holds a bad pass; bisecting deep enough keeps every
-    # good pass, never a bad one, and a good batch is kept in one attempt
-    import benchmarks.mrclam_constellation as mc
-    from estimation.named_smoothing import MergeRound
-
-    bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), max_size=2)))
-    passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]       # pass k joins name 10k + 1 to 10k
-
-    def clusters_of(current, some, alias, **_):
-        return {a: b for pairs in some for a, b in pairs if a not in alias}
-
-    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None, fresh_start=None):
-        merged = [(b, a) for a, b in clusters.items()]
-        ok = not any(a // 10 in bad for a in clusters)
-        kept = current.merged + merged if ok else current.merged
-        return MergeRound(merged if not ok else kept, 0.0, 1.0, ok, None, None, None)
-
-    start = MergeRound([], 0.0, 0.0, True, None, None, None)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(mc, "clusters_of", clusters_of)
-        patch.setattr(mc, "apply_merges", apply_merges)
-        depth = int(np.ceil(np.log2(n_passes)))
-        state, attempts = mc.merge_bisecting(None, start, passes, None, None, None, depth=depth, alias={})
-    joined = {a // 10 for _, a in state.merged}
-    assert joined == set(range(n_passes)) - bad
-    if not bad:
-        assert len(attempts) == 1
-    assert len(attempts) <= 2 * n_passes - 1
-
-
 # ---- the last pairwise merges of a tight map, and the leave-one-out guard of a batch ------------------------------
 
 SIGMA_NAME = 0.02          # m, each name of a tight map alone
@@ -335,36 +302,6 @@ def test_pairwise_d2_is_joint_d2_of_each_pair_for_any_covariance(seed, n):
         for j in range(n):
             if i != j:
                 assert d2[i, j] == pytest.approx(joint_d2(positions, covariance, [(i, j)])[0], rel=1e-9)
-
-
-@settings(max_examples=20, deadline=None)
-@given(st.integers(2, 10), st.data())
-def test_a_refused_batch_is_retried_without_the_groups_the_guard_set_aside(n_passes, data):
-    import benchmarks.mrclam_constellation as mc
-    from estimation.named_smoothing import MergeRound
-
-    bad = set(data.draw(st.sets(st.integers(0, n_passes - 1), min_size=1, max_size=2)))
-    passes = [[(10 * k + 1, 10 * k)] for k in range(n_passes)]
-    guarded = [p for k, p in enumerate(passes) if k not in bad]      # the guard saw the bad ones
-
-    def clusters_of(current, some, alias, **_):
-        return {a: b for pairs in some for a, b in pairs if a not in alias}
-
-    def apply_merges(log, current, clusters, noise, config, drift, reguess=None, path_step_s=None, fresh_start=None):
-        ok = not any(a // 10 in bad for a in clusters)
-        merged = [(b, a) for a, b in clusters.items()]
-        return MergeRound(current.merged + merged if ok else merged, 0.0, 1.0, ok, None, None, None)
-
-    start = MergeRound([], 0.0, 0.0, True, None, None, None)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(mc, "clusters_of", clusters_of)
-        patch.setattr(mc, "apply_merges", apply_merges)
-        state, attempts = mc.merge_guarded(None, start, passes, guarded, None, None, None, depth=2)
-        unguarded, _ = mc.merge_guarded(None, start, passes, None, None, None, None, depth=0)
-    assert {a // 10 for _, a in state.merged} == set(range(n_passes)) - bad
-    assert len(attempts) == (2 if guarded else 1)      # the whole batch, then the guard's groups at once
-    assert not attempts[0].accepted
-    assert not ({a // 10 for _, a in unguarded.merged} & bad)
 
 
 @settings(max_examples=30, deadline=None)

@@ -1,8 +1,7 @@
-"""benchmarks/mrclam_constellation's session-31 and 32 options, through the benchmark's own functions with the
-smoother and its cost stood in for: ``--fresh-start`` (helper A: a refused whole batch judged again from the filter's
-guess), ``--audit-parts`` (helper C: a batch whose every merge the audit holds back keeps nothing) and
-``--pairwise-alone``. ``--mutual-rounds``' clusters and the audit's regrouping are
-:mod:`estimation.pass_matching`'s (tests/estimation/test_pass_matching.py)."""
+"""benchmarks/mrclam_constellation's ``--pairwise-alone`` (session 32, A), through the benchmark's own function with
+the run's smoother stood in for. The merges it checks, ``--fresh-start``'s second start and ``--audit-parts``' held-back
+batches are :mod:`estimation.name_merging`'s (tests/estimation/test_name_merging.py); ``--mutual-rounds``' clusters
+and the audit's regrouping :mod:`estimation.pass_matching`'s (tests/estimation/test_pass_matching.py)."""
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -11,81 +10,36 @@ import numpy as np
 import pytest
 
 import benchmarks.mrclam_constellation as mc
+from estimation.name_merging import merge_once
+from estimation.pass_matching import PassVerdict, merges_from
 
 
-def _matched(i, pairs):
-    return mc.PassVerdict(i, "matched", pairs, (len(pairs), 1.0), 1, True)
+class _PenaltySmoother:
+    """A smoother stood in for: a naming's cost is 100 plus the penalty of each name it no longer holds."""
 
+    def __init__(self, penalty: dict[int, float]):
+        self.penalty = penalty
 
-def _one_merge_batch(monkeypatch, costs: dict[str, float]):
-    """Two names (0, 1) merged; the smoother stood in for: each smoothing's cost by its start ("current" or
-    "fresh"), the state before at ``costs["before"]``."""
-    current = SimpleNamespace(names=np.array([0, 0, 1, 1]), named=SimpleNamespace(names=np.array([0, 1]), problem=None),
-                              solution=SimpleNamespace(landmarks=np.zeros((2, 2)), poses="current", start="before"))
+    def smooth(self, names, **_):
+        cost = 100.0 + sum(p for x, p in self.penalty.items() if x not in names)
+        return SimpleNamespace(problem=None), SimpleNamespace(cost=cost)
 
-    def smooth(log, names, noise, config, *, initial_poses, **_):
-        return SimpleNamespace(problem=None), SimpleNamespace(start=initial_poses)
-
-    monkeypatch.setattr(mc, "_smooth_named", smooth)
-    monkeypatch.setattr(mc, "truncated_cost", lambda problem, solution: costs[solution.start])
-    return current, {1: 0}
-
-
-@pytest.mark.parametrize("fresh_cost, kept", [(104.0, True), (130.0, False)])
-def test_a_refused_batch_is_kept_when_the_fresh_start_s_rise_is_within_the_bound(monkeypatch, fresh_cost, kept):
-    costs = {"before": 100.0, "current": 130.0, "fresh": fresh_cost}   # bound for one merge: χ²₂ 99 % = 9.21
-    current, clusters = _one_merge_batch(monkeypatch, costs)
-    starts = []
-
-    def fresh_start(names):
-        starts.append(names.copy())
-        return "fresh", {}
-
-    refused = mc.apply_merges(None, current, clusters, None, None, None)
-    assert not refused.accepted and refused.rise == pytest.approx(30.0)
-    attempt = mc.apply_merges(None, current, clusters, None, None, None, fresh_start=fresh_start)
-    assert len(starts) == 1 and np.array_equal(starts[0], [0, 0, 0, 0])   # the guess gets the merged names
-    assert attempt.accepted is kept
-    assert attempt.rise == pytest.approx(min(fresh_cost, 130.0) - 100.0)
-    assert (attempt.solution.start == "fresh") is kept
-
-
-def test_a_kept_batch_never_calls_the_fresh_start(monkeypatch):
-    current, clusters = _one_merge_batch(monkeypatch, {"before": 100.0, "current": 105.0})
-
-    def fresh_start(names):
-        raise AssertionError("a kept batch needs no other start")
-
-    assert mc.apply_merges(None, current, clusters, None, None, None, fresh_start=fresh_start).accepted
-
-
-def test_a_batch_whose_every_merge_the_audit_holds_back_keeps_nothing_and_is_not_refused(monkeypatch):
-    current, clusters = _one_merge_batch(monkeypatch, {"before": 100.0, "current": 102.0})
-    monkeypatch.setitem(mc._AUDIT, "floor_m", 0.042)
-    monkeypatch.setattr(mc, "audit_batch", lambda log, before, attempt: {0, 1})
-    held = mc.apply_merges(None, current, clusters, None, None, None)
-    assert held.accepted and held.merged == [] and held.names is current.names   # not bisected: nothing to cut
-    monkeypatch.setattr(mc, "audit_batch", lambda log, before, attempt: set())
-    assert mc.apply_merges(None, current, clusters, None, None, None).merged == [(0, 1)]
+    def cost(self, problem, solution):
+        return solution.cost
 
 
 def test_pairwise_alone_leaves_out_the_group_whose_own_rise_its_batch_would_hide(monkeypatch):
     # names 0..3, two groups: {0, 1} costs 2.0 merged, {2, 3} 9.6 (beyond χ²₂ 99 % = 9.21 for one absorbed name);
     # together 11.6, within χ²₄ 99 % = 13.28: the batch alone would keep the wrong group (session 32, A)
-    penalty = {1: 2.0, 3: 9.6}
+    smoother = _PenaltySmoother({1: 2.0, 3: 9.6})
     current = SimpleNamespace(names=np.array([0, 0, 1, 1, 2, 2, 3, 3]),
                               named=SimpleNamespace(names=np.arange(4), problem=None),
                               solution=SimpleNamespace(landmarks=np.zeros((4, 2)), poses=None, cost=100.0))
-
-    def smooth(log, names, noise, config, **_):
-        return SimpleNamespace(problem=None), SimpleNamespace(cost=100.0 + sum(p for x, p in penalty.items()
-                                                                              if x not in names))
-
-    monkeypatch.setattr(mc, "_smooth_named", smooth)
-    monkeypatch.setattr(mc, "truncated_cost", lambda problem, solution: solution.cost)
-    groups = [_matched(-1, [(0, 1)]), _matched(-2, [(2, 3)])]
+    monkeypatch.setattr(mc, "_smoother", lambda *_: smoother)
+    groups = [PassVerdict(-1, "matched", [(0, 1)], (1, 1.0), 1, True),
+              PassVerdict(-2, "matched", [(2, 3)], (1, 1.0), 1, True)]
     covisible = np.zeros((4, 4), bool)
-    assert mc._merge_once(None, current, mc.merges_from(groups, covisible)[0], None, None, None).accepted
+    assert merge_once(smoother, current, merges_from(groups, covisible)[0]).accepted
     record = {}
     kept = mc._alone_checked(None, current, groups, covisible, record, np.array([6, 6, 8, 9]), None, None, None,
                              SimpleNamespace(path_step=0.0, progress=False))
