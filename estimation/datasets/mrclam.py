@@ -8,6 +8,10 @@ A data set folder holds, as plain ``.dat`` or gzip-compressed ``.dat.gz`` text (
     Landmark_Groundtruth.dat   subject x y sd_x sd_y  -, m, m, m, m
     Barcodes.dat               subject barcode        subjects 1-5 are the robots, 6-20 the landmarks
 
+Robot{n}_Groundtruth and Landmark_Groundtruth are optional: a lab's own log in this format usually has no motion
+capture. Without them the log has no ground truth (``has_ground_truth`` False, no ``truth_ids``; said so in the
+notes): it can be mapped, not scored, and Barcodes.dat cannot be checked, so only ``barcodes="table"`` reads it.
+
 Stamps are used as written; a stream whose stamps sit on a grid coarser than its rows (this copy's files have
 five significant digits: 0.1 s stamps from t = 1000 s) is reported in the notes and ``stamp_resolution``
 (:mod:`.stamps`).
@@ -183,23 +187,31 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
         raise DatasetError(f"robot must be a positive number, not {robot}")
     bound = {"until": until}
     table = read_barcodes(folder)
-    subjects, positions = read_landmark_truth(folder)
     prefix = f"Robot{robot}_"
+    absent = [stem for stem in ("Landmark_Groundtruth", prefix + "Groundtruth") if not _is_there(folder, stem)]
+    subjects, positions = read_landmark_truth(folder) if "Landmark_Groundtruth" not in absent \
+        else (np.zeros(0, np.int64), np.zeros((0, 2)))
     odometry, _ = _read_robot_table(folder, prefix + "Odometry", ("time", "v", "w"), bound)
     sightings, _ = _read_robot_table(folder, prefix + "Measurement", ("time", "barcode", "range", "bearing"), bound,
                                      integer_columns=("barcode",))
-    truth, _ = _read_robot_table(folder, prefix + "Groundtruth", ("time", "x", "y", "theta"), bound)
+    truth = _read_robot_table(folder, prefix + "Groundtruth", ("time", "x", "y", "theta"), bound)[0] \
+        if prefix + "Groundtruth" not in absent else np.zeros((0, 4))
     name = f"{folder.name}/Robot{robot}"
     if len(odometry) < 2:
         raise DatasetError(f"{folder}/{prefix}Odometry: fewer than 2 rows")
     notes: list[str] = []
+    if prefix + "Groundtruth" in absent:
+        notes.append(f"no ground truth ({prefix}Groundtruth.dat absent): the log can be mapped, not scored")
+    elif absent:
+        notes.append("no landmark ground truth (Landmark_Groundtruth.dat absent): the map's landmarks are not scored")
 
     codes = sightings[:, 1].astype(np.int64)
     if barcodes == "table":
         notes.append("Barcodes.dat used as it is, not checked against the ground truth (barcodes='table')")
     else:
-        if len(truth) < 2:
-            raise DatasetError(f"{name}: Barcodes.dat cannot be verified without ground truth; "
+        if len(truth) < 2 or not len(subjects):
+            missing = f" ({' and '.join(f'{stem}.dat' for stem in absent)} absent)" if absent else ""
+            raise DatasetError(f"{name}: Barcodes.dat cannot be verified without ground truth{missing}; "
                                "pass barcodes='table' to trust it")
         probe = RangeBearingLog(name, _odometry_rows(odometry), np.zeros(0), np.zeros(0), np.zeros(0),
                                 np.zeros(0, np.int64), truth)
@@ -244,6 +256,11 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
         ranges=sightings[keep, 2], bearings=sightings[keep, 3], landmark_ids=subject_of[keep],
         ground_truth=truth, truth_ids=subjects, truth_positions=positions, notes=tuple(notes),
         stamp_resolution=quantized)
+
+
+def _is_there(folder: Path, stem: str) -> bool:
+    """Whether ``stem.dat`` or ``stem.dat.gz`` is in ``folder`` in any form (a broken one is read_table's error)."""
+    return any((folder / name).is_symlink() or (folder / name).exists() for name in (f"{stem}.dat", f"{stem}.dat.gz"))
 
 
 def _read_robot_table(folder: Path, stem: str, columns, bound, integer_columns=()) -> tuple[np.ndarray, np.ndarray]:
