@@ -32,7 +32,7 @@ import numpy as np
 from estimation.dataset_slam import run_landmark_log
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAMConfig
-from estimation.geometry import between, compose
+from estimation.geometry import compose
 from estimation.landmark_map import LandmarkMap
 from estimation.noise_model import NoiseModel
 
@@ -120,17 +120,16 @@ def _sub_log(log: RangeBearingLog, rows: np.ndarray, t0: float, t1: float) -> Ra
 def run_windows(log: RangeBearingLog, seconds: float, config: FastSLAMConfig, noise: NoiseModel, *, seed: int = 0,
                 step: float | None = None) -> list[Window]:
     """Every window of :func:`overlapping_windows` through the unknown-association filter from its own start, its
-    sightings named by its map. ``run_landmark_log`` needs the log's ground truth (it scores every run); the names
-    do not use it (the window's trajectory is taken back to the window's own frame)."""
+    sightings named by its map. The sightings are placed from the map's own trajectory (the best particle's, in the
+    window's frame: the robot's pose at the window's first sighting), so a log without ground truth is named as one
+    with it: the truth only scores the run."""
     sensor = noise.range_bearing
     inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
     out = []
     for k, (start, rows, sub) in enumerate(overlapping_windows(log, seconds, step)):
         run = run_landmark_log(sub, config, np.random.default_rng([seed, k]), noise=noise, association="unknown",
                                robot=f"{log.name}@{start:.0f}s")
-        true_start = np.asarray(run.metrics["true_start_pose"], float)
-        poses = between(true_start, run.estimated_trajectory[:, 1:])         # the window's frame
-        frame_times = run.estimated_trajectory[:, 0]
+        frame_times, poses = run.map.trajectory[1:, 0], run.map.trajectory[1:, 1:]   # row 0: the initial pose
         ranges, bearings = sensor.corrected(sub.ranges, sub.bearings)
         sigma_r = sensor.range_sigma(ranges) * inflate_r
         sigma_b = np.full(len(ranges), sensor.bearing_sigma_rad * inflate_b)

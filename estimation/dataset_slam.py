@@ -12,6 +12,12 @@ increment since the previous frame goes to ``predict``; the frame goes to ``upda
 The map is in the robot's start frame; its metadata carries the true start pose in the world
 (``true_start_pose``, as simulated maps do, so ``p3at fuse`` scores alignments). Scores: see
 :mod:`estimation.landmark_scores`; the trajectory and pose NEES are taken at every frame.
+
+A log without ground truth (a lab's own, no motion capture) runs the same filter and smoother, which never read the
+truth: the map, its names and trajectory are what they would be with it. Only the scores need it, so such a run has
+none: its trajectories are in the map's frame (no world frame is known), ``true_trajectory`` is empty, the pose NEES
+NaN, the map has no ``true_start_pose`` and the metrics hold no truth figure (no ATE, landmark error, NEES, true start
+pose) but ``unscored``, a sentence saying why (:data:`UNSCORED`).
 """
 from __future__ import annotations
 
@@ -36,11 +42,14 @@ ASSOCIATIONS = ("id", "unknown")
 MRCLAM_FOOTPRINT_RADIUS_M = 0.16495
 _MRCLAM_LOG = re.compile(r"(MRCLAM_Dataset\d+)/Robot\d+")
 _KNOWN_LANDMARK_VARIANCE = 1e-6   # m²: Vicon's landmark positions, taken as exact (known_map)
+# a run of a log without ground truth: its metrics leave out every figure that needs the truth and say so here
+UNSCORED = "the log has no ground truth: no trajectory (ATE), landmark or NEES scores and no true start pose"
 
 
 @dataclass
 class DatasetRun:
-    """Outcome of :func:`run_landmark_log`. Trajectories are (T, 4) rows (t, x, y, θ) in the world frame."""
+    """Outcome of :func:`run_landmark_log`. Trajectories are (T, 4) rows (t, x, y, θ) in the world frame (in the map's
+    frame for a log without ground truth, whose ``true_trajectory`` is then (0, 4) and ``pose_nees`` NaN)."""
 
     map: LandmarkMap
     true_trajectory: np.ndarray
@@ -53,7 +62,7 @@ class DatasetRun:
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
                      association: str = "id", robot: str = "robot", until: float | None = None,
                      inflate_correlated: bool = True, known_map: bool = False, smooth: bool = False) -> DatasetRun:
-    """Run FastSLAM over ``log`` (needs ground truth for the scores); see the module docstring.
+    """Run FastSLAM over ``log`` and score it against its ground truth if it has some; see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
     range, σ_φ) and the calibration (odometry scales, bearing offset); ``until``: stop after this log time (s).
@@ -70,8 +79,6 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
     if noise.range_bearing is None:
         raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
-    if not log.has_ground_truth:
-        raise ValueError(f"{log.name}: scoring needs ground truth, and the log has none")
     sensor = noise.range_bearing
     if smooth and association != "id":
         raise ValueError("smoothing needs association='id' (the sightings must name their landmarks)")
@@ -89,7 +96,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     # the map's frame is the robot's pose at its first sighting: odometry before it (MRCLAM's robots wait, then
     # turn on the spot) gives the map nothing, and its heading error would become a permanent offset of the frame
     t0 = float(times[0]) if len(times) else log.start_time
-    true_start = log.true_pose([t0])[0]
+    true_start = log.true_pose([t0])[0] if log.has_ground_truth else None
     if known_map:
         _load_true_landmarks(slam, log, true_start, association)
     # each frame's sightings end where the next frame's begin, counted before ``until`` cuts the frames: after the
@@ -118,22 +125,29 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         means.append(report.pose_mean)
         covs.append(report.pose_covariance)
 
+    truth_metadata = {} if true_start is None else {"true_start_pose": [float(v) for v in true_start]}
     landmark_map = slam.best_map(robot=robot, metadata={
-        "true_start_pose": [float(v) for v in true_start], "dataset": log.name, "association": association,
+        **truth_metadata, "dataset": log.name, "association": association,
         "noise_model": noise.robot, "inflate_correlated": bool(inflate_correlated), "simulated": False})
     landmark_map.sighting_covariances = sightings.covariances(landmark_map)
     landmark_map.metadata.update(log_body_metadata(log))
     if len(landmark_map.trajectory) and landmark_map.trajectory[0, 0] < t0:
         landmark_map.trajectory[0, 0] = t0     # row 0 is the pose the map's frame is: the robot's at its first sighting
     estimated = slam.trajectory()[1:]                                    # row 0 is the initial pose
-    estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
-    truth = np.column_stack([times, log.true_pose(times)])
     dead_start_frame = dead_reckoning(increments)[1:]
-    dead = np.column_stack([times, compose(true_start, dead_start_frame)])
-    true_in_start = between(true_start, truth[:, 1:])
-    nees = pose_nees(between(true_in_start, np.array(means).reshape(-1, 3)) if len(means) else np.zeros((0, 3)),
-                     np.array(covs).reshape(-1, 3, 3))
-    metrics = _metrics(log, landmark_map, votes, true_start, truth, estimated_world, dead, nees, t0, until)
+    if true_start is None:   # no world frame known: the map's
+        estimated_world, truth = estimated, np.zeros((0, 4))
+        dead = np.column_stack([times, dead_start_frame])
+        nees = np.full(len(times), np.nan)
+        metrics = unscored_metrics(landmark_map, times, t0)
+    else:
+        estimated_world = np.column_stack([estimated[:, 0], compose(true_start, estimated[:, 1:])])
+        truth = np.column_stack([times, log.true_pose(times)])
+        dead = np.column_stack([times, compose(true_start, dead_start_frame)])
+        true_in_start = between(true_start, truth[:, 1:])
+        nees = pose_nees(between(true_in_start, np.array(means).reshape(-1, 3)) if len(means) else np.zeros((0, 3)),
+                         np.array(covs).reshape(-1, 3, 3))
+        metrics = _metrics(log, landmark_map, votes, true_start, truth, estimated_world, dead, nees, t0, until)
     metrics.update(frames=len(times), particles=config.n_particles, version=config.version,
                    association=association)
     run = DatasetRun(landmark_map, truth, estimated_world, dead, nees, metrics)
@@ -164,6 +178,8 @@ def _load_true_landmarks(slam: FastSLAM, log: RangeBearingLog, true_start: np.nd
     """Every particle's map := the log's true landmarks in the start frame, 1 mm σ (``known_map``)."""
     if association != "id":
         raise ValueError("known_map needs association='id' (the true landmarks are named by their ids)")
+    if true_start is None or not len(log.truth_ids):
+        raise ValueError(f"{log.name}: known_map needs the log's ground truth (its true landmarks and start pose)")
     planar = between(true_start, np.column_stack([log.truth_positions, np.zeros(len(log.truth_ids))]))[:, :2]
     n = len(planar)
     covariances = np.tile(np.eye(3) * _KNOWN_LANDMARK_VARIANCE, (n, 1, 1))
@@ -189,6 +205,17 @@ def _observations(ranges: np.ndarray, bearings: np.ndarray, sensor, descriptors:
 def _association_config(config: FastSLAMConfig, association: str) -> FastSLAMConfig:
     """The filter settings of an association mode: no descriptors in either (see the module docstring)."""
     return dataclasses.replace(config, association=association, descriptor_size=0)
+
+
+def unscored_metrics(landmark_map, times, t0) -> dict:
+    """A log without ground truth: the figures that do not need it, and ``unscored`` saying why the others are not
+    there (left out, not null: a figure never computed is not in the output, as a smoothed run's ``filter_`` keys)."""
+    positions, covariances = landmark_map.positions, landmark_map.covariances
+    return {"seconds": float(times[-1] - t0) if len(times) else 0.0, "start_time": float(t0),
+            "landmarks": int(len(positions)),
+            "landmark_sd_median_m": float(np.median(np.sqrt(0.5 * (covariances[:, 0, 0] + covariances[:, 1, 1]))))
+            if len(positions) else float("nan"),
+            "unscored": UNSCORED}
 
 
 def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees, t0, until) -> dict:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dataset_slam import sighted_true_ids
+from .dataset_slam import sighted_true_ids, unscored_metrics
 from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
@@ -36,18 +36,32 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
     (T, 3) the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise;
     config the filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
     heading_drift: the smoother's heading-bias states (None: the config's drift if it has one, else none).
+    true_start None (a log without ground truth): the trajectory stays in the map's frame and nothing is scored.
     """
     if not any(len(ids) for ids, _, _ in frames):
         before = "" if until is None else f" before {until:g} s"
         raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
-    times = run.true_trajectory[:, 0]
+    times = run.estimated_trajectory[:, 0]
     problem, landmark_ids = _problem(frames, increments, sensor, config, np.diff(np.concatenate([[t0], times])))
     drift = heading_drift if heading_drift is not None else config_drift(config)
     initial = np.vstack([np.zeros(3), filter_poses])
     solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial),
                       heading_drift=drift)
-    estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
     landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times)
+    metrics = {f"filter_{key}": run.metrics[key] for key in _FILTER_KEYS if key in run.metrics}
+    metrics.update(run.metrics)
+    metrics.update(
+        smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
+        smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
+        smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    if solution.heading_drift is not None:
+        metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
+                       smoother_heading_drift_tau_s=solution.heading_drift.tau_s)
+    if true_start is None:   # nothing to score against: the smoothed map's own figures
+        metrics.update(unscored_metrics(landmark_map, times, t0))
+        return type(run)(landmark_map, run.true_trajectory, np.column_stack([times, solution.poses[1:]]),
+                         run.dead_reckoning, np.full(len(times), np.nan), metrics)
+    estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
     covariance_rows = solution.covariance_poses - 1
     true_in_start = between(true_start, run.true_trajectory[covariance_rows, 1:])
     nees = np.full(len(times), np.nan)
@@ -55,19 +69,11 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
     nees[covariance_rows] = pose_nees(solution.poses[solution.covariance_poses] - true_in_start,
                                       solution.pose_covariances)
     finite = nees[np.isfinite(nees)]
-    metrics = {f"filter_{key}": run.metrics[key] for key in _FILTER_KEYS if key in run.metrics}
-    metrics.update(run.metrics)
     metrics.update(
         ate_m=ate(estimated_world[:, 1:], run.true_trajectory[:, 1:]),
         final_position_error_m=float(np.hypot(*(estimated_world[-1, 1:3] - run.true_trajectory[-1, 1:3]))),
         pose_nees_mean=float(np.mean(finite)), pose_nees_median=float(np.median(finite)),
-        pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)),
-        smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
-        smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
-        smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
-    if solution.heading_drift is not None:
-        metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
-                       smoother_heading_drift_tau_s=solution.heading_drift.tau_s)
+        pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)))
     metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
                               np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                               log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
