@@ -51,16 +51,18 @@ def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: 
 
 
 def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
-    start = np.asarray(run.metrics["true_start_pose"], float)
+    # a log without ground truth: the map's frame placed at the world's origin, no true path or landmarks
+    scored = "true_start_pose" in run.metrics
+    start = np.asarray(run.metrics["true_start_pose"], float) if scored else np.zeros(3)
     t0 = float(run.metrics["start_time"])
     mission.log_robot_frame(robot, start)
     if "footprint_radius_m" in run.map.metadata:
         mission.log_disc_body(robot, float(run.map.metadata["footprint_radius_m"]))
-    if len(log.truth_ids):
+    if len(log.truth_ids) and scored:
         true_landmarks = between(start, np.column_stack([log.truth_positions, np.zeros(len(log.truth_ids))]))
         mission.log_true_landmarks(robot, true_landmarks[:, :2], labels=log.truth_ids.tolist())
     estimated = between(start, run.estimated_trajectory[:, 1:])
-    true = between(start, run.true_trajectory[:, 1:])
+    true = between(start, run.true_trajectory[:, 1:]) if scored else [None] * len(run.estimated_trajectory)
     dead = between(start, run.dead_reckoning[:, 1:])
     times = run.estimated_trajectory[:, 0] - t0
     last = last_nees = -np.inf

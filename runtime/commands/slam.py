@@ -1,5 +1,6 @@
 """``p3at slam``: FastSLAM. ``simulate`` builds a map on a simulated run, ``dataset`` on a recorded landmark data set
-(MRCLAM), ``noise`` fits a noise model from a log with ground truth; each scores against the truth."""
+(MRCLAM), ``noise`` fits a noise model from a log with ground truth; each scores against the truth where there is
+some (``dataset`` maps a log without it unscored)."""
 from __future__ import annotations
 
 import argparse
@@ -143,7 +144,9 @@ def _register_dataset(sub) -> None:
                     "not landmarks), then (known-ID association) smooths the whole log from the best particle. "
                     "Writes the map in the robot's frame at its first sighting, with metadata.true_start_pose "
                     "from the ground truth (so that `p3at fuse` scores alignments), and prints "
-                    "trajectory, map and consistency scores against the ground truth.")
+                    "trajectory, map and consistency scores against the ground truth. A log without ground truth "
+                    "(no RobotN_Groundtruth.dat) is mapped the same way and not scored: it needs --noise FILE and "
+                    "--barcodes table.")
     parser.add_argument("format", choices=DATASET_FORMATS, help="data set format")
     parser.add_argument("folder", metavar="DIR", help="the data set's folder")
     parser.add_argument("--robot", type=positive_int, required=True, metavar="N", help="robot number (1-5 in MRCLAM)")
@@ -158,10 +161,12 @@ def _register_dataset(sub) -> None:
     parser.add_argument("--noise", metavar="FILE", help="noise model (TOML, see `p3at slam noise`); default: "
                         "estimated from this robot's own log and ground truth with the range calibration, heading "
                         "bias, odometry lag and turns' variance (as `p3at slam noise --range-calibration "
-                        "--heading-bias --odometry-lag --turn-variance`), and said so")
+                        "--heading-bias --odometry-lag --turn-variance`), and said so; a log without ground truth "
+                        "needs it")
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
-                             "correct it from the ground truth (inferred), or trust it unchecked (table)")
+                             "correct it from the ground truth (inferred), or trust it unchecked (table; the only "
+                             "choice for a log without ground truth)")
     parser.add_argument("--no-inflation", action="store_true",
                         help="take consecutive sightings as independent (default: the sensor variances are "
                              "multiplied by the noise model's variance inflation for correlated sightings)")
@@ -302,8 +307,13 @@ def _dataset(args: argparse.Namespace) -> int:
         print(f"  smoothed over the whole log: {m['smoother_sightings'] - m['smoother_outliers']} of "
               f"{m['smoother_sightings']} sightings kept, χ² per degree of freedom {m['smoother_chi2_per_dof']:.2f}"
               + ("" if m["smoother_converged"] else ", NOT converged")
-              + f"; the filter alone: ATE {m['filter_ate_m']:.3f} m, landmark error "
-              f"{m['filter_landmark_error_median_m']:.3f} m ({m['filter_landmark_error_rigid_median_m']:.3f} m rigid)")
+              + ("" if "unscored" in m else f"; the filter alone: ATE {m['filter_ate_m']:.3f} m, landmark error "
+                 f"{m['filter_landmark_error_median_m']:.3f} m ({m['filter_landmark_error_rigid_median_m']:.3f} m "
+                 "rigid)"))
+    if "unscored" in m:
+        print(f"  landmarks {m['landmarks']}; not scored: {m['unscored']}")
+        print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
+        return 0
     estimator = "smoothed" if m.get("smoothed") else "FastSLAM"
     print(f"  trajectory ATE        {estimator} {m['ate_m']:.3f} m   dead reckoning {m['dead_reckoning_ate_m']:.3f} m")
     print(f"  landmarks {m['landmarks']} for {m['true_landmarks']} true ({m['duplicate_landmarks']} duplicates, "
