@@ -184,7 +184,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import _chained, majority, round_scores  # noqa: E402
 from benchmarks.mrclam_frame_nees import map_figures, truth_in_frame  # noqa: E402
-from estimation import chi2  # noqa: E402
+from estimation import (  # noqa: E402
+    chi2,  # noqa: E402
+    name_leave_out,
+    unnamed_sightings,
+)
 from estimation.constellation import (  # noqa: E402
     guard_batches,
     joint_d2,
@@ -198,12 +202,9 @@ from estimation.dataset_slam import log_body_metadata  # noqa: E402
 from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.fastslam.existence import exclusive_log_odds, hit_log_odds, miss_log_odds  # noqa: E402
 from estimation.fresh_start import names_guess  # noqa: E402
-from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
-    OUTLIER_CHI2,
     HeadingDrift,
     HeadingLoss,
     SightingOffset,
@@ -212,11 +213,9 @@ from estimation.landmark_smoother import (  # noqa: E402
 )
 from estimation.map_honesty import (  # noqa: E402
     flagged_landmarks,
-    flagged_runs,
     self_covisible_frames,
     sighting_runs,
     split_scores,
-    split_threshold,
 )
 from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
 from estimation.name_merging import NamedSmoother, merge_guarded, merge_once, split_at_bends  # noqa: E402
@@ -227,7 +226,7 @@ from estimation.named_smoothing import (  # noqa: E402
     smooth_named,
 )
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise, with_fastslam  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from estimation.pairwise_audit import refused_alone  # noqa: E402
 from estimation.pass_matching import (  # noqa: E402
     STATUSES,
@@ -237,13 +236,11 @@ from estimation.pass_matching import (  # noqa: E402
     merges_from,
     mutual_merges,
     name_pairs,
+    pairwise_inputs,
     passes_of,
     without_pairings,
 )
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
-
-# a visit: one name's sightings less than this apart (the offset group of a sighting named late)
-VISIT_GAP_S = 5.0
 
 # what a saved final state records of the command that made it (benchmarks.mrclam_seed_vote votes only runs of one
 # command): every option but where the run read and wrote and what it printed
@@ -487,13 +484,14 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     if args.pairwise:
         current = _pairwise_rounds(log, row, current, noise, config, drift, args)
     if args.leave_out_ambiguous:
-        current, row["left_out"] = leave_out(log, current, ambiguous_names(current, args), noise, config, drift, args)
+        left = name_leave_out.ambiguous_names(current, name_floor_m=args.name_floor, kept_covisible=args.kept_covisible)
+        current, row["left_out"] = leave_out(log, current, left, noise, config, drift, args)
         _report_left_out(log, current, row["left_out"], "ambiguous", drift, args)
         if args.pairwise and row["left_out"]["names"]:      # names the glimpses kept apart may merge now
             current = _pairwise_rounds(log, row, current, noise, config, drift, args)
     if args.leave_out_unconfirmed:
-        current, row["unconfirmed_out"] = leave_out(log, current, unconfirmed_names(log, current, noise, config),
-                                                    noise, config, drift, args)
+        left = name_leave_out.unconfirmed_names(current, noise, config)
+        current, row["unconfirmed_out"] = leave_out(log, current, left, noise, config, drift, args)
         _report_left_out(log, current, row["unconfirmed_out"], "unconfirmed", drift, args)
     if args.name_unnamed:
         current, row["named_again"] = name_unnamed(log, current, noise, config, drift, args)
@@ -708,84 +706,69 @@ def _enter_offsets(log: RangeBearingLog, row: dict, current: MergeRound, k: int,
     return current
 
 
-def ambiguous_names(current: MergeRound, args) -> list[int]:
-    """The names to leave out so that no name is ambiguous under the pairwise judgement
-    (:func:`estimation.constellation.pairwise_groups` with ``split_ambiguous``: a name whose χ²₂ 99 % gate holds two
-    names that cannot be one post), the least certain first: while any name is ambiguous, the ambiguous name of
-    largest position covariance (determinant) goes and the rest are judged again. A well-seen name is ambiguous only
-    through the glimpses around it (a difference's covariance is the sum of both names'); once the glimpses go, it
-    is not (session 28, robot 1 seed 0: a 519-sighting name, ambiguous beside a 10-sighting glimpse)."""
-    solution = current.solution
-    n = len(current.named.names)
-    covariance, covisible, seen = _pairwise_inputs(current, args)
-    points = seen.tolist()
-    blocks = covariance.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n), :]
-    spread = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] * blocks[:, 1, 0]
-    left = []
-    while True:
-        groups = pairwise_groups(solution.landmarks, covariance, points, allowed=~covisible, split_ambiguous=True)
-        ambiguous = [g.members[0] for g in groups if g.status == "ambiguous"]
-        if not ambiguous:
-            return sorted(int(current.named.names[i]) for i in left)
-        worst = max(ambiguous, key=lambda i: spread[i])
-        left.append(worst)
-        points.remove(worst)
-
-
-def unconfirmed_names(log: RangeBearingLog, current: MergeRound, noise, config) -> list[int]:
-    """The names the sensor's own record says are not landmarks of their own, by the filter's two rules on the
-    smoothed map (the calibrated detection rates of ``noise``, :mod:`estimation.fastslam.existence`): a name's
-    *existence* — log-odds from the detections under it and the frames in which it was in view (range, field of
-    view) and not detected — is below ``existence_remove``, and a name within ``merge_radius`` never detected in one
-    frame with it holds the *co-visibility* evidence "one point" (``exclusive_log_odds`` over the frames in which one
-    of them was detected and the other in view, at least ``merge_log_odds``): its sightings are another landmark's,
-    placed off. Taken greedily, least existence first, against the names still kept. A rarely detected post of its
-    own (robot 1 seed 0's post 8: existence −18.8) has no such neighbour and stays. Only the smoother's frames count
-    (frames without any sighting are not poses of it), so misses are undercounted: the test errs towards keeping."""
-    config = with_fastslam(noise, config)
-    solution = current.solution
-    poses = solution.poses[1:]                                  # pose k + 1 is frame k
-    offset = solution.landmarks[None, :, :] - poses[:, None, :2]
-    ranges = np.hypot(offset[..., 0], offset[..., 1])
-    bearings = wrap_angle(np.arctan2(offset[..., 1], offset[..., 0]) - poses[:, None, 2])
-    in_view = (ranges >= config.min_range) & (ranges <= config.max_range) \
-        & (np.abs(bearings) <= config.fov_horizontal / 2)
-    detected = detected_in_frames(current)
-    existence = config.existence_initial + np.where(
-        detected, hit_log_odds(config, ranges), np.where(in_view, miss_log_odds(config, ranges), 0.0)).sum(axis=0)
-    exclusive = exclusive_log_odds(config, ranges)
-    apart = np.hypot(*(solution.landmarks[:, None] - solution.landmarks[None]).transpose(2, 0, 1))
-    left: list[int] = []
-    for i in np.argsort(existence, kind="stable"):
-        if existence[i] >= config.existence_remove:
-            break
-        for j in np.flatnonzero(apart[i] <= config.merge_radius):
-            if j == i or j in left or (detected[:, i] & detected[:, j]).any():
-                continue
-            one_point = (exclusive[:, i] * (detected[:, j] & ~detected[:, i] & in_view[:, i])).sum() \
-                + (exclusive[:, j] * (detected[:, i] & ~detected[:, j] & in_view[:, j])).sum()
-            if one_point >= config.merge_log_odds:
-                left.append(int(i))
-                break
-    return sorted(int(current.named.names[i]) for i in left)
-
-
 def leave_out(log: RangeBearingLog, current: MergeRound, left: list[int], noise, config, drift, args
               ) -> tuple[MergeRound, dict]:
-    """``current`` without the names ``left`` (``--leave-out-ambiguous``: :func:`ambiguous_names`;
-    ``--leave-out-unconfirmed``: :func:`unconfirmed_names`) — their sightings unnamed, the rest re-smoothed —
-    rather than kept as a second name of some post. Returns the new state (``current`` itself when nothing is left
-    out) and what was left out, scored by the barcodes: each name's sightings and post, whether it was a duplicate
-    (its post has another name), and the posts that lost their only name."""
+    """``current`` without the names ``left`` (:func:`estimation.name_leave_out.leave_out`; ``--leave-out-ambiguous``:
+    ``ambiguous_names``; ``--leave-out-unconfirmed``: ``unconfirmed_names``). Returns the new state and what was
+    left out, scored by the barcodes: each name's sightings and post, whether it was a duplicate (its post has another
+    name), and the posts that lost their only name."""
     owner = majority(current.names, log.landmark_ids)
     record = {"names": [{"name": x, "sightings": int(np.sum(current.names == x)), "post": owner[x],
                          "duplicate": any(owner[y] == owner[x] for y in owner if y != x)} for x in left],
               "posts_lost": sorted({owner[x] for x in left} - {owner[x] for x in owner if x not in left})}
-    if not left:
-        return current, record
-    names = current.names.copy()
-    names[np.isin(names, left)] = -1
-    return resmoothed(log, current, names, noise, config, drift, args), record
+    return name_leave_out.leave_out(_smoother(log, noise, config, drift, _path_step(args)), current, left), record
+
+
+def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
+                           ) -> tuple[MergeRound, dict]:
+    """``--runs-out`` (session 30, B), after ``--name-unnamed``: the runs of sightings the honest-names screen flags
+    (:func:`estimation.name_leave_out.flagged_runs_of`) are taken out of their names
+    (:func:`estimation.name_leave_out.leave_out_runs`) instead of standing in the map and keeping their names from
+    every merge; the pairwise rounds and the naming then run again. Returns the new state (``current`` when no run is
+    flagged) and the runs taken out, scored by the barcodes (each run's name, post, span, sightings, score and wrong
+    sightings)."""
+    named = current.named
+    flagged = name_leave_out.flagged_runs_of(current, args.honest_names)
+    owner = majority(current.names, log.landmark_ids)
+    times = named.frame_times[named.problem.pose_index - 1] - log.start_time
+    barcodes = np.asarray(log.landmark_ids)
+    record = {"runs": []}
+    for run, score, threshold in flagged:
+        rows = named.sightings[run.sightings]
+        name = int(named.names[run.landmark])
+        record["runs"].append({"name": name, "post": owner[name], "from_s": float(times[run.sightings[0]]),
+                               "to_s": float(times[run.sightings[-1]]), "sightings": len(rows), "score": score,
+                               "threshold": threshold, "wrong": int(np.sum(barcodes[rows] != owner[name]))})
+    smoother = _smoother(log, noise, config, drift, _path_step(args))
+    return name_leave_out.leave_out_runs(smoother, current, [run for run, _, _ in flagged]), record
+
+
+def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift, args) -> tuple[MergeRound, dict]:
+    """``--name-unnamed``, last (:func:`estimation.unnamed_sightings.name_unnamed`): the sightings the final map names
+    unambiguously given their names, the map re-smoothed, the run's offset groups extended by their visits. Session
+    29, robot 5 seed 2: the chain leaves 18 sightings of the first 10 s unlinked, and without them the map's frame
+    (pose 0 is the first named sighting's) turns 0.025 rad from the start pose: ATE 0.076 m with the barcodes naming
+    the same sightings, 0.029 m with them too. Returns the new state and the naming scored by the barcodes."""
+    state, proposed, smoother = unnamed_sightings.name_unnamed(_smoother(log, noise, config, drift, _path_step(args)),
+                                                               current)
+    _OFFSET["names"] = smoother.offset_names
+    return state, named_again_record(log, current, state, proposed)
+
+
+def named_again_record(log: RangeBearingLog, before: MergeRound, after: MergeRound, proposed: dict[int, int]) -> dict:
+    """A naming of unnamed sightings scored by the barcodes: how many were named and kept by the smoother's outlier
+    test, and how many of each went to a name whose post is not theirs."""
+    owner = majority(before.names, log.landmark_ids)
+    record = {"proposed": len(proposed),
+              "wrong_proposed": sum(owner.get(x) != int(log.landmark_ids[r]) for r, x in proposed.items())}
+    if not proposed:
+        record.update(kept=0, wrong_kept=0)
+        return record
+    rows = np.array(sorted(proposed))
+    kept_rows = np.setdiff1d(rows, after.named.sightings[~after.solution.inliers])     # the rest the smoother dropped
+    record.update(kept=int(len(kept_rows)),
+                  wrong_kept=sum(owner.get(int(after.names[r])) != int(log.landmark_ids[r]) for r in kept_rows))
+    return record
 
 
 def _take_runs_out(log: RangeBearingLog, row: dict, current: MergeRound, key: str, noise, config, drift, args
@@ -795,168 +778,6 @@ def _take_runs_out(log: RangeBearingLog, row: dict, current: MergeRound, key: st
     if args.progress:
         print(f"  runs taken out of their names ({key}): {row[key]['runs'] or 'none'}", file=sys.stderr, flush=True)
     return current
-
-
-def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
-                           ) -> tuple[MergeRound, dict]:
-    """``--runs-out`` (session 30, B), after ``--name-unnamed``: the runs of sightings the honest-names screen flags
-    (:func:`estimation.map_honesty.flagged_runs`: split score beyond χ²₂ at 1 − α/k, k the name's runs; a name's
-    largest run never) are taken out of their names — their sightings unnamed, the rest re-smoothed — instead of
-    standing in the map and keeping their names from every merge; the pairwise rounds and the naming then run again.
-    Robot 4: a right run of 9 sightings at 13.5 against 13.1 kept its name from its twin 1.3 cm away; robot 2 seed
-    0: 17 sightings of post 8 under post 9's name bent the stretch around them, and post 9's own sightings there
-    stood as a second name 0.5 m off. Returns the new state (``current`` when no run is flagged) and the runs taken
-    out, scored by the barcodes (each run's name, post, span, sightings, score and wrong sightings)."""
-    named, solution = current.named, current.solution
-    problem = named.problem
-    runs = sighting_runs(problem, solution, 5.0)
-    scores = split_scores(problem, solution, runs)
-    out = flagged_runs(runs, scores, args.honest_names)
-    per_name = np.bincount([run.landmark for run in runs], minlength=len(named.names))
-    owner = majority(current.names, log.landmark_ids)
-    times = named.frame_times[problem.pose_index - 1] - log.start_time
-    barcodes = np.asarray(log.landmark_ids)
-    names = current.names.copy()
-    record = {"runs": []}
-    for run, score in ((r, s) for r, s, o in zip(runs, scores, out, strict=True) if o):
-        rows = named.sightings[run.sightings]
-        name = int(named.names[run.landmark])
-        record["runs"].append({"name": name, "post": owner[name], "from_s": float(times[run.sightings[0]]),
-                               "to_s": float(times[run.sightings[-1]]), "sightings": len(rows),
-                               "score": float(score),
-                               "threshold": split_threshold(int(per_name[run.landmark]), args.honest_names),
-                               "wrong": int(np.sum(barcodes[rows] != owner[name]))})
-        names[rows] = -1
-    if not record["runs"]:
-        return current, record
-    return resmoothed(log, current, names, noise, config, drift, args), record
-
-
-def poses_at(log: RangeBearingLog, current: MergeRound, noise, times: np.ndarray) -> np.ndarray:
-    """The smoothed poses (len(times), 3) at any log ``times``: each from the solution's frame nearest in time, moved
-    by the calibrated odometry between the two (what the smoother's own increments would give)."""
-    frames = current.named.frame_times
-    k = np.clip(np.searchsorted(frames, times), 1, len(frames) - 1)
-    k = np.where(np.abs(frames[k - 1] - times) <= np.abs(frames[k] - times), k - 1, k)
-    odometry = log.odometry_pose(noise.odometry_times(np.concatenate([frames[k], times])))
-    step = noise.calibrate_increments(between(odometry[:len(times)], odometry[len(times):]))
-    return compose(current.solution.poses[1 + k], step)
-
-
-def unnamed_names(log: RangeBearingLog, current: MergeRound, noise, offset_sigma_m: float = 0.0) -> dict[int, int]:
-    """{log row: name} for the sightings no name holds (the chain left them unlinked, or a leave-out step left them
-    out) that the final map names unambiguously, by the smoother's own outlier test: at the smoothed pose of its
-    time, a sighting's normalised residual (range and bearing, each in its σ) against exactly one name is within
-    χ²₂ 99 % (the bound beyond which the smoother drops a sighting), with the name's position covariance and a
-    sighting offset's prior (σ ``offset_sigma_m`` per axis) added. With a second name within it, or only a name
-    already detected in that frame, the sighting stays unnamed. The pose's own uncertainty is left out: on a map
-    tight enough to end the rounds it is centimetres against the sensor's decimetres at range."""
-    rows = np.flatnonzero(current.names < 0)
-    solution, named = current.solution, current.named
-    seen = np.isfinite(solution.landmark_covariances.reshape(len(named.names), -1)).all(axis=1)
-    if not len(rows) or not seen.any():
-        return {}
-    sensor = noise.range_bearing
-    inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
-    ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
-    sigma_r = sensor.range_sigma(ranges) * inflate_r
-    sigma_b = np.full(len(rows), sensor.bearing_sigma_rad * inflate_b)
-    poses = poses_at(log, current, noise, log.sighting_times[rows])
-    offset_var = offset_sigma_m ** 2
-    delta = solution.landmarks[None, :, :] - poses[:, None, :2]                 # (R, L, 2)
-    r_hat = np.hypot(delta[..., 0], delta[..., 1])
-    b_hat = np.arctan2(delta[..., 1], delta[..., 0]) - poses[:, None, 2]
-    # ∂(r, φ)/∂m: the landmark's (and its offset's) uncertainty in range and bearing
-    jac = np.stack([delta / r_hat[..., None], np.stack([-delta[..., 1], delta[..., 0]], -1) / r_hat[..., None] ** 2],
-                   axis=-2)                                                     # (R, L, 2, 2)
-    cov_m = np.nan_to_num(solution.landmark_covariances) + offset_var * np.eye(2)
-    s = jac @ cov_m[None] @ np.swapaxes(jac, -1, -2)
-    s[..., 0, 0] += sigma_r[:, None] ** 2
-    s[..., 1, 1] += sigma_b[:, None] ** 2
-    e = np.stack([r_hat - ranges[:, None], wrap_angle(b_hat - bearings[:, None])], -1)
-    d2 = np.einsum("rli,rli->rl", e, np.linalg.solve(s, e[..., None])[..., 0])
-    # a name already detected in the sighting's frame cannot be its name
-    frame_of = {float(t): i for i, t in enumerate(named.frame_times)}
-    detected = detected_in_frames(current)
-    out: dict[int, int] = {}
-    taken: dict[tuple[float, int], list[int]] = {}
-    for i, row in enumerate(rows):
-        within = np.flatnonzero(seen & (d2[i] < OUTLIER_CHI2))
-        frame = frame_of.get(float(log.sighting_times[row]))
-        if frame is not None:
-            within = within[~detected[frame, within]]
-        if len(within) == 1:
-            out[int(row)] = int(named.names[within[0]])
-            taken.setdefault((float(log.sighting_times[row]), int(within[0])), []).append(int(row))
-    for rows_of_one in taken.values():          # two sightings of one frame cannot both be one name
-        if len(rows_of_one) > 1:
-            for row in rows_of_one:
-                out.pop(row)
-    return out
-
-
-def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift, args) -> tuple[MergeRound, dict]:
-    """``--name-unnamed``, last: the sightings :func:`unnamed_names` names are given their names and the map
-    re-smoothed (new frames start at the nearest old pose moved by the odometry); the smoother's outlier test then
-    judges them with the rest (one it drops keeps its name, unused, like any sighting it drops). Each newly named
-    sighting gets a sighting offset of its own visit (its name, runs < 5 s apart). Session 29, robot 5 seed 2: the
-    chain leaves 18 sightings of the first 10 s unlinked, and without them the map's frame (pose 0 is the first
-    named sighting's) turns 0.025 rad from the start pose: ATE 0.076 m with the barcodes naming the same sightings,
-    0.029 m with them too."""
-    proposed = unnamed_names(log, current, noise, _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0)
-    owner = majority(current.names, log.landmark_ids)
-    record = {"proposed": len(proposed),
-              "wrong_proposed": sum(owner.get(x) != int(log.landmark_ids[r]) for r, x in proposed.items())}
-    if not proposed:
-        record.update(kept=0, wrong_kept=0)
-        return current, record
-    names = current.names.copy()
-    rows = np.array(sorted(proposed))
-    names[rows] = [proposed[r] for r in rows]
-    if _OFFSET["option"] is not None and _OFFSET["names"] is not None:
-        groups = _OFFSET["names"].copy()
-        order, visit = visits(rows, names, log.sighting_times)
-        groups[order] = int(max(groups.max(), names.max())) + visit
-        _OFFSET["names"] = groups
-    state = resmoothed(log, current, names, noise, config, drift, args)
-    named, solution = state.named, state.solution
-    kept_rows = np.setdiff1d(rows, named.sightings[~solution.inliers])     # the rest the smoother dropped
-    record.update(kept=int(len(kept_rows)),
-                  wrong_kept=sum(owner.get(int(names[r])) != int(log.landmark_ids[r]) for r in kept_rows))
-    return state, record
-
-
-def visits(rows: np.ndarray, names: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``rows`` ordered by name, then time, and each one's visit, numbered from 1: a visit is one name's sightings
-    less than VISIT_GAP_S apart (the offset group of the sightings a step names late)."""
-    order = rows[np.lexsort((times[rows], names[rows]))]
-    fresh = np.r_[True, (names[order][1:] != names[order][:-1]) | (np.diff(times[order]) > VISIT_GAP_S)]
-    return order, np.cumsum(fresh)
-
-
-def detected_in_frames(current: MergeRound) -> np.ndarray:
-    """(frames, names) bool: which names a kept sighting reports in each of the smoother's frames."""
-    problem, kept = current.named.problem, current.solution.inliers
-    detected = np.zeros((len(current.named.frame_times), len(current.named.names)), bool)
-    detected[problem.pose_index[kept] - 1, problem.landmark_index[kept]] = True
-    return detected
-
-
-def resmoothed(log: RangeBearingLog, current: MergeRound, names: np.ndarray, noise, config, drift, args,
-               same_labels: bool = True) -> MergeRound:
-    """``names`` smoothed from ``current``'s solution: the poses at the new frames (:func:`poses_at`: an old frame's
-    own pose, a new one's nearest moved by the odometry) and the names kept, in the frame of the new first pose.
-    ``same_labels`` False: ``names`` label the landmarks otherwise than ``current`` does (another run's), so they are
-    placed from their first sightings instead."""
-    frames = np.unique(log.sighting_times[names >= 0])
-    at = poses_at(log, current, noise, np.r_[frames[:1], frames])
-    start = at[0]
-    kept = set(np.unique(names[names >= 0]).tolist()) if same_labels else set()
-    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
-               for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) in kept}
-    named, solution = _smooth_named(log, names, noise, config, initial_poses=between(start, at), initial=initial,
-                                    heading_drift=drift, path_step_s=_path_step(args))
-    return MergeRound([], 0.0, 0.0, True, names, named, solution)
 
 
 STATE_ARRAYS = ("poses", "landmarks", "landmark_covariances", "covariance_poses", "pose_covariances", "inliers")
@@ -1111,20 +932,6 @@ def _print_guard(label: str, g: dict, file=None) -> None:
           file=file, flush=True)
 
 
-def _pairwise_inputs(current: MergeRound, args) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """What the pairwise judgement of ``current`` works on: the names' joint covariance (with ``--name-floor``'s
-    own offset per name), which names were sighted in one frame (``--kept-covisible``: by kept sightings only), and
-    the indices of the names with a finite covariance."""
-    problem, solution = current.named.problem, current.solution
-    n = len(current.named.names)
-    covariance = joint_landmark_covariance(problem, solution)
-    if args.name_floor > 0:      # each name's own unmodelled offset, independent of the others'
-        covariance = covariance + np.eye(2 * n) * args.name_floor ** 2
-    covisible = _covisible(problem, solution.inliers, n, kept_only=args.kept_covisible)
-    seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
-    return covariance, covisible, seen
-
-
 def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
                      ) -> MergeRound:
     """The last merges on a tight map (:func:`estimation.constellation.pairwise_groups`): every group of names
@@ -1136,7 +943,8 @@ def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise
     for k in range(done, done + args.pairwise):
         started = time.process_time()
         problem, solution = current.named.problem, current.solution
-        covariance, covisible, seen = _pairwise_inputs(current, args)
+        covariance, covisible, seen = pairwise_inputs(current, name_floor_m=args.name_floor,
+                                                      kept_covisible=args.kept_covisible)
         groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible,
                                  split_ambiguous=args.split_ambiguous)
         owner = majority(current.names, barcodes)

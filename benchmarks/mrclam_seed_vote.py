@@ -32,7 +32,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
-from types import SimpleNamespace  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -45,8 +44,10 @@ from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
+from estimation.name_merging import NamedSmoother, resmoothed  # noqa: E402
 from estimation.name_vote import VOTE_KEY, majority_named, name_support, vote_metadata, voted_names  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.unnamed_sightings import name_unnamed, visits  # noqa: E402
 from runtime.commands.options import non_negative_int  # noqa: E402
 
 
@@ -78,7 +79,7 @@ def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> n
     groups = np.unique(round0.T, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
     loose = np.flatnonzero((round0 < 0).all(axis=0) & (names >= 0))
     if len(loose):
-        order, visit = chain.visits(loose, names, times)
+        order, visit = visits(loose, names, times)
         groups[order] = groups.max() + visit
     return groups
 
@@ -119,17 +120,13 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     # named where the vote leaves them unnamed or the other way round
     apart = [pairs_apart(run.names, names) for run in finals]
     nearest = min(range(len(finals)), key=lambda i: (apart[i], int(np.sum((finals[i].names >= 0) != (names >= 0)))))
-    steps = SimpleNamespace(path_step=path_step_s or 0.0)      # the chain's smoothings read only this of its options
-    before = dict(chain._OFFSET)       # the chain's smoothings read their sighting offsets from there
-    chain._OFFSET.update(option=SightingOffset(offset_m) if offset_m > 0 else None,
-                         names=offset_groups(np.stack(round0), names, log.sighting_times))
-    try:
-        # the poses from the nearest run, its landmarks not: its labels are not the vote's
-        state = chain.resmoothed(log, finals[nearest], names, noise, config, drift, steps, same_labels=False)
-        state, named_again = chain.name_unnamed(log, state, noise, config, drift, steps)
-    finally:
-        chain._OFFSET.clear()
-        chain._OFFSET.update(before)
+    smoother = NamedSmoother(log, noise, config, drift, path_step_s or None,
+                             SightingOffset(offset_m) if offset_m > 0 else None,
+                             offset_groups(np.stack(round0), names, log.sighting_times))
+    # the poses from the nearest run, its landmarks not: its labels are not the vote's
+    voted = resmoothed(smoother, finals[nearest], names, same_labels=False)
+    state, proposed, _ = name_unnamed(smoother, voted)
+    named_again = chain.named_again_record(log, voted, state, proposed)
     final = chain.final_scores(log, state, majority(state.names, log.landmark_ids))
     majority_unnamed = ~majority_named(runs)
     alike = all(np.array_equal(r >= 0, runs[0] >= 0) and pairs_apart(r, runs[0]) == 0 for r in runs)

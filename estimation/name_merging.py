@@ -27,6 +27,7 @@ from estimation import chi2
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAMConfig
 from estimation.fresh_start import judge_at_starts
+from estimation.geometry import between, compose
 from estimation.landmark_smoother import HeadingDrift, HeadingLoss, SightingOffset, Smoothed, normalised_residuals
 from estimation.named_smoothing import MergeRound, NamedProblem, smooth_named, truncated_cost
 from estimation.noise_model import NoiseModel
@@ -235,3 +236,31 @@ def split_at_bends(smoother: NamedSmoother, current: MergeRound, *, window_s: fl
     named, trial = smoother.smooth(names, initial_poses=solution.poses, initial=initial)
     rise = smoother.cost(named.problem, trial) - base
     return MergeRound([], rise, 0.0, True, names, named, trial), tried
+
+
+def poses_at(log: RangeBearingLog, current: MergeRound, noise: NoiseModel, times: np.ndarray) -> np.ndarray:
+    """The smoothed poses (len(times), 3) at any log ``times``: each from the solution's frame nearest in time, moved
+    by the calibrated odometry between the two (what the smoother's own increments would give)."""
+    frames = current.named.frame_times
+    k = np.clip(np.searchsorted(frames, times), 1, len(frames) - 1)
+    k = np.where(np.abs(frames[k - 1] - times) <= np.abs(frames[k] - times), k - 1, k)
+    odometry = log.odometry_pose(noise.odometry_times(np.concatenate([frames[k], times])))
+    step = noise.calibrate_increments(between(odometry[:len(times)], odometry[len(times):]))
+    return compose(current.solution.poses[1 + k], step)
+
+
+def resmoothed(smoother: NamedSmoother, current: MergeRound, names: np.ndarray, same_labels: bool = True
+               ) -> MergeRound:
+    """``names`` smoothed from ``current``'s solution: the poses at the new frames (:func:`poses_at`: an old frame's
+    own pose, a new one's nearest moved by the odometry) and the names kept, in the frame of the new first pose.
+    ``same_labels`` False: ``names`` label the landmarks otherwise than ``current`` does (another run's), so they are
+    placed from their first sightings instead."""
+    log = smoother.log
+    frames = np.unique(log.sighting_times[names >= 0])
+    at = poses_at(log, current, smoother.noise, np.r_[frames[:1], frames])
+    start = at[0]
+    kept = set(np.unique(names[names >= 0]).tolist()) if same_labels else set()
+    initial = {int(x): between(start, np.r_[p, 0.0])[:2]
+               for x, p in zip(current.named.names, current.solution.landmarks, strict=True) if int(x) in kept}
+    named, solution = smoother.smooth(names, initial_poses=between(start, at), initial=initial)
+    return MergeRound([], 0.0, 0.0, True, names, named, solution)

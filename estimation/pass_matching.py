@@ -25,7 +25,7 @@ import numpy as np
 
 from estimation import chi2
 from estimation.constellation import joint_d2, match_constellation, pairwise_d2
-from estimation.landmark_smoother import Smoothed
+from estimation.landmark_smoother import Smoothed, joint_landmark_covariance
 from estimation.named_smoothing import MergeRound, NamedProblem, covisible_names
 
 # a pass's outcome against the earlier passes (PassVerdict.status)
@@ -231,3 +231,19 @@ def clusters_of(current: MergeRound, passes: list[list[tuple[int, int]]], alias:
     covisible = covisible_names(current.named.problem, current.solution.inliers, len(current.named.names),
                                 kept_only=kept_covisible)
     return merges_from(verdicts, covisible)[0]
+
+
+def pairwise_inputs(current: MergeRound, *, name_floor_m: float = 0.0, kept_covisible: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a pairwise judgement of ``current``'s names (:func:`estimation.constellation.pairwise_groups`) works on:
+    the names' joint covariance (with an own offset of σ ``name_floor_m`` per name, independent of the others'),
+    which names were sighted in one frame (``kept_covisible``: by kept sightings only), and the indices of the names
+    with a finite covariance."""
+    problem, solution = current.named.problem, current.solution
+    n = len(current.named.names)
+    covariance = joint_landmark_covariance(problem, solution)
+    if name_floor_m > 0:
+        covariance = covariance + np.eye(2 * n) * name_floor_m ** 2
+    covisible = covisible_names(problem, solution.inliers, n, kept_only=kept_covisible)
+    seen = np.flatnonzero(np.isfinite(np.diagonal(covariance)).reshape(n, 2).all(axis=1))
+    return covariance, covisible, seen

@@ -366,7 +366,8 @@ def test_a_glimpse_that_could_be_either_of_two_posts_is_left_out_and_a_post_that
     gates of real posts hold two posts too: they are left out, and the posts that lost their only name are said."""
     import argparse
 
-    from benchmarks.mrclam_constellation import ambiguous_names, leave_out
+    from benchmarks.mrclam_constellation import leave_out
+    from estimation.name_leave_out import ambiguous_names
     from estimation.named_smoothing import MergeRound, smooth_named
     log, noise, config, drift = _robot2(until=120.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
@@ -378,9 +379,12 @@ def test_a_glimpse_that_could_be_either_of_two_posts_is_left_out_and_a_post_that
     def options(floor):
         return argparse.Namespace(name_floor=floor, kept_covisible=True, path_step=0.25)
 
-    untouched, record = leave_out(log, state, ambiguous_names(state, options(0.0)), noise, config, drift, options(0.0))
+    def ambiguous(state, floor):
+        return ambiguous_names(state, name_floor_m=floor, kept_covisible=True)
+
+    untouched, record = leave_out(log, state, ambiguous(state, 0.0), noise, config, drift, options(0.0))
     assert untouched is state and record == {"names": [], "posts_lost": []}
-    left, record = leave_out(log, state, ambiguous_names(state, options(0.3)), noise, config, drift, options(0.3))
+    left, record = leave_out(log, state, ambiguous(state, 0.3), noise, config, drift, options(0.3))
     assert record["names"] == [{"name": 999, "sightings": 3, "post": 19, "duplicate": True}]
     assert record["posts_lost"] == []
     np.testing.assert_array_equal(left.names[glimpse], -1)
@@ -388,7 +392,7 @@ def test_a_glimpse_that_could_be_either_of_two_posts_is_left_out_and_a_post_that
     others[glimpse] = False
     np.testing.assert_array_equal(left.names[others], names[others])
     assert 999 not in left.named.names.tolist() and 19 in left.named.names.tolist()
-    _, loose = leave_out(log, state, ambiguous_names(state, options(0.4)), noise, config, drift, options(0.4))
+    _, loose = leave_out(log, state, ambiguous(state, 0.4), noise, config, drift, options(0.4))
     lost = [x["post"] for x in loose["names"] if not x["duplicate"]]
     assert lost and loose["posts_lost"] == sorted(lost)
 
@@ -401,7 +405,8 @@ def test_a_name_the_sensor_saw_only_a_few_times_where_another_name_stood_is_left
     import argparse
     import dataclasses
 
-    from benchmarks.mrclam_constellation import leave_out, unconfirmed_names
+    from benchmarks.mrclam_constellation import leave_out
+    from estimation.name_leave_out import unconfirmed_names
     from estimation.named_smoothing import MergeRound, smooth_named
     log, noise, config, drift = _robot2(until=300.0)
     names = np.asarray(log.landmark_ids, np.int64).copy()
@@ -412,10 +417,10 @@ def test_a_name_the_sensor_saw_only_a_few_times_where_another_name_stood_is_left
     log = dataclasses.replace(log, ranges=ranges)
     named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
     state = MergeRound([], 0.0, 0.0, True, names, named, solution)
-    assert unconfirmed_names(log, state, noise, config) == [999]
+    assert unconfirmed_names(state, noise, config) == [999]
     honest = np.asarray(log.landmark_ids, np.int64)
     named, solution = smooth_named(log, honest, noise, config, heading_drift=drift, path_step_s=0.25)
-    assert unconfirmed_names(log, MergeRound([], 0.0, 0.0, True, honest, named, solution), noise, config) == []
+    assert unconfirmed_names(MergeRound([], 0.0, 0.0, True, honest, named, solution), noise, config) == []
     options = argparse.Namespace(path_step=0.25)
     left, record = leave_out(log, state, [999], noise, config, drift, options)
     assert record["names"] == [{"name": 999, "sightings": 5, "post": 18, "duplicate": True}]

@@ -20,7 +20,7 @@ def _state(log, names, noise, config, drift):
 
 
 def test_unnamed_sightings_of_a_tight_map_are_named_by_their_own_post_and_a_moved_one_is_not():
-    from benchmarks.mrclam_constellation import unnamed_names
+    from estimation.unnamed_sightings import unnamed_names
     log, noise, config, drift = _robot2(until=300.0)
     honest = np.asarray(log.landmark_ids, np.int64)
     rng = np.random.default_rng(0)
@@ -44,7 +44,7 @@ def test_unnamed_sightings_of_a_tight_map_are_named_by_their_own_post_and_a_move
 def test_a_sighting_two_names_could_hold_stays_unnamed():
     """With a sighting offset σ wide enough that posts 19 and 20 (0.73 m apart) both lie in the gate of a sighting of
     either, such sightings are not named; with none, the same sightings are named by their own post."""
-    from benchmarks.mrclam_constellation import unnamed_names
+    from estimation.unnamed_sightings import unnamed_names
     log, noise, config, drift = _robot2(until=300.0)
     honest = np.asarray(log.landmark_ids, np.int64)
     near = np.flatnonzero((honest == 19) & (log.sighting_times > log.sighting_times[0] + 5.0))[:10]

@@ -101,10 +101,10 @@ def test_one_wrong_merge_and_one_duplicate_each_made_by_one_run_of_three_are_vot
 
     def broken(*args, **kwargs):
         raise RuntimeError("the smoother stopped")
-    monkeypatch.setattr(chain, "name_unnamed", broken)
+    monkeypatch.setattr(mrclam_seed_vote, "name_unnamed", broken)
     with pytest.raises(RuntimeError):
         mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2])
-    assert chain._OFFSET == before                          # restored on the way out, too
+    assert chain._OFFSET == before                          # the vote's smoother is its own, on the way out too
 
 
 def test_runs_of_different_commands_are_not_voted(tmp_path):
