@@ -17,7 +17,8 @@ A log without ground truth (a lab's own, no motion capture) runs the same filter
 truth: the map, its names and trajectory are what they would be with it. Only the scores need it, so such a run has
 none: its trajectories are in the map's frame (no world frame is known), ``true_trajectory`` is empty, the pose NEES
 NaN, the map has no ``true_start_pose`` and the metrics hold no truth figure (no ATE, landmark error, NEES, true start
-pose) but ``unscored``, a sentence saying why (:data:`UNSCORED`).
+pose) but ``unscored``, a sentence saying why (:data:`UNSCORED`). A log with the robot's true path but not the
+landmarks' is scored on its path only (:data:`UNSCORED_LANDMARKS`).
 """
 from __future__ import annotations
 
@@ -44,6 +45,7 @@ _MRCLAM_LOG = re.compile(r"(MRCLAM_Dataset\d+)/Robot\d+")
 _KNOWN_LANDMARK_VARIANCE = 1e-6   # m²: Vicon's landmark positions, taken as exact (known_map)
 # a run of a log without ground truth: its metrics leave out every figure that needs the truth and say so here
 UNSCORED = "the log has no ground truth: no trajectory (ATE), landmark or NEES scores and no true start pose"
+UNSCORED_LANDMARKS = "the log has no landmark ground truth: no landmark scores"   # its path is scored
 
 
 @dataclass
@@ -207,7 +209,7 @@ def _association_config(config: FastSLAMConfig, association: str) -> FastSLAMCon
     return dataclasses.replace(config, association=association, descriptor_size=0)
 
 
-def unscored_metrics(landmark_map, times, t0) -> dict:
+def unscored_metrics(landmark_map, times, t0, reason: str = UNSCORED) -> dict:
     """A log without ground truth: the figures that do not need it, and ``unscored`` saying why the others are not
     there (left out, not null: a figure never computed is not in the output, as a smoothed run's ``filter_`` keys)."""
     positions, covariances = landmark_map.positions, landmark_map.covariances
@@ -215,7 +217,7 @@ def unscored_metrics(landmark_map, times, t0) -> dict:
             "landmarks": int(len(positions)),
             "landmark_sd_median_m": float(np.median(np.sqrt(0.5 * (covariances[:, 0, 0] + covariances[:, 1, 1]))))
             if len(positions) else float("nan"),
-            "unscored": UNSCORED}
+            "unscored": reason}
 
 
 def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees, t0, until) -> dict:
@@ -234,6 +236,9 @@ def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees,
         "start_time": float(t0),
         "true_start_pose": [float(v) for v in true_start],
     }
+    if not len(log.truth_ids):
+        metrics.update(unscored_metrics(landmark_map, truth[:, 0], t0, UNSCORED_LANDMARKS))
+        return metrics
     metrics.update(map_scores(landmark_map.positions, landmark_map.covariances, attributed, true_start,
                               log.truth_ids, log.truth_positions, sighted))
     return metrics

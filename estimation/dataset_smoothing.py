@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dataset_slam import sighted_true_ids, unscored_metrics
+from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
 from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
@@ -74,9 +74,12 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         final_position_error_m=float(np.hypot(*(estimated_world[-1, 1:3] - run.true_trajectory[-1, 1:3]))),
         pose_nees_mean=float(np.mean(finite)), pose_nees_median=float(np.median(finite)),
         pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)))
-    metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
-                              np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
-                              log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
+    if not len(log.truth_ids):
+        metrics.update(unscored_metrics(landmark_map, times, t0, UNSCORED_LANDMARKS))
+    else:
+        metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
+                                  np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
+                                  log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
 
 

@@ -202,6 +202,9 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
     notes: list[str] = []
     if prefix + "Groundtruth" in absent:
         notes.append(f"no ground truth ({prefix}Groundtruth.dat absent): the log can be mapped, not scored")
+    elif len(truth) < 2:
+        notes.append(f"no ground truth ({prefix}Groundtruth.dat holds {len(truth)} rows): the log can be mapped, not "
+                     "scored")
     elif absent:
         notes.append("no landmark ground truth (Landmark_Groundtruth.dat absent): the map's landmarks are not scored")
 

@@ -307,22 +307,25 @@ def _dataset(args: argparse.Namespace) -> int:
         print(f"  smoothed over the whole log: {m['smoother_sightings'] - m['smoother_outliers']} of "
               f"{m['smoother_sightings']} sightings kept, χ² per degree of freedom {m['smoother_chi2_per_dof']:.2f}"
               + ("" if m["smoother_converged"] else ", NOT converged")
-              + ("" if "unscored" in m else f"; the filter alone: ATE {m['filter_ate_m']:.3f} m, landmark error "
+              + ("" if "filter_ate_m" not in m else f"; the filter alone: ATE {m['filter_ate_m']:.3f} m")
+              + ("" if "filter_landmark_error_median_m" not in m else f", landmark error "
                  f"{m['filter_landmark_error_median_m']:.3f} m ({m['filter_landmark_error_rigid_median_m']:.3f} m "
                  "rigid)"))
-    if "unscored" in m:
-        print(f"  landmarks {m['landmarks']}; not scored: {m['unscored']}")
-        print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
-        return 0
     estimator = "smoothed" if m.get("smoothed") else "FastSLAM"
-    print(f"  trajectory ATE        {estimator} {m['ate_m']:.3f} m   dead reckoning {m['dead_reckoning_ate_m']:.3f} m")
-    print(f"  landmarks {m['landmarks']} for {m['true_landmarks']} true ({m['duplicate_landmarks']} duplicates, "
-          f"{100 * m['duplicate_fraction']:.0f} %): median error {m['landmark_error_median_m']:.3f} m in the start "
-          f"frame, {m['landmark_error_rigid_median_m']:.3f} m after the best rigid fit")
-    print(f"  landmark NEES: {100 * m['landmark_nees_within_bound']:.0f} % below χ²₂(95 %) "
-          f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
-    print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
-          f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
+    if "ate_m" in m:
+        print(f"  trajectory ATE        {estimator} {m['ate_m']:.3f} m   dead reckoning "
+              f"{m['dead_reckoning_ate_m']:.3f} m")
+    if "true_landmarks" in m:
+        print(f"  landmarks {m['landmarks']} for {m['true_landmarks']} true ({m['duplicate_landmarks']} duplicates, "
+              f"{100 * m['duplicate_fraction']:.0f} %): median error {m['landmark_error_median_m']:.3f} m in the start "
+              f"frame, {m['landmark_error_rigid_median_m']:.3f} m after the best rigid fit")
+        print(f"  landmark NEES: {100 * m['landmark_nees_within_bound']:.0f} % below χ²₂(95 %) "
+              f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
+    else:   # no truth for the landmarks, or none at all (then no ATE nor NEES either)
+        print(f"  landmarks {m['landmarks']}; not scored: {m['unscored']}")
+    if "pose_nees_mean" in m:
+        print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
+              f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
     for warning in m["warnings"]:
         print(f"  WARNING: {warning}")
     print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))

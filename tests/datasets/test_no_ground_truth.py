@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from estimation.chained_names import chain_log
-from estimation.dataset_slam import UNSCORED, run_landmark_log
+from estimation.dataset_slam import UNSCORED, UNSCORED_LANDMARKS, run_landmark_log
 from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
@@ -57,7 +57,8 @@ def _with_and_without(tmp_path: Path, synthetic, robots=(1,), seconds: float = 6
 def _maps_equal(a: LandmarkMap, b: LandmarkMap) -> None:
     for field in ("positions", "covariances", "ids", "counts", "trajectory", "sighting_covariances"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
-    assert {k: v for k, v in a.metadata.items() if k != "true_start_pose"} == b.metadata
+    assert ({k: v for k, v in a.metadata.items() if k != "true_start_pose"}
+            == {k: v for k, v in b.metadata.items() if k != "true_start_pose"})
 
 
 @pytest.mark.parametrize(("association", "smooth"), [("id", "--smooth"), ("id", "--no-smooth"),
@@ -90,6 +91,32 @@ def test_slam_dataset_maps_a_log_without_ground_truth_as_with_it_and_scores_noth
                             "table", "--association", association, smooth)
     assert status == 0, err
     assert f"landmarks {len(without_map)}; not scored: {UNSCORED}" in out and "trajectory ATE" not in out
+
+
+@pytest.mark.parametrize("smooth", ["--smooth", "--no-smooth"])
+def test_a_log_with_the_robots_truth_but_not_the_landmarks_is_scored_on_its_path_only(tmp_path, synthetic, smooth):
+    with_truth, _ = _with_and_without(tmp_path, synthetic, seconds=40.0)
+    shutil.copytree(with_truth, tmp_path / "path" / "data")
+    (tmp_path / "path" / "data" / "Landmark_Groundtruth.dat.gz").unlink()
+    noise = _noise(tmp_path)
+    runs = {}
+    for name, folder in (("with", with_truth), ("path", tmp_path / "path" / "data")):
+        out_map = tmp_path / f"{name}.npz"
+        status, out, err = _cli("slam", "dataset", "mrclam", str(folder), "--robot", "1", "--out", str(out_map),
+                                "--particles", "20", "--noise", str(noise), "--barcodes", "table", smooth, "--json")
+        assert status == 0, err
+        runs[name] = (json.loads(out), LandmarkMap.load(out_map))
+    _maps_equal(runs["with"][1], runs["path"][1])
+    scored, path = runs["with"][0], runs["path"][0]
+    assert path["unscored"] == UNSCORED_LANDMARKS and "true_start_pose" in runs["path"][1].metadata
+    for key in SCORES:   # the path's figures as with the landmarks' truth, the map's left out
+        assert path.get(key) == (scored[key] if key.startswith(("ate", "dead", "final", "pose", "true_start"))
+                                 else None), key
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "path" / "data"), "--robot", "1", "--out",
+                            str(tmp_path / "text.npz"), "--particles", "20", "--noise", str(noise), "--barcodes",
+                            "table", smooth)
+    assert status == 0, err
+    assert "trajectory ATE" in out and "pose NEES over" in out and f"not scored: {UNSCORED_LANDMARKS}" in out
 
 
 def test_the_api_run_of_a_log_stripped_of_its_truth_is_the_run_with_it(tmp_path, synthetic):
@@ -202,7 +229,7 @@ def _bare_copy(source: Path, target: Path) -> Path:
     return target
 
 
-@pytest.mark.slow   # robot 1's noise fit (whole log) and two 200-s smoothed runs, ~15 s
+@pytest.mark.slow   # robot 1's noise fit (whole log) and two 200-s smoothed runs, ~8 s
 def test_real_dataset2_without_its_truth_maps_as_with_it(mrclam_dir, tmp_path):
     noise = tmp_path / "noise.toml"
     status, _, err = _cli("slam", "noise", "mrclam", str(mrclam_dir), "--robot", "1", "--out", str(noise))
