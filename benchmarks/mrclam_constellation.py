@@ -10,6 +10,7 @@ Run from the repository root:
         [--leave-out-ambiguous] [--leave-out-unconfirmed] [--name-unnamed] [--runs-out] [--slip 0.3]
         [--fewer-rival] [--distinct-points] [--rival-rounds K] [--hold-two-points] [--mutual-rounds] [--fresh-start]
         [--audit-parts FLOOR_M] [--pairwise-alone] [--out-maps DIR] [--heading-loss student-t] [--heading-dof NU]
+        [--noise FILE]
 
 Measured (session 24, A; docs: "Session 24: joint (constellation) tests of a pass's co-visible names (A)"):
 **negative** against the target, nothing wired. Robots 1-5, seed 0, 3-4 rounds: 0 wrong merges kept (every batch
@@ -173,6 +174,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -226,7 +228,7 @@ from estimation.named_smoothing import (  # noqa: E402
     smooth_named,
 )
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, NoiseModelError, estimate_noise  # noqa: E402
 from estimation.pairwise_audit import refused_alone  # noqa: E402
 from estimation.pass_matching import (  # noqa: E402
     STATUSES,
@@ -369,7 +371,9 @@ def layout_uniqueness(log: RangeBearingLog, named: NamedProblem, passes: list[Pa
 
 
 def run_robot(log: RangeBearingLog, args) -> dict:
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    # ``--noise FILE``: the model calibrated elsewhere (e.g. on the other robots' logs); else fitted in sample, from
+    # this log against its ground truth (the sensor part by each sighting's barcode's post)
+    noise = NoiseModel.load(args.noise) if args.noise else estimate_noise([log], **DATASET_CALIBRATIONS).model
     config = range_bearing_config(n_particles=args.particles)
     barcodes = log.landmark_ids
     chained, row = _chained(log, args, noise, config)
@@ -514,7 +518,9 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
     if args.state_dir:      # the final names: what a vote across seeds reads (benchmarks.mrclam_seed_vote)
         meta = _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
                                                  if isinstance(v, (int, float, np.number))})
-        meta["command"] = {key: value for key, value in vars(args).items() if key not in _NOT_THE_METHOD}
+        # the noise model's file as given (an in-sample run's command is recorded as before --noise existed)
+        meta["command"] = {key: value for key, value in vars(args).items()
+                           if key not in _NOT_THE_METHOD and not (key == "noise" and value is None)}
         save_state(state_path(args.state_dir, log, args.seed, "final"), current, meta)
     if args.out_maps:
         path = Path(args.out_maps) / f"robot{_robot_number(log)}.npz"
@@ -1194,6 +1200,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="also: how often the passes' true constellations are unique in the true layout")
     parser.add_argument("--ceiling", action="store_true",
                         help="also: the names merged by their barcodes, smoothed (what matching every pass gives)")
+    parser.add_argument("--noise", metavar="FILE", default=None,
+                        help="the noise model (TOML, see `p3at slam noise`), e.g. fitted on the other robots' logs; "
+                             "default: each robot's own, fitted from its log against its ground truth (in sample). "
+                             "With --names-cache the chained names and guesses, which depend on it, are kept in "
+                             "NAMES_CACHE/noise-<the file's SHA-256, 12 digits>")
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
@@ -1214,6 +1225,16 @@ def main(argv: list[str] | None = None) -> int:
     if not os.path.isdir(args.data):
         print(f"mrclam_constellation: no data set at {args.data}", file=sys.stderr)
         return 2
+    if args.noise:
+        try:
+            if NoiseModel.load(args.noise).range_bearing is None:
+                raise NoiseModelError(f"{args.noise}: no [range_bearing] section (the chain needs the sensor's noise)")
+        except NoiseModelError as e:
+            print(f"mrclam_constellation: --noise: {e}", file=sys.stderr)
+            return 2
+        if args.names_cache:    # its files are named without the noise model: one folder per model
+            digest = hashlib.sha256(Path(args.noise).read_bytes()).hexdigest()[:12]
+            args.names_cache = str(Path(args.names_cache) / f"noise-{digest}")
     rows = []
     for robot in (int(r) for r in args.robots.split(",")):
         row = run_robot(read_mrclam(args.data, robot), args)
@@ -1227,7 +1248,7 @@ def main(argv: list[str] | None = None) -> int:
                           "runs_out": args.runs_out, "hold_two_points": args.hold_two_points,
                           "mutual_rounds": args.mutual_rounds, "fresh_start": args.fresh_start,
                           "audit_parts": args.audit_parts, "pairwise_alone": args.pairwise_alone,
-                          "robots": rows}))
+                          "noise": args.noise, "robots": rows}))
     return 0
 
 
