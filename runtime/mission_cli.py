@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 import time
 from pathlib import Path
 
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     float_where,
     non_negative_float,
@@ -171,7 +171,7 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
         if exchange is not None:
             exchange.close()
     if args.json:
-        print(json.dumps(result.summary, indent=2))
+        print(json_text(result.summary, indent=2))
     else:
         print(format_summary(result.summary))
         print()

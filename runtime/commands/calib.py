@@ -6,7 +6,6 @@ A ROS camera_info calibration is a folder holding ``left.yaml`` and ``right.yaml
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import numpy as np
 
 from drivers.errors import BadFileError, DriverError
 from drivers.videre import calibration, camera_info
+from runtime.commands.json_output import json_text
 from runtime.commands.options import OutputPathError, check_output_apart, check_output_file, check_output_folder
 
 
@@ -114,7 +114,7 @@ def run_show(args: argparse.Namespace) -> int:
         print(f"p3at calib show: {exc}", file=sys.stderr)
         return 1
     if args.json:
-        print(json.dumps(summary(calib), indent=2))
+        print(json_text(summary(calib), indent=2))
         return 0
     fmt = lambda a: np.array2string(np.asarray(a), precision=5, suppress_small=True)  # noqa: E731
     print(f"{args.file}: {calib.size[0]}x{calib.size[1]}")

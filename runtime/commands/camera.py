@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -14,6 +13,7 @@ from drivers.errors import DeviceNotFoundError, DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     OutputPathError,
     add_deprecated_alias,
@@ -170,7 +170,7 @@ def run_info(args: argparse.Namespace) -> int:
         print(f"p3at camera info: {exc}{_hint(exc, args)}", file=sys.stderr)
         return 1
     if args.json:
-        print(json.dumps(info, indent=2))
+        print(json_text(info, indent=2))
         return 0
     print(f"{info['vendor']} {info['model']}  firmware {info['firmware']}  stereo: {info['stereo']}")
     print(f"transport: {info['transport']}  byte order: {info['byte_order']}")

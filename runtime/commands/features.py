@@ -5,7 +5,6 @@ import argparse
 import csv
 import dataclasses
 import io
-import json
 import struct
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ from estimation.frontend import (
     StereoGeometry,
     StereoMatchConfig,
 )
+from runtime.commands.json_output import json_text
 from runtime.commands.options import check_output_apart, check_output_file, finite_float, positive_float
 
 DEFAULTS = StereoGeometry()
@@ -174,7 +174,7 @@ def run_features(args: argparse.Namespace) -> int:
             "geometry": front_end.config.to_dict()["geometry"], "geometry_source": source,
             "rectified_here": args.calib is not None,
         }
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
         return 0
     where = {"calibration": f"from {args.calib}", "virtual head": "of the virtual STH-MDCS2", "given": "as given"}
     print(f"{len(matches)} matches ({args.descriptor}) written to {args.out}: pixels, disparity (px), 3-D points and "

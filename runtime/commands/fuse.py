@@ -7,13 +7,13 @@ copy of it, or a fused map beside a map it holds).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     RERUN_KEYWORDS,
     OutputPathError,
@@ -367,7 +367,7 @@ def _live_starts(args: argparse.Namespace) -> dict[str, tuple]:
 
 def _print(report: dict, as_json: bool) -> None:
     if as_json:
-        print(json.dumps(report))
+        print(json_text(report))
         return
     for k, m in enumerate(report["maps"]):
         frames = m["slam_frames"]

@@ -1,10 +1,10 @@
 """``p3at replay LOG``: run a logged robot's raw sensor streams through the pipeline again."""
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     add_deprecated_alias,
     check_output_apart,
@@ -88,7 +88,7 @@ def _replay(args) -> int:
         "map": None if args.out is None else str(args.out),
     }
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
     else:
         print(f"Replayed {args.log}: {result.robot}, {result.frames} frames over {result.log_span:.1f} s of log in "
               f"{result.seconds:.1f} s ({result.speed:.1f}x real time), {config.fastslam.n_particles} particles")

@@ -10,7 +10,6 @@ any other damaged one (the DAMAGED line, exit 0). This process does not import R
 """
 from __future__ import annotations
 
-import json
 import multiprocessing
 import os
 import sys
@@ -18,6 +17,7 @@ import tempfile
 import threading
 from pathlib import Path
 
+from runtime.commands.json_output import json_text
 from runtime.commands.options import OutputPathError, check_output_folder
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE
 
@@ -235,7 +235,7 @@ def _review(args) -> int:
     summary = result["summary"]
     exported = summary["exported"]
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
         return 0
     more = f" and {len(args.more)} more file(s)" if args.more else ""
     robots = summary["robots"]

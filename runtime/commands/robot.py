@@ -11,7 +11,6 @@ Exit status: 0 done; 1 the robot could not be reached or failed; 2 bad arguments
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import threading
@@ -20,6 +19,7 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     MAX_TIME_SCALE,
     add_deprecated_alias,
@@ -155,7 +155,7 @@ def _info(args: argparse.Namespace) -> int:
         return _fail("info", e, EXIT_DEVICE)
     config_fields = config_to_dict(config) if config is not None else None
     if args.json:
-        print(json.dumps({
+        print(json_text({
             "url": args.url,
             "identity": {"name": identity.name, "type": identity.type, "subtype": identity.subtype},
             "params": params.source, "config": config_fields, "state": _state_dict(state),
@@ -186,8 +186,8 @@ def _drive(args: argparse.Namespace) -> int:
 
     def show(t: float, state: Any) -> None:
         if args.json:
-            print(json.dumps({"t": round(t, 3), "x": state.x, "y": state.y, "theta": state.theta, "v": state.v,
-                              "w": state.w, "stalled": state.stalled, "bumped": state.bumped}), flush=True)
+            print(json_text({"t": round(t, 3), "x": state.x, "y": state.y, "theta": state.theta, "v": state.v,
+                             "w": state.w, "stalled": state.stalled, "bumped": state.bumped}), flush=True)
         else:
             flags = (" STALL" if state.stalled else "") + (" BUMP" if state.bumped else "")
             values = (t, state.x, state.y, state.theta, state.v, state.w)

@@ -5,7 +5,6 @@ Exit status: 0 done; 1 the matching failed; 2 bad arguments or a bad log file (o
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 from estimation.scanmatch import METHODS, LogFormatError, MatchConfig, ScanMatchError, read_laser_log
 from estimation.scanmatch.carmen import TruncatedLogError
 from estimation.scanmatch.evaluate import GUESSES, SUCCESS_ROTATION, SUCCESS_TRANSLATION, scan_odometry
+from runtime.commands.json_output import json_text
 from runtime.commands.options import add_deprecated_alias, positive_float, positive_int, whole_number_at_least
 
 EXIT_FAILED = 1
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         summary["config"] = config.to_dict()
         summary["trajectory"] = odometry.trajectory.tolist()
         summary["reference"] = poses[odometry.indices].tolist()
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
         return 0
     print(f"{args.log}: {summary['links']} links, matcher {args.matcher}, step {args.step}, guess {args.guess}")
     print(f"  converged {100 * summary['converged_share']:.1f} %, within {SUCCESS_TRANSLATION:.2f} m / "

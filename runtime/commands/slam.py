@@ -4,7 +4,6 @@ some (``dataset`` maps a log without it unscored)."""
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 
@@ -12,6 +11,7 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
+from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     add_deprecated_alias,
     check_output_apart,
@@ -113,7 +113,7 @@ def _simulate(args: argparse.Namespace) -> int:
     metrics = dict(result.metrics, out=str(args.out), robot=args.name, seed=args.seed,
                    start=[float(v) for v in start], ply=None if args.ply is None else str(args.ply))
     if args.json:
-        print(json.dumps(metrics))
+        print(json_text(metrics))
     else:
         m = metrics
         print(f"slam simulate: {m['robot']}, {m['frames']} frames in {m['seconds']:.1f} s, "
@@ -295,7 +295,7 @@ def _dataset(args: argparse.Namespace) -> int:
                    noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=_map_warnings(run.metrics),
                    stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
     if args.json:
-        print(json.dumps(metrics))
+        print(json_text(metrics))
         return 0
     m = metrics
     print(f"slam dataset: {m['dataset']}, {m['frames']} frames over {m['seconds']:.0f} s, {m['particles']} "
@@ -412,10 +412,10 @@ def _noise(args: argparse.Namespace) -> int:
     windows = [dict(window_s=w, xy_sigma_per_sqrt_m=a, theta_sigma_per_sqrt_rad=b, theta_sigma_per_sqrt_m=c)
                for w, a, b, c in estimate.odometry_by_window.tolist()]
     if args.json:
-        print(json.dumps({"out": str(args.out), "robot": model.robot, "odometry": asdict(model.odometry),
-                          "range_bearing": asdict(model.range_bearing) if model.range_bearing else None,
-                          "fit": model.fit, "odometry_by_window": windows,
-                          "odometry_consistency": [row.as_dict() for row in consistency]}))
+        print(json_text({"out": str(args.out), "robot": model.robot, "odometry": asdict(model.odometry),
+                         "range_bearing": asdict(model.range_bearing) if model.range_bearing else None,
+                         "fit": model.fit, "odometry_by_window": windows,
+                         "odometry_consistency": [row.as_dict() for row in consistency]}))
         return 0
     o, rb = model.odometry, model.range_bearing
     print(f"slam noise: {model.robot}")

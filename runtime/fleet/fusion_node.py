@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.prior import named_pair_priors
+from runtime.commands.json_output import json_text
 from runtime.exchange import MapExchange, MapMessage
 from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
@@ -223,8 +224,8 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
             logger.close()
     nothing = None if reports else nothing_to_fuse(node.mapped, heard, node.clock() - node.t0, args.fleet)
     if args.json:
-        print(json.dumps({"fusions": len(reports), "last": None if final is None else final.as_dict(),
-                          "robots_with_maps": sorted(node.mapped), "nothing_to_fuse": nothing}))
+        print(json_text({"fusions": len(reports), "last": None if final is None else final.as_dict(),
+                         "robots_with_maps": sorted(node.mapped), "nothing_to_fuse": nothing}))
     elif final is not None:
         print(f"{len(reports)} fusions; the last: " + json.dumps(final.as_dict()))
     if nothing is not None:

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.commands.json_output import json_text
 from runtime.exchange import MapMessage
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.status import health_figure
@@ -359,7 +360,7 @@ def run_processes_demo(args: argparse.Namespace) -> int:
               f"{'none' if m['held'] is None else m['held']}); the final fusion reads it from {m['file']} "
               f"({m['landmarks']} landmarks), which {robot} wrote at its end", file=sys.stderr)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
     else:
         print(format_summary(summary))
         print()

@@ -12,7 +12,6 @@ whose mission has ended (its status once a second, naming its last map) until SI
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
@@ -21,6 +20,7 @@ import time
 import numpy as np
 
 from estimation.landmark_map import LandmarkMap
+from runtime.commands.json_output import json_text
 from runtime.fleet.mapwire import encode_full
 
 DESCRIPTOR = 64
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             exchange.close()
     if args.report:
         sent = sent or [dict(e.bytes_sent) for e in exchanges]
-        print(json.dumps({"seconds": time.monotonic() - started, "robots": {
+        print(json_text({"seconds": time.monotonic() - started, "robots": {
             r.name: {"sent": s, "full_only": full_only[r.name]} for r, s in zip(robots, sent, strict=True)}}),
               flush=True)
     return 0
