@@ -57,14 +57,20 @@ def test_a_sighting_two_names_could_hold_stays_unnamed():
     assert len(wide) < len(sure)
 
 
-def test_name_unnamed_gives_the_names_and_the_smoother_uses_them():
-    from benchmarks.mrclam_constellation import name_unnamed
+def post_16_unnamed():
+    """Robot 2's first 300 s with the barcodes as names and 20 sightings of post 16 unnamed: (log, noise, config,
+    drift, the barcodes, the unnamed rows, the names, the smoothed state)."""
     log, noise, config, drift = _robot2(until=300.0)
     honest = np.asarray(log.landmark_ids, np.int64)
     unnamed = np.flatnonzero(honest == 16)[5:25]
     names = honest.copy()
     names[unnamed] = -1
-    state = _state(log, names, noise, config, drift)
+    return log, noise, config, drift, honest, unnamed, names, _state(log, names, noise, config, drift)
+
+
+def test_name_unnamed_gives_the_names_and_the_smoother_uses_them():
+    from benchmarks.mrclam_constellation import name_unnamed
+    log, noise, config, drift, honest, unnamed, names, state = post_16_unnamed()
     named_again, record = name_unnamed(log, state, noise, config, drift, argparse.Namespace(path_step=0.25))
     assert record["proposed"] == record["kept"] >= 15 and record["wrong_proposed"] == record["wrong_kept"] == 0
     np.testing.assert_array_equal(named_again.names[named_again.names >= 0], honest[named_again.names >= 0])

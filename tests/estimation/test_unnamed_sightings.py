@@ -11,8 +11,7 @@ from hypothesis import strategies as st
 from estimation.landmark_smoother import SightingOffset
 from estimation.name_merging import NamedSmoother
 from estimation.unnamed_sightings import VISIT_GAP_S, name_unnamed, visits
-from tests.datasets.test_constellation import _robot2
-from tests.datasets.test_name_unnamed import _state
+from tests.datasets.test_name_unnamed import post_16_unnamed
 
 
 @given(st.lists(st.tuples(st.integers(0, 3), st.floats(0.0, 60.0, allow_nan=False)), min_size=1, max_size=40))
@@ -30,12 +29,7 @@ def test_visits_order_rows_by_name_then_time_and_start_a_visit_at_a_new_name_or_
 
 
 def test_named_sightings_get_offset_groups_of_their_own_visits_and_the_smoother_keeps_them():
-    log, noise, config, drift = _robot2(until=300.0)
-    honest = np.asarray(log.landmark_ids, np.int64)
-    unnamed = np.flatnonzero(honest == 16)[5:25]
-    names = honest.copy()
-    names[unnamed] = -1
-    state = _state(log, names, noise, config, drift)
+    log, noise, config, drift, honest, _, names, state = post_16_unnamed()
     groups = names.copy()
     smoother = NamedSmoother(log, noise, config, drift, 0.25, SightingOffset(0.03), groups)
     named, proposed, after = name_unnamed(smoother, state)
