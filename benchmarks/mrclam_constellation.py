@@ -87,7 +87,10 @@ the posts are 0.7–1.9 m apart, and 33–60 % of other-post pairs fall in a pai
 3–6 of them within seconds, and their relative geometry is known to centimetres; this benchmark tests a pass's
 names against an earlier pass's *together* (:mod:`estimation.constellation`).
 
-The method (the barcodes never decide; they only score):
+The method (the barcodes never decide; they only score). Since session 36 (A) the whole of it, steps 1 to 10, is
+:func:`estimation.name_chain.run_chain` with :class:`estimation.name_chain.ChainSettings` (:func:`settings_of` the
+options below; its defaults are session 30's command); this benchmark gives it the cached chained names and guess,
+or a kept state (``--from-round``), and records and scores every decision through its observer (:class:`_Recorder`):
 
 1. **Names**: session 21's chained names (``mrclam_chained_names._chained``, the same ``--names-cache``; the method
    is :mod:`estimation.chained_names`, the smoothing :mod:`estimation.named_smoothing`), smoothed
@@ -192,13 +195,10 @@ from estimation import (  # noqa: E402
     unnamed_sightings,
 )
 from estimation.constellation import (  # noqa: E402
-    guard_batches,
     joint_d2,
     leave_one_out,
     match_constellation,
     pairwise_d2,
-    pairwise_groups,
-    spanning_pairs,
 )
 from estimation.dataset_slam import log_body_metadata  # noqa: E402
 from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
@@ -209,38 +209,32 @@ from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     HeadingDrift,
     HeadingLoss,
-    SightingOffset,
     Smoothed,
-    joint_landmark_covariance,
 )
-from estimation.map_honesty import (  # noqa: E402
-    flagged_landmarks,
-    self_covisible_frames,
-    sighting_runs,
-    split_scores,
+from estimation.name_chain import (  # noqa: E402
+    ChainObserver,
+    ChainResult,
+    ChainSettings,
+    Guard,
+    Resume,
+    flagged_names,  # noqa: F401  (the honest-names screen, imported from here by tests and tools)
+    guard_groups,
+    run_chain,
+    with_offsets,
+    without_flagged,
 )
-from estimation.merge_audit import covisible_spacing, held_parts, merged_parts, part_splits  # noqa: E402
-from estimation.name_merging import NamedSmoother, merge_guarded, merge_once, split_at_bends  # noqa: E402
+from estimation.name_merging import NamedSmoother  # noqa: E402
 from estimation.named_smoothing import (  # noqa: E402
     MergeRound,
     NamedProblem,
     named_problem,
-    smooth_named,
 )
-from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, NoiseModelError, estimate_noise  # noqa: E402
-from estimation.pairwise_audit import refused_alone  # noqa: E402
 from estimation.pass_matching import (  # noqa: E402
     STATUSES,
     Pass,
     PassVerdict,
-    judge_passes,
-    merges_from,
-    mutual_merges,
-    name_pairs,
-    pairwise_inputs,
     passes_of,
-    without_pairings,
 )
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
@@ -248,67 +242,18 @@ from runtime.commands.options import non_negative_float, non_negative_int, posit
 # command): every option but where the run read and wrote and what it printed
 _NOT_THE_METHOD = {"data", "robots", "seed", "names_cache", "state_dir", "from_round", "out_maps", "progress", "json"}
 
-# ``--sighting-offset``: the smoother's offset per chained name (estimation.landmark_smoother.SightingOffset), set by
-# run_robot for the robot it runs (the option, and each log sighting's name before any merge: its offset group);
-# every smoothing of this benchmark goes through _smooth_named, which adds it
+# the benchmark's own wrappers of estimation functions (leave_out, leave_out_flagged_runs, name_unnamed, _with_offsets,
+# for tools that examine saved states: benchmarks.mrclam_frame_nees sets them): the smoother's offset per chained name
+# (``--sighting-offset``: estimation.landmark_smoother.SightingOffset, and each log sighting's name before any merge,
+# its offset group) and heading loss (estimation.landmark_smoother.HeadingLoss; None: Gaussian). The chain itself
+# (run_robot) runs estimation.name_chain.run_chain, which carries its own NamedSmoother and reads neither.
 _OFFSET: dict = {"option": None, "names": None}
-
-# ``--audit-parts``: the floor (m) of the part-by-part audit of every accepted batch (None: off), whether parts the
-# map cannot test are held too (the rounds: yes; the pairwise rounds, whose groups refuse a rival in any gate: no),
-# and the audits since the last record (scored by the barcodes)
-_AUDIT: dict = {"floor_m": None, "untestable": True, "records": []}
-
-
-# ``--heading-loss``: the smoother's heavy-tailed loss on the odometry's heading residuals
-# (estimation.landmark_smoother.HeadingLoss; None: Gaussian), set by run_robot; every smoothing goes through
-# _smooth_named and every cost the merges are judged by through the run's NamedSmoother (_smoother), which add it
 _LOSS: dict = {"heading": None}
 
 
 def _smoother(log, noise, config, drift, path_step_s) -> NamedSmoother:
-    """The run's :class:`estimation.name_merging.NamedSmoother`: its sighting offset and heading loss as they stand."""
+    """A :class:`estimation.name_merging.NamedSmoother` with the module's sighting offset and heading loss."""
     return NamedSmoother(log, noise, config, drift, path_step_s, _OFFSET["option"], _OFFSET["names"], _LOSS["heading"])
-
-
-def _audit(log):
-    """``--audit-parts``' audit of a kept batch (:func:`audit_batch`), or None when it is off."""
-    if _AUDIT["floor_m"] is None:
-        return None
-    return lambda current, attempt: audit_batch(log, current, attempt)
-
-
-def _smooth_named(log, names, noise, config, **kwargs):
-    """:func:`estimation.named_smoothing.smooth_named` with the run's sighting offset (``--sighting-offset``) and
-    heading loss (``--heading-loss``), if any."""
-    return smooth_named(log, names, noise, config, sighting_offset=_OFFSET["option"], offset_names=_OFFSET["names"],
-                        heading_loss=_LOSS["heading"], **kwargs)
-
-
-def audit_batch(log, current: MergeRound, attempt: MergeRound) -> set[int]:
-    """The names (landmark indices of ``current``) whose part of a merged name ``attempt``'s map holds back
-    (:func:`estimation.merge_audit.held_parts` at ``--audit-parts``' floor: refused, its floored split score beyond
-    χ²₂ Bonferroni over the batch's parts; untestable, in the rounds only, its offset as wide as the nearest two posts
-    stand); the audit recorded in ``_AUDIT["records"]`` (scored by the barcodes: a part is wrong when its name's
-    barcode before is not its merged name's)."""
-    named, solution = attempt.named, attempt.solution
-    before = current.names[named.sightings]
-    parts = merged_parts(named.problem, solution, before)
-    if not parts:
-        return set()
-    splits = part_splits(named.problem, solution, parts)
-    spacing = covisible_spacing(named.problem, solution)
-    verdict = held_parts(splits, floor_m=_AUDIT["floor_m"], spacing_m=spacing)
-    hold = verdict["refused"] | (verdict["untestable"] & _AUDIT["untestable"])
-    earlier = [int(before[p.sightings[0]]) for p in parts]
-    owner_before, owner_after = majority(current.names, log.landmark_ids), majority(attempt.names, log.landmark_ids)
-    wrong = [owner_before[e] != owner_after[int(named.names[p.landmark])] for e, p in zip(earlier, parts, strict=True)]
-    _AUDIT["records"].append({
-        "parts": len(parts), "wrong_parts": int(sum(wrong)), "spacing_m": spacing,
-        "held": [{"name": e, "sightings": len(p.sightings), "refused": bool(r), "untestable": bool(u), "wrong": w}
-                 for e, p, r, u, h, w in zip(earlier, parts, verdict["refused"], verdict["untestable"], hold, wrong,
-                                             strict=True) if h]})
-    index = {int(x): k for k, x in enumerate(current.named.names)}
-    return {index[e] for e, h in zip(earlier, hold, strict=True) if h}
 
 
 def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
@@ -323,14 +268,14 @@ def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict
             "unique_fraction": counts["matched"] / decided if decided else float("nan")}
 
 
-def ceiling(log: RangeBearingLog, names: np.ndarray, noise, config, drift, args) -> dict:
-    """A diagnostic, the barcodes deciding: every name merged into its majority barcode, smoothed (from the known-ID
-    filter on those names): what the loops would give if every pass were matched right."""
+def ceiling(log: RangeBearingLog, names: np.ndarray, smoother: NamedSmoother, args) -> dict:
+    """A diagnostic, the barcodes deciding: every name merged into its majority barcode, smoothed by the run's
+    ``smoother`` (from the known-ID filter on those names): what the loops would give if every pass were matched
+    right."""
     owner = majority(names, log.landmark_ids)
     merged = np.array([owner[int(x)] if x >= 0 else -1 for x in names], np.int64)
-    poses, initial = _guess(log, merged, noise, config, args, cache=False)
-    named, solution = _smooth_named(log, merged, noise, config, initial_poses=poses, initial=initial,
-                                   heading_drift=drift, path_step_s=_path_step(args))
+    poses, initial = _guess(log, merged, smoother.noise, smoother.config, args, cache=False)
+    named, solution = smoother.smooth(merged, initial_poses=poses, initial=initial)
     final = MergeRound([], 0.0, 0.0, True, merged, named, solution)
     return round_scores(log, final, majority(merged, log.landmark_ids))
 
@@ -370,154 +315,68 @@ def layout_uniqueness(log: RangeBearingLog, named: NamedProblem, passes: list[Pa
     return out
 
 
+def settings_of(args) -> ChainSettings:
+    """The chain's settings (:class:`estimation.name_chain.ChainSettings`) as the command line gives them."""
+    return ChainSettings(
+        window_s=args.window, step_s=args.step, seed=args.seed, drift=tuple(args.drift), slip=args.slip,
+        path_step_s=args.path_step, heading_loss=args.heading_loss, heading_dof=args.heading_dof,
+        split_bends=args.split_bends, pass_seconds=args.pass_seconds, min_sightings=args.min_sightings,
+        min_pairs=args.min_pairs, ratio=args.ratio, fewer_rival=args.fewer_rival, distinct_points=args.distinct_points,
+        rival_rounds=args.rival_rounds, max_rounds=args.max_rounds, bisect=args.bisect, guard=args.guard,
+        honest_names=args.honest_names, honest_rounds=args.honest_rounds, hold_two_points=args.hold_two_points,
+        mutual_rounds=args.mutual_rounds, fresh_start=args.fresh_start, audit_parts=args.audit_parts,
+        reguess=args.reguess, sighting_offset=args.sighting_offset, offsets_once_tight=args.offsets_once_tight,
+        pairwise=args.pairwise, kept_covisible=args.kept_covisible, name_floor=args.name_floor,
+        split_ambiguous=args.split_ambiguous, pairwise_alone=args.pairwise_alone,
+        leave_out_ambiguous=args.leave_out_ambiguous, leave_out_unconfirmed=args.leave_out_unconfirmed,
+        name_unnamed=args.name_unnamed, runs_out=args.runs_out)
+
+
 def run_robot(log: RangeBearingLog, args) -> dict:
+    """One robot's chain (:func:`estimation.name_chain.run_chain` with :func:`settings_of` ``args``), from the
+    chained names and guess of ``--names-cache`` or from ``--from-round``'s saved state, every decision recorded and
+    scored by the barcodes (:class:`_Recorder`); the row of figures."""
     # ``--noise FILE``: the model calibrated elsewhere (e.g. on the other robots' logs); else fitted in sample, from
     # this log against its ground truth (the sensor part by each sighting's barcode's post)
     noise = NoiseModel.load(args.noise) if args.noise else estimate_noise([log], **DATASET_CALIBRATIONS).model
     config = range_bearing_config(n_particles=args.particles)
-    barcodes = log.landmark_ids
+    settings = settings_of(args)
     chained, row = _chained(log, args, noise, config)
     names = chained.names
-    drift = HeadingDrift(*args.drift, sigma_per_rad=args.slip) if args.drift[0] > 0 or args.slip > 0 else None
-    path_step_s = _path_step(args)
-    offsets_now = args.sighting_offset > 0 and not args.offsets_once_tight      # else from when the map is tight
-    _AUDIT.update(floor_m=args.audit_parts, records=[])
-    _OFFSET.update(option=SightingOffset(args.sighting_offset) if offsets_now else None, names=None)
-    _LOSS["heading"] = HeadingLoss("student-t", args.heading_dof) if args.heading_loss == "student-t" else None
+    recorder = _Recorder(log, args, row)
     if args.from_round is not None:
         current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
-                                   config, drift, path_step_s, _loss_meta())
+                                   config, settings.heading_drift, settings.path_step, _loss_meta(settings.loss))
+        offset_names = None
         if args.sighting_offset > 0:     # the groups: the names after the chain (round 0)
             first = state_path(args.state_dir, log, args.seed, "round0")
             if not first.exists():
                 raise SystemExit(f"--sighting-offset from round {args.from_round} needs {first} (its names are the "
                                  f"offsets' groups)")
             with np.load(first, allow_pickle=False) as data:
-                _OFFSET["names"] = data["names"]
-        if offsets_now:
-            current = _with_offsets(log, current, noise, config, drift, path_step_s)
-            if args.progress:
-                _print_scores(f"{log.name} round {args.from_round} re-smoothed with sighting offsets "
-                              f"σ {args.sighting_offset:g} m", round_scores(log, current, majority(current.names,
-                                                                                                   barcodes)),
-                              file=sys.stderr)
-        return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
-    initial_poses, initial = _guess(log, names, noise, config, args)
-    started = time.process_time()
-    named, solution = _smooth_named(log, names, noise, config, initial_poses=initial_poses, initial=initial,
-                                   heading_drift=drift, path_step_s=path_step_s)
-    current = MergeRound([], 0.0, 0.0, True, names.copy(), named, solution)
-    owner = majority(names, barcodes)
-    first = round_scores(log, current, owner)
-    row.update(first_smoothing=first, smooth_cpu_s=time.process_time() - started, rounds=[])
-    if args.layout:
-        first_passes = passes_of(named, solution, args.pass_seconds, args.min_sightings)
-        row["layout"] = {f"turn {turn:g} rad, shift {shift:g} m": layout_uniqueness(
-            log, named, first_passes, turn_sigma=turn, shift_sigma=shift) for turn in (0.05, 0.2, 0.5)
-            for shift in (0.5, 2.0)}
-    if args.ceiling:
-        row["ceiling"] = ceiling(log, names, noise, config, drift, args)
-    if args.progress:
-        _print_scores(f"{log.name} chain", first, file=sys.stderr)
-    if args.split_bends:
-        def on_try(t):
-            if args.progress:
-                print(f"  split name {t['name']} at {t['t']:.1f} s: cost drop {t['cost_drop']:.1f}", file=sys.stderr,
-                      flush=True)
-        current, tried = split_at_bends(_smoother(log, noise, config, drift, path_step_s), current, on_try=on_try)
-        code = np.asarray(barcodes)
-        for t in tried:       # scored: the barcodes of the name's sightings before and after the split
-            mine = names == t["name"]
-            t["before"] = sorted({int(c) for c in code[mine & (log.sighting_times < t["t"])]})
-            t["after"] = sorted({int(c) for c in code[mine & (log.sighting_times >= t["t"])]})
-        row["splits"] = tried
-        row["after_splits"] = round_scores(log, current, majority(current.names, barcodes))
-        row["after_splits"]["wrong_sightings_kept"] = wrong_sightings_kept(log, current)
-        if args.progress:
-            for t in tried:
-                print(f"  split name {t['name']} at {t['t']:.1f} s (barcodes {t['before']} | {t['after']}): cost drop "
-                      f"{t['cost_drop']:.1f} {'kept' if t['kept'] else 'not kept'}", file=sys.stderr, flush=True)
-            _print_scores(f"{log.name} after the splits", row["after_splits"], file=sys.stderr)
-    meta = _state_meta(log, args, drift, 0)
-    if args.state_dir:
-        save_state(state_path(args.state_dir, log, args.seed, "round0"), current, meta)
-    if args.sighting_offset > 0:       # the groups: the names after the chain (and the splits)
-        _OFFSET["names"] = current.names.copy()
-    if offsets_now:
-        current = _with_offsets(log, current, noise, config, drift, path_step_s)
-    return _run_rounds(log, row, names, current, meta, noise, config, drift, args)
+                offset_names = data["names"]
+        run = run_chain(log, noise, config, settings, resume=Resume(current, int(meta["round"]), offset_names),
+                        observer=recorder)
+    else:
+        guess = _guess(log, names, noise, config, args)
+        recorder.started = time.process_time()
+        run = run_chain(log, noise, config, settings, names=names, guess=guess, observer=recorder)
+    return _finish(log, row, names, run, args)
 
 
-def _with_offsets(log: RangeBearingLog, current: MergeRound, noise, config, drift, path_step_s) -> MergeRound:
-    """``current``'s names re-smoothed with the run's sighting offsets, from its solution (one name's offset alone
-    moves nothing; merged names' offsets let them differ)."""
-    initial = dict(zip(current.named.names.tolist(), current.solution.landmarks, strict=True))
-    named, solution = _smooth_named(log, current.names, noise, config, initial_poses=current.solution.poses,
-                                    initial=initial, heading_drift=drift, path_step_s=path_step_s)
-    return MergeRound([], 0.0, 0.0, True, current.names, named, solution)
-
-
-def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: MergeRound, meta: dict, noise, config,
-                drift, args) -> dict:
-    """Rounds from the state ``current`` (made by ``meta["round"]`` rounds) up to round ``args.max_rounds``, each
-    kept state saved in ``args.state_dir``; with ``--offsets-once-tight``, the sighting offsets enter when a round
-    keeps nothing (or after the last round) and that round is judged again with them; then pairwise and
-    ``--leave-out-ambiguous``; the final scores in ``row``."""
-    barcodes = log.landmark_ids
-    row.setdefault("rounds", [])
-    start = int(meta["round"])
-    if start or "first_smoothing" not in row:       # from a saved state (round 0 included)
-        row["from_round"] = start
-        row["first_smoothing"] = round_scores(log, current, majority(current.names, barcodes))
-        if args.progress:
-            _print_scores(f"{log.name} state after round {start}", row["first_smoothing"], file=sys.stderr)
-    pending = args.offsets_once_tight and _OFFSET["option"] is None and args.sighting_offset > 0
-    k = start
-    while k < args.max_rounds:
-        state = _one_round(log, row, current, k, noise, config, drift, args)
-        if state is None:
-            if not pending:
-                break
-            current, pending = _enter_offsets(log, row, current, k, noise, config, drift, args), False
-            continue                # the round that kept nothing, judged again with the offsets
-        current, k = state, k + 1
-    if pending:
-        current = _enter_offsets(log, row, current, k, noise, config, drift, args)
-    if args.runs_out:        # the last merges judge the tight map without the runs that bend it
-        current = _take_runs_out(log, row, current, "runs_out_before_pairwise", noise, config, drift, args)
-    if args.pairwise:
-        current = _pairwise_rounds(log, row, current, noise, config, drift, args)
-    if args.leave_out_ambiguous:
-        left = name_leave_out.ambiguous_names(current, name_floor_m=args.name_floor, kept_covisible=args.kept_covisible)
-        current, row["left_out"] = leave_out(log, current, left, noise, config, drift, args)
-        _report_left_out(log, current, row["left_out"], "ambiguous", drift, args)
-        if args.pairwise and row["left_out"]["names"]:      # names the glimpses kept apart may merge now
-            current = _pairwise_rounds(log, row, current, noise, config, drift, args)
-    if args.leave_out_unconfirmed:
-        left = name_leave_out.unconfirmed_names(current, noise, config)
-        current, row["unconfirmed_out"] = leave_out(log, current, left, noise, config, drift, args)
-        _report_left_out(log, current, row["unconfirmed_out"], "unconfirmed", drift, args)
-    if args.name_unnamed:
-        current, row["named_again"] = name_unnamed(log, current, noise, config, drift, args)
-        if args.progress:
-            print(f"  unnamed sightings named: {row['named_again']}", file=sys.stderr, flush=True)
-    if args.runs_out:
-        current = _take_runs_out(log, row, current, "runs_out", noise, config, drift, args)
-        if row["runs_out"]["runs"]:           # their names judged again without them, their sightings re-offered
-            if args.pairwise:
-                current = _pairwise_rounds(log, row, current, noise, config, drift, args)
-            current, row["named_after_runs_out"] = name_unnamed(log, current, noise, config, drift, args)
-            if args.progress:
-                print(f"  unnamed sightings named again: {row['named_after_runs_out']}", file=sys.stderr, flush=True)
-    final = final_scores(log, current, majority(names, barcodes))
+def _finish(log: RangeBearingLog, row: dict, names: np.ndarray, run: ChainResult, args) -> dict:
+    """The final scores in ``row`` (merges counted from the recorded attempts, scored against the chained names'
+    barcodes), the final state kept (``--state-dir``) and the map written (``--out-maps``)."""
+    current = run.state
+    final = final_scores(log, current, majority(names, log.landmark_ids))
     kept = [a for r in row["rounds"] + row.get("pairwise", []) for a in [r.get("batch")] + r.get("tries", [])
             if a and a["accepted"]]
     final["merges"] = sum(a["merged"] for a in kept)
     final["wrong_merges"] = sum(a["wrong_merges"] for a in kept)
     row["final"] = final
     if args.state_dir:      # the final names: what a vote across seeds reads (benchmarks.mrclam_seed_vote)
-        meta = _state_meta(log, args, drift, k, {key: float(v) for key, v in final.items()
-                                                 if isinstance(v, (int, float, np.number))})
+        meta = _state_meta(log, args, run.smoother, run.rounds_done,
+                           {key: float(v) for key, v in final.items() if isinstance(v, (int, float, np.number))})
         # the noise model's file as given (an in-sample run's command is recorded as before --noise existed)
         meta["command"] = {key: value for key, value in vars(args).items()
                            if key not in _NOT_THE_METHOD and not (key == "noise" and value is None)}
@@ -527,6 +386,201 @@ def _run_rounds(log: RangeBearingLog, row: dict, names: np.ndarray, current: Mer
         chain_map(log, current).save(path)
         row["map"] = str(path)
     return row
+
+
+class _Recorder(ChainObserver):
+    """The chain's decisions as the benchmark records them: each round's and pairwise round's record in ``row``
+    (scored by the barcodes), the steps after them, the states kept in ``--state-dir`` and, with ``--progress``,
+    each step on stderr as it ends."""
+
+    def __init__(self, log: RangeBearingLog, args, row: dict):
+        self.log, self.args, self.row = log, args, row
+        self.barcodes = log.landmark_ids
+        self.started = time.process_time()
+        self.record: dict = {}          # the round's or pairwise round's record
+        self.owner: dict[int, int] = {}
+        self.code = np.zeros(0, np.int64)
+        self.audits: list[dict] = []
+
+    def _say(self, text: str) -> None:
+        if self.args.progress:
+            print(text, file=sys.stderr, flush=True)
+
+    def _scores(self, label: str, scores: dict) -> None:
+        if self.args.progress:
+            _print_scores(label, scores, file=sys.stderr)
+
+    def chain_smoothed(self, state, smoother):
+        log, args, row = self.log, self.args, self.row
+        first = round_scores(log, state, majority(state.names, self.barcodes))
+        row.update(first_smoothing=first, smooth_cpu_s=time.process_time() - self.started, rounds=[])
+        if args.layout:
+            first_passes = passes_of(state.named, state.solution, args.pass_seconds, args.min_sightings)
+            row["layout"] = {f"turn {turn:g} rad, shift {shift:g} m": layout_uniqueness(
+                log, state.named, first_passes, turn_sigma=turn, shift_sigma=shift) for turn in (0.05, 0.2, 0.5)
+                for shift in (0.5, 2.0)}
+        if args.ceiling:
+            row["ceiling"] = ceiling(log, state.names, smoother, args)
+        self._scores(f"{log.name} chain", first)
+
+    def split_tried(self, split):
+        self._say(f"  split name {split['name']} at {split['t']:.1f} s: cost drop {split['cost_drop']:.1f}")
+
+    def splits_done(self, before, after, tried):
+        log, row = self.log, self.row
+        code = np.asarray(self.barcodes)
+        for t in tried:       # scored: the barcodes of the name's sightings before and after the split
+            mine = before.names == t["name"]
+            t["before"] = sorted({int(c) for c in code[mine & (log.sighting_times < t["t"])]})
+            t["after"] = sorted({int(c) for c in code[mine & (log.sighting_times >= t["t"])]})
+        row["splits"] = tried
+        row["after_splits"] = round_scores(log, after, majority(after.names, self.barcodes))
+        row["after_splits"]["wrong_sightings_kept"] = wrong_sightings_kept(log, after)
+        for t in tried:
+            self._say(f"  split name {t['name']} at {t['t']:.1f} s (barcodes {t['before']} | {t['after']}): cost "
+                      f"drop {t['cost_drop']:.1f} {'kept' if t['kept'] else 'not kept'}")
+        self._scores(f"{log.name} after the splits", row["after_splits"])
+
+    def resumed(self, state, round_done, offsets):
+        log, row = self.log, self.row
+        if offsets and self.args.progress:
+            self._scores(f"{log.name} round {self.args.from_round} re-smoothed with sighting offsets "
+                         f"σ {self.args.sighting_offset:g} m", round_scores(log, state, majority(state.names,
+                                                                                                 self.barcodes)))
+        row.setdefault("rounds", [])
+        row["from_round"] = round_done
+        row["first_smoothing"] = round_scores(log, state, majority(state.names, self.barcodes))
+        self._scores(f"{log.name} state after round {round_done}", row["first_smoothing"])
+
+    def state_kept(self, tag, state, round_done, smoother, before):
+        if not self.args.state_dir:
+            return
+        if before is None:            # the chain's state (round 0)
+            scores = None
+        elif tag.startswith("out-"):
+            scores = _round(self.log, state, majority(state.names, self.barcodes))
+        else:
+            scores = _round(self.log, state, majority(before.names, self.barcodes))
+        save_state(state_path(self.args.state_dir, self.log, self.args.seed, tag), state,
+                   _state_meta(self.log, self.args, smoother, round_done, scores))
+
+    def round_begins(self, number, state, smoother):
+        self.started = time.process_time()
+        self.owner = majority(state.names, self.barcodes)
+        self.record = {"round": number, "sighting_offsets": smoother.sighting_offset is not None}
+
+    def round_judged(self, number, state, verdicts):
+        judged = score_verdicts(verdicts, state.named, self.owner)
+        judged["judge_cpu_s"] = time.process_time() - self.started
+        self.record["judged"] = judged
+
+    def honest_screened(self, number, state, verdicts, flagged):
+        self.record["honest_names"] = _honest_record(state, verdicts, flagged, self.owner)
+        self._say(f"  round {number}: honest names: {self.record['honest_names']}")
+
+    def mutual_aside(self, number, state, aside):
+        names, owner = state.named.names, self.owner
+        self.record["mutual_aside"] = [{"names": [int(names[x]) for x in m],
+                                        "wrong": len({owner.get(int(names[x]), -1) for x in m}) > 1} for m in aside]
+        if aside:
+            self._say(f"  round {number}: set aside, not all within each other's gate: {self.record['mutual_aside']}")
+
+    def round_proposed(self, number, state, used):
+        self.record["passes_used"] = len(used)
+        self.row["rounds"].append(self.record)
+        if self.args.progress:
+            _print_judged(number, self.record["judged"], file=sys.stderr)
+
+    def guard_judged(self, label, state, covariance, used, covisible, guard):
+        self.record["guard"] = _guard_scores(state, covariance, used, self.owner, covisible, guard)
+        if self.args.progress and label.startswith("round"):     # a pairwise round's is printed with its groups
+            _print_guard(f"  {label}", self.record["guard"], file=sys.stderr)
+
+    def audited(self, before, attempt, audit):
+        named = attempt.named
+        owner_before, owner_after = majority(before.names, self.barcodes), majority(attempt.names, self.barcodes)
+        wrong = [owner_before[e] != owner_after[int(named.names[p.landmark])]
+                 for e, p in zip(audit.earlier, audit.parts, strict=True)]
+        verdict = audit.verdict
+        self.audits.append({
+            "parts": len(audit.parts), "wrong_parts": int(sum(wrong)), "spacing_m": audit.spacing_m,
+            "held": [{"name": e, "sightings": len(p.sightings), "refused": bool(r), "untestable": bool(u), "wrong": w}
+                     for e, p, r, u, h, w in zip(audit.earlier, audit.parts, verdict["refused"],
+                                                 verdict["untestable"], audit.hold, wrong, strict=True) if h]})
+
+    def merged(self, label, before, attempts, state):
+        record = self.record
+        record["batch"] = _round(self.log, attempts[0], self.owner)
+        record["tries"] = [_round(self.log, a, self.owner) for a in attempts[1:]]
+        record["cpu_s"] = time.process_time() - self.started
+        if self.args.audit_parts is not None:
+            record["audit"] = self.audits
+        self.audits = []
+        for audit in record.get("audit", []):
+            self._say(f"  {label} audit: {audit['parts']} parts ({audit['wrong_parts']} wrong), spacing "
+                      f"{audit['spacing_m']:.2f} m, held {audit['held'] or 'none'}")
+        for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
+            self._scores(f"  {label} {key}", scores)
+
+    def offsets_entered(self, after_round, state):
+        scores = round_scores(self.log, state, majority(state.names, self.barcodes))
+        self.row["offsets_entered"] = {"after_round": after_round, "scores": scores}
+        self._scores(f"{self.log.name} after round {after_round}, re-smoothed with sighting offsets σ "
+                     f"{self.args.sighting_offset:g} m", scores)
+
+    def pairwise_begins(self, number, state):
+        self.started = time.process_time()
+        self.owner = majority(state.names, self.barcodes)
+        self.code = np.array([self.owner.get(int(x), -1) for x in state.named.names])
+        self.row.setdefault("pairwise", [])
+
+    def pairwise_grouped(self, number, state, groups):
+        code = self.code
+        self.record = {"round": number, "groups": {s: sum(g.status == s for g in groups)
+                                                   for s in ("merge", "covisible", "not_joint")},
+                       "groups_wrong": {s: sum(g.status == s and len({code[m] for m in g.members}) > 1
+                                               for g in groups) for s in ("merge", "covisible", "not_joint")}}
+        if self.args.split_ambiguous:
+            self.record["groups"]["ambiguous"] = sum(g.status == "ambiguous" for g in groups)
+
+    def pairwise_honest(self, number, state, flagged, held):
+        self.record["honest_names"] = {"flagged": int(flagged.sum()), "groups_refused": len(held),
+                                       "wrong_refused": sum(len({self.code[m] for m in g.members}) > 1 for g in held)}
+        self._say(f"  pairwise {number}: honest names: {self.record['honest_names']}")
+
+    def alone_checked(self, number, state, used, rises, absorbed, refused):
+        self.record["alone"] = _alone_record(state, used, rises, absorbed, refused, self.code)
+        self._say(f"  alone: {sum(refused)} of {len(used)} groups refused "
+                  f"{[g for g in self.record['alone'] if g['refused']] or ''}")
+
+    def pairwise_proposed(self, number, state, used):
+        record = self.record
+        record["judge_cpu_s"] = time.process_time() - self.started
+        self._say(f"  pairwise {number}: groups {record['groups']} (wrong {record['groups_wrong']}), "
+                  f"{record['judge_cpu_s']:.0f} s CPU")
+        if self.args.progress and "guard" in record:
+            _print_guard(f"  pairwise {number}", record["guard"], file=sys.stderr)
+        self.row["pairwise"].append(record)
+
+    def runs_flagged(self, key, before, flagged):
+        self.row[key] = _runs_record(self.log, before, flagged)
+        self._say(f"  runs taken out of their names ({key}): {self.row[key]['runs'] or 'none'}")
+
+    def left_out(self, why, before, left, after):
+        key = "left_out" if why == "ambiguous" else "unconfirmed_out"
+        self.row[key] = _left_out_record(self.log, before, left)
+        self._say(f"  left out as {why}: {self.row[key]['names'] or 'none'}; posts lost {self.row[key]['posts_lost']}")
+
+    def named_again(self, key, before, after, proposed):
+        self.row[key] = named_again_record(self.log, before, after, proposed)
+        again = " again" if key == "named_after_runs_out" else ""
+        self._say(f"  unnamed sightings named{again}: {self.row[key]}")
+
+
+def _with_offsets(log: RangeBearingLog, current: MergeRound, noise, config, drift, path_step_s) -> MergeRound:
+    """``current``'s names re-smoothed with the module's sighting offsets (:func:`estimation.name_chain.with_offsets`;
+    for tools that examine saved states)."""
+    return with_offsets(_smoother(log, noise, config, drift, path_step_s), current)
 
 
 def final_scores(log: RangeBearingLog, current: MergeRound, owner_before: dict[int, int]) -> dict:
@@ -577,152 +631,46 @@ def map_consistency(log: RangeBearingLog, current: MergeRound, draws: int = 20_0
             "nees_figure_p_fail": figures["figure_under_model"]["p_fail"]}
 
 
-def _one_round(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noise, config, drift, args
-               ) -> MergeRound | None:
-    """Round k + 1 on ``current`` (module docstring, steps 2-4), recorded in ``row["rounds"]`` and its kept state
-    saved; the new state, or None when the round keeps nothing."""
-    barcodes = log.landmark_ids
-    started = time.process_time()
-    covariance = joint_landmark_covariance(current.named.problem, current.solution)
-    passes = passes_of(current.named, current.solution, args.pass_seconds, args.min_sightings)
-    covisible = _covisible(current.named.problem, current.solution.inliers, len(current.named.names))
-    verdicts = judge_passes(current.solution.landmarks, covariance, covisible, passes, min_pairs=args.min_pairs,
-                            ratio=args.ratio if args.ratio is not None else np.inf,
-                            **rival_options(args, k + 1))
-    owner = majority(current.names, barcodes)
-    judged = score_verdicts(verdicts, current.named, owner)
-    judged["judge_cpu_s"] = time.process_time() - started
-    record = {"round": k + 1, "judged": judged, "sighting_offsets": _OFFSET["option"] is not None}
-    if args.honest_rounds:
-        verdicts, record["honest_names"] = _without_flagged(current, verdicts, owner, args.honest_names,
-                                                            args.hold_two_points)
-        if args.progress:
-            print(f"  round {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
-    if args.mutual_rounds:
-        clusters, used, aside = mutual_merges(verdicts, covisible, current.solution.landmarks, covariance)
-        record["mutual_aside"] = [{"names": [int(current.named.names[x]) for x in m],
-                                   "wrong": len({owner.get(int(current.named.names[x]), -1) for x in m}) > 1}
-                                  for m in aside]
-        if args.progress and aside:
-            print(f"  round {k + 1}: set aside, not all within each other's gate: {record['mutual_aside']}",
-                  file=sys.stderr, flush=True)
-    else:
-        clusters, used = merges_from(verdicts, covisible)
-    record["passes_used"] = len(used)
-    row["rounds"].append(record)
-    if args.progress:
-        _print_judged(k + 1, judged, file=sys.stderr)
-    guarded = None
-    if used:          # the guard's verdict is recorded on every round, and acted on with --guard
-        record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
-        if not (args.guard and record["guard"]["set_aside"]):
-            guarded = None
-        if args.progress:
-            _print_guard(f"  round {k + 1}", record["guard"], file=sys.stderr)
-    if not clusters:
-        return None
-    reguess = None
-    if args.reguess:
-        def reguess(merged_names):
-            return _guess(log, merged_names, noise, config, args, cache=False)
-    state = _merge_recorded(log, current, used, guarded, record, f"round {k + 1}", owner, started, noise, config,
-                            drift, args, reguess=reguess)
-    if state is current:
-        return None
-    if args.state_dir:
-        save_state(state_path(args.state_dir, log, args.seed, f"round{k + 1}"), state,
-                   _state_meta(log, args, drift, k + 1, _round(log, state, owner)))
-    return state
-
-
 def rival_options(args, round_number: int) -> dict:
-    """A's ``--fewer-rival``/``--distinct-points`` for round ``round_number``: off after ``--rival-rounds``."""
-    on = args.rival_rounds is None or round_number <= args.rival_rounds
-    return {"fewer_rival": args.fewer_rival and on, "distinct_points": args.distinct_points and on}
+    """A's ``--fewer-rival``/``--distinct-points`` for round ``round_number``: off after ``--rival-rounds``
+    (:meth:`estimation.name_chain.ChainSettings.rival_options`)."""
+    return ChainSettings(fewer_rival=args.fewer_rival, distinct_points=args.distinct_points,
+                         rival_rounds=args.rival_rounds).rival_options(round_number)
 
 
 def _without_flagged(current: MergeRound, verdicts: list[PassVerdict], owner: dict[int, int], alpha: float,
                      two_points: bool = False) -> tuple[list[PassVerdict], dict]:
-    """``--honest-rounds``: the round's matched passes without their pairings of a name the split-score screen flags
-    (:func:`flagged_names`: a run of its sightings the rest of the map bends to fit), as ``--honest-names`` does to
-    the pairwise groups; a pass left without pairings merges nothing. Session 27 (B) measured it refusing robot 2 seed
-    0's round-2 and robot 3 seed 2's round-1 wrong merges. Also returns what it held back (scored by the barcodes)."""
-    flagged = flagged_names(current.named.problem, current.solution, alpha, two_points=two_points)
+    """``--honest-rounds`` (:func:`estimation.name_chain.without_flagged`): the round's matched passes without their
+    pairings of a name the split-score screen flags, and what it held back (scored by the barcodes)."""
+    kept, flagged = without_flagged(current, verdicts, alpha, two_points)
+    return kept, _honest_record(current, verdicts, flagged, owner)
+
+
+def _honest_record(current: MergeRound, verdicts: list[PassVerdict], flagged: np.ndarray, owner: dict[int, int]
+                   ) -> dict:
+    """The honest rounds' screen scored by the barcodes: names flagged, pairings held back and how many were wrong."""
     code = np.array([owner.get(int(x), -1) for x in current.named.names])
     held = [(a, b) for v in verdicts if v.status == "matched" for a, b in v.pairs if flagged[a] or flagged[b]]
-    kept = without_pairings(verdicts, lambda a, b: flagged[a] or flagged[b])
-    return kept, {"flagged": int(flagged.sum()), "pairings_held": len(held),
-                  "wrong_held": int(sum(code[a] != code[b] for a, b in held))}
-
-
-def _report_left_out(log: RangeBearingLog, current: MergeRound, record: dict, why: str, drift, args) -> None:
-    """A leave-out step's record on stderr (``--progress``) and its state kept (``--state-dir``, tag ``out-<why>``)."""
-    if args.progress:
-        print(f"  left out as {why}: {record['names'] or 'none'}; posts lost {record['posts_lost']}", file=sys.stderr,
-              flush=True)
-    if args.state_dir and record["names"]:
-        save_state(state_path(args.state_dir, log, args.seed, f"out-{why}"), current,
-                   _state_meta(log, args, drift, -1, _round(log, current, majority(current.names, log.landmark_ids))))
-
-
-def _merge_recorded(log: RangeBearingLog, current: MergeRound, used: list[PassVerdict], guarded, record: dict,
-                    label: str, owner: dict[int, int], started: float, noise, config, drift, args, *, reguess=None,
-                    kept_covisible: bool = False, untestable: bool = True) -> MergeRound:
-    """A round's merges (:func:`merge_guarded`, the guard's kept groups ``guarded`` or None), each attempt scored
-    into ``record``; the state kept (``current`` when none was). ``untestable``: with ``--audit-parts``, whether the
-    audit holds back the parts the map cannot test (the rounds) or only those it refuses (the pairwise rounds)."""
-    _AUDIT.update(untestable=untestable, records=[])
-    fresh_start = None
-    if args.fresh_start:       # the filter's guess on the merged names (no barcodes), for a refused whole batch
-        def fresh_start(merged_names):
-            return names_guess(log, merged_names, noise, config, np.random.default_rng(args.seed))
-    state, attempts = merge_guarded(_smoother(log, noise, config, drift, _path_step(args)), current,
-                                    name_pairs(used, current.named),
-                                    None if guarded is None else name_pairs(guarded, current.named),
-                                    depth=args.bisect, reguess=reguess, kept_covisible=kept_covisible,
-                                    fresh_start=fresh_start, audit=_audit(log))
-    record["batch"] = _round(log, attempts[0], owner)
-    record["tries"] = [_round(log, a, owner) for a in attempts[1:]]
-    record["cpu_s"] = time.process_time() - started
-    if _AUDIT["floor_m"] is not None:
-        record["audit"] = _AUDIT["records"]
-    if args.progress:
-        for audit in record.get("audit", []):
-            print(f"  {label} audit: {audit['parts']} parts ({audit['wrong_parts']} wrong), spacing "
-                  f"{audit['spacing_m']:.2f} m, held {audit['held'] or 'none'}", file=sys.stderr, flush=True)
-        for key, scores in [("batch", record["batch"])] + [("try", t) for t in record["tries"]]:
-            _print_scores(f"  {label} {key}", scores, file=sys.stderr)
-    if np.array_equal(state.names, current.names):      # the audit held every merge back: nothing kept
-        return current
-    return state
-
-
-def _enter_offsets(log: RangeBearingLog, row: dict, current: MergeRound, k: int, noise, config, drift, args
-                   ) -> MergeRound:
-    """``--offsets-once-tight``: the sighting offsets switched on after round k (the rounds without them stopped, or
-    ran out) and ``current`` re-smoothed with them. Session 27 (A): from round 0, on a loose map, a 3 cm offset per
-    name lets batches holding wrong pairings pass the cost check; it belongs to the tight map's last merges."""
-    _OFFSET["option"] = SightingOffset(args.sighting_offset)
-    current = _with_offsets(log, current, noise, config, drift, _path_step(args))
-    scores = round_scores(log, current, majority(current.names, log.landmark_ids))
-    row["offsets_entered"] = {"after_round": k, "scores": scores}
-    if args.progress:
-        _print_scores(f"{log.name} after round {k}, re-smoothed with sighting offsets σ {args.sighting_offset:g} m",
-                      scores, file=sys.stderr)
-    return current
+    return {"flagged": int(flagged.sum()), "pairings_held": len(held),
+            "wrong_held": int(sum(code[a] != code[b] for a, b in held))}
 
 
 def leave_out(log: RangeBearingLog, current: MergeRound, left: list[int], noise, config, drift, args
               ) -> tuple[MergeRound, dict]:
     """``current`` without the names ``left`` (:func:`estimation.name_leave_out.leave_out`; ``--leave-out-ambiguous``:
-    ``ambiguous_names``; ``--leave-out-unconfirmed``: ``unconfirmed_names``). Returns the new state and what was
-    left out, scored by the barcodes: each name's sightings and post, whether it was a duplicate (its post has another
-    name), and the posts that lost their only name."""
-    owner = majority(current.names, log.landmark_ids)
-    record = {"names": [{"name": x, "sightings": int(np.sum(current.names == x)), "post": owner[x],
-                         "duplicate": any(owner[y] == owner[x] for y in owner if y != x)} for x in left],
-              "posts_lost": sorted({owner[x] for x in left} - {owner[x] for x in owner if x not in left})}
+    ``ambiguous_names``; ``--leave-out-unconfirmed``: ``unconfirmed_names``) and what was left out, scored by the
+    barcodes (:func:`_left_out_record`)."""
+    record = _left_out_record(log, current, left)
     return name_leave_out.leave_out(_smoother(log, noise, config, drift, _path_step(args)), current, left), record
+
+
+def _left_out_record(log: RangeBearingLog, current: MergeRound, left: list[int]) -> dict:
+    """Names left out of ``current``, scored by the barcodes: each name's sightings and post, whether it was a
+    duplicate (its post has another name), and the posts that lost their only name."""
+    owner = majority(current.names, log.landmark_ids)
+    return {"names": [{"name": x, "sightings": int(np.sum(current.names == x)), "post": owner[x],
+                       "duplicate": any(owner[y] == owner[x] for y in owner if y != x)} for x in left],
+            "posts_lost": sorted({owner[x] for x in left} - {owner[x] for x in owner if x not in left})}
 
 
 def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, config, drift, args
@@ -731,10 +679,16 @@ def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, con
     (:func:`estimation.name_leave_out.flagged_runs_of`) are taken out of their names
     (:func:`estimation.name_leave_out.leave_out_runs`) instead of standing in the map and keeping their names from
     every merge; the pairwise rounds and the naming then run again. Returns the new state (``current`` when no run is
-    flagged) and the runs taken out, scored by the barcodes (each run's name, post, span, sightings, score and wrong
-    sightings)."""
-    named = current.named
+    flagged) and the runs taken out, scored by the barcodes (:func:`_runs_record`)."""
     flagged = name_leave_out.flagged_runs_of(current, args.honest_names)
+    smoother = _smoother(log, noise, config, drift, _path_step(args))
+    record = _runs_record(log, current, flagged)
+    return name_leave_out.leave_out_runs(smoother, current, [run for run, _, _ in flagged]), record
+
+
+def _runs_record(log: RangeBearingLog, current: MergeRound, flagged) -> dict:
+    """Flagged runs scored by the barcodes: each run's name, post, span, sightings, score and wrong sightings."""
+    named = current.named
     owner = majority(current.names, log.landmark_ids)
     times = named.frame_times[named.problem.pose_index - 1] - log.start_time
     barcodes = np.asarray(log.landmark_ids)
@@ -745,8 +699,7 @@ def leave_out_flagged_runs(log: RangeBearingLog, current: MergeRound, noise, con
         record["runs"].append({"name": name, "post": owner[name], "from_s": float(times[run.sightings[0]]),
                                "to_s": float(times[run.sightings[-1]]), "sightings": len(rows), "score": score,
                                "threshold": threshold, "wrong": int(np.sum(barcodes[rows] != owner[name]))})
-    smoother = _smoother(log, noise, config, drift, _path_step(args))
-    return name_leave_out.leave_out_runs(smoother, current, [run for run, _, _ in flagged]), record
+    return record
 
 
 def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift, args) -> tuple[MergeRound, dict]:
@@ -775,15 +728,6 @@ def named_again_record(log: RangeBearingLog, before: MergeRound, after: MergeRou
     record.update(kept=int(len(kept_rows)),
                   wrong_kept=sum(owner.get(int(after.names[r])) != int(log.landmark_ids[r]) for r in kept_rows))
     return record
-
-
-def _take_runs_out(log: RangeBearingLog, row: dict, current: MergeRound, key: str, noise, config, drift, args
-                   ) -> MergeRound:
-    """:func:`leave_out_flagged_runs` on ``current``, recorded in ``row[key]`` (and on stderr with ``--progress``)."""
-    current, row[key] = leave_out_flagged_runs(log, current, noise, config, drift, args)
-    if args.progress:
-        print(f"  runs taken out of their names ({key}): {row[key]['runs'] or 'none'}", file=sys.stderr, flush=True)
-    return current
 
 
 STATE_ARRAYS = ("poses", "landmarks", "landmark_covariances", "covariance_poses", "pose_covariances", "inliers")
@@ -852,55 +796,54 @@ def _drift_meta(drift: HeadingDrift | None) -> list | None:
     return [drift.sigma_per_m, drift.tau_s] + ([drift.sigma_per_rad] if drift.sigma_per_rad > 0 else [])
 
 
-def _state_meta(log: RangeBearingLog, args, drift, round_done: int, scores: dict | None = None) -> dict:
-    return {"robot": log.name, "seed": args.seed, "drift": _drift_meta(drift),
-            "path_step_s": _path_step(args), "round": round_done, "scores": scores or {},
-            "sighting_offset_m": _OFFSET["option"].sigma_m if _OFFSET["option"] is not None else 0.0,
-            **({"heading_loss": _loss_meta()} if _LOSS["heading"] is not None else {})}
+def _state_meta(log: RangeBearingLog, args, smoother: NamedSmoother, round_done: int, scores: dict | None = None
+                ) -> dict:
+    """What a kept state was made with: the robot, seed, the run's smoother (drift, path step, sighting offset,
+    heading loss as it stood), the rounds done and the scores."""
+    offset, loss = smoother.sighting_offset, smoother.heading_loss
+    return {"robot": log.name, "seed": args.seed, "drift": _drift_meta(smoother.heading_drift),
+            "path_step_s": smoother.path_step_s, "round": round_done, "scores": scores or {},
+            "sighting_offset_m": offset.sigma_m if offset is not None else 0.0,
+            **({"heading_loss": _loss_meta(loss)} if loss is not None else {})}
 
 
-def _loss_meta() -> list | None:
+def _loss_meta(loss: HeadingLoss | None) -> list | None:
     """A state's heading loss ([kind, ν]; None, and absent from the meta: Gaussian, as every state before it)."""
-    loss = _LOSS["heading"]
     return None if loss is None else [loss.kind, float(loss.dof)]
 
 
 def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
                  covisible: np.ndarray) -> tuple[dict, list[PassVerdict]]:
-    """:func:`estimation.constellation.guard_batches` on the groups of names a round would merge (the clusters
-    :func:`merges_from` makes of the passes' pairings: disjoint, so each group's share is its own; a pairing that
-    several passes hold, as a wrong one did on robot 2, leaves each pass a share of 0 degrees of freedom). Returns
-    what it did, scored (a group of two barcodes is wrong), and the groups kept, each as a verdict of pairings
-    (root, member) for :func:`merge_bisecting`, largest first."""
+    """:func:`estimation.name_chain.guard_groups` on the groups of names a round would merge, scored
+    (:func:`_guard_scores`), and the groups it keeps, each as a verdict of pairings (root, member), largest first."""
+    guard = guard_groups(current, covariance, used, covisible)
+    return _guard_scores(current, covariance, used, owner, covisible, guard), guard.kept
+
+
+def _guard_scores(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],
+                  covisible: np.ndarray, guard: Guard) -> dict:
+    """The guard's verdict scored by the barcodes (a group of two barcodes is wrong), with the linear d² of all its
+    pairings, each group's leave-one-out share and the groups with a rival (:func:`group_rivals`)."""
     positions = current.solution.landmarks
     code = np.array([owner.get(int(x), -1) for x in current.named.names])
-    clusters = merges_from(used, covisible)[0]
-    members: dict[int, list[int]] = {}
-    for k, r in clusters.items():
-        if k != r:
-            members.setdefault(r, []).append(k)
-    roots = sorted(members)
-    groups = [[(r, k) for k in sorted(members[r])] for r in roots]
+    groups = guard.groups
 
     def wrong(g) -> bool:
         return len({code[a] for pair in g for a in pair}) > 1
 
     linear, _ = joint_d2(positions, covariance, [p for g in groups for p in g])
     rivals = group_rivals(positions, covariance, groups, covisible)
-    keep, dropped = guard_batches(positions, covariance, groups)
     shares = leave_one_out(positions, covariance, groups)
-    record = {"passes": len(used), "groups": len(groups), "linear_d2": float(linear),
-              "wrong_groups": sum(wrong(g) for g in groups),
-              "shares": [{"group": [int(current.named.names[x]) for x in (g[0][0], *(m for _, m in g))], "d2": d2,
-                          "dof": dof, "wrong": wrong(g)} for g, (d2, dof) in zip(groups, shares, strict=True)],
-              "set_aside": [{"group": [int(current.named.names[x]) for x in (groups[i][0][0],
-                                                                            *(m for _, m in groups[i]))],
-                             "d2": d2, "dof": dof, "wrong": wrong(groups[i])} for i, d2, dof in dropped],
-              "kept_wrong_groups": sum(wrong(groups[i]) for i in keep),
-              "with_rivals": sum(r > 0 for r in rivals),
-              "wrong_with_rivals": sum(r > 0 and wrong(g) for g, r in zip(groups, rivals, strict=True))}
-    kept = sorted((groups[i] for i in keep), key=len, reverse=True)
-    return record, [PassVerdict(-1 - i, "matched", g, (len(g), 0.0), 0, True) for i, g in enumerate(kept)]
+    return {"passes": len(used), "groups": len(groups), "linear_d2": float(linear),
+            "wrong_groups": sum(wrong(g) for g in groups),
+            "shares": [{"group": [int(current.named.names[x]) for x in (g[0][0], *(m for _, m in g))], "d2": d2,
+                        "dof": dof, "wrong": wrong(g)} for g, (d2, dof) in zip(groups, shares, strict=True)],
+            "set_aside": [{"group": [int(current.named.names[x]) for x in (groups[i][0][0],
+                                                                          *(m for _, m in groups[i]))],
+                           "d2": d2, "dof": dof, "wrong": wrong(groups[i])} for i, d2, dof in guard.dropped],
+            "kept_wrong_groups": sum(wrong(groups[i]) for i in guard.keep),
+            "with_rivals": sum(r > 0 for r in rivals),
+            "wrong_with_rivals": sum(r > 0 and wrong(g) for g, r in zip(groups, rivals, strict=True))}
 
 
 def group_rivals(positions: np.ndarray, covariance: np.ndarray, groups: list[list[tuple[int, int]]],
@@ -938,104 +881,13 @@ def _print_guard(label: str, g: dict, file=None) -> None:
           file=file, flush=True)
 
 
-def _pairwise_rounds(log: RangeBearingLog, row: dict, current: MergeRound, noise, config, drift, args
-                     ) -> MergeRound:
-    """The last merges on a tight map (:func:`estimation.constellation.pairwise_groups`): every group of names
-    that can be one post and nothing else, merged (with ``--guard``, the groups' leave-one-out shares tested
-    first), checked by the cost rise and bisected as the passes are; repeated until nothing merges or
-    ``--pairwise`` rounds. Each round's record in ``row["pairwise"]``, numbered on from the rounds already there."""
-    barcodes = log.landmark_ids
-    done = len(row.setdefault("pairwise", []))
-    for k in range(done, done + args.pairwise):
-        started = time.process_time()
-        problem, solution = current.named.problem, current.solution
-        covariance, covisible, seen = pairwise_inputs(current, name_floor_m=args.name_floor,
-                                                      kept_covisible=args.kept_covisible)
-        groups = pairwise_groups(solution.landmarks, covariance, seen, allowed=~covisible,
-                                 split_ambiguous=args.split_ambiguous)
-        owner = majority(current.names, barcodes)
-        code = np.array([owner.get(int(x), -1) for x in current.named.names])
-        record = {"round": k + 1, "groups": {s: sum(g.status == s for g in groups)
-                                             for s in ("merge", "covisible", "not_joint")},
-                  "groups_wrong": {s: sum(g.status == s and len({code[m] for m in g.members}) > 1 for g in groups)
-                                   for s in ("merge", "covisible", "not_joint")}}
-        if args.split_ambiguous:
-            record["groups"]["ambiguous"] = sum(g.status == "ambiguous" for g in groups)
-        if args.honest_names is not None:      # helper B's screen (session 27): a member holding a run that bends
-            flagged = flagged_names(problem, solution, args.honest_names, two_points=args.hold_two_points)
-            held = [g for g in groups if g.status == "merge" and flagged[list(g.members)].any()]
-            record["honest_names"] = {"flagged": int(flagged.sum()), "groups_refused": len(held),
-                                      "wrong_refused": sum(len({code[m] for m in g.members}) > 1 for g in held)}
-            groups = [g for g in groups if not any(g is h for h in held)]
-            if args.progress:
-                print(f"  pairwise {k + 1}: honest names: {record['honest_names']}", file=sys.stderr, flush=True)
-        merging = [PassVerdict(-1 - i, "matched", spanning_pairs([(g.members[0], m) for m in g.members[1:]]),
-                               (len(g.members), -g.d2 / g.dof), 0, True)
-                   for i, g in enumerate(x for x in groups if x.status == "merge")]
-        clusters, used = merges_from(merging, covisible)
-        if used and args.pairwise_alone:       # each group's own cost check before the batch's (session 32, A)
-            used = _alone_checked(log, current, used, covisible, record, code, noise, config, drift, args)
-        if used:
-            record["guard"], guarded = guard_record(current, covariance, used, owner, covisible)
-            if not (args.guard and record["guard"]["set_aside"]):
-                guarded = None
-        record["judge_cpu_s"] = time.process_time() - started
-        if args.progress:
-            print(f"  pairwise {k + 1}: groups {record['groups']} (wrong {record['groups_wrong']}), "
-                  f"{record['judge_cpu_s']:.0f} s CPU", file=sys.stderr, flush=True)
-            if "guard" in record:
-                _print_guard(f"  pairwise {k + 1}", record["guard"], file=sys.stderr)
-        row["pairwise"].append(record)
-        if not used:
-            break
-        state = _merge_recorded(log, current, used, guarded, record, f"pairwise {k + 1}", owner, started, noise,
-                                config, drift, args, kept_covisible=args.kept_covisible, untestable=False)
-        if state is current:
-            break
-        current = state
-        if args.state_dir:
-            save_state(state_path(args.state_dir, log, args.seed, f"pairwise{k + 1}"), current,
-                       _state_meta(log, args, drift, -(k + 1), _round(log, current, owner)))
-    return current
-
-
-def _alone_checked(log: RangeBearingLog, current: MergeRound, used: list[PassVerdict], covisible: np.ndarray,
-                   record: dict, code: np.ndarray, noise, config, drift, args) -> list[PassVerdict]:
-    """``--pairwise-alone`` (session 32, A): each pairwise group merged alone from ``current`` and kept for the batch
-    only when its own rise is within χ² 99 % for 2 per absorbed name (:func:`estimation.pairwise_audit.refused_alone`):
-    the batch's bound is the sum over its groups, and one wrong group hides in the others' slack (robot 2 seed 1's
-    glimpse: 9.6 alone against 9.2, 14.2 against 23.2 in its batch of five). Recorded (scored by the barcodes)."""
-    rises, absorbed = [], []
-    for v in used:
-        alone = merge_once(_smoother(log, noise, config, drift, _path_step(args)), current,
-                           merges_from([v], covisible)[0])
-        rises.append(alone.rise)
-        absorbed.append(len(alone.merged))
-    refused = refused_alone(rises, absorbed)
-    record["alone"] = [{"group": sorted(int(current.named.names[a]) for a in {x for p in v.pairs for x in p}),
-                        "rise": r, "absorbed": a, "refused": bool(f),
-                        "wrong": len({code[x] for p in v.pairs for x in p}) > 1}
-                       for v, r, a, f in zip(used, rises, absorbed, refused, strict=True)]
-    if args.progress:
-        print(f"  alone: {sum(refused)} of {len(used)} groups refused "
-              f"{[g for g in record['alone'] if g['refused']] or ''}", file=sys.stderr, flush=True)
-    return [v for v, f in zip(used, refused, strict=True) if not f]
-
-
-def flagged_names(problem, solution: Smoothed, alpha: float, gap_s: float = 5.0, two_points: bool = False
-                  ) -> np.ndarray:
-    """(L,) the names holding a run of sightings (cut at gaps over ``gap_s``) whose split score
-    (:func:`estimation.map_honesty.split_scores`: the first-order cost drop if the run were a name of its own) is
-    beyond χ²₂ at 1 − α/k, k the name's runs (helper B, session 27: the screen that refused session 26's two wrong
-    pairwise merges on robots 3 and 2, seed 0). ``two_points`` (``--hold-two-points``, session 30, C): also every
-    name sighted twice in one frame (:func:`estimation.map_honesty.self_covisible_frames`: a camera reports a post
-    once a frame, so such a name holds two posts, whatever its split scores say), so that its pairings are held back
-    from the merges rather than cut (session 29, D: cutting changed which passes the loose first round matched)."""
-    runs = sighting_runs(problem, solution, gap_s)
-    flagged = flagged_landmarks(runs, split_scores(problem, solution, runs), len(solution.landmarks), alpha)
-    if two_points:
-        flagged |= self_covisible_frames(problem) > 0
-    return flagged
+def _alone_record(current: MergeRound, used: list[PassVerdict], rises, absorbed, refused, code: np.ndarray
+                  ) -> list[dict]:
+    """``--pairwise-alone`` (:func:`estimation.name_chain.alone_checked`): each group's own rise and verdict, scored
+    by the barcodes (a group of two posts is wrong)."""
+    return [{"group": sorted(int(current.named.names[a]) for a in {x for p in v.pairs for x in p}),
+             "rise": r, "absorbed": a, "refused": bool(f), "wrong": len({code[x] for p in v.pairs for x in p}) > 1}
+            for v, r, a, f in zip(used, rises, absorbed, refused, strict=True)]
 
 
 def wrong_sightings_kept(log: RangeBearingLog, r: MergeRound) -> int:

@@ -35,12 +35,6 @@ def _log(robot: int, until: float = 300.0):
     return read_mrclam(MRCLAM2, robot, until=until)
 
 
-def _keep_run_settings(mc, monkeypatch) -> None:
-    for settings_of_a_run in (mc._LOSS, mc._OFFSET, mc._AUDIT):     # run_robot sets them: restored after the test
-        for key, value in list(settings_of_a_run.items()):
-            monkeypatch.setitem(settings_of_a_run, key, value)
-
-
 def _run(mc, log, options, directory, monkeypatch) -> dict:
     from .conftest import MRCLAM2
 
@@ -71,7 +65,6 @@ def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refu
 
     from .conftest import MRCLAM2
 
-    _keep_run_settings(mc, monkeypatch)
     log = _log(1)
     path = tmp_path / "robot1.toml"
     estimate_noise([log], **DATASET_CALIBRATIONS).model.save(path)
@@ -102,7 +95,6 @@ def test_the_chain_fits_nothing_from_the_log_and_every_step_is_given_the_file_s_
     import benchmarks.mrclam_constellation as mc
     from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
-    _keep_run_settings(mc, monkeypatch)
     log = _log(1)
     path = tmp_path / "robot2.toml"
     estimate_noise([_log(2)], **DATASET_CALIBRATIONS).model.save(path)
@@ -125,7 +117,9 @@ def test_the_chain_fits_nothing_from_the_log_and_every_step_is_given_the_file_s_
 
     # every callable the chain's module holds, or reaches through the estimation modules it holds, that takes a
     # noise model: each call's model is recorded
-    for owner in (mc, mc.name_leave_out, mc.unnamed_sightings):
+    from estimation import name_chain, name_leave_out, name_merging, unnamed_sightings
+
+    for owner in (mc, name_chain, name_leave_out, name_merging, unnamed_sightings):
         for name, f in list(vars(owner).items()):
             if not callable(f) or name.startswith("__") or getattr(f, "__module__", None) == mc.__name__:
                 continue

@@ -625,17 +625,16 @@ def test_the_heading_loss_option_reaches_every_smoothing_and_its_absence_leaves_
     monkeypatch.setattr(mc, "read_mrclam", lambda data, robot: faulty)
     monkeypatch.setattr(mc, "_chained", lambda log, args, noise, config: (ChainedNames(names.copy(), []),
                                                                           {"robot": log.name}))
-    losses = []
-    smooth_named = mc.smooth_named
+    from estimation import name_merging
 
-    def recorded(*args, **kwargs):
+    losses = []
+    smooth_named = name_merging.smooth_named
+
+    def recorded(*args, **kwargs):      # every smoothing of the chain (estimation.name_chain's NamedSmoother)
         losses.append(kwargs.get("heading_loss"))
         return smooth_named(*args, **kwargs)
 
-    monkeypatch.setattr(mc, "smooth_named", recorded)
-    for settings_of_a_run in (mc._LOSS, mc._OFFSET, mc._AUDIT):     # run_robot sets them: restored after the test
-        for key, value in list(settings_of_a_run.items()):
-            monkeypatch.setitem(settings_of_a_run, key, value)
+    monkeypatch.setattr(name_merging, "smooth_named", recorded)
     command = ["--data", str(MRCLAM2), "--robots", "2", "--seed", "0", "--particles", "10", "--max-rounds", "9",
                "--guard", "--sighting-offset", "0.03", "--offsets-once-tight", "--pairwise", "6", "--kept-covisible",
                "--split-ambiguous", "--honest-names", "0.01", "--honest-rounds", "--leave-out-ambiguous",
