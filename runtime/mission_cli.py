@@ -7,7 +7,6 @@ import threading
 import time
 from pathlib import Path
 
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     float_where,
     non_negative_float,
@@ -18,6 +17,7 @@ from runtime.commands.options import (
     start_sigmas,
 )
 from runtime.fleet.options import add_exchange_arguments, open_exchange
+from runtime.json_output import json_text
 from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
 from runtime.report import format_summary
 

@@ -14,8 +14,8 @@ import numpy as np
 
 from drivers.errors import BadFileError, DriverError
 from drivers.videre import calibration, camera_info
-from runtime.commands.json_output import json_text
 from runtime.commands.options import OutputPathError, check_output_apart, check_output_file, check_output_folder
+from runtime.json_output import json_text
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -13,7 +13,6 @@ from drivers.errors import DeviceNotFoundError, DriverError
 from drivers.fileio import atomic_write_bytes
 from drivers.videre import DEFAULT_PRODUCT_ID, DEFAULT_VENDOR_ID, LEFT_FIRST, RIGHT_FIRST, StereoHead
 from drivers.videre.head import NoCalibrationError
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     OutputPathError,
     add_deprecated_alias,
@@ -22,6 +21,7 @@ from runtime.commands.options import (
     non_negative_int,
     positive_float,
 )
+from runtime.json_output import json_text
 
 
 def _unsigned_hex(bits: int):

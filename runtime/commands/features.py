@@ -21,8 +21,8 @@ from estimation.frontend import (
     StereoGeometry,
     StereoMatchConfig,
 )
-from runtime.commands.json_output import json_text
 from runtime.commands.options import check_output_apart, check_output_file, finite_float, positive_float
+from runtime.json_output import json_text
 
 DEFAULTS = StereoGeometry()
 # the largest image the command decodes: 64 Mpx (one grey frame of 64 MB), 50 times the STH-MDCS2's 1280×960

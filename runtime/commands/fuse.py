@@ -13,7 +13,6 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     RERUN_KEYWORDS,
     OutputPathError,
@@ -25,6 +24,7 @@ from runtime.commands.options import (
     start_sigmas,
 )
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
+from runtime.json_output import json_text
 
 EXIT_NO_OVERLAP = 1
 EXIT_BAD_INPUT = 2

@@ -4,7 +4,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     add_deprecated_alias,
     check_output_apart,
@@ -12,6 +11,7 @@ from runtime.commands.options import (
     non_negative_int,
     particle_count,
 )
+from runtime.json_output import json_text
 from runtime.replay import onboard_config_from_log, replay_log
 from runtime.sensorlog import METADATA_NAME, SensorLog, SensorLogError
 

@@ -17,8 +17,8 @@ import tempfile
 import threading
 from pathlib import Path
 
-from runtime.commands.json_output import json_text
 from runtime.commands.options import OutputPathError, check_output_folder
+from runtime.json_output import json_text
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE
 
 

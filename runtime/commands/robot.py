@@ -19,7 +19,6 @@ from collections.abc import Callable
 from typing import Any
 
 from drivers.errors import BadFileError, DriverError, DriverTimeoutError, NotConnectedError
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     MAX_TIME_SCALE,
     add_deprecated_alias,
@@ -31,6 +30,7 @@ from runtime.commands.options import (
     time_scale_problem,
     whole_number_where,
 )
+from runtime.json_output import json_text
 
 EXIT_DEVICE = 1
 EXIT_BAD_INPUT = 2

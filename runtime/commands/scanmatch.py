@@ -13,8 +13,8 @@ import numpy as np
 from estimation.scanmatch import METHODS, LogFormatError, MatchConfig, ScanMatchError, read_laser_log
 from estimation.scanmatch.carmen import TruncatedLogError
 from estimation.scanmatch.evaluate import GUESSES, SUCCESS_ROTATION, SUCCESS_TRANSLATION, scan_odometry
-from runtime.commands.json_output import json_text
 from runtime.commands.options import add_deprecated_alias, positive_float, positive_int, whole_number_at_least
+from runtime.json_output import json_text
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2

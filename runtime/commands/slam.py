@@ -11,7 +11,6 @@ import numpy as np
 
 from estimation.errors import EstimationError
 from estimation.fastslam import FastSLAMConfig
-from runtime.commands.json_output import json_text
 from runtime.commands.options import (
     add_deprecated_alias,
     check_output_apart,
@@ -22,6 +21,7 @@ from runtime.commands.options import (
     positive_int,
     rerun_sink_problem,
 )
+from runtime.json_output import json_text
 
 
 def register(subparsers) -> None:

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from fusion.prior import named_pair_priors
-from runtime.commands.json_output import json_text
 from runtime.exchange import MapExchange, MapMessage
 from runtime.fleet.status import StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
+from runtime.json_output import json_text
 from runtime.report import fusion_event_line, start_prior_line
 
 FUSED = "fused"

@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.commands.json_output import json_text
 from runtime.exchange import MapMessage
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.status import health_figure
+from runtime.json_output import json_text
 from runtime.report import fusion_progress_part
 
 # p3at run options passed through unchanged (mission arguments shared with p3at demo)

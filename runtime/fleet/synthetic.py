@@ -20,8 +20,8 @@ import time
 import numpy as np
 
 from estimation.landmark_map import LandmarkMap
-from runtime.commands.json_output import json_text
 from runtime.fleet.mapwire import encode_full
+from runtime.json_output import json_text
 
 DESCRIPTOR = 64
 

@@ -9,7 +9,7 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from runtime.commands.json_output import finite_or_null, json_text
+from runtime.json_output import finite_or_null, json_text
 from tests.datasets.conftest import run_cli, write_mrclam
 from tests.datasets.test_no_ground_truth import _noise
 

@@ -21,8 +21,8 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from runtime.cli import main
-from runtime.commands.json_output import json_text
 from runtime.fleet.processes import free_port
+from runtime.json_output import json_text
 from runtime.mission import Mission, MissionConfig
 from runtime.replay import replay_log
 from runtime.rerun_log import RecordingReadError, read_recording
