@@ -194,7 +194,7 @@ def held_passes(verdicts: list[PassVerdict], rule: str, *, defer: bool = False) 
     behind stronger ones: in a round where every matched pass is weak, none is held (else a loop that only weak
     passes can close is never closed; robot 1 seed 0, session 28).
 
-    Wiring into ``mrclam_constellation._run_rounds``: ``verdicts = held_passes(verdicts, rule, defer=True)`` right
+    Wiring into ``estimation.name_chain`` (its rounds): ``verdicts = held_passes(verdicts, rule, defer=True)`` right
     after ``judge_passes`` (``score_verdicts`` counts the held passes in no status)."""
     test = PASS_RULES[rule]
     weak = [v.status == "matched" and bool(test(v)) for v in verdicts]
@@ -208,7 +208,7 @@ def hold_back(verdicts: list[PassVerdict], groups, *, rule: str = "one visit", v
     """The indices of ``groups`` that ``rule`` (a key of :data:`RULES`) holds back for a later round. (Session 28:
     no group rule separated wrong groups from right ones; :func:`held_passes` is the rule proposed.)
 
-    Wiring into ``mrclam_constellation._run_rounds`` (after ``clusters, used = merges_from(verdicts, covisible)``):
+    Wiring into ``estimation.name_chain``'s rounds (after ``clusters, used = merges_from(verdicts, covisible)``):
     build the groups as ``guard_record`` does, ``held = hold_back(used, groups)``, then
     ``used = without_groups(used, [groups[i] for i in held])`` and ``clusters = merges_from(used, covisible)[0]``
     before the guard and the merge; a held group's passes are judged again next round on the merged map."""
