@@ -194,14 +194,13 @@ from estimation import (  # noqa: E402
     name_leave_out,
     unnamed_sightings,
 )
+from estimation.chain_map import chain_landmark_map  # noqa: E402
 from estimation.constellation import (  # noqa: E402
     joint_d2,
     leave_one_out,
     match_constellation,
     pairwise_d2,
 )
-from estimation.dataset_slam import log_body_metadata  # noqa: E402
-from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fresh_start import names_guess  # noqa: E402
@@ -600,21 +599,11 @@ def _robot_number(log: RangeBearingLog) -> int:
 
 
 def chain_map(log: RangeBearingLog, current: MergeRound) -> LandmarkMap:
-    """The chain's final state as a landmark map that ``p3at fuse`` reads: each name's smoothed position and
-    covariance (z pinned at 0, as the dataset maps do), the smoothed trajectory, the true start pose for scoring.
-    No descriptors and no identities: the names are the chain's own (unknown association), so fusion aligns the
-    maps by geometry alone; the barcodes stay out of the file."""
-    sol, named = current.solution, current.named
-    seen, positions, covariances = planar_landmarks(sol)
-    counts = np.bincount(named.problem.landmark_index[sol.inliers], minlength=len(seen))[seen]
-    times = named.frame_times
-    true_start = log.true_pose(times[:1])[0]
-    metadata = {"true_start_pose": [float(v) for v in true_start], "dataset": log.name,
-                "association": "unknown-chain", "simulated": False, "smoothed": True,
-                "smoother_chi2_per_dof": float(sol.chi2_per_dof), **log_body_metadata(log)}
-    return LandmarkMap(positions, covariances, np.zeros((len(positions), 0), np.float32),
-                       counts=counts.astype(np.int64), robot=f"robot{_robot_number(log)}",
-                       trajectory=np.column_stack([times, sol.poses[1:]]), metadata=metadata)
+    """The chain's final state as a landmark map that ``p3at fuse`` reads
+    (:func:`estimation.chain_map.chain_landmark_map`: what ``p3at slam dataset --chain`` writes too): each name's
+    smoothed position and covariance, the smoothed trajectory, the true start pose for scoring; no descriptors, no
+    identities and no barcodes."""
+    return chain_landmark_map(log, current, f"robot{_robot_number(log)}")
 
 
 def map_consistency(log: RangeBearingLog, current: MergeRound, draws: int = 20_000) -> dict:

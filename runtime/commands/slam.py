@@ -176,12 +176,34 @@ def _register_dataset(sub) -> None:
                              "smoother's, the filter's beside them (docs/fastslam.md). Default: on with --association "
                              "id, off with unknown (where it is refused: the filter's own associations make it "
                              "confidently wrong); --no-smooth gives the filter alone")
+    parser.add_argument("--chain", action="store_true",
+                        help="with --association unknown: instead of the filter's own associations, the chain of "
+                             "benchmarks/mrclam_constellation with session 30's recipe (estimation.name_chain): "
+                             "names chained over 40 s windows, merged round by round where whole passes match, "
+                             "screened, left out when ambiguous, and smoothed; the map holds its names (no barcodes, "
+                             "no identities). Takes minutes of CPU per run (docs/fastslam.md); "
+                             "--until S reads the log up to S only (and fits the noise model there)")
     parser.add_argument("--particles", type=particle_count, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the filter, >= 0 (0)")
     parser.add_argument("--until", type=positive_float, metavar="S", help="stop at this log time (s)")
     parser.add_argument("--json", action="store_true", help="print the scores as one JSON object")
     parser.set_defaults(handler=_dataset)
+
+
+def _chain_problem(args: argparse.Namespace) -> str | None:
+    """What makes ``--chain`` meaningless with the other options given, in one line (None: nothing)."""
+    if not args.chain:
+        return None
+    if args.association != "unknown":
+        return "--chain names the landmarks itself: it needs --association unknown"
+    if args.smooth is not None:
+        return "--chain smooths the whole log by its own names: --smooth/--no-smooth do not apply"
+    if args.no_inflation:
+        return "--chain uses the noise model's variance inflation as measured: --no-inflation does not apply"
+    if args.fastslam != 2:
+        return "--chain's filter is FastSLAM 2.0 as measured: --fastslam 1 does not apply"
+    return None
 
 
 def _register_noise(sub) -> None:
@@ -252,6 +274,8 @@ def _dataset(args: argparse.Namespace) -> int:
     from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
     try:
+        if (problem := _chain_problem(args)) is not None:
+            raise ValueError(problem)
         check_output_file(args.out)
         _check_rerun_sink(args.rerun)
         # neither output may replace what the run reads (the noise model, a table of the data set) or the other
@@ -259,7 +283,8 @@ def _dataset(args: argparse.Namespace) -> int:
         check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
                            folders={"data set": args.folder})
         check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
-        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes)
+        # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
+        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None)
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
         else:
@@ -273,9 +298,12 @@ def _dataset(args: argparse.Namespace) -> int:
                             "odometry lag and turns' variance (no --noise given)")
         smooth = args.association == "id" if args.smooth is None else args.smooth
         config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
-        run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
-                               association=args.association, robot=f"robot{args.robot}", until=args.until,
-                               inflate_correlated=not args.no_inflation, smooth=smooth)
+        if args.chain:
+            run = _chain_run(log, noise, config, args)
+        else:
+            run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
+                                   association=args.association, robot=f"robot{args.robot}", until=args.until,
+                                   inflate_correlated=not args.no_inflation, smooth=smooth)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)
@@ -303,6 +331,10 @@ def _dataset(args: argparse.Namespace) -> int:
     for note in m["notes"]:
         print(f"  note: {note}")
     print(f"  noise model: {m['noise']}")
+    if "chain_names" in m:
+        print(f"  the chain: {m['chain_names']} names, rounds {m['chain_rounds']}, {m['chain_sightings_named']} "
+              f"of {m['chain_sightings']} sightings named, smoothed with χ² per degree of freedom "
+              f"{m['smoother_chi2_per_dof']:.2f} ({m['smoother_outliers']} sightings dropped as outliers)")
     if m.get("smoothed"):
         print(f"  smoothed over the whole log: {m['smoother_sightings'] - m['smoother_outliers']} of "
               f"{m['smoother_sightings']} sightings kept, χ² per degree of freedom {m['smoother_chi2_per_dof']:.2f}"
@@ -311,7 +343,7 @@ def _dataset(args: argparse.Namespace) -> int:
               + ("" if "filter_landmark_error_median_m" not in m else f", landmark error "
                  f"{m['filter_landmark_error_median_m']:.3f} m ({m['filter_landmark_error_rigid_median_m']:.3f} m "
                  "rigid)"))
-    estimator = "smoothed" if m.get("smoothed") else "FastSLAM"
+    estimator = "chain" if "chain_names" in m else "smoothed" if m.get("smoothed") else "FastSLAM"
     if "ate_m" in m:
         print(f"  trajectory ATE        {estimator} {m['ate_m']:.3f} m   dead reckoning "
               f"{m['dead_reckoning_ate_m']:.3f} m")
@@ -330,6 +362,29 @@ def _dataset(args: argparse.Namespace) -> int:
         print(f"  WARNING: {warning}")
     print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
     return 0
+
+
+def _chain_run(log, noise, config, args: argparse.Namespace):
+    """``--chain``: estimation.name_chain.run_chain with session 30's recipe (ChainSettings()) and the filter's seed,
+    its final state as the data set run the command writes and prints (estimation.chain_map.chain_run)."""
+    from estimation.chain_map import chain_run
+    from estimation.name_chain import ChainSettings, run_chain
+
+    if noise.range_bearing is None:
+        raise ValueError("the chain needs the noise model's sensor part (its [range_bearing] section)")
+    if not len(log):
+        before = "" if args.until is None else f" before {args.until:g} s"
+        raise ValueError(f"{log.name}: nothing to name: no sightings{before}")
+    result = run_chain(log, noise, config, ChainSettings(seed=args.seed))
+    run = chain_run(log, result.state, f"robot{args.robot}")
+    state = result.state
+    run.metrics.update(frames=len(state.named.frame_times), particles=config.n_particles, version=config.version,
+                       association="unknown-chain", chain_names=int(len(state.named.names)),
+                       chain_rounds=int(result.rounds_done), chain_sightings_named=int((state.names >= 0).sum()),
+                       chain_sightings=int(len(state.names)),
+                       smoother_chi2_per_dof=float(state.solution.chi2_per_dof),
+                       smoother_outliers=int((~state.solution.inliers).sum()))
+    return run
 
 
 def _map_warnings(metrics: dict) -> list[str]:
