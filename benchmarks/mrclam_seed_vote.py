@@ -40,14 +40,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from benchmarks import mrclam_constellation as chain  # noqa: E402
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
-from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift, SightingOffset  # noqa: E402
-from estimation.name_merging import NamedSmoother, resmoothed  # noqa: E402
-from estimation.name_vote import VOTE_KEY, majority_named, name_support, vote_metadata, voted_names  # noqa: E402
+from estimation.landmark_smoother import HeadingDrift  # noqa: E402
+from estimation.name_vote import majority_named  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
-from estimation.unnamed_sightings import name_unnamed, visits  # noqa: E402
+from estimation.seed_vote import (  # noqa: E402
+    offset_groups,  # noqa: F401  (moved to estimation.seed_vote; imported from here by tests)
+    pairs_apart,
+    vote_runs,
+    voted_landmark_map,
+)
 from runtime.commands.options import non_negative_int  # noqa: E402
 
 
@@ -59,29 +62,6 @@ def find_state(directories: list[str], log: RangeBearingLog, seed: int, tag: str
             return path
     raise FileNotFoundError(f"no {chain.state_path('DIR', log, seed, tag).name} in {', '.join(directories)} "
                             f"(run benchmarks.mrclam_constellation --state-dir with seed {seed})")
-
-
-def pairs_apart(a: np.ndarray, b: np.ndarray) -> int:
-    """Sighting pairs that one of the two namings puts under one name and the other does not (both named)."""
-    both = (a >= 0) & (b >= 0)
-    a, b = a[both], b[both]
-
-    def together(*labels):
-        counts = np.unique(np.stack(labels), axis=1, return_counts=True)[1]
-        return int(np.sum(counts * (counts - 1) // 2))
-    return together(a) + together(b) - 2 * together(a, b)
-
-
-def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Each sighting's offset group: the sightings every run's chain put under one round-0 name share one; a
-    sighting no chain named gets its name's visit (its name's sightings less than a visit gap apart), as the chain
-    gives the sightings it names late."""
-    groups = np.unique(round0.T, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
-    loose = np.flatnonzero((round0 < 0).all(axis=0) & (names >= 0))
-    if len(loose):
-        order, visit = visits(loose, names, times)
-        groups[order] = groups.max() + visit
-    return groups
 
 
 def contested(names: np.ndarray, support: np.ndarray, k: int, log: RangeBearingLog) -> list[dict]:
@@ -114,18 +94,9 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
     drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
     drift = HeadingDrift(*drift_meta) if drift_meta else None
     runs = np.stack([s.names for s in finals])
-    names = voted_names(runs)
-    support = name_support(runs, names)
-    # the smoothing starts from the run nearest the vote: fewest pairs named otherwise, then fewest sightings
-    # named where the vote leaves them unnamed or the other way round
-    apart = [pairs_apart(run.names, names) for run in finals]
-    nearest = min(range(len(finals)), key=lambda i: (apart[i], int(np.sum((finals[i].names >= 0) != (names >= 0)))))
-    smoother = NamedSmoother(log, noise, config, drift, path_step_s or None,
-                             SightingOffset(offset_m) if offset_m > 0 else None,
-                             offset_groups(np.stack(round0), names, log.sighting_times))
-    # the poses from the nearest run, its landmarks not: its labels are not the vote's
-    voted = resmoothed(smoother, finals[nearest], names, same_labels=False)
-    state, proposed, _ = name_unnamed(smoother, voted)
+    vote = vote_runs(log, noise, config, finals, np.stack(round0), drift, path_step_s, offset_m)
+    names, support, apart, nearest = vote.names, vote.support, vote.apart, vote.nearest
+    voted, state, proposed = vote.voted, vote.state, vote.proposed
     named_again = chain.named_again_record(log, voted, state, proposed)
     final = chain.final_scores(log, state, majority(state.names, log.landmark_ids))
     majority_unnamed = ~majority_named(runs)
@@ -145,10 +116,7 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
            "final": final}
     if out_maps:
         path = Path(out_maps) / f"robot{chain._robot_number(log)}.npz"
-        voted_map = chain.chain_map(log, state)
-        # each landmark's support: the map's rows are the solution's landmarks that have sightings, in order
-        rows = state.named.names[planar_landmarks(state.solution)[0]]
-        voted_map.metadata[VOTE_KEY] = vote_metadata(seeds, support[rows])
+        voted_map = voted_landmark_map(log, vote, seeds, f"robot{chain._robot_number(log)}")
         voted_map.save(path)
         row["map"] = str(path)
     return row

@@ -183,6 +183,10 @@ def _register_dataset(sub) -> None:
                              "screened, left out when ambiguous, and smoothed; the map holds its names (no barcodes, "
                              "no identities). Takes minutes of CPU per run (docs/fastslam.md); "
                              "--until S reads the log up to S only (and fits the noise model there)")
+    parser.add_argument("--seeds", type=_seed_list, metavar="S,S,...",
+                        help="with --chain: one run per seed (instead of --seed), the names most runs agree on voted "
+                             "and smoothed into one map (benchmarks/mrclam_seed_vote); the map records the seeds and "
+                             "each landmark's support (metadata.vote, read by `p3at fuse`). As many runs' time")
     parser.add_argument("--particles", type=particle_count, default=100, help="number of particles (100)")
     parser.add_argument("--fastslam", type=int, choices=(1, 2), default=2, help="FastSLAM version (2)")
     parser.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the filter, >= 0 (0)")
@@ -191,10 +195,18 @@ def _register_dataset(sub) -> None:
     parser.set_defaults(handler=_dataset)
 
 
+def _seed_list(text: str) -> list[int]:
+    """``--seeds``: two or more distinct seeds >= 0, comma-separated."""
+    seeds = [non_negative_int(part.strip()) for part in text.split(",")]
+    if len(seeds) < 2 or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"two or more distinct seeds, comma-separated (e.g. 0,1,2), not {text!r}")
+    return seeds
+
+
 def _chain_problem(args: argparse.Namespace) -> str | None:
     """What makes ``--chain`` meaningless with the other options given, in one line (None: nothing)."""
     if not args.chain:
-        return None
+        return "--seeds votes runs of the chain: it needs --chain" if args.seeds else None
     if args.association != "unknown":
         return "--chain names the landmarks itself: it needs --association unknown"
     if args.smooth is not None:
@@ -203,6 +215,8 @@ def _chain_problem(args: argparse.Namespace) -> str | None:
         return "--chain uses the noise model's variance inflation as measured: --no-inflation does not apply"
     if args.fastslam != 2:
         return "--chain's filter is FastSLAM 2.0 as measured: --fastslam 1 does not apply"
+    if args.seeds and args.seed != 0:
+        return "--seeds gives each run its seed: --seed does not apply"
     return None
 
 
@@ -327,12 +341,19 @@ def _dataset(args: argparse.Namespace) -> int:
         return 0
     m = metrics
     print(f"slam dataset: {m['dataset']}, {m['frames']} frames over {m['seconds']:.0f} s, {m['particles']} "
-          f"particles, FastSLAM {m['version']}.0, association {m['association']}, seed {m['seed']}")
+          f"particles, FastSLAM {m['version']}.0, association {m['association']}, "
+          + (f"seeds {','.join(map(str, m['seeds']))}" if "seeds" in m else f"seed {m['seed']}"))
     for note in m["notes"]:
         print(f"  note: {note}")
     print(f"  noise model: {m['noise']}")
+    if "chain_runs" in m:
+        print("  the chain's runs voted: " + ", ".join(
+            f"seed {r['seed']} {r['names']} names ({r['pairs_apart_from_vote']} sighting pairs named otherwise)"
+            for r in m["chain_runs"]) + f"; smoothed from seed {m['vote_started_from_seed']}'s, "
+            f"{m['vote_contested_names']} names held by fewer than all runs")
     if "chain_names" in m:
-        print(f"  the chain: {m['chain_names']} names, rounds {m['chain_rounds']}, {m['chain_sightings_named']} "
+        rounds = f", rounds {m['chain_rounds']}" if "chain_rounds" in m else ""
+        print(f"  the chain: {m['chain_names']} names{rounds}, {m['chain_sightings_named']} "
               f"of {m['chain_sightings']} sightings named, smoothed with χ² per degree of freedom "
               f"{m['smoother_chi2_per_dof']:.2f} ({m['smoother_outliers']} sightings dropped as outliers)")
     if m.get("smoothed"):
@@ -367,21 +388,35 @@ def _dataset(args: argparse.Namespace) -> int:
 def _chain_run(log, noise, config, args: argparse.Namespace):
     """``--chain``: estimation.name_chain.run_chain with session 30's recipe (ChainSettings()) and the filter's seed,
     its final state as the data set run the command writes and prints (estimation.chain_map.chain_run)."""
+    import dataclasses
+
     from estimation.chain_map import chain_run
     from estimation.name_chain import ChainSettings, run_chain
+    from estimation.seed_vote import chain_vote, voted_landmark_map
 
     if noise.range_bearing is None:
         raise ValueError("the chain needs the noise model's sensor part (its [range_bearing] section)")
     if not len(log):
         before = "" if args.until is None else f" before {args.until:g} s"
         raise ValueError(f"{log.name}: nothing to name: no sightings{before}")
-    result = run_chain(log, noise, config, ChainSettings(seed=args.seed))
-    run = chain_run(log, result.state, f"robot{args.robot}")
-    state = result.state
+    robot = f"robot{args.robot}"
+    if args.seeds:
+        results, vote = chain_vote(log, noise, config, args.seeds)
+        state = vote.state
+        run = dataclasses.replace(chain_run(log, state, robot), map=voted_landmark_map(log, vote, args.seeds, robot))
+        run.metrics.update(chain_runs=[{"seed": seed, "names": int(len(r.state.named.names)),
+                                        "rounds": int(r.rounds_done), "pairs_apart_from_vote": int(apart)}
+                                       for seed, r, apart in zip(args.seeds, results, vote.apart, strict=True)],
+                           seeds=list(args.seeds), vote_started_from_seed=args.seeds[vote.nearest],
+                           vote_contested_names=int(np.sum(vote.support < len(args.seeds))))
+    else:
+        result = run_chain(log, noise, config, ChainSettings(seed=args.seed))
+        state = result.state
+        run = chain_run(log, state, robot)
+        run.metrics.update(chain_rounds=int(result.rounds_done))
     run.metrics.update(frames=len(state.named.frame_times), particles=config.n_particles, version=config.version,
                        association="unknown-chain", chain_names=int(len(state.named.names)),
-                       chain_rounds=int(result.rounds_done), chain_sightings_named=int((state.names >= 0).sum()),
-                       chain_sightings=int(len(state.names)),
+                       chain_sightings_named=int((state.names >= 0).sum()), chain_sightings=int(len(state.names)),
                        smoother_chi2_per_dof=float(state.solution.chi2_per_dof),
                        smoother_outliers=int((~state.solution.inliers).sum()))
     return run
