@@ -313,7 +313,10 @@ def _dataset(args: argparse.Namespace) -> int:
         smooth = args.association == "id" if args.smooth is None else args.smooth
         config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
         if args.chain:
-            run = _chain_run(log, noise, config, args)
+            try:
+                run = _chain_run(log, noise, config, args)
+            except np.linalg.LinAlgError as e:
+                raise ValueError(_singular_chain(noise, e)) from None
         else:
             run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
                                    association=args.association, robot=f"robot{args.robot}", until=args.until,
@@ -383,6 +386,15 @@ def _dataset(args: argparse.Namespace) -> int:
         print(f"  WARNING: {warning}")
     print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
     return 0
+
+
+def _singular_chain(noise, error: Exception) -> str:
+    """Why the chain's smoothing could not be solved, in one line: a noise model whose σ are far below any sensor's
+    (a fit to exact, simulated sightings) makes its normal equations numerically singular."""
+    sensor = noise.range_bearing
+    return (f"the chain's smoothing is numerically singular ({error}): the noise model's sensor σ are "
+            f"{sensor.range_sigma_m:.2g} m in range and {sensor.bearing_sigma_rad:.2g} rad in bearing, "
+            f"too small for any real sensor (a fit to exact, simulated sightings?); give a model with --noise FILE")
 
 
 def _chain_run(log, noise, config, args: argparse.Namespace):

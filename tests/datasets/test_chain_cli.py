@@ -180,3 +180,15 @@ def test_a_log_without_truth_needs_a_noise_model_for_the_chain_too(tmp_path, syn
     status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", *CHAIN, "--barcodes",
                             "table", "--out", str(tmp_path / "map.npz"))
     assert status == 2 and out == "" and "--noise FILE" in err and err.count("\n") == 1
+
+
+def test_a_noise_model_fitted_to_exact_sightings_is_named_as_the_reason_the_chain_cannot_smooth(tmp_path, synthetic):
+    """The synthetic log's sightings are exact: its in-sample fit gives σ of ~1e-10 m and rad, and the chain's
+    normal equations are numerically singular. The one line says so and what to give instead, not only the linear
+    algebra's message."""
+    synthetic.write(tmp_path / "data", seconds=90.0)        # long enough for the odometry fit
+    status, out, err = _cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", *CHAIN, "--out",
+                            str(tmp_path / "map.npz"))
+    assert status == 2 and out == "" and err.count("\n") == 1
+    assert "numerically singular" in err and "too small for any real sensor" in err and "--noise FILE" in err
+    assert not (tmp_path / "map.npz").exists()
