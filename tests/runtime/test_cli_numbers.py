@@ -74,6 +74,7 @@ REFUSED = [
     ("slam simulate", "--particles", "0", ">= 1"), ("slam simulate", "--camera-rate", "nan", "> 0"),
     ("slam dataset", "--robot", "0", ">= 1"), ("slam dataset", "--particles", "0", ">= 1"),
     ("slam dataset", "--seed", "-1", ">= 0"), ("slam dataset", "--until", "0", "> 0"),
+    *[("slam dataset", "--seeds", v, "two or more distinct seeds") for v in ("1", "0,0")],
     ("slam noise", "--robot", "0", ">= 1"), ("slam noise", "--window", "nan", "> 0"),
     ("fuse", "--seed", "-1", ">= 0"), ("fuse", "--interval", "0", "> 0"), ("fuse", "--min-period", "-1", ">= 0"),
     ("fuse", "--seconds", "-5", ">= 0"),
