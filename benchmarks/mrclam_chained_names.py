@@ -82,6 +82,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation import chi2  # noqa: E402
+from estimation.chain_map import name_barcodes as majority  # noqa: E402  (each name's barcode, scoring)
 from estimation.chained_names import CHI2_2_99, ChainedNames, chain_log  # noqa: E402
 from estimation.dataset_slam import run_landmark_log, sighted_true_ids  # noqa: E402
 from estimation.dataset_smoothing import planar_landmarks  # noqa: E402
@@ -234,15 +235,6 @@ def _merge(log, current: MergeRound, candidates: list[MergeCandidate], noise, co
 
 MIN_NAME_SIGHTINGS = 5       # a name with fewer sightings is not counted among the names per post (a glimpse)
 GAPS_S = ((0, 30), (30, 100), (100, 300), (300, 1e9))
-
-
-def majority(names: np.ndarray, barcodes: np.ndarray) -> dict[int, int]:
-    """Each name's barcode: the one most of its sightings are of (ties: the smaller barcode)."""
-    out = {}
-    for name in np.unique(names[names >= 0]):
-        codes, counts = np.unique(barcodes[names == name], return_counts=True)
-        out[int(name)] = int(codes[np.argmax(counts)])
-    return out
 
 
 def naming_scores(names: np.ndarray, barcodes: np.ndarray) -> dict:
