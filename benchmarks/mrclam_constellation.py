@@ -331,13 +331,37 @@ def settings_of(args) -> ChainSettings:
         name_unnamed=args.name_unnamed, runs_out=args.runs_out)
 
 
+def noise_file(path) -> NoiseModel:
+    """``--noise FILE``'s model; a file that cannot be read as one, or whose model has no sensor part (the chain
+    needs it), is refused (:class:`estimation.noise_model.NoiseModelError`, one line naming the file)."""
+    noise = NoiseModel.load(path)
+    if noise.range_bearing is None:
+        raise NoiseModelError(f"{path}: no [range_bearing] section (the chain needs the sensor's noise)")
+    return noise
+
+
+def run_noise(log: RangeBearingLog, path) -> NoiseModel:
+    """The noise model a chain run on ``log`` is given: with ``path`` (``--noise FILE``) the file's, calibrated
+    elsewhere (e.g. on the other robots' logs; :func:`noise_file`); without, fitted in sample, from this log against
+    its ground truth (the sensor part by each sighting's barcode's post). A run's final state records the file in its
+    command (an in-sample run's command has none): :func:`saved_run_noise` gives a saved run's model back."""
+    if path is None:
+        return estimate_noise([log], **DATASET_CALIBRATIONS).model
+    return noise_file(path)
+
+
+def saved_run_noise(log: RangeBearingLog, meta: dict) -> NoiseModel:
+    """The noise model the run whose state records ``meta`` (:func:`saved_meta`) was given (:func:`run_noise` of the
+    ``noise`` file its state or its final state's command records): what a tool that smooths a saved run again (a
+    vote, a re-smoothing) must smooth with."""
+    return run_noise(log, meta.get("noise") or (meta.get("command") or {}).get("noise"))
+
+
 def run_robot(log: RangeBearingLog, args) -> dict:
     """One robot's chain (:func:`estimation.name_chain.run_chain` with :func:`settings_of` ``args``), from the
     chained names and guess of ``--names-cache`` or from ``--from-round``'s saved state, every decision recorded and
     scored by the barcodes (:class:`_Recorder`); the row of figures."""
-    # ``--noise FILE``: the model calibrated elsewhere (e.g. on the other robots' logs); else fitted in sample, from
-    # this log against its ground truth (the sensor part by each sighting's barcode's post)
-    noise = NoiseModel.load(args.noise) if args.noise else estimate_noise([log], **DATASET_CALIBRATIONS).model
+    noise = run_noise(log, args.noise or None)
     config = range_bearing_config(n_particles=args.particles)
     settings = settings_of(args)
     chained, row = _chained(log, args, noise, config)
@@ -768,11 +792,16 @@ def load_state(path, log: RangeBearingLog, noise, config, drift, path_step_s: fl
     return MergeRound([], 0.0, 0.0, True, names, named, solution), meta
 
 
+def saved_meta(path) -> dict:
+    """What a state :func:`save_state` kept was made with (its meta), without the state."""
+    with np.load(path, allow_pickle=False) as data:
+        return json.loads(str(data["meta"]))
+
+
 def load_saved_state(path, log: RangeBearingLog, noise, config) -> tuple[MergeRound, dict]:
     """:func:`load_state` with the drift, path step and heading loss the state was made with (read from its own
     meta): for tools that examine saved states rather than continue a run."""
-    with np.load(path, allow_pickle=False) as data:
-        meta = json.loads(str(data["meta"]))
+    meta = saved_meta(path)
     drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
     return load_state(path, log, noise, config, drift, meta.get("path_step_s"), meta.get("heading_loss"))
 
@@ -788,12 +817,14 @@ def _drift_meta(drift: HeadingDrift | None) -> list | None:
 def _state_meta(log: RangeBearingLog, args, smoother: NamedSmoother, round_done: int, scores: dict | None = None
                 ) -> dict:
     """What a kept state was made with: the robot, seed, the run's smoother (drift, path step, sighting offset,
-    heading loss as it stood), the rounds done and the scores."""
+    heading loss as it stood), the rounds done, the scores and ``--noise``'s file (absent: fitted in sample, as every
+    state before the option)."""
     offset, loss = smoother.sighting_offset, smoother.heading_loss
     return {"robot": log.name, "seed": args.seed, "drift": _drift_meta(smoother.heading_drift),
             "path_step_s": smoother.path_step_s, "round": round_done, "scores": scores or {},
             "sighting_offset_m": offset.sigma_m if offset is not None else 0.0,
-            **({"heading_loss": _loss_meta(loss)} if loss is not None else {})}
+            **({"heading_loss": _loss_meta(loss)} if loss is not None else {}),
+            **({"noise": args.noise} if args.noise else {})}
 
 
 def _loss_meta(loss: HeadingLoss | None) -> list | None:
@@ -1068,8 +1099,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.noise:
         try:
-            if NoiseModel.load(args.noise).range_bearing is None:
-                raise NoiseModelError(f"{args.noise}: no [range_bearing] section (the chain needs the sensor's noise)")
+            noise_file(args.noise)
         except NoiseModelError as e:
             print(f"mrclam_constellation: --noise: {e}", file=sys.stderr)
             return 2

@@ -177,11 +177,10 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
     from estimation.landmark_smoother import HeadingDrift, SightingOffset
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
 
     robot, seed = (int(x) for x in STATE_NAME.search(path.name).groups())
     log = read_mrclam(data, robot)
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    noise = mc.saved_run_noise(log, mc.saved_meta(path))     # the run's: its command's --noise file, else in sample
     config = range_bearing_config(n_particles=100)
     current, meta = mc.load_saved_state(path, log, noise, config)
     drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None

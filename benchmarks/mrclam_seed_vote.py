@@ -10,10 +10,12 @@ Why (session 33): the chain's wrong merges and left-over duplicates depend on th
 session 30's command, seed 0 meets on all five robots, seed 1 on one). :func:`estimation.name_vote.voted_names` keeps
 groups of sightings under one name when a majority of the runs does, on average over their pairs, and leaves unnamed
 the fragments that no majority of runs has as a name. The runs must come from one command (the vote refuses runs
-whose final states record different options). The voted names are then smoothed as the chain's last state is: the
-smoother's heading drift and slip and path step as the runs had them (from their states), a sighting offset (σ as
-the runs had it) per group of sightings that every run's chain put under one round-0 name, and last the chain's own
-``--name-unnamed`` step (a sighting that exactly one name explains is named). The barcodes only score.
+whose final states record different options). The voted names are then smoothed as the chain's last state is, with
+the noise model the runs were given (the file their command's ``--noise`` names, refused in one line if it cannot be
+read; fitted in sample, as theirs was, for runs made without one), the smoother's heading drift and slip and path
+step as the runs had them (from their states), a sighting offset (σ as the runs had it) per group of sightings that
+every run's chain put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a sighting that
+exactly one name explains is named). The barcodes only score.
 
 Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
 under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote
@@ -44,7 +46,7 @@ from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift  # noqa: E402
 from estimation.name_vote import majority_named  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModelError  # noqa: E402
 from estimation.seed_vote import (  # noqa: E402
     offset_groups,  # noqa: F401  (moved to estimation.seed_vote; imported from here by tests)
     pairs_apart,
@@ -77,20 +79,27 @@ def contested(names: np.ndarray, support: np.ndarray, k: int, log: RangeBearingL
 
 
 def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], out_maps: str | None = None) -> dict:
-    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-    config = range_bearing_config(n_particles=100)      # the chain's (its named problems read it)
-    finals, metas, round0 = [], [], []
-    for seed in seeds:
-        state, meta = chain.load_saved_state(find_state(directories, log, seed, "final"), log, noise, config)
-        finals.append(state)
-        metas.append(meta)
-        with np.load(find_state(directories, log, seed, "round0"), allow_pickle=False) as data:
-            round0.append(data["names"])
+    """The vote of ``log``'s runs with ``seeds`` (their final and round-0 states in ``directories``), smoothed with
+    the noise model the runs were given (:func:`benchmarks.mrclam_constellation.saved_run_noise`: their command's
+    ``--noise`` file, else fitted in sample as theirs was; a file that cannot be read is refused,
+    :class:`estimation.noise_model.NoiseModelError`); the row of figures."""
+    paths = [find_state(directories, log, seed, "final") for seed in seeds]
+    metas = [chain.saved_meta(path) for path in paths]
     settings = {json.dumps([m["drift"], m["path_step_s"], m["sighting_offset_m"], m.get("command")], sort_keys=True)
                 for m in metas}
     if len(settings) > 1:
         raise SystemExit(f"{log.name}: the runs of seeds {seeds} were made with different commands or smoother "
                          f"settings; a vote needs runs of one command")
+    try:
+        noise = chain.saved_run_noise(log, metas[0])
+    except NoiseModelError as e:
+        raise NoiseModelError(f"{log.name}: the runs' noise model (their command's --noise): {e}") from None
+    config = range_bearing_config(n_particles=100)      # the chain's (its named problems read it)
+    finals, round0 = [], []
+    for seed, path in zip(seeds, paths, strict=True):
+        finals.append(chain.load_saved_state(path, log, noise, config)[0])
+        with np.load(find_state(directories, log, seed, "round0"), allow_pickle=False) as data:
+            round0.append(data["names"])
     drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
     drift = HeadingDrift(*drift_meta) if drift_meta else None
     runs = np.stack([s.names for s in finals])
@@ -147,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     for robot in robots:
         try:
             row = vote_robot(read_mrclam(args.data, robot), args.state_dir, seeds, args.out_maps)
-        except FileNotFoundError as exc:
+        except (FileNotFoundError, NoiseModelError) as exc:
             print(f"mrclam_seed_vote: {exc}", file=sys.stderr)
             return 2
         rows.append(row)

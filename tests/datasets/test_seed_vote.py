@@ -5,7 +5,9 @@ run's names and two runs that each make one mistake (a wrong merge, a duplicate)
 """
 from __future__ import annotations
 
+import inspect
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -124,3 +126,87 @@ def test_runs_of_different_commands_are_not_voted(tmp_path):
                 [], 0.0, 0.0, True, names, named, solution), meta)
     with pytest.raises(SystemExit, match="one command"):
         vote_robot(log, [str(tmp_path)], [0, 1, 2])
+
+
+
+def _runs_given(directory, log, noise, config, drift, command: dict | None) -> None:
+    """Three seeds' final and round-0 states of ``log`` (the barcodes as names, smoothed with ``noise``) whose meta
+    records ``command`` as mrclam_constellation's final state does (None: no command, as the states before it)."""
+    from benchmarks import mrclam_constellation as chain
+    from estimation.named_smoothing import MergeRound, smooth_named
+
+    names = np.asarray(log.landmark_ids, np.int64)
+    named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25)
+    for seed in (0, 1, 2):
+        meta = {"robot": log.name, "seed": seed, "drift": chain._drift_meta(drift), "path_step_s": 0.25,
+                "round": 9, "scores": {}, "sighting_offset_m": 0.03, **({"command": command} if command else {})}
+        for tag in ("final", "round0"):
+            chain.save_state(chain.state_path(directory, log, seed, tag), MergeRound(
+                [], 0.0, 0.0, True, names, named, solution), meta)
+
+
+def test_a_vote_of_runs_given_a_noise_file_smooths_with_the_file_s_model_and_fits_none(tmp_path, monkeypatch):
+    """Runs made with ``mrclam_constellation --noise FILE`` record the file in their command: the vote loads their
+    states and smooths the voted names with that file's model, and fits none from the log (session 37)."""
+    from benchmarks import mrclam_constellation as chain
+    from benchmarks import mrclam_seed_vote
+    from estimation import noise_model
+    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+
+    log, in_sample, config, drift = _robot2(until=120.0)
+    path = tmp_path / "model.toml"
+    estimate_noise([_robot2(until=400.0)[0]], **DATASET_CALIBRATIONS).model.save(path)   # another stretch's
+    model = NoiseModel.load(path)
+    assert model != in_sample
+    _runs_given(tmp_path, log, model, config, drift, {"noise": str(path)})
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the vote fitted a noise model from the log")
+
+    for owner in (noise_model, chain, mrclam_seed_vote):
+        if hasattr(owner, "estimate_noise"):
+            monkeypatch.setattr(owner, "estimate_noise", no_fit)
+    given = []
+
+    def spy(owner, name):
+        f = getattr(owner, name)
+
+        def wrapped(*args, **kwargs):
+            given.append((name, inspect.signature(f).bind(*args, **kwargs).arguments["noise"]))
+            return f(*args, **kwargs)
+        monkeypatch.setattr(owner, name, wrapped)
+
+    spy(chain, "load_saved_state")          # each run's state: its named problem is built with the model
+    spy(mrclam_seed_vote, "vote_runs")      # the vote's smoothing and its last step
+    row = mrclam_seed_vote.vote_robot(log, [str(tmp_path)], [0, 1, 2])
+    assert [name for name, _ in given] == ["load_saved_state"] * 3 + ["vote_runs"]
+    assert all(noise == model for _, noise in given)
+    assert row["final"]["names"] == len(np.unique(log.landmark_ids))
+
+
+def test_a_file_holding_the_in_sample_model_votes_as_the_in_sample_runs_and_a_missing_one_is_refused(
+        tmp_path, monkeypatch, capsys):
+    from benchmarks import mrclam_seed_vote
+    from benchmarks.mrclam_seed_vote import vote_robot
+    from estimation.noise_model import NoiseModelError
+
+    from .conftest import MRCLAM2
+
+    log, noise, config, drift = _robot2(until=120.0)
+    path = tmp_path / "in-sample.toml"
+    noise.save(path)
+    for name, command in (("in-sample", None), ("file", {"noise": str(path)})):
+        _runs_given(tmp_path / name, log, noise, config, drift, command)
+    a = vote_robot(log, [str(tmp_path / "in-sample")], [0, 1, 2])
+    b = vote_robot(log, [str(tmp_path / "file")], [0, 1, 2])
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+    path.write_text("format = 'not a noise model'\n")
+    with pytest.raises(NoiseModelError, match=f"{path}"):
+        vote_robot(log, [str(tmp_path / "file")], [0, 1, 2])
+    path.unlink()
+    monkeypatch.setattr(mrclam_seed_vote, "read_mrclam", lambda data, robot: log)
+    assert mrclam_seed_vote.main(["--data", str(MRCLAM2), "--state-dir", str(tmp_path / "file"), "--seeds", "0,1,2",
+                                  "--robots", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err and "no such noise-model file" in err, err
