@@ -57,6 +57,7 @@ def _command(directory) -> dict:
         return json.loads(str(data["meta"]))["command"]
 
 
+@pytest.mark.timeout(1200)  # CPU-bound; the vote took 135 s at load 3 and passed 300 s beside a loaded CI
 @pytest.mark.slow  # the chain twice on 300 s of one robot (~15 s CPU each)
 def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refuses_to_mix_them(tmp_path, monkeypatch):
     import benchmarks.mrclam_constellation as mc
@@ -90,6 +91,7 @@ def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refu
                    "--robots", "1"])
 
 
+@pytest.mark.timeout(1200)  # CPU-bound; the vote took 135 s at load 3 and passed 300 s beside a loaded CI
 @pytest.mark.slow  # the chain once on 300 s of one robot (~15 s CPU)
 def test_the_chain_fits_nothing_from_the_log_and_every_step_is_given_the_file_s_model(tmp_path, monkeypatch):
     import benchmarks.mrclam_constellation as mc
