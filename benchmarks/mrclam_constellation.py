@@ -219,7 +219,6 @@ from estimation.name_chain import (  # noqa: E402
     flagged_names,  # noqa: F401  (the honest-names screen, imported from here by tests and tools)
     guard_groups,
     run_chain,
-    with_offsets,
     without_flagged,
 )
 from estimation.name_merging import NamedSmoother  # noqa: E402
@@ -241,18 +240,12 @@ from runtime.commands.options import non_negative_float, non_negative_int, posit
 # command): every option but where the run read and wrote and what it printed
 _NOT_THE_METHOD = {"data", "robots", "seed", "names_cache", "state_dir", "from_round", "out_maps", "progress", "json"}
 
-# the benchmark's own wrappers of estimation functions (leave_out, leave_out_flagged_runs, name_unnamed, _with_offsets,
-# for tools that examine saved states: benchmarks.mrclam_frame_nees sets them): the smoother's offset per chained name
-# (``--sighting-offset``: estimation.landmark_smoother.SightingOffset, and each log sighting's name before any merge,
-# its offset group) and heading loss (estimation.landmark_smoother.HeadingLoss; None: Gaussian). The chain itself
-# (run_robot) runs estimation.name_chain.run_chain, which carries its own NamedSmoother and reads neither.
-_OFFSET: dict = {"option": None, "names": None}
-_LOSS: dict = {"heading": None}
-
-
 def _smoother(log, noise, config, drift, path_step_s) -> NamedSmoother:
-    """A :class:`estimation.name_merging.NamedSmoother` with the module's sighting offset and heading loss."""
-    return NamedSmoother(log, noise, config, drift, path_step_s, _OFFSET["option"], _OFFSET["names"], _LOSS["heading"])
+    """The :class:`estimation.name_merging.NamedSmoother` of the benchmark's wrappers of estimation functions
+    (:func:`leave_out`, :func:`leave_out_flagged_runs`, :func:`name_unnamed`) when they are given none: no sighting
+    offsets, Gaussian heading loss. The chain itself (:func:`run_robot`) runs
+    :func:`estimation.name_chain.run_chain`, which carries its own."""
+    return NamedSmoother(log, noise, config, drift, path_step_s)
 
 
 def score_verdicts(verdicts: list[PassVerdict], named: NamedProblem, owner: dict[int, int]) -> dict:
@@ -600,12 +593,6 @@ class _Recorder(ChainObserver):
         self._say(f"  unnamed sightings named{again}: {self.row[key]}")
 
 
-def _with_offsets(log: RangeBearingLog, current: MergeRound, noise, config, drift, path_step_s) -> MergeRound:
-    """``current``'s names re-smoothed with the module's sighting offsets (:func:`estimation.name_chain.with_offsets`;
-    for tools that examine saved states)."""
-    return with_offsets(_smoother(log, noise, config, drift, path_step_s), current)
-
-
 def final_scores(log: RangeBearingLog, current: MergeRound, owner_before: dict[int, int]) -> dict:
     """A final map's figures (scoring): :func:`round_scores`, the wrong sightings kept, when the map's frame starts
     and :func:`map_consistency`."""
@@ -715,15 +702,16 @@ def _runs_record(log: RangeBearingLog, current: MergeRound, flagged) -> dict:
     return record
 
 
-def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift, args) -> tuple[MergeRound, dict]:
+def name_unnamed(log: RangeBearingLog, current: MergeRound, noise, config, drift, args, *,
+                 smoother: NamedSmoother | None = None) -> tuple[MergeRound, dict]:
     """``--name-unnamed``, last (:func:`estimation.unnamed_sightings.name_unnamed`): the sightings the final map names
-    unambiguously given their names, the map re-smoothed, the run's offset groups extended by their visits. Session
-    29, robot 5 seed 2: the chain leaves 18 sightings of the first 10 s unlinked, and without them the map's frame
-    (pose 0 is the first named sighting's) turns 0.025 rad from the start pose: ATE 0.076 m with the barcodes naming
-    the same sightings, 0.029 m with them too. Returns the new state and the naming scored by the barcodes."""
-    state, proposed, smoother = unnamed_sightings.name_unnamed(_smoother(log, noise, config, drift, _path_step(args)),
-                                                               current)
-    _OFFSET["names"] = smoother.offset_names
+    unambiguously given their names, the map re-smoothed (by ``smoother``, e.g. one with the run's sighting offsets,
+    whose groups the naming extends by their visits; None: :func:`_smoother`). Session 29, robot 5 seed 2: the chain
+    leaves 18 sightings of the first 10 s unlinked, and without them the map's frame (pose 0 is the first named
+    sighting's) turns 0.025 rad from the start pose: ATE 0.076 m with the barcodes naming the same sightings, 0.029 m
+    with them too. Returns the new state and the naming scored by the barcodes."""
+    smoother = smoother or _smoother(log, noise, config, drift, _path_step(args))
+    state, proposed, _ = unnamed_sightings.name_unnamed(smoother, current)
     return state, named_again_record(log, current, state, proposed)
 
 

@@ -44,7 +44,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
-import types  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -177,6 +176,8 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
     from estimation.landmark_smoother import HeadingDrift, SightingOffset
+    from estimation.name_chain import with_offsets
+    from estimation.name_merging import NamedSmoother
 
     robot, seed = (int(x) for x in STATE_NAME.search(path.name).groups())
     log = read_mrclam(data, robot)
@@ -185,13 +186,16 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     current, meta = mc.load_saved_state(path, log, noise, config)
     drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
     record = {"state": str(path), "robot": robot, "seed": seed}
+    # this state's own smoother (the run's drift and path step; the sighting offsets asked for, grouped by the run's
+    # round-0 names), passed to each step
+    smoother = NamedSmoother(log, noise, config, drift, meta["path_step_s"] or None)
     if sighting_offset > 0:
         with np.load(path.with_name(f"Robot{robot}-seed{seed}-round0.npz"), allow_pickle=False) as z:
-            mc._OFFSET.update(option=SightingOffset(sighting_offset), names=z["names"].copy())
-        current = mc._with_offsets(log, current, noise, config, drift, meta["path_step_s"])
+            smoother = NamedSmoother(log, noise, config, drift, meta["path_step_s"] or None,
+                                     SightingOffset(sighting_offset), z["names"].copy())
+        current = with_offsets(smoother, current)
     if name_unnamed:
-        args = types.SimpleNamespace(path_step=meta["path_step_s"])
-        current, record["named_again"] = mc.name_unnamed(log, current, noise, config, drift, args)
+        current, record["named_again"] = mc.name_unnamed(log, current, noise, config, drift, None, smoother=smoother)
     named = current.named
     owner = majority(current.names, log.landmark_ids)
     posts = np.array([owner.get(int(x), -1) for x in named.names])
