@@ -119,9 +119,9 @@ def test_the_chain_fits_nothing_from_the_log_and_every_step_is_given_the_file_s_
 
     # every callable the chain's module holds, or reaches through the estimation modules it holds, that takes a
     # noise model: each call's model is recorded
-    from estimation import name_chain, name_leave_out, name_merging, unnamed_sightings
+    from estimation import chain_run, name_chain, name_leave_out, name_merging, pairwise_rounds, unnamed_sightings
 
-    for owner in (mc, name_chain, name_leave_out, name_merging, unnamed_sightings):
+    for owner in (mc, name_chain, chain_run, pairwise_rounds, name_leave_out, name_merging, unnamed_sightings):
         for name, f in list(vars(owner).items()):
             if not callable(f) or name.startswith("__") or getattr(f, "__module__", None) == mc.__name__:
                 continue

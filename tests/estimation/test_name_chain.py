@@ -17,9 +17,20 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from estimation import name_chain
+from estimation import merge_screens, name_chain
 from estimation.name_chain import ChainObserver, ChainSettings, Resume, guard_groups, run_chain, without_flagged
 from estimation.pass_matching import PassVerdict
+
+
+def test_the_chain_s_parts_are_importable_from_name_chain_as_the_modules_it_was_split_into_define_them():
+    from estimation import chain_observer, chain_settings, pairwise_rounds
+
+    homes = {"ChainSettings": chain_settings, "ChainObserver": chain_observer, "alone_checked": pairwise_rounds,
+             **{name: merge_screens for name in merge_screens.__all__}}
+    assert set(homes) <= set(name_chain.__all__)
+    for name, module in homes.items():
+        assert getattr(name_chain, name) is getattr(module, name), name
+    assert name_chain.run_chain.__defaults__[0] == ChainSettings()       # session 30's recipe by default
 
 
 def test_the_default_settings_are_session_30_s_recipe_as_the_benchmark_runs_it(tmp_path, monkeypatch):
@@ -88,7 +99,7 @@ def test_the_guard_sets_aside_the_group_its_map_cannot_hold_and_keeps_the_rest_l
 
 def test_the_honest_rounds_drop_every_pairing_of_a_flagged_name_and_a_pass_left_with_none(monkeypatch):
     flags = np.array([False, True, False, False])
-    monkeypatch.setattr(name_chain, "flagged_names", lambda problem, solution, alpha, two_points=False: flags)
+    monkeypatch.setattr(merge_screens, "flagged_names", lambda problem, solution, alpha, two_points=False: flags)
     current = SimpleNamespace(named=SimpleNamespace(problem=None), solution=None)
     verdicts = [PassVerdict(0, "matched", [(0, 1), (2, 3)], (2, 0.0), 1, True),
                 PassVerdict(1, "matched", [(1, 3)], (1, 0.0), 1, True),
