@@ -12,10 +12,10 @@ groups of sightings under one name when a majority of the runs does, on average 
 the fragments that no majority of runs has as a name. The runs must come from one command (the vote refuses runs
 whose final states record different options). The voted names are then smoothed as the chain's last state is, with
 the noise model the runs were given (the file their command's ``--noise`` names, refused in one line if it cannot be
-read; fitted in sample, as theirs was, for runs made without one), the smoother's heading drift and slip and path
-step as the runs had them (from their states), a sighting offset (σ as the runs had it) per group of sightings that
-every run's chain put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a sighting that
-exactly one name explains is named). The barcodes only score.
+read; fitted in sample, as theirs was, for runs made without one), the smoother's heading drift and slip, path
+step and heading loss as the runs had them (from their states), a sighting offset (σ as the runs had it) per group of
+sightings that every run's chain put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a
+sighting that exactly one name explains is named). The barcodes only score.
 
 Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
 under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote
@@ -44,7 +44,7 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift  # noqa: E402
+from estimation.landmark_smoother import HeadingDrift, HeadingLoss  # noqa: E402
 from estimation.name_vote import majority_named  # noqa: E402
 from estimation.noise_model import NoiseModelError  # noqa: E402
 from estimation.seed_vote import (  # noqa: E402
@@ -102,8 +102,9 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
             round0.append(data["names"])
     drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
     drift = HeadingDrift(*drift_meta) if drift_meta else None
+    loss = HeadingLoss(*metas[0]["heading_loss"]) if metas[0].get("heading_loss") else None     # absent: Gaussian
     runs = np.stack([s.names for s in finals])
-    vote = vote_runs(log, noise, config, finals, np.stack(round0), drift, path_step_s, offset_m)
+    vote = vote_runs(log, noise, config, finals, np.stack(round0), drift, path_step_s, offset_m, heading_loss=loss)
     names, support, apart, nearest = vote.names, vote.support, vote.apart, vote.nearest
     voted, state, proposed = vote.voted, vote.state, vote.proposed
     named_again = chain.named_again_record(log, voted, state, proposed)

@@ -5,11 +5,11 @@
 ``vote_robot`` in session 36 (A). :func:`estimation.name_vote.voted_names` keeps groups of sightings under one name
 when a majority of the runs does and leaves unnamed the fragments no majority has as a name; the voted names are
 smoothed as the chain's last state is, from the poses of the run nearest the vote (fewest sighting pairs named
-otherwise, :func:`pairs_apart`), with the runs' heading drift, path step and a sighting offset per group of sightings
-every run's chain put under one round-0 name (:func:`offset_groups`); last the chain's own step names the sightings
-exactly one name explains (:func:`estimation.unnamed_sightings.name_unnamed`). :func:`voted_landmark_map` is the map,
-recording the seeds and each landmark's support in ``metadata["vote"]`` (``p3at fuse`` reads it:
-``runtime/map_vote.py``). The barcodes and the ground truth take no part.
+otherwise, :func:`pairs_apart`), with the runs' heading drift, path step, heading loss and a sighting offset per
+group of sightings every run's chain put under one round-0 name (:func:`offset_groups`); last the chain's own step
+names the sightings exactly one name explains (:func:`estimation.unnamed_sightings.name_unnamed`).
+:func:`voted_landmark_map` is the map, recording the seeds and each landmark's support in ``metadata["vote"]``
+(``p3at fuse`` reads it: ``runtime/map_vote.py``). The barcodes and the ground truth take no part.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from estimation.dataset_smoothing import planar_landmarks
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAMConfig
 from estimation.landmark_map import LandmarkMap
-from estimation.landmark_smoother import HeadingDrift, SightingOffset
+from estimation.landmark_smoother import HeadingDrift, HeadingLoss, SightingOffset
 from estimation.name_chain import ChainObserver, ChainResult, ChainSettings, run_chain
 from estimation.name_merging import NamedSmoother, resmoothed
 from estimation.name_vote import VOTE_KEY, name_support, vote_metadata, voted_names
@@ -73,10 +73,11 @@ def offset_groups(round0: np.ndarray, names: np.ndarray, times: np.ndarray) -> n
 
 
 def vote_runs(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, finals: list[MergeRound],
-              round0: np.ndarray, drift: HeadingDrift | None, path_step_s: float | None, offset_m: float) -> SeedVote:
+              round0: np.ndarray, drift: HeadingDrift | None, path_step_s: float | None, offset_m: float, *,
+              heading_loss: HeadingLoss | None = None) -> SeedVote:
     """The runs' final states ``finals`` voted (module docstring); ``round0`` (runs, S): each run's chained names
-    (its round-0 state's); ``drift``, ``path_step_s`` and ``offset_m`` (σ of the sighting offsets, 0: none): the
-    smoother's settings the runs had."""
+    (its round-0 state's); ``drift``, ``path_step_s``, ``offset_m`` (σ of the sighting offsets, 0: none) and
+    ``heading_loss`` (None: Gaussian): the smoother's settings the runs had."""
     runs = np.stack([s.names for s in finals])
     names = voted_names(runs)
     support = name_support(runs, names)
@@ -86,7 +87,7 @@ def vote_runs(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, f
     nearest = min(range(len(finals)), key=lambda i: (apart[i], int(np.sum((finals[i].names >= 0) != (names >= 0)))))
     smoother = NamedSmoother(log, noise, config, drift, path_step_s or None,
                              SightingOffset(offset_m) if offset_m > 0 else None,
-                             offset_groups(np.asarray(round0), names, log.sighting_times))
+                             offset_groups(np.asarray(round0), names, log.sighting_times), heading_loss)
     # the poses from the nearest run, its landmarks not: its labels are not the vote's
     voted = resmoothed(smoother, finals[nearest], names, same_labels=False)
     state, proposed, _ = name_unnamed(smoother, voted)
@@ -128,5 +129,6 @@ def chain_vote(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, 
     smoother = results[0].smoother
     offset = smoother.sighting_offset
     vote = vote_runs(log, noise, config, [r.state for r in results], np.stack(round0), smoother.heading_drift,
-                     smoother.path_step_s, offset.sigma_m if offset is not None else 0.0)
+                     smoother.path_step_s, offset.sigma_m if offset is not None else 0.0,
+                     heading_loss=smoother.heading_loss)
     return results, vote

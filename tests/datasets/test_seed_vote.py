@@ -207,3 +207,65 @@ def test_a_file_holding_the_in_sample_model_votes_as_the_in_sample_runs_and_a_mi
                                   "--robots", "2"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(path) in err and "no such noise-model file" in err, err
+
+
+def test_the_vote_smooths_with_the_heading_loss_its_runs_had(tmp_path, monkeypatch):
+    """Runs made with ``--heading-loss student-t`` record it in their states: the vote's smoothing and last naming
+    step use it too (until session 37 the vote smoothed with the Gaussian whatever the runs had)."""
+    from benchmarks import mrclam_constellation as chain
+    from benchmarks.mrclam_seed_vote import vote_robot
+    from estimation import seed_vote
+    from estimation.landmark_smoother import HeadingLoss
+    from estimation.named_smoothing import MergeRound, smooth_named
+
+    log, noise, config, drift = _robot2(until=120.0)
+    names = np.asarray(log.landmark_ids, np.int64)
+    loss = HeadingLoss("student-t", 3.0)
+    for directory, heading_loss in ((tmp_path / "t", loss), (tmp_path / "gaussian", None)):
+        named, solution = smooth_named(log, names, noise, config, heading_drift=drift, path_step_s=0.25,
+                                       heading_loss=heading_loss)
+        for seed in (0, 1, 2):
+            meta = {"robot": log.name, "seed": seed, "drift": chain._drift_meta(drift), "path_step_s": 0.25,
+                    "round": 9, "scores": {}, "sighting_offset_m": 0.03,
+                    **({"heading_loss": chain._loss_meta(heading_loss)} if heading_loss else {})}
+            for tag in ("final", "round0"):
+                chain.save_state(chain.state_path(directory, log, seed, tag), MergeRound(
+                    [], 0.0, 0.0, True, names, named, solution), meta)
+    smoothers = []
+    resmoothed = seed_vote.resmoothed
+
+    def spy(smoother, *args, **kwargs):
+        smoothers.append(smoother)
+        return resmoothed(smoother, *args, **kwargs)
+
+    monkeypatch.setattr(seed_vote, "resmoothed", spy)
+    vote_robot(log, [str(tmp_path / "t")], [0, 1, 2])
+    vote_robot(log, [str(tmp_path / "gaussian")], [0, 1, 2])
+    assert [s.heading_loss for s in smoothers] == [loss, None]
+
+
+def test_the_command_s_vote_gives_the_vote_the_heading_loss_its_runs_ended_with(monkeypatch):
+    """:func:`estimation.seed_vote.chain_vote` (``p3at slam dataset --chain --seeds``) passes the runs' smoother
+    settings to the vote, the heading loss with them (the runs stood in for: no data)."""
+    from types import SimpleNamespace
+
+    from estimation import seed_vote
+    from estimation.landmark_smoother import HeadingDrift, HeadingLoss, SightingOffset
+    from estimation.name_chain import ChainResult, ChainSettings
+    from estimation.name_merging import NamedSmoother
+
+    loss = HeadingLoss("student-t", 4.0)
+    smoother = NamedSmoother(None, None, None, HeadingDrift(0.16, 10.0), 0.25, SightingOffset(0.03), None, loss)
+    state = SimpleNamespace(names=np.array([0, 0, 1]))
+
+    def run_chain(log, noise, config, settings, observer):
+        observer.state_kept("round0", state, 0, smoother, None)
+        return ChainResult(state, smoother, 3)
+
+    given = {}
+    monkeypatch.setattr(seed_vote, "run_chain", run_chain)
+    monkeypatch.setattr(seed_vote, "vote_runs", lambda *args, **kwargs: given.update(args=args, kwargs=kwargs))
+    seed_vote.chain_vote(None, None, None, [0, 1], ChainSettings(heading_loss="student-t", heading_dof=4.0))
+    drift, path_step_s, offset_m = given["args"][5:]
+    assert (drift, path_step_s, offset_m) == (smoother.heading_drift, 0.25, 0.03)
+    assert given["kwargs"] == {"heading_loss": loss}
