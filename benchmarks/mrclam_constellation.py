@@ -361,8 +361,11 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     names = chained.names
     recorder = _Recorder(log, args, row)
     if args.from_round is not None:
-        current, meta = load_state(state_path(args.state_dir, log, args.seed, f"round{args.from_round}"), log, noise,
-                                   config, settings.heading_drift, settings.path_step, _loss_meta(settings.loss))
+        path = state_path(args.state_dir, log, args.seed, f"round{args.from_round}")
+        current, meta = load_state(path, log, noise, config, settings.heading_drift, settings.path_step,
+                                   _loss_meta(settings.loss))
+        if meta.get("noise") != (args.noise or None):     # the model the state was made with (absent: in sample)
+            raise ValueError(f"{path}: a state made with noise {meta.get('noise')!r}, not {args.noise or None!r}")
         offset_names = None
         if args.sighting_offset > 0:     # the groups: the names after the chain (round 0)
             first = state_path(args.state_dir, log, args.seed, "round0")

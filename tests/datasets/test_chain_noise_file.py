@@ -16,6 +16,7 @@ import hashlib
 import inspect
 import io
 import json
+import re
 import shutil
 from contextlib import redirect_stdout
 
@@ -158,3 +159,34 @@ def test_a_noise_file_without_a_sensor_or_unreadable_is_refused_in_one_line(tmp_
         assert mc.main(["--data", str(data), "--noise", str(path)]) == 2
         err = capsys.readouterr().err
         assert why in err and err.count("\n") == 1, err
+
+
+def test_a_run_resumed_from_a_state_made_with_another_noise_model_is_refused(tmp_path, monkeypatch):
+    """``--from-round K`` goes on from a kept state: the state's noise model (its meta's ``noise`` file; absent: fitted
+    in sample) must be the run's, as its drift, path step and heading loss must."""
+    import benchmarks.mrclam_constellation as mc
+    from estimation.landmark_smoother import HeadingDrift
+    from estimation.named_smoothing import MergeRound, smooth_named
+    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+
+    from .conftest import MRCLAM2
+
+    log = _log(2, until=60.0)
+    noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+    path = tmp_path / "model.toml"
+    noise.save(path)
+    monkeypatch.setattr(mc, "read_mrclam", lambda data, robot: log)
+    drift = HeadingDrift(0.16, 10.0)                  # the benchmark's defaults (no slip)
+    names = np.asarray(log.landmark_ids, np.int64)
+    named, solution = smooth_named(log, names, noise, mc.range_bearing_config(n_particles=10), heading_drift=drift,
+                                   path_step_s=0.25)
+    command = ["--data", str(MRCLAM2), "--robots", "2", "--particles", "10", "--from-round", "1"]
+    for made_with, resumed_with in ((None, ["--noise", str(path)]), (str(path), [])):
+        directory = tmp_path / str(made_with is None)
+        meta = {"robot": log.name, "seed": 0, "drift": mc._drift_meta(drift), "path_step_s": 0.25, "round": 1,
+                "scores": {}, "sighting_offset_m": 0.0, **({"noise": made_with} if made_with else {})}
+        mc.save_state(mc.state_path(directory, log, 0, "round1"), MergeRound([], 0.0, 0.0, True, names, named,
+                                                                             solution), meta)
+        with pytest.raises(ValueError, match=re.escape(f"made with noise {made_with!r}, not "
+                                                       f"{(str(path) if resumed_with else None)!r}")):
+            mc.main([*command, "--state-dir", str(directory), *resumed_with])
