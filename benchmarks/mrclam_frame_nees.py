@@ -54,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from estimation.geometry import between  # noqa: E402
 from estimation.landmark_scores import CHI2_95, points_nees  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
+from estimation.noise_model import NoiseModelError  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, whole_number_at_least  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -272,7 +273,11 @@ def main(argv: list[str] | None = None) -> int:
         jobs += [lambda r=r: known_id_map(r, args.data) for r in robots]
     out = []
     for job in jobs:
-        problem, solution, posts, truth, record = job()
+        try:
+            problem, solution, posts, truth, record = job()
+        except NoiseModelError as e:      # the noise model file a state's run was given, unreadable
+            print(f"mrclam_frame_nees: {e}", file=sys.stderr)
+            return 2
         record["figures"], rows = map_figures(problem, solution, truth, args.draws, np.random.default_rng(args.seed))
         record["posts"] = [int(p) for p in posts[rows]]
         out.append(record)

@@ -64,3 +64,29 @@ def test_a_state_re_smoothed_with_offsets_by_its_own_smoother_leaves_the_benchma
     for key in ("landmarks", "poses", "landmark_covariances"):
         assert np.array_equal(getattr(after.solution, key), getattr(alone.solution, key)), key
     assert np.array_equal(after.names, alone.names)
+
+
+def test_a_state_whose_run_s_noise_file_is_gone_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """A state made with ``--noise FILE`` is re-smoothed with that file's model (its meta records it); without the
+    file frame_nees says so in one line instead of fitting another model."""
+    import json
+
+    import benchmarks.mrclam_frame_nees as fn
+    from benchmarks import mrclam_constellation as chain
+    from estimation import datasets
+
+    from .conftest import MRCLAM2
+
+    log, noise, config, drift = _robot2(until=60.0)
+    path, _, _ = _saved_state(tmp_path, log, noise, config, drift)
+    with np.load(path, allow_pickle=False) as data:
+        arrays = dict(data)
+    meta = json.loads(str(arrays.pop("meta")))
+    names = arrays.pop("names")
+    missing = tmp_path / "gone.toml"
+    np.savez(path, names=names, meta=np.array(json.dumps({**meta, "noise": str(missing)})), **arrays)
+    assert chain.saved_meta(path)["noise"] == str(missing)
+    monkeypatch.setattr(datasets, "read_mrclam", lambda data, robot: log)
+    assert fn.main([str(path), "--data", str(MRCLAM2)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(missing) in err and "no such noise-model file" in err, err
