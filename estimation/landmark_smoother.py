@@ -741,6 +741,12 @@ class NormalFactor:
         dl = scipy.linalg.cho_solve(self.schur, rl - self.pl.T @ self._pose_solve(rp)) if self.schur else rl
         return np.concatenate([self._pose_solve(rp - self.pl @ dl), dl])
 
+    def log_determinant(self) -> float:
+        """log det H = log det H_pp + log det S (the Schur complement), from the two Cholesky factors."""
+        pose_part = 2.0 * float(np.sum(np.log(self.band[-1]))) if self.t else 0.0
+        rest = 2.0 * float(np.sum(np.log(np.diag(self.schur[0])))) if self.schur else 0.0
+        return pose_part + rest
+
     def landmark_covariance(self) -> np.ndarray:
         n = len(self.pl.T)
         return scipy.linalg.cho_solve(self.schur, np.eye(n)) if self.schur else np.zeros((0, 0))

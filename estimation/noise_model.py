@@ -430,7 +430,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
                    odometry_lag: bool = False, turn_translation: bool = False,
                    turn_variance: bool = False, heading_drift: bool = False,
-                   time_variance: bool = False) -> NoiseEstimate:
+                   time_variance: bool = False, calibration_per_log: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     ``heading_drift=True``: also a drifting heading bias per metre (σ_b, τ; see :func:`_with_heading_drift`).
@@ -467,7 +467,15 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     (docs/fastslam-history.md). ``range_calibration``: first fit the range's calibration r_true ≈ a + r·(b₀ + b₁φ +
     b₂φ²) (measured r, φ; see :meth:`RangeBearingNoise.corrected`) by least squares, refitted three times on the
     sightings within OUTLIER_MADS robust σ, and take every range residual, σ_r and correlation after it; off: the
-    identity. ``odometry_lag``: first fit the time by which the odometry leads the motion (:func:`_odometry_lag`: the
+    identity. ``calibration_per_log`` (several logs pooled): the range calibration (with ``range_calibration``)
+    and the bearing offset are fitted to each log on its own, and the σ's and correlations are measured on each
+    log's residuals about its own calibration; the model carries the logs' mean calibration (the typical camera;
+    its b₂ is what a self-calibration holds fixed), and [fit] each log's (``per_log_*``, in the logs' order). Why:
+    cameras differ (MRCLAM's range offsets −0.011 to −0.110 m, scales 0.950-1.005); pooled residuals about one
+    calibration hold each camera's bias, which reads as noise 4-9x too large and as a lag-1 correlation of 0.8-0.9
+    (docs/fastslam-history.md, "Session 36 ... (B)"). The σ's of this fit are the ones to give a robot whose own
+    calibration is estimated apart (:mod:`estimation.camera_calibration`). ``odometry_lag``: first fit the time by
+    which the odometry leads the motion (:func:`_odometry_lag`: the
     lag that minimises the heading increments' error at the filter's frame interval) and fit everything else on the
     odometry read that much earlier; off: 0.
     ``turn_translation``: fit the translation scale k jointly with a forward deficit per radian turned c (each
@@ -545,12 +553,24 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         follows.append(_consecutive(log.sighting_times[known], log.landmark_ids[known]))
     range_bearing = None
     range_fit = _NO_RANGE_CALIBRATION
+    per_log_fit: dict = {}
     if range_calibration and residual_r and sum(len(r) for r in residual_r) >= 20:
         range_fit = _range_calibration(np.concatenate(ranges), np.concatenate(bearings), np.concatenate(true_ranges))
-        calibrated = RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, range_fit, strict=True)))
-        residual_r = [calibrated.corrected(r, b)[0] - t for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
+        own = [_range_calibration(r, b, t) if calibration_per_log else range_fit
+               for r, b, t in zip(ranges, bearings, true_ranges, strict=True)]
+        residual_r = [RangeBearingNoise(1.0, 0.0, 1.0, **dict(zip(_RANGE_CALIBRATION, f, strict=True)))
+                      .corrected(r, b)[0] - t for f, r, b, t in zip(own, ranges, bearings, true_ranges, strict=True)]
+        if calibration_per_log:   # the model's: the logs' mean (the typical camera)
+            range_fit = tuple(float(v) for v in np.mean(own, axis=0))
+            per_log_fit.update({f"per_log_{name}": [float(f[i]) for f in own]
+                                for i, name in enumerate(_RANGE_CALIBRATION)})
+    if calibration_per_log and residual_b:   # each log's bearing residuals about its own offset, moved to the
+        own_offsets = [float(np.median(b)) if len(b) else 0.0 for b in residual_b]    # logs' mean offset
+        per_log_fit["per_log_bearing_offset_rad"] = own_offsets
+        typical = float(np.mean(own_offsets))
+        residual_b = [wrap_angle(b - o + typical) for b, o in zip(residual_b, own_offsets, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit, **lag_fit, **deficit_fit, **turn_fit, **time_fit,
+           **bias_fit, **lag_fit, **deficit_fit, **turn_fit, **time_fit, **per_log_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)

@@ -226,16 +226,35 @@ def _register_noise(sub) -> None:
         description="Fit odometry noise (random walk per metre and per radian, with scale calibration) from the "
                     "residuals of odometry increments against the ground truth, and range-bearing sensor noise "
                     "from the residuals of the sightings against the true landmark positions; write it as a TOML "
-                    "noise model for `p3at slam dataset --noise`. Several --robot options pool their logs.")
+                    "noise model for `p3at slam dataset --noise`. Several --robot options pool their logs. With "
+                    "--self-calibrate: the robot's camera calibration from its own log WITHOUT ground truth "
+                    "(odometry, and sightings associated by barcode), into the model given with --noise.")
     parser.add_argument("format", choices=DATASET_FORMATS, help="data set format")
     parser.add_argument("folder", metavar="DIR", help="the data set's folder")
     parser.add_argument("--robot", type=positive_int, action="append", required=True, metavar="N",
                         help="robot number; repeat to pool several robots")
     parser.add_argument("--out", required=True, metavar="FILE", help="noise model to write (.toml)")
-    parser.add_argument("--window", type=positive_float, default=5.0, metavar="S",
+    parser.add_argument("--window", type=positive_float, default=None, metavar="S",
                         help="odometry residual window (default 5 s; see docs/fastslam.md, Noise models)")
-    parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
-                        help="Barcodes.dat handling, as for `slam dataset`")
+    parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default=None,
+                        help="Barcodes.dat handling, as for `slam dataset` (default verified; with --self-calibrate "
+                             "table, the only one that reads no ground truth)")
+    parser.add_argument("--calibration-per-log", action="store_true",
+                        help="with several --robot: fit the range calibration (--range-calibration) and the bearing "
+                             "offset to each robot's log on its own and measure the sensor's sigmas and correlations "
+                             "about each one's own calibration; the model carries the logs' mean calibration. The "
+                             "sigmas then transfer to a robot whose own camera is calibrated apart (--self-calibrate; "
+                             "docs/fastslam-history.md, Session 37 (A))")
+    parser.add_argument("--self-calibrate", action="store_true",
+                        help="estimate the camera calibration of one --robot (range offset a, range scale b0, "
+                             "range scale per radian b1, bearing offset) from its own odometry and sightings, "
+                             "associated by barcode (fiducials), by smoothing the whole log with the calibration as "
+                             "four more unknowns: its ground "
+                             "truth is not read. Writes --noise's model with this calibration; refuses (exit 1) when "
+                             "the log does not determine it")
+    parser.add_argument("--noise", metavar="FILE",
+                        help="with --self-calibrate: the noise model to start from (odometry, sensor sigmas, b2; e.g. "
+                             "fitted on other robots with --calibration-per-log)")
     parser.add_argument("--heading-bias", action="store_true",
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "
@@ -483,6 +502,29 @@ def _window_problem(window: float, logs) -> str | None:
     return None
 
 
+_FIT_FLAGS = ("heading_bias", "range_calibration", "odometry_lag", "turn_translation", "turn_variance",
+              "heading_drift", "time_variance", "calibration_per_log")
+
+
+def _self_calibration_problem(args: argparse.Namespace) -> str | None:
+    """What makes ``slam noise``'s options meaningless together, in one line (None: nothing)."""
+    if not args.self_calibrate:
+        return "--noise is the model --self-calibrate starts from: it needs --self-calibrate" if args.noise else None
+    if args.noise is None:
+        return "--self-calibrate needs --noise FILE: the odometry and sensor sigmas it keeps"
+    if len(set(args.robot)) != 1:
+        return "--self-calibrate calibrates one robot's camera: give one --robot"
+    given = [f"--{name.replace('_', '-')}" for name in _FIT_FLAGS if getattr(args, name)]
+    if args.window is not None:
+        given.append("--window")
+    if given:
+        return f"--self-calibrate estimates the camera alone (the rest is --noise's): {', '.join(given)} do not apply"
+    if args.barcodes not in (None, "table"):
+        return (f"--self-calibrate reads no ground truth, and --barcodes {args.barcodes} checks the table against it: "
+                "give --barcodes table (its default)")
+    return None
+
+
 def _noise(args: argparse.Namespace) -> int:
     from dataclasses import asdict, replace
 
@@ -490,10 +532,17 @@ def _noise(args: argparse.Namespace) -> int:
     from estimation.noise_model import estimate_noise
     from estimation.odometry_consistency import CHI2_3_95, CHI2_3_MEDIAN, fit_keys, odometry_consistency
 
+    if (problem := _self_calibration_problem(args)) is not None:
+        print(f"p3at slam noise: {problem}", file=sys.stderr)
+        return 2
+    if args.self_calibrate:
+        return _self_calibrate(args)
+    args.window = 5.0 if args.window is None else args.window
     try:
         check_output_file(args.out)
         check_output_apart(args.out, folders={"data set": args.folder})   # its tables stay as they are
-        logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes) for robot in dict.fromkeys(args.robot)]
+        logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes or "verified")
+                for robot in dict.fromkeys(args.robot)]
         short = _window_problem(args.window, logs)
         if short is not None:
             raise ValueError(short)
@@ -501,6 +550,7 @@ def _noise(args: argparse.Namespace) -> int:
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
                                   heading_drift=args.heading_drift, time_variance=args.time_variance,
+                                  calibration_per_log=args.calibration_per_log,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         if (problem := _no_sensor_fit(estimate.model, logs)) is not None:
             raise ValueError(problem)
@@ -567,4 +617,64 @@ def _noise(args: argparse.Namespace) -> int:
               f"σ_φ {rb.bearing_sigma_rad:.4f} rad, bearing offset {rb.bearing_offset_rad:+.4f} rad; "
               f"{100 * model.fit.get('sensor_outlier_fraction', 0.0):.1f} % outliers set aside")
     print(f"  written to {args.out}")
+    return 0
+
+
+def _self_calibrate(args: argparse.Namespace) -> int:
+    """``slam noise --self-calibrate``: the camera's calibration without ground truth
+    (estimation.camera_calibration)."""
+    from estimation.camera_calibration import ESTIMATED, self_calibrate
+    from estimation.datasets import read_mrclam
+    from estimation.noise_model import NoiseModel
+
+    try:
+        check_output_file(args.out)
+        check_output_apart(args.out, files={"--noise": args.noise}, folders={"data set": args.folder})
+        noise = NoiseModel.load(args.noise)
+        if noise.range_bearing is None:
+            raise ValueError(f"{args.noise}: the noise model has no [range_bearing] section to calibrate")
+        log = read_mrclam(args.folder, args.robot[0], barcodes="table")
+        calibration = self_calibrate(log, noise)
+        model = None
+        if calibration.problem is None:
+            model = calibration.applied(
+                noise, robot=log.name,
+                source=f"camera calibration (range offset, scale, scale per radian, bearing offset) self-calibrated by "
+                       f"p3at slam "
+                       f"noise --self-calibrate from {log.name}'s odometry and sightings associated by barcode, "
+                       f"without its ground truth; the rest from the model given ({noise.robot}: {noise.source})")
+            model.save(args.out)
+    except (ValueError, OSError, EstimationError) as e:
+        print(f"p3at slam noise: {e}", file=sys.stderr)
+        return 2
+    given = {k: float(getattr(noise.range_bearing, k)) for k in ESTIMATED}
+    if args.json:
+        print(json_text({"out": str(args.out) if model is not None else None, "robot": log.name,
+                         "association": "barcode", "ground_truth_read": False, "noise": str(args.noise),
+                         "calibration": calibration.as_dict(), "given": given,
+                         "odometry_translation_scale": noise.odometry.translation_scale}))
+    else:
+        c, se = calibration, calibration.standard_errors
+        print(f"slam noise --self-calibrate: {log.name} (sightings associated by barcode; the ground truth is not "
+              f"read)")
+        print(f"  camera: range r' = a + r (b0 + b1 phi + b2 phi^2): a {c.range_offset_m:+.4f} ± {se[0]:.4f} m, b0 "
+              f"{c.range_scale:.4f} ± {se[1]:.4f}, b1 {c.range_scale_per_rad:+.4f} ± {se[2]:.4f} /rad; bearing offset "
+              f"{c.bearing_offset_rad:+.4f} ± {se[4]:.4f} rad (standard errors; given: a "
+              f"{given['range_offset_m']:+.4f}, b0 {given['range_scale']:.4f}, b1 "
+              f"{given['range_scale_per_rad']:+.4f}, offset "
+              f"{given['bearing_offset_rad']:+.4f}; b2 {c.range_scale_per_rad2:.4f} and the sigmas kept from "
+              f"{args.noise})")
+        print(f"  fit: {c.sightings} sightings ({c.outliers} set aside as outliers), {c.landmarks} landmarks, "
+              f"{c.frames} frames, chi2/dof {c.chi2_per_dof:.2f}, {c.iterations} iterations; the calibrated range's "
+              f"own sigma {c.range_sd_rms_m:.4f} m RMS against one sighting's {c.range_sigma_rms_m:.4f} m")
+        print(f"  b0 is relative to the odometry's scale (translation scale {noise.odometry.translation_scale:.4f} "
+              f"from {args.noise}): an odometry scale wrong by 1 % moves b0 by 1 %, and the standard errors leave it "
+              "out")
+        print(f"  written to {args.out}" if model is not None
+              else f"  not determined: {calibration.problem}; nothing written")
+    if model is None:
+        if not args.json:
+            print(f"p3at slam noise: the camera's calibration is not determined on {log.name}: {calibration.problem}",
+                  file=sys.stderr)
+        return 1
     return 0

@@ -1,0 +1,352 @@
+"""A camera's calibration estimated from the robot's own log, without ground truth (self-calibration).
+
+Why: a range-bearing camera has its own bias. MRCLAM's five cameras differ (range offsets −0.011 to −0.110 m, scales
+0.950-1.005, b₁ −0.013 to +0.039 /rad, bearing offsets up to 0.012 rad, fitted against Vicon), and a calibration pooled
+over other robots leaves each camera's bias in its residuals: the known-ID maps then miss issue 13's figures
+(docs/fastslam-history.md, "Session 36 ... (B)"). A lab has ground truth rarely; it has fiducials (MRCLAM's barcodes:
+each sighting names its landmark) and odometry: the calibration becomes four more unknowns of the smoothing problem.
+
+The problem (:mod:`estimation.landmark_smoother`'s, with known association by barcode): the poses of every frame
+(pose 0, the first sighting's, is the frame's origin), the landmarks, and the camera's calibration: a sighting's
+measured (r, φ) is calibrated to r' = a + r·(b₀ + b₁φ + b₂φ²), φ' = φ − ψ
+(:meth:`~estimation.noise_model.RangeBearingNoise.corrected`); a, b₀, b₁ and ψ are estimated, b₂ (the depth-against-
+range curvature, ½ b₀ for an ideal camera) is the given model's (``estimate_shape=True`` estimates it too: on MRCLAM
+it then came out 0.016-0.036 low on all five robots, b₀ with it, and the range calibration undetermined: not
+supported by the data). Each sighting is a factor (‖m − t‖ − r', atan2(m − t) − θ − φ') with the given model's σ
+(inflated for correlated sightings as the filter's; the range's σ scales with the calibration, see :class:`_Shape`);
+the odometry factors are the model's random walk. The odometry gives the metric scale; the landmarks' positions are
+free. Solved jointly by Levenberg–Marquardt (Huber weights first, then the sightings beyond χ²₂ 99 % dropped, as
+:func:`~estimation.landmark_smoother.smooth` does), from the FastSLAM filter's map and trajectory (known association)
+with the given model. The calibration's covariance is its block of the inverse information (Laplace).
+
+The joint MAP's b₀ is biased low: where the odometry is loose the poses absorb part of the range noise, and they
+absorb more the smaller b₀ (the sightings then weigh more against the odometry), so the minimum of the squared
+residuals favours a small b₀ (simulated: 2σ low with the odometry's noise as modelled, 3-4σ with a model looser than
+the data; MRCLAM: 2.4-3.3 % low). The estimate therefore maximises the Laplace approximation of the marginal
+likelihood of the calibration, χ²_min(c) + log det H_xx(c) (H_xx the poses' and landmarks' information), by one
+Newton step from the MAP: c − ½ Σ_c ∇ log det H_xx. Simulated (six seeds), that leaves a, b₀ and ψ within 2.4
+standard errors; on MRCLAM b₀ is then 1.0-2.3 % low (docs/fastslam-history.md, "Session 37: the camera calibrated
+without ground truth (A)").
+
+What it cannot see: the camera's scale relative to the odometry's. A map and its ranges scaled together fit the
+sightings alike, so b₀ (and a) come out in the odometry's units: an odometry translation scale wrong by 1 % (the given
+model's, fitted on other robots: MRCLAM's robots differ by up to 1.4 %) moves b₀ by 1 %. Only an outside length can
+fix that (the truth, or one measured distance between two fiducials); the reported uncertainty does not include it,
+nor the odometry model's own errors (MRCLAM's commanded-velocity odometry: b₀ 1-2 % off, 3-7 standard errors).
+
+The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
+Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
+calibration must be known better than one sighting's own noise: for the range, the RMS over the kept sightings of
+the calibrated range's own σ (√(∂r'ᵀ Σ ∂r'), ∂r' = (1, r, rφ, rφ²) over the estimated terms) below the RMS of their
+σ_r (the model's, before inflation), for the bearing σ_ψ < σ_φ. Else the estimate would add to every sighting an
+error larger than the sighting's own, and it is reported as not found, with the reason.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .dataset_slam import run_landmark_log
+from .dataset_smoothing import _initial_landmarks
+from .datasets import RangeBearingLog
+from .fastslam import FastSLAMConfig
+from .fastslam.motion import increment_variance
+from .geometry import between, wrap_angle
+from .landmark_smoother import (
+    HUBER_K,
+    MAX_ITERATIONS,
+    OUTLIER_CHI2,
+    LandmarkLogProblem,
+    NormalFactor,
+    _jacobian,
+    _residuals,
+)
+from .noise_model import NoiseModel, with_fastslam
+
+ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2",
+             "bearing_offset_rad")   # c = (a, b₀, b₁, b₂, ψ), in this order
+FREE = np.array([0, 1, 2, 4])          # estimated by default: a, b₀, b₁, ψ (b₂ the model's)
+FREE_WITH_SHAPE = np.arange(5)         # estimate_shape: all five
+_STEP_TOLERANCE = 1e-7
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """The estimate: ``values`` (5,) a (m), b₀, b₁ (1/rad), b₂ (1/rad²), ψ (rad) (:data:`ESTIMATED`'s order), their
+    covariance (5, 5), the joint MAP's values before the marginal likelihood's correction (see
+    :func:`self_calibrate`), and the fit's figures. ``problem``: why the calibration is not determined (None: it
+    is); a caller must not use an estimate with a problem."""
+
+    values: np.ndarray
+    covariance: np.ndarray
+    map_values: np.ndarray
+    sightings: int
+    outliers: int
+    landmarks: int
+    frames: int
+    chi2_per_dof: float
+    iterations: int
+    converged: bool
+    range_sd_rms_m: float                       # the calibration's own σ of r', RMS over the kept sightings
+    range_sigma_rms_m: float                    # one sighting's σ_r, RMS over them (the model's, not inflated)
+    bearing_sigma_rad: float                    # one sighting's σ_φ (the model's, not inflated)
+    problem: str | None
+
+    @property
+    def standard_errors(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+    def __getattr__(self, name: str):
+        if name in ESTIMATED:
+            return float(self.values[ESTIMATED.index(name)])
+        raise AttributeError(name)
+
+    def as_dict(self) -> dict:
+        se = self.standard_errors
+        return {**{name: float(v) for name, v in zip(ESTIMATED, self.values, strict=True)},
+                **{f"{name}_standard_error": float(s) for name, s in zip(ESTIMATED, se, strict=True)},
+                **{f"{name}_joint_map": float(v) for name, v in zip(ESTIMATED, self.map_values, strict=True)},
+                "range_offset_scale_correlation": float(self.covariance[0, 1] / max(se[0] * se[1], 1e-300)),
+                "sightings": self.sightings, "outliers": self.outliers, "landmarks": self.landmarks,
+                "frames": self.frames, "chi2_per_dof": self.chi2_per_dof, "iterations": self.iterations,
+                "converged": self.converged, "range_sd_rms_m": self.range_sd_rms_m,
+                "range_sigma_rms_m": self.range_sigma_rms_m, "bearing_sigma_rad": self.bearing_sigma_rad,
+                "problem": self.problem}
+
+    def applied(self, model: NoiseModel, robot: str, source: str) -> NoiseModel:
+        """``model`` (its odometry, the sensor's σ's, correlations and footprint) with this calibration and its
+        figures in [fit] (``self_calibration_*``; the model's own calibration as ``self_calibration_given_*``)."""
+        if self.problem is not None:
+            raise ValueError(f"the camera's calibration is not determined: {self.problem}")
+        rb = dataclasses.replace(model.range_bearing, **{k: float(v) for k, v in zip(ESTIMATED, self.values,
+                                                                                      strict=True)})
+        figures = {f"self_calibration_{k}": v for k, v in self.as_dict().items()
+                   if k not in ESTIMATED and k != "problem"}
+        given = {f"self_calibration_given_{k}": float(getattr(model.range_bearing, k)) for k in ESTIMATED}
+        return dataclasses.replace(model, range_bearing=rb, robot=robot, source=source,
+                                   fit={**model.fit, **given, **figures})
+
+
+def without_truth(log: RangeBearingLog) -> RangeBearingLog:
+    """``log`` with its ground truth (trajectory, landmark positions) removed: what a lab without Vicon has."""
+    return dataclasses.replace(log, ground_truth=np.zeros((0, 4)), truth_ids=np.zeros(0, np.int64),
+                               truth_positions=np.zeros((0, 2)))
+
+
+def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMConfig | None = None,
+                   seed: int = 0, estimate_shape: bool = False) -> CameraCalibration:
+    """The camera calibration (a, b₀, ψ) of ``log``'s robot from its odometry and its sightings, associated by their
+    landmark ids (barcodes, fiducials): see the module docstring. ``noise``: the odometry's model and calibration,
+    the sensor's σ's and correlations, b₁ and b₂ (e.g. a model fitted on other robots with
+    ``estimate_noise(..., calibration_per_log=True)``); its a, b₀, ψ only start the filter that gives the initial
+    guess. The log's ground truth is not read (it is dropped first)."""
+    log = without_truth(log)
+    if noise.range_bearing is None:
+        raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
+    if len(log) == 0:
+        raise ValueError(f"{log.name}: no sightings to calibrate the camera with")
+    config = config or FastSLAMConfig()
+    run = run_landmark_log(log, config, np.random.default_rng(seed), noise=noise, association="id")
+    sensor = noise.range_bearing
+    inflate_r, inflate_b = (math.sqrt(f) for f in sensor.variance_inflation())
+    times, first = np.unique(log.sighting_times, return_index=True)
+    t0 = float(times[0])
+    frame_times = np.concatenate([[t0], times])
+    odometry = log.odometry_pose(noise.odometry_times(frame_times))
+    increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+    frame_of = np.searchsorted(times, log.sighting_times)
+    landmark_ids, landmark_index = np.unique(log.landmark_ids, return_inverse=True)
+    raw_r, raw_b = log.ranges, log.bearings
+    given = np.array([getattr(sensor, k) for k in ESTIMATED])
+    start_r, _ = sensor.corrected(raw_r, raw_b)
+    plain_sigma_r = sensor.range_sigma(start_r)
+    filter_config = with_fastslam(noise, config)
+    problem = LandmarkLogProblem(increments, increment_variance(increments, filter_config, np.diff(frame_times)),
+                                 frame_of + 1, landmark_index, start_r, raw_b - sensor.bearing_offset_rad,
+                                 plain_sigma_r * inflate_r, np.full(len(log), sensor.bearing_sigma_rad * inflate_b))
+    poses = np.vstack([np.zeros(3), run.estimated_trajectory[:, 1:]])
+    landmarks = _initial_landmarks(run.map, landmark_ids, problem, poses)
+    shape = _Shape(sensor, raw_r, raw_b, problem.range_sigmas, FREE_WITH_SHAPE if estimate_shape else FREE)
+    c = given.copy()
+    inliers = np.ones(len(log), bool)
+    iterations_robust, _ = _solve(problem, shape, poses, landmarks, c, inliers, robust=True)
+    _, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+    inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
+    iterations, converged = _solve(problem, shape, poses, landmarks, c, inliers, robust=False)
+    odometry_r, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+    chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
+    seen = np.zeros(len(landmark_ids), bool)
+    seen[landmark_index[inliers]] = True
+    dof = 2 * int(inliers.sum()) - 2 * int(seen.sum()) - len(ESTIMATED)
+    covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
+    map_values = c.copy()
+    if np.all(np.isfinite(covariance)):
+        c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
+    kept = inliers
+    design = np.column_stack([np.ones(int(kept.sum())), raw_r[kept, None] * shape.powers[kept]])   # ∂r'/∂(a, b)
+    sd_rms = float(np.sqrt(np.mean(np.einsum("si,ij,sj->s", design, covariance[:4, :4], design))))
+    sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[kept] ** 2)))
+    problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
+                            float(sensor.bearing_sigma_rad))
+    return CameraCalibration(c, covariance, map_values, int(len(log)), int((~inliers).sum()), int(seen.sum()),
+                             int(len(times)), chi2 / dof if dof > 0 else float("nan"), iterations_robust + iterations,
+                             converged, sd_rms, sigma_rms, float(sensor.bearing_sigma_rad), problem_text)
+
+
+class _Shape:
+    """The calibration's effect on the sightings: r' = a + r·m(φ), m = b₀ + b₁φ + b₂φ², φ' = φ − ψ; c = (a, b₀, b₁,
+    b₂, ψ): ∂r'/∂c = (1, r, rφ, rφ², 0), ∂φ'/∂ψ = −1.
+
+    The noise is the camera's, in its raw range r: a range residual is (r̂ − r')/(m σ_raw), σ_raw = σ_r / m₀ (σ_r the
+    model's, measured in calibrated units at the given calibration's m₀), i.e. the problem's σ_r scaled by m/m₀. Why
+    not the given σ_r as it is: then a smaller b₀ shrinks each sighting's noise with it, and the least squares buys
+    that with a smaller map; on a simulated log with σ_r 0.02 m it took b₀ 7 % low, 12 of its standard errors."""
+
+    def __init__(self, sensor, ranges: np.ndarray, bearings: np.ndarray, range_sigmas: np.ndarray,
+                 free: np.ndarray) -> None:
+        self.free = np.asarray(free, int)                            # the indices of c that are estimated
+        self.ranges, self.bearings = np.asarray(ranges, float), np.asarray(bearings, float)
+        self.powers = np.column_stack([np.ones_like(self.bearings), self.bearings, self.bearings ** 2])   # 1, φ, φ²
+        self.start = self.powers @ [sensor.range_scale, sensor.range_scale_per_rad, sensor.range_scale_per_rad2]
+        self.sigmas = np.asarray(range_sigmas, float)               # σ_r at m₀ (inflated as the filter's)
+
+    def multiplier(self, c: np.ndarray) -> np.ndarray:
+        return self.powers @ c[1:4]
+
+    def problem(self, problem: LandmarkLogProblem, c: np.ndarray) -> LandmarkLogProblem:
+        m = self.multiplier(c)
+        return dataclasses.replace(problem, ranges=c[0] + self.ranges * m, bearings=self.bearings - c[4],
+                                   range_sigmas=self.sigmas * m / self.start)
+
+    def jacobian(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
+        """The smoother's Jacobian with the estimated calibration's columns after the landmarks'."""
+        t, n = problem.n_poses, len(landmarks)
+        at = self.problem(problem, c)
+        jac = _jacobian(at, poses, landmarks, n, weights)
+        _, sightings = _residuals(at, poses, landmarks)
+        e_r = sightings.reshape(-1, 2)[:, 0]                         # (r̂ − r')/σ
+        s = np.arange(len(self.ranges))
+        m = self.multiplier(c)
+        # e_r = (r̂ − r')/σ with σ ∝ m: ∂e_r/∂a = −1/σ, ∂e_r/∂b_j = −(r φʲ)/σ − e_r φʲ/m;
+        # e_φ = wrap(φ̂ − φ + ψ)/σ_φ: ∂e_φ/∂ψ = 1/σ_φ
+        columns = [-weights / at.range_sigmas] + [
+            -weights * self.powers[:, j] * (self.ranges / at.range_sigmas + e_r / m) for j in range(3)]
+        columns.append(weights / at.bearing_sigmas)
+        rows = [3 * t + 2 * s + (1 if j == 4 else 0) for j in self.free]
+        cols = np.repeat(np.arange(len(self.free)), len(s))
+        vals = np.concatenate([columns[j] for j in self.free])
+        extra = sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(jac.shape[0], len(self.free)))
+        return sp.hstack([jac, extra], format="csr")
+
+
+def _weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
+    weights = inliers.astype(float)
+    if robust:
+        norm = np.sqrt(np.sum(sightings.reshape(-1, 2) ** 2, axis=1))
+        weights *= np.sqrt(np.minimum(1.0, HUBER_K / np.maximum(norm, 1e-12)))
+    return weights
+
+
+def _cost(problem, shape, poses, landmarks, c, inliers, robust) -> float:
+    odometry, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+    norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
+    if robust:
+        norm = np.sqrt(norm2)
+        norm2 = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
+    return float(np.sum(odometry ** 2) + np.sum(norm2))
+
+
+def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, bool]:
+    """Levenberg–Marquardt in place on poses[1:], landmarks and c (landmark_smoother._solve's, with c's columns)."""
+    t, n = problem.n_poses, len(landmarks)
+    damping = 1e-4
+    cost = _cost(problem, shape, poses, landmarks, c, inliers, robust)
+    for iteration in range(1, MAX_ITERATIONS + 1):
+        odometry, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+        weights = _weights(sightings, inliers, robust)
+        jac = shape.jacobian(problem, poses, landmarks, c, weights)
+        residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()])
+        normal = (jac.T @ jac).tocsc()
+        gradient = jac.T @ residual
+        diagonal = normal.diagonal()
+        while True:
+            damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
+            step = -NormalFactor(damped, t, 3).solve(gradient)
+            trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
+            trial_poses[1:] += step[:3 * t].reshape(t, 3)
+            trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
+            trial_landmarks += step[3 * t:3 * t + 2 * n].reshape(n, 2)
+            trial_c = c.copy()
+            trial_c[shape.free] += step[3 * t + 2 * n:]
+            trial = _cost(problem, shape, trial_poses, trial_landmarks, trial_c, inliers, robust)
+            if trial <= cost:
+                break
+            damping *= 10.0
+            if damping > 1e8:
+                return iteration, False
+        poses[:], landmarks[:], c[:] = trial_poses, trial_landmarks, trial_c
+        damping = max(damping / 10.0, 1e-9)
+        improvement, cost = cost - trial, trial
+        if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
+            return iteration, True
+    return MAX_ITERATIONS, False
+
+
+def _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen) -> np.ndarray:
+    """c's block (5, 5) of the inverse information at the solution (landmarks without a kept sighting left out)."""
+    t, n = problem.n_poses, len(landmarks)
+    jac = shape.jacobian(problem, poses, landmarks, c, inliers.astype(float))
+    information = (jac.T @ jac).tocsc()
+    free = np.ones(information.shape[0], bool)
+    free[3 * t:3 * t + 2 * n] = np.repeat(seen, 2)
+    try:
+        dense = NormalFactor(information[free][:, free], t, 3).landmark_covariance()
+    except np.linalg.LinAlgError:
+        return np.full((3, 3), np.inf)
+    out = np.zeros((len(c), len(c)))
+    out[np.ix_(shape.free, shape.free)] = dense[-len(shape.free):, -len(shape.free):]
+    return out
+
+
+def _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance) -> np.ndarray:
+    """∇_c log det H_xx (5,) at the solution: H_xx the information of the poses and landmarks (c held), by central
+    differences of one standard error. At fixed poses and landmarks H_xx depends on c only through the range σ's
+    (∝ m = b₀ + b₁φ + b₂φ²), so the derivatives in a and ψ are 0."""
+    t, n = problem.n_poses, len(landmarks)
+    free = np.ones(3 * t + 2 * n, bool)
+    free[3 * t:] = np.repeat(seen, 2)
+
+    def log_det(at: np.ndarray) -> float:
+        jac = shape.jacobian(problem, poses, landmarks, at, inliers.astype(float))[:, :3 * t + 2 * n]
+        information = (jac.T @ jac).tocsc()
+        return NormalFactor(information[free][:, free], t, 3).log_determinant()
+
+    gradient = np.zeros(len(c))
+    for j in set(shape.free) & {1, 2, 3}:
+        step = np.zeros(len(c))
+        step[j] = float(np.sqrt(covariance[j, j]))
+        gradient[j] = (log_det(c + step) - log_det(c - step)) / (2.0 * step[j])
+    return gradient
+
+
+def _problem(converged, iterations, c, covariance, sd_rms, sigma_rms, bearing_sigma) -> str | None:
+    """Why the estimate is not to be used, in one sentence (None: it is determined)."""
+    if not converged:
+        return f"the joint solve did not converge ({iterations} iterations)"
+    if not np.all(np.isfinite(covariance)) or np.any(np.diag(covariance)[FREE] <= 0):
+        return "the information matrix is singular: the sightings do not determine the calibration"
+    if not 0.5 <= c[1] <= 2.0:
+        return f"the range scale came out {c[1]:.3f}, outside [0.5, 2] (a calibration, not a new sensor)"
+    if not sd_rms < sigma_rms:
+        return (f"the range calibration is not known better than one sighting (± {sd_rms:.3f} m RMS over the "
+                f"sightings' ranges against their σ_r {sigma_rms:.3f} m): the log's ranges and odometry do not "
+                "determine it")
+    se_psi = float(np.sqrt(covariance[4, 4]))
+    if not se_psi < bearing_sigma:
+        return (f"the bearing offset is not known better than one sighting (± {se_psi:.4f} rad against σ_φ "
+                f"{bearing_sigma:.4f} rad)")
+    return None

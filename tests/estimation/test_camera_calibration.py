@@ -1,0 +1,129 @@
+"""The camera calibration estimated from a robot's own log without ground truth (estimation.camera_calibration)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from estimation.camera_calibration import ESTIMATED, self_calibrate, without_truth
+from estimation.datasets import RangeBearingLog
+from estimation.geometry import between, compose, wrap_angle
+from estimation.landmark_smoother import NormalFactor
+from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
+
+# a camera in MRCLAM's range: σ_r 5 mm + 0.6 % of the range, σ_φ 0.01 rad, ±0.55 rad of view, 0.6-7 m
+SIGMA_R, SIGMA_R_PER_M, SIGMA_B = 0.005, 0.006, 0.01
+
+
+def _log(rng, *, a=-0.08, b0=0.97, b1=0.0, psi=0.01, minutes=12.0, noise=True, q=0.003) -> RangeBearingLog:
+    """A robot wandering among 15 posts for ``minutes``; its odometry a random walk of variance ``q`` per metre and
+    per radian (x, y and θ), its camera reports each post in view every 0.24 s with bearing φ = the true one + ``psi``
+    (+ noise σ_φ) and a raw range r such that the calibrated a + r (b0 + b1 φ) is the true range (+ noise σ_r)."""
+    dt = 0.02
+    n = int(minutes * 60 / dt) + 1
+    t = np.arange(n) * dt
+    turn = 0.25 + 0.4 * np.sin(t / 9.0)
+    speed = 0.25 + 0.1 * np.sin(t / 13.0)
+    heading = np.cumsum(np.concatenate([[0.0], turn[:-1] * dt]))
+    x = np.cumsum(np.concatenate([[0.0], speed[:-1] * np.cos(heading[:-1]) * dt]))
+    y = np.cumsum(np.concatenate([[0.0], speed[:-1] * np.sin(heading[:-1]) * dt]))
+    truth = np.column_stack([t, x, y, heading])
+    steps = between(truth[:-1, 1:], truth[1:, 1:])
+    if noise:
+        d = np.hypot(steps[:, 0], steps[:, 1])
+        steps[:, :2] += rng.normal(0, 1, (n - 1, 2)) * np.sqrt(q * d)[:, None]
+        steps[:, 2] += rng.normal(0, 1, n - 1) * np.sqrt(q * (np.abs(steps[:, 2]) + d))
+    odometry = [np.zeros(3)]
+    for step in steps:
+        odometry.append(compose(odometry[-1], step))
+    posts = rng.uniform(-5, 5, (15, 2)) + [x.mean(), y.mean()]
+    rows = []
+    for k in range(0, n, 12):
+        delta = posts - truth[k, 1:3]
+        r = np.hypot(delta[:, 0], delta[:, 1])
+        phi = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - truth[k, 3])
+        for i in np.flatnonzero((np.abs(phi) < 0.55) & (r > 0.6) & (r < 7.0)):
+            r_noisy = r[i] + (rng.normal(0, SIGMA_R + SIGMA_R_PER_M * r[i]) if noise else 0.0)
+            reported = phi[i] + (rng.normal(0, SIGMA_B) if noise else 0.0) + psi     # φ as the camera reports it
+            rows.append((t[k], (r_noisy - a) / (b0 + b1 * reported), reported, i + 1))
+    rows = np.array(rows)
+    return RangeBearingLog("synthetic", np.column_stack([t, np.array(odometry)]), rows[:, 0], rows[:, 1], rows[:, 2],
+                           rows[:, 3].astype(np.int64), truth, np.arange(1, 16), posts)
+
+
+def _model(q=0.003) -> NoiseModel:
+    """The noise the log is made with; its camera calibration the identity (what the estimate starts from)."""
+    return NoiseModel(OdometryNoise(q, q, q),
+                      RangeBearingNoise(SIGMA_R, SIGMA_R_PER_M, SIGMA_B, fov_rad=1.2, max_range_m=8.0))
+
+
+def test_a_camera_offset_scale_and_yaw_are_recovered_within_their_standard_errors():
+    made = {"range_offset_m": -0.08, "range_scale": 0.97, "range_scale_per_rad": 0.0, "bearing_offset_rad": 0.01}
+    calibration = self_calibrate(_log(np.random.default_rng(3)), _model())
+    assert calibration.problem is None and calibration.converged
+    for name, value in made.items():
+        j = ESTIMATED.index(name)
+        se = calibration.standard_errors[j]
+        assert 0 < se < 0.01 and abs(calibration.values[j] - value) < 3 * se, (name, calibration.values[j], se)
+    # b₂ is the model's (not estimated): kept, with no variance
+    assert calibration.values[ESTIMATED.index("range_scale_per_rad2")] == 0.0
+    assert calibration.standard_errors[ESTIMATED.index("range_scale_per_rad2")] == 0.0
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(a=st.floats(-0.15, 0.15), b0=st.floats(0.9, 1.1), b1=st.floats(-0.05, 0.05), psi=st.floats(-0.03, 0.03),
+       seed=st.integers(0, 2 ** 16))
+def test_exact_sightings_and_odometry_give_the_calibration_exactly_at_the_joint_map(a, b0, b1, psi, seed):
+    # the joint MAP fits exact data exactly; the estimate adds the marginal likelihood's correction for the noise
+    # the model expects (a noise-free log has none to absorb), so it is the MAP that must come out exact here
+    log = _log(np.random.default_rng(seed), a=a, b0=b0, b1=b1, psi=psi, minutes=2.0, noise=False)
+    calibration = self_calibrate(log, _model())
+    assert calibration.converged and calibration.chi2_per_dof < 1e-12
+    np.testing.assert_allclose(calibration.map_values[[0, 1, 2, 4]], [a, b0, b1, psi], atol=2e-5)
+
+
+def test_the_ground_truth_is_not_read():
+    log = _log(np.random.default_rng(4), minutes=3.0)
+    rng = np.random.default_rng(5)
+    scrambled = dataclasses.replace(log, ground_truth=log.ground_truth + np.column_stack(
+        [np.zeros(len(log.ground_truth)), rng.normal(0, 3, (len(log.ground_truth), 3))]),
+        truth_positions=rng.uniform(-9, 9, log.truth_positions.shape))
+    runs = [self_calibrate(x, _model()) for x in (log, scrambled, without_truth(log))]
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other.values, runs[0].values)
+        np.testing.assert_array_equal(other.covariance, runs[0].covariance)
+
+
+def test_a_log_too_short_to_determine_the_calibration_is_reported_as_such():
+    calibration = self_calibrate(_log(np.random.default_rng(1), minutes=1.0), _model())
+    assert calibration.problem is not None and "not known better than one sighting" in calibration.problem
+    with pytest.raises(ValueError, match="not determined"):
+        calibration.applied(_model(), "robot", "test")
+
+
+def test_the_applied_model_keeps_the_given_sigmas_and_takes_the_estimate():
+    model = _model()
+    calibration = self_calibrate(_log(np.random.default_rng(3)), model)
+    out = calibration.applied(model, "synthetic", "self-calibrated")
+    assert out.odometry == model.odometry
+    for name in ("range_sigma_m", "range_sigma_per_m", "bearing_sigma_rad", "range_correlation", "fov_rad"):
+        assert getattr(out.range_bearing, name) == getattr(model.range_bearing, name)
+    for j, name in enumerate(ESTIMATED):
+        assert getattr(out.range_bearing, name) == calibration.values[j]
+    assert out.fit["self_calibration_given_range_scale"] == 1.0 and out.fit["self_calibration_converged"] is True
+
+
+def test_the_normal_factor_gives_the_log_determinant():
+    rng = np.random.default_rng(0)
+    t, n = 6, 3 * 6 + 4                       # 6 poses (x, y, θ), 2 landmarks
+    normal = rng.uniform(-1, 1, (n, n))
+    normal = normal + normal.T
+    rows, columns = np.indices((n, n))
+    normal[(rows < 3 * t) & (columns < 3 * t) & (np.abs(rows - columns) > 5)] = 0.0   # the poses' band
+    normal[np.diag_indices(n)] = np.abs(normal).sum(axis=1) + 1.0                     # positive definite
+    factor = NormalFactor(sp.csc_matrix(normal), t, 3)
+    assert factor.log_determinant() == pytest.approx(np.linalg.slogdet(normal)[1], rel=1e-10)
