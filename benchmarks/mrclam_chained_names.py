@@ -71,6 +71,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -317,19 +318,69 @@ def gap_table(log: RangeBearingLog, r: MergeRound) -> list[dict]:
 
 # ---- the benchmark -------------------------------------------------------------------------------------------------
 
+# the log's arrays as read (estimation.datasets.RangeBearingLog): what a cache entry made from it depends on
+LOG_ARRAYS = ("odometry", "sighting_times", "ranges", "bearings", "landmark_ids", "ground_truth", "truth_ids",
+              "truth_positions")
+
+
+def cache_digest(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConfig, **settings) -> str:
+    """SHA-256 (hex) of everything a ``--names-cache`` entry's content depends on: the log as read (its name and
+    every array of :data:`LOG_ARRAYS`, so a log read ``until`` another time is another log), the noise model's content
+    (its TOML), the filter's configuration and ``settings`` (JSON values: the window, step, seed, ...). Kept inside the
+    entry and compared on reading it (:func:`read_cache`)."""
+    h = hashlib.sha256()
+    h.update(json.dumps({"log": log.name, "noise": noise.to_toml(), "config": repr(config), "settings": settings},
+                        sort_keys=True).encode())
+    for name in LOG_ARRAYS:
+        a = np.ascontiguousarray(getattr(log, name))
+        h.update(f"{name} {a.dtype.str} {a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def array_digest(a) -> str:
+    """SHA-256 (hex) of an integer array (e.g. names) as int64: a setting of :func:`cache_digest`."""
+    return hashlib.sha256(np.ascontiguousarray(a, np.int64).tobytes()).hexdigest()
+
+
+def read_cache(path: Path, digest: str, who: str) -> dict | None:
+    """The arrays of the cache entry ``path`` if it was made from what ``digest`` (:func:`cache_digest`) says, else
+    None: absent, or made from another log, noise model or settings (or before entries carried their digest), which
+    is said once on stderr (``who``: the program); the caller computes it again and :func:`write_cache` replaces it."""
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        if "digest" in data.files and str(data["digest"]) == digest:
+            return {k: data[k] for k in data.files if k != "digest"}
+    print(f"{who}: {path} was made from another log, noise model or settings (or holds no digest); computed again",
+          file=sys.stderr, flush=True)
+    return None
+
+
+def write_cache(path: Path, digest: str, **arrays) -> None:
+    """The cache entry ``path``: ``arrays`` and their ``digest`` (:func:`cache_digest`), written atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, digest=np.array(digest), **arrays)
+    os.replace(tmp, path)
+
+
 def _chained(log: RangeBearingLog, args, noise: NoiseModel, config: FastSLAMConfig) -> tuple[ChainedNames, dict]:
     """The chained names of ``log`` (:func:`estimation.chained_names.chain_log` with ``args.window``, ``args.step``,
     ``args.seed``) and the windows' figures, scored by the barcodes; kept in (and read back from)
     ``args.names_cache`` if given, one .npz per robot, window, step, seed and particle count (the windows are most
-    of the run's time)."""
+    of the run's time), holding the :func:`cache_digest` of the log, noise model, filter and settings it was made
+    from: an entry made from anything else (a log read to another time, another model) is computed again."""
     step = args.step or args.window / 2
-    cache = None
+    cache = digest = None
     if args.names_cache:
         cache = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
                                           f"-p{args.particles}.npz")
-        if cache.is_file():
-            with np.load(cache, allow_pickle=False) as data:
-                return ChainedNames(data["names"], []), json.loads(str(data["row"]))
+        digest = cache_digest(log, noise, config, what="chained names", window_s=args.window, step_s=step,
+                              seed=args.seed)
+        data = read_cache(cache, digest, "mrclam_chained_names")
+        if data is not None:
+            return ChainedNames(data["names"], []), json.loads(str(data["row"]))
     started = time.process_time()
     chained = chain_log(log, noise, config, seconds=args.window, step=args.step, seed=args.seed)
     window_cpu = time.process_time() - started
@@ -340,8 +391,7 @@ def _chained(log: RangeBearingLog, args, noise: NoiseModel, config: FastSLAMConf
            "window_wrong_fraction": sum(p["wrong"] for p in per_window) / max(sum(p["named"] for p in per_window), 1),
            "chain_links": chained.links, "chain_unlinked": chained.unlinked}
     if cache is not None:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(cache, names=chained.names, row=np.array(json.dumps(row)))
+        write_cache(cache, digest, names=chained.names, row=np.array(json.dumps(row)))
     return chained, row
 
 

@@ -187,7 +187,15 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
-from benchmarks.mrclam_chained_names import _chained, majority, round_scores  # noqa: E402
+from benchmarks.mrclam_chained_names import (  # noqa: E402
+    _chained,
+    array_digest,
+    cache_digest,
+    majority,
+    read_cache,
+    round_scores,
+    write_cache,
+)
 from benchmarks.mrclam_frame_nees import map_figures, truth_in_frame  # noqa: E402
 from estimation import (  # noqa: E402
     chi2,  # noqa: E402
@@ -923,21 +931,21 @@ def _round(log, attempt: MergeRound, owner) -> dict:
 
 def _guess(log, names, noise, config, args, cache: bool = True):
     """The known-ID filter and smoother with the chained names as identities (U's starting guess), kept beside the
-    names' cache when one is given."""
-    path = None
+    names' cache when one is given, with the digest of the log, names, noise model, filter and seed it was made from
+    (:func:`benchmarks.mrclam_chained_names.cache_digest`): an entry made from anything else is computed again."""
+    path = digest = None
     if args.names_cache and cache:
         step = args.step or args.window / 2
         path = Path(args.names_cache) / (f"{log.name}-w{args.window:g}-s{step:g}-seed{args.seed}"
                                          f"-p{args.particles}-guess.npz")
-        if path.is_file():
-            with np.load(path, allow_pickle=False) as data:
-                return data["poses"], dict(zip(data["ids"].tolist(), data["positions"], strict=True))
+        digest = cache_digest(log, noise, config, what="guess", names=array_digest(names), seed=args.seed)
+        data = read_cache(path, digest, "mrclam_constellation")
+        if data is not None:
+            return data["poses"], dict(zip(data["ids"].tolist(), data["positions"], strict=True))
     poses, guess = names_guess(log, names, noise, config, np.random.default_rng(args.seed))
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, poses=poses, ids=np.array(list(guess), np.int64), positions=np.array(list(guess.values())))
-        os.replace(tmp, path)
+        write_cache(path, digest, poses=poses, ids=np.array(list(guess), np.int64),
+                    positions=np.array(list(guess.values())))
     return poses, guess
 
 
