@@ -351,11 +351,17 @@ def run_noise(log: RangeBearingLog, path) -> NoiseModel:
     return noise_file(path)
 
 
+def saved_noise_file(meta: dict) -> str | None:
+    """The ``--noise`` file a saved state's ``meta`` (:func:`saved_meta`) records, in the state's own meta or its final
+    state's command (None: an in-sample run)."""
+    return meta.get("noise") or (meta.get("command") or {}).get("noise")
+
+
 def saved_run_noise(log: RangeBearingLog, meta: dict) -> NoiseModel:
     """The noise model the run whose state records ``meta`` (:func:`saved_meta`) was given (:func:`run_noise` of the
-    ``noise`` file its state or its final state's command records): what a tool that smooths a saved run again (a
-    vote, a re-smoothing) must smooth with."""
-    return run_noise(log, meta.get("noise") or (meta.get("command") or {}).get("noise"))
+    ``noise`` file its state or its final state's command records, :func:`saved_noise_file`): what a tool that smooths
+    a saved run again (a vote, a re-smoothing, a re-examination) must smooth with."""
+    return run_noise(log, saved_noise_file(meta))
 
 
 def run_robot(log: RangeBearingLog, args) -> dict:

@@ -49,7 +49,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
-from benchmarks.mrclam_constellation import load_saved_state  # noqa: E402
+from benchmarks.mrclam_constellation import (  # noqa: E402
+    load_saved_state,
+    saved_meta,
+    saved_noise_file,
+    saved_run_noise,
+)
 from estimation import chi2  # noqa: E402
 from estimation.constellation import pairwise_groups  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
@@ -67,7 +72,7 @@ from estimation.map_honesty import (  # noqa: E402
     two_point_split,
 )
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModelError  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_int  # noqa: E402
 
 POSE_NEES_99 = float(chi2.ppf(0.99, 3))      # a run's stretch is confidently wrong beyond it (11.34)
@@ -285,7 +290,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mrclam_honesty: no saved states of robots {args.robots}, seeds {args.seeds} in {args.state_dir}",
               file=sys.stderr)
         return 2
-    setups: dict = {}
+    logs: dict = {}
+    noises: dict = {}
     rows = []
     if not args.json:
         print(f"split scores, runs cut at gaps > {args.gap:g} s, offset floor {args.floor:g} m, α {args.alpha:g} "
@@ -295,13 +301,19 @@ def main(argv: list[str] | None = None) -> int:
               "| top score | names flagged (holding a wrong run) / names holding one |")
         print("|---|---|---|---|---|---|---|---|")
     for robot, seed, tag, path in found:
-        if robot not in setups:
-            log = read_mrclam(args.data, robot)
-            noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-            setups[robot] = (log, noise, range_bearing_config(n_particles=100))
+        if robot not in logs:
+            logs[robot] = read_mrclam(args.data, robot)
+        log, meta = logs[robot], saved_meta(path)
+        key = (robot, saved_noise_file(meta))
+        if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
+            try:
+                noises[key] = saved_run_noise(log, meta)
+            except NoiseModelError as e:
+                print(f"mrclam_honesty: {path.name}: its run's noise model: {e}", file=sys.stderr)
+                return 2
         row = {"robot": robot, "seed": seed, "tag": tag,
-               **run_state(*setups[robot], path, args.gap, args.alpha, args.top or 0, args.groups,
-                           args.floor, args.two_points)}
+               **run_state(log, noises[key], range_bearing_config(n_particles=100), path, args.gap, args.alpha,
+                           args.top or 0, args.groups, args.floor, args.two_points)}
         rows.append(row)
         if not args.json:
             _print(row)

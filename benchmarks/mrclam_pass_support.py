@@ -49,13 +49,19 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
-from benchmarks.mrclam_constellation import guard_record, load_saved_state  # noqa: E402
+from benchmarks.mrclam_constellation import (  # noqa: E402
+    guard_record,
+    load_saved_state,
+    saved_meta,
+    saved_noise_file,
+    saved_run_noise,
+)
 from benchmarks.mrclam_honesty import add_state_arguments, states  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModelError  # noqa: E402
 from estimation.pass_matching import PassVerdict, judge_passes, merges_from, passes_of, without_pairings  # noqa: E402
 from runtime.commands.options import positive_float, positive_int  # noqa: E402
 
@@ -367,14 +373,21 @@ def main(argv: list[str] | None = None) -> int:
               f"{args.rounds} in {args.state_dir}", file=sys.stderr)
         return 2
     logs: dict = {}
+    noises: dict = {}
     rows = []
     for robot, seed, tag, path in found:
         if robot not in logs:
-            log = read_mrclam(args.data, robot)
-            logs[robot] = (log, estimate_noise([log], **DATASET_CALIBRATIONS).model)
-        log, noise = logs[robot]
+            logs[robot] = read_mrclam(args.data, robot)
+        log, meta = logs[robot], saved_meta(path)
+        key = (robot, saved_noise_file(meta))
+        if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
+            try:
+                noises[key] = saved_run_noise(log, meta)
+            except NoiseModelError as e:
+                print(f"mrclam_pass_support: {path.name}: its run's noise model: {e}", file=sys.stderr)
+                return 2
         config = range_bearing_config(n_particles=100)
-        row = {"robot": robot, "seed": seed, "from": tag, **judge_state(log, noise, config, path, args)}
+        row = {"robot": robot, "seed": seed, "from": tag, **judge_state(log, noises[key], config, path, args)}
         rows.append(row)
         if not args.json:
             _print_state(row, every=args.groups)
