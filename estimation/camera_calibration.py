@@ -32,7 +32,8 @@ What it cannot see: the camera's scale relative to the odometry's. A map and its
 sightings alike, so b₀ (and a) come out in the odometry's units: an odometry translation scale wrong by 1 % (the given
 model's, fitted on other robots: MRCLAM's robots differ by up to 1.4 %) moves b₀ by 1 %. Only an outside length can
 fix that (the truth, or one measured distance between two fiducials); the reported uncertainty does not include it,
-nor the odometry model's own errors (MRCLAM's commanded-velocity odometry: b₀ 1-2 % off, 3-7 standard errors).
+nor the odometry model's own errors (MRCLAM's commanded-velocity odometry: b₀ 1-2 % low, 2-9 standard errors, with
+the robot's own truth-fitted odometry calibration too).
 
 The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
 Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
