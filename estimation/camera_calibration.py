@@ -185,14 +185,18 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     dof = 2 * int(inliers.sum()) - 2 * int(seen.sum()) - len(ESTIMATED)
     covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     map_values = c.copy()
-    if np.all(np.isfinite(covariance)):
-        c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
     kept = inliers
     design = np.column_stack([np.ones(int(kept.sum())), raw_r[kept, None] * shape.powers[kept]])   # ∂r'/∂(a, b)
-    sd_rms = float(np.sqrt(np.mean(np.einsum("si,ij,sj->s", design, covariance[:4, :4], design))))
+    with np.errstate(invalid="ignore"):   # inf × 0 of the terms not estimated, in a singular covariance
+        sd_rms = float(np.sqrt(np.mean(np.einsum("si,ij,sj->s", design, np.nan_to_num(covariance[:4, :4], posinf=1e300),
+                                                  design))))
     sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[kept] ** 2)))
     problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
                             float(sensor.bearing_sigma_rad))
+    if problem_text is None:   # determined at the MAP: the marginal likelihood's correction (else the MAP, reported)
+        c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
+        problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
+                                float(sensor.bearing_sigma_rad))
     return CameraCalibration(c, covariance, map_values, int(len(log)), int((~inliers).sum()), int(seen.sum()),
                              int(len(times)), chi2 / dof if dof > 0 else float("nan"), iterations_robust + iterations,
                              converged, sd_rms, sigma_rms, float(sensor.bearing_sigma_rad), problem_text)
@@ -283,7 +287,9 @@ def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, b
             trial_landmarks += step[3 * t:3 * t + 2 * n].reshape(n, 2)
             trial_c = c.copy()
             trial_c[shape.free] += step[3 * t + 2 * n:]
-            trial = _cost(problem, shape, trial_poses, trial_landmarks, trial_c, inliers, robust)
+            # a step that makes the range's multiplier m ≤ 0 anywhere is no camera (and no σ): refused as a bad step
+            trial = _cost(problem, shape, trial_poses, trial_landmarks, trial_c, inliers, robust) \
+                if np.all(shape.multiplier(trial_c) > 0) else np.inf
             if trial <= cost:
                 break
             damping *= 10.0
@@ -298,17 +304,19 @@ def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, b
 
 
 def _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen) -> np.ndarray:
-    """c's block (5, 5) of the inverse information at the solution (landmarks without a kept sighting left out)."""
+    """c's block (5, 5) of the inverse information at the solution (landmarks without a kept sighting left out; the
+    terms not estimated 0)."""
     t, n = problem.n_poses, len(landmarks)
     jac = shape.jacobian(problem, poses, landmarks, c, inliers.astype(float))
     information = (jac.T @ jac).tocsc()
     free = np.ones(information.shape[0], bool)
     free[3 * t:3 * t + 2 * n] = np.repeat(seen, 2)
+    out = np.zeros((len(c), len(c)))
     try:
         dense = NormalFactor(information[free][:, free], t, 3).landmark_covariance()
-    except np.linalg.LinAlgError:
-        return np.full((3, 3), np.inf)
-    out = np.zeros((len(c), len(c)))
+    except np.linalg.LinAlgError:   # singular: _problem says so
+        out[np.ix_(shape.free, shape.free)] = np.inf
+        return out
     out[np.ix_(shape.free, shape.free)] = dense[-len(shape.free):, -len(shape.free):]
     return out
 

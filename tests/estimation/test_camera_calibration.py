@@ -127,3 +127,18 @@ def test_the_normal_factor_gives_the_log_determinant():
     normal[np.diag_indices(n)] = np.abs(normal).sum(axis=1) + 1.0                     # positive definite
     factor = NormalFactor(sp.csc_matrix(normal), t, 3)
     assert factor.log_determinant() == pytest.approx(np.linalg.slogdet(normal)[1], rel=1e-10)
+
+
+def test_a_robot_that_never_moves_cannot_tell_the_offset_from_the_scale():
+    """One post at one range from one place: a + r b₀ is all the sightings say (no step may make the range's
+    multiplier ≤ 0 on the way: it is no camera, and its σ would be none)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 60.0, 0.02)
+    frames = t[::12]
+    log = RangeBearingLog("still", np.column_stack([t, np.zeros((len(t), 3))]), frames,
+                          2.0 + rng.normal(0, 0.01, len(frames)), rng.normal(0, 0.01, len(frames)),
+                          np.ones(len(frames), np.int64))
+    calibration = self_calibrate(log, _model())
+    assert calibration.problem is not None
+    with pytest.raises(ValueError, match="not determined"):
+        calibration.applied(_model(), "still", "test")
