@@ -247,6 +247,10 @@ from runtime.commands.options import non_negative_float, non_negative_int, posit
 # what a saved final state records of the command that made it (benchmarks.mrclam_seed_vote votes only runs of one
 # command): every option but where the run read and wrote and what it printed
 _NOT_THE_METHOD = {"data", "robots", "seed", "names_cache", "state_dir", "from_round", "out_maps", "progress", "json"}
+# recorded only when --noise is given (an in-sample run's command is as before the option): the file and its content's
+# SHA-256 (two files at one path are told apart)
+_NOISE_KEYS = ("noise", "noise_sha256")
+
 
 def _smoother(log, noise, config, drift, path_step_s) -> NamedSmoother:
     """The :class:`estimation.name_merging.NamedSmoother` of the benchmark's wrappers of estimation functions
@@ -341,14 +345,27 @@ def noise_file(path) -> NoiseModel:
     return noise
 
 
-def run_noise(log: RangeBearingLog, path) -> NoiseModel:
+def file_sha256(path) -> str:
+    """SHA-256 (hex) of a file's bytes: what a kept state records of ``--noise FILE``'s content beside its path."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def run_noise(log: RangeBearingLog, path, sha256: str | None = None) -> NoiseModel:
     """The noise model a chain run on ``log`` is given: with ``path`` (``--noise FILE``) the file's, calibrated
     elsewhere (e.g. on the other robots' logs; :func:`noise_file`); without, fitted in sample, from this log against
-    its ground truth (the sensor part by each sighting's barcode's post). A run's final state records the file in its
-    command (an in-sample run's command has none): :func:`saved_run_noise` gives a saved run's model back."""
+    its ground truth (the sensor part by each sighting's barcode's post). ``sha256``: the content the file must hold
+    (:func:`file_sha256`, as a run records it); a file that holds other content now is refused
+    (:class:`estimation.noise_model.NoiseModelError`, one line). A run's states record the file and its digest (an
+    in-sample run's have neither): :func:`saved_run_noise` gives a saved run's model back."""
     if path is None:
         return estimate_noise([log], **DATASET_CALIBRATIONS).model
-    return noise_file(path)
+    noise = noise_file(path)
+    if sha256 is not None:
+        now = file_sha256(path)
+        if now != sha256:
+            raise NoiseModelError(f"{path}: the file now holds other content (sha256 {now[:12]}...) than the run "
+                                  f"was given (sha256 {sha256[:12]}...)")
+    return noise
 
 
 def saved_noise_file(meta: dict) -> str | None:
@@ -357,18 +374,27 @@ def saved_noise_file(meta: dict) -> str | None:
     return meta.get("noise") or (meta.get("command") or {}).get("noise")
 
 
+def saved_noise_sha256(meta: dict) -> str | None:
+    """The SHA-256 (hex) of the ``--noise`` file's content that a saved state's ``meta`` records beside the file
+    (:func:`saved_noise_file`); None for an in-sample run and for a state made before states recorded it."""
+    if saved_noise_file(meta) is None:
+        return None
+    return meta.get("noise_sha256") or (meta.get("command") or {}).get("noise_sha256")
+
+
 def saved_run_noise(log: RangeBearingLog, meta: dict) -> NoiseModel:
     """The noise model the run whose state records ``meta`` (:func:`saved_meta`) was given (:func:`run_noise` of the
-    ``noise`` file its state or its final state's command records, :func:`saved_noise_file`): what a tool that smooths
-    a saved run again (a vote, a re-smoothing, a re-examination) must smooth with."""
-    return run_noise(log, saved_noise_file(meta))
+    ``noise`` file its state or its final state's command records, :func:`saved_noise_file`, refused if the file's
+    content is no longer the one recorded beside it, :func:`saved_noise_sha256`): what a tool that smooths a saved
+    run again (a vote, a re-smoothing, a re-examination) must smooth with."""
+    return run_noise(log, saved_noise_file(meta), saved_noise_sha256(meta))
 
 
 def run_robot(log: RangeBearingLog, args) -> dict:
     """One robot's chain (:func:`estimation.name_chain.run_chain` with :func:`settings_of` ``args``), from the
     chained names and guess of ``--names-cache`` or from ``--from-round``'s saved state, every decision recorded and
     scored by the barcodes (:class:`_Recorder`); the row of figures."""
-    noise = run_noise(log, args.noise or None)
+    noise = run_noise(log, args.noise or None, args.noise_sha256 if args.noise else None)
     config = range_bearing_config(n_particles=args.particles)
     settings = settings_of(args)
     chained, row = _chained(log, args, noise, config)
@@ -380,6 +406,9 @@ def run_robot(log: RangeBearingLog, args) -> dict:
                                    _loss_meta(settings.loss))
         if meta.get("noise") != (args.noise or None):     # the model the state was made with (absent: in sample)
             raise ValueError(f"{path}: a state made with noise {meta.get('noise')!r}, not {args.noise or None!r}")
+        if meta.get("noise_sha256") and meta["noise_sha256"] != args.noise_sha256:   # (absent: made before it)
+            raise ValueError(f"{path}: a state made with {args.noise} holding other content (sha256 "
+                             f"{meta['noise_sha256'][:12]}...) than it holds now ({args.noise_sha256[:12]}...)")
         offset_names = None
         if args.sighting_offset > 0:     # the groups: the names after the chain (round 0)
             first = state_path(args.state_dir, log, args.seed, "round0")
@@ -412,7 +441,7 @@ def _finish(log: RangeBearingLog, row: dict, names: np.ndarray, run: ChainResult
                            {key: float(v) for key, v in final.items() if isinstance(v, (int, float, np.number))})
         # the noise model's file as given (an in-sample run's command is recorded as before --noise existed)
         meta["command"] = {key: value for key, value in vars(args).items()
-                           if key not in _NOT_THE_METHOD and not (key == "noise" and value is None)}
+                           if key not in _NOT_THE_METHOD and not (key in _NOISE_KEYS and value is None)}
         save_state(state_path(args.state_dir, log, args.seed, "final"), current, meta)
     if args.out_maps:
         path = Path(args.out_maps) / f"robot{_robot_number(log)}.npz"
@@ -829,7 +858,7 @@ def _state_meta(log: RangeBearingLog, args, smoother: NamedSmoother, round_done:
             "path_step_s": smoother.path_step_s, "round": round_done, "scores": scores or {},
             "sighting_offset_m": offset.sigma_m if offset is not None else 0.0,
             **({"heading_loss": _loss_meta(loss)} if loss is not None else {}),
-            **({"noise": args.noise} if args.noise else {})}
+            **({"noise": args.noise, "noise_sha256": args.noise_sha256} if args.noise else {})}
 
 
 def _loss_meta(loss: HeadingLoss | None) -> list | None:
@@ -1081,9 +1110,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="the noise model (TOML, see `p3at slam noise`), e.g. fitted on the other robots' logs; "
                              "default: each robot's own, fitted from its log against its ground truth (in sample). "
                              "With --names-cache the chained names and guesses, which depend on it, are kept in "
-                             "NAMES_CACHE/noise-<the file's SHA-256, 12 digits>")
+                             "NAMES_CACHE/noise-<the file's SHA-256, 12 digits>. Kept states record the file and its "
+                             "content's SHA-256: a saved run is refused once the file holds other content")
     parser.add_argument("--progress", action="store_true", help="each round on stderr as it ends")
     parser.add_argument("--json", action="store_true")
+    parser.set_defaults(noise_sha256=None)     # --noise's file's content, set below
     args = parser.parse_args(argv)
     if args.honest_names is not None and not 0 < args.honest_names < 1:
         parser.error(f"--honest-names: α must be in (0, 1), not {args.honest_names}")
@@ -1108,9 +1139,9 @@ def main(argv: list[str] | None = None) -> int:
         except NoiseModelError as e:
             print(f"mrclam_constellation: --noise: {e}", file=sys.stderr)
             return 2
-        if args.names_cache:    # its files are named without the noise model: one folder per model
-            digest = hashlib.sha256(Path(args.noise).read_bytes()).hexdigest()[:12]
-            args.names_cache = str(Path(args.names_cache) / f"noise-{digest}")
+        args.noise_sha256 = file_sha256(args.noise)     # recorded beside the path by every kept state
+        if args.names_cache:    # one folder per model (each entry also holds the digest of the model it was made with)
+            args.names_cache = str(Path(args.names_cache) / f"noise-{args.noise_sha256[:12]}")
     rows = []
     for robot in (int(r) for r in args.robots.split(",")):
         row = run_robot(read_mrclam(args.data, robot), args)

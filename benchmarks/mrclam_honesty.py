@@ -53,6 +53,7 @@ from benchmarks.mrclam_constellation import (  # noqa: E402
     load_saved_state,
     saved_meta,
     saved_noise_file,
+    saved_noise_sha256,
     saved_run_noise,
 )
 from estimation import chi2  # noqa: E402
@@ -304,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
         if robot not in logs:
             logs[robot] = read_mrclam(args.data, robot)
         log, meta = logs[robot], saved_meta(path)
-        key = (robot, saved_noise_file(meta))
+        key = (robot, saved_noise_file(meta), saved_noise_sha256(meta))
         if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
             try:
                 noises[key] = saved_run_noise(log, meta)

@@ -54,6 +54,7 @@ from benchmarks.mrclam_constellation import (  # noqa: E402
     load_saved_state,
     saved_meta,
     saved_noise_file,
+    saved_noise_sha256,
     saved_run_noise,
 )
 from benchmarks.mrclam_honesty import add_state_arguments, states  # noqa: E402
@@ -379,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
         if robot not in logs:
             logs[robot] = read_mrclam(args.data, robot)
         log, meta = logs[robot], saved_meta(path)
-        key = (robot, saved_noise_file(meta))
+        key = (robot, saved_noise_file(meta), saved_noise_sha256(meta))
         if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
             try:
                 noises[key] = saved_run_noise(log, meta)

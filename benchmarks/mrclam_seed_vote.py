@@ -12,10 +12,11 @@ groups of sightings under one name when a majority of the runs does, on average 
 the fragments that no majority of runs has as a name. The runs must come from one command (the vote refuses runs
 whose final states record different options). The voted names are then smoothed as the chain's last state is, with
 the noise model the runs were given (the file their command's ``--noise`` names, refused in one line if it cannot be
-read; fitted in sample, as theirs was, for runs made without one), the smoother's heading drift and slip, path
-step and heading loss as the runs had them (from their states), a sighting offset (σ as the runs had it) per group of
-sightings that every run's chain put under one round-0 name, and last the chain's own ``--name-unnamed`` step (a
-sighting that exactly one name explains is named). The barcodes only score.
+read or no longer holds the content their states record beside it; fitted in sample, as theirs was, for runs made
+without one), the smoother's heading drift and slip, path step and heading loss as the runs had them (from their
+states), a sighting offset (σ as the runs had it) per group of sightings that every run's chain put under one round-0
+name, and last the chain's own ``--name-unnamed`` step (a sighting that exactly one name explains is named). The
+barcodes only score.
 
 Printed per robot: each run's final figures (from its state) beside the vote's: names, duplicates, sightings kept
 under another post's name, ATE, start-frame landmark NEES within χ²₂ 95 %, the joint NEES; and what the vote

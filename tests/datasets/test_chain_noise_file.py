@@ -7,8 +7,9 @@ On MRCLAM robot 1's first 300 s (session 30's command, 10 particles, as tests/da
 - a file holding another model (robot 2's) is the one every step of the chain is given — the chained names, the
   filter's guess, every smoothing, the merges' smoother, the leave-outs, the naming — and nothing is fitted from the
   log; with ``--names-cache`` the chain's cached names and guesses go to a folder of that model's own;
-- the final state records the file in its command (an in-sample run's command has no such key, as before the option),
-  so ``benchmarks.mrclam_seed_vote`` refuses to vote runs of different noise models together.
+- the final state records the file and its content's SHA-256 in its command (an in-sample run's command has neither, as
+  before the option), so ``benchmarks.mrclam_seed_vote`` refuses to vote runs of different noise models (or two
+  files at one path) together.
 """
 from __future__ import annotations
 
@@ -82,7 +83,8 @@ def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refu
     assert json.dumps(from_file["robots"][0]["final"]) == json.dumps(in_sample["robots"][0]["final"])
 
     assert "noise" not in _command(tmp_path / "in-sample")     # as before the option existed: old states still vote
-    assert _command(tmp_path / "file") == {**_command(tmp_path / "in-sample"), "noise": str(path)}
+    assert _command(tmp_path / "file") == {**_command(tmp_path / "in-sample"), "noise": str(path),
+                                           "noise_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
     # the file's run as seed 1 beside the in-sample run of seed 0: the same names, but not the same command
     for tag in ("final", "round0"):
         shutil.copy(tmp_path / "file" / f"Robot1-seed0-{tag}.npz", tmp_path / "in-sample" / f"Robot1-seed1-{tag}.npz")

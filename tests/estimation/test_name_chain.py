@@ -47,7 +47,7 @@ def test_the_default_settings_are_session_30_s_recipe_as_the_benchmark_runs_it(t
     # prints or what it scores with; the particles are the filter configuration's)
     fields = {f.name for f in dataclasses.fields(ChainSettings)}
     renamed = {"window": "window_s", "step": "step_s", "path_step": "path_step_s"}
-    outside = {"particles", "layout", "ceiling", "noise"} | mc._NOT_THE_METHOD - {"seed"}
+    outside = {"particles", "layout", "ceiling", *mc._NOISE_KEYS} | mc._NOT_THE_METHOD - {"seed"}
     assert {renamed.get(k, k) for k in vars(given[0])} - outside == fields
 
 
