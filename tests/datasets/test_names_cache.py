@@ -141,3 +141,41 @@ def test_an_entry_without_a_digest_is_not_trusted(folder, tmp_path, calls, capsy
     np.testing.assert_array_equal(again.names, names.names)
     assert row_again["robot"] == log.name
     assert "computed again" in capsys.readouterr().err
+
+
+def test_the_chain_s_command_with_a_cache_of_a_shorter_log_ends_as_without_a_cache(folder, tmp_path, monkeypatch,
+                                                                                   capsys):
+    """mrclam_constellation.main with ``--names-cache``, the log read to 60 s and then to 90 s (as tests and scripts
+    read a log's first part, by patching the module's read_mrclam): the 90-s run ends as one without a cache."""
+    import io
+    import json
+    from contextlib import redirect_stdout
+
+    from estimation.noise_model import NoiseModel
+
+    model = tmp_path / "model.toml"
+    _noise().save(model)
+    assert NoiseModel.load(model) == _noise()
+
+    def chain(until, *cache):
+        log = read_mrclam(folder, 1, until=until)
+        monkeypatch.setattr(mc, "read_mrclam", lambda data, robot: log)
+        out = io.StringIO()
+        with redirect_stdout(out):
+            assert mc.main(["--data", str(folder), "--robots", "1", "--particles", "5", "--window", "20",
+                            "--max-rounds", "1", "--noise", str(model), "--json", *cache]) == 0
+        return _without_cpu(json.loads(out.getvalue().strip().splitlines()[-1]))
+
+    cache = ["--names-cache", str(tmp_path / "cache")]
+    chain(60.0, *cache)
+    capsys.readouterr()
+    assert chain(90.0, *cache) == chain(90.0)
+    assert capsys.readouterr().err.count("computed again") == 2
+
+
+def _without_cpu(x):
+    if isinstance(x, dict):
+        return {k: _without_cpu(v) for k, v in x.items() if "cpu" not in k}
+    if isinstance(x, list):
+        return [_without_cpu(v) for v in x]
+    return x
