@@ -35,6 +35,11 @@ fix that (the truth, or one measured distance between two fiducials); the report
 nor the odometry model's own errors (MRCLAM's commanded-velocity odometry: b₀ 1-2 % low, 2-9 standard errors, with
 the robot's own truth-fitted odometry calibration too).
 
+A surveyed length (``known_distances``: the distance between two landmarks, taped, with its σ) is one more factor
+of the smoothing, (‖m_i − m_j‖ − d)/σ_d on the two landmarks' positions: it gives the map, and so b₀ and a, a metric
+scale of their own beside the odometry's (docs/fastslam-history.md, "Session 37: a taped length in the
+self-calibration (D)").
+
 The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
 Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
 calibration must be known better than one sighting's own noise: for the range, the RMS over the kept sightings of
@@ -76,6 +81,28 @@ _STEP_TOLERANCE = 1e-7
 
 
 @dataclass(frozen=True)
+class KnownDistance:
+    """A length measured outside the log (a tape between two posts): landmarks ``first`` and ``second`` (their ids)
+    are ``metres`` apart, with standard deviation ``sigma_m``."""
+
+    first: int
+    second: int
+    metres: float
+    sigma_m: float
+
+    def problem(self) -> str | None:
+        """Why the length cannot be used, in one sentence (None: it can); the ids are checked against a log apart."""
+        if self.first == self.second:
+            return f"a known distance joins two landmarks, not landmark {self.first} to itself"
+        if not (math.isfinite(self.metres) and self.metres > 0):
+            return f"the known distance between {self.first} and {self.second} must be positive, not {self.metres:g} m"
+        if not (math.isfinite(self.sigma_m) and self.sigma_m > 0):
+            return (f"the known distance's sigma between {self.first} and {self.second} must be positive, not "
+                    f"{self.sigma_m:g} m")
+        return None
+
+
+@dataclass(frozen=True)
 class CameraCalibration:
     """The estimate: ``values`` (5,) a (m), b₀, b₁ (1/rad), b₂ (1/rad²), ψ (rad) (:data:`ESTIMATED`'s order), their
     covariance (5, 5), the joint MAP's values before the marginal likelihood's correction (see
@@ -96,6 +123,8 @@ class CameraCalibration:
     range_sigma_rms_m: float                    # one sighting's σ_r, RMS over them (the model's, not inflated)
     bearing_sigma_rad: float                    # one sighting's σ_φ (the model's, not inflated)
     problem: str | None
+    known_distances: tuple[KnownDistance, ...] = ()   # the surveyed lengths used
+    fitted_distances_m: tuple[float, ...] = ()        # the map's distance between each pair, at the solution
 
     @property
     def standard_errors(self) -> np.ndarray:
@@ -116,7 +145,17 @@ class CameraCalibration:
                 "frames": self.frames, "chi2_per_dof": self.chi2_per_dof, "iterations": self.iterations,
                 "converged": self.converged, "range_sd_rms_m": self.range_sd_rms_m,
                 "range_sigma_rms_m": self.range_sigma_rms_m, "bearing_sigma_rad": self.bearing_sigma_rad,
-                "problem": self.problem}
+                "problem": self.problem, **self._known_distances_dict()}
+
+    def _known_distances_dict(self) -> dict:
+        if not self.known_distances:   # no key at all: a file made without them is as before
+            return {}
+        k = self.known_distances
+        return {"known_distance_first_ids": [int(x.first) for x in k],
+                "known_distance_second_ids": [int(x.second) for x in k],
+                "known_distance_m": [float(x.metres) for x in k],
+                "known_distance_sigma_m": [float(x.sigma_m) for x in k],
+                "known_distance_fitted_m": [float(x) for x in self.fitted_distances_m]}
 
     def applied(self, model: NoiseModel, robot: str, source: str) -> NoiseModel:
         """``model`` (its odometry, the sensor's σ's, correlations and footprint) with this calibration and its
@@ -139,17 +178,29 @@ def without_truth(log: RangeBearingLog) -> RangeBearingLog:
 
 
 def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMConfig | None = None,
-                   seed: int = 0, estimate_shape: bool = False) -> CameraCalibration:
+                   seed: int = 0, estimate_shape: bool = False,
+                   known_distances: tuple[KnownDistance, ...] | list[KnownDistance] = ()) -> CameraCalibration:
     """The camera calibration (a, b₀, ψ) of ``log``'s robot from its odometry and its sightings, associated by their
     landmark ids (barcodes, fiducials): see the module docstring. ``noise``: the odometry's model and calibration,
     the sensor's σ's and correlations, b₁ and b₂ (e.g. a model fitted on other robots with
     ``estimate_noise(..., calibration_per_log=True)``); its a, b₀, ψ only start the filter that gives the initial
-    guess. The log's ground truth is not read (it is dropped first)."""
+    guess. The log's ground truth is not read (it is dropped first). ``known_distances``: surveyed lengths between
+    landmarks the log sights (:class:`KnownDistance`), each a factor on the two landmarks' positions; ValueError if
+    one names a landmark the log does not sight, or is not a length (:meth:`KnownDistance.problem`)."""
     log = without_truth(log)
     if noise.range_bearing is None:
         raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
     if len(log) == 0:
         raise ValueError(f"{log.name}: no sightings to calibrate the camera with")
+    known_distances = tuple(known_distances)
+    sighted = set(np.unique(log.landmark_ids).tolist())
+    for known in known_distances:
+        if (text := known.problem()) is not None:
+            raise ValueError(text)
+        missing = [i for i in (known.first, known.second) if i not in sighted]
+        if missing:
+            raise ValueError(f"{log.name} never sights landmark {missing[0]} (known distance {known.first}-"
+                             f"{known.second}): a taped length must join two landmarks of the log")
     config = config or FastSLAMConfig()
     run = run_landmark_log(log, config, np.random.default_rng(seed), noise=noise, association="id")
     sensor = noise.range_bearing
@@ -171,7 +222,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                                  plain_sigma_r * inflate_r, np.full(len(log), sensor.bearing_sigma_rad * inflate_b))
     poses = np.vstack([np.zeros(3), run.estimated_trajectory[:, 1:]])
     landmarks = _initial_landmarks(run.map, landmark_ids, problem, poses)
-    shape = _Shape(sensor, raw_r, raw_b, problem.range_sigmas, FREE_WITH_SHAPE if estimate_shape else FREE)
+    shape = _Shape(sensor, raw_r, raw_b, problem.range_sigmas, FREE_WITH_SHAPE if estimate_shape else FREE,
+                   _Lengths.of(known_distances, landmark_ids))
     c = given.copy()
     inliers = np.ones(len(log), bool)
     iterations_robust, _ = _solve(problem, shape, poses, landmarks, c, inliers, robust=True)
@@ -180,9 +232,11 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     iterations, converged = _solve(problem, shape, poses, landmarks, c, inliers, robust=False)
     odometry_r, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
+    if shape.lengths.count:
+        chi2 += float(np.sum(shape.lengths.residuals(landmarks) ** 2))
     seen = np.zeros(len(landmark_ids), bool)
     seen[landmark_index[inliers]] = True
-    dof = 2 * int(inliers.sum()) - 2 * int(seen.sum()) - len(ESTIMATED)
+    dof = 2 * int(inliers.sum()) + shape.lengths.count - 2 * int(seen.sum()) - len(ESTIMATED)
     covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     map_values = c.copy()
     kept = inliers
@@ -199,7 +253,45 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                                 float(sensor.bearing_sigma_rad))
     return CameraCalibration(c, covariance, map_values, int(len(log)), int((~inliers).sum()), int(seen.sum()),
                              int(len(times)), chi2 / dof if dof > 0 else float("nan"), iterations_robust + iterations,
-                             converged, sd_rms, sigma_rms, float(sensor.bearing_sigma_rad), problem_text)
+                             converged, sd_rms, sigma_rms, float(sensor.bearing_sigma_rad), problem_text,
+                             known_distances, tuple(float(x) for x in shape.lengths.distances(landmarks)))
+
+
+@dataclass(frozen=True)
+class _Lengths:
+    """The known distances as factors: landmark index pairs (K, 2) (into the problem's landmarks), lengths (K,) and
+    σ's (K,); residual (‖m_i − m_j‖ − d)/σ_d."""
+
+    pairs: np.ndarray
+    metres: np.ndarray
+    sigmas: np.ndarray
+
+    @classmethod
+    def of(cls, known: tuple[KnownDistance, ...], landmark_ids: np.ndarray) -> _Lengths:
+        index = {int(i): k for k, i in enumerate(landmark_ids)}
+        return cls(np.array([[index[k.first], index[k.second]] for k in known], int).reshape(-1, 2),
+                   np.array([k.metres for k in known], float), np.array([k.sigma_m for k in known], float))
+
+    @property
+    def count(self) -> int:
+        return len(self.metres)
+
+    def distances(self, landmarks: np.ndarray) -> np.ndarray:
+        d = landmarks[self.pairs[:, 0]] - landmarks[self.pairs[:, 1]]
+        return np.hypot(d[:, 0], d[:, 1])
+
+    def residuals(self, landmarks: np.ndarray) -> np.ndarray:
+        return (self.distances(landmarks) - self.metres) / self.sigmas
+
+    def jacobian(self, landmarks: np.ndarray, t: int, columns: int) -> sp.csr_matrix:
+        """(K, columns): ∂/∂m_i = uᵀ/σ_d, ∂/∂m_j = −uᵀ/σ_d (u the unit vector from m_j to m_i), landmark k's
+        columns at 3t + 2k."""
+        d = landmarks[self.pairs[:, 0]] - landmarks[self.pairs[:, 1]]
+        u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None] / self.sigmas[:, None]
+        rows = np.repeat(np.arange(self.count), 4)
+        cols = (3 * t + 2 * self.pairs[:, [0, 0, 1, 1]] + [0, 1, 0, 1]).ravel()
+        vals = np.column_stack([u, -u]).ravel()
+        return sp.csr_matrix((vals, (rows, cols)), shape=(self.count, columns))
 
 
 class _Shape:
@@ -212,8 +304,9 @@ class _Shape:
     that with a smaller map; on simulated logs with σ_r 0.02 m it took b₀ 6-7 % low, 9-11 of its standard errors."""
 
     def __init__(self, sensor, ranges: np.ndarray, bearings: np.ndarray, range_sigmas: np.ndarray,
-                 free: np.ndarray) -> None:
+                 free: np.ndarray, lengths: _Lengths | None = None) -> None:
         self.free = np.asarray(free, int)                            # the indices of c that are estimated
+        self.lengths = lengths or _Lengths.of((), np.zeros(0, int))   # known distances: rows after the sightings'
         self.ranges, self.bearings = np.asarray(ranges, float), np.asarray(bearings, float)
         self.powers = np.column_stack([np.ones_like(self.bearings), self.bearings, self.bearings ** 2])   # 1, φ, φ²
         self.start = self.powers @ [sensor.range_scale, sensor.range_scale_per_rad, sensor.range_scale_per_rad2]
@@ -227,8 +320,17 @@ class _Shape:
         return dataclasses.replace(problem, ranges=c[0] + self.ranges * m, bearings=self.bearings - c[4],
                                    range_sigmas=self.sigmas * m / self.start)
 
+    def residuals(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> np.ndarray:
+        """The residual vector of :meth:`jacobian`'s rows: odometry, sightings (scaled by their weights), lengths."""
+        odometry, sightings = _residuals(self.problem(problem, c), poses, landmarks)
+        parts = [odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()]
+        if self.lengths.count:
+            parts.append(self.lengths.residuals(landmarks))
+        return np.concatenate(parts)
+
     def jacobian(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
-        """The smoother's Jacobian with the estimated calibration's columns after the landmarks'."""
+        """The smoother's Jacobian with the estimated calibration's columns after the landmarks' (and the known
+        distances' rows after the sightings')."""
         t, n = problem.n_poses, len(landmarks)
         at = self.problem(problem, c)
         jac = _jacobian(at, poses, landmarks, n, weights)
@@ -245,7 +347,10 @@ class _Shape:
         cols = np.repeat(np.arange(len(self.free)), len(s))
         vals = np.concatenate([columns[j] for j in self.free])
         extra = sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(jac.shape[0], len(self.free)))
-        return sp.hstack([jac, extra], format="csr")
+        out = sp.hstack([jac, extra], format="csr")
+        if self.lengths.count:
+            out = sp.vstack([out, self.lengths.jacobian(landmarks, t, out.shape[1])], format="csr")
+        return out
 
 
 def _weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
@@ -262,7 +367,10 @@ def _cost(problem, shape, poses, landmarks, c, inliers, robust) -> float:
     if robust:
         norm = np.sqrt(norm2)
         norm2 = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
-    return float(np.sum(odometry ** 2) + np.sum(norm2))
+    cost = float(np.sum(odometry ** 2) + np.sum(norm2))
+    if shape.lengths.count:
+        cost += float(np.sum(shape.lengths.residuals(landmarks) ** 2))
+    return cost
 
 
 def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, bool]:
@@ -271,10 +379,10 @@ def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, b
     damping = 1e-4
     cost = _cost(problem, shape, poses, landmarks, c, inliers, robust)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        odometry, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+        _, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
         weights = _weights(sightings, inliers, robust)
         jac = shape.jacobian(problem, poses, landmarks, c, weights)
-        residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()])
+        residual = shape.residuals(problem, poses, landmarks, c, weights)
         normal = (jac.T @ jac).tocsc()
         gradient = jac.T @ residual
         diagonal = normal.diagonal()

@@ -15,6 +15,7 @@ from runtime.commands.options import (
     add_deprecated_alias,
     check_output_apart,
     check_output_file,
+    finite_float,
     non_negative_int,
     particle_count,
     positive_float,
@@ -220,6 +221,36 @@ def _chain_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
+# a tape's σ: the default of --known-distance's SIGMA (m)
+KNOWN_DISTANCE_SIGMA_M = 0.005
+
+
+class _KnownDistance(argparse.Action):
+    """``--known-distance ID1 ID2 METRES [SIGMA]`` (repeatable): appends (id1, id2, metres, sigma) after checking
+    the words (each already a finite number): two different whole landmark ids, a distance > 0, a σ > 0."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        text = " ".join(f"{v:g}" for v in values)
+        problem = None
+        if len(values) not in (3, 4):
+            problem = "four or three numbers"
+        elif not all(v == int(v) and v >= 0 for v in values[:2]):
+            problem = "whole landmark ids"
+        elif values[0] == values[1]:
+            problem = "two different landmarks"
+        elif not values[2] > 0:
+            problem = "a distance > 0"
+        elif len(values) == 4 and not values[3] > 0:
+            problem = "a sigma > 0"
+        if problem is not None:
+            raise argparse.ArgumentError(self, f"expected ID1 ID2 METRES [SIGMA] ({problem}: two different landmark "
+                                               f"ids, a distance > 0 m, a sigma > 0 m), not {text!r}")
+        sigma = float(values[3]) if len(values) == 4 else KNOWN_DISTANCE_SIGMA_M
+        known = [*(getattr(namespace, self.dest, None) or []), (int(values[0]), int(values[1]), float(values[2]),
+                                                                  sigma)]
+        setattr(namespace, self.dest, known)
+
+
 def _register_noise(sub) -> None:
     parser = sub.add_parser(
         "noise", help="estimate a robot's noise model (odometry and sensor) from a log with ground truth",
@@ -255,6 +286,13 @@ def _register_noise(sub) -> None:
     parser.add_argument("--noise", metavar="FILE",
                         help="with --self-calibrate: the noise model to start from (odometry, sensor sigmas, b2; e.g. "
                              "fitted on other robots with --calibration-per-log)")
+    parser.add_argument("--known-distance", action=_KnownDistance, type=finite_float, nargs="+", default=[],
+                        metavar="ID1 ID2 METRES [SIGMA]",
+                        help="with --self-calibrate: a length measured outside the log (a tape between two posts), "
+                             "landmarks ID1 and ID2 (barcode subjects) METRES apart with standard deviation SIGMA "
+                             f"(default {KNOWN_DISTANCE_SIGMA_M} m, a tape's); a factor on the two landmarks' "
+                             "positions, so the camera's scale is not the odometry's alone (docs/fastslam-history.md, "
+                             "Session 37 (D)). Repeatable")
     parser.add_argument("--heading-bias", action="store_true",
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "
@@ -509,6 +547,8 @@ _FIT_FLAGS = ("heading_bias", "range_calibration", "odometry_lag", "turn_transla
 def _self_calibration_problem(args: argparse.Namespace) -> str | None:
     """What makes ``slam noise``'s options meaningless together, in one line (None: nothing)."""
     if not args.self_calibrate:
+        if args.known_distance:
+            return "--known-distance is a length for --self-calibrate: it needs --self-calibrate"
         return "--noise is the model --self-calibrate starts from: it needs --self-calibrate" if args.noise else None
     if args.noise is None:
         return "--self-calibrate needs --noise FILE: the odometry and sensor sigmas it keeps"
@@ -620,10 +660,20 @@ def _noise(args: argparse.Namespace) -> int:
     return 0
 
 
+def _known_text(known, calibration=None) -> str:
+    """The known distances in words ('' if none): ', with ... taped' for the source, the map's fit with one."""
+    if not known:
+        return ""
+    if calibration is None:
+        return ", with " + ", ".join(f"{k.first}-{k.second} {k.metres:g} ± {k.sigma_m:g} m" for k in known) + " taped"
+    return "".join(f" {k.first}-{k.second} {k.metres:g} ± {k.sigma_m:g} m (the map's {d:.4f} m)"
+                   for k, d in zip(known, calibration.fitted_distances_m, strict=True))
+
+
 def _self_calibrate(args: argparse.Namespace) -> int:
     """``slam noise --self-calibrate``: the camera's calibration without ground truth
     (estimation.camera_calibration)."""
-    from estimation.camera_calibration import ESTIMATED, self_calibrate
+    from estimation.camera_calibration import ESTIMATED, KnownDistance, self_calibrate
     from estimation.datasets import read_mrclam
     from estimation.noise_model import NoiseModel
 
@@ -634,7 +684,8 @@ def _self_calibrate(args: argparse.Namespace) -> int:
         if noise.range_bearing is None:
             raise ValueError(f"{args.noise}: the noise model has no [range_bearing] section to calibrate")
         log = read_mrclam(args.folder, args.robot[0], barcodes="table")
-        calibration = self_calibrate(log, noise)
+        known = tuple(KnownDistance(*k) for k in args.known_distance)
+        calibration = self_calibrate(log, noise, known_distances=known)
         model = None
         if calibration.problem is None:
             model = calibration.applied(
@@ -642,7 +693,8 @@ def _self_calibrate(args: argparse.Namespace) -> int:
                 source=f"camera calibration (range offset, scale, scale per radian, bearing offset) self-calibrated by "
                        f"p3at slam "
                        f"noise --self-calibrate from {log.name}'s odometry and sightings associated by barcode, "
-                       f"without its ground truth; the rest from the model given ({noise.robot}: {noise.source})")
+                       f"without its ground truth{_known_text(known)}; the rest from the model given "
+                       f"({noise.robot}: {noise.source})")
             model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
         print(f"p3at slam noise: {e}", file=sys.stderr)
@@ -667,9 +719,12 @@ def _self_calibrate(args: argparse.Namespace) -> int:
         print(f"  fit: {c.sightings} sightings ({c.outliers} set aside as outliers), {c.landmarks} landmarks, "
               f"{c.frames} frames, chi2/dof {c.chi2_per_dof:.2f}, {c.iterations} iterations; the calibrated range's "
               f"own sigma {c.range_sd_rms_m:.4f} m RMS against one sighting's {c.range_sigma_rms_m:.4f} m")
-        print(f"  b0 is relative to the odometry's scale (translation scale {noise.odometry.translation_scale:.4f} "
-              f"from {args.noise}): an odometry scale wrong by 1 % moves b0 by 1 %, and the standard errors leave it "
-              "out")
+        if known:
+            print(f"  known distances (taped, a factor on the two landmarks):{_known_text(known, calibration)}")
+        else:
+            print(f"  b0 is relative to the odometry's scale (translation scale "
+                  f"{noise.odometry.translation_scale:.4f} from {args.noise}): an odometry scale wrong by 1 % moves b0 "
+                  "by 1 %, and the standard errors leave it out")
         print(f"  written to {args.out}" if model is not None
               else f"  not determined: {calibration.problem}; nothing written")
     if model is None:

@@ -96,6 +96,7 @@ def test_a_log_that_does_not_determine_the_calibration_writes_nothing(tmp_path, 
 @pytest.mark.parametrize(("options", "complaint"), [
     (("--self-calibrate",), "needs --noise FILE"),
     (("--noise", "NOISE"), "it needs --self-calibrate"),
+    (("--known-distance", "6", "8", "2"), "it needs --self-calibrate"),
     (("--self-calibrate", "--noise", "NOISE", "--robot", "2"), "give one --robot"),
     (("--self-calibrate", "--noise", "NOISE", "--range-calibration"), "--range-calibration do not apply"),
     (("--self-calibrate", "--noise", "NOISE", "--window", "3"), "--window do not apply"),
@@ -110,6 +111,55 @@ def test_what_makes_no_sense_with_the_self_calibration_is_refused_in_one_line(tm
                              str(tmp_path / "r1.toml"))
     assert status == 2 and complaint in err and len(err.strip().splitlines()) == 1 and text == ""
     assert not (tmp_path / "r1.toml").exists()
+
+
+def test_a_taped_length_is_used_and_recorded_in_the_file(tmp_path, synthetic):
+    """--known-distance ID1 ID2 METRES [SIGMA]: the file's [fit] records the lengths, their σ (default 5 mm, a
+    tape's) and the map's distance; the text and the source say so."""
+    synthetic.write(tmp_path / "data", seconds=300.0)
+    (x6, y6), (x8, y8) = synthetic.LANDMARKS[6], synthetic.LANDMARKS[8]
+    length = float(np.hypot(x6 - x8, y6 - y8))
+    out = tmp_path / "r1.toml"
+    status, text, err = _cli("slam", "noise", "mrclam", str(tmp_path / "data"), "--robot", "1", "--self-calibrate",
+                             "--noise", str(_noise(tmp_path)), "--known-distance", "6", "8", repr(length),
+                             "--known-distance", "9", "10", "5.1", "0.02", "--out", str(out))
+    assert status == 0, err
+    fit = NoiseModel.load(out).fit
+    assert fit["self_calibration_known_distance_first_ids"] == [6, 9]
+    assert fit["self_calibration_known_distance_second_ids"] == [8, 10]
+    assert fit["self_calibration_known_distance_m"] == [length, 5.1]
+    assert fit["self_calibration_known_distance_sigma_m"] == [0.005, 0.02]
+    assert len(fit["self_calibration_known_distance_fitted_m"]) == 2
+    assert "known distances" in text and "relative to the odometry" not in text
+    assert "6-8" in NoiseModel.load(out).source and "taped" in NoiseModel.load(out).source
+
+
+@pytest.mark.parametrize(("words", "complaint"), [
+    (("6", "6", "2.0"), "two different landmarks"),
+    (("6", "8", "0"), "a distance > 0"),
+    (("6", "8", "-2.5"), "a distance > 0"),
+    (("6", "8", "2.5", "0"), "a sigma > 0"),
+    (("6", "8", "2.5", "-0.01"), "a sigma > 0"),
+    (("6", "8"), "four or three numbers"),
+    (("6", "8", "2.5", "0.01", "3"), "four or three numbers"),
+    (("6.5", "8", "2.5"), "whole landmark ids"),
+    (("6", "8", "inf"), "a finite number"),
+])
+def test_a_known_distance_that_is_no_length_is_refused_in_one_line(tmp_path, words, complaint):
+    out = tmp_path / "r1.toml"
+    status, text, err = _cli("slam", "noise", "mrclam", str(tmp_path / "data"), "--robot", "1", "--self-calibrate",
+                             "--noise", "noise.toml", "--known-distance", *words, "--out", str(out))
+    assert status == 2 and complaint in err and len(err.strip().splitlines()) == 1 and text == "", err
+    assert err.startswith("p3at slam noise: argument --known-distance") and not out.exists()
+
+
+def test_a_known_distance_to_a_post_the_log_never_sights_is_refused_in_one_line(tmp_path, synthetic):
+    synthetic.write(tmp_path / "data", seconds=20.0)
+    out = tmp_path / "r1.toml"
+    status, text, err = _cli("slam", "noise", "mrclam", str(tmp_path / "data"), "--robot", "1", "--self-calibrate",
+                             "--noise", str(_noise(tmp_path)), "--known-distance", "6", "42", "3", "--out", str(out))
+    assert status == 2 and "never sights landmark 42" in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
 
 
 def test_a_noise_model_without_a_sensor_is_refused(tmp_path, synthetic):

@@ -76,6 +76,10 @@ REFUSED = [
     ("slam dataset", "--seed", "-1", ">= 0"), ("slam dataset", "--until", "0", "> 0"),
     *[("slam dataset", "--seeds", v, "two or more distinct seeds") for v in ("1", "0,0")],
     ("slam noise", "--robot", "0", ">= 1"), ("slam noise", "--window", "nan", "> 0"),
+    # one word: too few numbers (two different ids, distance/sigma <= 0, the log's ids: its own test file)
+    *[("slam noise", "--known-distance", v, d) for v, d in (("0", "ID1 ID2 METRES [SIGMA]"),
+                                                              ("-2", "ID1 ID2 METRES [SIGMA]"),
+                                                              ("nan", "a finite number"))],
     ("fuse", "--seed", "-1", ">= 0"), ("fuse", "--interval", "0", "> 0"), ("fuse", "--min-period", "-1", ">= 0"),
     ("fuse", "--seconds", "-5", ">= 0"),
     *[("fuse", "--start-sigma", v, "two positive numbers") for v in ("0,0.3", "1,-0.3", "nan,0.3", "1", "1,x")],
