@@ -390,6 +390,20 @@ def saved_run_noise(log: RangeBearingLog, meta: dict) -> NoiseModel:
     return run_noise(log, saved_noise_file(meta), saved_noise_sha256(meta))
 
 
+def saved_state_inputs(data, robot: int, path, logs: dict, noises: dict) -> tuple[RangeBearingLog, NoiseModel]:
+    """The log of the saved state at ``path`` (robot ``robot`` of the data set at ``data``) and the noise model its
+    run was given (:func:`saved_run_noise`), each read or fitted once across the states of one tool's run (cached in
+    ``logs`` by robot, ``noises`` by robot and noise file); a model that cannot be had raises
+    :class:`~estimation.noise_model.NoiseModelError`."""
+    if robot not in logs:
+        logs[robot] = read_mrclam(data, robot)
+    log, meta = logs[robot], saved_meta(path)
+    key = (robot, saved_noise_file(meta), saved_noise_sha256(meta))
+    if key not in noises:
+        noises[key] = saved_run_noise(log, meta)
+    return log, noises[key]
+
+
 def run_robot(log: RangeBearingLog, args) -> dict:
     """One robot's chain (:func:`estimation.name_chain.run_chain` with :func:`settings_of` ``args``), from the
     chained names and guess of ``--names-cache`` or from ``--from-round``'s saved state, every decision recorded and

@@ -51,14 +51,10 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from benchmarks.mrclam_constellation import (  # noqa: E402
     load_saved_state,
-    saved_meta,
-    saved_noise_file,
-    saved_noise_sha256,
-    saved_run_noise,
+    saved_state_inputs,
 )
 from estimation import chi2  # noqa: E402
 from estimation.constellation import pairwise_groups  # noqa: E402
-from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose, wrap_angle  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
@@ -302,18 +298,13 @@ def main(argv: list[str] | None = None) -> int:
               "| top score | names flagged (holding a wrong run) / names holding one |")
         print("|---|---|---|---|---|---|---|---|")
     for robot, seed, tag, path in found:
-        if robot not in logs:
-            logs[robot] = read_mrclam(args.data, robot)
-        log, meta = logs[robot], saved_meta(path)
-        key = (robot, saved_noise_file(meta), saved_noise_sha256(meta))
-        if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
-            try:
-                noises[key] = saved_run_noise(log, meta)
-            except NoiseModelError as e:
-                print(f"mrclam_honesty: {path.name}: its run's noise model: {e}", file=sys.stderr)
-                return 2
+        try:     # the model the state's run was given (its --noise file, else in sample)
+            log, noise = saved_state_inputs(args.data, robot, path, logs, noises)
+        except NoiseModelError as e:
+            print(f"mrclam_honesty: {path.name}: its run's noise model: {e}", file=sys.stderr)
+            return 2
         row = {"robot": robot, "seed": seed, "tag": tag,
-               **run_state(log, noises[key], range_bearing_config(n_particles=100), path, args.gap, args.alpha,
+               **run_state(log, noise, range_bearing_config(n_particles=100), path, args.gap, args.alpha,
                            args.top or 0, args.groups, args.floor, args.two_points)}
         rows.append(row)
         if not args.json:

@@ -52,13 +52,9 @@ from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from benchmarks.mrclam_constellation import (  # noqa: E402
     guard_record,
     load_saved_state,
-    saved_meta,
-    saved_noise_file,
-    saved_noise_sha256,
-    saved_run_noise,
+    saved_state_inputs,
 )
 from benchmarks.mrclam_honesty import add_state_arguments, states  # noqa: E402
-from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import joint_landmark_covariance  # noqa: E402
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
@@ -377,18 +373,13 @@ def main(argv: list[str] | None = None) -> int:
     noises: dict = {}
     rows = []
     for robot, seed, tag, path in found:
-        if robot not in logs:
-            logs[robot] = read_mrclam(args.data, robot)
-        log, meta = logs[robot], saved_meta(path)
-        key = (robot, saved_noise_file(meta), saved_noise_sha256(meta))
-        if key not in noises:     # the model the state's run was given (its --noise file, else in sample)
-            try:
-                noises[key] = saved_run_noise(log, meta)
-            except NoiseModelError as e:
-                print(f"mrclam_pass_support: {path.name}: its run's noise model: {e}", file=sys.stderr)
-                return 2
+        try:     # the model the state's run was given (its --noise file, else in sample)
+            log, noise = saved_state_inputs(args.data, robot, path, logs, noises)
+        except NoiseModelError as e:
+            print(f"mrclam_pass_support: {path.name}: its run's noise model: {e}", file=sys.stderr)
+            return 2
         config = range_bearing_config(n_particles=100)
-        row = {"robot": robot, "seed": seed, "from": tag, **judge_state(log, noises[key], config, path, args)}
+        row = {"robot": robot, "seed": seed, "from": tag, **judge_state(log, noise, config, path, args)}
         rows.append(row)
         if not args.json:
             _print_state(row, every=args.groups)
