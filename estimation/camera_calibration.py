@@ -70,6 +70,7 @@ from .landmark_smoother import (
     NormalFactor,
     _jacobian,
     _residuals,
+    _sighting_weights,
 )
 from .noise_model import NoiseModel, with_fastslam
 
@@ -353,14 +354,6 @@ class _Shape:
         return out
 
 
-def _weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
-    weights = inliers.astype(float)
-    if robust:
-        norm = np.sqrt(np.sum(sightings.reshape(-1, 2) ** 2, axis=1))
-        weights *= np.sqrt(np.minimum(1.0, HUBER_K / np.maximum(norm, 1e-12)))
-    return weights
-
-
 def _cost(problem, shape, poses, landmarks, c, inliers, robust) -> float:
     odometry, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
@@ -380,7 +373,7 @@ def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, b
     cost = _cost(problem, shape, poses, landmarks, c, inliers, robust)
     for iteration in range(1, MAX_ITERATIONS + 1):
         _, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
-        weights = _weights(sightings, inliers, robust)
+        weights = _sighting_weights(sightings, inliers, robust)
         jac = shape.jacobian(problem, poses, landmarks, c, weights)
         residual = shape.residuals(problem, poses, landmarks, c, weights)
         normal = (jac.T @ jac).tocsc()
