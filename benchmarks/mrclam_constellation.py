@@ -850,8 +850,7 @@ def load_saved_state(path, log: RangeBearingLog, noise, config) -> tuple[MergeRo
     """:func:`load_state` with the drift, path step and heading loss the state was made with (read from its own
     meta): for tools that examine saved states rather than continue a run."""
     meta = saved_meta(path)
-    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
-    return load_state(path, log, noise, config, drift, meta.get("path_step_s"), meta.get("heading_loss"))
+    return load_state(path, log, noise, config, saved_drift(meta), meta.get("path_step_s"), meta.get("heading_loss"))
 
 
 def _drift_meta(drift: HeadingDrift | None) -> list | None:
@@ -878,6 +877,16 @@ def _state_meta(log: RangeBearingLog, args, smoother: NamedSmoother, round_done:
 def _loss_meta(loss: HeadingLoss | None) -> list | None:
     """A state's heading loss ([kind, ν]; None, and absent from the meta: Gaussian, as every state before it)."""
     return None if loss is None else [loss.kind, float(loss.dof)]
+
+
+def saved_drift(meta: dict) -> HeadingDrift | None:
+    """The heading drift a state's ``meta`` records (:func:`_drift_meta`'s inverse; None: none)."""
+    return HeadingDrift(*meta["drift"]) if meta.get("drift") else None
+
+
+def saved_heading_loss(meta: dict) -> HeadingLoss | None:
+    """The heading loss a state's ``meta`` records (:func:`_loss_meta`'s inverse; None or absent: Gaussian)."""
+    return HeadingLoss(*meta["heading_loss"]) if meta.get("heading_loss") else None
 
 
 def guard_record(current: MergeRound, covariance: np.ndarray, used: list[PassVerdict], owner: dict[int, int],

@@ -176,7 +176,7 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     from benchmarks.mrclam_chained_names import majority
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
-    from estimation.landmark_smoother import HeadingDrift, SightingOffset
+    from estimation.landmark_smoother import SightingOffset
     from estimation.name_chain import with_offsets
     from estimation.name_merging import NamedSmoother
 
@@ -185,7 +185,7 @@ def chain_map(path: Path, data: Path, sighting_offset: float, name_unnamed: bool
     noise = mc.saved_run_noise(log, mc.saved_meta(path))     # the run's: its command's --noise file, else in sample
     config = range_bearing_config(n_particles=100)
     current, meta = mc.load_saved_state(path, log, noise, config)
-    drift = HeadingDrift(*meta["drift"]) if meta.get("drift") else None
+    drift = mc.saved_drift(meta)
     record = {"state": str(path), "robot": robot, "seed": seed}
     # this state's own smoother (the run's drift and path step; the sighting offsets asked for, grouped by the run's
     # round-0 names), passed to each step

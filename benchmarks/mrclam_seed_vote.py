@@ -45,7 +45,6 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from benchmarks.mrclam_chained_names import majority  # noqa: E402
 from estimation.datasets import RangeBearingLog, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
-from estimation.landmark_smoother import HeadingDrift, HeadingLoss  # noqa: E402
 from estimation.name_vote import majority_named  # noqa: E402
 from estimation.noise_model import NoiseModelError  # noqa: E402
 from estimation.seed_vote import (  # noqa: E402
@@ -101,9 +100,8 @@ def vote_robot(log: RangeBearingLog, directories: list[str], seeds: list[int], o
         finals.append(chain.load_saved_state(path, log, noise, config)[0])
         with np.load(find_state(directories, log, seed, "round0"), allow_pickle=False) as data:
             round0.append(data["names"])
-    drift_meta, path_step_s, offset_m = metas[0]["drift"], metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
-    drift = HeadingDrift(*drift_meta) if drift_meta else None
-    loss = HeadingLoss(*metas[0]["heading_loss"]) if metas[0].get("heading_loss") else None     # absent: Gaussian
+    path_step_s, offset_m = metas[0]["path_step_s"], metas[0]["sighting_offset_m"]
+    drift, loss = chain.saved_drift(metas[0]), chain.saved_heading_loss(metas[0])
     runs = np.stack([s.names for s in finals])
     vote = vote_runs(log, noise, config, finals, np.stack(round0), drift, path_step_s, offset_m, heading_loss=loss)
     names, support, apart, nearest = vote.names, vote.support, vote.apart, vote.nearest
