@@ -206,7 +206,7 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     run = run_landmark_log(log, config, np.random.default_rng(seed), noise=noise, association="id")
     sensor = noise.range_bearing
     inflate_r, inflate_b = (math.sqrt(f) for f in sensor.variance_inflation())
-    times, first = np.unique(log.sighting_times, return_index=True)
+    times = np.unique(log.sighting_times)
     t0 = float(times[0])
     frame_times = np.concatenate([[t0], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))
@@ -240,12 +240,12 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     dof = 2 * int(inliers.sum()) + shape.lengths.count - 2 * int(seen.sum()) - len(ESTIMATED)
     covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     map_values = c.copy()
-    kept = inliers
-    design = np.column_stack([np.ones(int(kept.sum())), raw_r[kept, None] * shape.powers[kept]])   # ∂r'/∂(a, b)
+    # ∂r'/∂(a, b) at the kept sightings
+    design = np.column_stack([np.ones(int(inliers.sum())), raw_r[inliers, None] * shape.powers[inliers]])
     with np.errstate(invalid="ignore"):   # inf × 0 of the terms not estimated, in a singular covariance
         sd_rms = float(np.sqrt(np.mean(np.einsum("si,ij,sj->s", design, np.nan_to_num(covariance[:4, :4], posinf=1e300),
                                                   design))))
-    sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[kept] ** 2)))
+    sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[inliers] ** 2)))
     problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
                             float(sensor.bearing_sigma_rad))
     if problem_text is None:   # determined at the MAP: the marginal likelihood's correction (else the MAP, reported)
