@@ -25,11 +25,11 @@ from estimation.dataset_slam import (
     sighted_true_ids,
     unscored_metrics,
 )
-from estimation.dataset_smoothing import planar_landmarks
+from estimation.dataset_smoothing import planar_landmarks, smoothed_pose_nees
 from estimation.datasets import RangeBearingLog
-from estimation.geometry import between, compose, dead_reckoning
+from estimation.geometry import compose, dead_reckoning
 from estimation.landmark_map import LandmarkMap
-from estimation.landmark_scores import CHI2_95, ate, map_scores, pose_nees
+from estimation.landmark_scores import ate, map_scores, pose_nees_figures
 from estimation.named_smoothing import MergeRound
 
 __all__ = ["chain_landmark_map", "chain_run", "name_barcodes"]
@@ -79,16 +79,9 @@ def chain_run(log: RangeBearingLog, state: MergeRound, robot: str) -> DatasetRun
                "final_position_error_m": float(np.hypot(*(estimated[-1, :2] - truth[-1, :2]))),
                "seconds": float(times[-1] - t0), "start_time": t0,
                "true_start_pose": [float(v) for v in true_start]}
-    if len(sol.covariance_poses):
-        # the covariances are of (x, y, θ) in the map's frame: the error is the difference there (θ wrapped)
-        true_in_start = between(true_start, truth[sol.covariance_poses - 1])
-        nees[sol.covariance_poses - 1] = pose_nees(sol.poses[sol.covariance_poses] - true_in_start,
-                                                   sol.pose_covariances)
-        finite = nees[np.isfinite(nees)]
-        if len(finite):
-            metrics.update(pose_nees_mean=float(np.mean(finite)), pose_nees_median=float(np.median(finite)),
-                           pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])),
-                           pose_nees_frames=int(len(finite)))
+    nees = smoothed_pose_nees(sol, true_start, truth)
+    if np.isfinite(nees).any():
+        metrics.update(pose_nees_figures(nees))
     if not len(log.truth_ids):
         metrics.update(unscored_metrics(landmark_map, times, t0, UNSCORED_LANDMARKS))
     else:

@@ -32,7 +32,14 @@ from .datasets import RangeBearingLog
 from .fastslam import FastSLAM, FastSLAMConfig, range_bearing_observations
 from .geometry import between, compose, dead_reckoning
 from .landmark_map import LandmarkMap
-from .landmark_scores import CHI2_95, ate, attribute_landmarks, count_sightings, map_scores, pose_nees
+from .landmark_scores import (
+    ate,
+    attribute_landmarks,
+    count_sightings,
+    map_scores,
+    pose_nees,
+    pose_nees_figures,
+)
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
 from .sighting_spread import SightingRecorder
@@ -223,15 +230,11 @@ def unscored_metrics(landmark_map, times, t0, reason: str = UNSCORED) -> dict:
 def _metrics(log, landmark_map, votes, true_start, truth, estimated, dead, nees, t0, until) -> dict:
     attributed = attribute_landmarks(votes, landmark_map.ids)
     sighted = sighted_true_ids(log, t0, until)
-    finite = nees[np.isfinite(nees)]
     metrics = {
         "ate_m": ate(estimated[:, 1:], truth[:, 1:]),
         "dead_reckoning_ate_m": ate(dead[:, 1:], truth[:, 1:]),
         "final_position_error_m": float(np.hypot(*(estimated[-1, 1:3] - truth[-1, 1:3]))) if len(truth) else 0.0,
-        "pose_nees_mean": float(np.mean(finite)) if len(finite) else float("nan"),
-        "pose_nees_median": float(np.median(finite)) if len(finite) else float("nan"),
-        "pose_nees_within_chi2_95": float(np.mean(finite < CHI2_95[3])) if len(finite) else float("nan"),
-        "pose_nees_frames": int(len(finite)),
+        **pose_nees_figures(nees),
         "seconds": float(truth[-1, 0] - t0) if len(truth) else 0.0,
         "start_time": float(t0),
         "true_start_pose": [float(v) for v in true_start],

@@ -18,7 +18,7 @@ from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
 from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
-from .landmark_scores import CHI2_95, ate, map_scores, pose_nees
+from .landmark_scores import ate, map_scores, pose_nees, pose_nees_figures
 from .landmark_smoother import HeadingDrift, LandmarkLogProblem, landmarks_from_first_sightings, smooth
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
@@ -62,18 +62,11 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         return type(run)(landmark_map, run.true_trajectory, np.column_stack([times, solution.poses[1:]]),
                          run.dead_reckoning, np.full(len(times), np.nan), metrics)
     estimated_world = np.column_stack([times, compose(true_start, solution.poses[1:])])
-    covariance_rows = solution.covariance_poses - 1
-    true_in_start = between(true_start, run.true_trajectory[covariance_rows, 1:])
-    nees = np.full(len(times), np.nan)
-    # the covariances are of (x, y, θ) in the map's frame: the error is the difference there (θ wrapped)
-    nees[covariance_rows] = pose_nees(solution.poses[solution.covariance_poses] - true_in_start,
-                                      solution.pose_covariances)
-    finite = nees[np.isfinite(nees)]
+    nees = smoothed_pose_nees(solution, true_start, run.true_trajectory[:, 1:])
     metrics.update(
         ate_m=ate(estimated_world[:, 1:], run.true_trajectory[:, 1:]),
         final_position_error_m=float(np.hypot(*(estimated_world[-1, 1:3] - run.true_trajectory[-1, 1:3]))),
-        pose_nees_mean=float(np.mean(finite)), pose_nees_median=float(np.median(finite)),
-        pose_nees_within_chi2_95=float(np.mean(finite < CHI2_95[3])), pose_nees_frames=int(len(finite)))
+        **pose_nees_figures(nees))
     if not len(log.truth_ids):
         metrics.update(unscored_metrics(landmark_map, times, t0, UNSCORED_LANDMARKS))
     else:
@@ -81,6 +74,17 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
                                   np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                                   log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
+
+
+def smoothed_pose_nees(solution, true_start: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """The NEES (T,) of a smoothed ``solution``'s poses at its T frames against the true poses ``truth`` (T, 3) (world
+    frame; ``true_start`` the true pose of the map's origin), NaN at the frames without a pose covariance. The
+    covariances are of (x, y, θ) in the map's frame: the error is the difference there (θ wrapped)."""
+    nees = np.full(len(truth), np.nan)
+    rows = solution.covariance_poses - 1
+    nees[rows] = pose_nees(solution.poses[solution.covariance_poses] - between(true_start, truth[rows]),
+                           solution.pose_covariances)
+    return nees
 
 
 def config_drift(config) -> HeadingDrift | None:

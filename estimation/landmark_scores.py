@@ -116,6 +116,17 @@ def map_scores(positions: np.ndarray, covariances: np.ndarray, attributed: np.nd
     return scores
 
 
+def pose_nees_figures(nees: np.ndarray) -> dict:
+    """The figures of a pose NEES series (T,) over the frames that have one (NaN entries left out): mean, median, the
+    share within χ²₃ 95 % and how many frames; the three figures NaN when no frame has one."""
+    finite = nees[np.isfinite(nees)]
+    if not len(finite):
+        return {"pose_nees_mean": float("nan"), "pose_nees_median": float("nan"),
+                "pose_nees_within_chi2_95": float("nan"), "pose_nees_frames": 0}
+    return {"pose_nees_mean": float(np.mean(finite)), "pose_nees_median": float(np.median(finite)),
+            "pose_nees_within_chi2_95": float(np.mean(finite < CHI2_95[3])), "pose_nees_frames": int(len(finite))}
+
+
 def pose_nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """eᵀ P⁻¹ e per pose: errors (T, 3) (θ wrapped here), covariances (T, 3, 3) -> (T,); NaN where P is singular."""
     e = np.array(errors, float)
