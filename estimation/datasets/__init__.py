@@ -14,6 +14,7 @@ from .errors import DatasetError
 from .landmark_log import RangeBearingLog, integrate_velocities
 from .mrclam import (
     BARCODE_POLICIES,
+    TRUTH_HEADINGS,
     BarcodeCheck,
     BarcodeVerdict,
     check_barcodes,
@@ -24,9 +25,11 @@ from .mrclam import (
 )
 from .stamps import StampQuantization, stamp_quantization
 from .tables import find_table, read_table
+from .truth_heading import TravelHeadingOffset, align_truth_heading, travel_heading_offset
 
 __all__ = [
     "BARCODE_POLICIES", "BarcodeCheck", "BarcodeVerdict", "DatasetError", "RangeBearingLog", "check_barcodes",
     "find_table", "integrate_velocities", "mrclam_robots", "read_barcodes", "read_landmark_truth", "read_mrclam",
-    "read_table", "StampQuantization", "stamp_quantization",
+    "read_table", "StampQuantization", "stamp_quantization", "TRUTH_HEADINGS", "TravelHeadingOffset",
+    "align_truth_heading", "travel_heading_offset",
 ]

@@ -137,6 +137,12 @@ def _simulate(args: argparse.Namespace) -> int:
 DATASET_FORMATS = ("mrclam",)
 
 
+TRUTH_HEADING_HELP = ("the ground truth's heading: as the motion capture wrote it (mocap, default), or turned onto the "
+                      "robot's direction of travel, measured from the truth's own positions (travel: on MRCLAM the "
+                      "markers' frame is 0.003-0.017 rad off the wheels' axis, robot 1's wandering; "
+                      "docs/fastslam.md, *The truth's heading*)")
+
+
 def _register_dataset(sub) -> None:
     parser = sub.add_parser(
         "dataset", help="run FastSLAM on a recorded landmark data set and score it against its ground truth",
@@ -168,6 +174,7 @@ def _register_dataset(sub) -> None:
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
                              "correct it from the ground truth (inferred), or trust it unchecked (table; the only "
                              "choice for a log without ground truth)")
+    parser.add_argument("--truth-heading", choices=("mocap", "travel"), default="mocap", help=TRUTH_HEADING_HELP)
     parser.add_argument("--no-inflation", action="store_true",
                         help="take consecutive sightings as independent (default: the sensor variances are "
                              "multiplied by the noise model's variance inflation for correlated sightings)")
@@ -270,6 +277,9 @@ def _register_noise(sub) -> None:
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default=None,
                         help="Barcodes.dat handling, as for `slam dataset` (default verified; with --self-calibrate "
                              "table, the only one that reads no ground truth)")
+    parser.add_argument("--truth-heading", choices=("mocap", "travel"), default=None,
+                        help=TRUTH_HEADING_HELP + "; the fit is made against it (a travel fit is recorded in the "
+                        "file's [fit])")
     parser.add_argument("--calibration-per-log", action="store_true",
                         help="with several --robot: fit the range calibration (--range-calibration) and the bearing "
                              "offset to each robot's log on its own and measure the sensor's sigmas and correlations "
@@ -355,7 +365,8 @@ def _dataset(args: argparse.Namespace) -> int:
                            folders={"data set": args.folder})
         check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
         # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
-        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None)
+        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,
+                          truth_heading=args.truth_heading)
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
         else:
@@ -559,6 +570,8 @@ def _self_calibration_problem(args: argparse.Namespace) -> str | None:
         given.append("--window")
     if given:
         return f"--self-calibrate estimates the camera alone (the rest is --noise's): {', '.join(given)} do not apply"
+    if args.truth_heading is not None:
+        return "--self-calibrate reads no ground truth: --truth-heading does not apply"
     if args.barcodes not in (None, "table"):
         return (f"--self-calibrate reads no ground truth, and --barcodes {args.barcodes} checks the table against it: "
                 "give --barcodes table (its default)")
@@ -581,8 +594,8 @@ def _noise(args: argparse.Namespace) -> int:
     try:
         check_output_file(args.out)
         check_output_apart(args.out, folders={"data set": args.folder})   # its tables stay as they are
-        logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes or "verified")
-                for robot in dict.fromkeys(args.robot)]
+        logs = [read_mrclam(args.folder, robot, barcodes=args.barcodes or "verified",
+                            truth_heading=args.truth_heading or "mocap") for robot in dict.fromkeys(args.robot)]
         short = _window_problem(args.window, logs)
         if short is not None:
             raise ValueError(short)
@@ -596,7 +609,8 @@ def _noise(args: argparse.Namespace) -> int:
             raise ValueError(problem)
         # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too
         consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model)
-        model = replace(estimate.model, fit={**estimate.model.fit, **fit_keys(consistency)})
+        aligned = {"truth_heading": "travel"} if args.truth_heading == "travel" else {}
+        model = replace(estimate.model, fit={**estimate.model.fit, **fit_keys(consistency), **aligned})
         model.save(args.out)
     except (ValueError, OSError, EstimationError) as e:
         print(f"p3at slam noise: {e}", file=sys.stderr)
