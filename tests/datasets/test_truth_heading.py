@@ -13,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.mrclam_truth_heading import bearing_residuals, spread
 from estimation.datasets import DatasetError, RangeBearingLog, align_truth_heading, read_mrclam, travel_heading_offset
 from estimation.geometry import wrap_angle
 from tests.datasets.conftest import run_cli
@@ -116,23 +117,11 @@ def test_self_calibration_refuses_a_truth_heading_it_would_not_read(tmp_path):
     assert err.strip() == "p3at slam noise: --self-calibrate reads no ground truth: --truth-heading does not apply"
 
 
-def _bearing_residual_rms(log: RangeBearingLog) -> float:
-    """RMS of the camera's bearings about the truth (each log's median removed: the camera's own mounting offset)."""
-    index = {int(i): k for k, i in enumerate(log.truth_ids)}
-    known = np.array([int(i) in index for i in log.landmark_ids])
-    poses = log.true_pose(log.sighting_times[known])
-    marks = log.truth_positions[[index[int(i)] for i in log.landmark_ids[known]]]
-    predicted = np.arctan2(marks[:, 1] - poses[:, 1], marks[:, 0] - poses[:, 0]) - poses[:, 2]
-    residual = wrap_angle(log.bearings[known] - predicted)
-    residual = residual[np.abs(residual) < 0.2]
-    return float(np.sqrt(np.mean((residual - np.median(residual)) ** 2)))
-
-
 @pytest.mark.parametrize("robot", [1, 2, 3, 4, 5])
 def test_on_mrclam_the_camera_agrees_with_the_travel_at_least_as_well_as_with_vicon(mrclam_dir, robot):
     mocap = read_mrclam(mrclam_dir, robot)
     travel = read_mrclam(mrclam_dir, robot, truth_heading="travel")
-    given_rms, aligned_rms = _bearing_residual_rms(mocap), _bearing_residual_rms(travel)
+    given_rms, aligned_rms = (spread(bearing_residuals(log)[1])[0] for log in (mocap, travel))
     assert aligned_rms <= 1.01 * given_rms
     if robot == 1:   # Vicon's heading wanders on robot 1: the camera follows the travel, not the markers
         assert aligned_rms < 0.9 * given_rms
