@@ -15,9 +15,10 @@ it then came out 0.016-0.036 low on all five robots, b₀ with it, and the range
 supported by the data). Each sighting is a factor (‖m − t‖ − r', atan2(m − t) − θ − φ') with the given model's σ
 (inflated for correlated sightings as the filter's; the range's σ scales with the calibration, see :class:`_Shape`);
 the odometry factors are the model's random walk. The odometry gives the metric scale; the landmarks' positions are
-free. Solved jointly by Levenberg–Marquardt (Huber weights first, then the sightings beyond χ²₂ 99 % dropped, as
-:func:`~estimation.landmark_smoother.smooth` does), from the FastSLAM filter's map and trajectory (known association)
-with the given model. The calibration's covariance is its block of the inverse information (Laplace).
+free. Solved jointly by the smoother's own Levenberg–Marquardt, the calibration its extra unknowns (Huber weights
+first, then the sightings beyond χ²₂ 99 % dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the
+FastSLAM filter's map and trajectory (known association) with the given model. The calibration's covariance is its
+block of the inverse information (Laplace).
 
 The joint MAP's b₀ is biased low: where the odometry is loose the poses absorb part of the range noise, and they
 absorb more the smaller b₀ (the sightings then weigh more against the odometry), so the minimum of the squared
@@ -61,16 +62,14 @@ from .dataset_smoothing import _initial_landmarks
 from .datasets import RangeBearingLog
 from .fastslam import FastSLAMConfig
 from .fastslam.motion import increment_variance
-from .geometry import between, wrap_angle
+from .geometry import between
 from .landmark_smoother import (
-    HUBER_K,
-    MAX_ITERATIONS,
     OUTLIER_CHI2,
     LandmarkLogProblem,
     NormalFactor,
     _jacobian,
     _residuals,
-    _sighting_weights,
+    _solve,
 )
 from .noise_model import NoiseModel, with_fastslam
 
@@ -78,7 +77,6 @@ ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scal
              "bearing_offset_rad")   # c = (a, b₀, b₁, b₂, ψ), in this order
 FREE = np.array([0, 1, 2, 4])          # estimated by default: a, b₀, b₁, ψ (b₂ the model's)
 FREE_WITH_SHAPE = np.arange(5)         # estimate_shape: all five
-_STEP_TOLERANCE = 1e-7
 
 
 @dataclass(frozen=True)
@@ -227,11 +225,11 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                    _Lengths.of(known_distances, landmark_ids))
     c = given.copy()
     inliers = np.ones(len(log), bool)
-    iterations_robust, _ = _solve(problem, shape, poses, landmarks, c, inliers, robust=True)
-    _, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape, extra_values=c)
+    _, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
     inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, shape, poses, landmarks, c, inliers, robust=False)
-    odometry_r, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c)
+    odometry_r, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if shape.lengths.count:
         chi2 += float(np.sum(shape.lengths.residuals(landmarks) ** 2))
@@ -297,7 +295,9 @@ class _Lengths:
 
 class _Shape:
     """The calibration's effect on the sightings: r' = a + r·m(φ), m = b₀ + b₁φ + b₂φ², φ' = φ − ψ; c = (a, b₀, b₁,
-    b₂, ψ): ∂r'/∂c = (1, r, rφ, rφ², 0), ∂φ'/∂ψ = −1.
+    b₂, ψ): ∂r'/∂c = (1, r, rφ, rφ², 0), ∂φ'/∂ψ = −1. To the smoother (:func:`~estimation.landmark_smoother._solve`)
+    c's estimated terms are extra unknowns (:class:`~estimation.landmark_smoother.ExtraUnknowns`): their columns
+    after the landmarks', the known distances' factors their own rows.
 
     The noise is the camera's, in its raw range r: a range residual is (r̂ − r')/(m σ_raw), σ_raw = σ_r / m₀ (σ_r the
     model's, measured in calibrated units at the given calibration's m₀), i.e. the problem's σ_r scaled by m/m₀. Why
@@ -316,92 +316,45 @@ class _Shape:
     def multiplier(self, c: np.ndarray) -> np.ndarray:
         return self.powers @ c[1:4]
 
-    def problem(self, problem: LandmarkLogProblem, c: np.ndarray) -> LandmarkLogProblem:
+    def sightings(self, problem: LandmarkLogProblem, c: np.ndarray) -> LandmarkLogProblem:
         m = self.multiplier(c)
         return dataclasses.replace(problem, ranges=c[0] + self.ranges * m, bearings=self.bearings - c[4],
                                    range_sigmas=self.sigmas * m / self.start)
 
-    def residuals(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> np.ndarray:
-        """The residual vector of :meth:`jacobian`'s rows: odometry, sightings (scaled by their weights), lengths."""
-        odometry, sightings = _residuals(self.problem(problem, c), poses, landmarks)
-        parts = [odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()]
-        if self.lengths.count:
-            parts.append(self.lengths.residuals(landmarks))
-        return np.concatenate(parts)
-
-    def jacobian(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
-        """The smoother's Jacobian with the estimated calibration's columns after the landmarks' (and the known
-        distances' rows after the sightings')."""
-        t, n = problem.n_poses, len(landmarks)
-        at = self.problem(problem, c)
-        jac = _jacobian(at, poses, landmarks, n, weights)
-        _, sightings = _residuals(at, poses, landmarks)
+    def columns(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
+        """(2S, estimated terms) the sightings' derivatives in c's estimated terms, at ``problem`` (its sightings as
+        c makes them)."""
+        _, sightings = _residuals(problem, poses, landmarks)
         e_r = sightings.reshape(-1, 2)[:, 0]                         # (r̂ − r')/σ
         s = np.arange(len(self.ranges))
         m = self.multiplier(c)
         # e_r = (r̂ − r')/σ with σ ∝ m: ∂e_r/∂a = −1/σ, ∂e_r/∂b_j = −(r φʲ)/σ − e_r φʲ/m;
         # e_φ = wrap(φ̂ − φ + ψ)/σ_φ: ∂e_φ/∂ψ = 1/σ_φ
-        columns = [-weights / at.range_sigmas] + [
-            -weights * self.powers[:, j] * (self.ranges / at.range_sigmas + e_r / m) for j in range(3)]
-        columns.append(weights / at.bearing_sigmas)
-        rows = [3 * t + 2 * s + (1 if j == 4 else 0) for j in self.free]
+        columns = [-weights / problem.range_sigmas] + [
+            -weights * self.powers[:, j] * (self.ranges / problem.range_sigmas + e_r / m) for j in range(3)]
+        columns.append(weights / problem.bearing_sigmas)
+        rows = [2 * s + (1 if j == 4 else 0) for j in self.free]
         cols = np.repeat(np.arange(len(self.free)), len(s))
         vals = np.concatenate([columns[j] for j in self.free])
-        extra = sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(jac.shape[0], len(self.free)))
-        out = sp.hstack([jac, extra], format="csr")
-        if self.lengths.count:
-            out = sp.vstack([out, self.lengths.jacobian(landmarks, t, out.shape[1])], format="csr")
-        return out
+        return sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(2 * len(s), len(self.free)))
 
+    def residuals(self, landmarks, c) -> np.ndarray:
+        return self.lengths.residuals(landmarks)
 
-def _cost(problem, shape, poses, landmarks, c, inliers, robust) -> float:
-    odometry, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
-    norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
-    if robust:
-        norm = np.sqrt(norm2)
-        norm2 = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
-    cost = float(np.sum(odometry ** 2) + np.sum(norm2))
-    if shape.lengths.count:
-        cost += float(np.sum(shape.lengths.residuals(landmarks) ** 2))
-    return cost
+    def rows(self, problem: LandmarkLogProblem, landmarks, c, n_columns: int) -> sp.csr_matrix:
+        return self.lengths.jacobian(landmarks, problem.n_poses, n_columns)
 
+    def stepped(self, c: np.ndarray, step: np.ndarray) -> np.ndarray | None:
+        out = c.copy()
+        out[self.free] += step
+        # a step that makes the range's multiplier m ≤ 0 anywhere is no camera (and no σ): refused
+        return out if np.all(self.multiplier(out) > 0) else None
 
-def _solve(problem, shape, poses, landmarks, c, inliers, robust) -> tuple[int, bool]:
-    """Levenberg–Marquardt in place on poses[1:], landmarks and c (landmark_smoother._solve's, with c's columns)."""
-    t, n = problem.n_poses, len(landmarks)
-    damping = 1e-4
-    cost = _cost(problem, shape, poses, landmarks, c, inliers, robust)
-    for iteration in range(1, MAX_ITERATIONS + 1):
-        _, sightings = _residuals(shape.problem(problem, c), poses, landmarks)
-        weights = _sighting_weights(sightings, inliers, robust)
-        jac = shape.jacobian(problem, poses, landmarks, c, weights)
-        residual = shape.residuals(problem, poses, landmarks, c, weights)
-        normal = (jac.T @ jac).tocsc()
-        gradient = jac.T @ residual
-        diagonal = normal.diagonal()
-        while True:
-            damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
-            step = -NormalFactor(damped, t, 3).solve(gradient)
-            trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
-            trial_poses[1:] += step[:3 * t].reshape(t, 3)
-            trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
-            trial_landmarks += step[3 * t:3 * t + 2 * n].reshape(n, 2)
-            trial_c = c.copy()
-            trial_c[shape.free] += step[3 * t + 2 * n:]
-            # a step that makes the range's multiplier m ≤ 0 anywhere is no camera (and no σ): refused as a bad step
-            trial = _cost(problem, shape, trial_poses, trial_landmarks, trial_c, inliers, robust) \
-                if np.all(shape.multiplier(trial_c) > 0) else np.inf
-            if trial <= cost:
-                break
-            damping *= 10.0
-            if damping > 1e8:
-                return iteration, False
-        poses[:], landmarks[:], c[:] = trial_poses, trial_landmarks, trial_c
-        damping = max(damping / 10.0, 1e-9)
-        improvement, cost = cost - trial, trial
-        if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
-            return iteration, True
-    return MAX_ITERATIONS, False
+    def jacobian(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
+        """The smoother's Jacobian with the estimated calibration's columns after the landmarks' (and the known
+        distances' rows after the sightings')."""
+        return _jacobian(self.sightings(problem, c), poses, landmarks, len(landmarks), weights, extra=self,
+                         extra_values=c)
 
 
 def _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen) -> np.ndarray:

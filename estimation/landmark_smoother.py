@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.linalg
@@ -537,10 +538,12 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
 
 def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
               sighting_weights: np.ndarray, drift: _Drift | None = None, offset: _Offsets | None = None,
-              offsets: np.ndarray | None = None) -> sp.csr_matrix:
+              offsets: np.ndarray | None = None, extra: ExtraUnknowns | None = None,
+              extra_values: np.ndarray | None = None) -> sp.csr_matrix:
     """∂(normalised residuals)/∂(poses 1..T, landmarks), sightings scaled by their weights (S,). With a drift, pose
     j's columns are (x, y, θ, b_{j−1}) and the drift's factors are rows after the sightings'. With sighting offsets
-    (G, 2), their columns follow the landmarks' and their priors' rows follow the others."""
+    (G, 2), their columns follow the landmarks' and their priors' rows follow the others. With extra unknowns
+    (``problem``'s sightings as their values make them), their columns and their own factors' rows come last."""
     t = problem.n_poses
     width = _width(drift)
     rows, cols, vals = [], [], []
@@ -610,7 +613,16 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         n_rows += len(g)
         n_columns += len(g)
     shape = (n_rows, n_columns)
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
+    jac = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
+    if extra is None:
+        return jac
+    # the extra values change the sightings alone: their columns are 0 in the odometry's rows and the priors'
+    in_sightings = extra.columns(problem, poses, landmarks, extra_values, sighting_weights)
+    n_values = in_sightings.shape[1]
+    columns = sp.vstack([sp.csr_matrix((3 * t, n_values)), in_sightings,
+                         sp.csr_matrix((n_rows - 3 * t - 2 * len(d), n_values))])
+    jac = sp.hstack([jac, columns], format="csr")
+    return sp.vstack([jac, extra.rows(problem, landmarks, extra_values, jac.shape[1])], format="csr")
 
 
 def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
@@ -622,8 +634,36 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
     return weights
 
 
+class ExtraUnknowns(Protocol):
+    """Unknowns of a caller's solved with the poses and landmarks (:func:`_solve`'s ``extra``; their values (k,),
+    ``extra_values``, changed in place), as a camera's calibration is in :mod:`estimation.camera_calibration`. The
+    values change what the sightings measured; their k columns follow all the smoother's, and they may bring factors
+    of their own, rows after all the smoother's. Not combined with a heading drift or sighting offsets (the columns
+    are the sightings' derivatives without them)."""
+
+    def sightings(self, problem: LandmarkLogProblem, values: np.ndarray) -> LandmarkLogProblem:
+        """``problem`` with its sightings (ranges, bearings, σ's) as ``values`` make them."""
+
+    def columns(self, problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, values: np.ndarray,
+                weights: np.ndarray) -> sp.csr_matrix:
+        """(2S, k) ∂(the sightings' normalised residuals, (range, bearing) interleaved, scaled by their weights
+        (S,))/∂values, at ``problem`` (its sightings as ``values`` make them)."""
+
+    def residuals(self, landmarks: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(K,) the own factors' normalised residuals (K may be 0)."""
+
+    def rows(self, problem: LandmarkLogProblem, landmarks: np.ndarray, values: np.ndarray,
+             n_columns: int) -> sp.csr_matrix:
+        """(K, n_columns) their derivatives (the poses' columns 3T, the landmarks' 2L, ..., the values' k last)."""
+
+    def stepped(self, values: np.ndarray, step: np.ndarray) -> np.ndarray | None:
+        """``values`` moved by ``step`` (k,), or None if the result is not admissible (the step is then refused)."""
+
+
 def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-          offsets=None) -> float:
+          offsets=None, extra=None, extra_values=None) -> float:
+    if extra is not None:
+        problem = extra.sightings(problem, extra_values)
     odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
@@ -631,30 +671,37 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
         rho = np.where(norm <= HUBER_K, norm2, 2 * HUBER_K * norm - HUBER_K ** 2)
     else:
         rho = norm2
-    extra = 0.0 if drift is None else float(np.sum(drift.residuals(bias) ** 2))
+    others = 0.0 if drift is None else float(np.sum(drift.residuals(bias) ** 2))
     if offset is not None:
-        extra += float(np.sum(offset.residuals(offsets) ** 2))
+        others += float(np.sum(offset.residuals(offsets) ** 2))
+    if extra is not None:
+        others += float(np.sum(extra.residuals(landmarks, extra_values) ** 2))
     if heading_loss is None:
-        return float(np.sum(odometry ** 2) + np.sum(rho)) + extra
+        return float(np.sum(odometry ** 2) + np.sum(rho)) + others
     odometry = odometry.reshape(-1, 3)
     heading = heading_loss.rho(odometry[:, 2], problem.increment_sigmas[:, 2])
-    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + extra
+    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + others
 
 
 def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-           offsets=None) -> tuple[int, bool]:
+           offsets=None, extra=None, extra_values=None) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
-    landmarks (and the biases (T, n) with a drift, the offsets (G, 2) with sighting offsets)."""
+    landmarks (and the biases (T, n) with a drift, the offsets (G, 2) with sighting offsets, the values (k,) of
+    :class:`ExtraUnknowns`)."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     width = _width(drift)
+    landmarks_end = width * t + 2 * n_landmarks
+    offsets_end = landmarks_end + (0 if offset is None else 2 * offset.n_explicit)
     damping = 1e-4
-    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets)
+    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets, extra,
+                 extra_values)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
+        at = problem if extra is None else extra.sightings(problem, extra_values)
+        odometry, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)
-        jac = _row_scaled(_jacobian(problem, poses, landmarks, n_landmarks, weights, drift, offset, offsets), t,
-                          heading_weights)
+        jac = _row_scaled(_jacobian(at, poses, landmarks, n_landmarks, weights, drift, offset, offsets, extra,
+                                    extra_values), t, heading_weights)
         if heading_weights is not None:
             odometry = odometry.copy()
             odometry[2::3] *= np.sqrt(heading_weights)
@@ -663,6 +710,8 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             parts.append(drift.residuals(bias))
         if offset is not None:
             parts.append(offset.residuals(offsets))
+        if extra is not None:
+            parts.append(extra.residuals(landmarks, extra_values))
         residual = np.concatenate(parts)
         normal = (jac.T @ jac).tocsc()
         gradient = jac.T @ residual
@@ -674,14 +723,18 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             pose_step = step[:width * t].reshape(t, width)
             trial_poses[1:] += pose_step[:, :3]
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
-            trial_landmarks += step[width * t:width * t + 2 * n_landmarks].reshape(n_landmarks, 2)
+            trial_landmarks += step[width * t:landmarks_end].reshape(n_landmarks, 2)
             trial_bias = None if drift is None else bias + pose_step[:, 3:]
             trial_offsets = None
             if offset is not None:
                 trial_offsets = offsets.copy()
-                trial_offsets[offset.explicit_groups] += step[width * t + 2 * n_landmarks:].reshape(-1, 2)
-            trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift, trial_bias,
-                          offset, trial_offsets)
+                trial_offsets[offset.explicit_groups] += step[landmarks_end:offsets_end].reshape(-1, 2)
+            trial_values = None if extra is None else extra.stepped(extra_values, step[offsets_end:])
+            if extra is not None and trial_values is None:   # values the extra unknowns do not admit: refused
+                trial = np.inf
+            else:
+                trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift,
+                              trial_bias, offset, trial_offsets, extra, trial_values)
             if trial <= cost:
                 break
             damping *= 10.0
@@ -692,6 +745,8 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             bias[:] = trial_bias
         if offset is not None:
             offsets[:] = trial_offsets
+        if extra is not None:
+            extra_values[:] = trial_values
         damping = max(damping / 10.0, 1e-9)
         improvement, cost = cost - trial, trial
         if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
