@@ -9,10 +9,18 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimation.camera_calibration import ESTIMATED, KnownDistance, self_calibrate, without_truth
+from estimation.camera_calibration import (
+    ESTIMATED,
+    FREE_WITH_SHAPE,
+    KnownDistance,
+    _Lengths,
+    _Shape,
+    self_calibrate,
+    without_truth,
+)
 from estimation.datasets import RangeBearingLog
 from estimation.geometry import between, compose, wrap_angle
-from estimation.landmark_smoother import NormalFactor
+from estimation.landmark_smoother import LandmarkLogProblem, NormalFactor, _residuals
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
 
 # a camera in MRCLAM's range: σ_r 5 mm + 0.6 % of the range, σ_φ 0.01 rad, ±0.55 rad of view, 0.6-7 m
@@ -196,3 +204,37 @@ def test_exact_data_and_an_exact_length_give_the_calibration_exactly():
 def test_a_length_that_is_none_or_joins_no_two_sighted_posts_is_refused(known, complaint):
     with pytest.raises(ValueError, match=complaint):
         self_calibrate(_log(np.random.default_rng(1), minutes=1.0), _model(), known_distances=[known])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), steps=st.integers(1, 8), n_landmarks=st.integers(2, 4))
+def test_the_joint_jacobian_matches_finite_differences_in_every_variable(seed, steps, n_landmarks):
+    """The smoother's Jacobian with the calibration's five terms as its extra unknowns (their columns after the
+    landmarks') and a taped length (its row after the sightings'): each column, c's included, is the central
+    difference of the residuals (odometry, sightings at the calibration, the length) in its variable."""
+    rng = np.random.default_rng(seed)
+    s = 2 * steps
+    sensor = RangeBearingNoise(SIGMA_R, SIGMA_R_PER_M, SIGMA_B, range_scale=0.97, range_scale_per_rad=0.02,
+                               range_scale_per_rad2=0.4)
+    raw_r, raw_b, sigma_r = rng.uniform(0.5, 4, s), rng.uniform(-0.6, 0.6, s), rng.uniform(0.02, 0.2, s)
+    problem = LandmarkLogProblem(rng.normal(0, 0.4, (steps, 3)), rng.uniform(0.01, 0.1, (steps, 3)),
+                                 rng.integers(1, steps + 1, s), rng.integers(0, n_landmarks, s), raw_r, raw_b,
+                                 sigma_r, rng.uniform(0.01, 0.1, s))
+    lengths = _Lengths.of((KnownDistance(0, 1, 2.5, 0.005),), np.arange(n_landmarks))
+    shape = _Shape(sensor, raw_r, raw_b, sigma_r, FREE_WITH_SHAPE, lengths)
+    poses = rng.normal(0, 0.5, (steps + 1, 3))
+    poses[0] = 0
+    landmarks = rng.uniform(-3, 3, (n_landmarks, 2)) + np.array([5.0, 0.0])   # never on top of a pose
+    c = np.array([-0.05, 0.97, 0.02, 0.4, 0.01]) + rng.normal(0, 0.02, 5)
+    jac = shape.jacobian(problem, poses, landmarks, c, np.ones(s)).toarray()
+    x0 = np.concatenate([poses[1:].ravel(), landmarks.ravel(), c])
+
+    def residuals(x):
+        p = poses.copy()
+        p[1:] = x[:3 * steps].reshape(steps, 3)
+        m = x[3 * steps:3 * steps + 2 * n_landmarks].reshape(n_landmarks, 2)
+        odometry, sightings = _residuals(shape.sightings(problem, x[-5:]), p, m)
+        return np.concatenate([odometry, sightings, lengths.residuals(m)])
+
+    numeric = np.column_stack([(residuals(x0 + e) - residuals(x0 - e)) / 2e-6 for e in np.eye(len(x0)) * 1e-6])
+    np.testing.assert_allclose(jac, numeric, atol=1e-5, rtol=1e-6)
