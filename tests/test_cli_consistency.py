@@ -96,16 +96,20 @@ def test_top_level_help_imports_no_command():
         assert name in done.stdout
 
 
-def test_one_command_help_loads_only_that_command():
+@pytest.mark.parametrize(("words", "option", "module"), [
+    (["fuse"], "--preset", "runtime.commands.fuse"),
+    (["slam", "dataset"], "--truth-heading", "runtime.commands.slam"),   # its work (slam_dataset) is not loaded
+])
+def test_one_command_help_loads_only_that_command(words, option, module):
     code = ("import sys; from runtime.cli import main\n"
-            "try:\n    main(['fuse', '--help'])\nexcept SystemExit as stop:\n    status = stop.code\n"
+            f"try:\n    main({words + ['--help']!r})\nexcept SystemExit as stop:\n    status = stop.code\n"
             "loaded = sorted(m for m in sys.modules if m.startswith('runtime.commands.'))\n"
             "sys.stderr.write(repr((status, loaded)))")
     done = _in_fresh_interpreter(code)
     status, loaded = ast.literal_eval(done.stderr.strip())
     assert status == 0
-    assert "--preset" in done.stdout
-    assert set(loaded) - {"runtime.commands.options"} == {"runtime.commands.fuse"}
+    assert option in done.stdout
+    assert set(loaded) - {"runtime.commands.options"} == {module}
 
 
 def test_a_closed_pipe_ends_quietly():

@@ -1,0 +1,210 @@
+"""``p3at slam dataset``: FastSLAM on a recorded landmark data set, scored against its ground truth (the parser is in
+:mod:`.slam`)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from estimation.errors import EstimationError
+from runtime.commands.options import check_output_apart, check_output_file, rerun_sink_problem
+from runtime.commands.slam_noise import no_sensor_fit
+from runtime.json_output import json_text
+
+
+def _chain_problem(args: argparse.Namespace) -> str | None:
+    """What makes ``--chain`` meaningless with the other options given, in one line (None: nothing)."""
+    if not args.chain:
+        return "--seeds votes runs of the chain: it needs --chain" if args.seeds else None
+    if args.association != "unknown":
+        return "--chain names the landmarks itself: it needs --association unknown"
+    if args.smooth is not None:
+        return "--chain smooths the whole log by its own names: --smooth/--no-smooth do not apply"
+    if args.no_inflation:
+        return "--chain uses the noise model's variance inflation as measured: --no-inflation does not apply"
+    if args.fastslam != 2:
+        return "--chain's filter is FastSLAM 2.0 as measured: --fastslam 1 does not apply"
+    if args.seeds and args.seed != 0:
+        return "--seeds gives each run its seed: --seed does not apply"
+    return None
+
+
+def _check_rerun_sink(sink: str | None) -> None:
+    """Refuse a ``--rerun`` sink before the run, not after it: FILE.rrd (its folder writable), spawn or a URL."""
+    if (problem := rerun_sink_problem(sink, ("spawn",))) is not None:
+        raise ValueError(problem)
+
+
+def run_dataset(args: argparse.Namespace) -> int:
+    from dataclasses import asdict
+
+    from estimation.dataset_slam import run_landmark_log
+    from estimation.datasets import read_mrclam
+    from estimation.fastslam import range_bearing_config
+    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+
+    try:
+        if (problem := _chain_problem(args)) is not None:
+            raise ValueError(problem)
+        check_output_file(args.out)
+        _check_rerun_sink(args.rerun)
+        # neither output may replace what the run reads (the noise model, a table of the data set) or the other
+        recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None
+        check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
+                           folders={"data set": args.folder})
+        check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
+        # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
+        log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,
+                          truth_heading=args.truth_heading)
+        if args.noise:
+            noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
+        else:
+            try:
+                noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+                if (problem := no_sensor_fit(noise, [log])) is not None:
+                    raise ValueError(problem)
+            except ValueError as e:
+                raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
+            noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
+                            "odometry lag and turns' variance (no --noise given)")
+        smooth = args.association == "id" if args.smooth is None else args.smooth
+        config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
+        if args.chain:
+            try:
+                run = _chain_run(log, noise, config, args)
+            except np.linalg.LinAlgError as e:
+                raise ValueError(_singular_chain(noise, e)) from None
+        else:
+            run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
+                                   association=args.association, robot=f"robot{args.robot}", until=args.until,
+                                   inflate_correlated=not args.no_inflation, smooth=smooth)
+        run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
+                                                                     if noise.range_bearing else {})
+        run.map.save(args.out)
+    except (ValueError, OSError, EstimationError) as e:   # DatasetError, NoiseModelError, MapFileError included
+        print(f"p3at slam dataset: {e}", file=sys.stderr)
+        return 2
+    if args.rerun:
+        from runtime.dataset_recording import record_dataset_run
+        from runtime.rerun_log import ViewerError
+        try:
+            record_dataset_run(args.rerun, run, log, f"robot{args.robot}")
+        except (OSError, ViewerError) as e:
+            print(f"p3at slam dataset: the map is written to {args.out}, but the recording failed: {e}",
+                  file=sys.stderr)
+            return 2
+    metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
+                   noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=_map_warnings(run.metrics),
+                   stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
+    if args.json:
+        print(json_text(metrics))
+        return 0
+    m = metrics
+    print(f"slam dataset: {m['dataset']}, {m['frames']} frames over {m['seconds']:.0f} s, {m['particles']} "
+          f"particles, FastSLAM {m['version']}.0, association {m['association']}, "
+          + (f"seeds {','.join(map(str, m['seeds']))}" if "seeds" in m else f"seed {m['seed']}"))
+    for note in m["notes"]:
+        print(f"  note: {note}")
+    print(f"  noise model: {m['noise']}")
+    if "chain_runs" in m:
+        print("  the chain's runs voted: " + ", ".join(
+            f"seed {r['seed']} {r['names']} names ({r['pairs_apart_from_vote']} sighting pairs named otherwise)"
+            for r in m["chain_runs"]) + f"; smoothed from seed {m['vote_started_from_seed']}'s, "
+            f"{m['vote_contested_names']} names held by fewer than all runs")
+    if "chain_names" in m:
+        rounds = f", rounds {m['chain_rounds']}" if "chain_rounds" in m else ""
+        print(f"  the chain: {m['chain_names']} names{rounds}, {m['chain_sightings_named']} "
+              f"of {m['chain_sightings']} sightings named, smoothed with χ² per degree of freedom "
+              f"{m['smoother_chi2_per_dof']:.2f} ({m['smoother_outliers']} sightings dropped as outliers)")
+    if m.get("smoothed"):
+        print(f"  smoothed over the whole log: {m['smoother_sightings'] - m['smoother_outliers']} of "
+              f"{m['smoother_sightings']} sightings kept, χ² per degree of freedom {m['smoother_chi2_per_dof']:.2f}"
+              + ("" if m["smoother_converged"] else ", NOT converged")
+              + ("" if "filter_ate_m" not in m else f"; the filter alone: ATE {m['filter_ate_m']:.3f} m")
+              + ("" if "filter_landmark_error_median_m" not in m else f", landmark error "
+                 f"{m['filter_landmark_error_median_m']:.3f} m ({m['filter_landmark_error_rigid_median_m']:.3f} m "
+                 "rigid)"))
+    estimator = "chain" if "chain_names" in m else "smoothed" if m.get("smoothed") else "FastSLAM"
+    if "ate_m" in m:
+        print(f"  trajectory ATE        {estimator} {m['ate_m']:.3f} m   dead reckoning "
+              f"{m['dead_reckoning_ate_m']:.3f} m")
+    if "true_landmarks" in m:
+        print(f"  landmarks {m['landmarks']} for {m['true_landmarks']} true ({m['duplicate_landmarks']} duplicates, "
+              f"{100 * m['duplicate_fraction']:.0f} %): median error {m['landmark_error_median_m']:.3f} m in the start "
+              f"frame, {m['landmark_error_rigid_median_m']:.3f} m after the best rigid fit")
+        print(f"  landmark NEES: {100 * m['landmark_nees_within_bound']:.0f} % below χ²₂(95 %) "
+              f"({100 * m['landmark_nees_rigid_within_bound']:.0f} % after the rigid fit)")
+    else:   # no truth for the landmarks, or none at all (then no ATE nor NEES either)
+        print(f"  landmarks {m['landmarks']}; not scored: {m['unscored']}")
+    if "pose_nees_mean" in m:
+        print(f"  pose NEES over {m['pose_nees_frames']} frames (3 is consistent): mean {m['pose_nees_mean']:.1f}, "
+              f"median {m['pose_nees_median']:.1f}, {100 * m['pose_nees_within_chi2_95']:.0f} % below χ²₃(95 %)")
+    for warning in m["warnings"]:
+        print(f"  WARNING: {warning}")
+    print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
+    return 0
+
+
+def _singular_chain(noise, error: Exception) -> str:
+    """Why the chain's smoothing could not be solved, in one line: a noise model whose σ are far below any sensor's
+    (a fit to exact, simulated sightings) makes its normal equations numerically singular."""
+    sensor = noise.range_bearing
+    return (f"the chain's smoothing is numerically singular ({error}): the noise model's sensor σ are "
+            f"{sensor.range_sigma_m:.2g} m in range and {sensor.bearing_sigma_rad:.2g} rad in bearing, "
+            f"too small for any real sensor (a fit to exact, simulated sightings?); give a model with --noise FILE")
+
+
+def _chain_run(log, noise, config, args: argparse.Namespace):
+    """``--chain``: estimation.name_chain.run_chain with session 30's recipe (ChainSettings()) and the filter's seed,
+    its final state as the data set run the command writes and prints (estimation.chain_map.chain_run)."""
+    import dataclasses
+
+    from estimation.chain_map import chain_run
+    from estimation.name_chain import ChainSettings, run_chain
+    from estimation.seed_vote import chain_vote, voted_landmark_map
+
+    if noise.range_bearing is None:
+        raise ValueError("the chain needs the noise model's sensor part (its [range_bearing] section)")
+    if not len(log):
+        before = "" if args.until is None else f" before {args.until:g} s"
+        raise ValueError(f"{log.name}: nothing to name: no sightings{before}")
+    robot = f"robot{args.robot}"
+    if args.seeds:
+        results, vote = chain_vote(log, noise, config, args.seeds)
+        state = vote.state
+        run = dataclasses.replace(chain_run(log, state, robot), map=voted_landmark_map(log, vote, args.seeds, robot))
+        run.metrics.update(chain_runs=[{"seed": seed, "names": int(len(r.state.named.names)),
+                                        "rounds": int(r.rounds_done), "pairs_apart_from_vote": int(apart)}
+                                       for seed, r, apart in zip(args.seeds, results, vote.apart, strict=True)],
+                           seeds=list(args.seeds), vote_started_from_seed=args.seeds[vote.nearest],
+                           vote_contested_names=int(np.sum(vote.support < len(args.seeds))))
+    else:
+        result = run_chain(log, noise, config, ChainSettings(seed=args.seed))
+        state = result.state
+        run = chain_run(log, state, robot)
+        run.metrics.update(chain_rounds=int(result.rounds_done))
+    run.metrics.update(frames=len(state.named.frame_times), particles=config.n_particles, version=config.version,
+                       association="unknown-chain", chain_names=int(len(state.named.names)),
+                       chain_sightings_named=int((state.names >= 0).sum()), chain_sightings=int(len(state.names)),
+                       smoother_chi2_per_dof=float(state.solution.chi2_per_dof),
+                       smoother_outliers=int((~state.solution.inliers).sum()))
+    return run
+
+
+def _map_warnings(metrics: dict) -> list[str]:
+    """What the ground truth says about the written map that its user must not miss: covariances that do not hold
+    its errors (a map confidently wrong) and duplicates (one post mapped more than once)."""
+    from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL
+
+    warnings = []
+    within = metrics.get("landmark_nees_within_bound", float("nan"))
+    if within < NEES_WITHIN_GOAL:
+        warnings.append(f"only {100 * within:.0f} % of the landmarks are within their covariance's χ²₂ 95 % bound "
+                        f"(the goal is {100 * NEES_WITHIN_GOAL:.0f} %): the map claims more certainty than "
+                        "it has; do not fuse or navigate on its covariances")
+    duplicates = metrics.get("duplicate_fraction", 0.0)
+    if duplicates > DUPLICATE_GOAL:
+        warnings.append(f"{100 * duplicates:.0f} % of the landmarks are duplicates of another (true landmarks mapped "
+                        "more than once)")
+    return warnings
