@@ -8,7 +8,7 @@ Run from the repository root:
         [--maps /tmp/mrclam-maps] [--no-inflation] [--heading-bias] [--sensor-correlation lag1|passes]
         [--range-calibration] [--odometry-lag] [--turn-translation] [--turn-variance] [--time-variance] [--smooth]
         [--defaults]
-        [--heading-drift whole|first-half|SIGMA,TAU] [--set FIELD=VALUE ...] [--json]
+        [--heading-drift whole|first-half|SIGMA,TAU] [--truth-heading mocap|travel] [--set FIELD=VALUE ...] [--json]
 
 Per robot and mode: ATE (hand-written, map frame mapped to the world through the true start pose) and the same
 with evo (`benchmarks/evo_metrics.py`: APE rmse without alignment, and with SE(3) Umeyama alignment, which removes
@@ -46,6 +46,9 @@ noise model's ``heading_drift_sigma_per_m``, ``heading_drift_tau_s``), its (σ_b
 (``whole``: estimate_noise(heading_drift=True)), on the first half of its log in time (``first-half``: the half's own
 calibrated model, the benchmark ``mrclam_odometry_horizons``'s halves), or given (``0.16,10``); the rest of the model
 as without it (docs/fastslam-history.md "Session 23 ... (D)").
+``--truth-heading travel``: every log read with its ground truth's heading turned onto the robot's direction of travel
+(``read_mrclam(truth_heading="travel")``, estimation/datasets/truth_heading.py), so the noise models fitted in sample
+and every score are against that truth; ``mocap`` (default) keeps Vicon's heading as written.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -60,6 +63,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
+from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -70,7 +74,7 @@ from benchmarks import evo_metrics  # noqa: E402
 from benchmarks.config_overrides import config_overrides  # noqa: E402
 from benchmarks.output_paths import output_refusal  # noqa: E402
 from estimation.dataset_slam import run_landmark_log  # noqa: E402
-from estimation.datasets import read_mrclam  # noqa: E402
+from estimation.datasets import TRUTH_HEADINGS, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
@@ -144,10 +148,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--heading-drift", type=heading_drift_option, default=None,
                         metavar="whole|first-half|SIGMA,TAU", help="a drifting heading bias per particle: (σ_b "
                         "rad/m, τ s) fitted on the whole log, its first half, or given")
+    parser.add_argument("--truth-heading", choices=TRUTH_HEADINGS, default="mocap",
+                        help="the ground truth's heading: Vicon's as written (mocap, default) or turned onto the "
+                        "robot's direction of travel (travel); the in-sample noise fits and the scores use it")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    read = partial(read_mrclam, truth_heading=args.truth_heading)
     if args.defaults:
         vars(args).update(DATASET_CALIBRATIONS, smooth=True)
     overrides = config_overrides(args.set)
@@ -161,8 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         print(refusal, file=sys.stderr)
         return 2
 
-    logs = {r: read_mrclam(args.data, r) for r in robots}
-    others = {r: read_mrclam(args.data, r) for r in range(1, 6) if r not in logs} if args.noise == "others" else {}
+    logs = {r: read(args.data, r) for r in robots}
+    others = {r: read(args.data, r) for r in range(1, 6) if r not in logs} if args.noise == "others" else {}
     noise = {}
     fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
            "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
@@ -175,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             pool = [log for k, log in {**logs, **others}.items() if k != r]
             noise[r] = estimate_noise(pool, **fit).model
         elif args.noise == "first-half":
-            noise[r] = estimate_noise([read_mrclam(args.data, r, until=float(np.median(logs[r].sighting_times)))],
+            noise[r] = estimate_noise([read(args.data, r, until=float(np.median(logs[r].sighting_times)))],
                                       **fit).model
         else:
             noise[r] = NoiseModel.load(args.noise)
@@ -220,11 +228,13 @@ def main(argv: list[str] | None = None) -> int:
                           "theta_var_per_s": {r: noise[r].odometry.theta_var_per_s for r in robots},
                           "heading_drift": {r: [noise[r].odometry.heading_drift_sigma_per_m,
                                                 noise[r].odometry.heading_drift_tau_s] for r in robots},
+                          "truth_heading": args.truth_heading,
                           "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
                           "particles": args.particles, "seed": args.seed,
                           "maps": str(args.maps)}))
         return 0
-    print(f"\nMRCLAM {args.data.name}, {args.particles} particles, seed {args.seed}, noise: {args.noise}"
+    print(f"\nMRCLAM {args.data.name}, {args.particles} particles, seed {args.seed}, noise: {args.noise}, "
+          f"truth heading: {args.truth_heading}"
           + (f", until {args.until:g} s" if args.until else "") + (f", overrides {overrides}" if overrides else "")
           + (", odometry heading bias per metre " + " ".join(f"{noise[r].odometry.heading_bias_per_m:+.4f}"
                                                             for r in robots) + " rad/m" if args.heading_bias else "")

@@ -1,6 +1,6 @@
 """Why MRCLAM FastSLAM maps align or not, and what limits their merge (docs/fusion.md, issue 13).
 
-    .venv/bin/python -m benchmarks.fusion_mrclam_diagnosis DIR [DIR ...]
+    .venv/bin/python -m benchmarks.fusion_mrclam_diagnosis DIR [DIR ...] [--truth-heading mocap|travel]
 
 DIR holds robot1.npz ... robot5.npz of known-ID maps (``p3at slam dataset mrclam``, ``benchmarks.eval_mrclam
 --maps``).  For every pair: the identities both maps hold, the supports found and needed, the chance supports a
@@ -39,9 +39,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from eval_fusion import MRCLAM_DATASET2, frame_fit  # noqa: E402
-from fusion_sim import mrclam_sighting_map  # noqa: E402
+from fusion_sim import mrclam_sighting_map, start_heading_refusal  # noqa: E402
 
 import fusion.multi as multi  # noqa: E402
+from estimation.datasets import TRUTH_HEADINGS  # noqa: E402
 from estimation.geometry import compose, inverse, rot_z, transform_points  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from estimation.landmark_scores import rigid_fit_2d  # noqa: E402
@@ -344,21 +345,29 @@ def between_text(pose, reference) -> str:
     return f"{np.hypot(d[0], d[1]):.3f} m / {abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))):.4f} rad"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="folders of robot1.npz ... robot5.npz")
     parser.add_argument("--mrclam", type=Path, default=MRCLAM_DATASET2, help="MRCLAM dataset 2 folder (the truth)")
-    args = parser.parse_args()
+    parser.add_argument("--truth-heading", choices=TRUTH_HEADINGS, default="mocap",
+                        help="MRCLAM's ground-truth heading: Vicon's as written (mocap, default) or turned onto each "
+                             "robot's direction of travel (travel), for the sighting maps; the maps in DIR must have "
+                             "been made with the same (p3at slam dataset --truth-heading), else refused")
+    args = parser.parse_args(argv)
     if not args.mrclam.is_dir():
         print(f"fusion_mrclam_diagnosis: {args.mrclam} not found (the Vicon landmarks are needed)", file=sys.stderr)
         raise SystemExit(2)
-    sightings = [mrclam_sighting_map(args.mrclam, r).map for r in range(1, 6)]
-    truth = mrclam_sighting_map(args.mrclam, 1).truth
+    placed = [mrclam_sighting_map(args.mrclam, r, truth_heading=args.truth_heading) for r in range(1, 6)]
+    sightings, truth = [s.map for s in placed], placed[0].truth
+    folders = {folder: [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)] for folder in args.folders}
+    for folder, maps in folders.items():
+        if (problem := start_heading_refusal(maps, placed, args.truth_heading)) is not None:
+            parser.exit(2, f"fusion_mrclam_diagnosis: {folder}: {problem}\n")
+    heading = "" if args.truth_heading == "mocap" else ", the truth's heading on the direction of travel"
     merge_rules(sightings, truth, multi.pairwise_alignments(sightings, "robust", np.random.default_rng(0)),
-                "MRCLAM sighting maps (real sightings placed from Vicon poses, not SLAM): ")
-    for folder in args.folders:
-        maps = [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)]
-        print(f"\n### {folder}\n")
+                f"MRCLAM sighting maps (real sightings placed from Vicon poses{heading}, not SLAM): ")
+    for folder, maps in folders.items():
+        print(f"\n### {folder}{heading}\n")
         refusals(maps)
         merge_limits(maps, truth)
         alignments = multi.pairwise_alignments(maps, "robust", np.random.default_rng(0))

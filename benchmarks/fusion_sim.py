@@ -465,17 +465,18 @@ class SightingMap:
 
 
 def mrclam_sighting_map(folder, robot: int, identities: bool = True, until: float | None = None,
-                        min_sightings: int = 3) -> SightingMap:
+                        min_sightings: int = 3, truth_heading: str = "mocap") -> SightingMap:
     """Robot ``robot``'s landmarks from its real range-bearing sightings placed from its Vicon poses.
 
     Not a SLAM map: the poses are the truth, so the errors are the camera's (range bias, outliers) only.  It
     isolates the fusion from the filter; FastSLAM maps (``p3at slam dataset``) are evaluated beside it.
     Each landmark: the mean of its sightings within 0.5 m of their median (outliers dropped).
+    ``truth_heading``: read_mrclam's (``travel``: the Vicon heading turned onto the direction of travel).
     """
     from estimation.datasets import read_mrclam
     from estimation.geometry import between, compose
 
-    log = read_mrclam(folder, robot, until=until)
+    log = read_mrclam(folder, robot, until=until, truth_heading=truth_heading)
     t0 = float(log.sighting_times[0])
     start = log.true_pose([t0])[0]
     poses = log.true_pose(log.sighting_times)
@@ -497,7 +498,8 @@ def mrclam_sighting_map(folder, robot: int, identities: bool = True, until: floa
         ids.append(int(lid))
     positions = np.column_stack([np.array(rows).reshape(-1, 2), np.zeros(len(rows))])
     meta = {"true_start_pose": [float(v) for v in start], "dataset": log.name, "simulated": False,
-            "map_source": "real sightings placed from Vicon poses (not SLAM)"}
+            "map_source": "real sightings placed from Vicon poses (not SLAM)"
+            + ("; their heading turned onto the direction of travel" if truth_heading == "travel" else "")}
     if identities:
         meta["external_ids"] = list(ids)
     m = LandmarkMap(positions, np.array(covs).reshape(-1, 3, 3), np.zeros((len(rows), 0), np.float32),
@@ -525,6 +527,24 @@ def corrupt_map(m: LandmarkMap, rng: np.random.Generator, duplicates: int = 3, o
         meta["external_ids"] = [int(v) for v in np.concatenate([ids, ids[src], rng.choice(ids, outliers)])]
     desc = np.zeros((n + len(src) + outliers, m.descriptor_size), np.float32)
     return LandmarkMap(np.vstack([m.positions, dup, out]), cov, desc, robot=m.robot, frame=m.frame, metadata=meta)
+
+
+def start_heading_refusal(maps, sightings: list[SightingMap], truth_heading: str) -> str | None:
+    """None, or one line saying which of ``maps`` (robot 1-5's, in order) was scored against another truth heading
+    than ``sightings``' (``mrclam_sighting_map(..., truth_heading=truth_heading)``): its ``true_start_pose`` is its
+    robot's true pose at the first sighting (the sighting map's start) in x, y but not in θ.  A map whose start is
+    elsewhere (another frame, another data set) is not judged."""
+    for m, s in zip(maps, sightings, strict=True):
+        start = m.metadata.get("true_start_pose")
+        if start is None:
+            continue
+        d = np.asarray(start, float).reshape(3) - s.true_start
+        turn = float(np.arctan2(np.sin(d[2]), np.cos(d[2])))
+        if np.all(np.abs(d[:2]) < 1e-6) and abs(turn) > 1e-6:
+            return (f"{m.robot}'s true_start_pose heading is {turn:+.4f} rad off the {truth_heading} truth's at the "
+                    "same place: the map was scored against the other truth heading (give the --truth-heading "
+                    "its maps were made with: p3at slam dataset --truth-heading)")
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
