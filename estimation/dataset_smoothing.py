@@ -6,9 +6,13 @@ the smoother's: positions (z = 0, the sensor is planar), the marginal covariance
 frame (the inverse information, so no drift export is added: the frame's uncertainty is in them already), the
 identities in ``metadata["external_ids"]``, the smoothed trajectory. The filter's own figures stay in the metrics
 under ``filter_``; ``smoother_*`` report the fit (χ² per degree of freedom, sightings dropped as outliers,
-convergence). With a heading drift (:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter
-config's ``odom_heading_drift_sigma_per_m`` / ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the
-smoother carries a heading-bias state per frame; ``smoother_heading_drift_*`` then say which (absent when off).
+convergence). Scored against a truth with landmarks, ``landmark_frame_error`` / ``_sd`` / ``_nees`` give the map's
+start-frame error as one rigid motion (dx, dy, dθ about the frame's origin) against the joint covariance of its
+landmarks (:func:`~estimation.landmark_scores.frame_error`): whether a start-frame miss is the frame, pinned by the
+log's first few factors, or the map's shape. With a heading drift
+(:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter config's ``odom_heading_drift_sigma_per_m``
+/ ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the smoother carries a heading-bias state per
+frame; ``smoother_heading_drift_*`` then say which (absent when off).
 """
 from __future__ import annotations
 
@@ -18,8 +22,14 @@ from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
 from .fastslam.motion import increment_variance
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
-from .landmark_scores import ate, map_scores, pose_nees, pose_nees_figures
-from .landmark_smoother import HeadingDrift, LandmarkLogProblem, landmarks_from_first_sightings, smooth
+from .landmark_scores import ate, frame_error, map_scores, pose_nees, pose_nees_figures
+from .landmark_smoother import (
+    HeadingDrift,
+    LandmarkLogProblem,
+    joint_landmark_covariance,
+    landmarks_from_first_sightings,
+    smooth,
+)
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
 _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95",
@@ -73,6 +83,7 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
                                   np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                                   log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
+        metrics.update(_frame_error(problem, solution, landmark_ids, true_start, log))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
 
 
@@ -85,6 +96,19 @@ def smoothed_pose_nees(solution, true_start: np.ndarray, truth: np.ndarray) -> n
     nees[rows] = pose_nees(solution.poses[solution.covariance_poses] - between(true_start, truth[rows]),
                            solution.pose_covariances)
     return nees
+
+
+def _frame_error(problem, solution, landmark_ids, true_start, log) -> dict:
+    """The smoothed map's start-frame error as one rigid motion and its NEES by the landmarks' joint covariance
+    (:func:`~estimation.landmark_scores.frame_error`), over the landmarks placed whose true position is known."""
+    joint = joint_landmark_covariance(problem, solution)
+    truth = {int(i): p for i, p in zip(log.truth_ids, log.truth_positions, strict=True)}
+    rows = np.array([k for k, i in enumerate(landmark_ids) if int(i) in truth and np.isfinite(joint[2 * k, 2 * k])],
+                    np.int64)
+    world = np.array([truth[int(landmark_ids[k])] for k in rows]).reshape(-1, 2)
+    local = between(true_start, np.column_stack([world, np.zeros(len(world))]))[:, :2]
+    columns = np.column_stack([2 * rows, 2 * rows + 1]).ravel()
+    return frame_error(solution.landmarks[rows], local, joint[np.ix_(columns, columns)])
 
 
 def config_drift(config) -> HeadingDrift | None:

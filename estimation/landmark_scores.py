@@ -116,6 +116,35 @@ def map_scores(positions: np.ndarray, covariances: np.ndarray, attributed: np.nd
     return scores
 
 
+def frame_error(estimate: np.ndarray, truth: np.ndarray, joint_covariance: np.ndarray) -> dict:
+    """A map's error as one rigid motion of its frame, against the map's own joint covariance.
+
+    estimate, truth (N, 2): the landmarks in the map's frame and where a perfect map puts them (the truth seen from
+    the true pose of the frame's origin); joint_covariance (2N, 2N): the estimate's joint covariance, rows (x₀, y₀,
+    x₁, …). The motion (dx, dy, dθ) is the least-squares fit of the errors eᵢ = estimateᵢ − truthᵢ ≈ d + dθ (−yᵢ, xᵢ)
+    at the true positions: a rotation about the frame's origin (the robot's pose at its first sighting) and a
+    translation, dθ > 0 counter-clockwise. It is a linear function F e of the errors, so its covariance is F Σ Fᵀ:
+    ``landmark_frame_error`` [dx, dy, dθ] (m, m, rad), ``landmark_frame_sd`` their σ, ``landmark_frame_nees`` the χ²₃
+    NEES of the motion (95 % bound 7.815). A start-frame miss with a large frame NEES and a small rigid-fit one is the
+    frame's (its few first factors), not the map's shape. NaN with fewer than 2 landmarks.
+    """
+    truth = np.asarray(truth, float)[:, :2]
+    n = len(truth)
+    if n < 2:
+        return {"landmark_frame_error": [float("nan")] * 3, "landmark_frame_sd": [float("nan")] * 3,
+                "landmark_frame_nees": float("nan")}
+    design = np.zeros((2 * n, 3))
+    design[0::2, 0] = design[1::2, 1] = 1.0
+    design[0::2, 2], design[1::2, 2] = -truth[:, 1], truth[:, 0]
+    functional = np.linalg.solve(design.T @ design, design.T)
+    motion = functional @ (np.asarray(estimate, float)[:, :2] - truth).ravel()
+    covariance = functional @ np.asarray(joint_covariance, float) @ functional.T
+    covariance = 0.5 * (covariance + covariance.T)
+    return {"landmark_frame_error": [float(v) for v in motion],
+            "landmark_frame_sd": [float(v) for v in np.sqrt(np.diag(covariance))],
+            "landmark_frame_nees": float(motion @ np.linalg.solve(covariance, motion))}
+
+
 def pose_nees_figures(nees: np.ndarray) -> dict:
     """The figures of a pose NEES series (T,) over the frames that have one (NaN entries left out): mean, median, the
     share within χ²₃ 95 % and how many frames; the three figures NaN when no frame has one."""
