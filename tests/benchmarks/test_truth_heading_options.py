@@ -8,6 +8,7 @@ frames would be mixed with the sighting maps' silently).
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -95,10 +96,10 @@ def test_maps_of_the_other_truth_heading_are_refused_before_any_table(mrclam_dir
         eval_fusion.main(["--trust-only", "--maps-only", "--mrclam-maps", str(folder)])
     assert exit_.value.code == 2
     out, err = capsys.readouterr()
-    # robot 1's Vicon heading is 7.6 mrad off its travel where it first sees a post
-    assert err.startswith(f"eval_fusion: --mrclam-maps {folder}: robot1's true_start_pose heading is +0.0076 rad off "
-                          "the mocap truth's at the same place")
-    assert len(err.strip().splitlines()) == 1 and "###" not in out
+    # robot 1's Vicon heading is a few mrad off its travel where it first sees a post (7.6 mrad in session 38)
+    assert re.fullmatch(rf"eval_fusion: --mrclam-maps {re.escape(str(folder))}: robot1's true_start_pose heading is "
+                        r"[+-]0\.0\d\d\d rad off the mocap truth's at the same place: .*\n", err)
+    assert "###" not in out
     with pytest.raises(SystemExit) as exit_:
         fusion_mrclam_diagnosis.main([str(folder)])
     assert exit_.value.code == 2
