@@ -17,8 +17,11 @@ supported by the data). Each sighting is a factor (‖m − t‖ − r', atan2(m
 the odometry factors are the model's random walk. The odometry gives the metric scale; the landmarks' positions are
 free. Solved jointly by the smoother's own Levenberg–Marquardt, the calibration its extra unknowns (Huber weights
 first, then the sightings beyond χ²₂ 99 % dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the
-FastSLAM filter's map and trajectory (known association) with the given model. The calibration's covariance is its
-block of the inverse information (Laplace).
+FastSLAM filter's map and trajectory (known association) with the given model; each step's turn of the whole map
+about pose 0 is taken as a rotation (the solve's ``exact_rotation``: the first steps' jumps of ψ turn the map, and
+along a turn's tangent the loop crawled: MRCLAM robot 1 stopped at the iteration cap from one filter seed and
+converged from another, with other outliers, b₀ 2 standard errors apart); both solves must converge. The calibration's
+covariance is its block of the inverse information (Laplace).
 
 The joint MAP's b₀ is biased low: where the odometry is loose the poses absorb part of the range noise, and they
 absorb more the smaller b₀ (the sightings then weigh more against the odometry), so the minimum of the squared
@@ -225,10 +228,15 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                    _Lengths.of(known_distances, landmark_ids))
     c = given.copy()
     inliers = np.ones(len(log), bool)
-    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape, extra_values=c)
+    # the steps' turns of the map taken as rotations (see _solve); the outliers are cut at the robust solution, so
+    # an unfinished robust solve leaves them to the start, and the estimate is reported as not converged
+    iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape,
+                                                 extra_values=c, exact_rotation=True)
     _, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
     inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c)
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c,
+                                   exact_rotation=True)
+    converged = converged and robust_converged
     odometry_r, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if shape.lengths.count:

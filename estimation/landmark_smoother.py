@@ -684,10 +684,18 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
 
 
 def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-           offsets=None, extra=None, extra_values=None) -> tuple[int, bool]:
+           offsets=None, extra=None, extra_values=None, exact_rotation=False) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
     landmarks (and the biases (T, n) with a drift, the offsets (G, 2) with sighting offsets, the values (k,) of
-    :class:`ExtraUnknowns`)."""
+    :class:`ExtraUnknowns`).
+
+    ``exact_rotation`` (off by default): each step's turn of the whole solution about the frame's origin is taken as
+    a rotation, not along its tangent (:func:`_rotation_correction`). Why: pose 0 alone fixes the frame, so turning
+    every later pose and the map together changes only the first increments' residuals: the information in that
+    direction is 10⁻¹¹-10⁻⁸ of the diagonal's (MRCLAM robot 1). A linear step along it by ω moves a point r from
+    the origin ω²r/2 off the circle it turns on (0.15 rad at 5 m: 5.6 cm, two of a sighting's σ), so the loop must
+    take short steps there and a start turned by a tenth of a radian from the solution takes more than the
+    iteration cap. The self-calibration needs it: its first steps turn the map by the bearing offset's jumps."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     width = _width(drift)
     landmarks_end = width * t + 2 * n_landmarks
@@ -721,14 +729,22 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             step = -NormalFactor(damped, t, width).solve(gradient)
             trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
             pose_step = step[:width * t].reshape(t, width)
+            landmark_step = step[width * t:landmarks_end].reshape(n_landmarks, 2)
             trial_poses[1:] += pose_step[:, :3]
-            trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
-            trial_landmarks += step[width * t:landmarks_end].reshape(n_landmarks, 2)
+            trial_landmarks += landmark_step
             trial_bias = None if drift is None else bias + pose_step[:, 3:]
             trial_offsets = None
             if offset is not None:
                 trial_offsets = offsets.copy()
                 trial_offsets[offset.explicit_groups] += step[landmarks_end:offsets_end].reshape(-1, 2)
+            if exact_rotation:
+                omega = _step_rotation(np.vstack([poses[1:, :2], landmarks]),
+                                       np.vstack([pose_step[:, :2], landmark_step]))
+                trial_poses[1:, :2] += _rotation_correction(poses[1:, :2], omega)
+                trial_landmarks += _rotation_correction(landmarks, omega)
+                if offset is not None:   # vectors in the map's frame: they turn with it
+                    trial_offsets += _rotation_correction(offsets, omega)
+            trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_values = None if extra is None else extra.stepped(extra_values, step[offsets_end:])
             if extra is not None and trial_values is None:   # values the extra unknowns do not admit: refused
                 trial = np.inf
@@ -752,6 +768,21 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
         if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
             return iteration, True
     return MAX_ITERATIONS, False
+
+
+def _step_rotation(points: np.ndarray, step: np.ndarray) -> float:
+    """ω (rad): the turn of the rigid motion (a turn and a shift) nearest, in least squares, to ``step`` (N, 2) at
+    ``points`` (N, 2): Σ (p − p̄) × (δ − δ̄) / Σ |p − p̄|²."""
+    centred, moved = points - points.mean(axis=0), step - step.mean(axis=0)
+    return float(np.sum(centred[:, 0] * moved[:, 1] - centred[:, 1] * moved[:, 0])
+                 / max(float(np.sum(centred ** 2)), 1e-300))
+
+
+def _rotation_correction(points: np.ndarray, omega: float) -> np.ndarray:
+    """(R(ω) − I − ω J) p for points p (N, 2), J the quarter turn: what turns p + (its step's tangent part ω J p)
+    into R(ω) p, the rotation about the origin, exactly. Second order in ω: a step without a turn is unchanged."""
+    cos, sin = np.cos(omega) - 1.0, np.sin(omega) - omega
+    return np.column_stack([cos * points[:, 0] - sin * points[:, 1], sin * points[:, 0] + cos * points[:, 1]])
 
 
 def _information(problem, poses, landmarks, inliers, n_landmarks, heading_weights=None, drift=None, offset=None,
