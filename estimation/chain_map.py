@@ -41,7 +41,8 @@ def chain_landmark_map(log: RangeBearingLog, state: MergeRound, robot: str) -> L
     seen, positions, covariances = planar_landmarks(sol)
     counts = np.bincount(named.problem.landmark_index[sol.inliers], minlength=len(seen))[seen]
     times = named.frame_times
-    truth = ({"true_start_pose": [float(v) for v in log.true_pose(times[:1])[0]]} if log.has_ground_truth else {})
+    truth = ({"true_start_pose": [float(v) for v in log.true_pose(times[:1])[0]], "truth_heading": log.truth_heading}
+             if log.has_ground_truth else {})
     metadata = {**truth, "dataset": log.name, "association": "unknown-chain", "simulated": False, "smoothed": True,
                 "smoother_chi2_per_dof": float(sol.chi2_per_dof), **log_body_metadata(log)}
     return LandmarkMap(positions, covariances, np.zeros((len(positions), 0), np.float32),

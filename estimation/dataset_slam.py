@@ -134,7 +134,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         means.append(report.pose_mean)
         covs.append(report.pose_covariance)
 
-    truth_metadata = {} if true_start is None else {"true_start_pose": [float(v) for v in true_start]}
+    truth_metadata = {} if true_start is None else {"true_start_pose": [float(v) for v in true_start],
+                                                    "truth_heading": log.truth_heading}
     landmark_map = slam.best_map(robot=robot, metadata={
         **truth_metadata, "dataset": log.name, "association": association,
         "noise_model": noise.robot, "inflate_correlated": bool(inflate_correlated), "simulated": False})

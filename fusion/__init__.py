@@ -6,7 +6,7 @@
 """
 from __future__ import annotations
 
-from .alignment import Alignment, AlignmentStatistics, align, alignment_error, true_relative_pose
+from .alignment import Alignment, AlignmentStatistics, align, alignment_error, true_relative_pose, truth_heading
 from .alignment_config import PAPER, PRESETS, ROBUST, AlignmentConfig
 from .cache import AlignmentCache
 from .errors import FusionError, IncompatibleMapsError, NoOverlapError
@@ -18,4 +18,5 @@ __all__ = [
     "PAPER", "PRESETS", "ROBUST", "Alignment", "AlignmentCache", "AlignmentConfig", "AlignmentStatistics",
     "FusionError", "IncompatibleMapsError", "MultiFusion", "NoOverlapError", "align", "alignment_error",
     "common_landmarks", "fuse_all", "kalman_fuse", "map_fingerprint", "merge", "merge_pairs", "true_relative_pose",
+    "truth_heading",
 ]

@@ -214,13 +214,24 @@ class Alignment:
 
 # -- ground truth ----------------------------------------------------------------------------------------
 def true_relative_pose(map1: LandmarkMap, map2: LandmarkMap) -> np.ndarray | None:
-    """between(true start 1, true start 2) from ``metadata["true_start_pose"]``, or None if either lacks it."""
+    """between(true start 1, true start 2) from ``metadata["true_start_pose"]``, or None if either lacks it, or if
+    the two starts' headings come from different truths (:func:`truth_heading`: a motion capture's markers against
+    the direction of travel differ by up to 0.017 rad on MRCLAM, which would be scored as the alignment's error)."""
+    if truth_heading(map1) != truth_heading(map2):
+        return None
     try:
         start1 = np.asarray(map1.metadata["true_start_pose"], float).reshape(3)
         start2 = np.asarray(map2.metadata["true_start_pose"], float).reshape(3)
     except (KeyError, TypeError, ValueError):
         return None
     return between(start1, start2)
+
+
+def truth_heading(landmark_map: LandmarkMap) -> str:
+    """Which heading the map's ``true_start_pose`` holds: ``metadata["truth_heading"]`` (``p3at slam dataset
+    --truth-heading``), "mocap" (as the truth wrote it) for maps that do not say."""
+    value = landmark_map.metadata.get("truth_heading", "mocap")
+    return value if isinstance(value, str) else repr(value)
 
 
 def alignment_error(pose, true_pose) -> np.ndarray:

@@ -32,6 +32,8 @@ class RangeBearingLog:
     notes:                what the reader dropped, corrected or could not verify (one sentence each)
     stamp_resolution:     the streams whose stamps the file wrote coarser than their rows (stamps.py; () = none
                           found or not looked for); reported only, the times are used as written
+    truth_heading:        whose heading ground_truth holds: "mocap" (as the truth wrote it) or "travel" (turned onto
+                          the direction of travel: truth_heading.align_truth_heading)
     """
 
     name: str
@@ -45,6 +47,7 @@ class RangeBearingLog:
     truth_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     notes: tuple[str, ...] = ()
     stamp_resolution: tuple[StampQuantization, ...] = ()
+    truth_heading: str = "mocap"
 
     def __post_init__(self) -> None:
         def as_float(name, shape_tail):

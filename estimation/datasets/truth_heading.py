@@ -100,7 +100,7 @@ def align_truth_heading(log: RangeBearingLog) -> tuple[RangeBearingLog, TravelHe
     offset = travel_heading_offset(log.ground_truth, log.name)
     truth = log.ground_truth.copy()
     truth[:, 3] = wrap_angle(truth[:, 3] - offset.at(truth[:, 0]))
-    return replace(log, ground_truth=truth, notes=(*log.notes, offset.summary())), offset
+    return replace(log, ground_truth=truth, notes=(*log.notes, offset.summary()), truth_heading="travel"), offset
 
 
 def _kernel_mean(times: np.ndarray, values: np.ndarray, at: np.ndarray, width: float) -> np.ndarray:

@@ -25,6 +25,7 @@ from tests.datasets import conftest
 from tests.datasets.conftest import run_cli as _cli
 
 TRUTH_FILES = ("Robot1_Groundtruth.dat.gz", "Robot2_Groundtruth.dat.gz", "Landmark_Groundtruth.dat.gz")
+TRUTH_METADATA = ("true_start_pose", "truth_heading")   # the map keys only the truth can give
 # every figure that needs the truth (`slam dataset --json` of a scored run has each)
 SCORES = ("ate_m", "dead_reckoning_ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median",
           "pose_nees_within_chi2_95", "pose_nees_frames", "true_start_pose", "true_landmarks", "mapped_true_landmarks",
@@ -57,8 +58,8 @@ def _with_and_without(tmp_path: Path, synthetic, robots=(1,), seconds: float = 6
 def _maps_equal(a: LandmarkMap, b: LandmarkMap) -> None:
     for field in ("positions", "covariances", "ids", "counts", "trajectory", "sighting_covariances"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
-    assert ({k: v for k, v in a.metadata.items() if k != "true_start_pose"}
-            == {k: v for k, v in b.metadata.items() if k != "true_start_pose"})
+    assert ({k: v for k, v in a.metadata.items() if k not in TRUTH_METADATA}
+            == {k: v for k, v in b.metadata.items() if k not in TRUTH_METADATA})
 
 
 @pytest.mark.parametrize(("association", "smooth"), [("id", "--smooth"), ("id", "--no-smooth"),
@@ -77,7 +78,7 @@ def test_slam_dataset_maps_a_log_without_ground_truth_as_with_it_and_scores_noth
         runs[name] = (json.loads(out), LandmarkMap.load(out_map))
     (scored, with_map), (unscored, without_map) = runs["with"], runs["without"]
     _maps_equal(with_map, without_map)
-    assert "true_start_pose" in with_map.metadata and "true_start_pose" not in without_map.metadata
+    assert set(TRUTH_METADATA) <= set(with_map.metadata) and not set(TRUTH_METADATA) & set(without_map.metadata)
     assert all(key in scored for key in SCORES) and "unscored" not in scored
     assert not any(key in unscored or f"filter_{key}" in unscored for key in SCORES)
     assert unscored["unscored"] == UNSCORED and unscored["warnings"] == []

@@ -152,3 +152,47 @@ def test_a_noise_model_fitted_against_the_travel_heading_says_so_and_moves_only_
     assert "offset mean +0.0136 rad" in offset and abs(shift + 0.0136) < 0.002
     assert fits["travel"]["odometry"]["xy_var_per_m"] == pytest.approx(fits["mocap"]["odometry"]["xy_var_per_m"],
                                                                         rel=0.05)
+
+
+def _scored_map(start, heading=None, seed=0):
+    from estimation.landmark_map import LandmarkMap
+
+    metadata = {"true_start_pose": list(start)} | ({} if heading is None else {"truth_heading": heading})
+    rng = np.random.default_rng(seed)
+    return LandmarkMap(rng.uniform(-5, 5, (6, 3)), np.tile(np.eye(3) * 1e-3, (6, 1, 1)), rng.normal(size=(6, 8)),
+                       robot="r", metadata=metadata)
+
+
+@given(st.sampled_from([None, "mocap", "travel"]), st.sampled_from([None, "mocap", "travel"]))
+def test_fusion_scores_two_starts_only_against_the_same_truth_heading(first, second):
+    from fusion import true_relative_pose
+
+    truth = true_relative_pose(_scored_map([0.0, 0.0, 0.1], first), _scored_map([1.0, 0.0, 0.3], second))
+    if (first or "mocap") == (second or "mocap"):     # a map that does not say is the truth as written
+        assert np.allclose(truth, [0.995004165, -0.0998334166, 0.2])
+    else:
+        assert truth is None
+
+
+def test_fuse_says_when_the_maps_hold_starts_from_different_truths(tmp_path):
+    paths = []
+    for k, heading in enumerate(["mocap", "travel", "travel"]):
+        paths.append(str(tmp_path / f"m{k}.npz"))
+        _scored_map([float(k), 0.0, 0.0], heading, seed=k).save(paths[-1])
+    _, _, err = run_cli("fuse", *paths, "--out", str(tmp_path / "merged.npz"))
+    assert ("p3at fuse: warning: the maps' true starts hold headings from different truths (mocap: map 0; travel: "
+            "maps 1, 2; `p3at slam dataset --truth-heading`): alignments between them are not scored") in err
+
+
+def test_a_travel_map_records_its_truth_and_a_mocap_one_its_own(mrclam_dir, tmp_path):
+    from estimation.landmark_map import LandmarkMap
+
+    for heading in ("mocap", "travel"):
+        status, _, err = run_cli("slam", "dataset", "mrclam", str(mrclam_dir), "--robot", "2", "--until", "60",
+                                 "--truth-heading", heading, "--out", str(tmp_path / f"{heading}.npz"))
+        assert status == 0, err
+    mocap, travel = (LandmarkMap.load(tmp_path / f"{h}.npz") for h in ("mocap", "travel"))
+    assert mocap.metadata["truth_heading"] == "mocap" and travel.metadata["truth_heading"] == "travel"
+    turn = travel.metadata["true_start_pose"][2] - mocap.metadata["true_start_pose"][2]
+    assert turn == pytest.approx(-0.0136, abs=0.002)
+    assert travel.metadata["true_start_pose"][:2] == mocap.metadata["true_start_pose"][:2]
