@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from estimation import chi2
@@ -317,11 +317,22 @@ def test_an_honest_map_has_no_self_covisible_name_and_a_split_needs_one():
         two_point_split(problem, solved(problem), 0)
 
 
-def jumps_beyond(problem: LandmarkLogProblem, solution) -> tuple[np.ndarray, np.ndarray]:
+# The jump tests' α is a false-alarm rate: an honest map is flagged with probability ≤ α (Bonferroni over its J
+# pairs), so "no honest name jumps at α 0.01", asserted on every draw, is false on about 1 draw in 750 (measured: 1
+# of 754 draws at separation 0.5; 2 of 4000 honest maps at 0.5–1.5). Seed 1794 at separation 0.5, direction 2.0 is
+# one: landmark 2's kept sightings at poses 278 → 279 jump 30.7 and 30.4 against 20.8 and 20.9 (J 335 and 345) with
+# and without the twin's one name, from twin_log's own draws (their ranges 3.3 σ long then 2.8 σ short, the
+# odometry's heading 3.8 σ off in that step): the sensor and odometry the model describes. So the hypothesis tests
+# hold honest names at α RARE (a chance failure ≤ 2·RARE an example: the statistic's tail is below χ²₂'s), and the
+# rate at α 0.01 is asserted on fixed seeds (test_an_honest_map_jumps_no_more_often_than_alpha).
+RARE = 1e-6
+
+
+def jumps_beyond(problem: LandmarkLogProblem, solution, alpha: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
     """:func:`sighting_jumps` under :func:`twin_log`'s sensor (0.02 m, 0.005 rad, no correlation), and which are
-    beyond χ²₂ at 1 − 0.01/J."""
+    beyond χ²₂ at 1 − α/J."""
     pairs, jump = sighting_jumps(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, gap_s=1.0)
-    return pairs, jump > chi2.isf(0.01 / len(jump), 2)
+    return pairs, jump > chi2.isf(alpha / len(jump), 2)
 
 
 @settings(max_examples=6, deadline=None)
@@ -337,7 +348,7 @@ def test_jumps_beyond_the_sensor_s_own_noise_are_the_steps_between_two_points_of
     assert beyond[switch].mean() >= 0.9             # measured: every step between the points in 8 draws
     assert beyond[~switch].mean() <= 0.02           # measured: none
     honest, _ = twin_log(seed, separation, direction, one_name=False)
-    assert not jumps_beyond(honest, solved(honest))[1].any()
+    assert not jumps_beyond(honest, solved(honest), RARE)[1].any()      # at α 0.01 false on 1 draw in ~750 (RARE)
 
 
 def test_two_points_split_by_their_jumps_alone():
@@ -360,13 +371,18 @@ def test_two_points_split_by_their_jumps_alone():
         sighting_jumps(single, solution, np.full(len(single.ranges), 0.02), 0.005, 0.0, 1.0)
 
 
-def landmarks_that_jump(problem: LandmarkLogProblem, solution) -> np.ndarray:
-    """:func:`jumping_landmarks` under :func:`twin_log`'s sensor (0.02 m, 0.005 rad, no correlation), α 0.01."""
-    return jumping_landmarks(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, 0.01, gap_s=1.0)
+def landmarks_that_jump(problem: LandmarkLogProblem, solution, alpha: float = 0.01) -> np.ndarray:
+    """:func:`jumping_landmarks` under :func:`twin_log`'s sensor (0.02 m, 0.005 rad, no correlation)."""
+    return jumping_landmarks(problem, solution, np.full(len(problem.ranges), 0.02), 0.005, 0.0, 0.0, alpha, gap_s=1.0)
 
 
+# The twin beside landmark 0 as the robot sees it: between −1.4 and −1.1 rad the smoother keeps both points at every
+# separation (measured: 6 of 6 draws at each of 0.5, 0.8, 1.1 and 1.5 m), so there are kept switches to jump. One
+# behind the other (0 or ±π), the ranges' 0.5–1.5 m is 10–30 σ of the model's and it drops one point's sightings:
+# over all directions 360 of 1500 draws kept switches, and the derandomized draws of −π..π filtered 50 of 51.
 @settings(max_examples=6, deadline=None)
-@given(seed=st.integers(0, 2 ** 16), separation=st.floats(0.5, 1.5), direction=st.floats(-np.pi, np.pi))
+@given(seed=st.integers(0, 2 ** 16), separation=st.floats(0.5, 1.5), direction=st.floats(-1.4, -1.1))
+@example(seed=1794, separation=0.5, direction=2.0)      # landmark 2 jumps 30.4 > 20.9 at α 0.01 in both maps (RARE)
 def test_the_name_of_two_points_is_the_one_whose_kept_sightings_jump(seed, separation, direction):
     problem, points = twin_log(seed, separation, direction)
     solution = solved(problem)
@@ -375,11 +391,27 @@ def test_the_name_of_two_points_is_the_one_whose_kept_sightings_jump(seed, separ
     step = np.diff(problem.pose_index[mine])
     switches = int(np.sum((step == 1) & (points[mine][1:] != points[mine][:-1])))
     assume(switches > 0)        # both points kept in consecutive frames (else the smoother kept one a stretch)
-    jumps = landmarks_that_jump(problem, solution)
-    assert jumps[0] >= 0.9 * switches                # measured: every kept step between the points, 2 draws of 6
-    assert not jumps[1:].any()
+    assert landmarks_that_jump(problem, solution)[0] >= 0.9 * switches   # measured: every kept switch, 2 draws of 6
+    assert not landmarks_that_jump(problem, solution, RARE)[1:].any()     # α 0.01: 1 draw in ~750 fails (RARE)
     honest, _ = twin_log(seed, separation, direction, one_name=False)
-    assert not landmarks_that_jump(honest, solved(honest)).any()
+    assert not landmarks_that_jump(honest, solved(honest), RARE).any()
+
+
+def test_an_honest_map_jumps_no_more_often_than_alpha():
+    """The false-alarm rate the hypothesis tests cannot assert draw by draw (RARE), on fixed seeds: the jumps between
+    an honest map's consecutive kept sightings are no more often beyond χ²₂'s quantiles than χ²₂ (the Bonferroni bound
+    over a map's pairs rests on it), and the maps flagged at α 0.01 are as few as a rate ≤ α allows."""
+    jumps, flagged = [], 0
+    for seed in range(40):
+        honest, _ = twin_log(seed, 0.5 + (seed % 5) / 4, float(seed), one_name=False)
+        solution = solved(honest)
+        jumps.append(sighting_jumps(honest, solution, np.full(len(honest.ranges), 0.02), 0.005, 0.0, 0.0, gap_s=1.0,
+                                    among=solution.inliers)[1])
+        flagged += landmarks_that_jump(honest, solution).any()
+    jump = np.concatenate(jumps)
+    for p in (0.1, 0.01, 0.001):            # measured over 4000 maps' 1.3 M pairs: 0.047, 0.0023, 1.2e-4
+        assert np.mean(jump > chi2.isf(p, 2)) <= p
+    assert flagged <= 3                     # P(Bin(40, 0.01) > 3) < 0.001; measured 2 maps of 4000 (0.05 %)
 
 
 def test_a_sighting_the_smoother_leaves_out_makes_no_landmark_jump():
