@@ -441,8 +441,9 @@ def _fuse_cli(files: list[Path], out: Path, preset: str = "robust") -> dict:
 
 def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, figures: Path | None = None,
                  slug: str = "maps"):
-    """p3at fuse on five MRCLAM maps: every pair, its error against the Vicon start poses and against the
-    composition of the two maps' best rigid fits to the truth; the merged map's landmark error."""
+    """p3at fuse on five MRCLAM maps: every pair, its error against the true start poses (Vicon's positions, the
+    headings of the truth the maps were made against) and against the composition of the two maps' best rigid fits
+    to the truth; the merged map's landmark error."""
     files = []
     for m in maps:
         files.append(work / f"{m.robot}.npz")
@@ -484,11 +485,11 @@ def mrclam_table(maps: list[LandmarkMap], truth: dict, title: str, work: Path, f
     found = sum(a["found"] for a in report["alignments"])
     if e_truth:
         et, eo = np.array(e_truth), np.array(e_own)
-        print(f"\nAligned {found}/{len(report['alignments'])} pairs; median error vs the Vicon start poses "
+        print(f"\nAligned {found}/{len(report['alignments'])} pairs; median error vs the true start poses "
               f"{np.median(et[:, 0]):.3f} m / {np.median(et[:, 1]):.4f} rad (goal ≤ 0.3 m / 0.05 rad); the "
               f"alignment's own part (vs the composed best rigid fits) {_median(eo[:, 0]):.3f} m / "
               f"{_median(eo[:, 1]):.4f} rad (pairs of maps placed on the truth). Found but > {WRONG_M} m or 0.05 "
-              f"rad off the Vicon start poses: {wrong}, "
+              f"rad off the true start poses: {wrong}, "
               f"of which not covered by the start-frame covariance (NEES > {CHI2_3_999}): {uncovered}.")
     if report["exit"] not in (0, 1) or not out.exists():
         return
