@@ -112,7 +112,10 @@ def _register_dataset(sub) -> None:
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
                              "correct it from the ground truth (inferred), or trust it unchecked (table; the only "
                              "choice for a log without ground truth)")
-    parser.add_argument("--truth-heading", choices=("mocap", "travel"), default="mocap", help=TRUTH_HEADING_HELP)
+    parser.add_argument("--truth-heading", choices=("mocap", "travel"), default="mocap",
+                        help=TRUTH_HEADING_HELP + "; score against the truth the noise model's camera was referenced "
+                        "to: travel for a model from --self-calibrate or fitted with --truth-heading travel, mocap "
+                        "for one fitted against the motion capture as written")
     parser.add_argument("--no-inflation", action="store_true",
                         help="take consecutive sightings as independent (default: the sensor variances are "
                              "multiplied by the noise model's variance inflation for correlated sightings)")
