@@ -35,7 +35,7 @@ def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: 
     target = Path(sink)
     partial = target.with_name(f".{target.name}.{os.getpid()}.partial") if saved else None
     blueprint = dataset_blueprint(robot, smoothed=bool(run.metrics.get("smoothed")),
-                                  scored="true_start_pose" in run.metrics)
+                                  scored="true_start_pose" in run.metrics, truth_heading=log.truth_heading)
     # written at once after the run, so the footer (an index of every chunk) costs nothing here: the file is then
     # complete for `rerun rrd verify` and random access (a mission leaves it out, open_recording)
     rec = open_recording(str(partial) if saved else sink, blueprint=blueprint, footer=saved)

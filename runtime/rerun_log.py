@@ -391,16 +391,20 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
                          collapse_panels=True)
 
 
-def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True) -> rrb.Blueprint:
+def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
+                      truth_heading: str = "mocap") -> rrb.Blueprint:
     """The layout of one robot's run on a data set (runtime/dataset_recording.py): its 2-D map (estimated, dead
     reckoning and true paths, its landmarks over the true ones) beside the pose NEES over time; a 3-D tab with the
     landmarks' 1-σ ellipsoids shown (the point of a run with ground truth is to see whether they cover the truth).
     No fusion view: one robot, nothing fused. ``smoothed``: the map and path are the whole log's (``--smooth``), and
     the title says so (a path drawn as it grows is then hindsight, not what the robot knew at that time).
     ``scored`` False (a log without ground truth): no NEES plot, which would stay empty, and the map's title says the
-    run is not scored instead of naming a grey true path that is not there."""
+    run is not scored instead of naming a grey true path that is not there. ``truth_heading`` "travel": the title
+    says the true path's heading is turned onto the direction of travel (docs/fastslam.md, *The truth's heading*)."""
     estimate = "smoothed map and path (the whole log's)" if smoothed else "map and paths"
     truth = "grey: ground truth" if scored else "no ground truth: not scored"
+    if scored and truth_heading == "travel":
+        truth += ", its heading on the direction of travel"
     map_view = _map_view(robot, f"{robot}: {estimate} (own start frame; dimmed: dead reckoning; {truth})")
     if scored:
         nees = _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)")

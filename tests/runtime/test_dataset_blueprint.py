@@ -26,6 +26,9 @@ def test_a_scored_run_shows_the_nees_and_the_true_path_an_unscored_one_says_why_
     assert "TimeSeries" not in unscored
     assert [n for n in unscored["2D"] if "no ground truth: not scored" in n]
     assert not [n for name in unscored.values() for n in name if "grey: ground truth" in n]
+    travel = _views(dataset_blueprint("robot1", truth_heading="travel"))
+    assert [n for n in travel["2D"] if "grey: ground truth, its heading on the direction of travel" in n]
+    assert not [n for n in scored["2D"] if "direction of travel" in n]
 
 
 def test_a_run_without_truth_is_recorded_with_the_unscored_layout_and_one_with_truth_with_the_scored(
