@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from estimation.chi2 import isf as chi2_isf
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from fusion import (
@@ -24,6 +25,12 @@ from fusion.ransac import pair_hypotheses, refine_pose
 poses = st.tuples(st.floats(-30, 30), st.floats(-30, 30), st.floats(-np.pi + 1e-6, np.pi - 1e-6))
 # robot 2 starting inside the mapped area (35 × 10 m), as robots do
 near_poses = st.tuples(st.floats(0, 35), st.floats(0, 10), st.floats(-np.pi + 1e-6, np.pi - 1e-6))
+# The truth's Mahalanobis distance under the alignment's covariance is a random draw (χ²₃ if the covariance is
+# honest): asserting it below a quantile on every Hypothesis example fails by chance at that quantile's tail. At
+# χ²₃ 99.99 % (21.1) it failed 1 of 20,000 draws of the best-fit test's (seed, pose) (the map noise's own draw:
+# 21.6 at seed 2390; session 38 (G), /tmp/G38/align_emu.py). A per-example bound is held at RARE = 1e-6 (30.7);
+# the covariance's rate is asserted on fixed seeds by test_alignment_covariance_is_consistent.
+RARE = 1e-6
 
 
 @settings(max_examples=25, deadline=None)
@@ -44,6 +51,7 @@ def test_robust_recovers_a_known_transform_from_noisy_maps(sim, pose, seed):
 
 @settings(max_examples=25, deadline=None)
 @given(pose=poses, seed=st.integers(0, 10_000))
+@example(pose=(28.49, -9.78, 1.333), seed=2390)      # the truth at 21.6: beyond χ²₃ 99.99 %, within 1 − RARE
 def test_robust_alignment_is_the_best_rigid_fit_anywhere(sim, pose, seed):
     # far from the landmarks the translation error grows with the lever arm; what must hold anywhere is
     # that the result is the weighted least-squares fit on the true common landmarks, and within its covariance
@@ -58,7 +66,7 @@ def test_robust_alignment_is_the_best_rigid_fit_anywhere(sim, pose, seed):
         return e @ np.linalg.solve(a.covariance, e)
 
     assert mahalanobis_sq(best) < 1.0                             # within 1σ of the best fit
-    assert mahalanobis_sq(pose) < 21.1                            # the truth within χ²₃ 99.99 %
+    assert mahalanobis_sq(pose) < chi2_isf(RARE, 3)              # the truth within χ²₃ 1 − 1e-6 (30.7)
 
 
 @settings(max_examples=15, deadline=None)
