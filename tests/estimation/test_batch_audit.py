@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from estimation.batch_audit import group_offsets, untestable_groups, untestable_runs
@@ -177,15 +177,24 @@ def glimpse_log(seed: int, loose: bool):
 
 @settings(max_examples=3, deadline=None)
 @given(seed=st.integers(0, 2 ** 16))
+# the tight log's glimpse dropped as an outlier by the noise draw (see below)
+@example(seed=39301)
 def test_a_glimpse_from_a_loose_stretch_is_the_one_untestable_run_and_from_a_tight_one_none_is(seed):
     for loose in (True, False):
         problem, glimpse = glimpse_log(seed, loose)
         assert glimpse >= 0
         poses = dead_reckoning(problem.increments)
         solution = smooth(problem, poses, landmarks_from_first_sightings(problem, poses))
-        assert solution.inliers[glimpse]
-        runs = sighting_runs(problem, solution, 5.0)
-        assert any(glimpse in r.sightings for r in runs)      # the glimpse is a run of its landmark's
+        # On the tight log the glimpse is an honest sighting like any other, and the smoother drops an honest
+        # sighting beyond χ²₂ 99 % (OUTLIER_CHI2) by design: asserting this one kept on every draw failed about 1 draw
+        # in 1000 (seeds 39301 and 64634 of 2000: its normalised residuals (4.5, −3.6) and (5.1, 1.9) after the robust
+        # solve, where the residual's χ²₂ averages 0.83; 2-4 of the log's 493 sightings are dropped on these draws;
+        # session 38 (G), /tmp/G38/glimpse_margin.py). Then there is no run of it to test, and no run may be
+        # untestable all the same. On the loose log the pose absorbs the glimpse (χ²₂ at most 0.44 in those 2000).
+        if loose or solution.inliers[glimpse]:
+            assert solution.inliers[glimpse]
+            runs = sighting_runs(problem, solution, 5.0)
+            assert any(glimpse in r.sightings for r in runs)      # the glimpse is a run of its landmark's
         found = untestable_runs(problem, solution)
         if loose:
             assert [r.sightings.tolist() for r in found] == [[glimpse]]
