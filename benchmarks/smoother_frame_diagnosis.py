@@ -63,7 +63,7 @@ from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.fastslam.motion import turn_spans, turning  # noqa: E402
 from estimation.fileio import atomic_write_bytes  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
-from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, pose_nees  # noqa: E402
+from estimation.landmark_scores import CHI2_95, ate, map_scores, points_nees, pose_nees, rigid_functional  # noqa: E402
 from estimation.landmark_smoother import (  # noqa: E402
     HeadingLoss,
     LandmarkLogProblem,
@@ -153,11 +153,7 @@ def scores(cap: Captured, solution) -> dict:
 
 def _rigid_functional(cap: Captured) -> np.ndarray:
     """(3, 2L): the least-squares (dx, dy, dθ) of landmark errors e_j ≈ d + dθ (−y_j, x_j) (true positions)."""
-    tl = cap.true_landmarks
-    design = np.zeros((2 * len(tl), 3))
-    design[0::2, 0] = design[1::2, 1] = 1.0
-    design[0::2, 2], design[1::2, 2] = -tl[:, 1], tl[:, 0]
-    return np.linalg.solve(design.T @ design, design.T)
+    return rigid_functional(cap.true_landmarks)
 
 
 def frame_error(cap: Captured, solution) -> dict:

@@ -116,6 +116,16 @@ def map_scores(positions: np.ndarray, covariances: np.ndarray, attributed: np.nd
     return scores
 
 
+def rigid_functional(truth: np.ndarray) -> np.ndarray:
+    """(3, 2N): the linear map from landmark errors eᵢ (rows (x₀, y₀, x₁, …)) to their least-squares rigid motion
+    (dx, dy, dθ), eᵢ ≈ d + dθ (−yᵢ, xᵢ) at the true positions ``truth`` (N, ≥2) (N ≥ 2, not all in one place)."""
+    truth = np.asarray(truth, float)[:, :2]
+    design = np.zeros((2 * len(truth), 3))
+    design[0::2, 0] = design[1::2, 1] = 1.0
+    design[0::2, 2], design[1::2, 2] = -truth[:, 1], truth[:, 0]
+    return np.linalg.solve(design.T @ design, design.T)
+
+
 def frame_error(estimate: np.ndarray, truth: np.ndarray, joint_covariance: np.ndarray) -> dict:
     """A map's error as one rigid motion of its frame, against the map's own joint covariance.
 
@@ -129,14 +139,10 @@ def frame_error(estimate: np.ndarray, truth: np.ndarray, joint_covariance: np.nd
     frame's (its few first factors), not the map's shape. NaN with fewer than 2 landmarks.
     """
     truth = np.asarray(truth, float)[:, :2]
-    n = len(truth)
-    if n < 2:
+    if len(truth) < 2:
         return {"landmark_frame_error": [float("nan")] * 3, "landmark_frame_sd": [float("nan")] * 3,
                 "landmark_frame_nees": float("nan")}
-    design = np.zeros((2 * n, 3))
-    design[0::2, 0] = design[1::2, 1] = 1.0
-    design[0::2, 2], design[1::2, 2] = -truth[:, 1], truth[:, 0]
-    functional = np.linalg.solve(design.T @ design, design.T)
+    functional = rigid_functional(truth)
     motion = functional @ (np.asarray(estimate, float)[:, :2] - truth).ravel()
     covariance = functional @ np.asarray(joint_covariance, float) @ functional.T
     covariance = 0.5 * (covariance + covariance.T)
