@@ -497,7 +497,8 @@ def mrclam_sighting_map(folder, robot: int, identities: bool = True, until: floa
         covs.append(np.pad(cov, ((0, 1), (0, 1))) + np.diag([0.0, 0.0, 1e-6]))
         ids.append(int(lid))
     positions = np.column_stack([np.array(rows).reshape(-1, 2), np.zeros(len(rows))])
-    meta = {"true_start_pose": [float(v) for v in start], "dataset": log.name, "simulated": False,
+    meta = {"true_start_pose": [float(v) for v in start], "truth_heading": log.truth_heading, "dataset": log.name,
+            "simulated": False,
             "map_source": "real sightings placed from Vicon poses (not SLAM)"
             + ("; their heading turned onto the direction of travel" if truth_heading == "travel" else "")}
     if identities:

@@ -14,10 +14,11 @@ offset is smoothed over time by a Gaussian kernel whose width is chosen by leavi
 and a wandering one are both followed as far as the data show them, and no width is set by hand.
 :func:`align_truth_heading` subtracts it.
 
-On MRCLAM dataset 2 (Vicon) the offsets are −0.010, +0.013, −0.009, +0.003 and +0.016 rad (robots 1–5), and robot 1's
-wanders (60 s means spread 0.014 rad against 0.002–0.005 for the others). The camera agrees with the travel, not with
-Vicon: robot 1's slow bearing residuals against Vicon follow its offset (correlation 0.87 over 20 s windows).
-docs/fastslam-history.md, *Session 38: the truth's heading*.
+On MRCLAM dataset 2 (Vicon) the offsets are −0.014 (mean), +0.0136, −0.0094, +0.0027 and +0.0168 rad (robots 1–5);
+robot 1's wanders (smoothed over 20 s, spread 0.018 rad), and that wander is Vicon's: robot 1's slow bearing residuals
+against Vicon follow it (correlation 0.87 over 20 s windows). The constant offsets are the robots' build: each
+camera is turned with the markers, so a camera calibrated against Vicon makes its map in the markers' frame and one
+calibrated without truth in the wheels' (score each against its own: docs/fastslam.md, *The truth's heading*).
 """
 from __future__ import annotations
 
