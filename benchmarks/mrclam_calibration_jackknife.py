@@ -16,7 +16,6 @@ Session 38 (lead; docs/fastslam-history.md).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -30,13 +29,6 @@ from runtime.commands.options import finite_float, positive_int
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 
 
-def without_sightings(log: RangeBearingLog, drop: np.ndarray) -> RangeBearingLog:
-    """``log`` with the sightings where ``drop`` (N,) is True removed; odometry and everything else kept."""
-    keep = ~drop
-    return dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
-                               bearings=log.bearings[keep], landmark_ids=log.landmark_ids[keep])
-
-
 def jackknife(log: RangeBearingLog, noise: NoiseModel, blocks: int, known=()) -> tuple[np.ndarray, np.ndarray, list]:
     """(the whole log's calibration, its Laplace standard errors, the K leave-a-block-out calibrations)."""
     whole = self_calibrate(log, noise, known_distances=known)
@@ -46,7 +38,7 @@ def jackknife(log: RangeBearingLog, noise: NoiseModel, blocks: int, known=()) ->
     label = np.clip(np.searchsorted(edges, frame, side="right") - 1, 0, blocks - 1)
     left_out = []
     for k in range(blocks):
-        calibration = self_calibrate(without_sightings(log, label == k), noise, known_distances=known)
+        calibration = self_calibrate(log.with_sightings(label != k), noise, known_distances=known)
         left_out.append(calibration)
         print(f"  block {k}: {int((label == k).sum())} sightings left out: " + ", ".join(
             f"{ESTIMATED[i]} {calibration.values[i]:+.4f}" for i in FREE)

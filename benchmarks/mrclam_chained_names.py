@@ -70,7 +70,6 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -403,8 +402,7 @@ def run_robot(log: RangeBearingLog, args) -> dict:
     row["chained"] = naming_scores(chained.names, barcodes)
     # the smoother's starting guess: the known-ID filter and smoother with the chained names as identities
     keep = chained.names >= 0
-    named_log = dataclasses.replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
-                                    bearings=log.bearings[keep], landmark_ids=chained.names[keep])
+    named_log = log.with_sightings(keep, chained.names)
     started = time.process_time()
     guess = run_landmark_log(named_log, config, np.random.default_rng(args.seed), noise=noise, association="id",
                              smooth=True)

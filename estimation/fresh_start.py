@@ -20,7 +20,7 @@ solution's bend. No threshold is added: the bound is the cost check's own.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -64,8 +64,7 @@ def names_guess(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, conf
     if names.shape != log.sighting_times.shape:
         raise ValueError(f"names: one per sighting ({log.sighting_times.shape[0]}), not {names.shape}")
     keep = names >= 0
-    named_log = replace(log, sighting_times=log.sighting_times[keep], ranges=log.ranges[keep],
-                        bearings=log.bearings[keep], landmark_ids=names[keep])
+    named_log = log.with_sightings(keep, names)
     run = run_landmark_log(named_log, config, rng, noise=noise, association="id", smooth=True)
     ids = np.asarray(run.map.metadata["external_ids"], np.int64)
     positions = np.asarray(run.map.positions)[:, :2]

@@ -8,7 +8,7 @@ is then ``between(pose(t_a), pose(t_b))``, which serves both the filter and the 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -114,6 +114,14 @@ class RangeBearingLog:
         """Motions (T-1, 3) between consecutive ``times`` (T,), each in the robot frame at its start."""
         poses = self.odometry_pose(times)
         return between(poses[:-1], poses[1:])
+
+    def with_sightings(self, keep: np.ndarray, landmark_ids: np.ndarray | None = None) -> RangeBearingLog:
+        """The log with only the sightings where ``keep`` (N,) is True, named by ``landmark_ids`` (N,) instead of
+        its own ids if given; the odometry, the truth and the notes as they are."""
+        keep = np.asarray(keep, bool)
+        ids = self.landmark_ids if landmark_ids is None else np.asarray(landmark_ids, np.int64)
+        return replace(self, sighting_times=self.sighting_times[keep], ranges=self.ranges[keep],
+                       bearings=self.bearings[keep], landmark_ids=ids[keep])
 
     def true_landmarks(self) -> dict[int, np.ndarray]:
         """Landmark id -> true (x, y) in the world frame."""

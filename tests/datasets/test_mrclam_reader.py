@@ -158,3 +158,17 @@ def test_real_dataset2_barcodes_verified_and_robots_dropped(mrclam_dir):
     miss = np.linalg.norm(log.sightings_in_world() - log.truth_positions[np.searchsorted(log.truth_ids,
                                                                                           log.landmark_ids)], axis=1)
     assert np.median(miss) < 0.3
+
+
+def test_a_log_with_some_of_its_sightings_keeps_the_rest_of_the_log(tmp_path, synthetic):
+    synthetic.write(tmp_path)
+    log = read_mrclam(tmp_path, 1)
+    keep = np.arange(len(log)) % 3 == 0
+    kept = log.with_sightings(keep)
+    assert np.array_equal(kept.sighting_times, log.sighting_times[keep])
+    assert np.array_equal(kept.ranges, log.ranges[keep]) and np.array_equal(kept.bearings, log.bearings[keep])
+    assert np.array_equal(kept.landmark_ids, log.landmark_ids[keep])
+    assert np.array_equal(kept.odometry, log.odometry) and np.array_equal(kept.ground_truth, log.ground_truth)
+    assert kept.notes == log.notes and kept.name == log.name
+    renamed = log.with_sightings(keep, np.arange(len(log)))
+    assert np.array_equal(renamed.landmark_ids, np.flatnonzero(keep))
