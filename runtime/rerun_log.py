@@ -1,4 +1,4 @@
-"""Everything the project sends to (and reads back from) Rerun. The ONLY module that imports ``rerun``.
+"""Everything the project sends to (and reads back from) Rerun (``rerun`` itself is imported by runtime/rerun_sdk.py).
 
 Pinned to rerun-sdk 0.41. Every other module hands plain numpy data to :class:`MissionLog`, which owns an
 explicitly passed ``rr.RecordingStream`` (tests use :func:`open_recording` with ``sink="memory"``). What a reader
@@ -60,7 +60,6 @@ from __future__ import annotations
 import atexit
 import contextlib
 import json
-import os
 import re
 import shutil
 import socket
@@ -84,23 +83,9 @@ from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.limits import RERUN_URL_PREFIXES  # the one spelling, shared with the CLI's checks
 from runtime.report import alignment_status, candidate_text
+from runtime.rerun_sdk import rr, rrb
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
-
-# Saved recordings are written without Rerun's footer (see open_recording), and Rerun warns once per file that it
-# opts out of one. Rerun reads RUST_LOG once, when it is imported: when the user set none, import it with the
-# Python SDK's default level ("warn": a plain import prints no INFO line) and that one warning silenced, then unset
-# it again so that child processes (a spawned viewer) get their plain default. A RUST_LOG the user set is kept.
-QUIET_FOOTER_WARNING = "warn,re_log_encoding::rrd::file_sink=error"
-_users_rust_log = os.environ.get("RUST_LOG")
-if _users_rust_log is None:
-    os.environ["RUST_LOG"] = QUIET_FOOTER_WARNING
-try:
-    import rerun as rr
-    import rerun.blueprint as rrb
-finally:
-    if _users_rust_log is None:
-        os.environ.pop("RUST_LOG", None)
 
 APPLICATION_ID = "p3at-fusion"
 ROBOT_COLOURS = [(230, 80, 60), (60, 130, 230), (70, 180, 90), (200, 160, 40), (160, 80, 200), (40, 180, 180)]

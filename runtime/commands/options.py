@@ -229,7 +229,7 @@ def rerun_url_problem(sink: str | None) -> str | None:
     starts, not when its recording opens (``demo``/``run`` ended in exit 1, ``mission failed: --rerun ...``)."""
     if sink is None or not sink.startswith(RERUN_URL_PREFIXES):
         return None
-    from runtime.rerun_log import rr  # runtime/rerun_log.py is the one module that imports rerun
+    from runtime.rerun_sdk import rr  # runtime/rerun_sdk.py is the one module that imports rerun
 
     try:
         rr.GrpcSink(sink)   # parses the URL as connect_grpc does; opens no connection
