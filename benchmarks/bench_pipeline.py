@@ -41,7 +41,8 @@ from runtime.adapters import VidereCamera, left_camera_mount
 from runtime.commands.options import positive_float, positive_int
 from runtime.motion import PurePursuit
 from runtime.onboard import CameraFrame, OnboardConfig, SlamCore, frame_record, log_step
-from runtime.rerun_log import MissionLog, open_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_sink import open_recording
 from runtime.sensorlog import SensorLogWriter
 
 

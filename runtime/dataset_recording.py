@@ -22,14 +22,15 @@ from estimation.dataset_slam import DatasetRun
 from estimation.datasets import RangeBearingLog
 from estimation.geometry import between
 
-from .rerun_log import MissionLog, dataset_blueprint, open_recording
+from .rerun_log import MissionLog, dataset_blueprint
+from .rerun_sink import open_recording
 
 POSE_INTERVAL_S = 0.2   # log time between logged poses: 5 Hz draws the paths smoothly and keeps the file small
 
 
 def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
     """Log ``run`` (of ``log``, robot name ``robot``) to ``sink``: a path ending in .rrd, "spawn" or a rerun+http
-    URL (see :func:`runtime.rerun_log.open_recording`). A map whose metadata gives ``footprint_radius_m`` (MRCLAM's
+    URL (see :func:`runtime.rerun_sink.open_recording`). A map whose metadata gives ``footprint_radius_m`` (MRCLAM's
     iRobot Creates) draws its robot as that disc, not as the P3-AT's box."""
     saved = sink.endswith(".rrd")
     target = Path(sink)

@@ -1,7 +1,7 @@
 """Limits and spellings that the command line and the runtime's modules share (stdlib only, imports nothing).
 
 The CLI layer (``runtime.commands.options``) checks arguments against them; the runtime's modules check what
-files and sinks ask for against the same values (``runtime.sensorlog`` a log's settings, ``runtime.rerun_log``
+files and sinks ask for against the same values (``runtime.sensorlog`` a log's settings, ``runtime.rerun_sink``
 a ``--rerun`` sink). They live here, not in the CLI layer, so that no runtime module imports the command line,
 and so that ``p3at --help`` loads nothing heavy for them.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 MAX_PARTICLES = 10_000
 
 # what a --rerun sink is taken as a URL for: the one spelling of them (the CLI's checks, and
-# runtime/rerun_log.py's open_recording)
+# runtime/rerun_sink.py's open_recording)
 RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")
 
 __all__ = ["MAX_PARTICLES", "RERUN_URL_PREFIXES"]

@@ -209,7 +209,8 @@ class Mission:
 
     # -- setup --------------------------------------------------------------------------------------------
     def _open_logger(self, names: list[str], world) -> None:
-        from runtime.rerun_log import MissionLog, mission_blueprint, open_recording
+        from runtime.rerun_log import MissionLog, mission_blueprint
+        from runtime.rerun_sink import open_recording
 
         cfg = self.config
         sink = cfg.rerun

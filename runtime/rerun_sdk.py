@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 
-# Saved recordings are written without Rerun's footer (see open_recording in runtime/rerun_log.py), and Rerun warns
+# Saved recordings are written without Rerun's footer (see open_recording in runtime/rerun_sink.py), and Rerun warns
 # once per file that it opts out of one. Rerun reads RUST_LOG once, when it is imported: when the user set none,
 # import it with the Python SDK's default level ("warn": a plain import prints no INFO line) and that one warning
 # silenced, then unset it again so that child processes (a spawned viewer) get their plain default. A RUST_LOG the

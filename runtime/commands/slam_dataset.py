@@ -87,7 +87,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         return 2
     if args.rerun:
         from runtime.dataset_recording import record_dataset_run
-        from runtime.rerun_log import ViewerError
+        from runtime.rerun_sink import ViewerError
         try:
             record_dataset_run(args.rerun, run, log, f"robot{args.robot}")
         except (OSError, ViewerError) as e:

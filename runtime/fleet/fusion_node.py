@@ -189,7 +189,7 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
         return 2
     try:
         logger = _open_logger(args.rerun, out)
-    except RuntimeError as e:   # a --rerun URL Rerun refuses (runtime.rerun_log.ViewerError): exit 70 before
+    except RuntimeError as e:   # a --rerun URL Rerun refuses (runtime.rerun_sink.ViewerError): exit 70 before
         exchange.close()
         print(f"p3at fuse: {e}", file=sys.stderr)
         return 2
@@ -248,7 +248,8 @@ def nothing_to_fuse(mapped: list[str], heard: list[str], seconds: float, fleet: 
 def _open_logger(sink: str, out: Path | None):
     if sink == "none":
         return None
-    from runtime.rerun_log import MissionLog, open_recording
+    from runtime.rerun_log import MissionLog
+    from runtime.rerun_sink import open_recording
 
     if sink == "file":
         sink = str(out.with_name("fusion.rrd") if out is not None else Path("fusion.rrd"))

@@ -53,7 +53,7 @@ def test_fuse_live_refuses_a_bad_sink_and_map_files(tmp_path, monkeypatch) -> No
 def test_every_url_prefix_is_a_url_to_the_check_and_to_the_recording(prefix) -> None:
     """The check and open_recording read one list: a URL the check sends to Rerun's parser, open_recording connects
     to (the bad address below is refused by both the same way, never saved to a file of that name)."""
-    from runtime.rerun_log import ViewerError, open_recording
+    from runtime.rerun_sink import ViewerError, open_recording
 
     sink = f"{prefix}256.0.0.1:99999/proxy"
     problem = rerun_sink_problem(sink, ("file",))

@@ -13,7 +13,7 @@ BAD = "rerun+http://256.0.0.1:99999/proxy"
 
 
 def test_open_recording_says_a_bad_url_as_a_viewer_error() -> None:
-    from runtime.rerun_log import ViewerError, open_recording
+    from runtime.rerun_sink import ViewerError, open_recording
 
     with pytest.raises(ViewerError, match=r"^--rerun rerun\+http://256\.0\.0\.1:99999/proxy: .*invalid") as info:
         open_recording(BAD)

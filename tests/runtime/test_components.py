@@ -130,7 +130,8 @@ def test_covariance_ellipsoids_logged_to_rerun_rebuild_the_covariances():
 
 
 def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
-    from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
+    from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+    from runtime.rerun_sink import open_recording
 
     rng = np.random.default_rng(5)
     rrd = tmp_path / "m.rrd"
@@ -327,7 +328,8 @@ def test_a_long_trajectory_is_logged_in_segments_that_rebuild_the_path(tmp_path)
     last state of every segment, joined, is the whole path."""
     import rerun.chunk as rrchunk
 
-    from runtime.rerun_log import TRAJECTORY_SEGMENT, MissionLog, open_recording
+    from runtime.rerun_log import TRAJECTORY_SEGMENT, MissionLog
+    from runtime.rerun_sink import open_recording
 
     rrd = tmp_path / "t.rrd"
     log = MissionLog(open_recording(str(rrd)), ["robot1"])

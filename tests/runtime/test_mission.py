@@ -407,7 +407,7 @@ def test_a_mission_streams_live_to_a_running_rerun_server(rerun_server, tmp_path
 
 
 def test_spawn_reuses_a_viewer_already_listening_on_loopback(rerun_server):
-    from runtime.rerun_log import spawn_viewer
+    from runtime.rerun_sink import spawn_viewer
 
     port, _ = rerun_server
     assert spawn_viewer(port, timeout=2.0) == f"rerun+http://127.0.0.1:{port}/proxy"
@@ -416,7 +416,7 @@ def test_spawn_reuses_a_viewer_already_listening_on_loopback(rerun_server):
 def test_spawn_on_a_machine_without_a_display_fails_before_the_robots_start(tmp_path, capsys, monkeypatch):
     for variable in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(variable, raising=False)
-    monkeypatch.setattr("runtime.rerun_log.VIEWER_PORT", free_port())
+    monkeypatch.setattr("runtime.rerun_sink.VIEWER_PORT", free_port())
     status = main(["demo", "--rerun", "spawn", "--camera", "synthetic", "--seconds", "2", "--out", str(tmp_path),
                    "--quiet"])
     assert status == 1

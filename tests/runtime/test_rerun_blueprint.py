@@ -16,9 +16,9 @@ from runtime.rerun_log import (
     MissionLog,
     landmark_confirmed,
     mission_blueprint,
-    open_recording,
     robot_colour,
 )
+from runtime.rerun_sink import open_recording
 
 from .rerun_helpers import ROBOTS, TWO_D, blueprint_views, entity_columns, entity_rows, landmark_map, log_small_mission
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
+from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+from runtime.rerun_sink import open_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDING_ID = "fleet-test-recording"
@@ -29,7 +30,8 @@ def _with_default_sigint() -> None:
 # what each robot's process runs: its own stream, the shared recording id, no blueprint (the fusion node sends it)
 ROBOT_PROCESS = """
 import sys, numpy as np
-from runtime.rerun_log import MissionLog, open_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_sink import open_recording
 robot, sink, recording_id = sys.argv[1:4]
 log = MissionLog(open_recording(sink, recording_id=recording_id), [robot], blueprint=False)
 for frame in range(20):

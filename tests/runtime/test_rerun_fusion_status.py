@@ -7,14 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import (
-    EVENTS,
-    FUSION_STATUS,
-    MissionLog,
-    dataset_blueprint,
-    mission_blueprint,
-    open_recording,
-)
+from runtime.rerun_log import EVENTS, FUSION_STATUS, MissionLog, dataset_blueprint, mission_blueprint
+from runtime.rerun_sink import open_recording
 
 from .rerun_helpers import ROBOTS, blueprint_views, entity_rows, landmark_map, viewer_state
 

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.rerun_log import MissionLog, dataset_blueprint, mission_blueprint, open_recording
+from runtime.rerun_log import MissionLog, dataset_blueprint, mission_blueprint
+from runtime.rerun_sink import open_recording
 
 from .rerun_helpers import ROBOTS
 

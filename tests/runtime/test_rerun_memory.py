@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
+from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+from runtime.rerun_sink import open_recording
 from tests.runtime.rerun_helpers import ROBOTS, log_small_mission
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -75,7 +76,8 @@ def _save_in_a_child(path: Path, rust_log: str | None) -> subprocess.CompletedPr
         env["RUST_LOG"] = rust_log
     script = (
         "import os, sys\n"
-        "from runtime.rerun_log import MissionLog, open_recording\n"
+        "from runtime.rerun_log import MissionLog\n"
+        "from runtime.rerun_sink import open_recording\n"
         "log = MissionLog(open_recording(sys.argv[1]), ['robot1'], blueprint=False)\n"
         "log.log_scalars('robot1', 0.0, {'ess': 1.0})\n"
         "log.close()\n"

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import HELD_ROWS_MAX, TRUE_COLOUR, MissionLog, open_recording, robot_colour, rr
+from runtime.rerun_log import HELD_ROWS_MAX, TRUE_COLOUR, MissionLog, robot_colour
+from runtime.rerun_sdk import rr
+from runtime.rerun_sink import open_recording
 
 from .rerun_helpers import viewer_state
 
@@ -193,7 +195,8 @@ def test_a_logger_never_closed_still_writes_its_held_rows_at_exit(tmp_path):
 
     rrd = tmp_path / "m.rrd"
     script = ("import numpy as np\n"
-              "from runtime.rerun_log import MissionLog, open_recording\n"
+              "from runtime.rerun_log import MissionLog\n"
+              "from runtime.rerun_sink import open_recording\n"
               f"log = MissionLog(open_recording({str(rrd)!r}), ['robot2'], blueprint=False)\n"
               "for frame in range(5):\n"
               "    log.log_pose('robot2', 0.25 * frame, frame, np.array([0.1 * frame, 0.0, 0.0]))\n")

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, open_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_sink import open_recording
 
 ALIGNED = {"reference": "robot1", "other": "robot2", "aligned": True, "tx": 4.992, "ty": 0.024, "theta": 3.1382,
            "supports": 39, "required_supports": 33, "false_alarm_probability": 6.9e-11, "common": 39,

@@ -20,7 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, RecordingReadError, mission_blueprint, open_recording, read_recording
+from runtime.rerun_log import MissionLog, RecordingReadError, mission_blueprint, read_recording
+from runtime.rerun_sink import open_recording
 
 from .rerun_helpers import ROBOTS, footed_recording, log_small_mission
 
@@ -32,7 +33,7 @@ FIELDS = ("positions", "covariances", "descriptors", "ids", "counts", "seen_by",
 # reads each path given on its standard input with read_recording, answers one JSON line (the maps' arrays)
 WORKER = f"FIELDS = {FIELDS!r}\n" + """
 import json, sys
-from runtime.rerun_log import RecordingReadError, read_recording
+from runtime.rerun_log import read_recording, RecordingReadError
 for line in sys.stdin:
     try:
         c = read_recording(line.strip())

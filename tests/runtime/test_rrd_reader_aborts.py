@@ -101,7 +101,8 @@ def aborting(tmp_path_factory):
     Rerun's reader aborts a process reading it, the flipped message's (start, size), and the original's contents."""
     import rerun
 
-    from runtime.rerun_log import MissionLog, mission_blueprint, open_recording, read_recording
+    from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+    from runtime.rerun_sink import open_recording
 
     from .rerun_helpers import ROBOTS, log_small_mission
 
