@@ -24,8 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from runtime.commands.options import non_negative_float, positive_float, positive_int  # noqa: E402
-from runtime.rerun_log import MissionLog, mission_blueprint  # noqa: E402
+from runtime.rerun_log import MissionLog  # noqa: E402
 from runtime.rerun_sink import open_recording  # noqa: E402
+from runtime.rerun_style import mission_blueprint  # noqa: E402
 from runtime.rrd_salvage import scan_rrd  # noqa: E402
 
 ROBOTS = ["robot1", "robot2"]

@@ -4,7 +4,7 @@ What a reader sees, in the robot's 2-D map (its start frame, as the map file): t
 reckoning and the true path (Vicon on MRCLAM) growing over the log's time, the final map's landmarks with the true
 ones labelled by id under them, and the pose NEES over time (plots/<robot>/pose_nees); in the 3-D world the same
 placed at the robot's true start, with the landmarks' 1-σ ellipsoids shown (the layout is
-:func:`runtime.rerun_log.dataset_blueprint`: whether they cover the truth is what a run with ground truth shows). The
+:func:`runtime.rerun_style.dataset_blueprint`: whether they cover the truth is what a run with ground truth shows). The
 map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it.
 
 The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
@@ -22,8 +22,9 @@ from estimation.dataset_slam import DatasetRun
 from estimation.datasets import RangeBearingLog
 from estimation.geometry import between
 
-from .rerun_log import MissionLog, dataset_blueprint
+from .rerun_log import MissionLog
 from .rerun_sink import open_recording
+from .rerun_style import dataset_blueprint
 
 POSE_INTERVAL_S = 0.2   # log time between logged poses: 5 Hz draws the paths smoothly and keeps the file small
 

@@ -209,8 +209,9 @@ class Mission:
 
     # -- setup --------------------------------------------------------------------------------------------
     def _open_logger(self, names: list[str], world) -> None:
-        from runtime.rerun_log import MissionLog, mission_blueprint
+        from runtime.rerun_log import MissionLog
         from runtime.rerun_sink import open_recording
+        from runtime.rerun_style import mission_blueprint
 
         cfg = self.config
         sink = cfg.rerun

@@ -60,7 +60,6 @@ from __future__ import annotations
 import atexit
 import contextlib
 import json
-import re
 import tempfile
 import threading
 import time
@@ -78,72 +77,26 @@ from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import alignment_status, candidate_text
-from runtime.rerun_sdk import rr, rrb
+from runtime.rerun_sdk import rr
 from runtime.rerun_sink import CLOSED_ENTITY, FILE_FLUSH_TICK, SAVED_STREAMS
+from runtime.rerun_style import (
+    EVENTS,
+    FUSION_STATUS,
+    SHARED_COLOUR,
+    SPARSE_SERIES,
+    TRUE_COLOUR,
+    WALL_COLOUR,
+    dimmed,
+    mission_blueprint,
+    robot_colour,
+    series_style,
+)
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
-
-ROBOT_COLOURS = [(230, 80, 60), (60, 130, 230), (70, 180, 90), (200, 160, 40), (160, 80, 200), (40, 180, 180)]
-FUSED_COLOUR = (240, 240, 240)
 
 
 class RecordingReadError(ValueError):
     """A ``.rrd`` file is missing or holds no p3at-fusion mission; the message names the file."""
-
-
-# -- colours and names: what a reader sees ------------------------------------------------------------------
-def robot_colour(robot: str) -> tuple[int, int, int]:
-    """The robot's colour, the same in every process of a fleet: ``robotN`` gets the N-th colour of
-    ROBOT_COLOURS, any other name one picked by a hash of the name."""
-    digits = re.search(r"(\d+)$", robot)
-    index = int(digits.group(1)) - 1 if digits else zlib.crc32(robot.encode())
-    return ROBOT_COLOURS[index % len(ROBOT_COLOURS)]
-
-
-def _dim(colour: tuple[int, int, int], share: float = 0.45) -> tuple[int, int, int]:
-    """``colour`` mixed with the dark background: provisional landmarks, odometry, particles."""
-    return tuple(int(share * c + (1 - share) * 30) for c in colour)
-
-
-SHARED_COLOUR = (255, 255, 255)     # fused landmarks seen by several robots
-TRUE_COLOUR = (205, 205, 205)       # ground truth (mocks only)
-WALL_COLOUR = (110, 110, 120)
-MAP_BACKGROUND = (24, 24, 28)
-
-# plots/<robot>/<name> and plots/fusion/<name>: the legend name (with its unit) and colour of each series.
-SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
-    "ess": ("ESS (effective particles)", (230, 190, 60)),
-    "landmarks/all": ("landmarks (all, best particle)", (150, 150, 150)),
-    "landmarks/confirmed": ("landmarks (confirmed, best particle, unmerged)", (70, 180, 90)),
-    "landmarks/provisional": ("landmarks (provisional, best particle)", (230, 140, 50)),
-    # the exported map (FastSLAM.best_map: confirmed, coincident landmarks merged) at each snapshot: the count
-    # the progress line and the summary give. Legends stay short: a long one covers the plot.
-    "landmarks/map": ("landmarks (exported map, merged)", (90, 160, 230)),
-    "observations": ("observations per frame", (90, 160, 230)),
-    "dropped": ("frames dropped (total)", (230, 80, 60)),
-    "time/frontend": ("time/frontend (ms)", (90, 160, 230)),
-    "time/predict": ("time/predict (ms)", (230, 140, 50)),
-    "time/update": ("time/update (ms)", (70, 180, 90)),
-    "error_xy": ("error xy (m)", (230, 80, 60)),
-    "error_theta": ("error θ (rad)", (160, 110, 230)),
-    "common": ("common landmarks", (70, 180, 90)),
-    "merged": ("merged landmarks", (240, 240, 240)),
-    "self_check": ("self-check CUSUM (at the threshold: the map may have lost its place)", (200, 100, 160)),
-    "self_check/threshold": ("self-check threshold", (150, 150, 150)),
-    "pose_nees": ("pose NEES (χ²₃: 3 is consistent)", (230, 190, 60)),
-}
-_SPARE_COLOURS = [(40, 180, 180), (200, 100, 160), (180, 180, 80), (120, 200, 240)]
-# series logged once per fusion or map snapshot (every 10-20 s), drawn with markers as well as lines: a fusion that
-# aligned once (the final one) is a single value, which a line alone does not draw
-SPARSE_SERIES = frozenset({"error_xy", "error_theta", "common", "merged", "landmarks/map", "self_check",
-                           "self_check/threshold"})
-
-
-def _series_style(name: str) -> tuple[str, tuple[int, int, int]]:
-    if name in SERIES:
-        return SERIES[name]
-    label = f"{name} (ms)" if name.startswith("time/") else name
-    return label, _SPARE_COLOURS[zlib.crc32(name.encode()) % len(_SPARE_COLOURS)]
 
 
 def landmark_confirmed(landmark_map: LandmarkMap, confirm_count: int | None = None) -> np.ndarray:
@@ -170,120 +123,6 @@ def landmark_confirmed(landmark_map: LandmarkMap, confirm_count: int | None = No
         if existence.shape == (n,) and np.all((existence >= 0) & (existence <= 1)):
             confirmed &= existence >= 0.5
     return confirmed
-
-
-# -- the layout -------------------------------------------------------------------------------------------
-FUSED_MAP_NAME = "fused map (aligned and merged, in the reference robot's start frame)"
-
-
-def _map_view(key: str, name: str) -> rrb.Spatial2DView:
-    """A top-down 2-D map of map/<key> (x right, y up: the flip logged at map/<key> sits below the origin)."""
-    return rrb.Spatial2DView(origin="map", contents=[f"+ map/{key}/**"], name=name, background=MAP_BACKGROUND)
-
-
-WHOLE_TIMELINE = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(),
-                                                       end=rrb.TimeRangeBoundary.infinite()))
-
-
-def _plot(origin: str, name: str, contents: list[str] | None = None) -> rrb.TimeSeriesView:
-    """A plot whose time axis spans the whole recording (the viewer's default follows the time cursor with a window
-    of about a minute: a 200 s mission's ESS, or a 30-minute data set's NEES, would show a minute at a time)."""
-    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name, axis_x=WHOLE_TIMELINE)
-
-
-FUSION_STATUS = "fusion/status"
-EVENTS = "mission/events"
-
-
-def _fusion_status_view() -> rrb.TextDocumentView:
-    """Each pair's last fusion in words (aligned or why not, supports, P(chance), 1 σ, error): a fused map that shows
-    one robot's landmarks alone is then read as "not aligned (why)", not as a fusion that lost a map."""
-    return rrb.TextDocumentView(origin=FUSION_STATUS, name="fusion status (the last fusion: aligned or why not)")
-
-
-def _events_view() -> rrb.TextLogView:
-    return rrb.TextLogView(origin=EVENTS, name="mission events (warnings, fusion candidates, splits)")
-
-
-def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
-    """The layout, as tabs:
-
-    - overview: each robot's top-down map in its own frame (the paper's Fig. 3), beside the fused map (Fig. 5) and
-      the fusion's status in words;
-    - one tab per robot: its map, its stereo pair with the matches, and its plots, each on its own axis;
-    - fusion: the fused map; each pair's last fusion in words (aligned or why not, with what it rests on); the
-      alignment's error (m, rad) and landmark counts, each on its own axis; the mission's events (warnings);
-    - 3-D: the world with the robots, their cameras (pinholes, matched corners) and the landmarks; the covariance
-      ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
-
-    One robot (``p3at run`` on its own): nothing is fused, so no fused map and no fusion tab; the overview is its map
-    above the mission's events.
-
-    2-D entities sit only under 2-D views' origins or under a pinhole (the stereo images in the 3-D world).
-    """
-    robots = list(robots)
-    maps = [_map_view(r, f"{r}: local map (own start frame)") for r in robots]
-    robot_maps = rrb.Grid(*maps, grid_columns=1 if len(maps) <= 2 else 2) if maps else None
-    fleet = len(robots) != 1
-    # a view object is one place in the layout: each tab builds its own
-    if fleet:
-        fused_overview = rrb.Vertical(_map_view("fused", FUSED_MAP_NAME), _fusion_status_view(), row_shares=[5, 1])
-        overview = rrb.Horizontal(*([robot_maps] if robot_maps else []), fused_overview,
-                                  column_shares=[2, 3] if maps else None, name="overview")
-    else:
-        overview = rrb.Vertical(robot_maps, _events_view(), row_shares=[5, 1], name="overview")
-    robot_tabs = []
-    for r in robots:
-        plots = rrb.Vertical(
-            _plot(f"plots/{r}/ess", "ESS (effective particles)"),
-            _plot(f"plots/{r}/landmarks", "landmarks: the best particle's and its exported map's (count)"),
-            _plot(f"plots/{r}/observations", "observations per frame (count)"),
-            _plot(f"plots/{r}/time", "time per stage (ms)"),
-            _plot(f"plots/{r}/dropped", "frames dropped (total)"),
-            _plot(f"plots/{r}/self_check", "self-check: old landmarks not re-detected (CUSUM)"),
-            row_shares=[2, 3, 2, 2, 1, 2])  # the landmarks plot has four series, each legend line long
-        robot_tabs.append(rrb.Horizontal(
-            rrb.Vertical(_map_view(r, f"{r}: local map (own start frame)"),
-                         rrb.Spatial2DView(origin=f"images/{r}/pair", name=f"{r}: stereo pair and matches"),
-                         row_shares=[3, 2]),
-            plots, column_shares=[3, 2], name=r))
-    fusion = rrb.Horizontal(
-        _map_view("fused", FUSED_MAP_NAME),
-        rrb.Vertical(_fusion_status_view(),
-                     _plot("plots/fusion/error_xy", "alignment error xy (m)"),
-                     _plot("plots/fusion/error_theta", "alignment error θ (rad)"),
-                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"]),
-                     _events_view(), row_shares=[2, 2, 2, 2, 2]),
-        column_shares=[3, 2], name="fusion")
-    hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
-    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
-    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, *([fusion] if fleet else []), world, active_tab=0),
-                         collapse_panels=True)
-
-
-def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
-                      truth_heading: str = "mocap") -> rrb.Blueprint:
-    """The layout of one robot's run on a data set (runtime/dataset_recording.py): its 2-D map (estimated, dead
-    reckoning and true paths, its landmarks over the true ones) beside the pose NEES over time; a 3-D tab with the
-    landmarks' 1-σ ellipsoids shown (the point of a run with ground truth is to see whether they cover the truth).
-    No fusion view: one robot, nothing fused. ``smoothed``: the map and path are the whole log's (``--smooth``), and
-    the title says so (a path drawn as it grows is then hindsight, not what the robot knew at that time).
-    ``scored`` False (a log without ground truth): no NEES plot, which would stay empty, and the map's title says the
-    run is not scored instead of naming a grey true path that is not there. ``truth_heading`` "travel": the title
-    says the true path's heading is turned onto the direction of travel (docs/fastslam.md, *The truth's heading*)."""
-    estimate = "smoothed map and path (the whole log's)" if smoothed else "map and paths"
-    truth = "grey: ground truth" if scored else "no ground truth: not scored"
-    if scored and truth_heading == "travel":
-        truth += ", its heading on the direction of travel"
-    map_view = _map_view(robot, f"{robot}: {estimate} (own start frame; dimmed: dead reckoning; {truth})")
-    if scored:
-        nees = _plot(f"plots/{robot}/pose_nees", "pose NEES against the ground truth (χ²₃: 3 is consistent)")
-        overview = rrb.Horizontal(map_view, nees, column_shares=[3, 2], name="overview")
-    else:
-        overview = rrb.Horizontal(map_view, name="overview")
-    world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
-                           name="3-D")
-    return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
 
 
 # -- geometry helpers -------------------------------------------------------------------------------------
@@ -712,7 +551,7 @@ class MissionLog:
             self._emit(f"world/{robot}/stereo", rr.Transform3D, {"translation": [[x, y, hz]], "mat3x3": [mat]})
         # 2-D map: truth thin and light, odometry dim, the estimate bright and on top
         root = self._map_root(robot)
-        styles = {"true": (TRUE_COLOUR, -1.0, 1.0), "odometry": (_dim(colour), -1.5, 2.0),
+        styles = {"true": (TRUE_COLOUR, -1.0, 1.0), "odometry": (dimmed(colour), -1.5, 2.0),
                   "estimated": (colour, -2.0, 3.0)}
         for kind, (segment, points) in strips.items():
             line_colour, width, order = styles[kind]
@@ -739,7 +578,7 @@ class MissionLog:
                          {"positions": _with_z(poses, 0.03)}, {"radii": 0.015, "colors": colour})
         path = f"{self._map_root(robot)}/particles"
         self._log_styled(path, rr.Points2D, {"positions": poses[:, :2]},
-                         {"radii": -1.5, "colors": _dim(colour), "draw_order": 8.0})
+                         {"radii": -1.5, "colors": dimmed(colour), "draw_order": 8.0})
 
     def log_landmarks(self, robot: str, t: float, frame: int | None, positions: np.ndarray,
                       covariances: np.ndarray | None = None, path: str | None = None,
@@ -772,14 +611,14 @@ class MissionLog:
         colour = self.colour(robot)
         positions = np.asarray(landmark_map.positions, float).reshape(-1, 3)
         confirmed = landmark_confirmed(landmark_map, confirm_count)
-        colours = np.where(confirmed[:, None], np.array(colour), np.array(_dim(colour)))
+        colours = np.where(confirmed[:, None], np.array(colour), np.array(dimmed(colour)))
         radii = np.where(confirmed, 0.04, 0.02)
         self.rec.log(f"world/{robot}/landmarks", rr.Points3D(positions, radii=radii, colors=colours))
         root = self._map_root(robot)
         self.rec.log(f"{root}/landmarks/confirmed", rr.Points2D(positions[confirmed, :2], radii=-3.0, colors=colour,
                                                                 draw_order=6.0))
         self.rec.log(f"{root}/landmarks/provisional", rr.Points2D(positions[~confirmed, :2], radii=-2.0,
-                                                                  colors=_dim(colour), draw_order=5.0))
+                                                                  colors=dimmed(colour), draw_order=5.0))
         counts = (int(confirmed.sum()), int((~confirmed).sum()))
         self.log_scalars(robot, t, {"landmarks/confirmed": counts[0], "landmarks/provisional": counts[1]}, frame)
         return counts
@@ -835,7 +674,7 @@ class MissionLog:
                 continue
             path = f"plots/{robot}/{name}"
             if self._first_time(path):
-                label, colour = _series_style(name)
+                label, colour = series_style(name)
                 self.rec.log(path, rr.SeriesLines(names=label, colors=colour, widths=1.5), static=True)
                 if name in SPARSE_SERIES:  # a line needs two values: a marker shows a fusion's first and only one
                     self.rec.log(path, rr.SeriesPoints(names=label, colors=colour, marker_sizes=5.0), static=True)
@@ -880,7 +719,7 @@ class MissionLog:
             return
         self.colour(key)
         self._log_self_check(key, t, m.metadata)
-        self._log_ellipsoids(f"world/{key}/landmarks/covariance", m.positions, m.covariances, _dim(robot_colour(key)))
+        self._log_ellipsoids(f"world/{key}/landmarks/covariance", m.positions, m.covariances, dimmed(robot_colour(key)))
         path = m.trajectory[:, 1:3]
         if len(path) > SNAPSHOT_TRAJECTORY_POINTS:
             path = path[np.linspace(0, len(path) - 1, SNAPSHOT_TRAJECTORY_POINTS).astype(int)]
@@ -1307,5 +1146,4 @@ def _map_from(entity: str, row: dict) -> tuple[LandmarkMap | None, str | None]:
         return None, f"does not decode into a map: {e}"
 
 
-__all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "mission_blueprint",
-           "read_recording", "robot_colour"]
+__all__ = ["MissionLog", "RecordingContents", "RecordingReadError", "landmark_confirmed", "read_recording"]

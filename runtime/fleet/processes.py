@@ -280,8 +280,9 @@ def run_processes_demo(args: argparse.Namespace) -> int:
                              on_update=lambda robot: node_box and node_box[0].notify(robot))
     logger = None
     if args.rerun != "none":
-        from runtime.rerun_log import MissionLog, mission_blueprint
+        from runtime.rerun_log import MissionLog
         from runtime.rerun_sink import open_recording
+        from runtime.rerun_style import mission_blueprint
 
         sink = str(out / "mission.rrd") if args.rerun == "file" else args.rerun
         logger = MissionLog(open_recording(sink, recording_id=fleet, blueprint=mission_blueprint(names)), names,

@@ -8,8 +8,9 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.self_check import SelfCheck
 from estimation.landmark_map import LandmarkMap
-from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+from runtime.rerun_log import MissionLog, read_recording
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import mission_blueprint
 
 ROBOTS = ["robot1", "robot2"]
 TWO_D = ("Points2D:", "LineStrips2D:", "Arrows2D:", "Boxes2D:", "EncodedImage:", "Image:", "DepthImage:")

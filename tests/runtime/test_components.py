@@ -130,8 +130,9 @@ def test_covariance_ellipsoids_logged_to_rerun_rebuild_the_covariances():
 
 
 def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
-    from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+    from runtime.rerun_log import MissionLog, read_recording
     from runtime.rerun_sink import open_recording
+    from runtime.rerun_style import mission_blueprint
 
     rng = np.random.default_rng(5)
     rrd = tmp_path / "m.rrd"

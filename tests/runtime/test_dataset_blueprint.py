@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shutil
 
-from runtime.rerun_log import dataset_blueprint
+from runtime.rerun_style import dataset_blueprint
 from tests.datasets.conftest import run_cli, write_mrclam
 from tests.datasets.test_no_ground_truth import TRUTH_FILES, _noise
 

@@ -137,7 +137,7 @@ def test_the_recording_plots_the_landmarks_of_the_exported_map_the_summary_count
     """The progress line, the fleet status and the summary count the exported map (FastSLAM.best_map: confirmed
     landmarks, coincident ones merged); the recording's per-frame counts are the best particle's own. Each snapshot's
     count is plotted beside them, and the last (the snapshot taken when the robot stops) is the summary's."""
-    from runtime.rerun_log import SERIES
+    from runtime.rerun_style import SERIES
 
     from .rerun_helpers import entity_rows
 

@@ -10,15 +10,9 @@ from collections import deque
 import numpy as np
 import pytest
 
-from runtime.rerun_log import (
-    SERIES,
-    TRAJECTORY_SEGMENT,
-    MissionLog,
-    landmark_confirmed,
-    mission_blueprint,
-    robot_colour,
-)
+from runtime.rerun_log import TRAJECTORY_SEGMENT, MissionLog, landmark_confirmed
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import SERIES, mission_blueprint, robot_colour
 
 from .rerun_helpers import ROBOTS, TWO_D, blueprint_views, entity_columns, entity_rows, landmark_map, log_small_mission
 

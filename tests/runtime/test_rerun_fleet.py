@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+from runtime.rerun_log import MissionLog, read_recording
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import mission_blueprint
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDING_ID = "fleet-test-recording"

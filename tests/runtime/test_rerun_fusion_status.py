@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import EVENTS, FUSION_STATUS, MissionLog, dataset_blueprint, mission_blueprint
+from runtime.rerun_log import MissionLog
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import EVENTS, FUSION_STATUS, dataset_blueprint, mission_blueprint
 
 from .rerun_helpers import ROBOTS, blueprint_views, entity_rows, landmark_map, viewer_state
 

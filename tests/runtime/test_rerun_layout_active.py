@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.rerun_log import MissionLog, dataset_blueprint, mission_blueprint
+from runtime.rerun_log import MissionLog
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import dataset_blueprint, mission_blueprint
 
 from .rerun_helpers import ROBOTS
 

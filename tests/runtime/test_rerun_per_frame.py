@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import HELD_ROWS_MAX, TRUE_COLOUR, MissionLog, robot_colour
+from runtime.rerun_log import HELD_ROWS_MAX, MissionLog
 from runtime.rerun_sdk import rr
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import TRUE_COLOUR, robot_colour
 
 from .rerun_helpers import viewer_state
 

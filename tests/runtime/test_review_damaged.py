@@ -45,8 +45,9 @@ def test_a_reader_that_aborts_is_one_line_and_exit_2(tmp_path, capsys, monkeypat
 
 
 def test_a_sound_recording_is_read_and_exported_by_the_reading_process(tmp_path, capsys):
-    from runtime.rerun_log import MissionLog, mission_blueprint
+    from runtime.rerun_log import MissionLog
     from runtime.rerun_sink import open_recording
+    from runtime.rerun_style import mission_blueprint
 
     rrd = tmp_path / "mission.rrd"
     log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)

@@ -62,7 +62,7 @@ def test_review_says_an_alignment_in_the_words_of_the_viewers_fusion_status(tmp_
     """Session 26 (C): review and the viewer's fusion status worded one state two ways ('none (…)' beside
     '**not aligned**: 9 supports, 34 needed …'; a candidate as 'none' beside 'not yet aligned'); now one function
     (runtime.report.alignment_text) words both, the viewer's in Markdown."""
-    from runtime.rerun_log import FUSION_STATUS
+    from runtime.rerun_style import FUSION_STATUS
 
     from .rerun_helpers import entity_rows
 
@@ -89,7 +89,7 @@ def test_a_part_after_its_gap_is_reviewed_with_its_own_1_sigma_as_the_viewer_sho
     """Session 27 (D): a split map's part made after its gap, as the mission records it (``p3at demo --seed 0
     --odometry exact``): review and the viewer's fusion status give its own alignment's 1σ, said so, and not the
     start-frame 1σ (null in the record), with the reason once."""
-    from runtime.rerun_log import FUSION_STATUS
+    from runtime.rerun_style import FUSION_STATUS
 
     from .rerun_helpers import entity_rows
 

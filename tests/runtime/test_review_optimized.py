@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+from runtime.rerun_log import MissionLog, read_recording
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import mission_blueprint
 
 from .rerun_helpers import ROBOTS, landmark_map, log_small_mission
 

@@ -20,8 +20,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, RecordingReadError, mission_blueprint, read_recording
+from runtime.rerun_log import MissionLog, RecordingReadError, read_recording
 from runtime.rerun_sink import open_recording
+from runtime.rerun_style import mission_blueprint
 
 from .rerun_helpers import ROBOTS, footed_recording, log_small_mission
 

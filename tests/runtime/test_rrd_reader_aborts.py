@@ -101,8 +101,9 @@ def aborting(tmp_path_factory):
     Rerun's reader aborts a process reading it, the flipped message's (start, size), and the original's contents."""
     import rerun
 
-    from runtime.rerun_log import MissionLog, mission_blueprint, read_recording
+    from runtime.rerun_log import MissionLog, read_recording
     from runtime.rerun_sink import open_recording
+    from runtime.rerun_style import mission_blueprint
 
     from .rerun_helpers import ROBOTS, log_small_mission
 
