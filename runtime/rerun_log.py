@@ -77,6 +77,7 @@ from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import alignment_status, candidate_text
+from runtime.rerun_map_format import OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rerun_sdk import rr
 from runtime.rerun_sink import CLOSED_ENTITY, FILE_FLUSH_TICK, SAVED_STREAMS
 from runtime.rerun_style import (
@@ -701,11 +702,11 @@ class MissionLog:
         # array, so a map of no landmarks could not tell "none" from "empty" otherwise); absent in older recordings
         meta = json.dumps({"robot": m.robot, "frame": m.frame, "robots": m.robots, "metadata": m.metadata,
                            **({"optional": sorted(optional)} if optional else {})})
-        arrays = _map_arrays(m.positions, m.covariances, m.descriptors, m.ids, m.counts, m.seen_by, m.trajectory,
-                             **optional)
+        arrays = map_arrays(m.positions, m.covariances, m.descriptors, m.ids, m.counts, m.seen_by, m.trajectory,
+                            **optional)
         self.rec.log(f"maps/{key}", rr.AnyValues(
             **{name: a.ravel() for name, a in arrays.items()}, descriptor_size=int(m.descriptor_size),
-            meta=meta, size=len(m), t=float(t), checksum=_map_checksum(arrays, meta)))
+            meta=meta, size=len(m), t=float(t), checksum=map_checksum(arrays, meta)))
         if not draw:
             return
         if key == "fused":
@@ -1059,31 +1060,6 @@ def _scalar(value):
     return value
 
 
-# a map's arrays that only some maps have (estimation/landmark_map.py): the drift and sightings calibrations of
-# fusion.fuse_all use them; a snapshot carries those its map has (recordings before session 15 carry none)
-OPTIONAL_MAP_ARRAYS = {"drift_covariances": (3, 3), "drift_origins": (2,), "sighting_covariances": (3, 3)}
-
-
-def _map_arrays(positions, covariances, descriptors, ids, counts, seen_by, trajectory,
-                **optional) -> dict[str, np.ndarray]:
-    """A map's arrays in the types they are logged and read back in: what its checksum is taken over. ``optional``:
-    those of OPTIONAL_MAP_ARRAYS the map has."""
-    return {"positions": np.asarray(positions, float), "covariances": np.asarray(covariances, float),
-            "descriptors": np.asarray(descriptors, np.float32), "ids": np.asarray(ids, np.int64),
-            "counts": np.asarray(counts, np.int64), "seen_by": np.asarray(seen_by, np.uint8),
-            "trajectory": np.asarray(trajectory, float),
-            **{name: np.asarray(optional[name], float) for name in OPTIONAL_MAP_ARRAYS if name in optional}}
-
-
-def _map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
-    """CRC-32 of a map's arrays and metadata text. Rerun's messages carry no checksum of their own: a flipped bit
-    that still decodes would change a map silently (a landmark moved, a covariance shrunk)."""
-    crc = zlib.crc32(meta.encode("utf-8"))
-    for name in sorted(arrays):
-        crc = zlib.crc32(np.ascontiguousarray(arrays[name]).tobytes(), zlib.crc32(name.encode(), crc))
-    return crc
-
-
 def _map_from_row(path: Path, entity: str, rows: list[dict]) -> tuple[LandmarkMap | None, str | None]:
     """The newest snapshot of ``entity`` that is whole, and a note when a newer one is damaged (it failed its checksum
     or no longer decodes into a map: it is left out, since a map read back must be the map that was logged) or None.
@@ -1129,13 +1105,13 @@ def _map_from(entity: str, row: dict) -> tuple[LandmarkMap | None, str | None]:
         robots = [str(r) for r in meta.get("robots") or [meta.get("robot", "robot")]]
         optional = {name: array(name, float).reshape(n, *OPTIONAL_MAP_ARRAYS[name])
                     for name in meta.get("optional", []) if name in OPTIONAL_MAP_ARRAYS}
-        arrays = _map_arrays(array("positions", float).reshape(n, 3), array("covariances", float).reshape(n, 3, 3),
-                             array("descriptors", np.float32).reshape(n, d), array("ids", np.int64).reshape(n),
-                             array("counts", np.int64).reshape(n),
-                             array("seen_by", np.uint8).reshape(n, len(robots)),
-                             array("trajectory", float).reshape(-1, 4), **optional)
+        arrays = map_arrays(array("positions", float).reshape(n, 3), array("covariances", float).reshape(n, 3, 3),
+                            array("descriptors", np.float32).reshape(n, d), array("ids", np.int64).reshape(n),
+                            array("counts", np.int64).reshape(n),
+                            array("seen_by", np.uint8).reshape(n, len(robots)),
+                            array("trajectory", float).reshape(-1, 4), **optional)
         stored = row.get("checksum")
-        if stored is not None and int(_scalar(stored)) != _map_checksum(arrays, text):
+        if stored is not None and int(_scalar(stored)) != map_checksum(arrays, text):
             return None, CHECKSUM_FAILED
         return LandmarkMap(
             arrays["positions"], arrays["covariances"], arrays["descriptors"], arrays["ids"], arrays["counts"],
