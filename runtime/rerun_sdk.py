@@ -1,7 +1,17 @@
 """Rerun itself, imported once and quietly: the one module of the project that imports ``rerun``.
 
 Pinned to rerun-sdk 0.41. The Rerun modules take ``rr`` and ``rrb`` from here (``from runtime.rerun_sdk import rr``),
-so that whichever is imported first, Rerun is imported with the RUST_LOG below.
+so that whichever is imported first, Rerun is imported with the RUST_LOG below; the reader imports ``rerun.chunk``
+inside the function that reads, after this module.
+
+The Rerun modules, each one job (each imports only modules above it in this list):
+
+- runtime/rerun_sdk.py: Rerun itself;
+- runtime/rerun_sink.py: where a recording goes (a saved file, a viewer it starts, a viewer's URL, memory);
+- runtime/rerun_style.py: how it looks (colours, legend names, the layouts);
+- runtime/rerun_map_format.py: a map snapshot's arrays and checksum, as written and as read back;
+- runtime/rerun_log.py: :class:`MissionLog`, what a mission logs (its docstring lists the entity tree);
+- runtime/rerun_read.py: :func:`read_recording`, reading a saved recording back (``p3at review``).
 """
 from __future__ import annotations
 

@@ -42,7 +42,7 @@ FOOTER_MAGIC = b"RRF2FOOT"
 KIND_END = 0
 KIND_ARROW = 2
 # what a reading says when Rerun's reader stopped on a damaged message it could not blame or leave out (killed by it,
-# or refused by a probe): written by runtime/rerun_log.py and runtime/commands/review.py, recognised by the latter
+# or refused by a probe): written by runtime/rerun_read.py and runtime/commands/review.py, recognised by the latter
 STOPPED_ON_DAMAGE = "not a readable Rerun recording: Rerun's reader stopped on a damaged message"
 KNOWN_KINDS = {KIND_END, 1, KIND_ARROW, 3}
 

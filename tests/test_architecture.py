@@ -47,7 +47,7 @@ def test_only_runtime_rerun_sdk_imports_rerun():
     )
     at_import = [path for path in importers if "rerun" in _imports_at_import_time(ROOT / path)]
     assert at_import == ["runtime/rerun_sdk.py"]
-    assert importers == ["runtime/rerun_log.py", "runtime/rerun_sdk.py"]
+    assert importers == ["runtime/rerun_read.py", "runtime/rerun_sdk.py"]
 
 
 def test_no_pickle_anywhere():

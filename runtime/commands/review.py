@@ -41,7 +41,7 @@ def register(subparsers) -> None:
 
 
 def review_summary(contents) -> dict:
-    """The figures ``review`` prints, from :class:`runtime.rerun_log.RecordingContents`."""
+    """The figures ``review`` prints, from :class:`runtime.rerun_read.RecordingContents`."""
     return {
         "recording": str(contents.path), "robots": contents.robots, "duration": round(contents.duration, 2),
         "maps": {name: len(m) for name, m in sorted(contents.maps.items())},
@@ -60,7 +60,7 @@ def read_and_export(paths: list[Path], folder: Path | None) -> dict:
     (None: none), and return plain data (the caller imports no Rerun): ``{"error": why}`` for a file that is no
     readable recording, ``{"write_error": why}``, or ``{"summary": review_summary(...) + exported files,
     "duration": s}``."""
-    from runtime.rerun_log import RecordingReadError, read_recording
+    from runtime.rerun_read import RecordingReadError, read_recording
 
     try:
         contents = read_recording(*paths, decodes=_ask_parent)
@@ -137,14 +137,14 @@ def _fork_is_safe() -> bool:
 
 def _decodes_here(candidate: Path) -> bool:
     """Whether Rerun reads ``candidate`` through, read in this process (a reading process of the parent's)."""
-    from runtime.rerun_log import _decodes
+    from runtime.rerun_read import _decodes
 
     return _decodes(candidate)
 
 
 def _import_reader() -> None:
     """Run by a reading process as it starts: the import (~1 s) then overlaps the reading of the one before it."""
-    import runtime.rerun_log  # noqa: F401
+    import runtime.rerun_read  # noqa: F401
 
 
 def _read_isolated(paths: list[Path], folder: Path | None) -> dict:

@@ -8,7 +8,7 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from runtime.dataset_recording import POSE_INTERVAL_S
-from runtime.rerun_log import read_recording
+from runtime.rerun_read import read_recording
 from tests.datasets.conftest import run_cli as _cli
 
 

@@ -13,7 +13,7 @@ from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_smoother import Smoothed
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
-from runtime.rerun_log import read_recording
+from runtime.rerun_read import read_recording
 from tests.datasets.conftest import run_cli as _cli
 
 

@@ -20,7 +20,7 @@ from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.named_smoothing import smooth_named
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
-from runtime.rerun_log import read_recording
+from runtime.rerun_read import read_recording
 from tests.datasets import conftest
 from tests.datasets.conftest import run_cli as _cli
 

@@ -113,7 +113,7 @@ def test_p3at_fuse_live_fuses_the_robots_maps_and_writes_the_merged_map(tmp_path
 @pytest.mark.timeout(600)  # ~40 s on an idle machine; 125 s measured at a load average of 28
 def test_demo_processes_prints_the_mission_summary_with_an_alignment_scored_against_the_truth(tmp_path):
     """Each robot its own ``p3at run`` process (simulated time in each), the fusion node in the demo's process."""
-    from runtime.rerun_log import read_recording
+    from runtime.rerun_read import read_recording
 
     demo = p3at("demo", "--processes", "--seconds", "45", "--json", "--quiet", "--out", str(tmp_path),
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)

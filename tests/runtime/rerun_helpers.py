@@ -8,7 +8,8 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.self_check import SelfCheck
 from estimation.landmark_map import LandmarkMap
-from runtime.rerun_log import MissionLog, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import mission_blueprint
 

@@ -130,7 +130,8 @@ def test_covariance_ellipsoids_logged_to_rerun_rebuild_the_covariances():
 
 
 def test_mission_log_writes_a_recording_that_reads_back(tmp_path):
-    from runtime.rerun_log import MissionLog, read_recording
+    from runtime.rerun_log import MissionLog
+    from runtime.rerun_read import read_recording
     from runtime.rerun_sink import open_recording
     from runtime.rerun_style import mission_blueprint
 

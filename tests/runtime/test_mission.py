@@ -25,7 +25,7 @@ from runtime.fleet.processes import free_port
 from runtime.json_output import json_text
 from runtime.mission import Mission, MissionConfig
 from runtime.replay import replay_log
-from runtime.rerun_log import RecordingReadError, read_recording
+from runtime.rerun_read import RecordingReadError, read_recording
 from runtime.sensorlog import SensorLog
 
 REPO = Path(__file__).resolve().parents[2]
@@ -523,7 +523,7 @@ def test_a_run_that_fails_at_start_keeps_the_earlier_recording(tmp_path, capsys,
 
 def test_a_run_that_starts_replaces_the_earlier_recording(tmp_path):
     """Once the robots are up the new recording is mission.rrd, whole and readable, and no temporary file is left."""
-    from runtime.rerun_log import read_recording
+    from runtime.rerun_read import read_recording
 
     earlier = tmp_path / "mission.rrd"
     earlier.write_bytes(b"the first run's recording")

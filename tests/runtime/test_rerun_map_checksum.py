@@ -7,7 +7,8 @@ import json
 
 import numpy as np
 
-from runtime.rerun_log import MissionLog, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from tests.runtime.rerun_helpers import landmark_map
 

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from estimation.landmark_map import LandmarkMap
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from tests.runtime.rerun_helpers import landmark_map
 from tests.runtime.test_rerun_map_checksum import _flip_in

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from runtime.rerun_log import MissionLog, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import mission_blueprint
 from tests.runtime.rerun_helpers import ROBOTS, log_small_mission

@@ -12,7 +12,7 @@ import tempfile
 
 import pytest
 
-from runtime import rerun_log
+from runtime import rerun_read
 from runtime.cli import main
 from runtime.commands import review
 
@@ -32,20 +32,20 @@ def private_tmp(tmp_path, monkeypatch):
     folder.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(folder))
     seen: list[list[str]] = []
-    read_chunks = rerun_log._read_chunks
+    read_chunks = rerun_read._read_chunks
 
     def watched(*args, **kwargs):
         seen.append(sorted(p.name for p in folder.iterdir()))
         return read_chunks(*args, **kwargs)
 
-    monkeypatch.setattr(rerun_log, "_read_chunks", watched)
+    monkeypatch.setattr(rerun_read, "_read_chunks", watched)
     return folder, seen
 
 
 def test_reading_a_sound_recording_makes_no_scratch_folder(whole, private_tmp):
     rrd, contents = whole
     folder, seen = private_tmp
-    again = rerun_log.read_recording(rrd)
+    again = rerun_read.read_recording(rrd)
     assert again.truncated is None and again.maps.keys() == contents.maps.keys()
     assert seen == [[]], f"while Rerun's reader ran, the temporary folder held {seen}"
     assert list(folder.iterdir()) == []
@@ -56,7 +56,7 @@ def test_a_recording_cut_short_leaves_no_scratch_folder_after_it_is_read(whole, 
     folder, seen = private_tmp
     cut = tmp_path / "cut.rrd"
     cut.write_bytes(rrd.read_bytes()[: int(rrd.stat().st_size * 0.9)])
-    contents = rerun_log.read_recording(cut)
+    contents = rerun_read.read_recording(cut)
     assert contents.truncated and "cut short" in contents.truncated
     assert len(seen) == 1 and len(seen[0]) == 1 and seen[0][0].startswith("p3at-review-"), seen  # made, and used
     assert list(folder.iterdir()) == []
@@ -72,9 +72,9 @@ def test_a_reading_that_fails_removes_the_scratch_folder_it_made(whole, private_
         assert len(list(folder.iterdir())) == 1
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(rerun_log, "_read_chunks", interrupted)
+    monkeypatch.setattr(rerun_read, "_read_chunks", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        rerun_log.read_recording(cut)
+        rerun_read.read_recording(cut)
     assert list(folder.iterdir()) == []
 
 

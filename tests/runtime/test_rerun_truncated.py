@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.cli import main
-from runtime.rerun_log import RecordingReadError, read_recording
+from runtime.rerun_read import RecordingReadError, read_recording
 from runtime.rrd_salvage import scan_rrd
 
 from .rerun_helpers import footed_recording

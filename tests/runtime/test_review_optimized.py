@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import mission_blueprint
 

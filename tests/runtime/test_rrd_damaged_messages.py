@@ -20,7 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.cli import main
-from runtime.rerun_log import MissionLog, RecordingReadError, read_recording
+from runtime.rerun_log import MissionLog
+from runtime.rerun_read import RecordingReadError, read_recording
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import mission_blueprint
 
@@ -34,7 +35,7 @@ FIELDS = ("positions", "covariances", "descriptors", "ids", "counts", "seen_by",
 # reads each path given on its standard input with read_recording, answers one JSON line (the maps' arrays)
 WORKER = f"FIELDS = {FIELDS!r}\n" + """
 import json, sys
-from runtime.rerun_log import read_recording, RecordingReadError
+from runtime.rerun_read import read_recording, RecordingReadError
 for line in sys.stdin:
     try:
         c = read_recording(line.strip())

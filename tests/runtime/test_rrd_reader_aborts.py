@@ -36,7 +36,7 @@ FIELDS = ("positions", "covariances", "descriptors", "ids", "counts", "seen_by",
 PROBE = """
 import sys
 from pathlib import Path
-from runtime.rerun_log import _decodes
+from runtime.rerun_read import _decodes
 for line in sys.stdin:
     print(int(_decodes(Path(line.strip()))), flush=True)
 """
@@ -90,7 +90,7 @@ def _aborting_flip(data: bytes, scratch: Path) -> tuple[int, int] | None:
 
 def _reading_aborts(rrd: Path) -> int:
     """The exit status of a process that reads ``rrd`` with read_recording in the default way (in that process)."""
-    return subprocess.run([sys.executable, "-c", f"from runtime.rerun_log import read_recording; "
+    return subprocess.run([sys.executable, "-c", f"from runtime.rerun_read import read_recording; "
                            f"read_recording({str(rrd)!r})"], env=ENV, cwd=ROOT, capture_output=True,
                           timeout=300).returncode
 
@@ -101,7 +101,8 @@ def aborting(tmp_path_factory):
     Rerun's reader aborts a process reading it, the flipped message's (start, size), and the original's contents."""
     import rerun
 
-    from runtime.rerun_log import MissionLog, read_recording
+    from runtime.rerun_log import MissionLog
+    from runtime.rerun_read import read_recording
     from runtime.rerun_sink import open_recording
     from runtime.rerun_style import mission_blueprint
 
@@ -159,7 +160,7 @@ def test_read_recording_isolated_survives_the_abort(aborting):
     """A script's read_recording(..., isolated=True) reads it as `p3at review` does, and this process lives on."""
     import multiprocessing
 
-    from runtime.rerun_log import read_recording
+    from runtime.rerun_read import read_recording
 
     damaged, (start, size), total, contents = aborting
     read = read_recording(damaged, isolated=True)
