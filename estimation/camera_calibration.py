@@ -42,7 +42,15 @@ the robot's own truth-fitted odometry calibration too).
 A surveyed length (``known_distances``: the distance between two landmarks, taped, with its σ) is one more factor
 of the smoothing, (‖m_i − m_j‖ − d)/σ_d on the two landmarks' positions: it gives the map, and so b₀ and a, a metric
 scale of their own beside the odometry's (docs/fastslam-history.md, "Session 37: a taped length in the
-self-calibration (D)").
+self-calibration (D)"). With a length the odometry's translation scale s is one more unknown (:class:`_OdometryScale`:
+its increments' translations and their σ's ∝ s): the odometry, whose model calls it unbiased, then no longer pulls the
+map against the tape (MRCLAM: the map's taped distance 3.6-18 mm short and b₀ 0.1-0.7 % low with s held). Then the
+estimate is the joint MAP, without the marginal likelihood's step: the whole solution and s scaled together change
+only the tape's residual (and b₂'s term), while the marginal likelihood's −½ log det H_xx, a volume under a flat
+prior on the poses and landmarks, grows with that scale to the power of their number: the step then follows the
+prior, not the data (simulated: s 16-19 standard errors high, b₀ 5-8); the MAP's b₀ is unbiased there (simulated,
+seeds 3-8: −0.6 to +0.7 standard errors; MRCLAM: −0.5 to +0.35 % of the in-sample fit; docs/fastslam-history.md,
+"Session 39: the odometry's scale beside a taped length (B)"). s itself is a nuisance: see :class:`_OdometryScale`.
 
 The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
 Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
@@ -80,6 +88,7 @@ ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scal
              "bearing_offset_rad")   # c = (a, b₀, b₁, b₂, ψ), in this order
 FREE = np.array([0, 1, 2, 4])          # estimated by default: a, b₀, b₁, ψ (b₂ the model's)
 FREE_WITH_SHAPE = np.arange(5)         # estimate_shape: all five
+TRANSLATION_SCALE = 5                  # the solve's c has a sixth term: the odometry's translation scale s
 
 
 @dataclass(frozen=True)
@@ -127,6 +136,12 @@ class CameraCalibration:
     problem: str | None
     known_distances: tuple[KnownDistance, ...] = ()   # the surveyed lengths used
     fitted_distances_m: tuple[float, ...] = ()        # the map's distance between each pair, at the solution
+    # the odometry's translation scale, when estimated (with a known distance; None: the model's, kept), its standard
+    # error, the joint MAP's, and its correlation with b₀ (the rest of its covariance is not kept)
+    translation_scale: float | None = None
+    translation_scale_standard_error: float = math.nan
+    translation_scale_joint_map: float = math.nan
+    range_scale_translation_scale_correlation: float = math.nan
 
     @property
     def standard_errors(self) -> np.ndarray:
@@ -147,7 +162,15 @@ class CameraCalibration:
                 "frames": self.frames, "chi2_per_dof": self.chi2_per_dof, "iterations": self.iterations,
                 "converged": self.converged, "range_sd_rms_m": self.range_sd_rms_m,
                 "range_sigma_rms_m": self.range_sigma_rms_m, "bearing_sigma_rad": self.bearing_sigma_rad,
-                "problem": self.problem, **self._known_distances_dict()}
+                "problem": self.problem, **self._known_distances_dict(), **self._translation_scale_dict()}
+
+    def _translation_scale_dict(self) -> dict:
+        if self.translation_scale is None:   # not estimated: no key at all, a file as before
+            return {}
+        return {"translation_scale": self.translation_scale,
+                "translation_scale_standard_error": self.translation_scale_standard_error,
+                "translation_scale_joint_map": self.translation_scale_joint_map,
+                "range_scale_translation_scale_correlation": self.range_scale_translation_scale_correlation}
 
     def _known_distances_dict(self) -> dict:
         if not self.known_distances:   # no key at all: a file made without them is as before
@@ -161,7 +184,9 @@ class CameraCalibration:
 
     def applied(self, model: NoiseModel, robot: str, source: str) -> NoiseModel:
         """``model`` (its odometry, the sensor's σ's, correlations and footprint) with this calibration and its
-        figures in [fit] (``self_calibration_*``; the model's own calibration as ``self_calibration_given_*``)."""
+        figures in [fit] (``self_calibration_*``; the model's own calibration as ``self_calibration_given_*``). An
+        estimated odometry translation scale is a figure of [fit] (``self_calibration_translation_scale``, its standard
+        error, ...), not the model's [odometry] ``translation_scale``, which is kept: see :class:`_OdometryScale`."""
         if self.problem is not None:
             raise ValueError(f"the camera's calibration is not determined: {self.problem}")
         rb = dataclasses.replace(model.range_bearing, **{k: float(v) for k, v in zip(ESTIMATED, self.values,
@@ -181,20 +206,29 @@ def without_truth(log: RangeBearingLog) -> RangeBearingLog:
 
 def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMConfig | None = None,
                    seed: int = 0, estimate_shape: bool = False,
-                   known_distances: tuple[KnownDistance, ...] | list[KnownDistance] = ()) -> CameraCalibration:
+                   known_distances: tuple[KnownDistance, ...] | list[KnownDistance] = (),
+                   translation_scale: bool | None = None) -> CameraCalibration:
     """The camera calibration (a, b₀, ψ) of ``log``'s robot from its odometry and its sightings, associated by their
     landmark ids (barcodes, fiducials): see the module docstring. ``noise``: the odometry's model and calibration,
     the sensor's σ's and correlations, b₁ and b₂ (e.g. a model fitted on other robots with
     ``estimate_noise(..., calibration_per_log=True)``); its a, b₀, ψ only start the filter that gives the initial
     guess. The log's ground truth is not read (it is dropped first). ``known_distances``: surveyed lengths between
     landmarks the log sights (:class:`KnownDistance`), each a factor on the two landmarks' positions; ValueError if
-    one names a landmark the log does not sight, or is not a length (:meth:`KnownDistance.problem`)."""
+    one names a landmark the log does not sight, or is not a length (:meth:`KnownDistance.problem`).
+    ``translation_scale``: estimate the odometry's translation scale too (:class:`_OdometryScale`; the model's
+    ``translation_scale`` only starts it; the estimate is the joint MAP, without the marginal likelihood's step: see
+    the module docstring); None (the default): when a known distance is given (without one the odometry is the map's
+    only metric, and its scale is not observable: ValueError if asked for)."""
     log = without_truth(log)
     if noise.range_bearing is None:
         raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
     if len(log) == 0:
         raise ValueError(f"{log.name}: no sightings to calibrate the camera with")
     known_distances = tuple(known_distances)
+    translation_scale = bool(known_distances) if translation_scale is None else bool(translation_scale)
+    if translation_scale and not known_distances:
+        raise ValueError("the odometry's translation scale needs a known distance: without one the odometry is the "
+                         "map's only metric")
     sighted = set(np.unique(log.landmark_ids).tolist())
     for known in known_distances:
         if (text := known.problem()) is not None:
@@ -224,26 +258,30 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                                  plain_sigma_r * inflate_r, np.full(len(log), sensor.bearing_sigma_rad * inflate_b))
     poses = np.vstack([np.zeros(3), run.estimated_trajectory[:, 1:]])
     landmarks = _initial_landmarks(run.map, landmark_ids, problem, poses)
-    shape = _Shape(sensor, raw_r, raw_b, problem.range_sigmas, FREE_WITH_SHAPE if estimate_shape else FREE,
-                   _Lengths.of(known_distances, landmark_ids))
+    free = FREE_WITH_SHAPE if estimate_shape else FREE
+    scale = _OdometryScale.of(problem, noise.odometry.translation_scale) if translation_scale else None
+    if translation_scale:   # c's sixth term
+        free, given = np.append(free, TRANSLATION_SCALE), np.append(given, noise.odometry.translation_scale)
+    shape = _Shape(sensor, raw_r, raw_b, problem.range_sigmas, free, _Lengths.of(known_distances, landmark_ids),
+                   scale)
     c = given.copy()
     inliers = np.ones(len(log), bool)
     # the steps' turns of the map taken as rotations (see _solve); the outliers are cut at the robust solution, so
     # an unfinished robust solve leaves them to the start, and the estimate is reported as not converged
     iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape,
                                                  extra_values=c, exact_rotation=True)
-    _, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
+    _, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c,
                                    exact_rotation=True)
     converged = converged and robust_converged
-    odometry_r, sightings = _residuals(shape.sightings(problem, c), poses, landmarks)
+    odometry_r, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if shape.lengths.count:
         chi2 += float(np.sum(shape.lengths.residuals(landmarks) ** 2))
     seen = np.zeros(len(landmark_ids), bool)
     seen[landmark_index[inliers]] = True
-    dof = 2 * int(inliers.sum()) + shape.lengths.count - 2 * int(seen.sum()) - len(ESTIMATED)
+    dof = 2 * int(inliers.sum()) + shape.lengths.count - 2 * int(seen.sum()) - len(c)
     covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     map_values = c.copy()
     # ∂r'/∂(a, b) at the kept sightings
@@ -254,14 +292,25 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[inliers] ** 2)))
     problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
                             float(sensor.bearing_sigma_rad))
-    if problem_text is None:   # determined at the MAP: the marginal likelihood's correction (else the MAP, reported)
+    # determined at the MAP: the marginal likelihood's correction (else the MAP, reported); none with the odometry's
+    # scale estimated: the joint MAP is reported (see the module docstring)
+    if problem_text is None and not translation_scale:
         c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
         problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
                                 float(sensor.bearing_sigma_rad))
-    return CameraCalibration(c, covariance, map_values, int(len(log)), int((~inliers).sum()), int(seen.sum()),
-                             int(len(times)), chi2 / dof if dof > 0 else float("nan"), iterations_robust + iterations,
-                             converged, sd_rms, sigma_rms, float(sensor.bearing_sigma_rad), problem_text,
-                             known_distances, tuple(float(x) for x in shape.lengths.distances(landmarks)))
+    fitted = tuple(float(x) for x in shape.lengths.distances(landmarks))
+    n = len(ESTIMATED)
+    scale_figures = {}
+    if translation_scale:
+        se = np.sqrt(np.diag(covariance))
+        scale_figures = dict(translation_scale=float(c[n]), translation_scale_standard_error=float(se[n]),
+                             translation_scale_joint_map=float(map_values[n]),
+                             range_scale_translation_scale_correlation=float(covariance[1, n]
+                                                                             / max(se[1] * se[n], 1e-300)))
+    return CameraCalibration(c[:n], covariance[:n, :n], map_values[:n], int(len(log)), int((~inliers).sum()),
+                             int(seen.sum()), int(len(times)), chi2 / dof if dof > 0 else float("nan"),
+                             iterations_robust + iterations, converged, sd_rms, sigma_rms,
+                             float(sensor.bearing_sigma_rad), problem_text, known_distances, fitted, **scale_figures)
 
 
 @dataclass(frozen=True)
@@ -301,11 +350,53 @@ class _Lengths:
         return sp.csr_matrix((vals, (rows, cols)), shape=(self.count, columns))
 
 
+@dataclass(frozen=True)
+class _OdometryScale:
+    """The odometry's translation scale s as an unknown: increment k's translation is s·ũ_k (ũ (T, 2) the increments
+    calibrated as the model does with a translation scale of 1: :meth:`~estimation.noise_model.NoiseModel.
+    calibrate_increments` is linear in it) and its x, y σ's s·σ̃_k (σ̃ the model's σ's at its own scale s₀, over s₀);
+    the heading's σ is kept. Why σ ∝ s, as the range's σ ∝ m in :class:`_Shape`: the odometry's noise is in its own
+    units (wheel turns), so (δ̂ − s ũ)/(s σ̃) is the raw increment's residual; with σ held, scaling the whole solution
+    (poses, landmarks, a, b₀ and s) by λ would scale the odometry's residuals by λ, and the least squares would buy a
+    smaller χ² with a smaller map against the tape (simulated, σ held: the map's taped distance 5-9 mm short, s 1-4
+    standard errors low). x, y residual e = (δ̂ − s ũ)/(s σ̃): ∂e/∂s = −(e + δ/σ)/s, δ and σ at s.
+
+    What s is for: a nuisance unknown that frees the camera's scale from the odometry's, so that the tape alone gives
+    the map its metric. It is not written to the model's [odometry] (only to [fit]): its joint MAP is biased high by
+    the odometry's own noise (simulated, translations 3 % long: +0.2 % with the odometry's variance q 0.0003 per metre
+    and radian, +0.9 to +2.2 % at 0.003, +5.6 to +8.1 % at 0.01; b₀ unbiased at all three), and on MRCLAM, whose
+    odometry loses 0.09 m of travel per radian in arcs, it came out 1.011-1.033 against the robots' truth-fitted
+    translation scales 0.920-0.939 (docs/fastslam-history.md, Session 39 (B))."""
+
+    unit_increments: np.ndarray    # (T, 2) ũ
+    unit_sigmas: np.ndarray        # (T, 2) σ̃
+
+    @classmethod
+    def of(cls, problem: LandmarkLogProblem, given: float) -> _OdometryScale:
+        """From ``problem``'s increments and σ's, calibrated at the model's translation scale ``given``."""
+        return cls(problem.increments[:, :2] / given, problem.increment_sigmas[:, :2] / given)
+
+    def applied(self, problem: LandmarkLogProblem, s: float) -> LandmarkLogProblem:
+        increments, variances = problem.increments.copy(), problem.increment_variances.copy()
+        increments[:, :2] = s * self.unit_increments
+        variances[:, :2] = (s * self.unit_sigmas) ** 2
+        return dataclasses.replace(problem, increments=increments, increment_variances=variances)
+
+    def columns(self, problem: LandmarkLogProblem, odometry: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """(rows (2T,), values (2T,)): ∂e/∂s in the x and y rows of the odometry's normalised residuals ``odometry``
+        (3T,) at ``problem`` (as s makes it)."""
+        t = problem.n_poses
+        e = odometry.reshape(t, 3)[:, :2]
+        values = -(e + problem.increments[:, :2] / problem.increment_sigmas[:, :2]) / s
+        return (3 * np.arange(t)[:, None] + np.arange(2)).ravel(), values.ravel()
+
+
 class _Shape:
     """The calibration's effect on the sightings: r' = a + r·m(φ), m = b₀ + b₁φ + b₂φ², φ' = φ − ψ; c = (a, b₀, b₁,
     b₂, ψ): ∂r'/∂c = (1, r, rφ, rφ², 0), ∂φ'/∂ψ = −1. To the smoother (:func:`~estimation.landmark_smoother._solve`)
     c's estimated terms are extra unknowns (:class:`~estimation.landmark_smoother.ExtraUnknowns`): their columns
-    after the landmarks', the known distances' factors their own rows.
+    after the landmarks', the known distances' factors their own rows. With ``scale`` (:class:`_OdometryScale`) c has
+    a sixth term, the odometry's translation scale s, which changes the odometry's factors instead.
 
     The noise is the camera's, in its raw range r: a range residual is (r̂ − r')/(m σ_raw), σ_raw = σ_r / m₀ (σ_r the
     model's, measured in calibrated units at the given calibration's m₀), i.e. the problem's σ_r scaled by m/m₀. Why
@@ -313,8 +404,11 @@ class _Shape:
     that with a smaller map; on simulated logs with σ_r 0.02 m it took b₀ 6-7 % low, 9-11 of its standard errors."""
 
     def __init__(self, sensor, ranges: np.ndarray, bearings: np.ndarray, range_sigmas: np.ndarray,
-                 free: np.ndarray, lengths: _Lengths | None = None) -> None:
+                 free: np.ndarray, lengths: _Lengths | None = None, scale: _OdometryScale | None = None) -> None:
         self.free = np.asarray(free, int)                            # the indices of c that are estimated
+        self.scale = scale                                           # the odometry's translation scale (c[5]), if any
+        if (TRANSLATION_SCALE in self.free) != (scale is not None):
+            raise ValueError("the odometry's translation scale is estimated with its increments, or not at all")
         self.lengths = lengths or _Lengths.of((), np.zeros(0, int))   # known distances: rows after the sightings'
         self.ranges, self.bearings = np.asarray(ranges, float), np.asarray(bearings, float)
         self.powers = np.column_stack([np.ones_like(self.bearings), self.bearings, self.bearings ** 2])   # 1, φ, φ²
@@ -324,27 +418,36 @@ class _Shape:
     def multiplier(self, c: np.ndarray) -> np.ndarray:
         return self.powers @ c[1:4]
 
-    def sightings(self, problem: LandmarkLogProblem, c: np.ndarray) -> LandmarkLogProblem:
+    def applied(self, problem: LandmarkLogProblem, c: np.ndarray) -> LandmarkLogProblem:
         m = self.multiplier(c)
-        return dataclasses.replace(problem, ranges=c[0] + self.ranges * m, bearings=self.bearings - c[4],
-                                   range_sigmas=self.sigmas * m / self.start)
+        out = dataclasses.replace(problem, ranges=c[0] + self.ranges * m, bearings=self.bearings - c[4],
+                                  range_sigmas=self.sigmas * m / self.start)
+        return out if self.scale is None else self.scale.applied(out, c[TRANSLATION_SCALE])
 
     def columns(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
-        """(2S, estimated terms) the sightings' derivatives in c's estimated terms, at ``problem`` (its sightings as
-        c makes them)."""
-        _, sightings = _residuals(problem, poses, landmarks)
+        """(3T + 2S, estimated terms) the odometry's and the sightings' derivatives in c's estimated terms, at
+        ``problem`` (as c makes it)."""
+        odometry, sightings = _residuals(problem, poses, landmarks)
         e_r = sightings.reshape(-1, 2)[:, 0]                         # (r̂ − r')/σ
         s = np.arange(len(self.ranges))
+        t = problem.n_poses
         m = self.multiplier(c)
         # e_r = (r̂ − r')/σ with σ ∝ m: ∂e_r/∂a = −1/σ, ∂e_r/∂b_j = −(r φʲ)/σ − e_r φʲ/m;
         # e_φ = wrap(φ̂ − φ + ψ)/σ_φ: ∂e_φ/∂ψ = 1/σ_φ
         columns = [-weights / problem.range_sigmas] + [
             -weights * self.powers[:, j] * (self.ranges / problem.range_sigmas + e_r / m) for j in range(3)]
         columns.append(weights / problem.bearing_sigmas)
-        rows = [2 * s + (1 if j == 4 else 0) for j in self.free]
-        cols = np.repeat(np.arange(len(self.free)), len(s))
-        vals = np.concatenate([columns[j] for j in self.free])
-        return sp.csr_matrix((vals, (np.concatenate(rows), cols)), shape=(2 * len(s), len(self.free)))
+        sighting_terms = [j for j in self.free if j != TRANSLATION_SCALE]
+        rows = [3 * t + 2 * s + (1 if j == 4 else 0) for j in sighting_terms]
+        cols = [np.full(len(s), k) for k, j in enumerate(self.free) if j != TRANSLATION_SCALE]
+        vals = [columns[j] for j in sighting_terms]
+        if TRANSLATION_SCALE in self.free:   # the odometry's x and y rows (the heading's does not depend on it)
+            r, v = self.scale.columns(problem, odometry, c[TRANSLATION_SCALE])
+            rows.append(r)
+            cols.append(np.full(len(r), int(np.flatnonzero(self.free == TRANSLATION_SCALE)[0])))
+            vals.append(v)
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(3 * t + 2 * len(s), len(self.free)))
 
     def residuals(self, landmarks, c) -> np.ndarray:
         return self.lengths.residuals(landmarks)
@@ -355,13 +458,14 @@ class _Shape:
     def stepped(self, c: np.ndarray, step: np.ndarray) -> np.ndarray | None:
         out = c.copy()
         out[self.free] += step
-        # a step that makes the range's multiplier m ≤ 0 anywhere is no camera (and no σ): refused
-        return out if np.all(self.multiplier(out) > 0) else None
+        # a step that makes the range's multiplier m ≤ 0 anywhere is no camera (and no σ), an odometry scale ≤ 0 no
+        # odometry: refused
+        return out if np.all(self.multiplier(out) > 0) and (self.scale is None or out[TRANSLATION_SCALE] > 0) else None
 
     def jacobian(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
         """The smoother's Jacobian with the estimated calibration's columns after the landmarks' (and the known
         distances' rows after the sightings')."""
-        return _jacobian(self.sightings(problem, c), poses, landmarks, len(landmarks), weights, extra=self,
+        return _jacobian(self.applied(problem, c), poses, landmarks, len(landmarks), weights, extra=self,
                          extra_values=c)
 
 
@@ -386,7 +490,8 @@ def _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen) 
 def _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance) -> np.ndarray:
     """∇_c log det H_xx (5,) at the solution: H_xx the information of the poses and landmarks (c held), by central
     differences of one standard error. At fixed poses and landmarks H_xx depends on c only through the range σ's
-    (∝ m = b₀ + b₁φ + b₂φ²), so the derivatives in a and ψ are 0."""
+    (∝ m = b₀ + b₁φ + b₂φ²), so the derivatives in a and ψ are 0. (Not used with the odometry's scale estimated:
+    see the module docstring.)"""
     t, n = problem.n_poses, len(landmarks)
     free = np.ones(3 * t + 2 * n, bool)
     free[3 * t:] = np.repeat(seen, 2)
@@ -412,6 +517,9 @@ def _problem(converged, iterations, c, covariance, sd_rms, sigma_rms, bearing_si
         return "the information matrix is singular: the sightings do not determine the calibration"
     if not 0.5 <= c[1] <= 2.0:
         return f"the range scale came out {c[1]:.3f}, outside [0.5, 2] (a calibration, not a new sensor)"
+    if len(c) > TRANSLATION_SCALE and not 0.5 <= c[TRANSLATION_SCALE] <= 2.0:
+        return (f"the odometry's translation scale came out {c[TRANSLATION_SCALE]:.3f}, outside [0.5, 2] (a "
+                "calibration, not a new robot)")
     if not sd_rms < sigma_rms:
         return (f"the range calibration is not known better than one sighting (± {sd_rms:.3f} m RMS over the "
                 f"sightings' ranges against their σ_r {sigma_rms:.3f} m): the log's ranges and odometry do not "

@@ -616,11 +616,10 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     jac = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
     if extra is None:
         return jac
-    # the extra values change the sightings alone: their columns are 0 in the odometry's rows and the priors'
-    in_sightings = extra.columns(problem, poses, landmarks, extra_values, sighting_weights)
-    n_values = in_sightings.shape[1]
-    columns = sp.vstack([sp.csr_matrix((3 * t, n_values)), in_sightings,
-                         sp.csr_matrix((n_rows - 3 * t - 2 * len(d), n_values))])
+    # the extra values change the odometry's and the sightings' factors: their columns are 0 in the priors' rows
+    in_factors = extra.columns(problem, poses, landmarks, extra_values, sighting_weights)
+    n_values = in_factors.shape[1]
+    columns = sp.vstack([in_factors, sp.csr_matrix((n_rows - 3 * t - 2 * len(d), n_values))])
     jac = sp.hstack([jac, columns], format="csr")
     return sp.vstack([jac, extra.rows(problem, landmarks, extra_values, jac.shape[1])], format="csr")
 
@@ -636,18 +635,19 @@ def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) 
 
 class ExtraUnknowns(Protocol):
     """Unknowns of a caller's solved with the poses and landmarks (:func:`_solve`'s ``extra``; their values (k,),
-    ``extra_values``, changed in place), as a camera's calibration is in :mod:`estimation.camera_calibration`. The
-    values change what the sightings measured; their k columns follow all the smoother's, and they may bring factors
-    of their own, rows after all the smoother's. Not combined with a heading drift or sighting offsets (the columns
-    are the sightings' derivatives without them)."""
+    ``extra_values``, changed in place), as a camera's calibration and the odometry's translation scale are in
+    :mod:`estimation.camera_calibration`. The values change what the sightings measured and what the odometry
+    increments say (their values and σ's; not which poses and landmarks a factor joins); their k columns follow all the
+    smoother's, and they may bring factors of their own, rows after all the smoother's. Not combined with a heading
+    drift or sighting offsets (the columns are the odometry's and sightings' derivatives without them)."""
 
-    def sightings(self, problem: LandmarkLogProblem, values: np.ndarray) -> LandmarkLogProblem:
-        """``problem`` with its sightings (ranges, bearings, σ's) as ``values`` make them."""
+    def applied(self, problem: LandmarkLogProblem, values: np.ndarray) -> LandmarkLogProblem:
+        """``problem`` with its increments and sightings (values, σ's) as ``values`` make them."""
 
     def columns(self, problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, values: np.ndarray,
                 weights: np.ndarray) -> sp.csr_matrix:
-        """(2S, k) ∂(the sightings' normalised residuals, (range, bearing) interleaved, scaled by their weights
-        (S,))/∂values, at ``problem`` (its sightings as ``values`` make them)."""
+        """(3T + 2S, k) ∂(the odometry's normalised residuals (x, y, θ per increment), then the sightings' ((range,
+        bearing) interleaved, scaled by their weights (S,)))/∂values, at ``problem`` (as ``values`` make it)."""
 
     def residuals(self, landmarks: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(K,) the own factors' normalised residuals (K may be 0)."""
@@ -663,7 +663,7 @@ class ExtraUnknowns(Protocol):
 def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
           offsets=None, extra=None, extra_values=None) -> float:
     if extra is not None:
-        problem = extra.sightings(problem, extra_values)
+        problem = extra.applied(problem, extra_values)
     odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
@@ -704,7 +704,7 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
     cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets, extra,
                  extra_values)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        at = problem if extra is None else extra.sightings(problem, extra_values)
+        at = problem if extra is None else extra.applied(problem, extra_values)
         odometry, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)

@@ -195,10 +195,12 @@ def _self_calibrate(args: argparse.Namespace) -> int:
         calibration = self_calibrate(log, noise, known_distances=known)
         model = None
         if calibration.problem is None:
+            with_scale = "" if calibration.translation_scale is None else \
+                "; estimated with the odometry translation scale, recorded in [fit]"
             model = calibration.applied(
                 noise, robot=log.name,
-                source=f"camera calibration (range offset, scale, scale per radian, bearing offset) self-calibrated by "
-                       f"p3at slam "
+                source=f"camera calibration (range offset, scale, scale per radian, bearing offset{with_scale}"
+                       f") self-calibrated by p3at slam "
                        f"noise --self-calibrate from {log.name}'s odometry and sightings associated by barcode, "
                        f"without its ground truth{_known_text(known)}; the rest from the model given "
                        f"({noise.robot}: {noise.source})")
@@ -228,6 +230,13 @@ def _self_calibrate(args: argparse.Namespace) -> int:
               f"own sigma {c.range_sd_rms_m:.4f} m RMS against one sighting's {c.range_sigma_rms_m:.4f} m")
         if known:
             print(f"  known distances (taped, a factor on the two landmarks):{_known_text(known, calibration)}")
+        if calibration.translation_scale is not None:
+            print(f"  odometry translation scale {calibration.translation_scale:.4f} ± "
+                  f"{calibration.translation_scale_standard_error:.4f} (estimated with the camera, so that the tape "
+                  f"gives the map its scale; correlation with b0 "
+                  f"{calibration.range_scale_translation_scale_correlation:+.2f}): recorded in [fit], the odometry "
+                  f"kept at {noise.odometry.translation_scale:.4f} from {args.noise} (the estimate is biased by the "
+                  "odometry's noise)")
         else:
             print(f"  b0 is relative to the odometry's scale (translation scale "
                   f"{noise.odometry.translation_scale:.4f} from {args.noise}): an odometry scale wrong by 1 % moves b0 "

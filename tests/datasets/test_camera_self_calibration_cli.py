@@ -115,7 +115,8 @@ def test_what_makes_no_sense_with_the_self_calibration_is_refused_in_one_line(tm
 
 def test_a_taped_length_is_used_and_recorded_in_the_file(tmp_path, synthetic):
     """--known-distance ID1 ID2 METRES [SIGMA]: the file's [fit] records the lengths, their σ (default 5 mm, a
-    tape's) and the map's distance; the text and the source say so."""
+    tape's) and the map's distance; the text and the source say so. With a length the odometry's translation scale
+    is estimated too: [fit] records it and its standard error, [odometry] is the given model's."""
     synthetic.write(tmp_path / "data", seconds=300.0)
     (x6, y6), (x8, y8) = synthetic.LANDMARKS[6], synthetic.LANDMARKS[8]
     length = float(np.hypot(x6 - x8, y6 - y8))
@@ -132,6 +133,11 @@ def test_a_taped_length_is_used_and_recorded_in_the_file(tmp_path, synthetic):
     assert len(fit["self_calibration_known_distance_fitted_m"]) == 2
     assert "known distances" in text and "relative to the odometry" not in text
     assert "6-8" in NoiseModel.load(out).source and "taped" in NoiseModel.load(out).source
+    model = NoiseModel.load(out)
+    assert model.odometry == NoiseModel.load(tmp_path / "noise.toml").odometry
+    assert abs(fit["self_calibration_translation_scale"] - 1.0) < 0.1
+    assert 0 < fit["self_calibration_translation_scale_standard_error"] < 0.05
+    assert "odometry translation scale" in text and "odometry translation scale" in model.source
 
 
 @pytest.mark.parametrize(("words", "complaint"), [
