@@ -48,7 +48,7 @@ map against the tape (MRCLAM: the map's taped distance 3.6-18 mm short and b₀ 
 estimate is the joint MAP, without the marginal likelihood's step: the whole solution and s scaled together change
 only the tape's residual (and b₂'s term), while the marginal likelihood's −½ log det H_xx, a volume under a flat
 prior on the poses and landmarks, grows with that scale to the power of their number: the step then follows the
-prior, not the data (simulated: s 16-19 standard errors high, b₀ 5-8); the MAP's b₀ is unbiased there (simulated,
+prior, not the data (simulated: s 16-19 standard errors high, b₀ 4-8.5); the MAP's b₀ is unbiased there (simulated,
 seeds 3-8: −0.6 to +0.7 standard errors; MRCLAM: −0.5 to +0.35 % of the in-sample fit; docs/fastslam-history.md,
 "Session 39: the odometry's scale beside a taped length (B)"). s itself is a nuisance: see :class:`_OdometryScale`.
 
