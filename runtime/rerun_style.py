@@ -12,7 +12,6 @@ from runtime.rerun_sdk import rrb
 
 # -- colours and names: what a reader sees ------------------------------------------------------------------
 ROBOT_COLOURS = [(230, 80, 60), (60, 130, 230), (70, 180, 90), (200, 160, 40), (160, 80, 200), (40, 180, 180)]
-FUSED_COLOUR = (240, 240, 240)
 
 
 def robot_colour(robot: str) -> tuple[int, int, int]:
@@ -183,6 +182,6 @@ def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
     return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
 
 
-__all__ = ["EVENTS", "FUSED_COLOUR", "FUSED_MAP_NAME", "FUSION_STATUS", "MAP_BACKGROUND", "ROBOT_COLOURS", "SERIES",
+__all__ = ["EVENTS", "FUSED_MAP_NAME", "FUSION_STATUS", "MAP_BACKGROUND", "ROBOT_COLOURS", "SERIES",
            "SHARED_COLOUR", "SPARSE_SERIES", "TRUE_COLOUR", "WALL_COLOUR", "WHOLE_TIMELINE", "dataset_blueprint",
            "dimmed", "mission_blueprint", "robot_colour", "series_style"]
