@@ -18,8 +18,8 @@ the odometry factors are the model's random walk. The odometry gives the metric 
 free. Solved jointly by the smoother's own Levenberg–Marquardt, the calibration its extra unknowns (Huber weights
 first, then the sightings beyond χ²₂ 99 % dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the
 FastSLAM filter's map and trajectory (known association) with the given model; each step's turn of the whole map
-about pose 0 is taken as a rotation (the solve's ``exact_rotation``: the first steps' jumps of ψ turn the map, and
-along a turn's tangent the loop crawled: MRCLAM robot 1 stopped at the iteration cap from one filter seed and
+about pose 0 is taken as a rotation (as the smoother's solve takes every step: the first steps' jumps of ψ turn the
+map, and along a turn's tangent the loop crawled: MRCLAM robot 1 stopped at the iteration cap from one filter seed and
 converged from another, with other outliers, b₀ 2 standard errors apart); both solves must converge. The calibration's
 covariance is its block of the inverse information (Laplace).
 
@@ -269,11 +269,10 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     # the steps' turns of the map taken as rotations (see _solve); the outliers are cut at the robust solution, so
     # an unfinished robust solve leaves them to the start, and the estimate is reported as not converged
     iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape,
-                                                 extra_values=c, exact_rotation=True)
+                                                 extra_values=c)
     _, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c,
-                                   exact_rotation=True)
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c)
     converged = converged and robust_converged
     odometry_r, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))

@@ -272,7 +272,7 @@ class Smoothed:
     chi2: float
     dof: int
     iterations: int
-    converged: bool
+    converged: bool       # both solves did: the robust one, at whose end the outliers are cut, and the last
     heading_weights: np.ndarray | None = None     # (T,) the heading loss's IRLS weights at the solution, if any
     heading_drift: HeadingDrift | None = None     # the drift the solution carries (None: off)
     heading_biases: np.ndarray | None = None      # (T,) each increment's heading bias (rad/m) with the drift
@@ -314,8 +314,9 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     offsets = None if offset is None else np.zeros((offset.count, 2))
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
-    iterations_robust, _ = _solve(problem, poses, landmarks, inliers, robust=True, heading_loss=heading_loss,
-                                  drift=drift, bias=bias, offset=offset, offsets=offsets)
+    iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True,
+                                                 heading_loss=heading_loss, drift=drift, bias=bias, offset=offset,
+                                                 offsets=offsets)
     _, residual = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
@@ -339,7 +340,7 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     if offset is not None:
         landmark_cov[offset.sole_landmarks] += offset.sigma ** 2 * np.eye(2)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
-                    dof, iterations_robust + iterations, converged, heading_weights,
+                    dof, iterations_robust + iterations, robust_converged and converged, heading_weights,
                     heading_drift if drift is not None else None, None if drift is None else drift.per_metre(bias),
                     sighting_offset if offset is not None else None, offsets,
                     None if drift is None else drift.per_radian(bias))
@@ -684,18 +685,20 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
 
 
 def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-           offsets=None, extra=None, extra_values=None, exact_rotation=False) -> tuple[int, bool]:
+           offsets=None, extra=None, extra_values=None) -> tuple[int, bool]:
     """Levenberg–Marquardt (IRLS weights when ``robust``, and for ``heading_loss``) in place on poses[1:] and
     landmarks (and the biases (T, n) with a drift, the offsets (G, 2) with sighting offsets, the values (k,) of
     :class:`ExtraUnknowns`).
 
-    ``exact_rotation`` (off by default): each step's turn of the whole solution about the frame's origin is taken as
-    a rotation, not along its tangent (:func:`_rotation_correction`). Why: pose 0 alone fixes the frame, so turning
-    every later pose and the map together changes only the first increments' residuals: the information in that
-    direction is 10⁻¹¹-10⁻⁸ of the diagonal's (MRCLAM robot 1). A linear step along it by ω moves a point r from
-    the origin ω²r/2 off the circle it turns on (0.15 rad at 5 m: 5.6 cm, two of a sighting's σ), so the loop must
-    take short steps there and a start turned by a tenth of a radian from the solution takes more than the
-    iteration cap. The self-calibration needs it: its first steps turn the map by the bearing offset's jumps."""
+    Each step's turn of the whole solution about the frame's origin is taken as a rotation, not along its tangent
+    (:func:`_rotation_correction`). Why: pose 0 alone fixes the frame, so turning every later pose and the map
+    together changes only the first increments' residuals: the information in that direction is 10⁻¹¹-10⁻⁸ of the
+    diagonal's (MRCLAM robot 1). A linear step along it by ω moves a point r from the origin ω²r/2 off the circle it
+    turns on (0.15 rad at 5 m: 5.6 cm, two of a sighting's σ), so the loop must take short steps there and a start
+    turned by a tenth of a radian from the solution takes more than the iteration cap. The self-calibration's first
+    steps turn the map by the bearing offset's jumps (session 38 (E)); the smoother's robust solve on MRCLAM robot 1
+    (30 particles, whole log) stopped at the cap of 60 with tangent steps and converges in 43 with rotations
+    (session 39)."""
     t, n_landmarks = problem.n_poses, len(landmarks)
     width = _width(drift)
     landmarks_end = width * t + 2 * n_landmarks
@@ -737,13 +740,11 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             if offset is not None:
                 trial_offsets = offsets.copy()
                 trial_offsets[offset.explicit_groups] += step[landmarks_end:offsets_end].reshape(-1, 2)
-            if exact_rotation:
-                omega = _step_rotation(np.vstack([poses[1:, :2], landmarks]),
-                                       np.vstack([pose_step[:, :2], landmark_step]))
-                trial_poses[1:, :2] += _rotation_correction(poses[1:, :2], omega)
-                trial_landmarks += _rotation_correction(landmarks, omega)
-                if offset is not None:   # vectors in the map's frame: they turn with it
-                    trial_offsets += _rotation_correction(offsets, omega)
+            omega = _step_rotation(np.vstack([poses[1:, :2], landmarks]), np.vstack([pose_step[:, :2], landmark_step]))
+            trial_poses[1:, :2] += _rotation_correction(poses[1:, :2], omega)
+            trial_landmarks += _rotation_correction(landmarks, omega)
+            if offset is not None:   # vectors in the map's frame: they turn with it
+                trial_offsets += _rotation_correction(offsets, omega)
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_values = None if extra is None else extra.stepped(extra_values, step[offsets_end:])
             if extra is not None and trial_values is None:   # values the extra unknowns do not admit: refused
