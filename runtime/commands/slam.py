@@ -225,8 +225,9 @@ def _register_noise(sub) -> None:
                         help="with --self-calibrate: a length measured outside the log (a tape between two posts), "
                              "landmarks ID1 and ID2 (barcode subjects) METRES apart with standard deviation SIGMA "
                              f"(default {KNOWN_DISTANCE_SIGMA_M} m, a tape's); a factor on the two landmarks' "
-                             "positions, so the camera's scale is not the odometry's alone (docs/fastslam-history.md, "
-                             "Session 37 (D)). Repeatable")
+                             "positions, so the camera's scale is not the odometry's alone; the odometry's "
+                             "translation scale is then estimated too, recorded in [fit] (docs/fastslam-history.md, "
+                             "Session 37 (D), Session 39 (B)). Repeatable")
     parser.add_argument("--heading-bias", action="store_true",
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "
