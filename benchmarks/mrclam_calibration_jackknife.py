@@ -7,7 +7,9 @@
 (Laplace): they assume the model's noise is all there is. On MRCLAM its b₀ came out 1.0-2.3 % low, 2-9 of those
 errors (session 37 (A)). Here the log's sightings are cut into BLOCKS contiguous runs of equal count; the camera is
 self-calibrated again with each run left out (the odometry kept whole), and the jackknife's standard error,
-√((K−1)/K Σ (c_k − c̄)²), is printed beside the Laplace one. Errors correlated over less than a block (the odometry's
+√((K−1)/K Σ (c_k − c̄)²), is printed beside the Laplace one. A block whose calibration has a problem (its solve did
+not converge, or the calibration is not determined) is printed with it and left out of the jackknife (K the blocks
+kept; the table's heading says how many were left out). Errors correlated over less than a block (the odometry's
 slow heading and scale errors, a camera that drifts) widen the jackknife's; a bias shared by the whole log widens
 neither. No ground truth is read. K + 1 self-calibrations: minutes of CPU.
 
@@ -32,6 +34,8 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam"
 def jackknife(log: RangeBearingLog, noise: NoiseModel, blocks: int, known=()) -> tuple[np.ndarray, np.ndarray, list]:
     """(the whole log's calibration, its Laplace standard errors, the K leave-a-block-out calibrations)."""
     whole = self_calibrate(log, noise, known_distances=known)
+    if whole.problem is not None:
+        print(f"  whole log: {whole.problem} (its values and Laplace errors below are not an estimate)", flush=True)
     # blocks of whole frames: a frame's sightings stay together
     frame = np.searchsorted(np.unique(log.sighting_times), log.sighting_times)
     edges = np.quantile(frame, np.linspace(0, 1, blocks + 1))
@@ -42,7 +46,8 @@ def jackknife(log: RangeBearingLog, noise: NoiseModel, blocks: int, known=()) ->
         left_out.append(calibration)
         print(f"  block {k}: {int((label == k).sum())} sightings left out: " + ", ".join(
             f"{ESTIMATED[i]} {calibration.values[i]:+.4f}" for i in FREE)
-            + ("" if calibration.problem is None else f" ({calibration.problem})"), flush=True)
+            + ("" if calibration.problem is None else f" ({calibration.problem}: left out of the jackknife)"),
+            flush=True)
     return whole.values, whole.standard_errors, left_out
 
 
@@ -65,10 +70,16 @@ def main(argv=None) -> int:
         KnownDistance(int(args.known_distance[0]), int(args.known_distance[1]), float(args.known_distance[2]), 0.005),)
     log = read_mrclam(args.data, args.robot, barcodes="table")
     values, laplace, left_out = jackknife(log, NoiseModel.load(args.noise), args.blocks, known)
-    stacked = np.array([c.values for c in left_out])
-    k = len(left_out)
+    kept = [c for c in left_out if c.problem is None]   # a calibration with a problem is not an estimate
+    k = len(kept)
+    if k < 2:
+        print(f"mrclam_calibration_jackknife: only {k} of {len(left_out)} blocks gave a calibration", file=sys.stderr)
+        return 1
+    stacked = np.array([c.values for c in kept])
     spread = np.sqrt((k - 1) / k * np.sum((stacked - stacked.mean(axis=0)) ** 2, axis=0))
-    print(f"robot {args.robot}, {k} blocks" + ("" if not known else f", taped {known[0].first}-{known[0].second}"))
+    print(f"robot {args.robot}, {k} blocks" + ("" if k == len(left_out) else f" ({len(left_out) - k} of "
+                                               f"{len(left_out)} left out: no calibration)")
+          + ("" if not known else f", taped {known[0].first}-{known[0].second}"))
     print("| term | whole log | Laplace se | jackknife se | ratio |")
     print("|---|---|---|---|---|")
     for i in FREE:
