@@ -76,9 +76,9 @@ from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import alignment_status, candidate_text
-from runtime.rerun_map_format import OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
+from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rerun_sdk import rr
-from runtime.rerun_sink import CLOSED_ENTITY, FILE_FLUSH_TICK, SAVED_STREAMS
+from runtime.rerun_sink import FILE_FLUSH_TICK, SAVED_STREAMS
 from runtime.rerun_style import (
     EVENTS,
     FUSION_STATUS,

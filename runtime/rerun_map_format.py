@@ -1,12 +1,15 @@
-"""A landmark map as a recording holds it (``maps/<key>``): its arrays in the types they are logged and read back in,
-and the checksum taken over them. runtime/rerun_log.py's MissionLog writes snapshots with these, runtime/rerun_read.py
-checks them as it reads them back."""
+"""What a recording's writer and its reader agree on: a landmark map as a recording holds it (``maps/<key>``), its
+arrays in the types they are logged and read back in and the checksum taken over them, and the entity that says the
+mission closed its recording. runtime/rerun_log.py's MissionLog writes them, runtime/rerun_read.py checks them as it
+reads them back."""
 from __future__ import annotations
 
 import zlib
 from collections.abc import Mapping
 
 import numpy as np
+
+CLOSED_ENTITY = "mission/closed"   # logged (static) when a mission closes its recording: the file is whole
 
 # a map's arrays that only some maps have (estimation/landmark_map.py): the drift and sightings calibrations of
 # fusion.fuse_all use them; a snapshot carries those its map has (recordings before session 15 carry none)
@@ -33,4 +36,4 @@ def map_checksum(arrays: Mapping[str, np.ndarray], meta: str) -> int:
     return crc
 
 
-__all__ = ["OPTIONAL_MAP_ARRAYS", "map_arrays", "map_checksum"]
+__all__ = ["CLOSED_ENTITY", "OPTIONAL_MAP_ARRAYS", "map_arrays", "map_checksum"]

@@ -13,11 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+import runtime.rerun_sdk  # noqa: F401  (Rerun imported quietly, before _rrd_reader imports rerun.chunk)
 from estimation.landmark_map import LandmarkMap
-from runtime.rerun_map_format import OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
-
-# imports Rerun through runtime/rerun_sdk.py (quietly) before _rrd_reader imports rerun.chunk
-from runtime.rerun_sink import CLOSED_ENTITY
+from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE, ReadingProcesses, copy_prefix, salvage, scan_rrd
 from runtime.textfile import not_a_file
 

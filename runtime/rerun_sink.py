@@ -74,7 +74,6 @@ def spawn_viewer(port: int | None = None, timeout: float = 15.0) -> str:
 FILE_FLUSH_TICK = 1.0  # s
 # the streams open_recording saves to a file (runtime/rerun_log.py's MissionLog holds their rows)
 SAVED_STREAMS: weakref.WeakSet = weakref.WeakSet()
-CLOSED_ENTITY = "mission/closed"
 
 
 def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb.Blueprint | None = None,
@@ -129,5 +128,5 @@ def recording_id(rec: rr.RecordingStream) -> str | None:
     return rec.get_recording_id()
 
 
-__all__ = ["APPLICATION_ID", "CLOSED_ENTITY", "FILE_FLUSH_TICK", "SAVED_STREAMS", "VIEWER_PORT", "ViewerError",
+__all__ = ["APPLICATION_ID", "FILE_FLUSH_TICK", "SAVED_STREAMS", "VIEWER_PORT", "ViewerError",
            "open_recording", "recording_id", "spawn_viewer"]
