@@ -151,15 +151,10 @@ def scores(cap: Captured, solution) -> dict:
             "frame": frame, "chi2_per_dof": solution.chi2_per_dof, "converged": bool(solution.converged)}
 
 
-def _rigid_functional(cap: Captured) -> np.ndarray:
-    """(3, 2L): the least-squares (dx, dy, dθ) of landmark errors e_j ≈ d + dθ (−y_j, x_j) (true positions)."""
-    return rigid_functional(cap.true_landmarks)
-
-
 def frame_error(cap: Captured, solution) -> dict:
     """The map's start-frame error as one rigid motion, its covariance from the landmarks' joint covariance
     (the smoother's information), its NEES, and the landmark NEES within the bound with parts of it removed."""
-    functional = _rigid_functional(cap)
+    functional = rigid_functional(cap.true_landmarks)
     errors = solution.landmarks - cap.true_landmarks
     motion = functional @ errors.ravel()
     covariance = _functional_covariance(cap.problem, solution.poses, solution.landmarks, solution.inliers,
@@ -195,7 +190,7 @@ def attribution(cap: Captured, inliers: np.ndarray) -> dict:
     odometry, sightings = _residuals(p, cap.true_poses, cap.true_landmarks)
     residual = np.concatenate([odometry, (sightings.reshape(-1, 2) * inliers[:, None]).ravel()])
     w = np.zeros((3, 3 * t + 2 * n_landmarks))
-    w[:, 3 * t:] = _rigid_functional(cap)
+    w[:, 3 * t:] = rigid_functional(cap.true_landmarks)
     u = NormalFactor((jac.T @ jac).tocsc(), t).solve(w.T)
     g = np.asarray(jac @ u)
     variance = np.sum(g ** 2, axis=0)
