@@ -55,12 +55,40 @@ The robust solve frees s only from the solution it gives with s held at the mode
 gross errors in its path, the first steps traded them for s (MRCLAM robot 5 without a tenth of its sightings: s
 1.5-1.8, the solve stopped at the iteration cap; session 39 (D)); the estimator is the same, only its start moves.
 
+The sensor's noise (``noise_components``, off by default): the σ's, like the calibration, are the given model's
+unless asked for; with ``("range", "bearing")`` the sightings' σ_r (its shape a + b r kept, one factor on it) and σ_φ
+are estimated from the log's own residuals as variance components (:mod:`estimation.noise_components`: Helmert's
+σ²_g ← v_gᵀW_g v_g / r_g with r_g the group's redundancy, REML's fixed point), each round the self-calibration's own
+robust solve, outlier cut and solve at the σ's the last round gave (from a start with σ_φ 2.5× too small the first
+solves cut good sightings and stopped in another solution: σ_φ 7-9 % low, 6 standard errors, when only the last solve
+was redone; with the robust solve in every round the estimate is the one the right model's start gives).
+
+What it recovers. The solve weighs a sighting with its variance inflated by f = (1 + ρ)/(1 − ρ) for the correlation
+of consecutive sightings (ρ the given model's), as the filter does; the residuals, though, are spread as the errors
+are, by their marginal σ (a pass's slow error is only partly taken by its landmark and the poses). So at a solution
+weighted with the marginal σ² inflated by f the residuals' χ²_g / r_g is 1/f, not 1: that is the fixed point sought
+(the variances' factor becomes f χ²_g / r_g each round), and the model's fields receive marginal σ's, the same
+quantity a fit against truth writes; the correlations are kept (not estimated). Simulated with AR(1) errors of ρ 0.6
+along each pass, the model told ρ: σ_r 0.98 and σ_φ 1.13-1.14 of the marginal σ's come back; the fixed point χ²/r = 1
+(the inflated variance taken for the marginal one) gave 0.45-0.49 of them, which the filter's inflation would then
+halve twice over. On MRCLAM the in-sample σ_φ (against Vicon) also holds the truth's own heading errors, which the
+smoother's poses take: the estimate is smaller there (robot 1: 0.0072 rad against 0.0253 in sample).
+
+The odometry's factor (``"odometry"``, on all its increments' variances) is a third group that can be asked for:
+with white sightings it comes back (1.02-1.06 ± 0.03), but with AR(1) sightings (ρ 0.6, told) it came out 0.65-0.75
+and took σ_φ to 1.21-1.27 of the marginal: the sightings' slow errors leak into the odometry's residuals. MRCLAM's
+sightings are correlated (ρ 0.4-0.8), so it is not estimated by default.
+
 The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
 Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
 calibration must be known better than one sighting's own noise: for the range, the RMS over the kept sightings of
 the calibrated range's own σ (√(∂r'ᵀ Σ ∂r'), ∂r' = (1, r, rφ, rφ²) over the estimated terms) below the RMS of their
-σ_r (the model's, before inflation), for the bearing σ_ψ < σ_φ. Else the estimate would add to every sighting an
-error larger than the sighting's own, and it is reported as not found, with the reason.
+σ_r, for the bearing σ_ψ < σ_φ, each σ as the solve weighs one sighting (inflated by √((1 + ρ)/(1 − ρ)) for
+correlated sightings, as the calibration's covariance is: both in the solve's units; the model's σ's, or the
+estimated ones). Else the estimate would add to every sighting an error larger than the sighting's own, and it is
+reported as not found, with the reason. (Until session 40 the σ's were compared before inflation; no MRCLAM run
+changed: all five passed either way with the given σ's. With the estimated marginal σ_φ and no inflation, robots 3
+and 5 would not pass: σ_ψ 0.0069 and 0.0077 rad against σ_φ 0.0063 and 0.0069.)
 """
 from __future__ import annotations
 
@@ -85,8 +113,10 @@ from .landmark_smoother import (
     _residuals,
     _solve,
 )
+from .noise_components import GROUPS, MIN_FACTOR, NoiseComponents, truncated_means, variance_factors
 from .noise_model import NoiseModel, with_fastslam
 
+SIGMAS = ("range_sigma_m", "range_sigma_per_m", "bearing_sigma_rad")   # what the noise's components rescale
 ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2",
              "bearing_offset_rad")   # c = (a, b₀, b₁, b₂, ψ), in this order
 FREE = np.array([0, 1, 2, 4])          # estimated by default: a, b₀, b₁, ψ (b₂ the model's)
@@ -134,8 +164,8 @@ class CameraCalibration:
     iterations: int
     converged: bool
     range_sd_rms_m: float                       # the calibration's own σ of r', RMS over the kept sightings
-    range_sigma_rms_m: float                    # one sighting's σ_r, RMS over them (the model's, not inflated)
-    bearing_sigma_rad: float                    # one sighting's σ_φ (the model's, not inflated)
+    range_sigma_rms_m: float                    # one sighting's σ_r, RMS over them (model or estimate; not inflated)
+    bearing_sigma_rad: float                    # one sighting's σ_φ (model or estimate; not inflated)
     problem: str | None
     known_distances: tuple[KnownDistance, ...] = ()   # the surveyed lengths used
     fitted_distances_m: tuple[float, ...] = ()        # the map's distance between each pair, at the solution
@@ -145,6 +175,8 @@ class CameraCalibration:
     translation_scale_standard_error: float = math.nan
     translation_scale_joint_map: float = math.nan
     range_scale_translation_scale_correlation: float = math.nan
+    # the noise's level estimated with the calibration (None: the given model's σ's, kept)
+    noise_components: NoiseComponents | None = None
 
     @property
     def standard_errors(self) -> np.ndarray:
@@ -165,7 +197,19 @@ class CameraCalibration:
                 "frames": self.frames, "chi2_per_dof": self.chi2_per_dof, "iterations": self.iterations,
                 "converged": self.converged, "range_sd_rms_m": self.range_sd_rms_m,
                 "range_sigma_rms_m": self.range_sigma_rms_m, "bearing_sigma_rad": self.bearing_sigma_rad,
-                "problem": self.problem, **self._known_distances_dict(), **self._translation_scale_dict()}
+                "problem": self.problem, **self._known_distances_dict(), **self._translation_scale_dict(),
+                **self._noise_dict()}
+
+    def _noise_dict(self) -> dict:
+        if self.noise_components is None:   # not estimated: no key at all, a file as before
+            return {}
+        nc = self.noise_components
+        se = nc.standard_errors
+        return {"noise_groups": list(nc.estimated), "noise_rounds": nc.rounds,
+                **{f"{g}_variance_factor": float(nc.factors[j]) for j, g in enumerate(GROUPS) if g in nc.estimated},
+                **{f"{g}_variance_factor_standard_error": float(se[j]) for j, g in enumerate(GROUPS)
+                   if g in nc.estimated},
+                **{f"{g}_redundancy": float(nc.redundancies[j]) for j, g in enumerate(GROUPS) if g in nc.estimated}}
 
     def _translation_scale_dict(self) -> dict:
         if self.translation_scale is None:   # not estimated: no key at all, a file as before
@@ -197,7 +241,12 @@ class CameraCalibration:
         figures = {f"self_calibration_{k}": v for k, v in self.as_dict().items()
                    if k not in ESTIMATED and k != "problem"}
         given = {f"self_calibration_given_{k}": float(getattr(model.range_bearing, k)) for k in ESTIMATED}
-        return dataclasses.replace(model, range_bearing=rb, robot=robot, source=source,
+        odometry = model.odometry
+        if self.noise_components is not None:   # the estimated σ's (their shape and the correlations kept)
+            rb, odometry, sigmas = _with_sigmas(rb, odometry, self.noise_components)
+            given |= {f"self_calibration_given_{k}": float(getattr(model.range_bearing, k)) for k in SIGMAS}
+            figures |= sigmas
+        return dataclasses.replace(model, odometry=odometry, range_bearing=rb, robot=robot, source=source,
                                    fit={**model.fit, **given, **figures})
 
 
@@ -210,7 +259,8 @@ def without_truth(log: RangeBearingLog) -> RangeBearingLog:
 def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMConfig | None = None,
                    seed: int = 0, estimate_shape: bool = False,
                    known_distances: tuple[KnownDistance, ...] | list[KnownDistance] = (),
-                   translation_scale: bool | None = None) -> CameraCalibration:
+                   translation_scale: bool | None = None, noise_components: tuple[str, ...] = ()
+                   ) -> CameraCalibration:
     """The camera calibration (a, b₀, ψ) of ``log``'s robot from its odometry and its sightings, associated by their
     landmark ids (barcodes, fiducials): see the module docstring. ``noise``: the odometry's model and calibration,
     the sensor's σ's and correlations, b₁ and b₂ (e.g. a model fitted on other robots with
@@ -288,6 +338,17 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c)
     converged = converged and robust_converged
+    components = None
+    if noise_components:
+        def shaped(p: LandmarkLogProblem) -> _Shape:
+            odometry_scale = _OdometryScale.of(p, noise.odometry.translation_scale) if translation_scale else None
+            return _Shape(sensor, raw_r, raw_b, p.range_sigmas, free, shape.lengths, odometry_scale)
+
+        problem, shape, inliers, components = _noise_components(
+            problem, shaped, poses, landmarks, c, tuple(noise_components),
+            (1.0, *sensor.variance_inflation()),
+            (0.0, max(sensor.range_correlation, 0.0), max(sensor.bearing_correlation, 0.0)))
+        converged = components.converged   # its last round's solves, from the start the first rounds made
     odometry_r, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if shape.lengths.count:
@@ -302,15 +363,21 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     with np.errstate(invalid="ignore"):   # inf × 0 of the terms not estimated, in a singular covariance
         sd_rms = float(np.sqrt(np.mean(np.einsum("si,ij,sj->s", design, np.nan_to_num(covariance[:4, :4], posinf=1e300),
                                                   design))))
-    sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[inliers] ** 2)))
-    problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
-                            float(sensor.bearing_sigma_rad))
+    scale = np.ones(3) if components is None else components.sigma_factors   # the estimated σ's, if any
+    sigma_rms = float(np.sqrt(np.mean(plain_sigma_r[inliers] ** 2))) * float(scale[1])
+    bearing_sigma = float(sensor.bearing_sigma_rad) * float(scale[2])
+    # one sighting's σ's as the solve weighs them (inflated for correlated sightings, as the calibration's covariance
+    # is): the calibration must be known better than that (see the module docstring)
+    weighed = (sigma_rms * inflate_r, bearing_sigma * inflate_b)
+    problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, *weighed)
+    if problem_text is None and components is not None:
+        problem_text = components.problem()
     # determined at the MAP: the marginal likelihood's correction (else the MAP, reported); none with the odometry's
     # scale estimated: the joint MAP is reported (see the module docstring)
     if problem_text is None and not translation_scale:
         c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
-        problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, sigma_rms,
-                                float(sensor.bearing_sigma_rad))
+        problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms,
+                                *weighed) or (None if components is None else components.problem())
     fitted = tuple(float(x) for x in shape.lengths.distances(landmarks))
     n = len(ESTIMATED)
     scale_figures = {}
@@ -323,7 +390,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     return CameraCalibration(c[:n], covariance[:n, :n], map_values[:n], int(len(log)), int((~inliers).sum()),
                              int(seen.sum()), int(len(times)), chi2 / dof if dof > 0 else float("nan"),
                              iterations_robust + iterations, converged, sd_rms, sigma_rms,
-                             float(sensor.bearing_sigma_rad), problem_text, known_distances, fitted, **scale_figures)
+                             bearing_sigma, problem_text, known_distances, fitted, **scale_figures,
+                             noise_components=components)
 
 
 @dataclass(frozen=True)
@@ -535,10 +603,97 @@ def _problem(converged, iterations, c, covariance, sd_rms, sigma_rms, bearing_si
                 "calibration, not a new robot)")
     if not sd_rms < sigma_rms:
         return (f"the range calibration is not known better than one sighting (± {sd_rms:.3f} m RMS over the "
-                f"sightings' ranges against their σ_r {sigma_rms:.3f} m): the log's ranges and odometry do not "
-                "determine it")
+                f"sightings' ranges against their σ_r {sigma_rms:.3f} m, as the solve weighs them): the log's ranges "
+                "and odometry do not determine it")
     se_psi = float(np.sqrt(covariance[4, 4]))
     if not se_psi < bearing_sigma:
         return (f"the bearing offset is not known better than one sighting (± {se_psi:.4f} rad against σ_φ "
-                f"{bearing_sigma:.4f} rad)")
+                f"{bearing_sigma:.4f} rad, as the solve weighs it)")
     return None
+
+
+MAX_COMPONENT_ROUNDS = 40
+COMPONENT_TOLERANCE = 1e-3   # the rounds stop when no variance factor moves by more than this (σ: 0.05 %)
+
+
+def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, estimated: tuple[str, ...],
+                      inflation: tuple[float, float, float], correlations: tuple[float, float, float]):
+    """The variance components of the groups ``estimated`` (of :data:`~estimation.noise_components.GROUPS`), each
+    round a re-cut of the outliers and a re-solve at the σ's the last gave (poses, landmarks and c in place):
+    (problem, shape, inliers, NoiseComponents) at the fixed point."""
+    unknown = set(estimated) - set(GROUPS)
+    if unknown:
+        raise ValueError(f"no noise group {sorted(unknown)[0]!r}: the groups are {', '.join(GROUPS)}")
+    t = base.n_poses
+    # the fixed point: each group's normalised residuals at 1/inflation of the used variance (the sightings' marginal
+    # variance, which the file's σ's are; see the module docstring)
+    target = 1.0 / np.asarray(inflation, float)
+    factors, on = np.ones(3), np.array([g in estimated for g in GROUPS])
+    converged, redundancy, rows, rounds = False, np.zeros(3), np.zeros(3), 0
+    while rounds < MAX_COMPONENT_ROUNDS:
+        rounds += 1
+        problem = dataclasses.replace(base, increment_variances=base.increment_variances * factors[0],
+                                      range_sigmas=base.range_sigmas * math.sqrt(factors[1]),
+                                      bearing_sigmas=base.bearing_sigmas * math.sqrt(factors[2]))
+        shape = shaped(problem)
+        inliers = np.ones(len(base.ranges), bool)
+        try:
+            solved = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape, extra_values=c)[1]
+            _, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
+            inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
+            solved = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape,
+                            extra_values=c)[1] and solved
+            odometry, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
+            jac = shape.jacobian(problem, poses, landmarks, c, inliers.astype(float))
+            residual = np.concatenate([odometry, sightings * np.repeat(inliers, 2), shape.residuals(landmarks, c)])
+            kept = 3 * t + 2 * np.flatnonzero(inliers)
+            seen = np.zeros(len(landmarks), bool)
+            seen[problem.landmark_index[inliers]] = True
+            free = np.ones(jac.shape[1], bool)
+            free[3 * t:3 * t + 2 * len(landmarks)] = np.repeat(seen, 2)
+            chi2, redundancy = variance_factors(jac, residual, [np.arange(3 * t), kept, kept + 1], t, free)
+        except np.linalg.LinAlgError:   # the weights so far apart that the information is singular: no fixed point
+            break
+        rows = np.array([3 * t, len(kept), len(kept)], float)
+        # the cut's share of the kept residuals' squares: their variances the target's times 1 − h, h on average
+        # 1 − r/n (see estimation.noise_components)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spread = np.clip(redundancy / np.maximum(rows, 1.0), 1e-6, 1.0)
+            means = np.concatenate([[1.0], truncated_means(OUTLIER_CHI2, target[1:] * spread[1:])])
+            k = chi2 / (np.maximum(redundancy, 0.0) * means)
+        update = np.where(on, k / target, 1.0)
+        if not np.all(np.isfinite(update) & (update > 0)) or np.any(factors * update < MIN_FACTOR):
+            factors = factors * np.where(np.isfinite(update), update, np.nan)   # not determined: see problem()
+            break
+        if np.max(np.abs(update - 1.0)) < COMPONENT_TOLERANCE:
+            converged = bool(solved)   # the fixed point, where the robust and the final solve both converged
+            break
+        factors = factors * update
+    return problem, shape, inliers, NoiseComponents(tuple(g for g in GROUPS if g in estimated), factors,
+                                                     redundancy, rows, np.asarray(correlations, float), rounds,
+                                                     converged)
+
+
+_ODOMETRY_VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "theta_var_per_s")
+
+
+def _with_sigmas(rb, odometry, components: NoiseComponents):
+    """(range_bearing, odometry, [fit] figures): the sensor's σ's (a + b r scaled as one, σ_φ) and, if estimated,
+    the odometry's variances scaled by the factors found; the σ's standard errors (σ √(2/r) ½, widened for ρ)."""
+    root, se = components.sigma_factors, components.standard_errors
+    rb = dataclasses.replace(rb, range_sigma_m=rb.range_sigma_m * root[1], range_sigma_per_m=rb.range_sigma_per_m
+                             * root[1], bearing_sigma_rad=rb.bearing_sigma_rad * root[2])
+    figures = {"self_calibration_range_sigma_m_standard_error": float(rb.range_sigma_m * 0.5 * se[1]
+                                                                      / components.factors[1]),
+               "self_calibration_range_sigma_per_m_standard_error": float(rb.range_sigma_per_m * 0.5 * se[1]
+                                                                          / components.factors[1]),
+               "self_calibration_bearing_sigma_rad_standard_error": float(rb.bearing_sigma_rad * 0.5 * se[2]
+                                                                          / components.factors[2])}
+    if "range" not in components.estimated:
+        figures = {k: v for k, v in figures.items() if "range_sigma" not in k}
+    if "bearing" not in components.estimated:
+        figures = {k: v for k, v in figures.items() if "bearing_sigma" not in k}
+    if "odometry" in components.estimated:
+        odometry = dataclasses.replace(odometry, **{k: getattr(odometry, k) * float(components.factors[0])
+                                                    for k in _ODOMETRY_VARIANCES})
+    return rb, odometry, figures

@@ -31,11 +31,14 @@ SIGMA_R, SIGMA_R_PER_M, SIGMA_B = 0.005, 0.006, 0.01
 
 
 def _log(rng, *, a=-0.08, b0=0.97, b1=0.0, psi=0.01, minutes=12.0, noise=True, q=0.003,
-         odometry_scale=1.0) -> RangeBearingLog:
+         odometry_scale=1.0, sigma_b=SIGMA_B, range_noise=1.0, correlation=0.0) -> RangeBearingLog:
     """A robot wandering among 15 posts for ``minutes``; its odometry a random walk of variance ``q`` per metre and
     per radian (x, y and θ), its translations ``odometry_scale`` times the true ones (a wheel radius off), its camera
     reports each post in view every 0.24 s with bearing φ = the true one + ``psi`` (+ noise σ_φ) and a raw range r
-    such that the calibrated a + r (b0 + b1 φ) is the true range (+ noise σ_r)."""
+    such that the calibrated a + r (b0 + b1 φ) is the true range (+ noise σ_r). ``sigma_b``: σ_φ; ``range_noise``: a
+    factor on σ_r; ``correlation``: ρ of a post's consecutive sightings' errors (an AR(1) along each pass: a post
+    sighted in the frame before has its error ρ times that one's plus √(1 − ρ²) of a fresh draw; the marginal σ's are
+    σ_r and σ_φ)."""
     dt = 0.02
     n = int(minutes * 60 / dt) + 1
     t = np.arange(n) * dt
@@ -56,13 +59,23 @@ def _log(rng, *, a=-0.08, b0=0.97, b1=0.0, psi=0.01, minutes=12.0, noise=True, q
         odometry.append(compose(odometry[-1], step))
     posts = rng.uniform(-5, 5, (15, 2)) + [x.mean(), y.mean()]
     rows = []
+    last = {}                                  # post → (frame, its unit errors) of its last sighting
     for k in range(0, n, 12):
         delta = posts - truth[k, 1:3]
         r = np.hypot(delta[:, 0], delta[:, 1])
         phi = wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - truth[k, 3])
         for i in np.flatnonzero((np.abs(phi) < 0.55) & (r > 0.6) & (r < 7.0)):
-            r_noisy = r[i] + (rng.normal(0, SIGMA_R + SIGMA_R_PER_M * r[i]) if noise else 0.0)
-            reported = phi[i] + (rng.normal(0, SIGMA_B) if noise else 0.0) + psi     # φ as the camera reports it
+            sigma_r = range_noise * (SIGMA_R + SIGMA_R_PER_M * r[i])
+            e_r = rng.normal(0, sigma_r) if noise else 0.0
+            e_b = rng.normal(0, sigma_b) if noise else 0.0
+            if correlation and noise:          # the fresh draws, in units of their σ, joined to the last ones
+                unit = np.array([e_r / sigma_r, e_b / sigma_b])
+                if last.get(i, (None,))[0] == k - 12:
+                    unit = correlation * last[i][1] + np.sqrt(1.0 - correlation ** 2) * unit
+                last[i] = (k, unit)
+                e_r, e_b = unit[0] * sigma_r, unit[1] * sigma_b
+            r_noisy = r[i] + e_r
+            reported = phi[i] + e_b + psi     # φ as the camera reports it
             rows.append((t[k], (r_noisy - a) / (b0 + b1 * reported), reported, i + 1))
     rows = np.array(rows)
     return RangeBearingLog("synthetic", np.column_stack([t, np.array(odometry)]), rows[:, 0], rows[:, 1], rows[:, 2],
@@ -110,6 +123,10 @@ def test_the_ground_truth_is_not_read():
     for other in runs[1:]:
         np.testing.assert_array_equal(other.values, runs[0].values)
         np.testing.assert_array_equal(other.covariance, runs[0].covariance)
+    # nor with the noise's variance components
+    runs = [self_calibrate(x, _model(), noise_components=("range", "bearing")) for x in (log, scrambled)]
+    np.testing.assert_array_equal(runs[1].noise_components.factors, runs[0].noise_components.factors)
+    np.testing.assert_array_equal(runs[1].values, runs[0].values)
 
 
 def test_a_log_too_short_to_determine_the_calibration_is_reported_as_such():
@@ -354,3 +371,99 @@ def test_robot_5_without_a_tenth_of_its_sightings_converges_with_the_odometry_s_
     assert calibration.translation_scale is not None and 0.9 < calibration.translation_scale < 1.2
     j = ESTIMATED.index("range_scale")
     assert abs(calibration.values[j] - 1.0) < 5 * calibration.standard_errors[j]   # the other blocks: 0.996-1.001
+
+
+def _sensor(model: NoiseModel, **changes) -> NoiseModel:
+    return dataclasses.replace(model, range_bearing=dataclasses.replace(model.range_bearing, **changes))
+
+
+def _range_sigma_ratio(log: RangeBearingLog, calibration) -> float:
+    """The simulated ranges' σ over the model's as the solve carries it (σ_r at the raw range, times m/m₀ with the
+    identity's m₀ = 1): RMS over the sightings; 0.985-0.99 here (the model's σ_r is taken at the raw range, which a
+    b₀ of 0.97 and a of −0.08 make 8 cm long), the factor the estimate should find with the model's own σ's."""
+    pose = log.true_pose(log.sighting_times)
+    d = log.truth_positions[log.landmark_ids - 1] - pose[:, :2]
+    true_sigma = SIGMA_R + SIGMA_R_PER_M * np.hypot(d[:, 0], d[:, 1])
+    m = calibration.range_scale + calibration.range_scale_per_rad * log.bearings
+    return float(np.sqrt(np.mean((true_sigma / ((SIGMA_R + SIGMA_R_PER_M * log.ranges) * m)) ** 2)))
+
+
+def _sigma_and_error(model: NoiseModel, calibration, group: int) -> tuple[float, float]:
+    """(σ, its standard error) of the estimated range factor (group 1, on σ_r) or bearing σ (group 2)."""
+    nc = calibration.noise_components
+    value = nc.sigma_factors[group] * (model.range_bearing.bearing_sigma_rad if group == 2 else 1.0)
+    return value, value * 0.5 * nc.standard_errors[group] / nc.factors[group]
+
+
+def test_a_bearing_sigma_2_5_times_the_model_s_comes_back_within_its_standard_errors():
+    """The log's σ_φ is 0.01 rad, the model says 0.004: the variance components of the residuals give back 0.01,
+    and the range's σ the simulated one, within their standard errors (σ/√(2r), ±1.2 % here). Seeds 3-5: σ_φ z
+    −2.5, −1.6, +0.3 (the model right, seeds 3-8: −2.5..+1.0, mean −0.5); the range's factor against the simulated
+    one (:func:`_range_sigma_ratio`) z −0.6, −1.9, +1.0. From the too-small σ_φ the first solves cut good sightings and
+    stop in another solution: the estimate redoes the robust solve and the cut every round, and gives what the
+    right model's start gives."""
+    scores = []
+    for seed in (3, 4, 5):
+        log = _log(np.random.default_rng(seed))
+        model = _sensor(_model(), bearing_sigma_rad=SIGMA_B / 2.5)
+        calibration = self_calibrate(log, model, noise_components=("range", "bearing"))
+        assert calibration.problem is None and calibration.converged
+        assert calibration.noise_components.converged and calibration.noise_components.estimated == ("range",
+                                                                                                       "bearing")
+        bearing, bearing_se = _sigma_and_error(model, calibration, 2)
+        factor, factor_se = _sigma_and_error(model, calibration, 1)
+        assert 0 < bearing_se < 0.02 * SIGMA_B and 0 < factor_se < 0.02
+        scores.append(((bearing - SIGMA_B) / bearing_se, (factor - _range_sigma_ratio(log, calibration)) / factor_se))
+    scores = np.array(scores)
+    assert np.all(np.abs(scores) < 3), scores
+    assert np.all(np.abs(scores.mean(axis=0)) < 2), scores
+
+
+def test_the_model_s_own_sigmas_come_back_when_they_are_right_and_the_odometry_s_too_if_asked():
+    """The model is the simulation's: the bearing's and the range's factors within their standard errors of 1 (and
+    of the range's simulated ratio); asked for the odometry's factor too (a third group), it is 1 within its standard
+    error (seeds 3-5: 1.024 ± 0.029, 1.064 ± 0.031, ...). The written model takes the σ's, records their figures."""
+    log = _log(np.random.default_rng(3))
+    model = _model()
+    calibration = self_calibrate(log, model, noise_components=("odometry", "range", "bearing"))
+    assert calibration.problem is None
+    nc = calibration.noise_components
+    se = nc.standard_errors
+    assert abs(nc.factors[0] - 1.0) < 2 * se[0] and 0 < se[0] < 0.05
+    assert abs(_sigma_and_error(model, calibration, 2)[0] - SIGMA_B) < 3 * _sigma_and_error(model, calibration, 2)[1]
+    written = calibration.applied(model, "synthetic", "self-calibrated")
+    assert written.range_bearing.bearing_sigma_rad == pytest.approx(SIGMA_B * nc.sigma_factors[2])
+    assert written.range_bearing.range_sigma_m == pytest.approx(SIGMA_R * nc.sigma_factors[1])
+    assert written.range_bearing.range_sigma_per_m == pytest.approx(SIGMA_R_PER_M * nc.sigma_factors[1])
+    assert written.odometry.xy_var_per_m == pytest.approx(model.odometry.xy_var_per_m * nc.factors[0])
+    assert written.fit["self_calibration_given_bearing_sigma_rad"] == SIGMA_B
+    assert written.fit["self_calibration_bearing_variance_factor"] == nc.factors[2]
+    assert written.fit["self_calibration_bearing_sigma_rad_standard_error"] == pytest.approx(
+        _sigma_and_error(model, calibration, 2)[1])
+    assert written.fit["self_calibration_noise_groups"] == ["odometry", "range", "bearing"]
+
+
+def test_without_the_noise_s_estimate_nothing_of_it_is_in_the_figures():
+    log = _log(np.random.default_rng(1), minutes=3.0)
+    calibration = self_calibrate(log, _model())
+    assert calibration.noise_components is None
+    assert not any(k.startswith(("noise_", "range_variance", "bearing_variance")) for k in calibration.as_dict())
+    with pytest.raises(ValueError, match="no noise group 'sensor'"):
+        self_calibrate(log, _model(), noise_components=("sensor",))
+
+
+def test_with_correlated_sightings_the_marginal_sigmas_come_back():
+    """Each post's sightings along a pass share their errors, AR(1) with ρ 0.6 (the marginal σ's the simulation's),
+    and the model says so (its variances inflated by (1 + ρ)/(1 − ρ) = 4, as the filter's): the fixed point where
+    the residuals' χ² per redundancy is (1 − ρ)/(1 + ρ) gives the marginal σ's back (seeds 3, 4: range 0.98, bearing
+    1.13-1.14 of the simulated: slow errors' share the landmarks and poses take is not the white noise's), not half
+    of them, which χ²/r = 1 would give (0.45-0.49: the inflated variance taken for the marginal)."""
+    log = _log(np.random.default_rng(3), correlation=0.6)
+    model = _sensor(_model(), range_correlation=0.6, bearing_correlation=0.6)
+    calibration = self_calibrate(log, model, noise_components=("range", "bearing"))
+    assert calibration.problem is None
+    bearing, bearing_se = _sigma_and_error(model, calibration, 2)
+    factor, _ = _sigma_and_error(model, calibration, 1)
+    assert 0.95 < factor / _range_sigma_ratio(log, calibration) < 1.05
+    assert SIGMA_B < bearing < 1.2 * SIGMA_B
+    assert 0 < bearing_se < 0.03 * bearing
