@@ -228,6 +228,11 @@ def _register_noise(sub) -> None:
                              "positions, so the camera's scale is not the odometry's alone; the odometry's "
                              "translation scale is then estimated too, recorded in [fit] (docs/fastslam-history.md, "
                              "Session 37 (D), Session 39 (B)). Repeatable")
+    parser.add_argument("--estimate-sigmas", action="store_true",
+                        help="with --self-calibrate: estimate the sensor's noise too, the range sigma (one factor on "
+                             "its a + b r) and the bearing sigma, from the log's own residuals (variance components, "
+                             "the correlations kept from --noise); written to [range_bearing], their figures to "
+                             "[fit]. Without it the sigmas are --noise's")
     parser.add_argument("--heading-bias", action="store_true",
                         help="also fit a heading bias per metre driven (a robot that curves on a straight run), "
                              "written as [odometry] heading_bias_per_m and applied where the scales are. Off by "

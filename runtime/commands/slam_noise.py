@@ -53,6 +53,9 @@ def _self_calibration_problem(args: argparse.Namespace) -> str | None:
     if not args.self_calibrate:
         if args.known_distance:
             return "--known-distance is a length for --self-calibrate: it needs --self-calibrate"
+        if getattr(args, "estimate_sigmas", False):
+            return ("--estimate-sigmas estimates the sigmas beside --self-calibrate's calibration: it needs "
+                    "--self-calibrate (a fit against the truth estimates them anyway)")
         return "--noise is the model --self-calibrate starts from: it needs --self-calibrate" if args.noise else None
     if args.noise is None:
         return "--self-calibrate needs --noise FILE: the odometry and sensor sigmas it keeps"
@@ -177,10 +180,22 @@ def _known_text(known, calibration=None) -> str:
                    for k, d in zip(known, calibration.fitted_distances_m, strict=True))
 
 
+def _sigmas_text(calibration, noise) -> str:
+    """The estimated sensor sigmas in one line, with their standard errors and the given ones."""
+    nc, rb = calibration.noise_components, noise.range_bearing
+    root, se = nc.sigma_factors, 0.5 * nc.standard_errors / nc.factors
+    return (f"  sensor sigmas (variance components of the residuals, marginal; correlations {rb.range_correlation:.2f}"
+            f" / {rb.bearing_correlation:.2f} kept): range {rb.range_sigma_m * root[1]:.4f} m + "
+            f"{rb.range_sigma_per_m * root[1]:.4f}·r (x {root[1]:.3f} ± {root[1] * se[1]:.3f} of the given "
+            f"{rb.range_sigma_m:.4f} + {rb.range_sigma_per_m:.4f}·r), bearing {rb.bearing_sigma_rad * root[2]:.5f} ± "
+            f"{rb.bearing_sigma_rad * root[2] * se[2]:.5f} rad (given {rb.bearing_sigma_rad:.4f}); redundancy "
+            f"{nc.redundancies[1]:.0f} / {nc.redundancies[2]:.0f}, {nc.rounds} rounds")
+
+
 def _self_calibrate(args: argparse.Namespace) -> int:
     """``slam noise --self-calibrate``: the camera's calibration without ground truth
     (estimation.camera_calibration)."""
-    from estimation.camera_calibration import ESTIMATED, KnownDistance, self_calibrate
+    from estimation.camera_calibration import ESTIMATED, SIGMAS, KnownDistance, self_calibrate
     from estimation.datasets import read_mrclam
     from estimation.noise_model import NoiseModel
 
@@ -192,11 +207,15 @@ def _self_calibrate(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.noise}: the noise model has no [range_bearing] section to calibrate")
         log = read_mrclam(args.folder, args.robot[0], barcodes="table")
         known = tuple(KnownDistance(*k) for k in args.known_distance)
-        calibration = self_calibrate(log, noise, known_distances=known)
+        sigmas = bool(getattr(args, "estimate_sigmas", False))
+        calibration = self_calibrate(log, noise, known_distances=known,
+                                     noise_components=("range", "bearing") if sigmas else ())
         model = None
         if calibration.problem is None:
             with_scale = "" if calibration.translation_scale is None else \
                 "; estimated with the odometry translation scale, recorded in [fit]"
+            if sigmas:
+                with_scale += "; and the range and bearing sigmas, as variance components of its residuals"
             model = calibration.applied(
                 noise, robot=log.name,
                 source=f"camera calibration (range offset, scale, scale per radian, bearing offset{with_scale}"
@@ -213,7 +232,9 @@ def _self_calibrate(args: argparse.Namespace) -> int:
         print(json_text({"out": str(args.out) if model is not None else None, "robot": log.name,
                          "association": "barcode", "ground_truth_read": False, "noise": str(args.noise),
                          "calibration": calibration.as_dict(), "given": given,
-                         "odometry_translation_scale": noise.odometry.translation_scale}))
+                         "odometry_translation_scale": noise.odometry.translation_scale,
+                         **({"sigmas": {k: getattr(model.range_bearing, k) for k in SIGMAS}}
+                            if sigmas and model is not None else {})}))
     else:
         c, se = calibration, calibration.standard_errors
         print(f"slam noise --self-calibrate: {log.name} (sightings associated by barcode; the ground truth is not "
@@ -223,8 +244,10 @@ def _self_calibrate(args: argparse.Namespace) -> int:
               f"{c.bearing_offset_rad:+.4f} ± {se[4]:.4f} rad (standard errors; given: a "
               f"{given['range_offset_m']:+.4f}, b0 {given['range_scale']:.4f}, b1 "
               f"{given['range_scale_per_rad']:+.4f}, offset "
-              f"{given['bearing_offset_rad']:+.4f}; b2 {c.range_scale_per_rad2:.4f} and the sigmas kept from "
-              f"{args.noise})")
+              f"{given['bearing_offset_rad']:+.4f}; b2 {c.range_scale_per_rad2:.4f}"
+              + (f" kept from {args.noise})" if sigmas else f" and the sigmas kept from {args.noise})"))
+        if sigmas:
+            print(_sigmas_text(calibration, noise))
         print(f"  fit: {c.sightings} sightings ({c.outliers} set aside as outliers), {c.landmarks} landmarks, "
               f"{c.frames} frames, chi2/dof {c.chi2_per_dof:.2f}, {c.iterations} iterations; the calibrated range's "
               f"own sigma {c.range_sd_rms_m:.4f} m RMS against one sighting's {c.range_sigma_rms_m:.4f} m")
