@@ -619,8 +619,8 @@ COMPONENT_TOLERANCE = 1e-3   # the rounds stop when no variance factor moves by 
 def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, estimated: tuple[str, ...],
                       inflation: tuple[float, float, float], correlations: tuple[float, float, float]):
     """The variance components of the groups ``estimated`` (of :data:`~estimation.noise_components.GROUPS`), each
-    round a re-cut of the outliers and a re-solve at the σ's the last gave (poses, landmarks and c in place):
-    (problem, shape, inliers, NoiseComponents) at the fixed point."""
+    round the robust solve, the outlier cut and the solve at the σ's the last round gave (poses, landmarks and c in
+    place), until no factor moves by COMPONENT_TOLERANCE: (problem, shape, inliers, NoiseComponents) there."""
     unknown = set(estimated) - set(GROUPS)
     if unknown:
         raise ValueError(f"no noise group {sorted(unknown)[0]!r}: the groups are {', '.join(GROUPS)}")

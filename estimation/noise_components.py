@@ -129,5 +129,6 @@ class NoiseComponents:
                 return (f"the {name} noise is not determined: its {int(self.rows[g])} rows have a redundancy of "
                         f"{self.redundancies[g]:.1f} (at least {MIN_REDUNDANCY:g} needed)")
         if not self.converged:
-            return f"the noise's variance components did not reach their fixed point in {self.rounds} rounds"
+            return (f"the noise's variance components did not reach their fixed point in {self.rounds} rounds (or "
+                    "its solves did not converge)")
         return None
