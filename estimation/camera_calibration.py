@@ -75,7 +75,7 @@ halve twice over. On MRCLAM the in-sample σ_φ (against Vicon) also holds the t
 smoother's poses take: the estimate is smaller there (robot 1: 0.0072 rad against 0.0253 in sample). It is the σ the
 whole-log smoother sees: the known-ID maps made with it keep their NEES (0/93/100/100/100 % within on MRCLAM robots
 1-5, ATE 0.256/0.033/0.137/0.058/0.037 → 0.247/0.031/0.101/0.057/0.037 m), but the FastSLAM filter under them, with
-100 particles to take the poses' errors, got worse on three robots (its own landmark error 187 → 698 mm on robot 3,
+100 particles to take the poses' errors, got worse on four robots (its own landmark error 187 → 698 mm on robot 3,
 183 → 4572 on robot 4), and the unknown-association chain split robot 5's posts (27 names against 16): not for the
 chain as it is (docs/fastslam-history.md, "Session 40: the sensor's noise from the robot's own log (A)").
 
