@@ -53,7 +53,7 @@ def _self_calibration_problem(args: argparse.Namespace) -> str | None:
     if not args.self_calibrate:
         if args.known_distance:
             return "--known-distance is a length for --self-calibrate: it needs --self-calibrate"
-        if getattr(args, "estimate_sigmas", False):
+        if args.estimate_sigmas:
             return ("--estimate-sigmas estimates the sigmas beside --self-calibrate's calibration: it needs "
                     "--self-calibrate (a fit against the truth estimates them anyway)")
         return "--noise is the model --self-calibrate starts from: it needs --self-calibrate" if args.noise else None
@@ -207,7 +207,7 @@ def _self_calibrate(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.noise}: the noise model has no [range_bearing] section to calibrate")
         log = read_mrclam(args.folder, args.robot[0], barcodes="table")
         known = tuple(KnownDistance(*k) for k in args.known_distance)
-        sigmas = bool(getattr(args, "estimate_sigmas", False))
+        sigmas = args.estimate_sigmas
         calibration = self_calibrate(log, noise, known_distances=known,
                                      noise_components=("range", "bearing") if sigmas else ())
         model = None
