@@ -374,15 +374,17 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     # one sighting's σ's as the solve weighs them (inflated for correlated sightings, as the calibration's covariance
     # is): the calibration must be known better than that (see the module docstring)
     weighed = (sigma_rms * inflate_r, bearing_sigma * inflate_b)
-    problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms, *weighed)
-    if problem_text is None and components is not None:
-        problem_text = components.problem()
+
+    def problem_at(values: np.ndarray) -> str | None:
+        return _problem(converged, iterations_robust + iterations, values, covariance, sd_rms, *weighed) or (
+            None if components is None else components.problem())
+
+    problem_text = problem_at(c)
     # determined at the MAP: the marginal likelihood's correction (else the MAP, reported); none with the odometry's
     # scale estimated: the joint MAP is reported (see the module docstring)
     if problem_text is None and not translation_scale:
         c = c - 0.5 * covariance @ _log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
-        problem_text = _problem(converged, iterations_robust + iterations, c, covariance, sd_rms,
-                                *weighed) or (None if components is None else components.problem())
+        problem_text = problem_at(c)
     fitted = tuple(float(x) for x in shape.lengths.distances(landmarks))
     n = len(ESTIMATED)
     scale_figures = {}
@@ -685,19 +687,15 @@ _ODOMETRY_VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "
 def _with_sigmas(rb, odometry, components: NoiseComponents):
     """(range_bearing, odometry, [fit] figures): the sensor's σ's (a + b r scaled as one, σ_φ) and, if estimated,
     the odometry's variances scaled by the factors found; the σ's standard errors (σ √(2/r) ½, widened for ρ)."""
-    root, se = components.sigma_factors, components.standard_errors
+    root, relative = components.sigma_factors, components.sigma_relative_errors
     rb = dataclasses.replace(rb, range_sigma_m=rb.range_sigma_m * root[1], range_sigma_per_m=rb.range_sigma_per_m
                              * root[1], bearing_sigma_rad=rb.bearing_sigma_rad * root[2])
-    figures = {"self_calibration_range_sigma_m_standard_error": float(rb.range_sigma_m * 0.5 * se[1]
-                                                                      / components.factors[1]),
-               "self_calibration_range_sigma_per_m_standard_error": float(rb.range_sigma_per_m * 0.5 * se[1]
-                                                                          / components.factors[1]),
-               "self_calibration_bearing_sigma_rad_standard_error": float(rb.bearing_sigma_rad * 0.5 * se[2]
-                                                                          / components.factors[2])}
-    if "range" not in components.estimated:
-        figures = {k: v for k, v in figures.items() if "range_sigma" not in k}
-    if "bearing" not in components.estimated:
-        figures = {k: v for k, v in figures.items() if "bearing_sigma" not in k}
+    figures = {}
+    if "range" in components.estimated:
+        figures |= {f"self_calibration_{k}_standard_error": float(getattr(rb, k) * relative[1])
+                    for k in ("range_sigma_m", "range_sigma_per_m")}
+    if "bearing" in components.estimated:
+        figures["self_calibration_bearing_sigma_rad_standard_error"] = float(rb.bearing_sigma_rad * relative[2])
     if "odometry" in components.estimated:
         odometry = dataclasses.replace(odometry, **{k: getattr(odometry, k) * float(components.factors[0])
                                                     for k in _ODOMETRY_VARIANCES})

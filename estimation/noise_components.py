@@ -117,6 +117,11 @@ class NoiseComponents:
         """(3,) √factors: on the σ's."""
         return np.sqrt(self.factors)
 
+    @property
+    def sigma_relative_errors(self) -> np.ndarray:
+        """(3,) the σ's standard errors over the σ's: ½ of the factors' relative ones (0 where not estimated)."""
+        return 0.5 * self.standard_errors / self.factors
+
     def problem(self) -> str | None:
         """Why the estimate is not to be used, in one sentence (None: it is determined)."""
         for g, name in enumerate(GROUPS):

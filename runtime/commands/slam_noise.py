@@ -183,7 +183,7 @@ def _known_text(known, calibration=None) -> str:
 def _sigmas_text(calibration, noise) -> str:
     """The estimated sensor sigmas in one line, with their standard errors and the given ones."""
     nc, rb = calibration.noise_components, noise.range_bearing
-    root, se = nc.sigma_factors, 0.5 * nc.standard_errors / nc.factors
+    root, se = nc.sigma_factors, nc.sigma_relative_errors
     return (f"  sensor sigmas (variance components of the residuals, marginal; correlations {rb.range_correlation:.2f}"
             f" / {rb.bearing_correlation:.2f} kept): range {rb.range_sigma_m * root[1]:.4f} m + "
             f"{rb.range_sigma_per_m * root[1]:.4f}·r (x {root[1]:.3f} ± {root[1] * se[1]:.3f} of the given "
