@@ -34,6 +34,11 @@ class RangeBearingLog:
                           found or not looked for); reported only, the times are used as written
     truth_heading:        whose heading ground_truth holds: "mocap" (as the truth wrote it) or "travel" (turned onto
                           the direction of travel: truth_heading.align_truth_heading)
+    velocities:           (V, 3) rows (t, v, w): the velocity samples the odometry was integrated from, as the file
+                          wrote them (V = 0: the data set gives poses, or the reader did not keep them). Kept because
+                          the integration cannot give them back where stamps are coarser than the rows (MRCLAM from
+                          t = 1000 s: rows sharing a stamp integrate over no time, so one-sample changes vanish), and
+                          a drive's response to its commands needs them (:mod:`estimation.odometry_stall`)
     """
 
     name: str
@@ -48,6 +53,7 @@ class RangeBearingLog:
     notes: tuple[str, ...] = ()
     stamp_resolution: tuple[StampQuantization, ...] = ()
     truth_heading: str = "mocap"
+    velocities: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __post_init__(self) -> None:
         def as_float(name, shape_tail):
@@ -64,6 +70,7 @@ class RangeBearingLog:
         bearings = as_float("bearings", ())
         truth = as_float("ground_truth", (4,))
         positions = as_float("truth_positions", (2,))
+        velocities = as_float("velocities", (3,))
         ids = np.asarray(self.landmark_ids).reshape(-1)
         truth_ids = np.asarray(self.truth_ids).reshape(-1)
         for name, value in (("landmark_ids", ids), ("truth_ids", truth_ids)):
@@ -80,7 +87,8 @@ class RangeBearingLog:
                                f"truth_positions ({len(positions)})")
         if len(odometry) < 2:
             raise DatasetError(f"{self.name}: the odometry needs at least 2 rows, it has {len(odometry)}")
-        for name, t in (("odometry", odometry[:, 0]), ("sighting_times", times), ("ground_truth", truth[:, 0])):
+        for name, t in (("odometry", odometry[:, 0]), ("sighting_times", times), ("ground_truth", truth[:, 0]),
+                        ("velocities", velocities[:, 0])):
             if np.any(np.diff(t) < 0):
                 row = int(np.argmax(np.diff(t) < 0)) + 1
                 raise DatasetError(f"{self.name}: {name} times go backwards at row {row}")

@@ -267,7 +267,7 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
         name=name, odometry=_odometry_rows(odometry), sighting_times=sightings[keep, 0],
         ranges=sightings[keep, 2], bearings=sightings[keep, 3], landmark_ids=subject_of[keep],
         ground_truth=truth, truth_ids=subjects, truth_positions=positions, notes=tuple(notes),
-        stamp_resolution=quantized)
+        stamp_resolution=quantized, velocities=odometry)
     if truth_heading == "travel" and log.has_ground_truth:
         log = align_truth_heading(log)[0]
     return log
