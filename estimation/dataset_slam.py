@@ -42,6 +42,7 @@ from .landmark_scores import (
 )
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
+from .odometry_stall import command_dips
 from .sighting_spread import SightingRecorder
 
 ASSOCIATIONS = ("id", "unknown")
@@ -116,12 +117,15 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     frame_times = np.concatenate([[t0], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))   # the odometry's lag calibrated (noise_model)
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
+    # the stalls after the command's dips (estimation.odometry_stall): variance on the increments that hold one
+    stalls = noise.stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times))
 
     votes: dict[int, dict[int, int]] = {}
     means, covs, frames = [], [], []
     sightings = SightingRecorder()     # the map's own spread at each landmark (estimation.sighting_spread)
     for k, (start, stop) in enumerate(zip(first, bounds, strict=True)):
-        slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])))
+        slam.predict(OdometryIncrement(*increments[k], t0=float(frame_times[k]), t1=float(frame_times[k + 1])),
+                     None if stalls is None else stalls[k])
         ids = log.landmark_ids[start:stop]
         ranges, bearings = sensor.corrected(log.ranges[start:stop], log.bearings[start:stop])
         obs = _observations(ranges, bearings, sensor, no_descriptors.reshape(len(ids), 0), float(times[k]))
@@ -164,7 +168,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not smooth:
         return run
     from .dataset_smoothing import smooth_run
-    return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
+    return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until,
+                      extra_variance=stalls)
 
 
 def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:

@@ -27,6 +27,9 @@ File format (``tomllib``; written atomically by :meth:`NoiseModel.save`)::
                                #   particle (FastSLAMConfig.odom_heading_drift_*); optional, 0 (off) if absent
     theta_var_per_s = 0.0      # rad² of heading error per second, moving or not (bumps, pushes, slip: a stopped
                                #   robot's heading wanders too); optional, 0 if absent
+    stall_sigma_s = 0.0        # σ (s) of the random stall after a one-sample dip of the commanded velocity: the
+                               #   increment holding a dip gets (ω σ)² on θ, (v σ)² on x, y (estimation.odometry_stall;
+                               #   needs the log's velocity samples); optional, 0 (none) if absent
 
     [range_bearing]            # optional: a planar range-bearing sensor
     range_sigma_m = 0.02       # σ_r(r) = range_sigma_m + range_sigma_per_m · r
@@ -71,6 +74,7 @@ from .fastslam.motion import increment_variance, turn_spans, turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded, special_file_kind
 from .geometry import between, wrap_angle
 from .odometry_consistency import fit_heading_drift
+from .odometry_stall import MAX_STALL_SIGMA_S, CommandDips, fit_stall, stall_variance
 
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
@@ -115,6 +119,7 @@ class OdometryNoise:
     heading_drift_sigma_per_m: float = 0.0  # σ_b rad/m of a Gauss–Markov heading bias per metre; 0: none
     heading_drift_tau_s: float = 0.0        # its correlation time τ s (> 0 when σ_b > 0)
     theta_var_per_s: float = 0.0            # rad² of heading error per second (FastSLAMConfig.odom_theta_var_per_s)
+    stall_sigma_s: float = 0.0              # σ s of the stall after a command dip (NoiseModel.stall_variance); 0: none
 
     @property
     def heading_drift(self) -> tuple[float, float] | None:
@@ -228,6 +233,9 @@ class NoiseModel:
         if drift_sigma > 0 and not drift_tau > 0:
             raise NoiseModelError(f"heading_drift_tau_s must be > 0 when heading_drift_sigma_per_m is > 0, not "
                                   f"{drift_tau}")
+        if not self.odometry.stall_sigma_s <= MAX_STALL_SIGMA_S:
+            raise NoiseModelError(f"stall_sigma_s must lie in [0, {MAX_STALL_SIGMA_S}] s (a drive's hiccup, not a "
+                                  f"stop), not {self.odometry.stall_sigma_s}")
         if not self.odometry.lag_s <= MAX_ODOMETRY_LAG_S:
             raise NoiseModelError(f"lag_s must lie in [0, {MAX_ODOMETRY_LAG_S}] s (a calibration), not "
                                   f"{self.odometry.lag_s}")
@@ -284,6 +292,15 @@ class NoiseModel:
         the spot the odometry has stopped while the robot still turns, and landmarks sighted then are placed with that
         heading error."""
         return np.asarray(times, float) - self.odometry.lag_s
+
+    def stall_variance(self, dips: CommandDips, times) -> np.ndarray | None:
+        """The variances (T, 3) the stalls after the command's ``dips`` add to the increments between consecutive
+        odometry ``times`` (T + 1,) (already moved by :meth:`odometry_times`), or None when the model has no stall
+        term (:func:`estimation.odometry_stall.stall_variance`, the model's scales on the commands)."""
+        o = self.odometry
+        if o.stall_sigma_s == 0.0:
+            return None
+        return stall_variance(dips, times, o.stall_sigma_s, (o.translation_scale, o.rotation_scale))
 
     # -- files -------------------------------------------------------------------------------------------------
     def to_toml(self) -> str:
@@ -430,7 +447,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
                    sensor_correlation: str = "lag1", range_calibration: bool = False,
                    odometry_lag: bool = False, turn_translation: bool = False,
                    turn_variance: bool = False, heading_drift: bool = False,
-                   time_variance: bool = False, calibration_per_log: bool = False) -> NoiseEstimate:
+                   time_variance: bool = False, calibration_per_log: bool = False,
+                   command_stall: bool = False) -> NoiseEstimate:
     """Fit a noise model from logs with ground truth (one robot's, or several pooled).
 
     ``heading_drift=True``: also a drifting heading bias per metre (σ_b, τ; see :func:`_with_heading_drift`).
@@ -495,6 +513,10 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     others; :func:`_odometry_windows`' time column), and write the three-term fit's q_θ/rad and q_θ/m beside it in
     [fit]; off: 0. Why and what it does and does not explain: docs/fastslam-history.md "Session 35: a heading
     variance per second (A)".
+    ``command_stall``: fit ``stall_sigma_s``, the σ of the random stall after a one-sample dip of the commanded
+    velocity (:func:`estimation.odometry_stall.fit_stall`, on the odometry calibrated as above; needs the logs'
+    velocity samples), its figures in [fit]; off: 0. Why: MRCLAM's robots stop for a random while after each such dip
+    while their odometry goes on (docs/fastslam-history.md "Session 41 (A)").
     """
     if sensor_correlation not in ("lag1", "passes"):
         raise ValueError(f"sensor_correlation must be 'lag1' or 'passes', not {sensor_correlation!r}")
@@ -531,6 +553,8 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         time_fit = {"theta_var_per_rad_without_time": without[1], "theta_var_per_m_without_time": without[2]}
     inflation, turn_fit = (_turn_inflation(logs, scales, bias, lag, deficit, q_xy) if turn_variance
                            else (1.0, {}))
+    stall, stall_fit = (fit_stall(logs, lag, lambda inc: _calibrated(inc, scales, bias, deficit)) if command_stall
+                        else (0.0, {}))
     by_window = []
     for w in sorted({0.5, 1.0, 2.0, 5.0, 10.0, 20.0, float(window_s)}):
         other = [_odometry_windows(log, w, scales, bias, lag, deficit) for log in logs]
@@ -570,7 +594,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
         typical = float(np.mean(own_offsets))
         residual_b = [wrap_angle(b - o + typical) for b, o in zip(residual_b, own_offsets, strict=True)]
     fit = {"odometry_window_s": float(window_s), "odometry_windows": int(len(u)),
-           **bias_fit, **lag_fit, **deficit_fit, **turn_fit, **time_fit, **per_log_fit,
+           **bias_fit, **lag_fit, **deficit_fit, **turn_fit, **time_fit, **stall_fit, **per_log_fit,
            "odometry_max_gap_s": float(max(np.max(np.diff(log.odometry[:, 0])) for log in logs))}
     if residual_r and sum(len(r) for r in residual_r) >= 20:
         dr, db, r = np.concatenate(residual_r), np.concatenate(residual_b), np.concatenate(ranges)
@@ -619,7 +643,7 @@ def estimate_noise(logs: Sequence[RangeBearingLog], *, window_s: float = ODOMETR
     name = robot or (logs[0].name if len(logs) == 1 else "+".join(log.name for log in logs))
     model = NoiseModel(
         OdometryNoise(q_xy, q_theta_rad, q_theta_m, translation_scale, rotation_scale, bias, lag, deficit, inflation,
-                      theta_var_per_s=q_theta_s),
+                      theta_var_per_s=q_theta_s, stall_sigma_s=stall),
         range_bearing, None,
         robot=name, platform=platform, fit=fit,
         source=f"estimated by p3at slam noise from {', '.join(log.name for log in logs)} against its ground "

@@ -248,12 +248,16 @@ class FastSLAM:
                            and config.association == "id" else None)   # made each landmark together
 
     # == 0. motion ==========================================================================================
-    def predict(self, increment: OdometryIncrement) -> None:
-        """Move every particle by the odometry increment (robot frame at its start), with motion noise."""
+    def predict(self, increment: OdometryIncrement, extra_variance: np.ndarray | None = None) -> None:
+        """Move every particle by the odometry increment (robot frame at its start), with motion noise: the
+        config's random walk, plus ``extra_variance`` (3,) of (dx, dy, dθ) if given (a noise model's term the
+        increment alone does not show: a stall after a dip of the command, ``estimation.odometry_stall``)."""
         delta = increment.delta
         if not np.all(np.isfinite(delta)):
             raise ValueError(f"odometry increment {delta.tolist()} is not finite; the filter is unchanged")
         variance = increment_variance(delta, self.config, max(float(increment.t1 - increment.t0), 0.0))
+        if extra_variance is not None:
+            variance = variance + np.asarray(extra_variance, float)
         sigma_b = self.config.odom_heading_drift_sigma_per_m
         if sigma_b > 0:   # a drifting heading bias per metre (config): each particle's own, then walked
             decay = heading_drift_decay(increment.t1 - increment.t0, self.config.odom_heading_drift_tau_s)

@@ -266,5 +266,10 @@ def _register_noise(sub) -> None:
                              "that wanders with time: bumps, pushes), written as [odometry] theta_var_per_s. Off by "
                              "default: on MRCLAM the data show rare large faults, not such a variance "
                              "(docs/fastslam-history.md, Session 35 (A))")
+    parser.add_argument("--command-stall", action="store_true",
+                        help="also fit the random stall after a one-sample dip of the commanded velocity (the robot "
+                             "stops a while, its odometry goes on), written as [odometry] stall_sigma_s: the "
+                             "increment holding a dip gets (w sigma)^2 on its heading, (v sigma)^2 on x and y. Off by "
+                             "default (docs/fastslam-history.md, Session 41 (A))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)

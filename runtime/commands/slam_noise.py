@@ -45,7 +45,7 @@ def _window_problem(window: float, logs) -> str | None:
 
 
 _FIT_FLAGS = ("heading_bias", "range_calibration", "odometry_lag", "turn_translation", "turn_variance",
-              "heading_drift", "time_variance", "calibration_per_log")
+              "heading_drift", "time_variance", "calibration_per_log", "command_stall")
 
 
 def _self_calibration_problem(args: argparse.Namespace) -> str | None:
@@ -99,7 +99,7 @@ def run_noise(args: argparse.Namespace) -> int:
                                   range_calibration=args.range_calibration, odometry_lag=args.odometry_lag,
                                   turn_translation=args.turn_translation, turn_variance=args.turn_variance,
                                   heading_drift=args.heading_drift, time_variance=args.time_variance,
-                                  calibration_per_log=args.calibration_per_log,
+                                  calibration_per_log=args.calibration_per_log, command_stall=args.command_stall,
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         if (problem := no_sensor_fit(estimate.model, logs)) is not None:
             raise ValueError(problem)
@@ -153,6 +153,12 @@ def run_noise(args: argparse.Namespace) -> int:
     if args.time_variance:
         print(f"  heading variance per second: {o.theta_var_per_s:.3g} rad²/s (σ_θ {math.sqrt(o.theta_var_per_s):.4f} "
               "rad/√s, moving or not)")
+    if args.command_stall:
+        print(f"  stall after a dip of the command: σ {o.stall_sigma_s:.3f} s (variance "
+              f"{model.fit['stall_variance_s2']:.4f} ± {model.fit['stall_variance_standard_error_s2']:.4f} s², "
+              f"{model.fit['stall_dips_measured_heading']} + {model.fit['stall_dips_measured_travel']} of "
+              f"{model.fit['stall_dips']} dips measured)" if "stall_note" not in model.fit
+              else f"  stall after a dip of the command: none ({model.fit['stall_note']})")
     for row in windows:
         print(f"    at {row['window_s']:>4g} s windows: σ_xy {row['xy_sigma_per_sqrt_m']:.4f} m/√m, σ_θ "
               f"{row['theta_sigma_per_sqrt_rad']:.4f} rad/√rad + {row['theta_sigma_per_sqrt_m']:.4f} rad/√m")
