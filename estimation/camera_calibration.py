@@ -117,6 +117,7 @@ from .landmark_smoother import (
     _jacobian,
     _residuals,
     _solve,
+    solve_with_outlier_cut,
 )
 from .noise_components import GROUPS, MIN_FACTOR, NoiseComponents, truncated_means, variance_factors
 from .noise_model import NoiseModel, with_fastslam
@@ -336,13 +337,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                                     extra_values=c[:TRANSLATION_SCALE])   # a view: c's first five terms move
     # the steps' turns of the map taken as rotations (see _solve); the outliers are cut at the robust solution, so
     # an unfinished robust solve leaves them to the start, and the estimate is reported as not converged
-    iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape,
-                                                 extra_values=c)
-    iterations_robust += iterations_held
-    _, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
-    inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape, extra_values=c)
-    converged = converged and robust_converged
+    iterations, converged = solve_with_outlier_cut(problem, poses, landmarks, inliers, extra=shape, extra_values=c)
+    iterations += iterations_held
     components = None
     if noise_components:
         def shaped(p: LandmarkLogProblem) -> _Shape:
@@ -376,7 +372,7 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     weighed = (sigma_rms * inflate_r, bearing_sigma * inflate_b)
 
     def problem_at(values: np.ndarray) -> str | None:
-        return _problem(converged, iterations_robust + iterations, values, covariance, sd_rms, *weighed) or (
+        return _problem(converged, iterations, values, covariance, sd_rms, *weighed) or (
             None if components is None else components.problem())
 
     problem_text = problem_at(c)
@@ -396,7 +392,7 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                                                                              / max(se[1] * se[n], 1e-300)))
     return CameraCalibration(c[:n], covariance[:n, :n], map_values[:n], int(len(log)), int((~inliers).sum()),
                              int(seen.sum()), int(len(times)), chi2 / dof if dof > 0 else float("nan"),
-                             iterations_robust + iterations, converged, sd_rms, sigma_rms,
+                             iterations, converged, sd_rms, sigma_rms,
                              bearing_sigma, problem_text, known_distances, fitted, **scale_figures,
                              noise_components=components)
 
@@ -644,12 +640,8 @@ def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, est
                                       bearing_sigmas=base.bearing_sigmas * math.sqrt(factors[2]))
         shape = shaped(problem)
         inliers = np.ones(len(base.ranges), bool)
-        try:
-            solved = _solve(problem, poses, landmarks, inliers, robust=True, extra=shape, extra_values=c)[1]
-            _, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
-            inliers = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-            solved = _solve(problem, poses, landmarks, inliers, robust=False, extra=shape,
-                            extra_values=c)[1] and solved
+        try:   # a LinAlgError leaves inliers as the solve that raised weighed them (see solve_with_outlier_cut)
+            solved = solve_with_outlier_cut(problem, poses, landmarks, inliers, extra=shape, extra_values=c)[1]
             odometry, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
             jac = shape.jacobian(problem, poses, landmarks, c, inliers.astype(float))
             residual = np.concatenate([odometry, sightings * np.repeat(inliers, 2), shape.residuals(landmarks, c)])

@@ -314,13 +314,8 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     offsets = None if offset is None else np.zeros((offset.count, 2))
     poses[0] = 0.0
     inliers = np.ones(len(problem.ranges), bool)
-    iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True,
-                                                 heading_loss=heading_loss, drift=drift, bias=bias, offset=offset,
-                                                 offsets=offsets)
-    _, residual = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
-    inliers = np.sum(residual.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
-    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
-                                   drift=drift, bias=bias, offset=offset, offsets=offsets)
+    iterations, converged = solve_with_outlier_cut(problem, poses, landmarks, inliers, heading_loss=heading_loss,
+                                                   drift=drift, bias=bias, offset=offset, offsets=offsets)
     odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
     heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
@@ -340,10 +335,42 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     if offset is not None:
         landmark_cov[offset.sole_landmarks] += offset.sigma ** 2 * np.eye(2)
     return Smoothed(poses, landmarks[:n_landmarks], landmark_cov, covariance_poses, pose_cov, inliers, chi2,
-                    dof, iterations_robust + iterations, robust_converged and converged, heading_weights,
+                    dof, iterations, converged, heading_weights,
                     heading_drift if drift is not None else None, None if drift is None else drift.per_metre(bias),
                     sighting_offset if offset is not None else None, offsets,
                     None if drift is None else drift.per_radian(bias))
+
+
+def solve_with_outlier_cut(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray,
+                           inliers: np.ndarray, *, heading_loss: HeadingLoss | None = None, drift: _Drift | None = None,
+                           bias: np.ndarray | None = None, offset: _Offsets | None = None,
+                           offsets: np.ndarray | None = None, extra: ExtraUnknowns | None = None,
+                           extra_values: np.ndarray | None = None) -> tuple[int, bool]:
+    """The solve with the outliers cut, in place from the values the arrays hold (:func:`_solve`'s unknowns: poses[1:],
+    landmarks, and the drift's ``bias``, the ``offsets``, the ``extra_values`` with theirs): the robust (Huber) solve
+    over every sighting, the cut of the sightings whose two normalised residuals then pass OUTLIER_CHI2, and the
+    plain solve over the rest. ``inliers`` (S,) bool is written in place too: every sighting for the robust solve,
+    the cut from then on. Returns (both solves' iterations, whether both converged: the cut is made where the robust
+    solve stopped, so an unfinished one leaves the final solve an unfinished cut).
+
+    A LinAlgError (an information matrix not positive definite, in either solve) propagates, and everything written
+    stays as the solve that raised had it: the poses, landmarks and other unknowns at its last accepted step, and
+    ``inliers`` at the sightings it weighed, so every sighting if the robust solve raised, the cut if the final one
+    did. Why this rule: the unknowns are then a (partial) solution of the problem with exactly those sightings, so a
+    caller that reports from them after the error (each round of the noise's variance components in
+    :mod:`estimation.camera_calibration` does) counts the χ², the outliers and the covariance of one problem, not
+    the poses solved on one set of sightings beside the count of another."""
+    inliers[:] = True
+    iterations_robust, robust_converged = _solve(problem, poses, landmarks, inliers, robust=True,
+                                                 heading_loss=heading_loss, drift=drift, bias=bias, offset=offset,
+                                                 offsets=offsets, extra=extra, extra_values=extra_values)
+    at = problem if extra is None else extra.applied(problem, extra_values)
+    _, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
+    inliers[:] = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
+    iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
+                                   drift=drift, bias=bias, offset=offset, offsets=offsets, extra=extra,
+                                   extra_values=extra_values)
+    return iterations_robust + iterations, robust_converged and converged
 
 
 def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
