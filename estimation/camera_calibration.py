@@ -167,7 +167,10 @@ class CameraCalibration:
     landmarks: int
     frames: int
     chi2_per_dof: float
+    # every joint solve's iterations: the first solves' and, with the noise estimated, each of its rounds'
     iterations: int
+    # the solves of the solution reported did: the first ones, or with the noise estimated its last round's (whether
+    # the rounds reached their fixed point is the noise's: NoiseComponents.converged)
     converged: bool
     range_sd_rms_m: float                       # the calibration's own σ of r', RMS over the kept sightings
     range_sigma_rms_m: float                    # one sighting's σ_r, RMS over them (model or estimate; not inflated)
@@ -345,11 +348,11 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
             odometry_scale = _OdometryScale.of(p, noise.odometry.translation_scale) if translation_scale else None
             return _Shape(sensor, raw_r, raw_b, p.range_sigmas, free, shape.lengths, odometry_scale)
 
-        problem, shape, inliers, components = _noise_components(
+        problem, shape, inliers, components, rounds_iterations, converged = _noise_components(
             problem, shaped, poses, landmarks, c, tuple(noise_components),
             (1.0, *sensor.variance_inflation()),
             (0.0, max(sensor.range_correlation, 0.0), max(sensor.bearing_correlation, 0.0)))
-        converged = components.converged   # its last round's solves, from the start the first rounds made
+        iterations += rounds_iterations
     odometry_r, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
     chi2 = float(np.sum(odometry_r ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if shape.lengths.count:
@@ -623,7 +626,8 @@ def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, est
                       inflation: tuple[float, float, float], correlations: tuple[float, float, float]):
     """The variance components of the groups ``estimated`` (of :data:`~estimation.noise_components.GROUPS`), each
     round the robust solve, the outlier cut and the solve at the σ's the last round gave (poses, landmarks and c in
-    place), until no factor moves by COMPONENT_TOLERANCE: (problem, shape, inliers, NoiseComponents) there."""
+    place), until no factor moves by COMPONENT_TOLERANCE: (problem, shape, inliers, NoiseComponents) there, the
+    rounds' solves' iterations (a solve that raised counts none) and whether the last round's solves converged."""
     unknown = set(estimated) - set(GROUPS)
     if unknown:
         raise ValueError(f"no noise group {sorted(unknown)[0]!r}: the groups are {', '.join(GROUPS)}")
@@ -632,16 +636,17 @@ def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, est
     # variance, which the file's σ's are; see the module docstring)
     target = 1.0 / np.asarray(inflation, float)
     factors, on = np.ones(3), np.array([g in estimated for g in GROUPS])
-    converged, redundancy, rows, rounds = False, np.zeros(3), np.zeros(3), 0
+    converged, redundancy, rows, rounds, iterations = False, np.zeros(3), np.zeros(3), 0, 0
     while rounds < MAX_COMPONENT_ROUNDS:
         rounds += 1
         problem = dataclasses.replace(base, increment_variances=base.increment_variances * factors[0],
                                       range_sigmas=base.range_sigmas * math.sqrt(factors[1]),
                                       bearing_sigmas=base.bearing_sigmas * math.sqrt(factors[2]))
         shape = shaped(problem)
-        inliers = np.ones(len(base.ranges), bool)
+        inliers, solved = np.ones(len(base.ranges), bool), False
         try:   # a LinAlgError leaves inliers as the solve that raised weighed them (see solve_with_outlier_cut)
-            solved = solve_with_outlier_cut(problem, poses, landmarks, inliers, extra=shape, extra_values=c)[1]
+            more, solved = solve_with_outlier_cut(problem, poses, landmarks, inliers, extra=shape, extra_values=c)
+            iterations += more
             odometry, sightings = _residuals(shape.applied(problem, c), poses, landmarks)
             jac = shape.jacobian(problem, poses, landmarks, c, inliers.astype(float))
             residual = np.concatenate([odometry, sightings * np.repeat(inliers, 2), shape.residuals(landmarks, c)])
@@ -668,9 +673,9 @@ def _noise_components(base: LandmarkLogProblem, shaped, poses, landmarks, c, est
             converged = bool(solved)   # the fixed point, where the robust and the final solve both converged
             break
         factors = factors * update
-    return problem, shape, inliers, NoiseComponents(tuple(g for g in GROUPS if g in estimated), factors,
-                                                     redundancy, rows, np.asarray(correlations, float), rounds,
-                                                     converged)
+    components = NoiseComponents(tuple(g for g in GROUPS if g in estimated), factors, redundancy, rows,
+                                 np.asarray(correlations, float), rounds, converged)
+    return problem, shape, inliers, components, iterations, solved
 
 
 _ODOMETRY_VARIANCES = ("xy_var_per_m", "theta_var_per_rad", "theta_var_per_m", "theta_var_per_s")

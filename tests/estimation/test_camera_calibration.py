@@ -175,6 +175,31 @@ def test_a_robot_that_never_moves_cannot_tell_the_offset_from_the_scale():
         calibration.applied(_model(), "still", "test")
 
 
+
+def test_a_noise_round_whose_information_is_singular_reports_the_sightings_it_solved_with():
+    """The still robot of the test above, one of its ranges a metre long, the noise estimated: one post from one
+    place cannot tell the bearing's noise from the post's position (its redundancy 0.1), and the third round's
+    variance components meet a singular information matrix (LinAlgError: a real one, not a mock). The round reports
+    the state its solves reached: the sightings they were solved with (the gross one cut) and their convergence (the
+    rounds' solves converged; the first solves, which stop at their cap from the filter's start, do not speak for
+    the solution reported); the iterations are every solve's, the rounds' beside the first ones."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 60.0, 0.02)
+    frames = t[::12]
+    ranges = 2.0 + rng.normal(0, 0.01, len(frames))
+    ranges[100] = 3.0
+    log = RangeBearingLog("still", np.column_stack([t, np.zeros((len(t), 3))]), frames, ranges,
+                          rng.normal(0, 0.01, len(frames)), np.ones(len(frames), np.int64))
+    alone = self_calibrate(log, _model())
+    calibration = self_calibrate(log, _model(), noise_components=("range", "bearing"))
+    assert not alone.converged and "did not converge" in alone.problem
+    nc = calibration.noise_components
+    assert not nc.converged and nc.rounds < 40 and "not determined" in nc.problem()
+    assert calibration.outliers == alone.outliers == 1
+    assert calibration.converged and calibration.problem is not None and "did not converge" not in calibration.problem
+    assert calibration.iterations > alone.iterations
+
+
 def _most_sighted_pair(log: RangeBearingLog) -> KnownDistance:
     """The two posts the robot sighted most, their true distance taped (σ 5 mm): the rule used on MRCLAM."""
     ids, counts = np.unique(log.landmark_ids, return_counts=True)
