@@ -3,7 +3,8 @@
 Pinned to rerun-sdk 0.41 (``rerun`` itself is imported by runtime/rerun_sdk.py). Every other module hands plain numpy
 data to :class:`MissionLog`, which owns an explicitly passed ``rr.RecordingStream``
 (:func:`runtime.rerun_sink.open_recording` opens one; tests pass ``sink="memory"``); colours, legends and layouts are
-runtime/rerun_style.py's, and runtime/rerun_read.py reads a saved recording back. What a reader sees, and why, is in
+runtime/rerun_style.py's, the per-frame rows reach the stream through runtime/rerun_rows.py (held and sent as
+columns for a saved file), and runtime/rerun_read.py reads a saved recording back. What a reader sees, and why, is in
 docs/recording.md.
 
 Entity tree (one recording per mission, one subtree per robot; metres, radians, REP-103)::
@@ -59,13 +60,8 @@ it logs.
 """
 from __future__ import annotations
 
-import atexit
-import contextlib
 import json
 import threading
-import time
-import weakref
-import zlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
@@ -77,8 +73,9 @@ from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from runtime.report import alignment_status, candidate_text
 from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
+from runtime.rerun_rows import RowSender
 from runtime.rerun_sdk import rr
-from runtime.rerun_sink import FILE_FLUSH_TICK, SAVED_STREAMS
+from runtime.rerun_sink import SAVED_STREAMS
 from runtime.rerun_style import (
     EVENTS,
     FUSION_STATUS,
@@ -205,66 +202,6 @@ def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
     return rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
 
-HELD_ROWS_MAX = 32   # rows of one entity held at most (~2 s at 15 Hz) before they are sent, whatever the time
-
-
-def _hold_share(path: str) -> float:
-    """The share, in [0.5, 1), of FILE_FLUSH_TICK and HELD_ROWS_MAX that the entity ``path`` holds its rows for:
-    fixed by its name, different between entities, so that they are sent at different frames (all sent at once, a
-    frame would carry the whole second's sending: 10-40 ms on the loaded 2-core machine, against ~0.6 ms a frame)."""
-    return 0.5 + 0.5 * zlib.crc32(path.encode()) / 2**32
-
-
-def _send_at_exit(ref: weakref.ref) -> None:
-    """At interpreter exit, send what a MissionLog never closed still holds (atexit runs this before Rerun's own
-    shutdown, registered earlier, flushes the streams)."""
-    log = ref()
-    if log is not None and not getattr(log, "_closed", False):
-        with contextlib.suppress(Exception):  # the stream may already be gone: nothing more to save
-            log.send_held_rows()
-
-
-class _HeldRows:
-    """The rows of one entity held to be sent as one ``send_columns`` (MissionLog, saved files): each row's times
-    and, per field, its instances ((n, ...) arrays; ``strips``: a list of (n, d) arrays)."""
-
-    __slots__ = ("archetype", "with_frame", "since", "hold", "cap", "sim_time", "frame", "log_time", "fields")
-
-    def __init__(self, archetype, with_frame: bool, since: float, share: float) -> None:
-        self.archetype = archetype
-        self.with_frame = with_frame
-        self.since = since                                  # time.monotonic() of the first row held
-        self.hold, self.cap = share * FILE_FLUSH_TICK, max(1, round(share * HELD_ROWS_MAX))
-        self.sim_time: list[int] = []                      # ns, rounded as rr.set_time rounds seconds
-        self.frame: list[int] = []
-        self.log_time: list[int] = []
-        self.fields: dict[str, list] = {}
-
-    def add(self, t: float, frame: int | None, log_time: int, data: Mapping) -> None:
-        self.sim_time.append(round(1e9 * t))
-        if frame is not None:
-            self.frame.append(frame)
-        self.log_time.append(log_time)
-        for name, value in data.items():  # copies: a caller may change its array after the call (particles)
-            self.fields.setdefault(name, []).append([np.array(v, float) for v in value] if name == "strips"
-                                                    else np.array(value, float))
-
-    def columns(self) -> tuple[list, list]:
-        """The index columns and the component columns, each row partitioned back to its own instances."""
-        indexes = [rr.TimeColumn("sim_time", duration=np.array(self.sim_time, "timedelta64[ns]")),
-                   rr.TimeColumn("log_time", timestamp=np.array(self.log_time, "datetime64[ns]"))]
-        if self.with_frame:
-            indexes.append(rr.TimeColumn("frame", sequence=self.frame))
-        columns = []
-        for name, rows in self.fields.items():
-            if name == "strips":
-                flat = [strip for row in rows for strip in row]
-            else:
-                flat = np.concatenate(rows)
-            columns += self.archetype.columns(**{name: flat}).partition([len(row) for row in rows])
-        return indexes, columns
-
-
 P3AT_HALF_SIZE = (0.32, 0.25, 0.14)  # m: the Pioneer 3-AT's body, drawn at the estimated pose in the 3-D view
 Y_UP = np.diag([1.0, -1.0, 1.0])     # 2-D views draw +y down; the maps are REP-103 (x forward, y left): flip once
 
@@ -276,21 +213,16 @@ class MissionLog:
     logger keeps between calls is bounded whatever the mission's length: the open trajectory segment of each
     robot, each robot's last snapshot trajectory (thinned to SNAPSHOT_TRAJECTORY_POINTS) and placement, one
     style per plotted series, the entity last styled of each per-frame family, and (saved files) each entity's held
-    rows (at most HELD_ROWS_MAX, at most FILE_FLUSH_TICK s: :meth:`_emit`).
+    rows (at most HELD_ROWS_MAX, at most FILE_FLUSH_TICK s: :class:`runtime.rerun_rows.RowSender`, through which the
+    per-frame rows and their times go).
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
                  blueprint: bool = True, hold_rows: bool | None = None) -> None:
         self.rec = rec
         # a saved file: the per-frame rows of each entity are held up to FILE_FLUSH_TICK s and sent as columns
-        # (see _emit); a live stream gets each row as it is logged. None: hold when open_recording saves ``rec``
-        self.hold_rows = rec in SAVED_STREAMS if hold_rows is None else bool(hold_rows)
-        self._held: dict[str, _HeldRows] = {}
-        self._swept = time.monotonic()               # when held rows were last looked over for stale ones
-        self._held_lock = threading.Lock()
-        self._now = threading.local()               # this thread's (t, frame), as _time set Rerun's (per thread)
-        if self.hold_rows:  # a script that never closes its logger still gets its last rows written at exit
-            atexit.register(_send_at_exit, weakref.ref(self))
+        # (RowSender.emit); a live stream gets each row as it is logged. None: hold when open_recording saves ``rec``
+        self._rows = RowSender(rec, rec in SAVED_STREAMS if hold_rows is None else bool(hold_rows))
         self.robots = list(robots)
         self.image_interval = float(image_interval)   # s between logged stereo pairs of one robot (file size)
         self._last_image: dict[str, float] = {}
@@ -312,6 +244,11 @@ class MissionLog:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     # -- helpers --------------------------------------------------------------------------------------
+    @property
+    def hold_rows(self) -> bool:
+        """Whether the per-frame rows are held and sent as columns (a saved file), not logged one by one."""
+        return self._rows.hold
+
     def colour(self, robot: str) -> tuple[int, int, int]:
         """The robot's colour; a robot first seen here joins the layout."""
         if robot not in self.robots:
@@ -321,14 +258,6 @@ class MissionLog:
                     if self._send_layout:
                         self.rec.send_blueprint(mission_blueprint(self.robots))
         return robot_colour(robot)
-
-    def _time(self, t: float, frame: int | None = None) -> None:
-        self._now.t, self._now.frame = float(t), (None if frame is None else int(frame))
-        self.rec.set_time("sim_time", duration=float(t))
-        if frame is not None:
-            self.rec.set_time("frame", sequence=int(frame))
-        else:  # set_time is sticky per thread: do not stamp this row with an older frame number
-            self.rec.disable_timeline("frame")
 
     def _first_time(self, key: str) -> bool:
         """True the first time ``key`` is asked (thread-safe): for static things logged once."""
@@ -360,51 +289,7 @@ class MissionLog:
                 self._styled[family] = path
         if fresh:
             self.rec.log(path, archetype.from_fields(**style), static=True)
-        self._emit(path, archetype, data)
-
-    def _emit(self, path: str, archetype, data: Mapping) -> None:
-        """One row of ``archetype``'s fields ``data`` (each a batch of instances: ``[[x, y, z]]`` for one) at the time
-        :meth:`_time` set in this thread: logged at once on a live stream; on a saved file (``hold_rows``) held and
-        sent with the entity's other rows as one ``send_columns`` when its oldest held row is a share of
-        FILE_FLUSH_TICK s old or it holds that share of HELD_ROWS_MAX rows (the share, 0.5-1, differs by entity:
-        :func:`_hold_share`), when an entity no longer logged has held a row for FILE_FLUSH_TICK s, or at
-        :meth:`flush` and :meth:`close`.
-
-        The file holds the same rows at the same times (sim_time, frame, log_time as ``rr.log`` stamps it) either
-        way; a row sent with others costs a fraction of one ``rr.log`` (one conversion and one Rust call per column
-        instead of per row and field). Rerun's own batcher already holds a saved file's rows up to FILE_FLUSH_TICK s,
-        so a hard kill loses up to about twice that of these rows (never a map: maps/* are logged at once)."""
-        if not self.hold_rows:
-            self.rec.log(path, archetype.from_fields(**data))
-            return
-        t, frame = self._now.t, self._now.frame
-        with self._held_lock:
-            rows = self._held.get(path)
-            if rows is not None and (rows.archetype is not archetype or rows.with_frame != (frame is not None)):
-                self._send(path, self._held.pop(path))  # a row of another kind: what is held goes first
-                rows = None
-            now = time.monotonic()
-            if rows is None:
-                rows = self._held[path] = _HeldRows(archetype, frame is not None, now, _hold_share(path))
-            rows.add(t, frame, time.time_ns(), data)
-            if now - rows.since >= rows.hold or len(rows.sim_time) >= rows.cap:
-                self._send(path, self._held.pop(path))
-            if now - self._swept >= FILE_FLUSH_TICK:  # entities no longer logged (a closed path segment, a robot gone)
-                self._swept = now
-                for stale in [p for p, r in self._held.items() if now - r.since >= FILE_FLUSH_TICK]:
-                    self._send(stale, self._held.pop(stale))
-
-    def _send(self, path: str, rows: _HeldRows) -> None:
-        indexes, columns = rows.columns()
-        self.rec.send_columns(path, indexes=indexes, columns=columns)
-
-    def send_held_rows(self) -> None:
-        """Send the rows held for a saved file now (:meth:`flush` and :meth:`close` do); under the lock, so that one
-        thread sends at a time, in order."""
-        with self._held_lock:
-            held, self._held = self._held, {}
-            for path, rows in held.items():
-                self._send(path, rows)
+        self._rows.emit(path, archetype, data)
 
     def _map_root(self, key: str) -> str:
         """map/<key>, with the y-up flip logged once (static)."""
@@ -414,7 +299,7 @@ class MissionLog:
         return root
 
     def flush(self) -> None:
-        self.send_held_rows()
+        self._rows.send_held_rows()
         self.rec.flush()
 
     def close(self) -> None:
@@ -422,9 +307,10 @@ class MissionLog:
         if getattr(self, "_closed", False):
             return
         self._closed = True
+        self._rows.closed = True   # its rows are sent here, not at exit
         if not self.rec.is_enabled():
             return
-        self.send_held_rows()
+        self._rows.send_held_rows()
         self.rec.log(CLOSED_ENTITY, rr.AnyValues(closed=True), static=True)
         self.rec.flush()
         self.rec.disconnect()
@@ -455,7 +341,7 @@ class MissionLog:
         """Place the robot's map frame in the world: placement (3,) = (x, y, θ) of its origin (its true start on
         the mocks). Key "fused": the fused map's frame. The 2-D map of that frame gets the building's walls."""
         if t is not None:
-            self._time(t)
+            self._rows.set_time(t)
         placement = np.asarray(placement, float).reshape(3)
         x, y, theta = placement
         self.rec.log(f"world/{robot}", rr.Transform3D(translation=[x, y, 0.0], quaternion=_quaternion_z(theta)),
@@ -501,7 +387,7 @@ class MissionLog:
 
         head_mount: (x, y, z) of the left camera in base_link; places world/<robot>/stereo (optical frame).
         """
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         colour = self.colour(robot)
         estimated = np.asarray(estimated, float).reshape(3)
         strips = {}
@@ -522,7 +408,7 @@ class MissionLog:
             self.rec.log(f"world/{robot}/base_link/body", rr.Boxes3D(
                 half_sizes=[P3AT_HALF_SIZE], centers=[[0, 0, P3AT_HALF_SIZE[2]]], colors=colour,
                 fill_mode=rr.components.FillMode.Solid), static=True)
-        self._emit(f"world/{robot}/base_link", rr.Transform3D,
+        self._rows.emit(f"world/{robot}/base_link", rr.Transform3D,
                    {"translation": [[estimated[0], estimated[1], 0.0]], "quaternion": [_xyzw_z(estimated[2])]})
         segment, points = strips["estimated"]
         self._log_styled(f"world/{robot}/trajectory/{segment:04d}", rr.LineStrips3D,
@@ -542,7 +428,7 @@ class MissionLog:
             # optical frame (x right, y down, z forward) -> base_link: columns are the optical axes
             c, s = np.cos(theta), np.sin(theta)
             mat = np.array([[s, 0, c], [-c, 0, s], [0, -1, 0]])
-            self._emit(f"world/{robot}/stereo", rr.Transform3D, {"translation": [[x, y, hz]], "mat3x3": [mat]})
+            self._rows.emit(f"world/{robot}/stereo", rr.Transform3D, {"translation": [[x, y, hz]], "mat3x3": [mat]})
         # 2-D map: truth thin and light, odometry dim, the estimate bright and on top
         root = self._map_root(robot)
         styles = {"true": (TRUE_COLOUR, -1.0, 1.0), "odometry": (dimmed(colour), -1.5, 2.0),
@@ -565,7 +451,7 @@ class MissionLog:
 
     def log_particles(self, robot: str, t: float, frame: int | None, poses: np.ndarray) -> None:
         """poses (M, 3) of every particle in the robot's map frame."""
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         poses = np.asarray(poses, float).reshape(-1, 3)
         colour = self.colour(robot)
         self._log_styled(f"world/{robot}/particles", rr.Points3D,
@@ -579,7 +465,7 @@ class MissionLog:
                       colours: np.ndarray | None = None, sigmas: float = 1.0) -> None:
         """positions (N, 3), covariances (N, 3, 3): 3-D points and their ``sigmas``-σ ellipsoids (at .../covariance,
         which the blueprint hides for the robots' maps)."""
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         path = path or f"world/{robot}/landmarks"
         positions = np.asarray(positions, float).reshape(-1, 3)
         colour = colours if colours is not None else self.colour(robot)
@@ -601,7 +487,7 @@ class MissionLog:
         """The best particle's landmarks (all of them, provisional ones included), coloured by state: confirmed in
         the robot's colour, provisional dimmed and smaller, in the 3-D world and in the robot's 2-D map; their
         counts are plotted. Returns (confirmed, provisional)."""
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         colour = self.colour(robot)
         positions = np.asarray(landmark_map.positions, float).reshape(-1, 3)
         confirmed = landmark_confirmed(landmark_map, confirm_count)
@@ -620,7 +506,7 @@ class MissionLog:
     def log_sonar(self, robot: str, t: float, pose: np.ndarray, sonar_poses: np.ndarray, ranges: np.ndarray,
                   max_range: float = 5.0) -> None:
         """Sonar rays: sonar_poses (S, 3) in base_link, ranges (S,) metres, drawn from ``pose`` (map frame)."""
-        self._time(t)
+        self._rows.set_time(t)
         sonar_poses = np.asarray(sonar_poses, float).reshape(-1, 3)
         ranges = np.minimum(np.asarray(ranges, float).reshape(-1), max_range)
         starts = compose(np.asarray(pose, float), sonar_poses)
@@ -641,7 +527,7 @@ class MissionLog:
         if t - self._last_image.get(robot, -np.inf) < self.image_interval:
             return
         self._last_image[robot] = t
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         left_pixels = np.asarray(left_pixels, float).reshape(-1, 2)
         colour = self.colour(robot)
         base = f"world/{robot}/stereo"
@@ -662,7 +548,7 @@ class MissionLog:
     def log_scalars(self, robot: str, t: float, values: Mapping[str, float], frame: int | None = None) -> None:
         """Time series under plots/<robot>/<name> (a name may hold '/', e.g. 'time/frontend'); each series gets
         its legend name (with its unit, from SERIES) and colour once."""
-        self._time(t, frame)
+        self._rows.set_time(t, frame)
         for name, value in values.items():
             if value is None or not np.isfinite(value):
                 continue
@@ -672,10 +558,10 @@ class MissionLog:
                 self.rec.log(path, rr.SeriesLines(names=label, colors=colour, widths=1.5), static=True)
                 if name in SPARSE_SERIES:  # a line needs two values: a marker shows a fusion's first and only one
                     self.rec.log(path, rr.SeriesPoints(names=label, colors=colour, marker_sizes=5.0), static=True)
-            self._emit(path, rr.Scalars, {"scalars": [float(value)]})
+            self._rows.emit(path, rr.Scalars, {"scalars": [float(value)]})
 
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:
-        self._time(t)
+        self._rows.set_time(t)
         self.rec.log(EVENTS, rr.TextLog(text, level=level))
 
     # -- maps, fusion and the summary -----------------------------------------------------------------
@@ -688,7 +574,7 @@ class MissionLog:
         map. The fused map is drawn in the 3-D world and in the fused 2-D map, each landmark in the colour of the
         robot that saw it, white when several did.
         """
-        self._time(t)
+        self._rows.set_time(t)
         m = landmark_map
         optional = {name: getattr(m, name) for name in OPTIONAL_MAP_ARRAYS if getattr(m, name) is not None}
         # which optional arrays the snapshot holds is said in its metadata (AnyValues does not store an empty
@@ -760,7 +646,7 @@ class MissionLog:
     def log_alignment(self, t: float, reference: str, other: str, result: Mapping) -> None:
         """One pairwise alignment: ``result`` is plain JSON-able data (tx, ty, theta of ``other``'s frame in
         ``reference``'s, supports, errors...). An alignment found places ``other``'s path in the fused map."""
-        self._time(t)
+        self._rows.set_time(t)
         self.rec.log(f"fusion/alignment/{reference}_{other}", rr.AnyValues(json=json.dumps(dict(result))))
         with self._lock:  # one paragraph per pair (bounded by the pairs), the document re-logged whole
             self._status[(reference, other)] = alignment_status(t, {"reference": reference, "other": other,

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.rerun_log import HELD_ROWS_MAX, MissionLog
+from runtime.rerun_log import MissionLog
+from runtime.rerun_rows import HELD_ROWS_MAX
 from runtime.rerun_sdk import rr
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import TRUE_COLOUR, robot_colour
