@@ -11,6 +11,7 @@ The Rerun modules, each one job (each imports only modules above it in this list
 - runtime/rerun_style.py: how it looks (colours, legend names, the layouts);
 - runtime/rerun_map_format.py: what the writer and the reader agree on (a map snapshot's arrays and checksum, the
   entity that marks a closed recording);
+- runtime/rerun_rows.py: :class:`RowSender`, how the per-frame rows reach the stream (live, or batched to a file);
 - runtime/rerun_log.py: :class:`MissionLog`, what a mission logs (its docstring lists the entity tree);
 - runtime/rerun_read.py: :func:`read_recording`, reading a saved recording back (``p3at review``).
 """
