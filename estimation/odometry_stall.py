@@ -25,11 +25,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .datasets import RangeBearingLog
 from .geometry import between, wrap_angle
+
+if TYPE_CHECKING:
+    from .noise_model import NoiseModel
 
 MAX_STALL_SIGMA_S = 1.0      # s: a drive whose every hiccup costs it seconds is not described by a variance
 STALL_WINDOW_S = 1.0         # the windows the stall is measured on (a stall lasts up to ~0.5 s)
@@ -81,6 +85,14 @@ def stall_variance(dips: CommandDips, times, sigma_s: float, scales=(1.0, 1.0)) 
     np.add.at(out, (k[inside], 1), xy)
     np.add.at(out, (k[inside], 2), theta)
     return out
+
+
+def log_stall_variance(log: RangeBearingLog, noise: NoiseModel, frame_times) -> np.ndarray | None:
+    """The variances (T, 3) ``noise``'s stall term adds to ``log``'s calibrated increments between consecutive log
+    ``frame_times`` (T + 1,) (the dips of its command, the frames moved by the model's odometry lag), or None when the
+    model has no stall term: what every smoother of a log adds to its odometry factors' random-walk variances, as the
+    data set's filter adds it to its predict (``estimation.dataset_slam``)."""
+    return noise.stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times))
 
 
 def fit_stall(logs: Sequence[RangeBearingLog], lag_s: float,
