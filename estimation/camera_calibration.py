@@ -14,14 +14,16 @@ range curvature, ½ b₀ for an ideal camera) is the given model's (``estimate_s
 it then came out 0.016-0.036 low on all five robots, b₀ with it, and the range calibration undetermined: not
 supported by the data). Each sighting is a factor (‖m − t‖ − r', atan2(m − t) − θ − φ') with the given model's σ
 (inflated for correlated sightings as the filter's; the range's σ scales with the calibration, see :class:`_Shape`);
-the odometry factors are the model's random walk. The odometry gives the metric scale; the landmarks' positions are
-free. Solved jointly by the smoother's own Levenberg–Marquardt, the calibration its extra unknowns (Huber weights
-first, then the sightings beyond χ²₂ 99 % dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the
-FastSLAM filter's map and trajectory (known association) with the given model; each step's turn of the whole map
-about pose 0 is taken as a rotation (as the smoother's solve takes every step: the first steps' jumps of ψ turn the
-map, and along a turn's tangent the loop crawled: MRCLAM robot 1 stopped at the iteration cap from one filter seed and
-converged from another, with other outliers, b₀ 2 standard errors apart); both solves must converge. The calibration's
-covariance is its block of the inverse information (Laplace).
+the odometry factors are the model's random walk (with its stalls after the command's dips, if it has that term:
+:func:`~estimation.odometry_stall.log_stall_variance`, as the filter and the data set's smoother have them). The
+odometry gives the metric scale; the landmarks' positions are free. Solved jointly by the smoother's own
+Levenberg–Marquardt, the calibration its extra unknowns (Huber weights first, then the sightings beyond χ²₂ 99 %
+dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the FastSLAM filter's map and trajectory (known
+association) with the given model; each step's turn of the whole map about pose 0 is taken as a rotation (as the
+smoother's solve takes every step: the first steps' jumps of ψ turn the map, and along a turn's tangent the loop
+crawled: MRCLAM robot 1 stopped at the iteration cap from one filter seed and converged from another, with other
+outliers, b₀ 2 standard errors apart); both solves must converge. The calibration's covariance is its block of the
+inverse information (Laplace).
 
 The joint MAP's b₀ is biased low: where the odometry is loose the poses absorb part of the range noise, and they
 absorb more the smaller b₀ (the sightings then weigh more against the odometry), so the minimum of the squared
@@ -79,10 +81,11 @@ whole-log smoother sees: the known-ID maps made with it keep their NEES (0/93/10
 183 → 4572 on robot 4), and the unknown-association chain split robot 5's posts (27 names against 16): not for the
 chain as it is (docs/fastslam-history.md, "Session 40: the sensor's noise from the robot's own log (A)").
 
-The odometry's factor (``"odometry"``, on all its increments' variances) is a third group that can be asked for:
-with white sightings it comes back (1.02-1.06 ± 0.03), but with AR(1) sightings (ρ 0.6, told) it came out 0.65-0.75
-and took σ_φ to 1.21-1.27 of the marginal: the sightings' slow errors leak into the odometry's residuals. MRCLAM's
-sightings are correlated (ρ 0.4-0.8), so it is not estimated by default.
+The odometry's factor (``"odometry"``, on all its increments' variances, the stall's too: written as the random walk's
+variances times it and σ_s times its root) is a third group that can be asked for: with white sightings it comes
+back (1.02-1.06 ± 0.03), but with AR(1) sightings (ρ 0.6, told) it came out 0.65-0.75 and took σ_φ to 1.21-1.27 of the
+marginal: the sightings' slow errors leak into the odometry's residuals. MRCLAM's sightings are correlated (ρ 0.4-0.8),
+so it is not estimated by default.
 
 The ground truth is not read: :func:`self_calibrate` drops the log's truth before anything else.
 Whether the calibration is determined (:attr:`CameraCalibration.problem`): the solve must converge, and the
@@ -121,6 +124,7 @@ from .landmark_smoother import (
 )
 from .noise_components import GROUPS, MIN_FACTOR, NoiseComponents, truncated_means, variance_factors
 from .noise_model import NoiseModel, with_fastslam
+from .odometry_stall import log_stall_variance
 
 SIGMAS = ("range_sigma_m", "range_sigma_per_m", "bearing_sigma_rad")   # what the noise's components rescale
 ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2",
@@ -315,7 +319,11 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     start_r, _ = sensor.corrected(raw_r, raw_b)
     plain_sigma_r = sensor.range_sigma(start_r)
     filter_config = with_fastslam(noise, config)
-    problem = LandmarkLogProblem(increments, increment_variance(increments, filter_config, np.diff(frame_times)),
+    variances = increment_variance(increments, filter_config, np.diff(frame_times))
+    # the stalls after the command's dips (estimation.odometry_stall), as the filter above and dataset_smoothing have
+    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
+        variances = variances + stalls
+    problem = LandmarkLogProblem(increments, variances,
                                  frame_of + 1, landmark_index, start_r, raw_b - sensor.bearing_offset_rad,
                                  plain_sigma_r * inflate_r, np.full(len(log), sensor.bearing_sigma_rad * inflate_b))
     poses = np.vstack([np.zeros(3), run.estimated_trajectory[:, 1:]])
@@ -693,7 +701,8 @@ def _with_sigmas(rb, odometry, components: NoiseComponents):
                     for k in ("range_sigma_m", "range_sigma_per_m")}
     if "bearing" in components.estimated:
         figures["self_calibration_bearing_sigma_rad_standard_error"] = float(rb.bearing_sigma_rad * relative[2])
-    if "odometry" in components.estimated:
-        odometry = dataclasses.replace(odometry, **{k: getattr(odometry, k) * float(components.factors[0])
-                                                    for k in _ODOMETRY_VARIANCES})
+    if "odometry" in components.estimated:   # the factor was on every odometry variance, the stall's too (its σ_s)
+        factor = float(components.factors[0])
+        odometry = dataclasses.replace(odometry, **{k: getattr(odometry, k) * factor for k in _ODOMETRY_VARIANCES},
+                                       stall_sigma_s=odometry.stall_sigma_s * math.sqrt(factor))
     return rb, odometry, figures

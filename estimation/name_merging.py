@@ -240,7 +240,10 @@ def split_at_bends(smoother: NamedSmoother, current: MergeRound, *, window_s: fl
 
 def poses_at(log: RangeBearingLog, current: MergeRound, noise: NoiseModel, times: np.ndarray) -> np.ndarray:
     """The smoothed poses (len(times), 3) at any log ``times``: each from the solution's frame nearest in time, moved
-    by the calibrated odometry between the two (what the smoother's own increments would give)."""
+    by the calibrated odometry between the two (what the smoother's own increments would give). Means only: the noise
+    model's stalls after the command's dips (a zero-mean variance, :mod:`estimation.odometry_stall`) do not move
+    them; the smoother that takes these poses as its start adds them (:func:`~estimation.named_smoothing.
+    named_problem`)."""
     frames = current.named.frame_times
     k = np.clip(np.searchsorted(frames, times), 1, len(frames) - 1)
     k = np.where(np.abs(frames[k - 1] - times) <= np.abs(frames[k] - times), k - 1, k)

@@ -38,6 +38,7 @@ from estimation.landmark_smoother import (
     smooth,
 )
 from estimation.noise_model import NoiseModel, with_fastslam
+from estimation.odometry_stall import log_stall_variance
 
 
 @dataclass
@@ -55,7 +56,9 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
                   path_step_s: float | None = None) -> NamedProblem:
     """The factors ``run_landmark_log(association="id", smooth=True)`` builds for ``log`` with each sighting named
     ``names`` (−1: left out): frames at the named sightings' time stamps, from the first; the calibrated odometry
-    increments between them; each sighting's calibrated range and bearing with the inflated σ.
+    increments between them, their variances with the noise model's stalls after the command's dips if it has that
+    term (:func:`~estimation.odometry_stall.log_stall_variance`, as the data set's filter and smoother have them);
+    each sighting's calibrated range and bearing with the inflated σ.
 
     ``path_step_s``: the increments' variances propagated along the odometry's path in steps of about this many
     seconds (:func:`path_variances`) instead of the random walk's variance of the chord (None, the default)."""
@@ -68,6 +71,8 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     odometry = log.odometry_pose(noise.odometry_times(frame_times))
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
     variances = increment_variance(increments, config, np.diff(frame_times))
+    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
+        variances = variances + stalls
     if path_step_s is not None:
         variances = np.maximum(variances, path_variances(log, noise, config, frame_times, path_step_s))
     ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
@@ -87,7 +92,8 @@ def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConf
     (``propagate_covariance``), the diagonal of the result in the start pose's frame (the frame of the smoother's
     odometry residual). An increment of one step has its chord's variance; one across a gap of sightings in which the
     robot turned back and forth or drove a curve gets what the path it drove gives (the chord's variance of a spin
-    out and back is the variance of no turn)."""
+    out and back is the variance of no turn). The noise model's stalls after the command's dips, if it has that term,
+    are on the steps that hold a dip, propagated with the rest."""
     frame_times = np.asarray(frame_times, float)
     t = len(frame_times) - 1
     steps = np.maximum(np.ceil(np.diff(frame_times) / step_s).astype(int), 1)
@@ -99,6 +105,8 @@ def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConf
     odometry = log.odometry_pose(noise.odometry_times(grid))
     fine = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
     fine_var = increment_variance(fine, config, np.diff(grid))
+    if (stalls := log_stall_variance(log, noise, grid)) is not None:     # a dip's stall on the step that holds it
+        fine_var = fine_var + stalls
     pose = np.zeros((t, 3))
     cov = np.zeros((t, 3, 3))
     for k in range(int(steps.max()) if t else 0):

@@ -13,6 +13,13 @@ the filter propagates it (``propagate_covariance`` with ``increment_variance``, 
 the window's NEES is eᵀP⁻¹e, e the true end pose (in the window's start frame) minus the dead-reckoned one. A
 consistent model gives NEES ~ χ²₃: median 2.37 and 95 % of windows below 7.81 at every horizon.
 
+The noise model's stalls after the command's dips (``[odometry] stall_sigma_s``, :mod:`estimation.odometry_stall`)
+are not in the windows' covariance: the windows are formed from odometry and truth rows, which do not hold the command
+the dips are found in (``RangeBearingLog.velocities``; adding it would change every caller's input and the heading
+drift's fit, :func:`fit_heading_drift`, which is on these windows). A model with the term is scored here, and its drift
+fitted, on its random walk alone: the NEES a little high where a window holds dips (MRCLAM: one every ~12 s of motion,
+σ_s ~0.1 s).
+
 Windows in which the odometry hardly moves (path < ``min_path_m`` and turn < ``min_turn_rad``) are left out: there the
 model's covariance is its variance floor, and the ground truth's own jitter (millimetres) is no odometry error.
 """

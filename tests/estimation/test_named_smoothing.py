@@ -23,7 +23,10 @@ from estimation.named_smoothing import covisible_names, path_variances, truncate
 
 
 class _Odometry:
-    """A log stand-in whose odometry pose at time t is ``pose(t)`` (path_variances reads only this)."""
+    """A log stand-in whose odometry pose at time t is ``pose(t)`` (path_variances reads only this and its command,
+    here none)."""
+
+    velocities = np.zeros((0, 3))
 
     def __init__(self, pose):
         self.pose = pose
@@ -33,7 +36,11 @@ class _Odometry:
 
 
 class _Uncalibrated:
-    """A noise-model stand-in with no lag and no calibration (the increments as the odometry gives them)."""
+    """A noise-model stand-in with no lag, no calibration (the increments as the odometry gives them), no stall term."""
+
+    @staticmethod
+    def stall_variance(dips, times):
+        return None
 
     @staticmethod
     def odometry_times(times):
