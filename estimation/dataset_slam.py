@@ -42,7 +42,7 @@ from .landmark_scores import (
 )
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
-from .odometry_stall import command_dips
+from .odometry_stall import log_stall_variance
 from .sighting_spread import SightingRecorder
 
 ASSOCIATIONS = ("id", "unknown")
@@ -118,7 +118,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     odometry = log.odometry_pose(noise.odometry_times(frame_times))   # the odometry's lag calibrated (noise_model)
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
     # the stalls after the command's dips (estimation.odometry_stall): variance on the increments that hold one
-    stalls = noise.stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times))
+    stalls = log_stall_variance(log, noise, frame_times)
 
     votes: dict[int, dict[int, int]] = {}
     means, covs, frames = [], [], []
