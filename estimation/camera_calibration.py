@@ -15,7 +15,7 @@ it then came out 0.016-0.036 low on all five robots, b₀ with it, and the range
 supported by the data). Each sighting is a factor (‖m − t‖ − r', atan2(m − t) − θ − φ') with the given model's σ
 (inflated for correlated sightings as the filter's; the range's σ scales with the calibration, see :class:`_Shape`);
 the odometry factors are the model's random walk (with its stalls after the command's dips, if it has that term:
-:func:`~estimation.odometry_stall.log_stall_variance`, as the filter and the data set's smoother have them). The
+:func:`~estimation.noise_model.increment_variances`, as the filter and the data set's smoother have them). The
 odometry gives the metric scale; the landmarks' positions are free. Solved jointly by the smoother's own
 Levenberg–Marquardt, the calibration its extra unknowns (Huber weights first, then the sightings beyond χ²₂ 99 %
 dropped, as :func:`~estimation.landmark_smoother.smooth` does), from the FastSLAM filter's map and trajectory (known
@@ -111,7 +111,6 @@ from .dataset_slam import run_landmark_log
 from .dataset_smoothing import _initial_landmarks
 from .datasets import RangeBearingLog
 from .fastslam import FastSLAMConfig
-from .fastslam.motion import increment_variance
 from .geometry import between
 from .landmark_smoother import (
     OUTLIER_CHI2,
@@ -123,8 +122,7 @@ from .landmark_smoother import (
     solve_with_outlier_cut,
 )
 from .noise_components import GROUPS, MIN_FACTOR, NoiseComponents, truncated_means, variance_factors
-from .noise_model import NoiseModel, with_fastslam
-from .odometry_stall import log_stall_variance
+from .noise_model import NoiseModel, increment_variances, with_fastslam
 
 SIGMAS = ("range_sigma_m", "range_sigma_per_m", "bearing_sigma_rad")   # what the noise's components rescale
 ESTIMATED = ("range_offset_m", "range_scale", "range_scale_per_rad", "range_scale_per_rad2",
@@ -318,11 +316,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     given = np.array([getattr(sensor, k) for k in ESTIMATED])
     start_r, _ = sensor.corrected(raw_r, raw_b)
     plain_sigma_r = sensor.range_sigma(start_r)
-    filter_config = with_fastslam(noise, config)
-    variances = increment_variance(increments, filter_config, np.diff(frame_times))
-    # the stalls after the command's dips (estimation.odometry_stall), as the filter above and dataset_smoothing have
-    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
-        variances = variances + stalls
+    # the random walk and the stalls after the command's dips, as the filter above and dataset_smoothing have them
+    variances = increment_variances(log, noise, with_fastslam(noise, config), frame_times, increments)
     problem = LandmarkLogProblem(increments, variances,
                                  frame_of + 1, landmark_index, start_r, raw_b - sensor.bearing_offset_rad,
                                  plain_sigma_r * inflate_r, np.full(len(log), sensor.bearing_sigma_rad * inflate_b))

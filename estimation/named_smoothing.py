@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAMConfig
-from estimation.fastslam.motion import increment_variance, propagate_covariance
+from estimation.fastslam.motion import propagate_covariance
 from estimation.geometry import between, compose, dead_reckoning
 from estimation.landmark_smoother import (
     OUTLIER_CHI2,
@@ -37,8 +37,7 @@ from estimation.landmark_smoother import (
     normalised_residuals,
     smooth,
 )
-from estimation.noise_model import NoiseModel, with_fastslam
-from estimation.odometry_stall import log_stall_variance
+from estimation.noise_model import NoiseModel, increment_variances, with_fastslam
 
 
 @dataclass
@@ -57,7 +56,7 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     """The factors ``run_landmark_log(association="id", smooth=True)`` builds for ``log`` with each sighting named
     ``names`` (−1: left out): frames at the named sightings' time stamps, from the first; the calibrated odometry
     increments between them, their variances with the noise model's stalls after the command's dips if it has that
-    term (:func:`~estimation.odometry_stall.log_stall_variance`, as the data set's filter and smoother have them);
+    term (:func:`~estimation.noise_model.increment_variances`, as the data set's filter and smoother have them);
     each sighting's calibrated range and bearing with the inflated σ.
 
     ``path_step_s``: the increments' variances propagated along the odometry's path in steps of about this many
@@ -70,9 +69,7 @@ def named_problem(log: RangeBearingLog, names: np.ndarray, noise: NoiseModel, co
     frame_times = np.concatenate([times[:1], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    variances = increment_variance(increments, config, np.diff(frame_times))
-    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
-        variances = variances + stalls
+    variances = increment_variances(log, noise, config, frame_times, increments)
     if path_step_s is not None:
         variances = np.maximum(variances, path_variances(log, noise, config, frame_times, path_step_s))
     ranges, bearings = sensor.corrected(log.ranges[rows], log.bearings[rows])
@@ -104,9 +101,7 @@ def path_variances(log: RangeBearingLog, noise: NoiseModel, config: FastSLAMConf
     grid = np.append(start, frame_times[-1])
     odometry = log.odometry_pose(noise.odometry_times(grid))
     fine = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    fine_var = increment_variance(fine, config, np.diff(grid))
-    if (stalls := log_stall_variance(log, noise, grid)) is not None:     # a dip's stall on the step that holds it
-        fine_var = fine_var + stalls
+    fine_var = increment_variances(log, noise, config, grid, fine)     # a dip's stall on the step that holds it
     pose = np.zeros((t, 3))
     cov = np.zeros((t, 3, 3))
     for k in range(int(steps.max()) if t else 0):

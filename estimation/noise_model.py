@@ -74,7 +74,7 @@ from .fastslam.motion import increment_variance, turn_spans, turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded, special_file_kind
 from .geometry import between, wrap_angle
 from .odometry_consistency import fit_heading_drift
-from .odometry_stall import MAX_STALL_SIGMA_S, CommandDips, fit_stall, stall_variance
+from .odometry_stall import MAX_STALL_SIGMA_S, fit_stall, log_stall_variance
 
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
@@ -119,7 +119,7 @@ class OdometryNoise:
     heading_drift_sigma_per_m: float = 0.0  # σ_b rad/m of a Gauss–Markov heading bias per metre; 0: none
     heading_drift_tau_s: float = 0.0        # its correlation time τ s (> 0 when σ_b > 0)
     theta_var_per_s: float = 0.0            # rad² of heading error per second (FastSLAMConfig.odom_theta_var_per_s)
-    stall_sigma_s: float = 0.0              # σ s of the stall after a command dip (NoiseModel.stall_variance); 0: none
+    stall_sigma_s: float = 0.0              # σ s of the stall after a command dip (log_stall_variance); 0: none
 
     @property
     def heading_drift(self) -> tuple[float, float] | None:
@@ -292,15 +292,6 @@ class NoiseModel:
         the spot the odometry has stopped while the robot still turns, and landmarks sighted then are placed with that
         heading error."""
         return np.asarray(times, float) - self.odometry.lag_s
-
-    def stall_variance(self, dips: CommandDips, times) -> np.ndarray | None:
-        """The variances (T, 3) the stalls after the command's ``dips`` add to the increments between consecutive
-        odometry ``times`` (T + 1,) (already moved by :meth:`odometry_times`), or None when the model has no stall
-        term (:func:`estimation.odometry_stall.stall_variance`, the model's scales on the commands)."""
-        o = self.odometry
-        if o.stall_sigma_s == 0.0:
-            return None
-        return stall_variance(dips, times, o.stall_sigma_s, (o.translation_scale, o.rotation_scale))
 
     # -- files -------------------------------------------------------------------------------------------------
     def to_toml(self) -> str:
@@ -995,3 +986,16 @@ def with_fastslam(model: NoiseModel, config):
     """``config`` (a FastSLAMConfig) with the model's motion noise, the sensor's footprint and, when the model
     carries them, its detection rates for the landmarks' existence (:meth:`NoiseModel.existence_overrides`)."""
     return replace(config, **model.fastslam_overrides(), **model.existence_overrides())
+
+
+def increment_variances(log: RangeBearingLog, noise: NoiseModel, config, frame_times, increments) -> np.ndarray:
+    """The variances (T, 3) of (dx, dy, dθ) of ``log``'s calibrated odometry ``increments`` (T, 3) between consecutive
+    ``frame_times`` (T + 1,): the random walk's (:func:`~estimation.fastslam.motion.increment_variance` with
+    ``config``, a FastSLAMConfig that has the model's keys, :func:`with_fastslam`) plus the model's stalls after the
+    command's dips if it has that term (:func:`~estimation.odometry_stall.log_stall_variance`). The odometry factors
+    of every smoother of a log: the camera's self-calibration, the chain's named smoothing and its path variances
+    (the data set's filter and smoother take the stall's variances apart, ``estimation.dataset_slam``)."""
+    variances = increment_variance(increments, config, np.diff(frame_times))
+    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
+        variances = variances + stalls
+    return variances

@@ -25,15 +25,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .datasets import RangeBearingLog
 from .geometry import between, wrap_angle
-
-if TYPE_CHECKING:
-    from .noise_model import NoiseModel
 
 MAX_STALL_SIGMA_S = 1.0      # s: a drive whose every hiccup costs it seconds is not described by a variance
 STALL_WINDOW_S = 1.0         # the windows the stall is measured on (a stall lasts up to ~0.5 s)
@@ -87,12 +83,18 @@ def stall_variance(dips: CommandDips, times, sigma_s: float, scales=(1.0, 1.0)) 
     return out
 
 
-def log_stall_variance(log: RangeBearingLog, noise: NoiseModel, frame_times) -> np.ndarray | None:
-    """The variances (T, 3) ``noise``'s stall term adds to ``log``'s calibrated increments between consecutive log
-    ``frame_times`` (T + 1,) (the dips of its command, the frames moved by the model's odometry lag), or None when the
-    model has no stall term: what every smoother of a log adds to its odometry factors' random-walk variances, as the
-    data set's filter adds it to its predict (``estimation.dataset_slam``)."""
-    return noise.stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times))
+def log_stall_variance(log: RangeBearingLog, noise, frame_times) -> np.ndarray | None:
+    """The variances (T, 3) the stall term of ``noise`` (an :class:`estimation.noise_model.NoiseModel`, not imported:
+    that module imports this one) adds to ``log``'s calibrated increments between consecutive log ``frame_times``
+    (T + 1,): :func:`stall_variance` of the dips of its command, the frames moved by the model's odometry lag, with
+    the model's σ_s and scales; None when the model has no stall term. The data set's filter adds it to its predict
+    (``estimation.dataset_slam``); every smoother of a log adds it to its odometry factors' random-walk variances
+    through :func:`estimation.noise_model.increment_variances`."""
+    o = noise.odometry
+    if o.stall_sigma_s == 0.0:
+        return None
+    return stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times), o.stall_sigma_s,
+                          (o.translation_scale, o.rotation_scale))
 
 
 def fit_stall(logs: Sequence[RangeBearingLog], lag_s: float,

@@ -20,6 +20,7 @@ from estimation.fastslam.motion import increment_variance
 from estimation.geometry import between, dead_reckoning
 from estimation.landmark_smoother import OUTLIER_CHI2, LandmarkLogProblem, Smoothed
 from estimation.named_smoothing import covisible_names, path_variances, truncated_cost
+from estimation.noise_model import OdometryNoise
 
 
 class _Odometry:
@@ -38,9 +39,7 @@ class _Odometry:
 class _Uncalibrated:
     """A noise-model stand-in with no lag, no calibration (the increments as the odometry gives them), no stall term."""
 
-    @staticmethod
-    def stall_variance(dips, times):
-        return None
+    odometry = OdometryNoise(0.0, 0.0, 0.0)     # stall_sigma_s 0: no stall term
 
     @staticmethod
     def odometry_times(times):
