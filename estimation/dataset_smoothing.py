@@ -9,10 +9,12 @@ under ``filter_``; ``smoother_*`` report the fit (χ² per degree of freedom, si
 convergence). Scored against a truth with landmarks, ``landmark_frame_error`` / ``_sd`` / ``_nees`` give the map's
 start-frame error as one rigid motion (dx, dy, dθ about the frame's origin) against the joint covariance of its
 landmarks (:func:`~estimation.landmark_scores.frame_error`): whether a start-frame miss is the frame, pinned by the
-log's first few factors, or the map's shape. With a heading drift
-(:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter config's ``odom_heading_drift_sigma_per_m``
-/ ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the smoother carries a heading-bias state per
-frame; ``smoother_heading_drift_*`` then say which (absent when off).
+log's first few factors, or the map's shape. With or without a truth, ``frame_reliability_*`` say how far an error
+of one sighting that the data cannot find would move that frame, against its σ
+(:func:`~estimation.frame_reliability.reliability_metrics`): whether the frame rests on sightings nothing checks.
+With a heading drift (:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter config's
+``odom_heading_drift_sigma_per_m`` / ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the smoother
+carries a heading-bias state per frame; ``smoother_heading_drift_*`` then say which (absent when off).
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ import numpy as np
 
 from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
 from .fastslam.motion import increment_variance
+from .frame_reliability import reliability_metrics
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import ate, frame_error, map_scores, pose_nees, pose_nees_figures
@@ -67,6 +70,8 @@ def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_
         smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    # which sightings the frame rests on, from the problem's design alone (estimation.frame_reliability)
+    metrics.update(reliability_metrics(problem, solution, times, landmark_ids))
     if solution.heading_drift is not None:
         metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
                        smoother_heading_drift_tau_s=solution.heading_drift.tau_s)

@@ -94,9 +94,15 @@ def run_dataset(args: argparse.Namespace) -> int:
             print(f"p3at slam dataset: the map is written to {args.out}, but the recording failed: {e}",
                   file=sys.stderr)
             return 2
+    from estimation.frame_reliability import reliability_warning
+
+    # the frame resting on single sightings: from the design, with or without a truth; on stderr beside the JSON too
+    reliability = reliability_warning(run.metrics)
+    if reliability is not None and args.json:
+        print(f"p3at slam dataset: warning: {reliability}", file=sys.stderr)
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
                    noise=noise_source, notes=list(log.notes), recording=args.rerun,
-                   warnings=_map_warnings(run.metrics)
+                   warnings=_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
                    + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []),
                    stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
     if args.json:
