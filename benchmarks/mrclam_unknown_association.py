@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 import estimation.dataset_slam as dataset_slam  # noqa: E402
 import estimation.fastslam.filter as fastslam_filter  # noqa: E402
 from benchmarks.eval_mrclam_merges import PLAIN, RunSetup, robots_main  # noqa: E402
-from estimation.fastslam import FastSLAM, drift_merge  # noqa: E402
+from estimation.fastslam import FastSLAM, drift_merge, merging  # noqa: E402
 from estimation.fastslam.linalg import sym_matrices  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
 
@@ -124,7 +124,7 @@ def _duplicate_pairs(slam: FastSLAM, votes: dict) -> list[dict]:
         created = slam.drift.landmark_covariances(np.array([a, b])).sum(axis=0)
         since = sym_matrices(drift_merge.relative_drift(slam.drift, np.array([a]), np.array([b]),
                                                         landmarks.positions[ib][None]))[0]
-        key = (a << fastslam_filter._PAIR_SHIFT) | b
+        key = (a << merging.PAIR_SHIFT) | b
         out.append({"barcode": int(barcode[i]), "distance_m": float(np.linalg.norm(diff)),
                     **{f"d2_{name}": float(diff @ np.linalg.pinv(cov) @ diff)
                        for name, cov in (("plain", plain), ("creation_drift", plain + created),

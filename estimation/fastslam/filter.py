@@ -34,7 +34,7 @@ One update (:meth:`FastSLAM.update`) reads as numbered steps:
 7. New landmarks from observations with no gated candidate ("id" association: with no landmark of that id);
    every ``merge_every`` updates, duplicates among the landmarks touched since are merged (with
    ``merge_covisibility``, also pairs never detected in one frame although one was missed in view while the
-   other was detected; pairs detected together never; see :meth:`FastSLAM._merge_duplicates`).
+   other was detected; pairs detected together never; ``merging.py``).
 8. Weights, effective sample size, low-variance resampling when ESS < ``resample_threshold`` · M; the map
    frame's drift (``drift.py``) follows the best particle.
 
@@ -66,12 +66,13 @@ import numpy as np
 from ..geometry import compose, wrap_angle
 from ..landmark_map import LandmarkMap
 from ..observations import OdometryIncrement, StereoObservations
-from . import association_rules, detection_term, drift_merge, id_gate, unknown_rescue
+from . import association_rules, detection_term, id_gate, unknown_rescue
 from .appearance import DescriptorBands
+from .arrays import cos_sin, id_ranks, take_cols, take_rows, within_angle
 from .coincident import one_per_point, twins_of_matched
 from .config import FastSLAMConfig
 from .drift import DriftTracker
-from .existence import exclusive_log_odds, hit_log_odds, miss_log_odds
+from .existence import hit_log_odds, miss_log_odds
 from .export_drift import ExportLeverDriftTracker
 from .export_merge import merge_coincident
 from .lever_drift import LeverDriftTracker, correlated_mean_factor, with_empirical_position
@@ -90,6 +91,7 @@ from .linalg import (
     sym_rotate_z,
     symmetrise,
 )
+from .merging import DuplicateMerging
 from .motion import (
     heading_drift_decay,
     increment_variance,
@@ -99,6 +101,7 @@ from .motion import (
     walk_heading_bias,
     with_heading_bias,
 )
+from .pairs import Pairs, exclusive_matches, no_pairs
 from .resampling import effective_sample_size, low_variance_resample, normalise_log_weights
 from .selection import select_observations
 from .self_check import SelfCheck, slot_view
@@ -109,8 +112,6 @@ _EYE3 = np.eye(3)
 COVARIANCE_KINDS = ("particle", "mixture", "mixture+drift")   # what a map's landmark covariances are (particle_map)
 _TINY_POSE_VAR = np.array([1e-12, 0.0, 0.0, 1e-12, 0.0, 1e-12])[:, None]   # keeps P⁻¹ finite right after an update
 PRUNE_HISTORY_EVERY = 200  # updates between prunings of the trajectory history to the live ancestry
-_PAIR_SHIFT = 32           # a pair of landmark ids (a < b) as one int64 key: a << 32 | b
-MERGED_PAIRS_KEPT = 10_000  # FastSLAM.merged_pairs keeps the latest this many distinct pairs (a route makes ~60-70)
 
 
 @dataclass(frozen=True)
@@ -159,24 +160,6 @@ class FilterStats:
 
 
 @dataclass
-class _Pairs:
-    """(particle, observation, candidate) triples, all arrays of one length P."""
-
-    m: np.ndarray     # particle index
-    j: np.ndarray     # observation index
-    k: np.ndarray     # table position of the landmark's block in the particle's block table
-    g: np.ndarray     # flat slot of the landmark (block * block_size + slot)
-    c: np.ndarray     # index in the frame's candidate list (unique per particle and landmark)
-
-    def take(self, index) -> _Pairs:
-        return _Pairs(self.m[index], self.j[index], self.k[index], self.g[index], self.c[index])
-
-
-def _no_pairs() -> _Pairs:
-    return _Pairs(*(np.zeros(0, np.int64) for _ in range(5)))
-
-
-@dataclass
 class _FrameGeometry:
     """Every observation seen from every particle, indexed m·N + j: world points (3, M·N) w = R z + t and
     world-frame observation covariances (6, M·N) R Q Rᵀ (symmetric components, see ``linalg``)."""
@@ -193,7 +176,7 @@ class _FrameGeometry:
         return cls(world.reshape(3, -1), sym_rotate_z(c, s, q6[:, None, :]).reshape(6, -1))
 
 
-class FastSLAM:
+class FastSLAM(DuplicateMerging):
     """Rao-Blackwellised particle filter SLAM (FastSLAM 1.0 / 2.0, unknown data association).
 
     ``FastSLAM(config, rng, initial_pose=(0, 0, 0))`` then, per odometry increment, :meth:`predict` and, per
@@ -232,8 +215,8 @@ class FastSLAM:
                       if export_only else DriftTracker())                                       # drift
         self._proposal_cov: np.ndarray | None = None                    # 2.0: mean proposal covariance (3, 3)
         self._touched: list[np.ndarray] = []                            # landmark ids touched since the last merge
-        # co-visibility of landmark pairs in the most probable particle (see _merge_duplicates): evidence "one
-        # point" per pair key, the keys ever detected in one frame (never merged), those ready to merge
+        # co-visibility of landmark pairs in the most probable particle (merging.py, _merge_duplicates): evidence
+        # "one point" per pair key, the keys ever detected in one frame (never merged), those ready to merge
         self._pair_evidence: dict[int, float] = {}
         self._codetected: set[int] = set()
         self._merge_ready: set[int] = set()
@@ -346,7 +329,7 @@ class FastSLAM:
         gated = d2 < cfg.mahalanobis_gate
         relative = None
         if by_id and cfg.id_relative_drift != "off" and cfg.version == 2:   # the pose's drift since the landmark
-            lever = mean[:2] - _cols(predicted[:, :2].T, pairs.m)                # was made (id_gate.py)
+            lever = mean[:2] - take_cols(predicted[:, :2].T, pairs.m)            # was made (id_gate.py)
             relative = id_gate.judge(cfg.id_relative_drift, self.drift, pairs.m, obs_lids[pairs.j], d2, s_gate,
                                      innovation, lever, cfg.mahalanobis_gate)
             d2, gated = relative.d2, relative.gated
@@ -360,12 +343,12 @@ class FastSLAM:
                                           cfg.mahalanobis_gate, desc, self._descriptors, cfg.descriptor_threshold)
             if extra is not None:
                 found = cand.take(extra.rows)
-                pairs = _Pairs(*(np.concatenate([a, b]) for a, b in zip(
+                pairs = Pairs(*(np.concatenate([a, b]) for a, b in zip(
                     (pairs.m, pairs.j, pairs.k, pairs.g, pairs.c), (found.m, extra.j, found.k, found.g, found.c),
                     strict=True)))
                 mean, cov, innovation, s_obs = (np.concatenate(ab, axis=1) for ab in (
                     (mean, extra.mean), (cov, extra.cov), (innovation, extra.innovation), (s_obs, extra.s_obs)))
-                mj, lever = pairs.m * n_obs + pairs.j, mean[:2] - _cols(predicted[:, :2].T, pairs.m)
+                mj, lever = pairs.m * n_obs + pairs.j, mean[:2] - take_cols(predicted[:, :2].T, pairs.m)
                 relative = extra.relative_gate(self.drift, cand_lids[pairs.c], d2, gated, cfg.mahalanobis_gate)
                 d2, gated = relative.d2, relative.gated
                 self.stats.unknown_rescued += len(extra.rows)
@@ -383,7 +366,7 @@ class FastSLAM:
             gated = drawn.gated
             self.stats.unknown_drawn_new += int(np.count_nonzero(drawn.new))
             self.stats.unknown_unused += int(np.count_nonzero(drawn.unused))
-        win, had_candidate = _exclusive_matches(pairs, d2, gated, n_particles, n_obs, n_slots)
+        win, had_candidate = exclusive_matches(pairs, d2, gated, n_particles, n_obs, n_slots)
         if drawn is not None:   # a reading left unused is no new landmark
             had_candidate |= drawn.unused
         matched = pairs.take(win)
@@ -401,16 +384,16 @@ class FastSLAM:
             terms[matched.m, matched.j] = -0.5 * d2[win]
             log_lik = self._creations.log_likelihood(self.log_weights, terms, obs_lids,
                                                      holds.reshape(n_particles, n_obs))
-        mean, cov = _cols(mean, win), _cols(cov, win)
+        mean, cov = take_cols(mean, win), take_cols(cov, win)
 
-        s_inv = sym_inverse(_cols(s_obs, win))                                        # S⁻¹ without the pose term
+        s_inv = sym_inverse(take_cols(s_obs, win))                                    # S⁻¹ without the pose term
         if relative is not None:   # proposal and EKF relative to each particle's oldest landmark (id_gate.py)
-            cov, self._motion_cov = relative.anchor(win, matched.m, cov, _cols(lever, win), self._motion_cov)
-            s_inv = sym_inverse(cov + _cols(frame.noise, mj[win]))
+            cov, self._motion_cov = relative.anchor(win, matched.m, cov, take_cols(lever, win), self._motion_cov)
+            s_inv = sym_inverse(cov + take_cols(frame.noise, mj[win]))
 
         # 4. pose: FastSLAM 2.0 samples from the observation proposal; 1.0 already sampled in predict()
         if cfg.version == 2:
-            sampled = self._sample_proposal(predicted, matched, mean, s_inv, _cols(innovation, win))
+            sampled = self._sample_proposal(predicted, matched, mean, s_inv, take_cols(innovation, win))
             if cfg.anchor_first_frame:
                 # the frame that starts a particle's map fixes its gauge: no later observation can tell a heading
                 # sampled there from the truth, so a draw only adds a permanent offset; keep the mean instead
@@ -529,7 +512,7 @@ class FastSLAM:
         state = self.store.flat_state[cand.g[c]].T
         mean, cov = state[:3], state[3:]
         innovation, _, s, d2, det = self._gate(frame, poses, m, m * n_obs + j, mean, cov)
-        lever = mean[:2] - _cols(poses[:, :2].T, m)
+        lever = mean[:2] - take_cols(poses[:, :2].T, m)
         return association_rules.CandidateGate(m, j, lids[c], innovation, s, lever, d2, np.log(det))
 
     def _gate(self, frame: _FrameGeometry, poses: np.ndarray, m: np.ndarray, mj: np.ndarray, mean: np.ndarray,
@@ -538,12 +521,12 @@ class FastSLAM:
         m·N + j: ν = R z + t − μ (3, P), S = Σ + R Q Rᵀ (6, P), the gate's S (with FastSLAM 2.0's pose term
         H_x P H_xᵀ: the pose is not sampled yet), d² = νᵀ S⁻¹ ν and |S| (P,). One place for the update and
         :meth:`candidate_gate`, so the diagnoses see the gate the filter uses."""
-        innovation = _cols(frame.world, mj) - mean
-        s_obs = cov + _cols(frame.noise, mj)
+        innovation = take_cols(frame.world, mj) - mean
+        s_obs = cov + take_cols(frame.noise, mj)
         s_gate = s_obs
         if self.config.version == 2:
-            s_gate = s_obs + pose_uncertainty(_cols(sym_components(self._motion_cov), m),
-                                               mean[:2] - _cols(poses[:, :2].T, m))
+            s_gate = s_obs + pose_uncertainty(take_cols(sym_components(self._motion_cov), m),
+                                               mean[:2] - take_cols(poses[:, :2].T, m))
         adj, det = sym_adjugate(s_gate)
         return innovation, s_obs, s_gate, sym_quadratic(adj, innovation) / det, det
 
@@ -584,7 +567,7 @@ class FastSLAM:
         centres = np.stack([poses[:, 0] + c * fx - s * fy, poses[:, 1] + s * fx + c * fy], axis=1)
         return centres, radius + 1.0
 
-    def _candidates(self, poses: np.ndarray) -> tuple[_Pairs, np.ndarray]:
+    def _candidates(self, poses: np.ndarray) -> tuple[Pairs, np.ndarray]:
         """Every live landmark in a block near each particle's view: pairs with j = -1 (M·K·B at most), with
         their landmark ids (C,) (read block by block: whole rows, not scattered slots)."""
         store = self.store
@@ -592,17 +575,17 @@ class FastSLAM:
         p, k = store.blocks_near(centres, radius)
         b = store.block_size
         phys = store.table[p, k]
-        lid = _rows(store.lid, phys)                                               # (pairs, B)
+        lid = take_rows(store.lid, phys)                                           # (pairs, B)
         alive = lid >= 0
         live = np.flatnonzero(alive)
         g = (phys[:, None] * b + np.arange(b)).ravel()[live]    # each block's slots, no division per candidate
         per_block = np.count_nonzero(alive, axis=1)
-        cand = _Pairs(np.repeat(p, per_block), np.full(len(g), -1, np.int64), np.repeat(k, per_block), g,
+        cand = Pairs(np.repeat(p, per_block), np.full(len(g), -1, np.int64), np.repeat(k, per_block), g,
                       np.arange(len(g)))
         return cand, lid.ravel()[live]
 
-    def _descriptor_join(self, cand: _Pairs, lids: np.ndarray, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
-                         q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
+    def _descriptor_join(self, cand: Pairs, lids: np.ndarray, desc: np.ndarray, poses: np.ndarray, z: np.ndarray,
+                         q6: np.ndarray) -> tuple[Pairs, np.ndarray, np.ndarray]:
         """(particle, observation, landmark) triples whose descriptors are closer than the threshold, with
         the landmarks' means (3, P) and covariances (6, P).
 
@@ -612,13 +595,13 @@ class FastSLAM:
         """
         n_obs = len(desc)
         if len(cand.m) == 0 or n_obs == 0:
-            return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0))
+            return no_pairs(), np.zeros((3, 0)), np.zeros((6, 0))
         store = self.store
-        uniq, inverse = _id_ranks(lids, self._n_ids)
+        uniq, inverse = id_ranks(lids, self._n_ids)
         if self._bands is not None:   # compare at comparable scale: the descriptor made at the nearest range
             obs_j, uid = self._bands.matches(uniq, desc, self._sensor_range(z), self.config.descriptor_threshold)
         elif self.config.descriptor_size > 0:
-            known = _rows(self._descriptors, uniq)
+            known = take_rows(self._descriptors, uniq)
             d2 = (np.sum(desc * desc, 1)[:, None] + np.sum(known * known, 1)[None, :] - 2.0 * desc @ known.T)
             obs_j, uid = np.nonzero(d2 < self.config.descriptor_threshold ** 2)
         else:
@@ -628,7 +611,7 @@ class FastSLAM:
         wanted[uid] = True
         keep = np.flatnonzero(wanted[inverse])
         g, inverse = cand.g[keep], inverse[keep]
-        state = _rows(store.flat_state, g)                        # (C, 9): means (3), covariances (6)
+        state = take_rows(store.flat_state, g)                    # (C, 9): means (3), covariances (6)
         mean = state[:, :3]
         trace = state[:, 3] + state[:, 6] + state[:, 8]            # (C,) tr Σ
         if len(obs_j):
@@ -644,8 +627,8 @@ class FastSLAM:
         within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
         ci = order[first + within]
         c = keep[ci]
-        pairs = _Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], g[ci], c)
-        state = _rows(state, ci).T
+        pairs = Pairs(cand.m[c], np.repeat(obs_j, reps), cand.k[c], g[ci], c)
+        state = take_rows(state, ci).T
         return pairs, np.ascontiguousarray(state[:3]), np.ascontiguousarray(state[3:])
 
     def _id_pregate(self, mean: np.ndarray, trace: np.ndarray, inverse: np.ndarray, n_uniq: int, obs_j: np.ndarray,
@@ -687,8 +670,8 @@ class FastSLAM:
             trace = trace + (2.0 + r_max ** 2) * float(np.max(np.trace(self._motion_cov, axis1=1, axis2=2)))
         return (lower <= 0) | (lower ** 2 <= self.config.mahalanobis_gate * trace * (1 + 1e-6))
 
-    def _pregate(self, pairs: _Pairs, mean: np.ndarray, cov: np.ndarray, frame: _FrameGeometry,
-                 poses: np.ndarray, q6: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray]:
+    def _pregate(self, pairs: Pairs, mean: np.ndarray, cov: np.ndarray, frame: _FrameGeometry,
+                 poses: np.ndarray, q6: np.ndarray) -> tuple[Pairs, np.ndarray, np.ndarray]:
         """Drop pairs that cannot pass the Mahalanobis gate, using only vector norms (exact, conservative).
 
         d² = νᵀS⁻¹ν ≥ |ν|²/λ_max(S) ≥ |ν|²/tr S, and tr S = tr Σ + tr Q (+ tr H_x P H_xᵀ ≤ (2 + r²) tr P under
@@ -705,7 +688,7 @@ class FastSLAM:
         keep = np.flatnonzero(nu2 <= self.config.mahalanobis_gate * trace * (1 + 1e-9))
         return pairs.take(keep), mean[:, keep], cov[:, keep]
 
-    def _sample_proposal(self, predicted: np.ndarray, matched: _Pairs, mean: np.ndarray, s_inv: np.ndarray,
+    def _sample_proposal(self, predicted: np.ndarray, matched: Pairs, mean: np.ndarray, s_inv: np.ndarray,
                          innovation: np.ndarray) -> np.ndarray:
         """FastSLAM 2.0: x ~ N(μ, Σ), Σ = (P⁻¹ + Σ H_xᵀ S⁻¹ H_x)⁻¹, μ = x̂ + Σ Σ H_xᵀ S⁻¹ (z − ẑ).
 
@@ -740,13 +723,13 @@ class FastSLAM:
         sample[:, 2] = wrap_angle(sample[:, 2])
         return sample
 
-    def _remap(self, pairs: _Pairs) -> np.ndarray:
+    def _remap(self, pairs: Pairs) -> np.ndarray:
         """Flat slots of pairs after copy-on-write moved their blocks."""
         b = self.store.block_size
         table = self.store.table
         return np.take(table, pairs.m * table.shape[1] + pairs.k) * b + pairs.g % b
 
-    def _ekf_update(self, matched: _Pairs, predicted: np.ndarray, poses: np.ndarray, z: np.ndarray,
+    def _ekf_update(self, matched: Pairs, predicted: np.ndarray, poses: np.ndarray, z: np.ndarray,
                     q6: np.ndarray, mean: np.ndarray, sigma: np.ndarray, s_inv: np.ndarray) -> np.ndarray:
         """Per matched pair: K = Σ Hᵀ S⁻¹ (H = Rᵀ), μ += K (z − ẑ), Σ = (I − KH) Σ (I − KH)ᵀ + K Q Kᵀ.
 
@@ -763,11 +746,11 @@ class FastSLAM:
         if len(matched.m) == 0:
             return np.zeros((0, 2))
         store = self.store
-        pose = _rows(poses, matched.m)
-        c, s = _cos_sin(poses, matched.m)
-        zx, zy, zz = _rows(z, matched.j).T
+        pose = take_rows(poses, matched.m)
+        c, s = cos_sin(poses, matched.m)
+        zx, zy, zz = take_rows(z, matched.j).T
         nx, ny, nz = c * zx - s * zy + pose[:, 0] - mean[0], s * zx + c * zy + pose[:, 1] - mean[1], zz - mean[2]
-        noise = sym_rotate_z(c, s, _cols(q6, matched.j))           # R Q Rᵀ at the pose the update uses
+        noise = sym_rotate_z(c, s, take_cols(q6, matched.j))       # R Q Rᵀ at the pose the update uses
         if self.config.version == 2:                                # S_w = Σ + R Q Rᵀ afresh at the sampled pose
             s_inv = sym_inverse(sigma + noise)
         gain = sym_product(sigma, s_inv)                            # K_w = Σ S_w⁻¹
@@ -784,8 +767,8 @@ class FastSLAM:
         store.flat_logodds[matched.g] = np.minimum(store.flat_logodds[matched.g] + hit, cfg.existence_max)
         return updated[:, :2]
 
-    def _missed_in_view(self, cand: _Pairs, poses: np.ndarray, matched: _Pairs, by_id: bool = False,
-                        reach: float | None = None) -> tuple[_Pairs, np.ndarray]:
+    def _missed_in_view(self, cand: Pairs, poses: np.ndarray, matched: Pairs, by_id: bool = False,
+                        reach: float | None = None) -> tuple[Pairs, np.ndarray]:
         """Candidate landmarks predicted well inside the view (``miss_fov_margin`` of the field of view and of
         the range) and not matched: negative evidence for their existence, with their predicted ranges from the
         sensor (P,). (``by_id``: ``matched`` are all the pairs of the id join, gated or not, whose ``c`` is not a
@@ -801,7 +784,7 @@ class FastSLAM:
             return cand.take(np.zeros(0, np.int64)), np.zeros(0)
         m, at = cand.m, cand.g * 9           # 1-D gathers of x, y, z from the 9-number slot records
         flat = store.state.reshape(-1)
-        c, s = _cos_sin(poses, m)
+        c, s = cos_sin(poses, m)
         dx, dy = np.take(flat, at) - np.take(poses[:, 0], m), np.take(flat, at + 1) - np.take(poses[:, 1], m)
         x, y = c * dx + s * dy, c * dy - s * dx
         # the planar half of the test first: most candidates are behind or beside the view (in bench_fastslam's
@@ -813,7 +796,7 @@ class FastSLAM:
         ox, oy, _ = self.config.sensor_offset
         return cand.take(idx[inside]), np.hypot(x[inside] - ox, y[inside] - oy)
 
-    def _check_self(self, best: int, matched: _Pairs, missed: _Pairs, named: _Pairs | None, z: np.ndarray,
+    def _check_self(self, best: int, matched: Pairs, missed: Pairs, named: Pairs | None, z: np.ndarray,
                     miss_weight: float) -> None:
         """The self-check's frame (self_check.py): the old landmarks particle ``best`` (the one step 8 picks)
         re-detected and missed well in view, before this frame's writes; "in view" within the frame's farthest
@@ -842,7 +825,7 @@ class FastSLAM:
         ok = depth > cfg.min_range
         if cfg.fov_horizontal < 2 * np.pi:
             ok &= depth > 0
-            ok &= _within_angle(y - oy, depth, cfg.miss_fov_margin * 0.5 * cfg.fov_horizontal)
+            ok &= within_angle(y - oy, depth, cfg.miss_fov_margin * 0.5 * cfg.fov_horizontal)
         return ok
 
     def _near_in_view(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, reach: float | None = None) -> np.ndarray:
@@ -855,10 +838,10 @@ class FastSLAM:
         max_range = cfg.max_range if reach is None else min(cfg.max_range, reach)
         ok = depth * depth + lateral * lateral + height * height < (margin * max_range) ** 2
         if cfg.fov_vertical < np.pi:
-            ok &= _within_angle(height, np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
+            ok &= within_angle(height, np.maximum(depth, 1e-9), margin * 0.5 * cfg.fov_vertical)
         return ok
 
-    def _count_miss(self, missed: _Pairs, ranges: np.ndarray, weight: float = 1.0) -> int:
+    def _count_miss(self, missed: Pairs, ranges: np.ndarray, weight: float = 1.0) -> int:
         """Existence log-odds += a miss's worth (``existence.miss_log_odds`` at the landmarks' ranges (P,)) for
         landmarks missed in view; those falling below ``existence_remove`` are removed. Returns how many
         (particle, landmark) were removed."""
@@ -893,11 +876,11 @@ class FastSLAM:
             new_ids[spawning] = lids[spawning]
         g = self.store.append_slots(m)
         store = self.store
-        pose = _rows(poses, m)
-        c, s = _cos_sin(poses, m)
-        zx, zy, zz = _rows(z, j).T
+        pose = take_rows(poses, m)
+        c, s = cos_sin(poses, m)
+        zx, zy, zz = take_rows(z, j).T
         store.put_state(g, np.vstack([c * zx - s * zy + pose[:, 0], s * zx + c * zy + pose[:, 1], zz,
-                                      sym_rotate_z(c, s, _cols(q6, j))]).T)
+                                      sym_rotate_z(c, s, take_cols(q6, j))]).T)
         store.flat_lid[g] = new_ids[j]
         store.flat_count[g] = 1
         store.flat_misses[g] = 0
@@ -908,278 +891,6 @@ class FastSLAM:
         store.flat_logodds[g] = np.minimum(cfg.existence_initial + first, cfg.existence_max)
         store.include_in_bbox(g)
         return new_ids, len(m)
-
-    # -- duplicates ------------------------------------------------------------------------------------------
-    def _merge_duplicates(self, touched: np.ndarray) -> int:
-        """Merge, in each particle, landmarks that are one point. Two kinds of evidence (pairs of ids):
-
-        - *alike* (:meth:`_alike_pairs`): statistically one point given the particle's trajectory,
-          (μ_a − μ_b)ᵀ(Σ_a + Σ_b)⁻¹(μ_a − μ_b) < ``merge_gate``, and (with descriptors) descriptors closer than
-          ``merge_descriptor_threshold``; one of them matched or made since the last pass (``touched``);
-        - *co-visibility* (``merge_covisibility``, :meth:`_count_covisibility`): never detected in one frame
-          although, again and again, one was detected while the other was predicted well in view, worth
-          ``merge_log_odds``; and one point within the covariance the landmarks really have in the map frame,
-          Σ_a + Σ_b + C_a + C_b (C: the map frame's drift at each one's creation, ``drift.py``), since a
-          landmark made again after the pose drifted sits off by that drift, not by its EKF's σ.
-
-        With ``merge_covisibility``, a pair ever detected in one frame is two points and is never merged. The
-        newer landmark (higher id) goes into the older one: μ, Σ fused as two independent estimates (given the
-        particle's trajectory they are: each observation updated only one of them), counts added, the larger
-        existence kept. Only landmarks near some particle's view are considered. Returns the number of
-        (particle, landmark) merges; the id pairs go to ``merged_pairs``."""
-        cfg, store = self.config, self.store
-        cand, lids = self._candidates(self.poses)
-        if len(cand.m) == 0:
-            return 0
-        uniq, first, inverse = _unique_ids(lids, self._n_ids)
-        a, b = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        if cfg.descriptor_size > 0 or not cfg.merge_covisibility:
-            # without descriptors "statistically one point" is geometry alone, which cannot tell one landmark
-            # from two neighbours within a few σ (MRCLAM: posts 0.7-1.9 m apart, σ 0.3-0.6 m): co-visibility must
-            # then supply the second piece of evidence
-            a, b = self._alike_pairs(cand, uniq, first, inverse, touched)
-        by_evidence = np.zeros(len(a), bool)
-        if cfg.merge_covisibility:
-            if len(a) and self._codetected:
-                keep = np.array([k not in self._codetected for k in ((a << _PAIR_SHIFT) | b).tolist()], bool)
-                a, b, by_evidence = a[keep], b[keep], by_evidence[keep]
-            if self._merge_ready:
-                ready = np.fromiter(self._merge_ready, np.int64, len(self._merge_ready))
-                ra, rb = ready >> _PAIR_SHIFT, ready & ((1 << _PAIR_SHIFT) - 1)
-                present = np.zeros(self._n_ids, bool)
-                present[uniq] = True
-                near = present[ra] & present[rb]
-                a = np.concatenate([a, ra[near]])
-                b = np.concatenate([b, rb[near]])
-                by_evidence = np.concatenate([by_evidence, np.ones(int(near.sum()), bool)])
-        by_relative = np.zeros(len(a), bool)
-        if cfg.merge_relative_drift:   # made again after a drift, never detected in one frame (drift_merge.py)
-            ra, rb = drift_merge.candidate_pairs(self.drift, uniq, inverse, _rows(store.flat_state, cand.g), touched,
-                                                 self._codetected, cfg.merge_gate, _PAIR_SHIFT)
-            a, b = np.concatenate([a, ra]), np.concatenate([b, rb])
-            by_evidence = np.concatenate([by_evidence, np.zeros(len(ra), bool)])
-            by_relative = np.concatenate([by_relative, np.ones(len(ra), bool)])
-        if len(a) == 0:
-            return 0
-        # one row per id pair (a pair on both lists may pass either test)
-        pair_key, at = np.unique(a * self._n_ids + b, return_inverse=True)
-        evidence = np.zeros(len(pair_key), bool)
-        np.logical_or.at(evidence, at, by_evidence)
-        alike, relative = np.zeros(len(pair_key), bool), np.zeros(len(pair_key), bool)
-        np.logical_or.at(alike, at, ~(by_evidence | by_relative))
-        np.logical_or.at(relative, at, by_relative)
-        a, b = np.divmod(pair_key, self._n_ids)
-        # expand to the particles holding both (rows of the candidate list, looked up by particle and id)
-        key = cand.m * self._n_ids + lids
-        order = np.argsort(key, kind="stable")
-        sorted_key = key[order]
-        rows_a, pair = _rows_with_id(lids, a)                                      # candidate rows holding a
-        m = cand.m[rows_a]
-        pos = np.searchsorted(sorted_key, m * self._n_ids + b[pair])
-        pos = np.minimum(pos, len(sorted_key) - 1)
-        found = sorted_key[pos] == m * self._n_ids + b[pair]
-        rows_a, rows_b, pair = rows_a[found], order[pos[found]], pair[found]
-        if len(rows_a) == 0:
-            return 0
-        sa, sb = _rows(store.flat_state, cand.g[rows_a]).T, _rows(store.flat_state, cand.g[rows_b]).T
-        diff = sa[:3] - sb[:3]
-        adj, det = sym_adjugate(sa[3:] + sb[3:])
-        d2 = sym_quadratic(adj, diff) / det
-        ok = alike[pair] & (d2 < cfg.merge_gate)
-        if evidence.any():
-            drift = sym_components(self.drift.landmark_covariances(a[pair])) + sym_components(
-                self.drift.landmark_covariances(b[pair]))
-            adj, det = sym_adjugate(sa[3:] + sb[3:] + drift)
-            d2_drift = sym_quadratic(adj, diff) / det
-            by_drift = evidence[pair] & (d2_drift < cfg.merge_gate) & ~ok
-            ok |= by_drift
-            d2 = np.where(by_drift, d2_drift, d2)
-        if relative.any():   # Σ_a + Σ_b + the drift between their creations, one candidate each (drift_merge.py)
-            r = np.flatnonzero(relative[pair])
-            adj, det = sym_adjugate(_cols(sa[3:], r) + _cols(sb[3:], r)
-                                    + drift_merge.relative_drift(self.drift, a[pair[r]], b[pair[r]], sb[:3, r].T))
-            d2_rel = sym_quadratic(adj, diff[:, r]) / det
-            hit = d2_rel < cfg.merge_gate
-            r, d2_rel = r[hit], d2_rel[hit]
-            one = drift_merge.mutually_unique(cand.m[rows_a[r]], a[pair[r]], b[pair[r]]) & ~ok[r]
-            ok[r[one]], d2[r[one]] = True, d2_rel[one]
-        ok = np.flatnonzero(ok)
-        if len(ok) == 0:
-            return 0
-        rows_a, rows_b, d2, pair = rows_a[ok], rows_b[ok], d2[ok], pair[ok]
-        # one merge per landmark and frame: each newer landmark goes into its nearest older one, each older one
-        # takes its nearest newer one, and a landmark on both sides of chosen pairs waits for the next frame
-        n_rows = len(cand.m)
-        pick = _first_minimum(rows_b, d2, n_rows, np.arange(len(rows_b)))
-        pick = pick[_first_minimum(rows_a[pick], d2[pick], n_rows, pick)]
-        rows_a, rows_b, pair, d2 = rows_a[pick], rows_b[pick], pair[pick], d2[pick]
-        clash = np.isin(rows_a, rows_b)
-        rows_a, rows_b, pair, d2 = rows_a[~clash], rows_b[~clash], pair[~clash], d2[~clash]
-        if len(rows_a) == 0:
-            return 0
-        ma, mb = cand.take(rows_a), cand.take(rows_b)
-        store.make_writable(np.concatenate([ma.m, mb.m]), np.concatenate([ma.k, mb.k]))
-        ga, gb = self._remap(ma), self._remap(mb)
-        sa, sb = _rows(store.flat_state, ga).T, _rows(store.flat_state, gb).T
-        ia, ib = sym_inverse(sa[3:]), sym_inverse(sb[3:])
-        cov = sym_inverse(ia + ib)                                                  # Σ = (Σ_a⁻¹ + Σ_b⁻¹)⁻¹
-        mean = sym_matvec(cov, sym_matvec(ia, sa[:3]) + sym_matvec(ib, sb[:3]))     # μ = Σ (Σ_a⁻¹μ_a + Σ_b⁻¹μ_b)
-        # a pair merged on co-visibility alone is one point seen from two drifted stretches of the trajectory, not
-        # two independent measurements of it: the older landmark keeps its estimate, consistent with the map made
-        # with it, and takes the newer one's sightings
-        drifted = ~alike[pair] | (d2 >= cfg.merge_gate)
-        if cfg.merge_estimate == "older":   # so is an alike pair made apart in time (docs "Session 10")
-            drifted[:] = True
-        mean[:, drifted], cov[:, drifted] = sa[:3, drifted], sa[3:, drifted]
-        store.put_state(ga, np.vstack([mean, cov]).T)
-        store.flat_count[ga] += store.flat_count[gb]
-        store.flat_logodds[ga] = np.maximum(store.flat_logodds[ga], store.flat_logodds[gb])
-        store.flat_lid[gb] = -1
-        store.include_in_bbox(ga, mean[:2].T)
-        self.stats.landmarks_merged += len(ga)
-        for p in np.unique(pair).tolist():   # a pair merged again (in other particles) keeps its place
-            self._merged[int(a[p]), int(b[p])] = bool(evidence[p] and not alike[p])
-        while len(self._merged) > MERGED_PAIRS_KEPT:
-            del self._merged[next(iter(self._merged))]
-        if self._bands is not None:   # the older landmark also keeps the newer one's looks at other ranges
-            self._bands.absorb(a[np.unique(pair)], b[np.unique(pair)])
-        if cfg.merge_look == "newer" and cfg.descriptor_size > 0:   # the look it is seen with now, from nearer
-            self._descriptors[a[np.unique(pair)]] = self._descriptors[b[np.unique(pair)]]
-        return len(ga)
-
-    @property
-    def merged_pairs(self) -> list[tuple[int, int, bool]]:
-        """The id pairs merged so far, each once, in the order first merged (the latest ``MERGED_PAIRS_KEPT``):
-        (older id, newer id, by co-visibility alone in its latest merge)."""
-        return [(a, b, e) for (a, b), e in self._merged.items()]
-
-    def _alike_pairs(self, cand: _Pairs, uniq: np.ndarray, first: np.ndarray, inverse: np.ndarray,
-                     touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Id pairs (a < b) near enough to pass ``merge_gate`` under Σ_a + Σ_b in some particle and alike in
-        descriptors, one of them in ``touched``. Vectorised: pairs of ids are first kept only if their means (in
-        one particle) are within ``merge_radius``, by an exact bound: |μ_a − μ_b| ≥ |ref_a − ref_b| − spread_a −
-        spread_b in every particle and d² ≥ |μ_a − μ_b|² / tr(Σ_a + Σ_b), with spread and tr Σ maximised over
-        the particles holding the id."""
-        cfg, store = self.config, self.store
-        none = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        t = np.flatnonzero(np.isin(uniq, touched))
-        if len(t) == 0:
-            return none
-        state = _rows(store.flat_state, cand.g)
-        ref = np.ascontiguousarray(state[first, :3])                              # (U, 3) one particle's mean
-        # (not np.take of store.flat_mean: a strided view, which np.take first copies whole: every slot's mean)
-        spread2, trace = np.zeros(len(uniq)), np.zeros(len(uniq))
-        # |μ − ref|² per candidate row, column by column: the same sums as np.sum(..., axis=1) (one row's three
-        # terms added in order), without numpy's slow reduction over a length-3 axis and fancy row indexing
-        at_ref, rows = _rows(ref, inverse).T, state.T
-        np.maximum.at(spread2, inverse, (rows[0] - at_ref[0]) ** 2 + (rows[1] - at_ref[1]) ** 2
-                      + (rows[2] - at_ref[2]) ** 2)
-        np.maximum.at(trace, inverse, state[:, 3] + state[:, 6] + state[:, 8])
-        spread = np.sqrt(spread2)
-        ti, ui = _x_window_pairs(ref[:, 0], t, cfg.merge_radius + spread[t] + spread.max())
-        gap = (_rows(ref, t[ti]) - _rows(ref, ui)).T   # |gap| column by column: np.linalg.norm's sums, in order
-        d = np.sqrt(gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]) - spread[t[ti]] - spread[ui]
-        bound = cfg.merge_gate * (trace[t[ti]] + trace[ui])
-        close = (d < cfg.merge_radius) & (np.maximum(d, 0.0) ** 2 < bound)
-        ti, ui = ti[close], ui[close]
-        if cfg.descriptor_size > 0 and len(ti):   # unit descriptors: |a − b|² = 2 − 2 a·b
-            if self._bands is None:
-                dot = np.einsum("ij,ij->i", self._descriptors[uniq[t[ti]]], self._descriptors[uniq[ui]])
-                alike = 2.0 - 2.0 * dot < cfg.merge_descriptor_threshold ** 2
-            else:   # the two descriptors made at the most similar ranges
-                alike = self._bands.pair_distance2(uniq[t[ti]], uniq[ui]) < cfg.merge_descriptor_threshold ** 2
-            ti, ui = ti[alike], ui[alike]
-        a, b = uniq[t[ti]], uniq[ui]
-        keep = a != b
-        if not keep.any():
-            return none
-        return np.minimum(a, b)[keep], np.maximum(a, b)[keep]                    # a older, b newer
-
-    def _best_particle_view(self, best: int, matched: _Pairs, missed: _Pairs, missed_ranges: np.ndarray,
-                            had_candidate: np.ndarray, new_ids: np.ndarray, poses: np.ndarray, z: np.ndarray,
-                            q6: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """What particle ``best`` saw this frame, copied before merges move blocks: the ids (D,) and states
-        (D, 9) of the landmarks it detected (matched or made now), and of those it missed well in view (K,),
-        (K, 9), with their ranges (K,)."""
-        store = self.store
-        det = matched.g[matched.m == best]
-        n_obs = len(z)
-        j = np.flatnonzero(~had_candidate[best * n_obs:(best + 1) * n_obs])
-        j = j[new_ids[j] >= 0]
-        x, y, theta = poses[best]
-        c, s = np.full(len(j), np.cos(theta)), np.full(len(j), np.sin(theta))
-        zx, zy, zz = _rows(z, j).T
-        made = np.vstack([c * zx - s * zy + x, s * zx + c * zy + y, zz, sym_rotate_z(c, s, _cols(q6, j))]).T
-        in_best = missed.m == best
-        miss = missed.g[in_best]
-        alive = store.flat_lid[miss] >= 0
-        miss = miss[alive]
-        return (np.concatenate([store.flat_lid[det], new_ids[j]]),
-                np.concatenate([_rows(store.flat_state, det), made.reshape(-1, 9)]),
-                store.flat_lid[miss].copy(), _rows(store.flat_state, miss), missed_ranges[in_best][alive])
-
-    def _count_covisibility(self, det_lids: np.ndarray, det_state: np.ndarray, miss_lids: np.ndarray,
-                            miss_state: np.ndarray, miss_ranges: np.ndarray) -> None:
-        """Co-visibility evidence of one frame of the most probable particle (see :meth:`_merge_duplicates` and
-        ``existence.exclusive_log_odds``), over the pairs (detected, detected or missed in view) that could be
-        one point, d² < ``merge_gate`` under Σ_a + Σ_b + C_a + C_b: a pair both detected is two points for good;
-        a pair with one missed gains the frame's log-likelihood ratio for "one point", and is ready to merge
-        once its sum reaches ``merge_log_odds``."""
-        n_det = len(det_lids)
-        if n_det == 0:
-            return
-        cfg = self.config
-        lids = np.concatenate([det_lids, miss_lids])
-        state = np.concatenate([det_state, miss_state])
-        cov = state[:, 3:].T + sym_components(self.drift.landmark_covariances(lids))          # (6, V)
-        trace = cov[0] + cov[3] + cov[5]
-        dist2 = np.sum((det_state[:, None, :3] - state[None, :, :3]) ** 2, axis=2)             # (D, V)
-        di, vi = np.nonzero((dist2 < cfg.merge_gate * (trace[:n_det, None] + trace[None, :]))
-                            & (det_lids[:, None] != lids[None, :]))                       # d² ≥ |Δ|²/tr S
-        if len(di) == 0:
-            return
-        adj, det = sym_adjugate(_cols(cov, di) + _cols(cov, vi))
-        d2 = sym_quadratic(adj, (state[di, :3] - state[vi, :3]).T) / det
-        near = d2 < cfg.merge_gate
-        di, vi = di[near], vi[near]
-        a, b = np.minimum(det_lids[di], lids[vi]), np.maximum(det_lids[di], lids[vi])
-        key = (a << _PAIR_SHIFT) | b
-        both = vi < n_det
-        if both.any():
-            co = set(np.unique(key[both]).tolist())
-            self._codetected |= co
-            self._merge_ready -= co
-        keys, at = np.unique(key[~both], return_inverse=True)
-        if len(keys) == 0:
-            return
-        gain = np.bincount(at, exclusive_log_odds(cfg, miss_ranges[vi[~both] - n_det]), minlength=len(keys))
-        evidence, ready, codetected = self._pair_evidence, self._merge_ready, self._codetected
-        for k, g in zip(keys.tolist(), gain.tolist(), strict=True):
-            if k in codetected:
-                continue
-            total = evidence.get(k, 0.0) + g
-            evidence[k] = total
-            if total >= cfg.merge_log_odds:
-                ready.add(k)
-
-    def _prune_pairs(self) -> None:
-        """Forget the co-visibility of pairs with an id no particle holds any more (memory follows the map)."""
-        if not (self._pair_evidence or self._codetected):
-            return
-        store = self.store
-        alive = np.zeros(self._n_ids, bool)
-        held = store.lid[store.refcount > 0]
-        alive[held[held >= 0]] = True
-        mask = (1 << _PAIR_SHIFT) - 1
-
-        def live(keys) -> set[int]:
-            k = np.fromiter(keys, np.int64, len(keys))
-            return set(k[alive[k >> _PAIR_SHIFT] & alive[k & mask]].tolist())
-
-        kept = live(self._pair_evidence)
-        self._pair_evidence = {k: v for k, v in self._pair_evidence.items() if k in kept}
-        self._codetected = live(self._codetected)
-        self._merge_ready &= kept
 
     # -- "id" association ------------------------------------------------------------------------------------
     def _lids_of_external(self, ids: np.ndarray) -> np.ndarray:
@@ -1198,7 +909,7 @@ class FastSLAM:
             self._external_of_lid[lids[fresh]] = ids[fresh]
         return lids
 
-    def _id_join(self, obs_lids: np.ndarray) -> tuple[_Pairs, np.ndarray, np.ndarray, np.ndarray]:
+    def _id_join(self, obs_lids: np.ndarray) -> tuple[Pairs, np.ndarray, np.ndarray, np.ndarray]:
         """"id" association: every (particle, observation) pair whose particle holds the landmark the observation
         names (``obs_lids`` (N,), -1: none yet), with the landmarks' means (3, P) and covariances (6, P), and
         ``holds`` (M·N,) bool indexed m·N + j. Scans the particles' block tables: no spatial preselection, so a
@@ -1209,11 +920,11 @@ class FastSLAM:
         width, b = store.table.shape[1], store.block_size
         known = obs_lids[obs_lids >= 0]
         if len(known) == 0 or int(store.n_blocks.max(initial=0)) == 0:
-            return _no_pairs(), np.zeros((3, 0)), np.zeros((6, 0)), holds
+            return no_pairs(), np.zeros((3, 0)), np.zeros((6, 0)), holds
         obs_of_lid = np.full(self._n_ids, -1, np.int64)
         obs_of_lid[obs_lids[obs_lids >= 0]] = np.flatnonzero(obs_lids >= 0)   # update() keeps one per id
         phys = store.table                                                      # (M, W)
-        lid = np.where((phys >= 0)[..., None], _rows(store.lid, np.maximum(phys, 0).ravel()).reshape(
+        lid = np.where((phys >= 0)[..., None], take_rows(store.lid, np.maximum(phys, 0).ravel()).reshape(
             n_particles, width, b), -1)
         flat = np.flatnonzero((lid >= 0).ravel())
         j = obs_of_lid[lid.ravel()[flat]]
@@ -1222,8 +933,8 @@ class FastSLAM:
         k, slot = np.divmod(rest, b)
         g = phys[m, k] * b + slot
         holds[m * n_obs + j] = True
-        state = _rows(store.flat_state, g).T
-        pairs = _Pairs(m, j, k, g, flat)
+        state = take_rows(store.flat_state, g).T
+        pairs = Pairs(m, j, k, g, flat)
         return pairs, np.ascontiguousarray(state[:3]), np.ascontiguousarray(state[3:]), holds
 
     def external_ids(self, lids) -> np.ndarray:
@@ -1387,7 +1098,7 @@ class FastSLAM:
         n_particles = len(self.poses)
         width, b = store.table.shape[1], store.block_size
         phys = store.table
-        held = _rows(store.lid, np.maximum(phys, 0).ravel()).reshape(n_particles, width, b)
+        held = take_rows(store.lid, np.maximum(phys, 0).ravel()).reshape(n_particles, width, b)
         held = np.where((phys >= 0)[..., None], held, -1)
         rank = np.full(self._n_ids, -1, np.int64)
         rank[lids] = np.arange(len(lids))
@@ -1396,7 +1107,7 @@ class FastSLAM:
         flat, r = flat[r >= 0], r[r >= 0]
         m, rest = np.divmod(flat, width * b)
         k, slot = np.divmod(rest, b)
-        state = _rows(store.flat_state, phys[m, k] * b + slot)
+        state = take_rows(store.flat_state, phys[m, k] * b + slot)
         w = self.weights[m]
         dev = state[:, :3] - about[r]
         n = len(lids)
@@ -1429,118 +1140,3 @@ def _weighted_pose_stats(poses: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, 
     dev = poses - mean
     dev[:, 2] = wrap_angle(dev[:, 2])
     return mean, (dev * w[:, None]).T @ dev
-
-
-def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """a[index] along the first axis (np.take: several times faster than fancy indexing of rows)."""
-    return np.take(a, index, axis=0)
-
-
-def _cols(a: np.ndarray, index: np.ndarray) -> np.ndarray:
-    """a[:, index] (np.take along the second axis: several times faster than fancy indexing)."""
-    return np.take(a, index, axis=1)
-
-
-def _id_ranks(lids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray]:
-    """np.unique(lids, return_inverse=True) for ids in [0, n_ids) (ids ascending, each row's rank among them)
-    through lookup tables: ids are dense, so this beats sorting the rows."""
-    present = np.zeros(n_ids, bool)
-    present[lids] = True
-    uniq = np.flatnonzero(present)
-    rank = np.full(n_ids, -1, np.int64)
-    rank[uniq] = np.arange(len(uniq))
-    return uniq, rank[lids]
-
-
-def _unique_ids(lids: np.ndarray, n_ids: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """np.unique(lids, return_index=True, return_inverse=True) for ids in [0, n_ids) (the same three arrays: ids
-    ascending, each one's first row, each row's rank; :func:`_id_ranks`), without sorting the rows."""
-    uniq, inverse = _id_ranks(lids, n_ids)
-    first = np.full(len(uniq), len(lids), np.int64)
-    np.minimum.at(first, inverse, np.arange(len(lids)))
-    return uniq, first, inverse
-
-
-def _x_window_pairs(x: np.ndarray, rows: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(i, u) with |x[rows[i]] − x[u]| ≤ half[i] (+ a rounding margin), in row-major order (i, then u ascending):
-    the nonzero entries of the (len(rows), len(x)) matrix |Δx| ≤ half, found through x sorted, without the matrix.
-    A superset of any pairs whose distance (of which |Δx| is a lower bound) is below half."""
-    order = np.argsort(x, kind="stable")
-    xs = x[order]
-    half = half + 1e-6 * (1.0 + np.max(np.abs(x), initial=0.0) + np.abs(half))   # never lose a pair to rounding
-    lo = np.searchsorted(xs, x[rows] - half, "left")
-    n = np.searchsorted(xs, x[rows] + half, "right") - lo
-    n = np.maximum(n, 0)
-    i = np.repeat(np.arange(len(rows)), n)
-    u = order[np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n - lo, n)]
-    key = np.argsort(i * len(x) + u, kind="stable")
-    return i[key], u[key]
-
-
-def _cos_sin(poses: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """cos θ, sin θ (P,) of poses[index]: computed once per particle (M) and gathered, not once per pair."""
-    return np.cos(poses[:, 2])[index], np.sin(poses[:, 2])[index]
-
-
-def _within_angle(lateral: np.ndarray, depth: np.ndarray, half_angle: float) -> np.ndarray:
-    """|atan2(lateral, depth)| < half_angle for depth > 0 (a tangent comparison, no arctan per point)."""
-    if half_angle >= 0.5 * np.pi:
-        return np.abs(np.arctan2(lateral, depth)) < half_angle
-    return np.abs(lateral) < np.tan(half_angle) * depth
-
-
-def _rows_with_id(lids: np.ndarray, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows r of ``lids`` (C,) whose id is in ``wanted`` (K,), once per (row, k) with lids[r] == wanted[k]:
-    returns (rows, k), both (L,)."""
-    order = np.argsort(lids, kind="stable")
-    sorted_lids = lids[order]
-    lo = np.searchsorted(sorted_lids, wanted, side="left")
-    hi = np.searchsorted(sorted_lids, wanted, side="right")
-    reps = hi - lo
-    k = np.repeat(np.arange(len(wanted)), reps)
-    within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
-    return order[np.repeat(lo, reps) + within], k
-
-
-def _exclusive_matches(pairs: _Pairs, d2: np.ndarray, gated: np.ndarray, n_particles: int, n_obs: int,
-                       n_candidates: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the winning pairs, ascending (each observation takes its nearest gated landmark; a landmark
-    claimed by several observations of a particle keeps the nearest; exact ties go to the first pair), and an
-    (M·N,) bool, indexed m·N + j, telling which (particle, observation) had any gated candidate.
-
-    No sorting: per-key minima by ``np.minimum.at`` over dense keys m·N + j and the candidate index ``c``.
-    """
-    idx = np.flatnonzero(gated)
-    key = pairs.m[idx] * n_obs + pairs.j[idx]
-    had_candidate = np.zeros(n_particles * n_obs, bool)
-    had_candidate[key] = True
-    if len(idx) == 0:
-        return idx, had_candidate
-    choice = _first_minimum(key, d2[idx], n_particles * n_obs, np.arange(len(idx)))   # one per (m, j)
-    claimed = pairs.c[idx[choice]]
-    keep = _first_minimum(claimed, d2[idx[choice]], n_candidates, key[choice])        # one per landmark
-    won = np.zeros(len(d2), bool)   # ascending through a mask: distinct positions, no sort
-    won[idx[choice[keep]]] = True
-    return np.flatnonzero(won), had_candidate
-
-
-def _first_minimum(key: np.ndarray, value: np.ndarray, n_keys: int, rank: np.ndarray) -> np.ndarray:
-    """Positions (K,), in no particular order, of the smallest ``value`` of each distinct ``key`` (L,) in
-    [0, n_keys); ties go to the smallest ``rank`` (L,) (distinct, < 2⁶², e.g. the position).
-
-    Most keys occur once (one gated candidate): those are found by counting, and only the rest take the slower
-    scattered minima."""
-    count = np.bincount(key, minlength=n_keys)
-    several = count[key] > 1
-    alone = np.flatnonzero(~several)
-    if len(alone) == len(key):
-        return alone
-    sub = np.flatnonzero(several)
-    sub_key, sub_value = key[sub], value[sub]
-    smallest = np.full(n_keys, np.inf)
-    np.minimum.at(smallest, sub_key, sub_value)
-    limit = np.iinfo(np.int64).max
-    best_rank = np.full(n_keys, limit)
-    np.minimum.at(best_rank, sub_key, np.where(sub_value == smallest[sub_key], rank[sub], limit))
-    winners = sub[(sub_value == smallest[sub_key]) & (rank[sub] == best_rank[sub_key])]
-    return np.concatenate([alone, winners])

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import estimation.fastslam.filter as filter_module
+import estimation.fastslam.merging as merging_module
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.appearance import DescriptorBands
 from estimation.observations import OdometryIncrement, StereoObservations
@@ -90,7 +90,7 @@ def test_a_corner_seen_from_nearer_and_nearer_stays_one_landmark_with_descriptor
 def test_merged_pairs_keep_each_pair_once_and_only_the_latest(monkeypatch):
     # Each of five corners is seen twice, the second time with a descriptor 0.59 from the first: a new landmark
     # (association's threshold 0.5), merged at once as alike (merge threshold 1.0): five merged pairs.
-    monkeypatch.setattr(filter_module, "MERGED_PAIRS_KEPT", 3)
+    monkeypatch.setattr(merging_module, "MERGED_PAIRS_KEPT", 3)
     basis = _basis(10)
     slam = FastSLAM(FastSLAMConfig(n_particles=2, max_observations=0, merge_every=1,
                                    merge_descriptor_threshold=1.0), np.random.default_rng(0))
