@@ -37,6 +37,14 @@ factorisation of H.
 What it is not: a test that an error is there. A small redundancy says the data cannot tell, a large external
 effect says what that would cost the frame; robot 1's first bearing is both, and its actual error is inside what
 this says could go unseen.
+
+Measured on MRCLAM (session 42 (A)): robots 1 and 5 rest on their first glimpse (its bearing's (R)_cc 0.05-0.20 with
+the leave-one-out models, 6-12 σ of heading), robot 4 on one range with those models (4.3 σ in x), robots 2 and 3
+on none; the worst effect covered every robot's actual frame error. Why no covariance is inflated from it: an
+allowance for outliers at the smoother's own cut rate adds ~1 % to robot 1's heading σ (a rare error that happened
+is not a variance), and removing the flagged sighting's information (Sherman–Morrison) leaves robot 1 at ~50 % of
+its landmarks within bound while it doubles robot 5's σ; nor is the sighting dropped: the frame is the pose of the
+first sighting, so the next glimpse becomes the lone tie (robot 1: 7.50, 7.98, 8.22 s in turn).
 """
 from __future__ import annotations
 
