@@ -42,7 +42,7 @@ from .landmark_scores import (
 )
 from .noise_model import NoiseModel, with_fastslam
 from .observations import OdometryIncrement, StereoObservations
-from .odometry_stall import log_stall_variance
+from .odometry_stall import command_stall_variance
 from .sighting_spread import SightingRecorder
 
 ASSOCIATIONS = ("id", "unknown")
@@ -117,8 +117,9 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     frame_times = np.concatenate([[t0], times])
     odometry = log.odometry_pose(noise.odometry_times(frame_times))   # the odometry's lag calibrated (noise_model)
     increments = noise.calibrate_increments(between(odometry[:-1], odometry[1:]))
-    # the stalls after the command's dips (estimation.odometry_stall): variance on the increments that hold one
-    stalls = log_stall_variance(log, noise, frame_times)
+    # the stalls after the command's dips (estimation.odometry_stall): the filter's predict adds them to its random
+    # walk on the increments that hold one (the smoother takes both from noise_model.increment_variances)
+    stalls = command_stall_variance(log.velocities, noise, frame_times)
 
     votes: dict[int, dict[int, int]] = {}
     means, covs, frames = [], [], []
@@ -168,8 +169,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not smooth:
         return run
     from .dataset_smoothing import smooth_run
-    return smooth_run(run, log, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until,
-                      extra_variance=stalls)
+    return smooth_run(run, log, noise, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
 
 
 def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import numpy as np
 
 from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
-from .fastslam.motion import increment_variance
 from .frame_reliability import reliability_metrics
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
@@ -33,6 +32,7 @@ from .landmark_smoother import (
     landmarks_from_first_sightings,
     smooth,
 )
+from .noise_model import increment_variances
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
 _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_median", "pose_nees_within_chi2_95",
@@ -41,24 +41,25 @@ _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_
                 "landmark_nees_median")
 
 
-def smooth_run(run, log, frames, increments, sensor, config, filter_poses, true_start, t0, until, *,
-               heading_drift: HeadingDrift | None = None, extra_variance: np.ndarray | None = None):
+def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses, true_start, t0, until, *,
+               heading_drift: HeadingDrift | None = None):
     """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
 
-    frames: per filter frame k, (ids, ranges, bearings) as the filter was given them (calibrated); increments
-    (T, 3) the calibrated odometry increments before each frame; sensor the (inflated) range-bearing noise;
-    config the filter's (its motion noise); filter_poses (T, 3) the best particle's poses in the start frame.
+    noise: the run's noise model; frames: per filter frame k, (ids, ranges, bearings) as the filter was given them
+    (calibrated); increments (T, 3) the calibrated odometry increments before each frame; sensor the (inflated)
+    range-bearing noise; config the filter's (the model's motion noise); filter_poses (T, 3) the best particle's poses
+    in the start frame. The increments' variances are :func:`~estimation.noise_model.increment_variances`' (the
+    random walk, plus the model's stalls after the command's dips if it has that term, as the filter had them).
     heading_drift: the smoother's heading-bias states (None: the config's drift if it has one, else none).
-    extra_variance (T, 3): added to each increment's random-walk variance (the noise model's stalls after the
-    command's dips, as the filter had them; None: nothing).
     true_start None (a log without ground truth): the trajectory stays in the map's frame and nothing is scored.
     """
     if not any(len(ids) for ids, _, _ in frames):
         before = "" if until is None else f" before {until:g} s"
         raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
     times = run.estimated_trajectory[:, 0]
-    problem, landmark_ids = _problem(frames, increments, sensor, config, np.diff(np.concatenate([[t0], times])),
-                                     extra_variance)
+    frame_times = np.concatenate([[t0], times])
+    variances = increment_variances(log, noise, config, frame_times, increments)
+    problem, landmark_ids = _problem(frames, increments, variances, sensor, np.diff(frame_times))
     drift = heading_drift if heading_drift is not None else config_drift(config)
     initial = np.vstack([np.zeros(3), filter_poses])
     solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial),
@@ -128,20 +129,16 @@ def config_drift(config) -> HeadingDrift | None:
     return HeadingDrift(sigma, float(config.odom_heading_drift_tau_s))
 
 
-def _problem(frames, increments, sensor, config, seconds=None, extra_variance=None
-             ) -> tuple[LandmarkLogProblem, np.ndarray]:
-    """The factors of the run (``seconds`` (T,): each increment's duration; ``extra_variance`` (T, 3): added to the
-    increments' random-walk variances), and the identity (L,) of each landmark index."""
+def _problem(frames, increments, variances, sensor, seconds=None) -> tuple[LandmarkLogProblem, np.ndarray]:
+    """The factors of the run (``variances`` (T, 3): the increments', ``seconds`` (T,): their durations), and the
+    identity (L,) of each landmark index."""
     pose_index = np.concatenate([np.full(len(ids), k + 1) for k, (ids, _, _) in enumerate(frames)]).astype(int)
     ids = np.concatenate([f[0] for f in frames]).astype(np.int64)
     ranges = np.concatenate([f[1] for f in frames]).astype(float)
     bearings = np.concatenate([f[2] for f in frames]).astype(float)
     named = ids >= 0
     landmark_ids, landmark_index = np.unique(ids[named], return_inverse=True)
-    variances = increment_variance(increments, config, seconds)
-    if extra_variance is not None:
-        variances = variances + extra_variance
-    problem = LandmarkLogProblem(np.asarray(increments, float), variances,
+    problem = LandmarkLogProblem(np.asarray(increments, float), np.asarray(variances, float),
                                  pose_index[named], landmark_index, ranges[named], bearings[named],
                                  sensor.range_sigma(ranges[named]),
                                  np.full(int(named.sum()), float(sensor.bearing_sigma_rad)),

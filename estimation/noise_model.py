@@ -74,7 +74,7 @@ from .fastslam.motion import increment_variance, turn_spans, turning
 from .fileio import InputTooLargeError, atomic_write_bytes, read_bounded, special_file_kind
 from .geometry import between, wrap_angle
 from .odometry_consistency import fit_heading_drift
-from .odometry_stall import MAX_STALL_SIGMA_S, fit_stall, log_stall_variance
+from .odometry_stall import MAX_STALL_SIGMA_S, command_stall_variance, fit_stall
 
 FORMAT_NAME = "p3at-noise-model"
 FORMAT_VERSION = 1
@@ -119,7 +119,7 @@ class OdometryNoise:
     heading_drift_sigma_per_m: float = 0.0  # σ_b rad/m of a Gauss–Markov heading bias per metre; 0: none
     heading_drift_tau_s: float = 0.0        # its correlation time τ s (> 0 when σ_b > 0)
     theta_var_per_s: float = 0.0            # rad² of heading error per second (FastSLAMConfig.odom_theta_var_per_s)
-    stall_sigma_s: float = 0.0              # σ s of the stall after a command dip (log_stall_variance); 0: none
+    stall_sigma_s: float = 0.0              # σ s of the stall after a command dip (command_stall_variance); 0: none
 
     @property
     def heading_drift(self) -> tuple[float, float] | None:
@@ -992,10 +992,11 @@ def increment_variances(log: RangeBearingLog, noise: NoiseModel, config, frame_t
     """The variances (T, 3) of (dx, dy, dθ) of ``log``'s calibrated odometry ``increments`` (T, 3) between consecutive
     ``frame_times`` (T + 1,): the random walk's (:func:`~estimation.fastslam.motion.increment_variance` with
     ``config``, a FastSLAMConfig that has the model's keys, :func:`with_fastslam`) plus the model's stalls after the
-    command's dips if it has that term (:func:`~estimation.odometry_stall.log_stall_variance`). The odometry factors
-    of every smoother of a log: the camera's self-calibration, the chain's named smoothing and its path variances
-    (the data set's filter and smoother take the stall's variances apart, ``estimation.dataset_slam``)."""
+    command's dips if it has that term (:func:`~estimation.odometry_stall.command_stall_variance`). The odometry
+    factors of every smoother of a log: the data set's (``estimation.dataset_smoothing``), the camera's
+    self-calibration, the chain's named smoothing and its path variances. (The data set's filter takes the stall's
+    variances apart: its predict adds them to its own random walk, ``estimation.dataset_slam``.)"""
     variances = increment_variance(increments, config, np.diff(frame_times))
-    if (stalls := log_stall_variance(log, noise, frame_times)) is not None:
+    if (stalls := command_stall_variance(log.velocities, noise, frame_times)) is not None:
         variances = variances + stalls
     return variances

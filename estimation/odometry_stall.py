@@ -83,17 +83,18 @@ def stall_variance(dips: CommandDips, times, sigma_s: float, scales=(1.0, 1.0)) 
     return out
 
 
-def log_stall_variance(log: RangeBearingLog, noise, frame_times) -> np.ndarray | None:
-    """The variances (T, 3) the stall term of ``noise`` (an :class:`estimation.noise_model.NoiseModel`, not imported:
-    that module imports this one) adds to ``log``'s calibrated increments between consecutive log ``frame_times``
-    (T + 1,): :func:`stall_variance` of the dips of its command, the frames moved by the model's odometry lag, with
-    the model's σ_s and scales; None when the model has no stall term. The data set's filter adds it to its predict
-    (``estimation.dataset_slam``); every smoother of a log adds it to its odometry factors' random-walk variances
-    through :func:`estimation.noise_model.increment_variances`."""
+def command_stall_variance(velocities, noise, frame_times) -> np.ndarray | None:
+    """The variances (T, 3) the stall term of ``noise`` (an :class:`estimation.noise_model.NoiseModel`, duck-typed:
+    that module imports this one) adds to a log's calibrated increments between consecutive log ``frame_times``
+    (T + 1,), ``velocities`` (V, 3) the log's command rows (t, v, w) (``RangeBearingLog.velocities``):
+    :func:`stall_variance` of the command's dips, the frames moved by the model's odometry lag, with the model's σ_s
+    and scales; None when the model has no stall term. The one place the model's term meets a command: the data set's
+    filter adds it to its predict (``estimation.dataset_slam``), every smoother of a log to its odometry factors'
+    random-walk variances (:func:`estimation.noise_model.increment_variances`)."""
     o = noise.odometry
     if o.stall_sigma_s == 0.0:
         return None
-    return stall_variance(command_dips(log.velocities), noise.odometry_times(frame_times), o.stall_sigma_s,
+    return stall_variance(command_dips(velocities), noise.odometry_times(frame_times), o.stall_sigma_s,
                           (o.translation_scale, o.rotation_scale))
 
 

@@ -15,7 +15,7 @@ from estimation.datasets.landmark_log import integrate_velocities
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, estimate_noise
 from estimation.observations import OdometryIncrement
-from estimation.odometry_stall import CommandDips, command_dips, fit_stall, log_stall_variance, stall_variance
+from estimation.odometry_stall import CommandDips, command_dips, command_stall_variance, fit_stall, stall_variance
 
 DT, LAG = 0.02, 0.18
 
@@ -114,7 +114,7 @@ def test_the_noise_model_fits_writes_and_reads_the_stall(tmp_path):
     old = "\n".join(line for line in text.splitlines() if not line.startswith("stall_sigma_s"))
     (tmp_path / "old.toml").write_text(old)
     assert NoiseModel.load(tmp_path / "old.toml").odometry.stall_sigma_s == 0.0     # absent: no term
-    assert log_stall_variance(log, NoiseModel.load(tmp_path / "old.toml"), [0.0, 1.0]) is None
+    assert command_stall_variance(log.velocities, NoiseModel.load(tmp_path / "old.toml"), [0.0, 1.0]) is None
 
 
 @pytest.mark.parametrize("value", [-0.1, 1.5, "nan"])
