@@ -96,16 +96,17 @@ def run_dataset(args: argparse.Namespace) -> int:
             return 2
     from estimation.frame_reliability import reliability_warning
 
-    # the frame resting on single sightings: from the design, with or without a truth; on stderr beside the JSON too
+    # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too)
     reliability = reliability_warning(run.metrics)
-    if reliability is not None and args.json:
-        print(f"p3at slam dataset: warning: {reliability}", file=sys.stderr)
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
                    noise=noise_source, notes=list(log.notes), recording=args.rerun,
                    warnings=_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
                    + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []),
                    stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
     if args.json:
+        # every warning on stderr too, one line each: a user piping the JSON still sees them
+        for warning in metrics["warnings"]:
+            print(f"p3at slam dataset: warning: {warning}", file=sys.stderr)
         print(json_text(metrics))
         return 0
     m = metrics
