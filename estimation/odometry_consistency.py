@@ -14,11 +14,15 @@ the window's NEES is eᵀP⁻¹e, e the true end pose (in the window's start fra
 consistent model gives NEES ~ χ²₃: median 2.37 and 95 % of windows below 7.81 at every horizon.
 
 The noise model's stalls after the command's dips (``[odometry] stall_sigma_s``, :mod:`estimation.odometry_stall`)
-are not in the windows' covariance: the windows are formed from odometry and truth rows, which do not hold the command
-the dips are found in (``RangeBearingLog.velocities``; adding it would change every caller's input and the heading
-drift's fit, :func:`fit_heading_drift`, which is on these windows). A model with the term is scored here, and its drift
-fitted, on its random walk alone: the NEES a little high where a window holds dips (MRCLAM: one every ~12 s of motion,
-σ_s ~0.1 s).
+are in the windows' covariance when the command is given (``command``: the log's velocity rows (t, v, w),
+``RangeBearingLog.velocities``, where the dips are found; odometry and truth rows do not hold it): each step that holds
+a dip gets the variance the filter gives the increment that holds it
+(:func:`~estimation.odometry_stall.command_stall_variance`). Without the command, or with σ_s = 0, the covariance is
+the random walk's alone, bit for bit as before the term. MRCLAM (in-sample models with σ_s 0.08-0.12 s, robots 1, 2,
+3, 5): a window that holds a dip was not overconfident without it (5 s median 1.5-2.1), and with it the medians per
+horizon fall 1-6 %, the share within the bound rises 0-3 points. :func:`fit_heading_drift` takes no command: the drift
+is fitted on the random walk's windows, as the drifts in use were (with the stall in them it moves by a grid step or
+two at the same cost: robot 2 σ_b 0.13 → 0.11 rad/m, τ 10 → 20 s; robot 5 0.17 → 0.16; robots 1 and 3 the same).
 
 Windows in which the odometry hardly moves (path < ``min_path_m`` and turn < ``min_turn_rad``) are left out: there the
 model's covariance is its variance floor, and the ground truth's own jitter (millimetres) is no odometry error.
@@ -35,6 +39,7 @@ from . import chi2
 from .fastslam.config import FastSLAMConfig
 from .fastslam.motion import increment_variance
 from .geometry import between, compose, interpolate_poses, wrap_angle
+from .odometry_stall import command_stall_variance
 
 if TYPE_CHECKING:
     from .noise_model import NoiseModel
@@ -110,8 +115,8 @@ def _check_rows(name: str, rows) -> np.ndarray:
 
 def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, *, step_s: float = STEP_S,
                           stride_s: float = STRIDE_S, min_path_m: float = MIN_PATH_M,
-                          min_turn_rad: float = MIN_TURN_RAD,
-                          heading_drift: tuple[float, float] | None = None) -> DeadReckonedWindows:
+                          min_turn_rad: float = MIN_TURN_RAD, heading_drift: tuple[float, float] | None = None,
+                          command=None) -> DeadReckonedWindows:
     """Windows of ``horizon_s`` (see the module's doc) of odometry rows (K, 4) (t, x, y, θ: the dead-reckoned pose in
     the odometry's frame, as ``RangeBearingLog.odometry``) against ground-truth rows (M, 4), under ``model``'s
     calibration (its lag, scales, biases) and random walk.
@@ -120,7 +125,11 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     model's calibration does not know, a first-order Gauss–Markov process (stationary σ, correlation time τ: b ←
     e^(−Δt/τ) b + noise), as a filter would with a bias state: the pose's covariance is propagated jointly with it
     None: the model's own (``OdometryNoise.heading_drift``, none when its σ is 0), as the filter carries it;
-    (0, τ) for none whatever the model says (docs/fastslam-history.md, Session 22 (O), Session 23 (D))."""
+    (0, τ) for none whatever the model says (docs/fastslam-history.md, Session 22 (O), Session 23 (D)).
+
+    ``command`` (V, 3) rows (t, v, w): the log's commanded velocity (``RangeBearingLog.velocities``); with it, the
+    model's stall term (if σ_s > 0) adds its variance to the steps that hold a dip of the command, as the filter adds
+    it to its increments (the module's doc). None: no stall variance."""
     odometry, truth = _check_rows("odometry", odometry), _check_rows("ground truth", truth)
     if heading_drift is None:
         heading_drift = model.odometry.heading_drift
@@ -139,6 +148,8 @@ def dead_reckoned_windows(odometry, truth, model: NoiseModel, horizon_s: float, 
     steps = model.calibrate_increments(raw)
     config = replace(FastSLAMConfig(), **{k: v for k, v in model.fastslam_overrides().items() if k.startswith("odom")})
     variance = increment_variance(steps, config, np.diff(times))
+    if command is not None and (stalls := command_stall_variance(command, model, times)) is not None:
+        variance = variance + stalls     # the stalls after the command's dips, on the steps that hold one
     distance = np.hypot(steps[:, 0], steps[:, 1])
     raw_distance = np.hypot(raw[:, 0], raw[:, 1])
     every = max(1, int(round(stride_s / step_s)))
@@ -216,18 +227,23 @@ def summarize(horizon_s: float, values: np.ndarray, span_s: float) -> HorizonCon
 
 def odometry_consistency(pairs: Sequence[tuple[np.ndarray, np.ndarray]], model: NoiseModel,
                          horizons: Sequence[float] = HORIZONS_S, *, step_s: float = STEP_S,
-                         stride_s: float = STRIDE_S,
-                         heading_drift: tuple[float, float] | None = None) -> list[HorizonConsistency]:
+                         stride_s: float = STRIDE_S, heading_drift: tuple[float, float] | None = None,
+                         commands: Sequence[np.ndarray | None] | None = None) -> list[HorizonConsistency]:
     """Per horizon, the NEES of ``model``'s dead reckoning over windows of (odometry rows, ground-truth rows) pairs
-    (one per log, pooled; see :func:`dead_reckoned_windows`, also for ``heading_drift``). Horizons with no window
-    (longer than every log, or the robot never moving) are left out."""
+    (one per log, pooled; see :func:`dead_reckoned_windows`, also for ``heading_drift``). ``commands``: per pair, the
+    log's command rows (t, v, w) or None, for the model's stall term (``dead_reckoned_windows``' ``command``); None:
+    none for any pair. Horizons with no window (longer than every log, or the robot never moving) are left out."""
+    if commands is None:
+        commands = [None] * len(pairs)
+    if len(commands) != len(pairs):
+        raise ValueError(f"odometry_consistency: {len(commands)} commands for {len(pairs)} (odometry, truth) pairs")
     out = []
     span = sum(max(min(t[-1, 0], o[-1, 0]) - max(t[0, 0], o[0, 0]), 0.0)
                for o, t in ((np.asarray(o, float), np.asarray(t, float)) for o, t in pairs))
     for horizon in horizons:
         values = [nees(dead_reckoned_windows(o, t, model, horizon, step_s=step_s, stride_s=stride_s,
-                                             heading_drift=heading_drift))
-                  for o, t in pairs]
+                                             heading_drift=heading_drift, command=c))
+                  for (o, t), c in zip(pairs, commands, strict=True)]
         row = summarize(horizon, np.concatenate(values) if values else np.zeros(0), span)
         if row.windows:
             out.append(row)

@@ -103,8 +103,10 @@ def run_noise(args: argparse.Namespace) -> int:
                                   platform="iRobot Create (MRCLAM; odometry = commanded velocities)")
         if (problem := no_sensor_fit(estimate.model, logs)) is not None:
             raise ValueError(problem)
-        # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too
-        consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model)
+        # does the fitted random walk hold beyond its window? dead reckoning's NEES per horizon, into [fit] too (the
+        # logs' command for the model's stall after its dips, when it has that term)
+        consistency = odometry_consistency([(log.odometry, log.ground_truth) for log in logs], estimate.model,
+                                           commands=[log.velocities for log in logs])
         aligned = {"truth_heading": "travel"} if args.truth_heading == "travel" else {}
         model = replace(estimate.model, fit={**estimate.model.fit, **fit_keys(consistency), **aligned})
         model.save(args.out)
