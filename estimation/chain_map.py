@@ -13,6 +13,10 @@ the world by the true start pose) and dead reckoning's, the pose NEES where the 
 landmark figures of :func:`~estimation.landmark_scores.map_scores` with each name attributed to the barcode most of its
 sightings carry (the barcodes only score). A log without ground truth, or without its landmarks' truth, is scored
 on what it has, ``unscored`` saying why the rest is not there (:func:`estimation.dataset_slam.unscored_metrics`).
+With or without a truth, ``frame_reliability_*`` say which sightings the map's frame rests on, from the final
+smoothing's design (:func:`estimation.frame_reliability.reliability_metrics`, as the known-ID smoother's; its
+sightings named by time and the chain's name, and by barcode only when the landmarks' truth scores the map); ``p3at
+slam dataset`` warns when one is unchecked.
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ from estimation.dataset_slam import (
 )
 from estimation.dataset_smoothing import planar_landmarks, smoothed_pose_nees
 from estimation.datasets import RangeBearingLog
+from estimation.frame_reliability import reliability_metrics
 from estimation.geometry import compose, dead_reckoning
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_scores import ate, map_scores, pose_nees_figures
@@ -69,9 +74,14 @@ def chain_run(log: RangeBearingLog, state: MergeRound, robot: str) -> DatasetRun
     landmark_map = chain_landmark_map(log, state, robot)
     nees = np.full(len(times), np.nan)
     dead_in_map = dead_reckoning(named.problem.increments)[1:]
+    # which sightings the frame rests on (estimation.frame_reliability), from the design: each named by its time and
+    # the chain's name, and by its barcode only where the barcodes score the map (the landmarks' truth)
+    barcodes = log.landmark_ids[named.sightings] if log.has_ground_truth and len(log.truth_ids) else None
+    reliability = reliability_metrics(named.problem, sol, times, named.names, label="name", barcodes=barcodes)
     if not log.has_ground_truth:
         return DatasetRun(landmark_map, np.zeros((0, 4)), np.column_stack([times, sol.poses[1:]]),
-                          np.column_stack([times, dead_in_map]), nees, unscored_metrics(landmark_map, times, t0))
+                          np.column_stack([times, dead_in_map]), nees,
+                          unscored_metrics(landmark_map, times, t0) | reliability)
     true_start = log.true_pose(times[:1])[0]
     truth = log.true_pose(times)
     estimated = compose(true_start, sol.poses[1:])
@@ -91,5 +101,6 @@ def chain_run(log: RangeBearingLog, state: MergeRound, robot: str) -> DatasetRun
         attributed = np.array([owner.get(int(x), -1) for x in named.names], np.int64)[seen]
         metrics.update(map_scores(landmark_map.positions, landmark_map.covariances, attributed, true_start,
                                   log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, None)))
+    metrics.update(reliability)
     return DatasetRun(landmark_map, np.column_stack([times, truth]), np.column_stack([times, estimated]),
                       np.column_stack([times, dead]), nees, metrics)

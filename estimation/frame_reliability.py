@@ -34,6 +34,11 @@ Takahashi recursion on its banded Cholesky factor (O(T); every entry within the 
 the figures are exact for the linearised problem at the solution, every sighting's, at the cost of about one more
 factorisation of H.
 
+With sighting offsets (the unknown-association chain's last smoothings, :mod:`estimation.chain_map`; session 42
+(A2)) the explicit offsets are dense columns beside the landmarks', so nothing changes but the frame's covariance,
+which gains the sole groups' σ² I (:func:`sole_offset_landmarks`). The chain names a sighting by its own name, and by
+its barcode only where the truth scores the map (``label``, ``barcodes`` of :func:`reliability_metrics`).
+
 What it is not: a test that an error is there. A small redundancy says the data cannot tell, a large external
 effect says what that would cost the frame; robot 1's first bearing is both, and its actual error is inside what
 this says could go unseen.
@@ -97,10 +102,12 @@ class FrameReliability:
 
 def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: float = DELTA_0) -> FrameReliability:
     """The reliability figures of every sighting of ``solution`` (see the module docstring). Needs at least two
-    landmarks with a kept sighting (a frame's rotation needs two points); not with sighting offsets (a sighting's
-    columns are then its landmark's and its group's)."""
-    if solution.sighting_offset is not None:
-        raise ValueError("frame reliability is not computed with sighting offsets")
+    landmarks with a kept sighting (a frame's rotation needs two points). With sighting offsets
+    (:class:`~estimation.landmark_smoother.SightingOffset`, the unknown-association chain's last smoothings) a
+    sighting's columns are its pose's, its landmark's and its group's offset (dense, after the landmarks'); a sole
+    group's offset, marginalised by the smoother, enters the sightings only as a sum with its landmark, so it changes
+    no redundancy nor effect, and adds its σ² I to its landmark in the frame's covariance, as
+    :func:`~estimation.landmark_smoother.joint_landmark_covariance` has it."""
     t, n_landmarks = problem.n_poses, len(solution.landmarks)
     jac, width = solution_jacobian(problem, solution)
     seen = np.zeros(n_landmarks, bool)
@@ -115,6 +122,12 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
     functional[:, width * t:width * t + 2 * int(seen.sum())] = rigid_functional(solution.landmarks[seen])
     u = inverse.factor.solve(functional.T)                                       # H⁻¹ gᵀ, (n, 3)
     frame_covariance = functional @ u
+    if solution.sighting_offset is not None and solution.sighting_offset.on:
+        sole = np.zeros(n_landmarks, bool)
+        sole[sole_offset_landmarks(problem)] = True
+        on_sole = np.repeat(sole[seen], 2)                                       # the seen landmarks' columns
+        rigid = functional[:, width * t:width * t + 2 * int(seen.sum())][:, on_sole]
+        frame_covariance = frame_covariance + solution.sighting_offset.sigma_m ** 2 * rigid @ rigid.T
     s = len(problem.ranges)
     kept = np.flatnonzero(solution.inliers)
     rows = 3 * t + 2 * kept
@@ -131,6 +144,19 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
         effect = np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
     return FrameReliability(redundancy, in_sigmas * sigmas, effect, 0.5 * (frame_covariance + frame_covariance.T),
                             float(delta0))
+
+
+def sole_offset_landmarks(problem: LandmarkLogProblem) -> np.ndarray:
+    """The landmarks whose sightings are all of one offset group that holds no other landmark's (every sighting
+    counted, kept or not): their offset is marginalised by the smoother (no column; its σ² I added to the landmark's
+    covariance), as :func:`~estimation.landmark_smoother.joint_landmark_covariance` does."""
+    groups = problem.offset_groups
+    if not len(groups):
+        return np.zeros(0, int)
+    pairs = np.unique(np.column_stack([problem.landmark_index, groups]), axis=0)
+    per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]]
+    per_group = np.bincount(pairs[:, 1])[pairs[:, 1]]
+    return pairs[(per_landmark == 1) & (per_group == 1), 0]
 
 
 class SelectedInverse:
@@ -224,9 +250,13 @@ AXES = ("x", "y", "heading")
 
 
 def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: np.ndarray,
-                        landmark_ids: np.ndarray) -> dict:
+                        landmark_ids: np.ndarray, *, label: str = "landmark",
+                        barcodes: np.ndarray | None = None) -> dict:
     """The figures a data set run reports (``times`` (T,) each pose's log time, pose k at times[k − 1];
-    ``landmark_ids`` (L,) each landmark index's identity), all from the problem's design, none from a truth:
+    ``landmark_ids`` (L,) each landmark index's identity, given in the sightings' dicts under ``label``: "landmark"
+    for the known-ID smoother's barcodes, "name" for the unknown-association chain's own names; ``barcodes`` (S,),
+    if given, each sighting's barcode under "barcode": for a chain scored against a truth), all from the problem's
+    design, none from a truth:
 
     - ``frame_reliability_sd`` [σx, σy, σθ]: the frame's own σ (m, m, rad);
     - ``frame_reliability_effect`` [|dx|, |dy|, |dθ|]: the most one component's ∇₀ of one sighting moves each of the
@@ -256,8 +286,9 @@ def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: 
 
     def sighting(row: int) -> dict:
         s, c = int(kept[row // 2]), row % 2
+        barcode = {} if barcodes is None else {"barcode": int(barcodes[s])}
         return {"time_s": float(times[problem.pose_index[s] - 1]),
-                "landmark": int(landmark_ids[problem.landmark_index[s]]), "component": COMPONENTS[c],
+                label: int(landmark_ids[problem.landmark_index[s]]), **barcode, "component": COMPONENTS[c],
                 "redundancy": float(rel.redundancy_numbers[s]),
                 "component_redundancy": float(rel.redundancy[s, c, c]), "minimal_bias": float(rel.minimal_bias[s, c]),
                 "frame_effect": [float(v) for v in rel.frame_effect[s, c]]}
@@ -291,8 +322,10 @@ def reliability_warning(metrics: dict) -> str | None:
     axis = "xy"[int(ratio[1] > ratio[0])]
     moved = (f"turn the frame by {abs(dtheta):.3f} rad, {ratio[2]:.1f} σ" if heading else
              f"shift the frame by ({dx:+.3f}, {dy:+.3f}) m, {max(ratio[0], ratio[1]):.1f} σ in {axis}")
+    which = (f"landmark {s['landmark']}" if "landmark" in s else
+             f"name {s['name']}" + (f", barcode {s['barcode']}" if "barcode" in s else ""))
     return (f"the map's frame rests on single sightings: in the {s['component']} of the sighting at "
-            f"{s['time_s']:.2f} s (landmark {s['landmark']}; its redundancy {s['component_redundancy']:.2f}, "
+            f"{s['time_s']:.2f} s ({which}; its redundancy {s['component_redundancy']:.2f}, "
             "0: nothing else checks it, 1: the others alone fix it) the least error the data's test finds 80 % of "
             f"the time (δ₀ {delta0:g}, α 0.1 %) is {s['minimal_bias']:.3f} {unit}, and it would {moved}: the "
             "frame's covariance does not hold it")
