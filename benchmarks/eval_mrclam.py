@@ -37,10 +37,14 @@ the odometry's variance in turns (lead)"; a FILE is used as it is).
 ``--time-variance``: fit the odometry's heading variance per second too (estimate_noise(time_variance=True), the
 noise model's ``theta_var_per_s``: the heading wanders with time, moving or not; not among the defaults:
 docs/fastslam-history.md "Session 35: a heading variance per second (A)"; a FILE is used as it is).
+``--command-stall``: fit the random stall after a one-sample dip of the commanded velocity too
+(estimate_noise(command_stall=True), the noise model's ``stall_sigma_s``; docs/fastslam-history.md "Session 41: the
+stall after a dip of the command ... (A)"; a FILE is used as it is).
 ``--smooth``: the known-ID runs smoothed over the whole log after the filter (``run_landmark_log(smooth=True)``,
 docs/fastslam-history.md "Session 15"); the filter's own figures stay under ``filter_``.
-``--defaults``: what `p3at slam dataset` does without options since session 17: the range calibration, heading
-bias, odometry lag and turns' variance fitted (``DATASET_CALIBRATIONS``) and the known-ID runs smoothed.
+``--defaults``: what `p3at slam dataset` does without options: the range calibration, heading bias, odometry lag and
+turns' variance fitted (session 17), the stall after the command's dips too (session 42; ``DATASET_CALIBRATIONS``),
+and the known-ID runs smoothed.
 ``--heading-drift``: each particle carries a drifting heading bias per metre (estimation/fastslam/motion.py; the
 noise model's ``heading_drift_sigma_per_m``, ``heading_drift_tau_s``), its (σ_b, τ) fitted on the robot's whole log
 (``whole``: estimate_noise(heading_drift=True)), on the first half of its log in time (``first-half``: the half's own
@@ -142,9 +146,11 @@ def main(argv: list[str] | None = None) -> int:
                         "turn's increments (a turn's forward error persists through it)")
     parser.add_argument("--time-variance", action="store_true", help="fit the odometry's heading variance per second "
                         "(the heading wanders with time, moving or not)")
+    parser.add_argument("--command-stall", action="store_true", help="fit the random stall after a one-sample dip of "
+                        "the commanded velocity (the robot stops a while, its odometry goes on)")
     parser.add_argument("--smooth", action="store_true", help="smooth the known-ID runs over the whole log")
     parser.add_argument("--defaults", action="store_true", help="what `p3at slam dataset` does without options: "
-                        "the four calibrations of DATASET_CALIBRATIONS, and the known-ID runs smoothed")
+                        "the calibrations of DATASET_CALIBRATIONS, and the known-ID runs smoothed")
     parser.add_argument("--heading-drift", type=heading_drift_option, default=None,
                         metavar="whole|first-half|SIGMA,TAU", help="a drifting heading bias per particle: (σ_b "
                         "rad/m, τ s) fitted on the whole log, its first half, or given")
@@ -175,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     fit = {"heading_bias": args.heading_bias, "sensor_correlation": args.sensor_correlation,
            "range_calibration": args.range_calibration, "odometry_lag": args.odometry_lag,
            "turn_translation": args.turn_translation, "turn_variance": args.turn_variance,
-           "time_variance": args.time_variance}
+           "time_variance": args.time_variance, "command_stall": args.command_stall}
     for r in robots:
         if args.noise == "own":
             noise[r] = estimate_noise([logs[r]], **fit).model
@@ -225,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
                           "turn_variance": args.turn_variance,
                           "turn_xy_inflation": {r: noise[r].odometry.turn_xy_inflation for r in robots},
                           "time_variance": args.time_variance,
+                          "command_stall": args.command_stall,
+                          "stall_sigma_s": {r: noise[r].odometry.stall_sigma_s for r in robots},
                           "theta_var_per_s": {r: noise[r].odometry.theta_var_per_s for r in robots},
                           "heading_drift": {r: [noise[r].odometry.heading_drift_sigma_per_m,
                                                 noise[r].odometry.heading_drift_tau_s] for r in robots},

@@ -105,9 +105,9 @@ def _register_dataset(sub) -> None:
                              "scoring only (default id)")
     parser.add_argument("--noise", metavar="FILE", help="noise model (TOML, see `p3at slam noise`); default: "
                         "estimated from this robot's own log and ground truth with the range calibration, heading "
-                        "bias, odometry lag and turns' variance (as `p3at slam noise --range-calibration "
-                        "--heading-bias --odometry-lag --turn-variance`), and said so; a log without ground truth "
-                        "needs it")
+                        "bias, odometry lag, turns' variance and the stall after the command's dips (as `p3at slam "
+                        "noise --range-calibration --heading-bias --odometry-lag --turn-variance --command-stall`), "
+                        "and said so; a log without ground truth needs it")
     parser.add_argument("--barcodes", choices=("verified", "inferred", "table"), default="verified",
                         help="Barcodes.dat: refuse it if the ground truth contradicts it (verified, default), "
                              "correct it from the ground truth (inferred), or trust it unchecked (table; the only "
@@ -269,7 +269,8 @@ def _register_noise(sub) -> None:
     parser.add_argument("--command-stall", action="store_true",
                         help="also fit the random stall after a one-sample dip of the commanded velocity (the robot "
                              "stops a while, its odometry goes on), written as [odometry] stall_sigma_s: the "
-                             "increment holding a dip gets (w sigma)^2 on its heading, (v sigma)^2 on x and y. Off by "
-                             "default (docs/fastslam-history.md, Session 41 (A))")
+                             "increment holding a dip gets (w sigma)^2 on its heading, (v sigma)^2 on x and y; `p3at "
+                             "slam dataset` fits it when no --noise is given (docs/fastslam-history.md, Session 41 "
+                             "(A))")
     parser.add_argument("--json", action="store_true", help="print the model and the fit as one JSON object")
     parser.set_defaults(handler=_noise)

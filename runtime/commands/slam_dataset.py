@@ -67,7 +67,7 @@ def run_dataset(args: argparse.Namespace) -> int:
             except ValueError as e:
                 raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
             noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
-                            "odometry lag and turns' variance (no --noise given)")
+                            "odometry lag, turns' variance and the stall after the command's dips (no --noise given)")
         smooth = args.association == "id" if args.smooth is None else args.smooth
         config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
         if args.chain:

@@ -74,3 +74,18 @@ def test_the_data_set_run_widens_the_increments_that_hold_a_dip(tmp_path, synthe
     wider = run(stalling, with_dips)
     assert np.all(np.trace(wider.covariances[:, :2, :2], axis1=1, axis2=2)
                   > np.trace(base.covariances[:, :2, :2], axis1=1, axis2=2))
+
+
+def test_the_data_set_command_fits_the_stall_when_no_model_is_given(tmp_path, mrclam_dir):
+    """Without --noise, `p3at slam dataset` fits the stall with the other calibrations (DATASET_CALIBRATIONS, since
+    session 42), writes it with the map and says so; on robot 1 it is the session-41 fit (σ_s ~0.1 s)."""
+    from estimation.landmark_map import LandmarkMap
+
+    out_file = tmp_path / "r1.npz"
+    status, out, err = run_cli("slam", "dataset", "mrclam", str(mrclam_dir), "--robot", "1", "--until", "60",
+                               "--out", str(out_file), "--json")
+    assert status == 0, err
+    printed = json.loads(out)
+    assert "the stall after the command's dips" in printed["noise"]
+    stall = LandmarkMap.load(out_file).metadata["noise_model"]["stall_sigma_s"]
+    assert 0.05 < stall < 0.2
