@@ -78,7 +78,7 @@ def test_cli_smooth_writes_the_smoothed_map_and_refuses_unknown_association(tmp_
 
 
 def test_cli_by_default_fits_the_logs_calibrations_and_smooths_known_id_runs(tmp_path, synthetic):
-    """Without --noise, `p3at slam dataset` fits the log's own noise model with its four calibrations, and smooths
+    """Without --noise, `p3at slam dataset` fits the log's own noise model with its calibrations, and smooths
     a known-ID run; unknown association and --no-smooth give the filter alone. On an exact log every calibration
     is the identity, so the smoothed path is the truth."""
     synthetic.write(tmp_path / "data", seconds=60.0)
@@ -91,10 +91,12 @@ def test_cli_by_default_fits_the_logs_calibrations_and_smooths_known_id_runs(tmp
         return json.loads(out)
 
     scores = run()
-    assert scores["smoothed"] and "range calibration, heading bias, odometry lag and turns' variance" in scores["noise"]
+    assert scores["smoothed"] and ("range calibration, heading bias, odometry lag, turns' variance and the stall after "
+                                   "the command's dips") in scores["noise"]
     metadata = LandmarkMap.load(out_map).metadata
     noise = metadata["noise_model"]
     assert metadata["smoothed"] is True and noise["lag_s"] == 0.0 and noise["turn_xy_inflation"] == 1.0
+    assert noise["stall_sigma_s"] == 0.0                              # a steady command: no dip, no stall term
     assert noise["range_scale"] == pytest.approx(1.0) and noise["range_offset_m"] == pytest.approx(0.0, abs=1e-6)
     assert scores["ate_m"] < 0.01 and scores["landmarks"] == scores["true_landmarks"]
     for args in (["--association", "unknown"], ["--no-smooth"]):
