@@ -150,10 +150,10 @@ def test_run_chain_alone_ends_where_the_benchmark_ends_and_a_resumed_run_ends_th
     row = json.loads(out.getvalue())["robots"][0]
     final, meta = mc.load_saved_state(mc.state_path(tmp_path, log, 0, "final"), log, noise, config)
 
-    def same(a, b, atol=0.0):
+    def same(a, b, atol=0.0, rtol=0.0):
         assert np.array_equal(a.names, b.names)
         for key in STATE_ARRAYS[1:]:
-            np.testing.assert_allclose(getattr(a.solution, key), getattr(b.solution, key), rtol=0, atol=atol,
+            np.testing.assert_allclose(getattr(a.solution, key), getattr(b.solution, key), rtol=rtol, atol=atol,
                                        err_msg=key)
 
     same(run.state, final)
@@ -176,9 +176,11 @@ def test_run_chain_alone_ends_where_the_benchmark_ends_and_a_resumed_run_ends_th
 
     # resumed from the benchmark's state after round 1 (the sighting offsets' groups: round 0's names): the same names
     # and map to rounding (the state's problem is rebuilt from its names; the benchmark's --from-round, before this
-    # module too, ends 3e-14 m from the run that did not stop)
+    # module too, ends 3e-14 m from the run that did not stop). Its last solve starts elsewhere and stops at the
+    # smoother's step tolerance (1e-7 m or rad), so the covariances taken at its solution agree to a relative 1e-7,
+    # not to an absolute 1e-9: with the stall in the default model (session 42) 2 of 56 entries differ by 5e-9
     state, meta = mc.load_saved_state(mc.state_path(tmp_path, log, 0, "round1"), log, noise, config)
     with np.load(mc.state_path(tmp_path, log, 0, "round0")) as data:
         groups = data["names"]
     resumed = run_chain(log, noise, config, ChainSettings(), resume=Resume(state, meta["round"], groups))
-    same(resumed.state, final, atol=1e-9)
+    same(resumed.state, final, atol=1e-9, rtol=1e-7)
