@@ -5,7 +5,10 @@ reckoning and the true path (Vicon on MRCLAM) growing over the log's time, the f
 ones labelled by id under them, and the pose NEES over time (plots/<robot>/pose_nees); in the 3-D world the same
 placed at the robot's true start, with the landmarks' 1-σ ellipsoids shown (the layout is
 :func:`runtime.rerun_style.dataset_blueprint`: whether they cover the truth is what a run with ground truth shows). The
-map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it.
+map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it. The run's
+warnings (what the command prints) are logged as WARN text under the map, and when the map's frame rests on a sighting
+nothing checks (``frame_reliability_unchecked``, :mod:`estimation.frame_reliability`) that sighting is drawn in the
+2-D map: a ring on the pose it was taken from and its ray to the landmark, from its time on.
 
 The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
 pose every ``POSE_INTERVAL_S`` of log time. A saved file is written beside its name and renamed over it when
@@ -14,6 +17,7 @@ complete: an interrupted run never leaves half a recording, nor replaces an earl
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -29,21 +33,24 @@ from .rerun_style import dataset_blueprint
 POSE_INTERVAL_S = 0.2   # log time between logged poses: 5 Hz draws the paths smoothly and keeps the file small
 
 
-def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
+def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: str,
+                       warnings: Sequence[str] = ()) -> None:
     """Log ``run`` (of ``log``, robot name ``robot``) to ``sink``: a path ending in .rrd, "spawn" or a rerun+http
     URL (see :func:`runtime.rerun_sink.open_recording`). A map whose metadata gives ``footprint_radius_m`` (MRCLAM's
-    iRobot Creates) draws its robot as that disc, not as the P3-AT's box."""
+    iRobot Creates) draws its robot as that disc, not as the P3-AT's box. ``warnings``: the run's, one line each,
+    logged at the log's end."""
     saved = sink.endswith(".rrd")
     target = Path(sink)
     partial = target.with_name(f".{target.name}.{os.getpid()}.partial") if saved else None
     blueprint = dataset_blueprint(robot, smoothed=bool(run.metrics.get("smoothed")),
-                                  scored="true_start_pose" in run.metrics, truth_heading=log.truth_heading)
+                                  scored="true_start_pose" in run.metrics, truth_heading=log.truth_heading,
+                                  warned=bool(warnings))
     # written at once after the run, so the footer (an index of every chunk) costs nothing here: the file is then
     # complete for `rerun rrd verify` and random access (a mission leaves it out, open_recording)
     rec = open_recording(str(partial) if saved else sink, blueprint=blueprint, footer=saved)
     mission = MissionLog(rec, [robot], blueprint=False)
     try:
-        _log_run(mission, run, log, robot)
+        _log_run(mission, run, log, robot, warnings)
         mission.close()
         if partial is not None:
             os.replace(partial, target)
@@ -53,7 +60,8 @@ def record_dataset_run(sink: str, run: DatasetRun, log: RangeBearingLog, robot: 
             partial.unlink(missing_ok=True)
 
 
-def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: str) -> None:
+def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: str, warnings: Sequence[str]
+             ) -> None:
     # a log without ground truth: the map's frame placed at the world's origin, no true path or landmarks
     scored = "true_start_pose" in run.metrics
     start = np.asarray(run.metrics["true_start_pose"], float) if scored else np.zeros(3)
@@ -79,6 +87,27 @@ def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: 
         last = t
         mission.log_pose(robot, float(t), None, estimated[k], true=true[k], odometry=dead[k])
     end = float(times[-1]) if len(times) else 0.0
+    _log_frame_tie(mission, run, robot, estimated, t0)
+    for warning in warnings:
+        mission.log_event(end, warning, level="WARN")
     mission.log_robot_landmarks(robot, end, None, run.map)
     mission.log_map(robot, end, run.map)
     mission.log_summary({key: value for key, value in run.metrics.items() if np.isscalar(value)} | {"robot": robot})
+
+
+def _log_frame_tie(mission: MissionLog, run: DatasetRun, robot: str, estimated: np.ndarray, t0: float) -> None:
+    """The sighting the warning names (the heading's worst if the heading is unchecked, else the translation's, as
+    :func:`estimation.frame_reliability.reliability_warning` picks), on the estimated pose nearest its time."""
+    m = run.metrics
+    if not m.get("frame_reliability_unchecked") or not len(estimated):
+        return
+    heading = m["frame_reliability_effect_sd"][2] > m["frame_reliability_delta0"]
+    sighting = m["frame_reliability_heading_sighting" if heading else "frame_reliability_translation_sighting"]
+    k = int(np.argmin(np.abs(run.estimated_trajectory[:, 0] - sighting["time_s"])))
+    identity = sighting.get("landmark", sighting.get("name"))
+    external = [int(i) for i in run.map.metadata.get("external_ids", [])]
+    landmark = run.map.positions[external.index(identity)] if identity in external else None
+    which = "landmark" if "landmark" in sighting else "name"
+    label = (f"the frame rests on this {sighting['component']} ({which} {identity}, "
+             f"{max(m['frame_reliability_effect_sd']):.1f} σ)")
+    mission.log_frame_tie(robot, float(run.estimated_trajectory[k, 0] - t0), estimated[k], landmark, label)

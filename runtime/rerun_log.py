@@ -32,6 +32,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     map/<robot>/particles                 Points2D
     map/<robot>/landmarks/{confirmed,provisional}          Points2D
     map/<robot>/true_landmarks            Points2D, a data set's true landmarks (static, labelled)
+    map/<robot>/frame_tie[/ray]           Points2D (labelled) + LineStrips2D: a data set run's sighting its frame
+                                          rests on, unchecked (estimation.frame_reliability), and its ray
     map/fused/building                    the walls in the fused map's frame (the reference robot's start)
     map/fused/<robot>                     Transform3D: the robot's frame as the fusion aligned it
     map/fused/<robot>/{trajectory,pose}   its path from its last map snapshot
@@ -78,6 +80,7 @@ from runtime.rerun_sdk import rr
 from runtime.rerun_sink import SAVED_STREAMS
 from runtime.rerun_style import (
     EVENTS,
+    FRAME_TIE_COLOUR,
     FUSION_STATUS,
     SHARED_COLOUR,
     SPARSE_SERIES,
@@ -563,6 +566,20 @@ class MissionLog:
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:
         self._rows.set_time(t)
         self.rec.log(EVENTS, rr.TextLog(text, level=level))
+
+    def log_frame_tie(self, robot: str, t: float, pose: np.ndarray, landmark: np.ndarray | None, label: str) -> None:
+        """The sighting a map's frame rests on (:mod:`estimation.frame_reliability`): a ring on the pose it was taken
+        from and, when its landmark is in the map, the ray to it, labelled, in the robot's 2-D map (drawn from ``t``,
+        the sighting's time, in the final estimate's place)."""
+        self._rows.set_time(t)
+        root = self._map_root(robot)
+        pose = np.asarray(pose, float).reshape(-1)[:2]
+        self.rec.log(f"{root}/frame_tie", rr.Points2D([pose], radii=-9.0, colors=FRAME_TIE_COLOUR, labels=[label],
+                                                    show_labels=True, draw_order=11.0))
+        if landmark is not None:
+            ray = np.array([pose, np.asarray(landmark, float).reshape(-1)[:2]])
+            self.rec.log(f"{root}/frame_tie/ray", rr.LineStrips2D([ray], radii=-2.0, colors=FRAME_TIE_COLOUR,
+                                                                draw_order=11.0))
 
     # -- maps, fusion and the summary -----------------------------------------------------------------
     def log_map(self, key: str, t: float, landmark_map: LandmarkMap, *, draw: bool = True,

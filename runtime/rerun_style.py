@@ -31,6 +31,7 @@ SHARED_COLOUR = (255, 255, 255)     # fused landmarks seen by several robots
 TRUE_COLOUR = (205, 205, 205)       # ground truth (mocks only)
 WALL_COLOUR = (110, 110, 120)
 MAP_BACKGROUND = (24, 24, 28)
+FRAME_TIE_COLOUR = (255, 0, 200)    # the sighting a data set map's frame rests on, unchecked: no robot's colour
 
 # plots/<robot>/<name> and plots/fusion/<name>: the legend name (with its unit) and colour of each series.
 SERIES: dict[str, tuple[str, tuple[int, int, int]]] = {
@@ -97,8 +98,8 @@ def _fusion_status_view() -> rrb.TextDocumentView:
     return rrb.TextDocumentView(origin=FUSION_STATUS, name="fusion status (the last fusion: aligned or why not)")
 
 
-def _events_view() -> rrb.TextLogView:
-    return rrb.TextLogView(origin=EVENTS, name="mission events (warnings, fusion candidates, splits)")
+def _events_view(name: str = "mission events (warnings, fusion candidates, splits)") -> rrb.TextLogView:
+    return rrb.TextLogView(origin=EVENTS, name=name)
 
 
 def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
@@ -158,7 +159,7 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
 
 
 def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
-                      truth_heading: str = "mocap") -> rrb.Blueprint:
+                      truth_heading: str = "mocap", warned: bool = False) -> rrb.Blueprint:
     """The layout of one robot's run on a data set (runtime/dataset_recording.py): its 2-D map (estimated, dead
     reckoning and true paths, its landmarks over the true ones) beside the pose NEES over time; a 3-D tab with the
     landmarks' 1-σ ellipsoids shown (the point of a run with ground truth is to see whether they cover the truth).
@@ -166,7 +167,9 @@ def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
     the title says so (a path drawn as it grows is then hindsight, not what the robot knew at that time).
     ``scored`` False (a log without ground truth): no NEES plot, which would stay empty, and the map's title says the
     run is not scored instead of naming a grey true path that is not there. ``truth_heading`` "travel": the title
-    says the true path's heading is turned onto the direction of travel (docs/fastslam.md, *The truth's heading*)."""
+    says the true path's heading is turned onto the direction of travel (docs/fastslam.md, *The truth's heading*).
+    ``warned``: the run's warnings (what ``p3at slam dataset`` prints) sit under the overview, where a reviewer of the
+    recording reads them beside the map they are about."""
     estimate = "smoothed map and path (the whole log's)" if smoothed else "map and paths"
     truth = "grey: ground truth" if scored else "no ground truth: not scored"
     if scored and truth_heading == "travel":
@@ -177,11 +180,14 @@ def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
         overview = rrb.Horizontal(map_view, nees, column_shares=[3, 2], name="overview")
     else:
         overview = rrb.Horizontal(map_view, name="overview")
+    if warned:
+        overview = rrb.Vertical(overview, _events_view("warnings about this map (as `p3at slam dataset` prints them)"),
+                                row_shares=[5, 1], name="overview")
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
                            name="3-D")
     return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
 
 
-__all__ = ["EVENTS", "FUSED_MAP_NAME", "FUSION_STATUS", "MAP_BACKGROUND", "ROBOT_COLOURS", "SERIES",
+__all__ = ["EVENTS", "FRAME_TIE_COLOUR", "FUSED_MAP_NAME", "FUSION_STATUS", "MAP_BACKGROUND", "ROBOT_COLOURS", "SERIES",
            "SHARED_COLOUR", "SPARSE_SERIES", "TRUE_COLOUR", "WALL_COLOUR", "WHOLE_TIMELINE", "dataset_blueprint",
            "dimmed", "mission_blueprint", "robot_colour", "series_style"]

@@ -85,23 +85,23 @@ def run_dataset(args: argparse.Namespace) -> int:
     except (ValueError, OSError, EstimationError) as e:   # DatasetError, NoiseModelError, MapFileError included
         print(f"p3at slam dataset: {e}", file=sys.stderr)
         return 2
-    if args.rerun:
-        from runtime.dataset_recording import record_dataset_run
-        from runtime.rerun_sink import ViewerError
-        try:
-            record_dataset_run(args.rerun, run, log, f"robot{args.robot}")
-        except (OSError, ViewerError) as e:
-            print(f"p3at slam dataset: the map is written to {args.out}, but the recording failed: {e}",
-                  file=sys.stderr)
-            return 2
     from estimation.frame_reliability import reliability_warning
 
     # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too)
     reliability = reliability_warning(run.metrics)
+    warnings = (_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
+                + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []))
+    if args.rerun:
+        from runtime.dataset_recording import record_dataset_run
+        from runtime.rerun_sink import ViewerError
+        try:
+            record_dataset_run(args.rerun, run, log, f"robot{args.robot}", warnings)
+        except (OSError, ViewerError) as e:
+            print(f"p3at slam dataset: the map is written to {args.out}, but the recording failed: {e}",
+                  file=sys.stderr)
+            return 2
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
-                   noise=noise_source, notes=list(log.notes), recording=args.rerun,
-                   warnings=_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
-                   + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []),
+                   noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=warnings,
                    stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
     if args.json:
         # every warning on stderr too, one line each: a user piping the JSON still sees them

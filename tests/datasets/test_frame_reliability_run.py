@@ -1,7 +1,7 @@
 """The data set run's frame reliability (``frame_reliability_*`` of a smoothed run, estimation.frame_reliability): a
 log whose frame rests on one lone first sighting is flagged, with or without its truth, and ``p3at slam dataset``
 says so on stderr beside its JSON; a log whose first frame sees several landmarks is not; MRCLAM robot 1's frame
-rests on its first sighting (7.00 s, landmark 11), robot 2's does not."""
+rests on its first sighting (7.00 s, landmark 11), which its recording draws, and robot 2's does not."""
 from __future__ import annotations
 
 import json
@@ -14,6 +14,7 @@ from estimation.datasets import RangeBearingLog
 from estimation.fastslam import range_bearing_config
 from estimation.geometry import wrap_angle
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
+from tests.runtime.rerun_helpers import entity_rows
 
 from .conftest import run_cli
 
@@ -101,7 +102,7 @@ def test_real_dataset2_robot1_s_frame_rests_on_its_first_sighting_and_robot2_s_d
     0.067 rad off the truth turned the frame 0.055 rad with the leave-one-out model, session 41 (A)). Robot 2's first
     seconds see landmarks that check each other."""
     status, out, err = run_cli("slam", "dataset", "mrclam", str(mrclam_dir), "--robot", "1", "--out",
-                               str(tmp_path / "robot1.npz"), "--json")
+                               str(tmp_path / "robot1.npz"), "--rerun", str(tmp_path / "robot1.rrd"), "--json")
     assert status == 0, err
     m = json.loads(out)
     assert m["frame_reliability_unchecked"]
@@ -109,6 +110,13 @@ def test_real_dataset2_robot1_s_frame_rests_on_its_first_sighting_and_robot2_s_d
     for which in ("heading", "translation"):
         sighting = m[f"frame_reliability_{which}_sighting"]
         assert sighting["time_s"] == pytest.approx(7.0) and sighting["landmark"] == 11
+    # the recording holds the same warnings, and draws that sighting from the first pose to landmark 11
+    events = entity_rows(tmp_path / "robot1.rrd", "mission/events")
+    assert [text for row in events for text in row["TextLog:text"]] == m["warnings"]
+    [tie] = entity_rows(tmp_path / "robot1.rrd", "map/robot1/frame_tie")
+    assert "(landmark 11," in tie["Points2D:labels"][0]
+    np.testing.assert_allclose(tie["Points2D:positions"][0], [0.0, 0.0], atol=1e-6)    # 7.00 s is pose 0
+    assert entity_rows(tmp_path / "robot1.rrd", "map/robot1/frame_tie/ray")
     status, out, err = run_cli("slam", "dataset", "mrclam", str(mrclam_dir), "--robot", "2", "--out",
                                str(tmp_path / "robot2.npz"), "--json")
     assert status == 0, err
