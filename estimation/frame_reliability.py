@@ -36,8 +36,9 @@ factorisation of H.
 
 With sighting offsets (the unknown-association chain's last smoothings, :mod:`estimation.chain_map`; session 42
 (A2)) the explicit offsets are dense columns beside the landmarks', so nothing changes but the frame's covariance,
-which gains the sole groups' σ² I (:func:`sole_offset_landmarks`). The chain names a sighting by its own name, and by
-its barcode only where the truth scores the map (``label``, ``barcodes`` of :func:`reliability_metrics`).
+which gains the sole groups' σ² I (:func:`~estimation.landmark_smoother.sole_offset_groups`, the smoother's own
+rule). The chain names a sighting by its own name, and by its barcode only where the truth scores the map
+(``label``, ``barcodes`` of :func:`reliability_metrics`).
 
 What it is not: a test that an error is there. A small redundancy says the data cannot tell, a large external
 effect says what that would cost the frame; robot 1's first bearing is both, and its actual error is inside what
@@ -59,7 +60,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .landmark_scores import rigid_functional
-from .landmark_smoother import LandmarkLogProblem, NormalFactor, Smoothed, solution_jacobian
+from .landmark_smoother import LandmarkLogProblem, NormalFactor, Smoothed, sole_offset_groups, solution_jacobian
 
 DELTA_0 = 4.13        # Baarda's δ₀: the w-test at α = 0.1 % (two-sided, 3.29) finding a bias with β = 80 % (+0.84)
 COMPONENTS = ("range", "bearing")
@@ -124,7 +125,7 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
     frame_covariance = functional @ u
     if solution.sighting_offset is not None and solution.sighting_offset.on:
         sole = np.zeros(n_landmarks, bool)
-        sole[sole_offset_landmarks(problem)] = True
+        sole[sole_offset_groups(problem)[:, 0]] = True
         on_sole = np.repeat(sole[seen], 2)                                       # the seen landmarks' columns
         rigid = functional[:, width * t:width * t + 2 * int(seen.sum())][:, on_sole]
         frame_covariance = frame_covariance + solution.sighting_offset.sigma_m ** 2 * rigid @ rigid.T
@@ -144,19 +145,6 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
         effect = np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
     return FrameReliability(redundancy, in_sigmas * sigmas, effect, 0.5 * (frame_covariance + frame_covariance.T),
                             float(delta0))
-
-
-def sole_offset_landmarks(problem: LandmarkLogProblem) -> np.ndarray:
-    """The landmarks whose sightings are all of one offset group that holds no other landmark's (every sighting
-    counted, kept or not): their offset is marginalised by the smoother (no column; its σ² I added to the landmark's
-    covariance), as :func:`~estimation.landmark_smoother.joint_landmark_covariance` does."""
-    groups = problem.offset_groups
-    if not len(groups):
-        return np.zeros(0, int)
-    pairs = np.unique(np.column_stack([problem.landmark_index, groups]), axis=0)
-    per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]]
-    per_group = np.bincount(pairs[:, 1])[pairs[:, 1]]
-    return pairs[(per_landmark == 1) & (per_group == 1), 0]
 
 
 class SelectedInverse:

@@ -436,6 +436,20 @@ def _solution_offset(problem: LandmarkLogProblem, solution: Smoothed) -> _Offset
     return _Offsets(problem, option, len(solution.offsets)) if option is not None and option.on else None
 
 
+def sole_offset_groups(problem: LandmarkLogProblem) -> np.ndarray:
+    """(K, 2) the (landmark, group) of each *sole* offset group of ``problem``: a group that is its landmark's only
+    group and holds no other landmark's sightings (every sighting counted, kept or not; every landmark's with the
+    default grouping), in the order of the landmarks. The smoother marginalises its offset exactly (:class:`_Offsets`:
+    no column, its σ² I added to the landmark's covariance after the solve), and so does every covariance taken from
+    a solution (:func:`joint_landmark_covariance`, :func:`estimation.frame_reliability.frame_reliability`)."""
+    pairs = np.unique(np.column_stack([problem.landmark_index, problem.offset_groups]).reshape(-1, 2), axis=0)
+    if not len(pairs):
+        return np.zeros((0, 2), int)
+    per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]]
+    per_group = np.bincount(pairs[:, 1])[pairs[:, 1]]
+    return pairs[(per_landmark == 1) & (per_group == 1)]
+
+
 class _Offsets:
     """A :class:`SightingOffset` on one problem: each sighting's group (S,), the number of groups G and σ.
 
@@ -450,15 +464,12 @@ class _Offsets:
         self.index = problem.offset_groups
         self.count = int(self.index.max()) + 1 if count is None and len(self.index) else int(count or 0)
         self.sigma = float(option.sigma_m)
-        pairs = np.unique(np.column_stack([problem.landmark_index, self.index]).reshape(-1, 2), axis=0)
-        per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]] if len(pairs) else np.zeros(0, int)
-        per_group = np.bincount(pairs[:, 1], minlength=self.count)[pairs[:, 1]] if len(pairs) else np.zeros(0, int)
-        sole = (per_landmark == 1) & (per_group == 1)
+        sole = sole_offset_groups(problem)
         explicit = np.ones(self.count, bool)
-        explicit[pairs[sole, 1]] = False
+        explicit[sole[:, 1]] = False
         self.explicit_groups = np.flatnonzero(explicit)
         self.n_explicit = len(self.explicit_groups)
-        self.sole_landmarks = pairs[sole, 0]
+        self.sole_landmarks = sole[:, 0]
         self.column = np.full(self.count, -1)                # each group's place among the explicit ones (−1: sole)
         self.column[self.explicit_groups] = np.arange(self.n_explicit)
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimation.frame_reliability import frame_reliability, sole_offset_landmarks
+from estimation.frame_reliability import frame_reliability
 from estimation.geometry import dead_reckoning
 from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import (
@@ -20,10 +20,11 @@ from estimation.landmark_smoother import (
     joint_landmark_covariance,
     landmarks_from_first_sightings,
     smooth,
+    sole_offset_groups,
     solution_jacobian,
 )
 
-from .test_frame_reliability import _log_problem
+from .test_frame_reliability import LANDMARKS, _log_problem
 
 
 def _grouped(problem, split: bool):
@@ -55,7 +56,7 @@ def test_with_offsets_the_blocks_are_the_dense_ones_and_the_frame_s_covariance_t
                                                                                           drift):
     problem = _grouped(_log_problem(np.random.default_rng(seed), first), split=True)
     solution = _solved(problem, sigma, drift)
-    assert solution.offsets is not None and len(sole_offset_landmarks(problem)) > 0
+    assert solution.offsets is not None and len(sole_offset_groups(problem)) > 0
     rel = frame_reliability(problem, solution)
     jac, _ = solution_jacobian(problem, solution)
     dense = jac.toarray()
@@ -77,7 +78,7 @@ def test_with_offsets_the_blocks_are_the_dense_ones_and_the_frame_s_covariance_t
 @pytest.mark.parametrize("first", [1, 3])
 def test_one_group_per_landmark_changes_no_redundancy_nor_effect_only_the_frame_s_covariance(first):
     problem = _timed(_log_problem(np.random.default_rng(first), first))
-    assert len(sole_offset_landmarks(problem)) == len(np.unique(problem.landmark_index))
+    assert len(sole_offset_groups(problem)) == len(np.unique(problem.landmark_index))
     plain, offset = _solved(problem, None, True), _solved(problem, 0.03, True)
     a, b = frame_reliability(problem, plain), frame_reliability(problem, offset)
     np.testing.assert_allclose(b.redundancy, a.redundancy, atol=1e-9)
@@ -86,3 +87,25 @@ def test_one_group_per_landmark_changes_no_redundancy_nor_effect_only_the_frame_
     g = rigid_functional(plain.landmarks[seen])
     np.testing.assert_allclose(b.frame_covariance, a.frame_covariance + 0.03 ** 2 * g @ g.T, rtol=1e-6)
     assert np.all(b.frame_sd > a.frame_sd)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), n_groups=st.integers(1, 12), default=st.booleans())
+def test_the_sole_groups_are_each_a_landmark_s_only_group_and_hold_it_alone(seed, n_groups, default):
+    """The one rule the smoother marginalises by and the frame's covariance adds σ² I by (sole_offset_groups), against
+    its definition read landmark by landmark; with the default grouping (no offset_index) every sighted landmark's."""
+    rng = np.random.default_rng(seed)
+    problem = _log_problem(rng, 1)
+    if not default:      # about half the landmarks in a group of their own, the rest's sightings in shared groups
+        alone = rng.random(len(LANDMARKS)) < 0.5
+        landmarks = problem.landmark_index
+        problem = dataclasses.replace(problem, offset_index=np.where(
+            alone[landmarks], n_groups + landmarks, rng.integers(0, n_groups, len(landmarks))))
+    groups, landmarks = problem.offset_groups, problem.landmark_index
+    expected = [(landmark, own[0]) for landmark in np.unique(landmarks)
+                if len(own := np.unique(groups[landmarks == landmark])) == 1
+                and np.all(landmarks[groups == own[0]] == landmark)]
+    np.testing.assert_array_equal(sole_offset_groups(problem), np.array(expected, int).reshape(-1, 2))
+    assert default or len(expected) >= np.sum(alone[np.unique(landmarks)])
+    if default:
+        np.testing.assert_array_equal(sole_offset_groups(problem)[:, 0], np.unique(landmarks))
