@@ -110,11 +110,10 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
     no redundancy nor effect, and adds its σ² I to its landmark in the frame's covariance, as
     :func:`~estimation.landmark_smoother.joint_landmark_covariance` has it."""
     t, n_landmarks = problem.n_poses, len(solution.landmarks)
-    jac, width = solution_jacobian(problem, solution)
-    seen = np.zeros(n_landmarks, bool)
-    seen[problem.landmark_index[solution.inliers]] = True
+    seen = _framed(problem, solution)
     if seen.sum() < 2:
         raise ValueError(f"a frame needs two landmarks with a kept sighting, not {int(seen.sum())}")
+    jac, width = solution_jacobian(problem, solution)
     free = np.ones(jac.shape[1], bool)
     free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)
     inverse = SelectedInverse(jac, free, t, width)
@@ -145,6 +144,13 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
         effect = np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
     return FrameReliability(redundancy, in_sigmas * sigmas, effect, 0.5 * (frame_covariance + frame_covariance.T),
                             float(delta0))
+
+
+def _framed(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
+    """(L,) bool: the landmarks with a kept sighting, the points the frame's rigid motion is of."""
+    seen = np.zeros(len(solution.landmarks), bool)
+    seen[problem.landmark_index[solution.inliers]] = True
+    return seen
 
 
 class SelectedInverse:
@@ -258,11 +264,11 @@ def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: 
       covariance does not hold what one sighting can do to it unseen (:func:`reliability_warning` says it);
     - ``sighting_redundancy_min`` / ``_median``: over the kept sightings; ``frame_reliability_delta0``.
 
-    {} when there is no frame to speak of (fewer than two landmarks with a kept sighting)."""
-    try:
-        rel = frame_reliability(problem, solution)
-    except ValueError:
+    {} when there is no frame to speak of (fewer than two landmarks with a kept sighting); any other error of the
+    figures (a solution that is not finite, an information matrix that is not positive definite) propagates."""
+    if np.count_nonzero(_framed(problem, solution)) < 2:
         return {}
+    rel = frame_reliability(problem, solution)
     sd = rel.frame_sd
     effect = np.abs(rel.frame_effect)                                   # (S, 2, 3)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -216,14 +216,36 @@ def test_the_external_effect_is_what_a_re_solve_with_that_bias_moves_the_frame(l
         np.testing.assert_allclose(moved, predicted, rtol=0.03, atol=1e-6 + 0.03 * np.max(np.abs(predicted)))
 
 
+def _landmarks_kept(problem: LandmarkLogProblem, landmarks: list[int]) -> LandmarkLogProblem:
+    """``problem`` with the sightings of ``landmarks`` only, renumbered 0, 1, ... in that order."""
+    keep = np.isin(problem.landmark_index, landmarks)
+    index = np.searchsorted(np.sort(landmarks), problem.landmark_index[keep])
+    return LandmarkLogProblem(problem.increments, problem.increment_variances, problem.pose_index[keep], index,
+                              problem.ranges[keep], problem.bearings[keep], problem.range_sigmas[keep],
+                              problem.bearing_sigmas[keep])
+
+
 def test_no_frame_without_two_landmarks_and_no_figures_then():
     problem = _log_problem(np.random.default_rng(0), 1)
-    keep = problem.landmark_index == problem.landmark_index[0]
-    one = LandmarkLogProblem(problem.increments, problem.increment_variances, problem.pose_index[keep],
-                             np.zeros(int(keep.sum()), int), problem.ranges[keep], problem.bearings[keep],
-                             problem.range_sigmas[keep], problem.bearing_sigmas[keep])
+    one = _landmarks_kept(problem, [int(problem.landmark_index[0])])
     solution = _solved(one)
     with pytest.raises(ValueError, match="two landmarks"):
         frame_reliability(one, solution)
     assert reliability_metrics(one, solution, np.arange(one.n_poses) + 1.0, np.array([6])) == {}
     assert reliability_warning({}) is None
+    # two landmarks make a frame: the figures are there
+    two = _landmarks_kept(problem, [int(problem.landmark_index[0]), int(problem.landmark_index[-1])])
+    m = reliability_metrics(two, _solved(two), np.arange(two.n_poses) + 1.0, np.array([6, 7]))
+    assert np.all(np.isfinite(m["frame_reliability_sd"])) and m["sighting_redundancy_min"] >= 0
+
+
+def test_an_error_that_is_not_the_missing_frame_is_not_taken_for_it():
+    """Only fewer than two landmarks with a kept sighting mean "no figures" ({}): a solution that is not finite (a
+    diverged solve) is an error of its own and is raised, not reported as a run without a frame."""
+    problem = _log_problem(np.random.default_rng(0), 1)
+    solution = _solved(problem)
+    landmarks = solution.landmarks.copy()
+    landmarks[3] = np.nan
+    diverged = dataclasses.replace(solution, landmarks=landmarks)
+    with pytest.raises(ValueError, match="infs or NaNs"):
+        reliability_metrics(problem, diverged, np.arange(problem.n_poses) + 1.0, np.arange(len(LANDMARKS)) + 6)
