@@ -14,18 +14,16 @@ from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.geometry import dead_reckoning, wrap_angle
 from estimation.landmark_scores import CHI2_95, frame_error
-from estimation.landmark_smoother import (
-    LandmarkLogProblem,
-    joint_landmark_covariance,
-    landmarks_from_first_sightings,
-    smooth,
-)
+from estimation.landmark_smoother import LandmarkLogProblem, landmarks_from_first_sightings, smooth
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
-
-THETA_VAR_PER_RAD, XY_VAR_PER_M, FLOOR = 0.0087, 0.003, 1e-8   # MRCLAM-like odometry (rad²/rad, m²/m)
-RANGE_SIGMA, BEARING_SIGMA = 0.03, 0.017
-ANGLES = np.linspace(0, 2 * np.pi, 8, endpoint=False)
-LANDMARKS = np.column_stack([3.0 * np.cos(ANGLES), 1.5 + 3.0 * np.sin(ANGLES)])
+from tests.estimation.frame_helpers import (
+    BEARING_SIGMA,
+    LANDMARKS,
+    RANGE_SIGMA,
+    odometry_variances,
+    seen_joint_covariance,
+    turn_and_lap,
+)
 
 
 def _problem(rng: np.random.Generator, first_heading_variance_factor: float = 1.0):
@@ -33,13 +31,9 @@ def _problem(rng: np.random.Generator, first_heading_variance_factor: float = 1.
     seeing every landmark ahead; the first frame (the map's origin) sees one landmark. Odometry and sightings drawn
     from the model; ``first_heading_variance_factor`` scales the heading variance the smoother is *told* for the
     turn's increments (1: the truth's)."""
-    turn = np.tile([0.0, 0.0, 0.1], (10, 1))
-    lap = np.tile([2 * np.pi * 1.5 / 80, 0.0, 2 * np.pi / 80], (80, 1))
-    true_increments = np.vstack([np.zeros((1, 3)), turn, lap])          # increment 0: origin → first frame, 0 s
+    true_increments = turn_and_lap(10)
     truth = dead_reckoning(true_increments)
-    trans = np.hypot(true_increments[:, 0], true_increments[:, 1])
-    variance = np.column_stack([XY_VAR_PER_M * trans + FLOOR, XY_VAR_PER_M * trans + FLOOR,
-                                THETA_VAR_PER_RAD * np.abs(true_increments[:, 2]) + FLOOR])
+    variance = odometry_variances(true_increments)
     measured = true_increments + rng.standard_normal(variance.shape) * np.sqrt(variance)
     told = variance.copy()
     told[1:11, 2] *= first_heading_variance_factor
@@ -63,10 +57,8 @@ def _problem(rng: np.random.Generator, first_heading_variance_factor: float = 1.
 def _frame(problem, truth) -> dict:
     poses = dead_reckoning(problem.increments)
     solution = smooth(problem, poses, landmarks_from_first_sightings(problem, poses))
-    joint = joint_landmark_covariance(problem, solution)
-    seen = np.flatnonzero(np.isfinite(np.diag(joint)[0::2]))
-    columns = np.column_stack([2 * seen, 2 * seen + 1]).ravel()
-    return frame_error(solution.landmarks[seen], LANDMARKS[seen], joint[np.ix_(columns, columns)])
+    seen, covariance = seen_joint_covariance(problem, solution)
+    return frame_error(solution.landmarks[seen], LANDMARKS[seen], covariance)
 
 
 @settings(max_examples=60, deadline=None)

@@ -26,16 +26,18 @@ from estimation.landmark_smoother import (
     LandmarkLogProblem,
     _Drift,
     _jacobian,
-    joint_landmark_covariance,
     landmarks_from_first_sightings,
     smooth,
     solution_jacobian,
 )
-
-THETA_VAR_PER_RAD, XY_VAR_PER_M, FLOOR = 0.0087, 0.003, 1e-8   # MRCLAM-like odometry (rad²/rad, m²/m)
-RANGE_SIGMA, BEARING_SIGMA = 0.03, 0.017
-ANGLES = np.linspace(0, 2 * np.pi, 8, endpoint=False)
-LANDMARKS = np.column_stack([3.0 * np.cos(ANGLES), 1.5 + 3.0 * np.sin(ANGLES)])
+from tests.estimation.frame_helpers import (
+    BEARING_SIGMA,
+    LANDMARKS,
+    RANGE_SIGMA,
+    joint_frame_covariance,
+    odometry_variances,
+    turn_and_lap,
+)
 
 
 @settings(max_examples=40, deadline=None)
@@ -99,13 +101,9 @@ def _log_problem(rng, first_landmarks: int, exact: bool = False) -> LandmarkLogP
     in 30 frames seeing nothing (MRCLAM's odometry: σ_θ² 0.0087 per radian), then drives a lap of a 1.5 m circle
     seeing every landmark ahead. With one first landmark, that bearing alone ties the map's heading to pose 0 beyond
     the turn's odometry (σ 0.16 rad); with several, each is checked by the others."""
-    turn = np.tile([0.0, 0.0, 0.1], (30, 1))
-    lap = np.tile([2 * np.pi * 1.5 / 80, 0.0, 2 * np.pi / 80], (80, 1))
-    true_increments = np.vstack([np.zeros((1, 3)), turn, lap])          # increment 0: origin → first frame, 0 s
+    true_increments = turn_and_lap(30)
     truth = dead_reckoning(true_increments)
-    trans = np.hypot(true_increments[:, 0], true_increments[:, 1])
-    variance = np.column_stack([XY_VAR_PER_M * trans + 1e-6, XY_VAR_PER_M * trans + 1e-6,
-                                THETA_VAR_PER_RAD * np.abs(true_increments[:, 2]) + FLOOR])
+    variance = odometry_variances(true_increments, xy_floor=1e-6)
     noise = 0.0 if exact else 1.0
     measured = true_increments + noise * rng.standard_normal(variance.shape) * np.sqrt(variance)
     pose_index, landmark_index, ranges, bearings = [], [], [], []
@@ -137,12 +135,7 @@ def test_the_frame_s_sd_is_the_joint_covariance_s_and_every_sighting_has_a_redun
     problem = _log_problem(np.random.default_rng(0), 1)
     solution = _solved(problem)
     rel = frame_reliability(problem, solution)
-    joint = joint_landmark_covariance(problem, solution)
-    seen = np.flatnonzero(np.isfinite(np.diag(joint)[0::2]))
-    columns = np.column_stack([2 * seen, 2 * seen + 1]).ravel()
-    functional = rigid_functional(solution.landmarks[seen])
-    np.testing.assert_allclose(rel.frame_covariance, functional @ joint[np.ix_(columns, columns)] @ functional.T,
-                               rtol=1e-8)
+    np.testing.assert_allclose(rel.frame_covariance, joint_frame_covariance(problem, solution), rtol=1e-8)
     r = rel.redundancy_numbers
     assert np.all((r > 0) & (r < 2))
     # the dense check on the smoother's own Jacobian (all rows): the blocks are those of I − J H⁻¹ Jᵀ

@@ -17,14 +17,14 @@ from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import (
     HeadingDrift,
     SightingOffset,
-    joint_landmark_covariance,
     landmarks_from_first_sightings,
     smooth,
     sole_offset_groups,
     solution_jacobian,
 )
+from tests.estimation.frame_helpers import LANDMARKS, joint_frame_covariance
 
-from .test_frame_reliability import LANDMARKS, _log_problem
+from .test_frame_reliability import _log_problem
 
 
 def _grouped(problem, split: bool):
@@ -67,12 +67,7 @@ def test_with_offsets_the_blocks_are_the_dense_ones_and_the_frame_s_covariance_t
     rows = 3 * problem.n_poses + 2 * kept[:, None] + np.arange(2)
     np.testing.assert_allclose(rel.redundancy[kept], np.eye(2) - hat[rows[:, :, None], rows[:, None, :]], atol=1e-7)
     assert np.all(np.isnan(rel.redundancy[~solution.inliers]))
-    joint = joint_landmark_covariance(problem, solution)
-    seen = np.flatnonzero(np.isfinite(np.diag(joint)[0::2]))
-    columns = np.column_stack([2 * seen, 2 * seen + 1]).ravel()
-    functional = rigid_functional(solution.landmarks[seen])
-    np.testing.assert_allclose(rel.frame_covariance, functional @ joint[np.ix_(columns, columns)] @ functional.T,
-                               rtol=1e-7)
+    np.testing.assert_allclose(rel.frame_covariance, joint_frame_covariance(problem, solution), rtol=1e-7)
 
 
 @pytest.mark.parametrize("first", [1, 3])

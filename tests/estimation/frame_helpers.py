@@ -1,0 +1,49 @@
+"""What the tests of a smoothed map's frame share (tests/estimation/test_frame_reliability*.py,
+tests/datasets/test_anchor_frame.py): MRCLAM-like odometry and sighting noise for their synthetic logs, the ring of
+eight landmarks those logs see, and the frame's covariance read from the landmarks' joint covariance (the reference
+estimation.frame_reliability's own is checked against)."""
+from __future__ import annotations
+
+import numpy as np
+
+from estimation.landmark_scores import rigid_functional
+from estimation.landmark_smoother import LandmarkLogProblem, Smoothed, joint_landmark_covariance
+
+THETA_VAR_PER_RAD, XY_VAR_PER_M, FLOOR = 0.0087, 0.003, 1e-8   # MRCLAM-like odometry (rad²/rad, m²/m)
+RANGE_SIGMA, BEARING_SIGMA = 0.03, 0.017
+ANGLES = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+LANDMARKS = np.column_stack([3.0 * np.cos(ANGLES), 1.5 + 3.0 * np.sin(ANGLES)])
+
+
+def turn_and_lap(turn_frames: int) -> np.ndarray:
+    """(1 + turn_frames + 80, 3) the true increments of a robot that stays at the origin for its first frame (increment
+    0: the origin to the first frame, the map's pose 0), turns on the spot 0.1 rad a frame for ``turn_frames`` frames,
+    then drives a lap of a 1.5 m circle about (0, 1.5) (the ring's centre) in 80."""
+    turn = np.tile([0.0, 0.0, 0.1], (turn_frames, 1))
+    lap = np.tile([2 * np.pi * 1.5 / 80, 0.0, 2 * np.pi / 80], (80, 1))
+    return np.vstack([np.zeros((1, 3)), turn, lap])
+
+
+def odometry_variances(increments: np.ndarray, xy_floor: float = FLOOR) -> np.ndarray:
+    """(T, 3) MRCLAM-like variances of ``increments`` (T, 3): x and y XY_VAR_PER_M per metre travelled + ``xy_floor``,
+    θ THETA_VAR_PER_RAD per radian turned + FLOOR."""
+    xy = XY_VAR_PER_M * np.hypot(increments[:, 0], increments[:, 1]) + xy_floor
+    return np.column_stack([xy, xy, THETA_VAR_PER_RAD * np.abs(increments[:, 2]) + FLOOR])
+
+
+def seen_joint_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> tuple[np.ndarray, np.ndarray]:
+    """The landmarks with a kept sighting (K,) (index order) and their joint covariance (2K, 2K):
+    :func:`~estimation.landmark_smoother.joint_landmark_covariance`'s rows and columns of those (the others' are
+    inf)."""
+    joint = joint_landmark_covariance(problem, solution)
+    seen = np.flatnonzero(np.isfinite(np.diag(joint)[0::2]))
+    columns = np.column_stack([2 * seen, 2 * seen + 1]).ravel()
+    return seen, joint[np.ix_(columns, columns)]
+
+
+def joint_frame_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
+    """(3, 3) the covariance of the frame's (dx, dy, dθ), the seen landmarks' rigid motion about pose 0 at their
+    estimated positions, from their joint covariance: g C gᵀ."""
+    seen, covariance = seen_joint_covariance(problem, solution)
+    functional = rigid_functional(solution.landmarks[seen])
+    return functional @ covariance @ functional.T
