@@ -5,10 +5,10 @@ reckoning and the true path (Vicon on MRCLAM) growing over the log's time, the f
 ones labelled by id under them, and the pose NEES over time (plots/<robot>/pose_nees); in the 3-D world the same
 placed at the robot's true start, with the landmarks' 1-σ ellipsoids shown (the layout is
 :func:`runtime.rerun_style.dataset_blueprint`: whether they cover the truth is what a run with ground truth shows). The
-map's arrays and the run's figures are in the recording too, so ``p3at review FILE.rrd`` summarises it. The run's
-warnings (what the command prints) are logged as WARN text under the map, and when the map's frame rests on a sighting
-nothing checks (``frame_reliability_unchecked``, :mod:`estimation.frame_reliability`) that sighting is drawn in the
-2-D map: a ring on the pose it was taken from and its ray to the landmark, from its time on.
+map's arrays and the run's figures and warnings are in the recording too, so ``p3at review FILE.rrd`` summarises
+it. The warnings (what the command prints) are also WARN text under the map, and when the map's frame rests on a
+sighting nothing checks (``frame_reliability_unchecked``, :mod:`estimation.frame_reliability`) that sighting is drawn
+in the 2-D map: a ring on the pose it was taken from and its ray to the landmark, from its time on.
 
 The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
 pose every ``POSE_INTERVAL_S`` of log time. A saved file is written beside its name and renamed over it when
@@ -92,7 +92,8 @@ def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: 
         mission.log_event(end, warning, level="WARN")
     mission.log_robot_landmarks(robot, end, None, run.map)
     mission.log_map(robot, end, run.map)
-    mission.log_summary({key: value for key, value in run.metrics.items() if np.isscalar(value)} | {"robot": robot})
+    mission.log_summary({key: value for key, value in run.metrics.items() if np.isscalar(value)}
+                        | {"robot": robot, "warnings": list(warnings)})
 
 
 def _log_frame_tie(mission: MissionLog, run: DatasetRun, robot: str, estimated: np.ndarray, t0: float) -> None:

@@ -257,6 +257,8 @@ def _review(args) -> int:
         print(_alignment_line(pair, a))
     if run:
         print(run)
+    for warning in _run_warnings(summary["mission_summary"]):
+        print(f"  WARNING: {warning}")
     if summary["mission_summary"] is None:
         print("  (the mission did not finish: no final summary in the recording)")
     return 0
@@ -275,6 +277,21 @@ def _alignment_line(pair: str, a: dict) -> str:
 
     names = f"{a['other']} -> {a['reference']}" if "other" in a and "reference" in a else pair
     return f"  alignment {names}: {alignment_text(a, missing='?')}"
+
+
+MAX_WARNINGS_SHOWN = 20
+
+
+def _run_warnings(run: dict | None) -> list[str]:
+    """A data set run's warnings as its command printed them (the summary's ``warnings``), each on one printable line
+    (a recording is a file from anywhere: no control character reaches the terminal), at most MAX_WARNINGS_SHOWN."""
+    warnings = run.get("warnings") if isinstance(run, dict) else None
+    if not isinstance(warnings, list):
+        return []
+    lines = ["".join(c if c.isprintable() else "?" for c in w) for w in warnings if isinstance(w, str)]
+    if len(lines) > MAX_WARNINGS_SHOWN:
+        lines = lines[:MAX_WARNINGS_SHOWN] + [f"… and {len(lines) - MAX_WARNINGS_SHOWN} more in the recording"]
+    return lines
 
 
 def _dataset_run_line(run: dict | None) -> str | None:

@@ -117,6 +117,9 @@ def test_real_dataset2_robot1_s_frame_rests_on_its_first_sighting_and_robot2_s_d
     assert "(landmark 11," in tie["Points2D:labels"][0]
     np.testing.assert_allclose(tie["Points2D:positions"][0], [0.0, 0.0], atol=1e-6)    # 7.00 s is pose 0
     assert entity_rows(tmp_path / "robot1.rrd", "map/robot1/frame_tie/ray")
+    status, out, err = run_cli("review", str(tmp_path / "robot1.rrd"), "--no-export")
+    assert status == 0, err
+    assert [line for line in out.splitlines() if "WARNING" in line] == [f"  WARNING: {w}" for w in m["warnings"]]
     status, out, err = run_cli("slam", "dataset", "mrclam", str(mrclam_dir), "--robot", "2", "--out",
                                str(tmp_path / "robot2.npz"), "--json")
     assert status == 0, err

@@ -83,6 +83,20 @@ def test_a_data_set_runs_recording_leads_with_the_runs_figures(tmp_path, capsys)
     assert ("  run: ATE 0.030 m (dead reckoning 3.404 m), landmarks 15 for 15 true, median error 0.022 m, pose NEES "
             "median 1.5 (96 % below χ²₃(95 %)); smoothed over the whole log") in out
     assert "  no alignment in this recording" not in out
+    assert not [line for line in out if "WARNING" in line]
+
+
+def test_a_data_set_runs_warnings_are_printed_on_printable_lines_and_at_most_twenty(tmp_path, capsys):
+    figures = {"ate_m": 0.283, "robot": "robot1",
+               "warnings": ["the map's frame rests on single sightings: …", "a \x1b[2Jhostile\nline", 7]}
+    out = _review(tmp_path, capsys, "warned", lambda log: log.log_summary(figures))
+    assert [line for line in out if "WARNING" in line] == [
+        "  WARNING: the map's frame rests on single sightings: …", "  WARNING: a ?[2Jhostile?line"]
+    many = {"ate_m": 0.283, "warnings": [f"warning {k}" for k in range(25)]}
+    out = _review(tmp_path, capsys, "many", lambda log: log.log_summary(many))
+    shown = [line for line in out if "WARNING" in line]
+    assert shown[0] == "  WARNING: warning 0" and shown[19] == "  WARNING: warning 19"
+    assert shown[20] == "  WARNING: … and 5 more in the recording" and len(shown) == 21
 
 
 def test_a_part_after_its_gap_is_reviewed_with_its_own_1_sigma_as_the_viewer_shows_it(tmp_path, capsys):
