@@ -3,6 +3,13 @@
 Run from the repository root:
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.mrclam_odometry_horizons [--data DIR] [--robots 1 2 3 4 5]
+        [--section all|horizons|two-term|halves|drift] [--without-command]
+
+Every window is scored with the log's commanded velocity, as ``p3at slam noise`` scores a model (session 42 (B2)):
+the model's stall after the command's dips (``stall_sigma_s``, a default calibration since session 42) adds its
+variance to the steps that hold a dip, as the filter adds it to its increments. ``--without-command``: the windows
+without it, the random walk alone, as the tables of sessions 22 (O) and 37 were made (docs/fastslam.md's table of
+the default model per horizon is ``--section horizons --without-command``).
 
 Prints (docs/fastslam-history.md, "Session 22: the odometry model over long open paths (O)"):
 1. per robot and horizon (5-600 s), with the model `p3at slam dataset` fits by default (DATASET_CALIBRATIONS, on the
@@ -126,7 +133,15 @@ def main(argv=None) -> int:
     parser.add_argument("--data", default=str(DATA), help="MRCLAM data set 2 folder")
     parser.add_argument("--robots", type=positive_int, nargs="+", default=[1, 2, 3, 4, 5])
     parser.add_argument("--section", choices=("all", "horizons", "two-term", "halves", "drift"), default="all")
+    parser.add_argument("--without-command", action="store_true",
+                        help="score the windows without the log's commanded velocity: no stall variance after its "
+                             "dips, the random walk alone (the tables of sessions 22 and 37)")
     args = parser.parse_args(argv)
+
+    def command(log):
+        """The log's command rows for the model's stall term, or None (--without-command)."""
+        return None if args.without_command else log.velocities
+
     if not Path(args.data).is_dir():
         print(f"no data set at {args.data}", file=sys.stderr)
         return 2
@@ -137,7 +152,7 @@ def main(argv=None) -> int:
         print("   robot  " + "  ".join(f"{h:>12}" for h in horizons))
         for r, log in logs.items():
             model = estimate_noise([log], **DATASET_CALIBRATIONS).model
-            report = odometry_consistency([(log.odometry, log.ground_truth)], model)
+            report = odometry_consistency([(log.odometry, log.ground_truth)], model, commands=[command(log)])
             print(f"   {r:>5}  " + "  ".join(f"{h.nees_median:6.2f}/{100 * h.within_chi2_95:3.0f} %" for h in report))
     if args.section in ("all", "two-term"):
         print("2. Two-term models fitted on the first halves (pooled), NEES median / % within per horizon on the first "
@@ -149,9 +164,9 @@ def main(argv=None) -> int:
             a, b = half(log, True), half(log, False)
             model_a = estimate_noise([a], **DATASET_CALIBRATIONS).model    # the calibrations of the first half
             for k, h in enumerate(HORIZONS_S):
-                whole[k].append(dead_reckoned_windows(log.odometry, log.ground_truth, model, h))
-                first[k].append(dead_reckoned_windows(a.odometry, a.ground_truth, model_a, h))
-                second[k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model_a, h))
+                whole[k].append(dead_reckoned_windows(log.odometry, log.ground_truth, model, h, command=command(log)))
+                first[k].append(dead_reckoned_windows(a.odometry, a.ground_truth, model_a, h, command=command(a)))
+                second[k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model_a, h, command=command(b)))
         print(_row("whole logs: as fitted", whole, WHITE))
         print(_row("first: as fitted", first, WHITE))
         print(_row("second: as fitted", second, WHITE))
@@ -178,7 +193,8 @@ def main(argv=None) -> int:
             mixed_variances = replace(model_b, odometry=replace(ob, **{k: getattr(oa, k) for k in VARIANCES}))
             for label, model in zip(scored, (model_b, model_a, mixed_calibration, mixed_variances), strict=True):
                 for k, h in enumerate(HORIZONS_S):
-                    scored[label][k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model, h))
+                    scored[label][k].append(dead_reckoned_windows(b.odometry, b.ground_truth, model, h,
+                                                                  command=command(b)))
         for label, windows in scored.items():
             print(_row(label, windows, WHITE))
     if args.section in ("all", "drift"):
@@ -193,8 +209,8 @@ def main(argv=None) -> int:
             parts["whole"].append((log, estimate_noise([log], **DATASET_CALIBRATIONS).model))
 
         def drift_windows(part, drift):
-            return [[dead_reckoned_windows(x.odometry, x.ground_truth, m, h, heading_drift=drift) for x, m in part]
-                    for h in HORIZONS_S]
+            return [[dead_reckoned_windows(x.odometry, x.ground_truth, m, h, heading_drift=drift, command=command(x))
+                     for x, m in part] for h in HORIZONS_S]
 
         def cost(windows) -> float:
             return float(sum(np.log(m / CHI2_3_MEDIAN) ** 2 + ((f - 0.95) / 0.05) ** 2
