@@ -16,7 +16,9 @@ on what it has, ``unscored`` saying why the rest is not there (:func:`estimation
 With or without a truth, ``frame_reliability_*`` say which sightings the map's frame rests on, from the final
 smoothing's design (:func:`estimation.frame_reliability.reliability_metrics`, as the known-ID smoother's; its
 sightings named by time and the chain's name, and by barcode only when the landmarks' truth scores the map); ``p3at
-slam dataset`` warns when one is unchecked.
+slam dataset`` warns when one is unchecked. ``untestable_namings`` and the other ``naming_reliability`` figures say
+the same of the chain's namings (:func:`estimation.naming_reliability.naming_metrics`): a run of a name's sightings the
+map cannot tell from a neighbouring post's that the frame or a stretch of the path rests on (session 43 (A)).
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ from estimation.geometry import compose, dead_reckoning
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_scores import ate, map_scores, pose_nees_figures
 from estimation.named_smoothing import MergeRound
+from estimation.naming_reliability import naming_metrics
 
 __all__ = ["chain_landmark_map", "chain_run", "name_barcodes"]
 
@@ -78,6 +81,8 @@ def chain_run(log: RangeBearingLog, state: MergeRound, robot: str) -> DatasetRun
     # the chain's name, and by its barcode only where the barcodes score the map (the landmarks' truth)
     barcodes = log.landmark_ids[named.sightings] if log.has_ground_truth and len(log.truth_ids) else None
     reliability = reliability_metrics(named.problem, sol, times, named.names, label="name", barcodes=barcodes)
+    # which namings the frame or the path rests on that nothing checks (estimation.naming_reliability), from the design
+    reliability |= naming_metrics(named.problem, sol, times, named.names, barcodes=barcodes)
     if not log.has_ground_truth:
         return DatasetRun(landmark_map, np.zeros((0, 4)), np.column_stack([times, sol.poses[1:]]),
                           np.column_stack([times, dead_in_map]), nees,

@@ -86,10 +86,14 @@ def run_dataset(args: argparse.Namespace) -> int:
         print(f"p3at slam dataset: {e}", file=sys.stderr)
         return 2
     from estimation.frame_reliability import reliability_warning
+    from estimation.naming_reliability import naming_warning
 
-    # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too)
+    # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too); the
+    # chain's frame or path resting on a naming nothing checks, likewise
     reliability = reliability_warning(run.metrics)
+    naming = naming_warning(run.metrics)
     warnings = (_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
+                + ([] if naming is None else [naming])
                 + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []))
     if args.rerun:
         from runtime.dataset_recording import record_dataset_run
