@@ -8,7 +8,9 @@ placed at the robot's true start, with the landmarks' 1-σ ellipsoids shown (the
 map's arrays and the run's figures and warnings are in the recording too, so ``p3at review FILE.rrd`` summarises
 it. The warnings (what the command prints) are also WARN text under the map, and when the map's frame rests on a
 sighting nothing checks (``frame_reliability_unchecked``, :mod:`estimation.frame_reliability`) that sighting is drawn
-in the 2-D map: a ring on the pose it was taken from and its ray to the landmark, from its time on.
+in the 2-D map: a ring on the pose it was taken from and its ray to the landmark, from its time on. A chain's map
+whose frame or path rests on a naming nothing checks (``untestable_namings``, :mod:`estimation.naming_reliability`)
+has the stretch of path that naming's sightings were taken from drawn the same way, labelled with the name.
 
 The run is logged after it finished (the filter runs in estimation, which knows nothing of Rerun), thinned to one
 pose every ``POSE_INTERVAL_S`` of log time. A saved file is written beside its name and renamed over it when
@@ -88,6 +90,7 @@ def _log_run(mission: MissionLog, run: DatasetRun, log: RangeBearingLog, robot: 
         mission.log_pose(robot, float(t), None, estimated[k], true=true[k], odometry=dead[k])
     end = float(times[-1]) if len(times) else 0.0
     _log_frame_tie(mission, run, robot, estimated, t0)
+    _log_naming_ties(mission, run, robot, estimated, t0)
     for warning in warnings:
         mission.log_event(end, warning, level="WARN")
     mission.log_robot_landmarks(robot, end, None, run.map)
@@ -112,3 +115,24 @@ def _log_frame_tie(mission: MissionLog, run: DatasetRun, robot: str, estimated: 
     label = (f"the frame rests on this {sighting['component']} ({which} {identity}, "
              f"{max(m['frame_reliability_effect_sd']):.1f} σ)")
     mission.log_frame_tie(robot, float(run.estimated_trajectory[k, 0] - t0), estimated[k], landmark, label)
+
+
+MAX_NAMING_TIES = 5   # the worst first: more would hide the map under them (the JSON has them all)
+
+
+def _log_naming_ties(mission: MissionLog, run: DatasetRun, robot: str, estimated: np.ndarray, t0: float) -> None:
+    """Each unchecked naming's run (``untestable_namings``, worst first, at most MAX_NAMING_TIES): the estimated path
+    between its first and last sighting."""
+    times = run.estimated_trajectory[:, 0]
+    for k, naming in enumerate(run.metrics.get("untestable_namings") or []):
+        if k == MAX_NAMING_TIES or not len(times):
+            return
+        seen = np.flatnonzero((times >= naming["start_s"]) & (times <= naming["end_s"]))
+        if not len(seen):
+            continue
+        # None: the frame's move is unbounded (the stretch the run ties floats without it)
+        effects = naming["frame_effect_sd"]
+        moved = "the frame floats without it" if None in effects else f"{max(effects):.1f} σ of the frame"
+        label = (f"these {naming['sightings']} sightings ({naming['start_s']:.2f}-{naming['end_s']:.2f} s) named "
+                 f"{naming['name']}: the map rests on that naming and nothing checks it ({moved})")
+        mission.log_naming_tie(robot, str(k), float(times[seen[0]] - t0), estimated[seen, :2], label)

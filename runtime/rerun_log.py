@@ -34,6 +34,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     map/<robot>/true_landmarks            Points2D, a data set's true landmarks (static, labelled)
     map/<robot>/frame_tie[/ray]           Points2D (labelled) + LineStrips2D: a data set run's sighting its frame
                                           rests on, unchecked (estimation.frame_reliability), and its ray
+    map/<robot>/naming_tie/<k>[/start]    LineStrips2D + Points2D (labelled): the path a chain's naming its frame or
+                                          path rests on, unchecked, was seen from (estimation.naming_reliability)
     map/fused/building                    the walls in the fused map's frame (the reference robot's start)
     map/fused/<robot>                     Transform3D: the robot's frame as the fusion aligned it
     map/fused/<robot>/{trajectory,pose}   its path from its last map snapshot
@@ -580,6 +582,18 @@ class MissionLog:
             ray = np.array([pose, np.asarray(landmark, float).reshape(-1)[:2]])
             self.rec.log(f"{root}/frame_tie/ray", rr.LineStrips2D([ray], radii=-2.0, colors=FRAME_TIE_COLOUR,
                                                                 draw_order=11.0))
+
+    def log_naming_tie(self, robot: str, key: str, t: float, path: np.ndarray, label: str) -> None:
+        """A run of sightings whose naming a chain's map rests on, untested (:mod:`estimation.naming_reliability`):
+        the stretch of the estimated path ``path`` (N, 2) it was seen from, thick and labelled at its start, in the
+        robot's 2-D map under naming_tie/<key> (drawn from ``t``, the run's first time)."""
+        self._rows.set_time(t)
+        root = self._map_root(robot)
+        path = np.asarray(path, float).reshape(-1, 2)
+        self.rec.log(f"{root}/naming_tie/{key}", rr.LineStrips2D([path], radii=-5.0, colors=FRAME_TIE_COLOUR,
+                                                               draw_order=11.0))
+        self.rec.log(f"{root}/naming_tie/{key}/start", rr.Points2D(path[:1], radii=-7.0, colors=FRAME_TIE_COLOUR,
+                                                                   labels=[label], show_labels=True, draw_order=11.0))
 
     # -- maps, fusion and the summary -----------------------------------------------------------------
     def log_map(self, key: str, t: float, landmark_map: LandmarkMap, *, draw: bool = True,

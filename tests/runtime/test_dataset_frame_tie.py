@@ -1,7 +1,10 @@
-"""A data set run's recording shows what the command warns about: the warnings as WARN text under the map, and the
+"""A data set run's recording shows what the command warns about: the warnings as WARN text under the map, the
 sighting an unchecked frame rests on (estimation.frame_reliability) drawn where it was taken, with its ray to its
-landmark. A run whose frame is checked draws no such sighting, and a run without warnings has no warnings panel."""
+landmark, and a chain's unchecked namings (estimation.naming_reliability) as the stretch of path their sightings were
+taken from. A run whose frame is checked draws no such sighting, and a run without warnings has no warnings panel."""
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -57,3 +60,27 @@ def test_the_warnings_panel_is_in_the_layout_only_when_there_are_warnings(warned
     layout = dataset_blueprint("robot1", warned=warned)
     views = [view.class_identifier for view in blueprint_views(layout.root_container)]
     assert ("TextLog" in views) == warned
+
+
+def test_an_unchecked_naming_is_drawn_along_the_path_its_sightings_were_taken_from(tmp_path):
+    """The figures as naming_metrics gives them (the chain's; here on a known-ID run, whose recording is the same
+    code): the path between the run's first and last sighting, labelled at its start; an unbounded move says so."""
+    log = _log(3)
+    run = run_landmark_log(log, range_bearing_config(n_particles=10), np.random.default_rng(0), noise=NOISE,
+                           association="id", robot="robot1", smooth=True)
+    times = run.estimated_trajectory[:, 0]
+    namings = [{"name": 4, "start_s": float(times[5]), "end_s": float(times[9]), "sightings": 7,
+                "frame_effect_sd": [19.1, 3.0, 2.0]},
+               {"name": 2, "start_s": float(times[20]), "end_s": float(times[20]), "sightings": 1,
+                "frame_effect_sd": [None, None, 8.0]}]
+    rrd = tmp_path / "named.rrd"
+    record_dataset_run(str(rrd), dataclasses.replace(run, metrics={**run.metrics, "untestable_namings": namings}),
+                       log, "robot1", ["the map rests on namings nothing checks: …"])
+    [first] = entity_rows(rrd, "map/robot1/naming_tie/0")
+    np.testing.assert_allclose(first["LineStrips2D:strips"][0], run.estimated_trajectory[5:10, 1:3], atol=1e-5)
+    [start] = entity_rows(rrd, "map/robot1/naming_tie/0/start")
+    label = start["Points2D:labels"][0]
+    assert label.startswith("these 7 sightings (") and " named 4: " in label and "(19.1 σ of the frame)" in label
+    [second] = entity_rows(rrd, "map/robot1/naming_tie/1/start")
+    assert "the frame floats without it" in second["Points2D:labels"][0]
+    assert entity_rows(rrd, "map/robot1/frame_tie") == []                   # the frame itself is checked here
