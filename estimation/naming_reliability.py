@@ -259,13 +259,16 @@ def naming_warning(metrics: dict) -> str | None:
                      + ("(nothing else holds it)" if np.isinf(sd[axis]) else f"({sd[axis]:.1f} σ)"))
     if n["path"] is not None:
         p = n["path"]
-        worst = "without bound" if p["worst_sd"] is None else f"up to {p['worst_sd']:.1f} σ"
-        parts.append(f"the path from {p['start_s']:.1f} s to {p['end_s']:.1f} s ({p['poses']} poses) {worst}")
+        worst = "can move without bound" if p["worst_sd"] is None else f"can move up to {p['worst_sd']:.1f} σ"
+        parts.append(f"the pose at {p['start_s']:.1f} s {worst}" if p["poses"] == 1 else
+                     f"the path from {p['start_s']:.1f} s to {p['end_s']:.1f} s ({p['poses']} poses) {worst}")
     codes = "" if "barcodes" not in n else " (barcodes " + ", ".join(
         f"{c}: {m}" for c, m in n["barcodes"].items()) + ")"
     more = len(namings) - 1
-    return (f"the map rests on a naming nothing checks: name {n['name']}'s {n['sightings']} sightings at "
-            f"{n['start_s']:.2f}–{n['end_s']:.2f} s{codes} cannot be told from a post "
+    run = (f"sighting at {n['start_s']:.2f} s" if n["sightings"] == 1 else
+           f"{n['sightings']} sightings at {n['start_s']:.2f}–{n['end_s']:.2f} s")
+    return (f"the map rests on a naming nothing checks: name {n['name']}'s {run}{codes} cannot be told from a post "
             f"{metrics['naming_reliability_spacing_m']:.2f} m away (the map's nearest two seen together), and were "
-            f"they of another, " + " and ".join(parts) + " unseen by any test (δ₀ 4.13)"
+            f"{'it' if n['sightings'] == 1 else 'they'} of another, " + " and ".join(parts)
+            + f" unseen by any test (δ₀ {DELTA_0:g})"
             + (f"; {more} more such namings" if more else ""))

@@ -241,3 +241,14 @@ def test_the_chain_s_final_map_carries_the_naming_with_or_without_the_truth():
     blind = chain_run(blind_log, misnamed_state(blind_log), "robot1").metrics
     assert "unscored" in blind and blind["naming_reliability_unchecked"]
     assert blind["untestable_namings"] == [{k: v for k, v in n.items() if k != "barcodes"}]
+
+
+def test_the_warning_speaks_of_one_sighting_and_one_pose_in_the_singular():
+    metrics = {"naming_reliability_spacing_m": 0.6, "untestable_namings": [
+        {"name": 8, "start_s": 233.34, "end_s": 233.34, "sightings": 1, "frame_effect": [0.0, 0.0, 0.0],
+         "frame_effect_sd": [0.01, 0.02, 0.02], "path": {"start_s": 233.34, "end_s": 233.34, "poses": 1,
+                                                         "worst_sd": 4.7}}]}
+    assert naming_warning(metrics) == (
+        "the map rests on a naming nothing checks: name 8's sighting at 233.34 s cannot be told from a post 0.60 m "
+        "away (the map's nearest two seen together), and were it of another, the pose at 233.3 s can move up to "
+        "4.7 σ unseen by any test (δ₀ 4.13)")
