@@ -461,6 +461,9 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
         prior_hypotheses=ev.hypotheses if inside is not None else 0, outside_prior_supports=ev.outside,
         colocation=colocation_note, colocation_removed_supports=ev.impossible, **rival)
 
+    # the evidence counted in the gate the winner's converged fit calls for (fusion.evidence.evidence): say so
+    narrowed = (f" (counted in the gate of the best one's converged fit, median radius {ev.narrowed_gate:.2f} m, not "
+                f"the {problem.gate_radius:.2f} m its polishing left)" if ev.narrowed else "")
     counted = raw_count if not config.refine and with_descriptors else len(supports)
     if counted < config.min_supports:
         return not_found(f"{no_desc}only {counted} supports (at least {config.min_supports} needed)", stats, supports)
@@ -475,18 +478,18 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
             return not_found(
                 f"ambiguous: one map repeats itself under a distinct transform with {ev.self_repeat} supports "
                 f"(repeated structure), so a wrong alignment could gather as many as the best one's {s}; on these "
-                f"maps {ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f}); "
+                f"maps {ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f}){narrowed}; "
                 f"{DISAMBIGUATION}", stats, supports)
         if ev.ambiguous:
             what = rival_text(stats)
             return not_found(
                 f"ambiguous: a distinct transform gathers {ev.second_best} supports against the best one's {s} "
                 f"(repeated structure{': ' + what if what else ''}); on these maps {ev.required} would be needed "
-                f"(false-alarm probability 10^{ev.log10_p:.1f}); {DISAMBIGUATION}", stats, supports)
+                f"(false-alarm probability 10^{ev.log10_p:.1f}){narrowed}; {DISAMBIGUATION}", stats, supports)
         return not_found(
             f"{no_desc}{s} supports are explainable by chance: a wrong transform gathers "
             f"{stats.expected_chance_supports:.1f} on these maps and the best of {ev.hypotheses} hypotheses more; "
-            f"{ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f})", stats, supports)
+            f"{ev.required} would be needed (false-alarm probability 10^{ev.log10_p:.1f}){narrowed}", stats, supports)
     if major < config.min_spread:
         return not_found(f"the {s} supports are bunched within {major:.2f} m (at least {config.min_spread} m "
                          f"spread needed to fix the angle)", stats, supports)
