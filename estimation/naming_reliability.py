@@ -27,7 +27,16 @@ sighting, with the run's offset for the sighting's error:
   δ₀ √(Δvar_a / var_a), Δvar_a = K_a V⁻¹ K_aᵀ being what freeing δ adds to the frame's variance. So an untestable
   naming moves a coordinate by more than δ₀ σ exactly when without it that coordinate's variance more than doubles:
   the frame rests more on that naming than on everything else. The same per pose (x, y, heading) gives the stretch
-  of the path that rests on it.
+  of the path that rests on it, the run's own frames apart: a pose that sees only the run rests on it whatever it
+  is named (MRCLAM's default chains: 7 right namings of short runs on robot 2 move their own poses by 4.1-10.0 σ,
+  the wrong ones of robots 2 and 5 theirs by 65.5 and 4.7 σ), and what is asked is what the naming *ties*: robot 1's
+  island with its truth-free model moves from 50.9 s on, 4074 poses (``own_effect_sd`` keeps the own frames' worst).
+
+Measured (session 43 (A); the chain's final states, seed 0): robot 1 with the truth-free ``self-kd-1`` model (frame
+0.9 m off, NEES 667) flagged on its one wrong untestable naming, the 7 sightings of post 12 at 7.98-9.86 s named as
+post 13: 19.1 σ of the frame's x, the path from 50.9 s on; the default (in-sample) chains of robots 1, 2, 5 and robot
+1's first 400 s: frames ≤ 0.5 σ, one flag, robot 2's 2 right sightings of post 17 at 1826.0-1826.3 s moving
+the pose before them (1825.5 s) by 5.2 σ.
 - The split itself: δ̂ = −V⁻¹J_δᵀr, the frame's first-order move −Kδ̂ if the run had a name of its own (what the
   data say the naming costs; the warning does not rest on it: an untestable naming's δ̂ is as likely noise).
 
@@ -65,7 +74,8 @@ class NamingReliability:
     the most an offset the data's test finds ≤ 80 % of the time moves the frame's (x, y, θ) (m, m, rad; inf where V is
     singular); ``frame_effect_sd`` (R, 3) the same in the frame's σ; ``split_shift`` (R, 3) the frame's first-order
     move were the run given a name of its own (NaN where V is singular); ``path_effect_sd`` {r: (T, 3)} for each
-    untestable run r, per pose 1..T the most such an offset moves its (x, y, θ) in the pose's σ; the
+    untestable run r, per pose 1..T the most such an offset moves its (x, y, θ) in the pose's σ, 0 at the run's own
+    frames, whose worst is ``own_effect_sd`` (R,) (NaN for a testable run); the
     frame's ``frame_sd`` (3,), ``spacing_m`` (covisible_spacing), ``delta0``."""
 
     runs: list[Run]
@@ -75,6 +85,7 @@ class NamingReliability:
     frame_effect_sd: np.ndarray
     split_shift: np.ndarray
     path_effect_sd: dict[int, np.ndarray]
+    own_effect_sd: np.ndarray
     frame_sd: np.ndarray
     spacing_m: float
     delta0: float
@@ -146,6 +157,7 @@ def naming_reliability(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s
     effect = np.full((count, 3), np.nan)
     shift = np.full((count, 3), np.nan)
     path: dict[int, np.ndarray] = {}
+    own_worst = np.full(count, np.nan)
     _, residuals, _ = normalised_residuals(problem, solution)
     reach = np.sqrt(chi2.ppf(1 - alpha, 2))
     base = 3 * t                                             # the sightings' rows follow the odometry's 3T
@@ -186,10 +198,14 @@ def naming_reliability(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s
                 added = np.einsum("tai,ij,taj->ta", pose_w, cov, pose_w)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     path[i] = delta0 * np.sqrt(np.where(added > 0, added / pose_var, 0.0))
+    for i, moved in path.items():                           # the run's own frames apart (module docstring)
+        own_frames = np.unique(problem.pose_index[runs[i].sightings]) - 1
+        own_worst[i] = float(moved[own_frames].max())
+        moved[own_frames] = 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         effect_sd = np.where(effect == 0, 0.0, effect / frame_sd)
-    return NamingReliability(runs, untestable, offset_sd, effect, effect_sd, shift, path, frame_sd, float(spacing),
-                             float(delta0))
+    return NamingReliability(runs, untestable, offset_sd, effect, effect_sd, shift, path, own_worst, frame_sd,
+                             float(spacing), float(delta0))
 
 
 def naming_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: np.ndarray, names: np.ndarray, *,
@@ -230,6 +246,7 @@ def naming_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: np.nd
         sighted = times[problem.pose_index[run.sightings] - 1]
         entry = {"name": int(names[run.landmark]), "start_s": float(sighted.min()), "end_s": float(sighted.max()),
                  "sightings": int(len(run.sightings)), "offset_sd_m": finite([rel.offset_sd[i]])[0],
+                 "own_poses_effect_sd": finite([rel.own_effect_sd[i]])[0],
                  "frame_effect": finite(rel.frame_effect[i]), "frame_effect_sd": finite(rel.frame_effect_sd[i]),
                  "split_frame_shift": finite(rel.split_shift[i]), "path": stretch}
         if barcodes is not None:

@@ -94,6 +94,7 @@ def test_an_island_joined_only_by_a_misnamed_glimpse_is_flagged_on_that_run_with
     assert 1.5 <= n["start_s"] < n["end_s"] <= 4.5
     assert max(n["frame_effect_sd"]) > 3 * 4.13                        # ~24 σ of heading
     assert n["path"]["start_s"] > 10.0 and n["path"]["end_s"] == pytest.approx(_times(problem)[-1])
+    assert 0 <= n["own_poses_effect_sd"] < n["path"]["worst_sd"]     # the glimpse's own frames are not what it ties
     assert m["naming_reliability_spacing_m"] == pytest.approx(1.0, abs=0.1)     # Q and R, seen together
     # the same run untestable_runs (estimation.batch_audit) finds: one rule for the merges' audit and for this
     found = untestable_runs(problem, solution)
