@@ -109,8 +109,8 @@ def test_without_drift_the_gls_is_the_alignments_weighted_fit(tx, ty, th, seed):
 def test_with_a_shared_drift_the_start_landmarks_hold_the_frame(e, seed):
     """Map 2: 8 landmarks made at its start (no drift) and 40 made after a turn that left its heading e off, all
     sharing that drift (σθ 0.05, as the file says). Fitted as independent (the alignment's weighted fit), the 40
-    pull the pose a few per cent of e towards it; with their shared drift (GLS) the start's landmarks hold the frame
-    (below a quarter of e, and at most half the independent fit's error)."""
+    pull the pose towards it, most layouts by a few per cent of e; with their shared drift (GLS) the start's landmarks
+    hold the frame (below a quarter of e, and at most half the independent fit's error when that is not negligible)."""
     rng = np.random.default_rng(seed)
     early, late = rng.uniform(-6, 6, (8, 2)), rng.uniform(-6, 6, (40, 2))
     place = np.array([4.0, 1.0])                                      # where the robot was when it turned
@@ -131,7 +131,10 @@ def test_with_a_shared_drift_the_start_landmarks_hold_the_frame(e, seed):
     wls, _, _ = refine_pose(m1.positions, m1.covariances, m2.positions, m2.covariances, pose, 0.02)
     gls_err, wls_err = abs(wrap_angle(gls[2] - pose[2])), abs(wrap_angle(wls[2] - pose[2]))
     assert gls_err < 0.25 * abs(e)
-    assert wls_err > 2 * gls_err
+    # at most half the independent fit's error, unless both are negligible: a layout whose turned landmarks the
+    # independent fit already weighs down leaves it a thousandth of e off (e 0.117 rad, seed 335615813: 4e-6 rad,
+    # GLS 1.6e-5), and there is nothing left to halve
+    assert gls_err <= max(0.5 * wls_err, 1e-3 * abs(e))
 
 
 def test_the_script_refuses_a_folder_without_maps(tmp_path, capsys):
