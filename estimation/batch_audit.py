@@ -37,7 +37,7 @@ import numpy as np
 
 from . import chi2
 from .landmark_smoother import LandmarkLogProblem, Smoothed
-from .map_honesty import Run, sighting_runs
+from .map_honesty import Run, minor_runs
 from .merge_audit import covisible_spacing, held_parts, part_splits
 
 __all__ = ["GroupOffsets", "group_offsets", "untestable_groups", "untestable_runs"]
@@ -130,12 +130,7 @@ def untestable_runs(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s: f
     (merge_audit's "untestable", on runs). A name's largest
     run is never returned (ties: the earliest): it is what the name is. Such a run holds the stretch it was seen from
     to wherever its name is, whether or not it is that name's post, and nothing can say which."""
-    runs = sighting_runs(problem, solution, gap_s)
-    largest: dict[int, Run] = {}
-    for run in runs:
-        if run.landmark not in largest or len(run.sightings) > len(largest[run.landmark].sightings):
-            largest[run.landmark] = run
-    candidates = [run for run in runs if largest[run.landmark] is not run]
+    candidates = minor_runs(problem, solution, gap_s)
     if not candidates:
         return []
     splits = part_splits(problem, solution, candidates)

@@ -109,25 +109,9 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
     group's offset, marginalised by the smoother, enters the sightings only as a sum with its landmark, so it changes
     no redundancy nor effect, and adds its σ² I to its landmark in the frame's covariance, as
     :func:`~estimation.landmark_smoother.joint_landmark_covariance` has it."""
-    t, n_landmarks = problem.n_poses, len(solution.landmarks)
-    seen = _framed(problem, solution)
-    if seen.sum() < 2:
-        raise ValueError(f"a frame needs two landmarks with a kept sighting, not {int(seen.sum())}")
-    jac, width = solution_jacobian(problem, solution)
-    free = np.ones(jac.shape[1], bool)
-    free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)
-    inverse = SelectedInverse(jac, free, t, width)
-    # the frame's functional: the landmarks' rigid motion about the origin, on their columns among the free ones
-    functional = np.zeros((3, int(free.sum())))
-    functional[:, width * t:width * t + 2 * int(seen.sum())] = rigid_functional(solution.landmarks[seen])
-    u = inverse.factor.solve(functional.T)                                       # H⁻¹ gᵀ, (n, 3)
-    frame_covariance = functional @ u
-    if solution.sighting_offset is not None and solution.sighting_offset.on:
-        sole = np.zeros(n_landmarks, bool)
-        sole[sole_offset_groups(problem)[:, 0]] = True
-        on_sole = np.repeat(sole[seen], 2)                                       # the seen landmarks' columns
-        rigid = functional[:, width * t:width * t + 2 * int(seen.sum())][:, on_sole]
-        frame_covariance = frame_covariance + solution.sighting_offset.sigma_m ** 2 * rigid @ rigid.T
+    t = problem.n_poses
+    frame = frame_problem(problem, solution)
+    inverse, u = frame.inverse, frame.gain
     s = len(problem.ranges)
     kept = np.flatnonzero(solution.inliers)
     rows = 3 * t + 2 * kept
@@ -142,15 +126,62 @@ def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: f
         in_sigmas = np.where(np.isnan(own), np.nan, in_sigmas)
         sigmas = np.column_stack([problem.range_sigmas, problem.bearing_sigmas])
         effect = np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
-    return FrameReliability(redundancy, in_sigmas * sigmas, effect, 0.5 * (frame_covariance + frame_covariance.T),
-                            float(delta0))
+    return FrameReliability(redundancy, in_sigmas * sigmas, effect,
+                            0.5 * (frame.covariance + frame.covariance.T), float(delta0))
 
 
 def _framed(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
     """(L,) bool: the landmarks with a kept sighting, the points the frame's rigid motion is of."""
     seen = np.zeros(len(solution.landmarks), bool)
-    seen[problem.landmark_index[solution.inliers]] = True
+    seen[problem.landmark_index[np.asarray(solution.inliers, bool)]] = True
     return seen
+
+
+def has_frame(problem: LandmarkLogProblem, solution: Smoothed) -> bool:
+    """Whether ``solution`` has a frame to speak of: two landmarks with a kept sighting (a rotation needs two
+    points)."""
+    return int(np.count_nonzero(_framed(problem, solution))) >= 2
+
+
+@dataclass(frozen=True)
+class FrameProblem:
+    """What every question about a smoothed map's frame asks of the problem's design, from one factorisation:
+    ``inverse`` (:class:`SelectedInverse` over the ``free`` columns of the whitened Jacobian: the poses' band, the
+    landmarks with a kept sighting ``seen``, the dense extras), ``width`` the columns of a pose, ``functional``
+    (3, free) the frame (the seen landmarks' rigid motion about pose 0) on those columns, ``gain`` H⁻¹ gᵀ (free, 3)
+    and the frame's ``covariance`` (3, 3), with the sole offset groups' σ² I (marginalised by the smoother)."""
+
+    inverse: SelectedInverse
+    free: np.ndarray
+    seen: np.ndarray
+    width: int
+    functional: np.ndarray
+    gain: np.ndarray
+    covariance: np.ndarray
+
+
+def frame_problem(problem: LandmarkLogProblem, solution: Smoothed) -> FrameProblem:
+    """``solution``'s :class:`FrameProblem`. Needs a frame (:func:`has_frame`; ValueError otherwise)."""
+    t, n_landmarks = problem.n_poses, len(solution.landmarks)
+    seen = _framed(problem, solution)
+    if seen.sum() < 2:
+        raise ValueError(f"a frame needs two landmarks with a kept sighting, not {int(seen.sum())}")
+    jac, width = solution_jacobian(problem, solution)
+    free = np.ones(jac.shape[1], bool)
+    free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)
+    inverse = SelectedInverse(jac, free, t, width)
+    # the frame's functional: the landmarks' rigid motion about the origin, on their columns among the free ones
+    functional = np.zeros((3, int(free.sum())))
+    functional[:, width * t:width * t + 2 * int(seen.sum())] = rigid_functional(solution.landmarks[seen])
+    gain = inverse.factor.solve(functional.T)                                    # H⁻¹ gᵀ, (n, 3)
+    covariance = functional @ gain
+    if solution.sighting_offset is not None and solution.sighting_offset.on:
+        sole = np.zeros(n_landmarks, bool)
+        sole[sole_offset_groups(problem)[:, 0]] = True
+        on_sole = np.repeat(sole[seen], 2)                                       # the seen landmarks' columns
+        rigid = functional[:, width * t:width * t + 2 * int(seen.sum())][:, on_sole]
+        covariance = covariance + solution.sighting_offset.sigma_m ** 2 * rigid @ rigid.T
+    return FrameProblem(inverse, free, seen, width, functional, gain, covariance)
 
 
 class SelectedInverse:
@@ -266,7 +297,7 @@ def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: 
 
     {} when there is no frame to speak of (fewer than two landmarks with a kept sighting); any other error of the
     figures (a solution that is not finite, an information matrix that is not positive definite) propagates."""
-    if np.count_nonzero(_framed(problem, solution)) < 2:
+    if not has_frame(problem, solution):
         return {}
     rel = frame_reliability(problem, solution)
     sd = rel.frame_sd

@@ -70,8 +70,9 @@ from .landmark_smoother import (
     solution_jacobian,
 )
 
-__all__ = ["Run", "flagged_landmarks", "flagged_runs", "implied_points", "jumping_landmarks", "self_covisible_frames",
-           "split_scores", "sighting_runs", "sighting_times", "sighting_jumps", "split_threshold", "two_point_split"]
+__all__ = ["Run", "flagged_landmarks", "flagged_runs", "implied_points", "jumping_landmarks", "minor_runs",
+           "self_covisible_frames", "split_scores", "sighting_runs", "sighting_times", "sighting_jumps",
+           "split_threshold", "two_point_split"]
 
 _SOLVE_COLUMNS = 256        # right-hand sides per banded solve (each column is one float per variable)
 
@@ -113,6 +114,17 @@ def sighting_runs(problem: LandmarkLogProblem, solution: Smoothed, gap_s: float)
             out.append(Run(int(landmark), part, float(times[part[0]]), float(times[part[-1]])))
     return out
 
+
+
+def minor_runs(problem: LandmarkLogProblem, solution: Smoothed, gap_s: float) -> list[Run]:
+    """Every run of :func:`sighting_runs` but its landmark's largest (ties: the earliest): the largest is what the
+    name is, the others what could have been named otherwise."""
+    runs = sighting_runs(problem, solution, gap_s)
+    largest: dict[int, Run] = {}
+    for run in runs:
+        if run.landmark not in largest or len(run.sightings) > len(largest[run.landmark].sightings):
+            largest[run.landmark] = run
+    return [run for run in runs if largest[run.landmark] is not run]
 
 def split_scores(problem: LandmarkLogProblem, solution: Smoothed, runs: list[Run], details: dict | None = None,
                  *, floor_m: float = 0.0) -> np.ndarray:

@@ -55,10 +55,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import chi2
-from .frame_reliability import DELTA_0, SelectedInverse
-from .landmark_scores import rigid_functional
-from .landmark_smoother import LandmarkLogProblem, Smoothed, normalised_residuals, solution_jacobian
-from .map_honesty import Run, sighting_runs
+from .frame_reliability import DELTA_0, frame_problem, has_frame
+from .landmark_smoother import LandmarkLogProblem, Smoothed, normalised_residuals
+from .map_honesty import Run, minor_runs
 from .merge_audit import covisible_spacing
 
 __all__ = ["NamingReliability", "naming_metrics", "naming_reliability", "naming_warning"]
@@ -99,58 +98,22 @@ class NamingReliability:
         return self.untestable & ((frame > self.delta0) | (path > self.delta0))
 
 
-def _sole_offset_landmarks(problem: LandmarkLogProblem) -> np.ndarray:
-    """The landmarks whose sightings are all of one offset group that holds no other landmark's: the smoother
-    marginalises their offset (no column; its σ² I added to the landmark's covariance), as frame_reliability has it."""
-    pairs = np.unique(np.column_stack([problem.landmark_index, problem.offset_groups]).reshape(-1, 2), axis=0)
-    if not len(pairs):
-        return np.zeros(0, int)
-    per_landmark = np.bincount(pairs[:, 0])[pairs[:, 0]]
-    per_group = np.bincount(pairs[:, 1])[pairs[:, 1]]
-    return pairs[(per_landmark == 1) & (per_group == 1), 0]
-
-
-def _candidates(problem: LandmarkLogProblem, solution: Smoothed, gap_s: float) -> list[Run]:
-    """Every run of a name but its largest (ties: the earliest), as untestable_runs takes them."""
-    runs = sighting_runs(problem, solution, gap_s)
-    largest: dict[int, Run] = {}
-    for run in runs:
-        if run.landmark not in largest or len(run.sightings) > len(largest[run.landmark].sightings):
-            largest[run.landmark] = run
-    return [run for run in runs if largest[run.landmark] is not run]
-
-
 def naming_reliability(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s: float = 5.0, alpha: float = 0.01,
                        delta0: float = DELTA_0) -> NamingReliability:
     """The figures of the module docstring for every candidate run of ``solution`` (one factorisation of H; two
     solves per run). Needs two landmarks with a kept sighting (a frame)."""
     if not 0 < alpha < 1:
         raise ValueError(f"need 0 < α < 1, not {alpha}")
-    t, n = problem.n_poses, len(solution.landmarks)
-    jac, width = solution_jacobian(problem, solution)
-    seen = np.zeros(n, bool)
-    seen[problem.landmark_index[np.asarray(solution.inliers, bool)]] = True
-    if seen.sum() < 2:
-        raise ValueError(f"a frame needs two landmarks with a kept sighting, not {int(seen.sum())}")
-    free = np.ones(jac.shape[1], bool)
-    free[width * t:width * t + 2 * n] = np.repeat(seen, 2)
-    column = np.cumsum(free) - 1
-    inverse = SelectedInverse(jac, free, t, width)
+    t = problem.n_poses
+    frame = frame_problem(problem, solution)
+    inverse, width, functional = frame.inverse, frame.width, frame.functional
     jac = inverse.jac
-    functional = np.zeros((3, int(free.sum())))
-    rigid = rigid_functional(solution.landmarks[seen])
-    functional[:, width * t:width * t + 2 * int(seen.sum())] = rigid
-    frame_cov = functional @ inverse.factor.solve(functional.T)
-    if solution.sighting_offset is not None and solution.sighting_offset.on:
-        sole = np.zeros(n, bool)
-        sole[_sole_offset_landmarks(problem)] = True
-        on_sole = rigid[:, np.repeat(sole[seen], 2)]
-        frame_cov = frame_cov + solution.sighting_offset.sigma_m ** 2 * on_sole @ on_sole.T
-    frame_sd = np.sqrt(np.diag(frame_cov))
+    column = np.cumsum(frame.free) - 1
+    frame_sd = np.sqrt(np.diag(frame.covariance))
     pose_cols = (width * np.arange(t)[:, None] + np.arange(3)).ravel()
     pose_var = inverse.entries(pose_cols, pose_cols).reshape(t, 3)
     spacing = covisible_spacing(problem, solution)
-    runs = _candidates(problem, solution, gap_s)
+    runs = minor_runs(problem, solution, gap_s)
     count = len(runs)
     untestable = np.zeros(count, bool)
     offset_sd = np.full(count, np.nan)
@@ -222,11 +185,11 @@ def naming_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: np.nd
       of the path moved beyond δ₀ σ (first and last pose times, poses, the worst pose's effect in σ);
     - ``naming_reliability_unchecked``: whether there is one (:func:`naming_warning` says it).
 
-    {} when there is no frame (fewer than two landmarks with a kept sighting)."""
-    try:
-        rel = naming_reliability(problem, solution, gap_s=gap_s)
-    except ValueError:
+    {} when there is no frame (fewer than two landmarks with a kept sighting); any other error of the figures
+    propagates."""
+    if not has_frame(problem, solution):
         return {}
+    rel = naming_reliability(problem, solution, gap_s=gap_s)
     flagged = np.flatnonzero(rel.unchecked())
     with np.errstate(invalid="ignore"):
         worst = np.nan_to_num(rel.frame_effect_sd, nan=0.0).max(axis=1)
