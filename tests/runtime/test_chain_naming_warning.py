@@ -9,6 +9,7 @@ import pytest
 
 import estimation.datasets
 import estimation.name_chain
+import estimation.seed_vote
 from estimation.name_chain import ChainResult
 from tests.datasets.conftest import run_cli, write_mrclam
 from tests.datasets.test_no_ground_truth import _noise
@@ -21,9 +22,15 @@ CHAIN = ("--association", "unknown", "--chain", "--particles", "10")
 def misnamed_island(monkeypatch):
     """The command reads the island log (estimation.test_naming_reliability) and its chain ends with P's glimpse named
     as Q: the chain's own naming is not under test here, what the command says of its final map is."""
+    def misnamed_chain(log, *args, **kwargs):
+        return ChainResult(misnamed_state(log), None, 1)
+
     monkeypatch.setattr(estimation.datasets, "read_mrclam", lambda *args, **kwargs: island_log())
-    monkeypatch.setattr(estimation.name_chain, "run_chain",
-                        lambda log, *args, **kwargs: ChainResult(misnamed_state(log), None, 1))
+    monkeypatch.setattr(estimation.name_chain, "run_chain", misnamed_chain)
+    # seed_vote binds run_chain by name when it is first imported: imported here before the patch (and patched as
+    # well), it keeps the real one for every later test of the process (a first import under the patch kept the fake,
+    # and the next chain vote in the same worker failed)
+    monkeypatch.setattr(estimation.seed_vote, "run_chain", misnamed_chain)
 
 
 def test_the_json_carries_the_unchecked_naming_and_stderr_says_it(tmp_path, misnamed_island):
