@@ -33,7 +33,7 @@ from estimation.dataset_slam import (
 )
 from estimation.dataset_smoothing import planar_landmarks, smoothed_pose_nees
 from estimation.datasets import RangeBearingLog
-from estimation.frame_reliability import reliability_metrics
+from estimation.frame_reliability import design_figures, reliability_metrics
 from estimation.geometry import compose, dead_reckoning
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_scores import ate, map_scores, pose_nees_figures
@@ -80,9 +80,10 @@ def chain_run(log: RangeBearingLog, state: MergeRound, robot: str) -> DatasetRun
     # which sightings the frame rests on (estimation.frame_reliability), from the design: each named by its time and
     # the chain's name, and by its barcode only where the barcodes score the map (the landmarks' truth)
     barcodes = log.landmark_ids[named.sightings] if log.has_ground_truth and len(log.truth_ids) else None
-    reliability = reliability_metrics(named.problem, sol, times, named.names, label="name", barcodes=barcodes)
-    # which namings the frame or the path rests on that nothing checks (estimation.naming_reliability), from the design
-    reliability |= naming_metrics(named.problem, sol, times, named.names, barcodes=barcodes)
+    # and which namings the frame or the path rests on that nothing checks (estimation.naming_reliability)
+    reliability = design_figures(
+        lambda: reliability_metrics(named.problem, sol, times, named.names, label="name", barcodes=barcodes),
+        lambda: naming_metrics(named.problem, sol, times, named.names, barcodes=barcodes))
     if not log.has_ground_truth:
         return DatasetRun(landmark_map, np.zeros((0, 4)), np.column_stack([times, sol.poses[1:]]),
                           np.column_stack([times, dead_in_map]), nees,

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
-from .frame_reliability import reliability_metrics
+from .frame_reliability import design_figures, reliability_metrics
 from .geometry import between, compose
 from .landmark_map import LandmarkMap
 from .landmark_scores import ate, frame_error, map_scores, pose_nees, pose_nees_figures
@@ -72,7 +72,7 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
     # which sightings the frame rests on, from the problem's design alone (estimation.frame_reliability)
-    metrics.update(reliability_metrics(problem, solution, times, landmark_ids))
+    metrics.update(design_figures(lambda: reliability_metrics(problem, solution, times, landmark_ids)))
     if solution.heading_drift is not None:
         metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
                        smoother_heading_drift_tau_s=solution.heading_drift.tau_s)

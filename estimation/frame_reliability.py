@@ -54,6 +54,7 @@ first sighting, so the next glimpse becomes the lone tie (robot 1: 7.50, 7.98, 8
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -332,11 +333,29 @@ def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: 
     }
 
 
+def design_figures(*computations: Callable[[], dict]) -> dict:
+    """The figures of ``computations`` (:func:`reliability_metrics`, the naming's) merged, or, if one fails (a
+    solution that is not finite, an information matrix that is not positive definite: numpy's LinAlgError is a
+    ValueError), ``reliability_unavailable``: why, in one line. The map is still the map: a run that took minutes (a
+    chain, tens of them) is not lost for its diagnosis, and :func:`reliability_warning` says the figures are missing."""
+    out: dict = {}
+    try:
+        for compute in computations:
+            out |= compute()
+    except (ValueError, FloatingPointError) as e:
+        return {"reliability_unavailable": f"{type(e).__name__}: {e}"}
+    return out
+
+
 def reliability_warning(metrics: dict) -> str | None:
     """One line when ``metrics`` (:func:`reliability_metrics`'s) say the frame rests on single sightings
     (``frame_reliability_unchecked``): which sighting, the least error of it the data's test finds 80 % of the time,
     and how far that moves the frame against its σ (the heading's worst sighting if the heading passes δ₀ σ, else the
-    translation's). None otherwise (or without the figures)."""
+    translation's). The reason when the figures could not be computed (:func:`design_figures`). None otherwise (or
+    without the figures)."""
+    if "reliability_unavailable" in metrics:
+        return (f"the map's reliability figures could not be computed ({metrics['reliability_unavailable']}): the map "
+                "is written without them, and nothing says which sightings or namings its frame rests on")
     if not metrics.get("frame_reliability_unchecked"):
         return None
     ratio, delta0 = metrics["frame_reliability_effect_sd"], metrics["frame_reliability_delta0"]

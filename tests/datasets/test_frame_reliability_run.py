@@ -94,6 +94,31 @@ def test_the_command_prints_the_figures_and_no_warning_when_the_frame_is_checked
     assert "frame rests" not in err and not any("frame rests" in w for w in m["warnings"])
 
 
+def test_a_diagnosis_that_fails_loses_no_map_and_says_so(tmp_path, synthetic, monkeypatch):
+    """The figures fail numerically (an information matrix that is not positive definite): the command still writes
+    the map, exits 0, and says in one warning, on stderr beside its JSON, that the figures are missing and why."""
+    import estimation.dataset_smoothing as smoothing
+
+    def broken(*args, **kwargs):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(smoothing, "reliability_metrics", broken)
+    synthetic.write(tmp_path / "data", seconds=40.0)
+    noise = tmp_path / "noise.toml"
+    NoiseModel(OdometryNoise(0.01 ** 2, 0.01 ** 2, 0.01 ** 2),
+               RangeBearingNoise(0.02, 0.0, 0.01, fov_rad=synthetic.SENSOR_FOV,
+                                 max_range_m=synthetic.SENSOR_RANGE)).save(noise)
+    status, out, err = run_cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--noise",
+                               str(noise), "--particles", "10", "--out", str(tmp_path / "map.npz"), "--json")
+    assert status == 0, err
+    m = json.loads(out)
+    assert (tmp_path / "map.npz").is_file() and m["landmarks"] > 0
+    assert m["reliability_unavailable"] == "LinAlgError: Matrix is not positive definite"
+    assert "frame_reliability_sd" not in m
+    [line] = [w for w in err.splitlines() if "could not be computed" in w]
+    assert "(LinAlgError: Matrix is not positive definite)" in line and "written without them" in line
+
+
 @pytest.mark.slow   # two whole MRCLAM logs, each a filter and the smoother (~15 s CPU each)
 @pytest.mark.timeout(1200)
 def test_real_dataset2_robot1_s_frame_rests_on_its_first_sighting_and_robot2_s_does_not(mrclam_dir, tmp_path):

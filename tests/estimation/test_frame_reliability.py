@@ -242,3 +242,18 @@ def test_an_error_that_is_not_the_missing_frame_is_not_taken_for_it():
     diverged = dataclasses.replace(solution, landmarks=landmarks)
     with pytest.raises(ValueError, match="infs or NaNs"):
         reliability_metrics(problem, diverged, np.arange(problem.n_poses) + 1.0, np.arange(len(LANDMARKS)) + 6)
+
+
+def test_design_figures_merge_the_figures_or_say_why_there_are_none():
+    from estimation.frame_reliability import design_figures, reliability_warning
+
+    assert design_figures(lambda: {"a": 1}, lambda: {"b": 2}) == {"a": 1, "b": 2}
+
+    def singular() -> dict:
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    failed = design_figures(lambda: {"a": 1}, singular)
+    assert failed == {"reliability_unavailable": "LinAlgError: Matrix is not positive definite"}
+    assert "could not be computed (LinAlgError: Matrix is not positive definite)" in reliability_warning(failed)
+    with pytest.raises(KeyError):                        # not a numerical failure: a bug, raised
+        design_figures(lambda: {}["missing"])
