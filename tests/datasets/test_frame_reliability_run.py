@@ -80,14 +80,19 @@ def test_a_log_whose_frame_rests_on_its_first_sighting_is_flagged_with_or_withou
     assert 0 < several["sighting_redundancy_min"] <= several["sighting_redundancy_median"] < 2
 
 
-def test_the_command_prints_the_figures_and_no_warning_when_the_frame_is_checked(tmp_path, synthetic):
+def _command_on_the_circle(tmp_path, synthetic) -> tuple[int, str, str]:
+    """``p3at slam dataset ... --json`` on the synthetic circle (40 s), a model of σ 0.01 everywhere."""
     synthetic.write(tmp_path / "data", seconds=40.0)
     noise = tmp_path / "noise.toml"
     NoiseModel(OdometryNoise(0.01 ** 2, 0.01 ** 2, 0.01 ** 2),
                RangeBearingNoise(0.02, 0.0, 0.01, fov_rad=synthetic.SENSOR_FOV,
                                  max_range_m=synthetic.SENSOR_RANGE)).save(noise)
-    status, out, err = run_cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--noise",
-                               str(noise), "--particles", "10", "--out", str(tmp_path / "map.npz"), "--json")
+    return run_cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--noise", str(noise),
+                   "--particles", "10", "--out", str(tmp_path / "map.npz"), "--json")
+
+
+def test_the_command_prints_the_figures_and_no_warning_when_the_frame_is_checked(tmp_path, synthetic):
+    status, out, err = _command_on_the_circle(tmp_path, synthetic)
     assert status == 0, err
     m = json.loads(out)
     assert len(m["frame_reliability_sd"]) == 3 and m["frame_reliability_unchecked"] is False
@@ -103,13 +108,7 @@ def test_a_diagnosis_that_fails_loses_no_map_and_says_so(tmp_path, synthetic, mo
         raise np.linalg.LinAlgError("Matrix is not positive definite")
 
     monkeypatch.setattr(smoothing, "reliability_metrics", broken)
-    synthetic.write(tmp_path / "data", seconds=40.0)
-    noise = tmp_path / "noise.toml"
-    NoiseModel(OdometryNoise(0.01 ** 2, 0.01 ** 2, 0.01 ** 2),
-               RangeBearingNoise(0.02, 0.0, 0.01, fov_rad=synthetic.SENSOR_FOV,
-                                 max_range_m=synthetic.SENSOR_RANGE)).save(noise)
-    status, out, err = run_cli("slam", "dataset", "mrclam", str(tmp_path / "data"), "--robot", "1", "--noise",
-                               str(noise), "--particles", "10", "--out", str(tmp_path / "map.npz"), "--json")
+    status, out, err = _command_on_the_circle(tmp_path, synthetic)
     assert status == 0, err
     m = json.loads(out)
     assert (tmp_path / "map.npz").is_file() and m["landmarks"] > 0
