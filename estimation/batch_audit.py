@@ -35,10 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import chi2
 from .landmark_smoother import LandmarkLogProblem, Smoothed
 from .map_honesty import Run, minor_runs
-from .merge_audit import covisible_spacing, held_parts, part_splits
+from .merge_audit import covisible_spacing, held_parts, indistinguishable, part_splits
 
 __all__ = ["GroupOffsets", "group_offsets", "untestable_groups", "untestable_runs"]
 
@@ -118,7 +117,7 @@ def untestable_groups(shares: GroupOffsets, spacing_m: float, alpha: float = 0.0
     if not 0 < alpha < 1 or not spacing_m > 0:
         raise ValueError(f"need 0 < α < 1 and a spacing > 0 m, not {alpha} and {spacing_m}")
     wide = shares.widest_sigma()
-    return np.isfinite(wide) & (np.nan_to_num(wide) * np.sqrt(chi2.ppf(1 - alpha, 2)) > spacing_m)
+    return np.isfinite(wide) & indistinguishable(np.nan_to_num(wide), spacing_m, alpha)
 
 
 def untestable_runs(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s: float = 5.0, alpha: float = 0.01

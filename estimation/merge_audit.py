@@ -24,7 +24,8 @@ from . import chi2
 from .landmark_smoother import LandmarkLogProblem, Smoothed
 from .map_honesty import Run, sighting_times, split_scores
 
-__all__ = ["PartSplits", "covisible_spacing", "floored_scores", "held_parts", "merged_parts", "part_splits"]
+__all__ = ["PartSplits", "covisible_spacing", "floored_scores", "held_parts", "indistinguishable", "merged_parts",
+           "part_splits"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,14 @@ def covisible_spacing(problem: LandmarkLogProblem, solution: Smoothed) -> float:
     return best
 
 
+def indistinguishable(widest_sd, spacing_m: float, alpha: float):
+    """Whether an offset of σ ``widest_sd`` (m) along its widest axis could be ``spacing_m`` (the nearest two posts are
+    known to stand, :func:`covisible_spacing`) and still score within χ²₂ at 1 − α: the map cannot tell the post it
+    belongs to from a neighbour's (merge_audit's power rule; the parts of :func:`held_parts`, the groups of
+    :func:`estimation.batch_audit.untestable_groups`, the runs of :mod:`estimation.naming_reliability`)."""
+    return widest_sd * np.sqrt(chi2.ppf(1 - alpha, 2)) > spacing_m
+
+
 def held_parts(splits: PartSplits, *, floor_m: float, spacing_m: float, alpha: float = 0.01) -> dict[str, np.ndarray]:
     """Which parts of a batch's merged names to hold back (each (P,) bool):
 
@@ -131,5 +140,5 @@ def held_parts(splits: PartSplits, *, floor_m: float, spacing_m: float, alpha: f
     refused = np.zeros(len(ok), bool)
     if ok.any():
         refused[ok] = floored_scores(splits, floor_m)[ok] > chi2.isf(alpha / int(ok.sum()), 2)
-    untestable = ok & (splits.widest_sigma() * np.sqrt(chi2.ppf(1 - alpha, 2)) > spacing_m)
+    untestable = ok & indistinguishable(splits.widest_sigma(), spacing_m, alpha)
     return {"refused": refused, "untestable": untestable}

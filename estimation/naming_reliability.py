@@ -54,11 +54,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from . import chi2
 from .frame_reliability import DELTA_0, frame_problem, has_frame
 from .landmark_smoother import LandmarkLogProblem, Smoothed, normalised_residuals
 from .map_honesty import Run, minor_runs
-from .merge_audit import covisible_spacing
+from .merge_audit import covisible_spacing, indistinguishable
 
 __all__ = ["NamingReliability", "naming_metrics", "naming_reliability", "naming_warning"]
 
@@ -122,7 +121,6 @@ def naming_reliability(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s
     path: dict[int, np.ndarray] = {}
     own_worst = np.full(count, np.nan)
     _, residuals, _ = normalised_residuals(problem, solution)
-    reach = np.sqrt(chi2.ppf(1 - alpha, 2))
     base = 3 * t                                             # the sightings' rows follow the odometry's 3T
     for start in range(0, count, _SOLVE_RUNS):
         chunk = range(start, min(start + _SOLVE_RUNS, count))
@@ -153,7 +151,7 @@ def naming_reliability(problem: LandmarkLogProblem, solution: Smoothed, *, gap_s
                 continue
             cov = np.linalg.inv(v)
             offset_sd[i] = float(np.sqrt(1.0 / eig[0]))                   # V⁻¹'s widest σ
-            untestable[i] = offset_sd[i] * reach > spacing
+            untestable[i] = indistinguishable(offset_sd[i], spacing, alpha)
             effect[i] = delta0 * np.sqrt(np.einsum("ai,ij,aj->a", gain, cov, gain))
             shift[i] = gain @ (cov @ grad[k])                               # −K δ̂, δ̂ = −V⁻¹ J_δᵀ r
             if untestable[i]:
