@@ -14,6 +14,7 @@ from estimation.datasets import RangeBearingLog
 from estimation.fastslam import range_bearing_config
 from estimation.geometry import wrap_angle
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
+from tests.estimation.frame_helpers import seen_from, unicycle
 from tests.runtime.rerun_helpers import entity_rows
 
 from .conftest import run_cli
@@ -30,17 +31,13 @@ def _log(first_landmarks: int, with_truth: bool = True) -> RangeBearingLog:
     t = np.arange(0.0, 60.0, dt)
     w = np.where((t >= 1.0) & (t < 8.5), 0.4, np.where(t >= 8.5, 0.2 / 1.5, 0.0))
     v = np.where(t >= 8.5, 0.2, 0.0)
-    theta = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
-    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(theta[:-1]) * dt)])
-    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(theta[:-1]) * dt)])
+    x, y, theta = unicycle(v, w, dt)
     poses = np.column_stack([t, x, y, wrap_angle(theta)])
     times, ids, ranges, bearings = [], [], [], []
     for k in range(50, len(t), 12):
         if 50 < k < int(8.5 / dt):
             continue
-        d = LANDMARKS - [x[k], y[k]]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - theta[k])
+        r, b = seen_from(LANDMARKS, x[k], y[k], theta[k])
         seen = np.argsort(np.abs(b))[:first_landmarks] if k == 50 else np.flatnonzero((np.abs(b) < 1.0) & (r < 6))
         times += [t[k]] * len(seen)
         ids += list(seen + 6)

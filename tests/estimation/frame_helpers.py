@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimation.geometry import wrap_angle
 from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import LandmarkLogProblem, Smoothed, joint_landmark_covariance
 
@@ -22,6 +23,21 @@ def turn_and_lap(turn_frames: int) -> np.ndarray:
     turn = np.tile([0.0, 0.0, 0.1], (turn_frames, 1))
     lap = np.tile([2 * np.pi * 1.5 / 80, 0.0, 2 * np.pi / 80], (80, 1))
     return np.vstack([np.zeros((1, 3)), turn, lap])
+
+
+def unicycle(v: np.ndarray, w: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, θ) (T,) each, θ unwrapped, of a robot starting at the origin driven by forward speeds ``v`` and turn rates
+    ``w`` (T,) held over steps of ``dt`` s (Euler: each step moves along the heading it starts with)."""
+    theta = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(theta[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(theta[:-1]) * dt)])
+    return x, y, theta
+
+
+def seen_from(points: np.ndarray, x: float, y: float, theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact (ranges, bearings) (N,) of ``points`` (N, 2) from the pose (x, y, θ)."""
+    d = points - [x, y]
+    return np.hypot(d[:, 0], d[:, 1]), wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - theta)
 
 
 def odometry_variances(increments: np.ndarray, xy_floor: float = FLOOR) -> np.ndarray:

@@ -19,7 +19,7 @@ from estimation.frame_reliability import (
     reliability_metrics,
     reliability_warning,
 )
-from estimation.geometry import dead_reckoning, wrap_angle
+from estimation.geometry import dead_reckoning
 from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import (
     HeadingDrift,
@@ -36,6 +36,7 @@ from tests.estimation.frame_helpers import (
     RANGE_SIGMA,
     joint_frame_covariance,
     odometry_variances,
+    seen_from,
     turn_and_lap,
 )
 
@@ -108,9 +109,7 @@ def _log_problem(rng, first_landmarks: int, exact: bool = False) -> LandmarkLogP
     measured = true_increments + noise * rng.standard_normal(variance.shape) * np.sqrt(variance)
     pose_index, landmark_index, ranges, bearings = [], [], [], []
     for k in range(1, len(truth)):
-        d = LANDMARKS - truth[k, :2]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[k, 2])
+        r, b = seen_from(LANDMARKS, *truth[k])
         if k == 1:
             visible = np.argsort(np.abs(b))[:first_landmarks]
         elif k <= 31:

@@ -29,6 +29,7 @@ from estimation.landmark_smoother import (
 from estimation.named_smoothing import MergeRound, smooth_named
 from estimation.naming_reliability import naming_metrics, naming_reliability, naming_warning
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
+from tests.estimation.frame_helpers import seen_from, unicycle
 
 # A (island only), B (island only), P (the island's glimpse), Q 1 m from P (seen later), R 1 m from Q (seen with it
 # later: the map's nearest two posts seen together), S, T, U later
@@ -53,9 +54,7 @@ def _island_problem(rng, *, checked: bool, glimpse: int = P, named: int = Q, exa
     measured = increments + noise * rng.standard_normal(variance.shape) * np.sqrt(variance)
     pose_index, landmark_index, ranges, bearings = [], [], [], []
     for k in range(1, len(truth)):
-        d = POSTS - truth[k, :2]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - truth[k, 2])
+        r, b = seen_from(POSTS, *truth[k])
         if k <= 1 + len(island):
             seen = [A, B] + ([R, S] if checked else []) + ([glimpse] if 3 <= k <= 9 else [])
         elif k <= 1 + len(island) + len(gap):
@@ -191,15 +190,11 @@ def island_log(with_truth: bool = True) -> RangeBearingLog:
     t = np.round(np.arange(0.0, 85.0, dt), 2)
     w = np.where((t >= 10) & (t < 30), 2 * np.pi / 20, np.where(t >= 35, 2 * np.pi / 50, 0.0))
     v = np.where(t < 10, 0.1, np.where((t >= 30) & (t < 35), 0.2, np.where(t >= 35, 2 * np.pi * 1.5 / 50, 0.0)))
-    theta = np.concatenate([[0.0], np.cumsum(w[:-1] * dt)])
-    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(theta[:-1]) * dt)])
-    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(theta[:-1]) * dt)])
+    x, y, theta = unicycle(v, w, dt)
     poses = np.column_stack([t, x, y, wrap_angle(theta)])
     times, ids, ranges, bearings = [], [], [], []
     for k in range(25, len(t), 25):
-        d = POSTS - [x[k], y[k]]
-        r = np.hypot(d[:, 0], d[:, 1])
-        b = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - theta[k])
+        r, b = seen_from(POSTS, x[k], y[k], theta[k])
         if t[k] < 10:
             seen = [A, B] + ([P] if 1.5 <= t[k] <= 4.5 else [])
         elif t[k] < 35:
