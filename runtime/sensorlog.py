@@ -495,6 +495,11 @@ def _segment_files(path: Path) -> list[Path]:
         found = re.fullmatch(r".*_(\d{1,9})\.mcap(\.part)?", p.name)
         if found and p.is_file():
             numbered.append((int(found.group(1)), p.name.endswith(".part"), p))
+    numbered.sort()
+    for (k, _, a), (k_next, _, b) in zip(numbered, numbered[1:], strict=False):
+        if k == k_next:   # the writer numbers one log's segments 0, 1, ...: two logs (or a copy) share the folder
+            raise SensorLogError(f"{path}: two segments numbered {k} ({a.name}, {b.name}): a sensor log folder holds "
+                                 "one log; give each log its own folder")
     if not numbered:
         if (path / "index.json").exists():
             raise SensorLogError(f"{path}: an npz-chunk sensor log (format 1), which this version no longer reads; "
@@ -523,12 +528,26 @@ class SensorLog:
         self.truncated: list[Path] = []
         self.warnings: list[str] = []
         self.t_first = self.t_last = None
+        previous: tuple[Path, int] | None = None   # the last segment with a message, and its last log time
         for f in self.files:
+            self._file_settings = None
+            last = None
             for m in self._read_file(f, scan=True):
                 self.counts[m.topic] = self.counts.get(m.topic, 0) + 1
                 self.types.setdefault(m.topic, m.type)
                 self.t_first = m.log_time if self.t_first is None else min(self.t_first, m.log_time)
                 self.t_last = m.log_time if self.t_last is None else max(self.t_last, m.log_time)
+                last = m.log_time if last is None else max(last, m.log_time)
+            if self._file_settings is not None and self._file_settings != self.metadata:
+                raise SensorLogError(f"{f}: its settings differ from those of {self.files[0].name}: a segment of "
+                                     "another log (a sensor log folder holds one log)")
+            # A segment is closed when a record comes 30 s after its first: the next one ends later. One that ends
+            # no later than the segment before it is a copy or another log's, and would replay time backwards.
+            if last is not None:
+                if previous is not None and last <= previous[1]:
+                    raise SensorLogError(f"{f}: ends at log time {last} ns, no later than {previous[0].name} before "
+                                         "it: not the next segment of the same log (a copy, or another log's)")
+                previous = (f, last)
         self.closed = not any(f.name.endswith(".part") for f in self.files) and not self.truncated
         robot = self.metadata.get("robot", "robot")
         if not isinstance(robot, str):
@@ -570,8 +589,10 @@ class SensorLog:
                             raise SensorLogError(f"{path}: a message refers to unknown channel {rec.channel_id}")
                         yield LoggedMessage(channel.topic, schemas[channel.schema_id].name, rec.log_time, rec.data,
                                             path)
-                    elif isinstance(rec, Metadata) and scan and rec.name == METADATA_NAME and not self.metadata:
-                        self.metadata = _settings(path, rec.metadata)
+                    elif isinstance(rec, Metadata) and scan and rec.name == METADATA_NAME:
+                        self._file_settings = _settings(path, rec.metadata)
+                        if not self.metadata:
+                            self.metadata = self._file_settings
         except SensorLogError:
             raise
         except (McapError, EOFError, struct.error, ValueError, OSError, UnicodeDecodeError, MemoryError) as e:

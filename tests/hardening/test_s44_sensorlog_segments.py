@@ -1,0 +1,90 @@
+"""A sensor log folder that holds segments of more than one log (session 44, A): a segment copied beside the
+others, two logs' segments in one folder, or a segment of another robot's log. Each is one line naming the segment,
+exit 2. Before, ``p3at replay`` read them all in file-name order: a copied segment replayed its time a second time
+(76 frames and 81 landmarks where the log has 38 and 76, a different final pose, exit 0) and another robot's segment
+was silently skipped, its settings ignored."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from runtime.cli import main
+from runtime.sensorlog import SensorLog, SensorLogError, SensorLogWriter
+from tests.runtime.test_sensorlog_mcap import GEOMETRY, _records
+
+
+def _log(folder: Path, robot: str = "robot1", seed: int = 1, start: float = 50.0) -> list[Path]:
+    """A log of three or more 2 s segments (60 SIPs over 6 s); the segment files in order."""
+    with SensorLogWriter(folder, {"robot": robot, "geometry": GEOMETRY, "seed": seed}, segment_seconds=2.0) as w:
+        for stream, record in _records(60, np.random.default_rng(seed), images=False, start=start):
+            w.write(stream, record)
+    assert len(w.segments) >= 3
+    return list(w.segments)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> dict[str, list[Path]]:
+    root = tmp_path_factory.mktemp("logs")
+    return {"robot1": _log(root / "robot1-log"), "robot2": _log(root / "robot2-log", "robot2", seed=2),
+            "later": _log(root / "later-log", start=500.0)}
+
+
+def _folder(tmp_path: Path, files: list[tuple[Path, str]]) -> Path:
+    folder = tmp_path / "log"
+    folder.mkdir()
+    for source, name in files:
+        shutil.copy(source, folder / name)
+    return folder
+
+
+def _refused(folder: Path, capsys, *words: str) -> None:
+    with pytest.raises(SensorLogError) as error:
+        SensorLog(folder)
+    assert all(w in str(error.value) for w in words), str(error.value)
+    assert main(["replay", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err and str(folder) in err
+
+
+def test_the_whole_log_and_its_renamed_copy_read(logs, tmp_path):
+    """What the checks must let through: the writer's own folder, and its segments under another name."""
+    whole = SensorLog(logs["robot1"][0].parent)
+    renamed = SensorLog(_folder(tmp_path, [(p, f"copy_{k}.mcap") for k, p in enumerate(logs["robot1"])]))
+    assert renamed.counts == whole.counts and len(renamed.files) == len(logs["robot1"])
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_a_copied_segment_is_refused(logs, tmp_path_factory, capsys, data):
+    """Any segment copied in as the next one (or in the middle, renumbering those after it) replays time
+    backwards."""
+    segments = logs["robot1"]
+    k = data.draw(st.integers(0, len(segments) - 1), label="copied segment")
+    at = data.draw(st.integers(k + 1, len(segments)), label="inserted before")
+    order = segments[:at] + [segments[k]] + segments[at:]
+    folder = _folder(tmp_path_factory.mktemp("copy"), [(p, f"r_{i}.mcap") for i, p in enumerate(order)])
+    _refused(folder, capsys, "no later than")
+
+
+def test_two_logs_in_one_folder_are_refused(logs, tmp_path, capsys):
+    """Both logs' segments keep their names: two segments numbered 0."""
+    folder = _folder(tmp_path, [(p, p.name) for p in logs["robot1"] + logs["robot2"]])
+    _refused(folder, capsys, "two segments numbered 0")
+
+
+@pytest.mark.parametrize("other", ["robot2", "later"])
+def test_a_segment_of_another_log_is_refused(logs, tmp_path, capsys, other):
+    """Another robot's segment (its settings differ), or the same robot's later log with the same settings but
+    numbered as if it were the next segment: refused either way (settings, or the order of its times)."""
+    files = [(p, f"r_{i}.mcap") for i, p in enumerate(logs["robot1"])]
+    files.append((logs[other][0], f"r_{len(files)}.mcap"))
+    folder = _folder(tmp_path, files)
+    if other == "robot2":
+        _refused(folder, capsys, "settings differ")
+    else:   # a later log of the same robot and settings continues in time: nothing in it says it is another
+        assert SensorLog(folder).files[-1].name == f"r_{len(files) - 1}.mcap"
