@@ -24,6 +24,13 @@ same region, and their difference is what it tests.
   left out ("not found, and why" over a merge that may be wrong), except the reference map, whose part made
   before the gap keeps the fused map in its robot's start frame.
 
+The parts are merged under the very alignments the decision rested on (each part's alignment in its check, inverted
+where the merge places the other map in the part's frame; two maps used whole under their given alignment), never
+under alignments drawn again: ``align`` is not symmetric (its ratio test runs from map 1's landmarks), and a part
+aligned the other way round, or with another generator, can come out otherwise than its check (session 43: rendered
+demo seed 4's check took a wrong half turn for found, and its sentence said the part was merged, while the merge,
+aligned the other way, found nothing; session 44).
+
 The significance leans towards "disagree" on purpose: a healthy map wrongly split is still merged, each part under
 a correct alignment (only the constraint between the parts is lost), while a lost map wrongly kept whole puts a
 misplaced part into the fused map, the worst output.
@@ -295,7 +302,10 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     """:func:`fusion.fuse_all`, with every map that flagged itself checked by :func:`check_split` (``split_ids``:
     per map, where to split it or None; default :func:`split_id` of each map, a malformed verdict read as none).
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
-    aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion.
+    aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion. A
+    fusion of parts rests on the alignments the decisions rested on (:func:`_piece_alignments`): the checks' and
+    those of the maps as given; only pairs no decision judged (a map's two parts, parts of two flagged maps) are
+    aligned again.
     ``checks``: the flagged maps' :func:`check_split` results where the caller already has them (they are not
     made again). ``priors`` {(i, j), i < j: fusion.prior.StartPrior}: start priors for the alignments (when not given),
     the split checks and the fusion of the parts (a part is in its map's start frame).
@@ -305,7 +315,7 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         split_ids = [_split_id_or_none(m) for m in maps]
     cache = AlignmentCache() if cache is None else cache
     whole, message = None, ""
-    if alignments is None and priors:
+    if alignments is None:   # the draws fuse_all would make (with the priors where given): the parts' merge reuses them
         alignments = pairwise_alignments(maps, preset, rng, cache, priors)
     try:
         whole = fuse_all(maps, preset, method, rng, reference, alignments, cache, **options)
@@ -343,8 +353,7 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     piece_priors = {(a, b): p for a in range(len(inputs)) for b in range(a + 1, len(inputs))
                     if sources[a][0] != sources[b][0]
                     and (p := _pair_prior(priors, sources[a][0], sources[b][0])) is not None}
-    piece_alignments = (pairwise_alignments(inputs, preset, np.random.default_rng(0), cache, piece_priors)
-                        if piece_priors else None)
+    piece_alignments = _piece_alignments(inputs, sources, by_map, alignments, preset, cache, piece_priors)
     try:
         fused = fuse_all(inputs, preset, method, np.random.default_rng(0), new_reference, piece_alignments, cache,
                          **options)
@@ -356,6 +365,44 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         fused.map.metadata["fusion"].update(source_metadata([maps[k] for k, _ in sources],
                                                             [i for i, r in enumerate(fused.rows) if r is not None]))
     return CheckedFusion(fused, inputs, sources, checks, whole)
+
+
+def _piece_alignments(inputs: list[LandmarkMap], sources: list[tuple[int, str | None]], checks: dict[int, SplitCheck],
+                      alignments: dict[tuple[int, int], Alignment], preset: str | AlignmentConfig,
+                      cache: AlignmentCache, priors: dict) -> dict[tuple[int, int], Alignment]:
+    """The alignment of every pair of pieces (keys (a, b), a < b: piece b's frame in piece a's), resting on the
+    alignments the decisions rested on: two maps used whole keep the alignment of the maps as given (``alignments``);
+    a flagged map's part and a map used whole keep the part's alignment in its :func:`check_split`, inverted where the
+    direction differs (a part that the check found not to align stays not found: a draw in the other direction, or
+    with another generator, can come out otherwise, session 43). Only pairs no decision judged are aligned here, each
+    with the generator the merge has always given it (the pairs' children of ``default_rng(0)``): two parts of one map
+    (aligned to each other as two robots' maps would be) and parts of two flagged maps."""
+    keys = [(a, b) for a in range(len(inputs)) for b in range(a + 1, len(inputs))]
+    children = dict(zip(keys, np.random.default_rng(0).spawn(len(keys)) if keys else [], strict=True))
+    out = {}
+    for a, b in keys:
+        judged = _judged(sources[a], sources[b], checks, alignments)
+        out[(a, b)] = judged if judged is not None else cache.align(inputs[a], inputs[b], preset, children[(a, b)],
+                                                                    prior=priors.get((a, b)))
+    return out
+
+
+def _judged(first: tuple[int, str | None], second: tuple[int, str | None], checks: dict[int, SplitCheck],
+            alignments: dict[tuple[int, int], Alignment]) -> Alignment | None:
+    """The alignment of piece ``second``'s frame in piece ``first``'s that a decision rested on, or None."""
+    (i, p), (j, q) = first, second
+    if i == j:
+        return None
+    if p is None and q is None:
+        if (i, j) in alignments:
+            return alignments[(i, j)]
+        return alignments[(j, i)].inverse() if (j, i) in alignments else None
+    if (p is None) == (q is None):     # parts of two flagged maps: each was checked against the other whole
+        return None
+    if p is None:                      # the check aligned the part as map 2 onto map i: that is this direction
+        return checks[j].parts[PARTS.index(q)].alignments.get(i)
+    judged = checks[i].parts[PARTS.index(p)].alignments.get(j)
+    return None if judged is None else judged.inverse()
 
 
 def _split_id_or_none(landmark_map: LandmarkMap) -> int | None:
