@@ -14,6 +14,7 @@ from __future__ import annotations
 import inspect
 import io
 import json
+import shutil
 from contextlib import redirect_stdout
 
 import numpy as np
@@ -48,14 +49,30 @@ def data(tmp_path_factory):
     return path
 
 
-@pytest.fixture
-def run(data, tmp_path):
-    """Seeds 0 and 1's runs given one noise file: (data, the noise file, the states)."""
-    model = tmp_path / "model.toml"
+@pytest.fixture(scope="module")
+def _runs(data, tmp_path_factory):
+    """Seeds 0 and 1's runs given one noise file, made once for the module: (the noise file, its bytes, the states'
+    folder, a copy of the folder as the runs left it)."""
+    folder = tmp_path_factory.mktemp("runs")
+    model = folder / "model.toml"
     _model(0.02).save(model)
     for seed in (0, 1):
-        assert _chain(data, model, tmp_path / "states", "--seed", str(seed)) == 0
-    return data, model, tmp_path / "states"
+        assert _chain(data, model, folder / "states", "--seed", str(seed)) == 0
+    shutil.copytree(folder / "states", folder / "as-made")
+    return model, model.read_bytes(), folder / "states", folder / "as-made"
+
+
+@pytest.fixture
+def run(data, _runs):
+    """Seeds 0 and 1's runs given one noise file: (data, the noise file, the states). The tests rewrite the file, the
+    states' metas and add states; each starts from the files as the two runs left them, byte for byte (the runs are
+    made once: 4 s each under load, six tests), at the paths the runs recorded (the states name the noise file by
+    its path)."""
+    model, content, states, as_made = _runs
+    model.write_bytes(content)
+    shutil.rmtree(states)
+    shutil.copytree(as_made, states)
+    return data, model, states
 
 
 def _meta(path) -> dict:
