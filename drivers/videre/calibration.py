@@ -461,6 +461,12 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
     if path.stat().st_size == 0:  # OpenCV would say '(-215:Assertion failed) buf in function 'open''
         raise BadFileError(f"{path}: an empty file, not an OpenCV calibration")
     try:
+        refuse_base64(path, read_bounded(path, MAX_FILE_BYTES))
+    except InputTooLargeError as e:   # it grew since its size was checked
+        raise BadFileError(f"{path}: {e}; a calibration file has at most {MAX_FILE_BYTES}") from None
+    except OSError as e:
+        raise BadFileError(f"{path}: cannot read: {e.strerror or e}") from None
+    try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:  # the Python binding wraps parse errors in SystemError
         cause = exc.__cause__ or exc.__context__ or exc
@@ -545,6 +551,24 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
                                   np.zeros(6) if opt["head_pose"] is None else opt["head_pose"])
     check_calibration(calib, str(path), names, {k: v for k, v in lines.items() if v != "?"})
     return calib
+
+
+# OpenCV's FileStorage decodes base64 blocks (YAML "!!binary", XML "$base64$") in a loop that a damaged block keeps
+# spinning for ever (OpenCV 5.1: a 60-byte YAML file "a: !!binary " + 40 x "A" never returns, at 100 % CPU). A
+# calibration is a few numbers written as text (this module and camera_info write no base64), so a file holding such
+# a block is refused before OpenCV parses it.
+_BASE64_MARKERS = (b"!!binary", b"$base64$")
+
+
+def refuse_base64(path: str | os.PathLike, data: bytes) -> None:
+    """Raise BadFileError naming the line if ``data`` (a calibration file's bytes) holds a base64 block."""
+    for marker in _BASE64_MARKERS:
+        at = data.find(marker)
+        if at >= 0:
+            line = data.count(b"\n", 0, at) + 1
+            raise BadFileError(f"{path}:{line}: field '(syntax)': a base64 block "
+                               f"({marker.decode()}), which this reader does not read (OpenCV's parser can hang on "
+                               "a damaged one): write the matrices as numbers")
 
 
 def _check_file_size(path: Path) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 from drivers.errors import BadFileError
 from drivers.fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 
-from .calibration import StereoCalibration, check_calibration
+from .calibration import StereoCalibration, check_calibration, refuse_base64
 
 SIDES = ("left", "right")
 MAX_FILE_BYTES = 64 << 10      # a camera_info file is about 1 kB
@@ -100,6 +100,7 @@ def read_camera(path: str | os.PathLike) -> dict:
         raise BadFileError(f"{path}: an empty file, not a camera_info file")
     if text.count("[") + text.count("{") > MAX_BRACKETS or "\x00" in text:
         raise BadFileError(f"{path}: field '(syntax)': not a camera_info file (nested or binary content)")
+    refuse_base64(path, text.encode())   # OpenCV's parser can spin for ever on a damaged base64 block
     lines = text.splitlines()
 
     def line_of(key: str) -> int | str:
