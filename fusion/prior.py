@@ -190,8 +190,8 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | 
     """A JSON file {"sigma_xy": m, "sigma_yaw": rad, "starts": {"<robot or index>": [x, y, yaw] or
     [x, y, yaw, sigma_xy, sigma_yaw]}} -> {key: (pose, sigmas)}; one-line errors."""
     try:
-        data = json.loads(read_bounded(path, MAX_START_FILE_BYTES).decode("utf-8"))   # never waits on a FIFO
-        default = (float(data.get("sigma_xy", "nan")), float(data.get("sigma_yaw", "nan")))
+        data = json.loads(read_bounded(path, MAX_START_FILE_BYTES).decode("utf-8"),   # never waits on a FIFO
+                          object_pairs_hook=_unique_keys)
         starts = data["starts"]
         items = starts.items()
     except OSError as e:
@@ -200,6 +200,7 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | 
         why = "nested too deeply" if isinstance(e, RecursionError) else str(e)[:200]
         raise IncompatibleMapsError(f"{path}: not a start-pose file ({{\"starts\": {{name: [x, y, yaw]}}, "
                                     f"\"sigma_xy\": m, \"sigma_yaw\": rad}}): {why}") from None
+    default = _file_sigmas(path, data)
     out = {}
     for key, value in items:
         numbers = isinstance(value, list) and all(isinstance(v, int | float) and not isinstance(v, bool)
@@ -213,11 +214,53 @@ def load_starts(path: str) -> dict[str, tuple[np.ndarray, tuple[float, float] | 
             raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]} holds a number out of range") from None
         except IncompatibleMapsError as e:
             raise IncompatibleMapsError(f"{path}: starts.{str(key)[:40]}: {e}") from None
-        if sig is None and np.all(np.isfinite(default)):
-            try:
-                _check_sigmas(*default)
-            except IncompatibleMapsError as e:
-                raise IncompatibleMapsError(f"{path}: sigma_xy, sigma_yaw: {e}") from None
+        if sig is None:
             sig = default
         out[str(key)] = (pose, sig)             # None: the caller's default σ
     return out
+
+
+_START_FILE_KEYS = ("starts", "sigma_xy", "sigma_yaw")
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object's pairs as a dict; a key given twice is an error (json keeps the last one in silence)."""
+    out = dict(pairs)
+    if len(out) < len(pairs):
+        seen: set[str] = set()
+        twice = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise ValueError(f"key {str(twice)[:40]!r} appears twice")
+    return out
+
+
+def _file_sigmas(path: str, data: dict) -> tuple[float, float] | None:
+    """The start-pose file's own default σ (sigma_xy, sigma_yaw), None if it gives none; a key this format does not
+    have, or a σ that is not a positive finite number, or one without the other, is an error (they were ignored:
+    ``"sigma_xy": NaN`` read as no σ, ``true`` as 1 m, a misspelt key was dropped in silence)."""
+    unknown = sorted(str(k)[:40] for k in data if k not in _START_FILE_KEYS)
+    if unknown:
+        raise IncompatibleMapsError(f"{path}: unknown key(s) {', '.join(unknown)} (a start-pose file has "
+                                    f"{', '.join(_START_FILE_KEYS)})")
+    given = [k for k in ("sigma_xy", "sigma_yaw") if k in data]
+    if not given:
+        return None
+    if len(given) == 1:
+        raise IncompatibleMapsError(f"{path}: {given[0]} without {({'sigma_xy', 'sigma_yaw'} - set(given)).pop()}: "
+                                    "give both or neither")
+    values = []
+    for key in given:
+        value = data[key]
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        try:
+            ok = number and np.isfinite(float(value)) and float(value) > 0
+        except OverflowError:   # an integer of hundreds of digits
+            ok = False
+        if not ok:
+            raise IncompatibleMapsError(f"{path}: {key} must be a positive finite number (m or rad); got "
+                                        f"{json.dumps(value)[:40]}")
+        values.append(float(value))
+    try:
+        _check_sigmas(*values)
+    except IncompatibleMapsError as e:
+        raise IncompatibleMapsError(f"{path}: sigma_xy, sigma_yaw: {e}") from None
+    return values[0], values[1]
