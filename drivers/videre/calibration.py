@@ -487,6 +487,8 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
         root = fs.root()
         if not root.isMap():
             raise BadFileError(f"{path}:1: field '(top level)': expected a mapping of named matrices")
+        if (twice := duplicate_key(root)) is not None:
+            raise bad(twice, GIVEN_TWICE)
 
         def mat(name: str, required: bool) -> np.ndarray | None:
             node = fs.getNode(name)
@@ -551,6 +553,25 @@ def read_opencv(path: str | os.PathLike) -> StereoCalibration:
                                   np.zeros(6) if opt["head_pose"] is None else opt["head_pose"])
     check_calibration(calib, str(path), names, {k: v for k, v in lines.items() if v != "?"})
     return calib
+
+
+GIVEN_TWICE = "given twice (OpenCV reads the first, other readers may read the last)"
+
+
+def duplicate_key(root) -> str | None:
+    """The first key an OpenCV mapping (``cv2.FileNode``) or one of its mappings holds twice (``M1``,
+    ``camera_matrix.rows``), None if none: FileStorage keeps both and ``getNode`` returns the first in silence."""
+    nodes = [("", root)]
+    for prefix, node in nodes:
+        keys = node.keys()
+        seen: set[str] = set()
+        for key in keys:
+            if key in seen:
+                return prefix + key
+            seen.add(key)
+        if not prefix:   # the matrices' own keys (rows, cols, dt, data), one level down
+            nodes.extend((f"{key}.", node.getNode(key)) for key in seen if node.getNode(key).isMap())
+    return None
 
 
 # OpenCV's FileStorage decodes base64 blocks (YAML "!!binary", XML "$base64$") in a loop that a damaged block keeps

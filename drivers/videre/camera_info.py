@@ -29,7 +29,7 @@ import numpy as np
 from drivers.errors import BadFileError
 from drivers.fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 
-from .calibration import StereoCalibration, check_calibration, refuse_base64
+from .calibration import GIVEN_TWICE, StereoCalibration, check_calibration, duplicate_key, refuse_base64
 
 SIDES = ("left", "right")
 MAX_FILE_BYTES = 64 << 10      # a camera_info file is about 1 kB
@@ -117,6 +117,8 @@ def read_camera(path: str | os.PathLike) -> dict:
     try:
         if not fs.isOpened() or not fs.root().isMap():
             raise BadFileError(f"{path}: field '(syntax)': not a YAML mapping")
+        if (twice := duplicate_key(fs.root())) is not None:
+            raise bad(twice, GIVEN_TWICE)
 
         def integer(key: str) -> int:
             node = fs.getNode(key)
