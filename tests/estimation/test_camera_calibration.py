@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,31 @@ def _log(rng, *, a=-0.08, b0=0.97, b1=0.0, psi=0.01, minutes=12.0, noise=True, q
                            rows[:, 3].astype(np.int64), truth, np.arange(1, 16), posts)
 
 
+@functools.cache
+def _shared_log(seed: int, **options) -> RangeBearingLog:
+    """``_log(np.random.default_rng(seed), **options)``, made once per process for the tests that read the same log
+    (a 12-minute log takes about a second), its arrays read-only: a test that wrote into it would raise, not change
+    another test's log."""
+    log = _log(np.random.default_rng(seed), **options)
+    for field in dataclasses.fields(log):
+        value = getattr(log, field.name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return log
+
+
+@functools.cache
+def _seed_3_calibration():
+    """``self_calibrate`` of seed 3's log with the model it is made with, which two tests read (CameraCalibration is
+    frozen; its arrays are made read-only as the log's)."""
+    calibration = self_calibrate(_shared_log(3), _model())
+    for field in dataclasses.fields(calibration):
+        value = getattr(calibration, field.name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return calibration
+
+
 def _model(q=0.003) -> NoiseModel:
     """The noise the log is made with; its camera calibration the identity (what the estimate starts from)."""
     return NoiseModel(OdometryNoise(q, q, q),
@@ -90,7 +116,7 @@ def _model(q=0.003) -> NoiseModel:
 
 def test_a_camera_offset_scale_and_yaw_are_recovered_within_their_standard_errors():
     made = {"range_offset_m": -0.08, "range_scale": 0.97, "range_scale_per_rad": 0.0, "bearing_offset_rad": 0.01}
-    calibration = self_calibrate(_log(np.random.default_rng(3)), _model())
+    calibration = _seed_3_calibration()
     assert calibration.problem is None and calibration.converged
     for name, value in made.items():
         j = ESTIMATED.index(name)
@@ -130,7 +156,7 @@ def test_the_ground_truth_is_not_read():
 
 
 def test_a_log_too_short_to_determine_the_calibration_is_reported_as_such():
-    calibration = self_calibrate(_log(np.random.default_rng(1), minutes=1.0), _model())
+    calibration = self_calibrate(_shared_log(1, minutes=1.0), _model())
     assert calibration.problem is not None and "not known better than one sighting" in calibration.problem
     with pytest.raises(ValueError, match="not determined"):
         calibration.applied(_model(), "robot", "test")
@@ -138,7 +164,7 @@ def test_a_log_too_short_to_determine_the_calibration_is_reported_as_such():
 
 def test_the_applied_model_keeps_the_given_sigmas_and_takes_the_estimate():
     model = _model()
-    calibration = self_calibrate(_log(np.random.default_rng(3)), model)
+    calibration = _seed_3_calibration()
     out = calibration.applied(model, "synthetic", "self-calibrated")
     assert out.odometry == model.odometry
     for name in ("range_sigma_m", "range_sigma_per_m", "bearing_sigma_rad", "range_correlation", "fov_rad"):
@@ -214,7 +240,7 @@ def test_a_taped_length_gives_the_scale_an_odometry_that_is_3_percent_long_gets_
     brings b₀ back within two of its standard errors, the odometry's scale held at the model's (the odometry still
     pulls a little: its model calls it unbiased; over seeds 3-8 the taped estimate was 1.2-3.8 standard errors off,
     docs/fastslam-history.md Session 37 (D))."""
-    log = _log(np.random.default_rng(3), odometry_scale=1.03)
+    log = _shared_log(3, odometry_scale=1.03)
     taped = _most_sighted_pair(log)
     alone = self_calibrate(log, _model())
     with_tape = self_calibrate(log, _model(), known_distances=[taped], translation_scale=False)
@@ -242,7 +268,7 @@ def test_with_a_taped_length_the_odometry_s_scale_is_estimated_and_the_map_keeps
     about 1 % (seeds 3-8: +1.0 to +4.3 of its standard errors; the poses' errors enter the odometry's comparison with
     the map: +0.2 % with a tenth of the odometry's noise, +6 to +8 % with 3× it), so it is checked against 5 of them
     and against the model's 1.0, 5.7 of them off (docs/fastslam-history.md, Session 39 (B))."""
-    log = _log(np.random.default_rng(3), odometry_scale=1.03)
+    log = _shared_log(3, odometry_scale=1.03)
     taped = _most_sighted_pair(log)
     calibration = self_calibrate(log, _model(), known_distances=[taped])
     j = ESTIMATED.index("range_scale")
@@ -269,7 +295,7 @@ def test_with_a_taped_length_the_odometry_s_scale_is_estimated_and_the_map_keeps
 
 def test_the_odometry_s_scale_is_not_estimated_without_a_length():
     with pytest.raises(ValueError, match="needs a known distance"):
-        self_calibrate(_log(np.random.default_rng(1), minutes=1.0), _model(), translation_scale=True)
+        self_calibrate(_shared_log(1, minutes=1.0), _model(), translation_scale=True)
 
 
 @pytest.mark.parametrize("odometry_scale", [1.0, 1.03])
@@ -297,7 +323,7 @@ def test_exact_data_and_an_exact_length_give_the_calibration_exactly(odometry_sc
 ])
 def test_a_length_that_is_none_or_joins_no_two_sighted_posts_is_refused(known, complaint):
     with pytest.raises(ValueError, match=complaint):
-        self_calibrate(_log(np.random.default_rng(1), minutes=1.0), _model(), known_distances=[known])
+        self_calibrate(_shared_log(1, minutes=1.0), _model(), known_distances=[known])
 
 
 @settings(max_examples=30, deadline=None)
@@ -430,7 +456,7 @@ def test_a_bearing_sigma_2_5_times_the_model_s_comes_back_within_its_standard_er
     right model's start gives."""
     scores = []
     for seed in (3, 4, 5):
-        log = _log(np.random.default_rng(seed))
+        log = _shared_log(seed)
         model = _sensor(_model(), bearing_sigma_rad=SIGMA_B / 2.5)
         calibration = self_calibrate(log, model, noise_components=("range", "bearing"))
         assert calibration.problem is None and calibration.converged
@@ -449,7 +475,7 @@ def test_the_model_s_own_sigmas_come_back_when_they_are_right_and_the_odometry_s
     """The model is the simulation's: the bearing's and the range's factors within their standard errors of 1 (and
     of the range's simulated ratio); asked for the odometry's factor too (a third group), it is 1 within its standard
     error (seeds 3-5: 1.024 ± 0.029, 1.064 ± 0.031, ...). The written model takes the σ's, records their figures."""
-    log = _log(np.random.default_rng(3))
+    log = _shared_log(3)
     model = _model()
     calibration = self_calibrate(log, model, noise_components=("odometry", "range", "bearing"))
     assert calibration.problem is None
