@@ -59,6 +59,7 @@ its wheels with the Videre head: :data:`P3AT_VIDERE_DEFAULT`, with its provenanc
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -378,11 +379,23 @@ class NoiseModel:
         for key, value in fit.items():  # figures read back as floats (existence_overrides)
             if isinstance(value, int) and not abs(value) <= 2**63:
                 raise NoiseModelError(f"{where}: [fit] {key} is out of range ({len(str(value))} digits)")
+            # what save() cannot write back (a model given to --self-calibrate is written out with its [fit] after
+            # the work: a datetime, a table, NaN or a key needing quotes failed there, naming no file)
+            if not _BARE_KEY.fullmatch(key):
+                raise NoiseModelError(f"{where}: [fit] key {key[:40]!r} is not a bare key (letters, digits, _ and -)")
+            try:
+                _toml_value(value)
+            except NoiseModelError as e:
+                raise NoiseModelError(f"{where}: [fit] {key}: {e} (a noise model's figures are numbers, text, "
+                                      "true/false or lists of them)") from None
         try:
             return cls(sections["odometry"], sections.get("range_bearing"), sections.get("stereo"),
                        data.get("robot", "robot"), data.get("platform", ""), data.get("source", ""), dict(fit))
         except NoiseModelError as e:
             raise NoiseModelError(f"{where}: {e}") from None
+
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")   # a TOML key written without quotes
 
 
 def _toml_value(value) -> str:
@@ -396,6 +409,8 @@ def _toml_value(value) -> str:
         return repr(float(value))      # numpy's repr is "np.float64(1.0)", which no TOML reader takes
     if isinstance(value, str):
         escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        # any other control character as \uXXXX: TOML's basic strings may not hold one (the file would not read)
+        escaped = re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\u{ord(m.group()):04x}", escaped)
         return f'"{escaped}"'
     if isinstance(value, list | tuple):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
