@@ -13,6 +13,7 @@ Its file is named by robot, window, step, seed and particles only; inside it hol
 from __future__ import annotations
 
 import argparse
+import shutil
 
 import numpy as np
 import pytest
@@ -69,6 +70,26 @@ def _both(log, noise, args):
     return chained.names, row, poses, guess
 
 
+@pytest.fixture(scope="module")
+def _filled(folder, tmp_path_factory):
+    """The cache filled from the log's first 60 s with the default model and settings, by both entries' first
+    computation (made once per module: four tests start from it, each on its own copy, :func:`_filled_cache`):
+    (the cache folder, the chained names, their row, the guess's poses and guess)."""
+    cache = tmp_path_factory.mktemp("filled") / "cache"
+    log = read_mrclam(folder, 1, until=60.0)
+    chained, row = cn._chained(log, _args(cache), _noise(), CONFIG)
+    poses, guess = mc._guess(log, chained.names, _noise(), CONFIG, _args(cache))
+    for array in (chained.names, poses, *guess.values()):
+        array.flags.writeable = False           # shared by the tests: read only
+    return cache, chained, row, poses, guess
+
+
+def _filled_cache(filled, tmp_path):
+    """A copy, in ``tmp_path``, of the cache :func:`_filled` made; its args."""
+    shutil.copytree(filled[0], tmp_path / "cache")
+    return _args(tmp_path / "cache")
+
+
 def _same(a, b) -> None:
     names, row, poses, guess = a
     names_b, row_b, poses_b, guess_b = b
@@ -81,12 +102,13 @@ def _same(a, b) -> None:
         np.testing.assert_array_equal(guess[k], guess_b[k])
 
 
-def test_an_entry_of_a_shorter_log_is_computed_again_and_a_matching_one_is_used(folder, tmp_path, calls, capsys):
+def test_an_entry_of_a_shorter_log_is_computed_again_and_a_matching_one_is_used(folder, _filled, tmp_path, calls,
+                                                                                  capsys):
     short, long = read_mrclam(folder, 1, until=60.0), read_mrclam(folder, 1, until=90.0)
     assert short.name == long.name and len(short.sighting_times) < len(long.sighting_times)
-    noise, args = _noise(), _args(tmp_path / "cache")
+    noise = _noise()
     expected = _both(long, noise, _args(tmp_path / "elsewhere"))     # the long log's, from no cache
-    _both(short, noise, args)                     # fills the cache from the first 60 s
+    args = _filled_cache(_filled, tmp_path)       # the cache as filled from the first 60 s
     assert sorted(p.name for p in (tmp_path / "cache").rglob("*.npz")) == ["Robot1-w20-s10-seed0-p5-guess.npz",
                                                                            "Robot1-w20-s10-seed0-p5.npz"]
     capsys.readouterr()
@@ -106,21 +128,19 @@ def test_an_entry_of_a_shorter_log_is_computed_again_and_a_matching_one_is_used(
     assert capsys.readouterr().err == ""
 
 
-def test_an_entry_made_with_another_noise_model_is_computed_again(folder, tmp_path, calls, capsys):
+def test_an_entry_made_with_another_noise_model_is_computed_again(folder, _filled, tmp_path, calls, capsys):
     log = read_mrclam(folder, 1, until=60.0)
-    args = _args(tmp_path / "cache")
-    _both(log, _noise(0.02), args)
+    args = _filled_cache(_filled, tmp_path)       # filled with _noise(0.02)
     before = dict(calls)
     _both(log, _noise(0.05), args)
     assert calls == {k: v + 1 for k, v in before.items()}
     assert len(capsys.readouterr().err.splitlines()) == 2
 
 
-def test_a_guess_of_other_names_is_computed_again(folder, tmp_path, calls):
+def test_a_guess_of_other_names_is_computed_again(folder, _filled, tmp_path, calls):
     log = read_mrclam(folder, 1, until=60.0)
-    noise, args = _noise(), _args(tmp_path / "cache")
-    names = cn._chained(log, args, noise, CONFIG)[0].names
-    mc._guess(log, names, noise, CONFIG, args)
+    noise, args = _noise(), _filled_cache(_filled, tmp_path)     # the names' and their guess's entries
+    names = _filled[1].names
     other = np.where(names == names.max(), -1, names)       # a name left out
     before = calls["names_guess"]
     poses, guess = mc._guess(log, other, noise, CONFIG, args)
@@ -128,10 +148,10 @@ def test_a_guess_of_other_names_is_computed_again(folder, tmp_path, calls):
     assert int(names.max()) not in guess
 
 
-def test_an_entry_without_a_digest_is_not_trusted(folder, tmp_path, calls, capsys):
+def test_an_entry_without_a_digest_is_not_trusted(folder, _filled, tmp_path, calls, capsys):
     log = read_mrclam(folder, 1, until=60.0)
-    noise, args = _noise(), _args(tmp_path / "cache")
-    names, row = cn._chained(log, args, noise, CONFIG)
+    noise, args = _noise(), _filled_cache(_filled, tmp_path)
+    names = _filled[1]
     path = next((tmp_path / "cache").rglob("*-p5.npz"))
     # as the cache was written before its entries held a digest, and wrong: every sighting under one name
     np.savez(path, names=np.zeros_like(names.names), row=np.array('{"robot": "stale"}'))
