@@ -106,6 +106,8 @@ def print_row(label: str, rows: list[dict]) -> Counter:
 
     def founds(key):
         n = sum(r[key].found for r in rows)
+        if not n:
+            return "0"
         wrong = [r[f"wrong_{key}"] for r in rows if r[key].found]
         return f"{n} ({sum(bool(w) for w in wrong)})" if all(w is not None for w in wrong) else f"{n} (no truth)"
 
