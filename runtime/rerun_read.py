@@ -100,6 +100,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
     damaged: list[str] = []
     ended = True
     pool = None
+    ids: dict[str, tuple[Path, str]] = {}   # "first": the first file read whole, and its recording id
     if isolated and decodes is None:
         import multiprocessing
 
@@ -123,9 +124,15 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
                 refused = RecordingReadError(f"{p}: {STOPPED_ON_DAMAGE}")
             else:
                 try:
-                    held = _read_chunks(p, readable)
+                    held, recording_id = _read_chunks(p, readable)
                 except RecordingReadError as e:
                     refused = e
+                else:   # files of one recording share its id (a fleet's processes are given one)
+                    first_id = ids.setdefault("first", (p, recording_id))
+                    if recording_id != first_id[1]:
+                        raise RecordingReadError(f"{p}: recording {recording_id}, not {first_id[0]}'s "
+                                                 f"{first_id[1]}: give the files of one recording (its maps would "
+                                                 "replace the other's)")
             if refused is not None:
                 held, note = _read_around_damage(p, scan.whole_bytes, scratch.path() / f"salvage-{index}", refused,
                                                  decodes)
@@ -163,7 +170,7 @@ def _read_around_damage(path: Path, whole_bytes: int, scratch: Path, refused: Re
                                  f"({found.ranges()})") from None
     if not found.damaged and not found.had_end:
         raise refused
-    held = _read_chunks(path, found.copy)
+    held, _ = _read_chunks(path, found.copy)   # its recording id unchecked: the store information may be what broke
     if not found.damaged:  # only the footer (Rerun's manifest of the messages) failed
         return held, f"{path}: its footer does not decode, left out; all {found.total:,} messages read"
     return held, (f"{path}: {len(found.damaged):,} of {found.total:,} messages damaged ({found.ranges()}), "
@@ -197,8 +204,9 @@ ROW_ID = "rerun.controls.RowId"   # a logged row's id, in every chunk that holds
 _READ_CONTENT = ["+ /maps/**", "+ /fusion/**", "+ /mission/**", "+ /plots/**"]
 
 
-def _read_chunks(path: Path, readable: Path) -> list:
-    """The chunks of the maps, fusion results, summary and time series (not images and point clouds)."""
+def _read_chunks(path: Path, readable: Path) -> tuple[list, str]:
+    """The chunks of the maps, fusion results, summary and time series (not images and point clouds), and the
+    recording id of the store they are in."""
     try:
         reader = _rrd_reader(readable)
         recordings = reader.recordings()
@@ -210,7 +218,7 @@ def _read_chunks(path: Path, readable: Path) -> list:
             held = list(reader.stream(store=store).filter(content=_READ_CONTENT))
             if held:
                 break
-        return held
+        return held, str(store.recording_id)
     except RecordingReadError:
         raise
     except Exception as e:  # the bindings raise several untyped errors on corrupt files
