@@ -1,0 +1,167 @@
+"""A drive that follows its command through a first-order response: the filter, the odometry it gives, its fit.
+
+MRCLAM's odometry is the robots' commanded velocity (t, v, ω) at 50 Hz, integrated. The noise model treats the
+drive's answer as a pure delay (``lag_s``); this module models it as a first-order response of time constant T on
+both v and ω (the velocity the drive reaches, y, obeys T ẏ = u − y), the command u held between its samples, the
+pure delay still ``lag_s`` (applied after, as today: :meth:`estimation.noise_model.NoiseModel.odometry_times`).
+
+:func:`first_order_response` is exact for a held command: over a hold of length Δ from state y₀ under input u the
+state ends at u + (y₀ − u) e^(−Δ/T) and its mean is u + (y₀ − u) (T/Δ)(1 − e^(−Δ/T)). :func:`respond` replaces each
+sample by that mean over its hold, so :func:`~estimation.datasets.integrate_velocities` of the result has the
+response's exact heading and exact path length at every sample (the position within a 20 ms hold follows an arc at
+the mean rates: second order in the hold). T = 0 returns the command unchanged.
+
+:func:`fit_response` measures it against the ground truth: over consecutive windows of ``window_s`` the increments
+of the odometry (read ``delay_s`` earlier) against the truth's, a least-squares scale each (the turn's, the travel's:
+calibrations the noise model fits anyway), the RMS of what is left. On MRCLAM dataset 2 see
+``benchmarks/mrclam_drive_response.py``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .datasets import RangeBearingLog, integrate_velocities
+from .geometry import between, wrap_angle
+
+MAX_RESPONSE_TIME_S = 2.0     # s: a slower drive than this is not a calibration of a 50 Hz command
+TRUTH_MAX_TURN_RATE = 4.0     # rad/s between consecutive truth rows: faster is the truth's glitch, not the robot's
+TRUTH_MAX_SPEED = 2.0         # m/s, the same for the travel
+TRUTH_MIN_STEP_S = 0.01       # s: the truth's row interval (100 Hz), the least time a step between rows is given
+
+
+def first_order_response(times, command, time_constant_s: float, order: int = 1) -> np.ndarray:
+    """The mean (K,) over each hold [t_k, t_{k+1}) of a first-order response of time constant ``time_constant_s`` to
+    the ``command`` (K,) held from each of its ``times`` (K,) to the next (the last sample: its own value); the state
+    starts at the first command. ``order`` 2: two such stages in cascade (a critically damped second order, each
+    stage's held input its own previous stage's mean: exact for the first stage, a hold approximation for the
+    second)."""
+    t = np.asarray(times, float)
+    u = np.asarray(command, float)
+    if t.shape != u.shape or t.ndim != 1:
+        raise ValueError(f"times and command must be (K,) alike, not {t.shape} and {u.shape}")
+    if not (math.isfinite(time_constant_s) and 0.0 <= time_constant_s <= MAX_RESPONSE_TIME_S):
+        raise ValueError(f"time constant must lie in [0, {MAX_RESPONSE_TIME_S}] s, not {time_constant_s}")
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2, not {order}")
+    if time_constant_s == 0.0 or len(u) == 0:
+        return u.copy()
+    dt = np.diff(t)
+    if np.any(dt < 0):
+        raise ValueError("times must not decrease")
+    x = dt / time_constant_s
+    a = np.exp(-x)
+    # mean of e^(−s/T) over [0, Δ]: (1 − e^(−Δ/T)) T/Δ, → 1 as Δ → 0 (a zero-length hold keeps the state)
+    gain = np.where(x > 1e-12, -np.expm1(-np.maximum(x, 1e-300)) / np.maximum(x, 1e-300), 1.0)
+    out = np.empty_like(u)
+    y = float(u[0])
+    for k, (uk, ak, gk) in enumerate(zip(u[:-1].tolist(), a.tolist(), gain.tolist(), strict=True)):
+        out[k] = uk + (y - uk) * gk
+        y = uk + (y - uk) * ak
+    out[-1] = y
+    if order == 2:
+        return first_order_response(t, out, time_constant_s)
+    return out
+
+
+def respond(velocities, time_constant_s: float, order: int = 1) -> np.ndarray:
+    """Velocity rows (K, 3) (t, v, ω) -> the same times with v and ω replaced by the response's mean over each hold
+    (:func:`first_order_response`); T = 0: a copy."""
+    rows = np.asarray(velocities, float).reshape(-1, 3)
+    return np.column_stack([rows[:, 0], first_order_response(rows[:, 0], rows[:, 1], time_constant_s, order),
+                            first_order_response(rows[:, 0], rows[:, 2], time_constant_s, order)])
+
+
+def with_drive_response(log: RangeBearingLog, time_constant_s: float, order: int = 1) -> RangeBearingLog:
+    """``log`` whose odometry is its commanded velocities integrated through the response (the commands themselves,
+    ``log.velocities``, unchanged: the stall's dips are the command's). T = 0: ``log`` itself. Needs the log's
+    velocities (MRCLAM's reader keeps them)."""
+    if time_constant_s == 0.0 and order == 1:
+        return log
+    if len(log.velocities) < 2:
+        raise ValueError(f"{log.name}: no commanded velocities to filter (the odometry is not a command)")
+    rows = respond(log.velocities, time_constant_s, order)
+    return replace(log, odometry=integrate_velocities(rows[:, 0], rows[:, 1], rows[:, 2]))
+
+
+@dataclass(frozen=True)
+class ResponseFit:
+    """Per log and in all, on windows of ``window_s``: the turn's least-squares scale and the RMS heading residual
+    (rad), the travel's scale and the RMS forward residual (m), and the windows counted."""
+
+    window_s: float
+    turn_scale: np.ndarray        # (L,)
+    heading_rms: np.ndarray       # (L,)
+    travel_scale: np.ndarray      # (L,)
+    forward_rms: np.ndarray       # (L,)
+    windows: np.ndarray           # (L,)
+
+    @property
+    def pooled_heading_rms(self) -> float:
+        return float(np.sqrt(np.sum(self.heading_rms ** 2 * self.windows) / np.sum(self.windows)))
+
+    @property
+    def pooled_forward_rms(self) -> float:
+        return float(np.sqrt(np.sum(self.forward_rms ** 2 * self.windows) / np.sum(self.windows)))
+
+
+def window_increments(log: RangeBearingLog, delay_s: float, window_s: float, step_s: float = 0.05):
+    """Odometry and true increments over consecutive windows of ``window_s`` on a grid of ``step_s`` inside the truth
+    (the odometry read ``delay_s`` earlier): odometry (W, 3) and truth (W, 3) (x, y in the window's start frame, the
+    turn unwrapped near the odometry's)."""
+    lo = max(log.ground_truth[0, 0], log.odometry[0, 0] + delay_s) + 1.0
+    hi = min(log.ground_truth[-1, 0], log.odometry[-1, 0] + delay_s) - 1.0
+    n = max(1, int(round(window_s / step_s)))
+    grid = np.arange(lo, hi, step_s)
+    grid = grid[: (len(grid) - 1) // n * n + 1][::n]
+    odo = log.odometry_pose(grid - delay_s)
+    # the odometry's heading unwrapped along its rows, sampled at the grid (the turn of a window, not wrapped)
+    rows = log.odometry
+    theta = np.interp(grid - delay_s, rows[:, 0], np.unwrap(rows[:, 3]))
+    u = between(odo[:-1], odo[1:])
+    u[:, 2] = np.diff(theta)
+    g = between(log.true_pose(grid[:-1]), log.true_pose(grid[1:]))
+    g[:, 2] = u[:, 2] + wrap_angle(g[:, 2] - u[:, 2])
+    keep = ~_glitched(log, grid)
+    return u[keep], g[keep]
+
+
+def _glitched(log: RangeBearingLog, grid: np.ndarray) -> np.ndarray:
+    """(len(grid) − 1,) whether each window [grid_k, grid_{k+1}] overlaps a step between consecutive truth rows
+    faster than TRUTH_MAX_TURN_RATE or TRUTH_MAX_SPEED over max(its time, TRUTH_MIN_STEP_S) (MRCLAM's Vicon jumps by
+    up to 2.5 rad for a row now and then: one such window is worth the RMS of all the others; its rows at 100 Hz
+    share stamps where the stamps are coarse, hence the floor)."""
+    truth = log.ground_truth
+    dt = np.maximum(np.diff(truth[:, 0]), TRUTH_MIN_STEP_S)
+    bad = ((np.abs(wrap_angle(np.diff(truth[:, 3]))) > TRUTH_MAX_TURN_RATE * dt)
+           | (np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2])) > TRUTH_MAX_SPEED * dt))
+    if not bad.any():
+        return np.zeros(len(grid) - 1, bool)
+    starts, ends = truth[:-1, 0][bad], truth[1:, 0][bad]
+    # a window [a, b] overlaps a bad step [s, e] if s <= b and e >= a
+    first = np.searchsorted(ends, grid[:-1], side="left")      # the first bad step ending after a
+    return (first < len(starts)) & (starts[np.minimum(first, len(starts) - 1)] <= grid[1:])
+
+
+def fit_response(logs: Sequence[RangeBearingLog], delay_s: float, window_s: float,
+                 min_turn_rad: float = 0.0, min_travel_m: float = 0.0) -> ResponseFit:
+    """The odometry of each log (already through its response: :func:`with_drive_response`) read ``delay_s`` early,
+    against its truth on windows of ``window_s``: the least-squares turn scale and heading RMS over the windows that
+    turn more than ``min_turn_rad`` by the odometry, the travel scale and forward RMS over those moving more than
+    ``min_travel_m`` forward."""
+    out = {k: [] for k in ("ks", "hr", "kv", "fr", "n")}
+    for log in logs:
+        u, g = window_increments(log, delay_s, window_s)
+        turn = np.abs(u[:, 2]) > min_turn_rad
+        k = float(np.dot(u[turn, 2], g[turn, 2]) / max(np.dot(u[turn, 2], u[turn, 2]), 1e-300))
+        move = np.abs(u[:, 0]) > min_travel_m
+        kv = float(np.dot(u[move, 0], g[move, 0]) / max(np.dot(u[move, 0], u[move, 0]), 1e-300))
+        out["ks"].append(k)
+        out["hr"].append(float(np.sqrt(np.mean((g[turn, 2] - k * u[turn, 2]) ** 2))) if turn.any() else math.nan)
+        out["kv"].append(kv)
+        out["fr"].append(float(np.sqrt(np.mean((g[move, 0] - kv * u[move, 0]) ** 2))) if move.any() else math.nan)
+        out["n"].append(len(u))
+    return ResponseFit(window_s, *(np.asarray(out[k], float) for k in ("ks", "hr", "kv", "fr", "n")))
