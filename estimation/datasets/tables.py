@@ -2,7 +2,8 @@
 
 A table has a fixed number of numeric columns per line; blank lines and lines starting with ``#`` are skipped.
 Memory is bounded whatever the file claims or holds: at most ``max_rows`` rows and ``max_line`` characters per
-line are ever read (a gzip bomb or a file without newlines stops at the bound with an error). Every defect is
+line are ever read (a gzip bomb or a file without newlines stops at the bound with an error), and time too: at most
+``MAX_LINES`` lines of any kind (a gzip of blank lines). Every defect is
 one :class:`DatasetError` line naming the file, the line and the field.
 """
 from __future__ import annotations
@@ -21,6 +22,9 @@ from .errors import DatasetError
 
 MAX_LINE = 4096           # characters: far above any numeric row of these formats
 MAX_ROWS = 5_000_000      # rows per table: 5 M × 5 columns × 8 B = 200 MB at most
+# lines of any kind (rows, comments, blank): a 200 kB gzip of 200 M newlines kept the reader busy for 77 s before
+# it said "fewer than 2 rows"; 10 M lines take a few seconds
+MAX_LINES = 2 * MAX_ROWS
 # integer fields (ids, barcodes) up to 2^31 - 1: 1e20 passed the integer check and its cast to int64 gave a
 # RuntimeWarning on stderr and a wrong id (session 25)
 MAX_INTEGER = 2**31 - 1
@@ -62,6 +66,8 @@ def read_table(path: Path, columns: Sequence[str], *, max_rows: int = MAX_ROWS, 
                 line_number += 1
                 if len(line) > max_line and not line.endswith("\n"):
                     raise DatasetError(f"{path}:{line_number}: line longer than {max_line} characters")
+                if line_number > MAX_LINES:
+                    raise DatasetError(f"{path}:{line_number}: more than {MAX_LINES} lines (the reader's bound)")
                 fields = line.split()
                 if not fields or fields[0].startswith("#"):
                     continue

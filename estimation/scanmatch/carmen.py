@@ -7,7 +7,8 @@ NEFF, ODOM, SYNC, other message lines and ``#`` comments are skipped; a malforme
 
 Bounds: a line of at most ``MAX_LINE_BYTES`` (read no further: a file without newlines cannot fill the
 memory), at most ``MAX_BEAMS`` ranges per line, at most ``MAX_READINGS`` readings per log (a plain or
-decompressed log past it is refused, not truncated).
+decompressed log past it is refused, not truncated), at most ``MAX_LINES`` lines of any kind (a small gzip of
+blank lines cannot keep the reader busy for minutes).
 
 Damage: :func:`read_laser_log` raises :class:`TruncatedLogError` (a LogFormatError) for a log that cannot be
 read to its end, whether the stream breaks (a ``.gz`` corrupted or cut in the middle: ``zlib.error``, a bad
@@ -34,6 +35,9 @@ _FIELDS_AFTER_RANGES = 9   # x y θ odom_x odom_y odom_θ ipc_timestamp hostname
 MAX_LINE_BYTES = 1 << 20  # a FLASER line of MAX_BEAMS ranges is under 100 kB
 MAX_BEAMS = 8192
 MAX_READINGS = 500_000  # the MIT/Intel/ACES logs hold 5,000 - 30,000
+# lines of any kind (ODOM, PARAM, ... beside FLASER; blank): a 300 kB gzip of 300 M newlines kept the reader busy
+# for minutes (over 120 s) before it said "no FLASER lines"; 10 M lines take a few seconds
+MAX_LINES = 20 * MAX_READINGS
 
 
 class TruncatedLogError(LogFormatError):
@@ -131,6 +135,9 @@ def iter_laser(path: str | Path) -> Iterator[LaserReading]:
                 line_number += 1
                 if len(raw) > MAX_LINE_BYTES:
                     raise LogFormatError(f"{path}:{line_number}: line longer than {MAX_LINE_BYTES} bytes")
+                if line_number > MAX_LINES:
+                    raise LogFormatError(f"{path}:{line_number}: more than {MAX_LINES} lines (the reader's bound; "
+                                         "split the log)")
                 if raw.startswith(b"FLASER"):
                     yield parse_flaser(raw.decode("ascii"), source=str(path), line_number=line_number)
     except UnicodeDecodeError as error:
