@@ -67,7 +67,6 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
-from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -82,7 +81,8 @@ from estimation.datasets import TRUTH_HEADINGS, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
-from runtime.commands.options import non_negative_int, particle_count, positive_float  # noqa: E402
+from estimation.odometry_response import with_drive_response  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int, particle_count, positive_float  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 COLUMNS = (("ate_m", "ATE", 3), ("evo_ate_m", "evo", 3), ("evo_ate_aligned_m", "evo-al", 3),
@@ -159,9 +159,15 @@ def main(argv: list[str] | None = None) -> int:
                         "robot's direction of travel (travel); the in-sample noise fits and the scores use it")
     parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                         help="override a FastSLAMConfig field (JSON value), e.g. existence_miss=0")
+    parser.add_argument("--response-time", type=non_negative_float, default=0.0, metavar="T",
+                        help="integrate the commanded velocities through a first-order response of time constant T "
+                        "s (v and ω; estimation.odometry_response) before everything (the noise fit and the runs); "
+                        "0, the default: the odometry as read")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    read = partial(read_mrclam, truth_heading=args.truth_heading)
+
+    def read(*a, **k):
+        return with_drive_response(read_mrclam(*a, truth_heading=args.truth_heading, **k), args.response_time)
     if args.defaults:
         vars(args).update(DATASET_CALIBRATIONS, smooth=True)
     overrides = config_overrides(args.set)

@@ -48,7 +48,8 @@ from estimation.odometry_consistency import (
     nees,
     odometry_consistency,
 )
-from runtime.commands.options import positive_int
+from estimation.odometry_response import with_drive_response
+from runtime.commands.options import non_negative_float, positive_int
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 TERMS = ("white ×α", "σ_s (scale)", "σ_b (rad/m)", "σ_r (turn scale)", "σ_ω (rad/s)")
@@ -136,6 +137,9 @@ def main(argv=None) -> int:
     parser.add_argument("--without-command", action="store_true",
                         help="score the windows without the log's commanded velocity: no stall variance after its "
                              "dips, the random walk alone (the tables of sessions 22 and 37)")
+    parser.add_argument("--response-time", type=non_negative_float, default=0.0, metavar="T",
+                        help="integrate the commanded velocities through a first-order response of time constant T "
+                             "s (estimation.odometry_response) before everything; 0, the default: as read")
     args = parser.parse_args(argv)
 
     def command(log):
@@ -145,7 +149,7 @@ def main(argv=None) -> int:
     if not Path(args.data).is_dir():
         print(f"no data set at {args.data}", file=sys.stderr)
         return 2
-    logs = {r: read_mrclam(args.data, r) for r in args.robots}
+    logs = {r: with_drive_response(read_mrclam(args.data, r), args.response_time) for r in args.robots}
     horizons = [f"{h:g} s" for h in HORIZONS_S]
     if args.section in ("all", "horizons"):
         print("1. The default model (DATASET_CALIBRATIONS, whole log): NEES median / % within χ²₃ 95 % per horizon")
