@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, FiniteFloat, ValidationError
 
 from .errors import MapFileError
 from .safe_npz import ArraySpec
@@ -56,7 +56,16 @@ MEMBERS: dict[str, ArraySpec] = {
 }
 REQUIRED = ("format", "positions", "covariances", "descriptors", "ids", "counts", "meta")
 
-_Name = Annotated[str, Field(min_length=1, max_length=256)]
+def _printable(name: str) -> str:
+    """A name is printed (fuse's report, review, the viewer): a control character in it (a newline, an escape
+    sequence's ESC, C1 controls) would add lines or drive the user's terminal."""
+    bad = next((c for c in name if not c.isprintable() and c != " "), None)
+    if bad is not None:
+        raise ValueError(f"a name is printable text; this one holds the control character {bad!r}")
+    return name
+
+
+_Name = Annotated[str, Field(min_length=1, max_length=256), AfterValidator(_printable)]
 
 
 class _Header(BaseModel):
