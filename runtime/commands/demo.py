@@ -84,6 +84,19 @@ def mission_inputs_problem(args) -> str | None:
     if world is not None and virtual and len(world.start_poses) < args.robots:
         return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
                 f"({', '.join(sorted(world.start_poses))})")
+    if str(getattr(args, "exchange", "")).partition(":")[0] == "zenoh":
+        # a robot's name is its Zenoh key chunk: one the map encoder refuses ended the mission after its start
+        # ("mission failed: robot name 'robot 1' must be ...", exit 1)
+        from runtime.fleet.mapwire import ROBOT_NAME
+
+        if virtual and world is not None:
+            names = [name] if name is not None else sorted(world.start_poses)[: args.robots]
+        else:
+            names = [name or "robot1"]
+        bad = next((n for n in names if not ROBOT_NAME.fullmatch(n)), None)
+        if bad is not None:
+            where = f"--name {bad!r}" if bad == name else f"robot {bad!r} of the world '{world.name}'"
+            return f"{where}: on a Zenoh exchange a robot's name is its key chunk, 1-64 of A-Z a-z 0-9 _ -"
     return None
 
 
