@@ -666,6 +666,10 @@ class SensorLog:
             entry = pending[m.log_time]
             if {"t", "left", "right"} <= set(entry):
                 del pending[m.log_time]
+                if entry["left"].shape[:2] != entry["right"].shape[:2]:   # the front end refused it, naming no file
+                    raise SensorLogError(f"{m.file}: the frame at {m.log_time} ns: its left image is "
+                                         f"{entry['left'].shape[1]}x{entry['left'].shape[0]} pixels, its right one "
+                                         f"{entry['right'].shape[1]}x{entry['right'].shape[0]}")
                 yield entry
             while len(pending) > 8:  # a frame missing a part (a crash between its messages): skip it
                 pending.pop(next(iter(pending)))

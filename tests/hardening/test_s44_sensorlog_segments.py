@@ -88,3 +88,18 @@ def test_a_segment_of_another_log_is_refused(logs, tmp_path, capsys, other):
         _refused(folder, capsys, "settings differ")
     else:   # a later log of the same robot and settings continues in time: nothing in it says it is another
         assert SensorLog(folder).files[-1].name == f"r_{len(files) - 1}.mcap"
+
+
+def test_a_frame_whose_images_differ_in_size_names_the_file_and_frame(tmp_path, capsys):
+    """A stereo frame whose left and right images differ in size (a damaged or hand-made log): one line naming the
+    segment and the frame, exit 2 as for any bad log. Before, the front end refused it with 'left (48, 64) and
+    right (24, 32) images differ in size', naming no file, and replay exited 1 as if the machine had failed."""
+    folder = tmp_path / "robot1-log"
+    with SensorLogWriter(folder, {"robot": "robot1", "geometry": GEOMETRY, "seed": 3}) as w:
+        for stream, record in _records(30, np.random.default_rng(3), images=True):
+            if stream == "frames" and record["seq"] == 10:
+                record = {**record, "right": record["right"][:24, :32]}
+            w.write(stream, record)
+    assert main(["replay", str(folder), "--every-frame"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "robot1-log_0.mcap: the frame at" in err[0] and "64x48" in err[0] and "32x24" in err[0]
