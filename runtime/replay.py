@@ -66,10 +66,14 @@ def onboard_config_from_log(log: SensorLog, *, particles: int | None = None, see
     return OnboardConfig(fastslam=fastslam, frontend=frontend, seed=int(meta.get("seed", 0) if seed is None else seed))
 
 
-def _frames(log: SensorLog):
+def _frames(log: SensorLog, descriptor_size: int):
     if log.count("observations"):
         for r in log.records("observations"):
             t = float(r["t"])
+            if len(r["points"]) and r["descriptors"].shape[1] != descriptor_size:  # the filter's error named no file
+                raise SensorLogError(f"{log.folder}: the observations at {t:.3f} s carry "
+                                     f"{r['descriptors'].shape[1]}-element descriptors; the log's settings give "
+                                     f"{descriptor_size}")
             yield CameraFrame(t, int(r["seq"]), observations=StereoObservations(
                 np.asarray(r["points"], float).reshape(-1, 3), np.asarray(r["covariances"], float).reshape(-1, 3, 3),
                 np.asarray(r["descriptors"], np.float32),
@@ -98,7 +102,7 @@ def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None,
     replayed_seqs: set[int] = set()
     t_first = t_last = None
     pose = np.zeros(3)
-    for frame in _frames(log):
+    for frame in _frames(log, config.fastslam.descriptor_size):
         if processed is not None and frame.seq not in processed:
             continue
         replayed_seqs.add(frame.seq)

@@ -908,7 +908,14 @@ def _observations(c: ros.CdrReader) -> dict:
         if len(array) != size:
             raise ros.CdrError(f"field '{name}' holds {len(array)} numbers, count {n} needs {size}")
     _finite("observations", t=t, points=points, covariances=covariances, descriptors=descriptors, pixels=pixels)
-    return {"t": t, "seq": seq, "points": points.reshape(n, 3), "covariances": covariances.reshape(n, 3, 3),
+    covariances = covariances.reshape(n, 3, 3)
+    if n:   # FastSLAM refused one with "an observation covariance is not positive definite", naming no file (exit 1)
+        eigenvalues = np.linalg.eigvalsh(0.5 * (covariances + np.swapaxes(covariances, 1, 2)))
+        worst = int(np.argmin(eigenvalues[:, 0]))
+        if eigenvalues[worst, 0] < -1e-9 * max(1.0, float(np.abs(eigenvalues[worst]).max())):
+            raise ros.CdrError(f"observation {worst}'s covariance is not positive semi-definite (eigenvalue "
+                               f"{eigenvalues[worst, 0]:.3g})")
+    return {"t": t, "seq": seq, "points": points.reshape(n, 3), "covariances": covariances,
             "descriptors": descriptors.reshape(n, d), "pixels": pixels.reshape(n, 2)}
 
 

@@ -103,3 +103,55 @@ def test_a_frame_whose_images_differ_in_size_names_the_file_and_frame(tmp_path, 
     assert main(["replay", str(folder), "--every-frame"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "robot1-log_0.mcap: the frame at" in err[0] and "64x48" in err[0] and "32x24" in err[0]
+
+
+def _observation_log(folder: Path, change) -> Path:
+    with SensorLogWriter(folder, {"robot": "robot1", "geometry": GEOMETRY, "seed": 4}) as w:
+        for stream, record in _records(40, np.random.default_rng(4), images=False):
+            if stream == "observations" and len(record["points"]):
+                record = change(dict(record))
+            w.write(stream, record)
+    return folder
+
+
+def _negative(r):
+    return {**r, "covariances": -np.tile(np.eye(3), (len(r["points"]), 1, 1))}
+
+
+def _asymmetric(r):   # symmetrised as the filter does: eigenvalues 3.5, 1, -1.5
+    c = np.tile(np.eye(3), (len(r["points"]), 1, 1))
+    c[:, 0, 1] = 5.0
+    return {**r, "covariances": c}
+
+
+def _short_descriptors(r):
+    return {**r, "descriptors": np.zeros((len(r["points"]), 7), np.float32)}
+
+
+@pytest.mark.parametrize(("change", "words"), [(_negative, "not positive semi-definite"),
+                                               (_asymmetric, "not positive semi-definite"),
+                                               (_short_descriptors, "7-element descriptors")],
+                         ids=["negative", "asymmetric", "descriptors"])
+def test_observations_the_filter_cannot_take_are_a_bad_log(tmp_path, capsys, change, words):
+    """Before, FastSLAM refused them ('an observation covariance is not positive definite', 'observations carry
+    7-element descriptors; the filter was configured for descriptor_size=64'), naming no file, exit 1."""
+    folder = _observation_log(tmp_path / "robot1-log", change)
+    assert main(["replay", str(folder), "--every-frame", "--particles", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and str(folder) in err[0], err
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(factor=st.lists(st.floats(-3, 3), min_size=9, max_size=9), rank=st.integers(1, 3))
+def test_any_semidefinite_covariance_passes_the_reader(tmp_path_factory, factor, rank):
+    """A Aᵀ of any rank (a zero, a flat, a full ellipsoid) is read as written."""
+    a = np.array(factor).reshape(3, 3)[:, :rank]
+    cov = a @ a.T
+
+    def change(r):
+        return {**r, "covariances": np.tile(cov, (len(r["points"]), 1, 1))}
+
+    log = SensorLog(_observation_log(tmp_path_factory.mktemp("psd") / "robot1-log", change))
+    for record in log.records("observations"):
+        if len(record["points"]):
+            np.testing.assert_array_equal(record["covariances"][0], cov)
