@@ -55,6 +55,19 @@ def review_summary(contents) -> dict:
 _ask_parent = None
 
 
+def _not_a_file_name(name: str) -> str | None:
+    """Why a map's name in a recording cannot be the stem of a file in the export folder (None: it can). The name
+    comes from the recording (an entity path ``maps/NAME``): 'maps/../../x' wrote x.npz two folders above the export
+    folder, so a hostile recording could replace any .npz or .ply file the user may write."""
+    if name in ("", ".", "..") or "/" in name or "\\" in name or not name.isprintable():
+        return f"{_shown(name)!r} is not a file name"
+    return None
+
+
+def _shown(name: str) -> str:
+    return "".join(c if c.isprintable() else "?" for c in name)
+
+
 def read_and_export(paths: list[Path], folder: Path | None) -> dict:
     """Runs in the reading process: read the recording, write each map it holds to ``folder`` as .npz and .ply
     (None: none), and return plain data (the caller imports no Rerun): ``{"error": why}`` for a file that is no
@@ -68,9 +81,13 @@ def read_and_export(paths: list[Path], folder: Path | None) -> dict:
         return {"error": str(e)}
     summary = review_summary(contents)
     exported: dict[str, list[str]] = {}   # map name -> the files written for it
+    not_exported: dict[str, str] = {}     # map name -> why it was not written
     if folder is not None and contents.maps:
         try:
             for name, m in sorted(contents.maps.items()):
+                if (why := _not_a_file_name(name)) is not None:   # the recording's entity path names the file
+                    not_exported[name] = why
+                    continue
                 files = [folder / f"{name}.npz", folder / f"{name}.ply"]
                 m.save(files[0])
                 m.export_ply(files[1])
@@ -78,6 +95,7 @@ def read_and_export(paths: list[Path], folder: Path | None) -> dict:
         except OSError as e:
             return {"write_error": f"cannot write the maps to {folder}: {e}"}
     summary["exported"] = exported
+    summary["not_exported"] = not_exported
     summary["files_written"] = [f for files in exported.values() for f in files]
     return {"summary": summary, "duration": contents.duration}
 
@@ -238,7 +256,7 @@ def _review(args) -> int:
         print(json_text(summary, indent=2))
         return 0
     more = f" and {len(args.more)} more file(s)" if args.more else ""
-    robots = summary["robots"]
+    robots = [_shown(r) for r in summary["robots"]]
     print(f"Recording {summary['recording']}{more}: {len(robots)} robot(s) ({', '.join(robots) or 'none'}), "
           f"{result['duration']:.1f} s")
     if summary["damaged"]:
@@ -247,9 +265,11 @@ def _review(args) -> int:
         print(f"  TRUNCATED recording, {summary['truncated']}: what follows is what it held")
     elif not summary["ended"]:
         print("  the recording has no end-of-stream mark (its writer did not close it): it may end early")
+    not_exported = summary.get("not_exported", {})
     for name, size in summary["maps"].items():
-        print(f"  map {name:<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
-                                                         if name in exported else ""))
+        print(f"  map {_shown(name):<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
+                                                                 if name in exported else "")
+              + (f"  (not exported: {not_exported[name]})" if name in not_exported else ""))
     run = _dataset_run_line(summary["mission_summary"])   # a data set's run: one robot, nothing to align
     if not summary["alignments"] and run is None:
         print("  no alignment in this recording")
