@@ -71,6 +71,25 @@ MAX_WAYPOINTS = 100_000
 MAX_COORDINATE = 1e5  # metres: any building, and far from float overflow in lengths and areas
 
 
+MAX_ROBOT_NAME = 64
+
+
+def robot_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be a robot's name (None: it can). The name names the robot's files (OUT/NAME.npz,
+    NAME-log/, NAME.tum): one with a slash, '..' or a character that does not print wrote them outside the output
+    folder (a world's robot '../escape': OUT/../escape.npz)."""
+    if not 1 <= len(name) <= MAX_ROBOT_NAME or name in (".", "..") or "/" in name or "\\" in name \
+            or not name.isprintable() or name != name.strip():
+        return (f"a robot's name is 1-{MAX_ROBOT_NAME} printable characters without a slash or surrounding spaces, "
+                "not '.' or '..' (it names the robot's files)")
+    return None
+
+
+def _robot_name(r, name: str, where: str) -> None:
+    if (problem := robot_name_problem(name)) is not None:
+        raise r.fail(f"{where}.{name[:40]!r}", problem)
+
+
 class WorldFileError(ValueError):
     """A world data file that cannot be used; the message names the file and the field."""
 
@@ -295,9 +314,11 @@ def _parse(doc: Any, path: str | Path) -> dict[str, Any]:
 
     start_poses: dict[str, np.ndarray] = {}
     for key, value in r.obj(doc.get("start_poses", {}), "start_poses").items():
+        _robot_name(r, key, "start_poses")
         start_poses[key] = r.vector(value, 3, f"start_poses.{key}")
     routes: dict[str, np.ndarray] = {}
     for key, value in r.obj(doc.get("routes", {}), "routes").items():
+        _robot_name(r, key, "routes")
         points = r.array(value, f"routes.{key}", MAX_WAYPOINTS)
         if len(points) < 2:
             raise r.fail(f"routes.{key}", "a route needs at least 2 waypoints")

@@ -45,7 +45,7 @@ def mission_inputs_problem(args) -> str | None:
     one's mission.rrd with an empty recording), the building (--world; on virtual robots also the number of robots
     it has start poses for), the route (--route, when the robots follow one) and the --rerun sink (a URL Rerun
     refuses, a word that is neither a keyword nor FILE.rrd, a .rrd no file can be written at)."""
-    from mocks.world import World
+    from mocks.world import World, robot_name_problem
     from runtime.motion import load_route
 
     virtual = getattr(args, "robot", "mock") == "mock"   # `p3at run` has --robot; `p3at demo` drives mocks only
@@ -78,6 +78,8 @@ def mission_inputs_problem(args) -> str | None:
             return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
                     "(or move it)")
     name = getattr(args, "name", None)   # `p3at run --name`: on the virtual robot, which of the world's robots
+    if name is not None and (problem := robot_name_problem(name)) is not None:   # run --name ../x: OUT/../x.npz
+        return f"--name {name!r}: {problem}"
     if world is not None and virtual and name is not None and name not in world.start_poses:
         return (f"--name {name}: the world '{world.name}' has no robot {name!r} (it has "
                 f"{', '.join(sorted(world.start_poses))})")
