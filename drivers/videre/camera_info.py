@@ -29,7 +29,7 @@ import numpy as np
 from drivers.errors import BadFileError
 from drivers.fileio import InputTooLargeError, atomic_write_bytes, read_bounded
 
-from .calibration import GIVEN_TWICE, StereoCalibration, check_calibration, duplicate_key, refuse_base64
+from .calibration import GIVEN_TWICE, MAX_IMAGE_SIDE, StereoCalibration, check_calibration, duplicate_key, refuse_base64
 
 SIDES = ("left", "right")
 MAX_FILE_BYTES = 64 << 10      # a camera_info file is about 1 kB
@@ -162,6 +162,12 @@ def read_camera(path: str | os.PathLike) -> dict:
             return array.reshape(rows, cols)
 
         width, height = integer("image_width"), integer("image_height")
+        for key, value in (("image_width", width), ("image_height", height)):
+            # checked here, in its own file: a 26-digit width (OpenCV reads it as 2^63) was reported as the right
+            # file's differing from it
+            if not 1 <= value <= MAX_IMAGE_SIDE:
+                shown = f"{value}" if abs(value) < 2**62 else "a number past 2^62"
+                raise bad(key, f"{shown}; an image side is 1..{MAX_IMAGE_SIDE} pixels")
         name = text_field("camera_name")
         if len(name) > 256:
             raise bad("camera_name", "longer than 256 characters")

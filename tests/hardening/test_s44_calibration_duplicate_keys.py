@@ -87,3 +87,16 @@ def test_files_without_repeats_read_as_before(tmp_path, good):
         assert cal.load(tmp_path / f"c.{suffix}").size == default_calibration().size
     path, read = _read(tmp_path, good, "left", good["left"])
     assert read(path).size == default_calibration().size
+
+
+@pytest.mark.parametrize(("value", "shown"), [("99999999999999999999999999", "a number past 2^62"), ("0", "0"),
+                                              ("-640", "-640"), ("16385", "16385")])
+def test_an_image_size_no_head_has_is_blamed_on_its_own_file(tmp_path, good, value, shown):
+    """A left.yaml whose width OpenCV reads as 2^63 (26 digits) was reported as 'right.yaml: field image_width:
+    (640, 480) differs from the left camera's (9223372036854775808, 480)': the right file blamed, a number the file
+    does not hold."""
+    path, read = _read(tmp_path, good, "left", re.sub(r"(?m)^image_width: \d+", f"image_width: {value}",
+                                                      good["left"]))
+    with pytest.raises(BadFileError) as error:
+        read(path)
+    assert "left.yaml:1: field 'image_width': " + shown in str(error.value), str(error.value)
