@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.odometry_response import fit_response, with_drive_response  # noqa: E402
+from runtime.commands.options import positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 TIME_CONSTANTS = np.round(np.arange(0.0, 0.401, 0.025), 3)
@@ -121,7 +122,7 @@ def model_step(T: float, delay: float, order: int = 1) -> np.ndarray:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
-    parser.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--robots", type=positive_int, nargs="+", default=[1, 2, 3, 4, 5])
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
