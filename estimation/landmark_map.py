@@ -49,7 +49,7 @@ import numpy as np
 
 from .errors import MapFileError
 from .fileio import atomic_write_bytes
-from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, read_map_arrays
+from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, check_meta_for_writing, read_map_arrays
 from .ply import write_ply
 from .safe_npz import read_npz
 
@@ -127,9 +127,12 @@ class LandmarkMap:
 
     # -- files ---------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write the map atomically (see the module docstring for the format)."""
+        """Write the map atomically (see the module docstring for the format). Raises MapFileError, writing
+        nothing, where the names or typed metadata are ones :meth:`load` would refuse."""
         buf = io.BytesIO()
-        meta = {"robot": self.robot, "frame": self.frame, "robots": self.robots, "metadata": self.metadata}
+        meta = _json_bytes({"robot": self.robot, "frame": self.frame, "robots": self.robots,
+                            "metadata": self.metadata})
+        check_meta_for_writing(meta, str(path))
         drift = {} if self.drift_covariances is None else {"drift_covariances": self.drift_covariances,
                                                             "drift_origins": self.drift_origins}
         if self.sighting_covariances is not None:
@@ -139,7 +142,7 @@ class LandmarkMap:
             format=_json_bytes({"format": FORMAT_NAME, "version": FORMAT_VERSION}),
             positions=self.positions, covariances=self.covariances, descriptors=self.descriptors,
             ids=self.ids, counts=self.counts, seen_by=self.seen_by, trajectory=self.trajectory,
-            meta=_json_bytes(meta), **drift,
+            meta=meta, **drift,
         )
         atomic_write_bytes(path, buf.getvalue())
 

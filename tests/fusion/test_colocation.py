@@ -19,6 +19,7 @@ from fusion import ROBUST, align
 from fusion.alignment import alignment_error_xy_theta
 from fusion.colocation import colocation_test
 from fusion.errors import IncompatibleMapsError
+from tests.hardening.foreign_map import save_unchecked
 
 P3AT = 0.2525
 NOISE = {"odom_xy_var_per_m": 0.0009, "odom_theta_var_per_rad": 0.0025, "odom_theta_var_per_m": 0.0004,
@@ -136,7 +137,10 @@ def test_hostile_clock_or_footprint_is_a_one_line_error(tmp_path, field, value):
     with pytest.raises(IncompatibleMapsError) as exc:
         colocation_test(m, _map(m.trajectory, "robot2"))
     assert field in str(exc.value) and "\n" not in str(exc.value)
-    m.save(tmp_path / "m.npz")
+    with pytest.raises(MapFileError) as exc:      # the writer refuses what its reader would refuse
+        m.save(tmp_path / "m.npz")
+    assert field in str(exc.value) and "\n" not in str(exc.value) and not (tmp_path / "m.npz").exists()
+    save_unchecked(m, tmp_path / "m.npz")        # as another writer would leave it
     with pytest.raises(MapFileError) as exc:
         LandmarkMap.load(tmp_path / "m.npz")
     assert field in str(exc.value) and "\n" not in str(exc.value)
