@@ -20,6 +20,7 @@ from drivers.errors import BadFileError
 from drivers.videre import calibration as cal
 from drivers.videre import camera_info
 from mocks.stereo_head import default_calibration
+from tests.hardening.calibration_texts import good_calibration_texts
 
 REPO = Path(__file__).resolve().parents[2]
 HANG = "a: !!binary " + "A" * 40 + "\n"   # decodes to 30 zero bytes: OpenCV 5.1's parser never returns
@@ -27,12 +28,7 @@ HANG = "a: !!binary " + "A" * 40 + "\n"   # decodes to 30 zero bytes: OpenCV 5.1
 
 @pytest.fixture(scope="module")
 def good(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("good")
-    cal.save(default_calibration(), folder / "good.yaml")
-    cal.save(default_calibration(), folder / "good.xml")
-    camera_info.write_pair(default_calibration(), folder / "ci")
-    return {"yaml": (folder / "good.yaml").read_text(), "xml": (folder / "good.xml").read_text(),
-            "left": (folder / "ci" / "left.yaml").read_text(), "right": (folder / "ci" / "right.yaml").read_text()}
+    return good_calibration_texts(tmp_path_factory.mktemp("good"))
 
 
 def _files(tmp_path: Path, good: dict[str, str], where: str) -> Path:

@@ -15,6 +15,7 @@ from drivers.videre import calibration as cal
 from drivers.videre import camera_info
 from mocks.stereo_head import default_calibration
 from runtime.cli import main
+from tests.hardening.calibration_texts import good_calibration_texts
 
 # a "key: value" line whose value is on the line (not the head of a matrix mapping)
 SCALAR = re.compile(r"^(\s*)(\w+):\s+(?!!!opencv-matrix)\S")
@@ -22,12 +23,7 @@ SCALAR = re.compile(r"^(\s*)(\w+):\s+(?!!!opencv-matrix)\S")
 
 @pytest.fixture(scope="module")
 def good(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("good")
-    cal.save(default_calibration(), folder / "good.yaml")
-    cal.save(default_calibration(), folder / "good.xml")
-    camera_info.write_pair(default_calibration(), folder / "ci")
-    return {"yaml": (folder / "good.yaml").read_text(), "xml": (folder / "good.xml").read_text(),
-            "left": (folder / "ci" / "left.yaml").read_text(), "right": (folder / "ci" / "right.yaml").read_text()}
+    return good_calibration_texts(tmp_path_factory.mktemp("good"))
 
 
 def _key_of(lines: list[str], i: int) -> str:
