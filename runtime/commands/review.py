@@ -20,6 +20,7 @@ from pathlib import Path
 from runtime.commands.options import OutputPathError, check_output_folder
 from runtime.json_output import json_text
 from runtime.rrd_salvage import STOPPED_ON_DAMAGE
+from runtime.terminal import printable
 
 
 def register(subparsers) -> None:
@@ -60,12 +61,8 @@ def _not_a_file_name(name: str) -> str | None:
     comes from the recording (an entity path ``maps/NAME``): 'maps/../../x' wrote x.npz two folders above the export
     folder, so a hostile recording could replace any .npz or .ply file the user may write."""
     if name in ("", ".", "..") or "/" in name or "\\" in name or not name.isprintable():
-        return f"{_shown(name)!r} is not a file name"
+        return f"{printable(name)!r} is not a file name"
     return None
-
-
-def _shown(name: str) -> str:
-    return "".join(c if c.isprintable() else "?" for c in name)
 
 
 def read_and_export(paths: list[Path], folder: Path | None) -> dict:
@@ -256,7 +253,7 @@ def _review(args) -> int:
         print(json_text(summary, indent=2))
         return 0
     more = f" and {len(args.more)} more file(s)" if args.more else ""
-    robots = [_shown(r) for r in summary["robots"]]
+    robots = [printable(r) for r in summary["robots"]]
     print(f"Recording {summary['recording']}{more}: {len(robots)} robot(s) ({', '.join(robots) or 'none'}), "
           f"{result['duration']:.1f} s")
     if summary["damaged"]:
@@ -267,7 +264,7 @@ def _review(args) -> int:
         print("  the recording has no end-of-stream mark (its writer did not close it): it may end early")
     not_exported = summary.get("not_exported", {})
     for name, size in summary["maps"].items():
-        print(f"  map {_shown(name):<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
+        print(f"  map {printable(name):<10} {size:6d} landmarks" + (f"  -> {', '.join(exported[name])}"
                                                                  if name in exported else "")
               + (f"  (not exported: {not_exported[name]})" if name in not_exported else ""))
     run = _dataset_run_line(summary["mission_summary"])   # a data set's run: one robot, nothing to align
@@ -308,7 +305,7 @@ def _run_warnings(run: dict | None) -> list[str]:
     warnings = run.get("warnings") if isinstance(run, dict) else None
     if not isinstance(warnings, list):
         return []
-    lines = ["".join(c if c.isprintable() else "?" for c in w) for w in warnings if isinstance(w, str)]
+    lines = [printable(w) for w in warnings if isinstance(w, str)]
     if len(lines) > MAX_WARNINGS_SHOWN:
         lines = lines[:MAX_WARNINGS_SHOWN] + [f"… and {len(lines) - MAX_WARNINGS_SHOWN} more in the recording"]
     return lines

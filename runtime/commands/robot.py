@@ -31,6 +31,7 @@ from runtime.commands.options import (
     whole_number_where,
 )
 from runtime.json_output import json_text
+from runtime.terminal import printable
 
 EXIT_DEVICE = 1
 EXIT_BAD_INPUT = 2
@@ -163,12 +164,13 @@ def _info(args: argparse.Namespace) -> int:
                        "bad_checksums": stats.bad_checksums},
         }, indent=2))
         return 0
-    print(f"robot     {_shown(identity.name)}  ({_shown(identity.type)} {_shown(identity.subtype)}) at {args.url}")
+    kind = f"{printable(identity.type)} {printable(identity.subtype)}"
+    print(f"robot     {printable(identity.name)}  ({kind}) at {args.url}")
     print(f"params    {params.source}")
     if config_fields is None:
         print("config    (the robot sent no CONFIG packet)")
     else:
-        print("config    " + "  ".join(f"{k}={_shown(v) if isinstance(v, str) else v}"
+        print("config    " + "  ".join(f"{k}={printable(v) if isinstance(v, str) else v}"
                                        for k, v in config_fields.items()))
     print(f"pose      x={state.x:.3f} m  y={state.y:.3f} m  θ={state.theta:+.4f} rad  "
           f"v={state.v:.3f} m/s  ω={state.w:+.4f} rad/s")
@@ -245,13 +247,6 @@ def _wait_in_packets(robot: Any, first: Any, cycles: int, done: Callable[[Any], 
     of a new session (a reconnect): a wait in the robot's own time. A link that goes silent ends it as lost."""
     return robot.wait_for_state(PACKET_WAIT_BACKSTOP, lambda s: done(s) or s.session != first.session
                                 or s.sequence - first.sequence >= cycles)
-
-
-def _shown(text: str) -> str:
-    """A string the robot sent (its name, a CONFIG text field: latin-1 bytes), for a terminal: every character that
-    does not print (a newline, a carriage return, an escape sequence's ESC, C1 controls) as ``\\xNN``. A damaged or
-    hostile CONFIG put raw control characters on the user's terminal: extra lines, or escape sequences it obeys."""
-    return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" for c in text)
 
 
 def _config_field(config: Any, name: str, default: int) -> int:

@@ -98,9 +98,9 @@ def test_json_keeps_the_strings_exactly(hostile_peer):
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.binary(max_size=60))
 def test_any_text_the_robot_sends_shows_on_one_line_and_printable(raw):
-    from runtime.commands.robot import _shown
+    from runtime.terminal import printable
 
     text = raw.decode("latin-1")   # what the codec makes of a string field
-    shown = _shown(text)
+    shown = printable(text)
     assert shown.isprintable() and len(shown.splitlines()) <= 1
     assert shown == text or any(not c.isprintable() for c in text)

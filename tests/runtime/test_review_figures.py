@@ -91,7 +91,7 @@ def test_a_data_set_runs_warnings_are_printed_on_printable_lines_and_at_most_twe
                "warnings": ["the map's frame rests on single sightings: …", "a \x1b[2Jhostile\nline", 7]}
     out = _review(tmp_path, capsys, "warned", lambda log: log.log_summary(figures))
     assert [line for line in out if "WARNING" in line] == [
-        "  WARNING: the map's frame rests on single sightings: …", "  WARNING: a ?[2Jhostile?line"]
+        "  WARNING: the map's frame rests on single sightings: …", "  WARNING: a \\x1b[2Jhostile\\x0aline"]
     many = {"ate_m": 0.283, "warnings": [f"warning {k}" for k in range(25)]}
     out = _review(tmp_path, capsys, "many", lambda log: log.log_summary(many))
     shown = [line for line in out if "WARNING" in line]
