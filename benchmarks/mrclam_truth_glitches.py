@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.geometry import wrap_angle  # noqa: E402
-from estimation.odometry_response import TRUTH_MAX_SPEED, TRUTH_MAX_TURN_RATE, TRUTH_MIN_STEP_S  # noqa: E402
+from estimation.odometry_response import fast_truth_steps  # noqa: E402
 from runtime.commands.options import positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -44,15 +44,8 @@ NEIGHBOURS = 5        # rows on each side
 EPISODE_GAP = 5       # dropped rows further apart than this are two episodes
 
 
-def fast_steps(truth: np.ndarray) -> np.ndarray:
-    """(len(truth) − 1,) whether each step between consecutive rows (time, x, y, θ) is faster than the limits."""
-    dt = np.maximum(np.diff(truth[:, 0]), TRUTH_MIN_STEP_S)
-    return ((np.abs(wrap_angle(np.diff(truth[:, 3]))) > TRUTH_MAX_TURN_RATE * dt)
-            | (np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2])) > TRUTH_MAX_SPEED * dt))
-
-
 def _fast(a: np.ndarray, b: np.ndarray) -> bool:
-    return bool(fast_steps(np.stack([a, b]))[0])
+    return bool(fast_truth_steps(np.stack([a, b]))[0])
 
 
 def glitch_rows(truth: np.ndarray) -> np.ndarray:
@@ -96,9 +89,9 @@ def census(truth: np.ndarray) -> dict:
     after = keep[np.clip(np.searchsorted(keep, rows), 0, len(keep) - 1)]
     at_wrap = (np.abs(truth[before, 3]) > 3.0) & (np.abs(truth[after, 3]) > 3.0)
     shared = (truth[rows, 0] == truth[before, 0]) | (truth[rows, 0] == truth[after, 0])
-    return {"rows": len(truth), "fast_steps": int(fast_steps(truth).sum()), "dropped": len(rows),
+    return {"rows": len(truth), "fast_steps": int(fast_truth_steps(truth).sum()), "dropped": len(rows),
             "episodes": episodes, "at_the_wrap": int(at_wrap.sum()), "sharing_a_stamp": int(shared.sum()),
-            "fast_steps_left": int(fast_steps(truth[keep]).sum()),
+            "fast_steps_left": int(fast_truth_steps(truth[keep]).sum()),
             "dropped_times_s": [float(t) for t in truth[rows, 0]]}
 
 

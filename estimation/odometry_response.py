@@ -129,15 +129,21 @@ def window_increments(log: RangeBearingLog, delay_s: float, window_s: float, ste
     return u[keep], g[keep]
 
 
+def fast_truth_steps(truth: np.ndarray) -> np.ndarray:
+    """(len(truth) − 1,) whether each step between consecutive truth rows (time, x, y, θ) is faster than
+    TRUTH_MAX_TURN_RATE or TRUTH_MAX_SPEED over max(its time, TRUTH_MIN_STEP_S)."""
+    dt = np.maximum(np.diff(truth[:, 0]), TRUTH_MIN_STEP_S)
+    return ((np.abs(wrap_angle(np.diff(truth[:, 3]))) > TRUTH_MAX_TURN_RATE * dt)
+            | (np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2])) > TRUTH_MAX_SPEED * dt))
+
+
 def _glitched(log: RangeBearingLog, grid: np.ndarray) -> np.ndarray:
     """(len(grid) − 1,) whether each window [grid_k, grid_{k+1}] overlaps a step between consecutive truth rows
     faster than TRUTH_MAX_TURN_RATE or TRUTH_MAX_SPEED over max(its time, TRUTH_MIN_STEP_S) (MRCLAM's Vicon jumps by
     up to 2.5 rad for a row now and then: one such window is worth the RMS of all the others; its rows at 100 Hz
     share stamps where the stamps are coarse, hence the floor)."""
     truth = log.ground_truth
-    dt = np.maximum(np.diff(truth[:, 0]), TRUTH_MIN_STEP_S)
-    bad = ((np.abs(wrap_angle(np.diff(truth[:, 3]))) > TRUTH_MAX_TURN_RATE * dt)
-           | (np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2])) > TRUTH_MAX_SPEED * dt))
+    bad = fast_truth_steps(truth)
     if not bad.any():
         return np.zeros(len(grid) - 1, bool)
     starts, ends = truth[:-1, 0][bad], truth[1:, 0][bad]

@@ -8,8 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from benchmarks.mrclam_truth_glitches import census, fast_steps, glitch_rows, main, read_truth_lines
+from benchmarks.mrclam_truth_glitches import census, glitch_rows, main, read_truth_lines
 from estimation.geometry import wrap_angle
+from estimation.odometry_response import fast_truth_steps
 from tests.datasets.conftest import MRCLAM2
 
 
@@ -35,7 +36,7 @@ def _crossing(truth: np.ndarray) -> int:
 
 def test_a_smooth_turn_through_the_wrap_has_no_glitch():
     truth = _turning()
-    assert not fast_steps(truth).any()
+    assert not fast_truth_steps(truth).any()
     assert len(glitch_rows(truth)) == 0
 
 
@@ -51,7 +52,7 @@ def test_rows_interpolated_across_the_wrap_are_found_and_nothing_else(count, rat
     assert set(changed) <= set(found)
     assert set(found) <= set(range(at - 1, at + count + 1))          # at most one good neighbour taken with them
     keep = np.setdiff1d(np.arange(len(bad)), found)
-    assert not fast_steps(bad[keep]).any()
+    assert not fast_truth_steps(bad[keep]).any()
 
 
 def test_a_position_jump_is_found():
@@ -77,7 +78,7 @@ def test_the_cleaned_copy_deletes_only_the_glitch_rows(tmp_path):
     assert main(["--data", str(src), "--robots", "1", "--clean", str(out)]) == 0
     lines, _, rows = read_truth_lines(out / "Robot1_Groundtruth.dat.gz")
     original = text.encode().split(b"\n")
-    assert len(rows) == len(truth) - 1 and not fast_steps(rows).any()
+    assert len(rows) == len(truth) - 1 and not fast_truth_steps(rows).any()
     [row] = glitch_rows(truth)
     assert lines == original[:row + 1] + original[row + 2:]             # the header and the rest byte-identical
     assert (out / "Robot1_Odometry.dat").read_text() == "0 0 0\n"
