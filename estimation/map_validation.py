@@ -59,7 +59,7 @@ REQUIRED = ("format", "positions", "covariances", "descriptors", "ids", "counts"
 def _printable(name: str) -> str:
     """A name is printed (fuse's report, review, the viewer): a control character in it (a newline, an escape
     sequence's ESC, C1 controls) would add lines or drive the user's terminal."""
-    bad = next((c for c in name if not c.isprintable() and c != " "), None)
+    bad = next((c for c in name if not c.isprintable()), None)
     if bad is not None:
         raise ValueError(f"a name is printable text; this one holds the control character {bad!r}")
     return name
