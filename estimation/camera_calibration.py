@@ -514,10 +514,11 @@ class _Shape:
                                   range_sigmas=self.sigmas * m / self.start)
         return out if self.scale is None else self.scale.applied(out, c[TRANSLATION_SCALE])
 
-    def columns(self, problem: LandmarkLogProblem, poses, landmarks, c, weights) -> sp.csr_matrix:
+    def columns(self, problem: LandmarkLogProblem, poses, landmarks, c, weights, residuals=None) -> sp.csr_matrix:
         """(3T + 2S, estimated terms) the odometry's and the sightings' derivatives in c's estimated terms, at
-        ``problem`` (as c makes it)."""
-        odometry, sightings = _residuals(problem, poses, landmarks)
+        ``problem`` (as c makes it; ``residuals`` its :func:`~estimation.landmark_smoother._residuals` there, if
+        known: the solve has them already)."""
+        odometry, sightings = _residuals(problem, poses, landmarks) if residuals is None else residuals
         e_r = sightings.reshape(-1, 2)[:, 0]                         # (r̂ − r')/σ
         s = np.arange(len(self.ranges))
         t = problem.n_poses

@@ -575,6 +575,57 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
     return odometry.ravel(), sightings.ravel()
 
 
+class _Rows:
+    """A sparse Jacobian as blocks of rows, each row with at most W entries: columns (R, W) (−1: no entry) and values
+    (R, W), the blocks in the matrix's row order (the odometry's first) and each row's columns ascending. Why not COO
+    triplets: every factor type has a fixed shape of row, so the CSR arrays of any range of columns follow from these
+    by one mask, without COO's conversion and the sparse stacking of the extra unknowns' columns and rows; and the
+    solve takes the poses' columns and the others apart (:class:`_NormalEquations`)."""
+
+    def __init__(self, n_columns: int) -> None:
+        self.columns: list[np.ndarray] = []
+        self.values: list[np.ndarray] = []
+        self.n_columns = n_columns
+
+    def add(self, columns: np.ndarray, values: np.ndarray) -> None:
+        """Rows after the others: columns and values (..., W), the leading axes flattened in order."""
+        shape = (int(np.prod(np.shape(columns)[:-1])), np.shape(columns)[-1])
+        self.columns.append(np.asarray(columns, np.int64).reshape(shape))
+        self.values.append(np.asarray(values, float).reshape(shape))
+
+    def csr(self, first: int = 0, last: int | None = None) -> sp.csr_matrix:
+        """The columns [first, last) as a CSR matrix (every row: stored entries as the rows hold them, zeros too)."""
+        last = self.n_columns if last is None else last
+        indices, data, counts = [], [], []
+        for columns, values in zip(self.columns, self.values, strict=True):
+            keep = (columns >= first) & (columns < last)
+            indices.append(columns[keep] - first)
+            data.append(values[keep])
+            counts.append(keep.sum(axis=1))
+        indptr = np.concatenate([[0], np.cumsum(np.concatenate(counts))]) if counts else np.zeros(1, np.int64)
+        out = sp.csr_matrix((np.concatenate(data) if data else np.zeros(0),
+                             np.concatenate(indices) if indices else np.zeros(0, np.int64), indptr),
+                            shape=(len(indptr) - 1, last - first))
+        out.has_sorted_indices = True      # ascending within each row, by construction
+        return out
+
+
+def _padded(matrix: sp.spmatrix, column_offset: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(columns (R, W), values (R, W)) of ``matrix``'s stored entries row by row (columns shifted by
+    ``column_offset``, ascending; −1 and 0 after a row's last), W its most entries in a row."""
+    matrix = sp.csr_matrix(matrix)
+    matrix.sort_indices()
+    counts = np.diff(matrix.indptr)
+    width = int(counts.max()) if len(counts) and matrix.nnz else 0
+    columns = np.full((matrix.shape[0], width), -1, np.int64)
+    values = np.zeros((matrix.shape[0], width))
+    row = np.repeat(np.arange(matrix.shape[0]), counts)
+    slot = np.arange(matrix.nnz) - np.repeat(matrix.indptr[:-1], counts)
+    columns[row, slot] = matrix.indices + column_offset
+    values[row, slot] = matrix.data
+    return columns, values
+
+
 def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
               sighting_weights: np.ndarray, drift: _Drift | None = None, offset: _Offsets | None = None,
               offsets: np.ndarray | None = None, extra: ExtraUnknowns | None = None,
@@ -583,38 +634,51 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
     j's columns are (x, y, θ, b_{j−1}) and the drift's factors are rows after the sightings'. With sighting offsets
     (G, 2), their columns follow the landmarks' and their priors' rows follow the others. With extra unknowns
     (``problem``'s sightings as their values make them), their columns and their own factors' rows come last."""
+    return _jacobian_rows(problem, poses, landmarks, n_landmarks, sighting_weights, drift, offset, offsets, extra,
+                          extra_values).csr()
+
+
+def _jacobian_rows(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, n_landmarks: int,
+                   sighting_weights: np.ndarray, drift: _Drift | None = None, offset: _Offsets | None = None,
+                   offsets: np.ndarray | None = None, extra: ExtraUnknowns | None = None,
+                   extra_values: np.ndarray | None = None, residuals=None) -> _Rows:
+    """:func:`_jacobian` as :class:`_Rows`: the odometry's rows (x, y, θ per increment), the sightings' (range,
+    bearing), the drift's, the offsets' priors, the extra unknowns' own. ``residuals``: :func:`_residuals` at
+    ``problem``, poses and landmarks if the caller has them (the extra unknowns' columns read them), else None."""
     t = problem.n_poses
     width = _width(drift)
-    rows, cols, vals = [], [], []
-
-    def put(r, c, v):
-        keep = c >= 0                       # pose 0 is fixed: no column
-        rows.append(r[keep])
-        cols.append(c[keep])
-        vals.append(v[keep])
-
+    n_drift = 0 if drift is None else drift.n
+    n_columns = width * t + 2 * n_landmarks + (0 if offset is None else 2 * offset.n_explicit)
+    in_factors = None
+    if extra is not None:
+        # the extra values change the odometry's and the sightings' factors: their columns come after all the others
+        derivatives = extra.columns(problem, poses, landmarks, extra_values, sighting_weights, residuals=residuals)
+        in_factors = _padded(derivatives, n_columns)
     k = np.arange(t)
     a, b = poses[:-1], poses[1:]
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
     dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
     sigma = problem.increment_sigmas
-    col_a, col_b = width * (k - 1), width * k    # pose j's columns start at width·(j − 1)
-    col_a = np.where(k == 0, -1, col_a)
+    col_a, col_b = width * (k - 1), width * k    # pose j's columns start at width·(j − 1); pose 0 has none
+    # the odometry's rows: (x, y) (a_x, a_y, a_θ, b_x, b_y), θ (a_θ, b_θ, the drift's states of b)
+    slots = max(5, 2 + n_drift)
+    columns = np.full((t, 3, slots), -1, np.int64)
+    values = np.zeros((t, 3, slots))
     # between: e_x = c dx + s dy, e_y = −s dx + c dy, e_θ = b_θ − a_θ
     for axis, (wx, wy, wth) in enumerate(((c, s, -s * dx + c * dy), (-s, c, -c * dx - s * dy))):
-        r = 3 * k + axis
         w = 1.0 / sigma[:, axis]
-        put(r, np.where(col_a < 0, -1, col_a), -wx * w)
-        put(r, np.where(col_a < 0, -1, col_a + 1), -wy * w)
-        put(r, np.where(col_a < 0, -1, col_a + 2), wth * w)
-        put(r, col_b, wx * w)
-        put(r, col_b + 1, wy * w)
-    r = 3 * k + 2
-    put(r, np.where(col_a < 0, -1, col_a + 2), -1.0 / sigma[:, 2])
-    put(r, col_b + 2, 1.0 / sigma[:, 2])
+        columns[:, axis, :5] = np.column_stack([col_a, col_a + 1, col_a + 2, col_b, col_b + 1])
+        values[:, axis, :5] = np.column_stack([-wx * w, -wy * w, wth * w, wx * w, wy * w])
+    columns[:, 2, :2] = np.column_stack([col_a + 2, col_b + 2])
+    values[:, 2, :2] = np.column_stack([-1.0 / sigma[:, 2], 1.0 / sigma[:, 2]])
     if drift is not None:
         for j, multiplier in enumerate(drift.multipliers):     # the heading less b_k d_k (and c_k |Δθ_k|)
-            put(r, col_b + 3 + j, -multiplier / sigma[:, 2])
+            columns[:, 2, 2 + j] = col_b + 3 + j
+            values[:, 2, 2 + j] = -multiplier / sigma[:, 2]
+    if t:                                         # pose 0 is fixed: no column
+        columns[0, :2, :3] = -1
+        columns[0, 2, 0] = -1
+    rows = _Rows(n_columns + (0 if in_factors is None else derivatives.shape[1]))
 
     at = poses[problem.pose_index]
     d = landmarks[problem.landmark_index] - at[:, :2]
@@ -622,45 +686,51 @@ def _jacobian(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndar
         d = d + offsets[offset.index]
     q = np.maximum(d[:, 0] ** 2 + d[:, 1] ** 2, 1e-12)
     rng = np.sqrt(q)
-    base = 3 * t + 2 * np.arange(len(d))
     pose_col = width * (problem.pose_index - 1)
     landmark_col = width * t + 2 * problem.landmark_index
     wr = sighting_weights / problem.range_sigmas
     wb = sighting_weights / problem.bearing_sigmas
+    n_sightings = len(d)
+    # the sightings' rows: range (p_x, p_y, −, m_x, m_y[, o_x, o_y]), bearing (p_x, p_y, p_θ, m_x, m_y[, o_x, o_y])
+    sighting_columns = np.full((n_sightings, 2, 7 if offset is not None else 5), -1, np.int64)
+    sighting_values = np.zeros(sighting_columns.shape)
     for col_offset, dr, db in ((0, d[:, 0] / rng, -d[:, 1] / q), (1, d[:, 1] / rng, d[:, 0] / q)):
-        put(base, landmark_col + col_offset, dr * wr)
-        put(base, pose_col + col_offset, -dr * wr)
-        put(base + 1, landmark_col + col_offset, db * wb)
-        put(base + 1, pose_col + col_offset, -db * wb)
+        sighting_columns[:, :, 3 + col_offset] = (landmark_col + col_offset)[:, None]
+        sighting_values[:, 0, 3 + col_offset] = dr * wr
+        sighting_values[:, 1, 3 + col_offset] = db * wb
+        sighting_columns[:, :, col_offset] = (pose_col + col_offset)[:, None]
+        sighting_values[:, 0, col_offset] = -dr * wr
+        sighting_values[:, 1, col_offset] = -db * wb
         if offset is not None:                                   # m + o: the same derivatives
             column = offset.column[offset.index]
             offset_col = np.where(column < 0, -1, width * t + 2 * n_landmarks + 2 * column + col_offset)
-            put(base, offset_col, dr * wr)
-            put(base + 1, offset_col, db * wb)
-    put(base + 1, pose_col + 2, -wb)
-    n_rows = 3 * t + 2 * len(d)
+            sighting_columns[:, :, 5 + col_offset] = offset_col[:, None]
+            sighting_values[:, 0, 5 + col_offset] = dr * wr
+            sighting_values[:, 1, 5 + col_offset] = db * wb
+    sighting_columns[:, 1, 2] = pose_col + 2
+    sighting_values[:, 1, 2] = -wb
+    if in_factors is None:
+        rows.add(columns, values)
+        rows.add(sighting_columns, sighting_values)
+    else:
+        extra_columns, extra_values_ = in_factors
+        rows.add(np.concatenate([columns.reshape(3 * t, -1), extra_columns[:3 * t]], axis=1),
+                 np.concatenate([values.reshape(3 * t, -1), extra_values_[:3 * t]], axis=1))
+        rows.add(np.concatenate([sighting_columns.reshape(2 * n_sightings, -1), extra_columns[3 * t:]], axis=1),
+                 np.concatenate([sighting_values.reshape(2 * n_sightings, -1), extra_values_[3 * t:]], axis=1))
     if drift is not None and t:
         # per process j: b_0 / σ, then (b_k − a b_{k−1}) / σ_k: b_k is column 3 + j of pose k + 1's block
         for j in range(drift.n):
-            put(n_rows + k, width * k + 3 + j, np.concatenate([[1.0 / drift.prior_sds[j]], 1.0 / drift.sds[j]]))
-            put(n_rows + k[1:], width * k[:-1] + 3 + j, -drift.decay / drift.sds[j])
-            n_rows += t
-    n_columns = width * t + 2 * n_landmarks
+            previous = np.concatenate([[-1], width * k[:-1] + 3 + j])
+            rows.add(np.column_stack([previous, width * k + 3 + j]),
+                     np.column_stack([np.concatenate([[0.0], -drift.decay / drift.sds[j]]),
+                                      np.concatenate([[1.0 / drift.prior_sds[j]], 1.0 / drift.sds[j]])]))
     if offset is not None and offset.n_explicit:
         g = np.arange(2 * offset.n_explicit)
-        put(n_rows + g, n_columns + g, np.full(len(g), 1.0 / offset.sigma))
-        n_rows += len(g)
-        n_columns += len(g)
-    shape = (n_rows, n_columns)
-    jac = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
-    if extra is None:
-        return jac
-    # the extra values change the odometry's and the sightings' factors: their columns are 0 in the priors' rows
-    in_factors = extra.columns(problem, poses, landmarks, extra_values, sighting_weights)
-    n_values = in_factors.shape[1]
-    columns = sp.vstack([in_factors, sp.csr_matrix((n_rows - 3 * t - 2 * len(d), n_values))])
-    jac = sp.hstack([jac, columns], format="csr")
-    return sp.vstack([jac, extra.rows(problem, landmarks, extra_values, jac.shape[1])], format="csr")
+        rows.add((width * t + 2 * n_landmarks + g)[:, None], np.full((len(g), 1), 1.0 / offset.sigma))
+    if extra is not None:   # their own factors' rows
+        rows.add(*_padded(extra.rows(problem, landmarks, extra_values, rows.n_columns)))
+    return rows
 
 
 def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
@@ -684,9 +754,10 @@ class ExtraUnknowns(Protocol):
         """``problem`` with its increments and sightings (values, σ's) as ``values`` make them."""
 
     def columns(self, problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray, values: np.ndarray,
-                weights: np.ndarray) -> sp.csr_matrix:
+                weights: np.ndarray, residuals: tuple[np.ndarray, np.ndarray] | None = None) -> sp.csr_matrix:
         """(3T + 2S, k) ∂(the odometry's normalised residuals (x, y, θ per increment), then the sightings' ((range,
-        bearing) interleaved, scaled by their weights (S,)))/∂values, at ``problem`` (as ``values`` make it)."""
+        bearing) interleaved, scaled by their weights (S,)))/∂values, at ``problem`` (as ``values`` make it).
+        ``residuals``: :func:`_residuals` there (odometry, sightings), if the caller has them (None: computed)."""
 
     def residuals(self, landmarks: np.ndarray, values: np.ndarray) -> np.ndarray:
         """(K,) the own factors' normalised residuals (K may be 0)."""
@@ -701,9 +772,18 @@ class ExtraUnknowns(Protocol):
 
 def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
           offsets=None, extra=None, extra_values=None) -> float:
+    return _cost_at(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets, extra,
+                    extra_values)[0]
+
+
+def _cost_at(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
+             offsets=None, extra=None, extra_values=None) -> tuple[float, LandmarkLogProblem, tuple]:
+    """(the cost, ``problem`` as the extra values make it, its residuals (odometry, sightings)): the solve's next
+    iteration starts from the point a step was accepted at, and reads the last two from here instead of again."""
     if extra is not None:
         problem = extra.applied(problem, extra_values)
-    odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
+    residuals = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
+    odometry, sightings = residuals
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
         norm = np.sqrt(norm2)
@@ -716,10 +796,10 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
     if extra is not None:
         others += float(np.sum(extra.residuals(landmarks, extra_values) ** 2))
     if heading_loss is None:
-        return float(np.sum(odometry ** 2) + np.sum(rho)) + others
+        return float(np.sum(odometry ** 2) + np.sum(rho)) + others, problem, residuals
     odometry = odometry.reshape(-1, 3)
     heading = heading_loss.rho(odometry[:, 2], problem.increment_sigmas[:, 2])
-    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + others
+    return float(np.sum(odometry[:, :2] ** 2) + np.sum(heading) + np.sum(rho)) + others, problem, residuals
 
 
 def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
@@ -742,16 +822,19 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
     landmarks_end = width * t + 2 * n_landmarks
     offsets_end = landmarks_end + (0 if offset is None else 2 * offset.n_explicit)
     damping = 1e-4
-    cost = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets, extra,
-                 extra_values)
+    cost, at, residuals = _cost_at(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset,
+                                   offsets, extra, extra_values)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        at = problem if extra is None else extra.applied(problem, extra_values)
-        odometry, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
+        if residuals is None:   # no cost computed where the last step went (refused values): nothing to reuse
+            at = problem if extra is None else extra.applied(problem, extra_values)
+            residuals = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
+        odometry, sightings = residuals
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)
-        jac = _row_scaled(_jacobian(at, poses, landmarks, n_landmarks, weights, drift, offset, offsets, extra,
-                                    extra_values), t, heading_weights)
+        rows = _jacobian_rows(at, poses, landmarks, n_landmarks, weights, drift, offset, offsets, extra, extra_values,
+                              residuals)
         if heading_weights is not None:
+            rows.values[0][2::3] *= np.sqrt(heading_weights)[:, None]   # the heading rows by √w, as _row_scaled
             odometry = odometry.copy()
             odometry[2::3] *= np.sqrt(heading_weights)
         parts = [odometry, (sightings.reshape(-1, 2) * weights[:, None]).ravel()]
@@ -762,12 +845,9 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
         if extra is not None:
             parts.append(extra.residuals(landmarks, extra_values))
         residual = np.concatenate(parts)
-        normal = (jac.T @ jac).tocsc()
-        gradient = jac.T @ residual
-        diagonal = normal.diagonal()
+        normal = _NormalEquations(rows, residual, t, width)
         while True:
-            damped = normal + sp.diags(damping * np.maximum(diagonal, 1e-9), format="csc")
-            step = -NormalFactor(damped, t, width).solve(gradient)
+            step = -normal.damped(damping).solve(normal.gradient)
             trial_poses, trial_landmarks = poses.copy(), landmarks.copy()
             pose_step = step[:width * t].reshape(t, width)
             landmark_step = step[width * t:landmarks_end].reshape(n_landmarks, 2)
@@ -786,10 +866,11 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             trial_poses[1:, 2] = wrap_angle(trial_poses[1:, 2])
             trial_values = None if extra is None else extra.stepped(extra_values, step[offsets_end:])
             if extra is not None and trial_values is None:   # values the extra unknowns do not admit: refused
-                trial = np.inf
+                trial, trial_at, trial_residuals = np.inf, None, None
             else:
-                trial = _cost(problem, trial_poses, trial_landmarks, inliers, robust, heading_loss, drift,
-                              trial_bias, offset, trial_offsets, extra, trial_values)
+                trial, trial_at, trial_residuals = _cost_at(problem, trial_poses, trial_landmarks, inliers, robust,
+                                                            heading_loss, drift, trial_bias, offset, trial_offsets,
+                                                            extra, trial_values)
             if trial <= cost:
                 break
             damping *= 10.0
@@ -804,6 +885,7 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             extra_values[:] = trial_values
         damping = max(damping / 10.0, 1e-9)
         improvement, cost = cost - trial, trial
+        at, residuals = trial_at, trial_residuals
         if np.max(np.abs(step)) < _STEP_TOLERANCE or improvement < 1e-9 * max(cost, 1.0):
             return iteration, True
     return MAX_ITERATIONS, False
@@ -844,17 +926,24 @@ class NormalFactor:
 
     def __init__(self, normal: sp.spmatrix, t: int, width: int = 3) -> None:
         normal = normal.tocsc()
-        self.t, self.width = t, width
         n = width * t
-        half = 2 * width - 1
-        pp = normal[:n, :n]
-        self.pl = normal[:n, n:].toarray()
-        band = np.zeros((half + 1, n))
-        for offset in range(half + 1):
-            band[half - offset, offset:] = pp.diagonal(offset)
+        self._factor(_upper_band(normal[:n, :n], width), normal[:n, n:].toarray(), normal[n:, n:].toarray(), t,
+                     width)
+
+    @classmethod
+    def of_blocks(cls, band: np.ndarray, pl: np.ndarray, ll: np.ndarray, t: int, width: int = 3) -> NormalFactor:
+        """The factor of H given as its blocks: H_pp's upper band (2·width, width·T) (row 2·width − 1 the diagonal,
+        as :func:`scipy.linalg.cholesky_banded` reads it), H_pl (width·T, M) and H_ll (M, M), dense."""
+        out = cls.__new__(cls)
+        out._factor(band, pl, ll, t, width)
+        return out
+
+    def _factor(self, band: np.ndarray, pl: np.ndarray, ll: np.ndarray, t: int, width: int) -> None:
+        self.t, self.width = t, width
+        self.pl = pl
         self.band = scipy.linalg.cholesky_banded(band, lower=False)
         self.x = self._pose_solve(self.pl)                           # H_pp⁻¹ H_pl
-        schur = normal[n:, n:].toarray() - self.pl.T @ self.x
+        schur = ll - self.pl.T @ self.x
         self.schur = scipy.linalg.cho_factor(0.5 * (schur + schur.T)) if len(schur) else None
 
     def _pose_solve(self, rhs: np.ndarray) -> np.ndarray:
@@ -897,6 +986,43 @@ class NormalFactor:
             x = self.x[columns].reshape(len(which), 3, -1)
             out[chunk:chunk + len(which)] = blocks + x @ landmark_cov @ x.transpose(0, 2, 1)
         return 0.5 * (out + out.transpose(0, 2, 1))
+
+
+def _upper_band(pp: sp.spmatrix, width: int) -> np.ndarray:
+    """H_pp (width·T, width·T) as the upper band :func:`scipy.linalg.cholesky_banded` reads (half-width 2·width − 1:
+    every factor touches at most two consecutive poses)."""
+    half = 2 * width - 1
+    band = np.zeros((half + 1, pp.shape[0]))
+    for offset in range(half + 1):
+        band[half - offset, offset:] = pp.diagonal(offset)
+    return band
+
+
+class _NormalEquations:
+    """One Gauss–Newton iteration's normal equations JᵀJ δ = −Jᵀr as :class:`NormalFactor` reads them: H_pp's band,
+    H_pl and H_ll dense, and the gradient Jᵀr, from the Jacobian's pose columns and its others apart (J_pᵀJ_p,
+    J_pᵀJ_r, J_rᵀJ_r). Every entry is the same sum as (JᵀJ)'s, Σ_k J_ki J_kj over the rows k in order, so the blocks
+    are JᵀJ's to the bit; the whole JᵀJ, sliced into blocks and damped as a sparse sum each step, cost twice as much.
+    Damping adds to the diagonals of the blocks, as a sparse diagonal added to JᵀJ does."""
+
+    def __init__(self, rows: _Rows, residual: np.ndarray, t: int, width: int) -> None:
+        n = width * t
+        poses, others = rows.csr(0, n), rows.csr(n)
+        self.t, self.width = t, width
+        self.band = _upper_band(poses.T @ poses, width)
+        self.pl = (poses.T @ others).toarray()
+        self.ll = (others.T @ others).toarray()
+        self.gradient = np.concatenate([poses.T @ residual, others.T @ residual])
+        self.diagonal = np.concatenate([self.band[-1], np.diagonal(self.ll)])
+
+    def damped(self, damping: float) -> NormalFactor:
+        """The factor of H + damping·diag(max(diag H, 10⁻⁹)) (Levenberg's, scaled as Marquardt's)."""
+        add = damping * np.maximum(self.diagonal, 1e-9)
+        n = len(self.band[-1])
+        band, ll = self.band.copy(), self.ll.copy()
+        band[-1] += add[:n]
+        ll[np.diag_indices_from(ll)] += add[n:]
+        return NormalFactor.of_blocks(band, self.pl, ll, self.t, self.width)
 
 
 def _marginals(information, t, n_landmarks, seen, covariance_poses, width=3):
