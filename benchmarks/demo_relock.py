@@ -15,7 +15,8 @@ such landmark L; turns: ``demo_frame_errors.turns_on_the_spot`` on the true rout
 the association's order:
 
 - ``matched``: the reading went to L (or another pre-turn landmark of the point);
-- ``descriptor``: |d − d_L| ≥ ``descriptor_threshold`` (the landmark keeps its first U-SURF descriptor);
+- ``descriptor``: |d − d_L| ≥ ``descriptor_threshold`` (d_L: the landmark's first U-SURF descriptor, or with
+  ``--set descriptor_slots=K`` the one it keeps from the nearest view, as the association compares);
 - ``gate``: the descriptor passed, the filter's Mahalanobis d² (its S: Σ_L + R Q Rᵀ + the unsampled pose
   term) ≥ ``mahalanobis_gate``;
 - ``duplicate``: both passed, the reading went to a newer landmark of the same point;
@@ -50,7 +51,7 @@ REASONS = ("matched", "descriptor", "gate", "duplicate", "other", "elsewhere", "
 SAME = 0.10  # m: a landmark made from a sighting of a true point this close stands for the same point
 FIELDS = ("t", "since_turn", "turn", "point", "lid", "reason", "range_ratio", "view_angle", "heading_error",
           "landmark_error", "lateral_offset", "d2", "descriptor_distance", "pose_sigma_theta", "position_gated",
-          "position_right", "gone_by")
+          "position_right", "gone_by", "looks", "nearest_look_angle")
 
 
 def sighting_reason(matched_old: bool, descriptor_distance: float, d2: float, went_to_same_point: bool,
@@ -103,6 +104,27 @@ def view_change(point: np.ndarray, camera: np.ndarray, first_camera: np.ndarray)
     return float(np.linalg.norm(now) / max(np.linalg.norm(first), 1e-9)), angle
 
 
+def descriptor_distance(slam: FastSLAM, lid: int, desc: np.ndarray, z: np.ndarray, heading: float) -> float:
+    """The distance the association compares with its threshold: to the landmark's first descriptor, or with
+    ``descriptor_slots`` > 1 to the one it keeps from the nearest view (appearance.py; the bands as they were at the
+    end of the update, so a look learned from this very reading counts)."""
+    if slam._bands is None:
+        return float(np.linalg.norm(desc - slam._descriptors[lid]))
+    return float(slam._bands.distance(np.array([lid]), desc[None], slam._sensor_range(z[None]),
+                                      slam._sight_bearing(z[None], heading))[0])
+
+
+def kept_looks(slam: FastSLAM, lid: int, z: np.ndarray, heading: float) -> dict:
+    """With ``descriptor_slots`` > 1: how many looks the landmark keeps, and the angle (rad) from the reading's line
+    of sight (world bearing at ``heading``) to the nearest direction one was made from (nan: none known)."""
+    bands = slam._bands
+    kept = np.isfinite(bands.range[lid])
+    phi = float(slam._sight_bearing(z[None], heading)[0])
+    gaps = np.abs(wrap_angle(phi - bands.bearing[lid, kept]))
+    gaps = gaps[np.isfinite(gaps)]
+    return {"looks": int(kept.sum()), "nearest_look_angle": float(gaps.min()) if len(gaps) else float("nan")}
+
+
 def particle_slots(slam: FastSLAM, table: np.ndarray, n_blocks: np.ndarray, lid: np.ndarray, m: int) -> np.ndarray:
     """Flat slot indices (physical block · B + slot) of particle m's live landmarks in a kept copy of the store."""
     b = slam.store.block_size
@@ -133,6 +155,7 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
         store = slam.store
         kept = (slam.poses.copy(), slam._motion_cov.copy(), store.table.copy(), store.n_blocks.copy(),
                 store.lid.copy(), store.state.copy())
+        view_heading = float(slam.poses[slam._best, 2])   # the heading the association's views are taken at
         report = slam.update(observations)
         points = observer.points
         camera = world_pose[:2] + np.array([[np.cos(world_pose[2]), -np.sin(world_pose[2])],
@@ -204,7 +227,9 @@ def replay_sightings(demo: Path, robot: str, filter_seed: int, render_seed: int,
             cov6 = state.reshape(-1, 9)[slot, 3:]
             cov = cov6[[0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(3, 3)
             d2 = gate_d2(poses[best], motion_cov[best], z_all[j], q_all[j], mean, cov)
-            dd = float(np.linalg.norm(desc[j] - slam._descriptors[lid]))
+            dd = descriptor_distance(slam, lid, desc[j], z_all[j], view_heading)
+            if slam._bands is not None:   # the looks the landmark keeps, and how far the nearest is in direction
+                row |= kept_looks(slam, lid, z_all[j], view_heading)
             went_same = went in origin and np.linalg.norm(points[origin[went]] - points[p]) < SAME
             if not dd < config.descriptor_threshold:   # what position alone would choose among the particle's
                 d2_all = gate_d2_many(poses[best], motion_cov[best], z_all[j], q_all[j], best_mean, best_cov)
@@ -276,6 +301,19 @@ def print_table(rows: list[dict], turns: list[tuple[float, float]], unconfirmed:
                   f" rad, descriptor distance {_median(sel, 'descriptor_distance')}, d² {_median(sel, 'd2')}, "
                   f"|heading error| {np.median([abs(r['heading_error']) for r in sel]):.3f} rad, landmark error "
                   f"{_median(sel, 'landmark_error')} m")
+    with_looks = [r for r in rows if "looks" in r and r["reason"] in ("matched", "descriptor")]
+    if with_looks:
+        print("  looks kept (descriptor_slots > 1), matched / descriptor-refused sightings:")
+        for name in ("matched", "descriptor"):
+            sel = [r for r in with_looks if r["reason"] == name]
+            looks = np.array([r["looks"] for r in sel])
+            angle = np.array([r["nearest_look_angle"] for r in sel])
+            if len(sel):
+                print(f"    {name}: landmarks with 1 / 2–3 / 4+ looks {np.sum(looks == 1)} / "
+                      f"{np.sum((looks >= 2) & (looks <= 3))} / {np.sum(looks >= 4)}; median angle to the nearest "
+                      f"look {np.nanmedian(angle):.2f} rad (first look {_median(sel, 'view_angle')}), nearest look "
+                      f"< 0.1 / 0.1–0.3 / > 0.3 rad: {np.sum(angle < 0.1)} / {np.sum((angle >= 0.1) & (angle < 0.3))}"
+                      f" / {np.sum(angle >= 0.3)}")
     gone = [r for r in rows if r["reason"] == "gone"]
     if gone:
         merged = sum(r["gone_by"] == "merged" for r in gone)

@@ -10,6 +10,8 @@ ID_RELATIVE_DRIFT_MODES = ("off", "rescue", "consistent")
 UNKNOWN_RELATIVE_DRIFT_MODES = ("off", "consistent")
 # FastSLAMConfig.unknown_association_rule: which gated landmark a reading takes in "unknown" association
 UNKNOWN_ASSOCIATION_RULES = ("nearest", "sampled", "unambiguous")
+# FastSLAMConfig.descriptor_slot_key: what a landmark's descriptor slots are kept by (appearance.SLOT_KEYS)
+DESCRIPTOR_SLOT_KEYS = ("range", "direction", "range+direction")
 # FastSLAMConfig.coincident_readings: readings of one frame that are one point (coincident.py)
 COINCIDENT_RULES = ("all", "one_per_point", "no_twin_landmark")
 # FastSLAMConfig.merge_estimate / merge_look: what a merge of two alike landmarks keeps (merging._merge_duplicates)
@@ -118,11 +120,21 @@ class FastSLAMConfig:
     #                                             #   "unknown" association ignores it (ids are per particle)
     block_size: int = 64                          # landmarks per copy-on-write block
     descriptor_size: int = 64
-    descriptor_slots: int = 1                     # descriptors a landmark keeps, each with the range it was made at;
-    #                                             #   an observation is compared with the one of the nearest range
+    descriptor_slots: int = 1                     # descriptors a landmark keeps, each with the view (range, and
+    #                                             #   direction: descriptor_slot_key) it was made from; an
+    #                                             #   observation is compared with the one of the nearest view
     #                                             #   (appearance.py: U-SURF changes with distance); 1: the first only
     descriptor_slot_ratio: float = 1.25           # a matched sighting from a range more than this factor from every
     #                                             #   kept one is kept too (while a slot is free)
+    descriptor_slot_key: str = "range"            # with descriptor_slots > 1, what a slot's view is: "range",
+    #                                             #   "direction" (the line of sight's world bearing, best particle)
+    #                                             #   or "range+direction" (a new view if either steps; appearance.py)
+    descriptor_slot_angle: float = 0.3            # rad: a matched sighting from a direction more than this from
+    #                                             #   every kept one is kept too ("direction" keys)
+    descriptor_learn_gate: float = 0.0            # > 0: only a match of a confirmed landmark with d² below this,
+    #                                             #   and the reading's only candidate in the best particle (no
+    #                                             #   other landmark passes descriptor and gate), teaches a new look;
+    #                                             #   0: every match of the best particle (session 6's rule)
     unknown_relative_drift: str = "off"           # "unknown", 2.0: "consistent" re-associates old landmarks the gate
     #                                             #   rejects where one drift correction explains two of them
     #                                             #   jointly, each with a unique candidate (unknown_rescue.py)
@@ -203,6 +215,13 @@ class FastSLAMConfig:
         if self.descriptor_slots < 1 or not self.descriptor_slot_ratio > 1.0:
             raise ValueError(f"descriptor_slots must be ≥ 1 and descriptor_slot_ratio > 1, not "
                              f"{self.descriptor_slots} and {self.descriptor_slot_ratio}")
+        if self.descriptor_slot_key not in DESCRIPTOR_SLOT_KEYS:
+            raise ValueError(f"descriptor_slot_key must be one of {', '.join(DESCRIPTOR_SLOT_KEYS)}, "
+                             f"not {self.descriptor_slot_key!r}")
+        if not 0.0 < self.descriptor_slot_angle <= math.pi:
+            raise ValueError(f"descriptor_slot_angle must be in (0, π] rad, not {self.descriptor_slot_angle}")
+        if not (math.isfinite(self.descriptor_learn_gate) and self.descriptor_learn_gate >= 0.0):
+            raise ValueError(f"descriptor_learn_gate must be finite and ≥ 0, not {self.descriptor_learn_gate}")
         if self.merge_relative_drift and not self.merge_covisibility:
             raise ValueError("merge_relative_drift needs merge_covisibility (which pairs were detected in one frame)")
         if self.merge_every < 1:

@@ -225,7 +225,8 @@ class FastSLAM(DuplicateMerging, ParticleMaps):
         self._merge_ready: set[int] = set()
         self._merged: dict[tuple[int, int], bool] = {}                 # (older id, newer id) -> by co-visibility
         # descriptors per viewing range (appearance.py); None: each landmark keeps its first descriptor only
-        self._bands = (DescriptorBands(config.descriptor_slots, config.descriptor_slot_ratio, config.descriptor_size)
+        self._bands = (DescriptorBands(config.descriptor_slots, config.descriptor_slot_ratio, config.descriptor_size,
+                                       key=config.descriptor_slot_key, angle=config.descriptor_slot_angle)
                        if config.descriptor_slots > 1 and config.descriptor_size > 0 else None)
         self._lid_of_external: dict[int, int] = {}                     # "id" association: external id -> id
         self._external_of_lid = np.zeros(0, np.int64)                  # and back (-1: none)
@@ -453,9 +454,16 @@ class FastSLAM(DuplicateMerging, ParticleMaps):
         best = int(np.argmax(weights))
         in_best = matched.m == best
         best_matches[matched.j[in_best]] = self.store.flat_lid[matched.g[in_best]]
-        if self._bands is not None:   # the best particle's matches teach their landmarks the look at new ranges
-            j = matched.j[in_best]
-            self._bands.learn(best_matches[j], desc[j], self._sensor_range(z[j]))
+        if self._bands is not None:   # the best particle's matches teach their landmarks the look from new views
+            teach = in_best
+            if cfg.descriptor_learn_gate > 0:   # strong evidence only: in place, confirmed, the only candidate
+                candidates = np.bincount(pairs.j[gated & (pairs.m == best)], minlength=n_obs)
+                teach = in_best & (d2[win] < cfg.descriptor_learn_gate) & (candidates[matched.j] == 1) \
+                    & (self.store.flat_count[matched.g] > cfg.confirm_count)
+            j = matched.j[teach]
+            j = j[best_matches[j] >= 0]   # not merged away since the match
+            self._bands.learn(best_matches[j], desc[j], self._sensor_range(z[j]),
+                              self._sight_bearing(z[j], self.poses[best, 2]))
         if cfg.refresh_descriptors and cfg.descriptor_size > 0:
             # appearance drifts with distance (fixed-scale U-SURF): gate the next frame on the latest look
             self._descriptors[best_matches[matched.j[in_best]]] = desc[matched.j[in_best]]
@@ -602,7 +610,8 @@ class FastSLAM(DuplicateMerging, ParticleMaps):
         store = self.store
         uniq, inverse = id_ranks(lids, self._n_ids)
         if self._bands is not None:   # compare at comparable scale: the descriptor made at the nearest range
-            obs_j, uid = self._bands.matches(uniq, desc, self._sensor_range(z), self.config.descriptor_threshold)
+            obs_j, uid = self._bands.matches(uniq, desc, self._sensor_range(z), self.config.descriptor_threshold,
+                                             self._sight_bearing(z, poses[self._best, 2]))
         elif self.config.descriptor_size > 0:
             known = take_rows(self._descriptors, uniq)
             d2 = (np.sum(desc * desc, 1)[:, None] + np.sum(known * known, 1)[None, :] - 2.0 * desc @ known.T)
@@ -874,7 +883,7 @@ class FastSLAM(DuplicateMerging, ParticleMaps):
         spawning = np.flatnonzero(np.bincount(j, minlength=n_obs))   # np.unique(j) for j in [0, N), no sort
         if lids is None:
             new_ids[spawning] = self._n_ids + np.arange(len(spawning))
-            self._append_descriptors(desc[spawning], z[spawning])
+            self._append_descriptors(desc[spawning], z[spawning], float(poses[self._best, 2]))
         else:
             new_ids[spawning] = lids[spawning]
         g = self.store.append_slots(m)
@@ -953,10 +962,18 @@ class FastSLAM(DuplicateMerging, ParticleMaps):
         """Distance (N,) of points z (N, 3) in base_link from the sensor (sets a fixed-scale descriptor's scale)."""
         return np.linalg.norm(z - np.asarray(self.config.sensor_offset), axis=1)
 
-    def _append_descriptors(self, desc: np.ndarray, z: np.ndarray | None = None) -> None:
-        """Descriptors (n, D) of n new ids, made from points ``z`` (n, 3) in base_link (None: range unknown)."""
-        if self._bands is not None:   # only the bands need the range a descriptor was made at
-            self._bands.append(desc, None if z is None else self._sensor_range(z))
+    def _sight_bearing(self, z: np.ndarray, heading: float) -> np.ndarray:
+        """World bearing (N,) of the lines of sight from the sensor to points z (N, 3) in base_link, for a robot
+        heading ``heading`` (a descriptor's viewing direction; the sensor looks along the robot's x axis)."""
+        ox, oy, _ = self.config.sensor_offset
+        return heading + np.arctan2(z[:, 1] - oy, z[:, 0] - ox)
+
+    def _append_descriptors(self, desc: np.ndarray, z: np.ndarray | None = None, heading: float = 0.0) -> None:
+        """Descriptors (n, D) of n new ids, made from points ``z`` (n, 3) in base_link (None: view unknown) by a
+        robot at ``heading``."""
+        if self._bands is not None:   # only the bands need the view a descriptor was made from
+            self._bands.append(desc, None if z is None else self._sensor_range(z),
+                               None if z is None else self._sight_bearing(z, heading))
         need = self._n_ids + len(desc)
         if need > len(self._descriptors):
             grown = np.zeros((max(need, 2 * len(self._descriptors)), self._descriptors.shape[1]), np.float32)
