@@ -38,6 +38,10 @@ class AlignmentConfig:
     # two robots cannot be in one place at one time (fusion/colocation.py, session 12; option, off): an alignment that
     # puts the robots' bodies together at a common time is not found, and a rival that does is no rival
     colocation: bool = False
+    # whose ratio test a mutual best match must pass (fusion.matching.RATIO_SIDES; session 45): "map1", map 1's
+    # landmark's only (both presets); "both" or "either" landmark's (symmetric_correspondences), so that align(A, B)
+    # and align(B, A) start from the same correspondences, swapped
+    ratio_sides: str = "map1"
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -7,7 +7,11 @@ Two strategies:
   share one map-2 landmark.
 * ``distinctive_correspondences`` — the robust preset: Lowe's ratio test (nearest / second nearest below
   ``ratio``) and mutual best matches, so that every landmark takes part in at most one correspondence and
-  ambiguous (repeated-texture) landmarks are dropped before RANSAC ever sees them.
+  ambiguous (repeated-texture) landmarks are dropped before RANSAC ever sees them.  The ratio test runs from
+  map 1's side only, so the pairs of (A, B) are not those of (B, A) swapped.
+* ``symmetric_correspondences`` — the same with the ratio test on both sides, required of both landmarks or of
+  either (``AlignmentConfig.ratio_sides``; session 45, an option the presets do not use): the pairs of (B, A) are
+  exactly those of (A, B) swapped.
 
 Descriptor search is exact, by blocked matrix products (float32 BLAS).  A k-d tree does not help on 64-D
 descriptors: measured here, ``cKDTree.query`` of 2,000 descriptors against 50,000 took 9.5 s (any ``eps``
@@ -34,6 +38,9 @@ _BLOCK_PAIRS = 16_000_000
 _WORKSPACE = threading.local()
 _WORKSPACE_MIN, _WORKSPACE_MAX = 262_144, 4_194_304
 _CLIP_BY_MASK = 1 << 20
+# AlignmentConfig.ratio_sides: whose ratio test a mutual best match must pass (map 1's landmark: the robust preset's
+# one-sided test, distinctive_correspondences; both landmarks', or either's: symmetric_correspondences)
+RATIO_SIDES = ("map1", "both", "either")
 
 
 @contextmanager
@@ -179,6 +186,40 @@ def distinctive_correspondences(desc1: np.ndarray, desc2: np.ndarray, max_distan
     mutual = back[j] == i
     pairs = np.stack([i[mutual], j[mutual]], axis=1).astype(np.int64)
     return pairs, d[mutual]
+
+
+def symmetric_correspondences(desc1: np.ndarray, desc2: np.ndarray, max_distance: float, ratio: float,
+                              sides: str = "both") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`distinctive_correspondences` with the ratio test on both sides of a match.
+
+    A mutual best match i <-> j within ``max_distance`` has two ratio tests: i's (its nearest map-2 descriptor
+    ``ratio`` times nearer than its second) and j's (its nearest map-1 descriptor ``ratio`` times nearer than its
+    second).  ``sides="both"`` keeps the matches that pass both; ``"either"`` those that pass one or the other.
+    desc1 (N1, D), desc2 (N2, D) -> pairs (K, 2) int64 (i, j) sorted by i, distances (K,).
+
+    The result is made of the two one-sided searches, (desc1, desc2) and (desc2, desc1), so ``symmetric_
+    correspondences(desc2, desc1)`` gives exactly the same pairs swapped, whatever the float32 round-off of either
+    search (the distances agree to that round-off): with "both" a pair one search keeps and the other does not is
+    dropped; with "either" a landmark the two searches pair with different partners (a near tie) takes part in
+    neither.  Costs a second search (map 2 against map 1)."""
+    if sides not in RATIO_SIDES[1:]:
+        raise ValueError(f"sides must be one of {RATIO_SIDES[1:]}, not {sides!r}")
+    forward, d_forward = distinctive_correspondences(desc1, desc2, max_distance, ratio)
+    backward, d_backward = distinctive_correspondences(desc2, desc1, max_distance, ratio)
+    backward = backward[:, ::-1]
+    if sides == "both":
+        # both are one-to-one (mutual best): a pair is kept when map-1 landmark i has the same partner both ways
+        partner = np.full(len(desc1), -1, np.int64)
+        partner[backward[:, 0]] = backward[:, 1]
+        keep = partner[forward[:, 0]] == forward[:, 1]
+        return forward[keep], d_forward[keep]
+    pairs = np.concatenate([forward, backward])
+    dist = np.concatenate([d_forward, d_backward])
+    pairs, first = np.unique(pairs, axis=0, return_index=True)    # sorted by i, then j
+    dist = dist[first]
+    once = (np.bincount(pairs[:, 0], minlength=len(desc1))[pairs[:, 0]] == 1) & (
+        np.bincount(pairs[:, 1], minlength=len(desc2))[pairs[:, 1]] == 1)
+    return pairs[once].astype(np.int64), dist[once]
 
 
 def self_correspondences(desc: np.ndarray, max_distance: float, ratio: float, rows: np.ndarray | None = None

@@ -16,8 +16,15 @@ import numpy as np
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
 
+from .errors import IncompatibleMapsError
 from .gate_scale import residual_gate_scale, settled_scale
-from .matching import distinctive_correspondences, nearest_correspondences, query_subset
+from .matching import (
+    RATIO_SIDES,
+    distinctive_correspondences,
+    nearest_correspondences,
+    query_subset,
+    symmetric_correspondences,
+)
 
 if TYPE_CHECKING:
     from .alignment_config import AlignmentConfig
@@ -68,6 +75,9 @@ def putative_correspondences(map1: LandmarkMap, map2: LandmarkMap, config: Align
     """Step 1: putative pairs (K, 2), and whether descriptors chose them (False: every pair, geometry alone).
 
     Maps that both carry external identities (known-ID maps: barcodes, fiducials) pair equal identities."""
+    if config.ratio_sides not in RATIO_SIDES:
+        raise IncompatibleMapsError(f"unknown ratio_sides {config.ratio_sides!r} "
+                                    f"(choose from {', '.join(RATIO_SIDES)})")
     ids1, ids2 = landmark_identities(map1), landmark_identities(map2)
     if ids1 is not None and ids2 is not None:
         return identity_pairs(ids1, ids2), True
@@ -79,8 +89,12 @@ def putative_correspondences(map1: LandmarkMap, map2: LandmarkMap, config: Align
     desc1 = map1.descriptors if rows is None else map1.descriptors[rows]
     if config.ratio is None:
         pairs, _ = nearest_correspondences(desc1, map2.descriptors, config.descriptor_threshold)
-    else:
+    elif config.ratio_sides == "map1":
         pairs, _ = distinctive_correspondences(desc1, map2.descriptors, config.descriptor_threshold, config.ratio)
+    else:
+        # (with a subset of map 1, a map-2 landmark's ratio test is among that subset)
+        pairs, _ = symmetric_correspondences(desc1, map2.descriptors, config.descriptor_threshold, config.ratio,
+                                             config.ratio_sides)
     if rows is not None:
         pairs[:, 0] = rows[pairs[:, 0]]
     return pairs, True
