@@ -21,6 +21,9 @@ eval_fusion's line) where the maps carry them. Pairs:
     .venv/bin/python benchmarks/fusion_direction.py --false-pairs N        # N of each kind of eval_fusion's
                                                                            # non-overlapping pairs
 
+``--ratio-sides both`` (or ``either``) aligns with the robust preset's ratio test on both sides of a match
+(``AlignmentConfig.ratio_sides``, session 45): the two directions then start from the same correspondences.
+
 A demo folder gives its two whole maps and, for a map that flagged itself, each part (``fusion.split``) against
 the other map, aligned as ``check_split`` does (the other map first, the part as map 2). A part made after its
 map's gap does not share its map's start, so it is not scored against the truth. On MRCLAM's FastSLAM maps a found
@@ -32,6 +35,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +47,8 @@ from estimation import chi2  # noqa: E402
 from estimation.geometry import inverse, wrap_angle  # noqa: E402
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from fusion.alignment import align, alignment_error_xy_theta, true_relative_pose  # noqa: E402
+from fusion.alignment_config import ROBUST, AlignmentConfig  # noqa: E402
+from fusion.matching import RATIO_SIDES  # noqa: E402
 from fusion.split import split_id, split_map  # noqa: E402
 from runtime.commands.options import positive_int  # noqa: E402
 
@@ -59,14 +65,15 @@ def _wrong(pose, truth) -> bool:
     return bool(xy > WRONG_M or theta > WRONG_RAD)
 
 
-def both_ways(map_a: LandmarkMap, map_b: LandmarkMap, draws: int, scored: bool = True) -> list[dict]:
+def both_ways(map_a: LandmarkMap, map_b: LandmarkMap, draws: int, scored: bool = True,
+              config: AlignmentConfig = ROBUST) -> list[dict]:
     """Per RANSAC seed: align(A, B) and align(B, A), whether each is found and wrong (None without the truth), and
     for two founds the p-value and size of their difference."""
     truth = true_relative_pose(map_a, map_b) if scored else None
     rows = []
     for s in range(draws):
-        ab = align(map_a, map_b, "robust", np.random.default_rng(s))
-        ba = align(map_b, map_a, "robust", np.random.default_rng(s))
+        ab = align(map_a, map_b, config, np.random.default_rng(s))
+        ba = align(map_b, map_a, config, np.random.default_rng(s))
         row = {"ab": ab, "ba": ba, "p": None, "dxy": None, "dtheta": None,
                "wrong_ab": None if truth is None or not ab.found else _wrong(ab.pose, truth),
                "wrong_ba": None if truth is None or not ba.found else _wrong(inverse(np.asarray(ba.pose)), truth)}
@@ -148,30 +155,35 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--false-pairs", type=positive_int, default=None, metavar="N",
                         help="N pairs of each kind of eval_fusion's non-overlapping pairs (seeds 0..N-1)")
     parser.add_argument("--draws", type=positive_int, default=8, help="RANSAC seeds per pair and direction (8)")
+    parser.add_argument("--ratio-sides", choices=RATIO_SIDES, default=ROBUST.ratio_sides,
+                        help="whose ratio test a match must pass: map 1's landmark (the robust preset), both "
+                             "landmarks' or either's (AlignmentConfig.ratio_sides)")
     args = parser.parse_args(argv)
+    config = replace(ROBUST, ratio_sides=args.ratio_sides)
     if not (args.demo or args.mrclam_maps or args.mrclam_sightings or args.false_pairs):
         parser.error("nothing to measure: give --demo, --mrclam-maps, --mrclam-sightings or --false-pairs")
     if args.mrclam_sightings and not MRCLAM_DATASET2.is_dir():
         parser.error(f"--mrclam-sightings: {MRCLAM_DATASET2} not found")
+    print(f"ratio test: {args.ratio_sides}")
     print_header()
     total = Counter()
     for folder in args.demo:
         for label, a, b, scored in demo_pairs(folder):
-            total += print_row(label, both_ways(a, b, args.draws, scored))
+            total += print_row(label, both_ways(a, b, args.draws, scored, config))
     for folder in args.mrclam_maps:
         maps = [LandmarkMap.load(folder / f"robot{r}.npz") for r in range(1, 6)]
         for label, a, b, scored in five_map_pairs(maps, folder.name):
-            total += print_row(label, both_ways(a, b, args.draws, scored))
+            total += print_row(label, both_ways(a, b, args.draws, scored, config))
     if args.mrclam_sightings:
         maps = [mrclam_sighting_map(MRCLAM_DATASET2, r).map for r in range(1, 6)]
         for label, a, b, scored in five_map_pairs(maps, "sightings"):
-            total += print_row(label, both_ways(a, b, args.draws, scored))
+            total += print_row(label, both_ways(a, b, args.draws, scored, config))
     if args.false_pairs:
         for kind, make in false_pair_kinds().items():
             rows = []
             for seed in range(args.false_pairs):
                 m1, m2 = make(seed)
-                rows += both_ways(getattr(m1, "map", m1), getattr(m2, "map", m2), args.draws, scored=False)
+                rows += both_ways(getattr(m1, "map", m1), getattr(m2, "map", m2), args.draws, False, config)
             total += print_row(f"{kind} ({args.false_pairs} pairs)", rows)
     print(f"\nIn all: {total['consistent']} both found and consistent, {total['inconsistent']} both found and "
           f"inconsistent, {total['one']} found one way only, {total['neither']} neither.")
