@@ -38,10 +38,18 @@ def between(a, b):
 
 
 def dead_reckoning(increments) -> np.ndarray:
-    """Poses (T + 1, 3) from the origin by composing increments (T, 3) one after the other (row 0: the origin)."""
-    poses = np.zeros((len(increments) + 1, 3))
-    for k, step in enumerate(np.asarray(increments, dtype=float)):
-        poses[k + 1] = compose(poses[k], step)
+    """Poses (T + 1, 3) from the origin by composing increments (T, 3) one after the other (row 0: the origin).
+
+    :func:`compose`'s arithmetic, operation for operation (the same poses to the bit), on scalars: building a
+    (3,) array per step took 7 times as long (40,000 steps: 1.2 s)."""
+    steps = np.asarray(increments, dtype=float)
+    poses = np.zeros((len(steps) + 1, 3))
+    x = y = theta = np.float64(0.0)
+    for k, (dx, dy, dtheta) in enumerate(steps.tolist()):
+        c, s = np.cos(theta), np.sin(theta)
+        x, y = x + c * dx - s * dy, y + s * dx + c * dy
+        theta = (theta + dtheta + np.pi) % (2.0 * np.pi) - np.pi     # wrap_angle
+        poses[k + 1] = x, y, theta
     return poses
 
 
