@@ -14,10 +14,12 @@ from hypothesis import strategies as st
 from estimation.datasets import RangeBearingLog, integrate_velocities
 from estimation.odometry_response import (
     MAX_RESPONSE_TIME_S,
+    ResponseShape,
     first_order_response,
     fit_response,
     respond,
     with_drive_response,
+    with_drive_shape,
 )
 
 MRCLAM2 = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -142,23 +144,41 @@ def test_respond_keeps_times_and_filters_both_rates():
 
 
 @pytest.mark.timeout(600)
-def test_mrclam_robot1s_drive_is_better_described_by_a_response_than_a_delay():
-    """Robot 1 of MRCLAM dataset 2 (truth heading along travel): a first-order response (T 0.2 s, no delay) leaves
-    less heading error over 0.25 s and 1 s windows than the best pure delay, and its turn scale differs less between
-    0.2 s and 5 s windows."""
+def test_mrclam_robot1s_response_and_delay_are_scored_on_the_same_windows():
+    """Robot 1 of MRCLAM dataset 2 (truth heading along travel), each model scored on the windows in which its command
+    turns (the same for every model: before session 45 the windows were those whose odometry turned, so a response,
+    whose odometry is almost never still, was scored on 7,288 of 7,572 windows and a pure delay on 4,628, and the
+    still windows' small residuals made the response look 12 % better). On the same windows the best first-order
+    response (0.1 s, its delay fitted) and the best pure delay leave heading errors within 3 % of each other at 0.25 s
+    and 1 s (17.80 / 17.94 and 32.51 / 33.25 mrad); what the response does change is the turn scale's dependence on
+    the window: 0.954 / 0.949 at 0.2 / 5 s against the pure delay's 0.917 / 0.949."""
     if not (MRCLAM2 / "Robot1_Odometry.dat.gz").is_file() and not (MRCLAM2 / "Robot1_Odometry.dat").is_file():
         pytest.skip(f"MRCLAM data set 2 not found in {MRCLAM2.resolve()} (../shared/data/mrclam, see its README)")
     from estimation.datasets import read_mrclam
 
     log = read_mrclam(MRCLAM2, 1, truth_heading="travel")
-    pure = {w: min((fit_response([log], d, w) for d in (0.15, 0.175, 0.2, 0.225)), key=lambda f: f.heading_rms[0])
-            for w in (0.2, 0.25, 1.0, 5.0)}
-    filtered = with_drive_response(log, 0.2)
-    first = {w: fit_response([filtered], 0.0, w) for w in (0.2, 0.25, 1.0, 5.0)}
+    filtered = with_drive_response(log, 0.1)
+
+    def best(source, delays, w):
+        return min((fit_response([source], d, w) for d in delays), key=lambda f: f.heading_rms[0])
+
+    pure = {w: best(log, (0.15, 0.175, 0.2, 0.225), w) for w in (0.2, 0.25, 1.0, 5.0)}
+    first = {w: best(filtered, (0.05, 0.075, 0.1, 0.125), w) for w in (0.2, 0.25, 1.0, 5.0)}
     for w in (0.25, 1.0):
-        assert first[w].heading_rms[0] < pure[w].heading_rms[0]
+        assert first[w].turn_windows[0] == pure[w].turn_windows[0] < first[w].windows[0]
+        assert first[w].heading_rms[0] == pytest.approx(pure[w].heading_rms[0], rel=0.03)
     spread = abs(first[0.2].turn_scale[0] - first[5.0].turn_scale[0])
-    assert spread < abs(pure[0.2].turn_scale[0] - pure[5.0].turn_scale[0])
+    assert spread < 0.5 * abs(pure[0.2].turn_scale[0] - pure[5.0].turn_scale[0])
+
+
+def test_every_model_is_scored_on_the_windows_its_command_moves_in():
+    """A simulated log that rests now and then: a pure delay and a response are scored on the same windows (those in
+    which the command turns, or moves, within the window or the second before it), fewer than all."""
+    log = simulated_log(T=0.15, delay=0.05, seconds=120.0)
+    pure, response = fit_response([log], 0.15, 0.25), fit_response([with_drive_response(log, 0.15)], 0.05, 0.25)
+    assert pure.turn_windows[0] == response.turn_windows[0] < pure.windows[0]
+    assert pure.travel_windows[0] == response.travel_windows[0]
+    assert response.heading_rms[0] < pure.heading_rms[0]
 
 
 def test_a_glitch_of_the_truth_is_left_out_of_the_fit():
@@ -171,3 +191,83 @@ def test_a_glitch_of_the_truth_is_left_out_of_the_fit():
     clean, dirty = (fit_response([with_drive_response(x, 0.15)], 0.05, 1.0) for x in (log, glitched))
     assert dirty.windows[0] < clean.windows[0]
     assert dirty.heading_rms[0] == pytest.approx(clean.heading_rms[0], rel=0.05)
+
+
+# -- the shaped response (dead time, fast and slow parts, cascades) ---------------------------------------------------
+
+def test_a_shapes_step_response_by_hand():
+    """Dead time 0.1 s, fast 0.05 s, slow 0.5 s of weight 0.25: 0 until 0.1 s, then 1 − 0.75 e^(−s/0.05) − 0.25
+    e^(−s/0.5); a pure delay is a unit step at its dead time; the mean delays are τ + (1 − w) T_f + w T_s."""
+    shape = ResponseShape(0.1, 0.05, 0.5, 0.25)
+    lags = np.array([0.0, 0.05, 0.1, 0.2, 0.6])
+    s = np.clip(lags - 0.1, 0, None)
+    expected = np.where(lags > 0.1, 1 - 0.75 * np.exp(-s / 0.05) - 0.25 * np.exp(-s / 0.5), 0.0)
+    np.testing.assert_allclose(shape.step(lags), expected, atol=1e-15)
+    np.testing.assert_array_equal(ResponseShape(0.12).step([0.1, 0.12, 0.13]), [0.0, 0.0, 1.0])
+    assert shape.mean_delay_s == pytest.approx(0.1 + 0.75 * 0.05 + 0.25 * 0.5)
+    assert ResponseShape(0.12).mean_delay_s == 0.12
+
+
+def test_a_cascade_is_the_product_of_its_two_stages():
+    """Two first orders in cascade (0.05 s and 0.2 s): the step response's partial fractions match the stages run
+    one after the other on a fine grid, it starts with zero slope (S-shaped) and its mean delay is the sum."""
+    shape = ResponseShape.cascade(0.0, 0.2, 0.05)
+    assert shape.slow_weight == pytest.approx(0.2 / 0.15) and shape.mean_delay_s == pytest.approx(0.25)
+    t = np.arange(0.0, 2.0, 1e-4)
+    step = np.ones_like(t)
+    stages = first_order_response(t, first_order_response(t, np.concatenate([[0.0], step[1:]]), 0.05), 0.2)
+    np.testing.assert_allclose(stages[1:], shape.step(t[1:] - 1e-4), atol=2e-3)
+    assert shape.step([1e-3])[0] < 1e-3 / 0.05 * 0.1          # slope at the start ≪ a single first order's
+    with pytest.raises(ValueError, match="different"):
+        ResponseShape.cascade(0.0, 0.1, 0.1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(dead=st.floats(0.0, 0.3), fast=st.floats(0.01, 0.3), slow=st.floats(0.3, 1.5), weight=st.floats(0.0, 1.0),
+       start=st.floats(0.1, 1.0), level=st.floats(-1.0, 1.0))
+def test_the_shaped_odometry_turns_as_its_step_response_integrates(dead, fast, slow, weight, start, level):
+    """A turn-rate step of ``level`` at ``start`` through any shape: the odometry's heading at every row is
+    level·∫ step(s − start) ds (the holds' means are exact; the dead time shifts the rows)."""
+    shape = ResponseShape(dead, fast, slow, weight)
+    t = np.round(np.arange(0.0, 4.0, 0.02), 2)
+    w = np.where(t >= start - 1e-9, level, 0.0)
+    log = RangeBearingLog("step", integrate_velocities(t, 0 * t, w), np.zeros(0), np.zeros(0), np.zeros(0),
+                          np.zeros(0, np.int64), velocities=np.column_stack([t, 0 * t, w]))
+    out = with_drive_shape(log, shape)
+    k0 = int(np.argmax(t >= start - 1e-9))
+    onset = t[k0]
+    times = out.odometry[:, 0]
+    fine = np.linspace(0.0, 1.0, 4001)
+    for when in times[::17]:
+        span = when - onset
+        if span <= 0:
+            continue
+        expected = level * span * np.mean(shape.step(fine * span))
+        assert np.unwrap(out.odometry[:, 3])[times == when][-1] == pytest.approx(expected, abs=2e-3 * abs(level) + 1e-9)
+
+
+def test_a_shape_without_dead_time_or_slow_part_is_the_first_order_response():
+    log = simulated_log(T=0.15, delay=0.0, seconds=30.0)
+    np.testing.assert_allclose(with_drive_shape(log, ResponseShape(0.0, 0.15)).odometry,
+                               with_drive_response(log, 0.15).odometry, atol=1e-12)
+    assert with_drive_shape(log, ResponseShape()) is log
+
+
+def test_v_and_omega_take_their_own_shapes():
+    """ω through one shape and v through another: the heading is the turn's shape alone (v does not turn), and
+    swapping the two moves it."""
+    log = simulated_log(T=0.15, delay=0.0, seconds=30.0)
+    turn, travel = ResponseShape(0.1, 0.05), ResponseShape(0.0, 0.4)
+    both = with_drive_shape(log, turn, travel)
+    alone = with_drive_shape(log, turn)
+    t = np.arange(1.0, 29.0, 0.1)
+    np.testing.assert_allclose(both.odometry_pose(t)[:, 2], alone.odometry_pose(t)[:, 2], atol=1e-9)
+    assert not np.allclose(both.odometry_pose(t)[:, :2], alone.odometry_pose(t)[:, :2], atol=1e-3)
+
+
+@pytest.mark.parametrize("kwargs", [{"dead_time_s": -0.01}, {"fast_s": math.nan}, {"slow_s": 2.5},
+                                    {"slow_weight": -0.1}, {"slow_weight": 10.5, "slow_s": 0.5},
+                                    {"slow_weight": 0.3}])
+def test_impossible_shapes_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        ResponseShape(**kwargs)
