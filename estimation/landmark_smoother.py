@@ -771,13 +771,7 @@ class ExtraUnknowns(Protocol):
 
 
 def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-          offsets=None, extra=None, extra_values=None) -> float:
-    return _cost_at(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset, offsets, extra,
-                    extra_values)[0]
-
-
-def _cost_at(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=None, bias=None, offset=None,
-             offsets=None, extra=None, extra_values=None) -> tuple[float, LandmarkLogProblem, tuple]:
+          offsets=None, extra=None, extra_values=None) -> tuple[float, LandmarkLogProblem, tuple]:
     """(the cost, ``problem`` as the extra values make it, its residuals (odometry, sightings)): the solve's next
     iteration starts from the point a step was accepted at, and reads the last two from here instead of again."""
     if extra is not None:
@@ -822,8 +816,8 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
     landmarks_end = width * t + 2 * n_landmarks
     offsets_end = landmarks_end + (0 if offset is None else 2 * offset.n_explicit)
     damping = 1e-4
-    cost, at, residuals = _cost_at(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset,
-                                   offsets, extra, extra_values)
+    cost, at, residuals = _cost(problem, poses, landmarks, inliers, robust, heading_loss, drift, bias, offset,
+                                offsets, extra, extra_values)
     for iteration in range(1, MAX_ITERATIONS + 1):
         if residuals is None:   # no cost computed where the last step went (refused values): nothing to reuse
             at = problem if extra is None else extra.applied(problem, extra_values)
@@ -868,9 +862,9 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
             if extra is not None and trial_values is None:   # values the extra unknowns do not admit: refused
                 trial, trial_at, trial_residuals = np.inf, None, None
             else:
-                trial, trial_at, trial_residuals = _cost_at(problem, trial_poses, trial_landmarks, inliers, robust,
-                                                            heading_loss, drift, trial_bias, offset, trial_offsets,
-                                                            extra, trial_values)
+                trial, trial_at, trial_residuals = _cost(problem, trial_poses, trial_landmarks, inliers, robust,
+                                                         heading_loss, drift, trial_bias, offset, trial_offsets,
+                                                         extra, trial_values)
             if trial <= cost:
                 break
             damping *= 10.0
