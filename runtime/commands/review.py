@@ -240,6 +240,11 @@ def _review(args) -> int:
         if path.is_dir():   # the reader would say "no such recording" of a folder that is there
             print(f"p3at review: {path}: a folder, not a recording (give the .rrd file in it)", file=sys.stderr)
             return 2
+    if not args.recording.is_file():   # what the reading process would say first, said before one starts (~1 s)
+        from runtime.textfile import not_a_file
+
+        print(f"p3at review: {args.recording}: {not_a_file(args.recording, 'recording')}", file=sys.stderr)
+        return 2
     result = _read_isolated([args.recording, *args.more], folder)
     if "error" in result:
         print(f"p3at review: {result['error']}", file=sys.stderr)
