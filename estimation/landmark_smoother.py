@@ -995,9 +995,9 @@ def _upper_band(pp: sp.spmatrix, width: int) -> np.ndarray:
 class _NormalEquations:
     """One Gauss–Newton iteration's normal equations JᵀJ δ = −Jᵀr as :class:`NormalFactor` reads them: H_pp's band,
     H_pl and H_ll dense, and the gradient Jᵀr, from the Jacobian's pose columns and its others apart (J_pᵀJ_p,
-    J_pᵀJ_r, J_rᵀJ_r). Every entry is the same sum as (JᵀJ)'s, Σ_k J_ki J_kj over the rows k in order, so the blocks
-    are JᵀJ's to the bit; the whole JᵀJ, sliced into blocks and damped as a sparse sum each step, cost twice as much.
-    Damping adds to the diagonals of the blocks, as a sparse diagonal added to JᵀJ does."""
+    J_pᵀJ_r, J_rᵀJ_r). Every entry is the same sum as (JᵀJ)'s, Σ_k J_ki J_kj over the rows k in order (scipy's sparse
+    products), so the blocks are JᵀJ's to the bit, without slicing the whole JᵀJ into them and adding the damping to
+    it as a sparse sum at every damping step. Damping adds to the blocks' diagonals, the same single addition."""
 
     def __init__(self, rows: _Rows, residual: np.ndarray, t: int, width: int) -> None:
         n = width * t
