@@ -53,6 +53,10 @@ as without it (docs/fastslam-history.md "Session 23 ... (D)").
 ``--truth-heading travel``: every log read with its ground truth's heading turned onto the robot's direction of travel
 (``read_mrclam(truth_heading="travel")``, estimation/datasets/truth_heading.py), so the noise models fitted in sample
 and every score are against that truth; ``mocap`` (default) keeps Vicon's heading as written.
+``--response-time T``: the commanded velocities through a first-order lag of T s before the noise fit and the runs
+(estimation.odometry_response; docs/fastslam-history.md "Session 44: the drive's response (D)"). ``--drive-shape
+TURN[/TRAVEL]``: the same with a dead time and two first-order parts per channel, each "DEAD,FAST,SLOW,WEIGHT" (MRCLAM's
+fitted shapes: turn 0.15,0,0.3,0.45, travel 0,0.5,0,0; benchmarks.mrclam_drive_response --section shape); both off.
 ``--set`` overrides a FastSLAMConfig field (a diagnosis,
 e.g. ``--set existence_miss=0``); the overrides are printed with the figures.
 """
@@ -81,7 +85,7 @@ from estimation.datasets import TRUTH_HEADINGS, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
-from estimation.odometry_response import with_drive_response  # noqa: E402
+from estimation.odometry_response import ResponseShape, with_drive_response, with_drive_shape  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, particle_count, positive_float  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -104,6 +108,20 @@ def heading_drift_option(text: str):
     if not (0.0 <= sigma <= 1.0 and 0.0 < tau < float("inf")):
         raise argparse.ArgumentTypeError(f"SIGMA must lie in [0, 1] rad/m and TAU be > 0 s, not {text!r}")
     return (sigma, tau)
+
+
+def drive_shape_option(text: str) -> tuple[ResponseShape, ResponseShape]:
+    """``--drive-shape``: "TURN" or "TURN/TRAVEL", each "DEAD,FAST,SLOW,WEIGHT" (s, s, s, and the slow part's
+    weight: estimation.odometry_response.ResponseShape); the travel's shape is the turn's when not given."""
+    try:
+        parts = [tuple(float(v) for v in part.split(",")) for part in text.split("/")]
+        if not 1 <= len(parts) <= 2 or any(len(p) != 4 for p in parts):
+            raise ValueError("expected four numbers per shape")
+        shapes = [ResponseShape(*p) for p in parts]
+    except (ValueError, TypeError) as error:
+        raise argparse.ArgumentTypeError(f"expected DEAD,FAST,SLOW,WEIGHT[/DEAD,FAST,SLOW,WEIGHT] (s, s, s, weight): "
+                                         f"{error}") from None
+    return shapes[0], shapes[-1]
 
 
 def with_drift(model: NoiseModel, log, how, fit: dict) -> NoiseModel:
@@ -163,11 +181,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="integrate the commanded velocities through a first-order response of time constant T "
                         "s (v and ω; estimation.odometry_response) before everything (the noise fit and the runs); "
                         "0, the default: the odometry as read")
+    parser.add_argument("--drive-shape", type=drive_shape_option, default=None,
+                        metavar="DEAD,FAST,SLOW,WEIGHT[/DEAD,FAST,SLOW,WEIGHT]",
+                        help="integrate the commanded turn rate (and speed, after the slash; else the same) through a "
+                        "dead time and two first-order parts (estimation.odometry_response.ResponseShape) before "
+                        "everything, as --response-time (which it replaces); off by default")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
+    if args.drive_shape is not None and args.response_time:
+        parser.error("--drive-shape and --response-time are two descriptions of the drive: give one")
 
     def read(*a, **k):
-        return with_drive_response(read_mrclam(*a, truth_heading=args.truth_heading, **k), args.response_time)
+        log = read_mrclam(*a, truth_heading=args.truth_heading, **k)
+        if args.drive_shape is not None:
+            return with_drive_shape(log, *args.drive_shape)
+        return with_drive_response(log, args.response_time)
     if args.defaults:
         vars(args).update(DATASET_CALIBRATIONS, smooth=True)
     overrides = config_overrides(args.set)
@@ -242,7 +270,9 @@ def main(argv: list[str] | None = None) -> int:
                           "theta_var_per_s": {r: noise[r].odometry.theta_var_per_s for r in robots},
                           "heading_drift": {r: [noise[r].odometry.heading_drift_sigma_per_m,
                                                 noise[r].odometry.heading_drift_tau_s] for r in robots},
-                          "truth_heading": args.truth_heading,
+                          "truth_heading": args.truth_heading, "response_time_s": args.response_time,
+                          "drive_shape": None if args.drive_shape is None else
+                          [[s.dead_time_s, s.fast_s, s.slow_s, s.slow_weight] for s in args.drive_shape],
                           "overrides": overrides, "inflation": not args.no_inflation, "smooth": args.smooth,
                           "particles": args.particles, "seed": args.seed,
                           "maps": str(args.maps)}))
