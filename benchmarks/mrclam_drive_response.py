@@ -14,10 +14,23 @@ Sections (truth used throughout; the logs read with truth_heading="travel"):
    (the short-window attenuation that kept session 43's truth-free heading calibration out).
 3. impulse: the turn's empirical step response by regularised deconvolution (Vicon's turn rate on a 20 ms grid
    regressed on the command's 40 past samples, a second-difference ridge), beside the fitted models' step responses.
+4. shape (``--section shape``, session 45 (B); ``--fit-window``): the shape of the response, on held-out halves of
+   each log (windows starting before / after 950 s). Four families of ``estimation.odometry_response.ResponseShape``
+   (each with a dead time on a 5 ms grid): a pure delay, one first order, a fast and a slow part in parallel (a jump
+   or a fast rise, then a tail), two first orders in cascade (an S-shaped rise). Each fitted on one half, pooled over
+   the robots (the windows' heading residual after each robot's least-squares turn scale, at ``--fit-window`` s), and
+   scored on the other half with that half's scale, at 0.25 / 1 / 5 s, per robot. Then the travel (v), with the
+   turn's fitted fast + slow shape fixed, the same way on the forward residual. The response is linear in the command
+   and so are the windows' turns (and, the heading given, their forward travel): each window's increment under any
+   mixture of parts is the mixture of the parts' increments, so the fit sums Gram matrices of the parts per robot,
+   delay and half once and scores every mixture from them.
+
+Sections 1-3: ``--section grid`` (2 min); all four: ``--section all``.
 """
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from pathlib import Path
@@ -27,8 +40,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimation.datasets import read_mrclam  # noqa: E402
-from estimation.odometry_response import fit_response, with_drive_response  # noqa: E402
-from runtime.commands.options import positive_int  # noqa: E402
+from estimation.geometry import between, wrap_angle  # noqa: E402
+from estimation.odometry_response import (  # noqa: E402
+    ResponseShape,
+    first_order_response,
+    fit_response,
+    truth_glitched,
+    with_drive_response,
+)
+from runtime.commands.options import positive_float, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 TIME_CONSTANTS = np.round(np.arange(0.0, 0.401, 0.025), 3)
@@ -119,17 +139,219 @@ def model_step(T: float, delay: float, order: int = 1) -> np.ndarray:
     return 1 - np.exp(-s / T) * (1 + s / T) if order == 2 else 1 - np.exp(-s / T)
 
 
+SHAPE_TIME_CONSTANTS = (0.0, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.8,
+                        1.0, 1.3, 1.6, 2.0)
+SHAPE_TURN_DELAYS = np.round(np.arange(0.0, 0.3001, 0.005), 3)
+SHAPE_TRAVEL_DELAYS = np.round(np.arange(0.0, 0.4001, 0.01), 3)
+SHAPE_WEIGHTS = np.round(np.arange(0.05, 0.951, 0.05), 3)
+SHAPE_WINDOWS = (0.25, 1.0, 5.0)
+SHAPE_FAMILIES = ("delay", "first order", "fast + slow", "cascade")
+HALF_S = 950.0       # the halves: windows starting before / after (MRCLAM dataset 2's logs run 0-1900 s)
+
+
+class ShapeLog:
+    """One log's windows (per length: start, end, true increment, half, and the half for the turn and for the travel,
+    2 where that channel's command rests: not scored) and its commands through every part of
+    SHAPE_TIME_CONSTANTS (the holds' exact means; the time constant 0 is the command itself)."""
+
+    def __init__(self, log):
+        rows = log.velocities
+        self.t, self.dt = rows[:, 0], np.diff(rows[:, 0])
+        self.windows = {}
+        for w in SHAPE_WINDOWS:
+            lo = max(log.ground_truth[0, 0], self.t[0]) + 1.0
+            hi = min(log.ground_truth[-1, 0], self.t[-1]) - 1.0
+            n = max(1, int(round(w / 0.05)))
+            grid = np.arange(lo, hi, 0.05)
+            grid = grid[: (len(grid) - 1) // n * n + 1][::n]
+            keep = ~truth_glitched(log, grid)
+            a, b = grid[:-1][keep], grid[1:][keep]
+            half = (a >= HALF_S).astype(int)
+            # the windows each channel is scored on: those in which (or in the second before which) its command is
+            # not 0, for every model alike (where the command rests, every model predicts nothing and the residual
+            # is the truth's jitter: those windows only dilute the differences; a model's own u ≠ 0 would select
+            # different windows for different models)
+            active = [self._active(rows[:, c], a - 1.0, b) for c in (2, 1)]
+            self.windows[w] = (a, b, between(log.true_pose(a), log.true_pose(b)), half,
+                               np.where(active[0], half, 2), np.where(active[1], half, 2))
+        self.turn_parts = np.array([first_order_response(self.t, rows[:, 2], T) for T in SHAPE_TIME_CONSTANTS])
+        self.travel_parts = np.array([first_order_response(self.t, rows[:, 1], T) for T in SHAPE_TIME_CONSTANTS])
+        self.turn_integrals = np.column_stack([np.zeros(len(SHAPE_TIME_CONSTANTS)),
+                                               np.cumsum(self.turn_parts[:, :-1] * self.dt, axis=1)])
+
+    def _active(self, command: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        moving = np.concatenate([[0], np.cumsum(np.abs(command) > 1e-9)])
+        return (moving[np.searchsorted(self.t, end, side="right")] - moving[np.searchsorted(self.t, start)]) > 0
+
+    def turns(self, w: float, delay: float) -> np.ndarray:
+        """(K, W) each part's turn over the windows, the command read ``delay`` earlier."""
+        a, b = self.windows[w][:2]
+        return np.array([np.interp(b - delay, self.t, c) - np.interp(a - delay, self.t, c)
+                         for c in self.turn_integrals])
+
+    def forwards(self, w: float, delay: float, heading: np.ndarray, heading_delay: float) -> np.ndarray:
+        """(K, W) each travel part's forward travel over the windows (read ``delay`` earlier), along ``heading``
+        (the turn's integral at the rows, read ``heading_delay`` earlier), in each window's start frame."""
+        a, b = self.windows[w][:2]
+        theta = np.interp(self.t + delay - heading_delay, self.t, heading)[:-1]
+        shifted = self.t + delay
+        start = np.interp(a - heading_delay, self.t, heading)
+        out = []
+        for part in self.travel_parts:
+            x = np.concatenate([[0.0], np.cumsum(part[:-1] * np.cos(theta) * self.dt)])
+            y = np.concatenate([[0.0], np.cumsum(part[:-1] * np.sin(theta) * self.dt)])
+            dx = np.interp(b, shifted, x) - np.interp(a, shifted, x)
+            dy = np.interp(b, shifted, y) - np.interp(a, shifted, y)
+            out.append(dx * np.cos(start) + dy * np.sin(start))
+        return np.array(out)
+
+
+def _grams(units: np.ndarray, truth: np.ndarray, half: np.ndarray) -> list[tuple]:
+    """Per half: (UUᵀ, U g, g·g, windows) of the parts' increments U (K, W) against the truth g (W,)."""
+    out = []
+    for h in (0, 1):
+        u, g = units[:, half == h], truth[half == h]
+        out.append((u @ u.T, u @ g, float(g @ g), int(len(g))))
+    return out
+
+
+def _mixtures() -> dict:
+    """family -> [(ResponseShape without its delay, as (fast, slow, weight)), weights over the parts (K,)]."""
+    k = len(SHAPE_TIME_CONSTANTS)
+    unit = np.eye(k)
+    out = {"delay": [((0.0, 0.0, 0.0), unit[0])],
+           "first order": [((T, 0.0, 0.0), unit[i]) for i, T in enumerate(SHAPE_TIME_CONSTANTS) if T > 0],
+           "fast + slow": [], "cascade": []}
+    for i, j in itertools.combinations(range(k), 2):
+        fast, slow = SHAPE_TIME_CONSTANTS[i], SHAPE_TIME_CONSTANTS[j]
+        out["fast + slow"] += [((fast, slow, float(w)), (1 - w) * unit[i] + w * unit[j]) for w in SHAPE_WEIGHTS]
+        weight = slow / (slow - fast)
+        if fast > 0 and weight <= 10.0:
+            out["cascade"].append(((fast, slow, weight), (1 - weight) * unit[i] + weight * unit[j]))
+    return out
+
+
+def _fit(stats: list, delays: np.ndarray, mixtures: list, train: int) -> tuple[int, int, float]:
+    """The mixture and delay of least pooled training residual (after each robot's LS scale): (m, j, rms)."""
+    weights = np.array([m[1] for m in mixtures])
+    residual = np.zeros((len(weights), len(delays)))
+    windows = 0
+    for per_delay in stats:
+        for j, halves in enumerate(per_delay):
+            gram, cross, square, _ = halves[train]
+            gw = np.einsum("mk,kl,ml->m", weights, gram, weights)
+            residual[:, j] += square - (weights @ cross) ** 2 / np.maximum(gw, 1e-300)
+        windows += per_delay[0][train][3]
+    rms = np.sqrt(np.maximum(residual, 0) / windows)
+    m, j = np.unravel_index(np.argmin(rms), rms.shape)
+    return int(m), int(j), float(rms[m, j])
+
+
+def _held_out(stats: list, weights: np.ndarray, j: int, train: int) -> list[float]:
+    """Per robot: the other half's RMS with the training half's scale."""
+    out = []
+    for per_delay in stats:
+        gram, cross, _, _ = per_delay[j][train]
+        k = (weights @ cross) / (weights @ gram @ weights)
+        gram_t, cross_t, square_t, n_t = per_delay[j][1 - train]
+        out.append(float(np.sqrt(max(square_t - 2 * k * (weights @ cross_t) + k * k * (weights @ gram_t @ weights),
+                                     0.0) / n_t)))
+    return out
+
+
+def _shape(args: tuple, delay: float) -> ResponseShape:
+    fast, slow, weight = args
+    if weight == 0.0:
+        return ResponseShape(delay, fast)
+    if weight > 1.0:
+        return ResponseShape.cascade(delay, fast, slow)
+    return ResponseShape(delay, fast, slow, weight)
+
+
+def shape_fits(logs: dict, fit_window: float = 0.25) -> dict:
+    """Section 4 (module docstring): per channel, training half and family, the fitted shape and its held-out RMS
+    per robot and pooled at each of SHAPE_WINDOWS."""
+    shaped = [ShapeLog(log) for log in logs.values()]
+    mixtures = _mixtures()
+
+    # the true turn unwrapped near the command's (a 5 s window may turn beyond ±π/2, never beyond ±π)
+    turn_stats = {w: [[_grams(u := s.turns(w, d), u[0] + wrap_angle(s.windows[w][2][:, 2] - u[0]), s.windows[w][4])
+                       for d in SHAPE_TURN_DELAYS] for s in shaped] for w in SHAPE_WINDOWS}
+    out = {"robots": list(logs), "fit_window_s": fit_window, "turn": {}, "travel": {}}
+
+    def record(channel, train, family, stats, delays):
+        m, j, rms = _fit(stats[fit_window], delays, mixtures[family], train)
+        args, weights = mixtures[family][m]
+        shape = _shape(args, float(delays[j]))
+        held = {w: _held_out(stats[w], weights, j, train) for w in SHAPE_WINDOWS}
+        counts = [per_delay[j][1 - train][3] for per_delay in stats[SHAPE_WINDOWS[0]]]
+        pooled = {w: float(np.sqrt(np.sum(np.square(held[w]) * [s[j][1 - train][3] for s in stats[w]])
+                                   / np.sum([s[j][1 - train][3] for s in stats[w]]))) for w in SHAPE_WINDOWS}
+        out[channel][f"{train}/{family}"] = {
+            "train_half": train, "family": family, "train_rms": rms, "held_out": held, "held_out_pooled": pooled,
+            "windows": counts, "shape": dataclasses_shape(shape), "mean_delay_s": shape.mean_delay_s}
+        return shape
+
+    turn_shapes = {}
+    for train in (0, 1):
+        for family in SHAPE_FAMILIES:
+            shape = record("turn", train, family, turn_stats, SHAPE_TURN_DELAYS)
+            if family == "fast + slow":
+                turn_shapes[train] = shape
+    for train in (0, 1):
+        turn = turn_shapes[train]
+        headings = [np.concatenate([[0.0], np.cumsum(turn.means(s.t, s.turn_parts[0])[:-1] * s.dt)]) for s in shaped]
+        travel_stats = {w: [[_grams(s.forwards(w, d, h, turn.dead_time_s), s.windows[w][2][:, 0], s.windows[w][5])
+                             for d in SHAPE_TRAVEL_DELAYS] for s, h in zip(shaped, headings, strict=True)]
+                        for w in SHAPE_WINDOWS}
+        for family in SHAPE_FAMILIES:
+            record("travel", train, family, travel_stats, SHAPE_TRAVEL_DELAYS)
+    return out
+
+
+def dataclasses_shape(shape: ResponseShape) -> dict:
+    return {"dead_time_s": shape.dead_time_s, "fast_s": shape.fast_s, "slow_s": shape.slow_s,
+            "slow_weight": shape.slow_weight}
+
+
+def print_shapes(result: dict) -> None:
+    unit = {"turn": (1e3, "mrad"), "travel": (1e3, "mm")}
+    for channel in ("turn", "travel"):
+        scale, label = unit[channel]
+        print(f"\n== shape of the {channel} (fitted on one half at {result['fit_window_s']:g} s, pooled; held-out "
+              f"RMS {label} on the other half at " + " / ".join(f"{w:g}" for w in SHAPE_WINDOWS) + " s, pooled "
+              f"[robots {' '.join(str(r) for r in result['robots'])}])")
+        for row in result[channel].values():
+            s = row["shape"]
+            print(f"half {row['train_half']} {row['family']:>11}: dead {s['dead_time_s']:.3f} fast {s['fast_s']:.2f} "
+                  f"slow {s['slow_s']:.2f} w {s['slow_weight']:.2f} (mean delay {row['mean_delay_s']:.3f} s); "
+                  f"train {scale * row['train_rms']:.2f}; held out "
+                  + "  ".join(f"{scale * row['held_out_pooled'][w]:.2f} ["
+                              + " ".join(f"{scale * x:.1f}" for x in row["held_out"][w]) + "]" for w in SHAPE_WINDOWS))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--robots", type=positive_int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--section", choices=("grid", "shape", "all"), default="grid",
+                        help="grid: sections 1-3 (default); shape: section 4; all: both")
+    parser.add_argument("--fit-window", type=positive_float, default=0.25, help="the windows (s) section 4 fits "
+                        "the shapes on (the held-out scores are at 0.25, 1 and 5 s whatever it is)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         print(f"mrclam_drive_response: no data set at {args.data}", file=sys.stderr)
         return 2
     logs = {r: read_mrclam(args.data, r, truth_heading="travel") for r in args.robots}
-    result = {}
+    shapes = shape_fits(logs, args.fit_window) if args.section in ("shape", "all") else None
+    if args.section == "shape":
+        if args.json:
+            print(json.dumps({"shape": shapes}, indent=1))
+        else:
+            print_shapes(shapes)
+        return 0
+    result = {} if shapes is None else {"shape": shapes}
     for order in (1, 2):
         result[f"order{order}"] = summarise(grid(logs, order), args.robots)
     first = result["order1"]["heading_0.25s"]["pooled"]
@@ -172,6 +394,8 @@ def main(argv: list[str] | None = None) -> int:
                         (f"1st {o1['T_s']:.3f},{o1['delay_s']:.3f}", model_step(o1["T_s"], o1["delay_s"])),
                         (f"2nd {o2['T_s']:.3f},{o2['delay_s']:.3f}", model_step(o2["T_s"], o2["delay_s"], 2))):
         print(f"{label:<11}" + " ".join(f"{x:5.2f}" for x in step[sel]))
+    if shapes is not None:
+        print_shapes(shapes)
     return 0
 
 
