@@ -8,7 +8,8 @@ Run from the repository root:
 ``demo``: `p3at demo --out` folders (robot1.npz, robot2.npz carrying ``metadata["self_check"]``). Per folder, the
 fusion of the two maps as given (``fusion.fuse_all``) and with the check (``fusion.split.fuse_checked``): each
 flagged map's split (landmarks before / after the gap), each part's alignment to the other map (supports, error
-against the true start poses), the χ² of the parts' difference, the decision; then, for both fusions, the
+against the true start poses), the χ² of the parts' difference and how far apart their alignments place the map's
+landmarks (``fusion.split.parts_apart``), the decision; then, for both fusions, the
 placement of robot 2's start frame against the truth (its whole map's, or the part made before the gap) and the
 fused map's landmark error against the simulator's true features: the fused map put in the world by robot 1's
 true start pose, each landmark's distance to the nearest feature, over the landmarks robot 2 contributed alone
@@ -114,14 +115,16 @@ def _row(name: str, maps: list[LandmarkMap], tree, true_map2: LandmarkMap) -> No
                 exy, eth = alignment_error_xy_theta(pose, truth)
                 at = " at the other part's" if j not in p.aligned_to else ""
                 parts.append(f"{p.landmarks}: {len(a.supports)}{at}, {exy:.2f} m / {eth:.3f}")
-        chi = ", ".join(f"{x:.1f} (p {p:.2g})" for _, x, p in c.comparisons) or "-"
+        chi = ", ".join(f"{x:.1f} (p {p:.2g}; {m:.2f} m apart)"
+                        for (_, x, p), (_, m) in zip(c.comparisons, c.apart, strict=True)) or "-"
         print(f"| {name} | robot{c.index + 1} at id {c.first_id} | {parts[0]} | {parts[1]} | {chi} | {c.decision} | "
               f"{unchecked} | {with_check} |")
 
 
 def demo(folders: list[Path], kick: bool) -> None:
     tree = cKDTree(load_world().features)
-    print("| run | flagged map, split | part before: landmarks: supports, error xy / θ (rad) | part after | χ² (p) | "
+    print("| run | flagged map, split | part before: landmarks: supports, error xy / θ (rad) | part after | χ² (p; "
+          "farthest a landmark is placed apart by the parts' alignments) | "
           "decision | unchecked: robot 2's frame | fused landmarks: median to a feature, within 0.15 m | robot 2's "
           "landmarks off their place: median, > 0.5 m | checked: robot 2's frame | fused landmarks | robot 2's "
           "landmarks |")
