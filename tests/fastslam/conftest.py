@@ -1,4 +1,5 @@
-"""Shared scenes for the FastSLAM tests: a straight corridor of known features and a driven run along it."""
+"""Shared scenes for the FastSLAM tests: a straight corridor of known features and a driven run along it; unit
+descriptors at chosen distances from each other (the appearance tests)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,6 +8,17 @@ import pytest
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.geometry import compose
 from mocks.synthetic_stereo import OdometryErrorModel, SyntheticOdometry, SyntheticStereo
+
+
+def orthonormal_descriptors(n: int, seed: int = 0) -> np.ndarray:
+    """n orthonormal 64-element rows (float32 unit descriptors 2^0.5 apart)."""
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((64, n)))
+    return q.T.astype(np.float32)
+
+
+def turned(a: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:
+    """The unit vector at ``angle`` from a towards b (orthonormal a, b): 2 sin(angle / 2) from a."""
+    return (np.cos(angle) * a + np.sin(angle) * b).astype(np.float32)
 
 
 def corridor_features(rng: np.random.Generator, n: int = 240, length: float = 24.0):

@@ -11,21 +11,11 @@ from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.appearance import DescriptorBands
 from estimation.geometry import between
 from estimation.observations import OdometryIncrement, StereoObservations
-
-
-def _basis(n: int, seed: int = 0) -> np.ndarray:
-    """n orthonormal 64-element rows."""
-    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((64, n)))
-    return q.T.astype(np.float32)
-
-
-def _turned(a: np.ndarray, b: np.ndarray, angle: float) -> np.ndarray:
-    """The unit vector at ``angle`` from a towards b (orthonormal a, b): 2 sin(angle / 2) from a."""
-    return (np.cos(angle) * a + np.sin(angle) * b).astype(np.float32)
+from tests.fastslam.conftest import orthonormal_descriptors, turned
 
 
 def test_an_observation_is_compared_with_the_descriptor_made_from_the_nearest_direction():
-    a, b, c = _basis(3)
+    a, b, c = orthonormal_descriptors(3)
     bands = DescriptorBands(slots=3, ratio=1.25, size=64, key="direction", angle=0.2)
     bands.append(a[None], np.array([4.0]), np.array([0.0]))
     assert bands.learn(np.array([0]), b[None], np.array([4.0]), np.array([0.5])) == 1
@@ -42,7 +32,7 @@ def test_an_observation_is_compared_with_the_descriptor_made_from_the_nearest_di
 
 @given(st.floats(-np.pi, np.pi), st.floats(-0.19, 0.19))
 def test_directions_are_compared_across_the_wrap(first: float, step: float):
-    a, b = _basis(2)
+    a, b = orthonormal_descriptors(2)
     bands = DescriptorBands(slots=2, ratio=1.25, size=64, key="direction", angle=0.2)
     bands.append(a[None], np.array([3.0]), np.array([first]))
     seen = np.array([first + step + 2.0 * np.pi * np.sign(first)])   # the same direction, a turn away
@@ -51,7 +41,7 @@ def test_directions_are_compared_across_the_wrap(first: float, step: float):
 
 
 def test_a_landmark_learns_only_new_directions_never_overwrites_and_never_without_a_direction():
-    a, b, c = _basis(3)
+    a, b, c = orthonormal_descriptors(3)
     bands = DescriptorBands(slots=2, ratio=1.25, size=64, key="direction", angle=0.2)
     bands.append(np.stack([a, a]), np.array([4.0, 4.0]), np.array([1.0, np.nan]))   # id 1: direction unknown
     assert bands.learn(np.array([0]), b[None], np.array([1.0]), np.array([1.15])) == 0   # a new range alone
@@ -63,7 +53,7 @@ def test_a_landmark_learns_only_new_directions_never_overwrites_and_never_withou
 
 
 def test_range_and_direction_learn_when_either_steps():
-    a, b, c = _basis(3)
+    a, b, c = orthonormal_descriptors(3)
     bands = DescriptorBands(slots=3, ratio=1.25, size=64, key="range+direction", angle=0.2)
     bands.append(a[None], np.array([4.0]), np.array([0.0]))
     assert bands.learn(np.array([0]), b[None], np.array([2.0]), np.array([0.05])) == 1   # range
@@ -88,7 +78,7 @@ def _circle(settings: dict, steps: int = 24, arc_step: float = 0.05) -> FastSLAM
     """A robot walks round a corner 3 m away, facing it, 0.05 rad of arc a frame (1.15 rad in all). The corner's
     upright descriptor turns with the direction it is seen from, angle = 1.2 Δφ: beyond the 0.5 threshold after
     0.42 rad of arc. The range never changes."""
-    a, b = _basis(2, seed=5)
+    a, b = orthonormal_descriptors(2, seed=5)
     slam = FastSLAM(FastSLAMConfig(n_particles=5, max_observations=0, merge_every=1, **settings),
                     np.random.default_rng(0))
     corner = np.array([5.0, 1.0, 0.6])
@@ -104,7 +94,7 @@ def _circle(settings: dict, steps: int = 24, arc_step: float = 0.05) -> FastSLAM
         d = corner[:2] - p[:2]
         z = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], corner[2]])
         slam.update(StereoObservations(z[None], (np.eye(3) * 0.01 ** 2)[None],
-                                       _turned(a, b, 1.2 * k * arc_step)[None], timestamp=t))
+                                       turned(a, b, 1.2 * k * arc_step)[None], timestamp=t))
         slam.predict(OdometryIncrement(*map(float, between(p, pose(k + 1))), t, t + 0.5))
         t += 0.5
     return slam
