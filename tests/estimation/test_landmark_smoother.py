@@ -644,12 +644,17 @@ def test_a_sole_group_marginalised_is_the_group_solved_for(monkeypatch):
 
 
 @settings(max_examples=12, deadline=None)
-@given(seed=st.integers(0, 3), angle=st.floats(-3.0, 3.0))
+@given(seed=st.integers(0, 3), angle=st.floats(-3.0, 3.0).filter(lambda a: abs(a) >= 1e-3))
 def test_a_start_turned_about_the_origin_is_turned_back_in_a_few_steps(seed, angle):
     """Pose 0 alone fixes the frame: the solution with every later pose and the map turned about the origin differs
     from it in the first increment's residual only, a direction the information barely sees. The solve takes a
     step's turn as a rotation, so such a start is solved back in a few iterations whatever the angle (with steps
-    along the turn's tangent it took 20-46 iterations at 1-3 rad, session 38 (E))."""
+    along the turn's tangent it took 20-46 iterations at 1-3 rad, session 38 (E)).
+
+    Below a milliradian the turned start is already a solution to the solve's own precision: its cost exceeds the
+    solution's by less than the stopping rule's 10⁻⁹ of the cost (a start turned by 10⁻⁵ rad is accepted after one
+    step, its landmarks 3·10⁻⁵ m from the solution's, found by an unseeded run in session 45, the same before and
+    after that session's solver changes), so those angles cannot show a turn taken back."""
     problem, _, _ = simulated_log(seed)
     solution = smooth(problem, *initial_guess(problem))
     c, s = np.cos(angle), np.sin(angle)
