@@ -52,7 +52,7 @@ from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose  # noqa: E402
 from estimation.landmark_smoother import smooth  # noqa: E402
 from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
-from estimation.odometry_response import with_drive_response, with_drive_shape  # noqa: E402
+from estimation.odometry_response import first_order_response, with_drive_response, with_drive_shape  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
@@ -64,7 +64,7 @@ def drive_option(text: str):
     if kind == "response":
         try:
             T = float(value)
-            with_drive_response(read_nothing(), T)
+            first_order_response(np.zeros(1), np.zeros(1), T)   # refuses a T the response refuses, in its words
         except ValueError as error:
             raise argparse.ArgumentTypeError(f"response:T needs a time constant in s: {error}") from None
         return text, lambda log: with_drive_response(log, T)
@@ -72,15 +72,6 @@ def drive_option(text: str):
         shapes = drive_shape_option(value)
         return text, lambda log: with_drive_shape(log, *shapes)
     raise argparse.ArgumentTypeError(f"expected response:T or shape:DEAD,FAST,SLOW,WEIGHT[/...], not {text!r}")
-
-
-def read_nothing():
-    """A log that only checks a time constant (with_drive_response refuses a bad T before it reads the log)."""
-    from estimation.datasets import RangeBearingLog
-
-    t = np.array([0.0, 0.02])
-    return RangeBearingLog("check", np.column_stack([t, 0 * t, 0 * t, 0 * t]), np.zeros(0), np.zeros(0), np.zeros(0),
-                           np.zeros(0, np.int64), velocities=np.column_stack([t, 0 * t, 0 * t]))
 
 
 def start_section(log, drive, seed: int, first_seconds: float) -> dict:

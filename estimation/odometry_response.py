@@ -81,9 +81,15 @@ def with_drive_response(log: RangeBearingLog, time_constant_s: float, order: int
     velocities (MRCLAM's reader keeps them)."""
     if time_constant_s == 0.0 and order == 1:
         return log
+    return _with_commands_through(log, lambda rows: respond(rows, time_constant_s, order))
+
+
+def _with_commands_through(log: RangeBearingLog, response) -> RangeBearingLog:
+    """``log`` whose odometry is its commanded velocities (``log.velocities``, kept) through ``response`` (velocity
+    rows (K, 3) -> the response's rows (M, 3)), integrated."""
     if len(log.velocities) < 2:
         raise ValueError(f"{log.name}: no commanded velocities to filter (the odometry is not a command)")
-    rows = respond(log.velocities, time_constant_s, order)
+    rows = response(log.velocities)
     return replace(log, odometry=integrate_velocities(rows[:, 0], rows[:, 1], rows[:, 2]))
 
 
@@ -175,10 +181,7 @@ def with_drive_shape(log: RangeBearingLog, turn: ResponseShape, travel: Response
     travel = turn if travel is None else travel
     if turn == ResponseShape() and travel == ResponseShape():
         return log
-    if len(log.velocities) < 2:
-        raise ValueError(f"{log.name}: no commanded velocities to filter (the odometry is not a command)")
-    rows = shaped_velocities(log.velocities, turn, travel)
-    return replace(log, odometry=integrate_velocities(rows[:, 0], rows[:, 1], rows[:, 2]))
+    return _with_commands_through(log, lambda rows: shaped_velocities(rows, turn, travel))
 
 
 @dataclass(frozen=True)
