@@ -74,6 +74,7 @@ POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels wh
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
 DROP_REPORT_INTERVAL = 30.0         # s: malformed messages are said once, then counted in one line at most this often
+STATUS_PRIORITY = zenoh.Priority.DATA_HIGH  # statuses: one step above the maps' DATA
 
 _OPEN: weakref.WeakSet[ZenohExchange] = weakref.WeakSet()
 
@@ -304,8 +305,11 @@ class ZenohExchange:
         if robot not in self._own:
             key = f"{self.prefix}/{robot}/map"
             publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.DROP)
+            # a status names the map that exists: it goes ahead of the maps (Zenoh queues each priority apart), so
+            # it is not dropped with a map whose fragments fill their queue (docs/fleet.md, session 46)
             status = self.session.declare_publisher(f"{self.prefix}/{robot}/status",
-                                                    congestion_control=zenoh.CongestionControl.DROP)
+                                                    congestion_control=zenoh.CongestionControl.DROP,
+                                                    priority=STATUS_PRIORITY)
             queryable = self.session.declare_queryable(key, zenoh.handlers.RingChannel(CHANNEL_CAPACITY))
             token = self.session.liveliness().declare_token(f"{self.prefix}/{robot}/alive")
             self._own[robot] = (publisher, status, queryable, token)
