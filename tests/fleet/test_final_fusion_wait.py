@@ -46,6 +46,8 @@ def bare_session(port: int):
 
 
 def test_the_final_fusion_waits_for_a_last_map_still_queued_and_reports_one_that_never_came():
+    import zenoh
+
     port, fleet = free_port(), f"final{os.getpid()}"
     key, status_key = f"p3at/{fleet}/robot1/map", f"p3at/{fleet}/robot1/status"
     session = mapwire.new_session()
@@ -57,25 +59,43 @@ def test_the_final_fusion_waits_for_a_last_map_still_queued_and_reports_one_that
         held.append(robot)
         gate.wait(DEADLINE)
 
+    map_1 = mapwire.encode_full("robot1", session, 1, 1.0, second)
+    status_1 = mapwire.encode_status("robot1", session, 1, 1.0, landmarks=len(second))
     with ZenohExchange(fleet, endpoint(port, "fusion"), "fusion", on_update=hook) as node, \
             bare_session(port) as robot:
         try:
-            def map_0_handled() -> bool:  # puts before the route to the node exists are lost
-                robot.put(key, mapwire.encode_full("robot1", session, 0, 0.0, first))
-                return bool(held)
+            queryable = robot.declare_queryable(key, zenoh.handlers.RingChannel(16))
 
-            wait_until(map_0_handled, "robot1's map 0 holding the node's worker")
-            robot.put(key, mapwire.encode_full("robot1", session, 1, 1.0, second))  # the last map, queued
-            robot.put(status_key, mapwire.encode_status("robot1", session, 1, 1.0, landmarks=len(second)))
-            wait_until(lambda: node.pending_bytes > 0 and len(held) == 1, "map 1 and its status queued")
+            def reached() -> bool:  # the node's query reached the robot: so had its subscribers' declarations
+                node.request_snapshot("*")
+                came = False
+                while (query := queryable.try_recv()) is not None:
+                    came = True
+                    query.drop()
+                return came
+
+            # map 0 put once the route exists, and once: a copy put again while the first was on its way would sit
+            # in the node's queue, which then held bytes before map 1 and its status had come
+            wait_until(reached, "the node's query at robot1's queryable")
+            robot.put(key, mapwire.encode_full("robot1", session, 0, 0.0, first))
+            wait_until(lambda: bool(held), "robot1's map 0 holding the node's worker")
+            robot.put(key, map_1)  # the last map, queued
+            robot.put(status_key, status_1)
+            wait_until(lambda: node.pending_bytes == len(map_1) + len(status_1) and len(held) == 1,
+                       "map 1 and its status queued")
             # fused now (as before session 20), the final fusion would have map 0
             assert node.receive()["robot1"].sequence == 0
             threading.Timer(0.5, gate.set).start()
             assert await_last_maps(node, timeout=DEADLINE) == {}
             assert node.receive()["robot1"].sequence == 1
             # a status naming map 2, which never comes: reported after the bound, with the map held
-            robot.put(status_key, mapwire.encode_status("robot1", session, 2, 2.0, landmarks=len(second)))
-            wait_until(lambda: node.status().get("robot1", {}).get("sequence") == 2, "the status naming map 2")
+            status_2 = mapwire.encode_status("robot1", session, 2, 2.0, landmarks=len(second))
+
+            def status_2_handled() -> bool:  # put until handled: a put is CongestionControl.DROP
+                robot.put(status_key, status_2)
+                return node.status().get("robot1", {}).get("sequence") == 2
+
+            wait_until(status_2_handled, "the status naming map 2")
             start = time.monotonic()
             assert await_last_maps(node, timeout=1.0) == {"robot1": {"named": 2, "held": 1}}
             assert time.monotonic() - start >= 1.0
@@ -115,9 +135,13 @@ def test_a_last_map_lost_on_the_wire_is_read_from_the_file_its_robot_wrote(tmp_p
         wait_until(lambda: sent("robot1", map1_0, 1.0), "robot1's map 0 at the node")
         wait_until(lambda: sent("robot2", map2, 1.5), "robot2's map at the node")
         named = 1 if status_came else 0
-        robot.put(f"p3at/{fleet}/robot1/status", mapwire.encode_status("robot1", session, named, 2.0,
-                                                                      landmarks=len(map1_1)))
-        wait_until(lambda: exchange.status().get("robot1", {}).get("sequence") == named, "robot1's status")
+        status = mapwire.encode_status("robot1", session, named, 2.0, landmarks=len(map1_1))
+
+        def status_handled() -> bool:  # put until handled: a put is CongestionControl.DROP
+            robot.put(f"p3at/{fleet}/robot1/status", status)
+            return exchange.status().get("robot1", {}).get("sequence") == named
+
+        wait_until(status_handled, "robot1's status")
         node = FusionNode(exchange, FusionNodeConfig())
         final, missing, read = final_fusion(node, summaries, timeout=1.0)
     assert missing == {}
