@@ -15,12 +15,13 @@ $(STAMP): pyproject.toml
 # pytest's workers (pytest-xdist): two where the machine has two cores or more, none (one process, as before) on one.
 # Two were measured (docs/reliability.md, "Suite time"); more were not: the tests were hardened for a loaded 2-core
 # machine, and the slowest few (missions, Zenoh exchanges) set the end anyway. `make test WORKERS=0` runs serially.
+# --durations: the slowest tests, so that a CI log shows how close each came to its timeout.
 WORKERS ?= $(shell [ "$$(nproc 2>/dev/null || echo 1)" -ge 2 ] && echo 2 || echo 0)
 
 test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q -n $(WORKERS)
+	$(BIN)/python -m pytest -q -n $(WORKERS) --durations=15
 
 demo: $(STAMP)
 	$(BIN)/p3at demo

@@ -447,6 +447,8 @@ def _sigma_and_error(model: NoiseModel, calibration, group: int) -> tuple[float,
     return value, value * 0.5 * nc.standard_errors[group] / nc.factors[group]
 
 
+@pytest.mark.timeout(1200)  # CPU-bound: three self-calibrations with a noise estimate (45 s at load 15; CI's 300 s
+# default was passed at nice 5 beside five helpers' jobs, session 46)
 def test_a_bearing_sigma_2_5_times_the_model_s_comes_back_within_its_standard_errors():
     """The log's σ_φ is 0.01 rad, the model says 0.004: the variance components of the residuals give back 0.01,
     and the range's σ the simulated one, within their standard errors (σ/√(2r), ±1.2 % here). Seeds 3-5: σ_φ z
