@@ -71,7 +71,8 @@ class DatasetRun:
 
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
                      association: str = "id", robot: str = "robot", until: float | None = None,
-                     inflate_correlated: bool = True, known_map: bool = False, smooth: bool = False) -> DatasetRun:
+                     inflate_correlated: bool = True, known_map: bool = False, smooth: bool = False,
+                     frame: str = "first-sighting") -> DatasetRun:
     """Run FastSLAM over ``log`` and score it against its ground truth if it has some; see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
@@ -84,6 +85,9 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     ``smooth``: after the filter, the whole log's MAP poses and landmarks from the filter's best particle
     (:mod:`estimation.dataset_smoothing`; needs ``association="id"``): the map, trajectory and pose NEES are then
     the smoother's, the filter's figures stay in the metrics under ``filter_``.
+    ``frame``: the smoothed map's frame, ``"first-sighting"`` (the default: the robot's pose at its first sighting)
+    or ``"checked"`` (the first pose whose frame no single sighting can move unseen: :mod:`estimation.map_frame`;
+    needs ``smooth``).
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -92,6 +96,11 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     sensor = noise.range_bearing
     if smooth and association != "id":
         raise ValueError("smoothing needs association='id' (the sightings must name their landmarks)")
+    from .map_frame import FIRST_SIGHTING, FRAMES
+    if frame not in FRAMES:
+        raise ValueError(f"the map's frame must be one of {', '.join(FRAMES)}, not {frame!r}")
+    if frame != FIRST_SIGHTING and not smooth:
+        raise ValueError(f"the map's frame {frame!r} is chosen on the smoothed solution: it needs smoothing")
     if inflate_correlated:
         inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
         sensor = dataclasses.replace(sensor, range_sigma_m=sensor.range_sigma_m * inflate_r,
@@ -169,7 +178,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     if not smooth:
         return run
     from .dataset_smoothing import smooth_run
-    return smooth_run(run, log, noise, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until)
+    return smooth_run(run, log, noise, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until,
+                      frame=frame)
 
 
 def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:

@@ -32,6 +32,7 @@ from .landmark_smoother import (
     landmarks_from_first_sightings,
     smooth,
 )
+from .map_frame import CHECKED, FIRST_SIGHTING, FRAMES, Reframed, checked_frame, reframe
 from .noise_model import increment_variances
 
 _Z_VARIANCE = 1e-6      # m²: the planar sensor says nothing of the height; the map pins it at 0, as the filter does
@@ -42,7 +43,7 @@ _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_
 
 
 def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses, true_start, t0, until, *,
-               heading_drift: HeadingDrift | None = None):
+               heading_drift: HeadingDrift | None = None, frame: str = FIRST_SIGHTING):
     """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
 
     noise: the run's noise model; frames: per filter frame k, (ids, ranges, bearings) as the filter was given them
@@ -52,7 +53,14 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
     random walk, plus the model's stalls after the command's dips if it has that term, as the filter had them).
     heading_drift: the smoother's heading-bias states (None: the config's drift if it has one, else none).
     true_start None (a log without ground truth): the trajectory stays in the map's frame and nothing is scored.
+    frame: the map's frame, ``"first-sighting"`` (the default: pose 0, the robot at its first sighting) or
+    ``"checked"`` (:mod:`estimation.map_frame`: the first pose whose frame no single sighting can move unseen; the
+    map, trajectory, covariances, ``true_start_pose`` and every score are then in that pose's frame, the reliability
+    figures of that frame, ``map_frame_*`` say which; the ``filter_`` figures stay the filter's, in the first
+    sighting's frame).
     """
+    if frame not in FRAMES:
+        raise ValueError(f"the map's frame must be one of {', '.join(FRAMES)}, not {frame!r}")
     if not any(len(ids) for ids, _, _ in frames):
         before = "" if until is None else f" before {until:g} s"
         raise ValueError(f"{log.name}: nothing to smooth: no sightings{before}")
@@ -64,18 +72,30 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
     initial = np.vstack([np.zeros(3), filter_poses])
     solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial),
                       heading_drift=drift)
-    landmark_map = _smoothed_map(run.map, solution, landmark_ids, problem.landmark_index, times)
+    # the map's frame: pose 0's, or the first pose no single sighting can move unseen (estimation.map_frame)
+    framed, chosen, frame_metrics = None, None, {}
+    if frame == CHECKED:
+        chosen, framed, true_start, frame_metrics = _checked_frame(problem, solution, frame_times, true_start, log)
+    landmark_map = _smoothed_map(run.map, solution if framed is None else framed.solution, landmark_ids,
+                                 problem.landmark_index, times)
     metrics = {f"filter_{key}": run.metrics[key] for key in _FILTER_KEYS if key in run.metrics}
     metrics.update(run.metrics)
     metrics.update(
         smoothed=True, smoother_chi2_per_dof=solution.chi2_per_dof, smoother_dof=solution.dof,
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
+    metrics.update(frame_metrics)
+    if chosen is not None:
+        landmark_map.metadata.update(map_frame=CHECKED, map_frame_time_s=metrics["map_frame_time_s"])
+        if true_start is not None:
+            landmark_map.metadata["true_start_pose"] = metrics["true_start_pose"] = [float(v) for v in true_start]
     # which sightings the frame rests on, from the problem's design alone (estimation.frame_reliability)
-    metrics.update(design_figures(lambda: reliability_metrics(problem, solution, times, landmark_ids)))
+    pose = 0 if chosen is None else chosen.pose
+    metrics.update(design_figures(lambda: reliability_metrics(problem, solution, times, landmark_ids, pose=pose)))
     if solution.heading_drift is not None:
         metrics.update(smoother_heading_drift_sigma_per_m=solution.heading_drift.sigma_per_m,
                        smoother_heading_drift_tau_s=solution.heading_drift.tau_s)
+    solution = solution if framed is None else framed.solution
     if true_start is None:   # nothing to score against: the smoothed map's own figures
         metrics.update(unscored_metrics(landmark_map, times, t0))
         return type(run)(landmark_map, run.true_trajectory, np.column_stack([times, solution.poses[1:]]),
@@ -92,8 +112,28 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
         metrics.update(map_scores(landmark_map.positions, landmark_map.covariances,
                                   np.asarray(landmark_map.metadata["external_ids"], np.int64), true_start,
                                   log.truth_ids, log.truth_positions, sighted_true_ids(log, t0, until)))
-        metrics.update(_frame_error(problem, solution, landmark_ids, true_start, log))
+        joint = joint_landmark_covariance(problem, solution) if framed is None else framed.joint_covariance
+        metrics.update(_frame_error(solution, joint, landmark_ids, true_start, log))
     return type(run)(landmark_map, run.true_trajectory, estimated_world, run.dead_reckoning, nees, metrics)
+
+
+def _checked_frame(problem, solution, frame_times, true_start, log):
+    """:func:`~estimation.map_frame.checked_frame` of ``solution``, and what follows from it: the choice, the solution
+    reframed (:class:`~estimation.map_frame.Reframed`; ``solution`` itself with the joint covariance if the frame
+    stays pose 0's), the true pose of the chosen frame (None without a truth) and the ``map_frame_*`` figures."""
+    choice = checked_frame(problem, solution)
+    if choice.pose:
+        framed = reframe(problem, solution, choice.pose)
+    else:
+        framed = Reframed(0, solution, joint_landmark_covariance(problem, solution))
+    at = float(frame_times[choice.pose])
+    metrics = {"map_frame": CHECKED, "map_frame_pose": choice.pose, "map_frame_time_s": at,
+               "map_frame_found": choice.found, "map_frame_poses_tried": choice.poses_tried,
+               "map_frame_effect_sd": [float(v) for v in choice.effect_sd],
+               "map_frame_first_sighting_effect_sd": [float(v) for v in choice.first_effect_sd]}
+    if true_start is not None and choice.pose:
+        true_start = log.true_pose([at])[0]
+    return choice, framed, true_start, metrics
 
 
 def smoothed_pose_nees(solution, true_start: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -107,10 +147,10 @@ def smoothed_pose_nees(solution, true_start: np.ndarray, truth: np.ndarray) -> n
     return nees
 
 
-def _frame_error(problem, solution, landmark_ids, true_start, log) -> dict:
+def _frame_error(solution, joint, landmark_ids, true_start, log) -> dict:
     """The smoothed map's start-frame error as one rigid motion and its NEES by the landmarks' joint covariance
-    (:func:`~estimation.landmark_scores.frame_error`), over the landmarks placed whose true position is known."""
-    joint = joint_landmark_covariance(problem, solution)
+    ``joint`` (:func:`~estimation.landmark_scores.frame_error`), over the landmarks placed whose true position is
+    known."""
     truth = {int(i): p for i, p in zip(log.truth_ids, log.truth_positions, strict=True)}
     rows = np.array([k for k, i in enumerate(landmark_ids) if int(i) in truth and np.isfinite(joint[2 * k, 2 * k])],
                     np.int64)

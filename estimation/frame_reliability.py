@@ -102,33 +102,57 @@ class FrameReliability:
         return np.hypot(self.frame_effect[:, :, 0], self.frame_effect[:, :, 1])
 
 
-def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: float = DELTA_0) -> FrameReliability:
-    """The reliability figures of every sighting of ``solution`` (see the module docstring). Needs at least two
+def frame_reliability(problem: LandmarkLogProblem, solution: Smoothed, delta0: float = DELTA_0, *,
+                      pose: int = 0) -> FrameReliability:
+    """The reliability figures of every sighting of ``solution`` (see the module docstring), for the frame of pose
+    ``pose`` (0, the default: the map's own, the first sighting's; another: the map seen from that pose,
+    :func:`frame_functional`). Needs at least two
     landmarks with a kept sighting (a frame's rotation needs two points). With sighting offsets
     (:class:`~estimation.landmark_smoother.SightingOffset`, the unknown-association chain's last smoothings) a
     sighting's columns are its pose's, its landmark's and its group's offset (dense, after the landmarks'); a sole
     group's offset, marginalised by the smoother, enters the sightings only as a sum with its landmark, so it changes
     no redundancy nor effect, and adds its σ² I to its landmark in the frame's covariance, as
     :func:`~estimation.landmark_smoother.joint_landmark_covariance` has it."""
-    t = problem.n_poses
-    frame = frame_problem(problem, solution)
-    inverse, u = frame.inverse, frame.gain
-    s = len(problem.ranges)
+    frame = frame_problem(problem, solution, pose)
+    redundancy = sighting_redundancy(problem, solution, frame.inverse)
+    in_sigmas = bias_in_sigmas(redundancy, delta0)
+    sigmas = np.column_stack([problem.range_sigmas, problem.bearing_sigmas])
+    return FrameReliability(redundancy, in_sigmas * sigmas, frame_effects(problem, solution, frame, in_sigmas),
+                            0.5 * (frame.covariance + frame.covariance.T), float(delta0))
+
+
+def _sighting_rows(problem: LandmarkLogProblem, solution: Smoothed) -> tuple[np.ndarray, np.ndarray]:
+    """The kept sightings (K,) and their two rows of the whitened Jacobian (K, 2)."""
     kept = np.flatnonzero(solution.inliers)
-    rows = 3 * t + 2 * kept
-    groups = np.column_stack([rows, rows + 1])
-    redundancy = np.full((s, 2, 2), np.nan)
+    rows = 3 * problem.n_poses + 2 * kept
+    return kept, np.column_stack([rows, rows + 1])
+
+
+def sighting_redundancy(problem: LandmarkLogProblem, solution: Smoothed, inverse: SelectedInverse) -> np.ndarray:
+    """(S, 2, 2) each sighting's block R_ss = I − J_s H⁻¹ J_sᵀ (NaN for a sighting cut): the same for every frame
+    (it is the data's, not the frame's)."""
+    kept, groups = _sighting_rows(problem, solution)
+    redundancy = np.full((len(problem.ranges), 2, 2), np.nan)
     redundancy[kept] = np.eye(2) - inverse.hat_blocks(groups)
-    per_unit = np.full((s, 2, 3), np.nan)                                        # δg of a bias of one σ
-    per_unit[kept] = (inverse.jac[groups.ravel()] @ u).reshape(-1, 2, 3)
+    return redundancy
+
+
+def bias_in_sigmas(redundancy: np.ndarray, delta0: float = DELTA_0) -> np.ndarray:
+    """(S, 2) each component's ∇₀ in units of its own σ, δ₀ / √(R_ss)_cc (inf where nothing checks it, NaN if cut)."""
     own = np.diagonal(redundancy, axis1=1, axis2=2)                              # (S, 2) (R_ss)_cc
     with np.errstate(divide="ignore", invalid="ignore"):
         in_sigmas = np.where(own > _NO_REDUNDANCY, delta0 / np.sqrt(np.maximum(own, _NO_REDUNDANCY)), np.inf)
-        in_sigmas = np.where(np.isnan(own), np.nan, in_sigmas)
-        sigmas = np.column_stack([problem.range_sigmas, problem.bearing_sigmas])
-        effect = np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
-    return FrameReliability(redundancy, in_sigmas * sigmas, effect,
-                            0.5 * (frame.covariance + frame.covariance.T), float(delta0))
+    return np.where(np.isnan(own), np.nan, in_sigmas)
+
+
+def frame_effects(problem: LandmarkLogProblem, solution: Smoothed, frame: FrameProblem,
+                  in_sigmas: np.ndarray) -> np.ndarray:
+    """(S, 2, 3) the (dx, dy, dθ) of ``frame`` moved by each component's ∇₀ (``in_sigmas`` of its σ; NaN if cut)."""
+    kept, groups = _sighting_rows(problem, solution)
+    per_unit = np.full((len(problem.ranges), 2, 3), np.nan)                      # δg of a bias of one σ
+    per_unit[kept] = (frame.inverse.jac[groups.ravel()] @ frame.gain).reshape(-1, 2, 3)
+    with np.errstate(invalid="ignore"):
+        return np.where(per_unit == 0, 0.0, per_unit * in_sigmas[:, :, None])
 
 
 def _framed(problem: LandmarkLogProblem, solution: Smoothed) -> np.ndarray:
@@ -161,28 +185,66 @@ class FrameProblem:
     covariance: np.ndarray
 
 
-def frame_problem(problem: LandmarkLogProblem, solution: Smoothed) -> FrameProblem:
-    """``solution``'s :class:`FrameProblem`. Needs a frame (:func:`has_frame`; ValueError otherwise)."""
-    t, n_landmarks = problem.n_poses, len(solution.landmarks)
+def frame_problem(problem: LandmarkLogProblem, solution: Smoothed, pose: int = 0) -> FrameProblem:
+    """``solution``'s :class:`FrameProblem`, for the frame of pose ``pose`` (0: the map's own; see
+    :func:`frame_functional`). Needs a frame (:func:`has_frame`; ValueError otherwise)."""
+    t = problem.n_poses
     seen = _framed(problem, solution)
     if seen.sum() < 2:
         raise ValueError(f"a frame needs two landmarks with a kept sighting, not {int(seen.sum())}")
     jac, width = solution_jacobian(problem, solution)
     free = np.ones(jac.shape[1], bool)
-    free[width * t:width * t + 2 * n_landmarks] = np.repeat(seen, 2)
+    free[width * t:width * t + 2 * len(solution.landmarks)] = np.repeat(seen, 2)
     inverse = SelectedInverse(jac, free, t, width)
-    # the frame's functional: the landmarks' rigid motion about the origin, on their columns among the free ones
-    functional = np.zeros((3, int(free.sum())))
-    functional[:, width * t:width * t + 2 * int(seen.sum())] = rigid_functional(solution.landmarks[seen])
-    gain = inverse.factor.solve(functional.T)                                    # H⁻¹ gᵀ, (n, 3)
+    return framed_at(problem, solution, FrameProblem(inverse, free, seen, width, np.zeros((3, 0)),
+                                                     np.zeros((0, 3)), np.zeros((3, 3))), pose)
+
+
+def framed_at(problem: LandmarkLogProblem, solution: Smoothed, frame: FrameProblem, pose: int) -> FrameProblem:
+    """``frame`` (its factorisation kept) asked of the frame of pose ``pose``: its functional, gain and covariance
+    (one solve with three right-hand sides)."""
+    t, width, seen = problem.n_poses, frame.width, frame.seen
+    functional = frame_functional(solution, seen, width, t, int(frame.free.sum()), pose)
+    gain = frame.inverse.factor.solve(functional.T)                              # H⁻¹ gᵀ, (n, 3)
     covariance = functional @ gain
     if solution.sighting_offset is not None and solution.sighting_offset.on:
-        sole = np.zeros(n_landmarks, bool)
+        sole = np.zeros(len(solution.landmarks), bool)
         sole[sole_offset_groups(problem)[:, 0]] = True
         on_sole = np.repeat(sole[seen], 2)                                       # the seen landmarks' columns
         rigid = functional[:, width * t:width * t + 2 * int(seen.sum())][:, on_sole]
         covariance = covariance + solution.sighting_offset.sigma_m ** 2 * rigid @ rigid.T
-    return FrameProblem(inverse, free, seen, width, functional, gain, covariance)
+    return FrameProblem(frame.inverse, frame.free, seen, width, functional, gain, covariance)
+
+
+_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])    # J: J v is v turned by +90°
+
+
+def frame_functional(solution: Smoothed, seen: np.ndarray, width: int, t: int, n_free: int,
+                     pose: int = 0) -> np.ndarray:
+    """(3, n_free) the frame of pose ``pose`` as a linear function of the free unknowns (poses 1..T, ``width``
+    columns each, then the ``seen`` landmarks' two): the least-squares rigid motion (dx, dy, dθ), about that pose
+    and along its axes, of the seen landmarks as that pose sees them, m_j = R(θ_k)ᵀ (l_j − p_k). Pose 0 is the
+    origin (fixed): the landmarks' rigid motion about it (:func:`~estimation.landmark_scores.rigid_functional`). For
+    a pose k ≥ 1, δm_j = Rᵀ δl_j − Rᵀ δp_k − δθ_k J m_j: the landmarks' columns take G_j Rᵀ, the pose's
+    −Σ_j G_j Rᵀ on (x, y) and −Σ_j G_j J m_j on θ (G_j the rigid functional's columns of landmark j at the m's)."""
+    functional = np.zeros((3, n_free))
+    landmarks = solution.landmarks[seen]
+    columns = slice(width * t, width * t + 2 * len(landmarks))
+    if pose == 0:
+        functional[:, columns] = rigid_functional(landmarks)
+        return functional
+    if not 1 <= pose <= t:
+        raise ValueError(f"pose {pose} is not one of the solution's 0..{t}")
+    x, y, theta = solution.poses[pose]
+    c, s = np.cos(theta), np.sin(theta)
+    rotation = np.array([[c, -s], [s, c]])
+    seen_from = (landmarks - [x, y]) @ rotation                                  # rows Rᵀ (l_j − p_k)
+    per_landmark = rigid_functional(seen_from).reshape(3, -1, 2)                 # G_j (3, K, 2)
+    functional[:, columns] = (per_landmark @ rotation.T).reshape(3, -1)         # G_j Rᵀ
+    at = width * (pose - 1)
+    functional[:, at:at + 2] = -per_landmark.sum(axis=1) @ rotation.T
+    functional[:, at + 2] = -np.einsum("akc,kc->a", per_landmark, seen_from @ _TURN.T)
+    return functional
 
 
 class SelectedInverse:
@@ -214,6 +276,17 @@ class SelectedInverse:
         out[dp] = -self.cross[b[dp], a[dp] - n]
         out[dd] = self.dense[a[dd] - n, b[dd] - n]
         return out
+
+    def quadratic_forms(self, rows: sp.spmatrix) -> np.ndarray:
+        """(G,) a H⁻¹ aᵀ for each row a of ``rows`` (G, free columns), a row touching the columns of one pose and
+        any dense ones, or of two consecutive poses (as a row of J may)."""
+        rows = sp.csr_matrix(rows)
+        group, a, b, weight = _row_pairs(rows, rows)
+        total = np.zeros(rows.shape[0])
+        for start in range(0, len(a), _PAIRS_PER_CHUNK):
+            part = slice(start, start + _PAIRS_PER_CHUNK)
+            total += np.bincount(group[part], weight[part] * self.entries(a[part], b[part]), minlength=rows.shape[0])
+        return total
 
     def hat_blocks(self, groups: np.ndarray) -> np.ndarray:
         """(G, m, m) J_G H⁻¹ J_Gᵀ for row groups ``groups`` (G, m) (row indices of ``jac``)."""
@@ -277,7 +350,7 @@ AXES = ("x", "y", "heading")
 
 def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: np.ndarray,
                         landmark_ids: np.ndarray, *, label: str = "landmark",
-                        barcodes: np.ndarray | None = None) -> dict:
+                        barcodes: np.ndarray | None = None, pose: int = 0) -> dict:
     """The figures a data set run reports (``times`` (T,) each pose's log time, pose k at times[k − 1];
     ``landmark_ids`` (L,) each landmark index's identity, given in the sightings' dicts under ``label``: "landmark"
     for the known-ID smoother's barcodes, "name" for the unknown-association chain's own names; ``barcodes`` (S,),
@@ -296,11 +369,14 @@ def reliability_metrics(problem: LandmarkLogProblem, solution: Smoothed, times: 
       covariance does not hold what one sighting can do to it unseen (:func:`reliability_warning` says it);
     - ``sighting_redundancy_min`` / ``_median``: over the kept sightings; ``frame_reliability_delta0``.
 
+    ``pose``: the frame asked about, 0 the map's own (the first sighting's), another pose k the map as pose k sees it
+    (:func:`frame_functional`; the frame :mod:`estimation.map_frame` may choose).
+
     {} when there is no frame to speak of (fewer than two landmarks with a kept sighting); any other error of the
     figures (a solution that is not finite, an information matrix that is not positive definite) propagates."""
     if not has_frame(problem, solution):
         return {}
-    rel = frame_reliability(problem, solution)
+    rel = frame_reliability(problem, solution, pose=pose)
     sd = rel.frame_sd
     effect = np.abs(rel.frame_effect)                                   # (S, 2, 3)
     with np.errstate(divide="ignore", invalid="ignore"):

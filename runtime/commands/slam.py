@@ -125,6 +125,13 @@ def _register_dataset(sub) -> None:
                              "smoother's, the filter's beside them (docs/fastslam.md). Default: on with --association "
                              "id, off with unknown (where it is refused: the filter's own associations make it "
                              "confidently wrong); --no-smooth gives the filter alone")
+    parser.add_argument("--frame", choices=("first-sighting", "checked"), default="first-sighting",
+                        help="the smoothed map's frame: the robot's pose at its first sighting (first-sighting, "
+                             "default), or the first pose whose frame no single sighting can move unseen (checked: "
+                             "no sighting's least detectable error moves a frame coordinate by more than δ₀ = 4.13 "
+                             "of its σ, the test behind the frame-reliability warning); the map, its true_start_pose "
+                             "and every score are then in that pose's frame, map_frame_* in --json say which "
+                             "(estimation.map_frame). Needs the smoother (--association id)")
     parser.add_argument("--chain", action="store_true",
                         help="with --association unknown: instead of the filter's own associations, the chain of "
                              "benchmarks/mrclam_constellation with session 30's recipe (estimation.name_chain): "

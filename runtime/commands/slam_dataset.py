@@ -30,6 +30,18 @@ def _chain_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _frame_problem(args: argparse.Namespace) -> str | None:
+    """What makes ``--frame checked`` meaningless with the other options given, in one line (None: nothing): the
+    frame is chosen on the known-ID smoother's solution."""
+    if args.frame == "first-sighting":
+        return None
+    if args.chain:
+        return "--frame checked is chosen on the known-ID smoother's solution: the chain's map keeps its own frame"
+    if args.association != "id" or args.smooth is False:
+        return "--frame checked is chosen on the smoother's solution: it needs --association id and the smoother"
+    return None
+
+
 def _check_rerun_sink(sink: str | None) -> None:
     """Refuse a ``--rerun`` sink before the run, not after it: FILE.rrd (its folder writable), spawn or a URL."""
     if (problem := rerun_sink_problem(sink, ("spawn",))) is not None:
@@ -45,7 +57,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
     try:
-        if (problem := _chain_problem(args)) is not None:
+        if (problem := _chain_problem(args) or _frame_problem(args)) is not None:
             raise ValueError(problem)
         check_output_file(args.out)
         _check_rerun_sink(args.rerun)
@@ -78,7 +90,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         else:
             run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
                                    association=args.association, robot=f"robot{args.robot}", until=args.until,
-                                   inflate_correlated=not args.no_inflation, smooth=smooth)
+                                   inflate_correlated=not args.no_inflation, smooth=smooth, frame=args.frame)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)
