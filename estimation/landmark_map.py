@@ -49,9 +49,9 @@ import numpy as np
 
 from .errors import MapFileError
 from .fileio import atomic_write_bytes
-from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, check_meta_for_writing, read_map_arrays
+from .map_validation import FORMAT_NAME, FORMAT_VERSION, MEMBERS, read_map_arrays
 from .ply import write_ply
-from .safe_npz import read_npz
+from .safe_npz import read_npz, read_npz_bytes
 
 
 @dataclass
@@ -127,12 +127,14 @@ class LandmarkMap:
 
     # -- files ---------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write the map atomically (see the module docstring for the format). Raises MapFileError, writing
-        nothing, where the names or typed metadata are ones :meth:`load` would refuse."""
+        """Write the map atomically (see the module docstring for the format). Raises MapFileError (one line naming
+        the file and the field), writing nothing and leaving an existing file as it was, where :meth:`load` would
+        refuse the file: the bytes about to be written are read back first with the reader's own checks (a NaN from
+        a diverged filter, a covariance that is not positive definite, a name with a control character), so that a
+        map once saved is never unreadable and the last good file is never replaced by one."""
         buf = io.BytesIO()
         meta = _json_bytes({"robot": self.robot, "frame": self.frame, "robots": self.robots,
                             "metadata": self.metadata})
-        check_meta_for_writing(meta, str(path))
         drift = {} if self.drift_covariances is None else {"drift_covariances": self.drift_covariances,
                                                             "drift_origins": self.drift_origins}
         if self.sighting_covariances is not None:
@@ -144,7 +146,10 @@ class LandmarkMap:
             ids=self.ids, counts=self.counts, seen_by=self.seen_by, trajectory=self.trajectory,
             meta=meta, **drift,
         )
-        atomic_write_bytes(path, buf.getvalue())
+        data = buf.getvalue()
+        source = f"{path}: not written"
+        read_map_arrays(read_npz_bytes(data, source, MEMBERS, MapFileError, what="map"), source, LandmarkMap)
+        atomic_write_bytes(path, data)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LandmarkMap:

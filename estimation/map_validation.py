@@ -130,14 +130,6 @@ class _Meta(BaseModel):
     metadata: _Metadata = _Metadata()
 
 
-def check_meta_for_writing(raw: np.ndarray, target: str) -> None:
-    """Raise MapFileError (one line naming ``target`` and the field) if the ``meta`` member ``raw`` (JSON bytes as
-    :meth:`LandmarkMap.save` writes them) is one :func:`read_map_arrays` would refuse: a writer must not leave a
-    file its own reader cannot read (a robot name with a control character, 300 characters, a clock of the wrong
-    type), when the names come from a caller rather than from a checked world, ``--name`` or the wire."""
-    _json(target, "meta", raw, _Meta)
-
-
 def read_map_arrays(arrays: dict[str, np.ndarray], source: str, build: Any) -> Any:
     """Check the arrays of a map file (read by :func:`estimation.safe_npz.read_npz` with :data:`MEMBERS`) and
     return ``build(positions, covariances, descriptors, ids, counts, robot, frame, robots, seen_by, trajectory,

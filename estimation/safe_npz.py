@@ -12,6 +12,7 @@ one line naming the file and the field.
 """
 from __future__ import annotations
 
+import io
 import math
 import os
 import struct
@@ -62,16 +63,31 @@ def read_npz(path: str | os.PathLike, specs: Mapping[str, ArraySpec], error: typ
         size = path.stat().st_size
         if not path.is_file():
             raise error(f"{path}: not a file")
-        if size > limits.max_file_bytes:
-            raise error(f"{path}: {size} bytes, more than the {limits.max_file_bytes} a {what} file may have")
         with open(path, "rb") as fh:
-            _check_end_record(fh, size, path, error, limits, what)
-            with zipfile.ZipFile(fh) as archive:
-                infos = _check_directory(archive, size, specs, path, error, limits)
-                return {name: _read_member(archive, info, specs[name], name, path, error)
-                        for name, info in infos.items()}
+            return _read_archive(fh, size, str(path), specs, error, limits, what)
     except FileNotFoundError:
         raise error(f"{path}: no such {what} file") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+
+
+def read_npz_bytes(data: bytes, name: str, specs: Mapping[str, ArraySpec], error: type[Exception],
+                   limits: NpzLimits = NpzLimits(), what: str = "npz") -> dict[str, np.ndarray]:
+    """:func:`read_npz` of an archive held in memory (``name`` stands for its file in the messages): a writer
+    checks the bytes it is about to write with the very checks its reader will make."""
+    return _read_archive(io.BytesIO(data), len(data), name, specs, error, limits, what)
+
+
+def _read_archive(fh, size: int, path: str, specs: Mapping[str, ArraySpec], error: type[Exception],
+                  limits: NpzLimits, what: str) -> dict[str, np.ndarray]:
+    try:
+        if size > limits.max_file_bytes:
+            raise error(f"{path}: {size} bytes, more than the {limits.max_file_bytes} a {what} file may have")
+        _check_end_record(fh, size, path, error, limits, what)
+        with zipfile.ZipFile(fh) as archive:
+            infos = _check_directory(archive, size, specs, path, error, limits)
+            return {name: _read_member(archive, info, specs[name], name, path, error)
+                    for name, info in infos.items()}
     except zipfile.BadZipFile as exc:
         raise error(f"{path}: not a readable {what} archive ({exc})") from None
     except (OSError, EOFError, zlib.error, NotImplementedError, RuntimeError, UnicodeDecodeError) as exc:
@@ -79,7 +95,7 @@ def read_npz(path: str | os.PathLike, specs: Mapping[str, ArraySpec], error: typ
         raise error(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
 
 
-def _check_end_record(fh, size: int, path: Path, error: type[Exception], limits: NpzLimits, what: str) -> None:
+def _check_end_record(fh, size: int, path: str, error: type[Exception], limits: NpzLimits, what: str) -> None:
     """Member count and central-directory size from the end record, before zipfile parses the directory."""
     tail_size = min(size, _EOCD.size + _MAX_COMMENT)
     fh.seek(size - tail_size)
@@ -95,7 +111,7 @@ def _check_end_record(fh, size: int, path: Path, error: type[Exception], limits:
     fh.seek(0)
 
 
-def _check_directory(archive: zipfile.ZipFile, size: int, specs: Mapping[str, ArraySpec], path: Path,
+def _check_directory(archive: zipfile.ZipFile, size: int, specs: Mapping[str, ArraySpec], path: str,
                      error: type[Exception], limits: NpzLimits) -> dict[str, zipfile.ZipInfo]:
     infos: dict[str, zipfile.ZipInfo] = {}
     total = 0
@@ -122,7 +138,7 @@ def _check_directory(archive: zipfile.ZipFile, size: int, specs: Mapping[str, Ar
     return infos
 
 
-def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, spec: ArraySpec, name: str, path: Path,
+def _read_member(archive: zipfile.ZipFile, info: zipfile.ZipInfo, spec: ArraySpec, name: str, path: str,
                  error: type[Exception]) -> np.ndarray:
     def bad(problem: str) -> Exception:
         return error(f"{path}: field '{name}' {problem}")
