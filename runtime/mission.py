@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimation.errors import MapFileError
 from estimation.fastslam import FastSLAMConfig
 from estimation.frontend import FrontEndConfig, HarrisConfig
 from estimation.geometry import between
@@ -601,10 +602,25 @@ class Mission:
                 continue
             try:
                 snapshot.save(self.config.out / f"{r.name}.npz")
-            except OSError as exc:  # a full or vanished disk: say so and stop rather than map on unsaved
+            except (OSError, MapFileError) as exc:
+                # a full or vanished disk, or a map its reader would refuse (a NaN from a diverged filter: not
+                # written, its last good file stays): say so and stop rather than map on unsaved
                 self._record_failure(StageFailure(r.name, "map save", f"{type(exc).__name__}: {exc}",
                                                   self.clock() - r.onboard.t0))
-                return
+                if isinstance(exc, OSError):  # the disk: the other robots' maps cannot be saved either
+                    return
+
+    def _save_final(self, owner: str, m: LandmarkMap, stem: str, t: float) -> list[Path]:
+        """``m`` to OUT/<stem>.npz and .ply; a map its reader would refuse is a failure of ``owner``'s map save (one
+        line), written nowhere (the .npz keeps its last periodic save, if any): the files written."""
+        npz, ply = self.config.out / f"{stem}.npz", self.config.out / f"{stem}.ply"
+        try:
+            m.save(npz)
+        except MapFileError as exc:
+            self._record_failure(StageFailure(owner, "map save", f"{type(exc).__name__}: {exc}", t))
+            return []
+        m.export_ply(ply)
+        return [npz, ply]
 
     def _fuse_guarded(self, t: float, final: bool = False) -> FusionReport | None:
         try:
@@ -675,17 +691,13 @@ class Mission:
         maps = {r.name: r.onboard.final_map() for r in self.robots}
         files: list[Path] = []   # every file this mission leaves, for the summary
         for name, m in maps.items():
-            m.save(cfg.out / f"{name}.npz")
-            m.export_ply(cfg.out / f"{name}.ply")
-            files += [cfg.out / f"{name}.npz", cfg.out / f"{name}.ply"]
+            files += self._save_final(name, m, name, duration)
         # TUM files beside each map: <robot>.tum (estimated), <robot>-odometry.tum, <robot>-truth.tum (mocks)
         trajectory_files = {r.name: r.onboard.trajectories.write_tum(cfg.out, r.name) for r in self.robots}
         files += [p for written in trajectory_files.values() for p in written.values()]
         fused = final.merged if final is not None else None
         if fused is not None:
-            fused.save(cfg.out / "fused.npz")
-            fused.export_ply(cfg.out / "fused.ply")
-            files += [cfg.out / "fused.npz", cfg.out / "fused.ply"]
+            files += self._save_final("mission", fused, "fused", duration)
         if cfg.log_sensors:
             files += [cfg.out / f"{r.name}-log" for r in self.robots]
         if self.recording_path is not None:
@@ -739,7 +751,7 @@ class Mission:
             "particles": cfg.particles, "fusion": None if final is None else final.as_dict(),
             "fusion_ms": None if final is None else round(1000.0 * final.seconds, 2),
             "fusions_during_mission": len(self.fusion_history) - (1 if final is not None else 0),
-            "merged_map_file": None if fused is None else str(cfg.out / "fused.npz"),
+            "merged_map_file": str(cfg.out / "fused.npz") if cfg.out / "fused.npz" in files else None,
             "recording": None if self.recording_path is None else str(self.recording_path),
             "files": [str(f) for f in files],
         }

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimation.errors import MapFileError
 from fusion.prior import named_pair_priors
 from runtime.exchange import MapExchange, MapMessage
 from runtime.fleet.status import StatusPrinter
@@ -119,7 +120,10 @@ class FusionNode:
             merged.metadata = {**merged.metadata, "fused_from": fused_from, "fusion_time": round(t, 3)}
             self.exchange.publish(FUSED, merged, stamp=t)
             if self.config.out is not None:
-                merged.save(self.config.out)
+                try:
+                    merged.save(self.config.out)
+                except MapFileError as exc:  # one its reader would refuse: the file keeps the last fused map
+                    self.on_event(f"fused map not saved: {exc}")
         self._log(t, maps, report)
         for pair in report.pairs:
             self.on_event(fusion_event_line(t, pair))

@@ -344,9 +344,17 @@ def run_processes_demo(args: argparse.Namespace) -> int:
                "landmarks": left[name].landmarks, "map_used": left[name].used}
         for name, (code, _) in sorted(ended.items())}
     summary["fused_from"] = {r: [int(q), float(t)] for r, (q, t) in sorted(node.sources.items())}
+    unsaved = False
     if final is not None and final.merged is not None:
-        final.merged.save(out / "fused.npz")
-        final.merged.export_ply(out / "fused.ply")
+        from estimation.errors import MapFileError
+
+        try:
+            final.merged.save(out / "fused.npz")
+            final.merged.export_ply(out / "fused.ply")
+        except MapFileError as e:   # a fused map its reader would refuse: written nowhere, said in one line
+            print(f"p3at demo: the final fused map: {e}", file=sys.stderr)
+            summary["merged_map_file"] = None
+            unsaved = True
     if logger is not None:
         logger.log_summary(summary)
         logger.close()
@@ -374,7 +382,7 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         print(f"Rerun recordings: {summary['recording']} (fleet view: maps, alignments, fused map) and "
               f"{out}/<robot>/mission.rrd (each robot)\n  open them together: rerun {files}\n"
               f"  summarise:          p3at review {files}", file=sys.stderr if args.json else sys.stdout)
-    return 1 if failed else 0
+    return 1 if failed or unsaved else 0
 
 
 def failure_line(robot: str, code: int | None, stderr: str, left: str) -> str:

@@ -3,7 +3,8 @@ names and typed metadata its reader refuses; a map built in memory with a NaN (a
 triangulation), a covariance that is not positive definite, duplicate ids or arrays of the wrong shape was written,
 and the robot's map file was then unreadable: the map lost at the moment it was saved, and the last good file with it.
 ``save`` now reads the bytes it is about to write with the reader's own checks and refuses, writing nothing, what
-``load`` would refuse, in the same words."""
+``load`` would refuse, in the same words. A mission whose robot's map gets a NaN says so in one line, stops as on a
+full disk, and keeps that robot's last good file."""
 from __future__ import annotations
 
 import io
@@ -17,6 +18,8 @@ from hypothesis import strategies as st
 from estimation.errors import MapFileError
 from estimation.landmark_map import LandmarkMap
 from estimation.map_validation import FORMAT_NAME, FORMAT_VERSION
+from runtime.mission import Mission, MissionConfig
+from runtime.onboard import Onboard
 
 _NAN, _INF = float("nan"), float("inf")
 
@@ -187,3 +190,49 @@ def test_a_refused_save_names_file_and_field_and_keeps_the_old_file(tmp_path, sp
         m.save(path)
     assert str(error.value).startswith(f"{path}: not written: field '{field}'")
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["robot1.npz"]
+
+
+def _nan_map(m: LandmarkMap) -> LandmarkMap:
+    bad = m.subset(np.arange(len(m)))   # a copy: the filter's own arrays are left alone
+    bad.positions[0, 0] = _NAN
+    return bad
+
+
+def test_a_mission_whose_map_gets_a_nan_says_so_in_one_line_and_keeps_the_last_good_file(tmp_path, monkeypatch):
+    """robot2's map gets a NaN after its first saved snapshot with landmarks: that periodic save is refused (one
+    event line naming the file and the field), the mission stops as on a full disk, its final save is refused too,
+    and robot2.npz is the last good snapshot; robot1's maps are saved as ever."""
+    current, final = Onboard.current_map, Onboard.final_map
+    saved: list[LandmarkMap] = []
+
+    def current_map(self):
+        m = current(self)
+        if self.robot != "robot2" or m is None or not len(m):
+            return m
+        if not saved:
+            saved.append(m)
+            return m
+        return _nan_map(m)
+
+    monkeypatch.setattr(Onboard, "current_map", current_map)
+    monkeypatch.setattr(Onboard, "final_map", lambda self: _nan_map(final(self)) if self.robot == "robot2"
+                        else final(self))
+    events: list[str] = []
+    config = MissionConfig(robots=2, seconds=30.0, seed=1, camera="synthetic", camera_rate=10.0, particles=10,
+                           fusion_interval=0.0, map_save_interval=1.0, out=tmp_path, rerun="none")
+    result = Mission(config, events=events.append).run()   # no exception: the robots stopped, the files closed
+
+    file = tmp_path / "robot2.npz"
+    assert saved, "robot2 never had a map with landmarks to save"
+    periodic, at_end = result.failures
+    for failure in (periodic, at_end):
+        assert (failure.robot, failure.stage) == ("robot2", "map save")
+        assert failure.error == f"MapFileError: {file}: not written: field 'positions' holds non-finite values"
+    said = [e for e in events if e.startswith("FAILED: robot2: the map save stage failed")]
+    assert len(said) == 2 and all("\n" not in e and str(file) in e for e in said)
+    assert result.summary["sim_seconds"] < periodic.t + 0.5 < config.seconds   # the mission stopped there
+    kept = LandmarkMap.load(file)                          # the last good snapshot, readable
+    assert np.array_equal(kept.positions, saved[0].positions)
+    assert not (tmp_path / "robot2.ply").exists() and str(file) not in result.summary["files"]
+    assert len(LandmarkMap.load(tmp_path / "robot1.npz")) == result.summary["robots"]["robot1"]["landmarks"]
+    assert not [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
