@@ -1,5 +1,6 @@
-"""How long a process takes to start: ``import fusion``, ``p3at fuse --help`` and a benchmark's ``--help``, in this
-tree and (``--baseline REV``) in an older revision's tree, runs alternated, medians and ratios side by side.
+"""How long a process takes to start: ``import fusion``, ``p3at fuse --help`` (or each ``--command``'s) and a
+benchmark's ``--help``, in this tree and (``--baseline REV``) in an older revision's tree, runs alternated, medians
+and ratios side by side.
 
 Each measurement is a fresh ``python`` process (``OPENBLAS_NUM_THREADS=1``, the tree under test first on
 ``PYTHONPATH``), timed from spawn to exit (wall seconds): that is what a user and tests/benchmarks/test_scripts_help.py
@@ -11,6 +12,8 @@ changes during the run shifts both alike.
     .venv/bin/python benchmarks/bench_import_time.py                                   # this tree only
     .venv/bin/python benchmarks/bench_import_time.py --baseline 397be2f --scratch /tmp/imports --repeats 9
     .venv/bin/python benchmarks/bench_import_time.py --baseline 397be2f --scratch /tmp/imports --all-scripts --repeats 2
+    .venv/bin/python benchmarks/bench_import_time.py --baseline 47bef35 --scratch /tmp/imports --command demo \
+        --command run
 """
 from __future__ import annotations
 
@@ -29,12 +32,15 @@ sys.path.insert(0, str(ROOT))
 
 from runtime.commands.options import positive_int  # noqa: E402
 
-FUSE_HELP = "import sys; from runtime.cli import main; sys.argv = ['p3at', 'fuse', '--help']; sys.exit(main())"
+
+def help_code(words: list[str]) -> str:
+    """Python code running ``p3at WORDS --help``."""
+    return f"import sys; from runtime.cli import main; sys.argv = {['p3at', *words, '--help']!r}; sys.exit(main())"
 
 
-def commands(tree: Path, script: str) -> dict[str, list[str]]:
+def commands(tree: Path, script: str, helps: list[str]) -> dict[str, list[str]]:
     return {"import fusion": ["-c", "import fusion"],
-            "p3at fuse --help": ["-c", FUSE_HELP],
+            **{f"p3at {words} --help": ["-c", help_code(words.split())] for words in helps},
             f"{script} --help": [str(tree / "benchmarks" / script), "--help"]}
 
 
@@ -106,6 +112,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=positive_int, default=7, help="runs of each command per tree (default 7)")
     parser.add_argument("--script", default="eval_fusion.py", help="the benchmark whose --help is timed "
                                                                    "(default eval_fusion.py)")
+    parser.add_argument("--command", action="append", metavar="WORDS",
+                        help="a p3at command whose --help is timed, e.g. 'demo' or 'slam dataset' (repeatable; "
+                             "default fuse)")
     parser.add_argument("--all-scripts", action="store_true",
                         help="with --baseline: instead, every benchmark script both trees have, its --help run in "
                              "both trees back to back (what tests/benchmarks/test_scripts_help.py pays)")
@@ -128,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
         stats_loaded: dict[str, bool] = {}
         for _ in range(args.repeats):
             for label, tree in trees.items():          # alternated: baseline, current, baseline, current ...
-                for name, command in commands(tree, args.script).items():
+                for name, command in commands(tree, args.script, args.command or ["fuse"]).items():
                     times.setdefault((name, label), []).append(wall(tree, command, cwd))
                 seconds, stats_loaded[label] = importtime(tree, cwd)
                 times.setdefault(("import fusion (-X importtime, fusion's cumulative)", label), []).append(seconds)
