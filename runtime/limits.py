@@ -16,4 +16,8 @@ MAX_PARTICLES = 10_000
 # runtime/rerun_sink.py's open_recording)
 RERUN_URL_PREFIXES = ("rerun://", "rerun+http://", "rerun+https://", "http://")
 
-__all__ = ["MAX_PARTICLES", "RERUN_URL_PREFIXES"]
+# a mission's --camera and --motion (runtime/mission_cli.py offers them, runtime/mission.py's MissionConfig checks them)
+CAMERAS = ("mock", "synthetic", "usb")
+MOTIONS = ("route", "explore", "none")
+
+__all__ = ["CAMERAS", "MAX_PARTICLES", "MOTIONS", "RERUN_URL_PREFIXES"]

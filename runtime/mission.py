@@ -44,12 +44,10 @@ from estimation.landmark_map import LandmarkMap
 from runtime.exchange import InProcessExchange, MapExchange
 from runtime.fleet.status import publish_robot_status
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
+from runtime.limits import CAMERAS, MOTIONS  # the spellings the command line offers (runtime/mission_cli.py)
 from runtime.motion import NoMotion, PurePursuit, WallFollower, keep_right
 from runtime.onboard import Clock, Onboard, OnboardConfig, StageFailure, is_lockstep
 from runtime.report import fusion_event_line, fusion_progress_part, start_prior_line
-
-CAMERAS = ("mock", "synthetic", "usb")
-MOTIONS = ("route", "explore", "none")
 
 
 class MissionError(RuntimeError):

@@ -1,4 +1,8 @@
-"""What ``p3at demo`` and ``p3at run`` share: the mission's arguments, the progress display, the summary."""
+"""What ``p3at demo`` and ``p3at run`` share: the mission's arguments, their checks, the progress display, the summary.
+
+Importing this module imports neither the mission nor the estimation stack (``p3at demo --help`` and ``p3at run
+--help`` load this and their own command's module; tests/test_cli_consistency.py): the mission is imported when one
+runs."""
 from __future__ import annotations
 
 import argparse
@@ -8,18 +12,21 @@ import time
 from pathlib import Path
 
 from runtime.commands.options import (
+    RERUN_KEYWORDS,
+    check_output_folder,
     float_where,
     non_negative_float,
     non_negative_int,
     particle_count,
     positive_float,
     positive_int,
+    rerun_sink_problem,
     start_sigmas,
+    time_scale_problem,
 )
 from runtime.fleet.options import add_exchange_arguments, open_exchange
 from runtime.json_output import json_text
-from runtime.mission import CAMERAS, MOTIONS, Mission, MissionConfig, install_stop_signals
-from runtime.report import format_summary
+from runtime.limits import CAMERAS, MOTIONS
 
 
 def camera_latency(text: str) -> float:
@@ -90,7 +97,10 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     add_exchange_arguments(parser)
 
 
-def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> MissionConfig:
+def config_from_args(args: argparse.Namespace, robot_url: str = "mock"):
+    """The :class:`runtime.mission.MissionConfig` of the parsed arguments."""
+    from runtime.mission import MissionConfig
+
     return MissionConfig(
         robots=args.robots, seconds=args.seconds, seed=args.seed, camera=args.camera, camera_rate=args.camera_rate,
         camera_latency=args.camera_latency,
@@ -102,6 +112,69 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock") -> Missi
         odometry=args.odometry, robot_name=getattr(args, "name", None), realtime=args.realtime,
         map_save_interval=args.map_save_interval, recording_id=args.recording_id,
         start_prior=getattr(args, "start_prior", None))
+
+
+def mission_inputs_problem(args) -> str | None:
+    """Why the mission's own files cannot serve (None when they can), said before any robot starts: the output
+    folder (with --log-sensors: no earlier run's log in it: the second run failed after it had replaced the first
+    one's mission.rrd with an empty recording), the building (--world; on virtual robots also the number of robots
+    it has start poses for), the route (--route, when the robots follow one) and the --rerun sink (a URL Rerun
+    refuses, a word that is neither a keyword nor FILE.rrd, a .rrd no file can be written at)."""
+    from mocks.world import World, robot_name_problem
+    from runtime.motion import load_route
+
+    virtual = getattr(args, "robot", "mock") == "mock"   # `p3at run` has --robot; `p3at demo` drives mocks only
+    # the mission (or the fusion node of --processes) opens it only once started
+    sink = rerun_sink_problem(args.rerun, RERUN_KEYWORDS)
+    if sink is not None:
+        return sink
+    if args.realtime and (problem := time_scale_problem(args.time_scale)) is not None:
+        return problem
+    if virtual and args.motion == "route":
+        # the virtual P3-AT's top speed: faster, every command was clamped with a warning on stderr (--speed 100:
+        # a hundred lines in 3 s)
+        from drivers.arcos.params import builtin_params
+
+        top = builtin_params("p3at-sh").max_velocity_m_s
+        if args.speed > top:
+            return f"--speed {args.speed:g}: faster than the virtual P3-AT's top speed, {top:g} m/s"
+    try:
+        check_output_folder(args.out)
+        world = World.load(args.world) if args.world is not None or virtual else None
+        if args.route is not None and args.motion == "route":
+            load_route(args.route)
+    except (ValueError, OSError) as e:   # OutputPathError, WorldFileError, RouteFileError
+        return str(e)
+    if args.log_sensors:   # the log writer refuses a folder that holds a log, once the mission is under way
+        from pathlib import Path
+
+        held = sorted(str(p) for p in Path(args.out).glob("*-log") if p.is_dir() and any(p.glob("*.mcap*")))
+        if held:
+            return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
+                    "(or move it)")
+    name = getattr(args, "name", None)   # `p3at run --name`: on the virtual robot, which of the world's robots
+    if name is not None and (problem := robot_name_problem(name)) is not None:   # run --name ../x: OUT/../x.npz
+        return f"--name {name!r}: {problem}"
+    if world is not None and virtual and name is not None and name not in world.start_poses:
+        return (f"--name {name}: the world '{world.name}' has no robot {name!r} (it has "
+                f"{', '.join(sorted(world.start_poses))})")
+    if world is not None and virtual and len(world.start_poses) < args.robots:
+        return (f"--robots {args.robots}: the world '{world.name}' has {len(world.start_poses)} start poses "
+                f"({', '.join(sorted(world.start_poses))})")
+    if str(getattr(args, "exchange", "")).partition(":")[0] == "zenoh":
+        # a robot's name is its Zenoh key chunk: one the map encoder refuses ended the mission after its start
+        # ("mission failed: robot name 'robot 1' must be ...", exit 1)
+        from runtime.fleet.mapwire import ROBOT_NAME
+
+        if virtual and world is not None:
+            names = [name] if name is not None else sorted(world.start_poses)[: args.robots]
+        else:
+            names = [name or "robot1"]
+        bad = next((n for n in names if not ROBOT_NAME.fullmatch(n)), None)
+        if bad is not None:
+            where = f"--name {bad!r}" if bad == name else f"robot {bad!r} of the world '{world.name}'"
+            return f"{where}: on a Zenoh exchange a robot's name is its key chunk, 1-64 of A-Z a-z 0-9 _ -"
+    return None
 
 
 class Progress:
@@ -145,6 +218,9 @@ class Progress:
 
 
 def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> int:
+    from runtime.mission import Mission, install_stop_signals
+    from runtime.report import format_summary
+
     prog = f"p3at {args.command}" if getattr(args, "command", None) else "p3at"   # its errors name the command
     try:
         config = config_from_args(args, robot_url)

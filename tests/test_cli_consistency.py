@@ -99,6 +99,8 @@ def test_top_level_help_imports_no_command():
 @pytest.mark.parametrize(("words", "option", "module"), [
     (["fuse"], "--preset", "runtime.commands.fuse"),
     (["slam", "dataset"], "--truth-heading", "runtime.commands.slam"),   # its work (slam_dataset) is not loaded
+    (["demo"], "--processes", "runtime.commands.demo"),
+    (["run"], "--robot", "runtime.commands.run"),   # its checks are mission_cli's, not demo's
 ])
 def test_one_command_help_loads_only_that_command(words, option, module):
     code = ("import sys; from runtime.cli import main\n"
@@ -110,6 +112,18 @@ def test_one_command_help_loads_only_that_command(words, option, module):
     assert status == 0
     assert option in done.stdout
     assert set(loaded) - {"runtime.commands.options"} == {module}
+
+
+@pytest.mark.parametrize("command", ["demo", "run"])
+def test_a_mission_commands_help_imports_neither_the_mission_nor_numpy(command):
+    """runtime/mission_cli.py imported runtime/mission.py, and so the whole stack (numpy, scipy, FastSLAM, fusion),
+    to print ``p3at demo --help`` (1.4 s); the mission is imported when one runs."""
+    code = ("import sys; from runtime.cli import main\n"
+            f"try:\n    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+            "sys.stderr.write(repr(sorted(m for m in sys.modules if m in ('numpy', 'runtime.mission', 'fusion', "
+            "'estimation.fastslam', 'runtime.report'))))")
+    done = _in_fresh_interpreter(code)
+    assert done.stderr.strip() == "[]" and "--map-save-interval" in done.stdout
 
 
 def test_a_closed_pipe_ends_quietly():

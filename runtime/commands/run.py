@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from runtime.commands.demo import mission_inputs_problem
-from runtime.mission_cli import add_mission_arguments, run_mission_command
+from runtime.mission_cli import add_mission_arguments, mission_inputs_problem, run_mission_command
 
 
 def register(subparsers) -> None:
