@@ -63,6 +63,7 @@ class Fleet:
         self.node: FusionNode | None = None
         self.exchange: ZenohExchange | None = None
         self.events: list[str] = []
+        self.fusions: list[tuple[dict, object]] = []   # (the node's sources, its report), taken in the node's thread
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -82,7 +83,10 @@ class Fleet:
         self.exchange = ZenohExchange(self.fleet, config or endpoint_config(self.port, "fusion"), "fusion",
                                       on_event=self.events.append,
                                       on_update=lambda robot: self.node is not None and self.node.notify(robot))
-        self.node = FusionNode(self.exchange, FusionNodeConfig(interval=1.0, min_period=0.2))
+        # the node's thread sets its sources before it appends the report to its history: read together from the
+        # test's thread, they can be of two fusions, so each report is kept with its sources as the node made it
+        self.node = FusionNode(self.exchange, FusionNodeConfig(interval=1.0, min_period=0.2),
+                               on_report=lambda report: self.fusions.append((dict(self.node.sources), report)))
         self._thread = threading.Thread(target=self.node.run, args=(self._stop,), name="test-fusion", daemon=True)
         self._thread.start()
 
@@ -149,9 +153,11 @@ def test_three_robot_processes_exchange_maps_and_the_fusion_aligns_them():
             np.testing.assert_array_equal(got.ids, expected.ids)
             np.testing.assert_array_equal(got.positions, expected.positions)
             np.testing.assert_array_equal(got.counts, expected.counts)
-        report = wait_until(lambda: f.node.history and f.node.sources.keys() == set(names)
-                            and all(f.node.sources[n][0] == STEPS - 1 for n in names) and f.node.history[-1],
-                            "a fusion of every robot's last map")
+        def fusion_of_the_last_maps():
+            return next((report for sources, report in reversed(f.fusions) if sources.keys() == set(names)
+                         and all(sources[n][0] == STEPS - 1 for n in names)), None)
+
+        report = wait_until(fusion_of_the_last_maps, "a fusion of every robot's last map")
         assert [p.other for p in report.pairs] == ["robot2", "robot3"]
         report = f.final_fusion()
         for pair in report.pairs:
