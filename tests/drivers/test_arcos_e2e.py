@@ -10,6 +10,7 @@ then the loss is made certain (the server is closed), not waited for.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -93,6 +94,43 @@ def virtual_robot(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Ca
     assert not [t.name for t in threading.enumerate() if t.name.startswith("arcos-reader")]
 
 
+@contextlib.contextmanager
+def on_a_simulated_clock(transport: str, world: World, pose: tuple[float, float, float],
+                         **options: object) -> Iterator[tuple[P3AT, object, list, object]]:
+    """The real driver, connected with its motors on, to a virtual robot on a SimClock (lockstep server and driver,
+    as test_p3at_servers' lockstep drive): yields (driver, clock, states received); the body runs as the clock's
+    participant, so simulated time moves only while it waits on the clock, and each SIP reaches the driver first.
+    The fourth: the robot's model (its counters).
+
+    For drives: on the wall clock at ``time_scale`` x, the server needs that many times its CPU per simulated second
+    (6.8-10 ms) for each wall second (17 % of a core at 25x, 8 % at 10x, measured), and a process given less falls
+    behind without bound (each late step has more simulated time to catch up, and its SIPs leave only when it has):
+    at nice 10 beside busy loops, drives at 25x and 10x waited 30 s for a state that never came (session 46)."""
+    from mocks.simclock import SimClock
+
+    with SimClock() as clock:
+        at = np.array(pose, float)
+        server = serve_tcp(world, "vp3at", at, port=0, clock=clock, **options) if transport == "tcp" \
+            else serve_pty(world, "vp3at", at, clock=clock, **options)
+        with server:
+            p3at = P3AT(server.url, clock=clock, link_timeout=LINK_TIMEOUT)
+            server.client_sent = lambda: p3at.bytes_written
+            states: list = []
+            p3at.subscribe(states.append)
+            model = server.model
+            try:
+                with clock.hold():
+                    with clock.gate(lambda: model.is_open and model.stats.sips == 0):
+                        p3at.connect(enable_motors=True)
+                    clock.add_quiescence("SIPs reach the test",
+                                         lambda: not p3at.connected or states[-1].stamp >= server.last_sip_sent)
+                    token = clock.add_participant("test")
+                with clock.participant(token):
+                    yield p3at, clock, states, model
+            finally:
+                p3at.close()
+
+
 def driver(robot: VirtualRobot, **kwargs: object) -> P3AT:
     kwargs.setdefault("link_timeout", LINK_TIMEOUT)
     return P3AT(robot.url, **kwargs)
@@ -119,35 +157,36 @@ def test_connect_on_a_connected_driver_still_enables_the_motors_when_asked(virtu
         assert p3at.wait_for_state(FAILURE_BOUND, lambda s: s.motors_enabled).motors_enabled
 
 
-def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configured_error(virtual_robot) -> None:
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_velocity_moves_the_robot_and_odometry_matches_truth_within_the_configured_error(transport: str) -> None:
     scale_error = 0.98  # the wheels measure 2 % short
-    robot = virtual_robot(open_world(), (1.0, 2.0, 0.0), time_scale=10.0,
-                          odometry=OdometryErrors(distance_scale=scale_error))
-    with driver(robot) as p3at:
-        p3at.motors_on()
+    world = open_world()
+    with on_a_simulated_clock(transport, world, (1.0, 2.0, 0.0), seed=1,
+                              odometry=OdometryErrors(distance_scale=scale_error)) as (p3at, clock, states, _):
         p3at.set_velocity(0.5, 0.0)
-        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.x > 1.5)
+        assert clock.wait_for(lambda: states[-1].x > 1.5, timeout=60.0)
         p3at.stop()
-        state = p3at.wait_for_state(FAILURE_BOUND, lambda s: not s.moving and s.v == 0.0)
-        state = p3at.wait_for_state(FAILURE_BOUND)  # one more SIP: the position is final
-        travelled = robot.truth()[0] - 1.0
-        assert travelled > 1.5
-        assert state.x == pytest.approx(scale_error * travelled, abs=0.005)
-        assert state.y == pytest.approx(0.0, abs=0.005) and state.theta == pytest.approx(0.0, abs=0.01)
-        assert abs(state.x - travelled) > 0.02  # the configured error is really there
+        assert clock.wait_for(lambda: not states[-1].moving and states[-1].v == 0.0, timeout=60.0)
+        clock.sleep(0.2)  # more SIPs: the position is final
+        state, truth = states[-1], world.pose("vp3at")
+    travelled = truth[0] - 1.0
+    assert travelled > 1.5
+    assert state.x == pytest.approx(scale_error * travelled, abs=0.005)
+    assert state.y == pytest.approx(0.0, abs=0.005) and state.theta == pytest.approx(0.0, abs=0.01)
+    assert abs(state.x - travelled) > 0.02  # the configured error is really there
 
 
-def test_turning_matches_truth(virtual_robot) -> None:
-    robot = virtual_robot(open_world(), (0.0, 0.0, 0.0), time_scale=10.0)
-    with driver(robot) as p3at:
-        p3at.motors_on()
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_turning_matches_truth(transport: str) -> None:
+    world = open_world()
+    with on_a_simulated_clock(transport, world, (0.0, 0.0, 0.0), seed=1) as (p3at, clock, states, _):
         p3at.set_velocity(0.3, math.radians(30))
-        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.theta > 1.0)
+        assert clock.wait_for(lambda: states[-1].theta > 1.0, timeout=60.0)
         p3at.stop()
-        p3at.wait_for_state(FAILURE_BOUND, lambda s: s.v == 0.0 and s.w == 0.0)
-        state = p3at.wait_for_state(FAILURE_BOUND)
-        x, y, th = robot.truth()
-        assert (state.x, state.y, state.theta) == pytest.approx((x, y, th), abs=0.01)
+        assert clock.wait_for(lambda: states[-1].v == 0.0 and states[-1].w == 0.0, timeout=60.0)
+        clock.sleep(0.2)
+        state, (x, y, th) = states[-1], world.pose("vp3at")
+    assert (state.x, state.y, state.theta) == pytest.approx((x, y, th), abs=0.01)
 
 
 def test_sonar_sees_the_walls_at_the_right_distance(virtual_robot) -> None:
@@ -258,41 +297,17 @@ def test_collision_sets_bumpers_and_stall(virtual_robot) -> None:
 @pytest.mark.slow
 def test_position_wraps_around_over_a_long_drive() -> None:
     """p3at-sh reports mm in 15 bits: the field wraps every 32.768 m. Drive 34 m straight (TCP; the wrap is
-    transport-independent).
-
-    On a simulated clock (mocks.simclock, as test_p3at_servers' lockstep drive): the 30 s of driving at 25 times the
-    wall clock needed 17 % of a core for the server to keep up (0.21 s of CPU over 1.2 s of wall), and a test process
-    given less falls behind without bound (each late step has more simulated time to catch up, and its SIPs leave
-    only when it has): at nice 10 beside busy loops (load 15) the wait for the stop went 30 s without a state. Here
-    the same drive costs under a second of CPU whatever the machine gives it."""
-    from mocks.simclock import SimClock
-
+    transport-independent), on a simulated clock: at 25x the wall clock it needed 17 % of a core (session 46)."""
     world = open_world(60.0)
-    with SimClock() as clock:
-        with serve_tcp(world, "vp3at", np.array([-25.0, 0.0, 0.0]), port=0, clock=clock, seed=1) as server:
-            p3at = P3AT(server.url, clock=clock, link_timeout=LINK_TIMEOUT)
-            server.client_sent = lambda: p3at.bytes_written
-            states = []
-            p3at.subscribe(states.append)
-            model = server.model
-            try:
-                with clock.hold():
-                    with clock.gate(lambda: model.is_open and model.stats.sips == 0):
-                        p3at.connect(enable_motors=True)
-                    clock.add_quiescence("SIPs reach the test",
-                                         lambda: not p3at.connected or states[-1].stamp >= server.last_sip_sent)
-                    token = clock.add_participant("test")
-                with clock.participant(token):
-                    t0 = clock()
-                    p3at.set_velocity_limits(max_v=1.2)
-                    p3at.set_velocity(1.2, 0.0)
-                    clock.sleep_until(t0 + 32.0)   # 1.2 m/s after its ramp: past 34 m
-                    moving = states[-1]
-                    p3at.stop()
-                    clock.sleep_until(t0 + 36.0)
-                    state, truth = states[-1], world.pose("vp3at")
-            finally:
-                p3at.close()
+    with on_a_simulated_clock("tcp", world, (-25.0, 0.0, 0.0), seed=1) as (p3at, clock, states, model):
+        t0 = clock()
+        p3at.set_velocity_limits(max_v=1.2)
+        p3at.set_velocity(1.2, 0.0)
+        clock.sleep_until(t0 + 32.0)   # 1.2 m/s after its ramp: past 34 m
+        moving = states[-1]
+        p3at.stop()
+        clock.sleep_until(t0 + 36.0)
+        state, truth = states[-1], world.pose("vp3at")
     travelled = truth[0] + 25.0
     assert moving.x > 34.0 and moving.v > 1.0 and state.v == 0.0 and model.stats.watchdog_stops == 0
     assert travelled > 34.0 and state.x == pytest.approx(travelled, abs=0.01)
