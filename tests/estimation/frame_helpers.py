@@ -6,9 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimation.geometry import wrap_angle
+from estimation.geometry import dead_reckoning, wrap_angle
 from estimation.landmark_scores import rigid_functional
-from estimation.landmark_smoother import LandmarkLogProblem, Smoothed, joint_landmark_covariance
+from estimation.landmark_smoother import (
+    LandmarkLogProblem,
+    Smoothed,
+    joint_landmark_covariance,
+    landmarks_from_first_sightings,
+    smooth,
+)
 
 THETA_VAR_PER_RAD, XY_VAR_PER_M, FLOOR = 0.0087, 0.003, 1e-8   # MRCLAM-like odometry (rad²/rad, m²/m)
 RANGE_SIGMA, BEARING_SIGMA = 0.03, 0.017
@@ -63,3 +69,44 @@ def joint_frame_covariance(problem: LandmarkLogProblem, solution: Smoothed) -> n
     seen, covariance = seen_joint_covariance(problem, solution)
     functional = rigid_functional(solution.landmarks[seen])
     return functional @ covariance @ functional.T
+
+
+TURN_FRAMES = 30
+
+
+def glimpses_then_lap(rng, glimpses_at_start: int, lone_glimpses: bool = True, per_glimpse: int = 1,
+                      shared_bearing_error: float = 0.0, turn_frames: int = TURN_FRAMES,
+                      noise: float = 1.0) -> LandmarkLogProblem:
+    """A robot at the origin sees ``glimpses_at_start`` landmarks from its first pose, turns on the spot by 3 rad in
+    30 frames seeing (``lone_glimpses``) the ``per_glimpse`` landmarks nearest its heading every fifth frame, then
+    drives a lap of a 1.5 m circle seeing every landmark ahead (MRCLAM robot 1's start: one glimpse at a time while
+    it turns, each the lone tie of its own pose). Noisy odometry and sightings (MRCLAM-like σ's); the turn's images
+    after the first add ``shared_bearing_error`` (rad) to all their bearings (a stale image's time stamp).
+    ``turn_frames`` 0: no turn, the lap straight after the first pose. ``noise`` 0: exact data (the same draws)."""
+    true_increments = turn_and_lap(turn_frames)
+    truth = dead_reckoning(true_increments)
+    variance = odometry_variances(true_increments, xy_floor=1e-6)
+    measured = true_increments + noise * rng.standard_normal(variance.shape) * np.sqrt(variance)
+    pose_index, landmark_index, ranges, bearings = [], [], [], []
+    for k in range(1, len(truth)):
+        r, b = seen_from(LANDMARKS, *truth[k])
+        if k == 1:
+            visible = np.argsort(np.abs(b))[:glimpses_at_start]
+        elif k <= turn_frames + 1:
+            visible = np.argsort(np.abs(b))[:per_glimpse] if lone_glimpses and k % 5 == 0 else np.zeros(0, int)
+            b = b + shared_bearing_error
+        else:
+            visible = np.flatnonzero((np.abs(b) < 0.6) & (r < 6.0))
+        pose_index += [k] * len(visible)
+        landmark_index += list(visible)
+        ranges += list(r[visible] + noise * RANGE_SIGMA * rng.standard_normal(len(visible)))
+        bearings += list(b[visible] + noise * BEARING_SIGMA * rng.standard_normal(len(visible)))
+    s = len(ranges)
+    return LandmarkLogProblem(measured, variance, np.array(pose_index), np.array(landmark_index), np.array(ranges),
+                              np.array(bearings), np.full(s, RANGE_SIGMA), np.full(s, BEARING_SIGMA))
+
+
+def solved(problem: LandmarkLogProblem) -> Smoothed:
+    """The smoother's solution from dead reckoning and each landmark's first sighting."""
+    poses = dead_reckoning(problem.increments)
+    return smooth(problem, poses, landmarks_from_first_sightings(problem, poses))

@@ -19,25 +19,20 @@ from estimation.frame_reliability import (
     reliability_metrics,
     reliability_warning,
 )
-from estimation.geometry import dead_reckoning
 from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import (
     HeadingDrift,
     LandmarkLogProblem,
     _Drift,
     _jacobian,
-    landmarks_from_first_sightings,
     smooth,
     solution_jacobian,
 )
 from tests.estimation.frame_helpers import (
-    BEARING_SIGMA,
     LANDMARKS,
-    RANGE_SIGMA,
+    glimpses_then_lap,
     joint_frame_covariance,
-    odometry_variances,
-    seen_from,
-    turn_and_lap,
+    solved,
 )
 
 
@@ -102,37 +97,12 @@ def _log_problem(rng, first_landmarks: int, exact: bool = False) -> LandmarkLogP
     in 30 frames seeing nothing (MRCLAM's odometry: σ_θ² 0.0087 per radian), then drives a lap of a 1.5 m circle
     seeing every landmark ahead. With one first landmark, that bearing alone ties the map's heading to pose 0 beyond
     the turn's odometry (σ 0.16 rad); with several, each is checked by the others."""
-    true_increments = turn_and_lap(30)
-    truth = dead_reckoning(true_increments)
-    variance = odometry_variances(true_increments, xy_floor=1e-6)
-    noise = 0.0 if exact else 1.0
-    measured = true_increments + noise * rng.standard_normal(variance.shape) * np.sqrt(variance)
-    pose_index, landmark_index, ranges, bearings = [], [], [], []
-    for k in range(1, len(truth)):
-        r, b = seen_from(LANDMARKS, *truth[k])
-        if k == 1:
-            visible = np.argsort(np.abs(b))[:first_landmarks]
-        elif k <= 31:
-            visible = np.zeros(0, int)
-        else:
-            visible = np.flatnonzero((np.abs(b) < 0.6) & (r < 6.0))
-        pose_index += [k] * len(visible)
-        landmark_index += list(visible)
-        ranges += list(r[visible] + noise * RANGE_SIGMA * rng.standard_normal(len(visible)))
-        bearings += list(b[visible] + noise * BEARING_SIGMA * rng.standard_normal(len(visible)))
-    s = len(ranges)
-    return LandmarkLogProblem(measured, variance, np.array(pose_index), np.array(landmark_index), np.array(ranges),
-                              np.array(bearings), np.full(s, RANGE_SIGMA), np.full(s, BEARING_SIGMA))
-
-
-def _solved(problem):
-    poses = dead_reckoning(problem.increments)
-    return smooth(problem, poses, landmarks_from_first_sightings(problem, poses))
+    return glimpses_then_lap(rng, first_landmarks, lone_glimpses=False, noise=0.0 if exact else 1.0)
 
 
 def test_the_frame_s_sd_is_the_joint_covariance_s_and_every_sighting_has_a_redundancy_in_0_2():
     problem = _log_problem(np.random.default_rng(0), 1)
-    solution = _solved(problem)
+    solution = solved(problem)
     rel = frame_reliability(problem, solution)
     np.testing.assert_allclose(rel.frame_covariance, joint_frame_covariance(problem, solution), rtol=1e-8)
     r = rel.redundancy_numbers
@@ -154,7 +124,7 @@ def test_a_frame_tied_by_one_lone_first_sighting_is_flagged_and_one_tied_by_seve
     others and no sighting moves any of the frame's coordinates by δ₀ σ (two are enough)."""
     rng = np.random.default_rng(seed)
     lone = _log_problem(rng, 1)
-    solution = _solved(lone)
+    solution = solved(lone)
     rel = frame_reliability(lone, solution)
     assert rel.redundancy[0, 1, 1] < 0.05                      # the first sighting's bearing: nothing checks it
     assert rel.heading_effect()[0, 1] > 3 * DELTA_0 * rel.frame_sd[2]          # 20 σ on seeds 0-5
@@ -169,7 +139,7 @@ def test_a_frame_tied_by_one_lone_first_sighting_is_flagged_and_one_tied_by_seve
 
     for first in (2, 4):            # the worst coordinate moves 3.0-3.4 σ on seeds 0-5
         several = _log_problem(rng, first)
-        solution = _solved(several)
+        solution = solved(several)
         rel = frame_reliability(several, solution)
         assert np.all(rel.redundancy[:first, 1, 1] > 0.3)
         m = reliability_metrics(several, solution, np.arange(1, several.n_poses + 1) * 0.25, np.arange(8) + 6)
@@ -188,7 +158,7 @@ def test_the_external_effect_is_what_a_re_solve_with_that_bias_moves_the_frame(l
     case: exact data (the residuals 0 at the solution, so JᵀJ is the cost's Hessian; with noisy data it lacks the
     residuals' curvature, Σ rᵢ ∇²rᵢ) and a small bias (the second order negligible)."""
     problem = _log_problem(np.random.default_rng(4), lone, exact=True)
-    solution = _solved(problem)
+    solution = solved(problem)
     rel = frame_reliability(problem, solution)
     seen = np.unique(problem.landmark_index)                     # a landmark never sighted is no part of the frame
     functional = rigid_functional(solution.landmarks[seen])
@@ -220,14 +190,14 @@ def _landmarks_kept(problem: LandmarkLogProblem, landmarks: list[int]) -> Landma
 def test_no_frame_without_two_landmarks_and_no_figures_then():
     problem = _log_problem(np.random.default_rng(0), 1)
     one = _landmarks_kept(problem, [int(problem.landmark_index[0])])
-    solution = _solved(one)
+    solution = solved(one)
     with pytest.raises(ValueError, match="two landmarks"):
         frame_reliability(one, solution)
     assert reliability_metrics(one, solution, np.arange(one.n_poses) + 1.0, np.array([6])) == {}
     assert reliability_warning({}) is None
     # two landmarks make a frame: the figures are there
     two = _landmarks_kept(problem, [int(problem.landmark_index[0]), int(problem.landmark_index[-1])])
-    m = reliability_metrics(two, _solved(two), np.arange(two.n_poses) + 1.0, np.array([6, 7]))
+    m = reliability_metrics(two, solved(two), np.arange(two.n_poses) + 1.0, np.array([6, 7]))
     assert np.all(np.isfinite(m["frame_reliability_sd"])) and m["sighting_redundancy_min"] >= 0
 
 
@@ -235,7 +205,7 @@ def test_an_error_that_is_not_the_missing_frame_is_not_taken_for_it():
     """Only fewer than two landmarks with a kept sighting mean "no figures" ({}): a solution that is not finite (a
     diverged solve) is an error of its own and is raised, not reported as a run without a frame."""
     problem = _log_problem(np.random.default_rng(0), 1)
-    solution = _solved(problem)
+    solution = solved(problem)
     landmarks = solution.landmarks.copy()
     landmarks[3] = np.nan
     diverged = dataclasses.replace(solution, landmarks=landmarks)

@@ -23,60 +23,18 @@ from estimation.frame_reliability import (
 from estimation.geometry import between, compose, dead_reckoning
 from estimation.landmark_scores import rigid_functional
 from estimation.landmark_smoother import (
-    LandmarkLogProblem,
     SightingOffset,
     Smoothed,
-    landmarks_from_first_sightings,
     normalised_residuals,
-    smooth,
 )
 from estimation.map_frame import candidate_poses, checked_frame, image_errors, reframe, worst_effects_in_sd
 from tests.estimation.frame_helpers import (
-    BEARING_SIGMA,
     LANDMARKS,
-    RANGE_SIGMA,
-    odometry_variances,
-    seen_from,
+    TURN_FRAMES,
+    glimpses_then_lap,
+    solved,
     turn_and_lap,
 )
-
-TURN_FRAMES = 30
-
-
-def _glimpses_then_lap(rng, glimpses_at_start: int, lone_glimpses: bool = True, per_glimpse: int = 1,
-                       shared_bearing_error: float = 0.0, turn_frames: int = TURN_FRAMES) -> LandmarkLogProblem:
-    """A robot at the origin sees ``glimpses_at_start`` landmarks from its first pose, turns on the spot by 3 rad in
-    30 frames seeing (``lone_glimpses``) the ``per_glimpse`` landmarks nearest its heading every fifth frame, then
-    drives a lap of a 1.5 m circle seeing every landmark ahead (MRCLAM robot 1's start: one glimpse at a time while
-    it turns, each the lone tie of its own pose). Noisy odometry and sightings (MRCLAM-like σ's); the turn's images
-    after the first add ``shared_bearing_error`` (rad) to all their bearings (a stale image's time stamp).
-    ``turn_frames`` 0: no turn, the lap straight after the first pose."""
-    true_increments = turn_and_lap(turn_frames)
-    truth = dead_reckoning(true_increments)
-    variance = odometry_variances(true_increments, xy_floor=1e-6)
-    measured = true_increments + rng.standard_normal(variance.shape) * np.sqrt(variance)
-    pose_index, landmark_index, ranges, bearings = [], [], [], []
-    for k in range(1, len(truth)):
-        r, b = seen_from(LANDMARKS, *truth[k])
-        if k == 1:
-            visible = np.argsort(np.abs(b))[:glimpses_at_start]
-        elif k <= turn_frames + 1:
-            visible = np.argsort(np.abs(b))[:per_glimpse] if lone_glimpses and k % 5 == 0 else np.zeros(0, int)
-            b = b + shared_bearing_error
-        else:
-            visible = np.flatnonzero((np.abs(b) < 0.6) & (r < 6.0))
-        pose_index += [k] * len(visible)
-        landmark_index += list(visible)
-        ranges += list(r[visible] + RANGE_SIGMA * rng.standard_normal(len(visible)))
-        bearings += list(b[visible] + BEARING_SIGMA * rng.standard_normal(len(visible)))
-    s = len(ranges)
-    return LandmarkLogProblem(measured, variance, np.array(pose_index), np.array(landmark_index), np.array(ranges),
-                              np.array(bearings), np.full(s, RANGE_SIGMA), np.full(s, BEARING_SIGMA))
-
-
-def _solved(problem):
-    poses = dead_reckoning(problem.increments)
-    return smooth(problem, poses, landmarks_from_first_sightings(problem, poses))
 
 
 def _in_frame_of(pose: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -158,8 +116,8 @@ def test_the_solution_seen_from_a_later_pose_has_the_covariance_of_the_problem_f
     """reframe: the poses and landmarks as pose k sees them (the same solution), and their covariances those of the
     problem whose gauge is pose k instead of pose 0 (its own information inverted, not the Jacobian's
     propagation): every landmark's joint covariance, every pose covariance the solution has, pose k's own left out."""
-    problem = _glimpses_then_lap(np.random.default_rng(3), 1)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(3), 1)
+    solution = solved(problem)
     framed = reframe(problem, solution, k)
     np.testing.assert_allclose(framed.solution.poses, between(solution.poses[k], solution.poses), atol=1e-12)
     np.testing.assert_allclose(compose(solution.poses[k], framed.solution.poses), solution.poses, atol=1e-12)
@@ -194,8 +152,8 @@ def test_a_start_that_turns_with_one_glimpse_at_a_time_gets_the_first_pose_sever
     effect above δ₀ σ, as reliability_metrics reports it) and so is every pose before the choice; the chosen pose is
     on the lap, where several landmarks are in view, and its frame passes (reliability_metrics at that pose says
     so too)."""
-    problem = _glimpses_then_lap(np.random.default_rng(seed), 1)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(seed), 1)
+    solution = solved(problem)
     times = np.arange(1, problem.n_poses + 1) * 0.25
     ids = np.arange(len(LANDMARKS)) + 6
     first = reliability_metrics(problem, solution, times, ids)
@@ -225,8 +183,8 @@ def test_a_first_frame_that_passes_is_kept_and_one_image_of_several_sightings_is
     checked only by the odometry to the next image (0.026 rad per step of the lap, against 0.010 for the mean of three
     bearings): the images' test finds the first frame resting on one image, and the frame goes to the first pose
     that images on both sides check."""
-    problem = _glimpses_then_lap(np.random.default_rng(0), 3, lone_glimpses=False, turn_frames=0)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(0), 3, lone_glimpses=False, turn_frames=0)
+    solution = solved(problem)
     sightings_only = checked_frame(problem, solution, images=False)
     assert sightings_only.found and sightings_only.pose == 0 and sightings_only.poses_tried == 1
     np.testing.assert_array_equal(sightings_only.effect_sd, sightings_only.first_effect_sd)
@@ -236,16 +194,16 @@ def test_a_first_frame_that_passes_is_kept_and_one_image_of_several_sightings_is
 
 
 def test_no_candidate_within_the_search_passes_and_the_frame_stays_the_first_sighting_s():
-    problem = _glimpses_then_lap(np.random.default_rng(0), 1)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(0), 1)
+    solution = solved(problem)
     choice = checked_frame(problem, solution, max_candidates=5)
     assert not choice.found and choice.pose == 0 and choice.poses_tried == 5
     assert np.max(choice.effect_sd) > DELTA_0
 
 
 def test_reframe_refuses_what_it_is_not_made_for():
-    problem = _glimpses_then_lap(np.random.default_rng(0), 1)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(0), 1)
+    solution = solved(problem)
     for pose in (0, problem.n_poses + 1):
         with pytest.raises(ValueError, match="not one of"):
             reframe(problem, solution, pose)
@@ -257,8 +215,8 @@ def test_reframe_refuses_what_it_is_not_made_for():
 def test_an_image_of_one_sighting_has_that_bearing_s_own_test_and_effect():
     """image_errors' alternative (one bias common to an image's bearings) for a pose with one kept sighting is that
     bearing's own: the same least detectable bias and the same effect on the frame."""
-    problem = _glimpses_then_lap(np.random.default_rng(1), 1)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(1), 1)
+    solution = solved(problem)
     frame = frame_problem(problem, solution)
     images = image_errors(problem, solution, frame)
     rel = frame_reliability(problem, solution)
@@ -277,8 +235,8 @@ def test_two_sightings_of_one_image_do_not_check_its_common_error(seed):
     passes a pose of the turn, though one error of the image (its time stamp while turning) moves both alike and only
     the turn's odometry checks it. With the images' alternative the frame goes to the lap; an error of 0.05 rad shared
     by the turn's images then leaves it (where the turn's pose carries it into the frame's heading)."""
-    problem = _glimpses_then_lap(np.random.default_rng(seed), 1, per_glimpse=2, shared_bearing_error=0.05)
-    solution = _solved(problem)
+    problem = glimpses_then_lap(np.random.default_rng(seed), 1, per_glimpse=2, shared_bearing_error=0.05)
+    solution = solved(problem)
     sightings_only = checked_frame(problem, solution, images=False)
     with_images = checked_frame(problem, solution)
     assert 0 < sightings_only.pose <= TURN_FRAMES + 1
