@@ -16,8 +16,9 @@ from estimation.fastslam import range_bearing_config
 from estimation.frame_reliability import reliability_warning
 from estimation.name_chain import ChainSettings, run_chain
 from tests.datasets.conftest import run_cli
-from tests.datasets.test_frame_reliability_run import NOISE, _log
 from tests.datasets.test_no_ground_truth import _noise
+from tests.datasets.turning_start import NOISE
+from tests.datasets.turning_start import turning_start_log as _log
 
 CHAIN = ("--association", "unknown", "--chain")
 

@@ -13,44 +13,17 @@ import pytest
 from estimation.dataset_slam import run_landmark_log
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import range_bearing_config
-from estimation.geometry import between, compose, wrap_angle
+from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_scores import ate
-from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
-from tests.estimation.frame_helpers import seen_from, unicycle
 
 from .conftest import run_cli
-
-LANDMARKS = np.array([[3.0, 0.2], [-2.0, 2.5], [-2.5, -2.0], [0.5, 3.5], [1.5, -3.0], [4.0, 3.0]])
-NOISE = NoiseModel(OdometryNoise(0.003, 0.0087, 1e-4),
-                   RangeBearingNoise(0.03, 0.0, 0.017, fov_rad=np.radians(120.0), max_range_m=6.0))
+from .turning_start import NOISE, turning_start_log
 
 
 def _log(with_truth: bool = True) -> RangeBearingLog:
-    """A robot at the origin for 1 s turns on the spot by 3 rad at 0.4 rad/s, seeing the one landmark nearest its
-    heading every 1.5 s (its first sighting at 1 s), then drives a 1.5 m circle at 0.2 m/s seeing every landmark
-    within 60° and 6 m every 0.25 s: MRCLAM robot 1's start, each glimpse of the turn the lone tie of its pose. Exact
-    data (the choice is the design's, not the noise's)."""
-    dt = 0.02
-    t = np.arange(0.0, 60.0, dt)
-    w = np.where((t >= 1.0) & (t < 8.5), 0.4, np.where(t >= 8.5, 0.2 / 1.5, 0.0))
-    v = np.where(t >= 8.5, 0.2, 0.0)
-    x, y, theta = unicycle(v, w, dt)
-    poses = np.column_stack([t, x, y, wrap_angle(theta)])
-    times, ids, ranges, bearings = [], [], [], []
-    turning = int(8.5 / dt)
-    for k in range(50, len(t), 12):
-        if k < turning and (k - 50) % 75:
-            continue
-        r, b = seen_from(LANDMARKS, x[k], y[k], theta[k])
-        seen = np.argsort(np.abs(b))[:1] if k < turning else np.flatnonzero((np.abs(b) < 1.0) & (r < 6))
-        times += [t[k]] * len(seen)
-        ids += list(seen + 6)
-        ranges += list(r[seen])
-        bearings += list(b[seen])
-    truth = (poses, np.arange(6, 6 + len(LANDMARKS)), LANDMARKS) if with_truth else ()
-    return RangeBearingLog("synthetic-turning-start", poses, np.array(times), np.array(ranges), np.array(bearings),
-                           np.array(ids, np.int64), *truth)
+    """The turning start with a glimpse every 1.5 s of the turn, each the lone tie of its pose."""
+    return turning_start_log(1, glimpses_in_turn=True, with_truth=with_truth)
 
 
 def _run(log: RangeBearingLog, frame: str):

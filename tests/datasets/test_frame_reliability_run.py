@@ -12,44 +12,12 @@ import pytest
 from estimation.dataset_slam import run_landmark_log
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import range_bearing_config
-from estimation.geometry import wrap_angle
 from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
-from tests.estimation.frame_helpers import seen_from, unicycle
 from tests.runtime.rerun_helpers import entity_rows
 
 from .conftest import run_cli
-
-LANDMARKS = np.array([[3.0, 0.2], [-2.0, 2.5], [-2.5, -2.0], [0.5, 3.5], [1.5, -3.0], [4.0, 3.0]])
-RANGE_SIGMA, BEARING_SIGMA = 0.03, 0.017
-
-
-def _log(first_landmarks: int, with_truth: bool = True) -> RangeBearingLog:
-    """A robot still at the origin for 1 s sees ``first_landmarks`` landmarks once at 1 s (the map's frame), turns on
-    the spot by 3 rad at 0.4 rad/s seeing nothing, then drives a 1.5 m circle at 0.2 m/s seeing every landmark within
-    60° and 6 m every 0.25 s. Exact data (the flag is the design's, not the noise's)."""
-    dt = 0.02
-    t = np.arange(0.0, 60.0, dt)
-    w = np.where((t >= 1.0) & (t < 8.5), 0.4, np.where(t >= 8.5, 0.2 / 1.5, 0.0))
-    v = np.where(t >= 8.5, 0.2, 0.0)
-    x, y, theta = unicycle(v, w, dt)
-    poses = np.column_stack([t, x, y, wrap_angle(theta)])
-    times, ids, ranges, bearings = [], [], [], []
-    for k in range(50, len(t), 12):
-        if 50 < k < int(8.5 / dt):
-            continue
-        r, b = seen_from(LANDMARKS, x[k], y[k], theta[k])
-        seen = np.argsort(np.abs(b))[:first_landmarks] if k == 50 else np.flatnonzero((np.abs(b) < 1.0) & (r < 6))
-        times += [t[k]] * len(seen)
-        ids += list(seen + 6)
-        ranges += list(r[seen])
-        bearings += list(b[seen])
-    truth = (poses, np.arange(6, 6 + len(LANDMARKS)), LANDMARKS) if with_truth else ()
-    return RangeBearingLog("synthetic-first-sighting", poses, np.array(times), np.array(ranges), np.array(bearings),
-                           np.array(ids, np.int64), *truth)
-
-
-NOISE = NoiseModel(OdometryNoise(0.003, 0.0087, 1e-4),
-                   RangeBearingNoise(RANGE_SIGMA, 0.0, BEARING_SIGMA, fov_rad=np.radians(120.0), max_range_m=6.0))
+from .turning_start import NOISE
+from .turning_start import turning_start_log as _log
 
 
 def _run(log: RangeBearingLog) -> dict:

@@ -13,7 +13,8 @@ from estimation.dataset_slam import run_landmark_log
 from estimation.fastslam import range_bearing_config
 from runtime.dataset_recording import record_dataset_run
 from runtime.rerun_style import dataset_blueprint
-from tests.datasets.test_frame_reliability_run import NOISE, _log
+from tests.datasets.turning_start import NOISE
+from tests.datasets.turning_start import turning_start_log as _log
 
 from .rerun_helpers import blueprint_views, entity_rows
 
