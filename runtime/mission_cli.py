@@ -146,8 +146,6 @@ def mission_inputs_problem(args) -> str | None:
     except (ValueError, OSError) as e:   # OutputPathError, WorldFileError, RouteFileError
         return str(e)
     if args.log_sensors:   # the log writer refuses a folder that holds a log, once the mission is under way
-        from pathlib import Path
-
         held = sorted(str(p) for p in Path(args.out).glob("*-log") if p.is_dir() and any(p.glob("*.mcap*")))
         if held:
             return (f"--out {args.out}: {held[0]} already holds a sensor log of an earlier run; give another --out "
