@@ -7,9 +7,6 @@ and the robot's map file was then unreadable: the map lost at the moment it was 
 full disk, and keeps that robot's last good file."""
 from __future__ import annotations
 
-import io
-import json
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
@@ -17,30 +14,11 @@ from hypothesis import strategies as st
 
 from estimation.errors import MapFileError
 from estimation.landmark_map import LandmarkMap
-from estimation.map_validation import FORMAT_NAME, FORMAT_VERSION
 from runtime.mission import Mission, MissionConfig
 from runtime.onboard import Onboard
+from tests.hardening.foreign_map import save_unchecked
 
 _NAN, _INF = float("nan"), float("inf")
-
-
-def _json_member(obj) -> np.ndarray:
-    return np.frombuffer(json.dumps(obj).encode(), np.uint8)
-
-
-def _write_unchecked(m: LandmarkMap, path) -> None:
-    """Every member as the format lays it out, with no check: what ``save`` wrote before this session."""
-    optional = {} if m.drift_covariances is None else {"drift_covariances": m.drift_covariances,
-                                                        "drift_origins": m.drift_origins}
-    if m.sighting_covariances is not None:
-        optional["sighting_covariances"] = m.sighting_covariances
-    buf = io.BytesIO()
-    np.savez_compressed(buf, format=_json_member({"format": FORMAT_NAME, "version": FORMAT_VERSION}),
-                        positions=m.positions, covariances=m.covariances, descriptors=m.descriptors, ids=m.ids,
-                        counts=m.counts, seen_by=m.seen_by, trajectory=m.trajectory,
-                        meta=_json_member({"robot": m.robot, "frame": m.frame, "robots": m.robots,
-                                           "metadata": m.metadata}), **optional)
-    path.write_bytes(buf.getvalue())
 
 
 def _good_map() -> LandmarkMap:
@@ -128,7 +106,7 @@ def _save_as_load_reads(m: LandmarkMap, folder, elsewhere) -> str | None:
     elsewhere.mkdir(parents=True, exist_ok=True)
     _good_map().save(path)
     before = path.read_bytes()
-    _write_unchecked(m, unchecked)
+    save_unchecked(m, unchecked)       # what save wrote before session 46
     try:
         LandmarkMap.load(unchecked)
         refused = None
