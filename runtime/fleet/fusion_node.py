@@ -110,9 +110,9 @@ class FusionNode:
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.history)),
                            cache=self.cache.inner if final else self.cache, priors=self.priors)
-        self.sources = sources
         self._say_priors(t, maps)
         keep_latest_map(self.history, report)
+        self.sources = sources     # after the history: whoever sees these sources also sees their report
         if report.merged is not None and any(p.aligned for p in report.pairs):
             merged = report.merged
             # which update of each robot this fusion holds: [sequence, sender's stamp] (latency, staleness)
