@@ -27,17 +27,19 @@ def _unit(rng, n, d=32):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-def twin_pair(seed: int, common: int, twins: int):
+def twin_pair(seed: int, common: int, twins: int, pose=None):
     """Map 1 holds ``common`` landmarks both robots saw and ``twins`` more; map 2 holds the common ones and, for each
-    twin, a look-alike (same descriptor) at its half-turned place.  Under the truth the common ones support; under
-    the half turn the twins do, as on the rendered building.  Returns map1, map2."""
+    twin, a look-alike (same descriptor) at its half-turned place.  Under the truth (``pose``, map 2's start in map
+    1's frame; default TRUE_POSE) the common ones support; under the half turn the twins do, as on the rendered
+    building.  Returns map1, map2."""
+    true_pose = TRUE_POSE if pose is None else np.asarray(pose, float)
     rng = np.random.default_rng(seed)
     world_common = rng.uniform([-9, -2, 0.2], [9, 2, 2.5], (common, 3))
     world_twin = rng.uniform([-9, -2, 0.2], [9, 2, 2.5], (twins, 3))
     mirrored = transform_points(HALF_TURN, world_twin)
     d_common, d_twin = _unit(rng, common), _unit(rng, twins)
     p1 = np.vstack([world_common, world_twin]) + rng.normal(0, SIGMA, (common + twins, 3))
-    p2 = transform_points(inverse(TRUE_POSE), np.vstack([world_common, mirrored])) + rng.normal(0, SIGMA,
+    p2 = transform_points(inverse(true_pose), np.vstack([world_common, mirrored])) + rng.normal(0, SIGMA,
                                                                                                   (common + twins, 3))
     cov = np.tile(np.eye(3) * SIGMA ** 2, (common + twins, 1, 1))
     desc2 = np.vstack([d_common, d_twin]) + rng.normal(0, 0.03, (common + twins, 32))
