@@ -74,6 +74,10 @@ class PairResult:
     start_sigma_not_comparable: str = ""
     # the rough relative start the alignment was given (fusion/prior.py), in words; "" when none was used
     prior: str = ""
+    # a placement found only because of that prior (the maps alone are ambiguous or too weak:
+    # fusion.Alignment.prior_backing), in words beginning "found with the prior: "; for a placement composed through
+    # other maps, the first such alignment on its path, named. "" when the maps' own evidence carries it
+    prior_backed: str = ""
     # with the co-location option (AlignmentConfig.colocation, fusion/colocation.py): what was tested, or why there was
     # no test (maps without a shared clock or a footprint), once per pair; "" when the option is off
     colocation: str = ""
@@ -106,6 +110,7 @@ class PairResult:
         self.self_repeat_supports = int(st.self_repeat_supports)
         prior = getattr(alignment, "prior", None)
         self.prior = "" if prior is None else prior.text()
+        self.prior_backed = str(getattr(alignment, "prior_backing", "") or "")
         self.colocation = str(getattr(st, "colocation", ""))
         removed = int(getattr(st, "colocation_removed_supports", 0))
         if removed:
@@ -275,7 +280,8 @@ def _fuse_split(maps: dict[str, LandmarkMap], names: list[str], preset: str, met
         result.aligned = True
         result.aligned_part = checked.sources[i][1]
         result.tx, result.ty, result.theta = (float(v) for v in multi.poses[i])
-        _take_tree_evidence(result, multi, i)
+        _take_tree_evidence(result, multi, i, [names[src] + ("" if part is None else f"'s part {part} its gap")
+                                                 for src, part in checked.sources])
         result.prior = "" if prior is None else prior.text()
         result.count_common(multi.map)
         # the fused frame is the reference's start unless its kept part is the one after its gap (nothing before it)
@@ -317,7 +323,7 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
             pairs.append(result)
             continue
         result.tx, result.ty, result.theta = (float(v) for v in pose)
-        _take_tree_evidence(result, multi, k)
+        _take_tree_evidence(result, multi, k, names)
         result.count_common(multi.map)
         result.score_against_truth(ordered[0], ordered[k])
         result.note = f"through {names[parent[k]]}" if parent[k] != 0 else ""
@@ -325,18 +331,26 @@ def _fuse_many(maps: dict[str, LandmarkMap], names: list[str], preset: str, meth
     return FusionReport(t, pairs, multi.map, time.perf_counter() - start)
 
 
-def _take_tree_evidence(result: PairResult, multi, k: int) -> None:
+def _take_tree_evidence(result: PairResult, multi, k: int, labels: list[str] | None = None) -> None:
     """The evidence of map ``k``'s placement in a ``fusion.MultiFusion``: the supports and figures of the tree edge
-    that placed it, the weakest false-alarm probability along its path from the reference, and the 1σ composed along
-    it."""
+    that placed it, the weakest false-alarm probability along its path from the reference, whether an alignment on
+    that path rests on its start prior (``labels``: the fused inputs' names, for saying which), and the 1σ composed
+    along it."""
     parent = {child: p for p, child in multi.tree}
     edge = multi.alignments.get(tuple(sorted((parent[k], k)))) if k in parent else None
     result.supports = 0 if edge is None else int(len(edge.supports))
     if edge is None:
         return
     result.take_evidence(edge)
-    # a pose composed along the tree is as trustworthy as its weakest alignment
-    probs = [multi.alignments[tuple(sorted(e))].statistics.false_alarm_probability for e in _tree_path(parent, k)]
+    # a pose composed along the tree is as trustworthy as its weakest alignment; it rests on a start prior if one of
+    # them does (the direct edge's own sentence is taken above)
+    path = [(e, multi.alignments[tuple(sorted(e))]) for e in _tree_path(parent, k)]
+    probs = [a.statistics.false_alarm_probability for _, a in path]
+    backed = [(e, a.prior_backing) for e, a in path if getattr(a, "prior_backing", "")]
+    if backed and not result.prior_backed:
+        (p, c), text = backed[-1]                   # the one nearest the reference
+        label = [f"map {i}" for i in range(max(p, c) + 1)] if labels is None else labels
+        result.prior_backed = f"{text} (through {label[c]} -> {label[p]})"
     if probs and all(np.isfinite(probs)):
         result.false_alarm_probability = float(max(probs))
         result.low_confidence = result.false_alarm_probability > LOW_CONFIDENCE_PROBABILITY

@@ -109,6 +109,8 @@ def format_summary(summary: dict) -> str:
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: {not_comparable_text(p)}")
             if p.get("self_check"):   # a map that flagged itself, split at the alarm (fusion/split.py)
                 lines += _wrapped(f"{p['other']} -> {p['reference']}: {p['self_check']}")
+            if p["aligned"] and (backed := prior_backed_warning(p)):
+                lines += _wrapped(backed)
         lines.append("")
         lines.append(f"Merged map: {fusion['merged_landmarks']} landmarks "
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "
@@ -141,6 +143,17 @@ def sigma_text(pair: Mapping, missing: str = "-") -> str:
         return ""
     return (f"1σ {_fmt(pair.get('start_sigma_xy'), '.3f', missing)} m / "
             f"{_fmt(pair.get('start_sigma_theta'), '.4f', missing)} rad")
+
+
+def prior_backed_warning(pair: Mapping) -> str:
+    """'warning: robot2 -> robot1 rests on the start prior: the maps alone are ambiguous (…);
+    if the prior is wrong, so is this alignment' for an aligned pair (a ``PairResult.as_dict()``) that the maps' own
+    evidence would not find (fusion.Alignment.prior_backing); "" otherwise."""
+    why = _words(pair.get("prior_backed"))
+    if not why:
+        return ""
+    return (f"warning: {pair.get('other', '?')} -> {pair.get('reference', '?')} rests on the start prior: "
+            f"{why.partition(': ')[2] or why}; if the prior is wrong, so is this alignment")
 
 
 def not_comparable_text(pair: Mapping) -> str:
@@ -229,6 +242,9 @@ def alignment_text(pair: Mapping, *, markdown: bool = False, missing: str = "-")
         text += f"; {why}"
     if pair.get("low_confidence"):
         text += f"; {strong('low confidence') if markdown else 'LOW CONFIDENCE'}: check it before use"
+    if backed := _words(pair.get("prior_backed")):   # the maps alone would not find it (fusion.Alignment.prior_backing)
+        head, _, rest = backed.partition(": ")
+        text += f"; {strong(head) if markdown else head.upper()}: {rest} -- only as right as the start prior"
     return text + (f"; {split}" if split else "")
 
 
@@ -259,6 +275,8 @@ def fusion_event_line(t: float, pair) -> str:
         line += f", error {p['error_xy']:.3f} m / {p['error_theta']:.4f} rad"
     elif why := not_comparable_text(p):
         line += f", {why}"
+    if backed := _words(p.get("prior_backed")):     # the maps alone would not find it: said short, live
+        line += f", {backed.split(' (', 1)[0]}"
     return line
 
 

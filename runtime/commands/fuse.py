@@ -190,6 +190,7 @@ def _fuse(args: argparse.Namespace) -> int:
         report["message"] = message
         _print(report, args.json)
         _warn_low_confidence(report)
+        _warn_prior_backed(report)
         _warn_starved(report)
         _warn_lost(report)
         _warn_contested(report)
@@ -233,6 +234,7 @@ def _fuse(args: argparse.Namespace) -> int:
     report["out"] = args.out
     _print(report, args.json)
     _warn_low_confidence(report)
+    _warn_prior_backed(report)
     _warn_starved(report)
     _warn_lost(report)
     _warn_contested(report)
@@ -405,6 +407,8 @@ def _print(report: dict, as_json: bool) -> None:
                   "standard deviations (their covariances are too small; gate and precision were scaled to match)")
         if a["low_confidence"]:
             print("    warning: low confidence - maps that do not overlap could give this much support")
+        if a.get("rests_on_prior"):      # the maps alone would not find it (fusion.Alignment.prior_backing)
+            print(f"    {a['rests_on_prior']}")
         if a.get("error_xy") is not None:
             print(f"    error vs true start poses: error xy {a['error_xy']:.3f} m, error θ {a['error_theta']:.4f} rad")
         elif a.get("error_not_comparable"):
@@ -532,3 +536,25 @@ def _warn_low_confidence(report: dict) -> None:
             print(f"p3at fuse: warning: map {a['map2']} -> map {a['map1']} was aligned with low confidence "
                   f"({confidence_text(a['false_alarm_probability'])}; the {a['preset']} preset decides by its support "
                   "count alone)", file=sys.stderr)
+
+
+def _warn_prior_backed(report: dict) -> None:
+    """A found alignment that only its start prior decides (the maps alone are ambiguous or too weak): it is as right
+    as the prior, and the user must be able to tell it from one the maps' own evidence carries."""
+    for a in report["alignments"]:
+        if a["found"] and a.get("rests_on_prior"):
+            print(f"p3at fuse: warning: map {a['map2']} -> map {a['map1']} rests on the start prior"
+                  f"{'' if a['used'] else ' (not used)'}: {_why_prior(a)}; if the prior is wrong, so is this "
+                  "alignment", file=sys.stderr)
+    for k, m in enumerate(report["maps"]):      # a flagged map's parts, aligned each with its pair's prior
+        for part in (m.get("split") or {}).get("parts", []):
+            for j, a in part["alignments"].items():
+                if part["used"] and a["found"] and a.get("rests_on_prior"):
+                    print(f"p3at fuse: warning: map {k}'s part {part['part']} its gap -> map {j} rests on the start "
+                          f"prior: {_why_prior(a)}; if the prior is wrong, so is this alignment", file=sys.stderr)
+
+
+def _why_prior(alignment: dict) -> str:
+    """Why an alignment rests on its start prior, without the sentence's head ('found with the prior: ')."""
+    text = alignment["rests_on_prior"]
+    return text.partition(": ")[2] or text
