@@ -8,7 +8,10 @@ place); and a prior 3 m off the truth along map 1's x axis.  Printed: the decisi
 inside the prior and the best hypothesis outside it, the hypotheses tried inside it of all, the error against the
 true start poses and the alignment's own error (against the composition of the two maps' best rigid fits to the
 simulator's true features, as ``eval_fusion --demo-maps``).  A found alignment more than 0.3 m or 0.1 rad off the
-truth is WRONG.  ``--false-pairs N`` runs the seven kinds of non-overlapping pairs of ``fusion_gate_scale`` with two
+truth is WRONG.  The column "maps alone" says whether a found alignment with a prior rests on the prior (PRIOR: the
+maps' own evidence is ambiguous or too weak, fusion.Alignment.prior_backing) or on the data; the summary counts the
+prior-backed founds, and how many of the wrong ones are.
+``--false-pairs N`` runs the seven kinds of non-overlapping pairs of ``fusion_gate_scale`` with two
 priors each: a wide one (10 m / π/2 about the identity) and an adversarial one (1 m / 0.3 rad, centred on the best
 hypothesis the maps give without a prior).
 
@@ -67,6 +70,20 @@ def _cell(a, truth, best) -> str:
     return f"found{wrong}: {e[0]:.3f} m / {e[1]:.4f} rad; own {o[0]:.3f} / {o[1]:.4f}"
 
 
+def _alone(a) -> str:
+    """What the maps alone decide about a found alignment with a prior (fusion.Alignment.prior_backing): 'data' (the
+    maps' evidence finds it too), else 'PRIOR: ' and why; '–' without a prior or when not found."""
+    st = a.statistics
+    if not a.found or a.prior is None:
+        return "–"
+    if not st.prior_backed:
+        return f"data (10^{st.without_prior_log10_chance_probability:.1f})"
+    if st.prior_decides == "ambiguous":
+        return (f"PRIOR: ambiguous, rival {st.without_prior_rival_supports} {st.without_prior_rival_shift:.1f} m / "
+                f"{st.without_prior_rival_turn:.2f} rad away{' (outside)' if st.without_prior_rival_outside else ''}")
+    return f"PRIOR: {st.prior_decides} (10^{st.without_prior_log10_chance_probability:.1f})"
+
+
 def _strongest_wrong(m1, m2, plain, truth) -> np.ndarray | None:
     """The maps' strongest wrong hypothesis: the winner (the fit of its supports) if it is wrong, else the
     second-best (on the demo, the half turn)."""
@@ -85,8 +102,8 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float, config: A
     order = "robot 2's map first" if reverse else "robot 1's map first"
     print(f"\n### Rendered demo with a start prior (σ {sigma_xy} m / {sigma_yaw} rad per robot; {order})\n")
     print("| run | prior | decision: error vs truth xy / θ; own error | supports (needed) | rival inside | "
-          "best outside the prior | hypotheses inside / tried |")
-    print("|---|---|---|---|---|---|---|")
+          "best outside the prior | hypotheses inside / tried | maps alone |")
+    print("|---|---|---|---|---|---|---|---|")
     summary: dict[str, list] = {}
     for folder in folders:
         m1, m2 = LandmarkMap.load(folder / "robot1.npz"), LandmarkMap.load(folder / "robot2.npz")
@@ -121,16 +138,20 @@ def demo_table(folders: list[Path], sigma_xy: float, sigma_yaw: float, config: A
             inside = f"{st.prior_hypotheses} / {st.iterations}" if prior is not None else f"– / {st.iterations}"
             outside = st.outside_prior_supports if prior is not None else "–"
             print(f"| {folder.name} | {name} | {_cell(a, truth, best)} | {st.supports} ({st.required_supports}) | "
-                  f"{st.second_best_supports} | {outside} | {inside} |")
+                  f"{st.second_best_supports} | {outside} | {inside} | {_alone(a)} |")
             e = alignment_error_xy_theta(a.pose, truth) if a.found else None
             o = alignment_error_xy_theta(a.pose, best) if a.found else None
-            summary.setdefault(name, []).append((a.found, e, o))
+            summary.setdefault(name, []).append((a.found, e, o, st.prior_backed))
     print()
     for name, rows in summary.items():
         found = [r for r in rows if r[0]]
-        wrong = sum(1 for r in found if r[1][0] > WRONG_M or r[1][1] > WRONG_RAD)
+        wrong = [r for r in found if r[1][0] > WRONG_M or r[1][1] > WRONG_RAD]
         goal = sum(1 for r in found if r[1][0] <= GOAL_M and r[1][1] <= GOAL_RAD)
-        line = f"- {name}: found {len(found)} of {len(rows)}, wrong {wrong}, within {GOAL_M} m / {GOAL_RAD} rad {goal}"
+        line = (f"- {name}: found {len(found)} of {len(rows)}, wrong {len(wrong)}, within {GOAL_M} m / {GOAL_RAD} rad "
+                f"{goal}")
+        if name != "none":        # found only because of the prior (the maps alone would not), of all and of the wrong
+            line += (f"; prior-backed {sum(1 for r in found if r[3])} of the found, "
+                     f"{sum(1 for r in wrong if r[3])} of the wrong")
         if found:
             e, o = np.array([r[1] for r in found]), np.array([r[2] for r in found])
             line += (f"; vs truth median {np.median(e[:, 0]):.3f} m / {np.median(e[:, 1]):.4f} rad, worst "
@@ -151,24 +172,30 @@ def false_pairs(total: int, only: str | None = None, config: AlignmentConfig = R
     print("| maps | found: no prior | wide prior (10 m / 1.57 rad about the identity) | adversarial prior "
           "(1 m / 0.3 rad about the best hypothesis) |")
     print("|---|---|---|---|")
-    totals = np.zeros(3, int)
+    totals, backed_totals = np.zeros(3, int), np.zeros(3, int)
     for name, make in kinds.items():
-        found = np.zeros(3, int)
+        found, backed = np.zeros(3, int), np.zeros(3, int)     # backed: found only because of the prior
         for seed in range(per):
             m1, m2 = make(seed)
             m1, m2 = getattr(m1, "map", m1), getattr(m2, "map", m2)
             plain = align(m1, m2, config, np.random.default_rng(seed))
             found[0] += plain.found
             wide = StartPrior.from_sigmas(np.zeros(3), 10.0, np.pi / 2, source="wide")
-            found[1] += align(m1, m2, config, np.random.default_rng(seed), prior=wide).found
+            a = align(m1, m2, config, np.random.default_rng(seed), prior=wide)
+            found[1] += a.found
+            backed[1] += a.statistics.prior_backed
             centre = plain.pose if plain.found else _best_pose(m1, m2, seed, config)
             if centre is not None:
                 tight = StartPrior.from_sigmas(centre, 1.0, 0.3, source="adversarial")
-                found[2] += align(m1, m2, config, np.random.default_rng(seed), prior=tight).found
+                a = align(m1, m2, config, np.random.default_rng(seed), prior=tight)
+                found[2] += a.found
+                backed[2] += a.statistics.prior_backed
         totals += found
-        print(f"| {name} | {found[0]}/{per} | {found[1]}/{per} | {found[2]}/{per} |")
-    print(f"\nFound on {per * len(kinds)} non-overlapping pairs: no prior {totals[0]}, wide prior {totals[1]}, "
-          f"adversarial prior {totals[2]}")
+        backed_totals += backed
+        cells = [f"{found[k]}/{per}" + (f" ({backed[k]} prior-backed)" if backed[k] else "") for k in range(3)]
+        print(f"| {name} | {' | '.join(cells)} |")
+    print(f"\nFound on {per * len(kinds)} non-overlapping pairs: no prior {totals[0]}, wide prior {totals[1]} "
+          f"({backed_totals[1]} prior-backed), adversarial prior {totals[2]} ({backed_totals[2]} prior-backed)")
 
 
 def _best_pose(m1: LandmarkMap, m2: LandmarkMap, seed: int, config: AlignmentConfig) -> np.ndarray | None:
