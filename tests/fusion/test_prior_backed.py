@@ -114,3 +114,25 @@ def test_prior_backed_exactly_when_the_maps_alone_do_not_find_it(seed, common, t
         assert np.array_equal(a.pose, plain.pose) and a.prior_backing == ""
     else:
         assert a.prior_backing.startswith("found with the prior: the maps alone are ")
+
+
+def test_the_other_reasons_are_worded_too():
+    """A prior can also decide by its smaller Bonferroni factor alone (too weak without it) or against a map's repeat
+    of itself; no small pair found here reaches either, so the sentences are checked on the statistics."""
+    from dataclasses import replace
+
+    from fusion.alignment import Alignment, AlignmentStatistics
+
+    base = AlignmentStatistics(supports=9, log10_chance_probability=-6.4, prior_hypotheses=12, self_repeat_supports=7,
+                               without_prior_log10_chance_probability=-5.1, without_prior_hypotheses=250,
+                               without_prior_required_supports=10)
+    found = Alignment(True, "robust", np.zeros(3), None, np.zeros((0, 2), np.int64), base)
+    assert found.prior_backing == ""
+    weak = replace(found, statistics=replace(base, prior_decides="chance"))
+    assert weak.prior_backing == ("found with the prior: the maps alone are too weak (9 supports are explainable by "
+                                  "chance without the prior; false-alarm probability without the prior 10^-5.1 over "
+                                  "250 hypotheses, 10 supports needed; with it 10^-6.4 over 12)")
+    repeat = replace(found, statistics=replace(base, prior_decides="repeat"))
+    assert repeat.prior_backing.startswith("found with the prior: the maps alone are ambiguous (one map repeats "
+                                           "itself under a distinct transform with 7 supports; ")
+    assert replace(repeat, found=False).prior_backing == ""
