@@ -356,7 +356,9 @@ class SensorLogWriter:
                     with self._bytes_lock:
                         self._queued_bytes -= size
             except BaseException as e:  # keep running: a logging fault must not stop the robot
-                self.error = e
+                # the first fault is the cause (a full disk, a removed folder); later ones are its consequences
+                # ("write to closed file" once the segment's file is gone)
+                self.error = self.error or e
                 if stream == "__flush__":
                     item.set()
                 elif stream == "__close__":
