@@ -415,7 +415,8 @@ class Mission:
             return self._finish(final, end)
         except BaseException:
             if self.logger is not None:  # keep what was recorded readable
-                self.logger.close()
+                with contextlib.suppress(RuntimeError):  # a dead writer: the error being raised says more
+                    self.logger.close()
             self._discard_pending_recording()
             raise
 
@@ -494,6 +495,9 @@ class Mission:
         return done
 
     def _on_failure(self, failure: StageFailure) -> None:
+        if failure.stage == "sensor log" and any(f.robot == failure.robot and f.stage == "sensor log"
+                                                 for f in self.failures):
+            return  # the writer's fault, reported when the mission saw it (_check_links); its close says it again
         self._record_failure(failure)
 
     def _record_failure(self, failure: StageFailure) -> None:
@@ -554,8 +558,7 @@ class Mission:
             log = r.onboard.sensor_log
             if log is not None and getattr(log, "error", None) is not None and not any(
                     f.robot == r.name and f.stage == "sensor log" for f in self.failures):
-                self._record_failure(StageFailure(r.name, "sensor log", f"{type(log.error).__name__}: {log.error}",
-                                                  t))
+                self._record_failure(StageFailure(r.name, "sensor log", _write_error(log.error, log.folder), t))
         for name, driver in self._drivers.items():
             server = self._servers.get(name)
             if server is not None and server.error is not None:
@@ -598,12 +601,13 @@ class Mission:
             snapshot = r.onboard.current_map()
             if snapshot is None:
                 continue
+            path = self.config.out / f"{r.name}.npz"
             try:
-                snapshot.save(self.config.out / f"{r.name}.npz")
+                snapshot.save(path)
             except (OSError, MapFileError) as exc:
                 # a full or vanished disk, or a map its reader would refuse (a NaN from a diverged filter: not
                 # written, its last good file stays): say so and stop rather than map on unsaved
-                self._record_failure(StageFailure(r.name, "map save", f"{type(exc).__name__}: {exc}",
+                self._record_failure(StageFailure(r.name, "map save", _write_error(exc, path),
                                                   self.clock() - r.onboard.t0))
                 if isinstance(exc, OSError):  # the disk: the other robots' maps cannot be saved either
                     return
@@ -612,13 +616,39 @@ class Mission:
         """``m`` to OUT/<stem>.npz and .ply; a map its reader would refuse is a failure of ``owner``'s map save (one
         line), written nowhere (the .npz keeps its last periodic save, if any): the files written."""
         npz, ply = self.config.out / f"{stem}.npz", self.config.out / f"{stem}.ply"
+        written = []
+        for path, write in ((npz, m.save), (ply, m.export_ply)):
+            try:
+                write(path)
+            except (OSError, MapFileError) as exc:
+                # a map its reader would refuse, or a full, read-only or vanished disk: one line naming the file;
+                # the mission's other files are still written, and its summary printed
+                self._record_failure(StageFailure(owner, "map save", _write_error(exc, path), t))
+                return written
+            written.append(path)
+        return written
+
+    def _save_trajectories(self, r: RobotSetup, t: float) -> dict[str, Path]:
+        """The robot's TUM files (:meth:`TrajectoryRecorder.write_tum`); a file that cannot be written is a failure of
+        its robot's ``trajectory save``, said in one line naming it, and the others are still written."""
         try:
-            m.save(npz)
-        except MapFileError as exc:
-            self._record_failure(StageFailure(owner, "map save", f"{type(exc).__name__}: {exc}", t))
-            return []
-        m.export_ply(ply)
-        return [npz, ply]
+            return r.onboard.trajectories.write_tum(self.config.out, r.name)
+        except OSError as exc:
+            where = f"{r.name}'s .tum files in {self.config.out}"
+            self._record_failure(StageFailure(r.name, "trajectory save", _write_error(exc, where), t))
+            return {}
+
+    def _close_recording(self, summary: dict) -> None:
+        """The summary into the recording, and the recording closed; a recording that cannot be finished (its writer
+        died on a full disk) is a failure of the mission's ``recording``, added to ``summary``'s failures."""
+        try:
+            self.logger.log_summary(summary)
+            self.logger.close()
+        except RuntimeError as exc:  # Rerun's 'File-writer thread shut down prematurely' and its like
+            where = f"{self.recording_path}: " if self.recording_path is not None else ""
+            failure = StageFailure("mission", "recording", f"{where}{exc}", summary["duration"])
+            self._record_failure(failure)
+            summary["failures"].append(dataclasses.asdict(failure))
 
     def _fuse_guarded(self, t: float, final: bool = False) -> FusionReport | None:
         try:
@@ -691,7 +721,7 @@ class Mission:
         for name, m in maps.items():
             files += self._save_final(name, m, name, duration)
         # TUM files beside each map: <robot>.tum (estimated), <robot>-odometry.tum, <robot>-truth.tum (mocks)
-        trajectory_files = {r.name: r.onboard.trajectories.write_tum(cfg.out, r.name) for r in self.robots}
+        trajectory_files = {r.name: self._save_trajectories(r, duration) for r in self.robots}
         files += [p for written in trajectory_files.values() for p in written.values()]
         fused = final.merged if final is not None else None
         if fused is not None:
@@ -754,9 +784,18 @@ class Mission:
             "files": [str(f) for f in files],
         }
         if self.logger is not None:
-            self.logger.log_summary(summary)
-            self.logger.close()
+            self._close_recording(summary)
         return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history, list(self.failures))
+
+
+def _write_error(exc: BaseException, path: Path | str | None = None) -> str:
+    """One line for a file that could not be written, naming it: an OSError's own text names no file when the write
+    failed (``[Errno 28] No space left on device``)."""
+    text = f"{type(exc).__name__}: {exc}"
+    name = getattr(exc, "filename", None) or path
+    if isinstance(exc, OSError) and name is not None and str(name) not in text:
+        text += f" ({name})"
+    return text
 
 
 def _row_at(rows: np.ndarray, t: float) -> np.ndarray | None:

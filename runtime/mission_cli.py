@@ -254,6 +254,14 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
     if result.recording is not None:
         print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
-    for failure in result.failures:  # a stage died: the figures above are what was there when it stopped
-        print(f"{prog}: mission failed: {failure}", file=sys.stderr)
+    if result.failures:  # a stage died: the figures above are what was there when it stopped
+        print(failure_line(prog, result.failures), file=sys.stderr)
     return 1 if result.failures else 0
+
+
+def failure_line(prog: str, failures: list) -> str:
+    """The one line that says a mission failed: its first failure, the cause (a full disk fails every file after
+    it: each is in the summary's failures table), and how many more there were."""
+    first, more = str(failures[0]), len({str(f) for f in failures} - {str(failures[0])})
+    also = f" (and {more} more failure{'s' if more > 1 else ''}: the summary lists them)" if more else ""
+    return f"{prog}: mission failed: {first}{also}"

@@ -44,7 +44,7 @@ from estimation.observations import OdometryIncrement, StereoObservations
 from runtime import slam_frames
 from runtime.exchange import MapExchange
 from runtime.motion import Controller, NoMotion
-from runtime.sensorlog import SensorLogWriter
+from runtime.sensorlog import SensorLogError, SensorLogWriter
 from runtime.trajectories import TrajectoryRecorder
 
 Clock = Callable[[], float]
@@ -427,7 +427,14 @@ class Onboard:
         self._wait_until_still(timeout=3.0)
         self.publish_snapshot(force=True)
         if self.sensor_log is not None:
-            self.sensor_log.close()
+            try:
+                self.sensor_log.close()
+            except SensorLogError as exc:
+                # its last records could not be written (a full disk): a failure of the log, as one during the run
+                # is, not an exception that would lose the rest of the stop and the mission's end
+                failure = StageFailure(self.robot, "sensor log", str(exc), self.mission_time)
+                self.failure = self.failure or failure
+                self.on_failure(failure)
 
     def _join_stages(self) -> None:
         """Wait for every stage thread to end, each for up to :data:`STAGE_END_TIMEOUT` s. On a lockstep clock the
