@@ -6,9 +6,11 @@ runs."""
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from runtime.commands.options import (
@@ -215,7 +217,36 @@ class Progress:
                 self._open_line = False
 
 
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
+def hold_stop_signals() -> tuple[list[int], Callable[[], None]]:
+    """Until the mission can take them, Ctrl-C and SIGTERM are noted instead of acted on: (the signals noted, a
+    function restoring the handlers there were). The mission's imports take a second or more, and a Ctrl-C
+    then raised KeyboardInterrupt wherever the import was; inside importlib's module-lock callback Python prints
+    it as 'Exception ignored' and goes on, and the mission ran to its end with the Ctrl-C lost (session 47)."""
+    if threading.current_thread() is not threading.main_thread():
+        return [], lambda: None
+    noted: list[int] = []
+    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+    for s in STOP_SIGNALS:
+        signal.signal(s, lambda signum, frame: noted.append(signum))
+
+    def restore() -> None:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return noted, restore
+
+
 def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> int:
+    noted, restore_signals = hold_stop_signals()  # first: the imports below are where a Ctrl-C got lost
+    try:
+        return _run_mission(args, robot_url, noted)
+    finally:
+        restore_signals()
+
+
+def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> int:
     from runtime.mission import Mission, install_stop_signals
     from runtime.report import format_summary
 
@@ -233,6 +264,11 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
         return 2
     mission = Mission(config, progress=progress.line, events=progress.event, exchange=exchange)
     restore = install_stop_signals(mission.stop)
+    if noted:  # stopped before the mission began: no robot is connected, nothing is written
+        restore()
+        if exchange is not None:
+            exchange.close()
+        return 128 + noted[0]
     try:
         result = mission.run()
     except (OSError, ValueError, LookupError, RuntimeError) as e:  # drivers' and files' typed errors
