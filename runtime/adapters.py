@@ -166,10 +166,9 @@ class VidereCamera:
         return CameraFrame(float(frame.timestamp), int(frame.counter), left, right)
 
     def close(self) -> None:
-        try:
-            self.head.stop()
-        finally:
-            self.head.close()
+        # stops streaming if the head is still there and releases it either way (a head unplugged for good was
+        # already released: stopping it first raised NotConnectedError out of the mission's end)
+        self.head.close()
 
 
 class SyntheticCamera:
