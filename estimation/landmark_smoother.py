@@ -24,6 +24,12 @@ Option (``sighting_offset``, off by default): a systematic offset per group of s
 a post seen from one side, one visit's sightings sharing that error), so that no number of sightings of one group
 makes its landmark more certain than the offset's σ.
 
+Option (the problem's ``image_bearing_sigmas``, empty by default): one bearing error shared by all the sightings
+taken at one pose (one image), of σ τ_k at pose k: the bearings of an image then have the joint covariance
+diag(σ_φ²) + τ_k² 11ᵀ, and the smoother whitens them with it (:func:`image_whitening`). Why: an image's time stamp
+is uncertain, and a robot turning at ω while its camera exposes δ s away from the stamp sees every landmark of that
+image turned by the same ω δ (:mod:`estimation.image_timing` gives τ_k = |ω_k| σ_t).
+
 What it is not: an association method. A sighting is given its landmark; a wrong identity that stays within the
 χ²₂ 99 % bound moves the solution. And the covariances are as honest as the noise model: if consecutive
 sightings share their error beyond the model's inflation, the smoother, like the filter, is overconfident; the
@@ -199,6 +205,9 @@ class LandmarkLogProblem:
     increment_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
     # (S,) each sighting's offset group for a SightingOffset (0..G−1); empty (the default): its landmark's
     offset_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # (T,) σ (rad) of one bearing error shared by all the sightings taken at pose k + 1 (one image: see
+    # image_whitening); 0 at a pose: none there; empty (the default): none anywhere, every bearing's error its own
+    image_bearing_sigmas: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         t = len(self.increments)
@@ -222,6 +231,9 @@ class LandmarkLogProblem:
         if np.shape(self.offset_index) not in ((0,), (s,)) or (len(self.offset_index) and (
                 not np.issubdtype(np.asarray(self.offset_index).dtype, np.integer) or np.min(self.offset_index) < 0)):
             raise SmoothingError(f"offset_index must be ({s},) non-negative integers (or empty: each landmark's own)")
+        shared = np.asarray(self.image_bearing_sigmas, float)
+        if shared.shape not in ((0,), (t,)) or not np.all(np.isfinite(shared)) or np.any(shared < 0):
+            raise SmoothingError(f"image_bearing_sigmas must be ({t},) (or empty: none), finite and ≥ 0")
 
     @property
     def n_poses(self) -> int:
@@ -316,7 +328,7 @@ def smooth(problem: LandmarkLogProblem, initial_poses: np.ndarray, initial_landm
     inliers = np.ones(len(problem.ranges), bool)
     iterations, converged = solve_with_outlier_cut(problem, poses, landmarks, inliers, heading_loss=heading_loss,
                                                    drift=drift, bias=bias, offset=offset, offsets=offsets)
-    odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
+    odometry, sightings = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets, inliers)
     heading_weights = _heading_weights(problem, odometry, heading_loss)
     chi2 = float(np.sum(odometry ** 2) + np.sum(sightings.reshape(-1, 2)[inliers] ** 2))
     if drift is not None:
@@ -365,7 +377,7 @@ def solve_with_outlier_cut(problem: LandmarkLogProblem, poses: np.ndarray, landm
                                                  heading_loss=heading_loss, drift=drift, bias=bias, offset=offset,
                                                  offsets=offsets, extra=extra, extra_values=extra_values)
     at = problem if extra is None else extra.applied(problem, extra_values)
-    _, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
+    _, sightings = _residuals(at, poses, landmarks, _shift(drift, bias), offsets, inliers)
     inliers[:] = np.sum(sightings.reshape(-1, 2) ** 2, axis=1) <= OUTLIER_CHI2
     iterations, converged = _solve(problem, poses, landmarks, inliers, robust=False, heading_loss=heading_loss,
                                    drift=drift, bias=bias, offset=offset, offsets=offsets, extra=extra,
@@ -382,7 +394,7 @@ def normalised_residuals(problem: LandmarkLogProblem, solution: Smoothed
     offset = _solution_offset(problem, solution)
     bias = None if drift is None else drift.stacked(solution)
     odometry, sightings = _residuals(problem, solution.poses, solution.landmarks, _shift(drift, bias),
-                                     solution.offsets if offset is not None else None)
+                                     solution.offsets if offset is not None else None, solution.inliers)
     extra = drift.residuals(bias) if drift is not None else np.zeros(0)
     if offset is not None:
         extra = np.concatenate([extra, offset.residuals(solution.offsets)])
@@ -556,9 +568,11 @@ def _row_scaled(jac: sp.csr_matrix, t: int, heading_weights: np.ndarray | None) 
 
 
 def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.ndarray,
-               shift: np.ndarray | None = None, offsets: np.ndarray | None = None):
+               shift: np.ndarray | None = None, offsets: np.ndarray | None = None, inliers: np.ndarray | None = None):
     """Normalised residuals: odometry (T·3,) (the heading less the drift's shift (T,): b_k d_k, + c_k |Δθ_k|),
-    sightings (S·2,) interleaved (range, bearing) (each of landmark + its group's offset, with offsets (G, 2))."""
+    sightings (S·2,) interleaved (range, bearing) (each of landmark + its group's offset, with offsets (G, 2)); with
+    one error per image, the bearings whitened over each image's ``inliers`` (S,) (None: all;
+    :func:`image_whitening`)."""
     odometry = between(poses[:-1], poses[1:]) - problem.increments
     if shift is not None:
         odometry[:, 2] -= shift
@@ -570,9 +584,74 @@ def _residuals(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np.nda
         d = d + offsets[problem.offset_groups]
     predicted_range = np.hypot(d[:, 0], d[:, 1])
     predicted_bearing = np.arctan2(d[:, 1], d[:, 0]) - at[:, 2]
+    bearing = wrap_angle(predicted_bearing - problem.bearings) / problem.bearing_sigmas
     sightings = np.column_stack([(predicted_range - problem.ranges) / problem.range_sigmas,
-                                 wrap_angle(predicted_bearing - problem.bearings) / problem.bearing_sigmas])
+                                 _whitened_bearings(problem, bearing, inliers)])
     return odometry.ravel(), sightings.ravel()
+
+
+def image_whitening(problem: LandmarkLogProblem, inliers: np.ndarray | None = None) -> sp.csr_matrix | None:
+    """(S, S) W, the whitening of the sightings' normalised bearing residuals z (S,) (z_i = e_i / σ_i) under one error
+    per image; None when ``problem`` has none (``image_bearing_sigmas`` empty, or no kept sighting at a pose whose
+    τ is > 0).
+
+    The model: the kept sightings (``inliers`` (S,) bool; None: all) taken at pose k, one image, share a bearing error
+    ε_k ~ N(0, τ_k²) (τ_k = ``image_bearing_sigmas[k − 1]``) beside their own errors of σ_i. In normalised units
+    their covariance is I + u uᵀ, u_i = τ_k / σ_i, and W is its symmetric inverse square root on each image,
+    W = I − c u uᵀ with c = 1 / (√(1 + a) (1 + √(1 + a))), a = uᵀu: (I − c uuᵀ)² (I + uuᵀ) = I because
+    (1 − c a)² (1 + a) = 1. So |W z|² = zᵀ (I + uuᵀ)⁻¹ z is the image's exact χ² and W J the Jacobian whose JᵀJ is
+    its information. The rows of sightings cut and of poses with τ 0 are left as they are (W's identity part).
+
+    Where it comes from: an image's time stamp is known to within its timing uncertainty σ_t, and a robot turning at
+    ω sees every landmark of that image turned by the same ω δ (δ the exposure's offset from the stamp), so the
+    bearings share an error of σ |ω| σ_t (:mod:`estimation.image_timing`). On MRCLAM the camera also repeats a stale
+    image while the robot turns (robot 5 at 13.16–13.46 s: three images 0.05–0.09 rad off together).
+
+    Why whitened rather than an explicit unknown ε_k per image (its residual taken off the image's bearings, its prior
+    ε_k / τ_k): the two give the same MAP and the same covariance of the poses and landmarks (ε_k marginalised exactly
+    is this covariance), but ε_k would be one column per image, thousands on MRCLAM, in the dense block the landmarks
+    are eliminated with, or a fourth column per pose that every frame figure's layout would have to know. Whitened,
+    an image's rows touch only its pose and its landmarks, blocks the normal equations hold already. Why the
+    symmetric root rather than a Cholesky factor: no sighting of an image comes first, an image of one sighting gets
+    its bearing's σ √(σ² + τ²) exactly, and τ 0 leaves every row as it was. What reads the whitened residuals:
+    Huber's weights and the outlier cut (per sighting, as before), and the frame reliability's per-sighting tests;
+    a stale image's common error is shared among its sightings instead of being charged to each.
+
+    The slip it corrects: the FastSLAM factorisation (Montemerlo et al. 2002, eq. 3) takes the sightings
+    conditionally independent given the pose, and so did every variance in this package; session 41's scratch
+    variant grew each bearing's variance by (ω · 0.065 s)² independently, which lets n sightings of one image
+    average the common error away (the image's weight on the pose's heading n / (σ² + τ²), not at most 1 / τ²)."""
+    sigmas = np.asarray(problem.image_bearing_sigmas, float)
+    if not len(sigmas):
+        return None
+    n = len(problem.ranges)
+    tau = sigmas[problem.pose_index - 1] if n else np.zeros(0)
+    shared = (tau > 0) & (np.ones(n, bool) if inliers is None else np.asarray(inliers, bool))
+    if not shared.any():    # nothing shared: every row as without the term, bit for bit
+        return None
+    u = np.where(shared, tau / problem.bearing_sigmas, 0.0)
+    a = np.bincount(problem.pose_index, u ** 2, minlength=problem.n_poses + 1)
+    root = np.sqrt(1.0 + a)
+    c = 1.0 / (root * (1.0 + root))                       # per pose
+    members = np.flatnonzero(shared)
+    members = members[np.argsort(problem.pose_index[members], kind="stable")]
+    pose = problem.pose_index[members]
+    starts = np.flatnonzero(np.concatenate([[True], pose[1:] != pose[:-1]])) if len(members) else np.zeros(0, int)
+    sizes = np.diff(np.append(starts, len(members)))
+    group = np.repeat(np.arange(len(starts)), sizes)      # each member's image, in members' order
+    # every ordered pair (i, j) of one image: member i repeated once per member of its image, j running over them
+    rows = np.repeat(members, sizes[group])
+    first = np.repeat(starts[group], sizes[group])
+    within = np.arange(len(rows)) - np.repeat(np.cumsum(sizes[group]) - sizes[group], sizes[group])
+    columns = members[first + within]
+    values = -c[problem.pose_index[rows]] * u[rows] * u[columns]
+    return (sp.identity(n, format="csr") + sp.csr_matrix((values, (rows, columns)), shape=(n, n))).tocsr()
+
+
+def _whitened_bearings(problem: LandmarkLogProblem, bearings: np.ndarray, inliers: np.ndarray | None) -> np.ndarray:
+    """Normalised bearing residuals (S,) whitened by :func:`image_whitening` (as they are without its term)."""
+    whitening = image_whitening(problem, inliers)
+    return bearings if whitening is None else whitening @ bearings
 
 
 class _Rows:
@@ -689,7 +768,12 @@ def _jacobian_rows(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np
     pose_col = width * (problem.pose_index - 1)
     landmark_col = width * t + 2 * problem.landmark_index
     wr = sighting_weights / problem.range_sigmas
-    wb = sighting_weights / problem.bearing_sigmas
+    # one error per image: the bearing rows are whitened over each image's kept sightings (weight > 0) first, then
+    # weighted as the residuals are (_solve: whitened, then Huber's weight of the whitened norm)
+    whitening = image_whitening(problem, sighting_weights > 0)
+    if whitening is not None and extra is not None:
+        raise SmoothingError("one bearing error per image is not combined with extra unknowns")
+    wb = (sighting_weights if whitening is None else (sighting_weights > 0).astype(float)) / problem.bearing_sigmas
     n_sightings = len(d)
     # the sightings' rows: range (p_x, p_y, −, m_x, m_y[, o_x, o_y]), bearing (p_x, p_y, p_θ, m_x, m_y[, o_x, o_y])
     sighting_columns = np.full((n_sightings, 2, 7 if offset is not None else 5), -1, np.int64)
@@ -709,6 +793,9 @@ def _jacobian_rows(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np
             sighting_values[:, 1, 5 + col_offset] = db * wb
     sighting_columns[:, 1, 2] = pose_col + 2
     sighting_values[:, 1, 2] = -wb
+    if whitening is not None:
+        sighting_columns, sighting_values = _whitened_rows(sighting_columns, sighting_values, whitening,
+                                                           sighting_weights, rows.n_columns)
     if in_factors is None:
         rows.add(columns, values)
         rows.add(sighting_columns, sighting_values)
@@ -731,6 +818,25 @@ def _jacobian_rows(problem: LandmarkLogProblem, poses: np.ndarray, landmarks: np
     if extra is not None:   # their own factors' rows
         rows.add(*_padded(extra.rows(problem, landmarks, extra_values, rows.n_columns)))
     return rows
+
+
+def _whitened_rows(columns: np.ndarray, values: np.ndarray, whitening: sp.csr_matrix, weights: np.ndarray,
+                   n_columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sightings' rows (columns, values (S, 2, W)) with the bearing rows replaced by W J_b (``whitening`` W (S, S):
+    an image's rows mixed, each then touching its pose and all its image's landmarks) and scaled by ``weights`` (S,);
+    the range rows as they are. Padded to the wider of the two (−1, 0 after a row's last entry)."""
+    n = len(columns)
+    keep = columns[:, 1] >= 0
+    bearing = sp.csr_matrix((values[:, 1][keep], (np.nonzero(keep)[0], columns[:, 1][keep])), shape=(n, n_columns))
+    mixed_columns, mixed_values = _padded(whitening @ bearing)
+    width = max(columns.shape[2], mixed_columns.shape[1])
+    out_columns = np.full((n, 2, width), -1, np.int64)
+    out_values = np.zeros((n, 2, width))
+    out_columns[:, 0, :columns.shape[2]] = columns[:, 0]
+    out_values[:, 0, :columns.shape[2]] = values[:, 0]
+    out_columns[:, 1, :mixed_columns.shape[1]] = mixed_columns
+    out_values[:, 1, :mixed_columns.shape[1]] = mixed_values * weights[:, None]
+    return out_columns, out_values
 
 
 def _sighting_weights(sightings: np.ndarray, inliers: np.ndarray, robust: bool) -> np.ndarray:
@@ -776,7 +882,7 @@ def _cost(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=N
     iteration starts from the point a step was accepted at, and reads the last two from here instead of again."""
     if extra is not None:
         problem = extra.applied(problem, extra_values)
-    residuals = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets)
+    residuals = _residuals(problem, poses, landmarks, _shift(drift, bias), offsets, inliers)
     odometry, sightings = residuals
     norm2 = np.sum(sightings.reshape(-1, 2) ** 2, axis=1)[inliers]
     if robust:
@@ -821,7 +927,7 @@ def _solve(problem, poses, landmarks, inliers, robust, heading_loss=None, drift=
     for iteration in range(1, MAX_ITERATIONS + 1):
         if residuals is None:   # no cost computed where the last step went (refused values): nothing to reuse
             at = problem if extra is None else extra.applied(problem, extra_values)
-            residuals = _residuals(at, poses, landmarks, _shift(drift, bias), offsets)
+            residuals = _residuals(at, poses, landmarks, _shift(drift, bias), offsets, inliers)
         odometry, sightings = residuals
         weights = _sighting_weights(sightings, inliers, robust)
         heading_weights = _heading_weights(problem, odometry, heading_loss)

@@ -49,7 +49,7 @@ from .frame_reliability import (
     sighting_redundancy,
 )
 from .geometry import between
-from .landmark_smoother import LandmarkLogProblem, Smoothed
+from .landmark_smoother import LandmarkLogProblem, Smoothed, image_whitening
 
 FRAMES = ("first-sighting", "checked")
 FIRST_SIGHTING, CHECKED = FRAMES
@@ -88,12 +88,17 @@ class ImageErrors:
 def image_errors(problem: LandmarkLogProblem, solution: Smoothed, frame: FrameProblem,
                  delta0: float = DELTA_0) -> ImageErrors:
     """:class:`ImageErrors` of ``solution``. The alternative is Baarda's for a specified bias vector: v (whitened,
-    1/σ_r on the pose's bearing rows), its test w = vᵀ ê / √(vᵀ R v), noncentrality b √(vᵀ R v), with
-    vᵀ R v = vᵀ v − a H⁻¹ aᵀ. For a pose with one sighting it is that bearing's own ∇₀ and effect."""
+    1/σ_r on the pose's bearing rows; with one error per image in the model, W (1/σ_r) by its whitening W:
+    :func:`~estimation.landmark_smoother.image_whitening`), its test w = vᵀ ê / √(vᵀ R v), noncentrality
+    b √(vᵀ R v), with vᵀ R v = vᵀ v − a H⁻¹ aᵀ. For a pose with one sighting it is that bearing's own ∇₀ and effect."""
     kept = np.flatnonzero(solution.inliers)
     pose_of = problem.pose_index[kept]
     poses, which = np.unique(pose_of, return_inverse=True)
-    weights = 1.0 / problem.bearing_sigmas[kept]
+    weights = 1.0 / problem.bearing_sigmas
+    whitening = image_whitening(problem, solution.inliers)
+    if whitening is not None:   # one error per image in the model: the bias's direction among the whitened rows
+        weights = whitening @ weights
+    weights = weights[kept]
     rows = 3 * problem.n_poses + 2 * kept + 1
     summing = sp.csr_matrix((weights, (which, np.arange(len(kept)))), shape=(len(poses), len(kept)))
     directions = sp.csr_matrix(summing @ frame.inverse.jac[rows])
