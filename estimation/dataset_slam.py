@@ -72,7 +72,7 @@ class DatasetRun:
 def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.random.Generator, *, noise: NoiseModel,
                      association: str = "id", robot: str = "robot", until: float | None = None,
                      inflate_correlated: bool = True, known_map: bool = False, smooth: bool = False,
-                     frame: str = "first-sighting") -> DatasetRun:
+                     frame: str = "first-sighting", image_timing: bool = False) -> DatasetRun:
     """Run FastSLAM over ``log`` and score it against its ground truth if it has some; see the module docstring.
 
     ``config``: the filter's settings; ``noise`` sets its motion noise, the sensor noise (σ_r growing with the
@@ -88,6 +88,9 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
     ``frame``: the smoothed map's frame, ``"first-sighting"`` (the default: the robot's pose at its first sighting)
     or ``"checked"`` (the first pose whose frame no single sighting can move unseen: :mod:`estimation.map_frame`;
     needs ``smooth``).
+    ``image_timing``: the smoother holds one bearing error shared by each frame's sightings, of σ |ω| σ_t
+    (:mod:`estimation.image_timing`; needs ``smooth``; the filter takes its bearings as it did: its landmarks are
+    updated one at a time given the particle's pose, which a shared error would couple).
     """
     if association not in ASSOCIATIONS:
         raise ValueError(f"association must be one of {', '.join(ASSOCIATIONS)}, not {association!r}")
@@ -101,6 +104,8 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         raise ValueError(f"the map's frame must be one of {', '.join(FRAMES)}, not {frame!r}")
     if frame != FIRST_SIGHTING and not smooth:
         raise ValueError(f"the map's frame {frame!r} is chosen on the smoothed solution: it needs smoothing")
+    if image_timing and not smooth:
+        raise ValueError("one bearing error per image is the smoother's: it needs smoothing")
     if inflate_correlated:
         inflate_r, inflate_b = (float(np.sqrt(f)) for f in sensor.variance_inflation())
         sensor = dataclasses.replace(sensor, range_sigma_m=sensor.range_sigma_m * inflate_r,
@@ -179,7 +184,7 @@ def run_landmark_log(log: RangeBearingLog, config: FastSLAMConfig, rng: np.rando
         return run
     from .dataset_smoothing import smooth_run
     return smooth_run(run, log, noise, frames, increments, sensor, config, estimated[:, 1:], true_start, t0, until,
-                      frame=frame)
+                      frame=frame, image_timing=image_timing)
 
 
 def sighted_true_ids(log: RangeBearingLog, t0: float, until: float | None) -> np.ndarray:

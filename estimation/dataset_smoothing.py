@@ -15,6 +15,9 @@ of one sighting that the data cannot find would move that frame, against its σ
 With a heading drift (:class:`~estimation.landmark_smoother.HeadingDrift`: given, or the filter config's
 ``odom_heading_drift_sigma_per_m`` / ``odom_heading_drift_tau_s`` when σ > 0, i.e. the noise model's) the smoother
 carries a heading-bias state per frame; ``smoother_heading_drift_*`` then say which (absent when off).
+With ``image_timing`` (off by default) the bearings of each frame, one image, share one error of σ |ω| σ_t
+(:mod:`estimation.image_timing`: the odometry's turn rate, the stamp period's timing uncertainty), held as their
+joint covariance (:func:`~estimation.landmark_smoother.image_whitening`); ``smoother_image_timing_sigma_s`` says σ_t.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ import numpy as np
 from .dataset_slam import UNSCORED_LANDMARKS, sighted_true_ids, unscored_metrics
 from .frame_reliability import design_figures, reliability_metrics
 from .geometry import between, compose
+from .image_timing import image_bearing_sigmas
 from .landmark_map import LandmarkMap
 from .landmark_scores import ate, frame_error, map_scores, pose_nees, pose_nees_figures
 from .landmark_smoother import (
@@ -43,7 +47,7 @@ _FILTER_KEYS = ("ate_m", "final_position_error_m", "pose_nees_mean", "pose_nees_
 
 
 def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses, true_start, t0, until, *,
-               heading_drift: HeadingDrift | None = None, frame: str = FIRST_SIGHTING):
+               heading_drift: HeadingDrift | None = None, frame: str = FIRST_SIGHTING, image_timing: bool = False):
     """The :class:`~estimation.dataset_slam.DatasetRun` ``run`` with its map, trajectory and pose NEES smoothed.
 
     noise: the run's noise model; frames: per filter frame k, (ids, ranges, bearings) as the filter was given them
@@ -58,6 +62,8 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
     map, trajectory, covariances, ``true_start_pose`` and every score are then in that pose's frame, the reliability
     figures of that frame, ``map_frame_*`` say which; the ``filter_`` figures stay the filter's, in the first
     sighting's frame).
+    image_timing: one bearing error shared by each frame's sightings, of σ |ω| σ_t (:mod:`estimation.image_timing`;
+    False, the default: none, each bearing's error its own).
     """
     if frame not in FRAMES:
         raise ValueError(f"the map's frame must be one of {', '.join(FRAMES)}, not {frame!r}")
@@ -67,7 +73,8 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
     times = run.estimated_trajectory[:, 0]
     frame_times = np.concatenate([[t0], times])
     variances = increment_variances(log, noise, config, frame_times, increments)
-    problem, landmark_ids = _problem(frames, increments, variances, sensor, np.diff(frame_times))
+    shared, sigma_t = image_bearing_sigmas(log, noise, times) if image_timing else (None, None)
+    problem, landmark_ids = _problem(frames, increments, variances, sensor, np.diff(frame_times), shared)
     drift = heading_drift if heading_drift is not None else config_drift(config)
     initial = np.vstack([np.zeros(3), filter_poses])
     solution = smooth(problem, initial, _initial_landmarks(run.map, landmark_ids, problem, initial),
@@ -85,6 +92,9 @@ def smooth_run(run, log, noise, frames, increments, sensor, config, filter_poses
         smoother_outliers=int((~solution.inliers).sum()), smoother_sightings=int(len(solution.inliers)),
         smoother_iterations=solution.iterations, smoother_converged=bool(solution.converged))
     metrics.update(frame_metrics)
+    if image_timing:
+        metrics.update(smoother_image_timing_sigma_s=sigma_t,
+                       smoother_image_bearing_sd_max_rad=float(np.max(shared, initial=0.0)))
     if chosen is not None:
         landmark_map.metadata.update(map_frame=CHECKED, map_frame_time_s=metrics["map_frame_time_s"])
         if true_start is not None:
@@ -169,9 +179,11 @@ def config_drift(config) -> HeadingDrift | None:
     return HeadingDrift(sigma, float(config.odom_heading_drift_tau_s))
 
 
-def _problem(frames, increments, variances, sensor, seconds=None) -> tuple[LandmarkLogProblem, np.ndarray]:
-    """The factors of the run (``variances`` (T, 3): the increments', ``seconds`` (T,): their durations), and the
-    identity (L,) of each landmark index."""
+def _problem(frames, increments, variances, sensor, seconds=None, image_sigmas=None
+             ) -> tuple[LandmarkLogProblem, np.ndarray]:
+    """The factors of the run (``variances`` (T, 3): the increments', ``seconds`` (T,): their durations,
+    ``image_sigmas`` (T,): the σ of each frame's shared bearing error, None: none), and the identity (L,) of each
+    landmark index."""
     pose_index = np.concatenate([np.full(len(ids), k + 1) for k, (ids, _, _) in enumerate(frames)]).astype(int)
     ids = np.concatenate([f[0] for f in frames]).astype(np.int64)
     ranges = np.concatenate([f[1] for f in frames]).astype(float)
@@ -182,7 +194,9 @@ def _problem(frames, increments, variances, sensor, seconds=None) -> tuple[Landm
                                  pose_index[named], landmark_index, ranges[named], bearings[named],
                                  sensor.range_sigma(ranges[named]),
                                  np.full(int(named.sum()), float(sensor.bearing_sigma_rad)),
-                                 np.zeros(0) if seconds is None else np.asarray(seconds, float))
+                                 np.zeros(0) if seconds is None else np.asarray(seconds, float),
+                                 image_bearing_sigmas=np.zeros(0) if image_sigmas is None
+                                 else np.asarray(image_sigmas, float))
     return problem, landmark_ids
 
 

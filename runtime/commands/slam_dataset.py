@@ -42,6 +42,17 @@ def _frame_problem(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _image_timing_problem(args: argparse.Namespace) -> str | None:
+    """What makes ``--image-timing`` meaningless with the other options given, in one line (None: nothing): the
+    shared error per image is the known-ID smoother's."""
+    if not args.image_timing:
+        return None
+    if args.chain or args.association != "id" or args.smooth is False:
+        return ("--image-timing is the known-ID smoother's bearing model: it needs --association id and the smoother "
+                "(not --chain, not --no-smooth)")
+    return None
+
+
 def _check_rerun_sink(sink: str | None) -> None:
     """Refuse a ``--rerun`` sink before the run, not after it: FILE.rrd (its folder writable), spawn or a URL."""
     if (problem := rerun_sink_problem(sink, ("spawn",))) is not None:
@@ -57,7 +68,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
     try:
-        if (problem := _chain_problem(args) or _frame_problem(args)) is not None:
+        if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
             raise ValueError(problem)
         check_output_file(args.out)
         _check_rerun_sink(args.rerun)
@@ -90,7 +101,8 @@ def run_dataset(args: argparse.Namespace) -> int:
         else:
             run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
                                    association=args.association, robot=f"robot{args.robot}", until=args.until,
-                                   inflate_correlated=not args.no_inflation, smooth=smooth, frame=args.frame)
+                                   inflate_correlated=not args.no_inflation, smooth=smooth, frame=args.frame,
+                                   image_timing=args.image_timing)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)
