@@ -309,7 +309,7 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         progress.event(f"robots started as processes {', '.join(f'{n} (pid {p.pid})' for n, p in processes.items())}"
                        f"; fusion node on tcp/127.0.0.1:{port}, fleet {fleet}")
         fusion_thread.start()
-        outputs = _wait(processes, stop, progress, node, start)
+        outputs, stalled = _wait(processes, stop, progress, node, start)
     finally:
         stop.set()
         for process in processes.values():  # Ctrl-C: every robot stops its motors and flushes its files
@@ -335,7 +335,8 @@ def run_processes_demo(args: argparse.Namespace) -> int:
     left = {name: LeftMap(out / name / f"{name}.npz") for name in ended}
     final, missing, read = final_fusion(node, summaries, left=left)
     exchange.close()
-    failed = [failure_line(name, code, stderr, left[name].said) for name, (code, stderr) in sorted(ended.items())]
+    failed = [failure_line(name, code, stderr, left[name].said, stalled.get(name))
+              for name, (code, stderr) in sorted(ended.items())]
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
     summary["last_maps_missing"] = missing
     summary["last_maps_from_file"] = read
@@ -385,12 +386,15 @@ def run_processes_demo(args: argparse.Namespace) -> int:
     return 1 if failed or unsaved else 0
 
 
-def failure_line(robot: str, code: int | None, stderr: str, left: str) -> str:
+def failure_line(robot: str, code: int | None, stderr: str, left: str, stalled: str | None = None) -> str:
     """What to say of a robot process that ended without its summary: its exit status (the signal that killed it),
     its last line on stderr, then ``left``: what became of the map it saved last (:func:`map_left`; its periodic
-    saves are atomic: a killed robot leaves the map of its last save)."""
+    saves are atomic: a killed robot leaves the map of its last save). ``stalled``: why this process stopped it
+    (:func:`_wait`), said instead of the signal it sent."""
     lines = stderr.strip().splitlines()
-    if code is not None and code < 0:
+    if stalled is not None:
+        why = f"{stalled}: stopped, no summary"
+    elif code is not None and code < 0:
         try:
             why = f"killed by {signal.Signals(-code).name}, no summary"
         except ValueError:
@@ -400,9 +404,20 @@ def failure_line(robot: str, code: int | None, stderr: str, left: str) -> str:
     return f"{robot} (exit {code}): {why}; {left}"
 
 
-def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, start: float) -> dict:
-    """Wait for every robot process to end (or Ctrl-C); their exit codes and outputs."""
+ROBOT_STALL_AFTER = 60.0  # s of wall time without a new status from a running robot: it is stopped (as a stall ends
+# an in-process mission: runtime/mission.py's watchdog, mocks/simclock.py's stall_after)
+STALL_GRACE = 10.0  # s a stalled robot gets to end on SIGTERM before SIGKILL (a frozen process cannot act on it)
+
+
+def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, start: float) -> tuple[dict, dict]:
+    """Wait for every robot process to end (or Ctrl-C): their exit codes and outputs, and why this process stopped
+    any of them. A robot whose status (once a second of its mission time) has not moved for ``ROBOT_STALL_AFTER`` s
+    of wall time while its process runs has stopped making progress (frozen, deadlocked): it is stopped and said
+    so, and the demo goes on to its final fusion, where before it waited for it for ever."""
     readers, outputs = {}, {}
+    progress_seen: dict[str, tuple[object, float]] = {}  # robot -> (its last status's session and stamp, when)
+    stalled: dict[str, str] = {}
+    stopped_at: dict[str, float] = {}
     for name, process in processes.items():  # read the pipes as they fill, so a chatty child never blocks
         def read(n=name, p=process) -> None:
             stdout, stderr = p.communicate()
@@ -412,8 +427,9 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
     next_line = 0.0
     while any(r.is_alive() for r in readers.values()) and not stop.wait(0.5):
         t = time.monotonic() - start
+        status = node.exchange.status() if hasattr(node.exchange, "status") else {}
+        _stop_stalled(processes, status, progress_seen, stalled, stopped_at, progress)
         if t >= next_line:
-            status = node.exchange.status() if hasattr(node.exchange, "status") else {}
             parts = [f"t={t:5.1f}s"] + [_robot_part(r, s) for r, s in sorted(status.items())]
             if node.history and node.history[-1].pairs:
                 p = node.history[-1].pairs[0]
@@ -425,7 +441,32 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
             process.send_signal(signal.SIGTERM)
     for reader in readers.values():
         reader.join(timeout=60)
-    return outputs
+    return outputs, stalled
+
+
+def _stop_stalled(processes: dict, status: dict, seen: dict, stalled: dict, stopped_at: dict, progress) -> None:
+    """One look at every running robot's progress (its status's session and stamp): a robot stalled for
+    ``ROBOT_STALL_AFTER`` s gets SIGTERM, and SIGKILL ``STALL_GRACE`` s later if it is still there. A robot that has
+    sent no status yet is left alone (its start-up takes what the machine's load makes it take)."""
+    now = time.monotonic()
+    for name, s in status.items():
+        mark = (s.get("session"), s.get("stamp"))
+        if name not in seen or seen[name][0] != mark:
+            seen[name] = (mark, now)
+    for name, process in processes.items():
+        if process.poll() is not None or name not in seen:
+            continue
+        if name in stopped_at:
+            if now - stopped_at[name] >= STALL_GRACE:
+                process.kill()
+            continue
+        if now - seen[name][1] >= ROBOT_STALL_AFTER:
+            stamp = seen[name][0][1]
+            at = f" (its last at t={stamp:.1f} s)" if isinstance(stamp, int | float) else ""
+            stalled[name] = f"no progress for {ROBOT_STALL_AFTER:g} s of wall time: no new status{at}"
+            progress.event(f"{name}: {stalled[name]}; stopping it")
+            process.send_signal(signal.SIGTERM)
+            stopped_at[name] = now
 
 
 def _robot_part(robot: str, status: dict) -> str:
