@@ -7,7 +7,11 @@ lost link and reconnects with backoff (motors disabled on return).
 
 Threads: commands may be called from any thread (writes are serialised); subscriber callbacks run on the
 reader thread and must return quickly. The clock is injected for time stamps and timeouts; it must advance
-with real time (the reader waits on real time), e.g. ``time.monotonic`` (default) or ``time.time``.
+with real time (the reader waits on real time), e.g. ``time.monotonic`` (default) or ``time.time``, or be a
+lockstep simulated clock with ``wait_for(predicate, timeout=...)`` (``mocks.simclock.SimClock``): then
+:meth:`P3AT.wait_for_state` and :meth:`P3AT.request_config` wait on that clock, in its seconds. A participant of
+lockstep that blocked on the wall clock instead would hold simulated time still, so the packet it waits for could
+never come: it waited out its whole timeout and failed.
 """
 from __future__ import annotations
 
@@ -283,7 +287,8 @@ class P3AT:
 
         Raises :class:`NotConnectedError` at once if the link is down when called or as soon as it is lost
         while waiting (closed, lost, reconnecting), :class:`DriverTimeoutError` after ``timeout`` seconds of a
-        link that is up but brings no matching state.
+        link that is up but brings no matching state (seconds of the driver's clock: simulated ones on a lockstep
+        clock).
         """
         with self._cond:
             self._require_link()
@@ -296,7 +301,15 @@ class P3AT:
                     return True
                 return (s is not None and (s.session, s.sequence) != start_key
                         and (predicate is None or predicate(s)))
-            if not self._cond.wait_for(ready, timeout):
+            if self._lockstep:
+                self._cond.release()  # the reader needs the condition to deliver the state
+                try:
+                    got = bool(self.clock.wait_for(ready, timeout=timeout))
+                finally:
+                    self._cond.acquire()
+            else:
+                got = self._cond.wait_for(ready, timeout)
+            if not got:
                 raise DriverTimeoutError(f"{self.url}: no matching robot state within {timeout:g} s")
             self._require_link()
             assert self._state is not None
@@ -380,7 +393,8 @@ class P3AT:
         self.send_command(Command.IOREQUEST, mode)
 
     def request_config(self, timeout: float = 1.0) -> Any:
-        """Ask for a CONFIG packet and return it (``RobotConfig``), or ``None`` if none came in ``timeout`` s."""
+        """Ask for a CONFIG packet and return it (``RobotConfig``), or ``None`` if none came in ``timeout`` s (of the
+        driver's clock, as :meth:`wait_for_state`)."""
         got: list[Any] = []
         done = threading.Event()
 
@@ -391,10 +405,18 @@ class P3AT:
         unsubscribe = self.subscribe_packets(on_packet)
         try:
             self.send_command(Command.CONFIG, 1)
-            done.wait(timeout)
+            if self._lockstep:
+                self.clock.wait_for(done.is_set, timeout=timeout)
+            else:
+                done.wait(timeout)
         finally:
             unsubscribe()
         return got[0] if got else None
+
+    @property
+    def _lockstep(self) -> bool:
+        """Is the clock a lockstep clock (it offers ``wait_for(predicate, timeout=...)``)? Waits then go through it."""
+        return callable(getattr(self.clock, "wait_for", None))
 
     # ------------------------------------------------------------------ internals: writing
     def _params(self) -> RobotParams:
