@@ -36,7 +36,7 @@ from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose, dead_reckoning  # noqa: E402
 from estimation.landmark_scores import ate  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift, landmarks_from_first_sightings, smooth  # noqa: E402
-from estimation.noise_model import estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_float, positive_float, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"

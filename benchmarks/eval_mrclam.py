@@ -84,7 +84,8 @@ from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import TRUTH_HEADINGS, read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import DUPLICATE_GOAL, NEES_WITHIN_GOAL  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModel  # noqa: E402
 from estimation.odometry_response import ResponseShape, with_drive_response, with_drive_shape  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, particle_count, positive_float  # noqa: E402
 

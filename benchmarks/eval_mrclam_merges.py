@@ -37,7 +37,7 @@ from benchmarks.slam_consistency import RecordingFastSLAM  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_scores import attribute_landmarks, count_sightings  # noqa: E402
-from estimation.noise_model import estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 
 

@@ -99,7 +99,8 @@ from estimation.named_smoothing import (  # noqa: E402
     truncated_cost,
 )
 from estimation.named_smoothing import covisible_names as _covisible  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModel  # noqa: E402
 from runtime.commands.options import non_negative_float, non_negative_int, positive_float, positive_int  # noqa: E402
 
 

@@ -235,7 +235,8 @@ from estimation.named_smoothing import (  # noqa: E402
     NamedProblem,
     named_problem,
 )
-from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, NoiseModelError, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModel, NoiseModelError  # noqa: E402
 from estimation.pass_matching import (  # noqa: E402
     STATUSES,
     Pass,

@@ -38,7 +38,8 @@ from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import wrap_angle  # noqa: E402
-from estimation.noise_model import RangeBearingNoise, estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
+from estimation.noise_model import RangeBearingNoise  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_int  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"

@@ -210,7 +210,7 @@ def known_id_map(robot: int, data: Path):
     from benchmarks.smoother_frame_diagnosis import capture
     from estimation.datasets import read_mrclam
     from estimation.landmark_smoother import smooth
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     log = read_mrclam(data, robot)
     cap = capture(log, estimate_noise([log], **DATASET_CALIBRATIONS).model)

@@ -44,7 +44,7 @@ from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.geometry import between, wrap_angle  # noqa: E402
 from estimation.landmark_smoother import IN_PLACE_M_PER_RAD  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import positive_float  # noqa: E402
 
 STEP_S = 0.25                    # the filter's frame interval: the smoother's increments

@@ -71,7 +71,8 @@ from estimation.fastslam.linalg import sym_matrices, sym_rotate_z  # noqa: E402
 from estimation.fastslam.motion import increment_variance, propagate_covariance  # noqa: E402
 from estimation.geometry import between, compose, wrap_angle  # noqa: E402
 from estimation.landmark_scores import CHI2_95, points_nees  # noqa: E402
-from estimation.noise_model import estimate_noise, with_fastslam  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
+from estimation.noise_model import with_fastslam  # noqa: E402
 
 WINDOWS_S = (5.0, 20.0, 60.0, 120.0)
 

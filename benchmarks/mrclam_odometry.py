@@ -25,7 +25,7 @@ import numpy as np
 
 from estimation.datasets import read_mrclam
 from estimation.geometry import wrap_angle
-from estimation.noise_model import estimate_noise
+from estimation.noise_estimation import estimate_noise
 from runtime.commands.options import positive_float
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"

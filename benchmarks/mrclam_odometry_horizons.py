@@ -39,7 +39,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from estimation.datasets import read_mrclam
-from estimation.noise_model import DATASET_CALIBRATIONS, OdometryNoise, estimate_noise
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+from estimation.noise_model import OdometryNoise
 from estimation.odometry_consistency import (
     CHI2_3_95,
     CHI2_3_MEDIAN,

@@ -27,7 +27,7 @@ from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_smoother import normalised_residuals
 from estimation.named_smoothing import smooth_named
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 from runtime.commands.options import positive_int
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"

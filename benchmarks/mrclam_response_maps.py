@@ -51,7 +51,7 @@ from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.geometry import compose  # noqa: E402
 from estimation.landmark_smoother import smooth  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from estimation.odometry_response import first_order_response, with_drive_response, with_drive_shape  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 

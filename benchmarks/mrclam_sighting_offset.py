@@ -45,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root
 from benchmarks.eval_mrclam import DATA  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.map_honesty import sighting_times  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_int, positive_float, positive_int  # noqa: E402
 
 

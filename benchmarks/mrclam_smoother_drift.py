@@ -36,7 +36,7 @@ from estimation.dataset_slam import run_landmark_log  # noqa: E402
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.fastslam import range_bearing_config  # noqa: E402
 from estimation.landmark_smoother import HeadingDrift  # noqa: E402
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise  # noqa: E402
 from runtime.commands.options import non_negative_float  # noqa: E402
 
 KEYS = ("ate_m", "landmark_error_rigid_median_m", "pose_nees_within_chi2_95", "landmark_nees_within_bound",

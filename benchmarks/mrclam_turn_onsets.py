@@ -34,7 +34,7 @@ import numpy as np  # noqa: E402
 
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.geometry import wrap_angle  # noqa: E402
-from estimation.noise_model import estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 STEADY = 0.02          # rad/s: commanded ω that moves less than this over a window is steady

@@ -43,7 +43,8 @@ import numpy as np  # noqa: E402
 
 from estimation.datasets import read_mrclam  # noqa: E402
 from estimation.geometry import between, wrap_angle  # noqa: E402
-from estimation.noise_model import NoiseModel, estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
+from estimation.noise_model import NoiseModel  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"
 STEPS_S = (0.25, 1.0)

@@ -33,7 +33,7 @@ from estimation.fastslam import FastSLAM, range_bearing_config
 from estimation.fastslam.id_gate import psd_part
 from estimation.fastslam.linalg import pose_uncertainty, sym_adjugate, sym_components, sym_matrices, sym_quadratic
 from estimation.landmark_scores import count_sightings
-from estimation.noise_model import estimate_noise
+from estimation.noise_estimation import estimate_noise
 from runtime.commands.options import non_negative_int, positive_int
 
 

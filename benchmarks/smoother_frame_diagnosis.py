@@ -72,7 +72,7 @@ from estimation.landmark_smoother import (  # noqa: E402
     _residuals,
     smooth,
 )
-from estimation.noise_model import estimate_noise  # noqa: E402
+from estimation.noise_estimation import estimate_noise  # noqa: E402
 from runtime.commands.options import float_where, non_negative_float, positive_float  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset2"

@@ -17,7 +17,7 @@ rendered again at the true pose; ``--cache-dir`` keeps the rendered frames, ``<d
   (``noise_model.DETECTION_BANDS``). Beside it, the share whose true point was among the frame's readings at all
   (reported, matched or not).
 - ρ: the lag-1 correlation of each such landmark's matched / not-matched indicator over consecutive frames in
-  which it is well in view (as ``noise_model._detection_correlation``).
+  which it is well in view (as ``noise_estimation._detection_correlation``).
 - P_FA: the share of the frame's readings that are no point of the world: the ray meets nothing, or the reading
   lies outside the filter's gate (χ²₃ ``mahalanobis_gate``) about its true point under its own covariance.
 

@@ -91,7 +91,7 @@ def command_stall_variance(velocities, noise, frame_times) -> np.ndarray | None:
     and scales; None when the model has no stall term. The one place the model's term meets a command: the data set's
     filter adds it to its predict (``estimation.dataset_slam``), every smoother of a log to its odometry factors'
     random-walk variances (:func:`estimation.noise_model.increment_variances`), the dead-reckoning windows to their
-    steps (:func:`estimation.odometry_consistency.dead_reckoned_windows`, which noise_model imports: why this lives
+    steps (:func:`estimation.odometry_consistency.dead_reckoned_windows`, which noise_estimation imports: why this lives
     here and not there)."""
     o = noise.odometry
     if o.stall_sigma_s == 0.0:

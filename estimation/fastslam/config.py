@@ -42,11 +42,11 @@ class FastSLAMConfig:
     odom_xy_var_per_m: float = 0.03 ** 2          # m² of along/across-track error per metre driven
     odom_theta_var_per_rad: float = 0.05 ** 2     # rad² of heading error per radian turned
     odom_theta_var_per_m: float = 0.02 ** 2       # rad² of heading error per metre driven
-    odom_theta_var_per_s: float = 0.0             # rad² of heading error per second, moving or not (motion.py:
-                                                  #   needs each increment's duration; noise_model fits it); 0: none
+    odom_theta_var_per_s: float = 0.0             # rad² of heading error per second, moving or not (motion.py: needs
+                                                  #   each increment's duration; noise_estimation fits it); 0: none
     odom_var_floor: float = 1e-8                  # added to every variance (keeps FastSLAM 2.0's P invertible)
     odom_turn_xy_inflation: float = 1.0           # × the x/y variance of an increment in a turn (motion.py: the
-                                                  #   forward error of a turn is correlated; noise_model fits it)
+                                                  #   forward error of a turn is correlated; noise_estimation fits it)
     odom_heading_drift_sigma_per_m: float = 0.0   # σ_b rad/m: each particle carries a heading bias per metre b, a
     odom_heading_drift_tau_s: float = 0.0         #   Gauss–Markov process (stationary σ_b, correlation time τ s):
     #                                             #   b ← e^(−Δt/τ) b + σ_b √(1 − e^(−2Δt/τ)) ε per predict, the

@@ -78,7 +78,7 @@ def run_noise(args: argparse.Namespace) -> int:
     from dataclasses import asdict, replace
 
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import estimate_noise
+    from estimation.noise_estimation import estimate_noise
     from estimation.odometry_consistency import CHI2_3_95, CHI2_3_MEDIAN, fit_keys, odometry_consistency
 
     if (problem := _self_calibration_problem(args)) is not None:

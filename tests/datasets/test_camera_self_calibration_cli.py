@@ -186,7 +186,7 @@ def _mrclam() -> Path:
 @pytest.mark.slow  # four robots' noise fit (~20 s)
 def test_per_log_calibration_gives_each_log_its_own_calibration_and_tighter_transferable_sigmas(tmp_path):
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     data = _mrclam()
     logs = [read_mrclam(data, robot) for robot in (2, 3, 4, 5)]

@@ -49,7 +49,7 @@ def _robot1(until: float):
     """MRCLAM robot 1's first ``until`` s and its noise model's fit (as ``run_robot`` makes it); the test is skipped
     when the data set is absent."""
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     from .conftest import MRCLAM2
 
@@ -70,7 +70,7 @@ def _scrambled(log, seed: int = 0):
 def _run(mc, log, fit, options, directory, monkeypatch) -> dict:
     """The chain's run on ``log`` as ``main`` makes it with COMMAND and ``options``, with the noise model's fit
     ``fit``: its JSON row; every state it keeps is in ``directory``."""
-    from estimation.noise_model import DATASET_CALIBRATIONS
+    from estimation.noise_estimation import DATASET_CALIBRATIONS
 
     from .conftest import MRCLAM2
 

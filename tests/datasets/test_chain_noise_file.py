@@ -64,7 +64,8 @@ def _command(directory) -> dict:
 def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refuses_to_mix_them(tmp_path, monkeypatch):
     import benchmarks.mrclam_constellation as mc
     import benchmarks.mrclam_seed_vote as vote
-    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_model import NoiseModel
 
     from .conftest import MRCLAM2
 
@@ -98,7 +99,8 @@ def test_a_file_holding_the_in_sample_model_gives_the_same_run_and_the_vote_refu
 @pytest.mark.slow  # the chain once on 300 s of one robot (~15 s CPU)
 def test_the_chain_fits_nothing_from_the_log_and_every_step_is_given_the_file_s_model(tmp_path, monkeypatch):
     import benchmarks.mrclam_constellation as mc
-    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_model import NoiseModel
 
     log = _log(1)
     path = tmp_path / "robot2.toml"
@@ -169,7 +171,7 @@ def test_a_run_resumed_from_a_state_made_with_another_noise_model_is_refused(tmp
     import benchmarks.mrclam_constellation as mc
     from estimation.landmark_smoother import HeadingDrift
     from estimation.named_smoothing import MergeRound, smooth_named
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     from .conftest import MRCLAM2
 

@@ -16,7 +16,7 @@ from tests.datasets.conftest import run_cli
 @pytest.mark.timeout(1200)  # CPU-bound: the chain twice on 150 s of one robot (~4 s CPU each)
 def test_the_chain_scored_against_the_travel_truth_is_the_same_chain_in_another_frame(mrclam_dir, tmp_path):
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     # a model fitted against Vicon's heading (robot 3's first 600 s), given to both runs: the chain's inputs are equal
     estimate_noise([read_mrclam(mrclam_dir, 3, until=600.0)], **DATASET_CALIBRATIONS).model.save(tmp_path / "n.toml")

@@ -14,7 +14,7 @@ from benchmarks.mrclam_chained_names import close_loops, majority, naming_scores
 from estimation.chained_names import chain_log
 from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
-from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
 from .conftest import MRCLAM2
 

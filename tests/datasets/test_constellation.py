@@ -462,7 +462,7 @@ def _robot2(until: float):
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
     from estimation.landmark_smoother import HeadingDrift
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     from .conftest import MRCLAM2
 

@@ -11,7 +11,8 @@ from estimation.dataset_slam import run_landmark_log
 from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
-from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
 from tests.datasets.conftest import run_cli as _cli
 
 KEYS = ("ate_m", "dead_reckoning_ate_m", "landmarks", "true_landmarks", "duplicate_fraction",

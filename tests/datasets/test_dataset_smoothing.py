@@ -12,7 +12,8 @@ from estimation.datasets import read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.landmark_map import LandmarkMap
 from estimation.landmark_smoother import Smoothed
-from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
 from runtime.rerun_read import read_recording
 from tests.datasets.conftest import run_cli as _cli
 

@@ -12,14 +12,8 @@ from hypothesis import strategies as st
 from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.geometry import between, compose, wrap_angle
-from estimation.noise_model import (
-    P3AT_VIDERE_DEFAULT,
-    NoiseModel,
-    NoiseModelError,
-    OdometryNoise,
-    RangeBearingNoise,
-    estimate_noise,
-)
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import P3AT_VIDERE_DEFAULT, NoiseModel, NoiseModelError, OdometryNoise, RangeBearingNoise
 
 
 def test_round_trip_and_defaults(tmp_path):

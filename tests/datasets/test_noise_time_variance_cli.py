@@ -7,7 +7,8 @@ import json
 import math
 
 from estimation.datasets import read_mrclam
-from estimation.noise_model import NoiseModel, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel
 from tests.datasets.conftest import run_cli
 
 

@@ -13,7 +13,8 @@ from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.fastslam.motion import increment_variance
 from estimation.geometry import dead_reckoning, wrap_angle
-from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, OdometryNoise, estimate_noise
+from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+from estimation.noise_model import NoiseModel, OdometryNoise
 from estimation.odometry_consistency import (
     CHI2_3_MEDIAN,
     HORIZONS_S,

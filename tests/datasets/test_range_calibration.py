@@ -11,7 +11,8 @@ from estimation.dataset_slam import run_landmark_log
 from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam import range_bearing_config
 from estimation.geometry import wrap_angle
-from estimation.noise_model import NoiseModel, NoiseModelError, RangeBearingNoise, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, NoiseModelError, RangeBearingNoise
 
 FOV_HALF = 0.55          # rad: MRCLAM's cameras see ±0.55-0.58 rad
 

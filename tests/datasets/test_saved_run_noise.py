@@ -177,7 +177,7 @@ def test_a_saved_state_is_re_examined_with_its_run_s_noise_file(run, tool, monke
     one in sample from the log before session 37)."""
     import importlib
 
-    from estimation import noise_model
+    from estimation import noise_estimation
 
     module = importlib.import_module(f"benchmarks.mrclam_{tool}")
     data, model, states = run
@@ -185,7 +185,7 @@ def test_a_saved_state_is_re_examined_with_its_run_s_noise_file(run, tool, monke
     def no_fit(*args, **kwargs):
         raise AssertionError(f"mrclam_{tool} fitted a noise model from the log")
 
-    for owner in (noise_model, mc, module):
+    for owner in (noise_estimation, mc, module):
         if hasattr(owner, "estimate_noise"):
             monkeypatch.setattr(owner, "estimate_noise", no_fit)
     given = []

@@ -147,8 +147,9 @@ def test_a_vote_of_runs_given_a_noise_file_smooths_with_the_file_s_model_and_fit
     states and smooths the voted names with that file's model, and fits none from the log (session 37)."""
     from benchmarks import mrclam_constellation as chain
     from benchmarks import mrclam_seed_vote
-    from estimation import noise_model
-    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+    from estimation import noise_estimation
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_model import NoiseModel
 
     log, in_sample, config, drift = _robot2(until=120.0)
     path = tmp_path / "model.toml"
@@ -160,7 +161,7 @@ def test_a_vote_of_runs_given_a_noise_file_smooths_with_the_file_s_model_and_fit
     def no_fit(*args, **kwargs):
         raise AssertionError("the vote fitted a noise model from the log")
 
-    for owner in (noise_model, chain, mrclam_seed_vote):
+    for owner in (noise_estimation, chain, mrclam_seed_vote):
         if hasattr(owner, "estimate_noise"):
             monkeypatch.setattr(owner, "estimate_noise", no_fit)
     given = []

@@ -157,7 +157,7 @@ def test_mrclam_robot_1s_frame_fails_on_its_translation_not_its_rotation():
     frame's translation is taken out, not its rotation, whose error is within its σ."""
     from benchmarks.smoother_frame_diagnosis import CALIBRATED, capture
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import estimate_noise
+    from estimation.noise_estimation import estimate_noise
 
     log = read_mrclam(DATA, 1)
     cap = capture(log, estimate_noise([log], **CALIBRATED).model)

@@ -12,14 +12,8 @@ from estimation.datasets import RangeBearingLog, read_mrclam
 from estimation.fastslam import FastSLAMConfig
 from estimation.fastslam.motion import increment_variance, turn_spans, turning
 from estimation.geometry import wrap_angle
-from estimation.noise_model import (
-    NoiseModel,
-    NoiseModelError,
-    OdometryNoise,
-    RangeBearingNoise,
-    estimate_noise,
-    with_fastslam,
-)
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, RangeBearingNoise, with_fastslam
 
 
 def _log_with_turns(rng, turn_error_sigma: float) -> RangeBearingLog:

@@ -381,7 +381,7 @@ def test_robot_1_s_calibration_does_not_depend_on_the_filter_seed_that_starts_it
     if not (MRCLAM2 / "Robot1_Odometry.dat.gz").is_file() and not (MRCLAM2 / "Robot1_Odometry.dat").is_file():
         pytest.skip(f"MRCLAM data set 2 not found in {MRCLAM2.resolve()} (../shared/data/mrclam, see its README)")
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     others = estimate_noise([read_mrclam(MRCLAM2, robot, truth_heading="travel") for robot in (2, 3, 4, 5)],
                             **DATASET_CALIBRATIONS, calibration_per_log=True).model
@@ -408,7 +408,7 @@ def test_robot_5_without_a_tenth_of_its_sightings_converges_with_the_odometry_s_
     if not (MRCLAM2 / "Robot5_Odometry.dat.gz").is_file() and not (MRCLAM2 / "Robot5_Odometry.dat").is_file():
         pytest.skip(f"MRCLAM data set 2 not found in {MRCLAM2.resolve()} (../shared/data/mrclam, see its README)")
     from estimation.datasets import read_mrclam
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
 
     others = estimate_noise([read_mrclam(MRCLAM2, robot, truth_heading="travel") for robot in (1, 2, 3, 4)],
                             **DATASET_CALIBRATIONS, calibration_per_log=True).model

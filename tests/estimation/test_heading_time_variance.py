@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from estimation.datasets import RangeBearingLog
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.fastslam.motion import increment_variance
-from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise
 from estimation.observations import OdometryIncrement
 from tests.datasets.test_noise_model import _chain
 

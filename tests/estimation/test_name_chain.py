@@ -124,7 +124,7 @@ class _Told(ChainObserver):
 def _robot1(until: float):
     from estimation.datasets import read_mrclam
     from estimation.fastslam import range_bearing_config
-    from estimation.noise_model import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
     from tests.datasets.conftest import MRCLAM2
 
     if not MRCLAM2.is_dir():

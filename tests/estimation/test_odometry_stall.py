@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from estimation.datasets import RangeBearingLog
 from estimation.datasets.landmark_log import integrate_velocities
 from estimation.fastslam import FastSLAM, FastSLAMConfig
-from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise, estimate_noise
+from estimation.noise_estimation import estimate_noise
+from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise
 from estimation.observations import OdometryIncrement
 from estimation.odometry_stall import CommandDips, command_dips, command_stall_variance, fit_stall, stall_variance
 
