@@ -216,7 +216,7 @@ def framed_at(problem: LandmarkLogProblem, solution: Smoothed, frame: FrameProbl
     return FrameProblem(frame.inverse, frame.free, seen, width, functional, gain, covariance)
 
 
-_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])    # J: J v is v turned by +90°
+QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])    # J: J v is v turned by +90°
 
 
 def frame_functional(solution: Smoothed, seen: np.ndarray, width: int, t: int, n_free: int,
@@ -243,7 +243,7 @@ def frame_functional(solution: Smoothed, seen: np.ndarray, width: int, t: int, n
     functional[:, columns] = (per_landmark @ rotation.T).reshape(3, -1)         # G_j Rᵀ
     at = width * (pose - 1)
     functional[:, at:at + 2] = -per_landmark.sum(axis=1) @ rotation.T
-    functional[:, at + 2] = -np.einsum("akc,kc->a", per_landmark, seen_from @ _TURN.T)
+    functional[:, at + 2] = -np.einsum("akc,kc->a", per_landmark, seen_from @ QUARTER_TURN.T)
     return functional
 
 

@@ -42,6 +42,7 @@ import scipy.sparse as sp
 
 from .frame_reliability import (
     DELTA_0,
+    QUARTER_TURN,
     FrameProblem,
     bias_in_sigmas,
     frame_functional,
@@ -55,7 +56,6 @@ FRAMES = ("first-sighting", "checked")
 FIRST_SIGHTING, CHECKED = FRAMES
 _CANDIDATES_PER_SOLVE = 32      # candidate poses whose three right-hand sides share one solve
 _NO_REDUNDANCY = 1e-12          # vᵀ R v below this share of vᵀ v: nothing checks the image's common error
-_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
 @dataclass(frozen=True)
@@ -213,7 +213,7 @@ def reframe(problem: LandmarkLogProblem, solution: Smoothed, pose: int,
     a = np.kron(np.eye(n_seen), rotation_t)
     b = np.zeros((2 * n_seen, 3))
     b[:, :2] = np.tile(-rotation_t, (n_seen, 1))
-    b[:, 2] = -(seen_from[seen] @ _TURN.T).ravel()
+    b[:, 2] = -(seen_from[seen] @ QUARTER_TURN.T).ravel()
     lm = slice(width * t, width * t + 2 * n_seen)
     cross = a @ column[lm] @ b.T
     joint_seen = a @ frame.inverse.dense @ a.T + cross + cross.T + b @ own @ b.T
@@ -236,7 +236,7 @@ def reframe(problem: LandmarkLogProblem, solution: Smoothed, pose: int,
     a_pose[:2, :2] = rotation_t
     b_pose = np.zeros((len(which), 3, 3))
     b_pose[:, :2, :2] = -rotation_t
-    b_pose[:, :2, 2] = -(poses[which, :2] @ _TURN.T)
+    b_pose[:, :2, 2] = -(poses[which, :2] @ QUARTER_TURN.T)
     b_pose[:, 2, 2] = -1.0
     rows = width * (which[:, None] - 1) + np.arange(3)
     with_k = column[rows]                                                        # (P, 3, 3) Σ_ik
