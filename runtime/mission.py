@@ -761,8 +761,13 @@ class Mission:
                 "ms_per_frame": {k: round(1000.0 * v / frames, 2) for k, v in s.stage_seconds.items()},
                 "map_file": str(cfg.out / f"{r.name}.npz"), "ply_file": str(cfg.out / f"{r.name}.ply"),
                 "trajectory_files": [str(p) for p in trajectory_files[r.name].values()],
+                # records the sensor log's writer had no room for (a disk slower than the sensors): the log lacks
+                # them, so a replay does not rebuild this map; None without a log
+                "sensor_log_dropped": None if r.onboard.sensor_log is None else r.onboard.sensor_log.dropped,
             }
         for name, figures in robots.items():
+            if figures["sensor_log_dropped"] and self.logger is not None:  # the command says it on stderr
+                self.logger.log_event(duration, sensor_log_dropped_line(name, figures["sensor_log_dropped"]), "WARN")
             dropped, received = sum(figures["frames_dropped_at_head"].values()), figures["frames_received"]
             if dropped:
                 reasons = "; ".join(f"{n} {why}" for why, n in figures["frames_dropped_at_head"].items())
@@ -786,6 +791,12 @@ class Mission:
         if self.logger is not None:
             self._close_recording(summary)
         return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history, list(self.failures))
+
+
+def sensor_log_dropped_line(robot: str, dropped: int) -> str:
+    """What to say of a sensor log that lost records to a disk that did not keep up."""
+    return (f"{robot}'s sensor log dropped {dropped} record{'s' if dropped != 1 else ''} (the disk did not keep up): "
+            "the log is incomplete, and a replay of it will not rebuild the live map")
 
 
 def _write_error(exc: BaseException, path: Path | str | None = None) -> str:

@@ -247,7 +247,7 @@ def run_mission_command(args: argparse.Namespace, robot_url: str = "mock") -> in
 
 
 def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> int:
-    from runtime.mission import Mission, install_stop_signals
+    from runtime.mission import Mission, install_stop_signals, sensor_log_dropped_line
     from runtime.report import format_summary
 
     prog = f"p3at {args.command}" if getattr(args, "command", None) else "p3at"   # its errors name the command
@@ -290,6 +290,9 @@ def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> 
     if result.recording is not None:
         print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
+    for name, figures in result.summary["robots"].items():  # a sensor log with holes is said even with --quiet
+        if figures.get("sensor_log_dropped"):
+            print(f"{prog}: warning: {sensor_log_dropped_line(name, figures['sensor_log_dropped'])}", file=sys.stderr)
     if result.failures:  # a stage died: the figures above are what was there when it stopped
         print(failure_line(prog, result.failures), file=sys.stderr)
     return 1 if result.failures else 0
