@@ -10,7 +10,8 @@ server at ``time_scale`` x needs that many times its CPU per simulated second fo
 given less falls behind without bound (session 46: drives at 10x and 25x failed at nice 10 and nice 19 beside busy
 loops). The rest runs on the wall clock at 1x, because the wall clock is its subject: the handshake, the sonar, a
 connected driver, a server closed mid-drive, a robot restarted (the driver's link, keep-alive and reconnection in
-real time); each needs about 1 % of a core (measured, session 47).
+real time); at 1x their server needs about 1 % of a core (6.8-10 ms of CPU per simulated second, session 46), and
+their waits are failure bounds.
 
 Speed independence: every real-time wait below is a failure bound (FAILURE_BOUND), never the expected duration.
 Links are given a timeout no loaded machine reaches (LINK_TIMEOUT) unless the test is about losing the link, and
