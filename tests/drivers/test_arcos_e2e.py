@@ -10,8 +10,8 @@ server at ``time_scale`` x needs that many times its CPU per simulated second fo
 given less falls behind without bound (session 46: drives at 10x and 25x failed at nice 10 and nice 19 beside busy
 loops). The rest runs on the wall clock at 1x, because the wall clock is its subject: the handshake, the sonar, a
 connected driver, a server closed mid-drive, a robot restarted (the driver's link, keep-alive and reconnection in
-real time); at 1x their server needs about 1 % of a core (6.8-10 ms of CPU per simulated second, session 46), and
-their waits are failure bounds.
+real time); at 1x their server's thread needs 1.6 % of a core (measured alone, session 47), and their waits are
+failure bounds.
 
 Speed independence: every real-time wait below is a failure bound (FAILURE_BOUND), never the expected duration.
 Links are given a timeout no loaded machine reaches (LINK_TIMEOUT) unless the test is about losing the link, and
@@ -242,7 +242,7 @@ def test_watchdog_stops_a_robot_whose_client_went_silent(transport: str) -> None
 
 def test_driver_reconnects_after_the_robot_restarts_with_motors_disabled(virtual_robot) -> None:
     """On the wall clock, which is its subject: the driver notices the closed port and reconnects in real time (its
-    backoff, the handshake's replies). At 1x (it ran at 2x until session 47) the served robot needs about 1 % of a
+    backoff, the handshake's replies). At 1x (it ran at 2x until session 47) the served robot needs 1.6 % of a
     core; every wait is a failure bound."""
     robot = virtual_robot(open_world(), (0.0, 0.0, 0.0))
     events: list[LinkEvent] = []

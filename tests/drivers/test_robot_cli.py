@@ -50,8 +50,8 @@ def _p3at(*args: str) -> subprocess.Popen:
 @pytest.fixture
 def served() -> Iterator:
     """A virtual robot on the wall clock, the commands' subject (``p3at robot`` talks to a robot in real time), at
-    1x: its thread needs about 1 % of a core to keep up (it ran at 2x until session 47; a server at k x needs k
-    times its CPU per simulated second each wall second, and a process given less falls behind without bound)."""
+    1x: its thread needs 1.6 % of a core to keep up, 2.3 % at 2x, where it ran until session 47 (measured alone); its
+    physics, which piles up when the thread is starved (a process given less falls behind without bound), halves."""
     world = World.load()
     server = serve_tcp(world, "robot1", port=0, seed=3)
     yield server

@@ -17,7 +17,7 @@ LINK = ["--link-timeout", "600"]   # not about the link: no starved thread may c
 def test_the_line_of_the_robot_at_rest_is_stamped_after_its_braking(capsys) -> None:
     # 100 mm/s² in the robot's CONFIG: from ~0.6 m/s it needs ~6 s of its own time to stop, as many of the wall's
     # (more on a loaded machine, never less). The wall clock is the command's subject; at 1x (2x until session 47) the
-    # robot's thread needs about 1 % of a core to keep up.
+    # robot's thread needs 1.6 % of a core to keep up (2.3 % at 2x).
     walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
     with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
                    firmware=FirmwareDefaults(trans_accel=2000, trans_decel=100)) as server:

@@ -39,7 +39,7 @@ def test_a_robot_slower_than_the_wall_clock_is_waited_for_until_it_stops(slow_ro
 def test_a_robot_that_brakes_gently_is_waited_for_as_long_as_its_deceleration_says(capsys) -> None:
     # 100 mm/s² (a third of ARCOS's default), in the robot's CONFIG: from 0.6 m/s it needs 6 s of its own time to
     # stop, 60 state packets, twice what a fixed 3 s allowed (G's proposal; the test is G's). On the wall clock (the
-    # command's subject) at 1x, where the robot's thread needs about 1 % of a core; until session 47 it ran at 2x
+    # command's subject) at 1x, where the robot's thread needs 1.6 % of a core; until session 47 it ran at 2x
     # for 1 s, the same 2 s of the robot's time as --seconds 2 now.
     walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
     with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
