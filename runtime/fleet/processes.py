@@ -254,6 +254,16 @@ def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, ou
 
 
 def run_processes_demo(args: argparse.Namespace) -> int:
+    from runtime.mission_cli import hold_stop_signals
+
+    noted, restore_held = hold_stop_signals()  # first: a Ctrl-C during the imports below is not lost (session 47)
+    try:
+        return _run_processes_demo(args, noted)
+    finally:
+        restore_held()
+
+
+def _run_processes_demo(args: argparse.Namespace, noted: list[int]) -> int:
     from mocks.world import World
     from runtime.fleet.options import open_exchange
     from runtime.mission import install_stop_signals
@@ -272,6 +282,8 @@ def run_processes_demo(args: argparse.Namespace) -> int:
         print(f"p3at demo: the world '{world.name}' has {len(names)} start poses, {args.robots} robots asked",
               file=sys.stderr)
         return 2
+    if noted:  # stopped while starting: no robot process is started, no exchange opened, nothing written
+        return 128 + noted[0]
     progress = Progress(not args.quiet)
     port, fleet = free_port(), f"demo{int(time.time())}"
     node_box: list[FusionNode] = []
@@ -300,6 +312,12 @@ def run_processes_demo(args: argparse.Namespace) -> int:
     stop = threading.Event()
     processes: dict[str, subprocess.Popen] = {}
     restore = install_stop_signals(stop.set)
+    if noted:  # stopped while the exchange and the recording opened (Zenoh's import): no robot process started
+        restore()
+        exchange.close()
+        if logger is not None:
+            logger.close()
+        return 128 + noted[0]
     fusion_thread = threading.Thread(target=node.run, args=(stop,), name="fusion-node", daemon=True)
     start = time.monotonic()
     try:

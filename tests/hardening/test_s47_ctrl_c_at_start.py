@@ -42,6 +42,26 @@ mission_cli.config_from_args = config_from_args
 sys.exit(main(sys.argv[1:]))
 """
 
+# demo --processes opens its Zenoh exchange (importing zenoh) before it starts the robots: the Ctrl-C lands there
+CTRL_C_IN_A_CALLBACK_PROCESSES = """
+import os, signal, sys, weakref
+import runtime.fleet.options as options
+from runtime.cli import main
+
+opening = options.open_exchange
+
+class Module: pass
+
+def open_exchange(*args, **kwargs):
+    module = Module()
+    lock = weakref.ref(module, lambda ref: os.kill(os.getpid(), signal.SIGINT))
+    del module
+    return opening(*args, **kwargs)
+
+options.open_exchange = open_exchange
+sys.exit(main(sys.argv[1:]))
+"""
+
 
 @pytest.mark.parametrize("command", ["run", "demo"])
 def test_a_ctrl_c_while_the_command_starts_ends_it_before_any_robot_moves(tmp_path, command):
@@ -53,4 +73,16 @@ def test_a_ctrl_c_while_the_command_starts_ends_it_before_any_robot_moves(tmp_pa
     assert "Exception ignored" not in done.stderr, done.stderr  # before: the Ctrl-C printed as ignored...
     assert done.returncode == 130, (done.returncode, done.stderr)  # ...and the mission ran its 30 s, exit 0
     assert not out.exists() or not list(out.glob("robot*"))  # no robot was set up: no map, no log
+    assert done.stdout == ""
+
+
+def test_a_ctrl_c_while_demo_processes_starts_ends_it_before_any_robot_process_starts(tmp_path):
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1")
+    done = subprocess.run([sys.executable, "-c", CTRL_C_IN_A_CALLBACK_PROCESSES, "demo", "--processes",
+                           "--particles", "10", "--seconds", "5", "--rerun", "none", "--quiet", "--out", str(out)],
+                          cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert "Exception ignored" not in done.stderr, done.stderr
+    assert done.returncode == 130, (done.returncode, done.stderr)  # before: the robots ran their 5 s, exit 0
+    assert not out.exists() or not list(out.glob("robot*"))  # no robot process started
     assert done.stdout == ""
