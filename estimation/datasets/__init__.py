@@ -23,6 +23,7 @@ from .mrclam import (
     read_landmark_truth,
     read_mrclam,
 )
+from .repeats import RepeatedReadings, drop_repeated_readings, repeated_readings
 from .stamps import StampQuantization, stamp_quantization
 from .tables import find_table, read_table
 from .truth_heading import TravelHeadingOffset, align_truth_heading, travel_heading_offset
@@ -31,5 +32,5 @@ __all__ = [
     "BARCODE_POLICIES", "BarcodeCheck", "BarcodeVerdict", "DatasetError", "RangeBearingLog", "check_barcodes",
     "find_table", "integrate_velocities", "mrclam_robots", "read_barcodes", "read_landmark_truth", "read_mrclam",
     "read_table", "StampQuantization", "stamp_quantization", "TRUTH_HEADINGS", "TravelHeadingOffset",
-    "align_truth_heading", "travel_heading_offset",
+    "align_truth_heading", "travel_heading_offset", "RepeatedReadings", "drop_repeated_readings", "repeated_readings",
 ]
