@@ -138,6 +138,13 @@ def _register_dataset(sub) -> None:
                              "uncertainty of a stamp one period P apart from the next (the log's median, 0.24 s on "
                              "MRCLAM: 0.069 s), as the image's bearings' joint covariance (estimation.image_timing). "
                              "Off by default; needs the smoother (--association id)")
+    parser.add_argument("--drop-repeats", choices=("readings", "images"),
+                        help="readings: drop the readings that repeat their landmark's previous reading word for "
+                             "word (range and bearing equal: the camera's held reading, one measurement reported again "
+                             "under a later stamp), keeping its first report at its own stamp; images: also the other "
+                             "readings of each image holding one (stamped as late as the held reading). Before the "
+                             "noise fit and the filter (estimation.datasets.repeats); --json says how many "
+                             "(repeated_readings_dropped, repeated_image_mates_dropped). Off by default")
     parser.add_argument("--chain", action="store_true",
                         help="with --association unknown: instead of the filter's own associations, the chain of "
                              "benchmarks/mrclam_constellation with session 30's recipe (estimation.name_chain): "

@@ -63,7 +63,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
     from estimation.dataset_slam import run_landmark_log
-    from estimation.datasets import read_mrclam
+    from estimation.datasets import drop_repeated_readings, read_mrclam
     from estimation.fastslam import range_bearing_config
     from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
 
@@ -80,6 +80,9 @@ def run_dataset(args: argparse.Namespace) -> int:
         # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,
                           truth_heading=args.truth_heading)
+        repeats = None
+        if args.drop_repeats:   # before the noise fit too: a repeat is not a second sample of the sensor's error
+            log, repeats = drop_repeated_readings(log, whole_images=args.drop_repeats == "images")
         if args.noise:
             noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
         else:
@@ -131,6 +134,10 @@ def run_dataset(args: argparse.Namespace) -> int:
     metrics = dict(run.metrics, out=str(args.out), robot=args.robot, dataset=log.name, seed=args.seed,
                    noise=noise_source, notes=list(log.notes), recording=args.rerun, warnings=warnings,
                    stamp_resolution=[q.as_dict() for q in log.stamp_resolution])
+    if repeats is not None:
+        metrics["repeated_readings_dropped"] = repeats.count
+        if args.drop_repeats == "images":
+            metrics["repeated_image_mates_dropped"] = repeats.mates_count
     if args.json:
         # every warning on stderr too, one line each: a user piping the JSON still sees them
         for warning in metrics["warnings"]:
