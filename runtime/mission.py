@@ -538,10 +538,7 @@ class Mission:
                 break
             if t >= next_progress:
                 self.progress(self._progress_line(t))
-                # a fleet exchange (Zenoh) gets each robot's health once a second (runtime/fleet/status.py)
-                publish_robot_status(self.exchange, [(r.onboard, self._drivers.get(r.name)) for r in self.robots],
-                                     clock="simulated" if self.lockstep else "wall",
-                                     wall_time=time.monotonic() - self._wall_start, failures=self.failures)
+                self._publish_status()   # a fleet exchange (Zenoh) gets each robot's health once a second
                 next_progress = t + 1.0
             if t >= next_fusion:
                 self._fuse_guarded(t)
@@ -549,6 +546,16 @@ class Mission:
             if t >= next_save:
                 self._save_maps()
                 next_save = t + cfg.map_save_interval
+        # the last status says the loop is over: a fleet that hears no more from this robot while it saves its
+        # files knows it is not stuck (p3at demo --processes stops a robot whose statuses stop mid-mission)
+        self._publish_status(mission_over=True)
+
+    def _publish_status(self, mission_over: bool = False) -> None:
+        """Each robot's health on a fleet exchange (runtime/fleet/status.py; nothing on one without statuses)."""
+        publish_robot_status(self.exchange, [(r.onboard, self._drivers.get(r.name)) for r in self.robots],
+                             clock="simulated" if self.lockstep else "wall",
+                             wall_time=time.monotonic() - self._wall_start, failures=self.failures,
+                             mission_over=mission_over)
 
     def _check_links(self, t: float) -> None:
         """Threads that report their faults as state: a sensor log whose writer failed and a virtual robot whose

@@ -465,14 +465,16 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
 def _stop_stalled(processes: dict, status: dict, seen: dict, stalled: dict, stopped_at: dict, progress) -> None:
     """One look at every running robot's progress (its status's session and stamp): a robot stalled for
     ``ROBOT_STALL_AFTER`` s gets SIGTERM, and SIGKILL ``STALL_GRACE`` s later if it is still there. A robot that has
-    sent no status yet is left alone (its start-up takes what the machine's load makes it take)."""
+    sent no status yet is left alone (its start-up takes what the machine's load makes it take), and so is one whose
+    last status says its mission is over (``mission_over``: it is saving its files, and sends no more)."""
     now = time.monotonic()
     for name, s in status.items():
         mark = (s.get("session"), s.get("stamp"))
         if name not in seen or seen[name][0] != mark:
             seen[name] = (mark, now)
     for name, process in processes.items():
-        if process.poll() is not None or name not in seen:
+        if process.poll() is not None or name not in seen or (status.get(name, {}).get("health") or {}).get(
+                "mission_over") is True:
             continue
         if name in stopped_at:
             if now - stopped_at[name] >= STALL_GRACE:

@@ -11,7 +11,8 @@ Health fields (a flat JSON object, docs/fleet.md): ``clock`` (``simulated`` or `
 ``wall_time`` (s since the mission started), ``frames_received``, ``frames_processed``, ``frames_dropped`` (the SLAM
 stage was behind), ``frames_without_odometry``, ``camera_errors``, ``ms_<stage>`` (mean wall-clock ms per frame of
 ``frontend``, ``predict``, ``update``), ``battery_volts``, ``link`` (``up``/``down``), ``link_reconnects``,
-``route_done``, ``last_error`` (the robot's last stage failure or runtime error, or null).
+``route_done``, ``last_error`` (the robot's last stage failure or runtime error, or null), ``mission_over`` (the
+mission loop has ended: the last status, sent as the robot starts saving its files).
 """
 from __future__ import annotations
 
@@ -26,8 +27,10 @@ PRINT_PERIOD = 10.0          # s of wall time between two printed status lines o
 MAX_ERROR_TEXT = 200         # characters of last_error sent
 
 
-def robot_health(onboard, driver=None, *, clock: str, wall_time: float, failures: Sequence = ()) -> dict:
-    """The health figures of one robot's runtime (an ``Onboard``) and its ARCOS driver (or None)."""
+def robot_health(onboard, driver=None, *, clock: str, wall_time: float, failures: Sequence = (),
+                 mission_over: bool = False) -> dict:
+    """The health figures of one robot's runtime (an ``Onboard``) and its ARCOS driver (or None). ``mission_over``:
+    the mission loop has ended, the robot is saving its files (no more statuses will come)."""
     s = onboard.stats
     frames = max(1, s.frames_processed)
     health: dict = {
@@ -45,11 +48,12 @@ def robot_health(onboard, driver=None, *, clock: str, wall_time: float, failures
     health["route_done"] = onboard.route_done.is_set()
     errors = [str(f) for f in failures if getattr(f, "robot", None) == onboard.robot] + list(onboard.errors)
     health["last_error"] = errors[-1][:MAX_ERROR_TEXT] if errors else None
+    health["mission_over"] = bool(mission_over)
     return health
 
 
 def publish_robot_status(exchange, robots: Iterable[tuple], *, clock: str, wall_time: float,
-                         failures: Sequence = ()) -> None:
+                         failures: Sequence = (), mission_over: bool = False) -> None:
     """Each ``(onboard, driver)``'s status on ``exchange`` (if it offers ``publish_status``). Never raises: a
     status that cannot be built or sent is logged, and the robot goes on."""
     publish = getattr(exchange, "publish_status", None)
@@ -60,7 +64,8 @@ def publish_robot_status(exchange, robots: Iterable[tuple], *, clock: str, wall_
             pose = onboard.pose_estimate()
             publish(onboard.robot, stamp=float(onboard.mission_time), landmarks=onboard.stats.map_landmarks,
                     pose=None if pose is None else [float(v) for v in pose],
-                    health=robot_health(onboard, driver, clock=clock, wall_time=wall_time, failures=failures))
+                    health=robot_health(onboard, driver, clock=clock, wall_time=wall_time, failures=failures,
+                                               mission_over=mission_over))
         except Exception as e:  # noqa: BLE001 - health reports must never stop a robot
             log.warning("fleet status of %s not sent: %s: %s", onboard.robot, type(e).__name__, e)
 

@@ -149,14 +149,18 @@ def test_p3at_run_publishes_its_health_once_a_second_under_its_name(tmp_path):
             time.sleep(0.05)
         stdout, stderr = run.communicate(timeout=150)
         assert run.returncode == 0, stderr
-        # the mission loop's last tick is within its last second; its status may still be on the way
+        # the mission loop's last status says the loop is over (the robot then saves its files, and a fleet that
+        # hears nothing more knows it is not stuck); it may still be on the way
         end = time.monotonic() + 30.0
         while time.monotonic() < end and node.status().get("robot2", {}).get("health", {}).get(
-                "mission_time", 0.0) < seconds - 1.5:
+                "mission_over") is not True:
             time.sleep(0.05)
         last = node.status().get("robot2")
     assert last is not None, "no status from robot2"
+    assert last["health"]["mission_over"] is True, last
     seen[last["health"]["mission_time"]] = last
+    over = [seen[t]["health"]["mission_over"] for t in sorted(seen)]
+    assert False in over and over == sorted(over)  # not over while the mission ran; over only at its end
     summary = json.loads(stdout)["robots"]["robot2"]
     times = sorted(seen)
     frames = [seen[t]["health"]["frames_processed"] for t in times]
