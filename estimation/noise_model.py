@@ -463,12 +463,3 @@ def increment_variances(log: RangeBearingLog, noise: NoiseModel, config, frame_t
     if (stalls := command_stall_variance(log.velocities, noise, frame_times)) is not None:
         variances = variances + stalls
     return variances
-
-
-# TEMPORARY (session 47): remove when runtime/commands/slam_dataset.py imports from estimation.noise_estimation
-# (helper S edits that file this session; these two names live in estimation.noise_estimation)
-def __getattr__(name: str):
-    if name in ("DATASET_CALIBRATIONS", "estimate_noise"):
-        from . import noise_estimation
-        return getattr(noise_estimation, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -65,7 +65,8 @@ def run_dataset(args: argparse.Namespace) -> int:
     from estimation.dataset_slam import run_landmark_log
     from estimation.datasets import drop_repeated_readings, read_mrclam
     from estimation.fastslam import range_bearing_config
-    from estimation.noise_model import DATASET_CALIBRATIONS, NoiseModel, estimate_noise
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_model import NoiseModel
 
     try:
         if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
