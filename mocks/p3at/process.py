@@ -341,8 +341,14 @@ def serve_tcp_process(world: World, robots: Sequence[RobotSpec], *, host: str = 
 
 # -- the child ------------------------------------------------------------------------------------------------
 def _say(message: dict) -> None:
-    sys.stdout.write(json.dumps(message) + "\n")
-    sys.stdout.flush()
+    """One line to the parent; nothing once the parent is gone (a killed ``p3at run --realtime``: its end of the
+    pipe closed, nobody is left to tell, and a traceback would only reach the user's terminal)."""
+    try:
+        sys.stdout.write(json.dumps(message) + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # Python flushes stdout once more at exit: let that go to /dev/null instead of failing there too
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 def _raise_priority(nice: int) -> str:

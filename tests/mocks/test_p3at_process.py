@@ -136,3 +136,37 @@ def test_a_pose_table_gives_back_each_slots_last_write(writes) -> None:
         reader.close()
         table.close(unlink=True)
     assert not table.path.exists()
+
+
+A_PARENT_THAT_DIES = """
+import os, signal, sys
+from mocks.p3at import RobotSpec, serve_tcp_process
+from mocks.world import World
+
+robots = serve_tcp_process(World.load(), [RobotSpec("robot1")])
+print(robots.pid, flush=True)
+os.kill(os.getpid(), signal.SIGKILL)  # as a killed p3at run --realtime: the child's pipes lose their other end
+"""
+
+
+@pytest.mark.timeout(600)
+def test_a_robots_process_whose_parent_was_killed_ends_quietly() -> None:
+    """Its goodbye to the dead parent's pipe raised BrokenPipeError: a 7-line traceback on the user's terminal
+    (the child shares the parent's stderr) after a killed ``p3at run --realtime`` (session 47, F's audit)."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(repo))
+    parent = subprocess.Popen([sys.executable, "-c", A_PARENT_THAT_DIES], cwd=repo, env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # stderr ends when its last writer, the child, has exited (it notices the closed stdin within 0.1 s)
+    stdout, stderr = parent.communicate(timeout=300)
+    assert parent.returncode == -9 and stdout.strip().isdigit()
+    assert stderr == "", stderr
+    stat, deadline = Path(f"/proc/{int(stdout)}/stat"), time.monotonic() + 120  # bounds a broken run only
+    while stat.exists() and stat.read_text().rsplit(")", 1)[1].split()[0] != "Z" and time.monotonic() < deadline:
+        time.sleep(0.05)  # it ends (gone, or a zombie where the container's init reaps no orphans)
+    assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
