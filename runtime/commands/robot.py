@@ -218,7 +218,8 @@ def _drive(args: argparse.Namespace) -> int:
                         robot.stop()
                     except NotConnectedError:
                         pass  # lost in between: the robot's watchdog stops it
-            stopped = _stopped_state(robot)   # waits for the robot to stand: the line's time is after the wait
+            stopped = _stopped_state(robot, args.vel, args.rvel)  # waits for the robot to stand: the line's time
+            # is after the wait
             show(time.monotonic() - start, stopped)
     except BadFileError as e:
         return _fail("drive", e, EXIT_BAD_INPUT)
@@ -227,14 +228,16 @@ def _drive(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stopped_state(robot: Any) -> Any:
+def _stopped_state(robot: Any, v: float, w: float) -> Any:
     """The robot's first state that reports it stopped, waited for in the robot's own time: its state packets, as
     many as twice the stop takes at its own deceleration, plus STOP_MARGIN_CYCLES (:func:`_stop_cycles`). A starved
     simulator's packets, like its motion, come slower, so it gets the same travel to stop in as a real robot; a link
     that goes silent ends the wait as lost (``--link-timeout``). A robot still moving after them is an error
-    (exit 1), as a silent one is."""
+    (exit 1), as a silent one is. The stop is sized from the larger of the last reported speed and the commanded
+    ``v`` (m/s), ``w`` (rad/s): the last state may predate the acceleration (a packet or more old, or a starved
+    simulator's), and the robot never exceeds what it was told."""
     first = robot.state
-    cycles = _stop_cycles(robot.config, first.v, first.w)
+    cycles = _stop_cycles(robot.config, max(abs(first.v), abs(v)), max(abs(first.w), abs(w)))
     state = _wait_in_packets(robot, first, cycles, lambda s: s.v == 0.0 and s.w == 0.0)
     if state.v != 0.0 or state.w != 0.0:
         raise DriverTimeoutError(f"{robot.url}: the robot still reports v {state.v:+.3f} m/s, w {state.w:+.3f} rad/s "

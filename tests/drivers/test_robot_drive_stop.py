@@ -56,3 +56,18 @@ def test_info_waits_for_a_whole_sonar_round_of_a_robot_slower_than_the_wall_cloc
     assert main(["robot", "info", slow_robot.url, "--json", *LINK]) == 0
     sonars = json.loads(capsys.readouterr().out)["state"]["sonars"]
     assert len(sonars) == 16 and all(s["range_m"] is not None for s in sonars)
+
+
+def test_a_stop_during_a_hard_acceleration_is_waited_for_from_the_commanded_speed(capsys) -> None:
+    # 2 m/s² up, 20 mm/s² down, stopped 0.05 s into the drive: the robot's last state (a packet old, or older on a
+    # starved machine) predates the acceleration, but the robot has ~0.08 m/s when the stop arrives, and braking from
+    # there takes it ~40 of its packets. The wait was sized from the report: 10 packets from rest ("the robot still
+    # reports v +0.081 m/s ... 10 state packets after the stop command", 4 of 4 runs); now from the larger of it
+    # and the 0.6 m/s commanded, which the robot never exceeds. On the wall clock at 1x, as the other drives.
+    walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
+    with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
+                   firmware=FirmwareDefaults(trans_accel=2000, trans_decel=20)) as server:
+        assert main(["robot", "drive", server.url, "--vel", "0.6", "--seconds", "0.05", "--json", *LINK]) == 0, \
+            capsys.readouterr().err
+    last = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert last["v"] == 0.0 and last["x"] > 0.0   # it moved, and stopped
