@@ -25,6 +25,18 @@ def slow_robot() -> Iterator:
     server.close()
 
 
+def drive_on_open_ground(capsys, trans_decel: int, seconds: float) -> dict:
+    """``p3at robot drive --vel 0.6`` for ``seconds`` on a robot in an open field that accelerates at 2 m/s² and
+    brakes at ``trans_decel`` mm/s² (its CONFIG), on the wall clock at 1x: the drive's last line, once it ended
+    with exit 0."""
+    walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
+    with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
+                   firmware=FirmwareDefaults(trans_accel=2000, trans_decel=trans_decel)) as server:
+        assert main(["robot", "drive", server.url, "--vel", "0.6", "--seconds", f"{seconds:g}", "--json",
+                     *LINK]) == 0, capsys.readouterr().err
+    return json.loads(capsys.readouterr().out.splitlines()[-1])
+
+
 def test_a_robot_slower_than_the_wall_clock_is_waited_for_until_it_stops(slow_robot, capsys) -> None:
     # 6 s of wall clock are 1.5 s of the robot's: it reaches ~0.4 m/s (ARIA's default 0.3 m/s² acceleration), and
     # decelerating from there takes it ~1.3 s of its own time, ~5 s of the wall's: more than the 2 s of wall clock
@@ -41,12 +53,7 @@ def test_a_robot_that_brakes_gently_is_waited_for_as_long_as_its_deceleration_sa
     # stop, 60 state packets, twice what a fixed 3 s allowed (G's proposal; the test is G's). On the wall clock (the
     # command's subject) at 1x, where the robot's thread needs 1.6 % of a core; until session 47 it ran at 2x
     # for 1 s, the same 2 s of the robot's time as --seconds 2 now.
-    walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
-    with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
-                   firmware=FirmwareDefaults(trans_accel=2000, trans_decel=100)) as server:
-        assert main(["robot", "drive", server.url, "--vel", "0.6", "--seconds", "2", "--json", *LINK]) == 0, \
-            capsys.readouterr().err
-    last = json.loads(capsys.readouterr().out.splitlines()[-1])
+    last = drive_on_open_ground(capsys, trans_decel=100, seconds=2.0)
     assert last["v"] == 0.0 and last["x"] > 2.0   # it drove fast, and stopped
 
 
@@ -64,10 +71,5 @@ def test_a_stop_during_a_hard_acceleration_is_waited_for_from_the_commanded_spee
     # there takes it ~40 of its packets. The wait was sized from the report: 10 packets from rest ("the robot still
     # reports v +0.081 m/s ... 10 state packets after the stop command", 4 of 4 runs); now from the larger of it
     # and the 0.6 m/s commanded, which the robot never exceeds. On the wall clock at 1x, as the other drives.
-    walls = np.array([[-60, -60, 60, -60], [60, -60, 60, 60], [60, 60, -60, 60], [-60, 60, -60, -60]], float)
-    with serve_tcp(World("open", walls, np.full(4, 3.0)), "robot1", np.zeros(3), port=0, seed=3,
-                   firmware=FirmwareDefaults(trans_accel=2000, trans_decel=20)) as server:
-        assert main(["robot", "drive", server.url, "--vel", "0.6", "--seconds", "0.05", "--json", *LINK]) == 0, \
-            capsys.readouterr().err
-    last = json.loads(capsys.readouterr().out.splitlines()[-1])
+    last = drive_on_open_ground(capsys, trans_decel=20, seconds=0.05)
     assert last["v"] == 0.0 and last["x"] > 0.0   # it moved, and stopped
