@@ -495,10 +495,13 @@ class Mission:
         return done
 
     def _on_failure(self, failure: StageFailure) -> None:
-        if failure.stage == "sensor log" and any(f.robot == failure.robot and f.stage == "sensor log"
-                                                 for f in self.failures):
+        if failure.stage == "sensor log" and self._log_failed(failure.robot):
             return  # the writer's fault, reported when the mission saw it (_check_links); its close says it again
         self._record_failure(failure)
+
+    def _log_failed(self, robot: str) -> bool:
+        """Has ``robot``'s sensor log already been reported failed? (Its writer's fault is said once.)"""
+        return any(f.robot == robot and f.stage == "sensor log" for f in self.failures)
 
     def _record_failure(self, failure: StageFailure) -> None:
         self.failures.append(failure)
@@ -563,8 +566,7 @@ class Mission:
         for 10 s ends the mission (the driver keeps trying to reconnect until then)."""
         for r in self.robots:  # the sensor log's writer thread keeps running after a fault; the mission does not
             log = r.onboard.sensor_log
-            if log is not None and getattr(log, "error", None) is not None and not any(
-                    f.robot == r.name and f.stage == "sensor log" for f in self.failures):
+            if log is not None and getattr(log, "error", None) is not None and not self._log_failed(r.name):
                 self._record_failure(StageFailure(r.name, "sensor log", _write_error(log.error, log.folder), t))
         for name, driver in self._drivers.items():
             server = self._servers.get(name)

@@ -65,7 +65,7 @@ def publish_robot_status(exchange, robots: Iterable[tuple], *, clock: str, wall_
             publish(onboard.robot, stamp=float(onboard.mission_time), landmarks=onboard.stats.map_landmarks,
                     pose=None if pose is None else [float(v) for v in pose],
                     health=robot_health(onboard, driver, clock=clock, wall_time=wall_time, failures=failures,
-                                               mission_over=mission_over))
+                                        mission_over=mission_over))
         except Exception as e:  # noqa: BLE001 - health reports must never stop a robot
             log.warning("fleet status of %s not sent: %s: %s", onboard.robot, type(e).__name__, e)
 
