@@ -152,8 +152,16 @@ def prior_backed_warning(pair: Mapping) -> str:
     why = _words(pair.get("prior_backed"))
     if not why:
         return ""
-    return (f"warning: {pair.get('other', '?')} -> {pair.get('reference', '?')} rests on the start prior: "
-            f"{why.partition(': ')[2] or why}; if the prior is wrong, so is this alignment")
+    what = f"{pair.get('other', '?')} -> {pair.get('reference', '?')}"
+    return f"warning: {rests_on_prior_text(what, why)}"
+
+
+def rests_on_prior_text(what: str, backing: str) -> str:
+    """'<what> rests on the start prior: <why the maps alone do not decide it>; if the prior is wrong, so is this
+    alignment', from ``backing``, an alignment's sentence 'found with the prior: …' (fusion.Alignment.prior_backing);
+    the words of every warning of a prior-backed alignment (p3at fuse, the mission's summary)."""
+    return (f"{what} rests on the start prior: {backing.partition(': ')[2] or backing}; if the prior is wrong, so is "
+            "this alignment")
 
 
 def not_comparable_text(pair: Mapping) -> str:

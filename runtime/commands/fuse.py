@@ -25,6 +25,7 @@ from runtime.commands.options import (
 )
 from runtime.fusion_report import LOW_CONFIDENCE_PROBABILITY, confidence_text, sigmas
 from runtime.json_output import json_text
+from runtime.report import rests_on_prior_text
 
 EXIT_NO_OVERLAP = 1
 EXIT_BAD_INPUT = 2
@@ -543,18 +544,11 @@ def _warn_prior_backed(report: dict) -> None:
     as the prior, and the user must be able to tell it from one the maps' own evidence carries."""
     for a in report["alignments"]:
         if a["found"] and a.get("rests_on_prior"):
-            print(f"p3at fuse: warning: map {a['map2']} -> map {a['map1']} rests on the start prior"
-                  f"{'' if a['used'] else ' (not used)'}: {_why_prior(a)}; if the prior is wrong, so is this "
-                  "alignment", file=sys.stderr)
+            what = f"map {a['map2']} -> map {a['map1']}{'' if a['used'] else ' (not used)'}"
+            print(f"p3at fuse: warning: {rests_on_prior_text(what, a['rests_on_prior'])}", file=sys.stderr)
     for k, m in enumerate(report["maps"]):      # a flagged map's parts, aligned each with its pair's prior
         for part in (m.get("split") or {}).get("parts", []):
             for j, a in part["alignments"].items():
                 if part["used"] and a["found"] and a.get("rests_on_prior"):
-                    print(f"p3at fuse: warning: map {k}'s part {part['part']} its gap -> map {j} rests on the start "
-                          f"prior: {_why_prior(a)}; if the prior is wrong, so is this alignment", file=sys.stderr)
-
-
-def _why_prior(alignment: dict) -> str:
-    """Why an alignment rests on its start prior, without the sentence's head ('found with the prior: ')."""
-    text = alignment["rests_on_prior"]
-    return text.partition(": ")[2] or text
+                    what = f"map {k}'s part {part['part']} its gap -> map {j}"
+                    print(f"p3at fuse: warning: {rests_on_prior_text(what, a['rests_on_prior'])}", file=sys.stderr)
