@@ -1,16 +1,16 @@
 """What ``LandmarkMap.save``'s check costs: the bytes it writes are read back with the reader's own checks before the
 file is replaced (session 46), so that a map ``load`` would refuse is never written.
 
-Per map size, the median over ``--repeats`` of: the archive's serialisation (``np.savez_compressed``, what ``save``
-always did), the check (``read_npz_bytes`` then ``read_map_arrays``, what ``save`` now adds) and the whole ``save``
-(serialisation, check, atomic write with its fsyncs). Maps are random and sound (every optional member present).
+Per map size, the median over ``--repeats`` of: the archive's serialisation (``LandmarkMap.archive_bytes``, what
+``save`` always did), the check (``check_map_bytes``: the reader's checks, what ``save`` now adds) and the whole
+``save`` (serialisation, check, atomic write with its fsyncs). Maps are random and sound (every optional member
+present).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_map_save.py
 """
 from __future__ import annotations
 
 import argparse
-import io
 import statistics
 import sys
 import tempfile
@@ -22,10 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimation.errors import MapFileError  # noqa: E402
-from estimation.landmark_map import LandmarkMap  # noqa: E402
-from estimation.map_validation import MEMBERS, read_map_arrays  # noqa: E402
-from estimation.safe_npz import read_npz_bytes  # noqa: E402
+from estimation.landmark_map import LandmarkMap, check_map_bytes  # noqa: E402
 from runtime.commands.options import positive_int  # noqa: E402
 
 SIZES = ((300, 32, 3_000), (3_000, 32, 30_000), (20_000, 32, 100_000))   # landmarks, descriptor floats, trajectory rows
@@ -37,19 +34,6 @@ def sound_map(n: int, d: int, t: int, rng: np.random.Generator) -> LandmarkMap:
     return LandmarkMap(rng.uniform(-20, 20, (n, 3)), spd, rng.normal(size=(n, d)).astype(np.float32),
                        trajectory=np.column_stack([np.arange(t, dtype=float), rng.normal(size=(t, 3))]),
                        drift_covariances=spd, drift_origins=rng.normal(size=(n, 2)), sighting_covariances=spd)
-
-
-def archive(m: LandmarkMap) -> bytes:
-    """The bytes ``save`` writes, serialised the way it does (without its check)."""
-    buf = io.BytesIO()
-    np.savez_compressed(buf, positions=m.positions, covariances=m.covariances, descriptors=m.descriptors, ids=m.ids,
-                        counts=m.counts, seen_by=m.seen_by, trajectory=m.trajectory,
-                        drift_covariances=m.drift_covariances, drift_origins=m.drift_origins,
-                        sighting_covariances=m.sighting_covariances, format=np.frombuffer(
-                            b'{"format": "p3at-landmark-map", "version": 1}', np.uint8),
-                        meta=np.frombuffer(b'{"robot": "robot", "frame": "map", "robots": ["robot"], "metadata": {}}',
-                                           np.uint8))
-    return buf.getvalue()
 
 
 def median_ms(f, repeats: int) -> float:
@@ -71,13 +55,9 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory(prefix="bench_map_save-") as tmp:
         for n, d, t in SIZES:
             m = sound_map(n, d, t, rng)
-            data = archive(m)
-
-            def check(data=data):
-                read_map_arrays(read_npz_bytes(data, "x", MEMBERS, MapFileError, what="map"), "x", LandmarkMap)
-
-            serialise = median_ms(lambda m=m: archive(m), args.repeats)
-            checked = median_ms(check, args.repeats)
+            data = m.archive_bytes()
+            serialise = median_ms(m.archive_bytes, args.repeats)
+            checked = median_ms(lambda data=data: check_map_bytes(data, "x"), args.repeats)
             save = median_ms(lambda m=m: m.save(Path(tmp) / "map.npz"), args.repeats)
             print(f"{n:9d} {t:10d} {len(data) / 1000:8.0f} {serialise:10.1f} {checked:8.1f} {save:8.1f}  "
                   f"{checked / save:.2f}")

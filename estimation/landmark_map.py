@@ -132,6 +132,12 @@ class LandmarkMap:
         refuse the file: the bytes about to be written are read back first with the reader's own checks (a NaN from
         a diverged filter, a covariance that is not positive definite, a name with a control character), so that a
         map once saved is never unreadable and the last good file is never replaced by one."""
+        data = self.archive_bytes()
+        check_map_bytes(data, f"{path}: not written")
+        atomic_write_bytes(path, data)
+
+    def archive_bytes(self) -> bytes:
+        """The .npz archive :meth:`save` writes, as it is before :meth:`save` checks it (:func:`check_map_bytes`)."""
         buf = io.BytesIO()
         meta = _json_bytes({"robot": self.robot, "frame": self.frame, "robots": self.robots,
                             "metadata": self.metadata})
@@ -146,10 +152,7 @@ class LandmarkMap:
             ids=self.ids, counts=self.counts, seen_by=self.seen_by, trajectory=self.trajectory,
             meta=meta, **drift,
         )
-        data = buf.getvalue()
-        source = f"{path}: not written"
-        read_map_arrays(read_npz_bytes(data, source, MEMBERS, MapFileError, what="map"), source, LandmarkMap)
-        atomic_write_bytes(path, data)
+        return buf.getvalue()
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LandmarkMap:
@@ -166,6 +169,12 @@ class LandmarkMap:
     def export_ply(self, path: str | os.PathLike, binary: bool = False) -> None:
         """Write the map as a PLY point cloud with colour, robot and covariance per point (see estimation.ply)."""
         write_ply(self, path, binary)
+
+
+def check_map_bytes(data: bytes, source: str) -> None:
+    """Raise :class:`MapFileError` (one line beginning ``source``) where :meth:`LandmarkMap.load` would refuse a file
+    holding ``data``: the reader's own checks, on bytes about to be written."""
+    read_map_arrays(read_npz_bytes(data, source, MEMBERS, MapFileError, what="map"), source, LandmarkMap)
 
 
 def _json_bytes(obj) -> np.ndarray:
