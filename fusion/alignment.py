@@ -41,24 +41,12 @@ hypothesis distinct from the winner (repeated structure: a corridor of identical
 false-alarm probability, Bonferroni-corrected for the hypotheses tried; the supports must also be spread
 out (a bunch in one spot fixes no angle).  The number of supports needed therefore adapts to the maps.
 
-A found alignment that rests on the prior.  A start prior (``align(prior=)``, :mod:`fusion.prior`) removes the
-hypotheses outside it from the rivals and the Bonferroni factor, so a pair whose maps alone are ambiguous (a
-building's half turn nearly as supported as the truth) or too weak can be found with it.  Such a result stays
-"found": the prior is the user's stated knowledge of where the robots started, and a right one is how a symmetric
-building is settled (the maps cannot do it; refusing would make the prior useless exactly where it is needed).  But
-it is then only as right as the prior -- on rendered demo seed 19 (robot 2 first) a prior centred on the half turn
-gives "found", 19.6 m / 3.13 rad off, where the maps alone say "ambiguous" (48 supports against 43) -- so the user
-must be able to tell it from a found the maps' evidence carries alone: the winner's evidence is measured again
-without the prior (the search is not repeated: the prior never enters RANSAC; the same decoys, each map's
-self-repeat counted once), and when that is not found the statistics say so (``prior_decides``, the
-``without_prior_*`` figures: the rival's supports, how far it is, whether the prior excluded it) and
-``Alignment.prior_backing`` gives the sentence ('found with the prior: the maps alone are ambiguous (rival 43
-supports against the best one's 48, turned 3.13 rad from it and moving its supports 8.0 m, outside the prior; ...)')
-that ``p3at fuse``, the demo's summary and the recording report, with a warning.
+A found alignment with a start prior also says whether the maps alone would find it: the winner's evidence
+measured again without the prior (:mod:`fusion.prior_backing`).
 
 This module holds the configuration, the results and the entry points (:func:`align`, :func:`align_at`); steps 1–3
 (correspondences, hypotheses, the search and the refinement) are in :mod:`fusion.ransac`, the evidence in
-:mod:`fusion.evidence`.
+:mod:`fusion.evidence`, the evidence without the start prior in :mod:`fusion.prior_backing`.
 """
 from __future__ import annotations
 
@@ -74,10 +62,11 @@ from estimation.landmark_map import LandmarkMap
 from .alignment_config import AlignmentConfig, resolve_preset
 from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
-from .evidence import Evidence, decoy_chance_supports, evidence, log10_false_alarm, rival_offset, self_structure
+from .evidence import Evidence, decoy_chance_supports, evidence, log10_false_alarm, rival_offset
 from .frame_covariance import start_frame_covariance
 from .matching import query_subset, search_workspace
 from .pose_covariance import inverse_with_covariance
+from .prior_backing import prior_backing_text, self_repeat_counted_once, without_prior_statistics
 from .ransac import (
     CHI2_999,
     MAX_GEOMETRIC_PAIRS,
@@ -134,12 +123,11 @@ class AlignmentStatistics:
     colocation: str = ""
     colocation_removed_supports: int = 0
     # a found alignment with a start prior: what the maps alone decide (the evidence measured again without the prior,
-    # as align(prior=None) measures it; module "A found alignment that rests on the prior"). prior_decides: "" (no
-    # prior, not found, or the maps alone find it too), "ambiguous" (a distinct transform the prior excluded or
-    # discounted is a rival), "repeat" (a map's repeat of itself), "chance" (too few supports for the hypotheses tried
-    # without the prior). The rival: supports, pose (map 1's frame), the RMS distance (m) by which it moves the
-    # winner's supports and its turn (rad) from the winner, and whether the prior excludes it. nan / 0 / () / False:
-    # not measured
+    # as align(prior=None) measures it; fusion.prior_backing). prior_decides: "" (no prior, not found, or the maps
+    # alone find it too), "ambiguous" (a distinct transform the prior excluded or discounted is a rival), "repeat" (a
+    # map's repeat of itself), "chance" (too few supports for the hypotheses tried without the prior). The rival:
+    # supports, pose (map 1's frame), the RMS distance (m) by which it moves the winner's supports and its turn (rad)
+    # from the winner, and whether the prior excludes it. nan / 0 / () / False: not measured
     prior_decides: str = ""
     without_prior_log10_chance_probability: float = float("nan")
     without_prior_required_supports: int = 0
@@ -203,7 +191,8 @@ class Alignment:
     @property
     def prior_backing(self) -> str:
         """'' for an alignment the maps' own evidence finds (or not found); for one found only because of its start
-        prior, why the maps alone do not decide it, beginning 'found with the prior: ' (:func:`prior_backing_text`)."""
+        prior, why the maps alone do not decide it, beginning 'found with the prior: '
+        (:func:`fusion.prior_backing.prior_backing_text`)."""
         return prior_backing_text(self.statistics) if self.found else ""
 
     @property
@@ -335,73 +324,6 @@ def rival_text(stats: AlignmentStatistics) -> str:
     return "; ".join(parts)
 
 
-PRIOR_BACKED = "found with the prior"
-
-
-def prior_backing_text(stats: AlignmentStatistics) -> str:
-    """Why a found alignment rests on its start prior, in one clause beginning 'found with the prior: the maps alone
-    are ambiguous (rival 43 supports against the best one's 48, turned 3.13 rad from it and moving its supports
-    8.0 m, outside the prior; ...)' (rendered demo seed 19, robot 2 first, a prior on the half turn); '' when the maps
-    alone find it too (or no prior was given).  How far the rival is: its turn from the winner and the RMS distance
-    by which it moves the winner's supports, as an ambiguous pair's reason says it (frame-independent, unlike the
-    difference of the poses' translations: 19.6 m there)."""
-    kind = stats.prior_decides
-    if not kind:
-        return ""
-    alone = (f"false-alarm probability without the prior 10^{stats.without_prior_log10_chance_probability:.1f} over "
-             f"{stats.without_prior_hypotheses} hypotheses, {stats.without_prior_required_supports} supports needed; "
-             f"with it 10^{stats.log10_chance_probability:.1f} over {stats.prior_hypotheses}")
-    if kind == "chance":
-        return (f"{PRIOR_BACKED}: the maps alone are too weak ({stats.supports} supports are explainable by chance "
-                f"without the prior; {alone})")
-    if kind == "repeat":
-        return (f"{PRIOR_BACKED}: the maps alone are ambiguous (one map repeats itself under a distinct transform "
-                f"with {stats.self_repeat_supports} supports; {alone})")
-    where = ("outside the prior" if stats.without_prior_rival_outside else
-             "inside the prior, which discounts it by trying fewer hypotheses")
-    away = (f", turned {stats.without_prior_rival_turn:.2f} rad from it and moving its supports "
-            f"{stats.without_prior_rival_shift:.1f} m" if np.isfinite(stats.without_prior_rival_shift) else "")
-    return (f"{PRIOR_BACKED}: the maps alone are ambiguous (rival {stats.without_prior_rival_supports} supports "
-            f"against the best one's {stats.supports}{away}, {where}; {alone})")
-
-
-def _without_prior(problem: CorrespondenceProblem, search, pose: np.ndarray, mask: np.ndarray, final_pose: np.ndarray,
-                   map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig, rng: np.random.Generator,
-                   repeats: bool, self_repeat, possible, prior: StartPrior, start_cov: np.ndarray | None) -> dict:
-    """The AlignmentStatistics fields that say what the maps alone decide about a winner found with a start prior:
-    its evidence measured again without the prior (``rng`` in the state the first measurement found it, so the
-    decoys are the same ones and the figures are align(prior=None)'s), and, when that is not found, why
-    (``prior_decides``).  The search is not repeated: the prior enters only the evidence, never RANSAC."""
-    alone = evidence(problem, search, pose, mask, map1, map2, config, rng, repeats=repeats, self_repeat=self_repeat,
-                     admissible=None, possible=possible)
-    out = {"without_prior_log10_chance_probability": alone.log10_p, "without_prior_required_supports": alone.required,
-           "without_prior_hypotheses": alone.hypotheses, "without_prior_rival_supports": alone.second_best}
-    if alone.rival_pose is not None:
-        out["without_prior_rival_pose"] = tuple(float(v) for v in alone.rival_pose)
-        out["without_prior_rival_outside"] = not bool(prior.admits(alone.rival_pose, start_cov))
-        if mask.any():
-            out["without_prior_rival_shift"], out["without_prior_rival_turn"] = rival_offset(
-                final_pose, alone.rival_pose, problem.p2[mask])
-    if alone.log10_p > np.log10(config.significance):
-        out["prior_decides"] = ("chance" if not alone.ambiguous else
-                                "repeat" if alone.self_repeat > alone.second_best else "ambiguous")
-    return out
-
-
-def _remembered(self_repeat, config: AlignmentConfig):
-    """``self_repeat(map, *scale)`` as :func:`fusion.evidence.evidence` calls it (None: its default,
-    :func:`fusion.evidence.self_structure` seeded by the map's content), each count computed once: the evidence
-    measured again without a prior asks for the same maps' counts."""
-    counts: dict = {}
-
-    def remembered(m: LandmarkMap, *scale) -> int:
-        key = (id(m), scale)
-        if key not in counts:
-            counts[key] = (self_structure(m, config, None, *scale) if self_repeat is None else self_repeat(m, *scale))
-        return counts[key]
-    return remembered
-
-
 # -- the entry point -----------------------------------------------------------------------------------------
 def guided_supports(map1: LandmarkMap, map2: LandmarkMap, pose: np.ndarray, config: AlignmentConfig,
                     candidates: int = 4) -> np.ndarray:
@@ -463,7 +385,7 @@ def align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig = 
     ``prior`` (:class:`fusion.prior.StartPrior`): a rough relative start of the robots; hypotheses outside it are no
     rivals, and a best alignment outside it is "not found: ... contradicts the prior" (the prior removes hypotheses,
     it never adds support; see :mod:`fusion.prior`).  A found alignment with a prior says whether the maps alone would
-    find it (``statistics.prior_decides``, ``prior_backing``; the module docstring).
+    find it (``statistics.prior_decides``, ``prior_backing``; :mod:`fusion.prior_backing`).
     """
     with search_workspace():       # its three descriptor searches share their distance buffers
         return _align(map1, map2, preset, rng, cache, prior)
@@ -542,10 +464,10 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
     self_repeat = None if cache is None else (lambda m, *scale: cache.self_structure(m, config, *scale))
     alone_rng = None
     if prior is not None and config.significance is not None:
-        # a winner found with the prior is measured again without it (_without_prior): the same decoys, and each map's
-        # self-repeat counted once
+        # a winner found with the prior is measured again without it (without_prior_statistics): the same decoys, and
+        # each map's self-repeat counted once
         alone_rng = copy.deepcopy(rng)
-        self_repeat = _remembered(self_repeat, config)
+        self_repeat = self_repeat_counted_once(self_repeat, config)
     ev = evidence(problem, search, pose, mask, map1, map2, config, rng, repeats=repeats, self_repeat=self_repeat,
                   admissible=inside, possible=possible)
     evidence_pose, evidence_mask = pose, mask
@@ -615,8 +537,9 @@ def _align(map1: LandmarkMap, map2: LandmarkMap, preset: str | AlignmentConfig, 
     if start_cov is None and covariance is not None and len(fit[0]) >= 2:
         start_cov = start_frame_covariance(*fit, pose, config.position_floor)
     if alone_rng is not None:                      # found with a prior: would the maps alone find it?
-        stats = replace(stats, **_without_prior(problem, search, evidence_pose, evidence_mask, pose, map1, map2, config,
-                                                alone_rng, repeats, self_repeat, possible, prior, winner_start))
+        stats = replace(stats, **without_prior_statistics(problem, search, evidence_pose, evidence_mask, pose, map1,
+                                                          map2, config, alone_rng, repeats, self_repeat, possible,
+                                                          prior, winner_start))
     return Alignment(True, config.name, pose, covariance, supports, stats, "", start_cov, prior)
 
 
