@@ -433,9 +433,7 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
     of wall time while its process runs has stopped making progress (frozen, deadlocked): it is stopped and said
     so, and the demo goes on to its final fusion, where before it waited for it for ever."""
     readers, outputs = {}, {}
-    progress_seen: dict[str, tuple[object, float]] = {}  # robot -> (its last status's session and stamp, when)
-    stalled: dict[str, str] = {}
-    stopped_at: dict[str, float] = {}
+    watch = StallWatch(processes, progress)
     for name, process in processes.items():  # read the pipes as they fill, so a chatty child never blocks
         def read(n=name, p=process) -> None:
             stdout, stderr = p.communicate()
@@ -446,7 +444,7 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
     while any(r.is_alive() for r in readers.values()) and not stop.wait(0.5):
         t = time.monotonic() - start
         status = node.exchange.status() if hasattr(node.exchange, "status") else {}
-        _stop_stalled(processes, status, progress_seen, stalled, stopped_at, progress)
+        watch.stop_stalled(status)
         if t >= next_line:
             parts = [f"t={t:5.1f}s"] + [_robot_part(r, s) for r, s in sorted(status.items())]
             if node.history and node.history[-1].pairs:
@@ -459,34 +457,47 @@ def _wait(processes: dict, stop: threading.Event, progress, node: FusionNode, st
             process.send_signal(signal.SIGTERM)
     for reader in readers.values():
         reader.join(timeout=60)
-    return outputs, stalled
+    return outputs, watch.stalled
 
 
-def _stop_stalled(processes: dict, status: dict, seen: dict, stalled: dict, stopped_at: dict, progress) -> None:
-    """One look at every running robot's progress (its status's session and stamp): a robot stalled for
-    ``ROBOT_STALL_AFTER`` s gets SIGTERM, and SIGKILL ``STALL_GRACE`` s later if it is still there. A robot that has
-    sent no status yet is left alone (its start-up takes what the machine's load makes it take), and so is one whose
-    last status says its mission is over (``mission_over``: it is saving its files, and sends no more)."""
-    now = time.monotonic()
-    for name, s in status.items():
-        mark = (s.get("session"), s.get("stamp"))
-        if name not in seen or seen[name][0] != mark:
-            seen[name] = (mark, now)
-    for name, process in processes.items():
-        if process.poll() is not None or name not in seen or (status.get(name, {}).get("health") or {}).get(
-                "mission_over") is True:
-            continue
-        if name in stopped_at:
-            if now - stopped_at[name] >= STALL_GRACE:
-                process.kill()
-            continue
-        if now - seen[name][1] >= ROBOT_STALL_AFTER:
-            stamp = seen[name][0][1]
-            at = f" (its last at t={stamp:.1f} s)" if isinstance(stamp, int | float) else ""
-            stalled[name] = f"no progress for {ROBOT_STALL_AFTER:g} s of wall time: no new status{at}"
-            progress.event(f"{name}: {stalled[name]}; stopping it")
-            process.send_signal(signal.SIGTERM)
-            stopped_at[name] = now
+class StallWatch:
+    """The robot processes that have stopped making progress, and what this process did about them: ``stop_stalled``,
+    called once each wait cycle with the robots' statuses, stops a robot whose status has not moved for
+    ``ROBOT_STALL_AFTER`` s; ``stalled`` says why, by robot (what its failure line says instead of the signal)."""
+
+    def __init__(self, processes: dict, progress) -> None:
+        self.processes = processes                          # robot -> its subprocess.Popen
+        self.progress = progress                            # the demo's Progress: one event line per stop
+        self.stalled: dict[str, str] = {}                   # robot -> why it was stopped
+        self._seen: dict[str, tuple[object, float]] = {}    # robot -> (its last status's session and stamp, when)
+        self._stopped_at: dict[str, float] = {}             # robot -> when it got SIGTERM
+
+    def stop_stalled(self, status: dict) -> None:
+        """One look at every running robot's progress (its status's session and stamp): a robot stalled for
+        ``ROBOT_STALL_AFTER`` s gets SIGTERM, and SIGKILL ``STALL_GRACE`` s later if it is still there. A robot that
+        has sent no status yet is left alone (its start-up takes what the machine's load makes it take), and so is
+        one whose last status says its mission is over (``mission_over``: it is saving its files, and sends no
+        more)."""
+        now = time.monotonic()
+        for name, s in status.items():
+            mark = (s.get("session"), s.get("stamp"))
+            if name not in self._seen or self._seen[name][0] != mark:
+                self._seen[name] = (mark, now)
+        for name, process in self.processes.items():
+            if process.poll() is not None or name not in self._seen or (status.get(name, {}).get("health") or {}).get(
+                    "mission_over") is True:
+                continue
+            if name in self._stopped_at:
+                if now - self._stopped_at[name] >= STALL_GRACE:
+                    process.kill()
+                continue
+            if now - self._seen[name][1] >= ROBOT_STALL_AFTER:
+                stamp = self._seen[name][0][1]
+                at = f" (its last at t={stamp:.1f} s)" if isinstance(stamp, int | float) else ""
+                self.stalled[name] = f"no progress for {ROBOT_STALL_AFTER:g} s of wall time: no new status{at}"
+                self.progress.event(f"{name}: {self.stalled[name]}; stopping it")
+                process.send_signal(signal.SIGTERM)
+                self._stopped_at[name] = now
 
 
 def _robot_part(robot: str, status: dict) -> str:
