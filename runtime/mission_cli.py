@@ -294,11 +294,11 @@ def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> 
         if figures.get("sensor_log_dropped"):
             print(f"{prog}: warning: {sensor_log_dropped_line(name, figures['sensor_log_dropped'])}", file=sys.stderr)
     if result.failures:  # a stage died: the figures above are what was there when it stopped
-        print(failure_line(prog, result.failures), file=sys.stderr)
+        print(mission_failure_line(prog, result.failures), file=sys.stderr)
     return 1 if result.failures else 0
 
 
-def failure_line(prog: str, failures: list) -> str:
+def mission_failure_line(prog: str, failures: list) -> str:
     """The one line that says a mission failed: its first failure, the cause (a full disk fails every file after
     it: each is in the summary's failures table), and how many more there were."""
     first, more = str(failures[0]), len({str(f) for f in failures} - {str(failures[0])})

@@ -353,7 +353,7 @@ def _run_processes_demo(args: argparse.Namespace, noted: list[int]) -> int:
     left = {name: LeftMap(out / name / f"{name}.npz") for name in ended}
     final, missing, read = final_fusion(node, summaries, left=left)
     exchange.close()
-    failed = [failure_line(name, code, stderr, left[name].said, stalled.get(name))
+    failed = [robot_process_failure_line(name, code, stderr, left[name].said, stalled.get(name))
               for name, (code, stderr) in sorted(ended.items())]
     summary = _summary(args, summaries, node, final, time.monotonic() - start, out)
     summary["last_maps_missing"] = missing
@@ -404,7 +404,7 @@ def _run_processes_demo(args: argparse.Namespace, noted: list[int]) -> int:
     return 1 if failed or unsaved else 0
 
 
-def failure_line(robot: str, code: int | None, stderr: str, left: str, stalled: str | None = None) -> str:
+def robot_process_failure_line(robot: str, code: int | None, stderr: str, left: str, stalled: str | None = None) -> str:
     """What to say of a robot process that ended without its summary: its exit status (the signal that killed it),
     its last line on stderr, then ``left``: what became of the map it saved last (:func:`map_left`; its periodic
     saves are atomic: a killed robot leaves the map of its last save). ``stalled``: why this process stopped it

@@ -19,7 +19,7 @@ import pytest
 
 from estimation.landmark_map import LandmarkMap
 from runtime.exchange import MapMessage
-from runtime.fleet.processes import LeftMap, failure_line, map_left
+from runtime.fleet.processes import LeftMap, map_left, robot_process_failure_line
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -39,17 +39,18 @@ def _held(m: LandmarkMap, sequence: int = 3) -> MapMessage:
 
 
 def test_a_killed_robot_is_named_with_its_signal_and_what_became_of_its_map() -> None:
-    line = failure_line("robot1", -signal.SIGKILL, "", "the final fusion reads its last saved map M")
+    line = robot_process_failure_line("robot1", -signal.SIGKILL, "", "the final fusion reads its last saved map M")
     assert line == "robot1 (exit -9): killed by SIGKILL, no summary; the final fusion reads its last saved map M"
-    assert "killed by SIGTERM" in failure_line("robot2", -signal.SIGTERM, "a warning\n", "x")
-    assert failure_line("robot2", -200, "", "it saved no map").endswith(
+    assert "killed by SIGTERM" in robot_process_failure_line("robot2", -signal.SIGTERM, "a warning\n", "x")
+    assert robot_process_failure_line("robot2", -200, "", "it saved no map").endswith(
         "killed by signal 200, no summary; it saved no map")
 
 
 def test_a_robot_that_failed_says_its_last_line() -> None:
-    line = failure_line("robot1", 1, "starting\np3at run: mission failed: robot1 slam: boom\n", "it saved no map")
+    line = robot_process_failure_line("robot1", 1, "starting\np3at run: mission failed: robot1 slam: boom\n",
+                                      "it saved no map")
     assert line == "robot1 (exit 1): p3at run: mission failed: robot1 slam: boom; it saved no map"
-    assert failure_line("robot1", 3, "", "x").startswith("robot1 (exit 3): no summary, nothing on stderr")
+    assert robot_process_failure_line("robot1", 3, "", "x").startswith("robot1 (exit 3): no summary, nothing on stderr")
 
 
 def test_the_left_map_is_fused_when_newer_than_the_one_held_or_when_none_is_held(tmp_path) -> None:
