@@ -15,7 +15,7 @@ from estimation.fastslam.motion import increment_variance
 from estimation.noise_estimation import estimate_noise
 from estimation.noise_model import NoiseModel, NoiseModelError, OdometryNoise
 from estimation.observations import OdometryIncrement
-from tests.datasets.test_noise_model import _chain
+from tests.datasets.test_noise_estimation import _chain
 
 STEP_S = 0.02
 
