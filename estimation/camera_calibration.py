@@ -154,6 +154,23 @@ class KnownDistance:
         return None
 
 
+@dataclass(frozen=True, eq=False)
+class CalibrationSolution:
+    """The joint solve's state at the reported calibration: the problem before the calibration is applied, the
+    calibration's effect on it (``shape``: its estimated terms' columns, the known distances' rows), the poses (T + 1,
+    3), landmarks (L, 2), c (the solve's: five terms, the odometry's scale sixth when estimated), the sightings kept
+    (S,), the landmarks with a kept sighting (L,), and each frame's time (T,: pose k + 1's)."""
+
+    problem: LandmarkLogProblem
+    shape: _Shape
+    poses: np.ndarray
+    landmarks: np.ndarray
+    values: np.ndarray
+    inliers: np.ndarray
+    seen: np.ndarray
+    frame_times: np.ndarray
+
+
 @dataclass(frozen=True)
 class CameraCalibration:
     """The estimate: ``values`` (5,) a (m), b₀, b₁ (1/rad), b₂ (1/rad²), ψ (rad) (:data:`ESTIMATED`'s order), their
@@ -188,6 +205,9 @@ class CameraCalibration:
     range_scale_translation_scale_correlation: float = math.nan
     # the noise's level estimated with the calibration (None: the given model's σ's, kept)
     noise_components: NoiseComponents | None = None
+    # the joint solution the calibration was read from, kept only on request (self_calibrate(keep_solution=True)):
+    # what estimation.calibration_uncertainty needs to weigh each residual's influence on the calibration
+    solution: CalibrationSolution | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def standard_errors(self) -> np.ndarray:
@@ -270,8 +290,8 @@ def without_truth(log: RangeBearingLog) -> RangeBearingLog:
 def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMConfig | None = None,
                    seed: int = 0, estimate_shape: bool = False,
                    known_distances: tuple[KnownDistance, ...] | list[KnownDistance] = (),
-                   translation_scale: bool | None = None, noise_components: tuple[str, ...] = ()
-                   ) -> CameraCalibration:
+                   translation_scale: bool | None = None, noise_components: tuple[str, ...] = (),
+                   keep_solution: bool = False) -> CameraCalibration:
     """The camera calibration (a, b₀, ψ) of ``log``'s robot from its odometry and its sightings, associated by their
     landmark ids (barcodes, fiducials): see the module docstring. ``noise``: the odometry's model and calibration,
     the sensor's σ's and correlations, b₁ and b₂ (e.g. a model fitted on other robots with
@@ -282,7 +302,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     ``translation_scale``: estimate the odometry's translation scale too (:class:`_OdometryScale`; the model's
     ``translation_scale`` only starts it; the estimate is the joint MAP, without the marginal likelihood's step: see
     the module docstring); None (the default): when a known distance is given (without one the odometry is the map's
-    only metric, and its scale is not observable: ValueError if asked for)."""
+    only metric, and its scale is not observable: ValueError if asked for). ``keep_solution``: the result's
+    ``solution`` holds the joint solve's state (:class:`CalibrationSolution`; the estimate is the same either way)."""
     log = without_truth(log)
     if noise.range_bearing is None:
         raise ValueError(f"the noise model of {noise.robot!r} has no [range_bearing] section")
@@ -365,6 +386,8 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
     dof = 2 * int(inliers.sum()) + shape.lengths.count - 2 * int(seen.sum()) - len(c)
     covariance = _calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     map_values = c.copy()
+    solution = CalibrationSolution(problem, shape, poses.copy(), landmarks.copy(), c.copy(), inliers.copy(),
+                                   seen.copy(), times) if keep_solution else None
     # ∂r'/∂(a, b) at the kept sightings
     design = np.column_stack([np.ones(int(inliers.sum())), raw_r[inliers, None] * shape.powers[inliers]])
     with np.errstate(invalid="ignore"):   # inf × 0 of the terms not estimated, in a singular covariance
@@ -400,7 +423,7 @@ def self_calibrate(log: RangeBearingLog, noise: NoiseModel, *, config: FastSLAMC
                              int(seen.sum()), int(len(times)), chi2 / dof if dof > 0 else float("nan"),
                              iterations, converged, sd_rms, sigma_rms,
                              bearing_sigma, problem_text, known_distances, fitted, **scale_figures,
-                             noise_components=components)
+                             noise_components=components, solution=solution)
 
 
 @dataclass(frozen=True)
