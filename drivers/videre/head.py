@@ -214,6 +214,9 @@ class StereoHead:
             self._transport = None
         self._streaming = False
         self._connect()
+        # a head that never went away (a transient USB error) still streams, and IIDC refuses a mode change
+        # while it does (a stall): stop it first; on a head that was power-cycled this changes nothing
+        self._write(reg.ISO_EN, 0)
         self.controls = Controls(self)
         for (register, _), value in self._settings.items():
             self._write(register, value)
