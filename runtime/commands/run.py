@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from runtime.mission_cli import add_mission_arguments, mission_inputs_problem, run_mission_command
 
@@ -26,7 +27,7 @@ def register(subparsers) -> None:
 
 
 def _run(args) -> int:
-    problem = mission_inputs_problem(args)
+    problem = robot_word_problem(args.robot) or mission_inputs_problem(args)
     if problem is not None:
         print(f"p3at run: {problem}", file=sys.stderr)
         return 2
@@ -53,3 +54,15 @@ def usb_head_problem() -> str | None:
         return (f"{e}; without the head, the virtual robot with its virtual head runs as "
                 "p3at run --robot mock --camera mock")
     return None
+
+
+def robot_word_problem(robot: str) -> str | None:
+    """A --robot that is neither mock, nor a URL, nor a path (a mistyped ``mock``): said as a bad argument before
+    anything is looked for. It used to be taken for a serial device, and the first thing said was the USB head's
+    absence (exit 1), which named neither the option nor the typo. A path (``/dev/ttyUSB0``) or a URL is left to
+    the drivers, which say whether the device answers."""
+    if robot == "mock" or "://" in robot or "/" in robot or Path(robot).exists():
+        return None
+    hint = "; did you mean mock?" if robot.lower() == "mock" else ""
+    return (f"--robot {robot}: no such robot: give mock (the virtual P3-AT), a serial device such as /dev/ttyUSB0, "
+            f"or socket://host:port{hint}")
