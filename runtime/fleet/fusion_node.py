@@ -22,7 +22,7 @@ import numpy as np
 from estimation.errors import MapFileError
 from fusion.prior import named_pair_priors
 from runtime.exchange import MapExchange, MapMessage
-from runtime.fleet.status import StatusPrinter
+from runtime.fleet.status import PresenceLines, StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.json_output import json_text
 from runtime.report import fusion_event_line, start_prior_line
@@ -181,16 +181,19 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
 
-    def event(line: str) -> None:
-        print(line, file=sys.stderr, flush=True)
-
     node_box: list[FusionNode] = []
+    presence: list[PresenceLines] = []   # the exchange's joins and leaves made whole, once it is open
+
+    def event(line: str) -> None:
+        print(presence[0](line) if presence else line, file=sys.stderr, flush=True)
+
     try:
         exchange = open_exchange(spec, args.fleet, "fusion", on_event=event,
                                  on_update=lambda robot: node_box and node_box[0].notify(robot))
     except (ValueError, RuntimeError) as e:
         print(f"p3at fuse: {e}", file=sys.stderr)
         return 2
+    presence.append(PresenceLines(exchange.status, exchange.held))
     try:
         logger = _open_logger(args.rerun, out)
     except RuntimeError as e:   # a --rerun URL Rerun refuses (runtime.rerun_sink.ViewerError): exit 70 before

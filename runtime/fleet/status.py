@@ -134,5 +134,48 @@ class StatusPrinter:
             self._thread.join(timeout=5.0)
 
 
-__all__ = ["PRINT_PERIOD", "StatusPrinter", "health_figure", "publish_robot_status", "robot_health",
-           "status_line"]
+class PresenceLines:
+    """What ``p3at fuse --live`` says when a robot joins or leaves (the exchange's lines ``robot1 joined the fleet``,
+    ``robot1 left the fleet``, made whole): a leave says whether the robot's last status said its mission was over
+    or it went without a word (its link lost, its process killed: Zenoh notices at its lease, 10 s), and which of
+    its maps the fusion keeps, naming a newer one its status named that never came; a rejoin says how long it was
+    gone (the node then asks for its latest map). ``statuses`` and ``held``: the exchange's ``status`` and
+    ``held``. Other lines pass unchanged."""
+
+    def __init__(self, statuses: Callable[[], dict], held: Callable[[], dict],
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.statuses, self.held, self.clock = statuses, held, clock
+        self._left: dict[str, float] = {}   # robot -> when it was seen leaving
+
+    def __call__(self, line: str) -> str:
+        robot, joined = _presence(line)
+        if robot is None:
+            return line
+        now = self.clock()
+        if joined:
+            gone = self._left.pop(robot, None)
+            return line if gone is None else f"{line} again, {now - gone:.0f} s after it left"
+        self._left[robot] = now
+        status = self.statuses().get(robot) or {}
+        held = self.held().get(robot)
+        kept = "no map of it came" if held is None else f"the fusion keeps its map {held[1]}"
+        named = status.get("sequence")
+        if (held is not None and status.get("has_map", True) and isinstance(named, int)
+                and (status.get("session") != held[0] or named > held[1])):
+            kept += f"; its map {named}, named by its last status, never came"
+        if (status.get("health") or {}).get("mission_over") is True:
+            return f"{line}: its mission is over; {kept}"
+        return f"{line} without a word (its link lost or its process ended); {kept}"
+
+
+def _presence(line: str) -> tuple[str | None, bool]:
+    """(robot, joined) of an exchange's 'ROBOT joined the fleet' / 'ROBOT left the fleet' line, else (None, False)."""
+    for word, joined in ((" joined the fleet", True), (" left the fleet", False)):
+        robot = line[:-len(word)] if line.endswith(word) else ""
+        if robot and " " not in robot:
+            return robot, joined
+    return None, False
+
+
+__all__ = ["PRINT_PERIOD", "PresenceLines", "StatusPrinter", "health_figure", "publish_robot_status",
+           "robot_health", "status_line"]

@@ -7,7 +7,8 @@ Key space under a fleet namespace ``p3at/<fleet>/``:
     <robot>/status   pose estimate, map size, health (mapwire status)
     <robot>/alive    the robot's liveliness token: join and leave
     fused/map        the fusion node's merged map (full snapshots), and its queryable
-    fused/alive      the fusion node's liveliness token
+    fused/alive      the fusion node's liveliness token, from the node's start: a robot knows whether a node hears it
+                     (a robot that ends with maps no node received says which, as it closes)
 
 Receiving never blocks Zenoh's threads, and Zenoh's threads never run Python: every subscriber, the liveliness
 subscriber, the queryables and the snapshot requests' replies use Zenoh's own channels (no Python callback, so no
@@ -75,6 +76,7 @@ CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between 
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
 DROP_REPORT_INTERVAL = 30.0         # s: malformed messages are said once, then counted in one line at most this often
 STATUS_PRIORITY = zenoh.Priority.DATA_HIGH  # statuses: one step above the maps' DATA
+CLOSE_SLOW = 5.0                    # s: a Zenoh close still waiting after this is said (a peer's link down: up to 10 s)
 
 _OPEN: weakref.WeakSet[ZenohExchange] = weakref.WeakSet()
 
@@ -215,6 +217,7 @@ class ZenohExchange:
         if not mapwire.ROBOT_NAME.fullmatch(fleet):
             raise ValueError(f"fleet name {fleet!r} must be 1-64 of A-Z a-z 0-9 _ -")
         self.fleet = fleet
+        self.role = role
         self.prefix = f"p3at/{fleet}"
         self.full_every = full_every
         self.max_pending_bytes = max_pending_bytes
@@ -236,6 +239,12 @@ class ZenohExchange:
         self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
         self._waits: dict[str, _Wait] = {}       # robot whose full snapshot is waited for (a map missed)
         self._left: set[str] = set()             # robots seen leaving (and not back): nothing to wait for
+        self._left_at: dict[str, float] = {}     # robot -> when (monotonic) it was last seen leaving
+        # own robot -> (its first map sequence no fusion node may have received, when it was sent, the last of those
+        # sent before the node was seen leaving or -1): maps sent while no node was connected, and those of the lease
+        # before a node was seen leaving without a word; cleared when a node joins (it asks for the latest snapshot)
+        self._unheard: dict[str, tuple[int, float, int]] = {}
+        self._sent: dict[str, collections.deque[tuple[int, float]]] = {}   # own robot -> (sequence, when) of a lease
         self.dropped: collections.Counter[str] = collections.Counter()   # reason kind -> count
         self.last_drop_reason = ""
         self._unreported_drops = 0               # malformed messages dropped since the last line said so
@@ -247,7 +256,10 @@ class ZenohExchange:
         self._calls = 0                          # publish/publish_status/request_snapshot inside Zenoh now
         self._idle = threading.Condition(self._lock)
         try:
-            self.session = zenoh.open(make_config(config, role))
+            zenoh_config = make_config(config, role)
+            lease = json.loads(zenoh_config.get_json("transport/link/tx/lease"))
+            self.lease = lease / 1000.0 if isinstance(lease, int | float) and lease > 0 else 10.0   # s
+            self.session = zenoh.open(zenoh_config)
         except zenoh.ZError as e:
             raise ExchangeError(f"cannot open the Zenoh session ({zenoh_message(e)})") from None
         ring = zenoh.handlers.RingChannel
@@ -257,6 +269,9 @@ class ZenohExchange:
         ]
         self._liveliness = self.session.liveliness().declare_subscriber(f"{self.prefix}/*/alive",
                                                                         ring(CHANNEL_CAPACITY), history=True)
+        # the fusion node's token from its start, not from its first fused map: robots know whether a node hears them
+        self._node_token = (self.session.liveliness().declare_token(f"{self.prefix}/{FUSED}/alive")
+                            if role == "fusion" else None)
         _OPEN.add(self)
         self._stop = threading.Event()
         self._pump_thread = threading.Thread(target=self._pump_loop, name=f"zenoh-pump-{fleet}", daemon=True)
@@ -289,10 +304,40 @@ class ZenohExchange:
                 log.warning("closing the exchange: %d send(s) still inside Zenoh after %.0f s", self._calls,
                             CLOSE_TIMEOUT)
         self._report_drops(time.monotonic())   # what the last interval counted (the worker has stopped)
+        self._say_unheard(time.monotonic())
+        # Zenoh's close waits up to 10 s for a peer whose link is down (before its lease ends): say it, not hang mute
+        slow = threading.Timer(CLOSE_SLOW, log.warning, ("fleet exchange: closing: a peer does not answer (its link "
+                                                        "down?); Zenoh waits at most 10 s for it",))
+        slow.daemon = True
+        slow.start()
         try:
             self.session.close()
         except zenoh.ZError as e:  # already closed by the runtime at exit
             log.debug("closing the Zenoh session: %s", zenoh_message(e))
+        finally:
+            slow.cancel()
+            slow.join()
+
+    def _say_unheard(self, now: float) -> None:
+        """A robot that ends with no fusion node connected says, in one line per robot, which of its maps no node
+        received: they are lost to the fleet (its map file holds the last). Maps sent in the lease before the node
+        was seen leaving are named as perhaps received (a node stopped cleanly had them; one whose link went, not);
+        a robot that sent nothing after the leave says nothing."""
+        with self._lock:
+            unheard = {r: (first, since, perhaps, self._encoders[r].sequence)
+                       for r, (first, since, perhaps) in self._unheard.items() if r in self._encoders}
+            node_left = self._left_at.get(FUSED)
+        for robot, (first, since, perhaps, last) in sorted(unheard.items()):
+            if last <= perhaps:   # every map went before the node was seen leaving: it may well have them all
+                continue
+            maps = f"map {last}" if first == last else f"maps {first}-{last}"
+            if perhaps >= first:   # sent before the leave was seen: the node may have had them
+                maps += (f" ({first if perhaps == first else f'{first}-{perhaps}'} perhaps did: sent within Zenoh's "
+                         f"lease, {self.lease:.0f} s, before the node was seen leaving)")
+            why = ("no fusion node was connected" if node_left is None
+                   else f"the fusion node left {now - node_left:.0f} s ago")
+            log.warning("fleet exchange: %s's %s, of the last %.0f s, reached no fusion node: %s; the robot's saved "
+                        "map file holds the last", robot, maps, now - since, why)
 
     def __enter__(self) -> ZenohExchange:
         return self
@@ -311,7 +356,8 @@ class ZenohExchange:
                                                     congestion_control=zenoh.CongestionControl.DROP,
                                                     priority=STATUS_PRIORITY)
             queryable = self.session.declare_queryable(key, zenoh.handlers.RingChannel(CHANNEL_CAPACITY))
-            token = self.session.liveliness().declare_token(f"{self.prefix}/{robot}/alive")
+            token = (self._node_token if robot == FUSED and self._node_token is not None
+                     else self.session.liveliness().declare_token(f"{self.prefix}/{robot}/alive"))
             self._own[robot] = (publisher, status, queryable, token)
         return self._own[robot]
 
@@ -326,6 +372,13 @@ class ZenohExchange:
                 encoder = self._encoders[robot] = mapwire.MapEncoder(robot, full_every=self.full_every)
             kind, data = encoder.encode(snapshot, stamp)
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
+            now = time.monotonic()
+            if self.role == "robot" and FUSED not in self._present:
+                self._unheard.setdefault(robot, (encoder.sequence, now, -1))
+            sent = self._sent.setdefault(robot, collections.deque())
+            sent.append((encoder.sequence, now))
+            while sent and sent[0][1] < now - self.lease:
+                sent.popleft()
             publisher, status, _, _ = self._declare(robot)
             health = self._health.get(robot)  # the latest health figures go with it: a receiver's status is complete
             self._calls += 1
@@ -458,15 +511,26 @@ class ZenohExchange:
 
     def _on_liveliness(self, sample) -> None:
         robot = self._robot_of(str(sample.key_expr), "alive")
-        if robot is None or robot in self._encoders:  # this process's own robot: no news
-            return
+        if robot is None or robot in self._encoders or (robot == FUSED and self.role == "fusion"):
+            return  # this process's own robot or node: no news
         joined = sample.kind == zenoh.SampleKind.PUT
+        now = time.monotonic()
         with self._lock:
             (self._present.add if joined else self._present.discard)(robot)
             (self._left.discard if joined else self._left.add)(robot)
             if not joined:  # its queryable has gone with it: nothing to ask (a rejoin asks anyway)
                 self._waits.pop(robot, None)
-        self.on_event(f"{robot} {'joined' if joined else 'left'} the fleet")
+            elif robot == FUSED:  # a node that joins asks every robot for its latest snapshot
+                self._unheard.clear()
+            if robot == FUSED and not joined:  # seen up to a lease after its link went: maps of that time may be lost
+                for own, sent in self._sent.items():
+                    recent = [(q, t) for q, t in sent if t >= now - self.lease]
+                    if recent and own not in self._unheard:
+                        self._unheard[own] = (recent[0][0], recent[0][1], recent[-1][0])
+            if not joined:
+                self._left_at[robot] = now
+        # the lines tests and callers know; p3at fuse --live says more (runtime/fleet/status.py, PresenceLines)
+        self.on_event(f"{'the fusion node' if robot == FUSED else robot} {'joined' if joined else 'left'} the fleet")
         if joined and robot not in self._encoders:
             self.request_snapshot(robot)
 
