@@ -241,12 +241,13 @@ class MapEncoder:
         self.latest: LandmarkMap | None = None
         self.latest_stamp = 0.0
 
-    def encode(self, m: LandmarkMap, stamp: float) -> tuple[int, bytes]:
-        """(kind, bytes) of the next message carrying map ``m``."""
+    def encode(self, m: LandmarkMap, stamp: float, full: bool = False) -> tuple[int, bytes]:
+        """(kind, bytes) of the next message carrying map ``m``; ``full``: a full snapshot whatever the count (the
+        message before it will not be sent, so no receiver holds the base a delta would need)."""
         base, base_sequence = self.latest, self.sequence
         self.sequence += 1
         self.latest, self.latest_stamp = m, float(stamp)
-        if base is None or self.sequence % self.full_every == 0 or not can_delta(base, m):
+        if full or base is None or self.sequence % self.full_every == 0 or not can_delta(base, m):
             return FULL, encode_full(self.robot, self.session, self.sequence, stamp, m)
         return DELTA, encode_delta(self.robot, self.session, self.sequence, base_sequence, stamp, base, m)
 

@@ -255,6 +255,10 @@ class ZenohExchange:
         self._closed = False
         self._calls = 0                          # publish/publish_status/request_snapshot inside Zenoh now
         self._idle = threading.Condition(self._lock)
+        self._outbox: dict[str, tuple[int, bytes, bytes]] = {}   # own robot -> (kind, map, status) not yet sent
+        self._outbox_ready = threading.Condition(self._lock)
+        self._sending_stopped = False
+        self.superseded = 0                      # maps replaced in the outbox by a newer one before they were sent
         try:
             zenoh_config = make_config(config, role)
             lease = json.loads(zenoh_config.get_json("transport/link/tx/lease"))
@@ -276,16 +280,27 @@ class ZenohExchange:
         self._stop = threading.Event()
         self._pump_thread = threading.Thread(target=self._pump_loop, name=f"zenoh-pump-{fleet}", daemon=True)
         self._worker = threading.Thread(target=self._work, name=f"zenoh-exchange-{fleet}", daemon=True)
+        self._sender = threading.Thread(target=self._send_loop, name=f"zenoh-sender-{fleet}", daemon=True)
         self._pump_thread.start()
         self._worker.start()
+        self._sender.start()
 
     # -- lifecycle --------------------------------------------------------------------------------------------
     def close(self) -> None:
-        """Stop and join the pump and the worker, then undeclare everything (the others see this process's robots
-        leave); idempotent. Called at exit for an exchange left open."""
+        """Send what the outbox holds (each robot's last map: at most CLOSE_TIMEOUT s), stop and join the sender,
+        the pump and the worker, then undeclare everything (the others see this process's robots leave);
+        idempotent. Called at exit for an exchange left open."""
         with self._lock:
-            if self._closed:
+            if self._sending_stopped:
                 return
+            self._sending_stopped = True   # publish() takes nothing more; the sender empties the outbox and ends
+            self._outbox_ready.notify_all()
+        if self._sender is not threading.current_thread():
+            self._sender.join(timeout=CLOSE_TIMEOUT)
+            if self._sender.is_alive():
+                log.warning("closing the exchange: the last map is still being sent after %.0f s (a slow or broken "
+                            "link); closing anyway", CLOSE_TIMEOUT)
+        with self._lock:
             self._closed = True
             self._wake.notify_all()
         self._stop.set()
@@ -362,15 +377,19 @@ class ZenohExchange:
         return self._own[robot]
 
     def publish(self, robot: str, landmark_map: LandmarkMap, stamp: float = 0.0) -> None:
-        """Send ``robot``'s map (delta against the previous one, or full snapshot) and its status."""
+        """Send ``robot``'s map (delta against the previous one, or full snapshot) and its status. Returns at once:
+        the sender thread puts them into Zenoh, whose put can wait for seconds on a slow link (a large query reply
+        ahead of it), and the caller is a robot's mapping stage. A map still unsent when the next comes is replaced
+        by it, sent as a full snapshot (its receivers never held the replaced one), and counted in ``superseded``."""
         snapshot = copy_map(landmark_map)
         with self._lock:
-            if self._closed:  # nothing enters Zenoh after close: the process may be finalizing
+            if self._closed or self._sending_stopped:  # nothing enters Zenoh after close: it may be finalizing
                 return
             encoder = self._encoders.get(robot)
             if encoder is None:
                 encoder = self._encoders[robot] = mapwire.MapEncoder(robot, full_every=self.full_every)
-            kind, data = encoder.encode(snapshot, stamp)
+            replaced = robot in self._outbox
+            kind, data = encoder.encode(snapshot, stamp, full=replaced)
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
             now = time.monotonic()
             if self.role == "robot" and FUSED not in self._present:
@@ -379,23 +398,46 @@ class ZenohExchange:
             sent.append((encoder.sequence, now))
             while sent and sent[0][1] < now - self.lease:
                 sent.popleft()
-            publisher, status, _, _ = self._declare(robot)
+            self._declare(robot)
             health = self._health.get(robot)  # the latest health figures go with it: a receiver's status is complete
-            self._calls += 1
-        pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
-        try:
+            pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
             status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose,
                                                 len(snapshot), health)
-            publisher.put(data)
-            status.put(status_data)
-        except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
-            self.send_errors += 1
-            log.warning("fleet exchange: could not send %s's map: %s", robot, zenoh_message(e))
-            return
-        finally:
-            self._call_done()
-        self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)
-        self.bytes_sent["status"] += len(status_data)
+            if replaced:
+                old_kind, old, old_status = self._outbox[robot]
+                self.superseded += 1
+                self.bytes_sent[mapwire.KIND_NAMES[old_kind]] -= len(old)
+                self.bytes_sent["status"] -= len(old_status)
+            self._outbox[robot] = (kind, data, status_data)
+            self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)   # published (counted when handed over)
+            self.bytes_sent["status"] += len(status_data)
+            self._outbox_ready.notify_all()
+
+    def _send_loop(self) -> None:
+        """The sender thread: puts each robot's newest unsent map and its status into Zenoh, until close() has
+        seen the outbox empty."""
+        while True:
+            with self._lock:
+                while not self._outbox and not self._sending_stopped:
+                    self._outbox_ready.wait()
+                if not self._outbox:
+                    return
+                robot = next(iter(self._outbox))
+                kind, data, status_data = self._outbox.pop(robot)
+                publisher, status, _, _ = self._own[robot]
+                self._calls += 1
+            try:
+                publisher.put(data)
+                status.put(status_data)
+            except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
+                self.send_errors += 1
+                log.warning("fleet exchange: could not send %s's map: %s", robot, zenoh_message(e))
+            except Exception:  # a bug must not end the sending silently
+                log.exception("fleet exchange: unexpected error while sending %s's map", robot)
+            finally:
+                self._call_done()
+                with self._lock:
+                    self._outbox_ready.notify_all()   # close() waits for the outbox to empty
 
     def publish_status(self, robot: str, stamp: float, pose=None, landmarks: int = 0,
                        health: dict | None = None) -> None:
