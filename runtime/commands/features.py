@@ -39,15 +39,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "rectified pair (or a raw pair with --calib), triangulate, and write every match: left and "
                     "right pixels, disparity, 3-D point and covariance (base_link, or the left camera frame). "
                     "The pair's geometry must be given: --calib FILE (a raw pair, rectified here), --fx PX and "
-                    "--baseline M (a rectified pair; points in the left camera frame), or --virtual-head (pairs "
-                    "from 'p3at camera grab --mock').")
+                    "--baseline M (a rectified pair; points in the left camera frame), or --virtual-head (a pair "
+                    "from 'p3at camera grab --mock --rectify'; a raw one, without --rectify, goes with --calib "
+                    "mocks/stereo_head/data/sth_mdcs2_default.ini, the virtual head's calibration).")
     parser.add_argument("left", type=Path, help="left image (the reference camera)")
     parser.add_argument("right", type=Path, help="right image")
     parser.add_argument("--calib", type=Path, help="calibration (.ini SVS or .yaml/.xml OpenCV): the pair is raw "
                                                    "and gets rectified; its intrinsics and head pose are used")
-    parser.add_argument("--descriptor", choices=("usurf", "sift", "orb"), default="usurf")
+    parser.add_argument("--descriptor", choices=("usurf", "sift", "orb"), default="usurf",
+                        help="corner descriptor: usurf (upright SURF, the paper's; default), sift or orb")
     parser.add_argument("--virtual-head", action="store_true",
-                        help="the pair comes from the virtual STH-MDCS2 (rectified; its intrinsics and mount)")
+                        help="the pair is a rectified one of the virtual STH-MDCS2 ('p3at camera grab --mock "
+                             "--rectify'): its intrinsics and mount")
     parser.add_argument("--fx", type=positive_float, metavar="PX", help="rectified focal length (without --calib)")
     parser.add_argument("--fy", type=positive_float, metavar="PX", help="default: fx")
     parser.add_argument("--cx", type=finite_float, metavar="PX", help="default: (width - 1) / 2")
