@@ -19,6 +19,7 @@ import collections
 import errno
 import logging
 import os
+import re
 import threading
 import time
 import warnings
@@ -495,12 +496,15 @@ class P3AT:
 
     # ------------------------------------------------------------------ internals: session
     def _open_port(self) -> None:
+        problem = url_problem(self.url)
+        if problem is not None:
+            raise DeviceNotFoundError(f"{self.url}: {problem}")
         try:
             self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=READ_TIMEOUT,
                                                write_timeout=2.0)
         except serial.SerialException as exc:
             if getattr(exc, "errno", None) == errno.ENOENT or "No such file" in str(exc):
-                raise DeviceNotFoundError(f"{self.url}: no such device ({exc})") from exc
+                raise DeviceNotFoundError(f"{self.url}: no such device ({exc}){tcp_address_hint(self.url)}") from exc
             raise NotConnectedError(f"{self.url}: cannot open: {exc}") from exc
         except ValueError as exc:  # pyserial's answer to a malformed URL
             raise DeviceNotFoundError(f"{self.url}: {exc}") from exc
@@ -688,3 +692,28 @@ class P3AT:
             self._link_subscribers.call(LinkEvent("restored", self.clock(), self.session, "reconnected"))
             return True
         return False
+
+
+_HOST_PORT = re.compile(r"[A-Za-z0-9_.-]+:[0-9]+|\[[0-9A-Fa-f:.]+\]:[0-9]+")
+
+
+def tcp_address_hint(url: str) -> str:
+    """'; a TCP address is written socket://HOST:PORT' for a URL that is a bare HOST:PORT (pyserial takes it for a
+    file name and says 'No such file or directory'); '' otherwise."""
+    return f"; a TCP address is written socket://{url}" if _HOST_PORT.fullmatch(url) else ""
+
+
+def url_problem(url: str) -> str | None:
+    """What is wrong with a ``socket://`` URL pyserial would refuse with an error naming its internals (a missing
+    port: "'<=' not supported between instances of 'int' and 'NoneType'"); None for any other URL."""
+    if not url.startswith("socket://"):
+        return None
+    from urllib.parse import urlsplit
+
+    try:
+        port = urlsplit(url).port
+    except ValueError:
+        port = -1
+    if port is None or not 0 < port < 65536:
+        return "a TCP address needs a port from 1 to 65535: socket://HOST:PORT (MobileSim and AMRISim listen on 8101)"
+    return None

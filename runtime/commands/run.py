@@ -1,6 +1,7 @@
 """``p3at run``: the onboard runtime of one robot, on real hardware or on the virtual robot."""
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -64,5 +65,7 @@ def robot_word_problem(robot: str) -> str | None:
     if robot == "mock" or "://" in robot or "/" in robot or Path(robot).exists():
         return None
     hint = "; did you mean mock?" if robot.lower() == "mock" else ""
+    if re.fullmatch(r"[A-Za-z0-9_.-]+:[0-9]+", robot):   # a bare HOST:PORT
+        hint = f"; did you mean socket://{robot}?"
     return (f"--robot {robot}: no such robot: give mock (the virtual P3-AT), a serial device such as /dev/ttyUSB0, "
             f"or socket://host:port{hint}")
