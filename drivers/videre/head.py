@@ -341,7 +341,7 @@ class StereoHead:
         chosen = next((m for m in choices if (m.width, m.height) == (width, height) and abs(m.rate - rate) < 1e-6),
                       None)
         if chosen is None:
-            offered = ", ".join(sorted({f"{m.width}x{m.height}@{m.rate:g}" for m in choices}))
+            offered = ", ".join(f"{w}x{h}@{r:g}" for w, h, r in sorted({(m.width, m.height, m.rate) for m in choices}))
             raise ValueError(f"the head has no mode {width}x{height} at {rate:g} Hz; it offers {offered}")
         was_streaming = self._streaming
         if was_streaming:
