@@ -65,8 +65,9 @@ it logs.
 from __future__ import annotations
 
 import json
+import sys
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import cv2
@@ -79,7 +80,7 @@ from runtime.report import alignment_status, candidate_text
 from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rerun_rows import RowSender
 from runtime.rerun_sdk import rr
-from runtime.rerun_sink import SAVED_STREAMS
+from runtime.rerun_sink import SAVED_STREAMS, WRITERS, finish_saved, release_saved, writer_failure
 from runtime.rerun_style import (
     EVENTS,
     FRAME_TIE_COLOUR,
@@ -211,6 +212,20 @@ P3AT_HALF_SIZE = (0.32, 0.25, 0.14)  # m: the Pioneer 3-AT's body, drawn at the 
 Y_UP = np.diag([1.0, -1.0, 1.0])     # 2-D views draw +y down; the maps are REP-103 (x forward, y left): flip once
 
 
+# frames logged (log_pose, log_scalars and log_event calls) between two looks at a saved file's writer
+# (runtime.rerun_sink.writer_failure, ~15 us): a count, not a clock, so that a mission in simulated time sees a dead
+# writer at the same point of the mission however busy the machine (15 Hz, one robot: a look every ~0.5 s)
+WRITER_LOOK_CALLS = 16
+
+
+class RecordingError(RuntimeError):
+    """The saved recording is incomplete: its writer stopped, or its file was removed (the text says which)."""
+
+
+def _warn_on_stderr(text: str) -> None:
+    print(f"warning: {text}", file=sys.stderr, flush=True)
+
+
 class MissionLog:
     """Logs one mission to the RecordingStream it is given. Thread-safe: robots log from their own threads.
 
@@ -220,11 +235,22 @@ class MissionLog:
     style per plotted series, the entity last styled of each per-frame family, and (saved files) each entity's held
     rows (at most HELD_ROWS_MAX, at most FILE_FLUSH_TICK s: :class:`runtime.rerun_rows.RowSender`, through which the
     per-frame rows and their times go).
+
+    A saved file whose writer stops (a full disk, a file-size limit) or which is removed while it is written is seen
+    within WRITER_LOOK_CALLS frames logged after it (:func:`runtime.rerun_sink.writer_failure`: nothing is
+    asked of Rerun): ``recording_failure`` then says why, ``on_recording_failure`` is called once with one line naming
+    the file (default: the line on stderr), and the logger goes on (Rerun drops the rows; the mission's own files are
+    not its). :meth:`close` then raises :class:`RecordingError` instead of waiting on a dead writer.
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
-                 blueprint: bool = True, hold_rows: bool | None = None) -> None:
+                 blueprint: bool = True, hold_rows: bool | None = None,
+                 on_recording_failure: Callable[[str], None] | None = None) -> None:
         self.rec = rec
+        self.recording_failure: str | None = None   # why the saved file stopped being written, once seen
+        self._on_recording_failure = on_recording_failure or _warn_on_stderr
+        self._calls = 0                              # calls of _watch: every WRITER_LOOK_CALLS-th looks
+        self._last_t = 0.0                           # the mission time of the last frame looked at
         # a saved file: the per-frame rows of each entity are held up to FILE_FLUSH_TICK s and sent as columns
         # (RowSender.emit); a live stream gets each row as it is logged. None: hold when open_recording saves ``rec``
         self._rows = RowSender(rec, rec in SAVED_STREAMS if hold_rows is None else bool(hold_rows))
@@ -303,22 +329,57 @@ class MissionLog:
             self.rec.log(root, rr.Transform3D(mat3x3=Y_UP), static=True)
         return root
 
-    def flush(self) -> None:
+    def _watch(self, t: float) -> None:
+        """Look at the saved file's writer every WRITER_LOOK_CALLS calls (a count otherwise); the first failure seen
+        is kept and said once, with ``t``, the mission time it was seen at."""
+        self._last_t = t
+        self._calls += 1   # robots' threads may race here: a look then comes a call early or late
+        if self._calls % WRITER_LOOK_CALLS or self.recording_failure is not None:
+            return
+        failure = writer_failure(self.rec)
+        if failure is not None:
+            self._failed(failure, say=True)
+
+    def _failed(self, failure: str, say: bool) -> None:
+        """Keep the first failure of the saved file (with the mission time it was seen at); ``say``: and say it."""
+        with self._lock:
+            if self.recording_failure is not None:
+                return
+            self.recording_failure = f"{failure}, seen at t = {self._last_t:.1f} s"
+        if say:
+            watch = WRITERS.get(self.rec)
+            where = watch.current_path() if watch is not None else "the saved recording"
+            self._on_recording_failure(f"the Rerun recording {where} is incomplete: {self.recording_failure}; the "
+                                       "mission goes on (its maps and trajectory files are written as before)")
+
+    def _finish(self, say: bool) -> None:
+        """Send what is held and flush; a saved file that is not whole raises RecordingError (never waits on a
+        writer that has stopped: runtime.rerun_sink.finish_saved)."""
         self._rows.send_held_rows()
-        self.rec.flush()
+        failure = finish_saved(self.rec)
+        if failure is not None:
+            self._failed(failure, say)
+            raise RecordingError(f"incomplete: {self.recording_failure}")
+
+    def flush(self) -> None:
+        """Send every row to the sink; a saved file found incomplete is said (once) and raises RecordingError."""
+        self._finish(say=True)
 
     def close(self) -> None:
-        """Flush and detach every sink (the .rrd file is complete afterwards). Safe to call twice."""
+        """Flush and detach every sink (the .rrd file is complete afterwards). Safe to call twice. A saved file that
+        is not whole raises RecordingError (detached, unless a flush of it is stranded: runtime.rerun_sink's
+        release_saved)."""
         if getattr(self, "_closed", False):
             return
         self._closed = True
         self._rows.closed = True   # its rows are sent here, not at exit
         if not self.rec.is_enabled():
             return
-        self._rows.send_held_rows()
         self.rec.log(CLOSED_ENTITY, rr.AnyValues(closed=True), static=True)
-        self.rec.flush()
-        self.rec.disconnect()
+        try:
+            self._finish(say=False)   # the caller reports what close raises: one line, not two
+        finally:
+            release_saved(self.rec)
 
     # -- static scene ---------------------------------------------------------------------------------
     def log_building(self, walls: np.ndarray, heights: np.ndarray) -> None:
@@ -392,6 +453,7 @@ class MissionLog:
 
         head_mount: (x, y, z) of the left camera in base_link; places world/<robot>/stereo (optical frame).
         """
+        self._watch(t)
         self._rows.set_time(t, frame)
         colour = self.colour(robot)
         estimated = np.asarray(estimated, float).reshape(3)
@@ -553,6 +615,7 @@ class MissionLog:
     def log_scalars(self, robot: str, t: float, values: Mapping[str, float], frame: int | None = None) -> None:
         """Time series under plots/<robot>/<name> (a name may hold '/', e.g. 'time/frontend'); each series gets
         its legend name (with its unit, from SERIES) and colour once."""
+        self._watch(t)
         self._rows.set_time(t, frame)
         for name, value in values.items():
             if value is None or not np.isfinite(value):
@@ -566,6 +629,7 @@ class MissionLog:
             self._rows.emit(path, rr.Scalars, {"scalars": [float(value)]})
 
     def log_event(self, t: float, text: str, level: str = "INFO") -> None:
+        self._watch(t)
         self._rows.set_time(t)
         self.rec.log(EVENTS, rr.TextLog(text, level=level))
 
@@ -710,4 +774,4 @@ class MissionLog:
                      static=True)
 
 
-__all__ = ["MissionLog", "landmark_confirmed"]
+__all__ = ["WRITER_LOOK_CALLS", "MissionLog", "RecordingError", "landmark_confirmed"]
