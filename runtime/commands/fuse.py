@@ -117,6 +117,12 @@ def _fuse(args: argparse.Namespace) -> int:
         print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
               "another file", file=sys.stderr)
         return EXIT_BAD_INPUT
+    from runtime.commands.file_kinds import wrong_kind
+
+    problem = next((p for p in (wrong_kind(path, "map") for path in args.maps) if p is not None), None)
+    if problem is not None:   # a recording or a sensor log: said so, with the command that reads it
+        print(f"p3at fuse: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         maps = [LandmarkMap.load(path) for path in args.maps]
     except EstimationError as e:

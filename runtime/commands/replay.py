@@ -59,6 +59,12 @@ def _replay(args) -> int:
     log_path = Path(args.log)     # the map must not replace a segment: a folder's, or the one file given
     check_output_apart(args.out, files={"sensor log": None if log_path.is_dir() else log_path},
                        folders={"sensor log": log_path if log_path.is_dir() else None})
+    from runtime.commands.file_kinds import wrong_kind
+
+    problem = None if log_path.is_dir() else wrong_kind(log_path, "sensor log")
+    if problem is not None:   # a map or a recording: said so, with the command that reads it
+        print(f"p3at replay: {problem}", file=sys.stderr)
+        return 2
     try:
         log = SensorLog(args.log, allow_truncated=args.allow_truncated)
         _check_replayable(log, args.log)

@@ -240,6 +240,13 @@ def _review(args) -> int:
         if path.is_dir():   # the reader would say "no such recording" of a folder that is there
             print(f"p3at review: {path}: a folder, not a recording (give the .rrd file in it)", file=sys.stderr)
             return 2
+    from runtime.commands.file_kinds import wrong_kind
+
+    for path in (args.recording, *args.more):
+        problem = wrong_kind(path, "recording")   # a map or a sensor log: said so, with the command that reads it
+        if problem is not None:
+            print(f"p3at review: {problem}", file=sys.stderr)
+            return 2
     if not args.recording.is_file():   # what the reading process would say first, said before one starts (~1 s)
         from runtime.textfile import not_a_file
 

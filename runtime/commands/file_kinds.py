@@ -1,0 +1,39 @@
+"""Which of the project's files a path holds, by its first bytes, for the one line a command says when it is given
+the wrong kind: a map to ``p3at review``, a recording to ``p3at replay`` or ``p3at fuse``, a sensor log to either.
+Each reader's own message ("not a Rerun recording (no b'RRF2' stream header)", "InvalidMagic: ... (80, 75, 3, 4,
+...)", "not an npz archive: no zip end record") names its format's insides, not the command that reads the file."""
+from __future__ import annotations
+
+from pathlib import Path
+
+_NAMES = {"map": "a landmark map (.npz)", "recording": "a Rerun recording (.rrd)",
+          "sensor log": "a sensor log segment (.mcap)"}
+_READERS = {"map": "p3at fuse reads maps", "recording": "p3at review reads it and exports the maps it holds",
+            "sensor log": "p3at replay reads it"}
+
+
+def file_kind(path: str | Path) -> str | None:
+    """'map', 'recording' or 'sensor log' when the file starts as one does (a map: a zip archive named .npz); None
+    for anything else, a folder or a file that cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None
+    if head.startswith(b"RRF2"):
+        return "recording"
+    if head.startswith(b"\x89MCAP"):
+        return "sensor log"
+    if head.startswith(b"PK\x03\x04") and Path(path).suffix.lower() == ".npz":
+        return "map"
+    return None
+
+
+def wrong_kind(path: str | Path, expected: str) -> str | None:
+    """'PATH: a Rerun recording (.rrd), not a map: p3at review reads it ...' when ``path`` holds another of the
+    project's files than ``expected`` ('map', 'recording' or 'sensor log'); None otherwise (the reader then says
+    what it says of anything else)."""
+    kind = file_kind(path)
+    if kind is None or kind == expected:
+        return None
+    return f"{path}: {_NAMES[kind]}, not a {expected}: {_READERS[kind]}"
