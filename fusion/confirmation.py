@@ -17,8 +17,17 @@ changed, finds a transform that agrees with it; until then it is a *candidate* a
 so, with its supports and pose).  Agreement: the two transforms' difference within χ²₃ (``level``) of the sum of
 their start covariances (each already counts its maps' frame errors, which move between two fusions); for the
 paper preset, which has no covariances, the two transforms must place every support of the later alignment
-within the paper's support distance th2 of each other.  Once confirmed, a pair stays found as long as each later
-fusion agrees with the latest found alignment; one that disagrees is a candidate again.
+within the paper's support distance th2 of each other.
+
+Against which earlier found.  Each pair keeps the *first* found of its current run of agreeing founds (its
+anchor), and every later found is judged against it: one that agrees continues the run, and is confirmed once it
+is ``min_gap`` or more after the anchor; one that disagrees is a candidate and starts a new run (the clock
+restarts).  A fusion that found nothing (ambiguous, too few supports) neither continues nor ends a run.  So a
+live node that fuses every second confirms ``min_gap`` seconds after the run began (judged against the latest
+found only, each found was always less than ``min_gap`` after the one before, and nothing was confirmed until the
+final fusion: session 48), and a mission that fuses every ``min_gap`` seconds decides as before.  If the maps
+have not changed since the anchor's fusion, the anchor is taken as that later fusion's: the clock counts the maps'
+growth, not the fusions.  Once confirmed, a pair stays found while each found agrees with its anchor.
 
 What it does not do. It adds no evidence: two fusions of overlapping data can agree on a wrong alignment if the
 maps keep showing one copy each of a repetition for longer than ``min_gap``.  It only asks the wrong alignment to
@@ -72,17 +81,19 @@ def transforms_agree(earlier: Alignment, later: Alignment, later_points: np.ndar
 
 @dataclasses.dataclass
 class _PairState:
-    """The latest found alignment of one pair of robots and what it rested on."""
+    """A found alignment of one pair of robots, what it rested on, and how it was judged."""
 
     alignment: Alignment
     content: tuple            # the maps' fingerprints it was computed from
     t: float
     confirmed: bool
+    continues: bool           # it agrees with the pair's anchor (or is the anchor's maps again): the run goes on
 
 
 class ConfirmingCache:
     """An :class:`~fusion.cache.AlignmentCache` for a caller that fuses the same robots again and again: a found
-    alignment becomes found only when a fusion ``min_gap`` s later, on changed maps, agrees (module doc).
+    alignment becomes found only when a fusion ``min_gap`` s or more after the first found of its agreeing run, on
+    changed maps, agrees with that first one (module doc).
 
     Call :meth:`start_round` with the fusion's time before each fusion; every ``align`` of that fusion is judged
     against the founds of earlier rounds only (a flagged map's parts and the whole map are aligned in one round and
@@ -95,13 +106,17 @@ class ConfirmingCache:
             raise ValueError(f"min_gap must be a finite number of seconds >= 0, not {min_gap!r}")
         self.min_gap, self.level = float(min_gap), float(level)
         self.inner = inner if inner is not None else AlignmentCache()
-        self._latest: dict[tuple, _PairState] = {}     # by pair of robots, from earlier rounds
+        self._anchor: dict[tuple, _PairState] = {}     # by pair of robots: the first found of the agreeing run
+        self._latest: dict[tuple, _PairState] = {}     # by pair of robots: the latest round's found
         self._this_round: dict[tuple, _PairState] = {}
         self.t = 0.0
 
     def start_round(self, t: float) -> None:
         """A new fusion at time ``t`` (s): the previous round's founds become what later ones are judged against."""
         for key, state in self._this_round.items():
+            anchor = self._anchor.get(key)
+            if anchor is None or not state.continues or anchor.content == state.content:
+                self._anchor[key] = state      # a new run; or the anchor's maps, still unchanged at this later fusion
             self._latest[key] = state
         self._this_round = {}
         self.t = float(t)
@@ -110,31 +125,35 @@ class ConfirmingCache:
         return self.inner.self_structure(*args, **kwargs)
 
     def align(self, map1, map2, preset="robust", rng: np.random.Generator | None = None, prior=None) -> Alignment:
-        """``inner.align``, then found only if an earlier round's found agrees (else a candidate, not found)."""
+        """``inner.align``, then found only if it agrees with its run's first found, ``min_gap`` s or more earlier
+        (else a candidate, not found)."""
         result = self.inner.align(map1, map2, preset, rng, prior=prior)
         if not result.found:
             return result
         key = (tuple(map1.robots), tuple(map2.robots))
         content = (map_fingerprint(map1), map_fingerprint(map2))
-        earlier = self._latest.get(key)
-        if earlier is not None and earlier.content == content:      # the same maps: no new evidence either way
-            confirmed, why = earlier.confirmed, "the maps have not changed since"
-        elif earlier is None:
-            confirmed, why = False, "no earlier fusion of these maps found it"
-        elif self.t - earlier.t < self.min_gap:
-            confirmed, why = False, f"the fusion at t={earlier.t:.0f}s is less than {self.min_gap:g} s before"
+        latest, anchor = self._latest.get(key), self._anchor.get(key)
+        if latest is not None and latest.content == content:    # the same maps: no new evidence either way
+            confirmed, continues, why = latest.confirmed, True, "the maps have not changed since"
+        elif anchor is None:
+            confirmed, continues, why = False, False, "no earlier fusion of these maps found it"
         else:
             from .alignment_config import resolve_preset
 
             config = resolve_preset(preset)
             points = map2.positions[result.supports[:, 1]] if len(result.supports) else None
-            confirmed, apart = transforms_agree(earlier.alignment, result, points, config.support_threshold,
+            continues, apart = transforms_agree(anchor.alignment, result, points, config.support_threshold,
                                                 self.level)
-            why = (f"agrees with the fusion at t={earlier.t:.0f}s" if confirmed else
-                   f"disagrees with the fusion at t={earlier.t:.0f}s ({apart})")
+            if not continues:
+                confirmed, why = False, f"disagrees with the fusion at t={anchor.t:.0f}s ({apart})"
+            elif self.t - anchor.t < self.min_gap:
+                confirmed, why = False, (f"agrees with the fusion at t={anchor.t:.0f}s, which is less than "
+                                         f"{self.min_gap:g} s before")
+            else:
+                confirmed, why = True, f"agrees with the fusion at t={anchor.t:.0f}s"
         best = self._this_round.get(key)
         if best is None or len(result.supports) > len(best.alignment.supports):
-            self._this_round[key] = _PairState(result, content, self.t, confirmed)
+            self._this_round[key] = _PairState(result, content, self.t, confirmed, continues)
         return result if confirmed else demoted(result, why, self.min_gap)
 
 
