@@ -75,7 +75,10 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
     """Read a mission's ``.rrd`` (rerun 0.41 ``rerun.chunk.RrdReader``) and rebuild its maps and figures.
 
     ``more``: further files of the same recording, e.g. one per process of a fleet that saved its own
-    (``open_recording(..., recording_id=...)``); their contents are read as one recording.
+    (``open_recording(..., recording_id=...)``); their contents are read as one recording. Each process keeps its
+    own simulated time, so the files' times do not order one entity's rows across files: a fleet's fusion node's
+    file (see :func:`_fusion_node_file`) gives the alignments, the fused map and the summary (the mission's figures,
+    which a robot's own fusions and summary in its file are not), and a robot's own file gives its map.
 
     A file cut short (a crash, a kill, a full disk) is read up to its last complete message; ``truncated`` then
     says where it was cut. Rerun's reader itself refuses such a file, so the whole prefix is copied to a
@@ -96,6 +99,7 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
     """
     paths = [Path(p) for p in (path, *more)]
     chunks: list = []
+    sources: list[int] = []   # for each chunk, the index in ``paths`` of the file it came from
     notes: list[str] = []
     damaged: list[str] = []
     ended = True
@@ -142,7 +146,8 @@ def read_recording(path: str | Path, *more: str | Path, isolated: bool = False,
             closed = any(chunk.entity_path.lstrip("/") == CLOSED_ENTITY for chunk in held)
             ended = ended and (scan.ended or (closed and not scan.truncated))
             chunks.extend(held)
-        contents = _contents_from_chunks(paths[0], chunks)
+            sources.extend([index] * len(held))
+        contents = _contents_from_chunks(paths[0], chunks, sources)
     contents.truncated, contents.ended = ("; ".join(notes) or None), ended
     contents.damaged = "; ".join(damaged + ([contents.damaged] if contents.damaged else [])) or None
     return contents
@@ -225,11 +230,13 @@ def _read_chunks(path: Path, readable: Path) -> tuple[list, str]:
         raise RecordingReadError(f"{path}: not a readable Rerun recording ({e})") from None
 
 
-def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
+def _contents_from_chunks(path: Path, chunks: list, sources: list[int] | None = None) -> RecordingContents:
     """What the chunks hold. A logged row may come back split over several chunks, each with some of its components
     (``rerun rrd optimize`` stores a map snapshot's scalars and its arrays apart): the pieces share the row's id and
-    are joined here."""
-    rows_by_entity: dict[str, dict[object, list]] = {}   # entity -> row id -> [time, first chunk, components]
+    are joined here. ``sources``: which file each chunk came from (several files of one recording; None: one)."""
+    sources = sources if sources is not None else [0] * len(chunks)
+    # entity -> row id -> [time, first chunk, components, file]
+    rows_by_entity: dict[str, dict[object, list]] = {}
     t_min, t_max = np.inf, -np.inf
     entities: set[str] = set()
     wanted = ("maps/", "fusion/alignment/", "mission/summary")
@@ -256,13 +263,14 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
             if key in held:
                 held[key][2].update({k: v for k, v in row.items() if v is not None})
             else:
-                held[key] = [float(times[i]), order, row]
+                held[key] = [float(times[i]), order, row, sources[order]]
+    node = _fusion_node_file(rows_by_entity)
     maps: dict[str, LandmarkMap] = {}
     alignments: dict[str, dict] = {}
     summary = None
     stale: list[str] = []
     for entity, by_id in rows_by_entity.items():
-        rows = sorted(by_id.values(), key=lambda r: (r[0], r[1]))
+        rows = sorted(_from_its_file(entity, list(by_id.values()), node), key=lambda r: (r[0], r[1]))
         plain = [r[2] for r in rows]
         if entity.startswith("maps/"):
             landmark_map, note = _map_from_row(path, entity, plain)
@@ -283,6 +291,62 @@ def _contents_from_chunks(path: Path, chunks: list) -> RecordingContents:
     duration = float(t_max - t_min) if np.isfinite(t_min) else 0.0
     return RecordingContents(path, robots, duration, maps, alignments, summary, len(entities),
                              damaged="; ".join(stale) or None)
+
+
+FUSION_NODE_ENTITIES = ("fusion/", "maps/fused", "mission/summary")   # the fusion node's word, in a fleet's files
+
+
+def _summary_of(rows: list) -> dict | None:
+    """The summary that ``rows`` of ``mission/summary`` (one file's) hold, or None."""
+    text = _last_values([r[2] for r in sorted(rows, key=lambda r: (r[0], r[1]))], "json")
+    try:
+        summary = json.loads(_scalar(text)) if text else None
+    except (TypeError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) else None
+
+
+def _fusion_node_file(rows_by_entity: dict[str, dict[object, list]]) -> int | None:
+    """Of several files of a fleet's recording, the fusion node's (the index of its file), or None (one file, or
+    none to tell). A robot process that fuses the maps it receives logs its own alignments, fused map and summary
+    on its own clock (``p3at demo --processes``: robot2's at t = 141 s, the node's final fusion at 24 s), so
+    ordering those rows by time across files would give a robot's figures. The node is the file whose summary
+    says so (``fusion_node``: ``p3at fuse --live``; ``processes``: the node of ``p3at demo --processes``), else
+    (a node that ended without its summary) the one file holding the maps of more robots than any other (the node
+    logs every robot's map it fuses; a robot, its own and the fused one)."""
+    files = {r[3] for by_id in rows_by_entity.values() for r in by_id.values()}
+    if len(files) < 2:
+        return None
+    summary_rows: dict[int, list] = {}
+    for r in rows_by_entity.get("mission/summary", {}).values():
+        summary_rows.setdefault(r[3], []).append(r)
+    said = [f for f, rows in summary_rows.items()
+            if (s := _summary_of(rows)) is not None and (s.get("fusion_node") is True or s.get("processes") is True)]
+    if len(said) == 1:
+        return said[0]
+    robots_mapped = dict.fromkeys(files, 0)
+    for entity, by_id in rows_by_entity.items():
+        if entity.startswith("maps/") and entity != "maps/fused":
+            for f in {r[3] for r in by_id.values()}:
+                robots_mapped[f] += 1
+    most = max(robots_mapped.values())
+    widest = [f for f, n in robots_mapped.items() if n == most]
+    return widest[0] if most >= 2 and len(widest) == 1 else None
+
+
+def _from_its_file(entity: str, rows: list, node: int | None) -> list:
+    """The rows of ``entity`` to read: with a fusion node's file (several files of a fleet), the node's for what
+    the node decides (alignments, the fused map, the summary) and a robot's own file's for its map, where those
+    files hold the entity; else all of them."""
+    if node is None:
+        return rows
+    if entity.startswith(FUSION_NODE_ENTITIES):
+        mine = [r for r in rows if r[3] == node]
+    elif entity.startswith("maps/"):
+        mine = [r for r in rows if r[3] != node]
+    else:
+        return rows
+    return mine or rows
 
 
 def _scalar(value):
