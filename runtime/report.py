@@ -82,7 +82,7 @@ def format_summary(summary: dict) -> str:
     fusion = summary.get("fusion")
     lines.append("")
     if not fusion or not fusion["pairs"]:
-        lines.append("Fusion: fewer than two maps, nothing to fuse.")
+        lines += _wrapped(no_fusion_text(summary["robots"], failures))
     else:
         # 1σ: the alignment's uncertainty against the true start frames (each map's own frame error included),
         # beside the error when the truth is known, so a reader sees whether the claim covers the error; none for a
@@ -116,6 +116,29 @@ def format_summary(summary: dict) -> str:
                      f"(fusion took {_fmt(summary.get('fusion_ms'), '.1f')} ms; "
                      f"{summary.get('fusions_during_mission', 0)} fusion(s) during the mission)")
     return "\n".join(lines)
+
+
+def no_fusion_text(robots: Mapping, failures: list | None = None) -> str:
+    """The summary's fusion line when the mission ended with no alignment to show, saying why from the robots' maps:
+    'Fusion: no alignment: every map is empty (robot1: 0 landmarks from 1 frame; robot2: 0 landmarks from 0
+    frames).' (a loaded machine whose heads dropped nearly every frame), not "fewer than two maps" beside two."""
+    if len(robots) < 2:
+        return "Fusion: fewer than two maps, nothing to fuse."
+
+    def held(name: str, r: Mapping) -> str:
+        frames = r.get("frames_processed")
+        return f"{name}: {r.get('landmarks', 0)} landmarks" + (
+            "" if frames is None else f" from {frames} frame{'' if frames == 1 else 's'}")
+
+    counts = "; ".join(held(name, r) for name, r in robots.items())
+    mapped = [name for name, r in robots.items() if r.get("landmarks")]
+    if not mapped:
+        return f"Fusion: no alignment: every map is empty ({counts})."
+    if len(mapped) == 1:
+        return f"Fusion: no alignment: only {mapped[0]}'s map holds landmarks ({counts})."
+    if any(f.get("stage") == "fusion" for f in failures or []):
+        return f"Fusion: no alignment: the fusion failed (FAILED stages above; {counts})."
+    return f"Fusion: no fusion was made ({counts})."
 
 
 def _wrapped(sentence: str, width: int = 118) -> list[str]:
