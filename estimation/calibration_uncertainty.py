@@ -120,8 +120,13 @@ def clustered_covariance(found: Influences, length: float, rows: np.ndarray | No
 
 
 def per_second(found: Influences, rows: np.ndarray | None = None) -> np.ndarray:
-    """(seconds, k) the influences summed per second of the log."""
-    return _block_sums(found.rows if rows is None else np.asarray(rows, float), found.times, 1.0)
+    """(seconds, k) the influences summed per second of the log, a second without a row 0 (lags are seconds)."""
+    rows = found.rows if rows is None else np.asarray(rows, float)
+    keep = np.isfinite(found.times)
+    second = np.floor(found.times[keep] - np.min(found.times[keep])).astype(np.int64)
+    out = np.zeros((int(second.max()) + 1, rows.shape[1]))
+    np.add.at(out, second, rows[keep])
+    return out
 
 
 def andrews_bandwidth(series: np.ndarray) -> float:
