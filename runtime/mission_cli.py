@@ -60,13 +60,14 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--max-observations", type=non_negative_int, default=0,
                         help="FastSLAM's cap on observations per frame, most precise first (default 0: all)")
     parser.add_argument("--motion", choices=MOTIONS, default="route",
-                        help="route: follow a route; explore: sonar wall following; none: someone else drives")
+                        help="route: follow a route (default); explore: sonar wall following; none: another drives")
     parser.add_argument("--route", type=Path, default=None,
                         help="route file (x y per line, in the robot's odometry frame) instead of the world's routes")
     parser.add_argument("--speed", type=positive_float, default=0.35, help="m/s along routes (default 0.35)")
     parser.add_argument("--fusion-interval", type=non_negative_float, default=20.0,
                         help="s between map fusions during the mission (0: at the end only; default 20)")
-    parser.add_argument("--preset", choices=("robust", "paper"), default="robust", help="alignment preset")
+    parser.add_argument("--preset", choices=("robust", "paper"), default="robust",
+                        help="alignment preset (default robust; paper: the paper's parameters)")
     parser.add_argument("--method", type=int, choices=(1, 2), default=1,
                         help="common landmarks for merging: 1 RANSAC supports (default), 2 nearest in position")
     parser.add_argument("--rerun", default="file", metavar="SINK",
@@ -132,6 +133,8 @@ def mission_inputs_problem(args) -> str | None:
         return sink
     if args.realtime and (problem := time_scale_problem(args.time_scale)) is not None:
         return problem
+    if args.route is not None and args.motion != "route":   # it was run, the route ignored without a word
+        return f"--route {args.route}: only --motion route follows a route (this run has --motion {args.motion})"
     if virtual and args.motion == "route":
         # the virtual P3-AT's top speed: faster, every command was clamped with a warning on stderr (--speed 100:
         # a hundred lines in 3 s)

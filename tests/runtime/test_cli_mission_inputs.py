@@ -37,6 +37,18 @@ def test_a_missing_route_file(command, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("command", MISSIONS)
+@pytest.mark.parametrize("motion", ["explore", "none"])
+def test_a_route_with_a_motion_that_follows_none(command, motion, tmp_path, capsys):
+    # session 48: the run went ahead and ignored the route without a word
+    route = tmp_path / "corridor.route"
+    route.write_text("1 0\n2 0\n")
+    code = main(_mission(command, tmp_path, "--route", str(route), "--motion", motion, "--out", str(tmp_path / "o")))
+    assert code == 2 and _one_line(capsys) == (f"p3at {command}: --route {route}: only --motion route follows a "
+                                               f"route (this run has --motion {motion})")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", MISSIONS)
 def test_a_world_file_that_is_not_json(command, tmp_path, capsys):
     world = tmp_path / "building.json"
     world.write_bytes(b"\x89PNG\r\n\x1a\n not a building")
