@@ -104,7 +104,7 @@ def test_a_live_found_is_a_candidate_until_a_fusion_an_interval_later_on_grown_m
     pair, line = grow_and_fuse(40.0)
     assert pair.aligned and pair.error_xy < 0.1, pair.note
     assert line.startswith("fusion at t=40s: robot2 -> robot1 (")
-    pair, line = grow_and_fuse(60.0)                  # stays found while each fusion agrees with the latest
+    pair, line = grow_and_fuse(60.0)                  # found while each agrees with its run's first found
     assert pair.aligned
 
 
