@@ -163,7 +163,7 @@ class Mission:
 
     def __init__(self, config: MissionConfig, *, clock: Clock | None = None,
                  progress: Callable[[str], None] | None = None, events: Callable[[str], None] | None = None,
-                 exchange: MapExchange | None = None) -> None:
+                 exchange: MapExchange | None = None, warnings: Callable[[str], None] | None = None) -> None:
         self.config = config
         if clock is None and config.lockstep:
             from mocks.simclock import SimClock
@@ -177,6 +177,7 @@ class Mission:
         self.time_base = _time_base(config, self.lockstep)
         self.progress = progress or (lambda line: None)
         self.events = events or (lambda line: None)
+        self.warnings = warnings   # lines said at once, also under --quiet (None: MissionLog's own, on stderr)
         self.exchange = exchange if exchange is not None else InProcessExchange()
         self._stop = threading.Event()
         self.robots: list[RobotSetup] = []
@@ -223,7 +224,8 @@ class Mission:
         # one process of a fleet's shared recording sends no layout: the fusion node's (it knows every robot) wins
         layout = None if cfg.recording_id else mission_blueprint(names)
         rec = open_recording(sink, recording_id=cfg.recording_id, blueprint=layout)
-        self.logger = MissionLog(rec, names, blueprint=False)  # open_recording sent it (active)
+        # open_recording sent the layout (active); a writer that dies is said at once, the mission goes on
+        self.logger = MissionLog(rec, names, blueprint=False, on_recording_failure=self.warnings)
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)
 

@@ -213,6 +213,15 @@ class Progress:
             self.stream.write(f"  {text}\n")
             self.stream.flush()
 
+    def warning(self, text: str) -> None:
+        """A line said at once even under --quiet (a recording's writer died), below an open status line."""
+        with self._lock:
+            if self._open_line:
+                self.stream.write("\r\x1b[2K")
+                self._open_line = False
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
     def done(self) -> None:
         with self._lock:
             if self._open_line:
@@ -265,7 +274,8 @@ def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> 
     except (ValueError, RuntimeError) as e:
         print(f"{prog}: {e}", file=sys.stderr)
         return 2
-    mission = Mission(config, progress=progress.line, events=progress.event, exchange=exchange)
+    mission = Mission(config, progress=progress.line, events=progress.event, exchange=exchange,
+                      warnings=lambda text: progress.warning(f"{prog}: warning: {text}"))
     restore = install_stop_signals(mission.stop)
     if noted:  # stopped before the mission began: no robot is connected, nothing is written
         restore()
@@ -291,7 +301,8 @@ def _run_mission(args: argparse.Namespace, robot_url: str, noted: list[int]) -> 
         print("Files written:")
         print("\n".join(f"  {f}" for f in result.summary["files"]))
     if result.recording is not None:
-        print(f"Rerun recording: {result.recording}\n  open it with:   rerun {result.recording}\n"
+        whole = "" if "recording" not in {f.stage for f in result.failures} else " (incomplete: its writer failed)"
+        print(f"Rerun recording{whole}: {result.recording}\n  open it with:   rerun {result.recording}\n"
               f"  summarise it:   p3at review {result.recording}", file=sys.stderr if args.json else sys.stdout)
     for name, figures in result.summary["robots"].items():  # a sensor log with holes is said even with --quiet
         if figures.get("sensor_log_dropped"):
