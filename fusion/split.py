@@ -33,6 +33,9 @@ outside the gate that recognises them as the same place.
   by the two alignments): the map is used whole, as without the check.
 - They disagree (significantly, or by more than the tolerance): each part is merged under its own alignment, as if
   two robots had made them.
+- No landmark made after the gap (a smoothed known-ID map whose posts were all seen before the alarm: MRCLAM robots
+  2 and 3): there is nothing to split, and the map is used whole, as without the check. (Nothing made *before* the
+  gap is not the same: every landmark is then in the frame the map was in after it lost its place.)
 - A part that does not align (or holds fewer landmarks than any alignment needs: "too small") cannot be checked;
   it is left out, with the reason, and the part that aligns is merged alone. A map neither part of which aligns is
   left out ("not found, and why" over a merge that may be wrong), except the reference map, whose part made
@@ -237,6 +240,12 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
     config = resolve_preset(preset)
     rng = np.random.default_rng(0) if rng is None else rng
     halves = split_map(maps[index], first_id)
+    if len(halves[0]) and not len(halves[1]):   # every landmark made before the gap: nothing to split (docstring)
+        parts = [PartCheck(name, len(h), used=True) for name, h in zip(PARTS, halves, strict=True)]
+        result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts,
+                            _alarm_time(maps[index]), tolerance=split_tolerance(config), decision="whole")
+        result.text = _text(result, [m.robot for m in maps], config.min_supports)
+        return result
     others = [j for j in range(len(maps)) if j != index]
     parts = []
     for name, part in zip(PARTS, halves, strict=True):
@@ -290,6 +299,8 @@ def _text(check: SplitCheck, names: list[str], min_supports: int) -> str:
                        f"{a.statistics.expected_chance_supports - 2:.1f} by chance beyond 2)"
                        for p in check.parts for j, a in p.at_other.items() if a.found)
     figures += f"; {tested}" if tested else ""
+    if before.landmarks and not after.landmarks:
+        return f"{head}: no landmark was made after the gap, so there is nothing to split: the map is used whole"
     kept = [p for p in check.parts if p.used]
     lost = [p for p in check.parts if not p.used]
     why = "; ".join(f"the part {p.name} the gap {p.why_not(names, min_supports)}" for p in lost)
