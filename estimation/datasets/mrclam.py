@@ -224,7 +224,7 @@ def read_mrclam(folder: str | Path, robot: int, *, barcodes: str = "verified",
         if len(truth) < 2 or not len(subjects):
             missing = f" ({' and '.join(f'{stem}.dat' for stem in absent)} absent)" if absent else ""
             raise DatasetError(f"{name}: Barcodes.dat cannot be verified without ground truth{missing}; "
-                               "pass barcodes='table' to trust it")
+                               "pass barcodes='table' (p3at: --barcodes table) to trust it")
         probe = RangeBearingLog(name, _odometry_rows(odometry), np.zeros(0), np.zeros(0), np.zeros(0),
                                 np.zeros(0, np.int64), truth)
         check = check_barcodes(table, subjects, positions, probe.true_pose(sightings[:, 0]), codes,
