@@ -24,6 +24,23 @@ def _parse_pose(text: str) -> np.ndarray:
     return pose
 
 
+def _check_inside(world, start: np.ndarray, route: np.ndarray, start_option: str | None,
+                  route_option: str | None) -> None:
+    """ValueError (one line) when the start pose or a route waypoint lies outside the building's bounds: the
+    simulated robot does not collide, so it would drive where no wall or feature is and map nothing (session 48:
+    --start-pose 100,100,0 ran and printed nan figures)."""
+    x0, y0, x1, y1 = world.bounds
+    where = f"outside the world {world.name!r} (x {x0:g} to {x1:g} m, y {y0:g} to {y1:g} m)"
+    if not (x0 <= start[0] <= x1 and y0 <= start[1] <= y1):
+        origin = start_option or "the start pose"
+        raise ValueError(f"{origin}: ({start[0]:g}, {start[1]:g}) is {where}")
+    outside = [k for k, (x, y) in enumerate(route[:, :2]) if not (x0 <= x <= x1 and y0 <= y <= y1)]
+    if outside:
+        k = outside[0]
+        raise ValueError(f"{route_option or 'the route'}: waypoint {k + 1} ({route[k, 0]:g}, {route[k, 1]:g}) is "
+                         f"{where}" + (f", and {len(outside) - 1} more" if len(outside) > 1 else ""))
+
+
 def run_simulate(args: argparse.Namespace) -> int:
     # imported here so that `p3at --help` does not pay for the simulator
     from mocks.world import World
@@ -51,6 +68,8 @@ def run_simulate(args: argparse.Namespace) -> int:
         else:
             nxt = route[1] if len(route) > 1 else route[0] + [1.0, 0.0]
             start = np.array([route[0][0], route[0][1], math.atan2(nxt[1] - route[0][1], nxt[0] - route[0][0])])
+        _check_inside(world, start, route, "--start-pose" if args.start_pose else None,
+                      "--world-route" if args.world_route else None)
         config = FastSLAMConfig(n_particles=args.particles, version=args.fastslam)
         result = simulate(world, start_pose=start, route=route, seconds=args.seconds, seed=args.seed,
                           config=config, robot=args.name, frame_rate=args.camera_rate)
