@@ -74,6 +74,11 @@ def register(subparsers) -> None:
                              "zenoh), fuse on new data and at --interval, publish p3at/FLEET/fused/map")
     add_exchange_arguments(parser, default="zenoh")
     add_live_arguments(parser)
+    # as `p3at run --recording-id` (runtime/mission_cli.py): the node's recording and the robots' then read as one
+    parser.add_argument("--recording-id", default=None, metavar="ID",
+                        help="--live: Rerun recording id shared with the robots' `p3at run --recording-id ID`, so "
+                             "that the node's recording and theirs open (and p3at review reads them) as one "
+                             "(default: a new id)")
     parser.set_defaults(handler=_fuse)
 
 

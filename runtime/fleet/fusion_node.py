@@ -9,8 +9,8 @@ recovers every robot's map by query before its first fusion.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -25,7 +25,7 @@ from runtime.exchange import MapExchange, MapMessage
 from runtime.fleet.status import PresenceLines, StatusPrinter
 from runtime.fusion_report import FusionReport, alignment_cache, fuse_maps, keep_latest_map
 from runtime.json_output import json_text
-from runtime.report import fusion_event_line, start_prior_line
+from runtime.report import alignment_text, fusion_event_line, start_prior_line
 
 FUSED = "fused"
 EXIT_NOTHING_TO_FUSE = 1   # p3at fuse --live: no two robots' maps ever came, so no fusion was made
@@ -70,6 +70,7 @@ class FusionNode:
         self.priors = named_pair_priors(dict(config.starts), source=config.starts_source)
         self._priors_said: set[tuple[str, str]] = set()
         self.mapped: list[str] = []    # the robots whose map the node has held, in the order they first came
+        self.saved: tuple[float, int] | None = None   # (t, landmarks) of the fused map last written to config.out
         self._new_data = threading.Event()
 
     def notify(self, robot: str = "") -> None:
@@ -122,6 +123,7 @@ class FusionNode:
             if self.config.out is not None:
                 try:
                     merged.save(self.config.out)
+                    self.saved = (t, len(merged))
                 except MapFileError as exc:  # one its reader would refuse: the file keeps the last fused map
                     self.on_event(f"fused map not saved: {exc}")
         self._log(t, maps, report)
@@ -195,7 +197,7 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
         return 2
     presence.append(PresenceLines(exchange.status, exchange.held))
     try:
-        logger = _open_logger(args.rerun, out)
+        logger, recording = _open_logger(args.rerun, out, args.recording_id)
     except RuntimeError as e:   # a --rerun URL Rerun refuses (runtime.rerun_sink.ViewerError): exit 70 before
         exchange.close()
         print(f"p3at fuse: {e}", file=sys.stderr)
@@ -233,8 +235,8 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     if args.json:
         print(json_text({"fusions": len(reports), "last": None if final is None else final.as_dict(),
                          "robots_with_maps": sorted(node.mapped), "nothing_to_fuse": nothing}))
-    elif final is not None:
-        print(f"{len(reports)} fusions; the last: " + json.dumps(final.as_dict()))
+    elif ending := ending_text(final, len(reports), out, node.saved, recording, args.recording_id):
+        print(ending)
     if nothing is not None:
         print(f"p3at fuse: nothing to fuse: {nothing}", file=sys.stderr)
         return EXIT_NOTHING_TO_FUSE
@@ -252,12 +254,48 @@ def nothing_to_fuse(mapped: list[str], heard: list[str], seconds: float, fleet: 
     return said
 
 
-def _open_logger(sink: str, out: Path | None):
+def ending_text(final: FusionReport | None, fusions: int, out: Path | None, saved: tuple[float, int] | None,
+                recording: Path | None, recording_id: str | None = None) -> str:
+    """``p3at fuse --live``'s last lines (text mode), as ``p3at run`` and ``p3at demo`` end: the last fusion, each pair
+    in the words of ``p3at review`` (runtime.report.alignment_text), the fused map and where it was written (``saved``:
+    (t, landmarks) of the fused map last written to ``out``), and the recording (a saved file) with the commands that
+    open and summarise it.  "" when there was no fusion and nothing was written (the reason is said on stderr)."""
+    lines: list[str] = []
+    if final is not None:
+        lines.append(f"{fusions} fusion{'' if fusions == 1 else 's'}; the last, at t={final.t:.0f} s:")
+        for p in final.pairs:
+            lines += textwrap.wrap(f"{p.other} -> {p.reference}: {alignment_text(p.as_dict())}", 118,
+                                   initial_indent="  ", subsequent_indent="      ", break_on_hyphens=False)
+        aligned = any(p.aligned for p in final.pairs)
+        if out is None:
+            lines.append(f"Fused map: {len(final.merged)} landmarks, not saved (give --out FILE.npz)"
+                         if aligned and final.merged is not None else "Fused map: none (no pair aligned)")
+    if out is not None and (final is not None or saved is not None):   # no fusion at all: said on stderr
+        if saved is None:
+            lines.append(f"Fused map: none written to {out}: no fusion aligned two robots' maps")
+        else:
+            t, landmarks = saved
+            lines.append(f"Fused map: {landmarks} landmarks -> {out}" + (
+                "" if final is not None and t == final.t else f" (the fusion at t={t:.0f} s, the last that "
+                                                                         "aligned a pair)"))
+    if recording is not None:
+        lines += [f"Rerun recording: {recording}", f"  open it with:   rerun {recording}",
+                  f"  summarise it:   p3at review {recording}"]
+        if recording_id:   # the robots' `p3at run --recording-id` of the same id: their files read as one recording
+            lines.append(f"  with the robots' (p3at run --recording-id {recording_id}): "
+                         f"p3at review {recording} ROBOT/mission.rrd ...")
+    return "\n".join(lines)
+
+
+def _open_logger(sink: str, out: Path | None, recording_id: str | None = None):
+    """The node's MissionLog (None for --rerun none) and the file it saves to (None unless it saves one)."""
     if sink == "none":
-        return None
+        return None, None
+    from runtime.limits import RERUN_URL_PREFIXES
     from runtime.rerun_log import MissionLog
     from runtime.rerun_sink import open_recording
 
     if sink == "file":
         sink = str(out.with_name("fusion.rrd") if out is not None else Path("fusion.rrd"))
-    return MissionLog(open_recording(sink), [])
+    saved = None if sink in ("spawn", "memory") or sink.startswith(RERUN_URL_PREFIXES) else Path(sink)
+    return MissionLog(open_recording(sink, recording_id=recording_id), []), saved
