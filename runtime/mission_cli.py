@@ -22,6 +22,7 @@ from runtime.commands.options import (
     particle_count,
     positive_float,
     positive_int,
+    recording_id,
     rerun_sink_problem,
     start_sigmas,
     time_scale_problem,
@@ -88,7 +89,7 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
     parser.add_argument("--odometry", choices=("exact", "realistic"), default="realistic",
                         help="virtual robots' wheel odometry errors (default realistic: 1 %% scale, 3 %% track, "
                              "noise; exact: no error)")
-    parser.add_argument("--recording-id", default=None, metavar="ID",
+    parser.add_argument("--recording-id", type=recording_id, default=None, metavar="ID",
                         help="Rerun recording id shared with other processes of a fleet, so that their recordings "
                              "open as one (default: a new id)")
     parser.add_argument("--start-prior", type=start_sigmas, default=None, metavar="SIGMA_XY,SIGMA_YAW",

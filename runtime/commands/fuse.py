@@ -19,6 +19,7 @@ from runtime.commands.options import (
     check_output_apart,
     check_output_file,
     non_negative_int,
+    recording_id,
     rerun_sink_problem,
     same_file,
     start_sigmas,
@@ -75,7 +76,7 @@ def register(subparsers) -> None:
     add_exchange_arguments(parser, default="zenoh")
     add_live_arguments(parser)
     # as `p3at run --recording-id` (runtime/mission_cli.py): the node's recording and the robots' then read as one
-    parser.add_argument("--recording-id", default=None, metavar="ID",
+    parser.add_argument("--recording-id", type=recording_id, default=None, metavar="ID",
                         help="--live: Rerun recording id shared with the robots' `p3at run --recording-id ID`, so "
                              "that the node's recording and theirs open (and p3at review reads them) as one "
                              "(default: a new id)")

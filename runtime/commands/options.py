@@ -101,6 +101,15 @@ def particle_count(text: str) -> int:
                               lambda value: 1 <= value <= MAX_PARTICLES)
 
 
+def recording_id(text: str) -> str:
+    """A Rerun recording id shared by a fleet's processes: printable text of 1 to 256 characters. An empty one fell
+    through to a new random id without a word, and the files no longer read as one recording."""
+    if not text.strip() or len(text) > 256 or not text.isprintable():
+        raise argparse.ArgumentTypeError(f"invalid value {text!r}: a recording id is printable text of 1 to 256 "
+                                         "characters, the same in every process of the fleet")
+    return text
+
+
 class _DeprecatedAlias(argparse.Action):
     """Stores into the new option's destination and says, once, which spelling to use instead."""
 

@@ -87,6 +87,8 @@ REFUSED = [
     ("scanmatch", "--step", "0", ">= 1"), ("scanmatch", "--max-distance", "nan", "> 0"),
     ("scanmatch", "--limit", "1", ">= 2"),
     ("replay", "--particles", "0", ">= 1"), ("replay", "--seed", "-1", ">= 0"),
+    # a typed option that is not a number: the walk below sees it, and its refusal is tested the same way
+    *[(c, "--recording-id", v, "printable text of 1 to 256 characters") for c in (*MISSION, "fuse") for v in ("", " ")],
 ]
 
 # (command, option, documented edge value, the value the command gets)
