@@ -80,7 +80,16 @@ from runtime.report import alignment_status, candidate_text
 from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rerun_rows import RowSender
 from runtime.rerun_sdk import rr
-from runtime.rerun_sink import SAVED_STREAMS, WRITERS, finish_saved, release_saved, writer_failure
+from runtime.rerun_sink import (
+    SAVED_STREAMS,
+    WRITERS,
+    finish_live,
+    finish_saved,
+    live_url,
+    release_saved,
+    viewer_lost,
+    writer_failure,
+)
 from runtime.rerun_style import (
     EVENTS,
     FRAME_TIE_COLOUR,
@@ -241,6 +250,11 @@ class MissionLog:
     asked of Rerun): ``recording_failure`` then says why, ``on_recording_failure`` is called once with one line naming
     the file (default: the line on stderr), and the logger goes on (Rerun drops the rows; the mission's own files are
     not its). :meth:`close` then raises :class:`RecordingError` instead of waiting on a dead writer.
+
+    A live stream to a viewer URL whose viewer goes away (:func:`runtime.rerun_sink.viewer_lost`, looked at as often)
+    is said once the same way (``live_view_lost`` keeps why) and the mission goes on; :meth:`flush` and :meth:`close`
+    wait for its last rows a bounded time (:func:`runtime.rerun_sink.finish_live`) and raise nothing: the live view
+    is not one of the mission's files.
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
@@ -248,6 +262,7 @@ class MissionLog:
                  on_recording_failure: Callable[[str], None] | None = None) -> None:
         self.rec = rec
         self.recording_failure: str | None = None   # why the saved file stopped being written, once seen
+        self.live_view_lost: str | None = None      # why the viewer URL stopped taking the stream, once seen
         self._on_recording_failure = on_recording_failure or _warn_on_stderr
         self._calls = 0                              # calls of _watch: every WRITER_LOOK_CALLS-th looks
         self._last_t = 0.0                           # the mission time of the last frame looked at
@@ -334,11 +349,22 @@ class MissionLog:
         is kept and said once, with ``t``, the mission time it was seen at."""
         self._last_t = t
         self._calls += 1   # robots' threads may race here: a look then comes a call early or late
-        if self._calls % WRITER_LOOK_CALLS or self.recording_failure is not None:
+        if self._calls % WRITER_LOOK_CALLS or self.recording_failure is not None or self.live_view_lost is not None:
             return
         failure = writer_failure(self.rec)
         if failure is not None:
             self._failed(failure, say=True)
+        elif (lost := viewer_lost(self.rec)) is not None:
+            self._view_lost(lost)
+
+    def _view_lost(self, why: str) -> None:
+        """Keep and say (once) why the viewer URL stopped taking the stream."""
+        with self._lock:
+            if self.live_view_lost is not None:
+                return
+            self.live_view_lost = f"{why}, seen at t = {self._last_t:.1f} s"
+        self._on_recording_failure(f"the live view at {live_url(self.rec)} is lost: {self.live_view_lost}; the "
+                                   "mission goes on (its maps and trajectory files are written as before)")
 
     def _failed(self, failure: str, say: bool) -> None:
         """Keep the first failure of the saved file (with the mission time it was seen at); ``say``: and say it."""
@@ -356,6 +382,10 @@ class MissionLog:
         """Send what is held and flush; a saved file that is not whole raises RecordingError (never waits on a
         writer that has stopped: runtime.rerun_sink.finish_saved)."""
         self._rows.send_held_rows()
+        if live_url(self.rec) is not None:   # a viewer URL: waited for a bounded time, its loss said, never raised
+            if (lost := finish_live(self.rec)) is not None:
+                self._view_lost(lost)
+            return
         failure = finish_saved(self.rec)
         if failure is not None:
             self._failed(failure, say)

@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import weakref
 from pathlib import Path
@@ -245,21 +246,163 @@ def _settle(rec: rr.RecordingStream) -> None:
         rec.flush(timeout_sec=FLUSH_STEP)
     except RuntimeError as e:
         if "timed out" in str(e):
-            import ctypes
+            _abandon(rec)
 
-            ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))   # never freed: its finalizer would wait for ever
-            _ABANDONED.append(rec)
-            rr.unregister_shutdown()
+
+def _abandon(rec: rr.RecordingStream) -> None:
+    """Keep ``rec`` for the life of the process and drop Rerun's exit hook: a stream whose flush Rerun may never
+    answer (a saved file's stranded flush, :func:`_settle`; a viewer URL that took nothing, :func:`finish_live`)."""
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))   # never freed: its finalizer would wait for ever
+    _ABANDONED.append(rec)
+    rr.unregister_shutdown()
 
 
 def release_saved(rec: rr.RecordingStream) -> None:
     """Detach ``rec``'s sink (a saved file is complete afterwards) and drop its watch; a stream with a stranded
-    flush (:func:`_settle`) is left attached: detaching it would wait for ever."""
+    flush (:func:`_settle`), or a live stream whose last rows nothing took (:func:`finish_live`), is left attached:
+    detaching it would wait."""
     watch = WRITERS.pop(rec, None)
+    viewer = VIEWERS.pop(rec, None)
+    if viewer is not None:
+        viewer.close()
     if not any(rec is stranded for stranded in _ABANDONED):
         rec.disconnect()
     if watch is not None:
         watch.close()
+
+
+# -- is a viewer still taking a live stream? -----------------------------------------------------------------------
+# Rerun 0.41's gRPC sink, given a URL where nothing listens, retries for ever: rows queue, a flush without a timeout
+# never returns (``p3at run --rerun rerun+http://127.0.0.1:9899/proxy`` waited in close for ever, and SIGTERM could
+# not end it: the handler never ran), and a queue that fills blocks every log call. A viewer that goes away mid-run
+# severs the connection: a later flush says so at once ('gRPC connection severed'), and a flush started but not
+# waited for (timeout 0) never does, so the watch looks at the process's own TCP connections instead.
+VIEWER_CHECK_TIMEOUT = 2.0   # s: the TCP connect that checks a URL before a run
+LIVE_FLUSH_STEPS = 5         # FLUSH_STEP steps a live stream's last rows are waited for, then given up
+VIEWER_LOOK_INTERVAL = 2.0   # s between two looks at a live stream's connection (ViewerWatch)
+_NET_TCP = ("/proc/self/net/tcp", "/proc/self/net/tcp6")
+_ESTABLISHED = "01"
+
+
+def viewer_address(url: str) -> tuple[str, int] | None:
+    """(host, port) of a ``rerun+http://HOST:PORT/proxy`` URL (None: no port given, or not a URL)."""
+    from urllib.parse import urlsplit
+
+    if not url.startswith(RERUN_URL_PREFIXES):
+        return None
+    try:
+        parts = urlsplit(url.split("+", 1)[1] if url.startswith("rerun+") else url)
+        port = parts.port
+    except ValueError:
+        return None
+    return (parts.hostname, port) if parts.hostname and port else None
+
+
+def viewer_url_problem(url: str, timeout: float = VIEWER_CHECK_TIMEOUT) -> str | None:
+    """Why nothing at ``url`` can take a live stream, in one line naming it (None: something accepts a TCP
+    connection at its host and port, or the URL names no port): said before a run, which otherwise ended in a
+    close that never returned."""
+    address = viewer_address(url)
+    if address is None:
+        return None
+    host, port = address
+    try:
+        socket.create_connection(address, timeout=timeout).close()
+    except OSError as e:
+        why = ("connection refused" if isinstance(e, ConnectionRefusedError) else
+               f"no answer within {timeout:g} s" if isinstance(e, TimeoutError) else (e.strerror or str(e)))
+        return (f"--rerun {url}: no Rerun viewer listens at {host}:{port} ({why}); start one with `rerun` "
+                f"(it listens on {VIEWER_PORT}), or give --rerun file")
+    return None
+
+
+def _peers(port: int) -> list[str]:
+    """The states of this process's network namespace's TCP sockets whose remote port is ``port``."""
+    hex_port = f":{port:04X}"
+    states = []
+    for table in _NET_TCP:
+        try:
+            with open(table) as rows:
+                next(rows, None)
+                for row in rows:
+                    fields = row.split()
+                    if len(fields) > 3 and fields[2].endswith(hex_port):
+                        states.append(fields[3])
+        except OSError:
+            continue
+    return states
+
+
+class ViewerWatch:
+    """Whether the viewer at a URL still takes the live stream, seen from outside without asking Rerun: a TCP
+    connection to its port was established and is gone. A viewer that never answered is not seen here (the URL is
+    checked before a run, and :func:`finish_live` bounds the last flush). Linux (/proc); elsewhere it sees nothing.
+
+    A thread of its own looks every VIEWER_LOOK_INTERVAL s: reading the TCP table walks the kernel's whole socket hash
+    (8 ms a read measured on the project's machine, with 61 rows), too long for a robot's logging call to wait on;
+    :meth:`failure` only reads what it found."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        address = viewer_address(url)
+        self.port = None if address is None else address[1]
+        self.connected = False   # a connection to the port was seen
+        self._failure: str | None = None
+        self._stop = threading.Event()
+        if self.port is not None:
+            threading.Thread(target=self._look, name="viewer_watch", daemon=True).start()
+
+    def _look(self) -> None:
+        while not self._stop.wait(VIEWER_LOOK_INTERVAL):
+            established = _ESTABLISHED in _peers(self.port)
+            if established:
+                self.connected = True
+            elif self.connected:
+                self._failure = "the viewer closed the connection"
+                return
+
+    def failure(self) -> str | None:
+        """None while the viewer takes the stream (or it was never seen connected); else why not."""
+        return self._failure
+
+    def close(self) -> None:
+        self._stop.set()
+
+
+# the watch of each stream open_recording connects to a viewer URL
+VIEWERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def viewer_lost(rec: rr.RecordingStream) -> str | None:
+    """Why the viewer ``rec`` streams to stopped taking it (None: it takes it, or ``rec`` streams to no URL)."""
+    watch = VIEWERS.get(rec)
+    return None if watch is None else watch.failure()
+
+
+def live_url(rec: rr.RecordingStream) -> str | None:
+    """The viewer URL ``rec`` streams to (None: it streams to none)."""
+    watch = VIEWERS.get(rec)
+    return None if watch is None else watch.url
+
+
+def finish_live(rec: rr.RecordingStream) -> str | None:
+    """Flush a stream to a viewer URL, in FLUSH_STEP steps, at most LIVE_FLUSH_STEPS of them: None when the viewer
+    took every row, else why not. A flush Rerun could not finish (nothing took the rows) leaves the stream kept for
+    the process's life and Rerun's exit hook dropped (:func:`_abandon`), so that neither its detaching nor the exit
+    waits on it; a severed connection says so at once and detaches at once."""
+    lost = viewer_lost(rec)
+    for _ in range(LIVE_FLUSH_STEPS):
+        try:
+            rec.flush(timeout_sec=FLUSH_STEP)
+        except RuntimeError as e:
+            if "timed out" in str(e) or "unable to connect" in str(e):
+                continue   # 'Flush timed out ...', 'gRPC has been unable to connect for 7s ...': wait one more step
+            return lost or str(e).split(", uri:")[0]   # 'gRPC connection severed: Failed to send messages: ...'
+        return lost
+    _abandon(rec)
+    return lost or f"nothing took its last rows within {LIVE_FLUSH_STEPS * FLUSH_STEP:g} s"
 
 
 def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb.Blueprint | None = None,
@@ -292,12 +435,17 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
         rec.memory_recording()
         return rec
     if sink == "spawn":
-        rec.connect_grpc(spawn_viewer())
+        url = spawn_viewer()
+        rec.connect_grpc(url)
+        VIEWERS[rec] = ViewerWatch(url)   # a viewer window closed mid-run is said; the end is bounded
     elif sink.startswith(RERUN_URL_PREFIXES):
+        if (problem := viewer_url_problem(sink)) is not None:   # else the run's close waited for ever
+            raise ViewerError(problem)
         try:
             rec.connect_grpc(sink)
         except RuntimeError as e:   # Rerun's 'invalid endpoint ...': a bad URL is the user's, said in one line
             raise ViewerError(f"--rerun {sink}: {e}") from None
+        VIEWERS[rec] = ViewerWatch(sink)
     elif sink != "none":
         Path(sink).parent.mkdir(parents=True, exist_ok=True)
         WRITERS[rec] = FileWriterWatch.save(rec, Path(sink), footer)
@@ -314,6 +462,7 @@ def recording_id(rec: rr.RecordingStream) -> str | None:
     return rec.get_recording_id()
 
 
-__all__ = ["APPLICATION_ID", "FILE_FLUSH_TICK", "FLUSH_STEP", "SAVED_STREAMS", "VIEWER_PORT", "WRITERS",
-           "WRITER_THREAD", "FileWriterWatch", "ViewerError", "finish_saved", "open_recording",
-           "recording_id", "release_saved", "spawn_viewer", "writer_failure"]
+__all__ = ["APPLICATION_ID", "FILE_FLUSH_TICK", "FLUSH_STEP", "LIVE_FLUSH_STEPS", "SAVED_STREAMS", "VIEWERS",
+           "VIEWER_PORT", "WRITERS", "WRITER_THREAD", "FileWriterWatch", "ViewerError", "ViewerWatch", "finish_live",
+           "finish_saved", "live_url", "open_recording", "recording_id", "release_saved", "spawn_viewer",
+           "viewer_address", "viewer_lost", "viewer_url_problem", "writer_failure"]
