@@ -4,6 +4,8 @@ Each reader's own message ("not a Rerun recording (no b'RRF2' stream header)", "
 ...)", "not an npz archive: no zip end record") names its format's insides, not the command that reads the file."""
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 _NAMES = {"map": "a landmark map (.npz)", "recording": "a Rerun recording (.rrd)",
@@ -14,12 +16,19 @@ _READERS = {"map": "p3at fuse reads maps", "recording": "p3at review reads it an
 
 def file_kind(path: str | Path) -> str | None:
     """'map', 'recording' or 'sensor log' when the file starts as one does (a map: a zip archive named .npz); None
-    for anything else, a folder or a file that cannot be read."""
+    for anything else: a folder, a FIFO, a device or a file that cannot be read (never waits for a writer)."""
+    try:   # a FIFO's open waits for a writer (for ever); non-blocking, and only a regular file is read
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except (OSError, ValueError):
+        return None
     try:
-        with open(path, "rb") as f:
-            head = f.read(8)
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        head = os.read(fd, 8)
     except OSError:
         return None
+    finally:
+        os.close(fd)
     if head.startswith(b"RRF2"):
         return "recording"
     if head.startswith(b"\x89MCAP"):
