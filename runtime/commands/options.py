@@ -221,8 +221,10 @@ def rerun_sink_problem(sink: str | None, keywords: tuple[str, ...] = ()) -> str 
     mistyped keyword, made a file 'foo'; ``--rerun DIR`` ended in Rerun's warnings and exit 1)."""
     if sink is None or sink in keywords:
         return None
-    if sink.startswith(RERUN_URL_PREFIXES):
-        return rerun_url_problem(sink)
+    if sink.startswith(RERUN_URL_PREFIXES):   # a URL Rerun takes, and a viewer that answers there
+        from runtime.rerun_sink import viewer_url_problem
+
+        return rerun_url_problem(sink) or viewer_url_problem(sink)
     if not sink.endswith(".rrd"):
         return f"--rerun {sink}: give {', '.join(keywords + ('FILE.rrd',))} or a rerun+http:// URL"
     try:

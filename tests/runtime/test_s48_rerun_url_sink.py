@@ -88,11 +88,7 @@ def _closed_port() -> int:
         return probe.getsockname()[1]
 
 
-# exit 2 and no folder need runtime/commands/options.py's rerun_url_problem to call
-# runtime.rerun_sink.viewer_url_problem (asked of the lead in /work/team/s48/coord-W2.md); until then open_recording
-# refuses it when the mission starts: the same line, but 'mission failed', exit 1, after the folder is made.
-# strict: once the call is there this passes, and the mark must go
-@pytest.mark.xfail(strict=True, reason="until rerun_url_problem calls viewer_url_problem (coord-W2.md)")
+# runtime.commands.options.rerun_sink_problem asks runtime.rerun_sink.viewer_url_problem before anything runs
 @pytest.mark.timeout(BOUND + 60)
 @pytest.mark.parametrize("command", ["run", "demo"])
 def test_a_url_where_no_viewer_listens_is_refused_in_one_line_before_anything(tmp_path, command):
