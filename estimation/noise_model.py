@@ -195,7 +195,8 @@ class NoiseModel:
     fit: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for section in (self.odometry, self.range_bearing, self.stereo):
+        for name, section in (("odometry", self.odometry), ("range_bearing", self.range_bearing),
+                              ("stereo", self.stereo)):
             if section is None:
                 continue
             for f in fields(section):
@@ -203,11 +204,11 @@ class NoiseModel:
                 signed = f.name in SIGNED_FIELDS
                 if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value) \
                         or (not signed and value < 0):
-                    raise NoiseModelError(f"{f.name} must be a finite number{'' if signed else ' >= 0'}, "
+                    raise NoiseModelError(f"[{name}] {f.name} must be a finite number{'' if signed else ' >= 0'}, "
                                           f"not {value!r}")
                 bound = MAGNITUDE_BOUNDS.get(f.name)
                 if bound is not None and abs(value) > bound:
-                    raise NoiseModelError(f"{f.name} must lie within {'±' if signed else '[0, '}{bound:g}"
+                    raise NoiseModelError(f"[{name}] {f.name} must lie within {'±' if signed else '[0, '}{bound:g}"
                                           f"{'' if signed else ']'}, not {value!r}")
         scales = (self.odometry.translation_scale, self.odometry.rotation_scale)
         if not all(0.5 <= s <= 2.0 for s in scales):
