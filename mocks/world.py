@@ -549,7 +549,7 @@ class World:
         except OSError as exc:
             raise WorldFileError(file, "", f"cannot read: {exc.strerror or exc}") from exc
         except UnicodeDecodeError as exc:
-            raise WorldFileError(file, "", f"not UTF-8 text: {exc}") from exc
+            raise WorldFileError(file, "", f"not UTF-8 text: a world file is JSON text ({exc})") from exc
         try:
             doc = json.loads(text)
         except json.JSONDecodeError as exc:
