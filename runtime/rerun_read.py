@@ -313,7 +313,10 @@ def _fusion_node_file(rows_by_entity: dict[str, dict[object, list]]) -> int | No
     ordering those rows by time across files would give a robot's figures. The node is the file whose summary
     says so (``fusion_node``: ``p3at fuse --live``; ``processes``: the node of ``p3at demo --processes``), else
     (a node that ended without its summary) the one file holding the maps of more robots than any other (the node
-    logs every robot's map it fuses; a robot, its own and the fused one)."""
+    logs every robot's map it fuses; a robot, its own and the fused one). Several files whose summaries say so (two
+    nodes' files given with one recording id): the one of them with most robots' maps, of a tie the first given;
+    a robot's file is never taken over them (it was: a tie fell back to time order, and a robot's own fusion,
+    later on its clock, was printed)."""
     files = {r[3] for by_id in rows_by_entity.values() for r in by_id.values()}
     if len(files) < 2:
         return None
@@ -324,13 +327,15 @@ def _fusion_node_file(rows_by_entity: dict[str, dict[object, list]]) -> int | No
             if (s := _summary_of(rows)) is not None and (s.get("fusion_node") is True or s.get("processes") is True)]
     if len(said) == 1:
         return said[0]
-    robots_mapped = dict.fromkeys(files, 0)
+    robots_mapped = dict.fromkeys(said or files, 0)   # several that say so: one of them, never a robot's file
     for entity, by_id in rows_by_entity.items():
         if entity.startswith("maps/") and entity != "maps/fused":
-            for f in {r[3] for r in by_id.values()}:
+            for f in {r[3] for r in by_id.values()} & robots_mapped.keys():
                 robots_mapped[f] += 1
     most = max(robots_mapped.values())
-    widest = [f for f, n in robots_mapped.items() if n == most]
+    widest = sorted(f for f, n in robots_mapped.items() if n == most)
+    if said:   # the one with most robots' maps, of a tie the first given
+        return widest[0]
     return widest[0] if most >= 2 and len(widest) == 1 else None
 
 
