@@ -46,3 +46,39 @@ def wrong_kind(path: str | Path, expected: str) -> str | None:
     if kind is None or kind == expected:
         return None
     return f"{path}: {_NAMES[kind]}, not a {expected}: {_READERS[kind]}"
+
+
+_NOT_MAP_SUFFIXES = {".toml": "a noise model's", ".rrd": "a Rerun recording's", ".mcap": "a sensor log's"}
+
+
+def map_out_problem(path: str | Path) -> str | None:
+    """Why a map must not be written to ``path`` (a command's ``--out MAP``), or None: it holds a Rerun recording, a
+    sensor log or a noise model (TOML, by its first line or its format key), or its suffix is one of theirs. A map
+    written there replaced the file (session 48: ``p3at slam dataset ... --out robot1.toml`` over the robot's noise
+    model, exit 0)."""
+    kind = file_kind(path)
+    if kind in ("recording", "sensor log"):
+        return f"--out {path} holds {_NAMES[kind].rsplit(' (', 1)[0]}: a map would overwrite it; give MAP.npz"
+    if _is_noise_model(path):
+        return f"--out {path} holds a noise model (TOML): a map would overwrite it; give MAP.npz"
+    suffix = Path(path).suffix.lower()
+    if suffix in _NOT_MAP_SUFFIXES:
+        return (f"--out {path}: {suffix} is {_NOT_MAP_SUFFIXES[suffix]} suffix, and a map is an .npz archive; "
+                "give MAP.npz")
+    return None
+
+
+def _is_noise_model(path: str | Path) -> bool:
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except (OSError, ValueError):
+        return False
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return False
+        head = os.read(fd, 4096)
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    return head.startswith(b"# p3at-fusion noise model") or b'format = "p3at-noise-model"' in head

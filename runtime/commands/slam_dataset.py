@@ -67,11 +67,14 @@ def run_dataset(args: argparse.Namespace) -> int:
     from estimation.fastslam import range_bearing_config
     from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
     from estimation.noise_model import NoiseModel
+    from runtime.commands.file_kinds import map_out_problem
 
     try:
         if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
             raise ValueError(problem)
         check_output_file(args.out)
+        if (problem := map_out_problem(args.out)) is not None:
+            raise ValueError(problem)
         _check_rerun_sink(args.rerun)
         # neither output may replace what the run reads (the noise model, a table of the data set) or the other
         recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None

@@ -44,11 +44,14 @@ def _check_inside(world, start: np.ndarray, route: np.ndarray, start_option: str
 def run_simulate(args: argparse.Namespace) -> int:
     # imported here so that `p3at --help` does not pay for the simulator
     from mocks.world import World
+    from runtime.commands.file_kinds import map_out_problem
     from runtime.motion import load_route
     from runtime.slam_sim import simulate
 
     try:
         check_output_file(args.out)
+        if (problem := map_out_problem(args.out)) is not None:
+            raise ValueError(problem)
         check_output_file(args.ply, "--ply")
         inputs = {"--world": args.world, "--world-route": args.world_route}
         check_output_apart(args.out, files=inputs)
