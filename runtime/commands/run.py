@@ -62,10 +62,29 @@ def robot_word_problem(robot: str) -> str | None:
     anything is looked for. It used to be taken for a serial device, and the first thing said was the USB head's
     absence (exit 1), which named neither the option nor the typo. A path (``/dev/ttyUSB0``) or a URL is left to
     the drivers, which say whether the device answers."""
-    if robot == "mock" or "://" in robot or "/" in robot or Path(robot).exists():
+    if "://" in robot:
+        return _robot_url_problem(robot)
+    if robot == "mock" or (robot.strip() and ("/" in robot or Path(robot).exists())):   # Path('') is the folder
         return None
-    hint = "; did you mean mock?" if robot.lower() == "mock" else ""
+    hint = "; did you mean mock?" if robot.strip().lower() == "mock" else ""
     if re.fullmatch(r"[A-Za-z0-9_.-]+:[0-9]+", robot):   # a bare HOST:PORT
         hint = f"; did you mean socket://{robot}?"
     return (f"--robot {robot}: no such robot: give mock (the virtual P3-AT), a serial device such as /dev/ttyUSB0, "
             f"or socket://host:port{hint}")
+
+
+def _robot_url_problem(url: str) -> str | None:
+    """A --robot URL pyserial has no handler for (http://, ftp://), or a socket:// one without a usable port: said
+    before anything is looked for (the USB head is looked for before the robot is opened, so the driver's own words
+    came after the head's absence, exit 1)."""
+    import importlib.util
+
+    from drivers.arcos.robot import url_problem
+
+    scheme = url.split("://", 1)[0]
+    known = scheme.isidentifier() and importlib.util.find_spec(f"serial.urlhandler.protocol_{scheme}") is not None
+    if not known:
+        return (f"--robot {url}: no such robot URL: pyserial knows socket://host:port (a simulator or a serial "
+                "bridge), rfc2217://host:port and a serial device such as /dev/ttyUSB0")
+    problem = url_problem(url)
+    return None if problem is None else f"--robot {url}: {problem}"
