@@ -88,6 +88,7 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
     from fusion.split import PARTS, fuse_checked, holds_start
+    from runtime.commands.file_kinds import map_out_problem, wrong_kind
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -99,6 +100,8 @@ def _fuse(args: argparse.Namespace) -> int:
                                       "without --live")
             check_output_file(args.out)
             check_output_apart(args.out, files={"--start-poses": args.start_poses})
+            if args.out is not None and (problem := map_out_problem(args.out)) is not None:
+                raise OutputPathError(problem)
             if (problem := rerun_sink_problem(args.rerun, RERUN_KEYWORDS)) is not None:
                 raise OutputPathError(problem)
             starts = _live_starts(args)
@@ -114,6 +117,8 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
     check_output_apart(args.out, files={"--start-poses": args.start_poses})
+    if (problem := map_out_problem(args.out)) is not None:   # a noise model, a recording, a sensor log
+        raise OutputPathError(problem)
     twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if same_file(a, b)), None)
     if twice is not None:
         print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "
@@ -123,8 +128,6 @@ def _fuse(args: argparse.Namespace) -> int:
         print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
               "another file", file=sys.stderr)
         return EXIT_BAD_INPUT
-    from runtime.commands.file_kinds import wrong_kind
-
     problem = next((p for p in (wrong_kind(path, "map") for path in args.maps) if p is not None), None)
     if problem is not None:   # a recording or a sensor log: said so, with the command that reads it
         print(f"p3at fuse: {problem}", file=sys.stderr)
@@ -141,6 +144,13 @@ def _fuse(args: argparse.Namespace) -> int:
               f"{min(len(maps[i]), len(maps[j]))} landmark positions equal bit for bit: a copy, or a fused map that "
               "already holds the other): fusing them would count those landmarks twice and halve their covariance; "
               "give only one of them", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    same_log = _same_log(maps)
+    if same_log is not None:   # their errors are the same sightings' and odometry's: not independent evidence
+        (i, j), log = same_log
+        print(f"p3at fuse: {args.maps[i]} and {args.maps[j]} are maps of the same log ({log}) over overlapping "
+              "times: their errors are shared, so fusing them would halve the covariances on no new evidence; give "
+              "one of them", file=sys.stderr)
         return EXIT_BAD_INPUT
     held = _held_maps(args.maps, maps)
     if held is not None:
@@ -283,6 +293,26 @@ def _shared_estimates(maps: list[LandmarkMap]) -> tuple[tuple[int, int], int] | 
             count = len(rows[i] & rows[j])
             if count and 2 * count > min(len(rows[i]), len(rows[j])):
                 return (i, j), count
+    return None
+
+
+def _same_log(maps: list[LandmarkMap]) -> tuple[tuple[int, int], str] | None:
+    """The first pair of maps made from one data set's log (the same ``metadata["dataset"]``, e.g. two seeds of
+    ``p3at slam dataset``) whose trajectories' times overlap (or either has none), with the log's name: the Kalman
+    merge takes maps as independent, and these share their readings. None when no pair does: two missions of one
+    robot are new evidence."""
+    def span(m: LandmarkMap) -> tuple[float, float] | None:
+        times = m.trajectory[:, 0] if len(m.trajectory) else None
+        return None if times is None else (float(times.min()), float(times.max()))
+
+    for i in range(len(maps)):
+        for j in range(i + 1, len(maps)):
+            log = maps[i].metadata.get("dataset")
+            if not log or log != maps[j].metadata.get("dataset"):
+                continue
+            a, b = span(maps[i]), span(maps[j])
+            if a is None or b is None or (a[0] <= b[1] and b[0] <= a[1]):
+                return (i, j), str(log)
     return None
 
 

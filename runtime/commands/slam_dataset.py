@@ -73,14 +73,14 @@ def run_dataset(args: argparse.Namespace) -> int:
         if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
             raise ValueError(problem)
         check_output_file(args.out)
-        if (problem := map_out_problem(args.out)) is not None:
-            raise ValueError(problem)
         _check_rerun_sink(args.rerun)
         # neither output may replace what the run reads (the noise model, a table of the data set) or the other
         recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None
         check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
                            folders={"data set": args.folder})
         check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
+        if (problem := map_out_problem(args.out)) is not None:   # after: '--out X is the --noise file' says more
+            raise ValueError(problem)
         # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,
                           truth_heading=args.truth_heading)

@@ -50,12 +50,12 @@ def run_simulate(args: argparse.Namespace) -> int:
 
     try:
         check_output_file(args.out)
-        if (problem := map_out_problem(args.out)) is not None:
-            raise ValueError(problem)
         check_output_file(args.ply, "--ply")
         inputs = {"--world": args.world, "--world-route": args.world_route}
         check_output_apart(args.out, files=inputs)
         check_output_apart(args.ply, "--ply", files={"--out": args.out, **inputs})
+        if (problem := map_out_problem(args.out)) is not None:   # after: '--out X is the --world file' says more
+            raise ValueError(problem)
         world = World.load(args.world)
         if args.world_route:
             route = load_route(args.world_route)

@@ -27,7 +27,8 @@ def _run(*argv: str) -> tuple[int, str, str]:
     ("new.toml", None, "--out {out}: .toml is a noise model's suffix, and a map is an .npz archive; give MAP.npz"),
 ])
 @pytest.mark.parametrize("command", [["slam", "simulate", "--seconds", "1"],
-                                     ["slam", "dataset", "mrclam", "FOLDER", "--robot", "1"]])
+                                     ["slam", "dataset", "mrclam", "FOLDER", "--robot", "1"],
+                                     ["fuse", "a.npz", "b.npz"], ["fuse", "--live"]])   # the lead, after coord-E #5
 def test_a_map_is_not_written_over_another_kind_of_file(tmp_path, command, name, content, complaint):
     out = tmp_path / name
     if content is not None:
