@@ -17,18 +17,9 @@ _READERS = {"map": "p3at fuse reads maps", "recording": "p3at review reads it an
 def file_kind(path: str | Path) -> str | None:
     """'map', 'recording' or 'sensor log' when the file starts as one does (a map: a zip archive named .npz); None
     for anything else: a folder, a FIFO, a device or a file that cannot be read (never waits for a writer)."""
-    try:   # a FIFO's open waits for a writer (for ever); non-blocking, and only a regular file is read
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except (OSError, ValueError):
+    head = _head(path, 8)
+    if head is None:
         return None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return None
-        head = os.read(fd, 8)
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
     if head.startswith(b"RRF2"):
         return "recording"
     if head.startswith(b"\x89MCAP"):
@@ -69,16 +60,22 @@ def map_out_problem(path: str | Path) -> str | None:
 
 
 def _is_noise_model(path: str | Path) -> bool:
+    head = _head(path, 4096)
+    return head is not None and (head.startswith(b"# p3at-fusion noise model")
+                                 or b'format = "p3at-noise-model"' in head)
+
+
+def _head(path: str | Path, size: int) -> bytes | None:
+    """The first ``size`` bytes of a regular file; None for anything else (a folder, a FIFO, a device) or a file that
+    cannot be read. A FIFO's open waits for a writer (for ever): it is opened non-blocking, and only a regular file
+    is read."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except (OSError, ValueError):
-        return False
+        return None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            return False
-        head = os.read(fd, 4096)
+        return os.read(fd, size) if stat.S_ISREG(os.fstat(fd).st_mode) else None
     except OSError:
-        return False
+        return None
     finally:
         os.close(fd)
-    return head.startswith(b"# p3at-fusion noise model") or b'format = "p3at-noise-model"' in head

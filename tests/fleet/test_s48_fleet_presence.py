@@ -11,7 +11,6 @@ import json
 import logging
 import os
 import re
-import time
 
 import pytest
 
@@ -21,19 +20,9 @@ from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.status import PresenceLines  # noqa: E402
 from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+from tests.fleet.test_zenoh_fleet import wait_until  # noqa: E402  (a 30 s failure bound, polled)
 
-DEADLINE = 30.0
 pytestmark = pytest.mark.timeout(120)
-
-
-def wait_until(condition, what: str, deadline: float = DEADLINE):
-    end = time.monotonic() + deadline
-    while time.monotonic() < end:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    pytest.fail(f"not within {deadline:g} s: {what}")
 
 
 def listen(port: int) -> str:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -25,19 +24,10 @@ pytest.importorskip("zenoh")
 from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.synthetic import SyntheticRobot  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+from tests.fleet.test_zenoh_fleet import wait_until  # noqa: E402  (a 30 s failure bound, polled)
 
-DEADLINE = 30.0
+DEADLINE = 30.0          # s, as tests/fleet/test_zenoh_fleet.py's wait_until
 pytestmark = pytest.mark.timeout(120)
-
-
-def wait_until(condition, what: str, deadline: float = DEADLINE):
-    end = time.monotonic() + deadline
-    while time.monotonic() < end:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    pytest.fail(f"not within {deadline:g} s: {what}")
 
 
 class CongestedPublisher:
