@@ -39,23 +39,28 @@ def wrong_kind(path: str | Path, expected: str) -> str | None:
     return f"{path}: {_NAMES[kind]}, not a {expected}: {_READERS[kind]}"
 
 
-_NOT_MAP_SUFFIXES = {".toml": "a noise model's", ".rrd": "a Rerun recording's", ".mcap": "a sensor log's"}
+# what a command writes to its --out: how it is named in a refusal, what its file is, the file to give instead
+_WRITTEN = {"map": ("a map", "a map is an .npz archive", "MAP.npz"),
+            "noise model": ("a noise model (TOML)", "a noise model is TOML", "FILE.toml")}
+_HELD = {"map": "a landmark map", "recording": "a Rerun recording", "sensor log": "a sensor log segment",
+         "noise model": "a noise model (TOML)"}
+_SUFFIX_KINDS = {".npz": ("map", "a landmark map's"), ".rrd": ("recording", "a Rerun recording's"),
+                 ".mcap": ("sensor log", "a sensor log's"), ".toml": ("noise model", "a noise model's")}
 
 
-def map_out_problem(path: str | Path) -> str | None:
-    """Why a map must not be written to ``path`` (a command's ``--out MAP``), or None: it holds a Rerun recording, a
-    sensor log or a noise model (TOML, by its first line or its format key), or its suffix is one of theirs. A map
-    written there replaced the file (session 48: ``p3at slam dataset ... --out robot1.toml`` over the robot's noise
-    model, exit 0)."""
-    kind = file_kind(path)
-    if kind in ("recording", "sensor log"):
-        return f"--out {path} holds {_NAMES[kind].rsplit(' (', 1)[0]}: a map would overwrite it; give MAP.npz"
-    if _is_noise_model(path):
-        return f"--out {path} holds a noise model (TOML): a map would overwrite it; give MAP.npz"
+def out_problem(path: str | Path, writing: str) -> str | None:
+    """Why ``writing`` ('map' or 'noise model') must not be written to ``path`` (a command's ``--out``), or None: it
+    holds another of the project's files (a map, a Rerun recording, a sensor log, a noise model: by its first bytes),
+    or its suffix is another's. Written there, it replaced the file (session 48: ``p3at slam dataset ... --out
+    robot1.toml`` over the robot's noise model, ``p3at slam noise ... --out robot1.npz`` over its map, exit 0)."""
+    noun, nature, give = _WRITTEN[writing]
+    held = "noise model" if _is_noise_model(path) else file_kind(path)
+    if held is not None and held != writing:
+        return f"--out {path} holds {_HELD[held]}: {noun} would overwrite it; give {give}"
     suffix = Path(path).suffix.lower()
-    if suffix in _NOT_MAP_SUFFIXES:
-        return (f"--out {path}: {suffix} is {_NOT_MAP_SUFFIXES[suffix]} suffix, and a map is an .npz archive; "
-                "give MAP.npz")
+    kind, named = _SUFFIX_KINDS.get(suffix, (writing, ""))
+    if kind != writing:
+        return f"--out {path}: {suffix} is {named} suffix, and {nature}; give {give}"
     return None
 
 

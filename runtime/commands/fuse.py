@@ -88,7 +88,7 @@ def _fuse(args: argparse.Namespace) -> int:
     from fusion.alignment import alignment_error_xy_theta
     from fusion.multi import claimed_variance, pairwise_alignments
     from fusion.split import PARTS, fuse_checked, holds_start
-    from runtime.commands.file_kinds import map_out_problem, wrong_kind
+    from runtime.commands.file_kinds import out_problem, wrong_kind
 
     if args.live:
         from runtime.fleet.fusion_node import run_live
@@ -100,7 +100,7 @@ def _fuse(args: argparse.Namespace) -> int:
                                       "without --live")
             check_output_file(args.out)
             check_output_apart(args.out, files={"--start-poses": args.start_poses})
-            if args.out is not None and (problem := map_out_problem(args.out)) is not None:
+            if args.out is not None and (problem := out_problem(args.out, "map")) is not None:
                 raise OutputPathError(problem)
             if (problem := rerun_sink_problem(args.rerun, RERUN_KEYWORDS)) is not None:
                 raise OutputPathError(problem)
@@ -117,7 +117,7 @@ def _fuse(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
     check_output_apart(args.out, files={"--start-poses": args.start_poses})
-    if (problem := map_out_problem(args.out)) is not None:   # a noise model, a recording, a sensor log
+    if (problem := out_problem(args.out, "map")) is not None:   # a noise model, a recording, a sensor log
         raise OutputPathError(problem)
     twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if same_file(a, b)), None)
     if twice is not None:

@@ -67,7 +67,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     from estimation.fastslam import range_bearing_config
     from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
     from estimation.noise_model import NoiseModel
-    from runtime.commands.file_kinds import map_out_problem
+    from runtime.commands.file_kinds import out_problem
 
     try:
         if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
@@ -79,7 +79,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
                            folders={"data set": args.folder})
         check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
-        if (problem := map_out_problem(args.out)) is not None:   # after: '--out X is the --noise file' says more
+        if (problem := out_problem(args.out, "map")) is not None:   # after: '--out X is the --noise file' says more
             raise ValueError(problem)
         # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,

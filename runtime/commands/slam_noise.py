@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -202,27 +201,12 @@ def _sigmas_text(calibration, noise) -> str:
             f"{nc.redundancies[1]:.0f} / {nc.redundancies[2]:.0f}, {nc.rounds} rounds")
 
 
-_OTHER_KINDS = {".npz": "a landmark map", ".rrd": "a Rerun recording", ".mcap": "a sensor log"}
-
-
 def _check_toml_out(out) -> None:
-    """ValueError (one line) when --out names one of the project's other files: an existing map, recording or sensor
-    log, or a path with their suffix. A noise model is TOML; `--out robot1.npz` overwrote the robot's map with it
-    (session 48's walkthrough, beside `p3at slam dataset --out robot1.npz`)."""
-    from runtime.commands.file_kinds import file_kind
+    """ValueError (one line) when --out names one of the project's other files (runtime.commands.file_kinds)."""
+    from runtime.commands.file_kinds import out_problem
 
-    kind = file_kind(out)
-    if kind is not None:
-        raise ValueError(f"--out {out} holds {_kind_name(kind)}: a noise model (TOML) would overwrite it; give "
-                         f"FILE.toml")
-    suffix = Path(out).suffix.lower()
-    if suffix in _OTHER_KINDS:
-        raise ValueError(f"--out {out}: {suffix} is {_OTHER_KINDS[suffix]}'s suffix, and a noise model is TOML; give "
-                         f"FILE.toml")
-
-
-def _kind_name(kind: str) -> str:
-    return {"map": "a landmark map", "recording": "a Rerun recording", "sensor log": "a sensor log"}[kind]
+    if (problem := out_problem(out, "noise model")) is not None:
+        raise ValueError(problem)
 
 
 def _self_calibrate(args: argparse.Namespace) -> int:

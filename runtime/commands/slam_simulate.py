@@ -44,7 +44,7 @@ def _check_inside(world, start: np.ndarray, route: np.ndarray, start_option: str
 def run_simulate(args: argparse.Namespace) -> int:
     # imported here so that `p3at --help` does not pay for the simulator
     from mocks.world import World
-    from runtime.commands.file_kinds import map_out_problem
+    from runtime.commands.file_kinds import out_problem
     from runtime.motion import load_route
     from runtime.slam_sim import simulate
 
@@ -54,7 +54,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         inputs = {"--world": args.world, "--world-route": args.world_route}
         check_output_apart(args.out, files=inputs)
         check_output_apart(args.ply, "--ply", files={"--out": args.out, **inputs})
-        if (problem := map_out_problem(args.out)) is not None:   # after: '--out X is the --world file' says more
+        if (problem := out_problem(args.out, "map")) is not None:   # after: '--out X is the --world file' says more
             raise ValueError(problem)
         world = World.load(args.world)
         if args.world_route:
