@@ -291,11 +291,10 @@ def _open_logger(sink: str, out: Path | None, recording_id: str | None = None):
     """The node's MissionLog (None for --rerun none) and the file it saves to (None unless it saves one)."""
     if sink == "none":
         return None, None
-    from runtime.limits import RERUN_URL_PREFIXES
     from runtime.rerun_log import MissionLog
-    from runtime.rerun_sink import open_recording
+    from runtime.rerun_sink import SAVED_STREAMS, open_recording
 
     if sink == "file":
         sink = str(out.with_name("fusion.rrd") if out is not None else Path("fusion.rrd"))
-    saved = None if sink in ("spawn", "memory") or sink.startswith(RERUN_URL_PREFIXES) else Path(sink)
-    return MissionLog(open_recording(sink, recording_id=recording_id), []), saved
+    rec = open_recording(sink, recording_id=recording_id)
+    return MissionLog(rec, []), (Path(sink) if rec in SAVED_STREAMS else None)   # open_recording knows what it saves

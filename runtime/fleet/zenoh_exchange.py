@@ -239,7 +239,7 @@ class ZenohExchange:
         self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
         self._waits: dict[str, _Wait] = {}       # robot whose full snapshot is waited for (a map missed)
         self._left: set[str] = set()             # robots seen leaving (and not back): nothing to wait for
-        self._left_at: dict[str, float] = {}     # robot -> when (monotonic) it was last seen leaving
+        self._node_left_at: float | None = None  # when (monotonic) a fusion node was last seen leaving
         # own robot -> (its first map sequence no fusion node may have received, when it was sent, the last of those
         # sent before the node was seen leaving or -1): maps sent while no node was connected, and those of the lease
         # before a node was seen leaving without a word; cleared when a node joins (it asks for the latest snapshot)
@@ -341,7 +341,7 @@ class ZenohExchange:
         with self._lock:
             unheard = {r: (first, since, perhaps, self._encoders[r].sequence)
                        for r, (first, since, perhaps) in self._unheard.items() if r in self._encoders}
-            node_left = self._left_at.get(FUSED)
+            node_left = self._node_left_at
         for robot, (first, since, perhaps, last) in sorted(unheard.items()):
             if last <= perhaps:   # every map went before the node was seen leaving: it may well have them all
                 continue
@@ -565,12 +565,11 @@ class ZenohExchange:
             elif robot == FUSED:  # a node that joins asks every robot for its latest snapshot
                 self._unheard.clear()
             if robot == FUSED and not joined:  # seen up to a lease after its link went: maps of that time may be lost
+                self._node_left_at = now
                 for own, sent in self._sent.items():
                     recent = [(q, t) for q, t in sent if t >= now - self.lease]
                     if recent and own not in self._unheard:
                         self._unheard[own] = (recent[0][0], recent[0][1], recent[-1][0])
-            if not joined:
-                self._left_at[robot] = now
         # the lines tests and callers know; p3at fuse --live says more (runtime/fleet/status.py, PresenceLines)
         self.on_event(f"{'the fusion node' if robot == FUSED else robot} {'joined' if joined else 'left'} the fleet")
         if joined and robot not in self._encoders:
