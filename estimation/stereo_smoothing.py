@@ -1,0 +1,348 @@
+"""Full-trajectory smoothing of a planar robot's stereo landmark log (given associations), after the filter.
+
+The rendered demo's maps are FastSLAM's best particle: each landmark conditioned on that particle's trajectory,
+made online. Once a log is over, the maximum a-posteriori estimate of every pose and every landmark together (full
+SLAM; GraphSLAM, square-root SAM) is a direct answer to "which trajectory and map explain all of it". This module
+computes it for 3-D point landmarks seen by a stereo head on a planar robot, given each observation's landmark
+(from the filter: ``benchmarks/demo_smoothing.py`` re-associates a replayed log to the filter's final map). It is the
+stereo counterpart of :mod:`estimation.landmark_smoother` (planar range-bearing sightings) and is used by no default.
+
+The problem, in the map's frame (pose 0 is the frame's origin and is held fixed: the gauge), poses x_k = (x, y, θ),
+landmarks m = (x, y, z):
+
+- odometry factors: between(x_k, x_{k+1}) − δ_k, covariance diag of the increment's variances (the filter's random
+  walk, :func:`estimation.fastslam.motion.increment_variance`);
+- observation factors: (R(θ_k)ᵀ (m_xy − t_k), m_z) − z, covariance Q (3 × 3, base_link: the stereo triangulation's
+  covariance with the filter's scale and floor).
+
+Solved by Gauss–Newton with Levenberg damping; the landmarks are eliminated (Schur complement: each landmark is a
+3 × 3 block), the poses' reduced system is dense (3T × 3T; T ~ 10³ frames is a few MB). Outliers: the observations
+are first weighted by Cauchy's function (scale c = √7.815, χ²₃ 95 %: ρ = c² log(1 + χ²/c²)), then every observation
+whose squared normalised
+residual exceeds χ²₃ 99 % (11.345, the filter's gate) is dropped and the problem solved again without weights.
+
+Covariances: the inverse of the information matrix JᵀJ at the solution (Laplace): the pose marginals are the inverse
+of the reduced system, each landmark's marginal H_ll⁻¹ + H_ll⁻¹ H_lp Σ_pp H_pl H_ll⁻¹. They are as honest as the noise
+model: observations of one point from consecutive frames that share their error (the same pixels, the same
+quantisation) are taken as independent here, as by the filter.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from .geometry import wrap_angle
+
+CAUCHY_C = float(np.sqrt(7.815))  # σ: the Cauchy loss's scale on the whitened residual norm (χ²₃ 95 %). Not Huber's:
+#                                   a wrong association costs Huber a constant pull, and 5 % of them (3-D points
+#                                   given another landmark) moved synthetic poses further than dead reckoning
+#                                   (tests/estimation/test_stereo_smoothing.py); Cauchy's pull fades with the residual
+OUTLIER_CHI2 = 11.345             # χ²₃ 99 %: an observation beyond it after the robust solve is dropped
+MAX_ITERATIONS = 50
+STEP_TOLERANCE = 1e-7             # stop when no variable moves more than this (m or rad)
+_CHUNK = 256                      # landmarks per block of the marginals' dense product
+
+
+class StereoSmoothingError(ValueError):
+    """The problem is malformed (shapes, indices, covariances)."""
+
+
+@dataclass
+class StereoLogProblem:
+    """T poses (frames), L landmarks, K observations.
+
+    increments (T−1, 3): the odometry's (dx, dy, dθ) from pose k to k+1 in pose k's frame; increment_variances
+    (T−1, 3) their variances; pose_index, landmark_index (K,): which pose saw which landmark; points (K, 3) the
+    observed point in the robot's frame (base_link), covariances (K, 3, 3) its covariance.
+    """
+
+    increments: np.ndarray
+    increment_variances: np.ndarray
+    pose_index: np.ndarray
+    landmark_index: np.ndarray
+    points: np.ndarray
+    covariances: np.ndarray
+    n_landmarks: int
+
+    def __post_init__(self) -> None:
+        self.increments = np.asarray(self.increments, float).reshape(-1, 3)
+        self.increment_variances = np.asarray(self.increment_variances, float).reshape(-1, 3)
+        self.pose_index = np.asarray(self.pose_index, np.int64).reshape(-1)
+        self.landmark_index = np.asarray(self.landmark_index, np.int64).reshape(-1)
+        self.points = np.asarray(self.points, float).reshape(-1, 3)
+        self.covariances = np.asarray(self.covariances, float).reshape(-1, 3, 3)
+        k, t = len(self.pose_index), self.n_poses
+        if self.increment_variances.shape != self.increments.shape:
+            raise StereoSmoothingError(f"{len(self.increments)} increments but {len(self.increment_variances)} "
+                                       "variance rows")
+        if not (np.all(np.isfinite(self.increment_variances)) and np.all(self.increment_variances > 0)):
+            raise StereoSmoothingError("increment variances must be finite and > 0")
+        if not (len(self.landmark_index) == len(self.points) == len(self.covariances) == k):
+            raise StereoSmoothingError("pose_index, landmark_index, points and covariances need one row each per "
+                                       "observation")
+        if k and (self.pose_index.min() < 0 or self.pose_index.max() >= t):
+            raise StereoSmoothingError(f"pose_index outside 0..{t - 1}")
+        if k and (self.landmark_index.min() < 0 or self.landmark_index.max() >= self.n_landmarks):
+            raise StereoSmoothingError(f"landmark_index outside 0..{self.n_landmarks - 1}")
+        if not (np.all(np.isfinite(self.points)) and np.all(np.isfinite(self.covariances))):
+            raise StereoSmoothingError("observations hold non-finite points or covariances")
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.increments) + 1
+
+
+@dataclass
+class StereoSmoothed:
+    """The solution: poses (T, 3), landmarks (L, 3), their marginal covariances (T, 3, 3) and (L, 3, 3) (pose 0's
+    zero: the gauge; a landmark no inlier observation holds keeps its start and an infinite covariance), which
+    observations were kept (``inliers``, (K,) bool), the final χ² and its degrees of freedom, iterations."""
+
+    poses: np.ndarray
+    landmarks: np.ndarray
+    pose_covariances: np.ndarray
+    landmark_covariances: np.ndarray
+    inliers: np.ndarray
+    chi2: float
+    dof: int
+    iterations: int
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    @property
+    def held(self) -> np.ndarray:
+        """(L,) bool: landmarks that some inlier observation holds (a finite covariance)."""
+        return np.isfinite(self.landmark_covariances[:, 0, 0])
+
+
+def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
+           robust: bool = True, max_iterations: int = MAX_ITERATIONS) -> StereoSmoothed:
+    """The MAP poses and landmarks from the initial ones (pose 0 held where it is: the map frame); with ``robust``,
+    Cauchy-weighted first, then without the observations beyond χ²₃ 99 % (module docstring)."""
+    poses = np.array(initial_poses, float).reshape(-1, 3)
+    landmarks = np.array(initial_landmarks, float).reshape(-1, 3)
+    if len(poses) != problem.n_poses or len(landmarks) != problem.n_landmarks:
+        raise StereoSmoothingError(f"{len(poses)} initial poses and {len(landmarks)} landmarks for a problem of "
+                                   f"{problem.n_poses} and {problem.n_landmarks}")
+    whiten = _whitening(problem.covariances)
+    inliers = np.ones(len(problem.pose_index), bool)
+    iterations = 0
+    if robust:
+        poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, True, max_iterations)
+        iterations += n
+        inliers = _observation_chi2(problem, whiten, poses, landmarks) <= OUTLIER_CHI2
+    poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, False, max_iterations)
+    iterations += n
+    pose_cov, landmark_cov = _marginals(problem, whiten, poses, landmarks, inliers)
+    chi2_obs = _observation_chi2(problem, whiten, poses, landmarks)
+    chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
+    held = np.isfinite(landmark_cov[:, 0, 0])
+    dof = 3 * int(inliers.sum()) - 3 * int(held.sum())   # the odometry's 3(T−1) rows pay for the 3(T−1) poses
+    return StereoSmoothed(poses, landmarks, pose_cov, landmark_cov, inliers, chi2, dof, iterations)
+
+
+def observation_chi2(problem: StereoLogProblem, poses: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """(K,) each observation's squared normalised residual at these poses and landmarks."""
+    return _observation_chi2(problem, _whitening(problem.covariances), np.asarray(poses, float),
+                             np.asarray(landmarks, float))
+
+
+# -- internals ------------------------------------------------------------------------------------------------
+def _whitening(covariances: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) A_k with A_kᵀ A_k = Q_k⁻¹ (upper: the transposed Cholesky factor of Q⁻¹)."""
+    if not len(covariances):
+        return np.zeros((0, 3, 3))
+    sym = 0.5 * (covariances + np.swapaxes(covariances, 1, 2))
+    try:
+        lower = np.linalg.cholesky(np.linalg.inv(sym))
+    except np.linalg.LinAlgError:
+        raise StereoSmoothingError("an observation covariance is not positive definite") from None
+    return np.swapaxes(lower, 1, 2)
+
+
+def _observation_terms(problem, whiten, poses, landmarks):
+    """Whitened residuals (K, 3) and Jacobians by the pose (K, 3, 3) and the landmark (K, 3, 3)."""
+    p = poses[problem.pose_index]
+    m = landmarks[problem.landmark_index]
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    dx, dy = m[:, 0] - p[:, 0], m[:, 1] - p[:, 1]
+    hx, hy = c * dx + s * dy, -s * dx + c * dy
+    e = np.column_stack([hx, hy, m[:, 2]]) - problem.points
+    k = len(p)
+    jp = np.zeros((k, 3, 3))
+    jp[:, 0, 0], jp[:, 0, 1], jp[:, 0, 2] = -c, -s, hy
+    jp[:, 1, 0], jp[:, 1, 1], jp[:, 1, 2] = s, -c, -hx
+    jl = np.zeros((k, 3, 3))
+    jl[:, 0, 0], jl[:, 0, 1] = c, s
+    jl[:, 1, 0], jl[:, 1, 1] = -s, c
+    jl[:, 2, 2] = 1.0
+    return (np.einsum("kab,kb->ka", whiten, e), np.einsum("kab,kbc->kac", whiten, jp),
+            np.einsum("kab,kbc->kac", whiten, jl))
+
+
+def _observation_chi2(problem, whiten, poses, landmarks) -> np.ndarray:
+    e, _, _ = _observation_terms(problem, whiten, poses, landmarks)
+    return np.sum(e * e, axis=1)
+
+
+def _odometry_residuals(problem, poses) -> np.ndarray:
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    e = np.column_stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[:, 2] - a[:, 2])]) - problem.increments
+    e[:, 2] = wrap_angle(e[:, 2])
+    return e / np.sqrt(problem.increment_variances)
+
+
+def _odometry_terms(problem, poses):
+    """Whitened residuals (T−1, 3) and Jacobians by pose k and pose k+1 (T−1, 3, 3)."""
+    a, b = poses[:-1], poses[1:]
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    bx, by = c * dx + s * dy, -s * dx + c * dy
+    n = len(a)
+    ja = np.zeros((n, 3, 3))
+    ja[:, 0, 0], ja[:, 0, 1], ja[:, 0, 2] = -c, -s, by
+    ja[:, 1, 0], ja[:, 1, 1], ja[:, 1, 2] = s, -c, -bx
+    ja[:, 2, 2] = -1.0
+    jb = np.zeros((n, 3, 3))
+    jb[:, 0, 0], jb[:, 0, 1] = c, s
+    jb[:, 1, 0], jb[:, 1, 1] = -s, c
+    jb[:, 2, 2] = 1.0
+    w = 1.0 / np.sqrt(problem.increment_variances)
+    return _odometry_residuals(problem, poses), ja * w[:, :, None], jb * w[:, :, None]
+
+
+def _block_coo(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Entries of 3 × 3 blocks at block rows/cols."""
+    r = (3 * rows[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2)
+    c = (3 * cols[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1)
+    return r.ravel(), c.ravel(), blocks.ravel()
+
+
+class _System:
+    """The normal equations at one linearisation, landmarks eliminated: S Δp = r (poses 1..T−1)."""
+
+    def __init__(self, problem, whiten, poses, landmarks, inliers, weights):
+        t, n_l = problem.n_poses, problem.n_landmarks
+        e, jp, jl = _observation_terms(problem, whiten, poses, landmarks)
+        keep = inliers & (weights > 0)
+        e, jp, jl, w = e[keep], jp[keep], jl[keep], weights[keep]
+        pi, li = problem.pose_index[keep], problem.landmark_index[keep]
+        eo, ja, jb = _odometry_terms(problem, poses)
+        wjp, wjl = jp * w[:, None, None], jl * w[:, None, None]
+        # pose-pose (dense 3T × 3T), then the gauge's rows dropped
+        hpp = np.zeros((3 * t, 3 * t))
+        blocks = [(pi, pi, np.einsum("kba,kbc->kac", wjp, jp))]
+        k = np.arange(t - 1)
+        blocks += [(k, k, np.einsum("kba,kbc->kac", ja, ja)), (k + 1, k + 1, np.einsum("kba,kbc->kac", jb, jb)),
+                   (k, k + 1, np.einsum("kba,kbc->kac", ja, jb)), (k + 1, k, np.einsum("kba,kbc->kac", jb, ja))]
+        for rows, cols, b in blocks:
+            r, c, v = _block_coo(rows, cols, b)
+            np.add.at(hpp, (r, c), v)
+        gp = np.zeros(3 * t)
+        np.add.at(gp, (3 * pi[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", wjp, e).ravel())
+        np.add.at(gp, (3 * k[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", ja, eo).ravel())
+        np.add.at(gp, (3 * (k + 1)[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", jb, eo).ravel())
+        # landmark blocks and pose-landmark coupling
+        hll = np.zeros((n_l, 3, 3))
+        np.add.at(hll, li, np.einsum("kba,kbc->kac", wjl, jl))
+        gl = np.zeros((n_l, 3))
+        np.add.at(gl, li, np.einsum("kba,kb->ka", wjl, e))
+        self.held = np.zeros(n_l, bool)
+        self.held[li] = True
+        hll[~self.held] = np.eye(3)           # no observation: no step (and no covariance, see _marginals)
+        gl[~self.held] = 0.0
+        r, c, v = _block_coo(pi, li, np.einsum("kba,kbc->kac", wjp, jl))
+        self.w = sp.csr_matrix((v, (r, c)), shape=(3 * t, 3 * n_l))
+        self.hpp, self.gp, self.hll, self.gl = hpp, gp, hll, gl
+        self.n_poses, self.n_landmarks = t, n_l
+
+    def step(self, damping: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Δposes (T, 3), Δlandmarks (L, 3)) of the damped Gauss–Newton step (pose 0 held)."""
+        hll = self.hll + damping * np.einsum("kii->ki", self.hll)[:, :, None] * np.eye(3)
+        hll_inv = np.linalg.inv(hll)
+        hinv = sp.block_diag(list(hll_inv), format="csr") if self.n_landmarks else sp.csr_matrix((0, 0))
+        m = (hinv @ self.w.T).tocsr()                                  # H_ll⁻¹ H_lp (3L × 3T)
+        s = self.hpp - (self.w @ m).toarray()
+        s[np.diag_indices_from(s)] += damping * np.diag(self.hpp)
+        rhs = -(self.gp - m.T @ self.gl.ravel())
+        s, rhs = s[3:, 3:], rhs[3:]
+        dp = np.zeros(3 * self.n_poses)
+        dp[3:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
+        dl = -np.einsum("kab,kb->ka", hll_inv, self.gl) - (m @ dp).reshape(-1, 3)
+        dl[~self.held] = 0.0
+        return dp.reshape(-1, 3), dl
+
+
+def _robust_weights(chi2: np.ndarray, robust: bool) -> np.ndarray:
+    """IRLS weights of Cauchy's loss (1 without ``robust``)."""
+    return 1.0 / (1.0 + chi2 / CAUCHY_C ** 2) if robust else np.ones_like(chi2)
+
+
+def _robust_rho(chi2: np.ndarray, robust: bool) -> np.ndarray:
+    """Cauchy's ρ of the squared whitened residual, as a contribution to 2 × cost (χ² without ``robust``)."""
+    return CAUCHY_C ** 2 * np.log1p(chi2 / CAUCHY_C ** 2) if robust else chi2
+
+
+def _total_cost(problem, whiten, poses, landmarks, inliers, robust) -> float:
+    chi2 = _observation_chi2(problem, whiten, poses, landmarks)[inliers]
+    return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses) ** 2))
+
+
+def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations):
+    """Levenberg–Marquardt from (poses, landmarks); Cauchy's weights (IRLS) when ``robust``."""
+    cost = _total_cost(problem, whiten, poses, landmarks, inliers, robust)
+    damping = 0.0
+    iterations = 0
+    while iterations < max_iterations:
+        iterations += 1
+        weights = _robust_weights(_observation_chi2(problem, whiten, poses, landmarks), robust)
+        system = _System(problem, whiten, poses, landmarks, inliers, weights)
+        while True:
+            dp, dl = system.step(damping)
+            new_poses = poses + dp
+            new_poses[:, 2] = wrap_angle(new_poses[:, 2])
+            new_landmarks = landmarks + dl
+            new_cost = _total_cost(problem, whiten, new_poses, new_landmarks, inliers, robust)
+            if new_cost <= cost * (1 + 1e-12) or damping > 1e6:
+                break
+            damping = max(1e-4, damping * 10)
+        moved = max(float(np.abs(dp).max(initial=0.0)), float(np.abs(dl).max(initial=0.0)))
+        if new_cost <= cost * (1 + 1e-12):
+            poses, landmarks, cost = new_poses, new_landmarks, new_cost
+            damping = damping / 10 if damping > 1e-4 else 0.0
+        if moved < STEP_TOLERANCE or damping > 1e6:
+            break
+    return poses, landmarks, iterations
+
+
+def _marginals(problem, whiten, poses, landmarks, inliers):
+    """Pose marginals (T, 3, 3) and landmark marginals (L, 3, 3) from JᵀJ at the solution (unweighted)."""
+    system = _System(problem, whiten, poses, landmarks, inliers, np.ones(len(problem.pose_index)))
+    t = problem.n_poses
+    hll_inv = np.linalg.inv(system.hll)
+    hinv = sp.block_diag(list(hll_inv), format="csr") if problem.n_landmarks else sp.csr_matrix((0, 0))
+    m = (hinv @ system.w.T).tocsr()[:, 3:]                            # H_ll⁻¹ H_lp, the gauge's columns dropped
+    s = (system.hpp - (system.w @ (hinv @ system.w.T)).toarray())[3:, 3:]
+    cov_pp = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), np.eye(len(s)))
+    pose_cov = np.zeros((t, 3, 3))
+    idx = np.arange(t - 1)
+    blocks = cov_pp.reshape(t - 1, 3, t - 1, 3)[idx, :, idx, :]
+    pose_cov[1:] = blocks
+    landmark_cov = hll_inv.copy()
+    for a in range(0, problem.n_landmarks, _CHUNK):          # H_ll⁻¹ H_lp Σ_pp H_pl H_ll⁻¹, blocks of landmarks
+        rows = m[3 * a:3 * min(a + _CHUNK, problem.n_landmarks)]
+        ms, md = (rows @ cov_pp).reshape(-1, 3, 3 * (t - 1)), rows.toarray().reshape(-1, 3, 3 * (t - 1))
+        landmark_cov[a:a + len(ms)] += np.einsum("lat,lbt->lab", ms, md)
+    landmark_cov[~system.held] = np.inf
+    return pose_cov, landmark_cov
+
+
+__all__ = ["CAUCHY_C", "OUTLIER_CHI2", "StereoLogProblem", "StereoSmoothed", "StereoSmoothingError",
+           "observation_chi2", "smooth"]

@@ -1,0 +1,104 @@
+"""The stereo smoother (estimation.stereo_smoothing) on synthetic planar-robot stereo logs with known truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimation.geometry import compose, wrap_angle
+from estimation.stereo_smoothing import StereoLogProblem, StereoSmoothingError, smooth
+
+CHI2_3_95 = 7.815
+
+
+def _synthetic(seed: int, wrong: float = 0.0):
+    """A robot driving a square loop twice past 3-D points, odometry with the filter's random-walk noise, stereo
+    points with depth-growing noise; ``wrong``: the share of observations given a wrong landmark."""
+    rng = np.random.default_rng(seed)
+    legs = [(0.2, 0.0)] * 15 + [(0.0, np.pi / 8)] * 4
+    true_inc = np.array([(d, 0.0, a) for d, a in legs * 8])
+    poses = [np.zeros(3)]
+    for inc in true_inc:
+        poses.append(compose(poses[-1], inc))
+    poses = np.array(poses)
+    landmarks = np.column_stack([rng.uniform(-3, 6, 150), rng.uniform(-3, 6, 150), rng.uniform(0.2, 2.0, 150)])
+    trans = np.hypot(true_inc[:, 0], true_inc[:, 1])
+    var = np.column_stack([0.03 ** 2 * trans + 1e-8, 0.03 ** 2 * trans + 1e-8,
+                           0.05 ** 2 * np.abs(true_inc[:, 2]) + 0.02 ** 2 * trans + 1e-8])
+    increments = true_inc + rng.standard_normal(true_inc.shape) * np.sqrt(var)
+    pi, li, pts, covs = [], [], [], []
+    for k, p in enumerate(poses):
+        c, s = np.cos(p[2]), np.sin(p[2])
+        d = landmarks[:, :2] - p[:2]
+        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], landmarks[:, 2]])
+        r = np.hypot(local[:, 0], local[:, 1])
+        seen = np.flatnonzero((local[:, 0] > 0.5) & (r < 4.0) & (np.abs(np.arctan2(local[:, 1], local[:, 0])) < 0.7))
+        for j in seen:
+            q = np.diag([(0.01 + 0.01 * r[j] ** 2) ** 2, 0.01 ** 2, 0.01 ** 2])
+            pi.append(k)
+            li.append(j)
+            pts.append(local[j] + rng.multivariate_normal(np.zeros(3), q))
+            covs.append(q)
+    li = np.array(li)
+    n_wrong = int(wrong * len(li))
+    bad = rng.choice(len(li), n_wrong, replace=False)
+    li[bad] = (li[bad] + rng.integers(1, len(landmarks), n_wrong)) % len(landmarks)
+    problem = StereoLogProblem(increments, var, np.array(pi), li, np.array(pts), np.array(covs), len(landmarks))
+    dead = [np.zeros(3)]
+    for inc in increments:
+        dead.append(compose(dead[-1], inc))
+    dead = np.array(dead)
+    start = np.zeros((len(landmarks), 3))
+    p, z = dead[problem.pose_index], problem.points
+    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+    placed = np.column_stack([p[:, 0] + c * z[:, 0] - s * z[:, 1], p[:, 1] + s * z[:, 0] + c * z[:, 1], z[:, 2]])
+    for j in range(len(landmarks)):   # each landmark at the median of its observations placed by dead reckoning
+        k = problem.landmark_index == j
+        if k.any():
+            start[j] = np.median(placed[k], axis=0)
+    return problem, poses, landmarks, dead, start, bad
+
+
+def _pose_error(est, truth):
+    return np.hypot(est[:, 0] - truth[:, 0], est[:, 1] - truth[:, 1]), np.abs(wrap_angle(est[:, 2] - truth[:, 2]))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_smoothing_recovers_the_truth_better_than_dead_reckoning_with_honest_covariances(seed):
+    problem, poses, landmarks, dead, start, _ = _synthetic(seed)
+    out = smooth(problem, dead, start)
+    xy0, th0 = _pose_error(dead, poses)
+    xy1, th1 = _pose_error(out.poses, poses)
+    assert np.sqrt(np.mean(xy1 ** 2)) < 0.5 * np.sqrt(np.mean(xy0 ** 2))
+    assert np.sqrt(np.mean(th1 ** 2)) < 0.5 * np.sqrt(np.mean(th0 ** 2))
+    np.testing.assert_array_equal(out.poses[0], np.zeros(3))        # the gauge: the map frame is pose 0
+    held = out.held
+    e = out.landmarks[held] - landmarks[held]
+    nees = np.einsum("la,lab,lb->l", e, np.linalg.inv(out.landmark_covariances[held]), e)
+    assert held.sum() > 100
+    assert np.mean(nees <= CHI2_3_95) >= 0.85                      # 95 % expected: covariances cover the errors
+    assert np.mean(nees <= 0.35) < 0.5                              # and do not hide them by being huge (χ²₃ 5 %)
+    pe = np.column_stack([out.poses[:, :2] - poses[:, :2], wrap_angle(out.poses[:, 2] - poses[:, 2])])[1:]
+    pn = np.einsum("ta,tab,tb->t", pe, np.linalg.inv(out.pose_covariances[1:]), pe)
+    assert np.mean(pn <= CHI2_3_95) >= 0.8                          # pose marginals too (correlated along the path)
+    assert 0.7 < out.chi2_per_dof < 1.3
+
+
+def test_wrong_associations_are_cut_and_do_not_spoil_the_solution():
+    problem, poses, landmarks, dead, start, bad = _synthetic(7, wrong=0.05)
+    out = smooth(problem, dead, start)
+    assert np.mean(~out.inliers[bad]) > 0.8                         # most wrong ones dropped
+    assert np.mean(out.inliers[np.setdiff1d(np.arange(len(out.inliers)), bad)]) > 0.97
+    clean = smooth(*_synthetic(7)[:1], dead, start)
+    xy, th = _pose_error(out.poses, poses)
+    xyc, thc = _pose_error(clean.poses, poses)
+    assert np.sqrt(np.mean(th ** 2)) < 2 * np.sqrt(np.mean(thc ** 2)) + 1e-3
+
+
+def test_a_malformed_problem_is_refused_with_a_clear_message():
+    with pytest.raises(StereoSmoothingError, match="landmark_index outside"):
+        StereoLogProblem(np.zeros((2, 3)), np.ones((2, 3)), [0], [5], np.zeros((1, 3)), np.eye(3)[None], 3)
+    with pytest.raises(StereoSmoothingError, match="variances"):
+        StereoLogProblem(np.zeros((2, 3)), np.zeros((2, 3)), [0], [0], np.zeros((1, 3)), np.eye(3)[None], 1)
+    problem = StereoLogProblem(np.zeros((2, 3)), np.ones((2, 3)), [0], [0], np.zeros((1, 3)), np.eye(3)[None], 1)
+    with pytest.raises(StereoSmoothingError, match="initial poses"):
+        smooth(problem, np.zeros((2, 3)), np.zeros((1, 3)))
