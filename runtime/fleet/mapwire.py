@@ -115,6 +115,7 @@ class Message:
     sequence: int
     stamp: float
     base: int | None = None
+    wall: float | None = None    # the sender's clock (s since the epoch) when the map was made or the status sent
     landmark_map: LandmarkMap | None = None
     delta: MapDelta | None = None
     status: dict = field(default_factory=dict)
@@ -144,9 +145,19 @@ def _dtype_name(a: np.ndarray) -> str:
     raise TypeError(f"array of dtype {a.dtype} has no wire dtype")
 
 
-def _map_header(robot: str, session: str, sequence: int, stamp: float, m: LandmarkMap) -> dict:
-    return {"robot": robot, "session": session, "sequence": int(sequence), "stamp": float(stamp),
-            "frame": m.frame, "robots": list(m.robots), "metadata": _jsonable(m.metadata)}
+def _map_header(robot: str, session: str, sequence: int, stamp: float, m: LandmarkMap,
+                wall: float | None = None) -> dict:
+    header = {"robot": robot, "session": session, "sequence": int(sequence), "stamp": float(stamp),
+              "frame": m.frame, "robots": list(m.robots), "metadata": _jsonable(m.metadata)}
+    return _with_wall(header, wall)
+
+
+def _with_wall(header: dict, wall: float | None) -> dict:
+    """``wall``: the sender's clock (time.time()) when the map was made or the status sent; optional (a reader
+    estimates from it how old what it holds is, docs/fleet.md, session 49)."""
+    if wall is not None:
+        header["wall"] = float(wall)
+    return header
 
 
 def _jsonable(obj):
@@ -165,13 +176,14 @@ def _jsonable(obj):
     return finite(plain)
 
 
-def encode_full(robot: str, session: str, sequence: int, stamp: float, m: LandmarkMap) -> bytes:
-    """A full snapshot of map ``m``."""
+def encode_full(robot: str, session: str, sequence: int, stamp: float, m: LandmarkMap,
+                wall: float | None = None) -> bytes:
+    """A full snapshot of map ``m`` (``wall``: when it was made, on the sender's clock; optional)."""
     arrays = [("positions", m.positions.astype("<f8")), ("covariances", m.covariances.astype("<f8")),
               ("descriptors", m.descriptors.astype("<f4")), ("ids", m.ids.astype("<i8")),
               ("counts", m.counts.astype("<i8")), ("seen_by", m.seen_by.astype("|u1")),
               ("trajectory", m.trajectory.astype("<f8"))]
-    return _frame(FULL, _map_header(robot, session, sequence, stamp, m), arrays)
+    return _frame(FULL, _map_header(robot, session, sequence, stamp, m, wall), arrays)
 
 
 def can_delta(base: LandmarkMap, new: LandmarkMap) -> bool:
@@ -180,7 +192,7 @@ def can_delta(base: LandmarkMap, new: LandmarkMap) -> bool:
 
 
 def encode_delta(robot: str, session: str, sequence: int, base_sequence: int, stamp: float,
-                 base: LandmarkMap, new: LandmarkMap) -> bytes:
+                 base: LandmarkMap, new: LandmarkMap, wall: float | None = None) -> bytes:
     """What changed from ``base`` (sent as message ``base_sequence``) to ``new``: rows added or changed (exactly
     compared), ids removed, the new order, and the trajectory from the first row that differs."""
     if not can_delta(base, new):
@@ -202,7 +214,7 @@ def encode_delta(robot: str, session: str, sequence: int, base_sequence: int, st
     common = min(len(t_base), len(t_new))
     differs = np.flatnonzero(np.any(t_base[:common] != t_new[:common], axis=1))
     trajectory_from = int(differs[0]) if len(differs) else common
-    header = _map_header(robot, session, sequence, stamp, new)
+    header = _map_header(robot, session, sequence, stamp, new, wall)
     header["base"] = int(base_sequence)
     header["trajectory_from"] = trajectory_from
     arrays = [("order", new.ids.astype("<i8")), ("removed", removed), ("upsert_ids", new.ids[changed].astype("<i8")),
@@ -215,14 +227,14 @@ def encode_delta(robot: str, session: str, sequence: int, base_sequence: int, st
 
 
 def encode_status(robot: str, session: str, sequence: int, stamp: float, pose=None, landmarks: int = 0,
-                  health: dict | None = None, has_map: bool = True) -> bytes:
+                  health: dict | None = None, has_map: bool = True, wall: float | None = None) -> bytes:
     """A robot's status: its latest pose estimate [x, y, θ] (or None), map size, and health figures.
     ``sequence``: the robot's latest map message (what its queryable answers); ``has_map`` False: it has published
     no map yet (``sequence`` is then 0 and names nothing)."""
     header = {"robot": robot, "session": session, "sequence": int(sequence), "stamp": float(stamp),
               "pose": None if pose is None else [float(v) for v in pose], "landmarks": int(landmarks),
               "health": _jsonable(health or {}), "has_map": bool(has_map)}
-    return _frame(STATUS, header, [])
+    return _frame(STATUS, _with_wall(header, wall), [])
 
 
 class MapEncoder:
@@ -240,22 +252,25 @@ class MapEncoder:
         self.sequence = -1
         self.latest: LandmarkMap | None = None
         self.latest_stamp = 0.0
+        self.latest_wall: float | None = None
 
-    def encode(self, m: LandmarkMap, stamp: float, full: bool = False) -> tuple[int, bytes]:
+    def encode(self, m: LandmarkMap, stamp: float, full: bool = False,
+               wall: float | None = None) -> tuple[int, bytes]:
         """(kind, bytes) of the next message carrying map ``m``; ``full``: a full snapshot whatever the count (the
-        message before it will not be sent, so no receiver holds the base a delta would need)."""
+        message before it will not be sent, so no receiver holds the base a delta would need); ``wall``: when the map
+        was made, on this sender's clock (time.time()), carried by it and by the snapshots that answer queries."""
         base, base_sequence = self.latest, self.sequence
         self.sequence += 1
-        self.latest, self.latest_stamp = m, float(stamp)
+        self.latest, self.latest_stamp, self.latest_wall = m, float(stamp), wall
         if full or base is None or self.sequence % self.full_every == 0 or not can_delta(base, m):
-            return FULL, encode_full(self.robot, self.session, self.sequence, stamp, m)
-        return DELTA, encode_delta(self.robot, self.session, self.sequence, base_sequence, stamp, base, m)
+            return FULL, encode_full(self.robot, self.session, self.sequence, stamp, m, wall)
+        return DELTA, encode_delta(self.robot, self.session, self.sequence, base_sequence, stamp, base, m, wall)
 
     def snapshot(self) -> bytes | None:
         """The latest map as a full snapshot with the latest sequence number (what a query is answered)."""
         if self.latest is None:
             return None
-        return encode_full(self.robot, self.session, self.sequence, self.latest_stamp, self.latest)
+        return encode_full(self.robot, self.session, self.sequence, self.latest_stamp, self.latest, self.latest_wall)
 
 
 # -- decoding -----------------------------------------------------------------------------------------------
@@ -353,7 +368,10 @@ def _common_fields(kind: int, header: dict) -> Message:
     stamp = header.get("stamp")
     if not isinstance(stamp, int | float) or isinstance(stamp, bool) or not math.isfinite(stamp):
         raise WireError("field 'stamp' is not a finite number")
-    return Message(kind, robot, session, sequence, float(stamp))
+    wall = header.get("wall")   # optional (senders before session 49 send none)
+    if wall is not None and (not isinstance(wall, int | float) or isinstance(wall, bool) or not math.isfinite(wall)):
+        raise WireError("field 'wall' is not a finite number")
+    return Message(kind, robot, session, sequence, float(stamp), wall=None if wall is None else float(wall))
 
 
 def _status_fields(header: dict) -> dict:

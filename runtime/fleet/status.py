@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable, Sequence
 log = logging.getLogger(__name__)
 
 PRINT_PERIOD = 10.0          # s of wall time between two printed status lines of a robot (p3at fuse --live)
+STALE_AFTER = 20.0           # s: a present robot's status older than this is said again, with its age
 MAX_ERROR_TEXT = 200         # characters of last_error sent
 
 
@@ -77,8 +78,14 @@ def health_figure(status: dict, key: str) -> int | float | None:
     return value if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
+def _ago(seconds) -> str | None:
+    return f"{seconds:.1f} s ago" if isinstance(seconds, int | float) and not isinstance(seconds, bool) else None
+
+
 def status_line(robot: str, status: dict) -> str:
-    """One line of a robot's status as received (``ZenohExchange.status()[robot]``)."""
+    """One line of a robot's status as received (``ZenohExchange.status()[robot]``): how long ago it was sent, and
+    which of the robot's maps the node holds and how long ago it was made, where the exchange knows (``age``,
+    ``map_held``, ``map_age``): on a slow or lossy link what the node shows may be many seconds old."""
     h = status.get("health") or {}
 
     def figure(key: str, spec: str, unit: str = "") -> str:
@@ -96,16 +103,31 @@ def status_line(robot: str, status: dict) -> str:
         parts.insert(3, f"pose ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f})")
     if h.get("last_error"):
         parts.append(f"last error: {h['last_error']}")
-    return f"status {robot}: " + ", ".join(parts)
+    sent = _ago(status.get("age"))
+    if sent:   # beside the status's own time: how old these figures are
+        parts.insert(1, f"sent {sent}")
+    line = f"status {robot}: " + ", ".join(parts)
+    held, named = status.get("map_held"), status.get("sequence")
+    if isinstance(held, int) and not isinstance(held, bool):
+        made = _ago(status.get("map_age"))
+        line += f"; fusing its map {held}" + (f", made {made}" if made else "")
+        if status.get("has_map", True) and isinstance(named, int) and named > held:
+            line += f" (its newest, map {named}, not here yet)"
+    elif status.get("has_map", True) and "map_held" in status:
+        line += "; no map of it here yet"
+    return line
 
 
 class StatusPrinter:
     """Prints each robot's newest status at most every ``period`` s of wall time, on its own daemon thread;
-    statuses without health figures (a map update's before the first health tick, synthetic robots) are skipped."""
+    statuses without health figures (a map update's before the first health tick, synthetic robots) are skipped.
+    A robot still present whose newest status is older than ``stale_after`` s (its link slow, lossy or stalled)
+    has its line said again every ``period`` s, with the growing age, rather than falling silent."""
 
     def __init__(self, statuses: Callable[[], dict], out: Callable[[str], None], period: float = PRINT_PERIOD,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, stale_after: float = STALE_AFTER) -> None:
         self.statuses, self.out, self.period, self.clock = statuses, out, period, clock
+        self.stale_after = stale_after
         self._printed: dict[str, tuple[float, object]] = {}   # robot -> (when printed, stamp printed)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fleet-status-printer", daemon=True)
@@ -116,7 +138,10 @@ class StatusPrinter:
         for robot, status in sorted(self.statuses().items()):
             when, stamp = self._printed.get(robot, (-float("inf"), None))
             key = (status.get("session"), status.get("stamp"))
-            if status.get("health") and key != stamp and now - when >= self.period:
+            age = status.get("age")
+            stale = (status.get("present") is True and isinstance(age, int | float) and age >= self.stale_after
+                     and (status.get("health") or {}).get("mission_over") is not True)
+            if status.get("health") and (key != stamp or stale) and now - when >= self.period:
                 self.out(status_line(robot, status))
                 self._printed[robot] = (now, key)
 

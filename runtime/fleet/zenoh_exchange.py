@@ -259,6 +259,11 @@ class ZenohExchange:
         self._outbox_ready = threading.Condition(self._lock)
         self._sending_stopped = False
         self.superseded = 0                      # maps replaced in the outbox by a newer one before they were sent
+        # how old what this receiver holds is (docs/fleet.md, session 49): robot -> (session, the least of (arrival -
+        # sender's wall) over its messages: the sender's clock offset plus the fastest transit seen), and robot ->
+        # (session, sequence, sender's wall) of the map held
+        self._offset: dict[str, tuple[str, float]] = {}
+        self._made: dict[str, tuple[str, int, float | None]] = {}
         try:
             zenoh_config = make_config(config, role)
             lease = json.loads(zenoh_config.get_json("transport/link/tx/lease"))
@@ -389,7 +394,8 @@ class ZenohExchange:
             if encoder is None:
                 encoder = self._encoders[robot] = mapwire.MapEncoder(robot, full_every=self.full_every)
             replaced = robot in self._outbox
-            kind, data = encoder.encode(snapshot, stamp, full=replaced)
+            wall = time.time()   # when the map was made, on this machine's clock: receivers show how old it is
+            kind, data = encoder.encode(snapshot, stamp, full=replaced, wall=wall)
             self._latest[robot] = MapMessage(robot, encoder.sequence, float(stamp), snapshot)
             now = time.monotonic()
             if self.role == "robot" and FUSED not in self._present:
@@ -402,7 +408,7 @@ class ZenohExchange:
             health = self._health.get(robot)  # the latest health figures go with it: a receiver's status is complete
             pose = snapshot.trajectory[-1, 1:] if len(snapshot.trajectory) else None
             status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose,
-                                                len(snapshot), health)
+                                                len(snapshot), health, wall=wall)
             if replaced:
                 old_kind, old, old_status = self._outbox[robot]
                 self.superseded += 1
@@ -451,7 +457,7 @@ class ZenohExchange:
             self._calls += 1
         try:
             data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
-                                         health, has_map=encoder.latest is not None)
+                                         health, has_map=encoder.latest is not None, wall=time.time())
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
@@ -717,12 +723,13 @@ class ZenohExchange:
             raise mapwire.WireError(f"message from {message.robot!r} on {robot!r}'s key")
         if robot in self._encoders:
             return  # this process's own robot: it knows its map
+        self._clock_seen(robot, message)
         if leaf == "status":
             if message.kind != mapwire.STATUS:
                 raise mapwire.WireError(f"a {message.kind_name} message on a status key")
             with self._lock:
                 self._status[robot] = {"stamp": message.stamp, "session": message.session,
-                                       "sequence": message.sequence, **message.status}
+                                       "sequence": message.sequence, "wall": message.wall, **message.status}
                 self._note_status(robot, message)
             return
         if message.kind == mapwire.STATUS:
@@ -744,6 +751,7 @@ class ZenohExchange:
             self.on_event(f"{robot} restarted (new session, sequence {stream.sequence})")
         with self._lock:
             self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
+            self._made[robot] = (stream.session, stream.sequence, message.wall)
             self.received += 1
             # with no sequence known, a published snapshot is newer than anything missed before it was handled; a
             # reply is only if it was asked for after the miss (a request's reply may come after newer updates: the
@@ -758,6 +766,28 @@ class ZenohExchange:
                 else:  # the stream moves: the map waited for may be in flight behind this one
                     self._defer(robot)
         self.on_update(robot)
+
+    def _clock_seen(self, robot: str, message: mapwire.Message) -> None:
+        """Keep the least (arrival - sender's wall) of ``robot``'s messages in its session: its clock's offset from
+        this one plus the fastest transit seen (a status on an idle link: milliseconds), as NTP's minimum filter
+        does. No clock synchronisation is assumed; a new session (a restart, perhaps on another machine) starts
+        afresh."""
+        if message.wall is None:
+            return
+        seen = time.time() - message.wall
+        with self._lock:
+            session, offset = self._offset.get(robot, (None, math.inf))
+            if session != message.session:
+                offset = math.inf
+            self._offset[robot] = (message.session, min(offset, seen))
+
+    def _age(self, robot: str, session: str | None, wall: float | None, now: float) -> float | None:
+        """How long ago, on this clock, ``robot`` sent (made) what it stamped ``wall`` in ``session``; None unknown
+        (lock held)."""
+        known = self._offset.get(robot)
+        if wall is None or known is None or known[0] != session:
+            return None
+        return max(0.0, now - (wall + known[1]))
 
     def request_snapshot(self, robot: str = "*") -> bool:
         """Ask ``robot``'s queryable (``*``: every robot's and the fused map's) for the latest full snapshot;
@@ -815,6 +845,18 @@ class ZenohExchange:
 
     def status(self) -> dict[str, dict]:
         """The latest status of every other robot: stamp, session, sequence (of the map it names, if has_map),
-        pose, landmarks, health."""
+        pose, landmarks, health; and what this receiver makes of it now: ``present`` (its liveliness token is
+        alive), ``age`` (s since the status was sent), ``map_held`` (the sequence of its map held here, or None) and
+        ``map_age`` (s since that map was made). Ages are on this receiver's clock, from the sender's ``wall``
+        stamps less the least delay its messages have shown (so no clock synchronisation is needed; a constant
+        transit an idle link adds, milliseconds on a LAN, is not counted); None where the sender sends no stamps."""
+        now = time.time()
         with self._lock:
-            return {r: dict(s) for r, s in self._status.items()}
+            out = {}
+            for r, s in self._status.items():
+                made = self._made.get(r)
+                out[r] = {**s, "present": r in self._present,
+                          "age": self._age(r, s.get("session"), s.get("wall"), now),
+                          "map_held": None if made is None else made[1],
+                          "map_age": None if made is None else self._age(r, made[0], made[2], now)}
+            return out
