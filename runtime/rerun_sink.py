@@ -1,21 +1,22 @@
 """Where a recording goes: :func:`open_recording` opens one mission's ``rr.RecordingStream`` on a saved ``.rrd``
 file, a viewer it starts on loopback (:func:`spawn_viewer`), a running viewer's URL, memory (tests) or nowhere.
-What is logged into it is runtime/rerun_log.py's; how a saved file is read back, runtime/rerun_read.py's."""
+Whether Rerun still takes it (a saved file's writer, a viewer's connection) is seen by runtime/rerun_watch.py's
+watches; this module flushes and detaches a stream by what they say. What is logged into it is runtime/rerun_log.py's;
+how a saved file is read back, runtime/rerun_read.py's."""
 from __future__ import annotations
 
-import os
 import shutil
 import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import weakref
 from pathlib import Path
 
 from runtime.limits import RERUN_URL_PREFIXES  # the one spelling, shared with the CLI's checks
 from runtime.rerun_sdk import rr, rrb
+from runtime.rerun_watch import FileWriterWatch, ViewerWatch
 
 APPLICATION_ID = "p3at-fusion"
 
@@ -77,113 +78,11 @@ FILE_FLUSH_TICK = 1.0  # s
 # the streams open_recording saves to a file (runtime/rerun_log.py's MissionLog holds their rows)
 SAVED_STREAMS: weakref.WeakSet = weakref.WeakSet()
 
-# -- is Rerun still writing a saved file? -----------------------------------------------------------------------------
-# Rerun 0.41's file sink writes from one thread of that name; a write that fails (a full disk, a file-size limit) ends
-# it with one ERROR line of Rerun's, and every later row is dropped without a word. The SDK offers no status: only a
-# flush says so, and a flush queued as the writer dies is never answered, so that every later flush times out and
-# the stream's disconnect, or the process's exit, waits for ever (session 48: docs/reliability.md)
-WRITER_THREAD = "file_writer"
-_TASKS = "/proc/self/task"   # Linux; elsewhere the watch sees only a removed file
+# -- flushing and detaching a saved file ----------------------------------------------------------------------------
+# Rerun 0.41 offers no status of its file sink: runtime/rerun_watch.py's FileWriterWatch sees from outside whether
+# the writer still writes, and a flush queued as the writer dies is never answered (see finish_saved)
 FLUSH_STEP = 1.0   # s: a saved file is flushed in steps this long, and the writer looked at between them
 BLIND_FLUSH_STEPS = 60   # steps waited for a writer whose thread could not be found (not Linux), then given up
-
-
-def _writer_threads() -> set[str]:
-    """The ids of this process's threads named WRITER_THREAD (empty where /proc is not)."""
-    found = set()
-    try:
-        tasks = os.listdir(_TASKS)
-    except OSError:
-        return found
-    for tid in tasks:
-        try:
-            with open(f"{_TASKS}/{tid}/comm") as comm:
-                if comm.read().strip() == WRITER_THREAD:
-                    found.add(tid)
-        except OSError:
-            continue
-    return found
-
-
-class FileWriterWatch:
-    """Whether Rerun still writes one saved recording, seen from outside, without asking Rerun anything: its writer
-    thread (``/proc/self/task``) and the file itself, through a read-only descriptor of ours that follows a rename
-    (the mission's ``.starting`` file becomes ``mission.rrd``) and outlives a removal.
-
-    :meth:`failure` is None while both are well; else why the recording stopped, kept from the first time it was
-    seen. Costs two system calls and a small read (~10 µs); nothing is sent to Rerun, so it cannot hang.
-    """
-
-    def __init__(self, path: Path, thread: str | None) -> None:
-        self.path = path
-        self.thread = thread   # None: not found (not Linux; or several sinks opened at once): only removal is seen
-        self._fd: int | None = os.open(path, os.O_RDONLY)
-        self._release = weakref.finalize(self, os.close, self._fd)   # closed with the watch, if not before
-        self._failure: str | None = None
-        self.settled = False   # finish_saved has looked whether a flush of the dead writer is stranded
-
-    @classmethod
-    def save(cls, rec: rr.RecordingStream, path: Path, footer: bool) -> FileWriterWatch:
-        """``rec.save(path)``, and the watch of the writer it starts."""
-        before = _writer_threads()
-        rec.save(str(path), write_footer=footer)
-        new, deadline = _writer_threads() - before, time.monotonic() + 1.0
-        while not new and time.monotonic() < deadline and os.path.isdir(_TASKS):  # the thread names itself
-            time.sleep(0.005)
-            new = _writer_threads() - before
-        return cls(path, next(iter(new)) if len(new) == 1 else None)
-
-    def current_path(self) -> str:
-        """The file's name now (it may have been renamed since it was opened)."""
-        if self._fd is not None:
-            try:
-                return os.readlink(f"/proc/self/fd/{self._fd}").removesuffix(" (deleted)")
-            except OSError:
-                pass
-        return str(self.path)
-
-    def _writer_alive(self) -> bool:
-        if self.thread is None:
-            return True
-        try:
-            with open(f"{_TASKS}/{self.thread}/comm") as comm:
-                return comm.read().strip() == WRITER_THREAD
-        except OSError:
-            return False
-
-    def failure(self) -> str | None:
-        """None while Rerun writes the file; else why it stopped (the first reason seen)."""
-        if self._failure is None and self._fd is not None:
-            if not self._writer_alive():
-                self._failure = f"Rerun's file writer stopped ({self._reason()})"
-            elif os.fstat(self._fd).st_nlink == 0:
-                self._failure = "its file was removed while it was written"
-        return self._failure
-
-    def _reason(self) -> str:
-        """Why a write failed, as far as can be seen from here: Rerun says it only in its own ERROR line."""
-        stat, disk = os.fstat(self._fd), os.fstatvfs(self._fd)
-        if disk.f_bavail == 0 or disk.f_bfree == 0:
-            return "[Errno 28] No space left on device"
-        limit = _file_size_limit()
-        if limit is not None and stat.st_size >= limit:
-            return f"[Errno 27] File too large (the file-size limit, ulimit -f, is {limit:,} bytes)"
-        if stat.st_nlink == 0:
-            return "the file was removed"
-        return "a write failed (Rerun's ERROR line above says why)"
-
-    def close(self) -> None:
-        self._release()
-        self._fd = None
-
-
-def _file_size_limit() -> int | None:
-    try:
-        import resource
-    except ImportError:  # not Unix
-        return None
-    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
-    return None if soft == resource.RLIM_INFINITY else soft
 
 
 # the watch of each stream open_recording saves to a file
@@ -273,17 +172,13 @@ def release_saved(rec: rr.RecordingStream) -> None:
         watch.close()
 
 
-# -- is a viewer still taking a live stream? -----------------------------------------------------------------------
+# -- a live stream to a viewer URL: checked before a run, flushed with a bound at its end ----------------------
 # Rerun 0.41's gRPC sink, given a URL where nothing listens, retries for ever: rows queue, a flush without a timeout
 # never returns (``p3at run --rerun rerun+http://127.0.0.1:9899/proxy`` waited in close for ever, and SIGTERM could
 # not end it: the handler never ran), and a queue that fills blocks every log call. A viewer that goes away mid-run
-# severs the connection: a later flush says so at once ('gRPC connection severed'), and a flush started but not
-# waited for (timeout 0) never does, so the watch looks at the process's own TCP connections instead.
+# severs the connection; runtime/rerun_watch.py's ViewerWatch sees it from outside.
 VIEWER_CHECK_TIMEOUT = 2.0   # s: the TCP connect that checks a URL before a run
 LIVE_FLUSH_STEPS = 5         # FLUSH_STEP steps a live stream's last rows are waited for, then given up
-VIEWER_LOOK_INTERVAL = 2.0   # s between two looks at a live stream's connection (ViewerWatch)
-_NET_TCP = ("/proc/self/net/tcp", "/proc/self/net/tcp6")
-_ESTABLISHED = "01"
 
 
 def viewer_address(url: str) -> tuple[str, int] | None:
@@ -318,61 +213,14 @@ def viewer_url_problem(url: str, timeout: float = VIEWER_CHECK_TIMEOUT) -> str |
     return None
 
 
-def _peers(port: int) -> list[str]:
-    """The states of this process's network namespace's TCP sockets whose remote port is ``port``."""
-    hex_port = f":{port:04X}"
-    states = []
-    for table in _NET_TCP:
-        try:
-            with open(table) as rows:
-                next(rows, None)
-                for row in rows:
-                    fields = row.split()
-                    if len(fields) > 3 and fields[2].endswith(hex_port):
-                        states.append(fields[3])
-        except OSError:
-            continue
-    return states
-
-
-class ViewerWatch:
-    """Whether the viewer at a URL still takes the live stream, seen from outside without asking Rerun: a TCP
-    connection to its port was established and is gone. A viewer that never answered is not seen here (the URL is
-    checked before a run, and :func:`finish_live` bounds the last flush). Linux (/proc); elsewhere it sees nothing.
-
-    A thread of its own looks every VIEWER_LOOK_INTERVAL s: reading the TCP table walks the kernel's whole socket hash
-    (8 ms a read measured on the project's machine, with 61 rows), too long for a robot's logging call to wait on;
-    :meth:`failure` only reads what it found."""
-
-    def __init__(self, url: str) -> None:
-        self.url = url
-        address = viewer_address(url)
-        self.port = None if address is None else address[1]
-        self.connected = False   # a connection to the port was seen
-        self._failure: str | None = None
-        self._stop = threading.Event()
-        if self.port is not None:
-            threading.Thread(target=self._look, name="viewer_watch", daemon=True).start()
-
-    def _look(self) -> None:
-        while not self._stop.wait(VIEWER_LOOK_INTERVAL):
-            established = _ESTABLISHED in _peers(self.port)
-            if established:
-                self.connected = True
-            elif self.connected:
-                self._failure = "the viewer closed the connection"
-                return
-
-    def failure(self) -> str | None:
-        """None while the viewer takes the stream (or it was never seen connected); else why not."""
-        return self._failure
-
-    def close(self) -> None:
-        self._stop.set()
-
-
 # the watch of each stream open_recording connects to a viewer URL
 VIEWERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _watch_viewer(url: str) -> ViewerWatch:
+    """The watch of the connection to the viewer at ``url`` (none is watched if the URL names no port)."""
+    address = viewer_address(url)
+    return ViewerWatch(url, None if address is None else address[1])
 
 
 def viewer_lost(rec: rr.RecordingStream) -> str | None:
@@ -437,7 +285,7 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
     if sink == "spawn":
         url = spawn_viewer()
         rec.connect_grpc(url)
-        VIEWERS[rec] = ViewerWatch(url)   # a viewer window closed mid-run is said; the end is bounded
+        VIEWERS[rec] = _watch_viewer(url)   # a viewer window closed mid-run is said; the end is bounded
     elif sink.startswith(RERUN_URL_PREFIXES):
         if (problem := viewer_url_problem(sink)) is not None:   # else the run's close waited for ever
             raise ViewerError(problem)
@@ -445,7 +293,7 @@ def open_recording(sink: str, *, recording_id: str | None = None, blueprint: rrb
             rec.connect_grpc(sink)
         except RuntimeError as e:   # Rerun's 'invalid endpoint ...': a bad URL is the user's, said in one line
             raise ViewerError(f"--rerun {sink}: {e}") from None
-        VIEWERS[rec] = ViewerWatch(sink)
+        VIEWERS[rec] = _watch_viewer(sink)
     elif sink != "none":
         Path(sink).parent.mkdir(parents=True, exist_ok=True)
         WRITERS[rec] = FileWriterWatch.save(rec, Path(sink), footer)
@@ -463,6 +311,6 @@ def recording_id(rec: rr.RecordingStream) -> str | None:
 
 
 __all__ = ["APPLICATION_ID", "FILE_FLUSH_TICK", "FLUSH_STEP", "LIVE_FLUSH_STEPS", "SAVED_STREAMS", "VIEWERS",
-           "VIEWER_PORT", "WRITERS", "WRITER_THREAD", "FileWriterWatch", "ViewerError", "ViewerWatch", "finish_live",
-           "finish_saved", "live_url", "open_recording", "recording_id", "release_saved", "spawn_viewer",
-           "viewer_address", "viewer_lost", "viewer_url_problem", "writer_failure"]
+           "VIEWER_PORT", "WRITERS", "ViewerError", "finish_live", "finish_saved", "live_url", "open_recording",
+           "recording_id", "release_saved", "spawn_viewer", "viewer_address", "viewer_lost", "viewer_url_problem",
+           "writer_failure"]
