@@ -28,6 +28,7 @@ from runtime.json_output import json_text
 from runtime.report import alignment_text, fusion_event_line, start_prior_line
 
 FUSED = "fused"
+_SAY = threading.Lock()
 EXIT_NOTHING_TO_FUSE = 1   # p3at fuse --live: no two robots' maps ever came, so no fusion was made
 
 
@@ -187,7 +188,7 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
     presence: list[PresenceLines] = []   # the exchange's joins and leaves made whole, once it is open
 
     def event(line: str) -> None:
-        print(presence[0](line) if presence else line, file=sys.stderr, flush=True)
+        say_line(presence[0](line) if presence else line)
 
     try:
         exchange = open_exchange(spec, args.fleet, "fusion", on_event=event,
@@ -241,6 +242,16 @@ def run_live(args: argparse.Namespace, starts: Mapping[str, tuple] | None = None
         print(f"p3at fuse: nothing to fuse: {nothing}", file=sys.stderr)
         return EXIT_NOTHING_TO_FUSE
     return 0
+
+
+def say_line(line: str, stream=None) -> None:
+    """One whole line on stderr (``stream``): the node's lines come from several threads (the exchange's joins and
+    leaves, the fusions, the status printer), and ``print`` writes the text and its newline apart, so two lines
+    printed at once came out as 'robot1 joined the fleetfirst map from robot1: ...' and an empty line (session 49)."""
+    stream = sys.stderr if stream is None else stream
+    with _SAY:
+        stream.write(line + "\n")
+        stream.flush()
 
 
 def nothing_to_fuse(mapped: list[str], heard: list[str], seconds: float, fleet: str) -> str:
