@@ -127,38 +127,64 @@ def _file_size_limit() -> int | None:
 # and a flush started but not waited for (timeout 0) never does, so the watch looks at the process's own TCP
 # connections instead (runtime/rerun_sink.py says what Rerun 0.41's gRPC sink does where nothing listens).
 VIEWER_LOOK_INTERVAL = 2.0   # s between two looks at a live stream's connection (ViewerWatch)
-_NET_TCP = ("/proc/self/net/tcp", "/proc/self/net/tcp6")
+_NET_TCP = ("/proc/self/net/tcp", "/proc/self/net/tcp6")   # every socket of the network namespace, not ours only
+_FDS = "/proc/self/fd"
 _ESTABLISHED = "01"
 
 
-def _peers(port: int) -> list[str]:
-    """The states of this process's network namespace's TCP sockets whose remote port is ``port``."""
+def _peers(port: int) -> list[tuple[str, str]]:
+    """(state, inode) of the network namespace's TCP sockets whose remote port is ``port``: other processes' too."""
     hex_port = f":{port:04X}"
-    states = []
+    found = []
     for table in _NET_TCP:
         try:
             with open(table) as rows:
                 next(rows, None)
                 for row in rows:
                     fields = row.split()
-                    if len(fields) > 3 and fields[2].endswith(hex_port):
-                        states.append(fields[3])
+                    if len(fields) > 9 and fields[2].endswith(hex_port):
+                        found.append((fields[3], fields[9]))
         except OSError:
             continue
-    return states
+    return found
+
+
+def _own_sockets() -> set[str]:
+    """The inodes of the sockets this process holds (``socket:[INODE]`` in /proc/self/fd)."""
+    inodes = set()
+    try:
+        fds = os.listdir(_FDS)
+    except OSError:
+        return inodes
+    for fd in fds:
+        try:
+            target = os.readlink(f"{_FDS}/{fd}")
+        except OSError:   # closed since it was listed
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    return inodes
+
+
+def _connected(port: int) -> bool:
+    """Whether this process holds an established TCP connection to ``port`` (another process's is not counted)."""
+    established = {inode for state, inode in _peers(port) if state == _ESTABLISHED}
+    return bool(established) and not established.isdisjoint(_own_sockets())   # the descriptors only if need be
 
 
 class ViewerWatch:
     """Whether the viewer at a URL still takes the live stream, seen from outside without asking Rerun: a TCP
-    connection to its port was established and is gone. A viewer that never answered is not seen here (the URL is
-    checked before a run, and runtime/rerun_sink.py's ``finish_live`` bounds the last flush). Linux (/proc); elsewhere
-    it sees nothing.
+    connection of this process's to its port was established and is gone (another process's connection to the same
+    viewer, a second mission streaming to it, is not this stream's). A viewer that never answered is not seen here
+    (the URL is checked before a run, and runtime/rerun_sink.py's ``finish_live`` bounds the last flush). Linux
+    (/proc); elsewhere it sees nothing.
 
     ``port``: the viewer's (None: the URL names none, and nothing is watched).
 
     A thread of its own looks every VIEWER_LOOK_INTERVAL s: reading the TCP table walks the kernel's whole socket hash
     (8 ms a read measured on the project's machine, with 61 rows), too long for a robot's logging call to wait on;
-    :meth:`failure` only reads what it found."""
+    the process's descriptors are read only when an established connection to the port is in it. :meth:`failure`
+    only reads what it found."""
 
     def __init__(self, url: str, port: int | None) -> None:
         self.url = url
@@ -171,8 +197,7 @@ class ViewerWatch:
 
     def _look(self) -> None:
         while not self._stop.wait(VIEWER_LOOK_INTERVAL):
-            established = _ESTABLISHED in _peers(self.port)
-            if established:
+            if _connected(self.port):
                 self.connected = True
             elif self.connected:
                 self._failure = "the viewer closed the connection"
