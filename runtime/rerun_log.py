@@ -23,7 +23,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     world/<robot>/sonar                   LineStrips3D, one segment per sonar ray
     world/<robot>/stereo                  Transform3D: the head on the estimated pose
     world/<robot>/stereo/{left,right}     Pinhole, .../features Points2D (matched corners); a lone left image
-    world/fused/landmarks[/covariance]    Points3D coloured by robot (white: seen by several), Ellipsoids3D 1 σ
+    world/fused/landmarks[/covariance]    Points3D coloured by robot (white: seen by several), Ellipsoids3D 1 σ;
+                                          world/fused placed at the fused map's true_start_pose when it has one
     images/<robot>/pair[/matches]         side-by-side Image and LineStrips2D: 2-D, outside the 3-D world
     map/<key>                             static Transform3D flipping y: the 2-D maps are drawn y up
     map/<robot>/building                  LineStrips2D, the walls in the robot's start frame (when known)
@@ -31,7 +32,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     map/<robot>/pose[/heading], true_pose Points2D (labelled) + Arrows2D
     map/<robot>/particles                 Points2D
     map/<robot>/landmarks/{confirmed,provisional}          Points2D
-    map/<robot>/true_landmarks            Points2D, a data set's true landmarks (static, labelled)
+    map/<robot>/true_landmarks[/ids]      Points2D, a data set's true landmarks (static), and their ids shown
+                                          TRUE_LABEL_OFFSET_M below them (a label box hid the estimate)
     map/<robot>/frame_tie[/ray]           Points2D (labelled) + LineStrips2D: a data set run's sighting its frame
                                           rests on, unchecked (estimation.frame_reliability), and its ray
     map/<robot>/naming_tie/<k>[/start]    LineStrips2D + Points2D (labelled): the path a chain's naming its frame or
@@ -48,7 +50,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
     maps/<robot>, maps/fused              AnyValues: the map's arrays, so that ``p3at review`` rebuilds them
     fusion/alignment/<a>_<b>              AnyValues: the alignment result and its error against the truth
     fusion/status                         TextDocument (Markdown): each pair's last fusion, aligned or why not, with
-                                          its supports, P(chance), 1 σ and error; shown beside the fused map
+                                          its supports, P(chance), 1 σ and error; shown beside the fused map;
+                                          at t = 0 (two robots or more) NO_FUSION_YET
     mission/events                        TextLog: warnings and notices (fusion candidates, splits, contacts...)
     mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints
     mission/closed                        static AnyValues, logged last by ``close``: the writer closed the stream
@@ -217,6 +220,7 @@ def _jpeg(image: np.ndarray, quality: int = 75) -> rr.EncodedImage:
     return rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
 
 
+TRUE_LABEL_OFFSET_M = 0.3  # m below a true landmark in the 2-D map where its id is shown (clear of the map's landmark)
 P3AT_HALF_SIZE = (0.32, 0.25, 0.14)  # m: the Pioneer 3-AT's body, drawn at the estimated pose in the 3-D view
 Y_UP = np.diag([1.0, -1.0, 1.0])     # 2-D views draw +y down; the maps are REP-103 (x forward, y left): flip once
 
@@ -225,6 +229,12 @@ Y_UP = np.diag([1.0, -1.0, 1.0])     # 2-D views draw +y down; the maps are REP-
 # (runtime.rerun_sink.writer_failure, ~15 us): a count, not a clock, so that a mission in simulated time sees a dead
 # writer at the same point of the mission however busy the machine (15 Hz, one robot: a look every ~0.5 s)
 WRITER_LOOK_CALLS = 16
+
+
+# the fusion status before the first fusion (fusion/status at t = 0)
+NO_FUSION_YET = ("**No fusion yet.** The robots' maps are aligned and merged at intervals during the mission and at "
+                 "its end; the fused map stays empty until the first fusion, and each pair's last fusion is then said "
+                 "here (aligned or why not).")
 
 
 class RecordingError(RuntimeError):
@@ -288,6 +298,8 @@ class MissionLog:
             rec.send_blueprint(mission_blueprint(self.robots))
         # REP-103 in the 3-D view: z up (without it a viewer guesses the up axis from what it is shown)
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if len(self.robots) >= 2:
+            self._no_fusion_yet()
 
     # -- helpers --------------------------------------------------------------------------------------
     @property
@@ -298,12 +310,29 @@ class MissionLog:
     def colour(self, robot: str) -> tuple[int, int, int]:
         """The robot's colour; a robot first seen here joins the layout."""
         if robot not in self.robots:
+            second = False
             with self._lock:  # sent under the lock: the layouts go out in the order the robots came
                 if robot not in self.robots:
                     self.robots.append(robot)
                     if self._send_layout:
                         self.rec.send_blueprint(mission_blueprint(self.robots))
+                    second = len(self.robots) == 2
+            if second:   # a fusion node that learns its robots from their maps (p3at fuse --live)
+                self._no_fusion_yet()
         return robot_colour(robot)
+
+    def _no_fusion_yet(self) -> None:
+        """The fusion status before the first fusion, at t = 0: the status panel beside the (still empty) fused map
+        said "(empty)" for the mission's first 20 s, which reads as a recording that lost its fusion. Logged by a
+        logger of two robots or more (a robot's own process of a fleet logs none: the fusion node's is the one shown).
+        The time this thread logs at is kept."""
+        if not self._first_time(FUSION_STATUS):
+            return
+        now = self._rows.current_time()
+        self._rows.set_time(0.0)
+        self.rec.log(FUSION_STATUS, rr.TextDocument(NO_FUSION_YET, media_type="text/markdown"))
+        if now is not None:
+            self._rows.set_time(*now)
 
     def _first_time(self, key: str) -> bool:
         """True the first time ``key`` is asked (thread-safe): for static things logged once."""
@@ -470,9 +499,17 @@ class MissionLog:
         labels = [str(label) for label in labels] or None
         self.rec.log(f"world/{robot}/true_landmarks", rr.Points3D(_with_z(positions, 0.0), radii=0.05,
                                                                   colors=TRUE_COLOUR, labels=labels), static=True)
-        self.rec.log(f"{self._map_root(robot)}/true_landmarks",
-                     rr.Points2D(positions, radii=-5.0, colors=TRUE_COLOUR, labels=labels, show_labels=True,
-                                 draw_order=4.0), static=True)
+        # A point's label box is drawn over the point, on top of everything: on the true landmark it hid the map's
+        # own landmark, a few pixels off (MRCLAM's median error 0.09 m), which is what the view is for. The ids are
+        # shown on points of no size TRUE_LABEL_OFFSET_M below each (the map is drawn y up), the landmark itself
+        # keeps its id for hovering.
+        root = self._map_root(robot)
+        self.rec.log(f"{root}/true_landmarks", rr.Points2D(positions, radii=-5.0, colors=TRUE_COLOUR, labels=labels,
+                                                           show_labels=False, draw_order=4.0), static=True)
+        if labels:
+            self.rec.log(f"{root}/true_landmarks/ids",
+                         rr.Points2D(positions - [0.0, TRUE_LABEL_OFFSET_M], radii=0.0, colors=TRUE_COLOUR,
+                                     labels=labels, show_labels=True, draw_order=4.0), static=True)
 
     # -- per robot, per frame -------------------------------------------------------------------------
     def log_pose(self, robot: str, t: float, frame: int | None, estimated: np.ndarray,
@@ -714,6 +751,7 @@ class MissionLog:
         if not draw:
             return
         if key == "fused":
+            self._place_fused_frame(m.metadata)
             colours = self._seen_by_colours(m)
             self.log_landmarks("fused", t, None, m.positions, m.covariances, path="world/fused/landmarks",
                                colours=colours)
@@ -731,6 +769,21 @@ class MissionLog:
         self._snapshot_paths[key] = path
         if key in self._aligned:
             self._log_fused_path(key)
+
+    def _place_fused_frame(self, metadata: Mapping) -> None:
+        """Place the fused map's frame (world/fused, and the walls of its 2-D map) where the map says it is: its
+        ``true_start_pose``, the reference robot's true start (mocks, simulations). A caller places "fused" at its own
+        first robot's start (runtime/mission.py), which is the reference only in the process that logs every robot: a
+        fleet's robot2 process placed it at robot2's start, and its fused map, in robot1's frame, was drawn 180° about
+        in the 3-D world and over walls 24 m off in its 2-D map. A map without a valid one leaves the placement as it
+        is."""
+        try:
+            start = np.asarray((metadata or {}).get("true_start_pose"), float).reshape(3)
+        except (TypeError, ValueError):
+            return
+        placed = self._placements.get("fused")
+        if np.isfinite(start).all() and (placed is None or not np.allclose(placed, start)):
+            self.log_robot_frame("fused", start)
 
     def _log_self_check(self, robot: str, t: float, metadata: Mapping) -> None:
         """A snapshot's self-check (runtime/map_self_check.py): its CUSUM beside its threshold under
@@ -804,4 +857,4 @@ class MissionLog:
                      static=True)
 
 
-__all__ = ["WRITER_LOOK_CALLS", "MissionLog", "RecordingError", "landmark_confirmed"]
+__all__ = ["NO_FUSION_YET", "WRITER_LOOK_CALLS", "MissionLog", "RecordingError", "landmark_confirmed"]

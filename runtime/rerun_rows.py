@@ -107,6 +107,11 @@ class RowSender:
         else:  # set_time is sticky per thread: do not stamp this row with an older frame number
             self.rec.disable_timeline("frame")
 
+    def current_time(self) -> tuple[float, int | None] | None:
+        """This thread's (t, frame) as :meth:`set_time` last set it, or None if it never did."""
+        t = getattr(self._now, "t", None)
+        return None if t is None else (t, self._now.frame)
+
     def emit(self, path: str, archetype, data: Mapping) -> None:
         """One row of ``archetype``'s fields ``data`` (each a batch of instances: ``[[x, y, z]]`` for one) at the time
         :meth:`set_time` set in this thread: logged at once on a live stream; on a saved file (``hold``) held and
