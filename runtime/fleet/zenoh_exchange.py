@@ -76,8 +76,10 @@ CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between 
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
 DROP_REPORT_INTERVAL = 30.0         # s: malformed messages are said once, then counted in one line at most this often
 STATUS_PRIORITY = zenoh.Priority.DATA_HIGH  # statuses: one step above the maps' DATA
+ACK_TIMEOUT = 20.0                  # s a robot's next map waits for the node to say it has the last, at most
 CLOSE_SLOW = 5.0                    # s: a Zenoh close still waiting after this is said (a peer's link down: up to 10 s)
 
+_SAY = ""                           # the receive queue's key of a line to say in turn (a join or a leave)
 _OPEN: weakref.WeakSet[ZenohExchange] = weakref.WeakSet()
 
 
@@ -255,7 +257,8 @@ class ZenohExchange:
         self._closed = False
         self._calls = 0                          # publish/publish_status/request_snapshot inside Zenoh now
         self._idle = threading.Condition(self._lock)
-        self._outbox: dict[str, tuple[int, bytes, bytes]] = {}   # own robot -> (kind, map, status) not yet sent
+        # own robot -> (kind, map, status, sequence) not yet sent
+        self._outbox: dict[str, tuple[int, bytes, bytes, int]] = {}
         self._outbox_ready = threading.Condition(self._lock)
         self._sending_stopped = False
         self.superseded = 0                      # maps replaced in the outbox by a newer one before they were sent
@@ -264,6 +267,14 @@ class ZenohExchange:
         # (session, sequence, sender's wall) of the map held
         self._offset: dict[str, tuple[str, float]] = {}
         self._made: dict[str, tuple[str, int, float | None]] = {}
+        # one map in flight per robot while a fusion node that acknowledges is connected (session 49): own robot ->
+        # (sequence, when) of the map last put into Zenoh; own robot -> the newest sequence the node acknowledged
+        self._in_flight: dict[str, tuple[int, float]] = {}
+        self._acked: dict[str, int] = {}
+        self._acking = False                     # a fusion node's acknowledgement has come: it acknowledges
+        self._handed: dict[str, int] = {}        # own robot -> the sequence of its map last put into Zenoh
+        self._link_said: set[str] = set()        # own robots whose slow link has been said
+        self._skipped: collections.Counter[str] = collections.Counter()   # own robot -> maps replaced unsent
         try:
             zenoh_config = make_config(config, role)
             lease = json.loads(zenoh_config.get_json("transport/link/tx/lease"))
@@ -276,6 +287,10 @@ class ZenohExchange:
             self.session.declare_subscriber(f"{self.prefix}/*/map", ring(CHANNEL_CAPACITY)),
             self.session.declare_subscriber(f"{self.prefix}/*/status", ring(CHANNEL_CAPACITY)),
         ]
+        # the fusion node's word that it holds a robot's map (a status-shaped message naming it): a robot's sender
+        # puts its next map into Zenoh only then, so a link slower than the map stream carries the newest maps
+        # whole instead of queueing every one behind the others (docs/fleet.md, session 49)
+        self._acks = self.session.declare_subscriber(f"{self.prefix}/*/ack", ring(CHANNEL_CAPACITY))
         self._liveliness = self.session.liveliness().declare_subscriber(f"{self.prefix}/*/alive",
                                                                         ring(CHANNEL_CAPACITY), history=True)
         # the fusion node's token from its start, not from its first fused map: robots know whether a node hears them
@@ -324,6 +339,10 @@ class ZenohExchange:
                 log.warning("closing the exchange: %d send(s) still inside Zenoh after %.0f s", self._calls,
                             CLOSE_TIMEOUT)
         self._report_drops(time.monotonic())   # what the last interval counted (the worker has stopped)
+        for robot in sorted(self._link_said):
+            log.warning("fleet exchange: %s made %d maps and sent %d: %d skipped, its link to the fusion node carried "
+                        "fewer than it made", robot, self._encoders[robot].sequence + 1,
+                        self._encoders[robot].sequence + 1 - self._skipped[robot], self._skipped[robot])
         self._say_unheard(time.monotonic())
         # Zenoh's close waits up to 10 s for a peer whose link is down (before its lease ends): say it, not hang mute
         slow = threading.Timer(CLOSE_SLOW, log.warning, ("fleet exchange: closing: a peer does not answer (its link "
@@ -410,27 +429,54 @@ class ZenohExchange:
             status_data = mapwire.encode_status(robot, encoder.session, encoder.sequence, stamp, pose,
                                                 len(snapshot), health, wall=wall)
             if replaced:
-                old_kind, old, old_status = self._outbox[robot]
+                old_kind, old, old_status, _ = self._outbox[robot]
+                self._say_slow_link(robot, now)
                 self.superseded += 1
+                self._skipped[robot] += 1
                 self.bytes_sent[mapwire.KIND_NAMES[old_kind]] -= len(old)
                 self.bytes_sent["status"] -= len(old_status)
-            self._outbox[robot] = (kind, data, status_data)
+            self._outbox[robot] = (kind, data, status_data, encoder.sequence)
             self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)   # published (counted when handed over)
             self.bytes_sent["status"] += len(status_data)
             self._outbox_ready.notify_all()
 
+    def _say_slow_link(self, robot: str, now: float) -> None:
+        """Once per robot: a map replaced unsent because the node has not yet said it has the last (lock held)."""
+        flight = self._in_flight.get(robot)
+        if robot in self._link_said or flight is None or self._ready(robot, now):
+            return
+        self._link_said.add(robot)
+        log.warning("fleet exchange: %s's link to the fusion node carries fewer maps than it makes: its map %d, sent "
+                    "%.1f s ago, has not reached the node yet; from now on its newest map goes when the last has "
+                    "arrived, the others are skipped (counted at the end)", robot, flight[0], now - flight[1])
+
+    def _ready(self, robot: str, now: float) -> bool:
+        """Whether ``robot``'s next map may go into Zenoh: a fusion node that acknowledges maps holds its last one
+        (or has not said so within ACK_TIMEOUT: a map or its word lost), or no such node is connected (lock held)."""
+        flight = self._in_flight.get(robot)
+        if flight is None or self._sending_stopped or not self._acking or FUSED not in self._present:
+            return True
+        return self._acked.get(robot, -1) >= flight[0] or now - flight[1] >= ACK_TIMEOUT
+
     def _send_loop(self) -> None:
-        """The sender thread: puts each robot's newest unsent map and its status into Zenoh, until close() has
-        seen the outbox empty."""
+        """The sender thread: puts each robot's newest unsent map and its status into Zenoh, one map in flight per
+        robot while a fusion node acknowledges them, until close() has seen the outbox empty."""
         while True:
             with self._lock:
-                while not self._outbox and not self._sending_stopped:
-                    self._outbox_ready.wait()
+                while True:
+                    now = time.monotonic()
+                    ready = [r for r in self._outbox if self._ready(r, now)]
+                    if ready or (not self._outbox and self._sending_stopped):
+                        break
+                    due = [f[1] + ACK_TIMEOUT - now for r, f in self._in_flight.items() if r in self._outbox]
+                    self._outbox_ready.wait(timeout=max(0.01, min(due)) if due and self._outbox else None)
                 if not self._outbox:
                     return
-                robot = next(iter(self._outbox))
-                kind, data, status_data = self._outbox.pop(robot)
+                robot = ready[0]
+                kind, data, status_data, sequence = self._outbox.pop(robot)
                 publisher, status, _, _ = self._own[robot]
+                self._in_flight[robot] = (sequence, time.monotonic())
+                self._handed[robot] = self._in_flight[robot][0]
                 self._calls += 1
             try:
                 publisher.put(data)
@@ -456,8 +502,11 @@ class ZenohExchange:
             self._health[robot] = dict(health or {})
             self._calls += 1
         try:
-            data = mapwire.encode_status(robot, encoder.session, max(encoder.sequence, 0), stamp, pose, landmarks,
-                                         health, has_map=encoder.latest is not None, wall=time.time())
+            # it names the map last put into Zenoh (one waiting for the node's word is not asked for: its query's
+            # reply would go around the flow control)
+            handed = self._handed.get(robot)
+            data = mapwire.encode_status(robot, encoder.session, 0 if handed is None else handed, stamp, pose,
+                                         landmarks, health, has_map=handed is not None, wall=time.time())
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
@@ -495,6 +544,12 @@ class ZenohExchange:
                 came = True
                 self._enqueue(str(sample.key_expr), sample.payload.to_bytes())
         for _ in range(CHANNEL_CAPACITY):
+            sample = self._acks.try_recv()
+            if sample is None:
+                break
+            came = True
+            self._on_ack(str(sample.key_expr), sample.payload.to_bytes())
+        for _ in range(CHANNEL_CAPACITY):
             sample = self._liveliness.try_recv()
             if sample is None:
                 break
@@ -527,6 +582,33 @@ class ZenohExchange:
                     self._enqueue(str(sample.key_expr), sample.payload.to_bytes(), asked)
         return came
 
+    def _on_ack(self, key: str, data: bytes) -> None:
+        """A fusion node holds map ``sequence`` of this process's robot: its next map may go (session 49)."""
+        robot = self._robot_of(key, "ack")
+        if robot is None or robot not in self._encoders:
+            return   # another robot's: not for this sender
+        try:
+            message = mapwire.decode(data)
+            if message.kind != mapwire.STATUS or message.robot != robot:
+                raise mapwire.WireError(f"a {message.kind_name} message for {message.robot!r} on an ack key")
+        except mapwire.WireError as e:
+            self._drop(key, str(e))
+            return
+        with self._lock:
+            if message.session == self._encoders[robot].session:
+                self._acked[robot] = max(self._acked.get(robot, -1), message.sequence)
+                self._acking = True
+                self._outbox_ready.notify_all()
+
+    def _acknowledge(self, robot: str, session: str, sequence: int) -> None:
+        """The fusion node says it holds ``robot``'s map ``sequence`` (a status-shaped message, at the statuses'
+        priority: it must not wait behind maps)."""
+        try:
+            self.session.put(f"{self.prefix}/{robot}/ack", mapwire.encode_status(robot, session, sequence, 0.0),
+                             congestion_control=zenoh.CongestionControl.DROP, priority=STATUS_PRIORITY)
+        except zenoh.ZError as e:   # the robot's sender waits ACK_TIMEOUT at most
+            log.debug("fleet exchange: could not acknowledge %s's map %d: %s", robot, sequence, zenoh_message(e))
+
     def _enqueue(self, key: str, data: bytes, asked: float | None = None) -> None:
         """Queue a received message; ``asked``: when the snapshot request it answers was sent (None for a
         published sample)."""
@@ -534,7 +616,12 @@ class ZenohExchange:
             self._pending.append((key, data, asked))
             self._pending_bytes += len(data)
             while self._pending_bytes > self.max_pending_bytes and len(self._pending) > 1:
-                old_key, old, _ = self._pending.popleft()  # the oldest goes; its robot's map is recovered by query
+                # the oldest message goes (its robot's map is recovered by query); a line to say stays (no bytes)
+                index = next(k for k, entry in enumerate(self._pending) if entry[0] != _SAY)
+                if index == len(self._pending) - 1:
+                    break
+                old_key, old, _ = self._pending[index]
+                del self._pending[index]
                 self._pending_bytes -= len(old)
                 self.dropped["queue full"] += 1
                 robot = self._robot_of(old_key, "map")
@@ -566,6 +653,7 @@ class ZenohExchange:
         with self._lock:
             (self._present.add if joined else self._present.discard)(robot)
             (self._left.discard if joined else self._left.add)(robot)
+            self._outbox_ready.notify_all()   # a node come or gone: the sender's flow control changes
             if not joined:  # its queryable has gone with it: nothing to ask (a rejoin asks anyway)
                 self._waits.pop(robot, None)
             elif robot == FUSED:  # a node that joins asks every robot for its latest snapshot
@@ -576,8 +664,14 @@ class ZenohExchange:
                     recent = [(q, t) for q, t in sent if t >= now - self.lease]
                     if recent and own not in self._unheard:
                         self._unheard[own] = (recent[0][0], recent[0][1], recent[-1][0])
-        # the lines tests and callers know; p3at fuse --live says more (runtime/fleet/status.py, PresenceLines)
-        self.on_event(f"{'the fusion node' if robot == FUSED else robot} {'joined' if joined else 'left'} the fleet")
+        # the lines tests and callers know; p3at fuse --live says more (runtime/fleet/status.py, PresenceLines). Said by
+        # the worker in turn with the messages queued before it: a robot's last map and status, on the wire before its
+        # leave, were still in the queue when its leave was said from here ('left without a word; the fusion keeps its
+        # map 11' while map 12 and the status saying its mission was over came 1 ms later; session 49)
+        line = f"{'the fusion node' if robot == FUSED else robot} {'joined' if joined else 'left'} the fleet"
+        with self._lock:
+            self._pending.append((_SAY, line.encode(), None))
+            self._wake.notify()
         if joined and robot not in self._encoders:
             self.request_snapshot(robot)
 
@@ -616,8 +710,15 @@ class ZenohExchange:
                     return
                 ask = self._due()  # a busy queue must not hold them back
                 key, data, asked = self._pending.popleft()
-                self._pending_bytes -= len(data)
+                if key != _SAY:   # a line to say is not counted in the queue's bytes
+                    self._pending_bytes -= len(data)
             self._ask(ask)
+            if key == _SAY:   # a join or leave, said after the messages that came before it
+                try:
+                    self.on_event(data.decode())
+                except Exception:  # a hook's bug must not stop the receiving
+                    log.exception("fleet exchange: unexpected error in the event hook")
+                continue
             try:
                 self._handle(key, data, asked)
             except mapwire.StaleMessage as e:
@@ -753,6 +854,9 @@ class ZenohExchange:
             self._latest[robot] = MapMessage(robot, stream.sequence, stream.stamp, m)
             self._made[robot] = (stream.session, stream.sequence, message.wall)
             self.received += 1
+        if self.role == "fusion":
+            self._acknowledge(robot, stream.session, stream.sequence)
+        with self._lock:
             # with no sequence known, a published snapshot is newer than anything missed before it was handled; a
             # reply is only if it was asked for after the miss (a request's reply may come after newer updates: the
             # reply to the request made when the robot joined came after the drops it predates)
