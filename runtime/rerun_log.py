@@ -53,7 +53,8 @@ Entity tree (one recording per mission, one subtree per robot; metres, radians, 
                                           its supports, P(chance), 1 σ and error; shown beside the fused map;
                                           at t = 0 (two robots or more) NO_FUSION_YET
     mission/events                        TextLog: warnings and notices (fusion candidates, splits, contacts...)
-    mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints
+    mission/summary                       AnyValues (JSON) + TextDocument: the figures the demo prints, as it
+                                          prints them (the layout's summary tab)
     mission/closed                        static AnyValues, logged last by ``close``: the writer closed the stream
                                           (a file saved without Rerun's footer has no end-of-stream message)
 
@@ -79,7 +80,7 @@ import numpy as np
 from estimation.fastslam.config import FastSLAMConfig
 from estimation.geometry import between, compose
 from estimation.landmark_map import LandmarkMap
-from runtime.report import alignment_status, candidate_text
+from runtime.report import alignment_status, candidate_text, format_summary
 from runtime.rerun_map_format import CLOSED_ENTITY, OPTIONAL_MAP_ARRAYS, map_arrays, map_checksum
 from runtime.rerun_rows import RowSender
 from runtime.rerun_sdk import rr
@@ -99,6 +100,7 @@ from runtime.rerun_style import (
     FUSION_STATUS,
     SHARED_COLOUR,
     SPARSE_SERIES,
+    SUMMARY,
     TRUE_COLOUR,
     WALL_COLOUR,
     dimmed,
@@ -850,11 +852,17 @@ class MissionLog:
                 self._log_fused_path(robot)
 
     def log_summary(self, summary: Mapping) -> None:
-        """The mission's figures, as JSON (read back by :func:`read_recording`) and as a text panel."""
+        """The mission's figures, as JSON (read back by :func:`read_recording`) and as a text panel (the layout's
+        summary tab): a mission's summary as the command printed it (runtime.report.format_summary's tables: robots'
+        landmarks, frames, errors and times, each pair's alignment with its supports, P(chance), 1 σ and error, the
+        merged map), any other (a data set's run, a fusion node's) as its JSON."""
         text = json.dumps(dict(summary), indent=2, default=float)
-        self.rec.log("mission/summary", rr.AnyValues(json=text), static=True)
-        self.rec.log("mission/summary", rr.TextDocument(f"```json\n{text}\n```", media_type="text/markdown"),
-                     static=True)
+        self.rec.log(SUMMARY, rr.AnyValues(json=text), static=True)
+        try:
+            shown = f"```\n{format_summary(dict(summary))}\n```"
+        except (KeyError, TypeError, ValueError, AttributeError):   # not a mission's summary
+            shown = f"```json\n{text}\n```"
+        self.rec.log(SUMMARY, rr.TextDocument(shown, media_type="text/markdown"), static=True)
 
 
 __all__ = ["NO_FUSION_YET", "WRITER_LOOK_CALLS", "MissionLog", "RecordingError", "landmark_confirmed"]

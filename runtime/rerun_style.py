@@ -82,14 +82,28 @@ WHOLE_TIMELINE = rrb.TimeAxis(view_range=rrb.TimeRange(start=rrb.TimeRangeBounda
                                                        end=rrb.TimeRangeBoundary.infinite()))
 
 
-def _plot(origin: str, name: str, contents: list[str] | None = None) -> rrb.TimeSeriesView:
+def _plot(origin: str, name: str, contents: list[str] | None = None, legend=None) -> rrb.TimeSeriesView:
     """A plot whose time axis spans the whole recording (the viewer's default follows the time cursor with a window
-    of about a minute: a 200 s mission's ESS, or a 30-minute data set's NEES, would show a minute at a time)."""
-    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name, axis_x=WHOLE_TIMELINE)
+    of about a minute: a 200 s mission's ESS, or a 30-minute data set's NEES, would show a minute at a time).
+    ``legend``: the corner of its legend (None: the viewer's, bottom left)."""
+    return rrb.TimeSeriesView(origin=origin, contents=contents or ["+ $origin/**"], name=name, axis_x=WHOLE_TIMELINE,
+                              plot_legend=legend)
+
+
+# counts that grow from 0 (landmarks): their plot's top left is empty, where the viewer's bottom-left legend (four
+# long lines for a robot's landmarks) covered the curves' first minute
+GROWING_LEGEND = rrb.PlotLegend(corner=rrb.Corner2D.LeftTop)
 
 
 FUSION_STATUS = "fusion/status"
 EVENTS = "mission/events"
+SUMMARY = "mission/summary"
+
+
+def _summary_tab(name: str = "the figures the command printed at its end") -> rrb.TextDocumentView:
+    """The mission's summary (static: the same at every time), as the command printed it: the robots' landmarks,
+    frames and errors, each alignment's figures, the merged map. Without a view it was logged and never shown."""
+    return rrb.TextDocumentView(origin=SUMMARY, name=name)
 
 
 def _fusion_status_view() -> rrb.TextDocumentView:
@@ -111,7 +125,8 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     - fusion: the fused map; each pair's last fusion in words (aligned or why not, with what it rests on); the
       alignment's error (m, rad) and landmark counts, each on its own axis; the mission's events (warnings);
     - 3-D: the world with the robots, their cameras (pinholes, matched corners) and the landmarks; the covariance
-      ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown.
+      ellipsoids (1 σ) of each robot's map are hidden (tick them in the blueprint panel), the fused map's shown;
+    - summary: the figures the command printed at its end (mission/summary).
 
     One robot (``p3at run`` on its own): nothing is fused, so no fused map and no fusion tab; the overview is its map
     above the mission's events.
@@ -133,7 +148,8 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
     for r in robots:
         plots = rrb.Vertical(
             _plot(f"plots/{r}/ess", "ESS (effective particles)"),
-            _plot(f"plots/{r}/landmarks", "landmarks: the best particle's and its exported map's (count)"),
+            _plot(f"plots/{r}/landmarks", "landmarks: the best particle's and its exported map's (count)",
+                  legend=GROWING_LEGEND),
             _plot(f"plots/{r}/observations", "observations per frame (count)"),
             _plot(f"plots/{r}/time", "time per stage (ms)"),
             _plot(f"plots/{r}/dropped", "frames dropped (total)"),
@@ -149,12 +165,14 @@ def mission_blueprint(robots: Iterable[str]) -> rrb.Blueprint:
         rrb.Vertical(_fusion_status_view(),
                      _plot("plots/fusion/error_xy", "alignment error xy (m)"),
                      _plot("plots/fusion/error_theta", "alignment error θ (rad)"),
-                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"]),
+                     _plot("plots/fusion", "landmarks (count)", ["+ plots/fusion/merged", "+ plots/fusion/common"],
+                           legend=GROWING_LEGEND),
                      _events_view(), row_shares=[2, 2, 2, 2, 2]),
         column_shares=[3, 2], name="fusion")
     hidden = {f"world/{r}/landmarks/covariance": rrb.EntityBehavior(visible=False) for r in robots}
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world", overrides=hidden), name="3-D")
-    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, *([fusion] if fleet else []), world, active_tab=0),
+    summary = rrb.Horizontal(_summary_tab(), name="summary")
+    return rrb.Blueprint(rrb.Tabs(overview, *robot_tabs, *([fusion] if fleet else []), world, summary, active_tab=0),
                          collapse_panels=True)
 
 
@@ -185,9 +203,10 @@ def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
                                 row_shares=[5, 1], name="overview")
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
                            name="3-D")
-    return rrb.Blueprint(rrb.Tabs(overview, world, active_tab=0), collapse_panels=True)
+    summary = rrb.Horizontal(_summary_tab("the run's figures (as `p3at review` reads them)"), name="summary")
+    return rrb.Blueprint(rrb.Tabs(overview, world, summary, active_tab=0), collapse_panels=True)
 
 
 __all__ = ["EVENTS", "FRAME_TIE_COLOUR", "FUSED_MAP_NAME", "FUSION_STATUS", "MAP_BACKGROUND", "ROBOT_COLOURS", "SERIES",
-           "SHARED_COLOUR", "SPARSE_SERIES", "TRUE_COLOUR", "WALL_COLOUR", "WHOLE_TIMELINE", "dataset_blueprint",
-           "dimmed", "mission_blueprint", "robot_colour", "series_style"]
+           "SHARED_COLOUR", "SPARSE_SERIES", "SUMMARY", "TRUE_COLOUR", "WALL_COLOUR", "WHOLE_TIMELINE",
+           "dataset_blueprint", "dimmed", "mission_blueprint", "robot_colour", "series_style"]

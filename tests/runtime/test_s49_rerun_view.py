@@ -129,3 +129,85 @@ def test_a_data_sets_true_landmark_ids_are_shown_clear_of_the_maps_landmarks(tmp
     assert [str(label) for label in hover["Points2D:labels"]] == ids
     assert np.allclose(hover["Points2D:positions"], truth)
     assert len(shown["map/robot3/landmarks/confirmed"][10 * NS]["Points2D:positions"]) == 3
+
+
+def _layout_views(rrd) -> set[tuple[str, str]]:
+    """(class, origin) of every view of the layouts the recording carries (its blueprint stores)."""
+    import rerun.chunk as rrchunk
+
+    reader = rrchunk.RrdReader(rrd)
+    views: set[tuple[str, str]] = set()
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in batch.schema.names:
+                for kind, origin in zip(batch.column("ViewBlueprint:class_identifier").to_pylist(),
+                                        batch.column("ViewBlueprint:space_origin").to_pylist(), strict=True):
+                    if kind and origin:
+                        views.add((str(kind[0]), str(origin[0]).strip("/")))
+    return views
+
+
+MISSION_SUMMARY = {
+    "robots": {name: {"landmarks": 806 + k, "frames_processed": 540, "frames_dropped": 0,
+                      "frames_without_odometry": 0, "final_position_error": 0.06, "odometry_position_error": 2.6,
+                      "ms_per_frame": {"frontend": 8.4, "update": 25.5}} for k, name in enumerate(ROBOTS)},
+    "duration": 143.8, "camera": "mock", "particles": 100, "seed": 0, "failures": [],
+    "fusion": {"pairs": [{"reference": "robot1", "other": "robot2", "aligned": True, "tx": 4.992, "ty": 0.024,
+                          "theta": 3.1382, "supports": 39, "required_supports": 33, "false_alarm_probability": 6.9e-11,
+                          "common": 39, "start_sigma_xy": 0.457, "start_sigma_theta": 0.0632, "error_xy": 0.025,
+                          "error_theta": 0.0034}],
+               "merged_landmarks": 1718},
+    "fusion_ms": 395.9, "fusions_during_mission": 7}
+
+
+def test_the_missions_summary_is_shown_as_the_command_printed_it_in_a_tab_of_its_own(tmp_path):
+    """mission/summary was logged (JSON in a code block) but no view of the layout showed it: a reviewer never saw
+    the figures the demo prints (frames dropped, each robot's errors, the alignment table, the merged map)."""
+    from runtime.report import format_summary
+    from runtime.rerun_style import mission_blueprint
+
+    rrd = tmp_path / "mission.rrd"
+    log = MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False)
+    log.log_summary(MISSION_SUMMARY)
+    log.close()
+    text = str(viewer_state(rrd, "sim_time", [0])["mission/summary"][0]["TextDocument:text"][0])
+    assert format_summary(MISSION_SUMMARY) in text
+    assert "robot2 -> robot1" in text and "Merged map: 1718 landmarks" in text
+    assert ("TextDocument", "mission/summary") in _layout_views(rrd)
+
+
+def test_a_data_set_runs_figures_are_shown_too(tmp_path):
+    from runtime.rerun_style import dataset_blueprint
+
+    rrd = tmp_path / "robot3.rrd"
+    log = MissionLog(open_recording(str(rrd), blueprint=dataset_blueprint("robot3")), ["robot3"], blueprint=False)
+    log.log_summary({"ate_m": 0.088, "robot": "robot3"})
+    log.close()
+    text = str(viewer_state(rrd, "sim_time", [0])["mission/summary"][0]["TextDocument:text"][0])
+    assert '"ate_m": 0.088' in text
+    assert ("TextDocument", "mission/summary") in _layout_views(rrd)
+
+
+def test_the_landmark_count_plots_keep_their_legend_off_their_curves(tmp_path):
+    """Counts that grow from 0 leave their plot's top left empty; the viewer's own corner (bottom left) put the four
+    long legend lines of a robot's landmark counts over the curves' first minute (screenshots, session 49)."""
+    import rerun.chunk as rrchunk
+
+    from runtime.rerun_style import mission_blueprint
+
+    rrd = tmp_path / "mission.rrd"
+    MissionLog(open_recording(str(rrd), blueprint=mission_blueprint(ROBOTS)), ROBOTS, blueprint=False).close()
+    reader = rrchunk.RrdReader(rrd)
+    names, corners = {}, {}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            path = chunk.entity_path.strip("/")
+            if "ViewBlueprint:display_name" in batch.schema.names:
+                names[path] = str(batch.column("ViewBlueprint:display_name").to_pylist()[-1][0])
+            if "PlotLegend:corner" in batch.schema.names:
+                corners[path.rsplit("/", 1)[0]] = batch.column("PlotLegend:corner").to_pylist()[-1][0]
+    counted = {view: name for view, name in names.items() if name.startswith("landmarks")}
+    assert len(counted) == len(ROBOTS) + 1     # each robot's landmark counts, and the fusion's
+    assert {corners.get(view) for view in counted} == {1}   # Rerun's Corner2D.LeftTop
