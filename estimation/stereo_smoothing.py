@@ -121,9 +121,19 @@ class StereoSmoothed:
 
 
 def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
-           robust: bool = True, max_iterations: int = MAX_ITERATIONS) -> StereoSmoothed:
+           robust: bool = True, max_iterations: int = MAX_ITERATIONS, landmark_floor=0.0) -> StereoSmoothed:
     """The MAP poses and landmarks from the initial ones (pose 0 held where it is: the map frame); with ``robust``,
-    Cauchy-weighted first, then without the observations beyond χ²₃ 99 % (module docstring)."""
+    Cauchy-weighted first, then without the observations beyond χ²₃ 99 % (module docstring).
+
+    ``landmark_floor`` (m², a scalar × I or a 3 × 3 matrix): an error shared by all the readings of one landmark
+    (a model error that repetition does not average away: the same corner found at the same wrong sub-pixel place
+    from nearby views). Its offset o_l enters every reading of l as m_l + o_l, so m_l + o_l is what the readings
+    determine: the poses and the estimates are unchanged and each held landmark's marginal covariance gains the
+    floor (Σ_l + F). 0: the readings' errors are independent (the solution's own marginals)."""
+    floor = np.asarray(landmark_floor, float) * (np.eye(3) if np.ndim(landmark_floor) == 0 else 1.0)
+    if floor.shape != (3, 3) or not np.all(np.isfinite(floor)) or np.any(np.linalg.eigvalsh(floor) < -1e-15):
+        raise StereoSmoothingError("landmark_floor must be a finite scalar ≥ 0 or a 3 × 3 positive semi-definite "
+                                   "matrix, m²")
     poses = np.array(initial_poses, float).reshape(-1, 3)
     landmarks = np.array(initial_landmarks, float).reshape(-1, 3)
     if len(poses) != problem.n_poses or len(landmarks) != problem.n_landmarks:
@@ -139,6 +149,7 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
     poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, False, max_iterations)
     iterations += n
     pose_cov, landmark_cov = _marginals(problem, whiten, poses, landmarks, inliers)
+    landmark_cov = landmark_cov + floor
     chi2_obs = _observation_chi2(problem, whiten, poses, landmarks)
     chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
     held = np.isfinite(landmark_cov[:, 0, 0])

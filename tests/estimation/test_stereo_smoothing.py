@@ -10,9 +10,10 @@ from estimation.stereo_smoothing import StereoLogProblem, StereoSmoothingError, 
 CHI2_3_95 = 7.815
 
 
-def _synthetic(seed: int, wrong: float = 0.0):
+def _synthetic(seed: int, wrong: float = 0.0, shared: float = 0.0):
     """A robot driving a square loop twice past 3-D points, odometry with the filter's random-walk noise, stereo
-    points with depth-growing noise; ``wrong``: the share of observations given a wrong landmark."""
+    points with depth-growing noise; ``wrong``: the share of observations given a wrong landmark; ``shared`` (m): the
+    σ of an error common to all the readings of one landmark (each landmark seen where it is not)."""
     rng = np.random.default_rng(seed)
     legs = [(0.2, 0.0)] * 15 + [(0.0, np.pi / 8)] * 4
     true_inc = np.array([(d, 0.0, a) for d, a in legs * 8])
@@ -21,6 +22,7 @@ def _synthetic(seed: int, wrong: float = 0.0):
         poses.append(compose(poses[-1], inc))
     poses = np.array(poses)
     landmarks = np.column_stack([rng.uniform(-3, 6, 150), rng.uniform(-3, 6, 150), rng.uniform(0.2, 2.0, 150)])
+    seen_at = landmarks + shared * rng.standard_normal(landmarks.shape)
     trans = np.hypot(true_inc[:, 0], true_inc[:, 1])
     var = np.column_stack([0.03 ** 2 * trans + 1e-8, 0.03 ** 2 * trans + 1e-8,
                            0.05 ** 2 * np.abs(true_inc[:, 2]) + 0.02 ** 2 * trans + 1e-8])
@@ -28,8 +30,8 @@ def _synthetic(seed: int, wrong: float = 0.0):
     pi, li, pts, covs = [], [], [], []
     for k, p in enumerate(poses):
         c, s = np.cos(p[2]), np.sin(p[2])
-        d = landmarks[:, :2] - p[:2]
-        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], landmarks[:, 2]])
+        d = seen_at[:, :2] - p[:2]
+        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], seen_at[:, 2]])
         r = np.hypot(local[:, 0], local[:, 1])
         seen = np.flatnonzero((local[:, 0] > 0.5) & (r < 4.0) & (np.abs(np.arctan2(local[:, 1], local[:, 0])) < 0.7))
         for j in seen:
@@ -83,6 +85,24 @@ def test_smoothing_recovers_the_truth_better_than_dead_reckoning_with_honest_cov
     assert 0.7 < out.chi2_per_dof < 1.3
 
 
+def _nees_share(out, landmarks):
+    held = out.held
+    e = out.landmarks[held] - landmarks[held]
+    nees = np.einsum("la,lab,lb->l", e, np.linalg.inv(out.landmark_covariances[held]), e)
+    return float(np.mean(nees <= CHI2_3_95))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_an_error_shared_by_a_landmarks_readings_needs_the_floor_for_honest_covariances(seed):
+    problem, poses, landmarks, dead, start, _ = _synthetic(seed, shared=0.03)
+    plain = smooth(problem, dead, start)
+    floored = smooth(problem, dead, start, landmark_floor=0.03 ** 2)
+    np.testing.assert_array_equal(floored.landmarks, plain.landmarks)    # the estimates are the same
+    np.testing.assert_array_equal(floored.poses, plain.poses)
+    assert _nees_share(plain, landmarks) < 0.7                           # overconfident without it
+    assert _nees_share(floored, landmarks) >= 0.85
+
+
 def test_wrong_associations_are_cut_and_do_not_spoil_the_solution():
     problem, poses, landmarks, dead, start, bad = _synthetic(7, wrong=0.05)
     out = smooth(problem, dead, start)
@@ -102,3 +122,5 @@ def test_a_malformed_problem_is_refused_with_a_clear_message():
     problem = StereoLogProblem(np.zeros((2, 3)), np.ones((2, 3)), [0], [0], np.zeros((1, 3)), np.eye(3)[None], 1)
     with pytest.raises(StereoSmoothingError, match="initial poses"):
         smooth(problem, np.zeros((2, 3)), np.zeros((1, 3)))
+    with pytest.raises(StereoSmoothingError, match="landmark_floor"):
+        smooth(problem, np.zeros((3, 3)), np.zeros((1, 3)), landmark_floor=-1e-4)
