@@ -58,7 +58,7 @@ def _is_2d(columns: set[str]) -> bool:
 
 def test_the_tabs_are_an_overview_each_robot_the_fusion_and_the_3d_world():
     tabs = mission_blueprint(ROBOTS).root_container
-    assert [t.name for t in tabs.contents] == ["overview", *ROBOTS, "fusion", "3-D"]
+    assert [t.name for t in tabs.contents] == ["overview", *ROBOTS, "fusion", "3-D", "summary"]
     assert tabs.active_tab in (0, "overview")
 
 

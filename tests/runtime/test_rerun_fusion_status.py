@@ -99,7 +99,7 @@ def test_a_fusion_that_aligned_once_is_drawn_a_value_a_line_alone_would_not_draw
 def test_a_robot_on_its_own_gets_no_fused_map_and_no_fusion_tab_but_its_events():
     """``p3at run`` with one robot fuses nothing: an empty fused map and an empty status would only puzzle."""
     tabs = mission_blueprint(["robot1"]).root_container
-    assert [t.name for t in tabs.contents] == ["overview", "robot1", "3-D"]
+    assert [t.name for t in tabs.contents] == ["overview", "robot1", "3-D", "summary"]
     views = list(blueprint_views(tabs))
     assert not [v for v in views if "fused" in str(v.origin) or str(v.origin).strip("/") == FUSION_STATUS]
     (overview,) = [t for t in tabs.contents if t.name == "overview"]
