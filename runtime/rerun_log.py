@@ -855,14 +855,36 @@ class MissionLog:
         """The mission's figures, as JSON (read back by :func:`read_recording`) and as a text panel (the layout's
         summary tab): a mission's summary as the command printed it (runtime.report.format_summary's tables: robots'
         landmarks, frames, errors and times, each pair's alignment with its supports, P(chance), 1 σ and error, the
-        merged map), any other (a data set's run, a fusion node's) as its JSON."""
+        merged map), any other (a data set's run, a fusion node's) as a table of its figures (:func:`_figures_table`;
+        the JSON keeps every digit)."""
         text = json.dumps(dict(summary), indent=2, default=float)
         self.rec.log(SUMMARY, rr.AnyValues(json=text), static=True)
         try:
             shown = f"```\n{format_summary(dict(summary))}\n```"
         except Exception:   # not a mission's summary (a view never fails the mission that logs it)
-            shown = f"```json\n{text}\n```"
+            shown = _figures_table(summary)
         self.rec.log(SUMMARY, rr.TextDocument(shown, media_type="text/markdown"), static=True)
+
+
+def _figures_table(summary: Mapping) -> str:
+    """A summary's figures as a Markdown table, one row per key: numbers to 4 significant digits (a data set run's
+    JSON shows 0.08796996940001048 m), yes/no, lists joined by '; ', anything else as compact JSON."""
+    def shown(value) -> str:
+        if isinstance(value, bool):
+            return "yes" if value else "no"
+        if isinstance(value, float):
+            return f"{value:.4g}"
+        if isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+            return "; ".join(value) or "none"
+        if isinstance(value, str):
+            return value
+        return json.dumps(value, default=float)
+
+    def cell(text: str) -> str:
+        return " ".join(text.split()).replace("|", "\\|")
+
+    rows = [f"| {cell(str(key))} | {cell(shown(value))} |" for key, value in summary.items()]
+    return "\n".join(["| figure | value |", "|---|---|", *rows])
 
 
 __all__ = ["NO_FUSION_YET", "WRITER_LOOK_CALLS", "MissionLog", "RecordingError", "landmark_confirmed"]

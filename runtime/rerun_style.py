@@ -203,7 +203,7 @@ def dataset_blueprint(robot: str, smoothed: bool = False, scored: bool = True,
                                 row_shares=[5, 1], name="overview")
     world = rrb.Horizontal(rrb.Spatial3DView(origin="world", name="3-D world (landmarks with 1-σ ellipsoids)"),
                            name="3-D")
-    summary = rrb.Horizontal(_summary_tab("the run's figures (as `p3at review` reads them)"), name="summary")
+    summary = rrb.Horizontal(_summary_tab("the run's figures (the keys of `p3at slam dataset --json`)"), name="summary")
     return rrb.Blueprint(rrb.Tabs(overview, world, summary, active_tab=0), collapse_panels=True)
 
 

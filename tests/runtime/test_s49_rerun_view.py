@@ -177,16 +177,27 @@ def test_the_missions_summary_is_shown_as_the_command_printed_it_in_a_tab_of_its
     assert ("TextDocument", "mission/summary") in _layout_views(rrd)
 
 
-def test_a_data_set_runs_figures_are_shown_too(tmp_path):
+def test_a_data_set_runs_figures_are_shown_too_as_a_table_of_readable_numbers(tmp_path):
+    """A data set run's summary is its metrics, not a mission's: a table, one figure a row, 4 significant digits
+    (the JSON block showed 0.08796996940001048), the review's JSON unchanged."""
+    import json
+
+    from runtime.rerun_read import read_recording
     from runtime.rerun_style import dataset_blueprint
 
     rrd = tmp_path / "robot3.rrd"
+    figures = {"ate_m": 0.08796996940001048, "smoothed": True, "robot": "robot3", "frames": 5345,
+               "warnings": ["only 60 % of the landmarks | within", "the frame rests on one sighting"]}
     log = MissionLog(open_recording(str(rrd), blueprint=dataset_blueprint("robot3")), ["robot3"], blueprint=False)
-    log.log_summary({"ate_m": 0.088, "robot": "robot3"})
+    log.log_summary(figures)
     log.close()
     text = str(viewer_state(rrd, "sim_time", [0])["mission/summary"][0]["TextDocument:text"][0])
-    assert '"ate_m": 0.088' in text
+    rows = text.splitlines()
+    assert rows[:2] == ["| figure | value |", "|---|---|"]
+    assert "| ate_m | 0.08797 |" in rows and "| smoothed | yes |" in rows and "| frames | 5345 |" in rows
+    assert "| warnings | only 60 % of the landmarks \\| within; the frame rests on one sighting |" in rows
     assert ("TextDocument", "mission/summary") in _layout_views(rrd)
+    assert read_recording(rrd).summary == json.loads(json.dumps(figures))
 
 
 def test_the_landmark_count_plots_keep_their_legend_off_their_curves(tmp_path):
