@@ -39,7 +39,6 @@ import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-from scipy.stats import wilcoxon  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the project root: runs as a file too
 
@@ -129,6 +128,8 @@ def segments_section(log, drive, seed: int, length: float, step: float) -> dict:
 
 def compare_segments(per_robot: dict) -> list[dict]:
     """Per robot and pooled: medians, wins, and the signed-rank test of drive − as read."""
+    from scipy.stats import wilcoxon  # here: scipy.stats takes 0.5-1 s to import, which --help need not wait for
+
     rows = []
     for name, robots in [(str(r), [r]) for r in per_robot] + [("all", list(per_robot))]:
         a = [x for r in robots for x in per_robot[r]["as read"]]
