@@ -42,7 +42,8 @@ CAUCHY_C = float(np.sqrt(7.815))  # σ: the Cauchy loss's scale on the whitened 
 #                                   (tests/estimation/test_stereo_smoothing.py); Cauchy's pull fades with the residual
 OUTLIER_CHI2 = 11.345             # χ²₃ 99 %: an observation beyond it after the robust solve is dropped
 MAX_ITERATIONS = 50
-STEP_TOLERANCE = 1e-7             # stop when no variable moves more than this (m or rad)
+STEP_TOLERANCE = 1e-6             # stop when no variable moves more than this (m or rad)
+COST_TOLERANCE = 1e-9             # ... or an accepted step lowers the cost by less than this fraction
 _CHUNK = 256                      # landmarks per block of the marginals' dense product
 
 
@@ -192,8 +193,7 @@ def _observation_terms(problem, whiten, poses, landmarks):
     jl[:, 0, 0], jl[:, 0, 1] = c, s
     jl[:, 1, 0], jl[:, 1, 1] = -s, c
     jl[:, 2, 2] = 1.0
-    return (np.einsum("kab,kb->ka", whiten, e), np.einsum("kab,kbc->kac", whiten, jp),
-            np.einsum("kab,kbc->kac", whiten, jl))
+    return (whiten @ e[:, :, None])[:, :, 0], whiten @ jp, whiten @ jl
 
 
 def _observation_chi2(problem, whiten, poses, landmarks) -> np.ndarray:
@@ -229,6 +229,16 @@ def _odometry_terms(problem, poses):
     return _odometry_residuals(problem, poses), ja * w[:, :, None], jb * w[:, :, None]
 
 
+def _tmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) aₖᵀ bₖ."""
+    return np.swapaxes(a, 1, 2) @ b
+
+
+def _tvec(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(K, 3) aₖᵀ vₖ."""
+    return (np.swapaxes(a, 1, 2) @ v[:, :, None])[:, :, 0]
+
+
 def _block_coo(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Entries of 3 × 3 blocks at block rows/cols."""
     r = (3 * rows[:, None, None] + np.arange(3)[None, :, None]).repeat(3, 2)
@@ -249,27 +259,27 @@ class _System:
         wjp, wjl = jp * w[:, None, None], jl * w[:, None, None]
         # pose-pose (dense 3T × 3T), then the gauge's rows dropped
         hpp = np.zeros((3 * t, 3 * t))
-        blocks = [(pi, pi, np.einsum("kba,kbc->kac", wjp, jp))]
+        blocks = [(pi, pi, _tmul(wjp, jp))]
         k = np.arange(t - 1)
-        blocks += [(k, k, np.einsum("kba,kbc->kac", ja, ja)), (k + 1, k + 1, np.einsum("kba,kbc->kac", jb, jb)),
-                   (k, k + 1, np.einsum("kba,kbc->kac", ja, jb)), (k + 1, k, np.einsum("kba,kbc->kac", jb, ja))]
+        blocks += [(k, k, _tmul(ja, ja)), (k + 1, k + 1, _tmul(jb, jb)),
+                   (k, k + 1, _tmul(ja, jb)), (k + 1, k, _tmul(jb, ja))]
         for rows, cols, b in blocks:
             r, c, v = _block_coo(rows, cols, b)
             np.add.at(hpp, (r, c), v)
         gp = np.zeros(3 * t)
-        np.add.at(gp, (3 * pi[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", wjp, e).ravel())
-        np.add.at(gp, (3 * k[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", ja, eo).ravel())
-        np.add.at(gp, (3 * (k + 1)[:, None] + np.arange(3)).ravel(), np.einsum("kba,kb->ka", jb, eo).ravel())
+        np.add.at(gp, (3 * pi[:, None] + np.arange(3)).ravel(), _tvec(wjp, e).ravel())
+        np.add.at(gp, (3 * k[:, None] + np.arange(3)).ravel(), _tvec(ja, eo).ravel())
+        np.add.at(gp, (3 * (k + 1)[:, None] + np.arange(3)).ravel(), _tvec(jb, eo).ravel())
         # landmark blocks and pose-landmark coupling
         hll = np.zeros((n_l, 3, 3))
-        np.add.at(hll, li, np.einsum("kba,kbc->kac", wjl, jl))
+        np.add.at(hll, li, _tmul(wjl, jl))
         gl = np.zeros((n_l, 3))
-        np.add.at(gl, li, np.einsum("kba,kb->ka", wjl, e))
+        np.add.at(gl, li, _tvec(wjl, e))
         self.held = np.zeros(n_l, bool)
         self.held[li] = True
         hll[~self.held] = np.eye(3)           # no observation: no step (and no covariance, see _marginals)
         gl[~self.held] = 0.0
-        r, c, v = _block_coo(pi, li, np.einsum("kba,kbc->kac", wjp, jl))
+        r, c, v = _block_coo(pi, li, _tmul(wjp, jl))
         self.w = sp.csr_matrix((v, (r, c)), shape=(3 * t, 3 * n_l))
         self.hpp, self.gp, self.hll, self.gl = hpp, gp, hll, gl
         self.n_poses, self.n_landmarks = t, n_l
@@ -286,7 +296,7 @@ class _System:
         s, rhs = s[3:, 3:], rhs[3:]
         dp = np.zeros(3 * self.n_poses)
         dp[3:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
-        dl = -np.einsum("kab,kb->ka", hll_inv, self.gl) - (m @ dp).reshape(-1, 3)
+        dl = -(hll_inv @ self.gl[:, :, None])[:, :, 0] - (m @ dp).reshape(-1, 3)
         dl[~self.held] = 0.0
         return dp.reshape(-1, 3), dl
 
@@ -325,10 +335,11 @@ def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations):
                 break
             damping = max(1e-4, damping * 10)
         moved = max(float(np.abs(dp).max(initial=0.0)), float(np.abs(dl).max(initial=0.0)))
+        gain = cost - new_cost
         if new_cost <= cost * (1 + 1e-12):
             poses, landmarks, cost = new_poses, new_landmarks, new_cost
             damping = damping / 10 if damping > 1e-4 else 0.0
-        if moved < STEP_TOLERANCE or damping > 1e6:
+        if moved < STEP_TOLERANCE or damping > 1e6 or 0 <= gain < COST_TOLERANCE * cost:
             break
     return poses, landmarks, iterations
 
