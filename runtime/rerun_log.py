@@ -234,9 +234,9 @@ WRITER_LOOK_CALLS = 16
 
 
 # the fusion status before the first fusion (fusion/status at t = 0)
-NO_FUSION_YET = ("**No fusion yet.** The robots' maps are aligned and merged at intervals during the mission and at "
-                 "its end; the fused map stays empty until the first fusion, and each pair's last fusion is then said "
-                 "here (aligned or why not).")
+NO_FUSION_YET = ("**No fusion yet.** The robots' maps have not been aligned and merged yet (a mission fuses them every "
+                 "--fusion-interval s and at its end); the fused map stays empty until the first fusion, and each "
+                 "pair's last fusion is then said here (aligned or why not).")
 
 
 class RecordingError(RuntimeError):
