@@ -222,7 +222,7 @@ def not_aligned_reason(pair: Mapping) -> str:
         if note.startswith("ambiguous") and repeat > rival:  # a map's own repeat set the number needed, not a rival
             why += f"; ambiguous: one map repeats itself under a distinct transform with {repeat} supports"
         elif note.startswith("ambiguous"):  # the second-best transform, not decoys, set the number needed
-            why += f"; ambiguous: a distinct transform gathers {rival}"
+            why += f"; ambiguous: a distinct transform gathers {rival} supports"
         if note.startswith("the maps' best alignment contradicts the prior"):   # fusion/prior.py
             why += "; the best alignment contradicts the start prior"
         return why

@@ -29,5 +29,5 @@ def test_a_rival_transform_is_still_named_with_its_supports():
     pair = fuse_maps({"robot1": m1, "robot2": m2}, rng=np.random.default_rng(0)).pairs[0].as_dict()
     assert not pair["aligned"] and pair["note"].startswith("ambiguous: a distinct transform")
     reason = not_aligned_reason(pair)
-    assert f"ambiguous: a distinct transform gathers {pair['second_best_supports']}" in reason, reason
+    assert f"ambiguous: a distinct transform gathers {pair['second_best_supports']} supports" in reason, reason
     assert pair["second_best_supports"] > 0 and "repeats itself" not in reason
