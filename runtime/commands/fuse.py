@@ -83,142 +83,207 @@ def register(subparsers) -> None:
     parser.set_defaults(handler=_fuse)
 
 
+class _Refused(Exception):
+    """Why nothing is fused, in one line: said as 'p3at fuse: ...', exit EXIT_BAD_INPUT."""
+
+
+def _refuse(why: Exception | str) -> int:
+    print(f"p3at fuse: {why}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
 def _fuse(args: argparse.Namespace) -> int:
-    from fusion import FusionError, alignment_error, true_relative_pose
-    from fusion.alignment import alignment_error_xy_theta
-    from fusion.multi import claimed_variance, pairwise_alignments
-    from fusion.split import PARTS, fuse_checked, holds_start
-    from runtime.commands.file_kinds import out_problem, wrong_kind
+    from fusion import FusionError
 
     if args.live:
-        from runtime.fleet.fusion_node import run_live
-
-        try:
-            if args.maps:   # the node fuses what the robots send: map files given were ignored without a word
-                raise OutputPathError(f"map files ({args.maps[0]}{', ...' if len(args.maps) > 1 else ''}) do not "
-                                      "apply to --live: the node fuses the maps the robots send; fuse files "
-                                      "without --live")
-            check_output_file(args.out)
-            check_output_apart(args.out, files={"--start-poses": args.start_poses})
-            if args.out is not None and (problem := out_problem(args.out, "map")) is not None:
-                raise OutputPathError(problem)
-            if (problem := rerun_sink_problem(args.rerun, RERUN_KEYWORDS)) is not None:
-                raise OutputPathError(problem)
-            starts = _live_starts(args)
-        except (FusionError, OutputPathError) as e:
-            print(f"p3at fuse: {e}", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        return run_live(args, starts)
-    if args.out is None:
-        print("p3at fuse: give the merged map file to write with --out MERGED", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if len(args.maps) < 2:
-        print("p3at fuse: give at least two map files", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    check_output_file(args.out)   # an OutputPathError is one line and exit 2 (runtime/cli.py), before any reading
-    check_output_apart(args.out, files={"--start-poses": args.start_poses})
-    if (problem := out_problem(args.out, "map")) is not None:   # a noise model, a recording, a sensor log
-        raise OutputPathError(problem)
-    twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if same_file(a, b)), None)
-    if twice is not None:
-        print(f"p3at fuse: {twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "
-              "fused with itself would count every landmark twice and halve its covariance", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    if any(same_file(args.out, path) for path in args.maps):
-        print(f"p3at fuse: --out {args.out} is one of the input maps: the merged map would replace it; give "
-              "another file", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    problem = next((p for p in (wrong_kind(path, "map") for path in args.maps) if p is not None), None)
-    if problem is not None:   # a recording or a sensor log: said so, with the command that reads it
-        print(f"p3at fuse: {problem}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _fuse_live(args)
     try:
-        maps = [LandmarkMap.load(path) for path in args.maps]
-    except EstimationError as e:
-        print(f"p3at fuse: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    shared = _shared_estimates(maps)
-    if shared is not None:   # no independent evidence: a merge would be confidently wrong, so none is made
-        (i, j), count = shared
-        print(f"p3at fuse: {args.maps[i]} and {args.maps[j]} hold the same estimates ({count} of "
-              f"{min(len(maps[i]), len(maps[j]))} landmark positions equal bit for bit: a copy, or a fused map that "
-              "already holds the other): fusing them would count those landmarks twice and halve their covariance; "
-              "give only one of them", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    same_log = _same_log(maps)
-    if same_log is not None:   # their errors are the same sightings' and odometry's: not independent evidence
-        (i, j), log = same_log
-        print(f"p3at fuse: {args.maps[i]} and {args.maps[j]} are maps of the same log ({log}) over overlapping "
-              "times: their errors are shared, so fusing them would halve the covariances on no new evidence; give "
-              "one of them", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    held = _held_maps(args.maps, maps)
-    if held is not None:
-        print(f"p3at fuse: {held}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        maps = _read_maps(args)
+    except _Refused as e:
+        return _refuse(e)
     names = [m.robot for m in maps]
     if len(set(names)) < len(names):
         print("p3at fuse: note: several maps name the same robot; seen_by cannot tell them apart", file=sys.stderr)
     _warn_mixed_truth_headings(maps)
     try:
         priors = _priors(args, maps)
+        alignments, checked = _align_and_merge(args, maps, priors)
     except FusionError as e:
-        print(f"p3at fuse: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    rng = np.random.default_rng(args.seed)
+        return _refuse(e)
+    report = _report(args, maps, alignments, checked)
+    if checked.fusion is None:
+        report["overlap"] = False
+        report["message"] = checked.message
+        _print(report, args.json)
+        _warn(report)
+        print(f"p3at fuse: {checked.message}", file=sys.stderr)
+        return EXIT_NO_OVERLAP
+    _place_maps(report, maps, checked)
+    _add_merge_figures(report, args.maps, checked)
     try:
-        alignments = pairwise_alignments(maps, args.preset, rng, priors=priors)
-        # a map that flagged itself is split at its alarm and each part aligned (fusion/split.py)
-        checked = fuse_checked(maps, preset=args.preset, method=args.method, alignments=alignments, priors=priors)
-        result, message = checked.fusion, checked.message
-    except FusionError as e:
-        print(f"p3at fuse: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        checked.fusion.map.save(args.out)
+    except OSError as e:
+        return _refuse(f"cannot write {args.out}: {e}")
+    report["out"] = args.out
+    _print(report, args.json)
+    _warn(report)
+    if report["unconnected"]:
+        print("p3at fuse: these maps overlap no other map and were left out: "
+              + ", ".join(report["unconnected"]), file=sys.stderr)
+        return EXIT_NO_OVERLAP
+    return 0
 
+
+def _fuse_live(args: argparse.Namespace) -> int:
+    """``--live``: the fleet's fusion node (runtime/fleet/fusion_node.py), after the checks of its arguments."""
+    from fusion import FusionError
+    from runtime.commands.file_kinds import out_problem
+    from runtime.fleet.fusion_node import run_live
+
+    try:
+        if args.maps:   # the node fuses what the robots send: map files given were ignored without a word
+            raise OutputPathError(f"map files ({args.maps[0]}{', ...' if len(args.maps) > 1 else ''}) do not "
+                                  "apply to --live: the node fuses the maps the robots send; fuse files "
+                                  "without --live")
+        check_output_file(args.out)
+        check_output_apart(args.out, files={"--start-poses": args.start_poses})
+        if args.out is not None and (problem := out_problem(args.out, "map")) is not None:
+            raise OutputPathError(problem)
+        if (problem := rerun_sink_problem(args.rerun, RERUN_KEYWORDS)) is not None:
+            raise OutputPathError(problem)
+        starts = _live_starts(args)
+    except (FusionError, OutputPathError) as e:
+        return _refuse(e)
+    return run_live(args, starts)
+
+
+def _read_maps(args: argparse.Namespace) -> list[LandmarkMap]:
+    """The map files, read once the arguments and --out are checked, and refused if they are not independent
+    evidence (:func:`_not_independent`). Raises _Refused, or OutputPathError for --out (runtime/cli.py says it in
+    one line, exit 2), before any map is read."""
+    from runtime.commands.file_kinds import out_problem, wrong_kind
+
+    if args.out is None:
+        raise _Refused("give the merged map file to write with --out MERGED")
+    if len(args.maps) < 2:
+        raise _Refused("give at least two map files")
+    check_output_file(args.out)
+    check_output_apart(args.out, files={"--start-poses": args.start_poses})
+    if (problem := out_problem(args.out, "map")) is not None:   # a noise model, a recording, a sensor log
+        raise OutputPathError(problem)
+    twice = next(((a, b) for i, a in enumerate(args.maps) for b in args.maps[i + 1:] if same_file(a, b)), None)
+    if twice is not None:
+        raise _Refused(f"{twice[0]} is given twice{'' if twice[0] == twice[1] else f' (as {twice[1]})'}: a map "
+                       "fused with itself would count every landmark twice and halve its covariance")
+    if any(same_file(args.out, path) for path in args.maps):
+        raise _Refused(f"--out {args.out} is one of the input maps: the merged map would replace it; give "
+                       "another file")
+    problem = next((p for p in (wrong_kind(path, "map") for path in args.maps) if p is not None), None)
+    if problem is not None:   # a recording or a sensor log: said so, with the command that reads it
+        raise _Refused(problem)
+    try:
+        maps = [LandmarkMap.load(path) for path in args.maps]
+    except EstimationError as e:
+        raise _Refused(str(e)) from None
+    if (problem := _not_independent(args.maps, maps)) is not None:
+        raise _Refused(problem)
+    return maps
+
+
+def _not_independent(paths: list[str], maps: list[LandmarkMap]) -> str | None:
+    """Why two of the maps are not independent evidence, so that a merge would count the same evidence twice and
+    halve its covariance (None: they are): the same estimates, maps of one log, or a fused map that holds another."""
+    shared = _shared_estimates(maps)
+    if shared is not None:   # no independent evidence: a merge would be confidently wrong, so none is made
+        (i, j), count = shared
+        return (f"{paths[i]} and {paths[j]} hold the same estimates ({count} of "
+                f"{min(len(maps[i]), len(maps[j]))} landmark positions equal bit for bit: a copy, or a fused map that "
+                "already holds the other): fusing them would count those landmarks twice and halve their covariance; "
+                "give only one of them")
+    same_log = _same_log(maps)
+    if same_log is not None:   # their errors are the same sightings' and odometry's: not independent evidence
+        (i, j), log = same_log
+        return (f"{paths[i]} and {paths[j]} are maps of the same log ({log}) over overlapping "
+                "times: their errors are shared, so fusing them would halve the covariances on no new evidence; give "
+                "one of them")
+    return _held_maps(paths, maps)
+
+
+def _align_and_merge(args: argparse.Namespace, maps: list[LandmarkMap], priors: dict):
+    """(every pair's alignment, fusion.split's CheckedFusion): the maps aligned pairwise (RANSAC, seeded by --seed)
+    and merged; a map that flagged itself is split at its alarm and each part aligned (fusion/split.py). Raises
+    FusionError."""
+    from fusion.multi import pairwise_alignments
+    from fusion.split import fuse_checked
+
+    rng = np.random.default_rng(args.seed)
+    alignments = pairwise_alignments(maps, args.preset, rng, priors=priors)
+    checked = fuse_checked(maps, preset=args.preset, method=args.method, alignments=alignments, priors=priors)
+    return alignments, checked
+
+
+def _report(args: argparse.Namespace, maps: list[LandmarkMap], alignments: dict, checked) -> dict:
+    """The report of the maps and of every pair's alignment (``--json`` prints it whole), before the merge's own
+    figures (:func:`_place_maps`, :func:`_add_merge_figures`)."""
     report = {"preset": args.preset, "method": args.method, "maps": [], "alignments": [], "out": None}
     splits = {c.index: c.to_dict() for c in checked.checks}
     by_index = {c.index: c for c in checked.checks if c.decision != "whole"}   # maps split at their alarm
     for k, (path, m) in enumerate(zip(args.maps, maps, strict=True)):
         report["maps"].append({"file": path, "robot": m.robot, "landmarks": len(m), **_frame_figures(path, m),
                                **_self_check_figures(path, m), **_vote_figures(path, m), "split": splits.get(k)})
-    # tree edges between maps merged whole (a split map's parts were placed by their own alignments)
-    src = checked.sources
+    tree = _whole_tree(checked)
+    for (i, j), a in sorted(alignments.items()):
+        split = [(k, c) for k, c in ((0, by_index.get(i)), (1, by_index.get(j))) if c is not None]
+        report["alignments"].append(_alignment_entry(i, j, a, (i, j) in tree, split, maps))
+    return report
+
+
+def _whole_tree(checked) -> set[tuple[int, int]]:
+    """The merge's tree edges between maps merged whole, both ways round (a split map's parts were placed by their
+    own alignments)."""
+    src, result = checked.sources, checked.fusion
     tree = set() if result is None else {(src[p][0], src[c][0]) for p, c in result.tree
                                          if src[p][1] is None and src[c][1] is None}
-    tree |= {(c, p) for p, c in tree}
-    for (i, j), a in sorted(alignments.items()):
-        entry = {"map1": i, "map2": j, "used": (i, j) in tree, **a.to_dict()}
-        entry["supports_count"] = len(a.supports)
-        entry["prior_text"] = None if a.prior is None else a.prior.text()
-        p = a.statistics.false_alarm_probability
-        entry["false_alarm_probability"] = float(p) if np.isfinite(p) else None
-        entry["low_confidence"] = bool(a.found and not (p <= LOW_CONFIDENCE_PROBABILITY))
-        apart = _apart_from_start(a, [(k, c) for k, c in ((0, by_index.get(i)), (1, by_index.get(j)))
-                                      if c is not None], maps) if a.found else ""
-        if apart:   # its start-frame 1σ claims a start the gap broke: only its own precision (covariance) holds
-            entry["start_covariance"] = None
-            entry["start_covariance_not_comparable"] = apart
-        truth = true_relative_pose(maps[i], maps[j])
-        if truth is not None:
-            entry["true_pose"] = [float(v) for v in truth]
-            scored = a.found and not apart
-            entry["error"] = None if not scored else [float(v) for v in alignment_error(a.pose, truth)]
-            entry["error_xy"], entry["error_theta"] = alignment_error_xy_theta(a.pose, truth) if scored else (None,
-                                                                                                            None)
-            if a.found and apart:
-                entry["error_not_comparable"] = apart
-        report["alignments"].append(entry)
-    if result is None:
-        report["overlap"] = False
-        report["message"] = message
-        _print(report, args.json)
-        _warn_low_confidence(report)
-        _warn_prior_backed(report)
-        _warn_starved(report)
-        _warn_lost(report)
-        _warn_contested(report)
-        print(f"p3at fuse: {message}", file=sys.stderr)
-        return EXIT_NO_OVERLAP
+    return tree | {(c, p) for p, c in tree}
+
+
+def _alignment_entry(i: int, j: int, a, used: bool, split: list, maps: list[LandmarkMap]) -> dict:
+    """One pair's alignment as the report gives it, with its error against the true start poses where the maps
+    carry them; ``split``: (column of the supports, SplitCheck) of the pair's maps split at their alarm."""
+    from fusion import alignment_error, true_relative_pose
+    from fusion.alignment import alignment_error_xy_theta
+
+    entry = {"map1": i, "map2": j, "used": used, **a.to_dict()}
+    entry["supports_count"] = len(a.supports)
+    entry["prior_text"] = None if a.prior is None else a.prior.text()
+    p = a.statistics.false_alarm_probability
+    entry["false_alarm_probability"] = float(p) if np.isfinite(p) else None
+    entry["low_confidence"] = bool(a.found and not (p <= LOW_CONFIDENCE_PROBABILITY))
+    apart = _apart_from_start(a, split, maps) if a.found else ""
+    if apart:   # its start-frame 1σ claims a start the gap broke: only its own precision (covariance) holds
+        entry["start_covariance"] = None
+        entry["start_covariance_not_comparable"] = apart
+    truth = true_relative_pose(maps[i], maps[j])
+    if truth is not None:
+        entry["true_pose"] = [float(v) for v in truth]
+        scored = a.found and not apart
+        entry["error"] = None if not scored else [float(v) for v in alignment_error(a.pose, truth)]
+        entry["error_xy"], entry["error_theta"] = alignment_error_xy_theta(a.pose, truth) if scored else (None, None)
+        if a.found and apart:
+            entry["error_not_comparable"] = apart
+    return entry
+
+
+def _place_maps(report: dict, maps: list[LandmarkMap], checked) -> None:
+    """Each map's (or split map's part's) pose in the merged frame, into the report; with its error against the true
+    start poses where the maps carry them, and the merge weights where the merge took them from the residuals."""
+    from fusion import alignment_error, true_relative_pose
+    from fusion.alignment import alignment_error_xy_theta
+    from fusion.multi import claimed_variance
+    from fusion.split import PARTS, holds_start
+
+    result = checked.fusion
+    by_index = {c.index: c for c in checked.checks if c.decision != "whole"}   # maps split at their alarm
     root, root_part = checked.sources[result.reference]
     framed = holds_start(root_part)   # else the fused frame is the reference's part after its gap
     for i, pose in enumerate(result.poses):
@@ -241,32 +306,20 @@ def _fuse(args: argparse.Namespace) -> int:
             report["maps"][k]["covariance_scale"] = result.covariance_scales[i]
             report["maps"][k]["merge_sigma"] = claimed * float(np.sqrt(result.covariance_scales[i]))
             report["maps"][k]["claimed_sigma"] = claimed
+
+
+def _add_merge_figures(report: dict, paths: list[str], checked) -> None:
+    """The merged map's counts into the report: its landmarks, those common to several maps, the maps it left out,
+    and the identities two maps placed beyond their covariances apart."""
+    result = checked.fusion
     report["merged_landmarks"] = len(result.map)
     report["common_landmarks"] = int(sum(len(m) for i, m in enumerate(checked.inputs) if result.rows[i] is not None)
                                      - len(result.map))
     merged = {checked.sources[i][0] for i, rows in enumerate(result.rows) if rows is not None}
-    report["unconnected"] = [path for k, path in enumerate(args.maps) if k not in merged]   # or left out by a split
+    report["unconnected"] = [path for k, path in enumerate(paths) if k not in merged]   # or left out by a split
     report["overlap"] = not report["unconnected"]
     # known-ID maps placing one identity beyond their covariances apart: the merged map holds it once (fusion.merging)
     report["identity_conflicts"] = list(result.map.metadata.get("identity_conflicts", []))
-    try:
-        result.map.save(args.out)
-    except OSError as e:
-        print(f"p3at fuse: cannot write {args.out}: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    report["out"] = args.out
-    _print(report, args.json)
-    _warn_low_confidence(report)
-    _warn_prior_backed(report)
-    _warn_starved(report)
-    _warn_lost(report)
-    _warn_contested(report)
-    _warn_identity_conflicts(report)
-    if report["unconnected"]:
-        print("p3at fuse: these maps overlap no other map and were left out: "
-              + ", ".join(report["unconnected"]), file=sys.stderr)
-        return EXIT_NO_OVERLAP
-    return 0
 
 
 def _apart_from_start(alignment, split: list, maps: list[LandmarkMap]) -> str:
@@ -477,6 +530,16 @@ def _print(report: dict, as_json: bool) -> None:
     if report.get("out"):
         print(f"merged map: {report['merged_landmarks']} landmarks ({report['common_landmarks']} common) "
               f"-> {report['out']}")
+
+
+def _warn(report: dict) -> None:
+    """The report's warnings on stderr, after its lines (a report with no merge has no identity conflicts)."""
+    _warn_low_confidence(report)
+    _warn_prior_backed(report)
+    _warn_starved(report)
+    _warn_lost(report)
+    _warn_contested(report)
+    _warn_identity_conflicts(report)
 
 
 def _own_metadata(path: str, landmark_map: LandmarkMap, read, what: str):
