@@ -62,70 +62,25 @@ def _check_rerun_sink(sink: str | None) -> None:
 def run_dataset(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
-    from estimation.dataset_slam import run_landmark_log
     from estimation.datasets import drop_repeated_readings, read_mrclam
-    from estimation.fastslam import range_bearing_config
-    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
-    from estimation.noise_model import NoiseModel
-    from runtime.commands.file_kinds import out_problem
 
     try:
-        if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
-            raise ValueError(problem)
-        check_output_file(args.out)
-        _check_rerun_sink(args.rerun)
-        # neither output may replace what the run reads (the noise model, a table of the data set) or the other
-        recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None
-        check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
-                           folders={"data set": args.folder})
-        check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
-        if (problem := out_problem(args.out, "map")) is not None:   # after: '--out X is the --noise file' says more
-            raise ValueError(problem)
+        _check_arguments(args)
         # the chain has no frame cut: it reads the log up to --until (its in-sample noise fit too)
         log = read_mrclam(args.folder, args.robot, barcodes=args.barcodes, until=args.until if args.chain else None,
                           truth_heading=args.truth_heading)
         repeats = None
         if args.drop_repeats:   # before the noise fit too: a repeat is not a second sample of the sensor's error
             log, repeats = drop_repeated_readings(log, whole_images=args.drop_repeats == "images")
-        if args.noise:
-            noise, noise_source = NoiseModel.load(args.noise), str(args.noise)
-        else:
-            try:
-                noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
-                if (problem := no_sensor_fit(noise, [log])) is not None:
-                    raise ValueError(problem)
-            except ValueError as e:
-                raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
-            noise_source = ("estimated from this log's own ground truth with its range calibration, heading bias, "
-                            "odometry lag, turns' variance and the stall after the command's dips (no --noise given)")
-        smooth = args.association == "id" if args.smooth is None else args.smooth
-        config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
-        if args.chain:
-            try:
-                run = _chain_run(log, noise, config, args)
-            except np.linalg.LinAlgError as e:
-                raise ValueError(_singular_chain(noise, e)) from None
-        else:
-            run = run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
-                                   association=args.association, robot=f"robot{args.robot}", until=args.until,
-                                   inflate_correlated=not args.no_inflation, smooth=smooth, frame=args.frame,
-                                   image_timing=args.image_timing)
+        noise, noise_source = _noise_model(args, log)
+        run = _run(args, log, noise)
         run.map.metadata["noise_model"] = asdict(noise.odometry) | (asdict(noise.range_bearing)
                                                                      if noise.range_bearing else {})
         run.map.save(args.out)
     except (ValueError, OSError, EstimationError) as e:   # DatasetError, NoiseModelError, MapFileError included
         print(f"p3at slam dataset: {e}", file=sys.stderr)
         return 2
-    from estimation.frame_reliability import reliability_warning
-    from estimation.naming_reliability import naming_warning
-
-    # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too); the
-    # chain's frame or path resting on a naming nothing checks, likewise
-    reliability = reliability_warning(run.metrics)
-    naming = naming_warning(run.metrics)
-    warnings = (_map_warnings(run.metrics) + ([] if reliability is None else [reliability])
-                + ([] if naming is None else [naming])
-                + (_frame_warnings(noise, args.truth_heading, run.metrics) if args.noise else []))
+    warnings = _warnings(args, run.metrics, noise)
     if args.rerun:
         from runtime.dataset_recording import record_dataset_run
         from runtime.rerun_sink import ViewerError
@@ -148,7 +103,80 @@ def run_dataset(args: argparse.Namespace) -> int:
             print(f"p3at slam dataset: warning: {warning}", file=sys.stderr)
         print(json_text(metrics))
         return 0
-    m = metrics
+    _print_summary(metrics)
+    return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse, before anything is read, options that do not go together and outputs that cannot be written or would
+    replace what the run reads; raises ValueError (OutputPathError is one) with a one-line reason."""
+    from runtime.commands.file_kinds import out_problem
+
+    if (problem := _chain_problem(args) or _frame_problem(args) or _image_timing_problem(args)) is not None:
+        raise ValueError(problem)
+    check_output_file(args.out)
+    _check_rerun_sink(args.rerun)
+    # neither output may replace what the run reads (the noise model, a table of the data set) or the other
+    recording = args.rerun if args.rerun is not None and args.rerun.endswith(".rrd") else None
+    check_output_apart(args.out, files={"--noise": args.noise, "--rerun": recording},
+                       folders={"data set": args.folder})
+    check_output_apart(recording, "--rerun", files={"--noise": args.noise}, folders={"data set": args.folder})
+    if (problem := out_problem(args.out, "map")) is not None:   # after: '--out X is the --noise file' says more
+        raise ValueError(problem)
+
+
+def _noise_model(args: argparse.Namespace, log):
+    """(the noise model, where it comes from in words): --noise's, else fitted to this log's own ground truth;
+    raises ValueError if the log's own fit fails."""
+    from estimation.noise_estimation import DATASET_CALIBRATIONS, estimate_noise
+    from estimation.noise_model import NoiseModel
+
+    if args.noise:
+        return NoiseModel.load(args.noise), str(args.noise)
+    try:
+        noise = estimate_noise([log], **DATASET_CALIBRATIONS).model
+        if (problem := no_sensor_fit(noise, [log])) is not None:
+            raise ValueError(problem)
+    except ValueError as e:
+        raise ValueError(f"fitting this log's own noise model: {e} (give one with --noise FILE)") from None
+    return noise, ("estimated from this log's own ground truth with its range calibration, heading bias, "
+                   "odometry lag, turns' variance and the stall after the command's dips (no --noise given)")
+
+
+def _run(args: argparse.Namespace, log, noise):
+    """The filter over the log: the chain (--chain), else FastSLAM with --association (smoothed where it applies)."""
+    from estimation.dataset_slam import run_landmark_log
+    from estimation.fastslam import range_bearing_config
+
+    smooth = args.association == "id" if args.smooth is None else args.smooth
+    config = range_bearing_config(n_particles=args.particles, version=args.fastslam)
+    if args.chain:
+        try:
+            return _chain_run(log, noise, config, args)
+        except np.linalg.LinAlgError as e:
+            raise ValueError(_singular_chain(noise, e)) from None
+    return run_landmark_log(log, config, np.random.default_rng(args.seed), noise=noise,
+                            association=args.association, robot=f"robot{args.robot}", until=args.until,
+                            inflate_correlated=not args.no_inflation, smooth=smooth, frame=args.frame,
+                            image_timing=args.image_timing)
+
+
+def _warnings(args: argparse.Namespace, metrics: dict, noise) -> list[str]:
+    """What the user must not miss about the written map, one sentence each."""
+    from estimation.frame_reliability import reliability_warning
+    from estimation.naming_reliability import naming_warning
+
+    # the frame resting on single sightings: from the design, with or without a truth (the chain's map's too); the
+    # chain's frame or path resting on a naming nothing checks, likewise
+    reliability = reliability_warning(metrics)
+    naming = naming_warning(metrics)
+    return (_map_warnings(metrics) + ([] if reliability is None else [reliability])
+            + ([] if naming is None else [naming])
+            + (_frame_warnings(noise, args.truth_heading, metrics) if args.noise else []))
+
+
+def _print_summary(m: dict) -> None:
+    """The run's figures for a reader (``--json`` prints ``m`` whole instead)."""
     print(f"slam dataset: {m['dataset']}, {m['frames']} frames over {m['seconds']:.0f} s, {m['particles']} "
           f"particles, FastSLAM {m['version']}.0, association {m['association']}, "
           + (f"seeds {','.join(map(str, m['seeds']))}" if "seeds" in m else f"seed {m['seed']}"))
@@ -191,7 +219,6 @@ def run_dataset(args: argparse.Namespace) -> int:
     for warning in m["warnings"]:
         print(f"  WARNING: {warning}")
     print(f"  map written to {m['out']}" + (f", the run to Rerun: {m['recording']}" if m["recording"] else ""))
-    return 0
 
 
 def _singular_chain(noise, error: Exception) -> str:
