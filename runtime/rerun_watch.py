@@ -9,6 +9,7 @@ import os
 import threading
 import time
 import weakref
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,21 +25,31 @@ WRITER_THREAD = "file_writer"
 _TASKS = "/proc/self/task"   # Linux; elsewhere the watch sees only a removed file
 
 
-def _writer_threads() -> set[str]:
-    """The ids of this process's threads named WRITER_THREAD (empty where /proc is not)."""
+def _each_in_proc(folder: str, read: Callable[[str], str | None]) -> set[str]:
+    """What ``read(name)`` gives for each entry of a /proc folder (None: left out), passing over an entry gone since
+    the folder was listed; empty where the folder is not (not Linux)."""
     found = set()
     try:
-        tasks = os.listdir(_TASKS)
+        names = os.listdir(folder)
     except OSError:
         return found
-    for tid in tasks:
+    for name in names:
         try:
-            with open(f"{_TASKS}/{tid}/comm") as comm:
-                if comm.read().strip() == WRITER_THREAD:
-                    found.add(tid)
-        except OSError:
+            value = read(name)
+        except OSError:   # gone since it was listed
             continue
+        if value is not None:
+            found.add(value)
     return found
+
+
+def _writer_threads() -> set[str]:
+    """The ids of this process's threads named WRITER_THREAD (empty where /proc is not)."""
+    def writer(tid: str) -> str | None:
+        with open(f"{_TASKS}/{tid}/comm") as comm:
+            return tid if comm.read().strip() == WRITER_THREAD else None
+
+    return _each_in_proc(_TASKS, writer)
 
 
 class FileWriterWatch:
@@ -151,19 +162,11 @@ def _peers(port: int) -> list[tuple[str, str]]:
 
 def _own_sockets() -> set[str]:
     """The inodes of the sockets this process holds (``socket:[INODE]`` in /proc/self/fd)."""
-    inodes = set()
-    try:
-        fds = os.listdir(_FDS)
-    except OSError:
-        return inodes
-    for fd in fds:
-        try:
-            target = os.readlink(f"{_FDS}/{fd}")
-        except OSError:   # closed since it was listed
-            continue
-        if target.startswith("socket:["):
-            inodes.add(target[8:-1])
-    return inodes
+    def inode(fd: str) -> str | None:
+        target = os.readlink(f"{_FDS}/{fd}")
+        return target[8:-1] if target.startswith("socket:[") else None
+
+    return _each_in_proc(_FDS, inode)
 
 
 def _connected(port: int) -> bool:
