@@ -7,6 +7,7 @@ inside the function that reads, after this module.
 The Rerun modules, each one job (each imports only modules above it in this list):
 
 - runtime/rerun_sdk.py: Rerun itself;
+- runtime/rerun_watch.py: whether a saved recording's writer still writes and a live viewer still listens (no Rerun);
 - runtime/rerun_sink.py: where a recording goes (a saved file, a viewer it starts, a viewer's URL, memory);
 - runtime/rerun_style.py: how it looks (colours, legend names, the layouts);
 - runtime/rerun_map_format.py: what the writer and the reader agree on (a map snapshot's arrays and checksum, the

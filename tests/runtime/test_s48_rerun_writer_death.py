@@ -5,7 +5,7 @@ Rerun 0.41's file sink writes from one thread; a write that fails (a full disk, 
 with an ERROR line of Rerun's own, and every later row is dropped without a word. Before, the mission learnt it only
 at its end, from its last flush (session 47, F), and a flush issued as the writer died was never answered: waiting on
 it hung the process (F: 4 of 14 runs; 3 of 20 here). The sink is now watched from outside, without asking Rerun
-(runtime.rerun_sink.FileWriterWatch: the writer thread, and the file through a descriptor of ours) every 16 frames
+(runtime.rerun_watch.FileWriterWatch: the writer thread, and the file through a descriptor of ours) every 16 frames
 logged; the logger says the failure in one line and goes on, and its close reports the recording incomplete instead
 of waiting on the dead writer.
 
