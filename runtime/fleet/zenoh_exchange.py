@@ -272,7 +272,6 @@ class ZenohExchange:
         self._in_flight: dict[str, tuple[int, float]] = {}
         self._acked: dict[str, int] = {}
         self._acking = False                     # a fusion node's acknowledgement has come: it acknowledges
-        self._handed: dict[str, int] = {}        # own robot -> the sequence of its map last put into Zenoh
         self._link_said: set[str] = set()        # own robots whose slow link has been said
         self._skipped: collections.Counter[str] = collections.Counter()   # own robot -> maps replaced unsent
         try:
@@ -476,7 +475,6 @@ class ZenohExchange:
                 kind, data, status_data, sequence = self._outbox.pop(robot)
                 publisher, status, _, _ = self._own[robot]
                 self._in_flight[robot] = (sequence, time.monotonic())
-                self._handed[robot] = self._in_flight[robot][0]
                 self._calls += 1
             try:
                 publisher.put(data)
@@ -504,9 +502,9 @@ class ZenohExchange:
         try:
             # it names the map last put into Zenoh (one waiting for the node's word is not asked for: its query's
             # reply would go around the flow control)
-            handed = self._handed.get(robot)
-            data = mapwire.encode_status(robot, encoder.session, 0 if handed is None else handed, stamp, pose,
-                                         landmarks, health, has_map=handed is not None, wall=time.time())
+            flight = self._in_flight.get(robot)
+            data = mapwire.encode_status(robot, encoder.session, 0 if flight is None else flight[0], stamp, pose,
+                                         landmarks, health, has_map=flight is not None, wall=time.time())
             status.put(data)
         except zenoh.ZError as e:  # as for maps: the network's trouble must not stop the robot
             self.send_errors += 1
