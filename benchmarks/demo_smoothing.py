@@ -76,19 +76,13 @@ def record(log_dir: Path, cache: Path):
         meta = json.loads(bytes(z["meta"]).decode())
         return {k: z[k] for k in z.files if k != "meta"} | {"meta": meta,
                                                            "exported": LandmarkMap.load(cache.with_suffix(".map.npz"))}
-    from runtime.onboard import OdometryBuffer, SlamCore
-    from runtime.replay import _frames, onboard_config_from_log
+    from runtime.replay import _frames, core_and_odometry, onboard_config_from_log
     from runtime.sensorlog import SensorLog
 
     log = SensorLog(log_dir)
     config = onboard_config_from_log(log)
-    robot = str(log.metadata.get("robot", "robot"))
-    core = SlamCore(robot, config)
-    if log.metadata.get("true_start_pose") is not None:
-        core.metadata["true_start_pose"] = [float(v) for v in log.metadata["true_start_pose"]]
-    odometry = OdometryBuffer(horizon=max(1, log.count("odometry")))
-    for r in log.records("odometry"):
-        odometry.add(float(r["t"]), np.array([float(r["x"]), float(r["y"]), float(r["theta"])]))
+    core, odometry = core_and_odometry(log, config)
+    robot = core.robot
     processed = {int(r["seq"]) for r in log.records("processed")}
     times, odo, counts, points, covs, descs, pixels = [], [], [], [], [], [], []
     start = time.perf_counter()

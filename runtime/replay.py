@@ -83,19 +83,25 @@ def _frames(log: SensorLog, descriptor_size: int):
             yield CameraFrame(float(r["t"]), int(r["seq"]), np.asarray(r["left"]), np.asarray(r["right"]))
 
 
+def core_and_odometry(log: SensorLog, config: OnboardConfig) -> tuple[SlamCore, OdometryBuffer]:
+    """A fresh SlamCore for the log's robot (its true start, where the log has one, in the map's metadata) and the
+    log's SIPs in an OdometryBuffer, from which each frame's odometry is interpolated as the live SLAM thread did."""
+    core = SlamCore(str(log.metadata.get("robot", "robot")), config)
+    if log.metadata.get("true_start_pose") is not None:
+        core.metadata["true_start_pose"] = [float(v) for v in log.metadata["true_start_pose"]]
+    odometry = OdometryBuffer(horizon=max(1, log.count("odometry")))
+    for r in log.records("odometry"):
+        odometry.add(float(r["t"]), np.array([float(r["x"]), float(r["y"]), float(r["theta"])]))
+    return core, odometry
+
+
 def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None, *, every_frame: bool = False,
                on_frame=None) -> ReplayResult:
     """Run a sensor log (a path or an open :class:`SensorLog`) through a fresh SlamCore (``config``: default,
     the logged settings)."""
     log = log if isinstance(log, SensorLog) else SensorLog(log)
     config = config or onboard_config_from_log(log)
-    robot = str(log.metadata.get("robot", "robot"))
-    core = SlamCore(robot, config)
-    if log.metadata.get("true_start_pose") is not None:
-        core.metadata["true_start_pose"] = [float(v) for v in log.metadata["true_start_pose"]]
-    odometry = OdometryBuffer(horizon=max(1, log.count("odometry")))
-    for r in log.records("odometry"):
-        odometry.add(float(r["t"]), np.array([float(r["x"]), float(r["y"]), float(r["theta"])]))
+    core, odometry = core_and_odometry(log, config)
     processed = None if every_frame else {int(r["seq"]) for r in log.records("processed")}
     start = time.perf_counter()
     frames = skipped = 0
@@ -120,9 +126,9 @@ def replay_log(log: str | Path | SensorLog, config: OnboardConfig | None = None,
     elapsed = time.perf_counter() - start
     span = 0.0 if t_first is None else t_last - t_first
     missing = 0 if processed is None else len(processed - replayed_seqs)
-    return ReplayResult(robot, core.best_map(), frames, skipped, elapsed, span, dict(core.totals), pose, missing)
+    return ReplayResult(core.robot, core.best_map(), frames, skipped, elapsed, span, dict(core.totals), pose, missing)
 
 
 
 
-__all__ = ["ReplayResult", "onboard_config_from_log", "replay_log"]
+__all__ = ["ReplayResult", "core_and_odometry", "onboard_config_from_log", "replay_log"]
