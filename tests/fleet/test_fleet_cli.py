@@ -13,7 +13,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,18 +22,9 @@ pytest.importorskip("zenoh")
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
+from tests.fleet.live_node import ROOT, endpoint, p3at, stopped_after_first_fusion  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(180)
-
-
-def p3at(*args: str, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, text=True,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)}, **kwargs)
-
-
-def connect(port: int) -> str:
-    return "zenoh:" + json.dumps({"connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
 
 
 def test_p3at_run_publishes_a_world_robot_map_under_its_name(tmp_path):
@@ -44,7 +34,8 @@ def test_p3at_run_publishes_a_world_robot_map_under_its_name(tmp_path):
     with ZenohExchange(fleet, json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}), "fusion") as node:
         run = p3at("run", "--name", "robot2", "--camera", "synthetic", "--seconds", "6", "--rerun", "none",
                    "--quiet", "--json", "--fusion-interval", "0", "--out", str(tmp_path / "robot2"),
-                   "--exchange", connect(port), "--fleet", fleet, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                   "--exchange", endpoint("connect", port), "--fleet", fleet, stdout=subprocess.PIPE,
+                   stderr=subprocess.PIPE)
         stdout, stderr = run.communicate(timeout=150)
         assert run.returncode == 0, stderr
         saved = LandmarkMap.load(tmp_path / "robot2" / "robot2.npz")
@@ -71,35 +62,10 @@ def test_p3at_fuse_live_fuses_the_robots_maps_and_writes_the_merged_map(tmp_path
     confirms once the maps stop changing: the file is written at the stop, and every run waited out the 90 s
     deadline. Stopped at the first fusion, before the last maps, the final fusion is aligned too.)"""
     port, fleet = free_port(), f"live{os.getpid()}"
-    listen = "zenoh:" + json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
-    node = p3at("fuse", "--live", "--exchange", listen, "--fleet", fleet, "--seconds", "120", "--interval", "1",
-                "--out", str(tmp_path / "fused.npz"), "--json", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(node.stderr), daemon=True)  # the node's events, as they come
-    reader.start()
-    robots = [subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", name, "--first-index",
-                                str(k), "--exchange", connect(port), "--fleet", fleet, "--steps", "6", "--period",
-                                "0.3"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
-              for k, name in enumerate(["robot1", "robot2"])]
-    try:
-        for robot in robots:   # "ready", then "published" after its last map (~3 s; pytest-timeout bounds the wait)
-            said = [robot.stdout.readline() for _ in range(2)]
-            assert said == ["ready\n", "published\n"], said
-        end = time.monotonic() + 90.0   # a failure bound: the node fuses within a second of holding two maps
-        while not any(line.startswith("fusion at") for line in lines) and time.monotonic() < end:
-            assert node.poll() is None, "".join(lines)
-            time.sleep(0.05)
-        node.send_signal(signal.SIGTERM)  # stops cleanly, as Ctrl-C would: prints the last fusion
-        stdout = node.stdout.read()
-        node.wait(timeout=60)
-        reader.join(timeout=30)
-    finally:
-        for r in robots:
-            r.kill()
-            r.wait()
-        if node.poll() is None:
-            node.kill()
-    stderr = "".join(lines)
+    node = p3at("fuse", "--live", "--exchange", endpoint("listen", port), "--fleet", fleet, "--seconds", "120",
+                "--interval", "1", "--out", str(tmp_path / "fused.npz"), "--json", stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE)
+    stdout, stderr = stopped_after_first_fusion(node, port, fleet)
     assert node.returncode == 0, stderr
     result = json.loads(stdout)
     assert result["fusions"] >= 1
@@ -140,7 +106,8 @@ def test_p3at_run_publishes_its_health_once_a_second_under_its_name(tmp_path):
     with ZenohExchange(fleet, json.dumps({"listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}), "fusion") as node:
         run = p3at("run", "--name", "robot2", "--camera", "synthetic", "--seconds", f"{seconds:g}", "--rerun",
                    "none", "--quiet", "--json", "--fusion-interval", "0", "--out", str(tmp_path / "robot2"),
-                   "--exchange", connect(port), "--fleet", fleet, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                   "--exchange", endpoint("connect", port), "--fleet", fleet, stdout=subprocess.PIPE,
+                   stderr=subprocess.PIPE)
         seen: dict[float, dict] = {}   # mission time -> status, as many as the polling catches while it runs
         while run.poll() is None:
             status = node.status().get("robot2")
@@ -212,7 +179,7 @@ def test_p3at_fuse_live_with_one_robot_names_it_and_says_a_fusion_needs_two(tmp_
     reader = threading.Thread(target=lambda: lines.extend(node.stderr), daemon=True)  # the node's events, as they come
     reader.start()
     robot = subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", "robot1", "--exchange",
-                              connect(port), "--fleet", fleet, "--steps", "3", "--period", "0.3"], cwd=ROOT,
+                              endpoint("connect", port), "--fleet", fleet, "--steps", "3", "--period", "0.3"], cwd=ROOT,
                              stdout=subprocess.DEVNULL)
     try:
         end = time.monotonic() + 90.0

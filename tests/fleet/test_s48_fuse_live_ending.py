@@ -7,13 +7,8 @@ Processes on loopback (random free ports); waits have deadlines far above what t
 """
 from __future__ import annotations
 
-import json
 import os
-import signal
 import subprocess
-import sys
-import threading
-import time
 import warnings
 from pathlib import Path
 
@@ -25,19 +20,10 @@ from estimation.landmark_map import LandmarkMap  # noqa: E402
 from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.report import alignment_text  # noqa: E402
 from runtime.rerun_read import read_recording  # noqa: E402
+from tests.fleet.live_node import endpoint, p3at, stopped_after_first_fusion  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.timeout(180)
 RECORDING_ID = "s48-hand-started-fleet"
-
-
-def p3at(*args: str, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, text=True,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)}, **kwargs)
-
-
-def endpoint(kind: str, port: int) -> str:
-    return "zenoh:" + json.dumps({kind: {"endpoints": [f"tcp/127.0.0.1:{port}"]}})
 
 
 def recording_ids(path: Path) -> set[str]:
@@ -84,32 +70,8 @@ def test_p3at_fuse_live_ends_with_the_last_fusion_in_words_the_fused_map_and_the
     node = p3at("fuse", "--live", "--exchange", endpoint("listen", port), "--fleet", fleet, "--seconds", "120",
                 "--interval", "1", "--out", str(out), "--rerun", "file", stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(node.stderr), daemon=True)  # the node's events, as they come
-    reader.start()
-    robots = [subprocess.Popen([sys.executable, "-m", "runtime.fleet.synthetic", "--names", name, "--first-index",
-                                str(k), "--exchange", endpoint("connect", port), "--fleet", fleet, "--steps", "6",
-                                "--period", "0.3"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
-              for k, name in enumerate(["robot1", "robot2"])]
-    try:
-        for robot in robots:   # "ready", then "published" after its last map
-            said = [robot.stdout.readline() for _ in range(2)]
-            assert said == ["ready\n", "published\n"], said
-        end = time.monotonic() + 90.0   # a failure bound: the node fuses within a second of holding two maps
-        while not any(line.startswith("fusion at") for line in lines) and time.monotonic() < end:
-            assert node.poll() is None, "".join(lines)
-            time.sleep(0.05)
-        node.send_signal(signal.SIGTERM)
-        stdout = node.stdout.read()
-        node.wait(timeout=60)
-        reader.join(timeout=30)
-    finally:
-        for r in robots:
-            r.kill()
-            r.wait()
-        if node.poll() is None:
-            node.kill()
-    assert node.returncode == 0, "".join(lines)
+    stdout, stderr = stopped_after_first_fusion(node, port, fleet)
+    assert node.returncode == 0, stderr
     assert "{" not in stdout, stdout   # no raw JSON
     summary = read_recording(saved).summary
     final = summary["fusion"]
