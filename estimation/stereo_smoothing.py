@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from .geometry import wrap_angle
+from .geometry import between, wrap_angle
 
 CAUCHY_C = float(np.sqrt(7.815))  # σ: the Cauchy loss's scale on the whitened residual norm (χ²₃ 95 %). Not Huber's:
 #                                   a wrong association costs Huber a constant pull, and 5 % of them (3-D points
@@ -201,21 +201,19 @@ def _observation_chi2(problem, whiten, poses, landmarks) -> np.ndarray:
     return np.sum(e * e, axis=1)
 
 
-def _odometry_residuals(problem, poses) -> np.ndarray:
-    a, b = poses[:-1], poses[1:]
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    e = np.column_stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[:, 2] - a[:, 2])]) - problem.increments
+def _odometry_residuals(problem, poses, relative: np.ndarray | None = None) -> np.ndarray:
+    """Whitened residuals (T−1, 3) of the odometry increments; ``relative``: between(pose k, pose k+1) if known."""
+    e = (between(poses[:-1], poses[1:]) if relative is None else relative) - problem.increments
     e[:, 2] = wrap_angle(e[:, 2])
     return e / np.sqrt(problem.increment_variances)
 
 
 def _odometry_terms(problem, poses):
     """Whitened residuals (T−1, 3) and Jacobians by pose k and pose k+1 (T−1, 3, 3)."""
-    a, b = poses[:-1], poses[1:]
+    a = poses[:-1]
+    relative = between(a, poses[1:])
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
-    bx, by = c * dx + s * dy, -s * dx + c * dy
+    bx, by = relative[:, 0], relative[:, 1]
     n = len(a)
     ja = np.zeros((n, 3, 3))
     ja[:, 0, 0], ja[:, 0, 1], ja[:, 0, 2] = -c, -s, by
@@ -226,7 +224,7 @@ def _odometry_terms(problem, poses):
     jb[:, 1, 0], jb[:, 1, 1] = -s, c
     jb[:, 2, 2] = 1.0
     w = 1.0 / np.sqrt(problem.increment_variances)
-    return _odometry_residuals(problem, poses), ja * w[:, :, None], jb * w[:, :, None]
+    return _odometry_residuals(problem, poses, relative), ja * w[:, :, None], jb * w[:, :, None]
 
 
 def _tmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
