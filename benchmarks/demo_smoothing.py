@@ -116,114 +116,25 @@ def record(log_dir: Path, cache: Path):
     return out | {"meta": meta, "exported": exported}
 
 
-# -- 2. associations -------------------------------------------------------------------------------------------
-def associate(rec: dict, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(frame index, reading index, landmark row) of each association of a reading to the exported map from the best
-    particle's pose at its frame (module docstring)."""
-    from scipy.spatial import cKDTree
+# -- 2. the association and the smoothing (estimation.stereo_readings, which the mission's --smooth uses) ----------
+def readings_of(rec: dict):
+    """The replay's records as ``estimation.stereo_readings.StereoReadings``."""
+    from estimation.stereo_readings import StereoReadings
 
-    exported = rec["exported"]
-    if not np.allclose(rec["particle_positions"], exported.positions):
-        raise SystemExit("the particle-covariance export's landmarks differ from the exported map's")
-    traj, times = rec["trajectory"], rec["times"]
-    if len(traj) != len(times) + 1 or not np.allclose(traj[1:, 0], times):
-        raise SystemExit(f"trajectory of {len(traj)} rows for {len(times)} frames")
-    sigma = rec["particle_covariances"]
-    desc_map = exported.descriptors.astype(np.float64)
-    tree = cKDTree(exported.positions[:, :2])
-    offsets = np.r_[0, np.cumsum(rec["counts"])]
-    eye = np.eye(3)
-    out_f, out_j, out_l = [], [], []
-    for k in range(len(times)):
-        a, b = offsets[k], offsets[k + 1]
-        if a == b:
-            continue
-        x, y, th = traj[k + 1, 1:]
-        c, s = np.cos(th), np.sin(th)
-        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        z = rec["points"][a:b]
-        q = config.observation_cov_scale * rec["covariances"][a:b] + config.observation_var_floor * eye
-        world = z @ R.T + np.array([x, y, 0.0])
-        qw = R @ q @ R.T
-        near = tree.query_ball_point(world[:, :2], r=1.5)
-        jj = np.repeat(np.arange(b - a), [len(n) for n in near])
-        ll = np.fromiter((v for n in near for v in n), np.int64, len(jj))
-        if not len(jj):
-            continue
-        dd = rec["descriptors"][a:b][jj].astype(np.float64) - desc_map[ll]
-        ok = np.einsum("ij,ij->i", dd, dd) < config.descriptor_threshold ** 2
-        jj, ll = jj[ok], ll[ok]
-        e = world[jj] - exported.positions[ll]
-        d2 = np.einsum("ni,ni->n", e, np.linalg.solve(sigma[ll] + qw[jj], e[:, :, None])[:, :, 0])
-        ok = d2 < config.mahalanobis_gate
-        jj, ll, d2 = jj[ok], ll[ok], d2[ok]
-        used_j, used_l = set(), set()
-        for i in np.argsort(d2, kind="stable"):
-            if jj[i] in used_j or ll[i] in used_l:
-                continue
-            used_j.add(jj[i])
-            used_l.add(ll[i])
-            out_f.append(k)
-            out_j.append(a + jj[i])
-            out_l.append(ll[i])
-    return np.array(out_f, np.int64), np.array(out_j, np.int64), np.array(out_l, np.int64)
+    return StereoReadings(rec["times"], rec["odometry"], rec["counts"], rec["points"], rec["covariances"],
+                          rec["descriptors"], rec["pixels"])
 
 
-# -- 3. the smoothing and the smoothed map -------------------------------------------------------------------------
 def smoothed_map(rec: dict, landmark_floor: float | None = None):
     """(the smoothed LandmarkMap, figures dict, (frame, reading, landmark row, inlier) of each association)."""
     from estimation.fastslam import FastSLAMConfig
-    from estimation.fastslam.motion import increment_variance
-    from estimation.geometry import between
-    from estimation.landmark_map import LandmarkMap
-    from estimation.sighting_spread import sighting_covariances
-    from estimation.stereo_smoothing import StereoLogProblem, smooth
+    from estimation.stereo_readings import smoothed_map as smooth_readings
 
     config = FastSLAMConfig.from_dict(rec["meta"]["fastslam"])
-    exported = rec["exported"]
-    start = time.perf_counter()
-    f, j, lm = associate(rec, config)
-    t_assoc = time.perf_counter() - start
-    odo, times = rec["odometry"], rec["times"]
-    inc = np.array([between(odo[k], odo[k + 1]) for k in range(len(odo) - 1)])
-    var = increment_variance(inc, config, np.maximum(np.diff(times), 0.0))
-    q = config.observation_cov_scale * rec["covariances"][j] + config.observation_var_floor * np.eye(3)
-    problem = StereoLogProblem(inc, var, f, lm, rec["points"][j], q, len(exported))
-    poses0 = rec["trajectory"][1:, 1:].copy()
-    if np.abs(poses0[0]).max() > 1e-9:
-        raise SystemExit(f"the first frame's pose is {poses0[0]} in the map frame, not its origin")
-    t0 = time.perf_counter()
-    floor = config.observation_var_floor if landmark_floor is None else landmark_floor
-    sol = smooth(problem, poses0, exported.positions, landmark_floor=floor)
-    t_smooth = time.perf_counter() - t0
-    held = sol.held
-    positions = np.where(held[:, None], sol.landmarks, exported.positions)
-    covariances = np.where(held[:, None, None], sol.landmark_covariances, exported.covariances)
-    first = np.full(len(exported), -1, np.int64)        # each landmark's first inlier reading's frame
-    for k, l in zip(f[sol.inliers][::-1], lm[sol.inliers][::-1], strict=True):
-        first[l] = k
-    drift_cov = exported.drift_covariances.copy() if exported.drift_covariances is not None else \
-        np.tile(np.eye(3) * 1e-6, (len(exported), 1, 1))
-    drift_org = exported.drift_origins.copy() if exported.drift_origins is not None else positions[:, :2].copy()
-    ok = first >= 0
-    drift_cov[ok] = sol.pose_covariances[first[ok]]
-    drift_org[ok] = sol.poses[first[ok], :2]
-    trajectory = np.vstack([rec["trajectory"][:1], np.column_stack([times, sol.poses])])
-    meta = dict(exported.metadata)
-    meta["smoothed"] = {"readings": int(len(f)), "inliers": int(sol.inliers.sum()),
-                        "chi2_per_dof": sol.chi2_per_dof, "landmarks_held": int(held.sum())}
-    figures_assoc = (f, j, lm, sol.inliers)
-    m = LandmarkMap(positions, covariances, exported.descriptors, exported.ids, exported.counts, exported.robot,
-                    exported.frame, list(exported.robots), exported.seen_by, trajectory, meta, drift_cov, drift_org)
-    if exported.sighting_covariances is not None:
-        keep = sol.inliers
-        m.sighting_covariances = sighting_covariances(m, times[f[keep]], rec["points"][j[keep]],
-                                                      exported.ids[lm[keep]])
-    figures = {"frames": len(times), "readings": int(rec["counts"].sum()), "associated": int(len(f)),
-               "inliers": int(sol.inliers.sum()), "chi2_per_dof": sol.chi2_per_dof, "iterations": sol.iterations,
-               "landmarks": len(exported), "held": int(held.sum()), "associate_s": t_assoc, "smooth_s": t_smooth,
-               "replay_s": rec["meta"]["replay_seconds"]}
-    return m, figures, figures_assoc
+    out = smooth_readings(readings_of(rec), rec["trajectory"], rec["exported"], rec["particle_positions"],
+                          rec["particle_covariances"], config, landmark_floor)
+    figures = out.figures | {"replay_s": rec["meta"]["replay_seconds"]}
+    return out.landmark_map, figures, (out.frames, out.readings, out.rows, out.inliers)
 
 
 # -- 4. scores -----------------------------------------------------------------------------------------------------
