@@ -82,9 +82,10 @@ class StereoReadings:
 class ReadingsRecorder:
     """Each processed frame's readings, within :data:`MAX_FRAMES` and :data:`MAX_READINGS` (module docstring)."""
 
-    def __init__(self, descriptor_size: int, max_frames: int = MAX_FRAMES, max_readings: int = MAX_READINGS) -> None:
+    def __init__(self, descriptor_size: int, max_frames: int | None = None, max_readings: int | None = None) -> None:
         self.descriptor_size = int(descriptor_size)
-        self.max_frames, self.max_readings = int(max_frames), int(max_readings)
+        self.max_frames = MAX_FRAMES if max_frames is None else int(max_frames)
+        self.max_readings = MAX_READINGS if max_readings is None else int(max_readings)
         self.overflow: str | None = None     # why nothing is kept (past the cap), None while it keeps
         self.frames_seen = 0
         self.readings_seen = 0

@@ -87,6 +87,9 @@ class MissionConfig:
     # (σ xy m, σ yaw rad): give the fusion the robots' configured start poses as a rough prior on their relative start
     # (fusion/prior.py); None (the default): the robots are unknown to each other
     start_prior: tuple[float, float] | None = None
+    # at the mission's end each robot's map is smoothed over the readings it kept (estimation.stereo_readings) and the
+    # final fusion uses the smoothed maps; OUT/<robot>.npz holds the smoothed map, OUT/<robot>-filter.npz the filter's
+    smooth: bool = False
 
     @property
     def on_mocks(self) -> bool:
@@ -153,7 +156,8 @@ def _time_base(config: MissionConfig, lockstep: bool) -> str:
     other hosts (one robot per mission off the mocks), are never taken as sharing it."""
     if not lockstep:
         return f"mission {uuid.uuid4().hex[:12]} (monotonic clock)"
-    settings = {k: v for k, v in dataclasses.asdict(config).items() if k != "out"}
+    # the smoothing comes after the clock's last tick: it does not name another clock
+    settings = {k: v for k, v in dataclasses.asdict(config).items() if k not in ("out", "smooth")}
     digest = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:12]
     return f"mission {digest} (simulated clock)"
 
@@ -201,6 +205,7 @@ class Mission:
         # every robot's log (runtime.sensorlog.epoch_offset_ns)
         self._epoch_offset: int | None = None
         self._link_lost_since: dict[str, float] = {}
+        self.smoothing: dict = {}   # robot -> runtime.onboard.SmoothingOutcome (--smooth, after the stop)
         self._touching: dict[str, str | None] = {}  # virtual robots: what each was last seen pressed against
 
     def stop(self) -> None:
@@ -285,7 +290,8 @@ class Mission:
         fastslam = FastSLAMConfig(n_particles=cfg.particles, max_observations=cfg.max_observations)
         onboard_config = OnboardConfig(fastslam=fastslam, frontend=frontend,
                                        seed=cfg.seed * 1000 + index, snapshot_interval=cfg.snapshot_interval,
-                                       steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks)
+                                       steer_on_estimate=cfg.odometry == "realistic" or not cfg.on_mocks,
+                                       keep_readings=cfg.smooth)
         sensor_log = None
         if cfg.log_sensors:
             if not self.lockstep and self._epoch_offset is None:
@@ -413,6 +419,8 @@ class Mission:
                 if self._own_clock:
                     self.clock.close()
             end = self._end_time if self._end_time is not None else self.clock() - t0
+            if self.config.smooth:
+                self._smooth_maps()
             final = self._fuse_guarded(end, final=True)
             return self._finish(final, end)
         except BaseException:
@@ -472,6 +480,14 @@ class Mission:
             finally:
                 self._wall_end = time.monotonic()
         return t0
+
+    def _smooth_maps(self) -> None:
+        """--smooth: every robot's final map smoothed over its readings (Onboard.smooth_final_map publishes it for the
+        final fusion, or says in one line why not and leaves the filter's), one robot after the other, after the clock
+        is released; the wall time of the mission includes it."""
+        for r in self.robots:
+            self.smoothing[r.name] = r.onboard.smooth_final_map()
+        self._wall_end = time.monotonic()
 
     def _start_watchdog(self) -> threading.Event:
         """A wall-clock thread outside the lockstep: a simulation that stops making progress (a participant that
@@ -729,6 +745,10 @@ class Mission:
         cfg = self.config
         maps = {r.name: r.onboard.final_map() for r in self.robots}
         files: list[Path] = []   # every file this mission leaves, for the summary
+        for name, outcome in self.smoothing.items():   # --smooth: the filter's map beside the smoothed one
+            if outcome.smoothed is not None:
+                files += self._save_final(name, maps[name], f"{name}-filter", duration)
+                maps[name] = outcome.smoothed
         for name, m in maps.items():
             files += self._save_final(name, m, name, duration)
         # TUM files beside each map: <robot>.tum (estimated), <robot>-odometry.tum, <robot>-truth.tum (mocks)
@@ -776,6 +796,10 @@ class Mission:
                 # them, so a replay does not rebuild this map; None without a log
                 "sensor_log_dropped": None if r.onboard.sensor_log is None else r.onboard.sensor_log.dropped,
             }
+            if r.name in self.smoothing:   # --smooth: what the smoothing did (or why not), its files
+                robots[r.name]["smoothing"] = smoothing_figures(self.smoothing[r.name].figures)
+                if self.smoothing[r.name].smoothed is not None:
+                    robots[r.name]["filter_map_file"] = str(cfg.out / f"{r.name}-filter.npz")
         for name, figures in robots.items():
             if figures["sensor_log_dropped"] and self.logger is not None:  # the command says it on stderr
                 self.logger.log_event(duration, sensor_log_dropped_line(name, figures["sensor_log_dropped"]), "WARN")
@@ -799,9 +823,25 @@ class Mission:
             "recording": None if self.recording_path is None else str(self.recording_path),
             "files": [str(f) for f in files],
         }
+        if cfg.smooth:
+            # the maps fused and saved as <robot>.npz are the smoothed ones where robots[...]["smoothing"] says so (the
+            # filter's beside, <robot>-filter.npz); "smoothed": every robot's was
+            summary["smoothed"] = bool(self.smoothing) and all(o.smoothed is not None for o in self.smoothing.values())
         if self.logger is not None:
             self._close_recording(summary)
         return MissionResult(summary, maps, fused, self.recording_path, self.fusion_history, list(self.failures))
+
+
+def smoothing_figures(figures: dict) -> dict:
+    """A robot's smoothing figures for the summary (JSON): counts as given, χ²/dof to 4 digits, seconds to 0.01 s."""
+    out = {}
+    for key, value in figures.items():
+        if key.endswith("_s") or key == "seconds":
+            value = round(float(value), 2)
+        elif key == "chi2_per_dof":
+            value = round(float(value), 4)
+        out[key] = value
+    return out
 
 
 def sensor_log_dropped_line(robot: str, dropped: int) -> str:

@@ -41,6 +41,7 @@ from estimation.frontend import FrontEnd, FrontEndConfig
 from estimation.geometry import between, compose, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from estimation.observations import OdometryIncrement, StereoObservations
+from estimation.stereo_readings import ReadingsRecorder, SmoothedMap, SmoothingRefused, smoothed_map
 from runtime import slam_frames
 from runtime.exchange import MapExchange
 from runtime.motion import Controller, NoMotion
@@ -212,6 +213,9 @@ class OnboardConfig:
     # for fusion's co-location test: a P3-AT is 626 x 505 mm (ARIA's p3at parameters,
     # /work/shared/reference/arcos-protocol.md), so 0.2525 m
     footprint_radius_m: float = P3AT_INSCRIBED_RADIUS_M
+    # keep each processed frame's readings (estimation.stereo_readings.ReadingsRecorder, within its cap) so that the
+    # map can be smoothed after the mission (SlamCore.smoothed_map; p3at demo/run --smooth); off: nothing is kept
+    keep_readings: bool = False
 
 
 @dataclass
@@ -246,6 +250,8 @@ class SlamCore:
         self.frames = 0
         self.totals: dict[str, float] = {"frontend": 0.0, "predict": 0.0, "update": 0.0}
         self.metadata: dict = {}
+        # each frame's readings for the smoothing after the mission (config.keep_readings), None when off
+        self.readings = ReadingsRecorder(config.fastslam.descriptor_size) if config.keep_readings else None
 
     def step(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
         timings: dict[str, float] = {}
@@ -270,6 +276,8 @@ class SlamCore:
         report = self.slam.update(observations)
         t3 = self.timer()
         timings["update"] = t3 - t2
+        if self.readings is not None:
+            self.readings.add(frame.t, odometry_pose, observations)
         self._last_t = frame.t
         self.frames += 1
         for k, v in timings.items():
@@ -280,6 +288,17 @@ class SlamCore:
 
     def best_map(self) -> LandmarkMap:
         return self.slam.best_map(robot=self.robot, metadata=self.metadata)
+
+    def smoothed_map(self, exported: LandmarkMap) -> SmoothedMap:
+        """``exported`` (this core's :meth:`best_map`, as the caller made it) smoothed over the readings kept
+        (estimation.stereo_readings.smoothed_map). Raises SmoothingRefused (one line) when it cannot be: readings
+        not kept, the cap passed, too few frames, no reading matching the map..."""
+        if self.readings is None:
+            raise SmoothingRefused("no readings were kept (keep_readings is off)")
+        kept = self.readings.readings_kept()
+        particle = self.slam.best_map(robot=self.robot, metadata=self.metadata, covariance="particle")
+        return smoothed_map(kept, self.slam.trajectory(), exported, particle.positions, particle.covariances,
+                            self.config.fastslam)
 
     def dead_reckoning_pose(self) -> np.ndarray | None:
         """Odometry alone at the last frame, in the map frame (3,): what FastSLAM improves on."""
@@ -301,6 +320,17 @@ class OnboardStats:
     #                                  landmarks, coincident ones merged: FastSLAM.best_map), as saved
     camera_errors: int = 0
     stage_seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class SmoothingOutcome:
+    """:meth:`Onboard.smooth_final_map`'s answer: the filter's final map, the smoothed one (None: not smoothed) and
+    the figures (frames/readings kept, readings seen, matched, inliers, cut, χ²/dof, landmarks held, seconds;
+    ``smoothed`` and ``reason``: why not)."""
+
+    filter_map: LandmarkMap
+    smoothed: LandmarkMap | None
+    figures: dict
 
 
 class Onboard:
@@ -354,6 +384,7 @@ class Onboard:
         self._anchor_odometry: np.ndarray | None = None   # ... and the odometry pose it corresponds to
         self.errors: list[str] = []
         self.final_true_pose: np.ndarray | None = None   # the truth when stopped (mocks only)
+        self._readings_overflow_said = False
 
     # -- lifecycle -------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -600,6 +631,10 @@ class Onboard:
         """Run one frame through the core and report it (also the entry point of tests and replay)."""
         with self._core_lock:
             result = self.core.step(frame, odometry_pose)
+        readings = self.core.readings
+        if readings is not None and readings.overflow is not None and not self._readings_overflow_said:
+            self._readings_overflow_said = True
+            self._event(f"smoothing: {readings.overflow}; the filter's map will stand", "WARN")
         self.trajectories.add_frame(frame.t, result.best_pose, self.core.dead_reckoning_pose())
         with self._latest_lock:
             self._anchor = result.best_pose
@@ -629,6 +664,44 @@ class Onboard:
         """The best particle's map, also before the first frame (an empty map): what the mission saves at its end."""
         with self._core_lock:
             return self._best_map()
+
+    def smooth_final_map(self) -> SmoothingOutcome:
+        """After :meth:`stop`: the best particle's map smoothed over the readings kept (``keep_readings``), published
+        on the exchange in place of the filter's last snapshot and logged to Rerun, with one event line saying what
+        was done; when it cannot be smoothed (or the smoothing raises), one line saying why, and the filter's map
+        stands. Never raises."""
+        start = time.perf_counter()
+        t = self.mission_time if self._stop_time is None else self._stop_time
+        with self._core_lock:
+            filter_map = self._best_map()
+            kept = self.core.readings
+            figures: dict = {"frames_kept": 0 if kept is None else kept.frames,
+                             "readings_kept": 0 if kept is None else kept.readings,
+                             "readings_seen": 0 if kept is None else kept.readings_seen}
+            try:
+                smoothed = self.core.smoothed_map(filter_map)
+            except SmoothingRefused as exc:
+                reason = str(exc)
+            except Exception as exc:  # noqa: BLE001 - a smoothing that fails must not take the mission's end down
+                reason = f"the smoothing failed: {type(exc).__name__}: {exc}"
+            else:
+                reason = None
+        figures["seconds"] = time.perf_counter() - start
+        if reason is not None:
+            self._event(f"the map was not smoothed: {reason}; the filter's map stands", "WARN", t)
+            return SmoothingOutcome(filter_map, None, figures | {"smoothed": False, "reason": reason})
+        figures |= smoothed.figures
+        figures["cut"] = figures["associated"] - figures["inliers"]
+        m = smoothed.landmark_map
+        self._event(f"the final map is smoothed: {figures['frames']} frames, {figures['readings']} readings kept, "
+                    f"{figures['associated']} matched to the map, {figures['cut']} cut, χ²/dof "
+                    f"{figures['chi2_per_dof']:.2f}, {figures['held']} of {figures['landmarks']} landmarks held by "
+                    f"readings, {figures['seconds']:.1f} s", t=t)
+        if self.exchange is not None:
+            self.exchange.publish(self.robot, m, stamp=t)
+        if self.logger is not None:
+            self.logger.log_map(self.robot, t, m)
+        return SmoothingOutcome(filter_map, m, figures | {"smoothed": True, "reason": None})
 
     def publish_snapshot(self, force: bool = False) -> LandmarkMap | None:
         if self.core.frames == 0:
@@ -713,11 +786,11 @@ class Onboard:
             self._event("gave a waypoint up after getting stuck on the way to it several times", "WARN")
         self._recoveries_seen, self._skipped_seen = recoveries, skipped
 
-    def _event(self, text: str, level: str = "INFO") -> None:
+    def _event(self, text: str, level: str = "INFO", t: float | None = None) -> None:
         message = f"{self.robot}: {text}"
         self.on_event(message)
         if self.logger is not None:
-            self.logger.log_event(self.mission_time, message, level)
+            self.logger.log_event(self.mission_time if t is None else t, message, level)
 
 
 def odometry_record(sample: OdometrySample) -> dict:

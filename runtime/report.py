@@ -48,6 +48,16 @@ def _table(rows: list[list[str]]) -> list[str]:
     return lines
 
 
+def smoothing_line(robot: str, figures: dict) -> str:
+    """What a robot's smoothing after the mission did (runtime.mission's summary, robots[...]["smoothing"])."""
+    if not figures.get("smoothed"):
+        return f"{robot}: map not smoothed: {figures.get('reason')}; the filter's map is the one fused"
+    return (f"{robot}: map smoothed after the mission (the one fused): {figures['associated']} of "
+            f"{figures['readings']} readings matched to it, {figures['cut']} cut, χ²/dof "
+            f"{figures['chi2_per_dof']:.2f}, {figures['seconds']:.1f} s; the filter's map beside it "
+            f"({robot}-filter.npz)")
+
+
 def format_summary(summary: dict) -> str:
     """The mission summary (as built by :class:`runtime.mission.Mission`) as aligned text tables."""
     clock = summary.get("clock")
@@ -74,6 +84,9 @@ def format_summary(summary: dict) -> str:
     for name, reasons in drops.items():
         because = "; ".join(f"{n} frames: {why}" for why, n in reasons.items())
         lines.append(f"{name}: the virtual head dropped {because}")
+    for name, r in summary["robots"].items():   # --smooth
+        if r.get("smoothing"):
+            lines += _wrapped(smoothing_line(name, r["smoothing"]))
     failures = summary.get("failures") or []
     if failures:
         lines += ["", "FAILED stages (the mission was stopped):"]
