@@ -267,12 +267,24 @@ class MissionLog:
     is said once the same way (``live_view_lost`` keeps why) and the mission goes on; :meth:`flush` and :meth:`close`
     wait for its last rows a bounded time (:func:`runtime.rerun_sink.finish_live`) and raise nothing: the live view
     is not one of the mission's files.
+
+    ``records_fusion=False``: the logger of one robot's process of a fleet whose processes share one recording (``p3at
+    run --recording-id``, each robot of ``p3at demo --processes``). The fleet's fusion is the fusion node's, logged in
+    the node's file on the entities above (fusion/**, maps/fused, world/fused/**, map/fused/**, plots/fusion/**);
+    the fusion such a robot makes of the maps it receives (at its end, or as it hears its peers) is then not logged
+    at all (:meth:`log_alignment`, :meth:`log_map` of "fused" and the fused frame's placement log nothing). Logged on
+    the same entities, it replaced the node's fusion in the view that opens the files together (the latest row of
+    either wins: robot2's own "9 needed" at t = 141 s over the node's "8 needed", session 50); under an entity root
+    of its own, nothing would show it (such a robot sends no layout, the node's has no place for it) and no reader
+    reads it (``p3at review`` reads the node's fusion and each robot's map). The robot's own fusion is still in its
+    summary and its fused map file.
     """
 
     def __init__(self, rec: rr.RecordingStream, robots: Iterable[str] = (), *, image_interval: float = 0.5,
                  blueprint: bool = True, hold_rows: bool | None = None,
-                 on_recording_failure: Callable[[str], None] | None = None) -> None:
+                 on_recording_failure: Callable[[str], None] | None = None, records_fusion: bool = True) -> None:
         self.rec = rec
+        self.records_fusion = bool(records_fusion)   # False: a fleet's robot process (the class's docstring)
         self.recording_failure: str | None = None   # why the saved file stopped being written, once seen
         self.live_view_lost: str | None = None      # why the viewer URL stopped taking the stream, once seen
         self._on_recording_failure = on_recording_failure or _warn_on_stderr
@@ -328,7 +340,7 @@ class MissionLog:
         said "(empty)" for the mission's first 20 s, which reads as a recording that lost its fusion. Logged by a
         logger of two robots or more (a robot's own process of a fleet logs none: the fusion node's is the one shown).
         The time this thread logs at is kept."""
-        if not self._first_time(FUSION_STATUS):
+        if not self.records_fusion or not self._first_time(FUSION_STATUS):
             return
         now = self._rows.current_time()
         self._rows.set_time(0.0)
@@ -467,6 +479,8 @@ class MissionLog:
     def log_robot_frame(self, robot: str, placement: np.ndarray, t: float | None = None) -> None:
         """Place the robot's map frame in the world: placement (3,) = (x, y, θ) of its origin (its true start on
         the mocks). Key "fused": the fused map's frame. The 2-D map of that frame gets the building's walls."""
+        if robot == "fused" and not self.records_fusion:
+            return
         if t is not None:
             self._rows.set_time(t)
         placement = np.asarray(placement, float).reshape(3)
@@ -736,8 +750,10 @@ class MissionLog:
         key: a robot's name (a snapshot it published) or "fused". A robot's snapshot gives its landmarks' 1-σ
         ellipsoids in the 3-D world (hidden by default) and, once the fusion placed its frame, its path in the fused
         map. The fused map is drawn in the 3-D world and in the fused 2-D map, each landmark in the colour of the
-        robot that saw it, white when several did.
+        robot that saw it, white when several did. A logger that does not record fusions logs no "fused" map.
         """
+        if key == "fused" and not self.records_fusion:
+            return
         self._rows.set_time(t)
         m = landmark_map
         optional = {name: getattr(m, name) for name in OPTIONAL_MAP_ARRAYS if getattr(m, name) is not None}
@@ -825,7 +841,10 @@ class MissionLog:
 
     def log_alignment(self, t: float, reference: str, other: str, result: Mapping) -> None:
         """One pairwise alignment: ``result`` is plain JSON-able data (tx, ty, theta of ``other``'s frame in
-        ``reference``'s, supports, errors...). An alignment found places ``other``'s path in the fused map."""
+        ``reference``'s, supports, errors...). An alignment found places ``other``'s path in the fused map. Nothing
+        from a logger that does not record fusions."""
+        if not self.records_fusion:
+            return
         self._rows.set_time(t)
         self.rec.log(f"fusion/alignment/{reference}_{other}", rr.AnyValues(json=json.dumps(dict(result))))
         with self._lock:  # one paragraph per pair (bounded by the pairs), the document re-logged whole

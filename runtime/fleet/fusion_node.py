@@ -9,6 +9,7 @@ recovers every robot's map by query before its first fusion.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import textwrap
 import threading
@@ -72,6 +73,9 @@ class FusionNode:
         self._priors_said: set[tuple[str, str]] = set()
         self.mapped: list[str] = []    # the robots whose map the node has held, in the order they first came
         self.saved: tuple[float, int] | None = None   # (t, landmarks) of the fused map last written to config.out
+        # the recording's time of the last fusion, on the robots' clock (recording_time)
+        self.recorded_at = 0.0
+        self._logged: dict[str, tuple[int, float]] = {}   # robot -> (sequence, stamp) of its map last logged
         self._new_data = threading.Event()
 
     def notify(self, robot: str = "") -> None:
@@ -107,12 +111,13 @@ class FusionNode:
         if len(messages) < 2 or sources == self.sources:
             return None
         t = self.clock() - self.t0
+        recorded = self.recording_time(messages)
         maps = {r: m.landmark_map for r, m in messages.items()}
         self.cache.start_round(t)
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.history)),
                            cache=self.cache.inner if final else self.cache, priors=self.priors)
-        self._say_priors(t, maps)
+        self._say_priors(recorded, maps)
         keep_latest_map(self.history, report)
         self.sources = sources     # after the history: whoever sees these sources also sees their report
         if report.merged is not None and any(p.aligned for p in report.pairs):
@@ -127,7 +132,7 @@ class FusionNode:
                     self.saved = (t, len(merged))
                 except MapFileError as exc:  # one its reader would refuse: the file keeps the last fused map
                     self.on_event(f"fused map not saved: {exc}")
-        self._log(t, maps, report)
+        self._log(recorded, t, messages, report)
         for pair in report.pairs:
             self.on_event(fusion_event_line(t, pair))
         self.on_report(report)
@@ -140,6 +145,17 @@ class FusionNode:
         self.sources = {}
         return self.fuse_now(final=True, replace=replace)
 
+    def recording_time(self, messages: Mapping[str, MapMessage]) -> float:
+        """The time a fusion of ``messages`` is recorded at: the newest stamp of the maps it fuses, on the clock the
+        robots record on (each map's stamp is its robot's mission time when it was made; ``p3at demo --processes``'s
+        robots run in simulated time, about 1.9 times the wall clock on the 2-core machine), never before the last
+        fusion's. The node's own clock (``t``: the fusion's report, its lines, the confirmation interval) stays the
+        wall clock; its recording stamped on it put the demo's final fusion (t = 75 s) mid-run of robots whose own
+        recordings end at 141 s, in the view that opens them together (session 50)."""
+        newest = max((float(m.stamp) for m in messages.values()), default=0.0)
+        self.recorded_at = max(self.recorded_at, newest)
+        return self.recorded_at
+
     def _say_priors(self, t: float, maps: dict) -> None:
         """Once per pair, when both its robots are first fused: the fusion is not blind to where they started."""
         for (a, b), prior in self.priors.items():
@@ -150,16 +166,36 @@ class FusionNode:
                 if self.logger is not None:
                     self.logger.log_event(t, line, "INFO")
 
-    def _log(self, t: float, maps: dict, report: FusionReport) -> None:
+    def _log(self, t: float, node_t: float, messages: Mapping[str, MapMessage], report: FusionReport) -> None:
+        """The fusion at ``t`` (:meth:`recording_time`; ``node_t``: on the node's clock), and each robot's map it holds
+        at the time that robot made it (its stamp), once: its own process logs it at that time too, so the views of
+        both agree."""
         if self.logger is None:
             return
-        for robot, m in maps.items():
-            self.logger.log_map(robot, t, m)
+        for robot, m in messages.items():
+            if self._logged.get(robot) != (m.sequence, m.stamp):
+                self._logged[robot] = (m.sequence, m.stamp)
+                self.logger.log_map(robot, m.stamp, m.landmark_map)
         for pair in report.pairs:
+            result = pair.as_dict()
+            if isinstance(result.get("note"), str):
+                result["note"] = node_clock_note(result["note"], node_t)
             self.logger.log_alignment(t, pair.reference, pair.other, {
-                **pair.as_dict(), "merged": 0 if report.merged is None else len(report.merged)})
+                **result, "merged": 0 if report.merged is None else len(report.merged)})
         if report.merged is not None:
             self.logger.log_map(FUSED, t, report.merged)
+
+
+_EARLIER_FUSION = re.compile(r"the fusion at t=(\d+)s")
+
+
+def node_clock_note(note: str, node_t: float) -> str:
+    """A pair's note as the node's recording gives it: an earlier fusion it names (a candidate's confirmation:
+    fusion/confirmation.py, 'agrees with the fusion at t=22s, which is less than 20 s before') is at a time of the
+    node's own clock, on which the confirmation interval is counted, while the recording shows the fusion on the
+    robots' clock (:meth:`FusionNode.recording_time`): said so, with this fusion's time on that clock."""
+    return _EARLIER_FUSION.sub(lambda m: f"the fusion at t={m.group(1)}s of the node's clock (this one: "
+                                         f"t={node_t:.0f}s)", note, count=1)
 
 
 # -- p3at fuse --live ----------------------------------------------------------------------------------------
