@@ -22,8 +22,10 @@ from estimation.smoothed_self_check import (
     SmoothedSelfCheckError,
     recheck,
     recheck_map,
+    recheck_smoothed,
     rechecked_metadata,
 )
+from estimation.stereo_readings import SmoothedMap, StereoReadings
 from fusion.split import split_id
 
 CONFIG = FastSLAMConfig()
@@ -169,6 +171,11 @@ def test_the_verdict_has_the_filters_schema_and_the_fusion_splits_on_it():
     again = recheck_map(m, CONFIG, log["points"], log["counts"], log["frames"], log["readings"], log["rows"],
                         log["inliers"])
     assert again == verdict
+    n_r = len(log["points"])
+    readings = StereoReadings(log["times"], log["poses"], log["counts"], log["points"], np.zeros((n_r, 3, 3)),
+                              np.zeros((n_r, 0), np.float32), np.zeros((n_r, 2)))
+    smoothed = SmoothedMap(m, {}, log["frames"], log["readings"], log["rows"], log["inliers"])
+    assert recheck_smoothed(smoothed, readings, CONFIG) == verdict
     m.metadata = rechecked_metadata(m.metadata, again)
     assert m.metadata[FILTER_KEY] == filter_verdict and m.metadata["self_check"] == verdict
     assert split_id(m) == verdict["alarms"][0]["first_id_after_gap"]
