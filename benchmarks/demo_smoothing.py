@@ -5,6 +5,19 @@ files and robot1/2-log/):
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.demo_smoothing DIR [DIR ...] [--out ROOT] [--json]
 
+or, the product itself (``p3at demo --smooth``, session 50) against the demo without it, seed after seed:
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.demo_smoothing --live [--seeds 0 1 ...] [--root ROOT]
+
+which runs ``p3at demo --seed S --json --out ROOT/filter/demoS`` and then the same with ``--smooth`` into
+ROOT/smoothed/demoS (nice -n 5, one at a time; a run whose ROOT/<kind>/demoS.json is there is not run again) and prints
+each seed's final fusion (found, within 0.05 m / 0.01 rad, its error against the truth, merged landmarks), each robot's
+smoothing (readings matched, cut, χ²/dof, seconds) and each run's wall time, with the counts, the median wall time and
+the ratio of the two.
+
+The association and the smoothed map are :mod:`estimation.stereo_readings`' (what ``--smooth`` runs); this benchmark
+replays the logs to get the readings, which the mission keeps as it runs.
+
 Per robot: the sensor log is replayed through the onboard pipeline (``runtime.replay``'s loop: the live map is rebuilt
 bit for bit, which is checked against the folder's map), keeping each processed frame's observations and odometry.
 Associations: each frame's readings are re-associated to the filter's final exported map from the best particle's
@@ -56,7 +69,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from runtime.commands.options import non_negative_float  # noqa: E402
+from runtime.commands.options import non_negative_float, non_negative_int  # noqa: E402
 
 GOAL_M, GOAL_RAD = 0.05, 0.01
 TRUTH_SPREAD = 0.05      # m: a landmark's readings' true points further than this (median) from their median: no truth
@@ -339,7 +352,101 @@ def print_table(results: list[dict]) -> None:
                   f"{f['replay_s']:.0f} | {f['associate_s']:.1f} | {f['smooth_s']:.1f} | {f['replay_equals_live']} |")
 
 
+# -- the real demo with and without --smooth (--live) ---------------------------------------------------------------
+KINDS = ("filter", "smoothed")
+
+
+def live_run(seeds: list[int], root: Path) -> list[dict]:
+    """``p3at demo --seed S --json --out ROOT/<kind>/demoS`` without and with ``--smooth``, seed after seed (each run
+    alone, nice -n 5; its JSON in ROOT/<kind>/demoS.json, its wall time in demoS.wall): a run whose JSON is there is
+    not run again."""
+    import os
+    import subprocess
+
+    p3at = Path(sys.executable).parent / "p3at"
+    env = os.environ | {"OPENBLAS_NUM_THREADS": "1"}
+    rows = []
+    for seed in seeds:
+        row = {"seed": seed}
+        for kind in KINDS:
+            out = root / kind / f"demo{seed}"
+            json_file, wall_file = out.with_suffix(".json"), out.with_suffix(".wall")
+            if not json_file.is_file():
+                out.parent.mkdir(parents=True, exist_ok=True)
+                command = ["nice", "-n", "5", str(p3at), "demo", "--seed", str(seed), "--json", "--out", str(out)]
+                start = time.monotonic()
+                with open(out.with_suffix(".err"), "w") as err:
+                    done = subprocess.run(command + (["--smooth"] if kind == "smoothed" else []), env=env,
+                                          stdout=subprocess.PIPE, stderr=err, text=True, check=False)
+                wall_file.write_text(f"{time.monotonic() - start} {done.returncode}\n")
+                json_file.write_text(done.stdout)
+                print(f"demo {seed} {kind}: exit {done.returncode}, {time.monotonic() - start:.0f} s", file=sys.stderr)
+            row[kind] = json.loads(json_file.read_text())
+            row[f"{kind}_wall"] = float(wall_file.read_text().split()[0])
+        rows.append(row)
+    return rows
+
+
+def _live_cell(summary: dict) -> tuple[str, str]:
+    """(the final fusion: ✓/✗ within the goal, its error; merged landmarks) of a demo's summary."""
+    pairs = (summary.get("fusion") or {}).get("pairs") or []
+    if not pairs or not pairs[0]["aligned"]:
+        return f"not found ({pairs[0]['supports'] if pairs else 0} supports)", "–"
+    p = pairs[0]
+    goal = "✓" if p["error_xy"] <= GOAL_M and p["error_theta"] <= GOAL_RAD else "✗"
+    return (f"{goal} {p['error_xy']:.3f} / {p['error_theta']:.4f} ({p['supports']})",
+            str(summary["fusion"]["merged_landmarks"]))
+
+
+def print_live(rows: list[dict]) -> None:
+    """The table of :func:`live_run`'s runs."""
+    print("\n### The rendered demo without and with --smooth (benchmarks.demo_smoothing --live)\n")
+    print("| seed | maps | final fusion: ✓ within 0.05 m / 0.01 rad; vs truth xy m / θ rad (supports) | merged "
+          "landmarks | smoothing per robot: matched of readings, cut, χ²/dof, s | wall s |")
+    print("|---|---|---|---|---|---|")
+    for row in rows:
+        for kind in KINDS:
+            summary = row[kind]
+            cell, merged = _live_cell(summary)
+            smoothing = "; ".join(
+                (f"{name} {f['associated']} of {f['readings']}, {f['cut']}, {f['chi2_per_dof']:.2f}, {f['seconds']:.1f}"
+                 if f.get("smoothed") else f"{name} not smoothed: {f.get('reason')}")
+                for name, r in summary["robots"].items() if (f := r.get("smoothing")) is not None) or "–"
+            print(f"| {row['seed']} | {kind} | {cell} | {merged} | {smoothing} | {row[f'{kind}_wall']:.0f} |")
+    print()
+    for kind in KINDS:
+        pairs = [((row[kind].get("fusion") or {}).get("pairs") or [{}])[0] for row in rows]
+        found = [p for p in pairs if p.get("aligned")]
+        wrong = sum(1 for p in found if p["error_xy"] > 0.3 or p["error_theta"] > 0.1)
+        goal = sum(1 for p in found if p["error_xy"] <= GOAL_M and p["error_theta"] <= GOAL_RAD)
+        xy = np.array([p["error_xy"] for p in found])
+        th = np.array([p["error_theta"] for p in found])
+        errors = (f"error median {np.median(xy):.3f} m / {np.median(th):.4f} rad, worst {xy.max():.3f} m / "
+                  f"{th.max():.4f} rad" if len(found) else "no error")
+        walls = [row[f"{kind}_wall"] for row in rows]
+        print(f"- {kind}: found {len(found)} of {len(rows)}, wrong {wrong}, within the goal {goal}; {errors}; wall "
+              f"median {np.median(walls):.0f} s (total {sum(walls):.0f} s)")
+    ratios = [row["smoothed_wall"] / row["filter_wall"] for row in rows]
+    smooth_s = [f["seconds"] for row in rows for r in row["smoothed"]["robots"].values()
+                if (f := r.get("smoothing")) is not None]
+    print(f"- wall time with --smooth / without, per seed: median {np.median(ratios):.2f} (range {min(ratios):.2f}–"
+          f"{max(ratios):.2f}); the smoothing itself {np.median(smooth_s):.1f} s a robot (median; "
+          f"{min(smooth_s):.1f}–{max(smooth_s):.1f})")
+
+
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv[:1] == ["--live"]:
+        parser = argparse.ArgumentParser(description="the rendered demo without and with --smooth, seed after seed")
+        parser.add_argument("--live", action="store_true", required=True)
+        parser.add_argument("--seeds", type=non_negative_int, nargs="+", default=list(range(10)),
+                            help="demo seeds (default 0-9)")
+        parser.add_argument("--root", type=Path, default=Path("/tmp/demo-smooth-live"),
+                            help="where the demos' folders, JSON and wall times go (default /tmp/demo-smooth-live)")
+        args = parser.parse_args(argv)
+        print_live(live_run(args.seeds, args.root))
+        return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="+", type=Path, help="p3at demo --log-sensors output folders")
     parser.add_argument("--out", type=Path, default=Path("/tmp/demo-smoothed"),
