@@ -6,7 +6,8 @@ Key space under a fleet namespace ``p3at/<fleet>/``:
                      latest full snapshot, on this concrete key
     <robot>/status   pose estimate, map size, health (mapwire status)
     <robot>/alive    the robot's liveliness token: join and leave
-    fused/map        the fusion node's merged map (full snapshots), and its queryable
+    fused/map        the fusion node's merged map: its queryable, answering the latest full snapshot (robots pull it)
+    fused/status     the fusion node's word that a new fused map is there (status-shaped, naming its sequence)
     fused/alive      the fusion node's liveliness token, from the node's start: a robot knows whether a node hears it
                      (a robot that ends with maps no node received says which, as it closes)
 
@@ -70,6 +71,8 @@ SNAPSHOT_RETRY = 1.0                # s: at most one snapshot request per robot 
 BEHIND_GRACE = 1.0                  # s a status may name a map not yet handled before its robot is asked for it
 BEHIND_RETRY_MAX = 30.0             # s: a wait's asks come 2, 4, 8, 16 s apart, then every 30 s
 QUERY_TIMEOUT = 5.0                 # s
+FUSED_QUERY_TIMEOUT = 60.0          # s a robot's request for the fused map stays open: its reply, 77-92 kB, takes 7 s
+                                    # over 100 kbit; no second request goes while one is open (one fused map in flight)
 CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for sends inside Zenoh, then goes on
 POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
@@ -238,7 +241,7 @@ class ZenohExchange:
         self._encoders: dict[str, mapwire.MapEncoder] = {}
         self._own: dict[str, tuple] = {}         # robot -> (publisher, status publisher, queryable, token)
         self._asked: dict[str, float] = {}
-        self._replies: list = []                 # (Zenoh reply channel, when asked) of the requests still open
+        self._replies: list = []                 # (Zenoh reply channel, when asked, robot asked) of the requests open
         self._waits: dict[str, _Wait] = {}       # robot whose full snapshot is waited for (a map missed)
         self._left: set[str] = set()             # robots seen leaving (and not back): nothing to wait for
         self._node_left_at: float | None = None  # when (monotonic) a fusion node was last seen leaving
@@ -432,12 +435,23 @@ class ZenohExchange:
                 self._say_slow_link(robot, now)
                 self.superseded += 1
                 self._skipped[robot] += 1
-                self.bytes_sent[mapwire.KIND_NAMES[old_kind]] -= len(old)
+                if not self._pulled(robot):
+                    self.bytes_sent[mapwire.KIND_NAMES[old_kind]] -= len(old)
                 self.bytes_sent["status"] -= len(old_status)
             self._outbox[robot] = (kind, data, status_data, encoder.sequence)
-            self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)   # published (counted when handed over)
+            if not self._pulled(robot):   # a fused map goes only as the reply to a robot's request
+                self.bytes_sent[mapwire.KIND_NAMES[kind]] += len(data)   # published (counted when handed over)
             self.bytes_sent["status"] += len(status_data)
             self._outbox_ready.notify_all()
+
+    def _pulled(self, robot: str) -> bool:
+        """Whether ``robot``'s maps are pulled, not put: the fusion node's fused map (session 50). The node says each
+        new one with a status on ``fused/status`` and every robot asks for the newest by query, one request open at a
+        time (:meth:`request_snapshot`): a slow link carries at most one fused map to its robot, and the newest is the
+        one its reply carries. Put to every robot (77-92 kB every 2.5 s with two robots), fused maps queued behind
+        each other on a 100-kbit link, and the node's acknowledgements and Zenoh's keep-alives behind them (session
+        49)."""
+        return robot == FUSED and self.role == "fusion"
 
     def _say_slow_link(self, robot: str, now: float) -> None:
         """Once per robot: a map replaced unsent because the node has not yet said it has the last (lock held)."""
@@ -477,7 +491,8 @@ class ZenohExchange:
                 self._in_flight[robot] = (sequence, time.monotonic())
                 self._calls += 1
             try:
-                publisher.put(data)
+                if not self._pulled(robot):
+                    publisher.put(data)
                 status.put(status_data)
             except zenoh.ZError as e:  # the network's trouble must not stop the robot; the queryable still answers
                 self.send_errors += 1
@@ -564,7 +579,7 @@ class ZenohExchange:
                 came = True
                 self._answer(robot, query)
         for request in replies:
-            channel, asked = request
+            channel, asked, _ = request
             for _ in range(REPLY_CAPACITY):
                 try:
                     reply = channel.try_recv()
@@ -761,8 +776,9 @@ class ZenohExchange:
                 if sent:
                     wait.delay = min(2 * wait.delay, BEHIND_RETRY_MAX)
                     wait.due = now + wait.delay
-                else:
-                    wait.due = max(now, self._asked.get(robot, now) + SNAPSHOT_RETRY)
+                else:   # held back by the rate limit, or (the fused map) by its request still open: a second later
+                    wait.due = max(now + (SNAPSHOT_RETRY if robot == FUSED else 0.0),
+                                   self._asked.get(robot, now) + SNAPSHOT_RETRY)
 
     def _defer(self, robot: str) -> None:
         """A map of ``robot``'s was handled that does not end its wait: no ask within BEHIND_GRACE (lock held)."""
@@ -789,7 +805,9 @@ class ZenohExchange:
         if stream is not None and stream.map is not None and stream.session == message.session \
                 and stream.sequence >= message.sequence:
             return
-        self._wait_for(robot, message.session, message.sequence, BEHIND_GRACE, from_status=True)
+        # the fused map is pulled (_pulled): it is at the node's queryable before its status goes, so asked at once
+        self._wait_for(robot, message.session, message.sequence, 0.0 if robot == FUSED else BEHIND_GRACE,
+                       from_status=True)
 
     def _drop(self, key: str, reason: str) -> None:
         """Count a malformed message; say the first one, then at most one line every DROP_REPORT_INTERVAL with how
@@ -899,15 +917,17 @@ class ZenohExchange:
         with self._lock:
             if now - self._asked.get(robot, -np.inf) < SNAPSHOT_RETRY or self._closed:
                 return False
+            if robot == FUSED and any(asked == FUSED for _, _, asked in self._replies):
+                return False   # one fused map in flight: the open request's reply is the newest at its answer
             self._asked[robot] = now
             self._calls += 1
         try:  # replies: one per robot; a Fifo channel keeps them after the query's end (a ring would not)
             channel = self.session.get(f"{self.prefix}/{robot}/map", zenoh.handlers.FifoChannel(REPLY_CAPACITY),
-                                       timeout=QUERY_TIMEOUT)
+                                       timeout=FUSED_QUERY_TIMEOUT if robot == FUSED else QUERY_TIMEOUT)
         finally:
             self._call_done()
         with self._lock:
-            self._replies.append((channel, now))
+            self._replies.append((channel, now, robot))
         return True
 
     # -- the MapExchange protocol and what a fusion node reads ------------------------------------------------
