@@ -15,7 +15,13 @@ a sighting frame every 0.24 s: about 3000 poses and 8000 sightings at 12 minutes
 - ``self-calibration``: the joint solve of poses, landmarks and the camera's a, b₀, b₁, ψ
   (:func:`~estimation.landmark_smoother.solve_with_outlier_cut` with the calibration as extra unknowns) from the
   smoother's start, then the calibration's covariance and the marginal likelihood's gradient;
-- ``self-calibration-tape``: the same with a taped length and the odometry's translation scale (six extra unknowns).
+- ``self-calibration-tape``: the same with a taped length and the odometry's translation scale (six extra unknowns);
+- ``filter-id``: the FastSLAM filter (100 particles, FastSLAM 2.0) over the log as a range-bearing log with known
+  landmark ids (:func:`~estimation.dataset_slam.run_landmark_log`, ``association="id"``), what
+  :func:`~estimation.camera_calibration.self_calibrate` runs first for its start;
+- ``self-calibrate``: :func:`~estimation.camera_calibration.self_calibrate` whole (the filter, the joint solve, the
+  outlier cut, the covariance), its bearing σ given 2.5 times too small and the range's and the bearing's variance
+  components estimated (``noise_components``), as ``tests/estimation/test_camera_calibration.py`` runs it.
 
 With ``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree add /tmp/base d7e60e8``), every case runs
 ``--repeats`` times in both, alternately, so that the machine's load falls on both alike; the table gives the
@@ -45,7 +51,7 @@ sys.path.insert(0, CODE)
 
 from runtime.commands.options import positive_float, positive_int  # noqa: E402
 
-CASES = ("smooth", "smooth-drift", "self-calibration", "self-calibration-tape")
+CASES = ("smooth", "smooth-drift", "self-calibration", "self-calibration-tape", "filter-id", "self-calibrate")
 SEED = 3
 
 
@@ -87,6 +93,69 @@ def _simulated(minutes: float, seed: int = SEED):
     return problem, (a, b0, psi), posts, sensor
 
 
+def _simulated_log(minutes: float, seed: int = SEED):
+    """(a range-bearing log, its noise model) of the same kind of run as :func:`_simulated`, with odometry at 50 Hz
+    (the filter's and the self-calibration's input: they make their increments from it): a robot wandering among 15
+    posts, its odometry a random walk of variance 0.003 per metre and per radian, the camera's range such that
+    −0.08 + 0.97 r is the true one (σ 5 mm + 0.6 %), its bearing 0.01 rad off (σ 0.01 rad), a frame every 0.24 s."""
+    from estimation.datasets import RangeBearingLog
+    from estimation.geometry import between, dead_reckoning, wrap_angle
+    from estimation.noise_model import NoiseModel, OdometryNoise, RangeBearingNoise
+
+    rng = np.random.default_rng(seed)
+    dt, every, q = 0.02, 12, 0.003
+    n = int(minutes * 60 / dt) + 1
+    t = np.arange(n) * dt
+    heading = np.concatenate([[0.0], np.cumsum((0.25 + 0.4 * np.sin(t / 9.0))[:-1] * dt)])
+    speed = 0.25 + 0.1 * np.sin(t / 13.0)
+    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.cos(heading[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.sin(heading[:-1]) * dt)])
+    truth = np.column_stack([x, y, heading])
+    steps = between(truth[:-1], truth[1:])
+    d = np.hypot(steps[:, 0], steps[:, 1])
+    steps = steps + rng.normal(0, 1, steps.shape) * np.sqrt(q * np.column_stack([d, d, np.abs(steps[:, 2]) + d]))
+    posts = rng.uniform(-5, 5, (15, 2)) + truth[:, :2].mean(axis=0)
+    frames = np.arange(0, n, every)
+    delta = posts[None, :, :] - truth[frames, None, :2]
+    r = np.hypot(delta[..., 0], delta[..., 1])
+    phi = wrap_angle(np.arctan2(delta[..., 1], delta[..., 0]) - truth[frames, None, 2])
+    frame, post = np.nonzero((np.abs(phi) < 0.55) & (r > 0.6) & (r < 7.0))
+    sigma_r = 0.005 + 0.006 * r[frame, post]
+    ranges = (r[frame, post] + rng.normal(0, 1, len(frame)) * sigma_r + 0.08) / 0.97
+    bearings = phi[frame, post] + rng.normal(0, 0.01, len(frame)) + 0.01
+    log = RangeBearingLog("simulated", np.column_stack([t, dead_reckoning(steps)]), t[frames[frame]], ranges,
+                          bearings, (post + 1).astype(np.int64))
+    model = NoiseModel(OdometryNoise(q, q, q), RangeBearingNoise(0.005, 0.006, 0.01, fov_rad=1.2, max_range_m=8.0))
+    return log, model
+
+
+def _filter_case(case: str, minutes: float) -> dict:
+    """One timed run of ``filter-id`` or ``self-calibrate`` (see the module docstring)."""
+    import dataclasses
+
+    from estimation.camera_calibration import self_calibrate
+    from estimation.dataset_slam import run_landmark_log
+    from estimation.fastslam import FastSLAMConfig
+
+    log, model = _simulated_log(minutes)
+    if case == "filter-id":
+        began = time.perf_counter()
+        run = run_landmark_log(log, FastSLAMConfig(), np.random.default_rng(0), noise=model, association="id")
+        seconds = time.perf_counter() - began
+        return {"seconds": seconds, "iterations": len(run.estimated_trajectory),
+                "arrays": {"trajectory": run.estimated_trajectory, "positions": run.map.positions,
+                           "covariances": run.map.covariances}}
+    model = dataclasses.replace(model, range_bearing=dataclasses.replace(model.range_bearing,
+                                                                         bearing_sigma_rad=0.01 / 2.5))
+    began = time.perf_counter()
+    calibration = self_calibrate(log, model, noise_components=("range", "bearing"))
+    seconds = time.perf_counter() - began
+    return {"seconds": seconds, "iterations": calibration.iterations,
+            "arrays": {"values": calibration.values, "covariance": calibration.covariance,
+                       "map_values": calibration.map_values, "factors": calibration.noise_components.factors,
+                       "standard_errors": calibration.noise_components.standard_errors}}
+
+
 def _start(problem):
     from estimation.geometry import dead_reckoning
     from estimation.landmark_smoother import landmarks_from_first_sightings
@@ -105,6 +174,8 @@ def run_case(case: str, minutes: float) -> dict:
     from estimation import camera_calibration as cc
     from estimation.landmark_smoother import HeadingDrift, smooth, solve_with_outlier_cut
 
+    if case in ("filter-id", "self-calibrate"):
+        return _filter_case(case, minutes)
     problem, _, posts, sensor = _simulated(minutes)
     poses, landmarks = _start(problem)
     if case in ("smooth", "smooth-drift"):

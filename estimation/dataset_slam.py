@@ -221,15 +221,8 @@ def _load_true_landmarks(slam: FastSLAM, log: RangeBearingLog, true_start: np.nd
 def _observations(ranges: np.ndarray, bearings: np.ndarray, sensor, descriptors: np.ndarray,
                   timestamp: float) -> StereoObservations:
     """range_bearing_observations with each sighting's own σ_r (σ_r grows with the range)."""
-    if len(ranges) == 1:
-        return range_bearing_observations(ranges, bearings, float(sensor.range_sigma(ranges)[0]),
-                                          sensor.bearing_sigma_rad, descriptors, timestamp=timestamp)
-    parts = [range_bearing_observations(ranges[i:i + 1], bearings[i:i + 1], float(sigma), sensor.bearing_sigma_rad,
-                                        descriptors[i:i + 1], timestamp=timestamp)
-             for i, sigma in enumerate(sensor.range_sigma(ranges))]
-    return StereoObservations(np.concatenate([p.points for p in parts]),
-                              np.concatenate([p.covariances for p in parts]),
-                              np.concatenate([p.descriptors for p in parts]), np.zeros((0, 2)), timestamp)
+    return range_bearing_observations(ranges, bearings, sensor.range_sigma(ranges), sensor.bearing_sigma_rad,
+                                      descriptors, timestamp=timestamp)
 
 
 def _association_config(config: FastSLAMConfig, association: str) -> FastSLAMConfig:

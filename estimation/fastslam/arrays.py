@@ -56,6 +56,24 @@ def x_window_pairs(x: np.ndarray, rows: np.ndarray, half: np.ndarray) -> tuple[n
     return i[key], u[key]
 
 
+def is_in(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.isin(a, b) for integer arrays (the same booleans): ``b`` sorted once and ``a`` looked up in it, a few
+    calls instead of isin's merge of both arrays (a frame's (particle, slot) keys: isin was 8 % of the known-id
+    filter's time)."""
+    if len(b) == 0:
+        return np.zeros(np.shape(a), bool)
+    ordered = np.sort(b)
+    at = np.searchsorted(ordered, a)
+    return np.take(ordered, np.minimum(at, len(ordered) - 1)) == a
+
+
+def sorted_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.setdiff1d(a, b) for small integer arrays (the same: the values of ``a`` not in ``b``, unique and
+    ascending, ``a``'s dtype), through Python sets: a frame's few slots, where setdiff1d's sorts cost more."""
+    a = np.asarray(a)
+    return np.array(sorted(set(a.tolist()).difference(np.asarray(b).tolist())), dtype=a.dtype)
+
+
 def cos_sin(poses: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """cos θ, sin θ (P,) of poses[index]: computed once per particle (M) and gathered, not once per pair."""
     return np.cos(poses[:, 2])[index], np.sin(poses[:, 2])[index]
