@@ -230,7 +230,9 @@ class Mission:
         layout = None if cfg.recording_id else mission_blueprint(names)
         rec = open_recording(sink, recording_id=cfg.recording_id, blueprint=layout)
         # open_recording sent the layout (active); a writer that dies is said at once, the mission goes on
-        self.logger = MissionLog(rec, names, blueprint=False, on_recording_failure=self.warnings)
+        # one robot's process of a fleet's shared recording logs no fusion of its own: the fusion node's is the fleet's
+        self.logger = MissionLog(rec, names, blueprint=False, on_recording_failure=self.warnings,
+                                 records_fusion=cfg.recording_id is None or len(names) > 1)
         if world is not None:
             self.logger.log_building(world.walls, world.wall_heights)
 
