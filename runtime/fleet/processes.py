@@ -247,7 +247,7 @@ def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, ou
         value = getattr(args, key, None)
         if value is not None:
             command += [f"--{key.replace('_', '-')}", str(value)]
-    for flag in ("log_sensors", "realtime"):
+    for flag in ("log_sensors", "realtime", "smooth"):
         if getattr(args, flag, False):
             command.append(f"--{flag.replace('_', '-')}")
     return command
@@ -538,4 +538,7 @@ def _summary(args, summaries: dict, node: FusionNode, final, duration: float, ou
         "fusions_during_mission": max(0, len(node.history) - 1),
         "merged_map_file": None if final is None or final.merged is None else str(out / "fused.npz"),
         "recording": None if args.rerun != "file" else str(out / "mission.rrd"),
+        # --smooth: every robot process smoothed its map before its last publish (as the in-process mission says it)
+        **({"smoothed": all((r.get("smoothing") or {}).get("smoothed", False) for r in robots.values())}
+           if getattr(args, "smooth", False) else {}),
     }
