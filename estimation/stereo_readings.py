@@ -23,6 +23,10 @@ and is not the smoother's:
   (``observation_var_floor``) once more as an error shared by all of a landmark's readings (session 49: without it the
   landmarks' NEES fell to 68–94 % within χ²₃ 95 % on seeds 0, 5 and 6). Whatever cannot be smoothed raises
   :class:`SmoothingRefused` with one line saying why; the caller keeps the filter's map.
+- The smoothed map's ``metadata["self_check"]`` is the filter's own self-check re-run along the smoothed poses with
+  this association (:mod:`estimation.smoothed_self_check`); the filter's verdict is kept as ``filter_self_check``.
+  The fusion splits a map at its self-check's alarm, so a filter's false alarm that the smoothing answers no longer
+  costs the map (session 50: seeds 1 and 2's robot 1; seed 4's robot 1, truly lost, still flags).
 
 Session 49 (benchmarks/demo_smoothing.py, rendered demo seeds 0–9): the demo's final fusion on the smoothed maps was
 within 0.05 m / 0.01 rad on 8 of the 8 found seeds, none wrong (the filter's maps: 5 of 8).
@@ -39,6 +43,7 @@ from .fastslam.motion import increment_variance
 from .geometry import between
 from .landmark_map import LandmarkMap
 from .sighting_spread import sighting_covariances
+from .smoothed_self_check import SmoothedSelfCheckError, recheck_map, rechecked_metadata
 from .stereo_smoothing import StereoLogProblem, StereoSmoothingError, smooth
 
 # The cap on what a recorder keeps. Frames: the smoother's reduced system is a dense 3T × 3T matrix (T = 1000: 72 MB,
@@ -265,6 +270,14 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
         keep = sol.inliers
         m.sighting_covariances = sighting_covariances(m, times[f[keep]], readings.points[j[keep]],
                                                       exported.ids[lm[keep]])
+    # the map's self-check re-run along the smoothed poses with the smoothing's association (estimation.
+    # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
+    # that cannot be made leaves the filter's verdict, the cautious one
+    try:
+        m.metadata = rechecked_metadata(m.metadata, recheck_map(m, config, readings.points, readings.counts, f, j, lm,
+                                                                sol.inliers))
+    except SmoothedSelfCheckError:
+        pass
     figures = {"frames": int(len(times)), "readings": int(readings.counts.sum()), "associated": int(len(f)),
                "inliers": int(sol.inliers.sum()), "chi2_per_dof": float(sol.chi2_per_dof),
                "iterations": int(sol.iterations), "landmarks": len(exported), "held": int(held.sum()),

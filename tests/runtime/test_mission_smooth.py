@@ -57,6 +57,10 @@ def test_smooth_fuses_smoothed_maps_that_differ_from_the_filters_and_are_no_wors
         assert np.abs(smooth.positions - filt.positions).max() > 1e-4
         assert np.abs(smooth.trajectory[1:, 1:] - filt.trajectory[1:, 1:]).max() > 1e-4
         assert smooth.metadata["smoothed"]["inliers"] == figures["inliers"]
+        # the smoothed map carries its own self-check (the filter's re-run along the smoothed poses), the filter's too
+        assert smooth.metadata["filter_self_check"] == filt.metadata["self_check"]
+        assert smooth.metadata["self_check"]["frames"] == len(smooth.trajectory) - 1
+        assert smooth.metadata["self_check"]["lost"] is False
         assert _ate(out, smooth) <= _ate(out, filt)
         np.testing.assert_array_equal(result.maps[name].positions, smooth.positions)
         assert any(e.startswith(f"{name}: the final map is smoothed:") for e in events), events
