@@ -20,13 +20,7 @@ replays the logs to get the readings, which the mission keeps as it runs.
 
 Per robot: the sensor log is replayed through the onboard pipeline (``runtime.replay``'s loop: the live map is rebuilt
 bit for bit, which is checked against the folder's map), keeping each processed frame's observations and odometry.
-Associations: each frame's readings are re-associated to the filter's final exported map from the best particle's
-own pose at that frame (its trajectory, the ancestry), by the filter's rules: descriptor distance below
-``descriptor_threshold``, the squared Mahalanobis distance under the landmark's covariance in that particle (not the
-exported mixture + drift) plus the reading's rotated covariance below ``mahalanobis_gate``, each reading and each
-landmark used once a frame, nearest first. (Not the filter's own record of the ancestry's matches: those live in
-every particle and are renamed by merges and removals; the best particle's map and its poses are consistent with
-each other, so its gate finds the readings it was made from, and a wrong one is left to the smoother's robust loss.)
+Associations: ``estimation.stereo_readings.associate`` (its docstring says by which rules and why).
 Then ``estimation.stereo_smoothing.smooth`` (Cauchy, then cut at χ²₃ 99 %) from the filter's trajectory and map,
 pose 0 fixed; the smoothed map keeps the filter's ids, descriptors, counts and metadata, with the smoothed positions,
 their marginal covariances, the smoothed trajectory, each landmark's drift (the smoothed pose's marginal where it was
