@@ -25,9 +25,11 @@ a sighting frame every 0.24 s: about 3000 poses and 8000 sightings at 12 minutes
 
 With ``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree add /tmp/base d7e60e8``), every case runs
 ``--repeats`` times in both, alternately, so that the machine's load falls on both alike; the table gives the
-median seconds of each, their ratio, and whether the two solutions agree: the largest relative difference over every
-array of the solution (poses, landmarks, covariances, calibration; 0: to the bit) and the iterations. Without it, the
-medians of this checkout alone.
+median seconds of each (``--clock``: the timed process's CPU time by default; the wall clock of a shared machine is
+mostly the waits for a core: at load 15 in session 50 the wall times were 4-10 times the CPU's, and a 2.1x ratio of
+wall medians was 1.08x in CPU time), their ratio, and whether the two solutions agree: the largest relative
+difference over every array of the solution (poses, landmarks, covariances, calibration; 0: to the bit) and the
+iterations. Without it, the medians of this checkout alone.
 """
 from __future__ import annotations
 
@@ -93,6 +95,16 @@ def _simulated(minutes: float, seed: int = SEED):
     return problem, (a, b0, psi), posts, sensor
 
 
+def _clocks() -> tuple[float, float]:
+    """(wall, CPU) clocks now: a case's time is read on both (:func:`_since`)."""
+    return time.perf_counter(), time.process_time()
+
+
+def _since(began: tuple[float, float]) -> tuple[float, float]:
+    """(wall seconds, CPU seconds of this process) since :func:`_clocks` gave ``began``."""
+    return time.perf_counter() - began[0], time.process_time() - began[1]
+
+
 def _simulated_log(minutes: float, seed: int = SEED):
     """(a range-bearing log, its noise model) of the same kind of run as :func:`_simulated`, with odometry at 50 Hz
     (the filter's and the self-calibration's input: they make their increments from it): a robot wandering among 15
@@ -139,18 +151,18 @@ def _filter_case(case: str, minutes: float) -> dict:
 
     log, model = _simulated_log(minutes)
     if case == "filter-id":
-        began = time.perf_counter()
+        began = _clocks()
         run = run_landmark_log(log, FastSLAMConfig(), np.random.default_rng(0), noise=model, association="id")
-        seconds = time.perf_counter() - began
-        return {"seconds": seconds, "iterations": len(run.estimated_trajectory),
+        seconds, cpu = _since(began)
+        return {"seconds": seconds, "cpu": cpu, "iterations": len(run.estimated_trajectory),
                 "arrays": {"trajectory": run.estimated_trajectory, "positions": run.map.positions,
                            "covariances": run.map.covariances}}
     model = dataclasses.replace(model, range_bearing=dataclasses.replace(model.range_bearing,
                                                                          bearing_sigma_rad=0.01 / 2.5))
-    began = time.perf_counter()
+    began = _clocks()
     calibration = self_calibrate(log, model, noise_components=("range", "bearing"))
-    seconds = time.perf_counter() - began
-    return {"seconds": seconds, "iterations": calibration.iterations,
+    seconds, cpu = _since(began)
+    return {"seconds": seconds, "cpu": cpu, "iterations": calibration.iterations,
             "arrays": {"values": calibration.values, "covariance": calibration.covariance,
                        "map_values": calibration.map_values, "factors": calibration.noise_components.factors,
                        "standard_errors": calibration.noise_components.standard_errors}}
@@ -180,10 +192,10 @@ def run_case(case: str, minutes: float) -> dict:
     poses, landmarks = _start(problem)
     if case in ("smooth", "smooth-drift"):
         drift = HeadingDrift(0.05, 20.0, 0.05) if case == "smooth-drift" else None
-        began = time.perf_counter()
+        began = _clocks()
         solution = smooth(problem, poses, landmarks, heading_drift=drift)
-        seconds = time.perf_counter() - began
-        return {"seconds": seconds, "iterations": solution.iterations, "arrays": _arrays(solution)}
+        seconds, cpu = _since(began)
+        return {"seconds": seconds, "cpu": cpu, "iterations": solution.iterations, "arrays": _arrays(solution)}
     # the self-calibration's solve: from the plain smoother's solution, as self_calibrate starts from the filter's
     start = smooth(problem, poses, landmarks)
     poses, landmarks = start.poses.copy(), start.landmarks.copy()
@@ -197,14 +209,14 @@ def run_case(case: str, minutes: float) -> dict:
     shape = cc._Shape(sensor, problem.ranges, problem.bearings, problem.range_sigmas, free, lengths, scale)
     c = given.copy()
     inliers = np.ones(len(problem.ranges), bool)
-    began = time.perf_counter()
+    began = _clocks()
     iterations, converged = solve_with_outlier_cut(problem, poses, landmarks, inliers, extra=shape, extra_values=c)
     seen = np.zeros(len(landmarks), bool)
     seen[problem.landmark_index[inliers]] = True
     covariance = cc._calibration_covariance(problem, shape, poses, landmarks, c, inliers, seen)
     gradient = cc._log_det_gradient(problem, shape, poses, landmarks, c, inliers, seen, covariance)
-    seconds = time.perf_counter() - began
-    return {"seconds": seconds, "iterations": iterations,
+    seconds, cpu = _since(began)
+    return {"seconds": seconds, "cpu": cpu, "iterations": iterations,
             "arrays": {"poses": poses, "landmarks": landmarks, "values": c, "covariance": covariance,
                        "gradient": gradient, "inliers": inliers.astype(float), "converged": np.array([converged])}}
 
@@ -216,8 +228,9 @@ def _child(case: str, minutes: float, out: Path) -> None:
     print(json.dumps(result))
 
 
-def _in_process(root: Path, case: str, minutes: float, folder: Path) -> tuple[float, int, dict]:
-    """(seconds, iterations, arrays) of one run of ``case`` with the code of checkout ``root``, in a fresh process."""
+def _in_process(root: Path, case: str, minutes: float, folder: Path, clock: str = "cpu") -> tuple[float, int, dict]:
+    """(seconds on ``clock``, iterations, arrays) of one run of ``case`` with the code of checkout ``root``, in a
+    fresh process."""
     out = folder / f"{hashlib.sha1(f'{root}{case}'.encode()).hexdigest()[:12]}.npz"
     env = {**os.environ, "SOLVER_SPEED_CODE": str(root), "OPENBLAS_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", case, "--minutes", str(minutes),
@@ -226,7 +239,8 @@ def _in_process(root: Path, case: str, minutes: float, folder: Path) -> tuple[fl
         raise RuntimeError(f"{case} in {root}: {done.stderr.strip().splitlines()[-1:]}")
     result = json.loads(done.stdout.strip().splitlines()[-1])
     with np.load(out) as arrays:
-        return result["seconds"], result["iterations"], {k: arrays[k].astype(float) for k in arrays.files}
+        return (result["cpu" if clock == "cpu" else "seconds"], result["iterations"],
+                {k: arrays[k].astype(float) for k in arrays.files})
 
 
 def _largest_difference(a: dict, b: dict) -> float:
@@ -252,6 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=positive_float, default=12.0, metavar="MINUTES",
                         help="the simulated log's length (minutes of driving; a sighting frame every 0.24 s)")
     parser.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, of {', '.join(CASES)}")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
+                        help="the seconds compared: the timed process's CPU time (the default: one thread, and on a "
+                             "shared machine the wall clock mostly times the waits for a core) or the wall clock")
     parser.add_argument("--child", choices=CASES, help=argparse.SUPPRESS)
     parser.add_argument("--child-out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -265,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.baseline is not None and not (args.baseline / "estimation" / "landmark_smoother.py").is_file():
         parser.error(f"--baseline: {args.baseline} is not a checkout of this repository")
     roots = [ROOT] + ([args.baseline.resolve()] if args.baseline is not None else [])
-    print(f"{args.minutes:g}-minute simulated log, {args.repeats} runs of each case per checkout, medians (s)")
+    print(f"{args.minutes:g}-minute simulated log, {args.repeats} runs of each case per checkout, medians "
+          f"({'CPU' if args.clock == 'cpu' else 'wall'} s)")
     header = f"{'case':24s} {'this':>8s}"
     if len(roots) == 2:
         header += f" {'baseline':>9s} {'ratio':>6s}  {'iterations':>10s}  largest relative difference"
@@ -276,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
             outputs: dict[Path, tuple[int, dict]] = {}
             for _ in range(args.repeats):
                 for root in roots:
-                    seconds, iterations, arrays = _in_process(root, case, args.minutes, Path(folder))
+                    seconds, iterations, arrays = _in_process(root, case, args.minutes, Path(folder), args.clock)
                     times[root].append(seconds)
                     outputs[root] = (iterations, arrays)
             medians = [statistics.median(times[root]) for root in roots]
