@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import compose
+from ..geometry import compose, rot_z
 from .config import FastSLAMConfig
 
 TURN_CURVATURE_RAD_PER_M = 2.0   # an increment turning this much per metre (or more) is part of a turn
@@ -67,15 +67,12 @@ def sample_motion(poses: np.ndarray, delta: np.ndarray, variance: np.ndarray,
 def motion_jacobians(poses: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """J_a, J_b (M, 3, 3): the Jacobians of the composition poses ⊕ delta by the poses (M, 3) and by ``delta`` (3,)."""
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    # both filled in place (the identity's ones, R_z(θ)'s entries: geometry.rot_z's numbers), not tiled and stacked:
-    # the filter builds them twice a frame, for 1 and for M poses, where the stacking cost more than the products
+    # the identity filled in, not tiled: the filter builds these twice a frame, for 1 and for M poses
     ja = np.zeros((len(poses), 3, 3))
     ja[:, 0, 0] = ja[:, 1, 1] = ja[:, 2, 2] = 1.0
     ja[:, 0, 2] = -s * delta[0] - c * delta[1]
     ja[:, 1, 2] = c * delta[0] - s * delta[1]
-    jb = np.zeros((len(poses), 3, 3))
-    jb[:, 0, 0], jb[:, 0, 1], jb[:, 1, 0], jb[:, 1, 1], jb[:, 2, 2] = c, -s, s, c, 1.0
-    return ja, jb
+    return ja, rot_z(poses[:, 2])
 
 
 def propagate_covariance(poses: np.ndarray, cov: np.ndarray, delta: np.ndarray,
