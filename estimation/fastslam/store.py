@@ -203,9 +203,8 @@ class LandmarkStore:
     def put_state(self, slots: np.ndarray, rows: np.ndarray) -> None:
         """flat_state[slots] = rows (L, 9), one 72-byte record per slot (a 1-D scatter of records is several
         times faster than fancy assignment of rows)."""
-        record = _RECORD if self.state.dtype == np.float64 else np.dtype((np.void, 9 * self.state.itemsize))
-        np.put(self.state.reshape(-1, 9).view(record).ravel(), slots,
-               np.ascontiguousarray(rows, self.state.dtype).view(record).ravel())
+        np.put(self.state.reshape(-1, 9).view(_RECORD).ravel(), slots,
+               np.ascontiguousarray(rows, self.state.dtype).view(_RECORD).ravel())
 
     # flat views (slot index = block * block_size + slot)
     @property
