@@ -40,10 +40,10 @@ import numpy as np
 
 from .fastslam import FastSLAMConfig
 from .fastslam.motion import increment_variance
-from .geometry import between
+from .geometry import between, rot_z
 from .landmark_map import LandmarkMap
 from .sighting_spread import sighting_covariances
-from .smoothed_self_check import SmoothedSelfCheckError, recheck_map, rechecked_metadata
+from .smoothed_self_check import SmoothedSelfCheckError, recheck_smoothed, rechecked_metadata
 from .stereo_smoothing import StereoLogProblem, StereoSmoothingError, smooth
 
 # The cap on what a recorder keeps. Frames: the smoother's reduced system is a dense 3T × 3T matrix (T = 1000: 72 MB,
@@ -165,8 +165,7 @@ def associate(readings: StereoReadings, trajectory: np.ndarray, exported: Landma
         if a == b:
             continue
         x, y, th = trajectory[k + 1, 1:]
-        c, s = np.cos(th), np.sin(th)
-        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        R = rot_z(th)
         z = readings.points[a:b]
         q = config.observation_cov_scale * readings.covariances[a:b] + config.observation_var_floor * eye
         world = z @ R.T + np.array([x, y, 0.0])
@@ -229,7 +228,7 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     if not len(f):
         raise SmoothingRefused(f"none of the {int(readings.counts.sum())} readings kept matches the filter's map")
     odo, times = readings.odometry, readings.times
-    inc = np.array([between(odo[k], odo[k + 1]) for k in range(len(odo) - 1)])
+    inc = between(odo[:-1], odo[1:])
     var = increment_variance(inc, config, np.maximum(np.diff(times), 0.0))
     q = config.observation_cov_scale * readings.covariances[j] + config.observation_var_floor * np.eye(3)
     poses0 = trajectory[1:, 1:].copy()
@@ -270,19 +269,19 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
         keep = sol.inliers
         m.sighting_covariances = sighting_covariances(m, times[f[keep]], readings.points[j[keep]],
                                                       exported.ids[lm[keep]])
-    # the map's self-check re-run along the smoothed poses with the smoothing's association (estimation.
-    # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
-    # that cannot be made leaves the filter's verdict, the cautious one
-    try:
-        m.metadata = rechecked_metadata(m.metadata, recheck_map(m, config, readings.points, readings.counts, f, j, lm,
-                                                                sol.inliers))
-    except SmoothedSelfCheckError:
-        pass
     figures = {"frames": int(len(times)), "readings": int(readings.counts.sum()), "associated": int(len(f)),
                "inliers": int(sol.inliers.sum()), "chi2_per_dof": float(sol.chi2_per_dof),
                "iterations": int(sol.iterations), "landmarks": len(exported), "held": int(held.sum()),
                "associate_s": t_assoc, "smooth_s": t_smooth}
-    return SmoothedMap(m, figures, f, j, lm, sol.inliers)
+    smoothed = SmoothedMap(m, figures, f, j, lm, sol.inliers)
+    # the map's self-check re-run along the smoothed poses with the smoothing's association (estimation.
+    # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
+    # that cannot be made leaves the filter's verdict, the cautious one
+    try:
+        m.metadata = rechecked_metadata(m.metadata, recheck_smoothed(smoothed, readings, config))
+    except SmoothedSelfCheckError:
+        pass
+    return smoothed
 
 
 __all__ = ["MAX_FRAMES", "MAX_READINGS", "ReadingsRecorder", "SmoothedMap", "SmoothingRefused", "StereoReadings",
