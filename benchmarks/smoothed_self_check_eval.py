@@ -6,14 +6,14 @@ caches robotN-replay.npz + .map.npz and links to the TUM files):
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.smoothed_self_check_eval ROOT/demo0 ... [--out DIR]
 
-Per robot: the replay cache is smoothed again with ``estimation.stereo_readings.smoothed_map`` (the association and
-the inlier cut, checked to give the folder's smoothed map), the self-check re-run on it
-(``estimation.smoothed_self_check.recheck_map``), and both verdicts, the filter's (the map's
-``metadata["self_check"]``) and the re-run's, printed beside the truth: the smoothed trajectory's heading error
-against ``<robot>-truth.tum``, its median over the 10 s before the (first) alarm's onset and over the frames after the
-alarm, the largest change between the two, and its rms over the run. A map is lost by the truth when the two medians
-differ by more than ``LOST_HEADING`` (0.05 rad): on these maps the healthy flagged ones differ by ≤ 3 mrad, seed 4's
-robot 1 (which lost its frame) by 96–138 mrad.
+Per robot: the replay cache is smoothed again with ``estimation.stereo_readings.smoothed_map`` (the association and the
+inlier cut, checked to give the folder's smoothed map), which re-runs the self-check on it
+(``estimation.smoothed_self_check``), and both verdicts, the filter's (the folder's map's ``filter_self_check``, or its
+``self_check`` when smoothed before session 50) and the re-run's, printed beside the truth: the smoothed trajectory's
+heading error against ``<robot>-truth.tum``, its median over the 10 s before the (first) alarm's onset and over the
+frames after the alarm, the largest change between the two, and its rms over the run. A map is lost by the truth when
+the two medians differ by more than ``LOST_HEADING`` (0.05 rad): on these maps the healthy flagged ones differ by ≤ 3
+mrad, seed 4's robot 1 (which lost its frame) by 96–138 mrad.
 
 Per seed: the demo's final fusion (``runtime.fusion_report.fuse_maps``, robust, default_rng(seed): the generator
 that reproduced the demo's own final alignment in session 49), with the filter's verdict and with the re-run's: found,
@@ -89,7 +89,7 @@ def fusion(maps: dict, seed: int) -> dict:
 
 def run(folders: list[Path], out: Path | None) -> list[dict]:
     from estimation.landmark_map import LandmarkMap
-    from estimation.smoothed_self_check import recheck_map, rechecked_metadata
+    from estimation.smoothed_self_check import FILTER_KEY, rechecked_metadata
     from estimation.stereo_readings import smoothed_map
 
     rows = []
@@ -102,9 +102,9 @@ def run(folders: list[Path], out: Path | None) -> list[dict]:
             saved = LandmarkMap.load(folder / f"{name}.npz")
             same = (np.allclose(sm.landmark_map.positions, saved.positions, atol=1e-9)
                     and np.allclose(sm.landmark_map.trajectory, saved.trajectory, atol=1e-9))
-            verdict = recheck_map(saved, config, readings.points, readings.counts, sm.frames, sm.readings, sm.rows,
-                                  sm.inliers)
-            filt = saved.metadata.get("self_check")
+            verdict = sm.landmark_map.metadata["self_check"]   # smoothed_map re-runs the self-check
+            # the filter's verdict: kept beside the re-run's in a folder smoothed since session 50, alone before
+            filt = saved.metadata.get(FILTER_KEY, saved.metadata.get("self_check"))
             t, e = heading_error(folder, saved)
             robots[name] = {"filter": filt, "rerun": verdict, "same_smoothing": bool(same),
                             "truth_filter": truth_at(t, e, filt["alarms"][0] if filt and filt["lost"] else None),
