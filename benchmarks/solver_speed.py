@@ -57,6 +57,18 @@ CASES = ("smooth", "smooth-drift", "self-calibration", "self-calibration-tape", 
 SEED = 3
 
 
+def _wander(minutes: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(times (n,), true poses (n, 3)) every ``dt`` s: the robot of both simulated runs, turning at 0.25 + 0.4 sin(t/9)
+    rad/s and driving at 0.25 + 0.1 sin(t/13) m/s from the origin."""
+    n = int(minutes * 60 / dt) + 1
+    t = np.arange(n) * dt
+    heading = np.concatenate([[0.0], np.cumsum((0.25 + 0.4 * np.sin(t / 9.0))[:-1] * dt)])
+    speed = 0.25 + 0.1 * np.sin(t / 13.0)
+    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.cos(heading[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.sin(heading[:-1]) * dt)])
+    return t, np.column_stack([x, y, heading])
+
+
 def _simulated(minutes: float, seed: int = SEED):
     """(problem (raw ranges and bearings, the camera's given calibration the identity), the true range calibration's
     (a, b₀, ψ), true landmarks (15, 2), the sensor): a robot wandering among 15 posts; odometry a random walk of
@@ -68,13 +80,7 @@ def _simulated(minutes: float, seed: int = SEED):
 
     rng = np.random.default_rng(seed)
     dt, every = 0.02, 12
-    n = int(minutes * 60 / dt) + 1
-    t = np.arange(n) * dt
-    heading = np.concatenate([[0.0], np.cumsum((0.25 + 0.4 * np.sin(t / 9.0))[:-1] * dt)])
-    speed = 0.25 + 0.1 * np.sin(t / 13.0)
-    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.cos(heading[:-1]) * dt)])
-    y = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.sin(heading[:-1]) * dt)])
-    truth = np.column_stack([x, y, heading])[::every]
+    truth = _wander(minutes, dt)[1][::every]
     steps = between(truth[:-1], truth[1:])
     d = np.hypot(steps[:, 0], steps[:, 1])
     q = 0.003
@@ -116,13 +122,8 @@ def _simulated_log(minutes: float, seed: int = SEED):
 
     rng = np.random.default_rng(seed)
     dt, every, q = 0.02, 12, 0.003
-    n = int(minutes * 60 / dt) + 1
-    t = np.arange(n) * dt
-    heading = np.concatenate([[0.0], np.cumsum((0.25 + 0.4 * np.sin(t / 9.0))[:-1] * dt)])
-    speed = 0.25 + 0.1 * np.sin(t / 13.0)
-    x = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.cos(heading[:-1]) * dt)])
-    y = np.concatenate([[0.0], np.cumsum(speed[:-1] * np.sin(heading[:-1]) * dt)])
-    truth = np.column_stack([x, y, heading])
+    t, truth = _wander(minutes, dt)
+    n = len(t)
     steps = between(truth[:-1], truth[1:])
     d = np.hypot(steps[:, 0], steps[:, 1])
     steps = steps + rng.normal(0, 1, steps.shape) * np.sqrt(q * np.column_stack([d, d, np.abs(steps[:, 2]) + d]))
