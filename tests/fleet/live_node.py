@@ -13,6 +13,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
+# the entities a fleet's fusion is drawn and read on: the fusion node's alone (a robot process records none)
+NODE_ENTITIES = ("fusion/", "maps/fused", "world/fused", "map/fused", "plots/fusion")
+
+
+class ManualClock:
+    """A node's wall clock that stands still until the test sets ``now``."""
+
+    def __init__(self, now: float = 0.0) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
 def p3at(*args: str, **kwargs) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "runtime.cli", *args], cwd=ROOT, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)}, **kwargs)

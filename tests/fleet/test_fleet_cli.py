@@ -22,7 +22,7 @@ pytest.importorskip("zenoh")
 from estimation.landmark_map import LandmarkMap  # noqa: E402
 from runtime.fleet.processes import free_port  # noqa: E402
 from runtime.fleet.zenoh_exchange import ZenohExchange  # noqa: E402
-from tests.fleet.live_node import ROOT, endpoint, p3at, stopped_after_first_fusion  # noqa: E402
+from tests.fleet.live_node import NODE_ENTITIES, ROOT, endpoint, p3at, stopped_after_first_fusion  # noqa: E402
 from tests.runtime.rerun_helpers import entity_columns  # noqa: E402
 
 pytestmark = pytest.mark.timeout(180)
@@ -97,11 +97,10 @@ def test_demo_processes_prints_the_mission_summary_with_an_alignment_scored_agai
     contents = read_recording(tmp_path / "mission.rrd")
     assert {"robot1", "robot2", "fused"} <= set(contents.maps)
     # a robot process records its own map, never a fusion of its own on the node's entities (the node's is the fleet's)
-    fusion_roots = ("fusion/", "maps/fused", "world/fused", "map/fused", "plots/fusion")
     for robot in ("robot1", "robot2"):
         entities = entity_columns(tmp_path / robot / "mission.rrd")
         assert f"maps/{robot}" in entities, sorted(entities)
-        assert [e for e in entities if e.startswith(fusion_roots)] == [], robot
+        assert [e for e in entities if e.startswith(NODE_ENTITIES)] == [], robot
 
 
 def test_p3at_run_publishes_its_health_once_a_second_under_its_name(tmp_path):

@@ -10,6 +10,7 @@ from runtime.exchange import InProcessExchange
 from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
 from runtime.fleet.synthetic import SyntheticRobot
 from runtime.report import fusion_event_line
+from tests.fleet.live_node import ManualClock
 
 
 def _fuse(m1: LandmarkMap, m2: LandmarkMap, final: bool = False):
@@ -68,19 +69,11 @@ def test_a_reason_on_several_lines_is_printed_on_one():
     assert fusion_event_line(12.4, pair) == "fusion at t=12s: b does not overlap a yet: first second third"
 
 
-class _Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def test_a_live_found_is_a_candidate_until_a_fusion_an_interval_later_on_grown_maps_agrees():
     """fusion/confirmation.py through the node: found once is said as a candidate with its supports and pose; the
     same maps again confirm nothing; grown maps too soon confirm nothing; grown maps an interval later do."""
     robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
-    exchange, lines, clock = InProcessExchange(), [], _Clock()
+    exchange, lines, clock = InProcessExchange(), [], ManualClock()
     node = FusionNode(exchange, FusionNodeConfig(interval=10.0), on_event=lines.append, clock=clock)
 
     def grow_and_fuse(at: float, grow: bool = True):

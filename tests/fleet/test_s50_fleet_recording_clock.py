@@ -17,24 +17,11 @@ from runtime.rerun_log import NO_FUSION_YET, MissionLog
 from runtime.rerun_read import read_recording
 from runtime.rerun_sink import open_recording
 from runtime.rerun_style import FUSION_STATUS
+from tests.fleet.live_node import NODE_ENTITIES, ManualClock
 from tests.runtime.rerun_helpers import entity_columns, entity_rows, viewer_state
 
 NS = 1_000_000_000
 FLEET = "fleet-s50"
-# the entities a fleet's fusion is drawn and read on: the node's alone
-NODE_ENTITIES = ("fusion/", "maps/fused", "world/fused", "map/fused", "plots/fusion")
-
-
-class _Clock:
-    """The node's wall clock, set by the test."""
-
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 def _maps():
     """Two overlapping robots' maps (the same synthetic building seen from two starts)."""
     return (SyntheticRobot("robot1", 0, landmarks=200, grow=200).step(),
@@ -48,7 +35,7 @@ def _times(rrd, entity: str) -> list[float]:
 def _node_file(path, stamps: list[dict[str, float]], wall: list[float]):
     """A fusion node's file: at each step the robots named publish their map at the stamp given (their own mission
     clock), and the node (its own clock at ``wall``) fuses. Returns the node's reports."""
-    exchange, clock = InProcessExchange(), _Clock()
+    exchange, clock = InProcessExchange(), ManualClock(1000.0)
     logger = MissionLog(open_recording(str(path), recording_id=FLEET), [])
     node = FusionNode(exchange, FusionNodeConfig(), logger=logger, clock=clock)
     maps = dict(zip(("robot1", "robot2"), _maps(), strict=True))
@@ -122,7 +109,7 @@ def test_a_candidates_earlier_fusion_is_named_on_the_nodes_clock_in_the_recordin
     before'."""
     rrd = tmp_path / "mission.rrd"
     robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
-    exchange, clock = InProcessExchange(), _Clock()
+    exchange, clock = InProcessExchange(), ManualClock(1000.0)
     logger = MissionLog(open_recording(str(rrd), recording_id=FLEET), [])
     node = FusionNode(exchange, FusionNodeConfig(interval=10.0), logger=logger, clock=clock)
     lines = []
