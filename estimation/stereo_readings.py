@@ -7,7 +7,8 @@ and is not the smoother's:
 - :class:`ReadingsRecorder`: each processed frame's time, odometry pose and readings (points, covariances,
   descriptors, pixels), kept within a stated cap (:data:`MAX_FRAMES`, :data:`MAX_READINGS`). Past the cap it drops
   what it kept and keeps nothing more (``overflow`` says why): the smoother's reduced system is dense in the frames
-  (3T × 3T), and a prefix of the run smoothed beside the filter's later poses would be no one map.
+  (3T × 3T), and a prefix of the run smoothed beside the filter's later poses would be no one map. With a
+  :class:`KeyframeRule` it keeps only keyframes (below), so that the cap is one of distance travelled, not of time.
 - :func:`associate`: each frame's readings re-associated to the filter's final exported map from the best particle's
   own pose at that frame (its trajectory, the ancestry), by the filter's rules: descriptor distance below
   ``descriptor_threshold``, the squared Mahalanobis distance under the landmark's covariance in that particle (not the
@@ -30,9 +31,40 @@ and is not the smoother's:
 
 Session 49 (benchmarks/demo_smoothing.py, rendered demo seeds 0–9): the demo's final fusion on the smoothed maps was
 within 0.05 m / 0.01 rad on 8 of the 8 found seeds, none wrong (the filter's maps: 5 of 8).
+
+*Keyframes* (session 51; ``ReadingsRecorder(keyframes=KeyframeRule(), config=...)``, off by default). As mature
+smoothers do (RTAB-Map's linear/angular update of 0.1 m / 0.1 rad, ORB-SLAM's "the frame tracks too few of the
+reference keyframe's points"), a frame's readings are kept when, since the last kept frame, its odometry pose moved
+``distance`` (0.1 m) or turned ``angle`` (0.1 rad), or fewer than ``overlap`` (half) of its readings have a reading of
+the last keyframe within the filter's ``descriptor_threshold`` in descriptor space (it sees what the last keyframe did
+not: a doorway passed, a corner turned by little motion). The first frame is always kept (the map's origin); a
+frame without readings is never kept by the view. Decided online, frame by frame; besides the kept rows the recorder
+holds the last frame's odometry pose and time, the last keyframe's descriptors and a 3 × 3 covariance.
+
+The odometry between keyframes is their odometry poses' increment (exactly the frames' increments composed), with
+the covariance of that composition under the filter's own motion model: each frame's increment independent, with
+``motion.increment_variance``'s diagonal variances in its start frame, composed to first order
+(:func:`compose_increment`; what FastSLAM's ``sample_motion`` draws frame after frame, and what the chain of
+per-frame odometry factors gives once the poses between are marginalised). Checked, not assumed, against one
+increment over the whole: the model is a random walk in the distance *driven* and the angle *turned* (each frame's
+|Δθ|), not in the net increment, and the heading's errors carry into later positions. So along a straight line or
+on the spot the x and θ variances are one increment's over the total (plus the floor once a frame); y gains
+Σ var_θk · r_k² (lateral error growing as distance³) and a y-θ covariance; a path back and forth or a wiggle costs
+the distance and angle driven (on the demo's logs the one-increment variance would be up to 480 times too small in x
+where a robot jittered in place, 8.8 times in θ). ``tests/estimation/test_stereo_keyframes.py`` checks the
+composition against the chain's Jacobian on random paths and against the filter's own sampling. The smoother's
+odometry factors are diagonal, so :func:`smoothed_map` passes the composed diagonal and leaves out the x-θ and y-θ
+covariances: on the demo's logs with the default rule |ρ_yθ| is at most 0.27 (95 % below 0.07), |ρ_xθ| below 0.02.
+
+:func:`smoothed_map` then takes the filter's trajectory at the keyframes (``StereoReadings.frame_index``) and gives
+the smoothed map a trajectory at every frame again (the fusion's colocation test interpolates trajectories only
+between rows 0.5 s apart): a frame between keyframes is the filter's pose moved by the smoothing's correction
+(the map-frame transform from the filter's pose to the smoothed one) interpolated in time between the keyframes
+around it. The self-check re-run walks the keyframes, whose readings it has.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -40,10 +72,10 @@ import numpy as np
 
 from .fastslam import FastSLAMConfig
 from .fastslam.motion import increment_variance
-from .geometry import between, rot_z
+from .geometry import between, compose, interpolate_poses, inverse, rot_z
 from .landmark_map import LandmarkMap
 from .sighting_spread import sighting_covariances
-from .smoothed_self_check import SmoothedSelfCheckError, recheck_smoothed, rechecked_metadata
+from .smoothed_self_check import SmoothedSelfCheckError, recheck_map, recheck_smoothed, rechecked_metadata
 from .stereo_smoothing import StereoLogProblem, StereoSmoothingError, smooth
 
 # The cap on what a recorder keeps. Frames: the smoother's reduced system is a dense 3T × 3T matrix (T = 1000: 72 MB,
@@ -73,6 +105,10 @@ class StereoReadings:
     covariances: np.ndarray
     descriptors: np.ndarray
     pixels: np.ndarray
+    frame_index: np.ndarray | None = None             # (T,) each kept frame's index among the frames the recorder
+    #                                                   was given (keyframes); None: every frame was kept
+    increment_covariances: np.ndarray | None = None   # (T − 1, 3, 3) the composed odometry increments' covariances
+    #                                                   (keyframes); None: one increment a frame, by the filter's model
 
     @property
     def frames(self) -> int:
@@ -84,18 +120,72 @@ class StereoReadings:
         return np.r_[0, np.cumsum(self.counts)].astype(np.int64)
 
 
-class ReadingsRecorder:
-    """Each processed frame's readings, within :data:`MAX_FRAMES` and :data:`MAX_READINGS` (module docstring)."""
+@dataclass(frozen=True)
+class KeyframeRule:
+    """Which frames' readings a :class:`ReadingsRecorder` keeps when given one (module docstring, *Keyframes*): the
+    first frame, then a frame whose odometry pose is ``distance`` m or more from the last kept frame's, or turned
+    ``angle`` rad or more from it, or whose readings the last kept frame's readings match (descriptor distance below
+    ``descriptor_threshold``, None: the filter's) fewer than ``overlap`` of (a share, 0–1; 0: never by the view)."""
 
-    def __init__(self, descriptor_size: int, max_frames: int | None = None, max_readings: int | None = None) -> None:
+    distance: float = 0.1
+    angle: float = 0.1
+    overlap: float = 0.5
+    descriptor_threshold: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("distance", "angle"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"KeyframeRule.{name} must be finite and > 0, not {v}")
+        if not (math.isfinite(self.overlap) and 0.0 <= self.overlap <= 1.0):
+            raise ValueError(f"KeyframeRule.overlap must be a share in [0, 1], not {self.overlap}")
+        if self.descriptor_threshold is not None and not (math.isfinite(self.descriptor_threshold)
+                                                          and self.descriptor_threshold > 0.0):
+            raise ValueError(f"KeyframeRule.descriptor_threshold must be finite and > 0, not "
+                             f"{self.descriptor_threshold}")
+
+
+def compose_increment(covariance: np.ndarray, so_far: np.ndarray, step: np.ndarray,
+                      step_variance: np.ndarray) -> np.ndarray:
+    """(3, 3) the covariance of ``so_far ⊕ step`` to first order: ``so_far`` (3,) an increment with ``covariance``
+    (3, 3), ``step`` (3,) the next one with independent diagonal ``step_variance`` (3,) in its own start frame (the
+    filter's motion model: each frame's increment drawn with its own variances and composed, motion.sample_motion)."""
+    c, s = math.cos(so_far[2]), math.sin(so_far[2])
+    dx, dy = float(step[0]), float(step[1])
+    j_prev = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    j_step = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return j_prev @ covariance @ j_prev.T + (j_step * np.asarray(step_variance, float)) @ j_step.T
+
+
+class ReadingsRecorder:
+    """Each processed frame's readings, within :data:`MAX_FRAMES` and :data:`MAX_READINGS` (module docstring).
+
+    ``keyframes`` (a :class:`KeyframeRule`, None: every frame) keeps only the keyframes' readings, the odometry
+    between them composed with its covariance under ``config``'s motion model (a ``FastSLAMConfig``, needed then);
+    the caps then count keyframes. The decision is online, frame by frame; what it holds besides the kept rows is
+    the last frame's odometry pose and time, the last keyframe's descriptors and the composed covariance."""
+
+    def __init__(self, descriptor_size: int, max_frames: int | None = None, max_readings: int | None = None, *,
+                 keyframes: KeyframeRule | None = None, config: FastSLAMConfig | None = None) -> None:
         self.descriptor_size = int(descriptor_size)
         self.max_frames = MAX_FRAMES if max_frames is None else int(max_frames)
         self.max_readings = MAX_READINGS if max_readings is None else int(max_readings)
+        if keyframes is not None and config is None:
+            raise ValueError("ReadingsRecorder: keyframes need the filter's config (its motion model composes the "
+                             "odometry between them)")
+        self.keyframes = keyframes
+        self.config = config
         self.overflow: str | None = None     # why nothing is kept (past the cap), None while it keeps
         self.frames_seen = 0
         self.readings_seen = 0
         self._rows: list[tuple] = []
         self._kept = 0
+        # keyframes: the last frame's odometry pose and time, the last keyframe's odometry pose and descriptors,
+        # the composed increment from it to the last frame and that increment's covariance
+        self._previous: tuple[float, np.ndarray] | None = None
+        self._key_pose = np.zeros(3)
+        self._key_descriptors = np.zeros((0, self.descriptor_size), np.float32)
+        self._covariance = np.zeros((3, 3))
 
     @property
     def frames(self) -> int:
@@ -106,12 +196,22 @@ class ReadingsRecorder:
         return self._kept
 
     def add(self, t: float, odometry_pose: np.ndarray, observations) -> bool:
-        """Keep one frame's readings (a ``StereoObservations``); False once past the cap (nothing is kept then)."""
+        """Keep one frame's readings (a ``StereoObservations``); False when the frame is not kept (not a keyframe,
+        or past the cap: nothing is kept then)."""
         n = len(observations)
+        index = self.frames_seen
         self.frames_seen += 1
         self.readings_seen += n
         if self.overflow is not None:
             return False
+        pose = np.asarray(odometry_pose, float).reshape(3).copy()
+        covariance = None
+        if self.keyframes is not None:
+            descriptors = np.asarray(observations.descriptors, np.float32).reshape(n, self.descriptor_size)
+            key = self._keyframe(float(t), pose, descriptors)
+            if not key:
+                return False
+            covariance = self._covariance
         if self.frames + 1 > self.max_frames or self._kept + n > self.max_readings:
             self.overflow = (f"past the smoothing's cap of {self.max_frames} frames and {self.max_readings} readings "
                              f"at frame {self.frames_seen} ({self.readings_seen} readings): the readings kept are "
@@ -119,13 +219,44 @@ class ReadingsRecorder:
             self._rows.clear()
             self._kept = 0
             return False
-        self._rows.append((float(t), np.asarray(odometry_pose, float).copy(), n,
-                           np.asarray(observations.points, float).reshape(n, 3).copy(),
-                           np.asarray(observations.covariances, float).reshape(n, 3, 3).copy(),
-                           np.asarray(observations.descriptors, np.float32).reshape(n, self.descriptor_size).copy(),
-                           np.asarray(observations.pixels, float).reshape(n, 2).copy()))
+        row = (float(t), pose, n,
+               np.asarray(observations.points, float).reshape(n, 3).copy(),
+               np.asarray(observations.covariances, float).reshape(n, 3, 3).copy(),
+               np.asarray(observations.descriptors, np.float32).reshape(n, self.descriptor_size).copy(),
+               np.asarray(observations.pixels, float).reshape(n, 2).copy())
+        if self.keyframes is not None:
+            row = row + (index, covariance)
+            self._key_pose = pose
+            self._key_descriptors = row[5]
+            self._covariance = np.zeros((3, 3))
+        self._rows.append(row)
         self._kept += n
         return True
+
+    def _keyframe(self, t: float, pose: np.ndarray, descriptors: np.ndarray) -> bool:
+        """Whether this frame is a keyframe (:class:`KeyframeRule`); composes the odometry's covariance since the
+        last keyframe up to it either way."""
+        previous, self._previous = self._previous, (t, pose)
+        if previous is None:
+            return True
+        rule, config = self.keyframes, self.config
+        t0, pose0 = previous
+        step = between(pose0, pose)
+        variance = increment_variance(step, config, max(t - t0, 0.0))
+        self._covariance = compose_increment(self._covariance, between(self._key_pose, pose0), step, variance)
+        moved = between(self._key_pose, pose)
+        if math.hypot(moved[0], moved[1]) >= rule.distance or abs(moved[2]) >= rule.angle:
+            return True
+        if not len(descriptors) or rule.overlap <= 0.0:
+            return False
+        if not len(self._key_descriptors):
+            return True
+        threshold = config.descriptor_threshold if rule.descriptor_threshold is None else rule.descriptor_threshold
+        a = descriptors.astype(np.float64)
+        b = self._key_descriptors.astype(np.float64)
+        d2 = np.einsum("ij,ij->i", a, a)[:, None] + np.einsum("ij,ij->i", b, b)[None, :] - 2.0 * a @ b.T
+        matched = np.count_nonzero(d2.min(axis=1) < threshold ** 2)
+        return matched < rule.overlap * len(descriptors)
 
     def readings_kept(self) -> StereoReadings:
         """What was kept, as arrays (raises SmoothingRefused past the cap)."""
@@ -133,13 +264,17 @@ class ReadingsRecorder:
             raise SmoothingRefused(self.overflow)
         rows = self._rows
         d = self.descriptor_size
-        return StereoReadings(np.array([r[0] for r in rows], float),
-                              np.array([r[1] for r in rows], float).reshape(-1, 3),
-                              np.array([r[2] for r in rows], np.int64),
-                              np.concatenate([r[3] for r in rows]) if rows else np.zeros((0, 3)),
-                              np.concatenate([r[4] for r in rows]) if rows else np.zeros((0, 3, 3)),
-                              np.concatenate([r[5] for r in rows]) if rows else np.zeros((0, d), np.float32),
-                              np.concatenate([r[6] for r in rows]) if rows else np.zeros((0, 2)))
+        out = StereoReadings(np.array([r[0] for r in rows], float),
+                             np.array([r[1] for r in rows], float).reshape(-1, 3),
+                             np.array([r[2] for r in rows], np.int64),
+                             np.concatenate([r[3] for r in rows]) if rows else np.zeros((0, 3)),
+                             np.concatenate([r[4] for r in rows]) if rows else np.zeros((0, 3, 3)),
+                             np.concatenate([r[5] for r in rows]) if rows else np.zeros((0, d), np.float32),
+                             np.concatenate([r[6] for r in rows]) if rows else np.zeros((0, 2)))
+        if self.keyframes is not None:
+            out.frame_index = np.array([r[7] for r in rows], np.int64)
+            out.increment_covariances = np.array([r[8] for r in rows[1:]], float).reshape(-1, 3, 3)
+        return out
 
 
 def associate(readings: StereoReadings, trajectory: np.ndarray, exported: LandmarkMap,
@@ -222,6 +357,13 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
         raise SmoothingRefused("the map's export with the particle's own covariances differs from the exported map")
     if not len(exported):
         raise SmoothingRefused("the filter's map holds no landmark")
+    full = trajectory
+    if readings.frame_index is not None:        # keyframes: the filter's rows at the frames kept
+        index = np.asarray(readings.frame_index, np.int64)
+        if len(index) != readings.frames or (len(index) and (index.min() < 0 or index.max() + 1 >= len(full))):
+            raise SmoothingRefused(f"the filter's trajectory has {len(full)} rows, too few for the keyframes kept "
+                                   f"(the last is frame {int(index.max()) if len(index) else -1})")
+        trajectory = np.vstack([full[:1], full[1:][index]])
     start = time.perf_counter()
     f, j, lm = associate(readings, trajectory, exported, particle_covariances, config)
     t_assoc = time.perf_counter() - start
@@ -229,7 +371,11 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
         raise SmoothingRefused(f"none of the {int(readings.counts.sum())} readings kept matches the filter's map")
     odo, times = readings.odometry, readings.times
     inc = between(odo[:-1], odo[1:])
-    var = increment_variance(inc, config, np.maximum(np.diff(times), 0.0))
+    if readings.increment_covariances is None:
+        var = increment_variance(inc, config, np.maximum(np.diff(times), 0.0))
+    else:   # keyframes: the composed increments' variances (their x-θ, y-θ covariances are left out: the smoother's
+        #     odometry factors are diagonal; module docstring, *Keyframes*)
+        var = np.diagonal(readings.increment_covariances, axis1=1, axis2=2).copy()
     q = config.observation_cov_scale * readings.covariances[j] + config.observation_var_floor * np.eye(3)
     poses0 = trajectory[1:, 1:].copy()
     if np.abs(poses0[0]).max() > 1e-9:
@@ -259,6 +405,9 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     drift_cov[ok] = sol.pose_covariances[first[ok]]
     drift_org[ok] = sol.poses[first[ok], :2]
     smoothed_trajectory = np.vstack([trajectory[:1], np.column_stack([times, sol.poses])])
+    key_trajectory = smoothed_trajectory
+    if readings.frame_index is not None:
+        smoothed_trajectory = _every_frame(full, readings.frame_index, sol.poses)
     meta = dict(exported.metadata)
     meta["smoothed"] = {"readings": int(len(f)), "inliers": int(sol.inliers.sum()),
                         "chi2_per_dof": sol.chi2_per_dof, "landmarks_held": int(held.sum())}
@@ -278,11 +427,32 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
     # that cannot be made leaves the filter's verdict, the cautious one
     try:
-        m.metadata = rechecked_metadata(m.metadata, recheck_smoothed(smoothed, readings, config))
+        if readings.frame_index is None:
+            verdict = recheck_smoothed(smoothed, readings, config)
+        else:   # along the keyframes, whose readings it has
+            key_map = m.subset(slice(None))
+            key_map.trajectory = key_trajectory
+            verdict = recheck_map(key_map, config, readings.points, readings.counts, f, j, lm, sol.inliers)
+        m.metadata = rechecked_metadata(m.metadata, verdict)
     except SmoothedSelfCheckError:
         pass
     return smoothed
 
 
-__all__ = ["MAX_FRAMES", "MAX_READINGS", "ReadingsRecorder", "SmoothedMap", "SmoothingRefused", "StereoReadings",
-           "associate", "smoothed_map"]
+def _every_frame(trajectory: np.ndarray, index: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """The smoothed trajectory at every frame the filter's ``trajectory`` (T + 1, 4) holds, from the keyframes'
+    smoothed ``poses`` (K, 3) at its frames ``index`` (K,): each frame is the filter's pose moved by the smoothing's
+    correction (the map-frame transform taking the filter's pose to the smoothed one), interpolated in time between
+    the keyframes around it (after the last: the last's). The keyframes' rows are their smoothed poses."""
+    out = np.asarray(trajectory, float).copy()
+    rows = out[1:]
+    key = rows[index]
+    correction = compose(poses, inverse(key[:, 1:]))
+    c = interpolate_poses(np.column_stack([key[:, 0], correction]), rows[:, 0])
+    rows[:, 1:] = compose(c, rows[:, 1:])
+    rows[index, 1:] = poses
+    return out
+
+
+__all__ = ["MAX_FRAMES", "MAX_READINGS", "KeyframeRule", "ReadingsRecorder", "SmoothedMap", "SmoothingRefused",
+           "StereoReadings", "associate", "compose_increment", "smoothed_map"]
