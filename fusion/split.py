@@ -54,6 +54,17 @@ misplaced part into the fused map, the worst output.
 
 Only the first alarm splits the map; later alarms measured against another gap are reported as not checked.
 
+One decision from the maps (session 51): every draw of a check (a part's alignment to another map, a part tested at
+the other part's transform) is seeded by the contents of the two maps it aligns (:func:`draw`), and ``p3at fuse``,
+a mission's fusion and the fleet's node all check through :func:`split_checks`, so the same maps get the same
+decision from each, whatever the order they are given in, the fusions before or the cache. Before, the mission drew
+from ``default_rng(k)`` of the flagged map's index and ``p3at fuse`` from a child of ``default_rng(0)``: on rendered
+demo seed 0's re-checked smoothed maps the mission kept only robot 1's part before its gap (1,120 landmarks merged)
+and ``p3at fuse`` used the map whole (1,718). The draws decide only where a test is marginal; there they still
+decide (one draw of the maps' content instead of one of the caller's): on seed 0's maps the part after the gap,
+tested at the other part's transform, gathers 7 supports where chance gives 0.1672 beyond 2 (200,000 decoys), and
+the significance 10⁻⁶ needs below 0.1691; the 95 % bound of 1,000 decoys is below it on 11 % of draws.
+
 A part made after the gap does not share its map's start: it is in the frame the map was in after it lost its place,
 so its alignment places that frame, and its difference from the true start poses (simulated maps) is the map's loss,
 not the alignment's error. A report scores only a whole map or the part made before the gap against the start poses
@@ -61,6 +72,7 @@ and says why not for the other (:meth:`SplitCheck.apart_from_start`, :func:`hold
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +86,7 @@ from .alignment import Alignment, align, align_at
 from .alignment_config import AlignmentConfig, resolve_preset
 from .cache import AlignmentCache
 from .errors import NoOverlapError
+from .fingerprint import map_fingerprint
 from .multi import MultiFusion, fuse_all, pairwise_alignments
 from .provenance import source_metadata
 
@@ -229,6 +242,17 @@ def _covariance(a: Alignment) -> np.ndarray:
     return np.asarray(cov, float) + 1e-12 * np.eye(3)
 
 
+def draw(first: LandmarkMap, second: LandmarkMap, test: str) -> np.random.Generator:
+    """The generator of one random draw of a split check (module docstring, *One decision from the maps*): seeded by
+    ``test`` ("align": a part aligned to another map; "at": a part tested at the other part's transform) and the
+    contents of the two maps it aligns (:func:`fusion.fingerprint.map_fingerprint`), so the draw depends on those maps
+    only, not on who asks, in which order, or after how many fusions."""
+    h = hashlib.blake2b(test.encode(), digest_size=8)
+    h.update(map_fingerprint(first))
+    h.update(map_fingerprint(second))
+    return np.random.default_rng(int.from_bytes(h.digest(), "little"))
+
+
 def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str | AlignmentConfig = "robust",
                 rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
                 later_gaps: int = 0, priors: dict | None = None) -> SplitCheck:
@@ -236,9 +260,9 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
     the flagged map's frame in the other's) and decide (module docstring). Where only one part aligns to a map, the
     other is tested at that part's transform (:func:`align_at`) before the two are compared.  ``priors`` {(i, j),
     i < j: fusion.prior.StartPrior}: both parts are in the flagged map's start frame, so its pair's prior applies to
-    each."""
+    each. ``rng``: None (the default), each alignment drawn from the two maps it aligns (:func:`draw`), so the check
+    is a function of the maps alone; a generator, its children in the order of the other maps."""
     config = resolve_preset(preset)
-    rng = np.random.default_rng(0) if rng is None else rng
     halves = split_map(maps[index], first_id)
     if len(halves[0]) and not len(halves[1]):   # every landmark made before the gap: nothing to split (docstring)
         parts = [PartCheck(name, len(h), used=True) for name, h in zip(PARTS, halves, strict=True)]
@@ -251,18 +275,20 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
     for name, part in zip(PARTS, halves, strict=True):
         check = PartCheck(name, len(part), too_small=len(part) < max(config.min_supports, 2))
         if not check.too_small:
-            for j, child in zip(others, rng.spawn(len(others)), strict=True):
+            children = rng.spawn(len(others)) if rng is not None else [draw(maps[j], part, "align") for j in others]
+            for j, child in zip(others, children, strict=True):
                 prior = _pair_prior(priors, j, index)
                 check.alignments[j] = (cache.align(maps[j], part, config, child, prior=prior) if cache is not None
                                        else align(maps[j], part, config, child, prior=prior))
         parts.append(check)
     result = SplitCheck(index, maps[index].robot, int(first_id), int(later_gaps), parts, _alarm_time(maps[index]),
                         tolerance=split_tolerance(config))
-    for j, child in zip(others, rng.spawn(len(others)), strict=True):
+    for j, child in zip(others, rng.spawn(len(others)) if rng is not None else [None] * len(others), strict=True):
         found = [p for p in parts if j in p.aligned_to]
         if len(found) == 1 and not (other := parts[1 - parts.index(found[0])]).too_small:
-            other.at_other[j] = align_at(maps[j], halves[parts.index(other)], found[0].alignments[j].pose, config,
-                                         child)
+            tested = halves[parts.index(other)]
+            other.at_other[j] = align_at(maps[j], tested, found[0].alignments[j].pose, config,
+                                         draw(maps[j], tested, "at") if child is None else child)
         pair = [p.alignments[j] if j in p.aligned_to else p.at_other.get(j) for p in parts]
         pair = [a if a is not None and a.found else None for a in pair]
         if all(a is not None for a in pair):
@@ -328,6 +354,18 @@ def _disagreement(check: SplitCheck) -> str:
             f"as one map: their covariances are too wide to establish that they agree")
 
 
+def split_checks(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", cache: AlignmentCache | None = None,
+                 priors: dict | None = None, split_ids: list[int | None] | None = None) -> list[SplitCheck]:
+    """:func:`check_split` of every map that flagged itself (``split_ids``: per map, where to split it or None; default
+    :func:`split_id` of each map, a malformed verdict read as none), each draw from the maps it aligns: the one call
+    of ``p3at fuse``, a mission's fusion and the fleet's node, so the same maps get the same decisions from all three
+    whatever their order, fusion history or cache (module docstring, *One decision from the maps*)."""
+    if split_ids is None:
+        split_ids = [_split_id_or_none(m) for m in maps]
+    return [check_split(maps, k, first, preset, None, cache, later_gaps(maps[k]), priors)
+            for k, first in enumerate(split_ids) if first is not None]
+
+
 @dataclass
 class CheckedFusion:
     """:func:`fuse_checked`'s result. ``fusion`` is the fusion used (of ``inputs``, the maps as merged: a split
@@ -365,7 +403,8 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     """:func:`fusion.fuse_all`, with every map that flagged itself checked by :func:`check_split` (``split_ids``:
     per map, where to split it or None; default :func:`split_id` of each map, a malformed verdict read as none).
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
-    aligned with ``check_rng`` (default: seeded 0), so a fusion whose flagged maps' parts agree is that fusion. A
+    aligned by :func:`split_checks` (each draw from the maps it aligns; with ``check_rng``, from its children), so a
+    fusion whose flagged maps' parts agree is that fusion. A
     fusion of parts rests on the alignments the decisions rested on (:func:`_piece_alignments`): the checks' and
     those of the maps as given; only pairs no decision judged (a map's two parts, parts of two flagged maps) are
     aligned again.
@@ -384,8 +423,9 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         whole = fuse_all(maps, preset, method, rng, reference, alignments, cache, **options)
     except NoOverlapError as e:
         message = str(e)
-    if checks is None:
-        check_rng = np.random.default_rng(0) if check_rng is None else check_rng
+    if checks is None and check_rng is None:
+        checks = split_checks(maps, preset, cache, priors, split_ids)
+    elif checks is None:
         flagged = [k for k, s in enumerate(split_ids) if s is not None]
         checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors)
                   for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]

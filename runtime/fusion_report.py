@@ -218,19 +218,11 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
 
 
 def _split_checks(ordered: list[LandmarkMap], preset: str, cache, priors: dict | None = None) -> list:
-    """fusion.split.check_split of every map that flagged itself (a malformed verdict is read as none)."""
-    from fusion.split import check_split, later_gaps, split_id
+    """fusion.split.split_checks: every map that flagged itself checked (a malformed verdict is read as none), each
+    draw from the maps it aligns, as ``p3at fuse`` checks them (not from the fusion's generator or its count)."""
+    from fusion.split import split_checks
 
-    checks = []
-    for k, m in enumerate(ordered):
-        try:
-            first = split_id(m)
-        except ValueError:
-            first = None
-        if first is not None:
-            checks.append(check_split(ordered, k, first, preset, np.random.default_rng(k), cache, later_gaps(m),
-                                      priors))
-    return checks
+    return split_checks(ordered, preset, cache, priors)
 
 
 def _with_checks(report: FusionReport, names: list[str], checks: list) -> FusionReport:

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from fusion import true_relative_pose
 from fusion.alignment import alignment_error_xy_theta
-from fusion.split import check_split, fuse_checked, split_id
+from fusion.split import fuse_checked, split_checks
 from runtime.fusion_report import fuse_maps, sigmas
 from runtime.report import alignment_status, alignment_text, format_summary, fusion_event_line
 from tests.fusion.test_fusion_split import KICK, _pair, _verdict
@@ -34,9 +34,10 @@ def _summary(report) -> dict:
 
 
 def _as_fuse_maps_fuses(m1, m2):
-    """fuse_checked of the two maps as ``fuse_maps`` runs it (the flagged map checked with the generator it gives map
-    1, the parts fused with their own): the fusion whose placement and evidence the pair reports."""
-    return fuse_checked([m1, m2], checks=[check_split([m1, m2], 1, split_id(m2), rng=np.random.default_rng(1))])
+    """fuse_checked of the two maps as ``fuse_maps`` runs it (the flagged map checked by fusion.split.split_checks,
+    each draw from the maps it aligns, since session 51; the parts fused with their own): the fusion whose placement
+    and evidence the pair reports."""
+    return fuse_checked([m1, m2], checks=split_checks([m1, m2]))
 
 
 def _after_only(sim):
