@@ -5,11 +5,15 @@ when new data has arrived (at most every ``min_period`` s, a burst of updates is
 ``interval`` s while anything changed, publishes the merged map on ``p3at/<fleet>/fused/map``, and logs maps,
 alignments and the fused map to Rerun. A robot that leaves keeps its last map in the fusion; a restarted node
 recovers every robot's map by query before its first fusion.
+
+Its decisions run on the robots' clock (:class:`RobotClock`: the maps' stamps, their mission time), as the
+single-process mission's run on mission time: a found is confirmed an ``interval`` of the robots' mapping later,
+whether the robots run in real time or in simulated time many times faster (``p3at demo --processes``).
 """
 from __future__ import annotations
 
 import argparse
-import re
+import math
 import sys
 import textwrap
 import threading
@@ -31,6 +35,84 @@ from runtime.report import alignment_text, fusion_event_line, start_prior_line
 FUSED = "fused"
 _SAY = threading.Lock()
 EXIT_NOTHING_TO_FUSE = 1   # p3at fuse --live: no two robots' maps ever came, so no fusion was made
+CLOCK_SLACK = 10.0         # s a robot's map may run ahead of the node's clock, whatever the wall time since it moved
+CLOCK_MAX_RATE = 50.0      # the robots' clock runs at most this many times the node's wall clock (simulated: 2-11x)
+CLOCK_LAG = 60.0           # s a robot's first map may lag the node's clock and still be taken at its own stamp
+
+
+class RobotClock:
+    """The fusion node's clock: the robots' mission time, read from their maps' stamps, never going back.
+
+    Each robot's map is placed on the node's clock at ``stamp + offset``, its robot's offset 0 unless the rules below
+    set one, and the clock is the newest of those (monotone). The rules, so that a map's stamp can neither throw the
+    clock forward nor hold it still:
+
+    - in step (a robot's next map: a later sequence, a stamp not before its last): the clock may move with it, by as
+      much as its stamp moved. A map that would put the clock more than ``CLOCK_SLACK + CLOCK_MAX_RATE x`` (wall time
+      since the clock last moved) ahead (a stamp far in the future: a hostile or broken sender, a clock reset
+      forward) is not taken: its robot is placed at the node's clock (its offset absorbs the jump) and counts from
+      there. One map can move the clock no further than that bound, so no stamp confirms every candidate at once.
+    - out of step (a stamp going back, a sequence going back: a restarted robot, a clock reset back): its robot is
+      placed at the node's clock and its next maps move it by their own progress, so a robot whose clock went back
+      never holds the node's still.
+    - a robot's first map: taken at its own stamp if it lies within ``CLOCK_LAG`` behind the clock and the bound
+      above ahead of it (robots started together are on one clock), else placed at the node's clock. The first
+      maps the node ever sees set the clock: the oldest of them, and each within ``CLOCK_LAG`` after it.
+    - a robot whose every stamp is 0 sends no time: its maps are timed by the node's own clock (the wall clock
+      since the node started) as they come. Stamps not finite or below 0 are not taken (the map is fused; it does
+      not move the clock).
+
+    So a robot of a real fleet (stamps in real time) and the simulated robots of ``p3at demo --processes`` (2-11x
+    real time) confirm on the same mission time as the single-process mission (docs/fleet.md).
+    """
+
+    def __init__(self, wall: Callable[[], float]) -> None:
+        self.wall = wall
+        self.t0 = wall()
+        self.now: float | None = None       # s, on the robots' clock; None before the first map
+        self.moved_at = self.t0             # the wall time it last moved (or started)
+        # robot -> (sequence, stamp as sent, stamp as timed (the node's clock for a robot that sends no time),
+        # offset, whether it sends no time)
+        self._robots: dict[str, tuple[int, float, float, float, bool]] = {}
+
+    def observe(self, messages: Mapping[str, MapMessage]) -> float:
+        """Take the maps' stamps in (each robot's latest; unchanged ones change nothing); the clock after them."""
+        wall = self.wall()
+        timed = {}
+        for robot, m in messages.items():
+            stamp = float(m.stamp)
+            prev = self._robots.get(robot)
+            if not math.isfinite(stamp) or stamp < 0 or (prev is not None and prev[:2] == (m.sequence, stamp)):
+                continue
+            silent = stamp == 0.0 and (prev is None or prev[4])
+            timed[robot] = (m.sequence, stamp, wall - self.t0 if silent else stamp, silent)
+        if not timed:
+            return self.clock_now()
+        if self.now is None:   # the first maps set the clock: the oldest, and each within CLOCK_LAG after it
+            start = min(t for _, _, t, _ in timed.values())
+            self.now = max(t for _, _, t, _ in timed.values() if t <= start + CLOCK_LAG)
+            self.moved_at = wall
+        base, ahead = self.now, CLOCK_SLACK + CLOCK_MAX_RATE * max(0.0, wall - self.moved_at)
+        newest = base
+        for robot, (sequence, stamp, t, silent) in sorted(timed.items()):
+            prev = self._robots.get(robot)
+            if prev is not None and sequence > prev[0] and t >= prev[2]:
+                offset = prev[3]                       # in step
+            elif prev is None and base - CLOCK_LAG <= t <= base + ahead:
+                offset = 0.0                           # a first map on the clock
+            else:
+                offset = base - t                      # out of step, or far off: placed at the node's clock
+            if t + offset > base + ahead:              # would throw the clock forward: not taken
+                offset = base - t
+            self._robots[robot] = (sequence, stamp, t, offset, silent)
+            newest = max(newest, t + offset)
+        if newest > self.now:
+            self.now, self.moved_at = newest, wall
+        return self.now
+
+    def clock_now(self) -> float:
+        """The clock (0 before the first map)."""
+        return 0.0 if self.now is None else self.now
 
 
 @dataclass(frozen=True)
@@ -63,18 +145,17 @@ class FusionNode:
         self.on_event = on_event or (lambda line: None)
         self.on_report = on_report or (lambda report: None)
         # alignments of maps unchanged since an earlier fusion; every fusion here is live (the maps keep growing), so
-        # a found is a candidate until a fusion an interval later agrees (fusion/confirmation.py)
+        # a found is a candidate until a fusion an interval later, on the robots' clock, agrees (fusion/confirmation.py)
         self.cache = alignment_cache(confirm_after=config.interval)
-        self.clock = clock
+        self.clock = clock                       # the node's wall clock: how long it runs, the robot clock's bounds
         self.t0 = clock()
+        self.robot_clock = RobotClock(clock)     # the fusions' time: the robots' mission clock (RobotClock)
         self.history: list[FusionReport] = []
         self.sources: dict[str, tuple] = {}      # robot -> (sequence, stamp) of its map in the last fusion
         self.priors = named_pair_priors(dict(config.starts), source=config.starts_source)
         self._priors_said: set[tuple[str, str]] = set()
         self.mapped: list[str] = []    # the robots whose map the node has held, in the order they first came
         self.saved: tuple[float, int] | None = None   # (t, landmarks) of the fused map last written to config.out
-        # the recording's time of the last fusion, on the robots' clock (recording_time)
-        self.recorded_at = 0.0
         self._logged: dict[str, tuple[int, float]] = {}   # robot -> (sequence, stamp) of its map last logged
         self._new_data = threading.Event()
 
@@ -84,18 +165,27 @@ class FusionNode:
             self._new_data.set()
 
     def run(self, stop: threading.Event) -> None:
+        """Fuse on new data once ``min_period`` s have passed since the last fusion, and every ``interval`` s, until
+        ``stop``: seconds of the robots' clock (:class:`RobotClock`, moved by the maps as they come) or of the node's
+        wall clock, whichever has passed more (so that robots whose clock stands still, done or sending no time, are
+        still fused). Waits on new data between (it spun until ``min_period`` had passed after each map before)."""
         cfg = self.config
-        last = -np.inf
+        last_wall = last_robot = -np.inf
+        pending = False
         while not stop.is_set():
-            waited = self._new_data.wait(timeout=min(cfg.interval, 0.2))
-            now = self.clock()
+            if self._new_data.wait(timeout=min(cfg.interval, 0.2)):
+                self._new_data.clear()
+                pending = True
+                self.robot_clock.observe(self.exchange.receive(excluding=FUSED))
             if stop.is_set():
                 break
-            due = now - last >= cfg.interval
-            if (waited and now - last >= cfg.min_period) or due:
-                self._new_data.clear()
+            wall, robots = self.clock(), self.robot_clock.clock_now()
+            since = max(wall - last_wall, robots - last_robot)
+            due = since >= cfg.interval
+            if (pending and since >= cfg.min_period) or due:
+                pending = False
                 if self.fuse_now() is not None or due:
-                    last = now
+                    last_wall, last_robot = wall, self.robot_clock.clock_now()
 
     def fuse_now(self, final: bool = False, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
         """Fuse if any robot's map changed since the last fusion; publish and log the result.  ``final``: the maps
@@ -108,16 +198,15 @@ class FusionNode:
             self.on_event(f"first map from {robot}: {len(messages[robot].landmark_map)} landmarks"
                           + ("; a fusion waits for another robot's map" if len(messages) < 2 else ""))
         sources = {r: (m.sequence, m.stamp) for r, m in messages.items()}
+        t = self.robot_clock.observe(messages)
         if len(messages) < 2 or sources == self.sources:
             return None
-        t = self.clock() - self.t0
-        recorded = self.recording_time(messages)
         maps = {r: m.landmark_map for r, m in messages.items()}
         self.cache.start_round(t)
         report = fuse_maps(maps, self.config.preset, self.config.method, t,
                            np.random.default_rng(self.config.seed + len(self.history)),
                            cache=self.cache.inner if final else self.cache, priors=self.priors)
-        self._say_priors(recorded, maps)
+        self._say_priors(t, maps)
         keep_latest_map(self.history, report)
         self.sources = sources     # after the history: whoever sees these sources also sees their report
         if report.merged is not None and any(p.aligned for p in report.pairs):
@@ -132,7 +221,7 @@ class FusionNode:
                     self.saved = (t, len(merged))
                 except MapFileError as exc:  # one its reader would refuse: the file keeps the last fused map
                     self.on_event(f"fused map not saved: {exc}")
-        self._log(recorded, t, messages, report)
+        self._log(t, messages, report)
         for pair in report.pairs:
             self.on_event(fusion_event_line(t, pair))
         self.on_report(report)
@@ -145,17 +234,6 @@ class FusionNode:
         self.sources = {}
         return self.fuse_now(final=True, replace=replace)
 
-    def recording_time(self, messages: Mapping[str, MapMessage]) -> float:
-        """The time a fusion of ``messages`` is recorded at: the newest stamp of the maps it fuses, on the clock the
-        robots record on (each map's stamp is its robot's mission time when it was made; ``p3at demo --processes``'s
-        robots run in simulated time, about 1.9 times the wall clock on the 2-core machine), never before the last
-        fusion's. The node's own clock (``t``: the fusion's report, its lines, the confirmation interval) stays the
-        wall clock; its recording stamped on it put the demo's final fusion (t = 75 s) mid-run of robots whose own
-        recordings end at 141 s, in the view that opens them together (session 50)."""
-        newest = max((float(m.stamp) for m in messages.values()), default=0.0)
-        self.recorded_at = max(self.recorded_at, newest)
-        return self.recorded_at
-
     def _say_priors(self, t: float, maps: dict) -> None:
         """Once per pair, when both its robots are first fused: the fusion is not blind to where they started."""
         for (a, b), prior in self.priors.items():
@@ -166,10 +244,9 @@ class FusionNode:
                 if self.logger is not None:
                     self.logger.log_event(t, line, "INFO")
 
-    def _log(self, t: float, node_t: float, messages: Mapping[str, MapMessage], report: FusionReport) -> None:
-        """The fusion at ``t`` (:meth:`recording_time`; ``node_t``: on the node's clock), and each robot's map it holds
-        at the time that robot made it (its stamp), once: its own process logs it at that time too, so the views of
-        both agree."""
+    def _log(self, t: float, messages: Mapping[str, MapMessage], report: FusionReport) -> None:
+        """The fusion at ``t`` (the robots' clock: :class:`RobotClock`), and each robot's map it holds at the time that
+        robot made it (its stamp), once: its own process logs it at that time too, so the views of both agree."""
         if self.logger is None:
             return
         for robot, m in messages.items():
@@ -177,25 +254,10 @@ class FusionNode:
                 self._logged[robot] = (m.sequence, m.stamp)
                 self.logger.log_map(robot, m.stamp, m.landmark_map)
         for pair in report.pairs:
-            result = pair.as_dict()
-            if isinstance(result.get("note"), str):
-                result["note"] = node_clock_note(result["note"], node_t)
             self.logger.log_alignment(t, pair.reference, pair.other, {
-                **result, "merged": 0 if report.merged is None else len(report.merged)})
+                **pair.as_dict(), "merged": 0 if report.merged is None else len(report.merged)})
         if report.merged is not None:
             self.logger.log_map(FUSED, t, report.merged)
-
-
-_EARLIER_FUSION = re.compile(r"the fusion at t=(\d+)s")
-
-
-def node_clock_note(note: str, node_t: float) -> str:
-    """A pair's note as the node's recording gives it: an earlier fusion it names (a candidate's confirmation:
-    fusion/confirmation.py, 'agrees with the fusion at t=22s, which is less than 20 s before') is at a time of the
-    node's own clock, on which the confirmation interval is counted, while the recording shows the fusion on the
-    robots' clock (:meth:`FusionNode.recording_time`): said so, with this fusion's time on that clock."""
-    return _EARLIER_FUSION.sub(lambda m: f"the fusion at t={m.group(1)}s of the node's clock (this one: "
-                                         f"t={node_t:.0f}s)", note, count=1)
 
 
 # -- p3at fuse --live ----------------------------------------------------------------------------------------

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from estimation.landmark_map import LandmarkMap
-from runtime.exchange import InProcessExchange
-from runtime.fleet.fusion_node import FusionNode, FusionNodeConfig
+from runtime.exchange import InProcessExchange, MapMessage
+from runtime.fleet.fusion_node import CLOCK_LAG, CLOCK_MAX_RATE, CLOCK_SLACK, FusionNode, FusionNodeConfig, RobotClock
 from runtime.fleet.synthetic import SyntheticRobot
 from runtime.report import fusion_event_line
 from tests.fleet.live_node import ManualClock
@@ -69,36 +69,131 @@ def test_a_reason_on_several_lines_is_printed_on_one():
     assert fusion_event_line(12.4, pair) == "fusion at t=12s: b does not overlap a yet: first second third"
 
 
-def test_a_live_found_is_a_candidate_until_a_fusion_an_interval_later_on_grown_maps_agrees():
-    """fusion/confirmation.py through the node: found once is said as a candidate with its supports and pose; the
-    same maps again confirm nothing; grown maps too soon confirm nothing; grown maps an interval later do."""
-    robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
-    exchange, lines, clock = InProcessExchange(), [], ManualClock()
-    node = FusionNode(exchange, FusionNodeConfig(interval=10.0), on_event=lines.append, clock=clock)
+class _Confirming:
+    """Two overlapping robots (the same building from two starts) and a live node confirming after 10 s, on a wall
+    clock the test sets: ``fuse(wall, stamps)`` publishes each robot's grown map at its stamp and fuses."""
 
-    def grow_and_fuse(at: float, grow: bool = True):
-        clock.now = at
-        if grow:
-            for r in robots:
-                exchange.publish(r.name, r.step())
+    def __init__(self) -> None:
+        self.robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
+        self.exchange, self.lines, self.clock = InProcessExchange(), [], ManualClock(1000.0)
+        self.node = FusionNode(self.exchange, FusionNodeConfig(interval=10.0), on_event=self.lines.append,
+                               clock=self.clock)
+
+    def fuse(self, wall: float, stamps: dict[str, float] | float | None):
+        """``stamps``: robot -> its map's stamp (a number: both robots'), None: the unchanged maps fused again."""
+        self.clock.now = 1000.0 + wall
+        if stamps is None:
+            self.node.sources = {}
         else:
-            node.sources = {}          # fuse the unchanged maps again
-        report = node.fuse_now()
-        return report.pairs[0], lines[-1]
+            for r in self.robots:
+                if not isinstance(stamps, dict) or r.name in stamps:
+                    self.exchange.publish(r.name, r.step(), stamp=stamps if not isinstance(stamps, dict)
+                                          else stamps[r.name])
+        report = self.node.fuse_now()
+        return report.pairs[0], self.lines[-1]
 
-    pair, line = grow_and_fuse(0.0)
+
+def test_a_live_found_is_confirmed_an_interval_later_on_the_robots_clock():
+    """fusion/confirmation.py through the node, on the robots' mission clock (their maps' stamps), as the mission
+    confirms on mission time: found once is said as a candidate with its supports and pose; the same maps again
+    confirm nothing; grown maps too soon confirm nothing; grown maps an interval of the robots' time later do. The
+    node's wall clock moves 0.1 s a fusion (robots in simulated time, many times faster): on it nothing would ever
+    be confirmed before the end (session 50: the demo's node confirmed nothing)."""
+    c = _Confirming()
+    pair, line = c.fuse(0.0, 5.0)
     assert not pair.aligned and pair.supports >= pair.required_supports > 0
-    assert line.startswith(f"fusion at t=0s: robot2 -> robot1 is a candidate, not yet found ({pair.supports} "
+    assert line.startswith(f"fusion at t=5s: robot2 -> robot1 is a candidate, not yet found ({pair.supports} "
                            "supports at (") and "no earlier fusion of these maps found it" in line
-    pair, line = grow_and_fuse(20.0, grow=False)
+    pair, line = c.fuse(0.1, None)
     assert not pair.aligned and "the maps have not changed since" in line
-    pair, line = grow_and_fuse(25.0)
-    assert not pair.aligned and "less than 10 s before" in line
-    pair, line = grow_and_fuse(40.0)
+    pair, line = c.fuse(0.2, 10.0)
+    assert not pair.aligned and "agrees with the fusion at t=5s, which is less than 10 s before" in line
+    pair, line = c.fuse(0.3, {"robot1": 20.0, "robot2": 19.0})
     assert pair.aligned and pair.error_xy < 0.1, pair.note
-    assert line.startswith("fusion at t=40s: robot2 -> robot1 (")
-    pair, line = grow_and_fuse(60.0)                  # found while each agrees with its run's first found
+    assert line.startswith("fusion at t=20s: robot2 -> robot1 (")
+    pair, line = c.fuse(0.4, 30.0)                  # found while each agrees with its run's first found
     assert pair.aligned
+
+
+def test_robots_that_send_no_time_are_timed_by_the_nodes_clock():
+    """Maps stamped 0 (a sender with no clock): the node's own clock times them as they come, so such a fleet still
+    confirms an interval of the node's time later (and not never)."""
+    c = _Confirming()
+    pair, line = c.fuse(0.0, 0.0)
+    assert not pair.aligned and line.startswith("fusion at t=0s: robot2 -> robot1 is a candidate")
+    pair, line = c.fuse(5.0, 0.0)
+    assert not pair.aligned and "less than 10 s before" in line
+    pair, line = c.fuse(20.0, 0.0)
+    assert pair.aligned and line.startswith("fusion at t=20s: robot2 -> robot1 (")
+
+
+def test_a_stamp_far_in_the_future_does_not_confirm_at_once():
+    """robot2's clock jumps 10^9 s forward (a hostile or broken sender): the node's clock does not follow it, so the
+    candidate stays a candidate; robot2's next maps move the clock by their own progress, and robot1's time, going on,
+    confirms an interval after the first found."""
+    c = _Confirming()
+    pair, _ = c.fuse(0.0, 5.0)
+    assert not pair.aligned
+    pair, line = c.fuse(1.0, {"robot1": 8.0, "robot2": 1e9})
+    assert not pair.aligned and "agrees with the fusion at t=5s, which is less than 10 s before" in line, line
+    assert line.startswith("fusion at t=8s: ")
+    pair, line = c.fuse(2.0, {"robot1": 12.0, "robot2": 1e9 + 4.0})    # in step with its own jumped clock
+    assert not pair.aligned and line.startswith("fusion at t=12s: ")
+    pair, line = c.fuse(3.0, {"robot1": 16.0, "robot2": 1e9 + 7.0})
+    assert pair.aligned and line.startswith("fusion at t=16s: robot2 -> robot1 (")
+
+
+def test_a_stamp_going_back_does_not_hold_the_nodes_clock_still():
+    """robot1 has finished (its map no longer changes) and robot2 restarts its clock from 0 (a restarted robot, a clock
+    reset): the node's clock goes on from where it was by robot2's progress, and confirms an interval later. Had the
+    node kept the newest stamp it received, it would wait for robot2's clock to pass 100 s."""
+    c = _Confirming()
+    pair, line = c.fuse(0.0, {"robot1": 90.0, "robot2": 100.0})
+    assert not pair.aligned and line.startswith("fusion at t=100s: robot2 -> robot1 is a candidate")
+    pair, line = c.fuse(1.0, {"robot2": 1.0})
+    assert not pair.aligned and line.startswith("fusion at t=100s: ")
+    pair, line = c.fuse(2.0, {"robot2": 6.0})
+    assert not pair.aligned and line.startswith("fusion at t=105s: ") and "less than 10 s before" in line
+    pair, line = c.fuse(3.0, {"robot2": 12.0})
+    assert pair.aligned and line.startswith("fusion at t=111s: robot2 -> robot1 (")
+
+
+def _messages(**stamps) -> dict:
+    """robot -> (sequence, stamp) as MapMessages (the clock reads nothing else)."""
+    return {r: MapMessage(r, q, s, None) for r, (q, s) in stamps.items()}
+
+
+def test_the_robot_clock_rules():
+    """RobotClock alone (docs/fleet.md): the newest plausible stamp, never back, jumps bounded, a robot placed on the
+    node's clock when its own is out of step."""
+    wall = ManualClock(50.0)
+    clock = RobotClock(wall)
+    assert clock.observe({}) == 0.0
+    # robots started together (on one clock) whose first maps come at once: the newest
+    assert clock.observe(_messages(robot1=(0, 120.8), robot2=(0, 141.0))) == 141.0
+    assert clock.observe(_messages(robot1=(1, 130.0), robot2=(0, 141.0))) == 141.0   # an older stamp: never back
+    # not finite, below 0: not taken
+    assert clock.observe(_messages(robot1=(2, float("nan")), robot2=(1, -5.0))) == 141.0
+    wall.now = 51.0   # a second later: a map may lead the clock by CLOCK_SLACK + CLOCK_MAX_RATE s at most
+    assert clock.observe(_messages(robot1=(3, 141.0 + CLOCK_SLACK + CLOCK_MAX_RATE + 1), robot2=(1, -5.0))) == 141.0
+    assert clock.observe(_messages(robot1=(4, 141.0 + CLOCK_SLACK + CLOCK_MAX_RATE + 4))) == 144.0  # from there on
+    wall.now = 52.0
+    assert clock.observe(_messages(robot2=(2, 170.0))) == 170.0    # robot2 in step, within the bound: taken
+    # a robot new to the node: on the clock if within CLOCK_LAG behind, else placed at it
+    assert clock.observe(_messages(robot3=(0, 170.0 - CLOCK_LAG + 1))) == 170.0
+    assert clock.observe(_messages(robot3=(1, 170.0 - CLOCK_LAG + 5))) == 170.0
+    assert clock.observe(_messages(robot4=(0, 3.0))) == 170.0
+    assert clock.observe(_messages(robot4=(1, 5.5))) == 172.5
+    # a first map far in the future starts the clock there; the others are placed on it and move it as they go
+    wall.now = 60.0
+    hostile = RobotClock(wall)
+    assert hostile.observe(_messages(robot1=(0, 1e12))) == 1e12
+    assert hostile.observe(_messages(robot2=(0, 10.0))) == 1e12
+    assert hostile.observe(_messages(robot2=(1, 12.0))) == 1e12 + 2.0
+    # a node's first maps far apart: the oldest sets the clock, one far after it is placed on it
+    split = RobotClock(wall)
+    assert split.observe(_messages(robot1=(0, 10.0), robot2=(0, 1e12))) == 10.0
+    assert split.observe(_messages(robot2=(1, 1e12 + 3.0))) == 13.0
 
 
 def test_the_final_fusion_is_decided_on_the_maps_alone():

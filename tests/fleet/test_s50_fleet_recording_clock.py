@@ -1,6 +1,7 @@
 """A fleet's recording on one clock (session 50, N): the fusion node logs each fusion at the newest snapshot time it
 fused (the robots' mission clock, which their own files are on), not on its own wall clock; and a robot process of the
 fleet's shared recording logs no fusion of its own on the node's entities, where the latest of either was shown.
+Since session 51 the node's decisions, lines and reports are on that clock too (runtime.fleet.fusion_node.RobotClock).
 
 Before: ``p3at demo --processes``'s node logged its final fusion at t = 18 s of its wall clock while the robots' files
 end at 141 s of simulated time, and robot2's own fusion at 141 s ("9 needed") was what the merged view's fusion
@@ -51,17 +52,17 @@ def _node_file(path, stamps: list[dict[str, float]], wall: list[float]):
 
 def test_the_nodes_fusions_are_recorded_at_the_newest_snapshot_time_they_fused(tmp_path):
     rrd = tmp_path / "mission.rrd"
-    # the robots run in simulated time, faster than the node's wall clock: 60 / 141 s of theirs at 10 s of the node's
-    reports = _node_file(rrd, [{"robot1": 60.0, "robot2": 141.0}, {"robot1": 150.0}, {"robot1": 20.0, "robot2": 30.0}],
+    # the robots run in simulated time, faster than the node's wall clock: 120.8 / 141 s of theirs at 10 s of the node's
+    reports = _node_file(rrd, [{"robot1": 120.8, "robot2": 141.0}, {"robot1": 150.0}, {"robot1": 20.0, "robot2": 30.0}],
                          [10.0, 12.0, 14.0])
     assert all(r is not None and r.merged is not None and r.pairs[0].aligned for r in reports)
-    # the node's own clock is still the fusion's (its lines, its reports, the confirmation interval)
-    assert [r.t for r in reports] == [10.0, 12.0, 14.0]
-    # recorded on the robots' clock: the newest stamp fused, never going back (robots restarted at 20 s / 30 s)
+    # the fusions' time (their lines, reports, the confirmation interval) is the robots' clock: the newest stamp fused,
+    # never going back (robots restarted at 20 s / 30 s: they go on from where the clock is)
+    assert [r.t for r in reports] == [141.0, 150.0, 150.0]
     for entity in ("maps/fused", "fusion/alignment/robot1_robot2", "world/fused/landmarks", "map/fused/landmarks"):
         assert _times(rrd, entity) == [141.0, 150.0, 150.0], entity
     # each robot's map once, at the time its robot made it (its own file has it at that time too)
-    assert _times(rrd, "maps/robot1") == [20.0, 60.0, 150.0]
+    assert _times(rrd, "maps/robot1") == [20.0, 120.8, 150.0]
     assert _times(rrd, "maps/robot2") == [30.0, 141.0]
     shown = viewer_state(rrd, "sim_time", [100 * NS, 141 * NS])[FUSION_STATUS]
     assert "fusion at t = 141 s" in str(shown[141 * NS]["TextDocument:text"][0])
@@ -102,26 +103,28 @@ def test_a_fleet_robots_own_fusion_stays_off_the_nodes_entities(tmp_path):
     assert FUSION_STATUS not in viewer_state(robot, "sim_time", [141 * NS])
 
 
-def test_a_candidates_earlier_fusion_is_named_on_the_nodes_clock_in_the_recording(tmp_path):
-    """The node confirms a found an interval later on its own clock (fusion/confirmation.py): in the recording, on the
-    robots' clock, the earlier fusion a candidate names is said to be a time of the node's clock, with this one's.
-    Before, at t = 52 s of the robots' clock the status read 'agrees with the fusion at t=22s, which is less than 20 s
-    before'."""
+def test_a_candidates_earlier_fusion_is_named_on_the_recordings_clock(tmp_path):
+    """The node confirms a found an interval later on the robots' clock (fusion/confirmation.py), the recording's: a
+    candidate's note names the earlier fusion at its time in the recording. Session 50 confirmed on the node's wall
+    clock, and said so in the recording ('agrees with the fusion at t=0s of the node's clock (this one: t=5s)' at
+    t = 52 s of the robots' clock); before that the note named a time the recording did not show."""
     rrd = tmp_path / "mission.rrd"
     robots = [SyntheticRobot(n, k, landmarks=300, grow=60) for k, n in enumerate(["robot1", "robot2"])]
     exchange, clock = InProcessExchange(), ManualClock(1000.0)
     logger = MissionLog(open_recording(str(rrd), recording_id=FLEET), [])
     node = FusionNode(exchange, FusionNodeConfig(interval=10.0), logger=logger, clock=clock)
     lines = []
-    for node_t, stamp in ((0.0, 20.0), (5.0, 52.0)):   # the robots' clock runs ahead of the node's
+    for node_t, stamp in ((0.0, 20.0), (0.5, 26.0)):   # the robots' clock runs ahead of the node's
         clock.now = 1000.0 + node_t
         for r in robots:
             exchange.publish(r.name, r.step(), stamp=stamp)
         report = node.fuse_now()
         lines.append(report.pairs[0].note)
     logger.close()
-    assert "agrees with the fusion at t=0s, which is less than 10 s before" in lines[1]   # its own lines: node time
-    status = str(viewer_state(rrd, "sim_time", [52 * NS])[FUSION_STATUS][52 * NS]["TextDocument:text"][0])
-    assert "(fusion at t = 52 s)" in status and "not yet aligned" in status
-    assert "agrees with the fusion at t=0s of the node's clock (this one: t=5s), which is less than 10 s before" \
-        in status
+    assert "agrees with the fusion at t=20s, which is less than 10 s before" in lines[1]
+    status = str(viewer_state(rrd, "sim_time", [26 * NS])[FUSION_STATUS][26 * NS]["TextDocument:text"][0])
+    assert "(fusion at t = 26 s)" in status and "not yet aligned" in status
+    assert "agrees with the fusion at t=20s, which is less than 10 s before" in status
+    assert "node's clock" not in status
+    earlier = str(viewer_state(rrd, "sim_time", [20 * NS])[FUSION_STATUS][20 * NS]["TextDocument:text"][0])
+    assert "(fusion at t = 20 s)" in earlier
