@@ -13,10 +13,12 @@ Key space under a fleet namespace ``p3at/<fleet>/``:
 
 Receiving never blocks Zenoh's threads, and Zenoh's threads never run Python: every subscriber, the liveliness
 subscriber, the queryables and the snapshot requests' replies use Zenoh's own channels (no Python callback, so no
-Python thread of zenoh's either). Two named threads of this module do the work: a pump drains the channels
-(raw bytes into a queue bounded in bytes, the oldest dropped first; liveliness; queries answered), and a worker
-decodes, validates and applies what is queued, so a slow decode never holds the channels. ``close`` (and, for an
-exchange left open, an exit hook that runs before the interpreter finalizes) stops and joins both before closing
+Python thread of zenoh's either). Named threads of this module do the work: a pump drains the channels
+(raw bytes into a queue bounded in bytes, the oldest dropped first; liveliness; queries handed on), a worker
+decodes, validates and applies what is queued, so a slow decode never holds the channels, and a replier answers the
+queries (at most REPLY_QUEUE waiting: the others stay in Zenoh's ring), so a reply that waits for room on a slow link
+(Zenoh's replies block: a fused map larger than the link's queue) never holds the pump. ``close`` (and, for an
+exchange left open, an exit hook that runs before the interpreter finalizes) stops and joins them before closing
 the session: a thread that enters a Python callback, or comes back from native code, while CPython 3.11
 finalizes is ended with pthread_exit, whose forced unwind through Zenoh's Rust frames aborts the process
 ("FATAL: exception not rethrown"). A message that cannot be used is dropped with a logged reason. The latest
@@ -77,6 +79,8 @@ CLOSE_TIMEOUT = 10.0                # s close() waits for its threads and for se
 POLL_INTERVAL = 0.05                # s between two looks at Zenoh's channels when idle: maps come every few s
 CHANNEL_CAPACITY = 1024             # samples a subscriber's ring holds between two looks (the oldest dropped)
 REPLY_CAPACITY = 256                # replies to one snapshot request (one per robot answering)
+REPLY_QUEUE = 64                    # queries waiting for the replier, at most (one per robot of a fleet of 64); more
+                                    # wait in their queryable's ring in Zenoh, which drops the oldest when it is full
 DROP_REPORT_INTERVAL = 30.0         # s: malformed messages are said once, then counted in one line at most this often
 STATUS_PRIORITY = zenoh.Priority.DATA_HIGH  # statuses: one step above the maps' DATA
 ACK_TIMEOUT = 20.0                  # s a robot's next map waits for the node to say it has the last, at most
@@ -277,6 +281,11 @@ class ZenohExchange:
         self._acking = False                     # a fusion node's acknowledgement has come: it acknowledges
         self._link_said: set[str] = set()        # own robots whose slow link has been said
         self._skipped: collections.Counter[str] = collections.Counter()   # own robot -> maps replaced unsent
+        # queries the pump has taken from Zenoh for the replier to answer: (own robot, Zenoh query), oldest first
+        self._queries: collections.deque[tuple[str, object]] = collections.deque()
+        self._queries_ready = threading.Condition(self._lock)
+        self.replies = 0                         # queries answered (with a map, or with none when there is none)
+        self.reply_failure: str | None = None    # why the replier ended before close(), if it did
         try:
             zenoh_config = make_config(config, role)
             lease = json.loads(zenoh_config.get_json("transport/link/tx/lease"))
@@ -303,6 +312,8 @@ class ZenohExchange:
         self._pump_thread = threading.Thread(target=self._pump_loop, name=f"zenoh-pump-{fleet}", daemon=True)
         self._worker = threading.Thread(target=self._work, name=f"zenoh-exchange-{fleet}", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name=f"zenoh-sender-{fleet}", daemon=True)
+        self._replier = threading.Thread(target=self._reply_loop, name=f"zenoh-replier-{fleet}", daemon=True)
+        self._replier.start()   # first: the pump hands queries on only to a replier that is alive
         self._pump_thread.start()
         self._worker.start()
         self._sender.start()
@@ -325,10 +336,11 @@ class ZenohExchange:
         with self._lock:
             self._closed = True
             self._wake.notify_all()
+            self._queries_ready.notify_all()
         self._stop.set()
         _OPEN.discard(self)
         deadline = time.monotonic() + CLOSE_TIMEOUT
-        for thread in (self._pump_thread, self._worker):
+        for thread in (self._pump_thread, self._worker, self._replier):
             if thread is not threading.current_thread():  # on_event/on_update may close it from these threads
                 thread.join(timeout=max(0.0, deadline - time.monotonic()))
                 if thread.is_alive():   # a user's hook that does not return: say so rather than hang the exit
@@ -534,6 +546,40 @@ class ZenohExchange:
             self._calls -= 1
             self._idle.notify_all()
 
+    def _reply_loop(self) -> None:
+        """The replier thread: answers the queries the pump hands on, oldest first, until close(). A reply may wait
+        in Zenoh for room on a slow link (replies block; after 5 s Zenoh closes that link): only this thread waits,
+        never the pump, so maps, statuses and joins keep coming. A bug in one answer is logged and the next is
+        answered; should the thread end all the same, it says so in one line and the exchange goes on without
+        answering (the askers' requests time out)."""
+        try:
+            while True:
+                with self._lock:
+                    while not self._queries and not self._closed:
+                        self._queries_ready.wait()
+                    if self._closed:
+                        left = list(self._queries)
+                        self._queries.clear()
+                        break
+                    robot, query = self._queries.popleft()
+                try:
+                    self._answer(robot, query)
+                    self.replies += 1
+                except zenoh.ZError as e:  # the asker or the session gone: nothing to answer
+                    log.debug("fleet exchange: could not answer a query for %s's map: %s", robot, zenoh_message(e))
+                except Exception:  # a bug must not end the answering; say so loudly
+                    log.exception("fleet exchange: unexpected error while answering a query for %s's map", robot)
+        except BaseException as e:   # noqa: BLE001 - the thread ends: said once, the exchange goes on without it
+            self.reply_failure = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+            log.error("fleet exchange: the reply thread ended (%s): this process answers no more snapshot requests; "
+                      "maps and statuses still come and go", self.reply_failure)
+            return
+        for _, query in left:   # close(): the askers' requests end now rather than at their timeout
+            try:
+                query.drop()
+            except Exception:  # noqa: BLE001 - the session is closing
+                pass
+
     def _answer(self, robot: str, query) -> None:
         try:
             with self._lock:
@@ -572,12 +618,19 @@ class ZenohExchange:
             own = [(robot, entry[2]) for robot, entry in self._own.items()]
             replies = list(self._replies)
         for robot, queryable in own:
-            for _ in range(CHANNEL_CAPACITY):
+            # handed on to the replier (a reply may wait for room on a slow link: not here), at most REPLY_QUEUE
+            # waiting; the rest stay in Zenoh's ring until there is room. A replier that has ended takes none
+            while self._replier.is_alive():
+                with self._lock:
+                    if len(self._queries) >= REPLY_QUEUE:
+                        break
                 query = queryable.try_recv()
                 if query is None:
                     break
                 came = True
-                self._answer(robot, query)
+                with self._lock:
+                    self._queries.append((robot, query))
+                    self._queries_ready.notify()
         for request in replies:
             channel, asked, _ = request
             for _ in range(REPLY_CAPACITY):
