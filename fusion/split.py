@@ -63,7 +63,10 @@ demo seed 0's re-checked smoothed maps the mission kept only robot 1's part befo
 and ``p3at fuse`` used the map whole (1,718). The draws decide only where a test is marginal; there they still
 decide (one draw of the maps' content instead of one of the caller's): on seed 0's maps the part after the gap,
 tested at the other part's transform, gathers 7 supports where chance gives 0.1672 beyond 2 (200,000 decoys), and
-the significance 10⁻⁶ needs below 0.1691; the 95 % bound of 1,000 decoys is below it on 11 % of draws.
+the significance 10⁻⁶ needs below 0.1691; the 95 % bound of 1,000 decoys is below it on 11 % of draws. The option
+``agreeing_draws`` (default 1) takes such a part as aligned at the other part's transform only when that many
+independent draws all find it: a marginal test then leans towards "disagree", as the significance does (above). On
+the demo's flagged maps (seeds 2 and 8; smoothed seeds 0, 4 and 8) 2 or 3 draws decide as one does.
 
 A part made after the gap does not share its map's start: it is in the frame the map was in after it lost its place,
 so its alignment places that frame, and its difference from the true start poses (simulated maps) is the map's loss,
@@ -72,6 +75,7 @@ and says why not for the other (:meth:`SplitCheck.apart_from_start`, :func:`hold
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass, field
 
@@ -255,13 +259,17 @@ def draw(first: LandmarkMap, second: LandmarkMap, test: str) -> np.random.Genera
 
 def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str | AlignmentConfig = "robust",
                 rng: np.random.Generator | None = None, cache: AlignmentCache | None = None,
-                later_gaps: int = 0, priors: dict | None = None) -> SplitCheck:
+                later_gaps: int = 0, priors: dict | None = None, agreeing_draws: int = 1) -> SplitCheck:
     """Split ``maps[index]`` at ``first_id``, align each part to every other map (each part as map 2: the pose of
     the flagged map's frame in the other's) and decide (module docstring). Where only one part aligns to a map, the
     other is tested at that part's transform (:func:`align_at`) before the two are compared.  ``priors`` {(i, j),
     i < j: fusion.prior.StartPrior}: both parts are in the flagged map's start frame, so its pair's prior applies to
     each. ``rng``: None (the default), each alignment drawn from the two maps it aligns (:func:`draw`), so the check
-    is a function of the maps alone; a generator, its children in the order of the other maps."""
+    is a function of the maps alone; a generator, its children in the order of the other maps. ``agreeing_draws``
+    (an option, default 1: one draw): a part tested at the other part's transform counts as aligned only when that
+    many independent draws of its chance supports all find it (module docstring, *One decision from the maps*)."""
+    if isinstance(agreeing_draws, bool) or not isinstance(agreeing_draws, int) or agreeing_draws < 1:
+        raise ValueError(f"agreeing_draws must be a whole number >= 1, not {agreeing_draws!r:.40}")
     config = resolve_preset(preset)
     halves = split_map(maps[index], first_id)
     if len(halves[0]) and not len(halves[1]):   # every landmark made before the gap: nothing to split (docstring)
@@ -287,8 +295,10 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
         found = [p for p in parts if j in p.aligned_to]
         if len(found) == 1 and not (other := parts[1 - parts.index(found[0])]).too_small:
             tested = halves[parts.index(other)]
-            other.at_other[j] = align_at(maps[j], tested, found[0].alignments[j].pose, config,
-                                         draw(maps[j], tested, "at") if child is None else child)
+            first = draw(maps[j], tested, "at") if child is None else child
+            generators = [first, *(draw(maps[j], tested, f"at {r}") for r in range(1, agreeing_draws))]
+            other.at_other[j] = _agreed([align_at(maps[j], tested, found[0].alignments[j].pose, config, g)
+                                         for g in generators])
         pair = [p.alignments[j] if j in p.aligned_to else p.at_other.get(j) for p in parts]
         pair = [a if a is not None and a.found else None for a in pair]
         if all(a is not None for a in pair):
@@ -308,6 +318,18 @@ def check_split(maps: list[LandmarkMap], index: int, first_id: int, preset: str 
         result.decision = "parts" if len(used) == 2 else (used[0] if used else "none")
     result.text = _text(result, [m.robot for m in maps], config.min_supports)
     return result
+
+
+def _agreed(tests: list[Alignment]) -> Alignment:
+    """One part's tests at the other part's transform on independent draws: the first when all agree, else the first
+    that did not find it, its reason saying on how many draws it was found (the decision does not hang on one)."""
+    missed = [a for a in tests if not a.found]
+    if not missed:
+        return tests[0]
+    if len(missed) == len(tests):
+        return missed[0]
+    return dataclasses.replace(missed[0], reason=f"{missed[0].reason}; found on {len(tests) - len(missed)} of "
+                                                 f"{len(tests)} draws of the chance supports, not on all")
 
 
 def _text(check: SplitCheck, names: list[str], min_supports: int) -> str:
@@ -355,14 +377,15 @@ def _disagreement(check: SplitCheck) -> str:
 
 
 def split_checks(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", cache: AlignmentCache | None = None,
-                 priors: dict | None = None, split_ids: list[int | None] | None = None) -> list[SplitCheck]:
+                 priors: dict | None = None, split_ids: list[int | None] | None = None,
+                 agreeing_draws: int = 1) -> list[SplitCheck]:
     """:func:`check_split` of every map that flagged itself (``split_ids``: per map, where to split it or None; default
     :func:`split_id` of each map, a malformed verdict read as none), each draw from the maps it aligns: the one call
     of ``p3at fuse``, a mission's fusion and the fleet's node, so the same maps get the same decisions from all three
     whatever their order, fusion history or cache (module docstring, *One decision from the maps*)."""
     if split_ids is None:
         split_ids = [_split_id_or_none(m) for m in maps]
-    return [check_split(maps, k, first, preset, None, cache, later_gaps(maps[k]), priors)
+    return [check_split(maps, k, first, preset, None, cache, later_gaps(maps[k]), priors, agreeing_draws)
             for k, first in enumerate(split_ids) if first is not None]
 
 
@@ -399,7 +422,8 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
                  rng: np.random.Generator | None = None, reference: int = 0,
                  alignments: dict[tuple[int, int], Alignment] | None = None, cache: AlignmentCache | None = None,
                  split_ids: list[int | None] | None = None, check_rng: np.random.Generator | None = None,
-                 checks: list[SplitCheck] | None = None, priors: dict | None = None, **options) -> CheckedFusion:
+                 checks: list[SplitCheck] | None = None, priors: dict | None = None, agreeing_draws: int = 1,
+                 **options) -> CheckedFusion:
     """:func:`fusion.fuse_all`, with every map that flagged itself checked by :func:`check_split` (``split_ids``:
     per map, where to split it or None; default :func:`split_id` of each map, a malformed verdict read as none).
     The maps as given are fused first with ``rng`` / ``alignments`` exactly as ``fuse_all`` would; the parts are
@@ -409,8 +433,9 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     those of the maps as given; only pairs no decision judged (a map's two parts, parts of two flagged maps) are
     aligned again.
     ``checks``: the flagged maps' :func:`check_split` results where the caller already has them (they are not
-    made again). ``priors`` {(i, j), i < j: fusion.prior.StartPrior}: start priors for the alignments (when not given),
-    the split checks and the fusion of the parts (a part is in its map's start frame).
+    made again); ``agreeing_draws``: :func:`check_split`'s option. ``priors`` {(i, j), i < j:
+    fusion.prior.StartPrior}: start priors for the alignments (when not given), the split checks and the fusion of the
+    parts (a part is in its map's start frame).
     Where no map overlaps the reference, ``fusion`` is None and ``message`` says why (``fuse_all``
     would raise :class:`NoOverlapError`); other errors of ``fuse_all`` are raised."""
     if split_ids is None:
@@ -424,10 +449,10 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
     except NoOverlapError as e:
         message = str(e)
     if checks is None and check_rng is None:
-        checks = split_checks(maps, preset, cache, priors, split_ids)
+        checks = split_checks(maps, preset, cache, priors, split_ids, agreeing_draws)
     elif checks is None:
         flagged = [k for k, s in enumerate(split_ids) if s is not None]
-        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors)
+        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors, agreeing_draws)
                   for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
     if not any(c.decision != "whole" for c in checks):
         return CheckedFusion(whole, list(maps), [(k, None) for k in range(len(maps))], checks, whole, message)

@@ -36,13 +36,14 @@ def _verdict(first_id: int) -> dict:
                         "expected": 15.0, "first_id_after_gap": int(first_id)}]}
 
 
-def _marginal_pair() -> tuple[LandmarkMap, LandmarkMap, int]:
+def _flagged_pair(seed: int = 0, sigma: float = 0.15) -> tuple[LandmarkMap, LandmarkMap, int]:
     """(robot 1's map, robot 2's flagged map, first id after its gap): 30 common landmarks made before the gap, 5
-    after it among 150 robot 1 never saw; positions to 0.15 m, so chance supports are not rare."""
+    after it among 150 robot 1 never saw. With the defaults (the marginal pair) positions to 0.15 m, so that chance
+    supports are not rare."""
     if str(_BENCHMARKS) not in sys.path:
         sys.path.insert(0, str(_BENCHMARKS))
     sim = importlib.import_module("fusion_sim")
-    m1, m2, common = sim.random_pair(35, 300, 150, [3.0, 1.0, 0.4], seed=0, sigma=0.15)
+    m1, m2, common = sim.random_pair(35, 300, 150, [3.0, 1.0, 0.4], seed=seed, sigma=sigma)
     shared = common[:, 1]
     m2 = m2.subset(np.r_[shared, np.setdiff1d(np.arange(len(m2)), shared)])   # the common ones made first
     m2.ids = np.arange(len(m2))
@@ -52,7 +53,7 @@ def _marginal_pair() -> tuple[LandmarkMap, LandmarkMap, int]:
 
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
-    m1, m2, first = _marginal_pair()
+    m1, m2, first = _flagged_pair()
     folder = tmp_path_factory.mktemp("one_decision")
     m1.save(folder / "robot1.npz")
     m2.save(folder / "robot2.npz")
@@ -119,3 +120,27 @@ def test_a_check_is_a_function_of_the_maps_alone(pair):
         for c in d["comparisons"]:
             c.pop("against")
     assert a == b
+
+
+def test_with_agreeing_draws_a_part_is_aligned_at_the_other_parts_transform_only_when_every_draw_finds_it(pair):
+    """The option ``agreeing_draws`` (default 1): on the marginal pair some of three draws of the chance supports find
+    the part after the gap at the other part's transform and some do not, so it is not aligned and the sentence says
+    so; where the part is clearly there (positions to 0.1 m: chance supports rarer) every draw finds it and the check
+    is the one-draw check."""
+    m1, m2, first, _ = pair
+    check = check_split([m1, m2], 1, first, agreeing_draws=3)
+    assert check.decision == "before" and check.parts[1].at_other[0].found is False
+    assert "draws of the chance supports, not on all" in check.text
+    assert "found on 0 of" not in check.text and "found on 3 of" not in check.text
+    c1, c2, first = _flagged_pair(seed=1, sigma=0.1)
+    one, three = (check_split([c1, c2], 1, first, agreeing_draws=r) for r in (1, 3))
+    assert three.parts[1].at_other[0].found and not three.parts[1].alignments[0].found   # tested there, and found
+    assert three.decision == "whole" and one.to_dict() == three.to_dict()
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, True, "2"])
+def test_agreeing_draws_must_be_a_whole_number_of_at_least_one(pair, bad):
+    m1, m2, first, _ = pair
+    with pytest.raises(ValueError, match="agreeing_draws must be a whole number >= 1") as raised:
+        check_split([m1, m2], 1, first, agreeing_draws=bad)
+    assert "\n" not in str(raised.value)
