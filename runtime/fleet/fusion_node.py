@@ -38,6 +38,7 @@ EXIT_NOTHING_TO_FUSE = 1   # p3at fuse --live: no two robots' maps ever came, so
 CLOCK_SLACK = 10.0         # s a robot's map may run ahead of the node's clock, whatever the wall time since it moved
 CLOCK_MAX_RATE = 50.0      # the robots' clock runs at most this many times the node's wall clock (simulated: 2-11x)
 CLOCK_LAG = 60.0           # s a robot's first map may lag the node's clock and still be taken at its own stamp
+LOOK_PERIOD = 0.2          # s: run() looks at the maps' stamps at most this often (each look copies the maps)
 
 
 class RobotClock:
@@ -170,16 +171,19 @@ class FusionNode:
         wall clock, whichever has passed more (so that robots whose clock stands still, done or sending no time, are
         still fused). Waits on new data between (it spun until ``min_period`` had passed after each map before)."""
         cfg = self.config
-        last_wall = last_robot = -np.inf
+        last_wall = last_robot = looked = -np.inf
         pending = False
         while not stop.is_set():
-            if self._new_data.wait(timeout=min(cfg.interval, 0.2)):
+            if self._new_data.wait(timeout=min(cfg.interval, LOOK_PERIOD)):
                 self._new_data.clear()
                 pending = True
-                self.robot_clock.observe(self.exchange.receive(excluding=FUSED))
             if stop.is_set():
                 break
-            wall, robots = self.clock(), self.robot_clock.clock_now()
+            wall = self.clock()
+            if pending and time.monotonic() - looked >= LOOK_PERIOD:   # the maps' stamps (copies): a few times a second
+                looked = time.monotonic()
+                self.robot_clock.observe(self.exchange.receive(excluding=FUSED))
+            robots = self.robot_clock.clock_now()
             since = max(wall - last_wall, robots - last_robot)
             due = since >= cfg.interval
             if (pending and since >= cfg.min_period) or due:

@@ -158,6 +158,40 @@ def test_a_stamp_going_back_does_not_hold_the_nodes_clock_still():
     assert pair.aligned and line.startswith("fusion at t=111s: robot2 -> robot1 (")
 
 
+def test_the_running_node_fuses_on_the_robots_clock():
+    """``run``: fuses on new data once ``min_period`` of the robots' time has passed, while its wall clock stands still
+    (robots many times faster than real time); before, it waited for ``min_period`` of its own wall time."""
+    import threading
+    import time
+
+    c = _Confirming()
+    node = FusionNode(c.exchange, FusionNodeConfig(interval=10.0, min_period=5.0), clock=c.clock)
+    stop = threading.Event()
+    runner = threading.Thread(target=node.run, args=(stop,), daemon=True)
+
+    def publish(stamp: float) -> None:
+        for r in c.robots:
+            c.exchange.publish(r.name, r.step(), stamp=stamp)
+        node.notify(r.name)
+
+    def fusions(n: int) -> list[float]:
+        end = time.monotonic() + 30.0   # a failure bound: the node looks every 0.2 s
+        while len(node.history) < n and time.monotonic() < end:
+            time.sleep(0.05)
+        return [r.t for r in node.history]
+
+    publish(1.0)
+    runner.start()
+    try:
+        assert fusions(1) == [1.0]
+        publish(3.0)     # 2 s of the robots' time later: no fusion (min_period 5 s)
+        publish(7.0)     # 6 s later: fused (the maps of 3 s, if the node saw them, were not)
+        assert fusions(2) == [1.0, 7.0]
+    finally:
+        stop.set()
+        runner.join(timeout=30)
+
+
 def _messages(**stamps) -> dict:
     """robot -> (sequence, stamp) as MapMessages (the clock reads nothing else)."""
     return {r: MapMessage(r, q, s, None) for r, (q, s) in stamps.items()}
