@@ -41,7 +41,7 @@ from estimation.frontend import FrontEnd, FrontEndConfig
 from estimation.geometry import between, compose, wrap_angle
 from estimation.landmark_map import LandmarkMap
 from estimation.observations import OdometryIncrement, StereoObservations
-from estimation.stereo_readings import ReadingsRecorder, SmoothedMap, SmoothingRefused, smoothed_map
+from estimation.stereo_readings import KeyframeRule, ReadingsRecorder, SmoothedMap, SmoothingRefused, smoothed_map
 from runtime import slam_frames
 from runtime.exchange import MapExchange
 from runtime.motion import Controller, NoMotion
@@ -213,8 +213,9 @@ class OnboardConfig:
     # for fusion's co-location test: a P3-AT is 626 x 505 mm (ARIA's p3at parameters,
     # /work/shared/reference/arcos-protocol.md), so 0.2525 m
     footprint_radius_m: float = P3AT_INSCRIBED_RADIUS_M
-    # keep each processed frame's readings (estimation.stereo_readings.ReadingsRecorder, within its cap) so that the
-    # map can be smoothed after the mission (SlamCore.smoothed_map; p3at demo/run --smooth); off: nothing is kept
+    # keep the readings of each keyframe (estimation.stereo_readings.ReadingsRecorder with KeyframeRule's 0.1 m /
+    # 0.1 rad, within its cap of 1,000 keyframes) so that the map can be smoothed after the mission
+    # (SlamCore.smoothed_map; p3at demo/run --smooth); off: nothing is kept
     keep_readings: bool = False
 
 
@@ -251,7 +252,10 @@ class SlamCore:
         self.totals: dict[str, float] = {"frontend": 0.0, "predict": 0.0, "update": 0.0}
         self.metadata: dict = {}
         # each frame's readings for the smoothing after the mission (config.keep_readings), None when off
-        self.readings = ReadingsRecorder(config.fastslam.descriptor_size) if config.keep_readings else None
+        # keyframes, not every frame: at 15 Hz every frame would pass the dense smoother's 1,000-frame cap after
+        # ~67 s; at 0.1 m / 0.1 rad it lasts ~300 s of the demo's routes (session 51)
+        self.readings = (ReadingsRecorder(config.fastslam.descriptor_size, keyframes=KeyframeRule(),
+                                          config=config.fastslam) if config.keep_readings else None)
 
     def step(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
         timings: dict[str, float] = {}
@@ -676,6 +680,7 @@ class Onboard:
             filter_map = self._best_map()
             kept = self.core.readings
             figures: dict = {"frames_kept": 0 if kept is None else kept.frames,
+                             "frames_seen": 0 if kept is None else kept.frames_seen,
                              "readings_kept": 0 if kept is None else kept.readings,
                              "readings_seen": 0 if kept is None else kept.readings_seen}
             try:
@@ -693,7 +698,8 @@ class Onboard:
         figures |= smoothed.figures
         figures["cut"] = figures["associated"] - figures["inliers"]
         m = smoothed.landmark_map
-        self._event(f"the final map is smoothed: {figures['frames']} frames, {figures['readings']} readings kept, "
+        self._event(f"the final map is smoothed: {figures['frames']} keyframes of {figures['frames_seen']} frames, "
+                    f"{figures['readings']} readings kept, "
                     f"{figures['associated']} matched to the map, {figures['cut']} cut, χ²/dof "
                     f"{figures['chi2_per_dof']:.2f}, {figures['held']} of {figures['landmarks']} landmarks held by "
                     f"readings, {figures['seconds']:.1f} s", t=t)

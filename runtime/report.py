@@ -52,7 +52,9 @@ def smoothing_line(robot: str, figures: dict) -> str:
     """What a robot's smoothing after the mission did (runtime.mission's summary, robots[...]["smoothing"])."""
     if not figures.get("smoothed"):
         return f"{robot}: map not smoothed: {figures.get('reason')}; the filter's map is the one fused"
-    return (f"{robot}: map smoothed after the mission (the one fused): {figures['associated']} of "
+    keyframes = (f"{figures['frames']} keyframes of {figures['frames_seen']} frames, " if "frames_seen" in figures
+                 else "")
+    return (f"{robot}: map smoothed after the mission (the one fused): {keyframes}{figures['associated']} of "
             f"{figures['readings']} readings matched to it, {figures['cut']} cut, χ²/dof "
             f"{figures['chi2_per_dof']:.2f}, {figures['seconds']:.1f} s; the filter's map beside it "
             f"({robot}-filter.npz)")
