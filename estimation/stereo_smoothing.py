@@ -51,6 +51,39 @@ model. Two errors a landmark's readings share are modelled on request:
   covariance Q_i (the shared error does not make a single reading less likely); the final solve and the marginals
   use the inflated ones. ``view_floor`` 0 (the default) is the white model: readings independent given their
   landmark.
+
+``view_model`` says where ``view_floor``'s error enters. ``"design"`` (the default): the weights, as above; the
+estimate moves, each view down-weighted rather than decorrelated (session 50: the rendered demo's final fusion within
+0.05 m / 0.01 rad on 6 of 8 found seeds, the white model's maps 8 of 8). ``"sandwich"``: the white model's weights, cut
+and estimate, to the bit, with that estimate's covariance under the correlated error.
+
+*The sandwich.* The white estimate solves JᵀW r = 0 (W: the readings' Q_i⁻¹ and the odometry's inverse variances);
+to first order its error is −H⁻¹ JᵀW ε with H = JᵀWJ, so if the errors ε have covariance Σ, its covariance is
+H⁻¹ (JᵀW Σ W J) H⁻¹. Σ: Q_i on the diagonal (a reading's whole error), view_floor · ρ_ij · J_m,i J_m,jᵀ between two
+inlier readings i ≠ j of one landmark (a world-frame offset of the point found, shared as ρ says; J_m,i the reading's
+Jacobian by the landmark, a rotation), the odometry white. So JᵀWΣWJ = H + view_floor · Δ with
+Δ = Σ_l Σ_{i≠j∈l} ρ_ij G_i G_jᵀ, G_i = J_iᵀ W_i J_m,i (non-zero on reading i's pose and landmark only), and the
+covariance is H⁻¹ + view_floor · H⁻¹ Δ H⁻¹: the white one plus a term linear in view_floor. With the landmarks
+eliminated as in the white marginals, the poses' part is S⁻¹ Δ_p S⁻¹ (S the reduced system, Δ_p = Σ_l Σ ρ_ij y_i y_jᵀ
+with y_i reading i's G_i reduced, non-zero only on the poses that read l; one dense product); each landmark's 3 × 3
+marginal gains the poses' part through H_ll⁻¹ H_lp (as S⁻¹ enters the white one) and terms local to the poses that
+read it (:func:`_view_sandwich`). No readings × readings matrix is formed; on the rendered demo (session 51, 20 maps,
+490–750 frames, 10–27 thousand inlier readings) the marginals take 1.0 s against the white model's 0.38 s (CPU, medians;
+the whole smoothing 2.9 s). Σ is a covariance when view_floor ≤ each reading's smallest variance (the shared part of
+a reading's error within its whole stated error; ρ, a product of triangle kernels, is positive semi-definite), so a
+larger view_floor is refused: beyond it the sandwich can be indefinite (seen: negative pose NEES on the demo at
+1.6e-3 m²). ``landmark_floor`` combines with it by addition: a common offset o_l of landmark l's readings enters
+reading i as J_m,i o_l, its middle term is (H e_l) F (H e_l)ᵀ and its sandwich exactly F on l's marginal, which is
+what the white model adds. Checked against the dense H⁻¹ JᵀWΣWJ H⁻¹ (to 4e-15), against the delta method through the
+estimate and by Monte Carlo (tests/estimation/test_stereo_smoothing_sandwich.py).
+
+Session 51, rendered demo seeds 0–9 (session 49's logs; white estimate, sandwich at view_floor 4e-4 m², the filter's
+observation_var_floor, the rest as the white model): landmark NEES within χ²₃ 95 % ≥ 90 % on 18 of 20 maps as the white
+model (seed 9's robot 1 76 → 85 %, seed 4's robot 1, which lost its frame, 78 %; every other map 97–99 %), pose NEES
+≥ 90 % on 13 of 20 (white 7; median 94 %, white 82 %); the demo's final fusion found on 9 seeds, all within the goal,
+as with the white covariances (two alignments lose one support; they move by ≤ 2.3 mm, 0.26 mrad). Seed 9's robot 1
+stays overconfident: its x is 43–83 mm off from 37 s at σ 19–24 mm (white 14–18); view_floor 8e-4 would give 91 %
+and 1.6e-3 98 %, more than each reading's own floor (4e-4), and wider view or range kernels do not help (85 %).
 """
 from __future__ import annotations
 
@@ -71,6 +104,8 @@ VIEW_CHANGE = 0.4                 # rad: ρ = 1 − Δφ/0.4 between two views o
 #                                   the shared error holds its size to 0.2 rad and halves by 0.2–0.5 rad)
 RANGE_CHANGE = 0.7                # |ln(r_i / r_j)|: ρ falls as 1 − |Δ ln r|/0.7 with the range (measured: the same
 #                                   size to 0.2, about 60 % at 0.2–0.4, 35 % at 0.4–0.7, none beyond)
+VIEW_MODELS = ("design", "sandwich")  # where view_floor's error enters: the weights (design effect) or only the
+#                                   covariances of the white model's estimate (sandwich)
 MAX_ITERATIONS = 50
 STEP_TOLERANCE = 1e-6             # stop when no variable moves more than this (m or rad)
 COST_TOLERANCE = 1e-9             # ... or an accepted step lowers the cost by less than this fraction
@@ -153,7 +188,8 @@ class StereoSmoothed:
 
 def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
            robust: bool = True, max_iterations: int = MAX_ITERATIONS, landmark_floor=0.0, view_floor: float = 0.0,
-           view_change: float = VIEW_CHANGE, range_change: float = RANGE_CHANGE) -> StereoSmoothed:
+           view_change: float = VIEW_CHANGE, range_change: float = RANGE_CHANGE,
+           view_model: str = "design") -> StereoSmoothed:
     """The MAP poses and landmarks from the initial ones (pose 0 held where it is: the map frame); with ``robust``,
     Cauchy-weighted first, then without the observations beyond χ²₃ 99 % (module docstring).
 
@@ -168,7 +204,13 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
     reading's covariance gains view_floor times the sum of its correlations with the landmark's other inlier
     readings, for the final solve and the marginals. Unlike ``landmark_floor`` it moves the poses: a stretch of the
     path that many readings from few views tie to the rest is held less tightly, and says so. 0 (the default):
-    none, the estimates and covariances of the white model."""
+    none, the estimates and covariances of the white model.
+
+    ``view_model`` ("design", the default, or "sandwich"): where ``view_floor``'s error enters. "design": the
+    weights, as just said. "sandwich": only the covariances: the white model's estimate, inliers and χ² to the bit,
+    its pose and landmark marginals H⁻¹ (JᵀW Σ W J) H⁻¹ under readings of one landmark that share view_floor · ρ_ij
+    (module docstring, *The sandwich*); view_floor must not exceed any reading's smallest variance; with 0 the white
+    model's covariances exactly. ``landmark_floor`` adds to the landmarks' marginals in both."""
     if not (np.isfinite(view_floor) and view_floor >= 0):
         raise StereoSmoothingError(f"view_floor must be a finite number ≥ 0 (m²), not {view_floor!r}")
     if not (np.isfinite(view_change) and view_change > 0):
@@ -176,6 +218,15 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
     if not (np.isfinite(range_change) and range_change > 0):
         raise StereoSmoothingError(f"range_change must be a finite number > 0 (ln of a range ratio), not "
                                    f"{range_change!r}")
+    if view_model not in VIEW_MODELS:
+        raise StereoSmoothingError(f"view_model must be one of {', '.join(VIEW_MODELS)}, not {view_model!r}")
+    if view_model == "sandwich" and len(problem.covariances):
+        smallest = np.linalg.eigvalsh(0.5 * (problem.covariances + np.swapaxes(problem.covariances, 1, 2)))[:, 0]
+        k = int(np.argmin(smallest))
+        if view_floor > smallest[k]:
+            raise StereoSmoothingError(f"view_floor {view_floor:g} m² exceeds observation {k}'s smallest variance "
+                                       f"{smallest[k]:.3g} m²: the view-shared part of a reading's error cannot be "
+                                       "larger than its covariance (view_model 'sandwich')")
     floor = np.asarray(landmark_floor, float) * (np.eye(3) if np.ndim(landmark_floor) == 0 else 1.0)
     if floor.shape != (3, 3) or not np.all(np.isfinite(floor)) or np.any(np.linalg.eigvalsh(floor) < -1e-15):
         raise StereoSmoothingError("landmark_floor must be a finite scalar ≥ 0 or a 3 × 3 positive semi-definite "
@@ -192,12 +243,13 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
         poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, True, max_iterations)
         iterations += n
         inliers = _observation_chi2(problem, whiten, poses, landmarks) <= OUTLIER_CHI2
-    if view_floor > 0:
+    if view_floor > 0 and view_model == "design":
         shared = view_floor * _view_correlation_sums(problem, poses, landmarks, inliers, view_change, range_change)
         whiten = _whitening(problem.covariances + shared[:, None, None] * np.eye(3))
     poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, False, max_iterations)
     iterations += n
-    pose_cov, landmark_cov = _marginals(problem, whiten, poses, landmarks, inliers)
+    pose_cov, landmark_cov = _marginals(problem, whiten, poses, landmarks, inliers,
+                                        (view_floor, view_change, range_change) if view_model == "sandwich" else None)
     landmark_cov = landmark_cov + floor
     chi2_obs = _observation_chi2(problem, whiten, poses, landmarks)
     chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
@@ -225,15 +277,15 @@ def _whitening(covariances: np.ndarray) -> np.ndarray:
     return np.swapaxes(lower, 1, 2)
 
 
-def _view_correlation_sums(problem, poses, landmarks, inliers, view_change, range_change) -> np.ndarray:
-    """(K,) Σ_{j≠i} ρ_ij over the inlier readings j of reading i's landmark, ρ_ij = max(0, 1 − Δφ_ij / view_change)
-    · max(0, 1 − |ln(r_i / r_j)| / range_change), Δφ the angle between the directions from the landmark to the robot
-    at the two readings, r the horizontal distances; 0 for an outlier."""
+def _view_groups(problem, poses, landmarks, inliers, view_change, range_change):
+    """(landmark, rows, ρ) for each landmark with two or more inlier readings: ``rows`` its inlier readings (sorted by
+    the direction from the landmark to the robot), ρ (n × n, ones on the diagonal) their correlations
+    ρ_ij = max(0, 1 − Δφ_ij / view_change) · max(0, 1 − |ln(r_i / r_j)| / range_change), Δφ the angle between the
+    directions from the landmark to the robot at the two readings, r the horizontal distances."""
     p = poses[problem.pose_index]
     m = landmarks[problem.landmark_index]
     phi = np.arctan2(p[:, 1] - m[:, 1], p[:, 0] - m[:, 0])
     log_r = np.log(np.maximum(np.hypot(p[:, 1] - m[:, 1], p[:, 0] - m[:, 0]), 1e-3))
-    out = np.zeros(len(phi))
     idx = np.flatnonzero(inliers)
     order = idx[np.lexsort((phi[idx], problem.landmark_index[idx]))]
     lms = problem.landmark_index[order]
@@ -244,7 +296,14 @@ def _view_correlation_sums(problem, poses, landmarks, inliers, view_change, rang
         rows = order[a:b]
         d = np.abs(wrap_angle(phi[rows][:, None] - phi[rows][None, :]))
         dr = np.abs(log_r[rows][:, None] - log_r[rows][None, :])
-        rho = np.maximum(0.0, 1.0 - d / view_change) * np.maximum(0.0, 1.0 - dr / range_change)
+        yield int(lms[a]), rows, np.maximum(0.0, 1.0 - d / view_change) * np.maximum(0.0, 1.0 - dr / range_change)
+
+
+def _view_correlation_sums(problem, poses, landmarks, inliers, view_change, range_change) -> np.ndarray:
+    """(K,) Σ_{j≠i} ρ_ij over the inlier readings j of reading i's landmark (:func:`_view_groups`); 0 for an
+    outlier."""
+    out = np.zeros(len(problem.pose_index))
+    for _, rows, rho in _view_groups(problem, poses, landmarks, inliers, view_change, range_change):
         out[rows] = rho.sum(axis=1) - 1.0
     return out
 
@@ -414,8 +473,9 @@ def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations):
     return poses, landmarks, iterations
 
 
-def _marginals(problem, whiten, poses, landmarks, inliers):
-    """Pose marginals (T, 3, 3) and landmark marginals (L, 3, 3) from JᵀJ at the solution (unweighted)."""
+def _marginals(problem, whiten, poses, landmarks, inliers, view=None):
+    """Pose marginals (T, 3, 3) and landmark marginals (L, 3, 3) from JᵀJ at the solution (unweighted); with ``view``
+    = (view_floor, view_change, range_change), the sandwich H⁻¹ JᵀW Σ W J H⁻¹ of :func:`_view_sandwich`."""
     system = _System(problem, whiten, poses, landmarks, inliers, np.ones(len(problem.pose_index)))
     t = problem.n_poses
     hll_inv = np.linalg.inv(system.hll)
@@ -423,6 +483,11 @@ def _marginals(problem, whiten, poses, landmarks, inliers):
     m = (hinv @ system.w.T).tocsr()[:, 3:]                            # H_ll⁻¹ H_lp, the gauge's columns dropped
     s = (system.hpp - (system.w @ (hinv @ system.w.T)).toarray())[3:, 3:]
     cov_pp = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), np.eye(len(s)))
+    landmark_extra = None
+    if view is not None:
+        pose_extra, landmark_extra = _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp,
+                                                    *view[1:])
+        cov_pp = cov_pp + view[0] * pose_extra
     pose_cov = np.zeros((t, 3, 3))
     idx = np.arange(t - 1)
     blocks = cov_pp.reshape(t - 1, 3, t - 1, 3)[idx, :, idx, :]
@@ -432,9 +497,65 @@ def _marginals(problem, whiten, poses, landmarks, inliers):
         rows = m[3 * a:3 * min(a + _CHUNK, problem.n_landmarks)]
         ms, md = (rows @ cov_pp).reshape(-1, 3, 3 * (t - 1)), rows.toarray().reshape(-1, 3, 3 * (t - 1))
         landmark_cov[a:a + len(ms)] += np.einsum("lat,lbt->lab", ms, md)
+    if landmark_extra is not None:
+        landmark_cov = landmark_cov + view[0] * landmark_extra
     landmark_cov[~system.held] = np.inf
     return pose_cov, landmark_cov
 
 
-__all__ = ["CAUCHY_C", "OUTLIER_CHI2", "RANGE_CHANGE", "VIEW_CHANGE", "StereoLogProblem", "StereoSmoothed",
-           "StereoSmoothingError", "observation_chi2", "smooth"]
+def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, view_change, range_change):
+    """The view-shared error's part of the sandwich covariance, per unit of view_floor (module docstring, *The
+    sandwich*): (the poses' (3(T−1))² correction C = S⁻¹ Δ S⁻¹, the gauge's rows dropped; (L, 3, 3) each landmark's
+    own terms Λ_l). The caller adds view_floor · C to S⁻¹ before the landmarks' H_ll⁻¹ H_lp Σ_pp H_pl H_ll⁻¹ and
+    view_floor · Λ_l to each landmark's marginal.
+
+    Reading i of landmark l (pose k_i) carries d_i, a world-frame offset of the point it finds, cov(d_i, d_j) =
+    view_floor · ρ_ij · I between two readings of l (i ≠ j; :func:`_view_groups`); d_i enters the reading as J_m,i d_i
+    (J_m the reading's Jacobian by the landmark, a rotation). With C_i = J_p,iᵀ W_i J_m,i and D_i = J_m,iᵀ W_i J_m,i
+    (W_i = Q_i⁻¹), P_l = H_ll,l⁻¹ and Z_l = Σ_{i∈l} E_{k_i} C_i (= H_pl's column of l), the reduced (landmarks
+    eliminated) gradient of reading i's offset is y_i = E_{k_i} C_i − Z_l P_l D_i, supported on the poses that read
+    l. With ρ̄ = ρ off its diagonal, U_i = Σ_j ρ̄_ij D_j:
+
+    - Δ = Σ_l Σ_ij ρ̄_ij y_i y_jᵀ (the poses' middle term), C = S⁻¹ Δ S⁻¹;
+    - Λ_l = P_l V_l P_l − P_l Ω_lᵀ S⁻¹ Z_l P_l − (the same)ᵀ, V_l = Σ_i D_i U_i, Ω_l = Σ_i y_i U_i, where S⁻¹
+      is needed only on the poses that read l; the term P_l Z_lᵀ C Z_l P_l comes with the caller's product.
+    """
+    t = problem.n_poses
+    _, a_p, a_m = _observation_terms(problem, whiten, poses, landmarks)
+    c_all, d_all = _tmul(a_p, a_m), _tmul(a_m, a_m)                  # C_i, D_i
+    cov_full = np.zeros((3 * t, 3 * t))                               # S⁻¹ with the gauge's zero rows
+    cov_full[3:, 3:] = cov_pp
+    delta = np.zeros((3 * t, 3 * t))
+    landmark_extra = np.zeros((problem.n_landmarks, 3, 3))
+    for lm, rows, rho in _view_groups(problem, poses, landmarks, inliers, view_change, range_change):
+        n = len(rows)
+        rbar = rho.copy()
+        np.fill_diagonal(rbar, 0.0)
+        if not rbar.any():
+            continue
+        cs, ds = c_all[rows], d_all[rows]
+        uniq, u = np.unique(problem.pose_index[rows], return_inverse=True)
+        nu = len(uniq)
+        z = np.zeros((nu, 3, 3))
+        np.add.at(z, u, cs)
+        z = z.reshape(3 * nu, 3)                                      # Z_l on its poses
+        p = hll_inv[lm]
+        y = -np.einsum("ab,jbc->ajc", z, p @ ds).reshape(nu, 3, n, 3)  # y_j's columns on l's poses
+        y[u, :, np.arange(n), :] += cs
+        y = y.reshape(3 * nu, n, 3)
+        yr = (y.transpose(0, 2, 1).reshape(3 * nu * 3, n) @ rbar).reshape(3 * nu, 3, n).transpose(0, 2, 1)
+        flat = y.reshape(3 * nu, 3 * n)
+        at = (3 * uniq[:, None] + np.arange(3)).ravel()
+        delta[np.ix_(at, at)] += flat @ yr.reshape(3 * nu, 3 * n).T
+        us = np.einsum("ij,jab->iab", rbar, ds)                       # U_i
+        omega = flat @ us.reshape(3 * n, 3)
+        v = np.einsum("iab,ibc->ac", ds, us)
+        cross = p @ omega.T @ cov_full[np.ix_(at, at)] @ z @ p
+        landmark_extra[lm] = p @ v @ p - cross - cross.T
+    delta = 0.5 * (delta + delta.T)[3:, 3:]
+    pose_extra = cov_pp @ delta @ cov_pp
+    return 0.5 * (pose_extra + pose_extra.T), 0.5 * (landmark_extra + np.swapaxes(landmark_extra, 1, 2))
+
+
+__all__ = ["CAUCHY_C", "OUTLIER_CHI2", "RANGE_CHANGE", "VIEW_CHANGE", "VIEW_MODELS", "StereoLogProblem",
+           "StereoSmoothed", "StereoSmoothingError", "observation_chi2", "smooth"]
