@@ -62,7 +62,14 @@ from estimation.landmark_map import LandmarkMap
 from .alignment_config import AlignmentConfig, resolve_preset
 from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
-from .evidence import Evidence, decoy_chance_supports, evidence, log10_false_alarm, rival_offset
+from .evidence import (
+    Evidence,
+    decoy_chance_supports,
+    decoy_null,
+    evidence,
+    log10_false_alarm,
+    rival_offset,
+)
 from .frame_covariance import start_frame_covariance
 from .matching import query_subset, search_workspace
 from .pose_covariance import inverse_with_covariance
@@ -582,8 +589,11 @@ def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | Alignment
     pose = np.asarray(pose, float).copy()
     pose, covariance, mask, problem = polish(problem, pose, problem.masks(pose[None])[0], config)
     s = int(problem.distinct_counts(mask[None])[0])
-    rate = max(decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1e-9)
-    log10_p = log10_false_alarm(s - 2, rate, 1)
+    # config.chance_model "negative_binomial": the decoys' rate and dispersion (fusion.evidence.decoy_null)
+    rate, phi = (decoy_null(problem, map1, map2, config, rng, mask) if config.chance_model != "poisson"
+                 else (decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1.0))
+    rate = max(rate, 1e-9)
+    log10_p = log10_false_alarm(s - 2, rate, 1, phi)
     major, minor = support_spread(problem.p1[mask, :2])
     residual = problem.p1[mask] - transform_points(pose, problem.p2[mask])
     stats = AlignmentStatistics(

@@ -42,6 +42,9 @@ class AlignmentConfig:
     # landmark's only (both presets); "both" or "either" landmark's (symmetric_correspondences), so that align(A, B)
     # and align(B, A) start from the same correspondences, swapped
     ratio_sides: str = "map1"
+    # the law of a wrong hypothesis' chance supports (fusion.evidence.CHANCE_MODELS; session 51, option): "poisson",
+    # the decoys' rate; "negative_binomial", the decoys' rate and their overdispersion (variance / mean)
+    chance_model: str = "poisson"
 
     def to_dict(self) -> dict:
         return asdict(self)

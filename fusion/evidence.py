@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.special import gammaincinv, pdtrc
+from scipy.special import betainc, gammaincinv, pdtrc
 
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
@@ -38,6 +38,11 @@ if TYPE_CHECKING:
 # Descriptor distances computed at most when a map is matched against itself (self_structure).
 SELF_SEARCH_PAIRS = 20_000_000
 SELF_REPEAT_GATES = ("own", "pair")      # AlignmentConfig.self_repeat_gate
+# AlignmentConfig.chance_model: the law of a wrong hypothesis' chance supports.  "poisson" (the default): Poisson with
+# the decoys' rate.  "negative_binomial": the decoys' counts are overdispersed (variance/mean 1.4-2.2 on the rendered
+# demo's maps, session 51), so their law is a negative binomial with that variance/mean ratio (method of moments),
+# whose upper tail -- where a false alarm lives -- is heavier than Poisson's of the same mean.
+CHANCE_MODELS = ("poisson", "negative_binomial")
 
 
 @dataclass(frozen=True)
@@ -67,17 +72,33 @@ class Evidence:
     # the median radius (m) of the gate the winner's converged fit calls for, when the decision was taken in it
     # (narrower than the gate its polishing left; the counts above are then that gate's); nan: not narrowed
     narrowed_gate: float = float("nan")
+    # variance/mean of the decoys' chance counts the null uses (1: Poisson; AlignmentConfig.chance_model)
+    dispersion: float = 1.0
 
     @property
     def narrowed(self) -> bool:
         return bool(np.isfinite(self.narrowed_gate))
 
 
-def log10_false_alarm(excess: int, rate: float, hypotheses: int) -> float:
-    """log10 min(1, N · P(Poisson(rate) ≥ excess))."""
+def chance_tail(excess: int, rate: float, dispersion: float = 1.0) -> float:
+    """P(X ≥ excess) for chance supports X of mean ``rate`` and variance ``dispersion`` · ``rate``: Poisson at
+    dispersion 1 (or below: the decoys' counts never prove underdispersion), else the negative binomial with
+    r = rate / (dispersion − 1) successes of probability 1 / dispersion (P(X ≥ k) = I_{1−1/φ}(k, r)); it tends to
+    Poisson's as the dispersion tends to 1."""
+    if excess <= 0:
+        return 1.0
+    rate = max(rate, 1e-12)
+    if not dispersion > 1.0 + 1e-9:
+        return float(pdtrc(excess - 1, rate))
+    return float(betainc(excess, rate / (dispersion - 1.0), 1.0 - 1.0 / dispersion))
+
+
+def log10_false_alarm(excess: int, rate: float, hypotheses: int, dispersion: float = 1.0) -> float:
+    """log10 min(1, N · P(X ≥ excess)), X Poisson(rate) (``dispersion`` 1) or its overdispersed negative binomial
+    (:func:`chance_tail`)."""
     if excess <= 0:
         return 0.0
-    tail = float(pdtrc(excess - 1, max(rate, 1e-12)))
+    tail = float(pdtrc(excess - 1, max(rate, 1e-12))) if dispersion == 1.0 else chance_tail(excess, rate, dispersion)
     return min(0.0, float(np.log10(max(tail, 1e-300)) + np.log10(max(hypotheses, 1))))
 
 
@@ -96,10 +117,24 @@ def _rate_for_maximum(excess: int, hypotheses: int) -> float:
     return 10.0 ** hi
 
 
-def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
-                          rng: np.random.Generator) -> float:
-    """Chance supports a wrong transform gathers beyond its anchor, scored with the same gates: the 95 %
-    upper bound of their mean over the decoys.
+def _log10_null(excess: int, decoy_rate: float, structure_rate: float, hypotheses: int, dispersion: float) -> float:
+    """log10 of the false-alarm probability under the stricter of the two nulls.  Poisson (``dispersion`` 1): one
+    Poisson law whose rate is the larger of the decoys' and the structure's (as ever).  Otherwise each null with its
+    own law: the decoys' counts as their negative binomial (the dispersion measured on them), the structure's rate
+    as Poisson -- that rate is already calibrated on the tail itself (the best of N real hypotheses, or the map's
+    repeat, made a typical maximum), where the decoys' dispersion, measured at a mean of ~0.2, says nothing of the
+    law near a mean of 5-10 (extrapolated there it made 3 of 10 correct smoothed-demo alignments ambiguous)."""
+    if dispersion == 1.0:
+        return log10_false_alarm(excess, max(decoy_rate, structure_rate, 1e-9), hypotheses)
+    return max(log10_false_alarm(excess, max(structure_rate, 1e-9), hypotheses),
+               log10_false_alarm(excess, max(decoy_rate, 1e-9), hypotheses, dispersion))
+
+
+def decoy_counts(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
+                 rng: np.random.Generator, exclude: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chance supports each of ``decoys`` random transforms gathers beyond its anchor, scored with the same gates:
+    ((D,) counts, (D,) the same without the correspondences ``exclude`` (K,) bool marks; the counts again without
+    it); empty when there is nothing to score.
 
     Each decoy puts a random map-2 landmark on a random map-1 landmark at a random angle (so the maps
     overlap as a RANSAC hypothesis makes them), then counts the correspondences inside the gate — the
@@ -107,7 +142,7 @@ def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map
     """
     k = len(problem.i)
     if decoys <= 0 or k == 0 or len(map1) == 0 or len(map2) == 0:
-        return 0.0
+        return np.zeros(0), np.zeros(0)
     theta = rng.uniform(-np.pi, np.pi, decoys)
     a = rng.integers(len(map1), size=decoys)
     b = rng.integers(len(map2), size=decoys)
@@ -121,7 +156,8 @@ def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map
     anchor = a * n2 + b
     pos = np.clip(np.searchsorted(keys[order], anchor), 0, k - 1)
     anchor_row = np.where(keys[order][pos] == anchor, order[pos], -1)
-    total = 0.0
+    out = np.empty(decoys)
+    outside = out if exclude is None else np.empty(decoys)
     batch = max(1, 4_000_000 // max(k, 1))
     for start in range(0, decoys, batch):
         sl = slice(start, start + batch)
@@ -130,10 +166,70 @@ def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map
         rows = anchor_row[sl]
         has = rows >= 0
         counts[has] -= masks[np.flatnonzero(has), rows[has]]
-        total += counts.sum()
+        out[sl] = counts
+        if exclude is not None:
+            masks &= ~exclude
+            counts = problem.distinct_counts(masks).astype(float)
+            counts[has] -= masks[np.flatnonzero(has), rows[has]]
+            outside[sl] = counts
+    return out, outside
+
+
+def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
+                          rng: np.random.Generator) -> float:
+    """Chance supports a wrong transform gathers beyond its anchor, scored with the same gates: the 95 %
+    upper bound of their mean over the decoys (:func:`decoy_counts`), as a Poisson rate."""
+    counts, _ = decoy_counts(problem, map1, map2, decoys, rng)
+    if len(counts) == 0:
+        return 0.0
     # 95 % upper confidence bound of a Poisson rate from ``total`` events in ``decoys`` trials: a finite sample
     # of decoys that saw no chance support does not prove the rate is zero
-    return float(gammaincinv(total + 1.0, 0.95)) / decoys
+    return float(gammaincinv(float(counts.sum()) + 1.0, 0.95)) / decoys
+
+
+def dispersed_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
+                              rng: np.random.Generator, mask: np.ndarray | None = None) -> tuple[float, float]:
+    """The decoys' chance supports as an overdispersed law (``chance_model="negative_binomial"``): (the 95 % upper
+    bound of their mean, their dispersion φ = variance / mean ≥ 1), from the same decoys as
+    :func:`decoy_chance_supports`.
+
+    φ by the method of moments over the decoys' counts *without the winner's supports* (``mask``; all of them without
+    one): a decoy near the winner (anchored on one of its pairs, a little turned) gathers part of the winner's own
+    supports, which measures the winner, not chance -- on maps that overlap these few decoys made the tail (MRCLAM's
+    15-landmark maps with identities: φ 1.2-1.5 from them, about 1.0 without; on the rendered demo's maps a few in
+    20,000 gather 20-46 supports there).  The bound is the quasi-Poisson one, φ · Γ⁻¹(total / φ + 1, 0.95) / D (the
+    total of D counts of dispersion φ carries the information of total / φ Poisson events) on all the counts, as
+    :func:`decoy_chance_supports`'s, which it is at φ = 1."""
+    counts, kept = decoy_counts(problem, map1, map2, decoys, rng, None if mask is None else np.asarray(mask, bool))
+    if len(counts) == 0:
+        return 0.0, 1.0
+    return dispersed_rate(counts, kept)
+
+
+def dispersed_rate(counts: np.ndarray, kept: np.ndarray | None = None, level: float = 0.95) -> tuple[float, float]:
+    """(the ``level`` upper bound of the mean of ``counts`` (D,) i.i.d. chance counts, their dispersion φ =
+    variance / mean, at least 1, estimated on ``kept`` (default: all)).  The bound is quasi-Poisson:
+    φ · Γ⁻¹(total / φ + 1, level) / D, Poisson's at φ = 1."""
+    counts = np.asarray(counts, float)
+    kept = counts if kept is None else np.asarray(kept, float)
+    if len(counts) == 0:
+        return 0.0, 1.0
+    mean = float(kept.mean()) if len(kept) > 1 else 0.0
+    phi = max(1.0, float(kept.var(ddof=1)) / mean) if mean > 0 else 1.0
+    total = float(counts.sum())
+    return phi * float(gammaincinv(total / phi + 1.0, level)) / len(counts), phi
+
+
+def decoy_null(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig,
+               rng: np.random.Generator, mask: np.ndarray | None = None) -> tuple[float, float]:
+    """The decoys' chance rate and dispersion under ``config.chance_model``: ("poisson") :func:`decoy_chance_supports`
+    and 1; ("negative_binomial") :func:`dispersed_chance_supports`."""
+    if config.chance_model not in CHANCE_MODELS:
+        raise IncompatibleMapsError(f"unknown chance_model {config.chance_model!r} (choose from "
+                                    f"{', '.join(CHANCE_MODELS)})")
+    if config.chance_model == "poisson":
+        return decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1.0
+    return dispersed_chance_supports(problem, map1, map2, config.decoys, rng, mask)
 
 
 def rms_shift(poses: np.ndarray, points: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -294,7 +390,7 @@ def evidence(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndar
         def allowed(poses: np.ndarray) -> np.ndarray:
             return possible(poses) & (True if admissible is None else admissible(poses))
     n = n_all if allowed is None else max(int(allowed(search.poses).sum()), 1)
-    decoy_rate = decoy_chance_supports(problem, map1, map2, config.decoys, rng)
+    decoy_rate, phi = decoy_null(problem, map1, map2, config, rng, mask)
     rival = _best_distinct(problem, search, pose, mask, config, admissible=allowed, distinct_gate=distinct_gate)
     outside = 0 if admissible is None else _best_distinct(
         problem, search, pose, mask, config,
@@ -319,13 +415,16 @@ def evidence(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndar
     # calibrated on all of them (a prior must not make the repeat's null stricter than it is without a prior)
     structure_rate = max(_rate_for_maximum(second - 2, n), _rate_for_maximum(repeat - 2, n_all))
     rate = max(decoy_rate, structure_rate, 1e-9)
-    log10_p = log10_false_alarm(s - 2, rate, n)
+    log10_p = _log10_null(s - 2, decoy_rate, structure_rate, n, phi)
     level = np.log10(config.significance) if config.significance is not None else -6.0
     required = max(config.min_supports, 3)
-    while log10_false_alarm(required - 2, rate, n) > level and required < 100_000:
+    while _log10_null(required - 2, decoy_rate, structure_rate, n, phi) > level and required < 100_000:
         required += 1
-    wide = Evidence(s, decoy_rate, second, rate, n, log10_p, required, structure_rate > decoy_rate, repeat,
-                    rival.pose, rival.mask, outside, impossible)
+    ambiguous = (structure_rate > decoy_rate if phi == 1.0 else
+                 log10_false_alarm(s - 2, max(structure_rate, 1e-9), n)
+                 >= log10_false_alarm(s - 2, max(decoy_rate, 1e-9), n, phi))
+    wide = Evidence(s, decoy_rate, second, rate, n, log10_p, required, ambiguous, repeat,
+                    rival.pose, rival.mask, outside, impossible, dispersion=phi)
     if not (narrow and config.gate_scale == "residual" and config.refine and config.inflate_gate) or s < 3:
         return wide
     kappa = residual_inflation(problem, mask, pose, config.gate_scale)
