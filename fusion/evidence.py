@@ -40,8 +40,12 @@ SELF_SEARCH_PAIRS = 20_000_000
 SELF_REPEAT_GATES = ("own", "pair")      # AlignmentConfig.self_repeat_gate
 # AlignmentConfig.chance_model: the law of a wrong hypothesis' chance supports.  "poisson" (the default): Poisson with
 # the decoys' rate.  "negative_binomial": the decoys' counts are overdispersed (variance/mean 1.4-2.2 on the rendered
-# demo's maps, session 51), so their law is a negative binomial with that variance/mean ratio (method of moments),
-# whose upper tail -- where a false alarm lives -- is heavier than Poisson's of the same mean.
+# demo's maps, 2.1-3.4 on their halves cut to share nothing; 1.00 on MRCLAM's; session 51), so their law is a negative
+# binomial with that variance/mean ratio (method of moments), whose upper tail -- where a false alarm lives -- is
+# heavier than Poisson's of the same mean (on the disjoint halves it matches the decoys' tail to 10+ supports, where
+# Poisson's falls short by orders of magnitude).  What makes it: walls of landmarks whose look repeats across the
+# building -- a decoy that lays one on another gathers several supports at once (positions spread uniformly, or
+# descriptors permuted: 1.1-1.2).
 CHANCE_MODELS = ("poisson", "negative_binomial")
 
 
@@ -196,8 +200,8 @@ def dispersed_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap,
     φ by the method of moments over the decoys' counts *without the winner's supports* (``mask``; all of them without
     one): a decoy near the winner (anchored on one of its pairs, a little turned) gathers part of the winner's own
     supports, which measures the winner, not chance -- on maps that overlap these few decoys made the tail (MRCLAM's
-    15-landmark maps with identities: φ 1.2-1.5 from them, about 1.0 without; on the rendered demo's maps a few in
-    20,000 gather 20-46 supports there).  The bound is the quasi-Poisson one, φ · Γ⁻¹(total / φ + 1, 0.95) / D (the
+    15-landmark maps with identities: φ 1.5-9 with them, 1.00 without; on the rendered demo's maps a few in 20,000
+    gather 20-46 supports there).  The bound is the quasi-Poisson one, φ · Γ⁻¹(total / φ + 1, 0.95) / D (the
     total of D counts of dispersion φ carries the information of total / φ Poisson events) on all the counts, as
     :func:`decoy_chance_supports`'s, which it is at φ = 1."""
     counts, kept = decoy_counts(problem, map1, map2, decoys, rng, None if mask is None else np.asarray(mask, bool))
