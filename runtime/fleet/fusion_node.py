@@ -59,9 +59,9 @@ class RobotClock:
     - a robot's first map: taken at its own stamp if it lies within ``CLOCK_LAG`` behind the clock and the bound
       above ahead of it (robots started together are on one clock), else placed at the node's clock. The first
       maps the node ever sees set the clock: the oldest of them, and each within ``CLOCK_LAG`` after it.
-    - a robot whose every stamp is 0 sends no time: its maps are timed by the node's own clock (the wall clock
-      since the node started) as they come. Stamps not finite or below 0 are not taken (the map is fused; it does
-      not move the clock).
+    - a robot whose every stamp is 0 sends no time: its maps are timed by the node's own clock as they come (the
+      wall clock since its first map came, so that its first map is at 0, as a robot's first map at the start of
+      its mission). Stamps not finite or below 0 are not taken (the map is fused; it does not move the clock).
 
     So a robot of a real fleet (stamps in real time) and the simulated robots of ``p3at demo --processes`` (2-11x
     real time) confirm on the same mission time as the single-process mission (docs/fleet.md).
@@ -69,12 +69,11 @@ class RobotClock:
 
     def __init__(self, wall: Callable[[], float]) -> None:
         self.wall = wall
-        self.t0 = wall()
         self.now: float | None = None       # s, on the robots' clock; None before the first map
-        self.moved_at = self.t0             # the wall time it last moved (or started)
+        self.moved_at = wall()              # the wall time it last moved (or started)
         # robot -> (sequence, stamp as sent, stamp as timed (the node's clock for a robot that sends no time),
-        # offset, whether it sends no time)
-        self._robots: dict[str, tuple[int, float, float, float, bool]] = {}
+        # offset, whether it sends no time, the wall time its first map came)
+        self._robots: dict[str, tuple[int, float, float, float, bool, float]] = {}
 
     def observe(self, messages: Mapping[str, MapMessage]) -> float:
         """Take the maps' stamps in (each robot's latest; unchanged ones change nothing); the clock after them."""
@@ -86,16 +85,17 @@ class RobotClock:
             if not math.isfinite(stamp) or stamp < 0 or (prev is not None and prev[:2] == (m.sequence, stamp)):
                 continue
             silent = stamp == 0.0 and (prev is None or prev[4])
-            timed[robot] = (m.sequence, stamp, wall - self.t0 if silent else stamp, silent)
+            since = wall if prev is None else prev[5]
+            timed[robot] = (m.sequence, stamp, wall - since if silent else stamp, silent, since)
         if not timed:
             return self.clock_now()
         if self.now is None:   # the first maps set the clock: the oldest, and each within CLOCK_LAG after it
-            start = min(t for _, _, t, _ in timed.values())
-            self.now = max(t for _, _, t, _ in timed.values() if t <= start + CLOCK_LAG)
+            start = min(t for _, _, t, _, _ in timed.values())
+            self.now = max(t for _, _, t, _, _ in timed.values() if t <= start + CLOCK_LAG)
             self.moved_at = wall
         base, ahead = self.now, CLOCK_SLACK + CLOCK_MAX_RATE * max(0.0, wall - self.moved_at)
         newest = base
-        for robot, (sequence, stamp, t, silent) in sorted(timed.items()):
+        for robot, (sequence, stamp, t, silent, since) in sorted(timed.items()):
             prev = self._robots.get(robot)
             if prev is not None and sequence > prev[0] and t >= prev[2]:
                 offset = prev[3]                       # in step
@@ -105,7 +105,7 @@ class RobotClock:
                 offset = base - t                      # out of step, or far off: placed at the node's clock
             if t + offset > base + ahead:              # would throw the clock forward: not taken
                 offset = base - t
-            self._robots[robot] = (sequence, stamp, t, offset, silent)
+            self._robots[robot] = (sequence, stamp, t, offset, silent, since)
             newest = max(newest, t + offset)
         if newest > self.now:
             self.now, self.moved_at = newest, wall

@@ -218,6 +218,17 @@ def test_the_robot_clock_rules():
     assert clock.observe(_messages(robot3=(1, 170.0 - CLOCK_LAG + 5))) == 170.0
     assert clock.observe(_messages(robot4=(0, 3.0))) == 170.0
     assert clock.observe(_messages(robot4=(1, 5.5))) == 172.5
+    # a robot's first map at the start of its mission (stamp 0), long after the node started (robots' start-up):
+    # on the robots' clock, at 0 (it had been timed by the node's clock since its start, 18 s: the demo's clock 13 s
+    # ahead of its robots' from then on)
+    wall.now = 1000.0
+    late = RobotClock(wall)
+    wall.now = 1018.5
+    assert late.observe(_messages(robot2=(0, 0.0))) == 0.0
+    wall.now = 1018.6
+    assert late.observe(_messages(robot1=(0, 0.0))) == 0.0
+    wall.now = 1020.0
+    assert late.observe(_messages(robot2=(1, 5.1), robot1=(1, 5.1))) == 5.1
     # a first map far in the future starts the clock there; the others are placed on it and move it as they go
     wall.now = 60.0
     hostile = RobotClock(wall)
