@@ -41,9 +41,12 @@ def add_live_arguments(parser: argparse.ArgumentParser) -> None:
     from runtime.commands.options import non_negative_float, positive_float
 
     parser.add_argument("--interval", type=positive_float, default=10.0, metavar="S",
-                        help="--live: fuse at least every S seconds while maps change (default 10)")
+                        help="--live: fuse at least every S seconds while maps change, and confirm a found "
+                             "alignment S seconds later: seconds of the robots' mission time, the stamps of their "
+                             "maps (default 10)")
     parser.add_argument("--min-period", type=non_negative_float, default=1.0, metavar="S",
-                        help="--live: fuse at most every S seconds (default 1)")
+                        help="--live: fuse new maps once S seconds have passed since the last fusion, of the "
+                             "robots' mission time or of the node's, whichever has passed more (default 1)")
     parser.add_argument("--seconds", type=non_negative_float, default=0.0, metavar="S",
                         help="--live: stop after S seconds (default 0: until Ctrl-C or SIGTERM)")
     parser.add_argument("--rerun", default="none", metavar="SINK",
