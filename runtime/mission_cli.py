@@ -97,11 +97,12 @@ def add_mission_arguments(parser: argparse.ArgumentParser, *, robots: int, secon
                              "relative start, each known to within these standard deviations (m, rad; e.g. 1,0.3); "
                              "a best alignment that contradicts it is reported not found (default: off, the robots "
                              "are unknown to each other)")
-    parser.add_argument("--smooth", action=argparse.BooleanOptionalAction, default=False,
-                        help="at the mission's end, smooth each robot's map over every reading it kept (full SLAM "
-                             "after the filter) and fuse the smoothed maps: OUT/<robot>.npz holds the smoothed map, "
-                             "OUT/<robot>-filter.npz the filter's; a robot past 1000 frames or 100000 readings keeps "
-                             "the filter's map (default: off)")
+    parser.add_argument("--smooth", action=argparse.BooleanOptionalAction, default=True,
+                        help="at the mission's end, smooth each robot's map over the readings of its keyframes (full "
+                             "SLAM after the filter) and fuse the smoothed maps: OUT/<robot>.npz holds the smoothed "
+                             "map, OUT/<robot>-filter.npz the filter's; a robot past 1000 keyframes or 100000 "
+                             "readings keeps the filter's map (default: on since session 51; --no-smooth: the "
+                             "filter's maps, nothing kept)")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     add_exchange_arguments(parser)
 
@@ -120,7 +121,7 @@ def config_from_args(args: argparse.Namespace, robot_url: str = "mock"):
         world=args.world, robot_url=robot_url, route_file=args.route, time_scale=args.time_scale,
         odometry=args.odometry, robot_name=getattr(args, "name", None), realtime=args.realtime,
         map_save_interval=args.map_save_interval, recording_id=args.recording_id,
-        start_prior=getattr(args, "start_prior", None), smooth=getattr(args, "smooth", False))
+        start_prior=getattr(args, "start_prior", None), smooth=getattr(args, "smooth", True))
 
 
 def mission_inputs_problem(args) -> str | None:

@@ -247,9 +247,10 @@ def robot_command(args: argparse.Namespace, name: str, fleet: str, port: int, ou
         value = getattr(args, key, None)
         if value is not None:
             command += [f"--{key.replace('_', '-')}", str(value)]
-    for flag in ("log_sensors", "realtime", "smooth"):
+    for flag in ("log_sensors", "realtime"):
         if getattr(args, flag, False):
             command.append(f"--{flag.replace('_', '-')}")
+    command.append("--smooth" if getattr(args, "smooth", True) else "--no-smooth")   # each robot as the demo says
     return command
 
 
@@ -540,5 +541,5 @@ def _summary(args, summaries: dict, node: FusionNode, final, duration: float, ou
         "recording": None if args.rerun != "file" else str(out / "mission.rrd"),
         # --smooth: every robot process smoothed its map before its last publish (as the in-process mission says it)
         **({"smoothed": all((r.get("smoothing") or {}).get("smoothed", False) for r in robots.values())}
-           if getattr(args, "smooth", False) else {}),
+           if getattr(args, "smooth", True) else {}),
     }
