@@ -168,11 +168,7 @@ def main(argv: list[str] | None = None) -> int:
                              f"(default {KeyframeRule.overlap}; 0: never)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = parser.parse_args(argv)
-    for f in args.folders:
-        missing = [p for p in ("robot1.npz", "robot2.npz", "robot1-log", "robot2-log", "robot1-truth.tum")
-                   if not (f / p).exists()]
-        if missing:
-            parser.error(f"{f}: no {', '.join(missing)} (a p3at demo --log-sensors --out folder)")
+    ds.refuse_non_demo_folders(parser, args.folders)
     try:
         rule = KeyframeRule(args.distance, args.angle, args.overlap)
     except ValueError as exc:

@@ -450,12 +450,17 @@ def main(argv: list[str] | None = None) -> int:
                         help="m², the error shared by a landmark's readings, added to its smoothed covariance "
                              "(default: the filter's observation_var_floor, 0.0004; 0: none)")
     args = parser.parse_args(argv)
-    for f in args.folders:
+    refuse_non_demo_folders(parser, args.folders)
+    return run(args.folders, args.out, args.json, args.landmark_floor)
+
+
+def refuse_non_demo_folders(parser: argparse.ArgumentParser, folders: list[Path]) -> None:
+    """parser.error (one line) for a folder that is not a ``p3at demo --log-sensors --out`` folder."""
+    for f in folders:
         missing = [p for p in ("robot1.npz", "robot2.npz", "robot1-log", "robot2-log", "robot1-truth.tum")
                    if not (f / p).exists()]
         if missing:
             parser.error(f"{f}: no {', '.join(missing)} (a p3at demo --log-sensors --out folder)")
-    return run(args.folders, args.out, args.json, args.landmark_floor)
 
 
 if __name__ == "__main__":
