@@ -52,8 +52,10 @@ def test_a_final_map_the_disk_refuses_is_one_line_naming_it_and_the_summary_is_p
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
     assert lines[0].startswith("p3at run: mission failed: robot1: the map save stage failed")
-    assert "File too large" in lines[0] and str(out / "robot1.npz") in lines[0]
-    assert not (out / "robot1.npz").exists()  # nothing half-written in its place
+    # the first map saved is the filter's, kept beside the smoothed one (the smoothing is on by default)
+    assert "File too large" in lines[0] and str(out / "robot1-filter.npz") in lines[0]
+    assert summary["robots"]["robot1"]["smoothing"]["smoothed"] is True
+    assert not (out / "robot1-filter.npz").exists() and not (out / "robot1.npz").exists()  # nothing half-written
     assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
 
 
