@@ -85,11 +85,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fastslam import FastSLAMConfig
-from .fastslam.motion import increment_variance
+from .fastslam.motion import increment_variance, propagate_covariance
 from .geometry import between, compose, interpolate_poses, inverse, rot_z
 from .landmark_map import LandmarkMap
 from .sighting_spread import sighting_covariances
-from .smoothed_self_check import SmoothedSelfCheckError, recheck_map, recheck_smoothed, rechecked_metadata
+from .smoothed_self_check import SmoothedSelfCheckError, recheck_map, rechecked_metadata
 from .stereo_smoothing import StereoLogProblem, StereoSmoothingError, smooth
 
 # The cap on what a recorder keeps. Frames: the smoother's reduced system is a dense 3T × 3T matrix (T = 1000: 72 MB,
@@ -163,12 +163,10 @@ def compose_increment(covariance: np.ndarray, so_far: np.ndarray, step: np.ndarr
                       step_variance: np.ndarray) -> np.ndarray:
     """(3, 3) the covariance of ``so_far ⊕ step`` to first order: ``so_far`` (3,) an increment with ``covariance``
     (3, 3), ``step`` (3,) the next one with independent diagonal ``step_variance`` (3,) in its own start frame (the
-    filter's motion model: each frame's increment drawn with its own variances and composed, motion.sample_motion)."""
-    c, s = math.cos(so_far[2]), math.sin(so_far[2])
-    dx, dy = float(step[0]), float(step[1])
-    j_prev = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
-    j_step = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return j_prev @ covariance @ j_prev.T + (j_step * np.asarray(step_variance, float)) @ j_step.T
+    filter's motion model: each frame's increment drawn with its own variances and composed, motion.sample_motion):
+    the filter's own propagation (motion.propagate_covariance) of one pose."""
+    return propagate_covariance(np.asarray(so_far, float).reshape(1, 3), np.asarray(covariance, float)[None],
+                                np.asarray(step, float), np.asarray(step_variance, float))[0]
 
 
 class ReadingsRecorder:
@@ -444,12 +442,11 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
     # that cannot be made leaves the filter's verdict, the cautious one
     try:
-        if readings.frame_index is None:
-            verdict = recheck_smoothed(smoothed, readings, config)
-        else:   # along the keyframes, whose readings it has
-            key_map = m.subset(slice(None))
-            key_map.trajectory = key_trajectory
-            verdict = recheck_map(key_map, config, readings.points, readings.counts, f, j, lm, sol.inliers)
+        walked = m   # along the frames smoothed, whose readings it has: with keyframes, the keyframes' trajectory
+        if readings.frame_index is not None:
+            walked = m.subset(slice(None))
+            walked.trajectory = key_trajectory
+        verdict = recheck_map(walked, config, readings.points, readings.counts, f, j, lm, sol.inliers)
         m.metadata = rechecked_metadata(m.metadata, verdict)
     except SmoothedSelfCheckError:
         pass
