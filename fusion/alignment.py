@@ -64,7 +64,6 @@ from .colocation import colocation_test
 from .errors import IncompatibleMapsError, NoOverlapError
 from .evidence import (
     Evidence,
-    decoy_chance_supports,
     decoy_null,
     evidence,
     log10_false_alarm,
@@ -589,9 +588,7 @@ def align_at(map1: LandmarkMap, map2: LandmarkMap, pose, preset: str | Alignment
     pose = np.asarray(pose, float).copy()
     pose, covariance, mask, problem = polish(problem, pose, problem.masks(pose[None])[0], config)
     s = int(problem.distinct_counts(mask[None])[0])
-    # config.chance_model "negative_binomial": the decoys' rate and dispersion (fusion.evidence.decoy_null)
-    rate, phi = (decoy_null(problem, map1, map2, config, rng, mask) if config.chance_model != "poisson"
-                 else (decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1.0))
+    rate, phi = decoy_null(problem, map1, map2, config, rng, mask)   # the dispersion 1 under "poisson"
     rate = max(rate, 1e-9)
     log10_p = log10_false_alarm(s - 2, rate, 1, phi)
     major, minor = support_spread(problem.p1[mask, :2])

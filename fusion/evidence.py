@@ -102,8 +102,7 @@ def log10_false_alarm(excess: int, rate: float, hypotheses: int, dispersion: flo
     (:func:`chance_tail`)."""
     if excess <= 0:
         return 0.0
-    tail = float(pdtrc(excess - 1, max(rate, 1e-12))) if dispersion == 1.0 else chance_tail(excess, rate, dispersion)
-    return min(0.0, float(np.log10(max(tail, 1e-300)) + np.log10(max(hypotheses, 1))))
+    return min(0.0, float(np.log10(max(chance_tail(excess, rate, dispersion), 1e-300)) + np.log10(max(hypotheses, 1))))
 
 
 def _rate_for_maximum(excess: int, hypotheses: int) -> float:
