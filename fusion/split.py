@@ -378,15 +378,18 @@ def _disagreement(check: SplitCheck) -> str:
 
 def split_checks(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robust", cache: AlignmentCache | None = None,
                  priors: dict | None = None, split_ids: list[int | None] | None = None,
-                 agreeing_draws: int = 1) -> list[SplitCheck]:
+                 agreeing_draws: int = 1, rng: np.random.Generator | None = None) -> list[SplitCheck]:
     """:func:`check_split` of every map that flagged itself (``split_ids``: per map, where to split it or None; default
     :func:`split_id` of each map, a malformed verdict read as none), each draw from the maps it aligns: the one call
     of ``p3at fuse``, a mission's fusion and the fleet's node, so the same maps get the same decisions from all three
-    whatever their order, fusion history or cache (module docstring, *One decision from the maps*)."""
+    whatever their order, fusion history or cache (module docstring, *One decision from the maps*). With ``rng``,
+    each flagged map's check draws from one of its children instead."""
     if split_ids is None:
         split_ids = [_split_id_or_none(m) for m in maps]
-    return [check_split(maps, k, first, preset, None, cache, later_gaps(maps[k]), priors, agreeing_draws)
-            for k, first in enumerate(split_ids) if first is not None]
+    flagged = [k for k, first in enumerate(split_ids) if first is not None]
+    children = rng.spawn(len(flagged)) if rng is not None else [None] * len(flagged)
+    return [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors, agreeing_draws)
+            for k, child in zip(flagged, children, strict=True)]
 
 
 @dataclass
@@ -448,12 +451,8 @@ def fuse_checked(maps: list[LandmarkMap], preset: str | AlignmentConfig = "robus
         whole = fuse_all(maps, preset, method, rng, reference, alignments, cache, **options)
     except NoOverlapError as e:
         message = str(e)
-    if checks is None and check_rng is None:
-        checks = split_checks(maps, preset, cache, priors, split_ids, agreeing_draws)
-    elif checks is None:
-        flagged = [k for k, s in enumerate(split_ids) if s is not None]
-        checks = [check_split(maps, k, split_ids[k], preset, child, cache, later_gaps(maps[k]), priors, agreeing_draws)
-                  for k, child in zip(flagged, check_rng.spawn(len(flagged)), strict=True)]
+    if checks is None:
+        checks = split_checks(maps, preset, cache, priors, split_ids, agreeing_draws, check_rng)
     if not any(c.decision != "whole" for c in checks):
         return CheckedFusion(whole, list(maps), [(k, None) for k in range(len(maps))], checks, whole, message)
     by_map = {c.index: c for c in checks}

@@ -180,6 +180,7 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     aligned again.  ``priors`` {(robot a, robot b): fusion.prior.StartPrior of b's start in a's, a < b by name}: a
     rough relative start the alignments use, a flagged map's split check and the fusion of its parts included."""
     from fusion import align, merge
+    from fusion.split import split_checks
 
     start = time.perf_counter()
     names = sorted(maps)
@@ -191,7 +192,9 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
     rng = rng if rng is not None else np.random.default_rng(0)
     priors = priors or {}
     indexed = {(i, j): priors[(a, b)] for i, a in enumerate(names) for j, b in enumerate(names) if (a, b) in priors}
-    checks = _split_checks([maps[n] for n in names], preset, cache, indexed)
+    # every flagged map checked, each draw from the maps it aligns, as p3at fuse checks them (not from the fusion's
+    # generator or its count: fusion.split, *One decision from the maps*)
+    checks = split_checks([maps[n] for n in names], preset, cache, indexed)
     if any(c.decision != "whole" for c in checks):
         return _fuse_split(maps, names, preset, method, t, start, checks, cache, indexed)
     if len(names) > 2:
@@ -215,14 +218,6 @@ def fuse_maps(maps: dict[str, LandmarkMap], preset: str = "robust", method: int 
         result.score_against_truth(maps[reference], maps[other])
         pairs.append(result)
     return _with_checks(FusionReport(t, pairs, merged, time.perf_counter() - start), names, checks)
-
-
-def _split_checks(ordered: list[LandmarkMap], preset: str, cache, priors: dict | None = None) -> list:
-    """fusion.split.split_checks: every map that flagged itself checked (a malformed verdict is read as none), each
-    draw from the maps it aligns, as ``p3at fuse`` checks them (not from the fusion's generator or its count)."""
-    from fusion.split import split_checks
-
-    return split_checks(ordered, preset, cache, priors)
 
 
 def _with_checks(report: FusionReport, names: list[str], checks: list) -> FusionReport:
