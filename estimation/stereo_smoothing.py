@@ -526,9 +526,7 @@ def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, 
     t = problem.n_poses
     _, a_p, a_m = _observation_terms(problem, whiten, poses, landmarks)
     c_all, d_all = _tmul(a_p, a_m), _tmul(a_m, a_m)                  # C_i, D_i
-    cov_full = np.zeros((3 * t, 3 * t))                               # S⁻¹ with the gauge's zero rows
-    cov_full[3:, 3:] = cov_pp
-    delta = np.zeros((3 * t, 3 * t))
+    delta = np.zeros((3 * (t - 1), 3 * (t - 1)))                      # Δ on the free poses (the gauge's dropped)
     landmark_extra = np.zeros((problem.n_landmarks, 3, 3))
     for lm, rows, rho in _view_groups(problem, poses, landmarks, inliers, view_change, range_change):
         n = len(rows)
@@ -549,13 +547,17 @@ def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, 
         yr = (y.transpose(0, 2, 1).reshape(3 * nu * 3, n) @ rbar).reshape(3 * nu, 3, n).transpose(0, 2, 1)
         flat = y.reshape(3 * nu, 3 * n)
         at = (3 * uniq[:, None] + np.arange(3)).ravel()
-        delta[np.ix_(at, at)] += flat @ yr.reshape(3 * nu, 3 * n).T
+        free = at >= 3                                                # pose 0 is the gauge: no rows in S⁻¹ or Δ
+        at_free = at[free] - 3
+        delta[np.ix_(at_free, at_free)] += (flat @ yr.reshape(3 * nu, 3 * n).T)[np.ix_(free, free)]
         us = np.einsum("ij,jab->iab", rbar, ds)                       # U_i
         omega = flat @ us.reshape(3 * n, 3)
         v = np.einsum("iab,ibc->ac", ds, us)
-        cross = p @ omega.T @ cov_full[np.ix_(at, at)] @ z @ p
+        cov_at = np.zeros((len(at), len(at)))                         # S⁻¹ on l's poses, the gauge's rows zero
+        cov_at[np.ix_(free, free)] = cov_pp[np.ix_(at_free, at_free)]
+        cross = p @ omega.T @ cov_at @ z @ p
         landmark_extra[lm] = p @ v @ p - cross - cross.T
-    delta = 0.5 * (delta + delta.T)[3:, 3:]
+    delta = 0.5 * (delta + delta.T)
     pose_extra = cov_pp @ delta @ cov_pp
     return 0.5 * (pose_extra + pose_extra.T), 0.5 * (landmark_extra + np.swapaxes(landmark_extra, 1, 2))
 
