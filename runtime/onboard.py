@@ -36,10 +36,11 @@ from typing import Protocol
 
 import numpy as np
 
+from estimation.errors import MapFileError
 from estimation.fastslam import FastSLAM, FastSLAMConfig
 from estimation.frontend import FrontEnd, FrontEndConfig
 from estimation.geometry import between, compose, wrap_angle
-from estimation.landmark_map import LandmarkMap
+from estimation.landmark_map import LandmarkMap, check_map_bytes
 from estimation.observations import OdometryIncrement, StereoObservations
 from estimation.stereo_readings import KeyframeRule, ReadingsRecorder, SmoothedMap, SmoothingRefused, smoothed_map
 from runtime import slam_frames
@@ -256,6 +257,8 @@ class SlamCore:
         # ~67 s; at 0.1 m / 0.1 rad it lasts ~300 s of the demo's routes (session 51)
         self.readings = (ReadingsRecorder(config.fastslam.descriptor_size, keyframes=KeyframeRule(),
                                           config=config.fastslam) if config.keep_readings else None)
+        # why the readings stopped being kept during the run (an error in keeping them), None while they are kept
+        self.readings_failure: str | None = None
 
     def step(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
         timings: dict[str, float] = {}
@@ -281,7 +284,13 @@ class SlamCore:
         t3 = self.timer()
         timings["update"] = t3 - t2
         if self.readings is not None:
-            self.readings.add(frame.t, odometry_pose, observations)
+            try:
+                self.readings.add(frame.t, odometry_pose, observations)
+            except Exception as exc:  # noqa: BLE001 - keeping the smoothing's readings must not end the robot's run
+                # nothing more is kept (a log with a hole would be no one map) and the smoothing is refused with this
+                self.readings_failure = (f"keeping the readings failed at frame {self.frames + 1}: "
+                                         f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+                self.readings = None
         self._last_t = frame.t
         self.frames += 1
         for k, v in timings.items():
@@ -298,7 +307,7 @@ class SlamCore:
         (estimation.stereo_readings.smoothed_map). Raises SmoothingRefused (one line) when it cannot be: readings
         not kept, the cap passed, too few frames, no reading matching the map..."""
         if self.readings is None:
-            raise SmoothingRefused("no readings were kept (keep_readings is off)")
+            raise SmoothingRefused(self.readings_failure or "no readings were kept (keep_readings is off)")
         kept = self.readings.readings_kept()
         particle = self.slam.best_map(robot=self.robot, metadata=self.metadata, covariance="particle")
         return smoothed_map(kept, self.slam.trajectory(), exported, particle.positions, particle.covariances,
@@ -309,6 +318,16 @@ class SlamCore:
         if self.first_odometry is None:
             return None
         return between(self.first_odometry, self.previous_odometry)
+
+
+def _unreadable(m: LandmarkMap, source: str) -> str | None:
+    """Why the map's reader would refuse ``m`` (the check :meth:`LandmarkMap.save` makes before it writes), in one
+    line beginning ``source``; None if it would not."""
+    try:
+        check_map_bytes(m.archive_bytes(), source)
+    except MapFileError as exc:
+        return str(exc)
+    return None
 
 
 # -- the live runtime ---------------------------------------------------------------------------------------
@@ -636,9 +655,10 @@ class Onboard:
         with self._core_lock:
             result = self.core.step(frame, odometry_pose)
         readings = self.core.readings
-        if readings is not None and readings.overflow is not None and not self._readings_overflow_said:
+        why = self.core.readings_failure if readings is None else readings.overflow   # the readings no longer kept
+        if why is not None and not self._readings_overflow_said:
             self._readings_overflow_said = True
-            self._event(f"smoothing: {readings.overflow}; the filter's map will stand", "WARN")
+            self._event(f"smoothing: {why}; the filter's map will stand", "WARN")
         self.trajectories.add_frame(frame.t, result.best_pose, self.core.dead_reckoning_pose())
         with self._latest_lock:
             self._anchor = result.best_pose
@@ -690,7 +710,9 @@ class Onboard:
             except Exception as exc:  # noqa: BLE001 - a smoothing that fails must not take the mission's end down
                 reason = f"the smoothing failed: {type(exc).__name__}: {exc}"
             else:
-                reason = None
+                # a smoothed map its reader would refuse would fail the map save (OUT/<robot>.npz not written, the
+                # mission failed) where the filter's map is at hand: not taken
+                reason = _unreadable(smoothed.landmark_map, "the smoothed map would not be readable")
         figures["seconds"] = time.perf_counter() - start
         if reason is not None:
             self._event(f"the map was not smoothed: {reason}; the filter's map stands", "WARN", t)
