@@ -39,6 +39,8 @@ CLOCK_SLACK = 10.0         # s a robot's map may run ahead of the node's clock, 
 CLOCK_MAX_RATE = 50.0      # the robots' clock runs at most this many times the node's wall clock (simulated: 2-11x)
 CLOCK_LAG = 60.0           # s a robot's first map may lag the node's clock and still be taken at its own stamp
 LOOK_PERIOD = 0.2          # s: run() looks at the maps' stamps at most this often (each look copies the maps)
+CLOCK_MAX_STAMP = 1e13     # s (300,000 years): a stamp above is not taken (a float's step there is 2 ms; beside
+#                            1e300 s or 1.8e18 s, ns sent as s, a robot's progress would no longer move the clock)
 
 
 class RobotClock:
@@ -61,7 +63,8 @@ class RobotClock:
       maps the node ever sees set the clock: the oldest of them, and each within ``CLOCK_LAG`` after it.
     - a robot whose every stamp is 0 sends no time: its maps are timed by the node's own clock as they come (the
       wall clock since its first map came, so that its first map is at 0, as a robot's first map at the start of
-      its mission). Stamps not finite or below 0 are not taken (the map is fused; it does not move the clock).
+      its mission). Stamps not finite, below 0 or above ``CLOCK_MAX_STAMP`` are not taken (the map is fused; it does
+      not move the clock).
 
     So a robot of a real fleet (stamps in real time) and the simulated robots of ``p3at demo --processes`` (2-11x
     real time) confirm on the same mission time as the single-process mission (docs/fleet.md).
@@ -82,7 +85,8 @@ class RobotClock:
         for robot, m in messages.items():
             stamp = float(m.stamp)
             prev = self._robots.get(robot)
-            if not math.isfinite(stamp) or stamp < 0 or (prev is not None and prev[:2] == (m.sequence, stamp)):
+            if (not math.isfinite(stamp) or not 0 <= stamp <= CLOCK_MAX_STAMP
+                    or (prev is not None and prev[:2] == (m.sequence, stamp))):
                 continue
             silent = stamp == 0.0 and (prev is None or prev[4])
             since = wall if prev is None else prev[5]
