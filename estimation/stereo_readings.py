@@ -344,7 +344,9 @@ def associate(readings: StereoReadings, trajectory: np.ndarray, exported: Landma
 @dataclass
 class SmoothedMap:
     """:func:`smoothed_map`'s answer: the map, its figures (frames, readings, associated, inliers, chi2_per_dof,
-    iterations, landmarks, held, associate_s, smooth_s) and each association (frame, reading, landmark row, inlier)."""
+    iterations, landmarks, held, associate_s, smooth_s; with ``calibrate_odometry`` also odometry_scales (s_d, s_θ)
+    and odometry_scale_sd, their marginal σ), each association (frame, reading, landmark row, inlier) and the
+    smoothed frames' (keyframes') pose marginals (T, 3, 3)."""
 
     landmark_map: LandmarkMap
     figures: dict
@@ -352,15 +354,18 @@ class SmoothedMap:
     readings: np.ndarray
     rows: np.ndarray
     inliers: np.ndarray
+    pose_covariances: np.ndarray | None = None
 
 
 def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: LandmarkMap,
                  particle_positions: np.ndarray, particle_covariances: np.ndarray, config: FastSLAMConfig,
-                 landmark_floor: float | None = None) -> SmoothedMap:
+                 landmark_floor: float | None = None, calibrate_odometry: bool = False) -> SmoothedMap:
     """The filter's exported map ``exported`` smoothed over ``readings`` (module docstring). ``trajectory``: the best
     particle's (T + 1, 4) rows; ``particle_positions`` (L, 3), ``particle_covariances`` (L, 3, 3): the same export
     with the particle's own covariances (``best_map(covariance="particle")``); ``landmark_floor`` m² (None: the
-    filter's ``observation_var_floor``).
+    filter's ``observation_var_floor``); ``calibrate_odometry`` (off by default): the smoother also estimates the
+    odometry's distance and turn scales (``stereo_smoothing.smooth(calibrate_odometry=True)``; the map's
+    ``metadata["smoothed"]`` and the figures then hold them and their σ).
     Raises :class:`SmoothingRefused` (one line) when it cannot."""
     if readings.frames < MIN_FRAMES:
         raise SmoothingRefused(f"{readings.frames} frame{'s' if readings.frames != 1 else ''} kept; the smoothing "
@@ -400,7 +405,8 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
         # the white model's estimate, its covariance under the error a landmark's readings from about one view share
         # (the sandwich at the filter's observation floor; stereo_smoothing's docstring, *The sandwich*, session 51)
         sol = smooth(problem, poses0, exported.positions, landmark_floor=floor,
-                     view_floor=config.observation_var_floor, view_model="sandwich")
+                     view_floor=config.observation_var_floor, view_model="sandwich",
+                     calibrate_odometry=calibrate_odometry)
     except (StereoSmoothingError, np.linalg.LinAlgError) as exc:
         raise SmoothingRefused(f"the smoother refused: {exc}") from None
     t_smooth = time.perf_counter() - t0
@@ -426,6 +432,11 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     meta = dict(exported.metadata)
     meta["smoothed"] = {"readings": int(len(f)), "inliers": int(sol.inliers.sum()),
                         "chi2_per_dof": sol.chi2_per_dof, "landmarks_held": int(held.sum())}
+    scale_figures = {}
+    if sol.odometry_scales is not None:
+        scale_figures = {"odometry_scales": [float(v) for v in sol.odometry_scales],
+                         "odometry_scale_sd": [float(v) for v in np.sqrt(np.diag(sol.odometry_scale_covariance))]}
+        meta["smoothed"] |= scale_figures
     m = LandmarkMap(positions, covariances, exported.descriptors, exported.ids, exported.counts, exported.robot,
                     exported.frame, list(exported.robots), exported.seen_by, smoothed_trajectory, meta, drift_cov,
                     drift_org)
@@ -436,8 +447,8 @@ def smoothed_map(readings: StereoReadings, trajectory: np.ndarray, exported: Lan
     figures = {"frames": int(len(times)), "readings": int(readings.counts.sum()), "associated": int(len(f)),
                "inliers": int(sol.inliers.sum()), "chi2_per_dof": float(sol.chi2_per_dof),
                "iterations": int(sol.iterations), "landmarks": len(exported), "held": int(held.sum()),
-               "associate_s": t_assoc, "smooth_s": t_smooth}
-    smoothed = SmoothedMap(m, figures, f, j, lm, sol.inliers)
+               "associate_s": t_assoc, "smooth_s": t_smooth} | scale_figures
+    smoothed = SmoothedMap(m, figures, f, j, lm, sol.inliers, sol.pose_covariances)
     # the map's self-check re-run along the smoothed poses with the smoothing's association (estimation.
     # smoothed_self_check): the fusion splits the smoothed map by its own verdict, the filter's kept beside; a re-run
     # that cannot be made leaves the filter's verdict, the cautious one

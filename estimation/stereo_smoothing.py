@@ -87,6 +87,22 @@ and 1.6e-3 98 %, more than each reading's own floor (4e-4), and wider view or ra
 With :mod:`estimation.stereo_readings`' keyframes (fewer readings from one view) and the sandwich at 4e-4: 89.5 %
 (0.1 m / 0.1 rad; keyframes alone 86 %) and 95 % (0.25 m / 0.2 rad; alone 91 %), the fusion within the goal on 9 of 9
 found in each.
+
+*Odometry scales* (``calibrate_odometry``, off by default; session 52). A wheel's distance and a skid-steer's turning
+are wrong by a scale that persists through a run (worn tyres, the effective track; the demo's virtual robots:
+``--odometry realistic``, distance 0.99 and turning 0.99 / 1.03 ≈ 0.961 of the truth), which independent increments
+do not model. As Kümmerle et al. (IROS 2011, "Simultaneous calibration, localization, and mapping") do in graph SLAM,
+two more unknowns, s_d and s_θ (measured / true), each with the prior N(1, 0.05²) (:data:`ODOMETRY_SCALE_SIGMA`: a
+few per cent known before any calibration; not fitted to the demo): each odometry factor predicts
+(s_d·bx, s_d·by, s_θ·bθ) with (bx, by, bθ) = between(x_k, x_{k+1}). For keyframes (increments composed of frames)
+this is the composed measured increment to first order: within one increment the headings turned are ≤ ~0.1 rad, so
+a turn scale moves its lateral part by (1 − s_θ) · by (0.2 mm at 4 % and 5 mm) against the increment's σ of ~1 cm.
+The scales touch only the odometry factors and their prior: their two columns border the reduced pose system (3(T−1)
++ 2, solved and inverted as before), the bordered inverse's pose block is the poses' marginal with the scales unknown,
+and as no reading sees the scales the landmarks' marginals and the sandwich's middle term use that block unchanged
+(the scales' own sandwich term is their rows of S⁻¹ times Δ). Checked against a dense inverse of the documented
+model's information matrix (white and sandwich), a Monte Carlo and the truth the odometry was drawn with
+(tests/estimation/test_s52_odometry_calibration.py).
 """
 from __future__ import annotations
 
@@ -112,6 +128,10 @@ VIEW_MODELS = ("design", "sandwich")  # where view_floor's error enters: the wei
 MAX_ITERATIONS = 50
 STEP_TOLERANCE = 1e-6             # stop when no variable moves more than this (m or rad)
 COST_TOLERANCE = 1e-9             # ... or an accepted step lowers the cost by less than this fraction
+ODOMETRY_SCALE_SIGMA = 0.05       # σ of the prior N(1, σ²) on each odometry scale (calibrate_odometry): a wheel's
+#                                   distance and a skid-steer's turning are known to a few per cent before any
+#                                   calibration (the P3-AT's tyre wear, its effective track); weak beside what a run
+#                                   of metres and radians between landmark-held poses determines
 _CHUNK = 256                      # landmarks per block of the marginals' dense product
 
 
@@ -168,7 +188,9 @@ class StereoLogProblem:
 class StereoSmoothed:
     """The solution: poses (T, 3), landmarks (L, 3), their marginal covariances (T, 3, 3) and (L, 3, 3) (pose 0's
     zero: the gauge; a landmark no inlier observation holds keeps its start and an infinite covariance), which
-    observations were kept (``inliers``, (K,) bool), the final χ² and its degrees of freedom, iterations."""
+    observations were kept (``inliers``, (K,) bool), the final χ² and its degrees of freedom, iterations; with
+    ``calibrate_odometry`` the odometry's estimated distance and turn scales (s_d, s_θ) and their 2 × 2 marginal
+    covariance (None without)."""
 
     poses: np.ndarray
     landmarks: np.ndarray
@@ -178,6 +200,8 @@ class StereoSmoothed:
     chi2: float
     dof: int
     iterations: int
+    odometry_scales: np.ndarray | None = None              # (2,) (s_d, s_θ) with calibrate_odometry, else None
+    odometry_scale_covariance: np.ndarray | None = None    # (2, 2) their marginal covariance (as the poses')
 
     @property
     def chi2_per_dof(self) -> float:
@@ -192,7 +216,8 @@ class StereoSmoothed:
 def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmarks: np.ndarray, *,
            robust: bool = True, max_iterations: int = MAX_ITERATIONS, landmark_floor=0.0, view_floor: float = 0.0,
            view_change: float = VIEW_CHANGE, range_change: float = RANGE_CHANGE,
-           view_model: str = "design") -> StereoSmoothed:
+           view_model: str = "design", calibrate_odometry: bool = False,
+           odometry_scale_sigma: float = ODOMETRY_SCALE_SIGMA) -> StereoSmoothed:
     """The MAP poses and landmarks from the initial ones (pose 0 held where it is: the map frame); with ``robust``,
     Cauchy-weighted first, then without the observations beyond χ²₃ 99 % (module docstring).
 
@@ -213,7 +238,13 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
     weights, as just said. "sandwich": only the covariances: the white model's estimate, inliers and χ² to the bit,
     its pose and landmark marginals H⁻¹ (JᵀW Σ W J) H⁻¹ under readings of one landmark that share view_floor · ρ_ij
     (module docstring, *The sandwich*); view_floor must not exceed any reading's smallest variance; with 0 the white
-    model's covariances exactly. ``landmark_floor`` adds to the landmarks' marginals in both."""
+    model's covariances exactly. ``landmark_floor`` adds to the landmarks' marginals in both.
+
+    ``calibrate_odometry`` (False: the default, the odometry taken as unbiased): two more unknowns, the odometry's
+    distance scale s_d and turn scale s_θ (measured / true; module docstring, *Odometry scales*), each with the prior
+    N(1, ``odometry_scale_sigma``²); every odometry factor predicts (s_d·bx, s_d·by, s_θ·bθ) from
+    (bx, by, bθ) = between(x_k, x_{k+1}). The poses', landmarks' and scales' covariances are then their marginals
+    with the scales unknown (in every view_model)."""
     if not (np.isfinite(view_floor) and view_floor >= 0):
         raise StereoSmoothingError(f"view_floor must be a finite number ≥ 0 (m²), not {view_floor!r}")
     if not (np.isfinite(view_change) and view_change > 0):
@@ -223,6 +254,12 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
                                    f"{range_change!r}")
     if view_model not in VIEW_MODELS:
         raise StereoSmoothingError(f"view_model must be one of {', '.join(VIEW_MODELS)}, not {view_model!r}")
+    if not isinstance(calibrate_odometry, (bool, np.bool_)):
+        raise StereoSmoothingError(f"calibrate_odometry must be True or False, not {calibrate_odometry!r}")
+    if not (isinstance(odometry_scale_sigma, (int, float, np.floating, np.integer))
+            and np.isfinite(odometry_scale_sigma) and odometry_scale_sigma > 0):
+        raise StereoSmoothingError(f"odometry_scale_sigma must be a finite number > 0 (the scales' prior σ), not "
+                                   f"{odometry_scale_sigma!r}")
     if view_model == "sandwich" and len(problem.covariances):
         smallest = np.linalg.eigvalsh(0.5 * (problem.covariances + np.swapaxes(problem.covariances, 1, 2)))[:, 0]
         k = int(np.argmin(smallest))
@@ -242,23 +279,30 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
     whiten = _whitening(problem.covariances)
     inliers = np.ones(len(problem.pose_index), bool)
     iterations = 0
+    scales = _Scales(np.ones(2), float(odometry_scale_sigma)) if calibrate_odometry else None
     if robust:
-        poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, True, max_iterations)
+        poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, True, max_iterations, scales)
         iterations += n
         inliers = _observation_chi2(problem, whiten, poses, landmarks) <= OUTLIER_CHI2
     if view_floor > 0 and view_model == "design":
         shared = view_floor * _view_correlation_sums(problem, poses, landmarks, inliers, view_change, range_change)
         whiten = _whitening(problem.covariances + shared[:, None, None] * np.eye(3))
-    poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, False, max_iterations)
+    poses, landmarks, n = _solve(problem, whiten, poses, landmarks, inliers, False, max_iterations, scales)
     iterations += n
-    pose_cov, landmark_cov = _marginals(problem, whiten, poses, landmarks, inliers,
-                                        (view_floor, view_change, range_change) if view_model == "sandwich" else None)
+    pose_cov, landmark_cov, scale_cov = _marginals(
+        problem, whiten, poses, landmarks, inliers,
+        (view_floor, view_change, range_change) if view_model == "sandwich" else None, scales)
     landmark_cov = landmark_cov + floor
     chi2_obs = _observation_chi2(problem, whiten, poses, landmarks)
-    chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
+    if scales is None:
+        chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
+    else:       # the scales' prior rows pay for the two scales: the degrees of freedom do not change
+        chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses, scales=scales) ** 2)
+                     + np.sum(scales.prior_residuals() ** 2))
     held = np.isfinite(landmark_cov[:, 0, 0])
     dof = 3 * int(inliers.sum()) - 3 * int(held.sum())   # the odometry's 3(T−1) rows pay for the 3(T−1) poses
-    return StereoSmoothed(poses, landmarks, pose_cov, landmark_cov, inliers, chi2, dof, iterations)
+    return StereoSmoothed(poses, landmarks, pose_cov, landmark_cov, inliers, chi2, dof, iterations,
+                          None if scales is None else scales.values.copy(), scale_cov)
 
 
 def observation_chi2(problem: StereoLogProblem, poses: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -335,15 +379,36 @@ def _observation_chi2(problem, whiten, poses, landmarks) -> np.ndarray:
     return np.sum(e * e, axis=1)
 
 
-def _odometry_residuals(problem, poses, relative: np.ndarray | None = None) -> np.ndarray:
-    """Whitened residuals (T−1, 3) of the odometry increments; ``relative``: between(pose k, pose k+1) if known."""
-    e = (between(poses[:-1], poses[1:]) if relative is None else relative) - problem.increments
+@dataclass
+class _Scales:
+    """The odometry's distance and turn scales (s_d, s_θ) being estimated and their prior's σ (around 1)."""
+
+    values: np.ndarray
+    sigma: float
+
+    def factor(self) -> np.ndarray:
+        """(3,) what multiplies between(x_k, x_{k+1}) in an odometry factor: (s_d, s_d, s_θ)."""
+        return self.values[[0, 0, 1]]
+
+    def prior_residuals(self) -> np.ndarray:
+        return (self.values - 1.0) / self.sigma
+
+
+def _odometry_residuals(problem, poses, relative: np.ndarray | None = None, scales: _Scales | None = None
+                        ) -> np.ndarray:
+    """Whitened residuals (T−1, 3) of the odometry increments; ``relative``: between(pose k, pose k+1) if known;
+    ``scales``: the factor predicts (s_d·bx, s_d·by, s_θ·bθ)."""
+    if scales is None:
+        e = (between(poses[:-1], poses[1:]) if relative is None else relative) - problem.increments
+    else:
+        e = (between(poses[:-1], poses[1:]) if relative is None else relative) * scales.factor() - problem.increments
     e[:, 2] = wrap_angle(e[:, 2])
     return e / np.sqrt(problem.increment_variances)
 
 
-def _odometry_terms(problem, poses):
-    """Whitened residuals (T−1, 3) and Jacobians by pose k and pose k+1 (T−1, 3, 3)."""
+def _odometry_terms(problem, poses, scales: _Scales | None = None):
+    """Whitened residuals (T−1, 3) and Jacobians by pose k and pose k+1 (T−1, 3, 3); with ``scales`` also by
+    (s_d, s_θ) (T−1, 3, 2)."""
     a = poses[:-1]
     relative = between(a, poses[1:])
     c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
@@ -358,7 +423,12 @@ def _odometry_terms(problem, poses):
     jb[:, 1, 0], jb[:, 1, 1] = -s, c
     jb[:, 2, 2] = 1.0
     w = 1.0 / np.sqrt(problem.increment_variances)
-    return _odometry_residuals(problem, poses, relative), ja * w[:, :, None], jb * w[:, :, None]
+    if scales is None:
+        return _odometry_residuals(problem, poses, relative), ja * w[:, :, None], jb * w[:, :, None]
+    f = scales.factor()[None, :, None] * w[:, :, None]
+    js = np.zeros((n, 3, 2))
+    js[:, 0, 0], js[:, 1, 0], js[:, 2, 1] = bx, by, relative[:, 2]
+    return (_odometry_residuals(problem, poses, relative, scales), ja * f, jb * f, js * w[:, :, None])
 
 
 def _tmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -379,15 +449,19 @@ def _block_coo(rows: np.ndarray, cols: np.ndarray, blocks: np.ndarray) -> tuple[
 
 
 class _System:
-    """The normal equations at one linearisation, landmarks eliminated: S Δp = r (poses 1..T−1)."""
+    """The normal equations at one linearisation, landmarks eliminated: S Δp = r (poses 1..T−1; with ``scales``
+    bordered by the two odometry scales, which only the odometry factors and their prior see)."""
 
-    def __init__(self, problem, whiten, poses, landmarks, inliers, weights):
+    def __init__(self, problem, whiten, poses, landmarks, inliers, weights, scales: _Scales | None = None):
         t, n_l = problem.n_poses, problem.n_landmarks
         e, jp, jl = _observation_terms(problem, whiten, poses, landmarks)
         keep = inliers & (weights > 0)
         e, jp, jl, w = e[keep], jp[keep], jl[keep], weights[keep]
         pi, li = problem.pose_index[keep], problem.landmark_index[keep]
-        eo, ja, jb = _odometry_terms(problem, poses)
+        if scales is None:
+            eo, ja, jb = _odometry_terms(problem, poses)
+        else:
+            eo, ja, jb, js = _odometry_terms(problem, poses, scales)
         wjp, wjl = jp * w[:, None, None], jl * w[:, None, None]
         # pose-pose (dense 3T × 3T), then the gauge's rows dropped
         hpp = np.zeros((3 * t, 3 * t))
@@ -412,12 +486,23 @@ class _System:
         hll[~self.held] = np.eye(3)           # no observation: no step (and no covariance, see _marginals)
         gl[~self.held] = 0.0
         r, c, v = _block_coo(pi, li, _tmul(wjp, jl))
-        self.w = sp.csr_matrix((v, (r, c)), shape=(3 * t, 3 * n_l))
+        self.border = 0
+        if scales is not None:      # the scales' two rows and columns after the poses' (a border)
+            self.border = 2
+            hps = np.zeros((t, 3, 2))
+            np.add.at(hps, k, _tmul(ja, js))
+            np.add.at(hps, k + 1, _tmul(jb, js))
+            hss = np.einsum("kai,kaj->ij", js, js) + np.eye(2) / scales.sigma ** 2
+            gs = np.einsum("kai,ka->i", js, eo) + scales.prior_residuals() / scales.sigma
+            hpp = np.block([[hpp, hps.reshape(3 * t, 2)], [hps.reshape(3 * t, 2).T, hss]])
+            gp = np.concatenate([gp, gs])
+        self.w = sp.csr_matrix((v, (r, c)), shape=(3 * t + self.border, 3 * n_l))
         self.hpp, self.gp, self.hll, self.gl = hpp, gp, hll, gl
         self.n_poses, self.n_landmarks = t, n_l
 
-    def step(self, damping: float) -> tuple[np.ndarray, np.ndarray]:
-        """(Δposes (T, 3), Δlandmarks (L, 3)) of the damped Gauss–Newton step (pose 0 held)."""
+    def step(self, damping: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Δposes (T, 3), Δlandmarks (L, 3), Δscales (2,) or (0,)) of the damped Gauss–Newton step (pose 0
+        held)."""
         hll = self.hll + damping * np.einsum("kii->ki", self.hll)[:, :, None] * np.eye(3)
         hll_inv = np.linalg.inv(hll)
         hinv = sp.block_diag(list(hll_inv), format="csr") if self.n_landmarks else sp.csr_matrix((0, 0))
@@ -426,11 +511,12 @@ class _System:
         s[np.diag_indices_from(s)] += damping * np.diag(self.hpp)
         rhs = -(self.gp - m.T @ self.gl.ravel())
         s, rhs = s[3:, 3:], rhs[3:]
-        dp = np.zeros(3 * self.n_poses)
+        dp = np.zeros(3 * self.n_poses + self.border)
         dp[3:] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), rhs)
         dl = -(hll_inv @ self.gl[:, :, None])[:, :, 0] - (m @ dp).reshape(-1, 3)
         dl[~self.held] = 0.0
-        return dp.reshape(-1, 3), dl
+        t3 = 3 * self.n_poses
+        return dp[:t3].reshape(-1, 3), dl, dp[t3:]
 
 
 def _robust_weights(chi2: np.ndarray, robust: bool) -> np.ndarray:
@@ -443,54 +529,72 @@ def _robust_rho(chi2: np.ndarray, robust: bool) -> np.ndarray:
     return CAUCHY_C ** 2 * np.log1p(chi2 / CAUCHY_C ** 2) if robust else chi2
 
 
-def _total_cost(problem, whiten, poses, landmarks, inliers, robust) -> float:
+def _total_cost(problem, whiten, poses, landmarks, inliers, robust, scales: _Scales | None = None) -> float:
     chi2 = _observation_chi2(problem, whiten, poses, landmarks)[inliers]
-    return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses) ** 2))
+    if scales is None:
+        return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses) ** 2))
+    return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses, scales=scales) ** 2)
+                 + np.sum(scales.prior_residuals() ** 2))
 
 
-def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations):
-    """Levenberg–Marquardt from (poses, landmarks); Cauchy's weights (IRLS) when ``robust``."""
-    cost = _total_cost(problem, whiten, poses, landmarks, inliers, robust)
+def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations, scales: _Scales | None = None):
+    """Levenberg–Marquardt from (poses, landmarks); Cauchy's weights (IRLS) when ``robust``; ``scales`` (the odometry
+    scales, when estimated) is updated in place."""
+    cost = _total_cost(problem, whiten, poses, landmarks, inliers, robust, scales)
     damping = 0.0
     iterations = 0
     while iterations < max_iterations:
         iterations += 1
         weights = _robust_weights(_observation_chi2(problem, whiten, poses, landmarks), robust)
-        system = _System(problem, whiten, poses, landmarks, inliers, weights)
+        system = _System(problem, whiten, poses, landmarks, inliers, weights, scales)
         while True:
-            dp, dl = system.step(damping)
+            dp, dl, ds = system.step(damping)
             new_poses = poses + dp
             new_poses[:, 2] = wrap_angle(new_poses[:, 2])
             new_landmarks = landmarks + dl
-            new_cost = _total_cost(problem, whiten, new_poses, new_landmarks, inliers, robust)
+            new_scales = None if scales is None else _Scales(scales.values + ds, scales.sigma)
+            new_cost = _total_cost(problem, whiten, new_poses, new_landmarks, inliers, robust, new_scales)
             if new_cost <= cost * (1 + 1e-12) or damping > 1e6:
                 break
             damping = max(1e-4, damping * 10)
-        moved = max(float(np.abs(dp).max(initial=0.0)), float(np.abs(dl).max(initial=0.0)))
+        moved = max(float(np.abs(dp).max(initial=0.0)), float(np.abs(dl).max(initial=0.0)),
+                    float(np.abs(ds).max(initial=0.0)))
         gain = cost - new_cost
         if new_cost <= cost * (1 + 1e-12):
             poses, landmarks, cost = new_poses, new_landmarks, new_cost
+            if scales is not None:
+                scales.values = new_scales.values
             damping = damping / 10 if damping > 1e-4 else 0.0
         if moved < STEP_TOLERANCE or damping > 1e6 or 0 <= gain < COST_TOLERANCE * cost:
             break
     return poses, landmarks, iterations
 
 
-def _marginals(problem, whiten, poses, landmarks, inliers, view=None):
-    """Pose marginals (T, 3, 3) and landmark marginals (L, 3, 3) from JᵀJ at the solution (unweighted); with ``view``
-    = (view_floor, view_change, range_change), the sandwich H⁻¹ JᵀW Σ W J H⁻¹ of :func:`_view_sandwich`."""
-    system = _System(problem, whiten, poses, landmarks, inliers, np.ones(len(problem.pose_index)))
+def _marginals(problem, whiten, poses, landmarks, inliers, view=None, scales: _Scales | None = None):
+    """Pose marginals (T, 3, 3), landmark marginals (L, 3, 3) and, with ``scales``, the scales' (2, 2) (else None)
+    from JᵀJ at the solution (unweighted); with ``view`` = (view_floor, view_change, range_change), the sandwich
+    H⁻¹ JᵀW Σ W J H⁻¹ of :func:`_view_sandwich`. With the scales the reduced system is bordered by their two rows and
+    columns; its inverse's pose block is the poses' marginal with the scales unknown, and as the readings do not see
+    the scales, that block is all the landmarks' marginals and the sandwich's middle term need."""
+    system = _System(problem, whiten, poses, landmarks, inliers, np.ones(len(problem.pose_index)), scales)
     t = problem.n_poses
     hll_inv = np.linalg.inv(system.hll)
     hinv = sp.block_diag(list(hll_inv), format="csr") if problem.n_landmarks else sp.csr_matrix((0, 0))
-    m = (hinv @ system.w.T).tocsr()[:, 3:]                            # H_ll⁻¹ H_lp, the gauge's columns dropped
+    m = (hinv @ system.w.T).tocsr()[:, 3:3 * t]                       # H_ll⁻¹ H_lp, the gauge's columns dropped
     s = (system.hpp - (system.w @ (hinv @ system.w.T)).toarray())[3:, 3:]
     cov_pp = scipy.linalg.cho_solve(scipy.linalg.cho_factor(s), np.eye(len(s)))
+    scale_cov = border = None
+    if scales is not None:
+        free = 3 * (t - 1)
+        scale_cov, border = cov_pp[free:, free:].copy(), cov_pp[free:, :free].copy()
+        cov_pp = np.ascontiguousarray(cov_pp[:free, :free])
     landmark_extra = None
     if view is not None:
-        pose_extra, landmark_extra = _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp,
-                                                    *view[1:])
+        pose_extra, landmark_extra, scale_extra = _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv,
+                                                                 cov_pp, *view[1:], border=border)
         cov_pp = cov_pp + view[0] * pose_extra
+        if scale_cov is not None:
+            scale_cov = scale_cov + view[0] * scale_extra
     pose_cov = np.zeros((t, 3, 3))
     idx = np.arange(t - 1)
     blocks = cov_pp.reshape(t - 1, 3, t - 1, 3)[idx, :, idx, :]
@@ -503,14 +607,19 @@ def _marginals(problem, whiten, poses, landmarks, inliers, view=None):
     if landmark_extra is not None:
         landmark_cov = landmark_cov + view[0] * landmark_extra
     landmark_cov[~system.held] = np.inf
-    return pose_cov, landmark_cov
+    if scale_cov is not None:
+        scale_cov = 0.5 * (scale_cov + scale_cov.T)
+    return pose_cov, landmark_cov, scale_cov
 
 
-def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, view_change, range_change):
+def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, view_change, range_change,
+                   border=None):
     """The view-shared error's part of the sandwich covariance, per unit of view_floor (module docstring, *The
     sandwich*): (the poses' (3(T−1))² correction C = S⁻¹ Δ S⁻¹, the gauge's rows dropped; (L, 3, 3) each landmark's
-    own terms Λ_l). The caller adds view_floor · C to S⁻¹ before the landmarks' H_ll⁻¹ H_lp Σ_pp H_pl H_ll⁻¹ and
-    view_floor · Λ_l to each landmark's marginal.
+    own terms Λ_l; with ``border`` (the odometry scales' rows of the bordered S⁻¹ on the free poses, (2, 3(T−1))) the
+    scales' (2, 2) correction border Δ borderᵀ, else None). The caller adds view_floor · C to S⁻¹ before the landmarks'
+    H_ll⁻¹ H_lp Σ_pp H_pl H_ll⁻¹ and view_floor · Λ_l to each landmark's marginal. (The readings do not see the
+    scales: Δ has no rows for them, and ``cov_pp`` is the bordered S⁻¹'s pose block.)
 
     Reading i of landmark l (pose k_i) carries d_i, a world-frame offset of the point it finds, cov(d_i, d_j) =
     view_floor · ρ_ij · I between two readings of l (i ≠ j; :func:`_view_groups`); d_i enters the reading as J_m,i d_i
@@ -559,8 +668,10 @@ def _view_sandwich(problem, whiten, poses, landmarks, inliers, hll_inv, cov_pp, 
         landmark_extra[lm] = p @ v @ p - cross - cross.T
     delta = 0.5 * (delta + delta.T)
     pose_extra = cov_pp @ delta @ cov_pp
-    return 0.5 * (pose_extra + pose_extra.T), 0.5 * (landmark_extra + np.swapaxes(landmark_extra, 1, 2))
+    scale_extra = None if border is None else border @ delta @ border.T
+    return (0.5 * (pose_extra + pose_extra.T), 0.5 * (landmark_extra + np.swapaxes(landmark_extra, 1, 2)),
+            scale_extra)
 
 
-__all__ = ["CAUCHY_C", "OUTLIER_CHI2", "RANGE_CHANGE", "VIEW_CHANGE", "VIEW_MODELS", "StereoLogProblem",
-           "StereoSmoothed", "StereoSmoothingError", "observation_chi2", "smooth"]
+__all__ = ["CAUCHY_C", "ODOMETRY_SCALE_SIGMA", "OUTLIER_CHI2", "RANGE_CHANGE", "VIEW_CHANGE", "VIEW_MODELS",
+           "StereoLogProblem", "StereoSmoothed", "StereoSmoothingError", "observation_chi2", "smooth"]
