@@ -715,6 +715,7 @@ class Onboard:
                 reason = _unreadable(smoothed.landmark_map, "the smoothed map would not be readable")
         figures["seconds"] = time.perf_counter() - start
         if reason is not None:
+            reason = " ".join(reason.split())   # one line, whatever the error's message was
             self._event(f"the map was not smoothed: {reason}; the filter's map stands", "WARN", t)
             return SmoothingOutcome(filter_map, None, figures | {"smoothed": False, "reason": reason})
         figures |= smoothed.figures

@@ -89,3 +89,18 @@ def test_a_smoothed_map_its_reader_would_refuse_is_not_taken(tmp_path, monkeypat
     _filter_map_stands(tmp_path, result, "the smoothed map would not be readable: ")
     said = [e for e in events if "the map was not smoothed" in e]
     assert len(said) == 1 and "covariances" in said[0], events
+
+
+@pytest.mark.slow
+def test_a_smoothing_that_raises_is_said_in_one_line(tmp_path, monkeypatch):
+    """An error raised by the smoothing whose message runs over several lines (numpy's and scipy's sometimes do) is
+    said in one line, in the event and the summary, as every other reason."""
+    def raises(*args, **kwargs):
+        raise np.linalg.LinAlgError("first line of it\n  and a second")
+
+    monkeypatch.setattr(onboard, "smoothed_map", raises)
+    events: list[str] = []
+    result = _mission(tmp_path, events).run()
+    _filter_map_stands(tmp_path, result, "the smoothing failed: LinAlgError: first line of it and a second")
+    said = [e for e in events if "the map was not smoothed" in e]
+    assert len(said) == 1 and "\n" not in said[0], events
