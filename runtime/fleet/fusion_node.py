@@ -163,6 +163,7 @@ class FusionNode:
         self.saved: tuple[float, int] | None = None   # (t, landmarks) of the fused map last written to config.out
         self._logged: dict[str, tuple[int, float]] = {}   # robot -> (sequence, stamp) of its map last logged
         self._new_data = threading.Event()
+        self._failure_said: str | None = None   # the last live fusion's failure said (run), not said again
 
     def notify(self, robot: str = "") -> None:
         """New data arrived (the exchange's ``on_update`` hook)."""
@@ -192,8 +193,23 @@ class FusionNode:
             due = since >= cfg.interval
             if (pending and since >= cfg.min_period) or due:
                 pending = False
-                if self.fuse_now() is not None or due:
+                try:
+                    fused = self.fuse_now() is not None
+                except Exception as exc:  # noqa: BLE001 - a fusion that raises must not end the node's thread
+                    self._fusion_failed(exc)
+                    fused = True   # tried: again on new maps after min_period, or an interval later
+                if fused or due:
                     last_wall, last_robot = wall, self.robot_clock.clock_now()
+
+    def _fusion_failed(self, exc: Exception) -> None:
+        """A live fusion that raised (a bug on some maps): said in one line, not again while it fails the same way;
+        :meth:`run` goes on with the next maps (it ended the node's thread: the demo went on without a live fusion,
+        a traceback amid its progress lines, and ``p3at fuse --live`` ended)."""
+        why = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+        if why != self._failure_said:
+            self._failure_said = why
+            self.on_event(f"fusion at t={self.robot_clock.clock_now():.0f}s failed ({why}); the node goes on with "
+                          "the next maps")
 
     def fuse_now(self, final: bool = False, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
         """Fuse if any robot's map changed since the last fusion; publish and log the result.  ``final``: the maps
