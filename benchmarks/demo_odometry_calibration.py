@@ -4,7 +4,7 @@ Run from the repository root, on ``p3at demo --seed S --out DIR --log-sensors`` 
 ``benchmarks.demo_smoothing`` and ``benchmarks.demo_keyframes``, whose replay, keyframes, scores and fusion it reuses):
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python -m benchmarks.demo_odometry_calibration DIR [DIR ...] [--out ROOT]
-        [--window T0 T1] [--json]
+        [--window T0 T1] [--diagnose] [--json]
 
 Per robot: the replay's frames (cached in ROOT/<folder>/robotN-replay.npz) given one by one to a
 ``ReadingsRecorder`` with the default ``KeyframeRule`` (what ``p3at demo`` keeps), smoothed by
@@ -23,6 +23,14 @@ s_θ, prior N(1, 0.05²)). The estimate reads no truth; the truth only scores:
 - ATE and heading rms at every frame (``demo_smoothing.trajectory_errors``);
 - per seed the final fusion as the demo decides it (``demo_smoothing.fusion_row`` with the generator that reproduces
   the demo's own final alignment on its maps), against the truth.
+
+With ``--diagnose``, per robot also what makes its smoothed poses wrong, the smoothing run again (plain, as the demo)
+with one input replaced by the truth: the odometry (the keyframes' exact true increments; the measured ones divided by
+the mock's scales) and the readings (each replaced by its landmark's true point, the median over its readings' pixels'
+true points, plus white noise of its own covariance; or the readings whose own pixel's true point lies more than
+OFF_POINT from their landmark's cut, an oracle), with the keyframe increments' errors in units of the motion model's σ
+and the off-point readings' share and χ² at the solution. The readings' variants build the problem as
+``smoothed_map`` does (its association, covariances and odometry; checked: unchanged, they give its poses to the bit).
 
 Also printed: whether the uncalibrated smoothing reproduces the demo's own smoothed map (robotN.npz) to the bit, and
 the smoothing seconds. Each seed's figures are written to ROOT/<folder name>.json; given those files instead of
@@ -45,6 +53,8 @@ import demo_smoothing as ds  # noqa: E402
 
 KINDS = ("plain", "calibrated")
 MOCK_SCALES = (0.99, 0.99 / 1.03)   # mocks.p3at.options.OdometryErrors.realistic(): measured / true distance, turn
+OFF_POINT = 0.05                    # m: --diagnose's off-point reading: its pixel's true point this far from its
+#                                     landmark's
 
 
 def truth_scales(folder: Path, name: str) -> tuple[float, float]:
@@ -85,7 +95,133 @@ def pose_scores(folder: Path, name: str, poses: np.ndarray, times: np.ndarray, c
     return out
 
 
-def run(folders: list[Path], root: Path, window: tuple[float, float]) -> list[dict]:
+def _pose_fit(poses: np.ndarray, covariances: np.ndarray, truth: np.ndarray) -> dict:
+    """Share of poses (the gauge left out) within χ²₃ 95 %, the largest |x| error, the heading rms."""
+    from estimation.geometry import wrap_angle
+
+    e = np.column_stack([poses[:, :2] - truth[:, :2], wrap_angle(poses[:, 2] - truth[:, 2])])[1:]
+    nees = np.einsum("ta,ta->t", e, np.linalg.solve(covariances[1:], e[:, :, None])[:, :, 0])
+    return {"within": float(np.mean(nees <= ds.CHI2_3_95)), "x_err_max": float(np.abs(e[:, 0]).max()),
+            "theta_rms": float(np.sqrt(np.mean(e[:, 2] ** 2)))}
+
+
+def diagnose(folder: Path, name: str, rec: dict, readings, renderer) -> dict:
+    """--diagnose (module docstring): the plain smoothing with the odometry or the readings replaced by the truth."""
+    from dataclasses import replace
+
+    from estimation.fastslam import FastSLAMConfig
+    from estimation.geometry import between, compose, inverse, transform_points, wrap_angle
+    from estimation.stereo_readings import associate, smoothed_map
+    from estimation.stereo_smoothing import StereoLogProblem, observation_chi2, smooth
+    from runtime.trajectories import planar, read_tum
+
+    config = FastSLAMConfig.from_dict(rec["meta"]["fastslam"])
+    truth = planar(read_tum(folder / f"{name}-truth.tum"))
+    k = np.clip(np.searchsorted(truth[:, 0], readings.times - 1e-6), 0, len(truth) - 1)
+    true_poses = truth[k, 1:]
+    args = (rec["trajectory"], rec["exported"], rec["particle_positions"], rec["particle_covariances"], config)
+    bt, bo = between(true_poses[:-1], true_poses[1:]), between(readings.odometry[:-1], readings.odometry[1:])
+    sd = np.sqrt(np.diagonal(readings.increment_covariances, axis1=1, axis2=2))
+    scales = np.array([MOCK_SCALES[0], MOCK_SCALES[0], MOCK_SCALES[1]])
+    out: dict = {}
+    for label, inc in (("increment_error_sd", bt), ("increment_error_sd_unscaled", bt * scales)):
+        e = bo - inc
+        e[:, 2] = wrap_angle(e[:, 2])
+        out[label] = np.sqrt(np.mean((e / sd) ** 2, axis=0)).tolist()
+
+    def chain(increments):
+        poses = [readings.odometry[0]]
+        for d in increments:
+            poses.append(compose(poses[-1], d))
+        return np.array(poses)
+
+    plain = None
+    for label, odometry in (("odometry measured", readings.odometry), ("odometry true", chain(bt)),
+                            ("odometry measured ÷ mock's scales", chain(bo / scales))):
+        s = smoothed_map(replace(readings, odometry=odometry), *args)
+        poses = s.landmark_map.trajectory[1:][readings.frame_index, 1:]
+        out[label] = _pose_fit(poses, s.pose_covariances, true_poses)
+        plain = s if plain is None else plain
+    # the readings: the problem smoothed_map solves, built again (its association, covariances and odometry)
+    exported, full = rec["exported"], rec["trajectory"]
+    traj = np.vstack([full[:1], full[1:][readings.frame_index]])
+    f, j, lm = associate(readings, traj, exported, rec["particle_covariances"], config)
+    q = config.observation_cov_scale * readings.covariances[j] + config.observation_var_floor * np.eye(3)
+    var = np.diagonal(readings.increment_covariances, axis1=1, axis2=2).copy()
+    start = np.asarray(exported.metadata["true_start_pose"], float)
+    own = np.full((len(j), 3), np.nan)                      # each reading's pixel's true point, the start frame
+    for frame in np.unique(f):
+        sel = f == frame
+        own[sel] = renderer.true_points(compose(start, true_poses[frame]), readings.pixels[j[sel]], "left",
+                                        rectified=True)
+    own = transform_points(inverse(start), own)
+    landmark = np.full((len(exported), 3), np.nan)
+    for row in np.unique(lm):
+        p = own[lm == row]
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p):
+            landmark[row] = np.median(p, axis=0)
+    off = np.linalg.norm(own - landmark[lm], axis=1) > OFF_POINT     # NaN compares False: no truth, not off
+
+    def smooth_readings(points, keep):
+        problem = StereoLogProblem(bo, var, f[keep], lm[keep], points[keep], q[keep], len(exported))
+        sol = smooth(problem, traj[1:, 1:], exported.positions, landmark_floor=config.observation_var_floor,
+                     view_floor=config.observation_var_floor, view_model="sandwich")
+        held = sol.held & np.all(np.isfinite(landmark), axis=1)
+        e = sol.landmarks[held] - landmark[held]
+        nees = np.einsum("la,la->l", e, np.linalg.solve(sol.landmark_covariances[held], e[:, :, None])[:, :, 0])
+        return sol, _pose_fit(sol.poses, sol.pose_covariances, true_poses) | {
+            "landmarks_within": float(np.mean(nees <= ds.CHI2_3_95))}
+
+    every = np.ones(len(j), bool)
+    sol, out["readings measured"] = smooth_readings(readings.points[j], every)
+    out["readings_problem_is_smoothed_maps"] = bool(np.array_equal(sol.poses, plain.landmark_map.trajectory[1:][
+        readings.frame_index, 1:]))
+    chi2 = observation_chi2(StereoLogProblem(bo, var, f, lm, readings.points[j], q, len(exported)), sol.poses,
+                            sol.landmarks)
+    out["off_point"] = {"share": float(np.mean(off)), "chi2_below_3": float(np.mean(chi2[off] < 3.0)),
+                        "landmarks": int(len(np.unique(lm[off])))}
+    p = true_poses[f]
+    c, s_ = np.cos(p[:, 2]), np.sin(p[:, 2])
+    d = landmark[lm, :2] - p[:, :2]
+    at_truth = np.column_stack([c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1], landmark[lm, 2]])
+    white = (np.linalg.cholesky(q) @ np.random.default_rng(0).standard_normal((len(j), 3, 1)))[:, :, 0]
+    replaced = np.where(np.all(np.isfinite(at_truth), axis=1)[:, None], at_truth + white, readings.points[j])
+    out["readings: the landmark's true point + white"] = smooth_readings(replaced, every)[1]
+    out[f"readings measured, off-point (> {OFF_POINT:g} m) cut"] = smooth_readings(readings.points[j], ~off)[1]
+    return out
+
+
+def print_diagnosis(results: list[dict]) -> None:
+    if not any(f.get("diagnosis") for row in results for f in row["robots"].values()):
+        return
+    print("\n### --diagnose: the plain smoothing with one input replaced by the truth\n")
+    print("| run | robot | keyframe increments' error / model σ, rms x y θ (mock's scales removed) | off-point "
+          "readings: share, χ² < 3, landmarks | smoothed with | poses within χ²₃ 95 % | x err max mm | θ rms mrad | "
+          "landmarks within |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for row in results:
+        for name, figs in row["robots"].items():
+            d = figs.get("diagnosis")
+            if not d:
+                continue
+            inc = (" ".join(f"{v:.2f}" for v in d["increment_error_sd"]) + " ("
+                   + " ".join(f"{v:.2f}" for v in d["increment_error_sd_unscaled"]) + ")")
+            o = d["off_point"]
+            head = f"{inc} | {100 * o['share']:.1f} %, {100 * o['chi2_below_3']:.0f} %, {o['landmarks']}"
+            for label, v in d.items():
+                if not (isinstance(v, dict) and "within" in v):
+                    continue
+                lw = f"{100 * v['landmarks_within']:.1f} %" if "landmarks_within" in v else "–"
+                print(f"| {Path(row['folder']).name} | {name} | {head} | {label} | {100 * v['within']:.0f} % | "
+                      f"{1000 * v['x_err_max']:.0f} | {1000 * v['theta_rms']:.1f} | {lw} |")
+                head = " | "
+            if not d["readings_problem_is_smoothed_maps"]:
+                print(f"| {Path(row['folder']).name} | {name} | (the readings' problem does not reproduce "
+                      "smoothed_map's poses) |")
+
+
+def run(folders: list[Path], root: Path, window: tuple[float, float], diagnosis: bool = False) -> list[dict]:
     from fusion_sim import load_world
 
     from estimation.fastslam import FastSLAMConfig
@@ -133,6 +269,8 @@ def run(folders: list[Path], root: Path, window: tuple[float, float]) -> list[di
             figures["plain_equals_demo"] = bool(
                 np.array_equal(demo_map.positions, maps["plain"][name].positions)
                 and np.array_equal(demo_map.covariances, maps["plain"][name].covariances))
+            if diagnosis:
+                figures["diagnosis"] = diagnose(folder, name, rec, readings, renderer)
             row["robots"][name] = figures
         demo = {name: LandmarkMap.load(folder / f"{name}.npz") for name in ds.ROBOTS}
         seed = ds.demo_rng_seed(folder, demo["robot1"], demo["robot2"])
@@ -215,6 +353,8 @@ def main(argv: list[str] | None = None) -> int:
                              "(default /tmp/demo-odometry-calibration)")
     parser.add_argument("--window", type=float, nargs=2, default=(20.0, 37.0), metavar=("T0", "T1"),
                         help="seconds whose pose errors and σ are printed (default 20 37: seed 9's robot 1)")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="also smooth with the odometry or the readings replaced by the truth (module docstring)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = parser.parse_args(argv)
     if not args.window[0] < args.window[1]:
@@ -226,11 +366,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"cannot read the figures: {exc}")
     else:
         ds.refuse_non_demo_folders(parser, args.folders)
-        results = run(args.folders, args.out, tuple(args.window))
+        results = run(args.folders, args.out, tuple(args.window), args.diagnose)
     if args.json:
         print(json.dumps(results, indent=1, default=float))
     else:
         print_table(results, tuple(args.window))
+        print_diagnosis(results)
     return 0
 
 
