@@ -48,6 +48,15 @@ def _table(rows: list[list[str]]) -> list[str]:
     return lines
 
 
+def scales_text(figures: dict) -> str:
+    """"odometry scales: distance 0.992 ± 0.006, turn 0.959 ± 0.010, " from a smoothing's figures (the wheel
+    odometry's measured / true, estimated with the poses); "" when the figures have none."""
+    scales, sd = figures.get("odometry_scales"), figures.get("odometry_scale_sd")
+    if not scales or not sd:
+        return ""
+    return (f"odometry scales: distance {scales[0]:.3f} ± {sd[0]:.3f}, turn {scales[1]:.3f} ± {sd[1]:.3f}, ")
+
+
 def smoothing_line(robot: str, figures: dict) -> str:
     """What a robot's smoothing after the mission did (runtime.mission's summary, robots[...]["smoothing"])."""
     if not figures.get("smoothed"):
@@ -56,8 +65,8 @@ def smoothing_line(robot: str, figures: dict) -> str:
                  else "")
     return (f"{robot}: map smoothed after the mission (the one fused): {keyframes}{figures['associated']} of "
             f"{figures['readings']} readings matched to it, {figures['cut']} cut, χ²/dof "
-            f"{figures['chi2_per_dof']:.2f}, {figures['seconds']:.1f} s; the filter's map beside it "
-            f"({robot}-filter.npz)")
+            f"{figures['chi2_per_dof']:.2f}, {scales_text(figures)}{figures['seconds']:.1f} s; the filter's map "
+            f"beside it ({robot}-filter.npz)")
 
 
 def format_summary(summary: dict) -> str:

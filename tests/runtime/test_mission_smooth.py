@@ -67,6 +67,13 @@ def test_smooth_fuses_smoothed_maps_that_differ_from_the_filters_and_are_no_wors
         np.testing.assert_array_equal(result.maps[name].positions, smooth.positions)
         assert any(e.startswith(f"{name}: the final map is smoothed:") for e in events), events
         assert f"{name}: map smoothed after the mission" in format_summary(result.summary)
+        # the odometry's scales estimated with the poses: the mock's (OdometryErrors.realistic: wheels 0.99, track
+        # 1.03, so turns read 0.99 / 1.03) within 4σ, σ no wider than the prior's 0.05, said in the summary
+        scales, sd = np.array(figures["odometry_scales"]), np.array(figures["odometry_scale_sd"])
+        assert np.all(sd > 0) and np.all(sd <= 0.05)
+        assert np.all(np.abs(scales - [0.99, 0.99 / 1.03]) <= 4 * sd), (scales, sd)
+        assert smooth.metadata["smoothed"]["odometry_scales"] == figures["odometry_scales"]
+        assert f"odometry scales: distance {scales[0]:.3f} ± {sd[0]:.3f}" in format_summary(result.summary)
     # the final fusion was made of the smoothed maps: robot 1's landmarks (the reference frame) are in the fused map
     # as smoothed, not as the filter left them
     ref_smooth, ref_filter = (LandmarkMap.load(out / f"robot1{s}.npz").positions for s in ("", "-filter"))
