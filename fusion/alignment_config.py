@@ -45,6 +45,9 @@ class AlignmentConfig:
     # the law of a wrong hypothesis' chance supports (fusion.evidence.CHANCE_MODELS; session 51, option): "poisson",
     # the decoys' rate; "negative_binomial", the decoys' rate and their overdispersion (variance / mean)
     chance_model: str = "poisson"
+    # decoys scored for the dispersion's bound under chance_model "negative_binomial" (`decoys` of them are the rate's,
+    # as under "poisson"; session 52): the bound needs the rare decoys that gather many supports, 1,000 hold few or none
+    dispersion_decoys: int = 20_000
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -13,7 +13,8 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.special import betainc, gammaincinv, pdtrc
+from scipy.optimize import brentq, minimize_scalar
+from scipy.special import betainc, gammaincinv, ndtri, pdtrc
 
 from estimation.geometry import transform_points, wrap_angle
 from estimation.landmark_map import LandmarkMap
@@ -41,12 +42,25 @@ SELF_REPEAT_GATES = ("own", "pair")      # AlignmentConfig.self_repeat_gate
 # AlignmentConfig.chance_model: the law of a wrong hypothesis' chance supports.  "poisson" (the default): Poisson with
 # the decoys' rate.  "negative_binomial": the decoys' counts are overdispersed (variance/mean 1.4-2.2 on the rendered
 # demo's maps, 2.1-3.4 on their halves cut to share nothing; 1.00 on MRCLAM's; session 51), so their law is a negative
-# binomial with that variance/mean ratio (method of moments), whose upper tail -- where a false alarm lives -- is
-# heavier than Poisson's of the same mean (on the disjoint halves it matches the decoys' tail to 10+ supports, where
+# binomial with that variance/mean ratio (an upper confidence bound of it, below), whose upper tail -- where a false
+# alarm lives -- is heavier than Poisson's of the same mean (on the disjoint halves it matches the decoys' tail to 10+
+# supports, where
 # Poisson's falls short by orders of magnitude).  What makes it: walls of landmarks whose look repeats across the
 # building -- a decoy that lays one on another gathers several supports at once (positions spread uniformly, or
 # descriptors permuted: 1.1-1.2).
 CHANCE_MODELS = ("poisson", "negative_binomial")
+# Why the moment estimate of the dispersion scatters (session 52): its sampling error is the sample's fourth moment,
+# made by the rare decoys that lay a wall on a look-alike and gather 6-15 supports at a mean of 0.1-0.3 (on demo seed
+# 9's maps the top 0.1 % of 200,000 decoys carry 8-21 % of the squared deviations; over 50 draws of 1,000 decoys the
+# moment phi rises and falls with the share of its top 1 % decoys, correlation +0.82..+0.96).  A draw of 1,000 holds
+# a handful of them or none: phi 1.17-3.15 over 50 draws on seed 9's two robots' maps (200,000 decoys: 1.52), and a
+# draw without them is low, so the sample's own standard error (delta method) is low with it and covers the truth
+# 68-92 % of the time at a stated 95 %.  The remedy: the rare decoys are cheap (20,000 score in ~10 ms), so the
+# negative binomial draws AlignmentConfig.dispersion_decoys, and the null takes an upper confidence bound of phi
+# (dispersion_bound), and the tail's largest value for a dispersion up to that bound (chance_tail_within).
+DISPERSION_LEVEL = 0.95
+# largest dispersion a bound reports as finite (dispersion_bound's search; beyond it the decoys cannot bound it)
+MAX_DISPERSION = 1e4
 
 
 @dataclass(frozen=True)
@@ -89,7 +103,7 @@ def chance_tail(excess: int, rate: float, dispersion: float = 1.0) -> float:
     dispersion 1 (or below: the decoys' counts never prove underdispersion), else the negative binomial with
     r = rate / (dispersion − 1) successes of probability 1 / dispersion (P(X ≥ k) = I_{1−1/φ}(k, r)); it tends to
     Poisson's as the dispersion tends to 1."""
-    if excess <= 0:
+    if excess <= 0 or not rate < np.inf:
         return 1.0
     rate = max(rate, 1e-12)
     if not dispersion > 1.0 + 1e-9:
@@ -97,12 +111,33 @@ def chance_tail(excess: int, rate: float, dispersion: float = 1.0) -> float:
     return float(betainc(excess, rate / (dispersion - 1.0), 1.0 - 1.0 / dispersion))
 
 
+def chance_tail_within(excess: int, rate: float, dispersion: float = 1.0) -> float:
+    """The largest P(X ≥ excess) over the dispersions φ in [1, ``dispersion``] (an upper confidence bound of it; may be
+    inf) for chance supports X of mean ``rate`` (:func:`chance_tail`): Poisson's at ``dispersion`` 1.
+
+    The largest, not the one at the bound: at a fixed mean the negative binomial's tail at ``excess`` first rises with
+    φ, then falls (the mass gathers at 0; the turn is near φ ≈ 2 · excess, e.g. 9.4 at excess 5, mean 0.3), so the
+    tail at the bound alone would let a wider bound -- less known about φ -- make "found" easier.  Taken over the
+    interval it never falls as the bound rises."""
+    if excess <= 0:
+        return 1.0
+    if not dispersion > 1.0 + 1e-9:
+        return chance_tail(excess, rate, 1.0)
+    top = min(float(dispersion), MAX_DISPERSION)
+    ends = max(chance_tail(excess, rate, 1.0), chance_tail(excess, rate, top))
+    # unimodal in log φ: its interior maximum, if it lies inside the interval
+    res = minimize_scalar(lambda u: -chance_tail(excess, rate, float(np.exp(u))), bounds=(0.0, float(np.log(top))),
+                          method="bounded", options={"xatol": 1e-6})
+    return max(ends, float(-res.fun))
+
+
 def log10_false_alarm(excess: int, rate: float, hypotheses: int, dispersion: float = 1.0) -> float:
     """log10 min(1, N · P(X ≥ excess)), X Poisson(rate) (``dispersion`` 1) or its overdispersed negative binomial
-    (:func:`chance_tail`)."""
+    with any dispersion up to ``dispersion`` (an upper confidence bound of it; :func:`chance_tail_within`)."""
     if excess <= 0:
         return 0.0
-    return min(0.0, float(np.log10(max(chance_tail(excess, rate, dispersion), 1e-300)) + np.log10(max(hypotheses, 1))))
+    tail = chance_tail_within(excess, rate, dispersion)
+    return min(0.0, float(np.log10(max(tail, 1e-300)) + np.log10(max(hypotheses, 1))))
 
 
 def _rate_for_maximum(excess: int, hypotheses: int) -> float:
@@ -191,34 +226,91 @@ def decoy_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map
 
 
 def dispersed_chance_supports(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, decoys: int,
-                              rng: np.random.Generator, mask: np.ndarray | None = None) -> tuple[float, float]:
+                              rng: np.random.Generator, mask: np.ndarray | None = None,
+                              dispersion_decoys: int = 0) -> tuple[float, float]:
     """The decoys' chance supports as an overdispersed law (``chance_model="negative_binomial"``): (the 95 % upper
-    bound of their mean, their dispersion φ = variance / mean ≥ 1), from the same decoys as
-    :func:`decoy_chance_supports`.
+    bound of their mean, the 95 % upper bound of their dispersion φ = variance / mean, ≥ 1; :func:`dispersed_rate`).
 
-    φ by the method of moments over the decoys' counts *without the winner's supports* (``mask``; all of them without
-    one): a decoy near the winner (anchored on one of its pairs, a little turned) gathers part of the winner's own
-    supports, which measures the winner, not chance -- on maps that overlap these few decoys made the tail (MRCLAM's
-    15-landmark maps with identities: φ 1.5-9 with them, 1.00 without; on the rendered demo's maps a few in 20,000
-    gather 20-46 supports there).  The bound is the quasi-Poisson one, φ · Γ⁻¹(total / φ + 1, 0.95) / D (the
-    total of D counts of dispersion φ carries the information of total / φ Poisson events) on all the counts, as
-    :func:`decoy_chance_supports`'s, which it is at φ = 1."""
-    counts, kept = decoy_counts(problem, map1, map2, decoys, rng, None if mask is None else np.asarray(mask, bool))
+    The mean's bound is on the first ``decoys`` decoys, the very ones :func:`decoy_chance_supports` draws from the
+    same ``rng``, and φ's on those and ``dispersion_decoys`` − ``decoys`` more drawn after them: the bound of the mean
+    is then at least Poisson's on the same counts (quasi-Poisson at φ ≥ 1) and the tail at least Poisson's (the
+    dispersions from 1 up), so this null never finds what the Poisson default does not; the more decoys only steady φ.
+
+    φ over the decoys' counts *without the winner's supports* (``mask``; all of them without one): a decoy near the
+    winner (anchored on one of its pairs, a little turned) gathers part of the winner's own supports, which measures
+    the winner, not chance -- on maps that overlap these few decoys made the tail (MRCLAM's 15-landmark maps with
+    identities: φ 1.5-9 with them, 1.00 without; on the rendered demo's maps a few in 20,000 gather 20-46 supports
+    there)."""
+    exclude = None if mask is None else np.asarray(mask, bool)
+    counts, kept = decoy_counts(problem, map1, map2, decoys, rng, exclude)
     if len(counts) == 0:
         return 0.0, 1.0
+    if dispersion_decoys > decoys:
+        _, more = decoy_counts(problem, map1, map2, dispersion_decoys - decoys, rng, exclude)
+        kept = np.concatenate([kept, more])
     return dispersed_rate(counts, kept)
 
 
+def dispersion_bound(counts: np.ndarray, level: float = DISPERSION_LEVEL) -> float:
+    """The ``level`` upper confidence bound of the dispersion φ = variance / mean of ``counts`` (D,), i.i.d.
+    non-negative counts; at least 1 (counts never prove underdispersion), 1 when they are all 0, inf when they cannot
+    bound it (a heavy tail seen in too few counts).
+
+    The moment estimate φ̂ = s² / x̄ has the standard error σ(φ) of a negative binomial of dispersion φ and mean x̄,
+    σ² = (φ (3φ − 1)(φ − 1) / x̄ + 2φ²) / D (the delta method on its moments; 2 / D at φ = 1, Pearson's χ²), or the
+    sample's own by the delta method on its influence values where that is larger (the decoys' tail is heavier than a
+    negative binomial's).  The bound is the smallest φ ≥ 1 with φ − z σ(φ) ≥ φ̂ (z the normal ``level`` quantile):
+    the test inverted, σ taken *at the bound*, not at φ̂ -- a draw that misses the rare large counts has a low φ̂ and a
+    low standard error of its own, and a bound φ̂ + z σ(φ̂) covered a negative binomial's φ 73-93 % of the time at a
+    stated 95 % (1,000 counts of mean 0.1-1); inverted, 95-100 % at 20,000 counts (``tests/fusion/
+    test_s52_dispersion_bound.py``).  With 1,000 counts of mean 0.1-0.3 and φ ≥ 1.5 there is often none (inf)."""
+    counts = np.asarray(counts, float)
+    if counts.ndim != 1:
+        raise ValueError(f"dispersion_bound: counts must be one-dimensional, not of shape {counts.shape}")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"dispersion_bound: level must be between 0 and 1, not {level!r}")
+    if len(counts) < 2:
+        raise ValueError(f"dispersion_bound: needs at least 2 counts, not {len(counts)}")
+    if not np.all(np.isfinite(counts)) or np.any(counts < 0):
+        raise ValueError("dispersion_bound: counts must be finite and non-negative")
+    n, mean = len(counts), float(counts.mean())
+    if mean == 0.0:
+        return 1.0
+    var = float(counts.var(ddof=1))
+    phi = var / mean
+    dev = counts - mean
+    influence = (dev ** 2 - var) / mean - var * dev / mean ** 2
+    se_own = float(influence.std(ddof=1)) / np.sqrt(n)
+    z = float(ndtri(level))
+
+    def slack(u):                     # u − z σ(u) − φ̂: the bound is its first zero at or above 1
+        u = np.asarray(u, float)
+        sd_nb = np.sqrt((u * (3.0 * u - 1.0) * (u - 1.0) / mean + 2.0 * u * u) / n)
+        return u - z * np.maximum(se_own, sd_nb) - phi
+
+    if slack(1.0) >= 0.0:
+        return 1.0
+    grid = np.geomspace(1.0, MAX_DISPERSION, 4001)
+    above = np.flatnonzero(slack(grid) >= 0.0)
+    if len(above) == 0:
+        return float("inf")
+    i = int(above[0])
+    return float(brentq(lambda u: float(slack(u)), grid[i - 1], grid[i], xtol=1e-12, rtol=1e-12))
+
+
 def dispersed_rate(counts: np.ndarray, kept: np.ndarray | None = None, level: float = 0.95) -> tuple[float, float]:
-    """(the ``level`` upper bound of the mean of ``counts`` (D,) i.i.d. chance counts, their dispersion φ =
-    variance / mean, at least 1, estimated on ``kept`` (default: all)).  The bound is quasi-Poisson:
-    φ · Γ⁻¹(total / φ + 1, level) / D, Poisson's at φ = 1."""
+    """(the ``level`` upper bound of the mean of ``counts`` (D,) i.i.d. chance counts, the ``level`` upper bound of
+    their dispersion φ = variance / mean (:func:`dispersion_bound`) on ``kept`` (default: ``counts``; any length: the
+    same decoys' counts without the winner's supports, and more of them)).  The mean's bound is
+    quasi-Poisson at that φ: φ · Γ⁻¹(total / φ + 1, level) / D (the total of D counts of dispersion φ carries the
+    information of total / φ Poisson events), Poisson's at φ = 1; inf with φ."""
     counts = np.asarray(counts, float)
     kept = counts if kept is None else np.asarray(kept, float)
     if len(counts) == 0:
         return 0.0, 1.0
-    mean = float(kept.mean()) if len(kept) > 1 else 0.0
-    phi = max(1.0, float(kept.var(ddof=1)) / mean) if mean > 0 else 1.0
+    phi = dispersion_bound(kept, level) if len(kept) > 1 else 1.0
+    if not np.isfinite(phi):
+        return float("inf"), phi
     total = float(counts.sum())
     return phi * float(gammaincinv(total / phi + 1.0, level)) / len(counts), phi
 
@@ -226,13 +318,14 @@ def dispersed_rate(counts: np.ndarray, kept: np.ndarray | None = None, level: fl
 def decoy_null(problem: CorrespondenceProblem, map1: LandmarkMap, map2: LandmarkMap, config: AlignmentConfig,
                rng: np.random.Generator, mask: np.ndarray | None = None) -> tuple[float, float]:
     """The decoys' chance rate and dispersion under ``config.chance_model``: ("poisson") :func:`decoy_chance_supports`
-    and 1; ("negative_binomial") :func:`dispersed_chance_supports`."""
+    on ``config.decoys`` decoys, and 1; ("negative_binomial") :func:`dispersed_chance_supports`: the rate's bound on
+    the same ``config.decoys`` decoys, the dispersion's on ``config.dispersion_decoys`` (if more)."""
     if config.chance_model not in CHANCE_MODELS:
         raise IncompatibleMapsError(f"unknown chance_model {config.chance_model!r} (choose from "
                                     f"{', '.join(CHANCE_MODELS)})")
     if config.chance_model == "poisson":
         return decoy_chance_supports(problem, map1, map2, config.decoys, rng), 1.0
-    return dispersed_chance_supports(problem, map1, map2, config.decoys, rng, mask)
+    return dispersed_chance_supports(problem, map1, map2, config.decoys, rng, mask, config.dispersion_decoys)
 
 
 def rms_shift(poses: np.ndarray, points: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -420,7 +513,7 @@ def evidence(problem: CorrespondenceProblem, search: RansacSearch, pose: np.ndar
     rate = max(decoy_rate, structure_rate, 1e-9)
     log10_p = _log10_null(s - 2, decoy_rate, structure_rate, n, phi)
     level = np.log10(config.significance) if config.significance is not None else -6.0
-    required = max(config.min_supports, 3)
+    required = max(config.min_supports, 3) if np.isfinite(decoy_rate) else 100_000   # (inf: no bound of φ)
     while _log10_null(required - 2, decoy_rate, structure_rate, n, phi) > level and required < 100_000:
         required += 1
     ambiguous = (structure_rate > decoy_rate if phi == 1.0 else
