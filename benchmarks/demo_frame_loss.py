@@ -8,7 +8,7 @@ files, ``<robot>-filter.npz`` or ``<robot>.npz``):
     OPENBLAS_NUM_THREADS=1 nice -n 5 .venv/bin/python -m benchmarks.demo_frame_loss DIR [--robot robot1]
         [--cache FILE] [--matching logged|full-row|wide] [--near-frame-share S] [--drop-near]
         [--odometry logged|truth|unbiased] [--particles N] [--filter-seed K]
-        [--from T0] [--to T1] [--every N] [--turns] [--json FILE] [--save-map FILE] [--save-smoothed FILE]
+        [--from T0] [--to T1] [--every N] [--turns] [--readings] [--json FILE] [--save-map FILE] [--save-smoothed FILE]
 
 or, from the truth alone, each robot's near-wall episodes beside its self-check, for any number of demo folders:
 
@@ -51,6 +51,9 @@ self-check's first alarm, the largest |eθ|, ATE, the final error, the wrong mat
 angle turned, the odometry's error over it, the motion model's σθ for it (the random walk's ``increment_variance``
 summed over its increments) and that error in σ; the best particle's heading error before and after, and the wrong
 matches in the 10 s after it.
+``--readings``: the readings of the frames in [``--from``, ``--to``] and of all the others against their true
+points (in the robot's true frame): readings a frame, the median |measured − true|, the share beyond χ²₃ 99 % of
+their own covariance, the median true and measured range.
 ``--episodes``: per folder and robot, the frames at which most of the middle row of the left image (``NEAR_COLUMNS``)
 looks at a surface nearer than the head's minimum depth, grouped into episodes, beside the filter map's and the
 published map's self-check verdicts.
@@ -80,6 +83,7 @@ from runtime.commands.options import non_negative_float, non_negative_int, posit
 WRONG = 0.10          # m: a match whose reading's true point is this far from its landmark's first reading's joins
 WRONG_FAR = 0.50      # m: ... this far: not a neighbouring corner or a ray that slipped off an edge, another place
 LOST_RAD = 0.05       # rad: a heading error this large (and beyond 3 stated σ) counts as the frame lost
+CHI2_3_99 = 11.345    # χ²₃ 99 %: a reading beyond it of its own covariance is not what the head claims
 
 
 # -- pure functions ------------------------------------------------------------------------------------------------
@@ -395,6 +399,41 @@ def _verdict(path: Path) -> str:
         ("flagged" if check.get("lost") else "not flagged")
 
 
+# -- 2c. the readings themselves against the truth ------------------------------------------------------------------
+def reading_errors(points: np.ndarray, covariances: np.ndarray, true_local: np.ndarray) -> dict[str, float]:
+    """Readings (N, 3) in the robot frame with their covariances (N, 3, 3) against their true points in the robot's
+    true frame (N, 3; NaN: unknown): how many are scored, the median |measured − true|, the share beyond χ²₃ 99 % of
+    their own covariance, the median true and measured horizontal range."""
+    ok = np.all(np.isfinite(true_local), axis=1)
+    e = points[ok] - true_local[ok]
+    if not len(e):
+        return {"scored": 0, "median_error": float("nan"), "beyond": float("nan"), "true_range": float("nan"),
+                "range": float("nan")}
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(covariances[ok], e[:, :, None])[:, :, 0])
+    return {"scored": int(ok.sum()), "median_error": float(np.median(np.linalg.norm(e, axis=1))),
+            "beyond": float(np.mean(nees > CHI2_3_99)),
+            "true_range": float(np.median(np.hypot(true_local[ok, 0], true_local[ok, 1]))),
+            "range": float(np.median(np.hypot(points[ok, 0], points[ok, 1])))}
+
+
+def print_readings(rec: dict, t0: float, t1: float) -> None:
+    """The readings of the frames in [t0, t1] and of the others, scored against the truth (``reading_errors``)."""
+    bounds = np.r_[0, np.cumsum(rec["counts"])]
+    local = np.full((bounds[-1], 3), np.nan)
+    for i in range(len(rec["t"])):
+        s = slice(bounds[i], bounds[i + 1])
+        local[s] = transform_points(inverse(compose(rec["start"], rec["truth"][i])), rec["true_points"][s])
+    inside = np.repeat((rec["t"] >= t0) & (rec["t"] <= t1), rec["counts"])
+    print("| frames | readings a frame | median \\|measured − true\\| | beyond χ²₃ 99 % of their covariance | "
+          "true / measured range |")
+    print("|---|---|---|---|---|")
+    for name, rows, frames in ((f"{t0:g}–{t1:g} s", inside, np.sum((rec["t"] >= t0) & (rec["t"] <= t1))),
+                               ("the others", ~inside, np.sum((rec["t"] < t0) | (rec["t"] > t1)))):
+        r = reading_errors(rec["points"][rows], rec["covariances"][rows], local[rows])
+        print(f"| {name} | {rows.sum() / max(int(frames), 1):.1f} | {r['median_error']:.3f} m | "
+              f"{100 * r['beyond']:.0f} % | {r['true_range']:.2f} / {r['range']:.2f} m |")
+
+
 # -- 3. figures ----------------------------------------------------------------------------------------------------
 def errors(d: dict) -> dict[str, np.ndarray]:
     """Per frame: position / heading error, stated σθ (drift), cloud σθ, truth's NEES in the cloud, odometry error."""
@@ -500,6 +539,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--to", dest="t1", type=non_negative_float, default=1e9)
     parser.add_argument("--every", type=positive_int, default=8)
     parser.add_argument("--turns", action="store_true")
+    parser.add_argument("--readings", action="store_true",
+                        help="also score the readings of the frames in [--from, --to] and of the others")
     parser.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the summary (and turns)")
     parser.add_argument("--save-map", type=Path, default=None, metavar="FILE",
                         help="write the replayed filter's map (as the mission exports it), for `p3at fuse`")
@@ -530,6 +571,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.particles or 'as logged'}, "
           f"filter seed {'as logged' if args.filter_seed is None else args.filter_seed}")
     print_timeline(d, args.t0, args.t1, args.every)
+    if args.readings:
+        print_readings(rec, args.t0, args.t1)
     s = summary(d)
     print("summary: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in s.items()))
     turns = []

@@ -102,3 +102,18 @@ def test_near_readings_are_those_whose_true_point_is_nearer_than_the_depth_ahead
            "true_points": points}
     near = dfl.near_readings(rec, min_depth, head_x)
     assert near.tolist() == [ahead < min_depth, False, False] or abs(ahead - min_depth) < 1e-9
+
+
+def test_reading_errors_scores_readings_against_their_truth_in_their_own_covariance():
+    truth = np.array([[2.0, 0.0, 0.5], [0.0, 3.0, 0.5], [4.0, 0.0, 0.0], [np.nan] * 3])
+    points = truth.copy()
+    points[0, 0] += 0.01                    # 1 σ off
+    points[1, 1] += 0.5                     # 50 σ off
+    points[3] = [1.0, 1.0, 1.0]             # no truth: not scored
+    cov = np.tile(np.eye(3) * 1e-4, (4, 1, 1))
+    r = dfl.reading_errors(points, cov, truth)
+    assert r["scored"] == 3
+    assert np.isclose(r["beyond"], 1 / 3)
+    assert np.isclose(r["median_error"], 0.01)
+    assert np.isclose(r["true_range"], 3.0) and np.isclose(r["range"], 3.5)
+    assert dfl.reading_errors(points[3:], cov[3:], truth[3:])["scored"] == 0
