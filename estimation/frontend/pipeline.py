@@ -75,6 +75,11 @@ class StereoMatches:
     points_camera, covariances_camera: (K, 3), (K, 3, 3) in the left optical frame (m, m²)
     points_base, covariances_base: the same in base_link
     descriptors: (K, D) float32 of the left corners;  descriptor_distances: (K,)
+    beyond_range: with ``StereoMatchConfig(search="full_row")``, the matches (found along the whole row, refined,
+                  triangulable) refused because their disparity is beyond max_disparity, not among the K; 0 under
+                  "window"
+    near_scene:   the frame was dropped as nearer than the head can measure (beyond_range more than
+                  ``near_scene_share`` of all its matches): K = 0, and the filter only predicts
     """
 
     left_pixels: np.ndarray
@@ -86,6 +91,8 @@ class StereoMatches:
     covariances_base: np.ndarray
     descriptors: np.ndarray
     descriptor_distances: np.ndarray
+    beyond_range: int = 0
+    near_scene: bool = False
 
     def __len__(self) -> int:
         return len(self.disparities)
@@ -160,13 +167,21 @@ def run_frontend(left: np.ndarray, right: np.ndarray, config: FrontEndConfig = F
         disparity, _ = refine_disparity_ssd(left, right, left_px, disparity, config.matching.ssd_half_window)
     # 5. triangulation, dropping points too far away
     keep = keep_triangulable(disparity, config.geometry, config.noise)
+    beyond_range, near_scene = 0, False
+    if config.matching.search == "full_row":   # the range is a validity test: refuse (and count) what lies beyond
+        beyond = keep & (disparity > config.matching.max_disparity)
+        beyond_range = int(np.count_nonzero(beyond))
+        keep &= ~beyond
+        share = config.matching.near_scene_share
+        if share is not None and beyond_range > share * (beyond_range + np.count_nonzero(keep)):
+            keep[:], near_scene = False, True   # a scene nearer than the head can measure: no reading at all
     left_px, disparity, desc, dist = left_px[keep], disparity[keep], left_desc[li[keep]], dist[keep]
     points = triangulate(left_px, disparity, config.geometry)
     covariances = triangulation_covariances(left_px, disparity, config.geometry, config.noise)
     points_base, covariances_base = camera_to_base(points, covariances, config.geometry)
     right_px = np.stack([left_px[:, 0] - disparity, left_px[:, 1]], axis=1)
     return StereoMatches(left_px, right_px, disparity, points, covariances, points_base, covariances_base,
-                         desc, dist)
+                         desc, dist, beyond_range, near_scene)
 
 
 class FrontEnd:

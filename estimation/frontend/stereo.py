@@ -1,7 +1,10 @@
 """Sparse stereo correspondence on a rectified pair: corners on the same row, matched by descriptor.
 
 For each left corner the candidates are the right corners within ``row_tolerance`` px of its row and with
-a disparity u_left - u_right in [min_disparity, max_disparity]. The nearest candidate by descriptor distance
+a disparity u_left - u_right in [min_disparity, max_disparity] (``search="window"``, the default), or at least
+min_disparity anywhere along the row (``search="full_row"``: the front end then refuses a match beyond
+max_disparity, so the range is a validity test and not a window that makes up a wrong match for a corner whose
+true one lies beyond it, e.g. a wall nearer than fx·B / max_disparity). The nearest candidate by descriptor distance
 is kept if it passes the ratio test against the second nearest and the left-right check (the left corner
 is also the nearest of that right corner's candidates). The disparity is then refined to sub-pixel by a
 parabola through a zero-mean SSD profile along the row (or taken from the corners' sub-pixel u).
@@ -29,6 +32,13 @@ class StereoMatchConfig:
                        D for D-bit binary descriptors); None: no limit
     subpixel:          "ssd": parabola through a zero-mean SSD profile along the row; "corner": u_l - u_r
     ssd_half_window:   the SSD patch is (2·h + 1)² px
+    search:            "window" (default): candidates only within [min_disparity, max_disparity];
+                       "full_row": every disparity ≥ min_disparity is a candidate (the ratio test and the left-right
+                       check see the whole row), and ``run_frontend`` refuses the matches beyond max_disparity,
+                       counting them (``StereoMatches.beyond_range``)
+    near_scene_share:  with "full_row" only: a frame whose refused matches are more than this share of all its
+                       matches gives no match (``StereoMatches.near_scene``): the scene is nearer than the head can
+                       measure and its in-range matches are mostly false too; None (default): no such rule
     """
 
     row_tolerance: float = 1.0
@@ -38,6 +48,8 @@ class StereoMatchConfig:
     max_distance: float | None = 0.25
     subpixel: str = "ssd"
     ssd_half_window: int = 3
+    search: str = "window"
+    near_scene_share: float | None = None
 
     def __post_init__(self) -> None:
         if self.subpixel not in ("ssd", "corner"):
@@ -46,13 +58,22 @@ class StereoMatchConfig:
             raise FrontEndError(f"ratio must be in (0, 1], got {self.ratio}")
         if self.max_disparity <= self.min_disparity:
             raise FrontEndError(f"empty disparity range [{self.min_disparity}, {self.max_disparity}]")
+        if self.search not in ("window", "full_row"):
+            raise FrontEndError(f"search must be 'window' or 'full_row', got {self.search!r}")
+        if self.near_scene_share is not None:
+            if self.search != "full_row":
+                raise FrontEndError("near_scene_share needs search='full_row' (the matches beyond the range)")
+            share = self.near_scene_share
+            if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= share < 1.0:
+                raise FrontEndError(f"near_scene_share must be in [0, 1) or None, got {self.near_scene_share!r}")
 
 
 def admissible_pairs(left_pixels: np.ndarray, right_pixels: np.ndarray,
                      config: StereoMatchConfig = StereoMatchConfig(),
                      buffers: ScratchBuffers | None = None) -> np.ndarray:
     """(N, M) bool: right corner j is a candidate for left corner i (same row within the tolerance, disparity
-    within range); left (N, 2) and right (M, 2) pixels (u, v), compared in float32."""
+    within range, or only ≥ min_disparity with ``search="full_row"``); left (N, 2) and right (M, 2) pixels (u, v),
+    compared in float32."""
     n, m = len(left_pixels), len(right_pixels)
     left_px = np.asarray(left_pixels, np.float32)
     right_px = np.asarray(right_pixels, np.float32)
@@ -62,7 +83,8 @@ def admissible_pairs(left_pixels: np.ndarray, right_pixels: np.ndarray,
     # disparity u_l - u_r within range
     np.subtract(left_px[:, 0:1], right_px[None, :, 0], out=work)
     np.greater_equal(work, config.min_disparity, out=admissible)
-    admissible &= np.less_equal(work, config.max_disparity, out=test)
+    if config.search == "window":
+        admissible &= np.less_equal(work, config.max_disparity, out=test)
     # same row within tolerance
     np.subtract(left_px[:, 1:2], right_px[None, :, 1], out=work)
     admissible &= np.less_equal(np.abs(work, out=work), config.row_tolerance, out=test)
