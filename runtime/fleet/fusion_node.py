@@ -164,6 +164,13 @@ class FusionNode:
         self._logged: dict[str, tuple[int, float]] = {}   # robot -> (sequence, stamp) of its map last logged
         self._new_data = threading.Event()
         self._failure_said: str | None = None   # the last live fusion's failure said (run), not said again
+        # one fusion at a time: a live one (run's thread) and the final one (the caller's) share the robots' clock,
+        # the alignment cache, the history (the next fusion's seed is its length), the sources, the published fused
+        # map and the recording; the final one waits for a live one in progress, and no live one starts after it
+        self._fusing = threading.Lock()
+        self._live_since: float | None = None   # the wall clock when the live fusion in progress began
+        self._fusing_t: float | None = None     # the robots' clock of the fusion in progress (its t), once known
+        self._final_begun = False
 
     def notify(self, robot: str = "") -> None:
         """New data arrived (the exchange's ``on_update`` hook)."""
@@ -194,12 +201,23 @@ class FusionNode:
             if (pending and since >= cfg.min_period) or due:
                 pending = False
                 try:
-                    fused = self.fuse_now() is not None
+                    fused = self._live_fusion()
                 except Exception as exc:  # noqa: BLE001 - a fusion that raises must not end the node's thread
                     self._fusion_failed(exc)
                     fused = True   # tried: again on new maps after min_period, or an interval later
                 if fused or due:
                     last_wall, last_robot = wall, self.robot_clock.clock_now()
+
+    def _live_fusion(self) -> bool:
+        """One fusion of :meth:`run` (whether it made one), none once the final fusion has begun."""
+        with self._fusing:
+            if self._final_begun:
+                return False
+            self._live_since, self._fusing_t = self.clock(), None
+            try:
+                return self._fuse() is not None
+            finally:
+                self._live_since = None
 
     def _fusion_failed(self, exc: Exception) -> None:
         """A live fusion that raised (a bug on some maps): said in one line, not again while it fails the same way;
@@ -215,14 +233,20 @@ class FusionNode:
         """Fuse if any robot's map changed since the last fusion; publish and log the result.  ``final``: the maps
         are complete (the robots are done, or the node stops), so the fusion is decided on them alone, as ``p3at
         fuse`` decides on saved maps, not confirmed against earlier fusions (fusion/confirmation.py). ``replace``:
-        robots' maps that stand in for those the exchange holds (a last map lost on the wire, read from its file)."""
+        robots' maps that stand in for those the exchange holds (a last map lost on the wire, read from its file).
+        One fusion at a time: waits for one in progress on another thread."""
+        with self._fusing:
+            return self._fuse(final, replace)
+
+    def _fuse(self, final: bool = False, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
+        """:meth:`fuse_now`, its caller holding ``_fusing``."""
         messages = {**self.exchange.receive(excluding=FUSED), **(replace or {})}
         for robot in sorted(set(messages) - set(self.mapped)):
             self.mapped.append(robot)
             self.on_event(f"first map from {robot}: {len(messages[robot].landmark_map)} landmarks"
                           + ("; a fusion waits for another robot's map" if len(messages) < 2 else ""))
         sources = {r: (m.sequence, m.stamp) for r, m in messages.items()}
-        t = self.robot_clock.observe(messages)
+        t = self._fusing_t = self.robot_clock.observe(messages)
         if len(messages) < 2 or sources == self.sources:
             return None
         maps = {r: m.landmark_map for r, m in messages.items()}
@@ -254,9 +278,21 @@ class FusionNode:
     def final_fusion(self, replace: Mapping[str, MapMessage] | None = None) -> FusionReport | None:
         """The fusion of every map the node holds (``replace``: maps standing in for some, see :meth:`fuse_now`),
         whatever the last fusion held, decided on the maps alone (the robots are done or the node stops);
-        published and logged like any other."""
-        self.sources = {}
-        return self.fuse_now(final=True, replace=replace)
+        published and logged like any other. A live fusion in progress (:meth:`run`'s thread, still fusing after
+        its stop was asked) is waited for, said in one line; no live fusion starts after this one has begun, so it
+        is the node's last and nothing is fused twice at once (the robots' clock, the alignment cache, the history,
+        the published map and the recording are the node's one state)."""
+        if not self._fusing.acquire(blocking=False):
+            since, t = self._live_since, self._fusing_t
+            self.on_event("the final fusion waits for the live fusion" + ("" if t is None else f" at t={t:.0f}s")
+                          + ("" if since is None else f" (running {self.clock() - since:.0f} s)") + " to end")
+            self._fusing.acquire()
+        try:
+            self._final_begun = True
+            self.sources = {}
+            return self._fuse(final=True, replace=replace)
+        finally:
+            self._fusing.release()
 
     def _say_priors(self, t: float, maps: dict) -> None:
         """Once per pair, when both its robots are first fused: the fusion is not blind to where they started."""

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +44,7 @@ PASSED = ("seconds", "seed", "camera", "camera_rate", "camera_latency", "particl
           "map_save_interval")
 
 
+FUSION_END_SAY = 30.0  # s between the lines saying the fusion node's thread still runs a live fusion at the end
 LAST_MAP_WAIT = 5.0  # s the final fusion waits for each robot's last map, the one its last status names
 
 
@@ -228,6 +230,22 @@ def final_fusion(node: FusionNode, summaries: dict, timeout: float = LAST_MAP_WA
     return final, {r: m for r, m in missing.items() if r not in read and r not in final_held and r not in used}, read
 
 
+def end_fusion_thread(thread: threading.Thread, say: Callable[[str], None], period: float = FUSION_END_SAY) -> None:
+    """The fusion node's thread (its stop asked: it starts no fusion after) joined once its live fusion in progress
+    has ended, however long that takes (one cannot be cut short): the final fusion must not run beside it. A line
+    (``say``) each ``period`` s it still runs. It was joined for 30 s, then the final fusion ran beside a live one
+    still going (a loaded machine), on the node's one state (session 52; the node now also serialises its fusions:
+    FusionNode.final_fusion)."""
+    if not thread.is_alive():
+        return
+    start = time.monotonic()
+    thread.join(timeout=period)
+    while thread.is_alive():
+        say(f"p3at demo: the fusion node's live fusion still runs {time.monotonic() - start:.0f} s after the robots "
+            "ended; the final fusion waits for it")
+        thread.join(timeout=period)
+
+
 def free_port() -> int:
     """A TCP port free on loopback now (the OS picks it; another process may take it before it is used): the port
     the demo's fusion node listens on, and the fleet tests' ports."""
@@ -339,8 +357,7 @@ def _run_processes_demo(args: argparse.Namespace, noted: list[int]) -> int:
                 process.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 process.kill()
-        if fusion_thread.is_alive():
-            fusion_thread.join(timeout=30)
+        end_fusion_thread(fusion_thread, progress.warning)
         restore()
         progress.done()
     summaries, ended = {}, {}
