@@ -145,3 +145,50 @@ def test_a_fusion_thread_already_ended_is_not_waited_for_and_nothing_is_said():
     end_fusion_thread(thread, said.append, period=0.01)
     end_fusion_thread(threading.Thread(target=lambda: None), said.append, period=0.01)   # never started
     assert said == []
+
+
+class _CountedClock(ManualClock):
+    """A wall clock standing still that sets ``passed`` once it has been read ``reads`` times from ``armed`` on."""
+
+    def __init__(self, now: float, reads: int) -> None:
+        super().__init__(now)
+        self.reads, self.count, self.armed = reads, 0, False
+        self.passed = threading.Event()
+
+    def __call__(self) -> float:
+        if self.armed:
+            self.count += 1
+            if self.count >= self.reads:
+                self.passed.set()
+        return self.now
+
+
+def test_no_live_fusion_starts_after_the_final_fusion_has_begun(monkeypatch):
+    first, second = _maps(2)
+    fuse, calls = fusion_node.fuse_maps, []
+
+    def counted(*args, **kwargs):
+        calls.append(args[3])
+        return fuse(*args, **kwargs)
+
+    monkeypatch.setattr(fusion_node, "fuse_maps", counted)
+    # run's every turn reads the wall clock once, at most four times with a fusion: five reads are past its first turn,
+    # which fuses whatever is new (nothing has been fused by run yet)
+    clock = _CountedClock(1000.0, reads=5)
+    exchange = InProcessExchange()
+    node = FusionNode(exchange, FusionNodeConfig(interval=10.0, min_period=0.0), clock=clock)
+    _publish(exchange, first, 1.0)
+    assert node.final_fusion() is not None
+    _publish(exchange, second, 2.0)   # new maps after the final fusion (a robot's map came late)
+    stop = threading.Event()
+    runner = threading.Thread(target=node.run, args=(stop,), daemon=True)
+    clock.armed = True
+    runner.start()
+    try:
+        assert clock.passed.wait(BOUND), "the node's thread did not turn"
+    finally:
+        stop.set()
+        runner.join(BOUND)
+    assert not runner.is_alive()
+    assert calls == [1.0]                 # the final fusion only: it stays the node's last
+    assert [r.t for r in node.history] == [1.0]
