@@ -784,6 +784,8 @@ class Mission:
                 "landmarks": len(maps[r.name]),
                 "frames_received": s.frames_received, "frames_processed": s.frames_processed,
                 "frames_dropped": s.dropped_frames, "frames_without_odometry": s.frames_without_odometry,
+                # processed frames that faced a surface nearer than the stereo head measures: no reading from them
+                "frames_too_near": core.frames_too_near,
                 "final_position_error": None if true_final is None
                 else float(np.hypot(*(final_pose[:2] - true_final[:2]))),
                 "odometry_position_error": odometry_error,

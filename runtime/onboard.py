@@ -260,6 +260,7 @@ class SlamCore:
                                           config=config.fastslam) if config.keep_readings else None)
         # why the readings stopped being kept during the run (an error in keeping them), None while they are kept
         self.readings_failure: str | None = None
+        self.frames_too_near = 0   # frames the front end dropped: a scene nearer than the head can measure
 
     def step(self, frame: CameraFrame, odometry_pose: np.ndarray) -> StepResult:
         timings: dict[str, float] = {}
@@ -270,6 +271,8 @@ class SlamCore:
         else:
             matches = self.front_end.match(frame.left, frame.right)
             observations = matches.to_observations(frame.t)
+            # a frame facing a surface nearer than the head measures gives no reading (the filter only predicts)
+            self.frames_too_near += bool(matches.near_scene)
         t1 = self.timer()
         timings["frontend"] = t1 - t0
         if self.previous_odometry is not None:

@@ -48,6 +48,13 @@ def _table(rows: list[list[str]]) -> list[str]:
     return lines
 
 
+def too_near_line(robot: str, frames: int) -> str:
+    """What to say of a robot's frames that faced a surface nearer than its stereo head measures."""
+    return (f"{robot}: {frames} frame{'s' if frames != 1 else ''} faced a surface nearer than the stereo head measures "
+            "(most matches beyond its disparity range): no reading taken from "
+            f"{'them' if frames != 1 else 'it'}, the filter only predicted")
+
+
 def scales_text(figures: dict) -> str:
     """"odometry scales: distance 0.992 ± 0.006, turn 0.959 ± 0.010, " from a smoothing's figures (the wheel
     odometry's measured / true, estimated with the poses); "" when the figures have none."""
@@ -95,6 +102,9 @@ def format_summary(summary: dict) -> str:
     for name, reasons in drops.items():
         because = "; ".join(f"{n} frames: {why}" for why, n in reasons.items())
         lines.append(f"{name}: the virtual head dropped {because}")
+    for name, r in summary["robots"].items():
+        if r.get("frames_too_near"):
+            lines += _wrapped(too_near_line(name, r["frames_too_near"]))
     for name, r in summary["robots"].items():   # --smooth
         if r.get("smoothing"):
             lines += _wrapped(smoothing_line(name, r["smoothing"]))

@@ -1,12 +1,12 @@
 """The matcher's disparity range as a validity test (``StereoMatchConfig(search="full_row")``) and the frames that
-look at a scene nearer than the head can measure (``near_scene_share``), both options, default off.
+look at a scene nearer than the head can measure (``near_scene_share``), the defaults since session 52.
 
 The scene: a fronto-parallel wall of tiles (one random texture repeated every ``PERIOD`` px, each tile with its own
 weaker texture on top, like bricks), so that a corner has look-alikes one period along the row. Nearer than the
 head's minimum depth fx·B / max_disparity (520 · 0.09 / 96 = 0.4875 m) its true disparity lies beyond the window,
-and today's window search gives it the look-alike inside the window: a wrong depth (the failure helper C found on
-the rendered demo, where a robot turns 0.3 m from a wall). The whole-row search finds the true match, beyond the
-range, and refuses it.
+and the window search (the default before) gives it the look-alike inside the window: a wrong depth (the failure
+helper C found on the rendered demo, where a robot turns 0.3 m from a wall). The whole-row search finds the true
+match, beyond the range, and refuses it.
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from estimation.frontend import (
     StereoMatchConfig,
     run_frontend,
 )
+from estimation.frontend.stereo import NEAR_SCENE_SHARE
 
 from .conftest import texture
 
@@ -53,7 +54,7 @@ def near_wall():
 
 
 def test_the_window_search_makes_up_wrong_depths_for_a_wall_too_near(near_wall):
-    m = frontend(near_wall)   # today's default
+    m = frontend(near_wall, search="window")   # the default before session 52
     assert len(m) > 50 and m.beyond_range == 0 and not m.near_scene
     # every match is wrong: the truth (150 px) is not in the window (the sub-pixel step moves a match by < 2.5 px);
     # most take the look-alike one tile along
@@ -64,8 +65,8 @@ def test_the_window_search_makes_up_wrong_depths_for_a_wall_too_near(near_wall):
 
 
 def test_the_whole_row_search_refuses_the_true_matches_beyond_the_range(near_wall):
-    window = frontend(near_wall)
-    m = frontend(near_wall, search="full_row")
+    window = frontend(near_wall, search="window")
+    m = frontend(near_wall, search="full_row", near_scene_share=None)
     # the true matches are found, at the true disparity, and refused (counted, not returned)
     assert m.beyond_range > 0.8 * len(window)
     assert not m.near_scene and np.all(m.disparities <= 96)
@@ -89,7 +90,7 @@ def test_a_frame_mostly_beyond_the_range_gives_no_reading(near_wall, share):
 
 def test_a_wall_within_the_range_loses_at_most_a_few_ambiguous_matches():
     pair = tiled_wall(40)   # 1.17 m
-    window, full = frontend(pair), frontend(pair, search="full_row", near_scene_share=0.3)
+    window, full = frontend(pair, search="window"), frontend(pair, search="full_row", near_scene_share=0.3)
     assert not full.near_scene and np.median(full.disparities) == pytest.approx(40, abs=0.2)
     # every match kept by the whole-row search is one of the window's, to the bit: its nearest, second nearest
     # and left-right partner over the whole row are within the window, so the window's tests pass too
@@ -103,21 +104,20 @@ def test_a_wall_within_the_range_loses_at_most_a_few_ambiguous_matches():
     assert len(full) >= 0.95 * len(window) and full.beyond_range <= 0.05 * len(full)
 
 
-def test_the_default_is_the_window_search_without_the_frame_rule(tsukuba):
-    default, window = run_frontend(*tsukuba), run_frontend(*tsukuba, FrontEndConfig(
-        matching=StereoMatchConfig(search="window", near_scene_share=None)))
-    assert StereoMatchConfig().search == "window" and StereoMatchConfig().near_scene_share is None
-    assert len(default) > 100 and default.beyond_range == 0 and not default.near_scene
-    for name in ("left_pixels", "disparities", "points_base", "covariances_base", "descriptors",
-                 "descriptor_distances"):
-        np.testing.assert_array_equal(getattr(default, name), getattr(window, name))
-    # a real scene (tsukuba, disparities up to ~15 px) within the range: the whole row keeps all but a few
-    full = run_frontend(*tsukuba, FrontEndConfig(matching=StereoMatchConfig(search="full_row")))
-    assert len(full) >= 0.9 * len(default) and full.beyond_range <= 0.05 * len(default)
+def test_the_default_is_the_whole_row_search_with_the_frame_rule(tsukuba, near_wall):
+    assert StereoMatchConfig().search == "full_row" and StereoMatchConfig().near_scene_share == NEAR_SCENE_SHARE
+    default = run_frontend(*tsukuba)
+    window = run_frontend(*tsukuba, FrontEndConfig(matching=StereoMatchConfig(search="window")))
+    # a real scene (tsukuba, disparities up to ~15 px) within the range: the whole row keeps all but a few of the
+    # window's matches, and refuses few
+    assert len(default) > 100 and not default.near_scene
+    assert len(default) >= 0.9 * len(window) and default.beyond_range <= 0.05 * len(window)
+    # the wall too near: no reading by default
+    assert frontend(near_wall).near_scene and len(frontend(near_wall)) == 0
 
 
 @pytest.mark.parametrize("bad", [
-    {"search": "row"}, {"search": None}, {"near_scene_share": 0.3}, {"search": "window", "near_scene_share": 0.3},
+    {"search": "row"}, {"search": None}, {"near_scene_share": 1.0}, {"search": "window", "near_scene_share": -1},
     {"search": "full_row", "near_scene_share": 1.0}, {"search": "full_row", "near_scene_share": -0.1},
     {"search": "full_row", "near_scene_share": float("nan")}, {"search": "full_row", "near_scene_share": "0.3"},
     {"search": "full_row", "near_scene_share": True}])
@@ -134,7 +134,7 @@ def test_any_wall_nearer_than_the_minimum_depth_gives_no_reading(disparity, seed
     wrong depths, the whole-row search with the frame rule none."""
     pair = tiled_wall(disparity, seed)
     assert GEOMETRY.fx * GEOMETRY.baseline / disparity < MIN_DEPTH
-    window = frontend(pair)
+    window = frontend(pair, search="window")
     nearest = GEOMETRY.fx * GEOMETRY.baseline / (96 + 2.5)   # the window's, after the sub-pixel step
     assert len(window) > 0 and np.all(window.points_camera[:, 2] > nearest)   # every one wrong
     m = frontend(pair, search="full_row", near_scene_share=0.3)

@@ -48,6 +48,7 @@ def test_smooth_fuses_smoothed_maps_that_differ_from_the_filters_and_are_no_wors
     for name in ROBOTS:
         figures = result.summary["robots"][name]["smoothing"]
         assert figures["smoothed"] and figures["reason"] is None
+        assert result.summary["robots"][name]["frames_too_near"] == 0   # the synthetic camera: observations, no images
         assert 0 < figures["inliers"] <= figures["associated"] <= figures["readings"] == figures["readings_kept"]
         assert figures["cut"] == figures["associated"] - figures["inliers"]
         assert np.isfinite(figures["chi2_per_dof"]) and figures["chi2_per_dof"] > 0
