@@ -21,6 +21,7 @@ import numpy as np
 import fusion.evidence as ev
 from estimation.landmark_map import LandmarkMap
 from fusion import ROBUST, align
+from runtime.commands.options import positive_int
 
 NB = replace(ROBUST, chance_model="negative_binomial")
 
@@ -63,7 +64,7 @@ def cases(folder: Path):
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="demo output folders (robot1.npz, robot2.npz)")
-    parser.add_argument("--draws", type=int, default=50, help="draws of the decoys per case (50)")
+    parser.add_argument("--draws", type=positive_int, default=50, help="draws of the decoys per case (50)")
     args = parser.parse_args(argv)
     print("| case | K | mean | φ (200,000) | top 0.1 % share | moment φ on 1,000: range (sd) | covers | corr top 1 % "
           "| bound on 20,000: range (sd) | covers |")

@@ -51,6 +51,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import demo_keyframes as dk  # noqa: E402
 import demo_smoothing as ds  # noqa: E402
 
+from runtime.commands.options import non_negative_float  # noqa: E402
+
 KINDS = ("plain", "calibrated")
 MOCK_SCALES = (0.99, 0.99 / 1.03)   # mocks.p3at.options.OdometryErrors.realistic(): measured / true distance, turn
 OFF_POINT = 0.05                    # m: --diagnose's off-point reading: its pixel's true point this far from its
@@ -351,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("/tmp/demo-odometry-calibration"),
                         help="where the smoothed maps, the replay caches and each seed's JSON go "
                              "(default /tmp/demo-odometry-calibration)")
-    parser.add_argument("--window", type=float, nargs=2, default=(20.0, 37.0), metavar=("T0", "T1"),
+    parser.add_argument("--window", type=non_negative_float, nargs=2, default=(20.0, 37.0), metavar=("T0", "T1"),
                         help="seconds whose pose errors and σ are printed (default 20 37: seed 9's robot 1)")
     parser.add_argument("--diagnose", action="store_true",
                         help="also smooth with the odometry or the readings replaced by the truth (module docstring)")

@@ -24,6 +24,7 @@ import numpy as np
 
 from estimation.landmark_map import LandmarkMap
 from fusion import align
+from runtime.commands.options import non_negative_float, positive_float, whole_number_at_least
 
 
 def cut_masks(values: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
@@ -63,9 +64,9 @@ def overlap_under(al, a: LandmarkMap, b: LandmarkMap, radius: float) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dirs", nargs="+", type=Path, help="demo output folders holding robot1.npz / robot2.npz")
-    ap.add_argument("--gaps", nargs="+", type=float, default=[1.0, 3.0])
-    ap.add_argument("--rng-seeds", nargs="+", type=int, default=[0, 1, 2])
-    ap.add_argument("--radius", type=float, default=0.5, help="overlap radius (m)")
+    ap.add_argument("--gaps", nargs="+", type=non_negative_float, default=[1.0, 3.0], help="m between the halves")
+    ap.add_argument("--rng-seeds", nargs="+", type=whole_number_at_least(0), default=[0, 1, 2])
+    ap.add_argument("--radius", type=positive_float, default=0.5, help="overlap radius (m)")
     args = ap.parse_args(argv)
     for d in args.dirs:
         if not d.is_dir():
