@@ -315,12 +315,8 @@ def smooth(problem: StereoLogProblem, initial_poses: np.ndarray, initial_landmar
         problem, whiten, poses, landmarks, inliers,
         (view_floor, view_change, range_change) if view_model == "sandwich" else None, scales)
     landmark_cov = landmark_cov + floor
-    chi2_obs = _observation_chi2(problem, whiten, poses, landmarks)
-    if scales is None:
-        chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses) ** 2))
-    else:       # the scales' prior rows pay for the two scales: the degrees of freedom do not change
-        chi2 = float(chi2_obs[inliers].sum() + np.sum(_odometry_residuals(problem, poses, scales=scales) ** 2)
-                     + np.sum(scales.prior_residuals() ** 2))
+    # the cost without Cauchy's weights; with the scales, their prior rows pay for them: the degrees of freedom stay
+    chi2 = _total_cost(problem, whiten, poses, landmarks, inliers, False, scales)
     held = np.isfinite(landmark_cov[:, 0, 0])
     dof = 3 * int(inliers.sum()) - 3 * int(held.sum())   # the odometry's 3(T−1) rows pay for the 3(T−1) poses
     return StereoSmoothed(poses, landmarks, pose_cov, landmark_cov, inliers, chi2, dof, iterations,
@@ -420,10 +416,8 @@ def _odometry_residuals(problem, poses, relative: np.ndarray | None = None, scal
                         ) -> np.ndarray:
     """Whitened residuals (T−1, 3) of the odometry increments; ``relative``: between(pose k, pose k+1) if known;
     ``scales``: the factor predicts (s_d·bx, s_d·by, s_θ·bθ)."""
-    if scales is None:
-        e = (between(poses[:-1], poses[1:]) if relative is None else relative) - problem.increments
-    else:
-        e = (between(poses[:-1], poses[1:]) if relative is None else relative) * scales.factor() - problem.increments
+    predicted = between(poses[:-1], poses[1:]) if relative is None else relative
+    e = (predicted if scales is None else predicted * scales.factor()) - problem.increments
     e[:, 2] = wrap_angle(e[:, 2])
     return e / np.sqrt(problem.increment_variances)
 
@@ -552,11 +546,12 @@ def _robust_rho(chi2: np.ndarray, robust: bool) -> np.ndarray:
 
 
 def _total_cost(problem, whiten, poses, landmarks, inliers, robust, scales: _Scales | None = None) -> float:
+    """Twice the cost: the observations' (Cauchy's ρ when ``robust``, else χ²) over the inliers, the odometry's squared
+    whitened residuals and, with ``scales``, their prior's."""
     chi2 = _observation_chi2(problem, whiten, poses, landmarks)[inliers]
-    if scales is None:
-        return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses) ** 2))
+    prior = 0.0 if scales is None else np.sum(scales.prior_residuals() ** 2)
     return float(np.sum(_robust_rho(chi2, robust)) + np.sum(_odometry_residuals(problem, poses, scales=scales) ** 2)
-                 + np.sum(scales.prior_residuals() ** 2))
+                 + prior)
 
 
 def _solve(problem, whiten, poses, landmarks, inliers, robust, max_iterations, scales: _Scales | None = None):
