@@ -241,11 +241,7 @@ def run(folders: list[Path], root: Path, window: tuple[float, float], diagnosis:
         maps = {kind: {} for kind in KINDS}
         row: dict = {"folder": str(folder), "robots": {}}
         for name in ds.ROBOTS:
-            for suffix in ("-truth.tum", "-odometry.tum", ".tum"):
-                link = out / f"{name}{suffix}"
-                if not link.exists():
-                    link.symlink_to((folder / f"{name}{suffix}").resolve())
-            rec = ds.record(folder / f"{name}-log", out / f"{name}-replay.npz")
+            rec = ds.replayed(folder, out, name)
             config = FastSLAMConfig.from_dict(rec["meta"]["fastslam"])
             readings, _ = dk.recorded(rec, KeyframeRule())
             times = readings.times

@@ -72,6 +72,16 @@ ROBOTS = ("robot1", "robot2")
 
 
 # -- 1. the replay, keeping what the smoother needs --------------------------------------------------------------
+def replayed(folder: Path, out: Path, name: str) -> dict:
+    """Robot ``name``'s replay of demo ``folder`` (:func:`record`, cached in ``out``), its TUM files (estimated,
+    odometry, truth) linked into ``out`` beside the maps a benchmark writes there."""
+    for suffix in ("-truth.tum", "-odometry.tum", ".tum"):
+        link = out / f"{name}{suffix}"
+        if not link.exists():
+            link.symlink_to((folder / f"{name}{suffix}").resolve())
+    return record(folder / f"{name}-log", out / f"{name}-replay.npz")
+
+
 def record(log_dir: Path, cache: Path):
     """Replay a robot's sensor log as ``runtime.replay.replay_log`` does, keeping per frame its time, odometry pose
     and observations; the final best particle's trajectory and map (exported, and with the particle's own
@@ -274,12 +284,8 @@ def run(folders: list[Path], root: Path, as_json: bool, landmark_floor: float | 
         out.mkdir(parents=True, exist_ok=True)
         filt, smooth_, figs, truths = {}, {}, {}, {}
         for name in ROBOTS:
-            for suffix in ("-truth.tum", "-odometry.tum", ".tum"):
-                link = out / f"{name}{suffix}"
-                if not link.exists():
-                    link.symlink_to((folder / f"{name}{suffix}").resolve())
             filt[name] = LandmarkMap.load(folder / f"{name}.npz")
-            rec = record(folder / f"{name}-log", out / f"{name}-replay.npz")
+            rec = replayed(folder, out, name)
             same = (len(rec["exported"]) == len(filt[name])
                     and np.array_equal(rec["exported"].positions, filt[name].positions))
             smooth_[name], figs[name], (f, j, lm, inl) = smoothed_map(rec, landmark_floor)
